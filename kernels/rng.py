@@ -1,0 +1,67 @@
+"""The lecture's PCG2D random numbers, vectorised over paths.
+
+Each path owns a uvec2 state (two uint32 arrays). `next_2d` is the slide's get_random_numbers: the
+exact uint32 mixing, the state updated in place so it can be reused for the next 2D sample.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+_MUL = np.uint32(1664525)
+_INC = np.uint32(1013904223)
+_GOLDEN = np.uint32(0x9E3779B9)
+_FLOAT_ONE_BITS = np.uint32(0x3F800000)
+
+
+def pcg2d(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The slide's mixing of a uvec2, as pure uint32 arithmetic (wraps mod 2^32 like GLSL)."""
+    x = x * _MUL + _INC
+    y = y * _MUL + _INC
+    x += _MUL * y
+    y += _MUL * x
+    x ^= x >> np.uint32(16)
+    y ^= y >> np.uint32(16)
+    x += _MUL * y
+    y += _MUL * x
+    x ^= x >> np.uint32(16)
+    y ^= y >> np.uint32(16)
+    return x, y
+
+
+def to_unit_float(bits: np.ndarray) -> np.ndarray:
+    """uint32 -> float32 uniform in [0, 1) from the top 23 bits.
+
+    The slide's `vec2(seed) * 2^-32` rounds values near 2^32 up to exactly 1.0 in float32; putting the
+    bits in the mantissa keeps the result strictly below 1 and costs less.
+    """
+    return ((bits >> np.uint32(9)) | _FLOAT_ONE_BITS).view(np.float32) - np.float32(1.0)
+
+
+def seed_paths(pixel_index: np.ndarray, sample_index: np.ndarray | int, user_seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Initial uvec2 state for each path.
+
+    x follows the slide: pixel_index + 2^16 * sample pass. That alone repeats across passes once an
+    image has more than 2^16 pixels, so y carries the pass again (times an odd constant, a bijection)
+    plus the user seed: (x, y) is then distinct for every (pixel, pass) pair.
+    """
+    pixel_index = np.asarray(pixel_index, dtype=np.uint32)
+    sample = np.asarray(sample_index, dtype=np.uint32)
+    x = pixel_index + (sample << np.uint32(16))
+    y = (sample * _GOLDEN + np.uint32(user_seed & 0xFFFFFFFF)) + np.zeros_like(pixel_index)
+    return x.astype(np.uint32, copy=False), y.astype(np.uint32, copy=False)
+
+
+class PathRng:
+    """The per-path PCG2D state of a wave, updated in place by each draw."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray):
+        self.x = x
+        self.y = y
+
+    def next_2d(self) -> tuple[np.ndarray, np.ndarray]:
+        """Two float32 arrays uniform in [0, 1), one pair per path."""
+        self.x, self.y = pcg2d(self.x, self.y)
+        return to_unit_float(self.x), to_unit_float(self.y)
+
+    def take(self, idx: np.ndarray) -> "PathRng":
+        return PathRng(np.take(self.x, idx), np.take(self.y, idx))

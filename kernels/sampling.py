@@ -1,0 +1,98 @@
+"""Warps from [0, 1)^2 to directions, each with its pdf (per unit solid angle), and local frames.
+
+Directions in a local frame have z along the shading normal. Arrays are per component (x, y, z),
+each (N,) float32: the fast layout for NumPy.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+PI = np.float32(np.pi)
+INV_PI = np.float32(1.0 / np.pi)
+
+
+def sample_cosine_hemisphere(ux: np.ndarray, uy: np.ndarray):
+    """Cosine-weighted direction (Malley: uniform disk lifted to the hemisphere). Returns x, y, z."""
+    r = np.sqrt(ux)
+    phi = np.float32(2.0 * np.pi) * uy
+    x = r * np.cos(phi)
+    y = r * np.sin(phi)
+    z = np.sqrt(np.maximum(np.float32(1.0) - ux, np.float32(0.0)))
+    return x, y, z
+
+
+def cosine_hemisphere_pdf(cos_theta: np.ndarray) -> np.ndarray:
+    return np.maximum(cos_theta, np.float32(0.0)) * INV_PI
+
+
+def sample_lecture_hemisphere(ux: np.ndarray, uy: np.ndarray):
+    """The slide's parametrisation: theta = pi/2 u_y, phi = 2 pi u_x - pi. Returns x, y, z, sin(theta).
+
+    Its pdf per solid angle is 1 / (pi^2 sin(theta)), so the estimator weight is pi^2 sin(theta).
+    """
+    theta = np.float32(np.pi / 2) * uy
+    phi = np.float32(2.0 * np.pi) * ux - PI
+    sin_t = np.sin(theta)
+    return np.cos(phi) * sin_t, np.sin(phi) * sin_t, np.cos(theta), sin_t
+
+
+def lecture_hemisphere_pdf(sin_theta: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        return np.float32(1.0 / np.pi**2) / sin_theta
+
+
+def sample_uniform_cone(ux: np.ndarray, uy: np.ndarray, cos_max: np.ndarray):
+    """Uniform direction in the cone around +z with half-angle acos(cos_max). Returns x, y, z."""
+    z = np.float32(1.0) - ux * (np.float32(1.0) - cos_max)
+    r = np.sqrt(np.maximum(np.float32(1.0) - z * z, np.float32(0.0)))
+    phi = np.float32(2.0 * np.pi) * uy
+    return r * np.cos(phi), r * np.sin(phi), z
+
+
+def uniform_cone_pdf(cos_max) -> np.ndarray:
+    return np.float32(1.0) / (np.float32(2.0 * np.pi) * (np.float32(1.0) - cos_max))
+
+
+def sample_uniform_disk(ux: np.ndarray, uy: np.ndarray):
+    """Uniform point in the unit disk (polar map). Returns x, y."""
+    r = np.sqrt(ux)
+    phi = np.float32(2.0 * np.pi) * uy
+    return r * np.cos(phi), r * np.sin(phi)
+
+
+def sample_uniform_sphere(ux: np.ndarray, uy: np.ndarray):
+    z = np.float32(1.0) - np.float32(2.0) * ux
+    r = np.sqrt(np.maximum(np.float32(1.0) - z * z, np.float32(0.0)))
+    phi = np.float32(2.0 * np.pi) * uy
+    return r * np.cos(phi), r * np.sin(phi), z
+
+
+def orthonormal_basis(nx: np.ndarray, ny: np.ndarray, nz: np.ndarray):
+    """Tangent frame (t, b) around unit n, branchless (Duff et al. 2017). Returns tx, ty, tz, bx, by, bz."""
+    sign = np.where(nz >= 0, np.float32(1.0), np.float32(-1.0))
+    a = np.float32(-1.0) / (sign + nz)
+    b = nx * ny * a
+    tx = np.float32(1.0) + sign * nx * nx * a
+    ty = sign * b
+    tz = -sign * nx
+    bx = b
+    by = sign + ny * ny * a
+    bz = -ny
+    return tx, ty, tz, bx, by, bz
+
+
+def local_to_world(lx, ly, lz, nx, ny, nz):
+    """Rotate a local direction (z along n) into world space."""
+    tx, ty, tz, bx, by, bz = orthonormal_basis(nx, ny, nz)
+    return (lx * tx + ly * bx + lz * nx,
+            lx * ty + ly * by + lz * ny,
+            lx * tz + ly * bz + lz * nz)
+
+
+def power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
+    """MIS weight of the strategy with pdf_a (beta = 2). Infinite pdf_a (a delta) gets weight 1."""
+    a2 = pdf_a * pdf_a
+    b2 = pdf_b * pdf_b
+    with np.errstate(invalid="ignore", over="ignore"):
+        w = a2 / (a2 + b2)
+    return np.where(np.isfinite(w), w, np.where(pdf_a > 0, np.float32(1.0), np.float32(0.0))).astype(np.float32)

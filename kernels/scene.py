@@ -1,0 +1,284 @@
+"""The scene as plain arrays: what the kernel renders, and the only thing the engine hands it.
+
+Everything is in Blender world space (right-handed, Z up), linear scene-referred RGB.
+Shapes use named letters: T triangles, M materials, L lights.
+
+Texture arrays follow Blender's pixel order: row 0 is the bottom of the image (v = 0), so a lookup
+at UV (u, v) reads row v * H and column u * W. Rendered images (the film) have row 0 at the top.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+CAMERA_KINDS = ("PERSP", "ORTHO")
+SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A Blender camera: looks down its local -Z with +Y up.
+
+    world_from_camera : (4, 4) float64, rigid transform (scale is removed by validate()).
+    fov_rad : full angle across the sensor-fit axis (perspective). 2 * atan(sensor / (2 * lens)).
+    sensor_fit : AUTO fits the larger image axis, as Blender does.
+    shift_x, shift_y : lens shift in units of the fitted image axis.
+    pixel_aspect : pixel width / pixel height (Blender's pixel_aspect_x / pixel_aspect_y).
+    ortho_scale : width of the view along the fitted axis (orthographic).
+    width, height : full frame resolution in pixels (after the resolution percentage).
+    """
+    world_from_camera: np.ndarray = field(default_factory=lambda: np.eye(4))
+    kind: str = "PERSP"
+    fov_rad: float = 2.0 * np.arctan(36.0 / (2.0 * 50.0))
+    sensor_fit: str = "AUTO"
+    shift_x: float = 0.0
+    shift_y: float = 0.0
+    pixel_aspect: float = 1.0
+    ortho_scale: float = 6.0
+    clip_start: float = 0.1
+    clip_end: float = 1000.0
+    width: int = 256
+    height: int = 256
+
+    def validate(self) -> None:
+        m = np.asarray(self.world_from_camera)
+        _require(m.shape == (4, 4), "camera.world_from_camera", f"must be (4, 4), got {m.shape}")
+        _require_finite(m, "camera.world_from_camera")
+        _require(abs(np.linalg.det(m[:3, :3])) > 1e-12, "camera.world_from_camera", "is singular")
+        _require(self.kind in CAMERA_KINDS, "camera.kind", f"must be one of {CAMERA_KINDS}, got {self.kind!r}")
+        _require(self.sensor_fit in SENSOR_FITS, "camera.sensor_fit",
+                 f"must be one of {SENSOR_FITS}, got {self.sensor_fit!r}")
+        for name in ("fov_rad", "shift_x", "shift_y", "pixel_aspect", "ortho_scale", "clip_start", "clip_end"):
+            _require(np.isfinite(getattr(self, name)), f"camera.{name}", "must be finite")
+        _require(0.0 < self.fov_rad < np.pi, "camera.fov_rad", f"must be in (0, pi), got {self.fov_rad}")
+        _require(self.pixel_aspect > 0, "camera.pixel_aspect", "must be positive")
+        _require(self.ortho_scale > 0, "camera.ortho_scale", "must be positive")
+        _require(0.0 <= self.clip_start < self.clip_end, "camera.clip_start",
+                 f"must satisfy 0 <= clip_start < clip_end, got {self.clip_start}, {self.clip_end}")
+        _require(int(self.width) >= 1 and int(self.height) >= 1, "camera.width",
+                 f"resolution must be at least 1x1, got {self.width}x{self.height}")
+
+
+@dataclass(frozen=True)
+class Materials:
+    """The material table. M rows; a triangle's material id indexes it.
+
+    albedo : (M, 3) float32, diffuse reflectance in [0, 1] (multiplies the texture when there is one).
+    albedo_texture : (M,) int32, index into SceneArrays.textures, -1 for none.
+    emission : (M, 3) float32, emitted radiance (colour x strength), W/(sr m^2) in Blender's units.
+    emission_texture : (M,) int32, texture that multiplies emission, -1 for none.
+    """
+    albedo: np.ndarray = field(default_factory=lambda: np.full((1, 3), 0.8, np.float32))
+    albedo_texture: np.ndarray = field(default_factory=lambda: np.full(1, -1, np.int32))
+    emission: np.ndarray = field(default_factory=lambda: np.zeros((1, 3), np.float32))
+    emission_texture: np.ndarray = field(default_factory=lambda: np.full(1, -1, np.int32))
+
+    @property
+    def count(self) -> int:
+        return len(self.albedo)
+
+    def validate(self, n_textures: int) -> None:
+        m = len(self.albedo)
+        _require(m >= 1, "materials.albedo", "needs at least one material")
+        _check_array(self.albedo, "materials.albedo", (m, 3), np.float32)
+        _check_array(self.emission, "materials.emission", (m, 3), np.float32)
+        _check_array(self.albedo_texture, "materials.albedo_texture", (m,), np.int32)
+        _check_array(self.emission_texture, "materials.emission_texture", (m,), np.int32)
+        _require(np.all(self.emission >= 0), "materials.emission", "must be non-negative")
+        _require(np.all(self.albedo >= 0), "materials.albedo", "must be non-negative")
+        for name in ("albedo_texture", "emission_texture"):
+            idx = getattr(self, name)
+            _require(np.all((idx >= -1) & (idx < n_textures)), f"materials.{name}",
+                     f"indices must be -1 or in [0, {n_textures}), got {idx.min()}..{idx.max()}")
+
+
+@dataclass(frozen=True)
+class World:
+    """What a ray that leaves the scene sees.
+
+    color : (3,) float32 radiance, used when hdri is None.
+    hdri : (H, W, 3) float32 equirectangular map, row 0 at the bottom (Blender's order), or None.
+    strength : multiplies color or hdri.
+    env_from_world : (3, 3) float32 rotation taking a world direction to the direction the map is
+        looked up with (the inverse of the Mapping node's rotation for a POINT mapping).
+    """
+    color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
+    hdri: np.ndarray | None = None
+    strength: float = 1.0
+    env_from_world: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
+
+    def validate(self) -> None:
+        _check_array(self.color, "world.color", (3,), np.float32)
+        _require(np.all(self.color >= 0), "world.color", "must be non-negative")
+        _require(np.isfinite(self.strength) and self.strength >= 0, "world.strength",
+                 f"must be finite and non-negative, got {self.strength}")
+        _check_array(self.env_from_world, "world.env_from_world", (3, 3), np.float32)
+        if self.hdri is not None:
+            h = self.hdri
+            _require(h.ndim == 3 and h.shape[2] == 3 and h.shape[0] >= 1 and h.shape[1] >= 1,
+                     "world.hdri", f"must be (H, W, 3), got {h.shape}")
+            _check_array(h, "world.hdri", h.shape, np.float32)
+            _require(np.all(h >= 0), "world.hdri", "must be non-negative")
+
+
+LIGHT_KINDS = {"POINT": 0, "SPOT": 1, "SUN": 2, "RECT": 3, "DISK": 4}
+
+
+@dataclass(frozen=True)
+class Lights:
+    """Blender lights, L rows, converted to radiometric terms by the engine's export.
+
+    kind : (L,) int32, a value of LIGHT_KINDS.
+    position : (L, 3) float32, centre (unused for SUN).
+    frame : (L, 3, 3) float32, world_from_light rotation: columns are the light's x, y and z axes.
+        Blender lights shine down their local -Z.
+    radiance : (L, 3) float32. POINT/SPOT/RECT/DISK with size: emitted radiance W/(sr m^2);
+        zero-size POINT/SPOT: intensity W/sr; SUN: irradiance W/m^2 on a surface facing it.
+    radius : (L,) float32, sphere radius of POINT/SPOT, 0 for a delta light.
+    size : (L, 2) float32, full extents along the light's x and y (RECT, DISK/ellipse).
+    spot_cos : (L, 2) float32, cosine of the spot's half angle and of the start of its blend.
+    sun_half_angle : (L,) float32, half the sun's angular diameter, radians.
+    spread : (L,) float32, area light spread angle (pi = plain Lambertian).
+    """
+    kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    frame: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3), np.float32))
+    radiance: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    radius: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    size: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    spot_cos: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    sun_half_angle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    spread: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+
+    @property
+    def count(self) -> int:
+        return len(self.kind)
+
+    def validate(self) -> None:
+        n = len(self.kind)
+        _check_array(self.kind, "lights.kind", (n,), np.int32)
+        _require(np.all(np.isin(self.kind, list(LIGHT_KINDS.values()))), "lights.kind",
+                 f"must be values of {LIGHT_KINDS}")
+        shapes = {"position": (n, 3), "frame": (n, 3, 3), "radiance": (n, 3), "radius": (n,),
+                  "size": (n, 2), "spot_cos": (n, 2), "sun_half_angle": (n,), "spread": (n,)}
+        for name, shape in shapes.items():
+            _check_array(getattr(self, name), f"lights.{name}", shape, np.float32)
+        for name in ("radiance", "radius", "size", "sun_half_angle", "spread"):
+            _require(np.all(getattr(self, name) >= 0), f"lights.{name}", "must be non-negative")
+
+
+@dataclass(frozen=True)
+class SceneArrays:
+    """A whole scene as arrays. Build it, call validate(), hand it to kernels.render().
+
+    positions : (T, 3, 3) float32, world-space corners of each triangle.
+    normals : (T, 3, 3) float32, per-corner shading normals (need not be unit length).
+    uvs : (T, 3, 2) float32, per-corner texture coordinates.
+    material_ids : (T,) int32, rows of `materials`.
+    textures : tuple of (H, W, C) float32 arrays, C in {1, 3, 4}, linear, row 0 at the bottom.
+    """
+    positions: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    material_ids: np.ndarray
+    materials: Materials = field(default_factory=Materials)
+    textures: tuple = ()
+    world: World = field(default_factory=World)
+    camera: Camera = field(default_factory=Camera)
+    lights: Lights = field(default_factory=Lights)
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.positions)
+
+    def validate(self) -> "ValidatedScene":
+        """Check every field; drop degenerate or non-finite triangles.
+
+        Raises ValueError naming the field for wrong shapes, dtypes, indices or non-finite data
+        in anything but triangle corners. Returns the cleaned scene and the number of dropped triangles.
+        """
+        t = len(self.positions) if hasattr(self.positions, "__len__") else -1
+        _check_array(self.positions, "positions", (t, 3, 3), np.float32, finite=False)
+        _check_array(self.normals, "normals", (t, 3, 3), np.float32, finite=False)
+        _check_array(self.uvs, "uvs", (t, 3, 2), np.float32, finite=False)
+        _check_array(self.material_ids, "material_ids", (t,), np.int32)
+        for i, tex in enumerate(self.textures):
+            _require(isinstance(tex, np.ndarray) and tex.ndim == 3 and tex.shape[2] in (1, 3, 4)
+                     and tex.shape[0] >= 1 and tex.shape[1] >= 1,
+                     f"textures[{i}]", f"must be an (H, W, C) array with C in 1, 3, 4, got "
+                     f"{getattr(tex, 'shape', type(tex).__name__)}")
+            _check_array(tex, f"textures[{i}]", tex.shape, np.float32)
+        self.materials.validate(len(self.textures))
+        m = self.materials.count
+        if t:
+            _require(self.material_ids.min() >= 0 and self.material_ids.max() < m, "material_ids",
+                     f"must be in [0, {m}), got {self.material_ids.min()}..{self.material_ids.max()}")
+        self.world.validate()
+        self.camera.validate()
+        self.lights.validate()
+
+        keep = _usable_triangles(self.positions)
+        # A non-finite normal or UV on a usable triangle falls back to the geometric normal / zero UV.
+        normals = self.normals
+        uvs = self.uvs
+        bad_n = ~np.isfinite(normals).all(axis=(1, 2))
+        bad_uv = ~np.isfinite(uvs).all(axis=(1, 2))
+        dropped = int(t - np.count_nonzero(keep))
+        if dropped or bad_n.any() or bad_uv.any():
+            normals = normals.copy()
+            uvs = uvs.copy()
+            if bad_n.any():
+                p = np.nan_to_num(self.positions[bad_n])
+                ng = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+                normals[bad_n] = ng[:, None, :]
+            uvs[bad_uv] = 0.0
+            scene = dataclasses.replace(self, positions=np.ascontiguousarray(self.positions[keep]),
+                                        normals=np.ascontiguousarray(normals[keep]),
+                                        uvs=np.ascontiguousarray(uvs[keep]),
+                                        material_ids=np.ascontiguousarray(self.material_ids[keep]))
+        else:
+            scene = self
+        return ValidatedScene(scene, dropped, int(np.count_nonzero(bad_n & keep)))
+
+
+@dataclass(frozen=True)
+class ValidatedScene:
+    """A SceneArrays that passed validate(), with what cleaning it took."""
+    scene: SceneArrays
+    dropped_triangles: int
+    repaired_normals: int
+
+
+def _usable_triangles(positions: np.ndarray) -> np.ndarray:
+    """(T,) bool: finite corners and non-zero area, relative to the triangle's own size."""
+    finite = np.isfinite(positions).all(axis=(1, 2))
+    p = np.where(finite[:, None, None], positions, 0).astype(np.float64)
+    e1 = p[:, 1] - p[:, 0]
+    e2 = p[:, 2] - p[:, 0]
+    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
+    scale = np.maximum(np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e2, e2))
+    return finite & (area2 > 1e-12 * scale) & (area2 > 0)
+
+
+def _require(ok, name: str, message: str) -> None:
+    if not ok:
+        raise ValueError(f"{name}: {message}")
+
+
+def _require_finite(a: np.ndarray, name: str) -> None:
+    _require(np.all(np.isfinite(a)), name, "contains NaN or infinite values")
+
+
+def _check_array(a, name: str, shape: tuple, dtype, finite: bool = True) -> None:
+    _require(isinstance(a, np.ndarray), name, f"must be a numpy array, got {type(a).__name__}")
+    _require(a.dtype == dtype, name, f"must be {np.dtype(dtype).name}, got {a.dtype.name}")
+    _require(a.ndim == len(shape) and all(s == -1 or s == d for s, d in zip(shape, a.shape)), name,
+             f"must have shape {_shape_str(shape)}, got {a.shape}")
+    if finite:
+        _require_finite(a, name)
+
+
+def _shape_str(shape: tuple) -> str:
+    return "(" + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"

@@ -1,0 +1,55 @@
+"""Bilinear texture lookups on linear float32 images stored row 0 at the bottom (Blender's order).
+
+Texel centres sit at (i + 0.5) / W, as in Cycles' linear interpolation.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class Texture:
+    """A texture prepared for lookups: a flat (H*W, C) float32 table (RGB, alpha dropped)."""
+
+    def __init__(self, image: np.ndarray):
+        h, w, c = image.shape
+        rgb = image[:, :, :3] if c >= 3 else np.repeat(image[:, :, :1], 3, axis=2)
+        self.height, self.width = h, w
+        # (3, H*W): one contiguous row per channel, gathered with np.take.
+        self.channels = np.ascontiguousarray(rgb.reshape(h * w, 3).T, np.float32)
+
+    def lookup(self, u: np.ndarray, v: np.ndarray, wrap_v: bool = True) -> np.ndarray:
+        """(3, N) float32 bilinear samples at texture coordinates u, v (repeat wrap in u; in v repeat
+        or clamp to edge)."""
+        w, h = self.width, self.height
+        x = u * np.float32(w) - np.float32(0.5)
+        y = v * np.float32(h) - np.float32(0.5)
+        x0f = np.floor(x)
+        y0f = np.floor(y)
+        fx = (x - x0f)[None, :]
+        fy = (y - y0f)[None, :]
+        x0 = np.mod(x0f.astype(np.int64), w)
+        x1 = x0 + 1
+        x1[x1 == w] = 0
+        y0i = y0f.astype(np.int64)
+        if wrap_v:
+            y0 = np.mod(y0i, h)
+            y1 = y0 + 1
+            y1[y1 == h] = 0
+        else:
+            y0 = np.clip(y0i, 0, h - 1)
+            y1 = np.clip(y0i + 1, 0, h - 1)
+        r0 = y0 * w
+        r1 = y1 * w
+        c = self.channels
+        top = np.take(c, r0 + x0, axis=1) * (1 - fx) + np.take(c, r0 + x1, axis=1) * fx
+        bot = np.take(c, r1 + x0, axis=1) * (1 - fx) + np.take(c, r1 + x1, axis=1) * fx
+        return top * (1 - fy) + bot * fy
+
+    def texel_at(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+        return np.take(self.channels, row * self.width + col, axis=1)
+
+
+def finite_uv(u: np.ndarray, v: np.ndarray):
+    """Guard against non-finite or huge UVs (they would overflow the integer texel index)."""
+    big = np.float32(1e6)
+    return (np.nan_to_num(np.clip(u, -big, big), nan=0.0), np.nan_to_num(np.clip(v, -big, big), nan=0.0))
