@@ -1,0 +1,56 @@
+"""Helpers for kernel tests: scenes with closed-form answers, and per-sample tracing for statistics."""
+from __future__ import annotations
+
+import numpy as np
+
+from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World
+from ember.kernels.rng import PathRng, seed_paths
+from ember.kernels.shapes import look_at, uv_sphere
+
+
+def make_scene(positions, normals, material_ids=None, albedo=(0.8, 0.8, 0.8), emission=None,
+               world_color=(0.0, 0.0, 0.0), camera=None, **kwargs) -> SceneArrays:
+    t = len(positions)
+    albedo = np.atleast_2d(np.asarray(albedo, np.float32))
+    m = len(albedo)
+    emission = np.zeros((m, 3), np.float32) if emission is None else np.atleast_2d(np.asarray(emission, np.float32))
+    return SceneArrays(
+        positions=positions, normals=normals, uvs=kwargs.pop("uvs", np.zeros((t, 3, 2), np.float32)),
+        material_ids=np.zeros(t, np.int32) if material_ids is None else material_ids,
+        materials=kwargs.pop("materials", Materials(albedo=albedo, albedo_texture=np.full(m, -1, np.int32),
+                                                    emission=emission, emission_texture=np.full(m, -1, np.int32))),
+        world=kwargs.pop("world", World(color=np.asarray(world_color, np.float32))),
+        camera=camera or Camera(world_from_camera=look_at((0, -5, 0), (0, 0, 0)), width=32, height=32,
+                                fov_rad=np.radians(40)),
+        **kwargs)
+
+
+def sphere_in_furnace(albedo: float, world: float, width=32, height=32) -> SceneArrays:
+    """A flat-shaded convex sphere of radius 1 at the origin, filling part of the view."""
+    positions, normals = uv_sphere(16, smooth=False)
+    cam = Camera(world_from_camera=look_at((0, -5, 0), (0, 0, 0)), width=width, height=height,
+                 fov_rad=np.radians(30))
+    return make_scene(positions, normals, albedo=(albedo,) * 3, world_color=(world,) * 3, camera=cam)
+
+
+def inside_emitting_sphere(albedo: float, radiance: float, width=8, height=8) -> SceneArrays:
+    """The camera inside a closed sphere that emits `radiance` and reflects diffusely with `albedo`."""
+    positions, normals = uv_sphere(12, radius=2.0, smooth=False, inward=True)
+    cam = Camera(world_from_camera=look_at((0.2, -0.3, 0.1), (1, 1, 0.5)), width=width, height=height,
+                 fov_rad=np.radians(90))
+    return make_scene(positions, normals, albedo=(albedo,) * 3, emission=(radiance,) * 3, camera=cam)
+
+
+def trace_samples(scene: SceneArrays, settings: RenderSettings, samples: int, threads: int = 1):
+    """Per-sample radiance for every pixel: (samples, 3, H*W) float64, each sample an independent path."""
+    with Renderer(scene, threads) as renderer:
+        cam = renderer.scene.camera
+        pix = np.arange(cam.width * cam.height, dtype=np.uint32)
+        row = (pix // cam.width).astype(np.int32)
+        col = (pix % cam.width).astype(np.int32)
+        out = np.empty((samples, 3, len(pix)))
+        for s in range(samples):
+            rng = PathRng(*seed_paths(pix, s, settings.seed))
+            radiance, _ = renderer.trace_paths(rng, row, col, settings)
+            out[s] = radiance
+    return out

@@ -1,0 +1,184 @@
+"""The path tracer against closed-form answers, itself (modes, threads) and its contracts."""
+import numpy as np
+import pytest
+
+from ember.kernels import Renderer, RenderSettings, render
+from ember.kernels.accel import Accel
+from ember.kernels.shapes import box, cornell_box
+from kernel_helpers import inside_emitting_sphere, sphere_in_furnace, trace_samples
+from stats import mean_and_stderr
+
+MODES = ("COSINE", "LECTURE")
+
+
+# ---------------------------------------------------------------- closed forms
+def test_white_furnace_cosine_is_exact():
+    """Albedo 1 in a uniform world of radiance L: every sample of every pixel is L."""
+    result = render(sphere_in_furnace(albedo=1.0, world=2.0), RenderSettings(samples=4, mode="COSINE"))
+    assert np.allclose(result.image[..., :3], 2.0, rtol=1e-5)
+    assert np.all(result.image[..., 3] == 1.0)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_white_furnace_every_pixel_is_l(mode):
+    samples = trace_samples(sphere_in_furnace(albedo=1.0, world=2.0), RenderSettings(mode=mode), 64)
+    mean, se = mean_and_stderr(samples, axis=0)  # per pixel and channel
+    z = np.abs(mean - 2.0) / np.maximum(se, 1e-12)
+    assert np.all((z < 5.0) | (se < 1e-9)), z.max()  # 5 sigma over ~3000 pixel-channels
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_convex_sphere_of_albedo_half_renders_half_l(mode):
+    """A convex surface sees only the world: it reflects albedo x L = 0.5 L."""
+    samples = trace_samples(sphere_in_furnace(albedo=0.5, world=2.0), RenderSettings(mode=mode), 64)
+    # Pixels well inside the sphere's outline (radius about 12 px around the centre of 32x32).
+    yy, xx = np.mgrid[0:32, 0:32] + 0.5
+    inside = ((yy - 16) ** 2 + (xx - 16) ** 2 < 9 ** 2).ravel()
+    if mode == "COSINE":
+        assert np.allclose(samples[:, :, inside], 1.0, rtol=1e-5)  # exact, sample by sample
+    else:
+        m, se = mean_and_stderr(samples[:, 0, inside].mean(axis=1))
+        assert abs(m - 1.0) < 4 * se, (m, se)
+        assert se < 0.01
+    assert np.allclose(samples[:, :, 0], 2.0)  # the corner pixel sees the world itself
+
+
+@pytest.mark.parametrize("max_bounces", [0, 1, 4])
+def test_inside_an_emitting_sphere_cosine_is_the_geometric_series(max_bounces):
+    """Every path hits the sphere at every vertex: L = Le * sum_{k=0}^{S} albedo^k, S = max_bounces + 1."""
+    rho, le = 0.5, 3.0
+    expected = le * sum(rho ** k for k in range(max_bounces + 2))
+    result = render(inside_emitting_sphere(rho, le), RenderSettings(samples=2, max_bounces=max_bounces))
+    assert np.allclose(result.image[..., :3], expected, rtol=1e-5)
+
+
+def test_inside_an_emitting_sphere_lecture_converges_to_the_series():
+    rho, le, bounces = 0.5, 3.0, 3
+    expected = le * sum(rho ** k for k in range(bounces + 2))
+    samples = trace_samples(inside_emitting_sphere(rho, le), RenderSettings(mode="LECTURE", max_bounces=bounces), 256)
+    m, se = mean_and_stderr(samples[:, 0].ravel())
+    assert abs(m - expected) < 4 * se, (m, se, expected)
+    assert se < 0.01 * expected
+
+
+# ---------------------------------------------------------------- the two estimators
+def test_lecture_and_cosine_agree_and_cosine_has_less_variance():
+    scene = cornell_box(16, 16, light_size=1.0, light_radiance=6.0, wall_subdivisions=2, sphere_segments=8)
+    stats = {}
+    for mode in MODES:
+        s = trace_samples(scene, RenderSettings(mode=mode, max_bounces=4), 512)
+        lum = s.mean(axis=1)  # (samples, pixels)
+        blocks = lum.reshape(len(lum), 4, 4, 4, 4).mean(axis=(2, 4)).reshape(len(lum), 16)
+        stats[mode] = (*mean_and_stderr(blocks, axis=0), lum.var(axis=0).mean())
+    (m_c, se_c, var_c), (m_l, se_l, var_l) = stats["COSINE"], stats["LECTURE"]
+    z = np.abs(m_c - m_l) / np.sqrt(se_c ** 2 + se_l ** 2)
+    assert np.all(z < 4.5), z  # 16 blocks, 4.5 sigma each
+    assert var_c < var_l, (var_c, var_l)
+    assert m_c.mean() > 0.05  # the box is lit: the comparison is not between two black images
+
+
+# ---------------------------------------------------------------- determinism and threads
+def test_same_image_for_one_and_two_threads():
+    scene = cornell_box(96, 64, wall_subdivisions=2, sphere_segments=8)
+    settings = RenderSettings(samples=5, wave_size=2048, seed=3)
+    a = render(scene, settings, threads=1).image
+    b = render(scene, settings, threads=2).image
+    assert np.array_equal(a, b)
+    c = render(scene, RenderSettings(samples=5, wave_size=2048, seed=4), threads=2).image
+    assert not np.array_equal(a, c)  # the user seed matters
+
+
+def test_accel_chunked_queries_match_one_call():
+    positions, _ = box((-1, -1, 0), (1, 1, 2), inward=True, subdivisions=4)
+    rng = np.random.default_rng(0)
+    n = 50_000
+    o = rng.uniform(-0.9, 0.9, (n, 3)).astype(np.float32) + np.float32([0, 0, 1])
+    d = rng.normal(size=(n, 3)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.full(n, np.inf, np.float32)
+    with Accel(positions, 1) as one, Accel(positions, 2) as two:
+        h1, h2 = one.intersect(o, d, t), two.intersect(o, d, t)
+        assert np.array_equal(h1.prim, h2.prim) and np.array_equal(h1.t, h2.t)
+        assert np.all(h1.prim >= 0)  # inside a closed box every ray hits
+        short = np.full(n, 0.05, np.float32)
+        assert np.array_equal(one.occluded(o, d, short), two.occluded(o, d, short))
+        assert np.array_equal(two.occluded(o, d, h1.t * 1.01), np.ones(n, bool))
+        assert not two.occluded(o, d, h1.t * 0.99).any()
+
+
+# ---------------------------------------------------------------- the progressive API
+def test_tiles_progress_and_memory_bound(monkeypatch):
+    scene = cornell_box(64, 48, wall_subdivisions=2, sphere_segments=8)
+    largest = []
+    original = Renderer.trace_paths
+
+    def spy(self, rng, row, col, *args, **kwargs):
+        largest.append(len(row))
+        return original(self, rng, row, col, *args, **kwargs)
+
+    monkeypatch.setattr(Renderer, "trace_paths", spy)
+    tiles, reports = [], []
+    result = render(scene, RenderSettings(samples=6, wave_size=1000), threads=2,
+                    on_tile=lambda film, r0, r1: tiles.append((r0, r1, film.samples_done)),
+                    on_progress=lambda p: reports.append((p.samples_done, p.fraction)))
+    assert max(largest) <= 1000  # no wave ever holds more paths than wave_size
+    assert tiles[0][2] == 0 and tiles[-1][2] == 6
+    assert reports[-1] == (6, 1.0)
+    assert all(a[1] <= b[1] for a, b in zip(reports, reports[1:]))
+    assert result.progress.paths == 64 * 48 * 6 and result.progress.rays_per_s > 0
+    assert not result.stopped_early
+
+
+def test_should_stop_keeps_a_finite_partial_image():
+    scene = cornell_box(64, 64, wall_subdivisions=2, sphere_segments=8)
+    calls = []
+    result = render(scene, RenderSettings(samples=50, wave_size=1024), threads=1,
+                    should_stop=lambda: calls.append(1) or len(calls) >= 3)
+    assert result.stopped_early and len(calls) == 3
+    assert np.isfinite(result.image).all()
+    assert result.progress.samples_done == 0  # stopped inside the first pass
+    assert result.image[..., 3].max() == 1.0  # but the rows it reached are there
+
+
+def test_time_limit_stops_the_render():
+    scene = cornell_box(32, 32, wall_subdivisions=2, sphere_segments=8)
+    result = render(scene, RenderSettings(samples=10_000, time_limit_s=1e-6, wave_size=256), threads=1)
+    assert result.stopped_early and result.progress.samples_done < 10_000
+
+
+def test_region_renders_the_same_pixels_as_the_full_frame():
+    scene = cornell_box(40, 30, wall_subdivisions=2, sphere_segments=8)
+    full = render(scene, RenderSettings(samples=3)).image
+    part = render(scene, RenderSettings(samples=3, region=(5, 7, 25, 20))).image
+    assert part.shape == (13, 20, 4)
+    assert np.allclose(part, full[7:20, 5:25], rtol=1e-6, atol=1e-7)
+
+
+def test_transparent_background_gives_alpha_zero_where_the_world_is_seen():
+    scene = sphere_in_furnace(albedo=0.5, world=1.0)
+    img = render(scene, RenderSettings(samples=2, transparent_background=True)).image
+    assert img[0, 0, 3] == 0.0 and np.all(img[0, 0, :3] == 0.0)  # corner: world only
+    assert img[16, 16, 3] == 1.0 and img[16, 16, 0] > 0          # centre: the sphere
+
+
+def test_nonfinite_radiance_never_reaches_the_film(monkeypatch):
+    scene = sphere_in_furnace(albedo=0.5, world=1.0)
+    with Renderer(scene, 1) as renderer:
+        def poisoned(dx, dy, dz):
+            out = np.ones((3, len(dx)), np.float32)
+            out[:, dz > 0] = np.nan
+            out[:, dz < -0.5] = np.inf
+            return out
+        monkeypatch.setattr(renderer.environment, "radiance", poisoned)
+        result = renderer.render(RenderSettings(samples=4))
+    assert np.isfinite(result.image).all()
+    assert result.progress.nonfinite_paths > 0
+
+
+def test_settings_are_checked():
+    scene = sphere_in_furnace(0.5, 1.0)
+    for bad, field in [(dict(mode="FAST"), "mode"), (dict(samples=0), "samples"),
+                       (dict(max_bounces=-1), "max_bounces"), (dict(region=(0, 0, 99, 5)), "region"),
+                       (dict(time_limit_s=float("nan")), "time_limit_s")]:
+        with pytest.raises(ValueError, match=field):
+            render(scene, RenderSettings(**bad))

@@ -1,0 +1,103 @@
+"""Every warp against its pdf (chi-square), and the lecture's hemisphere estimator."""
+import numpy as np
+import pytest
+
+from ember.kernels import sampling
+from stats import assert_chi2, mean_and_stderr
+
+N = 400_000
+THETA_BINS, PHI_BINS = 16, 32
+
+
+def uniforms(n=N, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.random(n, dtype=np.float32), rng.random(n, dtype=np.float32)
+
+
+def expected_counts(pdf_of_theta, theta_max, n=N, sub=12):
+    """Expected counts per (theta, phi) bin: integrate pdf(theta) sin(theta) dtheta dphi by midpoints."""
+    edges = np.linspace(0.0, theta_max, THETA_BINS + 1)
+    probs = []
+    for t0, t1 in zip(edges[:-1], edges[1:]):
+        t = t0 + (np.arange(sub) + 0.5) * (t1 - t0) / sub
+        probs.append(np.sum(pdf_of_theta(t) * np.sin(t)) * (t1 - t0) / sub * (2 * np.pi / PHI_BINS))
+    return np.repeat(np.array(probs)[:, None], PHI_BINS, axis=1) * n
+
+
+def histogram(x, y, z, theta_max):
+    theta = np.arccos(np.clip(z.astype(np.float64), -1, 1))
+    phi = np.arctan2(y, x).astype(np.float64)
+    counts, _, _ = np.histogram2d(theta, phi, bins=[THETA_BINS, PHI_BINS],
+                                  range=[[0, theta_max], [-np.pi, np.pi]])
+    return counts
+
+
+def test_cosine_hemisphere_matches_its_pdf():
+    x, y, z = sampling.sample_cosine_hemisphere(*uniforms())
+    assert np.allclose(x * x + y * y + z * z, 1, atol=1e-5) and np.all(z >= 0)
+    expected = expected_counts(lambda t: sampling.cosine_hemisphere_pdf(np.cos(t)), np.pi / 2)
+    assert_chi2(histogram(x, y, z, np.pi / 2), expected)
+
+
+def test_lecture_hemisphere_matches_its_pdf():
+    x, y, z, sin_t = sampling.sample_lecture_hemisphere(*uniforms())
+    assert np.allclose(sin_t, np.sqrt(x * x + y * y), atol=1e-5)
+    expected = expected_counts(lambda t: sampling.lecture_hemisphere_pdf(np.sin(t)), np.pi / 2)
+    assert_chi2(histogram(x, y, z, np.pi / 2), expected)
+
+
+def test_cosine_sampler_is_not_the_lecture_sampler():
+    """The chi-square test has power: cosine samples fail against the lecture pdf."""
+    from stats import chi2_statistic, chi2_upper_quantile
+    x, y, z = sampling.sample_cosine_hemisphere(*uniforms())
+    expected = expected_counts(lambda t: sampling.lecture_hemisphere_pdf(np.sin(t)), np.pi / 2)
+    stat, dof = chi2_statistic(histogram(x, y, z, np.pi / 2), expected)
+    assert stat > chi2_upper_quantile(dof)
+
+
+@pytest.mark.parametrize("cos_max", [0.2, 0.9, 0.9999])
+def test_uniform_cone_matches_its_pdf(cos_max):
+    ux, uy = uniforms()
+    x, y, z = sampling.sample_uniform_cone(ux, uy, np.float32(cos_max))
+    theta_max = np.arccos(cos_max)
+    expected = expected_counts(lambda t: np.full_like(t, sampling.uniform_cone_pdf(cos_max)), theta_max)
+    assert_chi2(histogram(x, y, z, theta_max), expected)
+
+
+def test_uniform_sphere_and_disk():
+    x, y, z = sampling.sample_uniform_sphere(*uniforms())
+    counts, _, _ = np.histogram2d(z, np.arctan2(y, x), bins=[16, 32], range=[[-1, 1], [-np.pi, np.pi]])
+    assert_chi2(counts, np.full_like(counts, N / counts.size))  # Archimedes: z is uniform
+    dx, dy = sampling.sample_uniform_disk(*uniforms(seed=3))
+    r2 = dx * dx + dy * dy
+    counts, _, _ = np.histogram2d(r2, np.arctan2(dy, dx), bins=[16, 32], range=[[0, 1], [-np.pi, np.pi]])
+    assert_chi2(counts, np.full_like(counts, N / counts.size))  # uniform area: r^2 is uniform
+
+
+def test_lecture_estimator_integrates_cosine_to_pi():
+    """pi^2 sin(theta) f(omega) with f = cos(theta): the slide's estimator of the integral of cos."""
+    x, y, z, sin_t = sampling.sample_lecture_hemisphere(*uniforms(200_000, seed=5))
+    mean, se = mean_and_stderr(np.pi ** 2 * sin_t.astype(np.float64) * z)
+    assert abs(mean - np.pi) < 4 * se, (mean, se)
+    assert se < 0.01  # the test resolves errors of a third of a percent
+
+
+def test_local_frame_is_orthonormal_and_maps_z_to_n():
+    rng = np.random.default_rng(2)
+    n = rng.normal(size=(3, 10_000)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=0)
+    n[:, :3] = [[0, 0, 0], [0, 0, 0], [1, -1, -0.99999994]]  # the poles, where naive frames break
+    n[:, :3] /= np.linalg.norm(n[:, :3], axis=0)
+    tx, ty, tz, bx, by, bz = sampling.orthonormal_basis(*n)
+    t, b = np.stack([tx, ty, tz]), np.stack([bx, by, bz])
+    for a, c in ((t, b), (t, n), (b, n)):
+        assert np.allclose((a * c).sum(0), 0, atol=1e-5)
+    assert np.allclose((t * t).sum(0), 1, atol=1e-5) and np.allclose((b * b).sum(0), 1, atol=1e-5)
+    w = sampling.local_to_world(np.zeros(10_000, np.float32), np.zeros(10_000, np.float32),
+                                np.ones(10_000, np.float32), *n)
+    assert np.allclose(np.stack(w), n, atol=1e-6)
+
+
+def test_power_heuristic():
+    w = sampling.power_heuristic(np.float32([1, 0, np.inf, 2]), np.float32([1, 1, 3, 0]))
+    assert np.allclose(w, [0.5, 0.0, 1.0, 1.0])
