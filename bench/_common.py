@@ -1,29 +1,27 @@
-"""Shared bits of the benchmarks: import the repository as `ember`, median timing."""
+"""Shared bits of the benchmarks and tests: import this checkout as `ember`, medians."""
 from __future__ import annotations
 
+import importlib.util
 import os
 import statistics
 import sys
-import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def import_ember():
-    """Import the repository as the package `ember` whatever its directory is called."""
-    try:
-        import ember
-        if os.path.realpath(os.path.dirname(ember.__file__)) == os.path.realpath(ROOT):
-            return ember
-    except ImportError:
-        pass
-    link_dir = tempfile.mkdtemp(prefix="ember-bench-")
-    os.symlink(ROOT, os.path.join(link_dir, "ember"))
-    sys.path.insert(0, link_dir)
+    """Import this checkout as the package `ember` whatever its directory is called."""
+    existing = sys.modules.get("ember")
+    if existing is not None and os.path.realpath(os.path.dirname(existing.__file__)) == os.path.realpath(ROOT):
+        return existing
+    spec = importlib.util.spec_from_file_location("ember", os.path.join(ROOT, "__init__.py"),
+                                                  submodule_search_locations=[ROOT])
+    module = importlib.util.module_from_spec(spec)
     for name in [m for m in sys.modules if m == "ember" or m.startswith("ember.")]:
         del sys.modules[name]
-    import ember
-    return ember
+    sys.modules["ember"] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 def median(values):

@@ -1,0 +1,97 @@
+#!/usr/bin/env python3.11
+"""Set up Ember's development environment and run it: one command per task, on any platform.
+
+    python3.11 dev.py demo [render options]   # .venv + pinned deps, then render the demo to out/demo.png
+    python3.11 dev.py test [pytest options]   # .venv + pinned deps, then run the test suite
+    python3.11 dev.py bench                   # .venv + pinned deps, then run the benchmarks
+    python3.11 dev.py setup                   # only the environment
+
+The environment is a virtual environment in .venv with the versions pinned in requirements*.txt,
+and a .pth hook that makes this checkout importable as the package `ember` (so `python -m ember`
+works from anywhere, without copying files or needing symlinks).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+import venv
+
+ROOT = os.path.dirname(os.path.abspath(__file__))
+VENV = os.path.join(ROOT, ".venv")
+REQUIREMENTS = os.path.join(ROOT, "requirements-test.txt")
+
+
+def venv_python() -> str:
+    if os.name == "nt":
+        return os.path.join(VENV, "Scripts", "python.exe")
+    return os.path.join(VENV, "bin", "python")
+
+
+def run(*cmd: str) -> None:
+    subprocess.run(cmd, check=True)
+
+
+def requirements_digest() -> str:
+    h = hashlib.sha256()
+    for name in ("requirements.txt", "requirements-test.txt"):
+        with open(os.path.join(ROOT, name), "rb") as f:
+            h.update(f.read())
+    return h.hexdigest()
+
+
+def site_packages(python: str) -> str:
+    return subprocess.run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          check=True, capture_output=True, text=True).stdout.strip()
+
+
+def setup() -> str:
+    if sys.version_info[:2] != (3, 11):
+        sys.exit(f"dev.py: Ember needs Python 3.11 (bpy 5.0 is built for it); this is {sys.version.split()[0]}")
+    if not os.path.exists(venv_python()):
+        print("dev.py: creating .venv", flush=True)
+        venv.create(VENV, with_pip=True)
+    python = venv_python()
+    stamp = os.path.join(VENV, ".ember-requirements")
+    digest = requirements_digest()
+    if not os.path.exists(stamp) or open(stamp).read() != digest:
+        print("dev.py: installing pinned dependencies (bpy is a large download the first time)", flush=True)
+        run(python, "-m", "pip", "install", "--disable-pip-version-check", "-q", "-r", REQUIREMENTS)
+        with open(stamp, "w") as f:
+            f.write(digest)
+    hook = os.path.join(site_packages(python), "ember_checkout.pth")
+    # A .pth line that starts with "import" runs at start-up: register this checkout as `ember`.
+    line = ("import importlib.util as _u, sys as _s; "
+            f"_p = {ROOT!r}; "
+            "_spec = _u.spec_from_file_location('ember', _p + '/__init__.py', submodule_search_locations=[_p]); "
+            "_m = _u.module_from_spec(_spec); _s.modules.setdefault('ember', _m); "
+            "_s.modules['ember'] is _m and _spec.loader.exec_module(_m)\n")
+    if not os.path.exists(hook) or open(hook).read() != line:
+        with open(hook, "w") as f:
+            f.write(line)
+    return python
+
+
+def main(argv: list[str]) -> int:
+    task, rest = (argv[0], argv[1:]) if argv else ("help", [])
+    if task not in ("setup", "demo", "test", "bench"):
+        print(__doc__)
+        return 0 if task in ("help", "-h", "--help") else 2
+    python = setup()
+    if task == "demo":
+        return subprocess.call([python, "-m", "ember", "render", "-o", os.path.join(ROOT, "out", "demo.png"), *rest])
+    if task == "test":
+        return subprocess.call([python, "-m", "pytest", os.path.join(ROOT, "tests"), *rest], cwd=ROOT)
+    if task == "bench":
+        status = 0
+        for script in ("kernel_cornell.py", "vs_cycles.py"):
+            path = os.path.join(ROOT, "bench", script)
+            if os.path.exists(path):
+                status |= subprocess.call([python, path, *rest], cwd=ROOT)
+        return status
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

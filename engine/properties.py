@@ -1,0 +1,46 @@
+"""scene.ember: Ember's render settings, stored in the .blend like Cycles' scene.cycles."""
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+
+SAMPLING_MODE_ITEMS = (
+    ("COSINE", "Cosine", "Cosine-weighted hemisphere sampling of the diffuse BSDF: finds light only by hitting it"),
+    ("LECTURE", "Lecture", "The lecture's estimator: uniform in (theta, phi), weight pi^2 sin(theta). "
+                           "For teaching and as a reference; noisier"),
+)
+DEFAULT_SAMPLING_MODE = "COSINE"
+
+
+class EmberSceneSettings(bpy.types.PropertyGroup):
+    samples: IntProperty(
+        name="Samples", description="Samples per pixel for final renders", default=64, min=1, max=1 << 24,
+        soft_max=4096)
+    preview_samples: IntProperty(
+        name="Viewport Samples", description="Samples per pixel in the viewport's rendered mode (0 = unlimited)",
+        default=32, min=0, max=1 << 24, soft_max=4096)
+    max_bounces: IntProperty(
+        name="Max Bounces", description="Bounces after the first hit, as in Cycles: 0 gives direct light only",
+        default=8, min=0, max=1024)
+    sampling_mode: EnumProperty(
+        name="Sampling", description="How the next direction of a path is chosen",
+        items=SAMPLING_MODE_ITEMS, default=DEFAULT_SAMPLING_MODE)
+    seed: IntProperty(
+        name="Seed", description="Seed of the random numbers: another seed gives another noise pattern",
+        default=0, min=0)
+    use_animated_seed: BoolProperty(
+        name="Animated Seed", description="Add the frame number to the seed, so the noise changes every frame",
+        default=False)
+    time_limit: FloatProperty(
+        name="Time Limit", description="Stop a final render after this long, whatever the samples (0 = no limit)",
+        default=0.0, min=0.0, subtype="TIME_ABSOLUTE", unit="TIME_ABSOLUTE")
+
+
+def register():
+    bpy.utils.register_class(EmberSceneSettings)
+    bpy.types.Scene.ember = PointerProperty(type=EmberSceneSettings, name="Ember", description="Ember render settings")
+
+
+def unregister():
+    del bpy.types.Scene.ember
+    bpy.utils.unregister_class(EmberSceneSettings)

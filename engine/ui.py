@@ -1,0 +1,113 @@
+"""Ember's panels, and the built-in panels Ember reuses (COMPAT_ENGINES)."""
+from __future__ import annotations
+
+import bpy
+
+ENGINE = "EMBER"
+
+# Panels written for EEVEE that show exactly what Ember reads: material and world node surfaces,
+# the material slots, and light settings. Generic panels (they list BLENDER_RENDER) are added too.
+EXTRA_PANELS = (
+    "EEVEE_MATERIAL_PT_context_material",
+    "EEVEE_MATERIAL_PT_surface",
+    "EEVEE_WORLD_PT_surface",
+    "DATA_PT_EEVEE_light",
+    "DATA_PT_spot",
+)
+_added: list = []
+
+
+def _compat_panels():
+    for name in dir(bpy.types):
+        cls = getattr(bpy.types, name, None)
+        engines = getattr(cls, "COMPAT_ENGINES", None)
+        if isinstance(cls, type) and isinstance(engines, set) and issubclass(cls, bpy.types.Panel):
+            if "BLENDER_RENDER" in engines or name in EXTRA_PANELS:
+                yield cls
+
+
+class EmberPanel:
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    COMPAT_ENGINES = {ENGINE}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES
+
+
+class EMBER_RENDER_PT_sampling(EmberPanel, bpy.types.Panel):
+    bl_label = "Sampling"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        ember = context.scene.ember
+        col = layout.column(align=True)
+        col.prop(ember, "samples", text="Render Samples")
+        col.prop(ember, "preview_samples", text="Viewport Samples")
+        layout.prop(ember, "time_limit")
+        layout.prop(ember, "sampling_mode")
+        col = layout.column(align=True)
+        col.prop(ember, "seed")
+        col.prop(ember, "use_animated_seed")
+
+
+class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
+    bl_label = "Light Paths"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(context.scene.ember, "max_bounces")
+
+
+class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):
+    bl_label = "Film"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(context.scene.render, "film_transparent", text="Transparent")
+
+
+class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
+    bl_label = "Performance"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        rd = context.scene.render
+        col = layout.column(align=True)
+        col.prop(rd, "threads_mode")
+        sub = col.column(align=True)
+        sub.enabled = rd.threads_mode == "FIXED"
+        sub.prop(rd, "threads")
+
+
+CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_light_paths, EMBER_RENDER_PT_film,
+           EMBER_RENDER_PT_performance)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    for panel in _compat_panels():
+        if ENGINE not in panel.COMPAT_ENGINES:
+            panel.COMPAT_ENGINES.add(ENGINE)
+            _added.append(panel)
+
+
+def unregister():
+    for panel in _added:
+        panel.COMPAT_ENGINES.discard(ENGINE)
+    _added.clear()
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,214 @@
+"""Headless bpy helpers for tests: register Ember, build scenes in code, render with Cycles or Ember
+to linear float images, and compare two renders with tolerances derived from their noise."""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+
+import bpy
+import numpy as np
+
+import ember
+
+
+def ensure_registered() -> None:
+    if not hasattr(bpy.types.Scene, "ember"):
+        ember.register()
+
+
+def new_scene(width=64, height=64) -> bpy.types.Scene:
+    """An empty scene (factory settings) with Ember registered and a camera looking at the origin."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    ensure_registered()
+    scene = bpy.context.scene
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    add_camera(scene, (0, -6, 1.5), (0, 0, 1.0))
+    return scene
+
+
+def add_camera(scene, location, target, lens=35.0, name="Camera"):
+    data = bpy.data.cameras.new(name)
+    data.lens = lens
+    cam = bpy.data.objects.new(name, data)
+    scene.collection.objects.link(cam)
+    cam.location = location
+    d = np.asarray(target, float) - np.asarray(location, float)
+    d /= np.linalg.norm(d)
+    cam.rotation_euler = (math.acos(-d[2]), 0.0, math.atan2(d[1], d[0]) - math.pi / 2)
+    scene.camera = cam
+    return cam
+
+
+def diffuse_material(name, color=(0.8, 0.8, 0.8), principled=False, image=None):
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    shader = tree.nodes.new("ShaderNodeBsdfPrincipled" if principled else "ShaderNodeBsdfDiffuse")
+    socket = shader.inputs["Base Color" if principled else "Color"]
+    socket.default_value = (*color, 1.0)
+    if principled:
+        shader.inputs["Roughness"].default_value = 1.0
+        # Principled's specular layer is on by default; Ember renders base colour as diffuse only.
+        shader.inputs["Specular IOR Level"].default_value = 0.0
+    if image is not None:
+        tex = tree.nodes.new("ShaderNodeTexImage")
+        tex.image = image
+        tree.links.new(tex.outputs["Color"], socket)
+    tree.links.new(shader.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def emission_material(name, color=(1, 1, 1), strength=1.0):
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    em = tree.nodes.new("ShaderNodeEmission")
+    em.inputs["Color"].default_value = (*color, 1.0)
+    em.inputs["Strength"].default_value = strength
+    tree.links.new(em.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def mesh_object(name, verts, faces, material=None, scene=None, smooth=False):
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata([tuple(map(float, v)) for v in verts], [], [tuple(f) for f in faces])
+    if smooth:
+        mesh.shade_smooth()
+    if material is not None:
+        mesh.materials.append(material)
+    obj = bpy.data.objects.new(name, mesh)
+    (scene or bpy.context.scene).collection.objects.link(obj)
+    return obj
+
+
+def quad_object(name, corner, edge_u, edge_v, material=None, uv=True):
+    c, u, v = (np.asarray(x, float) for x in (corner, edge_u, edge_v))
+    obj = mesh_object(name, [c, c + u, c + u + v, c + v], [(0, 1, 2, 3)], material)
+    if uv:
+        layer = obj.data.uv_layers.new(name="UVMap")
+        for loop, coord in zip(obj.data.loops, [(0, 0), (1, 0), (1, 1), (0, 1)]):
+            layer.data[loop.index].uv = coord
+    return obj
+
+
+def set_world(scene, color=(0.0, 0.0, 0.0), strength=1.0, hdri=None, rotation=(0.0, 0.0, 0.0)):
+    world = bpy.data.worlds.new("World")
+    scene.world = world
+    tree = world.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputWorld")
+    bg = tree.nodes.new("ShaderNodeBackground")
+    bg.inputs["Color"].default_value = (*color, 1.0)
+    bg.inputs["Strength"].default_value = strength
+    if hdri is not None:
+        env = tree.nodes.new("ShaderNodeTexEnvironment")
+        path = bpy.utils.system_resource("DATAFILES", path=os.path.join("studiolights", "world", hdri))
+        env.image = bpy.data.images.load(path, check_existing=True)
+        mapping = tree.nodes.new("ShaderNodeMapping")
+        mapping.inputs["Rotation"].default_value = rotation
+        coords = tree.nodes.new("ShaderNodeTexCoord")
+        tree.links.new(coords.outputs["Generated"], mapping.inputs["Vector"])
+        tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
+        tree.links.new(env.outputs["Color"], bg.inputs["Color"])
+    tree.links.new(bg.outputs[0], out.inputs["Surface"])
+    return world
+
+
+# ---------------------------------------------------------------- rendering to numpy
+def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces: int = 8,
+                    threads: int = 2) -> np.ndarray:
+    """Render the scene with CYCLES or EMBER; return (H, W, 4) float32 linear RGBA, row 0 at the top."""
+    render = scene.render
+    render.engine = engine
+    render.threads_mode = "FIXED"
+    render.threads = threads
+    render.image_settings.file_format = "OPEN_EXR"
+    render.image_settings.color_depth = "32"
+    render.use_file_extension = True
+    if engine == "CYCLES":
+        configure_cycles(scene, samples, seed, max_bounces)
+    else:
+        scene.ember.samples = samples
+        scene.ember.seed = seed
+        scene.ember.max_bounces = max_bounces
+    with tempfile.TemporaryDirectory() as tmp:
+        render.filepath = os.path.join(tmp, "frame.exr")
+        bpy.ops.render.render(write_still=True)
+        return load_exr(render.filepath)
+
+
+def configure_cycles(scene, samples: int, seed: int, max_bounces: int) -> None:
+    """Cycles as the oracle: CPU, plain path tracing, no clamping, denoising or adaptive sampling,
+    one-pixel box filter; light tree at its default."""
+    c = scene.cycles
+    c.device = "CPU"
+    c.samples = samples
+    c.seed = seed
+    c.use_animated_seed = False
+    c.use_adaptive_sampling = False
+    c.use_denoising = False
+    c.sample_clamp_direct = 0.0
+    c.sample_clamp_indirect = 0.0
+    c.pixel_filter_type = "BOX"
+    c.filter_width = 1.0
+    c.max_bounces = max_bounces
+    c.diffuse_bounces = max_bounces
+    c.glossy_bounces = max_bounces
+    c.transmission_bounces = max_bounces
+    c.transparent_max_bounces = max_bounces
+    c.blur_glossy = 0.0
+    c.caustics_reflective = True
+    c.caustics_refractive = True
+    c.use_auto_tile = False
+    scene.cycles.film_exposure = 1.0
+
+
+def load_exr(path: str) -> np.ndarray:
+    image = bpy.data.images.load(path, check_existing=False)
+    try:
+        w, h = image.size
+        pixels = np.empty(w * h * 4, np.float32)
+        image.pixels.foreach_get(pixels)
+    finally:
+        bpy.data.images.remove(image)
+    return pixels.reshape(h, w, 4)[::-1].copy()
+
+
+# ---------------------------------------------------------------- comparing noisy renders
+def two_seed_render(scene, engine: str, samples: int, **kwargs):
+    """Two independent half-sample renders: their mean is the estimate, their difference its noise.
+    Returns (mean (H, W, 3), per-pixel variance of the mean (H, W, 3))."""
+    a = render_to_array(scene, engine, samples // 2, seed=11, **kwargs)[..., :3].astype(np.float64)
+    b = render_to_array(scene, engine, samples // 2, seed=29, **kwargs)[..., :3].astype(np.float64)
+    return (a + b) / 2, (a - b) ** 2 / 4
+
+
+def compare_to_cycles(scene, samples: int = 64, blocks: int = 8, z: float = 4.5, mean_tol: float = 0.02,
+                      **kwargs) -> dict:
+    """Render with both engines and assert parity: the whole-image mean within mean_tol (relative)
+    and every block of a blocks x blocks grid within z standard errors of the difference."""
+    cycles, var_c = two_seed_render(scene, "CYCLES", samples, **kwargs)
+    ember_img, var_e = two_seed_render(scene, "EMBER", samples, **kwargs)
+    h, w, _ = cycles.shape
+    bh, bw = h // blocks, w // blocks
+
+    def block_sums(a):
+        return a[:bh * blocks, :bw * blocks].reshape(blocks, bh, blocks, bw, 3).sum(axis=(1, 3))
+
+    n = bh * bw
+    diff = (block_sums(ember_img) - block_sums(cycles)) / n
+    se = np.sqrt(block_sums(var_c) + block_sums(var_e)) / n
+    # A floor on the standard error for blocks with (almost) no noise: float differences, not noise.
+    se = np.maximum(se, 1e-4 * np.maximum(np.abs(block_sums(cycles)) / n, 1e-3))
+    zscores = np.abs(diff) / se
+    mean_c, mean_e = cycles.mean(), ember_img.mean()
+    report = {"mean_cycles": mean_c, "mean_ember": mean_e, "relative": mean_e / mean_c - 1.0,
+              "max_z": float(zscores.max()), "worst_block": np.unravel_index(np.argmax(zscores), zscores.shape)}
+    assert mean_c > 1e-3, f"Cycles rendered an almost black image: {report}"
+    assert abs(report["relative"]) < mean_tol, f"image means differ: {report}"
+    assert report["max_z"] < z, f"a block differs beyond noise: {report}"
+    return report
