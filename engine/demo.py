@@ -15,6 +15,16 @@ DEMO_HDRI = "courtyard.exr"
 DEMO_RESOLUTION = (800, 450)
 
 
+def bundled_hdri_path(name: str) -> str:
+    """Path of one of the HDRIs Blender ships (forest.exr, courtyard.exr, ...)."""
+    # system_resource() finds directories only: ask for the folder, then join the file name.
+    folder = bpy.utils.system_resource("DATAFILES", path=os.path.join("studiolights", "world"))
+    path = os.path.join(folder, name)
+    if not folder or not os.path.isfile(path):
+        raise FileNotFoundError(f"Blender's HDRI {name!r} is not in {folder!r}")
+    return path
+
+
 def build_demo_scene() -> bpy.types.Scene:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
@@ -149,8 +159,7 @@ def _environment(scene, hdri_name, strength, rotation_z):
     background = tree.nodes.new("ShaderNodeBackground")
     background.inputs["Strength"].default_value = strength
     env = tree.nodes.new("ShaderNodeTexEnvironment")
-    path = bpy.utils.system_resource("DATAFILES", path=os.path.join("studiolights", "world", hdri_name))
-    env.image = bpy.data.images.load(path, check_existing=True)
+    env.image = bpy.data.images.load(bundled_hdri_path(hdri_name), check_existing=True)
     mapping = tree.nodes.new("ShaderNodeMapping")
     mapping.inputs["Rotation"].default_value = (0.0, 0.0, rotation_z)
     coords = tree.nodes.new("ShaderNodeTexCoord")

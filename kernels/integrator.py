@@ -106,7 +106,8 @@ class Renderer:
         self.dropped_triangles = checked.dropped_triangles
         self.accel = Accel(self.scene.positions, threads)
         self.environment = Environment(self.scene.world)
-        self.textures = [Texture(t) for t in self.scene.textures]
+        srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
+        self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
         self._tri_table = _triangle_table(self.scene)
         self._material_ids = self.scene.material_ids
         mats = self.scene.materials

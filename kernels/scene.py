@@ -177,7 +177,9 @@ class SceneArrays:
     normals : (T, 3, 3) float32, per-corner shading normals (need not be unit length).
     uvs : (T, 3, 2) float32, per-corner texture coordinates.
     material_ids : (T,) int32, rows of `materials`.
-    textures : tuple of (H, W, C) float32 arrays, C in {1, 3, 4}, linear, row 0 at the bottom.
+    textures : tuple of (H, W, C) float32 arrays, C in {1, 3, 4}, row 0 at the bottom.
+    texture_srgb : tuple of bool, one per texture (or empty: all linear). True marks a texture stored
+        sRGB-encoded and decoded after filtering, as Cycles does with 8-bit sRGB images.
     """
     positions: np.ndarray
     normals: np.ndarray
@@ -185,6 +187,7 @@ class SceneArrays:
     material_ids: np.ndarray
     materials: Materials = field(default_factory=Materials)
     textures: tuple = ()
+    texture_srgb: tuple = ()
     world: World = field(default_factory=World)
     camera: Camera = field(default_factory=Camera)
     lights: Lights = field(default_factory=Lights)
@@ -210,6 +213,8 @@ class SceneArrays:
                      f"textures[{i}]", f"must be an (H, W, C) array with C in 1, 3, 4, got "
                      f"{getattr(tex, 'shape', type(tex).__name__)}")
             _check_array(tex, f"textures[{i}]", tex.shape, np.float32)
+        _require(len(self.texture_srgb) in (0, len(self.textures)), "texture_srgb",
+                 f"needs one flag per texture ({len(self.textures)}), got {len(self.texture_srgb)}")
         self.materials.validate(len(self.textures))
         m = self.materials.count
         if t:

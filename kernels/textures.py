@@ -7,10 +7,21 @@ from __future__ import annotations
 import numpy as np
 
 
-class Texture:
-    """A texture prepared for lookups: a flat (H*W, C) float32 table (RGB, alpha dropped)."""
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function's inverse (IEC 61966-2-1), elementwise, float32."""
+    c = np.asarray(c, np.float32)
+    return np.where(c <= np.float32(0.04045), c * np.float32(1 / 12.92),
+                    np.power(np.maximum(c + np.float32(0.055), 0) * np.float32(1 / 1.055), np.float32(2.4)))
 
-    def __init__(self, image: np.ndarray):
+
+class Texture:
+    """A texture prepared for lookups: a flat (H*W, C) float32 table (RGB, alpha dropped).
+
+    srgb=True: texels are sRGB-encoded and decoded after filtering, like Cycles' 8-bit sRGB images.
+    """
+
+    def __init__(self, image: np.ndarray, srgb: bool = False):
+        self.srgb = srgb
         h, w, c = image.shape
         rgb = image[:, :, :3] if c >= 3 else np.repeat(image[:, :, :1], 3, axis=2)
         self.height, self.width = h, w
@@ -43,10 +54,8 @@ class Texture:
         c = self.channels
         top = np.take(c, r0 + x0, axis=1) * (1 - fx) + np.take(c, r0 + x1, axis=1) * fx
         bot = np.take(c, r1 + x0, axis=1) * (1 - fx) + np.take(c, r1 + x1, axis=1) * fx
-        return top * (1 - fy) + bot * fy
-
-    def texel_at(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
-        return np.take(self.channels, row * self.width + col, axis=1)
+        value = top * (1 - fy) + bot * fy
+        return srgb_to_linear(value) if self.srgb else value
 
 
 def finite_uv(u: np.ndarray, v: np.ndarray):

@@ -10,6 +10,7 @@ import bpy
 import numpy as np
 
 import ember
+from ember.engine.demo import bundled_hdri_path
 
 
 def ensure_registered() -> None:
@@ -106,8 +107,7 @@ def set_world(scene, color=(0.0, 0.0, 0.0), strength=1.0, hdri=None, rotation=(0
     bg.inputs["Strength"].default_value = strength
     if hdri is not None:
         env = tree.nodes.new("ShaderNodeTexEnvironment")
-        path = bpy.utils.system_resource("DATAFILES", path=os.path.join("studiolights", "world", hdri))
-        env.image = bpy.data.images.load(path, check_existing=True)
+        env.image = bpy.data.images.load(bundled_hdri_path(hdri), check_existing=True)
         mapping = tree.nodes.new("ShaderNodeMapping")
         mapping.inputs["Rotation"].default_value = rotation
         coords = tree.nodes.new("ShaderNodeTexCoord")

@@ -130,6 +130,17 @@ def test_bilinear_texture_hits_texel_centres_and_wraps():
     assert np.allclose(out[:, 4], image[0, 0])  # repeat
 
 
+def test_srgb_textures_are_decoded_after_filtering():
+    """Cycles filters 8-bit sRGB images in their encoded form, then decodes: so does Ember."""
+    from ember.kernels.textures import srgb_to_linear
+    encoded = np.float32([[[0.1, 0.1, 0.1], [0.9, 0.9, 0.9]]])  # 1 x 2, sRGB-encoded
+    between = Texture(encoded, srgb=True).lookup(np.float32([0.5]), np.float32([0.5]))
+    assert np.allclose(between[:, 0], srgb_to_linear(np.float32(0.5)))
+    linear = Texture(srgb_to_linear(encoded)).lookup(np.float32([0.5]), np.float32([0.5]))
+    assert not np.allclose(linear, between)
+    assert np.allclose(srgb_to_linear(np.float32([0.0, 0.04045, 1.0])), [0.0, 0.04045 / 12.92, 1.0])
+
+
 def test_equirect_mapping_matches_cycles_convention():
     d = np.float32([[1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0]]).T
     u, v = direction_to_equirect(*d)

@@ -1,0 +1,111 @@
+"""Ember against Cycles (CPU, no clamping, box filter) on scenes built in code.
+
+Each scene is rendered twice per engine with different seeds: the mean of the two is the image, their
+difference measures its noise. The whole-image mean must agree within 2%, and every block of an 8x8
+grid within 4.5 standard errors of the difference (64 blocks: a false alarm about once in 2,000 runs).
+"""
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, emission_material, mesh_object,
+                         new_scene, quad_object, set_world)
+
+BOX = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0), (-1, -1, 2), (1, -1, 2), (1, 1, 2), (-1, 1, 2)]
+
+
+def test_diffuse_and_emission_in_a_box():
+    scene = new_scene(64, 64)
+    white = diffuse_material("White", (0.7, 0.7, 0.7))
+    red = diffuse_material("Red", (0.7, 0.1, 0.1), principled=True)
+    mesh_object("Box", BOX, [(0, 1, 2, 3), (4, 7, 6, 5), (3, 2, 6, 7), (0, 3, 7, 4)], white)
+    mesh_object("Red Wall", BOX, [(1, 5, 6, 2)], red)
+    quad_object("Lamp", (-0.4, -0.4, 1.98), (0, 0.8, 0), (0.8, 0, 0), emission_material("Lamp", strength=8.0))
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.4, location=(0.3, 0.2, 0.4))
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(diffuse_material("Ball", (0.2, 0.5, 0.8)))
+    add_camera(scene, (0, -3.5, 1), (0, 0, 1), lens=30)
+    set_world(scene, color=(0, 0, 0))
+    compare_to_cycles(scene, samples=128, max_bounces=4)
+
+
+def test_diffuse_objects_under_a_rotated_hdri():
+    scene = new_scene(64, 48)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.8, location=(-0.6, 0, 0.8))
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(diffuse_material("Ball", (0.8, 0.8, 0.8)))
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(1.0, 0.5, 0.5), rotation=(0, 0, 0.5))
+    bpy.context.active_object.data.materials.append(diffuse_material("Cube", (0.6, 0.3, 0.2), principled=True))
+    mesh_object("Ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [(0, 1, 2, 3)],
+                diffuse_material("Ground", (0.5, 0.5, 0.5)))
+    add_camera(scene, (0.5, -5, 2.0), (0, 0, 0.9), lens=35)
+    # Rotation about all three axes: any mistake in the Mapping convention shows in the sky and the shading.
+    set_world(scene, hdri="courtyard.exr", strength=1.0, rotation=(0.3, -0.2, 1.9))
+    compare_to_cycles(scene, samples=128, max_bounces=3)
+
+
+@pytest.mark.parametrize("float_image", [False, True])
+def test_image_textured_plane(float_image):
+    scene = new_scene(64, 64)
+    size = 16
+    yy, xx = np.mgrid[0:size, 0:size]
+    rgb = np.stack([(xx + 0.5) / size, (yy + 0.5) / size, ((xx // 4 + yy // 4) % 2) * 0.8 + 0.1], -1)
+    image = bpy.data.images.new("Pattern", size, size, alpha=True, float_buffer=float_image)
+    if not float_image:
+        image.colorspace_settings.name = "sRGB"
+    image.pixels.foreach_set(np.concatenate([rgb, np.ones((size, size, 1))], -1).astype(np.float32).ravel())
+    image.pack()
+    plane = quad_object("Plane", (-1, 0, 0), (2, 0, 0), (0, 0, 2),
+                        diffuse_material("Textured", image=image, principled=True))
+    assert plane.data.uv_layers.active is not None
+    add_camera(scene, (0, -3.2, 1.0), (0, 0, 1.0), lens=40)
+    set_world(scene, color=(1.0, 1.0, 1.0))
+    compare_to_cycles(scene, samples=32, max_bounces=1)
+
+
+def test_collection_instances_with_rotation_and_scale():
+    scene = new_scene(64, 64)
+    source = bpy.data.collections.new("Source")
+    bpy.ops.mesh.primitive_cube_add(size=0.5, location=(0, 0, 0.25))
+    cube = bpy.context.active_object
+    cube.data.materials.append(diffuse_material("Orange", (0.8, 0.4, 0.1)))
+    bpy.ops.mesh.primitive_cone_add(radius1=0.25, depth=0.6, location=(0.5, 0, 0.3))
+    cone = bpy.context.active_object
+    cone.data.materials.append(diffuse_material("Teal", (0.1, 0.6, 0.6)))
+    for ob in (cube, cone):
+        for c in ob.users_collection:
+            c.objects.unlink(ob)
+        source.objects.link(ob)
+    for i, (loc, rot, scale) in enumerate([((-1.2, 0, 0), (0, 0, 0.4), 1.0), ((0.3, 0.5, 0), (0, 0, 2.0), 1.6),
+                                           ((1.3, -0.6, 0.2), (0.5, 0.3, 0), 0.7)]):
+        empty = bpy.data.objects.new(f"Instance {i}", None)
+        empty.instance_type = "COLLECTION"
+        empty.instance_collection = source
+        empty.location, empty.rotation_euler, empty.scale = loc, rot, (scale, scale * 1.3, scale)
+        scene.collection.objects.link(empty)
+    mesh_object("Ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [(0, 1, 2, 3)],
+                diffuse_material("Ground", (0.6, 0.6, 0.6)))
+    quad_object("Lamp", (-1.5, -1.0, 3.0), (0, 2.0, 0), (3.0, 0, 0), emission_material("Lamp", strength=3.0))
+    add_camera(scene, (0, -5, 3), (0, 0, 0.4), lens=35)
+    set_world(scene, color=(0.15, 0.18, 0.25))
+    compare_to_cycles(scene, samples=128, max_bounces=3)
+
+
+def test_flat_smooth_and_sharp_edged_normals():
+    scene = new_scene(72, 48)
+    mat = diffuse_material("Clay", (0.75, 0.7, 0.65))
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.6, location=(-1.4, 0, 0.6), segments=12, ring_count=6)
+    bpy.context.active_object.data.materials.append(mat)                 # flat
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.6, location=(0, 0, 0.6), segments=12, ring_count=6)
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(mat)                 # smooth
+    bpy.ops.mesh.primitive_cylinder_add(radius=0.5, depth=1.2, location=(1.4, 0, 0.6), vertices=10)
+    bpy.ops.object.shade_smooth_by_angle(angle=math.radians(40))
+    bpy.context.active_object.data.materials.append(mat)                 # smooth sides, sharp rims
+    mesh_object("Ground", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [(0, 1, 2, 3)], mat)
+    add_camera(scene, (0, -4.5, 1.6), (0, 0, 0.6), lens=35)
+    # A gradient sky makes the shading follow the normals closely.
+    set_world(scene, hdri="courtyard.exr", strength=1.0)
+    compare_to_cycles(scene, samples=128, max_bounces=2)
