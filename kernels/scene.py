@@ -102,7 +102,7 @@ class World:
     hdri : (H, W, 3) float32 equirectangular map, row 0 at the bottom (Blender's order), or None.
     strength : multiplies color or hdri.
     env_from_world : (3, 3) float32 rotation taking a world direction to the direction the map is
-        looked up with (the inverse of the Mapping node's rotation for a POINT mapping).
+        looked up with: the Mapping node's rotation R for a POINT mapping, R^T for TEXTURE.
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None

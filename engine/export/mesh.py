@@ -1,0 +1,190 @@
+"""Geometry: the depsgraph's object instances -> world-space triangle arrays.
+
+Every instance whose object is a mesh is exported: mesh objects with their modifiers applied, and the
+evaluated meshes Blender itself hands out as instances for curves, text, surfaces, metaballs,
+geometry-nodes output, collection instances and particles (the set Cycles reads too; the curve or text
+object itself carries no triangles). Each evaluated mesh is read once in object space, and all its
+instances are transformed together, one matmul per group.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .materials import MaterialTable
+
+# Object types that carry geometry Ember cannot render yet.
+UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds", "VOLUME": "volumes"}
+RAY_VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
+                  "visible_volume_scatter", "visible_shadow")
+
+
+@dataclass(frozen=True)
+class LocalMesh:
+    """One evaluated mesh in object space, as the 3 corners of each of its T triangles.
+
+    positions : (T*3, 3) float32
+    normals : (T*3, 3) float32, Blender's corner normals (flat, smooth, sharp edges, custom normals).
+    uvs : (T*3, 2) float32, the active render UV map, zeros without one.
+    slots : (T,) int32, material slot of each triangle.
+    """
+    positions: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    slots: np.ndarray
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.slots)
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """All triangles of the scene in world space, T in total.
+
+    positions, normals : (T, 3, 3) float32; uvs : (T, 3, 2) float32; material_ids : (T,) int32.
+    instance_count : object instances that contributed triangles.
+    """
+    positions: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    material_ids: np.ndarray
+    instance_count: int
+
+
+def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str]) -> Geometry:
+    """Read every rendered mesh instance; register the materials its slots use in `materials`."""
+    meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
+    slot_rows: dict[tuple, tuple] = {}       # (object, mesh) pointers -> material row of each slot
+    groups: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> world_from_object matrices
+    for inst in depsgraph.object_instances:
+        # An instance is only valid during its iteration step: copy what is needed now.
+        ob = inst.object
+        if not _is_rendered(inst, ob, warnings):
+            continue
+        mesh_key = ob.data.as_pointer()
+        if mesh_key not in meshes:
+            meshes[mesh_key] = read_mesh(ob.data)
+        if meshes[mesh_key].triangle_count == 0:
+            continue
+        # Instances share meshes, but slots linked to the object can give one mesh different materials.
+        object_key = (ob.as_pointer(), mesh_key)
+        if object_key not in slot_rows:
+            slot_rows[object_key] = materials.slot_ids(ob)
+            _check_visibility(ob, warnings)
+        groups.setdefault((mesh_key, slot_rows[object_key]), []).append(np.array(inst.matrix_world))
+    return _assemble(meshes, groups)
+
+
+def _is_rendered(inst, ob, warnings: list[str]) -> bool:
+    if ob.type != "MESH":
+        if ob.type in UNSUPPORTED_TYPES:
+            warnings.append(f"Object '{ob.name}': {UNSUPPORTED_TYPES[ob.type]} are not supported, "
+                            f"not rendered")
+        return False
+    # A render depsgraph has already dropped objects hidden for render; a viewport one has not. Particles
+    # of a hidden object still render, so an instance follows its instancer.
+    owner = (inst.parent if inst.is_instance else None) or ob
+    return inst.show_self and not owner.hide_render
+
+
+def _check_visibility(ob, warnings: list[str]) -> None:
+    if not all(getattr(ob, name) for name in RAY_VISIBILITY) or ob.is_holdout or ob.is_shadow_catcher:
+        warnings.append(f"Object '{ob.name}': ray visibility, holdout and shadow catcher settings are not "
+                        f"supported, rendered as a plain object")
+
+
+def read_mesh(mesh) -> LocalMesh:
+    """An evaluated mesh's triangles in object space."""
+    mesh.calc_loop_triangles()
+    t = len(mesh.loop_triangles)
+    if t == 0:  # loose vertices and edges only; such meshes may lack the corner attributes too
+        empty = np.zeros((0, 3), np.float32)
+        return LocalMesh(empty, empty, np.zeros((0, 2), np.float32), np.zeros(0, np.int32))
+    n_corners = len(mesh.loops)
+    # uint32 / int32 match Blender's storage: foreach_get then copies memory instead of converting.
+    tri_loops = _read(mesh.loop_triangles, "loops", t * 3, np.uint32)
+    corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", n_corners, np.int32)
+    positions = _read(mesh.attributes["position"].data, "vector", 3 * len(mesh.vertices), np.float32)
+    corner_normals = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32)
+    return LocalMesh(positions=np.take(positions.reshape(-1, 3), np.take(corner_verts, tri_loops), axis=0),
+                     normals=np.take(corner_normals.reshape(-1, 3), tri_loops, axis=0),
+                     uvs=_corner_uvs(mesh, tri_loops),
+                     slots=_triangle_slots(mesh, t))
+
+
+def _read(collection, name: str, size: int, dtype) -> np.ndarray:
+    out = np.empty(size, dtype)
+    collection.foreach_get(name, out)
+    return out
+
+
+def _corner_uvs(mesh, tri_loops: np.ndarray) -> np.ndarray:
+    """(T*3, 2) float32 coordinates of the UV map marked for rendering."""
+    layer = next((uv for uv in mesh.uv_layers if uv.active_render), None)
+    if layer is None:
+        return np.zeros((len(tri_loops), 2), np.float32)
+    uvs = _read(layer.uv, "vector", 2 * len(mesh.loops), np.float32)
+    return np.take(uvs.reshape(-1, 2), tri_loops, axis=0)
+
+
+def _triangle_slots(mesh, t: int) -> np.ndarray:
+    """(T,) int32 material slot per triangle; Blender omits the attribute when every face uses slot 0."""
+    material_index = mesh.attributes.get("material_index")
+    if material_index is None:
+        return np.zeros(t, np.int32)
+    face_slots = _read(material_index.data, "value", len(mesh.polygons), np.int32)
+    return np.take(face_slots, _read(mesh.loop_triangle_polygons, "value", t, np.int32))
+
+
+def _assemble(meshes: dict, groups: dict) -> Geometry:
+    """Transform every group of instances into preallocated world-space arrays."""
+    total = sum(meshes[key].triangle_count * len(matrices) for (key, _), matrices in groups.items())
+    positions = np.empty((total, 3, 3), np.float32)
+    normals = np.empty((total, 3, 3), np.float32)
+    uvs = np.empty((total, 3, 2), np.float32)
+    material_ids = np.empty(total, np.int32)
+    start = 0
+    for (key, rows), matrices in groups.items():
+        mesh = meshes[key]
+        k, t = len(matrices), mesh.triangle_count
+        end = start + k * t
+        _transform(mesh, np.stack(matrices), positions[start:end], normals[start:end])
+        uvs[start:end].reshape(k, t, 3, 2)[:] = mesh.uvs.reshape(t, 3, 2)
+        # Blender clamps slot indices beyond the last slot to it.
+        table = np.array(rows, np.int32)
+        material_ids[start:end].reshape(k, t)[:] = table[np.clip(mesh.slots, 0, len(table) - 1)]
+        start = end
+    instance_count = sum(len(matrices) for matrices in groups.values())
+    return Geometry(positions, normals, uvs, material_ids, instance_count)
+
+
+def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray,
+               normals_out: np.ndarray) -> None:
+    """Write K instances of a mesh: world_from_object (K, 4, 4) float64, outputs (K*T, 3, 3) float32.
+
+    Positions keep their winding, so a mirrored instance's geometric normal flips while its shading
+    normals (inverse-transpose) point the way Blender shows them; the kernel reconciles the two per side.
+    """
+    k = len(world_from_object)
+    linear = world_from_object[:, :3, :3]
+    points = positions_out.reshape(k, -1, 3)
+    np.matmul(mesh.positions, linear.transpose(0, 2, 1).astype(np.float32), out=points)
+    points += world_from_object[:, None, :3, 3].astype(np.float32)
+    np.matmul(mesh.normals, _normal_matrices(linear).transpose(0, 2, 1), out=normals_out.reshape(k, -1, 3))
+
+
+def _normal_matrices(linear: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) float32 inverse-transpose of each (K, 3, 3) linear part, up to a positive factor.
+
+    Computed as the cofactor matrix (det x inverse-transpose) with the determinant's sign: it exists for
+    singular matrices too (their triangles are degenerate and dropped later). Scaled to magnitude 1 so
+    huge or tiny object scales stay well inside float32.
+    """
+    c0, c1, c2 = linear[:, :, 0], linear[:, :, 1], linear[:, :, 2]
+    cofactor = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=2)
+    det = np.einsum("ki,ki->k", c0, cofactor[:, :, 0])
+    largest = np.abs(cofactor).max(axis=(1, 2))
+    scale = np.copysign(1.0, det) / np.where(largest > 0, largest, 1.0)
+    return (cofactor * scale[:, None, None]).astype(np.float32)
