@@ -56,7 +56,7 @@ def main() -> None:
 
     scene = cornell_box(256, 256, wall_subdivisions=7, sphere_segments=12)
     print(f"Cornell box: {scene.triangle_count} triangles, 256x256, {args.samples} spp, max_bounces 8")
-    for mode in ("COSINE", "LECTURE"):
+    for mode in ("NEE_MIS", "COSINE", "LECTURE"):
         settings = RenderSettings(samples=args.samples, max_bounces=8, mode=mode)
         with Renderer(scene, args.threads) as renderer:
             threads = renderer.accel.threads

@@ -31,7 +31,12 @@ def equirect_to_direction(u, v):
 
 
 class Environment:
-    """World radiance for escaped rays."""
+    """World radiance for escaped rays, and importance sampling of the world as a light.
+
+    A constant world is sampled uniformly over the sphere. An HDRI is sampled from a piecewise-constant
+    distribution over its pixels, proportional to luminance x sin(theta) (the area of a pixel on the
+    sphere), so the pdf per solid angle is pdf_uv / (2 pi^2 sin(theta)).
+    """
 
     def __init__(self, world: World):
         self.world = world
@@ -39,6 +44,41 @@ class Environment:
         self.rotation = np.asarray(world.env_from_world, np.float32)
         self.texture = Texture(world.hdri) if world.hdri is not None else None
         self.constant = (np.asarray(world.color, np.float32) * self.strength)[:, None]
+        self._distribution = _PixelDistribution(world.hdri) if world.hdri is not None else None
+
+    def mean_luminance(self) -> float:
+        """Radiance luminance averaged over the sphere of directions."""
+        from .lights import luminance
+        if self.texture is None:
+            return float(luminance(self.constant[:, 0]))
+        # (1 / 4 pi) * sum(L sin(theta)) * (pi / H) * (2 pi / W) = (pi / 2) * mean(L sin(theta))
+        return float(self._distribution.mean_weight * 0.5 * np.pi * self.strength)
+
+    def sample_direction(self, u1, u2):
+        """World directions with pdf per solid angle: (wx, wy, wz, pdf)."""
+        if self.texture is None:
+            z = np.float32(1.0) - np.float32(2.0) * u1
+            r = np.sqrt(np.maximum(np.float32(1.0) - z * z, np.float32(0.0)))
+            phi = np.float32(2.0 * np.pi) * u2
+            return r * np.cos(phi), r * np.sin(phi), z, np.full(len(u1), np.float32(0.25 / np.pi))
+        u, v, pdf_uv = self._distribution.sample(u1, u2)
+        ex, ey, ez, sin_t = equirect_to_direction(u, v)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pdf = pdf_uv / (np.float32(2.0 * np.pi ** 2) * sin_t)
+        pdf = np.where((sin_t > 0) & np.isfinite(pdf), pdf, np.float32(0.0)).astype(np.float32)
+        wx, wy, wz = self.to_world(ex, ey, ez)
+        return wx, wy, wz, pdf
+
+    def direction_pdf(self, dx, dy, dz) -> np.ndarray:
+        """pdf per solid angle with which sample_direction() yields world directions d."""
+        if self.texture is None:
+            return np.full(len(dx), np.float32(0.25 / np.pi))
+        ex, ey, ez = self.to_env(dx, dy, dz)
+        u, v = direction_to_equirect(ex, ey, ez)
+        sin_t = np.sqrt(np.maximum(np.float32(1.0) - ez * ez, np.float32(0.0)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pdf = self._distribution.pdf(u, v) / (np.float32(2.0 * np.pi ** 2) * sin_t)
+        return np.where((sin_t > 0) & np.isfinite(pdf), pdf, np.float32(0.0)).astype(np.float32)
 
     @property
     def is_constant(self) -> bool:
@@ -63,3 +103,59 @@ class Environment:
             return np.broadcast_to(self.constant, (3, n))
         u, v = direction_to_equirect(*self.to_env(dx, dy, dz))
         return self.texture.lookup(u, v, wrap_v=False) * self.strength
+
+
+class _PixelDistribution:
+    """Piecewise-constant distribution over an (H, W) map's cells in (u, v), row 0 at v = 0.
+
+    Weights are luminance x sin(theta) at the row's centre; rows are drawn from the marginal, columns
+    from the row's conditional, and the point is uniform inside the cell.
+    """
+
+    def __init__(self, image: np.ndarray):
+        from .lights import luminance
+        h, w = image.shape[:2]
+        rgb = image[:, :, :3] if image.shape[2] >= 3 else np.repeat(image[:, :, :1], 3, axis=2)
+        theta = (1.0 - (np.arange(h) + 0.5) / h) * np.pi
+        weight = np.maximum(luminance(rgb).astype(np.float64), 0.0) * np.sin(theta)[:, None]
+        self.height, self.width = h, w
+        row_sum = weight.sum(axis=1)
+        total = row_sum.sum()
+        self.mean_weight = total / (h * w)
+        if total <= 0:  # a black map: fall back to uniform cells
+            weight = np.ones((h, w)) * np.sin(theta)[:, None]
+            row_sum = weight.sum(axis=1)
+            total = row_sum.sum()
+        self.row_pmf = row_sum / total
+        self.row_cdf = np.cumsum(self.row_pmf)
+        self.row_cdf /= self.row_cdf[-1]
+        safe = np.where(row_sum > 0, row_sum, 1.0)
+        self.col_pmf = weight / safe[:, None]
+        col_cdf = np.cumsum(self.col_pmf, axis=1)
+        col_cdf[row_sum > 0] /= col_cdf[row_sum > 0, -1:]
+        # Offsetting row r's cdf by r makes one flat sorted array: one searchsorted for all rows.
+        self.flat_cdf = (col_cdf + np.arange(h)[:, None]).ravel()
+        # pdf per unit (u, v) area of each cell: pmf * cells.
+        self.cell_pdf = (self.row_pmf[:, None] * self.col_pmf * (h * w)).astype(np.float32).ravel()
+
+    def sample(self, u1, u2):
+        h, w = self.height, self.width
+        row = np.minimum(np.searchsorted(self.row_cdf, u1.astype(np.float64), side="right"), h - 1)
+        flat = np.searchsorted(self.flat_cdf, u2.astype(np.float64) + row, side="right")
+        col = np.clip(flat - row * w, 0, w - 1)
+        # The position inside the cell reuses the remainders of both draws (stratified, no new numbers).
+        row_lo = np.where(row > 0, self.row_cdf[np.maximum(row - 1, 0)], 0.0)
+        row_p = self.row_pmf[row]
+        fv = np.clip((u1 - row_lo) / np.where(row_p > 0, row_p, 1.0), 0.0, 1.0 - 1e-7)
+        cell = row * w + col
+        col_lo = np.where(col > 0, self.flat_cdf[np.maximum(cell - 1, 0)] - row, 0.0)
+        col_p = self.col_pmf.ravel()[cell]
+        fu = np.clip((u2 - col_lo) / np.where(col_p > 0, col_p, 1.0), 0.0, 1.0 - 1e-7)
+        u = ((col + fu) / w).astype(np.float32)
+        v = ((row + fv) / h).astype(np.float32)
+        return u, v, self.cell_pdf[cell]
+
+    def pdf(self, u, v) -> np.ndarray:
+        col = np.clip((np.mod(u, 1.0) * self.width).astype(np.int64), 0, self.width - 1)
+        row = np.clip((v * self.height).astype(np.int64), 0, self.height - 1)
+        return self.cell_pdf[row * self.width + col]

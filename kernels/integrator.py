@@ -22,11 +22,15 @@ from .accel import Accel
 from .camera import generate_rays
 from .environment import Environment
 from .film import Film
+from .lights import LightSampler
 from .rng import PathRng, seed_paths
 from .scene import SceneArrays
 from .textures import Texture, finite_uv
 
-SAMPLING_MODES = ("LECTURE", "COSINE")
+SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
+# Russian roulette starts once a path has scattered this many times (NEE_MIS only: LECTURE and COSINE
+# stay the plain estimators they are, for teaching and as references).
+ROULETTE_DEPTH = 3
 
 # Rows of the per-triangle table gathered for every hit (one contiguous row per component).
 _P0, _E1, _E2, _NG, _N0, _N1, _N2, _UV0, _UV1, _UV2 = 0, 3, 6, 9, 12, 15, 18, 21, 23, 25
@@ -43,7 +47,7 @@ class RenderSettings:
     wave_size paths, which bounds memory whatever the resolution."""
     samples: int = 64
     max_bounces: int = 8
-    mode: str = "COSINE"
+    mode: str = "NEE_MIS"
     seed: int = 0
     time_limit_s: float = 0.0
     region: tuple | None = None
@@ -118,6 +122,9 @@ class Renderer:
         self._material_emits = np.any(mats.emission > 0, axis=1)
         self._emissive = bool(self._material_emits.any())
         self._ray_epsilon = _ray_epsilon(self.scene.positions)
+        self._texture_means = [t.channels.mean(axis=1) for t in self.textures]
+        center, radius = _bounding_sphere(self.scene.positions)
+        self.lights = LightSampler(self.scene, self.environment, self._triangle_emission, radius, center)
         threads = self.accel.threads
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
 
@@ -229,70 +236,143 @@ class Renderer:
         alpha = np.ones(n, np.float32)
         jx, jy = rng.next_2d()
         origins, dirs, t_max = generate_rays(self.scene.camera, row, col, jx, jy)
-        path = np.arange(n)                      # wave index of each live path
-        throughput = np.ones((3, n), np.float32)  # product of BSDF weights so far
+        # Path state, one entry per live path:
+        path = np.arange(n)                          # wave index of the path
+        throughput = np.ones((3, n), np.float32)     # product of BSDF weights (and 1/q of roulette)
+        bsdf_pdf = np.full(n, np.inf, np.float32)    # pdf of the direction that led here; inf = camera ray
+        nee = settings.mode == "NEE_MIS" and self.lights.has_lights
         max_scatters = int(settings.max_bounces) + 1
         for depth in range(max_scatters + 1):
             # ---- intersect
             hits = self.accel.intersect(origins, dirs, t_max, split)
             dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+            # ---- lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
+            if nee and depth > 0 and self.lights.light_count:
+                ox, oy, oz = origins[:, 0], origins[:, 1], origins[:, 2]
+                lit, le, light_pdf = self.lights.intersect(ox, oy, oz, dx, dy, dz, hits.t)
+                if lit.any():
+                    w = sampling.power_heuristic(bsdf_pdf, light_pdf)
+                    idx = np.flatnonzero(lit)
+                    _accumulate(radiance, path[idx], (throughput * le * w)[:, idx])
             # ---- escaped rays: the world
             miss = np.flatnonzero(hits.prim < 0)
             if len(miss):
                 if depth == 0 and settings.transparent_background:
                     alpha[path[miss]] = 0.0
                 else:
-                    env = self.environment.radiance(dx[miss], dy[miss], dz[miss])
-                    _accumulate(radiance, path[miss], np.take(throughput, miss, axis=1) * env)
+                    mx, my, mz = dx[miss], dy[miss], dz[miss]
+                    env = np.take(throughput, miss, axis=1) * self.environment.radiance(mx, my, mz)
+                    if nee and depth > 0:
+                        env = env * sampling.power_heuristic(bsdf_pdf[miss], self.lights.pdf_world(mx, my, mz))
+                    _accumulate(radiance, path[miss], env)
             hit = np.flatnonzero(hits.prim >= 0)
             if not len(hit):
                 break
             path = path[hit]
             throughput = np.take(throughput, hit, axis=1)
+            bsdf_pdf = np.take(bsdf_pdf, hit)
             rng = rng.take(hit)
             prim = np.take(hits.prim, hit)
             dx, dy, dz = np.take(dx, hit), np.take(dy, hit), np.take(dz, hit)
             # ---- shading data: the slide's barycentric interpolation
             sd = self._shading_data(prim, np.take(hits.u, hit), np.take(hits.v, hit), dx, dy, dz)
-            # ---- emission on hit
+            # ---- emission on hit (MIS-weighted when NEE could have found the same point)
             if self._emissive:
                 lit = np.flatnonzero(np.take(self._material_emits, sd["mat"]))
                 if len(lit):
                     le = self._emitted(np.take(sd["mat"], lit), _take(sd["u"], lit), _take(sd["v"], lit))
-                    _accumulate(radiance, path[lit], np.take(throughput, lit, axis=1) * le)
+                    le = np.take(throughput, lit, axis=1) * le
+                    if nee and depth > 0:
+                        gx, gy, gz = (np.take(c, lit) for c in sd["ng"])
+                        cos_l = gx * np.take(dx, lit) + gy * np.take(dy, lit) + gz * np.take(dz, lit)
+                        light_pdf = self.lights.pdf_triangle_hit(np.take(prim, lit), np.take(hits.t, hit[lit]), cos_l)
+                        le = le * sampling.power_heuristic(np.take(bsdf_pdf, lit), light_pdf)
+                    _accumulate(radiance, path[lit], le)
             if depth == max_scatters:
                 break
-            # ---- sample the next direction (diffuse BSDF)
             albedo = self._albedo_at(sd["mat"], sd["u"], sd["v"])
+            # ---- next-event estimation: one shadow ray toward a sampled light
+            if nee:
+                u_roulette = self._next_event(radiance, path, throughput, albedo, sd, rng, split)
+            # ---- sample the next direction (diffuse BSDF)
             ux, uy = rng.next_2d()
             nx, ny, nz = sd["ns"]
-            if settings.mode == "COSINE":
-                lx, ly, lz = sampling.sample_cosine_hemisphere(ux, uy)
-                weight = albedo                               # (albedo/pi) cos / (cos/pi)
-            else:
+            if settings.mode == "LECTURE":
                 lx, ly, lz, sin_t = sampling.sample_lecture_hemisphere(ux, uy)
                 weight = albedo * (sampling.PI * lz * sin_t)  # pi^2 sin * (albedo/pi) * cos
+                next_pdf = sampling.lecture_hemisphere_pdf(sin_t)
+            else:
+                lx, ly, lz = sampling.sample_cosine_hemisphere(ux, uy)
+                weight = albedo                               # (albedo/pi) cos / (cos/pi)
+                next_pdf = sampling.cosine_hemisphere_pdf(lz)
             wx, wy, wz = sampling.local_to_world(lx, ly, lz, nx, ny, nz)
             gx, gy, gz = sd["ng"]
             # A direction below the true surface would pass through it: absorb the path.
             above = (wx * gx + wy * gy + wz * gz) > 0
             throughput = throughput * weight
-            alive = np.flatnonzero(above & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0)))
+            alive = above & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
+            # ---- Russian roulette: after a few bounces, continue with probability q, re-weighted by 1/q
+            if nee and depth + 1 >= ROULETTE_DEPTH:
+                q = np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]), np.float32(1.0))
+                alive &= u_roulette < q
+                throughput = throughput / np.where(q > 0, q, np.float32(1.0))
+            alive = np.flatnonzero(alive)
             if not len(alive):
                 break
             path = path[alive]
             throughput = np.take(throughput, alive, axis=1)
+            bsdf_pdf = np.take(next_pdf, alive)
             rng = rng.take(alive)
             px, py, pz = (np.take(c, alive) for c in sd["p"])
             gx, gy, gz = np.take(gx, alive), np.take(gy, alive), np.take(gz, alive)
             wx, wy, wz = np.take(wx, alive), np.take(wy, alive), np.take(wz, alive)
             # ---- spawn: offset the origin off the surface (Embree's tnear is always 0)
-            eps = self._ray_epsilon + np.float32(2.0 ** -16) * np.maximum(
-                np.maximum(np.abs(px), np.abs(py)), np.abs(pz))
+            eps = self._offset(px, py, pz)
             origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
             dirs = np.stack([wx, wy, wz], axis=1)
             t_max = np.full(len(alive), np.inf, np.float32)
         return radiance, alpha
+
+    def _offset(self, px, py, pz):
+        """Distance to move a spawned ray's origin along the normal: scene scale plus float32 ulps."""
+        return self._ray_epsilon + np.float32(2.0 ** -16) * np.maximum(np.maximum(np.abs(px), np.abs(py)), np.abs(pz))
+
+    def _next_event(self, radiance, path, throughput, albedo, sd, rng, split):
+        """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light.
+        Returns a spare uniform number per path (used for Russian roulette)."""
+        u_select, u_spare = rng.next_2d()
+        u1, u2 = rng.next_2d()
+        px, py, pz = sd["p"]
+        ls = self.lights.sample(px, py, pz, u_select, u1, u2)
+        nx, ny, nz = sd["ns"]
+        gx, gy, gz = sd["ng"]
+        cos_s = ls.wx * nx + ls.wy * ny + ls.wz * nz
+        cos_g = ls.wx * gx + ls.wy * gy + ls.wz * gz
+        useful = (ls.pdf > 0) & (cos_s > 0) & (cos_g > 0) & (ls.radiance.max(axis=0) > 0)
+        idx = np.flatnonzero(useful)
+        if not len(idx):
+            return u_spare
+        sx, sy, sz = np.take(px, idx), np.take(py, idx), np.take(pz, idx)
+        ngx, ngy, ngz = np.take(gx, idx), np.take(gy, idx), np.take(gz, idx)
+        wx, wy, wz = np.take(ls.wx, idx), np.take(ls.wy, idx), np.take(ls.wz, idx)
+        eps = self._offset(sx, sy, sz)
+        dist = np.take(ls.dist, idx)
+        # Stop short of the sampled point so that the emitter itself does not count as an occluder.
+        t_max = np.where(np.isfinite(dist), dist * np.float32(1.0 - 1e-4) - np.float32(2.0) * eps, np.inf)
+        origins = np.stack([sx + ngx * eps, sy + ngy * eps, sz + ngz * eps], axis=1)
+        blocked = self.accel.occluded(origins, np.stack([wx, wy, wz], axis=1), t_max.astype(np.float32), split)
+        vis = idx[~blocked & (t_max > 0)]
+        if not len(vis):
+            return u_spare
+        pdf = np.take(ls.pdf, vis)
+        cos = np.take(cos_s, vis)
+        w = np.where(np.take(ls.delta, vis), np.float32(1.0),
+                     sampling.power_heuristic(pdf, sampling.cosine_hemisphere_pdf(cos)))
+        scale = cos * sampling.INV_PI * w / pdf
+        contribution = np.take(throughput, vis, axis=1) * np.take(albedo, vis, axis=1) * \
+            np.take(ls.radiance, vis, axis=1) * scale
+        _accumulate(radiance, path[vis], contribution)
+        return u_spare
 
     # ---------------------------------------------------------------- shading stages
     def _shading_data(self, prim, u, v, dx, dy, dz) -> dict:
@@ -325,6 +405,25 @@ class Renderer:
             "u": uu, "v": vv,
             "mat": np.take(self._material_ids, prim),
         }
+
+    def _triangle_emission(self, tri, b1=None, b2=None) -> np.ndarray:
+        """(3, n) emitted radiance of triangles tri at barycentrics (b1, b2); without them, the
+        triangle's mean (textures averaged), for power estimates."""
+        mat = np.take(self._material_ids, tri)
+        if b1 is None:
+            value = np.take(self._emission, mat, axis=1)
+            tex = np.take(self._emission_tex, mat)
+            for t in np.unique(tex[tex >= 0]):
+                sel = tex == t
+                value[:, sel] *= self._texture_means[t][:, None]
+            return value
+        g = np.take(self._tri_table, tri, axis=0).T
+        u = v = None
+        if self.textures:
+            b0 = np.float32(1.0) - b1 - b2
+            u = b0 * g[_UV0] + b1 * g[_UV1] + b2 * g[_UV2]
+            v = b0 * g[_UV0 + 1] + b1 * g[_UV1 + 1] + b2 * g[_UV2 + 1]
+        return self._emitted(mat, u, v)
 
     def _albedo_at(self, mat, u, v) -> np.ndarray:
         return self._material_value(self._albedo, self._albedo_tex, mat, u, v)
@@ -394,6 +493,15 @@ def _triangle_table(scene: SceneArrays) -> np.ndarray:
     for k, row in enumerate((_UV0, _UV1, _UV2)):
         table[row:row + 2] = scene.uvs[:, k].T
     return np.ascontiguousarray(table.T)
+
+
+def _bounding_sphere(positions: np.ndarray):
+    """Centre and radius of a sphere around the geometry (for the power of infinite lights)."""
+    if not len(positions):
+        return np.zeros(3), 1.0
+    lo = positions.reshape(-1, 3).min(axis=0).astype(np.float64)
+    hi = positions.reshape(-1, 3).max(axis=0).astype(np.float64)
+    return (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
 
 
 def _ray_epsilon(positions: np.ndarray) -> np.float32:

@@ -8,7 +8,7 @@ from ember.kernels.shapes import box, cornell_box
 from kernel_helpers import inside_emitting_sphere, sphere_in_furnace, trace_samples
 from stats import mean_and_stderr
 
-MODES = ("COSINE", "LECTURE")
+MODES = ("COSINE", "LECTURE", "NEE_MIS")
 
 
 # ---------------------------------------------------------------- closed forms
@@ -48,21 +48,24 @@ def test_inside_an_emitting_sphere_cosine_is_the_geometric_series(max_bounces):
     """Every path hits the sphere at every vertex: L = Le * sum_{k=0}^{S} albedo^k, S = max_bounces + 1."""
     rho, le = 0.5, 3.0
     expected = le * sum(rho ** k for k in range(max_bounces + 2))
-    result = render(inside_emitting_sphere(rho, le), RenderSettings(samples=2, max_bounces=max_bounces))
+    result = render(inside_emitting_sphere(rho, le), RenderSettings(samples=2, max_bounces=max_bounces, mode="COSINE"))
     assert np.allclose(result.image[..., :3], expected, rtol=1e-5)
 
 
-def test_inside_an_emitting_sphere_lecture_converges_to_the_series():
-    rho, le, bounces = 0.5, 3.0, 3
+@pytest.mark.parametrize("mode", ["LECTURE", "NEE_MIS"])
+def test_inside_an_emitting_sphere_converges_to_the_series(mode):
+    """LECTURE samples directions badly; NEE_MIS splits each bounce between light and BSDF sampling
+    and plays Russian roulette: both must still average to the series."""
+    rho, le, bounces = 0.5, 3.0, 5
     expected = le * sum(rho ** k for k in range(bounces + 2))
-    samples = trace_samples(inside_emitting_sphere(rho, le), RenderSettings(mode="LECTURE", max_bounces=bounces), 256)
+    samples = trace_samples(inside_emitting_sphere(rho, le), RenderSettings(mode=mode, max_bounces=bounces), 256)
     m, se = mean_and_stderr(samples[:, 0].ravel())
     assert abs(m - expected) < 4 * se, (m, se, expected)
     assert se < 0.01 * expected
 
 
 # ---------------------------------------------------------------- the two estimators
-def test_lecture_and_cosine_agree_and_cosine_has_less_variance():
+def test_all_modes_agree_and_variance_falls_from_lecture_to_cosine_to_nee():
     scene = cornell_box(16, 16, light_size=1.0, light_radiance=6.0, wall_subdivisions=2, sphere_segments=8)
     stats = {}
     for mode in MODES:
@@ -70,10 +73,12 @@ def test_lecture_and_cosine_agree_and_cosine_has_less_variance():
         lum = s.mean(axis=1)  # (samples, pixels)
         blocks = lum.reshape(len(lum), 4, 4, 4, 4).mean(axis=(2, 4)).reshape(len(lum), 16)
         stats[mode] = (*mean_and_stderr(blocks, axis=0), lum.var(axis=0).mean())
-    (m_c, se_c, var_c), (m_l, se_l, var_l) = stats["COSINE"], stats["LECTURE"]
-    z = np.abs(m_c - m_l) / np.sqrt(se_c ** 2 + se_l ** 2)
-    assert np.all(z < 4.5), z  # 16 blocks, 4.5 sigma each
-    assert var_c < var_l, (var_c, var_l)
+    m_c, se_c, var_c = stats["COSINE"]
+    for mode in ("LECTURE", "NEE_MIS"):
+        m, se, _ = stats[mode]
+        z = np.abs(m_c - m) / np.sqrt(se_c ** 2 + se ** 2)
+        assert np.all(z < 4.5), (mode, z)  # 16 blocks, 4.5 sigma each
+    assert stats["NEE_MIS"][2] < var_c < stats["LECTURE"][2], {k: v[2] for k, v in stats.items()}
     assert m_c.mean() > 0.05  # the box is lit: the comparison is not between two black images
 
 

@@ -174,7 +174,7 @@ def test_textured_material_multiplies_albedo():
                                            emission=np.zeros((1, 3), np.float32), emission_texture=np.int32([-1])),
                        textures=(tex,), camera=Camera(world_from_camera=look_at((0, -3, 0), (0, 0, 0)),
                                                      width=8, height=8, fov_rad=np.radians(20)))
-    img = render(scene, RenderSettings(samples=2, max_bounces=0)).image
+    img = render(scene, RenderSettings(samples=2, max_bounces=0, mode="COSINE")).image
     # The quad faces the camera with the world behind it: a diffuse plane of albedo 0.5 under a
     # uniform hemisphere of radiance 1 reflects 0.5.
     assert np.allclose(img[4, 4, :3], 0.5, rtol=1e-5)

@@ -1,0 +1,332 @@
+"""Next-event estimation: choosing a light, sampling it, and the pdfs MIS needs.
+
+Three kinds of emitters share one discrete distribution, proportional to an estimate of their power:
+Blender lights (the Lights table), emissive triangles (materials with emission) and the world.
+`sample` returns, per shading point, a direction toward a point on the chosen light, the distance to
+it, the radiance arriving along it and its pdf per unit solid angle *including the probability of
+choosing that light*, so MIS weights compare like with like. Delta lights (zero-size point and spot,
+zero-angle sun) return their irradiance-producing term with pdf = selection probability.
+
+Conventions of the Lights table (see scene.Lights): Blender lights shine down their local -Z, so
+the sun lies along +Z and an area light emits toward -Z only. Emissive triangles emit from both sides,
+as Cycles' mesh lights do.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import sampling
+from .environment import Environment
+from .scene import LIGHT_KINDS, SceneArrays
+
+POINT, SPOT, SUN, RECT, DISK = (LIGHT_KINDS[k] for k in ("POINT", "SPOT", "SUN", "RECT", "DISK"))
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec. 709, Blender's default scene linear
+TWO_PI = np.float32(2.0 * np.pi)
+
+
+def luminance(rgb) -> np.ndarray:
+    return np.tensordot(LUMINANCE, np.asarray(rgb, np.float32), axes=([0], [-1]))
+
+
+def smoothstep01(x):
+    x = np.clip(x, np.float32(0.0), np.float32(1.0))
+    return x * x * (np.float32(3.0) - np.float32(2.0) * x)
+
+
+class LightSample:
+    """Per shading point: unit direction (wx, wy, wz), distance (inf for the world and the sun),
+    radiance (3, N) arriving along it, pdf (N,) per unit solid angle times the selection probability,
+    delta (N,) bool for lights no BSDF ray can hit."""
+    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta")
+
+    def __init__(self, n: int):
+        self.wx = np.zeros(n, np.float32)
+        self.wy = np.zeros(n, np.float32)
+        self.wz = np.ones(n, np.float32)
+        self.dist = np.full(n, np.inf, np.float32)
+        self.radiance = np.zeros((3, n), np.float32)
+        self.pdf = np.zeros(n, np.float32)
+        self.delta = np.zeros(n, bool)
+
+    def set(self, idx, wx, wy, wz, dist, radiance, pdf, delta=False):
+        self.wx[idx], self.wy[idx], self.wz[idx] = wx, wy, wz
+        self.dist[idx] = dist
+        self.radiance[:, idx] = radiance
+        self.pdf[idx] = pdf
+        self.delta[idx] = delta
+
+
+class LightSampler:
+    """All emitters of a scene and one power-proportional distribution over them.
+
+    Entities are numbered: Blender lights [0, L), emissive triangles [L, L + E), then the world.
+    """
+
+    def __init__(self, scene: SceneArrays, environment: Environment, triangle_emission, scene_radius: float,
+                 scene_center=(0.0, 0.0, 0.0)):
+        """triangle_emission(tri_ids) -> (3, n) mean emitted radiance of those triangles (texture averaged)."""
+        lights = scene.lights
+        self.environment = environment
+        self.light_count = lights.count
+        self.kind = lights.kind
+        self.position = lights.position.astype(np.float32)
+        self.axes = lights.frame.astype(np.float32)              # (L, 3, 3): columns x, y, z
+        self.radiance_of = lights.radiance.astype(np.float32)
+        self.radius = lights.radius.astype(np.float32)
+        self.size = lights.size.astype(np.float32)
+        self.spot = lights.spot_cos.astype(np.float32)
+        self.sun_cos = np.cos(lights.sun_half_angle).astype(np.float32)
+        self.area = np.where(self.kind == RECT, self.size[:, 0] * self.size[:, 1],
+                             np.float32(np.pi / 4) * self.size[:, 0] * self.size[:, 1]).astype(np.float32)
+
+        # Emissive triangles: two-sided, uniform over their area.
+        emits = np.any(scene.materials.emission > 0, axis=1)
+        self.tri_ids = np.flatnonzero(emits[scene.material_ids]).astype(np.int32)
+        p = scene.positions[self.tri_ids].astype(np.float64)
+        self.tri_p0 = p[:, 0].astype(np.float32)
+        self.tri_e1 = (p[:, 1] - p[:, 0]).astype(np.float32)
+        self.tri_e2 = (p[:, 2] - p[:, 0]).astype(np.float32)
+        cross = np.cross(self.tri_e1.astype(np.float64), self.tri_e2.astype(np.float64))
+        tri_area = 0.5 * np.linalg.norm(cross, axis=1)
+        self.tri_area = tri_area.astype(np.float32)
+        self.tri_normal = (cross / np.maximum(2 * tri_area, 1e-300)[:, None]).astype(np.float32)
+        # Position of each scene triangle in the emissive list (-1 for non-emissive), for MIS on hits.
+        self.tri_slot = np.full(scene.triangle_count, -1, np.int32)
+        self.tri_slot[self.tri_ids] = np.arange(len(self.tri_ids), dtype=np.int32)
+        self.triangle_emission = triangle_emission
+
+        self.scene_radius = np.float32(max(scene_radius, 1e-3))
+        self.scene_center = np.asarray(scene_center, np.float32)
+        power = np.concatenate([self._light_power(), self._triangle_power(), [self._world_power()]])
+        power = np.where(np.isfinite(power) & (power > 0), power, 0.0)
+        self.world_index = self.light_count + len(self.tri_ids)
+        total = power.sum()
+        self.has_lights = total > 0
+        self.select_pmf = (power / total if total > 0 else power).astype(np.float64)
+        self._cdf = np.cumsum(self.select_pmf)
+        if total > 0:
+            self._cdf /= self._cdf[-1]
+        self.pmf32 = self.select_pmf.astype(np.float32)
+
+    # ------------------------------------------------------------------ power estimates
+    def _light_power(self) -> np.ndarray:
+        lum = luminance(self.radiance_of).astype(np.float64) if self.light_count else np.zeros(0)
+        r2 = self.radius.astype(np.float64) ** 2
+        sphere = np.where(r2 > 0, lum * 4 * np.pi ** 2 * r2, lum * 4 * np.pi)
+        cone = (1.0 - 0.5 * (self.spot[:, 0] + np.minimum(1.0, self.spot[:, 0] + self.spot[:, 1]))).astype(np.float64)
+        spot = sphere * np.clip(cone, 1e-4, 1.0) / 2.0
+        sun = lum * np.pi * float(self.scene_radius) ** 2
+        area = lum * self.area * np.pi
+        return np.select([self.kind == POINT, self.kind == SPOT, self.kind == SUN], [sphere, spot, sun], area)
+
+    def _triangle_power(self) -> np.ndarray:
+        if not len(self.tri_ids):
+            return np.zeros(0)
+        lum = luminance(self.triangle_emission(self.tri_ids).T).astype(np.float64)
+        return 2.0 * np.pi * self.tri_area * lum
+
+    def _world_power(self) -> float:
+        return float(np.pi * self.scene_radius ** 2 * 4 * np.pi * self.environment.mean_luminance())
+
+    # ------------------------------------------------------------------ sampling
+    def sample(self, px, py, pz, u_select, u1, u2) -> LightSample:
+        """Choose an emitter for each shading point p and sample a direction toward it."""
+        n = len(px)
+        out = LightSample(n)
+        if not self.has_lights or n == 0:
+            return out
+        chosen = np.minimum(np.searchsorted(self._cdf, u_select, side="right"), len(self._cdf) - 1)
+        select = np.take(self.pmf32, chosen)
+        if self.light_count:
+            for kind, method in ((POINT, self._sample_sphere), (SPOT, self._sample_sphere),
+                                 (SUN, self._sample_sun), (RECT, self._sample_area), (DISK, self._sample_area)):
+                idx = np.flatnonzero((chosen < self.light_count) & (np.take(self.kind, np.minimum(chosen, self.light_count - 1)) == kind))
+                if len(idx):
+                    method(out, idx, chosen[idx], px[idx], py[idx], pz[idx], u1[idx], u2[idx])
+        tri = np.flatnonzero((chosen >= self.light_count) & (chosen < self.world_index))
+        if len(tri):
+            self._sample_triangle(out, tri, chosen[tri] - self.light_count, px[tri], py[tri], pz[tri], u1[tri], u2[tri])
+        world = np.flatnonzero(chosen == self.world_index)
+        if len(world):
+            self._sample_world(out, world, u1[world], u2[world])
+        out.pdf *= select
+        return out
+
+    def _axis(self, light, k):
+        """(3, n) world direction of the chosen lights' local axis k."""
+        return self.axes[light, :, k].T
+
+    def _sample_sphere(self, out, idx, light, px, py, pz, u1, u2):
+        c = self.position[light].T
+        dx, dy, dz = c[0] - px, c[1] - py, c[2] - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        dist_c = np.sqrt(d2)
+        inv = np.float32(1.0) / np.maximum(dist_c, np.float32(1e-20))
+        ax, ay, az = dx * inv, dy * inv, dz * inv
+        r = self.radius[light]
+        radiance = self.radiance_of[light].T.copy()
+        delta = r <= 0
+        # Spot cone on the direction from the light to the point (the spot shines down -Z).
+        att = self._spot_attenuation(light, -ax, -ay, -az)
+        radiance *= att[None, :]
+        # Sphere lights: uniform in the cone the sphere subtends (points inside the sphere see all of it).
+        sin2_max = np.minimum(r * r / np.maximum(d2, np.float32(1e-30)), np.float32(1.0))
+        cos_max = np.sqrt(np.float32(1.0) - sin2_max)
+        lx, ly, lz = sampling.sample_uniform_cone(u1, u2, cos_max)
+        wx, wy, wz = sampling.local_to_world(lx, ly, lz, ax, ay, az)
+        # Distance to the sphere's surface along w (nearest root, or the exit when inside).
+        b = dist_c * lz
+        disc = np.maximum(r * r - (d2 - b * b), np.float32(0.0))
+        t = np.where(d2 > r * r, b - np.sqrt(disc), b + np.sqrt(disc))
+        pdf = sampling.uniform_cone_pdf(np.minimum(cos_max, np.float32(1.0 - 1e-7)))
+        # Delta lights: the exact direction, radiance becomes intensity / distance^2.
+        wx, wy, wz = np.where(delta, ax, wx), np.where(delta, ay, wy), np.where(delta, az, wz)
+        t = np.where(delta, dist_c, t)
+        radiance = np.where(delta[None, :], radiance / np.maximum(d2, np.float32(1e-30))[None, :], radiance)
+        pdf = np.where(delta, np.float32(1.0), pdf)
+        out.set(idx, wx, wy, wz, t, radiance, pdf, delta)
+
+    def _spot_attenuation(self, light, vx, vy, vz):
+        """Cycles' spot cone: smoothstep of (cos - cos_half) / (blend width); 1 for point lights.
+        v is the unit direction from the light toward the point."""
+        is_spot = self.kind[light] == SPOT
+        zx, zy, zz = self._axis(light, 2)
+        cos = -(vx * zx + vy * zy + vz * zz)
+        cos_half, width = self.spot[light, 0], self.spot[light, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            soft = smoothstep01((cos - cos_half) / width)
+        att = np.where(width > 0, soft, (cos > cos_half).astype(np.float32))
+        return np.where(is_spot, att, np.float32(1.0)).astype(np.float32)
+
+    def _sample_sun(self, out, idx, light, px, py, pz, u1, u2):
+        zx, zy, zz = self._axis(light, 2)  # toward the sun
+        cos_max = self.sun_cos[light]
+        delta = cos_max >= np.float32(1.0)
+        lx, ly, lz = sampling.sample_uniform_cone(u1, u2, cos_max)
+        wx, wy, wz = sampling.local_to_world(lx, ly, lz, zx, zy, zz)
+        wx, wy, wz = np.where(delta, zx, wx), np.where(delta, zy, wy), np.where(delta, zz, wz)
+        pdf = np.where(delta, np.float32(1.0), sampling.uniform_cone_pdf(np.minimum(cos_max, np.float32(1 - 1e-7))))
+        out.set(idx, wx, wy, wz, np.float32(np.inf), self.radiance_of[light].T, pdf, delta)
+
+    def _sample_area(self, out, idx, light, px, py, pz, u1, u2):
+        sx, sy = self.size[light, 0], self.size[light, 1]
+        disk = self.kind[light] == DISK
+        dx_, dy_ = sampling.sample_uniform_disk(u1, u2)
+        a = np.where(disk, dx_ * np.float32(0.5), u1 - np.float32(0.5)) * sx
+        b = np.where(disk, dy_ * np.float32(0.5), u2 - np.float32(0.5)) * sy
+        c = self.position[light].T
+        xa, ya, za = self._axis(light, 0), self._axis(light, 1), self._axis(light, 2)
+        qx = c[0] + a * xa[0] + b * ya[0]
+        qy = c[1] + a * xa[1] + b * ya[1]
+        qz = c[2] + a * xa[2] + b * ya[2]
+        wx, wy, wz, dist = _direction(px, py, pz, qx, qy, qz)
+        cos_l = wx * za[0] + wy * za[1] + wz * za[2]  # > 0: the point is on the emitting (-Z) side
+        pdf = _area_to_solid_angle(self.area[light], dist, cos_l)
+        radiance = np.where(cos_l > 0, self.radiance_of[light].T, np.float32(0.0))
+        out.set(idx, wx, wy, wz, dist, radiance, pdf)
+
+    def _sample_triangle(self, out, idx, slot, px, py, pz, u1, u2):
+        su = np.sqrt(u1)
+        b1 = np.float32(1.0) - su
+        b2 = u2 * su
+        p0, e1, e2 = self.tri_p0[slot].T, self.tri_e1[slot].T, self.tri_e2[slot].T
+        qx = p0[0] + b1 * e1[0] + b2 * e2[0]
+        qy = p0[1] + b1 * e1[1] + b2 * e2[1]
+        qz = p0[2] + b1 * e1[2] + b2 * e2[2]
+        wx, wy, wz, dist = _direction(px, py, pz, qx, qy, qz)
+        n = self.tri_normal[slot].T
+        cos_l = np.abs(wx * n[0] + wy * n[1] + wz * n[2])
+        pdf = _area_to_solid_angle(self.tri_area[slot], dist, cos_l)
+        radiance = self.triangle_emission(self.tri_ids[slot], b1, b2)
+        out.set(idx, wx, wy, wz, dist, radiance, pdf)
+
+    def _sample_world(self, out, idx, u1, u2):
+        wx, wy, wz, pdf = self.environment.sample_direction(u1, u2)
+        out.set(idx, wx, wy, wz, np.float32(np.inf), self.environment.radiance(wx, wy, wz), pdf)
+
+    # ------------------------------------------------------------------ pdfs of what BSDF rays find
+    def pdf_triangle_hit(self, tri, dist, cos_l) -> np.ndarray:
+        """pdf (solid angle, with selection) that NEE would have sampled this point of emissive triangle tri."""
+        slot = np.take(self.tri_slot, tri)
+        ok = slot >= 0
+        s = np.maximum(slot, 0)
+        pmf = np.take(self.pmf32, self.light_count + s) if len(self.tri_ids) else np.zeros(len(tri), np.float32)
+        area = np.take(self.tri_area, s) if len(self.tri_ids) else np.ones(len(tri), np.float32)
+        return np.where(ok, pmf * _area_to_solid_angle(area, dist, np.abs(cos_l)), np.float32(0.0))
+
+    def pdf_world(self, dx, dy, dz) -> np.ndarray:
+        if not self.has_lights or self.select_pmf[self.world_index] == 0:
+            return np.zeros(len(dx), np.float32)
+        return self.pmf32[self.world_index] * self.environment.direction_pdf(dx, dy, dz)
+
+    def intersect(self, ox, oy, oz, dx, dy, dz, t_max):
+        """BSDF rays against the lights that have a surface (sphere, rect, disk): the nearest hit before
+        t_max. Returns (hit mask, radiance (3, N), pdf (N,) solid angle with selection)."""
+        n = len(ox)
+        best_t = t_max.astype(np.float32).copy()
+        radiance = np.zeros((3, n), np.float32)
+        pdf = np.zeros(n, np.float32)
+        hit = np.zeros(n, bool)
+        for k in range(self.light_count):
+            kind = self.kind[k]
+            if kind == SUN or (kind in (POINT, SPOT) and self.radius[k] <= 0) or self.pmf32[k] == 0:
+                continue
+            if kind in (POINT, SPOT):
+                t, light_pdf, att = self._hit_sphere(k, ox, oy, oz, dx, dy, dz)
+            else:
+                t, light_pdf, att = self._hit_area(k, ox, oy, oz, dx, dy, dz)
+            nearer = (t > 0) & (t < best_t)
+            if nearer.any():
+                best_t = np.where(nearer, t, best_t)
+                radiance = np.where(nearer[None, :], self.radiance_of[k][:, None] * att[None, :], radiance)
+                pdf = np.where(nearer, self.pmf32[k] * light_pdf, pdf)
+                hit |= nearer
+        return hit, radiance, pdf
+
+    def _hit_sphere(self, k, ox, oy, oz, dx, dy, dz):
+        c, r = self.position[k], self.radius[k]
+        lx, ly, lz = c[0] - ox, c[1] - oy, c[2] - oz
+        b = lx * dx + ly * dy + lz * dz
+        d2 = lx * lx + ly * ly + lz * lz
+        disc = b * b - (d2 - r * r)
+        outside = d2 > r * r
+        root = np.sqrt(np.maximum(disc, np.float32(0.0)))
+        t = np.where(outside, b - root, b + root)
+        t = np.where((disc >= 0) & outside, t, np.float32(-1.0))  # points inside a light see no surface
+        cos_max = np.sqrt(np.maximum(np.float32(1.0) - r * r / np.maximum(d2, np.float32(1e-30)), np.float32(0.0)))
+        pdf = sampling.uniform_cone_pdf(np.minimum(cos_max, np.float32(1 - 1e-7)))
+        inv = np.float32(1.0) / np.sqrt(np.maximum(d2, np.float32(1e-30)))
+        att = self._spot_attenuation(np.full(len(ox), k), -lx * inv, -ly * inv, -lz * inv)
+        return t, pdf, att
+
+    def _hit_area(self, k, ox, oy, oz, dx, dy, dz):
+        c = self.position[k]
+        xa, ya, za = self.axes[k, :, 0], self.axes[k, :, 1], self.axes[k, :, 2]
+        denom = dx * za[0] + dy * za[1] + dz * za[2]          # > 0: travelling into the emitting face
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((c[0] - ox) * za[0] + (c[1] - oy) * za[1] + (c[2] - oz) * za[2]) / denom
+        hx, hy, hz = ox + t * dx - c[0], oy + t * dy - c[1], oz + t * dz - c[2]
+        a = (hx * xa[0] + hy * xa[1] + hz * xa[2]) / self.size[k, 0]
+        b = (hx * ya[0] + hy * ya[1] + hz * ya[2]) / self.size[k, 1]
+        if self.kind[k] == DISK:
+            inside = a * a + b * b <= np.float32(0.25)
+        else:
+            inside = (np.abs(a) <= np.float32(0.5)) & (np.abs(b) <= np.float32(0.5))
+        valid = inside & (denom > 0) & np.isfinite(t)
+        t = np.where(valid, t, np.float32(-1.0))
+        pdf = _area_to_solid_angle(self.area[k], np.abs(t), np.abs(denom))
+        return t, pdf, np.ones(len(ox), np.float32)
+
+
+def _direction(px, py, pz, qx, qy, qz):
+    dx, dy, dz = qx - px, qy - py, qz - pz
+    dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+    inv = np.float32(1.0) / np.maximum(dist, np.float32(1e-30))
+    return dx * inv, dy * inv, dz * inv, dist
+
+
+def _area_to_solid_angle(area, dist, cos_l):
+    """pdf per solid angle of a point sampled uniformly on `area`, seen at dist under cos_l."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pdf = dist * dist / (area * cos_l)
+    return np.where((cos_l > 0) & np.isfinite(pdf), pdf, np.float32(0.0)).astype(np.float32)
