@@ -5,11 +5,14 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
 SAMPLING_MODE_ITEMS = (
-    ("COSINE", "Cosine", "Cosine-weighted hemisphere sampling of the diffuse BSDF: finds light only by hitting it"),
+    ("NEE_MIS", "Next-Event + MIS", "Production: a shadow ray toward a sampled light at every bounce, combined with "
+                                    "BSDF sampling by multiple importance sampling; Russian roulette"),
+    ("COSINE", "Cosine", "Cosine-weighted hemisphere sampling of the diffuse BSDF: finds light only by hitting it "
+                         "(point, spot and sharp sun lights, which no ray can hit, stay dark)"),
     ("LECTURE", "Lecture", "The lecture's estimator: uniform in (theta, phi), weight pi^2 sin(theta). "
                            "For teaching and as a reference; noisier"),
 )
-DEFAULT_SAMPLING_MODE = "COSINE"
+DEFAULT_SAMPLING_MODE = "NEE_MIS"
 
 
 class EmberSceneSettings(bpy.types.PropertyGroup):

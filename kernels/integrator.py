@@ -247,13 +247,15 @@ class Renderer:
             hits = self.accel.intersect(origins, dirs, t_max, split)
             dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
             # ---- lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
-            if nee and depth > 0 and self.lights.light_count:
+            if depth > 0 and self.lights.has_surface_lights:
                 ox, oy, oz = origins[:, 0], origins[:, 1], origins[:, 2]
                 lit, le, light_pdf = self.lights.intersect(ox, oy, oz, dx, dy, dz, hits.t)
                 if lit.any():
-                    w = sampling.power_heuristic(bsdf_pdf, light_pdf)
                     idx = np.flatnonzero(lit)
-                    _accumulate(radiance, path[idx], (throughput * le * w)[:, idx])
+                    le = np.take(throughput * le, idx, axis=1)
+                    if nee:
+                        le = le * sampling.power_heuristic(np.take(bsdf_pdf, idx), np.take(light_pdf, idx))
+                    _accumulate(radiance, path[idx], le)
             # ---- escaped rays: the world
             miss = np.flatnonzero(hits.prim < 0)
             if len(miss):

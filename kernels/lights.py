@@ -76,6 +76,10 @@ class LightSampler:
         self.size = lights.size.astype(np.float32)
         self.spot = lights.spot_cos.astype(np.float32)
         self.sun_cos = np.cos(lights.sun_half_angle).astype(np.float32)
+        # A sun of angular radius a and radiance L gives E = L pi sin^2(a) facing it: L = E / (pi sin^2 a).
+        sin2 = np.sin(lights.sun_half_angle.astype(np.float64)) ** 2
+        self.sun_radiance = np.where((sin2 > 0)[:, None], lights.radiance / (np.pi * np.maximum(sin2, 1e-300))[:, None],
+                                     lights.radiance).astype(np.float32)
         self.area = np.where(self.kind == RECT, self.size[:, 0] * self.size[:, 1],
                              np.float32(np.pi / 4) * self.size[:, 0] * self.size[:, 1]).astype(np.float32)
 
@@ -95,6 +99,9 @@ class LightSampler:
         self.tri_slot[self.tri_ids] = np.arange(len(self.tri_ids), dtype=np.int32)
         self.triangle_emission = triangle_emission
 
+        surface = ((self.kind == RECT) | (self.kind == DISK) | (((self.kind == POINT) | (self.kind == SPOT))
+                                                                 & (self.radius > 0)))
+        self.has_surface_lights = bool(surface.any())
         self.scene_radius = np.float32(max(scene_radius, 1e-3))
         self.scene_center = np.asarray(scene_center, np.float32)
         power = np.concatenate([self._light_power(), self._triangle_power(), [self._world_power()]])
@@ -112,7 +119,8 @@ class LightSampler:
     def _light_power(self) -> np.ndarray:
         lum = luminance(self.radiance_of).astype(np.float64) if self.light_count else np.zeros(0)
         r2 = self.radius.astype(np.float64) ** 2
-        sphere = np.where(r2 > 0, lum * 4 * np.pi ** 2 * r2, lum * 4 * np.pi)
+        # Sized point lights act as a disk of radiance L facing every point: intensity L pi r^2.
+        sphere = np.where(r2 > 0, lum * np.pi * r2, lum) * 4 * np.pi
         cone = (1.0 - 0.5 * (self.spot[:, 0] + np.minimum(1.0, self.spot[:, 0] + self.spot[:, 1]))).astype(np.float64)
         spot = sphere * np.clip(cone, 1e-4, 1.0) / 2.0
         sun = lum * np.pi * float(self.scene_radius) ** 2
@@ -157,34 +165,33 @@ class LightSampler:
         return self.axes[light, :, k].T
 
     def _sample_sphere(self, out, idx, light, px, py, pz, u1, u2):
+        """Point and spot lights. With a radius, Cycles lights a point as a uniform disk of that radius
+        facing it (checked against Cycles 5.0.1 on and off axis); without, they are delta lights."""
         c = self.position[light].T
         dx, dy, dz = c[0] - px, c[1] - py, c[2] - pz
         d2 = dx * dx + dy * dy + dz * dz
-        dist_c = np.sqrt(d2)
-        inv = np.float32(1.0) / np.maximum(dist_c, np.float32(1e-20))
-        ax, ay, az = dx * inv, dy * inv, dz * inv
+        inv = np.float32(1.0) / np.sqrt(np.maximum(d2, np.float32(1e-30)))
+        ax, ay, az = dx * inv, dy * inv, dz * inv            # from the point toward the light
         r = self.radius[light]
-        radiance = self.radiance_of[light].T.copy()
         delta = r <= 0
-        # Spot cone on the direction from the light to the point (the spot shines down -Z).
-        att = self._spot_attenuation(light, -ax, -ay, -az)
-        radiance *= att[None, :]
-        # Sphere lights: uniform in the cone the sphere subtends (points inside the sphere see all of it).
-        sin2_max = np.minimum(r * r / np.maximum(d2, np.float32(1e-30)), np.float32(1.0))
-        cos_max = np.sqrt(np.float32(1.0) - sin2_max)
-        lx, ly, lz = sampling.sample_uniform_cone(u1, u2, cos_max)
-        wx, wy, wz = sampling.local_to_world(lx, ly, lz, ax, ay, az)
-        # Distance to the sphere's surface along w (nearest root, or the exit when inside).
-        b = dist_c * lz
-        disc = np.maximum(r * r - (d2 - b * b), np.float32(0.0))
-        t = np.where(d2 > r * r, b - np.sqrt(disc), b + np.sqrt(disc))
-        pdf = sampling.uniform_cone_pdf(np.minimum(cos_max, np.float32(1.0 - 1e-7)))
+        # A uniform point on the disk through c, perpendicular to the axis.
+        ex, ey = sampling.sample_uniform_disk(u1, u2)
+        tx, ty, tz, bx, by, bz = sampling.orthonormal_basis(ax, ay, az)
+        qx = c[0] + r * (ex * tx + ey * bx)
+        qy = c[1] + r * (ex * ty + ey * by)
+        qz = c[2] + r * (ex * tz + ey * bz)
+        wx, wy, wz, dist = _direction(px, py, pz, qx, qy, qz)
+        cos_l = wx * ax + wy * ay + wz * az
+        pdf = _area_to_solid_angle(np.float32(np.pi) * r * r, dist, cos_l)
+        # The spot cone is evaluated along the sampled ray, as Cycles does (this softens its edge).
+        radiance = self.radiance_of[light].T * self._spot_attenuation(light, -wx, -wy, -wz)[None, :]
         # Delta lights: the exact direction, radiance becomes intensity / distance^2.
+        dist_c = np.sqrt(d2)
         wx, wy, wz = np.where(delta, ax, wx), np.where(delta, ay, wy), np.where(delta, az, wz)
-        t = np.where(delta, dist_c, t)
+        dist = np.where(delta, dist_c, dist)
         radiance = np.where(delta[None, :], radiance / np.maximum(d2, np.float32(1e-30))[None, :], radiance)
         pdf = np.where(delta, np.float32(1.0), pdf)
-        out.set(idx, wx, wy, wz, t, radiance, pdf, delta)
+        out.set(idx, wx, wy, wz, dist, radiance, pdf, delta)
 
     def _spot_attenuation(self, light, vx, vy, vz):
         """Cycles' spot cone: smoothstep of (cos - cos_half) / (blend width); 1 for point lights.
@@ -206,7 +213,7 @@ class LightSampler:
         wx, wy, wz = sampling.local_to_world(lx, ly, lz, zx, zy, zz)
         wx, wy, wz = np.where(delta, zx, wx), np.where(delta, zy, wy), np.where(delta, zz, wz)
         pdf = np.where(delta, np.float32(1.0), sampling.uniform_cone_pdf(np.minimum(cos_max, np.float32(1 - 1e-7))))
-        out.set(idx, wx, wy, wz, np.float32(np.inf), self.radiance_of[light].T, pdf, delta)
+        out.set(idx, wx, wy, wz, np.float32(np.inf), self.sun_radiance[light].T, pdf, delta)
 
     def _sample_area(self, out, idx, light, px, py, pz, u1, u2):
         sx, sy = self.size[light, 0], self.size[light, 1]
@@ -269,7 +276,7 @@ class LightSampler:
         hit = np.zeros(n, bool)
         for k in range(self.light_count):
             kind = self.kind[k]
-            if kind == SUN or (kind in (POINT, SPOT) and self.radius[k] <= 0) or self.pmf32[k] == 0:
+            if kind == SUN or (kind in (POINT, SPOT) and self.radius[k] <= 0):
                 continue
             if kind in (POINT, SPOT):
                 t, light_pdf, att = self._hit_sphere(k, ox, oy, oz, dx, dy, dz)
@@ -284,19 +291,20 @@ class LightSampler:
         return hit, radiance, pdf
 
     def _hit_sphere(self, k, ox, oy, oz, dx, dy, dz):
+        """A BSDF ray against a sized point light: the disk through its centre facing the ray origin."""
         c, r = self.position[k], self.radius[k]
         lx, ly, lz = c[0] - ox, c[1] - oy, c[2] - oz
-        b = lx * dx + ly * dy + lz * dz
         d2 = lx * lx + ly * ly + lz * lz
-        disc = b * b - (d2 - r * r)
-        outside = d2 > r * r
-        root = np.sqrt(np.maximum(disc, np.float32(0.0)))
-        t = np.where(outside, b - root, b + root)
-        t = np.where((disc >= 0) & outside, t, np.float32(-1.0))  # points inside a light see no surface
-        cos_max = np.sqrt(np.maximum(np.float32(1.0) - r * r / np.maximum(d2, np.float32(1e-30)), np.float32(0.0)))
-        pdf = sampling.uniform_cone_pdf(np.minimum(cos_max, np.float32(1 - 1e-7)))
         inv = np.float32(1.0) / np.sqrt(np.maximum(d2, np.float32(1e-30)))
-        att = self._spot_attenuation(np.full(len(ox), k), -lx * inv, -ly * inv, -lz * inv)
+        nx, ny, nz = lx * inv, ly * inv, lz * inv
+        denom = dx * nx + dy * ny + dz * nz
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (lx * nx + ly * ny + lz * nz) / denom
+        hx, hy, hz = ox + t * dx - c[0], oy + t * dy - c[1], oz + t * dz - c[2]
+        inside = (hx * hx + hy * hy + hz * hz <= r * r) & (denom > 0) & np.isfinite(t)
+        t = np.where(inside, t, np.float32(-1.0))
+        pdf = _area_to_solid_angle(np.float32(np.pi) * r * r, np.abs(t), np.abs(denom))
+        att = self._spot_attenuation(np.full(len(ox), k), -dx, -dy, -dz)
         return t, pdf, att
 
     def _hit_area(self, k, ox, oy, oz, dx, dy, dz):

@@ -136,7 +136,8 @@ class Lights:
         Blender lights shine down their local -Z.
     radiance : (L, 3) float32. POINT/SPOT/RECT/DISK with size: emitted radiance W/(sr m^2);
         zero-size POINT/SPOT: intensity W/sr; SUN: irradiance W/m^2 on a surface facing it.
-    radius : (L,) float32, sphere radius of POINT/SPOT, 0 for a delta light.
+    radius : (L,) float32, radius of POINT/SPOT, 0 for a delta light. As in Cycles, a sized point
+        light lights each point as a disk of this radius facing that point.
     size : (L, 2) float32, full extents along the light's x and y (RECT, DISK/ellipse).
     spot_cos : (L, 2) float32, cosine of the spot's half angle and of the start of its blend.
     sun_half_angle : (L,) float32, half the sun's angular diameter, radians.

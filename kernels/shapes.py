@@ -90,7 +90,7 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 
 
 def cornell_box(width: int = 256, height: int = 256, light_size: float = 0.5, light_radiance: float = 15.0,
-                wall_subdivisions: int = 6, sphere_segments: int = 12):
+                wall_subdivisions: int = 6, sphere_segments: int = 12, light_height: float = 1.99):
     """A Cornell-like box (2 units wide, about 1k triangles): white, red and green diffuse walls, a smooth
     diffuse sphere, a downward emissive square of side light_size under the ceiling, black world.
     Returns a SceneArrays."""
@@ -104,7 +104,7 @@ def cornell_box(width: int = 256, height: int = 256, light_size: float = 0.5, li
         subdivided_quad((1, -1, 0), (0, 2, 0), (0, 0, 2), s),      # right wall (green), facing -x
     ]
     h = light_size / 2
-    light = quad((-h, -h, 1.99), (0, 2 * h, 0), (2 * h, 0, 0))    # facing -z
+    light = quad((-h, -h, light_height), (0, 2 * h, 0), (2 * h, 0, 0))    # facing -z
     sphere = uv_sphere(sphere_segments, 0.45, (0.3, 0.25, 0.45))
     positions, normals, part = merge(*walls, light, sphere)
     # materials: 0 white, 1 red, 2 green, 3 light, 4 sphere

@@ -47,7 +47,7 @@ def test_settings_defaults():
     scene = new_scene()
     e = scene.ember
     assert (e.samples, e.max_bounces, e.seed, e.use_animated_seed, e.time_limit) == (64, 8, 0, False, 0.0)
-    assert e.sampling_mode == "COSINE"
+    assert e.sampling_mode == "NEE_MIS"
 
 
 def lit_box_scene(width=48, height=36):

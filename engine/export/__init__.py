@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 from ...kernels import SceneArrays
 from .camera import export_camera, render_region, render_resolution
+from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
 from .mesh import export_geometry
 from .world import export_world
@@ -67,10 +68,11 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None) ->
     materials = MaterialTable(warnings)
     geometry = export_geometry(depsgraph, materials, warnings)
     world = export_world(scene.world, warnings)
+    lights = export_lights(depsgraph, warnings)
     arrays = SceneArrays(positions=geometry.positions, normals=geometry.normals, uvs=geometry.uvs,
                          material_ids=geometry.material_ids, materials=materials.to_kernel(),
                          textures=materials.textures, texture_srgb=materials.texture_srgb, world=world,
-                         camera=camera)
+                         camera=camera, lights=lights)
     return ExportResult(scene=arrays, warnings=list(dict.fromkeys(warnings)),
                         seconds=time.perf_counter() - start, triangle_count=len(geometry.material_ids),
                         instance_count=geometry.instance_count)
