@@ -4,6 +4,7 @@
     python3.11 dev.py demo [render options]   # .venv + pinned deps, then render the demo to out/demo.png
     python3.11 dev.py test [pytest options]   # .venv + pinned deps, then run the test suite
     python3.11 dev.py bench                   # .venv + pinned deps, then run the benchmarks
+    python3.11 dev.py package                 # .venv + pinned deps, then build the extension zips into dist/
     python3.11 dev.py setup                   # only the environment
 
 The environment is a virtual environment in .venv with the versions pinned in requirements*.txt,
@@ -75,7 +76,7 @@ def setup() -> str:
 
 def main(argv: list[str]) -> int:
     task, rest = (argv[0], argv[1:]) if argv else ("help", [])
-    if task not in ("setup", "demo", "test", "bench"):
+    if task not in ("setup", "demo", "test", "bench", "package"):
         print(__doc__)
         return 0 if task in ("help", "-h", "--help") else 2
     python = setup()
@@ -83,6 +84,8 @@ def main(argv: list[str]) -> int:
         return subprocess.call([python, "-m", "ember", "render", "-o", os.path.join(ROOT, "out", "demo.png"), *rest])
     if task == "test":
         return subprocess.call([python, "-m", "pytest", os.path.join(ROOT, "tests"), *rest], cwd=ROOT)
+    if task == "package":
+        return subprocess.call([python, os.path.join(ROOT, "tools", "build_extension.py"), *rest], cwd=ROOT)
     if task == "bench":
         status = 0
         for script in ("kernel_cornell.py", "vs_cycles.py"):

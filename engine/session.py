@@ -16,6 +16,7 @@ import numpy as np
 from ..kernels import Renderer, RenderSettings
 from .export import ExportError, export_scene
 from .export.camera import render_region
+from .version import EMBER_VERSION
 
 # The Image Editor is refreshed at most this often; the first and the last image always go through.
 DISPLAY_INTERVAL_S = 0.25
@@ -169,7 +170,7 @@ class FinalRender:
         if p.nonfinite_paths:
             self.engine.report({"WARNING"}, f"Ember: dropped {p.nonfinite_paths} paths with NaN or infinite radiance")
         state = "stopped" if result.stopped_early else "done"
-        message = (f"Ember {state}: {p.samples_done}/{p.samples_total} samples in {format_time(p.elapsed_s)}, "
+        message = (f"Ember {EMBER_VERSION} {state}: {p.samples_done}/{p.samples_total} samples in {format_time(p.elapsed_s)}, "
                    f"{p.paths_per_s / 1e6:.2f} M paths/s, {exported.triangle_count} triangles "
                    f"(export {exported.seconds:.2f} s)")
         self.engine.update_stats("", message)

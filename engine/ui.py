@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import bpy
 
+from .version import EMBER_VERSION
+
 ENGINE = "EMBER"
 
 # Panels written for EEVEE that show exactly what Ember reads: material and world node surfaces,
@@ -39,6 +41,10 @@ class EmberPanel:
 
 class EMBER_RENDER_PT_sampling(EmberPanel, bpy.types.Panel):
     bl_label = "Sampling"
+
+    def draw_header_preset(self, context):
+        # The build that renders, so a user can tell which one made a frame.
+        self.layout.label(text=f"Ember {EMBER_VERSION}")
 
     def draw(self, context):
         layout = self.layout

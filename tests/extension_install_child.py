@@ -1,0 +1,139 @@
+"""Run by tests/test_extension.py in a fresh interpreter (python -I -S): install a built Ember package
+into the Blender user resources named by BLENDER_USER_RESOURCES, render with it, disable and remove it.
+
+    python -I -S extension_install_child.py SITE_DIR PACKAGE_ZIP WORK_DIR
+
+SITE_DIR holds the packages Blender needs (bpy, numpy, ...) but no embreex. Prints one JSON line
+starting with RESULT: what the parent test asserts on. Failures raise (non-zero exit, traceback).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+
+SITE_DIR, PACKAGE_ZIP, WORK_DIR = sys.argv[1:4]
+sys.path.append(SITE_DIR)
+
+MODULE = "bl_ext.user_default.ember"
+WORLD_COLOR = (0.2, 0.4, 0.8)
+PLANE_ALBEDO = 0.8
+
+
+def embreex_importable() -> bool:
+    import importlib.util
+    return importlib.util.find_spec("embreex") is not None
+
+
+def build_scene(bpy):
+    """Camera above a large diffuse plane under a uniform world: the top of the image is sky, the
+    bottom plane, whose radiance is albedo x world."""
+    scene = bpy.context.scene
+    for obj in list(bpy.data.objects):
+        bpy.data.objects.remove(obj)
+    scene.render.resolution_x, scene.render.resolution_y = 32, 24
+    scene.render.resolution_percentage = 100
+    scene.render.threads_mode = "FIXED"
+    scene.render.threads = 2
+
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(cam)
+    cam.location = (0.0, -6.0, 1.5)
+    cam.rotation_euler = (math.radians(90.0 - math.degrees(math.atan2(0.5, 6.0))), 0.0, 0.0)
+    scene.camera = cam
+
+    mat = bpy.data.materials.new("Plane")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    bsdf = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    bsdf.inputs["Color"].default_value = (PLANE_ALBEDO,) * 3 + (1.0,)
+    tree.links.new(bsdf.outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    mesh = bpy.data.meshes.new("Plane")
+    mesh.from_pydata([(-20, -20, 0), (20, -20, 0), (20, 20, 0), (-20, 20, 0)], [], [(0, 1, 2, 3)])
+    mesh.materials.append(mat)
+    scene.collection.objects.link(bpy.data.objects.new("Plane", mesh))
+
+    world = bpy.data.worlds.new("World")
+    scene.world = world
+    tree = world.node_tree
+    tree.nodes.clear()
+    bg = tree.nodes.new("ShaderNodeBackground")
+    bg.inputs["Color"].default_value = WORLD_COLOR + (1.0,)
+    bg.inputs["Strength"].default_value = 1.0
+    tree.links.new(bg.outputs[0], tree.nodes.new("ShaderNodeOutputWorld").inputs["Surface"])
+    return scene
+
+
+def render_exr(bpy, scene):
+    """Render with Ember to a linear EXR; return (H, W, 4) float32, row 0 at the top."""
+    import numpy as np
+    scene.render.engine = "EMBER"
+    scene.ember.samples = 8
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
+    scene.render.filepath = os.path.join(WORK_DIR, "frame.exr")
+    scene.render.use_file_extension = False
+    bpy.ops.render.render(write_still=True)
+    image = bpy.data.images.load(scene.render.filepath, check_existing=False)
+    w, h = image.size
+    pixels = np.empty(w * h * 4, np.float32)
+    image.pixels.foreach_get(pixels)
+    bpy.data.images.remove(image)
+    return pixels.reshape(h, w, 4)[::-1]
+
+
+def engine_listed(bpy) -> bool:
+    render = bpy.context.scene.render
+    try:
+        render.engine = "EMBER"
+    except TypeError:
+        return False
+    return render.engine == "EMBER"
+
+
+def main() -> dict:
+    result = {"embreex_visible_before_install": embreex_importable()}
+    import bpy
+    resources = os.environ["BLENDER_USER_RESOURCES"]
+    result["extensions_dir"] = bpy.utils.user_resource("EXTENSIONS")
+
+    bpy.ops.extensions.package_install_files(filepath=PACKAGE_ZIP, repo="user_default", enable_on_install=True)
+    result["enabled"] = MODULE in bpy.context.preferences.addons
+    import embreex
+    ember = sys.modules[MODULE]
+    from importlib import import_module
+    result["embreex_file"] = embreex.__file__
+    result["ember_file"] = ember.__file__
+    result["version"] = import_module(MODULE + ".engine.version").EMBER_VERSION
+    result["checkout_ember_loaded"] = "ember" in sys.modules
+
+    import numpy as np
+    scene = build_scene(bpy)
+    image = render_exr(bpy, scene)
+    rgb = image[..., :3].astype(float)
+    result["finite"] = bool(np.isfinite(image).all())
+    result["sky_rgb"] = rgb[:4].reshape(-1, 3).mean(axis=0).tolist()
+    result["plane_rgb"] = rgb[-4:].reshape(-1, 3).mean(axis=0).tolist()
+    result["shape"] = list(image.shape)
+
+    package_dir = os.path.join(result["extensions_dir"], "user_default", "ember")
+    result["package_dir_existed"] = os.path.isdir(package_dir)
+    bpy.ops.preferences.addon_disable(module=MODULE)
+    result["disabled"] = MODULE not in bpy.context.preferences.addons
+    result["engine_after_disable"] = engine_listed(bpy)
+    result["settings_after_disable"] = hasattr(bpy.types.Scene, "ember")
+
+    repos = bpy.context.preferences.extensions.repos
+    repo_index = next(i for i, repo in enumerate(repos) if repo.module == "user_default")
+    bpy.ops.extensions.package_uninstall(repo_index=repo_index, pkg_id="ember")
+    result["package_dir_after_uninstall"] = os.path.exists(package_dir)
+    site_packages = os.path.join(result["extensions_dir"], ".local", "lib",
+                                 f"python{sys.version_info[0]}.{sys.version_info[1]}", "site-packages")
+    result["wheel_files_after_uninstall"] = sorted(os.listdir(site_packages)) if os.path.isdir(site_packages) else []
+    result["resources"] = resources
+    return result
+
+
+if __name__ == "__main__":
+    print("RESULT:" + json.dumps(main()), flush=True)
