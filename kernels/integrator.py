@@ -350,7 +350,8 @@ class Renderer:
         gx, gy, gz = sd["ng"]
         cos_s = ls.wx * nx + ls.wy * ny + ls.wz * nz
         cos_g = ls.wx * gx + ls.wy * gy + ls.wz * gz
-        useful = (ls.pdf > 0) & (cos_s > 0) & (cos_g > 0) & (ls.radiance.max(axis=0) > 0)
+        le = ls.radiance
+        useful = (ls.pdf > 0) & (cos_s > 0) & (cos_g > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0))
         idx = np.flatnonzero(useful)
         if not len(idx):
             return u_spare

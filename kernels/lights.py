@@ -22,6 +22,9 @@ from .scene import LIGHT_KINDS, SceneArrays
 POINT, SPOT, SUN, RECT, DISK = (LIGHT_KINDS[k] for k in ("POINT", "SPOT", "SUN", "RECT", "DISK"))
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec. 709, Blender's default scene linear
 TWO_PI = np.float32(2.0 * np.pi)
+# Columns of the emissive-triangle table: corner 0, two edges, unit normal, area, mean radiance.
+_TP0, _TE1, _TE2, _TN, _TAREA, _TLE = 0, 3, 6, 9, 12, 13
+_TRI_ROWS = 16
 
 
 def luminance(rgb) -> np.ndarray:
@@ -49,6 +52,8 @@ class LightSample:
         self.delta = np.zeros(n, bool)
 
     def set(self, idx, wx, wy, wz, dist, radiance, pdf, delta=False):
+        if len(idx) == len(self.wx):  # every point chose this kind: no scatter needed
+            idx = slice(None)
         self.wx[idx], self.wy[idx], self.wz[idx] = wx, wy, wz
         self.dist[idx] = dist
         self.radiance[:, idx] = radiance
@@ -87,17 +92,27 @@ class LightSampler:
         emits = np.any(scene.materials.emission > 0, axis=1)
         self.tri_ids = np.flatnonzero(emits[scene.material_ids]).astype(np.int32)
         p = scene.positions[self.tri_ids].astype(np.float64)
-        self.tri_p0 = p[:, 0].astype(np.float32)
-        self.tri_e1 = (p[:, 1] - p[:, 0]).astype(np.float32)
-        self.tri_e2 = (p[:, 2] - p[:, 0]).astype(np.float32)
-        cross = np.cross(self.tri_e1.astype(np.float64), self.tri_e2.astype(np.float64))
+        e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+        cross = np.cross(e1, e2)
         tri_area = 0.5 * np.linalg.norm(cross, axis=1)
         self.tri_area = tri_area.astype(np.float32)
-        self.tri_normal = (cross / np.maximum(2 * tri_area, 1e-300)[:, None]).astype(np.float32)
         # Position of each scene triangle in the emissive list (-1 for non-emissive), for MIS on hits.
         self.tri_slot = np.full(scene.triangle_count, -1, np.int32)
         self.tri_slot[self.tri_ids] = np.arange(len(self.tri_ids), dtype=np.int32)
+        # Triangles whose material has an emission texture need a lookup at the sampled point.
+        textured = scene.materials.emission_texture[scene.material_ids[self.tri_ids]] >= 0
+        self.tri_textured = bool(textured.any())
+        # One row per emissive triangle, gathered whole (rows of a (E, K) table gather fastest).
+        table = np.zeros((len(self.tri_ids), _TRI_ROWS), np.float32)
+        table[:, _TP0:_TP0 + 3] = p[:, 0]
+        table[:, _TE1:_TE1 + 3] = e1
+        table[:, _TE2:_TE2 + 3] = e2
+        table[:, _TN:_TN + 3] = cross / np.maximum(2 * tri_area, 1e-300)[:, None]
+        table[:, _TAREA] = tri_area
+        self._tri_table = table
         self.triangle_emission = triangle_emission
+        if len(self.tri_ids):
+            table[:, _TLE:_TLE + 3] = triangle_emission(self.tri_ids).T  # mean radiance (texture averaged)
 
         surface = ((self.kind == RECT) | (self.kind == DISK) | (((self.kind == POINT) | (self.kind == SPOT))
                                                                  & (self.radius > 0)))
@@ -130,7 +145,7 @@ class LightSampler:
     def _triangle_power(self) -> np.ndarray:
         if not len(self.tri_ids):
             return np.zeros(0)
-        lum = luminance(self.triangle_emission(self.tri_ids).T).astype(np.float64)
+        lum = luminance(self._tri_table[:, _TLE:_TLE + 3]).astype(np.float64)
         return 2.0 * np.pi * self.tri_area * lum
 
     def _world_power(self) -> float:
@@ -143,7 +158,12 @@ class LightSampler:
         out = LightSample(n)
         if not self.has_lights or n == 0:
             return out
-        chosen = np.minimum(np.searchsorted(self._cdf, u_select, side="right"), len(self._cdf) - 1)
+        if len(self._cdf) == 1:
+            chosen = np.zeros(n, np.int64)
+        else:
+            # float64: a float32 cdf would round the intervals of millions of small emitters.
+            chosen = np.minimum(np.searchsorted(self._cdf, u_select.astype(np.float64), side="right"),
+                                len(self._cdf) - 1)
         select = np.take(self.pmf32, chosen)
         if self.light_count:
             for kind, method in ((POINT, self._sample_sphere), (SPOT, self._sample_sphere),
@@ -154,9 +174,10 @@ class LightSampler:
         tri = np.flatnonzero((chosen >= self.light_count) & (chosen < self.world_index))
         if len(tri):
             self._sample_triangle(out, tri, chosen[tri] - self.light_count, px[tri], py[tri], pz[tri], u1[tri], u2[tri])
-        world = np.flatnonzero(chosen == self.world_index)
-        if len(world):
-            self._sample_world(out, world, u1[world], u2[world])
+        if self.select_pmf[self.world_index] > 0:
+            world = np.flatnonzero(chosen == self.world_index)
+            if len(world):
+                self._sample_world(out, world, u1[world], u2[world])
         out.pdf *= select
         return out
 
@@ -236,15 +257,17 @@ class LightSampler:
         su = np.sqrt(u1)
         b1 = np.float32(1.0) - su
         b2 = u2 * su
-        p0, e1, e2 = self.tri_p0[slot].T, self.tri_e1[slot].T, self.tri_e2[slot].T
-        qx = p0[0] + b1 * e1[0] + b2 * e2[0]
-        qy = p0[1] + b1 * e1[1] + b2 * e2[1]
-        qz = p0[2] + b1 * e1[2] + b2 * e2[2]
+        g = np.take(self._tri_table, slot, axis=0).T
+        qx = g[_TP0] + b1 * g[_TE1] + b2 * g[_TE2]
+        qy = g[_TP0 + 1] + b1 * g[_TE1 + 1] + b2 * g[_TE2 + 1]
+        qz = g[_TP0 + 2] + b1 * g[_TE1 + 2] + b2 * g[_TE2 + 2]
         wx, wy, wz, dist = _direction(px, py, pz, qx, qy, qz)
-        n = self.tri_normal[slot].T
-        cos_l = np.abs(wx * n[0] + wy * n[1] + wz * n[2])
-        pdf = _area_to_solid_angle(self.tri_area[slot], dist, cos_l)
-        radiance = self.triangle_emission(self.tri_ids[slot], b1, b2)
+        cos_l = np.abs(wx * g[_TN] + wy * g[_TN + 1] + wz * g[_TN + 2])
+        pdf = _area_to_solid_angle(g[_TAREA], dist, cos_l)
+        if self.tri_textured:
+            radiance = self.triangle_emission(np.take(self.tri_ids, slot), b1, b2)
+        else:
+            radiance = g[_TLE:_TLE + 3]
         out.set(idx, wx, wy, wz, dist, radiance, pdf)
 
     def _sample_world(self, out, idx, u1, u2):
