@@ -1,5 +1,5 @@
 """The built-in demo scene, built in code: a corner of a room with a checkered floor, a few objects,
-a warm emissive panel, and one of the HDRIs bpy ships coming in from the open sides.
+a warm emissive panel, one of the HDRIs bpy ships coming in from the open sides, and a low sun.
 
 It replaces the current file's data in memory (like File > New) and never saves anything.
 """
@@ -11,7 +11,7 @@ import os
 import bpy
 import numpy as np
 
-DEMO_HDRI = "courtyard.exr"
+DEMO_HDRI = "forest.exr"
 DEMO_RESOLUTION = (800, 450)
 
 
@@ -38,7 +38,7 @@ def build_demo_scene() -> bpy.types.Scene:
 
     floor_tex = _checker_image("Ember Floor Checker", 512, 8, (0.80, 0.74, 0.62), (0.22, 0.20, 0.19))
     _add_mesh("Floor", _grid_plane(14.0, 14.0, uv_repeat=3.0), _material("Floor", image=floor_tex))
-    wall = _material("Wall", color=(0.75, 0.75, 0.72))
+    wall = _material("Wall", color=(0.62, 0.6, 0.57))
     _add_mesh("Back Wall", _quad((-7, 3.5, 0), (14, 0, 0), (0, 0, 6)), wall)
     _add_mesh("Left Wall", _quad((-4.5, -7, 0), (0, 10.5, 0), (0, 0, 6)), wall, flip=True)
     panel = _material("Warm Panel", emission=((1.0, 0.62, 0.32), 6.0))
@@ -70,7 +70,15 @@ def build_demo_scene() -> bpy.types.Scene:
     cam.rotation_euler = _look_rotation(direction)
     scene.camera = cam
 
-    _environment(scene, DEMO_HDRI, strength=1.2, rotation_z=math.radians(120))
+    _environment(scene, DEMO_HDRI, strength=0.2, rotation_z=math.radians(15))
+    # An afternoon sun through the open right side: shadows fall across the floor to the left.
+    sun = bpy.data.lights.new("Sun", "SUN")
+    sun.energy = 5.0
+    sun.angle = math.radians(3.0)
+    sun.color = (1.0, 0.92, 0.82)
+    sun_ob = bpy.data.objects.new("Sun", sun)
+    sun_ob.rotation_euler = (math.radians(55), 0.0, math.radians(80))
+    scene.collection.objects.link(sun_ob)
     return scene
 
 
