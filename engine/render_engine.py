@@ -1,9 +1,11 @@
-"""The RenderEngine Blender calls: thin, it hands final renders to session.FinalRender."""
+"""The RenderEngine Blender calls: thin, it hands final renders to session.FinalRender and the
+viewport's rendered mode to viewport.ViewportRender (one per engine instance: one per 3D view)."""
 from __future__ import annotations
 
 import bpy
 
 from .session import FinalRender
+from .viewport import new_viewport, stop_all_sessions
 
 
 class EmberRenderEngine(bpy.types.RenderEngine):
@@ -15,10 +17,32 @@ class EmberRenderEngine(bpy.types.RenderEngine):
     bl_use_postprocess = True
     # Material and world thumbnails stay with EEVEE: a CPU path tracer per thumbnail would stall the UI.
     bl_use_preview = False
+    # Rendered viewport shading is Ember's own (view_update / view_draw), not EEVEE's.
+    bl_use_eevee_viewport = False
 
     def render(self, depsgraph):
         # Never export in __init__: Blender may create several engine instances for one F12.
         FinalRender(self, depsgraph).run()
+
+    def view_update(self, context, depsgraph):
+        viewport = getattr(self, "_viewport", None)
+        if viewport is None:
+            viewport = self._viewport = new_viewport(depsgraph.scene)
+        viewport.view_update(self, context, depsgraph)
+
+    def view_draw(self, context, depsgraph):
+        viewport = getattr(self, "_viewport", None)
+        if viewport is not None:
+            viewport.view_draw(self, context, depsgraph)
+
+    def __del__(self):
+        # The viewport's worker must not outlive the engine. The RNA may already be gone here.
+        try:
+            viewport = getattr(self, "_viewport", None)
+        except ReferenceError:
+            return
+        if viewport is not None:
+            viewport.free()
 
 
 CLASSES = (EmberRenderEngine,)
@@ -30,5 +54,6 @@ def register():
 
 
 def unregister():
+    stop_all_sessions()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

@@ -10,6 +10,7 @@ max_bounces + 1 times (the lecture's "max path length").
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -24,7 +25,7 @@ from .environment import Environment
 from .film import Film
 from .lights import LightSampler
 from .rng import PathRng, seed_paths
-from .scene import SceneArrays
+from .scene import Camera, SceneArrays
 from .textures import Texture, finite_uv
 
 SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
@@ -127,6 +128,12 @@ class Renderer:
         self.lights = LightSampler(self.scene, self.environment, self._triangle_emission, radius, center)
         threads = self.accel.threads
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
+
+    def set_camera(self, camera: Camera) -> None:
+        """Look through another camera without rebuilding anything (the viewport's view changes).
+        Call between renders, never during one."""
+        camera.validate()
+        self.scene = dataclasses.replace(self.scene, camera=camera)
 
     def close(self) -> None:
         if self._wave_pool is not None:
