@@ -70,7 +70,7 @@ def build_demo_scene() -> bpy.types.Scene:
     cam.rotation_euler = _look_rotation(direction)
     scene.camera = cam
 
-    _environment(scene, DEMO_HDRI, strength=0.2, rotation_z=math.radians(15))
+    build_world(scene, hdri=DEMO_HDRI, strength=0.2, rotation=(0.0, 0.0, math.radians(15)), name="Ember Demo World")
     # An afternoon sun through the open right side: shadows fall across the floor to the left.
     sun = bpy.data.lights.new("Sun", "SUN")
     sun.energy = 5.0
@@ -158,20 +158,26 @@ def _look_rotation(direction):
     return (pitch, 0.0, yaw)
 
 
-def _environment(scene, hdri_name, strength, rotation_z):
-    world = bpy.data.worlds.new("Ember Demo World")
+def build_world(scene, *, color=(0.0, 0.0, 0.0), strength=1.0, hdri=None, rotation=(0.0, 0.0, 0.0),
+                name="World"):
+    """A world node tree as an artist builds it: Background (constant colour), or an Environment
+    Texture of one of Blender's HDRIs through a Mapping rotation from Texture Coordinate."""
+    world = bpy.data.worlds.new(name)
     scene.world = world
     tree = world.node_tree
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputWorld")
     background = tree.nodes.new("ShaderNodeBackground")
+    background.inputs["Color"].default_value = (*color, 1.0)
     background.inputs["Strength"].default_value = strength
-    env = tree.nodes.new("ShaderNodeTexEnvironment")
-    env.image = bpy.data.images.load(bundled_hdri_path(hdri_name), check_existing=True)
-    mapping = tree.nodes.new("ShaderNodeMapping")
-    mapping.inputs["Rotation"].default_value = (0.0, 0.0, rotation_z)
-    coords = tree.nodes.new("ShaderNodeTexCoord")
-    tree.links.new(coords.outputs["Generated"], mapping.inputs["Vector"])
-    tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
-    tree.links.new(env.outputs["Color"], background.inputs["Color"])
+    if hdri is not None:
+        env = tree.nodes.new("ShaderNodeTexEnvironment")
+        env.image = bpy.data.images.load(bundled_hdri_path(hdri), check_existing=True)
+        mapping = tree.nodes.new("ShaderNodeMapping")
+        mapping.inputs["Rotation"].default_value = rotation
+        coords = tree.nodes.new("ShaderNodeTexCoord")
+        tree.links.new(coords.outputs["Generated"], mapping.inputs["Vector"])
+        tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
+        tree.links.new(env.outputs["Color"], background.inputs["Color"])
     tree.links.new(background.outputs["Background"], out.inputs["Surface"])
+    return world

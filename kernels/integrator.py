@@ -277,10 +277,7 @@ class Renderer:
             hit = np.flatnonzero(hits.prim >= 0)
             if not len(hit):
                 break
-            path = path[hit]
-            throughput = np.take(throughput, hit, axis=1)
-            bsdf_pdf = np.take(bsdf_pdf, hit)
-            rng = rng.take(hit)
+            path, throughput, bsdf_pdf, rng = _compact(hit, path, throughput, bsdf_pdf, rng)
             prim = np.take(hits.prim, hit)
             dx, dy, dz = np.take(dx, hit), np.take(dy, hit), np.take(dz, hit)
             # ---- shading data: the slide's barycentric interpolation
@@ -328,10 +325,7 @@ class Renderer:
             alive = np.flatnonzero(alive)
             if not len(alive):
                 break
-            path = path[alive]
-            throughput = np.take(throughput, alive, axis=1)
-            bsdf_pdf = np.take(next_pdf, alive)
-            rng = rng.take(alive)
+            path, throughput, bsdf_pdf, rng = _compact(alive, path, throughput, next_pdf, rng)
             px, py, pz = (np.take(c, alive) for c in sd["p"])
             gx, gy, gz = np.take(gx, alive), np.take(gy, alive), np.take(gz, alive)
             wx, wy, wz = np.take(wx, alive), np.take(wy, alive), np.take(wz, alive)
@@ -452,6 +446,11 @@ class Renderer:
             su, sv = finite_uv(np.take(u, sel), np.take(v, sel))
             value[:, sel] *= self.textures[t].lookup(su, sv)
         return value
+
+
+def _compact(idx, path, throughput, bsdf_pdf, rng):
+    """Keep only the paths idx of the state that travels with every path."""
+    return path[idx], np.take(throughput, idx, axis=1), np.take(bsdf_pdf, idx), rng.take(idx)
 
 
 def _take(a: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:

@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 
 import ember
-from ember.engine.demo import bundled_hdri_path
+from ember.engine.demo import build_world
 
 
 def ensure_registered() -> None:
@@ -97,25 +97,7 @@ def quad_object(name, corner, edge_u, edge_v, material=None, uv=True):
 
 
 def set_world(scene, color=(0.0, 0.0, 0.0), strength=1.0, hdri=None, rotation=(0.0, 0.0, 0.0)):
-    world = bpy.data.worlds.new("World")
-    scene.world = world
-    tree = world.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputWorld")
-    bg = tree.nodes.new("ShaderNodeBackground")
-    bg.inputs["Color"].default_value = (*color, 1.0)
-    bg.inputs["Strength"].default_value = strength
-    if hdri is not None:
-        env = tree.nodes.new("ShaderNodeTexEnvironment")
-        env.image = bpy.data.images.load(bundled_hdri_path(hdri), check_existing=True)
-        mapping = tree.nodes.new("ShaderNodeMapping")
-        mapping.inputs["Rotation"].default_value = rotation
-        coords = tree.nodes.new("ShaderNodeTexCoord")
-        tree.links.new(coords.outputs["Generated"], mapping.inputs["Vector"])
-        tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
-        tree.links.new(env.outputs["Color"], bg.inputs["Color"])
-    tree.links.new(bg.outputs[0], out.inputs["Surface"])
-    return world
+    return build_world(scene, color=color, strength=strength, hdri=hdri, rotation=rotation)
 
 
 # ---------------------------------------------------------------- rendering to numpy
