@@ -361,10 +361,20 @@ class Renderer:
         wx, wy, wz = np.take(ls.wx, idx), np.take(ls.wy, idx), np.take(ls.wz, idx)
         eps = self._offset(sx, sy, sz)
         dist = np.take(ls.dist, idx)
+        ox, oy, oz = sx + ngx * eps, sy + ngy * eps, sz + ngz * eps
+        # Aim from the offset origin at the sampled point itself: keeping the direction from the
+        # surface point would shift the ray by eps and, at grazing angles, make it cross the
+        # emitter's plane before the point (a lamp 1 cm under a ceiling shadowed itself that way).
+        finite = np.isfinite(dist)
+        safe = np.where(finite, dist, np.float32(0.0))
+        ax, ay, az = sx + wx * safe - ox, sy + wy * safe - oy, sz + wz * safe - oz
+        to_point = np.sqrt(ax * ax + ay * ay + az * az)
+        inv = np.float32(1.0) / np.maximum(to_point, np.float32(1e-30))
+        wx, wy, wz = np.where(finite, ax * inv, wx), np.where(finite, ay * inv, wy), np.where(finite, az * inv, wz)
         # Stop short of the sampled point so that the emitter itself does not count as an occluder.
-        t_max = np.where(np.isfinite(dist), dist * np.float32(1.0 - 1e-4) - np.float32(2.0) * eps, np.inf)
-        origins = np.stack([sx + ngx * eps, sy + ngy * eps, sz + ngz * eps], axis=1)
-        blocked = self.accel.occluded(origins, np.stack([wx, wy, wz], axis=1), t_max.astype(np.float32), split)
+        t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - eps, np.inf).astype(np.float32)
+        origins = np.stack([ox, oy, oz], axis=1)
+        blocked = self.accel.occluded(origins, np.stack([wx, wy, wz], axis=1), t_max, split)
         vis = idx[~blocked & (t_max > 0)]
         if not len(vis):
             return u_spare

@@ -219,3 +219,29 @@ def test_nee_mis_has_far_lower_error_than_cosine_on_a_small_light():
     factor = errors["COSINE"] / errors["NEE_MIS"]
     print(f"equal-sample RMSE, small light: COSINE/NEE_MIS = {factor:.1f}x ({errors})")
     assert factor > 3.0, errors
+
+
+def test_grazing_light_beside_a_lamp_hung_just_under_a_ceiling():
+    """The ceiling beside a lamp 1 cm below it sees the lamp's back at grazing angles. Shadow rays
+    must aim from their offset origin at the sampled point: aimed from the surface point, the eps
+    offset made them cross the lamp's plane early, and NEE lost 99.9% of this light."""
+    rho, le, h, gap = 0.7, 15.0, 0.25, 0.01
+    ceiling, ceiling_n = quad((-2, -2, 2.0), (4, 0, 0), (0, 4, 0))       # faces up; both sides shade
+    lamp, lamp_n = quad((-h, -h, 2.0 - gap), (0, 2 * h, 0), (2 * h, 0, 0))
+    positions = np.concatenate([ceiling, lamp])
+    normals = np.concatenate([ceiling_n, lamp_n])
+    x0 = 0.3  # a ceiling point 5 cm beside the lamp's edge, seen from below
+    cam = Camera(world_from_camera=look_at((x0, 0.0, 1.5), (x0, 0.0001, 2.0), up=(0, 1, 0)), kind="ORTHO",
+                 ortho_scale=1e-3, width=2, height=2, clip_start=0.0, clip_end=10.0)
+    scene = make_scene(positions, normals, material_ids=np.int32([0, 0, 1, 1]), albedo=[(rho,) * 3, (0,) * 3],
+                       emission=[(0,) * 3, (le,) * 3], camera=cam)
+    # Irradiance at the point from the lamp's top face, by a midpoint rule over the lamp.
+    k = 800
+    g = (np.arange(k) + 0.5) / k * 2 * h - h
+    qx, qy = np.meshgrid(g, g)
+    dx, dy, dz = qx - x0, qy, -gap
+    r2 = dx * dx + dy * dy + dz * dz
+    irradiance = np.sum(le * (gap / np.sqrt(r2)) ** 2 / r2) * (2 * h / k) ** 2
+    samples = trace_samples(scene, RenderSettings(mode="NEE_MIS", max_bounces=0, seed=2), 2000)[:, 0]
+    m, se = mean_and_stderr(samples.mean(axis=1))
+    assert abs(m - rho / np.pi * irradiance) < 4 * se, (m, se, rho / np.pi * irradiance)
