@@ -1,0 +1,133 @@
+"""Benchmark scenes built in bpy, in code: the Cornell box of kernels.shapes.cornell_box (same walls, light,
+sphere and camera) with a small emissive quad, the same open-fronted box lit only by a bundled HDRI, and
+the box with a high-resolution sphere for export timing.
+
+Meshes are made from numpy arrays with foreach_set (a 1M-triangle sphere takes well under a second;
+from_pydata would take tens of seconds), so every scene is quick to rebuild.
+
+    scene = cornell_scene(256, 256)            # about 1k triangles, black world
+    scene = hdri_scene(128, 128)               # same box without the lamp, forest.exr world
+    scene = cornell_scene(64, 64, sphere_triangles=1_000_000)
+"""
+from __future__ import annotations
+
+import math
+
+import bpy
+import numpy as np
+
+from tests.bpy_helpers import add_camera, diffuse_material, emission_material, ensure_registered, set_world
+
+# The kernel benchmark's box (kernels.shapes.cornell_box): 2 units wide, camera 3.9 in front, 39.3 deg fov.
+WALL_SUBDIVISIONS = 7
+SPHERE_SEGMENTS = 24          # around; rings = SPHERE_SEGMENTS / 2 -> 528 triangles
+SPHERE_CENTER, SPHERE_RADIUS = (0.3, 0.25, 0.45), 0.45
+LIGHT_SIZE, LIGHT_RADIANCE = 0.5, 15.0
+CAMERA_LOCATION, CAMERA_TARGET, CAMERA_FOV_DEG = (0.0, -3.9, 1.0), (0.0, 0.0, 1.0), 39.3
+WHITE, RED, GREEN, SPHERE = (0.73, 0.73, 0.73), (0.65, 0.05, 0.05), (0.12, 0.45, 0.15), (0.6, 0.6, 0.6)
+HDRI = "forest.exr"
+
+
+def cornell_scene(width: int, height: int, *, light: bool = True, hdri: str | None = None,
+                  sphere_triangles: int | None = None) -> bpy.types.Scene:
+    """Replace the open file with the box. light: the small emissive quad under the ceiling;
+    hdri: a bundled HDRI as the world (else black); sphere_triangles: about this many triangles in
+    the sphere instead of the usual 528."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    ensure_registered()
+    scene = bpy.context.scene
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    white, red, green = (diffuse_material(n, c) for n, c in (("White", WHITE), ("Red", RED), ("Green", GREEN)))
+    s = WALL_SUBDIVISIONS
+    # Corner, edge_u, edge_v, facing edge_u x edge_v (into the box), as in kernels.shapes.cornell_box.
+    walls = [((-1, -1, 0), (0, 2, 0), (2, 0, 0), white, "Floor"),
+             ((-1, -1, 2), (2, 0, 0), (0, 2, 0), white, "Ceiling"),
+             ((-1, 1, 0), (0, 0, 2), (2, 0, 0), white, "Back"),
+             ((-1, -1, 0), (0, 0, 2), (0, 2, 0), red, "Left"),
+             ((1, -1, 0), (0, 2, 0), (0, 0, 2), green, "Right")]
+    for corner, eu, ev, mat, name in walls:
+        add_mesh(name, *grid(corner, eu, ev, s), mat)
+    if light:
+        h = LIGHT_SIZE / 2
+        add_mesh("Lamp", *grid((-h, -h, 1.99), (0, 2 * h, 0), (2 * h, 0, 0), 1),
+                 emission_material("Lamp", strength=LIGHT_RADIANCE))
+    segments = SPHERE_SEGMENTS if sphere_triangles is None else max(4, int(math.sqrt(sphere_triangles)))
+    rings = max(3, segments // 2) if sphere_triangles is None else max(3, sphere_triangles // (2 * segments) + 1)
+    add_mesh("Sphere", *uv_sphere(segments, rings, SPHERE_RADIUS, SPHERE_CENTER),
+             diffuse_material("Sphere", SPHERE), smooth=True)
+    cam = add_camera(scene, CAMERA_LOCATION, CAMERA_TARGET)
+    cam.data.angle = math.radians(CAMERA_FOV_DEG)
+    if hdri is None:
+        set_world(scene, color=(0.0, 0.0, 0.0))
+    else:
+        set_world(scene, hdri=hdri, strength=1.0)
+    return scene
+
+
+def hdri_scene(width: int, height: int, *, hdri: str = HDRI) -> bpy.types.Scene:
+    """The box without its lamp, lit only by the HDRI through its open front."""
+    return cornell_scene(width, height, light=False, hdri=hdri)
+
+
+def triangle_count(scene) -> int:
+    """Triangles of the scene's meshes after triangulation (quads count two)."""
+    total = 0
+    for ob in scene.objects:
+        if ob.type == "MESH":
+            sizes = np.empty(len(ob.data.polygons), np.int32)
+            ob.data.polygons.foreach_get("loop_total", sizes)
+            total += int((sizes - 2).sum())
+    return total
+
+
+# ---------------------------------------------------------------- numpy -> bpy meshes
+def grid(corner, edge_u, edge_v, n: int):
+    """An n x n grid of quads over the parallelogram, facing edge_u x edge_v.
+    Returns vertices (V, 3) float64, corner vertex indices (L,) int32, face sizes (F,) int32."""
+    c, eu, ev = (np.asarray(x, np.float64) for x in (corner, edge_u, edge_v))
+    s = np.arange(n + 1) / n
+    i, j = np.meshgrid(s, s, indexing="ij")
+    verts = (c + i[..., None] * eu + j[..., None] * ev).reshape(-1, 3)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    quads = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
+    return verts, quads.ravel().astype(np.int32), np.full(len(quads), 4, np.int32)
+
+
+def uv_sphere(segments: int, rings: int, radius: float, center):
+    """A UV sphere: triangle fans at the poles, quads between; 2 * segments * (rings - 1) triangles.
+    Same return as grid(); faces point out."""
+    theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]                  # inner rings, north to south
+    phi = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    ring_verts = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    verts = np.concatenate([[(0, 0, 1)], ring_verts, [(0, 0, -1)]]) * radius + np.asarray(center)
+    north, south = 0, len(verts) - 1
+    ring = 1 + np.arange((rings - 1) * segments).reshape(rings - 1, segments)
+    nxt = np.roll(ring, -1, axis=1)
+    # Counter-clockwise seen from outside: down the meridian, then east.
+    top = np.stack([np.full(segments, north), ring[0], nxt[0]], -1)
+    bottom = np.stack([ring[-1], np.full(segments, south), nxt[-1]], -1)
+    quads = np.stack([ring[:-1], ring[1:], nxt[1:], nxt[:-1]], -1).reshape(-1, 4)
+    corners = np.concatenate([top.ravel(), quads.ravel(), bottom.ravel()]).astype(np.int32)
+    sizes = np.concatenate([np.full(segments, 3), np.full(len(quads), 4), np.full(segments, 3)]).astype(np.int32)
+    return verts, corners, sizes
+
+
+def add_mesh(name, verts, corners, sizes, material=None, smooth=False):
+    """A mesh object linked to the current scene, built with foreach_set."""
+    mesh = bpy.data.meshes.new(name)
+    mesh.vertices.add(len(verts))
+    mesh.vertices.foreach_set("co", np.ascontiguousarray(verts, np.float32).ravel())
+    mesh.loops.add(len(corners))
+    mesh.loops.foreach_set("vertex_index", corners)
+    mesh.polygons.add(len(sizes))
+    mesh.polygons.foreach_set("loop_start", (np.cumsum(sizes) - sizes).astype(np.int32))
+    mesh.update(calc_edges=True)
+    if smooth:
+        mesh.shade_smooth()
+    if material is not None:
+        mesh.materials.append(material)
+    obj = bpy.data.objects.new(name, mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
