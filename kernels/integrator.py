@@ -24,7 +24,7 @@ from .camera import generate_rays
 from .environment import Environment
 from .film import Film
 from .lights import LightSampler
-from .rng import PathRng, seed_paths
+from .rng import PathRng, seed_paths, stratified_2d
 from .scene import Camera, SceneArrays
 from .textures import Texture, finite_uv
 
@@ -223,7 +223,7 @@ class Renderer:
         col = (pix % width + x0).astype(np.int32)
         pixel_index = row.astype(np.uint32) * np.uint32(cam.width) + col.astype(np.uint32)
         rng = PathRng(*seed_paths(pixel_index, sample, settings.seed))
-        radiance, alpha = self.trace_paths(rng, row, col, settings, split)
+        radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=(pixel_index, sample))
         bad = ~np.isfinite(radiance).all(axis=0)
         n_bad = int(np.count_nonzero(bad))
         if n_bad:
@@ -236,12 +236,21 @@ class Renderer:
 
     # ---------------------------------------------------------------- one wave of paths
     def trace_paths(self, rng: PathRng, row: np.ndarray, col: np.ndarray, settings: RenderSettings,
-                    split: bool = True):
-        """Trace one path per (row, col) entry. Returns radiance (3, N) float32 and alpha (N,) float32."""
+                    split: bool = True, strata=None):
+        """Trace one path per (row, col) entry. Returns radiance (3, N) float32 and alpha (N,) float32.
+
+        strata = (pixel_index, sample_index) per path: in NEE_MIS mode the camera jitter and the first
+        vertex's light and BSDF numbers then come from each pixel's stratified sequence (the rest of
+        the path, and the LECTURE and COSINE modes, use the PCG2D stream alone)."""
         n = len(row)
         radiance = np.zeros((3, n), np.float32)
         alpha = np.ones(n, np.float32)
-        jx, jy = rng.next_2d()
+        first = None  # the first vertex's stratified numbers: light choice, light point, BSDF
+        if strata is not None and settings.mode == "NEE_MIS":
+            jx, jy = stratified_2d(*strata, settings.seed, 0)
+            first = [stratified_2d(*strata, settings.seed, d) for d in (1, 2, 3)]
+        else:
+            jx, jy = rng.next_2d()
         origins, dirs, t_max = generate_rays(self.scene.camera, row, col, jx, jy)
         # Path state, one entry per live path:
         path = np.arange(n)                          # wave index of the path
@@ -278,6 +287,8 @@ class Renderer:
             if not len(hit):
                 break
             path, throughput, bsdf_pdf, rng = _compact(hit, path, throughput, bsdf_pdf, rng)
+            if depth == 0 and first is not None:
+                first = [(np.take(u, hit), np.take(v, hit)) for u, v in first]
             prim = np.take(hits.prim, hit)
             dx, dy, dz = np.take(dx, hit), np.take(dy, hit), np.take(dz, hit)
             # ---- shading data: the slide's barycentric interpolation
@@ -291,17 +302,22 @@ class Renderer:
                     if nee and depth > 0:
                         gx, gy, gz = (np.take(c, lit) for c in sd["ng"])
                         cos_l = gx * np.take(dx, lit) + gy * np.take(dy, lit) + gz * np.take(dz, lit)
-                        light_pdf = self.lights.pdf_triangle_hit(np.take(prim, lit), np.take(hits.t, hit[lit]), cos_l)
+                        ray = hit[lit]  # index of these rays before compaction
+                        light_pdf = self.lights.pdf_triangle_hit(
+                            np.take(prim, lit), np.take(hits.t, ray), cos_l,
+                            np.take(origins[:, 0], ray), np.take(origins[:, 1], ray), np.take(origins[:, 2], ray))
                         le = le * sampling.power_heuristic(np.take(bsdf_pdf, lit), light_pdf)
                     _accumulate(radiance, path[lit], le)
             if depth == max_scatters:
                 break
             albedo = self._albedo_at(sd["mat"], sd["u"], sd["v"])
             # ---- next-event estimation: one shadow ray toward a sampled light
+            strat = first if depth == 0 else None
             if nee:
-                u_roulette = self._next_event(radiance, path, throughput, albedo, sd, rng, split)
+                u_roulette = self._next_event(radiance, path, throughput, albedo, sd, rng, split,
+                                              strat[:2] if strat else None)
             # ---- sample the next direction (diffuse BSDF)
-            ux, uy = rng.next_2d()
+            ux, uy = strat[2] if strat else rng.next_2d()
             nx, ny, nz = sd["ns"]
             if settings.mode == "LECTURE":
                 lx, ly, lz, sin_t = sampling.sample_lecture_hemisphere(ux, uy)
@@ -340,11 +356,11 @@ class Renderer:
         """Distance to move a spawned ray's origin along the normal: scene scale plus float32 ulps."""
         return self._ray_epsilon + np.float32(2.0 ** -16) * np.maximum(np.maximum(np.abs(px), np.abs(py)), np.abs(pz))
 
-    def _next_event(self, radiance, path, throughput, albedo, sd, rng, split):
+    def _next_event(self, radiance, path, throughput, albedo, sd, rng, split, numbers=None):
         """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light.
+        numbers: ((u_select, u_spare), (u1, u2)) to use instead of the PCG2D stream.
         Returns a spare uniform number per path (used for Russian roulette)."""
-        u_select, u_spare = rng.next_2d()
-        u1, u2 = rng.next_2d()
+        (u_select, u_spare), (u1, u2) = numbers if numbers is not None else (rng.next_2d(), rng.next_2d())
         px, py, pz = sd["p"]
         ls = self.lights.sample(px, py, pz, u_select, u1, u2)
         nx, ny, nz = sd["ns"]
@@ -404,9 +420,11 @@ class Renderer:
         degenerate = len2 < np.float32(1e-12)
         if degenerate.any():  # opposing corner normals cancel: use the face normal
             ns = [np.where(degenerate, gk, c) for c, gk in zip(ns, (gx, gy, gz))]
-        # Face both normals towards the side the ray came from.
+        # Face the geometric normal towards the side the ray came from, and the shading normal with
+        # it (as Cycles does for back-facing hits): near a smooth object's silhouette the shading
+        # normal may lean away from the viewer while the face looks at it, and stays so.
         g_sign = np.where(gx * dx + gy * dy + gz * dz > 0, np.float32(-1.0), np.float32(1.0))
-        s_sign = np.where(ns[0] * dx + ns[1] * dy + ns[2] * dz > 0, np.float32(-1.0), np.float32(1.0))
+        s_sign = g_sign
         if self.textures:
             uu = w0 * g[_UV0] + w1 * g[_UV1] + w2 * g[_UV2]
             vv = w0 * g[_UV0 + 1] + w1 * g[_UV1 + 1] + w2 * g[_UV2 + 1]

@@ -22,6 +22,9 @@ from .scene import LIGHT_KINDS, SceneArrays
 POINT, SPOT, SUN, RECT, DISK = (LIGHT_KINDS[k] for k in ("POINT", "SPOT", "SUN", "RECT", "DISK"))
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec. 709, Blender's default scene linear
 TWO_PI = np.float32(2.0 * np.pi)
+# Emissive triangles subtending more than this solid angle are sampled by solid angle, smaller (far)
+# ones by area: for tiny spherical triangles the solid-angle construction loses float precision.
+SPHERICAL_MIN_SR = 1e-3
 # Columns of the emissive-triangle table: corner 0, two edges, unit normal, area, mean radiance.
 _TP0, _TE1, _TE2, _TN, _TAREA, _TLE = 0, 3, 6, 9, 12, 13
 _TRI_ROWS = 16
@@ -254,35 +257,69 @@ class LightSampler:
         out.set(idx, wx, wy, wz, dist, radiance, pdf)
 
     def _sample_triangle(self, out, idx, slot, px, py, pz, u1, u2):
+        """A point on an emissive triangle: uniform in the solid angle it subtends when that is
+        large enough (bounded variance next to a light, as Cycles does), else uniform in its area."""
+        g = np.take(self._tri_table, slot, axis=0).T
+        spherical, omega, a, b, c = self._spherical_choice(g, px, py, pz)
+        # Area sampling for every point; overwritten below where spherical sampling applies.
         su = np.sqrt(u1)
         b1 = np.float32(1.0) - su
         b2 = u2 * su
-        g = np.take(self._tri_table, slot, axis=0).T
         qx = g[_TP0] + b1 * g[_TE1] + b2 * g[_TE2]
         qy = g[_TP0 + 1] + b1 * g[_TE1 + 1] + b2 * g[_TE2 + 1]
         qz = g[_TP0 + 2] + b1 * g[_TE1 + 2] + b2 * g[_TE2 + 2]
         wx, wy, wz, dist = _direction(px, py, pz, qx, qy, qz)
         cos_l = np.abs(wx * g[_TN] + wy * g[_TN + 1] + wz * g[_TN + 2])
         pdf = _area_to_solid_angle(g[_TAREA], dist, cos_l)
+        sph = np.flatnonzero(spherical)
+        if len(sph):
+            w = _sample_spherical_triangle(a[:, sph], b[:, sph], c[:, sph], omega[sph], u1[sph], u2[sph])
+            n = g[_TN:_TN + 3, sph].astype(np.float64)
+            p = np.stack([px[sph], py[sph], pz[sph]]).astype(np.float64)
+            p0 = g[_TP0:_TP0 + 3, sph].astype(np.float64)
+            denom = np.sum(w * n, axis=0)
+            t = np.sum((p0 - p) * n, axis=0) / np.where(denom != 0, denom, 1e-30)
+            wx[sph], wy[sph], wz[sph] = w.astype(np.float32)
+            dist[sph] = np.abs(t).astype(np.float32)
+            pdf[sph] = (1.0 / omega[sph]).astype(np.float32)
+            if self.tri_textured:  # barycentrics of the hit point, for the texture lookup
+                q = p + w * t
+                b1[sph], b2[sph] = _barycentrics(q - p0, g[_TE1:_TE1 + 3, sph], g[_TE2:_TE2 + 3, sph])
         if self.tri_textured:
             radiance = self.triangle_emission(np.take(self.tri_ids, slot), b1, b2)
         else:
             radiance = g[_TLE:_TLE + 3]
         out.set(idx, wx, wy, wz, dist, radiance, pdf)
 
+    def _spherical_choice(self, g, px, py, pz):
+        """Per point and triangle: use solid-angle sampling?, the solid angle (float64), and the
+        unit vectors (3, n) toward the three corners."""
+        p = np.stack([px, py, pz]).astype(np.float64)
+        p0 = g[_TP0:_TP0 + 3].astype(np.float64)
+        corners = (p0 - p, p0 + g[_TE1:_TE1 + 3] - p, p0 + g[_TE2:_TE2 + 3] - p)
+        a, b, c = (v / np.maximum(np.linalg.norm(v, axis=0), 1e-300) for v in corners)
+        omega = _solid_angle(a, b, c)
+        return omega > SPHERICAL_MIN_SR, omega, a, b, c
+
     def _sample_world(self, out, idx, u1, u2):
         wx, wy, wz, pdf = self.environment.sample_direction(u1, u2)
         out.set(idx, wx, wy, wz, np.float32(np.inf), self.environment.radiance(wx, wy, wz), pdf)
 
     # ------------------------------------------------------------------ pdfs of what BSDF rays find
-    def pdf_triangle_hit(self, tri, dist, cos_l) -> np.ndarray:
-        """pdf (solid angle, with selection) that NEE would have sampled this point of emissive triangle tri."""
+    def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz) -> np.ndarray:
+        """pdf (solid angle, with selection) with which NEE from the ray origin o would have sampled
+        this point of emissive triangle tri (zero for triangles that do not emit)."""
         slot = np.take(self.tri_slot, tri)
         ok = slot >= 0
+        if not len(self.tri_ids):
+            return np.zeros(len(tri), np.float32)
         s = np.maximum(slot, 0)
-        pmf = np.take(self.pmf32, self.light_count + s) if len(self.tri_ids) else np.zeros(len(tri), np.float32)
-        area = np.take(self.tri_area, s) if len(self.tri_ids) else np.ones(len(tri), np.float32)
-        return np.where(ok, pmf * _area_to_solid_angle(area, dist, np.abs(cos_l)), np.float32(0.0))
+        pmf = np.take(self.pmf32, self.light_count + s)
+        g = np.take(self._tri_table, s, axis=0).T
+        spherical, omega, _, _, _ = self._spherical_choice(g, ox, oy, oz)
+        pdf = np.where(spherical, (1.0 / np.maximum(omega, 1e-300)).astype(np.float32),
+                       _area_to_solid_angle(g[_TAREA], dist, np.abs(cos_l)))
+        return np.where(ok, pmf * pdf, np.float32(0.0))
 
     def pdf_world(self, dx, dy, dz) -> np.ndarray:
         if not self.has_lights or self.select_pmf[self.world_index] == 0:
@@ -361,3 +398,49 @@ def _area_to_solid_angle(area, dist, cos_l):
     with np.errstate(divide="ignore", invalid="ignore"):
         pdf = dist * dist / (area * cos_l)
     return np.where((cos_l > 0) & np.isfinite(pdf), pdf, np.float32(0.0)).astype(np.float32)
+
+
+def _solid_angle(a, b, c):
+    """Solid angle of the spherical triangle with unit corners a, b, c (3, n) float64 (Van Oosterom
+    and Strackee)."""
+    triple = np.abs(np.sum(a * np.cross(b, c, axis=0), axis=0))
+    denom = 1.0 + np.sum(a * b, axis=0) + np.sum(b * c, axis=0) + np.sum(c * a, axis=0)
+    return 2.0 * np.arctan2(triple, denom)
+
+
+def _sample_spherical_triangle(a, b, c, omega, u1, u2):
+    """Unit directions (3, n) uniform over the spherical triangle a, b, c (Arvo 1995), float64."""
+    u1 = u1.astype(np.float64)
+    u2 = u2.astype(np.float64)
+
+    def unit(v):
+        return v / np.maximum(np.linalg.norm(v, axis=0), 1e-300)
+
+    def angle_at(p, q, r):  # the spherical triangle's interior angle at corner p
+        return np.arccos(np.clip(np.sum(unit(np.cross(p, q, axis=0)) * unit(np.cross(p, r, axis=0)), axis=0), -1, 1))
+
+    alpha = angle_at(a, b, c)
+    cos_c = np.sum(a * b, axis=0)
+    area = u1 * omega
+    s, t = np.sin(area - alpha), np.cos(area - alpha)
+    u = t - np.cos(alpha)
+    v = s + np.sin(alpha) * cos_c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = ((v * t - u * s) * np.cos(alpha) - v) / ((v * s + u * t) * np.sin(alpha))
+    q = np.clip(np.nan_to_num(q, nan=1.0), -1.0, 1.0)
+    c_hat = q * a + np.sqrt(np.maximum(1.0 - q * q, 0.0)) * unit(c - np.sum(c * a, axis=0) * a)
+    z = 1.0 - u2 * (1.0 - np.sum(c_hat * b, axis=0))
+    return z * b + np.sqrt(np.maximum(1.0 - z * z, 0.0)) * unit(c_hat - np.sum(c_hat * b, axis=0) * b)
+
+
+def _barycentrics(d, e1, e2):
+    """(b1, b2) of point p0 + d on the triangle with edges e1, e2, all (3, n)."""
+    d11 = np.sum(e1 * e1, axis=0)
+    d12 = np.sum(e1 * e2, axis=0)
+    d22 = np.sum(e2 * e2, axis=0)
+    d1 = np.sum(d * e1, axis=0)
+    d2 = np.sum(d * e2, axis=0)
+    det = np.where(d11 * d22 - d12 * d12 != 0, d11 * d22 - d12 * d12, 1e-30)
+    b1 = (d22 * d1 - d12 * d2) / det
+    b2 = (d11 * d2 - d12 * d1) / det
+    return b1.astype(np.float32), b2.astype(np.float32)

@@ -65,3 +65,23 @@ class PathRng:
 
     def take(self, idx: np.ndarray) -> "PathRng":
         return PathRng(np.take(self.x, idx), np.take(self.y, idx))
+
+
+# The R2 sequence (Roberts 2018): point s is frac(s / g, s / g^2), g the plastic number 1.3247...; its
+# steps as 32-bit fixed point, so that point s is an exact uint32 sum however large s grows.
+_R2_STEP_X = np.uint32(3242174889)   # round(2^32 / g)
+_R2_STEP_Y = np.uint32(2447445414)   # round(2^32 / g^2)
+_DIMENSION_SALT = np.uint32(0x68E31DA4)
+
+
+def stratified_2d(pixel_index: np.ndarray, sample_index: np.ndarray, user_seed: int, dimension: int):
+    """Sample s of a pixel's low-discrepancy 2D sequence for one dimension pair: the R2 sequence
+    rotated (Cranley-Patterson) by a PCG2D hash of (pixel, dimension, seed). Successive samples of a
+    pixel then cover the square evenly, as Cycles' stratified patterns do, while pixels and
+    dimensions stay independent. Returns two float32 arrays in [0, 1)."""
+    pixel_index = np.asarray(pixel_index, np.uint32)
+    salt = np.uint32((dimension * int(_DIMENSION_SALT)) & 0xFFFFFFFF)
+    rx, ry = pcg2d(pixel_index ^ salt,
+                   np.zeros_like(pixel_index) + np.uint32((user_seed + dimension * 0x9E3779B9) & 0xFFFFFFFF))
+    s = np.asarray(sample_index, np.uint32)
+    return to_unit_float(rx + s * _R2_STEP_X), to_unit_float(ry + s * _R2_STEP_Y)

@@ -161,20 +161,25 @@ def load_exr(path: str) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- comparing noisy renders
-def two_seed_render(scene, engine: str, samples: int, **kwargs):
-    """Two independent half-sample renders: their mean is the estimate, their difference its noise.
+REPLICATE_SEEDS = (11, 29, 47, 83)
+
+
+def replicate_render(scene, engine: str, samples: int, **kwargs):
+    """Independent renders with different seeds splitting `samples` between them: their mean is the
+    estimate, their spread its noise (len(REPLICATE_SEEDS) - 1 degrees of freedom per pixel).
     Returns (mean (H, W, 3), per-pixel variance of the mean (H, W, 3))."""
-    a = render_to_array(scene, engine, samples // 2, seed=11, **kwargs)[..., :3].astype(np.float64)
-    b = render_to_array(scene, engine, samples // 2, seed=29, **kwargs)[..., :3].astype(np.float64)
-    return (a + b) / 2, (a - b) ** 2 / 4
+    k = len(REPLICATE_SEEDS)
+    renders = np.stack([render_to_array(scene, engine, max(samples // k, 1), seed=seed, **kwargs)[..., :3]
+                        for seed in REPLICATE_SEEDS]).astype(np.float64)
+    return renders.mean(axis=0), renders.var(axis=0, ddof=1) / k
 
 
 def compare_to_cycles(scene, samples: int = 64, blocks: int = 8, z: float = 4.5, mean_tol: float = 0.02,
                       **kwargs) -> dict:
     """Render with both engines and assert parity: the whole-image mean within mean_tol (relative)
     and every block of a blocks x blocks grid within z standard errors of the difference."""
-    cycles, var_c = two_seed_render(scene, "CYCLES", samples, **kwargs)
-    ember_img, var_e = two_seed_render(scene, "EMBER", samples, **kwargs)
+    cycles, var_c = replicate_render(scene, "CYCLES", samples, **kwargs)
+    ember_img, var_e = replicate_render(scene, "EMBER", samples, **kwargs)
     h, w, _ = cycles.shape
     bh, bw = h // blocks, w // blocks
 

@@ -72,7 +72,8 @@ def test_f12_render_writes_a_correct_image(tmp_path):
     assert image.shape == (36, 48, 4) and np.isfinite(image).all()
     assert np.all(image[..., 3] == 1.0)
     # The floor is lit, brighter under the lamp than far away; the lamp itself shows its radiance.
-    assert image[..., :3].max() == pytest.approx(5.0, rel=1e-5)
+    # The lamp (radiance 5) is a sliver two pixels high: its pixels are partly covered, never brighter.
+    assert 4.0 < image[..., :3].max() <= 5.0 * (1 + 1e-5)
     # The floor in front of the back wall is lit by the lamp: brighter than the world alone gives.
     assert image[24:30, 20:28, :3].mean() > 0.05
 
@@ -179,6 +180,7 @@ def test_nan_coordinates_and_zero_area_faces_give_a_finite_image(tmp_path):
     mesh_object("Broken", [(-1, 0, 0), (1, 0, 0), (1, 0, 2), (-1, 0, 2), (nan, 0, 1), (0, 0, 0), (0, 0, 0)],
                 [(0, 1, 2, 3), (0, 4, 3), (5, 6, 1)], mat)
     scene.ember.samples = 2
+    scene.ember.sampling_mode = "COSINE"  # every sample of the lone quad is exactly albedo x world
     error, image = render_reports(scene, tmp_path)
     assert error is None and np.isfinite(image).all()
-    assert image[12, 12, 0] < 0.5 * 0.99  # the valid quad still renders (darker than the world)
+    assert image[12, 12, 0] == pytest.approx(0.8 * 0.5, rel=1e-5)  # the valid quad still renders

@@ -129,7 +129,8 @@ def test_emissive_triangle_sampling_matches_its_mis_pdf():
             ng /= np.linalg.norm(ng, axis=1, keepdims=True)
             prim = np.maximum(h.prim, 0)
             cos_l = (ng[prim] * np.stack([dx, dy, dz], 1)).sum(1)
-            return np.where(h.prim >= 0, sampler.pdf_triangle_hit(prim, h.t, cos_l), 0)
+            ox, oy, oz = (np.full(n, np.float32(c)) for c in P)
+            return np.where(h.prim >= 0, sampler.pdf_triangle_hit(prim, h.t, cos_l, ox, oy, oz), 0)
         chi2_directions((s.wx, s.wy, s.wz), pdf_of, np.float32([-0.2, 0.6, 1.5]) - np.float32(P), theta_max=1.2)
 
 
