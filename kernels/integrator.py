@@ -136,10 +136,13 @@ class Renderer:
         self.scene = dataclasses.replace(self.scene, camera=camera)
 
     def close(self) -> None:
+        """Stop the threads and drop the big arrays now: the light sampler calls back into this
+        renderer, a reference cycle that plain reference counting would never free."""
         if self._wave_pool is not None:
             self._wave_pool.shutdown(wait=True)
             self._wave_pool = None
         self.accel.close()
+        self.lights = None
 
     def __enter__(self):
         return self

@@ -187,3 +187,17 @@ def test_settings_are_checked():
                        (dict(time_limit_s=float("nan")), "time_limit_s")]:
         with pytest.raises(ValueError, match=field):
             render(scene, RenderSettings(**bad))
+
+
+def test_a_closed_renderer_is_freed_without_the_cycle_collector():
+    import gc
+    import weakref
+    gc.disable()
+    try:
+        with Renderer(cornell_box(8, 8), 1) as renderer:
+            renderer.render(RenderSettings(samples=1))
+        ref = weakref.ref(renderer)
+        del renderer
+        assert ref() is None  # big scenes must not wait for gc to give their memory back
+    finally:
+        gc.enable()

@@ -111,8 +111,9 @@ def test_sun_with_an_angle_samples_its_cone():
     assert np.allclose(s.pdf, cone, rtol=1e-5)
 
 
-def test_emissive_triangle_sampling_matches_its_mis_pdf():
-    positions, _ = quad((-0.5, -0.4, 1.5), (1.2, 0.1, 0.0), (0.2, 0.9, 0.3))
+@pytest.mark.parametrize("size", [1.0, 0.02])  # near: sampled by solid angle; small and far: by area
+def test_emissive_triangle_sampling_matches_its_mis_pdf(size):
+    positions, _ = quad((-0.5, -0.4, 1.5), (1.2 * size, 0.1 * size, 0.0), (0.2 * size, 0.9 * size, 0.3 * size))
     sampler = sampler_for(positions=positions, emission=(4, 4, 4))
     s = sampler.sample(*(np.full(N, np.float32(c)) for c in P), *uniforms(seed=2))
     assert np.all(s.pdf > 0)
@@ -131,7 +132,12 @@ def test_emissive_triangle_sampling_matches_its_mis_pdf():
             cos_l = (ng[prim] * np.stack([dx, dy, dz], 1)).sum(1)
             ox, oy, oz = (np.full(n, np.float32(c)) for c in P)
             return np.where(h.prim >= 0, sampler.pdf_triangle_hit(prim, h.t, cos_l, ox, oy, oz), 0)
-        chi2_directions((s.wx, s.wy, s.wz), pdf_of, np.float32([-0.2, 0.6, 1.5]) - np.float32(P), theta_max=1.2)
+        centre = positions.reshape(-1, 3).mean(axis=0)
+        theta_max = 1.2 if size == 1.0 else 0.03
+        chi2_directions((s.wx, s.wy, s.wz), pdf_of, centre - np.float32(P), theta_max=theta_max)
+        spherical = sampler._spherical_choice(np.take(sampler._tri_table, [0], axis=0).T,
+                                              *(np.float32([c]) for c in P))[0][0]
+        assert spherical == (size == 1.0)
 
 
 def test_hdri_sampling_matches_its_pdf():

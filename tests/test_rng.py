@@ -79,3 +79,20 @@ def test_consecutive_passes_are_not_correlated():
     u, _ = PathRng(x, y).next_2d()
     counts, _ = np.histogram(u, bins=100, range=(0, 1))
     assert_chi2(counts, np.full(100, len(u) / 100))
+
+
+def test_stratified_sequence_is_uniform_across_pixels_and_even_within_a_pixel():
+    from ember.kernels.rng import stratified_2d
+    # Across pixels, one sample index: independent uniform numbers (the rotations are PCG2D hashes).
+    pixels = np.arange(100_000, dtype=np.uint32)
+    u, v = stratified_2d(pixels, np.full(len(pixels), 7, np.uint32), 3, dimension=2)
+    counts, _, _ = np.histogram2d(u, v, bins=16, range=[[0, 1], [0, 1]])
+    assert_chi2(counts, np.full_like(counts, len(u) / counts.size))
+    # Within a pixel, successive samples fill the square far more evenly than independent ones:
+    # over 16x16 cells, 1024 samples leave a count variance well below the binomial one (about 4).
+    u, v = stratified_2d(np.full(1024, 12345, np.uint32), np.arange(1024, dtype=np.uint32), 3, dimension=0)
+    counts, _, _ = np.histogram2d(u, v, bins=16, range=[[0, 1], [0, 1]])
+    assert counts.var() < 1.0
+    # Another dimension of the same pixel is rotated differently.
+    u2, _ = stratified_2d(np.full(1024, 12345, np.uint32), np.arange(1024, dtype=np.uint32), 3, dimension=1)
+    assert abs(np.corrcoef(u, u2)[0, 1]) < 0.2
