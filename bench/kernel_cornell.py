@@ -52,7 +52,10 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=32)
     ap.add_argument("--threads", type=int, default=0, help="0 = all cores")
     ap.add_argument("--repeats", type=int, default=3)
-    args = ap.parse_args()
+    ap.add_argument("--quick", action="store_true", help="a smoke run: 8 samples, one repeat")
+    args, _ = ap.parse_known_args()  # dev.py bench passes vs_cycles.py's flags to every benchmark
+    if args.quick:
+        args.samples, args.repeats = 8, 1
 
     scene = cornell_box(256, 256, wall_subdivisions=7, sphere_segments=12)
     print(f"Cornell box: {scene.triangle_count} triangles, 256x256, {args.samples} spp, max_bounces 8")

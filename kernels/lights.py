@@ -260,8 +260,8 @@ class LightSampler:
         """A point on an emissive triangle: uniform in the solid angle it subtends when that is
         large enough (bounded variance next to a light, as Cycles does), else uniform in its area."""
         g = np.take(self._tri_table, slot, axis=0).T
-        spherical, omega, a, b, c = self._spherical_choice(g, px, py, pz)
-        # Area sampling for every point; overwritten below where spherical sampling applies.
+        spherical, omega, corners = self._spherical_choice(g, px, py, pz)
+        # Area sampling for every point; replaced below where solid-angle sampling applies.
         su = np.sqrt(u1)
         b1 = np.float32(1.0) - su
         b2 = u2 * su
@@ -273,18 +273,18 @@ class LightSampler:
         pdf = _area_to_solid_angle(g[_TAREA], dist, cos_l)
         sph = np.flatnonzero(spherical)
         if len(sph):
-            w = _sample_spherical_triangle(a[:, sph], b[:, sph], c[:, sph], omega[sph], u1[sph], u2[sph])
-            n = g[_TN:_TN + 3, sph].astype(np.float64)
-            p = np.stack([px[sph], py[sph], pz[sph]]).astype(np.float64)
-            p0 = g[_TP0:_TP0 + 3, sph].astype(np.float64)
-            denom = np.sum(w * n, axis=0)
-            t = np.sum((p0 - p) * n, axis=0) / np.where(denom != 0, denom, 1e-30)
-            wx[sph], wy[sph], wz[sph] = w.astype(np.float32)
-            dist[sph] = np.abs(t).astype(np.float32)
-            pdf[sph] = (1.0 / omega[sph]).astype(np.float32)
-            if self.tri_textured:  # barycentrics of the hit point, for the texture lookup
-                q = p + w * t
-                b1[sph], b2[sph] = _barycentrics(q - p0, g[_TE1:_TE1 + 3, sph], g[_TE2:_TE2 + 3, sph])
+            a, b, c = ([comp[sph] for comp in v] for v in corners)
+            sx, sy, sz = _sample_spherical_triangle(a, b, c, omega[sph], u1[sph], u2[sph])
+            nx, ny, nz = g[_TN, sph], g[_TN + 1, sph], g[_TN + 2, sph]
+            denom = sx * nx + sy * ny + sz * nz
+            rx, ry, rz = (g[_TP0 + k, sph] - (px, py, pz)[k][sph] for k in range(3))
+            t = (rx * nx + ry * ny + rz * nz) / np.where(denom != 0, denom, np.float32(1e-30))
+            wx[sph], wy[sph], wz[sph] = sx, sy, sz
+            dist[sph] = np.abs(t)
+            pdf[sph] = np.float32(1.0) / omega[sph]
+            if self.tri_textured:  # barycentrics of the point hit, for the texture lookup
+                b1[sph], b2[sph] = _barycentrics((sx * t - rx, sy * t - ry, sz * t - rz),
+                                                 g[_TE1:_TE1 + 3, sph], g[_TE2:_TE2 + 3, sph])
         if self.tri_textured:
             radiance = self.triangle_emission(np.take(self.tri_ids, slot), b1, b2)
         else:
@@ -292,14 +292,14 @@ class LightSampler:
         out.set(idx, wx, wy, wz, dist, radiance, pdf)
 
     def _spherical_choice(self, g, px, py, pz):
-        """Per point and triangle: use solid-angle sampling?, the solid angle (float64), and the
-        unit vectors (3, n) toward the three corners."""
-        p = np.stack([px, py, pz]).astype(np.float64)
-        p0 = g[_TP0:_TP0 + 3].astype(np.float64)
-        corners = (p0 - p, p0 + g[_TE1:_TE1 + 3] - p, p0 + g[_TE2:_TE2 + 3] - p)
-        a, b, c = (v / np.maximum(np.linalg.norm(v, axis=0), 1e-300) for v in corners)
+        """Per point and triangle: use solid-angle sampling?, the solid angle, and the unit vectors
+        toward the three corners (each a tuple of x, y, z arrays)."""
+        ax, ay, az = g[_TP0] - px, g[_TP0 + 1] - py, g[_TP0 + 2] - pz
+        a = _normalized(ax, ay, az)
+        b = _normalized(ax + g[_TE1], ay + g[_TE1 + 1], az + g[_TE1 + 2])
+        c = _normalized(ax + g[_TE2], ay + g[_TE2 + 1], az + g[_TE2 + 2])
         omega = _solid_angle(a, b, c)
-        return omega > SPHERICAL_MIN_SR, omega, a, b, c
+        return omega > SPHERICAL_MIN_SR, omega, (a, b, c)
 
     def _sample_world(self, out, idx, u1, u2):
         wx, wy, wz, pdf = self.environment.sample_direction(u1, u2)
@@ -316,8 +316,8 @@ class LightSampler:
         s = np.maximum(slot, 0)
         pmf = np.take(self.pmf32, self.light_count + s)
         g = np.take(self._tri_table, s, axis=0).T
-        spherical, omega, _, _, _ = self._spherical_choice(g, ox, oy, oz)
-        pdf = np.where(spherical, (1.0 / np.maximum(omega, 1e-300)).astype(np.float32),
+        spherical, omega, _ = self._spherical_choice(g, ox, oy, oz)
+        pdf = np.where(spherical, np.float32(1.0) / np.maximum(omega, np.float32(1e-30)),
                        _area_to_solid_angle(g[_TAREA], dist, np.abs(cos_l)))
         return np.where(ok, pmf * pdf, np.float32(0.0))
 
@@ -400,47 +400,55 @@ def _area_to_solid_angle(area, dist, cos_l):
     return np.where((cos_l > 0) & np.isfinite(pdf), pdf, np.float32(0.0)).astype(np.float32)
 
 
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _normalized(x, y, z):
+    inv = np.float32(1.0) / np.sqrt(np.maximum(x * x + y * y + z * z, np.float32(1e-37)))
+    return x * inv, y * inv, z * inv
+
+
 def _solid_angle(a, b, c):
-    """Solid angle of the spherical triangle with unit corners a, b, c (3, n) float64 (Van Oosterom
-    and Strackee)."""
-    triple = np.abs(np.sum(a * np.cross(b, c, axis=0), axis=0))
-    denom = 1.0 + np.sum(a * b, axis=0) + np.sum(b * c, axis=0) + np.sum(c * a, axis=0)
-    return 2.0 * np.arctan2(triple, denom)
+    """Solid angle of the spherical triangle with unit corners a, b, c (Van Oosterom and Strackee)."""
+    triple = np.abs(_dot(a, _cross(b, c)))
+    return np.float32(2.0) * np.arctan2(triple, np.float32(1.0) + _dot(a, b) + _dot(b, c) + _dot(c, a))
 
 
 def _sample_spherical_triangle(a, b, c, omega, u1, u2):
-    """Unit directions (3, n) uniform over the spherical triangle a, b, c (Arvo 1995), float64."""
-    u1 = u1.astype(np.float64)
-    u2 = u2.astype(np.float64)
-
-    def unit(v):
-        return v / np.maximum(np.linalg.norm(v, axis=0), 1e-300)
-
-    def angle_at(p, q, r):  # the spherical triangle's interior angle at corner p
-        return np.arccos(np.clip(np.sum(unit(np.cross(p, q, axis=0)) * unit(np.cross(p, r, axis=0)), axis=0), -1, 1))
-
-    alpha = angle_at(a, b, c)
-    cos_c = np.sum(a * b, axis=0)
+    """Unit directions uniform over the spherical triangle a, b, c (Arvo 1995), per component."""
+    n_ab = _normalized(*_cross(a, b))
+    n_ac = _normalized(*_cross(a, c))
+    cos_alpha = np.clip(_dot(n_ab, n_ac), np.float32(-1.0), np.float32(1.0))
+    sin_alpha = np.sqrt(np.maximum(np.float32(1.0) - cos_alpha * cos_alpha, np.float32(0.0)))
+    alpha = np.arccos(cos_alpha)
+    cos_c = _dot(a, b)
     area = u1 * omega
     s, t = np.sin(area - alpha), np.cos(area - alpha)
-    u = t - np.cos(alpha)
-    v = s + np.sin(alpha) * cos_c
+    u = t - cos_alpha
+    v = s + sin_alpha * cos_c
     with np.errstate(divide="ignore", invalid="ignore"):
-        q = ((v * t - u * s) * np.cos(alpha) - v) / ((v * s + u * t) * np.sin(alpha))
-    q = np.clip(np.nan_to_num(q, nan=1.0), -1.0, 1.0)
-    c_hat = q * a + np.sqrt(np.maximum(1.0 - q * q, 0.0)) * unit(c - np.sum(c * a, axis=0) * a)
-    z = 1.0 - u2 * (1.0 - np.sum(c_hat * b, axis=0))
-    return z * b + np.sqrt(np.maximum(1.0 - z * z, 0.0)) * unit(c_hat - np.sum(c_hat * b, axis=0) * b)
+        q = ((v * t - u * s) * cos_alpha - v) / ((v * s + u * t) * sin_alpha)
+    q = np.clip(np.nan_to_num(q, nan=1.0), np.float32(-1.0), np.float32(1.0))
+    ca = _dot(c, a)
+    perp = _normalized(c[0] - ca * a[0], c[1] - ca * a[1], c[2] - ca * a[2])
+    sq = np.sqrt(np.maximum(np.float32(1.0) - q * q, np.float32(0.0)))
+    c_hat = (q * a[0] + sq * perp[0], q * a[1] + sq * perp[1], q * a[2] + sq * perp[2])
+    cb = _dot(c_hat, b)
+    z = np.float32(1.0) - u2 * (np.float32(1.0) - cb)
+    perp = _normalized(c_hat[0] - cb * b[0], c_hat[1] - cb * b[1], c_hat[2] - cb * b[2])
+    sz = np.sqrt(np.maximum(np.float32(1.0) - z * z, np.float32(0.0)))
+    return z * b[0] + sz * perp[0], z * b[1] + sz * perp[1], z * b[2] + sz * perp[2]
 
 
 def _barycentrics(d, e1, e2):
-    """(b1, b2) of point p0 + d on the triangle with edges e1, e2, all (3, n)."""
-    d11 = np.sum(e1 * e1, axis=0)
-    d12 = np.sum(e1 * e2, axis=0)
-    d22 = np.sum(e2 * e2, axis=0)
-    d1 = np.sum(d * e1, axis=0)
-    d2 = np.sum(d * e2, axis=0)
-    det = np.where(d11 * d22 - d12 * d12 != 0, d11 * d22 - d12 * d12, 1e-30)
-    b1 = (d22 * d1 - d12 * d2) / det
-    b2 = (d11 * d2 - d12 * d1) / det
-    return b1.astype(np.float32), b2.astype(np.float32)
+    """(b1, b2) of the point p0 + d on the triangle with edges e1, e2 (each x, y, z)."""
+    d11, d12, d22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
+    d1, d2 = _dot(d, e1), _dot(d, e2)
+    det = d11 * d22 - d12 * d12
+    det = np.where(det != 0, det, np.float32(1e-30))
+    return (d22 * d1 - d12 * d2) / det, (d11 * d2 - d12 * d1) / det
