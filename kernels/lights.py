@@ -278,10 +278,13 @@ class LightSampler:
             nx, ny, nz = g[_TN, sph], g[_TN + 1, sph], g[_TN + 2, sph]
             denom = sx * nx + sy * ny + sz * nz
             rx, ry, rz = (g[_TP0 + k, sph] - (px, py, pz)[k][sph] for k in range(3))
-            t = (rx * nx + ry * ny + rz * nz) / np.where(denom != 0, denom, np.float32(1e-30))
+            # A direction grazing the triangle's plane (possible only by rounding) finds no point on it.
+            valid = np.abs(denom) > np.float32(1e-7)
+            t = (rx * nx + ry * ny + rz * nz) / np.where(valid, denom, np.float32(1.0))
+            valid &= t > 0
             wx[sph], wy[sph], wz[sph] = sx, sy, sz
-            dist[sph] = np.abs(t)
-            pdf[sph] = np.float32(1.0) / omega[sph]
+            dist[sph] = np.where(valid, t, np.float32(0.0))
+            pdf[sph] = np.where(valid, np.float32(1.0) / omega[sph], np.float32(0.0))
             if self.tri_textured:  # barycentrics of the point hit, for the texture lookup
                 b1[sph], b2[sph] = _barycentrics((sx * t - rx, sy * t - ry, sz * t - rz),
                                                  g[_TE1:_TE1 + 3, sph], g[_TE2:_TE2 + 3, sph])
