@@ -74,14 +74,40 @@ _R2_STEP_Y = np.uint32(2447445414)   # round(2^32 / g^2)
 _DIMENSION_SALT = np.uint32(0x68E31DA4)
 
 
+def reverse_bits(x: np.ndarray) -> np.ndarray:
+    """Bit reversal of uint32 values."""
+    x = x.astype(np.uint32, copy=True)
+    for shift, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
+        m = np.uint32(mask)
+        x = ((x >> np.uint32(shift)) & m) | ((x & m) << np.uint32(shift))
+    return (x >> np.uint32(16)) | (x << np.uint32(16))
+
+
+def nested_uniform_scramble(index: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """Owen-scramble sample indices (Burley 2020: a Laine-Karras permutation on the reversed bits).
+    Every power-of-two prefix 0..2^k-1 maps onto itself, shuffled differently for every seed."""
+    x = reverse_bits(index)
+    x = x ^ (x * np.uint32(0x3D20ADEA))
+    x = x + seed
+    x = x * ((seed >> np.uint32(16)) | np.uint32(1))
+    x = x ^ (x * np.uint32(0x05526C56))
+    x = x ^ (x * np.uint32(0x53A22864))
+    return reverse_bits(x)
+
+
 def stratified_2d(pixel_index: np.ndarray, sample_index: np.ndarray, user_seed: int, dimension: int):
-    """Sample s of a pixel's low-discrepancy 2D sequence for one dimension pair: the R2 sequence
-    rotated (Cranley-Patterson) by a PCG2D hash of (pixel, dimension, seed). Successive samples of a
-    pixel then cover the square evenly, as Cycles' stratified patterns do, while pixels and
-    dimensions stay independent. Returns two float32 arrays in [0, 1)."""
+    """Sample s of a pixel's low-discrepancy 2D sequence for one dimension pair. Returns two float32
+    arrays in [0, 1).
+
+    The R2 sequence, rotated (Cranley-Patterson) by a PCG2D hash of (pixel, dimension, seed), and read
+    in an order shuffled per pixel and dimension by an Owen scramble of the sample index. The rotation
+    makes pixels independent; the shuffle makes dimension pairs independent (without it, every pair
+    would step through the same sequence and the light choice would be tied to the point on the
+    light); the first 2^k samples of each pair still cover the square evenly.
+    """
     pixel_index = np.asarray(pixel_index, np.uint32)
     salt = np.uint32((dimension * int(_DIMENSION_SALT)) & 0xFFFFFFFF)
     rx, ry = pcg2d(pixel_index ^ salt,
                    np.zeros_like(pixel_index) + np.uint32((user_seed + dimension * 0x9E3779B9) & 0xFFFFFFFF))
-    s = np.asarray(sample_index, np.uint32)
+    s = nested_uniform_scramble(np.asarray(sample_index, np.uint32), rx ^ (ry >> np.uint32(3)))
     return to_unit_float(rx + s * _R2_STEP_X), to_unit_float(ry + s * _R2_STEP_Y)
