@@ -122,10 +122,12 @@ class Renderer:
         self._emission_tex = mats.emission_texture
         self._material_emits = np.any(mats.emission > 0, axis=1)
         self._emissive = bool(self._material_emits.any())
-        self._ray_epsilon = _ray_epsilon(self.scene.positions)
+        lo, hi = _extent(self.scene.positions)
+        self._ray_epsilon = _ray_epsilon(lo, hi)
         self._texture_means = [t.channels.mean(axis=1) for t in self.textures]
-        center, radius = _bounding_sphere(self.scene.positions)
-        self.lights = LightSampler(self.scene, self.environment, self._triangle_emission, radius, center)
+        # A sphere around the geometry, for the power of infinite lights.
+        radius = float(np.linalg.norm(hi - lo) / 2) if len(self.scene.positions) else 1.0
+        self.lights = LightSampler(self.scene, self.environment, self._triangle_emission, radius, (lo + hi) / 2)
         threads = self.accel.threads
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
 
@@ -512,43 +514,51 @@ def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int):
 
 
 def _triangle_table(scene: SceneArrays) -> np.ndarray:
-    """(T, 27) float32: p0, e1, e2, unit geometric normal, three corner normals, three corner UVs."""
+    """(T, 27) float32: p0, e1, e2, unit geometric normal, three corner normals, three corner UVs.
+    Built column by column in float32, straight in the row layout the renderer gathers from."""
     p = scene.positions
     t = len(p)
-    table = np.empty((_TABLE_ROWS, t), np.float32)
+    table = np.empty((t, _TABLE_ROWS), np.float32)
     e1 = p[:, 1] - p[:, 0]
     e2 = p[:, 2] - p[:, 0]
-    ng = np.cross(e1.astype(np.float64), e2.astype(np.float64))
-    ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
-    table[_P0:_P0 + 3] = p[:, 0].T
-    table[_E1:_E1 + 3] = e1.T
-    table[_E2:_E2 + 3] = e2.T
-    table[_NG:_NG + 3] = ng.T
-    for k, row in enumerate((_N0, _N1, _N2)):
-        nk = scene.normals[:, k].astype(np.float64)
-        length = np.linalg.norm(nk, axis=1, keepdims=True)
+    ng = np.stack(_unit_rows(e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1],
+                             e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
+                             e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), axis=1)
+    table[:, _P0:_P0 + 3] = p[:, 0]
+    table[:, _E1:_E1 + 3] = e1
+    table[:, _E2:_E2 + 3] = e2
+    table[:, _NG:_NG + 3] = ng
+    for k, col in enumerate((_N0, _N1, _N2)):
+        nk = scene.normals[:, k]
+        x, y, z = nk[:, 0], nk[:, 1], nk[:, 2]
+        length2 = x * x + y * y + z * z
+        inv = np.float32(1.0) / np.sqrt(np.maximum(length2, np.float32(1e-37)))
         # A zero-length corner normal falls back to the face normal.
-        nk = np.where(length > 1e-20, nk / np.maximum(length, 1e-300), ng)
-        table[row:row + 3] = nk.T
-    for k, row in enumerate((_UV0, _UV1, _UV2)):
-        table[row:row + 2] = scene.uvs[:, k].T
-    return np.ascontiguousarray(table.T)
+        zero = length2 < np.float32(1e-30)
+        for j, c in enumerate((x, y, z)):
+            table[:, col + j] = np.where(zero, ng[:, j], c * inv)
+    for k, col in enumerate((_UV0, _UV1, _UV2)):
+        table[:, col:col + 2] = scene.uvs[:, k]
+    return table
 
 
-def _bounding_sphere(positions: np.ndarray):
-    """Centre and radius of a sphere around the geometry (for the power of infinite lights)."""
+def _unit_rows(x, y, z):
+    inv = np.float32(1.0) / np.sqrt(np.maximum(x * x + y * y + z * z, np.float32(1e-37)))
+    return x * inv, y * inv, z * inv
+
+
+def _extent(positions: np.ndarray):
+    """(lo, hi) corners of the geometry's bounding box, float64 (3,) each."""
     if not len(positions):
-        return np.zeros(3), 1.0
-    lo = positions.reshape(-1, 3).min(axis=0).astype(np.float64)
-    hi = positions.reshape(-1, 3).max(axis=0).astype(np.float64)
-    return (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
+        return np.zeros(3), np.zeros(3)
+    lo = np.array([positions[:, :, k].min() for k in range(3)], np.float64)
+    hi = np.array([positions[:, :, k].max() for k in range(3)], np.float64)
+    return lo, hi
 
 
-def _ray_epsilon(positions: np.ndarray) -> np.float32:
+def _ray_epsilon(lo: np.ndarray, hi: np.ndarray) -> np.float32:
     """Offset for spawned rays, scaled to the scene's extent (float32 keeps about 7 digits)."""
-    if not len(positions):
-        return np.float32(1e-5)
-    extent = float(np.max(np.abs(positions)))
+    extent = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
     return np.float32(max(extent, 1e-3) * 1e-6)
 
 
