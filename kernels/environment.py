@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import sampling
 from .scene import World
-from .textures import Texture
+from .textures import Texture, luminance
 
 INV_2PI = np.float32(0.5 / np.pi)
 INV_PI = np.float32(1.0 / np.pi)
@@ -48,7 +49,6 @@ class Environment:
 
     def mean_luminance(self) -> float:
         """Radiance luminance averaged over the sphere of directions."""
-        from .lights import luminance
         if self.texture is None:
             return float(luminance(self.constant[:, 0]))
         # (1 / 4 pi) * sum(L sin(theta)) * (pi / H) * (2 pi / W) = (pi / 2) * mean(L sin(theta))
@@ -57,10 +57,8 @@ class Environment:
     def sample_direction(self, u1, u2):
         """World directions with pdf per solid angle: (wx, wy, wz, pdf)."""
         if self.texture is None:
-            z = np.float32(1.0) - np.float32(2.0) * u1
-            r = np.sqrt(np.maximum(np.float32(1.0) - z * z, np.float32(0.0)))
-            phi = np.float32(2.0 * np.pi) * u2
-            return r * np.cos(phi), r * np.sin(phi), z, np.full(len(u1), np.float32(0.25 / np.pi))
+            wx, wy, wz = sampling.sample_uniform_sphere(u1, u2)
+            return wx, wy, wz, np.full(len(u1), sampling.UNIFORM_SPHERE_PDF)
         u, v, pdf_uv = self._distribution.sample(u1, u2)
         ex, ey, ez, sin_t = equirect_to_direction(u, v)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -72,7 +70,7 @@ class Environment:
     def direction_pdf(self, dx, dy, dz) -> np.ndarray:
         """pdf per solid angle with which sample_direction() yields world directions d."""
         if self.texture is None:
-            return np.full(len(dx), np.float32(0.25 / np.pi))
+            return np.full(len(dx), sampling.UNIFORM_SPHERE_PDF)
         ex, ey, ez = self.to_env(dx, dy, dz)
         u, v = direction_to_equirect(ex, ey, ez)
         sin_t = np.sqrt(np.maximum(np.float32(1.0) - ez * ez, np.float32(0.0)))
@@ -113,7 +111,6 @@ class _PixelDistribution:
     """
 
     def __init__(self, image: np.ndarray):
-        from .lights import luminance
         h, w = image.shape[:2]
         rgb = image[:, :, :3] if image.shape[2] >= 3 else np.repeat(image[:, :, :1], 3, axis=2)
         theta = (1.0 - (np.arange(h) + 0.5) / h) * np.pi

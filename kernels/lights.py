@@ -18,20 +18,15 @@ import numpy as np
 from . import sampling
 from .environment import Environment
 from .scene import LIGHT_KINDS, SceneArrays
+from .textures import luminance
 
 POINT, SPOT, SUN, RECT, DISK = (LIGHT_KINDS[k] for k in ("POINT", "SPOT", "SUN", "RECT", "DISK"))
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec. 709, Blender's default scene linear
-TWO_PI = np.float32(2.0 * np.pi)
 # Emissive triangles subtending more than this solid angle are sampled by solid angle, smaller (far)
 # ones by area: for tiny spherical triangles the solid-angle construction loses float precision.
 SPHERICAL_MIN_SR = 1e-3
 # Columns of the emissive-triangle table: corner 0, two edges, unit normal, area, mean radiance.
 _TP0, _TE1, _TE2, _TN, _TAREA, _TLE = 0, 3, 6, 9, 12, 13
 _TRI_ROWS = 16
-
-
-def luminance(rgb) -> np.ndarray:
-    return np.tensordot(LUMINANCE, np.asarray(rgb, np.float32), axes=([0], [-1]))
 
 
 def smoothstep01(x):

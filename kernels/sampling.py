@@ -60,6 +60,9 @@ def sample_uniform_disk(ux: np.ndarray, uy: np.ndarray):
     return r * np.cos(phi), r * np.sin(phi)
 
 
+UNIFORM_SPHERE_PDF = np.float32(0.25 / np.pi)
+
+
 def sample_uniform_sphere(ux: np.ndarray, uy: np.ndarray):
     z = np.float32(1.0) - np.float32(2.0) * ux
     r = np.sqrt(np.maximum(np.float32(1.0) - z * z, np.float32(0.0)))

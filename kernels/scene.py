@@ -141,7 +141,6 @@ class Lights:
     size : (L, 2) float32, full extents along the light's x and y (RECT, DISK/ellipse).
     spot_cos : (L, 2) float32, cosine of the spot's half angle and of the start of its blend.
     sun_half_angle : (L,) float32, half the sun's angular diameter, radians.
-    spread : (L,) float32, area light spread angle (pi = plain Lambertian).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -151,7 +150,6 @@ class Lights:
     size: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     spot_cos: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     sun_half_angle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    spread: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
 
     @property
     def count(self) -> int:
@@ -163,10 +161,10 @@ class Lights:
         _require(np.all(np.isin(self.kind, list(LIGHT_KINDS.values()))), "lights.kind",
                  f"must be values of {LIGHT_KINDS}")
         shapes = {"position": (n, 3), "frame": (n, 3, 3), "radiance": (n, 3), "radius": (n,),
-                  "size": (n, 2), "spot_cos": (n, 2), "sun_half_angle": (n,), "spread": (n,)}
+                  "size": (n, 2), "spot_cos": (n, 2), "sun_half_angle": (n,)}
         for name, shape in shapes.items():
             _check_array(getattr(self, name), f"lights.{name}", shape, np.float32)
-        for name in ("radiance", "radius", "size", "sun_half_angle", "spread"):
+        for name in ("radiance", "radius", "size", "sun_half_angle"):
             _require(np.all(getattr(self, name) >= 0), f"lights.{name}", "must be non-negative")
 
 

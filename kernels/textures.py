@@ -7,6 +7,15 @@ from __future__ import annotations
 import numpy as np
 
 
+# Luminance weights of Blender's default scene-linear space (Rec. 709 primaries).
+LUMINANCE_REC709 = np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+
+def luminance(rgb) -> np.ndarray:
+    """Luminance of (..., 3) linear Rec. 709 colours."""
+    return np.tensordot(LUMINANCE_REC709, np.asarray(rgb, np.float32), axes=([0], [-1]))
+
+
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     """The sRGB transfer function's inverse (IEC 61966-2-1), elementwise, float32."""
     c = np.asarray(c, np.float32)

@@ -1,5 +1,4 @@
 """Ember inside Blender: registration, the F12 path, progressive results, settings, bad input."""
-import math
 import os
 
 import bpy
@@ -7,7 +6,7 @@ import numpy as np
 import pytest
 
 import ember
-from bpy_helpers import (add_camera, diffuse_material, emission_material, ensure_registered, load_exr,
+from bpy_helpers import (diffuse_material, emission_material, ensure_registered, load_exr,
                          mesh_object, new_scene, quad_object, render_to_array, set_world)
 
 

@@ -12,7 +12,7 @@ from ember.kernels.camera import generate_rays, view_plane
 from ember.kernels.environment import Environment, direction_to_equirect, equirect_to_direction
 from ember.kernels.shapes import look_at, quad, uv_sphere
 from ember.kernels.textures import Texture
-from kernel_helpers import make_scene, sphere_in_furnace
+from kernel_helpers import make_scene
 
 
 def good_scene():

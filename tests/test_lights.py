@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from ember.kernels import Camera, Lights, Materials, RenderSettings, World, render
+from ember.kernels import Camera, Lights, RenderSettings, World, render
 from ember.kernels import sampling
 from ember.kernels.environment import Environment
 from ember.kernels.lights import LightSampler
@@ -20,7 +20,7 @@ def one_light(kind, position=(0, 0, 2), frame=np.eye(3), radiance=(5, 5, 5), rad
               spot=(1.0, 0.0), sun_half=0.0):
     return Lights(kind=np.int32([kind]), position=np.float32([position]), frame=np.float32([frame]),
                   radiance=np.float32([radiance]), radius=np.float32([radius]), size=np.float32([size]),
-                  spot_cos=np.float32([spot]), sun_half_angle=np.float32([sun_half]), spread=np.float32([np.pi]))
+                  spot_cos=np.float32([spot]), sun_half_angle=np.float32([sun_half]))
 
 
 def sampler_for(lights=None, positions=None, emission=None, world=None):

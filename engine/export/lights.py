@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
+from ...kernels.textures import luminance
 
 # Blender's blackbody is defined for this range; colours are clamped outside it.
 BLACKBODY_RANGE_K = (800.0, 12000.0)
@@ -43,7 +44,6 @@ def export_lights(depsgraph, warnings: list[str]) -> Lights:
         size=np.array(columns[5], np.float32).reshape(-1, 2),
         spot_cos=np.array(columns[6], np.float32).reshape(-1, 2),
         sun_half_angle=np.array(columns[7], np.float32),
-        spread=np.array(columns[8], np.float32),
     )
 
 
@@ -71,7 +71,6 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
     spot = (1.0, 0.0)
     radius = 0.0
     sun_half = 0.0
-    spread = math.pi
     if light.type in ("POINT", "SPOT"):
         kind = LIGHT_KINDS[light.type]
         radius = max(float(light.shadow_soft_size), 0.0)
@@ -99,14 +98,13 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         if area <= 0:
             return None
         radiance = strength / (math.pi * area) if normalize else strength / math.pi
-        spread = float(getattr(light, "spread", math.pi))
-        if spread < math.pi - 1e-4:
+        if float(getattr(light, "spread", math.pi)) < math.pi - 1e-4:
             warnings.append(f"Area light '{name}': spread below 180 degrees is not supported; "
                             f"rendered as a plain (180 degree) area light")
     else:
         warnings.append(f"Light '{name}' of type {light.type} is not supported")
         return None
-    return (kind, position, frame, radiance, radius, size, spot, sun_half, spread)
+    return (kind, position, frame, radiance, radius, size, spot, sun_half)
 
 
 # ---------------------------------------------------------------- blackbody colour
@@ -124,13 +122,12 @@ def blackbody_rgb(kelvin: float) -> np.ndarray:
     spectrum = c1 / (metres ** 5 * np.expm1(c2 / (metres * t)))
     xyz = _cie_1931(wavelength_nm) @ spectrum
     rgb = np.maximum(_XYZ_TO_REC709 @ xyz, 0.0)
-    return rgb / float(_LUMINANCE @ rgb)
+    return rgb / float(luminance(rgb))
 
 
 _XYZ_TO_REC709 = np.array([[3.2404542, -1.5371385, -0.4985314],
                            [-0.9692660, 1.8760108, 0.0415560],
                            [0.0556434, -0.2040259, 1.0572252]])
-_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 # Lobes of the CIE 1931 fit: (weight, mean nm, sigma below the mean, sigma above), per X, Y, Z.
 _CIE_LOBES = (
     ((1.056, 599.8, 37.9, 31.0), (0.362, 442.0, 16.0, 26.7), (-0.065, 501.1, 20.4, 26.2)),
