@@ -14,7 +14,7 @@ import dataclasses
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -23,8 +23,12 @@ from .accel import Accel
 from .camera import generate_rays
 from .environment import Environment
 from .film import Film
+from .geometry import TriangleTable, extent, interpolate_uv
+from .interaction import SurfaceHit
 from .lights import LightSampler
-from .rng import PathRng, seed_paths, stratified_2d
+from .paths import PathState
+from .rng import PathRng, seed_paths
+from .samples import BSDF, LIGHT, LIGHT_POINT, Samples
 from .scene import Camera, SceneArrays
 from .textures import Texture, finite_uv
 
@@ -33,9 +37,6 @@ SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
 # stay the plain estimators they are, for teaching and as references).
 ROULETTE_DEPTH = 3
 
-# Rows of the per-triangle table gathered for every hit (one contiguous row per component).
-_P0, _E1, _E2, _NG, _N0, _N1, _N2, _UV0, _UV1, _UV2 = 0, 3, 6, 9, 12, 15, 18, 21, 23, 25
-_TABLE_ROWS = 27
 # A pass is cut into at least this many waves when the image allows, so that two cores have
 # independent work; wave_size then bounds each wave.
 _WAVES_PER_PASS = 4
@@ -113,7 +114,7 @@ class Renderer:
         self.environment = Environment(self.scene.world)
         srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
         self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
-        self._tri_table = _triangle_table(self.scene)
+        self._triangles = TriangleTable(self.scene)
         self._material_ids = self.scene.material_ids
         mats = self.scene.materials
         self._albedo = np.ascontiguousarray(mats.albedo.T)          # (3, M)
@@ -122,7 +123,7 @@ class Renderer:
         self._emission_tex = mats.emission_texture
         self._material_emits = np.any(mats.emission > 0, axis=1)
         self._emissive = bool(self._material_emits.any())
-        lo, hi = _extent(self.scene.positions)
+        lo, hi = extent(self.scene.positions)
         self._ray_epsilon = _ray_epsilon(lo, hi)
         self._texture_means = [t.channels.mean(axis=1) for t in self.textures]
         # A sphere around the geometry, for the power of infinite lights.
@@ -250,133 +251,153 @@ class Renderer:
         n = len(row)
         radiance = np.zeros((3, n), np.float32)
         alpha = np.ones(n, np.float32)
-        first = None  # the first vertex's stratified numbers: light choice, light point, BSDF
-        if strata is not None and settings.mode == "NEE_MIS":
-            jx, jy = stratified_2d(*strata, settings.seed, 0)
-            first = [stratified_2d(*strata, settings.seed, d) for d in (1, 2, 3)]
-        else:
-            jx, jy = rng.next_2d()
-        origins, dirs, t_max = generate_rays(self.scene.camera, row, col, jx, jy)
-        # Path state, one entry per live path:
-        path = np.arange(n)                          # wave index of the path
-        throughput = np.ones((3, n), np.float32)     # product of BSDF weights (and 1/q of roulette)
-        bsdf_pdf = np.full(n, np.inf, np.float32)    # pdf of the direction that led here; inf = camera ray
         nee = settings.mode == "NEE_MIS" and self.lights.has_lights
+        samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, nee)
+        jx, jy = samples.camera()
+        rays = Rays(*generate_rays(self.scene.camera, row, col, jx, jy))
+        state = PathState.start(n, samples)
         max_scatters = int(settings.max_bounces) + 1
         for depth in range(max_scatters + 1):
-            # ---- intersect
-            hits = self.accel.intersect(origins, dirs, t_max, split)
-            dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
-            # ---- lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
+            hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split)
             if depth > 0 and self.lights.has_surface_lights:
-                ox, oy, oz = origins[:, 0], origins[:, 1], origins[:, 2]
-                lit, le, light_pdf = self.lights.intersect(ox, oy, oz, dx, dy, dz, hits.t)
-                if lit.any():
-                    idx = np.flatnonzero(lit)
-                    le = np.take(throughput * le, idx, axis=1)
-                    if nee:
-                        le = le * sampling.power_heuristic(np.take(bsdf_pdf, idx), np.take(light_pdf, idx))
-                    _accumulate(radiance, path[idx], le)
-            # ---- escaped rays: the world
-            miss = np.flatnonzero(hits.prim < 0)
-            if len(miss):
-                if depth == 0 and settings.transparent_background:
-                    alpha[path[miss]] = 0.0
-                else:
-                    mx, my, mz = dx[miss], dy[miss], dz[miss]
-                    env = np.take(throughput, miss, axis=1) * self.environment.radiance(mx, my, mz)
-                    if nee and depth > 0:
-                        env = env * sampling.power_heuristic(bsdf_pdf[miss], self.lights.pdf_world(mx, my, mz))
-                    _accumulate(radiance, path[miss], env)
-            hit = np.flatnonzero(hits.prim >= 0)
-            if not len(hit):
+                self._lights_hit(radiance, state, rays, hits, nee)
+            self._escaped(radiance, alpha, state, rays, hits, depth, nee, settings.transparent_background)
+            found = np.flatnonzero(hits.prim >= 0)
+            if not len(found):
                 break
-            path, throughput, bsdf_pdf, rng = _compact(hit, path, throughput, bsdf_pdf, rng)
-            if depth == 0 and first is not None:
-                first = [(np.take(u, hit), np.take(v, hit)) for u, v in first]
-            prim = np.take(hits.prim, hit)
-            dx, dy, dz = np.take(dx, hit), np.take(dy, hit), np.take(dz, hit)
-            # ---- shading data: the slide's barycentric interpolation
-            sd = self._shading_data(prim, np.take(hits.u, hit), np.take(hits.v, hit), dx, dy, dz)
-            # ---- emission on hit (MIS-weighted when NEE could have found the same point)
+            state.compact(found)
+            hit = self._surface_hit(hits, rays, found)
             if self._emissive:
-                lit = np.flatnonzero(np.take(self._material_emits, sd["mat"]))
-                if len(lit):
-                    le = self._emitted(np.take(sd["mat"], lit), _take(sd["u"], lit), _take(sd["v"], lit))
-                    le = np.take(throughput, lit, axis=1) * le
-                    if nee and depth > 0:
-                        gx, gy, gz = (np.take(c, lit) for c in sd["ng"])
-                        cos_l = gx * np.take(dx, lit) + gy * np.take(dy, lit) + gz * np.take(dz, lit)
-                        ray = hit[lit]  # index of these rays before compaction
-                        light_pdf = self.lights.pdf_triangle_hit(
-                            np.take(prim, lit), np.take(hits.t, ray), cos_l,
-                            np.take(origins[:, 0], ray), np.take(origins[:, 1], ray), np.take(origins[:, 2], ray))
-                        le = le * sampling.power_heuristic(np.take(bsdf_pdf, lit), light_pdf)
-                    _accumulate(radiance, path[lit], le)
+                self._emission_on_hit(radiance, state, hit, hits, rays, found, depth, nee)
             if depth == max_scatters:
                 break
-            albedo = self._albedo_at(sd["mat"], sd["u"], sd["v"])
-            # ---- next-event estimation: one shadow ray toward a sampled light
-            strat = first if depth == 0 else None
+            albedo = self._albedo_at(hit.mat, hit.u, hit.v)
+            numbers = state.samples.bounce(depth)
             if nee:
-                u_roulette = self._next_event(radiance, path, throughput, albedo, sd, rng, split,
-                                              strat[:2] if strat else None)
-            # ---- sample the next direction (diffuse BSDF)
-            ux, uy = strat[2] if strat else rng.next_2d()
-            nx, ny, nz = sd["ns"]
-            if settings.mode == "LECTURE":
-                lx, ly, lz, sin_t = sampling.sample_lecture_hemisphere(ux, uy)
-                weight = albedo * (sampling.PI * lz * sin_t)  # pi^2 sin * (albedo/pi) * cos
-                next_pdf = sampling.lecture_hemisphere_pdf(sin_t)
-            else:
-                lx, ly, lz = sampling.sample_cosine_hemisphere(ux, uy)
-                weight = albedo                               # (albedo/pi) cos / (cos/pi)
-                next_pdf = sampling.cosine_hemisphere_pdf(lz)
-            wx, wy, wz = sampling.local_to_world(lx, ly, lz, nx, ny, nz)
-            gx, gy, gz = sd["ng"]
-            # A direction below the true surface would pass through it: absorb the path.
-            above = (wx * gx + wy * gy + wz * gz) > 0
-            throughput = throughput * weight
-            alive = above & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
-            # ---- Russian roulette: after a few bounces, continue with probability q, re-weighted by 1/q
-            if nee and depth + 1 >= ROULETTE_DEPTH:
-                q = np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]), np.float32(1.0))
-                alive &= u_roulette < q
-                throughput = throughput / np.where(q > 0, q, np.float32(1.0))
-            alive = np.flatnonzero(alive)
+                self._next_event(radiance, state, albedo, hit, numbers, split)
+            wx, wy, wz, weight, next_pdf = self._sample_diffuse(settings.mode, albedo, hit, numbers[BSDF])
+            alive = self._continues(hit, (wx, wy, wz), state, weight, numbers, depth, nee)
             if not len(alive):
                 break
-            path, throughput, bsdf_pdf, rng = _compact(alive, path, throughput, next_pdf, rng)
-            px, py, pz = (np.take(c, alive) for c in sd["p"])
-            gx, gy, gz = np.take(gx, alive), np.take(gy, alive), np.take(gz, alive)
-            wx, wy, wz = np.take(wx, alive), np.take(wy, alive), np.take(wz, alive)
-            # ---- spawn: offset the origin off the surface (Embree's tnear is always 0)
-            eps = self._offset(px, py, pz)
-            origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
-            dirs = np.stack([wx, wy, wz], axis=1)
-            t_max = np.full(len(alive), np.inf, np.float32)
+            state.bsdf_pdf = next_pdf
+            state.compact(alive)
+            rays = self._spawn(hit, alive, (wx, wy, wz))
         return radiance, alpha
+
+    # ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
+    def _lights_hit(self, radiance, state, rays, hits, nee):
+        o, d = rays.origins, rays.dirs
+        lit, le, light_pdf = self.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t)
+        if lit.any():
+            idx = np.flatnonzero(lit)
+            le = np.take(state.throughput * le, idx, axis=1)
+            if nee:
+                le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
+            _accumulate(radiance, state.path[idx], le)
+
+    # ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
+    def _escaped(self, radiance, alpha, state, rays, hits, depth, nee, transparent_background):
+        miss = np.flatnonzero(hits.prim < 0)
+        if not len(miss):
+            return
+        if depth == 0 and transparent_background:
+            alpha[state.path[miss]] = 0.0
+            return
+        d = rays.dirs
+        mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
+        env = np.take(state.throughput, miss, axis=1) * self.environment.radiance(mx, my, mz)
+        if nee and depth > 0:
+            env = env * sampling.power_heuristic(state.bsdf_pdf[miss], self.lights.pdf_world(mx, my, mz))
+        _accumulate(radiance, state.path[miss], env)
+
+    # ---- stage: the surface-interaction record of the rays that hit
+    def _surface_hit(self, hits, rays, found) -> SurfaceHit:
+        d = rays.dirs
+        direction = (np.take(d[:, 0], found), np.take(d[:, 1], found), np.take(d[:, 2], found))
+        return SurfaceHit(self._triangles, self._material_ids, np.take(hits.prim, found),
+                          np.take(hits.u, found), np.take(hits.v, found), direction, bool(self.textures))
+
+    # ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
+    def _emission_on_hit(self, radiance, state, hit, hits, rays, found, depth, nee):
+        lit = np.flatnonzero(np.take(self._material_emits, hit.mat))
+        if not len(lit):
+            return
+        le = self._emitted(np.take(hit.mat, lit), _take(hit.u, lit), _take(hit.v, lit))
+        le = np.take(state.throughput, lit, axis=1) * le
+        if nee and depth > 0:
+            gx, gy, gz = (np.take(c, lit) for c in hit.ng)
+            dx, dy, dz = (np.take(c, lit) for c in hit.d)
+            cos_l = gx * dx + gy * dy + gz * dz
+            ray = found[lit]  # index of these rays before compaction
+            o = rays.origins
+            light_pdf = self.lights.pdf_triangle_hit(
+                np.take(hit.prim, lit), np.take(hits.t, ray), cos_l,
+                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray))
+            le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, lit), light_pdf)
+        _accumulate(radiance, state.path[lit], le)
+
+    # ---- stage: sample the next direction (diffuse BSDF)
+    @staticmethod
+    def _sample_diffuse(mode, albedo, hit, u):
+        ux, uy = u
+        nx, ny, nz = hit.ns
+        if mode == "LECTURE":
+            lx, ly, lz, sin_t = sampling.sample_lecture_hemisphere(ux, uy)
+            weight = albedo * (sampling.PI * lz * sin_t)  # pi^2 sin * (albedo/pi) * cos
+            next_pdf = sampling.lecture_hemisphere_pdf(sin_t)
+        else:
+            lx, ly, lz = sampling.sample_cosine_hemisphere(ux, uy)
+            weight = albedo                               # (albedo/pi) cos / (cos/pi)
+            next_pdf = sampling.cosine_hemisphere_pdf(lz)
+        wx, wy, wz = sampling.local_to_world(lx, ly, lz, nx, ny, nz)
+        return wx, wy, wz, weight, next_pdf
+
+    # ---- stage: absorb what cannot continue, then Russian roulette
+    @staticmethod
+    def _continues(hit, w, state, weight, numbers, depth, nee) -> np.ndarray:
+        """Update the throughput with the BSDF weight; return the indices of the paths that go on."""
+        wx, wy, wz = w
+        gx, gy, gz = hit.ng
+        # A direction below the true surface would pass through it: absorb the path.
+        above = (wx * gx + wy * gy + wz * gz) > 0
+        throughput = state.throughput * weight
+        alive = above & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
+        # After a few bounces, continue with probability q, re-weighted by 1/q.
+        if nee and depth + 1 >= ROULETTE_DEPTH:
+            q = np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]), np.float32(1.0))
+            alive &= numbers[LIGHT][1] < q
+            throughput = throughput / np.where(q > 0, q, np.float32(1.0))
+        state.throughput = throughput
+        return np.flatnonzero(alive)
+
+    # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
+    def _spawn(self, hit, alive, w) -> "Rays":
+        px, py, pz = (np.take(c, alive) for c in hit.p)
+        gx, gy, gz = (np.take(c, alive) for c in hit.ng)
+        wx, wy, wz = (np.take(c, alive) for c in w)
+        eps = self._offset(px, py, pz)
+        origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
+        return Rays(origins, np.stack([wx, wy, wz], axis=1), np.full(len(alive), np.inf, np.float32))
 
     def _offset(self, px, py, pz):
         """Distance to move a spawned ray's origin along the normal: scene scale plus float32 ulps."""
         return self._ray_epsilon + np.float32(2.0 ** -16) * np.maximum(np.maximum(np.abs(px), np.abs(py)), np.abs(pz))
 
-    def _next_event(self, radiance, path, throughput, albedo, sd, rng, split, numbers=None):
-        """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light.
-        numbers: ((u_select, u_spare), (u1, u2)) to use instead of the PCG2D stream.
-        Returns a spare uniform number per path (used for Russian roulette)."""
-        (u_select, u_spare), (u1, u2) = numbers if numbers is not None else (rng.next_2d(), rng.next_2d())
-        px, py, pz = sd["p"]
+    # ---- stage: next-event estimation, one shadow ray toward a sampled light
+    def _next_event(self, radiance, state, albedo, hit, numbers, split):
+        """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light."""
+        (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
+        px, py, pz = hit.p
         ls = self.lights.sample(px, py, pz, u_select, u1, u2)
-        nx, ny, nz = sd["ns"]
-        gx, gy, gz = sd["ng"]
+        nx, ny, nz = hit.ns
+        gx, gy, gz = hit.ng
         cos_s = ls.wx * nx + ls.wy * ny + ls.wz * nz
         cos_g = ls.wx * gx + ls.wy * gy + ls.wz * gz
         le = ls.radiance
         useful = (ls.pdf > 0) & (cos_s > 0) & (cos_g > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0))
         idx = np.flatnonzero(useful)
         if not len(idx):
-            return u_spare
+            return
         sx, sy, sz = np.take(px, idx), np.take(py, idx), np.take(pz, idx)
         ngx, ngy, ngz = np.take(gx, idx), np.take(gy, idx), np.take(gz, idx)
         wx, wy, wz = np.take(ls.wx, idx), np.take(ls.wy, idx), np.take(ls.wz, idx)
@@ -398,51 +419,17 @@ class Renderer:
         blocked = self.accel.occluded(origins, np.stack([wx, wy, wz], axis=1), t_max, split)
         vis = idx[~blocked & (t_max > 0)]
         if not len(vis):
-            return u_spare
+            return
         pdf = np.take(ls.pdf, vis)
         cos = np.take(cos_s, vis)
         w = np.where(np.take(ls.delta, vis), np.float32(1.0),
                      sampling.power_heuristic(pdf, sampling.cosine_hemisphere_pdf(cos)))
         scale = cos * sampling.INV_PI * w / pdf
-        contribution = np.take(throughput, vis, axis=1) * np.take(albedo, vis, axis=1) * \
+        contribution = np.take(state.throughput, vis, axis=1) * np.take(albedo, vis, axis=1) * \
             np.take(ls.radiance, vis, axis=1) * scale
-        _accumulate(radiance, path[vis], contribution)
-        return u_spare
+        _accumulate(radiance, state.path[vis], contribution)
 
-    # ---------------------------------------------------------------- shading stages
-    def _shading_data(self, prim, u, v, dx, dy, dz) -> dict:
-        """Position, normals facing the incoming ray, UV and material at each hit."""
-        # Gathering whole rows of a (T, 27) table is ~9x faster than columns of a (27, T) one.
-        g = np.take(self._tri_table, prim, axis=0).T  # (27, N) view, one row per component
-        w1, w2 = u, v
-        w0 = np.float32(1.0) - w1 - w2
-        p = tuple(g[_P0 + k] + w1 * g[_E1 + k] + w2 * g[_E2 + k] for k in range(3))
-        ns = [w0 * g[_N0 + k] + w1 * g[_N1 + k] + w2 * g[_N2 + k] for k in range(3)]
-        gx, gy, gz = g[_NG], g[_NG + 1], g[_NG + 2]
-        len2 = ns[0] * ns[0] + ns[1] * ns[1] + ns[2] * ns[2]
-        inv = np.float32(1.0) / np.sqrt(np.maximum(len2, np.float32(1e-12)))
-        ns = [c * inv for c in ns]
-        degenerate = len2 < np.float32(1e-12)
-        if degenerate.any():  # opposing corner normals cancel: use the face normal
-            ns = [np.where(degenerate, gk, c) for c, gk in zip(ns, (gx, gy, gz))]
-        # Face the geometric normal towards the side the ray came from, and the shading normal with
-        # it (as Cycles does for back-facing hits): near a smooth object's silhouette the shading
-        # normal may lean away from the viewer while the face looks at it, and stays so.
-        g_sign = np.where(gx * dx + gy * dy + gz * dz > 0, np.float32(-1.0), np.float32(1.0))
-        s_sign = g_sign
-        if self.textures:
-            uu = w0 * g[_UV0] + w1 * g[_UV1] + w2 * g[_UV2]
-            vv = w0 * g[_UV0 + 1] + w1 * g[_UV1 + 1] + w2 * g[_UV2 + 1]
-        else:
-            uu = vv = None  # only textures read UVs
-        return {
-            "p": p,
-            "ng": (gx * g_sign, gy * g_sign, gz * g_sign),
-            "ns": (ns[0] * s_sign, ns[1] * s_sign, ns[2] * s_sign),
-            "u": uu, "v": vv,
-            "mat": np.take(self._material_ids, prim),
-        }
-
+    # ---------------------------------------------------------------- materials
     def _triangle_emission(self, tri, b1=None, b2=None) -> np.ndarray:
         """(3, n) emitted radiance of triangles tri at barycentrics (b1, b2); without them, the
         triangle's mean (textures averaged), for power estimates."""
@@ -454,12 +441,10 @@ class Renderer:
                 sel = tex == t
                 value[:, sel] *= self._texture_means[t][:, None]
             return value
-        g = np.take(self._tri_table, tri, axis=0).T
         u = v = None
         if self.textures:
             b0 = np.float32(1.0) - b1 - b2
-            u = b0 * g[_UV0] + b1 * g[_UV1] + b2 * g[_UV2]
-            v = b0 * g[_UV0 + 1] + b1 * g[_UV1 + 1] + b2 * g[_UV2 + 1]
+            u, v = interpolate_uv(self._triangles.gather(tri), b0, b1, b2)
         return self._emitted(mat, u, v)
 
     def _albedo_at(self, mat, u, v) -> np.ndarray:
@@ -481,9 +466,11 @@ class Renderer:
         return value
 
 
-def _compact(idx, path, throughput, bsdf_pdf, rng):
-    """Keep only the paths idx of the state that travels with every path."""
-    return path[idx], np.take(throughput, idx, axis=1), np.take(bsdf_pdf, idx), rng.take(idx)
+class Rays(NamedTuple):
+    """A wave's rays: origins (N, 3), unit directions (N, 3) and t_max (N,), float32."""
+    origins: np.ndarray
+    dirs: np.ndarray
+    t_max: np.ndarray
 
 
 def _take(a: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
@@ -511,49 +498,6 @@ def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int):
     rows_per_wave = max(1, min(wave_size // (width * spp), -(-height // _WAVES_PER_PASS)))
     bands = [(r, min(height, r + rows_per_wave)) for r in range(0, height, rows_per_wave)]
     return spp, bands
-
-
-def _triangle_table(scene: SceneArrays) -> np.ndarray:
-    """(T, 27) float32: p0, e1, e2, unit geometric normal, three corner normals, three corner UVs.
-    Built column by column in float32, straight in the row layout the renderer gathers from."""
-    p = scene.positions
-    t = len(p)
-    table = np.empty((t, _TABLE_ROWS), np.float32)
-    e1 = p[:, 1] - p[:, 0]
-    e2 = p[:, 2] - p[:, 0]
-    ng = np.stack(_unit_rows(e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1],
-                             e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
-                             e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), axis=1)
-    table[:, _P0:_P0 + 3] = p[:, 0]
-    table[:, _E1:_E1 + 3] = e1
-    table[:, _E2:_E2 + 3] = e2
-    table[:, _NG:_NG + 3] = ng
-    for k, col in enumerate((_N0, _N1, _N2)):
-        nk = scene.normals[:, k]
-        x, y, z = nk[:, 0], nk[:, 1], nk[:, 2]
-        length2 = x * x + y * y + z * z
-        inv = np.float32(1.0) / np.sqrt(np.maximum(length2, np.float32(1e-37)))
-        # A zero-length corner normal falls back to the face normal.
-        zero = length2 < np.float32(1e-30)
-        for j, c in enumerate((x, y, z)):
-            table[:, col + j] = np.where(zero, ng[:, j], c * inv)
-    for k, col in enumerate((_UV0, _UV1, _UV2)):
-        table[:, col:col + 2] = scene.uvs[:, k]
-    return table
-
-
-def _unit_rows(x, y, z):
-    inv = np.float32(1.0) / np.sqrt(np.maximum(x * x + y * y + z * z, np.float32(1e-37)))
-    return x * inv, y * inv, z * inv
-
-
-def _extent(positions: np.ndarray):
-    """(lo, hi) corners of the geometry's bounding box, float64 (3,) each."""
-    if not len(positions):
-        return np.zeros(3), np.zeros(3)
-    lo = np.array([positions[:, :, k].min() for k in range(3)], np.float64)
-    hi = np.array([positions[:, :, k].max() for k in range(3)], np.float64)
-    return lo, hi
 
 
 def _ray_epsilon(lo: np.ndarray, hi: np.ndarray) -> np.float32:

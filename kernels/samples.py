@@ -1,0 +1,65 @@
+"""Named sample dimensions: which random numbers each decision of a path uses.
+
+Every decision owns a 2D dimension, named here once:
+
+    CAMERA        the jitter inside the pixel (then lens, time: camera decisions of the first vertex)
+    LIGHT         (light selection, Russian roulette)
+    LIGHT_POINT   the point on the chosen light
+    BSDF          the direction sampled from the chosen lobe
+    LOBE          (lobe selection, spare)
+
+The first vertex of an NEE_MIS path takes its numbers from the pixel's stratified sequence, one
+sequence per dimension (rng.stratified_2d with the dimension's id), so that numbers of one dimension
+are independent of the others whatever is added. Deeper vertices draw the dimensions of their mode's
+block from the path's PCG2D stream, always the whole block in the order below, so a decision's numbers
+never depend on which decisions were taken before. LECTURE and COSINE draw only BSDF: one PCG2D pair per
+bounce, the lecture's estimator exactly.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .rng import PathRng, stratified_2d
+
+CAMERA, LIGHT, LIGHT_POINT, BSDF, LOBE = 0, 1, 2, 3, 4
+# The dimensions a bounce draws from the PCG2D stream, in order, with and without next-event estimation.
+NEE_BLOCK = (LIGHT, LIGHT_POINT, BSDF)
+PLAIN_BLOCK = (BSDF,)
+
+
+class Samples:
+    """The random numbers of a wave's live paths, by dimension name.
+
+    rng : PathRng, the per-path PCG2D stream (seeded per pixel and pass).
+    strata : (pixel_index, sample_index) per path, or None: the first vertex then draws from rng too.
+    """
+
+    def __init__(self, rng: PathRng, strata, seed: int, nee: bool):
+        self.rng = rng
+        self.block = NEE_BLOCK if nee else PLAIN_BLOCK
+        self._strata = strata
+        self._seed = seed
+        self._first: dict | None = None  # the first vertex's numbers per dimension, once drawn
+
+    def camera(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pixel jitter of every path (drawn before any other dimension)."""
+        if self._strata is None:
+            return self.rng.next_2d()
+        self._first = {d: stratified_2d(*self._strata, self._seed, d) for d in (LIGHT, LIGHT_POINT, BSDF)}
+        return stratified_2d(*self._strata, self._seed, CAMERA)
+
+    def bounce(self, depth: int) -> dict:
+        """{dimension: (u, v)} for this vertex of every live path."""
+        if depth == 0 and self._first is not None:
+            first, self._first = self._first, None
+            return first
+        return {d: self.rng.next_2d() for d in self.block}
+
+    def take(self, idx: np.ndarray) -> "Samples":
+        """The numbers of the paths idx only."""
+        kept = Samples.__new__(Samples)
+        kept.rng = self.rng.take(idx)
+        kept.block, kept._strata, kept._seed = self.block, None, self._seed
+        kept._first = None if self._first is None else \
+            {d: (np.take(u, idx), np.take(v, idx)) for d, (u, v) in self._first.items()}
+        return kept
