@@ -1,0 +1,1 @@
+"""BSDF lobes: see the contract in this package's docstring."""
