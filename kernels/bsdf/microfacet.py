@@ -1,0 +1,450 @@
+"""The GGX microfacet family of Cycles 5.0 (`kernel/closure/bsdf_microfacet.h`): the distribution, visible
+normal sampling, the reflection, refraction and glass lobes, the anisotropy mappings of the Principled
+and Glossy BSDFs, the multiscatter energy compensation and the albedo estimates Cycles uses for
+layering and sample weights.
+
+Contract (see the package docstring). Local frame: z = the lobe's normal, x = its tangent (alpha_x is
+along x). A direction is a tuple (x, y, z) of (N,) float32 unit arrays; `wo` points to the viewer,
+`wi` to the light or the sampled direction (Cycles' source calls the viewer direction wi: translate).
+    eval_*(wo, wi, ...)   -> (f_cos (3, N), pdf (N,)): f |cos theta_i| and the pdf per unit solid angle
+    sample_*(wo, ..., u1, u2[, uc]) -> MicrofacetSample(wi, weight (3, N), pdf (N,), delta (N,) bool,
+                                                         transmission (N,) bool)
+with weight = f |cos theta_i| / pdf. Invalid samples have weight 0 and pdf 0. alpha_x, alpha_y, eta are
+(N,) float32 or scalars; Fresnel models are callables from `fresnel` (see its docstring). The lobes do
+not include the closure weight, nor the multiscatter factors (the caller multiplies by those).
+
+The viewer's side. As in Cycles, the viewer must be above the lobe's normal: eval and sample return 0
+where wo.z <= 0. The caller flips the frame to the viewer's side on back faces (Cycles flips N) and then
+passes eta = IOR for a viewer outside an object of index IOR, eta = 1 / IOR for a viewer inside it:
+eta is always the index of the far side (-z) over the index of the viewer's side (+z).
+
+Singular lobes. alpha_x alpha_y <= 2e-10 is a perfectly smooth surface (Cycles' BSDF_ROUGHNESS_SQ_THRESH):
+eval returns 0 (f and pdf); sample returns the mirror or refracted direction with its exact weight
+(Fresnel over the event's probability), pdf = +inf and delta = True. Cycles also treats a refraction as
+singular when |eta - 1| < 1e-4 (the ray goes straight through), whatever the roughness; so do we, and
+eval of a transmission then returns 0. A caller recognises a delta sample by `delta` (equivalently
+pdf == inf); its weight is already the full throughput factor and it takes no MIS against lights.
+
+Checks left to the caller: Cycles rejects sampled directions on the wrong side of the geometric normal
+(reflections below Ng, refractions above it); the lobe sees only the shading frame.
+
+Where eval follows Cycles 5.0 although it is odd, and the one place it does not:
+- A transmission pair that no microfacet can produce (the generalised half vector faces away from wo or
+  toward wi) is NOT rejected by eval, exactly as in Cycles (its source has a TODO there). Such pairs
+  are never sampled, so the eval pdf integrates to more than the sampler covers (a few percent of the
+  transmitted pdf at alpha 0.5): light sampling picks up that extra energy in Cycles, and so here.
+  `refraction_is_physical` gives the mask of reachable pairs; multiplying eval by it is the fix.
+- eval of a transmission with |eta - 1| < 1e-4 returns 0, consistent with its delta sampling; Cycles
+  evaluates a meaningless half vector there (measure-zero for lights in practice).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from . import fresnel as fr
+from . import tables
+from ..sampling import INV_PI
+
+F32 = np.float32
+ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
+SINGULAR_ALPHA2 = F32(2e-10)
+SINGULAR_ETA = F32(1e-4)
+
+
+class MicrofacetSample(NamedTuple):
+    wi: tuple           # sampled direction, three (N,) float32
+    weight: np.ndarray  # (3, N) float32, f |cos theta_i| / pdf; 0 if invalid
+    pdf: np.ndarray     # (N,) float32 per unit solid angle; +inf for delta, 0 if invalid
+    delta: np.ndarray   # (N,) bool: a perfectly specular event (pdf inf)
+    transmission: np.ndarray  # (N,) bool: the sample went through (False for reflections and invalid)
+
+
+# ---------------------------------------------------------------- small vector helpers
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _normalize(x, y, z):
+    """Unit vector; the zero vector stays zero (Cycles' safe_divide)."""
+    length = np.sqrt(x * x + y * y + z * z)
+    inv = np.where(length > 0, ONE / np.where(length > 0, length, ONE), ZERO)
+    return x * inv, y * inv, z * inv
+
+
+def _f32(x):
+    return np.asarray(x, dtype=np.float32)
+
+
+def _select(mask, a, b):
+    """Per-lane choice between two directions."""
+    return tuple(np.where(mask, p, q).astype(np.float32) for p, q in zip(a, b))
+
+
+def is_singular(alpha_x, alpha_y):
+    """True where the lobe is perfectly smooth (alpha_x alpha_y <= 2e-10)."""
+    return _f32(alpha_x) * _f32(alpha_y) <= SINGULAR_ALPHA2
+
+
+# ---------------------------------------------------------------- GGX distribution
+def ggx_D(h, alpha_x, alpha_y):
+    """Anisotropic GGX D(h) = 1 / (pi ax ay (hx^2/ax^2 + hy^2/ay^2 + hz^2)^2), h unit. (N,).
+    Isotropic: alpha^2 / (pi (1 - c^2 + alpha^2 c^2)^2), c = hz. Symmetric in the sign of h."""
+    ax, ay = _f32(alpha_x), _f32(alpha_y)
+    sx, sy = h[0] / ax, h[1] / ay
+    d = sx * sx + sy * sy + h[2] * h[2]
+    return (INV_PI / (ax * ay * d * d)).astype(np.float32)
+
+
+def ggx_lambda(w, alpha_x, alpha_y):
+    """Smith Lambda(w) = (sqrt(1 + a^2 tan^2) - 1) / 2 with a^2 tan^2 = (ax^2 wx^2 + ay^2 wy^2) / wz^2,
+    written as a^2 tan^2 / (2 (1 + sqrt(1 + a^2 tan^2))) to keep precision for small alpha.
+    +inf at grazing (wz = 0), which makes G = 0."""
+    ax, ay = _f32(alpha_x), _f32(alpha_y)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        a2t2 = (np.square(ax * w[0]) + np.square(ay * w[1])) / (w[2] * w[2])
+        lam = a2t2 / (F32(2.0) * (ONE + np.sqrt(ONE + a2t2)))
+    return np.where(np.isinf(a2t2), np.inf, lam).astype(np.float32)
+
+
+def smith_G1(w, alpha_x, alpha_y):
+    """Masking 1 / (1 + Lambda(w))."""
+    return (ONE / (ONE + ggx_lambda(w, alpha_x, alpha_y))).astype(np.float32)
+
+
+def smith_G2(wo, wi, alpha_x, alpha_y):
+    """Height-correlated masking-shadowing 1 / (1 + Lambda(wo) + Lambda(wi)), as Cycles uses it."""
+    return (ONE / (ONE + ggx_lambda(wo, alpha_x, alpha_y) + ggx_lambda(wi, alpha_x, alpha_y))).astype(np.float32)
+
+
+def sample_visible_normal(wo, alpha_x, alpha_y, u1, u2):
+    """A microfacet normal h with density D_wo(h) = G1(wo) max(wo.h, 0) D(h) / wo.z (wo.z > 0).
+
+    Dupuy & Benyoub 2023 ("Sampling Visible GGX Normals with Spherical Caps"): in the stretched
+    configuration where the surface is a hemisphere, visible normals are wo_std plus a uniform point of
+    the spherical cap z >= -wo_std.z; then unstretch. The same distribution as Heitz 2018, which Cycles
+    uses, without its tangent basis. Returns h, three (N,) float32 with h.z >= 0.
+    """
+    ax, ay = _f32(alpha_x), _f32(alpha_y)
+    vx, vy, vz = _normalize(ax * wo[0], ay * wo[1], wo[2])
+    phi = F32(2.0 * np.pi) * u1
+    z = (ONE - u2) * (ONE + vz) - vz
+    sin_theta = np.sqrt(np.clip(ONE - z * z, ZERO, ONE))
+    hx = sin_theta * np.cos(phi) + vx
+    hy = sin_theta * np.sin(phi) + vy
+    hz = z + vz
+    return _normalize(ax * hx, ay * hy, np.maximum(hz, ZERO))
+
+
+def visible_normal_pdf(wo, h, alpha_x, alpha_y):
+    """D_wo(h) = G1(wo) max(wo.h, 0) D(h) / wo.z, the density of sample_visible_normal. (N,)."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        pdf = (smith_G1(wo, alpha_x, alpha_y) * np.maximum(_dot(wo, h), ZERO) * ggx_D(h, alpha_x, alpha_y)
+               / wo[2])
+    return np.where((wo[2] > 0) & np.isfinite(pdf), pdf, ZERO).astype(np.float32)
+
+
+# ---------------------------------------------------------------- lobe terms shared by eval and sample
+def _reflection_common(wo, h, alpha_x, alpha_y):
+    """D / (4 wo.z): f_cos = F common / (1 + Lo + Li), pdf = common / (1 + Lo)."""
+    return ggx_D(h, alpha_x, alpha_y) / (F32(4.0) * wo[2])
+
+
+def _refraction_common(wo, wi, h, alpha_x, alpha_y, eta):
+    """D / wo.z |wo.h| |wi.h| / (wi.h + wo.h / eta)^2: the refraction analogue of _reflection_common,
+    the Jacobian of Walter et al. 2007 written as Cycles does (eta^2 kept, see the module docstring)."""
+    cos_ho, cos_hi = _dot(wo, h), _dot(wi, h)
+    denom = cos_hi + cos_ho / eta
+    return ggx_D(h, alpha_x, alpha_y) / wo[2] * np.abs(cos_ho * cos_hi) / (denom * denom)
+
+
+def _finish(valid, f_cos, pdf, delta=False):
+    """Zero everything outside `valid` and anything non-finite (grazing limits); delta pdfs stay inf."""
+    ok = valid & (np.isfinite(pdf) | delta) & np.all(np.isfinite(f_cos), axis=0)
+    return (np.where(ok[None, :], f_cos, ZERO).astype(np.float32),
+            np.where(ok, pdf, ZERO).astype(np.float32))
+
+
+def _nonzero(c):
+    """Cycles' !is_zero(colour): some channel differs from 0."""
+    return np.any(c != 0, axis=0)
+
+
+# ---------------------------------------------------------------- reflection
+def eval_reflection(wo, wi, alpha_x, alpha_y, fresnel):
+    """GGX reflection. fresnel(cos_h) -> (3, N) with cos_h = wo.h. Returns (f_cos (3, N), pdf (N,)):
+        f_cos = F D / (4 wo.z (1 + L(wo) + L(wi))),   pdf = D / (4 wo.z (1 + L(wo)))   (VNDF sampling).
+    Zero below either horizon, for singular lobes, and where F = 0 in all channels (as Cycles)."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        valid = (wo[2] > 0) & (wi[2] > 0) & ~is_singular(alpha_x, alpha_y)
+        h = _normalize(wo[0] + wi[0], wo[1] + wi[1], wo[2] + wi[2])
+        cos_h = np.where(valid, np.clip(_dot(wo, h), ZERO, ONE), ONE)
+        f = fresnel(cos_h)
+        common = _reflection_common(wo, h, alpha_x, alpha_y)
+        lo, li = ggx_lambda(wo, alpha_x, alpha_y), ggx_lambda(wi, alpha_x, alpha_y)
+        pdf = common / (ONE + lo)
+        f_cos = f * (common / (ONE + lo + li))[None, :]
+        return _finish(valid & _nonzero(f), f_cos, pdf)
+
+
+def sample_reflection(wo, alpha_x, alpha_y, fresnel, u1, u2):
+    """Sample GGX reflection by visible normals. u1, u2 (N,) float32 in [0, 1). Returns
+    MicrofacetSample; weight = F (1 + L(wo)) / (1 + L(wo) + L(wi)), or F for singular lobes."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        singular = is_singular(alpha_x, alpha_y) & np.ones(np.shape(u1), bool)
+        h = _select(singular, (ZERO, ZERO, ONE), sample_visible_normal(wo, alpha_x, alpha_y, u1, u2))
+        cos_h = np.clip(_dot(wo, h), ZERO, ONE)
+        wi = _normalize(*(F32(2.0) * cos_h * hc - oc for hc, oc in zip(h, wo)))
+        f = fresnel(np.where(wo[2] > 0, cos_h, ONE))
+        valid = (wo[2] > 0) & (wi[2] > 0) & _nonzero(f)
+        lo, li = ggx_lambda(wo, alpha_x, alpha_y), ggx_lambda(wi, alpha_x, alpha_y)
+        pdf = np.where(singular, np.inf, _reflection_common(wo, h, alpha_x, alpha_y) / (ONE + lo))
+        weight = f * np.where(singular, ONE, (ONE + lo) / (ONE + lo + li))[None, :]
+        weight, pdf = _finish(valid, weight, pdf, singular)
+    return MicrofacetSample(wi, weight, pdf, singular & (pdf > 0), np.zeros(np.shape(u1), bool))
+
+
+# ---------------------------------------------------------------- refraction and glass
+def _transmission_half_vector(wo, wi, eta):
+    """h = normalize(-(eta wi + wo)), Cycles' generalised half vector (it may face either way)."""
+    return _normalize(-(eta * wi[0] + wo[0]), -(eta * wi[1] + wo[1]), -(eta * wi[2] + wo[2]))
+
+
+def refraction_is_physical(wo, wi, eta):
+    """True where a transmission pair (wo above, wi below) can come from a microfacet: with the
+    generalised half vector h oriented to +z, wo.h > 0 and wi.h < 0. Sampling only produces such pairs;
+    Cycles' eval (and ours) does not check it. (N,) bool."""
+    eta = _f32(eta)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = _transmission_half_vector(wo, wi, eta)
+        flip = np.where(h[2] < 0, -ONE, ONE)
+        return (wo[2] > 0) & (wi[2] < 0) & (flip * _dot(wo, h) > 0) & (flip * _dot(wi, h) < 0)
+
+
+def _reflect_probability(r, t):
+    """Cycles' choice of reflection: mean(R) / mean(R + T); NaN where both vanish (caller masks)."""
+    return r.mean(axis=0) / (r + t).mean(axis=0)
+
+
+def _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel):
+    """Glass-type eval: reflection above, transmission below, each weighted by Cycles' lobe choice.
+    fresnel(cos_h, eta) -> (R, T), called with |wo.h| (Cycles' dielectric curves ignore its sign)."""
+    eta = np.broadcast_to(_f32(eta), np.shape(wo[2]))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        transmit = wi[2] < 0
+        valid = (wo[2] > 0) & (wi[2] != 0) & ~is_singular(alpha_x, alpha_y)
+        valid &= ~(transmit & (np.abs(eta - ONE) < SINGULAR_ETA))
+        h = _select(transmit, _transmission_half_vector(wo, wi, eta),
+                    _normalize(wo[0] + wi[0], wo[1] + wi[1], wo[2] + wi[2]))
+        cos_h = np.where(valid, np.clip(np.abs(_dot(wo, h)), ZERO, ONE), ONE)
+        r, t = fresnel(cos_h, eta)
+        # No refracted ray at the microfacet: T = 0 whatever the model says (refraction-only lobe).
+        t = np.where((fr.refracted_cos_sq(cos_h, eta) <= 0)[None, :], ZERO, t)
+        p_reflect = _reflect_probability(r, t)
+        common = np.where(transmit, _refraction_common(wo, wi, h, alpha_x, alpha_y, eta),
+                          _reflection_common(wo, h, alpha_x, alpha_y))
+        lo, li = ggx_lambda(wo, alpha_x, alpha_y), ggx_lambda(wi, alpha_x, alpha_y)
+        lobe_p = np.where(transmit, ONE - p_reflect, p_reflect)
+        pdf = common * lobe_p / (ONE + lo)
+        f_cos = np.where(transmit[None, :], t, r) * (common / (ONE + lo + li))[None, :]
+        return _finish(valid & (_nonzero(r) | _nonzero(t)), f_cos, pdf)
+
+
+def _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc):
+    eta = np.broadcast_to(_f32(eta), np.shape(u1))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        singular = is_singular(alpha_x, alpha_y) & np.ones(np.shape(u1), bool)
+        h = _select(singular, (ZERO, ZERO, ONE), sample_visible_normal(wo, alpha_x, alpha_y, u1, u2))
+        cos_h = np.clip(_dot(wo, h), ZERO, ONE)
+        cos_h = np.where(wo[2] > 0, cos_h, ONE)
+        r, t = fresnel(cos_h, eta)
+        cos_t_sq = fr.refracted_cos_sq(cos_h, eta)
+        t = np.where((cos_t_sq <= 0)[None, :], ZERO, t)
+        p_reflect = _reflect_probability(r, t)
+        refract = uc >= p_reflect
+        # Refraction through h (Cycles' refract_angle): wi = (cos_h / eta - cos_t) h - wo / eta.
+        cos_t = np.sqrt(np.maximum(cos_t_sq, ZERO))
+        k = cos_h / eta - cos_t
+        wi_t = _normalize(*(k * hc - oc / eta for hc, oc in zip(h, wo)))
+        wi_r = _normalize(*(F32(2.0) * cos_h * hc - oc for hc, oc in zip(h, wo)))
+        wi = _select(refract, wi_t, wi_r)
+        valid = ((wo[2] > 0) & np.isfinite(p_reflect) & np.where(refract, wi[2] < 0, wi[2] > 0))
+        delta = singular | (refract & (np.abs(eta - ONE) < SINGULAR_ETA))
+        lobe_p = np.where(refract, ONE - p_reflect, p_reflect)
+        common = np.where(refract, _refraction_common(wo, wi, h, alpha_x, alpha_y, eta),
+                          _reflection_common(wo, h, alpha_x, alpha_y))
+        lo, li = ggx_lambda(wo, alpha_x, alpha_y), ggx_lambda(wi, alpha_x, alpha_y)
+        pdf = np.where(delta, np.inf, lobe_p * common / (ONE + lo))
+        shadowing = np.where(delta, ONE, (ONE + lo) / (ONE + lo + li))
+        weight = np.where(refract[None, :], t, r) / lobe_p[None, :] * shadowing[None, :]
+        weight, pdf = _finish(valid & (lobe_p > 0), weight, pdf, delta)
+    ok = pdf > 0
+    return MicrofacetSample(wi, weight, pdf, delta & ok, refract & ok)
+
+
+def eval_glass(wo, wi, alpha_x, alpha_y, eta, fresnel):
+    """GGX glass (Cycles' glass closure: reflect + refract). eta: see the module docstring; fresnel
+    (cos_h, eta) -> (R (3, N), T (3, N)), e.g. fresnel.dielectric_glass() or fresnel.remapped_glass(..).
+    With P = mean(R) / mean(R + T) at the half vector:
+      reflection (wi.z > 0):   f_cos = R D / (4 wo.z (1 + Lo + Li)),   pdf = P D / (4 wo.z (1 + Lo))
+      transmission (wi.z < 0), h = normalize(-(eta wi + wo)), J = |wo.h||wi.h| / (wi.h + wo.h / eta)^2:
+                               f_cos = T D J / (wo.z (1 + Lo + Li)),   pdf = (1 - P) D J / (wo.z (1 + Lo))
+    Cycles' glass is isotropic (its setup sets alpha_y = alpha_x); pass equal alphas to match it."""
+    return _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel)
+
+
+def sample_glass(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc):
+    """Sample GGX glass: a visible normal h from (u1, u2), then reflection if uc < P, P = mean(R) /
+    mean(R + T) at h (T = 0 under total internal reflection), else refraction. Returns MicrofacetSample;
+    `transmission` says which event happened. Weight = R / P (1 + Lo) / (1 + Lo + Li) for reflection,
+    T / (1 - P) (...) for transmission; delta samples drop the shadowing ratio."""
+    return _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc)
+
+
+def _refraction_only(cos_h, eta):
+    """Cycles' GGX Refraction closure: no Fresnel, R = 0, T = 1 (TIR is zeroed by the lobe)."""
+    n = np.shape(cos_h)[0]
+    return np.zeros((3, n), np.float32), np.ones((3, n), np.float32)
+
+
+def eval_refraction(wo, wi, alpha_x, alpha_y, eta):
+    """Cycles' Refraction BSDF: the transmission half of eval_glass with T = 1, R = 0 (so P = 0), and 0
+    where the microfacet totally reflects. No compensation in Cycles."""
+    return _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, _refraction_only)
+
+
+def sample_refraction(wo, alpha_x, alpha_y, eta, u1, u2):
+    """Sample the Refraction BSDF. Microfacets that totally reflect give invalid samples (weight 0)."""
+    return _sample_dielectric(wo, alpha_x, alpha_y, eta, _refraction_only, u1, u2, np.zeros_like(u1))
+
+
+# ---------------------------------------------------------------- anisotropy mappings (svm/closure.h)
+def principled_anisotropy(alpha, anisotropy):
+    """Principled BSDF: k = sqrt(1 - 0.9 a), a clamped to [0, 1]; alpha_x = alpha / k, alpha_y = alpha k,
+    then clamped to [0, 1] as the GGX setup does. Returns (alpha_x, alpha_y)."""
+    aspect = np.sqrt(ONE - F32(0.9) * np.clip(_f32(anisotropy), ZERO, ONE))
+    alpha = _f32(alpha)
+    return np.clip(alpha / aspect, ZERO, ONE).astype(np.float32), np.clip(alpha * aspect, ZERO, ONE).astype(np.float32)
+
+
+def glossy_anisotropy(alpha, anisotropy):
+    """Glossy BSDF: a clamped to [-0.99, 0.99]; a >= 0: (alpha (1 - a), alpha / (1 - a)); a < 0:
+    (alpha / (1 + a), alpha (1 + a)); |a| <= 1e-4 is isotropic. Clamped to [0, 1] as the GGX setup does.
+    (Cycles takes the isotropic branch too when no tangent is linked; that is the caller's test.)"""
+    a = np.clip(_f32(anisotropy), F32(-0.99), F32(0.99))
+    alpha = _f32(alpha)
+    a = np.where(np.abs(a) <= F32(1e-4), ZERO, a)
+    ax = np.where(a < 0, alpha / (ONE + a), alpha * (ONE - a))
+    ay = np.where(a < 0, alpha * (ONE + a), alpha / (ONE - a))
+    return np.clip(ax, ZERO, ONE).astype(np.float32), np.clip(ay, ZERO, ONE).astype(np.float32)
+
+
+# ---------------------------------------------------------------- multiscatter compensation
+def _kulla_conty(e, e_avg, fss):
+    """eval_scale = 1 / E (the lost single-scattering energy put back), and the colour factor
+    E + Fms (1 - E), Fms = Fss Eavg / (1 - Fss (1 - Eavg)) (Kulla & Conty, one Fss cancelled because
+    the lobe already carries one bounce of Fresnel). Fss = 1 (or None) gives factor 1."""
+    n = e.shape[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        eval_scale = np.where(e > 0, ONE / e, ONE).astype(np.float32)
+        if fss is None:
+            return eval_scale, np.ones((3, n), np.float32)
+        fss = fr.color(fss, n)
+        fms = fss * e_avg / (ONE - fss * (ONE - e_avg))
+        factor = e + fms * (ONE - e)
+    # Cycles skips the darkening only when Fss is exactly 1 in every channel.
+    white = np.all(fss == 1, axis=0)
+    factor = np.where(white[None, :] | ~np.isfinite(factor), ONE, factor)
+    return eval_scale, factor.astype(np.float32)
+
+
+def multiscatter_reflection(alpha_x, alpha_y, mu, fss=None):
+    """Multiscatter GGX for a reflection lobe (Cycles' `microfacet_ggx_preserve_energy`, ggx_E tables).
+    mu = wo.z. fss: the lobe's mean Fresnel (3, N), None for F = 1 (Glossy: its colour goes in the closure
+    weight and Cycles passes that colour as Fss; pass it here). Returns (eval_scale (N,), weight_factor
+    (3, N)): multiply eval and sample weights by eval_scale, the closure weight by weight_factor and its
+    sample weight by weight_factor's mean. Fss by Fresnel mode: dielectric (coat) -> fresnel.dielectric_fss;
+    F82 -> fresnel.f82_fss; conductor -> fresnel.conductor_fss; remap/generalized Schlick ->
+    fresnel.generalized_schlick_fss; Glossy -> its colour."""
+    rough, mu = np.broadcast_arrays(tables.rough_coordinate(alpha_x, alpha_y), _f32(mu))
+    return _kulla_conty(tables.ggx_E(rough, mu), tables.ggx_Eavg(rough), fss)
+
+
+def multiscatter_glass(alpha_x, alpha_y, mu, eta, fss=None):
+    """Multiscatter GGX for a glass lobe (glass tables; the inverse ones when eta < 1). Cycles passes
+    Fss = the transmission tint (Glass: its colour; Principled: sqrt(base colour)); None for white.
+    Returns (eval_scale (N,), weight_factor (3, N)) as multiscatter_reflection."""
+    rough, mu, eta = np.broadcast_arrays(tables.rough_coordinate(alpha_x, alpha_y), _f32(mu), _f32(eta))
+    return _kulla_conty(tables.glass_E(rough, mu, eta), tables.glass_Eavg(rough, eta), fss)
+
+
+# ---------------------------------------------------------------- albedo estimates
+# Cycles' `bsdf_microfacet_estimate_albedo`: the albedo of the lobe caused by its Fresnel, for a base
+# microfacet model of albedo 1 (the compensation's job). It scales the closure's sample weight and is
+# the `albedo` of `closure_layering_weight` (times the closure weight). Reflection: the smooth Fresnel
+# at mu = wo.z, replaced by a table estimate for the generalized Schlick, F82 and dielectric (eta > 1)
+# modes; transmission (glass only): the smooth value at mu. Each returns (3, N).
+def _table_or_smooth(smooth, estimate):
+    """Cycles keeps 0 where the smooth reflectance is 0 in every channel and uses the estimate elsewhere."""
+    return np.where(_nonzero(smooth)[None, :], estimate, ZERO).astype(np.float32)
+
+
+def albedo_remapped(alpha_x, alpha_y, mu, eta, f0, f90=1.0, reflection_tint=1.0, transmission_tint=None,
+                    reflection=True, transmission=True):
+    """Generalized Schlick in remap mode (Principled specular, transmission; Glass BSDF). A reflection
+    lobe passes transmission_tint=None; a glass lobe its transmission tint. reflection/transmission say
+    which parts to include (Cycles' bsdf_albedo flags; layering asks reflection only)."""
+    mu = _f32(mu)
+    n = mu.shape[0]
+    smooth, _ = fr.remapped(mu, eta, f0, f90)
+    r = smooth * fr.color(reflection_tint, n) * F32(reflection)
+    s = tables.gen_schlick_ior_s(tables.rough_coordinate(alpha_x, alpha_y), mu, eta)
+    estimate = fr.lerp(fr.clamp01(fr.color(f0, n)), fr.color(f90, n), s[None, :]) * fr.color(reflection_tint, n)
+    r = _table_or_smooth(r, estimate)
+    if transmission_tint is None:
+        return r
+    t = (ONE - smooth) * fr.color(transmission_tint, n) * F32(transmission)
+    return (r + t).astype(np.float32)
+
+
+def albedo_generalized_schlick(alpha_x, alpha_y, mu, eta, f0, f90, exponent, reflection_tint=1.0):
+    """Generalized Schlick with exponent >= 0, reflection lobe (OSL). Table ggx_gen_schlick_s."""
+    mu = _f32(mu)
+    n = mu.shape[0]
+    smooth, _ = fr.generalized_schlick(mu, eta, f0, f90, exponent)
+    r = smooth * fr.color(reflection_tint, n)
+    s = tables.gen_schlick_s(tables.rough_coordinate(alpha_x, alpha_y), mu, exponent)
+    estimate = fr.lerp(fr.clamp01(fr.color(f0, n)), fr.color(f90, n), s[None, :]) * fr.color(reflection_tint, n)
+    return _table_or_smooth(r, estimate)
+
+
+def albedo_f82(alpha_x, alpha_y, mu, f0, b):
+    """F82-tint (Principled metal): lerp(F0, 1, s) with s from ggx_gen_schlick_s at z = 0.5 (exponent 5);
+    Cycles ignores b here (a TODO in its source)."""
+    mu = _f32(mu)
+    n = mu.shape[0]
+    s = tables.gen_schlick_s_at(tables.rough_coordinate(alpha_x, alpha_y), mu, HALF)
+    estimate = fr.lerp(fr.color(f0, n), ONE, s[None, :])
+    return _table_or_smooth(fr.f82(mu, f0, b), estimate)
+
+
+def albedo_dielectric(alpha_x, alpha_y, mu, eta, reflection_tint=1.0, transmission_tint=None):
+    """Exact dielectric Fresnel (the Principled coat: a reflection lobe, transmission_tint=None).
+    For eta > 1: lerp(F0(eta), 1, s) with s from ggx_gen_schlick_ior_s; for eta <= 1 the smooth F(mu)."""
+    mu = _f32(mu)
+    n = mu.shape[0]
+    eta = np.broadcast_to(_f32(eta), mu.shape)
+    f, _ = fr.dielectric(mu, eta)
+    smooth = fr.color(reflection_tint, n) * f[None, :]
+    s = tables.gen_schlick_ior_s(tables.rough_coordinate(alpha_x, alpha_y), mu, eta)
+    estimate = fr.lerp(fr.f0_from_ior(eta), ONE, s)[None, :] * fr.color(reflection_tint, n)
+    r = np.where((eta > 1)[None, :], _table_or_smooth(smooth, estimate), smooth)
+    if transmission_tint is None:
+        return r.astype(np.float32)
+    return (r + (ONE - f)[None, :] * fr.color(transmission_tint, n)).astype(np.float32)
+
+
+def albedo_conductor(mu, n, k):
+    """Physical conductor: Cycles has no table and uses the smooth Fresnel at mu."""
+    return fr.conductor(_f32(mu), n, k)
