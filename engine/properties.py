@@ -25,6 +25,11 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
     max_bounces: IntProperty(
         name="Max Bounces", description="Bounces after the first hit, as in Cycles: 0 gives direct light only",
         default=8, min=0, max=1024)
+    transparent_max_bounces: IntProperty(
+        name="Transparent Bounces",
+        description="Transparent surfaces (alpha, Transparent BSDF) a path may pass straight through, as in "
+                    "Cycles; they do not count as bounces",
+        default=8, min=0, max=1024)
     sampling_mode: EnumProperty(
         name="Sampling", description="How the next direction of a path is chosen",
         items=SAMPLING_MODE_ITEMS, default=DEFAULT_SAMPLING_MODE)

@@ -2,6 +2,8 @@
 viewport's rendered mode to viewport.ViewportRender (one per engine instance: one per 3D view)."""
 from __future__ import annotations
 
+import traceback
+
 import bpy
 
 from .session import FinalRender
@@ -22,7 +24,11 @@ class EmberRenderEngine(bpy.types.RenderEngine):
 
     def render(self, depsgraph):
         # Never export in __init__: Blender may create several engine instances for one F12.
-        FinalRender(self, depsgraph).run()
+        try:
+            FinalRender(self, depsgraph).run()
+        except Exception as err:  # a bug of Ember's: report it in one line; an escaping error crashes Blender
+            traceback.print_exc()
+            self.report({"ERROR"}, f"Ember: internal error, render abandoned: {type(err).__name__}: {err}")
 
     def view_update(self, context, depsgraph):
         viewport = getattr(self, "_viewport", None)

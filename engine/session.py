@@ -40,6 +40,7 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
     return RenderSettings(
         samples=int(samples if samples is not None else ember.samples),
         max_bounces=int(ember.max_bounces),
+        transparent_max_bounces=int(ember.transparent_max_bounces),
         mode=ember.sampling_mode,
         seed=seed_for_frame(ember, scene.frame_current),
         time_limit_s=float(ember.time_limit if time_limit is None else time_limit),

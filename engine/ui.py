@@ -69,6 +69,7 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         layout.prop(context.scene.ember, "max_bounces")
+        layout.prop(context.scene.ember, "transparent_max_bounces")
 
 
 class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import weakref
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
@@ -23,14 +24,16 @@ from .accel import Accel
 from .camera import generate_rays
 from .environment import Environment
 from .film import Film
-from .geometry import TriangleTable, extent, interpolate_uv
+from .bsdf.closures import BsdfSample
+from .geometry import NG, TriangleTable, extent
 from .interaction import SurfaceHit
 from .lights import LightSampler
 from .paths import PathState
 from .rng import PathRng, seed_paths
-from .samples import BSDF, LIGHT, LIGHT_POINT, Samples
+from .samples import BSDF, LIGHT, LIGHT_POINT, LOBE, Samples
 from .scene import Camera, SceneArrays
-from .textures import Texture, finite_uv
+from .shading import Shading
+from .textures import Texture
 
 SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
 # Russian roulette starts once a path has scattered this many times (NEE_MIS only: LECTURE and COSINE
@@ -55,6 +58,7 @@ class RenderSettings:
     region: tuple | None = None
     transparent_background: bool = False
     wave_size: int = 1 << 16
+    transparent_max_bounces: int = 8
 
     def validate(self, width: int, height: int) -> tuple[int, int, int, int]:
         if self.mode not in SAMPLING_MODES:
@@ -65,6 +69,8 @@ class RenderSettings:
             raise ValueError(f"max_bounces: must be non-negative, got {self.max_bounces}")
         if not (np.isfinite(self.time_limit_s) and self.time_limit_s >= 0):
             raise ValueError(f"time_limit_s: must be finite and non-negative, got {self.time_limit_s}")
+        if int(self.transparent_max_bounces) < 0:
+            raise ValueError(f"transparent_max_bounces: must be non-negative, got {self.transparent_max_bounces}")
         if int(self.wave_size) < 1:
             raise ValueError(f"wave_size: must be positive, got {self.wave_size}")
         x0, y0, x1, y1 = self.region if self.region is not None else (0, 0, width, height)
@@ -116,19 +122,16 @@ class Renderer:
         self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
         self._triangles = TriangleTable(self.scene)
         self._material_ids = self.scene.material_ids
-        mats = self.scene.materials
-        self._albedo = np.ascontiguousarray(mats.albedo.T)          # (3, M)
-        self._emission = np.ascontiguousarray(mats.emission.T)      # (3, M)
-        self._albedo_tex = mats.albedo_texture
-        self._emission_tex = mats.emission_texture
-        self._material_emits = np.any(mats.emission > 0, axis=1)
-        self._emissive = bool(self._material_emits.any())
+        self.shading = Shading(self.scene.materials, self.textures)
+        self._emissive = bool(self.shading.emissive.any())
+        # The lobe choice needs random numbers only where a material mixes lobes.
+        self._lobe_choice = self.shading.mixes_lobes
+        self._transparent_shadow_limit = 8
         lo, hi = extent(self.scene.positions)
         self._ray_epsilon = _ray_epsilon(lo, hi)
-        self._texture_means = [t.channels.mean(axis=1) for t in self.textures]
         # A sphere around the geometry, for the power of infinite lights.
         radius = float(np.linalg.norm(hi - lo) / 2) if len(self.scene.positions) else 1.0
-        self.lights = LightSampler(self.scene, self.environment, self._triangle_emission, radius, (lo + hi) / 2)
+        self.lights = LightSampler(self.scene, self.environment, _Emitters(self), radius, (lo + hi) / 2)
         threads = self.accel.threads
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
 
@@ -252,129 +255,163 @@ class Renderer:
         radiance = np.zeros((3, n), np.float32)
         alpha = np.ones(n, np.float32)
         nee = settings.mode == "NEE_MIS" and self.lights.has_lights
-        samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, nee)
+        samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, nee,
+                          lobes=self._lobe_choice)
         jx, jy = samples.camera()
         rays = Rays(*generate_rays(self.scene.camera, row, col, jx, jy))
         state = PathState.start(n, samples)
         max_scatters = int(settings.max_bounces) + 1
-        for depth in range(max_scatters + 1):
+        wave = _Wave(settings, nee, split, max_scatters, radiance, alpha)
+        for step in range(max_scatters + int(settings.transparent_max_bounces) + 1):
             hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split)
-            if depth > 0 and self.lights.has_surface_lights:
-                self._lights_hit(radiance, state, rays, hits, nee)
-            self._escaped(radiance, alpha, state, rays, hits, depth, nee, settings.transparent_background)
+            if step > 0 and self.lights.has_surface_lights:
+                self._lights_hit(wave, state, rays, hits)
+            self._escaped(wave, state, rays, hits)
             found = np.flatnonzero(hits.prim >= 0)
             if not len(found):
                 break
             state.compact(found)
             hit = self._surface_hit(hits, rays, found)
+            shading = self.shading.surface(hit)
             if self._emissive:
-                self._emission_on_hit(radiance, state, hit, hits, rays, found, depth, nee)
-            if depth == max_scatters:
-                break
-            albedo = self._albedo_at(hit.mat, hit.u, hit.v)
-            numbers = state.samples.bounce(depth)
+                self._emission_on_hit(wave, state, hit, shading, hits, rays, found)
+            if self.shading.has_holdout:
+                self._holdout(wave, state, shading)
+            numbers = state.samples.bounce(step)
             if nee:
-                self._next_event(radiance, state, albedo, hit, numbers, split)
-            wx, wy, wz, weight, next_pdf = self._sample_diffuse(settings.mode, albedo, hit, numbers[BSDF])
-            alive = self._continues(hit, (wx, wy, wz), state, weight, numbers, depth, nee)
+                self._next_event(wave, state, hit, shading.closures, numbers)
+            bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
+            alive = self._continues(wave, hit, state, bs, numbers)
             if not len(alive):
                 break
-            state.bsdf_pdf = next_pdf
             state.compact(alive)
-            rays = self._spawn(hit, alive, (wx, wy, wz))
+            rays = self._spawn(hit, alive, bs)
         return radiance, alpha
 
     # ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
-    def _lights_hit(self, radiance, state, rays, hits, nee):
+    def _lights_hit(self, wave, state, rays, hits):
         o, d = rays.origins, rays.dirs
         lit, le, light_pdf = self.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t)
+        lit &= state.bounce > 0
         if lit.any():
             idx = np.flatnonzero(lit)
             le = np.take(state.throughput * le, idx, axis=1)
-            if nee:
+            if wave.nee:
                 le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
-            _accumulate(radiance, state.path[idx], le)
+            _accumulate(wave.radiance, state.path[idx], le)
 
     # ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
-    def _escaped(self, radiance, alpha, state, rays, hits, depth, nee, transparent_background):
+    def _escaped(self, wave, state, rays, hits):
         miss = np.flatnonzero(hits.prim < 0)
         if not len(miss):
             return
-        if depth == 0 and transparent_background:
-            alpha[state.path[miss]] = 0.0
-            return
+        if wave.settings.transparent_background:
+            # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
+            direct = state.bounce[miss] == 0
+            seen = miss[direct]
+            if len(seen):
+                wave.alpha[state.path[seen]] -= np.take(state.throughput, seen, axis=1).mean(axis=0)
+                miss = miss[~direct]
+                if not len(miss):
+                    return
         d = rays.dirs
         mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
         env = np.take(state.throughput, miss, axis=1) * self.environment.radiance(mx, my, mz)
-        if nee and depth > 0:
-            env = env * sampling.power_heuristic(state.bsdf_pdf[miss], self.lights.pdf_world(mx, my, mz))
-        _accumulate(radiance, state.path[miss], env)
+        if wave.nee:
+            mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
+            if len(mis):
+                env[:, mis] *= sampling.power_heuristic(state.bsdf_pdf[miss[mis]],
+                                                        self.lights.pdf_world(mx[mis], my[mis], mz[mis]))
+        _accumulate(wave.radiance, state.path[miss], env)
 
     # ---- stage: the surface-interaction record of the rays that hit
     def _surface_hit(self, hits, rays, found) -> SurfaceHit:
         d = rays.dirs
         direction = (np.take(d[:, 0], found), np.take(d[:, 1], found), np.take(d[:, 2], found))
         return SurfaceHit(self._triangles, self._material_ids, np.take(hits.prim, found),
-                          np.take(hits.u, found), np.take(hits.v, found), direction, bool(self.textures))
+                          np.take(hits.u, found), np.take(hits.v, found), direction, self.shading.needs_uv)
 
     # ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
-    def _emission_on_hit(self, radiance, state, hit, hits, rays, found, depth, nee):
-        lit = np.flatnonzero(np.take(self._material_emits, hit.mat))
+    def _emission_on_hit(self, wave, state, hit, shading, hits, rays, found):
+        lit = np.flatnonzero(np.take(self.shading.emissive, hit.mat))
         if not len(lit):
             return
-        le = self._emitted(np.take(hit.mat, lit), _take(hit.u, lit), _take(hit.v, lit))
-        le = np.take(state.throughput, lit, axis=1) * le
-        if nee and depth > 0:
-            gx, gy, gz = (np.take(c, lit) for c in hit.ng)
-            dx, dy, dz = (np.take(c, lit) for c in hit.d)
-            cos_l = gx * dx + gy * dy + gz * dz
-            ray = found[lit]  # index of these rays before compaction
-            o = rays.origins
-            light_pdf = self.lights.pdf_triangle_hit(
-                np.take(hit.prim, lit), np.take(hits.t, ray), cos_l,
-                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray))
-            le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, lit), light_pdf)
-        _accumulate(radiance, state.path[lit], le)
+        le = np.take(state.throughput, lit, axis=1) * np.take(shading.emission, lit, axis=1)
+        if wave.nee:
+            mis = np.flatnonzero(np.isfinite(np.take(state.bsdf_pdf, lit)))
+            if len(mis):
+                sel = lit[mis]
+                gx, gy, gz = (np.take(c, sel) for c in hit.ng)
+                dx, dy, dz = (np.take(c, sel) for c in hit.d)
+                cos_l = gx * dx + gy * dy + gz * dz
+                ray = found[sel]  # index of these rays before compaction
+                o = rays.origins
+                light_pdf = self.lights.pdf_triangle_hit(
+                    np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
+                    np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray))
+                le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
+        _accumulate(wave.radiance, state.path[lit], le)
 
-    # ---- stage: sample the next direction (diffuse BSDF)
+    # ---- stage: Holdout closures cut a hole in alpha where the camera sees them
     @staticmethod
-    def _sample_diffuse(mode, albedo, hit, u):
-        ux, uy = u
-        nx, ny, nz = hit.ns
-        if mode == "LECTURE":
-            lx, ly, lz, sin_t = sampling.sample_lecture_hemisphere(ux, uy)
-            weight = albedo * (sampling.PI * lz * sin_t)  # pi^2 sin * (albedo/pi) * cos
-            next_pdf = sampling.lecture_hemisphere_pdf(sin_t)
-        else:
-            lx, ly, lz = sampling.sample_cosine_hemisphere(ux, uy)
-            weight = albedo                               # (albedo/pi) cos / (cos/pi)
-            next_pdf = sampling.cosine_hemisphere_pdf(lz)
-        wx, wy, wz = sampling.local_to_world(lx, ly, lz, nx, ny, nz)
-        return wx, wy, wz, weight, next_pdf
+    def _holdout(wave, state, shading):
+        held = np.flatnonzero((shading.holdout > 0) & (state.bounce == 0))
+        if len(held):
+            share = np.take(shading.holdout, held) * np.take(state.throughput, held, axis=1).mean(axis=0)
+            wave.alpha[state.path[held]] -= share
 
-    # ---- stage: absorb what cannot continue, then Russian roulette
-    @staticmethod
-    def _continues(hit, w, state, weight, numbers, depth, nee) -> np.ndarray:
-        """Update the throughput with the BSDF weight; return the indices of the paths that go on."""
-        wx, wy, wz = w
+    # ---- stage: sample the next direction from the closure mixture
+    def _sample_bsdf(self, wave, hit, closures, numbers) -> BsdfSample:
+        u_lobe, uc = numbers.get(LOBE, _ZERO_PAIR(len(hit)))
+        u1, u2 = numbers[BSDF]
+        if wave.settings.mode == "NEE_MIS":
+            return closures.sample(u_lobe, u1, u2, uc)
+        lecture = wave.settings.mode == "LECTURE"
+
+        def warp(idx, ux, uy):
+            nx, ny, nz = (np.take(c, idx) for c in hit.ns)
+            if lecture:
+                lx, ly, lz, sin_t = sampling.sample_lecture_hemisphere(ux, uy)
+                pdf = sampling.lecture_hemisphere_pdf(sin_t)
+            else:
+                lx, ly, lz = sampling.sample_cosine_hemisphere(ux, uy)
+                pdf = sampling.cosine_hemisphere_pdf(lz)
+            return sampling.local_to_world(lx, ly, lz, nx, ny, nz), pdf
+        return closures.sample(u_lobe, u1, u2, uc, warp=warp)
+
+    # ---- stage: absorb what cannot continue, count bounces, then Russian roulette
+    def _continues(self, wave, hit, state, bs, numbers) -> np.ndarray:
+        """Update the path state with the sampled BSDF; return the indices of the paths that go on."""
+        wx, wy, wz = bs.wi
         gx, gy, gz = hit.ng
-        # A direction below the true surface would pass through it: absorb the path.
-        above = (wx * gx + wy * gy + wz * gz) > 0
-        throughput = state.throughput * weight
-        alive = above & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
+        # A reflection must leave above the true surface, a transmission below it (Cycles' test).
+        side = wx * gx + wy * gy + wz * gz
+        ok = np.where(bs.transmit, side < 0, side > 0) & (bs.pdf > 0)
+        throughput = state.throughput * bs.weight
+        alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
+        passing = bs.transparent
+        # Past the last bounce a path still passes through transparent surfaces (as in Cycles).
+        alive &= passing | (state.bounce < wave.max_scatters)
+        state.transparent = state.transparent + passing
+        alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
+        state.bounce = state.bounce + ~passing
+        state.bsdf_pdf = np.where(passing, state.bsdf_pdf, bs.pdf)
         # After a few bounces, continue with probability q, re-weighted by 1/q.
-        if nee and depth + 1 >= ROULETTE_DEPTH:
+        if wave.nee:
+            roulette = ~passing & (state.bounce >= ROULETTE_DEPTH)
             q = np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]), np.float32(1.0))
+            q = np.where(roulette, q, np.float32(1.0))
             alive &= numbers[LIGHT][1] < q
             throughput = throughput / np.where(q > 0, q, np.float32(1.0))
         state.throughput = throughput
         return np.flatnonzero(alive)
 
     # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
-    def _spawn(self, hit, alive, w) -> "Rays":
+    def _spawn(self, hit, alive, bs) -> "Rays":
         px, py, pz = (np.take(c, alive) for c in hit.p)
-        gx, gy, gz = (np.take(c, alive) for c in hit.ng)
-        wx, wy, wz = (np.take(c, alive) for c in w)
+        sign = np.where(np.take(bs.transmit, alive), np.float32(-1.0), np.float32(1.0))
+        gx, gy, gz = (np.take(c, alive) * sign for c in hit.ng)
+        wx, wy, wz = (np.take(c, alive) for c in bs.wi)
         eps = self._offset(px, py, pz)
         origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
         return Rays(origins, np.stack([wx, wy, wz], axis=1), np.full(len(alive), np.inf, np.float32))
@@ -384,26 +421,35 @@ class Renderer:
         return self._ray_epsilon + np.float32(2.0 ** -16) * np.maximum(np.maximum(np.abs(px), np.abs(py)), np.abs(pz))
 
     # ---- stage: next-event estimation, one shadow ray toward a sampled light
-    def _next_event(self, radiance, state, albedo, hit, numbers, split):
+    def _next_event(self, wave, state, hit, closures, numbers):
         """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light."""
         (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
-        px, py, pz = hit.p
+        # Paths past their last bounce only pass through transparent surfaces: no direct light there.
+        active = np.flatnonzero(state.bounce < wave.max_scatters)
+        if len(active) < len(state):
+            if not len(active):
+                return
+            u_select, u1, u2 = u_select[active], u1[active], u2[active]
+        px, py, pz = (c[active] for c in hit.p)
         ls = self.lights.sample(px, py, pz, u_select, u1, u2)
-        nx, ny, nz = hit.ns
-        gx, gy, gz = hit.ng
-        cos_s = ls.wx * nx + ls.wy * ny + ls.wz * nz
-        cos_g = ls.wx * gx + ls.wy * gy + ls.wz * gz
         le = ls.radiance
-        useful = (ls.pdf > 0) & (cos_s > 0) & (cos_g > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0))
-        idx = np.flatnonzero(useful)
+        useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
+        if not len(useful):
+            return
+        f, bsdf_pdf = closures.eval_at(active[useful], (ls.wx[useful], ls.wy[useful], ls.wz[useful]))
+        keep = np.flatnonzero((f[0] > 0) | (f[1] > 0) | (f[2] > 0))
+        idx = useful[keep]  # rows of the light sample; active[idx] are the paths
         if not len(idx):
             return
-        sx, sy, sz = np.take(px, idx), np.take(py, idx), np.take(pz, idx)
-        ngx, ngy, ngz = np.take(gx, idx), np.take(gy, idx), np.take(gz, idx)
+        f, bsdf_pdf = f[:, keep], bsdf_pdf[keep]
+        gx, gy, gz = (np.take(c, active[idx]) for c in hit.ng)
         wx, wy, wz = np.take(ls.wx, idx), np.take(ls.wy, idx), np.take(ls.wz, idx)
-        eps = self._offset(sx, sy, sz)
+        # Leave from the side of the surface the light is on (a light behind a transmitting surface).
+        sign = np.where(wx * gx + wy * gy + wz * gz < 0, np.float32(-1.0), np.float32(1.0))
+        sx, sy, sz = np.take(px, idx), np.take(py, idx), np.take(pz, idx)
+        eps = self._offset(sx, sy, sz) * sign
         dist = np.take(ls.dist, idx)
-        ox, oy, oz = sx + ngx * eps, sy + ngy * eps, sz + ngz * eps
+        ox, oy, oz = sx + gx * eps, sy + gy * eps, sz + gz * eps
         # Aim from the offset origin at the sampled point itself: keeping the direction from the
         # surface point would shift the ray by eps and, at grazing angles, make it cross the
         # emitter's plane before the point (a lamp 1 cm under a ceiling shadowed itself that way).
@@ -414,56 +460,84 @@ class Renderer:
         inv = np.float32(1.0) / np.maximum(to_point, np.float32(1e-30))
         wx, wy, wz = np.where(finite, ax * inv, wx), np.where(finite, ay * inv, wy), np.where(finite, az * inv, wz)
         # Stop short of the sampled point so that the emitter itself does not count as an occluder.
-        t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - eps, np.inf).astype(np.float32)
+        t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - np.abs(eps), np.inf).astype(np.float32)
         origins = np.stack([ox, oy, oz], axis=1)
-        blocked = self.accel.occluded(origins, np.stack([wx, wy, wz], axis=1), t_max, split)
-        vis = idx[~blocked & (t_max > 0)]
+        transmittance = self._shadow(origins, np.stack([wx, wy, wz], axis=1), t_max, wave.split)
+        vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
         if not len(vis):
             return
-        pdf = np.take(ls.pdf, vis)
-        cos = np.take(cos_s, vis)
-        w = np.where(np.take(ls.delta, vis), np.float32(1.0),
-                     sampling.power_heuristic(pdf, sampling.cosine_hemisphere_pdf(cos)))
-        scale = cos * sampling.INV_PI * w / pdf
-        contribution = np.take(state.throughput, vis, axis=1) * np.take(albedo, vis, axis=1) * \
-            np.take(ls.radiance, vis, axis=1) * scale
-        _accumulate(radiance, state.path[vis], contribution)
+        rows = idx[vis]
+        paths = active[rows]
+        pdf = np.take(ls.pdf, rows)
+        w = np.where(np.take(ls.delta, rows), np.float32(1.0), sampling.power_heuristic(pdf, bsdf_pdf[vis]))
+        contribution = np.take(state.throughput, paths, axis=1) * f[:, vis] * transmittance[:, vis] * \
+            np.take(ls.radiance, rows, axis=1) * (w / pdf)
+        _accumulate(wave.radiance, state.path[paths], contribution)
 
-    # ---------------------------------------------------------------- materials
-    def _triangle_emission(self, tri, b1=None, b2=None) -> np.ndarray:
-        """(3, n) emitted radiance of triangles tri at barycentrics (b1, b2); without them, the
-        triangle's mean (textures averaged), for power estimates."""
+    def _shadow(self, origins, dirs, t_max, split) -> np.ndarray:
+        """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
+        transparent surfaces, the product of their transparency (Cycles' transparent shadows)."""
+        n = len(origins)
+        if not self.shading.transparent.any():
+            blocked = self.accel.occluded(origins, dirs, t_max, split)
+            return np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
+        out = np.ones((3, n), np.float32)
+        live = np.arange(n)
+        origins, t_left = origins.copy(), t_max.copy()
+        for _ in range(self._transparent_shadow_limit + 1):
+            hits = self.accel.intersect(origins, dirs[live], t_left, split)
+            found = np.flatnonzero(hits.prim >= 0)
+            if not len(found):
+                break
+            d = dirs[live[found]]
+            hit = SurfaceHit(self._triangles, self._material_ids, hits.prim[found], hits.u[found], hits.v[found],
+                             (d[:, 0], d[:, 1], d[:, 2]), self.shading.needs_uv)
+            passes = self.shading.transparency(hit)
+            out[:, live[found]] *= passes
+            through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]
+            if not len(through):
+                break
+            # Continue just past the transparent surface.
+            t = hits.t[through]
+            step = t + self._offset(*(origins[through, k] for k in range(3)))
+            origins = origins[through] + dirs[live[through]] * step[:, None]
+            t_left = t_left[through] - step
+            live = live[through]
+            keep = t_left > 0
+            origins, t_left, live = origins[keep], t_left[keep], live[keep]
+            if not len(live):
+                break
+        else:
+            out[:, live] = 0.0  # more transparent surfaces than the limit: opaque, as in Cycles
+        return out
+
+    # ---------------------------------------------------------------- emitters for the light sampler
+    def _triangle_emission(self, tri, b1=None, b2=None, toward=None) -> np.ndarray:
+        """(3, n) emitted radiance of triangles tri at barycentrics (b1, b2) seen from direction
+        -toward (the direction from the receiver to the light); without barycentrics, the material's
+        mean (textures averaged), for power estimates."""
         mat = np.take(self._material_ids, tri)
         if b1 is None:
-            value = np.take(self._emission, mat, axis=1)
-            tex = np.take(self._emission_tex, mat)
-            for t in np.unique(tex[tex >= 0]):
-                sel = tex == t
-                value[:, sel] *= self._texture_means[t][:, None]
-            return value
-        u = v = None
-        if self.textures:
-            b0 = np.float32(1.0) - b1 - b2
-            u, v = interpolate_uv(self._triangles.gather(tri), b0, b1, b2)
-        return self._emitted(mat, u, v)
+            return self.shading.mean_emission(mat)
+        if toward is None:  # seen head-on, along the triangle's normal
+            g = self._triangles.gather(tri)
+            toward = (-g[NG], -g[NG + 1], -g[NG + 2])
+        hit = SurfaceHit(self._triangles, self._material_ids, tri, b1, b2, toward, self.shading.needs_uv)
+        return self.shading.surface(hit, closures=False).emission
 
-    def _albedo_at(self, mat, u, v) -> np.ndarray:
-        return self._material_value(self._albedo, self._albedo_tex, mat, u, v)
 
-    def _emitted(self, mat, u, v) -> np.ndarray:
-        return self._material_value(self._emission, self._emission_tex, mat, u, v)
+class _Wave:
+    """Per-wave constants and outputs shared by the stages."""
+    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha")
 
-    def _material_value(self, table, tex_ids, mat, u, v) -> np.ndarray:
-        """(3, N) constant colour per material, times its texture where it has one."""
-        value = np.take(table, mat, axis=1)
-        if not len(self.textures):
-            return value
-        tex = np.take(tex_ids, mat)
-        for t in np.unique(tex[tex >= 0]):
-            sel = np.flatnonzero(tex == t)
-            su, sv = finite_uv(np.take(u, sel), np.take(v, sel))
-            value[:, sel] *= self.textures[t].lookup(su, sv)
-        return value
+    def __init__(self, settings, nee, split, max_scatters, radiance, alpha):
+        self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
+        self.radiance, self.alpha = radiance, alpha
+
+
+def _ZERO_PAIR(n):
+    z = np.zeros(n, np.float32)
+    return z, z
 
 
 class Rays(NamedTuple):
@@ -473,8 +547,16 @@ class Rays(NamedTuple):
     t_max: np.ndarray
 
 
-def _take(a: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
-    return None if a is None else np.take(a, idx)
+class _Emitters:
+    """The light sampler's view of the emissive materials (see LightSampler)."""
+
+    def __init__(self, renderer: "Renderer"):
+        self.emissive = renderer.shading.emissive
+        self.varies = renderer.shading.emission_varies
+        self._renderer = weakref.proxy(renderer)
+
+    def __call__(self, tri, b1=None, b2=None, toward=None):
+        return self._renderer._triangle_emission(tri, b1, b2, toward)
 
 
 def _accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> None:

@@ -67,7 +67,10 @@ class LightSampler:
 
     def __init__(self, scene: SceneArrays, environment: Environment, triangle_emission, scene_radius: float,
                  scene_center=(0.0, 0.0, 0.0)):
-        """triangle_emission(tri_ids) -> (3, n) mean emitted radiance of those triangles (texture averaged)."""
+        """triangle_emission: the emissive materials. triangle_emission(tri_ids) -> (3, n) mean emitted radiance
+        of those triangles (textures averaged); triangle_emission(tri_ids, b1, b2, toward) -> (3, n) radiance
+        at barycentrics (b1, b2) toward -toward; .emissive (M,) bool, the materials that emit;
+        .varies (M,) bool, those whose emission changes over the surface or with the direction."""
         lights = scene.lights
         self.environment = environment
         self.light_count = lights.count
@@ -87,7 +90,7 @@ class LightSampler:
                              np.float32(np.pi / 4) * self.size[:, 0] * self.size[:, 1]).astype(np.float32)
 
         # Emissive triangles: two-sided, uniform over their area.
-        emits = np.any(scene.materials.emission > 0, axis=1)
+        emits = np.asarray(triangle_emission.emissive, bool)
         self.tri_ids = np.flatnonzero(emits[scene.material_ids]).astype(np.int32)
         p = scene.positions[self.tri_ids].astype(np.float64)
         e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
@@ -97,8 +100,8 @@ class LightSampler:
         # Position of each scene triangle in the emissive list (-1 for non-emissive), for MIS on hits.
         self.tri_slot = np.full(scene.triangle_count, -1, np.int32)
         self.tri_slot[self.tri_ids] = np.arange(len(self.tri_ids), dtype=np.int32)
-        # Triangles whose material has an emission texture need a lookup at the sampled point.
-        textured = scene.materials.emission_texture[scene.material_ids[self.tri_ids]] >= 0
+        # Triangles whose emission varies (a texture, layers above it) are evaluated at the sampled point.
+        textured = np.asarray(triangle_emission.varies, bool)[scene.material_ids[self.tri_ids]]
         self.tri_textured = bool(textured.any())
         # One row per emissive triangle, gathered whole (rows of a (E, K) table gather fastest).
         table = np.zeros((len(self.tri_ids), _TRI_ROWS), np.float32)
@@ -284,7 +287,7 @@ class LightSampler:
                 b1[sph], b2[sph] = _barycentrics((sx * t - rx, sy * t - ry, sz * t - rz),
                                                  g[_TE1:_TE1 + 3, sph], g[_TE2:_TE2 + 3, sph])
         if self.tri_textured:
-            radiance = self.triangle_emission(np.take(self.tri_ids, slot), b1, b2)
+            radiance = self.triangle_emission(np.take(self.tri_ids, slot), b1, b2, (wx, wy, wz))
         else:
             radiance = g[_TLE:_TLE + 3]
         out.set(idx, wx, wy, wz, dist, radiance, pdf)

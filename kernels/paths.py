@@ -14,10 +14,13 @@ class PathState:
     throughput: np.ndarray  # (3, N) float32: product of BSDF weights (and 1/q of Russian roulette)
     bsdf_pdf: np.ndarray    # (N,) float32: pdf of the direction that led here (for MIS); inf = camera ray
     samples: Samples        # the paths' random numbers
+    bounce: np.ndarray      # (N,) int32: scattering events so far (0 = still the camera ray)
+    transparent: np.ndarray  # (N,) int32: transparent surfaces passed straight through so far
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
-        return cls(np.arange(n), np.ones((3, n), np.float32), np.full(n, np.inf, np.float32), samples)
+        return cls(np.arange(n), np.ones((3, n), np.float32), np.full(n, np.inf, np.float32), samples,
+                   np.zeros(n, np.int32), np.zeros(n, np.int32))
 
     def compact(self, idx: np.ndarray) -> None:
         """Keep only the paths idx (in that order)."""
@@ -25,6 +28,8 @@ class PathState:
         self.throughput = np.take(self.throughput, idx, axis=1)
         self.bsdf_pdf = np.take(self.bsdf_pdf, idx)
         self.samples = self.samples.take(idx)
+        self.bounce = np.take(self.bounce, idx)
+        self.transparent = np.take(self.transparent, idx)
 
     def __len__(self) -> int:
         return len(self.path)

@@ -12,8 +12,8 @@ The first vertex of an NEE_MIS path takes its numbers from the pixel's stratifie
 sequence per dimension (rng.stratified_2d with the dimension's id), so that numbers of one dimension
 are independent of the others whatever is added. Deeper vertices draw the dimensions of their mode's
 block from the path's PCG2D stream, always the whole block in the order below, so a decision's numbers
-never depend on which decisions were taken before. LECTURE and COSINE draw only BSDF: one PCG2D pair per
-bounce, the lecture's estimator exactly.
+never depend on which decisions were taken before. LECTURE and COSINE draw only BSDF (and LOBE where materials
+mix lobes): on diffuse scenes one PCG2D pair per bounce, the lecture's estimator exactly.
 """
 from __future__ import annotations
 
@@ -22,9 +22,11 @@ import numpy as np
 from .rng import PathRng, stratified_2d
 
 CAMERA, LIGHT, LIGHT_POINT, BSDF, LOBE = 0, 1, 2, 3, 4
-# The dimensions a bounce draws from the PCG2D stream, in order, with and without next-event estimation.
+# The dimensions a bounce draws from the PCG2D stream, in order, with and without next-event estimation;
+# LOBE comes last, drawn only in scenes whose materials have more than one lobe to choose from.
 NEE_BLOCK = (LIGHT, LIGHT_POINT, BSDF)
 PLAIN_BLOCK = (BSDF,)
+STRATIFIED = (LIGHT, LIGHT_POINT, BSDF, LOBE)
 
 
 class Samples:
@@ -34,9 +36,9 @@ class Samples:
     strata : (pixel_index, sample_index) per path, or None: the first vertex then draws from rng too.
     """
 
-    def __init__(self, rng: PathRng, strata, seed: int, nee: bool):
+    def __init__(self, rng: PathRng, strata, seed: int, nee: bool, lobes: bool = False):
         self.rng = rng
-        self.block = NEE_BLOCK if nee else PLAIN_BLOCK
+        self.block = (NEE_BLOCK if nee else PLAIN_BLOCK) + ((LOBE,) if lobes else ())
         self._strata = strata
         self._seed = seed
         self._first: dict | None = None  # the first vertex's numbers per dimension, once drawn
@@ -45,7 +47,7 @@ class Samples:
         """The pixel jitter of every path (drawn before any other dimension)."""
         if self._strata is None:
             return self.rng.next_2d()
-        self._first = {d: stratified_2d(*self._strata, self._seed, d) for d in (LIGHT, LIGHT_POINT, BSDF)}
+        self._first = {d: stratified_2d(*self._strata, self._seed, d) for d in STRATIFIED}
         return stratified_2d(*self._strata, self._seed, CAMERA)
 
     def bounce(self, depth: int) -> dict:

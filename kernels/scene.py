@@ -61,37 +61,111 @@ class Camera:
                  f"resolution must be at least 1x1, got {self.width}x{self.height}")
 
 
+# Closure nodes a material can be made of (Blender's shader nodes, read by the engine's export).
+CLOSURE_KINDS = ("DIFFUSE", "PRINCIPLED", "GLOSSY", "GLASS", "REFRACTION", "METALLIC", "SHEEN", "TRANSLUCENT",
+                 "TRANSPARENT", "EMISSION", "HOLDOUT")
+
+
+@dataclass(frozen=True)
+class Param:
+    """One input of a closure node: a constant, or a constant times an image texture.
+
+    value : tuple of 1 (float inputs) or 3 (colours and vectors) floats.
+    texture : index into SceneArrays.textures, -1 for none; the value multiplies the texture.
+    alpha : read the texture's alpha channel (the Image Texture's Alpha output) instead of its colour.
+    unassociate : divide the texture's (associated) colour by its alpha, as Cycles does for an Image
+        Texture whose Alpha output is linked.
+    """
+    value: tuple
+    texture: int = -1
+    alpha: bool = False
+    unassociate: bool = False
+
+    @classmethod
+    def of(cls, value, texture: int = -1, alpha: bool = False, unassociate: bool = False) -> "Param":
+        values = tuple(float(v) for v in np.atleast_1d(np.asarray(value, np.float64)))
+        return cls(values, int(texture), bool(alpha), bool(unassociate))
+
+
+@dataclass(frozen=True)
+class Closure:
+    """A closure node of a material, with its inputs and where it sits in the Mix/Add shader tree.
+
+    kind : one of CLOSURE_KINDS.
+    inputs : ((socket name, Param), ...) by Blender's input names ("Base Color", "Roughness", ...);
+        inputs left out take the node's defaults (kernels.shading.nodes).
+    options : ((name, value), ...) the node's enum settings, e.g. ("distribution", "MULTI_GGX").
+    factors : ((Param, second), ...) the Mix Shader factors above the node: its weight is the product
+        of fac (when it is the Mix's second input) or 1 - fac (first input), each fac clamped to [0, 1].
+    """
+    kind: str
+    inputs: tuple = ()
+    options: tuple = ()
+    factors: tuple = ()
+
+    def input(self, name: str) -> Param | None:
+        return next((p for n, p in self.inputs if n == name), None)
+
+    def option(self, name: str, default=None):
+        return next((v for n, v in self.options if n == name), default)
+
+    def params(self):
+        yield from (p for _, p in self.inputs)
+        yield from (p for p, _ in self.factors)
+
+
+@dataclass(frozen=True)
+class Shader:
+    """A material: the sum of its closures, each weighted by its Mix Shader factors."""
+    closures: tuple = ()
+    name: str = ""
+
+
+def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),
+                   emission_texture: int = -1, name: str = "") -> Shader:
+    """A diffuse surface of colour albedo (times a texture) that also emits `emission` (times a texture)."""
+    closures = [Closure("DIFFUSE", (("Color", Param.of(albedo, albedo_texture)),))]
+    if np.any(np.asarray(emission) > 0):
+        closures.append(Closure("EMISSION", (("Color", Param.of(emission, emission_texture)),
+                                             ("Strength", Param.of(1.0)))))
+    return Shader(tuple(closures), name)
+
+
 @dataclass(frozen=True)
 class Materials:
-    """The material table. M rows; a triangle's material id indexes it.
+    """The material table: M shaders; a triangle's material id indexes it."""
+    shaders: tuple = (diffuse_shader(),)
 
-    albedo : (M, 3) float32, diffuse reflectance in [0, 1] (multiplies the texture when there is one).
-    albedo_texture : (M,) int32, index into SceneArrays.textures, -1 for none.
-    emission : (M, 3) float32, emitted radiance (colour x strength), W/(sr m^2) in Blender's units.
-    emission_texture : (M,) int32, texture that multiplies emission, -1 for none.
-    """
-    albedo: np.ndarray = field(default_factory=lambda: np.full((1, 3), 0.8, np.float32))
-    albedo_texture: np.ndarray = field(default_factory=lambda: np.full(1, -1, np.int32))
-    emission: np.ndarray = field(default_factory=lambda: np.zeros((1, 3), np.float32))
-    emission_texture: np.ndarray = field(default_factory=lambda: np.full(1, -1, np.int32))
+    @classmethod
+    def diffuse(cls, albedo, albedo_texture=None, emission=None, emission_texture=None) -> "Materials":
+        """M diffuse materials from (M, 3) albedo and emission (W/(sr m^2)), each optionally textured."""
+        albedo = np.atleast_2d(np.asarray(albedo, np.float32))
+        m = len(albedo)
+        emission = np.zeros((m, 3), np.float32) if emission is None else np.atleast_2d(emission)
+        at = np.full(m, -1) if albedo_texture is None else np.asarray(albedo_texture)
+        et = np.full(m, -1) if emission_texture is None else np.asarray(emission_texture)
+        return cls(tuple(diffuse_shader(albedo[i], at[i], emission[i], et[i]) for i in range(m)))
 
     @property
     def count(self) -> int:
-        return len(self.albedo)
+        return len(self.shaders)
 
     def validate(self, n_textures: int) -> None:
-        m = len(self.albedo)
-        _require(m >= 1, "materials.albedo", "needs at least one material")
-        _check_array(self.albedo, "materials.albedo", (m, 3), np.float32)
-        _check_array(self.emission, "materials.emission", (m, 3), np.float32)
-        _check_array(self.albedo_texture, "materials.albedo_texture", (m,), np.int32)
-        _check_array(self.emission_texture, "materials.emission_texture", (m,), np.int32)
-        _require(np.all(self.emission >= 0), "materials.emission", "must be non-negative")
-        _require(np.all(self.albedo >= 0), "materials.albedo", "must be non-negative")
-        for name in ("albedo_texture", "emission_texture"):
-            idx = getattr(self, name)
-            _require(np.all((idx >= -1) & (idx < n_textures)), f"materials.{name}",
-                     f"indices must be -1 or in [0, {n_textures}), got {idx.min()}..{idx.max()}")
+        _require(len(self.shaders) >= 1, "materials", "needs at least one material")
+        for i, shader in enumerate(self.shaders):
+            _require(isinstance(shader, Shader), f"materials[{i}]", "must be a Shader")
+            for closure in shader.closures:
+                where = f"materials[{i}] ({shader.name or 'unnamed'}) {closure.kind}"
+                _require(closure.kind in CLOSURE_KINDS, where, f"kind must be one of {CLOSURE_KINDS}")
+                for name, p in closure.inputs + tuple(("Fac", p) for p, _ in closure.factors):
+                    _require(len(p.value) in (1, 3) and all(np.isfinite(p.value)), f"{where} {name}",
+                             f"must be 1 or 3 finite floats, got {p.value}")
+                    _require(-1 <= p.texture < n_textures, f"{where} {name}",
+                             f"texture must be -1 or in [0, {n_textures}), got {p.texture}")
+                if closure.kind == "EMISSION" or closure.kind == "PRINCIPLED":
+                    for name in ("Color", "Strength", "Emission Color", "Emission Strength"):
+                        p = closure.input(name)
+                        _require(p is None or min(p.value) >= 0, f"{where} {name}", "must be non-negative")
 
 
 @dataclass(frozen=True)

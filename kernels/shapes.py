@@ -118,6 +118,5 @@ def cornell_box(width: int = 256, height: int = 256, light_size: float = 0.5, li
                     width=width, height=height, clip_start=0.01, clip_end=100.0)
     return SceneArrays(positions=positions, normals=normals, uvs=np.zeros((t, 3, 2), np.float32),
                        material_ids=material_of_part[part],
-                       materials=Materials(albedo=albedo, albedo_texture=np.full(5, -1, np.int32),
-                                           emission=emission, emission_texture=np.full(5, -1, np.int32)),
+                       materials=Materials.diffuse(albedo, emission=emission),
                        world=World(color=np.zeros(3, np.float32)), camera=camera)

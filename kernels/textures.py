@@ -24,9 +24,13 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
 
 
 class Texture:
-    """A texture prepared for lookups: a flat (H*W, C) float32 table (RGB, alpha dropped).
+    """A texture prepared for lookups: one contiguous float32 row of H*W texels per channel, RGB and,
+    for 4-channel images, alpha (straight, never sRGB-encoded).
 
-    srgb=True: texels are sRGB-encoded and decoded after filtering, like Cycles' 8-bit sRGB images.
+    srgb=True: colour texels are sRGB-encoded and decoded after filtering, like Cycles' 8-bit sRGB images.
+    The colour of 4-channel images is stored as the engine hands it over: associated (premultiplied by
+    alpha) for ordinary images, as Cycles stores them; lookup(unassociate=True) divides the filtered
+    colour by the filtered alpha, as Cycles does when an Image Texture's Alpha output is used.
     """
 
     def __init__(self, image: np.ndarray, srgb: bool = False):
@@ -36,10 +40,25 @@ class Texture:
         self.height, self.width = h, w
         # (3, H*W): one contiguous row per channel, gathered with np.take.
         self.channels = np.ascontiguousarray(rgb.reshape(h * w, 3).T, np.float32)
+        self.alpha = np.ascontiguousarray(image[:, :, 3].reshape(1, h * w), np.float32) if c == 4 else None
 
-    def lookup(self, u: np.ndarray, v: np.ndarray, wrap_v: bool = True) -> np.ndarray:
+    def lookup_alpha(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(N,) float32 bilinear alpha at u, v (repeat); 1 for images without alpha."""
+        if self.alpha is None:
+            return np.ones(len(u), np.float32)
+        return self._bilinear(self.alpha, u, v, True)[0]
+
+    def lookup(self, u: np.ndarray, v: np.ndarray, wrap_v: bool = True, unassociate: bool = False) -> np.ndarray:
         """(3, N) float32 bilinear samples at texture coordinates u, v (repeat wrap in u; in v repeat
         or clamp to edge)."""
+        value = self._bilinear(self.channels, u, v, wrap_v)
+        if unassociate and self.alpha is not None:
+            a = self._bilinear(self.alpha, u, v, wrap_v)[0]
+            partial = (a != 0) & (a != 1)
+            value = np.where(partial, value / np.where(partial, a, np.float32(1.0)), value)
+        return srgb_to_linear(value) if self.srgb else value
+
+    def _bilinear(self, c: np.ndarray, u: np.ndarray, v: np.ndarray, wrap_v: bool) -> np.ndarray:
         w, h = self.width, self.height
         x = u * np.float32(w) - np.float32(0.5)
         y = v * np.float32(h) - np.float32(0.5)
@@ -60,11 +79,9 @@ class Texture:
             y1 = np.clip(y0i + 1, 0, h - 1)
         r0 = y0 * w
         r1 = y1 * w
-        c = self.channels
         top = np.take(c, r0 + x0, axis=1) * (1 - fx) + np.take(c, r0 + x1, axis=1) * fx
         bot = np.take(c, r1 + x0, axis=1) * (1 - fx) + np.take(c, r1 + x1, axis=1) * fx
-        value = top * (1 - fy) + bot * fy
-        return srgb_to_linear(value) if self.srgb else value
+        return top * (1 - fy) + bot * fy
 
 
 def finite_uv(u: np.ndarray, v: np.ndarray):

@@ -117,6 +117,7 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
         scene.ember.samples = samples
         scene.ember.seed = seed
         scene.ember.max_bounces = max_bounces
+        scene.ember.transparent_max_bounces = max_bounces
     with tempfile.TemporaryDirectory() as tmp:
         render.filepath = os.path.join(tmp, "frame.exr")
         bpy.ops.render.render(write_still=True)

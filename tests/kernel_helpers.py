@@ -17,8 +17,7 @@ def make_scene(positions, normals, material_ids=None, albedo=(0.8, 0.8, 0.8), em
     return SceneArrays(
         positions=positions, normals=normals, uvs=kwargs.pop("uvs", np.zeros((t, 3, 2), np.float32)),
         material_ids=np.zeros(t, np.int32) if material_ids is None else material_ids,
-        materials=kwargs.pop("materials", Materials(albedo=albedo, albedo_texture=np.full(m, -1, np.int32),
-                                                    emission=emission, emission_texture=np.full(m, -1, np.int32))),
+        materials=kwargs.pop("materials", Materials.diffuse(albedo, emission=emission)),
         world=kwargs.pop("world", World(color=np.asarray(world_color, np.float32))),
         camera=camera or Camera(world_from_camera=look_at((0, -5, 0), (0, 0, 0)), width=32, height=32,
                                 fov_rad=np.radians(40)),

@@ -76,8 +76,18 @@ def new_material(name, shader="ShaderNodeBsdfPrincipled"):
 
 
 def material_row(result, index=1):
-    m = result.scene.materials
-    return m.albedo[index], m.albedo_texture[index], m.emission[index], m.emission_texture[index]
+    """(albedo, albedo texture, emission, emission texture) of a material made of one Diffuse or
+    Principled BSDF and/or an Emission shader (black albedo and emission where there is none)."""
+    albedo, albedo_tex, emission, emission_tex = np.zeros(3), -1, np.zeros(3), -1
+    for closure in result.scene.materials.shaders[index].closures:
+        if closure.kind in ("DIFFUSE", "PRINCIPLED"):
+            p = closure.input("Color" if closure.kind == "DIFFUSE" else "Base Color")
+            albedo, albedo_tex = np.asarray(p.value), p.texture
+        if closure.kind in ("EMISSION", "PRINCIPLED"):
+            color, strength = (closure.input(n) for n in (("Color", "Strength") if closure.kind == "EMISSION"
+                                                          else ("Emission Color", "Emission Strength")))
+            emission, emission_tex = np.asarray(color.value) * strength.value[0], color.texture
+    return albedo, albedo_tex, emission, emission_tex
 
 
 def new_image(name, rgba, float_buffer=False, colorspace=None):
@@ -297,7 +307,7 @@ def test_material_slots_per_face():
     other.material_slots[0].material = mats["Green"]
     result = export()
     assert result.scene.material_ids.dtype == np.int32 and result.scene.materials.count == 4
-    albedo = result.scene.materials.albedo[result.scene.material_ids]
+    albedo = np.array([material_row(result, m)[0] for m in range(4)])[result.scene.material_ids]
     dg = bpy.context.evaluated_depsgraph_get()
     tri_slots = face_slots[[t.polygon_index for t in ob.evaluated_get(dg).data.loop_triangles]]
     for cube, slot_names in ((ob, ("Red", "Blue", None)), (other, ("Green", "Blue", None))):
@@ -341,26 +351,58 @@ def test_diffuse_and_emission_shaders():
 
 
 def test_unsupported_nodes_render_grey_with_one_warning_per_material():
-    mat = bpy.data.materials.new("Shiny")
+    mat = bpy.data.materials.new("Toon")
     tree = mat.node_tree
     mix = tree.nodes.new("ShaderNodeMixShader")
     tree.links.new(mix.outputs[0], tree.nodes["Material Output"].inputs["Surface"])
-    tree.links.new(tree.nodes.new("ShaderNodeBsdfGlossy").outputs[0], mix.inputs[1])
+    tree.links.new(tree.nodes.new("ShaderNodeBsdfToon").outputs[0], mix.inputs[1])
+    tree.links.new(tree.nodes.new("ShaderNodeBsdfHairPrincipled").outputs[0], mix.inputs[2])
     metal, bsdf = new_material("Metal")
     bsdf.inputs["Metallic"].default_value = 1.0
     bsdf.inputs["Base Color"].default_value = (0.5, 0.5, 0.5, 1.0)
     noise = metal.node_tree.nodes.new("ShaderNodeTexNoise")
-    metal.node_tree.links.new(noise.outputs["Fac"], bsdf.inputs["Roughness"])  # roughness is ignored anyway
+    metal.node_tree.links.new(noise.outputs["Fac"], bsdf.inputs["Roughness"])
     ob = add_cube()
     ob.data.materials.append(mat)
     ob.data.materials.append(metal)
     result = export()
-    np.testing.assert_allclose(material_row(result, 1)[0], DEFAULT_ALBEDO)
-    np.testing.assert_allclose(material_row(result, 2)[0], 0.5)
-    shiny = [w for w in result.warnings if "'Shiny'" in w]
-    assert len(shiny) == 1 and "Mix Shader" in shiny[0]
+    toon = result.scene.materials.shaders[1].closures
+    assert [c.kind for c in toon] == ["DIFFUSE", "DIFFUSE"]
+    np.testing.assert_allclose(toon[0].input("Color").value, DEFAULT_ALBEDO)
+    assert [(p.value, second) for p, second in toon[0].factors] == [((0.5,), False)]
+    warned = [w for w in result.warnings if "'Toon'" in w]
+    assert len(warned) == 1 and "Toon BSDF" in warned[0] and "Principled Hair BSDF" in warned[0]
+    (principled,) = result.scene.materials.shaders[2].closures
+    assert principled.kind == "PRINCIPLED" and principled.input("Metallic").value == (1.0,)
+    assert principled.input("Roughness").value == (0.5,)  # the socket's own value
     metallic = [w for w in result.warnings if "'Metal'" in w]
-    assert len(metallic) == 1 and "Metallic" in metallic[0]
+    assert len(metallic) == 1 and "Noise Texture node feeding Roughness of Principled BSDF" in metallic[0]
+
+
+def test_mix_and_add_shaders_keep_their_factors():
+    mat = bpy.data.materials.new("Mixed")
+    tree = mat.node_tree
+    tree.nodes.remove(tree.nodes["Principled BSDF"])
+    mix, add = tree.nodes.new("ShaderNodeMixShader"), tree.nodes.new("ShaderNodeAddShader")
+    mix.inputs[0].default_value = 0.25
+    glossy, glass = tree.nodes.new("ShaderNodeBsdfAnisotropic"), tree.nodes.new("ShaderNodeBsdfGlass")
+    emit, transparent = tree.nodes.new("ShaderNodeEmission"), tree.nodes.new("ShaderNodeBsdfTransparent")
+    tree.links.new(glossy.outputs[0], mix.inputs[1])
+    tree.links.new(add.outputs[0], mix.inputs[2])
+    tree.links.new(glass.outputs[0], add.inputs[0])
+    tree.links.new(emit.outputs[0], add.inputs[1])
+    tree.links.new(mix.outputs[0], tree.nodes["Material Output"].inputs["Surface"])
+    unused = tree.nodes.new("ShaderNodeMixShader")  # a Mix at factor 0 drops its second input
+    unused.inputs[0].default_value = 0.0
+    tree.links.new(transparent.outputs[0], unused.inputs[2])
+    add_cube().data.materials.append(mat)
+    result = export()
+    closures = result.scene.materials.shaders[1].closures
+    assert [c.kind for c in closures] == ["GLOSSY", "GLASS", "EMISSION"]
+    assert [[(p.value, s) for p, s in c.factors] for c in closures] == \
+        [[((0.25,), False)], [((0.25,), True)], [((0.25,), True)]]
+    assert dict(closures[0].options)["distribution"] == "MULTI_GGX"
+    assert result.warnings == []
 
 
 def test_unlinked_surface_renders_black():
@@ -429,11 +471,11 @@ def test_image_textures_srgb_float_and_non_color():
     np.testing.assert_allclose(textures[0], rows[..., :3], atol=1e-6)
     np.testing.assert_allclose(textures[1], rows[..., :3], atol=1e-6)
     np.testing.assert_allclose(textures[2], rows[..., :3] * 4, atol=1e-6)
-    m = result.scene.materials
-    np.testing.assert_array_equal(m.albedo_texture[1:], [0, 1, 2, 0, -1])
-    np.testing.assert_array_equal(m.albedo[1], 1.0)  # the kernel multiplies constant x texture
-    assert m.emission_texture[5] == 2
-    np.testing.assert_allclose(m.emission[5], 2.0)
+    rows = [material_row(result, m) for m in range(1, 6)]
+    assert [r[1] for r in rows] == [0, 1, 2, 0, -1]
+    np.testing.assert_array_equal(rows[0][0], 1.0)  # the kernel multiplies constant x texture
+    assert rows[4][3] == 2
+    np.testing.assert_allclose(rows[4][2], 2.0)
     assert result.warnings == []
     result.scene.validate()
 

@@ -23,7 +23,9 @@ def test_white_furnace_cosine_is_exact():
 def test_white_furnace_every_pixel_is_l(mode):
     samples = trace_samples(sphere_in_furnace(albedo=1.0, world=2.0), RenderSettings(mode=mode), 64)
     mean, se = mean_and_stderr(samples, axis=0)  # per pixel and channel
-    noiseless = se < 1e-9  # COSINE: every sample is exactly L, so the mean must be too
+    # COSINE: every sample is L up to float32 rounding (f / pdf of a Lambert lobe, each computed in its
+    # own frame), so the mean must be too.
+    noiseless = se < 1e-6
     assert np.allclose(mean[noiseless], 2.0, rtol=1e-5)
     z = np.abs(mean - 2.0)[~noiseless] / se[~noiseless]
     assert np.all(z < 5.0), z.max()  # 5 sigma over ~3000 pixel-channels
@@ -37,7 +39,7 @@ def test_convex_sphere_of_albedo_half_renders_half_l(mode):
     yy, xx = np.mgrid[0:32, 0:32] + 0.5
     inside = ((yy - 16) ** 2 + (xx - 16) ** 2 < 9 ** 2).ravel()
     if mode == "COSINE":
-        assert np.allclose(samples[:, :, inside], 1.0, rtol=1e-5)  # exact, sample by sample
+        assert np.allclose(samples[:, :, inside], 1.0, rtol=1e-4)  # exact up to float32 rounding at grazing angles
     else:
         m, se = mean_and_stderr(samples[:, 0, inside].mean(axis=1))
         assert abs(m - 1.0) < 4 * se, (m, se)

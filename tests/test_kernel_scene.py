@@ -28,9 +28,12 @@ def good_scene():
     (lambda s: dict(uvs=np.zeros((len(s.positions), 3, 3), np.float32)), "uvs"),
     (lambda s: dict(material_ids=s.material_ids + 1), "material_ids"),
     (lambda s: dict(material_ids=s.material_ids.astype(np.int64)), "material_ids"),
-    (lambda s: dict(materials=Materials(albedo=np.array([[np.nan, 0, 0]], np.float32))), "materials.albedo"),
-    (lambda s: dict(materials=Materials(albedo_texture=np.array([0], np.int32))), "materials.albedo_texture"),
-    (lambda s: dict(materials=Materials(emission=np.array([[-1, 0, 0]], np.float32))), "materials.emission"),
+    (lambda s: dict(materials=Materials.diffuse([[np.nan, 0, 0]])), r"materials\[0\] \(unnamed\) DIFFUSE Color"),
+    (lambda s: dict(materials=Materials.diffuse([[0.5, 0.5, 0.5]], albedo_texture=[0])),
+     r"materials\[0\] \(unnamed\) DIFFUSE Color"),
+    (lambda s: dict(materials=Materials.diffuse([[0.5, 0.5, 0.5]], emission=[[-1, 1, 1]])),
+     r"materials\[0\] \(unnamed\) EMISSION Color"),
+    (lambda s: dict(materials=Materials(shaders=())), "materials"),
     (lambda s: dict(textures=(np.zeros((4, 4), np.float32),)), r"textures\[0\]"),
     (lambda s: dict(world=World(hdri=np.zeros((4, 8, 2), np.float32))), "world.hdri"),
     (lambda s: dict(world=World(strength=float("inf"))), "world.strength"),
@@ -170,8 +173,7 @@ def test_textured_material_multiplies_albedo():
     uvs = np.float32([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]])
     tex = np.full((4, 4, 4), 0.5, np.float32)
     scene = make_scene(positions, normals, uvs=uvs, world_color=(1, 1, 1),
-                       materials=Materials(albedo=np.ones((1, 3), np.float32), albedo_texture=np.int32([0]),
-                                           emission=np.zeros((1, 3), np.float32), emission_texture=np.int32([-1])),
+                       materials=Materials.diffuse(np.ones((1, 3), np.float32), albedo_texture=[0]),
                        textures=(tex,), camera=Camera(world_from_camera=look_at((0, -3, 0), (0, 0, 0)),
                                                      width=8, height=8, fov_rad=np.radians(20)))
     img = render(scene, RenderSettings(samples=2, max_bounces=0, mode="COSINE")).image

@@ -31,12 +31,16 @@ def sampler_for(lights=None, positions=None, emission=None, world=None):
                        albedo=[(0.5,) * 3] * m, emission=None if emission is None else [(0,) * 3, emission],
                        world=world or World(color=np.zeros(3, np.float32)), lights=lights or Lights())
     env = Environment(scene.world)
-    table_emission = np.asarray(scene.materials.emission, np.float32)
+    table_emission = np.zeros((m, 3), np.float32) if emission is None else np.float32([(0,) * 3, emission])
 
-    def tri_emission(tri, b1=None, b2=None):
-        return table_emission[scene.material_ids[tri]].T.copy()
+    class Emitters:
+        emissive = table_emission.max(axis=1) > 0
+        varies = np.zeros(m, bool)
 
-    return LightSampler(scene, env, tri_emission, scene_radius=5.0)
+        def __call__(self, tri, b1=None, b2=None, toward=None):
+            return table_emission[scene.material_ids[tri]].T.copy()
+
+    return LightSampler(scene, env, Emitters(), scene_radius=5.0)
 
 
 def uniforms(n=N, seed=0):

@@ -44,11 +44,10 @@ def lights() -> Lights:
 
 def textured(scene):
     tex = np.random.default_rng(3).random((8, 8, 3), dtype=np.float32)
-    m = scene.materials
-    albedo_tex = m.albedo_texture.copy()
-    albedo_tex[0] = 0
-    mats = Materials(albedo=m.albedo, albedo_texture=albedo_tex, emission=m.emission,
-                     emission_texture=m.emission_texture)
+    albedo = [[0.73, 0.73, 0.73], [0.65, 0.05, 0.05], [0.12, 0.45, 0.15], [0.0, 0.0, 0.0], [0.6, 0.6, 0.6]]
+    emission = np.zeros((5, 3), np.float32)
+    emission[3] = 15.0
+    mats = Materials.diffuse(albedo, albedo_texture=[0, -1, -1, -1, -1], emission=emission)
     uvs = np.random.default_rng(4).random(scene.uvs.shape, dtype=np.float32)
     return type(scene)(**{**scene.__dict__, "materials": mats, "textures": (tex,), "texture_srgb": (True,),
                           "uvs": uvs})

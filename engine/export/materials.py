@@ -1,25 +1,27 @@
-"""Materials and images: Blender shader node trees -> rows of kernels.Materials, images -> texture arrays.
+"""Materials and images: Blender shader node trees -> kernel Shaders (closures with their inputs), images ->
+texture arrays.
 
 This module owns the reading of shader node trees (also used by world.py) and of image pixels.
-Cycles is the reference for what a material looks like:
+Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
+and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
+Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Emission, Holdout; Subsurface Scattering
+as diffuse); each closure keeps its inputs and the Mix factors above it, and the kernel builds Cycles'
+closures from them (kernels.shading.nodes).
 
-- Diffuse BSDF: Color -> albedo.
-- Principled BSDF: Base Color -> albedo, rendered as a diffuse surface (its specular layer and roughness
-  are ignored); Emission Color x Emission Strength -> emission. Metallic, Transmission, Coat, Sheen,
-  Subsurface, Alpha < 1 and normal maps are ignored with a warning.
-- Emission: Color x Strength -> emission, on a black surface.
-- Colour inputs: a constant, an RGB node or an Image Texture's Color output, looked up with the mesh's
-  render UV map. Strength inputs: a constant or a Value node.
+- Inputs: a constant, an RGB or Value node, or an Image Texture's Color or Alpha output looked up with
+  the mesh's render UV map. Any other node feeding an input: the socket's own value, with a warning
+  naming the material, the node and the input.
 - Reroutes, muted links, muted nodes and node groups are seen through, as Blender evaluates them.
-- Any other shader node, or any other node feeding a supported input: DEFAULT_ALBEDO grey, with one
-  warning per material naming the nodes.
-- Nothing connected to the Surface (or no output node): black, as in Cycles.
-- Objects without a material: DEFAULT_ALBEDO grey, as Cycles' default surface.
+- Any other shader node: DEFAULT_ALBEDO grey diffuse, with a warning. Nothing connected to the Surface
+  (or no output node): black, as in Cycles. Objects without a material: DEFAULT_ALBEDO grey, as Cycles'
+  default surface. Volume and Displacement outputs: ignored with a warning.
+- Normal inputs (normal and bump maps), coat normals, tangents, thin film: ignored with a warning.
 
 Images: 8-bit images come back from Blender undecoded. Those in an sRGB space are handed to the kernel
 sRGB-encoded and flagged, so it decodes them after filtering as Cycles does (the world's HDRI is decoded
 here); Non-Color and linear ones are used as stored. Float images come back already scene linear. An image
-that cannot be loaded renders MISSING_IMAGE_COLOR, as in Cycles, with a warning naming it.
+that cannot be loaded renders MISSING_IMAGE_COLOR, as in Cycles, with a warning naming it. Alpha is kept
+for images that have it (the Image Texture's Alpha output).
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels import Materials
+from ...kernels.scene import Closure, Param, Shader, diffuse_shader
 from ...kernels.textures import srgb_to_linear
 
 DEFAULT_ALBEDO = 0.8
@@ -35,10 +38,6 @@ MISSING_IMAGE_COLOR = (1.0, 0.0, 1.0)
 BLACK3 = (0.0, 0.0, 0.0)
 WHITE3 = (1.0, 1.0, 1.0)
 GREY3 = (DEFAULT_ALBEDO,) * 3
-
-# Principled BSDF inputs Ember does not render, each with the value at which it has no effect.
-PRINCIPLED_IGNORED = (("Metallic", 0.0), ("Transmission Weight", 0.0), ("Coat Weight", 0.0),
-                      ("Sheen Weight", 0.0), ("Subsurface Weight", 0.0), ("Alpha", 1.0))
 
 # Byte images in these colour spaces (besides data ones such as Non-Color) hold linear values already.
 LINEAR_BYTE_SPACES = ("Linear Rec.709", "scene_linear")
@@ -134,7 +133,8 @@ def float_input(socket, groups: tuple, issues: list[str]) -> float:
 class ImagePixels:
     """An image's pixels as Blender holds them.
 
-    array : (H, W, C) float32, C in {1, 3} (alpha dropped), row 0 at the bottom, finite and non-negative.
+    array : (H, W, C) float32, C in {1, 3, 4} (alpha only where asked for and not all 1), row 0 at the
+        bottom, finite and non-negative.
     srgb : the values are sRGB-encoded (an 8-bit image in an sRGB space); the kernel decodes them after
         filtering, as Cycles does. Otherwise they are linear.
     """
@@ -145,8 +145,9 @@ class ImagePixels:
         return srgb_to_linear(self.array) if self.srgb else self.array
 
 
-def read_image(image, warnings: list[str]) -> ImagePixels | None:
-    """An image's pixels; None (with a warning) when Blender cannot load it."""
+def read_image(image, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
+    """An image's pixels; None (with a warning) when Blender cannot load it. alpha: keep the alpha
+    channel when the image has one that is not 1 everywhere."""
     n = len(image.pixels)  # asking for the pixels loads the image (file, packed or generated)
     width, height = image.size
     if n == 0 or width * height == 0:
@@ -156,10 +157,23 @@ def read_image(image, warnings: list[str]) -> ImagePixels | None:
     flat = np.empty(n, np.float32)
     image.pixels.foreach_get(flat)
     channels = n // (width * height)
-    pixels = flat.reshape(height, width, channels)[:, :, :3 if channels >= 3 else 1]
+    pixels = flat.reshape(height, width, channels)
+    keep_alpha = alpha and channels == 4 and image.alpha_mode != "NONE" and bool(np.any(pixels[:, :, 3] < 1.0))
+    pixels = pixels[:, :, :4 if keep_alpha else 3 if channels >= 3 else 1]
+    if keep_alpha and _associates_alpha(image) and not image.is_float:
+        # Cycles stores colour associated with alpha; Blender's float buffers already are, byte images
+        # with straight alpha are associated here (in their stored encoding, as Cycles' loader does).
+        pixels = pixels.copy()
+        pixels[:, :, :3] *= pixels[:, :, 3:4]
     if image.is_float:  # float files (EXR, HDR) may hold negative or non-finite values; light cannot
         return ImagePixels(np.where(np.isfinite(pixels) & (pixels > 0), pixels, np.float32(0)), False)
     return ImagePixels(np.ascontiguousarray(pixels), _is_srgb(image, warnings))
+
+
+def _associates_alpha(image) -> bool:
+    """Whether Cycles stores this image's colour premultiplied by its alpha (not for data, channel-packed
+    or ignored alpha), and the image holds it straight."""
+    return not image.colorspace_settings.is_data and image.alpha_mode == "STRAIGHT"
 
 
 def _is_srgb(image, warnings: list[str]) -> bool:
@@ -185,7 +199,7 @@ class ImageTextures:
         """The image's texture index, None when it cannot be loaded."""
         key = image.name_full
         if key not in self._index:
-            pixels = read_image(image, self._warnings)
+            pixels = read_image(image, self._warnings, alpha=True)
             self._index[key] = None if pixels is None else len(self.loaded)
             if pixels is not None:
                 self.loaded.append(pixels)
@@ -194,17 +208,35 @@ class ImageTextures:
 
 # ---- Materials --------------------------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class Surface:
-    """One row of the material table: a diffuse albedo and an emission, each optionally textured."""
-    albedo: tuple = GREY3
-    albedo_texture: int = -1
-    emission: tuple = BLACK3
-    emission_texture: int = -1
-
-
-DEFAULT_SURFACE = Surface()
-BLACK_SURFACE = Surface(albedo=BLACK3)
+# Shader nodes Ember renders -> kernel closure kinds, with the inputs it reads (Blender 5.0 names).
+CLOSURE_NODES = {
+    "ShaderNodeBsdfPrincipled": ("PRINCIPLED", (
+        "Base Color", "Metallic", "Roughness", "IOR", "Alpha", "Diffuse Roughness", "Subsurface Weight",
+        "Specular IOR Level", "Specular Tint", "Anisotropic", "Anisotropic Rotation", "Transmission Weight",
+        "Coat Weight", "Coat Roughness", "Coat IOR", "Coat Tint", "Sheen Weight", "Sheen Roughness", "Sheen Tint",
+        "Emission Color", "Emission Strength")),
+    "ShaderNodeBsdfDiffuse": ("DIFFUSE", ("Color", "Roughness")),
+    "ShaderNodeBsdfAnisotropic": ("GLOSSY", ("Color", "Roughness", "Anisotropy", "Rotation")),
+    "ShaderNodeBsdfGlass": ("GLASS", ("Color", "Roughness", "IOR")),
+    "ShaderNodeBsdfRefraction": ("REFRACTION", ("Color", "Roughness", "IOR")),
+    "ShaderNodeBsdfMetallic": ("METALLIC", ("Base Color", "Edge Tint", "IOR", "Extinction", "Roughness",
+                                            "Anisotropy", "Rotation")),
+    "ShaderNodeBsdfSheen": ("SHEEN", ("Color", "Roughness")),
+    "ShaderNodeBsdfTranslucent": ("TRANSLUCENT", ("Color",)),
+    "ShaderNodeBsdfTransparent": ("TRANSPARENT", ("Color",)),
+    "ShaderNodeEmission": ("EMISSION", ("Color", "Strength")),
+    "ShaderNodeHoldout": ("HOLDOUT", ()),
+    # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
+    "ShaderNodeSubsurfaceScattering": ("DIFFUSE", ("Color",)),
+}
+# Inputs Ember does not render yet, each with the value at which it has no effect.
+UNSUPPORTED_INPUTS = {
+    "PRINCIPLED": (("Thin Film Thickness", 0.0),),
+    "GLASS": (("Thin Film Thickness", 0.0),),
+    "METALLIC": (("Thin Film Thickness", 0.0),),
+}
+# Distributions Ember renders as GGX (Beckmann and Ashikhmin-Shirley differ slightly in their highlights).
+GGX_ONLY = ("BECKMANN", "ASHIKHMIN_SHIRLEY")
 
 
 class MaterialTable:
@@ -213,7 +245,7 @@ class MaterialTable:
     def __init__(self, warnings: list[str]):
         self.images = ImageTextures(warnings)
         self._warnings = warnings
-        self._rows: list[Surface] = [DEFAULT_SURFACE]
+        self._rows: list[Shader] = [diffuse_shader(GREY3, name="default surface")]
         self._ids: dict[str, int] = {}
 
     def material_id(self, material) -> int:
@@ -241,89 +273,112 @@ class MaterialTable:
         return tuple(image.srgb for image in self.images.loaded)
 
     def to_kernel(self) -> Materials:
-        rows = self._rows
-        return Materials(
-            albedo=np.array([r.albedo for r in rows], np.float32).reshape(-1, 3),
-            albedo_texture=np.array([r.albedo_texture for r in rows], np.int32),
-            emission=np.array([r.emission for r in rows], np.float32).reshape(-1, 3),
-            emission_texture=np.array([r.emission_texture for r in rows], np.int32))
+        return Materials(tuple(self._rows))
 
 
-def read_material(material, images: ImageTextures, warnings: list[str]) -> Surface:
-    """One material's row. Everything Ember cannot render goes into a single warning line."""
+def read_material(material, images: ImageTextures, warnings: list[str]) -> Shader:
+    """One material's shader. Everything Ember cannot render goes into a single warning line."""
     reader = _MaterialReader(images)
     tree = material.node_tree
     if tree is None:  # a material without nodes renders its viewport colour, as in Cycles
-        surface = Surface(albedo=_albedo(material.diffuse_color))
-    else:
-        out = output_node(tree)
-        surface = BLACK_SURFACE if out is None else reader.shader(source_of(out.inputs["Surface"]))
+        return diffuse_shader(rgb(material.diffuse_color), name=material.name)
+    out = output_node(tree)
+    closures = () if out is None else tuple(reader.closures(source_of(out.inputs["Surface"]), ()))
+    if out is not None:
+        for name in ("Volume", "Displacement"):
+            socket = out.inputs.get(name)
+            if socket is not None and source_of(socket).node is not None:
+                reader.issues.append(f"{name} output is not supported, ignored")
     if reader.issues:
         warnings.append(f"Material '{material.name}': " + "; ".join(dict.fromkeys(reader.issues)))
-    return surface
-
-
-def _albedo(value) -> tuple:
-    # A surface cannot reflect more light than it receives.
-    return tuple(min(c, 1.0) for c in rgb(value))
+    return Shader(closures, material.name)
 
 
 class _MaterialReader:
-    """Reads one material's node tree, collecting what it cannot render in `issues`."""
+    """Reads one material's node tree into closures, collecting what it cannot render in `issues`."""
 
     def __init__(self, images: ImageTextures):
         self.images = images
         self.issues: list[str] = []
 
-    def shader(self, source: Source) -> Surface:
-        if source.node is None:  # nothing connected: Cycles renders black
-            return BLACK_SURFACE
-        read = {"ShaderNodeBsdfDiffuse": self.diffuse,
-                "ShaderNodeBsdfPrincipled": self.principled,
-                "ShaderNodeEmission": self.emission_shader}.get(source.kind)
-        if read is None:
-            self.issues.append(f"{source.node.bl_label} is not supported, rendered grey ({DEFAULT_ALBEDO})")
-            return DEFAULT_SURFACE
-        return read(source.node, source.groups)
+    def closures(self, source: Source, factors: tuple) -> list[Closure]:
+        """The closures of the shader tree feeding a shader socket, with their Mix Shader factors."""
+        node, groups = source.node, source.groups
+        if node is None:  # nothing connected: Cycles renders black
+            return []
+        kind = source.kind
+        if kind == "ShaderNodeMixShader":
+            fac = self.param(node.inputs[0], groups, 1, node)
+            first, second = (source_of(node.inputs[i], groups) for i in (1, 2))
+            out = []
+            if fac.texture >= 0 or fac.value[0] < 1.0:
+                out += self.closures(first, factors + ((fac, False),))
+            if fac.texture >= 0 or fac.value[0] > 0.0:
+                out += self.closures(second, factors + ((fac, True),))
+            return out
+        if kind == "ShaderNodeAddShader":
+            return [c for i in (0, 1) for c in self.closures(source_of(node.inputs[i], groups), factors)]
+        if kind not in CLOSURE_NODES:
+            self.issues.append(f"{node.bl_label} '{node.name}' is not supported, rendered grey ({DEFAULT_ALBEDO})")
+            return [Closure("DIFFUSE", (("Color", Param.of(GREY3)),), (), factors)]
+        closure_kind, names = CLOSURE_NODES[kind]
+        sockets = {s.identifier: s for s in node.inputs}  # unavailable sockets are not found by name
+        inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
+        self.check_unsupported(node, closure_kind, groups)
+        return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
 
-    def diffuse(self, node, groups) -> Surface:
-        albedo, texture = self.color(node.inputs["Color"], groups)
-        self.check_normal(node, groups)
-        return Surface(_albedo(albedo), texture)
+    def options(self, node, kind: str) -> tuple:
+        options = []
+        distribution = getattr(node, "distribution", None)
+        if distribution is not None:
+            if distribution in GGX_ONLY and kind != "REFRACTION":
+                self.issues.append(f"{node.bl_label} '{node.name}': {distribution.title()} distribution "
+                                   f"rendered as GGX")
+            options.append(("distribution", "GGX" if distribution in GGX_ONLY else distribution))
+        if kind == "METALLIC":
+            options.append(("fresnel", node.fresnel_type))
+        return tuple(options)
 
-    def principled(self, node, groups) -> Surface:
-        albedo, texture = self.color(node.inputs["Base Color"], groups)
-        ignored = [name for name, neutral in PRINCIPLED_IGNORED
-                   if self.is_set(node.inputs[name], neutral, groups)]
-        if ignored:
-            self.issues.append(f"Principled BSDF {', '.join(ignored)} not supported, rendered as diffuse "
-                               f"Base Color")
-        self.check_normal(node, groups)
-        emission, emission_texture = self.emission(node.inputs["Emission Color"],
-                                                   node.inputs["Emission Strength"], groups)
-        return Surface(_albedo(albedo), texture, emission, emission_texture)
+    def check_unsupported(self, node, kind: str, groups) -> None:
+        label = f"{node.bl_label} '{node.name}'"
+        for name in ("Normal", "Coat Normal", "Tangent"):
+            socket = node.inputs.get(name)
+            if socket is not None and source_of(socket, groups).node is not None:
+                self.issues.append(f"{label} {name} input (normal/bump maps, tangents) is not supported, ignored")
+        for name, neutral in UNSUPPORTED_INPUTS.get(kind, ()):
+            if self.is_set(node.inputs[name], neutral, groups):
+                self.issues.append(f"{label} {name} is not supported, ignored")
+        if node.bl_idname == "ShaderNodeSubsurfaceScattering" or (
+                kind == "PRINCIPLED" and self.is_set(node.inputs["Subsurface Weight"], 0.0, groups)):
+            self.issues.append(f"{label} subsurface scattering is rendered as diffuse")
+        if kind == "SHEEN" and node.distribution != "MICROFIBER":
+            self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
+        if kind == "REFRACTION" and node.distribution == "BECKMANN" and self.is_set(node.inputs["Roughness"], 0.0,
+                                                                                      groups):
+            self.issues.append(f"{label} Beckmann distribution rendered as GGX")
+        aniso = {"PRINCIPLED": "Anisotropic", "GLOSSY": "Anisotropy", "METALLIC": "Anisotropy"}.get(kind)
+        if aniso and self.is_set(node.inputs[aniso], 0.0, groups):
+            self.issues.append(f"{label} {aniso}: Ember's tangent is arbitrary, not Cycles' radial default "
+                               f"or the UV map's")
 
-    def emission_shader(self, node, groups) -> Surface:
-        emission, texture = self.emission(node.inputs["Color"], node.inputs["Strength"], groups)
-        return Surface(BLACK3, -1, emission, texture)
-
-    def emission(self, color_socket, strength_socket, groups) -> tuple[tuple, int]:
-        strength = float_input(strength_socket, groups, self.issues)
-        if not strength > 0.0:  # also catches NaN; an unlit emission needs no texture
-            return BLACK3, -1
-        color, texture = self.color(color_socket, groups)
-        return tuple(c * strength for c in color), texture
-
-    def color(self, socket, groups) -> tuple[tuple, int]:
-        """(rgb, texture index): a constant colour, or white times a texture."""
+    def param(self, socket, groups, channels: int, node) -> Param:
+        """An input as a constant, or a constant times an Image Texture's Color or Alpha."""
         source = source_of(socket, groups)
-        if source.node is None or source.kind == "ShaderNodeRGB":
-            return rgb(source.socket.default_value), -1
-        if source.kind == "ShaderNodeTexImage" and source.socket.identifier == "Color":
-            return self.image_texture(source.node, source.groups)
-        self.issues.append(f"{source.node.bl_label} node feeding {socket.name} is not supported, "
-                           f"used grey ({DEFAULT_ALBEDO})")
-        return GREY3, -1
+        if source.node is None or source.kind in ("ShaderNodeRGB", "ShaderNodeValue"):
+            return Param.of(_socket_value(source.socket, channels))
+        if source.kind == "ShaderNodeTexImage":
+            color = source.socket.identifier == "Color"
+            value, texture = self.image_texture(source.node, source.groups)
+            # Cycles unassociates the colour when the node's Alpha output is used.
+            image = source.node.image
+            unassociate = (color and source.node.outputs["Alpha"].is_linked and image is not None
+                           and not image.colorspace_settings.is_data
+                           and image.alpha_mode not in ("CHANNEL_PACKED", "NONE"))
+            return Param.of(value if color or texture < 0 else (1.0,), texture, alpha=not color,
+                            unassociate=unassociate)
+        self.issues.append(f"{source.node.bl_label} node feeding {socket.name} of {node.bl_label} '{node.name}' "
+                           f"is not supported, used {socket.name}'s own value")
+        return Param.of(_socket_value(socket, channels))
 
     def image_texture(self, node, groups) -> tuple[tuple, int]:
         self.check_uv(node, groups)
@@ -345,10 +400,19 @@ class _MaterialReader:
             self.issues.append(f"Image Texture '{node.name}': coordinates from {vector.node.bl_label} are "
                                f"not supported, used the render UV map")
 
-    def check_normal(self, node, groups) -> None:
-        if source_of(node.inputs["Normal"], groups).node is not None:
-            self.issues.append(f"{node.bl_label} Normal input (normal/bump maps) not supported")
-
     def is_set(self, socket, neutral: float, groups) -> bool:
         source = source_of(socket, groups)
         return source.node is not None or float(source.socket.default_value) != neutral
+
+
+def _channels(socket) -> int:
+    return 1 if socket.type == "VALUE" else 3
+
+
+def _socket_value(socket, channels: int) -> tuple:
+    """A socket's value: finite floats, colours without alpha."""
+    value = socket.default_value
+    values = np.atleast_1d(np.nan_to_num(np.asarray(value[:3] if hasattr(value, "__len__") else value, np.float64)))
+    if channels == 1:
+        return (float(values[0]),) if len(values) == 1 else (float(np.dot(values[:3], (0.2126, 0.7152, 0.0722))),)
+    return tuple(float(v) for v in (values if len(values) == 3 else np.repeat(values[:1], 3)))

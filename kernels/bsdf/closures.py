@@ -1,0 +1,385 @@
+"""The closure mixture of a wave's hits: every BSDF closure of every hit in one flat table, evaluated and
+sampled as one weighted sum per hit, the way Cycles does (`kernel/integrator/surface_shader.h`).
+
+A hit's material makes a few closures, each with an RGB weight and a scalar sample weight (the mean of
+its weight, times an albedo estimate for microfacet lobes). Then, per hit:
+
+    f(wi)   = sum_j weight_j * f_j(wi) |cos|                (delta lobes contribute nothing)
+    pdf(wi) = sum_j sample_weight_j * pdf_j(wi) / sum_j sample_weight_j
+
+Sampling picks one closure in proportion to its sample weight. A delta closure (a mirror, smooth glass,
+transparency) gives its own direction with weight weight_j * w_j / P(j) and pdf = inf (nothing else can
+find that direction). Otherwise the chosen lobe proposes the direction and the whole mixture is evaluated
+there: weight = f / pdf, one-sample MIS over the lobes (balance heuristic), as Cycles does.
+
+The table is sorted by hit; lobes of one kind are evaluated together, in their local frames (z along the
+closure's own normal: shading, coat or bump-mapped; x along its tangent for anisotropic lobes).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import sampling
+from . import diffuse, sheen
+
+# Lobe ids. DELTA_LOBES are singular: found only by sampling them.
+LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS = range(8)
+LOBE_NAMES = ("lambert", "oren_nayar", "translucent", "sheen", "transparent", "reflection", "refraction", "glass")
+# Cycles drops closures whose sample weight is below this (`CLOSURE_WEIGHT_CUTOFF`).
+WEIGHT_CUTOFF = np.float32(1e-5)
+
+F32 = np.float32
+ZERO, ONE = F32(0.0), F32(1.0)
+
+# Per-closure parameter columns and their defaults: scalars (C,) and colours (3, C).
+_SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0}
+_COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0}
+
+
+class ClosureBuilder:
+    """Collects the closures of a wave's hits; finish() makes the ClosureSet."""
+
+    def __init__(self, n_hits: int, ns, wo):
+        self.n_hits = n_hits
+        self.ns = ns   # the hits' shading normals, the default closure normal
+        self.wo = wo   # toward the viewer, per hit
+        self._chunks: list[dict] = []
+
+    def add(self, lobe: int, hits: np.ndarray, weight: np.ndarray, sample_weight=None, normal=None,
+            tangent=None, **params) -> None:
+        """Closures of one lobe at hits (n,) int with weight (3, n). sample_weight defaults to the
+        mean of the weight; normal to the shading normal; tangent to an arbitrary one. params: the
+        scalar and colour columns above, arrays of (n,) / (3, n) or constants."""
+        n = len(hits)
+        if n == 0:
+            return
+        unknown = set(params) - set(_SCALARS) - set(_COLOURS)
+        if unknown:
+            raise TypeError(f"unknown closure parameters {sorted(unknown)}")
+        weight = np.broadcast_to(np.asarray(weight, F32), (3, n))
+        sw = np.abs(weight.mean(axis=0)) if sample_weight is None else np.broadcast_to(
+            np.asarray(sample_weight, F32), (n,))
+        keep = sw >= WEIGHT_CUTOFF
+        if keep.all():
+            keep = slice(None)
+        elif not keep.any():
+            return
+        else:
+            keep = np.flatnonzero(keep)
+        chunk = {"hit": np.asarray(hits)[keep], "lobe": lobe, "weight": weight[:, keep],
+                 "sw": np.asarray(sw[keep], F32)}
+        chunk["n"] = None if normal is None else np.stack([np.broadcast_to(c, (n,))[keep] for c in normal])
+        chunk["t"] = None if tangent is None else np.stack([np.broadcast_to(c, (n,))[keep] for c in tangent])
+        for name, value in params.items():
+            shape = (3, n) if name in _COLOURS else (n,)
+            chunk[name] = np.broadcast_to(np.asarray(value, F32), shape)[..., keep]
+        self._chunks.append(chunk)
+
+    def finish(self) -> "ClosureSet":
+        return ClosureSet(self.n_hits, self._chunks, self.ns, self.wo)
+
+
+class ClosureSet:
+    """C closures over N hits. See the module docstring for the mixture.
+
+    When every hit has exactly one closure (a diffuse scene, a single BSDF node per material) the table
+    stays in build order and row_of_hit maps hits to rows; otherwise it is sorted by hit, and start
+    gives each hit's first row."""
+
+    def __init__(self, n_hits: int, chunks: list[dict], ns, wo):
+        self.n_hits = n_hits
+        hit = np.concatenate([c["hit"] for c in chunks]) if chunks else np.zeros(0, np.int64)
+        c = len(hit)
+        count = np.bincount(hit, minlength=n_hits)
+        self.single = c == n_hits and (c == 0 or count.max() == 1)
+        order = None if self.single else np.argsort(hit, kind="stable")
+        cat = (lambda parts: _concat(parts, order))  # noqa: E731
+        self.hit = hit if order is None else hit[order]
+        self.lobe = cat([np.full(len(ch["hit"]), ch["lobe"], np.int8) for ch in chunks]) if chunks else \
+            np.zeros(0, np.int8)
+        self.weight = cat([ch["weight"] for ch in chunks]) if chunks else np.zeros((3, 0), F32)
+        self.sw = cat([ch["sw"] for ch in chunks]) if chunks else np.zeros(0, F32)
+        for name, default in (*_SCALARS.items(), *_COLOURS.items()):
+            shape = (3,) if name in _COLOURS else ()
+            if any(name in ch for ch in chunks):
+                parts = [ch[name] if name in ch else
+                         np.full(shape + (len(ch["hit"]),), default, F32) for ch in chunks]
+                setattr(self, name, cat(parts))
+            else:
+                setattr(self, name, np.broadcast_to(F32(default), shape + (c,)))
+        if any(ch["n"] is not None for ch in chunks):
+            normal = cat([ch["n"] if ch["n"] is not None else np.stack([np.take(a, ch["hit"]) for a in ns])
+                          for ch in chunks])
+        else:
+            normal = np.stack([np.take(a, self.hit) for a in ns]) if c else np.zeros((3, 0), F32)
+        tangent = cat([ch["t"] if ch["t"] is not None else np.full((3, len(ch["hit"])), np.nan, F32)
+                       for ch in chunks]) if any(ch["t"] is not None for ch in chunks) else None
+        if self.single:
+            self.total_sw = np.zeros(n_hits, F32)
+            self.total_sw[self.hit] = self.sw
+            self.row_of_hit = np.empty(n_hits, np.int64)
+            self.row_of_hit[self.hit] = np.arange(c)
+        else:
+            self.total_sw = np.bincount(self.hit, self.sw, minlength=n_hits).astype(F32)
+            self.start = np.searchsorted(self.hit, np.arange(n_hits))
+            self.count = count
+        self.frame = _frames(normal.astype(F32), tangent)
+        self.wo = _to_local(self.frame, tuple(np.take(a, self.hit) for a in wo))
+        self.kinds = [int(k) for k in np.unique(self.lobe)]
+        self.delta = self._delta_mask()
+
+    def __len__(self) -> int:
+        return len(self.hit)
+
+    def _delta_mask(self) -> np.ndarray:
+        delta = self.lobe == TRANSPARENT
+        singular = [k for k in (REFLECTION, REFRACTION, GLASS) if k in self.kinds]
+        if singular:
+            micro = np.isin(self.lobe, singular)
+            delta |= micro & _is_singular(self.ax, self.ay)
+        return delta
+
+    # ---------------------------------------------------------------- evaluation
+    def _eval_closures(self, wi_world, idx):
+        """f |cos| (3, n) times the closure weight, and pdf (n,), of closures idx at wi_world (n,)."""
+        wi = _to_local(tuple(c[:, idx] for c in self.frame), wi_world)
+        if len(self.kinds) == 1:
+            return self._eval_lobe(self.kinds[0], idx, wi)
+        f = np.zeros((3, len(idx)), F32)
+        pdf = np.zeros(len(idx), F32)
+        lobe = self.lobe[idx]
+        for k in self.kinds:
+            sel = np.flatnonzero(lobe == k)
+            if len(sel):
+                f[:, sel], pdf[sel] = self._eval_lobe(k, idx[sel], _pick(wi, sel))
+        return f, pdf
+
+    def _eval_lobe(self, k, rows, wi):
+        if k == TRANSPARENT:
+            return np.zeros((3, len(rows)), F32), np.zeros(len(rows), F32)
+        value, pdf = EVAL[k](self, rows, _pick(self.wo, rows), wi)
+        f = value * self.weight[:, rows]
+        if k in (REFLECTION, REFRACTION, GLASS):
+            live = ~self.delta[rows]
+            f, pdf = np.where(live, f, ZERO), np.where(live, pdf, ZERO)
+        return f, pdf
+
+    # ---------------------------------------------------------------- sampling
+    def choose(self, u: np.ndarray) -> np.ndarray:
+        """One closure per hit, in proportion to the sample weights: (N,) row, -1 where a hit has none."""
+        if self.single:
+            return np.where(self.total_sw > 0, self.row_of_hit, -1)
+        cum = np.cumsum(self.sw, dtype=np.float64)
+        before = np.where(self.start > 0, cum[np.maximum(self.start - 1, 0)], 0.0) if len(cum) else \
+            np.zeros(self.n_hits)
+        target = before + u.astype(np.float64) * self.total_sw
+        row = np.searchsorted(cum, target, side="right") if len(cum) else np.zeros(self.n_hits, np.int64)
+        row = np.clip(row, self.start, self.start + self.count - 1)
+        return np.where((self.count > 0) & (self.total_sw > 0), row, -1)
+
+    def sample(self, u_lobe, u1, u2, uc, warp=None) -> "BsdfSample":
+        """Pick a closure per hit by u_lobe and sample the mixture (module docstring); uc is the glass
+        lobes' reflect-or-refract number.
+
+        warp(hits, u1, u2) -> (wi world, pdf): the reference estimators' direction sampler (LECTURE and
+        COSINE). With it, only delta closures are sampled by their lobe; when a non-delta closure is
+        picked the warp proposes the direction and the weight is the non-delta mixture / (pdf x the
+        probability of having picked a non-delta closure)."""
+        n = self.n_hits
+        out = BsdfSample(n)
+        row = self.choose(u_lobe)
+        has = np.flatnonzero(row >= 0)
+        if not len(has):
+            return out
+        rows = row[has]
+        if warp is not None:
+            picked = self.delta[rows]
+            self._sample_lobes(out, has[picked], rows[picked], u1, u2, uc)
+            self._sample_warp(out, has[~picked], warp, u1, u2)
+        else:
+            self._sample_lobes(out, has, rows, u1, u2, uc)
+            out.delta[has] = self.delta[rows] | np.isinf(out.pdf[has])
+            # Otherwise: the whole (non-delta) mixture at the sampled direction.
+            s = np.flatnonzero(~out.delta & (out.pdf > 0))
+            if len(s):
+                f, pdf = self.eval_at(s, tuple(c[s] for c in out.wi))
+                good = pdf > 0
+                out.weight[:, s] = np.where(good, f / np.where(good, pdf, ONE), ZERO)
+                out.pdf[s] = pdf
+        # Delta: the chosen closure alone, divided by the probability of choosing it.
+        d = np.flatnonzero(out.delta & (out.pdf > 0))
+        if len(d):
+            r = row[d]
+            out.weight[:, d] *= self.weight[:, r] * (self.total_sw[d] / self.sw[r])
+            out.pdf[d] = np.inf
+        out.weight[:, ~(out.pdf > 0)] = 0.0
+        return out
+
+    def _sample_lobes(self, out, hits, rows, u1, u2, uc):
+        """Each hit's chosen closure samples its own lobe: direction, lobe weight, lobe pdf."""
+        lobe = self.lobe[rows]
+        for k in np.unique(lobe):
+            sel = np.flatnonzero(lobe == k)
+            r, h = rows[sel], hits[sel]
+            wi, weight, pdf, transmit = SAMPLE[k](self, r, _pick(self.wo, r), u1[h], u2[h], uc[h])
+            world = _to_world(tuple(c[:, r] for c in self.frame), wi)
+            for axis in range(3):
+                out.wi[axis][h] = world[axis]
+            out.weight[:, h] = weight
+            out.pdf[h] = pdf
+            out.transmit[h] = transmit
+            out.delta[h] = self.delta[r] | np.isinf(pdf)
+            out.transparent[h] = k == TRANSPARENT
+
+    def _sample_warp(self, out, hits, warp, u1, u2):
+        if not len(hits):
+            return
+        wi, pdf = warp(hits, u1[hits], u2[hits])
+        f, _ = self.eval_at(hits, wi)
+        if self.single:
+            share = np.ones(len(hits), F32)
+        else:
+            smooth = np.bincount(self.hit, self.sw * ~self.delta, minlength=self.n_hits)[hits]
+            share = (smooth / self.total_sw[hits]).astype(F32)
+        good = (pdf > 0) & (share > 0)
+        denom = np.where(good, pdf * share, ONE)
+        for axis in range(3):
+            out.wi[axis][hits] = wi[axis]
+        out.weight[:, hits] = np.where(good, f / denom, ZERO)
+        out.pdf[hits] = np.where(good, pdf, ZERO)
+
+    def eval_at(self, hits: np.ndarray, wi) -> tuple[np.ndarray, np.ndarray]:
+        """The mixture of the hits `hits` (ascending, unique) at their world directions wi (n,).
+        Returns f |cos| (3, n) and pdf (n,)."""
+        if self.single:
+            return self._eval_closures(wi, self.row_of_hit[hits])
+        count = self.count[hits]
+        idx = np.repeat(self.start[hits], count) + _ranges(count)
+        local = np.repeat(np.arange(len(hits)), count)
+        f_c, pdf_c = self._eval_closures(tuple(np.take(c, local) for c in wi), idx)
+        f = np.stack([np.bincount(local, f_c[k], minlength=len(hits)) for k in range(3)]).astype(F32)
+        total = self.total_sw[hits]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pdf = np.bincount(local, pdf_c * self.sw[idx], minlength=len(hits)) / total
+        return f, np.where(total > 0, pdf, 0.0).astype(F32)
+
+
+class BsdfSample:
+    """Per hit: direction wi (world), throughput weight (3, N), pdf (N,) for MIS (inf for delta),
+    delta, transmit (wi goes through the surface) and transparent (a pass-through) masks."""
+    __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent")
+
+    def __init__(self, n: int):
+        self.wi = (np.zeros(n, F32), np.zeros(n, F32), np.ones(n, F32))
+        self.weight = np.zeros((3, n), F32)
+        self.pdf = np.zeros(n, F32)
+        self.delta = np.zeros(n, bool)
+        self.transmit = np.zeros(n, bool)
+        self.transparent = np.zeros(n, bool)
+
+
+# ---------------------------------------------------------------- lobes: eval(cs, rows, wo, wi) -> (f_cos, pdf)
+# and sample(cs, rows, wo, u1, u2, uc) -> (wi, weight, pdf, transmit); local frames; weight = f_cos / pdf.
+def _lambert_eval(cs, rows, wo, wi):
+    return diffuse.lambert_eval(wo, wi)
+
+
+def _lambert_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = diffuse.lambert_sample(wo, u1, u2)
+    return wi, weight, pdf, False
+
+
+def _oren_nayar_eval(cs, rows, wo, wi):
+    return diffuse.oren_nayar_eval(wo, wi, cs.rough[rows], cs.c0[:, rows])
+
+
+def _oren_nayar_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = diffuse.oren_nayar_sample(wo, cs.rough[rows], cs.c0[:, rows], u1, u2)
+    return wi, weight, pdf, False
+
+
+def _translucent_eval(cs, rows, wo, wi):
+    return diffuse.translucent_eval(wo, wi)
+
+
+def _translucent_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = diffuse.translucent_sample(wo, u1, u2)
+    return wi, weight, pdf, True
+
+
+def _sheen_eval(cs, rows, wo, wi):
+    return sheen.sheen_eval(wo, wi, cs.rough[rows])
+
+
+def _sheen_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = sheen.sheen_sample(wo, cs.rough[rows], u1, u2)
+    return wi, weight, pdf, False
+
+
+def _transparent_sample(cs, rows, wo, u1, u2, uc):
+    wi = (-wo[0], -wo[1], -wo[2])
+    n = len(rows)
+    return wi, np.ones(n, F32), np.ones(n, F32), True
+
+
+EVAL = {LAMBERT: _lambert_eval, OREN_NAYAR: _oren_nayar_eval, TRANSLUCENT: _translucent_eval, SHEEN: _sheen_eval}
+SAMPLE = {LAMBERT: _lambert_sample, OREN_NAYAR: _oren_nayar_sample, TRANSLUCENT: _translucent_sample,
+          SHEEN: _sheen_sample, TRANSPARENT: _transparent_sample}
+
+
+def register_lobe(lobe: int, eval_fn, sample_fn) -> None:
+    """Add a lobe family's eval and sample (the microfacet module registers its own)."""
+    EVAL[lobe] = eval_fn
+    SAMPLE[lobe] = sample_fn
+
+
+# ---------------------------------------------------------------- frames
+def _is_singular(ax, ay):
+    """Cycles treats a microfacet lobe with alpha_x * alpha_y <= 2e-10 as perfectly smooth."""
+    return ax * ay <= F32(2e-10)
+
+
+def _frames(n: np.ndarray, t: np.ndarray | None):
+    """(tangent, bitangent, normal) rows, each (3, C): t orthogonalised against n, or an arbitrary
+    frame where no tangent was given (t None, or NaN rows)."""
+    nx, ny, nz = n
+    tx, ty, tz, bx, by, bz = sampling.orthonormal_basis(nx, ny, nz)
+    given = np.isfinite(t[0]) if t is not None else None
+    if given is not None and given.any():
+        d = t[0] * nx + t[1] * ny + t[2] * nz
+        gx, gy, gz = t[0] - d * nx, t[1] - d * ny, t[2] - d * nz
+        length = np.sqrt(gx * gx + gy * gy + gz * gz)
+        ok = given & (length > F32(1e-8))
+        inv = np.where(ok, ONE / np.where(ok, length, ONE), ZERO)
+        tx, ty, tz = (np.where(ok, g * inv, a) for g, a in ((gx, tx), (gy, ty), (gz, tz)))
+        bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+    return np.stack([tx, ty, tz]), np.stack([bx, by, bz]), np.stack([nx, ny, nz])
+
+
+def _to_local(frame, w):
+    t, b, n = frame
+    return tuple((w[0] * a[0] + w[1] * a[1] + w[2] * a[2]).astype(F32) for a in (t, b, n))
+
+
+def _to_world(frame, w):
+    t, b, n = frame
+    return tuple((w[0] * t[k] + w[1] * b[k] + w[2] * n[k]).astype(F32) for k in range(3))
+
+
+def _pick(w, idx):
+    return tuple(np.take(c, idx) for c in w)
+
+
+def _concat(parts, order):
+    axis = parts[0].ndim - 1
+    joined = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=axis)
+    return joined if order is None else np.take(joined, order, axis=axis)
+
+
+def _ranges(count: np.ndarray) -> np.ndarray:
+    """0..count[i]-1 for every i, concatenated."""
+    total = int(count.sum())
+    if total == 0:
+        return np.zeros(0, np.int64)
+    offsets = np.repeat(np.cumsum(count) - count, count)
+    return np.arange(total) - offsets

@@ -1,0 +1,208 @@
+"""Microfacet closures in the mixture: how Cycles sets up its GGX closures (`bsdf_microfacet_setup_fresnel_*`,
+`microfacet_ggx_preserve_energy` in `kernel/closure/bsdf_microfacet.h`) and how the closure table
+evaluates and samples them.
+
+A microfacet closure carries alpha_x, alpha_y, eta (far side over the viewer's side), its Fresnel mode and
+up to three colour parameters:
+
+    F_ONE        F = 1 (Glossy: its colour is in the weight)
+    F_DIELECTRIC exact dielectric Fresnel at eta (the Principled coat)
+    F_F82        c0 = F0, c1 = b of F82-tint (Principled metal, Metallic BSDF)
+    F_CONDUCTOR  c0 = n, c1 = k (Metallic BSDF, physical conductor)
+    F_REMAP      c0 = F0, c1 = reflection tint, c2 = transmission tint, F90 = 1 (Principled specular and
+                 transmission, Glass): the exact curve remapped onto [F0, 1]
+
+Setup, as Cycles: the sample weight is mean(weight) x mean(estimated albedo); with multiscatter GGX, eval
+is scaled by 1/E (`eval_scale`) and the weight (and sample weight) by E + Fms (1 - E).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import closures as lobes
+from . import fresnel as fr
+from . import microfacet as mf
+
+F32 = np.float32
+ZERO, ONE = F32(0.0), F32(1.0)
+F_ONE, F_DIELECTRIC, F_F82, F_CONDUCTOR, F_REMAP = range(5)
+
+principled_anisotropy = mf.principled_anisotropy
+glossy_anisotropy = mf.glossy_anisotropy
+ior_from_f0 = fr.ior_from_f0
+
+
+# ---------------------------------------------------------------- setup (called by kernels.shading.nodes)
+def add_glossy(b, ctx, color, w, ax, ay, multiscatter: bool, sub=None):
+    """Glossy BSDF: GGX reflection with F = 1, weight colour x mix weight."""
+    hits, normal, mu = _where(ctx, sub)
+    weight = color * w
+    sw = np.abs(weight.mean(axis=0))
+    eval_scale = ONE
+    if multiscatter:
+        eval_scale, factor = mf.multiscatter_reflection(ax, ay, mu, fss=color)
+        weight = weight * factor
+        sw = sw * factor.mean(axis=0)
+    b.add(lobes.REFLECTION, hits, weight, sample_weight=sw, normal=normal, ax=ax, ay=ay, eval_scale=eval_scale,
+          fresnel=F_ONE)
+
+
+def add_f82(b, ctx, weight, ax, ay, f0, tint, multiscatter: bool, sub=None):
+    """F82-tint conductor (Principled metal with F0 = base colour and tint = specular tint; Metallic BSDF)."""
+    hits, normal, mu = _where(ctx, sub)
+    b_term = np.where(np.all(tint == ONE, axis=0), ZERO, fr.f82_tint_b(f0, tint))
+    albedo = mf.albedo_f82(ax, ay, mu, f0, b_term)
+    fss = fr.f82_fss(f0, b_term) if multiscatter else None
+    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_F82, c0=f0, c1=b_term)
+
+
+def add_conductor(b, ctx, weight, ax, ay, n, k, multiscatter: bool, sub=None):
+    """Metallic BSDF, physical conductor: exact Fresnel of complex IOR n + ik."""
+    hits, normal, mu = _where(ctx, sub)
+    albedo = mf.albedo_conductor(mu, n, k)
+    fss = fr.conductor_fss(n, k) if multiscatter else None
+    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_CONDUCTOR, c0=n, c1=k)
+
+
+def add_specular(b, ctx, weight, ax, ay, eta, f0, multiscatter: bool, sub=None) -> np.ndarray:
+    """Principled specular: GGX reflection with the remapped Fresnel. Returns the layering albedo (3, n):
+    the closure weight times its estimated reflection albedo."""
+    hits, normal, mu = _where(ctx, sub)
+    f0 = np.clip(f0, 0.0, 1.0)
+    albedo = mf.albedo_remapped(ax, ay, mu, eta, f0)
+    fss = fr.generalized_schlick_fss(f0, ONE, eta, F32(-1.0), ONE) if multiscatter else None
+    weight = _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_REMAP, eta=eta,
+                             c0=f0, c1=ONE, c2=ZERO)
+    return weight * albedo
+
+
+def coat_albedo(ctx, sub, alpha, ior) -> np.ndarray:
+    """(3, n) estimated reflection albedo of the coat lobe, before its weight; with the compensation's
+    colour factor (the coat is always energy-preserving)."""
+    _, _, mu = _where(ctx, sub)
+    albedo = mf.albedo_dielectric(alpha, alpha, mu, ior)
+    _, factor = mf.multiscatter_reflection(alpha, alpha, mu, fss=fr.dielectric_fss(ior)[None, :] * np.ones((3, 1), F32))
+    return albedo * factor
+
+
+def add_coat(b, ctx, sub, weight, alpha, ior):
+    """Principled coat: GGX reflection, exact dielectric Fresnel, energy compensation always on."""
+    hits, normal, mu = _where(ctx, sub)
+    albedo = mf.albedo_dielectric(alpha, alpha, mu, ior)
+    fss = np.broadcast_to(fr.dielectric_fss(ior), (3, len(hits)))
+    _add_reflection(b, hits, normal, weight, albedo, alpha, alpha, mu, fss, True, F_DIELECTRIC, eta=ior)
+
+
+def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, specular_tint, multiscatter: bool,
+              sub=None):
+    """GGX glass (Glass BSDF, Principled transmission): remapped Fresnel with F0 = F0(IOR) x specular
+    tint, reflection and transmission tints; eta = IOR from outside, 1/IOR from inside (back faces)."""
+    hits, normal, mu = _where(ctx, sub)
+    back = ctx.take(ctx.hit.backfacing) if sub is None else ctx.take(ctx.hit.backfacing)[sub]
+    eta = np.where(back, ONE / ior, ior).astype(F32)
+    n = len(hits)
+    f0 = fr.f0_from_ior(ior)[None, :] * (np.ones((3, n), F32) if specular_tint is None else specular_tint)
+    f0 = np.clip(f0, 0.0, 1.0)
+    weight = np.broadcast_to(weight, (3, n))
+    albedo = mf.albedo_remapped(alpha, alpha, mu, eta, f0, ONE, reflection_tint, transmission_tint)
+    sw = np.abs(weight.mean(axis=0)) * albedo.mean(axis=0)
+    eval_scale = ONE
+    if multiscatter:
+        eval_scale, factor = mf.multiscatter_glass(alpha, alpha, mu, eta, fss=transmission_tint)
+        weight = weight * factor
+        sw = sw * factor.mean(axis=0)
+    b.add(lobes.GLASS, hits, weight, sample_weight=sw, normal=normal, ax=alpha, ay=alpha, eta=eta,
+          eval_scale=eval_scale, fresnel=F_REMAP, c0=f0, c1=reflection_tint, c2=transmission_tint)
+
+
+def add_refraction(b, ctx, weight, alpha, ior, sub=None):
+    """Refraction BSDF: GGX refraction alone, no Fresnel, no compensation."""
+    hits, normal, _ = _where(ctx, sub)
+    back = ctx.take(ctx.hit.backfacing) if sub is None else ctx.take(ctx.hit.backfacing)[sub]
+    alpha = np.clip(alpha, 0.0, 1.0)
+    b.add(lobes.REFRACTION, hits, weight, normal=normal, ax=alpha, ay=alpha,
+          eta=np.where(back, ONE / ior, ior).astype(F32))
+
+
+def _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, mode, **params):
+    weight = np.broadcast_to(weight, (3, len(hits)))
+    sw = np.abs(weight.mean(axis=0)) * albedo.mean(axis=0)
+    eval_scale = ONE
+    if multiscatter:
+        eval_scale, factor = mf.multiscatter_reflection(ax, ay, mu, fss=fss)
+        weight = weight * factor
+        sw = sw * factor.mean(axis=0)
+    b.add(lobes.REFLECTION, hits, weight, sample_weight=sw, normal=normal, ax=ax, ay=ay, eval_scale=eval_scale,
+          fresnel=mode, **params)
+    return weight
+
+
+def _where(ctx, sub):
+    """(wave hit indices, normal, mu) of the context's hits, or of its subset sub."""
+    if sub is None:
+        hits, normal, wo = ctx.idx, ctx.ns, ctx.wo
+    else:
+        hits = ctx.idx[sub]
+        normal = tuple(c[sub] for c in ctx.ns)
+        wo = tuple(c[sub] for c in ctx.wo)
+    mu = (wo[0] * normal[0] + wo[1] * normal[1] + wo[2] * normal[2]).astype(F32)
+    return hits, normal, mu
+
+
+# ---------------------------------------------------------------- the lobes in the closure table
+def _reflection_fresnel(cs, rows):
+    mode, eta = cs.fresnel[rows].astype(np.int8), cs.eta[rows]
+    c0, c1, c2 = cs.c0[:, rows], cs.c1[:, rows], cs.c2[:, rows]
+
+    def fresnel(cos_h):
+        out = np.ones((3, len(rows)), F32)
+        for m in np.unique(mode):
+            s = np.flatnonzero(mode == m)
+            if m == F_DIELECTRIC:
+                out[:, s] = fr.dielectric(cos_h[s], eta[s])[0][None, :]
+            elif m == F_F82:
+                out[:, s] = fr.f82(cos_h[s], c0[:, s], c1[:, s])
+            elif m == F_CONDUCTOR:
+                out[:, s] = fr.conductor(cos_h[s], c0[:, s], c1[:, s])
+            elif m == F_REMAP:
+                out[:, s] = fr.remapped(cos_h[s], eta[s], c0[:, s], ONE)[0] * c1[:, s]
+        return out
+    return fresnel
+
+
+def _glass_fresnel(cs, rows):
+    return fr.remapped_glass(cs.c0[:, rows], ONE, cs.c1[:, rows], cs.c2[:, rows])
+
+
+def _reflection_eval(cs, rows, wo, wi):
+    f, pdf = mf.eval_reflection(wo, wi, cs.ax[rows], cs.ay[rows], _reflection_fresnel(cs, rows))
+    return f * cs.eval_scale[rows], pdf
+
+
+def _reflection_sample(cs, rows, wo, u1, u2, uc):
+    s = mf.sample_reflection(wo, cs.ax[rows], cs.ay[rows], _reflection_fresnel(cs, rows), u1, u2)
+    return s.wi, s.weight * cs.eval_scale[rows], s.pdf, s.transmission
+
+
+def _glass_eval(cs, rows, wo, wi):
+    f, pdf = mf.eval_glass(wo, wi, cs.ax[rows], cs.ay[rows], cs.eta[rows], _glass_fresnel(cs, rows))
+    return f * cs.eval_scale[rows], pdf
+
+
+def _glass_sample(cs, rows, wo, u1, u2, uc):
+    s = mf.sample_glass(wo, cs.ax[rows], cs.ay[rows], cs.eta[rows], _glass_fresnel(cs, rows), u1, u2, uc)
+    return s.wi, s.weight * cs.eval_scale[rows], s.pdf, s.transmission
+
+
+def _refraction_eval(cs, rows, wo, wi):
+    return mf.eval_refraction(wo, wi, cs.ax[rows], cs.ay[rows], cs.eta[rows])
+
+
+def _refraction_sample(cs, rows, wo, u1, u2, uc):
+    s = mf.sample_refraction(wo, cs.ax[rows], cs.ay[rows], cs.eta[rows], u1, u2)
+    return s.wi, s.weight, s.pdf, s.transmission
+
+
+lobes.register_lobe(lobes.REFLECTION, _reflection_eval, _reflection_sample)
+lobes.register_lobe(lobes.GLASS, _glass_eval, _glass_sample)
+lobes.register_lobe(lobes.REFRACTION, _refraction_eval, _refraction_sample)

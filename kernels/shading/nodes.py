@@ -1,0 +1,334 @@
+"""Closure nodes -> closures, as Cycles' `svm_node_closure_bsdf` builds them (`kernel/svm/closure.h`).
+
+One function per node kind: it reads the node's inputs at the hits of one material, and adds closures to
+the wave's ClosureBuilder (with the node's Mix Shader weight), or returns emission and holdout. Inputs
+a shader leaves out take Blender 5.0's defaults (DEFAULTS). The Principled BSDF is Cycles' layer stack:
+alpha, sheen, coat, emission, metal, transmission, specular, diffuse, each layer dimming the ones below
+by its estimated albedo (`closure_layering_weight`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..bsdf import closures as lobes
+from ..bsdf import microfacet_closures as mf
+from ..bsdf.sheen import sheen_albedo
+from ..scene import Closure
+
+F32 = np.float32
+ZERO, ONE = F32(0.0), F32(1.0)
+CUTOFF = F32(1e-5)  # Cycles' CLOSURE_WEIGHT_CUTOFF: lighter layers are not made
+
+WHITE, GREY = (1.0, 1.0, 1.0), (0.8, 0.8, 0.8)
+# Blender 5.0's defaults of the inputs Ember reads (node_shader_bsdf_*.cc, node_shader_emission.cc).
+DEFAULTS = {
+    "PRINCIPLED": {"Base Color": GREY, "Metallic": 0.0, "Roughness": 0.5, "IOR": 1.5, "Alpha": 1.0,
+                   "Diffuse Roughness": 0.0, "Subsurface Weight": 0.0, "Specular IOR Level": 0.5,
+                   "Specular Tint": WHITE, "Anisotropic": 0.0, "Anisotropic Rotation": 0.0,
+                   "Transmission Weight": 0.0, "Coat Weight": 0.0, "Coat Roughness": 0.03, "Coat IOR": 1.5,
+                   "Coat Tint": WHITE, "Sheen Weight": 0.0, "Sheen Roughness": 0.5, "Sheen Tint": WHITE,
+                   "Emission Color": WHITE, "Emission Strength": 0.0},
+    "DIFFUSE": {"Color": GREY, "Roughness": 0.0},
+    "GLOSSY": {"Color": GREY, "Roughness": 0.5, "Anisotropy": 0.0, "Rotation": 0.0},
+    "GLASS": {"Color": WHITE, "Roughness": 0.0, "IOR": 1.5},
+    "REFRACTION": {"Color": WHITE, "Roughness": 0.0, "IOR": 1.5},
+    "METALLIC": {"Base Color": (0.617, 0.577, 0.540), "Edge Tint": (0.695, 0.726, 0.770),
+                 "IOR": (2.757, 2.513, 2.231), "Extinction": (3.867, 3.404, 3.009), "Roughness": 0.5,
+                 "Anisotropy": 0.0, "Rotation": 0.0},
+    "SHEEN": {"Color": GREY, "Roughness": 0.5},
+    "TRANSLUCENT": {"Color": GREY},
+    "TRANSPARENT": {"Color": WHITE},
+    "EMISSION": {"Color": WHITE, "Strength": 1.0},
+    "HOLDOUT": {},
+}
+
+
+@dataclass
+class Built:
+    """What a node gives besides closures: emission (3, n) and holdout (n,), or None."""
+    emission: np.ndarray | None = None
+    holdout: np.ndarray | None = None
+
+
+class Context:
+    """The hits of one material in a wave: idx into the wave's hits, and their inputs on demand."""
+
+    def __init__(self, shading, hit, idx: np.ndarray, wo):
+        self.shading, self.hit, self.idx = shading, hit, idx
+        self.wo = tuple(np.take(c, idx) for c in wo)
+        self.ns = tuple(np.take(c, idx) for c in hit.ns)
+
+    def take(self, a):
+        return np.take(a, self.idx)
+
+    def input(self, closure: Closure, name: str) -> np.ndarray:
+        """(n,) for float inputs, (3, n) for colours, from the closure's Param or the default."""
+        default = DEFAULTS[closure.kind][name]
+        channels = 3 if isinstance(default, tuple) else 1
+        p = closure.input(name)
+        if p is None:
+            value = np.asarray(default, F32)
+            return np.broadcast_to(value[:, None] if channels == 3 else value, (3, len(self.idx)) if channels == 3
+                                   else (len(self.idx),))
+        return self.shading.param(p, self, channels)
+
+    def mu(self, normal=None) -> np.ndarray:
+        """cos of the angle between the viewer and the normal (the shading normal by default)."""
+        n = self.ns if normal is None else normal
+        return self.wo[0] * n[0] + self.wo[1] * n[1] + self.wo[2] * n[2]
+
+
+def build(closure: Closure, ctx: Context, weight: np.ndarray, builder) -> Built:
+    """Add the closure node's closures (weight (n,) from the Mix Shaders above it) to builder; builder
+    None asks for emission and holdout only."""
+    return _BUILDERS[closure.kind](closure, ctx, weight, builder)
+
+
+# ---------------------------------------------------------------- simple nodes
+def _diffuse(c, ctx, w, b):
+    if b is not None:
+        color = ctx.input(c, "Color")
+        _diffuse_lobe(b, ctx, color * w, ctx.input(c, "Roughness"), np.clip(color, 0.0, 1.0))
+    return Built()
+
+
+def _diffuse_lobe(b, ctx, weight, roughness, rho):
+    """Lambert where roughness < 1e-5, else Cycles' Oren-Nayar with sigma = roughness."""
+    rough = roughness >= CUTOFF
+    flat = np.flatnonzero(~rough)
+    b.add(lobes.LAMBERT, ctx.idx[flat], weight[:, flat])
+    on = np.flatnonzero(rough)
+    if len(on):
+        b.add(lobes.OREN_NAYAR, ctx.idx[on], weight[:, on], rough=np.clip(roughness[on], 0.0, 1.0),
+              c0=rho[:, on])
+
+
+def _translucent(c, ctx, w, b):
+    if b is not None:
+        b.add(lobes.TRANSLUCENT, ctx.idx, ctx.input(c, "Color") * w)
+    return Built()
+
+
+def _transparent(c, ctx, w, b):
+    if b is not None:
+        b.add(lobes.TRANSPARENT, ctx.idx, np.maximum(ctx.input(c, "Color"), ZERO) * w)
+    return Built()
+
+
+def _sheen(c, ctx, w, b):
+    if b is not None:
+        rough = np.clip(ctx.input(c, "Roughness"), 0.0, 1.0)
+        b.add(lobes.SHEEN, ctx.idx, ctx.input(c, "Color") * w, rough=rough)
+    return Built()
+
+
+def _emission(c, ctx, w, b):
+    return Built(emission=np.maximum(ctx.input(c, "Color"), ZERO) * (ctx.input(c, "Strength") * w))
+
+
+def _holdout(c, ctx, w, b):
+    return Built(holdout=w.astype(F32))
+
+
+# ---------------------------------------------------------------- microfacet nodes
+def _glossy(c, ctx, w, b):
+    if b is not None:
+        color = np.maximum(ctx.input(c, "Color"), ZERO)
+        alpha = np.square(np.clip(ctx.input(c, "Roughness"), 0.0, 1.0))
+        aniso = np.clip(ctx.input(c, "Anisotropy"), -0.99, 0.99)
+        ax, ay = mf.glossy_anisotropy(alpha, aniso)
+        distribution = c.option("distribution", "MULTI_GGX")
+        mf.add_glossy(b, ctx, color, w, ax, ay, multiscatter=distribution == "MULTI_GGX")
+    return Built()
+
+
+def _glass(c, ctx, w, b):
+    if b is not None:
+        color = np.maximum(ctx.input(c, "Color"), ZERO)
+        alpha = np.square(np.clip(ctx.input(c, "Roughness"), 0.0, 1.0))
+        ior = np.maximum(ctx.input(c, "IOR"), F32(1e-5))
+        mf.add_glass(b, ctx, w, alpha, ior, reflection_tint=color, transmission_tint=color, specular_tint=None,
+                     multiscatter=c.option("distribution", "MULTI_GGX") == "MULTI_GGX")
+    return Built()
+
+
+def _refraction(c, ctx, w, b):
+    if b is not None:
+        color = ctx.input(c, "Color")
+        alpha = np.square(ctx.input(c, "Roughness"))
+        ior = np.maximum(ctx.input(c, "IOR"), F32(1e-5))
+        mf.add_refraction(b, ctx, color * w, alpha, ior)
+    return Built()
+
+
+def _metallic(c, ctx, w, b):
+    if b is not None:
+        alpha = np.square(np.clip(ctx.input(c, "Roughness"), 0.0, 1.0))
+        ax, ay = mf.principled_anisotropy(alpha, np.clip(ctx.input(c, "Anisotropy"), 0.0, 1.0))
+        multiscatter = c.option("distribution", "MULTI_GGX") == "MULTI_GGX"
+        weight = np.broadcast_to(w, (3, len(w)))
+        if c.option("fresnel", "F82") == "PHYSICAL_CONDUCTOR":
+            mf.add_conductor(b, ctx, weight, ax, ay, np.maximum(ctx.input(c, "IOR"), ZERO),
+                             np.maximum(ctx.input(c, "Extinction"), ZERO), multiscatter)
+        else:
+            mf.add_f82(b, ctx, weight, ax, ay, np.clip(ctx.input(c, "Base Color"), 0.0, 1.0),
+                       np.clip(ctx.input(c, "Edge Tint"), 0.0, 1.0), multiscatter)
+    return Built()
+
+
+# ---------------------------------------------------------------- Principled BSDF
+def _principled(c, ctx, w, b):
+    """Cycles' Principled BSDF layer stack (module docstring); emission dimmed by the layers above it."""
+    n = len(ctx.idx)
+    get = lambda name: ctx.input(c, name)  # noqa: E731
+    weight = np.broadcast_to(w, (3, n)).astype(F32)
+    multiscatter = c.option("distribution", "MULTI_GGX") == "MULTI_GGX"
+    # 0. Alpha: a transparent closure for what the surface lets through.
+    alpha = np.clip(get("Alpha"), 0.0, 1.0)
+    if b is not None:
+        b.add(lobes.TRANSPARENT, ctx.idx, weight * (ONE - alpha))
+    weight = weight * alpha
+    coat_w = np.maximum(get("Coat Weight"), ZERO)
+    # 1. Sheen, on the normal halfway to the coat's normal (the same normal until coat normals exist).
+    sheen_w = np.maximum(get("Sheen Weight"), ZERO)
+    has = np.flatnonzero(sheen_w > CUTOFF)
+    if len(has):
+        rough = np.clip(get("Sheen Roughness")[has], 0.0, 1.0)
+        sheen_weight = sheen_w[has] * np.maximum(get("Sheen Tint")[:, has], ZERO) * weight[:, has]
+        if b is not None:
+            b.add(lobes.SHEEN, ctx.idx[has], sheen_weight, rough=rough)
+        albedo = sheen_albedo(ctx.mu()[has], rough)
+        weight[:, has] = layering_weight(sheen_weight * albedo, weight[:, has])
+    # 2. Coat: GGX with exact dielectric Fresnel at the coat IOR, then its tint along the refracted path.
+    has = np.flatnonzero(coat_w > CUTOFF)
+    if len(has):
+        cw = coat_w[has]
+        alpha_c = np.square(np.clip(get("Coat Roughness")[has], 0.0, 1.0))
+        ior_c = np.maximum(get("Coat IOR")[has], ONE)
+        coat_weight = cw * weight[:, has]
+        albedo = mf.coat_albedo(ctx, has, alpha_c, ior_c) * coat_weight
+        if b is not None:
+            mf.add_coat(b, ctx, has, coat_weight, alpha_c, ior_c)
+        weight[:, has] = layering_weight(albedo, weight[:, has])
+        tint = np.maximum(get("Coat Tint")[:, has], ZERO)
+        tinted = np.flatnonzero(np.any(tint != ONE, axis=0))
+        if len(tinted):
+            mu = ctx.mu()[has][tinted]
+            ior_t = ior_c[tinted]
+            cos_t = np.sqrt(np.maximum(ONE - (ONE - mu * mu) / (ior_t * ior_t), ZERO))
+            depth = ONE / np.maximum(cos_t, F32(1e-7))
+            factor = ONE + (np.power(tint[:, tinted], depth) - ONE) * cw[tinted]
+            weight[:, has[tinted]] *= factor
+    # 3. Emission, under sheen and coat.
+    strength = get("Emission Strength")
+    emission = np.maximum(get("Emission Color"), ZERO) * strength * weight if np.any(strength != 0) else None
+    if b is None:
+        return Built(emission=emission)
+    base = np.maximum(get("Base Color"), ZERO)
+    clamped = np.minimum(base, ONE)
+    roughness = np.clip(get("Roughness"), 0.0, 1.0)
+    alpha_r = roughness * roughness
+    ax, ay = mf.principled_anisotropy(alpha_r, np.clip(get("Anisotropic"), 0.0, 1.0))
+    ior = np.maximum(get("IOR"), F32(1e-5))
+    specular_tint = np.maximum(get("Specular Tint"), ZERO)
+    # 4. Metal: F82-tint conductor.
+    metallic = np.clip(get("Metallic"), 0.0, 1.0)
+    has = np.flatnonzero(metallic > CUTOFF)
+    if len(has):
+        mf.add_f82(b, ctx, metallic[has] * weight[:, has], ax[has], ay[has], clamped[:, has],
+                   np.minimum(specular_tint[:, has], ONE), multiscatter, sub=has)
+    weight = weight * (ONE - metallic)
+    # 5. Transmission: GGX glass, tinted by sqrt(base) through refraction.
+    transmission = np.clip(get("Transmission Weight"), 0.0, 1.0)
+    has = np.flatnonzero(transmission > CUTOFF)
+    if len(has):
+        mf.add_glass(b, ctx, transmission[has] * weight[:, has], alpha_r[has], ior[has],
+                     reflection_tint=np.ones((3, len(has)), F32), transmission_tint=np.sqrt(clamped[:, has]),
+                     specular_tint=specular_tint[:, has], multiscatter=multiscatter, sub=has)
+    weight = weight * (ONE - transmission)
+    # 6. Specular: dielectric GGX reflection; Specular IOR Level scales F0 (and the IOR with it).
+    f0 = np.square((ior - ONE) / (ior + ONE))
+    eta = ior
+    level = np.maximum(get("Specular IOR Level"), ZERO)
+    adjusted = level != F32(0.5)
+    if np.any(adjusted):
+        f0 = np.where(adjusted, f0 * F32(2.0) * level, f0)
+        eta_adj = mf.ior_from_f0(f0)
+        eta = np.where(adjusted, np.where(ior < ONE, ONE / eta_adj, eta_adj), eta)
+    has = np.flatnonzero(eta != ONE)
+    if len(has):
+        albedo = mf.add_specular(b, ctx, weight[:, has], ax[has], ay[has], eta[has], f0[has] * specular_tint[:, has],
+                                 multiscatter, sub=has)
+        weight[:, has] = layering_weight(albedo, weight[:, has])
+    # 7. Diffuse (subsurface scattering is rendered as the diffuse it would be without its radius).
+    sss = np.clip(get("Subsurface Weight"), 0.0, 1.0)
+    b.add(lobes.LAMBERT, ctx.idx, clamped * sss * weight)
+    _diffuse_lobe(b, ctx, base * (ONE - sss) * weight, np.clip(get("Diffuse Roughness"), 0.0, 1.0), clamped)
+    return Built(emission=emission)
+
+
+def layering_weight(layer_albedo: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Cycles' closure_layering_weight: what the layers below keep, weight * clamp01(1 - max(albedo / weight))."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(weight != 0, layer_albedo / np.where(weight != 0, weight, ONE), ZERO)
+    return (weight * np.clip(ONE - ratio.max(axis=0), 0.0, 1.0)).astype(F32)
+
+
+_BUILDERS = {"DIFFUSE": _diffuse, "PRINCIPLED": _principled, "GLOSSY": _glossy, "GLASS": _glass,
+             "REFRACTION": _refraction, "METALLIC": _metallic, "SHEEN": _sheen, "TRANSLUCENT": _translucent,
+             "TRANSPARENT": _transparent, "EMISSION": _emission, "HOLDOUT": _holdout}
+
+
+# ---------------------------------------------------------------- what a closure may do, without hits
+def _param_may_differ(c: Closure, name: str, neutral) -> bool:
+    p = c.input(name)
+    if p is None:
+        return DEFAULTS[c.kind][name] != neutral
+    return p.texture >= 0 or tuple(p.value) not in ((neutral,), (neutral,) * 3)
+
+
+def may_emit(c: Closure) -> bool:
+    if c.kind == "EMISSION":
+        return _param_may_differ(c, "Strength", 0.0) and _param_may_differ(c, "Color", 0.0)
+    if c.kind == "PRINCIPLED":
+        return _param_may_differ(c, "Emission Strength", 0.0) and _param_may_differ(c, "Emission Color", 0.0)
+    return False
+
+
+def emission_varies(c: Closure) -> bool:
+    """Whether the emission depends on the point or the direction (textures; Principled layers)."""
+    names = ("Color", "Strength") if c.kind == "EMISSION" else ("Emission Color", "Emission Strength")
+    textured = any((p := c.input(k)) is not None and p.texture >= 0 for k in names) or \
+        any(p.texture >= 0 for p, _ in c.factors)
+    layered = c.kind == "PRINCIPLED" and any(
+        _param_may_differ(c, k, v) for k, v in (("Alpha", 1.0), ("Sheen Weight", 0.0), ("Coat Weight", 0.0)))
+    return textured or layered
+
+
+def may_be_transparent(c: Closure) -> bool:
+    return c.kind == "TRANSPARENT" or (c.kind == "PRINCIPLED" and _param_may_differ(c, "Alpha", 1.0))
+
+
+def transparency(c: Closure, ctx: Context, w: np.ndarray) -> np.ndarray:
+    """(3, n) straight-through transmittance of a Transparent node or a Principled BSDF's alpha."""
+    if c.kind == "TRANSPARENT":
+        return np.maximum(ctx.input(c, "Color"), ZERO) * w
+    return np.broadcast_to((ONE - np.clip(ctx.input(c, "Alpha"), 0.0, 1.0)) * w, (3, len(w)))
+
+
+def mean_emission(c: Closure, mean_param):
+    """(3,) emission of a closure averaged over its textures (layers ignored), or None."""
+    if not may_emit(c):
+        return None
+    if c.kind == "EMISSION":
+        return np.maximum(mean_param(c.input("Color") or _const(c, "Color"), 3), 0) * \
+            mean_param(c.input("Strength") or _const(c, "Strength"), 1)[0]
+    return np.maximum(mean_param(c.input("Emission Color") or _const(c, "Emission Color"), 3), 0) * \
+        mean_param(c.input("Emission Strength") or _const(c, "Emission Strength"), 1)[0]
+
+
+def _const(c: Closure, name: str):
+    from ..scene import Param
+    return Param.of(DEFAULTS[c.kind][name])

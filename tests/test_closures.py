@@ -1,0 +1,145 @@
+"""The closure mixture of kernels.bsdf.closures, built by the shading nodes as the integrator builds it:
+sampling against the mixture pdf, weights against eval / pdf, energy, and Cycles' layering rules."""
+import numpy as np
+import pytest
+
+from ember.kernels.bsdf import closures as lobes
+from ember.kernels.scene import Closure, Materials, Param, Shader
+from ember.kernels.shading import Shading
+from stats import assert_chi2, mean_and_stderr
+
+N = 200_000
+THETA_BINS, PHI_BINS = 24, 24
+
+
+class FakeHit:
+    """n hits on the plane z = 0 with normal +z, seen from direction wo; material 0."""
+
+    def __init__(self, n, wo, backfacing=False):
+        wo = np.asarray(wo, np.float64) / np.linalg.norm(wo)
+        ones = np.ones(n, np.float32)
+        self.ns = self.ng = (0 * ones, 0 * ones, ones)
+        self.d = tuple(np.float32(-c) * ones for c in wo)
+        self.p = (0 * ones, 0 * ones, 0 * ones)
+        self.u = self.v = 0 * ones
+        self.mat = np.zeros(n, np.int32)
+        self.prim = np.zeros(n, np.int64)
+        self.backfacing = np.full(n, backfacing)
+
+    def __len__(self):
+        return len(self.mat)
+
+
+def principled(**inputs):
+    params = tuple((k.replace("_", " "), Param.of(v)) for k, v in inputs.items())
+    return Closure("PRINCIPLED", params, (("distribution", "MULTI_GGX"),))
+
+
+def closure_set(closure, n=N, wo=(0.4, 0.2, 0.8), backfacing=False):
+    shading = Shading(Materials((Shader((closure,)),)), [])
+    return shading.surface(FakeHit(n, wo, backfacing)).closures
+
+
+def sphere_bins(x, y, z):
+    theta = np.arccos(np.clip(z.astype(np.float64), -1, 1))
+    phi = np.arctan2(y, x).astype(np.float64)
+    counts, _, _ = np.histogram2d(theta, phi, bins=[THETA_BINS, PHI_BINS], range=[[0, np.pi], [-np.pi, np.pi]])
+    return counts
+
+
+def expected_counts(cs, n, sub=6):
+    """Integrate the mixture pdf over every (theta, phi) bin by a sub x sub midpoint rule."""
+    t_edges = np.linspace(0, np.pi, THETA_BINS + 1)
+    p_edges = np.linspace(-np.pi, np.pi, PHI_BINS + 1)
+    dt, dp = t_edges[1] - t_edges[0], p_edges[1] - p_edges[0]
+    tt = (np.arange(THETA_BINS * sub) + 0.5) * dt / sub
+    pp = -np.pi + (np.arange(PHI_BINS * sub) + 0.5) * dp / sub
+    T, P = np.meshgrid(tt, pp, indexing="ij")
+    w = tuple(np.float32(c).ravel() for c in (np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)))
+    m = len(w[0])
+    hits = np.arange(m)
+    small = closure_set(cs, n=m)
+    _, pdf = small.eval_at(hits, w)
+    pdf = pdf.reshape(T.shape).astype(np.float64) * np.sin(T) * (dt / sub) * (dp / sub)
+    return pdf.reshape(THETA_BINS, sub, PHI_BINS, sub).sum(axis=(1, 3)) * n
+
+
+def draw(cs, n=N, seed=1):
+    rng = np.random.default_rng(seed)
+    u = [rng.random(n, dtype=np.float32) for _ in range(4)]
+    return cs.sample(u[0], u[1], u[2], u[3])
+
+
+LAYERED = principled(Base_Color=(0.8, 0.3, 0.2), Metallic=0.3, Roughness=0.4, Coat_Weight=0.5,
+                     Coat_Roughness=0.3, Sheen_Weight=0.6, Sheen_Roughness=0.4, Diffuse_Roughness=0.5)
+
+
+def test_principled_mixture_samples_match_the_mixture_pdf():
+    cs = closure_set(LAYERED)
+    assert sorted(set(cs.lobe.tolist())) == [lobes.OREN_NAYAR, lobes.SHEEN, lobes.REFLECTION]
+    s = draw(cs)
+    ok = s.pdf > 0
+    assert not s.delta.any()
+    assert_chi2(sphere_bins(*(c[ok] for c in s.wi)), expected_counts(LAYERED, int(ok.sum())))
+
+
+def test_mixture_weight_is_f_over_the_mixture_pdf():
+    cs = closure_set(LAYERED, n=5000)
+    s = draw(cs, n=5000)
+    f, pdf = cs.eval_at(np.arange(5000), s.wi)
+    ok = s.pdf > 0
+    np.testing.assert_allclose(pdf[ok], s.pdf[ok], rtol=1e-5)
+    np.testing.assert_allclose(f[:, ok] / pdf[ok], s.weight[:, ok], rtol=2e-4, atol=1e-6)
+
+
+def test_sampled_and_integrated_albedo_agree():
+    """E[weight] under the mixture's own sampling equals the integral of f over the sphere (by uniform
+    sphere sampling): two independent estimators of the same albedo."""
+    cs = closure_set(LAYERED)
+    s = draw(cs, seed=3)
+    sampled, se_s = mean_and_stderr(s.weight, axis=1)
+    rng = np.random.default_rng(4)
+    z = 1 - 2 * rng.random(N)
+    phi = 2 * np.pi * rng.random(N)
+    r = np.sqrt(1 - z * z)
+    w = tuple(np.float32(c) for c in (r * np.cos(phi), r * np.sin(phi), z))
+    f, _ = cs.eval_at(np.arange(N), w)
+    integral, se_i = mean_and_stderr(f * 4 * np.pi, axis=1)
+    assert np.all(np.abs(sampled - integral) < 4 * np.hypot(se_s, se_i)), (sampled, integral)
+
+
+@pytest.mark.parametrize("backfacing", [False, True])
+def test_compensated_glass_keeps_all_energy(backfacing):
+    """Principled glass with multiscatter GGX, white: every path goes on (reflected or refracted) with
+    expected weight 1. Tolerance: 4 standard errors plus the albedo tables' own error (< 1e-3)."""
+    cs = closure_set(principled(Base_Color=(1, 1, 1), Transmission_Weight=1.0, Roughness=0.3), wo=(0.3, 0.1, 0.9),
+                     backfacing=backfacing)
+    s = draw(cs, seed=5)
+    mean, se = mean_and_stderr(s.weight, axis=1)
+    assert np.all(np.abs(mean - 1.0) < 4 * se + 2e-3), mean
+    assert 0.0 < s.transmit.mean() < 1.0
+
+
+def test_layers_dim_what_lies_below():
+    """Cycles' closure_layering_weight: a white coat over a diffuse base takes the coat's albedo off the
+    base's weight; alpha 0.25 leaves three quarters to the transparent closure."""
+    plain = closure_set(principled(Base_Color=(0.5, 0.5, 0.5), Specular_IOR_Level=0.0), n=4)
+    coated = closure_set(principled(Base_Color=(0.5, 0.5, 0.5), Specular_IOR_Level=0.0, Coat_Weight=1.0), n=4)
+    base = plain.weight[:, plain.lobe == lobes.LAMBERT][:, 0]
+    under = coated.weight[:, coated.lobe == lobes.LAMBERT][:, 0]
+    assert np.all(under < base) and np.all(under > 0.85 * base)  # a clear coat reflects about 4-10%
+    cut = closure_set(principled(Base_Color=(0.5, 0.5, 0.5), Alpha=0.25, Specular_IOR_Level=0.0), n=4)
+    np.testing.assert_allclose(cut.weight[:, cut.lobe == lobes.TRANSPARENT], 0.75)
+    np.testing.assert_allclose(cut.weight[:, cut.lobe == lobes.LAMBERT], 0.5 * 0.25)
+
+
+def test_mix_factor_weights_and_zero_weight_closures_are_dropped():
+    diffuse = Closure("DIFFUSE", (("Color", Param.of((0.8, 0.8, 0.8))),), (), ((Param.of(0.25), False),))
+    glossy = Closure("GLOSSY", (("Color", Param.of((1, 1, 1))), ("Roughness", Param.of(0.3))),
+                     (("distribution", "GGX"),), ((Param.of(0.25), True),))
+    shading = Shading(Materials((Shader((diffuse, glossy)),)), [])
+    cs = shading.surface(FakeHit(3, (0, 0, 1))).closures
+    np.testing.assert_allclose(cs.weight[:, cs.lobe == lobes.LAMBERT], 0.8 * 0.75)
+    np.testing.assert_allclose(cs.weight[:, cs.lobe == lobes.REFLECTION], 0.25)
+    black = Closure("DIFFUSE", (("Color", Param.of((0, 0, 0))),))
+    assert len(Shading(Materials((Shader((black,)),)), []).surface(FakeHit(3, (0, 0, 1))).closures) == 0

@@ -1,0 +1,188 @@
+"""Materials against Cycles (CPU, no clamping, box filter): Cycles' closures, layers and mixes.
+
+Same method as test_parity_cycles: four seed replicates per engine; the whole-image mean within 2% and
+every block of an 8x8 grid within 4.5 standard errors of the difference.
+"""
+import bpy
+import numpy as np
+import pytest
+
+from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, mesh_object, new_scene, quad_object, \
+    set_world
+
+
+def node_material(name, idname, **inputs):
+    """A material made of one shader node with the given input values (and node options as attributes)."""
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    node = tree.nodes.new(idname)
+    for key, value in inputs.items():
+        if key.startswith("opt_"):
+            setattr(node, key[4:], value)
+        else:
+            socket = node.inputs[key.replace("_", " ")]
+            socket.default_value = (*value, 1.0) if socket.type == "RGBA" else value
+    tree.links.new(node.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def sphere(location, material, radius=0.45):
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=radius, location=location, segments=32, ring_count=16)
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(material)
+
+
+def grid_of_spheres(materials, columns):
+    """Spheres one unit apart on a grid in the x-z plane, facing a camera on -y; a grey floor below."""
+    rows = -(-len(materials) // columns)
+    for i, mat in enumerate(materials):
+        r, c = divmod(i, columns)
+        sphere((c - (columns - 1) / 2, 0, (rows - 1 - r) + 0.5), mat)
+    mesh_object("Floor", [(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)], [(0, 1, 2, 3)],
+                diffuse_material("Floor", (0.4, 0.4, 0.4)))
+    return rows
+
+
+def test_principled_sphere_row_under_an_hdri():
+    """Metal smooth and rough, plastic, glass, coat and sheen: the Principled layer stack."""
+    scene = new_scene(96, 48)
+    P = "ShaderNodeBsdfPrincipled"
+    materials = [
+        node_material("Chrome", P, Base_Color=(0.9, 0.8, 0.6), Metallic=1.0, Roughness=0.0),
+        node_material("Brushed", P, Base_Color=(0.8, 0.5, 0.3), Metallic=1.0, Roughness=0.35,
+                      Specular_Tint=(0.6, 0.8, 1.0)),
+        node_material("Plastic", P, Base_Color=(0.7, 0.1, 0.1), Roughness=0.3),
+        node_material("Glass", P, Base_Color=(0.9, 1.0, 0.9), Transmission_Weight=1.0, Roughness=0.0),
+        node_material("Frosted", P, Transmission_Weight=1.0, Roughness=0.3, IOR=1.45),
+        node_material("Coated", P, Base_Color=(0.1, 0.2, 0.7), Roughness=0.6, Coat_Weight=1.0,
+                      Coat_Roughness=0.05, Coat_Tint=(0.9, 0.8, 0.6)),
+        node_material("Velvet", P, Base_Color=(0.3, 0.05, 0.1), Sheen_Weight=1.0, Sheen_Roughness=0.4,
+                      Sheen_Tint=(1.0, 0.9, 0.9)),
+        node_material("Rough Diffuse", P, Base_Color=(0.6, 0.6, 0.5), Diffuse_Roughness=1.0,
+                      Specular_IOR_Level=0.8, Roughness=0.7),
+    ]
+    grid_of_spheres(materials, 4)
+    add_camera(scene, (0, -5.2, 1.0), (0, 0, 1.0), lens=45)
+    set_world(scene, hdri="forest.exr", strength=1.0, rotation=(0, 0, 0.6))
+    compare_to_cycles(scene, samples=128, max_bounces=6)
+
+
+def test_every_closure_node_alone_on_a_sphere():
+    scene = new_scene(96, 48)
+    materials = [
+        node_material("Diffuse", "ShaderNodeBsdfDiffuse", Color=(0.8, 0.6, 0.3), Roughness=0.7),
+        node_material("Glossy", "ShaderNodeBsdfAnisotropic", Color=(0.8, 0.8, 0.9), Roughness=0.3),
+        node_material("Glossy GGX", "ShaderNodeBsdfAnisotropic", Color=(0.9, 0.7, 0.5), Roughness=0.5,
+                      opt_distribution="GGX"),
+        node_material("Glass", "ShaderNodeBsdfGlass", Color=(1.0, 0.9, 0.8), Roughness=0.15, IOR=1.5),
+        node_material("Refraction", "ShaderNodeBsdfRefraction", Color=(0.8, 0.9, 1.0), Roughness=0.0,
+                      IOR=1.33, opt_distribution="GGX"),
+        node_material("Metallic", "ShaderNodeBsdfMetallic", Roughness=0.25),
+        node_material("Conductor", "ShaderNodeBsdfMetallic", Roughness=0.2, opt_fresnel_type="PHYSICAL_CONDUCTOR"),
+        node_material("Sheen", "ShaderNodeBsdfSheen", Color=(0.8, 0.7, 0.9), Roughness=0.3),
+        node_material("Translucent", "ShaderNodeBsdfTranslucent", Color=(0.7, 0.9, 0.6)),
+        node_material("Transparent", "ShaderNodeBsdfTransparent", Color=(0.6, 0.8, 1.0)),
+        node_material("Emission", "ShaderNodeEmission", Color=(1.0, 0.6, 0.3), Strength=1.5),
+        node_material("Plain", "ShaderNodeBsdfDiffuse", Color=(0.5, 0.5, 0.5)),
+    ]
+    grid_of_spheres(materials, 6)
+    add_camera(scene, (0, -6.5, 1.0), (0, 0, 1.0), lens=40)
+    set_world(scene, hdri="courtyard.exr", strength=1.0)
+    compare_to_cycles(scene, samples=128, max_bounces=6)
+
+
+def test_mix_and_add_shaders_and_a_textured_mix_factor():
+    scene = new_scene(64, 48)
+    size = 8
+    yy, xx = np.mgrid[0:size, 0:size]
+    checks = (((xx + yy) % 2) * 0.8 + 0.1).astype(np.float32)
+    image = bpy.data.images.new("Checks", size, size, alpha=True, float_buffer=True)
+    image.pixels.foreach_set(np.stack([checks] * 3 + [np.ones_like(checks)], -1).ravel())
+    image.pack()
+    mat = bpy.data.materials.new("Mixed")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    add = tree.nodes.new("ShaderNodeAddShader")
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.2, 0.5, 0.8, 1.0)
+    glossy = tree.nodes.new("ShaderNodeBsdfAnisotropic")
+    glossy.inputs["Roughness"].default_value = 0.2
+    emission = tree.nodes.new("ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 0.3
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tree.links.new(tex.outputs["Color"], mix.inputs["Fac"])
+    tree.links.new(diffuse.outputs[0], mix.inputs[1])
+    tree.links.new(glossy.outputs[0], add.inputs[0])
+    tree.links.new(emission.outputs[0], add.inputs[1])
+    tree.links.new(add.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    quad_object("Card", (-1.2, 0, 0), (2.4, 0, 0), (0, 0, 2.0), mat)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(0.6, -1.0, 0.5))
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(mat)
+    add_camera(scene, (0, -4.5, 1.0), (0, 0, 1.0), lens=35)
+    set_world(scene, hdri="forest.exr", strength=1.0)
+    compare_to_cycles(scene, samples=128, max_bounces=4)
+
+
+def test_glass_refracts_a_textured_background():
+    scene = new_scene(64, 64)
+    size = 16
+    yy, xx = np.mgrid[0:size, 0:size]
+    checks = (((xx // 2 + yy // 2) % 2) * 0.8 + 0.1).astype(np.float32)
+    image = bpy.data.images.new("Board", size, size, alpha=True, float_buffer=True)
+    rgba = np.stack([checks, checks * 0.5 + 0.2, 1.0 - checks * 0.8, np.ones_like(checks)], -1)
+    image.pixels.foreach_set(rgba.astype(np.float32).ravel())
+    image.pack()
+    quad_object("Board", (-2, 1.5, -0.5), (4, 0, 0), (0, 0, 3), diffuse_material("Board", image=image))
+    glass = node_material("Glass", "ShaderNodeBsdfGlass", Roughness=0.0, IOR=1.5)
+    sphere((0, 0, 1.0), glass, radius=0.8)
+    add_camera(scene, (0, -4.0, 1.0), (0, 0, 1.0), lens=40)
+    set_world(scene, color=(1.0, 1.0, 1.0))
+    compare_to_cycles(scene, samples=128, max_bounces=8)
+
+
+@pytest.mark.parametrize("film_transparent", [False, True])
+def test_alpha_cut_card_in_front_of_a_wall(film_transparent):
+    """Principled Alpha from an image's alpha channel: rays pass through (transparent bounces), shadows
+    too (transparent shadows), and the film's alpha sees partial transparency."""
+    scene = new_scene(64, 64)
+    scene.render.film_transparent = film_transparent
+    size = 16
+    yy, xx = np.mgrid[0:size, 0:size]
+    alpha = np.where((xx - 7.5) ** 2 + (yy - 7.5) ** 2 < 36, 1.0, 0.0)
+    alpha[:, :3] = 0.5  # a half-transparent strip
+    image = bpy.data.images.new("Leaf", size, size, alpha=True, float_buffer=True)
+    rgba = np.stack([np.full_like(alpha, 0.2), np.full_like(alpha, 0.7), np.full_like(alpha, 0.2), alpha], -1)
+    image.pixels.foreach_set(rgba.astype(np.float32).ravel())
+    image.pack()
+    mat = bpy.data.materials.new("Leaf")
+    tree = mat.node_tree
+    bsdf = tree.nodes["Principled BSDF"]
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tex.interpolation = "Linear"
+    tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    tree.links.new(tex.outputs["Alpha"], bsdf.inputs["Alpha"])
+    bsdf.inputs["Roughness"].default_value = 0.8
+    quad_object("Card", (-0.8, -0.5, 0.2), (1.6, 0, 0), (0, 0, 1.6), mat)
+    quad_object("Wall", (-3, 1.0, -1), (6, 0, 0), (0, 0, 4), diffuse_material("Wall", (0.8, 0.8, 0.8)))
+    light = bpy.data.lights.new("Sun", "SUN")
+    light.energy = 3.0
+    light.angle = 0.05
+    sun = bpy.data.objects.new("Sun", light)
+    sun.rotation_euler = (1.2, 0.0, 0.3)
+    scene.collection.objects.link(sun)
+    add_camera(scene, (0, -3.5, 1.0), (0, 0, 1.0), lens=40)
+    set_world(scene, color=(0.1, 0.1, 0.15))
+    compare_to_cycles(scene, samples=128, max_bounces=4)
+    if film_transparent:
+        from bpy_helpers import render_to_array
+        cycles = render_to_array(scene, "CYCLES", 64)[..., 3]
+        ember_alpha = render_to_array(scene, "EMBER", 64)[..., 3]
+        assert abs(float(cycles.mean()) - float(ember_alpha.mean())) < 0.01
