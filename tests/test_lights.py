@@ -36,7 +36,7 @@ def sampler_for(lights=None, positions=None, emission=None, world=None):
     def tri_emission(tri, b1=None, b2=None):
         return table_emission[scene.material_ids[tri]].T.copy()
 
-    return LightSampler(scene, env, tri_emission, scene_radius=5.0)
+    return LightSampler(scene, env, tri_emission)
 
 
 def uniforms(n=N, seed=0):

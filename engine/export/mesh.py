@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .materials import MaterialTable
+from .materials import MaterialTable, output_node, source_of
 
 # Object types that carry geometry Ember cannot render yet.
 UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds", "VOLUME": "volumes"}
@@ -53,12 +53,15 @@ class Geometry:
     instance_count: int
 
 
-def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str]) -> Geometry:
-    """Read every rendered mesh instance; register the materials its slots use in `materials`."""
+def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None) -> Geometry:
+    """Read every rendered mesh instance; register the materials its slots use in `materials`.
+    poll() is called for every instance (it raises to cancel the export)."""
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
     slot_rows: dict[tuple, tuple] = {}       # (object, mesh) pointers -> material row of each slot
     groups: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> world_from_object matrices
     for inst in depsgraph.object_instances:
+        if poll is not None:
+            poll()
         # An instance is only valid during its iteration step: copy what is needed now.
         ob = inst.object
         if not _is_rendered(inst, ob, warnings):
@@ -73,6 +76,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str]) ->
         if object_key not in slot_rows:
             slot_rows[object_key] = materials.slot_ids(ob)
             _check_visibility(ob, warnings)
+            _check_volumes(ob, warnings)
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(np.array(inst.matrix_world))
     return _assemble(meshes, groups)
 
@@ -93,6 +97,21 @@ def _check_visibility(ob, warnings: list[str]) -> None:
     if not all(getattr(ob, name) for name in RAY_VISIBILITY) or ob.is_holdout or ob.is_shadow_catcher:
         warnings.append(f"Object '{ob.name}': ray visibility, holdout and shadow catcher settings are not "
                         f"supported, rendered as a plain object")
+
+
+def _check_volumes(ob, warnings: list[str]) -> None:
+    """Ember renders surfaces only: say so for materials with a volume shader (a volume-only material
+    would otherwise render as an unexplained black surface)."""
+    for slot in ob.material_slots:
+        material = slot.material
+        out = output_node(material.node_tree) if material is not None and material.node_tree else None
+        if out is None or source_of(out.inputs["Volume"]).node is None:
+            continue
+        if source_of(out.inputs["Surface"]).node is None:
+            warnings.append(f"Material '{material.name}': volume shaders are not supported and it has no "
+                            f"surface shader: rendered as a black surface")
+        else:
+            warnings.append(f"Material '{material.name}': volume shaders are not supported, the volume is ignored")
 
 
 def read_mesh(mesh) -> LocalMesh:
