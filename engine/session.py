@@ -146,8 +146,13 @@ class FinalRender:
         self._finish_message(result, exported)
 
     def _cancel(self) -> None:
+        """Stopped before rendering: hand Blender an empty result all the same (saving a render that
+        never began a result crashes Blender 5.0)."""
         self.cancelled = True
-        self.engine.update_stats("", "Ember: cancelled")
+        engine = self.engine
+        engine.end_result(engine.begin_result(0, 0, engine.resolution_x, engine.resolution_y,
+                                              layer=self.depsgraph.view_layer.name))
+        engine.update_stats("", "Ember: cancelled")
 
     def _warn(self, lines) -> None:
         """Warnings as they happen: printed at once in background mode (Blender would print reports

@@ -129,7 +129,10 @@ class Renderer:
         self.accel = Accel(self.scene.positions, threads)
         try:
             poll()
-            self._build_tables(poll)
+            # Triangles near float32's limits overflow in their normals: paths that hit them are
+            # dropped and counted like any non-finite path, so NumPy need not print about them.
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                self._build_tables(poll)
         except BaseException:
             self.accel.close()
             raise

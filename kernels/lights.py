@@ -96,8 +96,10 @@ class LightSampler:
         self.spot = lights.spot_cos.astype(np.float32)
         self.sun_cos = np.cos(lights.sun_half_angle).astype(np.float32)
         # A sun of angular radius a and radiance L gives E = L pi sin^2(a) facing it: L = E / (pi sin^2 a).
+        # Suns whose cone rounds to a single direction in float32 are delta lights and keep E itself.
         sin2 = np.sin(lights.sun_half_angle.astype(np.float64)) ** 2
-        self.sun_radiance = np.where((sin2 > 0)[:, None], lights.radiance / (np.pi * np.maximum(sin2, 1e-300))[:, None],
+        cone = (self.sun_cos < np.float32(1.0)) & (sin2 > 0)
+        self.sun_radiance = np.where(cone[:, None], lights.radiance / (np.pi * np.where(cone, sin2, 1.0))[:, None],
                                      lights.radiance).astype(np.float32)
         self.area = np.where(self.kind == RECT, self.size[:, 0] * self.size[:, 1],
                              np.float32(np.pi / 4) * self.size[:, 0] * self.size[:, 1]).astype(np.float32)

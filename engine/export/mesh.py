@@ -189,8 +189,10 @@ def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np
     k = len(world_from_object)
     linear = world_from_object[:, :3, :3]
     points = positions_out.reshape(k, -1, 3)
-    np.matmul(mesh.positions, linear.transpose(0, 2, 1).astype(np.float32), out=points)
-    points += world_from_object[:, None, :3, 3].astype(np.float32)
+    # Transforms beyond float32 give inf coordinates: validate() drops those triangles and says so.
+    with np.errstate(over="ignore", invalid="ignore"):
+        np.matmul(mesh.positions, linear.transpose(0, 2, 1).astype(np.float32), out=points)
+        points += world_from_object[:, None, :3, 3].astype(np.float32)
     np.matmul(mesh.normals, _normal_matrices(linear).transpose(0, 2, 1), out=normals_out.reshape(k, -1, 3))
 
 
@@ -201,6 +203,11 @@ def _normal_matrices(linear: np.ndarray) -> np.ndarray:
     singular matrices too (their triangles are degenerate and dropped later). Scaled to magnitude 1 so
     huge or tiny object scales stay well inside float32.
     """
+    # The cofactors of a matrix scaled by s are scaled by s^2: scale each matrix to entries of at most 1
+    # first, so that object scales of 1e30 or 1e-30 neither overflow nor underflow on the way.
+    size = np.abs(linear).max(axis=(1, 2))
+    finite = np.isfinite(size) & (size > 0)
+    linear = np.where(finite[:, None, None], linear, 0.0) / np.where(finite, size, 1.0)[:, None, None]
     c0, c1, c2 = linear[:, :, 0], linear[:, :, 1], linear[:, :, 2]
     cofactor = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=2)
     det = np.einsum("ki,ki->k", c0, cofactor[:, :, 0])
