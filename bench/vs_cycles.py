@@ -96,6 +96,36 @@ _STATS: list[tuple[float, str]] = []
 @bpy.app.handlers.persistent
 def _record_stats(stats, *_):
     _STATS.append((time.perf_counter(), str(stats)))
+    if _PROGRESS["label"]:
+        _report_progress(str(stats))
+
+
+# A long render (the Cycles references: minutes) reports its progress on stderr, which _quiet leaves
+# alone, at most every PROGRESS_INTERVAL_S.
+PROGRESS_INTERVAL_S = 10.0
+_PROGRESS = {"label": None, "start": 0.0, "last": 0.0}
+
+
+def _report_progress(stats: str) -> None:
+    now = time.perf_counter()
+    m = _SAMPLE.search(stats)
+    if m is None or now - _PROGRESS["last"] < PROGRESS_INTERVAL_S:
+        return
+    _PROGRESS["last"] = now
+    done, total = int(m.group(1)), int(m.group(2))
+    elapsed = now - _PROGRESS["start"]
+    left = elapsed * (total - done) / done if done else float("nan")
+    print(f"  {_PROGRESS['label']}: sample {done}/{total}, {elapsed:.0f} s elapsed, about {left:.0f} s left",
+          file=sys.stderr, flush=True)
+
+
+@contextlib.contextmanager
+def _progress(label: str):
+    _PROGRESS.update(label=label, start=time.perf_counter(), last=time.perf_counter())
+    try:
+        yield
+    finally:
+        _PROGRESS["label"] = None
 
 
 _SAMPLE = re.compile(r"Sample (\d+)/(\d+)")
@@ -346,7 +376,13 @@ def reference(scene, name: str, samples: int, cfg: Config, refresh: bool):
         data = np.load(path)
         return data["image"], float(data["noise_mse"]), path, True
     start = time.perf_counter()
-    a, b = (render(scene, "CYCLES", samples // 2, cfg, seed=s, keep_image=True).image for s in REFERENCE_SEEDS)
+    out(f"  rendering the Cycles reference for {name} ({samples} spp, two halves; cached afterwards; "
+        f"minutes on a small machine, progress every {PROGRESS_INTERVAL_S:.0f} s)")
+    halves = []
+    for i, seed in enumerate(REFERENCE_SEEDS):
+        with _progress(f"reference {name}, half {i + 1}/{len(REFERENCE_SEEDS)}"):
+            halves.append(render(scene, "CYCLES", samples // 2, cfg, seed=seed, keep_image=True).image)
+    a, b = halves
     image = (a + b) / 2
     noise_mse = float(np.mean((a - b) ** 2) / 4)   # variance of the mean of two independent halves
     os.makedirs(RESULTS_DIR, exist_ok=True)

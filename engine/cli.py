@@ -3,13 +3,23 @@
 The same path as `blender -b file.blend -E EMBER -f 1`: register the add-on, open the file, select
 Ember, render through bpy.ops.render.render so Blender's colour management and file output apply
 (PNG gets the scene's view transform, EXR stays linear). The .blend is never saved.
-Bad input gets one line on stderr and a non-zero exit.
+
+Without -o, frames go where `blender -b file.blend -a` would put them: the file's output path with
+Blender's own rules (`//` relative to the .blend, `#` padding, the frame number appended when there is
+no `#`, the extension when the file asks for one) in the file's output format. Every output directory is
+created and checked before the first frame renders. A frame is written under a temporary name in its
+directory and renamed when complete, so an interrupted or failed frame never leaves a file behind.
+
+Bad input gets one line on stderr and a non-zero exit (2 for a malformed command line); Ctrl-C stops
+the frame being rendered within a wave, keeps the frames finished before it, and exits with 130.
 """
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import re
+import signal
 import sys
 import tempfile
 
@@ -19,11 +29,19 @@ from .properties import SAMPLING_MODE_ITEMS
 
 EXIT_USAGE = 2
 EXIT_FAILED = 1
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a process stopped by Ctrl-C
 FORMATS = {".png": "PNG", ".exr": "OPEN_EXR", ".jpg": "JPEG", ".jpeg": "JPEG", ".tif": "TIFF", ".tiff": "TIFF"}
+SEED_MAX = 2**31 - 1             # Blender's integer properties are 32-bit signed
+RESOLUTION_RANGE = (4, 65536)    # what scene.render.resolution_x/y accept
+INT_MAX = 2**31 - 1
 
 
 class CliError(Exception):
     """A one-line message for the user."""
+
+
+class UsageError(CliError):
+    """A malformed command line: exit status 2, as argparse's own errors."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -38,16 +56,21 @@ def build_parser() -> argparse.ArgumentParser:
     render = sub.add_parser("render", help="render a .blend file (or the demo scene) with Ember",
                             description="Render FILE.blend with Ember; without a file, the built-in demo scene.")
     render.add_argument("file", nargs="?", help=".blend file to render (default: the built-in demo scene)")
-    render.add_argument("-o", "--output", help="output image path; '#' marks the frame number "
-                                                "(default: the file's own output path; out/demo.png for the demo)")
+    render.add_argument("-o", "--output", help="output image path; '#' marks the frame number (default: the "
+                                                "file's own output path and format, as blender -b would use; "
+                                                "out/demo.png for the demo)")
     render.add_argument("--samples", type=int, help="samples per pixel")
-    render.add_argument("--frames", help="frame or range, e.g. 1 or 1-24 (default: the current frame)")
+    frames = render.add_mutually_exclusive_group()
+    frames.add_argument("--frames", help="frame or range, e.g. 1 or 1-24 (default: the current frame)")
+    frames.add_argument("-a", "--animation", action="store_true",
+                        help="the file's frame range and step, as blender -b FILE -a")
     render.add_argument("--resolution", help="WIDTHxHEIGHT in pixels, e.g. 1280x720 (percentage set to 100)")
     render.add_argument("--max-bounces", type=int, help="bounces after the first hit (0 = direct light only)")
     render.add_argument("--mode", choices=[item[0] for item in SAMPLING_MODE_ITEMS], help="sampling mode")
-    render.add_argument("--seed", type=int, help="random seed")
-    render.add_argument("--time-limit", type=float, help="seconds per frame, 0 for none")
-    render.add_argument("--threads", type=int, help="render threads (default: all cores)")
+    render.add_argument("--seed", type=int, help=f"random seed, 0 to {SEED_MAX}")
+    render.add_argument("--time-limit", type=float, help="seconds per frame, 0 for none (the first full pass "
+                                                         "always completes)")
+    render.add_argument("--threads", type=int, help="render threads (default or 0: all cores)")
     render.add_argument("--scene", help="scene name inside the file (default: the active scene)")
     return parser
 
@@ -57,11 +80,14 @@ def parse_frames(text: str | None):
         return None
     m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", text)
     if not m:
-        raise CliError(f"--frames must look like 5 or 1-24, got {text!r}")
+        raise UsageError(f"--frames must look like 5 or 1-24, got {text!r}")
     start = int(m.group(1))
     end = int(m.group(2)) if m.group(2) is not None else start
     if end < start:
-        raise CliError(f"--frames range {text!r} ends before it starts")
+        raise UsageError(f"--frames range {text!r} ends before it starts")
+    limit = 1_048_574  # Blender's MAXFRAME
+    if not (-limit <= start and end <= limit):
+        raise UsageError(f"--frames must lie within -{limit} to {limit}, got {text!r}")
     return start, end
 
 
@@ -69,29 +95,68 @@ def parse_resolution(text: str | None):
     if text is None:
         return None
     m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not m or int(m.group(1)) < 1 or int(m.group(2)) < 1:
-        raise CliError(f"--resolution must look like 1280x720, got {text!r}")
-    return int(m.group(1)), int(m.group(2))
+    if not m:
+        raise UsageError(f"--resolution must look like 1280x720, got {text!r}")
+    lo, hi = RESOLUTION_RANGE
+    width, height = int(m.group(1)), int(m.group(2))
+    if not (lo <= width <= hi and lo <= height <= hi):
+        raise UsageError(f"--resolution must be from {lo}x{lo} to {hi}x{hi} pixels (Blender's limits), got {text!r}")
+    return width, height
+
+
+def check_options(args) -> None:
+    """Numbers Blender would clamp or overflow on, rejected with the range instead."""
+    def within(name, value, lo, hi):
+        if value is not None and not lo <= value <= hi:
+            raise UsageError(f"{name} must be from {lo} to {hi}, got {value}")
+    within("--samples", args.samples, 1, 1 << 24)
+    within("--max-bounces", args.max_bounces, 0, 1024)
+    within("--seed", args.seed, 0, SEED_MAX)
+    within("--threads", args.threads, 0, 1024)
+    if args.time_limit is not None and not (0 <= args.time_limit < float("inf")):
+        raise UsageError(f"--time-limit must be 0 (none) or a positive number of seconds, got {args.time_limit:g}")
 
 
 def check_output(path: str) -> str:
-    """Absolute output path whose directory exists and is writable, or CliError."""
+    """Absolute output path for -o, with a known extension, whose directory is writable, or CliError."""
     path = os.path.abspath(os.path.expanduser(path))
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise CliError(f"output {path!r} needs one of the extensions {', '.join(sorted(FORMATS))}")
-    directory = os.path.dirname(path)
-    try:
-        os.makedirs(directory, exist_ok=True)
-        with tempfile.TemporaryFile(dir=directory):
-            pass
-    except OSError as err:
-        raise CliError(f"cannot write to {directory!r}: {err.strerror or err}") from None
+    ensure_writable_directory(os.path.dirname(path))
     return path
 
 
+def ensure_writable_directory(directory: str) -> None:
+    """Create `directory` (and its parents) and check a file can be written in it, or CliError
+    naming the real obstacle: a parent that is a file, a missing permission, a place that cannot
+    hold directories."""
+    directory = os.path.abspath(directory or ".")
+    existing = directory
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise CliError(f"cannot write to {directory!r}: {existing!r} is a file, not a directory")
+    try:
+        os.makedirs(directory, exist_ok=True)
+    except OSError as err:
+        raise CliError(f"cannot create the directory {directory!r} in {existing!r}: {_reason(err)}") from None
+    try:
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as err:
+        raise CliError(f"cannot write files in {directory!r}: {_reason(err)}") from None
+
+
+def _reason(err: OSError) -> str:
+    """errno in words that fit a directory that exists (ENOENT there means a file system such as /proc
+    that refuses new entries, not a missing path)."""
+    return {errno.EACCES: "permission denied", errno.EPERM: "permission denied", errno.EROFS: "read-only file system",
+            errno.ENOENT: "its file system does not allow new files or directories"}.get(err.errno, err.strerror or str(err))
+
+
 def frame_path(path: str, frame: int, many: bool) -> str:
-    """Replace a run of '#' with the zero-padded frame; several frames without '#' get _#### added."""
+    """-o paths: replace a run of '#' with the zero-padded frame; several frames without '#' get _####."""
     if "#" not in path and many:
         root, ext = os.path.splitext(path)
         path = f"{root}_####{ext}"
@@ -100,18 +165,46 @@ def frame_path(path: str, frame: int, many: bool) -> str:
 
 def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
+    previous = signal.getsignal(signal.SIGINT)
+    _install_interrupt_handler()
     try:
         return render(args)
+    except UsageError as err:
+        print(f"ember: error: {err} (see --help)", file=sys.stderr)
+        return EXIT_USAGE
     except CliError as err:
         print(f"ember: error: {err}", file=sys.stderr)
         return EXIT_FAILED
+    except KeyboardInterrupt:  # a second Ctrl-C, or one before Ember's handler was in place
+        print("ember: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _install_interrupt_handler() -> None:
+    """The first Ctrl-C asks the render to stop (the frame in progress is dropped); a second one
+    quits at once."""
+    from .session import cancel_requested, clear_cancel, request_cancel
+    clear_cancel()
+
+    def handler(signum, frame):
+        if cancel_requested():
+            raise KeyboardInterrupt
+        request_cancel()
+
+    signal.signal(signal.SIGINT, handler)
+
+
+def _interrupted() -> bool:
+    from .session import cancel_requested
+    return cancel_requested()
 
 
 def render(args) -> int:
+    check_options(args)
     frames = parse_frames(args.frames)
     resolution = parse_resolution(args.resolution)
-    if args.samples is not None and args.samples < 1:
-        raise CliError("--samples must be at least 1")
     if args.file is not None and not os.path.isfile(args.file):
         raise CliError(f"no such file: {args.file}")
     output = check_output(args.output) if args.output else None
@@ -137,28 +230,88 @@ def render(args) -> int:
     if scene.camera is None:
         raise CliError(f"scene {scene.name!r} has no camera")
 
-    first, last = frames if frames else (scene.frame_current, scene.frame_current)
-    many = last > first
-    for frame in range(first, last + 1):
+    if frames:
+        frame_list = list(range(frames[0], frames[1] + 1))
+    elif args.animation:
+        frame_list = list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
+    else:
+        frame_list = [scene.frame_current]
+    if output is not None:
+        _use_format_of(scene, output)
+        targets = [frame_path(output, f, len(frame_list) > 1) for f in frame_list]
+    else:
+        targets = [_file_output_path(scene, f) for f in frame_list]
+    for directory in dict.fromkeys(os.path.dirname(t) for t in targets):
+        ensure_writable_directory(directory)  # before any frame renders
+
+    done = []
+    for frame, target in zip(frame_list, targets):
+        if _interrupted():
+            break
+        if not scene.render.use_overwrite and os.path.exists(target):
+            print(f"Ember | Frame {frame} | {target} exists and the file's Overwrite option is off: skipped",
+                  flush=True)
+            continue
         scene.frame_set(frame)
-        if output is not None:
-            target = frame_path(output, frame, many)
-            scene.render.filepath = target
-            scene.render.use_file_extension = False
-            scene.render.image_settings.file_format = FORMATS[os.path.splitext(target)[1].lower()]
-            if scene.render.image_settings.file_format == "OPEN_EXR":
-                scene.render.image_settings.color_depth = "32"
-        else:
-            target = bpy.path.abspath(scene.render.frame_path(frame=frame))
-            os.makedirs(os.path.dirname(target) or ".", exist_ok=True)
         try:
-            bpy.ops.render.render(write_still=True, scene=scene.name)
+            bpy.ops.render.render(write_still=False, scene=scene.name)
         except RuntimeError as err:
             raise CliError(_first_line(err)) from None
-        if not os.path.exists(target):
-            raise CliError(f"frame {frame} rendered but {target} was not written")
+        if _interrupted():  # the render stopped early: its frame is incomplete, so it is not saved
+            kept = _saved_frames(done)
+            print(f"ember: interrupted during frame {frame}: nothing saved for it; {kept}", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        _save(scene, target)  # a frame that finished rendering is saved even if Ctrl-C comes now
+        done.append(frame)
         print(f"Ember | Frame {frame} | saved {target}", flush=True)
+    if _interrupted() and len(done) < len(frame_list):
+        print(f"ember: interrupted after frame {done[-1] if done else frame_list[0]}: {_saved_frames(done)}",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0
+
+
+def _file_output_path(scene, frame: int) -> str:
+    """Where blender -b FILE -a writes `frame`: Blender's own rules, absolute."""
+    if scene.render.is_movie_format:
+        raise CliError(f"the file's output format is a video ({scene.render.image_settings.file_format}), which "
+                       f"Ember's command line cannot write: pass -o with an image path such as out/frame_####.png")
+    return os.path.abspath(bpy.path.abspath(scene.render.frame_path(frame=frame)))
+
+
+def _use_format_of(scene, output: str) -> None:
+    settings = scene.render.image_settings
+    if getattr(settings, "media_type", "IMAGE") != "IMAGE":
+        settings.media_type = "IMAGE"
+    settings.file_format = FORMATS[os.path.splitext(output)[1].lower()]
+    if settings.file_format == "OPEN_EXR":
+        settings.color_depth = "32"
+
+
+def _save(scene, target: str) -> None:
+    """Write the render result with the scene's output settings, under a temporary name in the
+    target's directory, then rename: a failure or an interrupt never leaves a partial file."""
+    result = bpy.data.images.get("Render Result")
+    if result is None:
+        raise CliError("Blender produced no render result")
+    directory, name = os.path.split(target)
+    fd, partial = tempfile.mkstemp(prefix=f".{name}.", suffix=".partial", dir=directory)
+    os.close(fd)
+    try:
+        result.save_render(partial, scene=scene)
+        os.chmod(partial, 0o666 & ~_umask())  # mkstemp's file is private; a saved frame is not
+        os.replace(partial, target)
+    except (RuntimeError, OSError) as err:
+        raise CliError(f"cannot save {target}: {_first_line(err)}") from None
+    finally:
+        if os.path.exists(partial):
+            os.remove(partial)
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _register_ember() -> None:
@@ -174,19 +327,38 @@ def _apply_options(scene, args, resolution) -> None:
     if args.samples is not None:
         ember.samples = args.samples
     if args.max_bounces is not None:
-        ember.max_bounces = max(0, args.max_bounces)
+        ember.max_bounces = args.max_bounces
     if args.mode is not None:
         ember.sampling_mode = args.mode
     if args.seed is not None:
-        ember.seed = max(0, args.seed)
+        ember.seed = args.seed
     if args.time_limit is not None:
-        ember.time_limit = max(0.0, args.time_limit)
+        ember.time_limit = args.time_limit
     if args.threads is not None:
-        scene.render.threads_mode = "FIXED"
-        scene.render.threads = max(1, args.threads)
+        scene.render.threads_mode = "FIXED" if args.threads > 0 else "AUTO"
+        if args.threads > 0:
+            scene.render.threads = args.threads
     if resolution is not None:
         scene.render.resolution_x, scene.render.resolution_y = resolution
         scene.render.resolution_percentage = 100
+
+
+def _saved_frames(done: list[int]) -> str:
+    if not done:
+        return "no frame was saved"
+    return f"frame {done[0]} was saved" if len(done) == 1 else f"frames {_ranges(done)} were saved"
+
+
+def _ranges(frames: list[int]) -> str:
+    """[1, 2, 3, 5] -> '1-3, 5'."""
+    parts, start = [], None
+    for i, f in enumerate(frames):
+        if start is None:
+            start = f
+        if i + 1 == len(frames) or frames[i + 1] != f + 1:
+            parts.append(str(start) if start == f else f"{start}-{f}")
+            start = None
+    return ", ".join(parts)
 
 
 def _first_line(err: BaseException) -> str:

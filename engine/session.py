@@ -2,24 +2,30 @@
 
 Sync once, snapshot, let go: everything is read from the depsgraph before the kernel starts; the
 kernel sees only arrays and reaches Blender through three callbacks (on_tile, should_stop,
-on_progress), the way Cycles' session knows Blender only through an output driver.
+on_progress), the way Cycles' session knows Blender only through an output driver. Esc (and the
+command line's Ctrl-C, through request_cancel) is polled during export, between the stages of the
+scene build and between waves.
 """
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 
 import bpy
 import numpy as np
 
-from ..kernels import Renderer, RenderSettings
-from .export import ExportError, export_scene
+from ..kernels import Cancelled, Renderer, RenderSettings
+from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region
 from .version import EMBER_VERSION
 
-# The Image Editor is refreshed at most this often; the first and the last image always go through.
+# The Image Editor is refreshed at most this often (Cycles updates a few times a second); the first and
+# the last image always go through.
 DISPLAY_INTERVAL_S = 0.25
+# Rows go to Blender in sub-results of at most this many pixels (4 MB of float32 RGBA each).
+WRITE_CHUNK_PIXELS = 1 << 18
 # In background mode (command line, render farms) a progress line is printed at most this often.
 PRINT_INTERVAL_S = 2.0
 
@@ -87,7 +93,12 @@ class Region:
 
 
 class FinalRender:
-    """One F12 (or one frame of an animation, or one view layer): export, render, stream, finish."""
+    """One F12 (or one frame of an animation, or one view layer): export, render, stream, finish.
+
+    Rows reach Blender as sub-results of at most WRITE_CHUNK_PIXELS pixels: only the rows a wave
+    changed, at most every DISPLAY_INTERVAL_S, and none before the end in background mode (nobody
+    sees them). Ember's memory is then the film plus a bounded working set, whatever the resolution.
+    """
 
     def __init__(self, engine, depsgraph):
         self.engine = engine
@@ -95,61 +106,88 @@ class FinalRender:
         self.scene = depsgraph.scene
         self._last_display = 0.0
         self._last_print = 0.0
-        self._result = None
-        self._rect = None
+        self._region: Region | None = None
+        self._dirty: tuple[int, int] | None = None  # region rows changed since they were last written
+        self.cancelled = False
+
+    def should_stop(self) -> bool:
+        """Esc in Blender, or an interrupt of the command line."""
+        return bool(self.engine.test_break()) or _cancel.is_set()
 
     def run(self) -> None:
         engine, scene = self.engine, self.scene
         width, height = engine.resolution_x, engine.resolution_y
         engine.update_stats("", "Ember: exporting scene")
         try:
-            exported = export_scene(self.depsgraph, engine.camera_override, width=width, height=height)
+            exported = export_scene(self.depsgraph, engine.camera_override, width=width, height=height,
+                                    should_stop=self.should_stop)
+        except ExportCancelled:
+            return self._cancel()
         except ExportError as err:
             engine.report({"ERROR"}, f"Ember: {err}")
             return
-        for warning in exported.warnings:
-            engine.report({"WARNING"}, f"Ember: {warning}")
-
-        # The result covers the border region when there is one; its size tells us the region's.
-        self._result = engine.begin_result(0, 0, width, height, layer=self.depsgraph.view_layer.name)
+        self._warn(exported.warnings)
+        self._region = self._find_region(width, height)
+        settings = render_settings(scene, (self._region.x0, self._region.y0, self._region.x1, self._region.y1))
+        engine.update_stats("", "Ember: building the scene")
         try:
-            region = self._region(width, height)
-            settings = render_settings(scene, (region.x0, region.y0, region.x1, region.y1))
-            try:
-                renderer = Renderer(exported.scene, threads=render_threads(scene.render))
-            except ValueError as err:
-                engine.report({"ERROR"}, f"Ember: invalid scene data: {err}")
-                return
-            with renderer:
-                if renderer.dropped_triangles:
-                    engine.report({"WARNING"}, f"Ember: skipped {renderer.dropped_triangles} degenerate or "
-                                               f"non-finite triangles")
-                self._rect = self._result.layers[0].passes["Combined"].rect
-                result = renderer.render(settings, on_tile=self._on_tile, should_stop=engine.test_break,
-                                         on_progress=self._on_progress)
-            self._write(result.image)
-            self._finish_message(result, exported)
-        finally:
-            self.engine.end_result(self._result)
+            renderer = Renderer(exported.scene, threads=render_threads(scene.render), should_stop=self.should_stop)
+        except Cancelled:
+            return self._cancel()
+        except ValueError as err:
+            engine.report({"ERROR"}, f"Ember: invalid scene data: {err}")
+            return
+        with renderer:
+            if renderer.dropped_triangles:
+                self._warn([f"skipped {renderer.dropped_triangles} degenerate or non-finite triangles"])
+            result = renderer.render(settings, on_tile=self._on_tile, should_stop=self.should_stop,
+                                     on_progress=self._on_progress)
+        self.cancelled = result.stopped_early and _cancel.is_set()
+        self._flush(result.film)
+        self._finish_message(result, exported)
 
-    def _region(self, width: int, height: int) -> Region:
+    def _cancel(self) -> None:
+        """Stopped before rendering: hand Blender an empty result all the same (saving a render that
+        never began a result crashes Blender 5.0)."""
+        self.cancelled = True
+        engine = self.engine
+        engine.end_result(engine.begin_result(0, 0, engine.resolution_x, engine.resolution_y,
+                                              layer=self.depsgraph.view_layer.name))
+        engine.update_stats("", "Ember: cancelled")
+
+    def _warn(self, lines) -> None:
+        """Warnings as they happen: printed at once in background mode (Blender would print reports
+        only after the operator, after its 'Saved:' line), reported in the interface."""
+        for line in lines:
+            if _background():
+                print(f"Ember | Frame {self.scene.frame_current} | Warning: {line}", flush=True)
+            else:
+                self.engine.report({"WARNING"}, f"Ember: {line}")
+
+    def _find_region(self, width: int, height: int) -> Region:
+        """The border region in full-frame pixels. Blender decides the border's pixel size: a result
+        begun for the whole frame has it; it is ended unmerged (it holds no pixels)."""
+        probe = self.engine.begin_result(0, 0, width, height, layer=self.depsgraph.view_layer.name)
+        rw, rh = probe.resolution_x, probe.resolution_y
+        self.engine.end_result(probe, cancel=True)
         border = render_region(self.scene, width, height)
-        rw, rh = self._result.resolution_x, self._result.resolution_y
         if border is None or (rw, rh) == (width, height):
             return Region(0, 0, width, height)
-        x0, y0 = border[0], border[1]
-        # Blender decides the border's pixel size; keep its size and our corner, inside the frame.
-        x0 = min(max(x0, 0), width - rw)
-        y0 = min(max(y0, 0), height - rh)
+        # Keep Blender's size and our corner, inside the frame.
+        x0 = min(max(border[0], 0), width - rw)
+        y0 = min(max(border[1], 0), height - rh)
         return Region(x0, y0, x0 + rw, y0 + rh)
 
     # ------------------------------------------------------------------ kernel callbacks
     def _on_tile(self, film, row0: int, row1: int) -> None:
+        self._dirty = (row0, row1) if self._dirty is None else (min(self._dirty[0], row0), max(self._dirty[1], row1))
+        if _background():
+            return  # no window to show it: everything is written once, at the end
         now = time.perf_counter()
-        if now - self._last_display < DISPLAY_INTERVAL_S and self._last_display:
+        if self._last_display and now - self._last_display < DISPLAY_INTERVAL_S:
             return
         self._last_display = now
-        self._write(film.resolve())
+        self._flush(film)
 
     def _on_progress(self, progress) -> None:
         line = stats_line(progress, self.scene.ember.time_limit)
@@ -160,23 +198,56 @@ class FinalRender:
             self._last_print = now
             print(f"Ember | Frame {self.scene.frame_current} | {line}", flush=True)
 
-    def _write(self, image: np.ndarray) -> None:
-        """image: (H, W, 4) float32, row 0 at the top -> Blender's bottom-up rect."""
-        flipped = np.ascontiguousarray(image[::-1], dtype=np.float32)
-        self._rect.foreach_set(flipped.ravel())
-        self.engine.update_result(self._result)
+    def _flush(self, film) -> None:
+        """Write the changed rows to Blender, in chunks."""
+        if self._dirty is None:
+            return
+        row0, row1 = self._dirty
+        self._dirty = None
+        step = max(1, WRITE_CHUNK_PIXELS // max(film.width, 1))
+        for r0 in range(row0, row1, step):
+            self.write_rows(film, r0, min(row1, r0 + step))
+
+    def write_rows(self, film, row0: int, row1: int) -> None:
+        """Region rows [row0, row1) (row 0 at the top) -> a sub-result of Blender's (rows bottom-up,
+        coordinates relative to the border region when there is one)."""
+        rows = film.resolve(row0, row1)
+        flipped = np.ascontiguousarray(rows[::-1], dtype=np.float32)
+        result = self.engine.begin_result(0, film.height - row1, film.width, row1 - row0,
+                                          layer=self.depsgraph.view_layer.name)
+        try:
+            result.layers[0].passes["Combined"].rect.foreach_set(flipped.ravel())
+        finally:
+            self.engine.end_result(result)
 
     def _finish_message(self, result, exported) -> None:
         p = result.progress
         if p.nonfinite_paths:
-            self.engine.report({"WARNING"}, f"Ember: dropped {p.nonfinite_paths} paths with NaN or infinite radiance")
-        state = "stopped" if result.stopped_early else "done"
+            self._warn([f"dropped {p.nonfinite_paths} paths with NaN or infinite radiance"])
+        state = "cancelled" if self.cancelled else "stopped" if result.stopped_early else "done"
         message = (f"Ember {EMBER_VERSION} {state}: {p.samples_done}/{p.samples_total} samples in {format_time(p.elapsed_s)}, "
                    f"{p.paths_per_s / 1e6:.2f} M paths/s, {exported.triangle_count} triangles "
                    f"(export {exported.seconds:.2f} s)")
         self.engine.update_stats("", message)
         if _background():
             print(f"Ember | Frame {self.scene.frame_current} | {message}", flush=True)
+
+
+# Set by the command line's interrupt handler; every final render polls it with Esc.
+_cancel = threading.Event()
+
+
+def request_cancel() -> None:
+    """Ask the running final render (and the ones after it) to stop: Ctrl-C on the command line."""
+    _cancel.set()
+
+
+def clear_cancel() -> None:
+    _cancel.clear()
+
+
+def cancel_requested() -> bool:
+    return _cancel.is_set()
 
 
 def _background() -> bool:

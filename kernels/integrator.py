@@ -100,27 +100,56 @@ class Progress:
         return self.rays / self.elapsed_s if self.elapsed_s > 0 else 0.0
 
 
+class Cancelled(Exception):
+    """should_stop() asked a Renderer to stop while it was being built."""
+
+
 @dataclass
 class RenderResult:
-    image: np.ndarray              # (H, W, 4) float32 linear RGBA of the region, row 0 at the top
+    """What a render made. The image is resolved from the film when asked for (a full-frame float32
+    copy): a caller that streams the result can read it in bands with film.resolve(row0, row1)."""
+    film: Film = field(repr=False)
     progress: Progress
     stopped_early: bool
     dropped_triangles: int = 0
-    film: Film | None = field(default=None, repr=False)
+
+    @property
+    def image(self) -> np.ndarray:
+        """(H, W, 4) float32 linear RGBA of the region, row 0 at the top."""
+        return self.film.resolve()
 
 
 class Renderer:
     """A validated scene with its acceleration structure, ready to render any number of times."""
 
-    def __init__(self, scene: SceneArrays, threads: int = 0):
+    def __init__(self, scene: SceneArrays, threads: int = 0, should_stop: Callable[[], bool] | None = None):
+        """should_stop() is polled between the stages of the build (each stage is one long C or NumPy
+        call that cannot be interrupted); Cancelled is raised when it returns True."""
+        def poll():
+            if should_stop is not None and should_stop():
+                raise Cancelled()
+        poll()
         checked = scene.validate()
         self.scene = checked.scene
         self.dropped_triangles = checked.dropped_triangles
+        poll()
         self.accel = Accel(self.scene.positions, threads)
+        try:
+            poll()
+            # Triangles near float32's limits overflow in their normals: paths that hit them are
+            # dropped and counted like any non-finite path, so NumPy need not print about them.
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                self._build_tables(poll)
+        except BaseException:
+            self.accel.close()
+            raise
+
+    def _build_tables(self, poll) -> None:
         self.environment = Environment(self.scene.world)
         srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
         self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
         self._triangles = TriangleTable(self.scene)
+        poll()
         self._material_ids = self.scene.material_ids
         self.shading = Shading(self.scene.materials, self.textures)
         self._emissive = bool(self.shading.emissive.any())
@@ -129,9 +158,8 @@ class Renderer:
         self._transparent_shadow_limit = 8
         lo, hi = extent(self.scene.positions)
         self._ray_epsilon = _ray_epsilon(lo, hi)
-        # A sphere around the geometry, for the power of infinite lights.
-        radius = float(np.linalg.norm(hi - lo) / 2) if len(self.scene.positions) else 1.0
-        self.lights = LightSampler(self.scene, self.environment, _Emitters(self), radius, (lo + hi) / 2)
+        self.lights = LightSampler(self.scene, self.environment, _Emitters(self))
+        poll()
         threads = self.accel.threads
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
 
@@ -178,6 +206,9 @@ class Renderer:
         stopped = False
         done = 0
         while done < total and not stopped:
+            if done and self._out_of_time(settings, start):
+                stopped = True  # a pass never starts after the limit: the image stays evenly sampled
+                break
             spp, bands = _plan_pass(width, height, done, total, settings.wave_size)
             # Waves of one pass run concurrently (NumPy and Embree release the GIL); their results
             # are added to the film in order, so the image does not depend on the thread count.
@@ -204,14 +235,19 @@ class Renderer:
                     on_tile(film, r0, r1)
                 if on_progress is not None:
                     on_progress(progress)
+                # A time limit always lets the first full pass finish, as Cycles' does.
                 if not stopped and ((should_stop is not None and should_stop()) or (
-                        settings.time_limit_s > 0 and progress.elapsed_s >= settings.time_limit_s)):
+                        film.samples_done > 0 and self._out_of_time(settings, start))):
                     stopped = True
                     next_band = len(bands)  # finish the waves in flight, start no more
             if stopped and film.samples_done == done + spp and done + spp >= total:
                 stopped = False  # the stop came with the last wave: the render is complete
             done += spp
-        return RenderResult(film.resolve(), progress, stopped, self.dropped_triangles, film)
+        return RenderResult(film, progress, stopped, self.dropped_triangles)
+
+    @staticmethod
+    def _out_of_time(settings: RenderSettings, start: float) -> bool:
+        return settings.time_limit_s > 0 and time.perf_counter() - start >= settings.time_limit_s
 
     def _submit(self, fn, *args):
         if self._wave_pool is None:
@@ -232,7 +268,11 @@ class Renderer:
         col = (pix % width + x0).astype(np.int32)
         pixel_index = row.astype(np.uint32) * np.uint32(cam.width) + col.astype(np.uint32)
         rng = PathRng(*seed_paths(pixel_index, sample, settings.seed))
-        radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=(pixel_index, sample))
+        # Overflow and invalid values are expected at the edges of float32 (huge lights, degenerate
+        # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
+        # is per thread, so it is set here, in the thread that runs the wave.
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+            radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=(pixel_index, sample))
         bad = ~np.isfinite(radiance).all(axis=0)
         n_bad = int(np.count_nonzero(bad))
         if n_bad:

@@ -1,7 +1,10 @@
 """Next-event estimation: choosing a light, sampling it, and the pdfs MIS needs.
 
-Three kinds of emitters share one discrete distribution, proportional to an estimate of their power:
-Blender lights (the Lights table), emissive triangles (materials with emission) and the world.
+Three kinds of emitters share one discrete distribution: Blender lights (the Lights table), emissive
+triangles (materials with emission) and the world. Local emitters (point, spot and area lights,
+triangles) are chosen in proportion to their power (W); distant ones (suns and the world), whose power
+is a flux per unit area, share DISTANT_SHARE of the choices, among themselves in proportion to their
+irradiance. No scene size enters the choice: a far-away ground plane changes nothing.
 `sample` returns, per shading point, a direction toward a point on the chosen light, the distance to
 it, the radiance arriving along it and its pdf per unit solid angle *including the probability of
 choosing that light*, so MIS weights compare like with like. Delta lights (zero-size point and spot,
@@ -16,7 +19,9 @@ from __future__ import annotations
 import numpy as np
 
 from . import sampling
+from .accel import Accel
 from .environment import Environment
+from .rng import pcg2d, to_unit_float
 from .scene import LIGHT_KINDS, SceneArrays
 from .textures import luminance
 
@@ -24,6 +29,18 @@ POINT, SPOT, SUN, RECT, DISK = (LIGHT_KINDS[k] for k in ("POINT", "SPOT", "SUN",
 # Emissive triangles subtending more than this solid angle are sampled by solid angle, smaller (far)
 # ones by area: for tiny spherical triangles the solid-angle construction loses float precision.
 SPHERICAL_MIN_SR = 1e-3
+# When a scene has both local and distant emitters, the distant ones (suns, world) get this share of
+# the light choices. It cannot come from comparing powers: a sun's or the world's power is per unit
+# area, and turning it into watts takes an arbitrary area (the scene's bounding sphere made a 1 km floor
+# starve the lamps). Cycles' light tree weighs distant lights at its root by their own importance,
+# not by the scene's size, too; a fixed half is never more than 2x from the best split for either side.
+DISTANT_SHARE = 0.5
+# With more lights with a surface than this, BSDF rays find the lights they cross through Embree
+# (LightProxies) instead of testing every light.
+PROXY_MIN_LIGHTS = 8
+# A ray crosses at most this many proxy faces (two per light it passes): a ray along which more than
+# half this many lights overlap misses the rest.
+MAX_PROXY_CROSSINGS = 1024
 # Columns of the emissive-triangle table: corner 0, two edges, unit normal, area, mean radiance.
 _TP0, _TE1, _TE2, _TN, _TAREA, _TLE = 0, 3, 6, 9, 12, 13
 _TRI_ROWS = 16
@@ -65,8 +82,7 @@ class LightSampler:
     Entities are numbered: Blender lights [0, L), emissive triangles [L, L + E), then the world.
     """
 
-    def __init__(self, scene: SceneArrays, environment: Environment, triangle_emission, scene_radius: float,
-                 scene_center=(0.0, 0.0, 0.0)):
+    def __init__(self, scene: SceneArrays, environment: Environment, triangle_emission):
         """triangle_emission: the emissive materials. triangle_emission(tri_ids) -> (3, n) mean emitted radiance
         of those triangles (textures averaged); triangle_emission(tri_ids, b1, b2, toward) -> (3, n) radiance
         at barycentrics (b1, b2) toward -toward; .emissive (M,) bool, the materials that emit;
@@ -83,8 +99,10 @@ class LightSampler:
         self.spot = lights.spot_cos.astype(np.float32)
         self.sun_cos = np.cos(lights.sun_half_angle).astype(np.float32)
         # A sun of angular radius a and radiance L gives E = L pi sin^2(a) facing it: L = E / (pi sin^2 a).
+        # Suns whose cone rounds to a single direction in float32 are delta lights and keep E itself.
         sin2 = np.sin(lights.sun_half_angle.astype(np.float64)) ** 2
-        self.sun_radiance = np.where((sin2 > 0)[:, None], lights.radiance / (np.pi * np.maximum(sin2, 1e-300))[:, None],
+        cone = (self.sun_cos < np.float32(1.0)) & (sin2 > 0)
+        self.sun_radiance = np.where(cone[:, None], lights.radiance / (np.pi * np.where(cone, sin2, 1.0))[:, None],
                                      lights.radiance).astype(np.float32)
         self.area = np.where(self.kind == RECT, self.size[:, 0] * self.size[:, 1],
                              np.float32(np.pi / 4) * self.size[:, 0] * self.size[:, 1]).astype(np.float32)
@@ -118,16 +136,16 @@ class LightSampler:
         surface = ((self.kind == RECT) | (self.kind == DISK) | (((self.kind == POINT) | (self.kind == SPOT))
                                                                  & (self.radius > 0)))
         self.has_surface_lights = bool(surface.any())
-        self.scene_radius = np.float32(max(scene_radius, 1e-3))
-        self.scene_center = np.asarray(scene_center, np.float32)
+        self.surface_ids = np.flatnonzero(surface)
+        self._proxy = (LightProxies(self.surface_ids, self.kind, self.position, self.radius, self.size)
+                       if len(self.surface_ids) > PROXY_MIN_LIGHTS else None)
         power = np.concatenate([self._light_power(), self._triangle_power(), [self._world_power()]])
         power = np.where(np.isfinite(power) & (power > 0), power, 0.0)
         self.world_index = self.light_count + len(self.tri_ids)
-        total = power.sum()
-        self.has_lights = total > 0
-        self.select_pmf = (power / total if total > 0 else power).astype(np.float64)
+        self.has_lights = power.sum() > 0
+        self.select_pmf = _selection_pmf(power, self._distant_mask())
         self._cdf = np.cumsum(self.select_pmf)
-        if total > 0:
+        if self.has_lights:
             self._cdf /= self._cdf[-1]
         self.pmf32 = self.select_pmf.astype(np.float32)
 
@@ -139,7 +157,7 @@ class LightSampler:
         sphere = np.where(r2 > 0, lum * np.pi * r2, lum) * 4 * np.pi
         cone = (1.0 - 0.5 * (self.spot[:, 0] + np.minimum(1.0, self.spot[:, 0] + self.spot[:, 1]))).astype(np.float64)
         spot = sphere * np.clip(cone, 1e-4, 1.0) / 2.0
-        sun = lum * np.pi * float(self.scene_radius) ** 2
+        sun = lum  # irradiance (W/m^2): compared with the world's only (see DISTANT_SHARE)
         area = lum * self.area * np.pi
         return np.select([self.kind == POINT, self.kind == SPOT, self.kind == SUN], [sphere, spot, sun], area)
 
@@ -150,7 +168,12 @@ class LightSampler:
         return 2.0 * np.pi * self.tri_area * lum
 
     def _world_power(self) -> float:
-        return float(np.pi * self.scene_radius ** 2 * 4 * np.pi * self.environment.mean_luminance())
+        """In the sun's unit (W/m^2): the world's flux into a sphere over the sphere's cross-section."""
+        return float(4 * np.pi * self.environment.mean_luminance())
+
+    def _distant_mask(self) -> np.ndarray:
+        """(L + E + 1,) bool: the emitters whose power is per unit area (suns and the world)."""
+        return np.concatenate([self.kind == SUN, np.zeros(len(self.tri_ids), bool), [True]])
 
     # ------------------------------------------------------------------ sampling
     def sample(self, px, py, pz, u_select, u1, u2) -> LightSample:
@@ -328,32 +351,69 @@ class LightSampler:
         return self.pmf32[self.world_index] * self.environment.direction_pdf(dx, dy, dz)
 
     def intersect(self, ox, oy, oz, dx, dy, dz, t_max):
-        """BSDF rays against the lights that have a surface (sphere, rect, disk): the nearest hit before
-        t_max. Returns (hit mask, radiance (3, N), pdf (N,) solid angle with selection)."""
+        """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max.
+        Returns (hit mask, radiance (3, N), pdf (N,) solid angle with selection).
+
+        Lights are transparent to each other, as in Cycles (a ray goes on through a light it hits):
+        a ray collects the emission of every light it passes through. The caller weights what it gets
+        by MIS with one pdf, so where a ray passes through several lights one of them is returned,
+        chosen in proportion to its radiance, with its radiance divided by that probability: the
+        expectation is the sum over the lights, each with its own MIS weight. Where a ray meets one
+        light, that light is returned as it is."""
         n = len(ox)
-        best_t = t_max.astype(np.float32).copy()
         radiance = np.zeros((3, n), np.float32)
         pdf = np.zeros(n, np.float32)
         hit = np.zeros(n, bool)
-        for k in range(self.light_count):
-            kind = self.kind[k]
-            if kind == SUN or (kind in (POINT, SPOT) and self.radius[k] <= 0):
-                continue
-            if kind in (POINT, SPOT):
-                t, light_pdf, att = self._hit_sphere(k, ox, oy, oz, dx, dy, dz)
-            else:
-                t, light_pdf, att = self._hit_area(k, ox, oy, oz, dx, dy, dz)
-            nearer = (t > 0) & (t < best_t)
-            if nearer.any():
-                best_t = np.where(nearer, t, best_t)
-                radiance = np.where(nearer[None, :], self.radiance_of[k][:, None] * att[None, :], radiance)
-                pdf = np.where(nearer, self.pmf32[k] * light_pdf, pdf)
-                hit |= nearer
+        if not self.has_surface_lights or n == 0:
+            return hit, radiance, pdf
+        ray, light = self._candidates(ox, oy, oz, dx, dy, dz, t_max)
+        if not len(ray):
+            return hit, radiance, pdf
+        t, light_pdf, le = self._hit_pairs(ray, light, ox[ray], oy[ray], oz[ray], dx[ray], dy[ray], dz[ray])
+        ok = np.flatnonzero((t > 0) & (t < t_max[ray]))
+        ray, light, light_pdf, le = ray[ok], light[ok], light_pdf[ok], le[:, ok]
+        weight = le[0] + le[1] + le[2]
+        keep = np.flatnonzero(weight > 0)
+        ray, light, light_pdf, le, weight = ray[keep], light[keep], light_pdf[keep], le[:, keep], weight[keep]
+        if not len(ray):
+            return hit, radiance, pdf
+        order = np.argsort(ray, kind="stable")  # candidates come grouped by light; group them by ray
+        ray, light, light_pdf, le, weight = ray[order], light[order], light_pdf[order], le[:, order], weight[order]
+        chosen, share = _choose_per_ray(ray, weight.astype(np.float64), _ray_uniform(ox, oy, oz, dx, dy, dz)[ray])
+        rays = ray[chosen]
+        hit[rays] = True
+        radiance[:, rays] = le[:, chosen] / share.astype(np.float32)
+        pdf[rays] = np.take(self.pmf32, light[chosen]) * light_pdf[chosen]
         return hit, radiance, pdf
 
-    def _hit_sphere(self, k, ox, oy, oz, dx, dy, dz):
-        """A BSDF ray against a sized point light: the disk through its centre facing the ray origin."""
-        c, r = self.position[k], self.radius[k]
+    def _candidates(self, ox, oy, oz, dx, dy, dz, t_max):
+        """(ray, light) index pairs that may hit: every ray against every surface light, or, with many
+        lights, the pairs whose bounding shapes the ray crosses (found by Embree)."""
+        if self._proxy is None:
+            n, k = len(ox), len(self.surface_ids)
+            return np.tile(np.arange(n), k), np.repeat(self.surface_ids, n)
+        return self._proxy.candidates(ox, oy, oz, dx, dy, dz, t_max)
+
+    def _hit_pairs(self, ray, light, ox, oy, oz, dx, dy, dz):
+        """Per (ray, light) pair: distance (-1 for a miss), pdf per solid angle of that light's
+        sampling (without selection) and the radiance arriving (3, P)."""
+        p = len(ray)
+        t = np.full(p, -1.0, np.float32)
+        pdf = np.zeros(p, np.float32)
+        le = np.zeros((3, p), np.float32)
+        kind = np.take(self.kind, light)
+        for sel, method in ((np.flatnonzero((kind == POINT) | (kind == SPOT)), self._hit_spheres),
+                            (np.flatnonzero((kind == RECT) | (kind == DISK)), self._hit_areas)):
+            if len(sel):
+                lk = light[sel]
+                t_k, pdf_k, att = method(lk, ox[sel], oy[sel], oz[sel], dx[sel], dy[sel], dz[sel])
+                t[sel], pdf[sel] = t_k, pdf_k
+                le[:, sel] = self.radiance_of[lk].T * att[None, :]
+        return t, pdf, le
+
+    def _hit_spheres(self, k, ox, oy, oz, dx, dy, dz):
+        """Rays against sized point lights k: the disk through each centre facing the ray origin."""
+        c, r = self.position[k].T, self.radius[k]
         lx, ly, lz = c[0] - ox, c[1] - oy, c[2] - oz
         d2 = lx * lx + ly * ly + lz * lz
         inv = np.float32(1.0) / np.sqrt(np.maximum(d2, np.float32(1e-30)))
@@ -365,26 +425,122 @@ class LightSampler:
         inside = (hx * hx + hy * hy + hz * hz <= r * r) & (denom > 0) & np.isfinite(t)
         t = np.where(inside, t, np.float32(-1.0))
         pdf = _area_to_solid_angle(np.float32(np.pi) * r * r, np.abs(t), np.abs(denom))
-        att = self._spot_attenuation(np.full(len(ox), k), -dx, -dy, -dz)
+        att = self._spot_attenuation(k, -dx, -dy, -dz)
         return t, pdf, att
 
-    def _hit_area(self, k, ox, oy, oz, dx, dy, dz):
-        c = self.position[k]
-        xa, ya, za = self.axes[k, :, 0], self.axes[k, :, 1], self.axes[k, :, 2]
+    def _hit_areas(self, k, ox, oy, oz, dx, dy, dz):
+        """Rays against area lights k (rectangles and disks, emitting toward their -Z)."""
+        c = self.position[k].T
+        xa, ya, za = self._axis(k, 0), self._axis(k, 1), self._axis(k, 2)
         denom = dx * za[0] + dy * za[1] + dz * za[2]          # > 0: travelling into the emitting face
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((c[0] - ox) * za[0] + (c[1] - oy) * za[1] + (c[2] - oz) * za[2]) / denom
         hx, hy, hz = ox + t * dx - c[0], oy + t * dy - c[1], oz + t * dz - c[2]
-        a = (hx * xa[0] + hy * xa[1] + hz * xa[2]) / self.size[k, 0]
-        b = (hx * ya[0] + hy * ya[1] + hz * ya[2]) / self.size[k, 1]
-        if self.kind[k] == DISK:
-            inside = a * a + b * b <= np.float32(0.25)
-        else:
-            inside = (np.abs(a) <= np.float32(0.5)) & (np.abs(b) <= np.float32(0.5))
+        with np.errstate(invalid="ignore"):
+            a = (hx * xa[0] + hy * xa[1] + hz * xa[2]) / self.size[k, 0]
+            b = (hx * ya[0] + hy * ya[1] + hz * ya[2]) / self.size[k, 1]
+        inside = np.where(self.kind[k] == DISK, a * a + b * b <= np.float32(0.25),
+                          (np.abs(a) <= np.float32(0.5)) & (np.abs(b) <= np.float32(0.5)))
         valid = inside & (denom > 0) & np.isfinite(t)
         t = np.where(valid, t, np.float32(-1.0))
         pdf = _area_to_solid_angle(self.area[k], np.abs(t), np.abs(denom))
-        return t, pdf, np.ones(len(ox), np.float32)
+        return t, pdf, np.ones(len(k), np.float32)
+
+
+class LightProxies:
+    """Bounding shapes of the lights with a surface, in an Embree scene of their own: an octahedron
+    around each light's bounding sphere (a sized point light's own sphere, an area light's circumscribed
+    one). BSDF rays collect every proxy they cross (lights are transparent to each other), so the exact
+    tests run only on the few (ray, light) pairs that may hit."""
+
+    def __init__(self, ids, kind, position, radius, size):
+        area = (kind[ids] == RECT) | (kind[ids] == DISK)
+        bound = np.where(area, 0.5 * np.hypot(size[ids, 0], size[ids, 1]), radius[ids]).astype(np.float64)
+        # |x| + |y| + |z| <= r sqrt(3) holds the ball of radius r, widened a little for rounding.
+        a = bound * np.sqrt(3.0) * 1.01
+        # Each octahedron turned its own way: lights on a grid would otherwise share face planes, and
+        # of two faces at the same distance a ray would step past the second.
+        axes = _random_rotations(len(a)) * a[:, None, None]
+        c = position[ids].astype(np.float64)[:, None, :]
+        corners = [np.stack([sx * axes[:, :, 0], sy * axes[:, :, 1], sz * axes[:, :, 2]], axis=1) + c
+                   for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+        self.owner = np.tile(ids, 8)
+        positions = np.concatenate(corners).astype(np.float32)
+        self.accel = Accel(positions, threads=1)
+        extent = max(float(np.abs(positions).max()), 1e-3)
+        # Step past a face just crossed: far below any light's size, far above float32 rounding.
+        self.step = np.float32(max(1e-4 * float(np.min(bound[bound > 0], initial=1.0)), extent * 1e-6))
+
+    def candidates(self, ox, oy, oz, dx, dy, dz, t_max):
+        """(ray, light) pairs, each once, for every proxy a ray crosses before t_max."""
+        n = len(ox)
+        live = np.arange(n)
+        travelled = np.zeros(n, np.float32)
+        dirs = np.stack([dx, dy, dz], axis=1).astype(np.float32)
+        rays, lights = [], []
+        for _ in range(MAX_PROXY_CROSSINGS):
+            if not len(live):
+                break
+            t0 = travelled[live]
+            origins = np.stack([ox[live] + dx[live] * t0, oy[live] + dy[live] * t0, oz[live] + dz[live] * t0],
+                               axis=1).astype(np.float32)
+            remaining = (t_max[live] - t0).astype(np.float32)
+            hits = self.accel.intersect(origins, dirs[live], np.where(remaining > 0, remaining, np.float32(0)),
+                                        split=False)
+            got = np.flatnonzero((hits.prim >= 0) & (remaining > 0))
+            rays.append(live[got])
+            lights.append(np.take(self.owner, hits.prim[got]))
+            live = live[got]
+            travelled[live] += hits.t[got] + self.step
+        if not rays:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        ray, light = np.concatenate(rays), np.concatenate(lights)
+        key = np.unique(light.astype(np.int64) * n + ray)  # each pair once, grouped by light
+        return key % n, key // n
+
+
+def _random_rotations(n: int) -> np.ndarray:
+    """(n, 3, 3) rotation matrices (columns are the rotated axes) from a fixed seed."""
+    q = np.random.default_rng(0x5EED).normal(size=(n, 4))
+    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=1),
+        np.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], axis=1),
+        np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1)], axis=2)
+
+
+def _ray_uniform(ox, oy, oz, dx, dy, dz) -> np.ndarray:
+    """(N,) float32 in [0, 1): a hash of each ray's bits. Deterministic (every thread count gives the
+    same image) and independent of the path's own random numbers for the purpose it serves."""
+    bits = [np.ascontiguousarray(a, np.float32).view(np.uint32) for a in (ox, oy, oz, dx, dy, dz)]
+    x, y = pcg2d(bits[0] ^ bits[3], bits[1] ^ bits[4])
+    x, y = pcg2d(x ^ bits[2], y ^ bits[5])
+    return to_unit_float(x)
+
+
+def _choose_per_ray(ray, weight, u):
+    """Candidates sorted by ray, weight > 0 each, u one uniform per candidate (its ray's): one candidate
+    per ray, chosen with probability weight / (sum of its ray's weights). Returns (indices of the
+    chosen candidates, their probabilities)."""
+    starts = np.flatnonzero(np.r_[True, ray[1:] != ray[:-1]])
+    counts = np.diff(np.r_[starts, len(ray)])
+    cum = np.cumsum(weight)
+    before = np.repeat(np.r_[0.0, cum[starts[1:] - 1]], counts)   # sum of the weights of earlier rays
+    total = np.repeat(np.add.reduceat(weight, starts), counts)
+    below = (cum - weight - before) <= u * total                    # True, ..., True, False, ... per ray
+    chosen = starts + np.maximum(np.add.reduceat(below.astype(np.int64), starts) - 1, 0)
+    return chosen, weight[chosen] / total[chosen]
+
+
+def _selection_pmf(power: np.ndarray, distant: np.ndarray) -> np.ndarray:
+    """(K,) float64 probabilities of choosing each emitter: by power within the local and within the
+    distant group; the distant group as a whole gets DISTANT_SHARE when both groups can emit."""
+    local_total, distant_total = power[~distant].sum(), power[distant].sum()
+    if local_total > 0 and distant_total > 0:
+        share = np.where(distant, DISTANT_SHARE / distant_total, (1.0 - DISTANT_SHARE) / local_total)
+        return (power * share).astype(np.float64)
+    total = local_total + distant_total
+    return (power / total if total > 0 else power).astype(np.float64)
 
 
 def _direction(px, py, pz, qx, qy, qz):

@@ -70,7 +70,7 @@ def test_file_frames_and_exr_output(tmp_path, blend_file):
     (["render", "/nonexistent/scene.blend"], "no such file"),
     (["render", "--frames", "9-3"], "ends before"),
     (["render", "--resolution", "wide"], "--resolution"),
-    (["render", "-o", "/proc/ember/out.png"], "cannot write"),
+    (["render", "-o", "/proc/ember/out.png"], "cannot create the directory '/proc/ember'"),
     (["render", "-o", "out/picture.gif"], "extensions"),
     (["render", "--samples", "zero"], "invalid int"),
 ])

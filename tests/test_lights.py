@@ -40,7 +40,7 @@ def sampler_for(lights=None, positions=None, emission=None, world=None):
         def __call__(self, tri, b1=None, b2=None, toward=None):
             return table_emission[scene.material_ids[tri]].T.copy()
 
-    return LightSampler(scene, env, Emitters(), scene_radius=5.0)
+    return LightSampler(scene, env, Emitters())
 
 
 def uniforms(n=N, seed=0):

@@ -13,8 +13,12 @@ mesh.py reads geometry, materials.py shader nodes and images, world.py the world
 """
 from __future__ import annotations
 
+import os
+import re
 import time
 from dataclasses import dataclass
+
+import bpy
 
 from ...kernels import SceneArrays
 from .camera import export_camera, render_region, render_resolution
@@ -23,8 +27,10 @@ from .materials import DEFAULT_ALBEDO, MaterialTable
 from .mesh import export_geometry
 from .world import export_world
 
-__all__ = ["DEFAULT_ALBEDO", "ExportError", "ExportResult", "export_scene", "render_region",
+__all__ = ["DEFAULT_ALBEDO", "ExportCancelled", "ExportError", "ExportResult", "export_scene", "render_region",
            "render_resolution"]
+# A Blender-relative path inside a warning: '//' up to a closing bracket, quote or the end.
+_RELATIVE_PATH = re.compile(r"(?<![:/\w])//[^)'\"]*")
 
 
 @dataclass
@@ -48,11 +54,17 @@ class ExportError(Exception):
     """The scene cannot be rendered at all; the message is one user-facing line."""
 
 
-def export_scene(depsgraph, camera_override=None, *, width=None, height=None) -> ExportResult:
+class ExportCancelled(Exception):
+    """should_stop() returned True during the export (Esc, or Ctrl-C on the command line)."""
+
+
+def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
 
     camera_override : a camera object to use instead of the scene's (RenderEngine.camera_override).
     width, height : full frame in pixels; by default the scene's resolution x percentage / 100.
+    should_stop : polled while objects are read (a few times a second at most); ExportCancelled when
+        it returns True.
     Raises ExportError when there is no camera.
     """
     start = time.perf_counter()
@@ -66,13 +78,38 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None) ->
                            default_width if width is None else width,
                            default_height if height is None else height, warnings)
     materials = MaterialTable(warnings)
-    geometry = export_geometry(depsgraph, materials, warnings)
+    poll = Poller(should_stop)
+    geometry = export_geometry(depsgraph, materials, warnings, poll)
     world = export_world(scene.world, warnings)
-    lights = export_lights(depsgraph, warnings)
+    lights = export_lights(depsgraph, warnings, poll)
     arrays = SceneArrays(positions=geometry.positions, normals=geometry.normals, uvs=geometry.uvs,
                          material_ids=geometry.material_ids, materials=materials.to_kernel(),
                          textures=materials.textures, texture_srgb=materials.texture_srgb, world=world,
                          camera=camera, lights=lights)
-    return ExportResult(scene=arrays, warnings=list(dict.fromkeys(warnings)),
+    return ExportResult(scene=arrays, warnings=list(dict.fromkeys(absolute_paths(w) for w in warnings)),
                         seconds=time.perf_counter() - start, triangle_count=len(geometry.material_ids),
                         instance_count=geometry.instance_count)
+
+
+class Poller:
+    """Calls should_stop at most every interval_s (Blender's test_break is cheap, but an export may
+    visit millions of instances) and raises ExportCancelled when it returns True."""
+
+    def __init__(self, should_stop=None, interval_s: float = 0.05):
+        self._should_stop = should_stop
+        self._interval = interval_s
+        self._next = 0.0
+
+    def __call__(self) -> None:
+        if self._should_stop is None:
+            return
+        now = time.perf_counter()
+        if now >= self._next:
+            self._next = now + self._interval
+            if self._should_stop():
+                raise ExportCancelled()
+
+
+def absolute_paths(line: str) -> str:
+    """A warning with its Blender-relative paths ('//textures/a.png') made absolute."""
+    return _RELATIVE_PATH.sub(lambda m: os.path.normpath(bpy.path.abspath(m.group(0))), line)

@@ -21,11 +21,17 @@ from ...kernels.textures import luminance
 
 # Blender's blackbody is defined for this range; colours are clamped outside it.
 BLACKBODY_RANGE_K = (800.0, 12000.0)
+# Radiance (or intensity, for point-like lights) above this is clamped: the kernel works in float32
+# (largest 3.4e38) and multiplies radiance by geometry terms on the way, so 1e38 W became inf pixels.
+MAX_LIGHT_RADIANCE = 1e20
 
 
-def export_lights(depsgraph, warnings: list[str]) -> Lights:
+def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
+    """Every light instance; poll() is called for each instance (it raises to cancel the export)."""
     rows = []
     for inst in depsgraph.object_instances:
+        if poll is not None:
+            poll()
         ob = inst.object
         if ob.type != "LIGHT":
             continue
@@ -57,7 +63,15 @@ def light_strength(light) -> np.ndarray:
 
 def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[str]):
     strength = light_strength(light)
-    if not np.all(np.isfinite(strength)) or np.all(strength <= 0):
+    if not np.all(np.isfinite(strength)):
+        warnings.append(f"Light '{name}' has a non-finite power and is skipped")
+        return None
+    if np.any(strength < 0):
+        # Cycles subtracts light for negative power; Ember's light sampling needs power >= 0.
+        warnings.append(f"Light '{name}' has negative power ({float(light.energy):g} W): negative lights are "
+                        f"not supported, skipped")
+        return None
+    if np.all(strength <= 0):
         return None
     linear = world_from_light[:3, :3]
     scale = np.linalg.norm(linear, axis=0)
@@ -104,6 +118,11 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
     else:
         warnings.append(f"Light '{name}' of type {light.type} is not supported")
         return None
+    radiance = np.asarray(radiance, np.float64)
+    if radiance.max() > MAX_LIGHT_RADIANCE:
+        warnings.append(f"Light '{name}' is too bright for Ember's float32 arithmetic (power {float(light.energy):g} W): "
+                        f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
+        radiance = radiance * (MAX_LIGHT_RADIANCE / radiance.max())
     return (kind, position, frame, radiance, radius, size, spot, sun_half)
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .materials import MaterialTable
+from .materials import MaterialTable, output_node, source_of
 
 # Object types that carry geometry Ember cannot render yet.
 UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds", "VOLUME": "volumes"}
@@ -53,12 +53,15 @@ class Geometry:
     instance_count: int
 
 
-def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str]) -> Geometry:
-    """Read every rendered mesh instance; register the materials its slots use in `materials`."""
+def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None) -> Geometry:
+    """Read every rendered mesh instance; register the materials its slots use in `materials`.
+    poll() is called for every instance (it raises to cancel the export)."""
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
     slot_rows: dict[tuple, tuple] = {}       # (object, mesh) pointers -> material row of each slot
     groups: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> world_from_object matrices
     for inst in depsgraph.object_instances:
+        if poll is not None:
+            poll()
         # An instance is only valid during its iteration step: copy what is needed now.
         ob = inst.object
         if not _is_rendered(inst, ob, warnings):
@@ -73,6 +76,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str]) ->
         if object_key not in slot_rows:
             slot_rows[object_key] = materials.slot_ids(ob)
             _check_visibility(ob, warnings)
+            _check_volumes(ob, warnings)
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(np.array(inst.matrix_world))
     return _assemble(meshes, groups)
 
@@ -93,6 +97,21 @@ def _check_visibility(ob, warnings: list[str]) -> None:
     if not all(getattr(ob, name) for name in RAY_VISIBILITY) or ob.is_holdout or ob.is_shadow_catcher:
         warnings.append(f"Object '{ob.name}': ray visibility, holdout and shadow catcher settings are not "
                         f"supported, rendered as a plain object")
+
+
+def _check_volumes(ob, warnings: list[str]) -> None:
+    """Ember renders surfaces only: say so for materials with a volume shader (a volume-only material
+    would otherwise render as an unexplained black surface)."""
+    for slot in ob.material_slots:
+        material = slot.material
+        out = output_node(material.node_tree) if material is not None and material.node_tree else None
+        if out is None or source_of(out.inputs["Volume"]).node is None:
+            continue
+        if source_of(out.inputs["Surface"]).node is None:
+            warnings.append(f"Material '{material.name}': volume shaders are not supported and it has no "
+                            f"surface shader: rendered as a black surface")
+        else:
+            warnings.append(f"Material '{material.name}': volume shaders are not supported, the volume is ignored")
 
 
 def read_mesh(mesh) -> LocalMesh:
@@ -170,8 +189,10 @@ def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np
     k = len(world_from_object)
     linear = world_from_object[:, :3, :3]
     points = positions_out.reshape(k, -1, 3)
-    np.matmul(mesh.positions, linear.transpose(0, 2, 1).astype(np.float32), out=points)
-    points += world_from_object[:, None, :3, 3].astype(np.float32)
+    # Transforms beyond float32 give inf coordinates: validate() drops those triangles and says so.
+    with np.errstate(over="ignore", invalid="ignore"):
+        np.matmul(mesh.positions, linear.transpose(0, 2, 1).astype(np.float32), out=points)
+        points += world_from_object[:, None, :3, 3].astype(np.float32)
     np.matmul(mesh.normals, _normal_matrices(linear).transpose(0, 2, 1), out=normals_out.reshape(k, -1, 3))
 
 
@@ -182,6 +203,11 @@ def _normal_matrices(linear: np.ndarray) -> np.ndarray:
     singular matrices too (their triangles are degenerate and dropped later). Scaled to magnitude 1 so
     huge or tiny object scales stay well inside float32.
     """
+    # The cofactors of a matrix scaled by s are scaled by s^2: scale each matrix to entries of at most 1
+    # first, so that object scales of 1e30 or 1e-30 neither overflow nor underflow on the way.
+    size = np.abs(linear).max(axis=(1, 2))
+    finite = np.isfinite(size) & (size > 0)
+    linear = np.where(finite[:, None, None], linear, 0.0) / np.where(finite, size, 1.0)[:, None, None]
     c0, c1, c2 = linear[:, :, 0], linear[:, :, 1], linear[:, :, 2]
     cofactor = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=2)
     det = np.einsum("ki,ki->k", c0, cofactor[:, :, 0])

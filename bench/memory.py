@@ -1,0 +1,94 @@
+"""Memory and time of large frames (issue 10, item 5): one render per size, each in a fresh process.
+
+    .venv/bin/python bench/memory.py [--sizes 1000,2000,4000] [--samples 1] [--display]
+
+For every size: the wall time of the render call, the process's peak resident memory (VmHWM) over the
+render, and the peak of Ember's own NumPy memory (tracemalloc; Blender's C allocations are not in it).
+The README's formula is checked against the figures:
+
+    Ember's memory = 32 bytes per pixel (the float64 RGBA film) + a working set of at most WORKING_SET_MB
+    Blender's own  = its render result, 16 bytes per pixel (float32 RGBA), and what it needs to save it
+
+--display forces the interactive path (rows written every wave, as F12 in the interface does) in
+background mode, where Ember would otherwise write every row once at the end.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+FILM_BYTES_PER_PIXEL = 32
+WORKING_SET_MB = 96  # bound on the waves in flight (two threads, 64k paths each) and the row chunks; 44 measured
+
+CHILD = r"""
+import json, os, sys, time, tracemalloc
+sys.path.insert(0, %(root)r); sys.path.insert(0, os.path.join(%(root)r, "tests"))
+from bench._common import import_ember; import_ember()
+import bpy
+from bpy_helpers import diffuse_material, mesh_object, new_scene, set_world
+import ember.engine.session as session
+if %(display)r:
+    session._background = lambda: False
+    session.DISPLAY_INTERVAL_S = 0.0
+
+def peak_kb():
+    with open("/proc/self/status") as f:
+        return int(next(l for l in f if l.startswith("VmHWM")).split()[1])
+
+size = %(size)d
+scene = new_scene(size, size)
+mesh_object("Floor", [(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)], [(0, 1, 2, 3)], diffuse_material("Floor"))
+bpy.ops.mesh.primitive_uv_sphere_add(radius=0.8, location=(0, 0, 0.8))
+set_world(scene, color=(0.3, 0.4, 0.5))
+scene.render.engine = "EMBER"
+scene.ember.samples = %(samples)d
+scene.render.threads_mode, scene.render.threads = "FIXED", 2
+before = peak_kb()
+tracemalloc.start()
+start = time.perf_counter()
+bpy.ops.render.render()
+wall = time.perf_counter() - start
+numpy_peak = tracemalloc.get_traced_memory()[1]
+tracemalloc.stop()
+print("RESULT " + json.dumps({"size": size, "wall_s": wall, "rss_before_mb": before / 1024,
+                              "rss_peak_mb": peak_kb() / 1024, "ember_peak_mb": numpy_peak / 2**20}))
+"""
+
+
+def measure(size: int, samples: int, display: bool) -> dict:
+    code = CHILD % {"root": ROOT, "size": size, "samples": samples, "display": display}
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    line = next((ln for ln in run.stdout.splitlines() if ln.startswith("RESULT ")), None)
+    if line is None:
+        raise RuntimeError(f"size {size} failed: {run.stderr.strip()[-500:]}")
+    return json.loads(line[len("RESULT "):])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="1000,2000,4000")
+    ap.add_argument("--samples", type=int, default=1)
+    ap.add_argument("--display", action="store_true")
+    args = ap.parse_args()
+    print(f"{'size':>11} | {'render s':>8} | {'peak RSS MB':>11} | {'RSS growth MB':>13} | {'Ember MB':>8} | "
+          f"{'film MB':>7} | Ember - film (working set) MB", flush=True)
+    ok = True
+    for size in map(int, args.sizes.split(",")):
+        r = measure(size, args.samples, args.display)
+        film = FILM_BYTES_PER_PIXEL * size * size / 2**20
+        working = r["ember_peak_mb"] - film
+        ok &= working <= WORKING_SET_MB
+        print(f"{size:>5}x{size:<5} | {r['wall_s']:8.2f} | {r['rss_peak_mb']:11.0f} | "
+              f"{r['rss_peak_mb'] - r['rss_before_mb']:13.0f} | {r['ember_peak_mb']:8.0f} | {film:7.0f} | "
+              f"{working:.0f}", flush=True)
+    print(f"\nformula: Ember = {FILM_BYTES_PER_PIXEL} B/pixel + at most {WORKING_SET_MB} MB: "
+          f"{'holds' if ok else 'BROKEN'}")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
