@@ -623,9 +623,11 @@ def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int):
 
 
 def _ray_epsilon(lo: np.ndarray, hi: np.ndarray) -> np.float32:
-    """Offset for spawned rays, scaled to the scene's extent (float32 keeps about 7 digits)."""
+    """The absolute part of the offset of spawned rays (the relative part, 2^-16 |p|, is in _offset):
+    scaled down with tiny scenes, and never above Cycles' 2^-16 near the origin, so that a huge ground
+    plane far away does not lift every ray in the scene off its surface."""
     extent = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
-    return np.float32(max(extent, 1e-3) * 1e-6)
+    return np.float32(min(max(extent, 1e-3) * 1e-6, 2.0 ** -16))
 
 
 def render(scene: SceneArrays, settings: RenderSettings = RenderSettings(), threads: int = 0,
