@@ -55,7 +55,8 @@ def linux_package() -> str:
 def test_package_holds_the_add_on_and_no_development_files(linux_package):
     with zipfile.ZipFile(linux_package) as z:
         names = z.namelist()
-    for required in ("__init__.py", "blender_manifest.toml", "engine/version.py", "kernels/integrator.py"):
+    for required in ("__init__.py", "blender_manifest.toml", "engine/version.py", "kernels/integrator.py",
+                     "kernels/bsdf/data/microfacet_tables.npz", "kernels/bsdf/data/sheen_ltc.npz"):
         assert required in names
     top = {n.split("/")[0] for n in names}
     development = {"tests", "bench", "tools", "docs", ".ci", ".git", ".venv", ".pytest_cache", "out", "dist",

@@ -150,7 +150,8 @@ def check_package(path: str, expected_wheels: list[str]) -> list[str]:
     wheels = sorted(n for n in names if n.startswith("wheels/"))
     if wheels != sorted(w.removeprefix("./") for w in expected_wheels):
         sys.exit(f"build_extension: {os.path.basename(path)} bundles {wheels}, expected {expected_wheels}")
-    for required in ("__init__.py", "blender_manifest.toml", "engine/render_engine.py", "kernels/integrator.py"):
+    for required in ("__init__.py", "blender_manifest.toml", "engine/render_engine.py", "kernels/integrator.py",
+                     "kernels/bsdf/data/microfacet_tables.npz", "kernels/bsdf/data/sheen_ltc.npz"):
         if required not in names:
             sys.exit(f"build_extension: {required} missing from {os.path.basename(path)}")
     return names
