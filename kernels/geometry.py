@@ -18,10 +18,28 @@ class TriangleTable:
 
     def __init__(self, scene: SceneArrays):
         self.rows = _triangle_table(scene)
+        # (T, 12) float32: per corner the tangent xyz and its sign; apart from the rows every hit gathers,
+        # since only normal-mapped and anisotropic materials read it.
+        self.tangent_rows = None if scene.tangents is None else \
+            np.ascontiguousarray(scene.tangents.reshape(len(scene.tangents), 12), np.float32)
 
     def gather(self, prim: np.ndarray) -> np.ndarray:
         """(27, N) view: one row per component of the triangles prim."""
         return np.take(self.rows, prim, axis=0).T
+
+    def tangent_frame(self, prim: np.ndarray, b1: np.ndarray, b2: np.ndarray):
+        """The unnormalized interpolated tangent (x, y, z), bitangent sign and corner normal (x, y, z) at
+        barycentrics (b1, b2) of triangles prim, as Cycles interpolates them for a normal map; None
+        without tangents. The normal is the one the corners give, not yet flipped for back faces."""
+        if self.tangent_rows is None:
+            return None
+        w0 = np.float32(1.0) - b1 - b2
+        t = np.take(self.tangent_rows, prim, axis=0).T
+        n = np.take(self.rows[:, N0:N2 + 3], prim, axis=0).T
+        tangent = tuple(w0 * t[k] + b1 * t[4 + k] + b2 * t[8 + k] for k in range(3))
+        sign = w0 * t[3] + b1 * t[7] + b2 * t[11]
+        normal = tuple(w0 * n[k] + b1 * n[3 + k] + b2 * n[6 + k] for k in range(3))
+        return tangent, sign, normal
 
 
 def interpolate_uv(g: np.ndarray, w0, w1, w2):

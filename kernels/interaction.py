@@ -16,8 +16,9 @@ class SurfaceHit:
     d : the incoming ray direction; wo = -d points toward the viewer.
     mat : (N,) int32 material row; prim : (N,) triangle index.
     backfacing : (N,) bool, the ray hit the triangle's back (normals were flipped).
+    tangent_frame(idx) : the tangents of some hits, computed on demand.
     """
-    __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing")
+    __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "_table", "_b1", "_b2")
 
     def __init__(self, table: TriangleTable, material_ids: np.ndarray, prim, b1, b2, d, need_uv: bool):
         g = table.gather(prim)
@@ -43,6 +44,13 @@ class SurfaceHit:
         self.d = d
         self.mat = np.take(material_ids, prim)
         self.prim = prim
+        self._table, self._b1, self._b2 = table, b1, b2
+
+    def tangent_frame(self, idx: np.ndarray):
+        """At hits idx: the interpolated, unnormalized tangent (x, y, z) and bitangent sign (n,), and the
+        unnormalized interpolated corner normal (x, y, z), not flipped for back faces: what Cycles'
+        normal map reads. None when the scene has no tangents."""
+        return self._table.tangent_frame(np.take(self.prim, idx), np.take(self._b1, idx), np.take(self._b2, idx))
 
     def __len__(self) -> int:
         return len(self.mat)

@@ -87,13 +87,53 @@ class Param:
         return cls(values, int(texture), bool(alpha), bool(unassociate))
 
 
+# Spaces of a Normal Map node the kernel renders (Blender also has OBJECT and BLENDER_OBJECT, which need the
+# instance transform: the engine's export warns and leaves the input unlinked).
+NORMAL_MAP_SPACES = ("TANGENT", "WORLD", "BLENDER_WORLD")
+
+
+@dataclass(frozen=True)
+class NormalMap:
+    """A Normal Map node feeding a closure's Normal or Coat Normal input (Cycles' `svm_node_normal_map`).
+
+    color : Param of 3 floats, the node's Color (a constant, or a Non-Color image texture), each axis
+        stored as (x + 1) / 2.
+    strength : Param of 1 float, the node's Strength.
+    space : one of NORMAL_MAP_SPACES. TANGENT reads the mesh's tangents (SceneArrays.tangents); without
+        them the normal is left unperturbed, as Cycles does without its tangent attribute. WORLD reads
+        the colour as a world direction; BLENDER_WORLD negates its y and z first.
+    """
+    color: Param
+    strength: Param = Param((1.0,))
+    space: str = "TANGENT"
+
+    def params(self):
+        yield self.color
+        yield self.strength
+
+
+@dataclass(frozen=True)
+class Tangent:
+    """A Tangent node (UV Map direction) feeding a closure's Tangent input: the interpolated tangent of
+    SceneArrays.tangents, made orthogonal to the shading normal (Cycles' `svm_node_tangent`)."""
+
+    def params(self):
+        return iter(())
+
+
+# What a closure input may hold besides a Param, and the inputs that may hold it.
+INPUT_NODES = {NormalMap: ("Normal", "Coat Normal"), Tangent: ("Tangent",)}
+
+
 @dataclass(frozen=True)
 class Closure:
     """A closure node of a material, with its inputs and where it sits in the Mix/Add shader tree.
 
     kind : one of CLOSURE_KINDS.
     inputs : ((socket name, Param), ...) by Blender's input names ("Base Color", "Roughness", ...);
-        inputs left out take the node's defaults (kernels.shading.nodes).
+        inputs left out take the node's defaults (kernels.shading.nodes). "Normal" and "Coat Normal"
+        may hold a NormalMap, "Tangent" a Tangent (INPUT_NODES); left out, they are the shading normal
+        and an arbitrary tangent.
     options : ((name, value), ...) the node's enum settings, e.g. ("distribution", "MULTI_GGX").
     factors : ((Param, second), ...) the Mix Shader factors above the node: its weight is the product
         of fac (when it is the Mix's second input) or 1 - fac (first input), each fac clamped to [0, 1].
@@ -103,22 +143,37 @@ class Closure:
     options: tuple = ()
     factors: tuple = ()
 
-    def input(self, name: str) -> Param | None:
+    def input(self, name: str) -> Param | NormalMap | Tangent | None:
         return next((p for n, p in self.inputs if n == name), None)
 
     def option(self, name: str, default=None):
         return next((v for n, v in self.options if n == name), default)
 
     def params(self):
-        yield from (p for _, p in self.inputs)
+        """Every Param the closure reads, those of its normal maps included."""
+        for _, p in self.inputs:
+            if isinstance(p, Param):
+                yield p
+            else:
+                yield from p.params()
         yield from (p for p, _ in self.factors)
+
+    def uses_tangents(self) -> bool:
+        """Whether the closure reads SceneArrays.tangents (a tangent-space normal map or a Tangent node)."""
+        return any(isinstance(p, Tangent) or (isinstance(p, NormalMap) and p.space == "TANGENT")
+                   for _, p in self.inputs)
 
 
 @dataclass(frozen=True)
 class Shader:
-    """A material: the sum of its closures, each weighted by its Mix Shader factors."""
+    """A material: the sum of its closures, each weighted by its Mix Shader factors.
+
+    bump_map_correction : Cycles' material setting of that name (on by default): specular closures tilt
+        their normal toward the geometric normal until the mirror direction clears the surface.
+    """
     closures: tuple = ()
     name: str = ""
+    bump_map_correction: bool = True
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),
@@ -157,15 +212,31 @@ class Materials:
             for closure in shader.closures:
                 where = f"materials[{i}] ({shader.name or 'unnamed'}) {closure.kind}"
                 _require(closure.kind in CLOSURE_KINDS, where, f"kind must be one of {CLOSURE_KINDS}")
-                for name, p in closure.inputs + tuple(("Fac", p) for p, _ in closure.factors):
-                    _require(len(p.value) in (1, 3) and all(np.isfinite(p.value)), f"{where} {name}",
-                             f"must be 1 or 3 finite floats, got {p.value}")
-                    _require(-1 <= p.texture < n_textures, f"{where} {name}",
-                             f"texture must be -1 or in [0, {n_textures}), got {p.texture}")
+                for name, value in closure.inputs + tuple(("Fac", p) for p, _ in closure.factors):
+                    _check_input(value, f"{where} {name}", name, n_textures)
                 if closure.kind == "EMISSION" or closure.kind == "PRINCIPLED":
                     for name in ("Color", "Strength", "Emission Color", "Emission Strength"):
                         p = closure.input(name)
                         _require(p is None or min(p.value) >= 0, f"{where} {name}", "must be non-negative")
+
+
+def _check_input(value, where: str, name: str, n_textures: int) -> None:
+    """A closure input: a Param, or a node of INPUT_NODES on an input that may hold it."""
+    if isinstance(value, Param):
+        params = (value,)
+    else:
+        _require(type(value) in INPUT_NODES, where, f"must be a Param, got {type(value).__name__}")
+        _require(name in INPUT_NODES[type(value)], where, f"cannot hold a {type(value).__name__}")
+        if isinstance(value, NormalMap):
+            _require(value.space in NORMAL_MAP_SPACES, where,
+                     f"space must be one of {NORMAL_MAP_SPACES}, got {value.space!r}")
+            _require(len(value.color.value) == 3 and len(value.strength.value) == 1, where,
+                     "a normal map needs a colour of 3 floats and a strength of 1")
+        params = tuple(value.params())
+    for p in params:
+        _require(len(p.value) in (1, 3) and all(np.isfinite(p.value)), where,
+                 f"must be 1 or 3 finite floats, got {p.value}")
+        _require(-1 <= p.texture < n_textures, where, f"texture must be -1 or in [0, {n_textures}), got {p.texture}")
 
 
 @dataclass(frozen=True)
@@ -253,6 +324,10 @@ class SceneArrays:
     textures : tuple of (H, W, C) float32 arrays, C in {1, 3, 4}, row 0 at the bottom.
     texture_srgb : tuple of bool, one per texture (or empty: all linear). True marks a texture stored
         sRGB-encoded and decoded after filtering, as Cycles does with 8-bit sRGB images.
+    tangents : (T, 3, 4) float32 or None: per-corner world-space MikkTSpace tangent (xyz) of the render
+        UV map and its bitangent sign (w, +-1: B = sign * N x T); None when no material reads tangents
+        (tangent-space normal maps, Tangent nodes). Zero rows mean "no tangent" (Cycles then leaves the
+        normal unperturbed).
     """
     positions: np.ndarray
     normals: np.ndarray
@@ -264,6 +339,7 @@ class SceneArrays:
     world: World = field(default_factory=World)
     camera: Camera = field(default_factory=Camera)
     lights: Lights = field(default_factory=Lights)
+    tangents: np.ndarray | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -280,6 +356,8 @@ class SceneArrays:
         _check_array(self.normals, "normals", (t, 3, 3), np.float32, finite=False)
         _check_array(self.uvs, "uvs", (t, 3, 2), np.float32, finite=False)
         _check_array(self.material_ids, "material_ids", (t,), np.int32)
+        if self.tangents is not None:
+            _check_array(self.tangents, "tangents", (t, 3, 4), np.float32, finite=False)
         for i, tex in enumerate(self.textures):
             _require(isinstance(tex, np.ndarray) and tex.ndim == 3 and tex.shape[2] in (1, 3, 4)
                      and tex.shape[0] >= 1 and tex.shape[1] >= 1,
@@ -303,8 +381,11 @@ class SceneArrays:
         uvs = self.uvs
         bad_n = ~np.isfinite(normals).all(axis=(1, 2))
         bad_uv = ~np.isfinite(uvs).all(axis=(1, 2))
+        # A non-finite tangent on a usable triangle becomes "no tangent".
+        tangents = self.tangents
+        bad_t = ~np.isfinite(tangents).all(axis=(1, 2)) if tangents is not None else np.zeros(t, bool)
         dropped = int(t - np.count_nonzero(keep))
-        if dropped or bad_n.any() or bad_uv.any():
+        if dropped or bad_n.any() or bad_uv.any() or bad_t.any():
             normals = normals.copy()
             uvs = uvs.copy()
             if bad_n.any():
@@ -312,10 +393,15 @@ class SceneArrays:
                 ng = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
                 normals[bad_n] = ng[:, None, :]
             uvs[bad_uv] = 0.0
+            if tangents is not None:
+                tangents = tangents.copy()
+                tangents[bad_t] = 0.0
+                tangents = np.ascontiguousarray(tangents[keep])
             scene = dataclasses.replace(self, positions=np.ascontiguousarray(self.positions[keep]),
                                         normals=np.ascontiguousarray(normals[keep]),
                                         uvs=np.ascontiguousarray(uvs[keep]),
-                                        material_ids=np.ascontiguousarray(self.material_ids[keep]))
+                                        material_ids=np.ascontiguousarray(self.material_ids[keep]),
+                                        tangents=tangents)
         else:
             scene = self
         return ValidatedScene(scene, dropped, int(np.count_nonzero(bad_n & keep)))

@@ -186,3 +186,90 @@ def test_alpha_cut_card_in_front_of_a_wall(film_transparent):
         cycles = render_to_array(scene, "CYCLES", 64)[..., 3]
         ember_alpha = render_to_array(scene, "EMBER", 64)[..., 3]
         assert abs(float(cycles.mean()) - float(ember_alpha.mean())) < 0.01
+
+
+# ---------------------------------------------------------------- normal maps and tangents
+def bumps_image(size=32, bumps=3, depth=0.35, tilt=0.3):
+    """A Non-Color tangent-space normal map of a grid of round bumps on a slope rising along v (so that a
+    mirrored bitangent shows), float pixels, packed."""
+    yy, xx = (np.mgrid[0:size, 0:size] + 0.5) / size * bumps
+    fx, fy = xx % 1.0 - 0.5, yy % 1.0 - 0.5
+    # Height h = depth * cos^2(pi r) inside r < 1/2: the normal is (-dh/dx, -dh/dy, 1) normalized.
+    r = np.hypot(fx, fy)
+    inside = r < 0.5
+    dh_dr = np.where(inside, -depth * np.pi * np.sin(2 * np.pi * r), 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gx, gy = (np.where(r > 0, dh_dr * f / r, 0.0) for f in (fx, fy))
+    n = np.stack([-gx, -gy - tilt, np.ones_like(gx)], -1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    image = bpy.data.images.new("Bumps", size, size, alpha=False, float_buffer=True)
+    image.colorspace_settings.name = "Non-Color"
+    image.pixels.foreach_set(np.concatenate([n * 0.5 + 0.5, np.ones((size, size, 1))], -1).astype(np.float32).ravel())
+    image.pack()
+    return image
+
+
+def normal_mapped(name, idname, image, strength=1.0, space="TANGENT", **inputs):
+    """A one-node material whose Normal input is a Normal Map node reading `image`."""
+    mat = node_material(name, idname, **inputs)
+    tree = mat.node_tree
+    shader = next(n for n in tree.nodes if n.bl_idname == idname)
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    normal_map = tree.nodes.new("ShaderNodeNormalMap")
+    normal_map.space = space
+    normal_map.inputs["Strength"].default_value = strength
+    tree.links.new(tex.outputs["Color"], normal_map.inputs["Color"])
+    tree.links.new(normal_map.outputs["Normal"], shader.inputs["Normal"])
+    return mat
+
+
+def add_sun(scene, rotation, energy=3.0, angle=0.05):
+    light = bpy.data.lights.new("Sun", "SUN")
+    light.energy = energy
+    light.angle = angle
+    sun = bpy.data.objects.new("Sun", light)
+    sun.rotation_euler = rotation
+    scene.collection.objects.link(sun)
+    return sun
+
+
+def test_normal_mapped_planes_under_a_sun_and_an_hdri():
+    """Tangent-space normal maps (MikkTSpace tangents from the UV map) on a diffuse and a glossy plane,
+    one of them turned and scaled so that its tangents come through an instance transform."""
+    scene = new_scene(64, 48)
+    image = bumps_image()
+    diffuse = normal_mapped("Bumpy Diffuse", "ShaderNodeBsdfDiffuse", image, Color=(0.7, 0.6, 0.5))
+    glossy = normal_mapped("Bumpy Glossy", "ShaderNodeBsdfAnisotropic", image, strength=0.8,
+                           Color=(0.9, 0.9, 0.9), Roughness=0.25)
+    quad_object("Diffuse", (-2.1, 0, 0), (2, 0, 0), (0, 2, 0), diffuse)
+    card = quad_object("Glossy", (0, 0, 0), (1, 0, 0), (0, 1, 0), glossy)
+    card.location = (1.2, 0.3, 0.05)
+    card.rotation_euler = (0.0, 0.0, 0.5)
+    card.scale = (1.6, 1.6, 1.6)
+    add_sun(scene, (0.9, 0.0, 0.4))
+    add_camera(scene, (0, -1.6, 2.2), (0, 1.0, 0), lens=24)
+    set_world(scene, hdri="forest.exr", strength=0.6)
+    compare_to_cycles(scene, samples=128, max_bounces=4)
+
+
+def test_anisotropic_metal_with_a_uv_tangent_and_a_normal_mapped_sphere():
+    """Principled metal whose anisotropy follows the UV map's tangent (Tangent node, rotated), and a
+    normal-mapped plastic sphere (interpolated tangents on a curved, smooth mesh)."""
+    scene = new_scene(64, 48)
+    metal = node_material("Brushed", "ShaderNodeBsdfPrincipled", Base_Color=(0.9, 0.7, 0.5), Metallic=1.0,
+                          Roughness=0.35, Anisotropic=0.9, Anisotropic_Rotation=0.1)
+    tree = metal.node_tree
+    tangent = tree.nodes.new("ShaderNodeTangent")
+    tangent.direction_type = "UV_MAP"
+    tree.links.new(tangent.outputs["Tangent"], tree.nodes["Principled BSDF"].inputs["Tangent"])
+    plastic = normal_mapped("Bumpy Plastic", "ShaderNodeBsdfPrincipled", bumps_image(bumps=4),
+                            Base_Color=(0.2, 0.4, 0.7), Roughness=0.3)
+    sphere((-0.55, 0, 0.5), metal, radius=0.5)
+    sphere((0.55, 0, 0.5), plastic, radius=0.5)
+    mesh_object("Floor", [(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)], [(0, 1, 2, 3)],
+                diffuse_material("Floor", (0.4, 0.4, 0.4)))
+    add_sun(scene, (0.7, 0.0, -0.6), energy=2.0)
+    add_camera(scene, (0, -3.2, 1.1), (0, 0, 0.5), lens=40)
+    set_world(scene, hdri="courtyard.exr", strength=0.8)
+    compare_to_cycles(scene, samples=128, max_bounces=4)

@@ -15,7 +15,12 @@ closures from them (kernels.shading.nodes).
 - Any other shader node: DEFAULT_ALBEDO grey diffuse, with a warning. Nothing connected to the Surface
   (or no output node): black, as in Cycles. Objects without a material: DEFAULT_ALBEDO grey, as Cycles'
   default surface. Volume and Displacement outputs: ignored with a warning.
-- Normal inputs (normal and bump maps), coat normals, tangents, thin film: ignored with a warning.
+- Normal and Coat Normal inputs: a Normal Map node (Tangent, World or Blender World space; its Color a
+  constant, an RGB node or an Image Texture, its Strength a constant or a Value node) becomes a
+  kernels.scene.NormalMap. Tangent inputs: a Tangent node in UV Map direction becomes a Tangent. The
+  materials that read tangents, and the UV maps they name, are recorded (tangent_uv_maps) for the mesh
+  export. Anything else feeding those inputs (Bump, Object-space normal maps, radial tangents), thin film:
+  ignored with a warning.
 
 Images: 8-bit images come back from Blender undecoded. Those in an sRGB space are handed to the kernel
 sRGB-encoded and flagged, so it decodes them after filtering as Cycles does (the world's HDRI is decoded
@@ -30,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels import Materials
-from ...kernels.scene import Closure, Param, Shader, diffuse_shader
+from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
 from ...kernels.textures import srgb_to_linear
 
 DEFAULT_ALBEDO = 0.8
@@ -229,6 +234,8 @@ CLOSURE_NODES = {
     # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
     "ShaderNodeSubsurfaceScattering": ("DIFFUSE", ("Color",)),
 }
+# Closure inputs that take a direction from a node: a Normal Map (normals) or a Tangent node.
+NORMAL_INPUTS = ("Normal", "Coat Normal")
 # Inputs Ember does not render yet, each with the value at which it has no effect.
 UNSUPPORTED_INPUTS = {
     "PRINCIPLED": (("Thin Film Thickness", 0.0),),
@@ -247,6 +254,7 @@ class MaterialTable:
         self._warnings = warnings
         self._rows: list[Shader] = [diffuse_shader(GREY3, name="default surface")]
         self._ids: dict[str, int] = {}
+        self._tangent_maps: dict[int, tuple[str, ...]] = {}
 
     def material_id(self, material) -> int:
         """Row of a material (None for an empty slot), read on first use."""
@@ -254,9 +262,17 @@ class MaterialTable:
             return 0
         key = material.name_full
         if key not in self._ids:
-            self._ids[key] = len(self._rows)
-            self._rows.append(read_material(material, self.images, self._warnings))
+            row = self._ids[key] = len(self._rows)
+            uv_maps: list[str] = []
+            self._rows.append(read_material(material, self.images, self._warnings, uv_maps))
+            if uv_maps:
+                self._tangent_maps[row] = tuple(dict.fromkeys(uv_maps))
         return self._ids[key]
+
+    def tangent_uv_maps(self, rows) -> tuple[str, ...]:
+        """The UV maps whose tangents the materials of these rows read ('' for the render UV map);
+        empty when they read none."""
+        return tuple(dict.fromkeys(name for row in rows for name in self._tangent_maps.get(row, ())))
 
     def slot_ids(self, ob) -> tuple[int, ...]:
         """The rows of an object's material slots; (0,) for an object without slots."""
@@ -276,8 +292,9 @@ class MaterialTable:
         return Materials(tuple(self._rows))
 
 
-def read_material(material, images: ImageTextures, warnings: list[str]) -> Shader:
-    """One material's shader. Everything Ember cannot render goes into a single warning line."""
+def read_material(material, images: ImageTextures, warnings: list[str], uv_maps: list[str] | None = None) -> Shader:
+    """One material's shader. Everything Ember cannot render goes into a single warning line. The UV
+    maps whose tangents it reads are appended to uv_maps ('' for the render UV map)."""
     reader = _MaterialReader(images)
     tree = material.node_tree
     if tree is None:  # a material without nodes renders its viewport colour, as in Cycles
@@ -291,7 +308,10 @@ def read_material(material, images: ImageTextures, warnings: list[str]) -> Shade
                 reader.issues.append(f"{name} output is not supported, ignored")
     if reader.issues:
         warnings.append(f"Material '{material.name}': " + "; ".join(dict.fromkeys(reader.issues)))
-    return Shader(closures, material.name)
+    if uv_maps is not None:
+        uv_maps.extend(reader.tangent_uv_maps)
+    correction = getattr(getattr(material, "cycles", None), "use_bump_map_correction", True)
+    return Shader(closures, material.name, bool(correction))
 
 
 class _MaterialReader:
@@ -300,6 +320,7 @@ class _MaterialReader:
     def __init__(self, images: ImageTextures):
         self.images = images
         self.issues: list[str] = []
+        self.tangent_uv_maps: list[str] = []  # UV maps whose tangents the closures read ('' = render map)
 
     def closures(self, source: Source, factors: tuple) -> list[Closure]:
         """The closures of the shader tree feeding a shader socket, with their Mix Shader factors."""
@@ -324,6 +345,7 @@ class _MaterialReader:
         closure_kind, names = CLOSURE_NODES[kind]
         sockets = {s.identifier: s for s in node.inputs}  # unavailable sockets are not found by name
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
+        inputs += self.directions(node, groups)
         self.check_unsupported(node, closure_kind, groups)
         return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
 
@@ -339,12 +361,48 @@ class _MaterialReader:
             options.append(("fresnel", node.fresnel_type))
         return tuple(options)
 
+    def directions(self, node, groups) -> tuple:
+        """The node's linked Normal, Coat Normal and Tangent inputs Ember renders: ((name, NormalMap or
+        Tangent), ...). Other nodes feeding them are ignored with a warning."""
+        out = []
+        for name in NORMAL_INPUTS + ("Tangent",):
+            socket = node.inputs.get(name)
+            if socket is None or not socket.enabled:
+                continue
+            source = source_of(socket, groups)
+            if source.node is None:
+                continue
+            where = f"{source.node.bl_label} node feeding {name} of {node.bl_label} '{node.name}'"
+            value = self.normal_map(source, where) if name in NORMAL_INPUTS else self.tangent(source, where)
+            if value is not None:
+                out.append((name, value))
+        return tuple(out)
+
+    def normal_map(self, source: Source, where: str) -> NormalMap | None:
+        if source.kind != "ShaderNodeNormalMap":
+            self.issues.append(f"{where} is not supported, used the shading normal")
+            return None
+        node = source.node
+        if node.space not in NORMAL_MAP_SPACES:
+            self.issues.append(f"{where}: {node.space.replace('_', ' ').title()} space is not supported "
+                               f"(it needs the object's transform), used the shading normal")
+            return None
+        color = self.param(node.inputs["Color"], source.groups, 3, node)
+        strength = self.param(node.inputs["Strength"], source.groups, 1, node)
+        if node.space == "TANGENT":
+            self.tangent_uv_maps.append(node.uv_map)
+        return NormalMap(color, strength, node.space)
+
+    def tangent(self, source: Source, where: str) -> Tangent | None:
+        if source.kind == "ShaderNodeTangent" and source.node.direction_type == "UV_MAP":
+            self.tangent_uv_maps.append(source.node.uv_map)
+            return Tangent()
+        detail = " in Radial direction" if source.kind == "ShaderNodeTangent" else ""
+        self.issues.append(f"{where}{detail} is not supported, used an arbitrary tangent")
+        return None
+
     def check_unsupported(self, node, kind: str, groups) -> None:
         label = f"{node.bl_label} '{node.name}'"
-        for name in ("Normal", "Coat Normal", "Tangent"):
-            socket = node.inputs.get(name)
-            if socket is not None and source_of(socket, groups).node is not None:
-                self.issues.append(f"{label} {name} input (normal/bump maps, tangents) is not supported, ignored")
         for name, neutral in UNSUPPORTED_INPUTS.get(kind, ()):
             if self.is_set(node.inputs[name], neutral, groups):
                 self.issues.append(f"{label} {name} is not supported, ignored")
@@ -357,9 +415,10 @@ class _MaterialReader:
                                                                                       groups):
             self.issues.append(f"{label} Beckmann distribution rendered as GGX")
         aniso = {"PRINCIPLED": "Anisotropic", "GLOSSY": "Anisotropy", "METALLIC": "Anisotropy"}.get(kind)
-        if aniso and self.is_set(node.inputs[aniso], 0.0, groups):
-            self.issues.append(f"{label} {aniso}: Ember's tangent is arbitrary, not Cycles' radial default "
-                               f"or the UV map's")
+        tangent = node.inputs.get("Tangent")
+        if aniso and self.is_set(node.inputs[aniso], 0.0, groups) and source_of(tangent, groups).node is None:
+            self.issues.append(f"{label} {aniso}: without a Tangent node (UV Map) linked, Ember's tangent is "
+                               f"arbitrary, not Cycles' radial default")
 
     def param(self, socket, groups, channels: int, node) -> Param:
         """An input as a constant, or a constant times an Image Texture's Color or Alpha."""

@@ -5,6 +5,12 @@ evaluated meshes Blender itself hands out as instances for curves, text, surface
 geometry-nodes output, collection instances and particles (the set Cycles reads too; the curve or text
 object itself carries no triangles). Each evaluated mesh is read once in object space, and all its
 instances are transformed together, one matmul per group.
+
+Tangents (for tangent-space normal maps and Tangent nodes) are read only for meshes whose materials ask
+for them: Blender's MikkTSpace tangents of the UV map the material names (the render UV map by default),
+as Cycles computes them. Meshes without a UV map get tangents of Cycles' fallback, a spherical mapping
+of the vertex positions; meshes with n-gons (which Blender's MikkTSpace refuses) tangents of each
+triangle's UV gradient; both with a warning.
 """
 from __future__ import annotations
 
@@ -45,18 +51,22 @@ class Geometry:
 
     positions, normals : (T, 3, 3) float32; uvs : (T, 3, 2) float32; material_ids : (T,) int32.
     instance_count : object instances that contributed triangles.
+    tangents : (T, 3, 4) float32 world-space tangents and bitangent signs (SceneArrays.tangents), zero
+        for meshes whose materials read none; None when no material reads them.
     """
     positions: np.ndarray
     normals: np.ndarray
     uvs: np.ndarray
     material_ids: np.ndarray
     instance_count: int
+    tangents: np.ndarray | None = None
 
 
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
     poll() is called for every instance (it raises to cancel the export)."""
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
+    tangents: dict[int, np.ndarray] = {}     # evaluated mesh pointer -> (T*3, 4) object-space tangents
     slot_rows: dict[tuple, tuple] = {}       # (object, mesh) pointers -> material row of each slot
     groups: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> world_from_object matrices
     for inst in depsgraph.object_instances:
@@ -77,8 +87,11 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             slot_rows[object_key] = materials.slot_ids(ob)
             _check_visibility(ob, warnings)
             _check_volumes(ob, warnings)
+        uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
+        if uv_maps and mesh_key not in tangents:
+            tangents[mesh_key] = read_tangents(ob.data, meshes[mesh_key], uv_maps, ob.name, warnings)
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(np.array(inst.matrix_world))
-    return _assemble(meshes, groups)
+    return _assemble(meshes, groups, tangents)
 
 
 def _is_rendered(inst, ob, warnings: list[str]) -> bool:
@@ -148,6 +161,82 @@ def _corner_uvs(mesh, tri_loops: np.ndarray) -> np.ndarray:
     return np.take(uvs.reshape(-1, 2), tri_loops, axis=0)
 
 
+def read_tangents(mesh, local: LocalMesh, uv_maps: tuple, object_name: str, warnings: list[str]) -> np.ndarray:
+    """(T*3, 4) float32 object-space tangent and bitangent sign of each triangle corner of an evaluated mesh
+    (read by read_mesh into `local`), from the UV map uv_maps names ('' for the render UV map)."""
+    wanted = uv_maps[0]
+    if len(uv_maps) > 1:
+        warnings.append(f"Object '{object_name}': its materials read tangents of several UV maps, Ember uses "
+                        f"those of {_uv_label(wanted)}")
+    layer = mesh.uv_layers.get(wanted) if wanted else next((uv for uv in mesh.uv_layers if uv.active_render), None)
+    if layer is None and wanted:
+        # Cycles leaves the normal unperturbed without the tangent attribute: zero tangents do the same.
+        warnings.append(f"Object '{object_name}': no UV map '{wanted}' for its normal map or tangent, "
+                        f"left unperturbed")
+        return np.zeros((3 * local.triangle_count, 4), np.float32)
+    if layer is None:
+        warnings.append(f"Object '{object_name}': no UV map for its normal map or tangent: tangents of a "
+                        f"spherical mapping, as Cycles (per triangle, not MikkTSpace)")
+        return triangle_tangents(local.positions, local.normals, sphere_uvs(local.positions))
+    name = layer.name
+    try:
+        mesh.calc_tangents(uvmap=name)
+    except RuntimeError:  # Blender's MikkTSpace takes triangles and quads only
+        warnings.append(f"Object '{object_name}': tangents of n-gons are approximated per triangle "
+                        f"(not MikkTSpace)")
+        # The failed call leaves the layer reference stale (it reads zeros): look it up again.
+        return triangle_tangents(local.positions, local.normals, local_uvs(mesh, mesh.uv_layers[name]))
+    n_corners = len(mesh.loops)
+    tri_loops = _read(mesh.loop_triangles, "loops", 3 * local.triangle_count, np.uint32)
+    out = np.empty((len(tri_loops), 4), np.float32)
+    out[:, :3] = np.take(_read(mesh.loops, "tangent", 3 * n_corners, np.float32).reshape(-1, 3), tri_loops, axis=0)
+    out[:, 3] = np.take(_read(mesh.loops, "bitangent_sign", n_corners, np.float32), tri_loops)
+    mesh.free_tangents()
+    return out
+
+
+def _uv_label(name: str) -> str:
+    return f"UV map '{name}'" if name else "the render UV map"
+
+
+def local_uvs(mesh, layer) -> np.ndarray:
+    """(T*3, 2) float32 coordinates of one UV map at the triangle corners."""
+    tri_loops = _read(mesh.loop_triangles, "loops", 3 * len(mesh.loop_triangles), np.uint32)
+    return np.take(_read(layer.uv, "vector", 2 * len(mesh.loops), np.float32).reshape(-1, 2), tri_loops, axis=0)
+
+
+def sphere_uvs(points: np.ndarray) -> np.ndarray:
+    """(N, 2) float32: Cycles' map_to_sphere of (N, 3) object-space points, its UVs for meshes without."""
+    x, y, z = (points[:, k].astype(np.float64) for k in range(3))
+    length = np.sqrt(x * x + y * y + z * z)
+    u = np.where((x == 0) & (y == 0), 0.0, 0.5 - np.arctan2(x, y) / (2 * np.pi))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = 1.0 - np.arccos(np.clip(z / length, -1.0, 1.0)) / np.pi
+    return np.stack([np.where(length > 0, u, 0.0), np.where(length > 0, v, 0.0)], axis=1).astype(np.float32)
+
+
+def triangle_tangents(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray) -> np.ndarray:
+    """(T*3, 4) float32 tangents from each triangle's UV gradient (corners (T*3, 3) positions and normals,
+    (T*3, 2) UVs): dP/du made orthogonal to each corner normal, sign from dP/dv's side, as MikkTSpace
+    before it averages over shared vertices. Zero where the UVs are degenerate."""
+    p = positions.reshape(-1, 3, 3).astype(np.float64)
+    uv = uvs.reshape(-1, 3, 2).astype(np.float64)
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    ok = np.abs(det) > 1e-20
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)[:, None]
+    dpdu = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * inv
+    dpdv = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * inv
+    n = normals.reshape(-1, 3, 3).astype(np.float64)
+    n = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-30)
+    t = dpdu[:, None, :] - n * np.einsum("tcj,tj->tc", n, dpdu)[:, :, None]
+    length = np.linalg.norm(t, axis=2, keepdims=True)
+    t = np.where(length > 1e-30, t / np.maximum(length, 1e-30), 0.0)
+    sign = np.where(np.einsum("tcj,tj->tc", np.cross(n, t), dpdv) < 0, -1.0, 1.0)
+    return np.concatenate([t, sign[:, :, None]], axis=2).reshape(-1, 4).astype(np.float32)
+
+
 def _triangle_slots(mesh, t: int) -> np.ndarray:
     """(T,) int32 material slot per triangle; Blender omits the attribute when every face uses slot 0."""
     material_index = mesh.attributes.get("material_index")
@@ -157,26 +246,29 @@ def _triangle_slots(mesh, t: int) -> np.ndarray:
     return np.take(face_slots, _read(mesh.loop_triangle_polygons, "value", t, np.int32))
 
 
-def _assemble(meshes: dict, groups: dict) -> Geometry:
+def _assemble(meshes: dict, groups: dict, tangents: dict) -> Geometry:
     """Transform every group of instances into preallocated world-space arrays."""
     total = sum(meshes[key].triangle_count * len(matrices) for (key, _), matrices in groups.items())
     positions = np.empty((total, 3, 3), np.float32)
     normals = np.empty((total, 3, 3), np.float32)
     uvs = np.empty((total, 3, 2), np.float32)
     material_ids = np.empty(total, np.int32)
+    world_tangents = np.zeros((total, 3, 4), np.float32) if tangents else None
     start = 0
     for (key, rows), matrices in groups.items():
         mesh = meshes[key]
         k, t = len(matrices), mesh.triangle_count
         end = start + k * t
         _transform(mesh, np.stack(matrices), positions[start:end], normals[start:end])
+        if key in tangents:
+            transform_tangents(tangents[key], np.stack(matrices), world_tangents[start:end].reshape(k, t * 3, 4))
         uvs[start:end].reshape(k, t, 3, 2)[:] = mesh.uvs.reshape(t, 3, 2)
         # Blender clamps slot indices beyond the last slot to it.
         table = np.array(rows, np.int32)
         material_ids[start:end].reshape(k, t)[:] = table[np.clip(mesh.slots, 0, len(table) - 1)]
         start = end
     instance_count = sum(len(matrices) for matrices in groups.values())
-    return Geometry(positions, normals, uvs, material_ids, instance_count)
+    return Geometry(positions, normals, uvs, material_ids, instance_count, world_tangents)
 
 
 def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray,
@@ -194,6 +286,23 @@ def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np
         np.matmul(mesh.positions, linear.transpose(0, 2, 1).astype(np.float32), out=points)
         points += world_from_object[:, None, :3, 3].astype(np.float32)
     np.matmul(mesh.normals, _normal_matrices(linear).transpose(0, 2, 1), out=normals_out.reshape(k, -1, 3))
+
+
+def transform_tangents(tangents: np.ndarray, world_from_object: np.ndarray, out: np.ndarray) -> None:
+    """K instances of (C, 4) object-space tangents and signs into out (K, C, 4), world_from_object (K, 4, 4).
+
+    Tangents are directions on the surface: they transform with the matrix itself, then are brought back to
+    unit length. Cycles evaluates a normal map in object space with MikkTSpace's unit tangents; keeping
+    them unit here keeps their weight against the (unit) normal under a scaled instance. A mirroring
+    matrix flips the sign, as the cross product N x T flips with it.
+    """
+    linear = world_from_object[:, :3, :3]
+    with np.errstate(over="ignore", invalid="ignore"):
+        t = np.matmul(tangents[None, :, :3].astype(np.float64), linear.transpose(0, 2, 1))
+        length = np.linalg.norm(t, axis=2, keepdims=True)
+        t = np.where(length > 0, t / np.where(length > 0, length, 1.0), 0.0)
+    out[:, :, :3] = t
+    out[:, :, 3] = tangents[None, :, 3] * np.sign(np.linalg.det(linear))[:, None]
 
 
 def _normal_matrices(linear: np.ndarray) -> np.ndarray:

@@ -14,6 +14,12 @@ there: weight = f / pdf, one-sample MIS over the lobes (balance heuristic), as C
 
 The table is sorted by hit; lobes of one kind are evaluated together, in their local frames (z along the
 closure's own normal: shading, coat or bump-mapped; x along its tangent for anisotropic lobes).
+
+A closure whose normal is not the hit's shading normal (a normal map, the specular tilt of Bump Map
+Correction) is also weighed by Cycles' `bump_shadowing_term` (`kernel/closure/bsdf.h`): evaluated, it is
+zero where the light and the closure's normal sit on different sides of the shading normal's plane, and
+diffuse closures are softened by a GGX shadowing term of the normal's deviation (Chiang et al., "Taming
+the Shadow Terminator"); sampled, only diffuse reflection takes the term, as in Cycles.
 """
 from __future__ import annotations
 
@@ -27,12 +33,16 @@ LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GL
 LOBE_NAMES = ("lambert", "oren_nayar", "translucent", "sheen", "transparent", "reflection", "refraction", "glass")
 # Cycles drops closures whose sample weight is below this (`CLOSURE_WEIGHT_CUTOFF`).
 WEIGHT_CUTOFF = np.float32(1e-5)
+# Lobes Cycles counts as diffuse (CLOSURE_IS_BSDF_DIFFUSE) for the bump shadowing term.
+DIFFUSE_LOBES = (LAMBERT, OREN_NAYAR, SHEEN, TRANSLUCENT)
 
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
 
 # Per-closure parameter columns and their defaults: scalars (C,) and colours (3, C).
-_SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0}
+# soften: 1 where a diffuse closure on another normal takes the shadowing term's softening (Cycles skips
+# it when the material turns Bump Map Correction off).
+_SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0, "soften": 1.0}
 _COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0}
 
 
@@ -107,9 +117,16 @@ class ClosureSet:
                 setattr(self, name, cat(parts))
             else:
                 setattr(self, name, np.broadcast_to(F32(default), shape + (c,)))
+        self._bumped = None  # (C,) closures whose normal is not the shading normal, None if there are none
         if any(ch["n"] is not None for ch in chunks):
             normal = cat([ch["n"] if ch["n"] is not None else np.stack([np.take(a, ch["hit"]) for a in ns])
                           for ch in chunks])
+            shading = np.stack([np.take(a, self.hit) for a in ns])
+            bumped = np.any(normal != shading, axis=0)
+            if bumped.any():
+                self._bumped, self._shading = bumped, shading.astype(F32)
+                self._cos_d = np.einsum("ij,ij->j", shading, normal).astype(F32)
+                self._diffuse = np.isin(self.lobe, DIFFUSE_LOBES)
         else:
             normal = np.stack([np.take(a, self.hit) for a in ns]) if c else np.zeros((3, 0), F32)
         tangent = cat([ch["t"] if ch["t"] is not None else np.full((3, len(ch["hit"])), np.nan, F32)
@@ -123,13 +140,31 @@ class ClosureSet:
             self.total_sw = np.bincount(self.hit, self.sw, minlength=n_hits).astype(F32)
             self.start = np.searchsorted(self.hit, np.arange(n_hits))
             self.count = count
-        self.frame = _frames(normal.astype(F32), tangent)
-        self.wo = _to_local(self.frame, tuple(np.take(a, self.hit) for a in wo))
+        self.normal = normal.astype(F32, copy=False)
+        self._tangent = tangent
+        self._wo_world = wo
+        self._frame = self._wo = None
         self.kinds = [int(k) for k in np.unique(self.lobe)]
         self.delta = self._delta_mask()
+        # Lambert alone is evaluated in world space, without frames (the common case of diffuse scenes).
+        self.lambert_only = self.kinds == [LAMBERT] and self._bumped is None
 
     def __len__(self) -> int:
         return len(self.hit)
+
+    @property
+    def frame(self):
+        """(tangent, bitangent, normal) rows of every closure, each (3, C), made on first use."""
+        if self._frame is None:
+            self._frame = _frames(self.normal, self._tangent)
+        return self._frame
+
+    @property
+    def wo(self):
+        """The viewer direction in every closure's local frame."""
+        if self._wo is None:
+            self._wo = _to_local(self.frame, tuple(np.take(a, self.hit) for a in self._wo_world))
+        return self._wo
 
     def _delta_mask(self) -> np.ndarray:
         delta = self.lobe == TRANSPARENT
@@ -140,8 +175,49 @@ class ClosureSet:
         return delta
 
     # ---------------------------------------------------------------- evaluation
-    def _eval_closures(self, wi_world, idx):
-        """f |cos| (3, n) times the closure weight, and pdf (n,), of closures idx at wi_world (n,)."""
+    def _eval_closures(self, wi_world, idx, bump: bool = True):
+        """f |cos| (3, n) times the closure weight, and pdf (n,), of closures idx at wi_world (n,); with
+        the bump shadowing term of an evaluation unless bump is False."""
+        f, pdf = self._eval_unshadowed(wi_world, idx)
+        term = self._bump_term(idx, wi_world) if bump else None
+        if term is not None:
+            f, pdf = f * term, np.where(term > 0, pdf, ZERO)
+        return f, pdf
+
+    def _bump_term(self, rows, wi_world):
+        """(n,) Cycles' bump_shadowing_term of closures rows evaluated toward wi_world (module docstring),
+        None when none of them needs it."""
+        if self._bumped is None:
+            return None
+        bumped = self._bumped[rows]
+        if not bumped.any():
+            return None
+        diffuse = self._diffuse[rows]
+        ns = self._shading[:, rows]
+        cos_si = wi_world[0] * ns[0] + wi_world[1] * ns[1] + wi_world[2] * ns[2]
+        n = self.normal[:, rows]
+        cos_ni = wi_world[0] * n[0] + wi_world[1] * n[1] + wi_world[2] * n[2]
+        cos_d = self._cos_d[rows]
+        reject = bumped & (cos_si * cos_d * cos_ni < 0)
+        term = np.where(reject, ZERO, ONE)
+        soft = bumped & diffuse & ~reject & (self.soften[rows] > 0)
+        if soft.any():
+            ci, cd = np.abs(cos_si), np.abs(cos_d)
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                alpha2 = np.clip(F32(0.125) * (ONE / (cd * cd) - ONE), 0.0, 1.0)
+                tan2 = np.maximum(ONE / (ci * ci) - ONE, ZERO)
+                g = F32(2.0) / (ONE + np.sqrt(ONE + alpha2 * tan2))
+            g = np.where(ci < F32(1e-6), ZERO, g)
+            term = np.where(soft & (cd < ONE) & (ci < ONE), g, term)
+        return term.astype(F32)
+
+    def _eval_unshadowed(self, wi_world, idx):
+        """_eval_closures without the bump shadowing term."""
+        if self.lambert_only:
+            n = self.normal
+            cos = wi_world[0] * n[0, idx] + wi_world[1] * n[1, idx] + wi_world[2] * n[2, idx]
+            pdf = np.maximum(cos, ZERO) * sampling.INV_PI
+            return self.weight[:, idx] * pdf, pdf
         wi = _to_local(tuple(c[:, idx] for c in self.frame), wi_world)
         if len(self.kinds) == 1:
             return self._eval_lobe(self.kinds[0], idx, wi)
@@ -203,6 +279,7 @@ class ClosureSet:
             s = np.flatnonzero(~out.delta & (out.pdf > 0))
             if len(s):
                 f, pdf = self.eval_at(s, tuple(c[s] for c in out.wi))
+                self._sampled_bump(s, row[s], out, f, pdf)
                 good = pdf > 0
                 out.weight[:, s] = np.where(good, f / np.where(good, pdf, ONE), ZERO)
                 out.pdf[s] = pdf
@@ -214,6 +291,22 @@ class ClosureSet:
             out.pdf[d] = np.inf
         out.weight[:, ~(out.pdf > 0)] = 0.0
         return out
+
+    def _sampled_bump(self, s, rows, out, f, pdf):
+        """Cycles weighs the closure that sampled a direction by the term of a sample, not of an
+        evaluation: no rejection for non-diffuse ones, no term at all for transmission. Put back into the
+        mixture (f, pdf at hits s, in place) what eval_at's evaluation term took from them."""
+        if self._bumped is None:
+            return
+        fix = np.flatnonzero(self._bumped[rows] & (~self._diffuse[rows] | out.transmit[s]))
+        if not len(fix):
+            return
+        r = rows[fix]
+        wi = tuple(c[s[fix]] for c in out.wi)
+        lost = ONE - self._bump_term(r, wi)
+        f_c, pdf_c = self._eval_closures(wi, r, bump=False)
+        f[:, fix] += f_c * lost
+        pdf[fix] += (pdf_c * lost * self.sw[r] / self.total_sw[s[fix]]).astype(F32)
 
     def _sample_lobes(self, out, hits, rows, u1, u2, uc):
         """Each hit's chosen closure samples its own lobe: direction, lobe weight, lobe pdf."""

@@ -34,17 +34,10 @@ ior_from_f0 = fr.ior_from_f0
 
 # ---------------------------------------------------------------- setup (called by kernels.shading.nodes)
 def add_glossy(b, ctx, color, w, ax, ay, multiscatter: bool, sub=None):
-    """Glossy BSDF: GGX reflection with F = 1, weight colour x mix weight."""
+    """Glossy BSDF: GGX reflection with F = 1, weight colour x mix weight; its colour is the Fss of the
+    compensation (Cycles' bsdf_microfacet_setup_fresnel_constant)."""
     hits, normal, mu = _where(ctx, sub)
-    weight = color * w
-    sw = np.abs(weight.mean(axis=0))
-    eval_scale = ONE
-    if multiscatter:
-        eval_scale, factor = mf.multiscatter_reflection(ax, ay, mu, fss=color)
-        weight = weight * factor
-        sw = sw * factor.mean(axis=0)
-    b.add(lobes.REFLECTION, hits, weight, sample_weight=sw, normal=normal, ax=ax, ay=ay, eval_scale=eval_scale,
-          fresnel=F_ONE)
+    _add_reflection(b, hits, normal, color * w, np.ones_like(color), ax, ay, mu, color, multiscatter, F_ONE)
 
 
 def add_f82(b, ctx, weight, ax, ay, f0, tint, multiscatter: bool, sub=None):

@@ -8,6 +8,7 @@ by its estimated albedo (`closure_layering_weight`).
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,7 +16,8 @@ import numpy as np
 from ..bsdf import closures as lobes
 from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
-from ..scene import Closure
+from ..scene import Closure, NormalMap, Tangent
+from . import normals
 
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
@@ -53,12 +55,21 @@ class Built:
 
 
 class Context:
-    """The hits of one material in a wave: idx into the wave's hits, and their inputs on demand."""
+    """The hits of one material in a wave: idx into the wave's hits, and their inputs on demand.
 
-    def __init__(self, shading, hit, idx: np.ndarray, wo):
+    ns is the normal the closures of the node being built are made on: the hits' shading normal, or the
+    node's Normal input (normal_given). Views of one context (for_node, with_normal, specular) share the
+    hits and what was computed for them (the tangent frame)."""
+
+    def __init__(self, shading, hit, idx: np.ndarray, wo, bump_map_correction: bool = True):
         self.shading, self.hit, self.idx = shading, hit, idx
         self.wo = tuple(np.take(c, idx) for c in wo)
         self.ns = tuple(np.take(c, idx) for c in hit.ns)
+        self.hit_ns = self.ns
+        self.normal_given = False
+        self.bump_map_correction = bump_map_correction
+        self._specular = None
+        self._shared = {}
 
     def take(self, a):
         return np.take(a, self.idx)
@@ -75,15 +86,96 @@ class Context:
         return self.shading.param(p, self, channels)
 
     def mu(self, normal=None) -> np.ndarray:
-        """cos of the angle between the viewer and the normal (the shading normal by default)."""
+        """cos of the angle between the viewer and the normal (the context's normal by default)."""
         n = self.ns if normal is None else normal
         return self.wo[0] * n[0] + self.wo[1] * n[1] + self.wo[2] * n[2]
+
+    # ---- normals and tangents
+    @property
+    def normal_arg(self):
+        """The normal to hand ClosureBuilder.add: None when it is the hits' shading normal."""
+        return self.ns if self.normal_given else None
+
+    def for_node(self, closure: Closure) -> "Context":
+        """The view a closure node builds on: its Normal input, when a normal map feeds it."""
+        return self.with_normal(self.normal_input(closure, "Normal"))
+
+    def normal_input(self, closure: Closure, name: str):
+        """A Normal or Coat Normal input at the hits: a normal map's normal, or None when unlinked."""
+        spec = closure.input(name)
+        if not isinstance(spec, NormalMap):
+            return None
+        color = self.shading.param(spec.color, self, 3)
+        strength = self.shading.param(spec.strength, self, 1)
+        frame = self._frame() if spec.space == "TANGENT" else None
+        return normals.normal_map(color, strength, spec.space, self.hit_ns, self.take(self.hit.backfacing), frame)
+
+    def with_normal(self, normal) -> "Context":
+        """This context on another (unit) normal; itself for None."""
+        if normal is None:
+            return self
+        view = copy.copy(self)
+        view.ns, view.normal_given, view._specular = normal, True, None
+        return view
+
+    def specular(self) -> "Context":
+        """The view specular closures are made on: the normal tilted until the mirror direction clears
+        the surface (Cycles' maybe_ensure_valid_specular_reflection), unless the material turns Bump Map
+        Correction off."""
+        if self._specular is None:
+            self._specular = self
+            if self.bump_map_correction:
+                ng = tuple(np.take(c, self.idx) for c in self.hit.ng)
+                valid = normals.valid_specular_normal(ng, self.wo, self.ns)
+                if valid is not self.ns:
+                    self._specular = self.with_normal(valid)
+        return self._specular
+
+    def tangent(self, closure: Closure, rotation: str, axis):
+        """The closure's Tangent input (a Tangent node) rotated about axis by 2 pi x the rotation input, or
+        None (unlinked, or no tangents in the scene: the closure takes an arbitrary tangent)."""
+        if not isinstance(closure.input("Tangent"), Tangent):
+            return None
+        if "uv_tangent" not in self._shared:
+            self._shared["uv_tangent"] = normals.uv_tangent(self._frame(), self.hit_ns)
+        t = self._shared["uv_tangent"]
+        if t is None:
+            return None
+        angle = self.input(closure, rotation)
+        if np.any(angle != 0):
+            t = normals.rotate_about(t, axis, F32(2.0 * np.pi) * angle)
+        return t
+
+    def _frame(self):
+        if "frame" not in self._shared:
+            self._shared["frame"] = self.hit.tangent_frame(self.idx)
+        return self._shared["frame"]
+
+
+class _TangentBuilder:
+    """The wave's ClosureBuilder, handing a Tangent input's tangent to the (anisotropic) reflection closures
+    added through it: microfacet_closures sets its closures up without a tangent (the builder's arbitrary
+    one)."""
+
+    def __init__(self, builder, idx: np.ndarray, tangent):
+        self._builder = builder
+        self._tangent = np.full((3, builder.n_hits), np.nan, F32)
+        self._tangent[:, idx] = np.stack(tangent)
+
+    def add(self, lobe, hits, weight, tangent=None, **kwargs):
+        if tangent is None and lobe == lobes.REFLECTION:
+            tangent = self._tangent[:, hits]
+        self._builder.add(lobe, hits, weight, tangent=tangent, **kwargs)
+
+
+def _with_tangent(b, ctx: Context, tangent):
+    return b if b is None or tangent is None else _TangentBuilder(b, ctx.idx, tangent)
 
 
 def build(closure: Closure, ctx: Context, weight: np.ndarray, builder) -> Built:
     """Add the closure node's closures (weight (n,) from the Mix Shaders above it) to builder; builder
     None asks for emission and holdout only."""
-    return _BUILDERS[closure.kind](closure, ctx, weight, builder)
+    return _BUILDERS[closure.kind](closure, ctx.for_node(closure), weight, builder)
 
 
 # ---------------------------------------------------------------- simple nodes
@@ -97,17 +189,30 @@ def _diffuse(c, ctx, w, b):
 def _diffuse_lobe(b, ctx, weight, roughness, rho):
     """Lambert where roughness < 1e-5, else Cycles' Oren-Nayar with sigma = roughness."""
     rough = roughness >= CUTOFF
+    normal = ctx.normal_arg
     flat = np.flatnonzero(~rough)
-    b.add(lobes.LAMBERT, ctx.idx[flat], weight[:, flat])
+    b.add(lobes.LAMBERT, ctx.idx[flat], weight[:, flat], normal=_rows(normal, flat), **_soften(ctx))
     on = np.flatnonzero(rough)
     if len(on):
-        b.add(lobes.OREN_NAYAR, ctx.idx[on], weight[:, on], rough=np.clip(roughness[on], 0.0, 1.0),
-              c0=rho[:, on])
+        b.add(lobes.OREN_NAYAR, ctx.idx[on], weight[:, on], normal=_rows(normal, on),
+              rough=np.clip(roughness[on], 0.0, 1.0), c0=rho[:, on], **_soften(ctx))
+
+
+def _soften(ctx) -> dict:
+    """Diffuse closures on a normal map are softened by the bump shadowing term, unless the material
+    turns Bump Map Correction off (kernels.bsdf.closures)."""
+    return {} if ctx.bump_map_correction or not ctx.normal_given else {"soften": ZERO}
+
+
+def _rows(normal, sub):
+    """A per-hit normal at hits sub (None stays None: the shading normal)."""
+    return None if normal is None else tuple(c[sub] for c in normal)
 
 
 def _translucent(c, ctx, w, b):
     if b is not None:
-        b.add(lobes.TRANSLUCENT, ctx.idx, ctx.input(c, "Color") * w)
+        b.add(lobes.TRANSLUCENT, ctx.idx, ctx.input(c, "Color") * w, normal=ctx.specular().normal_arg,
+              **_soften(ctx))
     return Built()
 
 
@@ -120,7 +225,7 @@ def _transparent(c, ctx, w, b):
 def _sheen(c, ctx, w, b):
     if b is not None:
         rough = np.clip(ctx.input(c, "Roughness"), 0.0, 1.0)
-        b.add(lobes.SHEEN, ctx.idx, ctx.input(c, "Color") * w, rough=rough)
+        b.add(lobes.SHEEN, ctx.idx, ctx.input(c, "Color") * w, normal=ctx.normal_arg, rough=rough, **_soften(ctx))
     return Built()
 
 
@@ -140,7 +245,10 @@ def _glossy(c, ctx, w, b):
         aniso = np.clip(ctx.input(c, "Anisotropy"), -0.99, 0.99)
         ax, ay = mf.glossy_anisotropy(alpha, aniso)
         distribution = c.option("distribution", "MULTI_GGX")
-        mf.add_glossy(b, ctx, color, w, ax, ay, multiscatter=distribution == "MULTI_GGX")
+        spec = ctx.specular()
+        tangent = ctx.tangent(c, "Rotation", spec.ns)  # Cycles rotates it about the closure's own normal
+        mf.add_glossy(_with_tangent(b, ctx, tangent), spec, color, w, ax, ay,
+                      multiscatter=distribution == "MULTI_GGX")
     return Built()
 
 
@@ -149,8 +257,8 @@ def _glass(c, ctx, w, b):
         color = np.maximum(ctx.input(c, "Color"), ZERO)
         alpha = np.square(np.clip(ctx.input(c, "Roughness"), 0.0, 1.0))
         ior = np.maximum(ctx.input(c, "IOR"), F32(1e-5))
-        mf.add_glass(b, ctx, w, alpha, ior, reflection_tint=color, transmission_tint=color, specular_tint=None,
-                     multiscatter=c.option("distribution", "MULTI_GGX") == "MULTI_GGX")
+        mf.add_glass(b, ctx.specular(), w, alpha, ior, reflection_tint=color, transmission_tint=color,
+                     specular_tint=None, multiscatter=c.option("distribution", "MULTI_GGX") == "MULTI_GGX")
     return Built()
 
 
@@ -159,7 +267,7 @@ def _refraction(c, ctx, w, b):
         color = ctx.input(c, "Color")
         alpha = np.square(ctx.input(c, "Roughness"))
         ior = np.maximum(ctx.input(c, "IOR"), F32(1e-5))
-        mf.add_refraction(b, ctx, color * w, alpha, ior)
+        mf.add_refraction(b, ctx.specular(), color * w, alpha, ior)
     return Built()
 
 
@@ -169,11 +277,13 @@ def _metallic(c, ctx, w, b):
         ax, ay = mf.principled_anisotropy(alpha, np.clip(ctx.input(c, "Anisotropy"), 0.0, 1.0))
         multiscatter = c.option("distribution", "MULTI_GGX") == "MULTI_GGX"
         weight = np.broadcast_to(w, (3, len(w)))
+        spec = ctx.specular()
+        b = _with_tangent(b, ctx, ctx.tangent(c, "Rotation", ctx.ns))
         if c.option("fresnel", "F82") == "PHYSICAL_CONDUCTOR":
-            mf.add_conductor(b, ctx, weight, ax, ay, np.maximum(ctx.input(c, "IOR"), ZERO),
+            mf.add_conductor(b, spec, weight, ax, ay, np.maximum(ctx.input(c, "IOR"), ZERO),
                              np.maximum(ctx.input(c, "Extinction"), ZERO), multiscatter)
         else:
-            mf.add_f82(b, ctx, weight, ax, ay, np.clip(ctx.input(c, "Base Color"), 0.0, 1.0),
+            mf.add_f82(b, spec, weight, ax, ay, np.clip(ctx.input(c, "Base Color"), 0.0, 1.0),
                        np.clip(ctx.input(c, "Edge Tint"), 0.0, 1.0), multiscatter)
     return Built()
 
@@ -191,15 +301,22 @@ def _principled(c, ctx, w, b):
         b.add(lobes.TRANSPARENT, ctx.idx, weight * (ONE - alpha))
     weight = weight * alpha
     coat_w = np.maximum(get("Coat Weight"), ZERO)
-    # 1. Sheen, on the normal halfway to the coat's normal (the same normal until coat normals exist).
+    # The coat's normal: its Coat Normal input, else the node's Normal.
+    coat = ctx.with_normal(ctx.normal_input(c, "Coat Normal"))
+    # 1. Sheen, on the normal partway to the coat's normal, by the coat's weight.
     sheen_w = np.maximum(get("Sheen Weight"), ZERO)
     has = np.flatnonzero(sheen_w > CUTOFF)
     if len(has):
+        sheen = ctx
+        if coat is not ctx:
+            t = np.clip(coat_w, 0.0, 1.0)
+            sheen = ctx.with_normal(normals.safe_normalize(tuple(n + (m - n) * t for n, m in zip(ctx.ns, coat.ns))))
         rough = np.clip(get("Sheen Roughness")[has], 0.0, 1.0)
         sheen_weight = sheen_w[has] * np.maximum(get("Sheen Tint")[:, has], ZERO) * weight[:, has]
         if b is not None:
-            b.add(lobes.SHEEN, ctx.idx[has], sheen_weight, rough=rough)
-        albedo = sheen_albedo(ctx.mu()[has], rough)
+            b.add(lobes.SHEEN, ctx.idx[has], sheen_weight, normal=_rows(sheen.normal_arg, has), rough=rough,
+                  **_soften(sheen))
+        albedo = sheen_albedo(sheen.mu()[has], rough)
         weight[:, has] = layering_weight(sheen_weight * albedo, weight[:, has])
     # 2. Coat: GGX with exact dielectric Fresnel at the coat IOR, then its tint along the refracted path.
     has = np.flatnonzero(coat_w > CUTOFF)
@@ -208,14 +325,15 @@ def _principled(c, ctx, w, b):
         alpha_c = np.square(np.clip(get("Coat Roughness")[has], 0.0, 1.0))
         ior_c = np.maximum(get("Coat IOR")[has], ONE)
         coat_weight = cw * weight[:, has]
-        albedo = mf.coat_albedo(ctx, has, alpha_c, ior_c) * coat_weight
+        coat = coat.specular()
+        albedo = mf.coat_albedo(coat, has, alpha_c, ior_c) * coat_weight
         if b is not None:
-            mf.add_coat(b, ctx, has, coat_weight, alpha_c, ior_c)
+            mf.add_coat(b, coat, has, coat_weight, alpha_c, ior_c)
         weight[:, has] = layering_weight(albedo, weight[:, has])
         tint = np.maximum(get("Coat Tint")[:, has], ZERO)
         tinted = np.flatnonzero(np.any(tint != ONE, axis=0))
         if len(tinted):
-            mu = ctx.mu()[has][tinted]
+            mu = coat.mu()[has][tinted]
             ior_t = ior_c[tinted]
             cos_t = np.sqrt(np.maximum(ONE - (ONE - mu * mu) / (ior_t * ior_t), ZERO))
             depth = ONE / np.maximum(cos_t, F32(1e-7))
@@ -231,20 +349,22 @@ def _principled(c, ctx, w, b):
     roughness = np.clip(get("Roughness"), 0.0, 1.0)
     alpha_r = roughness * roughness
     ax, ay = mf.principled_anisotropy(alpha_r, np.clip(get("Anisotropic"), 0.0, 1.0))
+    spec = ctx.specular()
+    anisotropic = _with_tangent(b, ctx, ctx.tangent(c, "Anisotropic Rotation", ctx.ns))
     ior = np.maximum(get("IOR"), F32(1e-5))
     specular_tint = np.maximum(get("Specular Tint"), ZERO)
     # 4. Metal: F82-tint conductor.
     metallic = np.clip(get("Metallic"), 0.0, 1.0)
     has = np.flatnonzero(metallic > CUTOFF)
     if len(has):
-        mf.add_f82(b, ctx, metallic[has] * weight[:, has], ax[has], ay[has], clamped[:, has],
+        mf.add_f82(anisotropic, spec, metallic[has] * weight[:, has], ax[has], ay[has], clamped[:, has],
                    np.minimum(specular_tint[:, has], ONE), multiscatter, sub=has)
     weight = weight * (ONE - metallic)
     # 5. Transmission: GGX glass, tinted by sqrt(base) through refraction.
     transmission = np.clip(get("Transmission Weight"), 0.0, 1.0)
     has = np.flatnonzero(transmission > CUTOFF)
     if len(has):
-        mf.add_glass(b, ctx, transmission[has] * weight[:, has], alpha_r[has], ior[has],
+        mf.add_glass(b, spec, transmission[has] * weight[:, has], alpha_r[has], ior[has],
                      reflection_tint=np.ones((3, len(has)), F32), transmission_tint=np.sqrt(clamped[:, has]),
                      specular_tint=specular_tint[:, has], multiscatter=multiscatter, sub=has)
     weight = weight * (ONE - transmission)
@@ -259,12 +379,12 @@ def _principled(c, ctx, w, b):
         eta = np.where(adjusted, np.where(ior < ONE, ONE / eta_adj, eta_adj), eta)
     has = np.flatnonzero(eta != ONE)
     if len(has):
-        albedo = mf.add_specular(b, ctx, weight[:, has], ax[has], ay[has], eta[has], f0[has] * specular_tint[:, has],
-                                 multiscatter, sub=has)
+        albedo = mf.add_specular(anisotropic, spec, weight[:, has], ax[has], ay[has], eta[has],
+                                 f0[has] * specular_tint[:, has], multiscatter, sub=has)
         weight[:, has] = layering_weight(albedo, weight[:, has])
     # 7. Diffuse (subsurface scattering is rendered as the diffuse it would be without its radius).
     sss = np.clip(get("Subsurface Weight"), 0.0, 1.0)
-    b.add(lobes.LAMBERT, ctx.idx, clamped * sss * weight)
+    b.add(lobes.LAMBERT, ctx.idx, clamped * sss * weight, normal=spec.normal_arg, **_soften(spec))
     _diffuse_lobe(b, ctx, base * (ONE - sss) * weight, np.clip(get("Diffuse Roughness"), 0.0, 1.0), clamped)
     return Built(emission=emission)
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bsdf.closures import ClosureBuilder, ClosureSet
+from ..bsdf.closures import LAMBERT, ClosureBuilder, ClosureSet
 from ..scene import Closure, Materials, Param
 from ..textures import Texture, finite_uv, luminance
 from . import nodes
@@ -39,6 +39,15 @@ class Shading:
         # Whether any hit has more than one lobe to choose from (a Principled BSDF, a Mix, a delta lobe).
         self.mixes_lobes = any(_mixes_lobes(s.closures) for s in self.shaders)
         self.needs_uv = any(p.texture >= 0 for s in self.shaders for c in s.closures for p in c.params())
+        # Plain diffuse closures (a Diffuse BSDF of roughness 0, no Mix above it, no other input) are made
+        # for all hits at once from a colour table: most materials of most scenes are only that.
+        self._plain = [_plain_diffuse(s.closures) for s in self.shaders]
+        self._is_plain = np.array([p is not None for p in self._plain], bool)
+        self._plain_color = np.array([_as_channels(np.asarray(p.value, F32), 3) if p is not None else np.zeros(3, F32)
+                                      for p in self._plain], F32).T.copy()  # (3, M)
+        self._rest = [tuple(c for c in s.closures if p is None or c.kind != "DIFFUSE")
+                      for s, p in zip(self.shaders, self._plain)]
+        self._has_rest = np.array([bool(r) for r in self._rest], bool)
         # Per texture: mean R, G, B and alpha over the image (alpha 1 for images without one).
         self._texture_means = [np.append(t.channels.mean(axis=1), t.alpha.mean() if t.alpha is not None else 1.0)
                                .astype(F32) for t in textures]
@@ -51,9 +60,15 @@ class Shading:
         builder = ClosureBuilder(n, hit.ns, wo) if closures else None
         emission = np.zeros((3, n), F32)
         holdout = np.zeros(n, F32)
-        for m, idx in _by_material(hit.mat):
-            ctx = nodes.Context(self, hit, idx, wo)
-            for closure in self.shaders[m].closures:
+        if closures and self._is_plain.any():
+            self._plain_closures(hit, builder)
+        # Materials left to evaluate one by one: the rest of each material, or only its emission.
+        pending = self._has_rest if closures else self.emissive
+        todo = np.flatnonzero(np.take(pending, hit.mat)) if not pending.all() else None
+        for m, idx in _by_material(hit.mat if todo is None else np.take(hit.mat, todo)):
+            idx = idx if todo is None else todo[idx]
+            ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction)
+            for closure in self._rest[m] if closures else self.shaders[m].closures:
                 weight = self._mix_weight(closure, ctx)
                 out = nodes.build(closure, ctx, weight, builder)
                 if out.emission is not None:
@@ -61,6 +76,23 @@ class Shading:
                 if out.holdout is not None:
                     holdout[idx] += out.holdout
         return SurfaceShading(builder.finish() if closures else None, emission, holdout)
+
+    def _plain_closures(self, hit, builder) -> None:
+        """Lambert closures of every hit on a plain diffuse material: the colour table, times the texture."""
+        idx = np.flatnonzero(np.take(self._is_plain, hit.mat))
+        if not len(idx):
+            return
+        mat = np.take(hit.mat, idx)
+        color = np.take(self._plain_color, mat, axis=1)
+        textured = [(m, p) for m, p in enumerate(self._plain) if p is not None and p.texture >= 0]
+        for m, p in textured:
+            sel = np.flatnonzero(mat == m)
+            if len(sel):
+                tex = self.textures[p.texture]
+                u, v = finite_uv(np.take(hit.u, idx[sel]), np.take(hit.v, idx[sel]))
+                looked = tex.lookup_alpha(u, v)[None] if p.alpha else tex.lookup(u, v, unassociate=p.unassociate)
+                color[:, sel] *= _as_channels(looked, 3)
+        builder.add(LAMBERT, idx, color)
 
     def transparency(self, hit) -> np.ndarray:
         """(3, N) float32: the share of light that passes straight through each hit (transparent
@@ -71,7 +103,7 @@ class Shading:
         for m, idx in _by_material(hit.mat):
             if not self.transparent[m]:
                 continue
-            ctx = nodes.Context(self, hit, idx, wo)
+            ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction)
             for closure in self.shaders[m].closures:
                 if nodes.may_be_transparent(closure):
                     out[:, idx] += nodes.transparency(closure, ctx, self._mix_weight(closure, ctx))
@@ -145,6 +177,20 @@ def _as_channels(value: np.ndarray, channels: int) -> np.ndarray:
     if channels == 1:
         return luminance(np.moveaxis(value, 0, -1))[None].astype(F32)
     return np.repeat(value[:1], 3, axis=0)
+
+
+def _plain_diffuse(closures):
+    """The Color Param of a material's plain Diffuse BSDF (roughness 0, no Mix factor, no other input),
+    or None."""
+    diffuse = [c for c in closures if c.kind == "DIFFUSE"]
+    if len(diffuse) != 1 or diffuse[0].factors:
+        return None
+    c = diffuse[0]
+    rough = c.input("Roughness")
+    if any(name not in ("Color", "Roughness") for name, _ in c.inputs) or (
+            rough is not None and (rough.texture >= 0 or rough.value[0] >= 1e-5)):
+        return None
+    return c.input("Color") or Param.of(nodes.DEFAULTS["DIFFUSE"]["Color"])
 
 
 def _mixes_lobes(closures) -> bool:

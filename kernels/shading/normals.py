@@ -1,0 +1,138 @@
+"""The normals and tangents a closure node is given, as Cycles makes them.
+
+- normal_map: the Normal Map node (`svm_node_normal_map`, kernel/svm/tex_coord.h).
+- uv_tangent: the Tangent node's UV Map direction (`svm_node_tangent`, same file).
+- valid_specular_normal: `maybe_ensure_valid_specular_reflection` (kernel/closure/bsdf_util.h), the tilt
+  of a specular closure's normal toward the geometric normal that keeps its mirror direction above the
+  surface ("Bump Map Correction").
+- rotate_about: `rotate_around_axis` (util/math_float3.h), the anisotropic rotation.
+
+Vectors are (x, y, z) tuples of (n,) float32 arrays; colours (3, n).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+F32 = np.float32
+ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
+
+
+def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfacing: np.ndarray, frame):
+    """The Normal Map node's Normal at n hits.
+
+    color : (3, n) the node's Color, each axis stored as (x + 1) / 2. strength : (n,).
+    space : TANGENT, WORLD or BLENDER_WORLD (kernels.scene.NORMAL_MAP_SPACES).
+    ns : the hits' unit shading normal, flipped toward the viewer on back faces (Cycles' sd->N).
+    frame : (tangent, sign, normal) of SurfaceHit.tangent_frame, unnormalized and not flipped, or None
+        (no tangents: the normal is left as it is, as Cycles does without its tangent attribute).
+    """
+    c = F32(2.0) * (np.asarray(color, F32) - HALF)
+    strength = np.asarray(strength, F32)
+    if space == "TANGENT":
+        if frame is None:
+            return ns
+        t, sign, n = frame
+        cx, cy = c[0] * strength, c[1] * strength
+        cz = ONE + (c[2] - ONE) * np.clip(strength, 0.0, 1.0)
+        b = _scale(cross(n, t), sign)
+        out = safe_normalize(tuple(cx * t[k] + cy * b[k] + cz * n[k] for k in range(3)))
+        out = _flip(out, backfacing)
+    else:
+        if space == "BLENDER_WORLD":  # Blender's convention: y and z point the other way
+            c = np.stack([c[0], -c[1], -c[2]])
+        out = _flip(safe_normalize(tuple(c)), backfacing)
+        weak = strength != ONE
+        if weak.any():
+            s = np.maximum(strength, ZERO)
+            blended = safe_normalize(tuple(ns[k] + (out[k] - ns[k]) * s for k in range(3)))
+            out = tuple(np.where(weak, blended[k], out[k]) for k in range(3))
+    length2 = dot(out, out)
+    bad = ~(np.isfinite(length2) & (length2 > ZERO))
+    if bad.any():
+        out = tuple(np.where(bad, ns[k], out[k]) for k in range(3))
+    return tuple(np.asarray(c, F32) for c in out)
+
+
+def uv_tangent(frame, ns):
+    """The Tangent node's UV Map tangent: the interpolated tangent made orthogonal to the shading normal ns,
+    N x normalize(T x N). NaN where the tangent is zero or along N (the closure then takes an arbitrary
+    tangent); None without tangents."""
+    if frame is None:
+        return None
+    t = frame[0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        side = cross(t, ns)
+        length = np.sqrt(dot(side, side))
+        side = tuple(np.where(length > F32(1e-12), c / length, np.float32(np.nan)) for c in side)
+    return tuple(np.asarray(c, F32) for c in cross(ns, side))
+
+
+def valid_specular_normal(ng, wo, n):
+    """Cycles' ensure_valid_specular_reflection: where the mirror of wo about n falls below
+    min(0.9 ng.wo, 0.01) over the geometric normal ng, n tilted toward ng just enough to lift it there.
+    ng faces the viewer (wo . ng >= 0); all unit vectors."""
+    iz = dot(wo, ng)
+    threshold = np.minimum(F32(0.9) * iz, F32(0.01))
+    i_n = dot(wo, n)
+    r_z = F32(2.0) * i_n * dot(n, ng) - iz
+    low = np.flatnonzero(r_z < threshold)
+    if not len(low):
+        return n
+    g = tuple(c[low] for c in ng)
+    w = tuple(c[low] for c in wo)
+    m = tuple(c[low] for c in n)
+    iz, t = iz[low], threshold[low]
+    # X: n's direction within the tangent plane of ng (n itself if n is along ng).
+    d = dot(m, g)
+    x = tuple(m[k] - d * g[k] for k in range(3))
+    length = np.sqrt(dot(x, x))
+    ok = length > ZERO
+    inv = np.where(ok, ONE / np.where(ok, length, ONE), ZERO)
+    x = tuple(np.where(ok, x[k] * inv, m[k]) for k in range(3))
+    ix = dot(w, x)
+    a = ix * ix + iz * iz
+    b = F32(2.0) * (a + iz * t)
+    c = np.square(t + iz)
+    root = np.sqrt(np.maximum(b * b - F32(4.0) * a * c, ZERO))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nz2 = F32(0.25) * np.where(ix < ZERO, b + root, b - root) / a
+    nz2 = np.where(a > ZERO, nz2, ONE)
+    nx = np.sqrt(np.maximum(ONE - nz2, ZERO))
+    nz = np.sqrt(np.maximum(nz2, ZERO))
+    out = [np.array(c, F32, copy=True) for c in n]
+    for k in range(3):
+        out[k][low] = nx * x[k] + nz * g[k]
+    return tuple(out)
+
+
+def rotate_about(v, axis, angle: np.ndarray):
+    """v rotated by angle (radians, (n,)) about the unit axis, right-handed (Rodrigues)."""
+    cos, sin = np.cos(angle).astype(F32), np.sin(angle).astype(F32)
+    along = dot(axis, v) * (ONE - cos)
+    across = cross(axis, v)
+    return tuple((cos * v[k] + along * axis[k] + sin * across[k]).astype(F32) for k in range(3))
+
+
+def safe_normalize(v):
+    """v / |v|, zero where |v| is zero (Cycles' safe_normalize)."""
+    length = np.sqrt(dot(v, v))
+    ok = length > ZERO
+    inv = np.where(ok, ONE / np.where(ok, length, ONE), ZERO)
+    return tuple(c * inv for c in v)
+
+
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _scale(v, s):
+    return tuple(c * s for c in v)
+
+
+def _flip(v, backfacing):
+    sign = np.where(backfacing, F32(-1.0), ONE)
+    return tuple(c * sign for c in v)
