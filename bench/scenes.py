@@ -70,6 +70,41 @@ def hdri_scene(width: int, height: int, *, hdri: str = HDRI) -> bpy.types.Scene:
     return cornell_scene(width, height, light=False, hdri=hdri)
 
 
+# The materials scene: a row of Principled spheres (metal smooth and rough, plastic, glass, frosted glass,
+# coat, sheen, rough diffuse) on a grey floor under forest.exr, as tests/test_parity_materials.py has it.
+PRINCIPLED_ROW = (
+    ("Chrome", {"Base Color": (0.9, 0.8, 0.6), "Metallic": 1.0, "Roughness": 0.0}),
+    ("Brushed", {"Base Color": (0.8, 0.5, 0.3), "Metallic": 1.0, "Roughness": 0.35, "Specular Tint": (0.6, 0.8, 1.0)}),
+    ("Plastic", {"Base Color": (0.7, 0.1, 0.1), "Roughness": 0.3}),
+    ("Glass", {"Base Color": (0.9, 1.0, 0.9), "Transmission Weight": 1.0, "Roughness": 0.0}),
+    ("Frosted", {"Transmission Weight": 1.0, "Roughness": 0.3, "IOR": 1.45}),
+    ("Coated", {"Base Color": (0.1, 0.2, 0.7), "Roughness": 0.6, "Coat Weight": 1.0, "Coat Roughness": 0.05,
+                "Coat Tint": (0.9, 0.8, 0.6)}),
+    ("Velvet", {"Base Color": (0.3, 0.05, 0.1), "Sheen Weight": 1.0, "Sheen Roughness": 0.4}),
+    ("Rough Diffuse", {"Base Color": (0.6, 0.6, 0.5), "Diffuse Roughness": 1.0, "Roughness": 0.7}),
+)
+
+
+def materials_scene(width: int, height: int, *, hdri: str = HDRI) -> bpy.types.Scene:
+    """Eight Principled spheres in two rows of four on a floor, lit by the HDRI (about 18k triangles)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    ensure_registered()
+    scene = bpy.context.scene
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    for i, (name, inputs) in enumerate(PRINCIPLED_ROW):
+        mat = bpy.data.materials.new(name)
+        bsdf = mat.node_tree.nodes["Principled BSDF"]
+        for key, value in inputs.items():
+            bsdf.inputs[key].default_value = (*value, 1.0) if isinstance(value, tuple) else value
+        row, col = divmod(i, 4)
+        add_mesh(name, *uv_sphere(48, 24, 0.45, (col - 1.5, 0.0, 1.5 - row)), mat, smooth=True)
+    add_mesh("Floor", *grid((-6, -6, 0), (12, 0, 0), (0, 12, 0), 1), diffuse_material("Floor", (0.4, 0.4, 0.4)))
+    add_camera(scene, (0.0, -5.2, 1.0), (0.0, 0.0, 1.0)).data.lens = 45
+    set_world(scene, hdri=hdri, strength=1.0, rotation=(0.0, 0.0, 0.6))
+    return scene
+
+
 def triangle_count(scene) -> int:
     """Triangles of the scene's meshes after triangulation (quads count two)."""
     total = 0
