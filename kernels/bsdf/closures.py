@@ -100,8 +100,9 @@ class ClosureSet:
         self.n_hits = n_hits
         hit = np.concatenate([c["hit"] for c in chunks]) if chunks else np.zeros(0, np.int64)
         c = len(hit)
-        count = np.bincount(hit, minlength=n_hits)
-        self.single = c == n_hits and (c == 0 or count.max() == 1)
+        # Every add() is over distinct hits: one chunk is one closure per hit at most.
+        count = None if len(chunks) <= 1 else np.bincount(hit, minlength=n_hits)
+        self.single = count is None or (c == n_hits and (c == 0 or count.max() == 1))
         order = None if self.single else np.argsort(hit, kind="stable")
         cat = (lambda parts: _concat(parts, order))  # noqa: E731
         self.hit = hit if order is None else hit[order]
@@ -134,7 +135,7 @@ class ClosureSet:
         if self.single:
             self.total_sw = np.zeros(n_hits, F32)
             self.total_sw[self.hit] = self.sw
-            self.row_of_hit = np.empty(n_hits, np.int64)
+            self.row_of_hit = np.full(n_hits, -1, np.int64)
             self.row_of_hit[self.hit] = np.arange(c)
         else:
             self.total_sw = np.bincount(self.hit, self.sw, minlength=n_hits).astype(F32)
@@ -144,7 +145,7 @@ class ClosureSet:
         self._tangent = tangent
         self._wo_world = wo
         self._frame = self._wo = None
-        self.kinds = [int(k) for k in np.unique(self.lobe)]
+        self.kinds = sorted({int(ch["lobe"]) for ch in chunks})
         self.delta = self._delta_mask()
         # Lambert alone is evaluated in world space, without frames (the common case of diffuse scenes).
         self.lambert_only = self.kinds == [LAMBERT] and self._bumped is None
@@ -268,6 +269,9 @@ class ClosureSet:
         if not len(has):
             return out
         rows = row[has]
+        if self.lambert_only and warp is None:
+            self._sample_lambert(out, has, rows, u1, u2)
+            return out
         if warp is not None:
             picked = self.delta[rows]
             self._sample_lobes(out, has[picked], rows[picked], u1, u2, uc)
@@ -308,6 +312,19 @@ class ClosureSet:
         f[:, fix] += f_c * lost
         pdf[fix] += (pdf_c * lost * self.sw[r] / self.total_sw[s[fix]]).astype(F32)
 
+    def _sample_lambert(self, out, hits, rows, u1, u2):
+        """Only Lambert closures, one per hit: a cosine sample about the normal, weight = the closure's
+        weight exactly (f cos / pdf of a cosine-sampled Lambert lobe)."""
+        lx, ly, lz = sampling.sample_cosine_hemisphere(u1[hits], u2[hits])
+        n = self.normal[:, rows]
+        world = sampling.local_to_world(lx, ly, lz, n[0], n[1], n[2])
+        for axis in range(3):
+            out.wi[axis][hits] = world[axis]
+        pdf = sampling.cosine_hemisphere_pdf(lz)
+        good = pdf > 0
+        out.weight[:, hits] = np.where(good, self.weight[:, rows], ZERO)
+        out.pdf[hits] = pdf
+
     def _sample_lobes(self, out, hits, rows, u1, u2, uc):
         """Each hit's chosen closure samples its own lobe: direction, lobe weight, lobe pdf."""
         lobe = self.lobe[rows]
@@ -345,7 +362,14 @@ class ClosureSet:
         """The mixture of the hits `hits` (ascending, unique) at their world directions wi (n,).
         Returns f |cos| (3, n) and pdf (n,)."""
         if self.single:
-            return self._eval_closures(wi, self.row_of_hit[hits])
+            rows = self.row_of_hit[hits]
+            have = rows >= 0
+            if have.all():
+                return self._eval_closures(wi, rows)
+            f, pdf = np.zeros((3, len(hits)), F32), np.zeros(len(hits), F32)
+            sel = np.flatnonzero(have)
+            f[:, sel], pdf[sel] = self._eval_closures(tuple(c[sel] for c in wi), rows[sel])
+            return f, pdf
         count = self.count[hits]
         idx = np.repeat(self.start[hits], count) + _ranges(count)
         local = np.repeat(np.arange(len(hits)), count)

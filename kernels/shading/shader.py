@@ -48,6 +48,9 @@ class Shading:
         self._rest = [tuple(c for c in s.closures if p is None or c.kind != "DIFFUSE")
                       for s, p in zip(self.shaders, self._plain)]
         self._has_rest = np.array([bool(r) for r in self._rest], bool)
+        # The rest is built by kind: closures of one kind, options and plain inputs from all materials
+        # become one batch over all their hits (one Principled stack per wave, not one per material).
+        self._batches, self._alone = _batches(self._rest, [s.bump_map_correction for s in self.shaders])
         # Per texture: mean R, G, B and alpha over the image (alpha 1 for images without one).
         self._texture_means = [np.append(t.channels.mean(axis=1), t.alpha.mean() if t.alpha is not None else 1.0)
                                .astype(F32) for t in textures]
@@ -62,20 +65,34 @@ class Shading:
         holdout = np.zeros(n, F32)
         if closures and self._is_plain.any():
             self._plain_closures(hit, builder)
-        # Materials left to evaluate one by one: the rest of each material, or only its emission.
-        pending = self._has_rest if closures else self.emissive
-        todo = np.flatnonzero(np.take(pending, hit.mat)) if not pending.all() else None
-        for m, idx in _by_material(hit.mat if todo is None else np.take(hit.mat, todo)):
-            idx = idx if todo is None else todo[idx]
+        hits_of = _material_hits(hit.mat, len(self.shaders))
+        if closures:
+            for members in self._batches:
+                segments = [(m, c, hits_of(m)) for m, c in members]
+                segments = [s for s in segments if len(s[2])]
+                if segments:
+                    self._build_batch(segments, hit, wo, builder, emission, holdout)
+            per_material = [(m, cs) for m, cs in enumerate(self._alone) if cs]
+        else:  # only the emission, for the light sampler
+            per_material = [(m, self.shaders[m].closures) for m in np.flatnonzero(self.emissive)]
+        for m, closure_list in per_material:
+            idx = hits_of(m)
+            if not len(idx):
+                continue
             ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction)
-            for closure in self._rest[m] if closures else self.shaders[m].closures:
-                weight = self._mix_weight(closure, ctx)
-                out = nodes.build(closure, ctx, weight, builder)
-                if out.emission is not None:
-                    emission[:, idx] += out.emission
-                if out.holdout is not None:
-                    holdout[idx] += out.holdout
+            for closure in closure_list:
+                out = nodes.build(closure, ctx, self._mix_weight(closure, ctx), builder)
+                _collect(out, idx, emission, holdout)
         return SurfaceShading(builder.finish() if closures else None, emission, holdout)
+
+    def _build_batch(self, segments, hit, wo, builder, emission, holdout) -> None:
+        """One closure kind over the hits of several materials at once: inputs stitched per material."""
+        idx = np.concatenate([s[2] for s in segments])
+        bounds = np.cumsum([0] + [len(s[2]) for s in segments])
+        batch = _BatchClosure([(c, lo, hi) for (_, c, _), lo, hi in zip(segments, bounds[:-1], bounds[1:])])
+        ctx = nodes.Context(self, hit, idx, wo, self.shaders[segments[0][0]].bump_map_correction)
+        weight = np.concatenate([self._mix_weight(c, _Sub(hit, ctx.idx[lo:hi])) for c, lo, hi in batch.pieces])
+        _collect(nodes.build(batch, ctx, weight, builder), idx, emission, holdout)
 
     def _plain_closures(self, hit, builder) -> None:
         """Lambert closures of every hit on a plain diffuse material: the colour table, times the texture."""
@@ -121,10 +138,19 @@ class Shading:
         return out
 
     # ---------------------------------------------------------------- inputs
-    def param(self, p: Param, ctx, channels: int) -> np.ndarray:
+    def param(self, p, ctx, channels: int) -> np.ndarray:
         """A Param at the context's hits: (n,) for channels 1, (3, n) for 3. A colour feeding a float
-        input becomes its luminance; a float feeding a colour input is grey, as Blender converts them."""
+        input becomes its luminance; a float feeding a colour input is grey, as Blender converts them.
+        A _BatchParam is evaluated piece by piece, over each material's hits."""
         n = len(ctx.idx)
+        if isinstance(p, _BatchParam):
+            # Constants in one repeat; textured pieces over their own hits.
+            values = np.stack([_as_channels(np.asarray(q.value, F32), channels) for q, _, _ in p.pieces], axis=1)
+            out = np.repeat(values, [hi - lo for _, lo, hi in p.pieces], axis=1)
+            for piece, lo, hi in p.pieces:
+                if piece.texture >= 0:
+                    out[:, lo:hi] = self.param(piece, _Sub(ctx.hit, ctx.idx[lo:hi]), channels).reshape(channels, -1)
+            return out[0] if channels == 1 else out
         value = _as_channels(np.asarray(p.value, F32), channels)[:, None]
         if p.texture >= 0:
             tex = self.textures[p.texture]
@@ -157,6 +183,94 @@ class Shading:
             fac = float(np.clip(self._mean_param(p, 1)[0], 0.0, 1.0))
             weight *= fac if second else 1.0 - fac
         return weight
+
+
+class _Sub:
+    """Some hits of a context, for evaluating inputs."""
+    __slots__ = ("hit", "idx")
+
+    def __init__(self, hit, idx):
+        self.hit, self.idx = hit, idx
+
+    def take(self, a):
+        return np.take(a, self.idx)
+
+
+class _BatchParam:
+    """One input of a batch: a Param per piece (lo, hi) of the batch's hits."""
+    __slots__ = ("pieces",)
+
+    def __init__(self, pieces):
+        self.pieces = pieces
+
+
+class _BatchClosure:
+    """Closures of one kind and options from several materials, seen by the node builders as one closure
+    whose inputs vary from piece to piece of the batch's hits."""
+
+    def __init__(self, pieces):
+        self.pieces = pieces                     # (closure, lo, hi)
+        first = pieces[0][0]
+        self.kind, self.options, self.factors = first.kind, first.options, ()
+        self._inputs: dict = {}
+
+    def input(self, name: str):
+        if name not in self._inputs:
+            self._inputs[name] = self._stitch(name)
+        return self._inputs[name]
+
+    def _stitch(self, name: str):
+        params = [c.input(name) for c, _, _ in self.pieces]
+        if all(p is None for p in params):
+            return None
+        if len(params) == 1:
+            return params[0]
+        default = Param.of(nodes.DEFAULTS[self.kind][name])
+        return _BatchParam([(p if p is not None else default, lo, hi)
+                            for p, (_, lo, hi) in zip(params, self.pieces)])
+
+    def option(self, name: str, default=None):
+        return self.pieces[0][0].option(name, default)
+
+
+def _batches(rest, bump_corrections):
+    """Group the closures left to build by (kind, options, bump map correction): those with plain inputs
+    batch across materials; normal maps and tangents stay with their material. Returns (batches: lists of
+    (material, closure)), closures built alone per material)."""
+    keyed: dict = {}
+    alone = [[] for _ in rest]
+    for m, closures in enumerate(rest):
+        for c in closures:
+            if all(isinstance(p, Param) for _, p in c.inputs):
+                keyed.setdefault((c.kind, c.options, bump_corrections[m]), []).append((m, c))
+            else:
+                alone[m].append(c)
+    return list(keyed.values()), [tuple(a) for a in alone]
+
+
+def _material_hits(mat: np.ndarray, count: int):
+    """hits_of(m): the indices of the hits on material m (ascending). One sort of the wave serves them
+    all once a few materials have been asked for; before that, a scan per material is cheaper."""
+    state = {"asked": 0, "order": None}
+
+    def hits_of(m):
+        if state["order"] is None:
+            state["asked"] += 1
+            if state["asked"] <= 3:
+                return np.flatnonzero(mat == m)
+            state["order"] = np.argsort(mat, kind="stable")
+            sizes = np.bincount(mat, minlength=count)
+            state["ends"] = np.cumsum(sizes)
+            state["starts"] = state["ends"] - sizes
+        return state["order"][state["starts"][m]:state["ends"][m]]
+    return hits_of
+
+
+def _collect(out, idx, emission, holdout) -> None:
+    if out.emission is not None:
+        emission[:, idx] += out.emission
+    if out.holdout is not None:
+        holdout[idx] += out.holdout
 
 
 def _by_material(mat: np.ndarray):
