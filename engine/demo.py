@@ -48,18 +48,22 @@ def build_demo_scene() -> bpy.types.Scene:
     monkey = bpy.context.active_object
     monkey.modifiers.new("Subdivision", "SUBSURF").levels = 2
     bpy.ops.object.shade_smooth()
-    monkey.data.materials.append(_material("Copper", color=(0.85, 0.42, 0.22), principled=True))
+    monkey.data.materials.append(_material("Copper", color=(0.95, 0.55, 0.35), principled=True, Metallic=1.0,
+                                           Roughness=0.28))
 
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.7, location=(-2.1, 1.2, 0.7), segments=48, ring_count=24)
     bpy.ops.object.shade_smooth()
-    bpy.context.active_object.data.materials.append(_material("Blue", color=(0.12, 0.30, 0.75)))
+    bpy.context.active_object.data.materials.append(_material("Glass", color=(0.85, 0.92, 1.0), principled=True,
+                                                              Transmission_Weight=1.0, Roughness=0.02))
 
     bpy.ops.mesh.primitive_cube_add(size=1.1, location=(2.3, 1.4, 0.55), rotation=(0, 0, math.radians(28)))
-    bpy.context.active_object.data.materials.append(_material("Green", color=(0.25, 0.55, 0.25), principled=True))
+    bpy.context.active_object.data.materials.append(_material("Green", color=(0.25, 0.55, 0.25), principled=True,
+                                                              Roughness=0.5, Coat_Weight=1.0, Coat_Roughness=0.05))
 
     bpy.ops.mesh.primitive_torus_add(location=(1.7, -1.3, 0.25), major_radius=0.6, minor_radius=0.25)
     bpy.ops.object.shade_smooth()
-    bpy.context.active_object.data.materials.append(_material("Ivory", color=(0.9, 0.88, 0.8)))
+    bpy.context.active_object.data.materials.append(_material("Velvet", color=(0.35, 0.08, 0.18), principled=True,
+                                                              Sheen_Weight=1.0, Sheen_Roughness=0.35))
 
     cam_data = bpy.data.cameras.new("Camera")
     cam_data.lens = 32
@@ -98,7 +102,8 @@ def _checker_image(name, size, tiles, a, b):
     return image
 
 
-def _material(name, color=(0.8, 0.8, 0.8), image=None, emission=None, principled=False):
+def _material(name, color=(0.8, 0.8, 0.8), image=None, emission=None, principled=False, **inputs):
+    """A Diffuse or Principled material (Principled inputs by name, spaces as underscores), or an Emission."""
     mat = bpy.data.materials.new(name)
     tree = mat.node_tree
     tree.nodes.clear()
@@ -112,6 +117,8 @@ def _material(name, color=(0.8, 0.8, 0.8), image=None, emission=None, principled
     shader = tree.nodes.new("ShaderNodeBsdfPrincipled" if principled else "ShaderNodeBsdfDiffuse")
     color_input = shader.inputs["Base Color" if principled else "Color"]
     color_input.default_value = (*color, 1.0)
+    for key, value in inputs.items():
+        shader.inputs[key.replace("_", " ")].default_value = value
     if image is not None:
         tex = tree.nodes.new("ShaderNodeTexImage")
         tex.image = image
