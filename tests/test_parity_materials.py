@@ -273,3 +273,28 @@ def test_anisotropic_metal_with_a_uv_tangent_and_a_normal_mapped_sphere():
     add_camera(scene, (0, -3.2, 1.1), (0, 0, 0.5), lens=40)
     set_world(scene, hdri="courtyard.exr", strength=0.8)
     compare_to_cycles(scene, samples=128, max_bounces=4)
+
+
+def test_holdout_mixed_half_with_diffuse_cuts_half_the_alpha():
+    scene = new_scene(48, 48)
+    mat = bpy.data.materials.new("Half Holdout")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = 0.5
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.8, 0.3, 0.2, 1.0)
+    tree.links.new(diffuse.outputs[0], mix.inputs[1])
+    tree.links.new(tree.nodes.new("ShaderNodeHoldout").outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    sphere((0, 0, 1.0), mat, radius=0.8)
+    quad_object("Wall", (-3, 1.5, -1), (6, 0, 0), (0, 0, 4), diffuse_material("Wall", (0.7, 0.7, 0.7)))
+    add_camera(scene, (0, -4.0, 1.0), (0, 0, 1.0), lens=40)
+    set_world(scene, color=(0.8, 0.8, 0.9))
+    compare_to_cycles(scene, samples=64, max_bounces=3)
+    from bpy_helpers import render_to_array
+    cycles = render_to_array(scene, "CYCLES", 32)[..., 3]
+    ember_alpha = render_to_array(scene, "EMBER", 32)[..., 3]
+    assert abs(float(cycles[24, 24]) - 0.5) < 0.02 and abs(float(ember_alpha[24, 24]) - 0.5) < 0.02
+    assert abs(float(cycles.mean()) - float(ember_alpha.mean())) < 0.005
