@@ -75,16 +75,19 @@ class Param:
     alpha : read the texture's alpha channel (the Image Texture's Alpha output) instead of its colour.
     unassociate : divide the texture's (associated) colour by its alpha, as Cycles does for an Image
         Texture whose Alpha output is linked.
+    channel : 0, 1 or 2: one channel of the texture's colour (a Separate Color node), -1 for all.
     """
     value: tuple
     texture: int = -1
     alpha: bool = False
     unassociate: bool = False
+    channel: int = -1
 
     @classmethod
-    def of(cls, value, texture: int = -1, alpha: bool = False, unassociate: bool = False) -> "Param":
+    def of(cls, value, texture: int = -1, alpha: bool = False, unassociate: bool = False,
+           channel: int = -1) -> "Param":
         values = tuple(float(v) for v in np.atleast_1d(np.asarray(value, np.float64)))
-        return cls(values, int(texture), bool(alpha), bool(unassociate))
+        return cls(values, int(texture), bool(alpha), bool(unassociate), int(channel))
 
 
 # Spaces of a Normal Map node the kernel renders (Blender also has OBJECT and BLENDER_OBJECT, which need the

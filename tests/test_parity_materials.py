@@ -298,3 +298,31 @@ def test_holdout_mixed_half_with_diffuse_cuts_half_the_alpha():
     ember_alpha = render_to_array(scene, "EMBER", 32)[..., 3]
     assert abs(float(cycles[24, 24]) - 0.5) < 0.02 and abs(float(ember_alpha[24, 24]) - 0.5) < 0.02
     assert abs(float(cycles.mean()) - float(ember_alpha.mean())) < 0.005
+
+
+def test_gltf_metallic_roughness_texture_through_separate_color():
+    """Blender's glTF importer feeds Metallic and Roughness from one packed image through a Separate
+    Color node (green = roughness, blue = metallic), with the base colour from another image."""
+    scene = new_scene(64, 48)
+    size = 16
+    yy, xx = np.mgrid[0:size, 0:size]
+    packed = np.stack([np.ones((size, size)), (xx + 0.5) / size, (yy // 4 % 2).astype(float), np.ones((size, size))], -1)
+    mr = bpy.data.images.new("MetallicRoughness", size, size, alpha=True, float_buffer=True)
+    mr.pixels.foreach_set(packed.astype(np.float32).ravel())
+    mr.colorspace_settings.name = "Non-Color"
+    mr.pack()
+    mat = bpy.data.materials.new("glTF")
+    tree = mat.node_tree
+    bsdf = tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (0.9, 0.6, 0.3, 1.0)
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = mr
+    separate = tree.nodes.new("ShaderNodeSeparateColor")
+    tree.links.new(tex.outputs["Color"], separate.inputs[0])
+    tree.links.new(separate.outputs["Green"], bsdf.inputs["Roughness"])
+    tree.links.new(separate.outputs["Blue"], bsdf.inputs["Metallic"])
+    plane = quad_object("Tile", (-1.2, 0, 0), (2.4, 0, 0), (0, 0, 2.0), mat)
+    plane.rotation_euler = (0.3, 0.0, 0.0)
+    add_camera(scene, (0, -4.0, 1.0), (0, 0, 1.0), lens=40)
+    set_world(scene, hdri="forest.exr", strength=1.0)
+    compare_to_cycles(scene, samples=128, max_bounces=4)

@@ -426,18 +426,29 @@ class _MaterialReader:
         if source.node is None or source.kind in ("ShaderNodeRGB", "ShaderNodeValue"):
             return Param.of(_socket_value(source.socket, channels))
         if source.kind == "ShaderNodeTexImage":
-            color = source.socket.identifier == "Color"
-            value, texture = self.image_texture(source.node, source.groups)
-            # Cycles unassociates the colour when the node's Alpha output is used.
-            image = source.node.image
-            unassociate = (color and source.node.outputs["Alpha"].is_linked and image is not None
-                           and not image.colorspace_settings.is_data
-                           and image.alpha_mode not in ("CHANNEL_PACKED", "NONE"))
-            return Param.of(value if color or texture < 0 else (1.0,), texture, alpha=not color,
-                            unassociate=unassociate)
+            return self.image_param(source)
+        if source.kind in ("ShaderNodeSeparateColor", "ShaderNodeSeparateRGB") and \
+                getattr(source.node, "mode", "RGB") == "RGB":
+            # One channel of an image (glTF's packed metallic-roughness and occlusion maps) or a constant.
+            channel = ("Red", "Green", "Blue", "R", "G", "B").index(source.socket.identifier) % 3
+            inner = self.param(source.node.inputs[0], source.groups, 3, source.node)
+            if inner.texture < 0:
+                return Param.of(inner.value[channel])
+            return Param.of(inner.value[channel], inner.texture, unassociate=inner.unassociate, channel=channel)
         self.issues.append(f"{source.node.bl_label} node feeding {socket.name} of {node.bl_label} '{node.name}' "
                            f"is not supported, used {socket.name}'s own value")
         return Param.of(_socket_value(socket, channels))
+
+    def image_param(self, source: Source) -> Param:
+        """An Image Texture's Color or Alpha output."""
+        color = source.socket.identifier == "Color"
+        value, texture = self.image_texture(source.node, source.groups)
+        # Cycles unassociates the colour when the node's Alpha output is used.
+        image = source.node.image
+        unassociate = (color and source.node.outputs["Alpha"].is_linked and image is not None
+                       and not image.colorspace_settings.is_data
+                       and image.alpha_mode not in ("CHANNEL_PACKED", "NONE"))
+        return Param.of(value if color or texture < 0 else (1.0,), texture, alpha=not color, unassociate=unassociate)
 
     def image_texture(self, node, groups) -> tuple[tuple, int]:
         self.check_uv(node, groups)

@@ -107,8 +107,7 @@ class Shading:
             if len(sel):
                 tex = self.textures[p.texture]
                 u, v = finite_uv(np.take(hit.u, idx[sel]), np.take(hit.v, idx[sel]))
-                looked = tex.lookup_alpha(u, v)[None] if p.alpha else tex.lookup(u, v, unassociate=p.unassociate)
-                color[:, sel] *= _as_channels(looked, 3)
+                color[:, sel] *= _as_channels(_lookup(tex, p, u, v), 3)
         builder.add(LAMBERT, idx, color)
 
     def transparency(self, hit) -> np.ndarray:
@@ -155,8 +154,7 @@ class Shading:
         if p.texture >= 0:
             tex = self.textures[p.texture]
             u, v = finite_uv(ctx.take(ctx.hit.u), ctx.take(ctx.hit.v))
-            looked = tex.lookup_alpha(u, v)[None] if p.alpha else tex.lookup(u, v, unassociate=p.unassociate)
-            value = value * _as_channels(looked, channels)
+            value = value * _as_channels(_lookup(tex, p, u, v), channels)
         else:
             value = np.broadcast_to(value, (channels, n))
         return np.ascontiguousarray(value[0] if channels == 1 else value, F32)
@@ -166,7 +164,8 @@ class Shading:
         value = _as_channels(np.asarray(p.value, F32), channels)
         if p.texture >= 0:
             mean = self._texture_means[p.texture]
-            value = value * _as_channels(mean[3:4] if p.alpha else mean[:3], channels)
+            looked = mean[3:4] if p.alpha else mean[p.channel:p.channel + 1] if p.channel >= 0 else mean[:3]
+            value = value * _as_channels(looked, channels)
         return value
 
     def _mix_weight(self, closure: Closure, ctx) -> np.ndarray:
@@ -183,6 +182,14 @@ class Shading:
             fac = float(np.clip(self._mean_param(p, 1)[0], 0.0, 1.0))
             weight *= fac if second else 1.0 - fac
         return weight
+
+
+def _lookup(tex, p: Param, u, v) -> np.ndarray:
+    """(1 or 3, n): the texture's alpha, one channel of its colour, or its colour, at u, v."""
+    if p.alpha:
+        return tex.lookup_alpha(u, v)[None]
+    color = tex.lookup(u, v, unassociate=p.unassociate)
+    return color[p.channel:p.channel + 1] if p.channel >= 0 else color
 
 
 class _Sub:
