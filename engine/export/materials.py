@@ -302,10 +302,13 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
     out = output_node(tree)
     closures = () if out is None else tuple(reader.closures(source_of(out.inputs["Surface"]), ()))
     if out is not None:
-        for name in ("Volume", "Displacement"):
-            socket = out.inputs.get(name)
-            if socket is not None and source_of(socket).node is not None:
-                reader.issues.append(f"{name} output is not supported, ignored")
+        if source_of(out.inputs["Volume"]).node is not None:
+            reader.issues.append("volume shaders are not supported and it has no surface shader: rendered as a "
+                                 "black surface" if not closures else "volume shaders are not supported, the "
+                                 "volume is ignored")
+        displacement = out.inputs.get("Displacement")
+        if displacement is not None and source_of(displacement).node is not None:
+            reader.issues.append("Displacement output is not supported, ignored")
     if reader.issues:
         warnings.append(f"Material '{material.name}': " + "; ".join(dict.fromkeys(reader.issues)))
     if uv_maps is not None:

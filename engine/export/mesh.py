@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .materials import MaterialTable, output_node, source_of
+from .materials import MaterialTable
 
 # Object types that carry geometry Ember cannot render yet.
 UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds", "VOLUME": "volumes"}
@@ -86,7 +86,6 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         if object_key not in slot_rows:
             slot_rows[object_key] = materials.slot_ids(ob)
             _check_visibility(ob, warnings)
-            _check_volumes(ob, warnings)
         uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
         if uv_maps and mesh_key not in tangents:
             tangents[mesh_key] = read_tangents(ob.data, meshes[mesh_key], uv_maps, ob.name, warnings)
@@ -110,21 +109,6 @@ def _check_visibility(ob, warnings: list[str]) -> None:
     if not all(getattr(ob, name) for name in RAY_VISIBILITY) or ob.is_holdout or ob.is_shadow_catcher:
         warnings.append(f"Object '{ob.name}': ray visibility, holdout and shadow catcher settings are not "
                         f"supported, rendered as a plain object")
-
-
-def _check_volumes(ob, warnings: list[str]) -> None:
-    """Ember renders surfaces only: say so for materials with a volume shader (a volume-only material
-    would otherwise render as an unexplained black surface)."""
-    for slot in ob.material_slots:
-        material = slot.material
-        out = output_node(material.node_tree) if material is not None and material.node_tree else None
-        if out is None or source_of(out.inputs["Volume"]).node is None:
-            continue
-        if source_of(out.inputs["Surface"]).node is None:
-            warnings.append(f"Material '{material.name}': volume shaders are not supported and it has no "
-                            f"surface shader: rendered as a black surface")
-        else:
-            warnings.append(f"Material '{material.name}': volume shaders are not supported, the volume is ignored")
 
 
 def read_mesh(mesh) -> LocalMesh:
