@@ -117,19 +117,20 @@ def lookup_1d(data: np.ndarray, x):
 
 def lookup_2d(data: np.ndarray, x, y):
     """data (ny, nx): x indexes the last axis."""
-    x0, x1, tx = _axis(x, data.shape[1])
-    y0, y1, ty = _axis(y, data.shape[0])
-    row0 = (ONE - tx) * data[y0, x0] + tx * data[y0, x1]
-    row1 = (ONE - tx) * data[y1, x0] + tx * data[y1, x1]
-    return ((ONE - ty) * row0 + ty * row1).astype(np.float32)
+    return _lookup_2d_in_slice(data[None], 0, x, y)
 
 
 def _lookup_2d_in_slice(data: np.ndarray, k, x, y):
-    """Bilinear lookup in the slices data[k] of a 3D table (k an index array)."""
-    x0, x1, tx = _axis(x, data.shape[2])
-    y0, y1, ty = _axis(y, data.shape[1])
-    row0 = (ONE - tx) * data[k, y0, x0] + tx * data[k, y0, x1]
-    row1 = (ONE - tx) * data[k, y1, x0] + tx * data[k, y1, x1]
+    """Bilinear lookup in the slices data[k] of a 3D table (k an index array or 0). Gathers from the
+    flattened table with np.take: about twice as fast as indexing with three arrays."""
+    nz, ny, nx = data.shape
+    x0, x1, tx = _axis(x, nx)
+    y0, y1, ty = _axis(y, ny)
+    flat = data.reshape(-1)
+    r0 = (k * ny + y0) * nx
+    r1 = (k * ny + y1) * nx
+    row0 = (ONE - tx) * np.take(flat, r0 + x0) + tx * np.take(flat, r0 + x1)
+    row1 = (ONE - tx) * np.take(flat, r1 + x0) + tx * np.take(flat, r1 + x1)
     return ((ONE - ty) * row0 + ty * row1).astype(np.float32)
 
 
