@@ -29,6 +29,20 @@ def new_scene(width=64, height=64) -> bpy.types.Scene:
     return scene
 
 
+def camera_only_scene() -> bpy.types.Scene:
+    """An empty factory scene holding only a camera at (0, -10, 0) looking along +y (the export tests')."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.object.camera_add(location=(0, -10, 0), rotation=(math.pi / 2, 0, 0))
+    bpy.context.scene.camera = bpy.context.object
+    return bpy.context.scene
+
+
+def export_current():
+    """Export the current scene's evaluated depsgraph."""
+    from ember.engine.export import export_scene
+    return export_scene(bpy.context.evaluated_depsgraph_get())
+
+
 def add_camera(scene, location, target, lens=35.0, name="Camera"):
     data = bpy.data.cameras.new(name)
     data.lens = lens

@@ -9,6 +9,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 import mathutils  # noqa: E402  (only importable once bpy is)
 
+from bpy_helpers import camera_only_scene, export_current  # noqa: E402
 from ember.engine.export import DEFAULT_ALBEDO, ExportError, export_scene, render_region  # noqa: E402
 from ember.kernels.environment import direction_to_equirect  # noqa: E402
 from ember.kernels.textures import srgb_to_linear  # noqa: E402
@@ -19,14 +20,10 @@ from ember.kernels.textures import srgb_to_linear  # noqa: E402
 @pytest.fixture(autouse=True)
 def empty_scene():
     """Every test starts from an empty factory scene with a camera."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.object.camera_add(location=(0, -10, 0), rotation=(math.pi / 2, 0, 0))
-    bpy.context.scene.camera = bpy.context.object
-    return bpy.context.scene
+    return camera_only_scene()
 
 
-def export():
-    return export_scene(bpy.context.evaluated_depsgraph_get())
+export = export_current
 
 
 def add_cube(location=(0, 0, 0), rotation=(0, 0, 0), scale=(1, 1, 1)):

@@ -7,7 +7,7 @@ import bpy
 import numpy as np
 import pytest
 
-from ember.engine.export import export_scene
+from bpy_helpers import camera_only_scene, export_current
 from ember.kernels.scene import Closure, Materials, NormalMap, Param, SceneArrays, Shader, Tangent
 from ember.kernels.shading import normals
 
@@ -18,14 +18,11 @@ RNG_SEED = 7
 
 @pytest.fixture(autouse=True)
 def empty_scene():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.object.camera_add(location=(0, -10, 0), rotation=(math.pi / 2, 0, 0))
-    bpy.context.scene.camera = bpy.context.object
-    return bpy.context.scene
+    """Every test starts from an empty factory scene with a camera."""
+    return camera_only_scene()
 
 
-def export():
-    return export_scene(bpy.context.evaluated_depsgraph_get())
+export = export_current
 
 
 def normal_mapped_material(name="Bumpy", space="TANGENT", uv_map="", shader="ShaderNodeBsdfDiffuse"):
