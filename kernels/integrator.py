@@ -153,9 +153,6 @@ class Renderer:
         self._material_ids = self.scene.material_ids
         self.shading = Shading(self.scene.materials, self.textures)
         self._emissive = bool(self.shading.emissive.any())
-        # The lobe choice needs random numbers only where a material mixes lobes.
-        self._lobe_choice = self.shading.mixes_lobes
-        self._transparent_shadow_limit = 8
         lo, hi = extent(self.scene.positions)
         self._ray_epsilon = _ray_epsilon(lo, hi)
         self.lights = LightSampler(self.scene, self.environment, _Emitters(self))
@@ -296,7 +293,7 @@ class Renderer:
         alpha = np.ones(n, np.float32)
         nee = settings.mode == "NEE_MIS" and self.lights.has_lights
         samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, nee,
-                          lobes=self._lobe_choice)
+                          lobes=self.shading.mixes_lobes)  # a lobe to choose: its numbers are drawn
         jx, jy = samples.camera()
         rays = Rays(*generate_rays(self.scene.camera, row, col, jx, jy))
         state = PathState.start(n, samples)
@@ -402,7 +399,7 @@ class Renderer:
 
     # ---- stage: sample the next direction from the closure mixture
     def _sample_bsdf(self, wave, hit, closures, numbers) -> BsdfSample:
-        u_lobe, uc = numbers.get(LOBE, _ZERO_PAIR(len(hit)))
+        u_lobe, uc = numbers[LOBE] if LOBE in numbers else (np.zeros(len(hit), np.float32),) * 2
         u1, u2 = numbers[BSDF]
         if wave.settings.mode == "NEE_MIS":
             return closures.sample(u_lobe, u1, u2, uc)
@@ -502,7 +499,7 @@ class Renderer:
         # Stop short of the sampled point so that the emitter itself does not count as an occluder.
         t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - np.abs(eps), np.inf).astype(np.float32)
         origins = np.stack([ox, oy, oz], axis=1)
-        transmittance = self._shadow(origins, np.stack([wx, wy, wz], axis=1), t_max, wave.split)
+        transmittance = self._shadow(origins, np.stack([wx, wy, wz], axis=1), t_max, wave)
         vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
         if not len(vis):
             return
@@ -514,17 +511,18 @@ class Renderer:
             np.take(ls.radiance, rows, axis=1) * (w / pdf)
         _accumulate(wave.radiance, state.path[paths], contribution)
 
-    def _shadow(self, origins, dirs, t_max, split) -> np.ndarray:
+    def _shadow(self, origins, dirs, t_max, wave) -> np.ndarray:
         """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
         transparent surfaces, the product of their transparency (Cycles' transparent shadows)."""
         n = len(origins)
+        split = wave.split
         if not self.shading.transparent.any():
             blocked = self.accel.occluded(origins, dirs, t_max, split)
             return np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
         out = np.ones((3, n), np.float32)
         live = np.arange(n)
         origins, t_left = origins.copy(), t_max.copy()
-        for _ in range(self._transparent_shadow_limit + 1):
+        for _ in range(int(wave.settings.transparent_max_bounces) + 1):
             hits = self.accel.intersect(origins, dirs[live], t_left, split)
             found = np.flatnonzero(hits.prim >= 0)
             if not len(found):
@@ -573,11 +571,6 @@ class _Wave:
     def __init__(self, settings, nee, split, max_scatters, radiance, alpha):
         self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
         self.radiance, self.alpha = radiance, alpha
-
-
-def _ZERO_PAIR(n):
-    z = np.zeros(n, np.float32)
-    return z, z
 
 
 class Rays(NamedTuple):
