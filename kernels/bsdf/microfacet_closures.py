@@ -69,21 +69,17 @@ def add_specular(b, ctx, weight, ax, ay, eta, f0, multiscatter: bool, sub=None) 
     return weight * albedo
 
 
-def coat_albedo(ctx, sub, alpha, ior) -> np.ndarray:
-    """(3, n) estimated reflection albedo of the coat lobe, before its weight; with the compensation's
-    colour factor (the coat is always energy-preserving)."""
-    _, _, mu = _where(ctx, sub)
-    albedo = mf.albedo_dielectric(alpha, alpha, mu, ior)
-    _, factor = mf.multiscatter_reflection(alpha, alpha, mu, fss=fr.dielectric_fss(ior)[None, :] * np.ones((3, 1), F32))
-    return albedo * factor
-
-
-def add_coat(b, ctx, sub, weight, alpha, ior):
-    """Principled coat: GGX reflection, exact dielectric Fresnel, energy compensation always on."""
+def add_coat(b, ctx, sub, weight, alpha, ior) -> np.ndarray:
+    """Principled coat: GGX reflection, exact dielectric Fresnel, energy compensation always on. Returns
+    the layering albedo (3, n): the closure's weight, compensated, times its estimated reflection albedo;
+    b None gives the albedo alone (the emission under the coat needs it)."""
     hits, normal, mu = _where(ctx, sub)
     albedo = mf.albedo_dielectric(alpha, alpha, mu, ior)
     fss = np.broadcast_to(fr.dielectric_fss(ior), (3, len(hits)))
-    _add_reflection(b, hits, normal, weight, albedo, alpha, alpha, mu, fss, True, F_DIELECTRIC, eta=ior)
+    if b is None:
+        _, factor = mf.multiscatter_reflection(alpha, alpha, mu, fss=fss)
+        return np.broadcast_to(weight, (3, len(hits))) * factor * albedo
+    return _add_reflection(b, hits, normal, weight, albedo, alpha, alpha, mu, fss, True, F_DIELECTRIC, eta=ior) * albedo
 
 
 def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, specular_tint, multiscatter: bool,

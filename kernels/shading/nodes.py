@@ -326,9 +326,7 @@ def _principled(c, ctx, w, b):
         ior_c = np.maximum(get("Coat IOR")[has], ONE)
         coat_weight = cw * weight[:, has]
         coat = coat.specular()
-        albedo = mf.coat_albedo(coat, has, alpha_c, ior_c) * coat_weight
-        if b is not None:
-            mf.add_coat(b, coat, has, coat_weight, alpha_c, ior_c)
+        albedo = mf.add_coat(b, coat, has, coat_weight, alpha_c, ior_c)
         weight[:, has] = layering_weight(albedo, weight[:, has])
         tint = np.maximum(get("Coat Tint")[:, has], ZERO)
         tinted = np.flatnonzero(np.any(tint != ONE, axis=0))

@@ -233,8 +233,10 @@ class _BatchClosure:
         if len(params) == 1:
             return params[0]
         default = Param.of(nodes.DEFAULTS[self.kind][name])
-        return _BatchParam([(p if p is not None else default, lo, hi)
-                            for p, (_, lo, hi) in zip(params, self.pieces)])
+        params = [p if p is not None else default for p in params]
+        if all(p == params[0] for p in params[1:]):  # one value for all (often: the node's default)
+            return params[0]
+        return _BatchParam([(p, lo, hi) for p, (_, lo, hi) in zip(params, self.pieces)])
 
     def option(self, name: str, default=None):
         return self.pieces[0][0].option(name, default)
