@@ -1,7 +1,8 @@
-"""GGX lobes, Fresnel models and albedo tables: samplers against their pdfs (chi-square), eval against
-sample, reciprocity, white furnaces against the tables, Fresnel against closed forms, the shipped tables
-against fresh Monte Carlo, and robustness at the edges. Statistical tolerances are a few standard errors
-of the estimator at hand; float32 checks use bounds from float32 rounding."""
+"""GGX and Beckmann lobes, Ashikhmin-Shirley, Fresnel models and albedo tables: samplers against their
+pdfs (chi-square), eval against sample, reciprocity, white furnaces against the tables, Fresnel against
+closed forms, the shipped tables against fresh Monte Carlo, and robustness at the edges. Statistical
+tolerances are a few standard errors of the estimator at hand; float32 checks use bounds from float32
+rounding."""
 import importlib.util
 import math
 import os
@@ -9,6 +10,7 @@ import os
 import numpy as np
 import pytest
 
+from ember.kernels.bsdf import ashikhmin_shirley as ash
 from ember.kernels.bsdf import fresnel as fr
 from ember.kernels.bsdf import microfacet as mf
 from ember.kernels.bsdf import tables
@@ -582,3 +584,152 @@ def test_no_nan_or_inf_at_the_edges(alpha, eta):
     for scale, factor in (mf.multiscatter_reflection(alpha, alpha, mu, F32([0.5, 0.7, 1.0])),
                           mf.multiscatter_glass(alpha, alpha, mu, eta, F32([0.5, 0.7, 1.0]))):
         assert np.all(np.isfinite(scale)) and np.all(np.isfinite(factor))
+
+
+# ---------------------------------------------------------------- Beckmann and Ashikhmin-Shirley
+B = mf.BECKMANN
+
+
+def test_beckmann_visible_normals_are_normalised():
+    """D_wo integrates to 1 with Cycles' rational Lambda (its error is far below the tolerance), and D
+    has unit projected area."""
+    n = 400_000
+    h = random_directions(n, 9)
+    wo = viewer(0.4, n)
+    for ax, ay in ((0.5, 0.5), (0.2, 0.6)):
+        mean, se = mean_and_stderr(mf.visible_normal_pdf(wo, h, ax, ay, B) * 2 * np.pi)
+        assert abs(mean - 1) < Z_SIGMAS * se
+        mean, se = mean_and_stderr(mf.beckmann_D(h, ax, ay) * h[2] * 2 * np.pi)
+        assert abs(mean - 1) < Z_SIGMAS * se
+    z = math.sqrt(1 - 0.9 ** 2)
+    lam = mf.beckmann_lambda((F32([1.0, 0.9, 0.1]), F32([0.0, 0.0, 0.0]), F32([0.0, z, 0.995])), 0.5, 0.5)
+    a = 1 / (0.5 * 0.9 / z)  # below 1.6: the rational branch
+    assert np.isinf(lam[0]) and lam[2] == 0
+    assert np.isclose(lam[1], (1 - 1.259 * a + 0.396 * a * a) / (3.535 * a + 2.181 * a * a), rtol=1e-5)
+
+
+def beckmann_reflection_lobe(ax, ay):
+    unit = fr.unit_reflection()
+    return Lobe(lambda wo, u1, u2, uc: mf.sample_reflection(wo, ax, ay, unit, u1, u2, B),
+                lambda wo, wi: mf.eval_reflection(wo, wi, ax, ay, unit, B)[1], (0.0, 1.0))
+
+
+def beckmann_refraction_lobe(alpha, eta):
+    return Lobe(lambda wo, u1, u2, uc: mf.sample_refraction(wo, alpha, alpha, eta, u1, u2, B),
+                lambda wo, wi: physical_pdf(mf.eval_refraction(wo, wi, alpha, alpha, eta, B)[1], wo, wi, eta),
+                (-1.0, 0.0))
+
+
+def ashikhmin_shirley_lobe(ax, ay):
+    def sample(wo, u1, u2, uc):
+        wi, weight, pdf, delta = ash.sample_ashikhmin_shirley(wo, ax, ay, u1, u2)
+        return mf.MicrofacetSample(wi, weight[None, :], pdf, delta, np.zeros_like(delta))
+    return Lobe(sample, lambda wo, wi: ash.eval_ashikhmin_shirley(wo, wi, ax, ay)[1], (0.0, 1.0))
+
+
+OTHER_CHI2_CASES = {
+    # Beckmann: Cycles' sampler (approximate erf, three Newton steps) against the analytic pdf.
+    "beckmann reflection rough": (beckmann_reflection_lobe(0.5, 0.5), 0.7),
+    "beckmann reflection anisotropic, grazing": (beckmann_reflection_lobe(0.1, 0.4), 0.15),
+    "beckmann reflection normal incidence": (beckmann_reflection_lobe(0.3, 0.3), 1.0),
+    "beckmann refraction entering": (beckmann_refraction_lobe(0.3, ETA), 0.6),
+    "beckmann refraction leaving": (beckmann_refraction_lobe(0.2, 1.0 / ETA), 0.9),
+    "ashikhmin-shirley": (ashikhmin_shirley_lobe(0.3, 0.3), 0.7),
+    "ashikhmin-shirley anisotropic": (ashikhmin_shirley_lobe(0.15, 0.5), 0.4),
+}
+
+
+@pytest.mark.parametrize("case", list(OTHER_CHI2_CASES))
+def test_beckmann_and_ashikhmin_shirley_samplers_match_pdf(case):
+    lobe, mu = OTHER_CHI2_CASES[case]
+    observed, expected = chi2_counts(lobe, mu, n=400_000, bins=(32, 64), sub=6)
+    assert_chi2(observed, expected)
+
+
+def test_beckmann_chi2_has_power():
+    """The Beckmann histogram rejects the GGX pdf of the same alpha."""
+    observed, _ = chi2_counts(beckmann_reflection_lobe(0.3, 0.3), 0.7, n=400_000, bins=(32, 64), sub=6)
+    _, expected = chi2_counts(reflection_lobe(0.3, 0.3), 0.7, n=400_000, bins=(32, 64), sub=6)
+    with pytest.raises(AssertionError):
+        assert_chi2(observed, expected)
+
+
+@pytest.mark.parametrize("ax, ay, mu", [(0.3, 0.3, 0.8), (0.05, 0.5, 0.4), (1.0, 1.0, 0.2)])
+def test_beckmann_reflection_eval_matches_sample(ax, ay, mu):
+    n = 100_000
+    wo = viewer(mu, n)
+    model = fr.dielectric_reflection(ETA)
+    s = mf.sample_reflection(wo, ax, ay, model, *uniforms(n, 4)[:2], B)
+    assert_eval_matches_sample(s, *mf.eval_reflection(wo, s.wi, ax, ay, model, B), min(ax, ay))
+
+
+@pytest.mark.parametrize("alpha, eta, mu", [(0.3, ETA, 0.7), (0.4, 1 / ETA, 0.6)])
+def test_beckmann_glass_and_refraction_eval_match_sample(alpha, eta, mu):
+    n = 100_000
+    wo = viewer(mu, n)
+    model = fr.remapped_glass(fr.f0_from_ior(eta), 1.0, [0.9, 0.8, 0.7], [0.5, 0.6, 0.9])
+    s = mf.sample_glass(wo, alpha, alpha, eta, model, *uniforms(n, 5), B)
+    assert_eval_matches_sample(s, *mf.eval_glass(wo, s.wi, alpha, alpha, eta, model, B), alpha)
+    r = mf.sample_refraction(wo, alpha, alpha, eta, *uniforms(n, 6)[:2], B)
+    assert_eval_matches_sample(r, *mf.eval_refraction(wo, r.wi, alpha, alpha, eta, B), alpha)
+    assert np.all(r.transmission == (r.pdf > 0))
+
+
+@pytest.mark.parametrize("ax, ay, mu", [(0.3, 0.3, 0.8), (0.1, 0.6, 0.3)])
+def test_ashikhmin_shirley_eval_matches_sample(ax, ay, mu):
+    n = 100_000
+    wo = viewer(mu, n)
+    wi, weight, pdf, delta = ash.sample_ashikhmin_shirley(wo, ax, ay, *uniforms(n, 7)[:2])
+    s = mf.MicrofacetSample(wi, np.broadcast_to(weight, (3, n)), pdf, delta, np.zeros(n, bool))
+    f, e_pdf = ash.eval_ashikhmin_shirley(wo, wi, ax, ay)
+    assert_eval_matches_sample(s, np.broadcast_to(f, (3, n)), e_pdf, min(ax, ay))
+
+
+def test_ashikhmin_shirley_matches_the_paper_and_its_mirror_limit():
+    """f = (n + 1) / (8 pi) (n.h)^n / ((h.wo) max(wo.z, wi.z)) (isotropic, Fresnel left out), and at
+    alpha 1e-4 the lobe is a delta mirror with weight 1 that eval never returns."""
+    wo, wi = viewer(0.8, 1, phi=0.0), viewer(0.5, 1, phi=2.5)
+    alpha = 0.4
+    n = 2 / alpha ** 2 - 2
+    h = np.array([a[0] + b[0] for a, b in zip(wo, wi)], np.float64)
+    h /= np.linalg.norm(h)
+    cos_ho = float(h @ np.array([c[0] for c in wo], np.float64))
+    expected = (n + 1) / (8 * np.pi) * h[2] ** n / (cos_ho * 0.8)
+    f, pdf = ash.eval_ashikhmin_shirley(wo, wi, alpha, alpha)
+    assert np.isclose(f[0] / 0.5, expected, rtol=1e-5)
+    assert np.isclose(pdf[0], (n + 1) / (8 * np.pi) * h[2] ** n / cos_ho, rtol=1e-5)
+    m = 1000
+    w = viewer(0.6, m)
+    wi, weight, pdf, delta = ash.sample_ashikhmin_shirley(w, 1e-4, 1e-4, *uniforms(m, 8)[:2])
+    assert np.all(delta) and np.all(np.isinf(pdf)) and np.all(weight == 1)
+    assert np.allclose(wi[0], -w[0]) and np.allclose(wi[2], w[2])
+    assert np.all(ash.eval_ashikhmin_shirley(w, wi, 1e-4, 1e-4)[1] == 0)
+
+
+@pytest.mark.parametrize("alpha", EDGE_ALPHAS)
+def test_beckmann_and_ashikhmin_shirley_have_no_nan_at_the_edges(alpha):
+    mus = F32([0.0, 1e-7, 1e-4, 0.01, 0.99999, 1.0, -0.3])
+    n = 2100
+    mu = np.repeat(mus, n // mus.size)
+    wo = (np.sqrt(np.maximum(1 - mu * mu, 0)).astype(F32), np.zeros_like(mu), mu)
+    u1, u2, uc = uniforms(mu.size, 61)
+    u1[:10], u2[:10] = 0.0, 0.0
+    u1[10:20], u2[10:20] = 0.99999994, 0.99999994
+    glass = fr.dielectric_glass()
+    samples = [mf.sample_reflection(wo, alpha, alpha, fr.unit_reflection(), u1, u2, B),
+               mf.sample_glass(wo, alpha, alpha, ETA, glass, u1, u2, uc, B),
+               mf.sample_refraction(wo, alpha, alpha, 1 / ETA, u1, u2, B)]
+    a = max(alpha, 1e-4)
+    wi, weight, pdf, delta = ash.sample_ashikhmin_shirley(wo, a, a, u1, u2)
+    samples.append(mf.MicrofacetSample(wi, weight[None, :], pdf, delta, np.zeros_like(delta)))
+    for s in samples:
+        assert s.weight.dtype == np.float32 and s.pdf.dtype == np.float32 and s.wi[0].dtype == np.float32
+        assert np.all(np.isfinite(s.weight)) and not np.any(np.isnan(s.pdf)) and np.all(s.pdf >= 0)
+        assert np.all(np.isinf(s.pdf) == s.delta)
+        assert np.all(s.pdf[wo[2] <= 0] == 0)
+    for wi in ((np.ones_like(mu), np.zeros_like(mu), np.zeros_like(mu)), samples[1].wi):
+        for f, pdf in (mf.eval_reflection(wo, wi, alpha, alpha, fr.unit_reflection(), B),
+                       mf.eval_glass(wo, wi, alpha, alpha, ETA, glass, B),
+                       ash.eval_ashikhmin_shirley(wo, wi, a, a)):
+            assert f.dtype == np.float32 and pdf.dtype == np.float32
+            assert np.all(np.isfinite(f)) and np.all(np.isfinite(pdf)) and np.all(pdf >= 0)

@@ -402,6 +402,28 @@ def test_mix_and_add_shaders_keep_their_factors():
     assert result.warnings == []
 
 
+def test_beckmann_and_ashikhmin_shirley_distributions_export_without_warnings():
+    mat = bpy.data.materials.new("Distributions")
+    tree = mat.node_tree
+    tree.nodes.remove(tree.nodes["Principled BSDF"])
+    add = [tree.nodes.new("ShaderNodeAddShader") for _ in range(2)]
+    glossy, refraction = tree.nodes.new("ShaderNodeBsdfAnisotropic"), tree.nodes.new("ShaderNodeBsdfRefraction")
+    metal = tree.nodes.new("ShaderNodeBsdfMetallic")
+    glossy.distribution, metal.distribution = "ASHIKHMIN_SHIRLEY", "BECKMANN"
+    refraction.inputs["Roughness"].default_value = 0.3  # Beckmann is the Refraction BSDF's default
+    tree.links.new(glossy.outputs[0], add[0].inputs[0])
+    tree.links.new(refraction.outputs[0], add[0].inputs[1])
+    tree.links.new(add[0].outputs[0], add[1].inputs[0])
+    tree.links.new(metal.outputs[0], add[1].inputs[1])
+    tree.links.new(add[1].outputs[0], tree.nodes["Material Output"].inputs["Surface"])
+    add_cube().data.materials.append(mat)
+    result = export()
+    closures = result.scene.materials.shaders[1].closures
+    assert [(c.kind, dict(c.options)["distribution"]) for c in closures] == \
+        [("GLOSSY", "ASHIKHMIN_SHIRLEY"), ("REFRACTION", "BECKMANN"), ("METALLIC", "BECKMANN")]
+    assert result.warnings == []
+
+
 def test_unlinked_surface_renders_black():
     mat = bpy.data.materials.new("Empty")
     tree = mat.node_tree

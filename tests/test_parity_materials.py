@@ -93,6 +93,27 @@ def test_every_closure_node_alone_on_a_sphere():
     compare_to_cycles(scene, samples=128, max_bounces=6)
 
 
+def test_beckmann_and_ashikhmin_shirley_distributions():
+    """The non-GGX distributions: Beckmann reflection (Glossy, Metallic), refraction and glass, and the
+    Ashikhmin-Shirley lobe of the Glossy BSDF."""
+    scene = new_scene(96, 48)
+    G = "ShaderNodeBsdfAnisotropic"
+    materials = [
+        node_material("Glossy Beckmann", G, Color=(0.8, 0.8, 0.9), Roughness=0.3, opt_distribution="BECKMANN"),
+        node_material("Glossy Ashikhmin-Shirley", G, Color=(0.9, 0.7, 0.5), Roughness=0.3,
+                      opt_distribution="ASHIKHMIN_SHIRLEY"),
+        node_material("Refraction Beckmann", "ShaderNodeBsdfRefraction", Color=(0.8, 0.9, 1.0), Roughness=0.2,
+                      IOR=1.45, opt_distribution="BECKMANN"),
+        node_material("Metallic Beckmann", "ShaderNodeBsdfMetallic", Roughness=0.3, opt_distribution="BECKMANN"),
+        node_material("Glass Beckmann", "ShaderNodeBsdfGlass", Color=(1.0, 0.9, 0.8), Roughness=0.2, IOR=1.5,
+                      opt_distribution="BECKMANN"),
+    ]
+    grid_of_spheres(materials, 5)
+    add_camera(scene, (0, -6.5, 0.5), (0, 0, 0.5), lens=40)
+    set_world(scene, hdri="courtyard.exr", strength=1.0)
+    compare_to_cycles(scene, samples=128, max_bounces=6)
+
+
 def test_mix_and_add_shaders_and_a_textured_mix_factor():
     scene = new_scene(64, 48)
     size = 8

@@ -242,8 +242,6 @@ UNSUPPORTED_INPUTS = {
     "GLASS": (("Thin Film Thickness", 0.0),),
     "METALLIC": (("Thin Film Thickness", 0.0),),
 }
-# Distributions Ember renders as GGX (Beckmann and Ashikhmin-Shirley differ slightly in their highlights).
-GGX_ONLY = ("BECKMANN", "ASHIKHMIN_SHIRLEY")
 
 
 class MaterialTable:
@@ -356,10 +354,7 @@ class _MaterialReader:
         options = []
         distribution = getattr(node, "distribution", None)
         if distribution is not None:
-            if distribution in GGX_ONLY and kind != "REFRACTION":
-                self.issues.append(f"{node.bl_label} '{node.name}': {distribution.title()} distribution "
-                                   f"rendered as GGX")
-            options.append(("distribution", "GGX" if distribution in GGX_ONLY else distribution))
+            options.append(("distribution", distribution))
         if kind == "METALLIC":
             options.append(("fresnel", node.fresnel_type))
         return tuple(options)
@@ -414,9 +409,6 @@ class _MaterialReader:
             self.issues.append(f"{label} subsurface scattering is rendered as diffuse")
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
-        if kind == "REFRACTION" and node.distribution == "BECKMANN" and self.is_set(node.inputs["Roughness"], 0.0,
-                                                                                      groups):
-            self.issues.append(f"{label} Beckmann distribution rendered as GGX")
         aniso = {"PRINCIPLED": "Anisotropic", "GLOSSY": "Anisotropy", "METALLIC": "Anisotropy"}.get(kind)
         tangent = node.inputs.get("Tangent")
         if aniso and self.is_set(node.inputs[aniso], 0.0, groups) and source_of(tangent, groups).node is None:

@@ -29,8 +29,11 @@ from .. import sampling
 from . import diffuse, sheen
 
 # Lobe ids. DELTA_LOBES are singular: found only by sampling them.
-LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS = range(8)
-LOBE_NAMES = ("lambert", "oren_nayar", "translucent", "sheen", "transparent", "reflection", "refraction", "glass")
+LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY = range(9)
+LOBE_NAMES = ("lambert", "oren_nayar", "translucent", "sheen", "transparent", "reflection", "refraction", "glass",
+              "ashikhmin_shirley")
+# Lobes with a roughness-dependent singular (delta) limit; eval of a singular closure is 0.
+MICROFACET_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
 # Cycles drops closures whose sample weight is below this (`CLOSURE_WEIGHT_CUTOFF`).
 WEIGHT_CUTOFF = np.float32(1e-5)
 # Lobes Cycles counts as diffuse (CLOSURE_IS_BSDF_DIFFUSE) for the bump shadowing term.
@@ -41,8 +44,10 @@ ZERO, ONE = F32(0.0), F32(1.0)
 
 # Per-closure parameter columns and their defaults: scalars (C,) and colours (3, C).
 # soften: 1 where a diffuse closure on another normal takes the shadowing term's softening (Cycles skips
-# it when the material turns Bump Map Correction off).
-_SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0, "soften": 1.0}
+# it when the material turns Bump Map Correction off). dist: a microfacet lobe's distribution (0 GGX,
+# 1 Beckmann: microfacet.GGX / BECKMANN).
+_SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0, "soften": 1.0,
+            "dist": 0.0}
 _COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0}
 
 
@@ -173,6 +178,9 @@ class ClosureSet:
         if singular:
             micro = np.isin(self.lobe, singular)
             delta |= micro & _is_singular(self.ax, self.ay)
+        if ASHIKHMIN_SHIRLEY in self.kinds:
+            # Cycles' Ashikhmin-Shirley is a mirror at max(alpha) <= 1e-4 (its setup clamps alpha there).
+            delta |= (self.lobe == ASHIKHMIN_SHIRLEY) & (np.maximum(self.ax, self.ay) <= F32(1e-4))
         return delta
 
     # ---------------------------------------------------------------- evaluation
@@ -236,7 +244,7 @@ class ClosureSet:
             return np.zeros((3, len(rows)), F32), np.zeros(len(rows), F32)
         value, pdf = EVAL[k](self, rows, _pick(self.wo, rows), wi)
         f = value * self.weight[:, rows]
-        if k in (REFLECTION, REFRACTION, GLASS):
+        if k in MICROFACET_LOBES:
             live = ~self.delta[rows]
             f, pdf = np.where(live, f, ZERO), np.where(live, pdf, ZERO)
         return f, pdf

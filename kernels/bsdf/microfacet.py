@@ -1,7 +1,14 @@
-"""The GGX microfacet family of Cycles 5.0 (`kernel/closure/bsdf_microfacet.h`): the distribution, visible
-normal sampling, the reflection, refraction and glass lobes, the anisotropy mappings of the Principled
-and Glossy BSDFs, the multiscatter energy compensation and the albedo estimates Cycles uses for
-layering and sample weights.
+"""The microfacet family of Cycles 5.0 (`kernel/closure/bsdf_microfacet.h`): the GGX and Beckmann
+distributions, their visible normal sampling, the reflection, refraction and glass lobes, the anisotropy
+mappings of the Principled and Glossy BSDFs, the multiscatter energy compensation (GGX only, as in Cycles)
+and the albedo estimates Cycles uses for layering and sample weights.
+
+Distributions. The lobe functions take `distribution=GGX` (the default) or `distribution=BECKMANN`, one
+per call: D, Smith Lambda and the visible normal sampler change, the Fresnel, Jacobian, masking and
+lobe-choice code is shared. Beckmann follows Cycles: D = exp(-tan^2 / alpha^2) / (pi alpha^2 cos^4)
+(anisotropic form), Lambda is Walter et al.'s rational approximation, and visible normals are sampled
+with Jakob's slope inversion (Heitz & d'Eon 2014) from Cycles' approximate erf and inverse erf and its
+three Newton steps; its small error against the analytic pdf is Cycles' too.
 
 Contract (see the package docstring). Local frame: z = the lobe's normal, x = its tangent (alpha_x is
 along x). A direction is a tuple (x, y, z) of (N,) float32 unit arrays; `wo` points to the viewer,
@@ -18,12 +25,13 @@ where wo.z <= 0. The caller flips the frame to the viewer's side on back faces (
 passes eta = IOR for a viewer outside an object of index IOR, eta = 1 / IOR for a viewer inside it:
 eta is always the index of the far side (-z) over the index of the viewer's side (+z).
 
-Singular lobes. alpha_x alpha_y <= 2e-10 is a perfectly smooth surface (Cycles' BSDF_ROUGHNESS_SQ_THRESH):
-eval returns 0 (f and pdf); sample returns the mirror or refracted direction with its exact weight
-(Fresnel over the event's probability), pdf = +inf and delta = True. Cycles also treats a refraction as
-singular when |eta - 1| < 1e-4 (the ray goes straight through), whatever the roughness; so do we, and
-eval of a transmission then returns 0. A caller recognises a delta sample by `delta` (equivalently
-pdf == inf); its weight is already the full throughput factor and it takes no MIS against lights.
+Singular lobes (either distribution). alpha_x alpha_y <= 2e-10 is a perfectly smooth surface (Cycles'
+BSDF_ROUGHNESS_SQ_THRESH): eval returns 0 (f and pdf); sample returns the mirror or refracted direction
+with its exact weight (Fresnel over the event's probability), pdf = +inf and delta = True. Cycles also
+treats a refraction as singular when |eta - 1| < 1e-4 (the ray goes straight through), whatever the
+roughness; so do we, and eval of a transmission then returns 0. A caller recognises a delta sample by
+`delta` (equivalently pdf == inf); its weight is already the full throughput factor and it takes no MIS
+against lights.
 
 Checks left to the caller: Cycles rejects sampled directions on the wrong side of the geometric normal
 (reflections below Ng, refractions above it); the lobe sees only the shading frame.
@@ -51,6 +59,7 @@ F32 = np.float32
 ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
 SINGULAR_ALPHA2 = F32(2e-10)
 SINGULAR_ETA = F32(1e-4)
+GGX, BECKMANN = 0, 1  # the `distribution` argument of the lobe functions
 
 
 class MicrofacetSample(NamedTuple):
@@ -108,24 +117,150 @@ def ggx_lambda(w, alpha_x, alpha_y):
     return np.where(np.isinf(a2t2), np.inf, lam).astype(np.float32)
 
 
-def smith_G1(w, alpha_x, alpha_y):
+# ---------------------------------------------------------------- Beckmann distribution
+def beckmann_D(h, alpha_x, alpha_y):
+    """Anisotropic Beckmann D(h) = exp(-(hx^2/ax^2 + hy^2/ay^2) / hz^2) / (pi ax ay hz^4), h unit. (N,).
+    Isotropic: exp(-tan^2 theta_h / alpha^2) / (pi alpha^2 cos^4 theta_h). 0 at hz = 0; symmetric in h."""
+    ax, ay = _f32(alpha_x), _f32(alpha_y)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        sx, sy = h[0] / ax, h[1] / ay
+        c2 = h[2] * h[2]
+        d = np.exp(-(sx * sx + sy * sy) / c2) / (F32(np.pi) * ax * ay * c2 * c2)
+    return np.where(c2 > 0, d, ZERO).astype(np.float32)
+
+
+def beckmann_lambda(w, alpha_x, alpha_y):
+    """Cycles' Smith Lambda for Beckmann (Walter et al. 2007, below their eq. 69): with a = 1 / (alpha
+    tan), Lambda = (1 - 1.259 a + 0.396 a^2) / (3.535 a + 2.181 a^2) where a < 1.6 (alpha^2 tan^2 >=
+    0.39), else 0. +inf at grazing (wz = 0), which makes G = 0."""
+    ax, ay = _f32(alpha_x), _f32(alpha_y)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        a2t2 = (np.square(ax * w[0]) + np.square(ay * w[1])) / (w[2] * w[2])
+        a = ONE / np.sqrt(a2t2)
+        lam = ((F32(0.396) * a - F32(1.259)) * a + ONE) / ((F32(2.181) * a + F32(3.535)) * a)
+    lam = np.where(a2t2 < F32(0.39), ZERO, lam)
+    return np.where(np.isinf(a2t2), np.inf, lam).astype(np.float32)
+
+
+def _erf(x):
+    """Cycles' fast_erff: Abramowitz & Stegun 7.1.28 (about 2e-6 absolute error), float32."""
+    a = np.abs(x)
+    r = np.full_like(a, F32(0.0000430638))  # Horner, from the highest power down
+    for c in (F32(0.0002765672), F32(0.0001520143), F32(0.0092705272), F32(0.0422820123), F32(0.0705230784),
+              ONE):
+        r = r * a + c
+    with np.errstate(over="ignore", divide="ignore"):
+        v = np.square(np.square(np.square(np.square(r))))  # r^16
+        e = ONE - ONE / v
+    return (np.where(a >= F32(12.3), ONE, e) * np.where(x < 0, -ONE, ONE)).astype(np.float32)
+
+
+_IERF_CENTRE = (2.81022636e-08, 3.43273939e-07, -3.5233877e-06, -4.39150654e-06, 0.00021858087,
+                -0.00125372503, -0.00417768164, 0.246640727, 1.50140941)
+_IERF_TAIL = (-0.000200214257, 0.000100950558, 0.00134934322, -0.00367342844, 0.00573950773,
+              -0.0076224613, 0.00943887047, 1.00167406, 2.83297682)
+
+
+def _erfinv(x):
+    """Cycles' fast_ierff: Giles' single-precision inverse error function, |x| clamped below 1."""
+    a = np.minimum(np.abs(x), F32(0.99999994))
+    w = -np.log((ONE - a) * (ONE + a))
+    centre = w < F32(5.0)
+    t = np.where(centre, w - F32(2.5), np.sqrt(w) - F32(3.0))
+    p = np.where(centre, F32(_IERF_CENTRE[0]), F32(_IERF_TAIL[0]))
+    for c0, c1 in zip(_IERF_CENTRE[1:], _IERF_TAIL[1:]):
+        p = p * t + np.where(centre, F32(c0), F32(c1))
+    return (p * x).astype(np.float32)
+
+
+def _sign(x):
+    """Cycles' signf: -1 below 0, else 1."""
+    return np.where(x < 0, -ONE, ONE)
+
+
+def sample_visible_normal_beckmann(wo, alpha_x, alpha_y, u1, u2):
+    """A Beckmann microfacet normal h with density D_wo(h) (wo.z > 0), as Cycles samples it: stretch wo,
+    sample the slope of a visible normal of the unit-roughness distribution (x: Jakob's inversion of
+    the slope CDF, a closed-form first guess then at most three Newton steps safeguarded by bisection,
+    stopping at a residual of 1e-6; y: an inverse erf), rotate to wo's azimuth, unstretch.
+    Returns h, three (N,) float32 with h.z > 0."""
+    ax, ay = _f32(alpha_x), _f32(alpha_y)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        vx, vy, vz = _normalize(ax * wo[0], ay * wo[1], wo[2])
+        # Normal incidence: a 2D Gaussian of slopes.
+        r = np.sqrt(-np.log(np.maximum(u1, np.finfo(np.float32).tiny)))
+        phi = F32(2.0 * np.pi) * u2
+        normal_x, normal_y = r * np.cos(phi), r * np.sin(phi)
+        # General case.
+        sin_t = np.sqrt(np.maximum(ONE - vz * vz, ZERO))
+        tan_t = sin_t / vz
+        cot_t = ONE / tan_t
+        erf_a = _erf(cot_t)
+        exp_a2 = np.exp(-cot_t * cot_t)
+        k = tan_t * F32(0.56418958354)  # tan / sqrt(pi)
+        y_approx = u1 * (ONE + erf_a + k * (ONE - erf_a * erf_a))
+        y_exact = u1 * (ONE + erf_a + k * exp_a2)
+        b = np.where(k > 0, (HALF - np.sqrt(k * (k - y_approx + ONE) + F32(0.25))) / k, y_approx - ONE)
+        inv_erf = _erfinv(b)
+        begin_x, begin_y = np.full_like(b, -ONE), -y_exact
+        end_x = erf_a
+        cur_x = b
+        cur_y = ONE + b + k * np.exp(-inv_erf * inv_erf) - y_exact
+        for _ in range(3):
+            active = np.abs(cur_y) > F32(1e-6)
+            if not active.any():
+                break
+            same = _sign(begin_y) == _sign(cur_y)
+            begin_x = np.where(active & same, cur_x, begin_x)
+            begin_y = np.where(active & same, cur_y, begin_y)
+            end_x = np.where(active & ~same, cur_x, end_x)
+            newton = cur_x - cur_y / (ONE - inv_erf * tan_t)
+            step = np.where((newton >= begin_x) & (newton <= end_x), newton, HALF * (begin_x + end_x))
+            cur_x = np.where(active, step, cur_x)
+            inv_erf = np.where(active, _erfinv(cur_x), inv_erf)
+            cur_y = np.where(active, ONE + cur_x + k * np.exp(-inv_erf * inv_erf) - y_exact, cur_y)
+        slope_y = _erfinv(F32(2.0) * u2 - ONE)
+        cos_phi, sin_phi = vx / sin_t, vy / sin_t
+        general_x = cos_phi * inv_erf - sin_phi * slope_y
+        general_y = sin_phi * inv_erf + cos_phi * slope_y
+        at_normal = vz >= F32(0.99999)
+        sx = np.where(at_normal, normal_x, general_x) * ax
+        sy = np.where(at_normal, normal_y, general_y) * ay
+        h = _normalize(-sx, -sy, np.ones_like(sx))
+    ok = np.isfinite(h[0]) & np.isfinite(h[1]) & np.isfinite(h[2])
+    return tuple(np.where(ok, c, d).astype(np.float32) for c, d in zip(h, (ZERO, ZERO, ONE)))
+
+
+def _lambda(distribution):
+    return beckmann_lambda if distribution == BECKMANN else ggx_lambda
+
+
+def _D(distribution):
+    return beckmann_D if distribution == BECKMANN else ggx_D
+
+
+def smith_G1(w, alpha_x, alpha_y, distribution=GGX):
     """Masking 1 / (1 + Lambda(w))."""
-    return (ONE / (ONE + ggx_lambda(w, alpha_x, alpha_y))).astype(np.float32)
+    return (ONE / (ONE + _lambda(distribution)(w, alpha_x, alpha_y))).astype(np.float32)
 
 
-def smith_G2(wo, wi, alpha_x, alpha_y):
+def smith_G2(wo, wi, alpha_x, alpha_y, distribution=GGX):
     """Height-correlated masking-shadowing 1 / (1 + Lambda(wo) + Lambda(wi)), as Cycles uses it."""
-    return (ONE / (ONE + ggx_lambda(wo, alpha_x, alpha_y) + ggx_lambda(wi, alpha_x, alpha_y))).astype(np.float32)
+    lam = _lambda(distribution)
+    return (ONE / (ONE + lam(wo, alpha_x, alpha_y) + lam(wi, alpha_x, alpha_y))).astype(np.float32)
 
 
-def sample_visible_normal(wo, alpha_x, alpha_y, u1, u2):
+def sample_visible_normal(wo, alpha_x, alpha_y, u1, u2, distribution=GGX):
     """A microfacet normal h with density D_wo(h) = G1(wo) max(wo.h, 0) D(h) / wo.z (wo.z > 0).
+    distribution=BECKMANN: sample_visible_normal_beckmann. GGX:
 
     Dupuy & Benyoub 2023 ("Sampling Visible GGX Normals with Spherical Caps"): in the stretched
     configuration where the surface is a hemisphere, visible normals are wo_std plus a uniform point of
     the spherical cap z >= -wo_std.z; then unstretch. The same distribution as Heitz 2018, which Cycles
     uses, without its tangent basis. Returns h, three (N,) float32 with h.z >= 0.
     """
+    if distribution == BECKMANN:
+        return sample_visible_normal_beckmann(wo, alpha_x, alpha_y, u1, u2)
     ax, ay = _f32(alpha_x), _f32(alpha_y)
     vx, vy, vz = _normalize(ax * wo[0], ay * wo[1], wo[2])
     phi = F32(2.0 * np.pi) * u1
@@ -137,26 +272,27 @@ def sample_visible_normal(wo, alpha_x, alpha_y, u1, u2):
     return _normalize(ax * hx, ay * hy, np.maximum(hz, ZERO))
 
 
-def visible_normal_pdf(wo, h, alpha_x, alpha_y):
+def visible_normal_pdf(wo, h, alpha_x, alpha_y, distribution=GGX):
     """D_wo(h) = G1(wo) max(wo.h, 0) D(h) / wo.z, the density of sample_visible_normal. (N,)."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        pdf = (smith_G1(wo, alpha_x, alpha_y) * np.maximum(_dot(wo, h), ZERO) * ggx_D(h, alpha_x, alpha_y)
+        pdf = (smith_G1(wo, alpha_x, alpha_y, distribution) * np.maximum(_dot(wo, h), ZERO)
+               * _D(distribution)(h, alpha_x, alpha_y)
                / wo[2])
     return np.where((wo[2] > 0) & np.isfinite(pdf), pdf, ZERO).astype(np.float32)
 
 
 # ---------------------------------------------------------------- lobe terms shared by eval and sample
-def _reflection_common(wo, h, alpha_x, alpha_y):
+def _reflection_common(wo, h, alpha_x, alpha_y, distribution):
     """D / (4 wo.z): f_cos = F common / (1 + Lo + Li), pdf = common / (1 + Lo)."""
-    return ggx_D(h, alpha_x, alpha_y) / (F32(4.0) * wo[2])
+    return _D(distribution)(h, alpha_x, alpha_y) / (F32(4.0) * wo[2])
 
 
-def _refraction_common(wo, wi, h, alpha_x, alpha_y, eta):
+def _refraction_common(wo, wi, h, alpha_x, alpha_y, eta, distribution):
     """D / wo.z |wo.h| |wi.h| / (wi.h + wo.h / eta)^2: the refraction analogue of _reflection_common,
     the Jacobian of Walter et al. 2007 written as Cycles does (eta^2 kept, see the module docstring)."""
     cos_ho, cos_hi = _dot(wo, h), _dot(wi, h)
     denom = cos_hi + cos_ho / eta
-    return ggx_D(h, alpha_x, alpha_y) / wo[2] * np.abs(cos_ho * cos_hi) / (denom * denom)
+    return _D(distribution)(h, alpha_x, alpha_y) / wo[2] * np.abs(cos_ho * cos_hi) / (denom * denom)
 
 
 def _finish(valid, f_cos, pdf, delta=False):
@@ -172,8 +308,8 @@ def _nonzero(c):
 
 
 # ---------------------------------------------------------------- reflection
-def eval_reflection(wo, wi, alpha_x, alpha_y, fresnel):
-    """GGX reflection. fresnel(cos_h) -> (3, N) with cos_h = wo.h. Returns (f_cos (3, N), pdf (N,)):
+def eval_reflection(wo, wi, alpha_x, alpha_y, fresnel, distribution=GGX):
+    """GGX (or Beckmann) reflection. fresnel(cos_h) -> (3, N) with cos_h = wo.h. Returns (f_cos (3, N), pdf (N,)):
         f_cos = F D / (4 wo.z (1 + L(wo) + L(wi))),   pdf = D / (4 wo.z (1 + L(wo)))   (VNDF sampling).
     Zero below either horizon, for singular lobes, and where F = 0 in all channels (as Cycles)."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -181,25 +317,27 @@ def eval_reflection(wo, wi, alpha_x, alpha_y, fresnel):
         h = _normalize(wo[0] + wi[0], wo[1] + wi[1], wo[2] + wi[2])
         cos_h = np.where(valid, np.clip(_dot(wo, h), ZERO, ONE), ONE)
         f = fresnel(cos_h)
-        common = _reflection_common(wo, h, alpha_x, alpha_y)
-        lo, li = ggx_lambda(wo, alpha_x, alpha_y), ggx_lambda(wi, alpha_x, alpha_y)
+        common = _reflection_common(wo, h, alpha_x, alpha_y, distribution)
+        lam = _lambda(distribution)
+        lo, li = lam(wo, alpha_x, alpha_y), lam(wi, alpha_x, alpha_y)
         pdf = common / (ONE + lo)
         f_cos = f * (common / (ONE + lo + li))[None, :]
         return _finish(valid & _nonzero(f), f_cos, pdf)
 
 
-def sample_reflection(wo, alpha_x, alpha_y, fresnel, u1, u2):
-    """Sample GGX reflection by visible normals. u1, u2 (N,) float32 in [0, 1). Returns
+def sample_reflection(wo, alpha_x, alpha_y, fresnel, u1, u2, distribution=GGX):
+    """Sample GGX (or Beckmann) reflection by visible normals. u1, u2 (N,) float32 in [0, 1). Returns
     MicrofacetSample; weight = F (1 + L(wo)) / (1 + L(wo) + L(wi)), or F for singular lobes."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         singular = is_singular(alpha_x, alpha_y) & np.ones(np.shape(u1), bool)
-        h = _select(singular, (ZERO, ZERO, ONE), sample_visible_normal(wo, alpha_x, alpha_y, u1, u2))
+        h = _select(singular, (ZERO, ZERO, ONE), sample_visible_normal(wo, alpha_x, alpha_y, u1, u2, distribution))
         cos_h = np.clip(_dot(wo, h), ZERO, ONE)
         wi = _normalize(*(F32(2.0) * cos_h * hc - oc for hc, oc in zip(h, wo)))
         f = fresnel(np.where(wo[2] > 0, cos_h, ONE))
         valid = (wo[2] > 0) & (wi[2] > 0) & _nonzero(f)
-        lo, li = ggx_lambda(wo, alpha_x, alpha_y), ggx_lambda(wi, alpha_x, alpha_y)
-        pdf = np.where(singular, np.inf, _reflection_common(wo, h, alpha_x, alpha_y) / (ONE + lo))
+        lam = _lambda(distribution)
+        lo, li = lam(wo, alpha_x, alpha_y), lam(wi, alpha_x, alpha_y)
+        pdf = np.where(singular, np.inf, _reflection_common(wo, h, alpha_x, alpha_y, distribution) / (ONE + lo))
         weight = f * np.where(singular, ONE, (ONE + lo) / (ONE + lo + li))[None, :]
         weight, pdf = _finish(valid, weight, pdf, singular)
     return MicrofacetSample(wi, weight, pdf, singular & (pdf > 0), np.zeros(np.shape(u1), bool))
@@ -227,7 +365,7 @@ def _reflect_probability(r, t):
     return r.mean(axis=0) / (r + t).mean(axis=0)
 
 
-def _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel):
+def _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel, distribution):
     """Glass-type eval: reflection above, transmission below, each weighted by Cycles' lobe choice.
     fresnel(cos_h, eta) -> (R, T), called with |wo.h| (Cycles' dielectric curves ignore its sign)."""
     eta = np.broadcast_to(_f32(eta), np.shape(wo[2]))
@@ -242,20 +380,21 @@ def _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel):
         # No refracted ray at the microfacet: T = 0 whatever the model says (refraction-only lobe).
         t = np.where((fr.refracted_cos_sq(cos_h, eta) <= 0)[None, :], ZERO, t)
         p_reflect = _reflect_probability(r, t)
-        common = np.where(transmit, _refraction_common(wo, wi, h, alpha_x, alpha_y, eta),
-                          _reflection_common(wo, h, alpha_x, alpha_y))
-        lo, li = ggx_lambda(wo, alpha_x, alpha_y), ggx_lambda(wi, alpha_x, alpha_y)
+        common = np.where(transmit, _refraction_common(wo, wi, h, alpha_x, alpha_y, eta, distribution),
+                          _reflection_common(wo, h, alpha_x, alpha_y, distribution))
+        lam = _lambda(distribution)
+        lo, li = lam(wo, alpha_x, alpha_y), lam(wi, alpha_x, alpha_y)
         lobe_p = np.where(transmit, ONE - p_reflect, p_reflect)
         pdf = common * lobe_p / (ONE + lo)
         f_cos = np.where(transmit[None, :], t, r) * (common / (ONE + lo + li))[None, :]
         return _finish(valid & (_nonzero(r) | _nonzero(t)), f_cos, pdf)
 
 
-def _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc):
+def _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc, distribution):
     eta = np.broadcast_to(_f32(eta), np.shape(u1))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         singular = is_singular(alpha_x, alpha_y) & np.ones(np.shape(u1), bool)
-        h = _select(singular, (ZERO, ZERO, ONE), sample_visible_normal(wo, alpha_x, alpha_y, u1, u2))
+        h = _select(singular, (ZERO, ZERO, ONE), sample_visible_normal(wo, alpha_x, alpha_y, u1, u2, distribution))
         cos_h = np.clip(_dot(wo, h), ZERO, ONE)
         cos_h = np.where(wo[2] > 0, cos_h, ONE)
         r, t = fresnel(cos_h, eta)
@@ -272,9 +411,10 @@ def _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc):
         valid = ((wo[2] > 0) & np.isfinite(p_reflect) & np.where(refract, wi[2] < 0, wi[2] > 0))
         delta = singular | (refract & (np.abs(eta - ONE) < SINGULAR_ETA))
         lobe_p = np.where(refract, ONE - p_reflect, p_reflect)
-        common = np.where(refract, _refraction_common(wo, wi, h, alpha_x, alpha_y, eta),
-                          _reflection_common(wo, h, alpha_x, alpha_y))
-        lo, li = ggx_lambda(wo, alpha_x, alpha_y), ggx_lambda(wi, alpha_x, alpha_y)
+        common = np.where(refract, _refraction_common(wo, wi, h, alpha_x, alpha_y, eta, distribution),
+                          _reflection_common(wo, h, alpha_x, alpha_y, distribution))
+        lam = _lambda(distribution)
+        lo, li = lam(wo, alpha_x, alpha_y), lam(wi, alpha_x, alpha_y)
         pdf = np.where(delta, np.inf, lobe_p * common / (ONE + lo))
         shadowing = np.where(delta, ONE, (ONE + lo) / (ONE + lo + li))
         weight = np.where(refract[None, :], t, r) / lobe_p[None, :] * shadowing[None, :]
@@ -283,7 +423,7 @@ def _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc):
     return MicrofacetSample(wi, weight, pdf, delta & ok, refract & ok)
 
 
-def eval_glass(wo, wi, alpha_x, alpha_y, eta, fresnel):
+def eval_glass(wo, wi, alpha_x, alpha_y, eta, fresnel, distribution=GGX):
     """GGX glass (Cycles' glass closure: reflect + refract). eta: see the module docstring; fresnel
     (cos_h, eta) -> (R (3, N), T (3, N)), e.g. fresnel.dielectric_glass() or fresnel.remapped_glass(..).
     With P = mean(R) / mean(R + T) at the half vector:
@@ -291,32 +431,33 @@ def eval_glass(wo, wi, alpha_x, alpha_y, eta, fresnel):
       transmission (wi.z < 0), h = normalize(-(eta wi + wo)), J = |wo.h||wi.h| / (wi.h + wo.h / eta)^2:
                                f_cos = T D J / (wo.z (1 + Lo + Li)),   pdf = (1 - P) D J / (wo.z (1 + Lo))
     Cycles' glass is isotropic (its setup sets alpha_y = alpha_x); pass equal alphas to match it."""
-    return _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel)
+    return _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel, distribution)
 
 
-def sample_glass(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc):
+def sample_glass(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc, distribution=GGX):
     """Sample GGX glass: a visible normal h from (u1, u2), then reflection if uc < P, P = mean(R) /
     mean(R + T) at h (T = 0 under total internal reflection), else refraction. Returns MicrofacetSample;
     `transmission` says which event happened. Weight = R / P (1 + Lo) / (1 + Lo + Li) for reflection,
     T / (1 - P) (...) for transmission; delta samples drop the shadowing ratio."""
-    return _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc)
+    return _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc, distribution)
 
 
 def _refraction_only(cos_h, eta):
-    """Cycles' GGX Refraction closure: no Fresnel, R = 0, T = 1 (TIR is zeroed by the lobe)."""
+    """Cycles' Refraction closure (GGX or Beckmann): no Fresnel, R = 0, T = 1 (TIR is zeroed by the lobe)."""
     n = np.shape(cos_h)[0]
     return np.zeros((3, n), np.float32), np.ones((3, n), np.float32)
 
 
-def eval_refraction(wo, wi, alpha_x, alpha_y, eta):
+def eval_refraction(wo, wi, alpha_x, alpha_y, eta, distribution=GGX):
     """Cycles' Refraction BSDF: the transmission half of eval_glass with T = 1, R = 0 (so P = 0), and 0
     where the microfacet totally reflects. No compensation in Cycles."""
-    return _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, _refraction_only)
+    return _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, _refraction_only, distribution)
 
 
-def sample_refraction(wo, alpha_x, alpha_y, eta, u1, u2):
+def sample_refraction(wo, alpha_x, alpha_y, eta, u1, u2, distribution=GGX):
     """Sample the Refraction BSDF. Microfacets that totally reflect give invalid samples (weight 0)."""
-    return _sample_dielectric(wo, alpha_x, alpha_y, eta, _refraction_only, u1, u2, np.zeros_like(u1))
+    return _sample_dielectric(wo, alpha_x, alpha_y, eta, _refraction_only, u1, u2, np.zeros_like(u1),
+                              distribution)
 
 
 # ---------------------------------------------------------------- anisotropy mappings (svm/closure.h)

@@ -1,9 +1,9 @@
-"""Microfacet closures in the mixture: how Cycles sets up its GGX closures (`bsdf_microfacet_setup_fresnel_*`,
-`microfacet_ggx_preserve_energy` in `kernel/closure/bsdf_microfacet.h`) and how the closure table
-evaluates and samples them.
+"""Microfacet closures in the mixture: how Cycles sets up its GGX and Beckmann closures
+(`bsdf_microfacet_setup_fresnel_*`, `microfacet_ggx_preserve_energy` in `kernel/closure/bsdf_microfacet.h`)
+and its Ashikhmin-Shirley closure, and how the closure table evaluates and samples them.
 
-A microfacet closure carries alpha_x, alpha_y, eta (far side over the viewer's side), its Fresnel mode and
-up to three colour parameters:
+A microfacet closure carries alpha_x, alpha_y, eta (far side over the viewer's side), its distribution
+(`dist`: microfacet.GGX or BECKMANN), its Fresnel mode and up to three colour parameters:
 
     F_ONE        F = 1 (Glossy: its colour is in the weight)
     F_DIELECTRIC exact dielectric Fresnel at eta (the Principled coat)
@@ -13,12 +13,16 @@ up to three colour parameters:
                  transmission, Glass): the exact curve remapped onto [F0, 1]
 
 Setup, as Cycles: the sample weight is mean(weight) x mean(estimated albedo); with multiscatter GGX, eval
-is scaled by 1/E (`eval_scale`) and the weight (and sample weight) by E + Fms (1 - E).
+is scaled by 1/E (`eval_scale`) and the weight (and sample weight) by E + Fms (1 - E). Beckmann is never
+compensated (Cycles has multiscatter for GGX only); its albedo estimate is the GGX one, as in Cycles.
+The Ashikhmin-Shirley closure (Glossy only) is its own lobe, closures.ASHIKHMIN_SHIRLEY: F = 1, alpha
+clamped to [1e-4, 1], sample weight the mean of its weight.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from . import ashikhmin_shirley as ash
 from . import closures as lobes
 from . import fresnel as fr
 from . import microfacet as mf
@@ -26,6 +30,7 @@ from . import microfacet as mf
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
 F_ONE, F_DIELECTRIC, F_F82, F_CONDUCTOR, F_REMAP = range(5)
+GGX, BECKMANN = mf.GGX, mf.BECKMANN
 
 principled_anisotropy = mf.principled_anisotropy
 glossy_anisotropy = mf.glossy_anisotropy
@@ -33,28 +38,42 @@ ior_from_f0 = fr.ior_from_f0
 
 
 # ---------------------------------------------------------------- setup (called by kernels.shading.nodes)
-def add_glossy(b, ctx, color, w, ax, ay, multiscatter: bool, sub=None):
-    """Glossy BSDF: GGX reflection with F = 1, weight colour x mix weight; its colour is the Fss of the
-    compensation (Cycles' bsdf_microfacet_setup_fresnel_constant)."""
+def add_glossy(b, ctx, color, w, ax, ay, multiscatter: bool, sub=None, distribution=mf.GGX):
+    """Glossy BSDF: GGX or Beckmann reflection with F = 1, weight colour x mix weight; its colour is the
+    Fss of the compensation (Cycles' bsdf_microfacet_setup_fresnel_constant, multiscatter GGX only)."""
     hits, normal, mu = _where(ctx, sub)
-    _add_reflection(b, hits, normal, color * w, np.ones_like(color), ax, ay, mu, color, multiscatter, F_ONE)
+    _add_reflection(b, hits, normal, color * w, np.ones_like(color), ax, ay, mu, color,
+                    multiscatter and distribution == mf.GGX, F_ONE, dist=distribution)
 
 
-def add_f82(b, ctx, weight, ax, ay, f0, tint, multiscatter: bool, sub=None):
-    """F82-tint conductor (Principled metal with F0 = base colour and tint = specular tint; Metallic BSDF)."""
+def add_ashikhmin_shirley(b, ctx, color, w, ax, ay, sub=None):
+    """Glossy BSDF, Ashikhmin-Shirley: its own lobe, weight colour x mix weight, alpha clamped to [1e-4, 1]
+    (Cycles' bsdf_ashikhmin_shirley_setup)."""
+    hits, normal, _ = _where(ctx, sub)
+    lo, hi = F32(1e-4), ONE
+    b.add(lobes.ASHIKHMIN_SHIRLEY, hits, color * w, normal=normal, ax=np.clip(ax, lo, hi), ay=np.clip(ay, lo, hi))
+
+
+def add_f82(b, ctx, weight, ax, ay, f0, tint, multiscatter: bool, sub=None, distribution=mf.GGX):
+    """F82-tint conductor (Principled metal with F0 = base colour and tint = specular tint; Metallic BSDF,
+    GGX or Beckmann)."""
     hits, normal, mu = _where(ctx, sub)
+    multiscatter = multiscatter and distribution == mf.GGX
     b_term = np.where(np.all(tint == ONE, axis=0), ZERO, fr.f82_tint_b(f0, tint))
     albedo = mf.albedo_f82(ax, ay, mu, f0, b_term)
     fss = fr.f82_fss(f0, b_term) if multiscatter else None
-    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_F82, c0=f0, c1=b_term)
+    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_F82, c0=f0, c1=b_term,
+                    dist=distribution)
 
 
-def add_conductor(b, ctx, weight, ax, ay, n, k, multiscatter: bool, sub=None):
-    """Metallic BSDF, physical conductor: exact Fresnel of complex IOR n + ik."""
+def add_conductor(b, ctx, weight, ax, ay, n, k, multiscatter: bool, sub=None, distribution=mf.GGX):
+    """Metallic BSDF, physical conductor: exact Fresnel of complex IOR n + ik (GGX or Beckmann)."""
     hits, normal, mu = _where(ctx, sub)
+    multiscatter = multiscatter and distribution == mf.GGX
     albedo = mf.albedo_conductor(mu, n, k)
     fss = fr.conductor_fss(n, k) if multiscatter else None
-    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_CONDUCTOR, c0=n, c1=k)
+    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_CONDUCTOR, c0=n, c1=k,
+                    dist=distribution)
 
 
 def add_specular(b, ctx, weight, ax, ay, eta, f0, multiscatter: bool, sub=None) -> np.ndarray:
@@ -83,9 +102,11 @@ def add_coat(b, ctx, sub, weight, alpha, ior) -> np.ndarray:
 
 
 def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, specular_tint, multiscatter: bool,
-              sub=None):
-    """GGX glass (Glass BSDF, Principled transmission): remapped Fresnel with F0 = F0(IOR) x specular
-    tint, reflection and transmission tints; eta = IOR from outside, 1/IOR from inside (back faces)."""
+              sub=None, distribution=mf.GGX):
+    """GGX or Beckmann glass (Glass BSDF, Principled transmission): remapped Fresnel with F0 = F0(IOR) x
+    specular tint, reflection and transmission tints; eta = IOR from outside, 1/IOR from inside (back
+    faces)."""
+    multiscatter = multiscatter and distribution == mf.GGX
     hits, normal, mu = _where(ctx, sub)
     back = ctx.take(ctx.hit.backfacing) if sub is None else ctx.take(ctx.hit.backfacing)[sub]
     eta = np.where(back, ONE / ior, ior).astype(F32)
@@ -101,16 +122,17 @@ def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, sp
         weight = weight * factor
         sw = sw * factor.mean(axis=0)
     b.add(lobes.GLASS, hits, weight, sample_weight=sw, normal=normal, ax=alpha, ay=alpha, eta=eta,
-          eval_scale=eval_scale, fresnel=F_REMAP, c0=f0, c1=reflection_tint, c2=transmission_tint)
+          eval_scale=eval_scale, fresnel=F_REMAP, c0=f0, c1=reflection_tint, c2=transmission_tint,
+          **_dist(distribution))
 
 
-def add_refraction(b, ctx, weight, alpha, ior, sub=None):
-    """Refraction BSDF: GGX refraction alone, no Fresnel, no compensation."""
+def add_refraction(b, ctx, weight, alpha, ior, sub=None, distribution=mf.GGX):
+    """Refraction BSDF: GGX or Beckmann refraction alone, no Fresnel, no compensation."""
     hits, normal, _ = _where(ctx, sub)
     back = ctx.take(ctx.hit.backfacing) if sub is None else ctx.take(ctx.hit.backfacing)[sub]
     alpha = np.clip(alpha, 0.0, 1.0)
     b.add(lobes.REFRACTION, hits, weight, normal=normal, ax=alpha, ay=alpha,
-          eta=np.where(back, ONE / ior, ior).astype(F32))
+          eta=np.where(back, ONE / ior, ior).astype(F32), **_dist(distribution))
 
 
 def _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, mode, **params):
@@ -121,9 +143,15 @@ def _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatt
         eval_scale, factor = mf.multiscatter_reflection(ax, ay, mu, fss=fss)
         weight = weight * factor
         sw = sw * factor.mean(axis=0)
+    dist = params.pop("dist", mf.GGX)
     b.add(lobes.REFLECTION, hits, weight, sample_weight=sw, normal=normal, ax=ax, ay=ay, eval_scale=eval_scale,
-          fresnel=mode, **params)
+          fresnel=mode, **params, **_dist(dist))
     return weight
+
+
+def _dist(distribution):
+    """The `dist` column, left out for GGX (its default) so GGX-only tables stay as they were."""
+    return {} if distribution == mf.GGX else {"dist": F32(distribution)}
 
 
 def _where(ctx, sub):
@@ -163,35 +191,84 @@ def _glass_fresnel(cs, rows):
     return fr.remapped_glass(cs.c0[:, rows], ONE, cs.c1[:, rows], cs.c2[:, rows])
 
 
-def _reflection_eval(cs, rows, wo, wi):
-    f, pdf = mf.eval_reflection(wo, wi, cs.ax[rows], cs.ay[rows], _reflection_fresnel(cs, rows))
+def _reflection_eval(cs, rows, wo, wi, dist=mf.GGX):
+    f, pdf = mf.eval_reflection(wo, wi, cs.ax[rows], cs.ay[rows], _reflection_fresnel(cs, rows), dist)
     return f * cs.eval_scale[rows], pdf
 
 
-def _reflection_sample(cs, rows, wo, u1, u2, uc):
-    s = mf.sample_reflection(wo, cs.ax[rows], cs.ay[rows], _reflection_fresnel(cs, rows), u1, u2)
+def _reflection_sample(cs, rows, wo, u1, u2, uc, dist=mf.GGX):
+    s = mf.sample_reflection(wo, cs.ax[rows], cs.ay[rows], _reflection_fresnel(cs, rows), u1, u2, dist)
     return s.wi, s.weight * cs.eval_scale[rows], s.pdf, s.transmission
 
 
-def _glass_eval(cs, rows, wo, wi):
-    f, pdf = mf.eval_glass(wo, wi, cs.ax[rows], cs.ay[rows], cs.eta[rows], _glass_fresnel(cs, rows))
+def _glass_eval(cs, rows, wo, wi, dist=mf.GGX):
+    f, pdf = mf.eval_glass(wo, wi, cs.ax[rows], cs.ay[rows], cs.eta[rows], _glass_fresnel(cs, rows), dist)
     return f * cs.eval_scale[rows], pdf
 
 
-def _glass_sample(cs, rows, wo, u1, u2, uc):
-    s = mf.sample_glass(wo, cs.ax[rows], cs.ay[rows], cs.eta[rows], _glass_fresnel(cs, rows), u1, u2, uc)
+def _glass_sample(cs, rows, wo, u1, u2, uc, dist=mf.GGX):
+    s = mf.sample_glass(wo, cs.ax[rows], cs.ay[rows], cs.eta[rows], _glass_fresnel(cs, rows), u1, u2, uc, dist)
     return s.wi, s.weight * cs.eval_scale[rows], s.pdf, s.transmission
 
 
-def _refraction_eval(cs, rows, wo, wi):
-    return mf.eval_refraction(wo, wi, cs.ax[rows], cs.ay[rows], cs.eta[rows])
+def _refraction_eval(cs, rows, wo, wi, dist=mf.GGX):
+    return mf.eval_refraction(wo, wi, cs.ax[rows], cs.ay[rows], cs.eta[rows], dist)
 
 
-def _refraction_sample(cs, rows, wo, u1, u2, uc):
-    s = mf.sample_refraction(wo, cs.ax[rows], cs.ay[rows], cs.eta[rows], u1, u2)
+def _refraction_sample(cs, rows, wo, u1, u2, uc, dist=mf.GGX):
+    s = mf.sample_refraction(wo, cs.ax[rows], cs.ay[rows], cs.eta[rows], u1, u2, dist)
     return s.wi, s.weight, s.pdf, s.transmission
 
 
-lobes.register_lobe(lobes.REFLECTION, _reflection_eval, _reflection_sample)
-lobes.register_lobe(lobes.GLASS, _glass_eval, _glass_sample)
-lobes.register_lobe(lobes.REFRACTION, _refraction_eval, _refraction_sample)
+def _by_distribution_eval(fn):
+    """Eval of rows that may mix distributions: one call per distribution present (GGX alone: one call,
+    exactly as before the column existed)."""
+    def run(cs, rows, wo, wi):
+        dist = cs.dist[rows]
+        if not np.any(dist != mf.GGX):
+            return fn(cs, rows, wo, wi)
+        f, pdf = np.zeros((3, len(rows)), F32), np.zeros(len(rows), F32)
+        for d in np.unique(dist):
+            s = np.flatnonzero(dist == d)
+            f[:, s], pdf[s] = fn(cs, rows[s], _take(wo, s), _take(wi, s), int(d))
+        return f, pdf
+    return run
+
+
+def _by_distribution_sample(fn):
+    """Sample of rows that may mix distributions, as _by_distribution_eval."""
+    def run(cs, rows, wo, u1, u2, uc):
+        dist = cs.dist[rows]
+        if not np.any(dist != mf.GGX):
+            return fn(cs, rows, wo, u1, u2, uc)
+        n = len(rows)
+        wi = tuple(np.zeros(n, F32) for _ in range(3))
+        weight, pdf, transmit = np.zeros((3, n), F32), np.zeros(n, F32), np.zeros(n, bool)
+        for d in np.unique(dist):
+            s = np.flatnonzero(dist == d)
+            w_s, weight[:, s], pdf[s], transmit[s] = fn(cs, rows[s], _take(wo, s), u1[s], u2[s], uc[s], int(d))
+            for axis in range(3):
+                wi[axis][s] = w_s[axis]
+        return wi, weight, pdf, transmit
+    return run
+
+
+def _take(w, s):
+    return tuple(c[s] for c in w)
+
+
+def _ashikhmin_shirley_eval(cs, rows, wo, wi):
+    return ash.eval_ashikhmin_shirley(wo, wi, cs.ax[rows], cs.ay[rows])
+
+
+def _ashikhmin_shirley_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf, _ = ash.sample_ashikhmin_shirley(wo, cs.ax[rows], cs.ay[rows], u1, u2)
+    return wi, weight, pdf, False
+
+
+lobes.register_lobe(lobes.REFLECTION, _by_distribution_eval(_reflection_eval),
+                    _by_distribution_sample(_reflection_sample))
+lobes.register_lobe(lobes.GLASS, _by_distribution_eval(_glass_eval), _by_distribution_sample(_glass_sample))
+lobes.register_lobe(lobes.REFRACTION, _by_distribution_eval(_refraction_eval),
+                    _by_distribution_sample(_refraction_sample))
+lobes.register_lobe(lobes.ASHIKHMIN_SHIRLEY, _ashikhmin_shirley_eval, _ashikhmin_shirley_sample)

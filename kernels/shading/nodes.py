@@ -163,7 +163,7 @@ class _TangentBuilder:
         self._tangent[:, idx] = np.stack(tangent)
 
     def add(self, lobe, hits, weight, tangent=None, **kwargs):
-        if tangent is None and lobe == lobes.REFLECTION:
+        if tangent is None and lobe in (lobes.REFLECTION, lobes.ASHIKHMIN_SHIRLEY):
             tangent = self._tangent[:, hits]
         self._builder.add(lobe, hits, weight, tangent=tangent, **kwargs)
 
@@ -247,9 +247,17 @@ def _glossy(c, ctx, w, b):
         distribution = c.option("distribution", "MULTI_GGX")
         spec = ctx.specular()
         tangent = ctx.tangent(c, "Rotation", spec.ns)  # Cycles rotates it about the closure's own normal
-        mf.add_glossy(_with_tangent(b, ctx, tangent), spec, color, w, ax, ay,
-                      multiscatter=distribution == "MULTI_GGX")
+        if distribution == "ASHIKHMIN_SHIRLEY":
+            mf.add_ashikhmin_shirley(_with_tangent(b, ctx, tangent), spec, color, w, ax, ay)
+        else:
+            mf.add_glossy(_with_tangent(b, ctx, tangent), spec, color, w, ax, ay,
+                          multiscatter=distribution == "MULTI_GGX", distribution=_distribution(c))
     return Built()
+
+
+def _distribution(c):
+    """The microfacet distribution of a node's `distribution` option: Beckmann, else GGX."""
+    return mf.BECKMANN if c.option("distribution", "MULTI_GGX") == "BECKMANN" else mf.GGX
 
 
 def _glass(c, ctx, w, b):
@@ -258,7 +266,8 @@ def _glass(c, ctx, w, b):
         alpha = np.square(np.clip(ctx.input(c, "Roughness"), 0.0, 1.0))
         ior = np.maximum(ctx.input(c, "IOR"), F32(1e-5))
         mf.add_glass(b, ctx.specular(), w, alpha, ior, reflection_tint=color, transmission_tint=color,
-                     specular_tint=None, multiscatter=c.option("distribution", "MULTI_GGX") == "MULTI_GGX")
+                     specular_tint=None, multiscatter=c.option("distribution", "MULTI_GGX") == "MULTI_GGX",
+                     distribution=_distribution(c))
     return Built()
 
 
@@ -267,7 +276,7 @@ def _refraction(c, ctx, w, b):
         color = ctx.input(c, "Color")
         alpha = np.square(ctx.input(c, "Roughness"))
         ior = np.maximum(ctx.input(c, "IOR"), F32(1e-5))
-        mf.add_refraction(b, ctx.specular(), color * w, alpha, ior)
+        mf.add_refraction(b, ctx.specular(), color * w, alpha, ior, distribution=_distribution(c))
     return Built()
 
 
@@ -281,10 +290,11 @@ def _metallic(c, ctx, w, b):
         b = _with_tangent(b, ctx, ctx.tangent(c, "Rotation", ctx.ns))
         if c.option("fresnel", "F82") == "PHYSICAL_CONDUCTOR":
             mf.add_conductor(b, spec, weight, ax, ay, np.maximum(ctx.input(c, "IOR"), ZERO),
-                             np.maximum(ctx.input(c, "Extinction"), ZERO), multiscatter)
+                             np.maximum(ctx.input(c, "Extinction"), ZERO), multiscatter,
+                             distribution=_distribution(c))
         else:
             mf.add_f82(b, spec, weight, ax, ay, np.clip(ctx.input(c, "Base Color"), 0.0, 1.0),
-                       np.clip(ctx.input(c, "Edge Tint"), 0.0, 1.0), multiscatter)
+                       np.clip(ctx.input(c, "Edge Tint"), 0.0, 1.0), multiscatter, distribution=_distribution(c))
     return Built()
 
 
