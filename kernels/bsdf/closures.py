@@ -28,10 +28,8 @@ import numpy as np
 from .. import sampling
 from . import diffuse, sheen
 
-# Lobe ids. DELTA_LOBES are singular: found only by sampling them.
+# Lobe ids.
 LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY = range(9)
-LOBE_NAMES = ("lambert", "oren_nayar", "translucent", "sheen", "transparent", "reflection", "refraction", "glass",
-              "ashikhmin_shirley")
 # Lobes with a roughness-dependent singular (delta) limit; eval of a singular closure is 0.
 MICROFACET_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
 # Cycles drops closures whose sample weight is below this (`CLOSURE_WEIGHT_CUTOFF`).

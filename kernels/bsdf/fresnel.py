@@ -244,11 +244,6 @@ def conductor_reflection(n, k):
     return lambda cos_h: conductor(cos_h, n, k)
 
 
-def f82_reflection(f0, b):
-    """F82-tint (Principled metal, Metallic BSDF F82 mode); b from f82_tint_b."""
-    return lambda cos_h: f82(cos_h, f0, b)
-
-
 def remapped_reflection(eta, f0, f90=1.0, tint=1.0):
     """Remapped generalized Schlick times reflection tint, for a reflection lobe (Principled specular)."""
     def fresnel(cos_h):

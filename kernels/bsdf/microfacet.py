@@ -244,12 +244,6 @@ def smith_G1(w, alpha_x, alpha_y, distribution=GGX):
     return (ONE / (ONE + _lambda(distribution)(w, alpha_x, alpha_y))).astype(np.float32)
 
 
-def smith_G2(wo, wi, alpha_x, alpha_y, distribution=GGX):
-    """Height-correlated masking-shadowing 1 / (1 + Lambda(wo) + Lambda(wi)), as Cycles uses it."""
-    lam = _lambda(distribution)
-    return (ONE / (ONE + lam(wo, alpha_x, alpha_y) + lam(wi, alpha_x, alpha_y))).astype(np.float32)
-
-
 def sample_visible_normal(wo, alpha_x, alpha_y, u1, u2, distribution=GGX):
     """A microfacet normal h with density D_wo(h) = G1(wo) max(wo.h, 0) D(h) / wo.z (wo.z > 0).
     distribution=BECKMANN: sample_visible_normal_beckmann. GGX:

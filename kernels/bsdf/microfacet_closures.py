@@ -169,7 +169,7 @@ def _where(ctx, sub):
 # ---------------------------------------------------------------- the lobes in the closure table
 def _reflection_fresnel(cs, rows):
     mode, eta = cs.fresnel[rows].astype(np.int8), cs.eta[rows]
-    c0, c1, c2 = cs.c0[:, rows], cs.c1[:, rows], cs.c2[:, rows]
+    c0, c1 = cs.c0[:, rows], cs.c1[:, rows]
 
     def fresnel(cos_h):
         out = np.ones((3, len(rows)), F32)
