@@ -21,12 +21,12 @@ import numpy as np
 
 from . import sampling
 from .accel import Accel
-from .camera import generate_rays
+from .camera import generate_rays, view_plane
 from .environment import Environment
 from .film import Film
 from .bsdf.closures import BsdfSample
 from .geometry import NG, TriangleTable, extent
-from .interaction import SurfaceHit
+from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
 from .paths import PathState
 from .rng import PathRng, seed_paths
@@ -151,8 +151,11 @@ class Renderer:
         self._triangles = TriangleTable(self.scene)
         poll()
         self._material_ids = self.scene.material_ids
-        self.shading = Shading(self.scene.materials, self.textures)
+        self.shading = Shading(self.scene.materials, self.textures, self.scene)
         self._emissive = bool(self.shading.emissive.any())
+        xmin, xmax, _, _ = view_plane(self.scene.camera)
+        # View-plane units per pixel: the spread of camera rays (perspective: radians at the centre).
+        self._pixel_size = float(xmax - xmin) / max(self.scene.camera.width, 1)
         lo, hi = extent(self.scene.positions)
         self._ray_epsilon = _ray_epsilon(lo, hi)
         self.lights = LightSampler(self.scene, self.environment, _Emitters(self))
@@ -297,8 +300,11 @@ class Renderer:
         jx, jy = samples.camera()
         rays = Rays(*generate_rays(self.scene.camera, row, col, jx, jy))
         state = PathState.start(n, samples)
+        if self.scene.camera.kind == "ORTHO":
+            state.dp[:] = self._pixel_size
         max_scatters = int(settings.max_bounces) + 1
-        wave = _Wave(settings, nee, split, max_scatters, radiance, alpha)
+        wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
+                     0.0 if self.scene.camera.kind == "ORTHO" else self._pixel_size)
         for step in range(max_scatters + int(settings.transparent_max_bounces) + 1):
             hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split)
             if step > 0 and self.lights.has_surface_lights:
@@ -309,6 +315,11 @@ class Renderer:
                 break
             state.compact(found)
             hit = self._surface_hit(hits, rays, found)
+            t_hit = np.take(hits.t, found)
+            # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
+            # of distance, bounce after bounce (kernel/util/differential.h).
+            state.dp = state.dp + t_hit * wave.spread_dd
+            hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp)
             shading = self.shading.surface(hit)
             if self._emissive:
                 self._emission_on_hit(wave, state, hit, shading, hits, rays, found)
@@ -530,6 +541,8 @@ class Renderer:
             d = dirs[live[found]]
             hit = SurfaceHit(self._triangles, self._material_ids, hits.prim[found], hits.u[found], hits.v[found],
                              (d[:, 0], d[:, 1], d[:, 2]), self.shading.needs_uv)
+            zeros = np.zeros(len(found), np.int32)
+            hit.ray = RayInfo(zeros, zeros, hits.t[found], shadow=True)
             passes = self.shading.transparency(hit)
             out[:, live[found]] *= passes
             through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]
@@ -566,11 +579,12 @@ class Renderer:
 
 class _Wave:
     """Per-wave constants and outputs shared by the stages."""
-    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha")
+    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd")
 
-    def __init__(self, settings, nee, split, max_scatters, radiance, alpha):
+    def __init__(self, settings, nee, split, max_scatters, radiance, alpha, spread_dd=0.0):
         self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
         self.radiance, self.alpha = radiance, alpha
+        self.spread_dd = np.float32(spread_dd)  # the camera rays' direction spread per pixel (radians)
 
 
 class Rays(NamedTuple):

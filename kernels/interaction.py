@@ -17,8 +17,9 @@ class SurfaceHit:
     mat : (N,) int32 material row; prim : (N,) triangle index.
     backfacing : (N,) bool, the ray hit the triangle's back (normals were flipped).
     tangent_frame(idx) : the tangents of some hits, computed on demand.
+    ray : the path state the Light Path node reads (RayInfo), None outside the integrator's loop.
     """
-    __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "_table", "_b1", "_b2")
+    __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "ray", "programs", "_table", "_b1", "_b2")
 
     def __init__(self, table: TriangleTable, material_ids: np.ndarray, prim, b1, b2, d, need_uv: bool):
         g = table.gather(prim)
@@ -44,7 +45,28 @@ class SurfaceHit:
         self.d = d
         self.mat = np.take(material_ids, prim)
         self.prim = prim
+        self.ray = None
+        self.programs = {}  # material -> (hit indices, ProgramRun): node programs run once per wave
         self._table, self._b1, self._b2 = table, b1, b2
+
+    @property
+    def barycentrics(self):
+        """(b1, b2): the weights of each hit's triangle corners 1 and 2 (corner 0 has 1 - b1 - b2)."""
+        return self._b1, self._b2
+
+    def uv_at(self, idx: np.ndarray, b1=None, b2=None):
+        """Render UV (u, v) of the hits idx (at other barycentrics b1, b2 of their triangles if given)."""
+        if self.u is not None and b1 is None:
+            return np.take(self.u, idx), np.take(self.v, idx)
+        if b1 is None:
+            b1, b2 = np.take(self._b1, idx), np.take(self._b2, idx)
+        g = self._table.gather(np.take(self.prim, idx))
+        return interpolate_uv(g, np.float32(1.0) - b1 - b2, b1, b2)
+
+    def edges(self, idx: np.ndarray):
+        """(E1, E2): the (n, 3) edges p1 - p0 and p2 - p0 of the hits' triangles."""
+        rows = np.take(self._table.rows, np.take(self.prim, idx), axis=0)
+        return rows[:, E1:E1 + 3], rows[:, E2:E2 + 3]
 
     def tangent_frame(self, idx: np.ndarray):
         """At hits idx: the interpolated, unnormalized tangent (x, y, z) and bitangent sign (n,), and the
@@ -54,3 +76,14 @@ class SurfaceHit:
 
     def __len__(self) -> int:
         return len(self.mat)
+
+
+class RayInfo:
+    """The path state behind a wave's hits, for the Light Path node: per hit (N,) arrays of scattering
+    events so far (depth) and transparent surfaces passed (transparent), the ray's length (or None), and
+    whether these are shadow rays; dp, the rays' position spread at the hits (Cycles' compact
+    differential sd->dP, for the Bump node), None for none."""
+    __slots__ = ("depth", "transparent", "length", "shadow", "dp")
+
+    def __init__(self, depth, transparent, length=None, shadow: bool = False, dp=None):
+        self.depth, self.transparent, self.length, self.shadow, self.dp = depth, transparent, length, shadow, dp

@@ -16,11 +16,12 @@ class PathState:
     samples: Samples        # the paths' random numbers
     bounce: np.ndarray      # (N,) int32: scattering events so far (0 = still the camera ray)
     transparent: np.ndarray  # (N,) int32: transparent surfaces passed straight through so far
+    dp: np.ndarray          # (N,) float32: the ray's position spread (Cycles' compact differential dP)
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
         return cls(np.arange(n), np.ones((3, n), np.float32), np.full(n, np.inf, np.float32), samples,
-                   np.zeros(n, np.int32), np.zeros(n, np.int32))
+                   np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n, np.float32))
 
     def compact(self, idx: np.ndarray) -> None:
         """Keep only the paths idx (in that order)."""
@@ -30,6 +31,7 @@ class PathState:
         self.samples = self.samples.take(idx)
         self.bounce = np.take(self.bounce, idx)
         self.transparent = np.take(self.transparent, idx)
+        self.dp = np.take(self.dp, idx)
 
     def __len__(self) -> int:
         return len(self.path)

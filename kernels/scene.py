@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .programs import Program, Ref
+
 CAMERA_KINDS = ("PERSP", "ORTHO")
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 
@@ -76,18 +78,26 @@ class Param:
     unassociate : divide the texture's (associated) colour by its alpha, as Cycles does for an Image
         Texture whose Alpha output is linked.
     channel : 0, 1 or 2: one channel of the texture's colour (a Separate Color node), -1 for all.
+    link : a Ref to an output of the material's node program (Shader.program): the input is that output at
+        each hit, and value is only the input's own value (kept for estimates and messages).
     """
     value: tuple
     texture: int = -1
     alpha: bool = False
     unassociate: bool = False
     channel: int = -1
+    link: Ref | None = None
 
     @classmethod
     def of(cls, value, texture: int = -1, alpha: bool = False, unassociate: bool = False,
-           channel: int = -1) -> "Param":
+           channel: int = -1, link: Ref | None = None) -> "Param":
         values = tuple(float(v) for v in np.atleast_1d(np.asarray(value, np.float64)))
-        return cls(values, int(texture), bool(alpha), bool(unassociate), int(channel))
+        return cls(values, int(texture), bool(alpha), bool(unassociate), int(channel), link)
+
+    @property
+    def varies(self) -> bool:
+        """Whether the input differs from hit to hit (a texture or a program output)."""
+        return self.texture >= 0 or self.link is not None
 
 
 # Spaces of a Normal Map node the kernel renders (Blender also has OBJECT and BLENDER_OBJECT, which need the
@@ -173,10 +183,12 @@ class Shader:
 
     bump_map_correction : Cycles' material setting of that name (on by default): specular closures tilt
         their normal toward the geometric normal until the mirror direction clears the surface.
+    program : the material's node program (kernels.programs), which linked Params read.
     """
     closures: tuple = ()
     name: str = ""
     bump_map_correction: bool = True
+    program: Program = Program()
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),
@@ -212,6 +224,8 @@ class Materials:
         _require(len(self.shaders) >= 1, "materials", "needs at least one material")
         for i, shader in enumerate(self.shaders):
             _require(isinstance(shader, Shader), f"materials[{i}]", "must be a Shader")
+            _require(isinstance(shader.program, Program), f"materials[{i}]", "program must be a Program")
+            shader.program.validate(n_textures)
             for closure in shader.closures:
                 where = f"materials[{i}] ({shader.name or 'unnamed'}) {closure.kind}"
                 _require(closure.kind in CLOSURE_KINDS, where, f"kind must be one of {CLOSURE_KINDS}")
@@ -220,7 +234,11 @@ class Materials:
                 if closure.kind == "EMISSION" or closure.kind == "PRINCIPLED":
                     for name in ("Color", "Strength", "Emission Color", "Emission Strength"):
                         p = closure.input(name)
-                        _require(p is None or min(p.value) >= 0, f"{where} {name}", "must be non-negative")
+                        _require(p is None or p.link is not None or min(p.value) >= 0, f"{where} {name}",
+                                 "must be non-negative")
+                for p in closure.params():
+                    _require(p.link is None or 0 <= p.link.op < len(shader.program), where,
+                             f"reads op {p.link.op if p.link else None} of a program of {len(shader.program)}")
 
 
 def _check_input(value, where: str, name: str, n_textures: int) -> None:
@@ -331,6 +349,11 @@ class SceneArrays:
         UV map and its bitangent sign (w, +-1: B = sign * N x T); None when no material reads tangents
         (tangent-space normal maps, Tangent nodes). Zero rows mean "no tangent" (Cycles then leaves the
         normal unperturbed).
+    attributes : ((name, (T, 3, C) float32), ...) per-corner attributes the node programs read, C in 1..4:
+        "uv:<map>" (C = 2), "color:<name>" (vertex colours, C = 4), "attr:<name>" (generic attributes).
+    objects : (K, OBJECT_COLUMNS) float32 or None: one row per object instance (OBJ_* columns), for
+        the Texture Coordinate (Generated, Object, Normal) and Object Info nodes.
+    object_ids : (T,) int32 or None: each triangle's row of `objects` (both or neither are given).
     """
     positions: np.ndarray
     normals: np.ndarray
@@ -343,6 +366,9 @@ class SceneArrays:
     camera: Camera = field(default_factory=Camera)
     lights: Lights = field(default_factory=Lights)
     tangents: np.ndarray | None = None
+    attributes: tuple = ()
+    objects: np.ndarray | None = None
+    object_ids: np.ndarray | None = None
 
     @property
     def triangle_count(self) -> int:
@@ -361,6 +387,20 @@ class SceneArrays:
         _check_array(self.material_ids, "material_ids", (t,), np.int32)
         if self.tangents is not None:
             _check_array(self.tangents, "tangents", (t, 3, 4), np.float32, finite=False)
+        for name, values in self.attributes:
+            _require(isinstance(name, str), "attributes", "names must be strings")
+            c = values.shape[2] if getattr(values, "ndim", 0) == 3 else 0
+            _require(1 <= c <= 4, f"attributes[{name!r}]", "must be (T, 3, C) with C in 1..4")
+            _check_array(values, f"attributes[{name!r}]", (t, 3, c), np.float32)
+        _require((self.objects is None) == (self.object_ids is None), "objects",
+                 "objects and object_ids come together")
+        if self.objects is not None:
+            k = len(self.objects)
+            _check_array(self.objects, "objects", (k, OBJECT_COLUMNS), np.float32)
+            _check_array(self.object_ids, "object_ids", (t,), np.int32)
+            if t:
+                _require(self.object_ids.min() >= 0 and self.object_ids.max() < k, "object_ids",
+                         f"must be in [0, {k})")
         for i, tex in enumerate(self.textures):
             _require(isinstance(tex, np.ndarray) and tex.ndim == 3 and tex.shape[2] in (1, 3, 4)
                      and tex.shape[0] >= 1 and tex.shape[1] >= 1,
@@ -404,10 +444,42 @@ class SceneArrays:
                                         normals=np.ascontiguousarray(normals[keep]),
                                         uvs=np.ascontiguousarray(uvs[keep]),
                                         material_ids=np.ascontiguousarray(self.material_ids[keep]),
-                                        tangents=tangents)
+                                        tangents=tangents,
+                                        attributes=tuple((name, np.ascontiguousarray(np.nan_to_num(v[keep])))
+                                                         for name, v in self.attributes),
+                                        object_ids=None if self.object_ids is None else
+                                        np.ascontiguousarray(self.object_ids[keep]))
         else:
             scene = self
         return ValidatedScene(scene, dropped, int(np.count_nonzero(bad_n & keep)))
+
+
+# Columns of SceneArrays.objects: object_from_world (3 x 4, row-major), world_from_object's linear part
+# (3 x 3, row-major), the location, the mesh's texture space (location, size), the object's colour
+# (RGBA), its pass index and Cycles' random number (random_id / 0xFFFFFFFF).
+OBJ_FROM_WORLD, OBJ_WORLD_LINEAR, OBJ_LOCATION, OBJ_TEXSPACE_LOC, OBJ_TEXSPACE_SIZE = 0, 12, 21, 24, 27
+OBJ_COLOR, OBJ_PASS_INDEX, OBJ_RANDOM = 30, 34, 35
+OBJECT_COLUMNS = 36
+
+
+def object_row(world_from_object, texspace_location=(0.0, 0.0, 0.0), texspace_size=(1.0, 1.0, 1.0),
+               color=(1.0, 1.0, 1.0, 1.0), pass_index: int = 0, random: float = 0.0) -> np.ndarray:
+    """One row of SceneArrays.objects (OBJECT_COLUMNS,) float32 from a (4, 4) world_from_object."""
+    m = np.asarray(world_from_object, np.float64)
+    row = np.zeros(OBJECT_COLUMNS, np.float64)
+    try:
+        inv = np.linalg.inv(m)
+    except np.linalg.LinAlgError:
+        inv = np.linalg.pinv(m)
+    row[OBJ_FROM_WORLD:OBJ_FROM_WORLD + 12] = inv[:3, :4].ravel()
+    row[OBJ_WORLD_LINEAR:OBJ_WORLD_LINEAR + 9] = m[:3, :3].ravel()
+    row[OBJ_LOCATION:OBJ_LOCATION + 3] = m[:3, 3]
+    row[OBJ_TEXSPACE_LOC:OBJ_TEXSPACE_LOC + 3] = texspace_location
+    row[OBJ_TEXSPACE_SIZE:OBJ_TEXSPACE_SIZE + 3] = texspace_size
+    row[OBJ_COLOR:OBJ_COLOR + 4] = color
+    row[OBJ_PASS_INDEX] = pass_index
+    row[OBJ_RANDOM] = random
+    return np.nan_to_num(row).astype(np.float32)
 
 
 @dataclass(frozen=True)

@@ -357,8 +357,8 @@ def test_unsupported_nodes_render_grey_with_one_warning_per_material():
     metal, bsdf = new_material("Metal")
     bsdf.inputs["Metallic"].default_value = 1.0
     bsdf.inputs["Base Color"].default_value = (0.5, 0.5, 0.5, 1.0)
-    noise = metal.node_tree.nodes.new("ShaderNodeTexNoise")
-    metal.node_tree.links.new(noise.outputs["Fac"], bsdf.inputs["Roughness"])
+    ao = metal.node_tree.nodes.new("ShaderNodeAmbientOcclusion")
+    metal.node_tree.links.new(ao.outputs["AO"], bsdf.inputs["Roughness"])
     ob = add_cube()
     ob.data.materials.append(mat)
     ob.data.materials.append(metal)
@@ -373,7 +373,7 @@ def test_unsupported_nodes_render_grey_with_one_warning_per_material():
     assert principled.kind == "PRINCIPLED" and principled.input("Metallic").value == (1.0,)
     assert principled.input("Roughness").value == (0.5,)  # the socket's own value
     metallic = [w for w in result.warnings if "'Metal'" in w]
-    assert len(metallic) == 1 and "Noise Texture node feeding Roughness of Principled BSDF" in metallic[0]
+    assert len(metallic) == 1 and "Ambient Occlusion node" in metallic[0] and "feeding Roughness" in metallic[0]
 
 
 def test_mix_and_add_shaders_keep_their_factors():
@@ -516,15 +516,17 @@ def test_missing_image_renders_magenta_with_a_warning(tmp_path):
     assert any(f"'{image.name}'" in w and "magenta" in w for w in result.warnings)
 
 
-def test_non_uv_texture_coordinates_warn_once():
+def test_non_uv_texture_coordinates_go_through_the_node_program():
     image = new_image("Tex", np.ones((1, 1, 4), np.float32))
     mat, tex = textured_material("Generated", image)
     coords = mat.node_tree.nodes.new("ShaderNodeTexCoord")
     mat.node_tree.links.new(coords.outputs["Generated"], tex.inputs["Vector"])
     add_cube().data.materials.append(mat)
     result = export()
-    assert material_row(result)[1] == 0
-    assert len([w for w in result.warnings if "'Generated'" in w]) == 1
+    shader = result.scene.materials.shaders[1]
+    assert [op.kind for op in shader.program.ops] == ["ShaderNodeTexCoord", "ShaderNodeTexImage"]
+    assert shader.closures[0].input("Color").link is not None
+    assert not [w for w in result.warnings if "'Generated'" in w]
 
 
 # ---- World ------------------------------------------------------------------------------------------

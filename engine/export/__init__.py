@@ -85,7 +85,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     arrays = SceneArrays(positions=geometry.positions, normals=geometry.normals, uvs=geometry.uvs,
                          material_ids=geometry.material_ids, materials=materials.to_kernel(),
                          textures=materials.textures, texture_srgb=materials.texture_srgb, world=world,
-                         camera=camera, lights=lights, tangents=geometry.tangents)
+                         camera=camera, lights=lights, tangents=geometry.tangents,
+                         attributes=geometry.attributes, objects=geometry.objects, object_ids=geometry.object_ids)
     return ExportResult(scene=arrays, warnings=list(dict.fromkeys(absolute_paths(w) for w in warnings)),
                         seconds=time.perf_counter() - start, triangle_count=len(geometry.material_ids),
                         instance_count=geometry.instance_count)

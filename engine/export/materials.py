@@ -37,6 +37,7 @@ import numpy as np
 from ...kernels import Materials
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
 from ...kernels.textures import srgb_to_linear
+from .nodes import ProgramBuilder
 
 DEFAULT_ALBEDO = 0.8
 MISSING_IMAGE_COLOR = (1.0, 0.0, 1.0)
@@ -253,6 +254,7 @@ class MaterialTable:
         self._rows: list[Shader] = [diffuse_shader(GREY3, name="default surface")]
         self._ids: dict[str, int] = {}
         self._tangent_maps: dict[int, tuple[str, ...]] = {}
+        self._attributes: dict[int, frozenset] = {}
 
     def material_id(self, material) -> int:
         """Row of a material (None for an empty slot), read on first use."""
@@ -262,15 +264,26 @@ class MaterialTable:
         if key not in self._ids:
             row = self._ids[key] = len(self._rows)
             uv_maps: list[str] = []
-            self._rows.append(read_material(material, self.images, self._warnings, uv_maps))
+            attributes: set[str] = set()
+            self._rows.append(read_material(material, self.images, self._warnings, uv_maps, attributes))
             if uv_maps:
                 self._tangent_maps[row] = tuple(dict.fromkeys(uv_maps))
+            if attributes:
+                self._attributes[row] = frozenset(attributes)
         return self._ids[key]
 
     def tangent_uv_maps(self, rows) -> tuple[str, ...]:
         """The UV maps whose tangents the materials of these rows read ('' for the render UV map);
         empty when they read none."""
         return tuple(dict.fromkeys(name for row in rows for name in self._tangent_maps.get(row, ())))
+
+    def attribute_names(self, rows) -> tuple[str, ...]:
+        """The mesh attributes the node programs of these rows read (kernels.scene.SceneArrays.attributes
+        names), sorted."""
+        return tuple(sorted(set().union(*(self._attributes.get(row, ()) for row in rows))))
+
+    def all_attribute_names(self) -> tuple[str, ...]:
+        return self.attribute_names(range(len(self._rows)))
 
     def slot_ids(self, ob) -> tuple[int, ...]:
         """The rows of an object's material slots; (0,) for an object without slots."""
@@ -290,10 +303,12 @@ class MaterialTable:
         return Materials(tuple(self._rows))
 
 
-def read_material(material, images: ImageTextures, warnings: list[str], uv_maps: list[str] | None = None) -> Shader:
+def read_material(material, images: ImageTextures, warnings: list[str], uv_maps: list[str] | None = None,
+                  attributes: set[str] | None = None) -> Shader:
     """One material's shader. Everything Ember cannot render goes into a single warning line. The UV
-    maps whose tangents it reads are appended to uv_maps ('' for the render UV map)."""
-    reader = _MaterialReader(images)
+    maps whose tangents it reads are appended to uv_maps ('' for the render UV map), the mesh attributes
+    its node program reads added to attributes."""
+    reader = _MaterialReader(images, material.pass_index)
     tree = material.node_tree
     if tree is None:  # a material without nodes renders its viewport colour, as in Cycles
         return diffuse_shader(rgb(material.diffuse_color), name=material.name)
@@ -311,17 +326,21 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
         warnings.append(f"Material '{material.name}': " + "; ".join(dict.fromkeys(reader.issues)))
     if uv_maps is not None:
         uv_maps.extend(reader.tangent_uv_maps)
+    if attributes is not None:
+        attributes.update(reader.attributes)
     correction = getattr(getattr(material, "cycles", None), "use_bump_map_correction", True)
-    return Shader(closures, material.name, bool(correction))
+    return Shader(closures, material.name, bool(correction), reader.program.program())
 
 
 class _MaterialReader:
     """Reads one material's node tree into closures, collecting what it cannot render in `issues`."""
 
-    def __init__(self, images: ImageTextures):
+    def __init__(self, images: ImageTextures, pass_index: int = 0):
         self.images = images
         self.issues: list[str] = []
         self.tangent_uv_maps: list[str] = []  # UV maps whose tangents the closures read ('' = render map)
+        self.attributes: set[str] = set()     # mesh attributes the node program reads
+        self.program = ProgramBuilder(images, self.issues, self.attributes, self.tangent_uv_maps, pass_index)
 
     def closures(self, source: Source, factors: tuple) -> list[Closure]:
         """The closures of the shader tree feeding a shader socket, with their Mix Shader factors."""
@@ -333,9 +352,9 @@ class _MaterialReader:
             fac = self.param(node.inputs[0], groups, 1, node)
             first, second = (source_of(node.inputs[i], groups) for i in (1, 2))
             out = []
-            if fac.texture >= 0 or fac.value[0] < 1.0:
+            if fac.varies or fac.value[0] < 1.0:
                 out += self.closures(first, factors + ((fac, False),))
-            if fac.texture >= 0 or fac.value[0] > 0.0:
+            if fac.varies or fac.value[0] > 0.0:
                 out += self.closures(second, factors + ((fac, True),))
             return out
         if kind == "ShaderNodeAddShader":
@@ -371,15 +390,17 @@ class _MaterialReader:
             if source.node is None:
                 continue
             where = f"{source.node.bl_label} node feeding {name} of {node.bl_label} '{node.name}'"
-            value = self.normal_map(source, where) if name in NORMAL_INPUTS else self.tangent(source, where)
+            value = self.normal_map(source, where, socket, groups) if name in NORMAL_INPUTS else \
+                self.tangent(source, where)
             if value is not None:
                 out.append((name, value))
         return tuple(out)
 
-    def normal_map(self, source: Source, where: str) -> NormalMap | None:
-        if source.kind != "ShaderNodeNormalMap":
-            self.issues.append(f"{where} is not supported, used the shading normal")
-            return None
+    def normal_map(self, source: Source, where: str, socket=None, groups=()) -> NormalMap | Param | None:
+        if source.kind != "ShaderNodeNormalMap" or source.node.space not in NORMAL_MAP_SPACES:
+            # Any other node (or an object-space map): the program's vector, or the shading normal.
+            param = self.program_param(socket, groups, 3)
+            return param if param.link is not None else None
         node = source.node
         if node.space not in NORMAL_MAP_SPACES:
             self.issues.append(f"{where}: {node.space.replace('_', ' ').title()} space is not supported "
@@ -420,19 +441,27 @@ class _MaterialReader:
         source = source_of(socket, groups)
         if source.node is None or source.kind in ("ShaderNodeRGB", "ShaderNodeValue"):
             return Param.of(_socket_value(source.socket, channels))
-        if source.kind == "ShaderNodeTexImage":
+        if source.kind == "ShaderNodeTexImage" and _plain_image(source):
             return self.image_param(source)
         if source.kind in ("ShaderNodeSeparateColor", "ShaderNodeSeparateRGB") and \
                 getattr(source.node, "mode", "RGB") == "RGB":
             # One channel of an image (glTF's packed metallic-roughness and occlusion maps) or a constant.
             channel = ("Red", "Green", "Blue", "R", "G", "B").index(source.socket.identifier) % 3
             inner = self.param(source.node.inputs[0], source.groups, 3, source.node)
+            if inner.link is not None:
+                return self.program_param(socket, groups, channels)
             if inner.texture < 0:
                 return Param.of(inner.value[channel])
             return Param.of(inner.value[channel], inner.texture, unassociate=inner.unassociate, channel=channel)
-        self.issues.append(f"{source.node.bl_label} node feeding {socket.name} of {node.bl_label} '{node.name}' "
-                           f"is not supported, used {socket.name}'s own value")
-        return Param.of(_socket_value(socket, channels))
+        return self.program_param(socket, groups, channels)
+
+    def program_param(self, socket, groups, channels: int) -> Param:
+        """An input computed by the node program (kernels/programs.py)."""
+        want = "VALUE" if channels == 1 else "VECTOR" if socket.type == "VECTOR" else "RGBA"
+        value = self.program.input(socket, groups, want)
+        if isinstance(value, tuple):  # folded to a constant
+            return Param.of(value if len(value) == channels else _socket_value(socket, channels))
+        return Param.of(_socket_value(socket, channels), link=value)
 
     def image_param(self, source: Source) -> Param:
         """An Image Texture's Color or Alpha output."""
@@ -468,6 +497,16 @@ class _MaterialReader:
     def is_set(self, socket, neutral: float, groups) -> bool:
         source = source_of(socket, groups)
         return source.node is not None or float(source.socket.default_value) != neutral
+
+
+def _plain_image(source: Source) -> bool:
+    """An Image Texture the closure inputs read directly: render UVs, Linear, Flat, Repeat."""
+    node = source.node
+    vector = source_of(node.inputs["Vector"], source.groups)
+    uv = (vector.node is None
+          or (vector.kind == "ShaderNodeTexCoord" and vector.socket.identifier == "UV")
+          or (vector.kind == "ShaderNodeUVMap" and not vector.node.uv_map))
+    return uv and node.interpolation == "Linear" and node.projection == "FLAT" and node.extension == "REPEAT"
 
 
 def _channels(socket) -> int:

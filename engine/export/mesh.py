@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...kernels.scene import OBJECT_COLUMNS, object_row
 from .materials import MaterialTable
 
 # Object types that carry geometry Ember cannot render yet.
@@ -53,6 +54,10 @@ class Geometry:
     instance_count : object instances that contributed triangles.
     tangents : (T, 3, 4) float32 world-space tangents and bitangent signs (SceneArrays.tangents), zero
         for meshes whose materials read none; None when no material reads them.
+    attributes : ((name, (T, 3, C) float32), ...) the attributes node programs read (SceneArrays.attributes),
+        zero on meshes without them.
+    objects, object_ids : the object table (SceneArrays.objects), one row per instance, and each
+        triangle's row.
     """
     positions: np.ndarray
     normals: np.ndarray
@@ -60,6 +65,9 @@ class Geometry:
     material_ids: np.ndarray
     instance_count: int
     tangents: np.ndarray | None = None
+    attributes: tuple = ()
+    objects: np.ndarray | None = None
+    object_ids: np.ndarray | None = None
 
 
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None) -> Geometry:
@@ -69,6 +77,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     tangents: dict[int, np.ndarray] = {}     # evaluated mesh pointer -> (T*3, 4) object-space tangents
     slot_rows: dict[tuple, tuple] = {}       # (object, mesh) pointers -> material row of each slot
     groups: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> world_from_object matrices
+    rows: dict[tuple, list] = {}             # (mesh pointer, slot rows) -> object table rows
+    attributes: dict[int, dict] = {}         # evaluated mesh pointer -> {name: (T*3, C) float32}
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -89,8 +99,96 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
         if uv_maps and mesh_key not in tangents:
             tangents[mesh_key] = read_tangents(ob.data, meshes[mesh_key], uv_maps, ob.name, warnings)
-        groups.setdefault((mesh_key, slot_rows[object_key]), []).append(np.array(inst.matrix_world))
-    return _assemble(meshes, groups, tangents)
+        names = materials.attribute_names(slot_rows[object_key])
+        if names and mesh_key not in attributes:
+            attributes[mesh_key] = read_attributes(ob.data, names, ob.name, warnings)
+        matrix = np.array(inst.matrix_world)
+        groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
+        rows.setdefault((mesh_key, slot_rows[object_key]), []).append(_object_row(inst, ob, matrix))
+    return _assemble(meshes, groups, tangents, attributes, rows)
+
+
+def _object_row(inst, ob, matrix) -> np.ndarray:
+    """The object table row of an instance (kernels.scene.object_row): Cycles' random number is the
+    instance's random id, or for an object itself a hash of its name (Blender's sync)."""
+    from ...kernels.shading.hash import hash_uint2
+    if inst.is_instance:
+        random_id = inst.random_id & 0xFFFFFFFF
+    else:
+        h = 0
+        for c in ob.name.encode("utf-8"):
+            h = (h * 37 + c) & 0xFFFFFFFF
+        random_id = int(hash_uint2(np.array([h], np.uint32), np.array([0], np.uint32))[0])
+    random = np.float32(random_id) * np.float32(1.0 / 0xFFFFFFFF)
+    mesh = ob.data
+    return object_row(matrix, tuple(mesh.texspace_location), tuple(mesh.texspace_size), tuple(ob.color),
+                      ob.pass_index, float(random))
+
+
+def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -> dict:
+    """{name: (T*3, C) float32} per triangle corner of an evaluated mesh, for the names node programs
+    read: "uv:<map>", "color:<name>" ('' for the render colour attribute), "attr:<name>". Missing ones
+    are left out (they read zero, as in Cycles)."""
+    out = {}
+    t = len(mesh.loop_triangles)
+    tri_loops = _read(mesh.loop_triangles, "loops", t * 3, np.uint32)
+    for name in names:
+        kind, _, key = name.partition(":")
+        if kind == "uv":
+            layer = mesh.uv_layers.get(key)
+            if layer is not None:
+                out[name] = local_uvs(mesh, layer)
+            continue
+        if kind == "color":
+            colors = mesh.color_attributes
+            attr = colors.get(key) if key else (colors[colors.render_color_index]
+                                                if 0 <= colors.render_color_index < len(colors) else None)
+        else:
+            attr = mesh.attributes.get(key)
+        if attr is None:
+            continue
+        values = _attribute_values(mesh, attr)
+        if values is None:
+            warnings.append(f"Object '{object_name}': attribute '{key}' ({attr.data_type}, {attr.domain}) is "
+                            f"not supported, reads zero")
+            continue
+        corners = _domain_corners(mesh, attr.domain, tri_loops, t)
+        if corners is None:
+            warnings.append(f"Object '{object_name}': attribute '{key}' on the {attr.domain.lower()} domain "
+                            f"is not supported, reads zero")
+            continue
+        out[name] = np.take(values, corners, axis=0)
+    return out
+
+
+# Attribute data types: (property, components).
+_ATTRIBUTE_TYPES = {"FLOAT": ("value", 1), "INT": ("value", 1), "INT8": ("value", 1), "BOOLEAN": ("value", 1),
+                    "FLOAT2": ("vector", 2), "FLOAT_VECTOR": ("vector", 3), "FLOAT_COLOR": ("color", 4),
+                    "BYTE_COLOR": ("color", 4)}
+
+
+def _attribute_values(mesh, attr) -> np.ndarray | None:
+    kind = _ATTRIBUTE_TYPES.get(attr.data_type)
+    if kind is None:
+        return None
+    prop, c = kind
+    n = len(attr.data)
+    raw = np.empty(n * c, np.int32 if attr.data_type in ("INT", "INT8") else
+                   bool if attr.data_type == "BOOLEAN" else np.float32)
+    attr.data.foreach_get(prop, raw)
+    return np.nan_to_num(raw.astype(np.float32).reshape(n, c))
+
+
+def _domain_corners(mesh, domain: str, tri_loops: np.ndarray, t: int) -> np.ndarray | None:
+    """For each triangle corner, its element of the attribute's domain."""
+    if domain == "CORNER":
+        return tri_loops
+    if domain == "POINT":
+        corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
+        return np.take(corner_verts, tri_loops)
+    if domain == "FACE":
+        return np.repeat(_read(mesh.loop_triangle_polygons, "value", t, np.int32), 3)
+    return None
 
 
 def _is_rendered(inst, ob, warnings: list[str]) -> bool:
@@ -230,7 +328,7 @@ def _triangle_slots(mesh, t: int) -> np.ndarray:
     return np.take(face_slots, _read(mesh.loop_triangle_polygons, "value", t, np.int32))
 
 
-def _assemble(meshes: dict, groups: dict, tangents: dict) -> Geometry:
+def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, object_rows: dict) -> Geometry:
     """Transform every group of instances into preallocated world-space arrays."""
     total = sum(meshes[key].triangle_count * len(matrices) for (key, _), matrices in groups.items())
     positions = np.empty((total, 3, 3), np.float32)
@@ -238,6 +336,15 @@ def _assemble(meshes: dict, groups: dict, tangents: dict) -> Geometry:
     uvs = np.empty((total, 3, 2), np.float32)
     material_ids = np.empty(total, np.int32)
     world_tangents = np.zeros((total, 3, 4), np.float32) if tangents else None
+    widths: dict[str, int] = {}
+    for per_mesh in attributes.values():
+        for name, values in per_mesh.items():
+            widths[name] = max(widths.get(name, 0), values.shape[1])
+    attribute_arrays = {name: np.zeros((total, 3, c), np.float32) for name, c in sorted(widths.items())}
+    objects = np.concatenate([np.stack(r) for r in object_rows.values()]) if object_rows else \
+        np.zeros((0, OBJECT_COLUMNS), np.float32)
+    object_ids = np.empty(total, np.int32)
+    first_row = 0
     start = 0
     for (key, rows), matrices in groups.items():
         mesh = meshes[key]
@@ -250,9 +357,14 @@ def _assemble(meshes: dict, groups: dict, tangents: dict) -> Geometry:
         # Blender clamps slot indices beyond the last slot to it.
         table = np.array(rows, np.int32)
         material_ids[start:end].reshape(k, t)[:] = table[np.clip(mesh.slots, 0, len(table) - 1)]
+        object_ids[start:end].reshape(k, t)[:] = np.arange(first_row, first_row + k, dtype=np.int32)[:, None]
+        for name, values in attributes.get(key, {}).items():
+            attribute_arrays[name][start:end].reshape(k, t, 3, -1)[..., :values.shape[1]] = values.reshape(t, 3, -1)
+        first_row += k
         start = end
     instance_count = sum(len(matrices) for matrices in groups.values())
-    return Geometry(positions, normals, uvs, material_ids, instance_count, world_tangents)
+    return Geometry(positions, normals, uvs, material_ids, instance_count, world_tangents,
+                    tuple(attribute_arrays.items()), objects, object_ids)
 
 
 def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray,

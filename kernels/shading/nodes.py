@@ -16,7 +16,7 @@ import numpy as np
 from ..bsdf import closures as lobes
 from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
-from ..scene import Closure, NormalMap, Tangent
+from ..scene import Closure, NormalMap, Param, Tangent
 from . import normals
 
 F32 = np.float32
@@ -61,8 +61,8 @@ class Context:
     node's Normal input (normal_given). Views of one context (for_node, with_normal, specular) share the
     hits and what was computed for them (the tangent frame)."""
 
-    def __init__(self, shading, hit, idx: np.ndarray, wo, bump_map_correction: bool = True):
-        self.shading, self.hit, self.idx = shading, hit, idx
+    def __init__(self, shading, hit, idx: np.ndarray, wo, bump_map_correction: bool = True, material: int = -1):
+        self.shading, self.hit, self.idx, self.material = shading, hit, idx, material
         self.wo = tuple(np.take(c, idx) for c in wo)
         self.ns = tuple(np.take(c, idx) for c in hit.ns)
         self.hit_ns = self.ns
@@ -103,6 +103,8 @@ class Context:
     def normal_input(self, closure: Closure, name: str):
         """A Normal or Coat Normal input at the hits: a normal map's normal, or None when unlinked."""
         spec = closure.input(name)
+        if isinstance(spec, Param) and spec.link is not None:  # a program's normal (a Bump, a Normal Map)
+            return normals.safe_normalize(tuple(self.shading.param(spec, self, 3)))
         if not isinstance(spec, NormalMap):
             return None
         color = self.shading.param(spec.color, self, 3)
@@ -230,7 +232,8 @@ def _sheen(c, ctx, w, b):
 
 
 def _emission(c, ctx, w, b):
-    return Built(emission=np.maximum(ctx.input(c, "Color"), ZERO) * (ctx.input(c, "Strength") * w))
+    # Not clamped: Cycles emits what the nodes compute, negative values too (a node program's output).
+    return Built(emission=ctx.input(c, "Color") * (ctx.input(c, "Strength") * w))
 
 
 def _holdout(c, ctx, w, b):
@@ -414,7 +417,7 @@ def _param_may_differ(c: Closure, name: str, neutral) -> bool:
     p = c.input(name)
     if p is None:
         return DEFAULTS[c.kind][name] != neutral
-    return p.texture >= 0 or tuple(p.value) not in ((neutral,), (neutral,) * 3)
+    return p.varies or tuple(p.value) not in ((neutral,), (neutral,) * 3)
 
 
 def may_emit(c: Closure) -> bool:
@@ -428,8 +431,8 @@ def may_emit(c: Closure) -> bool:
 def emission_varies(c: Closure) -> bool:
     """Whether the emission depends on the point or the direction (textures; Principled layers)."""
     names = ("Color", "Strength") if c.kind == "EMISSION" else ("Emission Color", "Emission Strength")
-    textured = any((p := c.input(k)) is not None and p.texture >= 0 for k in names) or \
-        any(p.texture >= 0 for p, _ in c.factors)
+    textured = any((p := c.input(k)) is not None and p.varies for k in names) or \
+        any(p.varies for p, _ in c.factors)
     layered = c.kind == "PRINCIPLED" and any(
         _param_may_differ(c, k, v) for k, v in (("Alpha", 1.0), ("Sheen Weight", 0.0), ("Coat Weight", 0.0)))
     return textured or layered

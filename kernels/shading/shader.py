@@ -4,9 +4,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..bsdf.closures import LAMBERT, ClosureBuilder, ClosureSet
-from ..scene import Closure, Materials, Param
+from ..camera import view_plane
+from ..scene import Camera, Closure, Materials, Param, object_row
 from ..textures import Texture, finite_uv, luminance
 from . import nodes
+from .ops import OPS
+from .program import HitInputs, ProgramRun
 
 F32 = np.float32
 
@@ -24,12 +27,35 @@ class SurfaceShading:
         self.closures, self.emission, self.holdout = closures, emission, holdout
 
 
+class ShadingData:
+    """What node programs read besides the hits: textures, per-corner attributes, the object table and
+    the camera (kernels.scene.SceneArrays, prepared)."""
+
+    def __init__(self, textures: list[Texture], scene=None):
+        self.textures = textures
+        self.attributes = dict(scene.attributes) if scene is not None else {}
+        objects = scene.objects if scene is not None else None
+        if objects is None:  # every triangle in one object at the origin
+            self.objects = object_row(np.eye(4))[None]
+            self.object_ids = np.zeros(len(scene.positions) if scene is not None else 0, np.int32)
+        else:
+            self.objects, self.object_ids = objects, scene.object_ids
+        camera = scene.camera if scene is not None else Camera()
+        m = np.asarray(camera.world_from_camera, np.float64)
+        self.camera_rotation = (m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)).astype(F32)
+        self.camera_eye = m[:3, 3].astype(F32)
+        self.camera_kind = camera.kind
+        self.view_plane = view_plane(camera)
+
+
 class Shading:
     """The scene's shaders, ready to be evaluated at hits."""
 
-    def __init__(self, materials: Materials, textures: list[Texture]):
+    def __init__(self, materials: Materials, textures: list[Texture], scene=None):
         self.shaders = materials.shaders
         self.textures = textures
+        self.data = ShadingData(textures, scene)
+        self._runs: dict = {}
         self.emissive = np.array([_may_emit(s.closures) for s in self.shaders], bool)
         # Emission that depends on more than the material: a texture, or layers above it (Principled).
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)
@@ -79,7 +105,7 @@ class Shading:
             idx = hits_of(m)
             if not len(idx):
                 continue
-            ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction)
+            ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
             for closure in closure_list:
                 out = nodes.build(closure, ctx, self._mix_weight(closure, ctx), builder)
                 _collect(out, idx, emission, holdout)
@@ -119,7 +145,7 @@ class Shading:
         for m, idx in _by_material(hit.mat):
             if not self.transparent[m]:
                 continue
-            ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction)
+            ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
             for closure in self.shaders[m].closures:
                 if nodes.may_be_transparent(closure):
                     out[:, idx] += nodes.transparency(closure, ctx, self._mix_weight(closure, ctx))
@@ -150,6 +176,11 @@ class Shading:
                 if piece.texture >= 0:
                     out[:, lo:hi] = self.param(piece, _Sub(ctx.hit, ctx.idx[lo:hi]), channels).reshape(channels, -1)
             return out[0] if channels == 1 else out
+        if p.link is not None:
+            value = self.program_run(ctx.material, ctx.hit, ctx.idx).value(p.link)
+            if channels == 1:
+                return value if value.ndim == 1 else luminance(value)
+            return np.ascontiguousarray(value.T if value.ndim == 2 else np.broadcast_to(value, (3, n)), F32)
         value = _as_channels(np.asarray(p.value, F32), channels)[:, None]
         if p.texture >= 0:
             tex = self.textures[p.texture]
@@ -158,6 +189,15 @@ class Shading:
         else:
             value = np.broadcast_to(value, (channels, n))
         return np.ascontiguousarray(value[0] if channels == 1 else value, F32)
+
+    def program_run(self, material: int, hit, idx: np.ndarray) -> ProgramRun:
+        """The material's program over the hits idx of a wave (made once per wave and set of hits)."""
+        cached = hit.programs.get(material)
+        if cached is not None and (cached[0] is idx or (len(cached[0]) == len(idx) and np.array_equal(cached[0], idx))):
+            return cached[1]
+        run = ProgramRun(self.shaders[material].program, HitInputs(self.data, hit, idx), OPS)
+        hit.programs[material] = (idx, run)
+        return run
 
     def _mean_param(self, p: Param, channels: int) -> np.ndarray:
         """A Param's value averaged over its texture: (channels,)."""
@@ -193,11 +233,11 @@ def _lookup(tex, p: Param, u, v) -> np.ndarray:
 
 
 class _Sub:
-    """Some hits of a context, for evaluating inputs."""
-    __slots__ = ("hit", "idx")
+    """Some hits of a context, for evaluating inputs (of batches, which hold no program inputs)."""
+    __slots__ = ("hit", "idx", "material")
 
     def __init__(self, hit, idx):
-        self.hit, self.idx = hit, idx
+        self.hit, self.idx, self.material = hit, idx, -1
 
     def take(self, a):
         return np.take(a, self.idx)
@@ -250,7 +290,8 @@ def _batches(rest, bump_corrections):
     alone = [[] for _ in rest]
     for m, closures in enumerate(rest):
         for c in closures:
-            if all(isinstance(p, Param) for _, p in c.inputs):
+            if all(isinstance(p, Param) and p.link is None for _, p in c.inputs) and \
+                    all(p.link is None for p, _ in c.factors):
                 keyed.setdefault((c.kind, c.options, bump_corrections[m]), []).append((m, c))
             else:
                 alone[m].append(c)
@@ -310,10 +351,12 @@ def _plain_diffuse(closures):
         return None
     c = diffuse[0]
     rough = c.input("Roughness")
+    color = c.input("Color")
     if any(name not in ("Color", "Roughness") for name, _ in c.inputs) or (
-            rough is not None and (rough.texture >= 0 or rough.value[0] >= 1e-5)):
+            rough is not None and (rough.varies or rough.value[0] >= 1e-5)) or (
+            color is not None and color.link is not None):
         return None
-    return c.input("Color") or Param.of(nodes.DEFAULTS["DIFFUSE"]["Color"])
+    return color or Param.of(nodes.DEFAULTS["DIFFUSE"]["Color"])
 
 
 def _mixes_lobes(closures) -> bool:

@@ -1,0 +1,357 @@
+"""Shader node trees -> node programs (kernels/programs.py), as Cycles' Blender layer compiles a shader
+graph into SVM: the one place that walks the texture, colour, vector and input nodes of a material.
+
+A closure input fed by such nodes becomes a Ref into the material's program. Every node is compiled once
+per material (a subgraph shared by several inputs runs once per hit), in dependency order. Unlinked
+inputs are constants; a node whose inputs are all constants and that reads nothing of the hit (math,
+colour, a texture at a constant point) is evaluated here, once, and becomes a constant itself (constant
+folding). Reroutes, muted nodes and groups are seen through (materials.source_of). An unlinked Vector of
+a procedural texture reads Generated coordinates, of an Image Texture the render UV map, as in Cycles.
+
+A node Ember cannot evaluate gives its consumer that input's own value, with a warning naming the node
+and the input. Cycles in the graph (Blender refuses them, but a file may hold one) are cut the same way.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ...kernels.programs import Op, Program, Ref
+from . import node_tables
+from ...kernels.shading.ops import OPS, PURE_OPS
+from ...kernels.shading.program import constant, convert
+
+F32 = np.float32
+
+# Socket types as the program sees them.
+_TYPES = {"VALUE": "VALUE", "INT": "VALUE", "BOOLEAN": "VALUE", "VECTOR": "VECTOR", "RGBA": "RGBA"}
+# Inputs that default to a coordinate when unlinked (Cycles' LINK_TEXTURE_GENERATED / _UV).
+_UV_DEFAULT = ("ShaderNodeTexImage",)
+# Nodes whose options are read from their RNA properties as plain values (enums, booleans, numbers, strings).
+_OPTION_TYPES = ("ENUM", "BOOLEAN", "INT", "FLOAT", "STRING")
+
+
+class ProgramBuilder:
+    """Compiles the nodes feeding one material's closure inputs into one program.
+
+    images : materials.ImageTextures of the export (image nodes register their images there).
+    issues : the material's warning list (what cannot be evaluated, named).
+    attributes : the export's set of attribute names the programs read (the mesh export reads them).
+    """
+
+    def __init__(self, images, issues: list[str], attributes: set[str], tangent_uv_maps: list[str],
+                 material_pass_index: int = 0, compilers: dict | None = None):
+        self.images, self.issues, self.attributes = images, issues, attributes
+        self.tangent_uv_maps = tangent_uv_maps
+        self.material_pass_index = material_pass_index
+        self._compilers = COMPILERS if compilers is None else compilers
+        self.ops: list[Op] = []
+        self._memo: dict = {}          # (node, groups) -> op index, or a dict of folded outputs
+        self._visiting: set = set()
+
+    def program(self) -> Program:
+        return Program(tuple(self.ops))
+
+    # ---------------------------------------------------------------- inputs
+    def input(self, socket, groups: tuple, want: str | None = None):
+        """What feeds an input socket: a Ref into the program, or a constant tuple (1 or 3 floats)."""
+        from .materials import source_of
+        want = want or _TYPES.get(socket.type, "VALUE")
+        source = source_of(socket, groups)
+        if source.node is None:
+            return socket_constant(source.socket, want)
+        return self.output(source, socket, want)
+
+    def output(self, source, consumer, want: str):
+        """A node output (materials.Source) as the consumer reads it: a Ref, or a folded constant."""
+        node, groups = source.node, source.groups
+        key = (node.as_pointer(), tuple(g.as_pointer() for g in groups))
+        if key in self._visiting:
+            self.issues.append(f"{node.bl_label} '{node.name}' is part of a cycle in the node tree; "
+                               f"{consumer.name} uses its own value")
+            return socket_constant(consumer, want)
+        if key not in self._memo:
+            self._visiting.add(key)
+            try:
+                self._memo[key] = self._compile(node, groups, consumer)
+            finally:
+                self._visiting.discard(key)
+        compiled = self._memo[key]
+        have = _TYPES.get(source.socket.type, "VALUE")
+        name = source.socket.identifier
+        if compiled is None:  # not supported (warned): the consumer's own value
+            return socket_constant(consumer, want)
+        if isinstance(compiled, dict):  # folded
+            return fold_convert(compiled[name], have, want)
+        return Ref(compiled, name, have, want)
+
+    def add(self, kind: str, inputs: dict, options: dict | None = None, outputs=None):
+        """Add an op (or fold it): returns its op index, or a dict of constant outputs when folded."""
+        options = dict(options or {})
+        if outputs is not None:
+            options["outputs"] = tuple(outputs)
+        op = Op(kind, tuple(inputs.items()), tuple(sorted(options.items())))
+        if kind in PURE_OPS and not any(isinstance(v, Ref) for v in inputs.values()):
+            folded = fold(op)
+            if folded is not None:
+                return folded
+        self.ops.append(op)
+        return len(self.ops) - 1
+
+    def _compile(self, node, groups, consumer):
+        compiler = self._compilers.get(node.bl_idname)
+        if compiler is None:
+            self.issues.append(f"{node.bl_label} node '{node.name}' feeding {consumer.name} is not supported, "
+                               f"used {consumer.name}'s own value")
+            return None
+        return compiler(self, node, groups)
+
+    # ---------------------------------------------------------------- helpers for compilers
+    def node_inputs(self, node, groups, *, vector_default: str | None = None) -> dict:
+        """Every enabled input of a node by identifier. An unlinked Vector reads the coordinate Cycles
+        gives it (vector_default: 'Generated' or 'UV'), a Normal the shading normal (left out)."""
+        from .materials import source_of
+        out = {}
+        for s in node.inputs:
+            if not s.enabled or s.type not in _TYPES:
+                continue
+            linked = source_of(s, groups).node is not None
+            if not linked and s.identifier == "Vector" and vector_default:
+                out[s.identifier] = self.coordinate(vector_default)
+            elif not linked and s.identifier == "Normal" and s.hide_value:
+                continue
+            else:
+                out[s.identifier] = self.input(s, groups)
+        return out
+
+    def coordinate(self, name: str) -> Ref:
+        """A Texture Coordinate output (Generated, UV, ...) of the hits, shared by all its readers."""
+        key = ("coordinate", name)
+        if key not in self._memo:
+            self._memo[key] = self.add("ShaderNodeTexCoord", {}, {"object_from_world": None}, outputs=(name,))
+        return Ref(self._memo[key], name, "VECTOR", "VECTOR")
+
+
+def node_options(node) -> dict:
+    """A node's own settings (enums, booleans, numbers, strings) by RNA identifier."""
+    import bpy
+    base = {p.identifier for p in bpy.types.ShaderNode.bl_rna.properties}
+    out = {}
+    for prop in node.bl_rna.properties:
+        if prop.identifier in base or prop.type not in _OPTION_TYPES:
+            continue
+        value = getattr(node, prop.identifier)
+        if prop.type in ("INT", "FLOAT") and getattr(prop, "array_length", 0):
+            value = tuple(value)
+        out[prop.identifier] = value
+    return out
+
+
+def socket_constant(socket, want: str) -> tuple:
+    """An unlinked socket's value as a constant of the wanted type."""
+    value = getattr(socket, "default_value", 0.0)
+    values = np.atleast_1d(np.nan_to_num(np.asarray(value[:] if hasattr(value, "__len__") else value, np.float64)))
+    have = "RGBA" if socket.type == "RGBA" else "VECTOR" if len(values) >= 3 else "VALUE"
+    values = values[:3] if have != "VALUE" else values[:1]
+    return fold_convert(tuple(float(v) for v in values), have, want)
+
+
+def fold_convert(value: tuple, have: str, want: str) -> tuple:
+    """A constant between socket types, as the kernel converts arrays (program.convert)."""
+    out = convert(np.asarray(value, F32)[None] if len(value) == 3 else np.asarray(value, F32), have, want, 1)
+    return tuple(float(v) for v in np.ravel(out))
+
+
+class _OneHit:
+    """The hits of a folded op: one, and it reads nothing else."""
+    n = 1
+    _cache: dict = {}
+
+
+def fold(op: Op) -> dict | None:
+    """Run a pure op on constants: {output: constant tuple}, or None when it cannot be folded."""
+    inputs = {}
+    for name, value in op.inputs:
+        c = constant(value)
+        inputs[name] = np.array([c], F32) if isinstance(c, float) else np.asarray(c, F32)[None]
+    try:
+        with np.errstate(all="ignore"):
+            outputs = OPS[op.kind](_OneHit(), inputs, op)
+    except Exception:  # noqa: BLE001 - not foldable after all: it runs per hit instead
+        return None
+    folded = {}
+    for name, value in outputs.items():
+        a = np.asarray(value, F32).reshape(-1)
+        if a.size not in (1, 3):
+            return None
+        folded[name] = tuple(float(v) for v in a)
+    return folded
+
+
+# ---------------------------------------------------------------- node compilers
+# compiler(builder, node, groups) -> op index, a dict of constant outputs, or None (warned).
+
+def _linked_outputs(node) -> tuple:
+    return tuple(o.identifier for o in node.outputs if o.is_linked) or tuple(o.identifier for o in node.outputs)
+
+
+def _value(builder, node, groups):
+    return {"Value": (float(node.outputs[0].default_value),)}
+
+
+def _rgb(builder, node, groups):
+    return {"Color": tuple(float(v) for v in node.outputs[0].default_value[:3])}
+
+
+def _tex_coord(builder, node, groups):
+    matrix = None
+    if node.object is not None and "Object" in _linked_outputs(node):
+        inverse = np.linalg.inv(np.array(node.object.matrix_world, np.float64))
+        matrix = tuple(float(v) for v in inverse[:3, :4].ravel())
+    return builder.add(node.bl_idname, {}, {"object_from_world": matrix}, outputs=_linked_outputs(node))
+
+
+def _uv_map(builder, node, groups):
+    if node.uv_map:
+        builder.attributes.add("uv:" + node.uv_map)
+    return builder.add(node.bl_idname, {}, {"uv_map": node.uv_map})
+
+
+def _geometry(builder, node, groups):
+    outputs = _linked_outputs(node)
+    for name in ("Tangent", "Pointiness", "Random Per Island"):
+        if name in outputs:
+            builder.issues.append(f"Geometry '{node.name}' {name} is not supported, reads zero")
+    return builder.add(node.bl_idname, {}, outputs=outputs)
+
+
+def _object_info(builder, node, groups):
+    return builder.add(node.bl_idname, {}, {"material_index": float(builder.material_pass_index)})
+
+
+def _attribute(builder, node, groups):
+    if node.attribute_type != "GEOMETRY":
+        builder.issues.append(f"Attribute '{node.name}': {node.attribute_type.replace('_', ' ').title()} "
+                              f"attributes are not supported, read zero")
+    name = "attr:" + node.attribute_name
+    builder.attributes.add(name)
+    return builder.add("ATTRIBUTE", {}, {"name": name})
+
+
+def _vertex_color(builder, node, groups):
+    name = "color:" + node.layer_name
+    builder.attributes.add(name)
+    return builder.add("ATTRIBUTE", {}, {"name": name})
+
+
+def _plain(builder, node, groups):
+    """A node read with all its inputs and options as they are."""
+    return builder.add(node.bl_idname, builder.node_inputs(node, groups), node_options(node),
+                       outputs=_linked_outputs(node))
+
+
+def _light_path(builder, node, groups):
+    outputs = _linked_outputs(node)
+    unsupported = [o for o in outputs if o in LIGHT_PATH_UNSUPPORTED]
+    if unsupported:
+        builder.issues.append(f"Light Path '{node.name}' {', '.join(unsupported)}: not tracked, read zero")
+    return builder.add(node.bl_idname, {}, outputs=outputs)
+
+
+LIGHT_PATH_UNSUPPORTED = ("Is Diffuse Ray", "Is Glossy Ray", "Is Singular Ray", "Is Reflection Ray",
+                          "Is Transmission Ray", "Diffuse Depth", "Glossy Depth", "Transmission Depth")
+
+
+def _normal_map(builder, node, groups):
+    if node.space not in ("TANGENT", "WORLD", "BLENDER_WORLD"):
+        builder.issues.append(f"Normal Map '{node.name}': {node.space.replace('_', ' ').title()} space is not "
+                              f"supported, used the shading normal")
+        return None
+    if node.space == "TANGENT":
+        builder.tangent_uv_maps.append(node.uv_map)
+    inputs = {"Color": builder.input(node.inputs["Color"], groups, "RGBA"),
+              "Strength": builder.input(node.inputs["Strength"], groups, "VALUE")}
+    return builder.add(node.bl_idname, inputs, {"space": node.space})
+
+
+def _image(builder, node, groups):
+    image = node.image
+    texture = -1
+    if image is None:
+        builder.issues.append(f"Image Texture '{node.name}' has no image, rendered magenta")
+    else:
+        index = builder.images.index(image)
+        texture = -1 if index is None else index
+    if node.projection == "BOX":
+        builder.issues.append(f"Image Texture '{node.name}': Box projection is not supported, used Flat")
+    unassociate = (node.outputs["Alpha"].is_linked and image is not None and not image.colorspace_settings.is_data
+                   and image.alpha_mode not in ("CHANNEL_PACKED", "NONE"))
+    options = {"texture": texture, "interpolation": node.interpolation, "extension": node.extension,
+               "projection": node.projection, "unassociate": bool(unassociate)}
+    return builder.add(node.bl_idname, builder.node_inputs(node, groups, vector_default="UV"), options)
+
+
+def _texture(builder, node, groups):
+    """A procedural texture: an unlinked Vector reads Generated coordinates."""
+    _check_texture_mapping(builder, node)
+    return builder.add(node.bl_idname, builder.node_inputs(node, groups, vector_default="Generated"),
+                       node_options(node), outputs=_linked_outputs(node))
+
+
+def _check_texture_mapping(builder, node) -> None:
+    mapping = getattr(node, "texture_mapping", None)
+    if mapping is None:
+        return
+    identity = (tuple(mapping.translation) == (0, 0, 0) and tuple(mapping.rotation) == (0, 0, 0)
+                and tuple(mapping.scale) == (1, 1, 1) and not mapping.use_min and not mapping.use_max)
+    if not identity:
+        builder.issues.append(f"{node.bl_label} '{node.name}': its Texture Mapping panel settings are not "
+                              f"supported, ignored")
+
+
+def _color_ramp(builder, node, groups):
+    table, interpolate = node_tables.color_ramp_table(node.color_ramp)
+    return builder.add(node.bl_idname, builder.node_inputs(node, groups), {"table": table, "interpolate": interpolate})
+
+
+def _curves(baker):
+    def compile_curves(builder, node, groups):
+        table, lo, hi, extrapolate = baker(node.mapping)
+        return builder.add(node.bl_idname, builder.node_inputs(node, groups),
+                           {"table": table, "min_x": lo, "max_x": hi, "extrapolate": extrapolate})
+    return compile_curves
+
+
+def _bump(builder, node, groups):
+    return builder.add(node.bl_idname, builder.node_inputs(node, groups), {"invert": bool(node.invert)})
+
+
+COMPILERS = {
+    **{name: _texture for name in ("ShaderNodeTexNoise", "ShaderNodeTexWhiteNoise", "ShaderNodeTexWave",
+                                   "ShaderNodeTexVoronoi", "ShaderNodeTexGabor", "ShaderNodeTexChecker",
+                                   "ShaderNodeTexGradient", "ShaderNodeTexBrick", "ShaderNodeTexMagic")},
+    **{name: _plain for name in ("ShaderNodeMath", "ShaderNodeVectorMath", "ShaderNodeMix", "ShaderNodeMixRGB",
+                                 "ShaderNodeMapRange", "ShaderNodeClamp", "ShaderNodeSeparateColor",
+                                 "ShaderNodeCombineColor", "ShaderNodeHueSaturation", "ShaderNodeBrightContrast",
+                                 "ShaderNodeGamma", "ShaderNodeInvert", "ShaderNodeRGBToBW", "ShaderNodeBlackbody",
+                                 "ShaderNodeWavelength", "ShaderNodeMapping", "ShaderNodeVectorRotate")},
+    "ShaderNodeValToRGB": _color_ramp,
+    "ShaderNodeRGBCurve": _curves(node_tables.rgb_curves_table),
+    "ShaderNodeVectorCurve": _curves(node_tables.vector_curves_table),
+    "ShaderNodeFloatCurve": _curves(node_tables.float_curve_table),
+    "ShaderNodeBump": _bump,
+    "ShaderNodeValue": _value,
+    "ShaderNodeRGB": _rgb,
+    "ShaderNodeTexCoord": _tex_coord,
+    "ShaderNodeUVMap": _uv_map,
+    "ShaderNodeNewGeometry": _geometry,
+    "ShaderNodeObjectInfo": _object_info,
+    "ShaderNodeAttribute": _attribute,
+    "ShaderNodeVertexColor": _vertex_color,
+    "ShaderNodeLayerWeight": _plain,
+    "ShaderNodeFresnel": _plain,
+    "ShaderNodeLightPath": _light_path,
+    "ShaderNodeSeparateXYZ": _plain,
+    "ShaderNodeCombineXYZ": _plain,
+    "ShaderNodeNormalMap": _normal_map,
+    "ShaderNodeTexImage": _image,
+}

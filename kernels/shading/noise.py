@@ -1,0 +1,539 @@
+"""Cycles' Perlin noise and the texture nodes built on it, over arrays of hits: Noise, White Noise, Wave.
+
+Sources: `kernel/svm/noise.h` (Perlin), `fractal_noise.h`, `noisetex.h`, `white_noise.h`, `wave.h`.
+The results are bit-exact with Cycles' x86-64 AVX2 CPU kernel as Blender 5.0 ships it (probed: see
+tests/test_nodes_noise.py). That kernel uses the SIMD Perlin variants (their interpolation order, fmod
+as c - trunc(c / 1e5) * 1e5) and is compiled with -ffp-contract=fast and -freciprocal-math: many
+multiply-adds are fused, divisions by constants are multiplications. Where a fused multiply-add changes
+the rounding it is written fma(a, b, c) below; which ones the compiler fused was found by probing, not
+read from the C. The one exception is the Wave's sine, within an ulp of glibc's sinf.
+
+Perlin functions take coordinates as a sequence of d component arrays (`(x, y, z)`; a (d, N) array
+unpacks the same way), like kernels.shading.hash. The node functions take sockets as the program runner
+passes them: a float socket (N,) or a constant (Python float, 0-d or length-1 array), a vector (N, 3) or a
+constant (3,); node options are keywords with Blender's enum identifiers (`dimensions="3D"`,
+`noise_type="FBM"`, `wave_type="BANDS"`, ...). They return {output identifier: (N,) or (N, 3) float32}.
+
+Detail is a loop count. A constant Detail runs the octaves with scalar bookkeeping; a per-hit Detail runs
+to the largest count and evaluates each octave only at the hits that still need it.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from . import hash as H
+
+F32, I32, U32 = np.float32, np.int32, np.uint32
+ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
+
+NOISE_SCALE = {1: F32(0.25), 2: F32(0.6616), 3: F32(0.9820), 4: F32(0.8344)}  # OSL's, to about [-1, 1]
+WRAP_PERIOD = F32(100000.0)       # Perlin repeats every 1e5 per axis, for precision
+WRAP_RECIPROCAL = F32(1e-5)       # what the compiler divides by 1e5 with (-freciprocal-math)
+WRAP_FROM = F32(1000000.0)        # where the wrapped coordinate is shifted by 1/2 (off the lattice)
+DIMENSIONS = {"1D": 1, "2D": 2, "3D": 3, "4D": 4}
+
+
+# ---- Perlin ---------------------------------------------------------------------------------------
+
+def fma(a, b, c):
+    """a * b + c rounded once to float32, as a fused multiply-add. The float32 product is exact in
+    float64; rounding the float64 sum and then to float32 differs from one rounding only when the first
+    lands exactly on a float32 halfway point (roughly one case in 2^28)."""
+    r = np.multiply(a, b, dtype=np.float64)
+    r += c
+    return r.astype(F32)
+
+
+def _fade(t):
+    """6t^5 - 15t^4 + 10t^3 as the SIMD kernel computes it: (t t)(t b), b = fma(t, fma(t, 6, -15), 10)."""
+    b = fma(t, fma(t, F32(6.0), F32(-15.0)), F32(10.0))
+    b *= t
+    return (t * t) * b
+
+
+def _negate_if_bit(value, h, bit: int):
+    """value, negated (sign bit flipped, in place) where bit `bit` of the uint32 hash h is set."""
+    value.view(U32)[...] ^= ((h >> U32(bit)) & U32(1)) << U32(31)
+    return value
+
+
+@lru_cache(maxsize=None)
+def _gradient_table(d: int) -> np.ndarray:
+    """(d, 8 | 16 | 32) the gradient vector each hash (masked) selects, from Cycles' grad2/3/4 rules.
+
+    Cycles' gradient is a sum of hash-chosen coordinates with hash-bit signs (improved noise); as a
+    table of coefficients in {0, +-1, +-2} it is one dot product, with the same sum order and so the
+    same float result (adding the zero terms is exact)."""
+    size = {2: 8, 3: 16, 4: 32}[d]
+    table = np.zeros((d, size), F32)
+    for h in range(size):
+        if d == 2:      # u = x, v = 2y (h < 4) or u = y, v = 2x
+            picks = [(0, 1), (1, 2)] if h < 4 else [(1, 1), (0, 2)]
+        elif d == 3:    # u = x | y; v = y | x (h = 12, 14) | z
+            v = 1 if h < 4 else (0 if h in (12, 14) else 2)
+            picks = [(0 if h < 8 else 1, 1), (v, 1)]
+        else:           # u = x | y, v = y | z, s = z | w
+            picks = [(0 if h < 24 else 1, 1), (1 if h < 16 else 2, 1), (2 if h < 8 else 3, 1)]
+        for bit, (axis, weight) in enumerate(picks):  # term `bit` is negated by hash bit `bit`
+            table[axis, h] += -weight if h >> bit & 1 else weight
+    return table
+
+
+def _gradient(h, coords):
+    """The corner gradients dotted with the offsets to the corners: (2^d, N)."""
+    table = _gradient_table(len(coords))
+    index = (h & U32(table.shape[1] - 1)).astype(np.intp)     # take() wants intp; convert once
+    out = table[0].take(index) * coords[0]
+    for row, c in zip(table[1:], coords[1:]):
+        out += row.take(index) * c
+    return out
+
+
+_HASHES = {2: H.hash_uint2, 3: H.hash_uint3, 4: H.hash_uint4}
+# The axis each interpolation step runs along, first to last (Cycles' 4D SIMD kernel mixes along w first).
+_MIX_ORDER = {2: (0, 1), 3: (0, 1, 2), 4: (3, 0, 1, 2)}
+# Corner values per block: the hashes' many passes stay in cache (about 3x faster than whole waves).
+_BLOCK = 1 << 15
+
+
+@lru_cache(maxsize=None)
+def _corner_offsets(d: int):
+    """(d, 2^d, 1) 0/1 lattice offsets, the corner index's high bit for the first axis interpolated."""
+    order = _MIX_ORDER[d]
+    corners = np.arange(2 ** d)
+    offsets = np.zeros((d, 2 ** d), np.int64)
+    for rank, axis in enumerate(order):
+        offsets[axis] = (corners >> (d - 1 - rank)) & 1
+    return offsets.astype(U32)[:, :, None], offsets.astype(F32)[:, :, None]
+
+
+def _floorfrac(x):
+    """(x - floor(x), int(floor(x)) as uint32 bits): Cycles' floorfrac."""
+    f = np.floor(x)
+    with np.errstate(invalid="ignore"):        # beyond int32: x86 gives INT_MIN, as Cycles sees
+        i = f.astype(I32)
+    return x - f, i.view(U32)
+
+
+def _grad1(h):
+    """The 1D gradient chosen by hash h: +-(1 .. 8)."""
+    g = (U32(1) + (h & U32(7))).astype(F32)
+    return _negate_if_bit(g, h, 3)
+
+
+def _perlin_1d(x):
+    fx, cell = _floorfrac(x)
+    g0, g1 = _grad1(H.hash_uint(cell)), _grad1(H.hash_uint(cell + U32(1)))
+    # The scalar kernel's fade, ((t t) t) b, and its contraction of mix(g0 fx, g1 (fx - 1), u).
+    u = fma(fx, fma(fx, F32(6.0), F32(-15.0)), F32(10.0))
+    u *= (fx * fx) * fx
+    return fma(g0, fx, u * fma(-g0, fx, g1 * (fx - ONE)))
+
+
+def _perlin_nd(p):
+    d = len(p)
+    frac, cell = zip(*(_floorfrac(c) for c in p))
+    int_off, float_off = _corner_offsets(d)
+    h = _HASHES[d](*(c + o for c, o in zip(cell, int_off)))           # (2^d, N) corner hashes
+    g = _gradient(h, [f - o for f, o in zip(frac, float_off)])        # (2^d, N) corner values
+    for axis in _MIX_ORDER[d]:
+        half = len(g) // 2
+        lo, hi = g[:half], g[half:]
+        g = fma(_fade(frac[axis]), hi - lo, lo)                        # mix: lo + t (hi - lo), fused
+    return g[0]
+
+
+def perlin(p):
+    """Unscaled signed Perlin noise at p = (x,) .. (x, y, z, w), each (N,) float32 -> (N,) float32."""
+    d = len(p)
+    if d == 1:
+        return _perlin_1d(p[0])
+    n, step = len(p[0]), _BLOCK >> d
+    if n <= step:
+        return _perlin_nd(p)
+    out = np.empty(n, F32)
+    for s in range(0, n, step):
+        out[s:s + step] = _perlin_nd(tuple(c[s:s + step] for c in p))
+    return out
+
+
+def _wrap(c, d: int):
+    """A coordinate as snoise feeds it to Perlin: fmod(c, 1e5), plus 1/2 where |c| >= 1e6.
+
+    1D calls fmodf (exact). 2D-4D use the SIMD fmod as compiled: q = trunc(c * float32(1e-5)), then
+    c - q * 1e5 fused. Only |c| >= 1e5 can change, so only those take the float64 path (where
+    c - q * 1e5 is exact: q has 24 significant bits, 1e5 = 3125 * 2^5 has 12, and c is close to q 1e5)."""
+    big = np.abs(c) >= WRAP_PERIOD
+    if not big.any():
+        return c
+    out = c.copy()
+    cb = c[big]
+    if d == 1:
+        wrapped = np.fmod(cb, WRAP_PERIOD)
+    else:
+        q = np.trunc(cb * WRAP_RECIPROCAL)
+        wrapped = (cb.astype(np.float64) - q.astype(np.float64) * float(WRAP_PERIOD)).astype(F32)
+    out[big] = wrapped + np.where(np.abs(cb) >= WRAP_FROM, HALF, ZERO)
+    return out
+
+
+def _perlin_wrapped(p):
+    return perlin(tuple(_wrap(c, len(p)) for c in p))
+
+
+def snoise(p):
+    """Cycles' snoise_1d .. snoise_4d: signed noise, about [-1, 1], at p = d component arrays (N,)."""
+    r = _perlin_wrapped(p)
+    r *= NOISE_SCALE[len(p)]
+    return r
+
+
+def _snoise_plus(live, p, offset):
+    """snoise(p) + offset at the hits in `live`, with the scale's multiply fused into the add as
+    Cycles' inlined snoise is compiled."""
+    return fma(NOISE_SCALE[len(p)], _on(live, p, _perlin_wrapped), offset)
+
+
+# ---- Fractals (fractal_noise.h) -------------------------------------------------------------------
+
+class _Octaves:
+    """Detail as a loop: `count` octaves (Cycles: i = 0 ..= int(detail)) and the fractional remainder.
+
+    Uniform detail: count is an int, `live(i)` is None (every hit) and rmd a scalar. Per-hit detail:
+    live(i) is the mask of hits that run octave i, rmd an array."""
+
+    def __init__(self, detail, n: int):
+        d = np.asarray(detail, F32)
+        if d.size == 1 or d.min() == d.max():
+            d = F32(d.flat[0])
+            self.counts = None
+            self.count = max(int(np.trunc(d)) + 1, 0)
+            self.rmd = d - np.floor(d)
+        else:
+            d = np.broadcast_to(d, (n,))
+            self.counts = np.trunc(d).astype(I32) + I32(1)
+            self.count = max(int(self.counts.max()), 0)
+            self.rmd = d - np.floor(d)
+
+    def live(self, i: int):
+        return None if self.counts is None else self.counts > i
+
+    def remainder(self):
+        """Mask of hits with a fractional octave (None: all), or False when no hit has one."""
+        if self.counts is None:
+            return None if self.rmd != 0 else False
+        has = self.rmd != 0
+        return has if has.any() else False
+
+
+def _on(live, p, fn=snoise):
+    """fn(p) at the hits in mask `live` (None: all); 0 elsewhere."""
+    if live is None:
+        return fn(p)
+    out = np.zeros(p[0].shape, F32)
+    if live.any():
+        out[live] = fn(tuple(c[live] for c in p))
+    return out
+
+
+def _keep(live, new, old):
+    return new if live is None else np.where(live, new, old)
+
+
+def _both(a, b):
+    """Intersection of two masks where None means all hits."""
+    if a is None:
+        return b
+    return a if b is None else a & b
+
+
+def _scaled(p, s):
+    return tuple(c * s for c in p)
+
+
+def _prepare(p, detail, *params):
+    """A fractal's arguments: p's components as float32 arrays of one 1-d shape, the octave plan, and
+    the parameters as float32 (scalars or per-hit arrays), so that the bookkeeping rounds in float32."""
+    comps = np.broadcast_arrays(*(np.atleast_1d(np.asarray(c, F32)) for c in p))
+    p = tuple(np.ascontiguousarray(c) for c in comps)
+    return p, _Octaves(detail, len(p[0])), tuple(np.asarray(x, F32) for x in params)
+
+
+def fbm(p, detail, roughness, lacunarity, normalize=True):
+    """Fractal Brownian motion: octaves of snoise(lacunarity^i p) with amplitudes roughness^i."""
+    p, octaves, (roughness, lacunarity) = _prepare(p, detail, roughness, lacunarity)
+    fscale, amp, maxamp, total = ONE, ONE, ZERO, ZERO
+    for i in range(octaves.count):
+        live = octaves.live(i)
+        t = _on(live, _scaled(p, fscale))
+        total = _keep(live, fma(t, amp, total), total)
+        maxamp = _keep(live, maxamp + amp, maxamp)
+        amp = _keep(live, amp * roughness, amp)
+        fscale = _keep(live, fscale * lacunarity, fscale)
+    total = np.broadcast_to(np.asarray(total, F32), p[0].shape)
+    with np.errstate(divide="ignore", invalid="ignore"):     # detail < 0: Cycles divides 0 by 0 too
+        out = HALF * total / maxamp + HALF if normalize else total
+        has = octaves.remainder()
+        if has is not False:
+            t = _on(has, _scaled(p, fscale))
+            total2 = fma(t, amp, total)
+            if normalize:
+                extra = HALF * total2 / (maxamp + amp) + HALF
+            else:
+                extra = total2
+            out = _keep(has, fma(octaves.rmd, extra - out, out), out)
+    return np.asarray(out, F32)
+
+
+def multi_fractal(p, detail, roughness, lacunarity):
+    """Multifractal: the product of (1 + roughness^i snoise(lacunarity^i p))."""
+    p, octaves, (roughness, lacunarity) = _prepare(p, detail, roughness, lacunarity)
+    value, pwr = ONE, ONE
+    for i in range(octaves.count):
+        live = octaves.live(i)
+        t = _on(live, p)
+        value = _keep(live, value * fma(pwr, t, ONE), value)
+        pwr = _keep(live, pwr * roughness, pwr)
+        p = tuple(_keep(live, c * lacunarity, c) for c in p)
+    has = octaves.remainder()
+    if has is not False:
+        t = _on(has, p)
+        value = _keep(has, value * fma(octaves.rmd * pwr, t, ONE), value)
+    return np.broadcast_to(np.asarray(value, F32), p[0].shape).copy()
+
+
+def hetero_terrain(p, detail, roughness, lacunarity, offset):
+    """Heterogeneous terrain: octaves scaled by the value so far."""
+    p, octaves, (roughness, lacunarity, offset) = _prepare(p, detail, roughness, lacunarity, offset)
+    pwr = roughness
+    value = _snoise_plus(None, p, offset)
+    p = _scaled(p, lacunarity)
+    for i in range(1, octaves.count):
+        live = octaves.live(i)
+        value = _keep(live, fma(_snoise_plus(live, p, offset) * pwr, value, value), value)
+        pwr = _keep(live, pwr * roughness, pwr)
+        p = tuple(_keep(live, c * lacunarity, c) for c in p)
+    has = octaves.remainder()
+    if has is not False:
+        increment = _snoise_plus(has, p, offset) * pwr * value
+        value = _keep(has, fma(octaves.rmd, increment, value), value)
+    return np.asarray(value, F32)
+
+
+def hybrid_multi_fractal(p, detail, roughness, lacunarity, offset, gain):
+    """Hybrid additive/multiplicative multifractal: octaves weighted by gain times the last signal,
+    stopping where the weight falls to 0.001."""
+    p, octaves, (roughness, lacunarity, offset, gain) = _prepare(p, detail, roughness, lacunarity, offset, gain)
+    n = len(p[0])
+    pwr = np.full(n, ONE)
+    value = np.zeros(n, F32)
+    weight = np.full(n, ONE)
+    threshold = F32(0.001)
+    for i in range(octaves.count):
+        live = _both(octaves.live(i), weight > threshold)
+        if not live.any():
+            break
+        weight = _keep(live, np.minimum(weight, ONE), weight)
+        signal = _snoise_plus(live, p, offset) * pwr
+        pwr = _keep(live, pwr * roughness, pwr)
+        value = _keep(live, fma(weight, signal, value), value)
+        weight = _keep(live, weight * (gain * signal), weight)
+        p = tuple(_keep(live, c * lacunarity, c) for c in p)
+    has = octaves.remainder()
+    if has is not False:
+        has = _both(has, weight > threshold)
+        w = np.minimum(weight, ONE)
+        signal = _snoise_plus(has, p, offset) * pwr
+        value = _keep(has, fma(octaves.rmd * w, signal, value), value)
+    return value
+
+
+def ridged_multi_fractal(p, detail, roughness, lacunarity, offset, gain):
+    """Ridged multifractal: squared (offset - |snoise|) ridges, each octave weighted by the last.
+    No fractional octave: Cycles ignores the fraction of Detail here."""
+    p, octaves, (roughness, lacunarity, offset, gain) = _prepare(p, detail, roughness, lacunarity, offset, gain)
+    pwr = roughness
+    signal = offset - np.abs(snoise(p))
+    signal = signal * signal
+    value = signal
+    for i in range(1, octaves.count):
+        live = octaves.live(i)
+        p = tuple(_keep(live, c * lacunarity, c) for c in p)
+        weight = np.clip(signal * gain, ZERO, ONE)
+        s = offset - np.abs(_on(live, p))
+        s = s * s * weight
+        signal = _keep(live, s, signal)
+        value = _keep(live, fma(s, pwr, value), value)
+        pwr = _keep(live, pwr * roughness, pwr)
+    return np.asarray(value, F32)
+
+
+def fractal(p, detail, roughness, lacunarity, offset, gain, noise_type="FBM", normalize=True):
+    """Cycles' noise_select: the Noise node's fractal by Blender's noise_type identifier."""
+    if noise_type == "FBM":
+        return fbm(p, detail, roughness, lacunarity, normalize)
+    if noise_type == "MULTIFRACTAL":
+        return multi_fractal(p, detail, roughness, lacunarity)
+    if noise_type == "HYBRID_MULTIFRACTAL":
+        return hybrid_multi_fractal(p, detail, roughness, lacunarity, offset, gain)
+    if noise_type == "RIDGED_MULTIFRACTAL":
+        return ridged_multi_fractal(p, detail, roughness, lacunarity, offset, gain)
+    if noise_type == "HETERO_TERRAIN":
+        return hetero_terrain(p, detail, roughness, lacunarity, offset)
+    raise ValueError(f"unknown noise_type {noise_type!r}")
+
+
+# ---- Noise Texture node (noisetex.h) --------------------------------------------------------------
+
+@lru_cache(maxsize=None)
+def random_offset(seed: float, d: int) -> tuple:
+    """Cycles' random_float{,2,3,4}_offset(seed): a constant per-axis shift in [100, 200]."""
+    if d == 1:
+        h = (H.hash_float_to_float(F32(seed))[0],)
+    else:
+        h = tuple(H.hash_float2_to_float((F32(seed), F32(axis)))[0] for axis in range(d))
+    return tuple(F32(100.0) + x * F32(100.0) for x in h)
+
+
+def _shift(p, seed: float):
+    return tuple(c + o for c, o in zip(p, random_offset(seed, len(p))))
+
+
+def _vector(v):
+    """A vector socket as (x, y, z) component arrays."""
+    v = np.asarray(v, F32).reshape(-1, 3)
+    return v[:, 0], v[:, 1], v[:, 2]
+
+
+def _hit_count(vector, *floats) -> int:
+    """N: the hits the node runs at, from whichever input is per hit (1 when all are constants)."""
+    sizes = {len(np.asarray(vector).reshape(-1, 3))} | {np.size(f) for f in floats}
+    per_hit = sizes - {1}
+    return per_hit.pop() if per_hit else 1
+
+
+def _coords(vector, w, d: int, n: int):
+    """The node's coordinates for its dimension count, each component a float32 (n,) array."""
+    x, y, z = _vector(vector)
+    w = np.asarray(w, F32)
+    comps = {1: (w,), 2: (x, y), 3: (x, y, z), 4: (x, y, z, w)}[d]
+    return tuple(np.ascontiguousarray(np.broadcast_to(c, (n,))) for c in comps)
+
+
+# Which axes' p + snoise * distortion Cycles' compiled kernel fuses (found by probing it bit-exactly):
+# 1D is scalar code; 2D's float2 is scalar too but only x contracts; 3D and 4D add a SIMD vector.
+_FUSED_DISTORTION = {1: (True,), 2: (True, False), 3: (False,) * 3, 4: (False,) * 4}
+
+
+def _distort(c, s, distortion, d: int, axis: int):
+    """Distortion along one axis: c + s * distortion, rounded as Cycles rounds it."""
+    return fma(s, distortion, c) if _FUSED_DISTORTION[d][axis] else c + s * distortion
+
+
+def noise_texture(vector, w=0.0, scale=5.0, detail=2.0, roughness=0.5, lacunarity=2.0, offset=0.0,
+                  gain=1.0, distortion=0.0, *, dimensions="3D", noise_type="FBM", normalize=True,
+                  outputs=("Fac", "Color")):
+    """The Noise Texture node: {"Fac": (N,), "Color": (N, 3)} (Color costs two more fractals)."""
+    d = DIMENSIONS[dimensions]
+    n = _hit_count(vector, w, scale, detail, roughness, lacunarity, offset, gain, distortion)
+    if n == 0:
+        return {"Fac": np.zeros(0, F32), "Color": np.zeros((0, 3), F32)}
+    scale = np.asarray(scale, F32)
+    p = tuple(c * scale for c in _coords(vector, w, d, n))
+    detail = np.clip(np.asarray(detail, F32), ZERO, F32(15.0))
+    roughness = np.maximum(np.asarray(roughness, F32), ZERO)
+    lacunarity, offset, gain = (np.asarray(x, F32) for x in (lacunarity, offset, gain))
+    distortion = np.asarray(distortion, F32)
+    if distortion.any():
+        # Cycles skips this where distortion is 0; adding 0 * snoise leaves p unchanged all the same.
+        p = tuple(_distort(c, snoise(_shift(p, axis)), distortion, d, axis) for axis, c in enumerate(p))
+    args = (detail, roughness, lacunarity, offset, gain, noise_type, normalize)
+    fac = fractal(p, *args)
+    result = {"Fac": fac} if "Fac" in outputs else {}
+    if "Color" in outputs:
+        seed = d   # the distortion used seeds 0 .. d-1; the colour's channels take the next two
+        result["Color"] = np.stack([fac, fractal(_shift(p, seed), *args),
+                                    fractal(_shift(p, seed + 1), *args)], axis=1)
+    return result
+
+
+# ---- White Noise Texture node (white_noise.h) -----------------------------------------------------
+
+_WHITE_VALUE = {1: lambda k: H.hash_float_to_float(k[0]), 2: H.hash_float2_to_float,
+                3: H.hash_float3_to_float, 4: H.hash_float4_to_float}
+_WHITE_COLOR = {1: lambda k: H.hash_float_to_float3(k[0]), 2: H.hash_float2_to_float3,
+                3: H.hash_float3_to_float3, 4: H.hash_float4_to_float3}
+
+
+def white_noise_texture(vector, w=0.0, *, dimensions="3D", outputs=("Value", "Color")):
+    """The White Noise node: hashes of the input's float bits. {"Value": (N,), "Color": (N, 3)}."""
+    d = DIMENSIONS[dimensions]
+    k = _coords(vector, w, d, _hit_count(vector, w))
+    result = {}
+    if "Value" in outputs:
+        result["Value"] = _WHITE_VALUE[d](k)
+    if "Color" in outputs:
+        result["Color"] = np.stack(_WHITE_COLOR[d](k), axis=1)
+    return result
+
+
+# ---- Wave Texture node (wave.h) -------------------------------------------------------------------
+
+_RING_AXES = {"X": (1, 2), "Y": (0, 2), "Z": (0, 1), "SPHERICAL": (0, 1, 2)}
+_BAND_AXIS = {"X": 0, "Y": 1, "Z": 2}
+INV_TWO_PI = ONE / F32(2.0 * np.pi)      # 1 / M_2PI_F
+HALF_PI = F32(0.5 * np.pi)
+
+
+def _sinf(x):
+    """float32 sine via float64, correctly rounded: within an ulp of the glibc sinf Cycles calls."""
+    return np.sin(x.astype(np.float64)).astype(F32)
+
+
+def wave(vector, scale, distortion, detail, detail_scale, detail_roughness, phase, *, wave_type="BANDS",
+         bands_direction="X", rings_direction="X", wave_profile="SIN"):
+    """Cycles' svm_wave(co * scale, ...) at vector = (x, y, z) -> Fac (N,).
+
+    Rounded as Cycles' kernel is compiled: co * scale + 1e-6 and the distortion's multiply-add are
+    fused, the division by 2 pi is a multiplication by its reciprocal (-freciprocal-math)."""
+    scale, distortion, detail_scale, detail_roughness, phase = (
+        np.asarray(x, F32) for x in (scale, distortion, detail_scale, detail_roughness, phase))
+    # Cycles nudges p off unit coordinates, where the bands would sit on their discontinuities.
+    p = tuple(fma(c, scale, F32(0.000001)) * F32(0.999999) for c in vector)
+    if wave_type == "BANDS":
+        if bands_direction == "DIAGONAL":
+            n = (p[0] + p[1] + p[2]) * F32(10.0)
+        else:
+            n = p[_BAND_AXIS[bands_direction]] * F32(20.0)
+    elif wave_type == "RINGS":
+        squares = [p[a] * p[a] for a in _RING_AXES[rings_direction]]
+        n = np.sqrt(sum(squares[1:], squares[0])) * F32(20.0)
+    else:
+        raise ValueError(f"unknown wave_type {wave_type!r}")
+    n += phase
+    if distortion.any():
+        f = fbm(_scaled(p, detail_scale), detail, detail_roughness, F32(2.0), True)
+        n = fma(distortion, f * F32(2.0) - ONE, n)
+    if wave_profile == "SIN":
+        return HALF + HALF * _sinf(n - HALF_PI)
+    n *= INV_TWO_PI
+    if wave_profile == "SAW":
+        return n - np.floor(n)
+    if wave_profile == "TRI":
+        return np.abs(n - np.floor(n + HALF)) * F32(2.0)
+    raise ValueError(f"unknown wave_profile {wave_profile!r}")
+
+
+def wave_texture(vector, scale=5.0, distortion=0.0, detail=2.0, detail_scale=1.0, detail_roughness=0.5,
+                 phase_offset=0.0, *, wave_type="BANDS", bands_direction="X", rings_direction="X",
+                 wave_profile="SIN"):
+    """The Wave Texture node: {"Color": (N, 3) grey, "Fac": (N,)}."""
+    n = _hit_count(vector, scale, distortion, detail, detail_scale, detail_roughness, phase_offset)
+    if n == 0:
+        return {"Color": np.zeros((0, 3), F32), "Fac": np.zeros(0, F32)}
+    fac = wave(_coords(vector, 0.0, 3, n), scale, distortion, detail, detail_scale, detail_roughness,
+               phase_offset, wave_type=wave_type, bands_direction=bands_direction,
+               rings_direction=rings_direction, wave_profile=wave_profile)
+    return {"Color": np.repeat(fac[:, None], 3, axis=1), "Fac": fac}

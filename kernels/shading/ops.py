@@ -1,0 +1,472 @@
+"""The ops a node program runs: one function per shader node kind, over the hits of one material.
+
+Every op is `op(hits, inputs, op) -> {output name: array}`: hits a program.HitInputs, inputs a dict of
+the node's input values by name ((n,) or (n, 3) float32 arrays; a folded constant is a Python float or a
+(3,) array), op the kernels.programs.Op (its options). Numerics follow Cycles' SVM nodes
+(`kernel/svm/*.h`); the texture, colour and math nodes live in their own modules and are wrapped here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..textures import srgb_to_linear
+from . import normals
+
+F32 = np.float32
+ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
+
+# Columns of kernels.scene.SceneArrays.objects (one row per object instance).
+from ..scene import OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TEXSPACE_LOC, \
+    OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR  # noqa: E402
+
+
+def full(x, n: int, channels: int = 1) -> np.ndarray:
+    """An input as a full (n,) or (n, 3) float32 array (constants broadcast, not copied)."""
+    a = np.asarray(x, F32)
+    return np.broadcast_to(a, (n,) if channels == 1 else (n, 3))
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _normalize(v):
+    length = np.sqrt(_dot(v, v))
+    return v / np.where(length > 0, length, ONE)[:, None]
+
+
+# ---------------------------------------------------------------- geometry and coordinates
+def object_point(hits, p: np.ndarray) -> np.ndarray:
+    """(n, 3) world points into the hits' object spaces."""
+    rows = hits.objects()
+    m = rows[:, OBJ_FROM_WORLD:OBJ_FROM_WORLD + 12].reshape(-1, 3, 4)
+    return np.einsum("nij,nj->ni", m[:, :, :3], p) + m[:, :, 3]
+
+
+def generated(hits) -> np.ndarray:
+    """Blender's Generated coordinates: the object-space point in the mesh's texture space, [0, 1]^3 over
+    its bounding box (Cycles' ATTR_STD_GENERATED from the undeformed mesh; here the evaluated one)."""
+    if "generated" in hits._cache:
+        return hits._cache["generated"]
+    rows = hits.objects()
+    local = object_point(hits, hits.P)
+    loc = rows[:, OBJ_TEXSPACE_LOC:OBJ_TEXSPACE_LOC + 3]
+    size = rows[:, OBJ_TEXSPACE_SIZE:OBJ_TEXSPACE_SIZE + 3]
+    # Blender sync: scale 0.5 / size (0 for a flat axis), offset loc * scale - 0.5.
+    scale = np.where(size != 0, F32(0.5) / np.where(size != 0, size, ONE), ZERO)
+    out = (local * scale - (loc * scale - HALF)).astype(F32)
+    hits._cache["generated"] = out
+    return out
+
+
+def object_normal(hits, n: np.ndarray) -> np.ndarray:
+    """World normals into object space (Cycles' object_inverse_normal_transform): M^T n, normalized."""
+    m = hits.objects()[:, OBJ_WORLD_LINEAR:OBJ_WORLD_LINEAR + 9].reshape(-1, 3, 3)
+    return _normalize(np.einsum("nji,nj->ni", m, n))
+
+
+def camera_point(hits, p: np.ndarray) -> np.ndarray:
+    """Cycles' camera space: x right, y up, z ahead of the camera."""
+    local = (p - hits.scene.camera_eye) @ hits.scene.camera_rotation
+    return local * np.array([1.0, 1.0, -1.0], F32)
+
+
+def window_point(hits, p: np.ndarray) -> np.ndarray:
+    """The point's place in the camera's frame: [0, 1]^2 over the image, z = 0."""
+    c = camera_point(hits, p)
+    xmin, xmax, ymin, ymax = hits.scene.view_plane
+    if hits.scene.camera_kind == "ORTHO":
+        x, y = c[:, 0], c[:, 1]
+    else:
+        z = np.where(c[:, 2] != 0, c[:, 2], F32(1e-30))
+        x, y = c[:, 0] / z, c[:, 1] / z
+    return np.stack([(x - xmin) / F32(xmax - xmin), (y - ymin) / F32(ymax - ymin), np.zeros_like(x)], 1).astype(F32)
+
+
+def tex_coord(hits, inputs, op):
+    wanted = op.option("outputs", ("Generated", "Normal", "UV", "Object", "Camera", "Window", "Reflection"))
+    out = {}
+    for name in wanted:
+        if name == "Generated":
+            out[name] = generated(hits)
+        elif name == "Normal":
+            out[name] = object_normal(hits, hits.N)
+        elif name == "UV":
+            out[name] = hits.uv
+        elif name == "Object":
+            matrix = op.option("object_from_world")
+            if matrix is None:
+                out[name] = object_point(hits, hits.P)
+            else:
+                m = np.asarray(matrix, F32).reshape(3, 4)
+                out[name] = hits.P @ m[:, :3].T + m[:, 3]
+        elif name == "Camera":
+            out[name] = camera_point(hits, hits.P)
+        elif name == "Window":
+            out[name] = window_point(hits, hits.P)
+        elif name == "Reflection":
+            i, n = hits.I, hits.N
+            out[name] = (F32(2.0) * _dot(i, n)[:, None] * n - i).astype(F32)
+    return out
+
+
+def uv_map(hits, inputs, op):
+    name = op.option("uv_map", "")
+    return {"UV": _uv(hits, name)}
+
+
+def _uv(hits, name: str) -> np.ndarray:
+    if not name:
+        return hits.uv
+    values = hits.attribute("uv:" + name)
+    if values is None:
+        return np.zeros((hits.n, 3), F32)
+    return np.concatenate([values[:, :2], np.zeros((hits.n, 1), F32)], axis=1)
+
+
+def geometry(hits, inputs, op):
+    wanted = op.option("outputs", ("Position", "Normal", "True Normal", "Incoming", "Parametric", "Backfacing"))
+    out = {}
+    for name in wanted:
+        if name == "Position":
+            out[name] = hits.P
+        elif name == "Normal":
+            out[name] = hits.N
+        elif name == "True Normal":
+            out[name] = hits.Ng
+        elif name == "Incoming":
+            out[name] = hits.I
+        elif name == "Parametric":
+            b1, b2 = hits.barycentrics()
+            # Cycles' u and v are the weights of corners 1 and 2 of its triangle (ours: 1 and 2).
+            out[name] = np.stack([ONE - b1 - b2, b1, np.zeros_like(b1)], 1).astype(F32)
+        elif name == "Backfacing":
+            out[name] = hits.backfacing.astype(F32)
+        else:  # Tangent, Pointiness, Random Per Island: the export warned
+            out[name] = np.zeros((hits.n,) if name in ("Pointiness", "Random Per Island") else (hits.n, 3), F32)
+    return out
+
+
+def object_info(hits, inputs, op):
+    rows = hits.objects()
+    return {"Location": rows[:, OBJ_LOCATION:OBJ_LOCATION + 3],
+            "Color": rows[:, OBJ_COLOR:OBJ_COLOR + 3],
+            "Alpha": rows[:, OBJ_COLOR + 3],
+            "Object Index": rows[:, OBJ_PASS_INDEX],
+            "Material Index": np.full(hits.n, op.option("material_index", 0.0), F32),
+            "Random": rows[:, OBJ_RANDOM]}
+
+
+def attribute(hits, inputs, op):
+    """A per-corner attribute by its exported name (kernels.scene.SceneArrays.attributes): (n, C) with C
+    of 1 (float), 2 (UV), 3 (vector) or 4 (colour with alpha). Missing: zeros, as in Cycles."""
+    values = hits.attribute(op.option("name"))
+    n = hits.n
+    if values is None:
+        zero = np.zeros(n, F32)
+        return {"Color": np.zeros((n, 3), F32), "Vector": np.zeros((n, 3), F32), "Fac": zero, "Alpha": zero}
+    c = values.shape[1]
+    if c == 1:
+        vec = np.repeat(values, 3, axis=1)
+    elif c == 2:
+        vec = np.concatenate([values, np.zeros((n, 1), F32)], axis=1)
+    else:
+        vec = values[:, :3]
+    # Cycles: a float attribute's Fac is the value; a vector's is its average; a colour's its average too.
+    fac = values[:, 0] if c == 1 else vec.mean(axis=1, dtype=F32)
+    alpha = values[:, 3] if c == 4 else np.ones(n, F32)
+    return {"Color": vec, "Vector": vec, "Fac": fac, "Alpha": alpha}
+
+
+def layer_weight(hits, inputs, op):
+    n = hits.n
+    normal = _normal_input(hits, inputs)
+    cos = _dot(hits.I, normal)
+    blend = full(inputs["Blend"], n)
+    eta = np.maximum(ONE - blend, F32(1e-5))
+    eta = np.where(hits.backfacing, eta, ONE / eta)
+    out = {"Fresnel": fresnel_dielectric_cos(cos, eta)}
+    f = np.abs(cos)
+    b = np.clip(blend, ZERO, F32(1.0 - 1e-5))
+    exponent = np.where(b < HALF, F32(2.0) * b, HALF / (ONE - b))
+    f = np.where(blend != HALF, np.power(f, exponent), f)
+    out["Facing"] = (ONE - f).astype(F32)
+    return out
+
+
+def fresnel_node(hits, inputs, op):
+    normal = _normal_input(hits, inputs)
+    eta = np.maximum(full(inputs["IOR"], hits.n), F32(1e-5))
+    eta = np.where(hits.backfacing, ONE / eta, eta)
+    return {"Fac": fresnel_dielectric_cos(_dot(hits.I, normal), eta)}
+
+
+def fresnel_dielectric_cos(cos_i, eta) -> np.ndarray:
+    """Cycles' fresnel_dielectric_cos (the Fresnel and Layer Weight nodes' form, to its float rounding)."""
+    c = np.abs(np.asarray(cos_i, F32))
+    eta = np.asarray(eta, F32)
+    g = eta * eta - ONE + c * c
+    ok = g > 0
+    g = np.sqrt(np.where(ok, g, ONE))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = (g - c) / (g + c)
+        b = (c * (g + c) - ONE) / (c * (g - c) + ONE)
+        f = HALF * a * a * (ONE + b * b)
+    return np.where(ok, f, ONE).astype(F32)
+
+
+def _normal_input(hits, inputs):
+    normal = inputs.get("Normal")
+    return hits.N if normal is None else full(normal, hits.n, 3)
+
+
+def light_path(hits, inputs, op):
+    """Cycles' Light Path outputs from the path state the integrator attached to the hits."""
+    ray = hits.hit.ray
+    n = hits.n
+    take = (lambda a: np.take(a, hits.idx).astype(F32)) if ray is not None else None
+    shadow = ray is not None and ray.shadow
+    depth = take(ray.depth) if ray is not None else np.zeros(n, F32)
+    out = {"Is Camera Ray": ((depth == 0) & (not shadow)).astype(F32) if ray is not None else np.ones(n, F32),
+           "Is Shadow Ray": np.full(n, F32(1.0 if shadow else 0.0)),
+           "Ray Length": take(ray.length) if ray is not None and ray.length is not None else np.zeros(n, F32),
+           # Shadow rays are one bounce further (Cycles adds 1 for shadow and emission evaluation).
+           "Ray Depth": depth + F32(1.0 if shadow else 0.0),
+           "Transparent Depth": take(ray.transparent) if ray is not None else np.zeros(n, F32),
+           "Is Diffuse Ray": np.zeros(n, F32), "Is Glossy Ray": np.zeros(n, F32),
+           "Is Singular Ray": np.zeros(n, F32), "Is Reflection Ray": np.zeros(n, F32),
+           "Is Transmission Ray": np.zeros(n, F32), "Is Volume Scatter Ray": np.zeros(n, F32),
+           "Diffuse Depth": np.zeros(n, F32), "Glossy Depth": np.zeros(n, F32),
+           "Transmission Depth": np.zeros(n, F32), "Portal Depth": np.zeros(n, F32)}
+    return out
+
+
+# ---------------------------------------------------------------- vectors
+def separate_xyz(hits, inputs, op):
+    v = full(inputs["Vector"], hits.n, 3)
+    return {"X": v[:, 0], "Y": v[:, 1], "Z": v[:, 2]}
+
+
+def combine_xyz(hits, inputs, op):
+    n = hits.n
+    return {"Vector": np.stack([full(inputs[k], n) for k in ("X", "Y", "Z")], axis=1)}
+
+
+def normal_map(hits, inputs, op):
+    """The Normal Map node (tangent, world or Blender world space) over program inputs."""
+    n = hits.n
+    color = full(inputs["Color"], n, 3).T
+    strength = full(inputs["Strength"], n)
+    space = op.option("space", "TANGENT")
+    ns = tuple(hits.N[:, k] for k in range(3))
+    frame = hits.hit.tangent_frame(hits.idx) if space == "TANGENT" else None
+    out = normals.normal_map(color, strength, space, ns, hits.backfacing, frame)
+    return {"Normal": np.stack(out, axis=1)}
+
+
+# ---------------------------------------------------------------- images
+def image(hits, inputs, op):
+    """The Image Texture node (Cycles' svm_node_tex_image with kernel/device/cpu/image.h lookups):
+    Closest, Linear or Cubic (B-spline) interpolation; Repeat, Extend, Clip (texels outside read zero) or Mirror extension; Flat,
+    Sphere and Tube projection. 8-bit sRGB images are filtered encoded and decoded after."""
+    n = hits.n
+    texture = op.option("texture", -1)
+    vector = inputs.get("Vector")
+    p = hits.uv if vector is None else full(vector, n, 3)
+    projection = op.option("projection", "FLAT")
+    if projection == "SPHERE":
+        p = _map_to_sphere(p - HALF)
+    elif projection == "TUBE":
+        p = _map_to_tube(p - HALF)
+    if texture < 0:  # missing image: Cycles' magenta
+        return {"Color": np.broadcast_to(np.array([1.0, 0.0, 1.0], F32), (n, 3)), "Alpha": np.ones(n, F32)}
+    tex = hits.scene.textures[texture]
+    u, v = p[:, 0], p[:, 1]
+    interpolation = op.option("interpolation", "Linear")
+    extension = op.option("extension", "REPEAT")
+    planes = tex.channels if tex.alpha is None else np.concatenate([tex.channels, tex.alpha])
+    values = sample_planes(planes, tex.width, tex.height, u, v, interpolation, extension)  # (C, n)
+    color = values[:3]
+    alpha = values[3] if tex.alpha is not None else np.ones(n, F32)
+    if op.option("unassociate", False) and tex.alpha is not None:
+        partial = (alpha != 0) & (alpha != 1)
+        color = np.where(partial, color / np.where(partial, alpha, ONE), color)
+    if tex.srgb:
+        color = srgb_to_linear(color)
+    return {"Color": np.ascontiguousarray(color.T, F32), "Alpha": alpha.astype(F32)}
+
+
+def _map_to_sphere(p):
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    length = np.sqrt(x * x + y * y + z * z)
+    u = np.where((x == 0) & (y == 0), ZERO, (ONE - np.arctan2(x, -y) / F32(np.pi)) / F32(2.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = np.where(length > 0, ONE - np.arccos(np.clip(z / np.where(length > 0, length, ONE), -1, 1)) / F32(np.pi),
+                     ZERO)
+    u = np.where(length > 0, u, ZERO)
+    return np.stack([u, v, np.zeros_like(u)], 1).astype(F32)
+
+
+def _map_to_tube(p):
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    length = np.sqrt(x * x + y * y)
+    u = np.where(length > 0, (ONE - np.arctan2(x / np.where(length > 0, length, ONE),
+                                               -y / np.where(length > 0, length, ONE)) / F32(np.pi)) / F32(2.0), ZERO)
+    v = np.where(length > 0, (z + ONE) * HALF, ZERO)
+    return np.stack([u, v, np.zeros_like(u)], 1).astype(F32)
+
+
+def _wrap(i: np.ndarray, size: int, extension: str):
+    """Texel indices under the extension mode, and which are inside (CLIP reads zero outside)."""
+    if extension == "REPEAT":
+        return np.mod(i, size), None
+    if extension == "MIRROR":
+        m = np.abs(i + (i < 0)) % (2 * size)
+        return np.where(m >= size, 2 * size - m - 1, m), None
+    inside = (i >= 0) & (i < size)
+    return np.clip(i, 0, size - 1), (inside if extension == "CLIP" else None)
+
+
+def _taps(x: np.ndarray, size: int, interpolation: str):
+    """Per axis: texel indices (k, n) int64 and weights (k, n) float32 of the filter."""
+    if interpolation == "Closest":
+        return np.floor(x * F32(size)).astype(np.int64)[None], np.ones((1, len(x)), F32)
+    s = x * F32(size) - HALF
+    i = np.floor(s)
+    t = (s - i).astype(F32)
+    i = i.astype(np.int64)
+    if interpolation in ("Cubic", "Smart"):
+        t2, t3 = t * t, t * t * t
+        w = np.stack([(ONE - t) ** 3 / F32(6.0), (F32(3.0) * t3 - F32(6.0) * t2 + F32(4.0)) / F32(6.0),
+                      (F32(-3.0) * t3 + F32(3.0) * t2 + F32(3.0) * t + ONE) / F32(6.0), t3 / F32(6.0)])
+        return np.stack([i - 1, i, i + 1, i + 2]), w.astype(F32)
+    return np.stack([i, i + 1]), np.stack([ONE - t, t])
+
+
+def sample_planes(planes: np.ndarray, width: int, height: int, u, v, interpolation: str, extension: str):
+    """(C, n) filtered values of (C, H*W) texel planes (row 0 at the bottom) at (u, v)."""
+    u = np.nan_to_num(np.clip(u, -1e6, 1e6), nan=0.0).astype(F32)
+    v = np.nan_to_num(np.clip(v, -1e6, 1e6), nan=0.0).astype(F32)
+    xi, xw = _taps(u, width, interpolation)
+    yi, yw = _taps(v, height, interpolation)
+    xi, x_in = _wrap(xi, width, extension)
+    yi, y_in = _wrap(yi, height, extension)
+    if extension == "CLIP":
+        xw = xw * x_in
+        yw = yw * y_in
+    out = np.zeros((len(planes), len(u)), F32)
+    for a in range(len(yi)):
+        row = yi[a] * width
+        for b in range(len(xi)):
+            out += np.take(planes, row + xi[b], axis=1) * (yw[a] * xw[b])
+    return out
+
+
+OPS = {
+    "ShaderNodeTexCoord": tex_coord,
+    "ShaderNodeUVMap": uv_map,
+    "ShaderNodeNewGeometry": geometry,
+    "ShaderNodeObjectInfo": object_info,
+    "ATTRIBUTE": attribute,
+    "ShaderNodeLayerWeight": layer_weight,
+    "ShaderNodeFresnel": fresnel_node,
+    "ShaderNodeLightPath": light_path,
+    "ShaderNodeSeparateXYZ": separate_xyz,
+    "ShaderNodeCombineXYZ": combine_xyz,
+    "ShaderNodeNormalMap": normal_map,
+    "ShaderNodeTexImage": image,
+}
+# Ops that read nothing of the hits besides their inputs: folded at export when those are constants.
+PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ"}
+
+
+# ---------------------------------------------------------------- texture, colour and math nodes
+# The node functions of noise.py, voronoi.py, gabor.py, patterns.py and color_math.py take snake_case
+# keywords named after the node's sockets and options; these adapters pass what the program holds.
+import inspect  # noqa: E402
+
+from . import color_math as cm  # noqa: E402
+from . import gabor as gb  # noqa: E402
+from . import noise as ns  # noqa: E402
+from . import patterns as pt  # noqa: E402
+from . import voronoi as vr  # noqa: E402
+
+
+def _snake(identifier: str) -> str:
+    return identifier.lower().replace(" ", "_")
+
+
+def node_op(fn, inputs=None, options=None, outputs=None, result_key=None):
+    """An op calling fn with the node's inputs (by socket identifier, snake_case, or renamed by `inputs`)
+    and options (by RNA name, or renamed by `options`); outputs renamed by `outputs`, or by
+    result_key(op) for the one output of a node whose identifier depends on its data type."""
+    params = inspect.signature(fn).parameters
+    inputs, options, outputs = inputs or {}, options or {}, outputs or {}
+
+    def op_fn(hits, values, op):
+        kwargs = {}
+        for ident, value in values.items():
+            key = inputs.get(ident, _snake(ident))
+            if key in params:
+                kwargs[key] = value
+        for name, value in op.options:
+            key = options.get(name, name)
+            if key in params and key not in kwargs and value is not None:
+                kwargs[key] = value
+        result = fn(**kwargs)
+        if result_key is not None:
+            (value,) = result.values()
+            return {result_key(op): value}
+        return {outputs.get(k, k): v for k, v in result.items()}
+    return op_fn
+
+
+def _mix_result(op):
+    return {"FLOAT": "Result_Float", "VECTOR": "Result_Vector", "RGBA": "Result_Color"}[op.option("data_type")]
+
+
+_MIX_INPUTS = {"Factor_Float": "factor", "Factor_Vector": "factor", "A_Float": "a", "B_Float": "b",
+               "A_Vector": "a", "B_Vector": "b", "A_Color": "a", "B_Color": "b"}
+_TEXTURES = {
+    "ShaderNodeTexNoise": node_op(ns.noise_texture, options={"noise_dimensions": "dimensions"}),
+    "ShaderNodeTexWhiteNoise": node_op(ns.white_noise_texture, options={"noise_dimensions": "dimensions"}),
+    "ShaderNodeTexWave": node_op(ns.wave_texture),
+    "ShaderNodeTexVoronoi": node_op(vr.voronoi_texture, options={"voronoi_dimensions": "dimensions"}),
+    "ShaderNodeTexGabor": node_op(gb.gabor_texture),
+    "ShaderNodeTexChecker": node_op(pt.checker),
+    "ShaderNodeTexGradient": node_op(pt.gradient),
+    "ShaderNodeTexBrick": node_op(pt.brick),
+    "ShaderNodeTexMagic": node_op(pt.magic),
+}
+_CONVERTERS = {
+    "ShaderNodeMath": node_op(cm.math),
+    "ShaderNodeVectorMath": node_op(cm.vector_math),
+    "ShaderNodeMix": node_op(cm.mix, inputs=_MIX_INPUTS, result_key=_mix_result),
+    "ShaderNodeMixRGB": node_op(cm.mix_rgb, inputs={"Fac": "fac", "Color1": "color1", "Color2": "color2"}),
+    "ShaderNodeMapRange": node_op(cm.map_range, inputs={"Value": "value", "From Min": "from_min",
+                                                        "From Max": "from_max", "To Min": "to_min",
+                                                        "To Max": "to_max", "Steps": "steps",
+                                                        "Vector": "value", "From_Min_FLOAT3": "from_min",
+                                                        "From_Max_FLOAT3": "from_max",
+                                                        "To_Min_FLOAT3": "to_min", "To_Max_FLOAT3": "to_max",
+                                                        "Steps_FLOAT3": "steps"}),
+    "ShaderNodeClamp": node_op(cm.clamp),
+    "ShaderNodeSeparateColor": node_op(cm.separate_color),
+    "ShaderNodeCombineColor": node_op(cm.combine_color),
+    "ShaderNodeHueSaturation": node_op(cm.hue_saturation),
+    "ShaderNodeBrightContrast": node_op(cm.bright_contrast),
+    "ShaderNodeGamma": node_op(cm.gamma),
+    "ShaderNodeInvert": node_op(cm.invert),
+    "ShaderNodeRGBToBW": node_op(cm.rgb_to_bw),
+    "ShaderNodeBlackbody": node_op(cm.blackbody),
+    "ShaderNodeWavelength": node_op(cm.wavelength),
+    "ShaderNodeMapping": node_op(cm.mapping),
+    "ShaderNodeVectorRotate": node_op(cm.vector_rotate),
+    "ShaderNodeValToRGB": node_op(cm.color_ramp),
+    "ShaderNodeRGBCurve": node_op(cm.rgb_curves),
+    "ShaderNodeVectorCurve": node_op(cm.vector_curves),
+    "ShaderNodeFloatCurve": node_op(cm.float_curve),
+}
+OPS.update(_TEXTURES)
+OPS.update(_CONVERTERS)
+PURE_OPS |= set(_TEXTURES) | set(_CONVERTERS)

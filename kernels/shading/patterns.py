@@ -1,0 +1,307 @@
+"""Cycles' pattern textures over arrays of hits: Checker, Gradient, Brick and Magic.
+
+Each node is one function with Blender's input sockets as arguments and its options as keywords
+(Blender's enum identifiers); it returns {"Color": (N, 3), "Fac": (N,)} in float32, as Cycles computes
+them (`kernel/svm/checker.h`, `gradient.h`, `brick.h`, `magic.h`). A float input is (N,) or a constant
+(Python float, 0-d or length-1 array); a vector or colour input is (N, 3) or a constant ((3,), (1, 3), or
+a scalar for all three components). The Vector input is what the node reads (the runner supplies
+Generated coordinates when it is unlinked); Scale multiplies it inside the node, as in Cycles.
+
+Cycles' arithmetic is float32 and so is this; its float -> int casts truncate, its `%` keeps the sign of
+the dividend (numpy's fmod on int32 does the same), and its brick noise wraps in uint32.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+F32, I32, U32 = np.float32, np.int32, np.uint32
+ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
+TWO_PI = F32(6.2831853071795864)   # M_2PI_F
+_INT_MIN = I32(-2 ** 31)
+
+
+# ---- glibc's sinf / cosf -----------------------------------------------------------------------
+# Cycles calls the C library's sinf/cosf. NumPy's float32 sin/cos differ from glibc's in the last bit
+# for ~15% of arguments, and the Magic texture feeds sines into sines, so at Distortion > 1 such 1-ulp
+# differences grow into visible ones. These reproduce glibc's (>= 2.28) algorithm - ARM's optimized
+# routines: a double-precision polynomial after reduction by pi/2 - bit for bit on the arguments we
+# checked (its polynomial coefficients and the 4/pi bits are the library's data).
+_F64, _U64, _I64 = np.float64, np.uint64, np.int64
+_HPI_INV_2P24 = float.fromhex("0x1.45f306dc9c883p+23")    # 2/pi, scaled by 2^24
+_HPI = float.fromhex("0x1.921fb54442d18p0")               # pi/2
+_PI_2P_M62 = float.fromhex("0x1.921fb54442d18p-62")       # 2pi * 2^-64
+_COS_POLY = tuple(float.fromhex(h) for h in ("0x1p0", "-0x1.ffffffd0c621cp-2", "0x1.55553e1068f19p-5",
+                                               "-0x1.6c087e89a359dp-10", "0x1.99343027bf8c3p-16"))
+_SIN_POLY = tuple(float.fromhex(h) for h in ("-0x1.555545995a603p-3", "0x1.1107605230bc4p-7",
+                                               "-0x1.994eb3774cf24p-13"))
+_INV_PIO4 = np.array([  # 4/pi to 192 bits, 8 new bits per entry
+    0xa2, 0xa2f9, 0xa2f983, 0xa2f9836e, 0xf9836e4e, 0x836e4e44, 0x6e4e4415, 0x4e441529, 0x441529fc,
+    0x1529fc27, 0x29fc2757, 0xfc2757d1, 0x2757d1f5, 0x57d1f534, 0xd1f534dd, 0xf534ddc0, 0x34ddc0db,
+    0xddc0db62, 0xc0db6295, 0xdb629599, 0x6295993c, 0x95993c43, 0x993c4390, 0x3c439041], _U64)
+
+
+def _reduce_large(bits: np.ndarray):
+    """|y| >= 120: y mod pi/2 from an exact fixed-point product with 4/pi; (remainder, quadrant)."""
+    idx = ((bits >> U32(26)) & U32(15)).astype(np.intp)
+    shift = ((bits >> U32(23)) & U32(7)).astype(_U64)
+    m = (((bits.astype(_U64) & _U64(0xFFFFFF)) | _U64(0x800000)) << shift) & _U64(0xFFFFFFFF)
+    low = (m * _INV_PIO4[idx]) & _U64(0xFFFFFFFF)            # a 32-bit product in C
+    mid = m * _INV_PIO4[idx + 4]
+    high = m * _INV_PIO4[idx + 8]
+    acc = ((high >> _U64(32)) | (low << _U64(32))) + mid
+    quadrant = (acc + (_U64(1) << _U64(61))) >> _U64(62)
+    acc = acc - (quadrant << _U64(62))
+    return acc.view(_I64).astype(_F64) * _PI_2P_M62, quadrant.astype(_I64)
+
+
+def _sincosf(y, cosine: bool) -> np.ndarray:
+    y = np.asarray(y, F32)
+    bits = y.view(U32) & U32(0x7FFFFFFF)
+    top = bits >> U32(20)
+    x = y.astype(_F64)
+    small = top < U32(0x3F4)                         # |y| < pi/4 in glibc's 12-bit test
+    fast = ~small & (top < U32(0x42F))               # |y| < 120
+    r = np.where(fast, x * _HPI_INV_2P24, 0.0)
+    n = (r.astype(_I64) + 0x800000) >> 24
+    xr = np.where(small, x, x - n * _HPI)
+    quadrant = np.where(small, 0, n)
+    turn = quadrant                                   # glibc folds y's sign in for the large path only
+    large = ~small & ~fast
+    if large.any():
+        xl, nl = _reduce_large(y.view(U32))
+        xr = np.where(large, xl, xr)
+        quadrant = np.where(large, nl, quadrant)
+        turn = np.where(large, nl + (y.view(U32) >> U32(31)).astype(_I64), turn)
+    xs = np.where((turn & 3) % 3 == 0, xr, -xr)       # sign table (1, -1, -1, 1)
+    x2 = xr * xr
+    odd = (quadrant ^ 1 if cosine else quadrant) & 1
+    x3 = xs * x2
+    sin_val = (xs + x3 * _SIN_POLY[0]) + (x3 * x2) * (_SIN_POLY[1] + x2 * _SIN_POLY[2])
+    x4 = x2 * x2
+    cos_val = ((_COS_POLY[0] + x2 * _COS_POLY[1]) + x4 * _COS_POLY[2]) + \
+        (x4 * x2) * (_COS_POLY[3] + x2 * _COS_POLY[4])
+    cos_val = np.where(turn & 2, -cos_val, cos_val)
+    out = np.where(odd == 1, cos_val, sin_val).astype(F32)
+    tiny = top < U32(0x398)                           # |y| < 2^-12: sin y = y, cos y = 1
+    out = np.where(tiny, ONE if cosine else y, out)
+    return np.where(top >= U32(0x7F8), F32(np.nan), out)
+
+
+def sinf(y) -> np.ndarray:
+    """glibc's sinf over a float32 array, bit-exact."""
+    return _sincosf(y, False)
+
+
+def cosf(y) -> np.ndarray:
+    """glibc's cosf over a float32 array, bit-exact."""
+    return _sincosf(y, True)
+
+
+# ---- inputs -------------------------------------------------------------------------------------
+
+def _scalar(x) -> np.ndarray:
+    """A float socket: (N,) float32, or a 0-d float32 array for a constant."""
+    a = np.asarray(x, F32)
+    return a.reshape(()) if a.size == 1 else a
+
+
+def _vector(v) -> np.ndarray:
+    """A vector/colour socket: (N, 3) float32, or (1, 3) for a constant (an RGBA colour drops alpha, as
+    Cycles' colour sockets do)."""
+    a = np.asarray(v, F32)
+    if a.ndim == 0 or a.size == 1:
+        return np.full((1, 3), a.reshape(()), F32)
+    if a.shape[-1] == 4:
+        a = a[..., :3]
+    return a.reshape(-1, 3)
+
+
+def _count(*arrays) -> int:
+    """The number of hits N implied by the inputs (1 if they are all constants)."""
+    n = 1
+    for a in arrays:
+        if a.ndim and a.shape[0] != 1:
+            n = a.shape[0]
+    return n
+
+
+def _floor_to_int(x: np.ndarray) -> np.ndarray:
+    """Cycles' floor_to_int: floorf, then C's (int) cast, which gives INT_MIN out of range on x86."""
+    f = np.floor(x)
+    inside = (f >= F32(-2.0 ** 31)) & (f < F32(2.0 ** 31))
+    return np.where(inside, np.where(inside, f, ZERO).astype(I32), _INT_MIN)
+
+
+def _smoothstep(f: np.ndarray) -> np.ndarray:
+    """Cycles' smoothstepf: 3f^2 - 2f^3 on [0, 1] (3f^2 fused into the subtraction), clamped outside."""
+    ff = f * f
+    s = _fma(F32(3.0), ff, -(F32(2.0) * ff * f))
+    return np.where(f <= ZERO, ZERO, np.where(f >= ONE, ONE, s)).astype(F32, copy=False)
+
+
+def _fma(a, b, c) -> np.ndarray:
+    """a * b + c rounded once, as the FMA instruction Cycles' AVX2 kernel compiles it to (the product of two
+    floats is exact in float64; rounding the float64 sum again to float32 differs from one rounding only
+    in rare ties)."""
+    return (np.asarray(a, _F64) * np.asarray(b, _F64) + np.asarray(c, _F64)).astype(F32)
+
+
+def _color_fac(color: np.ndarray, fac: np.ndarray) -> dict:
+    return {"Color": color, "Fac": fac}
+
+
+# ---- Checker ------------------------------------------------------------------------------------
+
+def checker(vector, color1=(0.8, 0.8, 0.8), color2=(0.2, 0.2, 0.2), scale=5.0) -> dict:
+    """Checker Texture: Fac 1 (Color1) where the parities of floor(x), floor(y), floor(z) sum to odd.
+
+    The point is nudged by (p + 1e-6) * 0.999999 so that integer coordinates fall on a defined side. The
+    parity of |floor(x)| is that of floor(x); floats beyond 2^24 are even, as are Cycles' out-of-range
+    int casts (INT_MIN), so fmod(floor, 2) gives Cycles' parity everywhere without an int cast.
+    """
+    p = _vector(vector) * _scalar(scale)[..., None]
+    p = (p + F32(1e-6)) * F32(0.999999)
+    parity = np.fmod(np.floor(p), F32(2.0))           # -1, 0 or 1 per axis
+    odd = (parity != ZERO).sum(axis=1) & 1
+    fac = odd.astype(F32)
+    color = np.where(odd[:, None] == 1, _vector(color1), _vector(color2))
+    return _color_fac(color, fac)
+
+
+# ---- Gradient -----------------------------------------------------------------------------------
+
+GRADIENT_TYPES = ("LINEAR", "QUADRATIC", "EASING", "DIAGONAL", "SPHERICAL", "QUADRATIC_SPHERE", "RADIAL")
+
+
+def gradient(vector, *, gradient_type: str = "LINEAR") -> dict:
+    """Gradient Texture of the given type, clamped to [0, 1] (Fac and grey Color)."""
+    p = _vector(vector)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    if gradient_type == "LINEAR":
+        f = x
+    elif gradient_type == "QUADRATIC":
+        r = np.maximum(x, ZERO)
+        f = r * r
+    elif gradient_type == "EASING":
+        r = np.clip(x, ZERO, ONE)
+        t = r * r
+        f = _fma(F32(3.0), t, -(F32(2.0) * t * r))
+    elif gradient_type == "DIAGONAL":
+        f = (x + y) * HALF
+    elif gradient_type == "RADIAL":
+        f = np.arctan2(y, x) / TWO_PI + HALF
+    elif gradient_type in ("SPHERICAL", "QUADRATIC_SPHERE"):
+        # 0.999999 rather than 1 makes unit vectors give exactly 0.
+        r = np.maximum(F32(0.999999) - np.sqrt(_fma(z, z, _fma(y, y, x * x))), ZERO)
+        f = r if gradient_type == "SPHERICAL" else r * r
+    else:
+        raise ValueError(f"unknown gradient_type {gradient_type!r}")
+    fac = np.clip(f, ZERO, ONE).astype(F32, copy=False)
+    return _color_fac(np.repeat(fac[:, None], 3, axis=1), fac)
+
+
+# ---- Brick --------------------------------------------------------------------------------------
+
+def brick_noise(n: np.ndarray) -> np.ndarray:
+    """Cycles' fast integer noise of a uint32 word -> [0, 1) float32."""
+    n = (np.asarray(n, U32) + U32(1013)) & U32(0x7FFFFFFF)
+    n = (n >> U32(13)) ^ n
+    nn = (n * (n * n * U32(60493) + U32(19990303)) + U32(1376312589)) & U32(0x7FFFFFFF)
+    return HALF * (nn.astype(F32) / F32(1073741824.0))
+
+
+def brick(vector, color1=(0.8, 0.8, 0.8), color2=(0.2, 0.2, 0.2), mortar=(0.0, 0.0, 0.0), scale=5.0,
+          mortar_size=0.02, mortar_smooth=0.1, bias=0.0, brick_width=0.5, row_height=0.25, *,
+          offset: float = 0.5, offset_frequency: int = 2, squash: float = 1.0,
+          squash_frequency: int = 2) -> dict:
+    """Brick Texture: Fac is the mortar mask, Color the brick's tint of Color1/Color2 under the mortar.
+
+    Every `offset_frequency`-th row (counting from row 0) is shifted by offset * brick width and every
+    `squash_frequency`-th row has its bricks `squash` times as wide. Each brick's tint is the integer
+    noise of (row << 16) + (brick & 0xFFFF), plus Bias, clamped.
+    """
+    p = _vector(vector) * _scalar(scale)[..., None]
+    px, py = p[:, 0], p[:, 1]
+    width = _scalar(brick_width)
+    height = _scalar(row_height)
+    size = _scalar(mortar_size)
+    smooth = _scalar(mortar_smooth)
+
+    row = _floor_to_int(py / height)
+    shift = ZERO
+    if offset_frequency and squash_frequency:
+        # C's % keeps the dividend's sign; only "is it zero" matters here.
+        width = np.where(np.fmod(row, I32(squash_frequency)) != 0, width, width * F32(squash))
+        shift = np.where(np.fmod(row, I32(offset_frequency)) != 0, ZERO, width * F32(offset))
+    xs = px + shift
+    column = _floor_to_int(xs / width)
+    x = xs - width * column.astype(F32)
+    y = py - height * row.astype(F32)
+
+    word = (row.astype(U32) << U32(16)) + (column.astype(U32) & U32(0xFFFF))
+    tint = np.clip(brick_noise(word) + _scalar(bias), ZERO, ONE)
+
+    dist = np.minimum(np.minimum(x, y), np.minimum(width - x, height - y))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        soft = _smoothstep((ONE - dist / size) / smooth)
+    fac = np.where(dist >= size, ZERO, np.where(smooth == ZERO, ONE, soft)).astype(F32, copy=False)
+
+    n = _count(p, fac)
+    c1, c2 = _vector(color1), _vector(color2)
+    tint3 = tint.reshape(-1, 1)
+    # The kernel fuses one product of each sum into its addition.
+    brick_color = np.where((fac != ONE)[:, None], _fma(tint3, c2, (ONE - tint3) * c1), c1)
+    f3 = fac[:, None]
+    color = _fma(_vector(mortar), f3, brick_color * (ONE - f3))
+    return _color_fac(np.broadcast_to(color, (n, 3)).astype(F32, copy=False), np.broadcast_to(fac, (n,)))
+
+
+# ---- Magic --------------------------------------------------------------------------------------
+
+def magic(vector, scale=5.0, distortion=1.0, *, turbulence_depth: int = 2) -> dict:
+    """Magic Texture: nested sines and cosines of the point's coordinates (wrapped to (-2pi, 2pi) by C's
+    fmod first), `turbulence_depth` (0..10) rounds deep; Fac is the mean of the colour.
+
+    Each round feeds the last one's values times Distortion into the next sine, so differences grow by
+    about 3 * Distortion per round: this uses glibc's sinf/cosf and rounds as Cycles' compiled kernel
+    does (one fused multiply-add in the first round, a reciprocal for the final division), which makes
+    it bit-exact rather than merely close.
+    """
+    p = np.fmod(_vector(vector), TWO_PI)
+    px, py, pz = p[:, 0], p[:, 1], p[:, 2]
+    s = _scalar(scale)
+    d = _scalar(distortion)
+    five = F32(5.0)
+    x = sinf((px + py + pz) * five * s)
+    y = cosf((-px + py - pz) * five * s)
+    z = -cosf((-px - py + pz) * five * s)
+    n = int(turbulence_depth)
+    if n > 0:
+        x = x * d
+        z = z * d
+        # The compiler fuses y * d into the subtraction (y * d has no other use).
+        y = -cosf(_fma(-y, d, x) + z) * d
+    if n > 1:
+        x = cosf(x - y - z) * d
+    if n > 2:
+        z = sinf(-x - y - z) * d
+    if n > 3:
+        x = -cosf(-x + y - z) * d
+    if n > 4:
+        y = -sinf(-x + y + z) * d
+    if n > 5:
+        y = -cosf(-x + y + z) * d
+    if n > 6:
+        x = cosf(x + y + z) * d
+    if n > 7:
+        z = sinf(x + y - z) * d
+    if n > 8:
+        x = -cosf(-x - y + z) * d
+    if n > 9:
+        y = -sinf(x - y + z) * d
+    # Cycles divides by 2 * distortion unless the distortion is 0 (as one reciprocal, times three).
+    twice = d * F32(2.0)
+    inv = np.where(twice != ZERO, ONE / np.where(twice != ZERO, twice, ONE), ONE).astype(F32, copy=False)
+    color = np.stack(np.broadcast_arrays(HALF - x * inv, HALF - y * inv, HALF - z * inv), axis=1)
+    fac = (color[:, 0] + color[:, 1] + color[:, 2]) * F32(1.0 / 3.0)
+    return _color_fac(color, fac)

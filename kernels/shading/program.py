@@ -1,0 +1,231 @@
+"""Running a material's node program (kernels/programs.py) over the hits of that material in a wave.
+
+Each op runs at most once per wave and set of hits, on the first request for one of its outputs
+(a subgraph shared by several inputs is evaluated once), and only for the ops the closures read.
+Values are (n,) float32 for VALUE sockets and (n, 3) float32 for VECTOR and RGBA sockets; the kernel's
+closures read colours as (3, n), which Shading.param transposes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..programs import Program, Ref
+from .color_math import RGB_TO_Y, vector_to_float
+
+F32 = np.float32
+
+
+class HitInputs:
+    """What the input nodes read at some hits of a wave (interaction.SurfaceHit + indices), computed on
+    first use and kept: positions, normals, the viewer direction, UVs, attributes, object data.
+
+    scene : the shading's scene data (kernels.shading.shader.ShadingData): textures, the object table,
+        per-corner attributes, the camera.
+    """
+
+    def __init__(self, scene, hit, idx: np.ndarray, shift=None):
+        self.scene, self.hit, self.idx = scene, hit, idx
+        self.n = len(idx)
+        self._cache = {}
+        self._shift = shift
+
+    def shifted(self, db1: np.ndarray, db2: np.ndarray) -> "HitInputs":
+        """The same hits moved across their triangles by barycentric steps (db1, db2): position, UVs and
+        attributes follow, normals and the viewer direction stay (the Bump node's offset evaluations)."""
+        out = HitInputs(self.scene, self.hit, self.idx, (db1, db2))
+        for key in ("N", "Ng", "I", "D", "backfacing", "prim", "objects"):
+            if key in self._cache:
+                out._cache[key] = self._cache[key]
+        e1, e2 = self.hit.edges(self.idx)
+        out._cache["P"] = (self.P + db1[:, None] * e1 + db2[:, None] * e2).astype(F32)
+        return out
+
+    def _vec(self, name, components):
+        if name not in self._cache:
+            self._cache[name] = np.stack([np.take(c, self.idx) for c in components], axis=1).astype(F32, copy=False)
+        return self._cache[name]
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._vec("P", self.hit.p)
+
+    @property
+    def N(self) -> np.ndarray:
+        return self._vec("N", self.hit.ns)
+
+    @property
+    def Ng(self) -> np.ndarray:
+        return self._vec("Ng", self.hit.ng)
+
+    @property
+    def I(self) -> np.ndarray:  # noqa: E743 - Cycles' name: the direction toward the viewer
+        if "I" not in self._cache:
+            self._cache["I"] = -self._vec("D", self.hit.d)
+        return self._cache["I"]
+
+    @property
+    def backfacing(self) -> np.ndarray:
+        if "backfacing" not in self._cache:
+            self._cache["backfacing"] = np.take(self.hit.backfacing, self.idx)
+        return self._cache["backfacing"]
+
+    def barycentrics(self):
+        """(b1, b2) at the hits: the weights of corners 1 and 2."""
+        if "bary" not in self._cache:
+            b1, b2 = self.hit.barycentrics
+            b1, b2 = np.take(b1, self.idx), np.take(b2, self.idx)
+            if self._shift is not None:
+                b1, b2 = b1 + self._shift[0], b2 + self._shift[1]
+            self._cache["bary"] = (b1.astype(F32, copy=False), b2.astype(F32, copy=False))
+        return self._cache["bary"]
+
+    @property
+    def dp(self) -> np.ndarray:
+        """(n,) the rays' position spread at the hits (0 where the integrator gave none)."""
+        ray = self.hit.ray
+        if ray is None or ray.dp is None:
+            return np.zeros(self.n, F32)
+        return np.take(ray.dp, self.idx)
+
+    @property
+    def prim(self) -> np.ndarray:
+        if "prim" not in self._cache:
+            self._cache["prim"] = np.take(self.hit.prim, self.idx)
+        return self._cache["prim"]
+
+    def attribute(self, name: str) -> np.ndarray | None:
+        """(n, C) float32 interpolated per-corner attribute (kernels.scene.SceneArrays.attributes), None
+        when the scene does not have it."""
+        key = ("attr", name)
+        if key not in self._cache:
+            table = self.scene.attributes.get(name)
+            if table is None:
+                self._cache[key] = None
+            else:
+                b1, b2 = self.barycentrics()
+                rows = np.take(table, self.prim, axis=0)          # (n, 3, C)
+                w0 = F32(1.0) - b1 - b2
+                self._cache[key] = (rows[:, 0] * w0[:, None] + rows[:, 1] * b1[:, None] +
+                                    rows[:, 2] * b2[:, None]).astype(F32, copy=False)
+        return self._cache[key]
+
+    @property
+    def uv(self) -> np.ndarray:
+        """(n, 3) the render UV map's (u, v, 0)."""
+        if "uv" not in self._cache:
+            u, v = self.hit.uv_at(self.idx, *self.barycentrics()) if self._shift is not None else \
+                self.hit.uv_at(self.idx)
+            self._cache["uv"] = np.stack([u, v, np.zeros_like(u)], axis=1)
+        return self._cache["uv"]
+
+    def objects(self) -> np.ndarray:
+        """(n, OBJECT_COLUMNS) float32 object table rows of the hits' instances."""
+        if "objects" not in self._cache:
+            table = self.scene.objects
+            rows = np.take(self.scene.object_ids, self.prim)
+            self._cache["objects"] = np.take(table, rows, axis=0)
+        return self._cache["objects"]
+
+
+class ProgramRun:
+    """A program over some hits: values(ref) computes what it needs, once."""
+
+    def __init__(self, program: Program, inputs: HitInputs, ops: dict):
+        self.program, self.hits, self._ops = program, inputs, ops
+        self._outputs: dict[int, dict] = {}
+
+    def value(self, ref: Ref) -> np.ndarray:
+        """The output ref points to, converted to the type the consumer wants: (n,) or (n, 3)."""
+        outputs = self._outputs.get(ref.op)
+        if outputs is None:
+            outputs = self._outputs[ref.op] = self._run(ref.op)
+        return convert(outputs[ref.output], ref.type, ref.want, self.hits.n)
+
+    def _run(self, i: int) -> dict:
+        op = self.program.ops[i]
+        if op.kind == "ShaderNodeBump":
+            return self._bump(op)
+        inputs = {}
+        for name, value in op.inputs:
+            inputs[name] = self.value(value) if isinstance(value, Ref) else constant(value)
+        return self._ops[op.kind](self.hits, inputs, op)
+
+
+    def _bump(self, op) -> dict:
+        """Cycles' Bump node (svm_node_set_bump): the height at the hit and at two offsets of the filter
+        width times the ray's spread, along make_orthonormals(Ng); N' = normalize(w |det| N - D sign(det)
+        grad), blended with N by Strength."""
+        hits, n = self.hits, self.hits.n
+        inputs = dict(op.inputs)
+        get = {k: (self.value(v) if isinstance(v, Ref) else constant(v)) for k, v in inputs.items() if k != "Height"}
+        normal_in = hits.N if "Normal" not in get else np.broadcast_to(np.asarray(get["Normal"], F32), (n, 3))
+        height = inputs.get("Height")
+        if not isinstance(height, Ref):
+            return {"Normal": np.ascontiguousarray(normal_in, F32)}
+        width = np.broadcast_to(np.asarray(get["Filter Width"], F32), (n,))
+        scale = np.broadcast_to(np.asarray(get["Distance"], F32), (n,))
+        if op.option("invert", False):
+            scale = -scale
+        strength = np.maximum(np.broadcast_to(np.asarray(get["Strength"], F32), (n,)), F32(0.0))
+        a, b = make_orthonormals(hits.Ng)
+        dp = hits.dp[:, None]
+        dpdx, dpdy = a * dp, b * dp
+        h_c = self.value(height)
+        e1, e2 = hits.hit.edges(hits.idx)
+        h_x = ProgramRun(self.program, hits.shifted(*_barycentric_step(e1, e2, dpdx * width[:, None])),
+                         self._ops).value(height)
+        h_y = ProgramRun(self.program, hits.shifted(*_barycentric_step(e1, e2, dpdy * width[:, None])),
+                         self._ops).value(height)
+        rx = np.cross(dpdy, normal_in)
+        ry = np.cross(normal_in, dpdx)
+        det = np.einsum("ij,ij->i", dpdx, rx)
+        grad = (h_x - h_c)[:, None] * rx + (h_y - h_c)[:, None] * ry
+        out = (width * np.abs(det))[:, None] * normal_in - (scale * np.sign(det))[:, None] * grad
+        length = np.sqrt(np.einsum("ij,ij->i", out, out))
+        zero = ~(length > 0)
+        out = out / np.where(zero, F32(1.0), length)[:, None]
+        blended = strength[:, None] * out + (F32(1.0) - strength)[:, None] * normal_in
+        blended = blended / np.maximum(np.sqrt(np.einsum("ij,ij->i", blended, blended)), F32(1e-30))[:, None]
+        return {"Normal": np.where(zero[:, None], normal_in, blended).astype(F32)}
+
+
+def make_orthonormals(n: np.ndarray):
+    """Cycles' make_orthonormals of (n, 3) unit vectors: a = normalize((1,1,1) x N) (or (-1,1,1) x N when
+    the components are equal), b = N x a."""
+    x, y, z = n[:, 0], n[:, 1], n[:, 2]
+    equal = (x == y) & (x == z)
+    a = np.stack([z - y, np.where(equal, x + z, x - z), np.where(equal, -y - x, y - x)], axis=1)
+    a = a / np.maximum(np.sqrt(np.einsum("ij,ij->i", a, a)), F32(1e-30))[:, None]
+    return a.astype(F32), np.cross(n, a).astype(F32)
+
+
+def _barycentric_step(e1: np.ndarray, e2: np.ndarray, d: np.ndarray):
+    """(db1, db2) with db1 e1 + db2 e2 the projection of the world step d (n, 3) onto the triangle."""
+    g11 = np.einsum("ij,ij->i", e1, e1)
+    g12 = np.einsum("ij,ij->i", e1, e2)
+    g22 = np.einsum("ij,ij->i", e2, e2)
+    r1 = np.einsum("ij,ij->i", e1, d)
+    r2 = np.einsum("ij,ij->i", e2, d)
+    det = g11 * g22 - g12 * g12
+    inv = np.where(det > 0, F32(1.0) / np.where(det > 0, det, F32(1.0)), F32(0.0))
+    return ((g22 * r1 - g12 * r2) * inv).astype(F32), ((g11 * r2 - g12 * r1) * inv).astype(F32)
+
+
+def constant(value: tuple):
+    """A folded input: a Python float for VALUE, a (3,) float32 array for VECTOR and RGBA."""
+    return float(value[0]) if len(value) == 1 else np.asarray(value, F32)
+
+
+def convert(a, have: str, want: str, n: int) -> np.ndarray:
+    """A value between socket types as Blender converts on a link: colour to float by Cycles' luminance (color_math.RGB_TO_Y), vector
+    to float by the average, float to vector or colour by splatting."""
+    a = np.asarray(a, F32)
+    if have == want or (have != "VALUE" and want != "VALUE"):
+        out = a
+    elif want == "VALUE":
+        out = a @ RGB_TO_Y if have == "RGBA" else vector_to_float(a)
+    else:
+        out = np.repeat(np.reshape(a, (-1, 1)), 3, axis=1) if a.ndim else np.full(3, a, F32)
+    if out.ndim == 0 or (want == "VALUE" and out.shape[0] != n) or (want != "VALUE" and out.ndim == 1):
+        out = np.broadcast_to(out, (n,) if want == "VALUE" else (n, 3))
+    return out.astype(F32, copy=False)

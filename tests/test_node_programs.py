@@ -1,0 +1,266 @@
+"""Node programs end to end: Blender node trees compiled at export (engine/export/nodes.py) and run by the
+kernel (kernels/shading/program.py), against Cycles.
+
+Point-wise nodes are probed pixel-exactly (tests/node_probe.py: a face attribute per pixel, so the value
+does not depend on where the sample lands). Nodes that depend on where in the pixel the ray hits (texture
+coordinates, view-dependent weights) are compared as images at equal samples with noise-derived
+tolerances (bpy_helpers.compare_to_cycles).
+"""
+import bpy
+import numpy as np
+import pytest
+
+from bpy_helpers import add_camera, compare_to_cycles, export_current, mesh_object, new_scene, set_world
+from node_probe import probe_scene, render_probe, sweep
+
+
+def probe_both(build, points: dict):
+    scene, count = probe_scene(build, points)
+    return render_probe(scene, count, "CYCLES"), render_probe(scene, count, "EMBER")
+
+
+# ---------------------------------------------------------------- exact probes
+def test_attribute_and_xyz_nodes_pass_values_exactly():
+    points = sweep(-1e3, 1e3, 128)
+
+    def build(tree, s):
+        sep = tree.nodes.new("ShaderNodeSeparateXYZ")
+        tree.links.new(s["probe"], sep.inputs[0])
+        comb = tree.nodes.new("ShaderNodeCombineXYZ")
+        for src, dst in ((2, 0), (0, 1), (1, 2)):
+            tree.links.new(sep.outputs[src], comb.inputs[dst])
+        return comb.outputs[0]
+
+    cycles, ember = probe_both(build, {"probe": points})
+    np.testing.assert_allclose(cycles, points[:, [2, 0, 1]], rtol=1e-6)
+    np.testing.assert_allclose(ember, cycles, rtol=1e-6, atol=1e-6)
+
+
+def test_implicit_conversions_match_blender():
+    """A colour into a float input is its luminance, a vector's is its average; floats splat."""
+    points = sweep(0.0, 2.0, 64)
+
+    def build_color(tree, s):
+        sep = tree.nodes.new("ShaderNodeSeparateXYZ")
+        rgb = tree.nodes.new("ShaderNodeCombineColor")   # VECTOR -> RGBA -> VALUE (luminance)
+        tree.links.new(s["probe"], rgb.inputs[0])
+        tree.links.new(rgb.outputs[0], sep.inputs[0])    # colour into a vector input: the same numbers
+        comb = tree.nodes.new("ShaderNodeCombineXYZ")
+        tree.links.new(rgb.outputs[0], comb.inputs[0])   # colour into a float: luminance
+        tree.links.new(s["probe"], comb.inputs[1])       # vector into a float: the average
+        tree.links.new(sep.outputs[2], comb.inputs[2])
+        return comb.outputs[0]
+
+    cycles, ember = probe_both(build_color, {"probe": points})
+    np.testing.assert_allclose(ember, cycles, rtol=2e-6, atol=2e-6)
+
+
+def test_constant_subgraphs_fold_and_shared_ones_run_once():
+    """Unlinked inputs fold away; a node read by two consumers is one op."""
+    points = sweep(-2, 2, 64)
+
+    def build(tree, s):
+        const = tree.nodes.new("ShaderNodeCombineXYZ")
+        const.inputs[0].default_value = 0.25
+        sep_const = tree.nodes.new("ShaderNodeSeparateXYZ")
+        tree.links.new(const.outputs[0], sep_const.inputs[0])
+        sep = tree.nodes.new("ShaderNodeSeparateXYZ")
+        tree.links.new(s["probe"], sep.inputs[0])
+        comb = tree.nodes.new("ShaderNodeCombineXYZ")
+        tree.links.new(sep_const.outputs[0], comb.inputs[0])   # folded: 0.25
+        tree.links.new(sep.outputs[1], comb.inputs[1])
+        tree.links.new(sep.outputs[1], comb.inputs[2])         # the same op read twice
+        return comb.outputs[0]
+
+    scene, count = probe_scene(build, {"probe": points})
+    exported = export_current()
+    program = next(s.program for s in exported.scene.materials.shaders if s.name == "Probe")
+    kinds = [op.kind for op in program.ops]
+    assert kinds == ["ATTRIBUTE", "ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ"], kinds
+    ember = render_probe(scene, count, "EMBER")
+    np.testing.assert_allclose(ember, np.stack([np.full(len(points), 0.25), points[:, 1], points[:, 1]], 1),
+                               rtol=1e-6)
+
+
+def test_node_groups_reroutes_and_muted_nodes_are_seen_through():
+    points = sweep(-2, 2, 64)
+
+    def build(tree, s):
+        group = bpy.data.node_groups.new("Swap", "ShaderNodeTree")
+        group.interface.new_socket("In", in_out="INPUT", socket_type="NodeSocketVector")
+        group.interface.new_socket("Out", in_out="OUTPUT", socket_type="NodeSocketVector")
+        gin, gout = group.nodes.new("NodeGroupInput"), group.nodes.new("NodeGroupOutput")
+        sep, comb = group.nodes.new("ShaderNodeSeparateXYZ"), group.nodes.new("ShaderNodeCombineXYZ")
+        group.links.new(gin.outputs[0], sep.inputs[0])
+        group.links.new(sep.outputs[0], comb.inputs[1])
+        group.links.new(sep.outputs[1], comb.inputs[0])
+        group.links.new(comb.outputs[0], gout.inputs[0])
+        node = tree.nodes.new("ShaderNodeGroup")
+        node.node_tree = group
+        reroute = tree.nodes.new("NodeReroute")
+        tree.links.new(s["probe"], reroute.inputs[0])
+        muted = tree.nodes.new("ShaderNodeSeparateXYZ")   # muted: passes nothing on, its consumer's value
+        muted.mute = True
+        tree.links.new(reroute.outputs[0], node.inputs[0])
+        return node.outputs[0]
+
+    cycles, ember = probe_both(build, {"probe": points})
+    np.testing.assert_allclose(ember, cycles, rtol=1e-6, atol=1e-6)
+
+
+def test_unsupported_node_warns_and_keeps_the_inputs_value():
+    new_scene(8, 8)
+    mat = bpy.data.materials.new("Odd")
+    tree = mat.node_tree
+    bsdf = tree.nodes["Principled BSDF"]
+    ao = tree.nodes.new("ShaderNodeAmbientOcclusion")
+    tree.links.new(ao.outputs["Color"], bsdf.inputs["Base Color"])
+    bsdf.inputs["Base Color"].default_value = (0.1, 0.2, 0.3, 1.0)
+    mesh_object("Quad", [(-1, 0, 0), (1, 0, 0), (1, 0, 2), (-1, 0, 2)], [(0, 1, 2, 3)], mat)
+    exported = export_current()
+    assert any("Ambient Occlusion" in w and "Odd" in w and "Base Color" in w for w in exported.warnings), \
+        exported.warnings
+    shader = next(s for s in exported.scene.materials.shaders if s.name == "Odd")
+    base = shader.closures[0].input("Base Color")
+    assert base.link is None and base.value == pytest.approx((0.1, 0.2, 0.3))
+
+
+# ---------------------------------------------------------------- images: parity with noise tolerances
+def _emission_plane(scene, build, size=4.0):
+    """A plane facing the camera whose emission is the built node's output."""
+    mat = bpy.data.materials.new("Shown")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    em = tree.nodes.new("ShaderNodeEmission")
+    tree.links.new(build(tree), em.inputs["Color"])
+    tree.links.new(em.outputs[0], out.inputs["Surface"])
+    h = size / 2
+    obj = mesh_object("Plane", [(-h, 0, -h + 1), (h, 0, -h + 1), (h, 0, h + 1), (-h, 0, h + 1)], [(0, 1, 2, 3)], mat)
+    layer = obj.data.uv_layers.new(name="UVMap")
+    for loop, uv in zip(obj.data.loops, [(0, 0), (1, 0), (1, 1), (0, 1)]):
+        layer.data[loop.index].uv = uv
+    return obj
+
+
+@pytest.mark.parametrize("output", ["Generated", "UV", "Object", "Camera", "Window", "Normal", "Reflection"])
+def test_texture_coordinates_against_cycles(output):
+    scene = new_scene(32, 32)
+    set_world(scene, color=(0, 0, 0))
+
+    def build(tree):
+        tc = tree.nodes.new("ShaderNodeTexCoord")
+        # Shown as |v| + 0.05: positive and away from zero, so relative block errors mean something.
+        m = tree.nodes.new("ShaderNodeVectorMath")
+        m.operation = "ABSOLUTE"
+        tree.links.new(tc.outputs[output], m.inputs[0])
+        add = tree.nodes.new("ShaderNodeVectorMath")
+        add.operation = "ADD"
+        add.inputs[1].default_value = (0.05, 0.05, 0.05)
+        tree.links.new(m.outputs[0], add.inputs[0])
+        return add.outputs[0]
+
+    # Large enough to fill the frame: no silhouette, whose coverage noise the replicates cannot measure.
+    obj = _emission_plane(scene, build, size=14.0)
+    obj.location = (0.3, 0.5, -0.2)
+    obj.rotation_euler = (0.2, 0.0, 0.3)
+    compare_to_cycles(scene, samples=16, max_bounces=0)
+
+
+@pytest.mark.parametrize("output", ["Position", "Normal", "True Normal", "Incoming", "Parametric", "Backfacing"])
+def test_geometry_outputs_against_cycles(output):
+    scene = new_scene(32, 32)
+    set_world(scene, color=(0, 0, 0))
+
+    def build(tree):
+        geo = tree.nodes.new("ShaderNodeNewGeometry")
+        m = tree.nodes.new("ShaderNodeVectorMath")
+        m.operation = "ABSOLUTE"
+        tree.links.new(geo.outputs[output], m.inputs[0])
+        add = tree.nodes.new("ShaderNodeVectorMath")
+        add.operation = "ADD"
+        add.inputs[1].default_value = (0.05, 0.05, 0.05)
+        tree.links.new(m.outputs[0], add.inputs[0])
+        return add.outputs[0]
+
+    obj = _emission_plane(scene, build, size=14.0)
+    obj.rotation_euler = (0.0, 0.0, 0.5 if output != "Backfacing" else 3.0)
+    compare_to_cycles(scene, samples=16, max_bounces=0)
+
+
+@pytest.mark.parametrize("node,output", [("ShaderNodeLayerWeight", "Fresnel"), ("ShaderNodeLayerWeight", "Facing"),
+                                         ("ShaderNodeFresnel", "Fac")])
+def test_view_dependent_weights_on_a_sphere(node, output):
+    scene = new_scene(32, 32)
+    set_world(scene, color=(0, 0, 0))
+    mat = bpy.data.materials.new("Weight")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    em = tree.nodes.new("ShaderNodeEmission")
+    weight = tree.nodes.new(node)
+    if node == "ShaderNodeLayerWeight":
+        weight.inputs["Blend"].default_value = 0.3
+    tree.links.new(weight.outputs[output], em.inputs["Strength"])
+    tree.links.new(em.outputs[0], out.inputs["Surface"])
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(0, 0, 1.2), segments=48, ring_count=24)
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(mat)
+    compare_to_cycles(scene, samples=16, max_bounces=0)
+
+
+def test_object_info_and_vertex_colors_against_cycles():
+    scene = new_scene(32, 32)
+    set_world(scene, color=(0, 0, 0))
+
+    def build(tree):
+        info = tree.nodes.new("ShaderNodeObjectInfo")
+        vc = tree.nodes.new("ShaderNodeVertexColor")
+        comb = tree.nodes.new("ShaderNodeCombineXYZ")
+        tree.links.new(info.outputs["Random"], comb.inputs[0])
+        tree.links.new(info.outputs["Color"], comb.inputs[1])
+        tree.links.new(vc.outputs["Color"], comb.inputs[2])
+        return comb.outputs[0]
+
+    obj = _emission_plane(scene, build, size=14.0)
+    obj.color = (0.2, 0.9, 0.4, 1.0)
+    colors = obj.data.color_attributes.new("Col", "FLOAT_COLOR", "POINT")
+    for i, c in enumerate([(1, 0, 0, 1), (0, 1, 0, 1), (0, 0, 1, 1), (1, 1, 1, 1)]):
+        colors.data[i].color = c
+    obj.data.color_attributes.render_color_index = 0
+    compare_to_cycles(scene, samples=16, max_bounces=0)
+
+
+def test_image_texture_modes_against_cycles():
+    """Closest, Cubic and Clip/Mirror/Extend through a Mapping-free Vector (scaled UVs)."""
+    scene = new_scene(48, 48)
+    set_world(scene, color=(0, 0, 0))
+    img = bpy.data.images.new("Checks", 4, 4, float_buffer=True)
+    rng = np.random.default_rng(3)
+    img.pixels.foreach_set(np.concatenate([rng.uniform(0.1, 1.0, (16, 3)), np.ones((16, 1))], 1).ravel()
+                           .astype(np.float32))
+    shown = []
+    for interpolation, extension in (("Closest", "REPEAT"), ("Cubic", "MIRROR"), ("Linear", "CLIP"),
+                                     ("Linear", "EXTEND")):
+        def build(tree, interpolation=interpolation, extension=extension):
+            tc = tree.nodes.new("ShaderNodeTexCoord")
+            scale = tree.nodes.new("ShaderNodeVectorMath")
+            scale.operation = "MULTIPLY_ADD"
+            scale.inputs[1].default_value = (1.7, 1.3, 1.0)
+            scale.inputs[2].default_value = (-0.3, -0.2, 0.0)
+            tree.links.new(tc.outputs["UV"], scale.inputs[0])
+            tex = tree.nodes.new("ShaderNodeTexImage")
+            tex.image, tex.interpolation, tex.extension = img, interpolation, extension
+            tree.links.new(scale.outputs[0], tex.inputs[0])
+            add = tree.nodes.new("ShaderNodeMixRGB")
+            add.blend_type = "ADD"
+            add.inputs[0].default_value = 1.0
+            add.inputs[2].default_value = (0.05, 0.05, 0.05, 1.0)
+            tree.links.new(tex.outputs[0], add.inputs[1])
+            return add.outputs[0]
+        obj = _emission_plane(scene, build, size=1.9)
+        shown.append(obj)
+    for obj, (x, z) in zip(shown, ((-1, 1), (1, 1), (-1, -1), (1, -1))):
+        obj.location = (x, 0, z)
+    scene.camera.location = (0, -9, 1)
+    compare_to_cycles(scene, samples=64, max_bounces=0)
