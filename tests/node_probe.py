@@ -11,7 +11,8 @@ are (linear float EXR).
     values = cycles_probe(build, {"probe": points})     # points (K, 3) -> values (K, 3) float32
 
 `build(tree, inputs)` gets the material's node tree and a dict name -> the Attribute node's Vector socket
-(also `inputs[name + ".fac"]`, its Fac socket: the attribute's first component as a float) and returns the
+(also `inputs[name + ".fac"]`, its Fac socket: Cycles gives the average of the three components; use
+a Separate XYZ for one component) and returns the
 output socket to show (a float output is shown grey: all three channels equal). The same material renders
 with Ember (`engine="EMBER"`), so one probe serves the kernel functions and the end-to-end path.
 """
