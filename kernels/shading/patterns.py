@@ -1,14 +1,19 @@
-"""Cycles' pattern textures over arrays of hits: Checker, Gradient, Brick and Magic.
+"""Cycles' pattern textures over arrays of hits: Checker, Gradient, Brick and Magic; and glibc's sinf/cosf.
 
-Each node is one function with Blender's input sockets as arguments and its options as keywords
-(Blender's enum identifiers); it returns {"Color": (N, 3), "Fac": (N,)} in float32, as Cycles computes
-them (`kernel/svm/checker.h`, `gradient.h`, `brick.h`, `magic.h`). A float input is (N,) or a constant
-(Python float, 0-d or length-1 array); a vector or colour input is (N, 3) or a constant ((3,), (1, 3), or
-a scalar for all three components). The Vector input is what the node reads (the runner supplies
-Generated coordinates when it is unlinked); Scale multiplies it inside the node, as in Cycles.
+Each node is one function with Blender's input sockets as arguments (snake_case) and its options as
+keywords (Blender's RNA names and enum identifiers); it returns {"Color": (N, 3), "Fac": (N,)} in
+float32, as Cycles computes them (`kernel/svm/checker.h`, `gradient.h`, `brick.h`, `magic.h`). A float
+input is (N,) or a constant (Python float, 0-d or length-1 array); a vector or colour input is (N, 3)
+or a constant ((3,), (1, 3), or a scalar for all three components; RGBA drops its alpha). The Vector
+input is what the node reads (the runner supplies Generated coordinates when it is unlinked); Scale
+multiplies it inside the node, as in Cycles.
 
 Cycles' arithmetic is float32 and so is this; its float -> int casts truncate, its `%` keeps the sign of
-the dividend (numpy's fmod on int32 does the same), and its brick noise wraps in uint32.
+the dividend (numpy's fmod on int32 does the same), and its brick noise wraps in uint32. Cycles' x86-64
+kernel for AVX2 CPUs is compiled with -ffp-contract=fast: some multiply-adds become one fused
+instruction, rounded once. Where it does so (found by comparing against the kernel) this rounds the same
+way (`_fma`), and with glibc's sines the results are bit-identical to that kernel's - except the Radial
+gradient, whose atan2f is within an ulp of glibc's.
 """
 from __future__ import annotations
 
@@ -24,8 +29,9 @@ _INT_MIN = I32(-2 ** 31)
 # Cycles calls the C library's sinf/cosf. NumPy's float32 sin/cos differ from glibc's in the last bit
 # for ~15% of arguments, and the Magic texture feeds sines into sines, so at Distortion > 1 such 1-ulp
 # differences grow into visible ones. These reproduce glibc's (>= 2.28) algorithm - ARM's optimized
-# routines: a double-precision polynomial after reduction by pi/2 - bit for bit on the arguments we
-# checked (its polynomial coefficients and the 4/pi bits are the library's data).
+# routines: a double-precision polynomial after reduction by pi/2 (its coefficients and the 4/pi bits
+# are the library's data) - bit for bit on the million arguments checked against glibc 2.36, near
+# multiples of pi/2 included. About 1-3 ms per 65k values (NumPy's float32 sin: 0.1 ms).
 _F64, _U64, _I64 = np.float64, np.uint64, np.int64
 _HPI_INV_2P24 = float.fromhex("0x1.45f306dc9c883p+23")    # 2/pi, scaled by 2^24
 _HPI = float.fromhex("0x1.921fb54442d18p0")               # pi/2
@@ -54,37 +60,60 @@ def _reduce_large(bits: np.ndarray):
     return acc.view(_I64).astype(_F64) * _PI_2P_M62, quadrant.astype(_I64)
 
 
+_QUADRANT_SIGN = np.array([1.0, -1.0, -1.0, 1.0])      # glibc's sign[n & 3] for the reduced argument
+_COS_SIGN = np.array([1.0, 1.0, -1.0, -1.0])           # its second table entry negates the cosine
+
+
+# pi/2 in three parts of 33 bits (fdlibm's): n * part is exact for n < 2^20.
+_PIO2_PARTS = (1.57079632673412561417e+00, 6.07710050630396597660e-11, 2.02226624871116645580e-21)
+_MEDIUM_TOP = U32(0x48F)                                # |y| < 2^18
+
+
 def _sincosf(y, cosine: bool) -> np.ndarray:
     y = np.asarray(y, F32)
-    bits = y.view(U32) & U32(0x7FFFFFFF)
-    top = bits >> U32(20)
     x = y.astype(_F64)
-    small = top < U32(0x3F4)                         # |y| < pi/4 in glibc's 12-bit test
-    fast = ~small & (top < U32(0x42F))               # |y| < 120
-    r = np.where(fast, x * _HPI_INV_2P24, 0.0)
-    n = (r.astype(_I64) + 0x800000) >> 24
-    xr = np.where(small, x, x - n * _HPI)
-    quadrant = np.where(small, 0, n)
-    turn = quadrant                                   # glibc folds y's sign in for the large path only
-    large = ~small & ~fast
+    # |y| < 120: glibc's one multiply-subtract by pi/2, rounded as it does (below pi/4 glibc skips it,
+    # which is the same: n = 0).
+    with np.errstate(invalid="ignore"):
+        n = (np.asarray(x * _HPI_INV_2P24).astype(_I64) + 0x800000) >> 24
+    xr = x - n * _HPI
+    turn = n
+    top = (y.view(U32) & U32(0x7FFFFFFF)) >> U32(20)
+    large = top >= U32(0x42F)
     if large.any():
-        xl, nl = _reduce_large(y.view(U32))
-        xr = np.where(large, xl, xr)
-        quadrant = np.where(large, nl, quadrant)
-        turn = np.where(large, nl + (y.view(U32) >> U32(31)).astype(_I64), turn)
-    xs = np.where((turn & 3) % 3 == 0, xr, -xr)       # sign table (1, -1, -1, 1)
+        # Beyond, glibc reduces exactly (a fixed-point product with 4/pi's bits). Up to 2^18 a
+        # three-part pi/2 is as accurate (error ~1e-16 of the remainder), so the float results agree
+        # bar a tie within 1e-16: a cheaper route to the same bits.
+        medium = large & (top < _MEDIUM_TOP)
+        xm = x[medium]
+        nm = (np.asarray(xm * _HPI_INV_2P24).astype(_I64) + 0x800000) >> 24
+        fm = nm.astype(_F64)
+        xr[medium] = ((xm - fm * _PIO2_PARTS[0]) - fm * _PIO2_PARTS[1]) - fm * _PIO2_PARTS[2]
+        n[medium] = nm
+        huge = large & ~medium
+        if huge.any():
+            xl, nl = _reduce_large(y[huge].view(U32))
+            xr[huge] = xl
+            n[huge] = nl
+            turn = n.copy()
+            turn[huge] += (y[huge].view(U32) >> U32(31)).astype(_I64)   # glibc folds y's sign in here
+    quarter = turn & 3
+    xs = xr * _QUADRANT_SIGN[quarter]
     x2 = xr * xr
-    odd = (quadrant ^ 1 if cosine else quadrant) & 1
+    if cosine:
+        n = n ^ 1
     x3 = xs * x2
     sin_val = (xs + x3 * _SIN_POLY[0]) + (x3 * x2) * (_SIN_POLY[1] + x2 * _SIN_POLY[2])
     x4 = x2 * x2
     cos_val = ((_COS_POLY[0] + x2 * _COS_POLY[1]) + x4 * _COS_POLY[2]) + \
         (x4 * x2) * (_COS_POLY[3] + x2 * _COS_POLY[4])
-    cos_val = np.where(turn & 2, -cos_val, cos_val)
-    out = np.where(odd == 1, cos_val, sin_val).astype(F32)
+    out = np.where(n & 1, cos_val * _COS_SIGN[quarter], sin_val).astype(F32)
     tiny = top < U32(0x398)                           # |y| < 2^-12: sin y = y, cos y = 1
-    out = np.where(tiny, ONE if cosine else y, out)
-    return np.where(top >= U32(0x7F8), F32(np.nan), out)
+    if tiny.any():
+        out[tiny] = ONE if cosine else y[tiny]
+    if large.any():
+        out[top >= U32(0x7F8)] = np.nan
+    return out
 
 
 def sinf(y) -> np.ndarray:
@@ -132,18 +161,20 @@ def _floor_to_int(x: np.ndarray) -> np.ndarray:
     return np.where(inside, np.where(inside, f, ZERO).astype(I32), _INT_MIN)
 
 
+def _fma(a, b, c) -> np.ndarray:
+    """a * b + c rounded once, as the FMA instruction Cycles' AVX2 kernel compiles it to (the product of two
+    floats is exact in float64; rounding the float64 sum again to float32 differs from one rounding only
+    in rare ties)."""
+    r = np.multiply(a, b, dtype=_F64)
+    r += c
+    return r.astype(F32)
+
+
 def _smoothstep(f: np.ndarray) -> np.ndarray:
     """Cycles' smoothstepf: 3f^2 - 2f^3 on [0, 1] (3f^2 fused into the subtraction), clamped outside."""
     ff = f * f
     s = _fma(F32(3.0), ff, -(F32(2.0) * ff * f))
     return np.where(f <= ZERO, ZERO, np.where(f >= ONE, ONE, s)).astype(F32, copy=False)
-
-
-def _fma(a, b, c) -> np.ndarray:
-    """a * b + c rounded once, as the FMA instruction Cycles' AVX2 kernel compiles it to (the product of two
-    floats is exact in float64; rounding the float64 sum again to float32 differs from one rounding only
-    in rare ties)."""
-    return (np.asarray(a, _F64) * np.asarray(b, _F64) + np.asarray(c, _F64)).astype(F32)
 
 
 def _color_fac(color: np.ndarray, fac: np.ndarray) -> dict:
@@ -155,16 +186,21 @@ def _color_fac(color: np.ndarray, fac: np.ndarray) -> dict:
 def checker(vector, color1=(0.8, 0.8, 0.8), color2=(0.2, 0.2, 0.2), scale=5.0) -> dict:
     """Checker Texture: Fac 1 (Color1) where the parities of floor(x), floor(y), floor(z) sum to odd.
 
-    The point is nudged by (p + 1e-6) * 0.999999 so that integer coordinates fall on a defined side. The
-    parity of |floor(x)| is that of floor(x); floats beyond 2^24 are even, as are Cycles' out-of-range
-    int casts (INT_MIN), so fmod(floor, 2) gives Cycles' parity everywhere without an int cast.
+    The point is nudged by (p + 1e-6) * 0.999999 so that integer coordinates fall on a defined side.
+    Cycles takes |int(floor(x))| % 2; floats beyond 2^24 are even, as are its out-of-range int casts
+    (INT_MIN), so the parity f - 2 floor(f / 2) of the float floor f is Cycles' everywhere.
     """
     p = _vector(vector) * _scalar(scale)[..., None]
     p = (p + F32(1e-6)) * F32(0.999999)
-    parity = np.fmod(np.floor(p), F32(2.0))           # -1, 0 or 1 per axis
-    odd = (parity != ZERO).sum(axis=1) & 1
-    fac = odd.astype(F32)
-    color = np.where(odd[:, None] == 1, _vector(color1), _vector(color2))
+    f = np.floor(p)
+    parity = f - F32(2.0) * np.floor(f * HALF)          # 0 or 1 per axis
+    total = parity[:, 0] + parity[:, 1] + parity[:, 2]
+    fac = total - F32(2.0) * np.floor(total * HALF)
+    c1, c2 = _vector(color1), _vector(color2)
+    if len(c1) == 1 and len(c2) == 1:
+        color = np.take(np.concatenate([c2, c1]), fac.astype(np.intp), axis=0)
+    else:
+        color = np.where(fac[:, None] == ONE, c1, c2)
     return _color_fac(color, fac)
 
 
@@ -189,10 +225,11 @@ def gradient(vector, *, gradient_type: str = "LINEAR") -> dict:
     elif gradient_type == "DIAGONAL":
         f = (x + y) * HALF
     elif gradient_type == "RADIAL":
-        f = np.arctan2(y, x) / TWO_PI + HALF
+        # The kernel multiplies by 1/(2pi) and fuses the + 1/2; atan2f is within an ulp of glibc's.
+        f = _fma(np.arctan2(y.astype(_F64), x).astype(F32), ONE / TWO_PI, HALF)
     elif gradient_type in ("SPHERICAL", "QUADRATIC_SPHERE"):
         # 0.999999 rather than 1 makes unit vectors give exactly 0.
-        r = np.maximum(F32(0.999999) - np.sqrt(_fma(z, z, _fma(y, y, x * x))), ZERO)
+        r = np.maximum(F32(0.999999) - np.sqrt(_fma(z, z, _fma(x, x, y * y))), ZERO)
         f = r if gradient_type == "SPHERICAL" else r * r
     else:
         raise ValueError(f"unknown gradient_type {gradient_type!r}")
@@ -247,13 +284,14 @@ def brick(vector, color1=(0.8, 0.8, 0.8), color2=(0.2, 0.2, 0.2), mortar=(0.0, 0
     fac = np.where(dist >= size, ZERO, np.where(smooth == ZERO, ONE, soft)).astype(F32, copy=False)
 
     n = _count(p, fac)
-    c1, c2 = _vector(color1), _vector(color2)
-    tint3 = tint.reshape(-1, 1)
-    # The kernel fuses one product of each sum into its addition.
-    brick_color = np.where((fac != ONE)[:, None], _fma(tint3, c2, (ONE - tint3) * c1), c1)
-    f3 = fac[:, None]
-    color = _fma(_vector(mortar), f3, brick_color * (ONE - f3))
-    return _color_fac(np.broadcast_to(color, (n, 3)).astype(F32, copy=False), np.broadcast_to(fac, (n,)))
+    c1, c2, c3 = _vector(color1), _vector(color2), _vector(mortar)
+    in_brick = fac != ONE
+    color = np.empty((n, 3), F32)
+    for i in range(3):          # per channel: contiguous (N,) arrays are much faster than (N, 3) broadcasts
+        # The kernel fuses one product of each sum into its addition.
+        brick_color = np.where(in_brick, _fma(tint, c2[:, i], (ONE - tint) * c1[:, i]), c1[:, i])
+        color[:, i] = _fma(c3[:, i], fac, brick_color * (ONE - fac))
+    return _color_fac(color, np.broadcast_to(fac, (n,)))
 
 
 # ---- Magic --------------------------------------------------------------------------------------
