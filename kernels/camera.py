@@ -27,6 +27,13 @@ def view_plane(camera: Camera) -> tuple[float, float, float, float]:
             (-0.5 * ycor * h + dy) * pixsize, (0.5 * ycor * h + dy) * pixsize)
 
 
+def camera_frame(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(eye (3,), rotation (3, 3)) float64 of world_from_camera with any scale dropped: columns are the
+    camera's x (right), y (up) and z (back) axes in world space."""
+    m = np.asarray(camera.world_from_camera, np.float64)
+    return m[:3, 3], m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
+
+
 def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarray, jy: np.ndarray):
     """Rays through the given pixels. Returns origins (N, 3), directions (N, 3) unit, t_max (N,),
     all float32. Origins sit on the near clip plane; t_max reaches the far clip plane."""
@@ -35,9 +42,7 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
     sy = np.float32(1.0) - (row.astype(np.float32) + jy) / np.float32(camera.height)
     px = np.float32(xmin) + sx * np.float32(xmax - xmin)
     py = np.float32(ymin) + sy * np.float32(ymax - ymin)
-    m = np.asarray(camera.world_from_camera, np.float64)
-    rot = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)  # drop any scale, keep the orientation
-    eye = m[:3, 3]
+    eye, rot = camera_frame(camera)
     rot32 = rot.astype(np.float32)
     n = len(px)
     if camera.kind == "ORTHO":

@@ -510,7 +510,8 @@ class Renderer:
         # Stop short of the sampled point so that the emitter itself does not count as an occluder.
         t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - np.abs(eps), np.inf).astype(np.float32)
         origins = np.stack([ox, oy, oz], axis=1)
-        transmittance = self._shadow(origins, np.stack([wx, wy, wz], axis=1), t_max, wave)
+        transmittance = self._shadow(origins, np.stack([wx, wy, wz], axis=1), t_max, wave,
+                                     np.take(state.bounce, active[idx]))
         vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
         if not len(vis):
             return
@@ -522,9 +523,10 @@ class Renderer:
             np.take(ls.radiance, rows, axis=1) * (w / pdf)
         _accumulate(wave.radiance, state.path[paths], contribution)
 
-    def _shadow(self, origins, dirs, t_max, wave) -> np.ndarray:
+    def _shadow(self, origins, dirs, t_max, wave, depth) -> np.ndarray:
         """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
-        transparent surfaces, the product of their transparency (Cycles' transparent shadows)."""
+        transparent surfaces, the product of their transparency (Cycles' transparent shadows).
+        depth : (n,) the bounce of the path each shadow ray leaves from (the Light Path node's)."""
         n = len(origins)
         split = wave.split
         if not self.shading.transparent.any():
@@ -541,8 +543,8 @@ class Renderer:
             d = dirs[live[found]]
             hit = SurfaceHit(self._triangles, self._material_ids, hits.prim[found], hits.u[found], hits.v[found],
                              (d[:, 0], d[:, 1], d[:, 2]), self.shading.needs_uv)
-            zeros = np.zeros(len(found), np.int32)
-            hit.ray = RayInfo(zeros, zeros, hits.t[found], shadow=True)
+            passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
+            hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True)
             passes = self.shading.transparency(hit)
             out[:, live[found]] *= passes
             through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]

@@ -26,6 +26,20 @@ from tests.bpy_helpers import ensure_registered, render_to_array
 MAX_WIDTH = 64
 
 
+def _cpu_has_avx2_fma() -> bool:
+    try:
+        with open("/proc/cpuinfo") as f:
+            flags = next((line for line in f if line.startswith("flags")), "").split()
+    except OSError:
+        return False
+    return "avx2" in flags and "fma" in flags
+
+
+# Cycles' CPU kernel on AVX2 + FMA machines fuses multiply-adds; node functions that mirror it are exact
+# there (tests compare bit for bit), elsewhere to float precision.
+AVX2_KERNEL = _cpu_has_avx2_fma()
+
+
 def probe_scene(build, points: dict, *, name: str = "Probe") -> tuple[bpy.types.Scene, int]:
     """Build the probe scene for the given points (dict name -> (K, 3)); return (scene, K)."""
     arrays = {k: np.asarray(v, np.float32).reshape(-1, 3) for k, v in points.items()}

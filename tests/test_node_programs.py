@@ -143,22 +143,25 @@ def _emission_plane(scene, build, size=4.0):
     return obj
 
 
+def _shown_positive(tree, vector):
+    """|v| + 0.05: positive and away from zero, so relative block errors mean something."""
+    m = tree.nodes.new("ShaderNodeVectorMath")
+    m.operation = "ABSOLUTE"
+    tree.links.new(vector, m.inputs[0])
+    add = tree.nodes.new("ShaderNodeVectorMath")
+    add.operation = "ADD"
+    add.inputs[1].default_value = (0.05, 0.05, 0.05)
+    tree.links.new(m.outputs[0], add.inputs[0])
+    return add.outputs[0]
+
+
 @pytest.mark.parametrize("output", ["Generated", "UV", "Object", "Camera", "Window", "Normal", "Reflection"])
 def test_texture_coordinates_against_cycles(output):
     scene = new_scene(32, 32)
     set_world(scene, color=(0, 0, 0))
 
     def build(tree):
-        tc = tree.nodes.new("ShaderNodeTexCoord")
-        # Shown as |v| + 0.05: positive and away from zero, so relative block errors mean something.
-        m = tree.nodes.new("ShaderNodeVectorMath")
-        m.operation = "ABSOLUTE"
-        tree.links.new(tc.outputs[output], m.inputs[0])
-        add = tree.nodes.new("ShaderNodeVectorMath")
-        add.operation = "ADD"
-        add.inputs[1].default_value = (0.05, 0.05, 0.05)
-        tree.links.new(m.outputs[0], add.inputs[0])
-        return add.outputs[0]
+        return _shown_positive(tree, tree.nodes.new("ShaderNodeTexCoord").outputs[output])
 
     # Large enough to fill the frame: no silhouette, whose coverage noise the replicates cannot measure.
     obj = _emission_plane(scene, build, size=14.0)
@@ -173,15 +176,7 @@ def test_geometry_outputs_against_cycles(output):
     set_world(scene, color=(0, 0, 0))
 
     def build(tree):
-        geo = tree.nodes.new("ShaderNodeNewGeometry")
-        m = tree.nodes.new("ShaderNodeVectorMath")
-        m.operation = "ABSOLUTE"
-        tree.links.new(geo.outputs[output], m.inputs[0])
-        add = tree.nodes.new("ShaderNodeVectorMath")
-        add.operation = "ADD"
-        add.inputs[1].default_value = (0.05, 0.05, 0.05)
-        tree.links.new(m.outputs[0], add.inputs[0])
-        return add.outputs[0]
+        return _shown_positive(tree, tree.nodes.new("ShaderNodeNewGeometry").outputs[output])
 
     obj = _emission_plane(scene, build, size=14.0)
     obj.rotation_euler = (0.0, 0.0, 0.5 if output != "Backfacing" else 3.0)
@@ -231,38 +226,55 @@ def test_object_info_and_vertex_colors_against_cycles():
     compare_to_cycles(scene, samples=16, max_bounces=0)
 
 
-def test_image_texture_modes_against_cycles():
-    """Closest, Cubic and Clip/Mirror/Extend through a Mapping-free Vector (scaled UVs)."""
-    scene = new_scene(48, 48)
+IMAGE_MODES = [(i, e, "FLAT", True) for i in ("Closest", "Linear", "Cubic")
+               for e in ("REPEAT", "EXTEND", "CLIP", "MIRROR")] + \
+              [("Linear", "REPEAT", "SPHERE", True), ("Linear", "REPEAT", "TUBE", True),
+               ("Linear", "REPEAT", "FLAT", False), ("Cubic", "CLIP", "FLAT", False)]
+
+
+@pytest.mark.parametrize("interpolation,extension,projection,float_buffer", IMAGE_MODES)
+def test_image_texture_modes_probe_exactly(interpolation, extension, projection, float_buffer):
+    """Every interpolation and extension, and the Sphere and Tube projections, of a float and of an 8-bit
+    sRGB image (filtered encoded, decoded after), at coordinates well outside [0, 1]."""
+    points = sweep(-1.5, 2.5, 256, seed=7)
+
+    def build(tree, s):
+        img = bpy.data.images.new("Checks", 5, 4, float_buffer=float_buffer)
+        rng = np.random.default_rng(3)
+        img.pixels.foreach_set(np.concatenate([rng.uniform(0.05, 1.0, (20, 3)), np.ones((20, 1))], 1)
+                               .ravel().astype(np.float32))
+        tex = tree.nodes.new("ShaderNodeTexImage")
+        tex.image, tex.interpolation, tex.extension, tex.projection = img, interpolation, extension, projection
+        tree.links.new(s["probe"], tex.inputs["Vector"])
+        return tex.outputs["Color"]
+
+    cycles, ember = probe_both(build, {"probe": points})
+    assert np.ptp(cycles) > 0.3  # the probe sees the image, not a constant
+    np.testing.assert_allclose(ember, cycles, rtol=2e-6, atol=2e-6)
+
+
+def test_box_projection_on_a_sphere_against_cycles():
+    scene = new_scene(32, 32)
     set_world(scene, color=(0, 0, 0))
     img = bpy.data.images.new("Checks", 4, 4, float_buffer=True)
     rng = np.random.default_rng(3)
     img.pixels.foreach_set(np.concatenate([rng.uniform(0.1, 1.0, (16, 3)), np.ones((16, 1))], 1).ravel()
                            .astype(np.float32))
-    shown = []
-    for interpolation, extension in (("Closest", "REPEAT"), ("Cubic", "MIRROR"), ("Linear", "CLIP"),
-                                     ("Linear", "EXTEND")):
-        def build(tree, interpolation=interpolation, extension=extension):
-            tc = tree.nodes.new("ShaderNodeTexCoord")
-            scale = tree.nodes.new("ShaderNodeVectorMath")
-            scale.operation = "MULTIPLY_ADD"
-            scale.inputs[1].default_value = (1.7, 1.3, 1.0)
-            scale.inputs[2].default_value = (-0.3, -0.2, 0.0)
-            tree.links.new(tc.outputs["UV"], scale.inputs[0])
-            tex = tree.nodes.new("ShaderNodeTexImage")
-            tex.image, tex.interpolation, tex.extension = img, interpolation, extension
-            tree.links.new(scale.outputs[0], tex.inputs[0])
-            add = tree.nodes.new("ShaderNodeMixRGB")
-            add.blend_type = "ADD"
-            add.inputs[0].default_value = 1.0
-            add.inputs[2].default_value = (0.05, 0.05, 0.05, 1.0)
-            tree.links.new(tex.outputs[0], add.inputs[1])
-            return add.outputs[0]
-        obj = _emission_plane(scene, build, size=1.9)
-        shown.append(obj)
-    for obj, (x, z) in zip(shown, ((-1, 1), (1, 1), (-1, -1), (1, -1))):
-        obj.location = (x, 0, z)
-    scene.camera.location = (0, -9, 1)
+    mat = bpy.data.materials.new("Boxed")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    em = tree.nodes.new("ShaderNodeEmission")
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image, tex.projection, tex.projection_blend = img, "BOX", 0.3
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    tree.links.new(coords.outputs["Object"], tex.inputs["Vector"])
+    tree.links.new(tex.outputs["Color"], em.inputs["Color"])
+    tree.links.new(em.outputs[0], out.inputs["Surface"])
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.6, location=(0, 0, 1.2), segments=64, ring_count=32)
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.rotation_euler = (0.3, 0.2, 0.5)
+    bpy.context.active_object.data.materials.append(mat)
     compare_to_cycles(scene, samples=64, max_bounces=0)
 
 

@@ -18,22 +18,12 @@ import pytest
 
 from ember.kernels.shading import hash as H
 from ember.kernels.shading import noise as N
-from tests.node_probe import cycles_probe, sweep
+from tests.node_probe import AVX2_KERNEL, cycles_probe, sweep
 
 F32 = np.float32
 RTOL, ATOL = 2e-5, 2e-6
 
 
-def _cpu_has_avx2_fma() -> bool:
-    try:
-        with open("/proc/cpuinfo") as f:
-            flags = next((line for line in f if line.startswith("flags")), "").split()
-    except OSError:
-        return False
-    return "avx2" in flags and "fma" in flags
-
-
-AVX2_KERNEL = _cpu_has_avx2_fma()
 TYPES = ["FBM", "MULTIFRACTAL", "HYBRID_MULTIFRACTAL", "RIDGED_MULTIFRACTAL", "HETERO_TERRAIN"]
 DIMS = ["1D", "2D", "3D", "4D"]
 

@@ -28,22 +28,12 @@ import pytest
 
 from ember.kernels.shading import patterns as pt
 from ember.kernels.shading import sky as sk
-from tests.node_probe import cycles_probe, probe_scene, render_probe, sweep
+from tests.node_probe import AVX2_KERNEL, cycles_probe, probe_scene, render_probe, sweep
 
 F32 = np.float32
 RTOL, ATOL = 2e-5, 2e-6
 
 
-def _cpu_has_avx2_fma() -> bool:
-    try:
-        with open("/proc/cpuinfo") as f:
-            flags = next((line for line in f if line.startswith("flags")), "").split()
-    except OSError:
-        return False
-    return "avx2" in flags and "fma" in flags
-
-
-AVX2_KERNEL = _cpu_has_avx2_fma()
 
 
 def _glibc_libm():

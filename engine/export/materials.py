@@ -282,9 +282,6 @@ class MaterialTable:
         names), sorted."""
         return tuple(sorted(set().union(*(self._attributes.get(row, ()) for row in rows))))
 
-    def all_attribute_names(self) -> tuple[str, ...]:
-        return self.attribute_names(range(len(self._rows)))
-
     def slot_ids(self, ob) -> tuple[int, ...]:
         """The rows of an object's material slots; (0,) for an object without slots."""
         return tuple(self.material_id(slot.material) for slot in ob.material_slots) or (0,)
@@ -389,23 +386,22 @@ class _MaterialReader:
             source = source_of(socket, groups)
             if source.node is None:
                 continue
-            where = f"{source.node.bl_label} node feeding {name} of {node.bl_label} '{node.name}'"
-            value = self.normal_map(source, where, socket, groups) if name in NORMAL_INPUTS else \
-                self.tangent(source, where)
+            if name in NORMAL_INPUTS:
+                value = self.normal_map(source, socket, groups)
+            else:
+                value = self.tangent(source, f"{source.node.bl_label} node feeding {name} of {node.bl_label} "
+                                             f"'{node.name}'")
             if value is not None:
                 out.append((name, value))
         return tuple(out)
 
-    def normal_map(self, source: Source, where: str, socket=None, groups=()) -> NormalMap | Param | None:
+    def normal_map(self, source: Source, socket, groups) -> NormalMap | Param | None:
+        """A Normal or Coat Normal input: a Normal Map node as the kernel's NormalMap, any other node (an
+        object-space map warns there) as the program's vector, None when that folds to a constant."""
         if source.kind != "ShaderNodeNormalMap" or source.node.space not in NORMAL_MAP_SPACES:
-            # Any other node (or an object-space map): the program's vector, or the shading normal.
             param = self.program_param(socket, groups, 3)
             return param if param.link is not None else None
         node = source.node
-        if node.space not in NORMAL_MAP_SPACES:
-            self.issues.append(f"{where}: {node.space.replace('_', ' ').title()} space is not supported "
-                               f"(it needs the object's transform), used the shading normal")
-            return None
         color = self.param(node.inputs["Color"], source.groups, 3, node)
         strength = self.param(node.inputs["Strength"], source.groups, 1, node)
         if node.space == "TANGENT":

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels.scene import OBJECT_COLUMNS, object_row
+from ...kernels.shading.ops import map_to_sphere
 from .materials import MaterialTable
 
 # Object types that carry geometry Ember cannot render yet.
@@ -289,12 +290,7 @@ def local_uvs(mesh, layer) -> np.ndarray:
 
 def sphere_uvs(points: np.ndarray) -> np.ndarray:
     """(N, 2) float32: Cycles' map_to_sphere of (N, 3) object-space points, its UVs for meshes without."""
-    x, y, z = (points[:, k].astype(np.float64) for k in range(3))
-    length = np.sqrt(x * x + y * y + z * z)
-    u = np.where((x == 0) & (y == 0), 0.0, 0.5 - np.arctan2(x, y) / (2 * np.pi))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        v = 1.0 - np.arccos(np.clip(z / length, -1.0, 1.0)) / np.pi
-    return np.stack([np.where(length > 0, u, 0.0), np.where(length > 0, v, 0.0)], axis=1).astype(np.float32)
+    return map_to_sphere(points)[:, :2]
 
 
 def triangle_tangents(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray) -> np.ndarray:

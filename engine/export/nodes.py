@@ -164,7 +164,6 @@ def fold_convert(value: tuple, have: str, want: str) -> tuple:
 class _OneHit:
     """The hits of a folded op: one, and it reads nothing else."""
     n = 1
-    _cache: dict = {}
 
 
 def fold(op: Op) -> dict | None:
@@ -175,7 +174,7 @@ def fold(op: Op) -> dict | None:
         inputs[name] = np.array([c], F32) if isinstance(c, float) else np.asarray(c, F32)[None]
     try:
         with np.errstate(all="ignore"):
-            outputs = OPS[op.kind](_OneHit(), inputs, op)
+            outputs = OPS[op.kind](_OneHit(), inputs, op)  # pure ops read only hits.n
     except Exception:  # noqa: BLE001 - not foldable after all: it runs per hit instead
         return None
     folded = {}
@@ -274,6 +273,7 @@ def _normal_map(builder, node, groups):
 
 
 def _image(builder, node, groups):
+    _check_texture_mapping(builder, node)
     image = node.image
     texture = -1
     if image is None:
@@ -281,12 +281,11 @@ def _image(builder, node, groups):
     else:
         index = builder.images.index(image)
         texture = -1 if index is None else index
-    if node.projection == "BOX":
-        builder.issues.append(f"Image Texture '{node.name}': Box projection is not supported, used Flat")
     unassociate = (node.outputs["Alpha"].is_linked and image is not None and not image.colorspace_settings.is_data
                    and image.alpha_mode not in ("CHANNEL_PACKED", "NONE"))
     options = {"texture": texture, "interpolation": node.interpolation, "extension": node.extension,
-               "projection": node.projection, "unassociate": bool(unassociate)}
+               "projection": node.projection, "projection_blend": float(node.projection_blend),
+               "unassociate": bool(unassociate)}
     return builder.add(node.bl_idname, builder.node_inputs(node, groups, vector_default="UV"), options)
 
 

@@ -46,17 +46,16 @@ def object_point(hits, p: np.ndarray) -> np.ndarray:
 def generated(hits) -> np.ndarray:
     """Blender's Generated coordinates: the object-space point in the mesh's texture space, [0, 1]^3 over
     its bounding box (Cycles' ATTR_STD_GENERATED from the undeformed mesh; here the evaluated one)."""
-    if "generated" in hits._cache:
-        return hits._cache["generated"]
+    return hits.memo("generated", lambda: _texture_space(hits, object_point(hits, hits.P)))
+
+
+def _texture_space(hits, local: np.ndarray) -> np.ndarray:
     rows = hits.objects()
-    local = object_point(hits, hits.P)
     loc = rows[:, OBJ_TEXSPACE_LOC:OBJ_TEXSPACE_LOC + 3]
     size = rows[:, OBJ_TEXSPACE_SIZE:OBJ_TEXSPACE_SIZE + 3]
     # Blender sync: scale 0.5 / size (0 for a flat axis), offset loc * scale - 0.5.
     scale = np.where(size != 0, F32(0.5) / np.where(size != 0, size, ONE), ZERO)
-    out = (local * scale - (loc * scale - HALF)).astype(F32)
-    hits._cache["generated"] = out
-    return out
+    return (local * scale - (loc * scale - HALF)).astype(F32)
 
 
 def object_normal(hits, n: np.ndarray) -> np.ndarray:
@@ -266,54 +265,117 @@ def normal_map(hits, inputs, op):
 
 # ---------------------------------------------------------------- images
 def image(hits, inputs, op):
-    """The Image Texture node (Cycles' svm_node_tex_image with kernel/device/cpu/image.h lookups):
-    Closest, Linear or Cubic (B-spline) interpolation; Repeat, Extend, Clip (texels outside read zero) or Mirror extension; Flat,
+    """The Image Texture node (Cycles' svm_node_tex_image and svm_node_tex_image_box, with the lookups of
+    kernel/device/cpu/image.h): Closest, Linear or Cubic (B-spline) interpolation; Repeat, Extend, Clip
+    (texels outside read zero) or Mirror extension; Flat, Box (blended by the object-space normal),
     Sphere and Tube projection. 8-bit sRGB images are filtered encoded and decoded after."""
     n = hits.n
     texture = op.option("texture", -1)
     vector = inputs.get("Vector")
     p = hits.uv if vector is None else full(vector, n, 3)
-    projection = op.option("projection", "FLAT")
-    if projection == "SPHERE":
-        p = _map_to_sphere(p - HALF)
-    elif projection == "TUBE":
-        p = _map_to_tube(p - HALF)
     if texture < 0:  # missing image: Cycles' magenta
         return {"Color": np.broadcast_to(np.array([1.0, 0.0, 1.0], F32), (n, 3)), "Alpha": np.ones(n, F32)}
     tex = hits.scene.textures[texture]
-    u, v = p[:, 0], p[:, 1]
-    interpolation = op.option("interpolation", "Linear")
-    extension = op.option("extension", "REPEAT")
+    projection = op.option("projection", "FLAT")
+    if projection == "BOX":
+        color, alpha = _box(hits, tex, p, op)
+    else:
+        if projection in ("SPHERE", "TUBE"):  # from the [0, 1] box to [-1, 1] first
+            p = (map_to_sphere if projection == "SPHERE" else map_to_tube)((p - HALF) * F32(2.0))
+        color, alpha = _image_lookup(tex, p[:, 0], p[:, 1], op)
+    return {"Color": np.ascontiguousarray(color.T, F32), "Alpha": alpha.astype(F32)}
+
+
+def _image_lookup(tex, u, v, op):
+    """(colour (3, n), alpha (n,)) of one image lookup, unassociated and decoded as the node asks."""
     planes = tex.channels if tex.alpha is None else np.concatenate([tex.channels, tex.alpha])
-    values = sample_planes(planes, tex.width, tex.height, u, v, interpolation, extension)  # (C, n)
+    values = sample_planes(planes, tex.width, tex.height, u, v, op.option("interpolation", "Linear"),
+                           op.option("extension", "REPEAT"))
     color = values[:3]
-    alpha = values[3] if tex.alpha is not None else np.ones(n, F32)
+    alpha = values[3] if tex.alpha is not None else np.ones(len(u), F32)
     if op.option("unassociate", False) and tex.alpha is not None:
         partial = (alpha != 0) & (alpha != 1)
         color = np.where(partial, color / np.where(partial, alpha, ONE), color)
     if tex.srgb:
         color = srgb_to_linear(color)
-    return {"Color": np.ascontiguousarray(color.T, F32), "Alpha": alpha.astype(F32)}
+    return color, alpha
 
 
-def _map_to_sphere(p):
+def _box(hits, tex, p, op):
+    """Box projection: three planar lookups weighted by the object-space normal's share of each axis."""
+    signed = object_normal(hits, hits.N)
+    a = np.abs(signed)
+    a = a / np.maximum(a.sum(axis=1, keepdims=True), F32(1e-30))
+    weight = _box_weights(a[:, 0], a[:, 1], a[:, 2], F32(op.option("projection_blend", 0.0)))
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
-    length = np.sqrt(x * x + y * y + z * z)
-    u = np.where((x == 0) & (y == 0), ZERO, (ONE - np.arctan2(x, -y) / F32(np.pi)) / F32(2.0))
+    planes = ((np.where(signed[:, 0] < 0, ONE - y, y), z), (np.where(signed[:, 1] > 0, ONE - x, x), z),
+              (np.where(signed[:, 2] > 0, ONE - y, y), x))
+    color = np.zeros((3, hits.n), F32)
+    alpha = np.zeros(hits.n, F32)
+    for k, (u, v) in enumerate(planes):
+        sel = np.flatnonzero(weight[k] > 0)
+        if len(sel):
+            c, al = _image_lookup(tex, u[sel], v[sel], op)
+            color[:, sel] += weight[k][sel] * c
+            alpha[sel] += weight[k][sel] * al
+    return color, alpha
+
+
+def _box_weights(nx, ny, nz, blend):
+    """(3, n) weights of the X, Y and Z projections (svm_node_tex_image_box's seven zones)."""
+    limit = HALF * (ONE + blend)
+    w = np.zeros((3, len(nx)), F32)
+    only_x = (nx > limit * (nx + ny)) & (nx > limit * (nx + nz))
+    only_y = ~only_x & (ny > limit * (nx + ny)) & (ny > limit * (ny + nz))
+    only_z = ~only_x & ~only_y & (nz > limit * (nx + nz)) & (nz > limit * (ny + nz))
+    rest = ~(only_x | only_y | only_z)
+    w[0, only_x], w[1, only_y], w[2, only_z] = 1, 1, 1
+    if not blend > 0:
+        w[0, rest] = 1  # Cycles falls back to one side
+        return w
     with np.errstate(invalid="ignore", divide="ignore"):
-        v = np.where(length > 0, ONE - np.arccos(np.clip(z / np.where(length > 0, length, ONE), -1, 1)) / F32(np.pi),
-                     ZERO)
-    u = np.where(length > 0, u, ZERO)
-    return np.stack([u, v, np.zeros_like(u)], 1).astype(F32)
+        def ramp(a, b):
+            return np.clip((a / (a + b) - HALF * (ONE - blend)) / blend, ZERO, ONE)
+        xy = rest & (nz < (ONE - limit) * (ny + nx))
+        yz = rest & ~xy & (nx < (ONE - limit) * (ny + nz))
+        xz = rest & ~xy & ~yz & (ny < (ONE - limit) * (nx + nz))
+        three = rest & ~xy & ~yz & ~xz
+        t = ramp(nx, ny)
+        w[0] = np.where(xy, t, w[0])
+        w[1] = np.where(xy, ONE - t, w[1])
+        t = ramp(ny, nz)
+        w[1] = np.where(yz, t, w[1])
+        w[2] = np.where(yz, ONE - t, w[2])
+        t = ramp(nx, nz)
+        w[0] = np.where(xz, t, w[0])
+        w[2] = np.where(xz, ONE - t, w[2])
+        for k, c in enumerate((nx, ny, nz)):
+            w[k] = np.where(three, ((F32(2.0) - limit) * c + (limit - ONE)) / (F32(2.0) * limit - ONE), w[k])
+    return w
 
 
-def _map_to_tube(p):
+def map_to_sphere(p: np.ndarray) -> np.ndarray:
+    """Cycles' map_to_sphere (util/math_float3.h) of (n, 3) points: (u, v, 0), float32."""
+    p = np.asarray(p, F32)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    length2 = x * x + y * y + z * z
+    u = np.where((x == 0) & (y == 0), ZERO, HALF - np.arctan2(x, y) * F32(0.5 / np.pi))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = ONE - np.arccos(np.clip(z / np.sqrt(length2), -ONE, ONE)) * F32(1.0 / np.pi)
+    some = length2 > 0
+    return np.stack([np.where(some, u, ZERO), np.where(some, v, ZERO), np.zeros_like(u)], 1).astype(F32)
+
+
+def map_to_tube(p: np.ndarray) -> np.ndarray:
+    """Cycles' map_to_tube (util/math_float3.h) of (n, 3) points: (u, v, 0), float32."""
+    p = np.asarray(p, F32)
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     length = np.sqrt(x * x + y * y)
-    u = np.where(length > 0, (ONE - np.arctan2(x / np.where(length > 0, length, ONE),
-                                               -y / np.where(length > 0, length, ONE)) / F32(np.pi)) / F32(2.0), ZERO)
-    v = np.where(length > 0, (z + ONE) * HALF, ZERO)
-    return np.stack([u, v, np.zeros_like(u)], 1).astype(F32)
+    some = length > 0
+    safe = np.where(some, length, ONE)
+    u = (ONE - np.arctan2(x / safe, y / safe) * F32(1.0 / np.pi)) * HALF
+    v = (z + ONE) * HALF
+    return np.stack([np.where(some, u, ZERO), np.where(some, v, ZERO), np.zeros_like(u)], 1).astype(F32)
 
 
 def _wrap(i: np.ndarray, size: int, extension: str):

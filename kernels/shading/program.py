@@ -29,16 +29,22 @@ class HitInputs:
         self._cache = {}
         self._shift = shift
 
-    def shifted(self, db1: np.ndarray, db2: np.ndarray) -> "HitInputs":
-        """The same hits moved across their triangles by barycentric steps (db1, db2): position, UVs and
-        attributes follow, normals and the viewer direction stay (the Bump node's offset evaluations)."""
+    def shifted(self, db1: np.ndarray, db2: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> "HitInputs":
+        """The same hits moved across their triangles (edges e1, e2 (n, 3)) by barycentric steps (db1, db2):
+        position, UVs and attributes follow, normals and the viewer direction stay (the Bump node's offset
+        evaluations)."""
         out = HitInputs(self.scene, self.hit, self.idx, (db1, db2))
         for key in ("N", "Ng", "I", "D", "backfacing", "prim", "objects"):
             if key in self._cache:
                 out._cache[key] = self._cache[key]
-        e1, e2 = self.hit.edges(self.idx)
         out._cache["P"] = (self.P + db1[:, None] * e1 + db2[:, None] * e2).astype(F32)
         return out
+
+    def memo(self, key, compute):
+        """compute() once for these hits (what input ops derive from the hits, e.g. Generated)."""
+        if key not in self._cache:
+            self._cache[key] = compute()
+        return self._cache[key]
 
     def _vec(self, name, components):
         if name not in self._cache:
@@ -172,10 +178,8 @@ class ProgramRun:
         dpdx, dpdy = a * dp, b * dp
         h_c = self.value(height)
         e1, e2 = hits.hit.edges(hits.idx)
-        h_x = ProgramRun(self.program, hits.shifted(*_barycentric_step(e1, e2, dpdx * width[:, None])),
-                         self._ops).value(height)
-        h_y = ProgramRun(self.program, hits.shifted(*_barycentric_step(e1, e2, dpdy * width[:, None])),
-                         self._ops).value(height)
+        h_x, h_y = (ProgramRun(self.program, hits.shifted(*_barycentric_step(e1, e2, d * width[:, None]), e1, e2),
+                               self._ops).value(height) for d in (dpdx, dpdy))
         rx = np.cross(dpdy, normal_in)
         ry = np.cross(normal_in, dpdx)
         det = np.einsum("ij,ij->i", dpdx, rx)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..bsdf.closures import LAMBERT, ClosureBuilder, ClosureSet
-from ..camera import view_plane
+from ..camera import camera_frame, view_plane
 from ..scene import Camera, Closure, Materials, Param, object_row
 from ..textures import Texture, finite_uv, luminance
 from . import nodes
@@ -41,9 +41,8 @@ class ShadingData:
         else:
             self.objects, self.object_ids = objects, scene.object_ids
         camera = scene.camera if scene is not None else Camera()
-        m = np.asarray(camera.world_from_camera, np.float64)
-        self.camera_rotation = (m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)).astype(F32)
-        self.camera_eye = m[:3, 3].astype(F32)
+        eye, rotation = camera_frame(camera)
+        self.camera_eye, self.camera_rotation = eye.astype(F32), rotation.astype(F32)
         self.camera_kind = camera.kind
         self.view_plane = view_plane(camera)
 
@@ -55,7 +54,6 @@ class Shading:
         self.shaders = materials.shaders
         self.textures = textures
         self.data = ShadingData(textures, scene)
-        self._runs: dict = {}
         self.emissive = np.array([_may_emit(s.closures) for s in self.shaders], bool)
         # Emission that depends on more than the material: a texture, or layers above it (Principled).
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)
