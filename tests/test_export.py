@@ -83,7 +83,8 @@ def material_row(result, index=1):
         if closure.kind in ("EMISSION", "PRINCIPLED"):
             color, strength = (closure.input(n) for n in (("Color", "Strength") if closure.kind == "EMISSION"
                                                           else ("Emission Color", "Emission Strength")))
-            emission, emission_tex = np.asarray(color.value) * strength.value[0], color.texture
+            if color is not None and strength is not None:
+                emission, emission_tex = np.asarray(color.value) * strength.value[0], color.texture
     return albedo, albedo_tex, emission, emission_tex
 
 

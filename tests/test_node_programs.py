@@ -290,14 +290,12 @@ def _lit_sphere_scene(make_material, size=(48, 32)):
     return scene
 
 
-@pytest.mark.xfail(strict=True, reason="Ember is 0.85% darker than Cycles on this lit-sphere scene even with plain "
-                   "materials at 4 bounces (open: under investigation, not the node programs)")
 def test_procedural_marble_with_bump_against_cycles():
     """Noise -> Color Ramp into Base Color, the same noise through Bump into Normal, Voronoi roughness."""
     scene = _lit_sphere_scene(_marble)
     exported = export_current()
     assert not [w for w in exported.warnings if "Marble" in w], exported.warnings
-    compare_to_cycles(scene, samples=64, max_bounces=8)
+    compare_to_cycles(scene, samples=64, max_bounces=4)
 
 
 def _marble():
@@ -327,12 +325,10 @@ def _marble():
     return mat
 
 
-@pytest.mark.xfail(strict=True, reason="Ember is 0.85% darker than Cycles on this lit-sphere scene even with plain "
-                   "materials at 4 bounces (open: under investigation, not the node programs)")
 def test_layer_weight_mix_and_tinted_image_against_cycles():
     """A glTF-style tint (image x colour through a Mix node) in a Layer Weight mix of Diffuse and Glossy."""
     scene = _lit_sphere_scene(_tinted)
-    compare_to_cycles(scene, samples=64, max_bounces=8)
+    compare_to_cycles(scene, samples=64, max_bounces=4)
 
 
 def _socket(node, identifier):

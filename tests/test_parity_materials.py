@@ -347,3 +347,12 @@ def test_gltf_metallic_roughness_texture_through_separate_color():
     add_camera(scene, (0, -4.0, 1.0), (0, 0, 1.0), lens=40)
     set_world(scene, hdri="forest.exr", strength=1.0)
     compare_to_cycles(scene, samples=128, max_bounces=4)
+
+
+def test_objects_without_a_material_render_cycles_default_surface():
+    """Cycles' default surface is a Principled BSDF with its defaults (specular layer included), not a
+    grey diffuse: a plain diffuse made this floor 0.9% darker than Cycles (z = 5.9)."""
+    scene = new_scene(48, 32)
+    set_world(scene, color=(0.6, 0.7, 0.8), strength=1.0)
+    mesh_object("Floor", [(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)], [(0, 1, 2, 3)])
+    compare_to_cycles(scene, samples=64, max_bounces=4)

@@ -13,8 +13,8 @@ closures from them (kernels.shading.nodes).
   naming the material, the node and the input.
 - Reroutes, muted links, muted nodes and node groups are seen through, as Blender evaluates them.
 - Any other shader node: DEFAULT_ALBEDO grey diffuse, with a warning. Nothing connected to the Surface
-  (or no output node): black, as in Cycles. Objects without a material: DEFAULT_ALBEDO grey, as Cycles'
-  default surface. Volume and Displacement outputs: ignored with a warning.
+  (or no output node): black, as in Cycles. Objects without a material: Cycles' default surface, a
+  Principled BSDF with its defaults (DEFAULT_SURFACE). Volume and Displacement outputs: ignored with a warning.
 - Normal and Coat Normal inputs: a Normal Map node (Tangent, World or Blender World space; its Color a
   constant, an RGB node or an Image Texture, its Strength a constant or a Value node) becomes a
   kernels.scene.NormalMap. Tangent inputs: a Tangent node in UV Map direction becomes a Tangent. The
@@ -245,13 +245,19 @@ UNSUPPORTED_INPUTS = {
 }
 
 
+# Cycles' default surface (scene/shader.cpp), for objects and slots without a material: a Principled BSDF
+# with its defaults (grey 0.8 base, roughness 0.5, its specular layer), not a plain diffuse.
+DEFAULT_SURFACE = Shader((Closure("PRINCIPLED", (("Base Color", Param.of(GREY3)),), (("distribution", "MULTI_GGX"),)),),
+                         "default surface")
+
+
 class MaterialTable:
     """The materials of one export. Row 0 is the default surface of objects without a material."""
 
     def __init__(self, warnings: list[str]):
         self.images = ImageTextures(warnings)
         self._warnings = warnings
-        self._rows: list[Shader] = [diffuse_shader(GREY3, name="default surface")]
+        self._rows: list[Shader] = [DEFAULT_SURFACE]
         self._ids: dict[str, int] = {}
         self._tangent_maps: dict[int, tuple[str, ...]] = {}
         self._attributes: dict[int, frozenset] = {}
