@@ -8,6 +8,8 @@ from_pydata would take tens of seconds), so every scene is quick to rebuild.
     scene = cornell_scene(256, 256)            # about 1k triangles, black world
     scene = hdri_scene(128, 128)               # same box without the lamp, forest.exr world
     scene = cornell_scene(64, 64, sphere_triangles=1_000_000)
+    scene = materials_scene(128, 128)          # eight Principled spheres, forest.exr world
+    scene = lit_sphere_scene(marble_material)  # a procedural marble (node programs) under a constant sky
 """
 from __future__ import annotations
 
@@ -16,7 +18,8 @@ import math
 import bpy
 import numpy as np
 
-from tests.bpy_helpers import add_camera, diffuse_material, emission_material, ensure_registered, set_world
+from tests.bpy_helpers import add_camera, diffuse_material, emission_material, ensure_registered, mesh_object, \
+    new_scene, set_world
 
 # The kernel benchmark's box (kernels.shapes.cornell_box): 2 units wide, camera 3.9 in front, 39.3 deg fov.
 WALL_SUBDIVISIONS = 7
@@ -103,6 +106,82 @@ def materials_scene(width: int, height: int, *, hdri: str = HDRI) -> bpy.types.S
     add_camera(scene, (0.0, -5.2, 1.0), (0.0, 0.0, 1.0)).data.lens = 45
     set_world(scene, hdri=hdri, strength=1.0, rotation=(0.0, 0.0, 0.6))
     return scene
+
+
+# The node-program scenes (issue 9), also tests/test_node_programs.py's parity scenes.
+def lit_sphere_scene(make_material, size=(48, 32)) -> bpy.types.Scene:
+    """A smooth sphere with make_material() on a floor without a material, under a constant sky."""
+    scene = new_scene(*size)
+    set_world(scene, color=(0.6, 0.7, 0.8), strength=1.0)
+    material = make_material()
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(0, 0, 1.1), segments=48, ring_count=24)
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(material)
+    mesh_object("Floor", [(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)], [(0, 1, 2, 3)])
+    return scene
+
+
+def marble_material():
+    """Noise -> Color Ramp into Base Color, the same noise through Bump into Normal, Voronoi roughness."""
+    mat = bpy.data.materials.new("Marble")
+    tree = mat.node_tree
+    bsdf = tree.nodes["Principled BSDF"]
+    noise = tree.nodes.new("ShaderNodeTexNoise")
+    noise.inputs["Scale"].default_value = 3.0
+    noise.inputs["Detail"].default_value = 4.0
+    noise.inputs["Distortion"].default_value = 1.5
+    ramp = tree.nodes.new("ShaderNodeValToRGB")
+    ramp.color_ramp.elements[0].color = (0.9, 0.88, 0.85, 1.0)
+    ramp.color_ramp.elements[1].position = 0.7
+    ramp.color_ramp.elements[1].color = (0.15, 0.12, 0.1, 1.0)
+    tree.links.new(noise.outputs["Fac"], ramp.inputs["Fac"])
+    tree.links.new(ramp.outputs["Color"], bsdf.inputs["Base Color"])
+    bump = tree.nodes.new("ShaderNodeBump")
+    bump.inputs["Strength"].default_value = 0.6
+    tree.links.new(noise.outputs["Fac"], bump.inputs["Height"])
+    tree.links.new(bump.outputs["Normal"], bsdf.inputs["Normal"])
+    voronoi = tree.nodes.new("ShaderNodeTexVoronoi")
+    rough = tree.nodes.new("ShaderNodeMapRange")
+    rough.inputs["To Min"].default_value = 0.2
+    rough.inputs["To Max"].default_value = 0.6
+    tree.links.new(voronoi.outputs["Distance"], rough.inputs["Value"])
+    tree.links.new(rough.outputs["Result"], bsdf.inputs["Roughness"])
+    return mat
+
+
+def _input(node, identifier):
+    return next(s for s in node.inputs if s.identifier == identifier)
+
+
+def tinted_material():
+    """An image tinted by a Mix node (as glTF imports build it) in a Layer Weight mix of Diffuse and Glossy."""
+    img = bpy.data.images.new("Cloth", 8, 8, float_buffer=True)
+    rng = np.random.default_rng(5)
+    img.pixels.foreach_set(np.concatenate([rng.uniform(0.2, 1.0, (64, 3)), np.ones((64, 1))], 1).ravel()
+                           .astype(np.float32))
+    mat = bpy.data.materials.new("Tinted")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    tint = tree.nodes.new("ShaderNodeMix")
+    tint.data_type, tint.blend_type = "RGBA", "MULTIPLY"
+    _input(tint, "Factor_Float").default_value = 1.0
+    _input(tint, "B_Color").default_value = (0.9, 0.5, 0.2, 1.0)
+    tree.links.new(tex.outputs["Color"], _input(tint, "A_Color"))
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    tree.links.new(next(o for o in tint.outputs if o.identifier == "Result_Color"), diffuse.inputs["Color"])
+    glossy = tree.nodes.new("ShaderNodeBsdfAnisotropic")
+    glossy.inputs["Roughness"].default_value = 0.2
+    weight = tree.nodes.new("ShaderNodeLayerWeight")
+    weight.inputs["Blend"].default_value = 0.4
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    tree.links.new(weight.outputs["Fresnel"], mix.inputs["Fac"])
+    tree.links.new(diffuse.outputs[0], mix.inputs[1])
+    tree.links.new(glossy.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
 
 
 def triangle_count(scene) -> int:

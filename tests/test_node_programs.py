@@ -13,6 +13,8 @@ import pytest
 from bpy_helpers import add_camera, compare_to_cycles, export_current, mesh_object, new_scene, set_world
 from node_probe import probe_scene, render_probe, sweep
 
+from bench import scenes
+
 
 def probe_both(build, points: dict):
     scene, count = probe_scene(build, points)
@@ -279,87 +281,15 @@ def test_box_projection_on_a_sphere_against_cycles():
 
 
 # ---------------------------------------------------------------- parity scenes
-def _lit_sphere_scene(make_material, size=(48, 32)):
-    scene = new_scene(*size)
-    set_world(scene, color=(0.6, 0.7, 0.8), strength=1.0)
-    material = make_material()
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(0, 0, 1.1), segments=48, ring_count=24)
-    bpy.ops.object.shade_smooth()
-    bpy.context.active_object.data.materials.append(material)
-    mesh_object("Floor", [(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)], [(0, 1, 2, 3)])
-    return scene
-
-
 def test_procedural_marble_with_bump_against_cycles():
     """Noise -> Color Ramp into Base Color, the same noise through Bump into Normal, Voronoi roughness."""
-    scene = _lit_sphere_scene(_marble)
+    scene = scenes.lit_sphere_scene(scenes.marble_material)
     exported = export_current()
     assert not [w for w in exported.warnings if "Marble" in w], exported.warnings
     compare_to_cycles(scene, samples=64, max_bounces=4)
 
 
-def _marble():
-    mat = bpy.data.materials.new("Marble")
-    tree = mat.node_tree
-    bsdf = tree.nodes["Principled BSDF"]
-    noise = tree.nodes.new("ShaderNodeTexNoise")
-    noise.inputs["Scale"].default_value = 3.0
-    noise.inputs["Detail"].default_value = 4.0
-    noise.inputs["Distortion"].default_value = 1.5
-    ramp = tree.nodes.new("ShaderNodeValToRGB")
-    ramp.color_ramp.elements[0].color = (0.9, 0.88, 0.85, 1.0)
-    ramp.color_ramp.elements[1].position = 0.7
-    ramp.color_ramp.elements[1].color = (0.15, 0.12, 0.1, 1.0)
-    tree.links.new(noise.outputs["Fac"], ramp.inputs["Fac"])
-    tree.links.new(ramp.outputs["Color"], bsdf.inputs["Base Color"])
-    bump = tree.nodes.new("ShaderNodeBump")
-    bump.inputs["Strength"].default_value = 0.6
-    tree.links.new(noise.outputs["Fac"], bump.inputs["Height"])
-    tree.links.new(bump.outputs["Normal"], bsdf.inputs["Normal"])
-    voronoi = tree.nodes.new("ShaderNodeTexVoronoi")
-    rough = tree.nodes.new("ShaderNodeMapRange")
-    rough.inputs["To Min"].default_value = 0.2
-    rough.inputs["To Max"].default_value = 0.6
-    tree.links.new(voronoi.outputs["Distance"], rough.inputs["Value"])
-    tree.links.new(rough.outputs["Result"], bsdf.inputs["Roughness"])
-    return mat
-
-
 def test_layer_weight_mix_and_tinted_image_against_cycles():
     """A glTF-style tint (image x colour through a Mix node) in a Layer Weight mix of Diffuse and Glossy."""
-    scene = _lit_sphere_scene(_tinted)
+    scene = scenes.lit_sphere_scene(scenes.tinted_material)
     compare_to_cycles(scene, samples=64, max_bounces=4)
-
-
-def _socket(node, identifier):
-    return next(s for s in node.inputs if s.identifier == identifier)
-
-
-def _tinted():
-    img = bpy.data.images.new("Cloth", 8, 8, float_buffer=True)
-    rng = np.random.default_rng(5)
-    img.pixels.foreach_set(np.concatenate([rng.uniform(0.2, 1.0, (64, 3)), np.ones((64, 1))], 1).ravel()
-                           .astype(np.float32))
-    mat = bpy.data.materials.new("Tinted")
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    tex = tree.nodes.new("ShaderNodeTexImage")
-    tex.image = img
-    tint = tree.nodes.new("ShaderNodeMix")
-    tint.data_type, tint.blend_type = "RGBA", "MULTIPLY"
-    _socket(tint, "Factor_Float").default_value = 1.0
-    _socket(tint, "B_Color").default_value = (0.9, 0.5, 0.2, 1.0)
-    tree.links.new(tex.outputs["Color"], _socket(tint, "A_Color"))
-    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
-    tree.links.new(next(o for o in tint.outputs if o.identifier == "Result_Color"), diffuse.inputs["Color"])
-    glossy = tree.nodes.new("ShaderNodeBsdfAnisotropic")
-    glossy.inputs["Roughness"].default_value = 0.2
-    weight = tree.nodes.new("ShaderNodeLayerWeight")
-    weight.inputs["Blend"].default_value = 0.4
-    mix = tree.nodes.new("ShaderNodeMixShader")
-    tree.links.new(weight.outputs["Fresnel"], mix.inputs["Fac"])
-    tree.links.new(diffuse.outputs[0], mix.inputs[1])
-    tree.links.new(glossy.outputs[0], mix.inputs[2])
-    tree.links.new(mix.outputs[0], out.inputs["Surface"])
-    return mat
