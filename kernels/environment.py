@@ -1,4 +1,4 @@
-"""The world: constant radiance or an equirectangular HDRI looked up in Cycles' convention.
+"""The world: constant radiance, an equirectangular HDRI looked up in Cycles' convention, or a node program.
 
 Cycles' equirectangular map: u = 0.5 - atan2(d.y, d.x) / (2 pi), v = 1 - acos(d.z) / pi, with the
 image's row 0 at the bottom (v = 0 looks straight down). d is the world direction taken to the
@@ -39,24 +39,33 @@ class Environment:
     sphere), so the pdf per solid angle is pdf_uv / (2 pi^2 sin(theta)).
     """
 
-    def __init__(self, world: World):
+    def __init__(self, world: World, shader=None):
+        """shader: the world's node program (shading.world.WorldShader) when it has one; its radiance is
+        evaluated per ray, and a bake of it at world.map_resolution is the sampling distribution."""
         self.world = world
-        self.strength = np.float32(world.strength)
-        self.rotation = np.asarray(world.env_from_world, np.float32)
-        self.texture = Texture(world.hdri) if world.hdri is not None else None
+        self.shader = shader
+        self.texture = Texture(world.hdri) if world.hdri is not None and shader is None else None
+        if shader is not None:
+            self.strength = np.float32(1.0)
+            self.rotation = np.eye(3, dtype=np.float32)
+            width = int(world.map_resolution)
+            self._distribution = _PixelDistribution(shader.bake(width, max(width // 2, 2)))
+        else:
+            self.strength = np.float32(world.strength)
+            self.rotation = np.asarray(world.env_from_world, np.float32)
+            self._distribution = _PixelDistribution(world.hdri) if world.hdri is not None else None
         self.constant = (np.asarray(world.color, np.float32) * self.strength)[:, None]
-        self._distribution = _PixelDistribution(world.hdri) if world.hdri is not None else None
 
     def mean_luminance(self) -> float:
         """Radiance luminance averaged over the sphere of directions."""
-        if self.texture is None:
+        if self._distribution is None:
             return float(luminance(self.constant[:, 0]))
         # (1 / 4 pi) * sum(L sin(theta)) * (pi / H) * (2 pi / W) = (pi / 2) * mean(L sin(theta))
         return float(self._distribution.mean_weight * 0.5 * np.pi * self.strength)
 
     def sample_direction(self, u1, u2):
         """World directions with pdf per solid angle: (wx, wy, wz, pdf)."""
-        if self.texture is None:
+        if self._distribution is None:
             wx, wy, wz = sampling.sample_uniform_sphere(u1, u2)
             return wx, wy, wz, np.full(len(u1), sampling.UNIFORM_SPHERE_PDF)
         u, v, pdf_uv = self._distribution.sample(u1, u2)
@@ -69,7 +78,7 @@ class Environment:
 
     def direction_pdf(self, dx, dy, dz) -> np.ndarray:
         """pdf per solid angle with which sample_direction() yields world directions d."""
-        if self.texture is None:
+        if self._distribution is None:
             return np.full(len(dx), sampling.UNIFORM_SPHERE_PDF)
         ex, ey, ez = self.to_env(dx, dy, dz)
         u, v = direction_to_equirect(ex, ey, ez)
@@ -80,7 +89,7 @@ class Environment:
 
     @property
     def is_constant(self) -> bool:
-        return self.texture is None
+        return self._distribution is None
 
     def to_env(self, dx, dy, dz):
         r = self.rotation
@@ -94,9 +103,12 @@ class Environment:
                 r[0, 1] * ex + r[1, 1] * ey + r[2, 1] * ez,
                 r[0, 2] * ex + r[1, 2] * ey + r[2, 2] * ez)
 
-    def radiance(self, dx, dy, dz) -> np.ndarray:
-        """(3, N) float32 radiance arriving from world directions d (unit)."""
+    def radiance(self, dx, dy, dz, ray=None) -> np.ndarray:
+        """(3, N) float32 radiance arriving from world directions d (unit). ray: the escaped rays' path
+        state (interaction.RayInfo) for a world program's Light Path node; None for light samples."""
         n = len(dx)
+        if self.shader is not None:
+            return self.shader.radiance(dx, dy, dz, ray)
         if self.texture is None:
             return np.broadcast_to(self.constant, (3, n))
         u, v = direction_to_equirect(*self.to_env(dx, dy, dz))

@@ -33,6 +33,7 @@ from .rng import PathRng, seed_paths
 from .samples import BSDF, LIGHT, LIGHT_POINT, LOBE, Samples
 from .scene import Camera, SceneArrays
 from .shading import Shading
+from .shading.world import WorldShader
 from .textures import Texture
 
 SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
@@ -145,13 +146,14 @@ class Renderer:
             raise
 
     def _build_tables(self, poll) -> None:
-        self.environment = Environment(self.scene.world)
         srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
         self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
         self._triangles = TriangleTable(self.scene)
         poll()
         self._material_ids = self.scene.material_ids
         self.shading = Shading(self.scene.materials, self.textures, self.scene)
+        world = self.scene.world
+        self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
         self._emissive = bool(self.shading.emissive.any())
         xmin, xmax, _, _ = view_plane(self.scene.camera)
         # View-plane units per pixel: the spread of camera rays (perspective: radians at the centre).
@@ -168,6 +170,7 @@ class Renderer:
         Call between renders, never during one."""
         camera.validate()
         self.scene = dataclasses.replace(self.scene, camera=camera)
+        self.shading.data.set_camera(camera)
 
     def close(self) -> None:
         """Stop the threads and drop the big arrays now: the light sampler calls back into this
@@ -364,7 +367,8 @@ class Renderer:
                     return
         d = rays.dirs
         mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
-        env = np.take(state.throughput, miss, axis=1) * self.environment.radiance(mx, my, mz)
+        ray = RayInfo(state.bounce[miss], state.transparent[miss], emission=True) if self.environment.shader else None
+        env = np.take(state.throughput, miss, axis=1) * self.environment.radiance(mx, my, mz, ray)
         if wave.nee:
             mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
             if len(mis):

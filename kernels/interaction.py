@@ -82,8 +82,12 @@ class RayInfo:
     """The path state behind a wave's hits, for the Light Path node: per hit (N,) arrays of scattering
     events so far (depth) and transparent surfaces passed (transparent), the ray's length (or None), and
     whether these are shadow rays; dp, the rays' position spread at the hits (Cycles' compact
-    differential sd->dP, for the Bump node), None for none."""
-    __slots__ = ("depth", "transparent", "length", "shadow", "dp")
+    differential sd->dP, for the Bump node), None for none. emission: the world or a light is evaluated
+    (Cycles' PATH_RAY_EMISSION: one bounce further); camera=False: not a camera ray whatever the depth
+    (a light sample of the world)."""
+    __slots__ = ("depth", "transparent", "length", "shadow", "dp", "emission", "camera")
 
-    def __init__(self, depth, transparent, length=None, shadow: bool = False, dp=None):
+    def __init__(self, depth, transparent, length=None, shadow: bool = False, dp=None, emission: bool = False,
+                 camera: bool = True):
         self.depth, self.transparent, self.length, self.shadow, self.dp = depth, transparent, length, shadow, dp
+        self.emission, self.camera = emission, camera

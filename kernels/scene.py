@@ -269,11 +269,19 @@ class World:
     strength : multiplies color or hdri.
     env_from_world : (3, 3) float32 rotation taking a world direction to the direction the map is
         looked up with: the Mapping node's rotation R for a POINT mapping, R^T for TEXTURE.
+    program, output : a node program (kernels.programs) and the Ref of its radiance, for any other world
+        tree (a gradient, a sky, a Mix of backgrounds): evaluated per escaped ray, color, hdri and
+        strength unused. It reads SceneArrays.textures.
+    map_resolution : width of the equirectangular map the program is baked into for importance sampling
+        (Cycles' world Map Resolution; the height is half of it).
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None
     strength: float = 1.0
     env_from_world: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
+    program: Program | None = None
+    output: Ref | None = None
+    map_resolution: int = 1024
 
     def validate(self) -> None:
         _check_array(self.color, "world.color", (3,), np.float32)
@@ -287,6 +295,11 @@ class World:
                      "world.hdri", f"must be (H, W, 3), got {h.shape}")
             _check_array(h, "world.hdri", h.shape, np.float32)
             _require(np.all(h >= 0), "world.hdri", "must be non-negative")
+        _require((self.program is None) == (self.output is None), "world.program", "comes with its output")
+        if self.program is not None:
+            _require(isinstance(self.output, Ref) and 0 <= self.output.op < len(self.program), "world.output",
+                     f"must be a Ref into the world's program of {len(self.program)} ops")
+            _require(int(self.map_resolution) >= 4, "world.map_resolution", "must be at least 4")
 
 
 LIGHT_KINDS = {"POINT": 0, "SPOT": 1, "SUN": 2, "RECT": 3, "DISK": 4}
@@ -410,6 +423,8 @@ class SceneArrays:
         _require(len(self.texture_srgb) in (0, len(self.textures)), "texture_srgb",
                  f"needs one flag per texture ({len(self.textures)}), got {len(self.texture_srgb)}")
         self.materials.validate(len(self.textures))
+        if self.world.program is not None:
+            self.world.program.validate(len(self.textures))
         m = self.materials.count
         if t:
             _require(self.material_ids.min() >= 0 and self.material_ids.max() < m, "material_ids",

@@ -551,14 +551,27 @@ def test_8_bit_srgb_environment_is_decoded(empty_scene):
     np.testing.assert_allclose(export().scene.world.hdri, srgb_to_linear(rows[..., :3]), atol=1e-6)
 
 
-def test_unsupported_world_node_is_grey_with_one_warning(empty_scene):
-    empty_scene.world = bpy.data.worlds.new("Sky")
+def test_unsupported_world_nodes_warn_once(empty_scene):
+    """A BSDF as the world's surface renders grey; an unsupported node feeding the Background's Color
+    leaves the Color's own value; each world warns in one line naming the node."""
+    empty_scene.world = bpy.data.worlds.new("Odd")
     tree = empty_scene.world.node_tree
-    sky = tree.nodes.new("ShaderNodeTexSky")
-    tree.links.new(sky.outputs[0], tree.nodes["Background"].inputs["Color"])
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    tree.links.new(diffuse.outputs[0], tree.nodes["World Output"].inputs["Surface"])
     result = export()
     np.testing.assert_allclose(result.scene.world.color, 0.05)
-    assert len([w for w in result.warnings if "'Sky'" in w]) == 1
+    (line,) = [w for w in result.warnings if "'Odd'" in w]
+    assert "Diffuse BSDF" in line
+    empty_scene.world = bpy.data.worlds.new("Occluded")
+    tree = empty_scene.world.node_tree
+    background = tree.nodes["Background"]
+    background.inputs["Color"].default_value = (0.2, 0.3, 0.4, 1.0)
+    ao = tree.nodes.new("ShaderNodeAmbientOcclusion")
+    tree.links.new(ao.outputs["Color"], background.inputs["Color"])
+    result = export()
+    np.testing.assert_allclose(result.scene.world.color, (0.2, 0.3, 0.4), rtol=1e-6)
+    (line,) = [w for w in result.warnings if "'Occluded'" in w]
+    assert "Ambient Occlusion" in line and "Color" in line
 
 
 def hdri_world(scene, image, vector_type=None, rotation=(0.0, 0.0, 0.0)):

@@ -80,7 +80,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     materials = MaterialTable(warnings)
     poll = Poller(should_stop)
     geometry = export_geometry(depsgraph, materials, warnings, poll)
-    world = export_world(scene.world, warnings)
+    world = export_world(scene.world, warnings, materials.images)
     lights = export_lights(depsgraph, warnings, poll)
     arrays = SceneArrays(positions=geometry.positions, normals=geometry.normals, uvs=geometry.uvs,
                          material_ids=geometry.material_ids, materials=materials.to_kernel(),

@@ -76,13 +76,31 @@ class ProgramBuilder:
             finally:
                 self._visiting.discard(key)
         compiled = self._memo[key]
-        have = _TYPES.get(source.socket.type, "VALUE")
-        name = source.socket.identifier
         if compiled is None:  # not supported (warned): the consumer's own value
             return socket_constant(consumer, want)
+        return self.result(compiled, source.socket.identifier, _TYPES.get(source.socket.type, "VALUE"), want)
+
+    @staticmethod
+    def result(compiled, output: str, have: str, want: str):
+        """An output of what add() returned (an op index or folded constants) as a consumer reads it."""
         if isinstance(compiled, dict):  # folded
-            return fold_convert(compiled[name], have, want)
-        return Ref(compiled, name, have, want)
+            return fold_convert(compiled[output], have, want)
+        return Ref(compiled, output, have, want)
+
+    def vector_op(self, operation: str, a, b):
+        """Vector Math `operation` of two inputs (Refs or constants; colours are read as vectors, SCALE
+        takes a float b): its Vector output, read as a colour."""
+        second = "Scale" if operation == "SCALE" else "Vector_001"
+        inputs = {"Vector": _reading(a, "VECTOR"), second: _reading(b, "VALUE" if operation == "SCALE" else "VECTOR")}
+        return self.result(self.add("ShaderNodeVectorMath", inputs, {"operation": operation}), "Vector", "VECTOR",
+                           "RGBA")
+
+    def mix(self, factor, a, b):
+        """(1 - f) a + f b of two colours, the factor clamped to [0, 1] (a Mix Shader's weights)."""
+        inputs = {"Factor_Float": _reading(factor, "VALUE"), "A_Vector": _reading(a, "VECTOR"),
+                  "B_Vector": _reading(b, "VECTOR")}
+        options = {"data_type": "VECTOR", "factor_mode": "UNIFORM", "clamp_factor": True}
+        return self.result(self.add("ShaderNodeMix", inputs, options), "Result_Vector", "VECTOR", "RGBA")
 
     def add(self, kind: str, inputs: dict, options: dict | None = None, outputs=None):
         """Add an op (or fold it): returns its op index, or a dict of constant outputs when folded."""
@@ -129,6 +147,13 @@ class ProgramBuilder:
         if key not in self._memo:
             self._memo[key] = self.add("ShaderNodeTexCoord", {}, {"object_from_world": None}, outputs=(name,))
         return Ref(self._memo[key], name, "VECTOR", "VECTOR")
+
+
+def _reading(value, want: str):
+    """A Ref or constant as a consumer of type `want` reads it."""
+    if isinstance(value, Ref):
+        return Ref(value.op, value.output, value.type, want)
+    return fold_convert(tuple(value), "VALUE" if len(value) == 1 else "VECTOR", want)
 
 
 def node_options(node) -> dict:
@@ -320,11 +345,43 @@ def _curves(baker):
     return compile_curves
 
 
+def _environment(builder, node, groups):
+    _check_texture_mapping(builder, node)
+    texture = -1
+    if node.image is None:
+        builder.issues.append(f"Environment Texture '{node.name}' has no image, rendered magenta")
+    else:
+        index = builder.images.index(node.image)
+        texture = -1 if index is None else index
+    options = {"texture": texture, "interpolation": node.interpolation, "projection": node.projection,
+               "extension": "REPEAT", "unassociate": False}
+    return builder.add(node.bl_idname, builder.node_inputs(node, groups, vector_default="Generated"), options)
+
+
+def _sky(builder, node, groups):
+    """The Sky Texture: its tables precomputed here; with the sun disc on, Blender disables the Vector and
+    Cycles reads the default (Generated: the direction, in a world)."""
+    import inspect
+    from ...kernels.shading import sky
+    _check_texture_mapping(builder, node)
+    if node.sky_type not in sky.SKY_TYPES or node.sky_type == "HOSEK_WILKIE":
+        builder.issues.append(f"Sky Texture '{node.name}': the {node.sky_type.replace('_', ' ').title()} model "
+                              f"is not supported, rendered black")
+        return {"Color": (0.0, 0.0, 0.0)}
+    accepted = inspect.signature(sky.precompute_sky).parameters
+    settings = {k: v for k, v in node_options(node).items() if k in accepted}
+    inputs = builder.node_inputs(node, groups, vector_default="Generated")
+    inputs.setdefault("Vector", builder.coordinate("Generated"))
+    return builder.add(node.bl_idname, inputs, {"precomputed": sky.precompute_sky(**settings)})
+
+
 def _bump(builder, node, groups):
     return builder.add(node.bl_idname, builder.node_inputs(node, groups), {"invert": bool(node.invert)})
 
 
 COMPILERS = {
+    "ShaderNodeTexEnvironment": _environment,
+    "ShaderNodeTexSky": _sky,
     **{name: _texture for name in ("ShaderNodeTexNoise", "ShaderNodeTexWhiteNoise", "ShaderNodeTexWave",
                                    "ShaderNodeTexVoronoi", "ShaderNodeTexGabor", "ShaderNodeTexChecker",
                                    "ShaderNodeTexGradient", "ShaderNodeTexBrick", "ShaderNodeTexMagic")},

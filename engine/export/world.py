@@ -1,13 +1,18 @@
-"""The world: Blender's World node tree -> kernels.World, a constant colour or an equirectangular HDRI.
+"""The world: Blender's World node tree -> kernels.World: a constant colour, an equirectangular HDRI, or a
+node program.
 
 Supported, with Cycles as the reference:
 - No world: black. A world without a node tree: its colour.
-- World Output <- Background (or Emission): Color x Strength. Color is a constant, an RGB node or an
-  Environment Texture (equirectangular projection).
-- The Environment Texture's Vector: unlinked, Texture Coordinate (Generated or Object), or a Mapping node
-  fed by those. The Mapping rotation becomes env_from_world: R for the Point, Vector and Normal types,
-  R^-1 for Texture (checked against Cycles). Its location and non-uniform scale are ignored with a warning.
-- Anything else: the constant DEFAULT_WORLD_COLOR, with one warning.
+- World Output <- Background (or Emission) with a constant Color and Strength: a constant world.
+- The same with an Environment Texture (equirectangular) as Color, its Vector unlinked, Texture
+  Coordinate (Generated or Object), or a Mapping node fed by those, with a constant Mapping and Strength:
+  the HDRI world, sampled from the image itself. The Mapping rotation becomes env_from_world: R for the
+  Point, Vector and Normal types, R^-1 for Texture (checked against Cycles).
+- Any other tree (Mix and Add Shaders of Backgrounds, gradients, Sky Texture, Light Path, a Mapping with
+  location or scale, ...): a node program (engine/export/nodes.py) that the kernel evaluates per escaped
+  ray, as Cycles evaluates its background shader, and bakes for importance sampling. Nodes it cannot
+  evaluate keep their inputs' own values, with a warning; a shader node other than Background, Emission,
+  Mix and Add Shader: DEFAULT_WORLD_COLOR, with a warning.
 """
 from __future__ import annotations
 
@@ -15,21 +20,26 @@ import mathutils
 import numpy as np
 
 from ...kernels import World
-from .materials import (BLACK3, MISSING_IMAGE_COLOR, ImagePixels, Source, float_input, output_node,
-                        read_image, rgb, source_of)
+from .materials import (BLACK3, MISSING_IMAGE_COLOR, ImagePixels, ImageTextures, Source, float_input,
+                        output_node, read_image, rgb, source_of)
+from .nodes import ProgramBuilder
 
 DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
 TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on the world
 
 
-def export_world(world, warnings: list[str]) -> World:
-    """scene.world (may be None) as a kernels.World. Problems go to `warnings` in one line."""
+def export_world(world, warnings: list[str], images=None) -> World:
+    """scene.world (may be None) as a kernels.World. Problems go to `warnings` in one line. images: the
+    export's materials.ImageTextures, which world programs read their images from."""
     if world is None:  # Cycles renders black without a world
         return World(color=np.zeros(3, np.float32))
     if world.node_tree is None:
         return World(color=np.array(rgb(world.color), np.float32))
     issues: list[str] = []
-    result = _read_tree(world.node_tree, issues, warnings)
+    if _needs_program(world.node_tree):
+        result = _program_world(world, images if images is not None else ImageTextures(warnings), issues)
+    else:
+        result = _read_tree(world.node_tree, issues, warnings)
     if issues:
         warnings.append(f"World '{world.name}': " + "; ".join(dict.fromkeys(issues)))
     return result
@@ -53,6 +63,67 @@ def _read_tree(tree, issues: list[str], warnings: list[str]) -> World:
     issues.append(f"{color.node.bl_label} node feeding the background Color is not supported, "
                   f"rendered as constant grey")
     return World(color=np.array(DEFAULT_WORLD_COLOR, np.float32), strength=strength)
+
+
+def _needs_program(tree) -> bool:
+    """Whether the world is more than a constant or a plain HDRI (those keep their own fast paths)."""
+    out = output_node(tree)
+    surface = Source(None, None) if out is None else source_of(out.inputs["Surface"])
+    if surface.node is None or surface.kind not in ("ShaderNodeBackground", "ShaderNodeEmission"):
+        return surface.kind in ("ShaderNodeMixShader", "ShaderNodeAddShader")
+    node, groups = surface.node, surface.groups
+    strength = source_of(node.inputs["Strength"], groups)
+    if strength.node is not None and strength.kind != "ShaderNodeValue":
+        return True
+    color = source_of(node.inputs["Color"], groups)
+    if color.node is None or color.kind == "ShaderNodeRGB":
+        return False
+    if color.kind != "ShaderNodeTexEnvironment" or color.socket.identifier != "Color":
+        return True
+    vector = source_of(color.node.inputs["Vector"], color.groups)
+    if _is_view_direction(vector):
+        return color.node.projection != "EQUIRECTANGULAR"
+    if vector.kind != "ShaderNodeMapping" or not _is_view_direction(source_of(vector.node.inputs["Vector"],
+                                                                              vector.groups)):
+        return True
+    mapping = vector.node
+    constant = all(source_of(mapping.inputs[k], vector.groups).node is None for k in ("Location", "Rotation", "Scale"))
+    location = np.asarray(mapping.inputs["Location"].default_value)
+    scale = np.asarray(mapping.inputs["Scale"].default_value)
+    moved = bool(np.any(location != 0)) and mapping.vector_type in ("POINT", "TEXTURE")
+    return not constant or moved or np.ptp(scale) != 0
+
+
+def _program_world(world, images, issues: list[str]) -> World:
+    """The world's shader tree as a program whose output is the background radiance."""
+    builder = ProgramBuilder(images, issues, set(), [])
+    out = output_node(world.node_tree)
+    radiance = _radiance_of(builder, source_of(out.inputs["Surface"]), issues)
+    if isinstance(radiance, tuple):  # folded: a constant world after all
+        return World(color=np.maximum(np.array(radiance, np.float32), 0.0))
+    resolution = int(getattr(getattr(world, "cycles", None), "sampling_map_resolution", 1024) or 1024)
+    return World(color=np.zeros(3, np.float32), program=builder.program(), output=radiance,
+                 map_resolution=max(resolution, 4))
+
+
+def _radiance_of(builder, source: Source, issues: list[str]):
+    """The radiance of a world shader socket's tree: a Ref (RGBA) or a constant triple."""
+    node, groups = source.node, source.groups
+    if node is None:
+        return BLACK3
+    if source.kind in ("ShaderNodeBackground", "ShaderNodeEmission"):
+        color = builder.input(node.inputs["Color"], groups, "RGBA")
+        strength = builder.input(node.inputs["Strength"], groups, "VALUE")
+        return builder.vector_op("SCALE", color, strength)
+    if source.kind == "ShaderNodeAddShader":
+        a, b = (_radiance_of(builder, source_of(node.inputs[i], groups), issues) for i in (0, 1))
+        return builder.vector_op("ADD", a, b)
+    if source.kind == "ShaderNodeMixShader":
+        fac = builder.input(node.inputs[0], groups, "VALUE")
+        a, b = (_radiance_of(builder, source_of(node.inputs[i], groups), issues) for i in (1, 2))
+        return builder.mix(fac, a, b)
+    issues.append(f"{node.bl_label} is not supported in a world, rendered as constant grey")
+    return DEFAULT_WORLD_COLOR
 
 
 def _environment(texture: Source, strength: float, issues: list[str], warnings: list[str]) -> World:

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..textures import srgb_to_linear
 from . import normals
+from . import sky as sk
 
 F32 = np.float32
 ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
@@ -45,7 +46,10 @@ def object_point(hits, p: np.ndarray) -> np.ndarray:
 
 def generated(hits) -> np.ndarray:
     """Blender's Generated coordinates: the object-space point in the mesh's texture space, [0, 1]^3 over
-    its bounding box (Cycles' ATTR_STD_GENERATED from the undeformed mesh; here the evaluated one)."""
+    its bounding box (Cycles' ATTR_STD_GENERATED from the undeformed mesh; here the evaluated one). In a
+    world: the ray direction."""
+    if getattr(hits, "world", False):
+        return hits.P
     return hits.memo("generated", lambda: _texture_space(hits, object_point(hits, hits.P)))
 
 
@@ -65,8 +69,9 @@ def object_normal(hits, n: np.ndarray) -> np.ndarray:
 
 
 def camera_point(hits, p: np.ndarray) -> np.ndarray:
-    """Cycles' camera space: x right, y up, z ahead of the camera."""
-    local = (p - hits.scene.camera_eye) @ hits.scene.camera_rotation
+    """Cycles' camera space: x right, y up, z ahead of the camera. In a world p is a direction (Cycles adds
+    the camera position first, so only the rotation applies)."""
+    local = (p if getattr(hits, "world", False) else p - hits.scene.camera_eye) @ hits.scene.camera_rotation
     return local * np.array([1.0, 1.0, -1.0], F32)
 
 
@@ -226,11 +231,13 @@ def light_path(hits, inputs, op):
     take = (lambda a: np.take(a, hits.idx).astype(F32)) if ray is not None else None
     shadow = ray is not None and ray.shadow
     depth = take(ray.depth) if ray is not None else np.zeros(n, F32)
-    out = {"Is Camera Ray": ((depth == 0) & (not shadow)).astype(F32) if ray is not None else np.ones(n, F32),
+    camera = ray is None or (ray.camera and not shadow)
+    further = ray is not None and (shadow or ray.emission)
+    out = {"Is Camera Ray": ((depth == 0) & camera).astype(F32),
            "Is Shadow Ray": np.full(n, F32(1.0 if shadow else 0.0)),
            "Ray Length": take(ray.length) if ray is not None and ray.length is not None else np.zeros(n, F32),
-           # Shadow rays are one bounce further (Cycles adds 1 for shadow and emission evaluation).
-           "Ray Depth": depth + F32(1.0 if shadow else 0.0),
+           # Shadow rays, the world and lights are one bounce further (Cycles adds 1 for them).
+           "Ray Depth": depth + F32(1.0 if further else 0.0),
            "Transparent Depth": take(ray.transparent) if ray is not None else np.zeros(n, F32),
            "Is Diffuse Ray": np.zeros(n, F32), "Is Glossy Ray": np.zeros(n, F32),
            "Is Singular Ray": np.zeros(n, F32), "Is Reflection Ray": np.zeros(n, F32),
@@ -284,6 +291,36 @@ def image(hits, inputs, op):
             p = (map_to_sphere if projection == "SPHERE" else map_to_tube)((p - HALF) * F32(2.0))
         color, alpha = _image_lookup(tex, p[:, 0], p[:, 1], op)
     return {"Color": np.ascontiguousarray(color.T, F32), "Alpha": alpha.astype(F32)}
+
+
+def environment(hits, inputs, op):
+    """The Environment Texture node (svm_node_tex_environment): the direction, normalized, looked up in an
+    equirectangular map or a mirror ball."""
+    n = hits.n
+    texture = op.option("texture", -1)
+    if texture < 0:
+        return {"Color": np.broadcast_to(np.array([1.0, 0.0, 1.0], F32), (n, 3)), "Alpha": np.ones(n, F32)}
+    d = full(inputs["Vector"], n, 3)
+    length = np.sqrt(_dot(d, d))
+    d = d / np.where(length > 0, length, ONE)[:, None]
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    if op.option("projection", "EQUIRECTANGULAR") == "EQUIRECTANGULAR":
+        u = HALF - np.arctan2(y, x) * F32(0.5 / np.pi)
+        v = ONE - np.arccos(np.clip(z, -ONE, ONE)) * F32(1.0 / np.pi)
+        zero = length == 0
+        u, v = np.where(zero, ZERO, u), np.where(zero, ZERO, v)
+    else:  # mirror ball: the inverse of Cycles' mirrorball_to_direction
+        y = y - ONE
+        div = F32(2.0) * np.sqrt(np.maximum(F32(-0.5) * y, ZERO))
+        div = np.where(div > 0, div, ONE)
+        u, v = HALF * (x / div + ONE), HALF * (z / div + ONE)
+    color, alpha = _image_lookup(hits.scene.textures[texture], u, v, op)
+    return {"Color": np.ascontiguousarray(color.T, F32), "Alpha": alpha.astype(F32)}
+
+
+def sky(hits, inputs, op):
+    """The Sky Texture node (sky.py), its tables precomputed at export (option "precomputed")."""
+    return sk.sky_texture(full(inputs["Vector"], hits.n, 3), precomputed=op.option("precomputed"))
 
 
 def _image_lookup(tex, u, v, op):
@@ -437,6 +474,8 @@ OPS = {
     "ShaderNodeCombineXYZ": combine_xyz,
     "ShaderNodeNormalMap": normal_map,
     "ShaderNodeTexImage": image,
+    "ShaderNodeTexEnvironment": environment,
+    "ShaderNodeTexSky": sky,
 }
 # Ops that read nothing of the hits besides their inputs: folded at export when those are constants.
 PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ"}

@@ -40,7 +40,10 @@ class ShadingData:
             self.object_ids = np.zeros(len(scene.positions) if scene is not None else 0, np.int32)
         else:
             self.objects, self.object_ids = objects, scene.object_ids
-        camera = scene.camera if scene is not None else Camera()
+        self.set_camera(scene.camera if scene is not None else Camera())
+
+    def set_camera(self, camera: Camera) -> None:
+        """The camera the Camera and Window coordinates are taken in."""
         eye, rotation = camera_frame(camera)
         self.camera_eye, self.camera_rotation = eye.astype(F32), rotation.astype(F32)
         self.camera_kind = camera.kind
