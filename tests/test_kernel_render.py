@@ -192,7 +192,7 @@ def test_transparent_background_gives_alpha_zero_where_the_world_is_seen():
 def test_nonfinite_radiance_never_reaches_the_film(monkeypatch):
     scene = sphere_in_furnace(albedo=0.5, world=1.0)
     with Renderer(scene, 1) as renderer:
-        def poisoned(dx, dy, dz):
+        def poisoned(dx, dy, dz, ray=None):
             out = np.ones((3, len(dx)), np.float32)
             out[:, dz > 0] = np.nan
             out[:, dz < -0.5] = np.inf

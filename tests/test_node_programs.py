@@ -206,6 +206,33 @@ def test_view_dependent_weights_on_a_sphere(node, output):
     compare_to_cycles(scene, samples=16, max_bounces=0)
 
 
+@pytest.mark.parametrize("axis", ["GEOMETRY", "X", "Y", "Z"])
+def test_radial_tangents_on_a_sphere_against_cycles(axis):
+    """Geometry's Tangent and the Tangent node's radial directions (on a plane the Z one would lie along
+    the normal: degenerate, so a rotated sphere)."""
+    scene = new_scene(32, 32)
+    set_world(scene, color=(0, 0, 0))
+    mat = bpy.data.materials.new("Tangents")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    em = tree.nodes.new("ShaderNodeEmission")
+    if axis == "GEOMETRY":
+        source = tree.nodes.new("ShaderNodeNewGeometry").outputs["Tangent"]
+    else:
+        node = tree.nodes.new("ShaderNodeTangent")
+        node.direction_type, node.axis = "RADIAL", axis
+        source = node.outputs["Tangent"]
+    tree.links.new(_shown_positive(tree, source), em.inputs["Color"])
+    tree.links.new(em.outputs[0], out.inputs["Surface"])
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.3, location=(0.2, 0, 1.2), segments=48, ring_count=24)
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.rotation_euler = (0.4, 0.2, 0.7)
+    bpy.context.active_object.scale = (1.0, 0.8, 1.2)
+    bpy.context.active_object.data.materials.append(mat)
+    compare_to_cycles(scene, samples=16, max_bounces=0)
+
+
 def test_object_info_and_vertex_colors_against_cycles():
     scene = new_scene(32, 32)
     set_world(scene, color=(0, 0, 0))

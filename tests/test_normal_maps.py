@@ -120,7 +120,7 @@ def test_tangent_node_and_normal_map_spaces():
     assert not [w for w in result.warnings if "Brushed" in w]
 
 
-def test_unsupported_normal_and_tangent_sources_warn_once_per_material_and_bump_links():
+def test_object_space_normal_map_warns_and_bump_and_radial_tangent_link():
     mat, bsdf = normal_mapped_material("Odd", space="OBJECT", shader="ShaderNodeBsdfPrincipled")
     tree = mat.node_tree
     bump = tree.nodes.new("ShaderNodeBump")
@@ -132,11 +132,10 @@ def test_unsupported_normal_and_tangent_sources_warn_once_per_material_and_bump_
     (closure,) = result.scene.materials.shaders[1].closures
     assert closure.input("Normal") is None
     assert closure.input("Coat Normal").link is not None     # the Bump node's program
-    assert closure.input("Tangent") is None
+    assert closure.input("Tangent").link is not None       # the radial Tangent node's program
     assert result.scene.tangents is None
     (line,) = [w for w in result.warnings if "'Odd'" in w]
     assert "Normal Map 'Normal Map': Object space is not supported" in line
-    assert "Tangent node feeding Tangent of Principled BSDF 'Principled BSDF' in Radial direction" in line
 
 
 def test_mesh_without_uvs_gets_spherical_tangents_with_a_warning():

@@ -296,6 +296,30 @@ def test_anisotropic_metal_with_a_uv_tangent_and_a_normal_mapped_sphere():
     compare_to_cycles(scene, samples=128, max_bounces=4)
 
 
+def test_anisotropic_metals_with_the_default_and_a_radial_x_tangent():
+    """Without a Tangent node Cycles' anisotropy follows the radial tangent about the object's Z axis; a
+    Tangent node in Radial X direction turns it about X (both from Generated coordinates). An arbitrary
+    tangent rendered the brushed highlights across the wrong way."""
+    scene = new_scene(64, 48)
+    default = node_material("Default Tangent", "ShaderNodeBsdfPrincipled", Base_Color=(0.9, 0.7, 0.5),
+                            Metallic=1.0, Roughness=0.35, Anisotropic=0.9)
+    radial_x = node_material("Radial X", "ShaderNodeBsdfPrincipled", Base_Color=(0.6, 0.7, 0.9),
+                             Metallic=1.0, Roughness=0.35, Anisotropic=0.9, Anisotropic_Rotation=0.15)
+    tree = radial_x.node_tree
+    tangent = tree.nodes.new("ShaderNodeTangent")
+    tangent.direction_type, tangent.axis = "RADIAL", "X"
+    tree.links.new(tangent.outputs["Tangent"], tree.nodes["Principled BSDF"].inputs["Tangent"])
+    sphere((-0.55, 0, 0.5), default, radius=0.5)
+    sphere((0.55, 0, 0.5), radial_x, radius=0.5)
+    bpy.context.active_object.rotation_euler = (0.4, 0.0, 0.3)
+    mesh_object("Floor", [(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)], [(0, 1, 2, 3)],
+                diffuse_material("Floor", (0.4, 0.4, 0.4)))
+    add_sun(scene, (0.7, 0.0, -0.6), energy=2.0)
+    add_camera(scene, (0, -3.2, 1.1), (0, 0, 0.5), lens=40)
+    set_world(scene, hdri="courtyard.exr", strength=0.8)
+    compare_to_cycles(scene, samples=128, max_bounces=4)
+
+
 def test_holdout_mixed_half_with_diffuse_cuts_half_the_alpha():
     scene = new_scene(48, 48)
     mat = bpy.data.materials.new("Half Holdout")

@@ -395,8 +395,7 @@ class _MaterialReader:
             if name in NORMAL_INPUTS:
                 value = self.normal_map(source, socket, groups)
             else:
-                value = self.tangent(source, f"{source.node.bl_label} node feeding {name} of {node.bl_label} "
-                                             f"'{node.name}'")
+                value = self.tangent(source, socket, groups)
             if value is not None:
                 out.append((name, value))
         return tuple(out)
@@ -414,13 +413,14 @@ class _MaterialReader:
             self.tangent_uv_maps.append(node.uv_map)
         return NormalMap(color, strength, node.space)
 
-    def tangent(self, source: Source, where: str) -> Tangent | None:
+    def tangent(self, source: Source, socket, groups) -> Tangent | Param | None:
+        """A Tangent input: a UV Map Tangent node as the kernel's Tangent, any other node (a radial Tangent,
+        a Geometry tangent, a vector program) as the program's vector, None when that folds away."""
         if source.kind == "ShaderNodeTangent" and source.node.direction_type == "UV_MAP":
             self.tangent_uv_maps.append(source.node.uv_map)
             return Tangent()
-        detail = " in Radial direction" if source.kind == "ShaderNodeTangent" else ""
-        self.issues.append(f"{where}{detail} is not supported, used an arbitrary tangent")
-        return None
+        param = self.program_param(socket, groups, 3)
+        return param if param.link is not None else None
 
     def check_unsupported(self, node, kind: str, groups) -> None:
         label = f"{node.bl_label} '{node.name}'"
@@ -432,11 +432,6 @@ class _MaterialReader:
             self.issues.append(f"{label} subsurface scattering is rendered as diffuse")
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
-        aniso = {"PRINCIPLED": "Anisotropic", "GLOSSY": "Anisotropy", "METALLIC": "Anisotropy"}.get(kind)
-        tangent = node.inputs.get("Tangent")
-        if aniso and self.is_set(node.inputs[aniso], 0.0, groups) and source_of(tangent, groups).node is None:
-            self.issues.append(f"{label} {aniso}: without a Tangent node (UV Map) linked, Ember's tangent is "
-                               f"arbitrary, not Cycles' radial default")
 
     def param(self, socket, groups, channels: int, node) -> Param:
         """An input as a constant, or a constant times an Image Texture's Color or Alpha."""

@@ -242,7 +242,7 @@ def _uv_map(builder, node, groups):
 
 def _geometry(builder, node, groups):
     outputs = _linked_outputs(node)
-    for name in ("Tangent", "Pointiness", "Random Per Island"):
+    for name in ("Pointiness", "Random Per Island"):
         if name in outputs:
             builder.issues.append(f"Geometry '{node.name}' {name} is not supported, reads zero")
     return builder.add(node.bl_idname, {}, outputs=outputs)
@@ -375,11 +375,18 @@ def _sky(builder, node, groups):
     return builder.add(node.bl_idname, inputs, {"precomputed": sky.precompute_sky(**settings)})
 
 
+def _tangent(builder, node, groups):
+    if node.direction_type == "UV_MAP":
+        builder.tangent_uv_maps.append(node.uv_map)
+    return builder.add(node.bl_idname, {}, {"direction_type": node.direction_type, "axis": node.axis})
+
+
 def _bump(builder, node, groups):
     return builder.add(node.bl_idname, builder.node_inputs(node, groups), {"invert": bool(node.invert)})
 
 
 COMPILERS = {
+    "ShaderNodeTangent": _tangent,
     "ShaderNodeTexEnvironment": _environment,
     "ShaderNodeTexSky": _sky,
     **{name: _texture for name in ("ShaderNodeTexNoise", "ShaderNodeTexWhiteNoise", "ShaderNodeTexWave",

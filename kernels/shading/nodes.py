@@ -17,7 +17,8 @@ from ..bsdf import closures as lobes
 from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
 from ..scene import Closure, NormalMap, Param, Tangent
-from . import normals
+from . import normals, ops
+from .program import HitInputs
 
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
@@ -133,14 +134,25 @@ class Context:
                     self._specular = self.with_normal(valid)
         return self._specular
 
-    def tangent(self, closure: Closure, rotation: str, axis):
-        """The closure's Tangent input (a Tangent node) rotated about axis by 2 pi x the rotation input, or
-        None (unlinked, or no tangents in the scene: the closure takes an arbitrary tangent)."""
-        if not isinstance(closure.input("Tangent"), Tangent):
+    def tangent(self, closure: Closure, rotation: str, axis, anisotropic: bool = True):
+        """The closure's Tangent input rotated about axis by 2 pi x the rotation input: a Tangent node's
+        UV-map tangent, or unlinked Cycles' default, the radial tangent about the object's Z axis (only
+        made when the closure is anisotropic). None: no tangent (the closure takes an arbitrary one)."""
+        spec = closure.input("Tangent")
+        if isinstance(spec, Param):  # a program's vector (a radial Tangent node, ...)
+            t = normals.safe_normalize(tuple(self.shading.param(spec, self, 3)))
+        elif isinstance(spec, Tangent):
+            if "uv_tangent" not in self._shared:
+                self._shared["uv_tangent"] = normals.uv_tangent(self._frame(), self.hit_ns)
+            t = self._shared["uv_tangent"]
+        elif spec is None and anisotropic:
+            if "radial_tangent" not in self._shared:
+                hits = HitInputs(self.shading.data, self.hit, self.idx)
+                radial = ops.radial_tangent(hits, "Z")
+                self._shared["radial_tangent"] = tuple(np.ascontiguousarray(radial[:, k]) for k in range(3))
+            t = self._shared["radial_tangent"]
+        else:
             return None
-        if "uv_tangent" not in self._shared:
-            self._shared["uv_tangent"] = normals.uv_tangent(self._frame(), self.hit_ns)
-        t = self._shared["uv_tangent"]
         if t is None:
             return None
         angle = self.input(closure, rotation)
@@ -249,7 +261,8 @@ def _glossy(c, ctx, w, b):
         ax, ay = mf.glossy_anisotropy(alpha, aniso)
         distribution = c.option("distribution", "MULTI_GGX")
         spec = ctx.specular()
-        tangent = ctx.tangent(c, "Rotation", spec.ns)  # Cycles rotates it about the closure's own normal
+        # Cycles rotates it about the closure's own normal.
+        tangent = ctx.tangent(c, "Rotation", spec.ns, bool(np.any(ax != ay)))
         if distribution == "ASHIKHMIN_SHIRLEY":
             mf.add_ashikhmin_shirley(_with_tangent(b, ctx, tangent), spec, color, w, ax, ay)
         else:
@@ -290,7 +303,7 @@ def _metallic(c, ctx, w, b):
         multiscatter = c.option("distribution", "MULTI_GGX") == "MULTI_GGX"
         weight = np.broadcast_to(w, (3, len(w)))
         spec = ctx.specular()
-        b = _with_tangent(b, ctx, ctx.tangent(c, "Rotation", ctx.ns))
+        b = _with_tangent(b, ctx, ctx.tangent(c, "Rotation", ctx.ns, bool(np.any(ax != ay))))
         if c.option("fresnel", "F82") == "PHYSICAL_CONDUCTOR":
             mf.add_conductor(b, spec, weight, ax, ay, np.maximum(ctx.input(c, "IOR"), ZERO),
                              np.maximum(ctx.input(c, "Extinction"), ZERO), multiscatter,
@@ -361,7 +374,7 @@ def _principled(c, ctx, w, b):
     alpha_r = roughness * roughness
     ax, ay = mf.principled_anisotropy(alpha_r, np.clip(get("Anisotropic"), 0.0, 1.0))
     spec = ctx.specular()
-    anisotropic = _with_tangent(b, ctx, ctx.tangent(c, "Anisotropic Rotation", ctx.ns))
+    anisotropic = _with_tangent(b, ctx, ctx.tangent(c, "Anisotropic Rotation", ctx.ns, bool(np.any(ax != ay))))
     ior = np.maximum(get("IOR"), F32(1e-5))
     specular_tint = np.maximum(get("Specular Tint"), ZERO)
     # 4. Metal: F82-tint conductor.

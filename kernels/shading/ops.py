@@ -87,6 +87,37 @@ def window_point(hits, p: np.ndarray) -> np.ndarray:
     return np.stack([(x - xmin) / F32(xmax - xmin), (y - ymin) / F32(ymax - ymin), np.zeros_like(x)], 1).astype(F32)
 
 
+def radial_tangent(hits, axis: str = "Z") -> np.ndarray:
+    """Cycles' radial tangent (svm_node_tangent, and the default of unlinked Tangent inputs about Z): around
+    the object's axis through its texture space's centre, to world space as a normal, made orthogonal to
+    the shading normal. (n, 3) float32."""
+    g = generated(hits) - HALF
+    zero = np.zeros(hits.n, F32)
+    if axis == "X":
+        t = np.stack([zero, -g[:, 2], g[:, 1]], 1)
+    elif axis == "Y":
+        t = np.stack([-g[:, 2], zero, g[:, 0]], 1)
+    else:
+        t = np.stack([-g[:, 1], g[:, 0], zero], 1)
+    a = hits.objects()[:, OBJ_FROM_WORLD:OBJ_FROM_WORLD + 12].reshape(-1, 3, 4)[:, :, :3]
+    t = np.einsum("nji,nj->ni", a, t)  # object_normal_transform: (object_from_world)^T t
+    n = hits.N
+    return np.cross(n, _normalize(np.cross(t, n))).astype(F32)
+
+
+def tangent_node(hits, inputs, op):
+    """The Tangent node: radial about an axis, or the UV map's (MikkTSpace) tangent; Cycles' last step
+    N x normalize(T x N) for both."""
+    if op.option("direction_type", "RADIAL") == "RADIAL":
+        return {"Tangent": radial_tangent(hits, op.option("axis", "Z"))}
+    frame = hits.hit.tangent_frame(hits.idx)
+    if frame is None:
+        return {"Tangent": np.zeros((hits.n, 3), F32)}
+    t = np.stack(frame[0], axis=1)
+    n = hits.N
+    return {"Tangent": np.cross(n, _normalize(np.cross(t, n))).astype(F32)}
+
+
 def tex_coord(hits, inputs, op):
     wanted = op.option("outputs", ("Generated", "Normal", "UV", "Object", "Camera", "Window", "Reflection"))
     out = {}
@@ -146,7 +177,9 @@ def geometry(hits, inputs, op):
             out[name] = np.stack([ONE - b1 - b2, b1, np.zeros_like(b1)], 1).astype(F32)
         elif name == "Backfacing":
             out[name] = hits.backfacing.astype(F32)
-        else:  # Tangent, Pointiness, Random Per Island: the export warned
+        elif name == "Tangent":
+            out[name] = radial_tangent(hits, "Z")
+        else:  # Pointiness, Random Per Island: the export warned
             out[name] = np.zeros((hits.n,) if name in ("Pointiness", "Random Per Island") else (hits.n, 3), F32)
     return out
 
@@ -475,6 +508,7 @@ OPS = {
     "ShaderNodeNormalMap": normal_map,
     "ShaderNodeTexImage": image,
     "ShaderNodeTexEnvironment": environment,
+    "ShaderNodeTangent": tangent_node,
     "ShaderNodeTexSky": sky,
 }
 # Ops that read nothing of the hits besides their inputs: folded at export when those are constants.
