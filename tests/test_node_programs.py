@@ -233,6 +233,57 @@ def test_radial_tangents_on_a_sphere_against_cycles(axis):
     compare_to_cycles(scene, samples=16, max_bounces=0)
 
 
+def _sphere_showing(scene, build, samples=16):
+    """A transformed sphere whose emission is |build(tree)| + 0.05, compared with Cycles."""
+    set_world(scene, color=(0, 0, 0))
+    mat = bpy.data.materials.new("Shown")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    em = tree.nodes.new("ShaderNodeEmission")
+    tree.links.new(_shown_positive(tree, build(tree)), em.inputs["Color"])
+    tree.links.new(em.outputs[0], out.inputs["Surface"])
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.3, location=(0.2, 0.1, 1.2), segments=48, ring_count=24)
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.rotation_euler = (0.4, 0.2, 0.7)
+    bpy.context.active_object.scale = (1.0, 0.8, 1.2)
+    bpy.context.active_object.data.materials.append(mat)
+    compare_to_cycles(scene, samples=samples, max_bounces=0)
+
+
+@pytest.mark.parametrize("kind,source,target", [
+    ("POINT", "WORLD", "OBJECT"), ("POINT", "OBJECT", "CAMERA"), ("POINT", "CAMERA", "WORLD"),
+    ("VECTOR", "WORLD", "CAMERA"), ("VECTOR", "OBJECT", "WORLD"), ("VECTOR", "CAMERA", "OBJECT"),
+    ("NORMAL", "WORLD", "OBJECT"), ("NORMAL", "OBJECT", "CAMERA"), ("NORMAL", "CAMERA", "WORLD")])
+def test_vector_transform_against_cycles(kind, source, target):
+    scene = new_scene(32, 32)
+
+    def build(tree):
+        coords = tree.nodes.new("ShaderNodeTexCoord")
+        node = tree.nodes.new("ShaderNodeVectorTransform")
+        node.vector_type, node.convert_from, node.convert_to = kind, source, target
+        tree.links.new(coords.outputs["Object"], node.inputs["Vector"])
+        return node.outputs["Vector"]
+
+    _sphere_showing(scene, build)
+
+
+@pytest.mark.parametrize("output", ["View Vector", "View Z Depth", "View Distance", "Dot"])
+def test_camera_data_and_normal_nodes_against_cycles(output):
+    scene = new_scene(32, 32)
+
+    def build(tree):
+        if output == "Dot":
+            node = tree.nodes.new("ShaderNodeNormal")
+            node.outputs["Normal"].default_value = (0.3, -0.8, 0.5)
+            geometry = tree.nodes.new("ShaderNodeNewGeometry")
+            tree.links.new(geometry.outputs["Normal"], node.inputs["Normal"])
+            return node.outputs["Dot"]
+        return tree.nodes.new("ShaderNodeCameraData").outputs[output]
+
+    _sphere_showing(scene, build)
+
+
 def test_object_info_and_vertex_colors_against_cycles():
     scene = new_scene(32, 32)
     set_world(scene, color=(0, 0, 0))

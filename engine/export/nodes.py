@@ -381,11 +381,20 @@ def _tangent(builder, node, groups):
     return builder.add(node.bl_idname, {}, {"direction_type": node.direction_type, "axis": node.axis})
 
 
+def _normal(builder, node, groups):
+    direction = tuple(float(v) for v in node.outputs["Normal"].default_value)
+    return builder.add(node.bl_idname, builder.node_inputs(node, groups), {"direction": direction},
+                       outputs=_linked_outputs(node))
+
+
 def _bump(builder, node, groups):
     return builder.add(node.bl_idname, builder.node_inputs(node, groups), {"invert": bool(node.invert)})
 
 
 COMPILERS = {
+    "ShaderNodeVectorTransform": _plain,
+    "ShaderNodeNormal": _normal,
+    "ShaderNodeCameraData": _plain,
     "ShaderNodeTangent": _tangent,
     "ShaderNodeTexEnvironment": _environment,
     "ShaderNodeTexSky": _sky,

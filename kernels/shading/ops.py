@@ -87,6 +87,88 @@ def window_point(hits, p: np.ndarray) -> np.ndarray:
     return np.stack([(x - xmin) / F32(xmax - xmin), (y - ymin) / F32(ymax - ymin), np.zeros_like(x)], 1).astype(F32)
 
 
+_FLIP_Z = np.array([1.0, 1.0, -1.0], F32)
+
+
+def _object_linear(hits, column: int) -> np.ndarray:
+    return hits.objects()[:, column:column + 12 if column == OBJ_FROM_WORLD else column + 9]
+
+
+def to_object(hits, v: np.ndarray, kind: str) -> np.ndarray:
+    """World -> object space of POINT, VECTOR or NORMAL values (Cycles' object_inverse_*_transform)."""
+    if kind == "POINT":
+        return object_point(hits, v)
+    if kind == "NORMAL":
+        return object_normal(hits, v)
+    a = _object_linear(hits, OBJ_FROM_WORLD).reshape(-1, 3, 4)[:, :, :3]
+    return np.einsum("nij,nj->ni", a, v).astype(F32)
+
+
+def to_world(hits, v: np.ndarray, kind: str) -> np.ndarray:
+    """Object -> world space (Cycles' object_*_transform)."""
+    if kind == "NORMAL":  # by the inverse transpose: (object_from_world)^T n
+        a = _object_linear(hits, OBJ_FROM_WORLD).reshape(-1, 3, 4)[:, :, :3]
+        return _normalize(np.einsum("nji,nj->ni", a, v)).astype(F32)
+    m = _object_linear(hits, OBJ_WORLD_LINEAR).reshape(-1, 3, 3)
+    out = np.einsum("nij,nj->ni", m, v)
+    if kind == "POINT":
+        out = out + hits.objects()[:, OBJ_LOCATION:OBJ_LOCATION + 3]
+    return out.astype(F32)
+
+
+def camera_from_world(hits, v: np.ndarray, kind: str) -> np.ndarray:
+    """World -> Cycles' camera space (z ahead) of points, vectors or normals (normalized)."""
+    if kind == "POINT":
+        return camera_point(hits, v)
+    out = (v @ hits.scene.camera_rotation) * _FLIP_Z
+    return _normalize(out) if kind == "NORMAL" else out.astype(F32)
+
+
+def world_from_camera(hits, v: np.ndarray, kind: str) -> np.ndarray:
+    out = (v * _FLIP_Z) @ hits.scene.camera_rotation.T
+    if kind == "POINT":
+        return (out + hits.scene.camera_eye).astype(F32)
+    return _normalize(out) if kind == "NORMAL" else out.astype(F32)
+
+
+def vector_transform(hits, inputs, op):
+    """The Vector Transform node (svm_node_vector_transform): between World, Object and Camera space,
+    as a point, a vector or a normal. In a world (no object) object space is world space."""
+    v = np.array(full(inputs["Vector"], hits.n, 3), F32)
+    kind = op.option("vector_type", "VECTOR")
+    source, target = op.option("convert_from", "WORLD"), op.option("convert_to", "OBJECT")
+    has_object = not getattr(hits, "world", False)
+    if source == "CAMERA" and target in ("WORLD", "OBJECT"):
+        v = world_from_camera(hits, v, kind)
+        source = "WORLD"
+    if source == "OBJECT" and target in ("WORLD", "CAMERA"):
+        if has_object:
+            v = to_world(hits, v, kind)
+        source = "WORLD"
+    if source == "WORLD" and target == "OBJECT" and has_object:
+        v = to_object(hits, v, kind)
+    elif source == "WORLD" and target == "CAMERA":
+        v = camera_from_world(hits, v, kind)
+    return {"Vector": v}
+
+
+def normal_node(hits, inputs, op):
+    """The Normal node: its own direction (normalized) and the dot product with the input normal."""
+    direction = np.asarray(op.option("direction", (0.0, 0.0, 1.0)), F32)
+    direction = direction / max(float(np.linalg.norm(direction)), 1e-30)
+    normal = _normalize(np.array(full(inputs["Normal"], hits.n, 3), F32))
+    return {"Normal": np.broadcast_to(direction, (hits.n, 3)), "Dot": (normal @ direction).astype(F32)}
+
+
+def camera_data(hits, inputs, op):
+    """The Camera Data node: the shading point in Cycles' camera space (View Vector normalized, its z as
+    View Z Depth, its length as View Distance)."""
+    c = camera_point(hits, hits.P)
+    distance = np.sqrt(_dot(c, c))
+    return {"View Vector": c / np.where(distance > 0, distance, ONE)[:, None], "View Z Depth": c[:, 2],
+            "View Distance": distance.astype(F32)}
+
+
 def radial_tangent(hits, axis: str = "Z") -> np.ndarray:
     """Cycles' radial tangent (svm_node_tangent, and the default of unlinked Tangent inputs about Z): around
     the object's axis through its texture space's centre, to world space as a normal, made orthogonal to
@@ -509,6 +591,9 @@ OPS = {
     "ShaderNodeTexImage": image,
     "ShaderNodeTexEnvironment": environment,
     "ShaderNodeTangent": tangent_node,
+    "ShaderNodeVectorTransform": vector_transform,
+    "ShaderNodeNormal": normal_node,
+    "ShaderNodeCameraData": camera_data,
     "ShaderNodeTexSky": sky,
 }
 # Ops that read nothing of the hits besides their inputs: folded at export when those are constants.
