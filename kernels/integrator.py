@@ -303,6 +303,8 @@ class Renderer:
         jx, jy = samples.camera()
         rays = Rays(*generate_rays(self.scene.camera, row, col, jx, jy))
         state = PathState.start(n, samples)
+        if self.shading.reads_lobes:
+            state.lobes = np.zeros((4, n), np.int32)
         if self.scene.camera.kind == "ORTHO":
             state.dp[:] = self._pixel_size
         max_scatters = int(settings.max_bounces) + 1
@@ -322,7 +324,7 @@ class Renderer:
             # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
             # of distance, bounce after bounce (kernel/util/differential.h).
             state.dp = state.dp + t_hit * wave.spread_dd
-            hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp)
+            hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes)
             shading = self.shading.surface(hit)
             if self._emissive:
                 self._emission_on_hit(wave, state, hit, shading, hits, rays, found)
@@ -333,6 +335,8 @@ class Renderer:
                 self._next_event(wave, state, hit, shading.closures, numbers)
             bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
             alive = self._continues(wave, hit, state, bs, numbers)
+            if state.lobes is not None:
+                state.track_lobes(bs, shading.closures, bs.transparent)
             if not len(alive):
                 break
             state.compact(alive)
@@ -367,7 +371,8 @@ class Renderer:
                     return
         d = rays.dirs
         mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
-        ray = RayInfo(state.bounce[miss], state.transparent[miss], emission=True) if self.environment.shader else None
+        ray = RayInfo(state.bounce[miss], state.transparent[miss], emission=True,
+                      lobes=None if state.lobes is None else state.lobes[:, miss]) if self.environment.shader else None
         env = np.take(state.throughput, miss, axis=1) * self.environment.radiance(mx, my, mz, ray)
         if wave.nee:
             mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
@@ -514,8 +519,10 @@ class Renderer:
         # Stop short of the sampled point so that the emitter itself does not count as an occluder.
         t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - np.abs(eps), np.inf).astype(np.float32)
         origins = np.stack([ox, oy, oz], axis=1)
+        paths = active[idx]
         transmittance = self._shadow(origins, np.stack([wx, wy, wz], axis=1), t_max, wave,
-                                     np.take(state.bounce, active[idx]))
+                                     np.take(state.bounce, paths), None if state.lobes is None else
+                                     np.take(state.lobes, paths, axis=1))
         vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
         if not len(vis):
             return
@@ -527,10 +534,11 @@ class Renderer:
             np.take(ls.radiance, rows, axis=1) * (w / pdf)
         _accumulate(wave.radiance, state.path[paths], contribution)
 
-    def _shadow(self, origins, dirs, t_max, wave, depth) -> np.ndarray:
+    def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None) -> np.ndarray:
         """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
         transparent surfaces, the product of their transparency (Cycles' transparent shadows).
-        depth : (n,) the bounce of the path each shadow ray leaves from (the Light Path node's)."""
+        depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None):
+        what the Light Path node reads."""
         n = len(origins)
         split = wave.split
         if not self.shading.transparent.any():
@@ -548,7 +556,8 @@ class Renderer:
             hit = SurfaceHit(self._triangles, self._material_ids, hits.prim[found], hits.u[found], hits.v[found],
                              (d[:, 0], d[:, 1], d[:, 2]), self.shading.needs_uv)
             passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
-            hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True)
+            hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
+                              lobes=None if lobes is None else lobes[:, live[found]])
             passes = self.shading.transparency(hit)
             out[:, live[found]] *= passes
             through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]

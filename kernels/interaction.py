@@ -84,10 +84,11 @@ class RayInfo:
     whether these are shadow rays; dp, the rays' position spread at the hits (Cycles' compact
     differential sd->dP, for the Bump node), None for none. emission: the world or a light is evaluated
     (Cycles' PATH_RAY_EMISSION: one bounce further); camera=False: not a camera ray whatever the depth
-    (a light sample of the world)."""
-    __slots__ = ("depth", "transparent", "length", "shadow", "dp", "emission", "camera")
+    (a light sample of the world). lobes: (4, N) paths.PathState.lobes (label bits, diffuse, glossy and
+    transmission bounces) or None when no Light Path node reads them."""
+    __slots__ = ("depth", "transparent", "length", "shadow", "dp", "emission", "camera", "lobes")
 
     def __init__(self, depth, transparent, length=None, shadow: bool = False, dp=None, emission: bool = False,
-                 camera: bool = True):
+                 camera: bool = True, lobes=None):
         self.depth, self.transparent, self.length, self.shadow, self.dp = depth, transparent, length, shadow, dp
-        self.emission, self.camera = emission, camera
+        self.emission, self.camera, self.lobes = emission, camera, lobes

@@ -7,6 +7,9 @@ import numpy as np
 
 from .samples import Samples
 
+# Cycles' closure labels, as PathState.lobes[0] holds the last bounce's (kernel/closure/bsdf_util.h).
+DIFFUSE, GLOSSY, SINGULAR, REFLECT, TRANSMIT = 1, 2, 4, 8, 16
+
 
 @dataclass
 class PathState:
@@ -17,6 +20,8 @@ class PathState:
     bounce: np.ndarray      # (N,) int32: scattering events so far (0 = still the camera ray)
     transparent: np.ndarray  # (N,) int32: transparent surfaces passed straight through so far
     dp: np.ndarray          # (N,) float32: the ray's position spread (Cycles' compact differential dP)
+    lobes: np.ndarray | None = None  # (4, N) int32 or None: the last bounce's LABEL_* bits and the diffuse,
+    #                                  glossy and transmission bounce counts (Light Path), when read
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -32,6 +37,25 @@ class PathState:
         self.bounce = np.take(self.bounce, idx)
         self.transparent = np.take(self.transparent, idx)
         self.dp = np.take(self.dp, idx)
+        if self.lobes is not None:
+            self.lobes = np.take(self.lobes, idx, axis=1)
+
+    def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
+        """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels
+        and per-type bounce counts (path_state_next); transparent pass-throughs change nothing."""
+        scattered = ~passing & (bs.row >= 0)
+        if not scattered.any():
+            return
+        idx = np.flatnonzero(scattered)
+        diffuse = closures.is_diffuse(bs.row[idx])
+        delta = bs.delta[idx]
+        transmit = bs.transmit[idx]
+        label = np.where(transmit, TRANSMIT, REFLECT) | np.where(diffuse, DIFFUSE, np.where(delta, GLOSSY | SINGULAR,
+                                                                                             GLOSSY))
+        self.lobes[0, idx] = label
+        self.lobes[1, idx] += ~transmit & diffuse
+        self.lobes[2, idx] += ~transmit & ~diffuse
+        self.lobes[3, idx] += transmit
 
     def __len__(self) -> int:
         return len(self.path)

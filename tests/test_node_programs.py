@@ -371,3 +371,48 @@ def test_layer_weight_mix_and_tinted_image_against_cycles():
     """A glTF-style tint (image x colour through a Mix node) in a Layer Weight mix of Diffuse and Glossy."""
     scene = scenes.lit_sphere_scene(scenes.tinted_material)
     compare_to_cycles(scene, samples=64, max_bounces=4)
+
+
+@pytest.mark.parametrize("output", ["Is Glossy Ray", "Is Diffuse Ray", "Is Reflection Ray", "Is Transmission Ray",
+                                    "Is Singular Ray", "Diffuse Depth", "Glossy Depth", "Transmission Depth",
+                                    "Ray Depth", "Is Camera Ray", "Is Shadow Ray"])
+def test_light_path_outputs_against_cycles(output):
+    """A floor whose colour switches with the Light Path output, seen directly, in a rough metal ball, through
+    a glass ball and a sharp mirror, lit by a lamp (shadow rays) and a grey sky."""
+    scene = new_scene(48, 32)
+    set_world(scene, color=(0.4, 0.45, 0.5))
+    mat = bpy.data.materials.new("Switch")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    grey, red = tree.nodes.new("ShaderNodeBsdfDiffuse"), tree.nodes.new("ShaderNodeBsdfDiffuse")
+    red.inputs["Color"].default_value = (0.9, 0.1, 0.05, 1.0)
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    path = tree.nodes.new("ShaderNodeLightPath")
+    clamp = tree.nodes.new("ShaderNodeMath")
+    clamp.operation, clamp.use_clamp = "MULTIPLY", True
+    clamp.inputs[1].default_value = 0.5
+    tree.links.new(path.outputs[output], clamp.inputs[0])
+    tree.links.new(clamp.outputs[0], mix.inputs[0])
+    tree.links.new(grey.outputs[0], mix.inputs[1])
+    tree.links.new(red.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    bpy.ops.mesh.primitive_plane_add(size=12)
+    bpy.context.active_object.data.materials.append(mat)
+    for x, (name, inputs) in zip((-1.3, 0.0, 1.3), (
+            ("Rough Metal", {"Metallic": 1.0, "Roughness": 0.3}),
+            ("Glass", {"Transmission Weight": 1.0, "Roughness": 0.0}),
+            ("Mirror", {"Metallic": 1.0, "Roughness": 0.0}))):
+        ball = bpy.data.materials.new(name)
+        bsdf = ball.node_tree.nodes["Principled BSDF"]
+        for key, value in inputs.items():
+            bsdf.inputs[key].default_value = value
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.6, location=(x, 0, 0.6), segments=32, ring_count=16)
+        bpy.ops.object.shade_smooth()
+        bpy.context.active_object.data.materials.append(ball)
+    lamp = bpy.data.lights.new("Lamp", "POINT")
+    lamp.energy, lamp.shadow_soft_size = 300.0, 0.3
+    lamp_object = bpy.data.objects.new("Lamp", lamp)
+    lamp_object.location = (1.5, -2.0, 3.0)
+    scene.collection.objects.link(lamp_object)
+    compare_to_cycles(scene, samples=64, max_bounces=4)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, mesh_object, new_scene, quad_object, \
-    set_world
+    replicate_render, set_world
 
 
 def node_material(name, idname, **inputs):
@@ -380,3 +380,33 @@ def test_objects_without_a_material_render_cycles_default_surface():
     set_world(scene, color=(0.6, 0.7, 0.8), strength=1.0)
     mesh_object("Floor", [(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)], [(0, 1, 2, 3)])
     compare_to_cycles(scene, samples=64, max_bounces=4)
+
+
+@pytest.mark.parametrize("shader", ["ShaderNodeMixShader", "ShaderNodeAddShader"])
+def test_two_diffuse_bsdfs_mixed_or_added_in_a_white_furnace(shader):
+    """A plane seen straight down under a white sky returns its albedo: 0.5 (grey + red) for the Mix,
+    grey + red for the Add. Ember used to keep only one of two Diffuse BSDFs of a material in BSDF
+    sampling (24% dark) and only one of them at all when they were batched."""
+    scene = new_scene(8, 8)
+    set_world(scene, color=(1.0, 1.0, 1.0))
+    mat = bpy.data.materials.new("Two Diffuse")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    grey, red = tree.nodes.new("ShaderNodeBsdfDiffuse"), tree.nodes.new("ShaderNodeBsdfDiffuse")
+    grey.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
+    red.inputs["Color"].default_value = (0.9, 0.1, 0.05, 1.0)
+    node = tree.nodes.new(shader)
+    first = 1 if shader == "ShaderNodeMixShader" else 0
+    if first:
+        node.inputs[0].default_value = 0.5
+    tree.links.new(grey.outputs[0], node.inputs[first])
+    tree.links.new(red.outputs[0], node.inputs[first + 1])
+    tree.links.new(node.outputs[0], out.inputs["Surface"])
+    mesh_object("Plane", [(-500, -500, 0), (500, -500, 0), (500, 500, 0), (-500, 500, 0)], [(0, 1, 2, 3)], mat)
+    scene.camera.location, scene.camera.rotation_euler = (0, 0, 2), (0, 0, 0)
+    image, variance = replicate_render(scene, "EMBER", 32, max_bounces=2)
+    albedo = np.array([0.85, 0.45, 0.425]) * (1 if first else 2)
+    mean = image.reshape(-1, 3).mean(axis=0)
+    se = np.sqrt(variance.reshape(-1, 3).sum(axis=0)) / (8 * 8)
+    assert np.all(np.abs(mean - albedo) < 5 * se + 1e-4), (mean, albedo, se)

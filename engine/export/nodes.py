@@ -275,14 +275,11 @@ def _plain(builder, node, groups):
 
 def _light_path(builder, node, groups):
     outputs = _linked_outputs(node)
-    unsupported = [o for o in outputs if o in LIGHT_PATH_UNSUPPORTED]
+    unsupported = [o for o in outputs if o in ("Is Volume Scatter Ray", "Portal Depth")]
     if unsupported:
-        builder.issues.append(f"Light Path '{node.name}' {', '.join(unsupported)}: not tracked, read zero")
+        builder.issues.append(f"Light Path '{node.name}' {', '.join(unsupported)}: Ember has no volumes or "
+                              f"portals, read zero")
     return builder.add(node.bl_idname, {}, outputs=outputs)
-
-
-LIGHT_PATH_UNSUPPORTED = ("Is Diffuse Ray", "Is Glossy Ray", "Is Singular Ray", "Is Reflection Ray",
-                          "Is Transmission Ray", "Diffuse Depth", "Glossy Depth", "Transmission Depth")
 
 
 def _normal_map(builder, node, groups):

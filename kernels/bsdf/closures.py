@@ -271,6 +271,7 @@ class ClosureSet:
         n = self.n_hits
         out = BsdfSample(n)
         row = self.choose(u_lobe)
+        out.row = row
         has = np.flatnonzero(row >= 0)
         if not len(has):
             return out
@@ -319,8 +320,9 @@ class ClosureSet:
         pdf[fix] += (pdf_c * lost * self.sw[r] / self.total_sw[s[fix]]).astype(F32)
 
     def _sample_lambert(self, out, hits, rows, u1, u2):
-        """Only Lambert closures, one per hit: a cosine sample about the normal, weight = the closure's
-        weight exactly (f cos / pdf of a cosine-sampled Lambert lobe)."""
+        """Only Lambert closures, all on the shading normal: a cosine sample about it. Every closure of
+        the hit has the same pdf, so the mixture's f cos / pdf is the sum of the hit's closure weights
+        (one closure's weight when it has one)."""
         lx, ly, lz = sampling.sample_cosine_hemisphere(u1[hits], u2[hits])
         n = self.normal[:, rows]
         world = sampling.local_to_world(lx, ly, lz, n[0], n[1], n[2])
@@ -328,8 +330,18 @@ class ClosureSet:
             out.wi[axis][hits] = world[axis]
         pdf = sampling.cosine_hemisphere_pdf(lz)
         good = pdf > 0
-        out.weight[:, hits] = np.where(good, self.weight[:, rows], ZERO)
+        if self.single:
+            weight = self.weight[:, rows]
+        else:  # a Mix or Add of Diffuse BSDFs
+            weight = np.stack([np.bincount(self.hit, self.weight[k], minlength=self.n_hits)[hits]
+                               for k in range(3)]).astype(F32)
+        out.weight[:, hits] = np.where(good, weight, ZERO)
         out.pdf[hits] = pdf
+
+    def is_diffuse(self, rows: np.ndarray) -> np.ndarray:
+        """Whether closure rows are diffuse lobes (Cycles' LABEL_DIFFUSE: Lambert, Oren-Nayar, Translucent,
+        Sheen); the others are glossy, or singular when delta."""
+        return np.isin(self.lobe[rows], DIFFUSE_LOBES)
 
     def _sample_lobes(self, out, hits, rows, u1, u2, uc):
         """Each hit's chosen closure samples its own lobe: direction, lobe weight, lobe pdf."""
@@ -389,8 +401,9 @@ class ClosureSet:
 
 class BsdfSample:
     """Per hit: direction wi (world), throughput weight (3, N), pdf (N,) for MIS (inf for delta),
-    delta, transmit (wi goes through the surface) and transparent (a pass-through) masks."""
-    __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent")
+    delta, transmit (wi goes through the surface) and transparent (a pass-through) masks, and row, the
+    closure table row that was picked (-1: none), whose lobe says diffuse or glossy (Light Path)."""
+    __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent", "row")
 
     def __init__(self, n: int):
         self.wi = (np.zeros(n, F32), np.zeros(n, F32), np.ones(n, F32))
@@ -399,6 +412,7 @@ class BsdfSample:
         self.delta = np.zeros(n, bool)
         self.transmit = np.zeros(n, bool)
         self.transparent = np.zeros(n, bool)
+        self.row = np.full(n, -1, np.int64)
 
 
 # ---------------------------------------------------------------- lobes: eval(cs, rows, wo, wi) -> (f_cos, pdf)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..textures import srgb_to_linear
+from ..paths import DIFFUSE, GLOSSY, REFLECT, SINGULAR, TRANSMIT
 from . import normals
 from . import sky as sk
 
@@ -339,26 +340,45 @@ def _normal_input(hits, inputs):
     return hits.N if normal is None else full(normal, hits.n, 3)
 
 
+# Light Path outputs read from the path's last bounce (PathState.lobes): (row, label bit or None).
+LOBE_OUTPUTS = {"Is Diffuse Ray": (0, DIFFUSE), "Is Glossy Ray": (0, GLOSSY), "Is Singular Ray": (0, SINGULAR),
+                "Is Reflection Ray": (0, REFLECT), "Is Transmission Ray": (0, TRANSMIT),
+                "Diffuse Depth": (1, None), "Glossy Depth": (2, None), "Transmission Depth": (3, None)}
+
+
+def reads_lobes(program) -> bool:
+    """Whether a program's Light Path nodes read the last bounce's lobe (the integrator then tracks it)."""
+    return any(op.kind == "ShaderNodeLightPath" and set(op.option("outputs", ())) & set(LOBE_OUTPUTS)
+               for op in program.ops)
+
+
 def light_path(hits, inputs, op):
-    """Cycles' Light Path outputs from the path state the integrator attached to the hits."""
+    """Cycles' Light Path outputs (svm_node_light_path) from the path state the integrator attached."""
     ray = hits.hit.ray
     n = hits.n
-    take = (lambda a: np.take(a, hits.idx).astype(F32)) if ray is not None else None
+    zero = np.zeros(n, F32)
+
+    def take(a):
+        return np.take(a, hits.idx).astype(F32) if a is not None else zero
     shadow = ray is not None and ray.shadow
-    depth = take(ray.depth) if ray is not None else np.zeros(n, F32)
+    depth = take(ray.depth) if ray is not None else zero
     camera = ray is None or (ray.camera and not shadow)
     further = ray is not None and (shadow or ray.emission)
     out = {"Is Camera Ray": ((depth == 0) & camera).astype(F32),
            "Is Shadow Ray": np.full(n, F32(1.0 if shadow else 0.0)),
-           "Ray Length": take(ray.length) if ray is not None and ray.length is not None else np.zeros(n, F32),
+           "Ray Length": take(ray.length) if ray is not None else zero,
            # Shadow rays, the world and lights are one bounce further (Cycles adds 1 for them).
            "Ray Depth": depth + F32(1.0 if further else 0.0),
-           "Transparent Depth": take(ray.transparent) if ray is not None else np.zeros(n, F32),
-           "Is Diffuse Ray": np.zeros(n, F32), "Is Glossy Ray": np.zeros(n, F32),
-           "Is Singular Ray": np.zeros(n, F32), "Is Reflection Ray": np.zeros(n, F32),
-           "Is Transmission Ray": np.zeros(n, F32), "Is Volume Scatter Ray": np.zeros(n, F32),
-           "Diffuse Depth": np.zeros(n, F32), "Glossy Depth": np.zeros(n, F32),
-           "Transmission Depth": np.zeros(n, F32), "Portal Depth": np.zeros(n, F32)}
+           "Transparent Depth": take(ray.transparent) if ray is not None else zero,
+           "Is Volume Scatter Ray": zero, "Portal Depth": zero}
+    lobes = None if ray is None or ray.lobes is None else np.take(ray.lobes, hits.idx, axis=1)
+    for name, (row, bit) in LOBE_OUTPUTS.items():
+        if lobes is None:
+            out[name] = zero
+        elif bit is None:
+            out[name] = lobes[row].astype(F32)
+        else:
+            out[name] = ((lobes[row] & bit) != 0).astype(F32)
     return out
 
 

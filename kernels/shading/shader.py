@@ -8,6 +8,7 @@ from ..camera import camera_frame, view_plane
 from ..scene import Camera, Closure, Materials, Param, object_row
 from ..textures import Texture, finite_uv, luminance
 from . import nodes
+from . import ops
 from .ops import OPS
 from .program import HitInputs, ProgramRun
 
@@ -57,6 +58,10 @@ class Shading:
         self.shaders = materials.shaders
         self.textures = textures
         self.data = ShadingData(textures, scene)
+        world = getattr(scene, "world", None)
+        # Whether a Light Path node reads the last bounce's lobe: the integrator tracks it only then.
+        self.reads_lobes = any(ops.reads_lobes(s.program) for s in self.shaders) or (
+            world is not None and world.program is not None and ops.reads_lobes(world.program))
         self.emissive = np.array([_may_emit(s.closures) for s in self.shaders], bool)
         # Emission that depends on more than the material: a texture, or layers above it (Principled).
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)
@@ -285,15 +290,20 @@ class _BatchClosure:
 
 def _batches(rest, bump_corrections):
     """Group the closures left to build by (kind, options, bump map correction): those with plain inputs
-    batch across materials; normal maps and tangents stay with their material. Returns (batches: lists of
+    batch across materials; normal maps and tangents stay with their material. A batch holds at most one
+    closure of each material (a material's second Diffuse goes into a second batch): the hits of a batch
+    must be distinct, since the builder and the emission sum index by hit. Returns (batches: lists of
     (material, closure)), closures built alone per material)."""
     keyed: dict = {}
     alone = [[] for _ in rest]
     for m, closures in enumerate(rest):
+        seen: dict = {}
         for c in closures:
             if all(isinstance(p, Param) and p.link is None for _, p in c.inputs) and \
                     all(p.link is None for p, _ in c.factors):
-                keyed.setdefault((c.kind, c.options, bump_corrections[m]), []).append((m, c))
+                key = (c.kind, c.options, bump_corrections[m])
+                seen[key] = seen.get(key, -1) + 1
+                keyed.setdefault(key + (seen[key],), []).append((m, c))
             else:
                 alone[m].append(c)
     return list(keyed.values()), [tuple(a) for a in alone]
