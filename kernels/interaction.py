@@ -68,6 +68,12 @@ class SurfaceHit:
         rows = np.take(self._table.rows, np.take(self.prim, idx), axis=0)
         return rows[:, E1:E1 + 3], rows[:, E2:E2 + 3]
 
+    def corners(self, idx: np.ndarray):
+        """(p0, p1, p2): the (n, 3) corners of the hits' triangles."""
+        rows = np.take(self._table.rows, np.take(self.prim, idx), axis=0)
+        p0 = rows[:, P0:P0 + 3]
+        return p0, p0 + rows[:, E1:E1 + 3], p0 + rows[:, E2:E2 + 3]
+
     def tangent_frame(self, idx: np.ndarray):
         """At hits idx: the interpolated, unnormalized tangent (x, y, z) and bitangent sign (n,), and the
         unnormalized interpolated corner normal (x, y, z), not flipped for back faces: what Cycles'

@@ -284,6 +284,25 @@ def test_camera_data_and_normal_nodes_against_cycles(output):
     _sphere_showing(scene, build)
 
 
+@pytest.mark.parametrize("pixel_size", [False, True])
+def test_wireframe_against_cycles(pixel_size):
+    scene = new_scene(48, 48)
+    set_world(scene, color=(0, 0, 0))
+    mat = bpy.data.materials.new("Wire")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    em = tree.nodes.new("ShaderNodeEmission")
+    wire = tree.nodes.new("ShaderNodeWireframe")
+    wire.use_pixel_size = pixel_size
+    wire.inputs["Size"].default_value = 1.5 if pixel_size else 0.04
+    tree.links.new(wire.outputs["Fac"], em.inputs["Strength"])
+    tree.links.new(em.outputs[0], out.inputs["Surface"])
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.3, location=(0, 0, 1.3), segments=12, ring_count=6)
+    bpy.context.active_object.data.materials.append(mat)
+    compare_to_cycles(scene, samples=64, max_bounces=0)
+
+
 def test_object_info_and_vertex_colors_against_cycles():
     scene = new_scene(32, 32)
     set_world(scene, color=(0, 0, 0))
@@ -416,3 +435,49 @@ def test_light_path_outputs_against_cycles(output):
     lamp_object.location = (1.5, -2.0, 3.0)
     scene.collection.objects.link(lamp_object)
     compare_to_cycles(scene, samples=64, max_bounces=4)
+
+
+# ---------------------------------------------------------------- bad graphs
+def test_a_cycle_in_the_node_tree_is_cut_not_followed():
+    """Blender marks a link that closes a loop invalid; the program sees the loop open, as Cycles does,
+    and the render finishes with finite values."""
+    new_scene(8, 8)
+    mat = bpy.data.materials.new("Loop")
+    tree = mat.node_tree
+    bsdf = tree.nodes["Principled BSDF"]
+    a, b = tree.nodes.new("ShaderNodeMath"), tree.nodes.new("ShaderNodeMath")
+    tree.links.new(a.outputs[0], b.inputs[0])
+    tree.links.new(b.outputs[0], a.inputs[0])
+    tree.links.new(b.outputs[0], bsdf.inputs["Roughness"])
+    mesh_object("Quad", [(-1, 0, 0), (1, 0, 0), (1, 0, 2), (-1, 0, 2)], [(0, 1, 2, 3)], mat)
+    exported = export_current()
+    shader = next(s for s in exported.scene.materials.shaders if s.name == "Loop")
+    assert len(shader.program.ops) <= 2
+    from ember.kernels import Renderer, RenderSettings
+    with Renderer(exported.scene, threads=1) as renderer:
+        assert np.isfinite(renderer.render(RenderSettings(samples=2, max_bounces=2)).image).all()
+
+
+def test_a_missing_image_inside_a_group_renders_magenta_with_a_warning():
+    points = sweep(0.0, 1.0, 64)
+
+    def build(tree, s):
+        group = bpy.data.node_groups.new("Textured", "ShaderNodeTree")
+        group.interface.new_socket("Vector", in_out="INPUT", socket_type="NodeSocketVector")
+        group.interface.new_socket("Color", in_out="OUTPUT", socket_type="NodeSocketColor")
+        gin, gout = group.nodes.new("NodeGroupInput"), group.nodes.new("NodeGroupOutput")
+        tex = group.nodes.new("ShaderNodeTexImage")   # no image
+        group.links.new(gin.outputs[0], tex.inputs["Vector"])
+        group.links.new(tex.outputs["Color"], gout.inputs[0])
+        node = tree.nodes.new("ShaderNodeGroup")
+        node.node_tree = group
+        tree.links.new(s["probe"], node.inputs[0])
+        return node.outputs[0]
+
+    scene, count = probe_scene(build, {"probe": points})
+    exported = export_current()
+    assert any("Image Texture" in w and "no image" in w and "Probe" in w for w in exported.warnings), \
+        exported.warnings
+    cycles, ember = render_probe(scene, count, "CYCLES"), render_probe(scene, count, "EMBER")
+    np.testing.assert_allclose(cycles, np.tile([1.0, 0.0, 1.0], (count, 1)), atol=1e-6)
+    np.testing.assert_allclose(ember, cycles, atol=1e-6)

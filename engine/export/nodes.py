@@ -392,6 +392,7 @@ COMPILERS = {
     "ShaderNodeVectorTransform": _plain,
     "ShaderNodeNormal": _normal,
     "ShaderNodeCameraData": _plain,
+    "ShaderNodeWireframe": _plain,
     "ShaderNodeTangent": _tangent,
     "ShaderNodeTexEnvironment": _environment,
     "ShaderNodeTexSky": _sky,

@@ -170,6 +170,29 @@ def camera_data(hits, inputs, op):
             "View Distance": distance.astype(F32)}
 
 
+def wireframe(hits, inputs, op):
+    """The Wireframe node (svm_node_wireframe): 1 within Size / 2 of a triangle edge, in world units or
+    (Pixel Size) in pixels, a pixel being the ray's spread across the view direction."""
+    from .program import make_orthonormals
+    n = hits.n
+    size = full(inputs["Size"], n)
+    width = np.ones(n, F32)
+    if op.option("use_pixel_size", False):
+        a, b = make_orthonormals(hits.Ng)
+        wi, dp = hits.I, hits.dp[:, None]
+        across = [d * dp for d in (a, b)]
+        across = [d - _dot(d, wi)[:, None] * wi for d in across]
+        width = F32(0.5) * (np.sqrt(_dot(across[0], across[0])) + np.sqrt(_dot(across[1], across[1])))
+    width = (width * HALF * size) ** 2
+    corners = hits.hit.corners(hits.idx)
+    near = np.zeros(n, bool)
+    for i in range(3):
+        edge = corners[i] - corners[i - 1]
+        crs = np.cross(edge, hits.P - corners[i])
+        near |= _dot(crs, crs) < _dot(edge, edge) * width
+    return {"Fac": near.astype(F32)}
+
+
 def radial_tangent(hits, axis: str = "Z") -> np.ndarray:
     """Cycles' radial tangent (svm_node_tangent, and the default of unlinked Tangent inputs about Z): around
     the object's axis through its texture space's centre, to world space as a normal, made orthogonal to
@@ -614,6 +637,7 @@ OPS = {
     "ShaderNodeVectorTransform": vector_transform,
     "ShaderNodeNormal": normal_node,
     "ShaderNodeCameraData": camera_data,
+    "ShaderNodeWireframe": wireframe,
     "ShaderNodeTexSky": sky,
 }
 # Ops that read nothing of the hits besides their inputs: folded at export when those are constants.
