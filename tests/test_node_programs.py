@@ -481,3 +481,26 @@ def test_a_missing_image_inside_a_group_renders_magenta_with_a_warning():
     cycles, ember = render_probe(scene, count, "CYCLES"), render_probe(scene, count, "EMBER")
     np.testing.assert_allclose(cycles, np.tile([1.0, 0.0, 1.0], (count, 1)), atol=1e-6)
     np.testing.assert_allclose(ember, cycles, atol=1e-6)
+
+
+@pytest.mark.parametrize("space", ["ACEScg", "ACES2065-1", "Linear Rec.2020", "Linear CIE-XYZ D65"])
+def test_byte_images_in_linear_colour_spaces_convert_as_cycles(space):
+    """8-bit images in a linear space other than scene linear are converted at load (Cycles: to half
+    floats, negative out of gamut). Tolerance: Blender's mathutils conversion against Cycles' OCIO
+    processor (both Blender's config) differ by up to 0.2%, plus half-float rounding."""
+    points = sweep(0.0, 1.0, 64)
+
+    def build(tree, s):
+        img = bpy.data.images.new("Bytes", 4, 4, float_buffer=False)
+        img.colorspace_settings.name = space
+        rng = np.random.default_rng(1)
+        img.pixels.foreach_set(np.concatenate([rng.uniform(0.0, 1.0, (16, 3)), np.ones((16, 1))], 1).ravel()
+                               .astype(np.float32))
+        tex = tree.nodes.new("ShaderNodeTexImage")
+        tex.image, tex.interpolation = img, "Closest"
+        tree.links.new(s["probe"], tex.inputs["Vector"])
+        return tex.outputs["Color"]
+
+    cycles, ember = probe_both(build, {"probe": points})
+    assert cycles.min() < 0 or space == "Linear CIE-XYZ D65"  # out-of-gamut colours stay negative
+    np.testing.assert_allclose(ember, cycles, rtol=3e-3, atol=5e-4)

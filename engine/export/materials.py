@@ -173,6 +173,13 @@ def read_image(image, warnings: list[str], alpha: bool = False) -> ImagePixels |
         pixels[:, :, :3] *= pixels[:, :, 3:4]
     if image.is_float:  # float files (EXR, HDR) may hold negative or non-finite values; light cannot
         return ImagePixels(np.where(np.isfinite(pixels) & (pixels > 0), pixels, np.float32(0)), False)
+    matrix = _linear_space_matrix(image.colorspace_settings.name)
+    if matrix is not None and not image.colorspace_settings.is_data:
+        # A linear space other than scene linear: converted at load, as Cycles converts such byte images
+        # (to half floats; out-of-gamut values stay negative, as there).
+        pixels = pixels.copy()
+        pixels[:, :, :3] = (pixels[:, :, :3] @ matrix.T).astype(np.float16)
+        return ImagePixels(pixels, False)
     return ImagePixels(np.ascontiguousarray(pixels), _is_srgb(image, warnings))
 
 
@@ -182,14 +189,31 @@ def _associates_alpha(image) -> bool:
     return not image.colorspace_settings.is_data and image.alpha_mode == "STRAIGHT"
 
 
+# Linear colour spaces of Blender's configuration, with the mathutils conversion to scene linear (Blender's
+# OCIO): a byte image in one of them holds linear values in those primaries.
+_LINEAR_SPACES = {"ACEScg": "from_acescg_to_scene_linear", "ACES2065-1": "from_aces_to_scene_linear",
+                  "Linear Rec.2020": "from_rec2020_linear_to_scene_linear",
+                  "Linear CIE-XYZ D65": "from_xyz_d65_to_scene_linear"}
+
+
+def _linear_space_matrix(name: str) -> np.ndarray | None:
+    """(3, 3) float32 matrix taking RGB in the linear space `name` to scene linear, None for others."""
+    method = _LINEAR_SPACES.get(name)
+    if method is None:
+        return None
+    from mathutils import Color
+    convert = getattr(Color, method)
+    return np.array([tuple(convert(Color(e))) for e in np.eye(3)], np.float32).T
+
+
 def _is_srgb(image, warnings: list[str]) -> bool:
     """Whether an 8-bit image holds sRGB-encoded values (Blender returns them undecoded)."""
     settings = image.colorspace_settings
     if settings.is_data or settings.name in LINEAR_BYTE_SPACES:
         return False
     if settings.name != "sRGB":
-        warnings.append(f"Image '{image.name}': colour space '{settings.name}' is not supported, "
-                        f"read as sRGB")
+        warnings.append(f"Image '{image.name}': colour space '{settings.name}' is not supported for 8-bit "
+                        f"images (sRGB, Non-Color and the linear spaces are), read as sRGB")
     return True
 
 

@@ -144,7 +144,7 @@ def _environment(texture: Source, strength: float, issues: list[str], warnings: 
 
 def _radiance(pixels: ImagePixels) -> np.ndarray:
     """(H, W, 3) float32 linear radiance from an image with 1 or 3 channels."""
-    linear = pixels.linear()
+    linear = np.maximum(pixels.linear(), 0.0)  # light cannot be negative (out-of-gamut texels)
     return linear if linear.shape[2] == 3 else np.repeat(linear, 3, axis=2)
 
 
