@@ -30,6 +30,16 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
         description="Transparent surfaces (alpha, Transparent BSDF) a path may pass straight through, as in "
                     "Cycles; they do not count as bounces",
         default=8, min=0, max=1024)
+    sample_clamp_direct: FloatProperty(
+        name="Clamp Direct",
+        description="Scale down samples of light reaching the first hit or the camera whose summed RGB exceeds "
+                    "this (0 = off), as Cycles' Clamp Direct: less noise from rare bright paths, at some bias",
+        default=0.0, min=0.0)
+    sample_clamp_indirect: FloatProperty(
+        name="Clamp Indirect",
+        description="The same for light after more bounces (0 = off). Cycles' default, 10, keeps fireflies of "
+                    "caustics and small bright reflections down, at some bias",
+        default=10.0, min=0.0)
     sampling_mode: EnumProperty(
         name="Sampling", description="How the next direction of a path is chosen",
         items=SAMPLING_MODE_ITEMS, default=DEFAULT_SAMPLING_MODE)

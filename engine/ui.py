@@ -70,6 +70,9 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
         layout.use_property_decorate = False
         layout.prop(context.scene.ember, "max_bounces")
         layout.prop(context.scene.ember, "transparent_max_bounces")
+        col = layout.column(align=True)
+        col.prop(context.scene.ember, "sample_clamp_direct")
+        col.prop(context.scene.ember, "sample_clamp_indirect")
 
 
 class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):

@@ -60,6 +60,10 @@ class RenderSettings:
     transparent_background: bool = False
     wave_size: int = 1 << 16
     transparent_max_bounces: int = 8
+    # Cycles' Clamp Direct and Clamp Indirect: a contribution whose |R| + |G| + |B| exceeds 3 x the limit
+    # is scaled down to it (0: off). Direct: light reaching the first hit or the camera; indirect: the rest.
+    clamp_direct: float = 0.0
+    clamp_indirect: float = 0.0
 
     def validate(self, width: int, height: int) -> tuple[int, int, int, int]:
         if self.mode not in SAMPLING_MODES:
@@ -74,6 +78,10 @@ class RenderSettings:
             raise ValueError(f"transparent_max_bounces: must be non-negative, got {self.transparent_max_bounces}")
         if int(self.wave_size) < 1:
             raise ValueError(f"wave_size: must be positive, got {self.wave_size}")
+        for name in ("clamp_direct", "clamp_indirect"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: must be finite and non-negative (0 is off), got {value}")
         x0, y0, x1, y1 = self.region if self.region is not None else (0, 0, width, height)
         if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
             raise ValueError(f"region: {self.region} is empty or outside the {width}x{height} frame")
@@ -353,7 +361,7 @@ class Renderer:
             le = np.take(state.throughput * le, idx, axis=1)
             if wave.nee:
                 le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
-            _accumulate(wave.radiance, state.path[idx], le)
+            _accumulate(wave.radiance, state.path[idx], _clamp(wave, le, np.take(state.bounce, idx) > 1))
 
     # ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
     def _escaped(self, wave, state, rays, hits):
@@ -379,7 +387,7 @@ class Renderer:
             if len(mis):
                 env[:, mis] *= sampling.power_heuristic(state.bsdf_pdf[miss[mis]],
                                                         self.lights.pdf_world(mx[mis], my[mis], mz[mis]))
-        _accumulate(wave.radiance, state.path[miss], env)
+        _accumulate(wave.radiance, state.path[miss], _clamp(wave, env, state.bounce[miss] > 1))
 
     # ---- stage: the surface-interaction record of the rays that hit
     def _surface_hit(self, hits, rays, found) -> SurfaceHit:
@@ -407,7 +415,7 @@ class Renderer:
                     np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
                     np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray))
                 le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
-        _accumulate(wave.radiance, state.path[lit], le)
+        _accumulate(wave.radiance, state.path[lit], _clamp(wave, le, np.take(state.bounce, lit) > 1))
 
     # ---- stage: Holdout closures cut a hole in alpha where the camera sees them
     @staticmethod
@@ -532,7 +540,7 @@ class Renderer:
         w = np.where(np.take(ls.delta, rows), np.float32(1.0), sampling.power_heuristic(pdf, bsdf_pdf[vis]))
         contribution = np.take(state.throughput, paths, axis=1) * f[:, vis] * transmittance[:, vis] * \
             np.take(ls.radiance, rows, axis=1) * (w / pdf)
-        _accumulate(wave.radiance, state.path[paths], contribution)
+        _accumulate(wave.radiance, state.path[paths], _clamp(wave, contribution, np.take(state.bounce, paths) > 0))
 
     def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None) -> np.ndarray:
         """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
@@ -619,6 +627,23 @@ class _Emitters:
 
     def __call__(self, tri, b1=None, b2=None, toward=None):
         return self._renderer._triangle_emission(tri, b1, b2, toward)
+
+
+def _clamp(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray:
+    """Cycles' sample clamping (film_clamp_light) of (3, n) contributions: scaled so that |R| + |G| + |B|
+    is at most 3 x Clamp Indirect where `indirect`, 3 x Clamp Direct elsewhere (Cycles triples the
+    setting, scene/integrator.cpp); a limit of 0 is off. Direct is
+    Cycles' bounce - 1 <= 0 for light found by rays (the camera's, or the first hit's BSDF ray) and the
+    first hit's own shadow rays."""
+    direct_limit, indirect_limit = wave.settings.clamp_direct, wave.settings.clamp_indirect
+    if not direct_limit and not indirect_limit:
+        return value
+    limit = np.where(indirect, np.float32(3 * indirect_limit or np.inf), np.float32(3 * direct_limit or np.inf))
+    total = np.abs(value).sum(axis=0)
+    over = total > limit
+    if not over.any():
+        return value
+    return value * np.where(over, limit / np.where(over, total, np.float32(1.0)), np.float32(1.0)).astype(np.float32)
 
 
 def _accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> None:

@@ -224,3 +224,32 @@ def test_a_closed_renderer_is_freed_without_the_cycle_collector():
         assert ref() is None  # big scenes must not wait for gc to give their memory back
     finally:
         gc.enable()
+
+
+def test_sample_clamping_limits_contributions_as_cycles_does():
+    """Clamp Direct / Clamp Indirect (Cycles' film_clamp_light): every contribution's |R| + |G| + |B| is
+    scaled to 3 x the limit. A white furnace sphere (world 1, albedo 0.5): direct light at the first hit
+    sums to about 1.5 per sample. Clamping direct at 0.3 caps it, so the image falls; a clamp above every
+    contribution changes nothing."""
+    scene = sphere_in_furnace(albedo=0.5, world=1.0)
+    with Renderer(scene, 1) as renderer:
+        plain = renderer.render(RenderSettings(samples=4, max_bounces=4)).image
+        same = renderer.render(RenderSettings(samples=4, max_bounces=4, clamp_direct=1e6, clamp_indirect=1e6)).image
+        clamped = renderer.render(RenderSettings(samples=4, max_bounces=4, clamp_direct=0.3)).image
+    np.testing.assert_array_equal(plain, same)
+    sphere = plain[..., 0] < 0.99   # pixels on the sphere (the world reads exactly 1)
+    assert clamped[..., 0][sphere].mean() < plain[..., 0][sphere].mean() - 0.05
+    # The world seen by the camera is a direct contribution of 3 (1 per channel): clamped to 3 x 0.3.
+    np.testing.assert_allclose(clamped[..., :3][~sphere].sum(axis=-1), 0.9, rtol=1e-5)
+    # Indirect light is what reaches the first hit through two or more scatterings. Inside an emitting
+    # sphere of albedo 0.5 (every path bounces on the wall): none with max_bounces 0, some with 2.
+    inside = inside_emitting_sphere(albedo=0.5, radiance=1.0)
+    with Renderer(inside, 1) as renderer:
+        direct = renderer.render(RenderSettings(samples=4, max_bounces=0)).image
+        still = renderer.render(RenderSettings(samples=4, max_bounces=0, clamp_indirect=1e-3)).image
+        bounced = renderer.render(RenderSettings(samples=4, max_bounces=2, clamp_indirect=1e-3)).image
+        free = renderer.render(RenderSettings(samples=4, max_bounces=2)).image
+    np.testing.assert_array_equal(direct, still)
+    assert bounced[..., 0].mean() < free[..., 0].mean() - 0.1
+    with pytest.raises(ValueError, match="clamp_direct"):
+        RenderSettings(clamp_direct=-1.0).validate(8, 8)
