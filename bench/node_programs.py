@@ -83,7 +83,7 @@ def engine_rate(scene, engine: str, samples: int) -> float:
         configure_cycles(scene, samples, 0, MAX_BOUNCES)
     else:
         scene.ember.samples, scene.ember.max_bounces, scene.ember.seed = samples, MAX_BOUNCES, 0
-        scene.ember.sample_clamp_direct = scene.ember.sample_clamp_indirect = 0.0  # as configure_cycles
+        scene.ember.sample_clamp_direct = scene.ember.sample_clamp_indirect = scene.ember.blur_glossy = 0.0
     bpy.ops.render.render()  # warm-up (kernels, imports)
     start = time.perf_counter()
     bpy.ops.render.render()

@@ -40,6 +40,11 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
         description="The same for light after more bounces (0 = off). Cycles' default, 10, keeps fireflies of "
                     "caustics and small bright reflections down, at some bias",
         default=10.0, min=0.0)
+    blur_glossy: FloatProperty(
+        name="Filter Glossy",
+        description="Blur glossy reflections after blurry bounces, as Cycles' Filter Glossy (0 = off): fewer "
+                    "fireflies from caustics, at some loss of sharpness in what reflections show",
+        default=1.0, min=0.0, soft_max=10.0)
     sampling_mode: EnumProperty(
         name="Sampling", description="How the next direction of a path is chosen",
         items=SAMPLING_MODE_ITEMS, default=DEFAULT_SAMPLING_MODE)

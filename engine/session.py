@@ -49,6 +49,7 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         transparent_max_bounces=int(ember.transparent_max_bounces),
         clamp_direct=float(ember.sample_clamp_direct),
         clamp_indirect=float(ember.sample_clamp_indirect),
+        filter_glossy=float(ember.blur_glossy),
         mode=ember.sampling_mode,
         seed=seed_for_frame(ember, scene.frame_current),
         time_limit_s=float(ember.time_limit if time_limit is None else time_limit),

@@ -73,6 +73,7 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
         col = layout.column(align=True)
         col.prop(context.scene.ember, "sample_clamp_direct")
         col.prop(context.scene.ember, "sample_clamp_indirect")
+        layout.prop(context.scene.ember, "blur_glossy")
 
 
 class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):

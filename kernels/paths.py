@@ -20,6 +20,8 @@ class PathState:
     bounce: np.ndarray      # (N,) int32: scattering events so far (0 = still the camera ray)
     transparent: np.ndarray  # (N,) int32: transparent surfaces passed straight through so far
     dp: np.ndarray          # (N,) float32: the ray's position spread (Cycles' compact differential dP)
+    min_ray_pdf: np.ndarray | None = None  # (N,) float32: the smallest BSDF pdf of the path so far (Filter
+    #                                        Glossy), inf for camera rays; None when not filtering
     lobes: np.ndarray | None = None  # (4, N) int32 or None: the last bounce's LABEL_* bits and the diffuse,
     #                                  glossy and transmission bounce counts (Light Path), when read
 
@@ -39,6 +41,8 @@ class PathState:
         self.dp = np.take(self.dp, idx)
         if self.lobes is not None:
             self.lobes = np.take(self.lobes, idx, axis=1)
+        if self.min_ray_pdf is not None:
+            self.min_ray_pdf = np.take(self.min_ray_pdf, idx)
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

@@ -116,9 +116,10 @@ def set_world(scene, color=(0.0, 0.0, 0.0), strength=1.0, hdri=None, rotation=(0
 
 # ---------------------------------------------------------------- rendering to numpy
 def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces: int = 8,
-                    threads: int = 2, clamp: tuple = (0.0, 0.0)) -> np.ndarray:
+                    threads: int = 2, clamp: tuple = (0.0, 0.0), blur_glossy: float = 0.0) -> np.ndarray:
     """Render the scene with CYCLES or EMBER; return (H, W, 4) float32 linear RGBA, row 0 at the top.
-    clamp: (direct, indirect) sample clamping on both engines (0: off, the oracle's configuration)."""
+    clamp: (direct, indirect) sample clamping and blur_glossy Filter Glossy on both engines (0: off, the
+    oracle's configuration)."""
     render = scene.render
     render.engine = engine
     render.threads_mode = "FIXED"
@@ -129,12 +130,14 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
     if engine == "CYCLES":
         configure_cycles(scene, samples, seed, max_bounces)
         scene.cycles.sample_clamp_direct, scene.cycles.sample_clamp_indirect = clamp
+        scene.cycles.blur_glossy = blur_glossy
     else:
         scene.ember.samples = samples
         scene.ember.seed = seed
         scene.ember.max_bounces = max_bounces
         scene.ember.transparent_max_bounces = max_bounces
         scene.ember.sample_clamp_direct, scene.ember.sample_clamp_indirect = clamp
+        scene.ember.blur_glossy = blur_glossy
     with tempfile.TemporaryDirectory() as tmp:
         render.filepath = os.path.join(tmp, "frame.exr")
         bpy.ops.render.render(write_still=True)

@@ -170,6 +170,18 @@ class ClosureSet:
             self._wo = _to_local(self.frame, tuple(np.take(a, self.hit) for a in self._wo_world))
         return self._wo
 
+    def blur(self, roughness: np.ndarray) -> None:
+        """Cycles' Filter Glossy (bsdf_blur): every microfacet and Ashikhmin-Shirley closure's alphas raised
+        to at least `roughness` (n_hits,) of its hit; what was set up from the old alphas (Fresnel, energy
+        compensation) stays, as in Cycles. A sharp closure made rough is no longer delta."""
+        micro = np.isin(self.lobe, (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY))
+        if not micro.any():
+            return
+        r = np.take(roughness, self.hit)
+        self.ax = np.where(micro, np.maximum(self.ax, r), self.ax).astype(F32)
+        self.ay = np.where(micro, np.maximum(self.ay, r), self.ay).astype(F32)
+        self.delta = self._delta_mask()
+
     def _delta_mask(self) -> np.ndarray:
         delta = self.lobe == TRANSPARENT
         singular = [k for k in (REFLECTION, REFRACTION, GLASS) if k in self.kinds]
