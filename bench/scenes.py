@@ -184,6 +184,21 @@ def tinted_material():
     return mat
 
 
+def interior_scene(width: int, height: int) -> bpy.types.Scene:
+    """A sphere, a floor and a wall lit only by Blender's interior.exr, a studio HDRI of a few small,
+    very bright windows (issue 11's hard case for world sampling)."""
+    scene = new_scene(width, height)
+    set_world(scene, hdri="interior.exr", strength=1.0)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(0, 0, 1.0))
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(diffuse_material("Sphere", (0.7, 0.7, 0.7)))
+    mesh_object("Floor", [(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)], [(0, 1, 2, 3)],
+                diffuse_material("Floor", (0.5, 0.5, 0.5)))
+    mesh_object("Wall", [(-5, 3, 0), (5, 3, 0), (5, 3, 5), (-5, 3, 5)], [(0, 1, 2, 3)],
+                diffuse_material("Wall", (0.6, 0.6, 0.6)))
+    return scene
+
+
 def triangle_count(scene) -> int:
     """Triangles of the scene's meshes after triangulation (quads count two)."""
     total = 0

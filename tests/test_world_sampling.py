@@ -1,10 +1,10 @@
 """Sampling the world as a light (issue 11): the importance map follows what the lookups read, and an
 HDRI with small bright windows is about as noisy per sample in Ember as in Cycles."""
-import bpy
 import numpy as np
 
 import bpy_helpers
-from bpy_helpers import diffuse_material, mesh_object, new_scene, replicate_render, set_world
+from bench import scenes
+from bpy_helpers import replicate_render
 
 from ember.kernels.environment import cell_means
 from ember.kernels.textures import Texture
@@ -32,15 +32,7 @@ def test_interior_hdri_per_sample_variance_near_cycles(monkeypatch):
     from a window next door but sampled as dark); with cells sampled by their bilinear mean it is 1.5x.
     Bound: that, plus the spread of the estimate over seeds (8 replicates per engine)."""
     monkeypatch.setattr(bpy_helpers, "REPLICATE_SEEDS", tuple(range(1, 9)))
-    scene = new_scene(48, 48)
-    set_world(scene, hdri="interior.exr", strength=1.0)
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(0, 0, 1.0))
-    bpy.ops.object.shade_smooth()
-    bpy.context.active_object.data.materials.append(diffuse_material("Sphere", (0.7, 0.7, 0.7)))
-    mesh_object("Floor", [(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)], [(0, 1, 2, 3)],
-                diffuse_material("Floor", (0.5, 0.5, 0.5)))
-    mesh_object("Wall", [(-5, 3, 0), (5, 3, 0), (5, 3, 5), (-5, 3, 5)], [(0, 1, 2, 3)],
-                diffuse_material("Wall", (0.6, 0.6, 0.6)))
+    scene = scenes.interior_scene(48, 48)
     cycles, var_cycles = replicate_render(scene, "CYCLES", 64, max_bounces=4)
     ember, var_ember = replicate_render(scene, "EMBER", 64, max_bounces=4)
     assert abs(ember.mean() / cycles.mean() - 1) < 0.01
