@@ -553,7 +553,7 @@ def _targets(report) -> dict:
         if box:
             for budget, row in box["budgets"].items():
                 ratio = row["rmse_ratio"]
-                targets[f"{name}_rmse_ratio_{budget}s"] = ratio
+                targets[f"{name}_rmse_ratio_{budget}s_at_most_{bound}"] = ratio
                 out(f"target: equal-time RMSE Ember/Cycles <= {bound}, {title}, {budget} s: "
                     f"{ratio:.2f} {'met' if ratio <= bound else 'NOT met'}")
     return targets

@@ -124,15 +124,6 @@ def rgb(value) -> tuple:
     return tuple(float(x) for x in np.maximum(c, 0.0))
 
 
-def float_input(socket, groups: tuple, issues: list[str]) -> float:
-    """A float input's value: a constant or a Value node; any other node keeps the socket's own value."""
-    source = source_of(socket, groups)
-    if source.node is not None and source.kind != "ShaderNodeValue":
-        issues.append(f"{source.node.bl_label} node feeding {socket.name} is not supported")
-        return float(socket.default_value)
-    return float(source.socket.default_value)
-
-
 # ---- Images -----------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)

@@ -20,8 +20,8 @@ import mathutils
 import numpy as np
 
 from ...kernels import World
-from .materials import (BLACK3, MISSING_IMAGE_COLOR, ImagePixels, ImageTextures, Source, float_input,
-                        output_node, read_image, rgb, source_of)
+from .materials import (BLACK3, MISSING_IMAGE_COLOR, ImagePixels, ImageTextures, Source, output_node,
+                        read_image, rgb, source_of)
 from .nodes import ProgramBuilder
 
 DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
@@ -46,6 +46,7 @@ def export_world(world, warnings: list[str], images=None) -> World:
 
 
 def _read_tree(tree, issues: list[str], warnings: list[str]) -> World:
+    """The worlds _needs_program leaves: nothing, an unsupported shader, a constant, or a plain HDRI."""
     out = output_node(tree)
     surface = Source(None, None) if out is None else source_of(out.inputs["Surface"])
     if surface.node is None:  # nothing connected: black, as in Cycles
@@ -54,15 +55,11 @@ def _read_tree(tree, issues: list[str], warnings: list[str]) -> World:
         issues.append(f"{surface.node.bl_label} is not supported, rendered as constant grey")
         return World(color=np.array(DEFAULT_WORLD_COLOR, np.float32))
     node, groups = surface.node, surface.groups
-    strength = max(float_input(node.inputs["Strength"], groups, issues), 0.0)
+    strength = max(float(source_of(node.inputs["Strength"], groups).socket.default_value), 0.0)
     color = source_of(node.inputs["Color"], groups)
     if color.node is None or color.kind == "ShaderNodeRGB":
         return World(color=np.array(rgb(color.socket.default_value), np.float32), strength=strength)
-    if color.kind == "ShaderNodeTexEnvironment":
-        return _environment(color, strength, issues, warnings)
-    issues.append(f"{color.node.bl_label} node feeding the background Color is not supported, "
-                  f"rendered as constant grey")
-    return World(color=np.array(DEFAULT_WORLD_COLOR, np.float32), strength=strength)
+    return _environment(color, strength, issues, warnings)
 
 
 def _needs_program(tree) -> bool:
@@ -127,9 +124,8 @@ def _radiance_of(builder, source: Source, issues: list[str]):
 
 
 def _environment(texture: Source, strength: float, issues: list[str], warnings: list[str]) -> World:
+    """A plain equirectangular Environment Texture: the HDRI world, sampled from the image itself."""
     node = texture.node
-    if node.projection != "EQUIRECTANGULAR":
-        issues.append("Environment Texture: only the Equirectangular projection is supported")
     missing = World(color=np.array(MISSING_IMAGE_COLOR, np.float32), strength=strength)  # as Cycles
     if node.image is None:
         issues.append("Environment Texture has no image, rendered magenta")
@@ -137,7 +133,7 @@ def _environment(texture: Source, strength: float, issues: list[str], warnings: 
     pixels = read_image(node.image, warnings)
     if pixels is None:
         return missing
-    env_from_world = _env_from_world(source_of(node.inputs["Vector"], texture.groups), issues)
+    env_from_world = _env_from_world(source_of(node.inputs["Vector"], texture.groups))
     return World(color=np.array(BLACK3, np.float32), hdri=_radiance(pixels), strength=strength,
                  env_from_world=env_from_world)
 
@@ -148,17 +144,12 @@ def _radiance(pixels: ImagePixels) -> np.ndarray:
     return linear if linear.shape[2] == 3 else np.repeat(linear, 3, axis=2)
 
 
-def _env_from_world(vector: Source, issues: list[str]) -> np.ndarray:
-    """(3, 3) float32 rotation taking a world direction to the Environment Texture's lookup direction."""
-    identity = np.eye(3, dtype=np.float32)
+def _env_from_world(vector: Source) -> np.ndarray:
+    """(3, 3) float32 rotation taking a world direction to the Environment Texture's lookup direction:
+    the view direction itself, or through a constant Mapping (what _needs_program leaves here)."""
     if _is_view_direction(vector):
-        return identity
-    if vector.kind != "ShaderNodeMapping" or not _is_view_direction(source_of(vector.node.inputs["Vector"],
-                                                                              vector.groups)):
-        issues.append("Environment Texture Vector: only Texture Coordinate Generated or Object (without an "
-                      "object), optionally through a Mapping node, is supported; used the view direction")
-        return identity
-    return _mapping_rotation(vector.node, vector.groups, issues)
+        return np.eye(3, dtype=np.float32)
+    return _mapping_rotation(vector.node)
 
 
 def _is_view_direction(vector: Source) -> bool:
@@ -167,17 +158,10 @@ def _is_view_direction(vector: Source) -> bool:
                                    and not (vector.socket.identifier == "Object" and vector.node.object))
 
 
-def _mapping_rotation(mapping, groups: tuple, issues: list[str]) -> np.ndarray:
-    """The Mapping node's rotation as a matrix; Point = T R S transforms the vector, Texture inverts it."""
-    for name in ("Rotation", "Location", "Scale"):
-        if source_of(mapping.inputs[name], groups).node is not None:
-            issues.append(f"Mapping {name} driven by a node is not supported, used its own value")
-    location = np.asarray(mapping.inputs["Location"].default_value)
-    scale = np.asarray(mapping.inputs["Scale"].default_value)
-    if mapping.vector_type in ("POINT", "TEXTURE") and np.any(location != 0):
-        issues.append("Mapping Location is ignored for the world")
-    if np.ptp(scale) != 0:
-        issues.append("Mapping non-uniform Scale is ignored for the world")
+def _mapping_rotation(mapping) -> np.ndarray:
+    """The Mapping node's rotation as a matrix; Point = T R S transforms the vector, Texture inverts it.
+    Its location (moving a direction nowhere for Vector and Normal) and a uniform scale do not turn the
+    direction; the others go to a program."""
     rotation = np.array(mathutils.Euler(tuple(mapping.inputs["Rotation"].default_value), "XYZ").to_matrix(),
                         np.float32)
     return rotation.T.copy() if mapping.vector_type == "TEXTURE" else rotation

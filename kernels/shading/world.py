@@ -12,7 +12,7 @@ import numpy as np
 from ..interaction import RayInfo
 from ..scene import World, object_row
 from .ops import OPS
-from .program import ProgramRun, convert
+from .program import ProgramRun
 
 F32 = np.float32
 
@@ -73,8 +73,7 @@ class WorldShader:
         if ray is None:  # a light sample: Cycles evaluates it as emission, not as a camera ray
             zeros = np.zeros(len(d), np.int32)
             ray = RayInfo(zeros, zeros, emission=True, camera=False)
-        value = ProgramRun(self.program, DirectionInputs(self.data, d, ray), OPS).value(self.output)
-        value = convert(value, self.output.want, "RGBA", len(d))
+        value = ProgramRun(self.program, DirectionInputs(self.data, d, ray), OPS).value(self.output)  # (n, 3)
         # Light cannot be negative or non-finite in a sampling distribution; Cycles clamps nothing here,
         # but a NaN radiance would poison the film.
         return np.ascontiguousarray(np.nan_to_num(value, nan=0.0, posinf=0.0, neginf=0.0).T, F32)
