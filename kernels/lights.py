@@ -176,18 +176,21 @@ class LightSampler:
         return np.concatenate([self.kind == SUN, np.zeros(len(self.tri_ids), bool), [True]])
 
     # ------------------------------------------------------------------ sampling
+    def choose(self, u_select: np.ndarray) -> np.ndarray:
+        """(n,) int64 emitter index per number in [0, 1): lights, then emissive triangles, then the world,
+        each with probability select_pmf."""
+        if len(self._cdf) == 1:
+            return np.zeros(len(u_select), np.int64)
+        # float64: a float32 cdf would round the intervals of millions of small emitters.
+        return np.minimum(np.searchsorted(self._cdf, u_select.astype(np.float64), side="right"), len(self._cdf) - 1)
+
     def sample(self, px, py, pz, u_select, u1, u2) -> LightSample:
         """Choose an emitter for each shading point p and sample a direction toward it."""
         n = len(px)
         out = LightSample(n)
         if not self.has_lights or n == 0:
             return out
-        if len(self._cdf) == 1:
-            chosen = np.zeros(n, np.int64)
-        else:
-            # float64: a float32 cdf would round the intervals of millions of small emitters.
-            chosen = np.minimum(np.searchsorted(self._cdf, u_select.astype(np.float64), side="right"),
-                                len(self._cdf) - 1)
+        chosen = self.choose(u_select)
         select = np.take(self.pmf32, chosen)
         if self.light_count:
             for kind, method in ((POINT, self._sample_sphere), (SPOT, self._sample_sphere),

@@ -256,3 +256,26 @@ def test_grazing_light_beside_a_lamp_hung_just_under_a_ceiling():
     samples = trace_samples(scene, RenderSettings(mode="NEE_MIS", max_bounces=0, seed=2), 2000)[:, 0]
     m, se = mean_and_stderr(samples.mean(axis=1))
     assert abs(m - rho / np.pi * irradiance) < 4 * se, (m, se, rho / np.pi * irradiance)
+
+
+def test_light_choice_frequencies_match_the_selection_pmf():
+    """Chi-square of the emitter chosen by LightSampler.choose against select_pmf, over point, spot, sun
+    and area lights of spread-out powers, emissive triangles and an HDRI world (the fallback selection:
+    by power within local and distant emitters, distant ones sharing a fixed part)."""
+    rng = np.random.default_rng(7)
+    k = 12
+    kinds = np.int32([0, 1, 3, 4] * 3)
+    lights = Lights(kind=kinds, position=rng.uniform(-3, 3, (k, 3)).astype(np.float32),
+                    frame=np.repeat(np.eye(3, dtype=np.float32)[None], k, axis=0),
+                    radiance=np.float32(rng.exponential(5.0, (k, 1)) * np.ones((1, 3))),
+                    radius=np.float32(rng.uniform(0.05, 0.5, k)), size=np.float32(rng.uniform(0.1, 1.0, (k, 2))),
+                    spot_cos=np.float32([(0.5, 0.1)] * k), sun_half_angle=np.zeros(k, np.float32))
+    tri = np.float32(rng.uniform(-2, 2, (20, 3, 3)))
+    hdri = np.float32(rng.exponential(1.0, (8, 16, 3)))
+    sampler = sampler_for(lights=lights, positions=tri, emission=(2.0, 1.5, 1.0), world=World(hdri=hdri))
+    pmf = sampler.select_pmf
+    assert len(pmf) == k + 20 + 1 and abs(pmf.sum() - 1) < 1e-9 and (pmf > 0).all()
+    n = 400_000
+    chosen = sampler.choose(np.random.default_rng(8).random(n, dtype=np.float32))
+    counts = np.bincount(chosen, minlength=len(pmf))
+    assert_chi2(counts, pmf * n)
