@@ -199,6 +199,28 @@ def interior_scene(width: int, height: int) -> bpy.types.Scene:
     return scene
 
 
+def lamps_scene(width: int, height: int, count: int = 200, seed: int = 3) -> bpy.types.Scene:
+    """A floor with a few boxes under `count` small coloured point lamps of spread-out powers, black world
+    (issue 11's many-lights case: Cycles picks lamps with its light tree, Ember by power)."""
+    scene = new_scene(width, height)
+    set_world(scene, color=(0.0, 0.0, 0.0))
+    rng = np.random.default_rng(seed)
+    mesh_object("Floor", [(-8, -8, 0), (8, -8, 0), (8, 8, 0), (-8, 8, 0)], [(0, 1, 2, 3)],
+                diffuse_material("Floor", (0.6, 0.6, 0.6)))
+    for i, (x, y) in enumerate(rng.uniform(-3, 3, (6, 2))):
+        bpy.ops.mesh.primitive_cube_add(size=0.8, location=(x, y, 0.4))
+        bpy.context.active_object.data.materials.append(diffuse_material(f"Box{i}", tuple(rng.uniform(0.2, 0.8, 3))))
+    for i in range(count):
+        data = bpy.data.lights.new(f"Lamp{i}", "POINT")
+        data.energy = float(rng.lognormal(2.0, 1.0))
+        data.shadow_soft_size = 0.05
+        data.color = tuple(rng.uniform(0.3, 1.0, 3))
+        lamp = bpy.data.objects.new(f"Lamp{i}", data)
+        lamp.location = (*rng.uniform(-6, 6, 2), float(rng.uniform(0.3, 2.5)))
+        scene.collection.objects.link(lamp)
+    return scene
+
+
 def triangle_count(scene) -> int:
     """Triangles of the scene's meshes after triangulation (quads count two)."""
     total = 0

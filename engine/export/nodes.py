@@ -13,12 +13,15 @@ and the input. Cycles in the graph (Blender refuses them, but a file may hold on
 """
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 
 from ...kernels.programs import Op, Program, Ref
-from . import node_tables
+from ...kernels.shading import sky
 from ...kernels.shading.ops import OPS, PURE_OPS
 from ...kernels.shading.program import constant, convert
+from . import node_tables
 
 F32 = np.float32
 
@@ -358,8 +361,6 @@ def _environment(builder, node, groups):
 def _sky(builder, node, groups):
     """The Sky Texture: its tables precomputed here; with the sun disc on, Blender disables the Vector and
     Cycles reads the default (Generated: the direction, in a world)."""
-    import inspect
-    from ...kernels.shading import sky
     _check_texture_mapping(builder, node)
     if node.sky_type not in sky.SKY_TYPES or node.sky_type == "HOSEK_WILKIE":
         builder.issues.append(f"Sky Texture '{node.name}': the {node.sky_type.replace('_', ' ').title()} model "

@@ -474,5 +474,4 @@ def mean_emission(c: Closure, mean_param):
 
 
 def _const(c: Closure, name: str):
-    from ..scene import Param
     return Param.of(DEFAULTS[c.kind][name])

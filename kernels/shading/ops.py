@@ -7,19 +7,26 @@ the node's input values by name ((n,) or (n, 3) float32 arrays; a folded constan
 """
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 
-from ..textures import srgb_to_linear
 from ..paths import DIFFUSE, GLOSSY, REFLECT, SINGULAR, TRANSMIT
+from ..scene import OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TEXSPACE_LOC, \
+    OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR
+from ..textures import srgb_to_linear
+from . import color_math as cm
+from . import gabor as gb
+from . import noise as ns
 from . import normals
+from . import patterns as pt
+from .program import make_orthonormals
 from . import sky as sk
+from . import voronoi as vr
 
 F32 = np.float32
 ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
 
-# Columns of kernels.scene.SceneArrays.objects (one row per object instance).
-from ..scene import OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TEXSPACE_LOC, \
-    OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR  # noqa: E402
 
 
 def full(x, n: int, channels: int = 1) -> np.ndarray:
@@ -173,7 +180,6 @@ def camera_data(hits, inputs, op):
 def wireframe(hits, inputs, op):
     """The Wireframe node (svm_node_wireframe): 1 within Size / 2 of a triangle edge, in world units or
     (Pixel Size) in pixels, a pixel being the ray's spread across the view direction."""
-    from .program import make_orthonormals
     n = hits.n
     size = full(inputs["Size"], n)
     width = np.ones(n, F32)
@@ -647,13 +653,6 @@ PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ"}
 # ---------------------------------------------------------------- texture, colour and math nodes
 # The node functions of noise.py, voronoi.py, gabor.py, patterns.py and color_math.py take snake_case
 # keywords named after the node's sockets and options; these adapters pass what the program holds.
-import inspect  # noqa: E402
-
-from . import color_math as cm  # noqa: E402
-from . import gabor as gb  # noqa: E402
-from . import noise as ns  # noqa: E402
-from . import patterns as pt  # noqa: E402
-from . import voronoi as vr  # noqa: E402
 
 
 def _snake(identifier: str) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..environment import equirect_to_direction
 from ..interaction import RayInfo
 from ..scene import World, object_row
 from .ops import OPS
@@ -81,7 +82,6 @@ class WorldShader:
     def bake(self, width: int, height: int) -> np.ndarray:
         """(H, W, 3) float32 radiance at the texel centres of an equirectangular map (row 0 at the bottom,
         environment.direction_to_equirect's layout), for importance sampling."""
-        from ..environment import equirect_to_direction
         v, u = np.meshgrid((np.arange(height, dtype=F32) + F32(0.5)) / F32(height),
                            (np.arange(width, dtype=F32) + F32(0.5)) / F32(width), indexing="ij")
         dx, dy, dz, _ = equirect_to_direction(u.ravel(), v.ravel())
