@@ -6,7 +6,8 @@ For every size: the wall time of the render call, the process's peak resident me
 render, and the peak of Ember's own NumPy memory (tracemalloc; Blender's C allocations are not in it).
 The README's formula is checked against the figures:
 
-    Ember's memory = 32 bytes per pixel (the float64 RGBA film) + a working set of at most WORKING_SET_MB
+    Ember's memory = 32 bytes per pixel (the float64 RGBA film; the benchmark turns adaptive sampling off,
+                     whose buffers make it 49) + a working set of at most WORKING_SET_MB
     Blender's own  = its render result, 16 bytes per pixel (float32 RGBA), and what it needs to save it
 
 --display forces the interactive path (rows written every wave, as F12 in the interface does) in
@@ -46,6 +47,7 @@ bpy.ops.mesh.primitive_uv_sphere_add(radius=0.8, location=(0, 0, 0.8))
 set_world(scene, color=(0.3, 0.4, 0.5))
 scene.render.engine = "EMBER"
 scene.ember.samples = %(samples)d
+scene.ember.use_adaptive_sampling = False
 scene.render.threads_mode, scene.render.threads = "FIXED", 2
 before = peak_kb()
 tracemalloc.start()

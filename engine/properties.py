@@ -48,6 +48,19 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
     sampling_mode: EnumProperty(
         name="Sampling", description="How the next direction of a path is chosen",
         items=SAMPLING_MODE_ITEMS, default=DEFAULT_SAMPLING_MODE)
+    use_adaptive_sampling: BoolProperty(
+        name="Noise Threshold",
+        description="Stop sampling pixels whose noise is under the threshold, as Cycles' adaptive sampling "
+                    "(on by default there too)",
+        default=True)
+    adaptive_threshold: FloatProperty(
+        name="Noise Threshold", description="Noise level at which a pixel stops taking samples (Cycles' "
+                                            "default 0.01; lower is cleaner and slower)",
+        default=0.01, min=0.0001, max=1.0, precision=4, step=0.1)
+    adaptive_min_samples: IntProperty(
+        name="Min Samples", description="Samples every pixel takes before it may stop (0 = automatic, as "
+                                        "Cycles: 64 at threshold 0.01)",
+        default=0, min=0, max=4096)
     seed: IntProperty(
         name="Seed", description="Seed of the random numbers: another seed gives another noise pattern",
         default=0, min=0)

@@ -54,6 +54,14 @@ class EMBER_RENDER_PT_sampling(EmberPanel, bpy.types.Panel):
         col = layout.column(align=True)
         col.prop(ember, "samples", text="Render Samples")
         col.prop(ember, "preview_samples", text="Viewport Samples")
+        row = layout.row(heading="Noise Threshold")
+        row.prop(ember, "use_adaptive_sampling", text="")
+        sub = row.row()
+        sub.active = ember.use_adaptive_sampling
+        sub.prop(ember, "adaptive_threshold", text="")
+        sub = layout.row()
+        sub.active = ember.use_adaptive_sampling
+        sub.prop(ember, "adaptive_min_samples")
         layout.prop(ember, "time_limit")
         layout.prop(ember, "sampling_mode")
         col = layout.column(align=True)

@@ -7,28 +7,74 @@ from __future__ import annotations
 import numpy as np
 
 
+# Memory per pixel: the float64 RGBA sums; with adaptive sampling also the odd samples' float32 RGB,
+# an int32 sample count and the converged flag (without it, counts are kept per row).
+BYTES_PER_PIXEL = 32
+ADAPTIVE_BYTES_PER_PIXEL = BYTES_PER_PIXEL + 12 + 4 + 1
+
+
 class Film:
-    """Accumulates RGBA sample sums for a width x height region; every row keeps its sample count."""
+    """Accumulates RGBA sample sums for a width x height region, with the sample counts.
 
-    def __init__(self, width: int, height: int):
+    pixel_samples : (H, W) int32 samples per pixel with adaptive sampling; (H, 1) per row without.
+    half : (H, W, 3) float32 RGB sums of the odd-numbered samples only, for adaptive sampling's error
+        estimate (Cycles' adaptive aux buffer); None without adaptive sampling.
+    converged : (H, W) bool, the pixels adaptive sampling has stopped ((H, 1) all False without).
+    """
+
+    def __init__(self, width: int, height: int, adaptive: bool = False):
         self.width, self.height = width, height
+        columns = width if adaptive else 1
         self.sums = np.zeros((height, width, 4), np.float64)
-        self.row_samples = np.zeros(height, np.int64)
+        self.half = np.zeros((height, width, 3), np.float32) if adaptive else None
+        self.pixel_samples = np.zeros((height, columns), np.int32)
+        self.converged = np.zeros((height, columns), bool)
 
-    def add_rows(self, row0: int, row_sums: np.ndarray, samples: int) -> None:
-        """Add (rows, width, 4) sums holding `samples` samples per pixel, starting at region row row0."""
+    def add_rows(self, row0: int, row_sums: np.ndarray, samples, half_sums: np.ndarray | None = None) -> None:
+        """Add (rows, width, 4) sums starting at region row row0, holding `samples` samples per pixel (an
+        int, or (rows, width) counts with adaptive sampling), and then (rows, width, 3) sums of their odd
+        samples."""
         rows = row_sums.shape[0]
         self.sums[row0:row0 + rows] += row_sums
-        self.row_samples[row0:row0 + rows] += samples
+        self.pixel_samples[row0:row0 + rows] += np.asarray(samples, np.int32)
+        if half_sums is not None:
+            self.half[row0:row0 + rows] += half_sums.astype(np.float32)
 
     def resolve(self, row0: int = 0, row1: int | None = None) -> np.ndarray:
-        """(rows, width, 4) float32 mean of rows [row0, row1); rows without samples are zero."""
+        """(rows, width, 4) float32 mean of rows [row0, row1); pixels without samples are zero."""
         row1 = self.height if row1 is None else row1
-        count = self.row_samples[row0:row1].astype(np.float64)
+        count = self.pixel_samples[row0:row1].astype(np.float64)
         scale = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
-        return (self.sums[row0:row1] * scale[:, None, None]).astype(np.float32)
+        return (self.sums[row0:row1] * scale[:, :, None]).astype(np.float32)
 
     @property
     def samples_done(self) -> int:
-        """Samples every pixel has (a pass that stopped part-way counts for no pixel)."""
-        return int(self.row_samples.min()) if self.height else 0
+        """Samples every pixel still sampling has (a pass that stopped part-way counts for no pixel);
+        once adaptive sampling has stopped them all, the most any pixel took."""
+        if not self.height:
+            return 0
+        active = ~self.converged
+        if active.any():
+            return int(self.pixel_samples[active].min())
+        return int(self.pixel_samples.max())
+
+    def update_convergence(self, threshold: float) -> None:
+        """Cycles' adaptive sampling check (film_adaptive_sampling_convergence_check and its filters): a
+        pixel converges when |mean - mean of its odd samples| summed over RGB, over sqrt of its summed mean
+        (the mean itself above 1), is below 5 x threshold; a converged pixel beside an unconverged one
+        (in its row or column) goes on."""
+        n = np.maximum(self.pixel_samples, 1).astype(np.float64)[:, :, None]
+        mean = self.sums[:, :, :3] / n
+        # The odd samples are every second one: their mean estimates the same value from half as many.
+        odd = 2.0 * self.half / n
+        difference = np.abs(mean - odd).sum(axis=2)
+        intensity = mean.sum(axis=2)
+        normalize = np.where(intensity < 1.0, np.sqrt(np.maximum(intensity, 0.0)), intensity)
+        converged = difference / (1e-4 + normalize) < 5.0 * threshold
+        busy = ~converged
+        grown = busy.copy()
+        grown[:, 1:] |= busy[:, :-1]
+        grown[:, :-1] |= busy[:, 1:]
+        grown[1:, :] |= busy[:-1, :]
+        grown[:-1, :] |= busy[1:, :]
+        self.converged = ~grown

@@ -67,6 +67,11 @@ class RenderSettings:
     # Cycles' Filter Glossy (0: off): after a bounce of small pdf, glossy closures are made at least
     # sqrt(1 - f x pdf) / 2 rough, f = 1 / filter_glossy, trading a little blur for fewer fireflies.
     filter_glossy: float = 0.0
+    # Adaptive sampling as Cycles' (0: off): after adaptive_min_samples (0: Cycles' automatic count,
+    # ceil(16 / threshold^0.3)) and every ADAPTIVE_STEP samples, pixels whose noise estimate is under the
+    # threshold stop taking samples.
+    adaptive_threshold: float = 0.0
+    adaptive_min_samples: int = 0
 
     def validate(self, width: int, height: int) -> tuple[int, int, int, int]:
         if self.mode not in SAMPLING_MODES:
@@ -81,7 +86,10 @@ class RenderSettings:
             raise ValueError(f"transparent_max_bounces: must be non-negative, got {self.transparent_max_bounces}")
         if int(self.wave_size) < 1:
             raise ValueError(f"wave_size: must be positive, got {self.wave_size}")
-        for name in ("clamp_direct", "clamp_indirect", "filter_glossy"):
+        if int(self.adaptive_min_samples) < 0:
+            raise ValueError(f"adaptive_min_samples: must be non-negative (0 is automatic), got "
+                             f"{self.adaptive_min_samples}")
+        for name in ("clamp_direct", "clamp_indirect", "filter_glossy", "adaptive_threshold"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: must be finite and non-negative (0 is off), got {value}")
@@ -211,7 +219,7 @@ class Renderer:
         cam = self.scene.camera
         x0, y0, x1, y1 = settings.validate(cam.width, cam.height)
         width, height = x1 - x0, y1 - y0
-        film = Film(width, height)
+        film = Film(width, height, adaptive=settings.adaptive_threshold > 0)
         total = int(settings.samples)
         start = time.perf_counter()
         embree_start = self.accel.seconds_in_embree
@@ -219,11 +227,21 @@ class Renderer:
         progress = Progress(0, total, 0.0, 0.0)
         stopped = False
         done = 0
+        adaptive = settings.adaptive_threshold > 0
+        min_samples = adaptive_min_samples(settings) if adaptive else total
         while done < total and not stopped:
             if done and self._out_of_time(settings, start):
                 stopped = True  # a pass never starts after the limit: the image stays evenly sampled
                 break
+            if adaptive and done >= min_samples and (done - min_samples) % ADAPTIVE_STEP == 0:
+                film.update_convergence(settings.adaptive_threshold)
+                if film.converged.all():
+                    break
             spp, bands = _plan_pass(width, height, done, total, settings.wave_size)
+            if adaptive:  # passes end where the next convergence check falls
+                next_check = min_samples if done < min_samples else \
+                    done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP
+                spp = max(1, min(spp, next_check - done))
             # Waves of one pass run concurrently (NumPy and Embree release the GIL); their results
             # are added to the film in order, so the image does not depend on the thread count.
             split = len(bands) < self.accel.threads
@@ -232,13 +250,14 @@ class Renderer:
             while next_band < len(bands) or in_flight:
                 while next_band < len(bands) and len(in_flight) < self.accel.threads:
                     r0, r1 = bands[next_band]
+                    active = ~film.converged[r0:r1] if adaptive else None
                     in_flight.append((r0, r1, self._submit(self._render_rows, settings, x0, y0, width,
-                                                           r0, r1, done, spp, split)))
+                                                           r0, r1, done, spp, split, active)))
                     next_band += 1
                 r0, r1, future = in_flight.pop(0)
-                sums, bad = future.result()
-                film.add_rows(r0, sums, spp)
-                progress.paths += (r1 - r0) * width * spp
+                sums, half, counts, bad = future.result()
+                film.add_rows(r0, sums, counts if adaptive else spp, half)
+                progress.paths += int(counts.sum())
                 progress.nonfinite_paths += bad
                 progress.elapsed_s = time.perf_counter() - start
                 progress.rays = self.accel.rays_traced - rays_start
@@ -270,14 +289,17 @@ class Renderer:
             return future
         return self._wave_pool.submit(fn, *args)
 
-    def _render_rows(self, settings, x0, y0, width, r0, r1, first_sample, spp, split):
-        """One wave: region rows [r0, r1), spp samples per pixel. Returns ((rows, W, 4) float64 sums,
-        count of dropped non-finite paths). Paths are pixel-major so each pixel's samples are adjacent."""
+    def _render_rows(self, settings, x0, y0, width, r0, r1, first_sample, spp, split, active=None):
+        """One wave: region rows [r0, r1), spp samples per pixel of those `active` ((rows, W) bool, None:
+        all). Returns ((rows, W, 4) float64 sums, (rows, W, 3) sums of the odd samples, (rows, W) sample
+        counts, count of dropped non-finite paths). Paths are pixel-major so each pixel's samples are
+        adjacent."""
         cam = self.scene.camera
         rows = r1 - r0
         npix = rows * width
-        pix = np.repeat(np.arange(npix, dtype=np.int64), spp)
-        sample = np.tile(np.arange(first_sample, first_sample + spp, dtype=np.uint32), npix)
+        pixels = np.arange(npix, dtype=np.int64) if active is None else np.flatnonzero(active)
+        pix = np.repeat(pixels, spp)
+        sample = np.tile(np.arange(first_sample, first_sample + spp, dtype=np.uint32), len(pixels))
         row = (pix // width + (y0 + r0)).astype(np.int32)
         col = (pix % width + x0).astype(np.int32)
         pixel_index = row.astype(np.uint32) * np.uint32(cam.width) + col.astype(np.uint32)
@@ -294,8 +316,17 @@ class Renderer:
         rgba = np.empty((4, len(pix)), np.float64)
         rgba[:3] = radiance
         rgba[3] = alpha
-        sums = rgba.reshape(4, npix, spp).sum(axis=2)
-        return sums.T.reshape(rows, width, 4), n_bad
+        sums = np.zeros((npix, 4), np.float64)
+        sums[pixels] = rgba.reshape(4, len(pixels), spp).sum(axis=2).T
+        counts = np.zeros(npix, np.int64)
+        counts[pixels] = spp
+        half = None
+        if settings.adaptive_threshold > 0:
+            odd = (sample & np.uint32(1)).astype(bool)
+            half = np.zeros((npix, 3), np.float64)
+            half[pixels] = np.where(odd, rgba[:3], 0.0).reshape(3, len(pixels), spp).sum(axis=2).T
+            half = half.reshape(rows, width, 3)
+        return sums.reshape(rows, width, 4), half, counts.reshape(rows, width), n_bad
 
     # ---------------------------------------------------------------- one wave of paths
     def trace_paths(self, rng: PathRng, row: np.ndarray, col: np.ndarray, settings: RenderSettings,
@@ -670,6 +701,17 @@ def _accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> N
     for k in range(3):
         channel = radiance[k]
         channel[paths] += value[k]
+
+
+ADAPTIVE_STEP = 16  # samples between convergence checks, as Cycles' adaptive_step
+
+
+def adaptive_min_samples(settings: RenderSettings) -> int:
+    """Samples before the first convergence check: the setting, or Cycles' automatic count (threshold
+    0.1 -> 32, 0.01 -> 64, 0.001 -> 128), at least 4."""
+    if settings.adaptive_min_samples > 0:
+        return max(4, int(settings.adaptive_min_samples))
+    return max(4, int(np.ceil(16.0 / settings.adaptive_threshold ** 0.3)))
 
 
 def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int):

@@ -138,6 +138,7 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
         scene.ember.transparent_max_bounces = max_bounces
         scene.ember.sample_clamp_direct, scene.ember.sample_clamp_indirect = clamp
         scene.ember.blur_glossy = blur_glossy
+        scene.ember.use_adaptive_sampling = False   # as configure_cycles
     with tempfile.TemporaryDirectory() as tmp:
         render.filepath = os.path.join(tmp, "frame.exr")
         bpy.ops.render.render(write_still=True)

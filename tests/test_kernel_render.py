@@ -253,3 +253,35 @@ def test_sample_clamping_limits_contributions_as_cycles_does():
     assert bounced[..., 0].mean() < free[..., 0].mean() - 0.1
     with pytest.raises(ValueError, match="clamp_direct"):
         RenderSettings(clamp_direct=-1.0).validate(8, 8)
+
+
+def test_adaptive_sampling_stops_converged_pixels_and_stays_unbiased():
+    """A diffuse sphere in a white furnace (world 1) with its sky: the sky pixels are exact from the first
+    sample and converge at the first check; the sphere's keep sampling until their noise is low. The
+    adaptive image matches a non-adaptive one within the noise of their difference."""
+    scene = sphere_in_furnace(albedo=0.5, world=1.0)
+    settings = RenderSettings(samples=256, max_bounces=4, adaptive_threshold=0.01, adaptive_min_samples=16)
+    with Renderer(scene, 1) as renderer:
+        adaptive = renderer.render(settings)
+        fixed = renderer.render(RenderSettings(samples=256, max_bounces=4, seed=1))
+    counts = adaptive.film.pixel_samples
+    sky = fixed.image[..., 0] > 0.999
+    # Sky pixels away from the sphere stop at the first check; those beside it go on while it does (a
+    # converged pixel next to an unconverged one keeps sampling, as Cycles' filter has it).
+    open_sky = sky.copy()
+    open_sky[1:] &= sky[:-1]
+    open_sky[:-1] &= sky[1:]
+    open_sky[:, 1:] &= sky[:, :-1]
+    open_sky[:, :-1] &= sky[:, 1:]
+    assert counts[open_sky].max() == 16 and counts[~sky].max() > 16
+    assert adaptive.progress.paths == counts.sum() < 256 * counts.size
+    assert not adaptive.stopped_early
+    # Unbiased: the sphere's mean against the fixed render's, within 4 standard errors of the difference
+    # (per-pixel noise from the adaptive film's odd/even halves, and the fixed film's own).
+    diff = adaptive.image[..., :3][~sky].mean() - fixed.image[..., :3][~sky].mean()
+    n = adaptive.film.pixel_samples[~sky].astype(float)[:, None]
+    half_gap = np.abs(adaptive.film.sums[..., :3][~sky] / n - 2 * adaptive.film.half[~sky] / n)
+    se = np.sqrt((half_gap ** 2).mean() / (~sky).sum() * 2)
+    assert abs(diff) < 4 * se + 1e-4, (diff, se)
+    with pytest.raises(ValueError, match="adaptive_min_samples"):
+        RenderSettings(adaptive_min_samples=-1).validate(8, 8)

@@ -238,9 +238,11 @@ def test_time_limit_always_completes_the_first_pass():
 
 # ---------------------------------------------------------------- 5. large frames
 def test_memory_is_the_film_plus_a_bounded_working_set(monkeypatch):
-    """NumPy memory traced during a render (Blender's own result is not counted): the film's 32 bytes
-    per pixel plus a working set that does not grow with the frame. Rows reach Blender only as they
-    change; the display is forced on every wave here, as in the worst case of an interactive render."""
+    """NumPy memory traced during a render (Blender's own result is not counted): the film's bytes per
+    pixel (49 with adaptive sampling, the default; 32 without) plus a working set that does not grow with
+    the frame. Rows reach Blender only as they change; the display is forced on every wave here, as in
+    the worst case of an interactive render."""
+    from ember.kernels.film import ADAPTIVE_BYTES_PER_PIXEL
     import ember.engine.session as session
     monkeypatch.setattr(session, "_background", lambda: False)
     monkeypatch.setattr(session, "DISPLAY_INTERVAL_S", 0.0)
@@ -252,7 +254,7 @@ def test_memory_is_the_film_plus_a_bounded_working_set(monkeypatch):
         tracemalloc.start()
         try:
             bpy.ops.render.render()
-            extra[size] = tracemalloc.get_traced_memory()[1] - 32 * size * size
+            extra[size] = tracemalloc.get_traced_memory()[1] - ADAPTIVE_BYTES_PER_PIXEL * size * size
         finally:
             tracemalloc.stop()
     # The working set is the waves in flight (their size is fixed, their peak depends on how two threads
