@@ -29,9 +29,9 @@ class RecordingAccel(Accel):
         super().__init__(*args, **kwargs)
         self.batches = []
 
-    def intersect(self, origins, directions, t_max, split=True):
+    def intersect(self, origins, directions, t_max, split=True, time=None):
         self.batches.append((origins.copy(), directions.copy(), t_max.copy()))
-        return super().intersect(origins, directions, t_max, split)
+        return super().intersect(origins, directions, t_max, split, time)
 
 
 def embree_only(scene, batches, threads: int) -> float:

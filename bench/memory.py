@@ -48,6 +48,7 @@ set_world(scene, color=(0.3, 0.4, 0.5))
 scene.render.engine = "EMBER"
 scene.ember.samples = %(samples)d
 scene.ember.use_adaptive_sampling = False
+scene.ember.pixel_filter_type = "BOX"
 scene.render.threads_mode, scene.render.threads = "FIXED", 2
 before = peak_kb()
 tracemalloc.start()

@@ -85,6 +85,7 @@ def engine_rate(scene, engine: str, samples: int) -> float:
         scene.ember.samples, scene.ember.max_bounces, scene.ember.seed = samples, MAX_BOUNCES, 0
         scene.ember.sample_clamp_direct = scene.ember.sample_clamp_indirect = scene.ember.blur_glossy = 0.0
         scene.ember.use_adaptive_sampling = False
+        scene.ember.pixel_filter_type = "BOX"
     bpy.ops.render.render()  # warm-up (kernels, imports)
     start = time.perf_counter()
     bpy.ops.render.render()

@@ -13,6 +13,11 @@ SAMPLING_MODE_ITEMS = (
                            "For teaching and as a reference; noisier"),
 )
 DEFAULT_SAMPLING_MODE = "NEE_MIS"
+PIXEL_FILTER_ITEMS = (
+    ("BOX", "Box", "Box filter: every sample counts only inside its pixel (one pixel wide, whatever the width)"),
+    ("GAUSSIAN", "Gaussian", "Gaussian filter"),
+    ("BLACKMAN_HARRIS", "Blackman-Harris", "Blackman-Harris filter, Cycles' default"),
+)
 
 
 class EmberSceneSettings(bpy.types.PropertyGroup):
@@ -61,6 +66,13 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
         name="Min Samples", description="Samples every pixel takes before it may stop (0 = automatic, as "
                                         "Cycles: 64 at threshold 0.01)",
         default=0, min=0, max=4096)
+    pixel_filter_type: EnumProperty(
+        name="Pixel Filter", description="Pixel filter type, as Cycles' (importance-sampled: each sample counts "
+                                         "in one pixel with weight 1)",
+        items=PIXEL_FILTER_ITEMS, default="BLACKMAN_HARRIS")
+    filter_width: FloatProperty(
+        name="Width", description="Pixel filter width, in pixels (Cycles' default 1.5)",
+        default=1.5, min=0.01, max=10.0, soft_max=3.0, subtype="PIXEL")
     seed: IntProperty(
         name="Seed", description="Seed of the random numbers: another seed gives another noise pattern",
         default=0, min=0)

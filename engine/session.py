@@ -19,6 +19,7 @@ import numpy as np
 from ..kernels import Cancelled, Renderer, RenderSettings
 from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region
+from .export.motion import sample_motion
 from .version import EMBER_VERSION
 
 # The Image Editor is refreshed at most this often (Cycles updates a few times a second); the first and
@@ -124,8 +125,10 @@ class FinalRender:
         width, height = engine.resolution_x, engine.resolution_y
         engine.update_stats("", "Ember: exporting scene")
         try:
+            camera_ob = engine.camera_override or self.depsgraph.scene.camera
+            motion = sample_motion(engine, self.depsgraph, camera_ob) if camera_ob is not None else None
             exported = export_scene(self.depsgraph, engine.camera_override, width=width, height=height,
-                                    should_stop=self.should_stop)
+                                    should_stop=self.should_stop, motion=motion)
         except ExportCancelled:
             return self._cancel()
         except ExportError as err:

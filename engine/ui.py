@@ -15,6 +15,9 @@ EXTRA_PANELS = (
     "EEVEE_WORLD_PT_surface",
     "DATA_PT_EEVEE_light",
     "DATA_PT_spot",
+    "DATA_PT_camera_dof",
+    "DATA_PT_camera_dof_aperture",
+    "CYCLES_OBJECT_PT_motion_blur",   # per object: Motion Blur on/off, Steps (object.cycles, read by Ember)
 )
 _added: list = []
 
@@ -93,6 +96,31 @@ class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         layout.prop(context.scene.render, "film_transparent", text="Transparent")
+        col = layout.column()
+        col.prop(context.scene.ember, "pixel_filter_type", text="Pixel Filter")
+        sub = col.column()
+        sub.active = context.scene.ember.pixel_filter_type != "BOX"
+        sub.prop(context.scene.ember, "filter_width", text="Width")
+
+
+class EMBER_RENDER_PT_motion_blur(EmberPanel, bpy.types.Panel):
+    """Blender's own motion blur settings, as Cycles shows them (engine/export/motion.py reads them)."""
+    bl_label = "Motion Blur"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.render, "use_motion_blur", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        rd = context.scene.render
+        layout.active = rd.use_motion_blur
+        col = layout.column()
+        col.prop(rd, "motion_blur_position", text="Position")
+        col.prop(rd, "motion_blur_shutter")
+        layout.template_curve_mapping(rd, "motion_blur_shutter_curve")
 
 
 class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
@@ -111,7 +139,7 @@ class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
         sub.prop(rd, "threads")
 
 
-CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_light_paths, EMBER_RENDER_PT_film,
+CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_light_paths, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur,
            EMBER_RENDER_PT_performance)
 
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..kernels import Camera, Renderer, RenderSettings, SceneArrays
 from .export import ExportError, export_scene
+from .export.camera import DOF_FIELDS, depth_of_field, pixel_filter
 from .session import render_settings, render_threads
 
 # Blender's DNA defaults (DNA_camera_defaults.h): the 3D view has no sensor of its own and uses these.
@@ -68,6 +69,7 @@ class LensParams:
     ortho_scale: float = 6.0
     clip_start: float = 0.1
     clip_end: float = 100.0
+    dof: tuple = ()                # depth of field: kernels.Camera's aperture and focus fields (DOF_FIELDS)
 
     @classmethod
     def from_object(cls, ob, view_lens: float, clip_start: float, clip_end: float) -> "LensParams":
@@ -76,7 +78,9 @@ class LensParams:
         lens whose field matches its spot size); no object at all keeps the view's lens."""
         if ob is not None and ob.type == "CAMERA":
             cam = ob.data
-            return cls(kind="ORTHO" if cam.type == "ORTHO" else "PERSP", lens=float(cam.lens),
+            kind = "ORTHO" if cam.type == "ORTHO" else "PERSP"
+            dof = depth_of_field(ob, kind) if cam.dof.use_dof else {}
+            return cls(kind=kind, lens=float(cam.lens), dof=tuple(dof[name] for name in DOF_FIELDS) if dof else (),
                        sensor_width=float(cam.sensor_width), sensor_height=float(cam.sensor_height),
                        sensor_fit=cam.sensor_fit, shift_x=float(cam.shift_x), shift_y=float(cam.shift_y),
                        ortho_scale=float(cam.ortho_scale), clip_start=float(cam.clip_start),
@@ -114,6 +118,8 @@ class ViewportCamera:
     clip_end: float
     width: int
     height: int
+    dof: tuple = ()                        # the camera's depth of field (camera view only), DOF_FIELDS
+    pixel_filter: tuple = ("BOX", 1.0)     # the film's (type, width)
 
     @classmethod
     def from_view(cls, view_matrix, width: int, height: int, perspective: str, lens: float,
@@ -144,7 +150,7 @@ class ViewportCamera:
             return cls(_tuple4(world_from_camera), camera.kind,
                        2.0 * math.atan(camera.sensor / (2.0 * camera.lens * fac)), camera.sensor_fit,
                        shift_x, shift_y, camera.ortho_scale / fac, camera.clip_start, camera.clip_end,
-                       int(width), int(height))
+                       int(width), int(height), camera.dof)
         zoom = CAMERA_PARAM_ZOOM_INIT_PERSP
         if perspective == "ORTHO":
             # Blender clips an ortho view to [-clip_end / 2, clip_end / 2] around the view point. The
@@ -158,16 +164,21 @@ class ViewportCamera:
                    Camera.ortho_scale, float(clip_start), float(clip_end), int(width), int(height))
 
     @classmethod
-    def from_blender(cls, space, region_data, width: int, height: int, camera_object=None) -> "ViewportCamera":
+    def from_blender(cls, space, region_data, width: int, height: int, camera_object=None,
+                     scene=None) -> "ViewportCamera":
         """From a SpaceView3D and its RegionView3D; camera_object is the evaluated camera the view
-        looks through (used only when view_perspective is 'CAMERA')."""
+        looks through (used only when view_perspective is 'CAMERA'); the scene gives the pixel filter."""
         perspective = region_data.view_perspective
         lens = None
         if perspective == "CAMERA":
             lens = LensParams.from_object(camera_object, space.lens, space.clip_start, space.clip_end)
-        return cls.from_view(region_data.view_matrix, width, height, perspective, space.lens, space.clip_start,
+        view = cls.from_view(region_data.view_matrix, width, height, perspective, space.lens, space.clip_start,
                              space.clip_end, region_data.view_distance, lens, region_data.view_camera_zoom,
                              tuple(region_data.view_camera_offset))
+        film = pixel_filter(scene) if scene is not None else {}
+        if film:
+            view = dataclasses.replace(view, pixel_filter=(film["filter_type"], film["filter_width"]))
+        return view
 
     def to_kernel(self, width: int | None = None, height: int | None = None) -> Camera:
         """kernels.Camera; another width and height keep the view (a preview at lower resolution)."""
@@ -175,7 +186,9 @@ class ViewportCamera:
                       fov_rad=self.fov_rad, sensor_fit=self.sensor_fit, shift_x=self.shift_x,
                       shift_y=self.shift_y, pixel_aspect=1.0, ortho_scale=self.ortho_scale,
                       clip_start=self.clip_start, clip_end=self.clip_end,
-                      width=int(width or self.width), height=int(height or self.height))
+                      width=int(width or self.width), height=int(height or self.height),
+                      filter_type=self.pixel_filter[0], filter_width=self.pixel_filter[1],
+                      **dict(zip(DOF_FIELDS, self.dof)))
 
 
 def _tuple4(m: np.ndarray) -> tuple:
@@ -627,7 +640,7 @@ class ViewportRender:
             camera_object = view_camera_object(space, depsgraph.scene)
             if camera_object is not None:
                 camera_object = camera_object.evaluated_get(depsgraph)
-        return ViewportCamera.from_blender(space, region_data, width, height, camera_object)
+        return ViewportCamera.from_blender(space, region_data, width, height, camera_object, depsgraph.scene)
 
     @staticmethod
     def _film_size(engine, context, depsgraph) -> tuple[int, int]:

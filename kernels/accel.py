@@ -33,21 +33,88 @@ class Hits:
         self.prim, self.t, self.u, self.v = prim, t, u, v
 
 
-class Accel:
-    """An Embree scene over world-space triangles (T, 3, 3) float32, with a thread pool."""
+class RayTimes:
+    """The shutter times of a batch of paths (motion blur), with what depends only on them cached: each
+    moving object's transform at each path's time is computed once per path, not once per ray query."""
+    __slots__ = ("times", "_cache")
 
-    def __init__(self, positions: np.ndarray, threads: int = 0):
+    def __init__(self, times: np.ndarray):
+        self.times = times
+        self._cache = {}
+
+    def take(self, idx: np.ndarray) -> "RayTimes":
+        kept = RayTimes(np.take(self.times, idx))
+        kept._cache = {key: tuple(np.take(v, idx, axis=0) for v in value) if isinstance(value, tuple)
+                       else np.take(value, idx, axis=0) for key, value in self._cache.items()}
+        return kept
+
+    def cached(self, key, make):
+        value = self._cache.get(key)
+        if value is None:
+            value = self._cache[key] = make(self.times)
+        return value
+
+
+class _Moving:
+    """One moving object for motion blur: its triangles in object space in their own Embree scene, and
+    its motion. A ray at time t is moved into the object's space at t (interpolated as Cycles does)
+    without normalising its direction, so the hit distance is the world's."""
+
+    def __init__(self, ids: np.ndarray, positions: np.ndarray, keys: np.ndarray, reference: np.ndarray):
+        from . import motion
+        self.ids = ids.astype(np.int32)
+        self.motion = motion.decompose(np.asarray(keys, np.float64))
+        object_from_world = np.linalg.inv(np.asarray(reference, np.float64))
+        local = positions[ids].astype(np.float64) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
+        self.scene = rtcore_scene.EmbreeScene(robust=True)
+        mesh_construction.TriangleMesh(self.scene, np.ascontiguousarray(local, np.float32))
+
+    def rays(self, origins, directions, time):
+        """The rays in object space at their times (RayTimes or (n,) times): (origins, directions) float32."""
+        from . import motion
+
+        def make(t):
+            return motion.affine_inverse(motion.interpolate(self.motion, t)).astype(np.float32)
+        inverse = time.cached(("inverse", id(self)), make) if isinstance(time, RayTimes) else make(time)
+        linear = inverse[:, :, :3]
+        o = np.einsum("nij,nj->ni", linear, origins) + inverse[:, :, 3]
+        d = np.einsum("nij,nj->ni", linear, directions)
+        return np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32)
+
+
+class Accel:
+    """An Embree scene over world-space triangles (T, 3, 3) float32, with a thread pool.
+
+    Motion blur: motion_ids (T,) int32 (-1 static) names each triangle's entry of motion (K, 4, 4) keys,
+    whose motion_reference matrix made the world positions. Static triangles then form one scene and each
+    moving object its own, queried at each ray's time; hits report the scene's triangle index either way."""
+
+    def __init__(self, positions: np.ndarray, threads: int = 0, motion_ids: np.ndarray | None = None,
+                 motion: tuple = (), motion_reference: tuple = ()):
         self.threads = threads if threads > 0 else default_threads()
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.triangle_count = len(positions)
         self.seconds_in_embree = 0.0  # time spent inside run() calls, summed over calls and threads
         self._lock = threading.Lock()
         self.rays_traced = 0
-        if self.triangle_count:
+        self._static_ids = None   # scene triangle of each static-scene triangle, when some move
+        self._moving = []
+        if motion_ids is not None and len(motion) and (motion_ids >= 0).any():
+            self._static_ids = np.flatnonzero(motion_ids < 0).astype(np.int32)
+            self._moving = [_Moving(np.flatnonzero(motion_ids == i), positions, keys, ref)
+                            for i, (keys, ref) in enumerate(zip(motion, motion_reference))
+                            if (motion_ids == i).any()]
+            positions = positions[self._static_ids]
+        if len(positions):
             self._scene = rtcore_scene.EmbreeScene(robust=True)
             mesh_construction.TriangleMesh(self._scene, np.ascontiguousarray(positions, np.float32))
         else:
             self._scene = None
+
+    @property
+    def moves(self) -> bool:
+        """Some triangles move: queries need each ray's time."""
+        return bool(self._moving)
 
     def close(self) -> None:
         if self._pool is not None:
@@ -61,15 +128,16 @@ class Accel:
         self.close()
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,
-                  split: bool = True) -> Hits:
-        """Closest hits. origins, directions: (N, 3) float32; t_max: (N,) float32.
+                  split: bool = True, time: np.ndarray | None = None) -> Hits:
+        """Closest hits. origins, directions: (N, 3) float32; t_max: (N,) float32; time: (N,) float32
+        path times in the shutter, needed when something moves.
         split=False keeps the batch on the calling thread (when the caller already runs in parallel)."""
         n = len(origins)
         prim = np.full(n, -1, np.int32)
         t = np.empty(n, np.float32)
         u = np.zeros(n, np.float32)
         v = np.zeros(n, np.float32)
-        if self._scene is None or n == 0:
+        if (self._scene is None and not self._moving) or n == 0:
             t[:] = np.inf
             return Hits(prim, t, u, v)
 
@@ -80,22 +148,48 @@ class Accel:
             u[s] = r["u"]
             v[s] = r["v"]
 
-        self._run(job, n, split)
+        if self._scene is not None:
+            self._run(job, n, split)
+        else:
+            t[:] = t_max
+        if self._moving:
+            if self._static_ids is not None and self._scene is not None:
+                hit = prim >= 0
+                prim[hit] = self._static_ids[prim[hit]]
+            t[prim < 0] = t_max[prim < 0]
+            for moving in self._moving:
+                o, d = moving.rays(origins, directions, time)
+
+                def job_moving(s: slice, o=o, d=d, moving=moving) -> None:
+                    r = moving.scene.run(o[s], d[s], dists=t[s].copy(), output=1)
+                    closer = r["primID"] >= 0
+                    idx = np.flatnonzero(closer) + s.start
+                    prim[idx] = moving.ids[r["primID"][closer]]
+                    t[idx] = r["tfar"][closer]
+                    u[idx] = r["u"][closer]
+                    v[idx] = r["v"][closer]
+
+                self._run(job_moving, n, split)
+            t[prim < 0] = np.inf
         return Hits(prim, t, u, v)
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,
-                 split: bool = True) -> np.ndarray:
-        """(N,) bool: True where something lies between the origin and t_max along the ray."""
+                 split: bool = True, time: np.ndarray | None = None) -> np.ndarray:
+        """(N,) bool: True where something lies between the origin and t_max along the ray (at its time,
+        when something moves)."""
         n = len(origins)
         out = np.zeros(n, bool)
-        if self._scene is None or n == 0:
+        if n == 0:
             return out
 
-        def job(s: slice) -> None:
-            out[s] = self._scene.run(origins[s], directions[s], dists=t_max[s].copy(),
-                                     query="OCCLUDED", output=None) == 0
+        def job(s: slice, scene=self._scene, o=origins, d=directions) -> None:
+            out[s] |= scene.run(o[s], d[s], dists=t_max[s].copy(), query="OCCLUDED", output=None) == 0
 
-        self._run(job, n, split)
+        if self._scene is not None:
+            self._run(job, n, split)
+        for moving in self._moving:
+            o, d = moving.rays(origins, directions, time)
+            self._run(lambda s, o=o, d=d, scene=moving.scene: job(s, scene, o, d), n, split)
         return out
 
     def _run(self, job, n: int, split: bool) -> None:

@@ -1,12 +1,17 @@
 """Camera rays: Blender's view plane (sensor fit, shift, pixel aspect, ortho scale) and clipping.
 
 Pixel (row, col) with row 0 at the top of the full frame; a jitter (jx, jy) in [0, 1)^2 places the
-sample inside the pixel (a box filter of one pixel, like Cycles with filter width 1 box).
+sample inside the pixel; the camera's pixel filter warps it (kernels.pixel_filter), and a lens with depth
+of field moves the ray's origin (kernels.lens).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from . import motion, pixel_filter
+from .lens import sample_aperture
 from .scene import Camera
 
 
@@ -34,9 +39,39 @@ def camera_frame(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     return m[:3, 3], m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
 
 
-def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarray, jy: np.ndarray):
+def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarray, jy: np.ndarray,
+                  lens: tuple | None = None, times: np.ndarray | None = None):
     """Rays through the given pixels. Returns origins (N, 3), directions (N, 3) unit, t_max (N,),
-    all float32. Origins sit on the near clip plane; t_max reaches the far clip plane."""
+    all float32. Origins sit on the near clip plane; t_max reaches the far clip plane.
+
+    (jx, jy) in [0, 1)^2 are warped by the camera's pixel filter into offsets from the pixel's corner;
+    lens = (u, v) uniform numbers for the point on the lens when the camera has depth of field;
+    times = (N,) path times in the shutter, which move a camera with motion blur (camera.motion)."""
+    if camera.motion is not None and times is not None:
+        # Built in the camera's own space, then moved by its transform at each ray's time (Cycles).
+        still = dataclasses.replace(camera, world_from_camera=np.eye(4), motion=None)
+        origins, dirs, t_max = generate_rays(still, row, col, jx, jy, lens)
+        m = motion.interpolate(motion.decompose(np.asarray(camera.motion, np.float64)), times)
+        origins = np.einsum("nij,nj->ni", m[:, :, :3], origins) + m[:, :, 3]
+        dirs = np.einsum("nij,nj->ni", m[:, :, :3], dirs)
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max
+    jx = pixel_filter.offsets(camera.filter_type, camera.filter_width, jx)
+    jy = pixel_filter.offsets(camera.filter_type, camera.filter_width, jy)
+    if camera.kind == "PANO":
+        from .panorama import panorama_rays
+        # Cycles clips panoramic rays along the ray, from clip_start to clip_end. A pixel without a
+        # direction (outside a fisheye's circle) gets t_max 0, Cycles' "no ray": it must stay black, alpha 1.
+        points = sample_aperture(camera, *lens) if lens is not None and camera.aperture_radius > 0 else None
+        start, local, valid = panorama_rays(camera, col.astype(np.float32) + jx, row.astype(np.float32) + jy,
+                                            points)
+        eye, rot = camera_frame(camera)
+        rot32 = rot.astype(np.float32)
+        dirs = local @ rot32.T
+        origins = eye.astype(np.float32) + start @ rot32.T + dirs * np.float32(camera.clip_start)
+        t_max = np.where(valid, np.float32(camera.clip_end - camera.clip_start), np.float32(0.0))
+        return (np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32),
+                t_max.astype(np.float32))
     xmin, xmax, ymin, ymax = view_plane(camera)
     sx = (col.astype(np.float32) + jx) / np.float32(camera.width)
     sy = np.float32(1.0) - (row.astype(np.float32) + jy) / np.float32(camera.height)
@@ -45,17 +80,37 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
     eye, rot = camera_frame(camera)
     rot32 = rot.astype(np.float32)
     n = len(px)
+    dof = lens is not None and camera.aperture_radius > 0
+    if dof:
+        lx, ly = sample_aperture(camera, *lens)
     if camera.kind == "ORTHO":
-        lx, ly, lz = px, py, np.zeros(n, np.float32)
-        dirs = np.broadcast_to(-rot32[:, 2], (n, 3))
-        origins = (eye.astype(np.float32) + np.stack([lx, ly, lz], 1) @ rot32.T
-                   + dirs * np.float32(camera.clip_start))
+        if dof:  # Cycles: from the lens point toward the focus point straight ahead, cut at the near plane
+            focus = np.float32(camera.focus_distance)
+            inv = np.float32(1) / np.sqrt(lx * lx + ly * ly + focus * focus)
+            local = np.stack([-lx * inv, -ly * inv, -focus * inv], 1)
+            dirs = local @ rot32.T
+            start = np.stack([px + lx, py + ly, np.zeros(n, np.float32)], 1) @ rot32.T
+            origins = eye.astype(np.float32) + start + dirs * (np.float32(camera.clip_start) / (focus * inv))[:, None]
+        else:
+            dirs = np.broadcast_to(-rot32[:, 2], (n, 3))
+            origins = (eye.astype(np.float32) + np.stack([px, py, np.zeros(n, np.float32)], 1) @ rot32.T
+                       + dirs * np.float32(camera.clip_start))
         t_max = np.full(n, camera.clip_end - camera.clip_start, np.float32)
         return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max
     inv_len = np.float32(1.0) / np.sqrt(px * px + py * py + np.float32(1.0))
-    local = np.stack([px * inv_len, py * inv_len, -inv_len], 1)  # unit, z component is -cos
-    dirs = local @ rot32.T
-    cos_axis = inv_len  # distance along the view axis per unit of ray length
-    origins = eye.astype(np.float32) + dirs * (np.float32(camera.clip_start) / cos_axis)[:, None]
+    cos_axis = inv_len  # distance along the view axis per unit of the pinhole ray's length
+    if dof:
+        # Cycles: the pinhole ray meets the plane of focus at depth focus_distance; the ray leaves the lens
+        # point toward it. Clipping keeps the pinhole ray's scale, as Cycles does.
+        focus = np.float32(camera.focus_distance)
+        fx, fy = px * focus - lx, py * focus - ly
+        inv = np.float32(1.0) / np.sqrt(fx * fx + fy * fy + focus * focus)
+        dirs = np.stack([fx * inv, fy * inv, -focus * inv], 1) @ rot32.T
+        start = np.stack([lx, ly, np.zeros(n, np.float32)], 1) @ rot32.T
+        origins = eye.astype(np.float32) + start + dirs * (np.float32(camera.clip_start) / cos_axis)[:, None]
+    else:
+        local = np.stack([px * inv_len, py * inv_len, -inv_len], 1)  # unit, z component is -cos
+        dirs = local @ rot32.T
+        origins = eye.astype(np.float32) + dirs * (np.float32(camera.clip_start) / cos_axis)[:, None]
     t_max = (np.float32(camera.clip_end - camera.clip_start) / cos_axis).astype(np.float32)
     return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max

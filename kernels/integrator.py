@@ -19,8 +19,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from . import sampling
-from .accel import Accel
+from . import motion, panorama, sampling
+from .accel import Accel, RayTimes
 from .camera import generate_rays, view_plane
 from .environment import Environment
 from .film import Film
@@ -30,7 +30,7 @@ from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
 from .paths import PathState
 from .rng import PathRng, seed_paths
-from .samples import BSDF, LIGHT, LIGHT_POINT, LOBE, Samples
+from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples
 from .scene import Camera, SceneArrays
 from .shading import Shading
 from .shading.world import WorldShader
@@ -153,7 +153,9 @@ class Renderer:
         self.scene = checked.scene
         self.dropped_triangles = checked.dropped_triangles
         poll()
-        self.accel = Accel(self.scene.positions, threads)
+        moving = self.scene.has_motion and self.scene.motion_ids is not None
+        self.accel = Accel(self.scene.positions, threads,
+                           *((self.scene.motion_ids, self.scene.motion, self.scene.motion_reference) if moving else ()))
         try:
             poll()
             # Triangles near float32's limits overflow in their normals: paths that hit them are
@@ -168,6 +170,10 @@ class Renderer:
         srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
         self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
         self._triangles = TriangleTable(self.scene)
+        # Motion blur: each moving object's decomposed motion and the inverse of the matrix its stored
+        # positions were made with (hits are moved from there to where the object is at the path's time).
+        self._motion = [motion.decompose(np.asarray(keys, np.float64)) for keys in self.scene.motion]
+        self._motion_inverse = [np.linalg.inv(np.asarray(ref, np.float64)) for ref in self.scene.motion_reference]
         poll()
         self._material_ids = self.scene.material_ids
         self.shading = Shading(self.scene.materials, self.textures, self.scene)
@@ -177,6 +183,8 @@ class Renderer:
         xmin, xmax, _, _ = view_plane(self.scene.camera)
         # View-plane units per pixel: the spread of camera rays (perspective: radians at the centre).
         self._pixel_size = float(xmax - xmin) / max(self.scene.camera.width, 1)
+        if self.scene.camera.kind == "PANO":
+            self._pixel_size = float(panorama.pixel_spread(self.scene.camera))
         lo, hi = extent(self.scene.positions)
         self._ray_epsilon = _ray_epsilon(lo, hi)
         self.lights = LightSampler(self.scene, self.environment, _Emitters(self))
@@ -343,19 +351,31 @@ class Renderer:
         samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, nee,
                           lobes=self.shading.mixes_lobes)  # a lobe to choose: its numbers are drawn
         jx, jy = samples.camera()
-        rays = Rays(*generate_rays(self.scene.camera, row, col, jx, jy))
+        camera = self.scene.camera
+        lens = samples.camera_extra(LENS) if camera.aperture_radius > 0 else None
+        times = None
+        if self.scene.has_motion:
+            times = motion.sample_time(samples.camera_extra(TIME)[0], self.scene.shutter_table, row,
+                                      camera.height, self.scene.rolling_shutter).astype(np.float32)
+        rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
         state = PathState.start(n, samples)
+        state.time = None if times is None else RayTimes(times)
         if self.shading.reads_lobes:
             state.lobes = np.zeros((4, n), np.int32)
         if settings.filter_glossy > 0:
             state.min_ray_pdf = np.full(n, np.inf, np.float32)
         if self.scene.camera.kind == "ORTHO":
             state.dp[:] = self._pixel_size
+        if camera.kind == "PANO":
+            traced = np.flatnonzero(rays.t_max > 0)  # outside a fisheye's circle: black, alpha 1 (Cycles)
+            if len(traced) < n:
+                state.compact(traced)
+                rays = Rays(rays.origins[traced], rays.dirs[traced], rays.t_max[traced])
         max_scatters = int(settings.max_bounces) + 1
         wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
                      0.0 if self.scene.camera.kind == "ORTHO" else self._pixel_size)
         for step in range(max_scatters + int(settings.transparent_max_bounces) + 1):
-            hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split)
+            hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split, state.time)
             if step > 0 and self.lights.has_surface_lights:
                 self._lights_hit(wave, state, rays, hits)
             self._escaped(wave, state, rays, hits)
@@ -363,7 +383,7 @@ class Renderer:
             if not len(found):
                 break
             state.compact(found)
-            hit = self._surface_hit(hits, rays, found)
+            hit = self._surface_hit(hits, rays, found, state.time)
             t_hit = np.take(hits.t, found)
             # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
             # of distance, bounce after bounce (kernel/util/differential.h).
@@ -428,11 +448,39 @@ class Renderer:
         _accumulate(wave.radiance, state.path[miss], _clamp(wave, env, state.bounce[miss] > 1))
 
     # ---- stage: the surface-interaction record of the rays that hit
-    def _surface_hit(self, hits, rays, found) -> SurfaceHit:
+    def _surface_hit(self, hits, rays, found, times=None) -> SurfaceHit:
         d = rays.dirs
         direction = (np.take(d[:, 0], found), np.take(d[:, 1], found), np.take(d[:, 2], found))
-        return SurfaceHit(self._triangles, self._material_ids, np.take(hits.prim, found),
-                          np.take(hits.u, found), np.take(hits.v, found), direction, self.shading.needs_uv)
+        prim = np.take(hits.prim, found)
+        return SurfaceHit(self._triangles, self._material_ids, prim, np.take(hits.u, found),
+                          np.take(hits.v, found), direction, self.shading.needs_uv,
+                          self._hit_motion(prim, times) if self.accel.moves else None)
+
+    def _hit_motion(self, prim, times):
+        """(hits on moving triangles, (m, 3, 4) matrices taking the triangles' stored positions to where
+        they are at each hit's time, (m, 3, 3) the same for normals), or None when no hit moves. The
+        matrices are cached per path (times: the hits' RayTimes), so later bounces reuse them."""
+        ids = np.take(self.scene.motion_ids, prim)
+        rows = np.flatnonzero(ids >= 0)
+        if not len(rows):
+            return None
+        delta = np.empty((len(rows), 3, 4), np.float32)
+        normal = np.empty((len(rows), 3, 3), np.float32)
+        for i in np.unique(ids[rows]):
+            sel = np.flatnonzero(ids[rows] == i)
+            d, n = times.cached(("moved", i), lambda t, i=i: self._moved_by(i, t))
+            delta[sel], normal[sel] = d[rows[sel]], n[rows[sel]]
+        return rows, delta, normal
+
+    def _moved_by(self, i: int, t: np.ndarray):
+        """(n, 3, 4) M(t) M_ref^-1 and (n, 3, 3) its normal matrix (inverse transpose) for object i."""
+        m = motion.interpolate(self._motion[i], t)
+        ref = self._motion_inverse[i]
+        delta = np.empty((len(t), 3, 4), np.float64)
+        delta[:, :, :3] = m[:, :, :3] @ ref[:3, :3]
+        delta[:, :, 3] = m[:, :, :3] @ ref[:3, 3] + m[:, :, 3]
+        normal = np.linalg.inv(delta[:, :, :3]).transpose(0, 2, 1)
+        return delta.astype(np.float32), normal.astype(np.float32)
 
     # ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
     def _emission_on_hit(self, wave, state, hit, shading, hits, rays, found):
@@ -570,7 +618,8 @@ class Renderer:
         paths = active[idx]
         transmittance = self._shadow(origins, np.stack([wx, wy, wz], axis=1), t_max, wave,
                                      np.take(state.bounce, paths), None if state.lobes is None else
-                                     np.take(state.lobes, paths, axis=1))
+                                     np.take(state.lobes, paths, axis=1),
+                                     None if state.time is None else state.time.take(paths))
         vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
         if not len(vis):
             return
@@ -582,7 +631,7 @@ class Renderer:
             np.take(ls.radiance, rows, axis=1) * (w / pdf)
         _accumulate(wave.radiance, state.path[paths], _clamp(wave, contribution, np.take(state.bounce, paths) > 0))
 
-    def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None) -> np.ndarray:
+    def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None, times=None) -> np.ndarray:
         """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
         transparent surfaces, the product of their transparency (Cycles' transparent shadows).
         depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None):
@@ -590,13 +639,13 @@ class Renderer:
         n = len(origins)
         split = wave.split
         if not self.shading.transparent.any():
-            blocked = self.accel.occluded(origins, dirs, t_max, split)
+            blocked = self.accel.occluded(origins, dirs, t_max, split, times)
             return np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
         out = np.ones((3, n), np.float32)
         live = np.arange(n)
         origins, t_left = origins.copy(), t_max.copy()
         for _ in range(int(wave.settings.transparent_max_bounces) + 1):
-            hits = self.accel.intersect(origins, dirs[live], t_left, split)
+            hits = self.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
             found = np.flatnonzero(hits.prim >= 0)
             if not len(found):
                 break

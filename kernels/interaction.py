@@ -19,14 +19,28 @@ class SurfaceHit:
     tangent_frame(idx) : the tangents of some hits, computed on demand.
     ray : the path state the Light Path node reads (RayInfo), None outside the integrator's loop.
     """
-    __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "ray", "programs", "_table", "_b1", "_b2")
+    __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "ray", "programs", "_table", "_b1", "_b2",
+                 "_moved")
 
-    def __init__(self, table: TriangleTable, material_ids: np.ndarray, prim, b1, b2, d, need_uv: bool):
+    def __init__(self, table: TriangleTable, material_ids: np.ndarray, prim, b1, b2, d, need_uv: bool,
+                 motion=None):
+        """motion : None, or (rows, (m, 3, 4) matrices, (m, 3, 3) normal matrices) for hits on moving
+        objects (motion blur): each takes its triangle from where it is stored to where it was at the
+        path's time."""
         g = table.gather(prim)
         w0 = np.float32(1.0) - b1 - b2
         self.p = tuple(g[P0 + k] + b1 * g[E1 + k] + b2 * g[E2 + k] for k in range(3))
         ns = [w0 * g[N0 + k] + b1 * g[N1 + k] + b2 * g[N2 + k] for k in range(3)]
         gx, gy, gz = g[NG], g[NG + 1], g[NG + 2]
+        self._moved = None
+        if motion is not None:
+            # Normals move by the inverse transpose (the same rotation for rigid motion), renormalised.
+            rows, matrices, normal_matrices = motion
+            self._moved = (np.full(len(prim), -1, np.int64), matrices, normal_matrices)
+            self._moved[0][rows] = np.arange(len(rows))
+            self.p = _moved_points(self.p, rows, matrices)
+            ns = list(_moved_vectors(ns, rows, normal_matrices))
+            gx, gy, gz = _unit(_moved_vectors((gx, gy, gz), rows, normal_matrices))
         len2 = ns[0] * ns[0] + ns[1] * ns[1] + ns[2] * ns[2]
         inv = np.float32(1.0) / np.sqrt(np.maximum(len2, np.float32(1e-12)))
         ns = [c * inv for c in ns]
@@ -66,22 +80,71 @@ class SurfaceHit:
     def edges(self, idx: np.ndarray):
         """(E1, E2): the (n, 3) edges p1 - p0 and p2 - p0 of the hits' triangles."""
         rows = np.take(self._table.rows, np.take(self.prim, idx), axis=0)
-        return rows[:, E1:E1 + 3], rows[:, E2:E2 + 3]
+        return self._move(idx, rows[:, E1:E1 + 3], False), self._move(idx, rows[:, E2:E2 + 3], False)
 
     def corners(self, idx: np.ndarray):
         """(p0, p1, p2): the (n, 3) corners of the hits' triangles."""
         rows = np.take(self._table.rows, np.take(self.prim, idx), axis=0)
         p0 = rows[:, P0:P0 + 3]
-        return p0, p0 + rows[:, E1:E1 + 3], p0 + rows[:, E2:E2 + 3]
+        return tuple(self._move(idx, c, True) for c in (p0, p0 + rows[:, E1:E1 + 3], p0 + rows[:, E2:E2 + 3]))
 
     def tangent_frame(self, idx: np.ndarray):
         """At hits idx: the interpolated, unnormalized tangent (x, y, z) and bitangent sign (n,), and the
         unnormalized interpolated corner normal (x, y, z), not flipped for back faces: what Cycles'
         normal map reads. None when the scene has no tangents."""
-        return self._table.tangent_frame(np.take(self.prim, idx), np.take(self._b1, idx), np.take(self._b2, idx))
+        frame = self._table.tangent_frame(np.take(self.prim, idx), np.take(self._b1, idx), np.take(self._b2, idx))
+        if frame is None or self._moved is None:
+            return frame
+        tangent, sign, normal = frame
+        slot = np.take(self._moved[0], idx)
+        rows = np.flatnonzero(slot >= 0)
+        if len(rows):
+            tangent = _moved_vectors(tangent, rows, self._moved[1][slot[rows], :, :3])
+            normal = _moved_vectors(normal, rows, self._moved[2][slot[rows]])
+        return tangent, sign, normal
+
+    def _move(self, idx, values: np.ndarray, points: bool) -> np.ndarray:
+        """(n, 3) points or vectors of the hits idx, moved to the hits' times where their objects move."""
+        if self._moved is None:
+            return values
+        slot = np.take(self._moved[0], idx)
+        rows = np.flatnonzero(slot >= 0)
+        if not len(rows):
+            return values
+        m = self._moved[1][slot[rows]]
+        values = values.astype(np.float32, copy=True)
+        moved = np.einsum("nij,nj->ni", m[:, :, :3], values[rows].astype(np.float64))
+        values[rows] = moved + m[:, :, 3] if points else moved
+        return values
 
     def __len__(self) -> int:
         return len(self.mat)
+
+
+def _moved_points(p, rows, matrices):
+    """Components (x, y, z) of points with the entries `rows` moved by (m, 3, 4) affine matrices."""
+    out = tuple(c.copy() for c in p)
+    xyz = np.stack([c[rows] for c in p], axis=1).astype(np.float64)
+    moved = np.einsum("nij,nj->ni", matrices[:, :, :3], xyz) + matrices[:, :, 3]
+    for k in range(3):
+        out[k][rows] = moved[:, k]
+    return out
+
+
+def _moved_vectors(v, rows, linear):
+    """Components (x, y, z) of vectors with the entries `rows` multiplied by (m, 3, 3) matrices."""
+    out = tuple(np.array(c, np.float32, copy=True) for c in v)
+    xyz = np.stack([np.asarray(c)[rows] for c in v], axis=1).astype(np.float64)
+    moved = np.einsum("nij,nj->ni", linear[:, :3, :3], xyz)
+    for k in range(3):
+        out[k][rows] = moved[:, k]
+    return out
+
+
+def _unit(v):
+    length = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    inv = np.float32(1.0) / np.maximum(length, np.float32(1e-30))
+    return tuple((c * inv).astype(np.float32) for c in v)
 
 
 class RayInfo:

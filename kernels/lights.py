@@ -109,7 +109,12 @@ class LightSampler:
 
         # Emissive triangles: two-sided, uniform over their area.
         emits = np.asarray(triangle_emission.emissive, bool)
-        self.tri_ids = np.flatnonzero(emits[scene.material_ids]).astype(np.int32)
+        # Triangles of moving objects (motion blur) are left to BSDF rays, which find them where they are
+        # at the path's time (with MIS weight 1: their light pdf is 0); the table would place them wrong.
+        sampled = emits[scene.material_ids]
+        if scene.has_motion and scene.motion_ids is not None:
+            sampled &= scene.motion_ids < 0
+        self.tri_ids = np.flatnonzero(sampled).astype(np.int32)
         p = scene.positions[self.tri_ids].astype(np.float64)
         e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
         cross = np.cross(e1, e2)

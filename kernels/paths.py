@@ -24,6 +24,7 @@ class PathState:
     #                                        Glossy), inf for camera rays; None when not filtering
     lobes: np.ndarray | None = None  # (4, N) int32 or None: the last bounce's LABEL_* bits and the diffuse,
     #                                  glossy and transmission bounce counts (Light Path), when read
+    time: object = None     # accel.RayTimes or None: the paths' times in the shutter (motion blur)
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -43,6 +44,8 @@ class PathState:
             self.lobes = np.take(self.lobes, idx, axis=1)
         if self.min_ray_pdf is not None:
             self.min_ray_pdf = np.take(self.min_ray_pdf, idx)
+        if self.time is not None:
+            self.time = self.time.take(idx)
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

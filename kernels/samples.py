@@ -2,7 +2,9 @@
 
 Every decision owns a 2D dimension, named here once:
 
-    CAMERA        the jitter inside the pixel (then lens, time: camera decisions of the first vertex)
+    CAMERA        the jitter inside the pixel (warped by the pixel filter)
+    LENS          the point on the lens (only with depth of field)
+    TIME          the time in the shutter (only with motion blur; its second number is spare)
     LIGHT         (light selection, Russian roulette)
     LIGHT_POINT   the point on the chosen light
     BSDF          the direction sampled from the chosen lobe
@@ -21,7 +23,7 @@ import numpy as np
 
 from .rng import PathRng, stratified_2d
 
-CAMERA, LIGHT, LIGHT_POINT, BSDF, LOBE = 0, 1, 2, 3, 4
+CAMERA, LIGHT, LIGHT_POINT, BSDF, LOBE, LENS, TIME = 0, 1, 2, 3, 4, 5, 6
 # The dimensions a bounce draws from the PCG2D stream, in order, with and without next-event estimation;
 # LOBE comes last, drawn only in scenes whose materials have more than one lobe to choose from.
 NEE_BLOCK = (LIGHT, LIGHT_POINT, BSDF)
@@ -49,6 +51,13 @@ class Samples:
             return self.rng.next_2d()
         self._first = {d: stratified_2d(*self._strata, self._seed, d) for d in STRATIFIED}
         return stratified_2d(*self._strata, self._seed, CAMERA)
+
+    def camera_extra(self, dimension: int) -> tuple[np.ndarray, np.ndarray]:
+        """The lens or time numbers of every path; drawn after the jitter and only by cameras that use
+        them, so that a camera without depth of field or motion blur renders as before, bit for bit."""
+        if self._strata is None:
+            return self.rng.next_2d()
+        return stratified_2d(*self._strata, self._seed, dimension)
 
     def bounce(self, depth: int) -> dict:
         """{dimension: (u, v)} for this vertex of every live path."""

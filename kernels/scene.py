@@ -15,7 +15,8 @@ import numpy as np
 
 from .programs import Program, Ref
 
-CAMERA_KINDS = ("PERSP", "ORTHO")
+CAMERA_KINDS = ("PERSP", "ORTHO", "PANO")
+PIXEL_FILTERS = ("BOX", "GAUSSIAN", "BLACKMAN_HARRIS")
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 
 
@@ -43,6 +44,24 @@ class Camera:
     clip_end: float = 1000.0
     width: int = 256
     height: int = 256
+    # Depth of field, Cycles' thin lens (kernels.lens): aperture_radius 0 is a pinhole. The lens point lies
+    # on a disk, or on a regular polygon of aperture_blades >= 3 sides turned by aperture_rotation (radians);
+    # its x is divided by aperture_ratio (anamorphic). Sharp at camera depth focus_distance.
+    aperture_radius: float = 0.0
+    aperture_blades: int = 0
+    aperture_rotation: float = 0.0
+    aperture_ratio: float = 1.0
+    focus_distance: float = 10.0
+    # The film's pixel filter (kernels.pixel_filter), importance-sampled: every sample weighs 1 and lands
+    # in its own pixel. BOX is one pixel wide whatever filter_width says, as in Cycles.
+    filter_type: str = "BOX"
+    filter_width: float = 1.0
+    # Panoramic cameras (kind PANO): the projection and its parameters (kernels.panorama).
+    panorama_type: str = "EQUIRECTANGULAR"
+    panorama: dict = field(default_factory=dict)
+    # Motion blur: world_from_camera at motion steps evenly spaced over the shutter, (K, 4, 4) rigid,
+    # K >= 2, or None for a still camera (world_from_camera is then used at every time).
+    motion: np.ndarray | None = None
 
     def validate(self) -> None:
         m = np.asarray(self.world_from_camera)
@@ -61,6 +80,32 @@ class Camera:
                  f"must satisfy 0 <= clip_start < clip_end, got {self.clip_start}, {self.clip_end}")
         _require(int(self.width) >= 1 and int(self.height) >= 1, "camera.width",
                  f"resolution must be at least 1x1, got {self.width}x{self.height}")
+        for name in ("aperture_radius", "aperture_rotation", "aperture_ratio", "focus_distance", "filter_width"):
+            _require(np.isfinite(getattr(self, name)), f"camera.{name}", "must be finite")
+        _require(self.aperture_radius >= 0, "camera.aperture_radius", "must be non-negative")
+        _require(self.aperture_ratio > 0, "camera.aperture_ratio", "must be positive")
+        _require(self.focus_distance > 0, "camera.focus_distance", "must be positive")
+        _require(self.filter_type in PIXEL_FILTERS, "camera.filter_type",
+                 f"must be one of {PIXEL_FILTERS}, got {self.filter_type!r}")
+        _require(self.filter_width > 0, "camera.filter_width", "must be positive")
+        from .panorama import PANORAMA_PARAMS, POSITIVE_PARAMS
+        _require(self.panorama_type in PANORAMA_PARAMS, "camera.panorama_type",
+                 f"must be one of {tuple(PANORAMA_PARAMS)}, got {self.panorama_type!r}")
+        if self.kind == "PANO":
+            needed, given = PANORAMA_PARAMS[self.panorama_type], set(self.panorama)
+            _require(given == set(needed), "camera.panorama",
+                     f"{self.panorama_type} takes exactly {needed}, got {tuple(sorted(given))}")
+            for name in needed:
+                value = self.panorama[name]
+                _require(isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value), f"camera.panorama[{name!r}]",
+                         f"must be a finite number, got {value!r}")
+                _require(name not in POSITIVE_PARAMS or value > 0, f"camera.panorama[{name!r}]",
+                         f"must be positive, got {value}")
+        if self.motion is not None:
+            motion = np.asarray(self.motion)
+            _require(motion.ndim == 3 and motion.shape[0] >= 2 and motion.shape[1:] == (4, 4), "camera.motion",
+                     f"must be (K >= 2, 4, 4), got {motion.shape}")
+            _require_finite(motion, "camera.motion")
 
 
 # Closure nodes a material can be made of (Blender's shader nodes, read by the engine's export).
@@ -367,6 +412,12 @@ class SceneArrays:
     objects : (K, OBJECT_COLUMNS) float32 or None: one row per object instance (OBJ_* columns), for
         the Texture Coordinate (Generated, Object, Normal) and Object Info nodes.
     object_ids : (T,) int32 or None: each triangle's row of `objects` (both or neither are given).
+    motion : ((K, 4, 4) float64, ...) world_from_object at K >= 2 motion steps evenly spread over the
+        shutter (time 0 to 1), one entry per moving object; motion_reference, one (4, 4) per entry: the
+        matrix the triangles' world-space positions were made with. motion_ids : (T,) int32 or None:
+        each triangle's entry of `motion`, -1 for static triangles.
+    shutter_table : (256,) float32 or None: path time from a uniform number (kernels.motion.shutter_table);
+        rolling_shutter : None, or the rolling shutter's duration (Cycles' TOP rolling shutter).
     """
     positions: np.ndarray
     normals: np.ndarray
@@ -382,6 +433,16 @@ class SceneArrays:
     attributes: tuple = ()
     objects: np.ndarray | None = None
     object_ids: np.ndarray | None = None
+    motion: tuple = ()
+    motion_reference: tuple = ()
+    motion_ids: np.ndarray | None = None
+    shutter_table: np.ndarray | None = None
+    rolling_shutter: float | None = None
+
+    @property
+    def has_motion(self) -> bool:
+        """Anything moves during the shutter: paths then carry a time."""
+        return self.shutter_table is not None and (self.camera.motion is not None or len(self.motion) > 0)
 
     @property
     def triangle_count(self) -> int:
@@ -414,6 +475,19 @@ class SceneArrays:
             if t:
                 _require(self.object_ids.min() >= 0 and self.object_ids.max() < k, "object_ids",
                          f"must be in [0, {k})")
+        _require(len(self.motion) == len(self.motion_reference), "motion_reference", "needs one matrix per motion")
+        for i, keys in enumerate(self.motion):
+            keys = np.asarray(keys)
+            _require(keys.ndim == 3 and keys.shape[0] >= 2 and keys.shape[1:] == (4, 4), f"motion[{i}]",
+                     f"must be (K >= 2, 4, 4), got {keys.shape}")
+            _require_finite(keys, f"motion[{i}]")
+        if self.motion_ids is not None:
+            _check_array(self.motion_ids, "motion_ids", (t,), np.int32)
+            if t:
+                _require(self.motion_ids.min() >= -1 and self.motion_ids.max() < len(self.motion), "motion_ids",
+                         f"must be in [-1, {len(self.motion)})")
+        if self.shutter_table is not None:
+            _check_array(self.shutter_table, "shutter_table", (len(self.shutter_table),), np.float32)
         for i, tex in enumerate(self.textures):
             _require(isinstance(tex, np.ndarray) and tex.ndim == 3 and tex.shape[2] in (1, 3, 4)
                      and tex.shape[0] >= 1 and tex.shape[1] >= 1,
@@ -463,7 +537,9 @@ class SceneArrays:
                                         attributes=tuple((name, np.ascontiguousarray(np.nan_to_num(v[keep])))
                                                          for name, v in self.attributes),
                                         object_ids=None if self.object_ids is None else
-                                        np.ascontiguousarray(self.object_ids[keep]))
+                                        np.ascontiguousarray(self.object_ids[keep]),
+                                        motion_ids=None if self.motion_ids is None else
+                                        np.ascontiguousarray(self.motion_ids[keep]))
         else:
             scene = self
         return ValidatedScene(scene, dropped, int(np.count_nonzero(bad_n & keep)))

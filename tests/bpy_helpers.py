@@ -116,10 +116,11 @@ def set_world(scene, color=(0.0, 0.0, 0.0), strength=1.0, hdri=None, rotation=(0
 
 # ---------------------------------------------------------------- rendering to numpy
 def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces: int = 8,
-                    threads: int = 2, clamp: tuple = (0.0, 0.0), blur_glossy: float = 0.0) -> np.ndarray:
+                    threads: int = 2, clamp: tuple = (0.0, 0.0), blur_glossy: float = 0.0,
+                    pixel_filter: tuple = ("BOX", 1.0)) -> np.ndarray:
     """Render the scene with CYCLES or EMBER; return (H, W, 4) float32 linear RGBA, row 0 at the top.
     clamp: (direct, indirect) sample clamping and blur_glossy Filter Glossy on both engines (0: off, the
-    oracle's configuration)."""
+    oracle's configuration); pixel_filter: (type, width) on both engines (the oracle's: a 1-pixel box)."""
     render = scene.render
     render.engine = engine
     render.threads_mode = "FIXED"
@@ -131,6 +132,7 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
         configure_cycles(scene, samples, seed, max_bounces)
         scene.cycles.sample_clamp_direct, scene.cycles.sample_clamp_indirect = clamp
         scene.cycles.blur_glossy = blur_glossy
+        scene.cycles.pixel_filter_type, scene.cycles.filter_width = pixel_filter
     else:
         scene.ember.samples = samples
         scene.ember.seed = seed
@@ -139,6 +141,7 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
         scene.ember.sample_clamp_direct, scene.ember.sample_clamp_indirect = clamp
         scene.ember.blur_glossy = blur_glossy
         scene.ember.use_adaptive_sampling = False   # as configure_cycles
+        scene.ember.pixel_filter_type, scene.ember.filter_width = pixel_filter
     with tempfile.TemporaryDirectory() as tmp:
         render.filepath = os.path.join(tmp, "frame.exr")
         bpy.ops.render.render(write_still=True)

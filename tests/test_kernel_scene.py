@@ -38,7 +38,7 @@ def good_scene():
     (lambda s: dict(world=World(hdri=np.zeros((4, 8, 2), np.float32))), "world.hdri"),
     (lambda s: dict(world=World(strength=float("inf"))), "world.strength"),
     (lambda s: dict(camera=Camera(fov_rad=4.0)), "camera.fov_rad"),
-    (lambda s: dict(camera=Camera(kind="PANO")), "camera.kind"),
+    (lambda s: dict(camera=Camera(kind="FISHEYE")), "camera.kind"),
     (lambda s: dict(camera=Camera(clip_start=5.0, clip_end=1.0)), "camera.clip_start"),
     (lambda s: dict(camera=Camera(world_from_camera=np.zeros((4, 4)))), "camera.world_from_camera"),
     (lambda s: dict(camera=Camera(width=0)), "camera.width"),

@@ -186,6 +186,26 @@ def test_camera_view_reads_the_scene_camera():
                                                                   scene.camera.data.clip_end))
 
 
+def test_camera_view_takes_the_cameras_depth_of_field_and_the_films_filter():
+    """Looking through a camera with depth of field, the viewport renders with its lens (Cycles does);
+    the scene's pixel filter applies to every view."""
+    scene = new_scene()
+    dof = scene.camera.data.dof
+    dof.use_dof, dof.aperture_fstop, dof.focus_distance, dof.aperture_blades = True, 2.0, 4.0, 6
+    scene.ember.pixel_filter_type, scene.ember.filter_width = "GAUSSIAN", 2.0
+    area = next(a for a in bpy.data.screens["Layout"].areas if a.type == "VIEW_3D")
+    space, r3d = area.spaces.active, area.spaces.active.region_3d
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    camera_ob = vp.view_camera_object(space, scene).evaluated_get(depsgraph)
+    r3d.view_perspective = "CAMERA"
+    kernel = ViewportCamera.from_blender(space, r3d, 600, 400, camera_ob, scene).to_kernel()
+    assert kernel.aperture_radius == pytest.approx(35e-3 / 4.0) and kernel.focus_distance == pytest.approx(4.0)
+    assert kernel.aperture_blades == 6 and (kernel.filter_type, kernel.filter_width) == ("GAUSSIAN", 2.0)
+    r3d.view_perspective = "PERSP"  # a free view has no lens
+    free = ViewportCamera.from_blender(space, r3d, 600, 400, camera_ob, scene).to_kernel()
+    assert free.aperture_radius == 0.0 and free.filter_type == "GAUSSIAN"
+
+
 def test_equal_views_compare_equal():
     assert view() == view() and hash(view()) == hash(view())
     assert view() != view(eye=(0, -5, 0.001)) and view() != view(width=33) and view() != view(lens=51)

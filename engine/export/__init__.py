@@ -13,6 +13,8 @@ mesh.py reads geometry, materials.py shader nodes and images, world.py the world
 """
 from __future__ import annotations
 
+import dataclasses
+
 import os
 import re
 import time
@@ -25,6 +27,7 @@ from .camera import export_camera, render_region, render_resolution
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
 from .mesh import export_geometry
+from .motion import scene_motion
 from .world import export_world
 
 __all__ = ["DEFAULT_ALBEDO", "ExportCancelled", "ExportError", "ExportResult", "export_scene", "render_region",
@@ -58,13 +61,15 @@ class ExportCancelled(Exception):
     """should_stop() returned True during the export (Esc, or Ctrl-C on the command line)."""
 
 
-def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None) -> ExportResult:
+def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
+                 motion=None) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
 
     camera_override : a camera object to use instead of the scene's (RenderEngine.camera_override).
     width, height : full frame in pixels; by default the scene's resolution x percentage / 100.
     should_stop : polled while objects are read (a few times a second at most); ExportCancelled when
         it returns True.
+    motion : motion.MotionSamples (motion.sample_motion) for motion blur, or None.
     Raises ExportError when there is no camera.
     """
     start = time.perf_counter()
@@ -86,7 +91,12 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          material_ids=geometry.material_ids, materials=materials.to_kernel(),
                          textures=materials.textures, texture_srgb=materials.texture_srgb, world=world,
                          camera=camera, lights=lights, tangents=geometry.tangents,
-                         attributes=geometry.attributes, objects=geometry.objects, object_ids=geometry.object_ids)
+                         attributes=geometry.attributes, objects=geometry.objects, object_ids=geometry.object_ids,
+                         **scene_motion(motion, geometry))
+    if motion is not None:
+        warnings.extend(motion.warnings)
+        if motion.camera is not None:
+            arrays = dataclasses.replace(arrays, camera=dataclasses.replace(camera, motion=motion.camera))
     return ExportResult(scene=arrays, warnings=list(dict.fromkeys(absolute_paths(w) for w in warnings)),
                         seconds=time.perf_counter() - start, triangle_count=len(geometry.material_ids),
                         instance_count=geometry.instance_count)

@@ -39,7 +39,7 @@ def export_camera(camera_ob, scene, width: int, height: int, warnings: list[str]
     """kernels.Camera for an evaluated camera object; width, height : full frame in pixels."""
     render = scene.render
     frame = dict(world_from_camera=_rigid(camera_ob.matrix_world), width=int(width), height=int(height),
-                 pixel_aspect=render.pixel_aspect_x / render.pixel_aspect_y)
+                 pixel_aspect=render.pixel_aspect_x / render.pixel_aspect_y, **pixel_filter(scene))
     if camera_ob.type != "CAMERA":  # Blender lets any object be the scene camera
         warnings.append(f"Active camera '{camera_ob.name}' is not a camera object: rendered with a "
                         f"50 mm lens")
@@ -47,15 +47,54 @@ def export_camera(camera_ob, scene, width: int, height: int, warnings: list[str]
     cam = camera_ob.data
     kind = cam.type
     if kind == "PANO":
-        warnings.append(f"Camera '{camera_ob.name}': panoramic cameras are not supported, rendered as "
-                        f"perspective")
-        kind = "PERSP"
+        from .panorama import export_panorama
+        panorama_type, panorama = export_panorama(camera_ob, scene, width, height, warnings)
+        frame.update(panorama_type=panorama_type, panorama=panorama)
     if cam.dof.use_dof:
-        warnings.append(f"Camera '{camera_ob.name}': depth of field is not supported")
+        frame.update(depth_of_field(camera_ob, kind))
     sensor = cam.sensor_height if cam.sensor_fit == "VERTICAL" else cam.sensor_width
     return Camera(kind=kind, fov_rad=2.0 * math.atan(sensor / (2.0 * cam.lens)), sensor_fit=cam.sensor_fit,
                   shift_x=cam.shift_x, shift_y=cam.shift_y, ortho_scale=cam.ortho_scale,
                   clip_start=cam.clip_start, clip_end=cam.clip_end, **frame)
+
+
+def pixel_filter(scene) -> dict:
+    """The film's pixel filter from Ember's Film panel (Cycles': Box is one pixel wide)."""
+    settings = getattr(scene, "ember", None)
+    if settings is None:
+        return {}
+    kind = settings.pixel_filter_type
+    return dict(filter_type=kind, filter_width=1.0 if kind == "BOX" else float(settings.filter_width))
+
+
+DOF_FIELDS = ("aperture_radius", "aperture_blades", "aperture_rotation", "aperture_ratio", "focus_distance")
+
+
+def depth_of_field(camera_ob, kind: str) -> dict:
+    """Camera fields of Blender's Depth of Field panel, as Cycles' Blender layer reads them: the aperture
+    radius is focal length / (2 f-stop) with the focal length in metres (orthographic: 1 / (2 f-stop)); the
+    focus distance is the field's, or the focus object's (or bone's) depth along the camera's view axis."""
+    cam = camera_ob.data
+    dof = cam.dof
+    fstop = max(float(dof.aperture_fstop), 1e-5)
+    radius = 1.0 / (2.0 * fstop) if kind == "ORTHO" else cam.lens * 1e-3 / (2.0 * fstop)
+    return dict(aperture_radius=radius, aperture_blades=int(dof.aperture_blades),
+                aperture_rotation=float(dof.aperture_rotation), aperture_ratio=float(dof.aperture_ratio),
+                focus_distance=max(focus_distance(camera_ob), 1e-5))
+
+
+def focus_distance(camera_ob) -> float:
+    dof = camera_ob.data.dof
+    target = dof.focus_object
+    if target is None:
+        return float(dof.focus_distance)
+    m = np.array(target.matrix_world, np.float64)
+    bone = target.pose.bones.get(dof.focus_subtarget) if target.pose and dof.focus_subtarget else None
+    if bone is not None:
+        m = m @ np.array(bone.matrix, np.float64)
+    cam = _rigid(camera_ob.matrix_world)
+    axis = cam[:3, 2] / np.linalg.norm(cam[:3, 2])
+    return float(abs(axis @ (cam[:3, 3] - m[:3, 3])))
 
 
 def _rigid(matrix_world) -> np.ndarray:

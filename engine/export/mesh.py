@@ -14,6 +14,8 @@ triangle's UV gradient; both with a warning.
 """
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +71,16 @@ class Geometry:
     attributes: tuple = ()
     objects: np.ndarray | None = None
     object_ids: np.ndarray | None = None
+    instance_keys: list | None = None      # per object row: instance_key() (motion blur)
+    instance_matrices: list | None = None  # per object row: the (4, 4) world matrix its triangles used
+
+
+def instance_key(inst) -> tuple:
+    """What names one object instance across frames (motion blur): the object, and for instances the
+    instancer and the persistent id."""
+    if inst.is_instance:
+        return (inst.object.name, inst.parent.name if inst.parent else "", tuple(inst.persistent_id))
+    return (inst.object.name, "", ())
 
 
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None) -> Geometry:
@@ -80,6 +92,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     groups: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> world_from_object matrices
     rows: dict[tuple, list] = {}             # (mesh pointer, slot rows) -> object table rows
     attributes: dict[int, dict] = {}         # evaluated mesh pointer -> {name: (T*3, C) float32}
+    keys: dict[tuple, list] = {}             # (mesh pointer, slot rows) -> instance keys
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -106,7 +119,10 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         matrix = np.array(inst.matrix_world)
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
         rows.setdefault((mesh_key, slot_rows[object_key]), []).append(_object_row(inst, ob, matrix))
-    return _assemble(meshes, groups, tangents, attributes, rows)
+        keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
+    return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows),
+                               instance_keys=[k for group in keys.values() for k in group],
+                               instance_matrices=[m for group in groups.values() for m in group])
 
 
 def _object_row(inst, ob, matrix) -> np.ndarray:

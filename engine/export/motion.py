@@ -1,0 +1,164 @@
+"""Motion blur: the camera's and objects' transforms over the shutter, read as Cycles' Blender layer reads
+them (blender/object.cpp sync_motion, blender/camera.cpp, blender/util.h object_motion_steps).
+
+Render Properties > Motion Blur: on for final renders when the scene and the view layer both say so. The
+shutter spans motion_blur_shutter frames around the frame (CENTER), after it (START) or before it (END).
+An object (and the camera) with Cycles' per-object Motion Blur on takes 2^steps + 1 keys evenly spread
+over the shutter (Object Properties > Motion Blur > Steps, default 1: three keys); Blender evaluates the
+scene at each key's subframe (RenderEngine.frame_set) and the frame is restored afterwards. Objects whose
+keys all equal their frame matrix are static. The kernel interpolates keys per path time (kernels.motion).
+
+Not done: deformation blur (meshes whose vertices move: armatures, shape keys; a warning names them),
+a camera's changing field of view, the rolling shutter, lights (Cycles does not blur lamps either).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...kernels import motion as kernel_motion
+from .mesh import instance_key
+
+CURVE_SAMPLES = 257  # Blender 5.0 reads the shutter curve at 257 points (curvemapping_to_array, size 256)
+MAX_STEPS = 7
+
+
+@dataclass
+class MotionSamples:
+    """What frame_set showed: per instance key, its (K, 4, 4) keys; the camera's; the shutter table."""
+    objects: dict = field(default_factory=dict)
+    camera: np.ndarray | None = None
+    shutter_table: np.ndarray | None = None
+    warnings: list = field(default_factory=list)
+
+
+def enabled(scene, view_layer=None) -> bool:
+    layer_on = True if view_layer is None else bool(getattr(view_layer, "use_motion_blur", True))
+    return bool(scene.render.use_motion_blur) and layer_on
+
+
+def key_count(ob) -> int:
+    """Motion keys of an object: 0 with its Motion Blur off, else 2^steps + 1 (Cycles' object_motion_steps)."""
+    settings = getattr(ob, "cycles", None)
+    if settings is not None and not getattr(settings, "use_motion_blur", True):
+        return 0
+    steps = int(getattr(settings, "motion_steps", 1)) if settings is not None else 1
+    return (1 << max(1, min(steps, MAX_STEPS))) + 1
+
+
+def shutter_times(render, frame: float, keys: int) -> np.ndarray:
+    """The Blender times (frames, with subframes) of `keys` evenly spaced motion keys."""
+    shutter = float(render.motion_blur_shutter)
+    centre = frame + {"START": 0.5 * shutter, "END": -0.5 * shutter}.get(render.motion_blur_position, 0.0)
+    relative = np.linspace(-1.0, 1.0, keys)
+    return centre + relative * 0.5 * shutter
+
+
+def shutter_table(render) -> np.ndarray:
+    """The path-time table of the render's shutter curve (kernels.motion.shutter_table)."""
+    mapping = render.motion_blur_shutter_curve
+    mapping.update()
+    curve = mapping.curves[0]
+    values = np.array([mapping.evaluate(curve, i / (CURVE_SAMPLES - 1)) for i in range(CURVE_SAMPLES)], np.float32)
+    return kernel_motion.shutter_table(values)
+
+
+def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
+    """Evaluate the scene at every motion key's time and record matrices; None when motion blur is off.
+    The scene is back at its own frame when this returns, whatever happens."""
+    scene = depsgraph.scene
+    if not enabled(scene, depsgraph.view_layer):
+        return None
+    frame, subframe = scene.frame_current, scene.frame_subframe
+    samples = MotionSamples(shutter_table=shutter_table(scene.render))
+    per_key: dict = {}      # instance key -> key count
+    for inst in depsgraph.object_instances:
+        if inst.object.type == "MESH":
+            count = key_count(inst.object.original)
+            if inst.is_instance and inst.parent is not None:
+                parent = key_count(inst.parent.original)
+                count = 0 if parent == 0 else max(count, parent)
+            if count:
+                per_key[instance_key(inst)] = count
+    camera_keys = key_count(camera_ob.original if hasattr(camera_ob, "original") else camera_ob) \
+        if camera_ob is not None else 0
+    counts = sorted(set(per_key.values()) | ({camera_keys} if camera_keys else set()))
+    if not counts:
+        return samples
+    largest = counts[-1]
+    # Every key count 2^s + 1 divides the largest's grid: evaluate on that grid once.
+    times = shutter_times(scene.render, frame + subframe, largest)
+    recorded: dict = {}
+    camera_matrices = []
+    vertices_first: dict = {}
+    deforming: set = set()
+    try:
+        for i, t in enumerate(times):
+            whole = math.floor(t)
+            engine.frame_set(int(whole), float(t - whole))
+            for inst in depsgraph.object_instances:
+                key = instance_key(inst)
+                if key in per_key:
+                    recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
+                    if i in (0, len(times) - 1) and not inst.is_instance:
+                        _track_deformation(inst.object, key, i, vertices_first, deforming)
+            if camera_keys:
+                camera_matrices.append(_rigid(np.array(camera_ob.evaluated_get(depsgraph).matrix_world)))
+    finally:
+        engine.frame_set(frame, subframe)
+    for key, matrices in recorded.items():
+        if len(matrices) != len(times):
+            continue  # the instance is not there at every key: left static
+        stride = (largest - 1) // (per_key[key] - 1)
+        keys = np.stack(matrices[::stride])
+        if not np.allclose(keys, keys[len(keys) // 2], rtol=0, atol=1e-7):
+            samples.objects[key] = keys
+    if camera_keys:
+        stride = (largest - 1) // (camera_keys - 1)
+        keys = np.stack(camera_matrices[::stride])
+        if not np.allclose(keys, keys[len(keys) // 2], rtol=0, atol=1e-7):
+            samples.camera = keys
+    samples.warnings.extend(f"Object '{name}': deformation motion blur is not supported (its mesh changes "
+                            f"during the shutter); rendered with its transform motion only"
+                            for name in sorted(deforming))
+    return samples
+
+
+def _track_deformation(ob, key, step: int, first: dict, deforming: set) -> None:
+    """Compare the evaluated vertices at the first and last key of objects that could deform."""
+    if not (ob.modifiers or getattr(ob.data, "shape_keys", None)):
+        return
+    verts = ob.data.vertices
+    co = np.empty(len(verts) * 3, np.float32)
+    verts.foreach_get("co", co)
+    if step == 0:
+        first[key] = co
+    elif key in first and (len(first[key]) != len(co) or not np.array_equal(first[key], co)):
+        deforming.add(ob.name)
+
+
+def _rigid(m: np.ndarray) -> np.ndarray:
+    lengths = np.linalg.norm(m[:3, :3], axis=0)
+    m = m.copy()
+    m[:3, :3] /= np.where(lengths > 0, lengths, 1.0)
+    return m
+
+
+def scene_motion(samples: MotionSamples | None, geometry) -> dict:
+    """SceneArrays fields for the moving objects of an exported geometry (mesh.Geometry)."""
+    if samples is None or geometry.instance_keys is None:
+        return {}
+    row_motion = np.full(len(geometry.instance_keys), -1, np.int32)
+    keys, references = [], []
+    for row, (key, matrix) in enumerate(zip(geometry.instance_keys, geometry.instance_matrices)):
+        if key in samples.objects:
+            row_motion[row] = len(keys)
+            keys.append(samples.objects[key])
+            references.append(np.asarray(matrix, np.float64))
+    fields = dict(shutter_table=samples.shutter_table)
+    if keys:
+        fields.update(motion=tuple(keys), motion_reference=tuple(references),
+                      motion_ids=np.ascontiguousarray(row_motion[geometry.object_ids]))
+    return fields
