@@ -39,8 +39,10 @@ def sample_regular_polygon(corners: int, rotation: float, u: np.ndarray, v: np.n
     angle = np.float32(np.pi) / corners_f
     px = (u + v) * np.cos(angle)
     py = (u - v) * np.sin(angle)
-    turn = np.float32(rotation) + corner * np.float32(2) * angle
-    cr, sr = np.cos(turn), np.sin(turn)
+    # Each corner's turn, rotation + 2 k angle, from a table of its cosines and sines.
+    turn = np.float32(rotation) + np.arange(corners, dtype=np.float32) * np.float32(2) * angle
+    k = np.minimum(corner.astype(np.int32), corners - 1)
+    cr, sr = np.take(np.cos(turn), k), np.take(np.sin(turn), k)
     return cr * px - sr * py, sr * px + cr * py
 
 
