@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..kernels import Camera, Renderer, RenderSettings, SceneArrays
+from ..kernels.camera import view_plane
 from .export import ExportError, export_scene
 from .export.camera import DOF_FIELDS, depth_of_field, pixel_filter
 from .session import render_settings, render_threads
@@ -120,6 +121,9 @@ class ViewportCamera:
     height: int
     dof: tuple = ()                        # the camera's depth of field (camera view only), DOF_FIELDS
     pixel_filter: tuple = ("BOX", 1.0)     # the film's (type, width)
+    # Looking through a panoramic camera: (type, params as sorted items, window, (shift_x, shift_y)), see
+    # panorama_view; () otherwise.
+    panorama: tuple = ()
 
     @classmethod
     def from_view(cls, view_matrix, width: int, height: int, perspective: str, lens: float,
@@ -178,10 +182,18 @@ class ViewportCamera:
         film = pixel_filter(scene) if scene is not None else {}
         if film:
             view = dataclasses.replace(view, pixel_filter=(film["filter_type"], film["filter_width"]))
+        if (perspective == "CAMERA" and scene is not None and camera_object is not None
+                and camera_object.type == "CAMERA" and camera_object.data.type == "PANO"):
+            view = dataclasses.replace(view, panorama=panorama_view(view, camera_object, scene, lens))
         return view
 
     def to_kernel(self, width: int | None = None, height: int | None = None) -> Camera:
         """kernels.Camera; another width and height keep the view (a preview at lower resolution)."""
+        if self.panorama:
+            kind, params, window, shift = self.panorama
+            camera = dataclasses.replace(self, panorama=()).to_kernel(width, height)
+            return dataclasses.replace(camera, kind="PANO", panorama_type=kind, panorama=dict(params),
+                                       panorama_window=window, shift_x=shift[0], shift_y=shift[1])
         return Camera(world_from_camera=np.array(self.world_from_camera, np.float64), kind=self.kind,
                       fov_rad=self.fov_rad, sensor_fit=self.sensor_fit, shift_x=self.shift_x,
                       shift_y=self.shift_y, pixel_aspect=1.0, ortho_scale=self.ortho_scale,
@@ -189,6 +201,24 @@ class ViewportCamera:
                       width=int(width or self.width), height=int(height or self.height),
                       filter_type=self.pixel_filter[0], filter_width=self.pixel_filter[1],
                       **dict(zip(DOF_FIELDS, self.dof)))
+
+
+def panorama_view(view: ViewportCamera, camera_ob, scene, lens: LensParams) -> tuple:
+    """ViewportCamera.panorama for a region looking through a panoramic camera: the part of the camera's
+    frame the region shows (its zoomed, panned border, as the perspective view plane of the camera view
+    places it) mapped through the camera's panorama, as Cycles' viewport does."""
+    from .export.camera import render_resolution
+    from .export.panorama import export_panorama
+    res_x, res_y = render_resolution(scene)
+    render = scene.render
+    frame = Camera(fov_rad=2.0 * math.atan(lens.sensor / (2.0 * lens.lens)), sensor_fit=lens.sensor_fit,
+                   shift_x=lens.shift_x, shift_y=lens.shift_y, width=res_x, height=res_y,
+                   pixel_aspect=render.pixel_aspect_x / render.pixel_aspect_y)
+    fx0, fx1, fy0, fy1 = view_plane(frame)
+    x0, x1, y0, y1 = view_plane(view.to_kernel())
+    window = ((x0 - fx0) / (fx1 - fx0), (x1 - fx0) / (fx1 - fx0), (y0 - fy0) / (fy1 - fy0), (y1 - fy0) / (fy1 - fy0))
+    kind, params = export_panorama(camera_ob, scene, res_x, res_y, [])
+    return kind, tuple(sorted(params.items())), window, (lens.shift_x, lens.shift_y)
 
 
 def _tuple4(m: np.ndarray) -> tuple:

@@ -180,11 +180,7 @@ class Renderer:
         world = self.scene.world
         self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
         self._emissive = bool(self.shading.emissive.any())
-        xmin, xmax, _, _ = view_plane(self.scene.camera)
-        # View-plane units per pixel: the spread of camera rays (perspective: radians at the centre).
-        self._pixel_size = float(xmax - xmin) / max(self.scene.camera.width, 1)
-        if self.scene.camera.kind == "PANO":
-            self._pixel_size = float(panorama.pixel_spread(self.scene.camera))
+        self._pixel_size = _pixel_spread(self.scene.camera)
         lo, hi = extent(self.scene.positions)
         self._ray_epsilon = _ray_epsilon(lo, hi)
         self.lights = LightSampler(self.scene, self.environment, _Emitters(self))
@@ -197,6 +193,7 @@ class Renderer:
         Call between renders, never during one."""
         camera.validate()
         self.scene = dataclasses.replace(self.scene, camera=camera)
+        self._pixel_size = _pixel_spread(camera)
         self.shading.data.set_camera(camera)
 
     def close(self) -> None:
@@ -716,6 +713,15 @@ class _Emitters:
 
     def __call__(self, tri, b1=None, b2=None, toward=None):
         return self._renderer._triangle_emission(tri, b1, b2, toward)
+
+
+def _pixel_spread(camera: Camera) -> float:
+    """View-plane units per pixel: the spread of camera rays (perspective: radians at the centre;
+    panoramas: Cycles' differential at the frame's centre)."""
+    if camera.kind == "PANO":
+        return float(panorama.pixel_spread(camera))
+    xmin, xmax, _, _ = view_plane(camera)
+    return float(xmax - xmin) / max(camera.width, 1)
 
 
 def _filter_glossy(closures, min_ray_pdf: np.ndarray, filter_glossy: float) -> None:

@@ -57,9 +57,12 @@ _NEWTON_STEPS = 20  # Cycles' bound for inverting the lens polynomial
 # ---------------------------------------------------------------- the whole camera
 def panorama_uv(camera: Camera, sx, sy) -> tuple[np.ndarray, np.ndarray]:
     """Raster positions (N,) -> (u, v) (N,) float64 on the panorama view plane."""
-    u = np.asarray(sx, np.float64) / camera.width + camera.shift_x
-    v = 1.0 - np.asarray(sy, np.float64) / camera.height + camera.shift_y
-    return u, v
+    fx = np.asarray(sx, np.float64) / camera.width
+    fy = 1.0 - np.asarray(sy, np.float64) / camera.height
+    if camera.panorama_window is not None:  # a viewport region showing part of the frame
+        u0, u1, v0, v1 = camera.panorama_window
+        fx, fy = u0 + fx * (u1 - u0), v0 + fy * (v1 - v0)
+    return fx + camera.shift_x, fy + camera.shift_y
 
 
 def panorama_directions(camera: Camera, sx, sy) -> tuple[np.ndarray, np.ndarray]:
@@ -105,7 +108,11 @@ def panorama_raster(camera: Camera, dirs) -> tuple[np.ndarray, np.ndarray]:
     d = np.asarray(dirs, np.float64)
     x, y, z = to_cycles(camera.panorama_type, d[:, 0], d[:, 1], d[:, 2])
     u, v = INVERSES[camera.panorama_type](camera.panorama, x, y, z)
-    return (u - camera.shift_x) * camera.width, (1.0 - (v - camera.shift_y)) * camera.height
+    fx, fy = u - camera.shift_x, v - camera.shift_y
+    if camera.panorama_window is not None:
+        u0, u1, v0, v1 = camera.panorama_window
+        fx, fy = (fx - u0) / (u1 - u0), (fy - v0) / (v1 - v0)
+    return fx * camera.width, (1.0 - fy) * camera.height
 
 
 def pixel_spread(camera: Camera) -> float:

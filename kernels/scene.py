@@ -59,6 +59,10 @@ class Camera:
     # Panoramic cameras (kind PANO): the projection and its parameters (kernels.panorama).
     panorama_type: str = "EQUIRECTANGULAR"
     panorama: dict = field(default_factory=dict)
+    # The part of the camera frame the film shows, (u0, u1, v0, v1) in frame units (0..1 from the frame's
+    # left and bottom edges), or None for the whole frame: a viewport looking through a panoramic camera
+    # shows the frame zoomed and panned inside its region, as Cycles' viewport does.
+    panorama_window: tuple | None = None
     # Motion blur: world_from_camera at motion steps evenly spaced over the shutter, (K, 4, 4) rigid,
     # K >= 2, or None for a still camera (world_from_camera is then used at every time).
     motion: np.ndarray | None = None

@@ -4,6 +4,7 @@ depsgraph diffing and view_update/view_draw glue with real bpy data. Only the GP
 (texture upload and draw) cannot run here: the gpu module refuses to work in background mode."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -204,6 +205,43 @@ def test_camera_view_takes_the_cameras_depth_of_field_and_the_films_filter():
     r3d.view_perspective = "PERSP"  # a free view has no lens
     free = ViewportCamera.from_blender(space, r3d, 600, 400, camera_ob, scene).to_kernel()
     assert free.aperture_radius == 0.0 and free.filter_type == "GAUSSIAN"
+
+
+@pytest.mark.parametrize("kind", ["FISHEYE_EQUIDISTANT", "EQUIRECTANGULAR"])
+def test_camera_view_through_a_panoramic_camera(kind):
+    """Looking through a panoramic camera, the viewport shows the panorama: with the frame filling the
+    region its rays are the final render's, pixel for pixel; zoomed out, the region's centre still looks
+    where the frame's centre does."""
+    from ember.engine.export.camera import export_camera
+    from ember.kernels.camera import camera_frame, generate_rays
+
+    def local(camera, dirs):  # in the camera's own frame (the test's view matrix is not the camera's)
+        return dirs @ camera_frame(camera)[1]
+    scene = new_scene(60, 40)
+    cam = scene.camera.data
+    cam.type, cam.panorama_type, cam.shift_x = "PANO", kind, 0.05
+    area = next(a for a in bpy.data.screens["Layout"].areas if a.type == "VIEW_3D")
+    space, r3d = area.spaces.active, area.spaces.active.region_3d
+    r3d.view_perspective = "CAMERA"
+    r3d.view_camera_offset = (0.0, 0.0)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    camera_ob = vp.view_camera_object(space, scene).evaluated_get(depsgraph)
+    final = dataclasses.replace(export_camera(camera_ob, scene, 60, 40, []), filter_type="BOX")
+    rows, cols = (a.ravel() for a in np.indices((40, 60)))
+    half = np.full(len(rows), 0.5, np.float32)
+    _, want, _ = generate_rays(final, rows, cols, half, half)
+    r3d.view_camera_zoom = 50.0 * (2.0 - math.sqrt(2.0))  # factor 1: the frame fills a region of its size
+    view = ViewportCamera.from_blender(space, r3d, 60, 40, camera_ob, scene).to_kernel()
+    assert view.kind == "PANO" and view.panorama_type == kind
+    _, got, _ = generate_rays(dataclasses.replace(view, filter_type="BOX"), rows, cols, half, half)
+    np.testing.assert_allclose(local(view, got), local(final, want), atol=2e-5)
+    r3d.view_camera_zoom = 0.0  # factor 0.5: the frame is half the region
+    view = ViewportCamera.from_blender(space, r3d, 60, 40, camera_ob, scene).to_kernel()
+    centre = np.array([20]), np.array([30])
+    zero = np.zeros(1, np.float32)
+    np.testing.assert_allclose(local(view, generate_rays(dataclasses.replace(view, filter_type="BOX"), *centre,
+                                                         zero, zero)[1]),
+                               local(final, generate_rays(final, *centre, zero, zero)[1]), atol=2e-5)
 
 
 def test_equal_views_compare_equal():
