@@ -68,14 +68,38 @@ class _Moving:
         local = positions[ids].astype(np.float64) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
         self.scene = rtcore_scene.EmbreeScene(robust=True)
         mesh_construction.TriangleMesh(self.scene, np.ascontiguousarray(local, np.float32))
+        # A world box the object never leaves during the shutter: its pivot moves within the keys' pivots
+        # (translation is lerped) and no point of it strays further from the pivot than at a key (rotation
+        # keeps lengths; the lerped scale is a convex mix). Rays that miss the box skip the object.
+        keys = np.asarray(keys, np.float64)
+        corners = local.reshape(-1, 3)
+        reach = max(float(np.linalg.norm(corners @ k[:3, :3].T, axis=1).max()) for k in keys)
+        reach = reach * (1 + 1e-5) + 1e-6
+        self.lo = (keys[:, :3, 3].min(axis=0) - reach).astype(np.float32)
+        self.hi = (keys[:, :3, 3].max(axis=0) + reach).astype(np.float32)
 
-    def rays(self, origins, directions, time):
-        """The rays in object space at their times (RayTimes or (n,) times): (origins, directions) float32."""
+    def crossing(self, origins, directions, t_max) -> np.ndarray:
+        """Indices of the rays whose segment [0, t_max] meets the object's box (slab test)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.float32(1.0) / directions
+            t0 = (self.lo - origins) * inv
+            t1 = (self.hi - origins) * inv
+        near = np.nan_to_num(np.minimum(t0, t1), nan=-np.inf).max(axis=1)
+        far = np.nan_to_num(np.maximum(t0, t1), nan=np.inf).min(axis=1)
+        return np.flatnonzero((near <= far) & (far >= 0) & (near <= t_max))
+
+    def rays(self, origins, directions, time, sel):
+        """The rays sel in object space at their times (RayTimes or (n,) times): (origins, directions)
+        float32, (len(sel), 3)."""
         from . import motion
 
         def make(t):
             return motion.affine_inverse(motion.interpolate(self.motion, t)).astype(np.float32)
-        inverse = time.cached(("inverse", id(self)), make) if isinstance(time, RayTimes) else make(time)
+        if isinstance(time, RayTimes):
+            inverse = np.take(time.cached(("inverse", id(self)), make), sel, axis=0)
+        else:
+            inverse = make(np.take(time, sel))
+        origins, directions = np.take(origins, sel, axis=0), np.take(directions, sel, axis=0)
         linear = inverse[:, :, :3]
         o = np.einsum("nij,nj->ni", linear, origins) + inverse[:, :, 3]
         d = np.einsum("nij,nj->ni", linear, directions)
@@ -158,18 +182,22 @@ class Accel:
                 prim[hit] = self._static_ids[prim[hit]]
             t[prim < 0] = t_max[prim < 0]
             for moving in self._moving:
-                o, d = moving.rays(origins, directions, time)
+                sel = moving.crossing(origins, directions, t)
+                if not len(sel):
+                    continue
+                o, d = moving.rays(origins, directions, time, sel)
+                best = t[sel]
 
-                def job_moving(s: slice, o=o, d=d, moving=moving) -> None:
-                    r = moving.scene.run(o[s], d[s], dists=t[s].copy(), output=1)
+                def job_moving(s: slice, o=o, d=d, moving=moving, sel=sel, best=best) -> None:
+                    r = moving.scene.run(o[s], d[s], dists=best[s].copy(), output=1)
                     closer = r["primID"] >= 0
-                    idx = np.flatnonzero(closer) + s.start
+                    idx = sel[np.flatnonzero(closer) + s.start]
                     prim[idx] = moving.ids[r["primID"][closer]]
                     t[idx] = r["tfar"][closer]
                     u[idx] = r["u"][closer]
                     v[idx] = r["v"][closer]
 
-                self._run(job_moving, n, split)
+                self._run(job_moving, len(sel), split)
             t[prim < 0] = np.inf
         return Hits(prim, t, u, v)
 
@@ -188,8 +216,19 @@ class Accel:
         if self._scene is not None:
             self._run(job, n, split)
         for moving in self._moving:
-            o, d = moving.rays(origins, directions, time)
-            self._run(lambda s, o=o, d=d, scene=moving.scene: job(s, scene, o, d), n, split)
+            sel = moving.crossing(origins, directions, t_max)
+            sel = sel[~out[sel]]
+            if not len(sel):
+                continue
+            o, d = moving.rays(origins, directions, time, sel)
+            hit = np.zeros(len(sel), bool)
+            limit = t_max[sel]
+
+            def job_moving(s: slice, o=o, d=d, scene=moving.scene, hit=hit, limit=limit) -> None:
+                hit[s] = scene.run(o[s], d[s], dists=limit[s].copy(), query="OCCLUDED", output=None) == 0
+
+            self._run(job_moving, len(sel), split)
+            out[sel[hit]] = True
         return out
 
     def _run(self, job, n: int, split: bool) -> None:

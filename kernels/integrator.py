@@ -476,7 +476,11 @@ class Renderer:
         delta = np.empty((len(t), 3, 4), np.float64)
         delta[:, :, :3] = m[:, :, :3] @ ref[:3, :3]
         delta[:, :, 3] = m[:, :, :3] @ ref[:3, 3] + m[:, :, 3]
-        normal = np.linalg.inv(delta[:, :, :3]).transpose(0, 2, 1)
+        rows3 = delta[:, :, :3]  # inverse transpose = rows' cross products / determinant (cofactors)
+        cof = np.stack([np.cross(rows3[:, 1], rows3[:, 2]), np.cross(rows3[:, 2], rows3[:, 0]),
+                        np.cross(rows3[:, 0], rows3[:, 1])], axis=1)
+        det = np.einsum("ni,ni->n", rows3[:, 0], cof[:, 0])
+        normal = cof / np.where(np.abs(det) > 1e-30, det, 1.0)[:, None, None]
         return delta.astype(np.float32), normal.astype(np.float32)
 
     # ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
