@@ -49,6 +49,7 @@ scene.render.engine = "EMBER"
 scene.ember.samples = %(samples)d
 scene.ember.use_adaptive_sampling = False
 scene.ember.pixel_filter_type = "BOX"
+scene.ember.use_denoising = False
 scene.render.threads_mode, scene.render.threads = "FIXED", 2
 before = peak_kb()
 tracemalloc.start()

@@ -86,6 +86,7 @@ def engine_rate(scene, engine: str, samples: int) -> float:
         scene.ember.sample_clamp_direct = scene.ember.sample_clamp_indirect = scene.ember.blur_glossy = 0.0
         scene.ember.use_adaptive_sampling = False
         scene.ember.pixel_filter_type = "BOX"
+        scene.ember.use_denoising = False
     bpy.ops.render.render()  # warm-up (kernels, imports)
     start = time.perf_counter()
     bpy.ops.render.render()

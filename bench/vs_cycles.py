@@ -177,6 +177,7 @@ def render(scene, engine: str, samples: int, cfg: Config, *, seed: int = TIMED_S
         e.sample_clamp_direct = e.sample_clamp_indirect = e.blur_glossy = 0.0  # as configure_cycles
         e.use_adaptive_sampling = False
         e.pixel_filter_type = "BOX"  # as configure_cycles
+        e.use_denoising = False
         e.time_limit, e.use_animated_seed = time_limit, False
     _STATS.clear()
     # Ember's renderer is freed by the cyclic collector (about 330 MB at 1M triangles): collect now, so

@@ -3,9 +3,9 @@
 Registration is an explicit ordered tuple: settings before the panels that draw them and the engine
 that reads them; unregistered in reverse.
 """
-from . import properties, render_engine, ui
+from . import passes, properties, render_engine, ui
 
-MODULES = (properties, ui, render_engine)
+MODULES = (properties, passes, ui, render_engine)
 
 
 def register():

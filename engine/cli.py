@@ -72,6 +72,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                          "always completes)")
     render.add_argument("--threads", type=int, help="render threads (default or 0: all cores)")
     render.add_argument("--scene", help="scene name inside the file (default: the active scene)")
+    render.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=None,
+                        help="denoise with OpenImageDenoise (default: the file's setting, on in a new scene)")
+    render.add_argument("--passes", help="comma-separated passes to write besides the image, as a multilayer "
+                                         f"OpenEXR (-o must end in .exr): {', '.join(CLI_PASSES)} or all")
     return parser
 
 
@@ -238,6 +242,8 @@ def render(args) -> int:
         frame_list = [scene.frame_current]
     if output is not None:
         _use_format_of(scene, output)
+    if args.passes:
+        _use_passes(scene, args.passes, output)
         targets = [frame_path(output, f, len(frame_list) > 1) for f in frame_list]
     else:
         targets = [_file_output_path(scene, f) for f in frame_list]
@@ -321,6 +327,31 @@ def _register_ember() -> None:
         register()
 
 
+# --passes names -> View Layer toggles (and Ember's Denoising Data)
+CLI_PASSES = {"depth": "use_pass_z", "position": "use_pass_position", "normal": "use_pass_normal",
+              "uv": "use_pass_uv", "object_index": "use_pass_object_index",
+              "material_index": "use_pass_material_index", "denoising": "denoising_store_passes"}
+
+
+def _use_passes(scene, text: str, output: str | None) -> None:
+    """Turn the named passes on in every view layer and write a multilayer OpenEXR."""
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if names == ["all"]:
+        names = list(CLI_PASSES)
+    unknown = [n for n in names if n not in CLI_PASSES]
+    if unknown:
+        raise CliError(f"--passes: unknown {', '.join(unknown)}; known: {', '.join(CLI_PASSES)} or all")
+    if output is not None and os.path.splitext(output)[1].lower() != ".exr":
+        raise CliError("--passes writes a multilayer OpenEXR: give -o a path ending in .exr")
+    for layer in scene.view_layers:
+        for name in names:
+            toggle = CLI_PASSES[name]
+            setattr(layer.ember if toggle == "denoising_store_passes" else layer, toggle, True)
+    settings = scene.render.image_settings
+    settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.color_depth = "32"
+
+
 def _apply_options(scene, args, resolution) -> None:
     scene.render.engine = "EMBER"
     ember = scene.ember
@@ -334,6 +365,8 @@ def _apply_options(scene, args, resolution) -> None:
         ember.seed = args.seed
     if args.time_limit is not None:
         ember.time_limit = args.time_limit
+    if args.denoise is not None:
+        ember.use_denoising = args.denoise
     if args.threads is not None:
         scene.render.threads_mode = "FIXED" if args.threads > 0 else "AUTO"
         if args.threads > 0:

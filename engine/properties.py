@@ -73,6 +73,29 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
     filter_width: FloatProperty(
         name="Width", description="Pixel filter width, in pixels (Cycles' default 1.5)",
         default=1.5, min=0.01, max=10.0, soft_max=3.0, subtype="PIXEL")
+    use_denoising: BoolProperty(
+        name="Denoise", description="Denoise the final render with OpenImageDenoise (the library Blender ships), "
+                                    "as Cycles does by default",
+        default=True)
+    use_preview_denoising: BoolProperty(
+        name="Denoise Viewport", description="Denoise the viewport's previews (off by default, as in Cycles)",
+        default=False)
+    denoising_input_passes: EnumProperty(
+        name="Passes", description="Passes the denoiser reads besides the noisy image",
+        items=(("RGB", "None", "The noisy image alone"),
+               ("RGB_ALBEDO", "Albedo", "The image and the albedo of what the camera sees"),
+               ("RGB_ALBEDO_NORMAL", "Albedo and Normal", "The image, albedo and normal (Cycles' default)")),
+        default="RGB_ALBEDO_NORMAL")
+    denoising_prefilter: EnumProperty(
+        name="Prefilter", description="How the albedo and normal passes are cleaned before denoising",
+        items=(("NONE", "None", "Use them as they are (for noiseless passes)"),
+               ("FAST", "Fast", "Assume they are clean enough"),
+               ("ACCURATE", "Accurate", "Denoise them first (Cycles' default)")),
+        default="ACCURATE")
+    denoising_quality: EnumProperty(
+        name="Quality", description="OpenImageDenoise's quality: higher is slower",
+        items=(("HIGH", "High", ""), ("BALANCED", "Balanced", ""), ("FAST", "Fast", "")),
+        default="HIGH")
     seed: IntProperty(
         name="Seed", description="Seed of the random numbers: another seed gives another noise pattern",
         default=0, min=0)

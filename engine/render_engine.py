@@ -6,6 +6,7 @@ import traceback
 
 import bpy
 
+from .passes import register_passes
 from .session import FinalRender
 from .viewport import new_viewport, stop_all_sessions
 
@@ -29,6 +30,9 @@ class EmberRenderEngine(bpy.types.RenderEngine):
         except Exception as err:  # a bug of Ember's: report it in one line; an escaping error crashes Blender
             traceback.print_exc()
             self.report({"ERROR"}, f"Ember: internal error, render abandoned: {type(err).__name__}: {err}")
+
+    def update_render_passes(self, scene=None, renderlayer=None):
+        register_passes(self, scene, renderlayer)
 
     def view_update(self, context, depsgraph):
         viewport = getattr(self, "_viewport", None)

@@ -8,6 +8,7 @@ scene build and between waves.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -20,6 +21,7 @@ from ..kernels import Cancelled, Renderer, RenderSettings
 from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region
 from .export.motion import sample_motion
+from .passes import enabled_passes, kernel_passes
 from .version import EMBER_VERSION
 
 # The Image Editor is refreshed at most this often (Cycles updates a few times a second); the first and
@@ -115,6 +117,9 @@ class FinalRender:
         self._region: Region | None = None
         self._dirty: tuple[int, int] | None = None  # region rows changed since they were last written
         self.cancelled = False
+        self._passes = []           # engine.passes.Pass, besides Combined
+        self._denoise = False
+        self.denoise_seconds = None
 
     def should_stop(self) -> bool:
         """Esc in Blender, or an interrupt of the command line."""
@@ -137,6 +142,11 @@ class FinalRender:
         self._warn(exported.warnings)
         self._region = self._find_region(width, height)
         settings = render_settings(scene, (self._region.x0, self._region.y0, self._region.x1, self._region.y1))
+        view_layer = self.depsgraph.view_layer
+        self._passes = enabled_passes(scene, view_layer)
+        self._denoise = bool(scene.ember.use_denoising)
+        settings = dataclasses.replace(settings, passes=kernel_passes(
+            scene, view_layer, scene.ember.denoising_input_passes if self._denoise else None))
         engine.update_stats("", "Ember: building the scene")
         try:
             renderer = Renderer(exported.scene, threads=render_threads(scene.render), should_stop=self.should_stop)
@@ -152,7 +162,32 @@ class FinalRender:
                                      on_progress=self._on_progress)
         self.cancelled = result.stopped_early and _cancel.is_set()
         self._flush(result.film)
+        if self._denoise and not self.cancelled and result.film.samples_done > 0:
+            self._denoise_final(result.film)
         self._finish_message(result, exported)
+
+    def _denoise_final(self, film) -> None:
+        """Denoise the finished image once and write it as Combined; on any failure the noisy image
+        stays, with a warning (a finished frame is never lost)."""
+        ember = self.scene.ember
+        self.engine.update_stats("", "Ember: denoising")
+        start = time.perf_counter()
+        try:
+            from .denoise import denoise
+            image = film.resolve()
+            albedo = film.resolve_pass("denoising_albedo") if "denoising_albedo" in film.aux else None
+            normal = film.resolve_pass("denoising_normal") if "denoising_normal" in film.aux else None
+            clean = denoise(image[..., :3], albedo, normal, quality=ember.denoising_quality,
+                            prefilter=ember.denoising_prefilter, threads=render_threads(self.scene.render))
+        except Exception as err:  # the library missing, OIDN's own error, a bug: keep the noisy image
+            self._warn([f"denoising failed, the image is not denoised: {type(err).__name__}: {err}"])
+            return
+        if not np.isfinite(clean).all():
+            self._warn(["denoising gave non-finite pixels, the image is not denoised"])
+            return
+        image[..., :3] = clean
+        self._write_combined(image, film)
+        self.denoise_seconds = time.perf_counter() - start
 
     def _cancel(self) -> None:
         """Stopped before rendering: hand Blender an empty result all the same (saving a render that
@@ -220,13 +255,27 @@ class FinalRender:
         """Region rows [row0, row1) (row 0 at the top) -> a sub-result of Blender's (rows bottom-up,
         coordinates relative to the border region when there is one)."""
         rows = film.resolve(row0, row1)
-        flipped = np.ascontiguousarray(rows[::-1], dtype=np.float32)
         result = self.engine.begin_result(0, film.height - row1, film.width, row1 - row0,
                                           layer=self.depsgraph.view_layer.name)
         try:
-            result.layers[0].passes["Combined"].rect.foreach_set(flipped.ravel())
+            layer = result.layers[0]
+            _set_rect(layer, "Combined", rows)
+            for p in self._passes:
+                _set_rect(layer, p.name, film.resolve_pass(p.kernel, row0, row1) if p.kernel else rows)
         finally:
             self.engine.end_result(result)
+
+    def _write_combined(self, image: np.ndarray, film) -> None:
+        """The whole region's Combined pass (the denoised image), in chunks of rows."""
+        step = max(1, WRITE_CHUNK_PIXELS // max(film.width, 1))
+        for row0 in range(0, film.height, step):
+            row1 = min(film.height, row0 + step)
+            result = self.engine.begin_result(0, film.height - row1, film.width, row1 - row0,
+                                              layer=self.depsgraph.view_layer.name)
+            try:
+                _set_rect(result.layers[0], "Combined", image[row0:row1])
+            finally:
+                self.engine.end_result(result)
 
     def _finish_message(self, result, exported) -> None:
         p = result.progress
@@ -239,6 +288,13 @@ class FinalRender:
         self.engine.update_stats("", message)
         if _background():
             print(f"Ember | Frame {self.scene.frame_current} | {message}", flush=True)
+
+
+def _set_rect(layer, name: str, rows: np.ndarray) -> None:
+    """Rows (row 0 at the top) into a render result pass (Blender's rows go bottom-up)."""
+    target = layer.passes.get(name)
+    if target is not None:
+        target.rect.foreach_set(np.ascontiguousarray(rows[::-1], dtype=np.float32).ravel())
 
 
 # Set by the command line's interrupt handler; every final render polls it with Esc.

@@ -123,6 +123,46 @@ class EMBER_RENDER_PT_motion_blur(EmberPanel, bpy.types.Panel):
         layout.template_curve_mapping(rd, "motion_blur_shutter_curve")
 
 
+class EMBER_RENDER_PT_denoise(EmberPanel, bpy.types.Panel):
+    bl_label = "Denoise"
+    bl_parent_id = "EMBER_RENDER_PT_sampling"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        ember = context.scene.ember
+        col = layout.column(heading="Render")
+        col.prop(ember, "use_denoising", text="Denoise")
+        col.prop(ember, "use_preview_denoising", text="Viewport")
+        sub = layout.column()
+        sub.active = ember.use_denoising or ember.use_preview_denoising
+        sub.prop(ember, "denoising_input_passes")
+        sub.prop(ember, "denoising_prefilter")
+        sub.prop(ember, "denoising_quality")
+
+
+class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
+    """View Layer > Passes: the passes Ember writes, with Blender's own toggles (Cycles' names)."""
+    bl_label = "Passes"
+    bl_context = "view_layer"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        view_layer = context.view_layer
+        col = layout.column(heading="Include")
+        col.prop(view_layer, "use_pass_combined")
+        col.prop(view_layer, "use_pass_z")
+        col.prop(view_layer, "use_pass_position")
+        col.prop(view_layer, "use_pass_normal")
+        col.prop(view_layer, "use_pass_uv")
+        col.prop(view_layer, "use_pass_object_index")
+        col.prop(view_layer, "use_pass_material_index")
+        col.prop(view_layer.ember, "denoising_store_passes", text="Denoising Data")
+
+
 class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
     bl_label = "Performance"
     bl_options = {"DEFAULT_CLOSED"}
@@ -139,8 +179,8 @@ class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
         sub.prop(rd, "threads")
 
 
-CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_light_paths, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur,
-           EMBER_RENDER_PT_performance)
+CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths, EMBER_RENDER_PT_film,
+           EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance, EMBER_VIEWLAYER_PT_passes)
 
 
 def register():

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import passes as _passes
+
 
 # Memory per pixel: the float64 RGBA sums; with adaptive sampling also the odd samples' float32 RGB,
 # an int32 sample count and the converged flag (without it, counts are kept per row).
@@ -22,15 +24,19 @@ class Film:
     converged : (H, W) bool, the pixels adaptive sampling has stopped ((H, 1) all False without).
     """
 
-    def __init__(self, width: int, height: int, adaptive: bool = False):
+    def __init__(self, width: int, height: int, adaptive: bool = False, passes: tuple = ()):
         self.width, self.height = width, height
         columns = width if adaptive else 1
         self.sums = np.zeros((height, width, 4), np.float64)
         self.half = np.zeros((height, width, 3), np.float32) if adaptive else None
         self.pixel_samples = np.zeros((height, columns), np.int32)
         self.converged = np.zeros((height, columns), bool)
+        # Data passes (kernels.passes): float32 sums for averaged ones (normals, albedo and UVs need no more),
+        # sample 0's values for the others.
+        self.aux = {name: np.zeros((height, width, _passes.channels(name)), np.float32) for name in passes}
 
-    def add_rows(self, row0: int, row_sums: np.ndarray, samples, half_sums: np.ndarray | None = None) -> None:
+    def add_rows(self, row0: int, row_sums: np.ndarray, samples, half_sums: np.ndarray | None = None,
+                 aux: dict | None = None) -> None:
         """Add (rows, width, 4) sums starting at region row row0, holding `samples` samples per pixel (an
         int, or (rows, width) counts with adaptive sampling), and then (rows, width, 3) sums of their odd
         samples."""
@@ -39,6 +45,26 @@ class Film:
         self.pixel_samples[row0:row0 + rows] += np.asarray(samples, np.int32)
         if half_sums is not None:
             self.half[row0:row0 + rows] += half_sums.astype(np.float32)
+        for name, values in (aux or {}).items():
+            if _passes.is_first(name):
+                plane, written = values
+                target = self.aux[name][row0:row0 + rows]
+                target[written] = plane[written]
+            else:
+                self.aux[name][row0:row0 + rows] += values.astype(np.float32)
+
+    def resolve_pass(self, name: str, row0: int = 0, row1: int | None = None) -> np.ndarray:
+        """(rows, width, C) float32 of a data pass, as Cycles reads its passes: averaged ones divided by the
+        pixel's samples; Depth 1e10 where sample 0 saw no surface."""
+        row1 = self.height if row1 is None else row1
+        values = self.aux[name][row0:row1]
+        if _passes.is_first(name):
+            if name == "depth":
+                return np.where(values == 0, np.float32(_passes.BACKGROUND_DEPTH), values).astype(np.float32)
+            return values.copy()
+        count = self.pixel_samples[row0:row1].astype(np.float64)
+        scale = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
+        return (values * scale[:, :, None]).astype(np.float32)
 
     def resolve(self, row0: int = 0, row1: int | None = None) -> np.ndarray:
         """(rows, width, 4) float32 mean of rows [row0, row1); pixels without samples are zero."""

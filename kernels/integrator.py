@@ -19,7 +19,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from . import motion, panorama, sampling
+from . import motion, panorama, passes, sampling
 from .accel import Accel, RayTimes
 from .camera import generate_rays, view_plane
 from .environment import Environment
@@ -31,7 +31,8 @@ from .lights import LightSampler
 from .paths import PathState
 from .rng import PathRng, seed_paths
 from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples
-from .scene import Camera, SceneArrays
+from .camera import camera_frame
+from .scene import OBJ_PASS_INDEX, Camera, SceneArrays
 from .shading import Shading
 from .shading.world import WorldShader
 from .textures import Texture
@@ -72,12 +73,17 @@ class RenderSettings:
     # threshold stop taking samples.
     adaptive_threshold: float = 0.0
     adaptive_min_samples: int = 0
+    # Data passes to record besides the image (kernels.passes.PASSES names), e.g. ("depth", "normal").
+    passes: tuple = ()
 
     def validate(self, width: int, height: int) -> tuple[int, int, int, int]:
         if self.mode not in SAMPLING_MODES:
             raise ValueError(f"mode: must be one of {SAMPLING_MODES}, got {self.mode!r}")
         if int(self.samples) < 1:
             raise ValueError(f"samples: must be at least 1, got {self.samples}")
+        unknown = [p for p in self.passes if p not in passes.PASSES]
+        if unknown:
+            raise ValueError(f"passes: unknown {unknown}, known {tuple(passes.PASSES)}")
         if int(self.max_bounces) < 0:
             raise ValueError(f"max_bounces: must be non-negative, got {self.max_bounces}")
         if not (np.isfinite(self.time_limit_s) and self.time_limit_s >= 0):
@@ -181,6 +187,7 @@ class Renderer:
         self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
         self._emissive = bool(self.shading.emissive.any())
         self._pixel_size = _pixel_spread(self.scene.camera)
+        self._camera_frame = camera_frame(self.scene.camera)
         lo, hi = extent(self.scene.positions)
         self._ray_epsilon = _ray_epsilon(lo, hi)
         self.lights = LightSampler(self.scene, self.environment, _Emitters(self))
@@ -194,6 +201,7 @@ class Renderer:
         camera.validate()
         self.scene = dataclasses.replace(self.scene, camera=camera)
         self._pixel_size = _pixel_spread(camera)
+        self._camera_frame = camera_frame(camera)
         self.shading.data.set_camera(camera)
 
     def close(self) -> None:
@@ -224,7 +232,7 @@ class Renderer:
         cam = self.scene.camera
         x0, y0, x1, y1 = settings.validate(cam.width, cam.height)
         width, height = x1 - x0, y1 - y0
-        film = Film(width, height, adaptive=settings.adaptive_threshold > 0)
+        film = Film(width, height, adaptive=settings.adaptive_threshold > 0, passes=settings.passes)
         total = int(settings.samples)
         start = time.perf_counter()
         embree_start = self.accel.seconds_in_embree
@@ -260,8 +268,8 @@ class Renderer:
                                                            r0, r1, done, spp, split, active)))
                     next_band += 1
                 r0, r1, future = in_flight.pop(0)
-                sums, half, counts, bad = future.result()
-                film.add_rows(r0, sums, counts if adaptive else spp, half)
+                sums, half, counts, bad, aux = future.result()
+                film.add_rows(r0, sums, counts if adaptive else spp, half, aux)
                 progress.paths += int(counts.sum())
                 progress.nonfinite_paths += bad
                 progress.elapsed_s = time.perf_counter() - start
@@ -312,8 +320,11 @@ class Renderer:
         # Overflow and invalid values are expected at the edges of float32 (huge lights, degenerate
         # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
         # is per thread, so it is set here, in the thread that runs the wave.
+        aux = {name: np.zeros((passes.channels(name), len(pix)), np.float32) for name in settings.passes} \
+            if settings.passes else None
         with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
-            radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=(pixel_index, sample))
+            radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=(pixel_index, sample),
+                                               aux=aux)
         bad = ~np.isfinite(radiance).all(axis=0)
         n_bad = int(np.count_nonzero(bad))
         if n_bad:
@@ -331,11 +342,27 @@ class Renderer:
             half = np.zeros((npix, 3), np.float64)
             half[pixels] = np.where(odd, rgba[:3], 0.0).reshape(3, len(pixels), spp).sum(axis=2).T
             half = half.reshape(rows, width, 3)
-        return sums.reshape(rows, width, 4), half, counts.reshape(rows, width), n_bad
+        aux_out = None
+        if aux is not None:
+            aux_out = {}
+            first = sample == 0
+            for name, values in aux.items():
+                c = len(values)
+                if passes.is_first(name):
+                    plane = np.zeros((npix, c), np.float32)
+                    written = np.zeros(npix, bool)
+                    plane[pix[first]] = values[:, first].T
+                    written[pix[first]] = True
+                    aux_out[name] = (plane.reshape(rows, width, c), written.reshape(rows, width))
+                else:
+                    total = np.zeros((npix, c), np.float64)
+                    total[pixels] = values.reshape(c, len(pixels), spp).sum(axis=2).T
+                    aux_out[name] = total.reshape(rows, width, c)
+        return sums.reshape(rows, width, 4), half, counts.reshape(rows, width), n_bad, aux_out
 
     # ---------------------------------------------------------------- one wave of paths
     def trace_paths(self, rng: PathRng, row: np.ndarray, col: np.ndarray, settings: RenderSettings,
-                    split: bool = True, strata=None):
+                    split: bool = True, strata=None, aux: dict | None = None):
         """Trace one path per (row, col) entry. Returns radiance (3, N) float32 and alpha (N,) float32.
 
         strata = (pixel_index, sample_index) per path: in NEE_MIS mode the camera jitter and the first
@@ -387,6 +414,8 @@ class Renderer:
             state.dp = state.dp + t_hit * wave.spread_dd
             hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes)
             shading = self.shading.surface(hit)
+            if aux is not None and step == 0:
+                self._data_passes(aux, state, hit, shading.closures)
             if state.min_ray_pdf is not None:
                 _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
             if self._emissive:
@@ -405,6 +434,34 @@ class Renderer:
             state.compact(alive)
             rays = self._spawn(hit, alive, bs)
         return radiance, alpha
+
+    # ---- stage: data passes of the camera rays' first surface (kernels.passes)
+    def _data_passes(self, aux: dict, state, hit, closures) -> None:
+        paths = state.path
+        n = len(hit)
+        for name, out in aux.items():
+            if name == "depth":
+                eye, rotation = self._camera_frame
+                d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
+                out[0, paths] = np.sqrt((d * d).sum(axis=0)) if self.scene.camera.kind == "PANO" else \
+                    -(rotation[:, 2] @ d)
+            elif name == "position":
+                out[:, paths] = np.stack(hit.p)
+            elif name == "object_index":
+                if self.scene.objects is not None:
+                    rows = np.take(self.scene.object_ids, hit.prim)
+                    out[0, paths] = np.take(self.scene.objects[:, OBJ_PASS_INDEX], rows)
+            elif name == "material_index":
+                indices = np.asarray(self.scene.materials.pass_indices or (0,) * self.scene.materials.count,
+                                     np.float32)
+                out[0, paths] = np.take(indices, hit.mat)
+            elif name in ("normal", "denoising_normal"):
+                out[:, paths] = passes.closure_normal(closures, n, hit.ns)
+            elif name == "uv":
+                u, v = hit.uv_at(np.arange(n))
+                out[0, paths], out[1, paths] = u, v
+            elif name == "denoising_albedo":
+                out[:, paths] = passes.closure_albedo(closures, n)
 
     # ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
     def _lights_hit(self, wave, state, rays, hits):

@@ -252,8 +252,10 @@ def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0
 
 @dataclass(frozen=True)
 class Materials:
-    """The material table: M shaders; a triangle's material id indexes it."""
+    """The material table: M shaders; a triangle's material id indexes it. pass_indices: each material's
+    Pass Index (the Material Index pass), or () for all 0."""
     shaders: tuple = (diffuse_shader(),)
+    pass_indices: tuple = ()
 
     @classmethod
     def diffuse(cls, albedo, albedo_texture=None, emission=None, emission_texture=None) -> "Materials":

@@ -70,6 +70,8 @@ def render_exr(bpy, scene):
     import numpy as np
     scene.render.engine = "EMBER"
     scene.ember.samples = 8
+    # The checks are exact colours of flat regions: a one-pixel box and no denoiser, as the parity tests.
+    scene.ember.pixel_filter_type, scene.ember.use_denoising = "BOX", False
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.image_settings.color_depth = "32"
     scene.render.filepath = os.path.join(WORK_DIR, "frame.exr")

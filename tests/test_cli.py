@@ -91,3 +91,19 @@ def test_scene_without_camera(tmp_path):
     assert run.returncode == 1
     assert run.stderr.strip().splitlines()[-1] == "ember: error: scene 'Scene' has no camera"
     assert not (tmp_path / "x.png").exists()
+
+
+def test_passes_write_a_multilayer_exr(tmp_path, blend_file):
+    """--passes: Blender's multilayer OpenEXR with each pass as Cycles names it; --no-denoise honoured."""
+    out = tmp_path / "frame.exr"
+    run = ember("render", blend_file, "-o", str(out), "--samples", "1", "--no-denoise",
+                "--passes", "depth,normal,object_index,denoising")
+    assert run.returncode == 0, run.stderr
+    data = out.read_bytes()
+    for name in (b"Combined", b"Depth", b"Normal", b"IndexOB", b"Denoising Albedo", b"Denoising Normal"):
+        assert b"ViewLayer." + name in data, name
+    assert b"Noisy Image" not in data  # not denoised: no noisy copy
+    bad = ember("render", blend_file, "-o", str(tmp_path / "frame.png"), "--passes", "depth")
+    assert bad.returncode != 0 and "ending in .exr" in bad.stderr
+    bad = ember("render", blend_file, "-o", str(out), "--passes", "depth,shadows")
+    assert bad.returncode != 0 and "unknown shadows" in bad.stderr

@@ -273,6 +273,7 @@ class MaterialTable:
         self.images = ImageTextures(warnings)
         self._warnings = warnings
         self._rows: list[Shader] = [DEFAULT_SURFACE]
+        self._pass_indices: list[int] = [0]
         self._ids: dict[str, int] = {}
         self._tangent_maps: dict[int, tuple[str, ...]] = {}
         self._attributes: dict[int, frozenset] = {}
@@ -287,6 +288,7 @@ class MaterialTable:
             uv_maps: list[str] = []
             attributes: set[str] = set()
             self._rows.append(read_material(material, self.images, self._warnings, uv_maps, attributes))
+            self._pass_indices.append(int(material.pass_index))
             if uv_maps:
                 self._tangent_maps[row] = tuple(dict.fromkeys(uv_maps))
             if attributes:
@@ -318,7 +320,7 @@ class MaterialTable:
         return tuple(image.srgb for image in self.images.loaded)
 
     def to_kernel(self) -> Materials:
-        return Materials(tuple(self._rows))
+        return Materials(tuple(self._rows), pass_indices=tuple(self._pass_indices))
 
 
 def read_material(material, images: ImageTextures, warnings: list[str], uv_maps: list[str] | None = None,

@@ -1,0 +1,86 @@
+"""Render passes, declared in one place: what Blender's View Layer > Passes toggles ask for, the names and
+channels Cycles gives them (so the compositor treats an Ember render as a Cycles one), and the kernel
+pass behind each (kernels.passes).
+
+Denoising data (Ember's View Layer > Passes > Denoising Data, as Cycles' "Denoising Data") adds Denoising
+Normal, Denoising Albedo and the Noisy Image when the render is denoised.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import bpy
+from bpy.props import BoolProperty, PointerProperty
+
+
+@dataclass(frozen=True)
+class Pass:
+    toggle: str        # ViewLayer property that turns it on ("" : driven by denoising)
+    name: str          # Blender's pass name (Cycles')
+    channels: int
+    chan_id: str
+    kind: str          # 'COLOR', 'VECTOR' or 'VALUE'
+    kernel: str        # kernels.passes name, or "" for image passes
+
+
+DATA_PASSES = (
+    Pass("use_pass_z", "Depth", 1, "Z", "VALUE", "depth"),
+    Pass("use_pass_position", "Position", 3, "XYZ", "VECTOR", "position"),
+    Pass("use_pass_normal", "Normal", 3, "XYZ", "VECTOR", "normal"),
+    Pass("use_pass_uv", "UV", 3, "UVA", "VECTOR", "uv"),
+    Pass("use_pass_object_index", "IndexOB", 1, "X", "VALUE", "object_index"),
+    Pass("use_pass_material_index", "IndexMA", 1, "X", "VALUE", "material_index"),
+)
+DENOISING_ALBEDO = Pass("", "Denoising Albedo", 3, "RGB", "COLOR", "denoising_albedo")
+DENOISING_NORMAL = Pass("", "Denoising Normal", 3, "XYZ", "VECTOR", "denoising_normal")
+NOISY_IMAGE = Pass("", "Noisy Image", 4, "RGBA", "COLOR", "")
+
+
+def store_denoising_data(view_layer) -> bool:
+    settings = getattr(view_layer, "ember", None)
+    return bool(settings is not None and settings.denoising_store_passes)
+
+
+def enabled_passes(scene, view_layer) -> list[Pass]:
+    """The passes of a view layer besides Combined, in Blender's order."""
+    out = [p for p in DATA_PASSES if getattr(view_layer, p.toggle, False)]
+    if store_denoising_data(view_layer):
+        out += [DENOISING_NORMAL, DENOISING_ALBEDO]
+        if scene.ember.use_denoising:
+            out.append(NOISY_IMAGE)
+    return out
+
+
+def kernel_passes(scene, view_layer, denoise_inputs: str | None) -> tuple:
+    """kernels.passes names to record: the enabled data passes, and what the denoiser reads."""
+    names = [p.kernel for p in enabled_passes(scene, view_layer) if p.kernel]
+    if denoise_inputs in ("RGB_ALBEDO", "RGB_ALBEDO_NORMAL"):
+        names.append("denoising_albedo")
+    if denoise_inputs == "RGB_ALBEDO_NORMAL":
+        names.append("denoising_normal")
+    return tuple(dict.fromkeys(names))
+
+
+def register_passes(engine, scene, view_layer) -> None:
+    """RenderEngine.update_render_passes: tell Blender (the compositor, the file output) what Ember writes."""
+    engine.register_pass(scene, view_layer, "Combined", 4, "RGBA", "COLOR")
+    for p in enabled_passes(scene, view_layer):
+        engine.register_pass(scene, view_layer, p.name, p.channels, p.chan_id, p.kind)
+
+
+class EmberViewLayerSettings(bpy.types.PropertyGroup):
+    denoising_store_passes: BoolProperty(
+        name="Denoising Data",
+        description="Store the denoiser's inputs as passes (Denoising Normal, Denoising Albedo) and the image "
+                    "before denoising (Noisy Image), as Cycles' Denoising Data",
+        default=False)
+
+
+def register():
+    bpy.utils.register_class(EmberViewLayerSettings)
+    bpy.types.ViewLayer.ember = PointerProperty(type=EmberViewLayerSettings, name="Ember")
+
+
+def unregister():
+    del bpy.types.ViewLayer.ember
+    bpy.utils.unregister_class(EmberViewLayerSettings)

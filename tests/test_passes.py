@@ -1,0 +1,170 @@
+"""Render passes and denoising through Ember's final render (issue 13).
+
+Blender headless cannot hand a render's passes back to Python, so the session runs here against a
+recording stand-in of the RenderEngine (the same calls Blender answers: begin_result, end_result, report,
+...), with the real depsgraph; one test renders through bpy.ops.render.render and checks that Blender
+received the passes (they reach its multilayer EXR).
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+
+import bpy
+import numpy as np
+import pytest
+
+from bpy_helpers import diffuse_material, new_scene, quad_object, set_world
+from ember.engine import passes as engine_passes
+from ember.engine.session import FinalRender
+
+
+class _Rect:
+    def __init__(self, store, name, x, y, w, h, channels):
+        self.store, self.name, self.box, self.channels = store, name, (x, y, w, h), channels
+
+    def foreach_set(self, values):
+        x, y, w, h = self.box
+        plane = self.store.setdefault(self.name, {})
+        plane[(x, y, w, h)] = np.asarray(values, np.float32).reshape(h, w, self.channels).copy()
+
+
+class _Pass:
+    def __init__(self, rect):
+        self.rect = rect
+
+
+class _Result:
+    def __init__(self, engine, x, y, w, h):
+        self.resolution_x, self.resolution_y = w, h
+        passes = {"Combined": 4}
+        passes.update({p.name: p.channels for p in engine.registered})
+        self.layers = [type("Layer", (), {})()]
+        self.layers[0].passes = {name: _Pass(_Rect(engine.store, name, x, y, w, h, c)) for name, c in passes.items()}
+
+
+class RecordingEngine:
+    """What FinalRender calls on a RenderEngine, recorded: every pass's pixels by sub-rectangle."""
+
+    def __init__(self, scene, view_layer):
+        self.resolution_x = scene.render.resolution_x * scene.render.resolution_percentage // 100
+        self.resolution_y = scene.render.resolution_y * scene.render.resolution_percentage // 100
+        self.camera_override = None
+        self.registered = engine_passes.enabled_passes(scene, view_layer)
+        self.store, self.reports = {}, []
+
+    def begin_result(self, x, y, w, h, layer=None):
+        return _Result(self, x, y, w, h)
+
+    def end_result(self, result, cancel=False):
+        pass
+
+    def report(self, kind, message):
+        self.reports.append((kind, message))
+
+    def update_stats(self, *args):
+        pass
+
+    def update_progress(self, *args):
+        pass
+
+    def test_break(self):
+        return False
+
+    def frame_set(self, frame, subframe):
+        bpy.context.scene.frame_set(frame, subframe=subframe)
+
+    def image(self, name) -> np.ndarray:
+        """(H, W, C) of a pass, row 0 at the top, the last write of each rectangle winning."""
+        h, w = self.resolution_y, self.resolution_x
+        pieces = self.store[name]
+        c = next(iter(pieces.values())).shape[2]
+        out = np.full((h, w, c), np.nan, np.float32)
+        for (x, y, pw, ph), values in pieces.items():
+            out[h - y - ph:h - y, x:x + pw] = values[::-1]
+        return out
+
+
+def render(scene, samples=4, **ember):
+    scene.ember.samples = samples
+    scene.ember.use_adaptive_sampling = False
+    for key, value in ember.items():
+        setattr(scene.ember, key, value)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    engine = RecordingEngine(scene, depsgraph.view_layer)
+    FinalRender(engine, depsgraph).run()
+    return engine
+
+
+def plane_scene(width=24, height=16, ortho=False):
+    """A camera 5 m above a plane z = 0 (pass index 3, material pass index 7), looking straight down."""
+    scene = new_scene(width, height)
+    cam = scene.camera
+    cam.location, cam.rotation_euler = (0.3, -0.2, 5.0), (0.0, 0.0, 0.0)
+    if ortho:
+        cam.data.type, cam.data.ortho_scale = "ORTHO", 4.0
+    material = diffuse_material("Floor", (0.5, 0.4, 0.3))
+    material.pass_index = 7
+    floor = quad_object("Floor", (-20, -20, 0), (40, 0, 0), (0, 40, 0), material)
+    floor.pass_index = 3
+    set_world(scene, (0.5, 0.5, 0.5), 1.0)
+    layer = scene.view_layers[0]
+    for toggle in ("use_pass_z", "use_pass_position", "use_pass_normal", "use_pass_uv", "use_pass_object_index",
+                   "use_pass_material_index"):
+        setattr(layer, toggle, True)
+    return scene
+
+
+@pytest.mark.parametrize("ortho", [False, True])
+def test_data_passes_match_closed_forms(ortho):
+    """Depth is the camera's 5 m height everywhere (distance along the view axis), the normal +Z, the
+    position on the plane, the indices the pass indices; UV is the plane's (x + 20) / 40."""
+    scene = plane_scene(ortho=ortho)
+    engine = render(scene, use_denoising=False)
+    depth = engine.image("Depth")
+    np.testing.assert_allclose(depth, 5.0, rtol=1e-5)
+    np.testing.assert_allclose(engine.image("Normal"), np.broadcast_to([0, 0, 1], depth.shape[:2] + (3,)), atol=1e-6)
+    position = engine.image("Position")
+    np.testing.assert_allclose(position[..., 2], 0.0, atol=1e-5)
+    np.testing.assert_allclose(engine.image("UV")[..., 0], (position[..., 0] + 20) / 40, atol=2e-2)
+    assert np.all(engine.image("IndexOB") == 3) and np.all(engine.image("IndexMA") == 7)
+    # positions spread over the view: the camera's footprint, centred under it
+    assert abs(position[..., 0].mean() - 0.3) < 0.05 and position[..., 0].std() > 0.1
+
+
+def test_background_depth_and_indices():
+    """Where the camera sees the world: Depth 1e10 (Cycles' value for nothing), indices 0."""
+    scene = plane_scene()
+    scene.camera.rotation_euler = (math.radians(180), 0, 0)  # looking up, away from the plane
+    engine = render(scene, use_denoising=False)
+    assert np.all(engine.image("Depth") == 1e10)
+    assert np.all(engine.image("IndexOB") == 0) and np.all(engine.image("Normal") == 0)
+
+
+def test_denoising_passes_and_noisy_image():
+    """Denoising data: the albedo of a flat grey floor is its colour, its normal +Z; the Noisy Image is
+    the undenoised Combined."""
+    scene = plane_scene()
+    scene.view_layers[0].ember.denoising_store_passes = True
+    engine = render(scene, samples=2, use_denoising=True)
+    albedo = engine.image("Denoising Albedo")
+    np.testing.assert_allclose(albedo, np.broadcast_to([0.5, 0.4, 0.3], albedo.shape), atol=1e-6)
+    np.testing.assert_allclose(engine.image("Denoising Normal")[..., 2], 1.0, atol=1e-6)
+    assert "Noisy Image" in engine.store
+    assert not [r for r in engine.reports if r[0] == {"ERROR"}]
+
+
+def test_passes_reach_blenders_output():
+    """Through bpy.ops.render.render the passes Ember registers reach Blender's multilayer EXR."""
+    scene = plane_scene()
+    scene.render.engine = "EMBER"
+    scene.ember.samples, scene.ember.use_denoising = 2, False
+    settings = scene.render.image_settings
+    settings.media_type, settings.color_depth = "MULTI_LAYER_IMAGE", "32"
+    with tempfile.TemporaryDirectory() as tmp:
+        scene.render.filepath = os.path.join(tmp, "passes.exr")
+        bpy.ops.render.render(write_still=True)
+        data = open(scene.render.filepath, "rb").read()
+    for name in (b"Depth", b"Normal", b"Position", b"UV", b"IndexOB", b"IndexMA"):
+        assert b"ViewLayer." + name in data, name
