@@ -88,9 +88,10 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
         default="RGB_ALBEDO_NORMAL")
     denoising_prefilter: EnumProperty(
         name="Prefilter", description="How the albedo and normal passes are cleaned before denoising",
-        items=(("NONE", "None", "Use them as they are (for noiseless passes)"),
-               ("FAST", "Fast", "Assume they are clean enough"),
-               ("ACCURATE", "Accurate", "Denoise them first (Cycles' default)")),
+        items=(("NONE", "None", "No prefiltering: for albedo and normal passes without noise"),
+               ("FAST", "Fast", "Denoise the image and its albedo and normal passes together (least extra time)"),
+               ("ACCURATE", "Accurate", "Denoise the albedo and normal passes first, then the image (Cycles' "
+                                        "default; more time)")),
         default="ACCURATE")
     denoising_quality: EnumProperty(
         name="Quality", description="OpenImageDenoise's quality: higher is slower",

@@ -398,6 +398,7 @@ class Renderer:
         max_scatters = int(settings.max_bounces) + 1
         wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
                      0.0 if self.scene.camera.kind == "ORTHO" else self._pixel_size)
+        wave.aux = aux
         for step in range(max_scatters + int(settings.transparent_max_bounces) + 1):
             hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split, state.time)
             if step > 0 and self.lights.has_surface_lights:
@@ -494,6 +495,12 @@ class Renderer:
         ray = RayInfo(state.bounce[miss], state.transparent[miss], emission=True,
                       lobes=None if state.lobes is None else state.lobes[:, miss]) if self.environment.shader else None
         env = np.take(state.throughput, miss, axis=1) * self.environment.radiance(mx, my, mz, ray)
+        if wave.aux is not None and "denoising_albedo" in wave.aux:
+            # The camera sees the world: its colour is the denoiser's albedo there, as in Cycles
+            # (film_write_denoising_features_background).
+            seen = np.flatnonzero(state.bounce[miss] == 0)
+            if len(seen):
+                wave.aux["denoising_albedo"][:, state.path[miss[seen]]] = np.clip(env[:, seen], 0.0, 1.0)
         if wave.nee:
             mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
             if len(mis):
@@ -749,12 +756,13 @@ class Renderer:
 
 class _Wave:
     """Per-wave constants and outputs shared by the stages."""
-    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd")
+    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux")
 
     def __init__(self, settings, nee, split, max_scatters, radiance, alpha, spread_dd=0.0):
         self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
         self.radiance, self.alpha = radiance, alpha
         self.spread_dd = np.float32(spread_dd)  # the camera rays' direction spread per pixel (radians)
+        self.aux = None  # the data passes being recorded ({name: (C, N)}), or None
 
 
 class Rays(NamedTuple):
