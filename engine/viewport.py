@@ -318,6 +318,7 @@ class _Job:
     scene_version: int
     settings: RenderSettings
     camera: ViewportCamera
+    denoise: tuple | None = None   # (quality, prefilter) of the previews' denoiser, or None
 
 
 _live_sessions: "weakref.WeakSet[ViewportSession]" = weakref.WeakSet()
@@ -353,6 +354,7 @@ class ViewportSession:
         self._scene: SceneArrays | None = None
         self._scene_version = 0
         self._settings: RenderSettings | None = None
+        self._denoise: tuple | None = None
         self._camera: ViewportCamera | None = None
         self._generation = 0          # bumped by every restart; the worker compares it to its job's
         self._started = -1            # generation the worker last picked up
@@ -366,21 +368,22 @@ class ViewportSession:
         _live_sessions.add(self)
 
     # ------------------------------------------------------------------ main thread
-    def update_scene(self, scene: SceneArrays, settings: RenderSettings) -> bool:
+    def update_scene(self, scene: SceneArrays, settings: RenderSettings, denoise: tuple | None = None) -> bool:
         """A new export: always restarts (the arrays are new even when the edit changed nothing)."""
         with self._cond:
             self._scene = scene
             self._scene_version += 1
-            self._settings = settings
+            self._settings, self._denoise = settings, denoise
             self._restart()
         return True
 
-    def update_settings(self, settings: RenderSettings) -> bool:
-        """Restarts only when the settings differ; returns whether it did."""
+    def update_settings(self, settings: RenderSettings, denoise: tuple | None = None) -> bool:
+        """Restarts only when the settings (or the previews' denoiser: (quality, prefilter) or None)
+        differ; returns whether it did."""
         with self._cond:
-            if settings == self._settings:
+            if (settings, denoise) == (self._settings, self._denoise):
                 return False
-            self._settings = settings
+            self._settings, self._denoise = settings, denoise
             self._restart()
         return True
 
@@ -475,7 +478,8 @@ class ViewportSession:
                         self._cond.wait()
                     if self._stopping:
                         return
-                    job = _Job(self._generation, self._scene, self._scene_version, self._settings, self._camera)
+                    job = _Job(self._generation, self._scene, self._scene_version, self._settings, self._camera,
+                               self._denoise)
                     self._started = job.generation
                 try:
                     if job.scene_version != built_version:
@@ -517,6 +521,7 @@ class ViewportSession:
             self._publish(job, display, 0)
         renderer.set_camera(camera.to_kernel())
         last_publish = [0.0]
+        denoiser = _PreviewDenoiser(job.denoise, self._display_interval_s, self._threads) if job.denoise else None
 
         def on_tile(film, row0: int, row1: int) -> None:
             if should_stop():
@@ -526,7 +531,8 @@ class ViewportSession:
             now = time.perf_counter()
             if not last_publish[0] or now - last_publish[0] >= self._display_interval_s:
                 last_publish[0] = now
-                self._publish(job, display, done)
+                shown = denoiser.display(film, now) if denoiser is not None and done > 0 else None
+                self._publish(job, display if shown is None else shown, done)
                 return
             with self._cond:
                 if job.generation == self._generation:
@@ -536,7 +542,8 @@ class ViewportSession:
         result = renderer.render(settings, on_tile=on_tile, should_stop=should_stop)
         if result.stopped_early or should_stop():
             return
-        self._publish(job, display, result.progress.samples_done, finished=True)
+        shown = denoiser.display(result.film, None) if denoiser is not None else None
+        self._publish(job, display if shown is None else shown, result.progress.samples_done, finished=True)
 
     def _first_display(self, height: int, width: int) -> np.ndarray:
         """The image a restart refines: the last one while the size stays (no black flash between
@@ -559,11 +566,56 @@ class ViewportSession:
                 self._busy = False
 
 
+class _PreviewDenoiser:
+    """Denoised previews for the viewport (Render Properties > Denoise > Viewport): the whole film at a
+    publish, at most so often that denoising takes a quarter of the worker's time; a failure turns it off
+    for this render and shows the noisy image (the status line says why)."""
+
+    def __init__(self, options: tuple, interval_s: float, threads: int):
+        self.quality, self.prefilter = options
+        self.interval_s, self.threads = interval_s, threads
+        self.next_s = 0.0
+        self.failed: str | None = None
+
+    def display(self, film, now: float | None) -> np.ndarray | None:
+        """The denoised display image, or None (not due yet, or failed): now None forces it (the end)."""
+        if self.failed is not None or (now is not None and now < self.next_s):
+            return None
+        from .denoise import denoise
+        start = time.perf_counter()
+        image = film.resolve()
+        try:
+            image[..., :3] = denoise(image[..., :3],
+                                     film.resolve_pass("denoising_albedo") if "denoising_albedo" in film.aux else None,
+                                     film.resolve_pass("denoising_normal") if "denoising_normal" in film.aux else None,
+                                     quality=self.quality, prefilter=self.prefilter, threads=self.threads)
+        except Exception as err:
+            self.failed = f"{type(err).__name__}: {err}"
+            print(f"Ember: viewport denoising failed, previews stay noisy: {self.failed}", flush=True)
+            return None
+        spent = time.perf_counter() - start
+        self.next_s = time.perf_counter() + max(self.interval_s, 3.0 * spent)
+        return display_pixels(image)
+
+
 # ====================================================================== the RenderEngine's side
 def viewport_settings(scene) -> RenderSettings:
-    """Kernel settings for the viewport: scene.ember as for F12, with the viewport's sample count."""
+    """Kernel settings for the viewport: scene.ember as for F12, with the viewport's sample count (and the
+    denoiser's passes when previews are denoised)."""
     samples = int(scene.ember.preview_samples) or UNLIMITED_SAMPLES
-    return render_settings(scene, None, samples=samples, time_limit=0.0)
+    settings = render_settings(scene, None, samples=samples, time_limit=0.0)
+    if viewport_denoise(scene) is not None:
+        inputs = scene.ember.denoising_input_passes
+        names = ("denoising_albedo",) if inputs == "RGB_ALBEDO" else \
+            ("denoising_albedo", "denoising_normal") if inputs == "RGB_ALBEDO_NORMAL" else ()
+        settings = dataclasses.replace(settings, passes=names)
+    return settings
+
+
+def viewport_denoise(scene) -> tuple | None:
+    """(quality, prefilter) when the viewport's previews are denoised, else None."""
+    ember = scene.ember
+    return (ember.denoising_quality, ember.denoising_prefilter) if ember.use_preview_denoising else None
 
 
 def film_size(region_width: int, region_height: int, pixel_size: int) -> tuple[int, int]:
@@ -610,7 +662,7 @@ class ViewportRender:
             self._export(engine, context, depsgraph, settings)
             self._visibility = visibility
         else:
-            self.session.update_settings(settings)
+            self.session.update_settings(settings, viewport_denoise(scene))
         self.session.update_view(self.view_camera(engine, context, depsgraph))
 
     def _export(self, engine, context, depsgraph, settings: RenderSettings) -> None:
@@ -621,7 +673,7 @@ class ViewportRender:
         except ExportError as err:
             self.session.fail(str(err))
             return
-        self.session.update_scene(exported.scene, settings)
+        self.session.update_scene(exported.scene, settings, viewport_denoise(depsgraph.scene))
 
     # ------------------------------------------------------------------ view_draw
     def prepare_draw(self, engine, context, depsgraph) -> Frame | None:
@@ -629,7 +681,7 @@ class ViewportRender:
         the next draw while refining, and return the frame to show."""
         scene = depsgraph.scene
         # Editing scene.ember does not always reach view_update: compare here too (a few RNA reads).
-        self.session.update_settings(viewport_settings(scene))
+        self.session.update_settings(viewport_settings(scene), viewport_denoise(scene))
         self.session.update_view(self.view_camera(engine, context, depsgraph))
         frame = self.session.snapshot()
         engine.update_stats("", status_text(frame, self.session.busy, self.session.error))

@@ -384,6 +384,8 @@ class Renderer:
         rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
         state = PathState.start(n, samples)
         state.time = None if times is None else RayTimes(times)
+        if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux):
+            state.features = np.ones((3, n), np.float32)
         if self.shading.reads_lobes:
             state.lobes = np.zeros((4, n), np.int32)
         if settings.filter_glossy > 0:
@@ -417,6 +419,8 @@ class Renderer:
             shading = self.shading.surface(hit)
             if aux is not None and step == 0:
                 self._data_passes(aux, state, hit, shading.closures)
+            if state.features is not None:
+                self._denoising_features(aux, state, hit, shading.closures)
             if state.min_ray_pdf is not None:
                 _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
             if self._emissive:
@@ -456,13 +460,30 @@ class Renderer:
                 indices = np.asarray(self.scene.materials.pass_indices or (0,) * self.scene.materials.count,
                                      np.float32)
                 out[0, paths] = np.take(indices, hit.mat)
-            elif name in ("normal", "denoising_normal"):
+            elif name == "normal":
                 out[:, paths] = passes.closure_normal(closures, n, hit.ns)
             elif name == "uv":
                 u, v = hit.uv_at(np.arange(n))
                 out[0, paths], out[1, paths] = u, v
-            elif name == "denoising_albedo":
-                out[:, paths] = passes.closure_albedo(closures, n)
+
+    def _denoising_features(self, aux: dict, state, hit, closures) -> None:
+        """Cycles' denoising features: written at the first hit that is not mostly specular."""
+        open_ = np.flatnonzero(~np.isnan(state.features[0]))
+        if not len(open_):
+            return
+        normal, diffuse, specular, done = passes.denoising_features(closures, len(hit), hit.ns)
+        rows = open_[done[open_]]
+        if len(rows):
+            paths = state.path[rows]
+            if "denoising_albedo" in aux:
+                aux["denoising_albedo"][:, paths] = np.clip(state.features[:, rows] * diffuse[:, rows], 0.0, 1.0)
+            if "denoising_normal" in aux:
+                rotation = self._camera_frame[1].astype(np.float32)  # columns: right, up, back
+                aux["denoising_normal"][:, paths] = (rotation.T @ normal[:, rows]) * \
+                    np.array([1, 1, -1], np.float32)[:, None]
+            state.features[:, rows] = np.nan
+        waiting = open_[~done[open_]]
+        state.features[:, waiting] *= specular[:, waiting]
 
     # ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
     def _lights_hit(self, wave, state, rays, hits):
@@ -495,12 +516,15 @@ class Renderer:
         ray = RayInfo(state.bounce[miss], state.transparent[miss], emission=True,
                       lobes=None if state.lobes is None else state.lobes[:, miss]) if self.environment.shader else None
         env = np.take(state.throughput, miss, axis=1) * self.environment.radiance(mx, my, mz, ray)
-        if wave.aux is not None and "denoising_albedo" in wave.aux:
-            # The camera sees the world: its colour is the denoiser's albedo there, as in Cycles
-            # (film_write_denoising_features_background).
-            seen = np.flatnonzero(state.bounce[miss] == 0)
+        if state.features is not None and wave.aux is not None and "denoising_albedo" in wave.aux:
+            # A path still looking for its denoising features sees the world: the world's colour times the
+            # feature throughput is its albedo, as in Cycles.
+            seen = np.flatnonzero(~np.isnan(state.features[0, miss]))
             if len(seen):
-                wave.aux["denoising_albedo"][:, state.path[miss[seen]]] = np.clip(env[:, seen], 0.0, 1.0)
+                light = self.environment.radiance(mx[seen], my[seen], mz[seen], None if ray is None else
+                                                  RayInfo(ray.depth[seen], ray.transparent[seen], emission=True))
+                wave.aux["denoising_albedo"][:, state.path[miss[seen]]] = np.clip(
+                    state.features[:, miss[seen]] * light, 0.0, 1.0)
         if wave.nee:
             mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
             if len(mis):

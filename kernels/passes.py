@@ -7,8 +7,12 @@ Two kinds, as in Cycles:
   Object Index and Material Index (the pass indices; 0 for the background).
 - MEAN: accumulated over every sample and divided by the sample count (misses count as 0): Normal (the
   closures' average normal, weighted by their sample weights), UV (u, v, 0 of the render UV map),
-  Denoising Albedo (each closure's weight times its albedo estimate, summed; at most 1) and Denoising
-  Normal (as Normal), read at the first surface hit.
+  Denoising Albedo and Denoising Normal, as Cycles' denoising features (kernel/film/denoising_passes.h):
+  read at the first hit whose closures are not mostly specular (75% or more of the sample weight in
+  closures of roughness^2 below 0.075^2: the path waits for the next bounce, its feature throughput
+  multiplied by their albedo), the albedo summed over the diffuse-like closures (each closure's weight
+  times its albedo estimate), the normal in camera space (x right, y up, z forward); where the path leaves
+  to the world, the world's colour times that throughput. Albedo is clipped to [0, 1] for the denoiser.
 """
 from __future__ import annotations
 
@@ -49,6 +53,32 @@ def closure_albedo(closures, n_hits: int) -> np.ndarray:
     for k in range(3):
         out[k] = np.bincount(closures.hit, weight[k] * scale, minlength=n_hits)
     return np.clip(out, 0.0, 1.0)
+
+
+def denoising_features(closures, n_hits: int, fallback):
+    """Per hit: (normal (3, n) sample-weighted, diffuse albedo (3, n), specular albedo (3, n), done (n,)):
+    done where the diffuse-like closures hold more than a quarter of the sample weight (or there is no
+    closure), as Cycles' film_write_denoising_features_surface decides."""
+    from .bsdf.closures import DIFFUSE_LOBES
+    normal = closure_normal(closures, n_hits, fallback)
+    diffuse = np.zeros((3, n_hits), np.float32)
+    specular = np.zeros((3, n_hits), np.float32)
+    if not len(closures):
+        return normal, diffuse, specular, np.ones(n_hits, bool)
+    weight = np.asarray(closures.weight, np.float32)
+    mean = weight.mean(axis=0)
+    sw = np.asarray(closures.sw, np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        albedo = weight * np.where(mean > 0, sw / mean, 0.0)
+    rough2 = np.broadcast_to(closures.ax, sw.shape) * np.broadcast_to(closures.ay, sw.shape)
+    diffuse_like = np.isin(closures.lobe, DIFFUSE_LOBES) | (rough2 > np.float32(0.075 ** 2))
+    for k in range(3):
+        diffuse[k] = np.bincount(closures.hit, np.where(diffuse_like, albedo[k], 0), minlength=n_hits)
+        specular[k] = np.bincount(closures.hit, np.where(diffuse_like, 0, albedo[k]), minlength=n_hits)
+    total = np.bincount(closures.hit, sw, minlength=n_hits)
+    nonspecular = np.bincount(closures.hit, np.where(diffuse_like, sw, 0), minlength=n_hits)
+    done = (total == 0) | (nonspecular * 4 > total)
+    return normal, diffuse, specular, done
 
 
 def closure_normal(closures, n_hits: int, fallback) -> np.ndarray:

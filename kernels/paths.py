@@ -25,6 +25,8 @@ class PathState:
     lobes: np.ndarray | None = None  # (4, N) int32 or None: the last bounce's LABEL_* bits and the diffuse,
     #                                  glossy and transmission bounce counts (Light Path), when read
     time: object = None     # accel.RayTimes or None: the paths' times in the shutter (motion blur)
+    features: np.ndarray | None = None  # (3, N) float32 denoising feature throughput, NaN once written
+    #                                     (kernels.passes), or None when the denoiser's passes are not recorded
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -46,6 +48,8 @@ class PathState:
             self.min_ray_pdf = np.take(self.min_ray_pdf, idx)
         if self.time is not None:
             self.time = self.time.take(idx)
+        if self.features is not None:
+            self.features = np.take(self.features, idx, axis=1)
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

@@ -143,14 +143,15 @@ def test_background_depth_and_indices():
 
 
 def test_denoising_passes_and_noisy_image():
-    """Denoising data: the albedo of a flat grey floor is its colour, its normal +Z; the Noisy Image is
-    the undenoised Combined."""
+    """Denoising data: the albedo of a flat grey floor is its colour, its normal in camera space (Cycles'
+    x right, y up, z forward) faces the camera looking down on it: z = -1; the Noisy Image is the
+    undenoised Combined."""
     scene = plane_scene()
     scene.view_layers[0].ember.denoising_store_passes = True
     engine = render(scene, samples=2, use_denoising=True)
     albedo = engine.image("Denoising Albedo")
     np.testing.assert_allclose(albedo, np.broadcast_to([0.5, 0.4, 0.3], albedo.shape), atol=1e-6)
-    np.testing.assert_allclose(engine.image("Denoising Normal")[..., 2], 1.0, atol=1e-6)
+    np.testing.assert_allclose(engine.image("Denoising Normal")[..., 2], -1.0, atol=1e-6)
     assert "Noisy Image" in engine.store
     assert not [r for r in engine.reports if r[0] == {"ERROR"}]
 
@@ -168,3 +169,22 @@ def test_passes_reach_blenders_output():
         data = open(scene.render.filepath, "rb").read()
     for name in (b"Depth", b"Normal", b"Position", b"UV", b"IndexOB", b"IndexMA"):
         assert b"ViewLayer." + name in data, name
+
+
+def test_denoising_features_look_through_a_mirror():
+    """Cycles waits for the first hit that is not mostly specular: through a mirror the denoiser's albedo
+    is the mirror's colour times what it reflects (a red wall), not the mirror's grey."""
+    scene = new_scene(16, 16)
+    cam = scene.camera
+    cam.location, cam.rotation_euler = (0.0, 0.0, 5.0), (0.0, 0.0, 0.0)
+    mirror = bpy.data.materials.new("Mirror")
+    bsdf = mirror.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Metallic"].default_value, bsdf.inputs["Roughness"].default_value = 1.0, 0.0
+    bsdf.inputs["Base Color"].default_value = (0.9, 0.9, 0.9, 1.0)
+    quad_object("Mirror", (-20, -20, 0), (40, 0, 0), (0, 40, 0), mirror)
+    quad_object("Wall", (-20, -20, 10), (0, 40, 0), (40, 0, 0), diffuse_material("Red", (0.8, 0.1, 0.1)))
+    set_world(scene, (0.5, 0.5, 0.5), 1.0)
+    scene.view_layers[0].ember.denoising_store_passes = True
+    engine = render(scene, samples=1, use_denoising=True)
+    albedo = engine.image("Denoising Albedo")
+    assert np.all(albedo[..., 0] > 0.5) and np.all(albedo[..., 1] < 0.15), albedo[8, 8]

@@ -683,3 +683,25 @@ def test_view_draw_follows_the_drawing_recipe(monkeypatch):
         assert not [c for c in calls if c[0] == "texture"]  # the same frame is not uploaded again
     finally:
         viewport.free()
+
+
+def test_viewport_previews_are_denoised_when_asked(sessions):
+    """Render > Denoise > Viewport: the finished preview is the denoised film. Inside the Cornell box at 4
+    samples, its squared error against 256-sample references (less their own variance, estimated from two
+    seeds) is at most half the noisy preview's (measured 0.31 at this tiny 64x48 size, where the denoiser
+    has little context); the same render without it keeps its noise."""
+    from ember.kernels.shapes import cornell_box
+    aux = ("denoising_albedo", "denoising_normal")
+    frames = {}
+    runs = (("noisy", 4, 0, None), ("clean", 4, 0, ("HIGH", "ACCURATE")), ("ref1", 256, 1, None), ("ref2", 256, 2, None))
+    for name, samples, seed, denoise in runs:
+        session = sessions(threads=2)
+        session.update_view(view(eye=(0, -1.9, 1.0), target=(0, 0, 1.0), width=64, height=48, lens=24.0))
+        settings = RenderSettings(samples=samples, max_bounces=2, seed=seed, passes=aux if denoise else ())
+        session.update_scene(cornell_box(64, 48), settings, denoise)
+        wait_until(lambda: not session.busy, timeout=120)
+        frames[name] = np.clip(session.snapshot().image[..., :3], 0, 1)  # the light's 15 would dominate
+    reference = (frames["ref1"] + frames["ref2"]) / 2
+    reference_variance = ((frames["ref1"] - frames["ref2"]) ** 2).mean() / 4
+    error = {name: ((frames[name] - reference) ** 2).mean() - reference_variance for name in ("noisy", "clean")}
+    assert error["clean"] < 0.5 * error["noisy"], error
