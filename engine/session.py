@@ -27,6 +27,9 @@ from .version import EMBER_VERSION
 # The Image Editor is refreshed at most this often (Cycles updates a few times a second); the first and
 # the last image always go through.
 DISPLAY_INTERVAL_S = 0.25
+# Denoised progressive display of interactive final renders: at most this often (and at most a quarter of
+# the time: PreviewDenoiser).
+PREVIEW_DENOISE_INTERVAL_S = 1.0
 # Rows go to Blender in sub-results of at most this many pixels (4 MB of float32 RGBA each).
 WRITE_CHUNK_PIXELS = 1 << 18
 # In background mode (command line, render farms) a progress line is printed at most this often.
@@ -119,6 +122,7 @@ class FinalRender:
         self.cancelled = False
         self._passes = []           # engine.passes.Pass, besides Combined
         self._denoise = False
+        self._previews = None       # denoised progressive display (interactive final renders)
         self.denoise_seconds = None
 
     def should_stop(self) -> bool:
@@ -145,6 +149,9 @@ class FinalRender:
         view_layer = self.depsgraph.view_layer
         self._passes = enabled_passes(scene, view_layer)
         self._denoise = bool(scene.ember.use_denoising)
+        if self._denoise and not _background():
+            self._previews = PreviewDenoiser((scene.ember.denoising_quality, scene.ember.denoising_prefilter),
+                                             PREVIEW_DENOISE_INTERVAL_S, render_threads(scene.render))
         settings = dataclasses.replace(settings, passes=kernel_passes(
             scene, view_layer, scene.ember.denoising_input_passes if self._denoise else None))
         engine.update_stats("", "Ember: building the scene")
@@ -161,6 +168,8 @@ class FinalRender:
             result = renderer.render(settings, on_tile=self._on_tile, should_stop=self.should_stop,
                                      on_progress=self._on_progress)
         self.cancelled = result.stopped_early and _cancel.is_set()
+        if self._previews is not None:
+            self._dirty = (0, result.film.height)  # denoised previews wrote Combined alone: every row again
         self._flush(result.film)
         if self._denoise and not self.cancelled and result.film.samples_done > 0:
             self._denoise_final(result.film)
@@ -230,6 +239,12 @@ class FinalRender:
         if self._last_display and now - self._last_display < DISPLAY_INTERVAL_S:
             return
         self._last_display = now
+        if self._previews is not None and film.samples_done > 0:
+            shown = self._previews.display(film, now)
+            if shown is not None:  # the whole region, denoised: Cycles' progressive display does the same
+                self._dirty = None
+                self._write_combined(shown, film)
+                return
         self._flush(film)
 
     def _on_progress(self, progress) -> None:
@@ -288,6 +303,39 @@ class FinalRender:
         self.engine.update_stats("", message)
         if _background():
             print(f"Ember | Frame {self.scene.frame_current} | {message}", flush=True)
+
+
+class PreviewDenoiser:
+    """Denoised previews (the viewport's, and a final render's progressive display): the whole film, at most
+    so often that denoising takes a quarter of the time; a failure turns it off for this render and the
+    noisy image is shown."""
+
+    def __init__(self, options: tuple, interval_s: float, threads: int):
+        self.quality, self.prefilter = options
+        self.interval_s, self.threads = interval_s, threads
+        self.next_s = 0.0
+        self.failed: str | None = None
+
+    def display(self, film, now: float | None) -> np.ndarray | None:
+        """The denoised film (H, W, 4), or None (not due yet, or failed): now None forces it (the end)."""
+        if self.failed is not None or (now is not None and now < self.next_s):
+            return None
+        from .denoise import denoise
+        start = time.perf_counter()
+        image = film.resolve()
+        try:
+            image[..., :3] = denoise(image[..., :3],
+                                     film.resolve_pass("denoising_albedo") if "denoising_albedo" in film.aux else None,
+                                     film.resolve_pass("denoising_normal") if "denoising_normal" in film.aux else None,
+                                     quality=self.quality, prefilter=self.prefilter, threads=self.threads)
+        except Exception as err:
+            self.failed = f"{type(err).__name__}: {err}"
+            print(f"Ember: denoised previews failed, they stay noisy: {self.failed}", flush=True)
+            return None
+        spent = time.perf_counter() - start
+        self.next_s = time.perf_counter() + max(self.interval_s, 3.0 * spent)
+        return image
+
 
 
 def _set_rect(layer, name: str, rows: np.ndarray) -> None:

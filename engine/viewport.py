@@ -27,7 +27,7 @@ from ..kernels import Camera, Renderer, RenderSettings, SceneArrays
 from ..kernels.camera import view_plane
 from .export import ExportError, export_scene
 from .export.camera import DOF_FIELDS, depth_of_field, pixel_filter
-from .session import render_settings, render_threads
+from .session import PreviewDenoiser, render_settings, render_threads
 
 # Blender's DNA defaults (DNA_camera_defaults.h): the 3D view has no sensor of its own and uses these.
 DEFAULT_SENSOR_WIDTH = 36.0
@@ -521,7 +521,7 @@ class ViewportSession:
             self._publish(job, display, 0)
         renderer.set_camera(camera.to_kernel())
         last_publish = [0.0]
-        denoiser = _PreviewDenoiser(job.denoise, self._display_interval_s, self._threads) if job.denoise else None
+        denoiser = PreviewDenoiser(job.denoise, self._display_interval_s, self._threads) if job.denoise else None
 
         def on_tile(film, row0: int, row1: int) -> None:
             if should_stop():
@@ -532,7 +532,7 @@ class ViewportSession:
             if not last_publish[0] or now - last_publish[0] >= self._display_interval_s:
                 last_publish[0] = now
                 shown = denoiser.display(film, now) if denoiser is not None and done > 0 else None
-                self._publish(job, display if shown is None else shown, done)
+                self._publish(job, display if shown is None else display_pixels(shown), done)
                 return
             with self._cond:
                 if job.generation == self._generation:
@@ -543,7 +543,8 @@ class ViewportSession:
         if result.stopped_early or should_stop():
             return
         shown = denoiser.display(result.film, None) if denoiser is not None else None
-        self._publish(job, display if shown is None else shown, result.progress.samples_done, finished=True)
+        self._publish(job, display if shown is None else display_pixels(shown), result.progress.samples_done,
+                      finished=True)
 
     def _first_display(self, height: int, width: int) -> np.ndarray:
         """The image a restart refines: the last one while the size stays (no black flash between
@@ -564,38 +565,6 @@ class ViewportSession:
             self._samples_done = int(samples_done)
             if finished:
                 self._busy = False
-
-
-class _PreviewDenoiser:
-    """Denoised previews for the viewport (Render Properties > Denoise > Viewport): the whole film at a
-    publish, at most so often that denoising takes a quarter of the worker's time; a failure turns it off
-    for this render and shows the noisy image (the status line says why)."""
-
-    def __init__(self, options: tuple, interval_s: float, threads: int):
-        self.quality, self.prefilter = options
-        self.interval_s, self.threads = interval_s, threads
-        self.next_s = 0.0
-        self.failed: str | None = None
-
-    def display(self, film, now: float | None) -> np.ndarray | None:
-        """The denoised display image, or None (not due yet, or failed): now None forces it (the end)."""
-        if self.failed is not None or (now is not None and now < self.next_s):
-            return None
-        from .denoise import denoise
-        start = time.perf_counter()
-        image = film.resolve()
-        try:
-            image[..., :3] = denoise(image[..., :3],
-                                     film.resolve_pass("denoising_albedo") if "denoising_albedo" in film.aux else None,
-                                     film.resolve_pass("denoising_normal") if "denoising_normal" in film.aux else None,
-                                     quality=self.quality, prefilter=self.prefilter, threads=self.threads)
-        except Exception as err:
-            self.failed = f"{type(err).__name__}: {err}"
-            print(f"Ember: viewport denoising failed, previews stay noisy: {self.failed}", flush=True)
-            return None
-        spent = time.perf_counter() - start
-        self.next_s = time.perf_counter() + max(self.interval_s, 3.0 * spent)
-        return display_pixels(image)
 
 
 # ====================================================================== the RenderEngine's side

@@ -188,3 +188,24 @@ def test_denoising_features_look_through_a_mirror():
     engine = render(scene, samples=1, use_denoising=True)
     albedo = engine.image("Denoising Albedo")
     assert np.all(albedo[..., 0] > 0.5) and np.all(albedo[..., 1] < 0.15), albedo[8, 8]
+
+
+def test_interactive_final_render_shows_denoised_previews(monkeypatch):
+    """With a window (not background), the progressive display of a denoised final render shows denoised
+    previews; the finished result still carries every pass and the denoised image."""
+    import ember.engine.session as session
+    monkeypatch.setattr(session, "_background", lambda: False)
+    monkeypatch.setattr(session, "DISPLAY_INTERVAL_S", 0.0)
+    monkeypatch.setattr(session, "PREVIEW_DENOISE_INTERVAL_S", 0.0)
+    shown = []
+    original = session.PreviewDenoiser.display
+
+    def spy(self, film, now):
+        image = original(self, film, now)
+        shown.append(image is not None)
+        return image
+    monkeypatch.setattr(session.PreviewDenoiser, "display", spy)
+    scene = plane_scene()
+    engine = render(scene, samples=8, use_denoising=True)
+    assert any(shown)
+    assert np.isfinite(engine.image("Combined")).all() and np.all(engine.image("Depth") == pytest.approx(5.0))
