@@ -6,6 +6,9 @@
   ones hash the same key again with an extra word 1.0 / 2.0 or with the components rotated, as Cycles does.
 - PCG (Jarzynski & Olano, int32-only variant) for Voronoi's cells: `hash_pcg2d_i` .. `hash_pcg4d_i` and
   `hash_int*_to_float*`, results in [0, 1] as float32(h) * 2^-31.
+- Whole lattices at once, into reused work arrays (`Scratch`, one per thread and user): `hash_uint_grid`
+  (Perlin's cell corners) and `hash_int_to_float_grid` (Voronoi's neighbour cells), bit-exact with the
+  functions above, in a fraction of their array passes and without allocating.
 
 Conventions: a scalar key is an array of any shape (or a Python number); a vector key (`float3`,
 `int2`, ...) is a sequence of its d component arrays, e.g. `(x, y, z)` - an array of shape (d, N) such as
@@ -14,6 +17,8 @@ each other. Vector results are tuples of d arrays. Results have the broadcast sh
 1-d (a 0-d key gives shape (1,)). uint32 and int32 arithmetic wraps like C.
 """
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 
@@ -36,10 +41,10 @@ def _as_u32(key, shape):
     return w
 
 
-def _words(keys, count: int):
+def _words(keys, count: int, shape=None):
     """lookup3's starting words: each key plus seed + (count << 2), as fresh uint32 arrays of the keys'
-    common shape (>= 1-d); also that initial value and the shape."""
-    shape = np.broadcast_shapes(*(np.shape(k) for k in keys)) or (1,)
+    common shape (>= 1-d) unless given; also that initial value and the shape."""
+    shape = shape or np.broadcast_shapes(*(np.shape(k) for k in keys)) or (1,)
     init = U32((_LOOKUP3_SEED + (count << 2)) & 0xFFFFFFFF)
     words = [_as_u32(k, shape) for k in keys]
     for w in words:
@@ -98,10 +103,145 @@ def hash_uint3(kx, ky, kz):
 
 
 def hash_uint4(kx, ky, kz, kw):
-    (a, b, c), _, shape = _words((kx, ky, kz), 4)
+    shape = np.broadcast_shapes(*(np.shape(k) for k in (kx, ky, kz, kw))) or (1,)
+    (a, b, c), _, shape = _words((kx, ky, kz), 4, shape)
     _mix(a, b, c)
     a += _as_u32(kw, shape)         # the fourth word goes in after the mix
     return _final(a, b, c)
+
+
+# ---- Work arrays; hashes of whole lattices into them --------------------------------------------------
+
+class Scratch:
+    """Work arrays reused from call to call by name: `scratch(name, shape, dtype)` is a view of a kept
+    buffer (grown when too small), so a loop over blocks allocates nothing and touches no fresh pages
+    (fresh large arrays cost page faults on every call). Views of one name share memory: each use of a
+    name overwrites what the last one left there."""
+
+    def __init__(self):
+        self._buffers, self._views = {}, {}
+        self.generation = 0         # counts buffer growths: views taken before one may be stale
+
+    def __call__(self, name: str, shape: tuple, dtype) -> np.ndarray:
+        view = self._views.get((name, shape, dtype))
+        if view is None:
+            if len(self._views) > 4096:     # a view per name and block shape seen: keep the table small
+                self._views.clear()
+            view = self._views[(name, shape, dtype)] = self._view(name, shape, dtype)
+        return view
+
+    def _view(self, name, shape, dtype):
+        size = 1
+        for n in shape:
+            size *= n
+        buf = self._buffers.get((name, dtype))
+        if buf is None or buf.size < size:
+            buf = self._buffers[(name, dtype)] = np.empty(max(size, 1), dtype)
+            self.generation += 1
+            self._views = {k: v for k, v in self._views.items() if k[0] != name or k[2] != dtype}
+        return buf[:size].reshape(shape)
+
+
+_THREAD = threading.local()
+
+
+def thread_scratch(owner: str) -> Scratch:
+    """The calling thread's Scratch for one user (the renderer shades on a pool of threads; a user's
+    arrays grow only with its own requests)."""
+    scratches = getattr(_THREAD, "scratches", None)
+    if scratches is None:
+        scratches = _THREAD.scratches = {}
+    scratch = scratches.get(owner)
+    if scratch is None:
+        scratch = scratches[owner] = Scratch()
+    return scratch
+
+
+def _broadcast_shape(x, y) -> tuple:
+    """np.broadcast_shapes for a scalar or arrays of one rank whose axes are 1 or the same size."""
+    sx, sy = np.shape(x), np.shape(y)
+    if not sx or not sy:
+        return sx or sy
+    return tuple(a if a != 1 else b for a, b in zip(sx, sy))
+
+
+class _GridWords:
+    """lookup3's rounds over words that broadcast against each other: each result takes the broadcast
+    shape of its operands, in place where the word already has that shape (and is ours to overwrite),
+    else in a scratch array of its own. Every array operation goes through call(fn, *args, **kwargs)."""
+
+    def __init__(self, scratch: Scratch, call):
+        self.scratch, self.call, self.owned = scratch, call, []
+
+    def target(self, x, y):
+        shape = _broadcast_shape(x, y)
+        if np.shape(x) == shape and any(x is o for o in self.owned):
+            return x
+        out = self.scratch(f"lookup3_word{len(self.owned)}", shape, U32)
+        self.owned.append(out)
+        return out
+
+    def rot(self, y, k: int):
+        shape = np.shape(y)
+        out, tmp = self.scratch("lookup3_rot", shape, U32), self.scratch("lookup3_rot_tmp", shape, U32)
+        self.call(np.left_shift, y, U32(k), out=out)
+        self.call(np.right_shift, y, U32(32 - k), out=tmp)
+        self.call(np.bitwise_or, out, tmp, out=out)
+        return out
+
+    def xor_sub(self, x, y, k: int):
+        """x ^= y; x -= rot(y, k) (a line of lookup3's final)."""
+        out = self.target(x, y)
+        self.call(np.bitwise_xor, x, y, out=out)
+        self.call(np.subtract, out, self.rot(y, k), out=out)
+        return out
+
+    def sub_xor(self, x, y, k: int):
+        """x -= y; x ^= rot(y, k) (the first half of a line of lookup3's mix)."""
+        out = self.target(x, y)
+        self.call(np.subtract, x, y, out=out)
+        self.call(np.bitwise_xor, out, self.rot(y, k), out=out)
+        return out
+
+    def add(self, x, y):
+        out = self.target(x, y)
+        self.call(np.add, x, y, out=out)
+        return out
+
+
+def call_now(fn, *args, **kwargs):
+    """fn(*args, **kwargs): the `call` of the functions below that take one, when nothing records."""
+    return fn(*args, **kwargs)
+
+
+def hash_uint_grid(keys, scratch: Scratch, call=call_now) -> np.ndarray:
+    """hash_uint2 .. hash_uint4 of uint32 keys that vary along different axes of one broadcast grid,
+    e.g. the corners of Perlin cells: x (2, 1, 1, N), y (1, 2, 1, N), z (1, 1, 2, N) -> (2, 2, 2, N).
+
+    Bit-exact with hash_uint{2,3,4} of the broadcast keys; each round runs on the broadcast shape of the
+    words it has read so far, so the first rounds cost a fraction of the grid (a word still depends on
+    one key at the start). The result is a scratch array, overwritten by the next call. Array operations
+    go through call(fn, *args, **kwargs) (a caller may record them to replay)."""
+    count = len(keys)
+    init = U32((_LOOKUP3_SEED + (count << 2)) & 0xFFFFFFFF)
+    g = _GridWords(scratch, call)
+    words = [g.add(k, init) for k in keys[:3]] + [init] * (3 - min(count, 3))
+    a, b, c = words
+    if count == 4:
+        a = g.sub_xor(a, c, 4); c = g.add(c, b)            # noqa: E702 - lookup3's mix, as _mix
+        b = g.sub_xor(b, a, 6); a = g.add(a, c)            # noqa: E702
+        c = g.sub_xor(c, b, 8); b = g.add(b, a)            # noqa: E702
+        a = g.sub_xor(a, c, 16); c = g.add(c, b)           # noqa: E702
+        b = g.sub_xor(b, a, 19); a = g.add(a, c)           # noqa: E702
+        c = g.sub_xor(c, b, 4); b = g.add(b, a)            # noqa: E702
+        a = g.add(a, keys[3])
+    c = g.xor_sub(c, b, 14)
+    a = g.xor_sub(a, c, 11)
+    b = g.xor_sub(b, a, 25)
+    c = g.xor_sub(c, b, 16)
+    a = g.xor_sub(a, c, 4)
+    b = g.xor_sub(b, a, 14)
+    return g.xor_sub(c, b, 24)
 
 
 def uint_to_float_incl(h):
@@ -229,43 +369,73 @@ def _mask31(lanes):
     return tuple(lanes)
 
 
+def _pcg_round(lanes, mul):
+    """One round of pcg2d / pcg3d / pcg4d on the lanes, in place; mul(a, b) gives the products."""
+    if len(lanes) == 2:
+        x, y = lanes
+        x += mul(y, _PCG_MUL)
+        y += mul(x, _PCG_MUL)
+    elif len(lanes) == 3:
+        x, y, z = lanes
+        x += mul(y, z)
+        y += mul(z, x)
+        z += mul(x, y)
+    else:
+        x, y, z, w = lanes
+        x += mul(y, w)
+        y += mul(z, x)
+        z += mul(x, y)
+        w += mul(y, z)
+
+
+def _pcg(k):
+    lanes = _int_lanes(k)
+    _pcg_round(lanes, np.multiply)
+    _xorshift16(lanes)
+    _pcg_round(lanes, np.multiply)
+    return _mask31(lanes)
+
+
 def hash_pcg2d_i(k):
-    x, y = _int_lanes(k)
-    x += y * _PCG_MUL
-    y += x * _PCG_MUL
-    _xorshift16((x, y))
-    x += y * _PCG_MUL
-    y += x * _PCG_MUL
-    return _mask31([x, y])
-
-
-def _pcg3_round(x, y, z):
-    x += y * z
-    y += z * x
-    z += x * y
+    return _pcg(k)
 
 
 def hash_pcg3d_i(k):
-    x, y, z = _int_lanes(k)
-    _pcg3_round(x, y, z)
-    _xorshift16((x, y, z))
-    _pcg3_round(x, y, z)
-    return _mask31([x, y, z])
-
-
-def _pcg4_round(x, y, z, w):
-    x += y * w
-    y += z * x
-    z += x * y
-    w += y * z
+    return _pcg(k)
 
 
 def hash_pcg4d_i(k):
-    x, y, z, w = _int_lanes(k)
-    _pcg4_round(x, y, z, w)
-    _xorshift16((x, y, z, w))
-    _pcg4_round(x, y, z, w)
-    return _mask31([x, y, z, w])
+    return _pcg(k)
+
+
+def hash_int_to_float_grid(keys, scratch: Scratch, name: str = "pcg") -> np.ndarray:
+    """hash_int{2,3,4}_to_float{2,3,4} of d int32 keys, each given as a tuple of addends that broadcast
+    together (a cell (M,) plus neighbour offsets (K, 1)): (d,) + shape float32 in [0, 1], bit-exact with
+    them, computed in scratch arrays (the result is one, valid until the next call with this name)."""
+    d = len(keys)
+    shape = np.broadcast_shapes(*(np.shape(a) for key in keys for a in key))
+    lanes = scratch(name + "_lanes", (d,) + shape, I32)
+    for lane, key in zip(lanes, keys):
+        if len(key) == 1:
+            np.copyto(lane, key[0])
+        else:
+            np.add(key[0], key[1], out=lane)
+    lanes *= _PCG_MUL
+    lanes += _PCG_ADD
+    tmp = scratch(name + "_tmp", (d,) + shape, I32)
+
+    def mul(a, b):
+        return np.multiply(a, b, out=tmp[0])
+
+    _pcg_round(list(lanes), mul)
+    np.right_shift(lanes, I32(16), out=tmp)        # arithmetic shift: Cycles' signed variant
+    lanes ^= tmp
+    _pcg_round(list(lanes), mul)
+    lanes &= I32(0x7FFFFFFF)
+    out = scratch(name + "_unit", (d,) + shape, F32)
+    np.copyto(out, lanes, casting="unsafe")
+    out *= _INT_TO_UNIT
+    return out
 
 
 def _unit31(h):

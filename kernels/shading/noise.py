@@ -16,9 +16,16 @@ constant (3,); node options are keywords with Blender's enum identifiers (`dimen
 
 Detail is a loop count. A constant Detail runs the octaves with scalar bookkeeping; a per-hit Detail runs
 to the largest count and evaluates each octave only at the hits that still need it.
+
+How it runs (a call costs far more than a point on the waves the renderer shades): every octave's points
+(and the distortion's, and the Color's channels) go to Perlin in one call; Perlin runs in blocks of
+points whose corners are broadcast grids, on per-thread work arrays, replaying NumPy calls recorded once
+per block size (_Tape); a large block of one frequency whose cells span a small box hashes the box once
+(_perlin_box). Each is the same arithmetic point by point: the results do not change.
 """
 from __future__ import annotations
 
+import threading
 from functools import lru_cache
 
 import numpy as np
@@ -44,13 +51,6 @@ def fma(a, b, c):
     r = np.multiply(a, b, dtype=np.float64)
     r += c
     return r.astype(F32)
-
-
-def _fade(t):
-    """6t^5 - 15t^4 + 10t^3 as the SIMD kernel computes it: (t t)(t b), b = fma(t, fma(t, 6, -15), 10)."""
-    b = fma(t, fma(t, F32(6.0), F32(-15.0)), F32(10.0))
-    b *= t
-    return (t * t) * b
 
 
 def _negate_if_bit(value, h, bit: int):
@@ -81,32 +81,181 @@ def _gradient_table(d: int) -> np.ndarray:
     return table
 
 
-def _gradient(h, coords):
-    """The corner gradients dotted with the offsets to the corners: (2^d, N)."""
-    table = _gradient_table(len(coords))
-    index = (h & U32(table.shape[1] - 1)).astype(np.intp)     # take() wants intp; convert once
-    out = table[0].take(index) * coords[0]
-    for row, c in zip(table[1:], coords[1:]):
-        out += row.take(index) * c
-    return out
-
-
 _HASHES = {2: H.hash_uint2, 3: H.hash_uint3, 4: H.hash_uint4}
 # The axis each interpolation step runs along, first to last (Cycles' 4D SIMD kernel mixes along w first).
 _MIX_ORDER = {2: (0, 1), 3: (0, 1, 2), 4: (3, 0, 1, 2)}
-# Corner values per block: the hashes' many passes stay in cache (about 3x faster than whole waves).
-_BLOCK = 1 << 15
+# Corner values per block: large enough that the calls' own cost fades, small enough for the cache.
+_BLOCK = 1 << 17
+_BOX_MIN = 4096       # points in a block worth trying _perlin_box for
 
 
 @lru_cache(maxsize=None)
-def _corner_offsets(d: int):
-    """(d, 2^d, 1) 0/1 lattice offsets, the corner index's high bit for the first axis interpolated."""
+def _corner_shapes(d: int) -> tuple:
+    """Per axis, the shape its two lattice planes take in the (2,) * d grid of a cell's corners: the
+    grid's first axis is the first one interpolated, so corner index bit d-1 is that axis' offset."""
     order = _MIX_ORDER[d]
-    corners = np.arange(2 ** d)
-    offsets = np.zeros((d, 2 ** d), np.int64)
-    for rank, axis in enumerate(order):
-        offsets[axis] = (corners >> (d - 1 - rank)) & 1
-    return offsets.astype(U32)[:, :, None], offsets.astype(F32)[:, :, None]
+    return tuple(tuple(2 if rank == order.index(axis) else 1 for rank in range(d)) for axis in range(d))
+
+
+def _lattice(x, s: H.Scratch, call):
+    """floor(x) (d, m) and the offsets to each axis' two lattice planes around the points, f and f - 1
+    (d, 2, m): a cell's corner takes one plane per axis."""
+    d, m = x.shape
+    floor = call(np.floor, x, out=s("floor", (d, m), F32))
+    planes = s("planes", (d, 2, m), F32)
+    call(np.subtract, x, floor, out=planes[:, 0])
+    call(np.subtract, planes[:, 0], ONE, out=planes[:, 1])
+    return floor, planes
+
+
+def _interpolate(gradients, index, planes, out, s: H.Scratch, call):
+    """Perlin's corner values and their interpolation into out (m,): the corner gradients, rows of
+    gradients (d, G) at index (2^d, m), dotted with the offsets to the corners in axis order (as
+    _gradient_table), then faded and mixed, each mix a multiply-add fused as the kernel's (fma). The
+    corners form a broadcast grid (2,) * d + (m,) (_corner_shapes): one call per step for all of them."""
+    d, _, m = planes.shape
+    shapes = [shape + (m,) for shape in _corner_shapes(d)]
+    corners, grid = (2 ** d, m), (2,) * d + (m,)
+    g, term = s("corner", corners, F32), s("corner_term", corners, F32)
+    for k in range(d):
+        dst = g if k == 0 else term
+        call(np.take, gradients[k], index, out=dst, mode="wrap")    # in range: "wrap" skips the check
+        call(np.multiply, dst.reshape(grid), planes[k].reshape(shapes[k]), out=dst.reshape(grid))
+        if k:
+            call(np.add, g, term, out=g)
+
+    frac = planes[:, 0]
+    fade, wide = s("fade", (d, m), F32), s("fade64", (d, m), np.float64)
+    call(np.multiply, frac, F32(6.0), dtype=np.float64, out=wide)
+    call(np.add, wide, F32(-15.0), out=wide)
+    call(np.copyto, fade, wide, casting="same_kind")
+    call(np.multiply, frac, fade, dtype=np.float64, out=wide)
+    call(np.add, wide, F32(10.0), out=wide)
+    call(np.copyto, fade, wide, casting="same_kind")
+    call(np.multiply, fade, frac, out=fade)
+    square = call(np.multiply, frac, frac, out=s("fade_sq", (d, m), F32))
+    call(np.multiply, square, fade, out=fade)
+    rows = 2 ** d
+    for axis in _MIX_ORDER[d]:
+        rows //= 2
+        lo, hi = g[:rows], g[rows:2 * rows]
+        diff = call(np.subtract, hi, lo, out=s("mix_diff", (rows, m), F32))
+        mixed = call(np.multiply, fade[axis], diff, dtype=np.float64, out=s("mix64", (rows, m), np.float64))
+        call(np.add, mixed, lo, out=mixed)
+        call(np.copyto, lo if rows > 1 else out, mixed if rows > 1 else mixed[0], casting="same_kind")
+
+
+def _perlin_block(x, out, s: H.Scratch, call):
+    """Perlin noise at the m points x (d, m) float32 into out (m,), in work arrays from s; every array
+    operation goes through call(fn, *args, **kwargs) (a _Tape). Hashes every cell corner."""
+    d, m = x.shape
+    floor, planes = _lattice(x, s, call)
+    keys = s("keys", (d, 2, m), U32)                  # the two planes' lattice coordinates per axis
+    call(np.copyto, keys[:, 0].view(I32), floor, casting="unsafe")   # beyond int32: INT_MIN, as Cycles sees
+    call(np.add, keys[:, 0], U32(1), out=keys[:, 1])
+    shapes = [shape + (m,) for shape in _corner_shapes(d)]
+    h = H.hash_uint_grid([keys[k].reshape(shapes[k]) for k in range(d)], s, call)
+    table = _gradient_table(d)
+    index = s("grad_index", (2 ** d, m), np.intp)
+    call(np.bitwise_and, h.reshape(2 ** d, m), U32(table.shape[1] - 1), out=index)
+    _interpolate(table, index, planes, out, s, call)
+
+
+def _perlin_box(x, out) -> bool:
+    """Perlin noise at the m points x (d, m) into out (m,) by hashing once the box of lattice points
+    their cells span, when it has at most a quarter as many points as the cells have corners (points
+    on a surface at a low frequency share most corners); the corner gradients are then gathered from
+    the box's. Same values as _perlin_block. False, with nothing done, when the box is too large."""
+    d, m = x.shape
+    s = H.thread_scratch("perlin_box")
+    floor, planes = _lattice(x, s, H.call_now)
+    lo, hi = floor.min(axis=1).astype(np.float64), floor.max(axis=1).astype(np.float64)
+    if not (np.all(lo >= -2.0 ** 31) and np.all(hi < 2.0 ** 31 - 1)):     # NaN, or cells int32 can't hold
+        return False
+    dims = (hi - lo + 2).astype(np.int64)             # the cells' lattice points, far corners included
+    if np.prod(dims.astype(np.float64)) > (2 ** d * m) // 4:
+        return False
+    size, lo = int(np.prod(dims)), lo.astype(np.int64)
+    strides = np.ones(d, np.int64)
+    for k in range(d - 2, -1, -1):
+        strides[k] = strides[k + 1] * dims[k + 1]
+    keys = [((lo[k] + np.arange(dims[k])) & 0xFFFFFFFF).astype(U32).reshape([-1 if a == k else 1 for a in range(d)])
+            for k in range(d)]
+    table = _gradient_table(d)
+    box_index = _HASHES[d](*keys).reshape(size) & U32(table.shape[1] - 1)
+    gradients = [row.take(box_index.astype(np.intp)) for row in table]
+
+    cells = np.empty((d, m), np.int64)
+    np.copyto(cells, floor, casting="unsafe")
+    cells -= lo[:, None]
+    cells *= strides[:, None]
+    corner_offsets = np.zeros((2,) * d, np.int64)
+    for k, shape in enumerate(_corner_shapes(d)):
+        corner_offsets += np.array([0, strides[k]]).reshape(shape)
+    index = s("box_index", (2 ** d, m), np.intp)
+    np.add(cells.sum(axis=0), corner_offsets.reshape(-1, 1), out=index)
+    _interpolate(gradients, index, planes, out, s, H.call_now)
+    return True
+
+
+class _Tape:
+    """NumPy calls recorded once and replayed. A Perlin block of one size is the same ~80 calls on the
+    same work arrays every time; replaying them skips the Python that chose them (shapes, views,
+    names), which costs more than the calls themselves on small blocks."""
+
+    def __init__(self):
+        self.steps = []
+
+    def __call__(self, fn, *args, **kwargs):
+        self.steps.append((fn, args, kwargs))
+        return fn(*args, **kwargs)
+
+    def replay(self):
+        for fn, args, kwargs in self.steps:
+            fn(*args, **kwargs)
+
+
+_PLANS = threading.local()
+
+
+@lru_cache(maxsize=None)
+def _block_sizes(step: int) -> tuple:
+    """The block sizes tapes are recorded for: steps of sqrt(2) from 32 to `step` (a block of m points
+    runs on the next size up, so padding costs at most 41% on the last, partial block of a call)."""
+    sizes, size = {step}, 32.0
+    while size < step:
+        sizes.add(min(int(np.ceil(size / 16)) * 16, step))
+        size *= 2 ** 0.5
+    return tuple(sorted(sizes))
+
+
+def _plan(d: int, m: int):
+    """(tape, input (d, M), output (M,)) of the recorded Perlin block that runs m points, per thread.
+    Tapes hold views of the thread's scratch arrays, sized by the largest block, recorded first; should
+    the arrays grow all the same, the tapes recorded before are dropped (and recorded again when next
+    needed), so that none keeps a superseded array alive."""
+    s = H.thread_scratch("perlin")
+    if getattr(_PLANS, "generation", None) != s.generation:
+        _PLANS.plans, _PLANS.generation = {}, s.generation
+    sizes = _block_sizes(_BLOCK >> d)
+    size = next(b for b in sizes if b >= m)
+    plan = _PLANS.plans.get((d, size))
+    if plan is None:
+        if (d, sizes[-1]) not in _PLANS.plans:
+            _PLANS.plans[(d, sizes[-1])] = _record(d, sizes[-1], s)
+        plan = _PLANS.plans[(d, size)] = _record(d, size, s)
+        if _PLANS.generation != s.generation:
+            _PLANS.plans, _PLANS.generation = {(d, size): plan}, s.generation
+    return plan
+
+
+def _record(d: int, size: int, s: H.Scratch):
+    x = s("perlin_in", (d, size), F32)
+    x[...] = ZERO
+    out = s("perlin_out", (size,), F32)
+    tape = _Tape()
+    _perlin_block(x, out, s, tape)
+    return tape, x, out
 
 
 def _floorfrac(x):
@@ -125,37 +274,42 @@ def _grad1(h):
 
 def _perlin_1d(x):
     fx, cell = _floorfrac(x)
-    g0, g1 = _grad1(H.hash_uint(cell)), _grad1(H.hash_uint(cell + U32(1)))
+    g0, g1 = _grad1(H.hash_uint(np.stack([cell, cell + U32(1)])))    # both neighbours in one hash
     # The scalar kernel's fade, ((t t) t) b, and its contraction of mix(g0 fx, g1 (fx - 1), u).
     u = fma(fx, fma(fx, F32(6.0), F32(-15.0)), F32(10.0))
     u *= (fx * fx) * fx
     return fma(g0, fx, u * fma(-g0, fx, g1 * (fx - ONE)))
 
 
-def _perlin_nd(p):
-    d = len(p)
-    frac, cell = zip(*(_floorfrac(c) for c in p))
-    int_off, float_off = _corner_offsets(d)
-    h = _HASHES[d](*(c + o for c, o in zip(cell, int_off)))           # (2^d, N) corner hashes
-    g = _gradient(h, [f - o for f, o in zip(frac, float_off)])        # (2^d, N) corner values
-    for axis in _MIX_ORDER[d]:
-        half = len(g) // 2
-        lo, hi = g[:half], g[half:]
-        g = fma(_fade(frac[axis]), hi - lo, lo)                        # mix: lo + t (hi - lo), fused
-    return g[0]
+def _rows(p) -> np.ndarray:
+    """Coordinates as one (d, N) float32 array (a copy unless p already is one)."""
+    if isinstance(p, np.ndarray) and p.ndim == 2 and p.dtype == F32:
+        return p
+    return np.stack([np.asarray(c, F32) for c in p])
 
 
-def perlin(p):
-    """Unscaled signed Perlin noise at p = (x,) .. (x, y, z, w), each (N,) float32 -> (N,) float32."""
-    d = len(p)
+def perlin(p, cuts=()):
+    """Unscaled signed Perlin noise at p = (x,) .. (x, y, z, w), each (N,) float32 -> (N,) float32
+    (or p a (d, N) float32 array). Blocks start at the offsets `cuts` too (where a set of points at one
+    frequency begins: see _perlin_box)."""
+    x = _rows(p)
+    d, n = x.shape
     if d == 1:
-        return _perlin_1d(p[0])
-    n, step = len(p[0]), _BLOCK >> d
-    if n <= step:
-        return _perlin_nd(p)
+        return _perlin_1d(x[0])
     out = np.empty(n, F32)
-    for s in range(0, n, step):
-        out[s:s + step] = _perlin_nd(tuple(c[s:s + step] for c in p))
+    step = _BLOCK >> d
+    bounds = sorted({0, n, *(c for c in cuts if 0 < c < n)})
+    starts = [a for lo, hi in zip(bounds, bounds[1:]) for a in range(lo, hi, step)]
+    with np.errstate(invalid="ignore"):
+        for a, b in zip(starts, starts[1:] + [n]):
+            m = b - a
+            if m >= _BOX_MIN and _perlin_box(x[:, a:b], out[a:b]):
+                continue
+            tape, block_in, block_out = _plan(d, m)
+            block_in[:, :m] = x[:, a:b]
+            block_in[:, m:] = ZERO
+            tape.replay()
+            out[a:b] = block_out[:m]
     return out
 
 
@@ -179,8 +333,9 @@ def _wrap(c, d: int):
     return out
 
 
-def _perlin_wrapped(p):
-    return perlin(tuple(_wrap(c, len(p)) for c in p))
+def _perlin_wrapped(p, cuts=()):
+    x = _rows(p)
+    return perlin(_wrap(x, len(x)), cuts)
 
 
 def snoise(p):
@@ -190,10 +345,38 @@ def snoise(p):
     return r
 
 
-def _snoise_plus(live, p, offset):
+def _noise_at(jobs, scaled=True):
+    """Noise at several point sets in one Perlin call (its cost per call is far above its cost per
+    point): jobs = [(live, p)], p d component arrays (N,), live a mask of the hits to evaluate (None: all).
+    Per job (N,) float32: snoise(p), or the wrapped unscaled Perlin if not `scaled`; 0 off `live`."""
+    d = len(jobs[0][1])
+    picked = [p if live is None else tuple(c[live] for c in p) for live, p in jobs]
+    sizes = [len(p[0]) for p in picked]
+    x = np.empty((d, sum(sizes)), F32)
+    for k in range(d):
+        np.concatenate([p[k] for p in picked], out=x[k])
+    ends = np.cumsum(sizes)
+    cuts = [c for size, end in zip(sizes, ends) if size >= _BOX_MIN for c in (end - size, end)]
+    r = _perlin_wrapped(x, cuts)
+    if scaled:
+        r *= NOISE_SCALE[d]
+    out, start = [], 0
+    for (live, p), q in zip(jobs, picked):
+        part = r[start:start + len(q[0])]
+        start += len(q[0])
+        if live is not None:
+            part, values = np.zeros(p[0].shape, F32), part
+            part[live] = values
+        out.append(part)
+    return out
+
+
+def _snoise_plus(live, p, offset, raw=None):
     """snoise(p) + offset at the hits in `live`, with the scale's multiply fused into the add as
-    Cycles' inlined snoise is compiled."""
-    return fma(NOISE_SCALE[len(p)], _on(live, p, _perlin_wrapped), offset)
+    Cycles' inlined snoise is compiled. raw: the wrapped unscaled Perlin there if already computed."""
+    if raw is None:
+        raw = _on(live, p, _perlin_wrapped)
+    return fma(NOISE_SCALE[len(p)], raw, offset)
 
 
 # ---- Fractals (fractal_noise.h) -------------------------------------------------------------------
@@ -261,24 +444,37 @@ def _prepare(p, detail, *params):
     return p, _Octaves(detail, len(p[0])), tuple(np.asarray(x, F32) for x in params)
 
 
+def _progression(p, lives, lacunarity):
+    """The octaves' points when each octave scales the last one's by lacunarity (at its live hits):
+    len(lives) + 1 coordinate tuples, the first p itself."""
+    points = [p]
+    for live in lives:
+        points.append(tuple(_keep(live, c * lacunarity, c) for c in points[-1]))
+    return points
+
+
 def fbm(p, detail, roughness, lacunarity, normalize=True):
     """Fractal Brownian motion: octaves of snoise(lacunarity^i p) with amplitudes roughness^i."""
     p, octaves, (roughness, lacunarity) = _prepare(p, detail, roughness, lacunarity)
-    fscale, amp, maxamp, total = ONE, ONE, ZERO, ZERO
-    for i in range(octaves.count):
-        live = octaves.live(i)
-        t = _on(live, _scaled(p, fscale))
+    lives = [octaves.live(i) for i in range(octaves.count)]
+    has = octaves.remainder()
+    fscales = [ONE]
+    for live in lives:
+        fscales.append(_keep(live, fscales[-1] * lacunarity, fscales[-1]))
+    jobs = [(live, _scaled(p, fscale)) for live, fscale in zip(lives, fscales)]
+    if has is not False:
+        jobs.append((has, _scaled(p, fscales[-1])))
+    noise = _noise_at(jobs) if jobs else []
+    amp, maxamp, total = ONE, ZERO, ZERO
+    for live, t in zip(lives, noise):
         total = _keep(live, fma(t, amp, total), total)
         maxamp = _keep(live, maxamp + amp, maxamp)
         amp = _keep(live, amp * roughness, amp)
-        fscale = _keep(live, fscale * lacunarity, fscale)
     total = np.broadcast_to(np.asarray(total, F32), p[0].shape)
     with np.errstate(divide="ignore", invalid="ignore"):     # detail < 0: Cycles divides 0 by 0 too
         out = HALF * total / maxamp + HALF if normalize else total
-        has = octaves.remainder()
         if has is not False:
-            t = _on(has, _scaled(p, fscale))
-            total2 = fma(t, amp, total)
+            total2 = fma(noise[-1], amp, total)
             if normalize:
                 extra = HALF * total2 / (maxamp + amp) + HALF
             else:
@@ -290,34 +486,35 @@ def fbm(p, detail, roughness, lacunarity, normalize=True):
 def multi_fractal(p, detail, roughness, lacunarity):
     """Multifractal: the product of (1 + roughness^i snoise(lacunarity^i p))."""
     p, octaves, (roughness, lacunarity) = _prepare(p, detail, roughness, lacunarity)
+    lives = [octaves.live(i) for i in range(octaves.count)]
+    has = octaves.remainder()
+    points = _progression(p, lives, lacunarity)
+    jobs = list(zip(lives, points)) + ([(has, points[-1])] if has is not False else [])
+    noise = _noise_at(jobs) if jobs else []
     value, pwr = ONE, ONE
-    for i in range(octaves.count):
-        live = octaves.live(i)
-        t = _on(live, p)
+    for live, t in zip(lives, noise):
         value = _keep(live, value * fma(pwr, t, ONE), value)
         pwr = _keep(live, pwr * roughness, pwr)
-        p = tuple(_keep(live, c * lacunarity, c) for c in p)
-    has = octaves.remainder()
     if has is not False:
-        t = _on(has, p)
-        value = _keep(has, value * fma(octaves.rmd * pwr, t, ONE), value)
+        value = _keep(has, value * fma(octaves.rmd * pwr, noise[-1], ONE), value)
     return np.broadcast_to(np.asarray(value, F32), p[0].shape).copy()
 
 
 def hetero_terrain(p, detail, roughness, lacunarity, offset):
     """Heterogeneous terrain: octaves scaled by the value so far."""
     p, octaves, (roughness, lacunarity, offset) = _prepare(p, detail, roughness, lacunarity, offset)
-    pwr = roughness
-    value = _snoise_plus(None, p, offset)
-    p = _scaled(p, lacunarity)
-    for i in range(1, octaves.count):
-        live = octaves.live(i)
-        value = _keep(live, fma(_snoise_plus(live, p, offset) * pwr, value, value), value)
-        pwr = _keep(live, pwr * roughness, pwr)
-        p = tuple(_keep(live, c * lacunarity, c) for c in p)
+    lives = [octaves.live(i) for i in range(1, octaves.count)]
     has = octaves.remainder()
+    points = [p] + _progression(_scaled(p, lacunarity), lives, lacunarity)
+    jobs = [(None, p)] + list(zip(lives, points[1:])) + ([(has, points[-1])] if has is not False else [])
+    raw = _noise_at(jobs, scaled=False)
+    pwr = roughness
+    value = _snoise_plus(None, p, offset, raw[0])
+    for live, q, r in zip(lives, points[1:], raw[1:]):
+        value = _keep(live, fma(_snoise_plus(live, q, offset, r) * pwr, value, value), value)
+        pwr = _keep(live, pwr * roughness, pwr)
     if has is not False:
-        increment = _snoise_plus(has, p, offset) * pwr * value
+        increment = _snoise_plus(has, points[-1], offset, raw[-1]) * pwr * value
         value = _keep(has, fma(octaves.rmd, increment, value), value)
     return np.asarray(value, F32)
 
@@ -354,15 +551,16 @@ def ridged_multi_fractal(p, detail, roughness, lacunarity, offset, gain):
     """Ridged multifractal: squared (offset - |snoise|) ridges, each octave weighted by the last.
     No fractional octave: Cycles ignores the fraction of Detail here."""
     p, octaves, (roughness, lacunarity, offset, gain) = _prepare(p, detail, roughness, lacunarity, offset, gain)
+    lives = [octaves.live(i) for i in range(1, octaves.count)]
+    points = _progression(p, lives, lacunarity)
+    noise = _noise_at([(None, p)] + list(zip(lives, points[1:])))
     pwr = roughness
-    signal = offset - np.abs(snoise(p))
+    signal = offset - np.abs(noise[0])
     signal = signal * signal
     value = signal
-    for i in range(1, octaves.count):
-        live = octaves.live(i)
-        p = tuple(_keep(live, c * lacunarity, c) for c in p)
+    for live, t in zip(lives, noise[1:]):
         weight = np.clip(signal * gain, ZERO, ONE)
-        s = offset - np.abs(_on(live, p))
+        s = offset - np.abs(t)
         s = s * s * weight
         signal = _keep(live, s, signal)
         value = _keep(live, fma(s, pwr, value), value)
@@ -448,14 +646,21 @@ def noise_texture(vector, w=0.0, scale=5.0, detail=2.0, roughness=0.5, lacunarit
     distortion = np.asarray(distortion, F32)
     if distortion.any():
         # Cycles skips this where distortion is 0; adding 0 * snoise leaves p unchanged all the same.
-        p = tuple(_distort(c, snoise(_shift(p, axis)), distortion, d, axis) for axis, c in enumerate(p))
-    args = (detail, roughness, lacunarity, offset, gain, noise_type, normalize)
-    fac = fractal(p, *args)
-    result = {"Fac": fac} if "Fac" in outputs else {}
-    if "Color" in outputs:
-        seed = d   # the distortion used seeds 0 .. d-1; the colour's channels take the next two
-        result["Color"] = np.stack([fac, fractal(_shift(p, seed), *args),
-                                    fractal(_shift(p, seed + 1), *args)], axis=1)
+        shifted = _noise_at([(None, _shift(p, axis)) for axis in range(d)])
+        p = tuple(_distort(c, s, distortion, d, axis) for axis, (c, s) in enumerate(zip(p, shifted)))
+    params = (detail, roughness, lacunarity, offset, gain)
+    options = (noise_type, normalize)
+    if "Color" not in outputs:
+        return {"Fac": fractal(p, *params, *options)} if "Fac" in outputs else {}
+    # The colour's channels are the Fac and two more fractals at shifted points (the distortion used
+    # seeds 0 .. d-1, the colour takes the next two): one fractal over the three point sets end to end.
+    seed = d
+    points = [p, _shift(p, seed), _shift(p, seed + 1)]
+    stacked = tuple(np.concatenate(axis) for axis in zip(*points))
+    params = tuple(np.tile(x, 3) if x.size > 1 else x for x in params)
+    channels = fractal(stacked, *params, *options).reshape(3, n)
+    result = {"Fac": channels[0]} if "Fac" in outputs else {}
+    result["Color"] = np.ascontiguousarray(channels.T)
     return result
 
 

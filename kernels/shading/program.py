@@ -29,15 +29,19 @@ class HitInputs:
         self._cache = {}
         self._shift = shift
 
-    def shifted(self, db1: np.ndarray, db2: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> "HitInputs":
-        """The same hits moved across their triangles (edges e1, e2 (n, 3)) by barycentric steps (db1, db2):
-        position, UVs and attributes follow, normals and the viewer direction stay (the Bump node's offset
-        evaluations)."""
-        out = HitInputs(self.scene, self.hit, self.idx, (db1, db2))
+    def shifted(self, steps, e1: np.ndarray, e2: np.ndarray) -> "HitInputs":
+        """The same hits moved across their triangles (edges e1, e2 (n, 3)), once per barycentric step
+        (db1, db2) of `steps`, as one set of len(steps) n hits end to end: position, UVs and attributes
+        follow, normals and the viewer direction stay (the Bump node's offset evaluations, run together:
+        every op works hit by hit, so each copy gets what a run of its own would)."""
+        copies = len(steps)
+        db1, db2 = (np.concatenate([step[k] for step in steps]) for k in (0, 1))
+        out = HitInputs(self.scene, self.hit, np.tile(self.idx, copies), (db1, db2))
         for key in ("N", "Ng", "I", "D", "backfacing", "prim", "objects"):
             if key in self._cache:
-                out._cache[key] = self._cache[key]
-        out._cache["P"] = (self.P + db1[:, None] * e1 + db2[:, None] * e2).astype(F32)
+                out._cache[key] = np.concatenate([self._cache[key]] * copies)
+        out._cache["P"] = np.concatenate([(self.P + b1[:, None] * e1 + b2[:, None] * e2).astype(F32)
+                                          for b1, b2 in steps])
         return out
 
     def memo(self, key, compute):
@@ -178,8 +182,8 @@ class ProgramRun:
         dpdx, dpdy = a * dp, b * dp
         h_c = self.value(height)
         e1, e2 = hits.hit.edges(hits.idx)
-        h_x, h_y = (ProgramRun(self.program, hits.shifted(*_barycentric_step(e1, e2, d * width[:, None]), e1, e2),
-                               self._ops).value(height) for d in (dpdx, dpdy))
+        steps = [_barycentric_step(e1, e2, d * width[:, None]) for d in (dpdx, dpdy)]
+        h_x, h_y = np.split(ProgramRun(self.program, hits.shifted(steps, e1, e2), self._ops).value(height), 2)
         rx = np.cross(dpdy, normal_in)
         ry = np.cross(normal_in, dpdx)
         det = np.einsum("ij,ij->i", dpdx, rx)

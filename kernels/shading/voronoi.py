@@ -14,10 +14,13 @@ first cell with a strictly smaller distance, in the loop order x fastest; F1 com
 sums over components pair up as Cycles' SIMD does ((x+y)+z, (x+y)+(z+w)). Distance to Edge and N-Sphere
 Radius are always Euclidean, and 1D is always |a - b|, whatever the metric.
 
-Work is organised per neighbour cell over all hits (component arrays, no (N, K) tables), so memory stays
-O(N); cost is 3^d cells per octave (1D 3, 2D 9, 3D 27, 4D 81), Smooth F1 5^d (4D: 625 cells per octave).
-For 65k hits (2 cores), per octave: 3D F1 ~30 ms, F2 ~40 ms, Smooth F1 ~120 ms, Distance to Edge and
-N-Sphere Radius ~50 ms; 4D F1 ~65 ms, Smooth F1 ~0.9 s.
+Cost is 3^d cells per octave (1D 3, 2D 9, 3D 27, 4D 81), Smooth F1 5^d (4D: 625 cells per octave). F1,
+F2, Distance to Edge and N-Sphere Radius take all 3^d neighbours at once, as (3^d, hits) tables for
+chunks of hits (_Hood, in reused work arrays: a wave's call costs tens of NumPy calls, not thousands);
+when the hits' cells span a small box (a low frequency on a surface) its cells are hashed once and
+gathered. Smooth F1 runs neighbour by neighbour over all hits, so memory stays O(N). For 65k hits
+spread over a wide range (one thread), per octave: 3D F1 ~30 ms, F2 ~35 ms, Smooth F1 ~115 ms,
+Distance to Edge ~40 ms, N-Sphere Radius ~50 ms; 4D F1 ~80 ms, Smooth F1 ~1.1 s.
 """
 from __future__ import annotations
 
@@ -26,13 +29,14 @@ import itertools
 import numpy as np
 
 from .hash import (hash_float_to_float, hash_float_to_float3, hash_int2_to_float2, hash_int2_to_float3,
-                   hash_int3_to_float3, hash_int4_to_float4)
+                   hash_int3_to_float3, hash_int4_to_float4, hash_int_to_float_grid, thread_scratch)
 
 F32, I32 = np.float32, np.int32
 ZERO, HALF, ONE, TWO = F32(0.0), F32(0.5), F32(1.0), F32(2.0)
 FLT_MAX = F32(np.finfo(np.float32).max)
 EDGE_EPSILON = F32(0.0001)        # bisectors of points closer than sqrt of this are skipped
 FIRST_DISTANCE = F32(8.0)          # fractal Distance to Edge starts from this
+_CHUNK = 1 << 16                   # neighbour values per (K, hits) array (a chunk of hits)
 
 DIMENSIONS = {"1D": 1, "2D": 2, "3D": 3, "4D": 4}
 FEATURES = ("F1", "F2", "SMOOTH_F1", "DISTANCE_TO_EDGE", "N_SPHERE_RADIUS")
@@ -187,6 +191,110 @@ class _Cells:
         """The neighbour's point relative to this cell: offset + hash * randomness (d arrays)."""
         return [_as_f32(o) + c * self.randomness for o, c in zip(offset, h)]
 
+    def part(self, lo: int, hi: int) -> "_Cells":
+        """The same cells for hits lo:hi."""
+        part = _Cells.__new__(_Cells)
+        part.d, part.randomness = self.d, _take(self.randomness, slice(lo, hi))
+        part.floor, part.local = [f[lo:hi] for f in self.floor], [c[lo:hi] for c in self.local]
+        part.key = self.key[lo:hi] if self.d == 1 else [k[lo:hi] for k in self.key]
+        return part
+
+    def around(self, table: np.ndarray) -> "_Hood":
+        """Every neighbour of an offset table at once (kept: several passes read the same table)."""
+        if getattr(self, "_hood_table", None) is not table:
+            self._hood, self._hood_table = _Hood(self, table), table
+        return self._hood
+
+
+class _Hood:
+    """The K neighbours of an offset table (K, d) for all M hits, as d arrays (K, M): hashes `hash`,
+    points `point` relative to the hit's cell, and `diff` = point - local. One array operation per
+    step for all neighbours, computed as the per-neighbour scan computes each (offset (K, 1) broadcast
+    against the hits), so every value is the same bit for bit.
+
+    2D-4D keep them in the thread's scratch arrays: valid until the next _Hood (one is read at a time)."""
+
+    def __init__(self, cells: _Cells, table: np.ndarray):
+        self.table = table
+        offset = [np.ascontiguousarray(table[:, k, None]) for k in range(cells.d)]
+        if cells.d == 1:
+            self.hash = cells.hash(offset)
+            self.point = cells.point(offset, self.hash)
+            self.diff = [pc - lc for pc, lc in zip(self.point, cells.local)]
+            return
+        scratch = thread_scratch("voronoi")
+        shape = (cells.d, len(table), len(cells.local[0]))
+        self.hash = _box_hashes(cells.key, table, scratch)
+        if self.hash is None:
+            self.hash = hash_int_to_float_grid([(k, o) for k, o in zip(cells.key, offset)], scratch, "voronoi")
+        self.point = scratch("voronoi_point", shape, F32)
+        self.diff = scratch("voronoi_diff", shape, F32)
+        for h, p, diff, o, local in zip(self.hash, self.point, self.diff, offset, cells.local):
+            np.multiply(h, cells.randomness, out=p)
+            p += o.astype(F32)                          # o + h r, as Cells.point
+            np.subtract(p, local, out=diff)
+
+    def offsets(self, k: np.ndarray):
+        """The offsets of rows k (M,) as d int32 arrays."""
+        return _columns(self.table, k)
+
+
+def _box_hashes(keys, table: np.ndarray, scratch):
+    """The neighbours' cell hashes (d, K, M) gathered from the hashes of the box of cells around the
+    hits, computed once, if that box has at most a quarter as many cells as there are neighbours
+    (hits on a surface at a low frequency share most of them); None otherwise."""
+    d, k, m = len(keys), len(table), len(keys[0])
+    reach = int(table.max())
+    lo = np.array([key.min() for key in keys], np.int64) - reach
+    dims = np.array([key.max() for key in keys], np.int64) + reach - lo + 1
+    if np.prod(dims.astype(np.float64)) * 4 > k * m:
+        return None
+    lattice = [(lo[a] + np.arange(dims[a])).astype(I32).reshape([-1 if b == a else 1 for b in range(d)])
+               for a in range(d)]             # int32 wraps as the cell + offset sums do
+    box = hash_int_to_float_grid([(c,) for c in lattice], scratch, "voronoi_box").reshape(d, -1)
+    strides = np.ones(d, np.int64)
+    for a in range(d - 2, -1, -1):
+        strides[a] = strides[a + 1] * dims[a + 1]
+    base = sum((key.astype(np.int64) - lo[a]) * strides[a] for a, key in enumerate(keys))
+    index = np.add.outer(table.astype(np.int64) @ strides, base)
+    out = scratch("voronoi_box_gather", (d, k, m), F32)
+    for a in range(d):
+        np.take(box[a], index, out=out[a], mode="wrap")         # in range: "wrap" skips the check
+    return out
+
+
+def _in_chunks(fn, cells: _Cells, *args):
+    """fn(cells, *args) for chunks of the hits small enough that its neighbour tables (3^d, chunk) stay
+    in cache, the results joined (a _Metric among args is cut with the hits)."""
+    m, step = len(cells.local[0]), max(_CHUNK // 3 ** cells.d, 1)
+    if m <= step:
+        return fn(cells, *args)
+    parts = [fn(cells.part(lo, lo + step), *(a.take(slice(lo, lo + step)) if isinstance(a, _Metric) else a
+                                             for a in args))
+             for lo in range(0, m, step)]
+    return _join(parts)
+
+
+def _join(parts):
+    """Per-hit results of chunks, end to end: arrays, or tuples and lists of them (None stays None)."""
+    if parts[0] is None:
+        return None
+    if isinstance(parts[0], (tuple, list)):
+        return type(parts[0])(_join(list(p)) for p in zip(*parts))
+    return np.concatenate(parts)
+
+
+def _pick(rows, k: np.ndarray):
+    """Row k[m] of each (K, M) array at each hit m: d arrays (M,)."""
+    return [np.take_along_axis(a, k[None, :], axis=0)[0] for a in rows]
+
+
+def _first_min(values: np.ndarray) -> np.ndarray:
+    """(M,) the row of each column's smallest of values (K, M), the first of equals, as Cycles' scan
+    `if (d < best)` from best = FLT_MAX finds it: NaN and values >= FLT_MAX never win, and a column
+    without a winner gives row 0."""
+    return np.argmin(np.where(values < FLT_MAX, values, F32(np.inf)), axis=0)
+
 
 def _as_f32(o):
     return F32(o) if np.ndim(o) == 0 else o.astype(F32)
@@ -201,54 +309,41 @@ def _columns(table: np.ndarray, idx: np.ndarray):
 # ---- One octave --------------------------------------------------------------------------------------
 
 def _nearest(cells: _Cells, distance_of):
-    """Each hit's nearest neighbour cell under distance_of (per-component point - local -> (M,)) as
-    d int32 offset arrays: the first of equals, as Cycles' strict-< scan in its loop order."""
-    table = _NEIGHBOURS[cells.d]
-    best = np.full(cells.local[0].shape, FLT_MAX, F32)
-    best_k = np.zeros(best.shape, np.int16)
-    for k, off in enumerate(table):
-        off = tuple(int(o) for o in off)
-        p = cells.point(off, cells.hash(off))
-        dist = distance_of([pc - lc for pc, lc in zip(p, cells.local)])
-        closer = dist < best
-        np.copyto(best, dist, where=closer)
-        np.copyto(best_k, k, where=closer)
-    return _columns(table, best_k)
+    """Each hit's nearest neighbour cell under distance_of (per-component point - local -> (K, M)) as
+    its row in the neighbour table: the first of equals, as Cycles' strict-< scan in its loop order."""
+    hood = cells.around(_NEIGHBOURS[cells.d])
+    return hood, _first_min(distance_of(hood.diff))
 
 
 def _f1(cells: _Cells, metric: _Metric, want_color: bool):
-    return _winner(cells, metric, _nearest(cells, metric.bound), want_color, None)
+    hood, k = _nearest(cells, metric.bound)
+    return _winner(cells, metric, hood, k, want_color, None)
 
 
-def _winner(cells: _Cells, metric: _Metric, off, want_color: bool, distance):
-    """Distance (unless given), colour and position of each hit's neighbour at offsets off."""
-    h = cells.hash(off)
-    p = cells.point(off, h)
+def _winner(cells: _Cells, metric: _Metric, hood: _Hood, k, want_color: bool, distance):
+    """Distance (unless given), colour and position of each hit's neighbour at row k of the hood."""
+    p = _pick(hood.point, k)
     if distance is None:
-        distance = metric.full([pc - lc for pc, lc in zip(p, cells.local)])
-    color = cells.color(off, h) if want_color else None
+        distance = metric.full(_pick(hood.diff, k))
+    color = None
+    if want_color:
+        color = tuple(_pick(hood.hash[:3], k)) if cells.d >= 3 else cells.color(hood.offsets(k))
     position = [pc + fc for pc, fc in zip(p, cells.floor)]
     return distance, color, position
 
 
 def _f2(cells: _Cells, metric: _Metric, want_color: bool):
-    table = _NEIGHBOURS[cells.d]
-    shape = cells.local[0].shape
-    d1, d2 = np.full(shape, FLT_MAX, F32), np.full(shape, FLT_MAX, F32)
-    k1, k2 = np.zeros(shape, np.int16), np.zeros(shape, np.int16)
-    for k, off in enumerate(table):
-        off = tuple(int(o) for o in off)
-        p = cells.point(off, cells.hash(off))
-        dist = metric.full([pc - lc for pc, lc in zip(p, cells.local)])
-        first = dist < d1
-        second = (dist < d2) & ~first
-        np.copyto(d2, d1, where=first)
-        np.copyto(k2, k1, where=first)
-        np.copyto(d2, dist, where=second)
-        np.copyto(k2, k, where=second)
-        np.copyto(d1, dist, where=first)
-        np.copyto(k1, k, where=first)
-    return _winner(cells, metric, _columns(table, k2), want_color, d2)
+    """The second nearest: Cycles' scan keeps (d1, d2), a new nearest pushing d1 down to d2, so the
+    second is the first smallest among the rows other than the nearest's (FLT_MAX if none)."""
+    hood = cells.around(_NEIGHBOURS[cells.d])
+    dist = metric.full(hood.diff)
+    key = np.where(dist < FLT_MAX, dist, F32(np.inf))
+    k1 = np.argmin(key, axis=0)
+    np.put_along_axis(key, k1[None, :], F32(np.inf), axis=0)
+    k2 = np.argmin(key, axis=0)
+    d2 = np.take_along_axis(key, k2[None, :], axis=0)[0]
+    d2 = np.where(d2 < np.inf, d2, FLT_MAX)
+    return _winner(cells, metric, hood, k2, want_color, d2)
 
 
 def _smooth_f1(cells: _Cells, metric: _Metric, smoothness, want_color: bool):
@@ -278,19 +373,18 @@ def _smooth_f1(cells: _Cells, metric: _Metric, smoothness, want_color: bool):
 def _distance_to_edge(cells: _Cells):
     if cells.d == 1:
         return _distance_to_edge_1d(cells)
-    def to_point(off):
-        return [pc - lc for pc, lc in zip(cells.point(off, cells.hash(off)), cells.local)]
-
-    closest = to_point(_nearest(cells, _euclidean_sq))
+    hood, k = _nearest(cells, _euclidean_sq)
+    closest = _pick(hood.diff, k)
+    v = hood.diff                                   # every neighbour's point - local, (K, M) each
+    perp = [a - b for a, b in zip(v, closest)]
+    perp_sq = _euclidean_sq(perp)
+    length = np.sqrt(perp_sq)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dist = _sum([((c + a) / TWO) * (p / length) for c, a, p in zip(closest, v, perp)])
+    valid = perp_sq > EDGE_EPSILON
     edge = np.full(cells.local[0].shape, FLT_MAX, F32)
-    for off in _NEIGHBOURS[cells.d]:
-        v = to_point(tuple(int(o) for o in off))
-        perp = [a - b for a, b in zip(v, closest)]
-        perp_sq = _euclidean_sq(perp)
-        length = np.sqrt(perp_sq)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            dist = _sum([((c + a) / TWO) * (p / length) for c, a, p in zip(closest, v, perp)])
-        np.copyto(edge, dist, where=(perp_sq > EDGE_EPSILON) & (dist < edge))
+    for row, ok in zip(dist, valid):               # Cycles' strict-< scan, first of equals kept
+        np.copyto(edge, row, where=ok & (row < edge))
     return edge
 
 
@@ -307,23 +401,19 @@ def _distance_to_edge_1d(cells: _Cells):
 def _n_sphere_radius(cells: _Cells):
     """Half the distance from the nearest point to its own nearest point (Euclidean; 1D |a - b|)."""
     dist_sq = _euclidean_sq if cells.d > 1 else (lambda diff: np.abs(diff[0]))
-    centre = _nearest(cells, dist_sq)
-    closest = cells.point(centre, cells.hash(centre))
+    hood, k = _nearest(cells, dist_sq)
+    centre = hood.offsets(k)
+    closest = _pick(hood.point, k)
 
-    # Then the point nearest to that one among the 3^d - 1 cells around its cell.
-    shape = cells.local[0].shape
-    best = np.full(shape, FLT_MAX, F32)
-    nearest = [np.zeros(shape, F32) for _ in range(cells.d)]
-    for off in _NEIGHBOURS[cells.d]:
-        if not off.any():
-            continue
-        around = [c + I32(o) for c, o in zip(centre, off)]
-        p = cells.point(around, cells.hash(around))
-        dist = dist_sq([a - b for a, b in zip(closest, p)])
-        closer = dist < best
-        np.copyto(best, dist, where=closer)
-        for n, pc in zip(nearest, p):
-            np.copyto(n, pc, where=closer)
+    # Then the point nearest to that one among the 3^d - 1 cells around its cell (all at once, (K, M)),
+    # found as Cycles' strict-< scan from FLT_MAX finds it; 0 if none is nearer than that.
+    offsets = _NEIGHBOURS[cells.d][_NEIGHBOURS[cells.d].any(axis=1)]
+    around = [c + o[:, None] for c, o in zip(centre, offsets.T)]
+    p = cells.point(around, cells.hash(around))
+    dist = dist_sq([a - b for a, b in zip(closest, p)])
+    row = _first_min(dist)
+    found = np.take_along_axis(dist, row[None, :], axis=0)[0] < FLT_MAX
+    nearest = [np.where(found, c, ZERO) for c in _pick(p, row)]
     diff = [a - b for a, b in zip(nearest, closest)]
     radius = np.sqrt(_euclidean_sq(diff)) if cells.d > 1 else np.abs(diff[0])
     return radius / TWO
@@ -375,11 +465,11 @@ def _fractal_fx(feature, coords, params, metric, want_color, want_position):
         cells = _Cells([_take(c, sel) * s for c in coords], _take(params["randomness"], sel))
         m = metric.take(sel)
         if feature == "F2":
-            od, oc, op = _f2(cells, m, want_color)
+            od, oc, op = _in_chunks(_f2, cells, m, want_color)
         elif feature == "SMOOTH_F1":
             od, oc, op = _smooth_f1(cells, m, _take(params["smoothness"], sel), want_color)
         else:
-            od, oc, op = _f1(cells, m, want_color)
+            od, oc, op = _in_chunks(_f1, cells, m, want_color)
         amp = _take(amplitude, sel)
         sub_detail = _take(detail, sel)
         full = i <= sub_detail
@@ -418,8 +508,8 @@ def _fractal_edge(coords, params):
     zero_input = (detail == 0) | (roughness == 0)
     for i, sel in _octaves(detail, roughness):
         s = _take(scale, sel)
-        od = _distance_to_edge(_Cells([_take(c, sel) * s for c in coords],
-                                      _take(params["randomness"], sel)))
+        od = _in_chunks(_distance_to_edge, _Cells([_take(c, sel) * s for c in coords],
+                                                  _take(params["randomness"], sel)))
         amp = _take(amplitude, sel)
         old_dist, old_max = _take(distance, sel), _take(max_amplitude, sel)
         new_max = _mix(old_max, _take(max_distance, sel) / s, amp)
@@ -491,7 +581,7 @@ def voronoi_texture(vector=0.0, w=0.0, scale=5.0, detail=0.0, roughness=0.5, lac
             result["Distance"] = dist / max_amplitude if normalize else dist
     elif feature == "N_SPHERE_RADIUS":
         if "Radius" in wanted:
-            result["Radius"] = _n_sphere_radius(_Cells(coords, params["randomness"]))
+            result["Radius"] = _in_chunks(_n_sphere_radius, _Cells(coords, params["randomness"]))
     else:
         metric = _Metric(d, distance, exponent)
         want_color = "Color" in wanted
