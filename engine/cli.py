@@ -244,6 +244,7 @@ def render(args) -> int:
         _use_format_of(scene, output)
     if args.passes:
         _use_passes(scene, args.passes, output)
+    if output is not None:
         targets = [frame_path(output, f, len(frame_list) > 1) for f in frame_list]
     else:
         targets = [_file_output_path(scene, f) for f in frame_list]
@@ -330,7 +331,9 @@ def _register_ember() -> None:
 # --passes names -> View Layer toggles (and Ember's Denoising Data)
 CLI_PASSES = {"depth": "use_pass_z", "position": "use_pass_position", "normal": "use_pass_normal",
               "uv": "use_pass_uv", "object_index": "use_pass_object_index",
-              "material_index": "use_pass_material_index", "denoising": "denoising_store_passes"}
+              "material_index": "use_pass_material_index", "mist": "use_pass_mist", "emission": "use_pass_emit",
+              "environment": "use_pass_environment", "noise": "use_pass_noise",
+              "denoising": "denoising_store_passes"}
 
 
 def _use_passes(scene, text: str, output: str | None) -> None:
@@ -346,7 +349,7 @@ def _use_passes(scene, text: str, output: str | None) -> None:
     for layer in scene.view_layers:
         for name in names:
             toggle = CLI_PASSES[name]
-            setattr(layer.ember if toggle == "denoising_store_passes" else layer, toggle, True)
+            setattr(layer.ember if toggle in ("denoising_store_passes", "use_pass_noise") else layer, toggle, True)
     settings = scene.render.image_settings
     settings.media_type = "MULTI_LAYER_IMAGE"
     settings.color_depth = "32"

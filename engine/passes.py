@@ -30,10 +30,32 @@ DATA_PASSES = (
     Pass("use_pass_uv", "UV", 3, "UVA", "VECTOR", "uv"),
     Pass("use_pass_object_index", "IndexOB", 1, "X", "VALUE", "object_index"),
     Pass("use_pass_material_index", "IndexMA", 1, "X", "VALUE", "material_index"),
+    Pass("use_pass_mist", "Mist", 1, "Z", "VALUE", "mist"),
+    Pass("use_pass_emit", "Emit", 3, "RGB", "COLOR", "emission"),
+    Pass("use_pass_environment", "Env", 3, "RGB", "COLOR", "environment"),
+    Pass("ember.use_pass_noise", "Noise", 3, "RGB", "COLOR", "noise"),
 )
 DENOISING_ALBEDO = Pass("", "Denoising Albedo", 3, "RGB", "COLOR", "denoising_albedo")
 DENOISING_NORMAL = Pass("", "Denoising Normal", 3, "XYZ", "VECTOR", "denoising_normal")
 NOISY_IMAGE = Pass("", "Noisy Image", 4, "RGBA", "COLOR", "")
+
+
+def _toggle(view_layer, path: str) -> bool:
+    owner = view_layer
+    *parents, name = path.split(".")
+    for parent in parents:
+        owner = getattr(owner, parent, None)
+    return bool(getattr(owner, name, False))
+
+
+def mist_settings(scene) -> tuple:
+    """(start, depth, falloff exponent) of the world's Mist Pass panel, as Cycles reads them."""
+    world = scene.world
+    if world is None:
+        return (5.0, 25.0, 2.0)
+    mist = world.mist_settings
+    return (float(mist.start), float(mist.depth),
+            {"QUADRATIC": 2.0, "LINEAR": 1.0, "INVERSE_QUADRATIC": 0.5}.get(mist.falloff, 2.0))
 
 
 def store_denoising_data(view_layer) -> bool:
@@ -43,7 +65,7 @@ def store_denoising_data(view_layer) -> bool:
 
 def enabled_passes(scene, view_layer) -> list[Pass]:
     """The passes of a view layer besides Combined, in Blender's order."""
-    out = [p for p in DATA_PASSES if getattr(view_layer, p.toggle, False)]
+    out = [p for p in DATA_PASSES if _toggle(view_layer, p.toggle)]
     if store_denoising_data(view_layer):
         out += [DENOISING_NORMAL, DENOISING_ALBEDO]
         if scene.ember.use_denoising:
@@ -69,6 +91,10 @@ def register_passes(engine, scene, view_layer) -> None:
 
 
 class EmberViewLayerSettings(bpy.types.PropertyGroup):
+    use_pass_noise: BoolProperty(
+        name="Noise", description="The variance of each pixel's mean (Ember's own pass): where the image is "
+                                  "still noisy and by how much",
+        default=False)
     denoising_store_passes: BoolProperty(
         name="Denoising Data",
         description="Store the denoiser's inputs as passes (Denoising Normal, Denoising Albedo) and the image "

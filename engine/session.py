@@ -21,7 +21,7 @@ from ..kernels import Cancelled, Renderer, RenderSettings
 from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region
 from .export.motion import sample_motion
-from .passes import enabled_passes, kernel_passes
+from .passes import enabled_passes, kernel_passes, mist_settings
 from .version import EMBER_VERSION
 
 # The Image Editor is refreshed at most this often (Cycles updates a few times a second); the first and
@@ -152,7 +152,7 @@ class FinalRender:
         if self._denoise and not _background():
             self._previews = PreviewDenoiser((scene.ember.denoising_quality, scene.ember.denoising_prefilter),
                                              PREVIEW_DENOISE_INTERVAL_S, render_threads(scene.render))
-        settings = dataclasses.replace(settings, passes=kernel_passes(
+        settings = dataclasses.replace(settings, mist=mist_settings(scene), passes=kernel_passes(
             scene, view_layer, scene.ember.denoising_input_passes if self._denoise else None))
         engine.update_stats("", "Ember: building the scene")
         try:

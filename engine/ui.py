@@ -160,7 +160,12 @@ class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
         col.prop(view_layer, "use_pass_uv")
         col.prop(view_layer, "use_pass_object_index")
         col.prop(view_layer, "use_pass_material_index")
+        col.prop(view_layer, "use_pass_mist")
+        col.prop(view_layer.ember, "use_pass_noise")
         col.prop(view_layer.ember, "denoising_store_passes", text="Denoising Data")
+        col = layout.column(heading="Light")
+        col.prop(view_layer, "use_pass_emit", text="Emission")
+        col.prop(view_layer, "use_pass_environment")
 
 
 class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):

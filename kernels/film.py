@@ -33,7 +33,8 @@ class Film:
         self.converged = np.zeros((height, columns), bool)
         # Data passes (kernels.passes): float32 sums for averaged ones (normals, albedo and UVs need no more),
         # sample 0's values for the others.
-        self.aux = {name: np.zeros((height, width, _passes.channels(name)), np.float32) for name in passes}
+        self.aux = {name: np.zeros((height, width, _passes.channels(name)),
+                                   np.float64 if _passes.kind(name) == "NOISE" else np.float32) for name in passes}
 
     def add_rows(self, row0: int, row_sums: np.ndarray, samples, half_sums: np.ndarray | None = None,
                  aux: dict | None = None) -> None:
@@ -51,7 +52,7 @@ class Film:
                 target = self.aux[name][row0:row0 + rows]
                 target[written] = plane[written]
             else:
-                self.aux[name][row0:row0 + rows] += values.astype(np.float32)
+                self.aux[name][row0:row0 + rows] += values.astype(self.aux[name].dtype)
 
     def resolve_pass(self, name: str, row0: int = 0, row1: int | None = None) -> np.ndarray:
         """(rows, width, C) float32 of a data pass, as Cycles reads its passes: averaged ones divided by the
@@ -64,7 +65,18 @@ class Film:
             return values.copy()
         count = self.pixel_samples[row0:row1].astype(np.float64)
         scale = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
-        return (values * scale[:, :, None]).astype(np.float32)
+        mean = values * scale[:, :, None]
+        if _passes.kind(name) == "MIST":
+            return (1.0 - mean).astype(np.float32)
+        if _passes.kind(name) == "NOISE":
+            # values hold the odd-numbered samples' sums. Their mean and the whole mean differ by half the
+            # difference of two independent half estimates, whose square's expectation is the variance of
+            # the whole mean, stratified sampling included (an i.i.d. sample variance would overstate it).
+            odd = np.floor(count / 2)
+            odd_mean = values * np.divide(1.0, odd, out=np.zeros_like(odd), where=odd > 0)[:, :, None]
+            colour = self.sums[row0:row1, :, :3] * scale[:, :, None]
+            return np.where((odd > 0)[:, :, None], (odd_mean - colour) ** 2, 0.0).astype(np.float32)
+        return mean.astype(np.float32)
 
     def resolve(self, row0: int = 0, row1: int | None = None) -> np.ndarray:
         """(rows, width, 4) float32 mean of rows [row0, row1); pixels without samples are zero."""

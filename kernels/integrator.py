@@ -75,6 +75,8 @@ class RenderSettings:
     adaptive_min_samples: int = 0
     # Data passes to record besides the image (kernels.passes.PASSES names), e.g. ("depth", "normal").
     passes: tuple = ()
+    # The Mist pass: (start, depth, falloff exponent) in scene units (the world's Mist Pass settings).
+    mist: tuple = (5.0, 25.0, 2.0)
 
     def validate(self, width: int, height: int) -> tuple[int, int, int, int]:
         if self.mode not in SAMPLING_MODES:
@@ -346,6 +348,8 @@ class Renderer:
         if aux is not None:
             aux_out = {}
             first = sample == 0
+            if "noise" in aux:  # the odd-numbered samples' sum (Cycles' adaptive sampling estimate)
+                aux["noise"] = np.where((sample & np.uint32(1)).astype(bool), radiance, 0.0).astype(np.float64)
             for name, values in aux.items():
                 c = len(values)
                 if passes.is_first(name):
@@ -418,7 +422,7 @@ class Renderer:
             hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes)
             shading = self.shading.surface(hit)
             if aux is not None and step == 0:
-                self._data_passes(aux, state, hit, shading.closures)
+                self._data_passes(aux, state, hit, shading.closures, settings)
             if state.features is not None:
                 self._denoising_features(aux, state, hit, shading.closures)
             if state.min_ray_pdf is not None:
@@ -441,7 +445,7 @@ class Renderer:
         return radiance, alpha
 
     # ---- stage: data passes of the camera rays' first surface (kernels.passes)
-    def _data_passes(self, aux: dict, state, hit, closures) -> None:
+    def _data_passes(self, aux: dict, state, hit, closures, settings) -> None:
         paths = state.path
         n = len(hit)
         for name, out in aux.items():
@@ -465,6 +469,14 @@ class Renderer:
             elif name == "uv":
                 u, v = hit.uv_at(np.arange(n))
                 out[0, paths], out[1, paths] = u, v
+            elif name == "mist":
+                eye, rotation = self._camera_frame
+                d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
+                distance = np.abs(rotation[:, 2] @ d) if self.scene.camera.kind == "ORTHO" else \
+                    np.sqrt((d * d).sum(axis=0))
+                start, depth, falloff = settings.mist
+                mist = np.clip((distance - start) / max(depth, 1e-30), 0.0, 1.0) ** falloff
+                out[0, paths] = (1.0 - mist) * state.throughput.mean(axis=0)
 
     def _denoising_features(self, aux: dict, state, hit, closures) -> None:
         """Cycles' denoising features: written at the first hit that is not mostly specular."""
@@ -502,6 +514,15 @@ class Renderer:
         miss = np.flatnonzero(hits.prim < 0)
         if not len(miss):
             return
+        if wave.aux is not None and "environment" in wave.aux:
+            seen = miss[state.bounce[miss] == 0]  # the world the camera sees (transparent film or not)
+            if len(seen):
+                d = rays.dirs
+                ray = RayInfo(state.bounce[seen], state.transparent[seen], emission=True,
+                              lobes=None if state.lobes is None else state.lobes[:, seen]) \
+                    if self.environment.shader else None
+                wave.aux["environment"][:, state.path[seen]] += np.take(state.throughput, seen, axis=1) * \
+                    self.environment.radiance(d[seen, 0], d[seen, 1], d[seen, 2], ray)
         if wave.settings.transparent_background:
             # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
             direct = state.bounce[miss] == 0
@@ -577,6 +598,9 @@ class Renderer:
         if not len(lit):
             return
         le = np.take(state.throughput, lit, axis=1) * np.take(shading.emission, lit, axis=1)
+        if wave.aux is not None and "emission" in wave.aux:
+            seen = np.flatnonzero(np.take(state.bounce, lit) == 0)  # emitters the camera sees
+            wave.aux["emission"][:, state.path[lit[seen]]] += le[:, seen]
         if wave.nee:
             mis = np.flatnonzero(np.isfinite(np.take(state.bsdf_pdf, lit)))
             if len(mis):

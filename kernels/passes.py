@@ -13,6 +13,14 @@ Two kinds, as in Cycles:
   multiplied by their albedo), the albedo summed over the diffuse-like closures (each closure's weight
   times its albedo estimate), the normal in camera space (x right, y up, z forward); where the path leaves
   to the world, the world's colour times that throughput. Albedo is clipped to [0, 1] for the denoiser.
+- MIST: Cycles' mist, 1 minus the mean over samples of (1 - mist) x the camera ray's throughput at its first
+  hit, mist = clamp((distance - start) / depth, 0, 1) ^ falloff (the world's Mist Pass settings); 1 where
+  the camera sees the world.
+- Emission and Environment (MEAN): what the camera sees of emitting surfaces and of the world directly
+  (Environment even where a transparent film leaves it out of Combined), as Cycles' passes of those names.
+- NOISE: an unbiased estimate of the variance of each pixel's mean: the squared difference between the
+  mean of its odd-numbered samples and the mean of all (Cycles' adaptive sampling compares the same two);
+  one estimate per pixel, so itself noisy (blur it to read it); 0 with fewer than two samples.
 """
 from __future__ import annotations
 
@@ -28,6 +36,10 @@ PASSES = {
     "uv": (3, "MEAN"),
     "denoising_albedo": (3, "MEAN"),
     "denoising_normal": (3, "MEAN"),
+    "mist": (1, "MIST"),
+    "emission": (3, "MEAN"),
+    "environment": (3, "MEAN"),
+    "noise": (3, "NOISE"),
 }
 BACKGROUND_DEPTH = 1e10
 
@@ -38,6 +50,10 @@ def channels(name: str) -> int:
 
 def is_first(name: str) -> bool:
     return PASSES[name][1] == "FIRST"
+
+
+def kind(name: str) -> str:
+    return PASSES[name][1]
 
 
 def closure_albedo(closures, n_hits: int) -> np.ndarray:

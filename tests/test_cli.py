@@ -50,6 +50,7 @@ def blend_file(tmp_path):
     set_world(scene, color=(0.3, 0.4, 0.5))
     scene.render.engine = "EMBER"
     scene.ember.samples = 2
+    scene.ember.use_denoising = False  # the checks read exact colours
     path = str(tmp_path / "scene.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
     return path

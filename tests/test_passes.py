@@ -15,7 +15,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import diffuse_material, new_scene, quad_object, set_world
+from bpy_helpers import diffuse_material, emission_material, new_scene, quad_object, set_world
 from ember.engine import passes as engine_passes
 from ember.engine.session import FinalRender
 
@@ -209,3 +209,63 @@ def test_interactive_final_render_shows_denoised_previews(monkeypatch):
     engine = render(scene, samples=8, use_denoising=True)
     assert any(shown)
     assert np.isfinite(engine.image("Combined")).all() and np.all(engine.image("Depth") == pytest.approx(5.0))
+
+
+def test_mist_follows_the_worlds_mist_settings():
+    """An orthographic camera 5 m above the plane: every first hit is 5 m away; mist start 1, depth 10,
+    linear: mist 0.4 everywhere; the world seen: 1."""
+    scene = plane_scene(ortho=True)
+    scene.view_layers[0].use_pass_mist = True
+    mist = scene.world.mist_settings
+    mist.start, mist.depth, mist.falloff = 1.0, 10.0, "LINEAR"
+    engine = render(scene, use_denoising=False)
+    np.testing.assert_allclose(engine.image("Mist"), 0.4, atol=1e-5)
+    mist.falloff = "QUADRATIC"
+    np.testing.assert_allclose(render(scene, use_denoising=False).image("Mist"), 0.16, atol=1e-5)
+    scene.camera.rotation_euler = (math.radians(180), 0, 0)
+    np.testing.assert_allclose(render(scene, use_denoising=False).image("Mist"), 1.0)
+
+
+def test_emission_and_environment_add_up_to_combined():
+    """A black card with an emitting square in front of a coloured world: nothing is lit, so Combined is
+    exactly Emission + Environment, pixel by pixel, and each holds its own part."""
+    scene = new_scene(24, 24)
+    cam = scene.camera
+    cam.location, cam.rotation_euler = (0.0, 0.0, 5.0), (0.0, 0.0, 0.0)
+    quad_object("Card", (-0.6, -0.6, 0), (1.2, 0, 0), (0, 1.2, 0),
+                emission_material("Glow", (1.0, 0.5, 0.25), 3.0))
+    set_world(scene, (0.1, 0.2, 0.3), 1.0)
+    layer = scene.view_layers[0]
+    layer.use_pass_emit = layer.use_pass_environment = True
+    engine = render(scene, samples=4, use_denoising=False, max_bounces=0)
+    combined, emit, env = engine.image("Combined")[..., :3], engine.image("Emit"), engine.image("Env")
+    np.testing.assert_allclose(emit + env, combined, atol=1e-5)
+    np.testing.assert_allclose(emit[12, 12], (3.0, 1.5, 0.75), rtol=1e-5)
+    np.testing.assert_allclose(env[0, 0], (0.1, 0.2, 0.3), rtol=1e-5)
+
+
+@pytest.mark.parametrize("mode", ["COSINE", "NEE_MIS"])
+def test_noise_pass_is_the_variance_of_the_mean(mode):
+    """The Noise pass against the spread of four independent renders' pixel means, on a floor half shadowed
+    from the sky by a floating cube, averaged over the image. With independent samples (COSINE) it is
+    unbiased: within 4 standard errors (both estimates' own, from their spread over pixels). With the
+    stratified first bounce of NEE_MIS the halves it compares are each less even than the whole, so it
+    overstates the variance: it must not understate it."""
+    scene = plane_scene()
+    scene.view_layers[0].ember.use_pass_noise = True
+    bpy.ops.mesh.primitive_cube_add(size=2.0, location=(0.3, -0.2, 1.5))
+    images, noise = [], []
+    for seed in (1, 2, 3, 4):
+        engine = render(scene, samples=8, use_denoising=False, seed=seed, sampling_mode=mode)
+        images.append(engine.image("Combined")[..., :3])
+        noise.append(engine.image("Noise"))
+    spread = np.var(np.stack(images), axis=0, ddof=1)          # per pixel and channel
+    predicted = np.mean(np.stack(noise), axis=0)
+    n = spread.size
+    se = np.sqrt(spread.var() / n + predicted.var() / n)
+    assert spread.mean() > 1e-4  # there is noise to measure
+    if mode == "COSINE":
+        assert abs(predicted.mean() - spread.mean()) < 4 * se, (predicted.mean(), spread.mean(), se)
+    else:
+        assert predicted.mean() > spread.mean() - 4 * se, (predicted.mean(), spread.mean(), se)
+    assert np.all(np.stack(noise) >= 0)
