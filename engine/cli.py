@@ -333,6 +333,8 @@ CLI_PASSES = {"depth": "use_pass_z", "position": "use_pass_position", "normal": 
               "uv": "use_pass_uv", "object_index": "use_pass_object_index",
               "material_index": "use_pass_material_index", "mist": "use_pass_mist", "emission": "use_pass_emit",
               "environment": "use_pass_environment", "noise": "use_pass_noise",
+              "crypto_object": "use_pass_cryptomatte_object", "crypto_material": "use_pass_cryptomatte_material",
+              "crypto_asset": "use_pass_cryptomatte_asset",
               "denoising": "denoising_store_passes"}
 
 

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import bpy
 from bpy.props import BoolProperty, PointerProperty
 
+from . import cryptomatte
+
 
 @dataclass(frozen=True)
 class Pass:
@@ -63,9 +65,18 @@ def store_denoising_data(view_layer) -> bool:
     return bool(settings is not None and settings.denoising_store_passes)
 
 
+def crypto_passes(view_layer) -> list[Pass]:
+    """The Cryptomatte layers' passes ("CryptoObject00", ...), 4 channels each; kernel "crypto:<kind>:<layer>"."""
+    out = []
+    for kind in cryptomatte.enabled_kinds(view_layer):
+        for i, name in enumerate(cryptomatte.pass_names(kind, cryptomatte.levels(view_layer))):
+            out.append(Pass("", name, 4, cryptomatte.CHAN_ID, "COLOR", f"crypto:{kind}:{i}"))
+    return out
+
+
 def enabled_passes(scene, view_layer) -> list[Pass]:
     """The passes of a view layer besides Combined, in Blender's order."""
-    out = [p for p in DATA_PASSES if _toggle(view_layer, p.toggle)]
+    out = [p for p in DATA_PASSES if _toggle(view_layer, p.toggle)] + crypto_passes(view_layer)
     if store_denoising_data(view_layer):
         out += [DENOISING_NORMAL, DENOISING_ALBEDO]
         if scene.ember.use_denoising:
@@ -75,7 +86,7 @@ def enabled_passes(scene, view_layer) -> list[Pass]:
 
 def kernel_passes(scene, view_layer, denoise_inputs: str | None) -> tuple:
     """kernels.passes names to record: the enabled data passes, and what the denoiser reads."""
-    names = [p.kernel for p in enabled_passes(scene, view_layer) if p.kernel]
+    names = [p.kernel for p in enabled_passes(scene, view_layer) if p.kernel and not p.kernel.startswith("crypto:")]
     if denoise_inputs in ("RGB_ALBEDO", "RGB_ALBEDO_NORMAL"):
         names.append("denoising_albedo")
     if denoise_inputs == "RGB_ALBEDO_NORMAL":

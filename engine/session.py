@@ -21,6 +21,7 @@ from ..kernels import Cancelled, Renderer, RenderSettings
 from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region
 from .export.motion import sample_motion
+from . import cryptomatte
 from .passes import enabled_passes, kernel_passes, mist_settings
 from .version import EMBER_VERSION
 
@@ -123,6 +124,7 @@ class FinalRender:
         self._passes = []           # engine.passes.Pass, besides Combined
         self._denoise = False
         self._previews = None       # denoised progressive display (interactive final renders)
+        self._crypto_names = {}     # Cryptomatte kind -> names (the manifests)
         self.denoise_seconds = None
 
     def should_stop(self) -> bool:
@@ -153,7 +155,9 @@ class FinalRender:
             self._previews = PreviewDenoiser((scene.ember.denoising_quality, scene.ember.denoising_prefilter),
                                              PREVIEW_DENOISE_INTERVAL_S, render_threads(scene.render))
         settings = dataclasses.replace(settings, mist=mist_settings(scene), passes=kernel_passes(
-            scene, view_layer, scene.ember.denoising_input_passes if self._denoise else None))
+            scene, view_layer, scene.ember.denoising_input_passes if self._denoise else None),
+            cryptomatte=cryptomatte.enabled_kinds(view_layer), cryptomatte_depth=cryptomatte.levels(view_layer))
+        self._crypto_names = exported.crypto_names or {}
         engine.update_stats("", "Ember: building the scene")
         try:
             renderer = Renderer(exported.scene, threads=render_threads(scene.render), should_stop=self.should_stop)
@@ -171,9 +175,23 @@ class FinalRender:
         if self._previews is not None:
             self._dirty = (0, result.film.height)  # denoised previews wrote Combined alone: every row again
         self._flush(result.film)
+        self._stamp_metadata(result.film)
         if self._denoise and not self.cancelled and result.film.samples_done > 0:
             self._denoise_final(result.film)
         self._finish_message(result, exported)
+
+    def _stamp_metadata(self, film) -> None:
+        """The Cryptomatte manifests in the render's metadata (on Blender's whole result, as Cycles does):
+        the compositor's Cryptomatte node and other tools read names from them."""
+        if not film.crypto:
+            return
+        full = self.engine.get_result()
+        if full is None:
+            return
+        for kind in film.crypto:
+            for key, value in cryptomatte.metadata(self.depsgraph.view_layer.name, kind,
+                                                   self._crypto_names.get(kind, ())).items():
+                full.stamp_data_add_field(key, value)
 
     def _denoise_final(self, film) -> None:
         """Denoise the finished image once and write it as Combined; on any failure the noisy image
@@ -275,8 +293,16 @@ class FinalRender:
         try:
             layer = result.layers[0]
             _set_rect(layer, "Combined", rows)
+            crypto = {}
             for p in self._passes:
-                _set_rect(layer, p.name, film.resolve_pass(p.kernel, row0, row1) if p.kernel else rows)
+                if p.kernel.startswith("crypto:"):
+                    _, kind, index = p.kernel.split(":")
+                    if kind not in crypto:
+                        crypto[kind] = film.resolve_crypto(kind, row0, row1)
+                    _set_rect(layer, p.name, crypto[kind][..., 4 * int(index):4 * int(index) + 4])
+                else:
+                    _set_rect(layer, p.name, film.resolve_pass(p.kernel, row0, row1) if p.kernel else rows)
+
         finally:
             self.engine.end_result(result)
 

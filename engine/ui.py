@@ -166,6 +166,11 @@ class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
         col = layout.column(heading="Light")
         col.prop(view_layer, "use_pass_emit", text="Emission")
         col.prop(view_layer, "use_pass_environment")
+        col = layout.column(heading="Cryptomatte")
+        col.prop(view_layer, "use_pass_cryptomatte_object", text="Object")
+        col.prop(view_layer, "use_pass_cryptomatte_material", text="Material")
+        col.prop(view_layer, "use_pass_cryptomatte_asset", text="Asset")
+        col.prop(view_layer, "pass_cryptomatte_depth", text="Levels")
 
 
 class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):

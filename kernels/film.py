@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import passes as _passes
+from .cryptomatte import CryptoFilm
 
 
 # Memory per pixel: the float64 RGBA sums; with adaptive sampling also the odd samples' float32 RGB,
@@ -24,7 +25,8 @@ class Film:
     converged : (H, W) bool, the pixels adaptive sampling has stopped ((H, 1) all False without).
     """
 
-    def __init__(self, width: int, height: int, adaptive: bool = False, passes: tuple = ()):
+    def __init__(self, width: int, height: int, adaptive: bool = False, passes: tuple = (), cryptomatte: tuple = (),
+                 cryptomatte_depth: int = 6):
         self.width, self.height = width, height
         columns = width if adaptive else 1
         self.sums = np.zeros((height, width, 4), np.float64)
@@ -35,6 +37,8 @@ class Film:
         # sample 0's values for the others.
         self.aux = {name: np.zeros((height, width, _passes.channels(name)),
                                    np.float64 if _passes.kind(name) == "NOISE" else np.float32) for name in passes}
+        # Cryptomatte: ranked (id, weight) slots per kind (kernels.cryptomatte).
+        self.crypto = {kind: CryptoFilm(height, width, cryptomatte_depth) for kind in cryptomatte}
 
     def add_rows(self, row0: int, row_sums: np.ndarray, samples, half_sums: np.ndarray | None = None,
                  aux: dict | None = None) -> None:
@@ -47,12 +51,20 @@ class Film:
         if half_sums is not None:
             self.half[row0:row0 + rows] += half_sums.astype(np.float32)
         for name, values in (aux or {}).items():
+            if name.startswith("crypto_"):
+                self.crypto[name[len("crypto_"):]].merge(values, row0)
+                continue
             if _passes.is_first(name):
                 plane, written = values
                 target = self.aux[name][row0:row0 + rows]
                 target[written] = plane[written]
             else:
                 self.aux[name][row0:row0 + rows] += values.astype(self.aux[name].dtype)
+
+    def resolve_crypto(self, kind: str, row0: int = 0, row1: int | None = None) -> np.ndarray:
+        """(rows, width, 4 x layers) float32 Cryptomatte layers of one kind (ids ranked by coverage)."""
+        row1 = self.height if row1 is None else row1
+        return self.crypto[kind].layers(self.pixel_samples[row0:row1], row0, row1)
 
     def resolve_pass(self, name: str, row0: int = 0, row1: int | None = None) -> np.ndarray:
         """(rows, width, C) float32 of a data pass, as Cycles reads its passes: averaged ones divided by the

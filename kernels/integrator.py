@@ -23,6 +23,7 @@ from . import motion, panorama, passes, sampling
 from .accel import Accel, RayTimes
 from .camera import generate_rays, view_plane
 from .environment import Environment
+from .cryptomatte import CryptoFilm
 from .film import Film
 from .bsdf.closures import BsdfSample
 from .geometry import NG, TriangleTable, extent
@@ -77,6 +78,9 @@ class RenderSettings:
     passes: tuple = ()
     # The Mist pass: (start, depth, falloff exponent) in scene units (the world's Mist Pass settings).
     mist: tuple = (5.0, 25.0, 2.0)
+    # Cryptomatte: the kinds to record ("object", "material", "asset") and the ids kept per pixel (Levels).
+    cryptomatte: tuple = ()
+    cryptomatte_depth: int = 6
 
     def validate(self, width: int, height: int) -> tuple[int, int, int, int]:
         if self.mode not in SAMPLING_MODES:
@@ -86,6 +90,9 @@ class RenderSettings:
         unknown = [p for p in self.passes if p not in passes.PASSES]
         if unknown:
             raise ValueError(f"passes: unknown {unknown}, known {tuple(passes.PASSES)}")
+        unknown = [k for k in self.cryptomatte if k not in passes.CRYPTO_KINDS]
+        if unknown:
+            raise ValueError(f"cryptomatte: unknown {unknown}, known {passes.CRYPTO_KINDS}")
         if int(self.max_bounces) < 0:
             raise ValueError(f"max_bounces: must be non-negative, got {self.max_bounces}")
         if not (np.isfinite(self.time_limit_s) and self.time_limit_s >= 0):
@@ -234,7 +241,8 @@ class Renderer:
         cam = self.scene.camera
         x0, y0, x1, y1 = settings.validate(cam.width, cam.height)
         width, height = x1 - x0, y1 - y0
-        film = Film(width, height, adaptive=settings.adaptive_threshold > 0, passes=settings.passes)
+        film = Film(width, height, adaptive=settings.adaptive_threshold > 0, passes=settings.passes,
+                    cryptomatte=settings.cryptomatte, cryptomatte_depth=settings.cryptomatte_depth)
         total = int(settings.samples)
         start = time.perf_counter()
         embree_start = self.accel.seconds_in_embree
@@ -323,7 +331,11 @@ class Renderer:
         # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
         # is per thread, so it is set here, in the thread that runs the wave.
         aux = {name: np.zeros((passes.channels(name), len(pix)), np.float32) for name in settings.passes} \
-            if settings.passes else None
+            if settings.passes or settings.cryptomatte else None
+        if settings.cryptomatte:
+            for kind in settings.cryptomatte:
+                aux["crypto_" + kind] = np.zeros((1, len(pix)), np.float32)
+            aux["crypto_weight"] = np.zeros((1, len(pix)), np.float32)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
             radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=(pixel_index, sample),
                                                aux=aux)
@@ -350,6 +362,12 @@ class Renderer:
             first = sample == 0
             if "noise" in aux:  # the odd-numbered samples' sum (Cycles' adaptive sampling estimate)
                 aux["noise"] = np.where((sample & np.uint32(1)).astype(bool), radiance, 0.0).astype(np.float64)
+            weight = aux.pop("crypto_weight", None)
+            for kind in settings.cryptomatte:
+                ids = aux.pop("crypto_" + kind)[0]
+                wave_film = CryptoFilm(rows, width, settings.cryptomatte_depth)
+                wave_film.add(pix, ids, weight[0])
+                aux_out["crypto_" + kind] = wave_film
             for name, values in aux.items():
                 c = len(values)
                 if passes.is_first(name):
@@ -469,6 +487,16 @@ class Renderer:
             elif name == "uv":
                 u, v = hit.uv_at(np.arange(n))
                 out[0, paths], out[1, paths] = u, v
+            elif name.startswith("crypto_"):
+                kind = name[len("crypto_"):]
+                table = (self.scene.crypto_ids or {}).get(kind)
+                if kind == "weight":  # the sample's matte weight: what reaches the camera from here
+                    out[0, paths] = state.throughput.mean(axis=0)
+                elif table is not None and len(table):
+                    rows = hit.mat if kind == "material" else \
+                        np.take(self.scene.object_ids, hit.prim) if self.scene.object_ids is not None else None
+                    if rows is not None:
+                        out[0, paths] = np.take(table, rows)
             elif name == "mist":
                 eye, rotation = self._camera_frame
                 d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]

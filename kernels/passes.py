@@ -44,6 +44,9 @@ PASSES = {
 BACKGROUND_DEPTH = 1e10
 
 
+CRYPTO_KINDS = ("object", "material", "asset")
+
+
 def channels(name: str) -> int:
     return PASSES[name][0]
 

@@ -424,6 +424,8 @@ class SceneArrays:
         each triangle's entry of `motion`, -1 for static triangles.
     shutter_table : (256,) float32 or None: path time from a uniform number (kernels.motion.shutter_table);
         rolling_shutter : None, or the rolling shutter's duration (Cycles' TOP rolling shutter).
+    crypto_ids : Cryptomatte ids (kernels.cryptomatte.hash_name of the names), or None: {"object": (K,) and
+        "asset": (K,) float32 per row of `objects`, "material": (M,) float32 per material}.
     """
     positions: np.ndarray
     normals: np.ndarray
@@ -444,6 +446,7 @@ class SceneArrays:
     motion_ids: np.ndarray | None = None
     shutter_table: np.ndarray | None = None
     rolling_shutter: float | None = None
+    crypto_ids: dict | None = None
 
     @property
     def has_motion(self) -> bool:

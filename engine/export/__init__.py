@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import bpy
 
 from ...kernels import SceneArrays
+from ...kernels.cryptomatte import hash_names
 from .camera import export_camera, render_region, render_resolution
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
@@ -51,6 +52,7 @@ class ExportResult:
     seconds: float
     triangle_count: int
     instance_count: int
+    crypto_names: dict | None = None   # Cryptomatte kind -> the names its ids hash (the manifests)
 
 
 class ExportError(Exception):
@@ -87,11 +89,14 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     geometry = export_geometry(depsgraph, materials, warnings, poll)
     world = export_world(scene.world, warnings, materials.images)
     lights = export_lights(depsgraph, warnings, poll)
+    crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
+                    "asset": list(geometry.instance_assets or []), "material": list(materials.names)}
     arrays = SceneArrays(positions=geometry.positions, normals=geometry.normals, uvs=geometry.uvs,
                          material_ids=geometry.material_ids, materials=materials.to_kernel(),
                          textures=materials.textures, texture_srgb=materials.texture_srgb, world=world,
                          camera=camera, lights=lights, tangents=geometry.tangents,
                          attributes=geometry.attributes, objects=geometry.objects, object_ids=geometry.object_ids,
+                         crypto_ids={kind: hash_names(names) for kind, names in crypto_names.items()},
                          **scene_motion(motion, geometry))
     if motion is not None:
         warnings.extend(motion.warnings)
@@ -99,7 +104,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
             arrays = dataclasses.replace(arrays, camera=dataclasses.replace(camera, motion=motion.camera))
     return ExportResult(scene=arrays, warnings=list(dict.fromkeys(absolute_paths(w) for w in warnings)),
                         seconds=time.perf_counter() - start, triangle_count=len(geometry.material_ids),
-                        instance_count=geometry.instance_count)
+                        instance_count=geometry.instance_count, crypto_names=crypto_names)
 
 
 class Poller:

@@ -274,6 +274,7 @@ class MaterialTable:
         self._warnings = warnings
         self._rows: list[Shader] = [DEFAULT_SURFACE]
         self._pass_indices: list[int] = [0]
+        self.names: list[str] = ["default_surface"]   # per row, for Cryptomatte (Cycles' name for no material)
         self._ids: dict[str, int] = {}
         self._tangent_maps: dict[int, tuple[str, ...]] = {}
         self._attributes: dict[int, frozenset] = {}
@@ -289,6 +290,7 @@ class MaterialTable:
             attributes: set[str] = set()
             self._rows.append(read_material(material, self.images, self._warnings, uv_maps, attributes))
             self._pass_indices.append(int(material.pass_index))
+            self.names.append(material.name)
             if uv_maps:
                 self._tangent_maps[row] = tuple(dict.fromkeys(uv_maps))
             if attributes:

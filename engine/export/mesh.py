@@ -73,6 +73,7 @@ class Geometry:
     object_ids: np.ndarray | None = None
     instance_keys: list | None = None      # per object row: instance_key() (motion blur)
     instance_matrices: list | None = None  # per object row: the (4, 4) world matrix its triangles used
+    instance_assets: list | None = None    # per object row: the top-most parent's name (Cryptomatte asset)
 
 
 def instance_key(inst) -> tuple:
@@ -81,6 +82,13 @@ def instance_key(inst) -> tuple:
     if inst.is_instance:
         return (inst.object.name, inst.parent.name if inst.parent else "", tuple(inst.persistent_id))
     return (inst.object.name, "", ())
+
+
+def _asset_name(ob) -> str:
+    """Cryptomatte's asset: the object's top-most parent (Cycles' Blender sync)."""
+    while ob.parent is not None:
+        ob = ob.parent
+    return ob.name
 
 
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None) -> Geometry:
@@ -93,6 +101,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     rows: dict[tuple, list] = {}             # (mesh pointer, slot rows) -> object table rows
     attributes: dict[int, dict] = {}         # evaluated mesh pointer -> {name: (T*3, C) float32}
     keys: dict[tuple, list] = {}             # (mesh pointer, slot rows) -> instance keys
+    assets: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> asset names
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -120,9 +129,11 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
         rows.setdefault((mesh_key, slot_rows[object_key]), []).append(_object_row(inst, ob, matrix))
         keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
+        assets.setdefault((mesh_key, slot_rows[object_key]), []).append(_asset_name(ob))
     return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows),
                                instance_keys=[k for group in keys.values() for k in group],
-                               instance_matrices=[m for group in groups.values() for m in group])
+                               instance_matrices=[m for group in groups.values() for m in group],
+                               instance_assets=[a for group in assets.values() for a in group])
 
 
 def _object_row(inst, ob, matrix) -> np.ndarray:

@@ -1,0 +1,97 @@
+"""Cryptomatte through Ember's final render against Cycles' on the same scene (issue 13): the same layers
+and manifests in Blender's multilayer EXR, the same ids ranked the same way, coverage within noise."""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+
+import bpy
+import numpy as np
+import pytest
+
+from bpy_helpers import configure_cycles, diffuse_material, new_scene, quad_object
+from ember.engine import cryptomatte as ecrypto
+from test_cryptomatte import STRIPS, _multipart_exr
+
+SAMPLES = 128
+
+
+def strips_scene():
+    """test_cryptomatte's strips: five quads under an orthographic camera, one world unit a pixel, with
+    parents (assets) and shared, missing and odd-named materials; all three Cryptomatte kinds on."""
+    scene = new_scene(12, 4)
+    cam = scene.camera
+    cam.location, cam.rotation_euler = (0.0, 0.0, 5.0), (0.0, 0.0, 0.0)
+    cam.data.type, cam.data.ortho_scale = "ORTHO", 12.0
+    materials, objects = {}, {}
+    for name, x0, x1, parent, material in STRIPS:
+        if material and material not in materials:
+            materials[material] = diffuse_material(material)
+        objects[name] = quad_object(name, (x0, -5, 0), (x1 - x0, 0, 0), (0, 10, 0), materials.get(material))
+        if parent:
+            objects[name].parent = objects[parent]
+    layer = scene.view_layers[0]
+    for kind in ecrypto.KINDS:
+        setattr(layer, f"use_pass_cryptomatte_{kind}", True)
+    layer.pass_cryptomatte_depth = 6
+    return scene
+
+
+def render(engine):
+    scene = strips_scene()
+    scene.render.engine = engine
+    if engine == "CYCLES":
+        configure_cycles(scene, SAMPLES, 0, 1)
+    else:
+        e = scene.ember
+        e.samples, e.max_bounces, e.use_adaptive_sampling, e.use_denoising = SAMPLES, 1, False, False
+        e.pixel_filter_type = "BOX"
+    settings = scene.render.image_settings
+    settings.media_type, settings.color_depth = "MULTI_LAYER_IMAGE", "32"
+    with tempfile.TemporaryDirectory() as tmp:
+        scene.render.filepath = os.path.join(tmp, "crypto.exr")
+        bpy.ops.render.render(write_still=True)
+        return _multipart_exr(scene.render.filepath), scene.view_layers[0].name
+
+
+@pytest.fixture(scope="module")
+def renders():
+    return {engine: render(engine) for engine in ("CYCLES", "EMBER")}
+
+
+def layers(parts, view_layer, kind):
+    names = ecrypto.layer_names(view_layer, kind, 6)
+    return np.concatenate([np.stack([parts[n][c] for c in "rgba"], axis=-1) for n in names], axis=-1)
+
+
+def test_same_layers_and_manifests(renders):
+    (cycles, cycles_strings), layer = renders["CYCLES"]
+    (ember, ember_strings), _ = renders["EMBER"]
+    assert {p for p in ember if "Crypto" in p} == {p for p in cycles if "Crypto" in p}
+    for kind in ecrypto.KINDS:
+        prefix = ecrypto.metadata_prefix(ecrypto.layer_name(layer, kind))
+        for field in ("name", "hash", "conversion"):
+            assert ember_strings[prefix + field] == cycles_strings[prefix + field]
+        ours, theirs = json.loads(ember_strings[prefix + "manifest"]), json.loads(cycles_strings[prefix + "manifest"])
+        assert ours and all(theirs[name] == value for name, value in ours.items()), kind
+
+
+@pytest.mark.parametrize("kind", ecrypto.KINDS)
+def test_same_ids_and_coverage(renders, kind):
+    """Per pixel: the same ids hold coverage in both; each id's coverage within 5 standard errors of the
+    two binomial estimates at 128 samples (ids covering a pixel wholly: exactly 1 in both)."""
+    (cycles, _), layer = renders["CYCLES"]
+    (ember, _), _ = renders["EMBER"]
+    c, e = layers(cycles, layer, kind), layers(ember, layer, kind)
+    h, w, _ = c.shape
+    for y in range(h):
+        for x in range(w):
+            theirs = {float(i): float(v) for i, v in zip(c[y, x, 0::2], c[y, x, 1::2]) if v > 0}
+            ours = {float(i): float(v) for i, v in zip(e[y, x, 0::2], e[y, x, 1::2]) if v > 0}
+            assert ours.keys() == theirs.keys(), (kind, y, x)
+            for i, p in theirs.items():
+                se = np.sqrt(2 * max(p * (1 - p), 1 / SAMPLES) / SAMPLES)
+                assert abs(ours[i] - p) <= 5 * se, (kind, y, x, ours[i], p)
+            ranked = [i for i in e[y, x, 0::2] if i != 0]
+            assert ranked == sorted(ranked, key=lambda i: -ours[float(i)])  # heaviest first
