@@ -335,6 +335,8 @@ CLI_PASSES = {"depth": "use_pass_z", "position": "use_pass_position", "normal": 
               "environment": "use_pass_environment", "noise": "use_pass_noise",
               "crypto_object": "use_pass_cryptomatte_object", "crypto_material": "use_pass_cryptomatte_material",
               "crypto_asset": "use_pass_cryptomatte_asset",
+              **{f"{c}_{k}": f"use_pass_{c}_{k}" for c in ("diffuse", "glossy", "transmission")
+                 for k in ("direct", "indirect", "color")},
               "denoising": "denoising_store_passes"}
 
 

@@ -1,5 +1,5 @@
 """Render passes, declared in one place: what Blender's View Layer > Passes toggles ask for, the names and
-channels Cycles gives them (so the compositor treats an Ember render as a Cycles one), and the kernel
+channels Cycles 5.0 gives them (read from Cycles' own multilayer output: "Object Index", "Diffuse Direct", ...) (so the compositor treats an Ember render as a Cycles one), and the kernel
 pass behind each (kernels.passes).
 
 Denoising data (Ember's View Layer > Passes > Denoising Data, as Cycles' "Denoising Data") adds Denoising
@@ -30,12 +30,21 @@ DATA_PASSES = (
     Pass("use_pass_position", "Position", 3, "XYZ", "VECTOR", "position"),
     Pass("use_pass_normal", "Normal", 3, "XYZ", "VECTOR", "normal"),
     Pass("use_pass_uv", "UV", 3, "UVA", "VECTOR", "uv"),
-    Pass("use_pass_object_index", "IndexOB", 1, "X", "VALUE", "object_index"),
-    Pass("use_pass_material_index", "IndexMA", 1, "X", "VALUE", "material_index"),
+    Pass("use_pass_object_index", "Object Index", 1, "X", "VALUE", "object_index"),
+    Pass("use_pass_material_index", "Material Index", 1, "X", "VALUE", "material_index"),
     Pass("use_pass_mist", "Mist", 1, "Z", "VALUE", "mist"),
-    Pass("use_pass_emit", "Emit", 3, "RGB", "COLOR", "emission"),
-    Pass("use_pass_environment", "Env", 3, "RGB", "COLOR", "environment"),
+    Pass("use_pass_emit", "Emission", 3, "RGB", "COLOR", "emission"),
+    Pass("use_pass_environment", "Environment", 3, "RGB", "COLOR", "environment"),
     Pass("ember.use_pass_noise", "Noise", 3, "RGB", "COLOR", "noise"),
+    Pass("use_pass_diffuse_direct", "Diffuse Direct", 3, "RGB", "COLOR", "diffuse_direct"),
+    Pass("use_pass_diffuse_indirect", "Diffuse Indirect", 3, "RGB", "COLOR", "diffuse_indirect"),
+    Pass("use_pass_diffuse_color", "Diffuse Color", 3, "RGB", "COLOR", "diffuse_color"),
+    Pass("use_pass_glossy_direct", "Glossy Direct", 3, "RGB", "COLOR", "glossy_direct"),
+    Pass("use_pass_glossy_indirect", "Glossy Indirect", 3, "RGB", "COLOR", "glossy_indirect"),
+    Pass("use_pass_glossy_color", "Glossy Color", 3, "RGB", "COLOR", "glossy_color"),
+    Pass("use_pass_transmission_direct", "Transmission Direct", 3, "RGB", "COLOR", "transmission_direct"),
+    Pass("use_pass_transmission_indirect", "Transmission Indirect", 3, "RGB", "COLOR", "transmission_indirect"),
+    Pass("use_pass_transmission_color", "Transmission Color", 3, "RGB", "COLOR", "transmission_color"),
 )
 DENOISING_ALBEDO = Pass("", "Denoising Albedo", 3, "RGB", "COLOR", "denoising_albedo")
 DENOISING_NORMAL = Pass("", "Denoising Normal", 3, "XYZ", "VECTOR", "denoising_normal")
@@ -87,6 +96,8 @@ def enabled_passes(scene, view_layer) -> list[Pass]:
 def kernel_passes(scene, view_layer, denoise_inputs: str | None) -> tuple:
     """kernels.passes names to record: the enabled data passes, and what the denoiser reads."""
     names = [p.kernel for p in enabled_passes(scene, view_layer) if p.kernel and not p.kernel.startswith("crypto:")]
+    # Direct and indirect light are read divided by their class's colour: record it too.
+    names += [n.split("_")[0] + "_color" for n in names if n.endswith(("_direct", "_indirect"))]
     if denoise_inputs in ("RGB_ALBEDO", "RGB_ALBEDO_NORMAL"):
         names.append("denoising_albedo")
     if denoise_inputs == "RGB_ALBEDO_NORMAL":

@@ -164,6 +164,11 @@ class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
         col.prop(view_layer.ember, "use_pass_noise")
         col.prop(view_layer.ember, "denoising_store_passes", text="Denoising Data")
         col = layout.column(heading="Light")
+        for kind in ("diffuse", "glossy", "transmission"):
+            row = col.row(heading=kind.title(), align=True)
+            row.prop(view_layer, f"use_pass_{kind}_direct", text="Direct", toggle=True)
+            row.prop(view_layer, f"use_pass_{kind}_indirect", text="Indirect", toggle=True)
+            row.prop(view_layer, f"use_pass_{kind}_color", text="Color", toggle=True)
         col.prop(view_layer, "use_pass_emit", text="Emission")
         col.prop(view_layer, "use_pass_environment")
         col = layout.column(heading="Cryptomatte")

@@ -80,6 +80,10 @@ class Film:
         mean = values * scale[:, :, None]
         if _passes.kind(name) == "MIST":
             return (1.0 - mean).astype(np.float32)
+        if _passes.kind(name) == "LIGHT":  # divided by the class's colour, as Cycles' pass accessor does
+            colour = self.aux[name.split("_")[0] + "_color"][row0:row1] * scale[:, :, None]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return np.where(colour != 0, mean / colour, 0.0).astype(np.float32)
         if _passes.kind(name) == "NOISE":
             # values hold the odd-numbered samples' sums. Their mean and the whole mean differ by half the
             # difference of two independent half estimates, whose square's expectation is the variance of

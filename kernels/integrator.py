@@ -25,7 +25,7 @@ from .camera import generate_rays, view_plane
 from .environment import Environment
 from .cryptomatte import CryptoFilm
 from .film import Film
-from .bsdf.closures import BsdfSample
+from .bsdf.closures import BsdfSample, class_albedo, eval_split, pass_classes
 from .geometry import NG, TriangleTable, extent
 from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
@@ -408,6 +408,8 @@ class Renderer:
         state.time = None if times is None else RayTimes(times)
         if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux):
             state.features = np.ones((3, n), np.float32)
+        if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if name in passes.PASSES):
+            state.pass_weights = np.zeros((6, n), np.float32)
         if self.shading.reads_lobes:
             state.lobes = np.zeros((4, n), np.int32)
         if settings.filter_glossy > 0:
@@ -453,6 +455,8 @@ class Renderer:
             if nee:
                 self._next_event(wave, state, hit, shading.closures, numbers)
             bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
+            if state.pass_weights is not None:
+                self._first_bounce_shares(state, shading.closures, bs)
             alive = self._continues(wave, hit, state, bs, numbers)
             if state.lobes is not None:
                 state.track_lobes(bs, shading.closures, bs.transparent)
@@ -497,6 +501,10 @@ class Renderer:
                         np.take(self.scene.object_ids, hit.prim) if self.scene.object_ids is not None else None
                     if rows is not None:
                         out[0, paths] = np.take(table, rows)
+            elif name in ("diffuse_color", "glossy_color", "transmission_color"):
+                colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),
+                                   class_albedo(closures, n)))
+                out[:, paths] = colours[name] * state.throughput
             elif name == "mist":
                 eye, rotation = self._camera_frame
                 d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
@@ -535,7 +543,53 @@ class Renderer:
             le = np.take(state.throughput * le, idx, axis=1)
             if wave.nee:
                 le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
-            _accumulate(wave.radiance, state.path[idx], _clamp(wave, le, np.take(state.bounce, idx) > 1))
+            le = _clamp(wave, le, np.take(state.bounce, idx) > 1)
+            _accumulate(wave.radiance, state.path[idx], le)
+            if state.pass_weights is not None:
+                self._light_passes(wave, state, idx, le)
+
+    # ---- light passes: what a contribution to the image adds to Cycles' Diffuse/Glossy/Transmission passes
+    def _light_passes(self, wave, state, rows, value, shadow: bool = False, first=None) -> None:
+        """value (3, m): clamped contributions of the paths rows (state rows). Light found by a ray is direct
+        at bounce 1 (it lit the first hit), by a shadow ray at bounce 0; deeper it is indirect. Each splits by
+        the path's class shares of its first bounce (first: (positions, (6, k) shares) for shadow rays at
+        the first hit, split by the closures there)."""
+        if not len(rows):
+            return
+        aux = wave.aux
+        shares = np.take(state.pass_weights, rows, axis=1)
+        bounce = np.take(state.bounce, rows)
+        direct = bounce == (0 if shadow else 1)
+        if first is not None and len(first[0]):
+            shares[:, first[0]] = first[1]
+        paths = state.path[rows]
+        parts = (shares[:3], shares[3:], np.float32(1) - shares[:3] - shares[3:])
+        for cls, share in zip(("diffuse", "glossy", "transmission"), parts):
+            for suffix, sel in (("direct", direct), ("indirect", ~direct)):
+                name = f"{cls}_{suffix}"
+                if name in aux:
+                    pick = np.flatnonzero(sel)
+                    if len(pick):
+                        aux[name][:, paths[pick]] += value[:, pick] * share[:, pick]
+
+    def _first_bounce_shares(self, state, closures, bs) -> None:
+        """At the first scattering (not a transparent pass-through), the class shares of the sampled
+        direction: the chosen closure's class for a singular lobe, the mixture's split otherwise (Cycles'
+        pass_diffuse_weight and pass_glossy_weight)."""
+        rows = np.flatnonzero((state.bounce == 0) & ~bs.transparent & (bs.row >= 0))
+        if not len(rows):
+            return
+        wi = tuple(np.take(c, rows) for c in bs.wi)
+        delta = np.take(bs.delta, rows)
+        shares = np.zeros((6, len(rows)), np.float32)
+        d = np.flatnonzero(delta)
+        if len(d):
+            diffuse, glossy = pass_classes(closures, np.take(bs.row, rows[d]), tuple(c[d] for c in wi))
+            shares[:3, d], shares[3:, d] = diffuse.astype(np.float32), glossy.astype(np.float32)
+        m = np.flatnonzero(~delta)
+        if len(m):
+            shares[:, m] = _class_shares(*eval_split(closures, rows[m], tuple(c[m] for c in wi)))
+        state.pass_weights[:, rows] = shares
 
     # ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
     def _escaped(self, wave, state, rays, hits):
@@ -579,7 +633,11 @@ class Renderer:
             if len(mis):
                 env[:, mis] *= sampling.power_heuristic(state.bsdf_pdf[miss[mis]],
                                                         self.lights.pdf_world(mx[mis], my[mis], mz[mis]))
-        _accumulate(wave.radiance, state.path[miss], _clamp(wave, env, state.bounce[miss] > 1))
+        env = _clamp(wave, env, state.bounce[miss] > 1)
+        _accumulate(wave.radiance, state.path[miss], env)
+        if state.pass_weights is not None:
+            later = np.flatnonzero(state.bounce[miss] > 0)
+            self._light_passes(wave, state, miss[later], env[:, later])
 
     # ---- stage: the surface-interaction record of the rays that hit
     def _surface_hit(self, hits, rays, found, times=None) -> SurfaceHit:
@@ -642,7 +700,11 @@ class Renderer:
                     np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
                     np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray))
                 le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
-        _accumulate(wave.radiance, state.path[lit], _clamp(wave, le, np.take(state.bounce, lit) > 1))
+        le = _clamp(wave, le, np.take(state.bounce, lit) > 1)
+        _accumulate(wave.radiance, state.path[lit], le)
+        if state.pass_weights is not None:
+            later = np.flatnonzero(np.take(state.bounce, lit) > 0)
+            self._light_passes(wave, state, lit[later], le[:, later])
 
     # ---- stage: Holdout closures cut a hole in alpha where the camera sees them
     @staticmethod
@@ -770,7 +832,17 @@ class Renderer:
         w = np.where(np.take(ls.delta, rows), np.float32(1.0), sampling.power_heuristic(pdf, bsdf_pdf[vis]))
         contribution = np.take(state.throughput, paths, axis=1) * f[:, vis] * transmittance[:, vis] * \
             np.take(ls.radiance, rows, axis=1) * (w / pdf)
-        _accumulate(wave.radiance, state.path[paths], _clamp(wave, contribution, np.take(state.bounce, paths) > 0))
+        contribution = _clamp(wave, contribution, np.take(state.bounce, paths) > 0)
+        _accumulate(wave.radiance, state.path[paths], contribution)
+        if state.pass_weights is not None:
+            # Light reaching the first hit is direct light, split by the closures that reflect it there;
+            # deeper, it is indirect light, split as the path's first bounce was.
+            first = np.flatnonzero(np.take(state.bounce, paths) == 0)
+            split = None
+            if len(first):
+                wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
+                split = _class_shares(*eval_split(closures, paths[first], wi))
+            self._light_passes(wave, state, paths, contribution, shadow=True, first=(first, split))
 
     def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None, times=None) -> np.ndarray:
         """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
@@ -894,6 +966,13 @@ def _clamp(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray:
     if not over.any():
         return value
     return value * np.where(over, limit / np.where(over, total, np.float32(1.0)), np.float32(1.0)).astype(np.float32)
+
+
+def _class_shares(f, f_diffuse, f_glossy) -> np.ndarray:
+    """(6, n): the diffuse and glossy parts of f per channel (Cycles' safe_divide: 0 where f is 0)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.nan_to_num(np.concatenate([f_diffuse / f, f_glossy / f]), nan=0.0, posinf=0.0,
+                             neginf=0.0).astype(np.float32)
 
 
 def _accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> None:

@@ -18,6 +18,12 @@ Two kinds, as in Cycles:
   the camera sees the world.
 - Emission and Environment (MEAN): what the camera sees of emitting surfaces and of the world directly
   (Environment even where a transparent film leaves it out of Combined), as Cycles' passes of those names.
+- LIGHT: Cycles' Diffuse, Glossy and Transmission Direct and Indirect (kernel/film/light_passes.h): every
+  contribution after the camera's first hit, split by the shares of the path's first bounce among the
+  closure classes (diffuse-like; reflecting microfacets and glass seen from outside; the rest), direct when
+  it lit the first hit. Read, as Cycles reads them, divided by the class's Color pass (the first hit's
+  closure colours of that class): Combined = Emission + Environment + sum over classes of
+  (Direct + Indirect) x Color.
 - NOISE: an unbiased estimate of the variance of each pixel's mean: the squared difference between the
   mean of its odd-numbered samples and the mean of all (Cycles' adaptive sampling compares the same two);
   one estimate per pixel, so itself noisy (blur it to read it); 0 with fewer than two samples.
@@ -40,6 +46,9 @@ PASSES = {
     "emission": (3, "MEAN"),
     "environment": (3, "MEAN"),
     "noise": (3, "NOISE"),
+    "diffuse_direct": (3, "LIGHT"), "diffuse_indirect": (3, "LIGHT"), "diffuse_color": (3, "MEAN"),
+    "glossy_direct": (3, "LIGHT"), "glossy_indirect": (3, "LIGHT"), "glossy_color": (3, "MEAN"),
+    "transmission_direct": (3, "LIGHT"), "transmission_indirect": (3, "LIGHT"), "transmission_color": (3, "MEAN"),
 }
 BACKGROUND_DEPTH = 1e10
 

@@ -27,6 +27,8 @@ class PathState:
     time: object = None     # accel.RayTimes or None: the paths' times in the shutter (motion blur)
     features: np.ndarray | None = None  # (3, N) float32 denoising feature throughput, NaN once written
     #                                     (kernels.passes), or None when the denoiser's passes are not recorded
+    pass_weights: np.ndarray | None = None  # (6, N) float32 diffuse and glossy shares (RGB) of the first bounce
+    #                                         (Cycles' light passes), or None when no light pass is recorded
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -50,6 +52,8 @@ class PathState:
             self.time = self.time.take(idx)
         if self.features is not None:
             self.features = np.take(self.features, idx, axis=1)
+        if self.pass_weights is not None:
+            self.pass_weights = np.take(self.pass_weights, idx, axis=1)
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

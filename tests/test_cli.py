@@ -101,7 +101,7 @@ def test_passes_write_a_multilayer_exr(tmp_path, blend_file):
                 "--passes", "depth,normal,object_index,denoising")
     assert run.returncode == 0, run.stderr
     data = out.read_bytes()
-    for name in (b"Combined", b"Depth", b"Normal", b"IndexOB", b"Denoising Albedo", b"Denoising Normal"):
+    for name in (b"Combined", b"Depth", b"Normal", b"Object Index", b"Denoising Albedo", b"Denoising Normal"):
         assert b"ViewLayer." + name in data, name
     assert b"Noisy Image" not in data  # not denoised: no noisy copy
     bad = ember("render", blend_file, "-o", str(tmp_path / "frame.png"), "--passes", "depth")

@@ -128,7 +128,7 @@ def test_data_passes_match_closed_forms(ortho):
     position = engine.image("Position")
     np.testing.assert_allclose(position[..., 2], 0.0, atol=1e-5)
     np.testing.assert_allclose(engine.image("UV")[..., 0], (position[..., 0] + 20) / 40, atol=2e-2)
-    assert np.all(engine.image("IndexOB") == 3) and np.all(engine.image("IndexMA") == 7)
+    assert np.all(engine.image("Object Index") == 3) and np.all(engine.image("Material Index") == 7)
     # positions spread over the view: the camera's footprint, centred under it
     assert abs(position[..., 0].mean() - 0.3) < 0.05 and position[..., 0].std() > 0.1
 
@@ -139,7 +139,7 @@ def test_background_depth_and_indices():
     scene.camera.rotation_euler = (math.radians(180), 0, 0)  # looking up, away from the plane
     engine = render(scene, use_denoising=False)
     assert np.all(engine.image("Depth") == 1e10)
-    assert np.all(engine.image("IndexOB") == 0) and np.all(engine.image("Normal") == 0)
+    assert np.all(engine.image("Object Index") == 0) and np.all(engine.image("Normal") == 0)
 
 
 def test_denoising_passes_and_noisy_image():
@@ -167,7 +167,7 @@ def test_passes_reach_blenders_output():
         scene.render.filepath = os.path.join(tmp, "passes.exr")
         bpy.ops.render.render(write_still=True)
         data = open(scene.render.filepath, "rb").read()
-    for name in (b"Depth", b"Normal", b"Position", b"UV", b"IndexOB", b"IndexMA"):
+    for name in (b"Depth", b"Normal", b"Position", b"UV", b"Object Index", b"Material Index"):
         assert b"ViewLayer." + name in data, name
 
 
@@ -238,7 +238,7 @@ def test_emission_and_environment_add_up_to_combined():
     layer = scene.view_layers[0]
     layer.use_pass_emit = layer.use_pass_environment = True
     engine = render(scene, samples=4, use_denoising=False, max_bounces=0)
-    combined, emit, env = engine.image("Combined")[..., :3], engine.image("Emit"), engine.image("Env")
+    combined, emit, env = engine.image("Combined")[..., :3], engine.image("Emission"), engine.image("Environment")
     np.testing.assert_allclose(emit + env, combined, atol=1e-5)
     np.testing.assert_allclose(emit[12, 12], (3.0, 1.5, 0.75), rtol=1e-5)
     np.testing.assert_allclose(env[0, 0], (0.1, 0.2, 0.3), rtol=1e-5)
@@ -269,3 +269,65 @@ def test_noise_pass_is_the_variance_of_the_mean(mode):
     else:
         assert predicted.mean() > spread.mean() - 4 * se, (predicted.mean(), spread.mean(), se)
     assert np.all(np.stack(noise) >= 0)
+
+
+
+
+def light_scene():
+    """A grey floor, a glossy metal sphere, a glass sphere, a red diffuse wall, a sun and a grey world:
+    every class of light pass gets something."""
+    scene = new_scene(32, 24)
+    quad_object("Floor", (-4, -4, 0), (8, 0, 0), (0, 8, 0), diffuse_material("Floor", (0.6, 0.6, 0.6)))
+    quad_object("Wall", (-4, 2, 0), (8, 0, 0), (0, 0, 4), diffuse_material("Red", (0.7, 0.1, 0.1)))
+    for name, location, inputs in (("Metal", (-0.7, 0, 0.6), {"Metallic": 1.0, "Roughness": 0.3}),
+                                   ("Glass", (0.7, 0, 0.6), {"Transmission Weight": 1.0, "Roughness": 0.05})):
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=location, segments=24, ring_count=12)
+        material = bpy.data.materials.new(name)
+        bsdf = material.node_tree.nodes["Principled BSDF"]
+        for key, value in inputs.items():
+            bsdf.inputs[key].default_value = value
+        bpy.context.object.data.materials.append(material)
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.data.energy, sun.rotation_euler = 3.0, (0.6, 0.2, 0.3)
+    scene.collection.objects.link(sun)
+    set_world(scene, (0.3, 0.3, 0.35), 1.0)
+    layer = scene.view_layers[0]
+    for name in ("diffuse", "glossy", "transmission"):
+        for kind in ("direct", "indirect", "color"):
+            setattr(layer, f"use_pass_{name}_{kind}", True)
+    layer.use_pass_emit = layer.use_pass_environment = True
+    return scene
+
+
+def test_light_passes_add_up_to_combined():
+    """Cycles' identity: Combined = Emit + Env + sum over Diffuse, Glossy and Transmission of
+    (Direct + Indirect) x Color, pixel by pixel (float precision), and every class has light (Transmission
+    Direct stays dark: light through a closed glass sphere has always bounced inside it first)."""
+    engine = render(light_scene(), samples=4, use_denoising=False)
+    total = engine.image("Emission") + engine.image("Environment")
+    for c in ("Diffuse", "Glossy", "Transmission"):
+        colour = engine.image(c + " Color")
+        direct, indirect = engine.image(c + " Direct"), engine.image(c + " Indirect")
+        assert indirect.max() > 0 and (c == "Transmission" or direct.max() > 0), c
+        total += (direct + indirect) * colour
+    combined = engine.image("Combined")[..., :3]
+    np.testing.assert_allclose(total, combined, rtol=1e-4, atol=1e-5)
+
+
+def test_diffuse_direct_of_a_sunlit_plane_is_the_irradiance_over_pi():
+    """A white-ish diffuse plane under a sun of 3 W/m^2 at 30 degrees, black world, nothing else: Diffuse
+    Direct is E cos(theta) / pi exactly (the colour divided out), Diffuse Color the albedo, nothing
+    indirect."""
+    scene = plane_scene()
+    scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.data.energy, sun.data.angle, sun.rotation_euler = 3.0, 0.0, (math.radians(30), 0, 0)
+    scene.collection.objects.link(sun)
+    layer = scene.view_layers[0]
+    layer.use_pass_diffuse_direct = layer.use_pass_diffuse_indirect = layer.use_pass_diffuse_color = True
+    engine = render(scene, samples=2, use_denoising=False)
+    np.testing.assert_allclose(engine.image("Diffuse Direct"), 3.0 * math.cos(math.radians(30)) / math.pi,
+                               rtol=1e-5)
+    np.testing.assert_allclose(engine.image("Diffuse Color"), np.broadcast_to([0.5, 0.4, 0.3], (16, 24, 3)),
+                               rtol=1e-6)
+    assert np.all(engine.image("Diffuse Indirect") == 0)

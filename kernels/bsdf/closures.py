@@ -36,6 +36,9 @@ MICROFACET_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
 WEIGHT_CUTOFF = np.float32(1e-5)
 # Lobes Cycles counts as diffuse (CLOSURE_IS_BSDF_DIFFUSE) for the bump shadowing term.
 DIFFUSE_LOBES = (LAMBERT, OREN_NAYAR, SHEEN, TRANSLUCENT)
+# Cycles' light passes (kernel/film/light_passes.h): diffuse-like closures count as diffuse, reflecting
+# microfacets as glossy, glass as glossy on its reflection side, the rest as transmission.
+GLOSSY_LOBES = (REFLECTION, ASHIKHMIN_SHIRLEY)
 
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
@@ -409,6 +412,70 @@ class ClosureSet:
         with np.errstate(divide="ignore", invalid="ignore"):
             pdf = np.bincount(local, pdf_c * self.sw[idx], minlength=len(hits)) / total
         return f, np.where(total > 0, pdf, 0.0).astype(F32)
+
+
+def pass_classes(cs, idx, wi):
+    """(diffuse, glossy) (n,) bool of closures idx toward world directions wi (n,), as Cycles' bsdf_eval_accum
+    sorts them for its light passes (anything else is transmission)."""
+    lobe = cs.lobe[idx]
+    diffuse = np.isin(lobe, DIFFUSE_LOBES)
+    glossy = np.isin(lobe, GLOSSY_LOBES)
+    if GLASS in cs.kinds:
+        n = cs.normal[:, idx]
+        glossy |= (lobe == GLASS) & (wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] > 0)
+    return diffuse, glossy
+
+
+def eval_split(cs, hits: np.ndarray, wi):
+    """ClosureSet.eval_at with its diffuse and glossy parts: (f (3, n), f_diffuse (3, n), f_glossy (3, n))."""
+    if cs.single:
+        rows = cs.row_of_hit[hits]
+        have = np.flatnonzero(rows >= 0)
+        out = [np.zeros((3, len(hits)), F32) for _ in range(3)]
+        if len(have):
+            w = tuple(c[have] for c in wi)
+            f, _ = cs._eval_closures(w, rows[have])
+            diffuse, glossy = pass_classes(cs, rows[have], w)
+            out[0][:, have], out[1][:, have], out[2][:, have] = f, f * diffuse, f * glossy
+        return tuple(out)
+    count = cs.count[hits]
+    idx = np.repeat(cs.start[hits], count) + _ranges(count)
+    local = np.repeat(np.arange(len(hits)), count)
+    w = tuple(np.take(c, local) for c in wi)
+    f_c, _ = cs._eval_closures(w, idx)
+    diffuse, glossy = pass_classes(cs, idx, w)
+    return tuple(np.stack([np.bincount(local, part[k], minlength=len(hits)) for k in range(3)]).astype(F32)
+                 for part in (f_c, f_c * diffuse, f_c * glossy))
+
+
+def class_albedo(cs, n_hits: int):
+    """(diffuse, glossy, transmission) (3, n) colours of the hits' closures: each closure's weight times its
+    albedo estimate (its sample weight over its mean weight), summed per class (Cycles' surface_shader_diffuse,
+    _glossy, _transmission); glass shares its albedo by its dielectric Fresnel toward the viewer (Cycles
+    reads its reflection and transmission albedos from its microfacet tables: equal for smooth glass)."""
+    out = [np.zeros((3, n_hits), F32) for _ in range(3)]
+    if not len(cs):
+        return tuple(out)
+    weight = np.asarray(cs.weight, F32)
+    mean = weight.mean(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        albedo = weight * np.where(mean > 0, np.asarray(cs.sw, F32) / mean, 0.0)
+    lobe = cs.lobe
+    f0 = np.zeros(len(lobe), F32)
+    glass = np.flatnonzero(lobe == GLASS)
+    if len(glass):  # the glass's reflectance toward the viewer: its dielectric Fresnel there
+        from .fresnel import dielectric
+        wo = tuple(np.take(c, cs.hit[glass]) for c in cs._wo_world)
+        n = cs.normal[:, glass]
+        cos = np.abs(wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2])
+        f0[glass] = dielectric(cos, np.broadcast_to(np.asarray(cs.eta, F32), lobe.shape)[glass])[0]
+    shares = (np.isin(lobe, DIFFUSE_LOBES).astype(F32),
+              np.isin(lobe, GLOSSY_LOBES) + (lobe == GLASS) * f0,
+              (lobe == REFRACTION) + (lobe == GLASS) * (1 - f0))
+    for o, share in zip(out, shares):
+        for k in range(3):
+            o[k] = np.bincount(cs.hit, albedo[k] * share, minlength=n_hits)
+    return tuple(out)
 
 
 class BsdfSample:

@@ -1,0 +1,100 @@
+"""Light and data passes against Cycles' own on the same scene (issue 13), read from both engines'
+multilayer EXRs: Diffuse/Glossy/Transmission Direct, Indirect and Color, Emission, Environment, Depth,
+Normal. Block means within noise: the z-score of each block's difference from replicate renders."""
+from __future__ import annotations
+
+import os
+import tempfile
+
+import bpy
+import numpy as np
+import pytest
+
+from bpy_helpers import REPLICATE_SEEDS, configure_cycles
+from test_cryptomatte import _multipart_exr
+from test_passes import light_scene
+
+SAMPLES = 64
+PASSES = ("Diffuse Direct", "Diffuse Indirect", "Diffuse Color", "Glossy Direct", "Glossy Indirect", "Glossy Color",
+          "Transmission Indirect", "Transmission Color", "Environment", "Depth", "Normal")
+
+
+def render(engine, seed):
+    scene = light_scene()
+    layer = scene.view_layers[0]
+    layer.use_pass_z = layer.use_pass_normal = True
+    scene.render.engine = engine
+    if engine == "CYCLES":
+        configure_cycles(scene, SAMPLES, seed, 8)
+    else:
+        e = scene.ember
+        e.samples, e.seed, e.max_bounces, e.transparent_max_bounces = SAMPLES, seed, 8, 8
+        e.use_adaptive_sampling = e.use_denoising = False
+        e.sample_clamp_direct = e.sample_clamp_indirect = e.blur_glossy = 0.0
+        e.pixel_filter_type = "BOX"
+    settings = scene.render.image_settings
+    settings.media_type, settings.color_depth = "MULTI_LAYER_IMAGE", "32"
+    with tempfile.TemporaryDirectory() as tmp:
+        scene.render.filepath = os.path.join(tmp, "passes.exr")
+        bpy.ops.render.render(write_still=True)
+        parts, _ = _multipart_exr(scene.render.filepath)
+    layer_name = layer.name
+    out = {}
+    for name in PASSES:
+        planes = parts[f"{layer_name}.{name}"]
+        out[name] = np.stack([planes[c] for c in sorted(planes, key="RGBXYZ".find)], axis=-1)
+    return out
+
+
+@pytest.fixture(scope="module")
+def renders():
+    return {engine: [render(engine, seed) for seed in REPLICATE_SEEDS[:2]] for engine in ("CYCLES", "EMBER")}
+
+
+@pytest.mark.parametrize("name", PASSES)
+def test_pass_matches_cycles(renders, name):
+    """Each pass's 4x4 blocks: the two engines' means within 5 standard errors (from the two replicates
+    of each), with a floor of 2% of the block's value for what no noise explains (float, tessellation).
+    Direct and Indirect light are compared as written, times their Color (Cycles divides by the colour when
+    it reads them; a colour of its own microfacet albedo tables that Ember estimates differently would
+    otherwise swing the quotient where the colour is small)."""
+    blocks = 4
+    if name in ("Depth", "Normal"):
+        # First-hit data, taken at sample 0's jitter, which differs between engines and seeds: compared away
+        # from silhouettes (pixels next to a jump of more than 5% in any render), to 2% (the spread of a
+        # pixel's footprint on a tilted surface).
+        stack = np.minimum(np.stack([r[name] for engine in ("CYCLES", "EMBER") for r in renders[engine]]), 100.0)
+        jump = np.zeros(stack.shape[1:3], bool)
+        for axis in (1, 2):
+            d = np.abs(np.diff(stack, axis=axis)).max(axis=(0, 3)) > 0.05 * np.maximum(
+                np.abs(np.take(stack, range(stack.shape[axis] - 1), axis=axis)).max(axis=(0, 3)), 1e-2)
+            if axis == 1:
+                jump[:-1] |= d
+                jump[1:] |= d
+            else:
+                jump[:, :-1] |= d
+                jump[:, 1:] |= d
+        interior = ~jump
+        assert interior.mean() > 0.5
+        np.testing.assert_allclose(stack[2:, interior], stack[:2, interior], rtol=2e-2, atol=2e-2)
+        return
+
+    def value(render):
+        image = render[name]
+        if name.endswith(("Direct", "Indirect")):
+            image = image * render[name.rsplit(" ", 1)[0] + " Color"]
+        return image
+
+    def block_means(images):
+        a = np.stack(images)  # (2, H, W, C)
+        _, h, w, c = a.shape
+        bh, bw = h // blocks, w // blocks
+        return a[:, :bh * blocks, :bw * blocks].reshape(2, blocks, bh, blocks, bw, c).mean(axis=(2, 4))
+
+    cyc = block_means([value(r) for r in renders["CYCLES"]])
+    emb = block_means([value(r) for r in renders["EMBER"]])
+    diff = emb.mean(axis=0) - cyc.mean(axis=0)
+    se = np.sqrt(cyc.var(axis=0, ddof=1) / 2 + emb.var(axis=0, ddof=1) / 2)
+    floor = 0.02 * np.abs(cyc.mean(axis=0)) + 1e-4
+    z = np.abs(diff) / np.maximum(se, floor)
+    assert z.max() < 5, (name, float(z.max()), np.unravel_index(int(z.argmax()), z.shape))
