@@ -83,9 +83,23 @@ def crypto_passes(view_layer) -> list[Pass]:
     return out
 
 
+def aov_passes(view_layer) -> list[Pass]:
+    """View Layer > Shader AOV: one pass per valid AOV, as Cycles registers them (colour: RGBA, alpha 1)."""
+    out = []
+    for aov in getattr(view_layer, "aovs", ()):
+        if not aov.is_valid:
+            continue
+        if aov.type == "VALUE":
+            out.append(Pass("", aov.name, 1, "X", "VALUE", f"aov:{aov.name}:value"))
+        else:
+            out.append(Pass("", aov.name, 4, "RGBA", "COLOR", f"aov:{aov.name}:color"))
+    return out
+
+
 def enabled_passes(scene, view_layer) -> list[Pass]:
     """The passes of a view layer besides Combined, in Blender's order."""
-    out = [p for p in DATA_PASSES if _toggle(view_layer, p.toggle)] + crypto_passes(view_layer)
+    out = [p for p in DATA_PASSES if _toggle(view_layer, p.toggle)] + crypto_passes(view_layer) + \
+        aov_passes(view_layer)
     if store_denoising_data(view_layer):
         out += [DENOISING_NORMAL, DENOISING_ALBEDO]
         if scene.ember.use_denoising:

@@ -300,8 +300,13 @@ class FinalRender:
                     if kind not in crypto:
                         crypto[kind] = film.resolve_crypto(kind, row0, row1)
                     _set_rect(layer, p.name, crypto[kind][..., 4 * int(index):4 * int(index) + 4])
+                elif p.kernel:
+                    values = film.resolve_pass(p.kernel, row0, row1)
+                    if p.channels == 4 and values.shape[-1] == 3:  # an RGBA AOV: opaque
+                        values = np.concatenate([values, np.ones(values.shape[:-1] + (1,), np.float32)], axis=-1)
+                    _set_rect(layer, p.name, values)
                 else:
-                    _set_rect(layer, p.name, film.resolve_pass(p.kernel, row0, row1) if p.kernel else rows)
+                    _set_rect(layer, p.name, rows)
 
         finally:
             self.engine.end_result(result)

@@ -176,6 +176,16 @@ class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
         col.prop(view_layer, "use_pass_cryptomatte_material", text="Material")
         col.prop(view_layer, "use_pass_cryptomatte_asset", text="Asset")
         col.prop(view_layer, "pass_cryptomatte_depth", text="Levels")
+        layout.label(text="Shader AOV")
+        row = layout.row()
+        row.template_list("UI_UL_list", "aovs", view_layer, "aovs", view_layer, "active_aov_index", rows=2)
+        col = row.column(align=True)
+        col.operator("scene.view_layer_add_aov", icon="ADD", text="")
+        col.operator("scene.view_layer_remove_aov", icon="REMOVE", text="")
+        aov = view_layer.active_aov
+        if aov is not None:
+            layout.prop(aov, "name")
+            layout.prop(aov, "type", expand=True)
 
 
 class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):

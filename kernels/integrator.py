@@ -87,7 +87,7 @@ class RenderSettings:
             raise ValueError(f"mode: must be one of {SAMPLING_MODES}, got {self.mode!r}")
         if int(self.samples) < 1:
             raise ValueError(f"samples: must be at least 1, got {self.samples}")
-        unknown = [p for p in self.passes if p not in passes.PASSES]
+        unknown = [p for p in self.passes if not passes.known(p)]
         if unknown:
             raise ValueError(f"passes: unknown {unknown}, known {tuple(passes.PASSES)}")
         unknown = [k for k in self.cryptomatte if k not in passes.CRYPTO_KINDS]
@@ -408,7 +408,7 @@ class Renderer:
         state.time = None if times is None else RayTimes(times)
         if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux):
             state.features = np.ones((3, n), np.float32)
-        if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if name in passes.PASSES):
+        if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
             state.pass_weights = np.zeros((6, n), np.float32)
         if self.shading.reads_lobes:
             state.lobes = np.zeros((4, n), np.int32)
@@ -501,6 +501,9 @@ class Renderer:
                         np.take(self.scene.object_ids, hit.prim) if self.scene.object_ids is not None else None
                     if rows is not None:
                         out[0, paths] = np.take(table, rows)
+            elif name.startswith("aov:"):
+                _, aov_name, which = name.split(":")
+                out[:, paths] = self.shading.aov(hit, aov_name, 3 if which == "color" else 1)
             elif name in ("diffuse_color", "glossy_color", "transmission_color"):
                 colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),
                                    class_albedo(closures, n)))

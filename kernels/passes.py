@@ -24,6 +24,8 @@ Two kinds, as in Cycles:
   it lit the first hit. Read, as Cycles reads them, divided by the class's Color pass (the first hit's
   closure colours of that class): Combined = Emission + Environment + sum over classes of
   (Direct + Indirect) x Color.
+- Shader AOVs ("aov:<name>:color" or ":value", MEAN): the AOV Output node of that name at the camera rays'
+  first hit (0 where the material has none), averaged over samples.
 - NOISE: an unbiased estimate of the variance of each pixel's mean: the squared difference between the
   mean of its odd-numbered samples and the mean of all (Cycles' adaptive sampling compares the same two);
   one estimate per pixel, so itself noisy (blur it to read it); 0 with fewer than two samples.
@@ -57,15 +59,21 @@ CRYPTO_KINDS = ("object", "material", "asset")
 
 
 def channels(name: str) -> int:
+    if name.startswith("aov:"):  # Shader AOVs: "aov:<name>:color" (3) or "aov:<name>:value" (1)
+        return 3 if name.endswith(":color") else 1
     return PASSES[name][0]
 
 
 def is_first(name: str) -> bool:
-    return PASSES[name][1] == "FIRST"
+    return kind(name) == "FIRST"
 
 
 def kind(name: str) -> str:
-    return PASSES[name][1]
+    return "MEAN" if name.startswith("aov:") else PASSES[name][1]
+
+
+def known(name: str) -> bool:
+    return name in PASSES or (name.startswith("aov:") and name.endswith((":color", ":value")))
 
 
 def closure_albedo(closures, n_hits: int) -> np.ndarray:

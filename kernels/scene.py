@@ -233,11 +233,14 @@ class Shader:
     bump_map_correction : Cycles' material setting of that name (on by default): specular closures tilt
         their normal toward the geometric normal until the mirror direction clears the surface.
     program : the material's node program (kernels.programs), which linked Params read.
+    aovs : the material's AOV Output nodes, ((name, colour Param (3), value Param (1)), ...): the Shader AOV
+        passes read them at the camera rays' first hit.
     """
     closures: tuple = ()
     name: str = ""
     bump_map_correction: bool = True
     program: Program = Program()
+    aovs: tuple = ()
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),

@@ -331,3 +331,32 @@ def test_diffuse_direct_of_a_sunlit_plane_is_the_irradiance_over_pi():
     np.testing.assert_allclose(engine.image("Diffuse Color"), np.broadcast_to([0.5, 0.4, 0.3], (16, 24, 3)),
                                rtol=1e-6)
     assert np.all(engine.image("Diffuse Indirect") == 0)
+
+
+def test_shader_aov_outputs_reach_their_passes():
+    """View Layer > Shader AOV: an AOV Output node's Color (a colour AOV) and Value (a value AOV) at the
+    first hit, from a constant and from a node program (the Geometry's Position z: 0 on the floor)."""
+    scene = plane_scene()
+    layer = scene.view_layers[0]
+    bpy.ops.scene.view_layer_add_aov()
+    layer.aovs[-1].name, layer.aovs[-1].type = "tint", "COLOR"
+    bpy.ops.scene.view_layer_add_aov()
+    layer.aovs[-1].name, layer.aovs[-1].type = "height", "VALUE"
+    material = bpy.data.materials["Floor"]
+    nodes, links = material.node_tree.nodes, material.node_tree.links
+    tint = nodes.new("ShaderNodeOutputAOV")
+    tint.aov_name = "tint"
+    tint.inputs["Color"].default_value = (0.25, 0.5, 0.75, 1.0)
+    height = nodes.new("ShaderNodeOutputAOV")
+    height.aov_name = "height"
+    separate = nodes.new("ShaderNodeSeparateXYZ")
+    geometry = nodes.new("ShaderNodeNewGeometry")
+    links.new(geometry.outputs["Position"], separate.inputs[0])
+    math_node = nodes.new("ShaderNodeMath")
+    math_node.operation = "ADD"
+    math_node.inputs[1].default_value = 2.0
+    links.new(separate.outputs["Z"], math_node.inputs[0])
+    links.new(math_node.outputs[0], height.inputs["Value"])
+    engine = render(scene, use_denoising=False)
+    np.testing.assert_allclose(engine.image("tint"), np.broadcast_to([0.25, 0.5, 0.75, 1.0], (16, 24, 4)), atol=1e-6)
+    np.testing.assert_allclose(engine.image("height"), 2.0, atol=1e-5)

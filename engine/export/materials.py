@@ -350,8 +350,11 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
         uv_maps.extend(reader.tangent_uv_maps)
     if attributes is not None:
         attributes.update(reader.attributes)
+    aovs = tuple((node.aov_name, reader.param(node.inputs["Color"], (), 3, node),
+                  reader.param(node.inputs["Value"], (), 1, node))
+                 for node in tree.nodes if node.bl_idname == "ShaderNodeOutputAOV" and not node.mute)
     correction = getattr(getattr(material, "cycles", None), "use_bump_map_correction", True)
-    return Shader(closures, material.name, bool(correction), reader.program.program())
+    return Shader(closures, material.name, bool(correction), reader.program.program(), aovs)
 
 
 class _MaterialReader:

@@ -117,6 +117,19 @@ class Shading:
                 _collect(out, idx, emission, holdout)
         return SurfaceShading(builder.finish() if closures else None, emission, holdout)
 
+    def aov(self, hit, name: str, channels: int) -> np.ndarray:
+        """(channels, n) the hits' value of the AOV `name` (its Color input for channels 3, its Value for 1),
+        0 for materials without that AOV Output (as Cycles leaves the pass)."""
+        out = np.zeros((channels, len(hit)), F32)
+        for m, idx in _by_material(hit.mat):
+            for aov_name, colour, value in self.shaders[m].aovs:
+                if aov_name == name:
+                    sub = _Sub(hit, idx)
+                    sub.material = m
+                    out[:, idx] = np.reshape(self.param(colour if channels == 3 else value, sub, channels),
+                                             (channels, -1))
+        return out
+
     def _build_batch(self, segments, hit, wo, builder, emission, holdout) -> None:
         """One closure kind over the hits of several materials at once: inputs stitched per material."""
         idx = np.concatenate([s[2] for s in segments])
