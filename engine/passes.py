@@ -36,6 +36,7 @@ DATA_PASSES = (
     Pass("use_pass_emit", "Emission", 3, "RGB", "COLOR", "emission"),
     Pass("use_pass_environment", "Environment", 3, "RGB", "COLOR", "environment"),
     Pass("ember.use_pass_noise", "Noise", 3, "RGB", "COLOR", "noise"),
+    Pass("use_pass_vector", "Vector", 4, "XYZW", "VECTOR", "vector"),
     Pass("use_pass_diffuse_direct", "Diffuse Direct", 3, "RGB", "COLOR", "diffuse_direct"),
     Pass("use_pass_diffuse_indirect", "Diffuse Indirect", 3, "RGB", "COLOR", "diffuse_indirect"),
     Pass("use_pass_diffuse_color", "Diffuse Color", 3, "RGB", "COLOR", "diffuse_color"),
@@ -83,6 +84,12 @@ def crypto_passes(view_layer) -> list[Pass]:
     return out
 
 
+def _vector_allowed(scene, view_layer) -> bool:
+    """Cycles offers the Vector pass only without motion blur."""
+    from .export.motion import enabled
+    return not enabled(scene, view_layer)
+
+
 def aov_passes(view_layer) -> list[Pass]:
     """View Layer > Shader AOV: one pass per valid AOV, as Cycles registers them (colour: RGBA, alpha 1)."""
     out = []
@@ -98,7 +105,8 @@ def aov_passes(view_layer) -> list[Pass]:
 
 def enabled_passes(scene, view_layer) -> list[Pass]:
     """The passes of a view layer besides Combined, in Blender's order."""
-    out = [p for p in DATA_PASSES if _toggle(view_layer, p.toggle)] + crypto_passes(view_layer) + \
+    out = [p for p in DATA_PASSES if _toggle(view_layer, p.toggle)
+           and (p.kernel != "vector" or _vector_allowed(scene, view_layer))] + crypto_passes(view_layer) + \
         aov_passes(view_layer)
     if store_denoising_data(view_layer):
         out += [DENOISING_NORMAL, DENOISING_ALBEDO]
@@ -110,6 +118,8 @@ def enabled_passes(scene, view_layer) -> list[Pass]:
 def kernel_passes(scene, view_layer, denoise_inputs: str | None) -> tuple:
     """kernels.passes names to record: the enabled data passes, and what the denoiser reads."""
     names = [p.kernel for p in enabled_passes(scene, view_layer) if p.kernel and not p.kernel.startswith("crypto:")]
+    if "vector" in names:
+        names.append("vector_weight")
     # Direct and indirect light are read divided by their class's colour: record it too.
     names += [n.split("_")[0] + "_color" for n in names if n.endswith(("_direct", "_indirect"))]
     if denoise_inputs in ("RGB_ALBEDO", "RGB_ALBEDO_NORMAL"):

@@ -20,7 +20,7 @@ import numpy as np
 from ..kernels import Cancelled, Renderer, RenderSettings
 from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region
-from .export.motion import sample_motion
+from .export.motion import sample_motion, sample_vector_motion
 from . import cryptomatte
 from .passes import enabled_passes, kernel_passes, mist_settings
 from .version import EMBER_VERSION
@@ -138,8 +138,9 @@ class FinalRender:
         try:
             camera_ob = engine.camera_override or self.depsgraph.scene.camera
             motion = sample_motion(engine, self.depsgraph, camera_ob) if camera_ob is not None else None
+            vector = sample_vector_motion(engine, self.depsgraph, camera_ob) if camera_ob is not None else None
             exported = export_scene(self.depsgraph, engine.camera_override, width=width, height=height,
-                                    should_stop=self.should_stop, motion=motion)
+                                    should_stop=self.should_stop, motion=motion, vector=vector)
         except ExportCancelled:
             return self._cancel()
         except ExportError as err:

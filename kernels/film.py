@@ -78,6 +78,10 @@ class Film:
         count = self.pixel_samples[row0:row1].astype(np.float64)
         scale = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
         mean = values * scale[:, :, None]
+        if _passes.kind(name) == "WEIGHTED":  # averaged over the samples that wrote it (Cycles' motion weight)
+            weight = self.aux[name + "_weight"][row0:row1]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return np.where(weight > 0, values / weight, 0.0).astype(np.float32)
         if _passes.kind(name) == "MIST":
             return (1.0 - mean).astype(np.float32)
         if _passes.kind(name) == "LIGHT":  # divided by the class's colour, as Cycles' pass accessor does

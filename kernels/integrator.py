@@ -501,6 +501,11 @@ class Renderer:
                         np.take(self.scene.object_ids, hit.prim) if self.scene.object_ids is not None else None
                     if rows is not None:
                         out[0, paths] = np.take(table, rows)
+            elif name == "vector":
+                if self.scene.vector_motion is not None:
+                    out[:, paths] = self._motion_vectors(hit)
+                if "vector_weight" in aux:
+                    aux["vector_weight"][0, paths] = 1.0
             elif name.startswith("aov:"):
                 _, aov_name, which = name.split(":")
                 out[:, paths] = self.shading.aov(hit, aov_name, 3 if which == "color" else 1)
@@ -516,6 +521,23 @@ class Renderer:
                 start, depth, falloff = settings.mist
                 mist = np.clip((distance - start) / max(depth, 1e-30), 0.0, 1.0) ** falloff
                 out[0, paths] = (1.0 - mist) * state.throughput.mean(axis=0)
+
+    def _motion_vectors(self, hit) -> np.ndarray:
+        """(4, n) Cycles' Vector pass at the hits: (previous - current, current - next) raster positions."""
+        before, after, cam_before, cam_after = self.scene.vector_motion
+        p = np.stack([c.astype(np.float64) for c in hit.p])          # (3, n)
+        rows = np.take(self.scene.object_ids, hit.prim) if self.scene.object_ids is not None else \
+            np.zeros(len(hit), np.int64)
+        camera = self.scene.camera
+
+        def moved(m):  # (K, 3, 4) per object row
+            m = m[rows]
+            return np.einsum("nij,jn->in", m[:, :, :3], p) + m[:, :, 3].T
+
+        centre = _raster(camera, camera.world_from_camera, p)
+        pre = _raster(camera, cam_before, moved(before))
+        post = _raster(camera, cam_after, moved(after))
+        return np.concatenate([pre - centre, centre - post]).astype(np.float32)
 
     def _denoising_features(self, aux: dict, state, hit, closures) -> None:
         """Cycles' denoising features: written at the first hit that is not mostly specular."""
@@ -969,6 +991,24 @@ def _clamp(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray:
     if not over.any():
         return value
     return value * np.where(over, limit / np.where(over, total, np.float32(1.0)), np.float32(1.0)).astype(np.float32)
+
+
+def _raster(camera: Camera, world_from_camera, p: np.ndarray) -> np.ndarray:
+    """(2, n) raster positions (x right, y up, in pixels of the full frame) of world points p (3, n) seen by
+    `camera` placed at world_from_camera (4, 4)."""
+    m = np.asarray(world_from_camera, np.float64)
+    rotation = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
+    local = rotation.T @ (p - m[:3, 3][:, None])
+    if camera.kind == "PANO":
+        sx, sy = panorama.panorama_raster(camera, (local / np.linalg.norm(local, axis=0)).T)
+        return np.stack([sx, camera.height - sy])
+    xmin, xmax, ymin, ymax = view_plane(camera)
+    if camera.kind == "ORTHO":
+        px, py = local[0], local[1]
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            px, py = local[0] / -local[2], local[1] / -local[2]
+    return np.stack([(px - xmin) / (xmax - xmin) * camera.width, (py - ymin) / (ymax - ymin) * camera.height])
 
 
 def _class_shares(f, f_diffuse, f_glossy) -> np.ndarray:

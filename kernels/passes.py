@@ -24,6 +24,9 @@ Two kinds, as in Cycles:
   it lit the first hit. Read, as Cycles reads them, divided by the class's Color pass (the first hit's
   closure colours of that class): Combined = Emission + Environment + sum over classes of
   (Direct + Indirect) x Color.
+- Vector (WEIGHTED): Cycles' motion vectors, in pixels: (previous - current) and (current - next) raster
+  positions of the camera rays' first surface point (x right, y up), the object's and the camera's
+  transforms one frame before and after; averaged over the samples that hit a surface.
 - Shader AOVs ("aov:<name>:color" or ":value", MEAN): the AOV Output node of that name at the camera rays'
   first hit (0 where the material has none), averaged over samples.
 - NOISE: an unbiased estimate of the variance of each pixel's mean: the squared difference between the
@@ -48,6 +51,7 @@ PASSES = {
     "emission": (3, "MEAN"),
     "environment": (3, "MEAN"),
     "noise": (3, "NOISE"),
+    "vector": (4, "WEIGHTED"), "vector_weight": (1, "MEAN"),
     "diffuse_direct": (3, "LIGHT"), "diffuse_indirect": (3, "LIGHT"), "diffuse_color": (3, "MEAN"),
     "glossy_direct": (3, "LIGHT"), "glossy_indirect": (3, "LIGHT"), "glossy_color": (3, "MEAN"),
     "transmission_direct": (3, "LIGHT"), "transmission_indirect": (3, "LIGHT"), "transmission_color": (3, "MEAN"),

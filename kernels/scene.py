@@ -427,6 +427,9 @@ class SceneArrays:
         each triangle's entry of `motion`, -1 for static triangles.
     shutter_table : (256,) float32 or None: path time from a uniform number (kernels.motion.shutter_table);
         rolling_shutter : None, or the rolling shutter's duration (Cycles' TOP rolling shutter).
+    vector_motion : the Vector pass's neighbours in time, or None: ((K, 3, 4) per object row taking stored
+        positions to the previous frame's, (K, 3, 4) to the next frame's, (4, 4) world_from_camera of the
+        previous frame, (4, 4) of the next).
     crypto_ids : Cryptomatte ids (kernels.cryptomatte.hash_name of the names), or None: {"object": (K,) and
         "asset": (K,) float32 per row of `objects`, "material": (M,) float32 per material}.
     """
@@ -450,6 +453,7 @@ class SceneArrays:
     shutter_table: np.ndarray | None = None
     rolling_shutter: float | None = None
     crypto_ids: dict | None = None
+    vector_motion: tuple | None = None
 
     @property
     def has_motion(self) -> bool:

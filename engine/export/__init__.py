@@ -28,7 +28,7 @@ from .camera import export_camera, render_region, render_resolution
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
 from .mesh import export_geometry
-from .motion import scene_motion
+from .motion import scene_motion, vector_fields
 from .world import export_world
 
 __all__ = ["DEFAULT_ALBEDO", "ExportCancelled", "ExportError", "ExportResult", "export_scene", "render_region",
@@ -64,7 +64,7 @@ class ExportCancelled(Exception):
 
 
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
-                 motion=None) -> ExportResult:
+                 motion=None, vector=None) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
 
     camera_override : a camera object to use instead of the scene's (RenderEngine.camera_override).
@@ -97,7 +97,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          camera=camera, lights=lights, tangents=geometry.tangents,
                          attributes=geometry.attributes, objects=geometry.objects, object_ids=geometry.object_ids,
                          crypto_ids={kind: hash_names(names) for kind, names in crypto_names.items()},
-                         **scene_motion(motion, geometry))
+                         **scene_motion(motion, geometry),
+                         **vector_fields(vector, geometry, camera.world_from_camera))
     if motion is not None:
         warnings.extend(motion.warnings)
         if motion.camera is not None:

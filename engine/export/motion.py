@@ -126,6 +126,57 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     return samples
 
 
+@dataclass
+class VectorSamples:
+    """The Vector pass's neighbours in time (Cycles' MOTION_PASS): per instance key and for the camera,
+    the world matrices one frame before and one frame after."""
+    objects: dict = field(default_factory=dict)   # key -> ((4, 4) before, (4, 4) after)
+    camera: tuple = ()                            # ((4, 4) before, (4, 4) after), rigid
+
+
+def sample_vector_motion(engine, depsgraph, camera_ob) -> VectorSamples | None:
+    """Evaluate the scene one frame before and after and record matrices, for the Vector pass (View Layer
+    > Passes > Vector); None unless the pass is on and motion blur is off (Cycles offers the pass only
+    then). The scene is back at its own frame when this returns."""
+    scene = depsgraph.scene
+    if not getattr(depsgraph.view_layer, "use_pass_vector", False) or enabled(scene, depsgraph.view_layer):
+        return None
+    frame, subframe = scene.frame_current, scene.frame_subframe
+    out = VectorSamples()
+    recorded: dict = {}
+    cameras = []
+    try:
+        for offset in (-1, 1):
+            engine.frame_set(frame + offset, subframe)
+            for inst in depsgraph.object_instances:
+                if inst.object.type == "MESH":
+                    recorded.setdefault(instance_key(inst), []).append(np.array(inst.matrix_world, np.float64))
+            if camera_ob is not None:
+                cameras.append(_rigid(np.array(camera_ob.evaluated_get(depsgraph).matrix_world)))
+    finally:
+        engine.frame_set(frame, subframe)
+    out.objects = {key: (m[0], m[1]) for key, m in recorded.items() if len(m) == 2}
+    if len(cameras) == 2:
+        out.camera = (cameras[0], cameras[1])
+    return out
+
+
+def vector_fields(samples: VectorSamples | None, geometry, camera_matrix) -> dict:
+    """SceneArrays.vector_motion for an exported geometry: per object row, the (3, 4) matrices taking its
+    stored world positions to the previous and next frame's; the camera's world matrices then."""
+    if samples is None or geometry.instance_keys is None:
+        return {}
+    rows = len(geometry.instance_keys)
+    before = np.zeros((rows, 3, 4), np.float64)
+    after = np.zeros((rows, 3, 4), np.float64)
+    for row, (key, matrix) in enumerate(zip(geometry.instance_keys, geometry.instance_matrices)):
+        inverse = np.linalg.inv(np.asarray(matrix, np.float64))
+        pre, post = samples.objects.get(key, (matrix, matrix))
+        before[row], after[row] = (pre @ inverse)[:3], (post @ inverse)[:3]
+    camera = samples.camera or (camera_matrix, camera_matrix)
+    return dict(vector_motion=(before, after, np.asarray(camera[0], np.float64), np.asarray(camera[1], np.float64)))
+
+
 def _track_deformation(ob, key, step: int, first: dict, deforming: set) -> None:
     """Compare the evaluated vertices at the first and last key of objects that could deform."""
     if not (ob.modifiers or getattr(ob.data, "shape_keys", None)):
