@@ -49,6 +49,7 @@ DATA_PASSES = (
 )
 DENOISING_ALBEDO = Pass("", "Denoising Albedo", 3, "RGB", "COLOR", "denoising_albedo")
 DENOISING_NORMAL = Pass("", "Denoising Normal", 3, "XYZ", "VECTOR", "denoising_normal")
+DENOISING_DEPTH = Pass("", "Denoising Depth", 1, "Z", "VALUE", "denoising_depth")
 NOISY_IMAGE = Pass("", "Noisy Image", 4, "RGBA", "COLOR", "")
 
 
@@ -109,7 +110,7 @@ def enabled_passes(scene, view_layer) -> list[Pass]:
            and (p.kernel != "vector" or _vector_allowed(scene, view_layer))] + crypto_passes(view_layer) + \
         aov_passes(view_layer)
     if store_denoising_data(view_layer):
-        out += [DENOISING_NORMAL, DENOISING_ALBEDO]
+        out += [DENOISING_NORMAL, DENOISING_ALBEDO, DENOISING_DEPTH]
         if scene.ember.use_denoising:
             out.append(NOISY_IMAGE)
     return out

@@ -406,7 +406,7 @@ class Renderer:
         rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
         state = PathState.start(n, samples)
         state.time = None if times is None else RayTimes(times)
-        if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux):
+        if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux or "denoising_depth" in aux):
             state.features = np.ones((3, n), np.float32)
         if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
             state.pass_weights = np.zeros((6, n), np.float32)
@@ -444,7 +444,7 @@ class Renderer:
             if aux is not None and step == 0:
                 self._data_passes(aux, state, hit, shading.closures, settings)
             if state.features is not None:
-                self._denoising_features(aux, state, hit, shading.closures)
+                self._denoising_features(aux, state, hit, shading.closures, t_hit)
             if state.min_ray_pdf is not None:
                 _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
             if self._emissive:
@@ -539,11 +539,15 @@ class Renderer:
         post = _raster(camera, cam_after, moved(after))
         return np.concatenate([pre - centre, centre - post]).astype(np.float32)
 
-    def _denoising_features(self, aux: dict, state, hit, closures) -> None:
-        """Cycles' denoising features: written at the first hit that is not mostly specular."""
+    def _denoising_features(self, aux: dict, state, hit, closures, t_hit) -> None:
+        """Cycles' denoising features: written at the first hit that is not mostly specular (the depth
+        summed over the segments until then, each weighted by the feature throughput)."""
         open_ = np.flatnonzero(~np.isnan(state.features[0]))
         if not len(open_):
             return
+        if "denoising_depth" in aux:
+            aux["denoising_depth"][0, state.path[open_]] += state.features[:, open_].mean(axis=0) * \
+                np.take(t_hit, open_)
         normal, diffuse, specular, done = passes.denoising_features(closures, len(hit), hit.ns)
         rows = open_[done[open_]]
         if len(rows):

@@ -47,6 +47,7 @@ PASSES = {
     "uv": (3, "MEAN"),
     "denoising_albedo": (3, "MEAN"),
     "denoising_normal": (3, "MEAN"),
+    "denoising_depth": (1, "MEAN"),
     "mist": (1, "MIST"),
     "emission": (3, "MEAN"),
     "environment": (3, "MEAN"),

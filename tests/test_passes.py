@@ -152,6 +152,10 @@ def test_denoising_passes_and_noisy_image():
     albedo = engine.image("Denoising Albedo")
     np.testing.assert_allclose(albedo, np.broadcast_to([0.5, 0.4, 0.3], albedo.shape), atol=1e-6)
     np.testing.assert_allclose(engine.image("Denoising Normal")[..., 2], -1.0, atol=1e-6)
+    # the rays' lengths to the floor: the distance from the camera to the first hit (within a pixel's spread)
+    eye = np.array(scene.camera.matrix_world.translation)
+    np.testing.assert_allclose(engine.image("Denoising Depth")[..., 0],
+                               np.linalg.norm(engine.image("Position") - eye, axis=2), rtol=0.02)
     assert "Noisy Image" in engine.store
     assert not [r for r in engine.reports if r[0] == {"ERROR"}]
 
