@@ -145,17 +145,15 @@ def test_background_depth_and_indices():
 def test_denoising_passes_and_noisy_image():
     """Denoising data: the albedo of a flat grey floor is its colour, its normal in camera space (Cycles'
     x right, y up, z forward) faces the camera looking down on it: z = -1; the Noisy Image is the
-    undenoised Combined."""
-    scene = plane_scene()
+    undenoised Combined. Orthographic: every ray meets the floor at the same length."""
+    scene = plane_scene(ortho=True)
     scene.view_layers[0].ember.denoising_store_passes = True
     engine = render(scene, samples=2, use_denoising=True)
     albedo = engine.image("Denoising Albedo")
     np.testing.assert_allclose(albedo, np.broadcast_to([0.5, 0.4, 0.3], albedo.shape), atol=1e-6)
     np.testing.assert_allclose(engine.image("Denoising Normal")[..., 2], -1.0, atol=1e-6)
-    # the rays' lengths to the floor: the distance from the camera to the first hit (within a pixel's spread)
-    eye = np.array(scene.camera.matrix_world.translation)
-    np.testing.assert_allclose(engine.image("Denoising Depth")[..., 0],
-                               np.linalg.norm(engine.image("Position") - eye, axis=2), rtol=0.02)
+    # the camera rays' lengths to the floor, from the near clip plane as in Cycles (ray_length - tmin)
+    np.testing.assert_allclose(engine.image("Denoising Depth"), 5.0 - scene.camera.data.clip_start, rtol=1e-5)
     assert "Noisy Image" in engine.store
     assert not [r for r in engine.reports if r[0] == {"ERROR"}]
 
