@@ -362,3 +362,25 @@ def test_shader_aov_outputs_reach_their_passes():
     engine = render(scene, use_denoising=False)
     np.testing.assert_allclose(engine.image("tint"), np.broadcast_to([0.25, 0.5, 0.75, 1.0], (16, 24, 4)), atol=1e-6)
     np.testing.assert_allclose(engine.image("height"), 2.0, atol=1e-5)
+
+
+def test_denoising_off_is_the_noisy_image_and_a_failure_keeps_it(monkeypatch, capsys):
+    """Off, Combined is exactly the Noisy Image a denoised render keeps; a denoiser that fails leaves that
+    same noisy image and says so (a finished frame is never lost)."""
+    scene = plane_scene()
+    bpy.ops.mesh.primitive_cube_add(size=2.0, location=(0.3, -0.2, 1.5))   # some noise to denoise
+    scene.view_layers[0].ember.denoising_store_passes = True
+    on = render(scene, samples=4, use_denoising=True)
+    noisy = on.image("Noisy Image")
+    assert not np.allclose(on.image("Combined"), noisy)          # the denoiser did something
+    off = render(scene, samples=4, use_denoising=False)
+    np.testing.assert_array_equal(off.image("Combined"), noisy)
+    import ember.engine.denoise as dn
+
+    def broken(*args, **kwargs):
+        raise dn.DenoiseError("simulated failure")
+    monkeypatch.setattr(dn, "denoise", broken)
+    capsys.readouterr()
+    failed = render(scene, samples=4, use_denoising=True)
+    np.testing.assert_array_equal(failed.image("Combined"), noisy)
+    assert "denoising failed" in capsys.readouterr().out
