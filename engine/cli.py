@@ -76,6 +76,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="denoise with OpenImageDenoise (default: the file's setting, on in a new scene)")
     render.add_argument("--passes", help="comma-separated passes to write besides the image, as a multilayer "
                                          f"OpenEXR (-o must end in .exr): {', '.join(CLI_PASSES)} or all")
+    render.add_argument("--sample-offset", type=int,
+                        help="render samples OFFSET .. OFFSET + --samples - 1 of each pixel: a sample range, to "
+                             "merge with others (python -m ember merge); turns adaptive sampling and denoising "
+                             "off, which ranges cannot merge")
+    merge = sub.add_parser("merge", help="merge sample ranges of one frame (renders made with --sample-offset)",
+                           description="Average renders of sample ranges of one frame, weighted by the sample "
+                                       "counts they hold (OpenEXR files written by Ember), into one image.")
+    merge.add_argument("inputs", nargs="+", help="the ranges' OpenEXR files")
+    merge.add_argument("-o", "--output", required=True, help="the merged OpenEXR file")
     return parser
 
 
@@ -116,6 +125,7 @@ def check_options(args) -> None:
     within("--samples", args.samples, 1, 1 << 24)
     within("--max-bounces", args.max_bounces, 0, 1024)
     within("--seed", args.seed, 0, SEED_MAX)
+    within("--sample-offset", args.sample_offset, 0, 1 << 24)
     within("--threads", args.threads, 0, 1024)
     if args.time_limit is not None and not (0 <= args.time_limit < float("inf")):
         raise UsageError(f"--time-limit must be 0 (none) or a positive number of seconds, got {args.time_limit:g}")
@@ -172,7 +182,7 @@ def main(argv: list[str]) -> int:
     previous = signal.getsignal(signal.SIGINT)
     _install_interrupt_handler()
     try:
-        return render(args)
+        return merge_command(args) if args.command == "merge" else render(args)
     except UsageError as err:
         print(f"ember: error: {err} (see --help)", file=sys.stderr)
         return EXIT_USAGE
@@ -203,6 +213,20 @@ def _install_interrupt_handler() -> None:
 def _interrupted() -> bool:
     from .session import cancel_requested
     return cancel_requested()
+
+
+def merge_command(args) -> int:
+    from .merge import MergeError, merge
+    for path in args.inputs:
+        if not os.path.isfile(path):
+            raise CliError(f"no such file: {path}")
+    output = check_output(args.output)
+    try:
+        total = merge(args.inputs, output)
+    except MergeError as err:
+        raise CliError(str(err)) from None
+    print(f"Ember | merged {len(args.inputs)} renders, {total} samples -> {output}", flush=True)
+    return 0
 
 
 def render(args) -> int:
@@ -374,6 +398,10 @@ def _apply_options(scene, args, resolution) -> None:
         ember.time_limit = args.time_limit
     if args.denoise is not None:
         ember.use_denoising = args.denoise
+    if args.sample_offset is not None:
+        ember.sample_offset = args.sample_offset
+        # Ranges merge by sample count: every pixel must hold them all, and none may be denoised.
+        ember.use_adaptive_sampling = ember.use_denoising = False
     if args.threads is not None:
         scene.render.threads_mode = "FIXED" if args.threads > 0 else "AUTO"
         if args.threads > 0:

@@ -97,6 +97,11 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
         name="Quality", description="OpenImageDenoise's quality: higher is slower",
         items=(("HIGH", "High", ""), ("BALANCED", "Balanced", ""), ("FAST", "Fast", "")),
         default="HIGH")
+    sample_offset: IntProperty(
+        name="Sample Offset", description="Skip this many samples of each pixel's sequence: render a range of "
+                                          "the samples (Cycles' Sample Offset), to merge ranges rendered on "
+                                          "several machines (python -m ember merge)",
+        default=0, min=0, max=1 << 24)
     seed: IntProperty(
         name="Seed", description="Seed of the random numbers: another seed gives another noise pattern",
         default=0, min=0)

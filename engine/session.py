@@ -61,6 +61,7 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         adaptive_min_samples=int(ember.adaptive_min_samples),
         mode=ember.sampling_mode,
         seed=seed_for_frame(ember, scene.frame_current),
+        sample_offset=int(ember.sample_offset),
         time_limit_s=float(ember.time_limit if time_limit is None else time_limit),
         region=region,
         transparent_background=bool(scene.render.film_transparent),
@@ -182,13 +183,16 @@ class FinalRender:
         self._finish_message(result, exported)
 
     def _stamp_metadata(self, film) -> None:
-        """The Cryptomatte manifests in the render's metadata (on Blender's whole result, as Cycles does):
-        the compositor's Cryptomatte node and other tools read names from them."""
-        if not film.crypto:
-            return
-        full = self.engine.get_result()
+        """The render's metadata (on Blender's whole result, as Cycles stamps its own): the samples it holds
+        and their offset (python -m ember merge weighs partial renders by them), and the Cryptomatte
+        manifests (the compositor's Cryptomatte node and other tools read names from them)."""
+        full = self.engine.get_result() if hasattr(self.engine, "get_result") else None
         if full is None:
             return
+        full.stamp_data_add_field("ember.samples", str(film.samples_done))
+        full.stamp_data_add_field("ember.sample_offset", str(int(self.scene.ember.sample_offset)))
+        full.stamp_data_add_field("ember.adaptive", "1" if self.scene.ember.use_adaptive_sampling else "0")
+        full.stamp_data_add_field("ember.denoised", "1" if self._denoise else "0")
         for kind in film.crypto:
             for key, value in cryptomatte.metadata(self.depsgraph.view_layer.name, kind,
                                                    self._crypto_names.get(kind, ())).items():

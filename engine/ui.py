@@ -69,6 +69,7 @@ class EMBER_RENDER_PT_sampling(EmberPanel, bpy.types.Panel):
         layout.prop(ember, "sampling_mode")
         col = layout.column(align=True)
         col.prop(ember, "seed")
+        col.prop(ember, "sample_offset")
         col.prop(ember, "use_animated_seed")
 
 

@@ -78,6 +78,9 @@ class RenderSettings:
     passes: tuple = ()
     # The Mist pass: (start, depth, falloff exponent) in scene units (the world's Mist Pass settings).
     mist: tuple = (5.0, 25.0, 2.0)
+    # A sample range of the frame (Cycles' Sample Offset): samples sample_offset .. sample_offset + samples - 1
+    # of each pixel's sequence, so that ranges rendered apart and merged by sample count make the whole.
+    sample_offset: int = 0
     # Cryptomatte: the kinds to record ("object", "material", "asset") and the ids kept per pixel (Levels).
     cryptomatte: tuple = ()
     cryptomatte_depth: int = 6
@@ -87,6 +90,8 @@ class RenderSettings:
             raise ValueError(f"mode: must be one of {SAMPLING_MODES}, got {self.mode!r}")
         if int(self.samples) < 1:
             raise ValueError(f"samples: must be at least 1, got {self.samples}")
+        if int(self.sample_offset) < 0:
+            raise ValueError(f"sample_offset: must be non-negative, got {self.sample_offset}")
         unknown = [p for p in self.passes if not passes.known(p)]
         if unknown:
             raise ValueError(f"passes: unknown {unknown}, known {tuple(passes.PASSES)}")
@@ -274,8 +279,9 @@ class Renderer:
                 while next_band < len(bands) and len(in_flight) < self.accel.threads:
                     r0, r1 = bands[next_band]
                     active = ~film.converged[r0:r1] if adaptive else None
-                    in_flight.append((r0, r1, self._submit(self._render_rows, settings, x0, y0, width,
-                                                           r0, r1, done, spp, split, active)))
+                    in_flight.append((r0, r1, self._submit(self._render_rows, settings, x0, y0, width, r0, r1,
+                                                           int(settings.sample_offset) + done, spp, split,
+                                                           active)))
                     next_band += 1
                 r0, r1, future = in_flight.pop(0)
                 sums, half, counts, bad, aux = future.result()

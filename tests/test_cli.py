@@ -108,3 +108,34 @@ def test_passes_write_a_multilayer_exr(tmp_path, blend_file):
     assert bad.returncode != 0 and "ending in .exr" in bad.stderr
     bad = ember("render", blend_file, "-o", str(out), "--passes", "depth,shadows")
     assert bad.returncode != 0 and "unknown shadows" in bad.stderr
+
+
+def test_sample_ranges_merge_into_the_whole(tmp_path, blend_file):
+    """Samples 0-7 and 8-15 rendered apart (--sample-offset) and merged equal a 0-15 render up to float
+    rounding; the merge refuses a render without a sample count."""
+    from ember.engine.merge import exr_strings
+    whole, first, second, merged = (str(tmp_path / f"{n}.exr") for n in ("whole", "a", "b", "merged"))
+    for out, extra in ((whole, ["--sample-offset", "0", "--samples", "16"]),
+                       (first, ["--sample-offset", "0", "--samples", "8"]),
+                       (second, ["--sample-offset", "8", "--samples", "8"])):
+        run = ember("render", blend_file, "-o", out, *extra)
+        assert run.returncode == 0, run.stderr
+    assert exr_strings(second)["ember.samples"] == "8" and exr_strings(second)["ember.sample_offset"] == "8"
+    run = ember("merge", first, second, "-o", merged)
+    assert run.returncode == 0 and "16 samples" in run.stdout, run.stderr
+    a, b = load_exr_file(whole), load_exr_file(merged)
+    assert a.shape == b.shape and not np.array_equal(load_exr_file(first), a)  # the halves differ from the whole
+    np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6)
+    bad = ember("merge", first, str(tmp_path / "missing.exr"), "-o", merged)
+    assert bad.returncode != 0 and "no such file" in bad.stderr
+
+
+def load_exr_file(path):
+    image = bpy.data.images.load(path, check_existing=False)
+    try:
+        w, h = image.size
+        pixels = np.empty(w * h * 4, np.float32)
+        image.pixels.foreach_get(pixels)
+        return pixels.reshape(h, w, 4)
+    finally:
+        bpy.data.images.remove(image)
