@@ -9,6 +9,7 @@ The reference is Ember's, 2 x 512 samples with two seeds, cached in bench/result
 from the two halves, is taken out of every RMSE: RMSE^2 - var(reference)). Colours are clipped to [0, 1]
 first (what a viewer sees; a few bright highlights would otherwise decide the whole figure).
 Also printed: the denoiser's gain on Ember at 16 samples (issue 13's "at least 5x" on the demo).
+--write-test-reference renders the reference tests/test_denoise_demo.py reads (640x360, about 15 minutes).
 """
 from __future__ import annotations
 
@@ -85,7 +86,17 @@ def main():
     ap.add_argument("--height", type=int, default=180)
     ap.add_argument("--seconds", type=float, nargs="+", default=[4.0, 8.0])
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--write-test-reference", action="store_true",
+                    help="render tests/data/denoise_demo_reference_640x360.npz (2 x 512 spp at 640x360) and stop")
     args, _ = ap.parse_known_args()
+    if args.write_test_reference:
+        a, b = reference(640, 360)
+        clip = lambda x: np.clip(x, 0, 1)  # noqa: E731
+        path = os.path.join(ROOT, "tests", "data", "denoise_demo_reference_640x360.npz")
+        np.savez_compressed(path, reference=((clip(a) + clip(b)) / 2).astype(np.float16),
+                            variance=np.float64(((clip(a) - clip(b)) ** 2).mean() / 4))
+        print(f"wrote {path}")
+        return
     a, b = reference(args.width, args.height)
     print(f"demo scene {args.width}x{args.height}, reference 2 x {REFERENCE_SPP} spp (its noise taken out)")
     noisy = H.render_to_array(scene_at(args.width, args.height), "EMBER", 16, max_bounces=6)[..., :3]
