@@ -121,6 +121,13 @@ class EMBER_RENDER_PT_motion_blur(EmberPanel, bpy.types.Panel):
         col = layout.column()
         col.prop(rd, "motion_blur_position", text="Position")
         col.prop(rd, "motion_blur_shutter")
+        cycles = getattr(context.scene, "cycles", None)
+        if cycles is not None:  # Cycles' own setting, which Ember reads as Cycles does
+            col = layout.column()
+            col.prop(cycles, "rolling_shutter_type", text="Rolling Shutter")
+            sub = col.column()
+            sub.active = cycles.rolling_shutter_type != "NONE"
+            sub.prop(cycles, "rolling_shutter_duration")
         layout.template_curve_mapping(rd, "motion_blur_shutter_curve")
 
 

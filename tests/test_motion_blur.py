@@ -97,3 +97,12 @@ def test_object_motion_blur_off_per_object():
     blurred_off = render_to_array(scene, "EMBER", 8, max_bounces=1)
     scene.render.use_motion_blur = False
     np.testing.assert_array_equal(render_to_array(scene, "EMBER", 8, max_bounces=1), blurred_off)
+
+
+@pytest.mark.parametrize("duration", [0.0, 0.3])
+def test_rolling_shutter_matches_cycles(duration):
+    """Cycles' Rolling Shutter (Top) with its Duration: rows from the top to the bottom take later times,
+    so a moving object leans; as Cycles renders it."""
+    scene = motion_scene(camera_moves=True)
+    scene.cycles.rolling_shutter_type, scene.cycles.rolling_shutter_duration = "TOP", duration
+    compare_to_cycles(scene, samples=64, blocks=6, max_bounces=2)

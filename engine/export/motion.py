@@ -9,7 +9,8 @@ scene at each key's subframe (RenderEngine.frame_set) and the frame is restored 
 keys all equal their frame matrix are static. The kernel interpolates keys per path time (kernels.motion).
 
 Not done: deformation blur (meshes whose vertices move: armatures, shape keys; a warning names them),
-a camera's changing field of view, the rolling shutter, lights (Cycles does not blur lamps either).
+a camera's changing field of view, lights (Cycles does not blur lamps either). The rolling shutter is
+Cycles' own setting (scene.cycles: Rolling Shutter type Top, its Duration), read as Cycles reads it.
 """
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ class MotionSamples:
     objects: dict = field(default_factory=dict)
     camera: np.ndarray | None = None
     shutter_table: np.ndarray | None = None
+    rolling_shutter: float | None = None
     warnings: list = field(default_factory=list)
 
 
@@ -65,6 +67,14 @@ def shutter_table(render) -> np.ndarray:
     return kernel_motion.shutter_table(values)
 
 
+def rolling_shutter(scene) -> float | None:
+    """The rolling shutter's duration when Cycles' Rolling Shutter is Top (scene.cycles), else None."""
+    cycles = getattr(scene, "cycles", None)
+    if cycles is None or getattr(cycles, "rolling_shutter_type", "NONE") != "TOP":
+        return None
+    return float(cycles.rolling_shutter_duration)
+
+
 def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     """Evaluate the scene at every motion key's time and record matrices; None when motion blur is off.
     The scene is back at its own frame when this returns, whatever happens."""
@@ -72,7 +82,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     if not enabled(scene, depsgraph.view_layer):
         return None
     frame, subframe = scene.frame_current, scene.frame_subframe
-    samples = MotionSamples(shutter_table=shutter_table(scene.render))
+    samples = MotionSamples(shutter_table=shutter_table(scene.render), rolling_shutter=rolling_shutter(scene))
     per_key: dict = {}      # instance key -> key count
     for inst in depsgraph.object_instances:
         if inst.object.type == "MESH":
@@ -208,7 +218,7 @@ def scene_motion(samples: MotionSamples | None, geometry) -> dict:
             row_motion[row] = len(keys)
             keys.append(samples.objects[key])
             references.append(np.asarray(matrix, np.float64))
-    fields = dict(shutter_table=samples.shutter_table)
+    fields = dict(shutter_table=samples.shutter_table, rolling_shutter=samples.rolling_shutter)
     if keys:
         fields.update(motion=tuple(keys), motion_reference=tuple(references),
                       motion_ids=np.ascontiguousarray(row_motion[geometry.object_ids]))
