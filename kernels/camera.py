@@ -50,7 +50,7 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
     if camera.motion is not None and times is not None:
         # Built in the camera's own space, then moved by its transform at each ray's time (Cycles).
         still = dataclasses.replace(camera, world_from_camera=np.eye(4), motion=None)
-        origins, dirs, t_max = generate_rays(still, row, col, jx, jy, lens)
+        origins, dirs, t_max = generate_rays(still, row, col, jx, jy, lens, times)
         m = motion.interpolate(motion.decompose(np.asarray(camera.motion, np.float64)), times)
         origins = np.einsum("nij,nj->ni", m[:, :, :3], origins) + m[:, :, 3]
         dirs = np.einsum("nij,nj->ni", m[:, :, :3], dirs)
@@ -77,6 +77,17 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
     sy = np.float32(1.0) - (row.astype(np.float32) + jy) / np.float32(camera.height)
     px = np.float32(xmin) + sx * np.float32(xmax - xmin)
     py = np.float32(ymin) + sy * np.float32(ymax - ymin)
+    if camera.fov_motion is not None and times is not None and camera.kind == "PERSP":
+        # Cycles' perspective motion (kernel/camera/camera.h): the view-plane point lerps from the shutter's
+        # start lens to the frame's in the first half, from the frame's to the end lens in the second.
+        t = np.asarray(times, np.float32)
+        early = t < np.float32(0.5)
+        toward = np.where(early, np.float32(1) - 2 * t, 2 * t - np.float32(1))
+        centre = np.tan(camera.fov_rad / 2.0)
+        target = np.where(early, np.float32(np.tan(camera.fov_motion[0] / 2.0) / centre),
+                          np.float32(np.tan(camera.fov_motion[1] / 2.0) / centre))
+        zoom = np.float32(1) + toward * (target - np.float32(1))
+        px, py = px * zoom, py * zoom
     eye, rot = camera_frame(camera)
     rot32 = rot.astype(np.float32)
     n = len(px)

@@ -66,6 +66,8 @@ class Camera:
     # Motion blur: world_from_camera at motion steps evenly spaced over the shutter, (K, 4, 4) rigid,
     # K >= 2, or None for a still camera (world_from_camera is then used at every time).
     motion: np.ndarray | None = None
+    # A perspective lens zooming during the shutter: (fov_rad at the shutter's start, at its end), or None.
+    fov_motion: tuple | None = None
 
     def validate(self) -> None:
         m = np.asarray(self.world_from_camera)
@@ -458,7 +460,8 @@ class SceneArrays:
     @property
     def has_motion(self) -> bool:
         """Anything moves during the shutter: paths then carry a time."""
-        return self.shutter_table is not None and (self.camera.motion is not None or len(self.motion) > 0)
+        return self.shutter_table is not None and (self.camera.motion is not None or len(self.motion) > 0
+                                                   or self.camera.fov_motion is not None)
 
     @property
     def triangle_count(self) -> int:

@@ -106,3 +106,21 @@ def test_rolling_shutter_matches_cycles(duration):
     scene = motion_scene(camera_moves=True)
     scene.cycles.rolling_shutter_type, scene.cycles.rolling_shutter_duration = "TOP", duration
     compare_to_cycles(scene, samples=64, blocks=6, max_bounces=2)
+
+
+def test_zooming_lens_matches_cycles():
+    """A camera zooming from 35 mm to 60 mm over frames 1 to 3, rendered at frame 2 with a one-frame
+    shutter: Cycles lerps the view plane between the shutter's start, the frame's and its end lens."""
+    scene = motion_scene()
+    cam = scene.camera.data
+    cam.lens = 35.0
+    cam.keyframe_insert("lens", frame=1)
+    cam.lens = 60.0
+    cam.keyframe_insert("lens", frame=3)
+    for curve in (getattr(cam.animation_data.action, "fcurves", None) or
+                  [c for layer in cam.animation_data.action.layers for strip in layer.strips
+                   for bag in strip.channelbags for c in bag.fcurves]):
+        for key in curve.keyframe_points:
+            key.interpolation = "LINEAR"
+    scene.frame_set(2)
+    compare_to_cycles(scene, samples=64, blocks=6, max_bounces=2)

@@ -101,8 +101,9 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          **vector_fields(vector, geometry, camera.world_from_camera))
     if motion is not None:
         warnings.extend(motion.warnings)
-        if motion.camera is not None:
-            arrays = dataclasses.replace(arrays, camera=dataclasses.replace(camera, motion=motion.camera))
+        if motion.camera is not None or motion.camera_fov is not None:
+            arrays = dataclasses.replace(arrays, camera=dataclasses.replace(camera, motion=motion.camera,
+                                                                            fov_motion=motion.camera_fov))
     return ExportResult(scene=arrays, warnings=list(dict.fromkeys(absolute_paths(w) for w in warnings)),
                         seconds=time.perf_counter() - start, triangle_count=len(geometry.material_ids),
                         instance_count=geometry.instance_count, crypto_names=crypto_names)

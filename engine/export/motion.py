@@ -9,7 +9,8 @@ scene at each key's subframe (RenderEngine.frame_set) and the frame is restored 
 keys all equal their frame matrix are static. The kernel interpolates keys per path time (kernels.motion).
 
 Not done: deformation blur (meshes whose vertices move: armatures, shape keys; a warning names them),
-a camera's changing field of view, lights (Cycles does not blur lamps either). The rolling shutter is
+lights (Cycles does not blur lamps either). A perspective lens that zooms is recorded at the shutter's start
+and end, as Cycles' perspective motion. The rolling shutter is
 Cycles' own setting (scene.cycles: Rolling Shutter type Top, its Duration), read as Cycles reads it.
 """
 from __future__ import annotations
@@ -33,6 +34,7 @@ class MotionSamples:
     camera: np.ndarray | None = None
     shutter_table: np.ndarray | None = None
     rolling_shutter: float | None = None
+    camera_fov: tuple | None = None   # (at the shutter's start, at its end) when a perspective lens zooms
     warnings: list = field(default_factory=list)
 
 
@@ -102,6 +104,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     times = shutter_times(scene.render, frame + subframe, largest)
     recorded: dict = {}
     camera_matrices = []
+    fovs = []
     vertices_first: dict = {}
     deforming: set = set()
     try:
@@ -116,6 +119,8 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                         _track_deformation(inst.object, key, i, vertices_first, deforming)
             if camera_keys:
                 camera_matrices.append(_rigid(np.array(camera_ob.evaluated_get(depsgraph).matrix_world)))
+            if camera_ob is not None and i in (0, len(times) - 1):
+                fovs.append(_fov(camera_ob.evaluated_get(depsgraph)))
     finally:
         engine.frame_set(frame, subframe)
     for key, matrices in recorded.items():
@@ -125,6 +130,9 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
         keys = np.stack(matrices[::stride])
         if not np.allclose(keys, keys[len(keys) // 2], rtol=0, atol=1e-7):
             samples.objects[key] = keys
+    centre = _fov(camera_ob) if camera_ob is not None else None
+    if len(fovs) == 2 and centre is not None and fovs != [centre, centre]:
+        samples.camera_fov = (fovs[0], fovs[1])  # Cycles' perspective motion (camera.h: perspective_pre/post)
     if camera_keys:
         stride = (largest - 1) // (camera_keys - 1)
         keys = np.stack(camera_matrices[::stride])
@@ -185,6 +193,15 @@ def vector_fields(samples: VectorSamples | None, geometry, camera_matrix) -> dic
         before[row], after[row] = (pre @ inverse)[:3], (post @ inverse)[:3]
     camera = samples.camera or (camera_matrix, camera_matrix)
     return dict(vector_motion=(before, after, np.asarray(camera[0], np.float64), np.asarray(camera[1], np.float64)))
+
+
+def _fov(camera_ob) -> float | None:
+    """A perspective camera's field of view across its fitted sensor, None for anything else."""
+    cam = getattr(camera_ob, "data", None)
+    if camera_ob.type != "CAMERA" or cam.type != "PERSP":
+        return None
+    sensor = cam.sensor_height if cam.sensor_fit == "VERTICAL" else cam.sensor_width
+    return float(2.0 * math.atan(sensor / (2.0 * cam.lens)))
 
 
 def _track_deformation(ob, key, step: int, first: dict, deforming: set) -> None:
