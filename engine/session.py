@@ -186,7 +186,7 @@ class FinalRender:
         """The render's metadata (on Blender's whole result, as Cycles stamps its own): the samples it holds
         and their offset (python -m ember merge weighs partial renders by them), and the Cryptomatte
         manifests (the compositor's Cryptomatte node and other tools read names from them)."""
-        full = self.engine.get_result() if hasattr(self.engine, "get_result") else None
+        full = self.engine.get_result()
         if full is None:
             return
         full.stamp_data_add_field("ember.samples", str(film.samples_done))

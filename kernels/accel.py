@@ -15,6 +15,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
+from . import motion
+
 # Below this many rays a batch runs as one call: splitting costs more than it saves.
 _MIN_CHUNK = 8192
 _CHUNKS_PER_THREAD = 4
@@ -61,7 +63,6 @@ class _Moving:
     without normalising its direction, so the hit distance is the world's."""
 
     def __init__(self, ids: np.ndarray, positions: np.ndarray, keys: np.ndarray, reference: np.ndarray):
-        from . import motion
         self.ids = ids.astype(np.int32)
         self.motion = motion.decompose(np.asarray(keys, np.float64))
         object_from_world = np.linalg.inv(np.asarray(reference, np.float64))
@@ -91,7 +92,6 @@ class _Moving:
     def rays(self, origins, directions, time, sel):
         """The rays sel in object space at their times (RayTimes or (n,) times): (origins, directions)
         float32, (len(sel), 3)."""
-        from . import motion
 
         def make(t):
             return motion.affine_inverse(motion.interpolate(self.motion, t)).astype(np.float32)

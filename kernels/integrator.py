@@ -476,6 +476,7 @@ class Renderer:
     def _data_passes(self, aux: dict, state, hit, closures, settings) -> None:
         paths = state.path
         n = len(hit)
+        colours = None  # the closure classes' colours, made once for the three Color passes
         for name, out in aux.items():
             if name == "depth":
                 eye, rotation = self._camera_frame
@@ -516,8 +517,9 @@ class Renderer:
                 _, aov_name, which = name.split(":")
                 out[:, paths] = self.shading.aov(hit, aov_name, 3 if which == "color" else 1)
             elif name in ("diffuse_color", "glossy_color", "transmission_color"):
-                colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),
-                                   class_albedo(closures, n)))
+                if colours is None:
+                    colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),
+                                       class_albedo(closures, n)))
                 out[:, paths] = colours[name] * state.throughput
             elif name == "mist":
                 eye, rotation = self._camera_frame

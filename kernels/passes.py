@@ -37,6 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .bsdf.closures import DIFFUSE_LOBES, closure_albedos
+
 # name -> (channels, kind)
 PASSES = {
     "depth": (1, "FIRST"),
@@ -81,36 +83,17 @@ def known(name: str) -> bool:
     return name in PASSES or (name.startswith("aov:") and name.endswith((":color", ":value")))
 
 
-def closure_albedo(closures, n_hits: int) -> np.ndarray:
-    """(3, n) the hits' albedo: every closure's RGB weight scaled by its albedo estimate (its sample weight
-    over its mean weight), summed per hit and clipped to [0, 1]."""
-    out = np.zeros((3, n_hits), np.float32)
-    if not len(closures):
-        return out
-    weight = np.asarray(closures.weight, np.float32)
-    mean = weight.mean(axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(mean > 0, np.asarray(closures.sw, np.float32) / mean, 0.0)
-    for k in range(3):
-        out[k] = np.bincount(closures.hit, weight[k] * scale, minlength=n_hits)
-    return np.clip(out, 0.0, 1.0)
-
-
 def denoising_features(closures, n_hits: int, fallback):
     """Per hit: (normal (3, n) sample-weighted, diffuse albedo (3, n), specular albedo (3, n), done (n,)):
     done where the diffuse-like closures hold more than a quarter of the sample weight (or there is no
     closure), as Cycles' film_write_denoising_features_surface decides."""
-    from .bsdf.closures import DIFFUSE_LOBES
     normal = closure_normal(closures, n_hits, fallback)
     diffuse = np.zeros((3, n_hits), np.float32)
     specular = np.zeros((3, n_hits), np.float32)
     if not len(closures):
         return normal, diffuse, specular, np.ones(n_hits, bool)
-    weight = np.asarray(closures.weight, np.float32)
-    mean = weight.mean(axis=0)
+    albedo = closure_albedos(closures)
     sw = np.asarray(closures.sw, np.float32)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        albedo = weight * np.where(mean > 0, sw / mean, 0.0)
     rough2 = np.broadcast_to(closures.ax, sw.shape) * np.broadcast_to(closures.ay, sw.shape)
     diffuse_like = np.isin(closures.lobe, DIFFUSE_LOBES) | (rough2 > np.float32(0.075 ** 2))
     for k in range(3):

@@ -72,6 +72,9 @@ class RecordingEngine:
     def test_break(self):
         return False
 
+    def get_result(self):
+        return None  # Blender's whole result, which carries the metadata: not recorded here
+
     def frame_set(self, frame, subframe):
         bpy.context.scene.frame_set(frame, subframe=subframe)
 

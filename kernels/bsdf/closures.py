@@ -448,18 +448,23 @@ def eval_split(cs, hits: np.ndarray, wi):
                  for part in (f_c, f_c * diffuse, f_c * glossy))
 
 
+def closure_albedos(cs) -> np.ndarray:
+    """(3, C) each closure's albedo estimate: its RGB weight times its sample weight over its mean weight
+    (the sample weight is the mean weight times the lobe's estimated albedo)."""
+    weight = np.asarray(cs.weight, F32)
+    mean = weight.mean(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (weight * np.where(mean > 0, np.asarray(cs.sw, F32) / mean, 0.0)).astype(F32)
+
+
 def class_albedo(cs, n_hits: int):
-    """(diffuse, glossy, transmission) (3, n) colours of the hits' closures: each closure's weight times its
-    albedo estimate (its sample weight over its mean weight), summed per class (Cycles' surface_shader_diffuse,
+    """(diffuse, glossy, transmission) (3, n) colours of the hits' closures: closure_albedos summed per class (Cycles' surface_shader_diffuse,
     _glossy, _transmission); glass shares its albedo by its dielectric Fresnel toward the viewer (Cycles
     reads its reflection and transmission albedos from its microfacet tables: equal for smooth glass)."""
     out = [np.zeros((3, n_hits), F32) for _ in range(3)]
     if not len(cs):
         return tuple(out)
-    weight = np.asarray(cs.weight, F32)
-    mean = weight.mean(axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        albedo = weight * np.where(mean > 0, np.asarray(cs.sw, F32) / mean, 0.0)
+    albedo = closure_albedos(cs)
     lobe = cs.lobe
     f0 = np.zeros(len(lobe), F32)
     glass = np.flatnonzero(lobe == GLASS)
