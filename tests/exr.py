@@ -71,3 +71,64 @@ def _unzip(chunk: bytes) -> bytes:
     out[0::2] = t[:half]
     out[1::2] = t[half:]
     return out.tobytes()
+
+
+def read_multilayer(path):
+    """({part name: {channel: (H, W) float32}}, the first part's string attributes) of a multipart scanline
+    EXR, as Blender 5 writes multilayer files (read_exr reads single-part files)."""
+    data = open(path, "rb").read()
+    assert struct.unpack_from("<i", data, 4)[0] & 0x1000, "not a multipart EXR"
+    pos, headers = 8, []
+    while data[pos] != 0:
+        header = {}
+        while data[pos] != 0:
+            end = data.index(b"\0", pos)
+            kind_end = data.index(b"\0", end + 1)
+            size = struct.unpack_from("<i", data, kind_end + 1)[0]
+            header[data[pos:end].decode()] = (data[end + 1:kind_end].decode(),
+                                              data[kind_end + 5:kind_end + 5 + size])
+            pos = kind_end + 5 + size
+        headers.append(header)
+        pos += 1
+    pos += 1
+    counts = [struct.unpack("<i", h["chunkCount"][1])[0] for h in headers]
+    pos += 8 * sum(counts)                                   # the offset tables
+    parts = {}
+    for _ in range(sum(counts)):
+        part, y, size = struct.unpack_from("<iii", data, pos)
+        chunk, pos = data[pos + 12:pos + 12 + size], pos + 12 + size
+        header = headers[part]
+        channels, raw, i = [], header["channels"][1], 0
+        while raw[i] != 0:
+            end = raw.index(b"\0", i)
+            channels.append((raw[i:end].decode(), _TYPES[struct.unpack_from("<i", raw, end + 1)[0]]))
+            i = end + 17
+        x0, y0, x1, y1 = struct.unpack("<4i", header["dataWindow"][1])
+        width, height = x1 - x0 + 1, y1 - y0 + 1
+        lines = min({0: 1, 2: 1, 3: 16}[header["compression"][1][0]], y0 + height - y)
+        if size < lines * width * sum(np.dtype(t).itemsize for _, t in channels):
+            chunk = _unzip(chunk)
+        planes = parts.setdefault(header["name"][1].decode(), {})
+        offset = 0
+        for line in range(lines):
+            for name, dtype in channels:
+                plane = planes.setdefault(name.rsplit(".", 1)[-1], np.zeros((height, width), np.float32))
+                plane[y - y0 + line] = np.frombuffer(chunk, dtype, width, offset)
+                offset += width * np.dtype(dtype).itemsize
+    strings = {k: v.decode() for k, (kind, v) in headers[0].items() if kind == "string"}
+    return parts, strings
+
+
+def render_multilayer(scene):
+    """Render the scene (its engine as set) to a multilayer OpenEXR of 32-bit floats and read it back:
+    read_multilayer's (parts, strings)."""
+    import os
+    import tempfile
+
+    import bpy
+    settings = scene.render.image_settings
+    settings.media_type, settings.color_depth = "MULTI_LAYER_IMAGE", "32"
+    with tempfile.TemporaryDirectory() as tmp:
+        scene.render.filepath = os.path.join(tmp, "layers.exr")
+        bpy.ops.render.render(write_still=True)
+        return read_multilayer(scene.render.filepath)

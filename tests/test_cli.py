@@ -20,7 +20,7 @@ def ember(*args, timeout=300):
                           cwd=ROOT)
 
 
-def load_png(path):
+def load_image(path):
     image = bpy.data.images.load(path, check_existing=False)
     try:
         w, h = image.size
@@ -36,7 +36,7 @@ def test_demo_renders_end_to_end(tmp_path):
     run = ember("render", "-o", str(out), "--samples", "2", "--resolution", "160x90")
     assert run.returncode == 0, run.stderr
     assert "saved" in run.stdout and "Ember" in run.stdout
-    image = load_png(str(out))
+    image = load_image(str(out))
     assert image.shape == (90, 160, 4)
     rgb = image[..., :3]
     assert 0.05 < rgb.mean() < 0.95 and rgb.std() > 0.05  # a lit, varied picture, not a flat fill
@@ -62,7 +62,7 @@ def test_file_frames_and_exr_output(tmp_path, blend_file):
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "f_02.exr").exists() and (tmp_path / "f_03.exr").exists()
     assert (os.path.getmtime(blend_file), os.path.getsize(blend_file)) == before  # never saved
-    image = load_png(str(tmp_path / "f_02.exr"))
+    image = load_image(str(tmp_path / "f_02.exr"))
     assert image.shape == (24, 32, 4) and np.isfinite(image).all()
     assert np.isclose(image[-1, 0, 2], 0.5, rtol=1e-4)  # a corner sees the world: linear, no view transform
 
@@ -123,19 +123,9 @@ def test_sample_ranges_merge_into_the_whole(tmp_path, blend_file):
     assert exr_strings(second)["ember.samples"] == "8" and exr_strings(second)["ember.sample_offset"] == "8"
     run = ember("merge", first, second, "-o", merged)
     assert run.returncode == 0 and "16 samples" in run.stdout, run.stderr
-    a, b = load_exr_file(whole), load_exr_file(merged)
-    assert a.shape == b.shape and not np.array_equal(load_exr_file(first), a)  # the halves differ from the whole
+    a, b = load_image(whole), load_image(merged)
+    assert a.shape == b.shape and not np.array_equal(load_image(first), a)  # the halves differ from the whole
     np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6)
     bad = ember("merge", first, str(tmp_path / "missing.exr"), "-o", merged)
     assert bad.returncode != 0 and "no such file" in bad.stderr
 
-
-def load_exr_file(path):
-    image = bpy.data.images.load(path, check_existing=False)
-    try:
-        w, h = image.size
-        pixels = np.empty(w * h * 4, np.float32)
-        image.pixels.foreach_get(pixels)
-        return pixels.reshape(h, w, 4)
-    finally:
-        bpy.data.images.remove(image)

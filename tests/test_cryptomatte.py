@@ -4,15 +4,13 @@ its header metadata)."""
 from __future__ import annotations
 
 import json
-import os
-import struct
-import tempfile
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from ember.engine import cryptomatte as ecrypto
+from exr import render_multilayer
 from ember.kernels.cryptomatte import (CryptoFilm, hash_name, hash_name_u32, hash_names, hash_to_float,
                                        layer_count, murmur3_32)
 
@@ -201,53 +199,6 @@ def test_metadata_and_asset_names():
 
 
 # ---------------------------------------------------------------- against Cycles
-def _multipart_exr(path):
-    """({part name: {channel: (H, W) float32}}, the first part's string attributes) of a multipart scanline
-    EXR, as Blender 5 writes multilayer files (tests/exr.py reads single-part files)."""
-    from exr import _TYPES, _unzip
-    data = open(path, "rb").read()
-    assert struct.unpack_from("<i", data, 4)[0] & 0x1000, "not a multipart EXR"
-    pos, headers = 8, []
-    while data[pos] != 0:
-        header = {}
-        while data[pos] != 0:
-            end = data.index(b"\0", pos)
-            kind_end = data.index(b"\0", end + 1)
-            size = struct.unpack_from("<i", data, kind_end + 1)[0]
-            header[data[pos:end].decode()] = (data[end + 1:kind_end].decode(),
-                                              data[kind_end + 5:kind_end + 5 + size])
-            pos = kind_end + 5 + size
-        headers.append(header)
-        pos += 1
-    pos += 1
-    counts = [struct.unpack("<i", h["chunkCount"][1])[0] for h in headers]
-    pos += 8 * sum(counts)                                   # the offset tables
-    parts = {}
-    for _ in range(sum(counts)):
-        part, y, size = struct.unpack_from("<iii", data, pos)
-        chunk, pos = data[pos + 12:pos + 12 + size], pos + 12 + size
-        header = headers[part]
-        channels, raw, i = [], header["channels"][1], 0
-        while raw[i] != 0:
-            end = raw.index(b"\0", i)
-            channels.append((raw[i:end].decode(), _TYPES[struct.unpack_from("<i", raw, end + 1)[0]]))
-            i = end + 17
-        x0, y0, x1, y1 = struct.unpack("<4i", header["dataWindow"][1])
-        width, height = x1 - x0 + 1, y1 - y0 + 1
-        lines = min({0: 1, 2: 1, 3: 16}[header["compression"][1][0]], y0 + height - y)
-        if size < lines * width * sum(np.dtype(t).itemsize for _, t in channels):
-            chunk = _unzip(chunk)
-        planes = parts.setdefault(header["name"][1].decode(), {})
-        offset = 0
-        for line in range(lines):
-            for name, dtype in channels:
-                plane = planes.setdefault(name.rsplit(".", 1)[-1], np.zeros((height, width), np.float32))
-                plane[y - y0 + line] = np.frombuffer(chunk, dtype, width, offset)
-                offset += width * np.dtype(dtype).itemsize
-    strings = {k: v.decode() for k, (kind, v) in headers[0].items() if kind == "string"}
-    return parts, strings
-
-
 # Strips under an orthographic camera, one world unit a pixel, x in [-6, 6): pixel 5 holds three objects,
 # pixel 8 is half background; "Obj.160" and "Obj.184" hash to exponents 0 and 255 (clamped to 1 and 254).
 STRIPS = (("Ärger.001", -6.0, -3.5, None, "Rot ü"), ("Kind", -3.5, -1.25, "Ärger.001", "Obj.184"),
@@ -256,10 +207,10 @@ STRIPS = (("Ärger.001", -6.0, -3.5, None, "Rot ü"), ("Kind", -3.5, -1.25, "Är
 SAMPLES = 16
 
 
-@pytest.fixture(scope="module")
-def cycles_render():
-    import bpy
-    from bpy_helpers import configure_cycles, diffuse_material, new_scene, quad_object
+def strips_scene():
+    """The STRIPS quads under an orthographic camera (parents at the identity: world positions unchanged),
+    all three Cryptomatte kinds on at 6 levels."""
+    from bpy_helpers import diffuse_material, new_scene, quad_object
     scene = new_scene(12, 4)                          # Blender's smallest height
     cam = scene.camera
     cam.location, cam.rotation_euler = (0.0, 0.0, 5.0), (0.0, 0.0, 0.0)
@@ -270,19 +221,22 @@ def cycles_render():
             materials[material] = diffuse_material(material)
         objects[name] = quad_object(name, (x0, -5, 0), (x1 - x0, 0, 0), (0, 10, 0), materials.get(material))
         if parent:
-            objects[name].parent = objects[parent]          # at the identity: world positions unchanged
+            objects[name].parent = objects[parent]
     view_layer = scene.view_layers[0]
     for kind in ecrypto.KINDS:
         setattr(view_layer, f"use_pass_cryptomatte_{kind}", True)
     view_layer.pass_cryptomatte_depth = 6
+    return scene
+
+
+@pytest.fixture(scope="module")
+def cycles_render():
+    from bpy_helpers import configure_cycles
+    scene = strips_scene()
+    view_layer = scene.view_layers[0]
     scene.render.engine = "CYCLES"
     configure_cycles(scene, SAMPLES, 0, 1)
-    settings = scene.render.image_settings
-    settings.media_type, settings.color_depth = "MULTI_LAYER_IMAGE", "32"
-    with tempfile.TemporaryDirectory() as tmp:
-        scene.render.filepath = os.path.join(tmp, "crypto.exr")
-        bpy.ops.render.render(write_still=True)
-        parts, strings = _multipart_exr(scene.render.filepath)
+    parts, strings = render_multilayer(scene)
     names = {"object": [s[0] for s in STRIPS], "asset": ["Ärger.001", "Obj.160", "Obj.184"],
              "material": ["Rot ü", "Obj.184", "default_surface", "Obj.160"]}
     return SimpleNamespace(parts=parts, strings=strings, names=names, view_layer=view_layer.name)

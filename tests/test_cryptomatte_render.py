@@ -12,30 +12,10 @@ import pytest
 
 from bpy_helpers import configure_cycles, diffuse_material, new_scene, quad_object
 from ember.engine import cryptomatte as ecrypto
-from test_cryptomatte import STRIPS, _multipart_exr
+from exr import render_multilayer
+from test_cryptomatte import strips_scene
 
 SAMPLES = 128
-
-
-def strips_scene():
-    """test_cryptomatte's strips: five quads under an orthographic camera, one world unit a pixel, with
-    parents (assets) and shared, missing and odd-named materials; all three Cryptomatte kinds on."""
-    scene = new_scene(12, 4)
-    cam = scene.camera
-    cam.location, cam.rotation_euler = (0.0, 0.0, 5.0), (0.0, 0.0, 0.0)
-    cam.data.type, cam.data.ortho_scale = "ORTHO", 12.0
-    materials, objects = {}, {}
-    for name, x0, x1, parent, material in STRIPS:
-        if material and material not in materials:
-            materials[material] = diffuse_material(material)
-        objects[name] = quad_object(name, (x0, -5, 0), (x1 - x0, 0, 0), (0, 10, 0), materials.get(material))
-        if parent:
-            objects[name].parent = objects[parent]
-    layer = scene.view_layers[0]
-    for kind in ecrypto.KINDS:
-        setattr(layer, f"use_pass_cryptomatte_{kind}", True)
-    layer.pass_cryptomatte_depth = 6
-    return scene
 
 
 def render(engine):
@@ -47,12 +27,7 @@ def render(engine):
         e = scene.ember
         e.samples, e.max_bounces, e.use_adaptive_sampling, e.use_denoising = SAMPLES, 1, False, False
         e.pixel_filter_type = "BOX"
-    settings = scene.render.image_settings
-    settings.media_type, settings.color_depth = "MULTI_LAYER_IMAGE", "32"
-    with tempfile.TemporaryDirectory() as tmp:
-        scene.render.filepath = os.path.join(tmp, "crypto.exr")
-        bpy.ops.render.render(write_still=True)
-        return _multipart_exr(scene.render.filepath), scene.view_layers[0].name
+    return render_multilayer(scene), scene.view_layers[0].name
 
 
 @pytest.fixture(scope="module")

@@ -3,15 +3,12 @@ multilayer EXRs: Diffuse/Glossy/Transmission Direct, Indirect and Color, Emissio
 Normal. Block means within noise: the z-score of each block's difference from replicate renders."""
 from __future__ import annotations
 
-import os
-import tempfile
 
-import bpy
 import numpy as np
 import pytest
 
 from bpy_helpers import REPLICATE_SEEDS, configure_cycles
-from test_cryptomatte import _multipart_exr
+from exr import render_multilayer
 from test_passes import light_scene
 
 SAMPLES = 64
@@ -32,12 +29,7 @@ def render(engine, seed):
         e.use_adaptive_sampling = e.use_denoising = False
         e.sample_clamp_direct = e.sample_clamp_indirect = e.blur_glossy = 0.0
         e.pixel_filter_type = "BOX"
-    settings = scene.render.image_settings
-    settings.media_type, settings.color_depth = "MULTI_LAYER_IMAGE", "32"
-    with tempfile.TemporaryDirectory() as tmp:
-        scene.render.filepath = os.path.join(tmp, "passes.exr")
-        bpy.ops.render.render(write_still=True)
-        parts, _ = _multipart_exr(scene.render.filepath)
+    parts, _ = render_multilayer(scene)
     layer_name = layer.name
     out = {}
     for name in PASSES:

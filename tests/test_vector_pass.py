@@ -1,15 +1,13 @@
 """The Vector pass (motion vectors) against Cycles' on the same animated scene (issue 13)."""
 from __future__ import annotations
 
-import os
-import tempfile
 
 import bpy
 import numpy as np
 import pytest
 
 from bpy_helpers import configure_cycles, diffuse_material, new_scene, quad_object, set_world
-from test_cryptomatte import _multipart_exr
+from exr import render_multilayer
 from test_motion_blur import _linear
 
 
@@ -47,12 +45,7 @@ def render(engine, camera_moves):
     else:
         e = scene.ember
         e.samples, e.max_bounces, e.use_adaptive_sampling, e.use_denoising, e.pixel_filter_type = 16, 1, False, False, "BOX"
-    settings = scene.render.image_settings
-    settings.media_type, settings.color_depth = "MULTI_LAYER_IMAGE", "32"
-    with tempfile.TemporaryDirectory() as tmp:
-        scene.render.filepath = os.path.join(tmp, "vector.exr")
-        bpy.ops.render.render(write_still=True)
-        parts, _ = _multipart_exr(scene.render.filepath)
+    parts, _ = render_multilayer(scene)
     assert scene.frame_current == 2
     planes = parts[f"{scene.view_layers[0].name}.Vector"]
     return np.stack([planes[c] for c in "XYZW"], axis=-1)
