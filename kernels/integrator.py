@@ -633,38 +633,41 @@ class Renderer:
         miss = np.flatnonzero(hits.prim < 0)
         if not len(miss):
             return
-        if wave.aux is not None and "environment" in wave.aux:
-            seen = miss[state.bounce[miss] == 0]  # the world the camera sees (transparent film or not)
-            if len(seen):
-                d = rays.dirs
-                ray = RayInfo(state.bounce[seen], state.transparent[seen], emission=True,
-                              lobes=None if state.lobes is None else state.lobes[:, seen]) \
-                    if self.environment.shader else None
-                wave.aux["environment"][:, state.path[seen]] += np.take(state.throughput, seen, axis=1) * \
-                    self.environment.radiance(d[seen, 0], d[seen, 1], d[seen, 2], ray)
+        keep = np.ones(len(miss), bool)
         if wave.settings.transparent_background:
             # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
             direct = state.bounce[miss] == 0
             seen = miss[direct]
             if len(seen):
                 wave.alpha[state.path[seen]] -= np.take(state.throughput, seen, axis=1).mean(axis=0)
-                miss = miss[~direct]
-                if not len(miss):
-                    return
+                keep = ~direct
+        # The world's radiance, evaluated once: for the Environment pass (what the camera sees of the world,
+        # transparent film or not), the image and the denoising albedo.
+        environment_pass = wave.aux is not None and "environment" in wave.aux
+        looked = miss if environment_pass else miss[keep]
+        if not len(looked):
+            return
         d = rays.dirs
+        ray = RayInfo(state.bounce[looked], state.transparent[looked], emission=True,
+                      lobes=None if state.lobes is None else state.lobes[:, looked]) if self.environment.shader else None
+        light = self.environment.radiance(d[looked, 0], d[looked, 1], d[looked, 2], ray)
+        if environment_pass:
+            camera = np.flatnonzero(state.bounce[miss] == 0)
+            wave.aux["environment"][:, state.path[miss[camera]]] += \
+                np.take(state.throughput, miss[camera], axis=1) * light[:, camera]
+            light = light[:, keep]
+        miss = miss[keep]
+        if not len(miss):
+            return
         mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
-        ray = RayInfo(state.bounce[miss], state.transparent[miss], emission=True,
-                      lobes=None if state.lobes is None else state.lobes[:, miss]) if self.environment.shader else None
-        env = np.take(state.throughput, miss, axis=1) * self.environment.radiance(mx, my, mz, ray)
+        env = np.take(state.throughput, miss, axis=1) * light
         if state.features is not None and wave.aux is not None and "denoising_albedo" in wave.aux:
             # A path still looking for its denoising features sees the world: the world's colour times the
             # feature throughput is its albedo, as in Cycles.
             seen = np.flatnonzero(~np.isnan(state.features[0, miss]))
             if len(seen):
-                light = self.environment.radiance(mx[seen], my[seen], mz[seen], None if ray is None else
-                                                  RayInfo(ray.depth[seen], ray.transparent[seen], emission=True))
                 wave.aux["denoising_albedo"][:, state.path[miss[seen]]] = np.clip(
-                    state.features[:, miss[seen]] * light, 0.0, 1.0)
+                    state.features[:, miss[seen]] * light[:, seen], 0.0, 1.0)
         if wave.nee:
             mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
             if len(mis):
