@@ -1,6 +1,9 @@
-"""Ray queries through Embree (embreex): closest hit and occlusion, chunked over a thread pool.
+"""Ray queries through Embree: closest hit and occlusion, chunked over a thread pool.
 
-embreex's `run` releases the GIL, so chunks of one batch run in parallel on Python threads.
+The static scene is built by kernels.embree (Embree's C API through ctypes: meshes read in place, and
+instances of meshes as a two-level BVH); queries that need no instance id run through embreex's `run`
+loop on that scene, closest hits of a scene with instances through kernels.embree's 16-ray packets.
+Both release the GIL, so chunks of one batch run in parallel on Python threads.
 Traps handled here (see PERFORMANCE_NOTES): `dists` is overwritten in place, so a copy is passed;
 OCCLUDED with output=1 is broken, so output=None is used (0 = occluded, -1 = visible); tnear is
 always 0, so callers offset ray origins themselves.
@@ -15,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
-from . import motion
+from . import embree, motion
 
 # Below this many rays a batch runs as one call: splitting costs more than it saves.
 _MIN_CHUNK = 8192
@@ -107,14 +110,16 @@ class _Moving:
 
 
 class Accel:
-    """An Embree scene over world-space triangles (T, 3, 3) float32, with a thread pool.
+    """An Embree scene over world-space triangles (T, 3, 3) float32, and instances of meshes
+    (kernels.scene.Instances), with a thread pool. Hits report scene triangle numbers: the plain
+    triangles' index, then the instances' numbering (Instances.bases).
 
     Motion blur: motion_ids (T,) int32 (-1 static) names each triangle's entry of motion (K, 4, 4) keys,
     whose motion_reference matrix made the world positions. Static triangles then form one scene and each
     moving object its own, queried at each ray's time; hits report the scene's triangle index either way."""
 
     def __init__(self, positions: np.ndarray, threads: int = 0, motion_ids: np.ndarray | None = None,
-                 motion: tuple = (), motion_reference: tuple = ()):
+                 motion: tuple = (), motion_reference: tuple = (), instances=None):
         self.threads = threads if threads > 0 else default_threads()
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.triangle_count = len(positions)
@@ -129,11 +134,25 @@ class Accel:
                             for i, (keys, ref) in enumerate(zip(motion, motion_reference))
                             if (motion_ids == i).any()]
             positions = positions[self._static_ids]
-        if len(positions):
-            self._scene = rtcore_scene.EmbreeScene(robust=True)
-            mesh_construction.TriangleMesh(self._scene, np.ascontiguousarray(positions, np.float32))
-        else:
-            self._scene = None
+        self._bases = None        # scene number of each instance's first triangle
+        self._packets = None      # the static scene traced by packets (reports instances), or None
+        self._scene = None        # the static scene traced by embreex's loop, or None
+        self._device = embree.Device()
+        meshes, placed = [], []
+        if instances is not None and instances.count:
+            meshes = [embree.Mesh(self._device, p.positions.reshape(-1, 3)) for p in instances.prototypes]
+            placed = [(meshes[p], m) for p, m in zip(instances.prototype, instances.world_from_object)]
+            self._bases = instances.bases(self.triangle_count)
+            self.triangle_count += instances.triangle_total
+        if len(positions) or placed:
+            plain = embree.Mesh(self._device, np.asarray(positions, np.float32).reshape(-1, 3)) \
+                if len(positions) else None
+            self._static = embree.Scene(self._device, plain, placed)
+            self._scene = self._static.embreex()
+            if self._scene is None or placed:
+                self._packets = self._static
+            if self._scene is None:   # embreex's loop unavailable: packets for everything
+                self._scene = _PacketQueries(self._static)
 
     @property
     def moves(self) -> bool:
@@ -164,8 +183,17 @@ class Accel:
         if (self._scene is None and not self._moving) or n == 0:
             t[:] = np.inf
             return Hits(prim, t, u, v)
+        if self._bases is not None:
+            prim = np.full(n, -1, np.int64 if self.triangle_count > np.iinfo(np.int32).max else np.int32)
 
         def job(s: slice) -> None:
+            if self._packets is not None:
+                p, inst, t[s], u[s], v[s] = self._packets.intersect(origins[s], directions[s], t_max[s])
+                if self._static_ids is not None:
+                    plain = (inst < 0) & (p >= 0)
+                    p[plain] = self._static_ids[p[plain]]
+                prim[s] = np.where(inst >= 0, np.take(self._bases, inst) + p, p) if self._bases is not None else p
+                return
             r = self._scene.run(origins[s], directions[s], dists=t_max[s].copy(), output=1)
             prim[s] = r["primID"]
             t[s] = r["tfar"]
@@ -177,7 +205,7 @@ class Accel:
         else:
             t[:] = t_max
         if self._moving:
-            if self._static_ids is not None and self._scene is not None:
+            if self._static_ids is not None and self._scene is not None and self._packets is None:
                 hit = prim >= 0
                 prim[hit] = self._static_ids[prim[hit]]
             t[prim < 0] = t_max[prim < 0]
@@ -243,3 +271,16 @@ class Accel:
         with self._lock:  # several waves may trace at once
             self.seconds_in_embree += elapsed
             self.rays_traced += n
+
+
+class _PacketQueries:
+    """embreex's run() interface over kernels.embree packets, where embreex cannot trace our scenes."""
+
+    def __init__(self, scene: "embree.Scene"):
+        self._scene = scene
+
+    def run(self, origins, directions, dists=None, query="INTERSECT", output=None):
+        if query == "OCCLUDED":
+            return np.where(self._scene.occluded(origins, directions, dists), 0, -1).astype(np.int32)
+        prim, _, t, u, v = self._scene.intersect(origins, directions, dists)
+        return {"primID": prim, "tfar": t, "u": u, "v": v}

@@ -13,19 +13,124 @@ _COLUMNS = 27
 
 
 class TriangleTable:
-    """(T, 27) float32 rows: p0, e1, e2, unit geometric normal, three unit corner normals, three corner UVs.
-    Gathering whole rows of a (T, 27) table is ~9x faster than columns of a (27, T) one."""
+    """(R, 27) float32 rows: p0, e1, e2, unit geometric normal, three unit corner normals, three corner UVs.
+    Gathering whole rows of a (R, 27) table is ~9x faster than columns of a (27, R) one.
+
+    Rows are the scene's plain triangles (world space) and then each instanced prototype's triangles once
+    (object space). Every query takes scene triangle numbers (what ray hits report, kernels.scene.Instances)
+    and answers in world space: rows of instanced triangles are placed by their instance's transform as
+    they are gathered. A scene without instances gathers its rows as they are."""
 
     def __init__(self, scene: SceneArrays):
-        self.rows = _triangle_table(scene)
-        # (T, 12) float32: per corner the tangent xyz and its sign; apart from the rows every hit gathers,
+        inst = scene.instances if scene.instances is not None and scene.instances.count else None
+        parts = [scene] + list(inst.prototypes if inst is not None else ())
+        self.plain_count = len(scene.positions)
+        self.rows = _concatenate([_triangle_table(part) for part in parts])
+        self.material_ids = _concatenate([part.material_ids for part in parts])
+        # (R, 12) float32: per corner the tangent xyz and its sign; apart from the rows every hit gathers,
         # since only normal-mapped and anisotropic materials read it.
-        self.tangent_rows = None if scene.tangents is None else \
-            np.ascontiguousarray(scene.tangents.reshape(len(scene.tangents), 12), np.float32)
+        if any(part.tangents is not None for part in parts):
+            self.tangent_rows = _concatenate([
+                np.ascontiguousarray(part.tangents.reshape(len(part.tangents), 12), np.float32)
+                if part.tangents is not None else np.zeros((len(part.positions), 12), np.float32)
+                for part in parts])
+        else:
+            self.tangent_rows = None
+        widths: dict[str, int] = {}
+        for part in parts:
+            for name, values in part.attributes:
+                widths[name] = max(widths.get(name, 0), values.shape[2])
+        self.attributes = {}
+        for name, c in widths.items():
+            columns = []
+            for part in parts:
+                values = dict(part.attributes).get(name)
+                if values is None or values.shape[2] != c:
+                    padded = np.zeros((len(part.positions), 3, c), np.float32)
+                    if values is not None:
+                        padded[..., :values.shape[2]] = values
+                    values = padded
+                columns.append(values)
+            self.attributes[name] = _concatenate(columns)
+        self._plain_objects = scene.object_ids
+        self._bases = None
+        if inst is not None:
+            self._bases = inst.bases(self.plain_count)
+            starts = np.cumsum([self.plain_count] + [p.triangle_count for p in inst.prototypes])[:-1]
+            self._first_row = np.asarray(starts, np.int64)[inst.prototype]
+            m = inst.world_from_object
+            self._linear = np.ascontiguousarray(m[:, :3, :3], np.float32)
+            self._translation = np.ascontiguousarray(m[:, :3, 3], np.float32)
+            self._normal = normal_matrices(m[:, :3, :3])
+            self._det_sign = np.sign(np.linalg.det(m[:, :3, :3])).astype(np.float32)
+            self._instance_objects = inst.object_ids
+
+    @property
+    def instanced(self) -> bool:
+        return self._bases is not None
+
+    def locate(self, prim: np.ndarray):
+        """(rows, instance): each scene triangle's row of the tables and its instance, -1 for plain
+        triangles (instance is None in a scene without instances, where rows are prim)."""
+        if self._bases is None:
+            return prim, None
+        k = np.searchsorted(self._bases, prim, side="right") - 1
+        rows = np.where(k >= 0, np.take(self._first_row, k) + (prim - np.take(self._bases, k)), prim)
+        return rows, k
 
     def gather(self, prim: np.ndarray) -> np.ndarray:
-        """(27, N) view: one row per component of the triangles prim."""
-        return np.take(self.rows, prim, axis=0).T
+        """(27, N) view: one row per component of the triangles prim (world space)."""
+        return self.rows_of(prim).T
+
+    def rows_of(self, prim: np.ndarray) -> np.ndarray:
+        """(N, 27) world-space rows of the triangles prim."""
+        if self._bases is None:
+            return np.take(self.rows, prim, axis=0)
+        rows, k = self.locate(prim)
+        g = np.take(self.rows, rows, axis=0)
+        sel = np.flatnonzero(k >= 0)
+        if len(sel):
+            g[sel] = self._place(np.take(g, sel, axis=0), np.take(k, sel))
+        return g
+
+    def _place(self, g: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """Object-space rows g (m, 27) of instances k in world space."""
+        linear, normal = np.take(self._linear, k, axis=0), np.take(self._normal, k, axis=0)
+        out = np.empty_like(g)
+        out[:, P0:P0 + 3] = _apply(linear, g[:, P0:P0 + 3]) + np.take(self._translation, k, axis=0)
+        e1 = _apply(linear, g[:, E1:E1 + 3])
+        e2 = _apply(linear, g[:, E2:E2 + 3])
+        out[:, E1:E1 + 3], out[:, E2:E2 + 3] = e1, e2
+        out[:, NG:NG + 3] = np.stack(unit_rows(e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1],
+                                               e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
+                                               e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), axis=1)
+        for col in (N0, N1, N2):
+            n = _apply(normal, g[:, col:col + 3])
+            out[:, col:col + 3] = np.stack(unit_rows(n[:, 0], n[:, 1], n[:, 2]), axis=1)
+        out[:, UV0:] = g[:, UV0:]
+        return out
+
+    def materials(self, prim: np.ndarray) -> np.ndarray:
+        """(N,) int32 material rows of the triangles prim."""
+        return np.take(self.material_ids, self.locate(prim)[0])
+
+    def object_rows(self, prim: np.ndarray) -> np.ndarray | None:
+        """(N,) int32 rows of SceneArrays.objects of the triangles prim; None without an object table."""
+        if self._plain_objects is None:
+            return None
+        if self._bases is None:
+            return np.take(self._plain_objects, prim)
+        rows, k = self.locate(prim)
+        plain = np.take(self._plain_objects, np.minimum(prim, max(self.plain_count - 1, 0))) \
+            if self.plain_count else np.zeros(len(prim), np.int32)
+        return np.where(k >= 0, np.take(self._instance_objects, k), plain).astype(np.int32)
+
+    def attribute(self, name: str, prim: np.ndarray) -> np.ndarray | None:
+        """(N, 3, C) per-corner values of attribute name on the triangles prim, None when no mesh has it."""
+        table = self.attributes.get(name)
+        if table is None:
+            return None
+        return np.take(table, self.locate(prim)[0], axis=0)
 
     def tangent_frame(self, prim: np.ndarray, b1: np.ndarray, b2: np.ndarray):
         """The unnormalized interpolated tangent (x, y, z), bitangent sign and corner normal (x, y, z) at
@@ -34,12 +139,106 @@ class TriangleTable:
         if self.tangent_rows is None:
             return None
         w0 = np.float32(1.0) - b1 - b2
-        t = np.take(self.tangent_rows, prim, axis=0).T
-        n = np.take(self.rows[:, N0:N2 + 3], prim, axis=0).T
+        rows, k = self.locate(prim)
+        t = np.take(self.tangent_rows, rows, axis=0)
+        n = np.take(self.rows[:, N0:N2 + 3], rows, axis=0)
+        if k is not None and (k >= 0).any():
+            sel = np.flatnonzero(k >= 0)
+            ks = np.take(k, sel)
+            linear, normal = np.take(self._linear, ks, axis=0), np.take(self._normal, ks, axis=0)
+            sign = np.take(self._det_sign, ks)
+            for c in range(3):
+                v = _apply(linear, t[sel, 4 * c:4 * c + 3])
+                length = np.sqrt(np.einsum("ij,ij->i", v, v))
+                t[sel, 4 * c:4 * c + 3] = np.where(length[:, None] > 0, v / np.where(length > 0, length, 1)[:, None], 0)
+                t[sel, 4 * c + 3] *= sign
+                m = _apply(normal, n[sel, 3 * c:3 * c + 3])
+                n[sel, 3 * c:3 * c + 3] = np.stack(unit_rows(m[:, 0], m[:, 1], m[:, 2]), axis=1)
+        t, n = t.T, n.T
         tangent = tuple(w0 * t[k] + b1 * t[4 + k] + b2 * t[8 + k] for k in range(3))
         sign = w0 * t[3] + b1 * t[7] + b2 * t[11]
         normal = tuple(w0 * n[k] + b1 * n[3 + k] + b2 * n[6 + k] for k in range(3))
         return tangent, sign, normal
+
+
+def _concatenate(arrays: list) -> np.ndarray:
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
+
+
+def _apply(matrices: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """(m, 3) float32: each (3, 3) matrix times its vector."""
+    return np.einsum("mij,mj->mi", matrices, vectors).astype(np.float32, copy=False)
+
+
+def normal_matrices(linear: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) float32 inverse-transpose of each (K, 3, 3) linear part, up to a positive factor.
+
+    Computed as the cofactor matrix (det x inverse-transpose) with the determinant's sign: it exists for
+    singular matrices too (their triangles are degenerate and dropped later). Scaled to magnitude 1 so
+    huge or tiny object scales stay well inside float32.
+    """
+    # The cofactors of a matrix scaled by s are scaled by s^2: scale each matrix to entries of at most 1
+    # first, so that object scales of 1e30 or 1e-30 neither overflow nor underflow on the way.
+    linear = np.asarray(linear, np.float64)
+    size = np.abs(linear).max(axis=(1, 2)) if len(linear) else np.zeros(0)
+    finite = np.isfinite(size) & (size > 0)
+    linear = np.where(finite[:, None, None], linear, 0.0) / np.where(finite, size, 1.0)[:, None, None]
+    c0, c1, c2 = linear[:, :, 0], linear[:, :, 1], linear[:, :, 2]
+    cofactor = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=2)
+    det = np.einsum("ki,ki->k", c0, cofactor[:, :, 0])
+    largest = np.abs(cofactor).max(axis=(1, 2)) if len(linear) else np.zeros(0)
+    scale = np.copysign(1.0, det) / np.where(largest > 0, largest, 1.0)
+    return (cofactor * scale[:, None, None]).astype(np.float32)
+
+
+def instance_boxes(scene: SceneArrays) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (K, 3) float64 world boxes of the scene's instances."""
+    inst = scene.instances
+    if inst is None or not inst.count:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    local = [extent(p.positions) for p in inst.prototypes]
+    lo = np.array([b[0] for b in local])[inst.prototype]
+    hi = np.array([b[1] for b in local])[inst.prototype]
+    corners = np.stack([np.where(np.array(bits, bool), hi, lo)
+                        for bits in np.ndindex(2, 2, 2)], axis=1)            # (K, 8, 3)
+    m = inst.world_from_object
+    world = np.einsum("kij,kcj->kci", m[:, :3, :3], corners) + m[:, None, :3, 3]
+    return world.min(axis=1), world.max(axis=1)
+
+
+def scene_extent(scene: SceneArrays):
+    """(lo, hi) float64 (3,) corners of the box around all triangles, plain and instanced."""
+    lo, hi = extent(scene.positions)
+    ilo, ihi = instance_boxes(scene)
+    if len(ilo):
+        if len(scene.positions):
+            lo, hi = np.minimum(lo, ilo.min(axis=0)), np.maximum(hi, ihi.max(axis=0))
+        else:
+            lo, hi = ilo.min(axis=0), ihi.max(axis=0)
+    return lo, hi
+
+
+def emissive_instanced(scene: SceneArrays, emits: np.ndarray):
+    """The instanced triangles whose material emits: (scene triangle numbers (E,) int64 ascending,
+    world-space corners (E, 3, 3) float64, material rows (E,) int32)."""
+    inst = scene.instances
+    ids, corners, mats = [], [], []
+    if inst is not None and inst.count:
+        bases = inst.bases(len(scene.positions))
+        local = [np.flatnonzero(emits[p.material_ids]) for p in inst.prototypes]
+        for k in range(inst.count):
+            proto = inst.prototype[k]
+            tri = local[proto]
+            if not len(tri):
+                continue
+            m = inst.world_from_object[k]
+            p = inst.prototypes[proto].positions[tri].astype(np.float64)
+            ids.append(bases[k] + tri)
+            corners.append(p @ m[:3, :3].T + m[:3, 3])
+            mats.append(inst.prototypes[proto].material_ids[tri])
+    if not ids:
+        return np.zeros(0, np.int64), np.zeros((0, 3, 3)), np.zeros(0, np.int32)
+    return np.concatenate(ids), np.concatenate(corners), np.concatenate(mats)
 
 
 def interpolate_uv(g: np.ndarray, w0, w1, w2):
@@ -49,32 +248,56 @@ def interpolate_uv(g: np.ndarray, w0, w1, w2):
     return u, v
 
 
+# Tables of more triangles than this are built in slices on threads (NumPy releases the GIL).
+_PARALLEL_ROWS = 1 << 18
+
+
 def _triangle_table(scene: SceneArrays) -> np.ndarray:
-    """Built column by column in float32, straight in the row layout the renderer gathers from."""
-    p = scene.positions
-    t = len(p)
+    """(T, 27) rows of a SceneArrays or Prototype; big ones built in slices, in parallel."""
+    t = len(scene.positions)
     table = np.empty((t, _COLUMNS), np.float32)
-    e1 = p[:, 1] - p[:, 0]
-    e2 = p[:, 2] - p[:, 0]
-    ng = np.stack(unit_rows(e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1],
-                            e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
-                            e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), axis=1)
-    table[:, P0:P0 + 3] = p[:, 0]
-    table[:, E1:E1 + 3] = e1
-    table[:, E2:E2 + 3] = e2
-    table[:, NG:NG + 3] = ng
-    for k, col in enumerate((N0, N1, N2)):
-        nk = scene.normals[:, k]
-        x, y, z = nk[:, 0], nk[:, 1], nk[:, 2]
-        length2 = x * x + y * y + z * z
-        inv = np.float32(1.0) / np.sqrt(np.maximum(length2, np.float32(1e-37)))
-        # A zero-length corner normal falls back to the face normal.
-        zero = length2 < np.float32(1e-30)
-        for j, c in enumerate((x, y, z)):
-            table[:, col + j] = np.where(zero, ng[:, j], c * inv)
-    for k, col in enumerate((UV0, UV1, UV2)):
-        table[:, col:col + 2] = scene.uvs[:, k]
+    if t < 2 * _PARALLEL_ROWS:
+        _fill_rows(table, scene.positions, scene.normals, scene.uvs)
+        return table
+    from concurrent.futures import ThreadPoolExecutor
+    import os
+    slices = [slice(i, min(i + _PARALLEL_ROWS, t)) for i in range(0, t, _PARALLEL_ROWS)]
+    with ThreadPoolExecutor(max(1, os.cpu_count() or 1)) as pool:
+        list(pool.map(lambda s: _fill_rows(table[s], scene.positions[s], scene.normals[s], scene.uvs[s]), slices))
     return table
+
+
+def _fill_rows(table: np.ndarray, p: np.ndarray, n: np.ndarray, uvs: np.ndarray) -> None:
+    """Rows in float32, straight in the layout the renderer gathers from; whole (T, 3) and (T, 3, 3)
+    blocks at a time (the same float32 operations, in the same order, as component by component)."""
+    t = len(p)
+    p0 = table[:, P0:P0 + 3]
+    p0[:] = p[:, 0]
+    e1 = np.subtract(p[:, 1], p0, out=table[:, E1:E1 + 3])
+    e2 = np.subtract(p[:, 2], p0, out=table[:, E2:E2 + 3])
+    ng = table[:, NG:NG + 3]
+    ng[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+    ng[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+    ng[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    ng *= _inverse_length(ng)[:, None]
+    normals = table[:, N0:N2 + 3].reshape(t, 3, 3)
+    length2 = _length2(n)
+    np.multiply(n, (np.float32(1.0) / np.sqrt(np.maximum(length2, np.float32(1e-37))))[:, :, None], out=normals)
+    # A zero-length corner normal falls back to the face normal.
+    zero_t, zero_c = np.nonzero(length2 < np.float32(1e-30))
+    if len(zero_t):
+        normals[zero_t, zero_c] = ng[zero_t]
+    table[:, UV0:UV2 + 2] = uvs.reshape(t, 6)
+
+
+def _length2(v: np.ndarray) -> np.ndarray:
+    """x * x + y * y + z * z over the last axis, in that order."""
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return x * x + y * y + z * z
+
+
+def _inverse_length(v: np.ndarray) -> np.ndarray:
+    return np.float32(1.0) / np.sqrt(np.maximum(_length2(v), np.float32(1e-37)))
 
 
 def unit_rows(x, y, z):
@@ -89,3 +312,61 @@ def extent(positions: np.ndarray):
     lo = np.array([positions[:, :, k].min() for k in range(3)], np.float64)
     hi = np.array([positions[:, :, k].max() for k in range(3)], np.float64)
     return lo, hi
+
+
+def flatten_instances(scene: SceneArrays) -> SceneArrays:
+    """The scene with every instance copied into plain world-space triangles (what a one-level BVH
+    holds): the reference the instanced scene must render like."""
+    import dataclasses
+    inst = scene.instances
+    if inst is None or not inst.count:
+        return dataclasses.replace(scene, instances=None)
+    parts = {"positions": [scene.positions], "normals": [scene.normals], "uvs": [scene.uvs],
+             "material_ids": [scene.material_ids]}
+    tangents = [scene.tangents] if scene.tangents is not None else None
+    want_tangents = scene.tangents is not None or any(p.tangents is not None for p in inst.prototypes)
+    if want_tangents:
+        tangents = [scene.tangents if scene.tangents is not None else np.zeros((len(scene.positions), 3, 4), np.float32)]
+    names = dict.fromkeys(name for part in (scene, *inst.prototypes) for name, _ in part.attributes)
+    attributes = {name: [] for name in names}
+    object_ids = [scene.object_ids] if scene.object_ids is not None else None
+    normal = normal_matrices(inst.world_from_object[:, :3, :3])
+    for k in range(inst.count):
+        proto = inst.prototypes[inst.prototype[k]]
+        m = inst.world_from_object[k]
+        linear = m[:3, :3].astype(np.float32)
+        parts["positions"].append((proto.positions @ linear.T + m[:3, 3].astype(np.float32)).astype(np.float32))
+        parts["normals"].append((proto.normals @ normal[k].T).astype(np.float32))
+        parts["uvs"].append(proto.uvs)
+        parts["material_ids"].append(proto.material_ids)
+        if want_tangents:
+            if proto.tangents is None:
+                tangents.append(np.zeros((proto.triangle_count, 3, 4), np.float32))
+            else:
+                t = proto.tangents[..., :3].astype(np.float64) @ m[:3, :3].T
+                length = np.linalg.norm(t, axis=-1, keepdims=True)
+                t = np.where(length > 0, t / np.where(length > 0, length, 1), 0)
+                sign = proto.tangents[..., 3:] * np.sign(np.linalg.det(m[:3, :3]))
+                tangents.append(np.concatenate([t, sign], axis=-1).astype(np.float32))
+        own = dict(proto.attributes)
+        for name in names:
+            attributes[name].append(own.get(name))
+        if object_ids is not None:
+            object_ids.append(np.full(proto.triangle_count, inst.object_ids[k], np.int32))
+    counts = [len(p) for p in parts["positions"]]
+    plain_attributes = dict(scene.attributes)
+    flat_attributes = []
+    for name in names:
+        values = [plain_attributes.get(name)] + attributes[name]
+        c = max(v.shape[2] for v in values if v is not None)
+        filled = []
+        for v, n in zip(values, counts):
+            block = np.zeros((n, 3, c), np.float32)
+            if v is not None:
+                block[..., :v.shape[2]] = v
+            filled.append(block)
+        flat_attributes.append((name, np.concatenate(filled)))
+    return dataclasses.replace(
+        scene, instances=None, **{key: np.ascontiguousarray(np.concatenate(v)) for key, v in parts.items()},
+        tangents=None if not want_tangents else np.concatenate(tangents), attributes=tuple(flat_attributes),
+        object_ids=None if object_ids is None else np.concatenate(object_ids))

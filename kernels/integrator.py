@@ -26,7 +26,7 @@ from .environment import Environment
 from .cryptomatte import CryptoFilm
 from .film import Film
 from .bsdf.closures import BsdfSample, class_albedo, eval_split, pass_classes
-from .geometry import NG, TriangleTable, extent
+from .geometry import NG, TriangleTable, scene_extent
 from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
 from .paths import PathState
@@ -174,17 +174,25 @@ class Renderer:
         self.dropped_triangles = checked.dropped_triangles
         poll()
         moving = self.scene.has_motion and self.scene.motion_ids is not None
-        self.accel = Accel(self.scene.positions, threads,
-                           *((self.scene.motion_ids, self.scene.motion, self.scene.motion_reference) if moving else ()))
-        try:
-            poll()
-            # Triangles near float32's limits overflow in their normals: paths that hit them are
-            # dropped and counted like any non-finite path, so NumPy need not print about them.
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                self._build_tables(poll)
-        except BaseException:
-            self.accel.close()
-            raise
+        # Embree builds its BVH (C code, the GIL released) while NumPy builds the shading tables.
+        with ThreadPoolExecutor(1, "ember-bvh") as builder:
+            accel = builder.submit(Accel, self.scene.positions, threads,
+                                   *((self.scene.motion_ids, self.scene.motion, self.scene.motion_reference)
+                                     if moving else (None, (), ())), instances=self.scene.instances)
+            try:
+                poll()
+                # Triangles near float32's limits overflow in their normals: paths that hit them are
+                # dropped and counted like any non-finite path, so NumPy need not print about them.
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                    self._build_tables(poll)
+            except BaseException:
+                error = accel.exception()
+                if error is None:
+                    accel.result().close()
+                raise
+            self.accel = accel.result()
+        threads = self.accel.threads
+        self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
 
     def _build_tables(self, poll) -> None:
         srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
@@ -195,19 +203,16 @@ class Renderer:
         self._motion = [motion.decompose(np.asarray(keys, np.float64)) for keys in self.scene.motion]
         self._motion_inverse = [np.linalg.inv(np.asarray(ref, np.float64)) for ref in self.scene.motion_reference]
         poll()
-        self._material_ids = self.scene.material_ids
-        self.shading = Shading(self.scene.materials, self.textures, self.scene)
+        self.shading = Shading(self.scene.materials, self.textures, self.scene, self._triangles)
         world = self.scene.world
         self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
         self._emissive = bool(self.shading.emissive.any())
         self._pixel_size = _pixel_spread(self.scene.camera)
         self._camera_frame = camera_frame(self.scene.camera)
-        lo, hi = extent(self.scene.positions)
+        lo, hi = scene_extent(self.scene)
         self._ray_epsilon = _ray_epsilon(lo, hi)
         self.lights = LightSampler(self.scene, self.environment, _Emitters(self))
         poll()
-        threads = self.accel.threads
-        self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
 
     def set_camera(self, camera: Camera) -> None:
         """Look through another camera without rebuilding anything (the viewport's view changes).
@@ -487,7 +492,7 @@ class Renderer:
                 out[:, paths] = np.stack(hit.p)
             elif name == "object_index":
                 if self.scene.objects is not None:
-                    rows = np.take(self.scene.object_ids, hit.prim)
+                    rows = self._triangles.object_rows(hit.prim)
                     out[0, paths] = np.take(self.scene.objects[:, OBJ_PASS_INDEX], rows)
             elif name == "material_index":
                 indices = np.asarray(self.scene.materials.pass_indices or (0,) * self.scene.materials.count,
@@ -505,7 +510,7 @@ class Renderer:
                     out[0, paths] = state.throughput.mean(axis=0)
                 elif table is not None and len(table):
                     rows = hit.mat if kind == "material" else \
-                        np.take(self.scene.object_ids, hit.prim) if self.scene.object_ids is not None else None
+                        self._triangles.object_rows(hit.prim)
                     if rows is not None:
                         out[0, paths] = np.take(table, rows)
             elif name == "vector":
@@ -534,8 +539,9 @@ class Renderer:
         """(4, n) Cycles' Vector pass at the hits: (previous - current, current - next) raster positions."""
         before, after, cam_before, cam_after = self.scene.vector_motion
         p = np.stack([c.astype(np.float64) for c in hit.p])          # (3, n)
-        rows = np.take(self.scene.object_ids, hit.prim) if self.scene.object_ids is not None else \
-            np.zeros(len(hit), np.int64)
+        rows = self._triangles.object_rows(hit.prim)
+        if rows is None:
+            rows = np.zeros(len(hit), np.int64)
         camera = self.scene.camera
 
         def moved(m):  # (K, 3, 4) per object row
@@ -684,7 +690,7 @@ class Renderer:
         d = rays.dirs
         direction = (np.take(d[:, 0], found), np.take(d[:, 1], found), np.take(d[:, 2], found))
         prim = np.take(hits.prim, found)
-        return SurfaceHit(self._triangles, self._material_ids, prim, np.take(hits.u, found),
+        return SurfaceHit(self._triangles, prim, np.take(hits.u, found),
                           np.take(hits.v, found), direction, self.shading.needs_uv,
                           self._hit_motion(prim, times) if self.accel.moves else None)
 
@@ -903,7 +909,7 @@ class Renderer:
             if not len(found):
                 break
             d = dirs[live[found]]
-            hit = SurfaceHit(self._triangles, self._material_ids, hits.prim[found], hits.u[found], hits.v[found],
+            hit = SurfaceHit(self._triangles, hits.prim[found], hits.u[found], hits.v[found],
                              (d[:, 0], d[:, 1], d[:, 2]), self.shading.needs_uv)
             passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
             hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
@@ -932,13 +938,13 @@ class Renderer:
         """(3, n) emitted radiance of triangles tri at barycentrics (b1, b2) seen from direction
         -toward (the direction from the receiver to the light); without barycentrics, the material's
         mean (textures averaged), for power estimates."""
-        mat = np.take(self._material_ids, tri)
+        mat = self._triangles.materials(tri)
         if b1 is None:
             return self.shading.mean_emission(mat)
         if toward is None:  # seen head-on, along the triangle's normal
             g = self._triangles.gather(tri)
             toward = (-g[NG], -g[NG + 1], -g[NG + 2])
-        hit = SurfaceHit(self._triangles, self._material_ids, tri, b1, b2, toward, self.shading.needs_uv)
+        hit = SurfaceHit(self._triangles, tri, b1, b2, toward, self.shading.needs_uv)
         return self.shading.surface(hit, closures=False).emission
 
 

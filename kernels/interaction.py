@@ -22,8 +22,7 @@ class SurfaceHit:
     __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "ray", "programs", "_table", "_b1", "_b2",
                  "_moved")
 
-    def __init__(self, table: TriangleTable, material_ids: np.ndarray, prim, b1, b2, d, need_uv: bool,
-                 motion=None):
+    def __init__(self, table: TriangleTable, prim, b1, b2, d, need_uv: bool, motion=None):
         """motion : None, or (rows, (m, 3, 4) matrices, (m, 3, 3) normal matrices) for hits on moving
         objects (motion blur): each takes its triangle from where it is stored to where it was at the
         path's time."""
@@ -57,7 +56,7 @@ class SurfaceHit:
         self.ns = (ns[0] * sign, ns[1] * sign, ns[2] * sign)
         self.u, self.v = interpolate_uv(g, w0, b1, b2) if need_uv else (None, None)
         self.d = d
-        self.mat = np.take(material_ids, prim)
+        self.mat = table.materials(prim)
         self.prim = prim
         self.ray = None
         self.programs = {}  # material -> (hit indices, ProgramRun): node programs run once per wave
@@ -79,12 +78,12 @@ class SurfaceHit:
 
     def edges(self, idx: np.ndarray):
         """(E1, E2): the (n, 3) edges p1 - p0 and p2 - p0 of the hits' triangles."""
-        rows = np.take(self._table.rows, np.take(self.prim, idx), axis=0)
+        rows = self._table.rows_of(np.take(self.prim, idx))
         return self._move(idx, rows[:, E1:E1 + 3], False), self._move(idx, rows[:, E2:E2 + 3], False)
 
     def corners(self, idx: np.ndarray):
         """(p0, p1, p2): the (n, 3) corners of the hits' triangles."""
-        rows = np.take(self._table.rows, np.take(self.prim, idx), axis=0)
+        rows = self._table.rows_of(np.take(self.prim, idx))
         p0 = rows[:, P0:P0 + 3]
         return tuple(self._move(idx, c, True) for c in (p0, p0 + rows[:, E1:E1 + 3], p0 + rows[:, E2:E2 + 3]))
 

@@ -22,6 +22,7 @@ from . import sampling
 from .accel import Accel
 from .environment import Environment
 from .rng import pcg2d, to_unit_float
+from .geometry import emissive_instanced
 from .scene import LIGHT_KINDS, SceneArrays
 from .textures import luminance
 
@@ -114,17 +115,28 @@ class LightSampler:
         sampled = emits[scene.material_ids]
         if scene.has_motion and scene.motion_ids is not None:
             sampled &= scene.motion_ids < 0
-        self.tri_ids = np.flatnonzero(sampled).astype(np.int32)
-        p = scene.positions[self.tri_ids].astype(np.float64)
+        plain_ids = np.flatnonzero(sampled).astype(np.int32)
+        # Emissive triangles of instances (kernels.scene.Instances) come after the plain ones, each instance's
+        # copy a light of its own, numbered as ray hits report them.
+        instanced_ids, instanced_corners, instanced_materials = emissive_instanced(scene, emits)
+        self.tri_ids = np.concatenate([plain_ids, instanced_ids]) if len(instanced_ids) else plain_ids
+        p = scene.positions[plain_ids].astype(np.float64)
+        if len(instanced_ids):
+            p = np.concatenate([p, instanced_corners])
         e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
         cross = np.cross(e1, e2)
         tri_area = 0.5 * np.linalg.norm(cross, axis=1)
         self.tri_area = tri_area.astype(np.float32)
         # Position of each scene triangle in the emissive list (-1 for non-emissive), for MIS on hits.
+        # (Instanced ones are looked up in tri_ids, see _slots.)
         self.tri_slot = np.full(scene.triangle_count, -1, np.int32)
-        self.tri_slot[self.tri_ids] = np.arange(len(self.tri_ids), dtype=np.int32)
+        self.tri_slot[plain_ids] = np.arange(len(plain_ids), dtype=np.int32)
+        self._plain_count = scene.triangle_count
+        self._has_instances = scene.instances is not None and scene.instances.count > 0
+        self._instanced_emitters = len(instanced_ids) > 0
         # Triangles whose emission varies (a texture, layers above it) are evaluated at the sampled point.
-        textured = np.asarray(triangle_emission.varies, bool)[scene.material_ids[self.tri_ids]]
+        materials = np.concatenate([scene.material_ids[plain_ids], instanced_materials])
+        textured = np.asarray(triangle_emission.varies, bool)[materials]
         self.tri_textured = bool(textured.any())
         # One row per emissive triangle, gathered whole (rows of a (E, K) table gather fastest).
         table = np.zeros((len(self.tri_ids), _TRI_ROWS), np.float32)
@@ -341,10 +353,10 @@ class LightSampler:
     def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz) -> np.ndarray:
         """pdf (solid angle, with selection) with which NEE from the ray origin o would have sampled
         this point of emissive triangle tri (zero for triangles that do not emit)."""
-        slot = np.take(self.tri_slot, tri)
-        ok = slot >= 0
         if not len(self.tri_ids):
             return np.zeros(len(tri), np.float32)
+        slot = self._slots(tri)
+        ok = slot >= 0
         s = np.maximum(slot, 0)
         pmf = np.take(self.pmf32, self.light_count + s)
         g = np.take(self._tri_table, s, axis=0).T
@@ -352,6 +364,19 @@ class LightSampler:
         pdf = np.where(spherical, np.float32(1.0) / np.maximum(omega, np.float32(1e-30)),
                        _area_to_solid_angle(g[_TAREA], dist, np.abs(cos_l)))
         return np.where(ok, pmf * pdf, np.float32(0.0))
+
+    def _slots(self, tri: np.ndarray) -> np.ndarray:
+        """Each scene triangle's position in the emissive list, -1 for triangles that do not emit."""
+        if not self._has_instances:
+            return np.take(self.tri_slot, tri)
+        plain = tri < self._plain_count
+        slot = np.full(len(tri), -1, np.int32)
+        if self._plain_count:
+            slot = np.where(plain, np.take(self.tri_slot, np.where(plain, tri, 0)), slot)
+        if self._instanced_emitters:
+            found = np.minimum(np.searchsorted(self.tri_ids, tri), len(self.tri_ids) - 1)
+            slot = np.where(~plain & (np.take(self.tri_ids, found) == tri), found, slot)
+        return slot.astype(np.int32, copy=False)
 
     def pdf_world(self, dx, dy, dz) -> np.ndarray:
         if not self.has_lights or self.select_pmf[self.world_index] == 0:

@@ -44,7 +44,8 @@ class ExportResult:
     scene : not validated yet; call scene.validate().
     warnings : one line each, without duplicates, for RenderEngine.report({'WARNING'}, ...).
     seconds : export wall time.
-    triangle_count : triangles exported (before validate() drops degenerate ones).
+    triangle_count : triangles exported, instanced ones counted once per instance (before validate() drops
+        degenerate ones).
     instance_count : object instances that contributed triangles (plain objects count as one each).
     """
     scene: SceneArrays
@@ -86,7 +87,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                            default_height if height is None else height, warnings)
     materials = MaterialTable(warnings)
     poll = Poller(should_stop)
-    geometry = export_geometry(depsgraph, materials, warnings, poll)
+    geometry = export_geometry(depsgraph, materials, warnings, poll,
+                               moving=frozenset(motion.objects) if motion is not None else frozenset())
     world = export_world(scene.world, warnings, materials.images)
     lights = export_lights(depsgraph, warnings, poll)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
@@ -97,6 +99,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          camera=camera, lights=lights, tangents=geometry.tangents,
                          attributes=geometry.attributes, objects=geometry.objects, object_ids=geometry.object_ids,
                          crypto_ids={kind: hash_names(names) for kind, names in crypto_names.items()},
+                         instances=geometry.instances,
                          **scene_motion(motion, geometry),
                          **vector_fields(vector, geometry, camera.world_from_camera))
     if motion is not None:
@@ -105,7 +108,9 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
             arrays = dataclasses.replace(arrays, camera=dataclasses.replace(camera, motion=motion.camera,
                                                                             fov_motion=motion.camera_fov))
     return ExportResult(scene=arrays, warnings=list(dict.fromkeys(absolute_paths(w) for w in warnings)),
-                        seconds=time.perf_counter() - start, triangle_count=len(geometry.material_ids),
+                        seconds=time.perf_counter() - start,
+                        triangle_count=len(geometry.material_ids) + (geometry.instances.triangle_total
+                                                                     if geometry.instances is not None else 0),
                         instance_count=geometry.instance_count, crypto_names=crypto_names)
 
 

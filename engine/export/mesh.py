@@ -15,14 +15,21 @@ triangle's UV gradient; both with a warning.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from ...kernels.scene import OBJECT_COLUMNS, object_row
+from ...kernels.geometry import normal_matrices
+from ...kernels.scene import OBJECT_COLUMNS, Instances, Prototype, object_row, padded_triangles
 from ...kernels.shading.ops import map_to_sphere
 from .materials import MaterialTable
+
+# A mesh placed by two or more instances is stored once in object space and instanced (two-level BVH,
+# kernels.scene.Instances) when its copies together would hold at least this many triangles; smaller sets
+# are copied into world space, which traces a little faster (no transform per ray and per hit).
+INSTANCE_MIN_TRIANGLES = 20_000
 
 # Object types that carry geometry Ember cannot render yet.
 UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds", "VOLUME": "volumes"}
@@ -34,15 +41,21 @@ RAY_VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visibl
 class LocalMesh:
     """One evaluated mesh in object space, as the 3 corners of each of its T triangles.
 
-    positions : (T*3, 3) float32
+    vertices : (V, 3) float32 vertex positions; corners : (T*3,) int32 the vertex of each triangle corner.
     normals : (T*3, 3) float32, Blender's corner normals (flat, smooth, sharp edges, custom normals).
     uvs : (T*3, 2) float32, the active render UV map, zeros without one.
     slots : (T,) int32, material slot of each triangle.
     """
-    positions: np.ndarray
+    vertices: np.ndarray
+    corners: np.ndarray
     normals: np.ndarray
     uvs: np.ndarray
     slots: np.ndarray
+
+    @functools.cached_property
+    def positions(self) -> np.ndarray:
+        """(T*3, 3) float32 corner positions."""
+        return np.take(self.vertices, self.corners, axis=0)
 
     @property
     def triangle_count(self) -> int:
@@ -74,6 +87,7 @@ class Geometry:
     instance_keys: list | None = None      # per object row: instance_key() (motion blur)
     instance_matrices: list | None = None  # per object row: the (4, 4) world matrix its triangles used
     instance_assets: list | None = None    # per object row: the top-most parent's name (Cryptomatte asset)
+    instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
 
 
 def instance_key(inst) -> tuple:
@@ -91,9 +105,11 @@ def _asset_name(ob) -> str:
     return ob.name
 
 
-def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None) -> Geometry:
+def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None,
+                    moving: set | frozenset = frozenset()) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
-    poll() is called for every instance (it raises to cancel the export)."""
+    poll() is called for every instance (it raises to cancel the export). moving : instance keys
+    (instance_key) of objects that move during the shutter: their meshes are never instanced."""
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
     tangents: dict[int, np.ndarray] = {}     # evaluated mesh pointer -> (T*3, 4) object-space tangents
     slot_rows: dict[tuple, tuple] = {}       # (object, mesh) pointers -> material row of each slot
@@ -130,7 +146,11 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         rows.setdefault((mesh_key, slot_rows[object_key]), []).append(_object_row(inst, ob, matrix))
         keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
         assets.setdefault((mesh_key, slot_rows[object_key]), []).append(_asset_name(ob))
-    return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows),
+    # Groups with a moving member stay plain: motion blur moves plain triangles (kernels.accel._Moving).
+    instanced = {group for group, matrices in groups.items()
+                 if len(matrices) >= 2 and len(matrices) * meshes[group[0]].triangle_count >= INSTANCE_MIN_TRIANGLES
+                 and not any(key in moving for key in keys[group])}
+    return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows, instanced),
                                instance_keys=[k for group in keys.values() for k in group],
                                instance_matrices=[m for group in groups.values() for m in group],
                                instance_assets=[a for group in assets.values() for a in group])
@@ -243,14 +263,14 @@ def read_mesh(mesh) -> LocalMesh:
     t = len(mesh.loop_triangles)
     if t == 0:  # loose vertices and edges only; such meshes may lack the corner attributes too
         empty = np.zeros((0, 3), np.float32)
-        return LocalMesh(empty, empty, np.zeros((0, 2), np.float32), np.zeros(0, np.int32))
+        return LocalMesh(empty, np.zeros(0, np.int32), empty, np.zeros((0, 2), np.float32), np.zeros(0, np.int32))
     n_corners = len(mesh.loops)
     # uint32 / int32 match Blender's storage: foreach_get then copies memory instead of converting.
     tri_loops = _read(mesh.loop_triangles, "loops", t * 3, np.uint32)
     corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", n_corners, np.int32)
     positions = _read(mesh.attributes["position"].data, "vector", 3 * len(mesh.vertices), np.float32)
     corner_normals = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32)
-    return LocalMesh(positions=np.take(positions.reshape(-1, 3), np.take(corner_verts, tri_loops), axis=0),
+    return LocalMesh(vertices=positions.reshape(-1, 3), corners=np.take(corner_verts, tri_loops),
                      normals=np.take(corner_normals.reshape(-1, 3), tri_loops, axis=0),
                      uvs=_corner_uvs(mesh, tri_loops),
                      slots=_triangle_slots(mesh, t))
@@ -351,10 +371,13 @@ def _triangle_slots(mesh, t: int) -> np.ndarray:
     return np.take(face_slots, _read(mesh.loop_triangle_polygons, "value", t, np.int32))
 
 
-def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, object_rows: dict) -> Geometry:
-    """Transform every group of instances into preallocated world-space arrays."""
-    total = sum(meshes[key].triangle_count * len(matrices) for (key, _), matrices in groups.items())
-    positions = np.empty((total, 3, 3), np.float32)
+def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, object_rows: dict,
+              instanced: set = frozenset()) -> Geometry:
+    """Transform every plain group of instances into preallocated world-space arrays; the instanced groups
+    become prototypes (object space) and transforms. Object table rows follow the groups' order."""
+    plain = {group: matrices for group, matrices in groups.items() if group not in instanced}
+    total = sum(meshes[key].triangle_count * len(matrices) for (key, _), matrices in plain.items())
+    positions = padded_triangles(total)
     normals = np.empty((total, 3, 3), np.float32)
     uvs = np.empty((total, 3, 2), np.float32)
     material_ids = np.empty(total, np.int32)
@@ -367,27 +390,48 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
     objects = np.concatenate([np.stack(r) for r in object_rows.values()]) if object_rows else \
         np.zeros((0, OBJECT_COLUMNS), np.float32)
     object_ids = np.empty(total, np.int32)
+    prototypes, prototype_ids, placements, instance_rows = [], [], [], []
     first_row = 0
     start = 0
-    for (key, rows), matrices in groups.items():
+    for group, matrices in groups.items():
+        key, rows = group
         mesh = meshes[key]
         k, t = len(matrices), mesh.triangle_count
+        # Blender clamps slot indices beyond the last slot to it.
+        table = np.array(rows, np.int32)
+        mesh_materials = table[np.clip(mesh.slots, 0, len(table) - 1)]
+        if group in instanced:
+            per_mesh = attributes.get(key, {})
+            prototypes.append(Prototype(
+                positions=mesh.positions.reshape(t, 3, 3), normals=mesh.normals.reshape(t, 3, 3),
+                uvs=mesh.uvs.reshape(t, 3, 2), material_ids=mesh_materials,
+                tangents=tangents[key].reshape(t, 3, 4) if key in tangents else None,
+                attributes=tuple((name, np.ascontiguousarray(v.reshape(t, 3, -1))) for name, v in per_mesh.items())))
+            prototype_ids.extend([len(prototypes) - 1] * k)
+            placements.extend(matrices)
+            instance_rows.extend(range(first_row, first_row + k))
+            first_row += k
+            continue
         end = start + k * t
         _transform(mesh, np.stack(matrices), positions[start:end], normals[start:end])
         if key in tangents:
             transform_tangents(tangents[key], np.stack(matrices), world_tangents[start:end].reshape(k, t * 3, 4))
         uvs[start:end].reshape(k, t, 3, 2)[:] = mesh.uvs.reshape(t, 3, 2)
-        # Blender clamps slot indices beyond the last slot to it.
-        table = np.array(rows, np.int32)
-        material_ids[start:end].reshape(k, t)[:] = table[np.clip(mesh.slots, 0, len(table) - 1)]
+        material_ids[start:end].reshape(k, t)[:] = mesh_materials
         object_ids[start:end].reshape(k, t)[:] = np.arange(first_row, first_row + k, dtype=np.int32)[:, None]
         for name, values in attributes.get(key, {}).items():
             attribute_arrays[name][start:end].reshape(k, t, 3, -1)[..., :values.shape[1]] = values.reshape(t, 3, -1)
         first_row += k
         start = end
     instance_count = sum(len(matrices) for matrices in groups.values())
+    instances = Instances(tuple(prototypes), np.array(prototype_ids, np.int32),
+                          np.array(placements, np.float64).reshape(-1, 4, 4),
+                          np.array(instance_rows, np.int32)) if prototypes else None
     return Geometry(positions, normals, uvs, material_ids, instance_count, world_tangents,
-                    tuple(attribute_arrays.items()), objects, object_ids)
+                    tuple(attribute_arrays.items()), objects, object_ids, instances=instances)
+
+
+_VERTEX_PATH_MAX_INSTANCES = 4
 
 
 def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray,
@@ -402,9 +446,16 @@ def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np
     points = positions_out.reshape(k, -1, 3)
     # Transforms beyond float32 give inf coordinates: validate() drops those triangles and says so.
     with np.errstate(over="ignore", invalid="ignore"):
-        np.matmul(mesh.positions, linear.transpose(0, 2, 1).astype(np.float32), out=points)
-        points += world_from_object[:, None, :3, 3].astype(np.float32)
-    np.matmul(mesh.normals, _normal_matrices(linear).transpose(0, 2, 1), out=normals_out.reshape(k, -1, 3))
+        if k <= _VERTEX_PATH_MAX_INSTANCES:
+            # Few copies of a big mesh: move its vertices (fewer than its corners), then gather corners.
+            for i in range(k):
+                moved = mesh.vertices @ linear[i].T.astype(np.float32)
+                moved += world_from_object[i, :3, 3].astype(np.float32)
+                np.take(moved, mesh.corners, axis=0, out=points[i])
+        else:
+            np.matmul(mesh.positions, linear.transpose(0, 2, 1).astype(np.float32), out=points)
+            points += world_from_object[:, None, :3, 3].astype(np.float32)
+    np.matmul(mesh.normals, normal_matrices(linear).transpose(0, 2, 1), out=normals_out.reshape(k, -1, 3))
 
 
 def transform_tangents(tangents: np.ndarray, world_from_object: np.ndarray, out: np.ndarray) -> None:
@@ -422,23 +473,3 @@ def transform_tangents(tangents: np.ndarray, world_from_object: np.ndarray, out:
         t = np.where(length > 0, t / np.where(length > 0, length, 1.0), 0.0)
     out[:, :, :3] = t
     out[:, :, 3] = tangents[None, :, 3] * np.sign(np.linalg.det(linear))[:, None]
-
-
-def _normal_matrices(linear: np.ndarray) -> np.ndarray:
-    """(K, 3, 3) float32 inverse-transpose of each (K, 3, 3) linear part, up to a positive factor.
-
-    Computed as the cofactor matrix (det x inverse-transpose) with the determinant's sign: it exists for
-    singular matrices too (their triangles are degenerate and dropped later). Scaled to magnitude 1 so
-    huge or tiny object scales stay well inside float32.
-    """
-    # The cofactors of a matrix scaled by s are scaled by s^2: scale each matrix to entries of at most 1
-    # first, so that object scales of 1e30 or 1e-30 neither overflow nor underflow on the way.
-    size = np.abs(linear).max(axis=(1, 2))
-    finite = np.isfinite(size) & (size > 0)
-    linear = np.where(finite[:, None, None], linear, 0.0) / np.where(finite, size, 1.0)[:, None, None]
-    c0, c1, c2 = linear[:, :, 0], linear[:, :, 1], linear[:, :, 2]
-    cofactor = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=2)
-    det = np.einsum("ki,ki->k", c0, cofactor[:, :, 0])
-    largest = np.abs(cofactor).max(axis=(1, 2))
-    scale = np.copysign(1.0, det) / np.where(largest > 0, largest, 1.0)
-    return (cofactor * scale[:, None, None]).astype(np.float32)

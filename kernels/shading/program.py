@@ -108,12 +108,11 @@ class HitInputs:
         when the scene does not have it."""
         key = ("attr", name)
         if key not in self._cache:
-            table = self.scene.attributes.get(name)
-            if table is None:
+            rows = self.scene.attribute(name, self.prim)          # (n, 3, C)
+            if rows is None:
                 self._cache[key] = None
             else:
                 b1, b2 = self.barycentrics()
-                rows = np.take(table, self.prim, axis=0)          # (n, 3, C)
                 w0 = F32(1.0) - b1 - b2
                 self._cache[key] = (rows[:, 0] * w0[:, None] + rows[:, 1] * b1[:, None] +
                                     rows[:, 2] * b2[:, None]).astype(F32, copy=False)
@@ -132,7 +131,7 @@ class HitInputs:
         """(n, OBJECT_COLUMNS) float32 object table rows of the hits' instances."""
         if "objects" not in self._cache:
             table = self.scene.objects
-            rows = np.take(self.scene.object_ids, self.prim)
+            rows = self.scene.object_rows(self.prim)
             self._cache["objects"] = np.take(table, rows, axis=0)
         return self._cache["objects"]
 

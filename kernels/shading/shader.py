@@ -32,16 +32,24 @@ class ShadingData:
     """What node programs read besides the hits: textures, per-corner attributes, the object table and
     the camera (kernels.scene.SceneArrays, prepared)."""
 
-    def __init__(self, textures: list[Texture], scene=None):
+    def __init__(self, textures: list[Texture], scene=None, triangles=None):
+        """triangles : the scene's kernels.geometry.TriangleTable (attributes and object rows by scene
+        triangle number)."""
         self.textures = textures
-        self.attributes = dict(scene.attributes) if scene is not None else {}
+        self.triangles = triangles
         objects = scene.objects if scene is not None else None
-        if objects is None:  # every triangle in one object at the origin
-            self.objects = object_row(np.eye(4))[None]
-            self.object_ids = np.zeros(len(scene.positions) if scene is not None else 0, np.int32)
-        else:
-            self.objects, self.object_ids = objects, scene.object_ids
+        # Without an object table every triangle is in one object at the origin.
+        self.objects = object_row(np.eye(4))[None] if objects is None else objects
         self.set_camera(scene.camera if scene is not None else Camera())
+
+    def attribute(self, name: str, prim: np.ndarray) -> np.ndarray | None:
+        """(n, 3, C) per-corner values of an attribute on triangles prim, None when no mesh has it."""
+        return None if self.triangles is None else self.triangles.attribute(name, prim)
+
+    def object_rows(self, prim: np.ndarray) -> np.ndarray:
+        """(n,) rows of objects for triangles prim."""
+        rows = None if self.triangles is None else self.triangles.object_rows(prim)
+        return np.zeros(len(prim), np.int32) if rows is None else rows
 
     def set_camera(self, camera: Camera) -> None:
         """The camera the Camera and Window coordinates are taken in."""
@@ -54,10 +62,10 @@ class ShadingData:
 class Shading:
     """The scene's shaders, ready to be evaluated at hits."""
 
-    def __init__(self, materials: Materials, textures: list[Texture], scene=None):
+    def __init__(self, materials: Materials, textures: list[Texture], scene=None, triangles=None):
         self.shaders = materials.shaders
         self.textures = textures
-        self.data = ShadingData(textures, scene)
+        self.data = ShadingData(textures, scene, triangles)
         world = getattr(scene, "world", None)
         # Whether a Light Path node reads the last bounce's lobe: the integrator tracks it only then.
         self.reads_lobes = any(ops.reads_lobes(s.program) for s in self.shaders) or (

@@ -1,0 +1,170 @@
+"""Big scenes (issue 14): time to first sample and peak memory, Ember against Cycles, in one run.
+
+    .venv/bin/python bench/big_scenes.py [--triangles 1,3,10] [--instances 1000] [--instance-triangles 100000]
+
+Each measurement runs in a fresh process (bpy, the scene built in code, one render): a mesh of N million
+triangles (a bumpy sphere, smooth shaded, one material), and K instances of an M-triangle mesh placed
+by geometry nodes (Instance on Points on a grid). Time to first sample is the wall time of a 1-sample
+render at 128x128 through bpy.ops.render.render (export, BVH build, the sample, the result written
+back), as a user pressing F12 sees it; both engines on the same 2 threads. Peak memory is the process's
+peak resident memory during the render call above what it held before it (VmHWM reset through
+/proc/self/clear_refs, Linux only). Printed as ratios Ember / Cycles.
+
+--child runs one measurement and prints a RESULT line (tests/test_instancing.py uses it too).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def bumpy_sphere(triangles: int):
+    """(vertices (V, 3) float32, quads (F, 4) int32) of a UV sphere with ripples, about `triangles`
+    triangles once its quads are split (rings x segments quads, segments = 2 rings)."""
+    import numpy as np
+    rings = max(4, int(round((triangles / 4) ** 0.5)))
+    segments = 2 * rings
+    theta = np.linspace(0.02, np.pi - 0.02, rings + 1)
+    phi = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    r = 1.0 + 0.03 * np.sin(9 * t) * np.cos(7 * p)
+    verts = np.stack([r * np.sin(t) * np.cos(p), r * np.sin(t) * np.sin(p), r * np.cos(t)], -1).reshape(-1, 3)
+    i = np.arange(rings)[:, None] * segments
+    j = np.arange(segments)[None, :]
+    j1 = (j + 1) % segments
+    quads = np.stack([i + j, i + j1, i + segments + j1, i + segments + j], -1).reshape(-1, 4)
+    return verts.astype(np.float32), quads.astype(np.int32)
+
+
+def mesh_from_arrays(name: str, verts, quads):
+    import bpy
+    import numpy as np
+    mesh = bpy.data.meshes.new(name)
+    mesh.vertices.add(len(verts))
+    mesh.vertices.foreach_set("co", verts.ravel())
+    mesh.loops.add(quads.size)
+    mesh.loops.foreach_set("vertex_index", quads.ravel())
+    mesh.polygons.add(len(quads))
+    mesh.polygons.foreach_set("loop_start", np.arange(0, quads.size, 4, dtype=np.int32))
+    mesh.update()
+    mesh.shade_smooth()
+    return mesh
+
+
+def build(kind: str, triangles: int, instances: int):
+    """The benchmark scene in the current (empty) Blender file: camera, sun, world, and either one mesh
+    of `triangles` triangles or `instances` instances of such a mesh on a grid."""
+    import math
+    import bpy
+    sys.path.insert(0, os.path.join(ROOT, "tests"))
+    from bpy_helpers import add_camera, diffuse_material, new_scene, set_world
+    scene = new_scene(128, 128)
+    set_world(scene, color=(0.3, 0.35, 0.4))
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.rotation_euler = (0.6, 0.2, 0.4)
+    scene.collection.objects.link(sun)
+    mesh = mesh_from_arrays("Bumpy", *bumpy_sphere(triangles))
+    mesh.materials.append(diffuse_material("Clay", (0.7, 0.5, 0.4)))
+    ob = bpy.data.objects.new("Bumpy", mesh)
+    if kind == "mesh":
+        scene.collection.objects.link(ob)
+        add_camera(scene, (0, -3.2, 1.2), (0, 0, 0))
+        return scene
+    # K instances on a square grid of points, by geometry nodes; the source object itself is not rendered.
+    side = math.ceil(instances ** 0.5)
+    grid = bpy.data.objects.new("Forest", bpy.data.meshes.new("ForestPoints"))
+    scene.collection.objects.link(grid)
+    tree = bpy.data.node_groups.new("Forest", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    points = tree.nodes.new("GeometryNodeMeshGrid")
+    points.inputs["Size X"].default_value = points.inputs["Size Y"].default_value = 2.5 * (side - 1)
+    points.inputs["Vertices X"].default_value = points.inputs["Vertices Y"].default_value = side
+    on_points = tree.nodes.new("GeometryNodeInstanceOnPoints")
+    info = tree.nodes.new("GeometryNodeObjectInfo")
+    info.inputs["Object"].default_value = ob
+    info.transform_space = "RELATIVE"
+    tree.links.new(points.outputs["Mesh"], on_points.inputs["Points"])
+    tree.links.new(info.outputs["Geometry"], on_points.inputs["Instance"])
+    tree.links.new(on_points.outputs["Instances"], tree.nodes.new("NodeGroupOutput").inputs[0])
+    grid.modifiers.new("Forest", "NODES").node_group = tree
+    extent = 1.25 * (side - 1)
+    add_camera(scene, (0, -extent - 4, 0.6 * extent + 2), (0, -0.3 * extent, 0))
+    scene.camera.data.clip_end = 10 * extent + 100
+    return scene
+
+
+CHILD = r"""
+import json, os, sys, time
+sys.path.insert(0, %(root)r)
+from bench._common import import_ember; import_ember()
+from bench.big_scenes import build
+import bpy
+
+def rss_kb(field):
+    with open("/proc/self/status") as f:
+        return int(next(l for l in f if l.startswith(field)).split()[1])
+
+scene = build(%(kind)r, %(triangles)d, %(instances)d)
+scene.render.engine = %(engine)r
+scene.render.threads_mode, scene.render.threads = "FIXED", 2
+if %(engine)r == "EMBER":
+    scene.ember.samples = 1
+    scene.ember.use_adaptive_sampling = False
+    scene.ember.use_denoising = False
+else:
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = 1
+    scene.cycles.use_adaptive_sampling = False
+    scene.cycles.use_denoising = False
+bpy.context.view_layer.update()
+before = rss_kb("VmRSS")
+with open("/proc/self/clear_refs", "w") as f:
+    f.write("5")   # reset the peak (VmHWM) to the current size
+start = time.perf_counter()
+bpy.ops.render.render()
+wall = time.perf_counter() - start
+print("RESULT " + json.dumps({"wall_s": wall, "rss_before_mb": before / 1024,
+                              "peak_growth_mb": (rss_kb("VmHWM") - before) / 1024}))
+"""
+
+
+def measure(engine: str, kind: str, triangles: int, instances: int = 0) -> dict:
+    code = CHILD % {"root": ROOT, "engine": engine, "kind": kind, "triangles": triangles, "instances": instances}
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    line = next((ln for ln in run.stdout.splitlines() if ln.startswith("RESULT ")), None)
+    if line is None:
+        raise RuntimeError(f"{engine} {kind} failed: {run.stderr.strip()[-800:]}")
+    return json.loads(line[len("RESULT "):])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--triangles", default="1,3,10", help="mesh sizes in millions of triangles")
+    ap.add_argument("--instances", type=int, default=1000)
+    ap.add_argument("--instance-triangles", type=int, default=100_000)
+    args = ap.parse_args()
+    cases = [("mesh", int(float(m) * 1e6), 0, f"{m}M-triangle mesh") for m in args.triangles.split(",") if m]
+    if args.instances:
+        cases.append(("instances", args.instance_triangles, args.instances,
+                      f"{args.instances} x {args.instance_triangles // 1000}k instances"))
+    print(f"cores: {os.cpu_count()}, both engines on 2 threads; 1 sample at 128x128", flush=True)
+    print(f"{'scene':>26} | {'Ember s':>7} | {'Cycles s':>8} | {'ratio':>5} | {'Ember MB':>8} | {'Cycles MB':>9} | ratio",
+          flush=True)
+    for kind, triangles, instances, title in cases:
+        e = measure("EMBER", kind, triangles, instances)
+        c = measure("CYCLES", kind, triangles, instances)
+        print(f"{title:>26} | {e['wall_s']:7.2f} | {c['wall_s']:8.2f} | {e['wall_s'] / c['wall_s']:5.2f} | "
+              f"{e['peak_growth_mb']:8.0f} | {c['peak_growth_mb']:9.0f} | "
+              f"{e['peak_growth_mb'] / max(c['peak_growth_mb'], 1):.2f}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
