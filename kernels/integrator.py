@@ -29,6 +29,7 @@ from .bsdf.closures import BsdfSample, class_albedo, eval_split, pass_classes
 from .geometry import NG, TriangleTable, scene_extent
 from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
+from .memory import trim_heap
 from .paths import PathState
 from .rng import PathRng, seed_paths
 from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples
@@ -191,6 +192,7 @@ class Renderer:
                     accel.result().close()
                 raise
             self.accel = accel.result()
+        trim_heap()
         threads = self.accel.threads
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
 

@@ -24,6 +24,7 @@ import bpy
 
 from ...kernels import SceneArrays
 from ...kernels.cryptomatte import hash_names
+from ...kernels.memory import trim_heap
 from .camera import export_camera, render_region, render_resolution
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
@@ -107,6 +108,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         if motion.camera is not None or motion.camera_fov is not None:
             arrays = dataclasses.replace(arrays, camera=dataclasses.replace(camera, motion=motion.camera,
                                                                             fov_motion=motion.camera_fov))
+    trim_heap()   # the export's temporaries (per-mesh reads, corner gathers) go back to the system
     return ExportResult(scene=arrays, warnings=list(dict.fromkeys(absolute_paths(w) for w in warnings)),
                         seconds=time.perf_counter() - start,
                         triangle_count=len(geometry.material_ids) + (geometry.instances.triangle_total
