@@ -5,9 +5,10 @@
     python3.11 dev.py test [pytest options]   # .venv + pinned deps, then run the test suite
     python3.11 dev.py bench                   # .venv + pinned deps, then run the benchmarks
     python3.11 dev.py package                 # .venv + pinned deps, then build the extension zips into dist/
-    python3.11 dev.py setup                   # only the environment
+    python3.11 dev.py setup [--ray]           # only the environment (--ray: with Ray, for render --ray)
 
-The environment is a virtual environment in .venv with the versions pinned in requirements*.txt,
+The environment is a virtual environment in .venv with the versions pinned in requirements*.txt
+(requirements-ray.txt only with `setup --ray` and for `test`, whose Ray tests need it),
 and a .pth hook that makes this checkout importable as the package `ember` (so `python -m ember`
 works from anywhere, without copying files or needing symlinks).
 """
@@ -22,6 +23,7 @@ import venv
 ROOT = os.path.dirname(os.path.abspath(__file__))
 VENV = os.path.join(ROOT, ".venv")
 REQUIREMENTS = os.path.join(ROOT, "requirements-test.txt")
+RAY_REQUIREMENTS = os.path.join(ROOT, "requirements-ray.txt")  # optional: python -m ember render --ray
 
 
 def venv_python() -> str:
@@ -34,9 +36,9 @@ def run(*cmd: str) -> None:
     subprocess.run(cmd, check=True)
 
 
-def requirements_digest() -> str:
+def requirements_digest(*names: str) -> str:
     h = hashlib.sha256()
-    for name in ("requirements.txt", "requirements-test.txt"):
+    for name in names:
         with open(os.path.join(ROOT, name), "rb") as f:
             h.update(f.read())
     return h.hexdigest()
@@ -47,20 +49,29 @@ def site_packages(python: str) -> str:
                           check=True, capture_output=True, text=True).stdout.strip()
 
 
-def setup() -> str:
+def install(python: str, what: str, requirements: str, stamp: str, *names: str) -> None:
+    """pip install -r `requirements` unless the stamp says these files were installed as they are."""
+    stamp = os.path.join(VENV, stamp)
+    digest = requirements_digest(*names)
+    if not os.path.exists(stamp) or open(stamp).read() != digest:
+        print(f"dev.py: installing {what}", flush=True)
+        run(python, "-m", "pip", "install", "--disable-pip-version-check", "-q", "-r", requirements)
+        with open(stamp, "w") as f:
+            f.write(digest)
+
+
+def setup(ray: bool = False) -> str:
     if sys.version_info[:2] != (3, 11):
         sys.exit(f"dev.py: Ember needs Python 3.11 (bpy 5.0 is built for it); this is {sys.version.split()[0]}")
     if not os.path.exists(venv_python()):
         print("dev.py: creating .venv", flush=True)
         venv.create(VENV, with_pip=True)
     python = venv_python()
-    stamp = os.path.join(VENV, ".ember-requirements")
-    digest = requirements_digest()
-    if not os.path.exists(stamp) or open(stamp).read() != digest:
-        print("dev.py: installing pinned dependencies (bpy is a large download the first time)", flush=True)
-        run(python, "-m", "pip", "install", "--disable-pip-version-check", "-q", "-r", REQUIREMENTS)
-        with open(stamp, "w") as f:
-            f.write(digest)
+    install(python, "pinned dependencies (bpy is a large download the first time)", REQUIREMENTS,
+            ".ember-requirements", "requirements.txt", "requirements-test.txt")
+    if ray:
+        install(python, "Ray (requirements-ray.txt)", RAY_REQUIREMENTS, ".ember-requirements-ray",
+                "requirements.txt", "requirements-ray.txt")
     hook = os.path.join(site_packages(python), "ember_checkout.pth")
     # A .pth line that starts with "import" runs at start-up: register this checkout as `ember`.
     line = ("import importlib.util as _u, sys as _s; "
@@ -79,7 +90,8 @@ def main(argv: list[str]) -> int:
     if task not in ("setup", "demo", "test", "bench", "package"):
         print(__doc__)
         return 0 if task in ("help", "-h", "--help") else 2
-    python = setup()
+    # The tests include the Ray cluster's; the demo and the rest run without Ray.
+    python = setup(ray=task == "test" or (task == "setup" and "--ray" in rest))
     if task == "demo":
         return subprocess.call([python, "-m", "ember", "render", "-o", os.path.join(ROOT, "out", "demo.png"), *rest])
     if task == "test":

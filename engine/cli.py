@@ -12,6 +12,10 @@ directory and renamed when complete, so an interrupted or failed frame never lea
 
 Bad input gets one line on stderr and a non-zero exit (2 for a malformed command line); Ctrl-C stops
 the frame being rendered within a wave, keeps the frames finished before it, and exits with 130.
+
+With --ray the frames (or sample ranges of them, --split-samples) are rendered by a Ray cluster's workers
+(engine/distributed.py, which imports Ray; the rest of Ember never does); this process opens the file all
+the same (prepare) and writes the frames with the same save_render_result.
 """
 from __future__ import annotations
 
@@ -22,6 +26,8 @@ import re
 import signal
 import sys
 import tempfile
+from dataclasses import dataclass
+from typing import Any
 
 import bpy
 
@@ -80,6 +86,21 @@ def build_parser() -> argparse.ArgumentParser:
                         help="render samples OFFSET .. OFFSET + --samples - 1 of each pixel: a sample range, to "
                              "merge with others (python -m ember merge); turns adaptive sampling and denoising "
                              "off, which ranges cannot merge")
+    ray = render.add_argument_group(
+        "many machines", "Spread the frames over a Ray cluster (Ray is optional: python3.11 dev.py setup --ray). "
+                         "Frames are written by this process, as they arrive, exactly as without --ray.")
+    ray.add_argument("--ray", metavar="ADDRESS",
+                     help="render on a Ray cluster: auto, HOST:6379, ray://HOST:10001 (Ray Client), or local[:N] "
+                          "to start Ray here with N workers (default: the cores)")
+    ray.add_argument("--workers", type=int, metavar="N",
+                     help="workers (Ray actors, one process each; default: N of local:N, else one per node)")
+    ray.add_argument("--split-samples", type=int, metavar="N",
+                     help="split each frame's samples into N sample ranges rendered as separate tasks and merged "
+                          "here by sample count; ranges render without adaptive sampling and denoising (as "
+                          "--sample-offset), so --denoise denoises each merged frame here instead")
+    ray.add_argument("--shared-path", action=argparse.BooleanOptionalAction, default=None,
+                     help="the workers open the .blend at its path (a file system all nodes see) instead of "
+                          "receiving its bytes (default: the path with local, the bytes on a cluster)")
     merge = sub.add_parser("merge", help="merge sample ranges of one frame (renders made with --sample-offset)",
                            description="Average renders of sample ranges of one frame, weighted by the sample "
                                        "counts they hold (OpenEXR files written by Ember), into one image.")
@@ -127,6 +148,8 @@ def check_options(args) -> None:
     within("--seed", args.seed, 0, SEED_MAX)
     within("--sample-offset", args.sample_offset, 0, 1 << 24)
     within("--threads", args.threads, 0, 1024)
+    within("--split-samples", args.split_samples, 1, 1 << 24)
+    within("--workers", args.workers, 1, 4096)
     if args.time_limit is not None and not (0 <= args.time_limit < float("inf")):
         raise UsageError(f"--time-limit must be 0 (none) or a positive number of seconds, got {args.time_limit:g}")
 
@@ -210,7 +233,7 @@ def _install_interrupt_handler() -> None:
     signal.signal(signal.SIGINT, handler)
 
 
-def _interrupted() -> bool:
+def interrupted() -> bool:
     from .session import cancel_requested
     return cancel_requested()
 
@@ -229,34 +252,42 @@ def merge_command(args) -> int:
     return 0
 
 
+@dataclass
+class RenderJob:
+    """What a render of frames needs once the file is open: the scene (options applied) and where each
+    frame goes. The single-process loop and the Ray driver (engine/distributed.py) share it."""
+    scene: Any
+    frames: list[int]
+    targets: list[str]
+
+
 def render(args) -> int:
     check_options(args)
+    distributed = args.ray is not None
+    if distributed:
+        from .distributed import check_ray_options
+        check_ray_options(args)  # before the file opens: a missing Ray fails at once
+    else:
+        for option, value in (("--split-samples", args.split_samples), ("--workers", args.workers),
+                              ("--shared-path", args.shared_path)):
+            if value is not None:
+                raise UsageError(f"{option} goes with --ray")
+    job = prepare(args)
+    if distributed:
+        from .distributed import render_on_ray
+        return render_on_ray(args, job)
+    return render_frames(job)
+
+
+def prepare(args) -> RenderJob:
+    """Open the file (or the demo), apply the options, and check every frame's output directory."""
     frames = parse_frames(args.frames)
-    resolution = parse_resolution(args.resolution)
     if args.file is not None and not os.path.isfile(args.file):
         raise CliError(f"no such file: {args.file}")
     output = check_output(args.output) if args.output else None
-
-    _register_ember()
-    if args.file is not None:
-        try:
-            bpy.ops.wm.open_mainfile(filepath=os.path.abspath(args.file), load_ui=False)
-        except RuntimeError as err:
-            raise CliError(f"cannot open {args.file}: {_first_line(err)}") from None
-    else:
-        from .demo import build_demo_scene
-        build_demo_scene()
-        if output is None:
-            output = check_output(os.path.join("out", "demo.png"))
-
-    scene = bpy.data.scenes.get(args.scene) if args.scene else bpy.context.scene
-    if scene is None:
-        raise CliError(f"no scene named {args.scene!r} in {args.file}")
-    if bpy.context.window is not None and bpy.context.window.scene != scene:
-        bpy.context.window.scene = scene
-    _apply_options(scene, args, resolution)
-    if scene.camera is None:
-        raise CliError(f"scene {scene.name!r} has no camera")
+    scene = open_scene(args)
+    if args.file is None and output is None:
+        output = check_output(os.path.join("out", "demo.png"))
 
     if frames:
         frame_list = list(range(frames[0], frames[1] + 1))
@@ -274,32 +305,69 @@ def render(args) -> int:
         targets = [_file_output_path(scene, f) for f in frame_list]
     for directory in dict.fromkeys(os.path.dirname(t) for t in targets):
         ensure_writable_directory(directory)  # before any frame renders
+    return RenderJob(scene, frame_list, targets)
 
+
+def open_scene(args, path: str | None = None):
+    """Register Ember, open `path` (default: args.file; none: build the demo scene), select the scene
+    args.scene names and apply the command line's options to it. The file is never saved."""
+    resolution = parse_resolution(args.resolution)
+    path = path if path is not None else args.file
+    _register_ember()
+    if path is not None:
+        try:
+            bpy.ops.wm.open_mainfile(filepath=os.path.abspath(path), load_ui=False)
+        except RuntimeError as err:
+            raise CliError(f"cannot open {args.file or path}: {_first_line(err)}") from None
+    else:
+        from .demo import build_demo_scene
+        build_demo_scene()
+
+    scene = bpy.data.scenes.get(args.scene) if args.scene else bpy.context.scene
+    if scene is None:
+        raise CliError(f"no scene named {args.scene!r} in {args.file}")
+    if bpy.context.window is not None and bpy.context.window.scene != scene:
+        bpy.context.window.scene = scene
+    _apply_options(scene, args, resolution)
+    if scene.camera is None:
+        raise CliError(f"scene {scene.name!r} has no camera")
+    return scene
+
+
+def render_frames(job: RenderJob) -> int:
+    """The single-process loop: render each frame in this process and save it."""
+    scene, frame_list = job.scene, job.frames
     done = []
-    for frame, target in zip(frame_list, targets):
-        if _interrupted():
+    for frame, target in zip(frame_list, job.targets):
+        if interrupted():
             break
-        if not scene.render.use_overwrite and os.path.exists(target):
-            print(f"Ember | Frame {frame} | {target} exists and the file's Overwrite option is off: skipped",
-                  flush=True)
+        if skip_existing(scene, frame, target):
             continue
         scene.frame_set(frame)
         try:
             bpy.ops.render.render(write_still=False, scene=scene.name)
         except RuntimeError as err:
             raise CliError(_first_line(err)) from None
-        if _interrupted():  # the render stopped early: its frame is incomplete, so it is not saved
-            kept = _saved_frames(done)
+        if interrupted():  # the render stopped early: its frame is incomplete, so it is not saved
+            kept = saved_frames(done)
             print(f"ember: interrupted during frame {frame}: nothing saved for it; {kept}", file=sys.stderr)
             return EXIT_INTERRUPTED
-        _save(scene, target)  # a frame that finished rendering is saved even if Ctrl-C comes now
+        save_render_result(scene, target)  # a frame that finished rendering is saved even if Ctrl-C comes now
         done.append(frame)
         print(f"Ember | Frame {frame} | saved {target}", flush=True)
-    if _interrupted() and len(done) < len(frame_list):
-        print(f"ember: interrupted after frame {done[-1] if done else frame_list[0]}: {_saved_frames(done)}",
+    if interrupted() and len(done) < len(frame_list):
+        print(f"ember: interrupted after frame {done[-1] if done else frame_list[0]}: {saved_frames(done)}",
               file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
+
+
+def skip_existing(scene, frame: int, target: str) -> bool:
+    """True (with a line saying so) when `target` exists and the file's Overwrite option is off."""
+    if scene.render.use_overwrite or not os.path.exists(target):
+        return False
+    print(f"Ember | Frame {frame} | {target} exists and the file's Overwrite option is off: skipped", flush=True)
+    return True
 
 
 def _file_output_path(scene, frame: int) -> str:
@@ -319,7 +387,7 @@ def _use_format_of(scene, output: str) -> None:
         settings.color_depth = "32"
 
 
-def _save(scene, target: str) -> None:
+def save_render_result(scene, target: str) -> None:
     """Write the render result with the scene's output settings, under a temporary name in the
     target's directory, then rename: a failure or an interrupt never leaves a partial file."""
     result = bpy.data.images.get("Render Result")
@@ -411,7 +479,7 @@ def _apply_options(scene, args, resolution) -> None:
         scene.render.resolution_percentage = 100
 
 
-def _saved_frames(done: list[int]) -> str:
+def saved_frames(done: list[int]) -> str:
     if not done:
         return "no frame was saved"
     return f"frame {done[0]} was saved" if len(done) == 1 else f"frames {_ranges(done)} were saved"

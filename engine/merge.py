@@ -51,13 +51,81 @@ def samples_of(path: str) -> int:
     return int(fields["ember.samples"])
 
 
+def merge_arrays(parts) -> np.ndarray:
+    """The average of sample ranges' images, each weighted by its sample count: `parts` is a sequence of
+    (image, samples) with images of one shape (any layout, float); float64 sums, float32 result. The same
+    arithmetic for files (merge) and for the Ray driver's in-memory ranges."""
+    total, merged = 0, None
+    for image, count in parts:
+        if merged is not None and np.shape(image) != merged.shape:
+            raise MergeError(f"ranges of different sizes: {np.shape(image)} and {merged.shape}")
+        weighted = np.asarray(image, np.float64) * count
+        merged = weighted if merged is None else merged + weighted
+        total += count
+    if merged is None or total <= 0:
+        raise MergeError("nothing to merge: the ranges hold no samples")
+    return (merged / total).astype(np.float32)
+
+
+def read_exr_channels(path: str, names) -> dict[str, np.ndarray]:
+    """Channels of an uncompressed scanline OpenEXR file, single- or multi-part (Blender writes a multilayer
+    file as one part per layer): {name: (H, W) float32}, row 0 at the bottom as Blender's pixel buffers.
+    What Ember's Ray workers write for the passes Blender cannot hand back to Python headless."""
+    with open(path, "rb") as f:
+        data = f.read()
+    multipart = bool(struct.unpack_from("<I", data, 4)[0] & 0x1000)
+    parts, pos = [], 8
+    while True:  # headers: attributes (name\0 type\0 size value) up to a \0; multi-part: up to an empty header
+        header = {}
+        while data[pos] != 0:
+            end = data.index(b"\0", pos)
+            kind_end = data.index(b"\0", end + 1)
+            size = struct.unpack_from("<i", data, kind_end + 1)[0]
+            header[data[pos:end].decode()] = data[kind_end + 5:kind_end + 5 + size]
+            pos = kind_end + 5 + size
+        pos += 1
+        parts.append(header)
+        if not multipart or data[pos] == 0:
+            pos += multipart
+            break
+    found = {}
+    for header in parts:
+        if header["compression"][0] != 0:
+            raise MergeError(f"{path}: compressed OpenEXR (only uncompressed files are read)")
+        channels, raw, i = [], header["channels"], 0
+        while raw[i] != 0:  # name\0 pixel_type(i32) pLinear(u8) reserved(3) xSampling(i32) ySampling(i32)
+            end = raw.index(b"\0", i)
+            channels.append((raw[i:end].decode(), struct.unpack_from("<i", raw, end + 1)[0]))
+            i = end + 17
+        x0, y0, x1, y1 = struct.unpack("<4i", header["dataWindow"])
+        width, height = x1 - x0 + 1, y1 - y0 + 1
+        offsets = struct.unpack_from(f"<{height}Q", data, pos)  # one chunk per scanline when uncompressed
+        pos += 8 * height
+        sizes = [4 if kind != 1 else 2 for _, kind in channels]  # UINT and FLOAT: 4 bytes, HALF: 2
+        for c, (name, kind) in enumerate(channels):
+            if name not in names:
+                continue
+            if kind != 2:
+                raise MergeError(f"{path}: channel {name!r} is not 32-bit float")
+            skip = 4 * multipart + 8 + width * sum(sizes[:c])  # [part], y, size, the channels before it
+            image = np.empty((height, width), np.float32)
+            for offset in offsets:
+                y = struct.unpack_from("<i", data, offset + 4 * multipart)[0]
+                image[y1 - y] = np.frombuffer(data, np.float32, width, offset + skip)  # file rows go down
+            found[name] = image
+    missing = [n for n in names if n not in found]
+    if missing:
+        raise MergeError(f"{path} has no channel {missing[0]!r}")
+    return found
+
+
 def merge(inputs: list[str], output: str) -> int:
     """Merge the renders `inputs` into `output` (OpenEXR, 32-bit float); returns the total sample count."""
     import bpy
     if len(inputs) < 2:
         raise MergeError("merge needs at least two renders")
     counts = [samples_of(path) for path in inputs]
-    total, merged, size = sum(counts), None, None
+    parts, size = [], None
     for path, count in zip(inputs, counts):
         image = bpy.data.images.load(path, check_existing=False)
         try:
@@ -70,15 +138,15 @@ def merge(inputs: list[str], output: str) -> int:
             image.pixels.foreach_get(pixels)
         finally:
             bpy.data.images.remove(image)
-        weighted = pixels.astype(np.float64) * count
-        merged = weighted if merged is None else merged + weighted
+        parts.append((pixels, count))
+    merged = merge_arrays(parts)
     result = bpy.data.images.new("ember-merged", size[0], size[1], alpha=True, float_buffer=True)
     try:
         result.colorspace_settings.is_data = True  # written as it is: scene-linear values, untouched
-        result.pixels.foreach_set((merged / total).astype(np.float32))
+        result.pixels.foreach_set(merged)
         result.filepath_raw = os.path.abspath(output)
         result.file_format = "OPEN_EXR"
         result.save()
     finally:
         bpy.data.images.remove(result)
-    return total
+    return sum(counts)
