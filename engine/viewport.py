@@ -9,9 +9,23 @@ Three layers, so that everything but the last few GPU calls runs headless in tes
 
 Sync once, snapshot, let go (as in session.py): the worker sees only SceneArrays, RenderSettings and
 ViewportCamera values. It never touches bpy, and bpy never waits for it except in stop().
+
+Edits update incrementally, as Cycles' Blender sync tracks what changed: view_update sorts
+depsgraph.updates into parts (update_part). A moved object re-reads only the instances' transforms and
+object rows, and the worker moves its Renderer's instances (the top level of the BVH is recommitted, no
+mesh BVH is rebuilt); a shader, image or world edit re-reads the materials and the world, and the
+worker rebuilds shading, environment and light sampler; a light edit re-reads the lights, and the worker
+rebuilds the light sampler. Anything else, or a partial read that no longer lines up with the last
+export (engine/export/updates.py), is a full export and a new Renderer. To make moves cheap the viewport
+exports every mesh as an instance of itself (export_scene(..., instance_everything=True)), as Cycles'
+viewport does: its dynamic BVH type skips apply_static_transforms, so every object keeps its own BVH and
+its transform; final renders copy single meshes into world space, which traces faster (about 20% here,
+bench/viewport_updates.py). An update restarts from sample 0 and renders what a full export of the
+edited scene would, bit for bit (tests/test_viewport_updates.py).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import threading
@@ -26,6 +40,7 @@ import numpy as np
 from ..kernels import Camera, Renderer, RenderSettings, SceneArrays
 from ..kernels.camera import view_plane
 from .export import ExportError, export_scene
+from .export.updates import export_instances, export_lights, export_shading
 from .export.camera import DOF_FIELDS, depth_of_field, pixel_filter
 from .session import PreviewDenoiser, render_settings, render_threads
 
@@ -247,9 +262,47 @@ def is_content_update(update) -> bool:
     return True
 
 
+# What a depsgraph update asks of the viewport's scene, cheapest first: re-read the instances' transforms
+# and object rows, the materials and world, or the lights (engine/export/updates.py); FULL is a new export.
+INSTANCES, SHADING, LIGHTS, FULL = "instances", "shading", "lights", "full"
+# Data-blocks whose edits reach the image only through shaders (images and textures through the
+# materials and the world that read them).
+SHADING_ID_TYPES = ("MATERIAL", "WORLD", "IMAGE", "TEXTURE")
+# Object data Ember turns into triangles (curves, surfaces and text are CURVE): edited geometry is a new
+# export; their other updates come along with their objects' (a material edit tags its meshes for shading).
+GEOMETRY_ID_TYPES = ("MESH", "CURVE", "METABALL")
+
+
+def update_part(update) -> str:
+    """The part of the scene one content update (is_content_update) changes, as Cycles' Blender sync
+    sorts them: an object's transform or object-level settings (INSTANCES; an object whose geometry was
+    evaluated again is FULL), a shader, image or world (SHADING), a light object or light data (LIGHTS).
+    Anything else (collections, the scene, geometry nodes trees, unknown data) is FULL: when unsure,
+    export everything."""
+    data = update.id
+    kind = data.id_type
+    if kind == "OBJECT":
+        if data.type == "LIGHT":
+            return LIGHTS
+        return FULL if update.is_updated_geometry else INSTANCES
+    if kind == "LIGHT":
+        return LIGHTS
+    if kind in SHADING_ID_TYPES or (kind == "NODETREE" and data.bl_idname == "ShaderNodeTree"):
+        return SHADING
+    if kind in GEOMETRY_ID_TYPES:
+        return FULL if update.is_updated_geometry else INSTANCES
+    return FULL
+
+
+def scene_changes(updates) -> frozenset:
+    """The parts of the scene that depsgraph.updates change (update_part of each content update); empty
+    when nothing Ember renders changed."""
+    return frozenset(update_part(update) for update in updates if is_content_update(update))
+
+
 def scene_needs_export(updates) -> bool:
     """Whether any of depsgraph.updates changes what Ember renders (see is_content_update)."""
-    return any(is_content_update(update) for update in updates)
+    return bool(scene_changes(updates))
 
 
 def visibility_key(depsgraph) -> tuple:
@@ -319,6 +372,7 @@ class _Job:
     settings: RenderSettings
     camera: ViewportCamera
     denoise: tuple | None = None   # (quality, prefilter) of the previews' denoiser, or None
+    updates: tuple = ()            # ((part, arguments), ...) to apply to the renderer of scene_version
 
 
 _live_sessions: "weakref.WeakSet[ViewportSession]" = weakref.WeakSet()
@@ -338,10 +392,18 @@ class ViewportSession:
     state. Changes that arrive while the worker is busy coalesce, so dragging a slider costs one
     restart per wave at most, not one per event. One session per engine instance (quad view has four).
 
-        session.update_scene(scene_arrays, settings)   # after an export
+        session.update_scene(scene_arrays, settings)   # after an export: the worker builds a new Renderer
+        session.update_instances(world_from_object, objects)   # objects moved: the built one is updated,
+        session.update_materials(materials, textures, srgb, world)  # ... shaders edited
+        session.update_lights(lights)                  # ... lights changed
         session.update_view(ViewportCamera...)        # every draw; restarts only when it differs
         frame = session.snapshot()                     # latest Frame or None, never blocks on the render
         session.stop()                                 # joins the worker
+
+    The partial updates are queued (the newest of each part wins: each carries that whole part) and the
+    worker applies them to its Renderer before the next render (Renderer.update_instances and friends);
+    the session's scene takes them at once, so that a rebuild, whenever one is needed (no renderer yet,
+    an update that does not fit it), renders the same scene.
     """
 
     def __init__(self, threads: int = 0, *, preview_pixels: int = PREVIEW_PIXELS,
@@ -352,7 +414,8 @@ class ViewportSession:
         self._cond = threading.Condition()
         # State shared with the worker; every access holds self._cond.
         self._scene: SceneArrays | None = None
-        self._scene_version = 0
+        self._scene_version = 0       # bumped by update_scene only: the worker then builds a new Renderer
+        self._pending: dict[str, tuple] = {}   # part -> the newest arguments of its Renderer.update_*
         self._settings: RenderSettings | None = None
         self._denoise: tuple | None = None
         self._camera: ViewportCamera | None = None
@@ -373,9 +436,51 @@ class ViewportSession:
         with self._cond:
             self._scene = scene
             self._scene_version += 1
+            self._pending.clear()
             self._settings, self._denoise = settings, denoise
             self._restart()
         return True
+
+    def update_instances(self, world_from_object: np.ndarray, objects: np.ndarray) -> None:
+        """Objects moved: (K, 4, 4) world_from_object of the scene's instances and its object table, both
+        in the order of the last export (engine/export/updates.export_instances). Restarts."""
+        def moved(scene: SceneArrays) -> SceneArrays:
+            instances = scene.instances
+            if instances is not None:
+                instances = dataclasses.replace(instances, world_from_object=world_from_object)
+            return dataclasses.replace(scene, instances=instances, objects=objects)
+        self._queue("instances", (world_from_object, objects), moved)
+
+    def update_materials(self, materials, textures: tuple, texture_srgb: tuple, world) -> None:
+        """Shaders, images or the world edited: the scene's material table (same rows), textures and world
+        (engine/export/updates.export_shading). Restarts."""
+        self._queue("materials", (materials, textures, texture_srgb, world),
+                    lambda scene: dataclasses.replace(scene, materials=materials, textures=tuple(textures),
+                                                      texture_srgb=tuple(texture_srgb), world=world))
+
+    def update_lights(self, lights) -> None:
+        """Lights moved, edited, added or removed: the scene's whole light table. Restarts."""
+        self._queue("lights", (lights,), lambda scene: dataclasses.replace(scene, lights=lights))
+
+    def _queue(self, part: str, arguments: tuple, change) -> None:
+        with self._cond:
+            if self._scene is None:
+                return   # nothing built to update (the export failed): the next export brings it all
+            self._scene = change(self._scene)
+            self._pending[part] = arguments
+            self._restart()
+
+    @contextlib.contextmanager
+    def batch(self):
+        """Hold the session while several changes are made: the worker starts once, with all of them."""
+        with self._cond:
+            yield self
+
+    @property
+    def scene(self) -> SceneArrays | None:
+        """The scene the session renders, with every update so far."""
+        with self._cond:
+            return self._scene
 
     def update_settings(self, settings: RenderSettings, denoise: tuple | None = None) -> bool:
         """Restarts only when the settings (or the previews' denoiser: (quality, prefilter) or None)
@@ -400,6 +505,7 @@ class ViewportSession:
         """The scene cannot be rendered (export failed): stop rendering and show `message`."""
         with self._cond:
             self._scene = None
+            self._pending.clear()
             self._restart()
             self._frame = None
             self._error = message
@@ -479,9 +585,13 @@ class ViewportSession:
                     if self._stopping:
                         return
                     job = _Job(self._generation, self._scene, self._scene_version, self._settings, self._camera,
-                               self._denoise)
+                               self._denoise, tuple(self._pending.items()))
+                    self._pending.clear()
                     self._started = job.generation
                 try:
+                    if job.updates and job.scene_version == built_version and not self._apply(renderer, job):
+                        renderer.close()
+                        renderer, built_version = None, -1
                     if job.scene_version != built_version:
                         if renderer is not None:
                             renderer.close()
@@ -497,6 +607,19 @@ class ViewportSession:
         finally:
             if renderer is not None:
                 renderer.close()
+
+    @staticmethod
+    def _apply(renderer: Renderer, job: _Job) -> bool:
+        """Apply the job's queued updates to the renderer built for its scene version. False when one
+        does not fit (the renderer is then half updated: the caller builds job.scene, which has them all)."""
+        apply = {"instances": renderer.update_instances, "materials": renderer.update_materials,
+                 "lights": renderer.update_lights}
+        try:
+            for part, arguments in job.updates:
+                apply[part](*arguments)
+        except Exception:  # any failure is answered by a rebuild, which reports its own errors
+            return False
+        return True
 
     def _cancelled(self, job: _Job) -> bool:
         # Read without the lock: an int compare, and a stale answer only delays the stop by one wave.
@@ -607,7 +730,8 @@ def _no_camera_stand_in():
 
 
 class ViewportRender:
-    """One engine instance's viewport: view_update exports, view_draw follows the view and draws.
+    """One engine instance's viewport: view_update exports (the whole scene, or only the parts the
+    depsgraph says changed), view_draw follows the view and draws.
 
     It holds no reference to the engine (the engine holds it): Blender frees the engine, the
     engine's __del__ calls free(), and the worker stops.
@@ -618,31 +742,69 @@ class ViewportRender:
         # Should the engine's __del__ never run, the worker still stops when this object goes.
         weakref.finalize(self, self.session.stop)
         self._visibility = None
+        self._index = None            # the last full export's ExportIndex (None: export everything next)
         self._texture = None
         self._texture_frame = None
 
     # ------------------------------------------------------------------ view_update
     def view_update(self, engine, context, depsgraph) -> None:
-        """Main thread: export when the scene changed (or on the first call), then follow the view."""
+        """Main thread: export what changed (everything on the first call, when the visible objects
+        changed, or when an update is more than a move, a shader or a light edit), then follow the view."""
         scene = depsgraph.scene
         settings = viewport_settings(scene)
         visibility = visibility_key(depsgraph)
-        if self._visibility is None or visibility != self._visibility or scene_needs_export(depsgraph.updates):
+        parts = scene_changes(depsgraph.updates)
+        if self._visibility is None or visibility != self._visibility or FULL in parts \
+                or (parts and not self._update(depsgraph, parts, settings)):
             self._export(engine, context, depsgraph, settings)
             self._visibility = visibility
-        else:
+        elif not parts:
             self.session.update_settings(settings, viewport_denoise(scene))
         self.session.update_view(self.view_camera(engine, context, depsgraph))
 
     def _export(self, engine, context, depsgraph, settings: RenderSettings) -> None:
+        """The whole scene, every mesh instanced (so that moving objects later only moves instances)."""
         width, height = self._film_size(engine, context, depsgraph)
         override = None if depsgraph.scene_eval.camera is not None else _no_camera_stand_in()
+        self._index = None
         try:
-            exported = export_scene(depsgraph, override, width=width, height=height)
+            exported = export_scene(depsgraph, override, width=width, height=height, instance_everything=True)
         except ExportError as err:
             self.session.fail(str(err))
             return
         self.session.update_scene(exported.scene, settings, viewport_denoise(depsgraph.scene))
+        self._index = exported.index
+
+    def _update(self, depsgraph, parts: frozenset, settings: RenderSettings) -> bool:
+        """Read only the changed parts of the scene again (engine/export/updates.py) and hand them to the
+        session, all in one restart. False, with nothing handed over, when a part no longer lines up with
+        the last export: then only a full export will do."""
+        current = self.session.scene
+        if current is None or self._index is None:
+            return False
+        placed = shading = lights = None
+        if INSTANCES in parts:
+            placed = export_instances(depsgraph, self._index)
+            if placed is None:
+                return False
+            if _same_placement(current, *placed):
+                placed = None   # object-level updates that change nothing Ember reads (a material edit's)
+        if SHADING in parts:
+            shading = export_shading(depsgraph, self._index)
+            if shading is None:
+                return False
+        if LIGHTS in parts:
+            lights = export_lights(depsgraph, [])
+        with self.session.batch():
+            if placed is not None:
+                self.session.update_instances(*placed)
+            if shading is not None:
+                self.session.update_materials(shading.materials, shading.textures, shading.texture_srgb,
+                                              shading.world)
+            if lights is not None:
+                self.session.update_lights(lights)
+            self.session.update_settings(settings, viewport_denoise(depsgraph.scene))
+        return True
 
     # ------------------------------------------------------------------ view_draw
     def prepare_draw(self, engine, context, depsgraph) -> Frame | None:
@@ -703,6 +865,13 @@ class ViewportRender:
         self.session.stop()
         self._texture = None
         self._texture_frame = None
+
+
+def _same_placement(scene: SceneArrays, world_from_object: np.ndarray, objects: np.ndarray) -> bool:
+    """Whether a scene's instances and object table already are these."""
+    current = scene.instances.world_from_object if scene.instances is not None else np.zeros((0, 4, 4))
+    table = scene.objects if scene.objects is not None else np.zeros((0, objects.shape[1]), np.float32)
+    return np.array_equal(current, world_from_object) and np.array_equal(table, objects)
 
 
 def new_viewport(scene) -> ViewportRender:

@@ -154,6 +154,14 @@ class Accel:
             if self._scene is None:   # embreex's loop unavailable: packets for everything
                 self._scene = _PacketQueries(self._static)
 
+    def move_instances(self, world_from_object: np.ndarray) -> int:
+        """Place the instances by new (K, 4, 4) world_from_object (same instances, same order): the top
+        level is recommitted, no mesh BVH is rebuilt. Both query paths trace the same Embree scene, so
+        both see the move. Returns how many instances moved."""
+        if self._bases is None:
+            raise ValueError("move_instances: the scene has no instances")
+        return self._static.set_transforms(world_from_object)
+
     @property
     def moves(self) -> bool:
         """Some triangles move: queries need each ray's time."""

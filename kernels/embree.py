@@ -10,6 +10,9 @@ leaves out:
   the Mesh object), no copy; a 1M-triangle indexed mesh commits about 5x faster than embreex's flat one.
 - RTC_GEOMETRY_TYPE_INSTANCE: a mesh's BVH is built once and placed by any number of 3x4 transforms,
   Cycles' and Embree's two-level layout; the top level is tiny, so memory grows with unique geometry.
+  Instances move without rebuilding any mesh BVH (Scene.set_transforms: rtcGetGeometry,
+  rtcSetGeometryTransform, rtcCommitGeometry, then rtcCommitScene on the top level): the viewport's
+  moved objects.
 - rtcIntersect16 / rtcOccluded16 on packets laid out by NumPy (Embree's SOA RTCRayHit16): one ctypes
   call per 16 rays, with the GIL released while Embree traces. It reports which instance a ray hit, which
   embreex's loop does not. Measured against embreex's single-ray loop on 1M rays into a 1M-triangle mesh:
@@ -101,6 +104,7 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "rtcCommitGeometry": (None, [vp]),
         "rtcAttachGeometryByID": (None, [vp, vp, uint]),
         "rtcReleaseGeometry": (None, [vp]),
+        "rtcGetGeometry": (vp, [vp, uint]),
         "rtcIntersect16": (None, [vp, vp, vp, vp]),
         "rtcOccluded16": (None, [vp, vp, vp, vp]),
     }
@@ -224,18 +228,18 @@ class Scene:
             geom = _triangle_geometry(device, plain.vertices, plain.indices)
             lib.rtcAttachGeometryByID(self.handle, geom, 0)
             lib.rtcReleaseGeometry(geom)
-        count = 0
-        for mesh, matrix in instances:
-            transform = np.ascontiguousarray(np.asarray(matrix, np.float64)[:3, :4], np.float32)
+        placed = list(instances)
+        # The transforms as Embree holds them, (K, 3, 4) float32: set_transforms compares against them.
+        self._transforms = _transforms([matrix for _, matrix in placed])
+        for k, (mesh, _) in enumerate(placed):
             geom = lib.rtcNewGeometry(device.handle, _GEOMETRY_INSTANCE)
             lib.rtcSetGeometryInstancedScene(geom, mesh.handle)
-            lib.rtcSetGeometryTransform(geom, 0, _FORMAT_FLOAT3X4_ROW_MAJOR, transform.ctypes.data)
+            lib.rtcSetGeometryTransform(geom, 0, _FORMAT_FLOAT3X4_ROW_MAJOR, self._transforms[k].ctypes.data)
             lib.rtcCommitGeometry(geom)
-            lib.rtcAttachGeometryByID(self.handle, geom, 1 + count)
+            lib.rtcAttachGeometryByID(self.handle, geom, 1 + k)
             lib.rtcReleaseGeometry(geom)
             self._meshes.append(mesh)
-            count += 1
-        self.instance_count = count
+        self.instance_count = len(placed)
         lib.rtcCommitScene(self.handle)
         device.check("the scene")
         self._valid_all = aligned_empty((_LANES,), np.int32)
@@ -245,6 +249,28 @@ class Scene:
         if getattr(self, "handle", None):
             self.device.lib.rtcReleaseScene(self.handle)
             self.handle = None
+
+    def set_transforms(self, world_from_object) -> int:
+        """Move the instances to (K, 3, 4) or (K, 4, 4) world_from_object, one per instance in the order they
+        were placed, and recommit: only the top level is rebuilt, the instanced meshes' BVHs stay as they
+        are (Embree: rtcSetGeometryTransform and rtcCommitGeometry on each moved instance, then
+        rtcCommitScene). The result is the scene a new Scene of these transforms would be. Call between
+        queries, never during one (Embree's rule for any scene change). Returns how many instances moved."""
+        transforms = _transforms(world_from_object)
+        if transforms.shape != self._transforms.shape:
+            raise ValueError(f"set_transforms: {len(transforms)} transforms for {self.instance_count} instances")
+        moved = np.flatnonzero((transforms != self._transforms).any(axis=(1, 2)))
+        if not len(moved):
+            return 0
+        lib = self.device.lib
+        for k in moved:
+            geom = lib.rtcGetGeometry(self.handle, 1 + int(k))   # borrowed: the scene holds the reference
+            lib.rtcSetGeometryTransform(geom, 0, _FORMAT_FLOAT3X4_ROW_MAJOR, transforms[k].ctypes.data)
+            lib.rtcCommitGeometry(geom)
+        lib.rtcCommitScene(self.handle)
+        self.device.check("the moved instances")
+        self._transforms = transforms
+        return len(moved)
 
     def embreex(self):
         """An embreex EmbreeScene tracing this scene (its run() loop, prim ids within their meshes, no
@@ -315,6 +341,14 @@ class Scene:
             fn(last.ctypes.data, scene, base + (p - 1) * stride, None)
         # Embree marks an occluded ray by setting its tfar to -inf.
         return buf[:, _TFAR, :].reshape(-1)[:n] < 0
+
+
+def _transforms(world_from_object) -> np.ndarray:
+    """(K, 3, 4) float32 row-major rows of (K, 3 or 4, 4) matrices: the layout Embree is handed."""
+    m = np.asarray(world_from_object, np.float64)
+    if not m.size:
+        return np.zeros((0, 3, 4), np.float32)
+    return np.ascontiguousarray(m[:, :3, :4], np.float32)
 
 
 _EMBREEX_SLOT = None   # byte offset of EmbreeScene's scene handle, False when it could not be located

@@ -58,12 +58,19 @@ class TriangleTable:
             self._bases = inst.bases(self.plain_count)
             starts = np.cumsum([self.plain_count] + [p.triangle_count for p in inst.prototypes])[:-1]
             self._first_row = np.asarray(starts, np.int64)[inst.prototype]
-            m = inst.world_from_object
-            self._linear = np.ascontiguousarray(m[:, :3, :3], np.float32)
-            self._translation = np.ascontiguousarray(m[:, :3, 3], np.float32)
-            self._normal = normal_matrices(m[:, :3, :3])
-            self._det_sign = np.sign(np.linalg.det(m[:, :3, :3])).astype(np.float32)
-            self._instance_objects = inst.object_ids
+            self.place(inst)
+
+    def place(self, instances) -> None:
+        """Take the instances' transforms and object rows (kernels.scene.Instances): at build, and again
+        when they move (the same instances of the same prototypes; the rows themselves never change)."""
+        if self._bases is None or len(instances.prototype) != len(self._bases):
+            raise ValueError("place: the instances are not the ones the table was built for")
+        m = instances.world_from_object
+        self._linear = np.ascontiguousarray(m[:, :3, :3], np.float32)
+        self._translation = np.ascontiguousarray(m[:, :3, 3], np.float32)
+        self._normal = normal_matrices(m[:, :3, :3])
+        self._det_sign = np.sign(np.linalg.det(m[:, :3, :3])).astype(np.float32)
+        self._instance_objects = instances.object_ids
 
     @property
     def instanced(self) -> bool:
@@ -191,12 +198,19 @@ def normal_matrices(linear: np.ndarray) -> np.ndarray:
     return (cofactor * scale[:, None, None]).astype(np.float32)
 
 
-def instance_boxes(scene: SceneArrays) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) (K, 3) float64 world boxes of the scene's instances."""
+def prototype_boxes(scene: SceneArrays) -> list:
+    """(lo, hi) float64 (3,) object-space box of each of the scene's prototypes (kernels.scene.Instances)."""
+    inst = scene.instances
+    return [] if inst is None else [extent(p.positions) for p in inst.prototypes]
+
+
+def instance_boxes(scene: SceneArrays, local: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (K, 3) float64 world boxes of the scene's instances; local: prototype_boxes(scene), when
+    known already (the prototypes do not change when instances move)."""
     inst = scene.instances
     if inst is None or not inst.count:
         return np.zeros((0, 3)), np.zeros((0, 3))
-    local = [extent(p.positions) for p in inst.prototypes]
+    local = prototype_boxes(scene) if local is None else local
     lo = np.array([b[0] for b in local])[inst.prototype]
     hi = np.array([b[1] for b in local])[inst.prototype]
     corners = np.stack([np.where(np.array(bits, bool), hi, lo)
@@ -206,10 +220,11 @@ def instance_boxes(scene: SceneArrays) -> tuple[np.ndarray, np.ndarray]:
     return world.min(axis=1), world.max(axis=1)
 
 
-def scene_extent(scene: SceneArrays):
-    """(lo, hi) float64 (3,) corners of the box around all triangles, plain and instanced."""
+def scene_extent(scene: SceneArrays, local: list | None = None):
+    """(lo, hi) float64 (3,) corners of the box around all triangles, plain and instanced (local: see
+    instance_boxes)."""
     lo, hi = extent(scene.positions)
-    ilo, ihi = instance_boxes(scene)
+    ilo, ihi = instance_boxes(scene, local)
     if len(ilo):
         if len(scene.positions):
             lo, hi = np.minimum(lo, ilo.min(axis=0)), np.maximum(hi, ihi.max(axis=0))

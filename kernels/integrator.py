@@ -26,7 +26,7 @@ from .environment import Environment
 from .cryptomatte import CryptoFilm
 from .film import Film
 from .bsdf.closures import BsdfSample, class_albedo, eval_split, pass_classes
-from .geometry import NG, TriangleTable, scene_extent
+from .geometry import NG, TriangleTable, prototype_boxes, scene_extent
 from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
 from .memory import trim_heap
@@ -34,7 +34,7 @@ from .paths import PathState
 from .rng import PathRng, seed_paths
 from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples
 from .camera import camera_frame
-from .scene import OBJ_PASS_INDEX, Camera, SceneArrays
+from .scene import OBJ_PASS_INDEX, Camera, Lights, Materials, SceneArrays, World, usable_placements
 from .shading import Shading
 from .shading.world import WorldShader
 from .textures import Texture
@@ -161,7 +161,9 @@ class RenderResult:
 
 
 class Renderer:
-    """A validated scene with its acceleration structure, ready to render any number of times."""
+    """A validated scene with its acceleration structure, ready to render any number of times; between
+    renders, moved instances, edited materials and lights can be swapped in without building it again
+    (update_instances, update_materials, update_lights: the viewport's incremental updates)."""
 
     def __init__(self, scene: SceneArrays, threads: int = 0, should_stop: Callable[[], bool] | None = None):
         """should_stop() is polled between the stages of the build (each stage is one long C or NumPy
@@ -197,24 +199,31 @@ class Renderer:
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
 
     def _build_tables(self, poll) -> None:
-        srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
-        self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
         self._triangles = TriangleTable(self.scene)
         # Motion blur: each moving object's decomposed motion and the inverse of the matrix its stored
         # positions were made with (hits are moved from there to where the object is at the path's time).
         self._motion = [motion.decompose(np.asarray(keys, np.float64)) for keys in self.scene.motion]
         self._motion_inverse = [np.linalg.inv(np.asarray(ref, np.float64)) for ref in self.scene.motion_reference]
         poll()
+        self._build_shading()
+        self._pixel_size = _pixel_spread(self.scene.camera)
+        self._camera_frame = camera_frame(self.scene.camera)
+        self._prototype_boxes = prototype_boxes(self.scene)
+        self._ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self._prototype_boxes))
+        self.lights = self._light_sampler()
+        poll()
+
+    def _build_shading(self) -> None:
+        """Textures, materials and the world: what a material edit rebuilds (update_materials)."""
+        srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
+        self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
         self.shading = Shading(self.scene.materials, self.textures, self.scene, self._triangles)
         world = self.scene.world
         self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
         self._emissive = bool(self.shading.emissive.any())
-        self._pixel_size = _pixel_spread(self.scene.camera)
-        self._camera_frame = camera_frame(self.scene.camera)
-        lo, hi = scene_extent(self.scene)
-        self._ray_epsilon = _ray_epsilon(lo, hi)
-        self.lights = LightSampler(self.scene, self.environment, _Emitters(self))
-        poll()
+
+    def _light_sampler(self) -> LightSampler:
+        return LightSampler(self.scene, self.environment, _Emitters(self))
 
     def set_camera(self, camera: Camera) -> None:
         """Look through another camera without rebuilding anything (the viewport's view changes).
@@ -224,6 +233,78 @@ class Renderer:
         self._pixel_size = _pixel_spread(camera)
         self._camera_frame = camera_frame(camera)
         self.shading.data.set_camera(camera)
+
+    # ---------------------------------------------------------------- incremental updates
+    # The viewport changes a built scene in place rather than building it again (Cycles' Blender sync
+    # tags what changed the same way). Each update leaves the renderer as a new Renderer of the changed
+    # scene would be, table for table, so the images are the same bit for bit. They raise ValueError
+    # before changing anything when the change does not fit the built scene (the caller then builds a
+    # new Renderer). Call them between renders, never during one.
+
+    def update_instances(self, world_from_object: np.ndarray, objects: np.ndarray | None = None) -> None:
+        """Move the scene's instances (kernels.scene.Instances): world_from_object (K, 4, 4) float64, one per
+        instance of the built scene, in its order; objects: the object table with the moved objects' rows
+        (SceneArrays.objects, the same rows), None to keep it. The plain triangles stay where they are.
+
+        Rebuilt: the top level of the BVH (the meshes' BVHs are kept), the triangle table's instance
+        matrices, the object table, the ray offset's scene scale, and the light sampler when an emissive
+        instance moved. Nothing else depends on where instances are."""
+        inst = self.scene.instances
+        if inst is None or not inst.count:
+            raise ValueError("update_instances: the scene has no instances")
+        if self.scene.has_motion or self.scene.vector_motion is not None:
+            raise ValueError("update_instances: a scene with motion blur or a Vector pass is built whole")
+        m = np.asarray(world_from_object, np.float64)
+        if m.shape != inst.world_from_object.shape:
+            raise ValueError(f"update_instances: {m.shape[0] if m.ndim else 0} transforms for {inst.count} instances")
+        if not usable_placements(m).all():
+            raise ValueError("update_instances: a transform is not finite or flattens its mesh")
+        emitters_moved = self._emitters_moved(inst, m)
+        moved = dataclasses.replace(inst, world_from_object=np.ascontiguousarray(m))
+        scene = dataclasses.replace(self.scene, instances=moved,
+                                    objects=self.scene.objects if objects is None else objects)
+        rows = None if self.scene.objects is None else self.scene.objects.shape
+        if (None if scene.objects is None else scene.objects.shape) != rows:
+            raise ValueError("update_instances: the object table must keep its rows")
+        scene.validate_objects()
+        self.scene = scene
+        self.accel.move_instances(moved.world_from_object)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            self._triangles.place(moved)
+        self.shading.data.set_objects(scene.objects)
+        self._ray_epsilon = _ray_epsilon(*scene_extent(scene, self._prototype_boxes))
+        if emitters_moved:
+            self.lights = self._light_sampler()
+
+    def _emitters_moved(self, instances, world_from_object: np.ndarray) -> bool:
+        """Whether an instance whose prototype has emissive triangles gets another transform."""
+        if not self.lights.instanced_emitters:
+            return False
+        emits = np.array([self.shading.emissive[p.material_ids].any() for p in instances.prototypes])
+        moved = (world_from_object != instances.world_from_object).any(axis=(1, 2))
+        return bool(emits[instances.prototype[moved]].any())
+
+    def update_materials(self, materials: Materials, textures: tuple = (), texture_srgb: tuple = (),
+                         world: World | None = None) -> None:
+        """New materials, textures and world (None: keep it): a material, node tree, image or world edit.
+        The material table keeps its rows (triangles keep their material ids). Rebuilt: the textures, the
+        shading tables and node programs, the environment and the light sampler; geometry and BVHs are
+        kept."""
+        scene = dataclasses.replace(self.scene, materials=materials, textures=tuple(textures),
+                                    texture_srgb=tuple(texture_srgb),
+                                    world=self.scene.world if world is None else world)
+        scene.validate_shading()
+        self.scene = scene
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            self._build_shading()
+            self.lights = self._light_sampler()
+
+    def update_lights(self, lights: Lights) -> None:
+        """New Blender lights (moved, edited, added or removed): only the light sampler is rebuilt."""
+        lights.validate()
+        self.scene = dataclasses.replace(self.scene, lights=lights)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            self.lights = self._light_sampler()
 
     def close(self) -> None:
         """Stop the threads and drop the big arrays now: the light sampler calls back into this

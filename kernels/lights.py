@@ -166,6 +166,11 @@ class LightSampler:
             self._cdf /= self._cdf[-1]
         self.pmf32 = self.select_pmf.astype(np.float32)
 
+    @property
+    def instanced_emitters(self) -> bool:
+        """Some emissive triangles belong to instances: the table moves with them (a new sampler then)."""
+        return self._instanced_emitters
+
     # ------------------------------------------------------------------ power estimates
     def _light_power(self) -> np.ndarray:
         lum = luminance(self.radiance_of).astype(np.float64) if self.light_count else np.zeros(0)

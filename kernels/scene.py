@@ -560,15 +560,7 @@ class SceneArrays:
         """
         t = len(self.positions) if hasattr(self.positions, "__len__") else -1
         _check_triangles(self, "", None)
-        _require((self.objects is None) == (self.object_ids is None), "objects",
-                 "objects and object_ids come together")
-        if self.objects is not None:
-            k = len(self.objects)
-            _check_array(self.objects, "objects", (k, OBJECT_COLUMNS), np.float32)
-            _check_array(self.object_ids, "object_ids", (t,), np.int32)
-            if t:
-                _require(self.object_ids.min() >= 0 and self.object_ids.max() < k, "object_ids",
-                         f"must be in [0, {k})")
+        self.validate_objects()
         _require(len(self.motion) == len(self.motion_reference), "motion_reference", "needs one matrix per motion")
         for i, keys in enumerate(self.motion):
             keys = np.asarray(keys)
@@ -582,6 +574,37 @@ class SceneArrays:
                          f"must be in [-1, {len(self.motion)})")
         if self.shutter_table is not None:
             _check_array(self.shutter_table, "shutter_table", (len(self.shutter_table),), np.float32)
+        self.validate_shading()
+        if self.instances is not None:
+            self.instances.validate(self.materials.count, None if self.objects is None else len(self.objects))
+        self.camera.validate()
+        self.lights.validate()
+
+        changes, dropped, repaired = _clean_triangles(self, ("object_ids", "motion_ids"))
+        if self.instances is not None:
+            changes["instances"], more_dropped, more_repaired = _clean_instances(self.instances)
+            dropped += more_dropped
+            repaired += more_repaired
+        scene = dataclasses.replace(self, **changes) if changes else self
+        return ValidatedScene(scene, dropped, repaired)
+
+    def validate_objects(self) -> None:
+        """Check the object table and each triangle's row of it (part of validate(); on its own when the
+        viewport moves objects: Renderer.update_instances)."""
+        t = len(self.positions) if hasattr(self.positions, "__len__") else -1
+        _require((self.objects is None) == (self.object_ids is None), "objects",
+                 "objects and object_ids come together")
+        if self.objects is not None:
+            k = len(self.objects)
+            _check_array(self.objects, "objects", (k, OBJECT_COLUMNS), np.float32)
+            _check_array(self.object_ids, "object_ids", (t,), np.int32)
+            if t:
+                _require(self.object_ids.min() >= 0 and self.object_ids.max() < k, "object_ids",
+                         f"must be in [0, {k})")
+
+    def validate_shading(self) -> None:
+        """Check textures, materials and the world against each other and the triangles' material ids (part
+        of validate(); on its own when the viewport edits materials: Renderer.update_materials)."""
         for i, tex in enumerate(self.textures):
             _require(isinstance(tex, np.ndarray) and tex.ndim == 3 and tex.shape[2] in (1, 3, 4)
                      and tex.shape[0] >= 1 and tex.shape[1] >= 1,
@@ -595,20 +618,9 @@ class SceneArrays:
             self.world.program.validate(len(self.textures))
         _check_material_ids(self, "", self.materials.count)
         if self.instances is not None:
-            self.instances.validate(self.materials.count, None if self.objects is None else len(self.objects))
             for i, proto in enumerate(self.instances.prototypes):
                 _check_material_ids(proto, f"instances.prototypes[{i}].", self.materials.count)
         self.world.validate()
-        self.camera.validate()
-        self.lights.validate()
-
-        changes, dropped, repaired = _clean_triangles(self, ("object_ids", "motion_ids"))
-        if self.instances is not None:
-            changes["instances"], more_dropped, more_repaired = _clean_instances(self.instances)
-            dropped += more_dropped
-            repaired += more_repaired
-        scene = dataclasses.replace(self, **changes) if changes else self
-        return ValidatedScene(scene, dropped, repaired)
 
 
 # Columns of SceneArrays.objects: object_from_world (3 x 4, row-major), world_from_object's linear part
@@ -732,17 +744,24 @@ def _clean_instances(instances: Instances) -> tuple[Instances, int, int]:
         dropped += d * uses
         repaired += r * uses
     m = instances.world_from_object
-    linear = np.nan_to_num(m[:, :3, :3])
-    with np.errstate(over="ignore", invalid="ignore"):
-        det = np.linalg.det(linear) if len(m) else np.zeros(0)
-    usable = np.isfinite(m).all(axis=(1, 2)) & np.isfinite(det) & (np.abs(det) > 0) \
-        & (np.abs(m[:, :3, :]) < 3e38).all(axis=(1, 2))
+    usable = usable_placements(m)
     counts = np.array([p.triangle_count for p in prototypes], np.int64)
     dropped += int(counts[instances.prototype[~usable]].sum()) if len(counts) else 0
     kept = Instances(tuple(prototypes), np.ascontiguousarray(instances.prototype[usable]),
                      np.ascontiguousarray(m[usable]),
                      None if instances.object_ids is None else np.ascontiguousarray(instances.object_ids[usable]))
     return kept, dropped, repaired
+
+
+def usable_placements(world_from_object: np.ndarray) -> np.ndarray:
+    """(K,) bool: which (K, 4, 4) instance transforms place their mesh somewhere (finite, within float32,
+    not flattening it); validate() drops the instances of the others."""
+    m = world_from_object
+    linear = np.nan_to_num(m[:, :3, :3])
+    with np.errstate(over="ignore", invalid="ignore"):
+        det = np.linalg.det(linear) if len(m) else np.zeros(0)
+    return np.isfinite(m).all(axis=(1, 2)) & np.isfinite(det) & (np.abs(det) > 0) \
+        & (np.abs(m[:, :3, :]) < 3e38).all(axis=(1, 2))
 
 
 def _usable_triangles(positions: np.ndarray) -> np.ndarray:

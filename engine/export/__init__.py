@@ -9,7 +9,8 @@ runs on a job thread: everything comes from the depsgraph.
         engine.report({'WARNING'}, line)
     scene = result.scene.validate().scene
 
-mesh.py reads geometry, materials.py shader nodes and images, world.py the world, camera.py the camera.
+mesh.py reads geometry, materials.py shader nodes and images, world.py the world, camera.py the camera;
+updates.py reads parts of a scene again (the viewport's incremental updates).
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
 from .mesh import export_geometry
 from .motion import scene_motion, vector_fields
+from .updates import ExportIndex, export_index
 from .world import export_world
 
 __all__ = ["DEFAULT_ALBEDO", "ExportCancelled", "ExportError", "ExportResult", "export_scene", "render_region",
@@ -55,6 +57,7 @@ class ExportResult:
     triangle_count: int
     instance_count: int
     crypto_names: dict | None = None   # Cryptomatte kind -> the names its ids hash (the manifests)
+    index: ExportIndex | None = None   # what names the rows of the scene (partial exports: updates.py)
 
 
 class ExportError(Exception):
@@ -66,7 +69,7 @@ class ExportCancelled(Exception):
 
 
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
-                 motion=None, vector=None) -> ExportResult:
+                 motion=None, vector=None, instance_everything: bool = False) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
 
     camera_override : a camera object to use instead of the scene's (RenderEngine.camera_override).
@@ -74,6 +77,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     should_stop : polled while objects are read (a few times a second at most); ExportCancelled when
         it returns True.
     motion : motion.MotionSamples (motion.sample_motion) for motion blur, or None.
+    instance_everything : every mesh a prototype placed by its instances, even when used once (the
+        viewport, whose moved objects then only change their transforms: updates.py).
     Raises ExportError when there is no camera.
     """
     start = time.perf_counter()
@@ -89,7 +94,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     materials = MaterialTable(warnings)
     poll = Poller(should_stop)
     geometry = export_geometry(depsgraph, materials, warnings, poll,
-                               moving=frozenset(motion.objects) if motion is not None else frozenset())
+                               moving=frozenset(motion.objects) if motion is not None else frozenset(),
+                               instance_everything=instance_everything)
     world = export_world(scene.world, warnings, materials.images)
     lights = export_lights(depsgraph, warnings, poll)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
@@ -113,7 +119,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                         seconds=time.perf_counter() - start,
                         triangle_count=len(geometry.material_ids) + (geometry.instances.triangle_total
                                                                      if geometry.instances is not None else 0),
-                        instance_count=geometry.instance_count, crypto_names=crypto_names)
+                        instance_count=geometry.instance_count, crypto_names=crypto_names,
+                        index=export_index(geometry, materials))
 
 
 class Poller:

@@ -307,6 +307,18 @@ class MaterialTable:
         names), sorted."""
         return tuple(sorted(set().union(*(self._attributes.get(row, ()) for row in rows))))
 
+    @property
+    def keys(self) -> tuple:
+        """Per row, the material's name_full (None for row 0, the default surface): what names a row
+        across exports (engine/export/updates.py reads the materials again in this order)."""
+        return (None,) + tuple(sorted(self._ids, key=self._ids.get))
+
+    def mesh_needs(self) -> tuple:
+        """Per row, what its shader asks of the meshes beyond positions, normals and UVs: (tangent UV
+        maps, attribute names). A material edit that changes it needs the meshes read again."""
+        return tuple((self._tangent_maps.get(row, ()), tuple(sorted(self._attributes.get(row, ()))))
+                     for row in range(len(self._rows)))
+
     def slot_ids(self, ob) -> tuple[int, ...]:
         """The rows of an object's material slots; (0,) for an object without slots."""
         return tuple(self.material_id(slot.material) for slot in ob.material_slots) or (0,)

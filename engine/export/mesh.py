@@ -87,6 +87,8 @@ class Geometry:
     instance_keys: list | None = None      # per object row: instance_key() (motion blur)
     instance_matrices: list | None = None  # per object row: the (4, 4) world matrix its triangles used
     instance_assets: list | None = None    # per object row: the top-most parent's name (Cryptomatte asset)
+    slot_materials: list | None = None     # per object row: slot_materials() of its object
+    empty_keys: frozenset = frozenset()    # instance keys of rendered mesh instances without triangles
     instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
 
 
@@ -106,10 +108,12 @@ def _asset_name(ob) -> str:
 
 
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None,
-                    moving: set | frozenset = frozenset()) -> Geometry:
+                    moving: set | frozenset = frozenset(), instance_everything: bool = False) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
     poll() is called for every instance (it raises to cancel the export). moving : instance keys
-    (instance_key) of objects that move during the shutter: their meshes are never instanced."""
+    (instance_key) of objects that move during the shutter: their meshes are never instanced.
+    instance_everything : every mesh is a prototype placed by its instances, even when used once (the
+    viewport: an object that moves then only changes its transform, engine/export/updates.py)."""
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
     tangents: dict[int, np.ndarray] = {}     # evaluated mesh pointer -> (T*3, 4) object-space tangents
     slot_rows: dict[tuple, tuple] = {}       # (object, mesh) pointers -> material row of each slot
@@ -118,22 +122,27 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     attributes: dict[int, dict] = {}         # evaluated mesh pointer -> {name: (T*3, C) float32}
     keys: dict[tuple, list] = {}             # (mesh pointer, slot rows) -> instance keys
     assets: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> asset names
+    slots: dict[tuple, list] = {}            # (mesh pointer, slot rows) -> slot_materials() of each instance
+    signatures: dict[tuple, tuple] = {}      # (object, mesh) pointers -> slot_materials()
+    empty: set = set()                       # instance keys of meshes without triangles
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
         # An instance is only valid during its iteration step: copy what is needed now.
         ob = inst.object
-        if not _is_rendered(inst, ob, warnings):
+        if not is_rendered(inst, ob, warnings):
             continue
         mesh_key = ob.data.as_pointer()
         if mesh_key not in meshes:
             meshes[mesh_key] = read_mesh(ob.data)
         if meshes[mesh_key].triangle_count == 0:
+            empty.add(instance_key(inst))
             continue
         # Instances share meshes, but slots linked to the object can give one mesh different materials.
         object_key = (ob.as_pointer(), mesh_key)
         if object_key not in slot_rows:
             slot_rows[object_key] = materials.slot_ids(ob)
+            signatures[object_key] = slot_materials(ob)
             _check_visibility(ob, warnings)
         uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
         if uv_maps and mesh_key not in tangents:
@@ -143,20 +152,29 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             attributes[mesh_key] = read_attributes(ob.data, names, ob.name, warnings)
         matrix = np.array(inst.matrix_world)
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
-        rows.setdefault((mesh_key, slot_rows[object_key]), []).append(_object_row(inst, ob, matrix))
+        rows.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_row(inst, ob, matrix))
         keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
         assets.setdefault((mesh_key, slot_rows[object_key]), []).append(_asset_name(ob))
+        slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
     # Groups with a moving member stay plain: motion blur moves plain triangles (kernels.accel._Moving).
-    instanced = {group for group, matrices in groups.items()
-                 if len(matrices) >= 2 and len(matrices) * meshes[group[0]].triangle_count >= INSTANCE_MIN_TRIANGLES
-                 and not any(key in moving for key in keys[group])}
+    instanced = set(groups) if instance_everything else \
+        {group for group, matrices in groups.items()
+         if len(matrices) >= 2 and len(matrices) * meshes[group[0]].triangle_count >= INSTANCE_MIN_TRIANGLES
+         and not any(key in moving for key in keys[group])}
     return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows, instanced),
                                instance_keys=[k for group in keys.values() for k in group],
                                instance_matrices=[m for group in groups.values() for m in group],
-                               instance_assets=[a for group in assets.values() for a in group])
+                               instance_assets=[a for group in assets.values() for a in group],
+                               slot_materials=[m for group in slots.values() for m in group],
+                               empty_keys=frozenset(empty))
 
 
-def _object_row(inst, ob, matrix) -> np.ndarray:
+def slot_materials(ob) -> tuple:
+    """The materials in an object's slots by name ('' for an empty slot): what picks its material rows."""
+    return tuple(slot.material.name_full if slot.material is not None else "" for slot in ob.material_slots)
+
+
+def instance_row(inst, ob, matrix) -> np.ndarray:
     """The object table row of an instance (kernels.scene.object_row): Cycles' random number is the
     instance's random id, or for an object itself a hash of its name (Blender's sync)."""
     from ...kernels.shading.hash import hash_uint2
@@ -239,7 +257,9 @@ def _domain_corners(mesh, domain: str, tri_loops: np.ndarray, t: int) -> np.ndar
     return None
 
 
-def _is_rendered(inst, ob, warnings: list[str]) -> bool:
+def is_rendered(inst, ob, warnings: list[str]) -> bool:
+    """Whether Ember renders this depsgraph instance: a mesh, shown, and not hidden for render (unsupported
+    kinds of geometry warn in `warnings`)."""
     if ob.type != "MESH":
         if ob.type in UNSUPPORTED_TYPES:
             warnings.append(f"Object '{ob.name}': {UNSUPPORTED_TYPES[ob.type]} are not supported, "

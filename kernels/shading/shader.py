@@ -37,10 +37,13 @@ class ShadingData:
         triangle number)."""
         self.textures = textures
         self.triangles = triangles
-        objects = scene.objects if scene is not None else None
+        self.set_objects(scene.objects if scene is not None else None)
+        self.set_camera(scene.camera if scene is not None else Camera())
+
+    def set_objects(self, objects: np.ndarray | None) -> None:
+        """The object table (SceneArrays.objects); again when objects move (Renderer.update_instances)."""
         # Without an object table every triangle is in one object at the origin.
         self.objects = object_row(np.eye(4))[None] if objects is None else objects
-        self.set_camera(scene.camera if scene is not None else Camera())
 
     def attribute(self, name: str, prim: np.ndarray) -> np.ndarray | None:
         """(n, 3, C) per-corner values of an attribute on triangles prim, None when no mesh has it."""
