@@ -122,3 +122,32 @@ def test_installed_package_renders_with_its_bundled_embreex(linux_package, tmp_p
     assert result["disabled"] and not result["engine_after_disable"] and not result["settings_after_disable"]
     assert not result["package_dir_after_uninstall"]
     assert result["wheel_files_after_uninstall"] == [], "the bundled wheel must go with the package"
+
+
+FARM_CHILD = os.path.join(os.path.dirname(os.path.abspath(__file__)), "farm_worker_child.py")
+
+
+@pytest.mark.skipif(not (sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64")),
+                    reason="installs the linux-x64 package")
+def test_farm_worker_renders_with_the_installed_extension_and_factory_startup_drops_it(linux_package, tmp_path):
+    """A render farm's worker (docs/INSTALL.md, Render farms): Ember installed once into the worker's user
+    resources; then, each in a fresh process, a worker that loads the preferences as `blender -b scene.blend
+    -E EMBER -f 1` does renders frame 1 to the .blend's output path with Ember, and one started like
+    `--factory-startup` has no Ember (the trap the farm notes warn about): -E EMBER is refused."""
+    site = site_without_embreex(str(tmp_path / "site"))
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("BLENDER_USER_", "BLENDER_SYSTEM_"))}
+    env["BLENDER_USER_RESOURCES"] = str(tmp_path / "resources")
+
+    def child(mode, *extra):
+        done = subprocess.run([sys.executable, "-I", "-S", FARM_CHILD, site, mode, str(tmp_path), *extra],
+                              cwd=str(tmp_path), env=env, capture_output=True, text=True, timeout=300)
+        lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT:")]
+        assert done.returncode == 0 and lines, done.stdout + done.stderr
+        return dict(json.loads(lines[-1].removeprefix("RESULT:")), log=done.stdout[-2000:] + done.stderr[-2000:])
+
+    assert child("install", linux_package)["enabled"]
+    worker = child("worker")
+    assert worker["ember_enabled"] and worker["engine"] == "EMBER" and worker["written"], worker["log"]
+    assert worker["sky_rgb"] == pytest.approx((0.2, 0.4, 0.8), rel=1e-4)
+    factory = child("factory")
+    assert not factory["ember_enabled"] and factory["engine"] is None and "EMBER" in factory["error"]
