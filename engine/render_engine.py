@@ -7,7 +7,7 @@ import traceback
 import bpy
 
 from .passes import register_passes
-from .session import FinalRender
+from .session import FinalRender, drop_kept_scene
 from .viewport import new_viewport, stop_all_sessions
 
 
@@ -65,5 +65,6 @@ def register():
 
 def unregister():
     stop_all_sessions()
+    drop_kept_scene()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

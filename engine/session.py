@@ -18,6 +18,7 @@ import bpy
 import numpy as np
 
 from ..kernels import Cancelled, Renderer, RenderSettings
+from ..kernels.accel import default_threads
 from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region
 from .export.motion import sample_motion, sample_vector_motion
@@ -140,8 +141,10 @@ class FinalRender:
             camera_ob = engine.camera_override or self.depsgraph.scene.camera
             motion = sample_motion(engine, self.depsgraph, camera_ob) if camera_ob is not None else None
             vector = sample_vector_motion(engine, self.depsgraph, camera_ob) if camera_ob is not None else None
+            persistent = persistent_data(scene) and motion is None and vector is None
             exported = export_scene(self.depsgraph, engine.camera_override, width=width, height=height,
-                                    should_stop=self.should_stop, motion=motion, vector=vector)
+                                    should_stop=self.should_stop, motion=motion, vector=vector,
+                                    instance_everything=persistent)
         except ExportCancelled:
             return self._cancel()
         except ExportError as err:
@@ -161,14 +164,23 @@ class FinalRender:
             cryptomatte=cryptomatte.enabled_kinds(view_layer), cryptomatte_depth=cryptomatte.levels(view_layer))
         self._crypto_names = exported.crypto_names or {}
         engine.update_stats("", "Ember: building the scene")
+        threads = render_threads(scene.render)
         try:
-            renderer = Renderer(exported.scene, threads=render_threads(scene.render), should_stop=self.should_stop)
+            renderer = _kept.take(exported.scene, threads) if persistent else None
+            if renderer is None:
+                renderer = Renderer(exported.scene, threads=threads, should_stop=self.should_stop,
+                                    reuse=_kept.renderer if persistent else None)
         except Cancelled:
             return self._cancel()
         except ValueError as err:
             engine.report({"ERROR"}, f"Ember: invalid scene data: {err}")
             return
-        with renderer:
+        finally:
+            if not persistent:
+                _kept.drop()    # Persistent Data turned off: let the kept scene go
+        if persistent:
+            _kept.set(renderer)
+        with _kept if persistent else renderer:
             if renderer.dropped_triangles:
                 self._warn([f"skipped {renderer.dropped_triangles} degenerate or non-finite triangles"])
             result = renderer.render(settings, on_tile=self._on_tile, should_stop=self.should_stop,
@@ -339,6 +351,61 @@ class FinalRender:
         self.engine.update_stats("", message)
         if _background():
             print(f"Ember | Frame {self.scene.frame_current} | {message}", flush=True)
+
+
+def persistent_data(scene) -> bool:
+    """Blender's Persistent Data (Render Properties > Performance > Final Render, as for Cycles): keep the
+    built scene between final renders, so the frames of an animation reuse what did not change."""
+    return bool(scene.render.use_persistent_data)
+
+
+class _KeptScene:
+    """The renderer of the last final render, kept while Persistent Data is on (one per process: frames
+    render one after another). The next frame takes it when only transforms, materials, lights or the
+    camera changed (Renderer.update_scene), or else builds anew reusing the BVHs of the meshes that did not
+    change (Renderer(reuse=...)). With every mesh an instance (export_scene(instance_everything=True)), a
+    moved object changes only its transform, as in the viewport."""
+
+    def __init__(self):
+        self.renderer: Renderer | None = None
+        self.updated = 0     # frames that took the kept renderer, and frames that built one (tests read them)
+        self.built = 0
+
+    def take(self, scene, threads: int) -> Renderer | None:
+        """The kept renderer updated to `scene`, or None when it cannot be (then build one)."""
+        kept = self.renderer
+        if kept is None or kept.accel.threads != (threads if threads > 0 else default_threads()):
+            return None
+        if not kept.update_scene(scene):
+            return None
+        self.updated += 1
+        return kept
+
+    def set(self, renderer: Renderer) -> None:
+        if renderer is not self.renderer:
+            self.drop()
+            self.renderer = renderer
+            self.built += 1
+
+    def drop(self) -> None:
+        if self.renderer is not None:
+            self.renderer.close()
+            self.renderer = None
+
+    def __enter__(self):
+        return self.renderer
+
+    def __exit__(self, kind, *exc):
+        if kind is not None:   # a failed render keeps nothing
+            self.drop()
+
+
+_kept = _KeptScene()
+
+
+def drop_kept_scene() -> None:
+    """Free the renderer Persistent Data kept (unregister, or Persistent Data turned off)."""
+    _kept.drop()
 
 
 class PreviewDenoiser:

@@ -210,6 +210,8 @@ class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
         sub = col.column(align=True)
         sub.enabled = rd.threads_mode == "FIXED"
         sub.prop(rd, "threads")
+        # Cycles' Final Render option: frames of an animation reuse the scene built for the frame before.
+        layout.prop(rd, "use_persistent_data", text="Persistent Data")
 
 
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths, EMBER_RENDER_PT_film,

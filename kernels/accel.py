@@ -119,7 +119,9 @@ class Accel:
     moving object its own, queried at each ray's time; hits report the scene's triangle index either way."""
 
     def __init__(self, positions: np.ndarray, threads: int = 0, motion_ids: np.ndarray | None = None,
-                 motion: tuple = (), motion_reference: tuple = (), instances=None):
+                 motion: tuple = (), motion_reference: tuple = (), instances=None, reuse: "Accel | None" = None):
+        """reuse : the Accel of an earlier frame (persistent data): its instanced meshes whose triangles are
+        the same, array for array, keep their BVH instead of being built again."""
         self.threads = threads if threads > 0 else default_threads()
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.triangle_count = len(positions)
@@ -137,10 +139,18 @@ class Accel:
         self._bases = None        # scene number of each instance's first triangle
         self._packets = None      # the static scene traced by packets (reports instances), or None
         self._scene = None        # the static scene traced by embreex's loop, or None
-        self._device = embree.Device()
-        meshes, placed = [], []
+        self._device = reuse._device if reuse is not None else embree.Device()
+        self.meshes = []          # (prototype positions, embree.Mesh) of the instanced meshes
+        self.meshes_reused = 0
+        placed = []
         if instances is not None and instances.count:
-            meshes = [embree.Mesh(self._device, p.positions.reshape(-1, 3)) for p in instances.prototypes]
+            earlier = reuse.meshes if reuse is not None else []
+            for p in instances.prototypes:
+                mesh = next((m for old, m in earlier if old.shape == p.positions.shape
+                             and np.array_equal(old, p.positions)), None)
+                self.meshes_reused += mesh is not None
+                self.meshes.append((p.positions, mesh or embree.Mesh(self._device, p.positions.reshape(-1, 3))))
+            meshes = [m for _, m in self.meshes]
             placed = [(meshes[p], m) for p, m in zip(instances.prototype, instances.world_from_object)]
             self._bases = instances.bases(self.triangle_count)
             self.triangle_count += instances.triangle_total

@@ -165,9 +165,12 @@ class Renderer:
     renders, moved instances, edited materials and lights can be swapped in without building it again
     (update_instances, update_materials, update_lights: the viewport's incremental updates)."""
 
-    def __init__(self, scene: SceneArrays, threads: int = 0, should_stop: Callable[[], bool] | None = None):
+    def __init__(self, scene: SceneArrays, threads: int = 0, should_stop: Callable[[], bool] | None = None,
+                 reuse: "Renderer | None" = None):
         """should_stop() is polled between the stages of the build (each stage is one long C or NumPy
-        call that cannot be interrupted); Cancelled is raised when it returns True."""
+        call that cannot be interrupted); Cancelled is raised when it returns True.
+        reuse : the renderer of an earlier frame (persistent data): its instanced meshes whose triangles
+        have not changed keep their BVH (see also update_scene, which keeps everything)."""
         def poll():
             if should_stop is not None and should_stop():
                 raise Cancelled()
@@ -181,7 +184,8 @@ class Renderer:
         with ThreadPoolExecutor(1, "ember-bvh") as builder:
             accel = builder.submit(Accel, self.scene.positions, threads,
                                    *((self.scene.motion_ids, self.scene.motion, self.scene.motion_reference)
-                                     if moving else (None, (), ())), instances=self.scene.instances)
+                                     if moving else (None, (), ())), instances=self.scene.instances,
+                                   reuse=reuse.accel if reuse is not None and reuse.accel is not None else None)
             try:
                 poll()
                 # Triangles near float32's limits overflow in their normals: paths that hit them are
@@ -298,6 +302,34 @@ class Renderer:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             self._build_shading()
             self.lights = self._light_sampler()
+
+    def update_scene(self, scene: SceneArrays) -> bool:
+        """The next frame of an animation with persistent data: when its geometry is this renderer's (the
+        plain triangles and the instanced meshes equal array for array, the same instances in the same
+        order, nothing moving during the shutter), swap in what a frame may change (the instances'
+        transforms and the object table, materials, textures and world, lights, camera, Cryptomatte ids)
+        and return True: the renderer is then as a new Renderer of `scene` would be, and its images the
+        same bit for bit. Otherwise return False, changing nothing (build a new Renderer, with reuse=self to
+        keep the BVHs of unchanged meshes). Raises ValueError for invalid data, as Renderer() does."""
+        checked = scene.validate()
+        new, old = checked.scene, self.scene
+        if new.has_motion or old.has_motion or new.vector_motion is not None or old.vector_motion is not None:
+            return False
+        if not (same_triangles(new, old) and _same_instances(new.instances, old.instances)
+                and (new.objects is None) == (old.objects is None)
+                and (new.objects is None or new.objects.shape == old.objects.shape)):
+            return False
+        if new.instances is not None and new.instances.count:
+            self.update_instances(new.instances.world_from_object, new.objects)
+        elif new.objects is not None:
+            self.scene = dataclasses.replace(self.scene, objects=new.objects)
+            self.shading.data.set_objects(new.objects)
+        self.update_materials(new.materials, new.textures, new.texture_srgb, new.world)
+        self.update_lights(new.lights)
+        self.set_camera(new.camera)
+        self.scene = dataclasses.replace(self.scene, crypto_ids=new.crypto_ids)
+        self.dropped_triangles = checked.dropped_triangles
+        return True
 
     def update_lights(self, lights: Lights) -> None:
         """New Blender lights (moved, edited, added or removed): only the light sampler is rebuilt."""
@@ -1047,6 +1079,31 @@ class Rays(NamedTuple):
     origins: np.ndarray
     dirs: np.ndarray
     t_max: np.ndarray
+
+
+def _equal(a, b) -> bool:
+    if a is None or b is None:
+        return a is b
+    return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def same_triangles(a, b) -> bool:
+    """Whether two SceneArrays (or Prototypes) hold the same triangles, array for array."""
+    for name in ("positions", "normals", "uvs", "material_ids", "tangents", "object_ids", "motion_ids"):
+        if hasattr(a, name) and not _equal(getattr(a, name), getattr(b, name)):
+            return False
+    return len(a.attributes) == len(b.attributes) and all(
+        na == nb and _equal(va, vb) for (na, va), (nb, vb) in zip(a.attributes, b.attributes))
+
+
+def _same_instances(a, b) -> bool:
+    """The same prototypes (array for array), placed by the same number of instances in the same order
+    (their transforms may differ)."""
+    if a is None or b is None or not a.count or not b.count:
+        return (a is None or not a.count) and (b is None or not b.count)
+    return (len(a.prototypes) == len(b.prototypes) and _equal(a.prototype, b.prototype)
+            and _equal(a.object_ids, b.object_ids)
+            and all(same_triangles(p, q) for p, q in zip(a.prototypes, b.prototypes)))
 
 
 class _Emitters:
