@@ -57,14 +57,14 @@ def mesh_from_arrays(name: str, verts, quads):
     return mesh
 
 
-def build(kind: str, triangles: int, instances: int):
+def build(kind: str, triangles: int, instances: int, width: int = 128, height: int = 128):
     """The benchmark scene in the current (empty) Blender file: camera, sun, world, and either one mesh
     of `triangles` triangles or `instances` instances of such a mesh on a grid."""
     import math
     import bpy
     sys.path.insert(0, os.path.join(ROOT, "tests"))
     from bpy_helpers import add_camera, diffuse_material, new_scene, set_world
-    scene = new_scene(128, 128)
+    scene = new_scene(width, height)
     set_world(scene, color=(0.3, 0.35, 0.4))
     sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
     sun.rotation_euler = (0.6, 0.2, 0.4)
@@ -111,7 +111,7 @@ def rss_kb(field):
     with open("/proc/self/status") as f:
         return int(next(l for l in f if l.startswith(field)).split()[1])
 
-scene = build(%(kind)r, %(triangles)d, %(instances)d)
+scene = build(%(kind)r, %(triangles)d, %(instances)d, %(width)d, %(height)d)
 scene.render.engine = %(engine)r
 scene.render.threads_mode, scene.render.threads = "FIXED", 2
 if %(engine)r == "EMBER":
@@ -135,8 +135,9 @@ print("RESULT " + json.dumps({"wall_s": wall, "rss_before_mb": before / 1024,
 """
 
 
-def measure(engine: str, kind: str, triangles: int, instances: int = 0) -> dict:
-    code = CHILD % {"root": ROOT, "engine": engine, "kind": kind, "triangles": triangles, "instances": instances}
+def measure(engine: str, kind: str, triangles: int, instances: int = 0, width: int = 128, height: int = 128) -> dict:
+    code = CHILD % {"root": ROOT, "engine": engine, "kind": kind, "triangles": triangles, "instances": instances,
+                    "width": width, "height": height}
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     line = next((ln for ln in run.stdout.splitlines() if ln.startswith("RESULT ")), None)
     if line is None:
@@ -144,12 +145,86 @@ def measure(engine: str, kind: str, triangles: int, instances: int = 0) -> dict:
     return json.loads(line[len("RESULT "):])
 
 
+# README's memory budget for a render: per triangle (export arrays, shading table, Embree's BVH), per pixel
+# (Ember's float64 film and Blender's float32 result), and a fixed part (working set, Blender's caches).
+BUDGET_BYTES_PER_TRIANGLE = 500
+BUDGET_BYTES_PER_PIXEL = 64
+BUDGET_FIXED_MB = 300
+
+
+def budget_mb(triangles: int, pixels: int) -> float:
+    return (BUDGET_BYTES_PER_TRIANGLE * triangles + BUDGET_BYTES_PER_PIXEL * pixels) / 2**20 + BUDGET_FIXED_MB
+
+
+def check_budget() -> int:
+    """A 4K frame of a 10M-triangle mesh, 1 sample: Ember's peak memory within the budget (and Cycles')."""
+    triangles, width, height = 10_000_000, 3840, 2160
+    limit = budget_mb(triangles, width * height)
+    print(f"budget: {BUDGET_BYTES_PER_TRIANGLE} B/triangle + {BUDGET_BYTES_PER_PIXEL} B/pixel + "
+          f"{BUDGET_FIXED_MB} MB = {limit:.0f} MB for 10M triangles at {width}x{height}", flush=True)
+    e = measure("EMBER", "mesh", triangles, 0, width, height)
+    c = measure("CYCLES", "mesh", triangles, 0, width, height)
+    print(f"Ember: {e['peak_growth_mb']:.0f} MB peak over the render ({e['wall_s']:.1f} s); "
+          f"Cycles: {c['peak_growth_mb']:.0f} MB ({c['wall_s']:.1f} s); ratio {e['peak_growth_mb'] / c['peak_growth_mb']:.2f}; "
+          f"budget {'holds' if e['peak_growth_mb'] <= limit else 'BROKEN'}", flush=True)
+    return 0 if e["peak_growth_mb"] <= limit else 1
+
+
+def instancing_speed(repeats: int = 3) -> tuple[float, float]:
+    """Paths/s of 49 instances of a 20k-triangle mesh on a floor (1M triangles flattened), traced as
+    instances and as world-space copies, kernel only, 160x120, 16 spp, 2 threads: (instanced, flattened)
+    medians of `repeats` interleaved runs."""
+    import numpy as np
+    sys.path.insert(0, ROOT)
+    from bench._common import import_ember
+    import_ember()
+    from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World
+    from ember.kernels.geometry import flatten_instances
+    from ember.kernels.scene import Instances, Prototype
+    from ember.kernels.shapes import look_at
+    v, q = bumpy_sphere(20_000)
+    corners = v[np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])]
+    t = len(corners)
+    proto = Prototype(corners.astype(np.float32),
+                      (corners / np.linalg.norm(corners, axis=2, keepdims=True)).astype(np.float32),
+                      np.zeros((t, 3, 2), np.float32), np.zeros(t, np.int32))
+    mats = np.tile(np.eye(4), (49, 1, 1))
+    mats[:, 0, 3] = 2.5 * (np.arange(49) % 7 - 3)
+    mats[:, 1, 3] = 2.5 * (np.arange(49) // 7 - 3)
+    mats[:, 2, 3] = 1.0
+    floor = np.array([[[-20, -20, 0], [20, -20, 0], [20, 20, 0]], [[-20, -20, 0], [20, 20, 0], [-20, 20, 0]]], np.float32)
+    scene = SceneArrays(
+        positions=floor, normals=np.tile(np.float32([0, 0, 1]), (2, 3, 1)), uvs=np.zeros((2, 3, 2), np.float32),
+        material_ids=np.zeros(2, np.int32), materials=Materials.diffuse(np.array([[0.7, 0.6, 0.5]], np.float32)),
+        world=World(color=np.array([0.6, 0.7, 0.9], np.float32)),
+        camera=Camera(world_from_camera=look_at((0, -14, 9), (0, 0, 0)), width=160, height=120, fov_rad=np.radians(60)),
+        instances=Instances((proto,), np.zeros(49, np.int32), mats))
+    runs = {"instanced": [], "flat": []}
+    for _ in range(repeats):
+        for name, s in (("instanced", scene), ("flat", flatten_instances(scene))):
+            with Renderer(s, 2) as r:
+                r.render(RenderSettings(samples=1))
+                runs[name].append(r.render(RenderSettings(samples=16, max_bounces=8)).progress.paths_per_s)
+    return float(np.median(runs["instanced"])), float(np.median(runs["flat"]))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--triangles", default="1,3,10", help="mesh sizes in millions of triangles")
     ap.add_argument("--instances", type=int, default=1000)
     ap.add_argument("--instance-triangles", type=int, default=100_000)
+    ap.add_argument("--budget", action="store_true",
+                    help="only the memory budget check: 10M triangles at 3840x2160, against README's formula")
+    ap.add_argument("--speed", action="store_true",
+                    help="only the tracing speed of instances against their flattened copies (kernel only)")
     args = ap.parse_args()
+    if args.budget:
+        return check_budget()
+    if args.speed:
+        inst, flat = instancing_speed()
+        print(f"49 instances of a 20k-triangle mesh: {inst / 1e6:.3f} M paths/s instanced, {flat / 1e6:.3f} "
+              f"flattened: {inst / flat:.2f}x")
+        return 0
     cases = [("mesh", int(float(m) * 1e6), 0, f"{m}M-triangle mesh") for m in args.triangles.split(",") if m]
     if args.instances:
         cases.append(("instances", args.instance_triangles, args.instances,
