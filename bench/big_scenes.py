@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import time
@@ -213,6 +214,7 @@ def main() -> int:
     ap.add_argument("--triangles", default="1,3,10", help="mesh sizes in millions of triangles")
     ap.add_argument("--instances", type=int, default=1000)
     ap.add_argument("--instance-triangles", type=int, default=100_000)
+    ap.add_argument("--repeats", type=int, default=3, help="runs per engine and scene (medians)")
     ap.add_argument("--budget", action="store_true",
                     help="only the memory budget check: 10M triangles at 3840x2160, against README's formula")
     ap.add_argument("--speed", action="store_true",
@@ -229,12 +231,17 @@ def main() -> int:
     if args.instances:
         cases.append(("instances", args.instance_triangles, args.instances,
                       f"{args.instances} x {args.instance_triangles // 1000}k instances"))
-    print(f"cores: {os.cpu_count()}, both engines on 2 threads; 1 sample at 128x128", flush=True)
+    print(f"cores: {os.cpu_count()}, both engines on 2 threads; 1 sample at 128x128; medians of {args.repeats} "
+          f"interleaved runs", flush=True)
     print(f"{'scene':>26} | {'Ember s':>7} | {'Cycles s':>8} | {'ratio':>5} | {'Ember MB':>8} | {'Cycles MB':>9} | ratio",
           flush=True)
     for kind, triangles, instances, title in cases:
-        e = measure("EMBER", kind, triangles, instances)
-        c = measure("CYCLES", kind, triangles, instances)
+        runs = {"EMBER": [], "CYCLES": []}
+        for _ in range(args.repeats):   # interleaved, medians: the machine's load drifts
+            for engine in runs:
+                runs[engine].append(measure(engine, kind, triangles, instances))
+        e, c = ({key: statistics.median(r[key] for r in runs[engine]) for key in runs[engine][0]}
+                for engine in ("EMBER", "CYCLES"))
         print(f"{title:>26} | {e['wall_s']:7.2f} | {c['wall_s']:8.2f} | {e['wall_s'] / c['wall_s']:5.2f} | "
               f"{e['peak_growth_mb']:8.0f} | {c['peak_growth_mb']:9.0f} | "
               f"{e['peak_growth_mb'] / max(c['peak_growth_mb'], 1):.2f}", flush=True)

@@ -119,9 +119,12 @@ class Accel:
     moving object its own, queried at each ray's time; hits report the scene's triangle index either way."""
 
     def __init__(self, positions: np.ndarray, threads: int = 0, motion_ids: np.ndarray | None = None,
-                 motion: tuple = (), motion_reference: tuple = (), instances=None, reuse: "Accel | None" = None):
+                 motion: tuple = (), motion_reference: tuple = (), instances=None, reuse: "Accel | None" = None,
+                 indexed: tuple | None = None):
         """reuse : the Accel of an earlier frame (persistent data): its instanced meshes whose triangles are
-        the same, array for array, keep their BVH instead of being built again."""
+        the same, array for array, keep their BVH instead of being built again.
+        indexed : (vertices (V, 3) float32, indices (T, 3) uint32), the same triangles as positions shared
+        by their vertices (SceneArrays.bvh_vertices): Embree builds from them, about 1.5x faster."""
         self.threads = threads if threads > 0 else default_threads()
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.triangle_count = len(positions)
@@ -136,6 +139,8 @@ class Accel:
                             for i, (keys, ref) in enumerate(zip(motion, motion_reference))
                             if (motion_ids == i).any()]
             positions = positions[self._static_ids]
+            if indexed is not None:
+                indexed = (indexed[0], indexed[1][self._static_ids])
         self._bases = None        # scene number of each instance's first triangle
         self._packets = None      # the static scene traced by packets (reports instances), or None
         self._scene = None        # the static scene traced by embreex's loop, or None
@@ -155,8 +160,12 @@ class Accel:
             self._bases = instances.bases(self.triangle_count)
             self.triangle_count += instances.triangle_total
         if len(positions) or placed:
-            plain = embree.Mesh(self._device, np.asarray(positions, np.float32).reshape(-1, 3)) \
-                if len(positions) else None
+            if not len(positions):
+                plain = None
+            elif indexed is not None:
+                plain = embree.Mesh(self._device, *indexed)
+            else:
+                plain = embree.Mesh(self._device, np.asarray(positions, np.float32).reshape(-1, 3))
             self._static = embree.Scene(self._device, plain, placed)
             self._scene = self._static.embreex()
             if self._scene is None or placed:

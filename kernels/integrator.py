@@ -185,7 +185,9 @@ class Renderer:
             accel = builder.submit(Accel, self.scene.positions, threads,
                                    *((self.scene.motion_ids, self.scene.motion, self.scene.motion_reference)
                                      if moving else (None, (), ())), instances=self.scene.instances,
-                                   reuse=reuse.accel if reuse is not None and reuse.accel is not None else None)
+                                   reuse=reuse.accel if reuse is not None and reuse.accel is not None else None,
+                                   indexed=(self.scene.bvh_vertices, self.scene.bvh_indices)
+                                   if self.scene.bvh_vertices is not None else None)
             try:
                 poll()
                 # Triangles near float32's limits overflow in their normals: paths that hit them are

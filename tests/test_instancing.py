@@ -232,3 +232,29 @@ def test_thousand_instances_cost_the_memory_of_one_copy():
     one = measure("EMBER", "mesh", 100_000)
     forest = measure("EMBER", "instances", 100_000, 1000)
     assert forest["peak_growth_mb"] <= 1.5 * one["peak_growth_mb"], (one, forest)
+
+
+def test_an_indexed_bvh_traces_the_same_triangles():
+    """SceneArrays.bvh_vertices / bvh_indices (what the export hands Embree to build from, shared vertices)
+    give the image of the corners alone, bit for bit, and follow validate() when it drops triangles."""
+    sp, sn = uv_sphere(16, smooth=True)
+    vertices, inverse = np.unique(sp.reshape(-1, 3), axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1, 3)
+    inverse[5, 1] = inverse[5, 0]          # one triangle collapsed to an edge: validate() drops it
+    sp = vertices[inverse].astype(np.float32)
+    scene = SceneArrays(positions=sp, normals=sn, uvs=np.zeros((len(sp), 3, 2), np.float32),
+                        material_ids=np.zeros(len(sp), np.int32), world=World(color=np.float32([0.5, 0.6, 0.7])),
+                        camera=Camera(world_from_camera=look_at((0, -4, 1), (0, 0, 0)), width=24, height=24))
+    indexed = SceneArrays(**{**scene.__dict__, "bvh_vertices": vertices.astype(np.float32),
+                             "bvh_indices": inverse.astype(np.uint32)})
+    checked = indexed.validate()
+    assert checked.dropped_triangles == 1
+    kept = checked.scene
+    np.testing.assert_array_equal(kept.bvh_vertices[kept.bvh_indices], kept.positions)
+    images = []
+    for s in (scene, indexed):
+        with Renderer(s, threads=2) as renderer:
+            images.append(renderer.render(RenderSettings(samples=4, seed=1)).image)
+    np.testing.assert_array_equal(images[0], images[1])
+    with pytest.raises(ValueError, match="bvh_indices"):
+        SceneArrays(**{**indexed.__dict__, "bvh_indices": np.full((len(sp), 3), 10**6, np.uint32)}).validate()

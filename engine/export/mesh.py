@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels.geometry import normal_matrices
-from ...kernels.scene import OBJECT_COLUMNS, Instances, Prototype, object_row, padded_triangles
+from ...kernels.scene import OBJECT_COLUMNS, Instances, Prototype, object_rows, padded_triangles
 from ...kernels.shading.ops import map_to_sphere
 from .materials import MaterialTable
 
@@ -90,6 +90,7 @@ class Geometry:
     slot_materials: list | None = None     # per object row: slot_materials() of its object
     empty_keys: frozenset = frozenset()    # instance keys of rendered mesh instances without triangles
     instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
+    bvh: tuple | None = None               # (vertices, indices): the plain triangles indexed (SceneArrays.bvh_vertices)
 
 
 def instance_key(inst) -> tuple:
@@ -125,6 +126,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     slots: dict[tuple, list] = {}            # (mesh pointer, slot rows) -> slot_materials() of each instance
     signatures: dict[tuple, tuple] = {}      # (object, mesh) pointers -> slot_materials()
     empty: set = set()                       # instance keys of meshes without triangles
+    described: dict[int, tuple] = {}         # object pointer -> what its object rows take from it
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -152,7 +154,10 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             attributes[mesh_key] = read_attributes(ob.data, names, ob.name, warnings)
         matrix = np.array(inst.matrix_world)
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
-        rows.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_row(inst, ob, matrix))
+        if object_key[0] not in described:
+            described[object_key[0]] = object_inputs(ob)
+        rows.setdefault((mesh_key, slot_rows[object_key]), []).append(
+            (*described[object_key[0]][:-1], instance_random(inst, described[object_key[0]][-1])))
         keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
         assets.setdefault((mesh_key, slot_rows[object_key]), []).append(_asset_name(ob))
         slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
@@ -161,6 +166,9 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         {group for group, matrices in groups.items()
          if len(matrices) >= 2 and len(matrices) * meshes[group[0]].triangle_count >= INSTANCE_MIN_TRIANGLES
          and not any(key in moving for key in keys[group])}
+    # Object table rows per group, all of a group's instances at once.
+    rows = {group: object_rows(np.stack(groups[group]), *(np.array(column) for column in zip(*inputs)))
+            for group, inputs in rows.items()}
     return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows, instanced),
                                instance_keys=[k for group in keys.values() for k in group],
                                instance_matrices=[m for group in groups.values() for m in group],
@@ -174,21 +182,32 @@ def slot_materials(ob) -> tuple:
     return tuple(slot.material.name_full if slot.material is not None else "" for slot in ob.material_slots)
 
 
-def instance_row(inst, ob, matrix) -> np.ndarray:
-    """The object table row of an instance (kernels.scene.object_row): Cycles' random number is the
-    instance's random id, or for an object itself a hash of its name (Blender's sync)."""
+def object_inputs(ob) -> tuple:
+    """What an object's rows of the object table take from the object and its mesh: (texture space
+    location, size, colour, pass index, its own random number: Blender's sync hashes its name)."""
     from ...kernels.shading.hash import hash_uint2
-    if inst.is_instance:
-        random_id = inst.random_id & 0xFFFFFFFF
-    else:
-        h = 0
-        for c in ob.name.encode("utf-8"):
-            h = (h * 37 + c) & 0xFFFFFFFF
-        random_id = int(hash_uint2(np.array([h], np.uint32), np.array([0], np.uint32))[0])
-    random = np.float32(random_id) * np.float32(1.0 / 0xFFFFFFFF)
+    h = 0
+    for c in ob.name.encode("utf-8"):
+        h = (h * 37 + c) & 0xFFFFFFFF
+    own_random = np.float32(int(hash_uint2(np.array([h], np.uint32), np.array([0], np.uint32))[0])) \
+        * np.float32(1.0 / 0xFFFFFFFF)
     mesh = ob.data
-    return object_row(matrix, tuple(mesh.texspace_location), tuple(mesh.texspace_size), tuple(ob.color),
-                      ob.pass_index, float(random))
+    return (tuple(mesh.texspace_location), tuple(mesh.texspace_size), tuple(ob.color), ob.pass_index,
+            float(own_random))
+
+
+def instance_random(inst, own_random: float) -> float:
+    """Cycles' random number of an instance: its random id, or for an object itself its own (object_inputs)."""
+    if inst.is_instance:
+        return float(np.float32(inst.random_id & 0xFFFFFFFF) * np.float32(1.0 / 0xFFFFFFFF))
+    return own_random
+
+
+def instance_row(inst, ob, matrix) -> np.ndarray:
+    """The object table row of an instance (kernels.scene.object_row)."""
+    location, size, color, pass_index, own = object_inputs(ob)
+    return object_rows(np.asarray(matrix, np.float64)[None], [location], [size], [color], [pass_index],
+                       [instance_random(inst, own)])[0]
 
 
 def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -> dict:
@@ -407,10 +426,12 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
         for name, values in per_mesh.items():
             widths[name] = max(widths.get(name, 0), values.shape[1])
     attribute_arrays = {name: np.zeros((total, 3, c), np.float32) for name, c in sorted(widths.items())}
-    objects = np.concatenate([np.stack(r) for r in object_rows.values()]) if object_rows else \
-        np.zeros((0, OBJECT_COLUMNS), np.float32)
+    objects = np.concatenate(list(object_rows.values())) if object_rows else np.zeros((0, OBJECT_COLUMNS), np.float32)
     object_ids = np.empty(total, np.int32)
     prototypes, prototype_ids, placements, instance_rows = [], [], [], []
+    # The plain triangles once more as an indexed mesh (world vertices shared by their triangles): Embree
+    # builds its BVH from it about 1.5x faster than from the corners (SceneArrays.bvh_vertices).
+    bvh_vertices, bvh_indices, vertex_count = [], [], 0
     first_row = 0
     start = 0
     for group, matrices in groups.items():
@@ -433,7 +454,12 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
             first_row += k
             continue
         end = start + k * t
-        _transform(mesh, np.stack(matrices), positions[start:end], normals[start:end])
+        moved = _transform(mesh, np.stack(matrices), positions[start:end], normals[start:end])
+        v = len(mesh.vertices)
+        bvh_vertices.append(moved.reshape(-1, 3))
+        bvh_indices.append((mesh.corners.reshape(1, t, 3).astype(np.int64)
+                            + (vertex_count + v * np.arange(k, dtype=np.int64))[:, None, None]).reshape(-1, 3))
+        vertex_count += k * v
         if key in tangents:
             transform_tangents(tangents[key], np.stack(matrices), world_tangents[start:end].reshape(k, t * 3, 4))
         uvs[start:end].reshape(k, t, 3, 2)[:] = mesh.uvs.reshape(t, 3, 2)
@@ -447,35 +473,35 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
     instances = Instances(tuple(prototypes), np.array(prototype_ids, np.int32),
                           np.array(placements, np.float64).reshape(-1, 4, 4),
                           np.array(instance_rows, np.int32)) if prototypes else None
+    if bvh_vertices and vertex_count < 2**32:
+        # One spare vertex after the array lets Embree read the vertices in place (kernels.embree).
+        vertices = np.empty(3 * vertex_count + 3, np.float32)[:3 * vertex_count].reshape(-1, 3)
+        np.concatenate(bvh_vertices, out=vertices)
+        bvh = (vertices, np.concatenate(bvh_indices).astype(np.uint32))
+    else:
+        bvh = None
     return Geometry(positions, normals, uvs, material_ids, instance_count, world_tangents,
-                    tuple(attribute_arrays.items()), objects, object_ids, instances=instances)
-
-
-_VERTEX_PATH_MAX_INSTANCES = 4
+                    tuple(attribute_arrays.items()), objects, object_ids, instances=instances, bvh=bvh)
 
 
 def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray,
-               normals_out: np.ndarray) -> None:
+               normals_out: np.ndarray) -> np.ndarray:
     """Write K instances of a mesh: world_from_object (K, 4, 4) float64, outputs (K*T, 3, 3) float32.
+    The vertices are moved (fewer than the corners), then gathered into corners; returns the moved
+    vertices, (K, V, 3) float32.
 
     Positions keep their winding, so a mirrored instance's geometric normal flips while its shading
     normals (inverse-transpose) point the way Blender shows them; the kernel reconciles the two per side.
     """
     k = len(world_from_object)
     linear = world_from_object[:, :3, :3]
-    points = positions_out.reshape(k, -1, 3)
     # Transforms beyond float32 give inf coordinates: validate() drops those triangles and says so.
     with np.errstate(over="ignore", invalid="ignore"):
-        if k <= _VERTEX_PATH_MAX_INSTANCES:
-            # Few copies of a big mesh: move its vertices (fewer than its corners), then gather corners.
-            for i in range(k):
-                moved = mesh.vertices @ linear[i].T.astype(np.float32)
-                moved += world_from_object[i, :3, 3].astype(np.float32)
-                np.take(moved, mesh.corners, axis=0, out=points[i])
-        else:
-            np.matmul(mesh.positions, linear.transpose(0, 2, 1).astype(np.float32), out=points)
-            points += world_from_object[:, None, :3, 3].astype(np.float32)
+        moved = np.matmul(mesh.vertices[None], linear.transpose(0, 2, 1).astype(np.float32))
+        moved += world_from_object[:, None, :3, 3].astype(np.float32)
+        np.take(moved, mesh.corners, axis=1, out=positions_out.reshape(k, -1, 3), mode="clip")
     np.matmul(mesh.normals, normal_matrices(linear).transpose(0, 2, 1), out=normals_out.reshape(k, -1, 3))
+    return moved
 
 
 def transform_tangents(tangents: np.ndarray, world_from_object: np.ndarray, out: np.ndarray) -> None:
