@@ -1,5 +1,6 @@
 """The RenderEngine Blender calls: thin, it hands final renders to session.FinalRender and the
-viewport's rendered mode to viewport.ViewportRender (one per engine instance: one per 3D view)."""
+viewport's rendered mode to viewport.ViewportRender (one per engine instance: one per 3D view), both
+adapters over one session.ProgressiveSession."""
 from __future__ import annotations
 
 import traceback

@@ -1,10 +1,18 @@
-"""The progressive final render: export once, run the kernel, stream rows into Blender's result.
+"""One progressive session for final renders and the viewport, and the final render's adapter over it.
 
-Sync once, snapshot, let go: everything is read from the depsgraph before the kernel starts; the
-kernel sees only arrays and reaches Blender through three callbacks (on_tile, should_stop,
-on_progress), the way Cycles' session knows Blender only through an output driver. Esc (and the
-command line's Ctrl-C, through request_cancel) is polled during export, between the stages of the
-scene build and between waves.
+    ProgressiveSession  owns a Renderer (built, or updated in place when the scene changes) and runs its
+                        progressive loop: waves of samples, the cadence of display updates, denoised
+                        previews (PreviewDenoiser), cancellation and the statistics line. It knows
+                        Blender only through callbacks, the way Cycles' session knows it only through
+                        an output driver.
+    FinalRender         one F12: export, then a ProgressiveSession on the render job's thread streaming
+                        rows into Blender's RenderResult; passes, Cryptomatte metadata, the final
+                        denoise and Persistent Data's kept renderer (_kept) are its own.
+
+The viewport (viewport.ViewportSession) runs a ProgressiveSession on its worker thread and publishes
+frames. Sync once, snapshot, let go: everything is read from the depsgraph before the kernel starts.
+Esc (and the command line's Ctrl-C, through request_cancel) is polled during export, between the stages
+of the scene build and between waves.
 """
 from __future__ import annotations
 
@@ -13,11 +21,12 @@ import math
 import threading
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import bpy
 import numpy as np
 
-from ..kernels import Cancelled, Renderer, RenderSettings
+from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays
 from ..kernels.accel import default_threads
 from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region
@@ -89,6 +98,128 @@ def stats_line(progress, time_limit_s: float = 0.0) -> str:
             f"Remaining {format_time(remaining)} | {progress.paths_per_s / 1e6:.2f} M paths/s")
 
 
+# ====================================================================== the progressive session
+class ProgressiveSession:
+    """A Renderer and the progressive loop over it, for final renders and the viewport alike.
+
+        session = ProgressiveSession(build)            # build(scene) -> a new Renderer of the SceneArrays
+        session.load(scene, version, updates)          # build one, or update the one built for `version`
+        result = session.render(settings, should_stop, camera=..., display_s=..., previews=...,
+                                on_rows=..., on_display=..., on_progress=...)
+        session.close()                                # or: with session: ...
+
+    After every wave of a render: on_rows(film, row0, row1) with the region rows it refined; then, at most
+    every display_s seconds (the first wave always; never when display_s is None or once should_stop() is
+    True), on_display(film, denoised), denoised being the whole film denoised by `previews` when they are
+    due (PreviewDenoiser), else None (show the film itself); then on_progress(progress, line), line being
+    Cycles' statistics line. should_stop() is polled between waves: the waves in flight finish.
+    """
+
+    def __init__(self, build: Callable[[SceneArrays], Renderer]):
+        self._build = build
+        self.renderer: Renderer | None = None
+        self._version = None    # what the renderer was built for (the viewport's scene version)
+
+    def load(self, scene: SceneArrays, version=None, updates: tuple = ()) -> Renderer:
+        """The renderer of `scene`: the one built for `version` with `updates` applied ((part, arguments),
+        ...: Renderer.update_instances, update_materials, update_lights), or else a new one (no version,
+        another version, or an update that does not fit: `scene` has them all)."""
+        if self.renderer is None or version is None or version != self._version or not self._apply(updates):
+            self.close()
+            self.renderer = self._build(scene)
+            self._version = version
+        return self.renderer
+
+    def _apply(self, updates: tuple) -> bool:
+        """False when an update does not fit (the renderer is then half updated, and must be built anew)."""
+        renderer = self.renderer
+        apply = {"instances": renderer.update_instances, "materials": renderer.update_materials,
+                 "lights": renderer.update_lights}
+        try:
+            for part, arguments in updates:
+                apply[part](*arguments)
+        except Exception:  # any failure is answered by a rebuild, which reports its own errors
+            return False
+        return True
+
+    def render(self, settings: RenderSettings, should_stop: Callable[[], bool], *, camera: Camera | None = None,
+               display_s: float | None = None, previews: "PreviewDenoiser | None" = None,
+               on_rows=None, on_display=None, on_progress=None) -> RenderResult:
+        """One progressive render of the loaded scene (through `camera` when given)."""
+        if camera is not None:
+            self.renderer.set_camera(camera)
+        last_display = 0.0
+
+        def on_tile(film, row0: int, row1: int) -> None:
+            nonlocal last_display
+            if on_rows is not None:
+                on_rows(film, row0, row1)
+            if display_s is None or on_display is None or should_stop():
+                return
+            now = time.perf_counter()
+            if last_display and now - last_display < display_s:
+                return
+            last_display = now
+            on_display(film, previews.display(film, now) if previews is not None and film.samples_done > 0 else None)
+
+        def report(progress) -> None:
+            on_progress(progress, stats_line(progress, settings.time_limit_s))
+
+        return self.renderer.render(settings, on_tile=on_tile, should_stop=should_stop,
+                                    on_progress=None if on_progress is None else report)
+
+    def close(self) -> None:
+        if self.renderer is not None:
+            self.renderer.close()
+        self.renderer, self._version = None, None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class PreviewDenoiser:
+    """Denoised previews (the viewport's, and a final render's progressive display): the whole film, at most
+    so often that denoising takes a quarter of the time; a failure turns it off for this render and the
+    noisy image is shown."""
+
+    def __init__(self, options: tuple, interval_s: float, threads: int):
+        self.quality, self.prefilter = options
+        self.interval_s, self.threads = interval_s, threads
+        self.next_s = 0.0
+        self.failed: str | None = None
+
+    def display(self, film, now: float | None) -> np.ndarray | None:
+        """The denoised film (H, W, 4), or None (not due yet, or failed): now None forces it (the end)."""
+        if self.failed is not None or (now is not None and now < self.next_s):
+            return None
+        start = time.perf_counter()
+        try:
+            image = denoised_film(film, self.quality, self.prefilter, self.threads)
+        except Exception as err:
+            self.failed = f"{type(err).__name__}: {err}"
+            print(f"Ember: denoised previews failed, they stay noisy: {self.failed}", flush=True)
+            return None
+        spent = time.perf_counter() - start
+        self.next_s = time.perf_counter() + max(self.interval_s, 3.0 * spent)
+        return image
+
+
+def denoised_film(film, quality: str, prefilter: str, threads: int) -> np.ndarray:
+    """The film's image (H, W, 4) with its colour denoised by OpenImageDenoise, guided by the film's
+    albedo and normal passes when it has them; raises what the denoiser raises."""
+    from .denoise import denoise
+    image = film.resolve()
+    image[..., :3] = denoise(image[..., :3],
+                             film.resolve_pass("denoising_albedo") if "denoising_albedo" in film.aux else None,
+                             film.resolve_pass("denoising_normal") if "denoising_normal" in film.aux else None,
+                             quality=quality, prefilter=prefilter, threads=threads)
+    return image
+
+
+# ====================================================================== final renders
 @dataclass
 class Region:
     """Where the render result sits: (x0, y0, x1, y1) in full-frame pixels with row 0 at the top."""
@@ -109,16 +240,16 @@ class Region:
 class FinalRender:
     """One F12 (or one frame of an animation, or one view layer): export, render, stream, finish.
 
-    Rows reach Blender as sub-results of at most WRITE_CHUNK_PIXELS pixels: only the rows a wave
-    changed, at most every DISPLAY_INTERVAL_S, and none before the end in background mode (nobody
-    sees them). Ember's memory is then the film plus a bounded working set, whatever the resolution.
+    A ProgressiveSession renders; this adapter streams its rows into Blender's result as sub-results of at
+    most WRITE_CHUNK_PIXELS pixels: only the rows a wave changed, at most every DISPLAY_INTERVAL_S, and
+    none before the end in background mode (nobody sees them). Ember's memory is then the film plus a
+    bounded working set, whatever the resolution.
     """
 
     def __init__(self, engine, depsgraph):
         self.engine = engine
         self.depsgraph = depsgraph
         self.scene = depsgraph.scene
-        self._last_display = 0.0
         self._last_print = 0.0
         self._region: Region | None = None
         self._dirty: tuple[int, int] | None = None  # region rows changed since they were last written
@@ -165,11 +296,9 @@ class FinalRender:
         self._crypto_names = exported.crypto_names or {}
         engine.update_stats("", "Ember: building the scene")
         threads = render_threads(scene.render)
+        session = ProgressiveSession(lambda arrays: self._build(arrays, threads, persistent))
         try:
-            renderer = _kept.take(exported.scene, threads) if persistent else None
-            if renderer is None:
-                renderer = Renderer(exported.scene, threads=threads, should_stop=self.should_stop,
-                                    reuse=_kept.renderer if persistent else None)
+            renderer = session.load(exported.scene)
         except Cancelled:
             return self._cancel()
         except ValueError as err:
@@ -180,11 +309,12 @@ class FinalRender:
                 _kept.drop()    # Persistent Data turned off: let the kept scene go
         if persistent:
             _kept.set(renderer)
-        with _kept if persistent else renderer:
+        with _kept if persistent else session:
             if renderer.dropped_triangles:
                 self._warn([f"skipped {renderer.dropped_triangles} degenerate or non-finite triangles"])
-            result = renderer.render(settings, on_tile=self._on_tile, should_stop=self.should_stop,
-                                     on_progress=self._on_progress)
+            result = session.render(settings, self.should_stop, previews=self._previews,
+                                    display_s=None if _background() else DISPLAY_INTERVAL_S,
+                                    on_rows=self._on_rows, on_display=self._on_display, on_progress=self._on_progress)
         self.cancelled = result.stopped_early and _cancel.is_set()
         if self._previews is not None:
             self._dirty = (0, result.film.height)  # denoised previews wrote Combined alone: every row again
@@ -193,6 +323,13 @@ class FinalRender:
         if self._denoise and not self.cancelled and result.film.samples_done > 0:
             self._denoise_final(result.film)
         self._finish_message(result, exported)
+
+    def _build(self, scene: SceneArrays, threads: int, persistent: bool) -> Renderer:
+        """With Persistent Data the kept renderer updated to `scene` when it can be, else a new one (reusing
+        the kept one's unchanged meshes)."""
+        kept = _kept.take(scene, threads) if persistent else None
+        return kept if kept is not None else Renderer(scene, threads=threads, should_stop=self.should_stop,
+                                                      reuse=_kept.renderer if persistent else None)
 
     def _stamp_metadata(self, film) -> None:
         """The render's metadata (on Blender's whole result, as Cycles stamps its own): the samples it holds
@@ -217,19 +354,14 @@ class FinalRender:
         self.engine.update_stats("", "Ember: denoising")
         start = time.perf_counter()
         try:
-            from .denoise import denoise
-            image = film.resolve()
-            albedo = film.resolve_pass("denoising_albedo") if "denoising_albedo" in film.aux else None
-            normal = film.resolve_pass("denoising_normal") if "denoising_normal" in film.aux else None
-            clean = denoise(image[..., :3], albedo, normal, quality=ember.denoising_quality,
-                            prefilter=ember.denoising_prefilter, threads=render_threads(self.scene.render))
+            image = denoised_film(film, ember.denoising_quality, ember.denoising_prefilter,
+                                  render_threads(self.scene.render))
         except Exception as err:  # the library missing, OIDN's own error, a bug: keep the noisy image
             self._warn([f"denoising failed, the image is not denoised: {type(err).__name__}: {err}"])
             return
-        if not np.isfinite(clean).all():
+        if not np.isfinite(image[..., :3]).all():
             self._warn(["denoising gave non-finite pixels, the image is not denoised"])
             return
-        image[..., :3] = clean
         self._write_combined(image, film)
         self.denoise_seconds = time.perf_counter() - start
 
@@ -265,25 +397,18 @@ class FinalRender:
         y0 = min(max(border[1], 0), height - rh)
         return Region(x0, y0, x0 + rw, y0 + rh)
 
-    # ------------------------------------------------------------------ kernel callbacks
-    def _on_tile(self, film, row0: int, row1: int) -> None:
+    # ------------------------------------------------------------------ the session's callbacks
+    def _on_rows(self, film, row0: int, row1: int) -> None:
         self._dirty = (row0, row1) if self._dirty is None else (min(self._dirty[0], row0), max(self._dirty[1], row1))
-        if _background():
-            return  # no window to show it: everything is written once, at the end
-        now = time.perf_counter()
-        if self._last_display and now - self._last_display < DISPLAY_INTERVAL_S:
-            return
-        self._last_display = now
-        if self._previews is not None and film.samples_done > 0:
-            shown = self._previews.display(film, now)
-            if shown is not None:  # the whole region, denoised: Cycles' progressive display does the same
-                self._dirty = None
-                self._write_combined(shown, film)
-                return
-        self._flush(film)
 
-    def _on_progress(self, progress) -> None:
-        line = stats_line(progress, self.scene.ember.time_limit)
+    def _on_display(self, film, denoised: np.ndarray | None) -> None:
+        if denoised is None:
+            self._flush(film)
+        else:  # the whole region, denoised: Cycles' progressive display does the same
+            self._dirty = None
+            self._write_combined(denoised, film)
+
+    def _on_progress(self, progress, line: str) -> None:
         self.engine.update_stats("", line)
         self.engine.update_progress(min(progress.fraction, 1.0))
         now = time.perf_counter()
@@ -406,39 +531,6 @@ _kept = _KeptScene()
 def drop_kept_scene() -> None:
     """Free the renderer Persistent Data kept (unregister, or Persistent Data turned off)."""
     _kept.drop()
-
-
-class PreviewDenoiser:
-    """Denoised previews (the viewport's, and a final render's progressive display): the whole film, at most
-    so often that denoising takes a quarter of the time; a failure turns it off for this render and the
-    noisy image is shown."""
-
-    def __init__(self, options: tuple, interval_s: float, threads: int):
-        self.quality, self.prefilter = options
-        self.interval_s, self.threads = interval_s, threads
-        self.next_s = 0.0
-        self.failed: str | None = None
-
-    def display(self, film, now: float | None) -> np.ndarray | None:
-        """The denoised film (H, W, 4), or None (not due yet, or failed): now None forces it (the end)."""
-        if self.failed is not None or (now is not None and now < self.next_s):
-            return None
-        from .denoise import denoise
-        start = time.perf_counter()
-        image = film.resolve()
-        try:
-            image[..., :3] = denoise(image[..., :3],
-                                     film.resolve_pass("denoising_albedo") if "denoising_albedo" in film.aux else None,
-                                     film.resolve_pass("denoising_normal") if "denoising_normal" in film.aux else None,
-                                     quality=self.quality, prefilter=self.prefilter, threads=self.threads)
-        except Exception as err:
-            self.failed = f"{type(err).__name__}: {err}"
-            print(f"Ember: denoised previews failed, they stay noisy: {self.failed}", flush=True)
-            return None
-        spent = time.perf_counter() - start
-        self.next_s = time.perf_counter() + max(self.interval_s, 3.0 * spent)
-        return image
-
 
 
 def _set_rect(layer, name: str, rows: np.ndarray) -> None:

@@ -2,26 +2,29 @@
 
 Three layers, so that everything but the last few GPU calls runs headless in tests:
 
-    ViewportCamera    the 3D view's projection (Blender's BKE_camera_params_from_view3d) as plain numbers
-    ViewportSession   a worker thread that renders into a film and publishes Frames; no bpy anywhere
+    export.camera     region_camera: the 3D view's projection (Blender's BKE_camera_params_from_view3d) as
+                      a kernels.Camera, which compares by value: equal cameras render equal images
+    ViewportSession   a worker thread that restarts a session.ProgressiveSession on every change and
+                      publishes Frames, a quick low-resolution preview first; no bpy anywhere
     ViewportRender    the RenderEngine's view_update / view_draw: reads bpy on the main thread, hands the
                       session arrays and numbers, and draws the latest Frame with the gpu module
 
 Sync once, snapshot, let go (as in session.py): the worker sees only SceneArrays, RenderSettings and
-ViewportCamera values. It never touches bpy, and bpy never waits for it except in stop().
+kernels.Camera values. It never touches bpy, and bpy never waits for it except in stop().
 
 Edits update incrementally, as Cycles' Blender sync tracks what changed: view_update sorts
 depsgraph.updates into parts (update_part). A moved object re-reads only the instances' transforms and
 object rows, and the worker moves its Renderer's instances (the top level of the BVH is recommitted, no
 mesh BVH is rebuilt); a shader, image or world edit re-reads the materials and the world, and the
 worker rebuilds shading, environment and light sampler; a light edit re-reads the lights, and the worker
-rebuilds the light sampler. Anything else, or a partial read that no longer lines up with the last
-export (engine/export/updates.py), is a full export and a new Renderer. To make moves cheap the viewport
-exports every mesh as an instance of itself (export_scene(..., instance_everything=True)), as Cycles'
-viewport does: its dynamic BVH type skips apply_static_transforms, so every object keeps its own BVH and
-its transform; final renders copy single meshes into world space, which traces faster (about 20% here,
-bench/viewport_updates.py). An update restarts from sample 0 and renders what a full export of the
-edited scene would, bit for bit (tests/test_viewport_updates.py).
+rebuilds the light sampler (ProgressiveSession.load applies them). Anything else, or a partial read that
+no longer lines up with the last export (engine/export/updates.py), is a full export and a new Renderer.
+To make moves cheap the viewport exports every mesh as an instance of itself
+(export_scene(..., instance_everything=True)), as Cycles' viewport does: its dynamic BVH type skips
+apply_static_transforms, so every object keeps its own BVH and its transform; final renders copy single
+meshes into world space, which traces faster (about 20% here, bench/viewport_updates.py). An update
+restarts from sample 0 and renders what a full export of the edited scene would, bit for bit
+(tests/test_viewport_updates.py).
 """
 from __future__ import annotations
 
@@ -29,29 +32,18 @@ import contextlib
 import dataclasses
 import math
 import threading
-import time
 import weakref
 from dataclasses import dataclass
-from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
 
 from ..kernels import Camera, Renderer, RenderSettings, SceneArrays
-from ..kernels.camera import view_plane
 from .export import ExportError, export_scene
+from .export.camera import region_camera, stand_in_camera, view_camera_object
 from .export.updates import export_instances, export_lights, export_shading
-from .export.camera import DOF_FIELDS, depth_of_field, pixel_filter
-from .session import PreviewDenoiser, render_settings, render_threads
+from .session import PreviewDenoiser, ProgressiveSession, render_settings, render_threads
 
-# Blender's DNA defaults (DNA_camera_defaults.h): the 3D view has no sensor of its own and uses these.
-DEFAULT_SENSOR_WIDTH = 36.0
-DEFAULT_SENSOR_HEIGHT = 24.0
-# BKE_camera.h: CameraParams.zoom for a free 3D view. The view shows twice the field of a camera with
-# the same lens, i.e. a 72 mm wide sensor.
-CAMERA_PARAM_ZOOM_INIT_PERSP = 2.0
-# BKE_camera_params_from_object: objects other than cameras and lights get this lens as the camera.
-NON_CAMERA_LENS = 35.0
 # The largest finite half float: the texture is RGBA16F and an inf there turns the viewport black.
 HALF_MAX = 65504.0
 # scene.ember.preview_samples = 0 means "until the view changes"; this is the property's own maximum.
@@ -63,187 +55,6 @@ PREVIEW_PIXELS = 1 << 14
 DISPLAY_INTERVAL_S = 0.1
 # stop() waits this long for the worker; it finishes the waves in flight, which take milliseconds.
 STOP_TIMEOUT_S = 10.0
-
-
-# ====================================================================== the view's camera
-def camera_zoom_factor(view_camera_zoom: float) -> float:
-    """BKE_screen_view3d_zoom_to_fac: how much of the camera frame a camera view shows (0.5 at zoom 0,
-    where the frame fills half of the region)."""
-    return (math.sqrt(2.0) + view_camera_zoom / 50.0) ** 2 / 4.0
-
-
-@dataclass(frozen=True)
-class LensParams:
-    """The scene camera's parameters, as BKE_camera_params_from_object reads them (camera view only)."""
-    kind: str = "PERSP"            # 'PERSP' or 'ORTHO'
-    lens: float = 50.0             # mm
-    sensor_width: float = DEFAULT_SENSOR_WIDTH
-    sensor_height: float = DEFAULT_SENSOR_HEIGHT
-    sensor_fit: str = "AUTO"
-    shift_x: float = 0.0
-    shift_y: float = 0.0
-    ortho_scale: float = 6.0
-    clip_start: float = 0.1
-    clip_end: float = 100.0
-    dof: tuple = ()                # depth of field: kernels.Camera's aperture and focus fields (DOF_FIELDS)
-
-    @classmethod
-    def from_object(cls, ob, view_lens: float, clip_start: float, clip_end: float) -> "LensParams":
-        """From the (evaluated) object a camera view looks through. As in Blender, an object that is
-        not a camera keeps the view's clipping and the default sensor, with a 35 mm lens (a light: the
-        lens whose field matches its spot size); no object at all keeps the view's lens."""
-        if ob is not None and ob.type == "CAMERA":
-            cam = ob.data
-            kind = "ORTHO" if cam.type == "ORTHO" else "PERSP"
-            dof = depth_of_field(ob, kind) if cam.dof.use_dof else {}
-            return cls(kind=kind, lens=float(cam.lens), dof=tuple(dof[name] for name in DOF_FIELDS) if dof else (),
-                       sensor_width=float(cam.sensor_width), sensor_height=float(cam.sensor_height),
-                       sensor_fit=cam.sensor_fit, shift_x=float(cam.shift_x), shift_y=float(cam.shift_y),
-                       ortho_scale=float(cam.ortho_scale), clip_start=float(cam.clip_start),
-                       clip_end=float(cam.clip_end))
-        lens = view_lens
-        if ob is not None:
-            lens = NON_CAMERA_LENS
-            if ob.type == "LIGHT":
-                # Every light stores a spot size (45 degrees unless it is a spot light).
-                spot = float(getattr(ob.data, "spot_size", math.radians(45.0)))
-                lens = 16.0 / math.tan(spot / 2.0) or NON_CAMERA_LENS
-        return cls(lens=float(lens), clip_start=float(clip_start), clip_end=float(clip_end))
-
-    @property
-    def sensor(self) -> float:
-        """BKE_camera_sensor_size: the sensor side the fit applies to."""
-        return self.sensor_height if self.sensor_fit == "VERTICAL" else self.sensor_width
-
-
-@dataclass(frozen=True)
-class ViewportCamera:
-    """What one 3D view sees, as comparable plain values: equal cameras render equal images.
-
-    world_from_camera : 4x4 nested tuple (row-major), rigid; the camera looks down its local -Z.
-    Other fields are kernels.Camera's; width, height are the film's size in pixels.
-    """
-    world_from_camera: tuple
-    kind: str
-    fov_rad: float
-    sensor_fit: str
-    shift_x: float
-    shift_y: float
-    ortho_scale: float
-    clip_start: float
-    clip_end: float
-    width: int
-    height: int
-    dof: tuple = ()                        # the camera's depth of field (camera view only), DOF_FIELDS
-    pixel_filter: tuple = ("BOX", 1.0)     # the film's (type, width)
-    # Looking through a panoramic camera: (type, params as sorted items, window, (shift_x, shift_y)), see
-    # panorama_view; () otherwise.
-    panorama: tuple = ()
-
-    @classmethod
-    def from_view(cls, view_matrix, width: int, height: int, perspective: str, lens: float,
-                  clip_start: float, clip_end: float, view_distance: float, camera: LensParams | None = None,
-                  camera_zoom: float = 0.0, camera_offset=(0.0, 0.0)) -> "ViewportCamera":
-        """Blender's viewport projection (BKE_camera_params_from_view3d, then
-        BKE_camera_params_compute_viewplane with the region's size and square pixels).
-
-        view_matrix : camera_from_world, RegionView3D.view_matrix.
-        perspective : RegionView3D.view_perspective, 'PERSP', 'ORTHO' or 'CAMERA'.
-        lens, clip_start, clip_end : SpaceView3D's; view_distance : RegionView3D.view_distance.
-        camera : the scene camera's parameters, used for 'CAMERA' only.
-        camera_zoom, camera_offset : RegionView3D.view_camera_zoom / view_camera_offset ('CAMERA').
-        """
-        world_from_camera = np.linalg.inv(np.asarray(view_matrix, np.float64).reshape(4, 4))
-        if perspective == "CAMERA":
-            camera = camera or LensParams(lens=lens, clip_start=clip_start, clip_end=clip_end)
-            fac = camera_zoom_factor(camera_zoom)
-            # The region is the image, whatever the render resolution; only the fit axis comes from the camera.
-            fit = camera.sensor_fit
-            if fit == "AUTO":
-                fit = "HORIZONTAL" if width >= height else "VERTICAL"
-            viewfac = width if fit == "HORIZONTAL" else height
-            # Blender scales the lens shift by fac and adds the pan offset; the kernel's shift is in
-            # units of the (zoomed) fitted extent, hence the extra factor fac.
-            shift_x = fac * (camera.shift_x + 2.0 * camera_offset[0] * width / viewfac)
-            shift_y = fac * (camera.shift_y + 2.0 * camera_offset[1] * height / viewfac)
-            return cls(_tuple4(world_from_camera), camera.kind,
-                       2.0 * math.atan(camera.sensor / (2.0 * camera.lens * fac)), camera.sensor_fit,
-                       shift_x, shift_y, camera.ortho_scale / fac, camera.clip_start, camera.clip_end,
-                       int(width), int(height), camera.dof)
-        zoom = CAMERA_PARAM_ZOOM_INIT_PERSP
-        if perspective == "ORTHO":
-            # Blender clips an ortho view to [-clip_end / 2, clip_end / 2] around the view point. The
-            # kernel starts rays at clip_start >= 0, so the eye moves back by clip_end / 2 instead.
-            world_from_camera[:3, 3] += world_from_camera[:3, 2] * (0.5 * clip_end)
-            ortho_scale = view_distance * DEFAULT_SENSOR_WIDTH / lens  # ED_view3d_radius_to_dist_ortho
-            return cls(_tuple4(world_from_camera), "ORTHO", Camera.fov_rad, "AUTO", 0.0, 0.0,  # fov unused
-                       ortho_scale * zoom, 0.0, float(clip_end), int(width), int(height))
-        return cls(_tuple4(world_from_camera), "PERSP",
-                   2.0 * math.atan(zoom * DEFAULT_SENSOR_WIDTH / (2.0 * lens)), "AUTO", 0.0, 0.0,
-                   Camera.ortho_scale, float(clip_start), float(clip_end), int(width), int(height))
-
-    @classmethod
-    def from_blender(cls, space, region_data, width: int, height: int, camera_object=None,
-                     scene=None) -> "ViewportCamera":
-        """From a SpaceView3D and its RegionView3D; camera_object is the evaluated camera the view
-        looks through (used only when view_perspective is 'CAMERA'); the scene gives the pixel filter."""
-        perspective = region_data.view_perspective
-        lens = None
-        if perspective == "CAMERA":
-            lens = LensParams.from_object(camera_object, space.lens, space.clip_start, space.clip_end)
-        view = cls.from_view(region_data.view_matrix, width, height, perspective, space.lens, space.clip_start,
-                             space.clip_end, region_data.view_distance, lens, region_data.view_camera_zoom,
-                             tuple(region_data.view_camera_offset))
-        film = pixel_filter(scene) if scene is not None else {}
-        if film:
-            view = dataclasses.replace(view, pixel_filter=(film["filter_type"], film["filter_width"]))
-        if (perspective == "CAMERA" and scene is not None and camera_object is not None
-                and camera_object.type == "CAMERA" and camera_object.data.type == "PANO"):
-            view = dataclasses.replace(view, panorama=panorama_view(view, camera_object, scene, lens))
-        return view
-
-    def to_kernel(self, width: int | None = None, height: int | None = None) -> Camera:
-        """kernels.Camera; another width and height keep the view (a preview at lower resolution)."""
-        if self.panorama:
-            kind, params, window, shift = self.panorama
-            camera = dataclasses.replace(self, panorama=()).to_kernel(width, height)
-            return dataclasses.replace(camera, kind="PANO", panorama_type=kind, panorama=dict(params),
-                                       panorama_window=window, shift_x=shift[0], shift_y=shift[1])
-        return Camera(world_from_camera=np.array(self.world_from_camera, np.float64), kind=self.kind,
-                      fov_rad=self.fov_rad, sensor_fit=self.sensor_fit, shift_x=self.shift_x,
-                      shift_y=self.shift_y, pixel_aspect=1.0, ortho_scale=self.ortho_scale,
-                      clip_start=self.clip_start, clip_end=self.clip_end,
-                      width=int(width or self.width), height=int(height or self.height),
-                      filter_type=self.pixel_filter[0], filter_width=self.pixel_filter[1],
-                      **dict(zip(DOF_FIELDS, self.dof)))
-
-
-def panorama_view(view: ViewportCamera, camera_ob, scene, lens: LensParams) -> tuple:
-    """ViewportCamera.panorama for a region looking through a panoramic camera: the part of the camera's
-    frame the region shows (its zoomed, panned border, as the perspective view plane of the camera view
-    places it) mapped through the camera's panorama, as Cycles' viewport does."""
-    from .export.camera import render_resolution
-    from .export.panorama import export_panorama
-    res_x, res_y = render_resolution(scene)
-    render = scene.render
-    frame = Camera(fov_rad=2.0 * math.atan(lens.sensor / (2.0 * lens.lens)), sensor_fit=lens.sensor_fit,
-                   shift_x=lens.shift_x, shift_y=lens.shift_y, width=res_x, height=res_y,
-                   pixel_aspect=render.pixel_aspect_x / render.pixel_aspect_y)
-    fx0, fx1, fy0, fy1 = view_plane(frame)
-    x0, x1, y0, y1 = view_plane(view.to_kernel())
-    window = ((x0 - fx0) / (fx1 - fx0), (x1 - fx0) / (fx1 - fx0), (y0 - fy0) / (fy1 - fy0), (y1 - fy0) / (fy1 - fy0))
-    kind, params = export_panorama(camera_ob, scene, res_x, res_y, [])
-    return kind, tuple(sorted(params.items())), window, (lens.shift_x, lens.shift_y)
-
-
-def _tuple4(m: np.ndarray) -> tuple:
-    return tuple(tuple(float(v) for v in row) for row in m)
-
-
-def view_camera_object(space, scene):
-    """The object a camera view looks through: the view's own camera when it is unlocked from the
-    scene's (Cycles does the same)."""
-    return space.camera if space.use_local_camera else scene.camera
 
 
 # ====================================================================== what the depsgraph says changed
@@ -370,7 +181,7 @@ class _Job:
     scene: SceneArrays
     scene_version: int
     settings: RenderSettings
-    camera: ViewportCamera
+    camera: Camera
     denoise: tuple | None = None   # (quality, prefilter) of the previews' denoiser, or None
     updates: tuple = ()            # ((part, arguments), ...) to apply to the renderer of scene_version
 
@@ -396,14 +207,14 @@ class ViewportSession:
         session.update_instances(world_from_object, objects)   # objects moved: the built one is updated,
         session.update_materials(materials, textures, srgb, world)  # ... shaders edited
         session.update_lights(lights)                  # ... lights changed
-        session.update_view(ViewportCamera...)        # every draw; restarts only when it differs
+        session.update_view(camera)                    # every draw, a kernels.Camera: restarts if it differs
         frame = session.snapshot()                     # latest Frame or None, never blocks on the render
         session.stop()                                 # joins the worker
 
     The partial updates are queued (the newest of each part wins: each carries that whole part) and the
-    worker applies them to its Renderer before the next render (Renderer.update_instances and friends);
-    the session's scene takes them at once, so that a rebuild, whenever one is needed (no renderer yet,
-    an update that does not fit it), renders the same scene.
+    worker's ProgressiveSession applies them to its Renderer before the next render (load: update_instances
+    and friends); the session's scene takes them at once, so that a rebuild, whenever one is needed (no
+    renderer yet, an update that does not fit it), renders the same scene.
     """
 
     def __init__(self, threads: int = 0, *, preview_pixels: int = PREVIEW_PIXELS,
@@ -418,7 +229,7 @@ class ViewportSession:
         self._pending: dict[str, tuple] = {}   # part -> the newest arguments of its Renderer.update_*
         self._settings: RenderSettings | None = None
         self._denoise: tuple | None = None
-        self._camera: ViewportCamera | None = None
+        self._camera: Camera | None = None
         self._generation = 0          # bumped by every restart; the worker compares it to its job's
         self._started = -1            # generation the worker last picked up
         self._busy = False            # the current generation is not finished yet
@@ -492,7 +303,7 @@ class ViewportSession:
             self._restart()
         return True
 
-    def update_view(self, camera: ViewportCamera) -> bool:
+    def update_view(self, camera: Camera) -> bool:
         """Restarts only when the view differs (moved, zoomed, resized); returns whether it did."""
         with self._cond:
             if camera == self._camera:
@@ -576,8 +387,8 @@ class ViewportSession:
 
     # ------------------------------------------------------------------ worker thread
     def _run(self) -> None:
-        renderer, built_version = None, -1
-        try:
+        session = ProgressiveSession(lambda scene: Renderer(scene, self._threads))
+        with session:
             while True:
                 with self._cond:
                     while not self._stopping and not (self._ready() and self._started != self._generation):
@@ -589,43 +400,21 @@ class ViewportSession:
                     self._pending.clear()
                     self._started = job.generation
                 try:
-                    if job.updates and job.scene_version == built_version and not self._apply(renderer, job):
-                        renderer.close()
-                        renderer, built_version = None, -1
-                    if job.scene_version != built_version:
-                        if renderer is not None:
-                            renderer.close()
-                        renderer, built_version = None, -1
-                        renderer = Renderer(job.scene, self._threads)
-                        built_version = job.scene_version
-                    self._render(renderer, job)
+                    session.load(job.scene, job.scene_version, job.updates)
+                    self._render(session, job)
                 except Exception as err:  # shown in the viewport; the worker waits for the next change
                     with self._cond:
                         if job.generation == self._generation:
                             self._error = f"{type(err).__name__}: {err}"
                             self._busy = False
-        finally:
-            if renderer is not None:
-                renderer.close()
-
-    @staticmethod
-    def _apply(renderer: Renderer, job: _Job) -> bool:
-        """Apply the job's queued updates to the renderer built for its scene version. False when one
-        does not fit (the renderer is then half updated: the caller builds job.scene, which has them all)."""
-        apply = {"instances": renderer.update_instances, "materials": renderer.update_materials,
-                 "lights": renderer.update_lights}
-        try:
-            for part, arguments in job.updates:
-                apply[part](*arguments)
-        except Exception:  # any failure is answered by a rebuild, which reports its own errors
-            return False
-        return True
 
     def _cancelled(self, job: _Job) -> bool:
         # Read without the lock: an int compare, and a stale answer only delays the stop by one wave.
         return self._stopping or self._generation != job.generation
 
-    def _render(self, renderer: Renderer, job: _Job) -> None:
+    def _render(self, session: ProgressiveSession, job: _Job) -> None:
+        """One generation: a sample at low resolution first (when the film is large), then the progressive
+        render at full resolution, publishing the display (denoised when asked) as it refines."""
         camera = job.camera
         width, height = camera.width, camera.height
 
@@ -635,34 +424,28 @@ class ViewportSession:
         display = self._first_display(height, width)
         small = preview_size(width, height, self._preview_pixels)
         if small is not None:
-            renderer.set_camera(camera.to_kernel(*small))
-            preview = renderer.render(dataclasses.replace(job.settings, samples=1, time_limit_s=0.0),
-                                      should_stop=should_stop)
+            preview = session.render(dataclasses.replace(job.settings, samples=1, time_limit_s=0.0), should_stop,
+                                     camera=dataclasses.replace(camera, width=small[0], height=small[1]))
             if should_stop():
                 return
             display = upsample(display_pixels(preview.image), height, width)
             self._publish(job, display, 0)
-        renderer.set_camera(camera.to_kernel())
-        last_publish = [0.0]
         denoiser = PreviewDenoiser(job.denoise, self._display_interval_s, self._threads) if job.denoise else None
 
-        def on_tile(film, row0: int, row1: int) -> None:
-            if should_stop():
-                return
+        def on_rows(film, row0: int, row1: int) -> None:
             display[row0:row1] = display_pixels(film.resolve(row0, row1))
-            done = film.samples_done
-            now = time.perf_counter()
-            if not last_publish[0] or now - last_publish[0] >= self._display_interval_s:
-                last_publish[0] = now
-                shown = denoiser.display(film, now) if denoiser is not None and done > 0 else None
-                self._publish(job, display if shown is None else display_pixels(shown), done)
-                return
+
+        def on_display(film, denoised) -> None:
+            self._publish(job, display if denoised is None else display_pixels(denoised), film.samples_done)
+
+        def on_progress(progress, line: str) -> None:
             with self._cond:
                 if job.generation == self._generation:
-                    self._samples_done = done
+                    self._samples_done = progress.samples_done
 
-        settings = dataclasses.replace(job.settings, time_limit_s=0.0)
-        result = renderer.render(settings, on_tile=on_tile, should_stop=should_stop)
+        result = session.render(dataclasses.replace(job.settings, time_limit_s=0.0), should_stop, camera=camera,
+                                display_s=self._display_interval_s, previews=denoiser, on_rows=on_rows,
+                                on_display=on_display, on_progress=on_progress)
         if result.stopped_early or should_stop():
             return
         shown = denoiser.display(result.film, None) if denoiser is not None else None
@@ -717,18 +500,6 @@ def film_size(region_width: int, region_height: int, pixel_size: int) -> tuple[i
     return max(1, round(region_width / pixel_size)), max(1, round(region_height / pixel_size))
 
 
-def _no_camera_stand_in():
-    """export_scene insists on a scene camera; the viewport needs none (it replaces the camera), so
-    a scene without one is exported with this stand-in, which carries only what the export reads."""
-    data = SimpleNamespace(type="PERSP", dof=SimpleNamespace(use_dof=False), sensor_fit="AUTO",
-                           sensor_width=DEFAULT_SENSOR_WIDTH, sensor_height=DEFAULT_SENSOR_HEIGHT,
-                           lens=50.0, shift_x=0.0, shift_y=0.0, ortho_scale=6.0, clip_start=0.1,
-                           clip_end=100.0)
-    stand_in = SimpleNamespace(name="Viewport", type="CAMERA", data=data, matrix_world=np.eye(4))
-    stand_in.evaluated_get = lambda depsgraph: stand_in
-    return stand_in
-
-
 class ViewportRender:
     """One engine instance's viewport: view_update exports (the whole scene, or only the parts the
     depsgraph says changed), view_draw follows the view and draws.
@@ -765,7 +536,7 @@ class ViewportRender:
     def _export(self, engine, context, depsgraph, settings: RenderSettings) -> None:
         """The whole scene, every mesh instanced (so that moving objects later only moves instances)."""
         width, height = self._film_size(engine, context, depsgraph)
-        override = None if depsgraph.scene_eval.camera is not None else _no_camera_stand_in()
+        override = None if depsgraph.scene_eval.camera is not None else stand_in_camera()
         self._index = None
         try:
             exported = export_scene(depsgraph, override, width=width, height=height, instance_everything=True)
@@ -845,7 +616,7 @@ class ViewportRender:
         gpu.state.blend_set("NONE")
 
     # ------------------------------------------------------------------ shared
-    def view_camera(self, engine, context, depsgraph) -> ViewportCamera:
+    def view_camera(self, engine, context, depsgraph) -> Camera:
         width, height = self._film_size(engine, context, depsgraph)
         space, region_data = context.space_data, context.region_data
         camera_object = None
@@ -853,7 +624,7 @@ class ViewportRender:
             camera_object = view_camera_object(space, depsgraph.scene)
             if camera_object is not None:
                 camera_object = camera_object.evaluated_get(depsgraph)
-        return ViewportCamera.from_blender(space, region_data, width, height, camera_object, depsgraph.scene)
+        return region_camera(space, region_data, width, height, camera_object, depsgraph.scene)
 
     @staticmethod
     def _film_size(engine, context, depsgraph) -> tuple[int, int]:

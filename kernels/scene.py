@@ -20,7 +20,7 @@ PIXEL_FILTERS = ("BOX", "GAUSSIAN", "BLACKMAN_HARRIS")
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Camera:
     """A Blender camera: looks down its local -Z with +Y up.
 
@@ -31,6 +31,9 @@ class Camera:
     pixel_aspect : pixel width / pixel height (Blender's pixel_aspect_x / pixel_aspect_y).
     ortho_scale : width of the view along the fitted axis (orthographic).
     width, height : full frame resolution in pixels (after the resolution percentage).
+
+    Cameras compare and hash by key(), their fields as plain values: the viewport restarts when its
+    camera differs from the last one.
     """
     world_from_camera: np.ndarray = field(default_factory=lambda: np.eye(4))
     kind: str = "PERSP"
@@ -68,6 +71,17 @@ class Camera:
     motion: np.ndarray | None = None
     # A perspective lens zooming during the shutter: (fov_rad at the shutter's start, at its end), or None.
     fov_motion: tuple | None = None
+
+    def key(self) -> tuple:
+        """Every field as hashable plain values (arrays as nested tuples, dicts as sorted items): cameras
+        with equal keys render equal images."""
+        return tuple(_plain(getattr(self, f.name)) for f in dataclasses.fields(self))
+
+    def __eq__(self, other) -> bool:
+        return self.key() == other.key() if isinstance(other, Camera) else NotImplemented
+
+    def __hash__(self) -> int:
+        return hash(self.key())
 
     def validate(self) -> None:
         m = np.asarray(self.world_from_camera)
@@ -112,6 +126,17 @@ class Camera:
             _require(motion.ndim == 3 and motion.shape[0] >= 2 and motion.shape[1:] == (4, 4), "camera.motion",
                      f"must be (K >= 2, 4, 4), got {motion.shape}")
             _require_finite(motion, "camera.motion")
+
+
+def _plain(value):
+    """A value as hashable plain Python: arrays and sequences as tuples, dicts as sorted (key, value) tuples."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        return tuple(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return tuple(sorted((k, _plain(v)) for k, v in value.items()))
+    return value
 
 
 # Closure nodes a material can be made of (Blender's shader nodes, read by the engine's export).

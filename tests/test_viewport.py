@@ -17,8 +17,9 @@ import pytest
 from bpy_helpers import diffuse_material, mesh_object, new_scene, set_world
 from ember.engine import viewport as vp
 from ember.engine.render_engine import EmberRenderEngine
-from ember.engine.viewport import (HALF_MAX, UNLIMITED_SAMPLES, LensParams, ViewportCamera, ViewportRender,
-                                   ViewportSession, camera_zoom_factor, display_pixels, gpu_pixels)
+from ember.engine.export.camera import camera_zoom_factor, region_camera, stand_in_camera, view_camera
+from ember.engine.viewport import (HALF_MAX, UNLIMITED_SAMPLES, ViewportRender, ViewportSession, display_pixels,
+                                   gpu_pixels)
 from ember.kernels import RenderSettings
 from ember.kernels.camera import generate_rays, view_plane
 from ember.kernels.shapes import look_at
@@ -74,7 +75,7 @@ def world_scene(color=(1.0, 0.0, 0.0), emission=None):
 
 def view(eye=(0, -5, 0), target=(0, 0, 0), width=32, height=24, lens=50.0):
     view_matrix = np.linalg.inv(look_at(eye, target))
-    return ViewportCamera.from_view(view_matrix, width, height, "PERSP", lens, 0.01, 100.0, 5.0)
+    return view_camera(view_matrix, width, height, "PERSP", lens, 0.01, 100.0, 5.0)
 
 
 def corner_color(frame):
@@ -94,7 +95,7 @@ def pixel_rays(camera, width, height):
     row = np.array([0, height - 1, height // 2, 3, height - 2], np.int32)
     col = np.array([0, width - 1, width // 3, width - 5, 7], np.int32)
     half = np.full(len(row), 0.5, np.float32)
-    origins, dirs, t_max = generate_rays(camera.to_kernel(), row, col, half, half)
+    origins, dirs, t_max = generate_rays(camera, row, col, half, half)
     ndc = np.stack([(col + 0.5) / width * 2 - 1, 1 - (row + 0.5) / height * 2], 1)
     return origins.astype(np.float64), dirs.astype(np.float64), t_max.astype(np.float64), ndc
 
@@ -108,7 +109,7 @@ def test_perspective_view_projects_like_blenders_own_matrices(screen):
     space, r3d = area.spaces.active, area.spaces.active.region_3d
     region = next(r for r in area.regions if r.type == "WINDOW")
     assert r3d.view_perspective == "PERSP"
-    camera = ViewportCamera.from_blender(space, r3d, region.width, region.height)
+    camera = region_camera(space, r3d, region.width, region.height)
     origins, dirs, t_max, ndc = pixel_rays(camera, region.width, region.height)
     for distance in (0.5, 3.0, 40.0):
         got = project(r3d.perspective_matrix, origins + dirs * distance)
@@ -119,9 +120,9 @@ def test_perspective_view_projects_like_blenders_own_matrices(screen):
 
 def test_perspective_view_is_a_72mm_sensor():
     """BKE_camera_params_from_view3d: lens with the default 36 mm sensor and CameraParams.zoom = 2."""
-    camera = ViewportCamera.from_view(np.eye(4), 400, 300, "PERSP", 50.0, 0.01, 1000.0, 10.0)
+    camera = view_camera(np.eye(4), 400, 300, "PERSP", 50.0, 0.01, 1000.0, 10.0)
     assert camera.fov_rad == pytest.approx(2 * math.atan(72.0 / (2 * 50.0)))
-    assert view_plane(camera.to_kernel()) == pytest.approx((-0.72, 0.72, -0.54, 0.54))
+    assert view_plane(camera) == pytest.approx((-0.72, 0.72, -0.54, 0.54))
 
 
 def ortho_window_matrix(xmin, xmax, ymin, ymax, near, far):
@@ -137,9 +138,9 @@ def test_ortho_view_matches_blenders_formula():
     ortho_scale = dist * 36 / lens = 7.2, zoom 2 -> a view plane 14.4 wide; clipping -500..500."""
     world_from_view = look_at((3, -4, 2), (0, 0, 0.5))
     view_matrix = np.linalg.inv(world_from_view)
-    camera = ViewportCamera.from_view(view_matrix, 800, 600, "ORTHO", 50.0, 0.01, 1000.0, 10.0)
+    camera = view_camera(view_matrix, 800, 600, "ORTHO", 50.0, 0.01, 1000.0, 10.0)
     assert camera.kind == "ORTHO"
-    assert view_plane(camera.to_kernel()) == pytest.approx((-7.2, 7.2, -5.4, 5.4))
+    assert view_plane(camera) == pytest.approx((-7.2, 7.2, -5.4, 5.4))
     perspective = ortho_window_matrix(-7.2, 7.2, -5.4, 5.4, -500.0, 500.0) @ view_matrix
     origins, dirs, t_max, ndc = pixel_rays(camera, 800, 600)
     np.testing.assert_allclose(project(perspective, origins)[:, :2], ndc, atol=1e-4)
@@ -153,22 +154,22 @@ def test_camera_view_zoom_offset_and_shift():
     """Looking through a 50 mm camera (36 mm sensor) in a 1000x500 region. At view_camera_zoom 0
     Blender's factor is (sqrt 2)^2 / 4 = 0.5: the frame (+-0.36 at unit distance) fills half the
     region. Pan offset 0.1 and shift 0.2 move the centre by 2 * 0.1 * 0.72 + 0.2 * 0.72."""
-    lens = LensParams(lens=50.0, clip_start=0.5, clip_end=80.0)
+    camera_ob = stand_in_camera(lens=50.0, clip_start=0.5, clip_end=80.0)
     assert camera_zoom_factor(0.0) == pytest.approx(0.5)
-    at_zero = ViewportCamera.from_view(np.eye(4), 1000, 500, "CAMERA", 20.0, 0.01, 1000.0, 3.0, lens, 0.0)
-    assert view_plane(at_zero.to_kernel()) == pytest.approx((-0.72, 0.72, -0.36, 0.36))
+    at_zero = view_camera(np.eye(4), 1000, 500, "CAMERA", 20.0, 0.01, 1000.0, 3.0, camera_ob, 0.0)
+    assert view_plane(at_zero) == pytest.approx((-0.72, 0.72, -0.36, 0.36))
     assert (at_zero.clip_start, at_zero.clip_end) == (0.5, 80.0)  # the camera's clipping, not the view's
-    fills = ViewportCamera.from_view(np.eye(4), 1000, 500, "CAMERA", 20.0, 0.01, 1000.0, 3.0, lens,
-                                     50.0 * (2.0 - math.sqrt(2.0)))
-    assert view_plane(fills.to_kernel()) == pytest.approx((-0.36, 0.36, -0.18, 0.18))
+    fills = view_camera(np.eye(4), 1000, 500, "CAMERA", 20.0, 0.01, 1000.0, 3.0, camera_ob,
+                        50.0 * (2.0 - math.sqrt(2.0)))
+    assert view_plane(fills) == pytest.approx((-0.36, 0.36, -0.18, 0.18))
     shifted = dict(lens=50.0, shift_x=0.2, clip_start=0.5, clip_end=80.0)
-    panned = ViewportCamera.from_view(np.eye(4), 1000, 500, "CAMERA", 20.0, 0.01, 1000.0, 3.0,
-                                      LensParams(**shifted), 0.0, (0.1, 0.0))
-    xmin, xmax, ymin, ymax = view_plane(panned.to_kernel())
+    panned = view_camera(np.eye(4), 1000, 500, "CAMERA", 20.0, 0.01, 1000.0, 3.0, stand_in_camera(**shifted),
+                         0.0, (0.1, 0.0))
+    xmin, xmax, ymin, ymax = view_plane(panned)
     assert ((xmin + xmax) / 2, xmax - xmin, (ymin + ymax) / 2) == pytest.approx((0.288, 1.44, 0.0))
-    ortho = ViewportCamera.from_view(np.eye(4), 1000, 500, "CAMERA", 20.0, 0.01, 1000.0, 3.0,
-                                     LensParams(kind="ORTHO", ortho_scale=4.0), 0.0)
-    assert ortho.kind == "ORTHO" and view_plane(ortho.to_kernel()) == pytest.approx((-4.0, 4.0, -2.0, 2.0))
+    ortho = view_camera(np.eye(4), 1000, 500, "CAMERA", 20.0, 0.01, 1000.0, 3.0,
+                        stand_in_camera(type="ORTHO", ortho_scale=4.0), 0.0)
+    assert ortho.kind == "ORTHO" and view_plane(ortho) == pytest.approx((-4.0, 4.0, -2.0, 2.0))
 
 
 def test_camera_view_reads_the_scene_camera():
@@ -179,7 +180,7 @@ def test_camera_view_reads_the_scene_camera():
     r3d.view_perspective = "CAMERA"
     r3d.view_camera_zoom = 10.0
     camera_ob = vp.view_camera_object(space, scene).evaluated_get(bpy.context.evaluated_depsgraph_get())
-    camera = ViewportCamera.from_blender(space, r3d, 600, 400, camera_ob)
+    camera = region_camera(space, r3d, 600, 400, camera_ob)
     fac = camera_zoom_factor(10.0)
     assert camera.fov_rad == pytest.approx(2 * math.atan(36.0 / (2 * 35.0 * fac)))  # add_camera's 35 mm
     assert camera.shift_y == pytest.approx(0.1 * fac)
@@ -199,11 +200,11 @@ def test_camera_view_takes_the_cameras_depth_of_field_and_the_films_filter():
     depsgraph = bpy.context.evaluated_depsgraph_get()
     camera_ob = vp.view_camera_object(space, scene).evaluated_get(depsgraph)
     r3d.view_perspective = "CAMERA"
-    kernel = ViewportCamera.from_blender(space, r3d, 600, 400, camera_ob, scene).to_kernel()
+    kernel = region_camera(space, r3d, 600, 400, camera_ob, scene)
     assert kernel.aperture_radius == pytest.approx(35e-3 / 4.0) and kernel.focus_distance == pytest.approx(4.0)
     assert kernel.aperture_blades == 6 and (kernel.filter_type, kernel.filter_width) == ("GAUSSIAN", 2.0)
     r3d.view_perspective = "PERSP"  # a free view has no lens
-    free = ViewportCamera.from_blender(space, r3d, 600, 400, camera_ob, scene).to_kernel()
+    free = region_camera(space, r3d, 600, 400, camera_ob, scene)
     assert free.aperture_radius == 0.0 and free.filter_type == "GAUSSIAN"
 
 
@@ -231,12 +232,12 @@ def test_camera_view_through_a_panoramic_camera(kind):
     half = np.full(len(rows), 0.5, np.float32)
     _, want, _ = generate_rays(final, rows, cols, half, half)
     r3d.view_camera_zoom = 50.0 * (2.0 - math.sqrt(2.0))  # factor 1: the frame fills a region of its size
-    view = ViewportCamera.from_blender(space, r3d, 60, 40, camera_ob, scene).to_kernel()
+    view = region_camera(space, r3d, 60, 40, camera_ob, scene)
     assert view.kind == "PANO" and view.panorama_type == kind
     _, got, _ = generate_rays(dataclasses.replace(view, filter_type="BOX"), rows, cols, half, half)
     np.testing.assert_allclose(local(view, got), local(final, want), atol=2e-5)
     r3d.view_camera_zoom = 0.0  # factor 0.5: the frame is half the region
-    view = ViewportCamera.from_blender(space, r3d, 60, 40, camera_ob, scene).to_kernel()
+    view = region_camera(space, r3d, 60, 40, camera_ob, scene)
     centre = np.array([20]), np.array([30])
     zero = np.zeros(1, np.float32)
     np.testing.assert_allclose(local(view, generate_rays(dataclasses.replace(view, filter_type="BOX"), *centre,

@@ -1,15 +1,32 @@
-"""The camera: Blender's camera object and render settings -> kernels.Camera, plus the render region.
+"""The camera: the one place that builds kernels.Camera, for final renders and for the viewport.
 
-Blender's camera looks down its local -Z with +Y up, which is also the kernel's convention, so the
-object's world matrix is used as it is (scale removed).
+    export_camera   from a camera object and the render settings (final renders)
+    view_camera     from a 3D view, free or through a camera, placed as Blender's BKE_camera_params_from_view3d
+                    and BKE_camera_params_compute_viewplane place it (region_camera: from bpy's view structs)
+
+Both read a camera's lens, sensor, shift, clipping and depth of field (_lens), the pixel filter and the
+panorama alike. Blender's camera looks down its local -Z with +Y up, as the kernel's, so world matrices are
+used as they are (scale removed). Also here: the render resolution and the render region.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 
 from ...kernels import Camera
+from ...kernels.camera import view_plane
+
+# Blender's DNA defaults (DNA_camera_defaults.h): the 3D view has no sensor of its own and uses these.
+DEFAULT_SENSOR_WIDTH = 36.0
+DEFAULT_SENSOR_HEIGHT = 24.0
+# BKE_camera.h: CameraParams.zoom for a free 3D view. The view shows twice the field of a camera with
+# the same lens, i.e. a 72 mm wide sensor.
+CAMERA_PARAM_ZOOM_INIT_PERSP = 2.0
+# BKE_camera_params_from_object: objects other than cameras and lights get this lens as the camera.
+NON_CAMERA_LENS = 35.0
 
 
 def render_resolution(scene) -> tuple[int, int]:
@@ -35,6 +52,7 @@ def render_region(scene, width: int, height: int) -> tuple[int, int, int, int] |
     return x0, height - bottom1, x1, height - bottom0
 
 
+# ====================================================================== final renders
 def export_camera(camera_ob, scene, width: int, height: int, warnings: list[str]) -> Camera:
     """kernels.Camera for an evaluated camera object; width, height : full frame in pixels."""
     render = scene.render
@@ -44,18 +62,24 @@ def export_camera(camera_ob, scene, width: int, height: int, warnings: list[str]
         warnings.append(f"Active camera '{camera_ob.name}' is not a camera object: rendered with a "
                         f"50 mm lens")
         return Camera(**frame)
-    cam = camera_ob.data
-    kind = cam.type
-    if kind == "PANO":
+    lens, sensor, fields = _lens(camera_ob)
+    if fields["kind"] == "PANO":
         from .panorama import export_panorama
         panorama_type, panorama = export_panorama(camera_ob, scene, width, height, warnings)
         frame.update(panorama_type=panorama_type, panorama=panorama)
+    return Camera(fov_rad=2.0 * math.atan(sensor / (2.0 * lens)), **fields, **frame)
+
+
+def _lens(camera_ob) -> tuple[float, float, dict]:
+    """(focal length in mm, sensor size along the fit axis in mm, kernels.Camera's kind, sensor fit, shift,
+    ortho scale, clipping and depth of field) of a camera object, as BKE_camera_params_from_object reads it."""
+    cam = camera_ob.data
+    fields = dict(kind=cam.type, sensor_fit=cam.sensor_fit, shift_x=cam.shift_x, shift_y=cam.shift_y,
+                  ortho_scale=cam.ortho_scale, clip_start=cam.clip_start, clip_end=cam.clip_end)
     if cam.dof.use_dof:
-        frame.update(depth_of_field(camera_ob, kind))
+        fields.update(depth_of_field(camera_ob, cam.type))
     sensor = cam.sensor_height if cam.sensor_fit == "VERTICAL" else cam.sensor_width
-    return Camera(kind=kind, fov_rad=2.0 * math.atan(sensor / (2.0 * cam.lens)), sensor_fit=cam.sensor_fit,
-                  shift_x=cam.shift_x, shift_y=cam.shift_y, ortho_scale=cam.ortho_scale,
-                  clip_start=cam.clip_start, clip_end=cam.clip_end, **frame)
+    return cam.lens, sensor, fields
 
 
 def pixel_filter(scene) -> dict:
@@ -65,9 +89,6 @@ def pixel_filter(scene) -> dict:
         return {}
     kind = settings.pixel_filter_type
     return dict(filter_type=kind, filter_width=1.0 if kind == "BOX" else float(settings.filter_width))
-
-
-DOF_FIELDS = ("aperture_radius", "aperture_blades", "aperture_rotation", "aperture_ratio", "focus_distance")
 
 
 def depth_of_field(camera_ob, kind: str) -> dict:
@@ -103,3 +124,119 @@ def _rigid(matrix_world) -> np.ndarray:
     lengths = np.linalg.norm(m[:3, :3], axis=0)
     m[:3, :3] /= np.where(lengths > 0, lengths, 1.0)
     return m
+
+
+def stand_in_camera(**data) -> SimpleNamespace:
+    """A camera object with Blender's default camera data (`data` overrides fields of it), carrying only
+    what export_camera and view_camera read: the viewport exports a scene without camera with it."""
+    data = SimpleNamespace(**{**dict(type="PERSP", dof=SimpleNamespace(use_dof=False), sensor_fit="AUTO",
+                                     sensor_width=DEFAULT_SENSOR_WIDTH, sensor_height=DEFAULT_SENSOR_HEIGHT,
+                                     lens=50.0, shift_x=0.0, shift_y=0.0, ortho_scale=6.0, clip_start=0.1,
+                                     clip_end=100.0), **data})
+    stand_in = SimpleNamespace(name="Viewport", type="CAMERA", data=data, matrix_world=np.eye(4))
+    stand_in.evaluated_get = lambda depsgraph: stand_in
+    return stand_in
+
+
+# ====================================================================== the viewport
+def region_camera(space, region_data, width: int, height: int, camera_ob=None, scene=None) -> Camera:
+    """view_camera of a SpaceView3D and its RegionView3D; camera_ob is the evaluated object the view looks
+    through (view_camera_object; used only when view_perspective is 'CAMERA'); the scene gives the pixel
+    filter and a panoramic camera's frame."""
+    return view_camera(region_data.view_matrix, width, height, region_data.view_perspective, space.lens,
+                       space.clip_start, space.clip_end, region_data.view_distance, camera_ob,
+                       region_data.view_camera_zoom, tuple(region_data.view_camera_offset), scene)
+
+
+def view_camera(view_matrix, width: int, height: int, perspective: str, lens: float, clip_start: float,
+                clip_end: float, view_distance: float, camera_ob=None, camera_zoom: float = 0.0,
+                camera_offset=(0.0, 0.0), scene=None) -> Camera:
+    """What a 3D view shows, as Blender projects it (BKE_camera_params_from_view3d, then
+    BKE_camera_params_compute_viewplane with the region's size and square pixels).
+
+    view_matrix : camera_from_world, RegionView3D.view_matrix.
+    width, height : the film's size in pixels.
+    perspective : RegionView3D.view_perspective, 'PERSP', 'ORTHO' or 'CAMERA'.
+    lens, clip_start, clip_end : SpaceView3D's; view_distance : RegionView3D.view_distance.
+    camera_ob : the evaluated object a 'CAMERA' view looks through (None: the view's own lens).
+    camera_zoom, camera_offset : RegionView3D.view_camera_zoom / view_camera_offset ('CAMERA').
+    scene : gives the pixel filter, and the frame of a panoramic camera (None: a one-pixel box, no panorama).
+    """
+    world_from_camera = np.linalg.inv(np.asarray(view_matrix, np.float64).reshape(4, 4))
+    film = dict(width=int(width), height=int(height), **(pixel_filter(scene) if scene is not None else {}))
+    if perspective == "CAMERA":
+        return _through_camera(world_from_camera, film, camera_ob, scene, camera_zoom, camera_offset,
+                               lens, clip_start, clip_end)
+    zoom = CAMERA_PARAM_ZOOM_INIT_PERSP
+    if perspective == "ORTHO":
+        # Blender clips an ortho view to [-clip_end / 2, clip_end / 2] around the view point. The
+        # kernel starts rays at clip_start >= 0, so the eye moves back by clip_end / 2 instead.
+        world_from_camera[:3, 3] += world_from_camera[:3, 2] * (0.5 * clip_end)
+        ortho_scale = view_distance * DEFAULT_SENSOR_WIDTH / lens  # ED_view3d_radius_to_dist_ortho
+        return Camera(world_from_camera=world_from_camera, kind="ORTHO", ortho_scale=ortho_scale * zoom,
+                      clip_start=0.0, clip_end=float(clip_end), **film)
+    return Camera(world_from_camera=world_from_camera, kind="PERSP",
+                  fov_rad=2.0 * math.atan(zoom * DEFAULT_SENSOR_WIDTH / (2.0 * lens)),
+                  clip_start=float(clip_start), clip_end=float(clip_end), **film)
+
+
+def camera_zoom_factor(view_camera_zoom: float) -> float:
+    """BKE_screen_view3d_zoom_to_fac: how much of the camera frame a camera view shows (0.5 at zoom 0,
+    where the frame fills half of the region)."""
+    return (math.sqrt(2.0) + view_camera_zoom / 50.0) ** 2 / 4.0
+
+
+def view_camera_object(space, scene):
+    """The object a camera view looks through: the view's own camera when it is unlocked from the
+    scene's (Cycles does the same)."""
+    return space.camera if space.use_local_camera else scene.camera
+
+
+def _through_camera(world_from_camera, film: dict, camera_ob, scene, camera_zoom: float, camera_offset,
+                    view_lens: float, clip_start: float, clip_end: float) -> Camera:
+    """A camera view: the region is the image, whatever the render resolution; only the fit axis comes
+    from the camera. As in Blender, an object that is not a camera keeps the view's clipping and the
+    default sensor, with a 35 mm lens (a light: the lens whose field matches its spot size); no object at
+    all keeps the view's lens. A panoramic camera shows its panorama (_panorama_window)."""
+    if camera_ob is not None and camera_ob.type == "CAMERA":
+        lens, sensor, fields = _lens(camera_ob)
+        fields["kind"] = "ORTHO" if fields["kind"] == "ORTHO" else "PERSP"
+    else:
+        lens, sensor = view_lens, DEFAULT_SENSOR_WIDTH
+        if camera_ob is not None:
+            lens = NON_CAMERA_LENS
+            if camera_ob.type == "LIGHT":
+                # Every light stores a spot size (45 degrees unless it is a spot light).
+                spot = float(getattr(camera_ob.data, "spot_size", math.radians(45.0)))
+                lens = 16.0 / math.tan(spot / 2.0) or NON_CAMERA_LENS
+        lens = float(lens)
+        fields = dict(kind="PERSP", sensor_fit="AUTO", shift_x=0.0, shift_y=0.0, ortho_scale=6.0,
+                      clip_start=float(clip_start), clip_end=float(clip_end))
+    width, height = film["width"], film["height"]
+    fac = camera_zoom_factor(camera_zoom)
+    fit = fields["sensor_fit"]
+    if fit == "AUTO":
+        fit = "HORIZONTAL" if width >= height else "VERTICAL"
+    viewfac = width if fit == "HORIZONTAL" else height
+    # Blender scales the lens shift by fac and adds the pan offset; the kernel's shift is in units of the
+    # (zoomed) fitted extent, hence the extra factor fac.
+    fields.update(shift_x=fac * (fields["shift_x"] + 2.0 * camera_offset[0] * width / viewfac),
+                  shift_y=fac * (fields["shift_y"] + 2.0 * camera_offset[1] * height / viewfac),
+                  ortho_scale=fields["ortho_scale"] / fac)
+    camera = Camera(world_from_camera=world_from_camera, fov_rad=2.0 * math.atan(sensor / (2.0 * lens * fac)),
+                    **fields, **film)
+    if scene is not None and camera_ob is not None and camera_ob.type == "CAMERA" and camera_ob.data.type == "PANO":
+        return _panorama_window(camera, camera_ob, scene)
+    return camera
+
+
+def _panorama_window(view: Camera, camera_ob, scene) -> Camera:
+    """A camera view through a panoramic camera: the final render's panorama, showing the part of the
+    camera's frame the region shows (its zoomed, panned border, as the perspective view plane of the
+    camera view places it), as Cycles' viewport does."""
+    final = export_camera(camera_ob, scene, *render_resolution(scene), [])
+    fx0, fx1, fy0, fy1 = view_plane(dataclasses.replace(final, kind="PERSP"))
+    x0, x1, y0, y1 = view_plane(view)
+    window = ((x0 - fx0) / (fx1 - fx0), (x1 - fx0) / (fx1 - fx0), (y0 - fy0) / (fy1 - fy0), (y1 - fy0) / (fy1 - fy0))
+    return dataclasses.replace(view, kind="PANO", panorama_type=final.panorama_type, panorama=final.panorama,
+                               panorama_window=window, shift_x=final.shift_x, shift_y=final.shift_y)
