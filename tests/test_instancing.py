@@ -258,3 +258,20 @@ def test_an_indexed_bvh_traces_the_same_triangles():
     np.testing.assert_array_equal(images[0], images[1])
     with pytest.raises(ValueError, match="bvh_indices"):
         SceneArrays(**{**indexed.__dict__, "bvh_indices": np.full((len(sp), 3), 10**6, np.uint32)}).validate()
+
+
+def test_packets_alone_trace_what_embreex_traces(monkeypatch):
+    """Where embreex's scene handle cannot be located (another embreex build), every query runs through
+    kernels.embree's 16-ray packets: the same image, bit for bit, plain and instanced."""
+    from ember.kernels import embree
+    scene = _scene()
+    settings = RenderSettings(samples=4, seed=9)
+    images = []
+    assert embree._embreex_slot() is not False, "embreex's loop should trace our scenes with the pinned embreex"
+    for slot in (embree._embreex_slot(), False):
+        monkeypatch.setattr(embree, "_EMBREEX_SLOT", slot)
+        for s in (scene, flatten_instances(scene)):
+            with Renderer(s, threads=2) as renderer:
+                images.append(renderer.render(settings).image)
+    np.testing.assert_array_equal(images[0], images[2])   # instanced: embreex for shadows / packets alone
+    np.testing.assert_array_equal(images[1], images[3])   # plain: embreex's loop / packets alone
