@@ -29,6 +29,7 @@ import numpy as np
 from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays
 from ..kernels.accel import default_threads
 from .export import ExportCancelled, ExportError, export_scene
+from .export.mesh import MeshCache
 from .export.camera import render_region
 from .export.motion import sample_motion, sample_vector_motion
 from . import cryptomatte
@@ -275,7 +276,7 @@ class FinalRender:
             persistent = persistent_data(scene) and motion is None and vector is None
             exported = export_scene(self.depsgraph, engine.camera_override, width=width, height=height,
                                     should_stop=self.should_stop, motion=motion, vector=vector,
-                                    instance_everything=persistent)
+                                    instance_everything=persistent, mesh_cache=_kept.meshes if persistent else None)
         except ExportCancelled:
             return self._cancel()
         except ExportError as err:
@@ -493,6 +494,7 @@ class _KeptScene:
 
     def __init__(self):
         self.renderer: Renderer | None = None
+        self.meshes = MeshCache()     # the meshes the export read for the last frame (export.mesh.MeshCache)
         self.updated = 0     # frames that took the kept renderer, and frames that built one (tests read them)
         self.built = 0
 
@@ -508,7 +510,8 @@ class _KeptScene:
 
     def set(self, renderer: Renderer) -> None:
         if renderer is not self.renderer:
-            self.drop()
+            if self.renderer is not None:
+                self.renderer.close()
             self.renderer = renderer
             self.built += 1
 
@@ -516,6 +519,7 @@ class _KeptScene:
         if self.renderer is not None:
             self.renderer.close()
             self.renderer = None
+        self.meshes = MeshCache()
 
     def __enter__(self):
         return self.renderer

@@ -8,7 +8,10 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import diffuse_material, new_scene, quad_object, render_to_array, set_world
+import os
+import tempfile
+
+from bpy_helpers import diffuse_material, load_exr, new_scene, quad_object, render_to_array, set_world
 
 import ember.engine.session as session
 
@@ -45,8 +48,16 @@ def _fresh_kept_scene():
 
 
 def _frame(scene, frame):
+    """Frame `frame` rendered with the settings render_to_array makes; after the first call the settings
+    are left alone, as in an animation render (setting them again, even to the same values, makes Blender
+    evaluate the render depsgraph anew, and its updates then name everything)."""
     scene.frame_set(frame)
-    return render_to_array(scene, "EMBER", 8, seed=2)
+    if scene.render.engine != "EMBER":
+        return render_to_array(scene, "EMBER", 8, seed=2)
+    with tempfile.TemporaryDirectory() as tmp:
+        scene.render.filepath = os.path.join(tmp, "frame.exr")
+        bpy.ops.render.render(write_still=True)
+        return load_exr(scene.render.filepath)
 
 
 def test_moved_object_and_edited_light_update_the_kept_scene():
@@ -87,3 +98,34 @@ def test_without_persistent_data_nothing_is_kept():
     scene.render.use_persistent_data = False
     _frame(scene, 1)
     assert session._kept.renderer is None and session._kept.built == 0
+
+
+def test_meshes_whose_geometry_did_not_change_are_not_read_again():
+    """With Persistent Data Blender keeps the render depsgraph, whose updates then name only what changed:
+    the export reuses the meshes it read for the frame before (only the cube's transform and the lamp
+    change, so no mesh is read); the image is still a fresh render's."""
+    scene = _animated_scene()
+    _frame(scene, 1)
+    assert session._kept.meshes.reads == 3          # floor, ball, cube
+    second = _frame(scene, 2)
+    assert session._kept.meshes.reads == 0 and session._kept.updated == 1
+    session.drop_kept_scene()
+    np.testing.assert_array_equal(second, _frame(scene, 2))
+
+
+def test_a_deforming_mesh_is_read_again_alone():
+    scene = _animated_scene()
+    ball = bpy.data.objects["Icosphere"]
+    ball.shape_key_add(name="Basis")
+    key = ball.shape_key_add(name="Squash")
+    for point in key.data:
+        point.co.z *= 0.6
+    key.value = 0.0
+    key.keyframe_insert("value", frame=1)
+    key.value = 1.0
+    key.keyframe_insert("value", frame=2)
+    _frame(scene, 1)
+    second = _frame(scene, 2)
+    assert session._kept.meshes.reads == 1          # the ball alone
+    session.drop_kept_scene()
+    np.testing.assert_array_equal(second, _frame(scene, 2))

@@ -69,7 +69,7 @@ class ExportCancelled(Exception):
 
 
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
-                 motion=None, vector=None, instance_everything: bool = False) -> ExportResult:
+                 motion=None, vector=None, instance_everything: bool = False, mesh_cache=None) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
 
     camera_override : a camera object to use instead of the scene's (RenderEngine.camera_override).
@@ -79,6 +79,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     motion : motion.MotionSamples (motion.sample_motion) for motion blur, or None.
     instance_everything : every mesh a prototype placed by its instances, even when used once (the
         viewport, whose moved objects then only change their transforms: updates.py).
+    mesh_cache : mesh.MeshCache keeping meshes between the frames of an animation (Persistent Data), or None.
     Raises ExportError when there is no camera.
     """
     start = time.perf_counter()
@@ -95,7 +96,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     poll = Poller(should_stop)
     geometry = export_geometry(depsgraph, materials, warnings, poll,
                                moving=frozenset(motion.objects) if motion is not None else frozenset(),
-                               instance_everything=instance_everything)
+                               instance_everything=instance_everything, cache=mesh_cache)
     world = export_world(scene.world, warnings, materials.images)
     lights = export_lights(depsgraph, warnings, poll)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],

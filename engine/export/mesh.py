@@ -108,13 +108,62 @@ def _asset_name(ob) -> str:
     return ob.name
 
 
+class MeshCache:
+    """The meshes read for the last frame, reused by the next one where the depsgraph says their geometry
+    did not change (Persistent Data: Blender then keeps the render depsgraph between frames, and its
+    updates list only what changed since). An entry is keyed by the evaluated mesh's address and name, and
+    is used only when neither the object that shows the mesh nor its instancer nor the mesh itself has a
+    geometry update; an update of the geometry of anything but objects, meshes, collections and data that
+    holds no mesh (a node tree, a curve) empties the cache."""
+
+    def __init__(self):
+        self._meshes: dict[tuple, LocalMesh] = {}
+        self._changed: set = set()
+        self._used: set = set()
+        self.reads = 0      # meshes read from Blender in the last export (tests read it)
+
+    def begin(self, depsgraph) -> None:
+        self._changed, self._used, self.reads = set(), set(), 0
+        for update in depsgraph.updates:
+            if not update.is_updated_geometry:
+                continue
+            kind = update.id.id_type
+            if kind in ("OBJECT", "MESH"):
+                self._changed.add(update.id.name_full)
+            elif kind not in ("COLLECTION", "KEY", "LIGHT", "CAMERA", "SCENE", "WORLD", "MATERIAL"):
+                # A collection or a shape key is tagged with its objects or mesh (which carry their own
+                # updates); lights, cameras, worlds and materials hold no mesh. Anything else (a node tree,
+                # a curve...) may change meshes that show no update of their own: read them all again.
+                self._meshes.clear()
+
+    def mesh(self, inst, ob) -> LocalMesh:
+        key = (ob.data.as_pointer(), ob.data.name_full)
+        owners = {ob.original.name_full, ob.data.name_full}
+        if inst.is_instance and inst.parent is not None:
+            owners.add(inst.parent.original.name_full)
+        local = self._meshes.get(key)
+        if local is None or owners & self._changed:
+            local = self._meshes[key] = read_mesh(ob.data)
+            self.reads += 1
+        self._used.add(key)
+        return local
+
+    def end(self) -> None:
+        """Forget the meshes this frame did not show."""
+        self._meshes = {key: mesh for key, mesh in self._meshes.items() if key in self._used}
+
+
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None,
-                    moving: set | frozenset = frozenset(), instance_everything: bool = False) -> Geometry:
+                    moving: set | frozenset = frozenset(), instance_everything: bool = False,
+                    cache: MeshCache | None = None) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
     poll() is called for every instance (it raises to cancel the export). moving : instance keys
     (instance_key) of objects that move during the shutter: their meshes are never instanced.
     instance_everything : every mesh is a prototype placed by its instances, even when used once (the
-    viewport: an object that moves then only changes its transform, engine/export/updates.py)."""
+    viewport: an object that moves then only changes its transform, engine/export/updates.py).
+    cache : a MeshCache that keeps meshes between frames (Persistent Data), or None."""
+    if cache is not None:
+        cache.begin(depsgraph)
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
     tangents: dict[int, np.ndarray] = {}     # evaluated mesh pointer -> (T*3, 4) object-space tangents
     slot_rows: dict[tuple, tuple] = {}       # (object, mesh) pointers -> material row of each slot
@@ -136,7 +185,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             continue
         mesh_key = ob.data.as_pointer()
         if mesh_key not in meshes:
-            meshes[mesh_key] = read_mesh(ob.data)
+            meshes[mesh_key] = read_mesh(ob.data) if cache is None else cache.mesh(inst, ob)
         if meshes[mesh_key].triangle_count == 0:
             empty.add(instance_key(inst))
             continue
@@ -161,6 +210,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
         assets.setdefault((mesh_key, slot_rows[object_key]), []).append(_asset_name(ob))
         slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
+    if cache is not None:
+        cache.end()
     # Groups with a moving member stay plain: motion blur moves plain triangles (kernels.accel._Moving).
     instanced = set(groups) if instance_everything else \
         {group for group, matrices in groups.items()
