@@ -34,7 +34,8 @@ from .paths import PathState
 from .rng import PathRng, seed_paths
 from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples
 from .camera import camera_frame
-from .scene import OBJ_PASS_INDEX, Camera, Lights, Materials, SceneArrays, World, usable_placements
+from .scene import (OBJ_PASS_INDEX, Camera, Lights, Materials, SceneArrays, World, same_arrays, same_triangles,
+                    usable_placements)
 from .shading import Shading
 from .shading.world import WorldShader
 from .textures import Texture
@@ -313,7 +314,7 @@ class Renderer:
         and return True: the renderer is then as a new Renderer of `scene` would be, and its images the
         same bit for bit. Otherwise return False, changing nothing (build a new Renderer, with reuse=self to
         keep the BVHs of unchanged meshes). Raises ValueError for invalid data, as Renderer() does."""
-        checked = scene.validate()
+        checked = scene.validate(clean=self.scene)
         new, old = checked.scene, self.scene
         if new.has_motion or old.has_motion or new.vector_motion is not None or old.vector_motion is not None:
             return False
@@ -1083,33 +1084,13 @@ class Rays(NamedTuple):
     t_max: np.ndarray
 
 
-def _equal(a, b) -> bool:
-    if a is None or b is None:
-        return a is b
-    if a.shape != b.shape or a.dtype != b.dtype:
-        return False
-    # The same memory seen the same way (a mesh the export kept between frames): equal without a look.
-    if a.__array_interface__["data"][0] == b.__array_interface__["data"][0] and a.strides == b.strides:
-        return True
-    return np.array_equal(a, b)
-
-
-def same_triangles(a, b) -> bool:
-    """Whether two SceneArrays (or Prototypes) hold the same triangles, array for array."""
-    for name in ("positions", "normals", "uvs", "material_ids", "tangents", "object_ids", "motion_ids"):
-        if hasattr(a, name) and not _equal(getattr(a, name), getattr(b, name)):
-            return False
-    return len(a.attributes) == len(b.attributes) and all(
-        na == nb and _equal(va, vb) for (na, va), (nb, vb) in zip(a.attributes, b.attributes))
-
-
 def _same_instances(a, b) -> bool:
     """The same prototypes (array for array), placed by the same number of instances in the same order
     (their transforms may differ)."""
     if a is None or b is None or not a.count or not b.count:
         return (a is None or not a.count) and (b is None or not b.count)
-    return (len(a.prototypes) == len(b.prototypes) and _equal(a.prototype, b.prototype)
-            and _equal(a.object_ids, b.object_ids)
+    return (len(a.prototypes) == len(b.prototypes) and same_arrays(a.prototype, b.prototype)
+            and same_arrays(a.object_ids, b.object_ids)
             and all(same_triangles(p, q) for p, q in zip(a.prototypes, b.prototypes)))
 
 

@@ -582,11 +582,13 @@ class SceneArrays:
     def instanced_triangle_count(self) -> int:
         return 0 if self.instances is None else self.instances.triangle_total
 
-    def validate(self) -> "ValidatedScene":
+    def validate(self, clean: "SceneArrays | None" = None) -> "ValidatedScene":
         """Check every field; drop degenerate or non-finite triangles.
 
         Raises ValueError naming the field for wrong shapes, dtypes, indices or non-finite data
         in anything but triangle corners. Returns the cleaned scene and the number of dropped triangles.
+        clean : a scene validate() returned before (the last frame's): triangles equal to its own, plain or
+        of a prototype, are known clean and not looked at again.
         """
         t = len(self.positions) if hasattr(self.positions, "__len__") else -1
         _check_triangles(self, "", None)
@@ -618,9 +620,13 @@ class SceneArrays:
             if t:
                 _require(int(self.bvh_indices.max()) < len(self.bvh_vertices), "bvh_indices",
                          f"must be below {len(self.bvh_vertices)}")
-        changes, dropped, repaired = _clean_triangles(self, ("object_ids", "motion_ids", "bvh_indices"))
+        if clean is not None and same_triangles(self, clean) and same_arrays(self.bvh_indices, clean.bvh_indices):
+            changes, dropped, repaired = {}, 0, 0
+        else:
+            changes, dropped, repaired = _clean_triangles(self, ("object_ids", "motion_ids", "bvh_indices"))
         if self.instances is not None:
-            changes["instances"], more_dropped, more_repaired = _clean_instances(self.instances)
+            changes["instances"], more_dropped, more_repaired = _clean_instances(
+                self.instances, clean.instances if clean is not None else None)
             dropped += more_dropped
             repaired += more_repaired
         scene = dataclasses.replace(self, **changes) if changes else self
@@ -717,6 +723,26 @@ def padded_triangles(count: int) -> np.ndarray:
     return np.empty(count * 9 + 3, np.float32)[:count * 9].reshape(count, 3, 3)
 
 
+def same_arrays(a, b) -> bool:
+    """Equal arrays (None only equals None), at once when they are the same memory seen the same way."""
+    if a is None or b is None:
+        return a is b
+    if a.shape != b.shape or a.dtype != b.dtype:
+        return False
+    if a.__array_interface__["data"][0] == b.__array_interface__["data"][0] and a.strides == b.strides:
+        return True
+    return np.array_equal(a, b)
+
+
+def same_triangles(a, b) -> bool:
+    """Whether two SceneArrays (or Prototypes) hold the same triangles, array for array."""
+    for name in ("positions", "normals", "uvs", "material_ids", "tangents", "object_ids", "motion_ids"):
+        if hasattr(a, name) and not same_arrays(getattr(a, name), getattr(b, name)):
+            return False
+    return len(a.attributes) == len(b.attributes) and all(
+        na == nb and same_arrays(va, vb) for (na, va), (nb, vb) in zip(a.attributes, b.attributes))
+
+
 def _check_triangles(tris, prefix: str, materials: int | None) -> None:
     """Shapes and dtypes of a SceneArrays' or Prototype's per-triangle fields (and, given the material
     count, their material ids)."""
@@ -783,12 +809,16 @@ def _clean_triangles(tris, extra: tuple = ()) -> tuple[dict, int, int]:
     return changes, dropped, repaired
 
 
-def _clean_instances(instances: Instances) -> tuple[Instances, int, int]:
-    """Each prototype cleaned once; instances whose transform is not finite or flattens them dropped (their
-    triangles counted as dropped, as a flattened copy's would be)."""
+def _clean_instances(instances: Instances, clean: Instances | None = None) -> tuple[Instances, int, int]:
+    """Each prototype cleaned once (not those equal to clean's, known clean); instances whose transform is
+    not finite or flattens them dropped (their triangles counted as dropped, as a flattened copy's would be)."""
     dropped = repaired = 0
     prototypes = []
-    for proto in instances.prototypes:
+    known = clean.prototypes if clean is not None else ()
+    for i, proto in enumerate(instances.prototypes):
+        if i < len(known) and same_triangles(proto, known[i]):
+            prototypes.append(proto)
+            continue
         changes, d, r = _clean_triangles(proto)
         prototypes.append(dataclasses.replace(proto, **changes) if changes else proto)
         # Every instance drops the prototype's bad triangles, as its flattened copy would.

@@ -275,3 +275,20 @@ def test_packets_alone_trace_what_embreex_traces(monkeypatch):
                 images.append(renderer.render(settings).image)
     np.testing.assert_array_equal(images[0], images[2])   # instanced: embreex for shadows / packets alone
     np.testing.assert_array_equal(images[1], images[3])   # plain: embreex's loop / packets alone
+
+
+def test_validate_skips_triangles_a_clean_scene_already_holds():
+    """validate(clean=...) (Persistent Data's next frame): triangles equal to the clean scene's are not
+    looked at again; raw triangles that validate() had to clean are cleaned again, to the same result."""
+    scene = _scene().validate().scene
+    again = scene.validate(clean=scene)
+    assert again.dropped_triangles == 0 and again.scene.positions is scene.positions
+    assert again.scene.instances.prototypes[0] is scene.instances.prototypes[0]
+    raw = _scene()
+    broken = raw.positions.copy()
+    broken[0, 1] = broken[0, 0]                                   # the floor's first triangle collapses
+    raw = SceneArrays(**{**raw.__dict__, "positions": broken})
+    first = raw.validate()
+    second = raw.validate(clean=first.scene)
+    assert first.dropped_triangles == second.dropped_triangles == 1
+    np.testing.assert_array_equal(first.scene.positions, second.scene.positions)
