@@ -19,6 +19,7 @@ import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
 from . import embree, motion
+from .scene import same_arrays
 
 # Below this many rays a batch runs as one call: splitting costs more than it saves.
 _MIN_CHUNK = 8192
@@ -151,8 +152,7 @@ class Accel:
         if instances is not None and instances.count:
             earlier = reuse.meshes if reuse is not None else []
             for p in instances.prototypes:
-                mesh = next((m for old, m in earlier if old.shape == p.positions.shape
-                             and np.array_equal(old, p.positions)), None)
+                mesh = next((m for old, m in earlier if same_arrays(old, p.positions)), None)
                 self.meshes_reused += mesh is not None
                 self.meshes.append((p.positions, mesh or embree.Mesh(self._device, p.positions.reshape(-1, 3))))
             meshes = [m for _, m in self.meshes]
