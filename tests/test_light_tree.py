@@ -1,0 +1,177 @@
+"""The light tree (kernels.light_tree): its selection pmf against its sampling frequencies, the pmf MIS
+uses against the probability the sampler used, and renders with it against the global power CDF (same
+mean, lower variance) on a scene of many small lamps and one of many emissive triangles."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from ember.kernels import Camera, Lights, Renderer, RenderSettings, World
+from ember.kernels import lights as lights_module
+from ember.kernels.shapes import cornell_box, look_at, quad, subdivided_quad
+from kernel_helpers import make_scene, trace_samples
+from stats import assert_chi2, mean_and_stderr
+from test_lights import sampler_for
+
+RECT = 3
+
+
+def many_lights(k=100, seed=1, kinds=(0, 1, 3, 4), radius=(0.0, 0.2)):
+    rng = np.random.default_rng(seed)
+    frames = np.stack([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(k)]).astype(np.float32)
+    return Lights(kind=np.int32(rng.choice(kinds, k)), position=rng.uniform(-5, 5, (k, 3)).astype(np.float32),
+                  frame=frames, radiance=np.float32(rng.exponential(5.0, (k, 1)) * rng.uniform(0.3, 1, (k, 3))),
+                  radius=np.float32(rng.uniform(*radius, k)), size=np.float32(rng.uniform(0.1, 0.5, (k, 2))),
+                  spot_cos=np.float32([(0.5, 0.1)] * k), sun_half_angle=np.zeros(k, np.float32))
+
+
+def mixed_sampler(monkeypatch, world=True):
+    """Lights of every local kind, emissive triangles and a world, with the tree forced on."""
+    monkeypatch.setattr(lights_module, "TREE_MIN_DIVERGENCE", 0.0)
+    tri = np.float32(np.random.default_rng(2).uniform(-3, 3, (40, 3, 3)))
+    return sampler_for(lights=many_lights(), positions=tri, emission=(2.0, 1.5, 1.0),
+                       world=World(color=np.float32([0.3, 0.3, 0.3])) if world else None)
+
+
+def at(p, n):
+    return tuple(np.full(n, c, np.float32) for c in p)
+
+
+@pytest.mark.parametrize("world", [True, False])
+def test_tree_pmf_sums_to_one_and_matches_frequencies(world, monkeypatch):
+    """At fixed points: the selection pmf over every emitter sums to 1 and the emitters chosen with
+    choose_at follow it (chi-square), for the tree with and without distant emitters."""
+    sampler = mixed_sampler(monkeypatch, world)
+    assert sampler.uses_tree
+    k = sampler.world_index + 1
+    rng = np.random.default_rng(3)
+    for p in rng.uniform(-5, 5, (4, 3)).astype(np.float32):
+        pmf = sampler.selection_pmf(np.arange(k), *at(p, k)).astype(np.float64)
+        pmf[-1] = sampler.select_pmf[-1]
+        assert abs(pmf.sum() - 1) < 1e-5, pmf.sum()
+        n = 300_000
+        chosen, select = sampler.choose_at(rng.random(n, dtype=np.float32), *at(p, n))
+        np.testing.assert_allclose(select, pmf[chosen].astype(np.float32), rtol=1e-6)
+        assert_chi2(np.bincount(chosen, minlength=k), pmf * n)
+        # The tree concentrates on what is near: it differs from the global pmf.
+        assert np.abs(pmf - sampler.select_pmf).max() > 1e-3
+
+
+def test_global_pmf_below_threshold_is_unchanged(monkeypatch):
+    """Without a tree (too few emitters) choose_at is choose() with select_pmf, whatever the point."""
+    sampler = mixed_sampler(monkeypatch)
+    assert sampler.uses_tree
+    monkeypatch.setattr(lights_module, "TREE_MIN_EMITTERS", 10 ** 9)
+    sampler = mixed_sampler(monkeypatch)
+    assert not sampler.uses_tree
+    n = 300_000
+    u = np.random.default_rng(4).random(n, dtype=np.float32)
+    chosen, select = sampler.choose_at(u, *at((1, 2, 3), n))
+    np.testing.assert_array_equal(chosen, sampler.choose(u))
+    np.testing.assert_array_equal(select, sampler.pmf32[chosen])
+    assert_chi2(np.bincount(chosen, minlength=len(sampler.select_pmf)), sampler.select_pmf * n)
+
+
+def test_mis_pmf_equals_the_sampling_probability(monkeypatch):
+    """selection_pmf(e, p), which the MIS pdfs use, is the probability choose_at reported for e at p;
+    and end to end: a BSDF ray toward the point NEE sampled on an area light finds the same pdf."""
+    sampler = mixed_sampler(monkeypatch)
+    assert sampler.uses_tree
+    n = 50_000
+    rng = np.random.default_rng(5)
+    p = rng.uniform(-5, 5, (3, n)).astype(np.float32)
+    chosen, select = sampler.choose_at(rng.random(n, dtype=np.float32), *p)
+    local = chosen < sampler.world_index
+    np.testing.assert_allclose(sampler.selection_pmf(chosen[local], *(c[local] for c in p)), select[local],
+                               rtol=1e-5)
+    # Area lights on a grid (no two overlap), points below them.
+    k = 36
+    g = np.stack(np.meshgrid(np.arange(6), np.arange(6)), -1).reshape(-1, 2) * 1.5 - 3.75
+    lights = Lights(kind=np.full(k, RECT, np.int32), position=np.float32(np.c_[g, np.full(k, 2.0)]),
+                    frame=np.repeat(np.eye(3, dtype=np.float32)[None], k, axis=0),
+                    radiance=np.float32(rng.uniform(1, 10, (k, 1)) * np.ones((1, 3))),
+                    radius=np.zeros(k, np.float32), size=np.full((k, 2), 0.5, np.float32),
+                    spot_cos=np.float32([(1.0, 0.0)] * k), sun_half_angle=np.zeros(k, np.float32))
+    sampler = sampler_for(lights=lights)
+    assert sampler.uses_tree
+    px, py = rng.uniform(-4, 4, (2, n)).astype(np.float32)
+    pz = rng.uniform(-1, 1.5, n).astype(np.float32)
+    ls = sampler.sample(px, py, pz, *(rng.random(n, dtype=np.float32) for _ in range(3)))
+    ok = np.flatnonzero(ls.pdf > 0)
+    hit, _, pdf = sampler.intersect(px[ok], py[ok], pz[ok], ls.wx[ok], ls.wy[ok], ls.wz[ok], ls.dist[ok] * 1.01)
+    assert hit.mean() > 0.99
+    np.testing.assert_allclose(pdf[hit], ls.pdf[ok][hit], rtol=2e-3)
+
+
+def _floor_scene(lights=None, emitters=None, size=16, eye=(0, -9, 7), target=(0, 0, 0)):
+    floor, floor_n = quad((-6, -6, 0), (12, 0, 0), (0, 12, 0))
+    positions, normals, mats = [floor], [floor_n], [np.zeros(2, np.int32)]
+    if emitters is not None:
+        positions.append(emitters)
+        normals.append(np.zeros_like(emitters))
+        mats.append(np.ones(len(emitters), np.int32))
+    cam = Camera(world_from_camera=look_at(eye, target), width=size, height=size,
+                 fov_rad=np.radians(60))
+    return make_scene(np.concatenate(positions), np.concatenate(normals), material_ids=np.concatenate(mats),
+                      albedo=[(0.7,) * 3, (0.5,) * 3], emission=[(0,) * 3, (20.0,) * 3], camera=cam,
+                      lights=lights or Lights())
+
+
+def _tree_against_global(scene, monkeypatch, samples):
+    settings = RenderSettings(mode="NEE_MIS", max_bounces=2, seed=7)
+    tree = trace_samples(scene, settings, samples)
+    monkeypatch.setattr(lights_module, "TREE_MIN_EMITTERS", 10 ** 9)
+    flat = trace_samples(scene, settings, samples)
+    means = []
+    for run in (tree, flat):
+        per_sample = run.mean(axis=(1, 2))          # the image's mean, per sample
+        means.append(mean_and_stderr(per_sample))
+    (m_t, se_t), (m_f, se_f) = means
+    assert abs(m_t - m_f) < 4 * np.hypot(se_t, se_f), (m_t, se_t, m_f, se_f)
+    ratio = tree.var(axis=0).mean() / flat.var(axis=0).mean()  # per-sample variance, mean over pixels
+    print(f"tree / global CDF per-sample variance: {ratio:.3f} (means {m_t:.5f} +- {se_t:.5f}, "
+          f"{m_f:.5f} +- {se_f:.5f})")
+    return ratio
+
+
+def test_many_lamps_same_mean_lower_variance(monkeypatch):
+    """~100 small point, spot and area lamps over a floor: the tree's image has the global CDF's mean
+    and less variance per sample."""
+    lamps = many_lights(k=100, seed=9, radius=(0.02, 0.05))
+    lamps.position[:, 2] = np.abs(lamps.position[:, 2]) * 0.4 + 0.3
+    lamps.frame[:] = np.eye(3, dtype=np.float32)       # area lights face down, toward the floor
+    ratio = _tree_against_global(_floor_scene(lights=lamps), monkeypatch, 256)
+    assert ratio < 0.8
+
+
+def test_many_emissive_triangles_same_mean_lower_variance(monkeypatch):
+    """400 small emissive triangles scattered under a ceiling (two-sided mesh lights); the camera, below
+    them, sees only the floor (a pixel seeing an emitter has a variance no light selection changes)."""
+    rng = np.random.default_rng(11)
+    centre = np.c_[rng.uniform(-5, 5, (400, 2)), rng.uniform(1.8, 2.6, 400)]
+    tris = (centre[:, None, :] + rng.normal(0, 0.08, (400, 3, 3))).astype(np.float32)
+    scene = _floor_scene(emitters=tris, eye=(0, -1, 1.5), target=(0, 0.5, 0))
+    ratio = _tree_against_global(scene, monkeypatch, 256)
+    assert ratio < 0.8
+
+
+def test_tree_only_where_it_pays():
+    """The automatic choice: a compact mesh light cut into 72 triangles (the tree would choose as the
+    power pmf does, at a cost) keeps the global CDF; a hundred lamps spread over a floor get the tree;
+    fewer than TREE_MIN_EMITTERS emitters never do."""
+    cornell = cornell_box(16, 16)
+    keep = cornell.material_ids != 3
+    lamp, lamp_n = subdivided_quad((-0.25, -0.25, 1.99), (0, 0.5, 0), (0.5, 0, 0), 6)
+    compact = dataclasses.replace(
+        cornell, positions=np.concatenate([cornell.positions[keep], lamp]),
+        normals=np.concatenate([cornell.normals[keep], lamp_n]), uvs=np.zeros((keep.sum() + 72, 3, 2), np.float32),
+        material_ids=np.concatenate([cornell.material_ids[keep], np.full(72, 3, np.int32)]))
+    lamps = many_lights(k=100, seed=9, radius=(0.02, 0.05))
+    few = many_lights(k=lights_module.TREE_MIN_EMITTERS - 1, seed=9, radius=(0.02, 0.05))
+    chosen = {}
+    for name, scene in (("compact", compact), ("lamps", _floor_scene(lights=lamps)),
+                        ("few", _floor_scene(lights=few)), ("cornell", cornell)):
+        with Renderer(scene, 1) as renderer:
+            chosen[name] = (renderer.lights.uses_tree, renderer.lights.tree_divergence)
+    print(chosen)
+    assert [chosen[k][0] for k in ("compact", "lamps", "few", "cornell")] == [False, True, False, False]
