@@ -201,7 +201,7 @@ def interior_scene(width: int, height: int) -> bpy.types.Scene:
 
 def lamps_scene(width: int, height: int, count: int = 200, seed: int = 3) -> bpy.types.Scene:
     """A floor with a few boxes under `count` small coloured point lamps of spread-out powers, black world
-    (issue 11's many-lights case: Cycles picks lamps with its light tree, Ember by power)."""
+    (issue 11's many-lights case: Cycles and Ember both pick lamps with a light tree)."""
     scene = new_scene(width, height)
     set_world(scene, color=(0.0, 0.0, 0.0))
     rng = np.random.default_rng(seed)
