@@ -308,6 +308,16 @@ class Scene:
             last[:tail] = -1
         return buf, last
 
+    def _trace(self, fn, buf: np.ndarray, last: np.ndarray) -> None:
+        """One 16-ray query (rtcIntersect16 or rtcOccluded16) per packet of buf (P, rows, 16), every lane
+        valid but in the last packet, whose mask is `last`. ctypes releases the GIL during each call."""
+        scene, base, stride, p = self.handle, buf.ctypes.data, buf.shape[1] * _LANES * 4, len(buf)
+        valid = self._valid_all.ctypes.data
+        for i in range(p - 1):
+            fn(valid, scene, base + i * stride, None)
+        if p:
+            fn(last.ctypes.data, scene, base + (p - 1) * stride, None)
+
     def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray):
         """Closest hits of (N, 3) float32 rays within (N,) t_max: (prim, instance, t, u, v), with prim -1
         and t = t_max for a miss, instance -1 for hits on the plain mesh."""
@@ -315,13 +325,7 @@ class Scene:
         buf, last = self._packets(origins, directions, t_max, _HIT_ROWS)
         bits = buf.view(np.uint32)
         bits[:, _PRIM:_INST + 1, :] = INVALID
-        fn, scene = self.device.lib.rtcIntersect16, self.handle
-        base, stride, valid = buf.ctypes.data, _HIT_ROWS * _LANES * 4, self._valid_all.ctypes.data
-        p = len(buf)
-        for i in range(p - 1):
-            fn(valid, scene, base + i * stride, None)
-        if p:
-            fn(last.ctypes.data, scene, base + (p - 1) * stride, None)
+        self._trace(self.device.lib.rtcIntersect16, buf, last)
         prim = bits[:, _PRIM, :].reshape(-1)[:n].view(np.int32)
         inst = bits[:, _INST, :].reshape(-1)[:n].view(np.int32)
         inst = np.where((inst < 0) | (prim < 0), np.int32(-1), inst - np.int32(1))
@@ -332,13 +336,7 @@ class Scene:
         """(N,) bool: something lies on the ray before t_max."""
         n = len(origins)
         buf, last = self._packets(origins, directions, t_max, _RAY_ROWS)
-        fn, scene = self.device.lib.rtcOccluded16, self.handle
-        base, stride, valid = buf.ctypes.data, _RAY_ROWS * _LANES * 4, self._valid_all.ctypes.data
-        p = len(buf)
-        for i in range(p - 1):
-            fn(valid, scene, base + i * stride, None)
-        if p:
-            fn(last.ctypes.data, scene, base + (p - 1) * stride, None)
+        self._trace(self.device.lib.rtcOccluded16, buf, last)
         # Embree marks an occluded ray by setting its tfar to -inf.
         return buf[:, _TFAR, :].reshape(-1)[:n] < 0
 
