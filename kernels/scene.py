@@ -441,12 +441,7 @@ class Prototype:
 
     @property
     def triangle_count(self) -> int:
-        """Plain triangles (instanced ones not counted: see instanced_triangle_count)."""
         return len(self.positions)
-
-    @property
-    def instanced_triangle_count(self) -> int:
-        return 0 if self.instances is None else self.instances.triangle_total
 
 
 @dataclass(frozen=True)
