@@ -5,7 +5,8 @@
     .venv/bin/python tools/image_digests.py | diff before.txt -   # on the new code: no output
 
 The scenes cover every sampling mode, emissive triangles, Blender lights of each kind, an HDRI world, a
-texture and the transparent film. Small images and few samples: it runs in a few seconds.
+texture and the transparent film, and (exported through bpy) bench/scenes.py's row of Principled spheres:
+metal, plastic, glass, coat, sheen. Small images and few samples: it runs in a few seconds.
 """
 from __future__ import annotations
 
@@ -66,8 +67,20 @@ def cases():
         RenderSettings(samples=2, transparent_background=True, seed=7)
 
 
+def materials():
+    """The Principled sphere row of bench/vs_cycles.py, exported from Blender."""
+    import bpy
+
+    from bench import scenes
+    from ember.engine.export import export_scene
+    scenes.materials_scene(48, 32)
+    exported = export_scene(bpy.context.evaluated_depsgraph_get(), width=48, height=32)
+    yield "materials", exported.scene, RenderSettings(samples=4, max_bounces=6)
+    yield "materials small waves", exported.scene, RenderSettings(samples=4, max_bounces=6, wave_size=512)
+
+
 def main() -> None:
-    for name, scene, settings in cases():
+    for name, scene, settings in (*cases(), *materials()):
         result = render(scene, settings, threads=2)
         print(f"{name:24s} {digest(result.image)}  mean {result.image[..., :3].mean():.6f}")
 
