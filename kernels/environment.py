@@ -161,15 +161,17 @@ class _PixelDistribution:
         self.col_pmf = weight / safe[:, None]
         col_cdf = np.cumsum(self.col_pmf, axis=1)
         col_cdf[row_sum > 0] /= col_cdf[row_sum > 0, -1:]
-        # Offsetting row r's cdf by r makes one flat sorted array: one searchsorted for all rows.
+        # Offsetting row r's cdf by r makes one flat sorted array: one search for all rows.
         self.flat_cdf = (col_cdf + np.arange(h)[:, None]).ravel()
+        self._rows = sampling.GuidedCdf(self.row_cdf, buckets=4 * h)
+        self._cols = sampling.GuidedCdf(self.flat_cdf, segments=h)
         # pdf per unit (u, v) area of each cell: pmf * cells.
         self.cell_pdf = (self.row_pmf[:, None] * self.col_pmf * (h * w)).astype(np.float32).ravel()
 
     def sample(self, u1, u2):
         h, w = self.height, self.width
-        row = np.minimum(np.searchsorted(self.row_cdf, u1.astype(np.float64), side="right"), h - 1)
-        flat = np.searchsorted(self.flat_cdf, u2.astype(np.float64) + row, side="right")
+        row = np.minimum(self._rows.search(0, u1), h - 1)
+        flat = self._cols.search(row, u2)
         col = np.clip(flat - row * w, 0, w - 1)
         # The position inside the cell reuses the remainders of both draws (stratified, no new numbers).
         row_lo = np.where(row > 0, self.row_cdf[np.maximum(row - 1, 0)], 0.0)

@@ -101,3 +101,38 @@ def test_local_frame_is_orthonormal_and_maps_z_to_n():
 def test_power_heuristic():
     w = sampling.power_heuristic(np.float32([1, 0, np.inf, 2]), np.float32([1, 1, 3, 0]))
     assert np.allclose(w, [0.5, 0.0, 1.0, 1.0])
+
+
+@pytest.mark.parametrize("segments", [1, 7])
+def test_guided_cdf_search_equals_searchsorted(segments):
+    """The guide table gives searchsorted's answers exactly: spiky and flat rows, zero-width entries,
+    queries on the entries themselves, at 0 and just below 1, and a few buckets (long walks)."""
+    rng = np.random.default_rng(11)
+    rows = []
+    for s in range(segments):
+        w = rng.random(300) ** 8
+        w[rng.random(300) < 0.3] = 0.0          # empty cells: repeated cdf values
+        w[s % 300] += 50.0                      # a spike
+        cdf = np.cumsum(w)
+        rows.append(cdf / cdf[-1] + s)
+    cdf = np.concatenate(rows)
+    for buckets in (0, 5):
+        guided = sampling.GuidedCdf(cdf, segments=segments, buckets=buckets)
+        seg = rng.integers(0, segments, 20000)
+        u = np.concatenate([rng.random(15000), np.zeros(1000), np.full(1000, np.nextafter(1.0, 0.0)),
+                            (cdf[rng.integers(0, len(cdf), 3000)] % 1.0)])
+        u32 = u.astype(np.float32) % np.float32(1.0)
+        for values in (u, u32):
+            got = guided.search(seg if segments > 1 else 0, values)
+            want = np.searchsorted(cdf, np.asarray(values, np.float64) + (seg if segments > 1 else 0), side="right")
+            np.testing.assert_array_equal(got, want)
+
+
+def test_guided_cdf_search_steps_back_when_rounding_starts_a_bucket_late():
+    # u = nextafter(5/6, 0) is below the entry 5/6, yet u * 6 rounds to 5: the guide of bucket 5 starts
+    # after that entry, and the search must step back to it.
+    u = np.nextafter(5 / 6, 0.0)
+    assert int(u * 6) == 5
+    cdf = np.array([0.25, 5 / 6, 0.9, 1.0])
+    got = sampling.GuidedCdf(cdf, buckets=6).search(0, np.array([u]))
+    np.testing.assert_array_equal(got, np.searchsorted(cdf, [u], side="right"))
