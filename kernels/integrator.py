@@ -62,7 +62,7 @@ class RenderSettings:
     time_limit_s: float = 0.0
     region: tuple | None = None
     transparent_background: bool = False
-    wave_size: int = 1 << 16
+    wave_size: int = 1 << 17
     transparent_max_bounces: int = 8
     # Cycles' Clamp Direct and Clamp Indirect: a contribution whose |R| + |G| + |B| exceeds 3 x the limit
     # is scaled down to it (0: off). Direct: light reaching the first hit or the camera; indirect: the rest.
