@@ -172,3 +172,22 @@ def test_world_program_light_samples_are_not_camera_rays():
         image = renderer.render(RenderSettings(samples=16, max_bounces=2)).image
     ground = image[6:, :, :3].reshape(-1, 3)  # the plane fills the lower rows
     assert np.all(ground[:, 1] < 0.6 * ground[:, 0] + 1e-3), ground[:4]
+
+
+def test_bake_resolution_follows_cycles_world_settings():
+    """Automatic (Blender's default): the widest Environment Texture in the tree, also inside a group, so
+    the bake's texel centres fall on the image's; Manual: the world's Map Resolution; no image: 1024."""
+    from ember.engine.export.world import map_resolution
+    new_scene(8, 8)
+    world = bpy.data.worlds.new("World")
+    bpy.context.scene.world = world
+    _gradient_sky(world.node_tree)
+    assert world.cycles.sampling_method == "AUTOMATIC" and map_resolution(world) == 1024
+    group = bpy.data.node_groups.new("Sky", "ShaderNodeTree")
+    env = group.nodes.new("ShaderNodeTexEnvironment")
+    env.image = bpy.data.images.new("Wide", 640, 320, float_buffer=True)
+    world.node_tree.nodes.new("ShaderNodeGroup").node_tree = group
+    assert map_resolution(world) == 640
+    world.cycles.sampling_method, world.cycles.sample_map_resolution = "MANUAL", 300
+    assert map_resolution(world) == 300
+    assert export_current().scene.world.map_resolution == 300

@@ -98,9 +98,33 @@ def _program_world(world, images, issues: list[str]) -> World:
     radiance = _radiance_of(builder, source_of(out.inputs["Surface"]), issues)
     if isinstance(radiance, tuple):  # folded: a constant world after all
         return World(color=np.maximum(np.array(radiance, np.float32), 0.0))
-    resolution = int(getattr(getattr(world, "cycles", None), "sampling_map_resolution", 1024) or 1024)
     return World(color=np.zeros(3, np.float32), program=builder.program(), output=radiance,
-                 map_resolution=max(resolution, 4))
+                 map_resolution=map_resolution(world))
+
+
+def map_resolution(world) -> int:
+    """Width of the map a world program is baked into for importance sampling. Cycles' world settings:
+    Manual takes Map Resolution; Automatic (the default) takes the widest Environment Texture image in
+    the tree, so that the bake's texel centres fall on the image's and the sampler, bilinear between
+    them, follows the lookup exactly (Cycles then raises its point-sampled map to 4096 x 2048), else 1024."""
+    settings = getattr(world, "cycles", None)
+    if settings is not None and getattr(settings, "sampling_method", "AUTOMATIC") == "MANUAL":
+        return max(int(settings.sample_map_resolution), 4)
+    widths = [int(node.image.size[0]) for node in _tree_nodes(world.node_tree)
+              if node.bl_idname == "ShaderNodeTexEnvironment" and node.image is not None and node.image.size[0] > 0]
+    return int(np.clip(max(widths), 256, 8192)) if widths else 1024
+
+
+def _tree_nodes(tree, seen=None):
+    """Every node of a node tree and of the groups inside it."""
+    seen = set() if seen is None else seen
+    if tree is None or tree.name_full in seen:
+        return
+    seen.add(tree.name_full)
+    for node in tree.nodes:
+        yield node
+        if node.bl_idname == "ShaderNodeGroup":
+            yield from _tree_nodes(node.node_tree, seen)
 
 
 def _radiance_of(builder, source: Source, issues: list[str]):
