@@ -49,7 +49,7 @@ class Samples:
         """The pixel jitter of every path (drawn before any other dimension)."""
         if self._strata is None:
             return self.rng.next_2d()
-        self._first = {d: stratified_2d(*self._strata, self._seed, d) for d in STRATIFIED}
+        self._first = {d: stratified_2d(*self._strata, self._seed, d) for d in STRATIFIED if d in self.block}
         return stratified_2d(*self._strata, self._seed, CAMERA)
 
     def camera_extra(self, dimension: int) -> tuple[np.ndarray, np.ndarray]:

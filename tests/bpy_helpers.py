@@ -221,8 +221,11 @@ def compare_to_cycles(scene, samples: int = 64, blocks: int = 8, z: float = 4.5,
     se = np.maximum(se, 1e-4 * np.maximum(np.abs(block_sums(cycles)) / n, 1e-3))
     zscores = np.abs(diff) / se
     mean_c, mean_e = cycles.mean(), ember_img.mean()
+    worst = np.unravel_index(np.argmax(zscores), zscores.shape)
     report = {"mean_cycles": mean_c, "mean_ember": mean_e, "relative": mean_e / mean_c - 1.0,
-              "max_z": float(zscores.max()), "worst_block": np.unravel_index(np.argmax(zscores), zscores.shape)}
+              "max_z": float(zscores.max()), "worst_block": worst,
+              "worst_block_relative": float(diff[worst] / max(abs(block_sums(cycles)[worst] / n), 1e-12)),
+              "worst_block_se_relative": float(se[worst] / max(abs(block_sums(cycles)[worst] / n), 1e-12))}
     assert mean_c > 1e-3, f"Cycles rendered an almost black image: {report}"
     assert abs(report["relative"]) < mean_tol, f"image means differ: {report}"
     assert report["max_z"] < z, f"a block differs beyond noise: {report}"
