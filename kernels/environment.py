@@ -12,6 +12,8 @@ from . import sampling
 from .scene import World
 from .textures import Texture, luminance
 
+F32 = np.float32
+ONE = F32(1.0)
 INV_2PI = np.float32(0.5 / np.pi)
 INV_PI = np.float32(1.0 / np.pi)
 
@@ -118,11 +120,11 @@ class Environment:
 def sample_linear(u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """x in [0, 1) with density proportional to (1 - x) a + x b (a, b >= 0), by inverting its cdf
     a x + (b - a) x^2 / 2 in the form that stays exact as a and b meet; u where both are 0."""
-    root = np.sqrt((1.0 - u) * a * a + u * b * b)
+    root = np.sqrt((ONE - u) * a * a + u * b * b)
     den = a + root
     with np.errstate(divide="ignore", invalid="ignore"):
-        x = np.where(den > 0, u * (a + b) / np.where(den > 0, den, 1.0), u)
-    return np.clip(x, 0.0, 1.0 - 1e-7)
+        x = np.where(den > 0, u * (a + b) / np.where(den > 0, den, ONE), u)
+    return np.clip(x, F32(0.0), F32(1.0 - 1e-7))
 
 
 class _BilinearDistribution:
@@ -178,14 +180,19 @@ class _BilinearDistribution:
         self.flat_cdf = cdf.ravel()
         self._rows = sampling.GuidedCdf(self.row_cdf, buckets=4 * (h + 1))
         self._cols = sampling.GuidedCdf(self.flat_cdf, segments=h + 1)
+        # Per patch row: the flat offsets of its two texel rows, its v range, sin(theta) / total.
+        self._lv = self.level.ravel()
+        self._base_lo, self._base_hi = (lo * w).astype(np.int64), (hi * w).astype(np.int64)
+        self._v0, self._dv = self.v0.astype(F32), (self.v1 - self.v0).astype(F32)
+        self._scale = (self.sin_row / self.total).astype(F32)
 
     def _corners(self, r, c):
-        w = self.width
-        c1 = np.where(c + 1 == w, 0, c + 1)
-        lo, hi = self.row_lo[r] * w, self.row_hi[r] * w
-        lv = self.level.ravel()
-        return (np.take(lv, lo + c).astype(np.float64), np.take(lv, lo + c1).astype(np.float64),
-                np.take(lv, hi + c).astype(np.float64), np.take(lv, hi + c1).astype(np.float64))
+        """The four texel levels (float32) of patches (r, c)."""
+        c1 = c + 1
+        c1[c1 == self.width] = 0
+        lo, hi = np.take(self._base_lo, r), np.take(self._base_hi, r)
+        lv = self._lv
+        return np.take(lv, lo + c), np.take(lv, lo + c1), np.take(lv, hi + c), np.take(lv, hi + c1)
 
     def sample(self, u1, u2):
         h, w = self.height, self.width
@@ -195,29 +202,33 @@ class _BilinearDistribution:
         # The remainders of both draws place the point inside the patch (stratified, no new numbers).
         row_lo = np.where(r > 0, self.row_cdf[np.maximum(r - 1, 0)], 0.0)
         row_p = self.row_pmf[r]
-        fv = np.clip((u1 - row_lo) / np.where(row_p > 0, row_p, 1.0), 0.0, 1.0 - 1e-7)
+        fv = np.clip((u1 - row_lo) / np.where(row_p > 0, row_p, 1.0), 0.0, 1.0 - 1e-7).astype(F32)
         cell = r * w + c
         col_lo = np.where(c > 0, self.flat_cdf[np.maximum(cell - 1, 0)] - r, 0.0)
         col_p = (self.flat_cdf[cell] - r) - col_lo
-        fu = np.clip((u2 - col_lo) / np.where(col_p > 0, col_p, 1.0), 0.0, 1.0 - 1e-7)
+        fu = np.clip((u2 - col_lo) / np.where(col_p > 0, col_p, 1.0), 0.0, 1.0 - 1e-7).astype(F32)
         w00, w10, w01, w11 = self._corners(r, c)
         y = sample_linear(fv, w00 + w10, w01 + w11)
-        x = sample_linear(fu, w00 + (w01 - w00) * y, w10 + (w11 - w10) * y)
-        u = np.mod((c + 0.5 + x) / w, 1.0).astype(np.float32)
-        v = (self.v0[r] + y * (self.v1[r] - self.v0[r])).astype(np.float32)
-        level = (1 - y) * ((1 - x) * w00 + x * w10) + y * ((1 - x) * w01 + x * w11)
-        return u, v, (level * self.sin_row[r] / self.total).astype(np.float32)
+        left, right = w00 + (w01 - w00) * y, w10 + (w11 - w10) * y
+        x = sample_linear(fu, left, right)
+        u = (c + F32(0.5) + x) * F32(1.0 / w)
+        u = np.where(u >= 1, u - F32(1.0), u).astype(F32)
+        v = (np.take(self._v0, r) + y * np.take(self._dv, r)).astype(F32)
+        return u, v, (left + (right - left) * x) * np.take(self._scale, r)
 
     def pdf(self, u, v) -> np.ndarray:
         """pdf per unit (u, v) area: the bilinear level at (u, v) x sin(theta) of its patch row / total."""
         h, w = self.height, self.width
-        xf = np.mod(u, 1.0).astype(np.float64) * w - 0.5
-        x0 = np.floor(xf)
-        fx = xf - x0
-        c = np.mod(x0.astype(np.int64), w)
-        vh = np.clip(v.astype(np.float64), 0.0, 1.0) * h
-        r = np.clip(np.floor(vh + 0.5).astype(np.int64), 0, h)
-        fy = np.clip((vh / h - self.v0[r]) / (self.v1[r] - self.v0[r]), 0.0, 1.0)
+        x = np.mod(np.asarray(u, F32), F32(1.0)) * F32(w) - F32(0.5)
+        x0 = np.floor(x)
+        fx = x - x0
+        c = x0.astype(np.int64)
+        c[c < 0] += w
+        y = np.clip(np.asarray(v, F32), F32(0.0), F32(1.0)) * F32(h) - F32(0.5)
+        y0 = np.floor(y)
+        fy = y - y0
+        r = np.minimum(y0.astype(np.int64) + 1, h)   # patch row; at the poles both texel rows are the same
         w00, w10, w01, w11 = self._corners(r, c)
-        level = (1 - fy) * ((1 - fx) * w00 + fx * w10) + fy * ((1 - fx) * w01 + fx * w11)
-        return (level * self.sin_row[r] / self.total).astype(np.float32)
+        top = w00 + (w10 - w00) * fx
+        bottom = w01 + (w11 - w01) * fx
+        return (top + (bottom - top) * fy) * np.take(self._scale, r)
