@@ -23,7 +23,7 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FILM_BYTES_PER_PIXEL = 32
-WORKING_SET_MB = 96  # bound on the waves in flight (two threads, 64k paths each) and the row chunks; 44 measured
+WORKING_SET_MB = 192  # bound on the waves in flight (two threads, 131k paths each) and the row chunks; 93-159 measured
 
 CHILD = r"""
 import json, os, sys, time, tracemalloc
