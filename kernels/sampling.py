@@ -143,3 +143,9 @@ class GuidedCdf:
             pos[todo] = p
         pos[todo] = np.searchsorted(self.cdf, xs, side="right")
         return pos
+
+
+def channel_mean(rgb: np.ndarray) -> np.ndarray:
+    """(n,) mean of a (3, n) colour array's rows: rgb.mean(axis=0) bit for bit (the same float sums in the
+    same order, then / 3), without NumPy's strided reduction, which costs 1.6x as much on 20k columns."""
+    return (rgb[0] + rgb[1] + rgb[2]) / np.asarray(3, rgb.dtype)

@@ -136,3 +136,14 @@ def test_guided_cdf_search_steps_back_when_rounding_starts_a_bucket_late():
     cdf = np.array([0.25, 5 / 6, 0.9, 1.0])
     got = sampling.GuidedCdf(cdf, buckets=6).search(0, np.array([u]))
     np.testing.assert_array_equal(got, np.searchsorted(cdf, [u], side="right"))
+
+
+def test_channel_mean_is_numpys_mean_bit_for_bit():
+    rng = np.random.default_rng(2)
+    for dtype in (np.float32, np.float64):
+        rgb = (rng.standard_normal((3, 5001)) * 10 ** rng.uniform(-3, 3, (3, 5001))).astype(dtype)
+        got = sampling.channel_mean(rgb)
+        assert got.dtype == dtype
+        np.testing.assert_array_equal(got, rgb.mean(axis=0))
+    broadcast = np.broadcast_to(np.float32([[0.1], [0.7], [0.3]]), (3, 9))
+    np.testing.assert_array_equal(sampling.channel_mean(broadcast), broadcast.mean(axis=0))

@@ -73,7 +73,7 @@ class ClosureBuilder:
         if unknown:
             raise TypeError(f"unknown closure parameters {sorted(unknown)}")
         weight = np.broadcast_to(np.asarray(weight, F32), (3, n))
-        sw = np.abs(weight.mean(axis=0)) if sample_weight is None else np.broadcast_to(
+        sw = np.abs(sampling.channel_mean(weight)) if sample_weight is None else np.broadcast_to(
             np.asarray(sample_weight, F32), (n,))
         keep = sw >= WEIGHT_CUTOFF
         if keep.all():

@@ -53,7 +53,7 @@ import numpy as np
 
 from . import fresnel as fr
 from . import tables
-from ..sampling import INV_PI
+from ..sampling import INV_PI, channel_mean
 
 F32 = np.float32
 ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
@@ -356,7 +356,7 @@ def refraction_is_physical(wo, wi, eta):
 
 def _reflect_probability(r, t):
     """Cycles' choice of reflection: mean(R) / mean(R + T); NaN where both vanish (caller masks)."""
-    return r.mean(axis=0) / (r + t).mean(axis=0)
+    return channel_mean(r) / channel_mean(r + t)
 
 
 def _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel, distribution):

@@ -26,6 +26,7 @@ from . import ashikhmin_shirley as ash
 from . import closures as lobes
 from . import fresnel as fr
 from . import microfacet as mf
+from ..sampling import channel_mean
 
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
@@ -115,12 +116,12 @@ def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, sp
     f0 = np.clip(f0, 0.0, 1.0)
     weight = np.broadcast_to(weight, (3, n))
     albedo = mf.albedo_remapped(alpha, alpha, mu, eta, f0, ONE, reflection_tint, transmission_tint)
-    sw = np.abs(weight.mean(axis=0)) * albedo.mean(axis=0)
+    sw = np.abs(channel_mean(weight)) * channel_mean(albedo)
     eval_scale = ONE
     if multiscatter:
         eval_scale, factor = mf.multiscatter_glass(alpha, alpha, mu, eta, fss=transmission_tint)
         weight = weight * factor
-        sw = sw * factor.mean(axis=0)
+        sw = sw * channel_mean(factor)
     b.add(lobes.GLASS, hits, weight, sample_weight=sw, normal=normal, ax=alpha, ay=alpha, eta=eta,
           eval_scale=eval_scale, fresnel=F_REMAP, c0=f0, c1=reflection_tint, c2=transmission_tint,
           **_dist(distribution))
@@ -137,12 +138,12 @@ def add_refraction(b, ctx, weight, alpha, ior, sub=None, distribution=mf.GGX):
 
 def _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, mode, **params):
     weight = np.broadcast_to(weight, (3, len(hits)))
-    sw = np.abs(weight.mean(axis=0)) * albedo.mean(axis=0)
+    sw = np.abs(channel_mean(weight)) * channel_mean(albedo)
     eval_scale = ONE
     if multiscatter:
         eval_scale, factor = mf.multiscatter_reflection(ax, ay, mu, fss=fss)
         weight = weight * factor
-        sw = sw * factor.mean(axis=0)
+        sw = sw * channel_mean(factor)
     dist = params.pop("dist", mf.GGX)
     b.add(lobes.REFLECTION, hits, weight, sample_weight=sw, normal=normal, ax=ax, ay=ay, eval_scale=eval_scale,
           fresnel=mode, **params, **_dist(dist))
