@@ -203,7 +203,9 @@ def test_view_dependent_weights_on_a_sphere(node, output):
     bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(0, 0, 1.2), segments=48, ring_count=24)
     bpy.ops.object.shade_smooth()
     bpy.context.active_object.data.materials.append(mat)
-    compare_to_cycles(scene, samples=16, max_bounces=0)
+    # The image is the sphere's edge, where Fresnel is brightest: at 16 samples one engine's image mean
+    # has a 1.5% standard deviation (10 sets of 4 seeds), too close to compare_to_cycles' 2% tolerance.
+    compare_to_cycles(scene, samples=256, max_bounces=0)
 
 
 @pytest.mark.parametrize("axis", ["GEOMETRY", "X", "Y", "Z"])
