@@ -128,8 +128,9 @@ def sample_linear(u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class _BilinearDistribution:
-    """An HDRI (or a world program's bake at texel centres) sampled in proportion to its bilinear lookup (texel centres at (i + 1/2) / W, u wrapping, v
-    clamped at the poles) x sin(theta) at the patch row's centre.
+    """An HDRI (or a world program's bake at texel centres) sampled in proportion to its bilinear lookup
+    (texel centres at (i + 1/2) / W, u wrapping, v clamped at the poles) x sin(theta) at the patch row's
+    centre.
 
     The lookup is bilinear between neighbouring texel centres: the map splits into W x (H + 1) patches,
     with half-height rows at the poles where the lookup is constant in v. A patch is chosen in proportion

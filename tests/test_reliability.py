@@ -250,6 +250,9 @@ def test_memory_is_the_film_plus_a_bounded_working_set(monkeypatch):
     scene.ember.samples, scene.ember.sampling_mode = 1, "COSINE"
     # The film and the waves: the denoiser's own passes and buffers are measured by bench/denoise.py.
     scene.ember.use_denoising = False
+    # One thread: one wave in flight, so the peak does not depend on how two threads' waves interleave
+    # (up to 20 MB run to run with waves of 131,072 paths, enough to fake a per-pixel buffer below).
+    scene.render.threads_mode, scene.render.threads = "FIXED", 1
     extra = {}
     for size in (1024, 2048):
         scene.render.resolution_x = scene.render.resolution_y = size
@@ -259,9 +262,9 @@ def test_memory_is_the_film_plus_a_bounded_working_set(monkeypatch):
             extra[size] = tracemalloc.get_traced_memory()[1] - ADAPTIVE_BYTES_PER_PIXEL * size * size
         finally:
             tracemalloc.stop()
-    # The working set is the waves in flight (their size is fixed, their peak depends on how two threads
-    # interleave: about +-10 MB run to run), so: within the README's bound at both sizes, and no buffer of
-    # 8 or more bytes per pixel beyond the film (before: 64 bytes per pixel more).
+    # The working set is the waves in flight, so: within the README's bound at both sizes (192 MB for two
+    # threads' waves of 131,072 paths, so half of it for one; 56 and 62 MB measured), and no buffer of 8 or
+    # more bytes per pixel beyond the film (before: 64 bytes per pixel more).
     assert max(extra.values()) < 96e6, extra
     assert extra[2048] - extra[1024] < 8 * (2048 ** 2 - 1024 ** 2), extra
 
