@@ -72,7 +72,9 @@ def test_f12_render_writes_a_correct_image(tmp_path):
     assert np.all(image[..., 3] == 1.0)
     # The floor is lit, brighter under the lamp than far away; the lamp itself shows its radiance.
     # The lamp (radiance 5) is a sliver two pixels high: its pixels are partly covered, never brighter.
-    assert 4.0 < image[..., :3].max() <= 5.0 * (1 + 1e-5)
+    # Its brightest pixel converges to 3.76 under the default filter (512 samples); at 8 samples the
+    # estimate scatters around that (4.38 with seed 0), so the bound sits below the converged value.
+    assert 3.0 < image[..., :3].max() <= 5.0 * (1 + 1e-5)
     # The floor in front of the back wall is lit by the lamp: brighter than the world alone gives.
     assert image[24:30, 20:28, :3].mean() > 0.05
 
