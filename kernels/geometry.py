@@ -382,6 +382,7 @@ def flatten_instances(scene: SceneArrays) -> SceneArrays:
             filled.append(block)
         flat_attributes.append((name, np.concatenate(filled)))
     return dataclasses.replace(
-        scene, instances=None, bvh_vertices=None, bvh_indices=None, **{key: np.ascontiguousarray(np.concatenate(v)) for key, v in parts.items()},
+        scene, instances=None, bvh_vertices=None, bvh_indices=None,
+        **{key: np.ascontiguousarray(np.concatenate(v)) for key, v in parts.items()},
         tangents=None if not want_tangents else np.concatenate(tangents), attributes=tuple(flat_attributes),
         object_ids=None if object_ids is None else np.concatenate(object_ids))

@@ -248,14 +248,16 @@ class Renderer:
     # before changing anything when the change does not fit the built scene (the caller then builds a
     # new Renderer). Call them between renders, never during one.
 
-    def update_instances(self, world_from_object: np.ndarray, objects: np.ndarray | None = None) -> None:
+    def update_instances(self, world_from_object: np.ndarray, objects: np.ndarray | None = None,
+                         lights: bool = True) -> None:
         """Move the scene's instances (kernels.scene.Instances): world_from_object (K, 4, 4) float64, one per
         instance of the built scene, in its order; objects: the object table with the moved objects' rows
         (SceneArrays.objects, the same rows), None to keep it. The plain triangles stay where they are.
 
         Rebuilt: the top level of the BVH (the meshes' BVHs are kept), the triangle table's instance
         matrices, the object table, the ray offset's scene scale, and the light sampler when an emissive
-        instance moved. Nothing else depends on where instances are."""
+        instance moved (lights=False leaves that to the caller, which rebuilds it anyway). Nothing else
+        depends on where instances are."""
         inst = self.scene.instances
         if inst is None or not inst.count:
             raise ValueError("update_instances: the scene has no instances")
@@ -280,7 +282,7 @@ class Renderer:
             self._triangles.place(moved)
         self.shading.data.set_objects(scene.objects)
         self._ray_epsilon = _ray_epsilon(*scene_extent(scene, self._prototype_boxes))
-        if emitters_moved:
+        if emitters_moved and lights:
             self.lights = self._light_sampler()
 
     def _emitters_moved(self, instances, world_from_object: np.ndarray) -> bool:
@@ -323,12 +325,13 @@ class Renderer:
                 and (new.objects is None or new.objects.shape == old.objects.shape)):
             return False
         if new.instances is not None and new.instances.count:
-            self.update_instances(new.instances.world_from_object, new.objects)
+            self.update_instances(new.instances.world_from_object, new.objects, lights=False)
         elif new.objects is not None:
             self.scene = dataclasses.replace(self.scene, objects=new.objects)
             self.shading.data.set_objects(new.objects)
+        # The lights go in first: update_materials then builds the light sampler once, for everything.
+        self.scene = dataclasses.replace(self.scene, lights=new.lights)
         self.update_materials(new.materials, new.textures, new.texture_srgb, new.world)
-        self.update_lights(new.lights)
         self.set_camera(new.camera)
         self.scene = dataclasses.replace(self.scene, crypto_ids=new.crypto_ids)
         self.dropped_triangles = checked.dropped_triangles
