@@ -38,7 +38,7 @@ import numpy as np
 
 from . import cli
 from .cli import CliError, UsageError
-from .merge import MergeError, exr_strings, merge_arrays, read_exr_channels
+from .merge import MergeError, exr_strings, load_pixels, merge_arrays, read_exr_channels
 from .session import format_time
 
 RAY_MISSING = "--ray needs Ray: python3.11 dev.py setup --ray"
@@ -163,7 +163,7 @@ class RenderWorker:
                 _use_exr(scene.render.image_settings, multilayer=False)
                 path = os.path.join(tmp, "frame.exr")
                 cli.save_render_result(scene, path)
-                pixels, width, height = _load_pixels(path)
+                pixels, width, height = load_pixels(path)
                 fields = exr_strings(path)
         except (CliError, MergeError, RuntimeError) as err:
             return {"error": f"frame {frame}: {cli._first_line(err)}"}
@@ -192,17 +192,6 @@ def _use_exr(settings, multilayer: bool) -> None:
     if not multilayer:
         settings.color_mode = "RGBA"
     settings.color_management = "FOLLOW_SCENE"
-
-
-def _load_pixels(path: str):
-    image = bpy.data.images.load(path, check_existing=False)
-    try:
-        width, height = image.size
-        pixels = np.empty(width * height * 4, np.float32)
-        image.pixels.foreach_get(pixels)
-    finally:
-        bpy.data.images.remove(image)
-    return pixels, width, height
 
 
 def _warnings(printed: str) -> list[str]:

@@ -119,6 +119,22 @@ def read_exr_channels(path: str, names) -> dict[str, np.ndarray]:
     return found
 
 
+def load_pixels(path: str) -> tuple[np.ndarray, int, int]:
+    """A single-layer image file through Blender: (W * H * 4,) float32 RGBA, rows from the bottom, as
+    Image.pixels holds them, and its width and height. The image is removed from bpy.data again."""
+    import bpy
+    image = bpy.data.images.load(path, check_existing=False)
+    try:
+        if image.type == "MULTILAYER":
+            raise MergeError(f"{path} is a multilayer OpenEXR: merge reads single-layer ones (the image)")
+        width, height = image.size
+        pixels = np.empty(width * height * 4, np.float32)
+        image.pixels.foreach_get(pixels)
+    finally:
+        bpy.data.images.remove(image)
+    return pixels, width, height
+
+
 def merge(inputs: list[str], output: str) -> int:
     """Merge the renders `inputs` into `output` (OpenEXR, 32-bit float); returns the total sample count."""
     import bpy
@@ -127,17 +143,10 @@ def merge(inputs: list[str], output: str) -> int:
     counts = [samples_of(path) for path in inputs]
     parts, size = [], None
     for path, count in zip(inputs, counts):
-        image = bpy.data.images.load(path, check_existing=False)
-        try:
-            if image.type == "MULTILAYER":
-                raise MergeError(f"{path} is a multilayer OpenEXR: merge reads single-layer ones (the image)")
-            if size is not None and tuple(image.size) != size:
-                raise MergeError(f"{path} is {image.size[0]}x{image.size[1]}, the others {size[0]}x{size[1]}")
-            size = tuple(image.size)
-            pixels = np.empty(size[0] * size[1] * 4, np.float32)
-            image.pixels.foreach_get(pixels)
-        finally:
-            bpy.data.images.remove(image)
+        pixels, width, height = load_pixels(path)
+        if size is not None and (width, height) != size:
+            raise MergeError(f"{path} is {width}x{height}, the others {size[0]}x{size[1]}")
+        size = (width, height)
         parts.append((pixels, count))
     merged = merge_arrays(parts)
     result = bpy.data.images.new("ember-merged", size[0], size[1], alpha=True, float_buffer=True)

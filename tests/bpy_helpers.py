@@ -11,6 +11,7 @@ import numpy as np
 
 import ember
 from ember.engine.demo import build_world
+from ember.engine.merge import load_pixels
 
 
 def ensure_registered() -> None:
@@ -178,13 +179,8 @@ def configure_cycles(scene, samples: int, seed: int, max_bounces: int) -> None:
 
 
 def load_exr(path: str) -> np.ndarray:
-    image = bpy.data.images.load(path, check_existing=False)
-    try:
-        w, h = image.size
-        pixels = np.empty(w * h * 4, np.float32)
-        image.pixels.foreach_get(pixels)
-    finally:
-        bpy.data.images.remove(image)
+    """A single-layer image file as (H, W, 4) float32, row 0 at the top."""
+    pixels, w, h = load_pixels(path)
     return pixels.reshape(h, w, 4)[::-1].copy()
 
 
