@@ -157,21 +157,18 @@ class _BilinearDistribution:
         if not np.any(level > 0):  # a black map: sample uniformly in (u, v), weighted by sin(theta)
             level = np.ones((h, w), np.float32)
         self.height, self.width = h, w
-        self.level = np.ascontiguousarray(level, np.float32)
         # Patch rows r = 0..H span v in [max(r - 1/2, 0), min(r + 1/2, H)] / H between texel rows
         # clip(r - 1, 0, H - 1) and clip(r, 0, H - 1); patch columns c span u in [c + 1/2, c + 3/2] / W.
         r = np.arange(h + 1)
-        self.v0 = np.maximum(r - 0.5, 0.0) / h
-        self.v1 = np.minimum(r + 0.5, h) / h
-        self.sin_row = np.sin((1.0 - (self.v0 + self.v1) / 2) * np.pi)
+        v0, v1 = np.maximum(r - 0.5, 0.0) / h, np.minimum(r + 0.5, h) / h
+        sin_row = np.sin((1.0 - (v0 + v1) / 2) * np.pi)
         lo, hi = np.clip(r - 1, 0, h - 1), np.clip(r, 0, h - 1)
-        self.row_lo, self.row_hi = lo, hi
         lv = level.astype(np.float64)
         corners = lv[lo] + np.roll(lv[lo], -1, axis=1) + lv[hi] + np.roll(lv[hi], -1, axis=1)
-        weight = corners * (0.25 * (self.v1 - self.v0) / w * self.sin_row)[:, None]   # (H + 1, W)
+        weight = corners * (0.25 * (v1 - v0) / w * sin_row)[:, None]   # (H + 1, W)
         row_sum = weight.sum(axis=1)
-        self.total = float(row_sum.sum())
-        self.row_pmf = row_sum / self.total
+        total = row_sum.sum()
+        self.row_pmf = row_sum / total
         self.row_cdf = np.cumsum(self.row_pmf)
         self.row_cdf /= self.row_cdf[-1]
         cdf = np.cumsum(weight, axis=1)
@@ -182,10 +179,10 @@ class _BilinearDistribution:
         self._rows = sampling.GuidedCdf(self.row_cdf, buckets=4 * (h + 1))
         self._cols = sampling.GuidedCdf(self.flat_cdf, segments=h + 1)
         # Per patch row: the flat offsets of its two texel rows, its v range, sin(theta) / total.
-        self._lv = self.level.ravel()
-        self._base_lo, self._base_hi = (lo * w).astype(np.int64), (hi * w).astype(np.int64)
-        self._v0, self._dv = self.v0.astype(F32), (self.v1 - self.v0).astype(F32)
-        self._scale = (self.sin_row / self.total).astype(F32)
+        self._lv = np.ascontiguousarray(level, np.float32).ravel()
+        self._base_lo, self._base_hi = lo * w, hi * w
+        self._v0, self._dv = v0.astype(F32), (v1 - v0).astype(F32)
+        self._scale = (sin_row / total).astype(F32)
 
     def _corners(self, r, c):
         """The four texel levels (float32) of patches (r, c)."""
