@@ -163,9 +163,9 @@ class Accel:
             if not len(positions):
                 plain = None
             elif indexed is not None:
-                plain = embree.Mesh(self._device, *indexed)
+                plain = embree.Triangles(*indexed)
             else:
-                plain = embree.Mesh(self._device, np.asarray(positions, np.float32).reshape(-1, 3))
+                plain = embree.Triangles(np.asarray(positions, np.float32).reshape(-1, 3))
             self._static = embree.Scene(self._device, plain, placed)
             self._scene = self._static.embreex()
             if self._scene is None or placed:

@@ -178,18 +178,30 @@ def flat_indices(triangle_count: int) -> np.ndarray:
     return np.arange(3 * triangle_count, dtype=np.uint32).reshape(-1, 3)
 
 
-class Mesh:
-    """One triangle mesh in its own Embree scene (a bottom-level BVH), to be instanced.
+class Triangles:
+    """Triangles in the layouts Embree reads in place, with no BVH of their own: the top level's plain
+    geometry (Scene's `plain`), whose BVH is the top level's.
 
     vertices : (V, 3) float32; indices : (T, 3) integer corners. Both are copied once into the layouts
     Embree reads in place (or used as they are when already padded / uint32 contiguous)."""
 
-    def __init__(self, device: Device, vertices: np.ndarray, indices: np.ndarray | None = None):
-        self.device = device
+    def __init__(self, vertices: np.ndarray, indices: np.ndarray | None = None):
         self.vertices = padded_vertices(np.asarray(vertices, np.float32).reshape(-1, 3))
         v = len(self.vertices) - 1
         self.indices = flat_indices(v // 3) if indices is None else \
             np.ascontiguousarray(np.asarray(indices).reshape(-1, 3), np.uint32)
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.indices)
+
+
+class Mesh(Triangles):
+    """One triangle mesh in its own Embree scene (a bottom-level BVH), to be instanced."""
+
+    def __init__(self, device: Device, vertices: np.ndarray, indices: np.ndarray | None = None):
+        super().__init__(vertices, indices)
+        self.device = device
         lib = device.lib
         self.handle = lib.rtcNewScene(device.handle)
         lib.rtcSetSceneFlags(self.handle, _SCENE_FLAG_ROBUST)
@@ -199,10 +211,6 @@ class Mesh:
             lib.rtcReleaseGeometry(geom)
         lib.rtcCommitScene(self.handle)
         device.check("a triangle mesh")
-
-    @property
-    def triangle_count(self) -> int:
-        return len(self.indices)
 
     def __del__(self):
         if getattr(self, "handle", None):
@@ -216,8 +224,9 @@ class Scene:
 
     Queries report each hit's instance (-1 for the plain mesh) and the triangle within its mesh."""
 
-    def __init__(self, device: Device, plain: Mesh | None = None, instances=()):
-        """instances: iterable of (Mesh, (3, 4) or (4, 4) world_from_object)."""
+    def __init__(self, device: Device, plain: Triangles | None = None, instances=()):
+        """plain: the triangles used as they are, in the top level's own BVH (a Mesh's BVH is not used);
+        instances: iterable of (Mesh, (3, 4) or (4, 4) world_from_object)."""
         self.device = device
         lib = device.lib
         self.handle = lib.rtcNewScene(device.handle)
@@ -387,7 +396,7 @@ def _embreex_view(handle, device: Device, slot: int):
 
 def _check_embreex_view() -> bool:
     device = Device()
-    mesh = Mesh(device, np.array([[0, 0, 1], [1, 0, 1], [0, 1, 1]], np.float32))
+    mesh = Triangles(np.array([[0, 0, 1], [1, 0, 1], [0, 1, 1]], np.float32))
     scene = Scene(device, mesh)
     view = _embreex_view(scene.handle, device, _EMBREEX_SLOT)
     hit = view.run(np.array([[0.25, 0.25, 0.0]], np.float32), np.array([[0, 0, 1]], np.float32),
