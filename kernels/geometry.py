@@ -3,6 +3,8 @@ interpolation of the lecture's shading data. Shared by the integrator (hits) and
 sampled on emissive triangles)."""
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from .scene import SceneArrays
@@ -21,11 +23,22 @@ class TriangleTable:
     and answers in world space: rows of instanced triangles are placed by their instance's transform as
     they are gathered. A scene without instances gathers its rows as they are."""
 
-    def __init__(self, scene: SceneArrays):
+    def __init__(self, scene: SceneArrays, deferred: bool = False):
+        """deferred : a big scene without instances (at least DEFERRED_ROWS triangles) gets its rows
+        later, from build_rows (on a thread, while the first samples render); until they are there,
+        gathers compute the rows they need from the scene's arrays, the same float32 operations per row,
+        so the answers are the same bit for bit either way."""
         inst = scene.instances if scene.instances is not None and scene.instances.count else None
         parts = [scene] + list(inst.prototypes if inst is not None else ())
         self.plain_count = len(scene.positions)
-        self.rows = _concatenate([_triangle_table(part) for part in parts])
+        self._rows = None
+        self._source = None      # (positions, normals, uvs) the rows come from while they are deferred
+        self._building = None    # the thread building deferred rows
+        self._build_lock = threading.Lock()
+        if deferred and inst is None and self.plain_count >= DEFERRED_ROWS:
+            self._source = (scene.positions, scene.normals, scene.uvs)
+        else:
+            self._rows = _concatenate([_triangle_table(part) for part in parts])
         self.material_ids = _concatenate([part.material_ids for part in parts])
         # (R, 12) float32: per corner the tangent xyz and its sign; apart from the rows every hit gathers,
         # since only normal-mapped and anisotropic materials read it.
@@ -60,6 +73,40 @@ class TriangleTable:
             self._first_row = np.asarray(starts, np.int64)[inst.prototype]
             self.place(inst)
 
+    @property
+    def rows(self) -> np.ndarray:
+        """(R, 27) float32: the whole table (built now when it was deferred and is not there yet)."""
+        rows = self._rows
+        if rows is None:
+            self.build_rows()
+            self._building.join()
+            rows = self._rows
+        return rows
+
+    def build_rows(self) -> None:
+        """Start building deferred rows on a thread (nothing when they are built or being built)."""
+        with self._build_lock:
+            if self._rows is None and self._building is None:
+                self._building = threading.Thread(target=self._build_deferred, name="ember-triangles",
+                                                  daemon=True)
+                self._building.start()
+
+    def _build_deferred(self) -> None:
+        positions, normals, uvs = self._source
+        table = _triangle_table_of(positions, normals, uvs)
+        self._rows = table        # one reference assignment: gathers see the whole table or none
+        self._source = None
+
+    @staticmethod
+    def _computed_rows_from(source, prim: np.ndarray) -> np.ndarray:
+        """(N, 27) rows of plain triangles prim computed from source, the scene's (positions, normals,
+        uvs), while the table is deferred."""
+        positions, normals, uvs = source
+        out = np.empty((len(prim), _COLUMNS), np.float32)
+        _fill_rows(out, np.take(positions, prim, axis=0), np.take(normals, prim, axis=0),
+                   np.take(uvs, prim, axis=0))
+        return out
+
     def place(self, instances) -> None:
         """Take the instances' transforms and object rows (kernels.scene.Instances): at build, and again
         when they move (the same instances of the same prototypes; the rows themselves never change)."""
@@ -92,7 +139,13 @@ class TriangleTable:
     def rows_of(self, prim: np.ndarray) -> np.ndarray:
         """(N, 27) world-space rows of the triangles prim."""
         if self._bases is None:
-            return np.take(self.rows, prim, axis=0)
+            rows = self._rows
+            if rows is None:
+                source = self._source
+                rows = self._rows   # the build may have just finished (it sets _rows, then _source)
+                if rows is None:
+                    return self._computed_rows_from(source, prim)
+            return np.take(rows, prim, axis=0)
         rows, k = self.locate(prim)
         g = np.take(self.rows, rows, axis=0)
         sel = np.flatnonzero(k >= 0)
@@ -148,7 +201,10 @@ class TriangleTable:
         w0 = np.float32(1.0) - b1 - b2
         rows, k = self.locate(prim)
         t = np.take(self.tangent_rows, rows, axis=0)
-        n = np.take(self.rows[:, N0:N2 + 3], rows, axis=0)
+        if self._rows is None and k is None:
+            n = self.rows_of(prim)[:, N0:N2 + 3]
+        else:
+            n = np.take(self.rows[:, N0:N2 + 3], rows, axis=0)
         if k is not None and (k >= 0).any():
             sel = np.flatnonzero(k >= 0)
             ks = np.take(k, sel)
@@ -267,18 +323,26 @@ def interpolate_uv(g: np.ndarray, w0, w1, w2):
 _PARALLEL_ROWS = 1 << 18
 
 
+# Scenes without instances of at least this many triangles defer their table (TriangleTable, deferred).
+DEFERRED_ROWS = 2 * _PARALLEL_ROWS
+
+
 def _triangle_table(scene: SceneArrays) -> np.ndarray:
     """(T, 27) rows of a SceneArrays or Prototype; big ones built in slices, in parallel."""
-    t = len(scene.positions)
+    return _triangle_table_of(scene.positions, scene.normals, scene.uvs)
+
+
+def _triangle_table_of(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray) -> np.ndarray:
+    t = len(positions)
     table = np.empty((t, _COLUMNS), np.float32)
     if t < 2 * _PARALLEL_ROWS:
-        _fill_rows(table, scene.positions, scene.normals, scene.uvs)
+        _fill_rows(table, positions, normals, uvs)
         return table
     from concurrent.futures import ThreadPoolExecutor
     import os
     slices = [slice(i, min(i + _PARALLEL_ROWS, t)) for i in range(0, t, _PARALLEL_ROWS)]
     with ThreadPoolExecutor(max(1, os.cpu_count() or 1)) as pool:
-        list(pool.map(lambda s: _fill_rows(table[s], scene.positions[s], scene.normals[s], scene.uvs[s]), slices))
+        list(pool.map(lambda s: _fill_rows(table[s], positions[s], normals[s], uvs[s]), slices))
     return table
 
 

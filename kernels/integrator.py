@@ -201,12 +201,15 @@ class Renderer:
                     accel.result().close()
                 raise
             self.accel = accel.result()
+        # A big table's rows are built now, while the first samples render (they compute the rows they
+        # gather until then): after the BVH, which needs both cores more.
+        self._triangles.build_rows()
         trim_heap()
         threads = self.accel.threads
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
 
     def _build_tables(self, poll) -> None:
-        self._triangles = TriangleTable(self.scene)
+        self._triangles = TriangleTable(self.scene, deferred=True)
         # Motion blur: each moving object's decomposed motion and the inverse of the matrix its stored
         # positions were made with (hits are moved from there to where the object is at the path's time).
         self._motion = [motion.decompose(np.asarray(keys, np.float64)) for keys in self.scene.motion]
