@@ -42,15 +42,22 @@ class LocalMesh:
     """One evaluated mesh in object space, as the 3 corners of each of its T triangles.
 
     vertices : (V, 3) float32 vertex positions; corners : (T*3,) int32 the vertex of each triangle corner.
-    normals : (T*3, 3) float32, Blender's corner normals (flat, smooth, sharp edges, custom normals).
+    loop_normals : (L, 3) float32, Blender's corner normals (flat, smooth, sharp edges, custom normals) of
+    its L face corners; tri_loops : (T*3,) uint32 the face corner of each triangle corner.
     uvs : (T*3, 2) float32, the active render UV map, zeros without one.
     slots : (T,) int32, material slot of each triangle.
     """
     vertices: np.ndarray
     corners: np.ndarray
-    normals: np.ndarray
+    loop_normals: np.ndarray
+    tri_loops: np.ndarray
     uvs: np.ndarray
     slots: np.ndarray
+
+    @functools.cached_property
+    def normals(self) -> np.ndarray:
+        """(T*3, 3) float32 normals at the triangle corners."""
+        return np.take(self.loop_normals, self.tri_loops, axis=0)
 
     @functools.cached_property
     def positions(self) -> np.ndarray:
@@ -353,7 +360,8 @@ def read_mesh(mesh) -> LocalMesh:
     t = len(mesh.loop_triangles)
     if t == 0:  # loose vertices and edges only; such meshes may lack the corner attributes too
         empty = np.zeros((0, 3), np.float32)
-        return LocalMesh(empty, np.zeros(0, np.int32), empty, np.zeros((0, 2), np.float32), np.zeros(0, np.int32))
+        return LocalMesh(empty, np.zeros(0, np.int32), empty, np.zeros(0, np.uint32), np.zeros((0, 2), np.float32),
+                         np.zeros(0, np.int32))
     n_corners = len(mesh.loops)
     # uint32 / int32 match Blender's storage: foreach_get then copies memory instead of converting.
     tri_loops = _read(mesh.loop_triangles, "loops", t * 3, np.uint32)
@@ -361,7 +369,7 @@ def read_mesh(mesh) -> LocalMesh:
     positions = _read(mesh.attributes["position"].data, "vector", 3 * len(mesh.vertices), np.float32)
     corner_normals = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32)
     return LocalMesh(vertices=positions.reshape(-1, 3), corners=np.take(corner_verts, tri_loops),
-                     normals=np.take(corner_normals.reshape(-1, 3), tri_loops, axis=0),
+                     loop_normals=corner_normals.reshape(-1, 3), tri_loops=tri_loops,
                      uvs=_corner_uvs(mesh, tri_loops),
                      slots=_triangle_slots(mesh, t))
 
@@ -469,7 +477,9 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
     total = sum(meshes[key].triangle_count * len(matrices) for (key, _), matrices in plain.items())
     positions = padded_triangles(total)
     normals = np.empty((total, 3, 3), np.float32)
-    uvs = np.empty((total, 3, 2), np.float32)
+    # One mesh placed once (a big scanned or sculpted mesh alone, say): its UVs are the world's as they are.
+    alone = next(iter(plain)) if len(plain) == 1 and len(next(iter(plain.values()))) == 1 else None
+    uvs = meshes[alone[0]].uvs.reshape(total, 3, 2) if alone is not None else np.empty((total, 3, 2), np.float32)
     material_ids = np.empty(total, np.int32)
     world_tangents = np.zeros((total, 3, 4), np.float32) if tangents else None
     widths: dict[str, int] = {}
@@ -508,12 +518,20 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
         moved = _transform(mesh, np.stack(matrices), positions[start:end], normals[start:end])
         v = len(mesh.vertices)
         bvh_vertices.append(moved.reshape(-1, 3))
-        bvh_indices.append((mesh.corners.reshape(1, t, 3).astype(np.int64)
-                            + (vertex_count + v * np.arange(k, dtype=np.int64))[:, None, None]).reshape(-1, 3))
+        # Vertex numbers within uint32 are made in uint32 (the corners are non-negative int32).
+        wide = np.int64 if vertex_count + k * v >= 2**32 else np.uint32
+        if k == 1 and vertex_count == 0:
+            bvh_indices.append(mesh.corners.reshape(t, 3).astype(wide, copy=False) if wide is np.int64
+                               else mesh.corners.reshape(t, 3).view(np.uint32))
+        else:
+            bvh_indices.append((mesh.corners.reshape(1, t, 3).astype(wide)
+                                + (vertex_count + v * np.arange(k, dtype=np.int64)).astype(wide)[:, None, None])
+                               .reshape(-1, 3))
         vertex_count += k * v
         if key in tangents:
             transform_tangents(tangents[key], np.stack(matrices), world_tangents[start:end].reshape(k, t * 3, 4))
-        uvs[start:end].reshape(k, t, 3, 2)[:] = mesh.uvs.reshape(t, 3, 2)
+        if group != alone:
+            uvs[start:end].reshape(k, t, 3, 2)[:] = mesh.uvs.reshape(t, 3, 2)
         material_ids[start:end].reshape(k, t)[:] = mesh_materials
         object_ids[start:end].reshape(k, t)[:] = np.arange(first_row, first_row + k, dtype=np.int32)[:, None]
         for name, values in attributes.get(key, {}).items():
@@ -528,7 +546,8 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
         # One spare vertex after the array lets Embree read the vertices in place (kernels.embree).
         vertices = np.empty(3 * vertex_count + 3, np.float32)[:3 * vertex_count].reshape(-1, 3)
         np.concatenate(bvh_vertices, out=vertices)
-        bvh = (vertices, np.concatenate(bvh_indices).astype(np.uint32))
+        bvh = (vertices, (bvh_indices[0] if len(bvh_indices) == 1 else np.concatenate(bvh_indices))
+               .astype(np.uint32, copy=False))
     else:
         bvh = None
     return Geometry(positions, normals, uvs, material_ids, instance_count, world_tangents,
@@ -550,9 +569,22 @@ def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np
     with np.errstate(over="ignore", invalid="ignore"):
         moved = np.matmul(mesh.vertices[None], linear.transpose(0, 2, 1).astype(np.float32))
         moved += world_from_object[:, None, :3, 3].astype(np.float32)
-        np.take(moved, mesh.corners, axis=1, out=positions_out.reshape(k, -1, 3), mode="clip")
-    np.matmul(mesh.normals, normal_matrices(linear).transpose(0, 2, 1), out=normals_out.reshape(k, -1, 3))
+        _gather(moved, mesh.corners, positions_out.reshape(k, -1, 3))
+    # The face corners' normals are moved (no more of them than triangle corners), then gathered: each row
+    # is the same product either way.
+    moved_normals = np.matmul(mesh.loop_normals[None], normal_matrices(linear).transpose(0, 2, 1))
+    _gather(moved_normals, mesh.tri_loops, normals_out.reshape(k, -1, 3))
     return moved
+
+
+def _gather(rows: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:
+    """out[i] = rows[i][index] for (K, N, C) rows and (K, M, C) out; a 2D gather per instance for a few
+    instances (several times faster than one gather along axis 1), one along axis 1 for many."""
+    if len(rows) > 4:
+        np.take(rows, index, axis=1, out=out, mode="clip")
+        return
+    for i in range(len(rows)):
+        np.take(rows[i], index, axis=0, out=out[i], mode="clip")
 
 
 def transform_tangents(tangents: np.ndarray, world_from_object: np.ndarray, out: np.ndarray) -> None:
