@@ -24,6 +24,7 @@ import numpy as np
 from .rng import PathRng, stratified_2d
 
 CAMERA, LIGHT, LIGHT_POINT, BSDF, LOBE, LENS, TIME = 0, 1, 2, 3, 4, 5, 6
+HALF = np.float32(0.5)
 # The dimensions a bounce draws from the PCG2D stream, in order, with and without next-event estimation;
 # LOBE comes last, drawn only in scenes whose materials have more than one lobe to choose from.
 NEE_BLOCK = (LIGHT, LIGHT_POINT, BSDF)
@@ -50,7 +51,13 @@ class Samples:
         if self._strata is None:
             return self.rng.next_2d()
         self._first = {d: stratified_2d(*self._strata, self._seed, d) for d in STRATIFIED if d in self.block}
-        return stratified_2d(*self._strata, self._seed, CAMERA)
+        jx, jy = stratified_2d(*self._strata, self._seed, CAMERA)
+        # Sample 0 of every pixel looks through its centre, as Cycles' does (init_from_camera.h): a first
+        # sample without jitter, and the same expected image as Cycles' at every sample count.
+        first = self._strata[1] == 0
+        if first.any():
+            jx, jy = np.where(first, HALF, jx), np.where(first, HALF, jy)
+        return jx, jy
 
     def camera_extra(self, dimension: int) -> tuple[np.ndarray, np.ndarray]:
         """The lens or time numbers of every path; drawn after the jitter and only by cameras that use

@@ -113,3 +113,19 @@ def test_index_scramble_keeps_power_of_two_blocks_together():
         a = nested_uniform_scramble(np.arange(16, dtype=np.uint32), np.full(16, seed, np.uint32))
         b = nested_uniform_scramble(np.arange(16, dtype=np.uint32), np.full(16, seed + 1, np.uint32))
         assert not np.array_equal(a, b)
+
+
+def test_sample_zero_looks_through_the_pixel_centre():
+    """As Cycles' init_from_camera: sample 0 of each pixel has no jitter (NEE_MIS's stratified numbers);
+    the other samples keep theirs, and the PCG2D stream (LECTURE, COSINE: strata None) is untouched."""
+    from ember.kernels.samples import Samples
+    pixel = np.arange(8, dtype=np.uint32)
+    index = np.array([0, 1, 0, 5, 0, 2, 3, 0], np.uint32)
+    jx, jy = Samples(PathRng(*seed_paths(pixel, 0, 0)), (pixel, index), 0, nee=True).camera()
+    zero = index == 0
+    assert jx.dtype == np.float32 and (jx[zero] == 0.5).all() and (jy[zero] == 0.5).all()
+    assert (jx[~zero] != 0.5).all() and (jy[~zero] != 0.5).all()
+    plain = Samples(PathRng(*seed_paths(pixel, 0, 0)), None, 0, nee=True).camera()
+    expected = PathRng(*seed_paths(pixel, 0, 0)).next_2d()
+    np.testing.assert_array_equal(plain[0], expected[0])
+    np.testing.assert_array_equal(plain[1], expected[1])
