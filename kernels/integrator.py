@@ -49,12 +49,20 @@ ROULETTE_DEPTH = 3
 # independent work; wave_size then bounds each wave.
 _WAVES_PER_PASS = 4
 
+# Paths per wave when RenderSettings.wave_size is None (automatic): every bounce runs Python once per
+# material and lobe of the wave, so scenes whose materials mix lobes (Principled layers, Mix Shaders) get
+# twice the paths to spread it over. Measured on two threads: the eight Principled spheres 14% more paths/s
+# with the larger waves, the diffuse Cornell box 6% fewer.
+WAVE_SIZE = 1 << 17
+LAYERED_WAVE_SIZE = 1 << 18
+
 
 @dataclass(frozen=True)
 class RenderSettings:
     """How to render. region is (x0, y0, x1, y1) in full-frame pixels, row 0 at the top, end
     exclusive; None for the whole frame. time_limit_s = 0 means none. A wave holds at most
-    wave_size paths, which bounds memory whatever the resolution."""
+    wave_size paths, which bounds memory whatever the resolution (None: automatic, WAVE_SIZE or, for
+    materials that mix lobes, LAYERED_WAVE_SIZE; the image is the same for any wave size)."""
     samples: int = 64
     max_bounces: int = 8
     mode: str = "NEE_MIS"
@@ -62,7 +70,7 @@ class RenderSettings:
     time_limit_s: float = 0.0
     region: tuple | None = None
     transparent_background: bool = False
-    wave_size: int = 1 << 17
+    wave_size: int | None = None
     transparent_max_bounces: int = 8
     # Cycles' Clamp Direct and Clamp Indirect: a contribution whose |R| + |G| + |B| exceeds 3 x the limit
     # is scaled down to it (0: off). Direct: light reaching the first hit or the camera; indirect: the rest.
@@ -106,7 +114,7 @@ class RenderSettings:
             raise ValueError(f"time_limit_s: must be finite and non-negative, got {self.time_limit_s}")
         if int(self.transparent_max_bounces) < 0:
             raise ValueError(f"transparent_max_bounces: must be non-negative, got {self.transparent_max_bounces}")
-        if int(self.wave_size) < 1:
+        if self.wave_size is not None and int(self.wave_size) < 1:
             raise ValueError(f"wave_size: must be positive, got {self.wave_size}")
         if int(self.adaptive_min_samples) < 0:
             raise ValueError(f"adaptive_min_samples: must be non-negative (0 is automatic), got "
@@ -231,9 +239,22 @@ class Renderer:
         world = self.scene.world
         self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
         self._emissive = bool(self.shading.emissive.any())
+        # Whether a material that triangles use mixes lobes (the automatic wave size; rows nothing uses,
+        # such as the default material's, do not count).
+        used = np.zeros(len(self.shading.layered), bool)
+        for part in [self.scene] + list(self.scene.instances.prototypes if self.scene.instances is not None else ()):
+            if len(part.material_ids):
+                used |= np.bincount(part.material_ids, minlength=len(used))[:len(used)] > 0
+        self._layered = bool((self.shading.layered & used).any())
 
     def _light_sampler(self) -> LightSampler:
         return LightSampler(self.scene, self.environment, _Emitters(self))
+
+    def wave_size(self, settings: RenderSettings) -> int:
+        """The paths per wave a render with these settings uses (their wave_size, or the automatic one)."""
+        if settings.wave_size is not None:
+            return int(settings.wave_size)
+        return LAYERED_WAVE_SIZE if self._layered else WAVE_SIZE
 
     def set_camera(self, camera: Camera) -> None:
         """Look through another camera without rebuilding anything (the viewport's view changes).
@@ -394,7 +415,7 @@ class Renderer:
                 film.update_convergence(settings.adaptive_threshold)
                 if film.converged.all():
                     break
-            spp, bands = _plan_pass(width, height, done, total, settings.wave_size)
+            spp, bands = _plan_pass(width, height, done, total, self.wave_size(settings))
             if adaptive:  # passes end where the next convergence check falls
                 next_check = min_samples if done < min_samples else \
                     done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP

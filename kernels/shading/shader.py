@@ -80,7 +80,8 @@ class Shading:
                                     bool)
         self.has_holdout = any(c.kind == "HOLDOUT" for s in self.shaders for c in s.closures)
         # Whether any hit has more than one lobe to choose from (a Principled BSDF, a Mix, a delta lobe).
-        self.mixes_lobes = any(_mixes_lobes(s.closures) for s in self.shaders)
+        self.layered = np.array([_mixes_lobes(s.closures) for s in self.shaders], bool)
+        self.mixes_lobes = bool(self.layered.any())
         self.needs_uv = any(p.texture >= 0 for s in self.shaders for c in s.closures for p in c.params())
         # Plain diffuse closures (a Diffuse BSDF of roughness 0, no Mix above it, no other input) are made
         # for all hits at once from a colour table: most materials of most scenes are only that.

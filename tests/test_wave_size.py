@@ -1,0 +1,39 @@
+"""The automatic wave size (RenderSettings.wave_size None): waves of WAVE_SIZE paths, twice as many when the
+materials mix lobes; the image is the same whatever the wave size."""
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+
+from bpy_helpers import export_current
+
+from ember.kernels import Renderer, RenderSettings
+from ember.kernels.integrator import LAYERED_WAVE_SIZE, WAVE_SIZE
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench import scenes  # noqa: E402
+
+
+def _renderer(build) -> Renderer:
+    build()
+    return Renderer(export_current().scene, threads=2)
+
+
+def test_layered_materials_get_larger_waves_and_the_same_image():
+    with _renderer(lambda: scenes.materials_scene(64, 48)) as renderer:
+        assert renderer._layered
+        assert renderer.wave_size(RenderSettings()) == LAYERED_WAVE_SIZE
+        assert renderer.wave_size(RenderSettings(wave_size=1000)) == 1000
+        # 64 x 48 x 96 paths: passes and waves are cut differently at the two sizes.
+        automatic = renderer.render(RenderSettings(samples=96, seed=4)).image
+        fixed = renderer.render(RenderSettings(samples=96, seed=4, wave_size=WAVE_SIZE)).image
+    np.testing.assert_array_equal(automatic, fixed)
+
+
+def test_diffuse_scenes_keep_the_default_waves():
+    with _renderer(lambda: scenes.cornell_scene(32, 32)) as renderer:
+        # Its unused default material row is a Principled BSDF: only the materials triangles use count.
+        assert renderer.shading.mixes_lobes and not renderer._layered
+        assert renderer.wave_size(RenderSettings()) == WAVE_SIZE
