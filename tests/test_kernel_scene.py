@@ -66,6 +66,22 @@ def test_degenerate_and_nonfinite_triangles_are_dropped_and_counted():
     assert result.dropped_triangles == 3 and np.isfinite(result.image).all()
 
 
+def test_big_meshes_are_checked_on_threads_with_the_same_answer(monkeypatch):
+    """Above _PARALLEL_TRIANGLES the usable-triangle check runs in slices on threads: the same answer,
+    triangle for triangle (degenerate, non-finite and tiny ones among them, in every slice)."""
+    from ember.kernels import scene as kernel_scene
+    rng = np.random.default_rng(1)
+    pos = rng.random((30_001, 3, 3)).astype(np.float32)
+    pos[::100, 1] = pos[::100, 0]
+    pos[5::777, 2, 1] = np.nan
+    pos[7::999] *= np.float32(1e-30)
+    serial = kernel_scene._usable_slice(pos)
+    monkeypatch.setattr(kernel_scene, "_PARALLEL_TRIANGLES", 1000)
+    monkeypatch.setattr(kernel_scene.os, "cpu_count", lambda: 4)
+    np.testing.assert_array_equal(kernel_scene._usable_triangles(pos), serial)
+    assert (~serial).sum() > 300
+
+
 def test_empty_scene_renders_the_world():
     scene = make_scene(np.zeros((0, 3, 3), np.float32), np.zeros((0, 3, 3), np.float32), world_color=(0.25, 0.5, 1))
     img = render(scene, RenderSettings(samples=1)).image
