@@ -161,6 +161,38 @@ def test_denoising_passes_and_noisy_image():
     assert not [r for r in engine.reports if r[0] == {"ERROR"}]
 
 
+@pytest.mark.parametrize("node", ["ShaderNodeBsdfSheen", "ShaderNodeBsdfPrincipled"])
+def test_sheen_albedo_is_its_colour_times_its_directional_albedo(node):
+    """Cycles' bsdf_sheen_setup scales the sheen closure's weight and sample weight by the lobe's albedo
+    toward the viewer: the Denoising Albedo of a sheen floor seen straight down (mu = 1) is its colour times
+    sheen_albedo(1, roughness) (with the Principled BSDF, plus the base layer under it and the specular
+    layer's). Before, the sheen closure counted its whole colour: the albedo read white."""
+    from ember.kernels.bsdf.sheen import sheen_albedo
+    scene = plane_scene(ortho=True)
+    mat = bpy.data.materials.new("Velvet")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    shader = tree.nodes.new(node)
+    tree.links.new(shader.outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    color = (0.8, 0.6, 0.4)
+    if node == "ShaderNodeBsdfSheen":
+        shader.inputs["Color"].default_value = (*color, 1.0)
+        shader.inputs["Roughness"].default_value = 0.5
+    else:
+        shader.inputs["Base Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+        shader.inputs["Specular IOR Level"].default_value = 0.0
+        shader.inputs["Sheen Weight"].default_value = 1.0
+        shader.inputs["Sheen Tint"].default_value = (*color, 1.0)
+        shader.inputs["Sheen Roughness"].default_value = 0.5
+    bpy.data.objects["Floor"].data.materials[0] = mat
+    scene.view_layers[0].ember.denoising_store_passes = True
+    engine = render(scene, samples=2, use_denoising=True)
+    albedo = engine.image("Denoising Albedo")
+    expected = np.float32(color) * sheen_albedo(np.float32([1.0]), np.float32([0.5]))[0]
+    assert 0 < expected.max() < 0.1   # a sheen reflects little straight back: far below its colour
+    np.testing.assert_allclose(albedo, np.broadcast_to(expected, albedo.shape), rtol=1e-4, atol=1e-6)
+
+
 def test_passes_reach_blenders_output():
     """Through bpy.ops.render.render the passes Ember registers reach Blender's multilayer EXR."""
     scene = plane_scene()

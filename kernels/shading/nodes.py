@@ -15,6 +15,7 @@ import numpy as np
 
 from ..bsdf import closures as lobes
 from ..bsdf import microfacet_closures as mf
+from .. import sampling
 from ..bsdf.sheen import sheen_albedo
 from ..scene import Closure, NormalMap, Param, Tangent
 from . import normals, ops
@@ -239,8 +240,19 @@ def _transparent(c, ctx, w, b):
 def _sheen(c, ctx, w, b):
     if b is not None:
         rough = np.clip(ctx.input(c, "Roughness"), 0.0, 1.0)
-        b.add(lobes.SHEEN, ctx.idx, ctx.input(c, "Color") * w, normal=ctx.normal_arg, rough=rough, **_soften(ctx))
+        weight = ctx.input(c, "Color") * w
+        albedo = sheen_albedo(ctx.mu(), rough)
+        b.add(lobes.SHEEN, ctx.idx, weight, sample_weight=_sheen_sample_weight(weight, albedo),
+              normal=ctx.normal_arg, rough=rough, **_soften(ctx))
     return Built()
+
+
+def _sheen_sample_weight(weight, albedo):
+    """Cycles' bsdf_sheen_setup scales a sheen closure's sample weight by the lobe's albedo toward the
+    viewer (its colour weight too; Ember's lobe carries that factor in its evaluation instead): the lobe is
+    picked in proportion to the light it reflects, and its albedo (Denoising Albedo, Diffuse Color) is
+    weight x albedo. A closure whose albedo Cycles would drop gets 0 and is not made."""
+    return (np.abs(sampling.channel_mean(np.asarray(weight, F32))) * albedo).astype(F32)
 
 
 def _emission(c, ctx, w, b):
@@ -339,10 +351,11 @@ def _principled(c, ctx, w, b):
             sheen = ctx.with_normal(normals.safe_normalize(tuple(n + (m - n) * t for n, m in zip(ctx.ns, coat.ns))))
         rough = np.clip(get("Sheen Roughness")[has], 0.0, 1.0)
         sheen_weight = sheen_w[has] * np.maximum(get("Sheen Tint")[:, has], ZERO) * weight[:, has]
-        if b is not None:
-            b.add(lobes.SHEEN, ctx.idx[has], sheen_weight, normal=_rows(sheen.normal_arg, has), rough=rough,
-                  **_soften(sheen))
         albedo = sheen_albedo(sheen.mu()[has], rough)
+        if b is not None:
+            b.add(lobes.SHEEN, ctx.idx[has], sheen_weight,
+                  sample_weight=_sheen_sample_weight(sheen_weight, albedo),
+                  normal=_rows(sheen.normal_arg, has), rough=rough, **_soften(sheen))
         weight[:, has] = layering_weight(sheen_weight * albedo, weight[:, has])
     # 2. Coat: GGX with exact dielectric Fresnel at the coat IOR, then its tint along the refracted path.
     has = np.flatnonzero(coat_w > CUTOFF)
