@@ -600,7 +600,7 @@ class Renderer:
             if aux is not None and step == 0:
                 self._data_passes(aux, state, hit, shading.closures, settings)
             if state.features is not None:
-                self._denoising_features(aux, state, hit, shading.closures, t_hit)
+                self._denoising_features(aux, state, hit, shading, t_hit)
             if state.min_ray_pdf is not None:
                 _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
             if self._emissive:
@@ -698,21 +698,29 @@ class Renderer:
         post = _raster(camera, cam_after, moved(after))
         return np.concatenate([pre - centre, centre - post]).astype(np.float32)
 
-    def _denoising_features(self, aux: dict, state, hit, closures, t_hit) -> None:
+    def _denoising_features(self, aux: dict, state, hit, shading, t_hit) -> None:
         """Cycles' denoising features: written at the first hit that is not mostly specular (the depth
-        summed over the segments until then, each weighted by the feature throughput)."""
+        summed over the segments until then, each weighted by the feature throughput). The albedo also
+        takes the emission of emitters that paths still looking for it meet, times the feature throughput,
+        as the world's colour (Cycles' film_write_emission_or_background_pass): an emitter the camera sees
+        has its emission as albedo. Albedo is kept within [0, 1], what OpenImageDenoise reads."""
+        closures = shading.closures
         open_ = np.flatnonzero(~np.isnan(state.features[0]))
         if not len(open_):
             return
         if "denoising_depth" in aux:
             aux["denoising_depth"][0, state.path[open_]] += state.features[:, open_].mean(axis=0) * \
                 np.take(t_hit, open_)
+        if "denoising_albedo" in aux and self._emissive:
+            lit = open_[np.take(self.shading.emissive, np.take(hit.mat, open_))]
+            if len(lit):
+                _add_albedo(aux, state.path[lit], state.features[:, lit] * np.take(shading.emission, lit, axis=1))
         normal, diffuse, specular, done = passes.denoising_features(closures, len(hit), hit.ns)
         rows = open_[done[open_]]
         if len(rows):
             paths = state.path[rows]
             if "denoising_albedo" in aux:
-                aux["denoising_albedo"][:, paths] = np.clip(state.features[:, rows] * diffuse[:, rows], 0.0, 1.0)
+                _add_albedo(aux, paths, state.features[:, rows] * diffuse[:, rows])
             if "denoising_normal" in aux:
                 rotation = self._camera_frame[1].astype(np.float32)  # columns: right, up, back
                 aux["denoising_normal"][:, paths] = (rotation.T @ normal[:, rows]) * \
@@ -817,8 +825,7 @@ class Renderer:
             # feature throughput is its albedo, as in Cycles.
             seen = np.flatnonzero(~np.isnan(state.features[0, miss]))
             if len(seen):
-                wave.aux["denoising_albedo"][:, state.path[miss[seen]]] = np.clip(
-                    state.features[:, miss[seen]] * light[:, seen], 0.0, 1.0)
+                _add_albedo(wave.aux, state.path[miss[seen]], state.features[:, miss[seen]] * light[:, seen])
         if wave.nee:
             mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
             if len(mis):
@@ -1192,6 +1199,12 @@ def _class_shares(f, f_diffuse, f_glossy) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.nan_to_num(np.concatenate([f_diffuse / f, f_glossy / f]), nan=0.0, posinf=0.0,
                              neginf=0.0).astype(np.float32)
+
+
+
+def _add_albedo(aux: dict, paths: np.ndarray, albedo: np.ndarray) -> None:
+    """Add (3, n) albedo to the Denoising Albedo of paths (one entry per path), kept within [0, 1]."""
+    aux["denoising_albedo"][:, paths] = np.minimum(aux["denoising_albedo"][:, paths] + np.maximum(albedo, 0.0), 1.0)
 
 
 def _accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> None:

@@ -193,6 +193,18 @@ def test_sheen_albedo_is_its_colour_times_its_directional_albedo(node):
     np.testing.assert_allclose(albedo, np.broadcast_to(expected, albedo.shape), rtol=1e-4, atol=1e-6)
 
 
+def test_an_emitter_seen_by_the_camera_has_its_emission_as_albedo():
+    """Cycles writes what emitters give paths still looking for their denoising features into the
+    Denoising Albedo (film_write_emission_or_background_pass): a dim emissive floor reads its emission
+    (Ember keeps albedo within [0, 1], what OpenImageDenoise reads)."""
+    scene = plane_scene(ortho=True)
+    bpy.data.objects["Floor"].data.materials[0] = emission_material("Glow", (0.8, 0.6, 0.4), 0.5)
+    scene.view_layers[0].ember.denoising_store_passes = True
+    engine = render(scene, samples=2, use_denoising=True)
+    albedo = engine.image("Denoising Albedo")
+    np.testing.assert_allclose(albedo, np.broadcast_to([0.4, 0.3, 0.2], albedo.shape), rtol=1e-5)
+
+
 def test_passes_reach_blenders_output():
     """Through bpy.ops.render.render the passes Ember registers reach Blender's multilayer EXR."""
     scene = plane_scene()
