@@ -1201,7 +1201,6 @@ def _class_shares(f, f_diffuse, f_glossy) -> np.ndarray:
                              neginf=0.0).astype(np.float32)
 
 
-
 def _add_albedo(aux: dict, paths: np.ndarray, albedo: np.ndarray) -> None:
     """Add (3, n) albedo to the Denoising Albedo of paths (one entry per path), kept within [0, 1]."""
     aux["denoising_albedo"][:, paths] = np.minimum(aux["denoising_albedo"][:, paths] + np.maximum(albedo, 0.0), 1.0)

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import sampling
 from ..bsdf import closures as lobes
 from ..bsdf import microfacet_closures as mf
-from .. import sampling
 from ..bsdf.sheen import sheen_albedo
 from ..scene import Closure, NormalMap, Param, Tangent
 from . import normals, ops
