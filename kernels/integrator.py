@@ -241,11 +241,9 @@ class Renderer:
         self._emissive = bool(self.shading.emissive.any())
         # Whether a material that triangles use mixes lobes (the automatic wave size; rows nothing uses,
         # such as the default material's, do not count).
-        used = np.zeros(len(self.shading.layered), bool)
-        for part in [self.scene] + list(self.scene.instances.prototypes if self.scene.instances is not None else ()):
-            if len(part.material_ids):
-                used |= np.bincount(part.material_ids, minlength=len(used))[:len(used)] > 0
-        self._layered = bool((self.shading.layered & used).any())
+        layered = self.shading.layered
+        used = np.bincount(self._triangles.material_ids, minlength=len(layered))[:len(layered)] > 0
+        self._layered = bool((layered & used).any())
 
     def _light_sampler(self) -> LightSampler:
         return LightSampler(self.scene, self.environment, _Emitters(self))

@@ -52,10 +52,14 @@ def test_deferred_rows_equal_the_built_table(monkeypatch):
     np.testing.assert_array_equal(late.rows, eager.rows)
 
 
-def test_small_or_instanced_scenes_build_at_once():
+def test_small_or_instanced_scenes_build_at_once(monkeypatch):
     scene = _plain_scene()
     assert len(scene.positions) < geometry.DEFERRED_ROWS
     assert TriangleTable(scene, deferred=True)._rows is not None
+    # Instances place their rows as they are gathered: their table is never deferred, whatever its size.
+    monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
+    assert TriangleTable(_scene().validate().scene, deferred=True)._rows is not None
+    assert TriangleTable(scene, deferred=True)._rows is None
 
 
 @pytest.mark.parametrize("mode", ["computed", "built"])

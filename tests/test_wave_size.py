@@ -10,7 +10,7 @@ import numpy as np
 from bpy_helpers import export_current
 
 from ember.kernels import Renderer, RenderSettings
-from ember.kernels.integrator import LAYERED_WAVE_SIZE, WAVE_SIZE
+from ember.kernels.integrator import LAYERED_WAVE_SIZE, WAVE_SIZE, _plan_pass
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench import scenes  # noqa: E402
@@ -26,9 +26,11 @@ def test_layered_materials_get_larger_waves_and_the_same_image():
         assert renderer._layered
         assert renderer.wave_size(RenderSettings()) == LAYERED_WAVE_SIZE
         assert renderer.wave_size(RenderSettings(wave_size=1000)) == 1000
-        # 64 x 48 x 96 paths: passes and waves are cut differently at the two sizes.
-        automatic = renderer.render(RenderSettings(samples=96, seed=4)).image
-        fixed = renderer.render(RenderSettings(samples=96, seed=4, wave_size=WAVE_SIZE)).image
+        # 64 x 48 pixels x 256 samples: after the first pass the two sizes take other samples per pass
+        # (at 96 samples both took all 95 left in one pass, and the test could not fail).
+        assert _plan_pass(64, 48, 1, 256, LAYERED_WAVE_SIZE) != _plan_pass(64, 48, 1, 256, WAVE_SIZE)
+        automatic = renderer.render(RenderSettings(samples=256, seed=4)).image
+        fixed = renderer.render(RenderSettings(samples=256, seed=4, wave_size=WAVE_SIZE)).image
     np.testing.assert_array_equal(automatic, fixed)
 
 
