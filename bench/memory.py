@@ -4,7 +4,9 @@
 
 For every size: the wall time of the render call, the process's peak resident memory (VmHWM) over the
 render, and the peak of Ember's own NumPy memory (tracemalloc; Blender's C allocations are not in it).
-The README's formula is checked against the figures:
+Renders that last long enough get a worker process (kernels/workers.py): its peak resident memory
+(RUSAGE_CHILDREN, after it exits with the renderer) is printed beside, as the memory the render adds to the
+machine. The README's formula is checked against the figures:
 
     Ember's memory = 32 bytes per pixel (the float64 RGBA film; the benchmark turns adaptive sampling off,
                      whose buffers make it 49) + a working set of at most WORKING_SET_MB
@@ -29,7 +31,7 @@ WORKING_SET_MB = 192  # bound on the waves in flight (two threads, 131k paths ea
 LAYERED_WORKING_SET_MB = 384  # the same with waves of 262k paths (materials that mix lobes)
 
 CHILD = r"""
-import json, os, sys, time, tracemalloc
+import json, os, resource, sys, time, tracemalloc
 sys.path.insert(0, %(root)r); sys.path.insert(0, os.path.join(%(root)r, "tests"))
 from bench._common import import_ember; import_ember()
 import bpy
@@ -69,8 +71,10 @@ bpy.ops.render.render()
 wall = time.perf_counter() - start
 numpy_peak = tracemalloc.get_traced_memory()[1]
 tracemalloc.stop()
+workers_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss   # the renderer closed its workers
 print("RESULT " + json.dumps({"size": size, "wall_s": wall, "rss_before_mb": before / 1024,
-                              "rss_peak_mb": peak_kb() / 1024, "ember_peak_mb": numpy_peak / 2**20}))
+                              "rss_peak_mb": peak_kb() / 1024, "ember_peak_mb": numpy_peak / 2**20,
+                              "worker_peak_mb": workers_kb / 1024}))
 """
 
 
@@ -92,7 +96,7 @@ def main() -> int:
     args = ap.parse_args()
     bound = LAYERED_WORKING_SET_MB if args.layered else WORKING_SET_MB
     print(f"{'size':>11} | {'render s':>8} | {'peak RSS MB':>11} | {'RSS growth MB':>13} | {'Ember MB':>8} | "
-          f"{'film MB':>7} | Ember - film (working set) MB", flush=True)
+          f"{'film MB':>7} | {'working set MB':>14} | worker process peak RSS MB", flush=True)
     ok = True
     for size in map(int, args.sizes.split(",")):
         r = measure(size, args.samples, args.display, args.layered)
@@ -101,7 +105,7 @@ def main() -> int:
         ok &= working <= bound
         print(f"{size:>5}x{size:<5} | {r['wall_s']:8.2f} | {r['rss_peak_mb']:11.0f} | "
               f"{r['rss_peak_mb'] - r['rss_before_mb']:13.0f} | {r['ember_peak_mb']:8.0f} | {film:7.0f} | "
-              f"{working:.0f}", flush=True)
+              f"{working:14.0f} | {r['worker_peak_mb']:.0f}", flush=True)
     print(f"\nformula: Ember = {FILM_BYTES_PER_PIXEL} B/pixel + at most {bound} MB: "
           f"{'holds' if ok else 'BROKEN'}")
     return 0 if ok else 1

@@ -320,6 +320,8 @@ class FinalRender:
         if self._previews is not None:
             self._dirty = (0, result.film.height)  # denoised previews wrote Combined alone: every row again
         self._flush(result.film)
+        if renderer.worker_failures:  # the image is whole (their waves ran here), but slower than it could be
+            self._warn([f"a worker process failed, its waves ran in this process: {renderer.worker_failures[0]}"])
         self._stamp_metadata(result.film)
         if self._denoise and not self.cancelled and result.film.samples_done > 0:
             self._denoise_final(result.film)

@@ -286,6 +286,12 @@ class Accel:
             out[sel[hit]] = True
         return out
 
+    def count(self, rays: int, seconds: float) -> None:
+        """Add rays traced and seconds in Embree elsewhere (a worker process's twin of this scene)."""
+        with self._lock:
+            self.seconds_in_embree += seconds
+            self.rays_traced += rays
+
     def _run(self, job, n: int, split: bool) -> None:
         start = time.perf_counter()
         chunks = self.threads * _CHUNKS_PER_THREAD

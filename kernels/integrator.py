@@ -11,6 +11,7 @@ max_bounces + 1 times (the lecture's "max path length").
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 import weakref
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -39,6 +40,7 @@ from .scene import (OBJ_PASS_INDEX, Camera, Lights, Materials, SceneArrays, Worl
 from .shading import Shading
 from .shading.world import WorldShader
 from .textures import Texture
+from .workers import WaveSlots, WorkerLost, WorkerSet, python_executable
 
 SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
 # Russian roulette starts once a path has scattered this many times (NEE_MIS only: LECTURE and COSINE
@@ -55,6 +57,13 @@ _WAVES_PER_PASS = 4
 # with the larger waves, the diffuse Cornell box 6% fewer.
 WAVE_SIZE = 1 << 17
 LAYERED_WAVE_SIZE = 1 << 18
+
+# Worker processes (kernels/workers.py): a renderer with several threads starts threads - 1 children once
+# a render has this many seconds left by its rate so far (a child takes about half a second to start and
+# build its copy of a small scene), unless the scene's arrays are over the byte bound (each child holds a
+# copy of them and its own BVH: big scenes stay in one process, with threads).
+WORKER_START_S = 1.5
+WORKER_MAX_BYTES = 256 << 20
 
 
 @dataclass(frozen=True)
@@ -169,17 +178,39 @@ class RenderResult:
         return self.film.resolve()
 
 
+def _forwarded(method):
+    """An incremental update that worker processes apply too (after this renderer did, without error), so
+    that they stay its twins; updates called by updates are not sent again."""
+    @functools.wraps(method)
+    def update(self, *args, **kwargs):
+        self._update_depth += 1
+        try:
+            result = method(self, *args, **kwargs)
+        finally:
+            self._update_depth -= 1
+        if self._update_depth == 0 and self._workers is not None and result is not False:
+            self._workers.forward(method.__name__, args, kwargs)
+        return result
+    return update
+
+
 class Renderer:
     """A validated scene with its acceleration structure, ready to render any number of times; between
     renders, moved instances, edited materials and lights can be swapped in without building it again
     (update_instances, update_materials, update_lights: the viewport's incremental updates)."""
 
     def __init__(self, scene: SceneArrays, threads: int = 0, should_stop: Callable[[], bool] | None = None,
-                 reuse: "Renderer | None" = None):
+                 reuse: "Renderer | None" = None, processes: bool | None = None):
         """should_stop() is polled between the stages of the build (each stage is one long C or NumPy
         call that cannot be interrupted); Cancelled is raised when it returns True.
         reuse : the renderer of an earlier frame (persistent data): its instanced meshes whose triangles
-        have not changed keep their BVH (see also update_scene, which keeps everything)."""
+        have not changed keep their BVH (see also update_scene, which keeps everything).
+        processes : whether waves may run in worker processes (threads - 1 of them, kernels/workers.py):
+        None starts them when a render has WORKER_START_S left, True now, False never. The image is the
+        same bit for bit wherever its waves run."""
+        self._update_depth = 0
+        self._workers = None
+        self._wave_pool = None
         def poll():
             if should_stop is not None and should_stop():
                 raise Cancelled()
@@ -215,6 +246,36 @@ class Renderer:
         trim_heap()
         threads = self.accel.threads
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
+        self._processes = processes if threads > 1 and python_executable() is not None else False
+        self._slots = WaveSlots(threads)
+        self.remote_waves = 0    # waves rendered by worker processes (all renders)
+        if self._processes:
+            self.start_workers()
+
+    def start_workers(self) -> bool:
+        """Start the worker processes now (they join the waves as they become ready); False when this
+        renderer does not use them (one thread, processes=False, no Python to start, a big scene)."""
+        if self._processes is False:
+            return False
+        if self._workers is None:
+            self._workers = WorkerSet(self._slots)
+            if not self._workers.start(self.accel.threads - 1, self.scene, WORKER_MAX_BYTES):
+                self._processes = False   # not again for this renderer
+                return False
+        return True
+
+    def wait_for_workers(self, timeout_s: float = 60.0) -> int:
+        """Block until every started worker is ready or failed; the number ready."""
+        deadline = time.perf_counter() + timeout_s
+        workers = self._workers.workers if self._workers is not None else []
+        while time.perf_counter() < deadline and any(not w.ready and not w.closed for w in workers):
+            time.sleep(0.01)
+        return self._workers.ready if self._workers is not None else 0
+
+    @property
+    def worker_failures(self) -> list[str]:
+        """Why worker processes were not started, failed or were dropped (their waves ran here)."""
+        return list(self._workers.failures) if self._workers is not None else []
 
     def _build_tables(self, poll) -> None:
         self._triangles = TriangleTable(self.scene, deferred=True)
@@ -254,6 +315,7 @@ class Renderer:
             return int(settings.wave_size)
         return LAYERED_WAVE_SIZE if self._layered else WAVE_SIZE
 
+    @_forwarded
     def set_camera(self, camera: Camera) -> None:
         """Look through another camera without rebuilding anything (the viewport's view changes).
         Call between renders, never during one."""
@@ -270,6 +332,7 @@ class Renderer:
     # before changing anything when the change does not fit the built scene (the caller then builds a
     # new Renderer). Call them between renders, never during one.
 
+    @_forwarded
     def update_instances(self, world_from_object: np.ndarray, objects: np.ndarray | None = None,
                          lights: bool = True) -> None:
         """Move the scene's instances (kernels.scene.Instances): world_from_object (K, 4, 4) float64, one per
@@ -315,6 +378,7 @@ class Renderer:
         moved = (world_from_object != instances.world_from_object).any(axis=(1, 2))
         return bool(emits[instances.prototype[moved]].any())
 
+    @_forwarded
     def update_materials(self, materials: Materials, textures: tuple = (), texture_srgb: tuple = (),
                          world: World | None = None) -> None:
         """New materials, textures and world (None: keep it): a material, node tree, image or world edit.
@@ -330,6 +394,7 @@ class Renderer:
             self._build_shading()
             self.lights = self._light_sampler()
 
+    @_forwarded
     def update_scene(self, scene: SceneArrays) -> bool:
         """The next frame of an animation with persistent data: when its geometry is this renderer's (the
         plain triangles and the instanced meshes equal array for array, the same instances in the same
@@ -359,6 +424,7 @@ class Renderer:
         self.dropped_triangles = checked.dropped_triangles
         return True
 
+    @_forwarded
     def update_lights(self, lights: Lights) -> None:
         """New Blender lights (moved, edited, added or removed): only the light sampler is rebuilt."""
         lights.validate()
@@ -372,6 +438,8 @@ class Renderer:
         if self._wave_pool is not None:
             self._wave_pool.shutdown(wait=True)
             self._wave_pool = None
+        if self._workers is not None:
+            self._workers.close()
         self.accel.close()
         self.lights = None
 
@@ -427,7 +495,7 @@ class Renderer:
                 while next_band < len(bands) and len(in_flight) < self.accel.threads:
                     r0, r1 = bands[next_band]
                     active = ~film.converged[r0:r1] if adaptive else None
-                    in_flight.append((r0, r1, self._submit(self._render_rows, settings, x0, y0, width, r0, r1,
+                    in_flight.append((r0, r1, self._submit(self._wave, settings, x0, y0, width, r0, r1,
                                                            int(settings.sample_offset) + done, spp, split,
                                                            active)))
                     next_band += 1
@@ -445,6 +513,8 @@ class Renderer:
                     on_tile(film, r0, r1)
                 if on_progress is not None:
                     on_progress(progress)
+                if self._processes is None and self._workers is None and self._worth_workers(progress, start):
+                    self.start_workers()
                 # A time limit always lets the first full pass finish, as Cycles' does.
                 if not stopped and ((should_stop is not None and should_stop()) or (
                         film.samples_done > 0 and self._out_of_time(settings, start))):
@@ -454,6 +524,33 @@ class Renderer:
                 stopped = False  # the stop came with the last wave: the render is complete
             done += spp
         return RenderResult(film, progress, stopped, self.dropped_triangles)
+
+    @staticmethod
+    def _worth_workers(progress: Progress, start: float) -> bool:
+        """Whether the render has WORKER_START_S left at its rate so far."""
+        if progress.paths <= 0 or progress.fraction >= 1.0:
+            return False
+        elapsed = time.perf_counter() - start
+        return elapsed * (1.0 - progress.fraction) / progress.fraction > WORKER_START_S
+
+    def _wave(self, *args):
+        """_render_rows(*args) in a free slot: this process or a ready worker process. A worker that is lost
+        (closed, exited, failed) gives its slot back to this process, and the wave runs here."""
+        slot = self._slots.take()
+        try:
+            if slot is not None:
+                try:
+                    result, rays, seconds = slot.render_rows(args)
+                except WorkerLost as err:
+                    self._workers.lost(slot, err)
+                    slot = None
+                else:
+                    self.accel.count(rays, seconds)
+                    self.remote_waves += 1
+                    return result
+            return self._render_rows(*args)
+        finally:
+            self._slots.give(slot)
 
     @staticmethod
     def _out_of_time(settings: RenderSettings, start: float) -> bool:

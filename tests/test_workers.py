@@ -1,0 +1,171 @@
+"""Waves in worker processes (kernels/workers.py): the image, its passes and its statistics are the same bit
+for bit as with threads; the viewport's and animations' updates reach the workers; a worker that dies loses
+no wave; short renders and big scenes start none."""
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+import pytest
+
+from bpy_helpers import export_current
+
+from ember.kernels import Renderer, RenderSettings
+from ember.kernels import integrator, workers
+from ember.kernels.integrator import Progress
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench import scenes  # noqa: E402
+
+# Small waves, so that a short render has many and the workers take some of them.
+SETTINGS = RenderSettings(samples=12, seed=3, wave_size=1024, passes=("normal", "diffuse_direct", "depth"),
+                          cryptomatte=("object",))
+
+
+def _materials_scene(width=40, height=24):
+    scenes.materials_scene(width, height)
+    return export_current().scene
+
+
+def _render(renderer, settings=SETTINGS, **kwargs):
+    result = renderer.render(settings, **kwargs)
+    film = result.film
+    images = {"image": result.image, **{k: np.asarray(v) for k, v in film.aux.items()}}
+    for kind, crypto in film.crypto.items():
+        images[f"crypto_{kind}_ids"], images[f"crypto_{kind}_weights"] = crypto.ids, crypto.weights
+    return result, images
+
+
+def _assert_same(a: dict, b: dict):
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+@pytest.fixture(scope="module")
+def materials():
+    return _materials_scene()
+
+
+@pytest.fixture(scope="module")
+def reference(materials):
+    with Renderer(materials, threads=2, processes=False) as renderer:
+        result, images = _render(renderer)
+        adaptive = renderer.render(RenderSettings(samples=40, seed=5, wave_size=1024, adaptive_threshold=0.05,
+                                                  adaptive_min_samples=8)).image
+    return result, images, adaptive
+
+
+def test_frames_round_trip_arrays_without_copies_in_the_pickle():
+    import io
+    rows = np.arange(4096, dtype=np.float32).reshape(64, 64)
+    message = ("rows", (rows, rows[:, ::2], {"n": 3}, np.zeros(0, np.int64)))
+    stream = io.BytesIO()
+    workers.send(stream, message)
+    data, views = workers.pickled(message)
+    # The contiguous array travels beside the pickle; the strided view (a copy of half of it) inside it.
+    assert len(data) < 0.6 * rows.nbytes and views[0].nbytes == rows.nbytes
+    stream.seek(0)
+    back = workers.receive(stream)
+    np.testing.assert_array_equal(back[1][0], rows)
+    np.testing.assert_array_equal(back[1][1], rows[:, ::2])
+    assert back[1][2] == {"n": 3} and back[1][3].dtype == np.int64
+    with pytest.raises(EOFError):
+        workers.receive(io.BytesIO(b"\x01\x02"))
+
+
+def test_worker_processes_render_the_same_image_passes_and_counts(materials, reference):
+    result0, images0, adaptive0 = reference
+    with Renderer(materials, threads=2, processes=True) as renderer:
+        assert renderer.wait_for_workers() == 1, renderer.worker_failures
+        result, images = _render(renderer)
+        assert renderer.remote_waves > 0
+        _assert_same(images, images0)
+        assert result.progress.rays == result0.progress.rays
+        assert result.progress.paths == result0.progress.paths
+        # Adaptive sampling sends each wave its pixels still rendering.
+        before = renderer.remote_waves
+        adaptive = renderer.render(RenderSettings(samples=40, seed=5, wave_size=1024, adaptive_threshold=0.05,
+                                                  adaptive_min_samples=8)).image
+        assert renderer.remote_waves > before
+        np.testing.assert_array_equal(adaptive, adaptive0)
+        assert renderer.worker_failures == []
+
+
+def test_updates_reach_the_workers(materials):
+    """The camera, a material edit and the next frame's scene are applied in the workers too."""
+    import bpy
+    with Renderer(materials, threads=2, processes=True) as renderer:
+        assert renderer.wait_for_workers() == 1
+        bpy.context.scene.camera.location.x += 0.3
+        for material in bpy.data.materials:
+            if material.node_tree is not None:
+                for node in material.node_tree.nodes:
+                    if node.type == "BSDF_PRINCIPLED":
+                        node.inputs["Base Color"].default_value = (0.9, 0.2, 0.1, 1.0)
+                        node.inputs["Roughness"].default_value = 0.35
+        edited = export_current().scene
+        assert renderer.update_scene(edited)
+        before = renderer.remote_waves
+        _, images = _render(renderer)
+        assert renderer.remote_waves > before
+        assert renderer.worker_failures == []
+    with Renderer(edited, threads=2, processes=False) as fresh:
+        _, expected = _render(fresh)
+    _assert_same(images, expected)
+    _materials_scene()  # the module's other tests read the scene as it was
+
+
+def test_a_worker_that_dies_mid_render_loses_no_wave(materials, reference):
+    _, images0, _ = reference
+    with Renderer(materials, threads=2, processes=True) as renderer:
+        assert renderer.wait_for_workers() == 1
+        child = renderer._workers.workers[0].process
+        waves = []
+
+        def kill_after_a_remote_wave(progress):
+            waves.append(renderer.remote_waves)
+            if renderer.remote_waves and child.poll() is None:
+                child.kill()
+        _, images = _render(renderer, on_progress=kill_after_a_remote_wave)
+        assert child.poll() is not None and max(waves) > 0
+        _assert_same(images, images0)
+        assert len(renderer.worker_failures) == 1
+        # The next render runs in this process alone, and is the same again.
+        after = renderer.remote_waves
+        _, again = _render(renderer)
+        assert renderer.remote_waves == after
+        _assert_same(again, images0)
+
+
+def test_a_worker_that_cannot_build_the_scene_is_not_used(materials, monkeypatch):
+    # A child that cannot import the package (a broken path) reports and exits: no slot waits for it.
+    monkeypatch.setattr(workers, "_BOOT", "import sys; sys.exit(3)")
+    with Renderer(materials, threads=2, processes=True) as renderer:
+        assert renderer.wait_for_workers() == 0
+        assert len(renderer.worker_failures) == 1
+        _, images = _render(renderer, RenderSettings(samples=2, seed=1, wave_size=1024))
+        assert renderer.remote_waves == 0
+
+
+def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
+    with Renderer(materials, threads=2) as renderer:
+        renderer.render(RenderSettings(samples=2, seed=1))
+        assert renderer._workers is None and renderer.remote_waves == 0
+    with Renderer(materials, threads=1, processes=True) as renderer:   # one thread: nothing to share
+        assert renderer._workers is None
+    monkeypatch.setattr(integrator, "WORKER_MAX_BYTES", 1 << 10)
+    with Renderer(materials, threads=2, processes=True) as renderer:
+        assert renderer._workers is not None and renderer._workers.workers == []
+        assert "MB are over" in renderer._workers.skipped and renderer.worker_failures == []
+        assert renderer.start_workers() is False
+
+
+def test_the_start_waits_for_a_render_with_time_left():
+    # 10% done after 0.2 s: 1.8 s left, over WORKER_START_S; 90% done: 0.02 s left.
+    import time
+    start = time.perf_counter() - 0.2
+    assert Renderer._worth_workers(Progress(1, 10, 0.1, 0.2, paths=100), start)
+    assert not Renderer._worth_workers(Progress(9, 10, 0.9, 0.2, paths=900), start)
+    assert not Renderer._worth_workers(Progress(0, 10, 0.0, 0.0), start)
