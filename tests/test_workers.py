@@ -160,6 +160,9 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
         assert renderer._workers is not None and renderer._workers.workers == []
         assert "MB are over" in renderer._workers.skipped and renderer.worker_failures == []
         assert renderer.start_workers() is False
+    monkeypatch.setattr(integrator, "WORKER_MAX_TRIANGLES", 1000)
+    with Renderer(materials, threads=2, processes=True) as renderer:
+        assert "triangles are over 1000" in renderer._workers.skipped and renderer._workers.workers == []
 
 
 def test_the_start_waits_for_a_render_with_time_left():
