@@ -65,6 +65,9 @@ LAYERED_WAVE_SIZE = 1 << 18
 # more than the child brought (0.70x Cycles' paths/s against 0.86x with threads alone; Embree's share of
 # the work, which releases the GIL, is larger there too).
 WORKER_START_S = 1.5
+# ... or at once when a render has this many paths (2-4 s at 0.5-1M paths/s): a time-limited render, the
+# eight spheres at 256x256 and 32 samples.
+WORKER_START_PATHS = 2_000_000
 WORKER_MAX_BYTES = 512 << 20
 WORKER_MAX_TRIANGLES = 1 << 18
 
@@ -209,7 +212,8 @@ class Renderer:
         reuse : the renderer of an earlier frame (persistent data): its instanced meshes whose triangles
         have not changed keep their BVH (see also update_scene, which keeps everything).
         processes : whether waves may run in worker processes (threads - 1 of them, kernels/workers.py):
-        None starts them when a render has WORKER_START_S left, True now, False never. The image is the
+        None starts them when a render has WORKER_START_PATHS paths, or WORKER_START_S left by its rate
+        after a wave; True now; False never. The image is the
         same bit for bit wherever its waves run."""
         self._update_depth = 0
         self._workers = None
@@ -481,6 +485,8 @@ class Renderer:
         done = 0
         adaptive = settings.adaptive_threshold > 0
         min_samples = adaptive_min_samples(settings) if adaptive else total
+        if self._processes is None and self._workers is None and width * height * total >= WORKER_START_PATHS:
+            self.start_workers()
         while done < total and not stopped:
             if done and self._out_of_time(settings, start):
                 stopped = True  # a pass never starts after the limit: the image stays evenly sampled
