@@ -120,12 +120,12 @@ def lookup_2d(data: np.ndarray, x, y):
     return _lookup_2d_in_slice(data[None], 0, x, y)
 
 
-def _lookup_2d_in_slice(data: np.ndarray, k, x, y):
+def _lookup_2d_in_slice(data: np.ndarray, k, x, y, axes=None):
     """Bilinear lookup in the slices data[k] of a 3D table (k an index array or 0). Gathers from the
-    flattened table with np.take: about twice as fast as indexing with three arrays."""
+    flattened table with np.take: about twice as fast as indexing with three arrays. axes: the x and y
+    axes (_axis) when the caller has them already."""
     nz, ny, nx = data.shape
-    x0, x1, tx = _axis(x, nx)
-    y0, y1, ty = _axis(y, ny)
+    x0, x1, tx, y0, y1, ty = axes if axes is not None else (*_axis(x, nx), *_axis(y, ny))
     flat = data.reshape(-1)
     r0 = (k * ny + y0) * nx
     r1 = (k * ny + y1) * nx
@@ -134,12 +134,29 @@ def _lookup_2d_in_slice(data: np.ndarray, k, x, y):
     return ((ONE - ty) * row0 + ty * row1).astype(np.float32)
 
 
-def lookup_3d(data: np.ndarray, x, y, z):
-    """data (nz, ny, nx): x indexes the last axis."""
-    z0, z1, tz = _axis(z, data.shape[0])
-    lo = _lookup_2d_in_slice(data, z0, x, y)
-    hi = _lookup_2d_in_slice(data, z1, x, y)
+def lookup_3d(data: np.ndarray, x, y, z, offset=0):
+    """data (nz, ny, nx): x indexes the last axis. offset: added to the slice index, for tables stacked
+    along z (the slices stay those of z's own nz, `_stacked`)."""
+    nz = data.shape[0] if np.ndim(offset) == 0 and offset == 0 else _STACKED_NZ[id(data)]
+    z0, z1, tz = _axis(z, nz)
+    axes = (*_axis(x, data.shape[2]), *_axis(y, data.shape[1]))
+    lo = _lookup_2d_in_slice(data, z0 + offset, x, y, axes)
+    hi = _lookup_2d_in_slice(data, z1 + offset, x, y, axes)
     return ((ONE - tz) * lo + tz * hi).astype(np.float32)
+
+
+_STACKED_NZ: dict = {}
+_stacked_cache: dict = {}
+
+
+def _stacked(*names: str) -> np.ndarray:
+    """Tables of one shape stacked along z, so that one lookup picks its table per entry by an offset of
+    k * nz (the result is the table's own lookup, bit for bit)."""
+    if names not in _stacked_cache:
+        data = np.ascontiguousarray(np.concatenate([table(n) for n in names], axis=0))
+        _STACKED_NZ[id(data)] = table(names[0]).shape[0]
+        _stacked_cache[names] = data
+    return _stacked_cache[names]
 
 
 # ---------------------------------------------------------------- named lookups
@@ -159,18 +176,26 @@ def _glass_tables(eta):
 
 
 def glass_E(rough, mu, eta):
-    """Albedo of GGX glass with exact dielectric Fresnel (no compensation), (N,)."""
+    """Albedo of GGX glass with exact dielectric Fresnel (no compensation), (N,): one lookup in the two
+    tables stacked, the inverse one where eta < 1."""
     inside, z = _glass_tables(eta)
-    outer = lookup_3d(table("ggx_glass_E"), rough, mu, z)
-    inner = lookup_3d(table("ggx_glass_inv_E"), rough, mu, z)
-    return np.where(inside, inner, outer).astype(np.float32)
+    data = _stacked("ggx_glass_E", "ggx_glass_inv_E")
+    return lookup_3d(data, rough, mu, z, offset=inside.astype(np.int32) * _STACKED_NZ[id(data)])
 
 
 def glass_Eavg(rough, eta):
     inside, z = _glass_tables(eta)
-    outer = lookup_2d(table("ggx_glass_Eavg"), rough, z)
-    inner = lookup_2d(table("ggx_glass_inv_Eavg"), rough, z)
-    return np.where(inside, inner, outer).astype(np.float32)
+    data = _stacked("ggx_glass_Eavg", "ggx_glass_inv_Eavg")   # 2D tables: (2 ny, nx), rows by z
+    ny = table("ggx_glass_Eavg").shape[0]
+    return _lookup_2d_in_slice(data[None], 0, rough, None,
+                               (*_axis(rough, data.shape[1]), *_offset_axis(z, ny, inside)))
+
+
+def _offset_axis(z, n: int, second):
+    """_axis of z over n nodes, moved to the second of two stacked tables where `second`."""
+    z0, z1, tz = _axis(z, n)
+    shift = second.astype(np.int32) * n
+    return z0 + shift, z1 + shift, tz
 
 
 def gen_schlick_ior_s(rough, mu, eta):
