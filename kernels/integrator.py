@@ -1087,8 +1087,9 @@ class Renderer:
     def _next_event(self, wave, state, hit, closures, numbers):
         """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light."""
         (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
-        # Paths past their last bounce only pass through transparent surfaces: no direct light there.
-        active = np.flatnonzero(state.bounce < wave.max_scatters)
+        # Paths past their last bounce only pass through transparent surfaces: no direct light there; nor
+        # where the closures are all singular (a mirror, smooth glass): their evaluation is zero.
+        active = np.flatnonzero((state.bounce < wave.max_scatters) & closures.evaluable())
         if len(active) < len(state):
             if not len(active):
                 return

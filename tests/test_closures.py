@@ -179,3 +179,29 @@ def test_mixed_distributions_in_one_table():
     expected = (grid_pdf.reshape(T.shape) * np.sin(T) * (dt / sub) * (dp / sub)).reshape(
         THETA_BINS, sub, PHI_BINS, sub).sum(axis=(1, 3)) * N  # lost samples (below the horizon) included
     assert_chi2(sphere_bins(*(c[ok] for c in s.wi)), expected)
+
+
+@pytest.mark.parametrize("closure, expected", [
+    (principled(Metallic=1.0, Roughness=0.0), False),                  # a mirror: singular only
+    (principled(Transmission_Weight=1.0, Roughness=0.0), False),       # smooth glass
+    (principled(Alpha=0.0), False),                                    # transparent only
+    (principled(Metallic=1.0, Roughness=0.2), True),
+    (principled(Transmission_Weight=1.0, Roughness=0.0, Coat_Weight=0.5, Coat_Roughness=0.3), True),
+    (principled(Metallic=1.0, Roughness=0.0, Alpha=0.5), False),
+    (principled(Roughness=0.0), True),                                 # smooth plastic: its diffuse base
+])
+def test_next_event_skips_hits_whose_closures_all_evaluate_to_zero(closure, expected):
+    """ClosureSet.evaluable: False exactly where eval_at is zero in every direction, so that next-event
+    estimation may skip those hits without changing the image."""
+    cs = closure_set(closure, n=4000)
+    evaluable = cs.evaluable()
+    assert evaluable.tolist() == [expected] * 4000
+    rng = np.random.default_rng(2)
+    w = rng.normal(size=(3, 4000)).astype(np.float32)
+    w /= np.linalg.norm(w, axis=0)
+    f, pdf = cs.eval_at(np.arange(4000), tuple(w))
+    assert ((f > 0).any(axis=0) | (pdf > 0)).any() == expected
+    assert not ((f > 0).any(axis=0) & ~evaluable).any()
+    # Filter Glossy makes a mirror rough: then it is evaluated.
+    cs.blur(np.full(4000, 0.3, np.float32))
+    assert cs.evaluable().all() == (expected or len(cs) > 0 and not (cs.lobe == lobes.TRANSPARENT).all())

@@ -185,6 +185,17 @@ class ClosureSet:
         self.ay = np.where(micro, np.maximum(self.ay, r), self.ay).astype(F32)
         self.delta = self._delta_mask()
 
+    def evaluable(self) -> np.ndarray:
+        """(N,) bool: hits with a closure that eval_at can find non-zero, one that is not singular (delta,
+        transparent included). eval_at is zero at every other hit (none, or singular closures only), so
+        next-event estimation skips them, as Cycles skips light sampling at a shader without
+        SD_BSDF_HAS_EVAL. Call after blur(), which can make singular closures rough."""
+        live = ~self.delta
+        if self.single:
+            return (self.row_of_hit >= 0) & np.take(live, np.maximum(self.row_of_hit, 0)) if len(live) else \
+                np.zeros(self.n_hits, bool)
+        return np.bincount(self.hit, live, minlength=self.n_hits) > 0
+
     def _delta_mask(self) -> np.ndarray:
         delta = self.lobe == TRANSPARENT
         singular = [k for k in (REFLECTION, REFRACTION, GLASS) if k in self.kinds]
