@@ -212,28 +212,42 @@ class ClosureSet:
         """f |cos| (3, n) times the closure weight, and pdf (n,), of closures idx at wi_world (n,); with
         the bump shadowing term of an evaluation unless bump is False."""
         f, pdf = self._eval_unshadowed(wi_world, idx)
-        term = self._bump_term(idx, wi_world) if bump else None
-        if term is not None:
-            f, pdf = f * term, np.where(term > 0, pdf, ZERO)
+        bumped = self._bump_rows(idx, wi_world) if bump else None
+        if bumped is not None:  # the term is 1 elsewhere: only the bumped closures change
+            sel, term = bumped
+            f[:, sel] *= term
+            pdf[sel] = np.where(term > 0, pdf[sel], ZERO)
         return f, pdf
 
     def _bump_term(self, rows, wi_world):
         """(n,) Cycles' bump_shadowing_term of closures rows evaluated toward wi_world (module docstring),
         None when none of them needs it."""
+        bumped = self._bump_rows(rows, wi_world)
+        if bumped is None:
+            return None
+        term = np.ones(len(rows), F32)
+        term[bumped[0]] = bumped[1]
+        return term
+
+    def _bump_rows(self, rows, wi_world):
+        """(sel, term): the entries of rows whose closure is on another normal than the shading normal,
+        and their bump shadowing term; None when there are none (the term is 1 at every other entry)."""
         if self._bumped is None:
             return None
-        bumped = self._bumped[rows]
-        if not bumped.any():
+        sel = np.flatnonzero(self._bumped[rows])
+        if not len(sel):
             return None
+        rows = rows[sel]
+        wx, wy, wz = (np.take(c, sel) for c in wi_world)
         diffuse = self._diffuse[rows]
         ns = self._shading[:, rows]
-        cos_si = wi_world[0] * ns[0] + wi_world[1] * ns[1] + wi_world[2] * ns[2]
+        cos_si = wx * ns[0] + wy * ns[1] + wz * ns[2]
         n = self.normal[:, rows]
-        cos_ni = wi_world[0] * n[0] + wi_world[1] * n[1] + wi_world[2] * n[2]
+        cos_ni = wx * n[0] + wy * n[1] + wz * n[2]
         cos_d = self._cos_d[rows]
-        reject = bumped & (cos_si * cos_d * cos_ni < 0)
+        reject = cos_si * cos_d * cos_ni < 0
         term = np.where(reject, ZERO, ONE)
-        soft = bumped & diffuse & ~reject & (self.soften[rows] > 0)
+        soft = diffuse & ~reject & (self.soften[rows] > 0)
         if soft.any():
             ci, cd = np.abs(cos_si), np.abs(cos_d)
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -242,7 +256,7 @@ class ClosureSet:
                 g = F32(2.0) / (ONE + np.sqrt(ONE + alpha2 * tan2))
             g = np.where(ci < F32(1e-6), ZERO, g)
             term = np.where(soft & (cd < ONE) & (ci < ONE), g, term)
-        return term.astype(F32)
+        return sel, term.astype(F32)
 
     def _eval_unshadowed(self, wi_world, idx):
         """_eval_closures without the bump shadowing term."""
