@@ -71,7 +71,9 @@ bpy.ops.render.render()
 wall = time.perf_counter() - start
 numpy_peak = tracemalloc.get_traced_memory()[1]
 tracemalloc.stop()
-workers_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss   # the renderer closed its workers
+from ember.kernels import workers
+workers.close_pool()   # the closed renderer left its workers idle: stop them, so that their peak is counted
+workers_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
 print("RESULT " + json.dumps({"size": size, "wall_s": wall, "rss_before_mb": before / 1024,
                               "rss_peak_mb": peak_kb() / 1024, "ember_peak_mb": numpy_peak / 2**20,
                               "worker_peak_mb": workers_kb / 1024}))

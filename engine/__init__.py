@@ -16,3 +16,5 @@ def register():
 def unregister():
     for module in reversed(MODULES):
         module.unregister()
+    from ..kernels import workers
+    workers.close_pool()    # idle worker processes would otherwise wait for their timeout

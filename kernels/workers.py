@@ -10,7 +10,10 @@ Blender. It receives the parent's validated scene once, builds its own Renderer 
 scenes cannot be shared between processes), and then renders waves: it gets the arguments of
 Renderer._render_rows and sends back its result, the same arrays bit for bit, since the child runs the same
 code on the same data. Between renders the parent forwards its incremental updates (camera, instances,
-materials, lights, the next frame's scene) in order, so a child stays the parent's twin.
+materials, lights, the next frame's scene) in order, so a child stays the parent's twin. When the renderer
+closes, its children drop their scene and wait in a pool for the next renderer of this process (an F12
+render again, the next frame without Persistent Data), which then skips their start; idle ones exit after
+IDLE_S.
 
 The protocol is pickles over the child's stdin and stdout (the child points its own stdout at stderr, so
 stray prints cannot break it); NumPy arrays travel as out-of-band buffers, written from and read into their
@@ -19,6 +22,7 @@ parent, so no wave is ever lost, and the image is the same.
 """
 from __future__ import annotations
 
+import atexit
 import io
 import json
 import os
@@ -28,6 +32,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 import traceback
 import weakref
 
@@ -127,10 +132,12 @@ def python_executable() -> str | None:
 
 
 class Worker:
-    """One child process and its pipes. render_rows() is called by one thread at a time (the wave slots);
-    forward() may be called between renders, from another thread."""
+    """One child process and its pipes. load() gives it a scene (in the background); render_rows() is called by
+    one thread at a time (the wave slots); forward() may be called between renders, from another thread;
+    release() drops the scene and puts the child in this process's pool of idle workers, for the next
+    renderer (a fresh render then skips the child's start, about 0.3 s)."""
 
-    def __init__(self, scene_payload, on_ready, on_failed):
+    def __init__(self):
         exe = python_executable()
         if exe is None:
             raise WorkerLost("no Python interpreter to start a worker with")
@@ -142,14 +149,21 @@ class Worker:
         self._in = io.BufferedWriter(self.process.stdin, 1 << 16)
         self._out = io.BufferedReader(self.process.stdout, 1 << 16)
         self._write = threading.Lock()
-        self._write.acquire()   # the scene goes first: forwarded updates wait for it
-        self.ready = False
+        self.ready = False      # holds a scene and renders waves
+        self.loading = False
         self.closed = False
         self.error = None
-        threading.Thread(target=self._start, args=(scene_payload, on_ready, on_failed), daemon=True,
-                         name="ember-worker-start").start()
+        self.idle_since = None  # in the pool since (time.monotonic())
 
-    def _start(self, payload, on_ready, on_failed) -> None:
+    def load(self, payload, on_ready, on_failed) -> None:
+        """Send a scene (pickled(("scene", scene))) and wait for the child's Renderer in the background;
+        on_ready(self) or on_failed(self) then. Updates forwarded meanwhile follow the scene."""
+        self._write.acquire()   # the scene goes first: forwarded updates wait for it
+        self.ready, self.loading, self.error = False, True, None
+        threading.Thread(target=self._load, args=(payload, on_ready, on_failed), daemon=True,
+                         name="ember-worker-load").start()
+
+    def _load(self, payload, on_ready, on_failed) -> None:
         try:
             try:
                 send(self._in, None, payload)
@@ -161,10 +175,11 @@ class Worker:
                 raise WorkerLost(f"the worker could not build the scene: {reply[1]}")
         except BaseException as err:  # noqa: BLE001 - any failure: the worker is not used
             self.error = err if isinstance(err, WorkerLost) else WorkerLost(f"{type(err).__name__}: {err}")
+            self.loading = False
             on_failed(self)
             self.close()
             return
-        self.ready = True
+        self.ready, self.loading = True, False
         on_ready(self)
 
     def forward(self, method: str, args: tuple, kwargs: dict) -> None:
@@ -180,7 +195,7 @@ class Worker:
 
     def render_rows(self, args: tuple):
         """Renderer._render_rows(*args) in the child: (its result, rays traced, seconds in Embree)."""
-        if self.closed:
+        if self.closed or not self.ready:
             raise WorkerLost("the worker is closed")
         try:
             with self._write:
@@ -194,10 +209,26 @@ class Worker:
             raise WorkerLost(f"the worker failed: {reply[1]}")
         return reply[1], reply[2], reply[3]
 
+    def release(self) -> None:
+        """Drop the child's scene and keep the child in the pool (closed instead when it is not healthy)."""
+        if self.closed:
+            return
+        if not self.ready or self.process.poll() is not None:
+            self.close()
+            return
+        self.ready = False
+        try:
+            with self._write:
+                send(self._in, ("drop",))
+        except (OSError, ValueError):
+            self.close()
+            return
+        _pool_put(self)
+
     def close(self) -> None:
         if self.closed:
             return
-        self.closed = True
+        self.closed, self.ready = True, False
         for stream in (self._in, self._out):
             try:
                 stream.close()
@@ -208,6 +239,53 @@ class Worker:
         except subprocess.TimeoutExpired:
             self.process.kill()
             self.process.wait()
+
+
+# The idle workers of this process, newest last: a renderer takes them before starting new ones; each exits
+# after IDLE_S in the pool (and with this process: its stdin closes).
+IDLE_S = 120.0
+_pool: list[Worker] = []
+_pool_lock = threading.Lock()
+
+
+def _pool_put(worker: Worker) -> None:
+    worker.idle_since = time.monotonic()
+    with _pool_lock:
+        _pool.append(worker)
+    timer = threading.Timer(IDLE_S, _expire, args=(worker, worker.idle_since))
+    timer.daemon = True
+    timer.start()
+
+
+def _pool_take() -> Worker | None:
+    with _pool_lock:
+        while _pool:
+            worker = _pool.pop()
+            if not worker.closed and worker.process.poll() is None:
+                worker.idle_since = None
+                return worker
+            worker.close()
+    return None
+
+
+def _expire(worker: Worker, since: float) -> None:
+    with _pool_lock:
+        if worker not in _pool or worker.idle_since != since:
+            return          # taken again meanwhile
+        _pool.remove(worker)
+    worker.close()
+
+
+def close_pool() -> None:
+    """Stop every idle worker now."""
+    with _pool_lock:
+        idle = list(_pool)
+        _pool.clear()
+    for worker in idle:
+        worker.close()
+
+
+atexit.register(close_pool)
 
 
 class WaveSlots:
@@ -243,32 +321,47 @@ class WaveSlots:
 
 
 class WorkerSet:
-    """The child processes of one Renderer, started at most once until closed."""
+    """The worker processes of one Renderer: idle ones from the pool, or new ones."""
 
     def __init__(self, slots: WaveSlots):
         self.slots = slots
         self.workers: list[Worker] = []
         self.failures: list[str] = []
         self.skipped = ""     # why no worker was started, when that was a choice (a big scene)
+        self.reused = 0       # workers taken from the pool
         self._lock = threading.Lock()
+        self._closed = False
         self._finalizer = weakref.finalize(self, _close_all, self.workers)
 
     def start(self, count: int, scene, max_bytes: int) -> bool:
-        """Start count children with the scene, unless its pickle is over max_bytes (each child holds a
-        copy, and its own BVH). They join the slots as they become ready."""
-        payload = pickled(scene)
+        """Give count workers the scene, unless its pickle is over max_bytes (each child holds a copy, and
+        its own BVH). They join the slots as they become ready."""
+        payload = pickled(("scene", scene))
         if pickled_size(payload) > max_bytes:
             self.skipped = f"the scene's {pickled_size(payload) >> 20} MB are over {max_bytes >> 20} MB"
             return False
         for _ in range(count):
-            try:
-                worker = Worker(payload, self.slots.add_worker, self._failed)
-            except (OSError, WorkerLost) as err:
-                self.failures.append(str(err))
-                return
+            worker = _pool_take()
+            if worker is not None:
+                self.reused += 1
+            else:
+                try:
+                    worker = Worker()
+                except (OSError, WorkerLost) as err:
+                    self.failures.append(str(err))
+                    return True
             with self._lock:
                 self.workers.append(worker)
+            worker.load(payload, self._ready, self._failed)
         return True
+
+    def _ready(self, worker: Worker) -> None:
+        with self._lock:
+            closed = self._closed
+        if closed:          # the renderer closed while the child was loading
+            worker.release()
+        else:
+            self.slots.add_worker(worker)
 
     def _failed(self, worker: Worker) -> None:
         self.failures.append(str(worker.error))
@@ -287,9 +380,16 @@ class WorkerSet:
         return sum(1 for w in self.workers if w.ready and not w.closed)
 
     def close(self) -> None:
-        """Stop the children. Their slots, when taken, turn back into local ones (the wave threads see a
-        closed worker as a lost one)."""
-        _close_all(self.workers)
+        """Give the healthy workers back to the pool (still loading ones follow when ready), close the
+        others. Their slots, if taken again, turn back into local ones (a released worker renders no
+        wave for this renderer: render_rows raises WorkerLost)."""
+        with self._lock:
+            self._closed = True
+            workers = list(self.workers)
+        for worker in workers:
+            if not worker.loading:
+                worker.release()
+        self._finalizer.detach()
 
 
 def _close_all(workers: list) -> None:
@@ -299,44 +399,54 @@ def _close_all(workers: list) -> None:
 
 # ---------------------------------------------------------------------------------------------- the child
 def serve() -> None:
-    """The child's loop: build the Renderer from the scene, then apply updates and render waves until the
-    parent closes the pipe."""
+    """The child's loop: build a Renderer from each scene it is sent, apply updates and render waves, until
+    the parent closes the pipe."""
     import numpy as np
 
     from .integrator import Renderer
+    from .memory import trim_heap
 
     incoming = os.fdopen(0, "rb", buffering=1 << 16)
     outgoing = os.fdopen(os.dup(1), "wb", buffering=1 << 16)
     os.dup2(2, 1)            # prints (NumPy, Embree, a stray debug line) go to stderr, not into the protocol
     sys.stdout = sys.stderr
-    try:
-        scene = receive(incoming)
-        renderer = Renderer(scene, threads=1, processes=False)
-        del scene
-    except BaseException:  # noqa: BLE001 - tell the parent, which renders locally
-        send(outgoing, ("error", traceback.format_exc(limit=4)))
-        return
-    send(outgoing, ("ready",))
+    renderer = None
     broken = None
     while True:
         try:
             message = receive(incoming)
         except EOFError:
             return
-        if message[0] == "call":
+        kind = message[0]
+        if kind in ("scene", "drop") and renderer is not None:
+            renderer.close()       # its BVH and tables go now (the light sampler's cycle would keep them)
+        if kind == "scene":
+            renderer = broken = None
+            try:
+                renderer = Renderer(message[1], threads=1, processes=False)
+            except BaseException:  # noqa: BLE001 - tell the parent, which renders without this child
+                send(outgoing, ("error", traceback.format_exc(limit=4)))
+                return
+            del message
+            send(outgoing, ("ready",))
+        elif kind == "drop":
+            renderer = broken = None
+            trim_heap()
+        elif kind == "call":
             try:
                 with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                     getattr(renderer, message[1])(*message[2], **message[3])
             except BaseException:  # noqa: BLE001 - the twin is no longer the parent's: say so at the next wave
                 broken = traceback.format_exc(limit=4)
-            continue
-        if broken is not None:
-            send(outgoing, ("error", broken))
-            return
-        rays, seconds = renderer.accel.rays_traced, renderer.accel.seconds_in_embree
-        try:
-            result = renderer._render_rows(*message[1])
-        except BaseException:  # noqa: BLE001
-            send(outgoing, ("error", traceback.format_exc(limit=4)))
-            return
-        send(outgoing, ("ok", result, renderer.accel.rays_traced - rays, renderer.accel.seconds_in_embree - seconds))
+        elif kind == "rows":
+            if broken is not None or renderer is None:
+                send(outgoing, ("error", broken or "no scene"))
+                return
+            rays, seconds = renderer.accel.rays_traced, renderer.accel.seconds_in_embree
+            try:
+                result = renderer._render_rows(*message[1])
+            except BaseException:  # noqa: BLE001
+                send(outgoing, ("error", traceback.format_exc(limit=4)))
+                return
+            send(outgoing, ("ok", result, renderer.accel.rays_traced - rays,
+                            renderer.accel.seconds_in_embree - seconds))

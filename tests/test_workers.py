@@ -139,8 +139,40 @@ def test_a_worker_that_dies_mid_render_loses_no_wave(materials, reference):
         _assert_same(again, images0)
 
 
+def test_closed_renderers_leave_their_workers_to_the_next_one(materials, reference, monkeypatch):
+    _, images0, _ = reference
+    workers.close_pool()
+    with Renderer(materials, threads=2, processes=True) as first:
+        assert first.wait_for_workers() == 1
+        pid = first._workers.workers[0].process.pid
+    assert [w.process.pid for w in workers._pool] == [pid]
+    with Renderer(materials, threads=2, processes=True) as second:
+        assert second.wait_for_workers() == 1 and second._workers.reused == 1
+        assert second._workers.workers[0].process.pid == pid and workers._pool == []
+        _, images = _render(second)
+        assert second.remote_waves > 0
+    _assert_same(images, images0)
+    # Idle workers exit after IDLE_S.
+    monkeypatch.setattr(workers, "IDLE_S", 0.2)
+    with Renderer(materials, threads=2, processes=True) as third:
+        assert third.wait_for_workers() == 1
+        child = third._workers.workers[0]
+    assert workers._pool == [child]
+    child.process.wait(timeout=10)
+    assert workers._pool == [] and child.closed
+    # A pooled worker that died meanwhile is not taken.
+    with Renderer(materials, threads=2, processes=True) as fourth:
+        assert fourth.wait_for_workers() == 1
+        child = fourth._workers.workers[0]
+    child.process.kill()
+    child.process.wait()
+    with Renderer(materials, threads=2, processes=True) as fifth:
+        assert fifth.wait_for_workers() == 1 and fifth._workers.reused == 0
+
+
 def test_a_worker_that_cannot_build_the_scene_is_not_used(materials, monkeypatch):
     # A child that cannot import the package (a broken path) reports and exits: no slot waits for it.
+    workers.close_pool()
     monkeypatch.setattr(workers, "_BOOT", "import sys; sys.exit(3)")
     with Renderer(materials, threads=2, processes=True) as renderer:
         assert renderer.wait_for_workers() == 0
