@@ -76,6 +76,7 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         time_limit_s=float(ember.time_limit if time_limit is None else time_limit),
         region=region,
         transparent_background=bool(scene.render.film_transparent),
+        quick_first_pass=not _background(),
     )
 
 

@@ -110,6 +110,9 @@ class RenderSettings:
     # A sample range of the frame (Cycles' Sample Offset): samples sample_offset .. sample_offset + samples - 1
     # of each pixel's sequence, so that ranges rendered apart and merged by sample count make the whole.
     sample_offset: int = 0
+    # A first pass of one sample per pixel, for a quick first image (the interface and the viewport); a
+    # render nobody watches (background mode) starts with full passes, which keep every core busy at once.
+    quick_first_pass: bool = True
     # Cryptomatte: the kinds to record ("object", "material", "asset") and the ids kept per pixel (Levels).
     cryptomatte: tuple = ()
     cryptomatte_depth: int = 6
@@ -499,7 +502,8 @@ class Renderer:
                 film.update_convergence(settings.adaptive_threshold)
                 if film.converged.all():
                     break
-            spp, bands = _plan_pass(width, height, done, total, self.wave_size(settings))
+            spp, bands = _plan_pass(width, height, done, total, self.wave_size(settings),
+                                    settings.quick_first_pass)
             if adaptive:  # passes end where the next convergence check falls
                 next_check = min_samples if done < min_samples else \
                     done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP
@@ -1338,14 +1342,14 @@ def adaptive_min_samples(settings: RenderSettings) -> int:
     return max(4, int(np.ceil(16.0 / settings.adaptive_threshold ** 0.3)))
 
 
-def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int):
+def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, quick_first: bool = True):
     """Samples per pixel of the next pass and its bands of rows, one wave each.
 
-    The first pass takes one sample, for a quick first image; later passes take enough samples to
-    fill _WAVES_PER_PASS waves. The plan depends only on the image and the settings, never on the
-    thread count, so every thread count sums the same numbers in the same order.
+    The first pass takes one sample, for a quick first image (unless quick_first is False); later passes
+    take enough samples to fill _WAVES_PER_PASS waves. The plan depends only on the image and the settings,
+    never on the thread count, so every thread count sums the same numbers in the same order.
     """
-    if done == 0:
+    if done == 0 and quick_first:
         spp = 1
     else:
         spp = int(np.clip(wave_size * _WAVES_PER_PASS // (width * height), 1, total - done))

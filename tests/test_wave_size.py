@@ -39,3 +39,16 @@ def test_diffuse_scenes_keep_the_default_waves():
         # Its unused default material row is a Principled BSDF: only the materials triangles use count.
         assert renderer.shading.mixes_lobes and not renderer._layered
         assert renderer.wave_size(RenderSettings()) == WAVE_SIZE
+
+
+def test_background_renders_start_with_full_passes():
+    """quick_first_pass False (background mode): the first pass is a full one, every wave at once; the image
+    is the same sum of the same samples, in another order (float rounding)."""
+    assert _plan_pass(256, 256, 0, 32, LAYERED_WAVE_SIZE)[0] == 1
+    spp, bands = _plan_pass(256, 256, 0, 32, LAYERED_WAVE_SIZE, quick_first=False)
+    assert spp == 16 and len(bands) == 4
+    with _renderer(lambda: scenes.materials_scene(64, 48)) as renderer:
+        quick = renderer.render(RenderSettings(samples=40, seed=2, wave_size=4096))
+        full = renderer.render(RenderSettings(samples=40, seed=2, wave_size=4096, quick_first_pass=False))
+    assert quick.progress.paths == full.progress.paths == 64 * 48 * 40
+    np.testing.assert_allclose(full.image, quick.image, rtol=1e-6, atol=1e-7)
