@@ -64,10 +64,11 @@ LAYERED_WAVE_SIZE = 1 << 18
 
 # Worker processes (kernels/workers.py): a renderer with several threads starts threads - 1 children once
 # a render has this many seconds left by its rate so far (a child takes about 0.3 s to start and build its
-# copy of a small scene). Scenes over either bound stay in one process, with threads: each child holds a
-# copy of the scene's arrays (textures included) and builds its own BVH, which on a 1M-triangle box cost
-# more than the child brought (0.70x Cycles' paths/s against 0.86x with threads alone; Embree's share of
-# the work, which releases the GIL, is larger there too).
+# copy of a small scene). Each child holds a copy of the scene's arrays (textures included) and builds its
+# own BVH: scenes over WORKER_MAX_TRIANGLES stay in one process, with threads (on a 1M-triangle box a
+# child cost more than it brought: 0.70x Cycles' paths/s against 0.86x with threads alone; Embree's share
+# of the work, which releases the GIL, is larger there too), and the children's copies of the arrays stay
+# within WORKER_MAX_BYTES together (many cores, a big texture: fewer children).
 WORKER_START_S = 1.5
 # ... or at once when a render has this many paths (2-4 s at 0.5-1M paths/s): a time-limited render, the
 # eight spheres at 256x256 and 32 samples.

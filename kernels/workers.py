@@ -334,12 +334,15 @@ class WorkerSet:
         self._finalizer = weakref.finalize(self, _close_all, self.workers)
 
     def start(self, count: int, scene, max_bytes: int) -> bool:
-        """Give count workers the scene, unless its pickle is over max_bytes (each child holds a copy, and
-        its own BVH). They join the slots as they become ready."""
+        """Give up to count workers the scene, as many as their copies of it fit in max_bytes (each child
+        holds a copy, and its own BVH); none when one copy does not. They join the slots as they become
+        ready."""
         payload = pickled(("scene", scene))
-        if pickled_size(payload) > max_bytes:
-            self.skipped = f"the scene's {pickled_size(payload) >> 20} MB are over {max_bytes >> 20} MB"
+        size = pickled_size(payload)
+        if size > max_bytes:
+            self.skipped = f"the scene's {size >> 20} MB are over {max_bytes >> 20} MB"
             return False
+        count = min(count, max_bytes // max(size, 1))
         for _ in range(count):
             worker = _pool_take()
             if worker is not None:

@@ -196,6 +196,13 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
         assert renderer._workers is not None and renderer._workers.workers == []
         assert "MB are over" in renderer._workers.skipped and renderer.worker_failures == []
         assert renderer.start_workers() is False
+    # Many threads: as many children as their copies fit in the bound.
+    size = workers.pickled_size(workers.pickled(("scene", materials)))
+    monkeypatch.setattr(integrator, "WORKER_MAX_BYTES", 2 * size + 1)
+    workers.close_pool()
+    with Renderer(materials, threads=6, processes=True) as renderer:
+        assert len(renderer._workers.workers) == 2 and renderer.wait_for_workers() == 2
+        _, images = _render(renderer, RenderSettings(samples=2, seed=1, wave_size=1024))
     monkeypatch.setattr(integrator, "WORKER_MAX_TRIANGLES", 1000)
     with Renderer(materials, threads=2, processes=True) as renderer:
         assert "triangles are over 1000" in renderer._workers.skipped and renderer._workers.workers == []

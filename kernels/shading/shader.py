@@ -96,8 +96,10 @@ class Shading:
         # become one batch over all their hits (one Principled stack per wave, not one per material).
         self._batches, self._alone = _batches(self._rest, [s.bump_map_correction for s in self.shaders])
         # Per texture: mean R, G, B and alpha over the image (alpha 1 for images without one).
-        self._texture_means = [np.append(t.channels.mean(axis=1), t.alpha.mean() if t.alpha is not None else 1.0)
-                               .astype(F32) for t in textures]
+        # (The channel rows made contiguous again: the mean sums them in the same order as ever.)
+        self._texture_means = [np.append(np.ascontiguousarray(t.channels).mean(axis=1),
+                                         t.alpha.mean() if t.alpha is not None else 1.0).astype(F32)
+                               for t in textures]
 
     # ---------------------------------------------------------------- per wave
     def surface(self, hit, closures: bool = True) -> SurfaceShading:
