@@ -10,6 +10,7 @@ max_bounces + 1 times (the lecture's "max path length").
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import time
@@ -495,57 +496,72 @@ class Renderer:
         min_samples = adaptive_min_samples(settings) if adaptive else total
         if self._processes is None and self._workers is None and width * height * total >= WORKER_START_PATHS:
             self.start_workers()
-        while done < total and not stopped:
-            if done and self._out_of_time(settings, start):
-                stopped = True  # a pass never starts after the limit: the image stays evenly sampled
+        # Waves run concurrently (NumPy and Embree release the GIL, and worker processes share nothing);
+        # their results are added to the film in the order they were planned, so the image does not depend
+        # on the thread count. Waves of the next pass are queued while the last ones of a pass finish (a
+        # pass's bands differ in cost: rows of sky and rows of glass), except before a convergence check,
+        # which reads the whole film.
+        in_flight = collections.deque()   # (r0, r1, spp, future), in plan order
+        pending = []                      # bands of the planned pass not yet submitted
+        pass_spp = pass_first = 0
+        pass_split = False
+        depth = 1 if self.accel.threads == 1 else 2 * self.accel.threads   # waves submitted ahead
+        while True:
+            if not pending and not stopped and done < total:
+                check = adaptive and done >= min_samples and (done - min_samples) % ADAPTIVE_STEP == 0
+                if check and in_flight:
+                    pass  # add every wave in flight first
+                elif done and self._out_of_time(settings, start):
+                    stopped = True  # a pass never starts after the limit
+                else:
+                    if check:
+                        film.update_convergence(settings.adaptive_threshold)
+                        if film.converged.all():
+                            break
+                    spp, bands = _plan_pass(width, height, done, total, self.wave_size(settings),
+                                            settings.quick_first_pass)
+                    if adaptive:  # passes end where the next convergence check falls
+                        next_check = min_samples if done < min_samples else \
+                            done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP
+                        spp = max(1, min(spp, next_check - done))
+                    pending = list(bands)
+                    pass_spp, pass_first = spp, int(settings.sample_offset) + done
+                    pass_split = len(bands) < self.accel.threads
+                    done += spp
+            while pending and len(in_flight) < depth:
+                r0, r1 = pending.pop(0)
+                active = ~film.converged[r0:r1] if adaptive else None
+                in_flight.append((r0, r1, pass_spp, self._submit(self._wave, settings, x0, y0, width, r0, r1,
+                                                                 pass_first, pass_spp, pass_split, active)))
+            if not in_flight:
                 break
-            if adaptive and done >= min_samples and (done - min_samples) % ADAPTIVE_STEP == 0:
-                film.update_convergence(settings.adaptive_threshold)
-                if film.converged.all():
-                    break
-            spp, bands = _plan_pass(width, height, done, total, self.wave_size(settings),
-                                    settings.quick_first_pass)
-            if adaptive:  # passes end where the next convergence check falls
-                next_check = min_samples if done < min_samples else \
-                    done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP
-                spp = max(1, min(spp, next_check - done))
-            # Waves of one pass run concurrently (NumPy and Embree release the GIL); their results
-            # are added to the film in order, so the image does not depend on the thread count.
-            split = len(bands) < self.accel.threads
-            in_flight = []
-            next_band = 0
-            while next_band < len(bands) or in_flight:
-                while next_band < len(bands) and len(in_flight) < self.accel.threads:
-                    r0, r1 = bands[next_band]
-                    active = ~film.converged[r0:r1] if adaptive else None
-                    in_flight.append((r0, r1, self._submit(self._wave, settings, x0, y0, width, r0, r1,
-                                                           int(settings.sample_offset) + done, spp, split,
-                                                           active)))
-                    next_band += 1
-                r0, r1, future = in_flight.pop(0)
-                sums, half, counts, bad, aux = future.result()
-                film.add_rows(r0, sums, counts if adaptive else spp, half, aux)
-                progress.paths += int(counts.sum())
-                progress.nonfinite_paths += bad
-                progress.elapsed_s = time.perf_counter() - start
-                progress.rays = self.accel.rays_traced - rays_start
-                progress.seconds_in_embree = self.accel.seconds_in_embree - embree_start
-                progress.samples_done = film.samples_done
-                progress.fraction = progress.paths / (width * height * total)
-                if on_tile is not None:
-                    on_tile(film, r0, r1)
-                if on_progress is not None:
-                    on_progress(progress)
-                if self._processes is None and self._workers is None and self._worth_workers(progress, start):
-                    self.start_workers()
-                # A time limit always lets the first full pass finish, as Cycles' does.
-                if not stopped and ((should_stop is not None and should_stop()) or (
-                        film.samples_done > 0 and self._out_of_time(settings, start))):
-                    stopped = True
-                    next_band = len(bands)  # finish the waves in flight, start no more
-            if stopped and film.samples_done == done + spp and done + spp >= total:
-                stopped = False  # the stop came with the last wave: the render is complete
-            done += spp
+            r0, r1, spp, future = in_flight.popleft()
+            if future.cancelled():
+                continue
+            sums, half, counts, bad, aux = future.result()
+            film.add_rows(r0, sums, counts if adaptive else spp, half, aux)
+            progress.paths += int(counts.sum())
+            progress.nonfinite_paths += bad
+            progress.elapsed_s = time.perf_counter() - start
+            progress.rays = self.accel.rays_traced - rays_start
+            progress.seconds_in_embree = self.accel.seconds_in_embree - embree_start
+            progress.samples_done = film.samples_done
+            progress.fraction = progress.paths / (width * height * total)
+            if on_tile is not None:
+                on_tile(film, r0, r1)
+            if on_progress is not None:
+                on_progress(progress)
+            if self._processes is None and self._workers is None and self._worth_workers(progress, start):
+                self.start_workers()
+            # A time limit always lets the first full pass finish, as Cycles' does.
+            if not stopped and ((should_stop is not None and should_stop()) or (
+                    film.samples_done > 0 and self._out_of_time(settings, start))):
+                stopped = True
+                pending = []  # finish the waves running, start no more
+                for *_, queued in in_flight:
+                    queued.cancel()
+        if stopped and film.samples_done >= total:
+            stopped = False  # the stop came with the last wave: the render is complete
         return RenderResult(film, progress, stopped, self.dropped_triangles)
 
     @staticmethod
