@@ -1,5 +1,7 @@
 """The automatic wave size (RenderSettings.wave_size None): waves of WAVE_SIZE paths, twice as many when the
-materials mix lobes; the image is the same whatever the wave size."""
+materials mix lobes; the image is the same whatever the wave size, to float rounding (where a path falls in
+its wave can change a value by one float32 step: 8 of 6,144 values at 48x32, 4 samples, waves of 512 against
+4,096 paths)."""
 from __future__ import annotations
 
 import os
@@ -31,7 +33,7 @@ def test_layered_materials_get_larger_waves_and_the_same_image():
         assert _plan_pass(64, 48, 1, 256, LAYERED_WAVE_SIZE) != _plan_pass(64, 48, 1, 256, WAVE_SIZE)
         automatic = renderer.render(RenderSettings(samples=256, seed=4)).image
         fixed = renderer.render(RenderSettings(samples=256, seed=4, wave_size=WAVE_SIZE)).image
-    np.testing.assert_array_equal(automatic, fixed)
+    np.testing.assert_allclose(automatic, fixed, rtol=1e-6, atol=1e-7)
 
 
 def test_diffuse_scenes_keep_the_default_waves():
