@@ -164,6 +164,7 @@ class Progress:
     rays: int = 0
     seconds_in_embree: float = 0.0
     nonfinite_paths: int = 0   # paths whose radiance came out NaN or inf and were dropped
+    workers: int = 0           # worker processes that rendered waves (kernels/workers.py), the most at once
 
     @property
     def paths_per_s(self) -> float:
@@ -291,6 +292,11 @@ class Renderer:
         workers = self._workers.workers if self._workers is not None else []
         while time.perf_counter() < deadline and any(not w.ready and not w.closed for w in workers):
             time.sleep(0.01)
+        return self._workers.ready if self._workers is not None else 0
+
+    @property
+    def worker_count(self) -> int:
+        """Worker processes ready to render this renderer's waves."""
         return self._workers.ready if self._workers is not None else 0
 
     @property
@@ -547,6 +553,7 @@ class Renderer:
             progress.seconds_in_embree = self.accel.seconds_in_embree - embree_start
             progress.samples_done = film.samples_done
             progress.fraction = progress.paths / (width * height * total)
+            progress.workers = max(progress.workers, self.worker_count)
             if on_tile is not None:
                 on_tile(film, r0, r1)
             if on_progress is not None:

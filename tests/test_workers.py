@@ -80,7 +80,7 @@ def test_worker_processes_render_the_same_image_passes_and_counts(materials, ref
     with Renderer(materials, threads=2, processes=True) as renderer:
         assert renderer.wait_for_workers() == 1, renderer.worker_failures
         result, images = _render(renderer)
-        assert renderer.remote_waves > 0
+        assert renderer.remote_waves > 0 and result.progress.workers == 1
         _assert_same(images, images0)
         assert result.progress.rays == result0.progress.rays
         assert result.progress.paths == result0.progress.paths
@@ -215,3 +215,27 @@ def test_the_start_waits_for_a_render_with_time_left():
     assert Renderer._worth_workers(Progress(1, 10, 0.1, 0.2, paths=100), start)
     assert not Renderer._worth_workers(Progress(9, 10, 0.9, 0.2, paths=900), start)
     assert not Renderer._worth_workers(Progress(0, 10, 0.0, 0.0), start)
+
+
+def test_f12_renders_with_worker_processes_and_says_so(tmp_path, monkeypatch, capfd):
+    """End to end through Blender: a render long enough for workers (the bound lowered so that a small
+    one is) has them render waves, the image equals a render with threads alone, and the finish line says
+    how many took part."""
+    import bpy
+    from bpy_helpers import render_to_array
+    scenes.materials_scene(40, 24)
+    scene = bpy.context.scene
+    scene.ember.use_denoising = False
+    scene.render.threads_mode, scene.render.threads = "FIXED", 2
+    capfd.readouterr()
+    monkeypatch.setattr(integrator, "WORKER_START_PATHS", 1)
+    monkeypatch.setattr(integrator, "LAYERED_WAVE_SIZE", 1024)   # many waves, so that the worker gets some
+    monkeypatch.setattr(integrator, "MIN_WAVE_PATHS", 1024)
+    helped = render_to_array(scene, "EMBER", 24, seed=3)
+    out = capfd.readouterr().out
+    assert "1 worker process" in out, out[-500:]
+    monkeypatch.setattr(integrator, "WORKER_START_PATHS", 1 << 60)
+    monkeypatch.setattr(integrator, "WORKER_START_S", 1e9)
+    threads_only = render_to_array(scene, "EMBER", 24, seed=3)
+    np.testing.assert_array_equal(helped, threads_only)
+    assert "worker process" not in capfd.readouterr().out
