@@ -474,11 +474,11 @@ class FinalRender:
         if p.nonfinite_paths:
             self._warn([f"dropped {p.nonfinite_paths} paths with NaN or infinite radiance"])
         state = "cancelled" if self.cancelled else "stopped" if result.stopped_early else "done"
-        helpers = p.workers
         message = (f"Ember {EMBER_VERSION} {state}: {p.samples_done}/{p.samples_total} samples in {format_time(p.elapsed_s)}, "
                    f"{p.paths_per_s / 1e6:.2f} M paths/s, {exported.triangle_count} triangles "
-                   f"(export {exported.seconds:.2f} s)" + (f", {helpers} worker process{'es' if helpers > 1 else ''}"
-                                                           if helpers else ""))
+                   f"(export {exported.seconds:.2f} s)")
+        if p.workers:
+            message += f", {p.workers} worker process{'es' if p.workers > 1 else ''}"
         self.engine.update_stats("", message)
         if _background():
             print(f"Ember | Frame {self.scene.frame_current} | {message}", flush=True)

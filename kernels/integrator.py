@@ -13,6 +13,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import functools
+import threading
 import time
 import weakref
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -266,6 +267,7 @@ class Renderer:
         self._processes = processes if threads > 1 and python_executable() is not None else False
         self._slots = WaveSlots(threads)
         self.remote_waves = 0    # waves rendered by worker processes (all renders)
+        self._count_lock = threading.Lock()
         if self._processes:
             self.start_workers()
 
@@ -592,7 +594,8 @@ class Renderer:
                     slot = None
                 else:
                     self.accel.count(rays, seconds)
-                    self.remote_waves += 1
+                    with self._count_lock:
+                        self.remote_waves += 1
                     return result
             return self._render_rows(*args)
         finally:

@@ -144,8 +144,9 @@ class Worker:
         package, root, kernels = _package()
         cfg = json.dumps({"path": [p for p in sys.path if isinstance(p, str)], "package": package,
                           "init": os.path.join(root, "__init__.py"), "root": root, "kernels": kernels})
+        # (On Windows a console program started from Blender's window would open a console of its own.)
         self.process = subprocess.Popen([exe, "-c", _BOOT, cfg], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                        bufsize=0)
+                                        bufsize=0, creationflags=getattr(subprocess, "CREATE_NO_WINDOW", 0))
         self._in = io.BufferedWriter(self.process.stdin, 1 << 16)
         self._out = io.BufferedReader(self.process.stdout, 1 << 16)
         self._write = threading.Lock()
@@ -375,7 +376,11 @@ class WorkerSet:
         worker.close()
 
     def forward(self, method: str, args: tuple, kwargs: dict) -> None:
-        for worker in list(self.workers):
+        with self._lock:
+            if self._closed:   # the workers may belong to another renderer now
+                return
+            workers = list(self.workers)
+        for worker in workers:
             worker.forward(method, args, kwargs)
 
     @property
