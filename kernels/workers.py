@@ -145,8 +145,11 @@ class Worker:
         cfg = json.dumps({"path": [p for p in sys.path if isinstance(p, str)], "package": package,
                           "init": os.path.join(root, "__init__.py"), "root": root, "kernels": kernels})
         # (On Windows a console program started from Blender's window would open a console of its own.)
-        self.process = subprocess.Popen([exe, "-c", _BOOT, cfg], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                        bufsize=0, creationflags=getattr(subprocess, "CREATE_NO_WINDOW", 0))
+        # -I -S: no site-packages, .pth hooks or PYTHON* variables of this machine; the parent's sys.path
+        # (Blender's, with the wheels' site-packages) is the child's whole path.
+        self.process = subprocess.Popen([exe, "-I", "-S", "-c", _BOOT, cfg], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, bufsize=0,
+                                        creationflags=getattr(subprocess, "CREATE_NO_WINDOW", 0))
         self._in = io.BufferedWriter(self.process.stdin, 1 << 16)
         self._out = io.BufferedReader(self.process.stdout, 1 << 16)
         self._write = threading.Lock()

@@ -12,6 +12,7 @@ import json
 import math
 import os
 import sys
+import time
 
 SITE_DIR, PACKAGE_ZIP, WORK_DIR = sys.argv[1:4]
 sys.path.append(SITE_DIR)
@@ -65,9 +66,17 @@ def build_scene(bpy):
     return scene
 
 
-def render_exr(bpy, scene):
-    """Render with Ember to a linear EXR; return (H, W, 4) float32, row 0 at the top."""
+def render_exr(bpy, scene, wave_size=None, processes=None):
+    """Render with Ember to a linear EXR; return (H, W, 4) float32, row 0 at the top. wave_size: force
+    the kernel's wave size (many waves); processes False: no worker processes."""
     import numpy as np
+    integrator = sys.modules[MODULE + ".kernels.integrator"]
+    if wave_size is not None:
+        integrator.WAVE_SIZE = integrator.LAYERED_WAVE_SIZE = wave_size
+    integrator.WORKER_START_S = 1e9 if processes is False else 1.5
+    start_paths = integrator.WORKER_START_PATHS
+    if processes is False:
+        integrator.WORKER_START_PATHS = 1 << 60
     scene.render.engine = "EMBER"
     scene.ember.samples = 8
     # The checks are exact colours of flat regions: a one-pixel box and no denoiser, as the parity tests.
@@ -77,6 +86,7 @@ def render_exr(bpy, scene):
     scene.render.filepath = os.path.join(WORK_DIR, "frame.exr")
     scene.render.use_file_extension = False
     bpy.ops.render.render(write_still=True)
+    integrator.WORKER_START_PATHS = start_paths
     image = bpy.data.images.load(scene.render.filepath, check_existing=False)
     w, h = image.size
     pixels = np.empty(w * h * 4, np.float32)
@@ -118,6 +128,26 @@ def main() -> dict:
     result["sky_rgb"] = rgb[:4].reshape(-1, 3).mean(axis=0).tolist()
     result["plane_rgb"] = rgb[-4:].reshape(-1, 3).mean(axis=0).tolist()
     result["shape"] = list(image.shape)
+
+    # Worker processes from the installed package (bl_ext.user_default.ember): the child imports it under
+    # that name, with embreex from the bundled wheel. A render forced to use them is the same image.
+    integrator = sys.modules[MODULE + ".kernels.integrator"]
+    workers = sys.modules[MODULE + ".kernels.workers"]
+    integrator.WORKER_START_PATHS, integrator.MIN_WAVE_PATHS = 1, 64
+    scene.ember.use_adaptive_sampling = False
+    plain = render_exr(bpy, scene, wave_size=64, processes=False)
+    render_exr(bpy, scene, wave_size=64)   # starts a worker, which outlives this short render in the pool
+
+    def pooled():
+        deadline = time.monotonic() + 30.0
+        while not workers._pool and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return [w.process.pid for w in workers._pool]
+    first = pooled()
+    helped = render_exr(bpy, scene, wave_size=64)   # takes it from the pool: ready within the render
+    result["worker_image_equal"] = bool(np.array_equal(plain, helped))
+    result["worker_pids"] = first + pooled()
+    workers.close_pool()
 
     package_dir = os.path.join(result["extensions_dir"], "user_default", "ember")
     result["package_dir_existed"] = os.path.isdir(package_dir)

@@ -118,6 +118,13 @@ def test_installed_package_renders_with_its_bundled_embreex(linux_package, tmp_p
     assert result["sky_rgb"] == pytest.approx(world, rel=1e-4)
     assert result["plane_rgb"] == pytest.approx([albedo * c for c in world], rel=0.05)
 
+    # Worker processes of the installed package: they rendered waves (the finish line), the image is the
+    # same, and after the render the worker waited in the pool.
+    pids = result["worker_pids"]
+    assert result["worker_image_equal"] and len(pids) == 2 and pids[0] == pids[1], \
+        done.stdout[-1500:] + done.stderr[-3000:]
+    assert "1 worker process" in done.stdout, done.stdout[-1000:] + done.stderr[-2000:]
+
     assert result["package_dir_existed"]
     assert result["disabled"] and not result["engine_after_disable"] and not result["settings_after_disable"]
     assert not result["package_dir_after_uninstall"]
