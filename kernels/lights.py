@@ -410,16 +410,22 @@ class LightSampler:
         large enough (bounded variance next to a light, as Cycles does), else uniform in its area."""
         g = np.take(self._tri_table, slot, axis=0).T
         spherical, omega, corners = self._spherical_choice(g, px, py, pz)
-        # Area sampling for every point; replaced below where solid-angle sampling applies.
-        su = np.sqrt(u1)
-        b1 = np.float32(1.0) - su
-        b2 = u2 * su
-        qx = g[_TP0] + b1 * g[_TE1] + b2 * g[_TE2]
-        qy = g[_TP0 + 1] + b1 * g[_TE1 + 1] + b2 * g[_TE2 + 1]
-        qz = g[_TP0 + 2] + b1 * g[_TE1 + 2] + b2 * g[_TE2 + 2]
-        wx, wy, wz, dist = _direction(px, py, pz, qx, qy, qz)
-        cos_l = np.abs(wx * g[_TN] + wy * g[_TN + 1] + wz * g[_TN + 2])
-        pdf = _area_to_solid_angle(g[_TAREA], dist, cos_l)
+        n = len(slot)
+        wx, wy, wz, dist, pdf, b1, b2 = (np.empty(n, np.float32) for _ in range(7))
+        # Area sampling where the solid angle is small (3% of the Cornell box's points: only those).
+        far = np.flatnonzero(~spherical)
+        if len(far):
+            ga = g[:, far]
+            su = np.sqrt(u1[far])
+            b1[far] = a1 = np.float32(1.0) - su
+            b2[far] = a2 = u2[far] * su
+            qx = ga[_TP0] + a1 * ga[_TE1] + a2 * ga[_TE2]
+            qy = ga[_TP0 + 1] + a1 * ga[_TE1 + 1] + a2 * ga[_TE2 + 1]
+            qz = ga[_TP0 + 2] + a1 * ga[_TE1 + 2] + a2 * ga[_TE2 + 2]
+            fx, fy, fz, fd = _direction(px[far], py[far], pz[far], qx, qy, qz)
+            wx[far], wy[far], wz[far], dist[far] = fx, fy, fz, fd
+            cos_l = np.abs(fx * ga[_TN] + fy * ga[_TN + 1] + fz * ga[_TN + 2])
+            pdf[far] = _area_to_solid_angle(ga[_TAREA], fd, cos_l)
         sph = np.flatnonzero(spherical)
         if len(sph):
             a, b, c = ([comp[sph] for comp in v] for v in corners)
