@@ -30,7 +30,10 @@ needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="Ray is not installed here: 
                                                     "(dev.py test and CI install it)")
 
 FRAMES = "1-5"
-SAMPLES = "384"  # about 0.5 s a frame on one thread: long enough to kill a worker in the middle of one
+# About 0.45 s of rendering a frame on one thread: long enough to kill a worker in the middle of one, and for the
+# second worker to start before the first has done them all (384 samples took that long before waves of at least
+# 65,536 paths; then 0.07 s, and one CI run saw worker 1 render all five frames before worker 2 was ready).
+SAMPLES = "3072"
 
 
 def _command(*args):
