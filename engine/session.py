@@ -311,6 +311,7 @@ class FinalRender:
                 _kept.drop()    # Persistent Data turned off: let the kept scene go
         if persistent:
             _kept.set(renderer)
+        failures = len(renderer.worker_failures)   # a kept renderer's earlier frames were warned about
         with _kept if persistent else session:
             if renderer.dropped_triangles:
                 self._warn([f"skipped {renderer.dropped_triangles} degenerate or non-finite triangles"])
@@ -321,8 +322,9 @@ class FinalRender:
         if self._previews is not None:
             self._dirty = (0, result.film.height)  # denoised previews wrote Combined alone: every row again
         self._flush(result.film)
-        if renderer.worker_failures:  # the image is whole (their waves ran here), but slower than it could be
-            self._warn([f"a worker process failed, its waves ran in this process: {renderer.worker_failures[0]}"])
+        if len(renderer.worker_failures) > failures:  # the image is whole (their waves ran here), only slower
+            self._warn(["a worker process failed, its waves ran in this process: "
+                        + renderer.worker_failures[failures]])
         self._stamp_metadata(result.film)
         if self._denoise and not self.cancelled and result.film.samples_done > 0:
             self._denoise_final(result.film)

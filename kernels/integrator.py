@@ -84,7 +84,8 @@ class RenderSettings:
     """How to render. region is (x0, y0, x1, y1) in full-frame pixels, row 0 at the top, end
     exclusive; None for the whole frame. time_limit_s = 0 means none. A wave holds at most
     wave_size paths, which bounds memory whatever the resolution (None: automatic, WAVE_SIZE or, for
-    materials that mix lobes, LAYERED_WAVE_SIZE; the image is the same for any wave size)."""
+    materials that mix lobes, LAYERED_WAVE_SIZE; the image is the same for any wave size to float
+    rounding, and the same bit for bit for any thread count)."""
     samples: int = 64
     max_bounces: int = 8
     mode: str = "NEE_MIS"
@@ -224,8 +225,7 @@ class Renderer:
         have not changed keep their BVH (see also update_scene, which keeps everything).
         processes : whether waves may run in worker processes (threads - 1 of them, kernels/workers.py):
         None starts them when a render has WORKER_START_PATHS paths, or WORKER_START_S left by its rate
-        after a wave; True now; False never. The image is the
-        same bit for bit wherever its waves run."""
+        after a wave; True now; False never. The image is the same bit for bit wherever its waves run."""
         self._update_depth = 0
         self._workers = None
         self._wave_pool = None
@@ -502,7 +502,7 @@ class Renderer:
         done = 0
         adaptive = settings.adaptive_threshold > 0
         min_samples = adaptive_min_samples(settings) if adaptive else total
-        if self._processes is None and self._workers is None and width * height * total >= WORKER_START_PATHS:
+        if self._workers_undecided() and width * height * total >= WORKER_START_PATHS:
             self.start_workers()
         # Waves run concurrently (NumPy and Embree release the GIL, and worker processes share nothing);
         # their results are added to the film in the order they were planned, so the image does not depend
@@ -560,7 +560,7 @@ class Renderer:
                 on_tile(film, r0, r1)
             if on_progress is not None:
                 on_progress(progress)
-            if self._processes is None and self._workers is None and self._worth_workers(progress, start):
+            if self._workers_undecided() and self._worth_workers(progress):
                 self.start_workers()
             # A time limit always lets the first full pass finish, as Cycles' does.
             if not stopped and ((should_stop is not None and should_stop()) or (
@@ -573,13 +573,16 @@ class Renderer:
             stopped = False  # the stop came with the last wave: the render is complete
         return RenderResult(film, progress, stopped, self.dropped_triangles)
 
+    def _workers_undecided(self) -> bool:
+        """Automatic worker processes (processes=None) not started yet."""
+        return self._processes is None and self._workers is None
+
     @staticmethod
-    def _worth_workers(progress: Progress, start: float) -> bool:
+    def _worth_workers(progress: Progress) -> bool:
         """Whether the render has WORKER_START_S left at its rate so far."""
         if progress.paths <= 0 or progress.fraction >= 1.0:
             return False
-        elapsed = time.perf_counter() - start
-        return elapsed * (1.0 - progress.fraction) / progress.fraction > WORKER_START_S
+        return progress.elapsed_s * (1.0 - progress.fraction) / progress.fraction > WORKER_START_S
 
     def _wave(self, *args):
         """_render_rows(*args) in a free slot: this process or a ready worker process. A worker that is lost

@@ -53,21 +53,41 @@ class Texture:
     def lookup(self, u: np.ndarray, v: np.ndarray, wrap_v: bool = True, unassociate: bool = False) -> np.ndarray:
         """(3, N) float32 bilinear samples at texture coordinates u, v (repeat wrap in u; in v repeat
         or clamp to edge)."""
-        value = self._bilinear(self.channels, u, v, wrap_v)
+        corners = self._corners(u, v, wrap_v)
+        (i00, i01, i10, i11), fx, fy = corners
+        # Gathered from the interleaved texels, (n, 3), then (3, n) again.
+        t, fx, fy = self.texels, fx[:, None], fy[:, None]
+        top = np.take(t, i00, axis=0) * (1 - fx) + np.take(t, i01, axis=0) * fx
+        bot = np.take(t, i10, axis=0) * (1 - fx) + np.take(t, i11, axis=0) * fx
+        value = np.ascontiguousarray((top * (1 - fy) + bot * fy).T)
         if unassociate and self.alpha is not None:
-            a = self._bilinear(self.alpha, u, v, wrap_v)[0]
+            a = self._planes(self.alpha, corners)[0]
             partial = (a != 0) & (a != 1)
             value = np.where(partial, value / np.where(partial, a, np.float32(1.0)), value)
         return srgb_to_linear(value) if self.srgb else value
 
     def _bilinear(self, c: np.ndarray, u: np.ndarray, v: np.ndarray, wrap_v: bool) -> np.ndarray:
+        """Bilinear samples of the planes c (k, H*W): (k, N)."""
+        return self._planes(c, self._corners(u, v, wrap_v))
+
+    @staticmethod
+    def _planes(c: np.ndarray, corners) -> np.ndarray:
+        (i00, i01, i10, i11), fx, fy = corners
+        fx, fy = fx[None, :], fy[None, :]
+        top = np.take(c, i00, axis=1) * (1 - fx) + np.take(c, i01, axis=1) * fx
+        bot = np.take(c, i10, axis=1) * (1 - fx) + np.take(c, i11, axis=1) * fx
+        return top * (1 - fy) + bot * fy
+
+    def _corners(self, u: np.ndarray, v: np.ndarray, wrap_v: bool):
+        """The flat texel indices of the four texels around u, v (top left, top right, bottom left, bottom
+        right) and the weights (fx, fy) toward the right and bottom ones."""
         w, h = self.width, self.height
         x = u * np.float32(w) - np.float32(0.5)
         y = v * np.float32(h) - np.float32(0.5)
         x0f = np.floor(x)
         y0f = np.floor(y)
-        fx = (x - x0f)[None, :]
-        fy = (y - y0f)[None, :]
+        fx = x - x0f
+        fy = y - y0f
         x0 = np.mod(x0f.astype(np.int64), w)
         x1 = x0 + 1
         x1[x1 == w] = 0
@@ -81,14 +101,7 @@ class Texture:
             y1 = np.clip(y0i + 1, 0, h - 1)
         r0 = y0 * w
         r1 = y1 * w
-        if c is self.channels:  # gathered from the interleaved texels, (n, 3), then (3, n) again
-            t, fx, fy = self.texels, fx.T, fy.T
-            top = np.take(t, r0 + x0, axis=0) * (1 - fx) + np.take(t, r0 + x1, axis=0) * fx
-            bot = np.take(t, r1 + x0, axis=0) * (1 - fx) + np.take(t, r1 + x1, axis=0) * fx
-            return np.ascontiguousarray((top * (1 - fy) + bot * fy).T)
-        top = np.take(c, r0 + x0, axis=1) * (1 - fx) + np.take(c, r0 + x1, axis=1) * fx
-        bot = np.take(c, r1 + x0, axis=1) * (1 - fx) + np.take(c, r1 + x1, axis=1) * fx
-        return top * (1 - fy) + bot * fy
+        return (r0 + x0, r0 + x1, r1 + x0, r1 + x1), fx, fy
 
 
 def finite_uv(u: np.ndarray, v: np.ndarray):

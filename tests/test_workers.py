@@ -210,11 +210,9 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
 
 def test_the_start_waits_for_a_render_with_time_left():
     # 10% done after 0.2 s: 1.8 s left, over WORKER_START_S; 90% done: 0.02 s left.
-    import time
-    start = time.perf_counter() - 0.2
-    assert Renderer._worth_workers(Progress(1, 10, 0.1, 0.2, paths=100), start)
-    assert not Renderer._worth_workers(Progress(9, 10, 0.9, 0.2, paths=900), start)
-    assert not Renderer._worth_workers(Progress(0, 10, 0.0, 0.0), start)
+    assert Renderer._worth_workers(Progress(1, 10, 0.1, 0.2, paths=100))
+    assert not Renderer._worth_workers(Progress(9, 10, 0.9, 0.2, paths=900))
+    assert not Renderer._worth_workers(Progress(0, 10, 0.0, 0.0))
 
 
 def test_f12_renders_with_worker_processes_and_says_so(tmp_path, monkeypatch, capfd):

@@ -134,29 +134,32 @@ def _lookup_2d_in_slice(data: np.ndarray, k, x, y, axes=None):
     return ((ONE - ty) * row0 + ty * row1).astype(np.float32)
 
 
-def lookup_3d(data: np.ndarray, x, y, z, offset=0):
-    """data (nz, ny, nx): x indexes the last axis. offset: added to the slice index, for tables stacked
-    along z (the slices stay those of z's own nz, `_stacked`)."""
-    nz = data.shape[0] if np.ndim(offset) == 0 and offset == 0 else _STACKED_NZ[id(data)]
-    z0, z1, tz = _axis(z, nz)
+def lookup_3d(data: np.ndarray, x, y, z, z_axis=None):
+    """data (nz, ny, nx): x indexes the last axis. z_axis: the z axis (_axis) when the caller has it
+    already (tables stacked along z, `_stacked` and `_offset_axis`)."""
+    z0, z1, tz = z_axis if z_axis is not None else _axis(z, data.shape[0])
     axes = (*_axis(x, data.shape[2]), *_axis(y, data.shape[1]))
-    lo = _lookup_2d_in_slice(data, z0 + offset, x, y, axes)
-    hi = _lookup_2d_in_slice(data, z1 + offset, x, y, axes)
+    lo = _lookup_2d_in_slice(data, z0, x, y, axes)
+    hi = _lookup_2d_in_slice(data, z1, x, y, axes)
     return ((ONE - tz) * lo + tz * hi).astype(np.float32)
 
 
-_STACKED_NZ: dict = {}
 _stacked_cache: dict = {}
 
 
 def _stacked(*names: str) -> np.ndarray:
-    """Tables of one shape stacked along z, so that one lookup picks its table per entry by an offset of
-    k * nz (the result is the table's own lookup, bit for bit)."""
+    """Tables of one shape stacked along their first axis, so that one lookup picks its table per entry
+    (`_offset_axis`; the result is the table's own lookup, bit for bit)."""
     if names not in _stacked_cache:
-        data = np.ascontiguousarray(np.concatenate([table(n) for n in names], axis=0))
-        _STACKED_NZ[id(data)] = table(names[0]).shape[0]
-        _stacked_cache[names] = data
+        _stacked_cache[names] = np.ascontiguousarray(np.concatenate([table(n) for n in names], axis=0))
     return _stacked_cache[names]
+
+
+def _offset_axis(z, n: int, second):
+    """_axis of z over n nodes, moved to the second of two stacked tables where `second`."""
+    z0, z1, tz = _axis(z, n)
+    shift = second.astype(np.int32) * n
+    return z0 + shift, z1 + shift, tz
 
 
 # ---------------------------------------------------------------- named lookups
@@ -180,22 +183,15 @@ def glass_E(rough, mu, eta):
     tables stacked, the inverse one where eta < 1."""
     inside, z = _glass_tables(eta)
     data = _stacked("ggx_glass_E", "ggx_glass_inv_E")
-    return lookup_3d(data, rough, mu, z, offset=inside.astype(np.int32) * _STACKED_NZ[id(data)])
+    return lookup_3d(data, rough, mu, z, _offset_axis(z, table("ggx_glass_E").shape[0], inside))
 
 
 def glass_Eavg(rough, eta):
     inside, z = _glass_tables(eta)
     data = _stacked("ggx_glass_Eavg", "ggx_glass_inv_Eavg")   # 2D tables: (2 ny, nx), rows by z
-    ny = table("ggx_glass_Eavg").shape[0]
     return _lookup_2d_in_slice(data[None], 0, rough, None,
-                               (*_axis(rough, data.shape[1]), *_offset_axis(z, ny, inside)))
-
-
-def _offset_axis(z, n: int, second):
-    """_axis of z over n nodes, moved to the second of two stacked tables where `second`."""
-    z0, z1, tz = _axis(z, n)
-    shift = second.astype(np.int32) * n
-    return z0 + shift, z1 + shift, tz
+                               (*_axis(rough, data.shape[1]),
+                                *_offset_axis(z, table("ggx_glass_Eavg").shape[0], inside)))
 
 
 def gen_schlick_ior_s(rough, mu, eta):
