@@ -45,9 +45,10 @@ from .textures import Texture
 from .workers import WaveSlots, WorkerLost, WorkerSet, python_executable
 
 SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
-# Russian roulette starts once a path has scattered this many times (NEE_MIS only: LECTURE and COSINE
-# stay the plain estimators they are, for teaching and as references).
-ROULETTE_DEPTH = 3
+# Russian roulette decides on the surfaces that rays hit once their path has scattered this many times
+# (Cycles: bounce > min_bounce, min_bounce 1 by default; NEE_MIS only: LECTURE and COSINE stay the plain
+# estimators they are, for teaching and as references).
+ROULETTE_DEPTH = 2
 
 # A pass is cut into at least this many waves when the image allows, so that two cores have
 # independent work; wave_size then bounds each wave.
@@ -734,6 +735,8 @@ class Renderer:
                 self._lights_hit(wave, state, rays, hits)
             self._escaped(wave, state, rays, hits)
             found = np.flatnonzero(hits.prim >= 0)
+            if state.continuation is not None:
+                found = self._roulette_stops(state, hits, found)
             if not len(found):
                 break
             state.compact(found)
@@ -754,6 +757,8 @@ class Renderer:
                 self._emission_on_hit(wave, state, hit, shading, hits, rays, found)
             if self.shading.has_holdout:
                 self._holdout(wave, state, shading)
+            if state.continuation is not None:
+                _roulette_weights(state)
             numbers = state.samples.bounce(step)
             if nee:
                 self._next_event(wave, state, hit, shading.closures, numbers)
@@ -1097,15 +1102,33 @@ class Renderer:
         state.bsdf_pdf = np.where(passing, state.bsdf_pdf, bs.pdf)
         if state.min_ray_pdf is not None:
             state.min_ray_pdf = np.where(passing, state.min_ray_pdf, np.minimum(state.min_ray_pdf, bs.pdf))
-        # After a few bounces, continue with probability q, re-weighted by 1/q.
+        # After a few bounces, Russian roulette judges the surface the new ray will hit, as Cycles does
+        # (path_state_continuation_probability, decided in intersect_closest): the ray is traced whatever
+        # the verdict, and what it finds emitting counts in full; only the surface's shading (its light
+        # sample and the next bounce) goes on with probability q = min(sqrt(max throughput), 1), weighted
+        # by 1/q. The square root keeps paths longer than q = max throughput would.
+        state.continuation = None
         if wave.nee:
             roulette = ~passing & (state.bounce >= ROULETTE_DEPTH)
-            q = np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]), np.float32(1.0))
-            q = np.where(roulette, q, np.float32(1.0))
-            alive &= numbers[LIGHT][1] < q
-            throughput = throughput / np.where(q > 0, q, np.float32(1.0))
+            if roulette.any():
+                q = np.sqrt(np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]),
+                                       np.float32(1.0)))
+                q = np.where(roulette, q, np.float32(1.0))
+                state.continuation = np.where(numbers[LIGHT][1] < q, q, np.float32(0.0))
         state.throughput = throughput
         return np.flatnonzero(alive)
+
+    def _roulette_stops(self, state, hits, found) -> np.ndarray:
+        """The hits (indices of found) that are shaded or emit: paths that Russian roulette stopped at this
+        surface end here unless the surface emits (its emission then counts, _roulette_weights ends them)."""
+        stop = np.take(state.continuation, found) == 0
+        if not stop.any():
+            return found
+        if self._emissive:
+            stopped = np.flatnonzero(stop)
+            mats = self._triangles.materials(np.take(hits.prim, np.take(found, stopped)))
+            stop[stopped] = ~np.take(self.shading.emissive, mats)
+        return found[~stop]
 
     # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
     def _spawn(self, hit, alive, bs) -> "Rays":
@@ -1352,6 +1375,15 @@ def _class_shares(f, f_diffuse, f_glossy) -> np.ndarray:
 def _add_albedo(aux: dict, paths: np.ndarray, albedo: np.ndarray) -> None:
     """Add (3, n) albedo to the Denoising Albedo of paths (one entry per path), kept within [0, 1]."""
     aux["denoising_albedo"][:, paths] = np.minimum(aux["denoising_albedo"][:, paths] + np.maximum(albedo, 0.0), 1.0)
+
+
+def _roulette_weights(state) -> None:
+    """After a surface's emission counted: the paths Russian roulette stopped here end (their throughput
+    becomes 0, so they add nothing and _continues drops them); the others are divided by their q (Cycles'
+    integrate_surface_terminate)."""
+    c = state.continuation
+    state.throughput = np.where(c > 0, state.throughput / np.where(c > 0, c, np.float32(1.0)), np.float32(0.0))
+    state.continuation = None
 
 
 def _accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> None:

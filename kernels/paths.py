@@ -29,6 +29,10 @@ class PathState:
     #                                     (kernels.passes), or None when the denoiser's passes are not recorded
     pass_weights: np.ndarray | None = None  # (6, N) float32 diffuse and glossy shares (RGB) of the first bounce
     #                                         (Cycles' light passes), or None when no light pass is recorded
+    continuation: np.ndarray | None = None  # (N,) float32 Russian roulette's verdict on the surface the ray
+    #                                         will hit: 1 shade it, q in (0, 1) shade it and divide by q, 0
+    #                                         only take its emission (Cycles' continuation_probability and
+    #                                         PATH_RAY_TERMINATE_ON_NEXT_SURFACE); None before any roulette
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -54,6 +58,8 @@ class PathState:
             self.features = np.take(self.features, idx, axis=1)
         if self.pass_weights is not None:
             self.pass_weights = np.take(self.pass_weights, idx, axis=1)
+        if self.continuation is not None:
+            self.continuation = np.take(self.continuation, idx)
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

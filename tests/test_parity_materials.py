@@ -415,8 +415,8 @@ def test_two_diffuse_bsdfs_mixed_or_added_in_a_white_furnace(shader):
 def test_clamp_direct_matches_cycles():
     """Clamp Direct on both engines, low enough to cut into the sun's light on diffuse spheres: the same
     biased image. Clamping's bias depends on how each contribution was sampled, so the scene keeps to
-    what both engines sample alike: one light, diffuse surfaces, direct light only (Cycles' Russian
-    roulette starts earlier than Ember's, and its 1/q scaling would clamp bounced light differently)."""
+    what both engines sample alike: one light, diffuse surfaces, direct light only (bounced light's
+    clamping depends on the numbers each engine draws for Russian roulette and lobe choices)."""
     scene = new_scene(48, 32)
     materials = [diffuse_material("White", (0.8, 0.8, 0.8)), diffuse_material("Red", (0.8, 0.2, 0.1))]
     grid_of_spheres(materials, 2)
