@@ -32,7 +32,7 @@ from .bsdf.closures import BsdfSample, class_albedo, eval_split, pass_classes
 from .geometry import NG, TriangleTable, prototype_boxes, scene_extent
 from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
-from .memory import trim_heap
+from .memory import small_pages, trim_heap
 from .paths import PathState
 from .rng import PathRng, seed_paths
 from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples
@@ -218,6 +218,7 @@ class Renderer:
     renders, moved instances, edited materials and lights can be swapped in without building it again
     (update_instances, update_materials, update_lights: the viewport's incremental updates)."""
 
+    @small_pages()  # a scene's arrays written once: no huge-page compaction stalls (kernels.memory)
     def __init__(self, scene: SceneArrays, threads: int = 0, should_stop: Callable[[], bool] | None = None,
                  reuse: "Renderer | None" = None, processes: bool | None = None):
         """should_stop() is polled between the stages of the build (each stage is one long C or NumPy

@@ -25,7 +25,7 @@ import bpy
 
 from ...kernels import SceneArrays
 from ...kernels.cryptomatte import hash_names
-from ...kernels.memory import trim_heap
+from ...kernels.memory import small_pages, trim_heap
 from .camera import export_camera, render_region, render_resolution
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
@@ -68,6 +68,7 @@ class ExportCancelled(Exception):
     """should_stop() returned True during the export (Esc, or Ctrl-C on the command line)."""
 
 
+@small_pages()
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
                  motion=None, vector=None, instance_everything: bool = False, mesh_cache=None) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
