@@ -108,3 +108,49 @@ def test_pass_matches_cycles(renders, name):
     floor = 0.02 * np.abs(cyc) + 1e-4
     z = np.abs(diff) / np.maximum(se, floor)
     assert z.max() < 5, (name, float(z.max()), np.unravel_index(int(z.argmax()), z.shape))
+
+
+def test_colour_albedos_of_metal_and_tinted_glass_match_cycles():
+    """A metal's colour lives in its Fresnel (F82 tint, F0 = base colour) and tinted glass's in its
+    transmission tint, not in their closure weights: the Denoising Albedo, Glossy Color and Transmission
+    Color are Cycles' bsdf_albedo of each closure, in colour. They read grey before (the weight times the
+    mean albedo): copper's denoising albedo 0.62 in every channel where Cycles has (0.95, 0.55, 0.35).
+    These albedos are closed forms of the viewing angle, so the pixel means agree to the tables' precision."""
+    import bpy
+    from bpy_helpers import add_camera, new_scene, set_world
+    scene = new_scene(40, 20)
+    set_world(scene, (0.5, 0.5, 0.5), 1.0)
+    for name, x, inputs in (("Copper", -1.1, {"Base Color": (0.95, 0.55, 0.35, 1.0), "Metallic": 1.0,
+                                              "Roughness": 0.28}),
+                            ("Tinted glass", 1.1, {"Base Color": (0.5, 0.9, 0.6, 1.0), "Transmission Weight": 1.0,
+                                                   "Roughness": 0.3})):
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(x, 0, 0), segments=48, ring_count=24)
+        bpy.ops.object.shade_smooth()
+        material = bpy.data.materials.new(name)
+        bsdf = material.node_tree.nodes["Principled BSDF"]
+        for key, value in inputs.items():
+            bsdf.inputs[key].default_value = value
+        bpy.context.object.data.materials.append(material)
+    add_camera(scene, (0, -7, 0), (0, 0, 0), lens=50)
+    layer = scene.view_layers[0]
+    layer.use_pass_glossy_color = layer.use_pass_transmission_color = True
+    layer.cycles.denoising_store_passes = layer.ember.denoising_store_passes = True
+    names = ("Denoising Albedo", "Glossy Color", "Transmission Color")
+    out = {}
+    for engine in ("CYCLES", "EMBER"):
+        scene.render.engine = engine
+        if engine == "CYCLES":
+            configure_cycles(scene, 16, 0, 8)
+        else:
+            e = scene.ember
+            e.samples, e.max_bounces = 16, 8
+            e.use_adaptive_sampling = e.use_denoising = False
+            e.pixel_filter_type = "BOX"
+        parts, _ = render_multilayer(scene)
+        out[engine] = {name: np.stack([parts[f"{layer.name}.{name}"][c] for c in "RGB"], axis=-1) for name in names}
+    centre = (slice(6, 14), slice(None))
+    for name in names:
+        for half in (slice(4, 14), slice(26, 36)):   # the copper sphere, the glass sphere: their middles
+            cycles = out["CYCLES"][name][centre][:, half].reshape(-1, 3).mean(axis=0)
+            ember = out["EMBER"][name][centre][:, half].reshape(-1, 3).mean(axis=0)
+            np.testing.assert_allclose(ember, cycles, atol=0.02, err_msg=name)

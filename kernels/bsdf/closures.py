@@ -62,9 +62,12 @@ class ClosureBuilder:
         self._chunks: list[dict] = []
 
     def add(self, lobe: int, hits: np.ndarray, weight: np.ndarray, sample_weight=None, normal=None,
-            tangent=None, **params) -> None:
+            tangent=None, albedo=None, **params) -> None:
         """Closures of one lobe at hits (n,) int with weight (3, n). sample_weight defaults to the
-        mean of the weight; normal to the shading normal; tangent to an arbitrary one. params: the
+        mean of the weight; normal to the shading normal; tangent to an arbitrary one. albedo: (reflection,
+        transmission) (3, n) each, Cycles' bsdf_albedo (the weight times the lobe's estimated albedo, in
+        colour) for closures whose colour is not all in their weight (a metal's Fresnel, glass's tints);
+        by default the weight times the sample weight over the weight's mean, all reflection. params: the
         scalar and colour columns above, arrays of (n,) / (3, n) or constants."""
         n = len(hits)
         if n == 0:
@@ -89,6 +92,8 @@ class ClosureBuilder:
         for name, value in params.items():
             shape = (3, n) if name in _COLOURS else (n,)
             chunk[name] = np.broadcast_to(np.asarray(value, F32), shape)[..., keep]
+        if albedo is not None:
+            chunk["albedo"] = tuple(np.broadcast_to(np.asarray(a, F32), (3, n))[:, keep] for a in albedo)
         self._chunks.append(chunk)
 
     def finish(self) -> "ClosureSet":
@@ -116,6 +121,10 @@ class ClosureSet:
             np.zeros(0, np.int8)
         self.weight = cat([ch["weight"] for ch in chunks]) if chunks else np.zeros((3, 0), F32)
         self.sw = cat([ch["sw"] for ch in chunks]) if chunks else np.zeros(0, F32)
+        # The closures' own colour albedos, made when the passes ask (the albedo property).
+        self._given_albedo = ([(ch.get("albedo"), len(ch["hit"])) for ch in chunks], order) \
+            if any("albedo" in ch for ch in chunks) else None
+        self._albedo = None
         for name, default in (*_SCALARS.items(), *_COLOURS.items()):
             shape = (3,) if name in _COLOURS else ()
             if any(name in ch for ch in chunks):
@@ -158,6 +167,23 @@ class ClosureSet:
 
     def __len__(self) -> int:
         return len(self.hit)
+
+    @property
+    def albedo(self):
+        """(reflection, transmission) (3, C) colour albedos, where some closure gave its own (add(albedo=)),
+        the others' from their weight and sample weight (all reflection); None when none gave one (the
+        weights then carry every closure's colour). Made on first use: only passes read it."""
+        if self._given_albedo is None:
+            return None
+        if self._albedo is None:
+            parts, order = self._given_albedo
+            reflect = _concat([g[0] if g is not None else np.full((3, n), np.nan, F32) for g, n in parts], order)
+            transmit = _concat([g[1] if g is not None else np.zeros((3, n), F32) for g, n in parts], order)
+            missing = np.flatnonzero(np.isnan(reflect[0]))
+            if len(missing):
+                reflect[:, missing] = _weight_albedo(self.weight[:, missing], self.sw[missing])
+            self._albedo = (reflect, transmit)
+        return self._albedo
 
     @property
     def frame(self):
@@ -473,13 +499,22 @@ def eval_split(cs, hits: np.ndarray, wi):
                  for part in (f_c, f_c * diffuse, f_c * glossy))
 
 
-def closure_albedos(cs) -> np.ndarray:
-    """(3, C) each closure's albedo estimate: its RGB weight times its sample weight over its mean weight
-    (the sample weight is the mean weight times the lobe's estimated albedo)."""
-    weight = np.asarray(cs.weight, F32)
+def _weight_albedo(weight, sw) -> np.ndarray:
+    """(3, C) the weight times the sample weight over the weight's mean: the albedo of a closure whose
+    colour is all in its weight (its sample weight is the mean weight times the lobe's estimated albedo)."""
+    weight = np.asarray(weight, F32)
     mean = weight.mean(axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return (weight * np.where(mean > 0, np.asarray(cs.sw, F32) / mean, 0.0)).astype(F32)
+        return (weight * np.where(mean > 0, np.asarray(sw, F32) / mean, 0.0)).astype(F32)
+
+
+def closure_albedos(cs) -> np.ndarray:
+    """(3, C) each closure's albedo estimate, Cycles' bsdf_albedo (reflection and transmission): the one
+    the closure gave (a metal's Fresnel colour, glass's tints), else its weight times its sample weight
+    over its mean weight."""
+    if cs.albedo is not None:
+        return (cs.albedo[0] + cs.albedo[1]).astype(F32)
+    return _weight_albedo(cs.weight, cs.sw)
 
 
 def class_albedo(cs, n_hits: int):
@@ -489,8 +524,20 @@ def class_albedo(cs, n_hits: int):
     out = [np.zeros((3, n_hits), F32) for _ in range(3)]
     if not len(cs):
         return tuple(out)
-    albedo = closure_albedos(cs)
     lobe = cs.lobe
+    if cs.albedo is not None:
+        # Each closure's own split (Cycles' bsdf_albedo with reflection or transmission alone): glass's
+        # reflection is glossy, its transmission transmission.
+        reflect, transmit = cs.albedo
+        glass = lobe == GLASS
+        parts = ((reflect + transmit) * np.isin(lobe, DIFFUSE_LOBES),
+                 (reflect + transmit) * np.isin(lobe, GLOSSY_LOBES) + reflect * glass,
+                 (reflect + transmit) * (lobe == REFRACTION) + transmit * glass)
+        for o, part in zip(out, parts):
+            for k in range(3):
+                o[k] = np.bincount(cs.hit, part[k], minlength=n_hits)
+        return tuple(out)
+    albedo = closure_albedos(cs)
     f0 = np.zeros(len(lobe), F32)
     glass = np.flatnonzero(lobe == GLASS)
     if len(glass):  # the glass's reflectance toward the viewer: its dielectric Fresnel there

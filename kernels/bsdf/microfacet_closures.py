@@ -115,7 +115,9 @@ def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, sp
     f0 = fr.f0_from_ior(ior)[None, :] * (np.ones((3, n), F32) if specular_tint is None else specular_tint)
     f0 = np.clip(f0, 0.0, 1.0)
     weight = np.broadcast_to(weight, (3, n))
-    albedo = mf.albedo_remapped(alpha, alpha, mu, eta, f0, ONE, reflection_tint, transmission_tint)
+    reflect = mf.albedo_remapped(alpha, alpha, mu, eta, f0, ONE, reflection_tint, transmission_tint, transmission=False)
+    transmit = mf.albedo_remapped(alpha, alpha, mu, eta, f0, ONE, reflection_tint, transmission_tint, reflection=False)
+    albedo = reflect + transmit
     sw = np.abs(channel_mean(weight)) * channel_mean(albedo)
     eval_scale = ONE
     if multiscatter:
@@ -123,6 +125,7 @@ def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, sp
         weight = weight * factor
         sw = sw * channel_mean(factor)
     b.add(lobes.GLASS, hits, weight, sample_weight=sw, normal=normal, ax=alpha, ay=alpha, eta=eta,
+          albedo=(weight * reflect, weight * transmit),
           eval_scale=eval_scale, fresnel=F_REMAP, c0=f0, c1=reflection_tint, c2=transmission_tint,
           **_dist(distribution))
 
@@ -146,7 +149,7 @@ def _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatt
         sw = sw * channel_mean(factor)
     dist = params.pop("dist", mf.GGX)
     b.add(lobes.REFLECTION, hits, weight, sample_weight=sw, normal=normal, ax=ax, ay=ay, eval_scale=eval_scale,
-          fresnel=mode, **params, **_dist(dist))
+          fresnel=mode, albedo=(weight * albedo, ZERO), **params, **_dist(dist))
     return weight
 
 
