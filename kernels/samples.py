@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rng import PathRng, stratified_2d
+from .rng import PathRng, reverse_bits, stratified_2d
 
 CAMERA, LIGHT, LIGHT_POINT, BSDF, LOBE, LENS, TIME = 0, 1, 2, 3, 4, 5, 6
 HALF = np.float32(0.5)
@@ -50,8 +50,11 @@ class Samples:
         """The pixel jitter of every path (drawn before any other dimension)."""
         if self._strata is None:
             return self.rng.next_2d()
-        self._first = {d: stratified_2d(*self._strata, self._seed, d) for d in STRATIFIED if d in self.block}
-        jx, jy = stratified_2d(*self._strata, self._seed, CAMERA)
+        pixel, sample = self._strata
+        reversed_index = reverse_bits(np.asarray(sample, np.uint32))  # the same for every dimension
+        self._first = {d: stratified_2d(pixel, sample, self._seed, d, reversed_index)
+                       for d in STRATIFIED if d in self.block}
+        jx, jy = stratified_2d(pixel, sample, self._seed, CAMERA, reversed_index)
         # Sample 0 of every pixel looks through its centre, as Cycles' does (init_from_camera.h): a first
         # sample without jitter, and the same expected image as Cycles' at every sample count.
         first = self._strata[1] == 0
