@@ -1156,7 +1156,9 @@ class Renderer:
             if not len(active):
                 return
             u_select, u1, u2 = u_select[active], u1[active], u2[active]
-        px, py, pz = (c[active] for c in hit.p)
+            px, py, pz = (c[active] for c in hit.p)
+        else:
+            px, py, pz = hit.p
         ls = self.lights.sample(px, py, pz, u_select, u1, u2)
         le = ls.radiance
         useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))

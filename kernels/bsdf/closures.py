@@ -389,18 +389,30 @@ class ClosureSet:
         """Only Lambert closures, all on the shading normal: a cosine sample about it. Every closure of
         the hit has the same pdf, so the mixture's f cos / pdf is the sum of the hit's closure weights
         (one closure's weight when it has one)."""
-        lx, ly, lz = sampling.sample_cosine_hemisphere(u1[hits], u2[hits])
-        n = self.normal[:, rows]
+        # Every hit has its closure, in hit order (a diffuse scene): no gathers or scatters.
+        whole = len(hits) == self.n_hits and self.single and len(rows) == len(self.hit) and \
+            bool((rows == np.arange(len(rows))).all())
+        if whole:
+            lx, ly, lz = sampling.sample_cosine_hemisphere(u1, u2)
+            n = self.normal
+        else:
+            lx, ly, lz = sampling.sample_cosine_hemisphere(u1[hits], u2[hits])
+            n = self.normal[:, rows]
         world = sampling.local_to_world(lx, ly, lz, n[0], n[1], n[2])
-        for axis in range(3):
-            out.wi[axis][hits] = world[axis]
         pdf = sampling.cosine_hemisphere_pdf(lz)
         good = pdf > 0
         if self.single:
-            weight = self.weight[:, rows]
+            weight = self.weight if whole else self.weight[:, rows]
         else:  # a Mix or Add of Diffuse BSDFs
             weight = np.stack([np.bincount(self.hit, self.weight[k], minlength=self.n_hits)[hits]
                                for k in range(3)]).astype(F32)
+        if whole:
+            out.wi = tuple(world)
+            out.weight = np.where(good, weight, ZERO)
+            out.pdf = pdf
+            return
+        for axis in range(3):
+            out.wi[axis][hits] = world[axis]
         out.weight[:, hits] = np.where(good, weight, ZERO)
         out.pdf[hits] = pdf
 
