@@ -530,40 +530,23 @@ def closure_albedos(cs) -> np.ndarray:
 
 
 def class_albedo(cs, n_hits: int):
-    """(diffuse, glossy, transmission) (3, n) colours of the hits' closures: closure_albedos summed per class (Cycles' surface_shader_diffuse,
-    _glossy, _transmission); glass shares its albedo by its dielectric Fresnel toward the viewer (Cycles
-    reads its reflection and transmission albedos from its microfacet tables: equal for smooth glass)."""
+    """(diffuse, glossy, transmission) (3, n) colours of the hits' closures (Cycles' surface_shader_diffuse,
+    _glossy, _transmission): each closure's albedo (closure_albedos) summed in its class; glass gives its
+    reflection to glossy and its transmission to transmission, as Cycles' bsdf_albedo(reflection,
+    transmission) splits them."""
     out = [np.zeros((3, n_hits), F32) for _ in range(3)]
     if not len(cs):
         return tuple(out)
     lobe = cs.lobe
-    if cs.albedo is not None:
-        # Each closure's own split (Cycles' bsdf_albedo with reflection or transmission alone): glass's
-        # reflection is glossy, its transmission transmission.
-        reflect, transmit = cs.albedo
-        glass = lobe == GLASS
-        parts = ((reflect + transmit) * np.isin(lobe, DIFFUSE_LOBES),
-                 (reflect + transmit) * np.isin(lobe, GLOSSY_LOBES) + reflect * glass,
-                 (reflect + transmit) * (lobe == REFRACTION) + transmit * glass)
-        for o, part in zip(out, parts):
-            for k in range(3):
-                o[k] = np.bincount(cs.hit, part[k], minlength=n_hits)
-        return tuple(out)
-    albedo = closure_albedos(cs)
-    f0 = np.zeros(len(lobe), F32)
-    glass = np.flatnonzero(lobe == GLASS)
-    if len(glass):  # the glass's reflectance toward the viewer: its dielectric Fresnel there
-        from .fresnel import dielectric
-        wo = tuple(np.take(c, cs.hit[glass]) for c in cs._wo_world)
-        n = cs.normal[:, glass]
-        cos = np.abs(wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2])
-        f0[glass] = dielectric(cos, np.broadcast_to(np.asarray(cs.eta, F32), lobe.shape)[glass])[0]
-    shares = (np.isin(lobe, DIFFUSE_LOBES).astype(F32),
-              np.isin(lobe, GLOSSY_LOBES) + (lobe == GLASS) * f0,
-              (lobe == REFRACTION) + (lobe == GLASS) * (1 - f0))
-    for o, share in zip(out, shares):
+    reflect, transmit = cs.albedo if cs.albedo is not None else (_weight_albedo(cs.weight, cs.sw), ZERO)
+    total = reflect + transmit
+    glass = lobe == GLASS
+    parts = (total * np.isin(lobe, DIFFUSE_LOBES),
+             total * np.isin(lobe, GLOSSY_LOBES) + reflect * glass,
+             total * (lobe == REFRACTION) + transmit * glass)
+    for o, part in zip(out, parts):
         for k in range(3):
-            o[k] = np.bincount(cs.hit, albedo[k] * share, minlength=n_hits)
+            o[k] = np.bincount(cs.hit, part[k], minlength=n_hits)
     return tuple(out)
 
 
