@@ -1120,8 +1120,8 @@ class Renderer:
         return np.flatnonzero(alive)
 
     def _roulette_stops(self, state, hits, found) -> np.ndarray:
-        """The hits (indices of found) that are shaded or emit: paths that Russian roulette stopped at this
-        surface end here unless the surface emits (its emission then counts, _roulette_weights ends them)."""
+        """found without the paths that Russian roulette stopped at a surface that does not emit: those end
+        here; a stopped path whose surface emits stays for its emission (_roulette_weights then ends it)."""
         stop = np.take(state.continuation, found) == 0
         if not stop.any():
             return found

@@ -51,13 +51,13 @@ class Samples:
         if self._strata is None:
             return self.rng.next_2d()
         pixel, sample = self._strata
-        reversed_index = reverse_bits(np.asarray(sample, np.uint32))  # the same for every dimension
+        reversed_index = reverse_bits(sample)  # the same for every dimension
         self._first = {d: stratified_2d(pixel, sample, self._seed, d, reversed_index)
                        for d in STRATIFIED if d in self.block}
         jx, jy = stratified_2d(pixel, sample, self._seed, CAMERA, reversed_index)
         # Sample 0 of every pixel looks through its centre, as Cycles' does (init_from_camera.h): a first
         # sample without jitter, and the same expected image as Cycles' at every sample count.
-        first = self._strata[1] == 0
+        first = sample == 0
         if first.any():
             jx, jy = np.where(first, HALF, jx), np.where(first, HALF, jy)
         return jx, jy

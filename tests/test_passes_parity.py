@@ -115,7 +115,9 @@ def test_colour_albedos_of_metal_and_tinted_glass_match_cycles():
     transmission tint, not in their closure weights: the Denoising Albedo, Glossy Color and Transmission
     Color are Cycles' bsdf_albedo of each closure, in colour. They read grey before (the weight times the
     mean albedo): copper's denoising albedo 0.62 in every channel where Cycles has (0.95, 0.55, 0.35).
-    These albedos are closed forms of the viewing angle, so the pixel means agree to the tables' precision."""
+    These albedos are closed forms of the viewing angle read from the same tables, so the block means agree
+    to the tables' precision and the 16 samples' jitter of that angle: measured within 0.0008, asserted
+    within 0.005."""
     import bpy
     from bpy_helpers import add_camera, new_scene, set_world
     scene = new_scene(40, 20)
@@ -153,4 +155,4 @@ def test_colour_albedos_of_metal_and_tinted_glass_match_cycles():
         for half in (slice(4, 14), slice(26, 36)):   # the copper sphere, the glass sphere: their middles
             cycles = out["CYCLES"][name][centre][:, half].reshape(-1, 3).mean(axis=0)
             ember = out["EMBER"][name][centre][:, half].reshape(-1, 3).mean(axis=0)
-            np.testing.assert_allclose(ember, cycles, atol=0.02, err_msg=name)
+            np.testing.assert_allclose(ember, cycles, atol=0.005, err_msg=name)
