@@ -32,8 +32,10 @@ from .scene import LIGHT_KINDS, SceneArrays
 from .textures import luminance
 
 POINT, SPOT, SUN, RECT, DISK = (LIGHT_KINDS[k] for k in ("POINT", "SPOT", "SUN", "RECT", "DISK"))
-# Emissive triangles subtending more than this solid angle are sampled by solid angle, smaller (far)
-# ones by area: for tiny spherical triangles the solid-angle construction loses float precision.
+# An emissive triangle is sampled by the solid angle it subtends from points nearer its plane than its
+# longest edge, as Cycles decides (kernel/light/triangle.h), and by area from farther points, where the
+# two pdfs hardly differ and area sampling costs a fifth. Below this solid angle it is sampled by area
+# whatever the distance: for tiny spherical triangles the solid-angle construction loses float precision.
 SPHERICAL_MIN_SR = 1e-3
 # When a scene has both local and distant emitters, the distant ones (suns, world) get this share of
 # the light choices. It cannot come from comparing powers: a sun's or the world's power is per unit
@@ -168,6 +170,9 @@ class LightSampler:
         table[:, _TN:_TN + 3] = cross / np.maximum(2 * tri_area, 1e-300)[:, None]
         table[:, _TAREA] = tri_area
         self._tri_table = table
+        # Squared longest edge of each emissive triangle: the reach of its solid-angle sampling.
+        self._tri_reach2 = np.max(np.stack([(e1 * e1).sum(1), (e2 * e2).sum(1), ((e2 - e1) ** 2).sum(1)]),
+                                  axis=0).astype(np.float32) if len(self.tri_ids) else np.zeros(0, np.float32)
         self.triangle_emission = triangle_emission
         if len(self.tri_ids):
             table[:, _TLE:_TLE + 3] = triangle_emission(self.tri_ids).T  # mean radiance (texture averaged)
@@ -406,13 +411,12 @@ class LightSampler:
         out.set(idx, wx, wy, wz, dist, radiance, pdf)
 
     def _sample_triangle(self, out, idx, slot, px, py, pz, u1, u2):
-        """A point on an emissive triangle: uniform in the solid angle it subtends when that is
-        large enough (bounded variance next to a light, as Cycles does), else uniform in its area."""
+        """A point on an emissive triangle: uniform in the solid angle it subtends from points near it
+        (bounded variance next to a light; _spherical_choice, Cycles' rule), else uniform in its area."""
         g = np.take(self._tri_table, slot, axis=0).T
-        spherical, omega, corners = self._spherical_choice(g, px, py, pz)
+        spherical, omega, corners = self._spherical_choice(g, slot, px, py, pz)
         n = len(slot)
         wx, wy, wz, dist, pdf, b1, b2 = (np.empty(n, np.float32) for _ in range(7))
-        # Area sampling where the solid angle is small (3% of the Cornell box's points: only those).
         far = np.flatnonzero(~spherical)
         if len(far):
             ga = g[:, far]
@@ -428,8 +432,8 @@ class LightSampler:
             pdf[far] = _area_to_solid_angle(ga[_TAREA], fd, cos_l)
         sph = np.flatnonzero(spherical)
         if len(sph):
-            a, b, c = ([comp[sph] for comp in v] for v in corners)
-            sx, sy, sz = _sample_spherical_triangle(a, b, c, omega[sph], u1[sph], u2[sph])
+            a, b, c = corners
+            sx, sy, sz = _sample_spherical_triangle(a, b, c, omega, u1[sph], u2[sph])
             nx, ny, nz = g[_TN, sph], g[_TN + 1, sph], g[_TN + 2, sph]
             denom = sx * nx + sy * ny + sz * nz
             rx, ry, rz = (g[_TP0 + k, sph] - (px, py, pz)[k][sph] for k in range(3))
@@ -439,7 +443,7 @@ class LightSampler:
             valid &= t > 0
             wx[sph], wy[sph], wz[sph] = sx, sy, sz
             dist[sph] = np.where(valid, t, np.float32(0.0))
-            pdf[sph] = np.where(valid, np.float32(1.0) / omega[sph], np.float32(0.0))
+            pdf[sph] = np.where(valid, np.float32(1.0) / omega, np.float32(0.0))
             if self.tri_textured:  # barycentrics of the point hit, for the texture lookup
                 b1[sph], b2[sph] = _barycentrics((sx * t - rx, sy * t - ry, sz * t - rz),
                                                  g[_TE1:_TE1 + 3, sph], g[_TE2:_TE2 + 3, sph])
@@ -449,15 +453,29 @@ class LightSampler:
             radiance = g[_TLE:_TLE + 3]
         out.set(idx, wx, wy, wz, dist, radiance, pdf)
 
-    def _spherical_choice(self, g, px, py, pz):
-        """Per point and triangle: use solid-angle sampling?, the solid angle, and the unit vectors
-        toward the three corners (each a tuple of x, y, z arrays)."""
+    def _spherical_choice(self, g, slot, px, py, pz):
+        """Which points sample their triangle (slot, its table rows g) by solid angle: those nearer its
+        plane than its longest edge (Cycles' rule) where it subtends more than SPHERICAL_MIN_SR.
+        Returns (spherical (n,) bool, and for the spherical points only, in order: the solid angle and
+        the unit vectors toward the three corners, each a tuple of x, y, z arrays)."""
         ax, ay, az = g[_TP0] - px, g[_TP0 + 1] - py, g[_TP0 + 2] - pz
+        h = ax * g[_TN] + ay * g[_TN + 1] + az * g[_TN + 2]
+        near = np.flatnonzero(h * h < np.take(self._tri_reach2, slot))
+        spherical = np.zeros(len(h), bool)
+        if not len(near):
+            return spherical, np.zeros(0, np.float32), None
+        ax, ay, az = ax[near], ay[near], az[near]
+        e1, e2 = (tuple(g[k, near] for k in range(r, r + 3)) for r in (_TE1, _TE2))
         a = _normalized(ax, ay, az)
-        b = _normalized(ax + g[_TE1], ay + g[_TE1 + 1], az + g[_TE1 + 2])
-        c = _normalized(ax + g[_TE2], ay + g[_TE2 + 1], az + g[_TE2 + 2])
+        b = _normalized(ax + e1[0], ay + e1[1], az + e1[2])
+        c = _normalized(ax + e2[0], ay + e2[1], az + e2[2])
         omega = _solid_angle(a, b, c)
-        return omega > SPHERICAL_MIN_SR, omega, (a, b, c)
+        keep = omega > SPHERICAL_MIN_SR
+        spherical[near[keep]] = True
+        if not keep.all():
+            omega = omega[keep]
+            a, b, c = (tuple(comp[keep] for comp in v) for v in (a, b, c))
+        return spherical, omega, (a, b, c)
 
     def _sample_world(self, out, idx, u1, u2):
         wx, wy, wz, pdf = self.environment.sample_direction(u1, u2)
@@ -474,9 +492,9 @@ class LightSampler:
         s = np.maximum(slot, 0)
         pmf = self.selection_pmf(self.light_count + s, ox, oy, oz)
         g = np.take(self._tri_table, s, axis=0).T
-        spherical, omega, _ = self._spherical_choice(g, ox, oy, oz)
-        pdf = np.where(spherical, np.float32(1.0) / np.maximum(omega, np.float32(1e-30)),
-                       _area_to_solid_angle(g[_TAREA], dist, np.abs(cos_l)))
+        spherical, omega, _ = self._spherical_choice(g, s, ox, oy, oz)
+        pdf = _area_to_solid_angle(g[_TAREA], dist, np.abs(cos_l))
+        pdf[spherical] = np.float32(1.0) / omega
         return np.where(ok, pmf * pdf, np.float32(0.0))
 
     def _slots(self, tri: np.ndarray) -> np.ndarray:

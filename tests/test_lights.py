@@ -139,9 +139,26 @@ def test_emissive_triangle_sampling_matches_its_mis_pdf(size):
         centre = positions.reshape(-1, 3).mean(axis=0)
         theta_max = 1.2 if size == 1.0 else 0.03
         chi2_directions((s.wx, s.wy, s.wz), pdf_of, centre - np.float32(P), theta_max=theta_max)
-        spherical = sampler._spherical_choice(np.take(sampler._tri_table, [0], axis=0).T,
+        spherical = sampler._spherical_choice(np.take(sampler._tri_table, [0], axis=0).T, np.int32([0]),
                                               *(np.float32([c]) for c in P))[0][0]
         assert spherical == (size == 1.0)
+
+
+def test_emissive_triangles_are_sampled_by_solid_angle_within_their_longest_edge_of_their_plane():
+    """Cycles' rule (kernel/light/triangle.h): solid angle from points nearer the triangle's plane than its
+    longest edge, area beyond. Either way the irradiance under the triangle is its closed form."""
+    positions, _ = quad((-0.5, -0.5, 2.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))   # faces down; diagonal sqrt 2
+    sampler = sampler_for(positions=positions, emission=(3, 3, 3))
+    table = np.take(sampler._tri_table, [0, 0, 0, 0], axis=0).T
+    heights = np.float32([1.3, 1.4, 1.43, 1.5])   # below the plane by these; the longest edge is 1.414
+    spherical = sampler._spherical_choice(table, np.int32([0, 0, 0, 0]), np.zeros(4, np.float32),
+                                          np.zeros(4, np.float32), np.float32(2.0) - heights)[0]
+    assert spherical.tolist() == [True, True, False, False]
+    for h in (0.5, 3.0):   # both ways of sampling give the irradiance of a uniformly emitting square
+        a = 0.5 / h        # half side over height: E = L * 4 * a / sqrt(1 + a^2) * atan(a / sqrt(1 + a^2))
+        closed = 3.0 * 4 * a / math.sqrt(1 + a * a) * math.atan(a / math.sqrt(1 + a * a))
+        e, se = nee_irradiance(sampler, (0.0, 0.0, 2.0 - h))
+        assert abs(e - closed) < 4 * se + 1e-4 * closed, (h, e, se, closed)
 
 
 def test_hdri_sampling_matches_its_pdf():
