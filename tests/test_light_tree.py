@@ -175,3 +175,47 @@ def test_tree_only_where_it_pays():
             chosen[name] = (renderer.lights.uses_tree, renderer.lights.tree_divergence)
     print(chosen)
     assert [chosen[k][0] for k in ("compact", "lamps", "few", "cornell")] == [False, True, False, False]
+
+
+# ---------------------------------------------------------------- a few emissive triangles: solid angles
+def test_solid_angle_choice_matches_its_pmf_and_favours_the_near_triangle():
+    """Among a quad lamp's two triangles and two more, choose_at follows selection_pmf (chi-square), the
+    MIS pmf is the probability reported, and a point under one triangle chooses it far more often than
+    the power pmf's even split would."""
+    lamp, _ = quad((-0.5, -0.5, 2.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    extra, _ = quad((2.0, -0.2, 1.5), (0.0, 0.4, 0.0), (0.0, 0.0, 0.4))
+    sampler = sampler_for(positions=np.concatenate([lamp, extra]), emission=(3.0, 2.0, 1.0))
+    assert sampler.chooses_per_point and not sampler.uses_tree
+    k = sampler.world_index
+    centroid = lamp[0].mean(axis=0)
+    rng = np.random.default_rng(8)
+    for p in [centroid - (0, 0, 0.05), (0.0, 0.0, 0.5), (1.5, 0.0, 1.4), (-3.0, 4.0, -2.0)]:
+        pmf = sampler.selection_pmf(np.arange(k), *at(p, k)).astype(np.float64)
+        assert abs(pmf.sum() - 1) < 1e-5, pmf
+        n = 300_000
+        chosen, select = sampler.choose_at(rng.random(n, dtype=np.float32), *at(p, n))
+        np.testing.assert_allclose(select, pmf[chosen].astype(np.float32), rtol=1e-6)
+        assert_chi2(np.bincount(chosen, minlength=k), pmf * n)
+    near = sampler.selection_pmf(np.arange(k), *at(centroid - (0, 0, 0.05), k))
+    assert near[0] > 0.8, near   # the power pmf: 0.33 for each of the lamp's halves
+    # Only for two to SOLID_ANGLE_MAX_EMITTERS triangles and nothing else local.
+    five = np.concatenate([lamp, extra, lamp[:1] + np.float32(3.0)])
+    assert not sampler_for(positions=five, emission=(1, 1, 1)).chooses_per_point
+    assert not sampler_for(lights=many_lights(k=1), positions=lamp, emission=(1, 1, 1)).chooses_per_point
+    assert not sampler_for(positions=lamp[:1], emission=(1, 1, 1)).chooses_per_point
+
+
+def test_quad_lamp_solid_angle_choice_same_mean_lower_variance(monkeypatch):
+    """A quad lamp (two triangles) just above a floor, the camera under it looking down at the floor:
+    choosing the lamp's half by solid angle keeps the power pmf's mean, with less variance."""
+    lamp, _ = quad((-1.0, -1.0, 0.6), (2.0, 0.0, 0.0), (0.0, 2.0, 0.0))
+    scene = _floor_scene(emitters=lamp, eye=(0, -0.2, 0.5), target=(0, 0.3, 0))
+    settings = RenderSettings(mode="NEE_MIS", max_bounces=1, seed=7)
+    chosen = trace_samples(scene, settings, 256)
+    monkeypatch.setattr(lights_module, "SOLID_ANGLE_MAX_EMITTERS", 0)
+    flat = trace_samples(scene, settings, 256)
+    (m_c, se_c), (m_f, se_f) = (mean_and_stderr(run.mean(axis=(1, 2))) for run in (chosen, flat))
+    assert abs(m_c - m_f) < 4 * np.hypot(se_c, se_f), (m_c, se_c, m_f, se_f)
+    ratio = chosen.var(axis=0).mean() / flat.var(axis=0).mean()
+    print(f"solid-angle choice / power pmf per-sample variance: {ratio:.3f}")
+    assert ratio < 0.8
