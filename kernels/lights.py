@@ -5,10 +5,11 @@ triangles (materials with emission) and the world. Local emitters (point, spot a
 triangles) are chosen in proportion to their power (W); distant ones (suns and the world), whose power
 is a flux per unit area, share DISTANT_SHARE of the choices, among themselves in proportion to their
 irradiance. No scene size enters the choice: a far-away ground plane changes nothing.
-With many local emitters spread out (TREE_MIN_EMITTERS, TREE_MIN_DIVERGENCE), their share is instead
-split per shading point by a light tree (kernels.light_tree): nearby lamps facing the point are chosen
-more often; among two to SOLID_ANGLE_MAX_EMITTERS emissive triangles (a quad lamp), by the solid angle
-each subtends at the point (SolidAngleChoice). The probability of choosing emitter e at point p is then
+With two or more local emitters whose choice per point would differ from that (TREE_MIN_EMITTERS,
+TREE_MIN_DIVERGENCE), their share is instead split per shading point by a light tree
+(kernels.light_tree): nearby lamps facing the point are chosen more often; among two to
+SOLID_ANGLE_MAX_EMITTERS emissive triangles alone (a quad lamp), by the solid angle each subtends at the
+point (SolidAngleChoice). The probability of choosing emitter e at point p is then
 selection_pmf(e, p), which the MIS pdfs of BSDF rays use with the ray's origin; otherwise it is
 select_pmf[e] everywhere.
 `sample` returns, per shading point, a direction toward a point on the chosen light, the distance to
@@ -52,18 +53,18 @@ PROXY_MIN_LIGHTS = 8
 # half this many lights overlap misses the rest.
 MAX_PROXY_CROSSINGS = 1024
 # With at least this many local emitters (point, spot and area lights, emissive triangles, with power)
-# the local ones may be chosen per shading point by a light tree (kernels.light_tree); below it, always by
-# the one global power distribution, and such scenes render exactly as before the tree. Cycles uses its
-# tree always; here the walk costs a few NumPy passes per level (the 200-lamp bench scene: 1.5 against
-# 1.6-1.9 M paths/s, for a third of the variance per sample). Sparse lamps gain from the tree from two
-# on (measured 3-14x efficiency with 2-16 lamps over a floor); this bound is not where it starts to pay
-# but where the scenes of few lights keep their exact images and the tree's build is not worth a probe.
-TREE_MIN_EMITTERS = 16
+# the local ones may be chosen per shading point by a light tree (kernels.light_tree), as Cycles always
+# does; a single one needs no choice. The walk costs a few NumPy passes per level (the 200-lamp bench
+# scene: 1.5 against 1.6-1.9 M paths/s, for a third of the variance per sample). A few lamps gain the
+# most (kernel, 32x32, 128 spp, two bounces, against the power pmf: variance per sample 0.26x with a
+# three-point set-up of two area lights and a point light, 0.07x with two point lamps over a floor, 0.09x
+# with four area lights; time +10-25%). Until stop 23 the bound was 16, to keep few-light scenes' images.
+TREE_MIN_EMITTERS = 2
 # From two to this many local emitters, all emissive triangles (a lamp modelled as a quad, say), each
 # shading point chooses among them in proportion to the light each sends it: luminance times the solid
-# angle it subtends there, computed exactly (SolidAngleChoice). The power pmf sends half the samples of a
-# point beside the lamp's near half to its far half. Cycles' light tree estimates the same from bounds.
-# The Cornell box's quad lamp: 21% less variance per sample for 5% more time.
+# angle it subtends there, computed exactly (SolidAngleChoice), instead of by the tree's bounds. The power
+# pmf sends half the samples of a point beside the lamp's near half to its far half. The Cornell box's
+# quad lamp: 24% less variance per sample for 4-6% more time.
 SOLID_ANGLE_MAX_EMITTERS = 4
 # ... and only where its choices differ from the power pmf's: at probe points in the scene's box, the
 # total variation distance between the two pmfs (estimated from the tree's own samples) must reach this.
@@ -286,9 +287,12 @@ class LightSampler:
         return isinstance(self._tree, LightTree)
 
     @property
-    def chooses_per_point(self) -> bool:
-        """The local emitters are chosen per shading point: by a light tree or by their solid angles."""
-        return self._tree is not None
+    def selection(self) -> str:
+        """How shading points choose among the local emitters: "power" (one pmf everywhere), "tree" (a
+        light tree per point) or "solid angle" (SolidAngleChoice per point)."""
+        if self._tree is None:
+            return "power"
+        return "tree" if isinstance(self._tree, LightTree) else "solid angle"
 
     def choose_at(self, u_select, px, py, pz):
         """(emitter (n,) int64, selection probability (n,) float32) per shading point p: the light tree
