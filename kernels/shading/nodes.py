@@ -414,7 +414,8 @@ def _principled(c, ctx, w, b):
         f0 = np.where(adjusted, f0 * F32(2.0) * level, f0)
         eta_adj = mf.ior_from_f0(f0)
         eta = np.where(adjusted, np.where(ior < ONE, ONE / eta_adj, eta_adj), eta)
-    has = np.flatnonzero(eta != ONE)
+    # Hits whose layers above left no weight (metal, glass) make no specular closure: skip their tables.
+    has = np.flatnonzero((eta != ONE) & np.any(weight != ZERO, axis=0))
     if len(has):
         albedo = mf.add_specular(anisotropic, spec, weight[:, has], ax[has], ay[has], eta[has],
                                  f0[has] * specular_tint[:, has], multiscatter, sub=has)
