@@ -69,6 +69,12 @@ class Config:
     reference_samples: tuple = (("cornell", 4096), ("hdri", 2048), ("materials", 2048), ("interior", 2048),
                                 ("lamps", 2048))
     budgets_s: tuple = (5.0, 20.0)
+    # Seeds of the timed renders per scene (others: TIMED_SEED alone). The materials scene's error is a
+    # lottery of caustic fireflies: one seed per engine measured one draw (at a given sample count each
+    # engine's image is the same in every run), and seed 0 happened to be an unlucky draw for Cycles
+    # (its RMSE x sqrt(spp) 0.74-0.85 against 0.43-0.78 over six other seeds). Its figures are the mean
+    # squared error over these seeds.
+    timed_seeds: tuple = (("materials", (0, 1, 2)),)
 
 
 FULL = Config()
@@ -424,14 +430,26 @@ def equal_time(cfg: Config, name: str, ref_samples: int, refresh: bool) -> dict:
               "reference_noise_rmse": math.sqrt(ref_noise_mse), "reference_mean": float(ref.mean()),
               "budgets": {}}
     last = {}
+    seeds = dict(cfg.timed_seeds).get(name, (TIMED_SEED,))
+    result["seeds"] = list(seeds)
+    if len(seeds) > 1:
+        out(f"  each figure: the mean squared error over seeds {list(seeds)} (one render per seed and engine)")
     for budget in cfg.budgets_s:
         row = {}
         for engine in ("CYCLES", "EMBER"):
-            run = render(scene, engine, UNLIMITED_SAMPLES, cfg, time_limit=budget, keep_image=True)
-            mse = float(np.mean((run.image - ref) ** 2))
+            runs = [render(scene, engine, UNLIMITED_SAMPLES, cfg, time_limit=budget, keep_image=True, seed=seed)
+                    for seed in seeds]
+            mses = [float(np.mean((run.image - ref) ** 2)) for run in runs]
+            mse = float(np.mean(mses))
+            times = [run.render_s for run in runs]
+            rates = [_own_rate(run, pixels) for run in runs]
+            run = runs[-1]
             row[engine] = {"rmse_raw": math.sqrt(mse), "rmse": math.sqrt(max(mse - ref_noise_mse, 0.0)),
-                           "samples": run.samples_done, "render_s": run.render_s, "wall_s": run.wall_s,
-                           "paths_per_s": _own_rate(run, pixels),
+                           "samples": int(round(np.mean([r.samples_done for r in runs]))),
+                           "render_s": float(np.mean(times)) if all(times) else None,
+                           "wall_s": float(np.mean([r.wall_s for r in runs])),
+                           "paths_per_s": float(np.mean(rates)) if all(rates) else None,
+                           "per_seed_rmse": [math.sqrt(max(m - ref_noise_mse, 0.0)) for m in mses],
                            "mean": float(run.image.mean()),
                            "channel_means": run.image.mean(axis=(0, 1)).tolist()}
             last[engine] = run.image
@@ -447,7 +465,9 @@ def equal_time(cfg: Config, name: str, ref_samples: int, refresh: bool) -> dict:
             x = row[engine]
             rate = f"{x['paths_per_s'] / 1e6:.3f} M paths/s" if x["paths_per_s"] else "? paths/s"
             x["rmse_x_sqrt_spp"] = x["rmse"] * math.sqrt(x["samples"]) if x["samples"] else None
-            out(f"  {budget:5.1f} s  {label} RMSE {x['rmse']:.5f} (raw {x['rmse_raw']:.5f}), "
+            seeds_note = (" (per seed " + ", ".join(f"{v:.5f}" for v in x["per_seed_rmse"]) + ")"
+                          if len(x["per_seed_rmse"]) > 1 else "")
+            out(f"  {budget:5.1f} s  {label} RMSE {x['rmse']:.5f}{seeds_note} (raw {x['rmse_raw']:.5f}), "
                 f"{x['samples']} spp in {x['render_s'] or math.nan:.2f} s (wall {x['wall_s']:.2f} s), {rate}; "
                 f"RMSE x sqrt(spp) {x['rmse_x_sqrt_spp'] or math.nan:.3f}")
         adjusted = row["rmse_ratio_time_adjusted"]
