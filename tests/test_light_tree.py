@@ -213,6 +213,19 @@ def test_solid_angle_choice_matches_its_pmf_and_favours_the_near_triangle():
         assert_chi2(np.bincount(chosen, minlength=k), pmf * n)
     near = sampler.selection_pmf(np.arange(k), *at(centroid - (0, 0, 0.05), k))
     assert near[0] > 0.8, near   # measured 0.95; the power pmf gives each of the lamp's halves 0.43
+    # With a world too: the triangles share the local half of the choices, the world keeps its own.
+    lit = sampler_for(positions=np.concatenate([lamp, extra]), emission=(3.0, 2.0, 1.0),
+                      world=World(color=np.float32([0.3, 0.3, 0.3])))
+    assert lit.selection == "solid angle"
+    kw = lit.world_index + 1
+    for p in [centroid - (0, 0, 0.05), (1.5, 0.0, 1.4)]:
+        pmf = lit.selection_pmf(np.arange(kw), *at(p, kw)).astype(np.float64)
+        pmf[-1] = lit.select_pmf[-1]
+        assert abs(pmf.sum() - 1) < 1e-5 and abs(pmf[:-1].sum() - (1 - lights_module.DISTANT_SHARE)) < 1e-5, pmf
+        n = 300_000
+        chosen, select = lit.choose_at(rng.random(n, dtype=np.float32), *at(p, n))
+        np.testing.assert_allclose(select, pmf[chosen].astype(np.float32), rtol=1e-6)
+        assert_chi2(np.bincount(chosen, minlength=kw), pmf * n)
     # Only for two to SOLID_ANGLE_MAX_EMITTERS triangles and nothing else local (the others may get a tree).
     five = np.concatenate([lamp, extra, lamp[:1] + np.float32(3.0)])
     assert sampler_for(positions=five, emission=(1, 1, 1)).selection != "solid angle"
