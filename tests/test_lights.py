@@ -145,8 +145,8 @@ def test_emissive_triangle_sampling_matches_its_mis_pdf(size):
 
 
 def test_emissive_triangles_are_sampled_by_solid_angle_within_their_longest_edge_of_their_plane():
-    """Cycles' rule (kernel/light/triangle.h): solid angle from points nearer the triangle's plane than its
-    longest edge, area beyond. Either way the irradiance under the triangle is its closed form."""
+    """Solid angle from points nearer the triangle's plane than its longest edge, area beyond (the comparison
+    Cycles' kernel/light/triangle.h describes). Either way the irradiance under the triangle is its closed form."""
     positions, _ = quad((-0.5, -0.5, 2.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))   # faces down; diagonal sqrt 2
     sampler = sampler_for(positions=positions, emission=(3, 3, 3))
     table = np.take(sampler._tri_table, [0, 0, 0, 0], axis=0).T
