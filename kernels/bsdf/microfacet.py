@@ -525,22 +525,25 @@ def _table_or_smooth(smooth, estimate):
     return np.where(_nonzero(smooth)[None, :], estimate, ZERO).astype(np.float32)
 
 
-def albedo_remapped(alpha_x, alpha_y, mu, eta, f0, f90=1.0, reflection_tint=1.0, transmission_tint=None,
-                    reflection=True, transmission=True):
+def albedo_remapped(alpha_x, alpha_y, mu, eta, f0, f90=1.0, reflection_tint=1.0, transmission_tint=None):
     """Generalized Schlick in remap mode (Principled specular, transmission; Glass BSDF). A reflection
-    lobe passes transmission_tint=None; a glass lobe its transmission tint. reflection/transmission say
-    which parts to include (Cycles' bsdf_albedo flags; layering asks reflection only)."""
+    lobe passes transmission_tint=None (its reflection albedo); a glass lobe its transmission tint (the sum
+    of both parts)."""
+    r, t = albedo_remapped_parts(alpha_x, alpha_y, mu, eta, f0, f90, reflection_tint,
+                                 ONE if transmission_tint is None else transmission_tint)
+    return r if transmission_tint is None else (r + t).astype(np.float32)
+
+
+def albedo_remapped_parts(alpha_x, alpha_y, mu, eta, f0, f90=1.0, reflection_tint=1.0, transmission_tint=1.0):
+    """(reflection, transmission) (3, n) albedos of a remapped-Fresnel lobe, apart (Cycles' bsdf_albedo with
+    one part's flag off), from one Fresnel evaluation and one table read."""
     mu = _f32(mu)
     n = mu.shape[0]
     smooth, _ = fr.remapped(mu, eta, f0, f90)
-    r = smooth * fr.color(reflection_tint, n) * F32(reflection)
     s = tables.gen_schlick_ior_s(tables.rough_coordinate(alpha_x, alpha_y), mu, eta)
     estimate = fr.lerp(fr.clamp01(fr.color(f0, n)), fr.color(f90, n), s[None, :]) * fr.color(reflection_tint, n)
-    r = _table_or_smooth(r, estimate)
-    if transmission_tint is None:
-        return r
-    t = (ONE - smooth) * fr.color(transmission_tint, n) * F32(transmission)
-    return (r + t).astype(np.float32)
+    r = _table_or_smooth(smooth * fr.color(reflection_tint, n), estimate)
+    return r, ((ONE - smooth) * fr.color(transmission_tint, n)).astype(np.float32)
 
 
 def albedo_generalized_schlick(alpha_x, alpha_y, mu, eta, f0, f90, exponent, reflection_tint=1.0):

@@ -115,8 +115,7 @@ def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, sp
     f0 = fr.f0_from_ior(ior)[None, :] * (np.ones((3, n), F32) if specular_tint is None else specular_tint)
     f0 = np.clip(f0, 0.0, 1.0)
     weight = np.broadcast_to(weight, (3, n))
-    reflect = mf.albedo_remapped(alpha, alpha, mu, eta, f0, ONE, reflection_tint, transmission_tint, transmission=False)
-    transmit = mf.albedo_remapped(alpha, alpha, mu, eta, f0, ONE, reflection_tint, transmission_tint, reflection=False)
+    reflect, transmit = mf.albedo_remapped_parts(alpha, alpha, mu, eta, f0, ONE, reflection_tint, transmission_tint)
     albedo = reflect + transmit
     sw = np.abs(channel_mean(weight)) * channel_mean(albedo)
     eval_scale = ONE
