@@ -21,6 +21,12 @@ from embreex import mesh_construction, rtcore_scene
 from . import embree, motion
 from .scene import same_arrays
 
+# Plain triangles from this many on get Embree's quick (low-quality) BVH first, which builds 3-4x faster
+# and traces about 15-20% slower, so that the first samples come sooner; the render's further waves
+# bring the usual (medium) BVH in the background and move to it when it is ready (Accel.refine). The
+# hits are the same on either tree. The same bound as the worker processes' (integrator.WORKER_MAX_TRIANGLES).
+QUICK_BVH_TRIANGLES = 1 << 18
+
 # Below this many rays a batch runs as one call: splitting costs more than it saves.
 _MIN_CHUNK = 8192
 _CHUNKS_PER_THREAD = 4
@@ -148,6 +154,8 @@ class Accel:
         self._device = reuse._device if reuse is not None else embree.Device()
         self.meshes = []          # (prototype positions, embree.Mesh) of the instanced meshes
         self.meshes_reused = 0
+        self._refining = None     # the thread building the medium BVH (refine), once started
+        self._cancel = threading.Event()   # stops refine's build (close)
         placed = []
         if instances is not None and instances.count:
             earlier = reuse.meshes if reuse is not None else []
@@ -166,12 +174,47 @@ class Accel:
                 plain = embree.Triangles(*indexed)
             else:
                 plain = embree.Triangles(np.asarray(positions, np.float32).reshape(-1, 3))
-            self._static = embree.Scene(self._device, plain, placed)
-            self._scene = self._static.embreex()
-            if self._scene is None or placed:
-                self._packets = self._static
-            if self._scene is None:   # embreex's loop unavailable: packets for everything
-                self._scene = _PacketQueries(self._static)
+            quick = not placed and plain is not None and plain.triangle_count >= QUICK_BVH_TRIANGLES
+            self._use(embree.Scene(self._device, plain, placed, quality="low" if quick else "medium"))
+
+    @property
+    def quality(self) -> str | None:
+        """The build quality of the BVH queries use now ("low" until refine's BVH is in), None without one."""
+        static = getattr(self, "_static", None)
+        return static.quality if static is not None else None
+
+    def _use(self, static: "embree.Scene") -> None:
+        """Trace `static` from now on. Each query reads the scene once per chunk, so a chunk in flight
+        finishes on the scene it started with (its embreex view holds a reference to Embree's scene)."""
+        scene = static.embreex()
+        packets = static if scene is None or static.instance_count else None
+        if scene is None:   # embreex's loop unavailable: packets for everything
+            scene = _PacketQueries(static)
+        self._static, self._packets, self._scene = static, packets, scene
+
+    def refine(self) -> bool:
+        """Start building the medium-quality BVH of a scene that has the quick one, on a thread; queries
+        move to it when it is built. Called when a render has more waves to come. True when started now."""
+        if self.quality != "low" or self._refining is not None or self._cancel.is_set():
+            return False
+        quick = self._static
+
+        def build():
+            try:
+                better = embree.Scene(self._device, quick.plain, quality="medium", cancel=self._cancel)
+            except embree.BuildCancelled:
+                return
+            if not self._cancel.is_set():
+                self._use(better)
+
+        self._refining = threading.Thread(target=build, name="ember-bvh-refine", daemon=True)
+        self._refining.start()
+        return True
+
+    def wait_refined(self) -> None:
+        """Block until refine's build (if any) is in."""
+        if self._refining is not None:
+            self._refining.join()
 
     def move_instances(self, world_from_object: np.ndarray) -> int:
         """Place the instances by new (K, 4, 4) world_from_object (same instances, same order): the top
@@ -187,6 +230,9 @@ class Accel:
         return bool(self._moving)
 
     def close(self) -> None:
+        self._cancel.set()
+        if self._refining is not None:
+            self._refining.join()
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None

@@ -43,7 +43,13 @@ _GEOMETRY_TRIANGLE, _GEOMETRY_INSTANCE = 0, 121
 _BUFFER_INDEX, _BUFFER_VERTEX = 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3, _FORMAT_FLOAT3X4_ROW_MAJOR = 0x5003, 0x9003, 0x9134
 _SCENE_FLAG_ROBUST = 1 << 2
+_ERROR_CANCELLED = 6
+# RTCBuildQuality: LOW is Embree's quick (Morton) builder, MEDIUM its binned SAH builder (Cycles' setting for
+# final renders without spatial splits; its viewport builds LOW).
+BUILD_QUALITY = {"low": 0, "medium": 1, "high": 2}
 INVALID = 0xFFFFFFFF
+# bool RTCProgressMonitorFunction(void* ptr, double n): Embree calls it during a build; False cancels it.
+_PROGRESS = ctypes.CFUNCTYPE(ctypes.c_bool, ctypes.c_void_p, ctypes.c_double)
 
 # RTCRayHit16, one row of 16 lanes per field: the ray (org xyz, tnear, dir xyz, time, tfar, mask, id, flags),
 # then the hit (Ng xyz, u, v, primID, geomID, instID[levels], instPrimID[levels]). Rows past instID are
@@ -61,6 +67,10 @@ _lib = None
 
 class EmbreeError(RuntimeError):
     """Embree could not be loaded, or refused a scene (its device error code in the message)."""
+
+
+class BuildCancelled(EmbreeError):
+    """A Scene's build was stopped by its cancel event."""
 
 
 def _library_paths() -> list[str]:
@@ -94,6 +104,9 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "rtcGetDeviceError": (cint, [vp]),
         "rtcNewScene": (vp, [vp]),
         "rtcSetSceneFlags": (None, [vp, cint]),
+        "rtcSetSceneBuildQuality": (None, [vp, cint]),
+        "rtcSetSceneProgressMonitorFunction": (None, [vp, _PROGRESS, vp]),
+        "rtcSetGeometryBuildQuality": (None, [vp, cint]),
         "rtcCommitScene": (None, [vp]),
         "rtcReleaseScene": (None, [vp]),
         "rtcRetainScene": (None, [vp]),
@@ -134,6 +147,8 @@ class Device:
 
     def check(self, what: str) -> None:
         code = self.lib.rtcGetDeviceError(self.handle)
+        if code == _ERROR_CANCELLED:
+            raise BuildCancelled(f"the build of {what} was cancelled")
         if code:
             raise EmbreeError(f"Embree refused {what} (error {code})")
 
@@ -143,11 +158,12 @@ class Device:
             self.handle = None
 
 
-def _triangle_geometry(device: Device, vertices: np.ndarray, indices: np.ndarray):
+def _triangle_geometry(device: Device, vertices: np.ndarray, indices: np.ndarray, quality: str = "medium"):
     """A committed triangle geometry reading vertices (V + 1, 3) float32 (the last row is padding: Embree
     reads vertices 16 bytes at a time) and indices (T, 3) uint32 in place."""
     lib = device.lib
     geom = lib.rtcNewGeometry(device.handle, _GEOMETRY_TRIANGLE)
+    lib.rtcSetGeometryBuildQuality(geom, BUILD_QUALITY[quality])
     lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3, vertices.ctypes.data, 0, 12,
                                    len(vertices) - 1)
     lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_INDEX, 0, _FORMAT_UINT3, indices.ctypes.data, 0, 12,
@@ -224,17 +240,27 @@ class Scene:
 
     Queries report each hit's instance (-1 for the plain mesh) and the triangle within its mesh."""
 
-    def __init__(self, device: Device, plain: Triangles | None = None, instances=()):
+    def __init__(self, device: Device, plain: Triangles | None = None, instances=(), quality: str = "medium",
+                 cancel: threading.Event | None = None):
         """plain: the triangles used as they are, in the top level's own BVH (a Mesh's BVH is not used);
-        instances: iterable of (Mesh, (3, 4) or (4, 4) world_from_object)."""
+        instances: iterable of (Mesh, (3, 4) or (4, 4) world_from_object).
+        quality: the top level's BUILD_QUALITY ("low" builds several times faster, traces somewhat slower;
+        hits are the same either way: only the tree differs, not the triangle test).
+        cancel: an event that stops the build when set (Embree's progress monitor), and BuildCancelled is
+        raised."""
         self.device = device
+        self.quality = quality
         lib = device.lib
         self.handle = lib.rtcNewScene(device.handle)
         lib.rtcSetSceneFlags(self.handle, _SCENE_FLAG_ROBUST)
+        lib.rtcSetSceneBuildQuality(self.handle, BUILD_QUALITY[quality])
+        if cancel is not None:
+            monitor = _PROGRESS(lambda _ptr, _n: not cancel.is_set())
+            lib.rtcSetSceneProgressMonitorFunction(self.handle, monitor, None)
         self._meshes = []      # keeps every instanced mesh (and its buffers) alive
         self.plain = plain
         if plain is not None and plain.triangle_count:
-            geom = _triangle_geometry(device, plain.vertices, plain.indices)
+            geom = _triangle_geometry(device, plain.vertices, plain.indices, quality)
             lib.rtcAttachGeometryByID(self.handle, geom, 0)
             lib.rtcReleaseGeometry(geom)
         placed = list(instances)
@@ -250,6 +276,8 @@ class Scene:
             self._meshes.append(mesh)
         self.instance_count = len(placed)
         lib.rtcCommitScene(self.handle)
+        if cancel is not None:
+            lib.rtcSetSceneProgressMonitorFunction(self.handle, _PROGRESS(), None)
         device.check("the scene")
         self._valid_all = aligned_empty((_LANES,), np.int32)
         self._valid_all[:] = -1

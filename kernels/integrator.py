@@ -534,6 +534,10 @@ class Renderer:
                         next_check = min_samples if done < min_samples else \
                             done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP
                         spp = max(1, min(spp, next_check - done))
+                    if done or (spp < total and not settings.quick_first_pass):
+                        # More than a quick first pass to come: a big scene's quick BVH is replaced by
+                        # the medium one, built meanwhile (accel.QUICK_BVH_TRIANGLES).
+                        self.accel.refine()
                     pending = list(bands)
                     pass_spp, pass_first = spp, int(settings.sample_offset) + done
                     pass_split = len(bands) < self.accel.threads
