@@ -266,6 +266,24 @@ def test_smooth_sharp_and_custom_normals():
     np.testing.assert_allclose(normals[2].reshape(-1, 3), np.tile([0, 0, 1.0], (36, 1)), atol=1e-4)
 
 
+def test_smooth_meshes_read_their_vertex_normals_as_blender_gives_its_corner_normals():
+    """A mesh smooth all over (normals_domain POINT) is read by its vertex normals, a quarter of the rows of
+    its corner normals; the triangles' normals are Blender's corner normals bit for bit either way."""
+    from ember.engine.export.mesh import read_mesh
+    smooth = add_cube(location=(-10, 0, 0))
+    smooth.data.shade_smooth()
+    flat = add_cube(location=(10, 0, 0))
+    dg = bpy.context.evaluated_depsgraph_get()
+    for ob, domain in ((smooth, "POINT"), (flat, "FACE")):
+        mesh = ob.evaluated_get(dg).data
+        assert mesh.normals_domain == domain
+        local = read_mesh(mesh)
+        assert len(local.normal_rows) == (len(mesh.vertices) if domain == "POINT" else len(mesh.loops))
+        corner = np.array([c.vector[:] for c in mesh.corner_normals], np.float32)
+        loops = np.array([tri.loops[:] for tri in mesh.loop_triangles]).reshape(-1)
+        np.testing.assert_array_equal(local.normals, corner[loops])
+
+
 def test_uvs_come_from_the_render_uv_map():
     ob = add_cube()
     render_map = ob.data.uv_layers.new(name="RenderMap")

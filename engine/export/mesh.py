@@ -42,22 +42,23 @@ class LocalMesh:
     """One evaluated mesh in object space, as the 3 corners of each of its T triangles.
 
     vertices : (V, 3) float32 vertex positions; corners : (T*3,) int32 the vertex of each triangle corner.
-    loop_normals : (L, 3) float32, Blender's corner normals (flat, smooth, sharp edges, custom normals) of
-    its L face corners; tri_loops : (T*3,) uint32 the face corner of each triangle corner.
+    normal_rows : (N, 3) float32, Blender's normals (flat, smooth, sharp edges, custom normals) in the domain
+    it keeps them: its vertices for a mesh smooth all over (normals_domain POINT), else its face corners;
+    normal_index : (T*3,) the row of each triangle corner.
     uvs : (T*3, 2) float32, the active render UV map, zeros without one.
     slots : (T,) int32, material slot of each triangle.
     """
     vertices: np.ndarray
     corners: np.ndarray
-    loop_normals: np.ndarray
-    tri_loops: np.ndarray
+    normal_rows: np.ndarray
+    normal_index: np.ndarray
     uvs: np.ndarray
     slots: np.ndarray
 
     @functools.cached_property
     def normals(self) -> np.ndarray:
         """(T*3, 3) float32 normals at the triangle corners."""
-        return np.take(self.loop_normals, self.tri_loops, axis=0)
+        return np.take(self.normal_rows, self.normal_index, axis=0)
 
     @functools.cached_property
     def positions(self) -> np.ndarray:
@@ -367,9 +368,16 @@ def read_mesh(mesh) -> LocalMesh:
     tri_loops = _read(mesh.loop_triangles, "loops", t * 3, np.uint32)
     corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", n_corners, np.int32)
     positions = _read(mesh.attributes["position"].data, "vector", 3 * len(mesh.vertices), np.float32)
-    corner_normals = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32)
-    return LocalMesh(vertices=positions.reshape(-1, 3), corners=np.take(corner_verts, tri_loops),
-                     loop_normals=corner_normals.reshape(-1, 3), tri_loops=tri_loops,
+    corners = np.take(corner_verts, tri_loops)
+    if mesh.normals_domain == "POINT":
+        # Blender's corner normals are then its vertex normals, copied: a quarter of the rows to read and move.
+        normal_rows = _read(mesh.vertex_normals, "vector", 3 * len(mesh.vertices), np.float32)
+        normal_index = corners
+    else:
+        normal_rows = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32)
+        normal_index = tri_loops
+    return LocalMesh(vertices=positions.reshape(-1, 3), corners=corners,
+                     normal_rows=normal_rows.reshape(-1, 3), normal_index=normal_index,
                      uvs=_corner_uvs(mesh, tri_loops),
                      slots=_triangle_slots(mesh, t))
 
@@ -570,10 +578,10 @@ def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np
         moved = np.matmul(mesh.vertices[None], linear.transpose(0, 2, 1).astype(np.float32))
         moved += world_from_object[:, None, :3, 3].astype(np.float32)
         _gather(moved, mesh.corners, positions_out.reshape(k, -1, 3))
-    # The face corners' normals are moved (no more of them than triangle corners), then gathered: each row
-    # is the same product either way.
-    moved_normals = np.matmul(mesh.loop_normals[None], normal_matrices(linear).transpose(0, 2, 1))
-    _gather(moved_normals, mesh.tri_loops, normals_out.reshape(k, -1, 3))
+    # The normals are moved where Blender keeps them (no more of them than triangle corners), then
+    # gathered: each row is the same product either way.
+    moved_normals = np.matmul(mesh.normal_rows[None], normal_matrices(linear).transpose(0, 2, 1))
+    _gather(moved_normals, mesh.normal_index, normals_out.reshape(k, -1, 3))
     return moved
 
 
