@@ -25,7 +25,8 @@ class TriangleTable:
 
     def __init__(self, scene: SceneArrays, deferred: bool = False):
         """deferred : a big scene without instances (at least DEFERRED_ROWS triangles) gets its rows
-        later, from build_rows (on a thread, while the first samples render); until they are there,
+        later, from build_rows (on a thread, which the renderer starts with a render's second pass: a
+        1-sample first image never waits for the table, nor pays for its memory); until they are there,
         gathers compute the rows they need from the scene's arrays, the same float32 operations per row,
         so the answers are the same bit for bit either way."""
         inst = scene.instances if scene.instances is not None and scene.instances.count else None

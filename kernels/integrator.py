@@ -260,9 +260,6 @@ class Renderer:
                     accel.result().close()
                 raise
             self.accel = accel.result()
-        # A big table's rows are built now, while the first samples render (they compute the rows they
-        # gather until then): after the BVH, which needs both cores more.
-        self._triangles.build_rows()
         trim_heap()
         threads = self.accel.threads
         self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
@@ -536,8 +533,10 @@ class Renderer:
                         spp = max(1, min(spp, next_check - done))
                     if done or (spp < total and not settings.quick_first_pass):
                         # More than a quick first pass to come: a big scene's quick BVH is replaced by
-                        # the medium one, built meanwhile (accel.QUICK_BVH_TRIANGLES).
+                        # the medium one (accel.QUICK_BVH_TRIANGLES), and its deferred triangle table is
+                        # built (until then, gathers compute the rows they need), both on threads.
                         self.accel.refine()
+                        self._triangles.build_rows()
                     pending = list(bands)
                     pass_spp, pass_first = spp, int(settings.sample_offset) + done
                     pass_split = len(bands) < self.accel.threads

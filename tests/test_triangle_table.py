@@ -76,7 +76,21 @@ def test_renders_are_the_same_deferred_or_not(monkeypatch, mode):
         monkeypatch.setattr(TriangleTable, "build_rows", lambda self: None)
     with Renderer(scene, threads=2) as renderer:
         if mode == "built":
+            renderer._triangles.build_rows()
             renderer._triangles._building.join()
         image = renderer.render(settings).image
         assert (renderer._triangles._rows is None) == (mode == "computed")
     np.testing.assert_array_equal(image, reference)
+
+
+def test_the_table_is_built_once_a_render_has_more_than_its_quick_first_pass(monkeypatch):
+    """A 1-sample render (the first image of an F12) computes the rows it gathers and never builds the
+    table; a render with more passes starts building it with its second pass."""
+    monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
+    with Renderer(_plain_scene(), threads=2) as renderer:
+        renderer.render(RenderSettings(samples=1, seed=5))
+        assert renderer._triangles._building is None and renderer._triangles._rows is None
+        renderer.render(RenderSettings(samples=4, seed=5))
+        assert renderer._triangles._building is not None
+        renderer._triangles._building.join()
+        assert renderer._triangles._rows is not None
