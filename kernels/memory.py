@@ -1,4 +1,5 @@
-"""Memory and the operating system: freed memory given back, and no huge-page advice while scenes are built.
+"""Memory and the operating system: freed memory given back, and no huge-page advice while scenes are built
+where huge pages would stall.
 
 glibc's allocator keeps large freed blocks in its heap once its dynamic mmap threshold has grown (as it
 does after the first big NumPy arrays are freed), so the resident size of a process that built and
@@ -14,11 +15,18 @@ taking small pages (numpy/numpy#31590). Building a scene writes a few hundred MB
 this project's machine the first write of a 1M-triangle mesh's corners took 110-145 ms with the advice
 against 34-36 ms without, and the whole F12 of that mesh 0.68-0.74 s against 0.55-0.57 s. `small_pages`
 turns the advice off while a scene is exported and its renderer built, and restores it after.
+
+It does so only where a stall can happen: when the kernel would compact for madvised memory (defrag
+"always", "madvise" or "defer+madvise") and has less than HUGE_PAGES_FREE_MB free in blocks of a huge page
+or more (/proc/buddyinfo). With that much free, huge pages come without compaction, and they are the faster
+way by far: a 1M-triangle F12 faults 35k times instead of 78k, its system time falls from 0.26-0.35 s to
+0.15-0.26 s, and its wall time from 0.31-0.37 s to 0.22-0.28 s (Cycles: 0.25-0.27 s; stop 24, 2 cores).
 """
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import os
 import sys
 import threading
 
@@ -58,6 +66,46 @@ def _advice_switch():
 
 
 _SWITCH = _advice_switch() if sys.platform.startswith("linux") else None
+
+# Free memory in blocks of a huge page or more above which the advice is left on (small_pages).
+HUGE_PAGES_FREE_MB = 2048
+_STALLING_DEFRAG = ("always", "madvise", "defer+madvise")   # modes that compact on a madvised fault
+
+
+def free_huge_blocks_mb(buddyinfo: str, page_bytes: int = 4096, huge_bytes: int = 2 << 20) -> float:
+    """MB free in blocks of at least huge_bytes, from the text of /proc/buddyinfo (one line per zone:
+    'Node 0, zone Normal' then the count of free blocks of 2^k pages for k = 0, 1, ...)."""
+    first = max(0, (huge_bytes // page_bytes).bit_length() - 1)   # the order of a huge page
+    total = 0
+    for line in buddyinfo.splitlines():
+        counts = line.split("zone", 1)[-1].split()[1:]
+        for order, count in enumerate(counts):
+            if order >= first and count.isdigit():
+                total += int(count) << order
+    return total * page_bytes / 2**20
+
+
+def _read(path: str) -> str | None:
+    try:
+        with open(path) as f:
+            return f.read()
+    except OSError:
+        return None
+
+
+def huge_pages_ready() -> bool:
+    """Whether huge pages come without a compaction stall now: the kernel's defrag mode never compacts
+    on a fault, or HUGE_PAGES_FREE_MB are free in blocks of a huge page or more."""
+    mode = _read("/sys/kernel/mm/transparent_hugepage/defrag")
+    chosen = mode[mode.find("[") + 1:mode.find("]")] if mode and "[" in mode else None
+    if chosen is not None and chosen not in _STALLING_DEFRAG:
+        return True
+    info = _read("/proc/buddyinfo")
+    if info is None:
+        return False
+    size = _read("/sys/kernel/mm/transparent_hugepage/hpage_pmd_size")
+    huge = int(size) if size and size.strip().isdigit() else 2 << 20
+    return free_huge_blocks_mb(info, os.sysconf("SC_PAGE_SIZE"), huge) >= HUGE_PAGES_FREE_MB
 _lock = threading.Lock()
 _depth = 0
 _saved = False
@@ -66,7 +114,8 @@ _saved = False
 @contextlib.contextmanager
 def small_pages():
     """NumPy's huge-page advice off inside (nested and concurrent uses restore it once, when the last one
-    leaves); a no-op off Linux or where NumPy has no switch. Also a decorator."""
+    leaves), unless huge_pages_ready() when the first one enters; a no-op off Linux or where NumPy has no
+    switch. Also a decorator."""
     global _depth, _saved
     if _SWITCH is None:
         yield
@@ -75,7 +124,8 @@ def small_pages():
     with _lock:
         if _depth == 0:
             _saved = bool(get())
-            put(False)
+            if not huge_pages_ready():
+                put(False)
         _depth += 1
     try:
         yield

@@ -15,6 +15,51 @@ def advice() -> bool:
     return bool(memory._SWITCH[0]())
 
 
+@pytest.fixture(autouse=True)
+def no_free_huge_pages(monkeypatch):
+    """The machine state where the advice would stall (tests that want the other one patch it back)."""
+    monkeypatch.setattr(memory, "huge_pages_ready", lambda: False)
+
+
+def test_the_advice_stays_on_where_huge_pages_come_without_compaction(monkeypatch):
+    monkeypatch.setattr(memory, "huge_pages_ready", lambda: True)
+    memory._SWITCH[1](True)
+    with memory.small_pages():
+        assert advice()
+    assert advice()
+
+
+BUDDYINFO = """Node 0, zone      DMA      0      0      0      0      0      0      0      0      1      1      3
+Node 0, zone    DMA32      1      1      4      2      5      4      3      3      4      2    752
+Node 0, zone   Normal  15237  15075  11140   5372   1857   1249   1548    633    367    313   1904
+"""
+
+
+def test_free_huge_blocks_are_counted_from_buddyinfo():
+    # Orders 9 and 10 (2 MB and 4 MB blocks of 4 KB pages): (1 + 2 + 313) x 2 MB + (3 + 752 + 1904) x 4 MB.
+    assert memory.free_huge_blocks_mb(BUDDYINFO) == (1 + 2 + 313) * 2 + (3 + 752 + 1904) * 4
+    # 64 KB pages (2^5 of them in a 2 MB huge page): orders 5 and up count.
+    assert memory.free_huge_blocks_mb("Node 0, zone Normal 9 9 9 9 9 1 0", 65536) == 2.0
+    assert memory.free_huge_blocks_mb("") == 0.0
+
+
+def test_huge_pages_are_ready_by_defrag_mode_or_free_blocks(monkeypatch):
+    monkeypatch.undo()
+    files = {"/sys/kernel/mm/transparent_hugepage/defrag": "always defer defer+madvise [madvise] never\n",
+             "/proc/buddyinfo": BUDDYINFO, "/sys/kernel/mm/transparent_hugepage/hpage_pmd_size": "2097152\n"}
+    monkeypatch.setattr(memory, "_read", files.get)
+    monkeypatch.setattr(memory.os, "sysconf", lambda name: 4096)
+    assert memory.huge_pages_ready()                      # 11 GB free in big blocks
+    monkeypatch.setattr(memory, "HUGE_PAGES_FREE_MB", 20000)
+    assert not memory.huge_pages_ready()                  # not enough: the advice would compact
+    files["/sys/kernel/mm/transparent_hugepage/defrag"] = "always defer defer+madvise madvise [never]\n"
+    assert memory.huge_pages_ready()                      # never compacts on a fault
+    files["/sys/kernel/mm/transparent_hugepage/defrag"] = "always defer [defer+madvise] madvise never\n"
+    assert not memory.huge_pages_ready()
+    del files["/proc/buddyinfo"]
+    assert not memory.huge_pages_ready()                  # nothing known: small pages
+
+
 def test_small_pages_turns_the_advice_off_and_restores_it():
     get, put = memory._SWITCH
     for before in (True, False):
