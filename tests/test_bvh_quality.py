@@ -36,7 +36,9 @@ def test_the_quick_bvh_is_refined_to_the_same_hits(monkeypatch):
         assert a.quality == "low"
         quick = a.intersect(o, d, t_max)
         shadowed_quick = a.occluded(o, d, np.full(len(o), 2.0, np.float32))
-        assert a.refine()
+        monkeypatch.setattr(accel, "REFINE_SECONDS_PER_TRIANGLE", 1e-3)
+        assert not a.refine(0.99e-3 * len(indices))   # not worth it for a render about to end
+        assert a.refine(1.01e-3 * len(indices))
         assert not a.refine()            # once
         a.wait_refined()
         assert a.quality == "medium"
@@ -77,6 +79,9 @@ def _scene():
 
 
 def test_a_render_moves_to_the_medium_bvh_after_its_first_pass_with_the_same_image(monkeypatch):
+    """A render with time enough to go (by the rate of its waves so far) refines: the test's scenes are
+    tiny, so REFINE_SECONDS_PER_TRIANGLE is set to 0 here and to a day per triangle at the end."""
+    monkeypatch.setattr(accel, "REFINE_SECONDS_PER_TRIANGLE", 0.0)
     settings = RenderSettings(samples=8, seed=3)
     with Renderer(_scene(), threads=2) as renderer:     # medium from the start
         assert renderer.accel.quality == "medium"
@@ -102,3 +107,8 @@ def test_a_render_moves_to_the_medium_bvh_after_its_first_pass_with_the_same_ima
     with Renderer(_scene(), threads=2) as renderer:
         renderer.render(RenderSettings(samples=4, seed=3, quick_first_pass=False, wave_size=24 * 24))
         assert renderer.accel._refining is None          # one pass in all
+    monkeypatch.setattr(accel, "REFINE_SECONDS_PER_TRIANGLE", 86400.0)
+    with Renderer(_scene(), threads=2) as renderer:
+        renderer.render(settings)
+        assert renderer.accel._refining is None          # the render ends long before a refine would pay
+        assert renderer.accel.quality == "low"
