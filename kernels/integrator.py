@@ -267,6 +267,7 @@ class Renderer:
         self._slots = WaveSlots(threads)
         self.remote_waves = 0    # waves rendered by worker processes (all renders)
         self._count_lock = threading.Lock()
+        self._wave_clock = {False: [0, 0.0], True: [0, 0.0]}   # see render
         if self._processes:
             self.start_workers()
 
@@ -509,6 +510,9 @@ class Renderer:
         # pass's bands differ in cost: rows of sky and rows of glass), except before a convergence check,
         # which reads the whole film.
         in_flight = collections.deque()   # (r0, r1, spp, future), in plan order
+        # Paths and seconds of this render's waves, each on its own thread, for waves side by side (False)
+        # and waves split over the threads (True).
+        self._wave_clock = {False: [0, 0.0], True: [0, 0.0]}
         pending = []                      # bands of the planned pass not yet submitted
         pass_spp = pass_first = 0
         pass_split = False
@@ -525,18 +529,41 @@ class Renderer:
                         film.update_convergence(settings.adaptive_threshold)
                         if film.converged.all():
                             break
-                    spp, bands = _plan_pass(width, height, done, total, self.wave_size(settings),
-                                            settings.quick_first_pass)
+                    wave, last = self.wave_size(settings), total
+                    rate = self._rate()
+                    if done and settings.time_limit_s > 0 and rate:
+                        # Near the time limit the next pass takes only the samples that fit in the time
+                        # left at the rate so far, after the waves still in flight, in shorter waves: the
+                        # render ends close to its limit, not up to a wave or a pass after it (as Cycles'
+                        # scheduler fits its samples to the time left).
+                        active = int(np.count_nonzero(~film.converged)) if adaptive else width * height
+                        queued = sum((r1 - r0) * width * spp for r0, r1, spp, _ in in_flight)
+                        fit, wave = _paced(rate, settings.time_limit_s - (time.perf_counter() - start), queued,
+                                           active, self.accel.threads, wave)
+                        last = min(total, done + fit)
+                    if last == done:
+                        stopped = True  # not even one more sample fits before the limit
+                        continue
+                    # A time-limited render starts with a 1-sample pass too: its waves give the rate that
+                    # fits the next passes to the limit, whatever the limit.
+                    quick = settings.quick_first_pass or settings.time_limit_s > 0
+                    spp, bands = _plan_pass(width, height, done, last, wave, quick)
                     if adaptive:  # passes end where the next convergence check falls
                         next_check = min_samples if done < min_samples else \
                             done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP
                         spp = max(1, min(spp, next_check - done))
-                    if done or (spp < total and not settings.quick_first_pass):
-                        # More than a quick first pass to come: a big scene's quick BVH is replaced by
-                        # the medium one (accel.QUICK_BVH_TRIANGLES), and its deferred triangle table is
-                        # built (until then, gathers compute the rows they need), both on threads.
-                        self.accel.refine()
+                    if done or (spp < total and not quick):
+                        # More than a quick first pass to come: a big scene's deferred triangle table is
+                        # built (until then, gathers compute the rows they need), and its quick BVH is
+                        # replaced by the medium one once the rate so far says the render has long enough
+                        # to go (accel.QUICK_BVH_TRIANGLES), both on threads.
                         self._triangles.build_rows()
+                        if rate:
+                            queued = sum((r1 - r0) * width * s for r0, r1, s, _ in in_flight)
+                            time_left = ((total - done) * width * height + queued) / rate
+                            if settings.time_limit_s > 0:
+                                time_left = min(time_left, settings.time_limit_s - progress.elapsed_s)
+                            self.accel.refine(time_left)
                     pending = list(bands)
                     pass_spp, pass_first = spp, int(settings.sample_offset) + done
                     pass_split = len(bands) < self.accel.threads
@@ -578,6 +605,17 @@ class Renderer:
             stopped = False  # the stop came with the last wave: the render is complete
         return RenderResult(film, progress, stopped, self.dropped_triangles)
 
+    def _rate(self) -> float | None:
+        """Paths per second of the render so far on all its threads, from its waves' own times (the
+        render's wall time would also count the first waves' start-up, and miss the work of the waves still
+        running): the rate of the waves that run side by side, one per thread, times the threads; until
+        there are such waves, that of the waves split over the threads. None before the first wave."""
+        with self._count_lock:
+            for split, (paths, seconds) in sorted(self._wave_clock.items()):
+                if paths and seconds > 0:
+                    return paths / seconds * (1 if split else self.accel.threads)
+        return None
+
     def _workers_undecided(self) -> bool:
         """Automatic worker processes (processes=None) not started yet."""
         return self._processes is None and self._workers is None
@@ -590,8 +628,19 @@ class Renderer:
         return progress.elapsed_s * (1.0 - progress.fraction) / progress.fraction > WORKER_START_S
 
     def _wave(self, *args):
-        """_render_rows(*args) in a free slot: this process or a ready worker process. A worker that is lost
-        (closed, exited, failed) gives its slot back to this process, and the wave runs here."""
+        """_render_rows(*args) in a free slot: this process or a ready worker process (timed on the render's
+        _wave_clock). A worker that is lost (closed, exited, failed) gives its slot back to this process,
+        and the wave runs here."""
+        began = time.perf_counter()
+        result = self._wave_in_slot(*args)
+        seconds = time.perf_counter() - began
+        split = bool(args[8])
+        with self._count_lock:
+            self._wave_clock[split][0] += int(result[2].sum())
+            self._wave_clock[split][1] += seconds
+        return result
+
+    def _wave_in_slot(self, *args):
         slot = self._slots.take()
         try:
             if slot is not None:
@@ -1408,6 +1457,17 @@ def adaptive_min_samples(settings: RenderSettings) -> int:
     if settings.adaptive_min_samples > 0:
         return max(4, int(settings.adaptive_min_samples))
     return max(4, int(np.ceil(16.0 / settings.adaptive_threshold ** 0.3)))
+
+
+def _paced(rate: float, left_s: float, queued_paths: int, pixels: int, threads: int, wave_size: int):
+    """(samples, wave size) of a pass planned with left_s seconds of a time limit to go, at rate paths/s on
+    all threads, with queued_paths planned before it: the samples per pixel whose paths end nearest the
+    limit (0 when less than half a sample's time is left), in waves of at most half the time left to them
+    on one thread (never below MIN_WAVE_PATHS), so that the last waves end near the limit too."""
+    after_queued = left_s - queued_paths / rate      # the time left when this pass's waves start
+    fit = int(rate * after_queued / max(pixels, 1) + 0.5)
+    wave = min(wave_size, max(MIN_WAVE_PATHS, int(rate / max(threads, 1) * after_queued / 2)))
+    return max(fit, 0), wave
 
 
 def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, quick_first: bool = True):
