@@ -160,6 +160,7 @@ class Accel:
         self.meshes = []          # (prototype positions, embree.Mesh) of the instanced meshes
         self.meshes_reused = 0
         self._refining = None     # the thread building the medium BVH (refine), once started
+        self.refine_error = None  # why that build failed, if it did (the quick BVH then stays)
         self._cancel = threading.Event()   # stops refine's build (close)
         placed = []
         if instances is not None and instances.count:
@@ -212,6 +213,9 @@ class Accel:
             try:
                 better = embree.Scene(self._device, quick.plain, quality="medium", cancel=self._cancel)
             except embree.BuildCancelled:
+                return
+            except embree.EmbreeError as err:   # out of memory, say: the quick BVH serves on
+                self.refine_error = str(err)
                 return
             if not self._cancel.is_set():
                 self._use(better)

@@ -69,6 +69,26 @@ def test_a_cancelled_build_raises_and_closing_stops_the_refine(monkeypatch):
     assert not a.refine()                # a closed Accel starts nothing
 
 
+def test_a_failed_refine_keeps_the_quick_bvh(monkeypatch):
+    corners, _, vertices, indices = _indexed_sphere()
+    monkeypatch.setattr(accel, "QUICK_BVH_TRIANGLES", 1)
+    o, d, t_max = _rays()
+    with Accel(corners, threads=2, indexed=(vertices, indices)) as a:
+        quick = a.intersect(o, d, t_max)
+        real = embree.Scene
+
+        def refused(*args, **kwargs):
+            if kwargs.get("quality") == "medium":
+                raise embree.EmbreeError("Embree refused the scene (error 4)")
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(embree, "Scene", refused)
+        assert a.refine()
+        a.wait_refined()
+        assert a.quality == "low" and "error 4" in a.refine_error
+        np.testing.assert_array_equal(a.intersect(o, d, t_max).prim, quick.prim)
+
+
 def _scene():
     corners, normals, vertices, indices = _indexed_sphere()
     return SceneArrays(positions=corners, normals=normals, uvs=np.zeros((len(corners), 3, 2), np.float32),
