@@ -139,6 +139,16 @@ print("RESULT " + json.dumps({"wall_s": wall, "rss_before_mb": before / 1024,
 """
 
 
+def _huge_pages() -> str:
+    """Whether Ember's build would keep NumPy's huge-page advice on this machine now (kernels.memory): the
+    first-sample figures depend on it."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("_ember_memory", os.path.join(ROOT, "kernels", "memory.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return "yes" if module.huge_pages_ready() else "no (small pages while it builds)"
+
+
 def measure(engine: str, kind: str, triangles: int, instances: int = 0, width: int = 128, height: int = 128,
             samples: int = 1, refine: bool = False) -> dict:
     """refine: Ember builds its medium BVH beside the quick one whatever the render's length (the peak of
@@ -241,7 +251,7 @@ def main() -> int:
         cases.append(("instances", args.instance_triangles, args.instances,
                       f"{args.instances} x {args.instance_triangles // 1000}k instances"))
     print(f"cores: {os.cpu_count()}, both engines on 2 threads; 1 sample at 128x128; medians of {args.repeats} "
-          f"interleaved runs", flush=True)
+          f"interleaved runs; huge pages for Ember's build now: {_huge_pages()}", flush=True)
     print(f"{'scene':>26} | {'Ember s':>7} | {'Cycles s':>8} | {'ratio':>5} | {'Ember MB':>8} | {'Cycles MB':>9} | ratio",
           flush=True)
     for kind, triangles, instances, title in cases:
