@@ -429,6 +429,66 @@ class Lights:
             _require(np.all(getattr(self, name) >= 0), f"lights.{name}", "must be non-negative")
 
 
+@dataclass(frozen=True, eq=False)
+class CornerRows:
+    """Per-corner values kept once per row and gathered by index: the (T, 3, C) values are rows[index].
+
+    rows : (N, C) float32; index : (T, 3) uint32, each below N. SceneArrays.normals may hold one instead of
+    its (T, 3, 3) array: the export's world normals of each mesh once per vertex (a mesh smooth all over)
+    or face corner, a third or less of the memory, gathered only where they are read (the triangle
+    table's rows). It reads like the array it stands for: len, shape, dtype, slices and np.asarray (which
+    builds the whole array: take() and slices gather only what they are asked for)."""
+    rows: np.ndarray
+    index: np.ndarray
+
+    @property
+    def shape(self) -> tuple:
+        return (len(self.index), 3, self.rows.shape[1] if self.rows.ndim == 2 else 0)
+
+    @property
+    def dtype(self):
+        return self.rows.dtype
+
+    ndim = 3
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def take(self, triangles: np.ndarray) -> np.ndarray:
+        """(n, 3, C) values of the triangles numbered `triangles`."""
+        return np.take(self.rows, np.take(self.index, triangles, axis=0), axis=0)
+
+    def __getitem__(self, key) -> np.ndarray:
+        if isinstance(key, slice):
+            return np.take(self.rows, self.index[key], axis=0)
+        return self.dense()[key]
+
+    def dense(self) -> np.ndarray:
+        return np.take(self.rows, self.index, axis=0)
+
+    def __array__(self, dtype=None, copy=None):
+        values = self.dense()
+        return values if dtype is None else values.astype(dtype)
+
+    def astype(self, dtype) -> np.ndarray:
+        return self.dense().astype(dtype)
+
+    def finite_triangles(self) -> np.ndarray:
+        """(T,) bool: every value of the triangle's three corners is finite."""
+        ok = _finite_rows(self.rows)
+        if ok.all():
+            return np.ones(len(self.index), bool)
+        bad = np.take(~ok, self.index, axis=0)
+        return ~(bad[:, 0] | bad[:, 1] | bad[:, 2])
+
+
+def corner_values(values, triangles: np.ndarray | None = None) -> np.ndarray:
+    """A (T, 3, C) array or CornerRows as an array: all of it, or the triangles numbered `triangles`."""
+    if isinstance(values, CornerRows):
+        return values.dense() if triangles is None else values.take(triangles)
+    return values if triangles is None else np.take(values, triangles, axis=0)
+
+
 @dataclass(frozen=True)
 class Prototype:
     """One mesh placed by several instances (SceneArrays.instances), in its object space: each field means
@@ -506,7 +566,8 @@ class SceneArrays:
     """A whole scene as arrays. Build it, call validate(), hand it to kernels.render().
 
     positions : (T, 3, 3) float32, world-space corners of each triangle.
-    normals : (T, 3, 3) float32, per-corner shading normals (need not be unit length).
+    normals : (T, 3, 3) float32, per-corner shading normals (need not be unit length), or a CornerRows
+        standing for that array.
     uvs : (T, 3, 2) float32, per-corner texture coordinates.
     material_ids : (T,) int32, rows of `materials`.
     textures : tuple of (H, W, C) float32 arrays, C in {1, 3, 4}, row 0 at the bottom.
@@ -720,9 +781,13 @@ def padded_triangles(count: int) -> np.ndarray:
 
 
 def same_arrays(a, b) -> bool:
-    """Equal arrays (None only equals None), at once when they are the same memory seen the same way."""
+    """Equal arrays (None only equals None), at once when they are the same memory seen the same way;
+    CornerRows equal CornerRows of the same rows and index."""
     if a is None or b is None:
         return a is b
+    if isinstance(a, CornerRows) or isinstance(b, CornerRows):
+        return (isinstance(a, CornerRows) and isinstance(b, CornerRows) and same_arrays(a.rows, b.rows)
+                and same_arrays(a.index, b.index))
     if a.shape != b.shape or a.dtype != b.dtype:
         return False
     if a.__array_interface__["data"][0] == b.__array_interface__["data"][0] and a.strides == b.strides:
@@ -744,7 +809,14 @@ def _check_triangles(tris, prefix: str, materials: int | None) -> None:
     count, their material ids)."""
     t = len(tris.positions) if hasattr(tris.positions, "__len__") else -1
     _check_array(tris.positions, prefix + "positions", (t, 3, 3), np.float32, finite=False)
-    _check_array(tris.normals, prefix + "normals", (t, 3, 3), np.float32, finite=False)
+    if isinstance(tris.normals, CornerRows):
+        rows, index = tris.normals.rows, tris.normals.index
+        _check_array(rows, prefix + "normals.rows", (-1, 3), np.float32, finite=False)
+        _check_array(index, prefix + "normals.index", (t, 3), np.uint32)
+        _require(not index.size or int(index.max()) < len(rows), prefix + "normals.index",
+                 f"must be below {len(rows)}")
+    else:
+        _check_array(tris.normals, prefix + "normals", (t, 3, 3), np.float32, finite=False)
     _check_array(tris.uvs, prefix + "uvs", (t, 3, 2), np.float32, finite=False)
     _check_array(tris.material_ids, prefix + "material_ids", (t,), np.int32)
     if tris.tangents is not None:
@@ -773,7 +845,7 @@ def _clean_triangles(tris, extra: tuple = ()) -> tuple[dict, int, int]:
     # A non-finite normal or UV on a usable triangle falls back to the geometric normal / zero UV.
     normals = tris.normals
     uvs = tris.uvs
-    bad_n = ~_finite_rows(normals)
+    bad_n = ~(normals.finite_triangles() if isinstance(normals, CornerRows) else _finite_rows(normals))
     bad_uv = ~_finite_rows(uvs)
     # A non-finite tangent on a usable triangle becomes "no tangent".
     tangents = tris.tangents
@@ -782,7 +854,7 @@ def _clean_triangles(tris, extra: tuple = ()) -> tuple[dict, int, int]:
     repaired = int(np.count_nonzero(bad_n & keep))
     if not (dropped or bad_n.any() or bad_uv.any() or bad_t.any()):
         return {}, 0, 0
-    normals = normals.copy()
+    normals = np.array(normals)   # a copy (CornerRows: the whole array, which the repairs write into)
     uvs = uvs.copy()
     if bad_n.any():
         p = np.nan_to_num(tris.positions[bad_n])

@@ -284,6 +284,26 @@ def test_smooth_meshes_read_their_vertex_normals_as_blender_gives_its_corner_nor
         np.testing.assert_array_equal(local.normals, corner[loops])
 
 
+def test_plain_normals_are_rows_gathered_by_index_for_every_copy():
+    """The export keeps the plain triangles' normals as CornerRows: each mesh's normals moved once per
+    copy (here one smooth mesh shown by two objects, mirrored and rotated, and a flat cube), each corner
+    reading its copy's row; they are Blender's corner normals either way."""
+    from ember.kernels.scene import CornerRows
+    first = add_cube(location=(-10, 0, 0), rotation=(0.3, 0.1, 0.7), scale=(1, 2, 0.5))
+    first.data.shade_smooth()
+    second = bpy.data.objects.new("Linked", first.data)
+    bpy.context.scene.collection.objects.link(second)
+    second.location, second.scale = (10, 0, 0), (-1, 1, 1)
+    flat = add_cube(location=(0, 0, 0))
+    result = export()
+    normals = result.scene.normals
+    assert isinstance(normals, CornerRows)
+    assert len(normals.rows) == 2 * 8 + 24      # the smooth mesh's 8 vertices twice, the flat cube's 24 face corners
+    dense = unit(np.asarray(normals).astype(np.float64))
+    for ob in (first, second, flat):
+        np.testing.assert_allclose(triangles_near(result, ob, dense), blender_corners(ob)[1], atol=1e-5)
+
+
 def test_uvs_come_from_the_render_uv_map():
     ob = add_cube()
     render_map = ob.data.uv_layers.new(name="RenderMap")

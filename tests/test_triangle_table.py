@@ -1,8 +1,10 @@
 """The triangle table of a big scene is deferred (kernels.geometry.TriangleTable, deferred=True): the BVH
-is built first and the table on a thread while the first samples render, which compute the rows they
-gather from the scene's arrays meanwhile. Both ways must give the same rows bit for bit, and so the same
-image."""
+is built first and the table on a thread from the render's second pass on; the samples before compute
+the rows they gather from the scene's arrays. Both ways must give the same rows bit for bit, and so the
+same image; so must normals kept as rows and gathered by index (kernels.scene.CornerRows)."""
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -10,6 +12,7 @@ import pytest
 from ember.kernels import Renderer, RenderSettings
 from ember.kernels import geometry
 from ember.kernels.geometry import TriangleTable, flatten_instances
+from ember.kernels.scene import CornerRows
 
 from test_instancing import _scene
 
@@ -94,3 +97,52 @@ def test_the_table_is_built_once_a_render_has_more_than_its_quick_first_pass(mon
         assert renderer._triangles._building is not None
         renderer._triangles._building.join()
         assert renderer._triangles._rows is not None
+
+
+def _indexed_normals(scene):
+    """The scene's normals as CornerRows: each distinct corner normal once, and every corner's row."""
+    rows, index = np.unique(scene.normals.reshape(-1, 3), axis=0, return_inverse=True)
+    return CornerRows(rows.astype(np.float32), index.reshape(-1, 3).astype(np.uint32))
+
+
+def test_normals_kept_by_rows_give_the_same_table_and_image(monkeypatch):
+    """SceneArrays.normals as CornerRows (what the export hands over) stands for its (T, 3, 3) array: the
+    same table rows bit for bit, eager, deferred and computed, the same validation and the same image."""
+    scene = _plain_scene()
+    indexed = dataclasses.replace(scene, normals=_indexed_normals(scene))
+    assert isinstance(indexed.normals, CornerRows) and indexed.normals.shape == scene.normals.shape
+    np.testing.assert_array_equal(np.asarray(indexed.normals), scene.normals)
+    checked = indexed.validate()
+    assert checked.scene.normals is indexed.normals and checked.repaired_normals == 0
+    np.testing.assert_array_equal(TriangleTable(indexed).rows, TriangleTable(scene).rows)
+    monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
+    monkeypatch.setattr(geometry, "_PARALLEL_ROWS", 7)     # slices of the rows gathered per thread
+    deferred = TriangleTable(indexed, deferred=True)
+    prim = np.random.default_rng(5).integers(0, len(scene.positions), 500).astype(np.int32)
+    np.testing.assert_array_equal(deferred.gather(prim), TriangleTable(scene).gather(prim))
+    np.testing.assert_array_equal(deferred.rows, TriangleTable(scene).rows)
+    settings = RenderSettings(samples=4, seed=2)
+    images = []
+    for s in (scene, indexed):
+        with Renderer(s, threads=2) as renderer:
+            images.append(renderer.render(settings).image)
+    np.testing.assert_array_equal(images[0], images[1])
+
+
+def test_corner_rows_are_validated_and_repaired_like_the_array():
+    scene = _plain_scene()
+    normals = _indexed_normals(scene)
+    bad_index = CornerRows(normals.rows, np.full_like(normals.index, len(normals.rows)))
+    with pytest.raises(ValueError, match="normals.index"):
+        dataclasses.replace(scene, normals=bad_index).validate()
+    with pytest.raises(ValueError, match="normals.rows"):
+        dataclasses.replace(scene, normals=CornerRows(normals.rows.astype(np.float64), normals.index)).validate()
+    # A non-finite row spoils every corner that reads it: those triangles get the face normal, as with
+    # the array (the repaired normals are then an array).
+    rows = normals.rows.copy()
+    rows[normals.index[4, 2]] = np.nan
+    dense = np.asarray(CornerRows(rows, normals.index))
+    a = dataclasses.replace(scene, normals=CornerRows(rows, normals.index)).validate()
+    b = dataclasses.replace(scene, normals=dense).validate()
+    assert a.repaired_normals == b.repaired_normals > 0
+    np.testing.assert_array_equal(a.scene.normals, b.scene.normals)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels.geometry import normal_matrices
-from ...kernels.scene import OBJECT_COLUMNS, Instances, Prototype, object_rows, padded_triangles
+from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
 from ...kernels.shading.ops import map_to_sphere
 from .materials import MaterialTable
 
@@ -74,7 +74,8 @@ class LocalMesh:
 class Geometry:
     """All triangles of the scene in world space, T in total.
 
-    positions, normals : (T, 3, 3) float32; uvs : (T, 3, 2) float32; material_ids : (T,) int32.
+    positions : (T, 3, 3) float32; normals : a kernels.scene.CornerRows standing for their (T, 3, 3) float32
+    array; uvs : (T, 3, 2) float32; material_ids : (T,) int32.
     instance_count : object instances that contributed triangles.
     tangents : (T, 3, 4) float32 world-space tangents and bitangent signs (SceneArrays.tangents), zero
         for meshes whose materials read none; None when no material reads them.
@@ -484,7 +485,9 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
     plain = {group: matrices for group, matrices in groups.items() if group not in instanced}
     total = sum(meshes[key].triangle_count * len(matrices) for (key, _), matrices in plain.items())
     positions = padded_triangles(total)
-    normals = np.empty((total, 3, 3), np.float32)
+    # The plain triangles' normals stay where Blender keeps them, moved into world space once per
+    # instance: rows, and each triangle corner's row (kernels.scene.CornerRows).
+    normal_rows, normal_index, row_count = [], [], 0
     # One mesh placed once (a big scanned or sculpted mesh alone, say): its UVs are the world's as they are.
     alone = next(iter(plain)) if len(plain) == 1 and len(next(iter(plain.values()))) == 1 else None
     uvs = meshes[alone[0]].uvs.reshape(total, 3, 2) if alone is not None else np.empty((total, 3, 2), np.float32)
@@ -523,7 +526,10 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
             first_row += k
             continue
         end = start + k * t
-        moved = _transform(mesh, np.stack(matrices), positions[start:end], normals[start:end])
+        moved, moved_normals = _transform(mesh, np.stack(matrices), positions[start:end])
+        normal_rows.append(moved_normals)
+        normal_index.append(mesh.normal_index.reshape(t, 3))
+        row_count += moved_normals.shape[0] * moved_normals.shape[1]
         v = len(mesh.vertices)
         bvh_vertices.append(moved.reshape(-1, 3))
         # Vertex numbers within uint32 are made in uint32 (the corners are non-negative int32).
@@ -558,15 +564,35 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
                .astype(np.uint32, copy=False))
     else:
         bvh = None
+    normals = _plain_normals(normal_rows, normal_index, row_count)
     return Geometry(positions, normals, uvs, material_ids, instance_count, world_tangents,
                     tuple(attribute_arrays.items()), objects, object_ids, instances=instances, bvh=bvh)
 
 
-def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray,
-               normals_out: np.ndarray) -> np.ndarray:
-    """Write K instances of a mesh: world_from_object (K, 4, 4) float64, outputs (K*T, 3, 3) float32.
-    The vertices are moved (fewer than the corners), then gathered into corners; returns the moved
-    vertices, (K, V, 3) float32.
+def _plain_normals(rows: list, indices: list, row_count: int):
+    """The plain triangles' normals from each group's moved rows (K, N, 3) and its mesh's (T, 3) row numbers:
+    a CornerRows (one rows array, each copy's numbers offset to its own rows), or the (T, 3, 3) array
+    itself where the rows outnumber uint32."""
+    if row_count >= 2**32:
+        return np.concatenate([np.take(r, i, axis=1).reshape(-1, 3, 3) for r, i in zip(rows, indices)])
+    if len(rows) == 1 and len(rows[0]) == 1:      # one mesh placed once: its arrays as they are
+        i = indices[0]   # int32 corners (non-negative: seen as uint32, shared with the BVH's indices) or uint32
+        return CornerRows(rows[0][0], i.view(np.uint32) if i.dtype == np.int32 else i.astype(np.uint32, copy=False))
+    index, first = [], 0
+    for r, i in zip(rows, indices):
+        k, n = r.shape[0], r.shape[1]
+        offsets = (first + n * np.arange(k, dtype=np.int64)).astype(np.uint32)
+        index.append((i.astype(np.uint32)[None] + offsets[:, None, None]).reshape(-1, 3))
+        first += k * n
+    return CornerRows(np.concatenate([r.reshape(-1, 3) for r in rows]) if rows else np.zeros((0, 3), np.float32),
+                      np.concatenate(index) if index else np.zeros((0, 3), np.uint32))
+
+
+def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray):
+    """Write the corners of K instances of a mesh into positions_out (K*T, 3, 3) float32, world_from_object
+    (K, 4, 4) float64. The vertices are moved (fewer than the corners), then gathered into corners;
+    returns the moved vertices, (K, V, 3) float32, and the moved normal rows, (K, N, 3) float32 (where
+    Blender keeps the normals: a shading normal per row, gathered by mesh.normal_index).
 
     Positions keep their winding, so a mirrored instance's geometric normal flips while its shading
     normals (inverse-transpose) point the way Blender shows them; the kernel reconciles the two per side.
@@ -578,11 +604,10 @@ def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np
         moved = np.matmul(mesh.vertices[None], linear.transpose(0, 2, 1).astype(np.float32))
         moved += world_from_object[:, None, :3, 3].astype(np.float32)
         _gather(moved, mesh.corners, positions_out.reshape(k, -1, 3))
-    # The normals are moved where Blender keeps them (no more of them than triangle corners), then
-    # gathered: each row is the same product either way.
-    moved_normals = np.matmul(mesh.normal_rows[None], normal_matrices(linear).transpose(0, 2, 1))
-    _gather(moved_normals, mesh.normal_index, normals_out.reshape(k, -1, 3))
-    return moved
+    # The normals are moved where Blender keeps them (no more of them than triangle corners); each row is
+    # the product the corners' gathered array held, rounded to float32 the same way.
+    moved_normals = np.matmul(mesh.normal_rows[None], normal_matrices(linear).transpose(0, 2, 1)).astype(np.float32)
+    return moved, moved_normals
 
 
 def _gather(rows: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:
