@@ -13,6 +13,9 @@ leaves out:
   Instances move without rebuilding any mesh BVH (Scene.set_transforms: rtcGetGeometry,
   rtcSetGeometryTransform, rtcCommitGeometry, then rtcCommitScene on the top level): the viewport's
   moved objects.
+- rtcSetSceneBuildQuality / rtcSetGeometryBuildQuality: a big mesh's first BVH is built LOW (Embree's
+  Morton builder, several times faster) and a MEDIUM one later (kernels.accel.Accel.refine), whose build
+  rtcSetSceneProgressMonitorFunction can cancel.
 - rtcIntersect16 / rtcOccluded16 on packets laid out by NumPy (Embree's SOA RTCRayHit16): one ctypes
   call per 16 rays, with the GIL released while Embree traces. It reports which instance a ray hit, which
   embreex's loop does not. Measured against embreex's single-ray loop on 1M rays into a 1M-triangle mesh:

@@ -531,13 +531,13 @@ class Renderer:
                             break
                     wave, last = self.wave_size(settings), total
                     rate = self._rate()
+                    queued = sum((r1 - r0) * width * s for r0, r1, s, _ in in_flight)   # paths planned, not in
                     if done and settings.time_limit_s > 0 and rate:
                         # Near the time limit the next pass takes only the samples that fit in the time
                         # left at the rate so far, after the waves still in flight, in shorter waves: the
                         # render ends close to its limit, not up to a wave or a pass after it (as Cycles'
                         # scheduler fits its samples to the time left).
                         active = int(np.count_nonzero(~film.converged)) if adaptive else width * height
-                        queued = sum((r1 - r0) * width * spp for r0, r1, spp, _ in in_flight)
                         fit, wave = _paced(rate, settings.time_limit_s - (time.perf_counter() - start), queued,
                                            active, self.accel.threads, wave)
                         last = min(total, done + fit)
@@ -559,7 +559,6 @@ class Renderer:
                         # to go (accel.QUICK_BVH_TRIANGLES), both on threads.
                         self._triangles.build_rows()
                         if rate:
-                            queued = sum((r1 - r0) * width * s for r0, r1, s, _ in in_flight)
                             time_left = ((total - done) * width * height + queued) / rate
                             if settings.time_limit_s > 0:
                                 time_left = min(time_left, settings.time_limit_s - progress.elapsed_s)
@@ -627,14 +626,14 @@ class Renderer:
             return False
         return progress.elapsed_s * (1.0 - progress.fraction) / progress.fraction > WORKER_START_S
 
-    def _wave(self, *args):
-        """_render_rows(*args) in a free slot: this process or a ready worker process (timed on the render's
+    def _wave(self, settings, x0, y0, width, r0, r1, first_sample, spp, split, active=None):
+        """_render_rows(...) in a free slot: this process or a ready worker process (timed on the render's
         _wave_clock). A worker that is lost (closed, exited, failed) gives its slot back to this process,
         and the wave runs here."""
         began = time.perf_counter()
-        result = self._wave_in_slot(*args)
+        result = self._wave_in_slot(settings, x0, y0, width, r0, r1, first_sample, spp, split, active)
         seconds = time.perf_counter() - began
-        split = bool(args[8])
+        split = bool(split)
         with self._count_lock:
             self._wave_clock[split][0] += int(result[2].sum())
             self._wave_clock[split][1] += seconds
