@@ -7,7 +7,7 @@ import threading
 
 import numpy as np
 
-from .scene import SceneArrays, corner_values
+from .scene import CornerRows, SceneArrays, corner_values
 
 # Columns of the per-triangle table gathered for every hit (one contiguous row per component).
 P0, E1, E2, NG, N0, N1, N2, UV0, UV1, UV2 = 0, 3, 6, 9, 12, 15, 18, 21, 23, 25
@@ -104,7 +104,7 @@ class TriangleTable:
         uvs), while the table is deferred."""
         positions, normals, uvs = source
         out = np.empty((len(prim), _COLUMNS), np.float32)
-        _fill_rows(out, np.take(positions, prim, axis=0), corner_values(normals, prim), np.take(uvs, prim, axis=0))
+        _fill_rows(out, corner_values(positions, prim), corner_values(normals, prim), np.take(uvs, prim, axis=0))
         return out
 
     def place(self, instances) -> None:
@@ -336,13 +336,13 @@ def _triangle_table_of(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarr
     t = len(positions)
     table = np.empty((t, _COLUMNS), np.float32)
     if t < 2 * _PARALLEL_ROWS:
-        _fill_rows(table, positions, corner_values(normals), uvs)
+        _fill_rows(table, corner_values(positions), corner_values(normals), uvs)
         return table
     from concurrent.futures import ThreadPoolExecutor
     import os
     slices = [slice(i, min(i + _PARALLEL_ROWS, t)) for i in range(0, t, _PARALLEL_ROWS)]
     with ThreadPoolExecutor(max(1, os.cpu_count() or 1)) as pool:
-        # normals[s]: a slice of the array, or the slice's corners gathered from CornerRows.
+        # positions[s], normals[s]: slices of the arrays, or the slice's corners gathered from CornerRows.
         list(pool.map(lambda s: _fill_rows(table[s], positions[s], normals[s], uvs[s]), slices))
     return table
 
@@ -389,6 +389,9 @@ def extent(positions: np.ndarray):
     """(lo, hi) corners of the geometry's bounding box, float64 (3,) each."""
     if not len(positions):
         return np.zeros(3), np.zeros(3)
+    if isinstance(positions, CornerRows):
+        lo, hi = positions.bounds()
+        return lo.astype(np.float64), hi.astype(np.float64)
     lo = np.array([positions[:, :, k].min() for k in range(3)], np.float64)
     hi = np.array([positions[:, :, k].max() for k in range(3)], np.float64)
     return lo, hi
@@ -401,7 +404,7 @@ def flatten_instances(scene: SceneArrays) -> SceneArrays:
     inst = scene.instances
     if inst is None or not inst.count:
         return dataclasses.replace(scene, instances=None)
-    parts = {"positions": [scene.positions], "normals": [corner_values(scene.normals)], "uvs": [scene.uvs],
+    parts = {"positions": [corner_values(scene.positions)], "normals": [corner_values(scene.normals)], "uvs": [scene.uvs],
              "material_ids": [scene.material_ids]}
     tangents = [scene.tangents] if scene.tangents is not None else None
     want_tangents = scene.tangents is not None or any(p.tangents is not None for p in inst.prototypes)

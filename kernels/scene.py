@@ -433,11 +433,13 @@ class Lights:
 class CornerRows:
     """Per-corner values kept once per row and gathered by index: the (T, 3, C) values are rows[index].
 
-    rows : (N, C) float32; index : (T, 3) uint32, each below N. SceneArrays.normals may hold one instead of
-    its (T, 3, 3) array: the export's world normals of each mesh once per vertex (a mesh smooth all over)
-    or face corner, a third or less of the memory, gathered only where they are read (the triangle
-    table's rows). It reads like the array it stands for: len, shape, dtype, slices and np.asarray (which
-    builds the whole array: take() and slices gather only what they are asked for)."""
+    rows : (N, C) float32; index : (T, 3) uint32, each below N. SceneArrays.positions and normals may hold
+    one instead of their (T, 3, 3) arrays: the export's world vertices with the triangles' vertex numbers
+    (the very arrays Embree builds its BVH from), and each mesh's world normals once per vertex (a mesh
+    smooth all over) or face corner: a third or less of the memory, gathered only where they are read (the
+    triangle table's rows, validation in blocks, emissive triangles). It reads like the array it stands
+    for: len, shape, dtype, triangles by slice, numbers or mask, and np.asarray (which builds the whole
+    array)."""
     rows: np.ndarray
     index: np.ndarray
 
@@ -459,9 +461,16 @@ class CornerRows:
         return np.take(self.rows, np.take(self.index, triangles, axis=0), axis=0)
 
     def __getitem__(self, key) -> np.ndarray:
-        if isinstance(key, slice):
-            return np.take(self.rows, self.index[key], axis=0)
+        if isinstance(key, slice) or (isinstance(key, np.ndarray) and key.ndim == 1):
+            return np.take(self.rows, self.index[key], axis=0)    # triangles: a slice, numbers or a mask
         return self.dense()[key]
+
+    def bounds(self):
+        """(lo, hi) float32 (3,) of the values the corners read (rows no corner reads left out)."""
+        used = np.zeros(len(self.rows), bool)
+        used[self.index.ravel()] = True
+        values = self.rows[used]
+        return values.min(axis=0), values.max(axis=0)
 
     def dense(self) -> np.ndarray:
         return np.take(self.rows, self.index, axis=0)
@@ -565,7 +574,7 @@ class Instances:
 class SceneArrays:
     """A whole scene as arrays. Build it, call validate(), hand it to kernels.render().
 
-    positions : (T, 3, 3) float32, world-space corners of each triangle.
+    positions : (T, 3, 3) float32, world-space corners of each triangle, or a CornerRows standing for them.
     normals : (T, 3, 3) float32, per-corner shading normals (need not be unit length), or a CornerRows
         standing for that array.
     uvs : (T, 3, 2) float32, per-corner texture coordinates.
@@ -808,15 +817,16 @@ def _check_triangles(tris, prefix: str, materials: int | None) -> None:
     """Shapes and dtypes of a SceneArrays' or Prototype's per-triangle fields (and, given the material
     count, their material ids)."""
     t = len(tris.positions) if hasattr(tris.positions, "__len__") else -1
-    _check_array(tris.positions, prefix + "positions", (t, 3, 3), np.float32, finite=False)
-    if isinstance(tris.normals, CornerRows):
-        rows, index = tris.normals.rows, tris.normals.index
-        _check_array(rows, prefix + "normals.rows", (-1, 3), np.float32, finite=False)
-        _check_array(index, prefix + "normals.index", (t, 3), np.uint32)
-        _require(not index.size or int(index.max()) < len(rows), prefix + "normals.index",
-                 f"must be below {len(rows)}")
-    else:
-        _check_array(tris.normals, prefix + "normals", (t, 3, 3), np.float32, finite=False)
+    for name in ("positions", "normals"):
+        values = getattr(tris, name)
+        if isinstance(values, CornerRows):
+            rows, index = values.rows, values.index
+            _check_array(rows, f"{prefix}{name}.rows", (-1, 3), np.float32, finite=False)
+            _check_array(index, f"{prefix}{name}.index", (t, 3), np.uint32)
+            _require(not index.size or int(index.max()) < len(rows), f"{prefix}{name}.index",
+                     f"must be below {len(rows)}")
+        else:
+            _check_array(values, prefix + name, (t, 3, 3), np.float32, finite=False)
     _check_array(tris.uvs, prefix + "uvs", (t, 3, 2), np.float32, finite=False)
     _check_array(tris.material_ids, prefix + "material_ids", (t,), np.int32)
     if tris.tangents is not None:

@@ -74,8 +74,9 @@ class LocalMesh:
 class Geometry:
     """All triangles of the scene in world space, T in total.
 
-    positions : (T, 3, 3) float32; normals : a kernels.scene.CornerRows standing for their (T, 3, 3) float32
-    array; uvs : (T, 3, 2) float32; material_ids : (T,) int32.
+    positions, normals : kernels.scene.CornerRows standing for (T, 3, 3) float32 arrays (positions: the
+    arrays of bvh; a (T, 3, 3) array where its vertex numbers would not fit uint32); uvs : (T, 3, 2) float32;
+    material_ids : (T,) int32.
     instance_count : object instances that contributed triangles.
     tangents : (T, 3, 4) float32 world-space tangents and bitangent signs (SceneArrays.tangents), zero
         for meshes whose materials read none; None when no material reads them.
@@ -484,7 +485,11 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
     become prototypes (object space) and transforms. Object table rows follow the groups' order."""
     plain = {group: matrices for group, matrices in groups.items() if group not in instanced}
     total = sum(meshes[key].triangle_count * len(matrices) for (key, _), matrices in plain.items())
-    positions = padded_triangles(total)
+    # The plain triangles' corners are the BVH's world vertices gathered by its indices (kernels.scene.
+    # CornerRows) wherever the vertex numbers fit uint32; else a (T, 3, 3) array.
+    plain_vertices = sum(len(meshes[key].vertices) * len(matrices) for (key, _), matrices in plain.items())
+    indexed = 0 < plain_vertices < 2**32
+    positions = None if indexed else padded_triangles(total)
     # The plain triangles' normals stay where Blender keeps them, moved into world space once per
     # instance: rows, and each triangle corner's row (kernels.scene.CornerRows).
     normal_rows, normal_index, row_count = [], [], 0
@@ -526,7 +531,7 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
             first_row += k
             continue
         end = start + k * t
-        moved, moved_normals = _transform(mesh, np.stack(matrices), positions[start:end])
+        moved, moved_normals = _transform(mesh, np.stack(matrices), None if indexed else positions[start:end])
         normal_rows.append(moved_normals)
         normal_index.append(mesh.normal_index.reshape(t, 3))
         row_count += moved_normals.shape[0] * moved_normals.shape[1]
@@ -564,6 +569,8 @@ def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, obje
                .astype(np.uint32, copy=False))
     else:
         bvh = None
+    if indexed:
+        positions = CornerRows(*bvh)
     normals = _plain_normals(normal_rows, normal_index, row_count)
     return Geometry(positions, normals, uvs, material_ids, instance_count, world_tangents,
                     tuple(attribute_arrays.items()), objects, object_ids, instances=instances, bvh=bvh)
@@ -588,11 +595,11 @@ def _plain_normals(rows: list, indices: list, row_count: int):
                       np.concatenate(index) if index else np.zeros((0, 3), np.uint32))
 
 
-def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray):
-    """Write the corners of K instances of a mesh into positions_out (K*T, 3, 3) float32, world_from_object
-    (K, 4, 4) float64. The vertices are moved (fewer than the corners), then gathered into corners;
-    returns the moved vertices, (K, V, 3) float32, and the moved normal rows, (K, N, 3) float32 (where
-    Blender keeps the normals: a shading normal per row, gathered by mesh.normal_index).
+def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray | None):
+    """K instances of a mesh in world space, world_from_object (K, 4, 4) float64: the moved vertices, (K, V, 3)
+    float32, and the moved normal rows, (K, N, 3) float32 (where Blender keeps the normals: a shading normal
+    per row, gathered by mesh.normal_index). positions_out (K*T, 3, 3) float32, when given, gets the
+    corners: the moved vertices (fewer than the corners) gathered.
 
     Positions keep their winding, so a mirrored instance's geometric normal flips while its shading
     normals (inverse-transpose) point the way Blender shows them; the kernel reconciles the two per side.
@@ -603,7 +610,8 @@ def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np
     with np.errstate(over="ignore", invalid="ignore"):
         moved = np.matmul(mesh.vertices[None], linear.transpose(0, 2, 1).astype(np.float32))
         moved += world_from_object[:, None, :3, 3].astype(np.float32)
-        _gather(moved, mesh.corners, positions_out.reshape(k, -1, 3))
+        if positions_out is not None:
+            _gather(moved, mesh.corners, positions_out.reshape(k, -1, 3))
     # The normals are moved where Blender keeps them (no more of them than triangle corners); each row is
     # the product the corners' gathered array held, rounded to float32 the same way.
     moved_normals = np.matmul(mesh.normal_rows[None], normal_matrices(linear).transpose(0, 2, 1)).astype(np.float32)
