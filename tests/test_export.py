@@ -298,6 +298,13 @@ def test_plain_normals_are_rows_gathered_by_index_for_every_copy():
     result = export()
     normals = result.scene.normals
     assert isinstance(normals, CornerRows)
+    # The corners are the BVH's own vertices and indices, not a copy.
+    positions = result.scene.positions
+    assert isinstance(positions, CornerRows)
+    assert positions.rows is result.scene.bvh_vertices and positions.index is result.scene.bvh_indices
+    for ob in (first, second, flat):
+        np.testing.assert_allclose(triangles_near(result, ob, np.asarray(positions)), blender_corners(ob)[0],
+                                   atol=1e-5)
     assert len(normals.rows) == 2 * 8 + 24      # the smooth mesh's 8 vertices twice, the flat cube's 24 face corners
     dense = unit(np.asarray(normals).astype(np.float64))
     for ob in (first, second, flat):

@@ -146,3 +146,43 @@ def test_corner_rows_are_validated_and_repaired_like_the_array():
     b = dataclasses.replace(scene, normals=dense).validate()
     assert a.repaired_normals == b.repaired_normals > 0
     np.testing.assert_array_equal(a.scene.normals, b.scene.normals)
+
+
+def _indexed_positions(scene):
+    vertices, index = np.unique(scene.positions.reshape(-1, 3), axis=0, return_inverse=True)
+    return vertices.astype(np.float32), index.reshape(-1, 3).astype(np.uint32)
+
+
+def test_corners_kept_as_indexed_vertices_give_the_same_scene(monkeypatch):
+    """SceneArrays.positions as CornerRows over the BVH's vertices and indices (what the export hands over):
+    the same bounds, table rows, triangles by slice, numbers and mask, and image bit for bit as the corner array; a
+    triangle that validation drops leaves an array of the others."""
+    scene = _plain_scene()
+    vertices, index = _indexed_positions(scene)
+    indexed = dataclasses.replace(scene, positions=CornerRows(vertices, index), normals=_indexed_normals(scene),
+                                  bvh_vertices=vertices, bvh_indices=index)
+    checked = indexed.validate()
+    assert checked.dropped_triangles == 0 and checked.scene.positions is indexed.positions
+    for a, b in zip(geometry.extent(indexed.positions), geometry.extent(scene.positions)):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(TriangleTable(indexed).rows, TriangleTable(scene).rows)
+    prim = np.arange(0, len(scene.positions), 3)
+    np.testing.assert_array_equal(indexed.positions[prim], scene.positions[prim])
+    np.testing.assert_array_equal(indexed.positions[3:9], scene.positions[3:9])
+    mask = np.arange(len(scene.positions)) % 2 == 0
+    np.testing.assert_array_equal(indexed.positions[mask],
+                                  scene.positions[mask])
+    settings = RenderSettings(samples=4, seed=7)
+    images = []
+    for s in (scene, indexed):
+        with Renderer(s, threads=2) as renderer:
+            images.append(renderer.render(settings).image)
+    np.testing.assert_array_equal(images[0], images[1])
+    # A collapsed triangle is dropped: the others stay, now as an array, with their BVH indices.
+    collapsed = index.copy()
+    collapsed[2, 1] = collapsed[2, 0]
+    bad = dataclasses.replace(indexed, positions=CornerRows(vertices, collapsed), bvh_indices=collapsed)
+    result = bad.validate()
+    assert result.dropped_triangles == 1 and isinstance(result.scene.positions, np.ndarray)
+    np.testing.assert_array_equal(result.scene.positions, np.delete(vertices[collapsed], 2, axis=0))
+    np.testing.assert_array_equal(result.scene.bvh_vertices[result.scene.bvh_indices], result.scene.positions)
