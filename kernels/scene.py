@@ -456,10 +456,6 @@ class CornerRows:
     def __len__(self) -> int:
         return len(self.index)
 
-    def take(self, triangles: np.ndarray) -> np.ndarray:
-        """(n, 3, C) values of the triangles numbered `triangles`."""
-        return np.take(self.rows, np.take(self.index, triangles, axis=0), axis=0)
-
     def __getitem__(self, key) -> np.ndarray:
         if isinstance(key, slice) or (isinstance(key, np.ndarray) and key.ndim == 1):
             return np.take(self.rows, self.index[key], axis=0)    # triangles: a slice, numbers or a mask
@@ -497,7 +493,7 @@ class CornerRows:
 def corner_values(values, triangles: np.ndarray | None = None) -> np.ndarray:
     """A (T, 3, C) array or CornerRows as an array: all of it, or the triangles numbered `triangles`."""
     if isinstance(values, CornerRows):
-        return values.dense() if triangles is None else values.take(triangles)
+        return values.dense() if triangles is None else values[np.asarray(triangles)]
     return values if triangles is None else np.take(values, triangles, axis=0)
 
 
