@@ -104,7 +104,9 @@ class TriangleTable:
         uvs), while the table is deferred."""
         positions, normals, uvs = source
         out = np.empty((len(prim), _COLUMNS), np.float32)
-        _fill_rows(out, corner_values(positions, prim), corner_values(normals, prim), np.take(uvs, prim, axis=0))
+        # (np.take would first copy a one-row view of a mesh without UVs whole; indexing reads its row.)
+        corner_uvs = uvs[prim] if uvs.strides[0] == 0 else np.take(uvs, prim, axis=0)
+        _fill_rows(out, corner_values(positions, prim), corner_values(normals, prim), corner_uvs)
         return out
 
     def place(self, instances) -> None:

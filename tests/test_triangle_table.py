@@ -55,6 +55,26 @@ def test_deferred_rows_equal_the_built_table(monkeypatch):
     np.testing.assert_array_equal(late.rows, eager.rows)
 
 
+def test_a_mesh_without_uvs_gives_the_same_rows_as_zeros(monkeypatch):
+    """A mesh without UVs exports one zero row seen by every corner (a zero-stride view): validation, the
+    deferred gathers and the built table read it as the array of zeros it stands for, without copying it."""
+    monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
+    dense = _plain_scene()
+    dense.uvs[:] = 0.0
+    view = dataclasses.replace(dense, uvs=np.broadcast_to(np.zeros((1, 1, 2), np.float32), dense.uvs.shape))
+    view = view.validate().scene
+    assert view.uvs.strides[0] == 0      # validation keeps the view
+    eager, deferred = TriangleTable(dense), TriangleTable(view, deferred=True)
+    prim = np.random.default_rng(1).integers(0, len(dense.positions), 200).astype(np.int32)
+    np.testing.assert_array_equal(deferred.gather(prim), eager.gather(prim))
+    deferred.build_rows()
+    deferred._building.join()
+    np.testing.assert_array_equal(deferred.rows, eager.rows)
+    # A non-finite row seen by every corner is repaired to zeros, as the array would be.
+    bad = dataclasses.replace(dense, uvs=np.broadcast_to(np.full((1, 1, 2), np.nan, np.float32), dense.uvs.shape))
+    np.testing.assert_array_equal(bad.validate().scene.uvs, 0.0)
+
+
 def test_small_or_instanced_scenes_build_at_once(monkeypatch):
     scene = _plain_scene()
     assert len(scene.positions) < geometry.DEFERRED_ROWS

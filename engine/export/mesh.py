@@ -394,7 +394,9 @@ def _corner_uvs(mesh, tri_loops: np.ndarray) -> np.ndarray:
     """(T*3, 2) float32 coordinates of the UV map marked for rendering."""
     layer = next((uv for uv in mesh.uv_layers if uv.active_render), None)
     if layer is None:
-        return np.zeros((len(tri_loops), 2), np.float32)
+        # No UV map: every corner's coordinates are (0, 0). One row seen T*3 times (a read-only view with a
+        # zero stride), so a big mesh without UVs neither writes nor reads 24 bytes per triangle of zeros.
+        return np.broadcast_to(np.zeros((1, 2), np.float32), (len(tri_loops), 2))
     uvs = _read(layer.uv, "vector", 2 * len(mesh.loops), np.float32)
     return np.take(uvs.reshape(-1, 2), tri_loops, axis=0)
 
