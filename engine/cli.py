@@ -74,6 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--max-bounces", type=int, help="bounces after the first hit (0 = direct light only)")
     render.add_argument("--mode", choices=[item[0] for item in SAMPLING_MODE_ITEMS], help="sampling mode")
     render.add_argument("--seed", type=int, help=f"random seed, 0 to {SEED_MAX}")
+    render.add_argument("--pattern", choices=("automatic", "sobol-burley"),
+                        help="sampling pattern: automatic (the default: neighbouring pixels' noise is blue noise, "
+                             "as Cycles' final renders) or sobol-burley (a sequence per pixel, what sample "
+                             "ranges use: a render to compare with merged ranges)")
     render.add_argument("--time-limit", type=float, help="seconds per frame, 0 for none (the first full pass "
                                                          "always completes)")
     render.add_argument("--threads", type=int, help="render threads (default or 0: all cores)")
@@ -85,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--sample-offset", type=int,
                         help="render samples OFFSET .. OFFSET + --samples - 1 of each pixel: a sample range, to "
                              "merge with others (python -m ember merge); turns adaptive sampling and denoising "
-                             "off, which ranges cannot merge")
+                             "off, which ranges cannot merge, and gives each pixel a sequence of its own "
+                             "(the Sobol-Burley pattern), so that ranges merge into exactly the whole")
     ray = render.add_argument_group(
         "many machines", "Spread the frames over a Ray cluster (Ray is optional: python3.11 dev.py setup --ray). "
                          "Frames are written by this process, as they arrive, exactly as without --ray.")
@@ -462,14 +467,19 @@ def _apply_options(scene, args, resolution) -> None:
         ember.sampling_mode = args.mode
     if args.seed is not None:
         ember.seed = args.seed
+    if args.pattern is not None:
+        ember.sampling_pattern = args.pattern.upper().replace("-", "_")
     if args.time_limit is not None:
         ember.time_limit = args.time_limit
     if args.denoise is not None:
         ember.use_denoising = args.denoise
     if args.sample_offset is not None:
         ember.sample_offset = args.sample_offset
-        # Ranges merge by sample count: every pixel must hold them all, and none may be denoised.
+        # Ranges merge by sample count: every pixel must hold them all, and none may be denoised; and each
+        # pixel reads its own sequence (the blue-noise layout depends on the whole frame's sample count,
+        # which a range does not know), so that ranges merge into exactly the whole rendered alike.
         ember.use_adaptive_sampling = ember.use_denoising = False
+        ember.sampling_pattern = "SOBOL_BURLEY"
     if args.threads is not None:
         scene.render.threads_mode = "FIXED" if args.threads > 0 else "AUTO"
         if args.threads > 0:

@@ -150,6 +150,7 @@ class RenderWorker:
         if offset is not None:  # a range: every pixel holds all its samples, none denoised (they merge)
             ember.sample_offset, ember.samples = offset, samples
             ember.use_adaptive_sampling = ember.use_denoising = False
+            ember.sampling_pattern = "SOBOL_BURLEY"   # each pixel its own sequence, as the command line's ranges
         start = time.perf_counter()
         scene.frame_set(frame)
         printed = io.StringIO()

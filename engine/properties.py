@@ -100,8 +100,20 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
     sample_offset: IntProperty(
         name="Sample Offset", description="Skip this many samples of each pixel's sequence: render a range of "
                                           "the samples (Cycles' Sample Offset), to merge ranges rendered on "
-                                          "several machines (python -m ember merge)",
+                                          "several machines (python -m ember merge; ranges rendered with the "
+                                          "Sobol-Burley pattern merge into exactly the whole)",
         default=0, min=0, max=1 << 24)
+    sampling_pattern: EnumProperty(
+        name="Pattern", description="How the first bounce's random numbers are laid out over the pixels "
+                                    "(Cycles' Sampling Pattern)",
+        items=(("AUTOMATIC", "Automatic",
+                "One Owen-scrambled Sobol sequence shared by the pixels, so that neighbouring pixels' noise is "
+                "blue noise, which denoises best (Cycles' default for final renders); a sequence per pixel "
+                "where the layout does not fit (sample ranges, unlimited samples)"),
+               ("SOBOL_BURLEY", "Sobol-Burley",
+                "An Owen-scrambled Sobol sequence of each pixel's own: sample ranges rendered apart then merge "
+                "into exactly the whole")),
+        default="AUTOMATIC")
     seed: IntProperty(
         name="Seed", description="Seed of the random numbers: another seed gives another noise pattern",
         default=0, min=0)

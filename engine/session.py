@@ -73,6 +73,7 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         mode=ember.sampling_mode,
         seed=seed_for_frame(ember, scene.frame_current),
         sample_offset=int(ember.sample_offset),
+        sampling_pattern=ember.sampling_pattern,
         time_limit_s=float(ember.time_limit if time_limit is None else time_limit),
         region=region,
         transparent_background=bool(scene.render.film_transparent),

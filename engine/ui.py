@@ -71,6 +71,7 @@ class EMBER_RENDER_PT_sampling(EmberPanel, bpy.types.Panel):
         col.prop(ember, "seed")
         col.prop(ember, "sample_offset")
         col.prop(ember, "use_animated_seed")
+        layout.prop(ember, "sampling_pattern")
 
 
 class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):

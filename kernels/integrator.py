@@ -35,7 +35,7 @@ from .lights import LightSampler
 from .memory import small_pages, trim_heap
 from .paths import PathState
 from .rng import PathRng, seed_paths
-from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples
+from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, SAMPLING_PATTERNS, TIME, Samples, sample_strata
 from .camera import camera_frame
 from .scene import (OBJ_PASS_INDEX, Camera, Lights, Materials, SceneArrays, World, same_arrays, same_triangles,
                     usable_placements)
@@ -115,6 +115,11 @@ class RenderSettings:
     # A sample range of the frame (Cycles' Sample Offset): samples sample_offset .. sample_offset + samples - 1
     # of each pixel's sequence, so that ranges rendered apart and merged by sample count make the whole.
     sample_offset: int = 0
+    # How the first vertex's numbers are laid out (kernels.samples.sample_strata, Cycles' Sampling Pattern):
+    # "AUTOMATIC", one Owen-scrambled Sobol sequence shared by the pixels so that neighbours' errors are blue
+    # noise, as Cycles' final renders; "SOBOL_BURLEY", a sequence of each pixel's own, which sample ranges
+    # of one frame need to merge into exactly the whole (the blue-noise layout depends on the sample count).
+    sampling_pattern: str = "AUTOMATIC"
     # A first pass of one sample per pixel, for a quick first image (the interface and the viewport); a
     # render nobody watches (background mode) starts with full passes, which keep every core busy at once.
     quick_first_pass: bool = True
@@ -127,6 +132,8 @@ class RenderSettings:
             raise ValueError(f"mode: must be one of {SAMPLING_MODES}, got {self.mode!r}")
         if int(self.samples) < 1:
             raise ValueError(f"samples: must be at least 1, got {self.samples}")
+        if self.sampling_pattern not in SAMPLING_PATTERNS:
+            raise ValueError(f"sampling_pattern: must be one of {SAMPLING_PATTERNS}, got {self.sampling_pattern!r}")
         if int(self.sample_offset) < 0:
             raise ValueError(f"sample_offset: must be non-negative, got {self.sample_offset}")
         unknown = [p for p in self.passes if not passes.known(p)]
@@ -692,8 +699,11 @@ class Renderer:
             for kind in settings.cryptomatte:
                 aux["crypto_" + kind] = np.zeros((1, len(pix)), np.float32)
             aux["crypto_weight"] = np.zeros((1, len(pix)), np.float32)
+        strata = sample_strata(settings.sampling_pattern, settings.seed, cam.width, cam.height,
+                               int(settings.sample_offset) + int(settings.samples), row, col, pixel_index, sample,
+                               ranged=int(settings.sample_offset) > 0)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
-            radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=(pixel_index, sample),
+            radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=strata,
                                                aux=aux)
         bad = ~np.isfinite(radiance).all(axis=0)
         n_bad = int(np.count_nonzero(bad))
@@ -743,9 +753,9 @@ class Renderer:
                     split: bool = True, strata=None, aux: dict | None = None):
         """Trace one path per (row, col) entry. Returns radiance (3, N) float32 and alpha (N,) float32.
 
-        strata = (pixel_index, sample_index) per path: in NEE_MIS mode the camera jitter and the first
-        vertex's light and BSDF numbers then come from each pixel's stratified sequence (the rest of
-        the path, and the LECTURE and COSINE modes, use the PCG2D stream alone)."""
+        strata = (pixel, sample, index) per path (samples.sample_strata): in NEE_MIS mode the camera
+        jitter and the first vertex's light and BSDF numbers then come from the stratified sequence (the
+        rest of the path, and the LECTURE and COSINE modes, use the PCG2D stream alone)."""
         n = len(row)
         radiance = np.zeros((3, n), np.float32)
         alpha = np.ones(n, np.float32)

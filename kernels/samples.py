@@ -10,9 +10,9 @@ Every decision owns a 2D dimension, named here once:
     BSDF          the direction sampled from the chosen lobe
     LOBE          (lobe selection, spare)
 
-The first vertex of an NEE_MIS path takes its numbers from the pixel's stratified sequence, one
-sequence per dimension (rng.stratified_2d with the dimension's id), so that numbers of one dimension
-are independent of the others whatever is added. Deeper vertices draw the dimensions of their mode's
+The first vertex of an NEE_MIS path takes its numbers from the pixel's stratified sequence (Owen-scrambled
+Sobol), one sequence per dimension (rng.stratified_2d with the dimension's id), so that numbers of one
+dimension are independent of the others whatever is added. Deeper vertices draw the dimensions of their mode's
 block from the path's PCG2D stream, always the whole block in the order below, so a decision's numbers
 never depend on which decisions were taken before. LECTURE and COSINE draw only BSDF (and LOBE where materials
 mix lobes): on diffuse scenes one PCG2D pair per bounce, the lecture's estimator exactly.
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rng import PathRng, reverse_bits, stratified_2d
+from .rng import PathRng, blue_noise_offsets, reverse_bits, stratified_2d
 
 CAMERA, LIGHT, LIGHT_POINT, BSDF, LOBE, LENS, TIME = 0, 1, 2, 3, 4, 5, 6
 HALF = np.float32(0.5)
@@ -30,13 +30,37 @@ HALF = np.float32(0.5)
 NEE_BLOCK = (LIGHT, LIGHT_POINT, BSDF)
 PLAIN_BLOCK = (BSDF,)
 STRATIFIED = (LIGHT, LIGHT_POINT, BSDF, LOBE)
+SAMPLING_PATTERNS = ("AUTOMATIC", "SOBOL_BURLEY")
+
+
+def sample_strata(pattern: str, seed: int, width: int, height: int, length: int, row: np.ndarray,
+                  col: np.ndarray, pixel_index: np.ndarray, sample: np.ndarray, ranged: bool = False):
+    """(pixel, sample, index) per path, what Samples reads the first vertex's numbers with: sample
+    `index` of the pixel's Owen-scrambled Sobol sequence, scrambled by `pixel` (rng.stratified_2d).
+
+    SOBOL_BURLEY (Cycles' Sobol-Burley): each pixel its own sequence (scrambled by its pixel index), read
+    at the sample number. AUTOMATIC (Cycles' default for final renders, its Blue-Noise pattern,
+    kernel/sample/pattern.h): one sequence for all pixels (scrambled alike), of which each pixel reads
+    `length` samples (the render's count) from its own place, blue_noise_offsets. Each aligned 2^k x 2^k
+    square of pixels then reads one aligned block of the sequence, so the samples of neighbouring pixels
+    are stratified together and their errors are blue noise (what a denoiser removes best); each pixel's
+    own samples are as well stratified as before. The places must fit the sequence's 2^32 numbers: where
+    the image's Morton square times length does not (an unlimited viewport, a huge frame at many samples),
+    and for a range of a frame's samples (ranged: the whole frame's count is not known here), AUTOMATIC
+    falls back to SOBOL_BURLEY."""
+    side = 1 << max(int(width - 1).bit_length(), int(height - 1).bit_length())
+    if pattern == "SOBOL_BURLEY" or ranged or side * side * int(length) > (1 << 32):
+        return pixel_index, sample, sample
+    places = blue_noise_offsets(col, row, seed)
+    return np.zeros_like(pixel_index), sample, places * np.uint32(length) + sample
 
 
 class Samples:
     """The random numbers of a wave's live paths, by dimension name.
 
     rng : PathRng, the per-path PCG2D stream (seeded per pixel and pass).
-    strata : (pixel_index, sample_index) per path, or None: the first vertex then draws from rng too.
+    strata : (pixel, sample, index) per path (sample_strata), or None: the first vertex then draws from
+        rng too.
     """
 
     def __init__(self, rng: PathRng, strata, seed: int, nee: bool, lobes: bool = False):
@@ -50,11 +74,11 @@ class Samples:
         """The pixel jitter of every path (drawn before any other dimension)."""
         if self._strata is None:
             return self.rng.next_2d()
-        pixel, sample = self._strata
-        reversed_index = reverse_bits(sample)  # the same for every dimension
-        self._first = {d: stratified_2d(pixel, sample, self._seed, d, reversed_index)
+        pixel, sample, index = self._strata
+        reversed_index = reverse_bits(index)  # the same for every dimension
+        self._first = {d: stratified_2d(pixel, index, self._seed, d, reversed_index)
                        for d in STRATIFIED if d in self.block}
-        jx, jy = stratified_2d(pixel, sample, self._seed, CAMERA, reversed_index)
+        jx, jy = stratified_2d(pixel, index, self._seed, CAMERA, reversed_index)
         # Sample 0 of every pixel looks through its centre, as Cycles' does (init_from_camera.h): a first
         # sample without jitter, and the same expected image as Cycles' at every sample count.
         first = sample == 0
@@ -67,7 +91,8 @@ class Samples:
         them, so that a camera without depth of field or motion blur renders as before, bit for bit."""
         if self._strata is None:
             return self.rng.next_2d()
-        return stratified_2d(*self._strata, self._seed, dimension)
+        pixel, _, index = self._strata
+        return stratified_2d(pixel, index, self._seed, dimension)
 
     def bounce(self, depth: int) -> dict:
         """{dimension: (u, v)} for this vertex of every live path."""

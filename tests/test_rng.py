@@ -101,8 +101,8 @@ def test_stratified_sequence_is_uniform_across_pixels_and_even_within_a_pixel():
 
 
 def test_index_scramble_keeps_power_of_two_blocks_together():
-    """The first 2^k scrambled indices are 2^k distinct indices of one aligned block: for the R2
-    sequence any such block is the first one rotated, so each prefix stays evenly spread."""
+    """The first 2^k scrambled indices are 2^k distinct indices of one aligned block: for the Sobol
+    sequence any such block is a (0, k, 2)-net, so each prefix stays evenly spread."""
     from ember.kernels.rng import nested_uniform_scramble, reverse_bits
     assert reverse_bits(np.uint32([1]))[0] == 2 ** 31 and reverse_bits(np.uint32([6]))[0] == 0x60000000
     for seed in (1, 12345, 0xDEADBEEF):
@@ -121,7 +121,7 @@ def test_sample_zero_looks_through_the_pixel_centre():
     from ember.kernels.samples import Samples
     pixel = np.arange(8, dtype=np.uint32)
     index = np.array([0, 1, 0, 5, 0, 2, 3, 0], np.uint32)
-    jx, jy = Samples(PathRng(*seed_paths(pixel, 0, 0)), (pixel, index), 0, nee=True).camera()
+    jx, jy = Samples(PathRng(*seed_paths(pixel, 0, 0)), (pixel, index, index), 0, nee=True).camera()
     zero = index == 0
     assert jx.dtype == np.float32 and (jx[zero] == 0.5).all() and (jy[zero] == 0.5).all()
     assert (jx[~zero] != 0.5).all() and (jy[~zero] != 0.5).all()
@@ -129,3 +129,92 @@ def test_sample_zero_looks_through_the_pixel_centre():
     expected = PathRng(*seed_paths(pixel, 0, 0)).next_2d()
     np.testing.assert_array_equal(plain[0], expected[0])
     np.testing.assert_array_equal(plain[1], expected[1])
+
+
+def _is_net(u: np.ndarray, v: np.ndarray, k: int) -> bool:
+    """Whether 2^k points put exactly one point in every box of every 2^a x 2^(k-a) grid of the square."""
+    for a in range(k + 1):
+        i = np.floor(np.asarray(u, np.float64) * 2 ** a).astype(int)
+        j = np.floor(np.asarray(v, np.float64) * 2 ** (k - a)).astype(int)
+        if len(np.unique(i * 2 ** (k - a) + j)) != 2 ** k:
+            return False
+    return True
+
+
+def test_each_pixels_first_power_of_two_samples_form_a_net():
+    """Sobol's first two dimensions, and every pixel's shuffled and Owen-scrambled sequence of a dimension
+    pair: each prefix of 2^k samples is a (0, k, 2)-net, the stratification of Cycles' Sobol patterns.
+    Independent random numbers almost never are (checked: seed 0's first 64)."""
+    from ember.kernels.rng import sobol_2d, stratified_2d, to_unit_float
+    for k in (4, 6, 10):
+        x, y = sobol_2d(np.arange(2 ** k, dtype=np.uint32))
+        assert _is_net(to_unit_float(x), to_unit_float(y), k)
+        for pixel, dimension in ((0, 0), (12345, 2), (2 ** 31 + 7, 4)):
+            u, v = stratified_2d(np.full(2 ** k, pixel, np.uint32), np.arange(2 ** k, dtype=np.uint32), 3, dimension)
+            assert _is_net(u, v, k)
+    # Samples 64..127 too (an aligned block), and high indices through the second table.
+    u, v = stratified_2d(np.full(64, 99, np.uint32), np.arange(64, 128, dtype=np.uint32), 0, 1)
+    assert _is_net(u, v, 6)
+    x, y = sobol_2d(np.arange(2 ** 20, 2 ** 20 + 256, dtype=np.uint32))
+    assert _is_net(to_unit_float(x), to_unit_float(y), 8)
+    rng = np.random.default_rng(0)
+    assert not _is_net(rng.random(64), rng.random(64), 6)
+
+
+def _strata_points(pattern, width, height, length, seed=7, ranged=False):
+    """The CAMERA numbers of every sample of a width x height image laid out by samples.sample_strata:
+    (u, v) arrays of shape (height, width, length)."""
+    from ember.kernels.rng import stratified_2d
+    from ember.kernels.samples import CAMERA, sample_strata
+    row, col = np.divmod(np.repeat(np.arange(width * height), length), width)
+    sample = np.tile(np.arange(length, dtype=np.uint32), width * height)
+    pixel_index = (row * width + col).astype(np.uint32)
+    pixel, _, index = sample_strata(pattern, seed, width, height, length, row.astype(np.int32),
+                                    col.astype(np.int32), pixel_index, sample, ranged=ranged)
+    u, v = stratified_2d(pixel, index, seed, CAMERA)
+    return u.reshape(height, width, length), v.reshape(height, width, length)
+
+
+def test_blue_noise_layout_stratifies_neighbouring_pixels_together():
+    """AUTOMATIC (Cycles' blue-noise pattern): every pixel's samples are still a (0, m, 2)-net, and the
+    samples of each aligned 2x2 and 4x4 square of pixels together are one too (4 and 16 times finer), which
+    is what makes neighbours' errors blue noise. SOBOL_BURLEY's independent pixels almost never are (a
+    square's union is a net by chance with probability far below 1e-6 at these sizes)."""
+    m, width, height = 4, 12, 8          # 16 samples; an image whose sides are not powers of two
+    u, v = _strata_points("AUTOMATIC", width, height, 2 ** m)
+    for y in range(height):
+        for x in range(width):
+            assert _is_net(u[y, x], v[y, x], m)
+    for size, k in ((2, m + 2), (4, m + 4)):
+        for y in range(0, height - size + 1, size):
+            for x in range(0, width - size + 1, size):
+                assert _is_net(u[y:y + size, x:x + size].ravel(), v[y:y + size, x:x + size].ravel(), k), (x, y)
+    # The places are distinct: no two pixels read the same samples.
+    pixels = np.stack([u, v], -1).reshape(width * height, -1)
+    assert len(np.unique(pixels, axis=0)) == width * height
+    su, sv = _strata_points("SOBOL_BURLEY", width, height, 2 ** m)
+    for y in range(height):
+        for x in range(width):
+            assert _is_net(su[y, x], sv[y, x], m)
+    squares = [_is_net(su[y:y + 2, x:x + 2].ravel(), sv[y:y + 2, x:x + 2].ravel(), m + 2)
+               for y in range(0, height, 2) for x in range(0, width, 2)]
+    assert not any(squares)
+
+
+def test_blue_noise_layout_falls_back_to_a_sequence_per_pixel():
+    """Where the pixels' places times the sample count overflow the sequence's 2^32 numbers, and for a
+    range of a frame's samples, AUTOMATIC lays the samples out as SOBOL_BURLEY does, number for number."""
+    from ember.kernels.samples import sample_strata
+    row, col = np.zeros(4, np.int32), np.arange(4, dtype=np.int32)
+    sample = np.arange(4, dtype=np.uint32)
+    pixel_index = col.astype(np.uint32)
+    own = sample_strata("SOBOL_BURLEY", 1, 4096, 4096, 1 << 8, row, col, pixel_index, sample)
+    for args, ranged in (((4096, 4096, 1 << 8), False),      # 2^24 places x 2^8 samples: fits
+                         ((4096, 4096, (1 << 8) + 1), False),  # one sample more: does not
+                         ((64, 64, 16), True)):
+        got = sample_strata("AUTOMATIC", 1, *args, row, col, pixel_index, sample, ranged=ranged)
+        fits = args[0] * args[1] * args[2] <= (1 << 32) and not ranged
+        assert (got[0] is not pixel_index) == fits
+        if not fits:
+            for a, b in zip(got, own):
+                np.testing.assert_array_equal(a, b)
