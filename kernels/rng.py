@@ -101,8 +101,6 @@ for _ in range(31):
     _SOBOL_V.append(np.uint32(_SOBOL_V[-1] ^ (_SOBOL_V[-1] >> np.uint32(1))))
 _SOBOL_V = np.array(_SOBOL_V, np.uint32)
 _SOBOL_Y_LO, _SOBOL_Y_HI = _sobol_y_table(_SOBOL_V[:16]), _sobol_y_table(_SOBOL_V[16:])
-# The same tables bit-reversed (reversal is linear over xor): what the Owen scramble of y starts from.
-_SOBOL_RY_LO, _SOBOL_RY_HI = reverse_bits(_SOBOL_Y_LO), reverse_bits(_SOBOL_Y_HI)
 
 
 def sobol_2d(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -112,6 +110,22 @@ def sobol_2d(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     index = np.asarray(index, np.uint32)
     y = np.take(_SOBOL_Y_LO, index & np.uint32(0xFFFF)) ^ np.take(_SOBOL_Y_HI, index >> np.uint32(16))
     return reverse_bits(index), y
+
+
+_SUPERSET_STEPS = tuple((np.uint32(1 << b), np.uint32(m))
+                        for b, m in enumerate((0x55555555, 0x33333333, 0x0F0F0F0F, 0x00FF00FF, 0x0000FFFF)))
+
+
+def sobol_y_reversed(index: np.ndarray) -> np.ndarray:
+    """reverse_bits of the second Sobol dimension at uint32 indices, without tables: its generator matrix
+    is Pascal's triangle mod 2, whose entry (i, j) is 1 where the bits of i are a subset of those of j
+    (Lucas), so bit i of the result is the xor of the index's bits j over the supersets j of i: five
+    shift-and-xor steps, one per bit of the position. Equal to reverse_bits(sobol_2d(index)[1]) (tested),
+    four times faster than that table's two gathers."""
+    x = np.asarray(index, np.uint32)
+    for shift, mask in _SUPERSET_STEPS:
+        x = x ^ ((x >> shift) & mask)
+    return x
 
 
 def _laine_karras(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
@@ -187,7 +201,10 @@ def stratified_2d(pixel_index: np.ndarray, sample_index: np.ndarray, user_seed: 
 
     Computed with three bit reversals instead of seven, the same numbers: Sobol's x is the reversed
     index, so the shuffle's last reversal and x's cancel, and so do x's and its scramble's first; y's
-    scramble starts from the reversed table.
+    scramble starts from its reversed value (sobol_y_reversed).
+
+    pixel_index may be a single value that every path shares (the blue-noise layout: samples.sample_strata),
+    whose scrambles are then computed once.
     """
     pixel_index = np.asarray(pixel_index, np.uint32)
     salt = np.uint32((dimension * int(_DIMENSION_SALT)) & 0xFFFFFFFF)
@@ -197,7 +214,7 @@ def stratified_2d(pixel_index: np.ndarray, sample_index: np.ndarray, user_seed: 
         reversed_index = reverse_bits(np.asarray(sample_index, np.uint32))
     x_sobol = _laine_karras(reversed_index, rx ^ (ry >> np.uint32(3)))   # = reverse(shuffled index)
     s = reverse_bits(x_sobol)                                            # the shuffled index
-    reversed_y = np.take(_SOBOL_RY_LO, s & np.uint32(0xFFFF)) ^ np.take(_SOBOL_RY_HI, s >> np.uint32(16))
+    reversed_y = sobol_y_reversed(s)
     sx, sy = pcg2d(rx, ry)
     return (to_unit_float(reverse_bits(_laine_karras(s, sx))),
             to_unit_float(reverse_bits(_laine_karras(reversed_y, sy))))

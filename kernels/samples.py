@@ -36,7 +36,8 @@ SAMPLING_PATTERNS = ("AUTOMATIC", "SOBOL_BURLEY")
 def sample_strata(pattern: str, seed: int, width: int, height: int, length: int, row: np.ndarray,
                   col: np.ndarray, pixel_index: np.ndarray, sample: np.ndarray, ranged: bool = False):
     """(pixel, sample, index) per path, what Samples reads the first vertex's numbers with: sample
-    `index` of the pixel's Owen-scrambled Sobol sequence, scrambled by `pixel` (rng.stratified_2d).
+    `index` of the Owen-scrambled Sobol sequence scrambled by `pixel` (rng.stratified_2d; one value for all
+    paths where they share the sequence).
 
     SOBOL_BURLEY (Cycles' Sobol-Burley): each pixel its own sequence (scrambled by its pixel index), read
     at the sample number. AUTOMATIC (Cycles' default for final renders, its Blue-Noise pattern,
@@ -52,7 +53,7 @@ def sample_strata(pattern: str, seed: int, width: int, height: int, length: int,
     if pattern == "SOBOL_BURLEY" or ranged or side * side * int(length) > (1 << 32):
         return pixel_index, sample, sample
     places = blue_noise_offsets(col, row, seed)
-    return np.zeros_like(pixel_index), sample, places * np.uint32(length) + sample
+    return np.zeros(1, np.uint32), sample, places * np.uint32(length) + sample
 
 
 class Samples:

@@ -161,6 +161,14 @@ def test_each_pixels_first_power_of_two_samples_form_a_net():
     assert not _is_net(rng.random(64), rng.random(64), 6)
 
 
+def test_sobol_second_dimension_without_tables():
+    """sobol_y_reversed (Pascal's triangle mod 2 by shifts) is the table's value, reversed, bit for bit."""
+    from ember.kernels.rng import reverse_bits, sobol_2d, sobol_y_reversed
+    index = np.concatenate([np.arange(1 << 16, dtype=np.uint32),
+                            np.random.default_rng(3).integers(0, 1 << 32, 1 << 16, dtype=np.uint64).astype(np.uint32)])
+    np.testing.assert_array_equal(sobol_y_reversed(index), reverse_bits(sobol_2d(index)[1]))
+
+
 def _strata_points(pattern, width, height, length, seed=7, ranged=False):
     """The CAMERA numbers of every sample of a width x height image laid out by samples.sample_strata:
     (u, v) arrays of shape (height, width, length)."""
