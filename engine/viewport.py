@@ -479,6 +479,8 @@ def viewport_settings(scene) -> RenderSettings:
     denoiser's passes when previews are denoised)."""
     samples = int(scene.ember.preview_samples) or UNLIMITED_SAMPLES
     settings = render_settings(scene, None, samples=samples, time_limit=0.0)
+    # Cycles' interactive pattern: the first sample blue noise on its own (the first image after every change).
+    settings = dataclasses.replace(settings, blue_noise_first=True)
     if viewport_denoise(scene) is not None:
         inputs = scene.ember.denoising_input_passes
         names = ("denoising_albedo",) if inputs == "RGB_ALBEDO" else \

@@ -120,6 +120,9 @@ class RenderSettings:
     # noise, as Cycles' final renders; "SOBOL_BURLEY", a sequence of each pixel's own, which sample ranges
     # of one frame need to merge into exactly the whole (the blue-noise layout depends on the sample count).
     sampling_pattern: str = "AUTOMATIC"
+    # With AUTOMATIC, sample 0 of every pixel from a one-sample blue-noise sequence of its own, so that the
+    # first image is blue noise by itself (Cycles' pattern for interactive renders: the viewport's).
+    blue_noise_first: bool = False
     # A first pass of one sample per pixel, for a quick first image (the interface and the viewport); a
     # render nobody watches (background mode) starts with full passes, which keep every core busy at once.
     quick_first_pass: bool = True
@@ -701,7 +704,7 @@ class Renderer:
             aux["crypto_weight"] = np.zeros((1, len(pix)), np.float32)
         strata = sample_strata(settings.sampling_pattern, settings.seed, cam.width, cam.height,
                                int(settings.sample_offset) + int(settings.samples), row, col, pixel_index, sample,
-                               ranged=int(settings.sample_offset) > 0)
+                               ranged=int(settings.sample_offset) > 0, first=bool(settings.blue_noise_first))
         with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
             radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=strata,
                                                aux=aux)

@@ -33,8 +33,14 @@ STRATIFIED = (LIGHT, LIGHT_POINT, BSDF, LOBE)
 SAMPLING_PATTERNS = ("AUTOMATIC", "SOBOL_BURLEY")
 
 
+# The scramble keys of the shared sequences (rng.stratified_2d's pixel argument): the blue-noise layout's, and
+# the viewport's one-sample sequence's (a key no pixel index reaches in an image of under 2^32 - 1 pixels).
+SHARED_KEY, FIRST_SAMPLE_KEY = np.uint32(0), np.uint32(0xFFFFFFFF)
+
+
 def sample_strata(pattern: str, seed: int, width: int, height: int, length: int, row: np.ndarray,
-                  col: np.ndarray, pixel_index: np.ndarray, sample: np.ndarray, ranged: bool = False):
+                  col: np.ndarray, pixel_index: np.ndarray, sample: np.ndarray, ranged: bool = False,
+                  first: bool = False):
     """(pixel, sample, index) per path, what Samples reads the first vertex's numbers with: sample
     `index` of the Owen-scrambled Sobol sequence scrambled by `pixel` (rng.stratified_2d; one value for all
     paths where they share the sequence).
@@ -48,12 +54,31 @@ def sample_strata(pattern: str, seed: int, width: int, height: int, length: int,
     own samples are as well stratified as before. The places must fit the sequence's 2^32 numbers: where
     the image's Morton square times length does not (an unlimited viewport, a huge frame at many samples),
     and for a range of a frame's samples (ranged: the whole frame's count is not known here), AUTOMATIC
-    falls back to SOBOL_BURLEY."""
+    falls back to SOBOL_BURLEY.
+
+    first (the viewport, as Cycles' interactive renders: its Blue-Noise First pattern): sample 0 of every
+    pixel comes from a one-sample sequence of its own, laid out as above, so that the first image is blue
+    noise on its own; the other samples are laid out as above for length - 1 samples."""
     side = 1 << max(int(width - 1).bit_length(), int(height - 1).bit_length())
-    if pattern == "SOBOL_BURLEY" or ranged or side * side * int(length) > (1 << 32):
+    if pattern == "SOBOL_BURLEY" or ranged:
         return pixel_index, sample, sample
-    places = blue_noise_offsets(col, row, seed)
-    return np.zeros(1, np.uint32), sample, places * np.uint32(length) + sample
+    places = None
+    if first:
+        length -= 1
+    if side * side * int(length) <= (1 << 32) and length > 0:
+        places = blue_noise_offsets(col, row, seed)
+        key, index = np.full(1, SHARED_KEY), places * np.uint32(length) + (sample - np.uint32(first))
+    else:
+        key, index = pixel_index, sample
+    if not first:
+        return key, sample, index
+    zero = sample == 0
+    if not zero.any():
+        return key, sample, index
+    if places is None:
+        places = blue_noise_offsets(col, row, seed)
+    return (np.where(zero, FIRST_SAMPLE_KEY, np.broadcast_to(key, zero.shape)).astype(np.uint32), sample,
+            np.where(zero, places, index).astype(np.uint32))
 
 
 class Samples:

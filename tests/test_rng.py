@@ -169,17 +169,17 @@ def test_sobol_second_dimension_without_tables():
     np.testing.assert_array_equal(sobol_y_reversed(index), reverse_bits(sobol_2d(index)[1]))
 
 
-def _strata_points(pattern, width, height, length, seed=7, ranged=False):
-    """The CAMERA numbers of every sample of a width x height image laid out by samples.sample_strata:
-    (u, v) arrays of shape (height, width, length)."""
+def _strata_points(pattern, width, height, length, seed=7, ranged=False, first=False, dimension=None):
+    """The numbers of one dimension (CAMERA unless given) of every sample of a width x height image laid out
+    by samples.sample_strata: (u, v) arrays of shape (height, width, length)."""
     from ember.kernels.rng import stratified_2d
     from ember.kernels.samples import CAMERA, sample_strata
     row, col = np.divmod(np.repeat(np.arange(width * height), length), width)
     sample = np.tile(np.arange(length, dtype=np.uint32), width * height)
     pixel_index = (row * width + col).astype(np.uint32)
     pixel, _, index = sample_strata(pattern, seed, width, height, length, row.astype(np.int32),
-                                    col.astype(np.int32), pixel_index, sample, ranged=ranged)
-    u, v = stratified_2d(pixel, index, seed, CAMERA)
+                                    col.astype(np.int32), pixel_index, sample, ranged=ranged, first=first)
+    u, v = stratified_2d(pixel, index, seed, CAMERA if dimension is None else dimension)
     return u.reshape(height, width, length), v.reshape(height, width, length)
 
 
@@ -226,3 +226,23 @@ def test_blue_noise_layout_falls_back_to_a_sequence_per_pixel():
         if not fits:
             for a, b in zip(got, own):
                 np.testing.assert_array_equal(a, b)
+
+
+def test_the_viewports_first_sample_is_blue_noise_on_its_own():
+    """first (the viewport's pattern, Cycles' Blue-Noise First): sample 0 of the pixels of every aligned 2x2
+    and 4x4 square together is a (0, 2, 2)- and (0, 4, 2)-net, so the first image's noise is blue on its own;
+    samples 1..16 of each pixel are still a (0, 4, 2)-net; without it, the first samples of a square are
+    not (they are the first of 17-sample segments)."""
+    from ember.kernels.samples import LIGHT
+    width, height = 8, 8
+    u, v = _strata_points("AUTOMATIC", width, height, 17, first=True, dimension=LIGHT)
+    for size, k in ((2, 2), (4, 4)):
+        for y in range(0, height, size):
+            for x in range(0, width, size):
+                assert _is_net(u[y:y + size, x:x + size, 0].ravel(), v[y:y + size, x:x + size, 0].ravel(), k)
+    for y in range(height):
+        for x in range(width):
+            assert _is_net(u[y, x, 1:], v[y, x, 1:], 4)
+    pu, pv = _strata_points("AUTOMATIC", width, height, 17, dimension=LIGHT)
+    assert not all(_is_net(pu[y:y + 2, x:x + 2, 0].ravel(), pv[y:y + 2, x:x + 2, 0].ravel(), 2)
+                   for y in range(0, height, 2) for x in range(0, width, 2))

@@ -17,6 +17,7 @@ import pytest
 from bpy_helpers import diffuse_material, mesh_object, new_scene, set_world
 from ember.engine import viewport as vp
 from ember.engine.render_engine import EmberRenderEngine
+from ember.engine.session import render_settings
 from ember.engine.export.camera import camera_zoom_factor, region_camera, stand_in_camera, view_camera
 from ember.engine.viewport import (HALF_MAX, UNLIMITED_SAMPLES, ViewportRender, ViewportSession, display_pixels,
                                    gpu_pixels)
@@ -616,6 +617,10 @@ def test_viewport_settings_follow_scene_ember():
     assert settings.mode == scene.ember.sampling_mode and settings.time_limit_s == 0.0
     scene.ember.preview_samples = 16
     assert vp.viewport_settings(scene).samples == 16
+    # Cycles' interactive pattern (Blue-Noise First) in the viewport; F12 keeps the final renders' one.
+    scene.ember.sampling_pattern = "SOBOL_BURLEY"
+    assert vp.viewport_settings(scene).sampling_pattern == "SOBOL_BURLEY"
+    assert vp.viewport_settings(scene).blue_noise_first and not render_settings(scene, None).blue_noise_first
     assert vp.film_size(1574, 954, 2) == (787, 477) and vp.film_size(3, 3, 16) == (1, 1)
 
 
