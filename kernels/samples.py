@@ -12,10 +12,10 @@ Every decision owns a 2D dimension, named here once:
 
 The first vertex of an NEE_MIS path takes its numbers from a stratified sequence (Owen-scrambled Sobol, laid
 out over the pixels by sample_strata), one sequence per dimension (rng.stratified_2d with the dimension's id),
-so that numbers of one dimension are independent of the others whatever is added. Deeper vertices draw the dimensions of their mode's
-block from the path's PCG2D stream, always the whole block in the order below, so a decision's numbers
-never depend on which decisions were taken before. LECTURE and COSINE draw only BSDF (and LOBE where materials
-mix lobes): on diffuse scenes one PCG2D pair per bounce, the lecture's estimator exactly.
+so that numbers of one dimension are independent of the others whatever is added. Deeper vertices draw the
+dimensions of their mode's block from the path's PCG2D stream, always the whole block in the order below, so a
+decision's numbers never depend on which decisions were taken before. LECTURE and COSINE draw only BSDF (and
+LOBE where materials mix lobes): on diffuse scenes one PCG2D pair per bounce, the lecture's estimator exactly.
 """
 from __future__ import annotations
 
