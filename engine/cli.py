@@ -155,6 +155,9 @@ def check_options(args) -> None:
     within("--threads", args.threads, 0, 1024)
     within("--split-samples", args.split_samples, 1, 1 << 24)
     within("--workers", args.workers, 1, 4096)
+    if args.pattern == "automatic" and (args.sample_offset is not None or (args.split_samples or 1) > 1):
+        raise UsageError("--pattern automatic cannot render sample ranges (--sample-offset, --split-samples): its "
+                         "layout depends on the whole frame's sample count; ranges use sobol-burley")
     if args.time_limit is not None and not (0 <= args.time_limit < float("inf")):
         raise UsageError(f"--time-limit must be 0 (none) or a positive number of seconds, got {args.time_limit:g}")
 

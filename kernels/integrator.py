@@ -704,7 +704,8 @@ class Renderer:
             aux["crypto_weight"] = np.zeros((1, len(pix)), np.float32)
         strata = sample_strata(settings.sampling_pattern, settings.seed, cam.width, cam.height,
                                int(settings.sample_offset) + int(settings.samples), row, col, pixel_index, sample,
-                               ranged=int(settings.sample_offset) > 0, first=bool(settings.blue_noise_first))
+                               ranged=int(settings.sample_offset) > 0, first=bool(settings.blue_noise_first),
+                               repeats=spp)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
             radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=strata,
                                                aux=aux)

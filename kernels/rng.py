@@ -70,15 +70,6 @@ class PathRng:
 _DIMENSION_SALT = np.uint32(0x68E31DA4)
 
 
-def _sobol_y_table(bits: np.ndarray) -> np.ndarray:
-    """The second Sobol dimension (primitive polynomial x + 1: direction numbers v_0 = 2^31,
-    v_k = v_(k-1) xor v_(k-1) / 2) for every 16-bit index, built from the given 16 direction numbers."""
-    table = np.zeros(1 << 16, np.uint32)
-    for k in range(16):
-        table[1 << k: 2 << k] = table[: 1 << k] ^ bits[k]
-    return table
-
-
 _BIT_MASKS = tuple((np.uint32(s), np.uint32(m)) for s, m in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F)))
 
 
@@ -96,22 +87,6 @@ def reverse_bits(x: np.ndarray) -> np.ndarray:
     return x
 
 
-_SOBOL_V = [np.uint32(1 << 31)]
-for _ in range(31):
-    _SOBOL_V.append(np.uint32(_SOBOL_V[-1] ^ (_SOBOL_V[-1] >> np.uint32(1))))
-_SOBOL_V = np.array(_SOBOL_V, np.uint32)
-_SOBOL_Y_LO, _SOBOL_Y_HI = _sobol_y_table(_SOBOL_V[:16]), _sobol_y_table(_SOBOL_V[16:])
-
-
-def sobol_2d(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The first two dimensions of the Sobol sequence at uint32 indices, as uint32 fixed point: the
-    van der Corput sequence (bit reversal) and the second dimension (two 16-bit table lookups). Every
-    aligned block of 2^k points is a (0, k, 2)-net: one point in each of the 2^k boxes of any shape."""
-    index = np.asarray(index, np.uint32)
-    y = np.take(_SOBOL_Y_LO, index & np.uint32(0xFFFF)) ^ np.take(_SOBOL_Y_HI, index >> np.uint32(16))
-    return reverse_bits(index), y
-
-
 _SUPERSET_STEPS = tuple((np.uint32(1 << b), np.uint32(m))
                         for b, m in enumerate((0x55555555, 0x33333333, 0x0F0F0F0F, 0x00FF00FF, 0x0000FFFF)))
 
@@ -120,8 +95,8 @@ def sobol_y_reversed(index: np.ndarray) -> np.ndarray:
     """reverse_bits of the second Sobol dimension at uint32 indices, without tables: its generator matrix
     is Pascal's triangle mod 2, whose entry (i, j) is 1 where the bits of i are a subset of those of j
     (Lucas), so bit i of the result is the xor of the index's bits j over the supersets j of i: five
-    shift-and-xor steps, one per bit of the position. Equal to reverse_bits(sobol_2d(index)[1]) (tested),
-    four times faster than that table's two gathers."""
+    shift-and-xor steps, one per bit of the position. Equal to the dimension built from its direction numbers
+    (tests/test_rng.py), four times faster than reading it from two 16-bit tables."""
     x = np.asarray(index, np.uint32)
     for shift, mask in _SUPERSET_STEPS:
         x = x ^ ((x >> shift) & mask)

@@ -40,7 +40,7 @@ SHARED_KEY, FIRST_SAMPLE_KEY = np.uint32(0), np.uint32(0xFFFFFFFF)
 
 def sample_strata(pattern: str, seed: int, width: int, height: int, length: int, row: np.ndarray,
                   col: np.ndarray, pixel_index: np.ndarray, sample: np.ndarray, ranged: bool = False,
-                  first: bool = False):
+                  first: bool = False, repeats: int = 1):
     """(pixel, sample, index) per path, what Samples reads the first vertex's numbers with: sample
     `index` of the Owen-scrambled Sobol sequence scrambled by `pixel` (rng.stratified_2d; one value for all
     paths where they share the sequence).
@@ -58,15 +58,23 @@ def sample_strata(pattern: str, seed: int, width: int, height: int, length: int,
 
     first (the viewport, as Cycles' interactive renders: its Blue-Noise First pattern): sample 0 of every
     pixel comes from a one-sample sequence of its own, laid out as above, so that the first image is blue
-    noise on its own; the other samples are laid out as above for length - 1 samples."""
+    noise on its own; the other samples are laid out as above for length - 1 samples.
+
+    repeats: each pixel's paths are that many consecutive entries (a wave's samples of a pixel), whose
+    place is then computed once."""
     side = 1 << max(int(width - 1).bit_length(), int(height - 1).bit_length())
     if pattern == "SOBOL_BURLEY" or ranged:
         return pixel_index, sample, sample
+    def pixel_places():
+        if repeats == 1:
+            return blue_noise_offsets(col, row, seed)
+        return np.repeat(blue_noise_offsets(col[::repeats], row[::repeats], seed), repeats)
+
     places = None
     if first:
         length -= 1
     if side * side * int(length) <= (1 << 32) and length > 0:
-        places = blue_noise_offsets(col, row, seed)
+        places = pixel_places()
         key, index = np.full(1, SHARED_KEY), places * np.uint32(length) + (sample - np.uint32(first))
     else:
         key, index = pixel_index, sample
@@ -76,7 +84,7 @@ def sample_strata(pattern: str, seed: int, width: int, height: int, length: int,
     if not zero.any():
         return key, sample, index
     if places is None:
-        places = blue_noise_offsets(col, row, seed)
+        places = pixel_places()
     return (np.where(zero, FIRST_SAMPLE_KEY, np.broadcast_to(key, zero.shape)).astype(np.uint32), sample,
             np.where(zero, places, index).astype(np.uint32))
 

@@ -128,4 +128,6 @@ def test_sample_ranges_merge_into_the_whole(tmp_path, blend_file):
     np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6)
     bad = ember("merge", first, str(tmp_path / "missing.exr"), "-o", merged)
     assert bad.returncode != 0 and "no such file" in bad.stderr
+    bad = ember("render", blend_file, "-o", merged, "--sample-offset", "8", "--samples", "8", "--pattern", "automatic")
+    assert bad.returncode != 0 and "cannot render sample ranges" in bad.stderr
 

@@ -131,6 +131,20 @@ def test_sample_zero_looks_through_the_pixel_centre():
     np.testing.assert_array_equal(plain[1], expected[1])
 
 
+def _sobol_2d(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The first two Sobol dimensions at uint32 indices, as uint32 fixed point, from their definition: the
+    van der Corput sequence (bit reversal), and the xor of the direction numbers v_k of the index's set bits
+    k, v_0 = 2^31, v_k = v_(k-1) xor v_(k-1) / 2 (primitive polynomial x + 1). The oracle the kernel's
+    table-free second dimension (rng.sobol_y_reversed) is checked against."""
+    from ember.kernels.rng import reverse_bits
+    index = np.asarray(index, np.uint32)
+    v, y = np.uint32(1 << 31), np.zeros_like(index)
+    for k in range(32):
+        y ^= np.where((index >> np.uint32(k)) & np.uint32(1), v, np.uint32(0))
+        v = v ^ (v >> np.uint32(1))
+    return reverse_bits(index), y
+
+
 def _is_net(u: np.ndarray, v: np.ndarray, k: int) -> bool:
     """Whether 2^k points put exactly one point in every box of every 2^a x 2^(k-a) grid of the square."""
     for a in range(k + 1):
@@ -145,9 +159,9 @@ def test_each_pixels_first_power_of_two_samples_form_a_net():
     """Sobol's first two dimensions, and every pixel's shuffled and Owen-scrambled sequence of a dimension
     pair: each prefix of 2^k samples is a (0, k, 2)-net, the stratification of Cycles' Sobol patterns.
     Independent random numbers almost never are (checked: seed 0's first 64)."""
-    from ember.kernels.rng import sobol_2d, stratified_2d, to_unit_float
+    from ember.kernels.rng import stratified_2d, to_unit_float
     for k in (4, 6, 10):
-        x, y = sobol_2d(np.arange(2 ** k, dtype=np.uint32))
+        x, y = _sobol_2d(np.arange(2 ** k, dtype=np.uint32))
         assert _is_net(to_unit_float(x), to_unit_float(y), k)
         for pixel, dimension in ((0, 0), (12345, 2), (2 ** 31 + 7, 4)):
             u, v = stratified_2d(np.full(2 ** k, pixel, np.uint32), np.arange(2 ** k, dtype=np.uint32), 3, dimension)
@@ -155,18 +169,19 @@ def test_each_pixels_first_power_of_two_samples_form_a_net():
     # Samples 64..127 too (an aligned block), and high indices through the second table.
     u, v = stratified_2d(np.full(64, 99, np.uint32), np.arange(64, 128, dtype=np.uint32), 0, 1)
     assert _is_net(u, v, 6)
-    x, y = sobol_2d(np.arange(2 ** 20, 2 ** 20 + 256, dtype=np.uint32))
+    x, y = _sobol_2d(np.arange(2 ** 20, 2 ** 20 + 256, dtype=np.uint32))
     assert _is_net(to_unit_float(x), to_unit_float(y), 8)
     rng = np.random.default_rng(0)
     assert not _is_net(rng.random(64), rng.random(64), 6)
 
 
 def test_sobol_second_dimension_without_tables():
-    """sobol_y_reversed (Pascal's triangle mod 2 by shifts) is the table's value, reversed, bit for bit."""
-    from ember.kernels.rng import reverse_bits, sobol_2d, sobol_y_reversed
+    """sobol_y_reversed (Pascal's triangle mod 2 by shifts) is the dimension from its direction numbers,
+    reversed, bit for bit."""
+    from ember.kernels.rng import reverse_bits, sobol_y_reversed
     index = np.concatenate([np.arange(1 << 16, dtype=np.uint32),
                             np.random.default_rng(3).integers(0, 1 << 32, 1 << 16, dtype=np.uint64).astype(np.uint32)])
-    np.testing.assert_array_equal(sobol_y_reversed(index), reverse_bits(sobol_2d(index)[1]))
+    np.testing.assert_array_equal(sobol_y_reversed(index), reverse_bits(_sobol_2d(index)[1]))
 
 
 def _strata_points(pattern, width, height, length, seed=7, ranged=False, first=False, dimension=None):
@@ -200,6 +215,17 @@ def test_blue_noise_layout_stratifies_neighbouring_pixels_together():
     # The places are distinct: no two pixels read the same samples.
     pixels = np.stack([u, v], -1).reshape(width * height, -1)
     assert len(np.unique(pixels, axis=0)) == width * height
+    # A wave's pixels laid out once each (repeats: their samples are consecutive paths), the same numbers.
+    from ember.kernels.samples import sample_strata
+    row, col = (a.astype(np.int32) for a in np.divmod(np.repeat(np.arange(width * height), 16), width))
+    sample = np.tile(np.arange(16, dtype=np.uint32), width * height)
+    pixel_index = (row * width + col).astype(np.uint32)
+    for first in (False, True):
+        once = sample_strata("AUTOMATIC", 7, width, height, 16, row, col, pixel_index, sample, first=first)
+        each = sample_strata("AUTOMATIC", 7, width, height, 16, row, col, pixel_index, sample, first=first,
+                             repeats=16)
+        for a, b in zip(once, each):
+            np.testing.assert_array_equal(a, b)
     su, sv = _strata_points("SOBOL_BURLEY", width, height, 2 ** m)
     for y in range(height):
         for x in range(width):
