@@ -356,6 +356,8 @@ class World:
         strength unused. It reads SceneArrays.textures.
     map_resolution : width of the equirectangular map the program is baked into for importance sampling
         (Cycles' world Map Resolution; the height is half of it).
+    mis_compensation : sample the world as a light only where it is brighter than its mean (environment.
+        Environment); False: in proportion to its radiance, as Cycles does (same image, more noise).
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None
@@ -364,6 +366,7 @@ class World:
     program: Program | None = None
     output: Ref | None = None
     map_resolution: int = 1024
+    mis_compensation: bool = True
 
     def validate(self) -> None:
         _check_array(self.color, "world.color", (3,), np.float32)

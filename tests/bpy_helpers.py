@@ -188,6 +188,20 @@ def load_exr(path: str) -> np.ndarray:
 REPLICATE_SEEDS = (11, 29, 47, 83)
 
 
+def plain_world_sampling(monkeypatch) -> None:
+    """Make Ember's renderers sample the world without MIS compensation (World.mis_compensation False), in
+    proportion to its radiance as Cycles does, for the rest of the test."""
+    import dataclasses
+
+    import ember.kernels.integrator as integrator
+    build = integrator.Renderer.__init__
+
+    def plain(self, arrays, *args, **kwargs):
+        build(self, dataclasses.replace(arrays, world=dataclasses.replace(arrays.world, mis_compensation=False)),
+              *args, **kwargs)
+    monkeypatch.setattr(integrator.Renderer, "__init__", plain)
+
+
 def replicate_render(scene, engine: str, samples: int, **kwargs):
     """Independent renders with different seeds splitting `samples` between them: their mean is the
     estimate, their spread its noise (len(REPLICATE_SEEDS) - 1 degrees of freedom per pixel).

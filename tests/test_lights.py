@@ -161,12 +161,17 @@ def test_emissive_triangles_are_sampled_by_solid_angle_within_their_longest_edge
         assert abs(e - closed) < 4 * se + 1e-4 * closed, (h, e, se, closed)
 
 
-def test_hdri_sampling_matches_its_pdf():
+@pytest.mark.parametrize("compensated", [True, False])
+def test_hdri_sampling_matches_its_pdf(compensated):
+    """Light samples of an HDRI, with MIS compensation (the default) or without: the pdf they come with is
+    the one escaped rays' MIS weights read (direction_pdf), their directions follow it, and it integrates
+    to one over the sphere."""
     rng = np.random.default_rng(4)
     hdri = (rng.random((32, 64, 3)) ** 8 * 50).astype(np.float32)   # spiky, like a sun in a sky
     hdri[20, 10] = 3000.0
     rot = np.float32([[0, -1, 0], [1, 0, 0], [0, 0, 1]]) @ TILTED.astype(np.float32)
-    env = Environment(World(hdri=hdri, strength=1.0, env_from_world=rot.astype(np.float32)))
+    env = Environment(World(hdri=hdri, strength=1.0, env_from_world=rot.astype(np.float32),
+                            mis_compensation=compensated))
     u1, u2, _ = uniforms()
     wx, wy, wz, pdf = env.sample_direction(u1, u2)
     # Equal up to float32 round trips that land a sample on the neighbouring cell (a few in 10^4).
