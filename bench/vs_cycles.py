@@ -3,7 +3,7 @@
 Both engines pay their whole pipeline (bpy.ops.render.render: Cycles' sync and BVH, Ember's export and
 Embree build). Cycles is the oracle configuration of tests/bpy_helpers.configure_cycles (CPU, no adaptive
 sampling, denoising or clamping, 1 px box filter) with its light tree at Blender's default (on) unless a
-line says otherwise. Three parts:
+line says otherwise. Four parts:
 
   speed   paths/s of each engine at a fixed sample count, the start-up (intercept of wall time against
           samples) and the rate without it, and the ratio Ember/Cycles: Cornell box with a small lamp,
@@ -11,9 +11,13 @@ line says otherwise. Three parts:
   export  the 1M-triangle scene: Ember's export, validate and Embree build against Cycles' time to its
           first sample (a 1-sample render at 64x64).
   rmse    RMSE against a converged Cycles reference after the same render time (time_limit on both), on
-          the Cornell box and the HDRI scene; the reference is cached in bench/results/.
+          the Cornell box, the forest.exr box, interior.exr, the materials scene and the 200 lamps; the
+          references are cached in bench/results/.
+  variance  per-sample variance over 16 seeds at 256 spp on the materials scene, each engine's paths/s in
+          those renders, and the equal-time RMSE ratio they imply: that scene's error is a lottery of
+          caustic fireflies, which the three seeds of its timed renders draw only a few tickets of.
 
-    .venv/bin/python bench/vs_cycles.py [--quick] [--skip-speed] [--skip-export] [--skip-rmse]
+    .venv/bin/python bench/vs_cycles.py [--quick] [--skip-speed] [--skip-export] [--skip-rmse] [--skip-variance]
 
 Figures go to stdout and to bench/results/vs_cycles.json (vs_cycles_quick.json with --quick). The full
 run takes about 4 minutes with the references cached, 10-12 the first time; --quick under a minute.
@@ -75,6 +79,9 @@ class Config:
     # (its RMSE x sqrt(spp) 0.74-0.85 against 0.43-0.78 over six other seeds). Its figures are the mean
     # squared error over these seeds.
     timed_seeds: tuple = (("materials", (0, 1, 2)),)
+    # Per-sample variance over many seeds (scene, spp, seeds): the expected equal-time ratio without the
+    # lottery of a few timed renders (the materials scene's caustic fireflies decide those).
+    variance_runs: tuple = (("materials", 256, 16),)
 
 
 FULL = Config()
@@ -83,7 +90,7 @@ QUICK = replace(FULL, repeats=1, speed_size=128,
                 mesh_triangles=250_000, rmse_size=64,
                 reference_samples=(("cornell", 512), ("hdri", 256), ("materials", 256), ("interior", 256),
                                    ("lamps", 256)),
-                budgets_s=(2.0,))
+                budgets_s=(2.0,), variance_runs=(("materials", 16, 4),))
 
 SCENE_TITLES = {"cornell": "Cornell box, small lamp", "hdri": "same box lit by forest.exr",
                 "interior": "sphere, floor and wall lit by interior.exr (small bright windows)",
@@ -497,6 +504,44 @@ def equal_time(cfg: Config, name: str, ref_samples: int, refresh: bool) -> dict:
     return result
 
 
+def per_sample_variance(cfg: Config, name: str, samples: int, seeds: int) -> dict:
+    """Each engine's per-sample variance (the pixels' variance over `seeds` renders of `samples` spp each,
+    times spp, averaged over the image) and its own paths/s in those renders; their ratios give the equal-time
+    RMSE ratio to expect, sqrt(variance ratio x Cycles' rate / Ember's), without the draw of a few timed renders."""
+    size = cfg.rmse_size
+    scene = build_scene(name, size, cfg)
+    for engine in ("CYCLES", "EMBER"):
+        render(scene, engine, 1, cfg)  # warm-up
+    result = {"scene": name, "width": size, "height": size, "samples": samples, "seeds": seeds}
+    out(f"\n== per-sample variance: {SCENE_TITLES[name]}, {size}x{size}, {samples} spp x {seeds} seeds per engine")
+    for engine in ("CYCLES", "EMBER"):
+        runs = [render(scene, engine, samples, cfg, seed=seed, keep_image=True) for seed in range(100, 100 + seeds)]
+        images = np.stack([r.image for r in runs]).mean(axis=-1)
+        per_pixel = images.var(axis=0, ddof=1) * samples
+        # Its standard error from the spread of the seeds' own squared deviations (the delta method on the mean).
+        deviations = ((images - images.mean(axis=0)) ** 2).mean(axis=(1, 2)) * samples * seeds / (seeds - 1)
+        rates = [_own_rate(r, size * size) for r in runs]
+        result[engine] = {"variance": float(per_pixel.mean()),
+                          "variance_standard_error": float(deviations.std(ddof=1) / math.sqrt(seeds)),
+                          "median_pixel_variance": float(np.median(per_pixel)),
+                          "paths_per_s": float(np.mean(rates)) if all(rates) else None,
+                          "mean": float(images.mean())}
+        x = result[engine]
+        out(f"  {'Cycles' if engine == 'CYCLES' else 'Ember '} variance per sample {x['variance']:.4f} "
+            f"+- {x['variance_standard_error']:.4f} (median pixel {x['median_pixel_variance']:.4f}), "
+            f"{(x['paths_per_s'] or math.nan) / 1e6:.3f} M paths/s, image mean {x['mean']:.4f}")
+    e, c = result["EMBER"], result["CYCLES"]
+    ratio = e["variance"] / c["variance"]
+    rel = math.hypot(e["variance_standard_error"] / e["variance"], c["variance_standard_error"] / c["variance"])
+    result["variance_ratio"], result["variance_ratio_standard_error"] = ratio, ratio * rel
+    expected = math.sqrt(ratio * c["paths_per_s"] / e["paths_per_s"]) if e["paths_per_s"] and c["paths_per_s"] else None
+    result["expected_equal_time_rmse_ratio"] = expected
+    out(f"  ratio Ember/Cycles variance per sample {ratio:.3f} +- {ratio * rel:.3f}; paths/s "
+        f"{(e['paths_per_s'] or math.nan) / (c['paths_per_s'] or math.nan):.2f}x; expected equal-time RMSE ratio "
+        f"{expected or math.nan:.2f} +- {(expected or math.nan) * rel / 2:.2f}")
+    return result
+
+
 def _without_bright(image: np.ndarray, threshold: float = 1.0) -> np.ndarray:
     """(H, W) bool: pixels with no channel above threshold and no such 8-neighbour."""
     bright = image.max(axis=2) > threshold
@@ -516,6 +561,7 @@ def main() -> None:
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-export", action="store_true")
     ap.add_argument("--skip-rmse", action="store_true")
+    ap.add_argument("--skip-variance", action="store_true")
     ap.add_argument("--refresh-reference", action="store_true", help="re-render the cached Cycles references")
     ap.add_argument("--json", help="where to write the figures (default bench/results/vs_cycles[_quick].json)")
     args = ap.parse_args()
@@ -548,6 +594,10 @@ def main() -> None:
         for name, samples in cfg.reference_samples:
             report["rmse"].append(equal_time(cfg, name, samples, args.refresh_reference))
             report["memory_mb"][f"after rmse {name}"] = memory_mb()
+    report["variance"] = []
+    if not args.skip_variance:
+        for name, samples, seeds in cfg.variance_runs:
+            report["variance"].append(per_sample_variance(cfg, name, samples, seeds))
     report["targets"] = _targets(report)
     report["load_average_end"] = os.getloadavg()
     report["seconds"] = time.perf_counter() - start
