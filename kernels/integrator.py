@@ -28,7 +28,8 @@ from .camera import generate_rays, view_plane
 from .environment import Environment
 from .cryptomatte import CryptoFilm
 from .film import Film
-from .bsdf.closures import BsdfSample, class_albedo, eval_split, pass_classes
+from .bsdf.closures import GLASS, BsdfSample, class_albedo, eval_split, pass_classes
+from .bsdf.microfacet_closures import singular_glass_other_branch
 from .geometry import NG, TriangleTable, prototype_boxes, scene_extent
 from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
@@ -338,6 +339,10 @@ class Renderer:
         self.shading = Shading(self.scene.materials, self.textures, self.scene, self._triangles)
         world = self.scene.world
         self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
+        # Smooth glass finds the world along both branches (_glass_escapes) unless the world's radiance
+        # depends on the ray (a Light Path node), which the branch not taken has no path state for.
+        self._glass_escapes_on = world.program is None or not any(op.kind == "ShaderNodeLightPath"
+                                                                 for op in world.program.ops)
         self._emissive = bool(self.shading.emissive.any())
         # Whether a material that triangles use mixes lobes (the automatic wave size; rows nothing uses,
         # such as the default material's, do not count).
@@ -831,6 +836,8 @@ class Renderer:
             bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
             if state.pass_weights is not None:
                 self._first_bounce_shares(state, shading.closures, bs)
+            if wave.nee and self._glass_escapes_on:
+                self._glass_escapes(wave, state, hit, shading.closures, bs)
             alive = self._continues(wave, hit, state, bs, numbers)
             if state.lobes is not None:
                 state.track_lobes(bs, shading.closures, bs.transparent)
@@ -986,6 +993,70 @@ class Renderer:
                     if len(pick):
                         aux[name][:, paths[pick]] += value[:, pick] * share[:, pick]
 
+    # ---- stage: smooth glass sees the world along the branch it did not take
+    def _glass_escapes(self, wave, state, hit, closures, bs) -> None:
+        """Smooth glass chooses reflection or refraction at random (with probability P and 1 - P) and weighs
+        the branch taken by 1 / its probability: the sun reflected by a window once in twenty samples is a
+        firefly. Where the chosen closure is singular glass, the branch not taken is traced one segment too:
+        if it leaves the scene, what it sees of the world is added at once, weighted by that branch's own
+        Fresnel factor; and what the taken branch sees of the world if it leaves at once is scaled by its
+        probability (state.escape_scale, read by _escaped). Each branch's light from the world along its
+        first segment then counts in full whichever branch was taken, and what it finds on surfaces (and
+        lamps) as before, so the estimate is unbiased and the world's part of it no longer a lottery. Cycles
+        follows one branch (it has nothing of this)."""
+        state.escape_scale = None
+        if GLASS not in closures.kinds or not len(bs.row):
+            return
+        row = bs.row
+        chosen = np.flatnonzero((row >= 0) & bs.delta & ~bs.transparent & (bs.pdf > 0) &
+                                (state.bounce < wave.max_scatters))
+        if not len(chosen):
+            return
+        r = row[chosen]
+        smooth = (closures.lobe[r] == GLASS) & closures.delta[r]
+        chosen, r = chosen[smooth], r[smooth]
+        if not len(chosen):
+            return
+        wi, weight, transmit, p_taken, ok = singular_glass_other_branch(closures, chosen, r, bs.transmit[chosen])
+        scale = np.ones(len(state), np.float32)
+        scale[chosen] = p_taken
+        state.escape_scale = scale
+        # The other branch must leave on its side of the true surface, as _continues asks of a sample.
+        gx, gy, gz = (np.take(c, chosen) for c in hit.ng)
+        side = wi[0] * gx + wi[1] * gy + wi[2] * gz
+        ok &= np.where(transmit, side < 0, side > 0)
+        live = np.flatnonzero(ok)
+        if not len(live):
+            return
+        idx = chosen[live]
+        wx, wy, wz = (c[live] for c in wi)
+        sign = np.where(transmit[live], np.float32(-1.0), np.float32(1.0))
+        px, py, pz = (np.take(c, idx) for c in hit.p)
+        gx, gy, gz = gx[live] * sign, gy[live] * sign, gz[live] * sign
+        eps = self._offset(px, py, pz)
+        origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
+        hits = self.accel.intersect(origins, np.stack([wx, wy, wz], axis=1), np.full(len(idx), np.inf, np.float32),
+                                    wave.split, None if state.time is None else state.time.take(idx))
+        out = np.flatnonzero(hits.prim < 0)
+        if not len(out):
+            return
+        idx, live = idx[out], live[out]
+        light = self.environment.radiance(wx[out], wy[out], wz[out])
+        value = np.take(state.throughput, idx, axis=1) * weight[:, live] * light
+        value = _clamp(wave, value, np.take(state.bounce, idx) > 0)
+        _accumulate(wave.radiance, state.path[idx], value)
+        if state.pass_weights is not None:
+            # As light found by a ray from this vertex: direct from the first hit, split there by the class
+            # of the branch not taken (glossy reflection, transmission).
+            first = np.flatnonzero(np.take(state.bounce, idx) == 0)
+            shares = None
+            if len(first):
+                diffuse, glossy = pass_classes(closures, r[live[first]],
+                                               (wx[out][first], wy[out][first], wz[out][first]))
+                shares = np.concatenate([np.repeat(diffuse[None, :], 3, axis=0),
+                                         np.repeat(glossy[None, :], 3, axis=0)]).astype(np.float32)
+            self._light_passes(wave, state, idx, value, shadow=True, first=(first, shares))
+
     def _first_bounce_shares(self, state, closures, bs) -> None:
         """At the first scattering (not a transparent pass-through), the class shares of the sampled
         direction: the chosen closure's class for a singular lobe, the mixture's split otherwise (Cycles'
@@ -1038,6 +1109,8 @@ class Renderer:
             return
         mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
         env = np.take(state.throughput, miss, axis=1) * light
+        if state.escape_scale is not None:
+            env *= np.take(state.escape_scale, miss)
         if state.features is not None and wave.aux is not None and "denoising_albedo" in wave.aux:
             # A path still looking for its denoising features sees the world: the world's colour times the
             # feature throughput is its albedo, as in Cycles.

@@ -33,6 +33,10 @@ class PathState:
     #                                         will hit: 1 shade it, q in (0, 1) shade it and divide by q, 0
     #                                         only take its emission (Cycles' continuation_probability and
     #                                         PATH_RAY_TERMINATE_ON_NEXT_SURFACE); None before any roulette
+    escape_scale: np.ndarray | None = None  # (N,) float32 factor on what the ray finds if it leaves the
+    #                                         scene at once: the probability of the smooth-glass branch it
+    #                                         took (Renderer._glass_escapes), 1 elsewhere; None when no path
+    #                                         took one at its last bounce
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -60,6 +64,8 @@ class PathState:
             self.pass_weights = np.take(self.pass_weights, idx, axis=1)
         if self.continuation is not None:
             self.continuation = np.take(self.continuation, idx)
+        if self.escape_scale is not None:
+            self.escape_scale = np.take(self.escape_scale, idx)
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

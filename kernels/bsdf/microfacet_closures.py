@@ -269,6 +269,38 @@ def _ashikhmin_shirley_sample(cs, rows, wo, u1, u2, uc):
     return wi, weight, pdf, False
 
 
+def singular_glass_other_branch(cs, hits, rows, transmitted):
+    """The branch a smooth glass closure did not take. hits (n,): wave hits whose chosen closure rows (n,)
+    are singular GLASS rows of the ClosureSet cs, which sampled refraction where transmitted (n,) is True,
+    reflection elsewhere (by Cycles' choice, probability P = mean(R) / mean(R + T) for reflection).
+
+    Returns (wi world directions (3 tuple of (n,)), weight (3, n), transmit (n,) bool, p_taken (n,), ok (n,)):
+    the other branch's direction, what it brings per unit of radiance arriving along it (the closure's
+    weight over its choice probability, times that branch's Fresnel factor R or T: its sample weight times
+    its probability), whether it is the refraction, the probability the taken branch had, and where the
+    other branch exists (both Fresnel factors non-zero)."""
+    wo = tuple(np.take(c, rows) for c in cs.wo)
+    eta = cs.eta[rows]
+    # As _sample_dielectric at the singular half vector h = n.
+    cos_h = np.where(wo[2] > 0, np.clip(wo[2], ZERO, ONE), ONE)
+    r, t = _glass_fresnel(cs, rows)(cos_h, eta)
+    t = np.where((fr.refracted_cos_sq(cos_h, eta) <= 0)[None, :], ZERO, t)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p_reflect = mf._reflect_probability(r, t)
+    other_reflects = transmitted
+    zero = np.zeros(len(rows), F32)
+    wi, weight, pdf, transmit = lobes.SAMPLE[lobes.GLASS](cs, rows, wo, zero, zero,
+                                                          np.where(other_reflects, ZERO, ONE).astype(F32))
+    p_other = np.where(other_reflects, p_reflect, ONE - p_reflect)
+    chance = np.isfinite(p_other) & (p_other > 0) & (p_other < 1)
+    ok = chance & (pdf > 0) & (transmit != transmitted)
+    scale = cs.weight[:, rows] * (cs.total_sw[hits] / cs.sw[rows]) * np.where(ok, p_other, ZERO)
+    world = lobes._to_world(tuple(c[:, rows] for c in cs.frame), wi)
+    # The taken branch's probability whether or not the other one could be followed (an invalid direction).
+    return world, np.where(ok, weight * scale, ZERO).astype(F32), transmit, \
+        np.where(chance, ONE - p_other, ONE).astype(F32), ok
+
+
 lobes.register_lobe(lobes.REFLECTION, _by_distribution_eval(_reflection_eval),
                     _by_distribution_sample(_reflection_sample))
 lobes.register_lobe(lobes.GLASS, _by_distribution_eval(_glass_eval), _by_distribution_sample(_glass_sample))
