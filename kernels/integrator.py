@@ -1041,21 +1041,27 @@ class Renderer:
         if not len(out):
             return
         idx, live = idx[out], live[out]
-        light = self.environment.radiance(wx[out], wy[out], wz[out])
-        value = np.take(state.throughput, idx, axis=1) * weight[:, live] * light
-        value = _clamp(wave, value, np.take(state.bounce, idx) > 0)
-        _accumulate(wave.radiance, state.path[idx], value)
+        wx, wy, wz = wx[out], wy[out], wz[out]
+        light = self.environment.radiance(wx, wy, wz)
+
+        def branch_class(first):  # at the first hit, the class of the branch not taken (glossy, transmission)
+            diffuse, glossy = pass_classes(closures, r[live[first]], (wx[first], wy[first], wz[first]))
+            return np.concatenate([np.repeat(diffuse[None, :], 3, axis=0),
+                                   np.repeat(glossy[None, :], 3, axis=0)]).astype(np.float32)
+        self._add_from_vertex(wave, state, idx, np.take(state.throughput, idx, axis=1) * weight[:, live] * light,
+                              branch_class)
+
+    def _add_from_vertex(self, wave, state, rows, value, first_shares) -> None:
+        """Add (3, n) contributions of light found from the current vertex of the paths rows (state rows): by
+        a shadow ray, or along the glass branch not taken. Clamped as direct light at the first hit, indirect
+        deeper; in the light passes, split at the first hit by first_shares(positions in rows) -> (6, k)
+        class shares, deeper as the path's first bounce was."""
+        value = _clamp(wave, value, np.take(state.bounce, rows) > 0)
+        _accumulate(wave.radiance, state.path[rows], value)
         if state.pass_weights is not None:
-            # As light found by a ray from this vertex: direct from the first hit, split there by the class
-            # of the branch not taken (glossy reflection, transmission).
-            first = np.flatnonzero(np.take(state.bounce, idx) == 0)
-            shares = None
-            if len(first):
-                diffuse, glossy = pass_classes(closures, r[live[first]],
-                                               (wx[out][first], wy[out][first], wz[out][first]))
-                shares = np.concatenate([np.repeat(diffuse[None, :], 3, axis=0),
-                                         np.repeat(glossy[None, :], 3, axis=0)]).astype(np.float32)
-            self._light_passes(wave, state, idx, value, shadow=True, first=(first, shares))
+            first = np.flatnonzero(np.take(state.bounce, rows) == 0)
+            shares = first_shares(first) if len(first) else None
+            self._light_passes(wave, state, rows, value, shadow=True, first=(first, shares))
 
     def _first_bounce_shares(self, state, closures, bs) -> None:
         """At the first scattering (not a transparent pass-through), the class shares of the sampled
@@ -1342,17 +1348,11 @@ class Renderer:
         w = np.where(np.take(ls.delta, rows), np.float32(1.0), sampling.power_heuristic(pdf, bsdf_pdf[vis]))
         contribution = np.take(state.throughput, paths, axis=1) * f[:, vis] * transmittance[:, vis] * \
             np.take(ls.radiance, rows, axis=1) * (w / pdf)
-        contribution = _clamp(wave, contribution, np.take(state.bounce, paths) > 0)
-        _accumulate(wave.radiance, state.path[paths], contribution)
-        if state.pass_weights is not None:
-            # Light reaching the first hit is direct light, split by the closures that reflect it there;
-            # deeper, it is indirect light, split as the path's first bounce was.
-            first = np.flatnonzero(np.take(state.bounce, paths) == 0)
-            split = None
-            if len(first):
-                wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
-                split = _class_shares(*eval_split(closures, paths[first], wi))
-            self._light_passes(wave, state, paths, contribution, shadow=True, first=(first, split))
+
+        def reflecting(first):  # light reaching the first hit: split by the closures that reflect it there
+            wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
+            return _class_shares(*eval_split(closures, paths[first], wi))
+        self._add_from_vertex(wave, state, paths, contribution, reflecting)
 
     def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None, times=None) -> np.ndarray:
         """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
