@@ -45,7 +45,9 @@ class Environment:
     distribution is built, so light samples go only where the world is brighter than average and leave
     the rest to BSDF samples, which find a smooth world well. Every shading point that samples the world
     also sends a BSDF ray weighted against this same pdf, so the estimate stays unbiased; per sample it
-    halved the variance of a matte room under interior.exr. Cycles builds its map from the plain levels.
+    halved the variance of a matte room under interior.exr. Light samples of a compensated world and the BSDF
+    rays that find it are weighted by the balance heuristic, which the method is derived for (mis_balance);
+    the power heuristic otherwise. Cycles builds its map from the plain levels.
     Not for a world program with a Light Path node: its light samples and BSDF rays may see different
     radiance, and each technique must then keep the directions it had.
     """
@@ -69,6 +71,9 @@ class Environment:
             self._distribution = _BilinearDistribution(world.hdri, world.mis_compensation) \
                 if world.hdri is not None else None
         self.constant = (np.asarray(world.color, np.float32) * self.strength)[:, None]
+        # The MIS heuristic between light samples of the world and BSDF rays: the balance heuristic with a
+        # compensated distribution (what compensation is derived for), else the power heuristic, as Cycles.
+        self.mis_balance = self._distribution is not None and self._distribution.compensated
 
     def mean_luminance(self) -> float:
         """Radiance luminance averaged over the sphere of directions."""
@@ -172,12 +177,13 @@ class _BilinearDistribution:
         level = np.abs(rgb.astype(np.float32)).mean(axis=2)
         if not np.any(level > 0):  # a black map: sample uniformly in (u, v), weighted by sin(theta)
             level = np.ones((h, w), np.float32)
+        self.compensated = False  # whether the levels were lowered (compensate, and something above the mean)
         if compensate:
             sin_theta = np.sin(theta)
             mean = float((level.astype(np.float64).sum(axis=1) * sin_theta).sum() / (sin_theta.sum() * w))
             lowered = np.maximum(level - np.float32(mean), np.float32(0.0))
             if np.any(lowered > 0):
-                level = lowered
+                level, self.compensated = lowered, True
         self.height, self.width = h, w
         # Patch rows r = 0..H span v in [max(r - 1/2, 0), min(r + 1/2, H)] / H between texel rows
         # clip(r - 1, 0, H - 1) and clip(r, 0, H - 1); patch columns c span u in [c + 1/2, c + 3/2] / W.

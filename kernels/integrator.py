@@ -1126,8 +1126,8 @@ class Renderer:
         if wave.nee:
             mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
             if len(mis):
-                env[:, mis] *= sampling.power_heuristic(state.bsdf_pdf[miss[mis]],
-                                                        self.lights.pdf_world(mx[mis], my[mis], mz[mis]))
+                heuristic = sampling.balance_heuristic if self.environment.mis_balance else sampling.power_heuristic
+                env[:, mis] *= heuristic(state.bsdf_pdf[miss[mis]], self.lights.pdf_world(mx[mis], my[mis], mz[mis]))
         env = _clamp(wave, env, state.bounce[miss] > 1)
         _accumulate(wave.radiance, state.path[miss], env)
         if state.pass_weights is not None:
@@ -1345,7 +1345,12 @@ class Renderer:
         rows = idx[vis]
         paths = active[rows]
         pdf = np.take(ls.pdf, rows)
-        w = np.where(np.take(ls.delta, rows), np.float32(1.0), sampling.power_heuristic(pdf, bsdf_pdf[vis]))
+        # MIS: the power heuristic, but against the world's light samples the world's own (Environment.
+        # mis_balance: the balance heuristic with a compensated distribution; escaped rays use it too).
+        heuristic = sampling.power_heuristic(pdf, bsdf_pdf[vis])
+        if self.environment.mis_balance:
+            heuristic = np.where(np.take(ls.world, rows), sampling.balance_heuristic(pdf, bsdf_pdf[vis]), heuristic)
+        w = np.where(np.take(ls.delta, rows), np.float32(1.0), heuristic)
         contribution = np.take(state.throughput, paths, axis=1) * f[:, vis] * transmittance[:, vis] * \
             np.take(ls.radiance, rows, axis=1) * (w / pdf)
 

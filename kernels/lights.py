@@ -91,8 +91,8 @@ def smoothstep01(x):
 class LightSample:
     """Per shading point: unit direction (wx, wy, wz), distance (inf for the world and the sun),
     radiance (3, N) arriving along it, pdf (N,) per unit solid angle times the selection probability,
-    delta (N,) bool for lights no BSDF ray can hit."""
-    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta")
+    delta (N,) bool for lights no BSDF ray can hit, world (N,) bool for samples of the world."""
+    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world")
 
     def __init__(self, n: int):
         self.wx = np.zeros(n, np.float32)
@@ -102,6 +102,7 @@ class LightSample:
         self.radiance = np.zeros((3, n), np.float32)
         self.pdf = np.zeros(n, np.float32)
         self.delta = np.zeros(n, bool)
+        self.world = np.zeros(n, bool)
 
     def set(self, idx, wx, wy, wz, dist, radiance, pdf, delta=False):
         if len(idx) == len(self.wx):  # every point chose this kind: no scatter needed
@@ -504,6 +505,7 @@ class LightSampler:
     def _sample_world(self, out, idx, u1, u2):
         wx, wy, wz, pdf = self.environment.sample_direction(u1, u2)
         out.set(idx, wx, wy, wz, np.float32(np.inf), self.environment.radiance(wx, wy, wz), pdf)
+        out.world[idx] = True
 
     # ------------------------------------------------------------------ pdfs of what BSDF rays find
     def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz) -> np.ndarray:

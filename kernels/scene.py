@@ -356,8 +356,9 @@ class World:
         strength unused. It reads SceneArrays.textures.
     map_resolution : width of the equirectangular map the program is baked into for importance sampling
         (Cycles' world Map Resolution; the height is half of it).
-    mis_compensation : sample the world as a light only where it is brighter than its mean (environment.
-        Environment); False: in proportion to its radiance, as Cycles does (same image, more noise).
+    mis_compensation : sample the world as a light only where it is brighter than its mean, with the balance
+        heuristic against BSDF rays (environment.Environment); False: in proportion to its radiance with the
+        power heuristic, as Cycles does (same image, more noise).
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None

@@ -14,15 +14,16 @@ def test_interior_hdri_per_sample_variance_near_cycles(monkeypatch):
     the map's mean): Ember's per-sample variance was 16x Cycles' (fireflies from cells read half-bright
     from a window next door but sampled as dark); with cells sampled by their bilinear mean it was 1.5x
     (5x on the floor); on Cycles' automatic 4096 x 2048 map it was 1.03-1.04 (two sets of 8 seeds). With
-    MIS compensation (light samples only where the map is brighter than its mean) it is 0.455, 0.485 and
-    0.475 (seeds 1-8, 9-16, 17-24). Bound: 0.6, above that spread and far below the 1.03 without it."""
+    MIS compensation (light samples only where the map is brighter than its mean) it was 0.455, 0.485 and
+    0.475 (seeds 1-8, 9-16, 17-24), and with the balance heuristic for the world's MIS 0.442, 0.455 and
+    0.451. Bound: 0.55, above that spread and far below the 1.03 without compensation."""
     monkeypatch.setattr(bpy_helpers, "REPLICATE_SEEDS", tuple(range(1, 9)))
     scene = scenes.interior_scene(48, 48)
     cycles, var_cycles = replicate_render(scene, "CYCLES", 64, max_bounces=4)
     ember, var_ember = replicate_render(scene, "EMBER", 64, max_bounces=4)
     assert abs(ember.mean() / cycles.mean() - 1) < 0.01
     ratio = var_ember.mean() / var_cycles.mean()
-    assert ratio < 0.6, ratio
+    assert ratio < 0.55, ratio
 
 
 def test_hdri_distribution_samples_its_pdf_which_follows_the_bilinear_lookup():
