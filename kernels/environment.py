@@ -57,14 +57,15 @@ class Environment:
         evaluated per ray, and a bake of it at world.map_resolution is the sampling distribution."""
         self.world = world
         self.shader = shader
+        # Whether the radiance depends on the ray that finds it (a world program with a Light Path node).
+        self.varies_with_ray = shader is not None and any(op.kind == "ShaderNodeLightPath" for op in world.program.ops)
         self.texture = Texture(world.hdri) if world.hdri is not None and shader is None else None
         if shader is not None:
             self.strength = np.float32(1.0)
             self.rotation = np.eye(3, dtype=np.float32)
             width = int(world.map_resolution)
-            compensate = world.mis_compensation and not any(op.kind == "ShaderNodeLightPath"
-                                                            for op in world.program.ops)
-            self._distribution = _BilinearDistribution(shader.bake(width, max(width // 2, 2)), compensate)
+            self._distribution = _BilinearDistribution(shader.bake(width, max(width // 2, 2)),
+                                                       world.mis_compensation and not self.varies_with_ray)
         else:
             self.strength = np.float32(world.strength)
             self.rotation = np.asarray(world.env_from_world, np.float32)

@@ -340,9 +340,8 @@ class Renderer:
         world = self.scene.world
         self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
         # Smooth glass finds the world along both branches (_glass_escapes) unless the world's radiance
-        # depends on the ray (a Light Path node), which the branch not taken has no path state for.
-        self._glass_escapes_on = world.program is None or not any(op.kind == "ShaderNodeLightPath"
-                                                                 for op in world.program.ops)
+        # depends on the ray, which the branch not taken has no path state for.
+        self._glass_escapes_on = not self.environment.varies_with_ray
         self._emissive = bool(self.shading.emissive.any())
         # Whether a material that triangles use mixes lobes (the automatic wave size; rows nothing uses,
         # such as the default material's, do not count).
@@ -1005,7 +1004,7 @@ class Renderer:
         lamps) as before, so the estimate is unbiased and the world's part of it no longer a lottery. Cycles
         follows one branch (it has nothing of this)."""
         state.escape_scale = None
-        if GLASS not in closures.kinds or not len(bs.row):
+        if GLASS not in closures.kinds:
             return
         row = bs.row
         chosen = np.flatnonzero((row >= 0) & bs.delta & ~bs.transparent & (bs.pdf > 0) &
@@ -1022,21 +1021,15 @@ class Renderer:
         scale[chosen] = p_taken
         state.escape_scale = scale
         # The other branch must leave on its side of the true surface, as _continues asks of a sample.
-        gx, gy, gz = (np.take(c, chosen) for c in hit.ng)
-        side = wi[0] * gx + wi[1] * gy + wi[2] * gz
-        ok &= np.where(transmit, side < 0, side > 0)
+        ok &= _leaves_its_side(wi, tuple(np.take(c, chosen) for c in hit.ng), transmit)
         live = np.flatnonzero(ok)
         if not len(live):
             return
         idx = chosen[live]
         wx, wy, wz = (c[live] for c in wi)
-        sign = np.where(transmit[live], np.float32(-1.0), np.float32(1.0))
-        px, py, pz = (np.take(c, idx) for c in hit.p)
-        gx, gy, gz = gx[live] * sign, gy[live] * sign, gz[live] * sign
-        eps = self._offset(px, py, pz)
-        origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
-        hits = self.accel.intersect(origins, np.stack([wx, wy, wz], axis=1), np.full(len(idx), np.inf, np.float32),
-                                    wave.split, None if state.time is None else state.time.take(idx))
+        rays = self._rays_from(hit, idx, (wx, wy, wz), transmit[live])
+        hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split,
+                                    None if state.time is None else state.time.take(idx))
         out = np.flatnonzero(hits.prim < 0)
         if not len(out):
             return
@@ -1231,11 +1224,7 @@ class Renderer:
     # ---- stage: absorb what cannot continue, count bounces, then Russian roulette
     def _continues(self, wave, hit, state, bs, numbers) -> np.ndarray:
         """Update the path state with the sampled BSDF; return the indices of the paths that go on."""
-        wx, wy, wz = bs.wi
-        gx, gy, gz = hit.ng
-        # A reflection must leave above the true surface, a transmission below it (Cycles' test).
-        side = wx * gx + wy * gy + wz * gz
-        ok = np.where(bs.transmit, side < 0, side > 0) & (bs.pdf > 0)
+        ok = _leaves_its_side(bs.wi, hit.ng, bs.transmit) & (bs.pdf > 0)
         throughput = state.throughput * bs.weight
         alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
         passing = bs.transparent
@@ -1277,13 +1266,17 @@ class Renderer:
 
     # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
     def _spawn(self, hit, alive, bs) -> "Rays":
-        px, py, pz = (np.take(c, alive) for c in hit.p)
-        sign = np.where(np.take(bs.transmit, alive), np.float32(-1.0), np.float32(1.0))
-        gx, gy, gz = (np.take(c, alive) * sign for c in hit.ng)
-        wx, wy, wz = (np.take(c, alive) for c in bs.wi)
+        return self._rays_from(hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(bs.transmit, alive))
+
+    def _rays_from(self, hit, rows, w, transmit) -> "Rays":
+        """Rays leaving the hits rows along directions w (3 tuple of (n,)), from origins moved off the surface
+        to the side they leave on (below it where transmit)."""
+        px, py, pz = (np.take(c, rows) for c in hit.p)
+        sign = np.where(transmit, np.float32(-1.0), np.float32(1.0))
+        gx, gy, gz = (np.take(c, rows) * sign for c in hit.ng)
         eps = self._offset(px, py, pz)
         origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
-        return Rays(origins, np.stack([wx, wy, wz], axis=1), np.full(len(alive), np.inf, np.float32))
+        return Rays(origins, np.stack(w, axis=1), np.full(len(rows), np.inf, np.float32))
 
     def _offset(self, px, py, pz):
         """Distance to move a spawned ray's origin along the normal: scene scale plus float32 ulps."""
@@ -1474,6 +1467,13 @@ def _filter_glossy(closures, min_ray_pdf: np.ndarray, filter_glossy: float) -> N
     if need.any():
         closures.blur(np.where(need, np.sqrt(np.maximum(np.float32(1.0) - blur_pdf, 0)) * np.float32(0.5),
                                np.float32(0.0)).astype(np.float32))
+
+
+def _leaves_its_side(w, g, transmit) -> np.ndarray:
+    """(n,) bool: directions w leave on their side of the true surface (normal g, facing the ray it was hit
+    by): a reflection above it, a transmission below it (Cycles' test)."""
+    side = w[0] * g[0] + w[1] * g[1] + w[2] * g[2]
+    return np.where(transmit, side < 0, side > 0)
 
 
 def _clamp(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray:
