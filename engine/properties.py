@@ -50,6 +50,18 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
         description="Blur glossy reflections after blurry bounces, as Cycles' Filter Glossy (0 = off): fewer "
                     "fireflies from caustics, at some loss of sharpness in what reflections show",
         default=1.0, min=0.0, soft_max=10.0)
+    caustics_reflective: BoolProperty(
+        name="Reflective Caustics",
+        description="Light reaching diffuse surfaces through glossy reflections, as Cycles' Reflective Caustics: "
+                    "off, rays leaving a diffuse surface find no glossy reflection, which removes such caustics "
+                    "and their noise, at the cost of that light",
+        default=True)
+    caustics_refractive: BoolProperty(
+        name="Refractive Caustics",
+        description="Light reaching diffuse surfaces through refraction (glass), as Cycles' Refractive Caustics: "
+                    "off, rays leaving a diffuse surface find no refraction, which removes such caustics and "
+                    "their noise, at the cost of that light",
+        default=True)
     sampling_mode: EnumProperty(
         name="Sampling", description="How the next direction of a path is chosen",
         items=SAMPLING_MODE_ITEMS, default=DEFAULT_SAMPLING_MODE)

@@ -86,7 +86,10 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
         col = layout.column(align=True)
         col.prop(context.scene.ember, "sample_clamp_direct")
         col.prop(context.scene.ember, "sample_clamp_indirect")
-        layout.prop(context.scene.ember, "blur_glossy")
+        col = layout.column(heading="Caustics", align=True)
+        col.prop(context.scene.ember, "blur_glossy")
+        col.prop(context.scene.ember, "caustics_reflective", text="Reflective")
+        col.prop(context.scene.ember, "caustics_refractive", text="Refractive")
 
 
 class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):

@@ -104,6 +104,12 @@ class RenderSettings:
     # Cycles' Filter Glossy (0: off): after a bounce of small pdf, glossy closures are made at least
     # sqrt(1 - f x pdf) / 2 rough, f = 1 / filter_glossy, trading a little blur for fewer fireflies.
     filter_glossy: float = 0.0
+    # Cycles' Caustics switches (Light Paths > Caustics): off, a ray that comes from a diffuse bounce finds
+    # no glossy reflection (reflective) or no refraction (refractive) closures where it lands, so that
+    # light no longer reaches diffuse surfaces through mirrors and glass: no caustics, and their noise, at
+    # the cost of that light.
+    caustics_reflective: bool = True
+    caustics_refractive: bool = True
     # Adaptive sampling as Cycles' (0: off): after adaptive_min_samples (0: Cycles' automatic count,
     # ceil(16 / threshold^0.3)) and every ADAPTIVE_STEP samples, pixels whose noise estimate is under the
     # threshold stop taking samples.
@@ -784,7 +790,10 @@ class Renderer:
             state.features = np.ones((3, n), np.float32)
         if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
             state.pass_weights = np.zeros((6, n), np.float32)
-        if self.shading.reads_lobes:
+        # The caustics switches read the last bounce's label too.
+        caustics = None if settings.caustics_reflective and settings.caustics_refractive else \
+            (bool(settings.caustics_reflective), bool(settings.caustics_refractive))
+        if self.shading.reads_lobes or caustics is not None:
             state.lobes = np.zeros((4, n), np.int32)
         if settings.filter_glossy > 0:
             state.min_ray_pdf = np.full(n, np.inf, np.float32)
@@ -815,7 +824,8 @@ class Renderer:
             # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
             # of distance, bounce after bounce (kernel/util/differential.h).
             state.dp = state.dp + t_hit * wave.spread_dd
-            hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes)
+            hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
+                              caustics=caustics)
             shading = self.shading.surface(hit)
             if aux is not None and step == 0:
                 self._data_passes(aux, state, hit, shading.closures, settings)

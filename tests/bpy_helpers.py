@@ -118,10 +118,12 @@ def set_world(scene, color=(0.0, 0.0, 0.0), strength=1.0, hdri=None, rotation=(0
 # ---------------------------------------------------------------- rendering to numpy
 def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces: int = 8,
                     threads: int = 2, clamp: tuple = (0.0, 0.0), blur_glossy: float = 0.0,
-                    pixel_filter: tuple = ("BOX", 1.0), denoise: bool = False) -> np.ndarray:
+                    pixel_filter: tuple = ("BOX", 1.0), denoise: bool = False,
+                    caustics: tuple = (True, True)) -> np.ndarray:
     """Render the scene with CYCLES or EMBER; return (H, W, 4) float32 linear RGBA, row 0 at the top.
     clamp: (direct, indirect) sample clamping and blur_glossy Filter Glossy on both engines (0: off, the
-    oracle's configuration); pixel_filter: (type, width) on both engines (the oracle's: a 1-pixel box);
+    oracle's configuration); caustics: the (reflective, refractive) Caustics switches on both engines (on,
+    the oracle's); pixel_filter: (type, width) on both engines (the oracle's: a 1-pixel box);
     denoise: each engine's default denoiser (off for the oracle)."""
     render = scene.render
     render.engine = engine
@@ -134,6 +136,7 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
         configure_cycles(scene, samples, seed, max_bounces)
         scene.cycles.sample_clamp_direct, scene.cycles.sample_clamp_indirect = clamp
         scene.cycles.blur_glossy = blur_glossy
+        scene.cycles.caustics_reflective, scene.cycles.caustics_refractive = caustics
         scene.cycles.pixel_filter_type, scene.cycles.filter_width = pixel_filter
         scene.cycles.use_denoising = denoise
     else:
@@ -143,6 +146,7 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
         scene.ember.transparent_max_bounces = max_bounces
         scene.ember.sample_clamp_direct, scene.ember.sample_clamp_indirect = clamp
         scene.ember.blur_glossy = blur_glossy
+        scene.ember.caustics_reflective, scene.ember.caustics_refractive = caustics
         scene.ember.use_adaptive_sampling = False   # as configure_cycles
         scene.ember.pixel_filter_type, scene.ember.filter_width = pixel_filter
         scene.ember.use_denoising = denoise

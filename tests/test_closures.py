@@ -205,3 +205,60 @@ def test_next_event_skips_hits_whose_closures_all_evaluate_to_zero(closure, expe
     # Filter Glossy makes a mirror rough: then it is evaluated.
     cs.blur(np.full(4000, 0.3, np.float32))
     assert cs.evaluable().tolist() == [after_blur] * 4000
+
+
+@pytest.mark.parametrize("switches", [(False, True), (True, False), (False, False)])
+def test_caustics_switches_drop_closures_after_diffuse_bounces(switches):
+    """Cycles' Caustics switches (svm_node_closure_bsdf): at hits whose ray comes from a diffuse bounce,
+    reflective caustics off makes no specular, metal or coat closure, and the diffuse below keeps the light
+    their layers would have taken; refractive caustics off zeroes glass's transmission tint (its reflection
+    tint with reflective off; no glass closure with both off). Hits reached from the camera or by a glossy
+    bounce keep every closure."""
+    from ember.kernels.interaction import RayInfo
+    from ember.kernels.paths import DIFFUSE, GLOSSY, REFLECT, TRANSMIT
+    reflective, refractive = switches
+    labels = np.array([0, DIFFUSE | REFLECT, GLOSSY | REFLECT, DIFFUSE | TRANSMIT], np.int32)
+    after_diffuse = (labels & DIFFUSE) != 0
+
+    def built(closure, caustics):
+        hit = FakeHit(len(labels), (0.4, 0.2, 0.8))
+        state = np.zeros((4, len(labels)), np.int32)
+        state[0] = labels
+        hit.ray = RayInfo(np.ones(len(labels), np.int32), np.zeros(len(labels), np.int32), lobes=state,
+                          caustics=caustics)
+        return Shading(Materials((Shader((closure,)),)), []).surface(hit).closures
+
+    def lobes_at(cs, kind):
+        return np.isin(np.arange(len(labels)), cs.hit[cs.lobe == kind])
+
+    layered = principled(Base_Color=(0.5, 0.5, 0.5), Roughness=0.3, Coat_Weight=1.0, Metallic=0.25)
+    every, switched = built(layered, None), built(layered, switches)
+    reflecting = lobes_at(switched, lobes.REFLECTION)
+    assert lobes_at(every, lobes.REFLECTION).all()
+    np.testing.assert_array_equal(reflecting, ~after_diffuse if not reflective else True)
+    diffuse_every = every.weight[:, every.lobe == lobes.LAMBERT]
+    diffuse_switched = switched.weight[:, switched.lobe == lobes.LAMBERT]
+    if reflective:
+        np.testing.assert_array_equal(diffuse_switched, diffuse_every)
+    else:  # no layer above it: the base's weight times (1 - metallic) alone
+        np.testing.assert_allclose(diffuse_switched[:, after_diffuse], 0.5 * 0.75, rtol=1e-6)
+        np.testing.assert_array_equal(diffuse_switched[:, ~after_diffuse], diffuse_every[:, ~after_diffuse])
+        assert np.all(diffuse_every < 0.5 * 0.75 * 0.95)
+
+    glass = principled(Base_Color=(0.8, 0.9, 1.0), Transmission_Weight=1.0, Roughness=0.2)
+    cs = built(glass, switches)
+    made = lobes_at(cs, lobes.GLASS)
+    np.testing.assert_array_equal(made, ~after_diffuse if not (reflective or refractive) else True)
+    rows = np.flatnonzero(cs.lobe == lobes.GLASS)
+    diffuse_rows = after_diffuse[cs.hit[rows]]
+    reflection_tint, transmission_tint = cs.c1[:, rows], cs.c2[:, rows]
+    assert np.all(reflection_tint[:, ~diffuse_rows] == 1) and np.all(transmission_tint[:, ~diffuse_rows] > 0.8)
+    assert np.all((reflection_tint[:, diffuse_rows] == 0) == (not reflective))
+    assert np.all((transmission_tint[:, diffuse_rows] == 0) == (not refractive))
+
+    metal = Closure("METALLIC", (("Roughness", Param.of(0.3)),), (("distribution", "MULTI_GGX"),))
+    np.testing.assert_array_equal(lobes_at(built(metal, switches), lobes.REFLECTION),
+                                  ~after_diffuse if not reflective else True)
+    refraction = Closure("REFRACTION", (("Roughness", Param.of(0.3)),), (("distribution", "GGX"),))
+    np.testing.assert_array_equal(lobes_at(built(refraction, switches), lobes.REFRACTION),
+                                  ~after_diffuse if not refractive else True)

@@ -7,8 +7,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, mesh_object, new_scene, quad_object, \
-    replicate_render, set_world
+from bpy_helpers import REPLICATE_SEEDS, add_camera, compare_to_cycles, diffuse_material, mesh_object, new_scene, \
+    quad_object, render_to_array, replicate_render, set_world
 
 
 def node_material(name, idname, **inputs):
@@ -452,3 +452,41 @@ def test_filter_glossy_matches_cycles():
     assert abs(blurred - cycles) < 3.5 * np.hypot(se_b, se_c), (blurred, cycles, se_b, se_c)
     assert abs(sharp - cycles) > 3.5 * np.hypot(se_s, se_c), (sharp, cycles, se_s, se_c)
     compare_to_cycles(scene, samples=64, max_bounces=4, blur_glossy=1.0)
+
+
+def caustics_scene():
+    """Glass, metal, glossy, coated and refracting spheres on a floor under a sun: the floor's diffuse
+    bounces find the sun through each of them (caustics), and see them by their closures."""
+    scene = new_scene(48, 32)
+    P = "ShaderNodeBsdfPrincipled"
+    materials = [
+        node_material("Glass", "ShaderNodeBsdfGlass", Roughness=0.3, IOR=1.5),
+        node_material("Clear", P, Base_Color=(0.9, 1.0, 0.9), Transmission_Weight=1.0, Roughness=0.3),
+        node_material("Metal", "ShaderNodeBsdfMetallic", Roughness=0.3),
+        node_material("Coated", P, Base_Color=(0.7, 0.2, 0.1), Roughness=0.3, Coat_Weight=1.0,
+                      Coat_Roughness=0.25),
+        node_material("Glossy", "ShaderNodeBsdfAnisotropic", Roughness=0.3),
+        node_material("Refraction", "ShaderNodeBsdfRefraction", Roughness=0.3, IOR=1.3),
+    ]
+    grid_of_spheres(materials, 3)
+    add_sun(scene, (0.5, 0.3, -0.6), energy=4.0, angle=0.3)
+    set_world(scene, color=(0.05, 0.05, 0.05))
+    return scene
+
+
+@pytest.mark.parametrize("caustics", [(False, False), (False, True), (True, False)],
+                         ids=["neither", "refractive-only", "reflective-only"])
+def test_caustics_switches_match_cycles(caustics):
+    """Cycles' Reflective and Refractive Caustics off: a ray from a diffuse bounce finds no glossy
+    reflection, or no refraction, closures where it lands (a Principled BSDF's diffuse then takes the
+    light its specular layer would have). Each switch takes light from the floor beyond noise, and Ember
+    matches Cycles with it."""
+    scene = caustics_scene()
+    # The light each switch takes: renders with and without it from the same seeds (the same paths until
+    # one meets a closure the switch drops), their difference's mean and standard error over the seeds.
+    drops = [render_to_array(scene, "EMBER", 16, seed=seed, max_bounces=4)[..., :3].mean() -
+             render_to_array(scene, "EMBER", 16, seed=seed, max_bounces=4, caustics=caustics)[..., :3].mean()
+             for seed in range(8)]
+    drop, se = np.mean(drops), np.std(drops, ddof=1) / np.sqrt(len(drops))
+    assert drop > 4 * se, (drops, se)
+    compare_to_cycles(scene, samples=64, max_bounces=4, caustics=caustics)

@@ -17,6 +17,7 @@ from .. import sampling
 from ..bsdf import closures as lobes
 from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
+from ..paths import DIFFUSE as DIFFUSE_LABEL
 from ..scene import Closure, NormalMap, Param, Tangent
 from . import normals, ops
 from .program import HitInputs
@@ -86,6 +87,20 @@ class Context:
             return np.broadcast_to(value[:, None] if channels == 3 else value, (3, len(self.idx)) if channels == 3
                                    else (len(self.idx),))
         return self.shading.param(p, self, channels)
+
+    def caustics(self):
+        """Cycles' caustics switches at these hits (svm_node_closure_bsdf): (reflective, refractive), (n,) bool
+        each, False where the render turned that kind off and the ray comes from a diffuse bounce (glossy
+        reflection, or refraction, closures are then not made); None where every closure is made."""
+        ray = getattr(self.hit, "ray", None)
+        if ray is None or ray.caustics is None or ray.lobes is None:
+            return None
+        if "caustics" not in self._shared:
+            direct = (np.take(ray.lobes[0], self.idx) & DIFFUSE_LABEL) == 0
+            everywhere = np.ones(len(self.idx), bool)
+            reflective, refractive = ray.caustics
+            self._shared["caustics"] = (everywhere if reflective else direct, everywhere if refractive else direct)
+        return self._shared["caustics"]
 
     def mu(self, normal=None) -> np.ndarray:
         """cos of the angle between the viewer and the normal (the context's normal by default)."""
@@ -193,6 +208,20 @@ def build(closure: Closure, ctx: Context, weight: np.ndarray, builder) -> Built:
     return _BUILDERS[closure.kind](closure, ctx.for_node(closure), weight, builder)
 
 
+def _made(ctx: Context, refractive: bool = False):
+    """(n,) float32: 1 where the context's glossy reflection (or, refractive, refraction) closures are made,
+    0 where the caustics switch drops them (Context.caustics); None where they are made at every hit."""
+    switches = ctx.caustics()
+    if switches is None:
+        return None
+    ok = switches[1 if refractive else 0]
+    return None if ok.all() else ok.astype(F32)
+
+
+def _times(a, made):
+    return a if made is None else a * made
+
+
 # ---------------------------------------------------------------- simple nodes
 def _diffuse(c, ctx, w, b):
     if b is not None:
@@ -267,7 +296,7 @@ def _holdout(c, ctx, w, b):
 # ---------------------------------------------------------------- microfacet nodes
 def _glossy(c, ctx, w, b):
     if b is not None:
-        color = np.maximum(ctx.input(c, "Color"), ZERO)
+        color = _times(np.maximum(ctx.input(c, "Color"), ZERO), _made(ctx))
         alpha = np.square(np.clip(ctx.input(c, "Roughness"), 0.0, 1.0))
         aniso = np.clip(ctx.input(c, "Anisotropy"), -0.99, 0.99)
         ax, ay = mf.glossy_anisotropy(alpha, aniso)
@@ -293,7 +322,9 @@ def _glass(c, ctx, w, b):
         color = np.maximum(ctx.input(c, "Color"), ZERO)
         alpha = np.square(np.clip(ctx.input(c, "Roughness"), 0.0, 1.0))
         ior = np.maximum(ctx.input(c, "IOR"), F32(1e-5))
-        mf.add_glass(b, ctx.specular(), w, alpha, ior, reflection_tint=color, transmission_tint=color,
+        # Cycles zeroes the tint of a branch whose caustics are off (neither: no closure).
+        mf.add_glass(b, ctx.specular(), w, alpha, ior, reflection_tint=_times(color, _made(ctx)),
+                     transmission_tint=_times(color, _made(ctx, refractive=True)),
                      specular_tint=None, multiscatter=c.option("distribution", "MULTI_GGX") == "MULTI_GGX",
                      distribution=_distribution(c))
     return Built()
@@ -301,7 +332,7 @@ def _glass(c, ctx, w, b):
 
 def _refraction(c, ctx, w, b):
     if b is not None:
-        color = ctx.input(c, "Color")
+        color = _times(ctx.input(c, "Color"), _made(ctx, refractive=True))
         alpha = np.square(ctx.input(c, "Roughness"))
         ior = np.maximum(ctx.input(c, "IOR"), F32(1e-5))
         mf.add_refraction(b, ctx.specular(), color * w, alpha, ior, distribution=_distribution(c))
@@ -313,7 +344,7 @@ def _metallic(c, ctx, w, b):
         alpha = np.square(np.clip(ctx.input(c, "Roughness"), 0.0, 1.0))
         ax, ay = mf.principled_anisotropy(alpha, np.clip(ctx.input(c, "Anisotropy"), 0.0, 1.0))
         multiscatter = c.option("distribution", "MULTI_GGX") == "MULTI_GGX"
-        weight = np.broadcast_to(w, (3, len(w)))
+        weight = np.broadcast_to(_times(w, _made(ctx)), (3, len(w)))
         spec = ctx.specular()
         b = _with_tangent(b, ctx, ctx.tangent(c, "Rotation", ctx.ns, bool(np.any(ax != ay))))
         if c.option("fresnel", "F82") == "PHYSICAL_CONDUCTOR":
@@ -338,6 +369,9 @@ def _principled(c, ctx, w, b):
     if b is not None:
         b.add(lobes.TRANSPARENT, ctx.idx, weight * (ONE - alpha))
     weight = weight * alpha
+    # Glossy closures dropped by the caustics switch take no light from the layers below either (Cycles
+    # skips their setup, layering included); refraction keeps its share (Context.caustics).
+    made = _made(ctx)
     coat_w = np.maximum(get("Coat Weight"), ZERO)
     # The coat's normal: its Coat Normal input, else the node's Normal.
     coat = ctx.with_normal(ctx.normal_input(c, "Coat Normal"))
@@ -365,8 +399,11 @@ def _principled(c, ctx, w, b):
         ior_c = np.maximum(get("Coat IOR")[has], ONE)
         coat_weight = cw * weight[:, has]
         coat = coat.specular()
-        albedo = mf.add_coat(b, coat, has, coat_weight, alpha_c, ior_c)
-        weight[:, has] = layering_weight(albedo, weight[:, has])
+        made_c = np.flatnonzero(made[has]) if made is not None else slice(None)
+        if made is None or len(made_c):
+            layered = has[made_c]
+            albedo = mf.add_coat(b, coat, layered, coat_weight[:, made_c], alpha_c[made_c], ior_c[made_c])
+            weight[:, layered] = layering_weight(albedo, weight[:, layered])
         tint = np.maximum(get("Coat Tint")[:, has], ZERO)
         tinted = np.flatnonzero(np.any(tint != ONE, axis=0))
         if len(tinted):
@@ -392,7 +429,7 @@ def _principled(c, ctx, w, b):
     specular_tint = np.maximum(get("Specular Tint"), ZERO)
     # 4. Metal: F82-tint conductor.
     metallic = np.clip(get("Metallic"), 0.0, 1.0)
-    has = np.flatnonzero(metallic > CUTOFF)
+    has = np.flatnonzero((metallic > CUTOFF) if made is None else (metallic > CUTOFF) & (made > 0))
     if len(has):
         mf.add_f82(anisotropic, spec, metallic[has] * weight[:, has], ax[has], ay[has], clamped[:, has],
                    np.minimum(specular_tint[:, has], ONE), multiscatter, sub=has)
@@ -401,8 +438,10 @@ def _principled(c, ctx, w, b):
     transmission = np.clip(get("Transmission Weight"), 0.0, 1.0)
     has = np.flatnonzero(transmission > CUTOFF)
     if len(has):
+        refracted = _made(ctx, refractive=True)
         mf.add_glass(b, spec, transmission[has] * weight[:, has], alpha_r[has], ior[has],
-                     reflection_tint=np.ones((3, len(has)), F32), transmission_tint=np.sqrt(clamped[:, has]),
+                     reflection_tint=np.ones((3, len(has)), F32) * (ONE if made is None else made[has]),
+                     transmission_tint=np.sqrt(clamped[:, has]) * (ONE if refracted is None else refracted[has]),
                      specular_tint=specular_tint[:, has], multiscatter=multiscatter, sub=has)
     weight = weight * (ONE - transmission)
     # 6. Specular: dielectric GGX reflection; Specular IOR Level scales F0 (and the IOR with it).
@@ -415,7 +454,7 @@ def _principled(c, ctx, w, b):
         eta_adj = mf.ior_from_f0(f0)
         eta = np.where(adjusted, np.where(ior < ONE, ONE / eta_adj, eta_adj), eta)
     # Hits whose layers above left no weight (metal, glass) make no specular closure: skip their tables.
-    has = np.flatnonzero((eta != ONE) & np.any(weight != ZERO, axis=0))
+    has = np.flatnonzero((eta != ONE) & np.any(weight != ZERO, axis=0) & (True if made is None else made > 0))
     if len(has):
         albedo = mf.add_specular(anisotropic, spec, weight[:, has], ax[has], ay[has], eta[has],
                                  f0[has] * specular_tint[:, has], multiscatter, sub=has)
