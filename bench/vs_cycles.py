@@ -15,7 +15,8 @@ line says otherwise. Four parts:
           references are cached in bench/results/.
   variance  per-sample variance over 16 seeds at 256 spp on the materials scene, each engine's paths/s in
           those renders, and the equal-time RMSE ratio they imply: that scene's error is a lottery of
-          caustic fireflies, which the three seeds of its timed renders draw only a few tickets of.
+          caustic fireflies, which the three seeds of its timed renders draw only a few tickets of. The
+          engines take turns seed by seed, so that their rates are measured under the same load.
 
     .venv/bin/python bench/vs_cycles.py [--quick] [--skip-speed] [--skip-export] [--skip-rmse] [--skip-variance]
 
@@ -514,8 +515,13 @@ def per_sample_variance(cfg: Config, name: str, samples: int, seeds: int) -> dic
         render(scene, engine, 1, cfg)  # warm-up
     result = {"scene": name, "width": size, "height": size, "samples": samples, "seeds": seeds}
     out(f"\n== per-sample variance: {SCENE_TITLES[name]}, {size}x{size}, {samples} spp x {seeds} seeds per engine")
-    for engine in ("CYCLES", "EMBER"):
-        runs = [render(scene, engine, samples, cfg, seed=seed, keep_image=True) for seed in range(100, 100 + seeds)]
+    # The engines take turns, seed by seed, so that both rates are measured under the same load (this
+    # shared machine's load drifts over the minutes a block of one engine's renders takes).
+    turns = {"CYCLES": [], "EMBER": []}
+    for seed in range(100, 100 + seeds):
+        for engine in turns:
+            turns[engine].append(render(scene, engine, samples, cfg, seed=seed, keep_image=True))
+    for engine, runs in turns.items():
         images = np.stack([r.image for r in runs]).mean(axis=-1)
         per_pixel = images.var(axis=0, ddof=1) * samples
         # Its standard error from the spread of the seeds' own squared deviations (the delta method on the mean).
