@@ -93,7 +93,7 @@ class Context:
         each, False where the render turned that kind off and the ray comes from a diffuse bounce (glossy
         reflection, or refraction, closures are then not made); None where every closure is made."""
         ray = getattr(self.hit, "ray", None)
-        if ray is None or ray.caustics is None or ray.lobes is None:
+        if ray is None or ray.caustics is None:
             return None
         if "caustics" not in self._shared:
             direct = (np.take(ray.lobes[0], self.idx) & DIFFUSE_LABEL) == 0
@@ -372,6 +372,9 @@ def _principled(c, ctx, w, b):
     # Glossy closures dropped by the caustics switch take no light from the layers below either (Cycles
     # skips their setup, layering included); refraction keeps its share (Context.caustics).
     made = _made(ctx)
+
+    def glossy(mask):  # the hits of mask whose glossy closures the caustics switch keeps
+        return np.flatnonzero(mask if made is None else mask & (made > 0))
     coat_w = np.maximum(get("Coat Weight"), ZERO)
     # The coat's normal: its Coat Normal input, else the node's Normal.
     coat = ctx.with_normal(ctx.normal_input(c, "Coat Normal"))
@@ -395,14 +398,13 @@ def _principled(c, ctx, w, b):
     has = np.flatnonzero(coat_w > CUTOFF)
     if len(has):
         cw = coat_w[has]
-        alpha_c = np.square(np.clip(get("Coat Roughness")[has], 0.0, 1.0))
         ior_c = np.maximum(get("Coat IOR")[has], ONE)
-        coat_weight = cw * weight[:, has]
         coat = coat.specular()
-        made_c = np.flatnonzero(made[has]) if made is not None else slice(None)
-        if made is None or len(made_c):
-            layered = has[made_c]
-            albedo = mf.add_coat(b, coat, layered, coat_weight[:, made_c], alpha_c[made_c], ior_c[made_c])
+        layered = glossy(coat_w > CUTOFF)
+        if len(layered):
+            albedo = mf.add_coat(b, coat, layered, coat_w[layered] * weight[:, layered],
+                                 np.square(np.clip(get("Coat Roughness")[layered], 0.0, 1.0)),
+                                 np.maximum(get("Coat IOR")[layered], ONE))
             weight[:, layered] = layering_weight(albedo, weight[:, layered])
         tint = np.maximum(get("Coat Tint")[:, has], ZERO)
         tinted = np.flatnonzero(np.any(tint != ONE, axis=0))
@@ -429,7 +431,7 @@ def _principled(c, ctx, w, b):
     specular_tint = np.maximum(get("Specular Tint"), ZERO)
     # 4. Metal: F82-tint conductor.
     metallic = np.clip(get("Metallic"), 0.0, 1.0)
-    has = np.flatnonzero((metallic > CUTOFF) if made is None else (metallic > CUTOFF) & (made > 0))
+    has = glossy(metallic > CUTOFF)
     if len(has):
         mf.add_f82(anisotropic, spec, metallic[has] * weight[:, has], ax[has], ay[has], clamped[:, has],
                    np.minimum(specular_tint[:, has], ONE), multiscatter, sub=has)
@@ -454,7 +456,7 @@ def _principled(c, ctx, w, b):
         eta_adj = mf.ior_from_f0(f0)
         eta = np.where(adjusted, np.where(ior < ONE, ONE / eta_adj, eta_adj), eta)
     # Hits whose layers above left no weight (metal, glass) make no specular closure: skip their tables.
-    has = np.flatnonzero((eta != ONE) & np.any(weight != ZERO, axis=0) & (True if made is None else made > 0))
+    has = glossy((eta != ONE) & np.any(weight != ZERO, axis=0))
     if len(has):
         albedo = mf.add_specular(anisotropic, spec, weight[:, has], ax[has], ay[has], eta[has],
                                  f0[has] * specular_tint[:, has], multiscatter, sub=has)
