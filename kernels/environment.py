@@ -83,12 +83,64 @@ class Environment:
         # (1 / 4 pi) * sum(L sin(theta)) * (pi / H) * (2 pi / W) = (pi / 2) * mean(L sin(theta))
         return float(self._distribution.mean_weight * 0.5 * np.pi * self.strength)
 
-    def sample_direction(self, u1, u2):
-        """World directions with pdf per solid angle: (wx, wy, wz, pdf)."""
+    @property
+    def focuses(self) -> bool:
+        """Whether light samples of the world can be focused on the shading points' glossy lobes (focus())."""
+        return self._distribution is not None and self.world.focus
+
+    def focus(self, dx, dy, dz, radius, share) -> "WorldFocus":
+        """Blocks of the map around world directions d (unit, (n,) each): the patch rows and columns that
+        hold the cone of angular radius `radius` (radians, below pi / 2) about d. A light sample of the world
+        is then drawn from the block with probability `share` (0 where the block holds none of the
+        distribution), else from the whole map (sample_direction, direction_pdf)."""
+        dist = self._distribution
+        h, w = dist.height, dist.width
+        ex, ey, ez = self.to_env(dx, dy, dz)
+        u, v = direction_to_equirect(ex, ey, ez)
+        radius = np.asarray(radius, F32)
+        dv = radius * INV_PI
+        r0 = np.clip(np.floor((v - dv) * F32(h) + F32(0.5)), 0, h).astype(np.int64)
+        r1 = np.clip(np.floor((v + dv) * F32(h) + F32(0.5)), 0, h).astype(np.int64) + 1
+        # The cone's widest azimuth, asin(sin(radius) / sin(theta)) about its axis; all of it around a pole.
+        sin_axis = np.sqrt(np.maximum(ONE - ez * ez, F32(0.0)))
+        ratio = np.sin(radius) / np.maximum(sin_axis, F32(1e-6))
+        du = np.arcsin(np.minimum(ratio, ONE)) * INV_2PI
+        ca = np.floor((u - du) * F32(w) - F32(0.5)).astype(np.int64)
+        nc = np.floor((u + du) * F32(w) - F32(0.5)).astype(np.int64) - ca + 1
+        full = (ratio >= 1) | (nc >= w)
+        c0 = np.where(full, 0, np.mod(ca, w))
+        nc = np.where(full, w, nc)
+        mass = dist.block_mass(r0, r1, c0, nc)
+        live = mass > 1e-12
+        p = np.where(live, np.asarray(share, F32), F32(0.0))
+        inv_mass = np.where(live, 1.0 / np.where(live, mass, 1.0), 0.0)
+        return WorldFocus(np.stack([r0, r1, c0, nc, p, inv_mass]).astype(F32))
+
+    def sample_direction(self, u1, u2, focus: "WorldFocus | None" = None):
+        """World directions with pdf per solid angle: (wx, wy, wz, pdf). focus (focus(), one per number):
+        from its block with its probability, the pdf then that of the mixture."""
         if self._distribution is None:
             wx, wy, wz = sampling.sample_uniform_sphere(u1, u2)
             return wx, wy, wz, np.full(len(u1), sampling.UNIFORM_SPHERE_PDF)
-        u, v, pdf_uv = self._distribution.sample(u1, u2)
+        if focus is None:
+            u, v, pdf_uv = self._distribution.sample(u1, u2)
+        else:
+            # u1 < p picks the block, and both halves are stretched back to [0, 1): no new number, and the
+            # first vertex's stratification holds. Where p is 0 this is sample() bit for bit.
+            p = focus.p
+            block = np.flatnonzero(u1 < p)
+            rest = np.flatnonzero(u1 >= p)
+            u, v, pdf_uv = (np.empty(len(u1), F32) for _ in range(3))
+            if len(rest):
+                q = p[rest]
+                ur = np.minimum((u1[rest] - q) / (ONE - q), F32(1.0 - 1e-7))
+                u[rest], v[rest], pdf_uv[rest] = self._distribution.sample(ur, u2[rest])
+            if len(block):
+                f = focus.take(block)
+                ub = np.minimum(u1[block] / f.p, F32(1.0 - 1e-7))
+                u[block], v[block], pdf_uv[block] = self._distribution.sample_block(
+                    *f.block(), 1.0 / f.inv_mass.astype(np.float64), ub, u2[block])
+            pdf_uv = pdf_uv * self._focus_factor(focus, u, v)
         ex, ey, ez, sin_t = equirect_to_direction(u, v)
         with np.errstate(divide="ignore", invalid="ignore"):
             pdf = pdf_uv / (np.float32(2.0 * np.pi ** 2) * sin_t)
@@ -96,16 +148,31 @@ class Environment:
         wx, wy, wz = self.to_world(ex, ey, ez)
         return wx, wy, wz, pdf
 
-    def direction_pdf(self, dx, dy, dz) -> np.ndarray:
-        """pdf per solid angle with which sample_direction() yields world directions d."""
+    def direction_pdf(self, dx, dy, dz, focus: "WorldFocus | None" = None) -> np.ndarray:
+        """pdf per solid angle with which sample_direction() yields world directions d (with the same focus)."""
         if self._distribution is None:
             return np.full(len(dx), sampling.UNIFORM_SPHERE_PDF)
         ex, ey, ez = self.to_env(dx, dy, dz)
         u, v = direction_to_equirect(ex, ey, ez)
         sin_t = np.sqrt(np.maximum(np.float32(1.0) - ez * ez, np.float32(0.0)))
+        pdf_uv = self._distribution.pdf(u, v)
+        if focus is not None:
+            pdf_uv = pdf_uv * self._focus_factor(focus, u, v)
         with np.errstate(divide="ignore", invalid="ignore"):
-            pdf = self._distribution.pdf(u, v) / (np.float32(2.0 * np.pi ** 2) * sin_t)
+            pdf = pdf_uv / (np.float32(2.0 * np.pi ** 2) * sin_t)
         return np.where((sin_t > 0) & np.isfinite(pdf), pdf, np.float32(0.0)).astype(np.float32)
+
+    def _focus_factor(self, focus: "WorldFocus", u, v) -> np.ndarray:
+        """The mixture's pdf over the map's at (u, v): (1 - p) + p / mass inside the block, 1 - p outside."""
+        factor = np.ones(len(u), F32)
+        live = np.flatnonzero(focus.p > 0)
+        if len(live):
+            f = focus.take(live)
+            r, c = self._distribution.patch_of(u[live], v[live])
+            r0, r1, c0, nc = f.block()
+            inside = (r >= r0) & (r < r1) & (np.mod(c - c0, self._distribution.width) < nc)
+            factor[live] = (ONE - f.p) + f.p * np.where(inside, f.inv_mass, F32(0.0))
+        return factor
 
     @property
     def is_constant(self) -> bool:
@@ -133,6 +200,39 @@ class Environment:
             return np.broadcast_to(self.constant, (3, n))
         u, v = direction_to_equirect(*self.to_env(dx, dy, dz))
         return self.texture.lookup(u, v, wrap_v=False) * self.strength
+
+
+class WorldFocus:
+    """Per shading point, a block of the world's map (patch rows [r0, r1), columns c0 .. c0 + nc - 1,
+    wrapping) from which a light sample of the world is drawn with probability p, in proportion to the
+    map's distribution there (inv_mass: 1 / the block's share of it); Environment.focus makes them. One
+    (6, n) float32 array (the block's bounds are exact in it), so that paths take and compact it at once."""
+    __slots__ = ("data",)
+
+    def __init__(self, data: np.ndarray):
+        self.data = data
+
+    @classmethod
+    def none(cls, n: int) -> "WorldFocus":
+        return cls(np.zeros((6, n), F32))
+
+    @property
+    def p(self) -> np.ndarray:
+        return self.data[4]
+
+    @property
+    def inv_mass(self) -> np.ndarray:
+        return self.data[5]
+
+    def block(self):
+        """(r0, r1, c0, nc) int64 arrays."""
+        return tuple(self.data[i].astype(np.int64) for i in range(4))
+
+    def take(self, idx) -> "WorldFocus":
+        return WorldFocus(np.take(self.data, idx, axis=1))
+
+    def put(self, idx, other: "WorldFocus") -> None:
+        self.data[:, idx] = other.data
 
 
 def sample_linear(u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -212,6 +312,11 @@ class _BilinearDistribution:
         self._base_lo, self._base_hi = lo * w, hi * w
         self._v0, self._dv = v0.astype(F32), (v1 - v0).astype(F32)
         self._scale = (sin_row / total).astype(F32)
+        # Sums of the patch weights over the rows before r and the columns before c, over the total:
+        # the mass of any block of patches from four lookups.
+        sat = np.zeros((h + 2, w + 1))
+        sat[1:, 1:] = np.cumsum(np.cumsum(weight, axis=0), axis=1) / total
+        self._sat = sat.ravel()
 
     def _corners(self, r, c):
         """The four texel levels (float32) of patches (r, c)."""
@@ -234,6 +339,12 @@ class _BilinearDistribution:
         col_lo = np.where(c > 0, self.flat_cdf[np.maximum(cell - 1, 0)] - r, 0.0)
         col_p = (self.flat_cdf[cell] - r) - col_lo
         fu = np.clip((u2 - col_lo) / np.where(col_p > 0, col_p, 1.0), 0.0, 1.0 - 1e-7).astype(F32)
+        return self._place(r, c, fv, fu)
+
+    def _place(self, r, c, fv, fu):
+        """(u, v, pdf per unit (u, v) area) of points drawn inside patches (r, c) from the bilinear density,
+        with the numbers fv, fu in [0, 1)."""
+        w = self.width
         w00, w10, w01, w11 = self._corners(r, c)
         y = sample_linear(fv, w00 + w10, w01 + w11)
         left, right = w00 + (w01 - w00) * y, w10 + (w11 - w10) * y
@@ -242,6 +353,69 @@ class _BilinearDistribution:
         u = np.where(u >= 1, u - F32(1.0), u).astype(F32)
         v = (np.take(self._v0, r) + y * np.take(self._dv, r)).astype(F32)
         return u, v, (left + (right - left) * x) * np.take(self._scale, r)
+
+    # ---- blocks: a rectangle of patches, rows [r0, r1) and columns c0 .. c0 + nc - 1 (wrapping in u)
+    def patch_of(self, u, v):
+        """(patch row, patch column) holding (u, v), as pdf() finds them."""
+        h, w = self.height, self.width
+        c = np.floor(np.mod(np.asarray(u, F32), F32(1.0)) * F32(w) - F32(0.5)).astype(np.int64)
+        c[c < 0] += w
+        y = np.clip(np.asarray(v, F32), F32(0.0), F32(1.0)) * F32(h) - F32(0.5)
+        return np.minimum(np.floor(y).astype(np.int64) + 1, h), np.minimum(c, w - 1)
+
+    def block_mass(self, r0, r1, c0, nc):
+        """The distribution's mass in the blocks (float64)."""
+        cols = self._block_columns(c0, nc)
+        return self._above(r1, cols) - self._above(r0, cols)
+
+    def _block_columns(self, c0, nc):
+        """Offsets in the sums' rows of a block's column span: its end (or the map's), its start, and its end
+        past the wrap (0 when it does not wrap: column 0 of the sums is 0)."""
+        end = c0 + nc
+        return np.minimum(end, self.width), c0, np.maximum(end - self.width, 0)
+
+    def _above(self, r, cols):
+        """The mass in patch rows < r of a block's columns (_block_columns)."""
+        base = r * (self.width + 1)
+        end, start, wrapped = cols
+        sat = self._sat
+        return np.take(sat, base + end) - np.take(sat, base + start) + np.take(sat, base + wrapped)
+
+    def sample_block(self, r0, r1, c0, nc, mass, u1, u2):
+        """Points drawn from the distribution restricted to the blocks (mass: block_mass, > 0): the patch
+        row by bisection on the block's row masses, the column by the row's own cdf over the block's span,
+        the point inside as sample() does. Returns u, v and the global pdf per unit (u, v) area there (the
+        block's pdf is that over mass)."""
+        w = self.width
+        cols = self._block_columns(c0, nc)
+        t = self._above(r0, cols) + u1.astype(np.float64) * mass
+        # The last row r with the mass above it <= t: lo keeps that property, hi the opposite.
+        lo, hi = r0, r1
+        for _ in range(int(np.max(r1 - r0)).bit_length()):
+            mid = (lo + hi) >> 1
+            below = self._above(mid, cols) <= t
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        r = lo
+        before = self._above(r, cols)
+        row_mass = self._above(r + 1, cols) - before
+        fv = np.clip((t - before) / np.where(row_mass > 0, row_mass, 1.0), 0.0, 1.0 - 1e-7).astype(F32)
+        # The row's own cdf (flat_cdf less r) over the block's columns, wrapping past the last one.
+        cdf = self.flat_cdf
+        base = r * w
+
+        def row_cdf(c):  # the row's cdf just before column c, c in [0, w]
+            return np.where(c > 0, np.take(cdf, base + np.maximum(c, 1) - 1) - r, 0.0)
+        end = c0 + nc
+        start = row_cdf(c0)
+        span = row_cdf(np.minimum(end, w)) - start + np.where(end > w, row_cdf(np.maximum(end - w, 0)), 0.0)
+        x = start + u2.astype(np.float64) * span
+        x = np.where(x >= 1.0, x - 1.0, x)
+        flat = self._cols.search(r, np.minimum(x, np.nextafter(1.0, 0.0)))
+        c = np.clip(flat - base, 0, w - 1)
+        col_lo = row_cdf(c)
+        col_p = row_cdf(c + 1) - col_lo
+        fu = np.clip((x - col_lo) / np.where(col_p > 0, col_p, 1.0), 0.0, 1.0 - 1e-7).astype(F32)
+        return self._place(r, c, fv, fu)
 
     def pdf(self, u, v) -> np.ndarray:
         """pdf per unit (u, v) area: the bilinear level at (u, v) x sin(theta) of its patch row / total."""

@@ -25,10 +25,10 @@ import numpy as np
 from . import motion, panorama, passes, sampling
 from .accel import Accel, RayTimes
 from .camera import generate_rays, view_plane
-from .environment import Environment
+from .environment import Environment, WorldFocus
 from .cryptomatte import CryptoFilm
 from .film import Film
-from .bsdf.closures import GLASS, BsdfSample, class_albedo, eval_split, pass_classes
+from .bsdf.closures import GLASS, BsdfSample, class_albedo, eval_split, glossy_axes, pass_classes
 from .bsdf.microfacet_closures import singular_glass_other_branch
 from .geometry import NG, TriangleTable, prototype_boxes, scene_extent
 from .interaction import RayInfo, SurfaceHit
@@ -50,6 +50,9 @@ SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
 # (Cycles: bounce > min_bounce, min_bounce 1 by default; NEE_MIS only: LECTURE and COSINE stay the plain
 # estimators they are, for teaching and as references).
 ROULETTE_DEPTH = 2
+# At a shading point whose closures are all one glossy lobe, the share of the world's light samples drawn
+# around that lobe (Environment.focus); less in proportion where other closures share the sampling weight.
+FOCUS_SHARE = 0.8
 
 # A pass is cut into at least this many waves when the image allows, so that two cores have
 # independent work; wave_size then bounds each wave.
@@ -840,14 +843,16 @@ class Renderer:
             if state.continuation is not None:
                 _roulette_weights(state)
             numbers = state.samples.bounce(step)
+            focus = None
             if nee:
-                self._next_event(wave, state, hit, shading.closures, numbers)
+                focus = self._world_focus(hit, shading.closures)
+                self._next_event(wave, state, hit, shading.closures, numbers, focus)
             bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
             if state.pass_weights is not None:
                 self._first_bounce_shares(state, shading.closures, bs)
             if wave.nee and self._glass_escapes_on:
                 self._glass_escapes(wave, state, hit, shading.closures, bs)
-            alive = self._continues(wave, hit, state, bs, numbers)
+            alive = self._continues(wave, hit, state, bs, numbers, focus)
             if state.lobes is not None:
                 state.track_lobes(bs, shading.closures, bs.transparent)
             if not len(alive):
@@ -1130,7 +1135,9 @@ class Renderer:
             mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
             if len(mis):
                 heuristic = sampling.balance_heuristic if self.environment.mis_balance else sampling.power_heuristic
-                env[:, mis] *= heuristic(state.bsdf_pdf[miss[mis]], self.lights.pdf_world(mx[mis], my[mis], mz[mis]))
+                focus = None if state.focus is None else state.focus.take(miss[mis])
+                env[:, mis] *= heuristic(state.bsdf_pdf[miss[mis]], self.lights.pdf_world(mx[mis], my[mis], mz[mis],
+                                                                                          focus))
         env = _clamp(wave, env, state.bounce[miss] > 1)
         _accumulate(wave.radiance, state.path[miss], env)
         if state.pass_weights is not None:
@@ -1232,8 +1239,9 @@ class Renderer:
         return closures.sample(u_lobe, u1, u2, uc, warp=warp)
 
     # ---- stage: absorb what cannot continue, count bounces, then Russian roulette
-    def _continues(self, wave, hit, state, bs, numbers) -> np.ndarray:
-        """Update the path state with the sampled BSDF; return the indices of the paths that go on."""
+    def _continues(self, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
+        """Update the path state with the sampled BSDF (focus: the world's at these hits, _world_focus);
+        return the indices of the paths that go on."""
         ok = _leaves_its_side(bs.wi, hit.ng, bs.transmit) & (bs.pdf > 0)
         throughput = state.throughput * bs.weight
         alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
@@ -1244,6 +1252,13 @@ class Renderer:
         alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
         state.bounce = state.bounce + ~passing
         state.bsdf_pdf = np.where(passing, state.bsdf_pdf, bs.pdf)
+        if focus is not None or state.focus is not None:
+            # Like bsdf_pdf, a transparent pass-through keeps the focus of the vertex before.
+            now = focus if focus is not None else WorldFocus.none(len(state))
+            if state.focus is not None and passing.any():
+                kept = np.flatnonzero(passing)
+                now.put(kept, state.focus.take(kept))
+            state.focus = now
         if state.min_ray_pdf is not None:
             state.min_ray_pdf = np.where(passing, state.min_ray_pdf, np.minimum(state.min_ray_pdf, bs.pdf))
         # After a few bounces, Russian roulette judges the surface the new ray will hit, as Cycles does
@@ -1293,8 +1308,21 @@ class Renderer:
         return self._ray_epsilon + np.float32(2.0 ** -16) * np.maximum(np.maximum(np.abs(px), np.abs(py)), np.abs(pz))
 
     # ---- stage: next-event estimation, one shadow ray toward a sampled light
-    def _next_event(self, wave, state, hit, closures, numbers):
-        """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light."""
+    def _world_focus(self, hit, closures):
+        """environment.WorldFocus per hit, about its glossiest lobe (closures.glossy_axes); None when the world
+        is not sampled as a light or cannot focus (a constant world, World.focus off)."""
+        if not (self.environment.focuses and self.lights.samples_world()):
+            return None
+        hits, axis, radius, share = glossy_axes(closures)
+        if not len(hits):
+            return None
+        focus = WorldFocus.none(len(hit))
+        focus.put(hits, self.environment.focus(*axis, radius, share * np.float32(FOCUS_SHARE)))
+        return focus
+
+    def _next_event(self, wave, state, hit, closures, numbers, focus=None):
+        """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light.
+        focus: the world's light samples' (_world_focus), per hit."""
         (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
         # Paths past their last bounce only pass through transparent surfaces: no direct light there; nor
         # where the closures are all singular (a mirror, smooth glass): their evaluation is zero.
@@ -1304,9 +1332,10 @@ class Renderer:
                 return
             u_select, u1, u2 = u_select[active], u1[active], u2[active]
             px, py, pz = (c[active] for c in hit.p)
+            focus = None if focus is None else focus.take(active)
         else:
             px, py, pz = hit.p
-        ls = self.lights.sample(px, py, pz, u_select, u1, u2)
+        ls = self.lights.sample(px, py, pz, u_select, u1, u2, focus)
         le = ls.radiance
         useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
         if not len(useful):

@@ -340,8 +340,9 @@ class LightSampler:
         # float64: a float32 cdf would round the intervals of millions of small emitters.
         return np.minimum(np.searchsorted(self._cdf, u_select.astype(np.float64), side="right"), len(self._cdf) - 1)
 
-    def sample(self, px, py, pz, u_select, u1, u2) -> LightSample:
-        """Choose an emitter for each shading point p and sample a direction toward it."""
+    def sample(self, px, py, pz, u_select, u1, u2, focus=None) -> LightSample:
+        """Choose an emitter for each shading point p and sample a direction toward it. focus: the world's
+        (environment.WorldFocus per shading point) when its light samples focus on glossy lobes."""
         n = len(px)
         out = LightSample(n)
         if not self.has_lights or n == 0:
@@ -359,7 +360,7 @@ class LightSampler:
         if self.select_pmf[self.world_index] > 0:
             world = np.flatnonzero(chosen == self.world_index)
             if len(world):
-                self._sample_world(out, world, u1[world], u2[world])
+                self._sample_world(out, world, u1[world], u2[world], None if focus is None else focus.take(world))
         out.pdf *= select
         return out
 
@@ -502,8 +503,8 @@ class LightSampler:
             a, b, c = (tuple(comp[keep] for comp in v) for v in (a, b, c))
         return spherical, omega, (a, b, c)
 
-    def _sample_world(self, out, idx, u1, u2):
-        wx, wy, wz, pdf = self.environment.sample_direction(u1, u2)
+    def _sample_world(self, out, idx, u1, u2, focus=None):
+        wx, wy, wz, pdf = self.environment.sample_direction(u1, u2, focus)
         out.set(idx, wx, wy, wz, np.float32(np.inf), self.environment.radiance(wx, wy, wz), pdf)
         out.world[idx] = True
 
@@ -536,10 +537,16 @@ class LightSampler:
             slot = np.where(~plain & (np.take(self.tri_ids, found) == tri), found, slot)
         return slot.astype(np.int32, copy=False)
 
-    def pdf_world(self, dx, dy, dz) -> np.ndarray:
-        if not self.has_lights or self.select_pmf[self.world_index] == 0:
+    def samples_world(self) -> bool:
+        """Whether next-event estimation can choose the world."""
+        return self.has_lights and self.select_pmf[self.world_index] > 0
+
+    def pdf_world(self, dx, dy, dz, focus=None) -> np.ndarray:
+        """pdf (solid angle, with selection) with which NEE would have sampled world directions d (focus: as
+        given to sample())."""
+        if not self.samples_world():
             return np.zeros(len(dx), np.float32)
-        return self.pmf32[self.world_index] * self.environment.direction_pdf(dx, dy, dz)
+        return self.pmf32[self.world_index] * self.environment.direction_pdf(dx, dy, dz, focus)
 
     def intersect(self, ox, oy, oz, dx, dy, dz, t_max):
         """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max.

@@ -37,6 +37,8 @@ class PathState:
     #                                         scene at once: the probability of the smooth-glass branch it
     #                                         took (Renderer._glass_escapes), 1 elsewhere; None when no path
     #                                         took one at its last bounce
+    focus: object = None    # environment.WorldFocus or None: how the vertex that sent each ray focused its
+    #                         light samples of the world (for the MIS weight of the world the ray finds)
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -66,6 +68,8 @@ class PathState:
             self.continuation = np.take(self.continuation, idx)
         if self.escape_scale is not None:
             self.escape_scale = np.take(self.escape_scale, idx)
+        if self.focus is not None:
+            self.focus = self.focus.take(idx)
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

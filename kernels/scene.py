@@ -359,6 +359,9 @@ class World:
     mis_compensation : sample the world as a light only where it is brighter than its mean, with the balance
         heuristic against BSDF rays (environment.Environment); False: in proportion to its radiance with the
         power heuristic, as Cycles does (same image, more noise).
+    focus : at glossy shading points, draw part of the world's light samples from the map around the
+        glossiest lobe's direction (environment.Environment.focus); False: from the whole map, as Cycles
+        does (same image, more noise).
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None
@@ -368,6 +371,7 @@ class World:
     output: Ref | None = None
     map_resolution: int = 1024
     mis_compensation: bool = True
+    focus: bool = True
 
     def validate(self) -> None:
         _check_array(self.color, "world.color", (3,), np.float32)
