@@ -533,11 +533,11 @@ def glossy_axes(cs):
         best = order[np.append(hs[1:] != hs[:-1], True)]
     else:
         best = np.arange(len(h))
-    best = best[share[best] >= MIN_AXIS_SHARE]
     dx, dy, dz = (k * n - scale * w for n, w in ((nx, wx), (ny, wy), (nz, wz)))
-    dx, dy, dz = dx[best], dy[best], dz[best]
     norm = np.sqrt(dx * dx + dy * dy + dz * dz)
-    return h[best], (dx / norm, dy / norm, dz / norm), radius[best], share[best]
+    best = best[(share[best] >= MIN_AXIS_SHARE) & (norm[best] > 0)]   # > 0 is False for a NaN normal too
+    norm = norm[best]
+    return h[best], (dx[best] / norm, dy[best] / norm, dz[best] / norm), radius[best], share[best]
 
 
 def pass_classes(cs, idx, wi):
