@@ -85,8 +85,10 @@ class Environment:
 
     @property
     def focuses(self) -> bool:
-        """Whether light samples of the world can be focused on the shading points' glossy lobes (focus())."""
-        return self._distribution is not None and self.world.focus
+        """Whether light samples of the world can be focused on the shading points' glossy lobes (focus()). Not
+        for a world program with a Light Path node: as with compensation, its light samples and BSDF rays may
+        see different worlds, so the image depends on the MIS weights, which must stay Cycles'."""
+        return self._distribution is not None and self.world.focus and not self.varies_with_ray
 
     def focus(self, dx, dy, dz, radius, share) -> "WorldFocus":
         """Blocks of the map around world directions d (unit, (n,) each): the patch rows and columns that

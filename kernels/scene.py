@@ -361,7 +361,7 @@ class World:
         power heuristic, as Cycles does (same image, more noise).
     focus : at glossy shading points, draw part of the world's light samples from the map around the
         glossiest lobe's direction (environment.Environment.focus); False: from the whole map, as Cycles
-        does (same image, more noise).
+        does (same image, more noise). Neither applies to a world program with a Light Path node.
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None

@@ -160,7 +160,8 @@ def test_world_program_sampling_pdf_matches_its_frequencies(compensated):
 
 def test_world_program_light_samples_are_not_camera_rays():
     """A Light Path world: camera rays see green, everything else (escaped bounce rays, light samples)
-    orange; a white diffuse plane lit only by the world comes out orange, never green."""
+    orange; a white diffuse plane lit only by the world comes out orange, never green. Its light samples are
+    neither compensated nor focused."""
     def build(tree):
         out = tree.nodes["World Output"]
         seen, lit = tree.nodes["Background"], tree.nodes.new("ShaderNodeBackground")
@@ -181,6 +182,8 @@ def test_world_program_light_samples_are_not_camera_rays():
     scene = export_current().scene
     with Renderer(scene, threads=1) as renderer:
         image = renderer.render(RenderSettings(samples=16, max_bounces=2)).image
+        # Its image depends on the MIS weights: no compensation or focus may change them from Cycles'.
+        assert renderer.environment.mis_balance is False and renderer.environment.focuses is False
     ground = image[6:, :, :3].reshape(-1, 3)  # the plane fills the lower rows
     assert np.all(ground[:, 1] < 0.6 * ground[:, 0] + 1e-3), ground[:4]
 
