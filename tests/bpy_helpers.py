@@ -192,18 +192,37 @@ def load_exr(path: str) -> np.ndarray:
 REPLICATE_SEEDS = (11, 29, 47, 83)
 
 
-def plain_world_sampling(monkeypatch) -> None:
-    """Make Ember's renderers sample the world without MIS compensation (World.mis_compensation False), in
-    proportion to its radiance as Cycles does, for the rest of the test."""
+def replace_world(monkeypatch, **fields) -> None:
+    """Make Ember's renderers build their world with these kernels.scene.World fields replaced, for the rest of
+    the test (worker processes get the renderer's scene, so they follow)."""
     import dataclasses
 
     import ember.kernels.integrator as integrator
     build = integrator.Renderer.__init__
 
-    def plain(self, arrays, *args, **kwargs):
-        build(self, dataclasses.replace(arrays, world=dataclasses.replace(arrays.world, mis_compensation=False)),
-              *args, **kwargs)
-    monkeypatch.setattr(integrator.Renderer, "__init__", plain)
+    def replaced(self, arrays, *args, **kwargs):
+        build(self, dataclasses.replace(arrays, world=dataclasses.replace(arrays.world, **fields)), *args, **kwargs)
+    monkeypatch.setattr(integrator.Renderer, "__init__", replaced)
+
+
+def plain_world_sampling(monkeypatch) -> None:
+    """Make Ember's renderers sample the world as Cycles does, for the rest of the test: in proportion to its
+    radiance (World.mis_compensation False) and from the whole map at every shading point (World.focus False)."""
+    replace_world(monkeypatch, mis_compensation=False, focus=False)
+
+
+def assert_same_image(a, var_a, b, var_b, block: int = 8, z_block: float = 4.5, z_whole: float = 4.0) -> None:
+    """Two estimates of one image (H, W, 3) with their variances of the mean (replicate_render) agree within
+    noise: every block x block sum within z_block standard errors of their difference, the whole image within
+    z_whole."""
+    h, w, _ = a.shape
+
+    def blocks(x):
+        return x[:h // block * block, :w // block * block].reshape(h // block, block, w // block, block, 3).sum(axis=(1, 3))
+    z = (blocks(a) - blocks(b)) / np.sqrt(blocks(var_a) + blocks(var_b))
+    assert np.abs(z).max() < z_block, z
+    whole = (a.sum() - b.sum()) / np.sqrt(var_a.sum() + var_b.sum())
+    assert abs(whole) < z_whole, whole
 
 
 def replicate_render(scene, engine: str, samples: int, **kwargs):

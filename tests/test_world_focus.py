@@ -199,32 +199,17 @@ def _frosted_scene(size):
     return scene
 
 
-def _unfocused(monkeypatch):
-    import dataclasses
-
-    import ember.kernels.integrator as integrator
-    build = integrator.Renderer.__init__
-
-    def plain(self, arrays, *args, **kwargs):
-        build(self, dataclasses.replace(arrays, world=dataclasses.replace(arrays.world, focus=False)), *args, **kwargs)
-    monkeypatch.setattr(integrator.Renderer, "__init__", plain)
-
-
 def test_focus_changes_the_noise_not_the_image(monkeypatch):
     """Frosted glass and rough metal under forest.exr's sun, below a half-transparent canopy, rendered with
     and without focused world samples: the same image within noise (8 x 8 pixel blocks and the whole image,
     against standard errors from both sets' scatter; a focus lost by the rays that pass through the canopy,
-    or by the escaped rays' MIS, makes them differ), and less noise with focus: per-sample variance XXX."""
+    or by the escaped rays' MIS, makes them differ), and less noise with focus: the mean per-pixel variance was
+    0.36-0.83x the plain one's over eight sets of eight seeds (0.16-0.22 against 0.22-0.49: the plain renders'
+    fireflies decide). Bound 0.9."""
     monkeypatch.setattr(bpy_helpers, "REPLICATE_SEEDS", tuple(range(1, 9)))
     scene = _frosted_scene(32)
     focused, var_f = replicate_render(scene, "EMBER", 128, max_bounces=6)
-    _unfocused(monkeypatch)
+    bpy_helpers.replace_world(monkeypatch, focus=False)
     plain, var_p = replicate_render(scene, "EMBER", 128, max_bounces=6)
-
-    def blocks(a):  # (4, 4, 3) sums over 8 x 8 pixel blocks
-        return a.reshape(4, 8, 4, 8, 3).sum(axis=(1, 3))
-    z = (blocks(focused) - blocks(plain)) / np.sqrt(blocks(var_f) + blocks(var_p))
-    whole = (focused.sum() - plain.sum()) / np.sqrt(var_f.sum() + var_p.sum())
-    assert np.abs(z).max() < 4.5, z
-    assert abs(whole) < 4, whole
+    bpy_helpers.assert_same_image(focused, var_f, plain, var_p)
     assert var_f.mean() < 0.9 * var_p.mean(), (var_f.mean(), var_p.mean())
