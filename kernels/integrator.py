@@ -1309,7 +1309,7 @@ class Renderer:
 
     # ---- stage: next-event estimation, one shadow ray toward a sampled light
     def _world_focus(self, hit, closures):
-        """environment.WorldFocus per hit, about its glossiest lobe (closures.glossy_axes); None when the world
+        """environment.WorldFocus per hit, about its main glossy lobe (closures.glossy_axes); None when the world
         is not sampled as a light or cannot focus (a constant world, World.focus off)."""
         if not (self.environment.focuses and self.lights.samples_world()):
             return None

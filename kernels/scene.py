@@ -360,7 +360,7 @@ class World:
         heuristic against BSDF rays (environment.Environment); False: in proportion to its radiance with the
         power heuristic, as Cycles does (same image, more noise).
     focus : at glossy shading points, draw part of the world's light samples from the map around the
-        glossiest lobe's direction (environment.Environment.focus); False: from the whole map, as Cycles
+        main glossy lobe's direction (environment.Environment.focus); False: from the whole map, as Cycles
         does (same image, more noise). Neither applies to a world program with a Light Path node.
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))

@@ -477,8 +477,8 @@ class ClosureSet:
         return f, np.where(total > 0, pdf, 0.0).astype(F32)
 
 
-# Lobes that gather light about one direction (a mirror's or a refraction's, blurred by roughness).
-FOCUS_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
+# glossy_axes: the lobes that gather light about one direction (a mirror's or a refraction's, blurred by
+# roughness) are reflection, refraction, glass and Ashikhmin-Shirley.
 MAX_AXIS_RADIUS = F32(1.0)    # radians: a lobe wider than this gathers from too much of the sphere to focus on
 MIN_AXIS_RADIUS = F32(0.02)
 MIN_AXIS_SHARE = F32(0.2)     # a lobe with less of its hit's sampling weight is not worth focusing on
@@ -486,7 +486,7 @@ AXIS_TILT = F32(2.0)          # microfacet normals within atan(2 alpha) of the m
 
 
 def glossy_axes(cs):
-    """Each hit's glossiest lobe: (hits, (dx, dy, dz), radius, share) for the hits that have one, where d is
+    """Each hit's main glossy lobe: (hits, (dx, dy, dz), radius, share) for the hits that have one, where d is
     the world direction about which the lobe gathers light, radius (radians) holds most of it and share is
     its part of the hit's sampling weight (at least MIN_AXIS_SHARE); a rough microfacet lobe narrower than
     MAX_AXIS_RADIUS qualifies. d is the mirror direction about the closure's normal, or the refracted one
