@@ -1136,8 +1136,8 @@ class Renderer:
             if len(mis):
                 heuristic = sampling.balance_heuristic if self.environment.mis_balance else sampling.power_heuristic
                 focus = None if state.focus is None else state.focus.take(miss[mis])
-                env[:, mis] *= heuristic(state.bsdf_pdf[miss[mis]], self.lights.pdf_world(mx[mis], my[mis], mz[mis],
-                                                                                          focus))
+                sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]],
+                                                           self.lights.pdf_world(mx[mis], my[mis], mz[mis], focus)))
         env = _clamp(wave, env, state.bounce[miss] > 1)
         _accumulate(wave.radiance, state.path[miss], env)
         if state.pass_weights is not None:
@@ -1345,7 +1345,7 @@ class Renderer:
         idx = useful[keep]  # rows of the light sample; active[idx] are the paths
         if not len(idx):
             return
-        f, bsdf_pdf = f[:, keep], bsdf_pdf[keep]
+        f, bsdf_pdf = np.take(f, keep, axis=1), bsdf_pdf[keep]
         gx, gy, gz = (np.take(c, active[idx]) for c in hit.ng)
         wx, wy, wz = np.take(ls.wx, idx), np.take(ls.wy, idx), np.take(ls.wz, idx)
         # Leave from the side of the surface the light is on (a light behind a transmitting surface).
@@ -1383,7 +1383,8 @@ class Renderer:
         if self.environment.mis_balance:
             heuristic = np.where(np.take(ls.world, rows), sampling.balance_heuristic(pdf, bsdf_pdf[vis]), heuristic)
         w = np.where(np.take(ls.delta, rows), np.float32(1.0), heuristic)
-        contribution = np.take(state.throughput, paths, axis=1) * f[:, vis] * transmittance[:, vis] * \
+        contribution = np.take(state.throughput, paths, axis=1) * np.take(f, vis, axis=1) * \
+            np.take(transmittance, vis, axis=1) * \
             np.take(ls.radiance, rows, axis=1) * (w / pdf)
 
         def reflecting(first):  # light reaching the first hit: split by the closures that reflect it there

@@ -160,3 +160,21 @@ def channel_mean(rgb: np.ndarray) -> np.ndarray:
     """(n,) mean of a (3, n) colour array's rows: rgb.mean(axis=0) bit for bit (the same float sums in the
     same order, then / 3), without NumPy's strided reduction, which costs 1.6x as much on 20k columns."""
     return (rgb[0] + rgb[1] + rgb[2]) / np.asarray(3, rgb.dtype)
+
+
+# Columns of (k, n) arrays (colours, frames) at integer indices: NumPy's 2-D fancy index a[:, idx] costs about
+# 3.7x np.take(a, idx, axis=1) when gathering 100k columns, and about 3x a row-by-row index when scattering.
+def put_columns(a: np.ndarray, idx, value) -> None:
+    """a[:, idx] = value, row by row (value (k, m), or broadcastable to it)."""
+    value = np.broadcast_to(value, (a.shape[0], len(idx)))
+    for k in range(a.shape[0]):
+        row = a[k]
+        row[idx] = value[k]
+
+
+def scale_columns(a: np.ndarray, idx, factor) -> None:
+    """a[:, idx] *= factor, row by row (factor (m,) or (k, m))."""
+    factor = np.asarray(factor)
+    for k in range(a.shape[0]):
+        row = a[k]
+        row[idx] *= factor[k] if factor.ndim == 2 else factor

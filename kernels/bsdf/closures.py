@@ -241,7 +241,7 @@ class ClosureSet:
         bumped = self._bump_rows(idx, wi_world) if bump else None
         if bumped is not None:  # the term is 1 elsewhere: only the bumped closures change
             sel, term = bumped
-            f[:, sel] *= term
+            sampling.scale_columns(f, sel, term)
             pdf[sel] = np.where(term > 0, pdf[sel], ZERO)
         return f, pdf
 
@@ -266,9 +266,9 @@ class ClosureSet:
         rows = rows[sel]
         wx, wy, wz = (np.take(c, sel) for c in wi_world)
         diffuse = self._diffuse[rows]
-        ns = self._shading[:, rows]
+        ns = np.take(self._shading, rows, axis=1)
         cos_si = wx * ns[0] + wy * ns[1] + wz * ns[2]
-        n = self.normal[:, rows]
+        n = np.take(self.normal, rows, axis=1)
         cos_ni = wx * n[0] + wy * n[1] + wz * n[2]
         cos_d = self._cos_d[rows]
         reject = cos_si * cos_d * cos_ni < 0
@@ -290,8 +290,8 @@ class ClosureSet:
             n = self.normal
             cos = wi_world[0] * n[0, idx] + wi_world[1] * n[1, idx] + wi_world[2] * n[2, idx]
             pdf = np.maximum(cos, ZERO) * sampling.INV_PI
-            return self.weight[:, idx] * pdf, pdf
-        wi = _to_local(tuple(c[:, idx] for c in self.frame), wi_world)
+            return np.take(self.weight, idx, axis=1) * pdf, pdf
+        wi = _to_local(tuple(np.take(c, idx, axis=1) for c in self.frame), wi_world)
         if len(self.kinds) == 1:
             return self._eval_lobe(self.kinds[0], idx, wi)
         f = np.zeros((3, len(idx)), F32)
@@ -300,14 +300,15 @@ class ClosureSet:
         for k in self.kinds:
             sel = np.flatnonzero(lobe == k)
             if len(sel):
-                f[:, sel], pdf[sel] = self._eval_lobe(k, idx[sel], _pick(wi, sel))
+                f_k, pdf[sel] = self._eval_lobe(k, idx[sel], _pick(wi, sel))
+                sampling.put_columns(f, sel, f_k)
         return f, pdf
 
     def _eval_lobe(self, k, rows, wi):
         if k == TRANSPARENT:
             return np.zeros((3, len(rows)), F32), np.zeros(len(rows), F32)
         value, pdf = EVAL[k](self, rows, _pick(self.wo, rows), wi)
-        f = value * self.weight[:, rows]
+        f = value * np.take(self.weight, rows, axis=1)
         if k in MICROFACET_LOBES:
             live = ~self.delta[rows]
             f, pdf = np.where(live, f, ZERO), np.where(live, pdf, ZERO)
@@ -358,15 +359,15 @@ class ClosureSet:
                 f, pdf = self.eval_at(s, tuple(c[s] for c in out.wi))
                 self._sampled_bump(s, row[s], out, f, pdf)
                 good = pdf > 0
-                out.weight[:, s] = np.where(good, f / np.where(good, pdf, ONE), ZERO)
+                sampling.put_columns(out.weight, s, np.where(good, f / np.where(good, pdf, ONE), ZERO))
                 out.pdf[s] = pdf
         # Delta: the chosen closure alone, divided by the probability of choosing it.
         d = np.flatnonzero(out.delta & (out.pdf > 0))
         if len(d):
             r = row[d]
-            out.weight[:, d] *= self.weight[:, r] * (self.total_sw[d] / self.sw[r])
+            sampling.scale_columns(out.weight, d, np.take(self.weight, r, axis=1) * (self.total_sw[d] / self.sw[r]))
             out.pdf[d] = np.inf
-        out.weight[:, ~(out.pdf > 0)] = 0.0
+        sampling.put_columns(out.weight, np.flatnonzero(~(out.pdf > 0)), ZERO)
         return out
 
     def _sampled_bump(self, s, rows, out, f, pdf):
@@ -397,12 +398,12 @@ class ClosureSet:
             n = self.normal
         else:
             lx, ly, lz = sampling.sample_cosine_hemisphere(u1[hits], u2[hits])
-            n = self.normal[:, rows]
+            n = np.take(self.normal, rows, axis=1)
         world = sampling.local_to_world(lx, ly, lz, n[0], n[1], n[2])
         pdf = sampling.cosine_hemisphere_pdf(lz)
         good = pdf > 0
         if self.single:
-            weight = self.weight if whole else self.weight[:, rows]
+            weight = self.weight if whole else np.take(self.weight, rows, axis=1)
         else:  # a Mix or Add of Diffuse BSDFs
             weight = np.stack([np.bincount(self.hit, self.weight[k], minlength=self.n_hits)[hits]
                                for k in range(3)]).astype(F32)
@@ -413,7 +414,7 @@ class ClosureSet:
             return
         for axis in range(3):
             out.wi[axis][hits] = world[axis]
-        out.weight[:, hits] = np.where(good, weight, ZERO)
+        sampling.put_columns(out.weight, hits, np.where(good, weight, ZERO))
         out.pdf[hits] = pdf
 
     def is_diffuse(self, rows: np.ndarray) -> np.ndarray:
@@ -428,10 +429,10 @@ class ClosureSet:
             sel = np.flatnonzero(lobe == k)
             r, h = rows[sel], hits[sel]
             wi, weight, pdf, transmit = SAMPLE[k](self, r, _pick(self.wo, r), u1[h], u2[h], uc[h])
-            world = _to_world(tuple(c[:, r] for c in self.frame), wi)
+            world = _to_world(tuple(np.take(c, r, axis=1) for c in self.frame), wi)
             for axis in range(3):
                 out.wi[axis][h] = world[axis]
-            out.weight[:, h] = weight
+            sampling.put_columns(out.weight, h, weight)
             out.pdf[h] = pdf
             out.transmit[h] = transmit
             out.delta[h] = self.delta[r] | np.isinf(pdf)
@@ -451,7 +452,7 @@ class ClosureSet:
         denom = np.where(good, pdf * share, ONE)
         for axis in range(3):
             out.wi[axis][hits] = wi[axis]
-        out.weight[:, hits] = np.where(good, f / denom, ZERO)
+        sampling.put_columns(out.weight, hits, np.where(good, f / denom, ZERO))
         out.pdf[hits] = np.where(good, pdf, ZERO)
 
     def eval_at(self, hits: np.ndarray, wi) -> tuple[np.ndarray, np.ndarray]:
@@ -501,7 +502,7 @@ def glossy_axes(cs):
     if not len(rows):
         return np.zeros(0, np.int64), (empty, empty, empty), empty, empty
     h = cs.hit[rows]
-    nx, ny, nz = cs.normal[:, rows]
+    nx, ny, nz = np.take(cs.normal, rows, axis=1)
     wx, wy, wz = (np.take(a, h) for a in cs._wo_world)
     cos = wx * nx + wy * ny + wz * nz
     flip = np.where(cos < 0, F32(-1.0), ONE)
@@ -547,7 +548,7 @@ def pass_classes(cs, idx, wi):
     diffuse = np.isin(lobe, DIFFUSE_LOBES)
     glossy = np.isin(lobe, GLOSSY_LOBES)
     if GLASS in cs.kinds:
-        n = cs.normal[:, idx]
+        n = np.take(cs.normal, idx, axis=1)
         glossy |= (lobe == GLASS) & (wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] > 0)
     return diffuse, glossy
 
@@ -641,11 +642,11 @@ def _lambert_sample(cs, rows, wo, u1, u2, uc):
 
 
 def _oren_nayar_eval(cs, rows, wo, wi):
-    return diffuse.oren_nayar_eval(wo, wi, cs.rough[rows], cs.c0[:, rows])
+    return diffuse.oren_nayar_eval(wo, wi, cs.rough[rows], np.take(cs.c0, rows, axis=1))
 
 
 def _oren_nayar_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf = diffuse.oren_nayar_sample(wo, cs.rough[rows], cs.c0[:, rows], u1, u2)
+    wi, weight, pdf = diffuse.oren_nayar_sample(wo, cs.rough[rows], np.take(cs.c0, rows, axis=1), u1, u2)
     return wi, weight, pdf, False
 
 

@@ -171,8 +171,8 @@ def _where(ctx, sub):
 
 # ---------------------------------------------------------------- the lobes in the closure table
 def _reflection_fresnel(cs, rows):
-    mode, eta = cs.fresnel[rows].astype(np.int8), cs.eta[rows]
-    c0, c1 = cs.c0[:, rows], cs.c1[:, rows]
+    mode, eta = np.take(cs.fresnel, rows).astype(np.int8), np.take(cs.eta, rows)
+    c0, c1 = np.take(cs.c0, rows, axis=1), np.take(cs.c1, rows, axis=1)
 
     def fresnel(cos_h):
         out = np.ones((3, len(rows)), F32)
@@ -191,35 +191,45 @@ def _reflection_fresnel(cs, rows):
 
 
 def _glass_fresnel(cs, rows):
-    return fr.remapped_glass(cs.c0[:, rows], ONE, cs.c1[:, rows], cs.c2[:, rows])
+    c0, c1, c2 = (np.take(c, rows, axis=1) for c in (cs.c0, cs.c1, cs.c2))
+    return fr.remapped_glass(c0, ONE, c1, c2)
+
+
+def _params(cs, rows, *names):
+    """The closures' scalar columns `names` at rows."""
+    return tuple(np.take(getattr(cs, name), rows) for name in names)
 
 
 def _reflection_eval(cs, rows, wo, wi, dist=mf.GGX):
-    f, pdf = mf.eval_reflection(wo, wi, cs.ax[rows], cs.ay[rows], _reflection_fresnel(cs, rows), dist)
-    return f * cs.eval_scale[rows], pdf
+    ax, ay, scale = _params(cs, rows, "ax", "ay", "eval_scale")
+    f, pdf = mf.eval_reflection(wo, wi, ax, ay, _reflection_fresnel(cs, rows), dist)
+    return f * scale, pdf
 
 
 def _reflection_sample(cs, rows, wo, u1, u2, uc, dist=mf.GGX):
-    s = mf.sample_reflection(wo, cs.ax[rows], cs.ay[rows], _reflection_fresnel(cs, rows), u1, u2, dist)
-    return s.wi, s.weight * cs.eval_scale[rows], s.pdf, s.transmission
+    ax, ay, scale = _params(cs, rows, "ax", "ay", "eval_scale")
+    s = mf.sample_reflection(wo, ax, ay, _reflection_fresnel(cs, rows), u1, u2, dist)
+    return s.wi, s.weight * scale, s.pdf, s.transmission
 
 
 def _glass_eval(cs, rows, wo, wi, dist=mf.GGX):
-    f, pdf = mf.eval_glass(wo, wi, cs.ax[rows], cs.ay[rows], cs.eta[rows], _glass_fresnel(cs, rows), dist)
-    return f * cs.eval_scale[rows], pdf
+    ax, ay, eta, scale = _params(cs, rows, "ax", "ay", "eta", "eval_scale")
+    f, pdf = mf.eval_glass(wo, wi, ax, ay, eta, _glass_fresnel(cs, rows), dist)
+    return f * scale, pdf
 
 
 def _glass_sample(cs, rows, wo, u1, u2, uc, dist=mf.GGX):
-    s = mf.sample_glass(wo, cs.ax[rows], cs.ay[rows], cs.eta[rows], _glass_fresnel(cs, rows), u1, u2, uc, dist)
-    return s.wi, s.weight * cs.eval_scale[rows], s.pdf, s.transmission
+    ax, ay, eta, scale = _params(cs, rows, "ax", "ay", "eta", "eval_scale")
+    s = mf.sample_glass(wo, ax, ay, eta, _glass_fresnel(cs, rows), u1, u2, uc, dist)
+    return s.wi, s.weight * scale, s.pdf, s.transmission
 
 
 def _refraction_eval(cs, rows, wo, wi, dist=mf.GGX):
-    return mf.eval_refraction(wo, wi, cs.ax[rows], cs.ay[rows], cs.eta[rows], dist)
+    return mf.eval_refraction(wo, wi, *_params(cs, rows, "ax", "ay", "eta"), dist)
 
 
 def _refraction_sample(cs, rows, wo, u1, u2, uc, dist=mf.GGX):
-    s = mf.sample_refraction(wo, cs.ax[rows], cs.ay[rows], cs.eta[rows], u1, u2, dist)
+    s = mf.sample_refraction(wo, *_params(cs, rows, "ax", "ay", "eta"), u1, u2, dist)
     return s.wi, s.weight, s.pdf, s.transmission
 
 
@@ -227,7 +237,7 @@ def _by_distribution_eval(fn):
     """Eval of rows that may mix distributions: one call per distribution present (GGX alone: one call,
     exactly as before the column existed)."""
     def run(cs, rows, wo, wi):
-        dist = cs.dist[rows]
+        dist = np.take(cs.dist, rows)
         if not np.any(dist != mf.GGX):
             return fn(cs, rows, wo, wi)
         f, pdf = np.zeros((3, len(rows)), F32), np.zeros(len(rows), F32)
@@ -241,7 +251,7 @@ def _by_distribution_eval(fn):
 def _by_distribution_sample(fn):
     """Sample of rows that may mix distributions, as _by_distribution_eval."""
     def run(cs, rows, wo, u1, u2, uc):
-        dist = cs.dist[rows]
+        dist = np.take(cs.dist, rows)
         if not np.any(dist != mf.GGX):
             return fn(cs, rows, wo, u1, u2, uc)
         n = len(rows)
@@ -257,15 +267,15 @@ def _by_distribution_sample(fn):
 
 
 def _take(w, s):
-    return tuple(c[s] for c in w)
+    return tuple(np.take(c, s) for c in w)
 
 
 def _ashikhmin_shirley_eval(cs, rows, wo, wi):
-    return ash.eval_ashikhmin_shirley(wo, wi, cs.ax[rows], cs.ay[rows])
+    return ash.eval_ashikhmin_shirley(wo, wi, *_params(cs, rows, "ax", "ay"))
 
 
 def _ashikhmin_shirley_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf, _ = ash.sample_ashikhmin_shirley(wo, cs.ax[rows], cs.ay[rows], u1, u2)
+    wi, weight, pdf, _ = ash.sample_ashikhmin_shirley(wo, *_params(cs, rows, "ax", "ay"), u1, u2)
     return wi, weight, pdf, False
 
 
@@ -280,7 +290,7 @@ def singular_glass_other_branch(cs, hits, rows, transmitted):
     its probability), whether it is the refraction, the probability the taken branch had, and where the
     other branch exists (both Fresnel factors non-zero)."""
     wo = tuple(np.take(c, rows) for c in cs.wo)
-    eta = cs.eta[rows]
+    eta = np.take(cs.eta, rows)
     # As _sample_dielectric at the singular half vector h = n.
     cos_h = np.where(wo[2] > 0, np.clip(wo[2], ZERO, ONE), ONE)
     r, t = _glass_fresnel(cs, rows)(cos_h, eta)
@@ -294,8 +304,8 @@ def singular_glass_other_branch(cs, hits, rows, transmitted):
     p_other = np.where(other_reflects, p_reflect, ONE - p_reflect)
     chance = np.isfinite(p_other) & (p_other > 0) & (p_other < 1)
     ok = chance & (pdf > 0) & (transmit != transmitted)
-    scale = cs.weight[:, rows] * (cs.total_sw[hits] / cs.sw[rows]) * np.where(ok, p_other, ZERO)
-    world = lobes._to_world(tuple(c[:, rows] for c in cs.frame), wi)
+    scale = np.take(cs.weight, rows, axis=1) * (cs.total_sw[hits] / np.take(cs.sw, rows)) * np.where(ok, p_other, ZERO)
+    world = lobes._to_world(tuple(np.take(c, rows, axis=1) for c in cs.frame), wi)
     # The taken branch's probability whether or not the other one could be followed (an invalid direction).
     return world, np.where(ok, weight * scale, ZERO).astype(F32), transmit, \
         np.where(chance, ONE - p_other, ONE).astype(F32), ok

@@ -194,7 +194,7 @@ class _TangentBuilder:
 
     def add(self, lobe, hits, weight, tangent=None, **kwargs):
         if tangent is None and lobe in (lobes.REFLECTION, lobes.ASHIKHMIN_SHIRLEY):
-            tangent = self._tangent[:, hits]
+            tangent = np.take(self._tangent, hits, axis=1)
         self._builder.add(lobe, hits, weight, tangent=tangent, **kwargs)
 
 
@@ -235,11 +235,11 @@ def _diffuse_lobe(b, ctx, weight, roughness, rho):
     rough = roughness >= CUTOFF
     normal = ctx.normal_arg
     flat = np.flatnonzero(~rough)
-    b.add(lobes.LAMBERT, ctx.idx[flat], weight[:, flat], normal=_rows(normal, flat), **_soften(ctx))
+    b.add(lobes.LAMBERT, ctx.idx[flat], np.take(weight, flat, axis=1), normal=_rows(normal, flat), **_soften(ctx))
     on = np.flatnonzero(rough)
     if len(on):
-        b.add(lobes.OREN_NAYAR, ctx.idx[on], weight[:, on], normal=_rows(normal, on),
-              rough=np.clip(roughness[on], 0.0, 1.0), c0=rho[:, on], **_soften(ctx))
+        b.add(lobes.OREN_NAYAR, ctx.idx[on], np.take(weight, on, axis=1), normal=_rows(normal, on),
+              rough=np.clip(roughness[on], 0.0, 1.0), c0=np.take(rho, on, axis=1), **_soften(ctx))
 
 
 def _soften(ctx) -> dict:
@@ -250,7 +250,7 @@ def _soften(ctx) -> dict:
 
 def _rows(normal, sub):
     """A per-hit normal at hits sub (None stays None: the shading normal)."""
-    return None if normal is None else tuple(c[sub] for c in normal)
+    return None if normal is None else tuple(np.take(c, sub) for c in normal)
 
 
 def _translucent(c, ctx, w, b):
@@ -387,7 +387,8 @@ def _principled(c, ctx, w, b):
             t = np.clip(coat_w, 0.0, 1.0)
             sheen = ctx.with_normal(normals.safe_normalize(tuple(n + (m - n) * t for n, m in zip(ctx.ns, coat.ns))))
         rough = np.clip(get("Sheen Roughness")[has], 0.0, 1.0)
-        sheen_weight = sheen_w[has] * np.maximum(get("Sheen Tint")[:, has], ZERO) * weight[:, has]
+        sheen_weight = sheen_w[has] * np.maximum(np.take(get("Sheen Tint"), has, axis=1), ZERO) * \
+            np.take(weight, has, axis=1)
         albedo = sheen_albedo(sheen.mu()[has], rough)
         if b is not None:
             b.add(lobes.SHEEN, ctx.idx[has], sheen_weight,
@@ -402,18 +403,18 @@ def _principled(c, ctx, w, b):
         coat = coat.specular()
         layered = glossy(coat_w > CUTOFF)
         if len(layered):
-            albedo = mf.add_coat(b, coat, layered, coat_w[layered] * weight[:, layered],
+            albedo = mf.add_coat(b, coat, layered, coat_w[layered] * np.take(weight, layered, axis=1),
                                  np.square(np.clip(get("Coat Roughness")[layered], 0.0, 1.0)),
                                  np.maximum(get("Coat IOR")[layered], ONE))
             weight[:, layered] = layering_weight(albedo, weight[:, layered])
-        tint = np.maximum(get("Coat Tint")[:, has], ZERO)
+        tint = np.maximum(np.take(get("Coat Tint"), has, axis=1), ZERO)
         tinted = np.flatnonzero(np.any(tint != ONE, axis=0))
         if len(tinted):
             mu = coat.mu()[has][tinted]
             ior_t = ior_c[tinted]
             cos_t = np.sqrt(np.maximum(ONE - (ONE - mu * mu) / (ior_t * ior_t), ZERO))
             depth = ONE / np.maximum(cos_t, F32(1e-7))
-            factor = ONE + (np.power(tint[:, tinted], depth) - ONE) * cw[tinted]
+            factor = ONE + (np.power(np.take(tint, tinted, axis=1), depth) - ONE) * cw[tinted]
             weight[:, has[tinted]] *= factor
     # 3. Emission, under sheen and coat.
     strength = get("Emission Strength")
@@ -433,18 +434,20 @@ def _principled(c, ctx, w, b):
     metallic = np.clip(get("Metallic"), 0.0, 1.0)
     has = glossy(metallic > CUTOFF)
     if len(has):
-        mf.add_f82(anisotropic, spec, metallic[has] * weight[:, has], ax[has], ay[has], clamped[:, has],
-                   np.minimum(specular_tint[:, has], ONE), multiscatter, sub=has)
+        mf.add_f82(anisotropic, spec, metallic[has] * np.take(weight, has, axis=1), ax[has], ay[has],
+                   np.take(clamped, has, axis=1),
+                   np.minimum(np.take(specular_tint, has, axis=1), ONE), multiscatter, sub=has)
     weight = weight * (ONE - metallic)
     # 5. Transmission: GGX glass, tinted by sqrt(base) through refraction.
     transmission = np.clip(get("Transmission Weight"), 0.0, 1.0)
     has = np.flatnonzero(transmission > CUTOFF)
     if len(has):
         refracted = _made(ctx, refractive=True)
-        mf.add_glass(b, spec, transmission[has] * weight[:, has], alpha_r[has], ior[has],
+        mf.add_glass(b, spec, transmission[has] * np.take(weight, has, axis=1), alpha_r[has], ior[has],
                      reflection_tint=np.ones((3, len(has)), F32) * (ONE if made is None else made[has]),
-                     transmission_tint=np.sqrt(clamped[:, has]) * (ONE if refracted is None else refracted[has]),
-                     specular_tint=specular_tint[:, has], multiscatter=multiscatter, sub=has)
+                     transmission_tint=np.sqrt(np.take(clamped, has, axis=1)) *
+                     (ONE if refracted is None else refracted[has]),
+                     specular_tint=np.take(specular_tint, has, axis=1), multiscatter=multiscatter, sub=has)
     weight = weight * (ONE - transmission)
     # 6. Specular: dielectric GGX reflection; Specular IOR Level scales F0 (and the IOR with it).
     f0 = np.square((ior - ONE) / (ior + ONE))
@@ -458,8 +461,8 @@ def _principled(c, ctx, w, b):
     # Hits whose layers above left no weight (metal, glass) make no specular closure: skip their tables.
     has = glossy((eta != ONE) & np.any(weight != ZERO, axis=0))
     if len(has):
-        albedo = mf.add_specular(anisotropic, spec, weight[:, has], ax[has], ay[has], eta[has],
-                                 f0[has] * specular_tint[:, has], multiscatter, sub=has)
+        albedo = mf.add_specular(anisotropic, spec, np.take(weight, has, axis=1), ax[has], ay[has], eta[has],
+                                 f0[has] * np.take(specular_tint, has, axis=1), multiscatter, sub=has)
         weight[:, has] = layering_weight(albedo, weight[:, has])
     # 7. Diffuse (subsurface scattering is rendered as the diffuse it would be without its radius).
     sss = np.clip(get("Subsurface Weight"), 0.0, 1.0)
