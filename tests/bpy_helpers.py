@@ -218,7 +218,8 @@ def assert_same_image(a, var_a, b, var_b, block: int = 8, z_block: float = 4.5, 
     h, w, _ = a.shape
 
     def blocks(x):
-        return x[:h // block * block, :w // block * block].reshape(h // block, block, w // block, block, 3).sum(axis=(1, 3))
+        x = x[:h // block * block, :w // block * block]
+        return x.reshape(h // block, block, w // block, block, 3).sum(axis=(1, 3))
     z = (blocks(a) - blocks(b)) / np.sqrt(blocks(var_a) + blocks(var_b))
     assert np.abs(z).max() < z_block, z
     whole = (a.sum() - b.sum()) / np.sqrt(var_a.sum() + var_b.sum())
