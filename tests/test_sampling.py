@@ -147,3 +147,22 @@ def test_channel_mean_is_numpys_mean_bit_for_bit():
         np.testing.assert_array_equal(got, rgb.mean(axis=0))
     broadcast = np.broadcast_to(np.float32([[0.1], [0.7], [0.3]]), (3, 9))
     np.testing.assert_array_equal(sampling.channel_mean(broadcast), broadcast.mean(axis=0))
+
+
+def test_column_helpers_match_numpys_fancy_index():
+    """put_columns and scale_columns write what a[:, idx] = v and a[:, idx] *= f write, row by row, for a
+    (k, m) value, a (m,) factor and a scalar broadcast to every column."""
+    rng = np.random.default_rng(4)
+    a = rng.random((3, 50)).astype(np.float32)
+    idx = np.array([3, 7, 20, 49, 0])
+    for value in (rng.random((3, 5)).astype(np.float32), np.float32(0.0)):
+        want, got = a.copy(), a.copy()
+        want[:, idx] = value
+        sampling.put_columns(got, idx, value)
+        np.testing.assert_array_equal(got, want)
+    unique = np.array([1, 4, 9, 30])
+    for factor in (rng.random((3, 4)).astype(np.float32), rng.random(4).astype(np.float32)):
+        want, got = a.copy(), a.copy()
+        want[:, unique] *= factor
+        sampling.scale_columns(got, unique, factor)
+        np.testing.assert_array_equal(got, want)
