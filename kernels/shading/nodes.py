@@ -394,7 +394,7 @@ def _principled(c, ctx, w, b):
             b.add(lobes.SHEEN, ctx.idx[has], sheen_weight,
                   sample_weight=_sheen_sample_weight(sheen_weight, albedo),
                   normal=_rows(sheen.normal_arg, has), rough=rough, **_soften(sheen))
-        weight[:, has] = layering_weight(sheen_weight * albedo, weight[:, has])
+        sampling.put_columns(weight, has, layering_weight(sheen_weight * albedo, np.take(weight, has, axis=1)))
     # 2. Coat: GGX with exact dielectric Fresnel at the coat IOR, then its tint along the refracted path.
     has = np.flatnonzero(coat_w > CUTOFF)
     if len(has):
@@ -406,7 +406,7 @@ def _principled(c, ctx, w, b):
             albedo = mf.add_coat(b, coat, layered, coat_w[layered] * np.take(weight, layered, axis=1),
                                  np.square(np.clip(get("Coat Roughness")[layered], 0.0, 1.0)),
                                  np.maximum(get("Coat IOR")[layered], ONE))
-            weight[:, layered] = layering_weight(albedo, weight[:, layered])
+            sampling.put_columns(weight, layered, layering_weight(albedo, np.take(weight, layered, axis=1)))
         tint = np.maximum(np.take(get("Coat Tint"), has, axis=1), ZERO)
         tinted = np.flatnonzero(np.any(tint != ONE, axis=0))
         if len(tinted):
@@ -415,7 +415,7 @@ def _principled(c, ctx, w, b):
             cos_t = np.sqrt(np.maximum(ONE - (ONE - mu * mu) / (ior_t * ior_t), ZERO))
             depth = ONE / np.maximum(cos_t, F32(1e-7))
             factor = ONE + (np.power(np.take(tint, tinted, axis=1), depth) - ONE) * cw[tinted]
-            weight[:, has[tinted]] *= factor
+            sampling.scale_columns(weight, has[tinted], factor)
     # 3. Emission, under sheen and coat.
     strength = get("Emission Strength")
     emission = np.maximum(get("Emission Color"), ZERO) * strength * weight if np.any(strength != 0) else None
@@ -463,7 +463,7 @@ def _principled(c, ctx, w, b):
     if len(has):
         albedo = mf.add_specular(anisotropic, spec, np.take(weight, has, axis=1), ax[has], ay[has], eta[has],
                                  f0[has] * np.take(specular_tint, has, axis=1), multiscatter, sub=has)
-        weight[:, has] = layering_weight(albedo, weight[:, has])
+        sampling.put_columns(weight, has, layering_weight(albedo, np.take(weight, has, axis=1)))
     # 7. Diffuse (subsurface scattering is rendered as the diffuse it would be without its radius).
     sss = np.clip(get("Subsurface Weight"), 0.0, 1.0)
     b.add(lobes.LAMBERT, ctx.idx, clamped * sss * weight, normal=spec.normal_arg, **_soften(spec))
