@@ -140,8 +140,7 @@ class Environment:
             if len(block):
                 f = focus.take(block)
                 ub = np.minimum(u1[block] / f.p, F32(1.0 - 1e-7))
-                u[block], v[block], pdf_uv[block] = self._distribution.sample_block(
-                    *f.block(), 1.0 / f.inv_mass.astype(np.float64), ub, u2[block])
+                u[block], v[block], pdf_uv[block] = self._distribution.sample_block(*f.block(), ub, u2[block])
             pdf_uv = pdf_uv * self._focus_factor(focus, u, v)
         ex, ey, ez, sin_t = equirect_to_direction(u, v)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -383,14 +382,15 @@ class _BilinearDistribution:
         sat = self._sat
         return np.take(sat, base + end) - np.take(sat, base + start) + np.take(sat, base + wrapped)
 
-    def sample_block(self, r0, r1, c0, nc, mass, u1, u2):
-        """Points drawn from the distribution restricted to the blocks (mass: block_mass, > 0): the patch
-        row by bisection on the block's row masses, the column by the row's own cdf over the block's span,
-        the point inside as sample() does. Returns u, v and the global pdf per unit (u, v) area there (the
-        block's pdf is that over mass)."""
+    def sample_block(self, r0, r1, c0, nc, u1, u2):
+        """Points drawn from the distribution restricted to the blocks (each with some of its mass): the
+        patch row by bisection on the block's row masses, the column by the row's own cdf over the block's
+        span, the point inside as sample() does. Returns u, v and the global pdf per unit (u, v) area there
+        (the block's pdf is that over block_mass)."""
         w = self.width
         cols = self._block_columns(c0, nc)
-        t = self._above(r0, cols) + u1.astype(np.float64) * mass
+        top = self._above(r0, cols)
+        t = top + u1.astype(np.float64) * (self._above(r1, cols) - top)
         # The last row r with the mass above it <= t: lo keeps that property, hi the opposite.
         lo, hi = r0, r1
         for _ in range(int(np.max(r1 - r0)).bit_length()):

@@ -53,7 +53,7 @@ def test_block_samples_follow_the_distribution_inside_the_block(compensate, bloc
     inside = np.zeros((h + 1, w), bool)
     inside[r0:r1][:, cols] = True
     assert mass[0] == pytest.approx(masses[inside].sum(), rel=1e-9)
-    u, v, pdf = dist.sample_block(*full, mass, rng.random(n, dtype=np.float32), rng.random(n, dtype=np.float32))
+    u, v, pdf = dist.sample_block(*full, rng.random(n, dtype=np.float32), rng.random(n, dtype=np.float32))
     r, c = dist.patch_of(u, v)
     # A point on a patch row's edge may be read as the next row's (float32); both are in the block here or not.
     assert np.mean(inside[r, c]) > 1 - 1e-4
