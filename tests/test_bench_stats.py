@@ -10,7 +10,7 @@ from bench import vs_cycles
 def test_timed_seeds_per_scene_and_budget():
     cfg = vs_cycles.FULL
     assert vs_cycles.timed_seeds(cfg, "materials", 5.0) == tuple(range(8))
-    assert vs_cycles.timed_seeds(cfg, "materials", 20.0) == (0, 1, 2)
+    assert vs_cycles.timed_seeds(cfg, "materials", 20.0) == tuple(range(5))
     assert vs_cycles.timed_seeds(cfg, "cornell", 5.0) == (vs_cycles.TIMED_SEED,)
     assert vs_cycles.timed_seeds(cfg, "materials", 7.0) == (vs_cycles.TIMED_SEED,)
     for budget in vs_cycles.QUICK.budgets_s:   # the quick run's budgets have seeds of their own
