@@ -80,7 +80,7 @@ class Config:
     # is a lottery of caustic fireflies: one seed per engine measured one draw (at a given sample count each
     # engine's image is the same in every run), and seed 0 happened to be an unlucky draw for Cycles
     # (its RMSE x sqrt(spp) 0.74-0.85 against 0.43-0.78 over six other seeds); three seeds still read
-    # 0.62-0.68 in four runs where sixteen read 0.80 (its standard error 0.05). Its figures are the mean
+    # 0.62-0.68 in four runs where sixteen read 0.73-0.80 (standard error 0.04-0.05). Its figures are the mean
     # squared error over these seeds, with the ratio's standard error from their scatter.
     timed_seeds: tuple = (("materials", ((5.0, tuple(range(8))), (20.0, tuple(range(5))))),)
     # Per-sample variance over many seeds (scene, spp, seeds): the expected equal-time ratio without the
