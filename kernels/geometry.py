@@ -33,13 +33,15 @@ class TriangleTable:
         parts = [scene] + list(inst.prototypes if inst is not None else ())
         self.plain_count = len(scene.positions)
         self._rows = None
-        self._source = None      # (positions, normals, uvs) the rows come from while they are deferred
+        self._source = None      # (positions, normals, uvs, mirrored) the rows come from while they are deferred
         self._building = None    # the thread building deferred rows
         self._build_lock = threading.Lock()
+        mirrored = scene.mirrored_triangles()
         if deferred and inst is None and self.plain_count >= DEFERRED_ROWS:
-            self._source = (scene.positions, scene.normals, scene.uvs)
+            self._source = (scene.positions, scene.normals, scene.uvs, mirrored)
         else:
-            self._rows = _concatenate([_triangle_table(part) for part in parts])
+            self._rows = _concatenate([_triangle_table_of(scene.positions, scene.normals, scene.uvs, mirrored)]
+                                      + [_triangle_table_of(p.positions, p.normals, p.uvs) for p in parts[1:]])
         self.material_ids = _concatenate([part.material_ids for part in parts])
         # (R, 12) float32: per corner the tangent xyz and its sign; apart from the rows every hit gathers,
         # since only normal-mapped and anisotropic materials read it.
@@ -93,20 +95,20 @@ class TriangleTable:
                 self._building.start()
 
     def _build_deferred(self) -> None:
-        positions, normals, uvs = self._source
-        table = _triangle_table_of(positions, normals, uvs)
+        table = _triangle_table_of(*self._source)
         self._rows = table        # one reference assignment: gathers see the whole table or none
         self._source = None
 
     @staticmethod
     def _computed_rows_from(source, prim: np.ndarray) -> np.ndarray:
         """(N, 27) rows of plain triangles prim computed from source, the scene's (positions, normals,
-        uvs), while the table is deferred."""
-        positions, normals, uvs = source
+        uvs, mirrored), while the table is deferred."""
+        positions, normals, uvs, mirrored = source
         out = np.empty((len(prim), _COLUMNS), np.float32)
         # (np.take would first copy a one-row view of a mesh without UVs whole; indexing reads its row.)
         corner_uvs = uvs[prim] if uvs.strides[0] == 0 else np.take(uvs, prim, axis=0)
-        _fill_rows(out, corner_values(positions, prim), corner_values(normals, prim), corner_uvs)
+        _fill_rows(out, corner_values(positions, prim), corner_values(normals, prim), corner_uvs,
+                   None if mirrored is None else np.take(mirrored, prim))
         return out
 
     def place(self, instances) -> None:
@@ -166,6 +168,8 @@ class TriangleTable:
         out[:, NG:NG + 3] = np.stack(unit_rows(e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1],
                                                e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
                                                e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), axis=1)
+        # A mirroring transform turns the winding over, not the face: its front stays Blender's.
+        out[:, NG:NG + 3] *= np.take(self._det_sign, k)[:, None]
         for col in (N0, N1, N2):
             n = _apply(normal, g[:, col:col + 3])
             out[:, col:col + 3] = np.stack(unit_rows(n[:, 0], n[:, 1], n[:, 2]), axis=1)
@@ -329,29 +333,30 @@ _PARALLEL_ROWS = 1 << 18
 DEFERRED_ROWS = 2 * _PARALLEL_ROWS
 
 
-def _triangle_table(scene: SceneArrays) -> np.ndarray:
-    """(T, 27) rows of a SceneArrays or Prototype; big ones built in slices, in parallel."""
-    return _triangle_table_of(scene.positions, scene.normals, scene.uvs)
-
-
-def _triangle_table_of(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray) -> np.ndarray:
+def _triangle_table_of(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray,
+                       mirrored: np.ndarray | None = None) -> np.ndarray:
+    """(T, 27) rows of triangles (SceneArrays fields; mirrored: SceneArrays.mirrored_triangles()); big ones
+    built in slices, in parallel."""
     t = len(positions)
     table = np.empty((t, _COLUMNS), np.float32)
     if t < 2 * _PARALLEL_ROWS:
-        _fill_rows(table, corner_values(positions), corner_values(normals), uvs)
+        _fill_rows(table, corner_values(positions), corner_values(normals), uvs, mirrored)
         return table
     from concurrent.futures import ThreadPoolExecutor
     import os
     slices = [slice(i, min(i + _PARALLEL_ROWS, t)) for i in range(0, t, _PARALLEL_ROWS)]
     with ThreadPoolExecutor(max(1, os.cpu_count() or 1)) as pool:
         # positions[s], normals[s]: slices of the arrays, or the slice's corners gathered from CornerRows.
-        list(pool.map(lambda s: _fill_rows(table[s], positions[s], normals[s], uvs[s]), slices))
+        list(pool.map(lambda s: _fill_rows(table[s], positions[s], normals[s], uvs[s],
+                                           None if mirrored is None else mirrored[s]), slices))
     return table
 
 
-def _fill_rows(table: np.ndarray, p: np.ndarray, n: np.ndarray, uvs: np.ndarray) -> None:
+def _fill_rows(table: np.ndarray, p: np.ndarray, n: np.ndarray, uvs: np.ndarray,
+               mirrored: np.ndarray | None = None) -> None:
     """Rows in float32, straight in the layout the renderer gathers from; whole (T, 3) and (T, 3, 3)
-    blocks at a time (the same float32 operations, in the same order, as component by component)."""
+    blocks at a time (the same float32 operations, in the same order, as component by component).
+    mirrored : (T,) bool or None, triangles whose geometric normal is turned to their object's front."""
     t = len(p)
     p0 = table[:, P0:P0 + 3]
     p0[:] = p[:, 0]
@@ -362,6 +367,8 @@ def _fill_rows(table: np.ndarray, p: np.ndarray, n: np.ndarray, uvs: np.ndarray)
     ng[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
     ng[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     ng *= _inverse_length(ng)[:, None]
+    if mirrored is not None:
+        np.negative(ng, out=ng, where=mirrored[:, None])
     normals = table[:, N0:N2 + 3].reshape(t, 3, 3)
     length2 = _length2(n)
     np.multiply(n, (np.float32(1.0) / np.sqrt(np.maximum(length2, np.float32(1e-37))))[:, :, None], out=normals)
@@ -401,7 +408,9 @@ def extent(positions: np.ndarray):
 
 def flatten_instances(scene: SceneArrays) -> SceneArrays:
     """The scene with every instance copied into plain world-space triangles (what a one-level BVH
-    holds): the reference the instanced scene must render like."""
+    holds): the reference the instanced scene must render like. A mirrored copy's front is its object
+    row's to say (SceneArrays.positions); in a scene without an object table its corners are put in the
+    other order instead."""
     import dataclasses
     inst = scene.instances
     if inst is None or not inst.count:
@@ -416,8 +425,11 @@ def flatten_instances(scene: SceneArrays) -> SceneArrays:
     attributes = {name: [] for name in names}
     object_ids = [scene.object_ids] if scene.object_ids is not None else None
     normal = normal_matrices(inst.world_from_object[:, :3, :3])
+    turned = (np.linalg.det(inst.world_from_object[:, :3, :3]) < 0) & (scene.objects is None)
     for k in range(inst.count):
         proto = inst.prototypes[inst.prototype[k]]
+        if turned[k]:
+            proto = _other_winding(proto)
         m = inst.world_from_object[k]
         linear = m[:3, :3].astype(np.float32)
         parts["positions"].append((proto.positions @ linear.T + m[:3, 3].astype(np.float32)).astype(np.float32))
@@ -456,3 +468,13 @@ def flatten_instances(scene: SceneArrays) -> SceneArrays:
         **{key: np.ascontiguousarray(np.concatenate(v)) for key, v in parts.items()},
         tangents=None if not want_tangents else np.concatenate(tangents), attributes=tuple(flat_attributes),
         object_ids=None if object_ids is None else np.concatenate(object_ids))
+
+
+def _other_winding(proto):
+    """The prototype with each triangle's corners 1 and 2 swapped, with everything kept per corner."""
+    import dataclasses
+    order = [0, 2, 1]
+    return dataclasses.replace(
+        proto, positions=proto.positions[:, order], normals=proto.normals[:, order], uvs=proto.uvs[:, order],
+        tangents=None if proto.tangents is None else proto.tangents[:, order],
+        attributes=tuple((name, v[:, order]) for name, v in proto.attributes))

@@ -582,6 +582,9 @@ class SceneArrays:
     """A whole scene as arrays. Build it, call validate(), hand it to kernels.render().
 
     positions : (T, 3, 3) float32, world-space corners of each triangle, or a CornerRows standing for them.
+        A triangle's front (its geometric normal) is the side cross(p1 - p0, p2 - p0) points to, except on
+        the triangles of a mirroring object row (mirrored_objects), which keep their mesh's winding and
+        whose front is the other side, as in Blender; an instance with a mirroring transform likewise.
     normals : (T, 3, 3) float32, per-corner shading normals (need not be unit length), or a CornerRows
         standing for that array.
     uvs : (T, 3, 2) float32, per-corner texture coordinates.
@@ -654,6 +657,14 @@ class SceneArrays:
     @property
     def instanced_triangle_count(self) -> int:
         return 0 if self.instances is None else self.instances.triangle_total
+
+    def mirrored_triangles(self) -> np.ndarray | None:
+        """(T,) bool: the plain triangles whose object mirrors them (mirrored_objects), whose front is the
+        side opposite the winding's; None when none is (or the scene has no object table)."""
+        if self.objects is None or self.object_ids is None or not len(self.objects):
+            return None
+        mirrored = mirrored_objects(self.objects)
+        return np.take(mirrored, self.object_ids) if mirrored.any() else None
 
     def validate(self, clean: "SceneArrays | None" = None) -> "ValidatedScene":
         """Check every field; drop degenerate or non-finite triangles.
@@ -782,6 +793,15 @@ def object_rows(world_from_object, texspace_location, texspace_size, color, pass
     return np.nan_to_num(rows).astype(np.float32)
 
 
+def mirrored_objects(objects: np.ndarray) -> np.ndarray:
+    """(K,) bool: the rows of SceneArrays.objects whose world_from_object mirrors (a negative determinant:
+    an odd number of negative scale axes). Their triangles keep the winding of the object's own mesh, so
+    their front, Blender's face normal, is the other side from the winding's (Cycles flips Ng for
+    SD_OBJECT_NEGATIVE_SCALE in triangle_normal)."""
+    linear = objects[:, OBJ_WORLD_LINEAR:OBJ_WORLD_LINEAR + 9].reshape(-1, 3, 3).astype(np.float64)
+    return np.linalg.det(linear) < 0 if len(linear) else np.zeros(0, bool)
+
+
 @dataclass(frozen=True)
 class ValidatedScene:
     """A SceneArrays that passed validate(), with what cleaning it took."""
@@ -876,6 +896,9 @@ def _clean_triangles(tris, extra: tuple = ()) -> tuple[dict, int, int]:
     if bad_n.any():
         p = np.nan_to_num(tris.positions[bad_n])
         ng = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        mirrored = tris.mirrored_triangles() if isinstance(tris, SceneArrays) else None
+        if mirrored is not None:
+            ng[mirrored[bad_n]] *= -1
         normals[bad_n] = ng[:, None, :]
     uvs[bad_uv] = 0.0
     if tangents is not None:
