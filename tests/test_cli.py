@@ -111,16 +111,17 @@ def test_passes_write_a_multilayer_exr(tmp_path, blend_file):
 
 
 def test_sample_ranges_merge_into_the_whole(tmp_path, blend_file):
-    """Samples 0-7 and 8-15 rendered apart (--sample-offset) and merged equal a 0-15 render up to float
-    rounding; the merge refuses a render without a sample count."""
+    """Samples 0-3 and 4-15 rendered apart (--sample-offset) and merged equal a 0-15 render up to float
+    rounding (unequal ranges: a merge that does not weigh by sample count fails); the merge refuses a render
+    without a sample count."""
     from ember.engine.merge import exr_strings
     whole, first, second, merged = (str(tmp_path / f"{n}.exr") for n in ("whole", "a", "b", "merged"))
     for out, extra in ((whole, ["--sample-offset", "0", "--samples", "16"]),
-                       (first, ["--sample-offset", "0", "--samples", "8"]),
-                       (second, ["--sample-offset", "8", "--samples", "8"])):
+                       (first, ["--sample-offset", "0", "--samples", "4"]),
+                       (second, ["--sample-offset", "4", "--samples", "12"])):
         run = ember("render", blend_file, "-o", out, *extra)
         assert run.returncode == 0, run.stderr
-    assert exr_strings(second)["ember.samples"] == "8" and exr_strings(second)["ember.sample_offset"] == "8"
+    assert exr_strings(second)["ember.samples"] == "12" and exr_strings(second)["ember.sample_offset"] == "4"
     run = ember("merge", first, second, "-o", merged)
     assert run.returncode == 0 and "16 samples" in run.stdout, run.stderr
     a, b = load_image(whole), load_image(merged)

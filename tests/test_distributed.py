@@ -130,13 +130,13 @@ def test_a_worker_killed_mid_render_loses_nothing(cluster, animation, reference,
 
 @needs_ray
 def test_split_samples_merge_to_the_plain_render(cluster, animation, tmp_path):
-    """--split-samples 2: two ranges of frame 2 rendered as separate tasks and merged by sample count equal a
-    plain 16-sample render up to float rounding; the merged file says it holds 16 samples."""
+    """--split-samples 3: three ranges of frame 2 (6, 5 and 5 samples) rendered as separate tasks and merged by
+    sample count equal a plain 16-sample render up to float rounding; the merged file says it holds 16 samples."""
     from ember.engine.merge import exr_strings
     plain, split = str(tmp_path / "plain.exr"), str(tmp_path / "split.exr")
     run = ember("render", animation, "--frames", "2", "--samples", "16", "--sample-offset", "0", "-o", plain)
     assert run.returncode == 0, run.stderr
-    run = ember("render", animation, "--frames", "2", "--samples", "16", "--split-samples", "2", "-o", split,
+    run = ember("render", animation, "--frames", "2", "--samples", "16", "--split-samples", "3", "-o", split,
                 "--ray", cluster, "--workers", "2", "--threads", "1")
     assert run.returncode == 0, run.stderr
     a, b = load_image(plain), load_image(split)
