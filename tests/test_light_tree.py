@@ -247,3 +247,66 @@ def test_quad_lamp_solid_angle_choice_same_mean_lower_variance(monkeypatch):
     ratio = chosen.var(axis=0).mean() / flat.var(axis=0).mean()
     print(f"solid-angle choice / power pmf per-sample variance: {ratio:.3f}")
     assert ratio < 0.8
+
+
+def _lamp_set(seed):
+    """Area lamps of 1 x 1 (facing +z, and some turned), a delta spot and a point lamp among them: the
+    tree's nodes mix emitters whose cones point different ways."""
+    rng = np.random.default_rng(seed)
+    k = 12
+    frames = np.tile(np.eye(3, dtype=np.float32), (k, 1, 1))
+    frames[:, :, 2] *= -1          # the frame's z is the lamp's back: these face +z
+    frames[:, :, 0] *= -1          # (a right-handed frame)
+    turned = rng.random(k) < 0.4
+    frames[turned] = np.stack([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(int(turned.sum()))])
+    kind = np.full(k, RECT, np.int32)
+    kind[0], kind[1] = 1, 0         # a delta spot (pointing down its -z) and a point lamp
+    frames[0] = np.diag(np.float32([1, 1, 1]))   # the spot shines down -z
+    position = np.float32(np.stack([rng.integers(-2, 3, k) * 1.5, rng.integers(-2, 3, k) * 1.5,
+                                    rng.uniform(-0.2, 0.2, k)], axis=1))
+    position[0] = (0.3, 0.2, 2.0)
+    return Lights(kind=kind, position=position, frame=np.float32(frames),
+                  radiance=np.float32(rng.uniform(0.5, 5.0, (k, 3))), radius=np.zeros(k, np.float32),
+                  size=np.ones((k, 2), np.float32), spot_cos=np.float32([(np.cos(0.5), 0.05)] * k),
+                  sun_half_angle=np.zeros(k, np.float32))
+
+
+def _can_light(lights, e, p):
+    """Whether lamp e sends any light to point p: an area lamp to the side in front of it, a spot inside its
+    cone, a point lamp everywhere."""
+    c, z = lights.position[e].astype(np.float64), lights.frame[e, :, 2].astype(np.float64)
+    d = np.asarray(p, np.float64) - c
+    if lights.kind[e] == 0:
+        return True
+    if lights.kind[e] == 1:
+        return -np.dot(d, z) / np.linalg.norm(d) > lights.spot_cos[e, 0]
+    return -np.dot(d, z) > 1e-4
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_every_emitter_that_lights_a_point_can_be_chosen(seed, monkeypatch):
+    """The tree may prefer emitters but never starves one that lights the point: at points one unit and a
+    hair in front of each lamp, beside it, between lamps (inside the nodes' boxes) and scattered around,
+    every lamp that can light the point has a non-zero selection probability, and the delta spot is chosen
+    there (a delta light is found by no BSDF ray: only its light samples light the point)."""
+    monkeypatch.setattr(lights_module, "TREE_MIN_DIVERGENCE", 0.0)
+    lights = _lamp_set(seed)
+    sampler = sampler_for(lights=lights)
+    assert sampler.uses_tree
+    k = lights.count
+    rng = np.random.default_rng(seed + 10)
+    normals = -lights.frame[:, :, 2].astype(np.float64)
+    points = [lights.position + normals * d + side for d in (1.0, 1e-2)
+              for side in ((0, 0, 0), (0.45, 0, 0), (0, -0.45, 0))]
+    points.append(0.5 * (lights.position + np.roll(lights.position, 1, axis=0)) + (0, 0, 0.3))
+    points.append(rng.uniform(-4, 4, (64, 3)))
+    points = np.concatenate(points).astype(np.float32)
+    pmf = np.stack([sampler.selection_pmf(np.arange(k), *at(p, k)) for p in points])
+    lit = np.array([[_can_light(lights, e, p) for e in range(k)] for p in points])
+    starved = lit & ~(pmf > 0)
+    assert not starved.any(), [(points[i], e) for i, e in zip(*np.nonzero(starved))][:5]
+    under_spot = np.float32([0.3, 0.2, 0.8])
+    assert _can_light(lights, 0, under_spot)
+    n = 4000
+    chosen, _ = sampler.choose_at(rng.random(n, dtype=np.float32), *at(under_spot, n))
+    assert np.count_nonzero(chosen == 0) > 0
