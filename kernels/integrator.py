@@ -813,10 +813,11 @@ class Renderer:
         wave.aux = aux
         for step in range(max_scatters + int(settings.transparent_max_bounces) + 1):
             hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split, state.time)
+            ended = None
             if step > 0 and self.lights.has_surface_lights:
-                self._lights_hit(wave, state, rays, hits)
-            self._escaped(wave, state, rays, hits)
-            found = np.flatnonzero(hits.prim >= 0)
+                ended = self._lights_hit(wave, state, rays, hits)
+            self._escaped(wave, state, rays, hits, ended)
+            found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
             if state.continuation is not None:
                 found = self._roulette_stops(state, hits, found)
             if not len(found):
@@ -969,10 +970,16 @@ class Renderer:
         state.features[:, waiting] *= specular[:, waiting]
 
     # ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
-    def _lights_hit(self, wave, state, rays, hits):
+    def _lights_hit(self, wave, state, rays, hits) -> np.ndarray:
+        """Count the lights the rays meet before their hits (each a transparent bounce, as in Cycles);
+        return the (N,) mask of the paths that end at one, their transparent bounces spent."""
         o, d = rays.origins, rays.dirs
-        lit, le, light_pdf = self.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t)
-        lit &= state.bounce > 0
+        seeing = state.bounce > 0   # camera rays do not see lights
+        budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
+        met = self.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget)
+        met.crossed[~seeing] = 0
+        state.transparent = state.transparent + met.crossed
+        lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
         if lit.any():
             idx = np.flatnonzero(lit)
             le = np.take(state.throughput * le, idx, axis=1)
@@ -982,6 +989,7 @@ class Renderer:
             _accumulate(wave.radiance, state.path[idx], le)
             if state.pass_weights is not None:
                 self._light_passes(wave, state, idx, le)
+        return met.stopped & seeing
 
     # ---- light passes: what a contribution to the image adds to Cycles' Diffuse/Glossy/Transmission passes
     def _light_passes(self, wave, state, rows, value, shadow: bool = False, first=None) -> None:
@@ -1091,8 +1099,9 @@ class Renderer:
         state.pass_weights[:, rows] = shares
 
     # ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
-    def _escaped(self, wave, state, rays, hits):
-        miss = np.flatnonzero(hits.prim < 0)
+    def _escaped(self, wave, state, rays, hits, ended=None):
+        """The world seen by the rays that hit nothing (ended: (N,) mask of paths that ended before)."""
+        miss = np.flatnonzero((hits.prim < 0) if ended is None else (hits.prim < 0) & ~ended)
         if not len(miss):
             return
         keep = np.ones(len(miss), bool)

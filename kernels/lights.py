@@ -114,6 +114,20 @@ class LightSample:
         self.delta[idx] = delta
 
 
+class LightHits:
+    """What BSDF rays meet of the lights with a surface (LightSampler.intersect), per ray: hit (N,) bool,
+    radiance (3, N) and pdf (N,) (solid angle, with selection) of the light returned; crossed (N,) int32,
+    the lights met (each a transparent bounce); stopped (N,) bool, the path ends at its last light."""
+    __slots__ = ("hit", "radiance", "pdf", "crossed", "stopped")
+
+    def __init__(self, n: int):
+        self.hit = np.zeros(n, bool)
+        self.radiance = np.zeros((3, n), np.float32)
+        self.pdf = np.zeros(n, np.float32)
+        self.crossed = np.zeros(n, np.int32)
+        self.stopped = np.zeros(n, bool)
+
+
 class LightSampler:
     """All emitters of a scene and one power-proportional distribution over them.
 
@@ -420,21 +434,37 @@ class LightSampler:
         out.set(idx, wx, wy, wz, np.float32(np.inf), self.sun_radiance[light].T, pdf, delta)
 
     def _sample_area(self, out, idx, light, px, py, pz, u1, u2):
+        """Rectangles uniformly in the solid angle they subtend, disks uniformly in their area, as Cycles
+        samples them (kernel/light/area.h): the MIS weights, and so what overlapping lamps add up to
+        (intersect), are Cycles'."""
         sx, sy = self.size[light, 0], self.size[light, 1]
         disk = self.kind[light] == DISK
         dx_, dy_ = sampling.sample_uniform_disk(u1, u2)
-        a = np.where(disk, dx_ * np.float32(0.5), u1 - np.float32(0.5)) * sx
-        b = np.where(disk, dy_ * np.float32(0.5), u2 - np.float32(0.5)) * sy
+        a = dx_ * np.float32(0.5) * sx
+        b = dy_ * np.float32(0.5) * sy
         c = self.position[light].T
         xa, ya, za = self._axis(light, 0), self._axis(light, 1), self._axis(light, 2)
         qx = c[0] + a * xa[0] + b * ya[0]
         qy = c[1] + a * xa[1] + b * ya[1]
         qz = c[2] + a * xa[2] + b * ya[2]
+        rect = np.flatnonzero(~disk)
+        if len(rect):
+            spherical = self._rectangles(light[rect], px[rect], py[rect], pz[rect])
+            q = spherical.sample(u1[rect], u2[rect])
+            qx[rect], qy[rect], qz[rect] = q
         wx, wy, wz, dist = _direction(px, py, pz, qx, qy, qz)
         cos_l = wx * za[0] + wy * za[1] + wz * za[2]  # > 0: the point is on the emitting (-Z) side
         pdf = _area_to_solid_angle(self.area[light], dist, cos_l)
+        if len(rect):
+            pdf[rect] = spherical.pdf(dist[rect], cos_l[rect])
         radiance = np.where(cos_l > 0, self.radiance_of[light].T, np.float32(0.0))
         out.set(idx, wx, wy, wz, dist, radiance, pdf)
+
+    def _rectangles(self, light, px, py, pz) -> sampling.SphericalRectangle:
+        """Rectangular lights as seen from points p."""
+        c, xa, ya = self.position[light].T, self._axis(light, 0), self._axis(light, 1)
+        return sampling.SphericalRectangle((px, py, pz), tuple(c), tuple(xa), tuple(ya),
+                                           self.size[light, 0], self.size[light, 1])
 
     def _sample_triangle(self, out, idx, slot, px, py, pz, u1, u2):
         """A point on an emissive triangle: uniform in the solid angle it subtends from points near it
@@ -548,41 +578,50 @@ class LightSampler:
             return np.zeros(len(dx), np.float32)
         return self.pmf32[self.world_index] * self.environment.direction_pdf(dx, dy, dz, focus)
 
-    def intersect(self, ox, oy, oz, dx, dy, dz, t_max):
-        """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max.
-        Returns (hit mask, radiance (3, N), pdf (N,) solid angle with selection).
+    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None) -> "LightHits":
+        """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max, as Cycles'
+        BSDF rays meet them (kernel/light/light.h lights_intersect, integrator/shade_light.h).
 
-        Lights are transparent to each other, as in Cycles (a ray goes on through a light it hits):
-        a ray collects the emission of every light it passes through. The caller weights what it gets
-        by MIS with one pdf, so where a ray passes through several lights one of them is returned,
-        chosen in proportion to its radiance, with its radiance divided by that probability: the
-        expectation is the sum over the lights, each with its own MIS weight. Where a ray meets one
-        light, that light is returned as it is."""
+        A ray finds the nearest light before the geometry, counts its emission and goes on from there
+        with its start just past that distance, as through a transparent surface: each light it meets
+        takes one of its transparent bounces, and the light that takes the last one (budget (N,) int,
+        the transparent bounces the path has left; at least the first light is counted) ends the path
+        there. A light at the distance of the last one found, to the float, is stepped over (Cycles
+        moves the ray's start to the next float after the hit): of coincident lamps the first in the
+        scene's order is seen, alone. Without a budget every light before t_max is met.
+
+        The caller weights what it gets by MIS with one pdf, so where a ray meets several lights one of
+        them is returned, chosen in proportion to its radiance, with its radiance divided by that
+        probability: the expectation is the sum over the lights, each with its own MIS weight."""
         n = len(ox)
-        radiance = np.zeros((3, n), np.float32)
-        pdf = np.zeros(n, np.float32)
-        hit = np.zeros(n, bool)
+        out = LightHits(n)
         if not self.has_surface_lights or n == 0:
-            return hit, radiance, pdf
+            return out
         ray, light = self._candidates(ox, oy, oz, dx, dy, dz, t_max)
         if not len(ray):
-            return hit, radiance, pdf
+            return out
         t, light_pdf, le = self._hit_pairs(ray, light, ox[ray], oy[ray], oz[ray], dx[ray], dy[ray], dz[ray])
         ok = np.flatnonzero((t > 0) & (t < t_max[ray]))
-        ray, light, light_pdf, le = ray[ok], light[ok], light_pdf[ok], le[:, ok]
+        # Nearest first; of lights at one distance, the first in the scene's order (Cycles' loop keeps
+        # a light only when it is strictly nearer than the one it has).
+        order = ok[np.lexsort((light[ok], t[ok], ray[ok]))]
+        ray, light, t, light_pdf, le = ray[order], light[order], t[order], light_pdf[order], le[:, order]
+        met, crossed = _met_in_turn(ray, t, n, budget)
+        out.crossed = crossed
+        if budget is not None:
+            out.stopped = crossed >= np.maximum(budget, 1)
+        ray, light, light_pdf, le = ray[met], light[met], light_pdf[met], le[:, met]
         weight = le[0] + le[1] + le[2]
         keep = np.flatnonzero(weight > 0)
         ray, light, light_pdf, le, weight = ray[keep], light[keep], light_pdf[keep], le[:, keep], weight[keep]
         if not len(ray):
-            return hit, radiance, pdf
-        order = np.argsort(ray, kind="stable")  # candidates come grouped by light; group them by ray
-        ray, light, light_pdf, le, weight = ray[order], light[order], light_pdf[order], le[:, order], weight[order]
+            return out
         chosen, share = _choose_per_ray(ray, weight.astype(np.float64), _ray_uniform(ox, oy, oz, dx, dy, dz)[ray])
         rays = ray[chosen]
-        hit[rays] = True
-        radiance[:, rays] = le[:, chosen] / share.astype(np.float32)
-        pdf[rays] = self.selection_pmf(light[chosen], ox[rays], oy[rays], oz[rays]) * light_pdf[chosen]
-        return hit, radiance, pdf
+        out.hit[rays] = True
+        out.radiance[:, rays] = le[:, chosen] / share.astype(np.float32)
+        out.pdf[rays] = self.selection_pmf(light[chosen], ox[rays], oy[rays], oz[rays]) * light_pdf[chosen]
+        return out
 
     def _candidates(self, ox, oy, oz, dx, dy, dz, t_max):
         """(ray, light) index pairs that may hit: every ray against every surface light, or, with many
@@ -631,8 +670,10 @@ class LightSampler:
         c = self.position[k].T
         xa, ya, za = self._axis(k, 0), self._axis(k, 1), self._axis(k, 2)
         denom = dx * za[0] + dy * za[1] + dz * za[2]          # > 0: travelling into the emitting face
+        # The plane's distance as Cycles computes it (ray_quad_intersect): coplanar lamps meet a ray at
+        # the same float wherever their centres are, and the ray steps over all but the first (intersect).
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = ((c[0] - ox) * za[0] + (c[1] - oy) * za[1] + (c[2] - oz) * za[2]) / denom
+            t = ((c[0] * za[0] + c[1] * za[1] + c[2] * za[2]) - (ox * za[0] + oy * za[1] + oz * za[2])) / denom
         hx, hy, hz = ox + t * dx - c[0], oy + t * dy - c[1], oz + t * dz - c[2]
         with np.errstate(invalid="ignore"):
             a = (hx * xa[0] + hy * xa[1] + hz * xa[2]) / self.size[k, 0]
@@ -642,6 +683,10 @@ class LightSampler:
         valid = inside & (denom > 0) & np.isfinite(t)
         t = np.where(valid, t, np.float32(-1.0))
         pdf = _area_to_solid_angle(self.area[k], np.abs(t), np.abs(denom))
+        rect = np.flatnonzero(valid & (self.kind[k] == RECT))
+        if len(rect):
+            seen = self._rectangles(k[rect], ox[rect], oy[rect], oz[rect])
+            pdf[rect] = seen.pdf(t[rect], denom[rect])
         return t, pdf, np.ones(len(k), np.float32)
 
 
@@ -759,6 +804,35 @@ def _ray_uniform(ox, oy, oz, dx, dy, dz) -> np.ndarray:
     x, y = pcg2d(bits[0] ^ bits[3], bits[1] ^ bits[4])
     x, y = pcg2d(x ^ bits[2], y ^ bits[5])
     return to_unit_float(x)
+
+
+def _met_in_turn(ray, t, n: int, budget):
+    """Candidates sorted by ray, then distance t (float32): which a ray meets in turn (mask), and how many
+    each of the n rays meets, (N,) int32. A candidate is met when it lies beyond the next float after the
+    last one met; a ray stops meeting lights at max(budget, 1) (None: no limit)."""
+    met = np.zeros(len(ray), bool)
+    crossed = np.zeros(n, np.int32)
+    if not len(ray):
+        return met, crossed
+    starts = np.flatnonzero(np.r_[True, ray[1:] != ray[:-1]])
+    sizes = np.diff(np.r_[starts, len(ray)])
+    rays = ray[starts]
+    limit = sizes if budget is None else np.minimum(sizes, np.maximum(np.take(budget, rays), 1))
+    last = np.full(len(starts), -np.inf, np.float32)
+    count = np.zeros(len(starts), np.int64)
+    group = np.arange(len(starts))
+    rank = 0
+    while len(group):
+        at = starts[group] + rank
+        beyond = t[at] > np.nextafter(last[group], np.float32(np.inf))
+        met[at[beyond]] = True
+        took = group[beyond]
+        last[took] = t[at[beyond]]
+        count[took] += 1
+        rank += 1
+        group = group[(rank < sizes[group]) & (count[group] < limit[group])]
+    crossed[rays] = count
+    return met, crossed
 
 
 def _choose_per_ray(ray, weight, u):

@@ -92,6 +92,81 @@ def local_to_world(lx, ly, lz, nx, ny, nz):
             lx * tz + ly * bz + lz * nz)
 
 
+class SphericalRectangle:
+    """A rectangle seen from points p, for directions uniform in the solid angle it subtends: the
+    area-preserving parametrisation of Urena, Fajardo and King (2013), with the internal angles written
+    as arcsines, which keeps the solid angle of a small or distant rectangle accurate in float32 (as Cycles
+    does, kernel/light/area.h).
+
+    Built from points p, the rectangle's centre c and unit edge directions ex, ey (each (x, y, z) of (N,)
+    float32) and edge lengths lu, lv (N,). solid_angle (N,) is S; `usable` marks where S is large enough to
+    be computed in float32 (elsewhere sample and pdf fall back to uniform area sampling, as Cycles' pdf
+    does below S = 1e-5 or at grazing angles)."""
+
+    def __init__(self, p, c, ex, ey, lu, lv):
+        ez = _cross3(ex, ey)
+        d = tuple(ci - pi for ci, pi in zip(c, p))
+        z0 = _dot3(d, ez)
+        # The frame's z away from the rectangle: the rectangle lies at z0 <= 0.
+        flip = np.where(z0 > 0, np.float32(-1.0), np.float32(1.0))
+        self.ez = tuple(e * flip for e in ez)
+        self.z0 = z0 * flip
+        xc, yc = _dot3(d, ex), _dot3(d, ey)
+        half_u, half_v = np.float32(0.5) * lu, np.float32(0.5) * lv
+        self.x0, self.x1, self.y0, self.y1 = xc - half_u, xc + half_u, yc - half_v, yc + half_v
+        z2 = self.z0 * self.z0
+        # z components of the unit normals of the four planes through p and the edges.
+        nz = [v / np.sqrt(np.maximum(v * v + z2, np.float32(1e-37))) for v in (-self.y0, self.x1, self.y1, -self.x0)]
+        g = [np.arcsin(np.clip(-nz[i] * nz[(i + 1) % 4], np.float32(-1.0), np.float32(1.0))) for i in range(4)]
+        self.solid_angle = -(g[0] + g[1] + g[2] + g[3])
+        self._offset = g[2] + g[3]
+        self._b0, self._b1 = nz[0], nz[2]
+        self.usable = (self.solid_angle >= np.float32(1e-5)) & ~np.all(
+            [v * v > np.float32(0.99999) for v in nz], axis=0)
+        self.p, self.ex, self.ey, self.lu, self.lv = p, ex, ey, lu, lv
+
+    def sample(self, u1, u2):
+        """Points (x, y, z) on the rectangle whose directions from p are uniform in its solid angle (where
+        usable; uniform in its area elsewhere)."""
+        au = u1 * self.solid_angle + self._offset
+        sin_au = np.sin(au)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            fu = np.where(sin_au != 0, (np.cos(au) * self._b0 + self._b1) / sin_au, np.float32(0.0))
+            cu = np.clip(np.copysign(np.float32(1.0) / np.sqrt(fu * fu + self._b0 * self._b0), fu),
+                         np.float32(-1.0), np.float32(1.0))
+            xu = np.clip(-(cu * self.z0) / np.maximum(np.sqrt(np.float32(1.0) - cu * cu), np.float32(1e-7)),
+                         self.x0, self.x1)
+            d2 = xu * xu + self.z0 * self.z0
+            h0 = self.y0 / np.sqrt(d2 + self.y0 * self.y0)
+            h1 = self.y1 / np.sqrt(d2 + self.y1 * self.y1)
+            hv = h0 + u2 * (h1 - h0)
+            hv2 = hv * hv
+            yv = np.where(hv2 < np.float32(1 - 1e-6), hv * np.sqrt(d2 / np.maximum(np.float32(1.0) - hv2, np.float32(1e-37))),
+                          self.y1)
+        # Uniform in the area where the solid angle cannot be trusted.
+        xa = self.x0 + u1 * (self.x1 - self.x0)
+        ya = self.y0 + u2 * (self.y1 - self.y0)
+        xu, yv = np.where(self.usable, xu, xa), np.where(self.usable, yv, ya)
+        return tuple(self.p[k] + xu * self.ex[k] + yv * self.ey[k] + self.z0 * self.ez[k] for k in range(3))
+
+    def pdf(self, dist, cos_light):
+        """pdf per solid angle of sample()'s directions, given the distance to the sampled point and the
+        cosine at the rectangle (only used where the area fallback applies)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spherical = np.float32(1.0) / self.solid_angle
+            area = dist * dist / (self.lu * self.lv * cos_light)
+        pdf = np.where(self.usable, spherical, area)
+        return np.where((cos_light > 0) & np.isfinite(pdf), pdf, np.float32(0.0)).astype(np.float32)
+
+
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross3(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
 def balance_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
     """MIS weight of the strategy with pdf_a (beta = 1). Infinite pdf_a (a delta) gets weight 1. The world's
     light samples and BSDF rays use it when the world's distribution is compensated (environment.Environment.

@@ -98,7 +98,8 @@ def test_mis_pmf_equals_the_sampling_probability(monkeypatch):
     pz = rng.uniform(-1, 1.5, n).astype(np.float32)
     ls = sampler.sample(px, py, pz, *(rng.random(n, dtype=np.float32) for _ in range(3)))
     ok = np.flatnonzero(ls.pdf > 0)
-    hit, _, pdf = sampler.intersect(px[ok], py[ok], pz[ok], ls.wx[ok], ls.wy[ok], ls.wz[ok], ls.dist[ok] * 1.01)
+    found = sampler.intersect(px[ok], py[ok], pz[ok], ls.wx[ok], ls.wy[ok], ls.wz[ok], ls.dist[ok] * 1.01)
+    hit, pdf = found.hit, found.pdf
     assert hit.mean() > 0.99
     np.testing.assert_allclose(pdf[hit], ls.pdf[ok][hit], rtol=2e-3)
 

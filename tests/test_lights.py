@@ -76,8 +76,8 @@ def nee_pdf_via_intersection(sampler, p):
     def pdf_of(dx, dy, dz):
         n = len(dx)
         o = [np.full(n, np.float32(c)) for c in p]
-        hit, _, pdf = sampler.intersect(*o, dx, dy, dz, np.full(n, np.inf, np.float32))
-        return np.where(hit, pdf, 0)
+        found = sampler.intersect(*o, dx, dy, dz, np.full(n, np.inf, np.float32))
+        return np.where(found.hit, found.pdf, 0)
     return pdf_of
 
 

@@ -166,3 +166,68 @@ def test_column_helpers_match_numpys_fancy_index():
         want[:, unique] *= factor
         sampling.scale_columns(got, unique, factor)
         np.testing.assert_array_equal(got, want)
+
+
+def _corner_solid_angle(x, y, d):
+    """Solid angle of the rectangle [0, x] x [0, y] in a plane at distance d, seen from the foot's normal
+    (signed by x and y): atan(x y / (d sqrt(x^2 + y^2 + d^2)))."""
+    return np.arctan(x * y / (d * np.sqrt(x * x + y * y + d * d)))
+
+
+def _rect_solid_angle(x0, x1, y0, y1, d):
+    return (_corner_solid_angle(x1, y1, d) - _corner_solid_angle(x0, y1, d)
+            - _corner_solid_angle(x1, y0, d) + _corner_solid_angle(x0, y0, d))
+
+
+def _tilted_rectangle(n):
+    """A 1.5 x 0.7 rectangle turned about x, seen from points off its centre: (rect, frame) where the
+    frame gives the rectangle's plane coordinates."""
+    c = np.float32([0.3, -0.2, 2.0])
+    a = 0.5
+    ex = np.float32([1, 0, 0])
+    ey = np.float32([0, np.cos(a), np.sin(a)])
+    p = np.float32([0.1, 0.4, 0.2])
+    rect = sampling.SphericalRectangle(
+        tuple(np.full(n, v, np.float32) for v in p), tuple(np.full(n, v, np.float32) for v in c),
+        tuple(np.full(n, v, np.float32) for v in ex), tuple(np.full(n, v, np.float32) for v in ey),
+        np.full(n, 1.5, np.float32), np.full(n, 0.7, np.float32))
+    return rect, (p, c, ex, ey)
+
+
+def test_spherical_rectangle_samples_are_uniform_in_its_solid_angle():
+    """The solid angle against the closed form (the rectangle split at the foot of the perpendicular), and
+    the samples' landing places on a 6 x 6 grid of the rectangle against each cell's share of the solid
+    angle (chi-square): the directions are uniform in the solid angle, as the pdf 1 / S says."""
+    rect, (p, c, ex, ey) = _tilted_rectangle(N)
+    ez = np.cross(ex, ey)
+    d = abs(float(np.dot(c - p, ez)))
+    xc, yc = float(np.dot(c - p, ex)), float(np.dot(c - p, ey))
+    x_edges = xc + np.linspace(-0.75, 0.75, 7)
+    y_edges = yc + np.linspace(-0.35, 0.35, 7)
+    whole = _rect_solid_angle(x_edges[0], x_edges[-1], y_edges[0], y_edges[-1], d)
+    assert abs(float(rect.solid_angle[0]) / whole - 1) < 1e-5 and rect.usable.all()
+    q = np.stack(rect.sample(*uniforms()), axis=1).astype(np.float64) - p
+    assert np.abs(q @ ez.astype(np.float64) - np.dot(c - p, ez)).max() < 1e-5      # on the rectangle's plane
+    counts, _, _ = np.histogram2d(q @ ex, q @ ey, bins=[x_edges, y_edges])
+    assert counts.sum() == N
+    cells = np.array([[_rect_solid_angle(x0, x1, y0, y1, d) for y0, y1 in zip(y_edges[:-1], y_edges[1:])]
+                      for x0, x1 in zip(x_edges[:-1], x_edges[1:])])
+    assert_chi2(counts, N * cells / whole)
+    dist = np.linalg.norm(q, axis=1).astype(np.float32)
+    np.testing.assert_allclose(rect.pdf(dist, np.full(N, 0.5, np.float32)), 1 / whole, rtol=1e-5)
+
+
+def test_tiny_spherical_rectangle_falls_back_to_area_sampling():
+    """Below a solid angle float32 cannot resolve, sampling is uniform in the area and the pdf is the
+    area's, dist^2 / (area cos): the estimator stays consistent where the spherical one would not be."""
+    n = 20_000
+    far = tuple(np.full(n, v, np.float32) for v in (0.0, 0.0, 0.0))
+    centre = tuple(np.full(n, v, np.float32) for v in (0.0, 0.0, 400.0))
+    ex = tuple(np.full(n, v, np.float32) for v in (1.0, 0.0, 0.0))
+    ey = tuple(np.full(n, v, np.float32) for v in (0.0, 1.0, 0.0))
+    rect = sampling.SphericalRectangle(far, centre, ex, ey, np.full(n, 0.5, np.float32), np.full(n, 0.5, np.float32))
+    assert not rect.usable.any()
+    x, y, z = rect.sample(*uniforms(n))
+    assert np.allclose(z, 400.0) and abs(x.mean()) < 0.01 and abs(x.std() - 0.5 / np.sqrt(12)) < 0.01
+    dist = np.sqrt(x * x + y * y + z * z)
+    np.testing.assert_allclose(rect.pdf(dist, z / dist), dist ** 3 / (0.25 * z), rtol=1e-4)
