@@ -316,8 +316,10 @@ class FinalRender:
             _kept.set(renderer)
         failures = len(renderer.worker_failures)   # a kept renderer's earlier frames were warned about
         with _kept if persistent else session:
-            if renderer.dropped_triangles:
-                self._warn([f"skipped {renderer.dropped_triangles} degenerate or non-finite triangles"])
+            # Zero-area triangles (bevels, text) are dropped silently: no ray can hit them, in Cycles either.
+            if renderer.nonfinite_triangles:
+                self._warn([f"skipped {renderer.nonfinite_triangles} triangles whose corners are not finite "
+                            f"numbers (NaN, or beyond float32's range: an object scaled or placed too far)"])
             result = session.render(settings, self.should_stop, previews=self._previews,
                                     display_s=None if _background() else DISPLAY_INTERVAL_S,
                                     on_rows=self._on_rows, on_display=self._on_display, on_progress=self._on_progress)

@@ -258,6 +258,7 @@ class Renderer:
         checked = scene.validate()
         self.scene = checked.scene
         self.dropped_triangles = checked.dropped_triangles
+        self.nonfinite_triangles = checked.nonfinite_triangles
         poll()
         moving = self.scene.has_motion and self.scene.motion_ids is not None
         # Embree builds its BVH (C code, the GIL released) while NumPy builds the shading tables.
@@ -474,6 +475,7 @@ class Renderer:
         self.set_camera(new.camera)
         self.scene = dataclasses.replace(self.scene, crypto_ids=new.crypto_ids)
         self.dropped_triangles = checked.dropped_triangles
+        self.nonfinite_triangles = checked.nonfinite_triangles
         return True
 
     @_forwarded

@@ -705,16 +705,17 @@ class SceneArrays:
                 _require(int(self.bvh_indices.max()) < len(self.bvh_vertices), "bvh_indices",
                          f"must be below {len(self.bvh_vertices)}")
         if clean is not None and same_triangles(self, clean) and same_arrays(self.bvh_indices, clean.bvh_indices):
-            changes, dropped, repaired = {}, 0, 0
+            changes, dropped, repaired, nonfinite = {}, 0, 0, 0
         else:
-            changes, dropped, repaired = _clean_triangles(self, ("object_ids", "motion_ids", "bvh_indices"))
+            changes, dropped, repaired, nonfinite = _clean_triangles(self, ("object_ids", "motion_ids", "bvh_indices"))
         if self.instances is not None:
-            changes["instances"], more_dropped, more_repaired = _clean_instances(
+            changes["instances"], more_dropped, more_repaired, more_nonfinite = _clean_instances(
                 self.instances, clean.instances if clean is not None else None)
             dropped += more_dropped
+            nonfinite += more_nonfinite
             repaired += more_repaired
         scene = dataclasses.replace(self, **changes) if changes else self
-        return ValidatedScene(scene, dropped, repaired)
+        return ValidatedScene(scene, dropped, repaired, nonfinite)
 
     def validate_objects(self) -> None:
         """Check the object table and each triangle's row of it (part of validate(); on its own when the
@@ -808,6 +809,7 @@ class ValidatedScene:
     scene: SceneArrays
     dropped_triangles: int
     repaired_normals: int
+    nonfinite_triangles: int = 0    # of the dropped: corners not finite (NaN, or beyond float32)
 
 
 def padded_triangles(count: int) -> np.ndarray:
@@ -873,10 +875,11 @@ def _check_material_ids(tris, prefix: str, m: int) -> None:
                  f"must be in [0, {m}), got {tris.material_ids.min()}..{tris.material_ids.max()}")
 
 
-def _clean_triangles(tris, extra: tuple = ()) -> tuple[dict, int, int]:
+def _clean_triangles(tris, extra: tuple = ()) -> tuple[dict, int, int, int]:
     """Degenerate or non-finite triangles of a SceneArrays or Prototype dropped (with the per-triangle
     fields named in extra), non-finite normals, UVs and tangents of the others repaired: (the changed
-    fields, for dataclasses.replace; dropped count; repaired normals count)."""
+    fields, for dataclasses.replace; dropped count; repaired normals count; how many of the dropped have
+    corners that are not finite)."""
     t = len(tris.positions)
     keep = _usable_triangles(tris.positions)
     # A non-finite normal or UV on a usable triangle falls back to the geometric normal / zero UV.
@@ -890,7 +893,9 @@ def _clean_triangles(tris, extra: tuple = ()) -> tuple[dict, int, int]:
     dropped = int(t - np.count_nonzero(keep))
     repaired = int(np.count_nonzero(bad_n & keep))
     if not (dropped or bad_n.any() or bad_uv.any() or bad_t.any()):
-        return {}, 0, 0
+        return {}, 0, 0, 0
+    nonfinite = int(np.count_nonzero(~np.isfinite(np.asarray(tris.positions[~keep])).all(axis=(1, 2)))) \
+        if dropped else 0
     normals = np.array(normals)   # a copy (CornerRows: the whole array, which the repairs write into)
     uvs = uvs.copy()
     if bad_n.any():
@@ -914,33 +919,37 @@ def _clean_triangles(tris, extra: tuple = ()) -> tuple[dict, int, int]:
     for name in extra:
         values = getattr(tris, name)
         changes[name] = None if values is None else np.ascontiguousarray(values[keep])
-    return changes, dropped, repaired
+    return changes, dropped, repaired, nonfinite
 
 
-def _clean_instances(instances: Instances, clean: Instances | None = None) -> tuple[Instances, int, int]:
+def _clean_instances(instances: Instances, clean: Instances | None = None) -> tuple[Instances, int, int, int]:
     """Each prototype cleaned once (not those equal to clean's, known clean); instances whose transform is
-    not finite or flattens them dropped (their triangles counted as dropped, as a flattened copy's would be)."""
-    dropped = repaired = 0
+    not finite or flattens them dropped (their triangles counted as dropped, as a flattened copy's would be,
+    and as non-finite where the transform is)."""
+    dropped = repaired = nonfinite = 0
     prototypes = []
     known = clean.prototypes if clean is not None else ()
     for i, proto in enumerate(instances.prototypes):
         if i < len(known) and same_triangles(proto, known[i]):
             prototypes.append(proto)
             continue
-        changes, d, r = _clean_triangles(proto)
+        changes, d, r, f = _clean_triangles(proto)
         prototypes.append(dataclasses.replace(proto, **changes) if changes else proto)
         # Every instance drops the prototype's bad triangles, as its flattened copy would.
         uses = int(np.count_nonzero(instances.prototype == len(prototypes) - 1))
         dropped += d * uses
         repaired += r * uses
+        nonfinite += f * uses
     m = instances.world_from_object
     usable = usable_placements(m)
     counts = np.array([p.triangle_count for p in prototypes], np.int64)
     dropped += int(counts[instances.prototype[~usable]].sum()) if len(counts) else 0
+    unbounded = ~(np.isfinite(m).all(axis=(1, 2)) & (np.abs(np.nan_to_num(m[:, :3, :])) < 3e38).all(axis=(1, 2)))
+    nonfinite += int(counts[instances.prototype[unbounded]].sum()) if len(counts) else 0
     kept = Instances(tuple(prototypes), np.ascontiguousarray(instances.prototype[usable]),
                      np.ascontiguousarray(m[usable]),
                      None if instances.object_ids is None else np.ascontiguousarray(instances.object_ids[usable]))
-    return kept, dropped, repaired
+    return kept, dropped, repaired, nonfinite
 
 
 def usable_placements(world_from_object: np.ndarray) -> np.ndarray:

@@ -174,7 +174,9 @@ def test_no_camera_is_a_clear_error(tmp_path):
     assert error is not None and "camera" in error.lower()
 
 
-def test_nan_coordinates_and_zero_area_faces_give_a_finite_image(tmp_path):
+def test_nan_coordinates_and_zero_area_faces_give_a_finite_image(tmp_path, capfd):
+    """A NaN corner is dropped with a warning; zero-area faces (a bevel's or a text's) are dropped without
+    one: no ray hits them in Cycles either, and ordinary files are full of them."""
     scene = new_scene(24, 24)
     set_world(scene, color=(0.5, 0.5, 0.5))
     mat = diffuse_material("Grey")
@@ -187,3 +189,11 @@ def test_nan_coordinates_and_zero_area_faces_give_a_finite_image(tmp_path):
     error, image = render_reports(scene, tmp_path)
     assert error is None and np.isfinite(image).all()
     assert image[12, 12, 0] == pytest.approx(0.8 * 0.5, rel=1e-5)  # the valid quad still renders
+    out = capfd.readouterr().out
+    assert "skipped 1 triangles whose corners are not finite" in out, out
+    bpy.data.objects.remove(bpy.data.objects["Broken"])
+    mesh_object("Bevelled", [(-1, 0, 0), (1, 0, 0), (1, 0, 2), (-1, 0, 2), (0, 0, 0), (0, 0, 0)],
+                [(0, 1, 2, 3), (4, 5, 1)], mat)
+    error, image = render_reports(scene, tmp_path)
+    assert error is None and image[12, 12, 0] == pytest.approx(0.8 * 0.5, rel=1e-5)
+    assert "skipped" not in capfd.readouterr().out

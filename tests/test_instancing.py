@@ -77,6 +77,7 @@ def test_numbering_and_validation():
     checked = SceneArrays(**{**scene.__dict__, "instances": Instances(inst.prototypes, inst.prototype, mats,
                                                                       inst.object_ids)}).validate()
     assert checked.scene.instances.count == 3 and checked.dropped_triangles == 2 * t
+    assert checked.nonfinite_triangles == t   # the NaN one; the flattened one is only degenerate
 
 
 def test_table_queries_match_the_flattened_copies():

@@ -60,7 +60,7 @@ def test_degenerate_and_nonfinite_triangles_are_dropped_and_counted():
     all_n[0, 0] = np.inf  # a bad normal on a good triangle is repaired, not dropped
     scene = make_scene(all_p, all_n, world_color=(1, 1, 1))
     checked = scene.validate()
-    assert checked.dropped_triangles == 3 and checked.repaired_normals == 1
+    assert checked.dropped_triangles == 3 and checked.repaired_normals == 1 and checked.nonfinite_triangles == 1
     assert checked.scene.triangle_count == 2 and np.isfinite(checked.scene.normals).all()
     result = render(scene, RenderSettings(samples=2))
     assert result.dropped_triangles == 3 and np.isfinite(result.image).all()
