@@ -1378,10 +1378,16 @@ class Renderer:
         t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - np.abs(eps), np.inf).astype(np.float32)
         origins = np.stack([ox, oy, oz], axis=1)
         paths = active[idx]
-        transmittance = self._shadow(origins, np.stack([wx, wy, wz], axis=1), t_max, wave,
-                                     np.take(state.bounce, paths), None if state.lobes is None else
-                                     np.take(state.lobes, paths, axis=1),
-                                     None if state.time is None else state.time.take(paths))
+        dirs = np.stack([wx, wy, wz], axis=1)
+        # Lights with Cast Shadow off are not blocked: no shadow ray, as in Cycles.
+        traced = np.flatnonzero(np.take(ls.shadowed, idx))
+        if len(traced) == len(idx):
+            transmittance = self._shadow_of(origins, dirs, t_max, wave, state, paths)
+        else:
+            transmittance = np.ones((3, len(idx)), np.float32)
+            if len(traced):
+                transmittance[:, traced] = self._shadow_of(origins[traced], dirs[traced], t_max[traced], wave,
+                                                           state, paths[traced])
         vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
         if not len(vis):
             return
@@ -1402,6 +1408,12 @@ class Renderer:
             wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
             return _class_shares(*eval_split(closures, paths[first], wi))
         self._add_from_vertex(wave, state, paths, contribution, reflecting)
+
+    def _shadow_of(self, origins, dirs, t_max, wave, state, paths) -> np.ndarray:
+        """_shadow for shadow rays leaving the paths `paths` (state rows)."""
+        return self._shadow(origins, dirs, t_max, wave, np.take(state.bounce, paths),
+                            None if state.lobes is None else np.take(state.lobes, paths, axis=1),
+                            None if state.time is None else state.time.take(paths))
 
     def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None, times=None) -> np.ndarray:
         """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through

@@ -91,8 +91,9 @@ def smoothstep01(x):
 class LightSample:
     """Per shading point: unit direction (wx, wy, wz), distance (inf for the world and the sun),
     radiance (3, N) arriving along it, pdf (N,) per unit solid angle times the selection probability,
-    delta (N,) bool for lights no BSDF ray can hit, world (N,) bool for samples of the world."""
-    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world")
+    delta (N,) bool for lights no BSDF ray can hit, world (N,) bool for samples of the world, shadowed (N,)
+    bool: surfaces can block the sample (False for a light with Cast Shadow off)."""
+    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world", "shadowed")
 
     def __init__(self, n: int):
         self.wx = np.zeros(n, np.float32)
@@ -103,6 +104,7 @@ class LightSample:
         self.pdf = np.zeros(n, np.float32)
         self.delta = np.zeros(n, bool)
         self.world = np.zeros(n, bool)
+        self.shadowed = np.ones(n, bool)
 
     def set(self, idx, wx, wy, wz, dist, radiance, pdf, delta=False):
         if len(idx) == len(self.wx):  # every point chose this kind: no scatter needed
@@ -143,6 +145,7 @@ class LightSampler:
         self.environment = environment
         self.light_count = lights.count
         self.kind = lights.kind
+        self.shadowed = lights.shadowed()
         self.position = lights.position.astype(np.float32)
         self.axes = lights.frame.astype(np.float32)              # (L, 3, 3): columns x, y, z
         self.radiance_of = lights.radiance.astype(np.float32)
@@ -362,6 +365,9 @@ class LightSampler:
         if not self.has_lights or n == 0:
             return out
         chosen, select = self.choose_at(u_select, px, py, pz)
+        if not self.shadowed.all():
+            lamp = chosen < self.light_count
+            out.shadowed = ~lamp | np.take(self.shadowed, np.where(lamp, chosen, 0))
         if self.light_count:
             for kind, method in ((POINT, self._sample_sphere), (SPOT, self._sample_sphere),
                                  (SUN, self._sample_sun), (RECT, self._sample_area), (DISK, self._sample_area)):

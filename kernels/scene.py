@@ -410,6 +410,8 @@ class Lights:
     size : (L, 2) float32, full extents along the light's x and y (RECT, DISK/ellipse).
     spot_cos : (L, 2) float32, cosine of the spot's half angle and of the start of its blend.
     sun_half_angle : (L,) float32, half the sun's angular diameter, radians.
+    cast_shadow : (L,) bool or None (every light casts shadows): False for a light whose light no surface
+        blocks (Blender's Cast Shadow off; Cycles then traces no shadow ray for it).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -419,10 +421,15 @@ class Lights:
     size: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     spot_cos: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     sun_half_angle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    cast_shadow: np.ndarray | None = None
 
     @property
     def count(self) -> int:
         return len(self.kind)
+
+    def shadowed(self) -> np.ndarray:
+        """(L,) bool: the lights whose light surfaces block."""
+        return np.ones(self.count, bool) if self.cast_shadow is None else self.cast_shadow
 
     def validate(self) -> None:
         n = len(self.kind)
@@ -435,6 +442,8 @@ class Lights:
             _check_array(getattr(self, name), f"lights.{name}", shape, np.float32)
         for name in ("radiance", "radius", "size", "sun_half_angle"):
             _require(np.all(getattr(self, name) >= 0), f"lights.{name}", "must be non-negative")
+        if self.cast_shadow is not None:
+            _check_array(self.cast_shadow, "lights.cast_shadow", (n,), np.bool_, finite=False)
 
 
 @dataclass(frozen=True, eq=False)

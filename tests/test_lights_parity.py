@@ -61,6 +61,17 @@ def test_scaled_area_light_matches_cycles():
     compare_to_cycles(scene, samples=128, max_bounces=2)
 
 
+def test_lights_that_cast_no_shadow_match_cycles():
+    """Cast Shadow off (Light.use_shadow) on a sized point light and a sun: their light passes through the
+    box and the ball, as in Cycles; a spot that keeps its shadows beside them."""
+    scene = stage()
+    add_light(scene, "POINT", energy=200.0, shadow_soft_size=0.3, use_shadow=False)
+    add_light(scene, "SUN", energy=1.0, angle=math.radians(5), use_shadow=False)
+    add_light(scene, "SPOT", location=(1.5, -1.0, 2.5), rotation=(0.5, 0.4, 0.0), energy=300.0,
+              spot_size=math.radians(60))
+    compare_to_cycles(scene, samples=128, max_bounces=2)
+
+
 def test_emissive_mesh_matches_cycles():
     scene = stage()
     quad_object("Panel", (-1.2, 1.2, 0.1), (0.8, 0.0, 0.0), (0.0, 0.3, 1.2),

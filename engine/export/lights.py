@@ -50,6 +50,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
         size=np.array(columns[5], np.float32).reshape(-1, 2),
         spot_cos=np.array(columns[6], np.float32).reshape(-1, 2),
         sun_half_angle=np.array(columns[7], np.float32),
+        cast_shadow=np.array(columns[8], bool),
     )
 
 
@@ -123,7 +124,7 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         warnings.append(f"Light '{name}' is too bright for Ember's float32 arithmetic (power {float(light.energy):g} W): "
                         f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
         radiance = radiance * (MAX_LIGHT_RADIANCE / radiance.max())
-    return (kind, position, frame, radiance, radius, size, spot, sun_half)
+    return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)))
 
 
 # ---------------------------------------------------------------- blackbody colour
