@@ -30,6 +30,7 @@ from .cryptomatte import CryptoFilm
 from .film import Film
 from .bsdf.closures import GLASS, BsdfSample, class_albedo, eval_split, glossy_axes, pass_classes
 from .bsdf.microfacet_closures import singular_glass_other_branch
+from .coincident import Coincident
 from .geometry import NG, TriangleTable, prototype_boxes, scene_extent
 from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
@@ -340,6 +341,7 @@ class Renderer:
         self._prototype_boxes = prototype_boxes(self.scene)
         self._ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self._prototype_boxes))
         self.lights = self._light_sampler()
+        self._find_coincident()
         poll()
 
     def _build_shading(self) -> None:
@@ -358,6 +360,17 @@ class Renderer:
         layered = self.shading.layered
         used = np.bincount(self._triangles.material_ids, minlength=len(layered))[:len(layered)] > 0
         self._layered = bool((layered & used).any())
+
+    def _find_coincident(self) -> None:
+        """The coincident partners of the static plain triangles rays may pass through (kernels.coincident)."""
+        through = np.take(self.shading.transmissive, self.scene.material_ids) if len(self.scene.material_ids) \
+            else np.zeros(0, bool)
+        if self.scene.motion_ids is not None and self.scene.has_motion:
+            through &= self.scene.motion_ids < 0
+        eps = self._ray_epsilon
+        self._coincident = Coincident.find(self.scene.positions, through,
+                                           lambda size: eps + np.float32(2.0 ** -16) * size) \
+            if through.any() else None
 
     def _light_sampler(self) -> LightSampler:
         return LightSampler(self.scene, self.environment, _Emitters(self))
@@ -446,6 +459,7 @@ class Renderer:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             self._build_shading()
             self.lights = self._light_sampler()
+            self._find_coincident()
 
     @_forwarded
     def update_scene(self, scene: SceneArrays) -> bool:
@@ -791,6 +805,9 @@ class Renderer:
         rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
         state = PathState.start(n, samples)
         state.time = None if times is None else RayTimes(times)
+        if self._coincident is not None:
+            state.partner, state.partner_uv = np.full(n, -1, np.int64), np.zeros((2, n), np.float32)
+            state.handed = np.zeros(n, bool)
         if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux or "denoising_depth" in aux):
             state.features = np.ones((3, n), np.float32)
         if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
@@ -815,6 +832,8 @@ class Renderer:
         wave.aux = aux
         for step in range(max_scatters + int(settings.transparent_max_bounces) + 1):
             hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split, state.time)
+            if state.partner is not None:
+                _hand_over(state, hits)
             ended = None
             if step > 0 and self.lights.has_surface_lights:
                 ended = self._lights_hit(wave, state, rays, hits)
@@ -861,6 +880,8 @@ class Renderer:
             if not len(alive):
                 break
             state.compact(alive)
+            if state.partner is not None:
+                self._crossings(state, hit, alive, bs)
             rays = self._spawn(hit, alive, bs)
         return radiance, alpha
 
@@ -1301,6 +1322,17 @@ class Renderer:
         return found[~stop]
 
     # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
+    def _crossings(self, state, hit, alive, bs) -> None:
+        """The coincident triangle each ray going through its surface meets at once (kernels.coincident),
+        for the next intersection; not for a ray whose hit was itself handed over."""
+        through = np.flatnonzero(np.take(bs.transmit, alive) & ~state.handed)
+        state.partner[:] = -1
+        if len(through):
+            rows = alive[through]
+            partner, b1, b2 = self._coincident.crossing(np.take(hit.prim, rows), *(np.take(c, rows) for c in hit.p))
+            state.partner[through] = partner
+            state.partner_uv[0, through], state.partner_uv[1, through] = b1, b2
+
     def _spawn(self, hit, alive, bs) -> "Rays":
         return self._rays_from(hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(bs.transmit, alive))
 
@@ -1639,6 +1671,18 @@ def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, q
                                max(-(-height // _WAVES_PER_PASS), MIN_WAVE_PATHS // (width * spp))))
     bands = [(r, min(height, r + rows_per_wave)) for r in range(0, height, rows_per_wave)]
     return spp, bands
+
+
+def _hand_over(state, hits) -> None:
+    """Rays that leave a surface where a coincident one lies meet that one first, at distance zero (as Cycles'
+    rays do, which skip only the primitive they leave); the others keep what Embree found."""
+    handed = state.partner >= 0
+    state.handed = handed
+    rows = np.flatnonzero(handed)
+    if len(rows):
+        hits.prim[rows] = state.partner[rows]
+        hits.u[rows], hits.v[rows] = state.partner_uv[0, rows], state.partner_uv[1, rows]
+        hits.t[rows] = 0.0
 
 
 def _ray_epsilon(lo: np.ndarray, hi: np.ndarray) -> np.float32:

@@ -39,6 +39,12 @@ class PathState:
     #                                         took one at its last bounce
     focus: object = None    # environment.WorldFocus or None: how the vertex that sent each ray focused its
     #                         light samples of the world (for the MIS weight of the world the ray finds)
+    partner: np.ndarray | None = None  # (N,) int64 or None: the coincident triangle each ray meets where it
+    #                                    leaves its surface, -1 none (kernels.coincident); None in scenes
+    #                                    without coincident surfaces
+    partner_uv: np.ndarray | None = None  # (2, N) float32: that hit's barycentrics (u, v)
+    handed: np.ndarray | None = None   # (N,) bool: the ray's hit was handed over from a coincident one (its
+    #                                    own crossing is not handed on again)
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -70,6 +76,10 @@ class PathState:
             self.escape_scale = np.take(self.escape_scale, idx)
         if self.focus is not None:
             self.focus = self.focus.take(idx)
+        if self.partner is not None:
+            self.partner = np.take(self.partner, idx)
+            self.partner_uv = np.take(self.partner_uv, idx, axis=1)
+            self.handed = np.take(self.handed, idx)
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

@@ -513,6 +513,13 @@ def may_be_transparent(c: Closure) -> bool:
     return c.kind == "TRANSPARENT" or (c.kind == "PRINCIPLED" and _param_may_differ(c, "Alpha", 1.0))
 
 
+def may_transmit(c: Closure) -> bool:
+    """Whether rays may go through the closure's surface (refract, pass straight, or scatter to its back)."""
+    if c.kind in ("GLASS", "REFRACTION", "TRANSLUCENT"):
+        return True
+    return may_be_transparent(c) or (c.kind == "PRINCIPLED" and _param_may_differ(c, "Transmission Weight", 0.0))
+
+
 def transparency(c: Closure, ctx: Context, w: np.ndarray) -> np.ndarray:
     """(3, n) straight-through transmittance of a Transparent node or a Principled BSDF's alpha."""
     if c.kind == "TRANSPARENT":

@@ -78,6 +78,7 @@ class Shading:
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)
         self.transparent = np.array([any(nodes.may_be_transparent(c) for c in s.closures) for s in self.shaders],
                                     bool)
+        self.transmissive = np.array([any(nodes.may_transmit(c) for c in s.closures) for s in self.shaders], bool)
         self.has_holdout = any(c.kind == "HOLDOUT" for s in self.shaders for c in s.closures)
         # Whether any hit has more than one lobe to choose from (a Principled BSDF, a Mix, a delta lobe).
         self.layered = np.array([_mixes_lobes(s.closures) for s in self.shaders], bool)

@@ -1,0 +1,241 @@
+"""Surfaces that lie on one another: a liquid's wall on the inside of its glass, a label on a bottle, two
+duplicated faces. Which triangles coincide with which, and where a ray that goes through one meets the
+other.
+
+Cycles' self-intersection test skips only the primitive a ray leaves (kernel/bvh/util.h), so a ray refracted
+through a glass's inner wall meets the liquid's wall lying on it at distance zero, and refracts again. Ember
+moves each new ray's origin off its surface instead (Embree as embreex calls it has no per-ray exclusion),
+which steps over every surface within that offset. So the partners of the triangles a ray can pass through
+are found once per scene, and a ray that passes through one of them is handed its partner's hit at the same
+point (Renderer's crossing of coincident surfaces).
+
+A partner lies in the triangle's plane (normals within PLANE_ANGLE, planes within the ray offset's distance)
+and overlaps it with some area, not only along an edge (a mesh's own flat neighbours are not partners).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .scene import corner_values
+
+# Largest angle between two triangles' normals for them to lie on one another (radians).
+PLANE_ANGLE = 1e-3
+# About this many candidate pairs are tested at once (memory of the vectorised tests).
+_CHUNK = 1 << 20
+
+
+class Coincident:
+    """Partners of triangles: for triangle a, partners[offsets[a]:offsets[a + 1]] are the triangles that lie on
+    it (int64, ascending). Only the T plain triangles take part (world space; instanced meshes do not)."""
+
+    def __init__(self, offsets: np.ndarray, partners: np.ndarray, positions):
+        self.offsets, self.partners = offsets, partners
+        self._positions = positions
+
+    @classmethod
+    def find(cls, positions, through: np.ndarray, offset) -> "Coincident | None":
+        """Partners of the triangles `through` (T,) bool marks (those a ray may pass through) among all the
+        triangles (SceneArrays.positions, world space); offset(|p|max) -> the distance a new ray's origin is
+        moved off a surface at that size of coordinate: planes closer than twice that lie on one another.
+        None when no triangle has a partner."""
+        candidates = np.flatnonzero(through)
+        if not len(candidates) or len(positions) < 2:
+            return None
+        p = corner_values(positions)
+        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        length = np.sqrt(np.einsum("ij,ij->i", n, n))
+        ok = length > 0
+        n /= np.where(ok, length, np.float32(1.0))[:, None]
+        # One orientation per plane: the largest component positive.
+        dominant = np.argmax(np.abs(n), axis=1)
+        n *= np.where(np.take_along_axis(n, dominant[:, None], 1) < 0, np.float32(-1.0), np.float32(1.0))
+        d = np.einsum("ij,ij->i", n, p[:, 0])
+        lo = np.minimum(np.minimum(p[:, 0], p[:, 1]), p[:, 2])
+        hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
+        size = np.maximum(np.abs(lo), np.abs(hi))
+        distance = 2.0 * offset(np.maximum(np.maximum(size[:, 0], size[:, 1]), size[:, 2]))
+        found = []
+        for shift in (0.0, 0.5):
+            for a, b in _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift):
+                margin = distance[a, None]
+                near = (np.abs(d[a] - d[b]) <= distance[a]) & np.all(
+                    (lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
+                a, b = a[near], b[near]
+                keep = _overlap(p[a].astype(np.float64), p[b].astype(np.float64), dominant[a])
+                found.append(a[keep] * len(p) + b[keep])
+        key = np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
+        if not len(key):
+            return None
+        a, b = key // len(p), key % len(p)
+        offsets = np.zeros(len(p) + 1, np.int64)
+        np.add.at(offsets, a + 1, 1)
+        return cls(np.cumsum(offsets), b, positions)
+
+    def crossing(self, prim: np.ndarray, px, py, pz):
+        """For rays passing through triangles prim (n,) at points p (x, y, z of (n,)): the partner each meets
+        there (-1 for none: no partner, a point outside them all, an instanced triangle), and that hit's
+        barycentrics (b1, b2) of the partner's corners 1 and 2, float32."""
+        m = len(prim)
+        partner = np.full(m, -1, np.int64)
+        b1, b2 = np.zeros(m, np.float32), np.zeros(m, np.float32)
+        inside = prim < len(self.offsets) - 1
+        start = np.where(inside, np.take(self.offsets, np.where(inside, prim, 0)), 0)
+        count = np.where(inside, np.take(self.offsets, np.where(inside, prim + 1, 0)) - start, 0)
+        rows = np.flatnonzero(count > 0)
+        if not len(rows):
+            return partner, b1, b2
+        # Every (ray, partner) pair; the first partner (in index order) that holds the point wins.
+        per = count[rows]
+        ray = np.repeat(rows, per)
+        which = self.partners[np.repeat(start[rows], per) + _ranks(per)]
+        q = np.stack([np.take(c, ray) for c in (px, py, pz)], axis=1).astype(np.float64)
+        w1, w2, holds = _barycentrics(corner_values(self._positions, which).astype(np.float64), q)
+        hit = np.flatnonzero(holds)
+        if len(hit):
+            first = np.unique(ray[hit], return_index=True)[1]
+            chosen = hit[first]
+            partner[ray[chosen]] = which[chosen]
+            b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
+        return partner, b1, b2
+
+
+def _ranks(counts: np.ndarray) -> np.ndarray:
+    """0, 1, ..., c - 1 for each count c, concatenated."""
+    ends = np.cumsum(counts)
+    return np.arange(ends[-1]) - np.repeat(ends - counts, counts)
+
+
+def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: float):
+    """(a, b) index pairs in chunks, a a candidate and b != a a triangle whose normal falls in a's bin of
+    PLANE_ANGLE (bins moved by `shift` of a bin: two passes catch the pairs one bin edge splits) and whose box,
+    seen along that normal, shares a cell of a grid as fine as a's size (so that a small triangle on a big
+    plane of small ones meets its neighbours only, not the whole plane)."""
+    key = np.floor(n / PLANE_ANGLE + shift).astype(np.int64)
+    # One int64 per bin (a hash: two bins may share one, which only adds pairs the exact tests drop).
+    key = (key[:, 0] * np.int64(73856093)) ^ (key[:, 1] * np.int64(19349663)) ^ (key[:, 2] * np.int64(83492791))
+    _, group = np.unique(key, return_inverse=True)
+    group = group.ravel()
+    group[~ok] = -1                                    # degenerate triangles have no plane
+    # A candidate alone in its bin (a smooth glass's triangles, each turned its own way) has no partner.
+    members = np.bincount(group[ok], minlength=group.max() + 1)
+    cand = candidates[ok[candidates]]
+    cand = cand[members[group[cand]] > 1]
+    if not len(cand):
+        return
+    # Only triangles in a candidate's plane bin and within the box of its candidates matter; each is seen
+    # along its candidates' dominant axis.
+    others = np.flatnonzero(np.isin(group, group[cand]))
+    g_lo = np.full((group.max() + 1, 3), np.inf, np.float32)
+    g_hi = np.full((group.max() + 1, 3), -np.inf, np.float32)
+    reach = distance[cand, None].astype(np.float32)
+    np.minimum.at(g_lo, group[cand], lo[cand] - reach)
+    np.maximum.at(g_hi, group[cand], hi[cand] + reach)
+    go = group[others]
+    others = others[np.all((lo[others] <= g_hi[go]) & (hi[others] >= g_lo[go]), axis=1)]
+    axes = np.array([[1, 2], [2, 0], [0, 1]])
+    drop = np.zeros(group.max() + 1, np.int64)
+    drop[group[cand]] = dominant[cand]
+    seen = axes[drop[group[others]]]                                                   # (m, 2)
+    t_lo, t_hi = np.take_along_axis(lo[others], seen, 1), np.take_along_axis(hi[others], seen, 1)
+    c_seen = axes[dominant[cand]]
+    c_lo = np.take_along_axis(lo[cand], c_seen, 1) - distance[cand, None]
+    c_hi = np.take_along_axis(hi[cand], c_seen, 1) + distance[cand, None]
+    # Cells as wide as the candidate's box, in powers of two: each candidate covers at most 2 x 2 of them.
+    level = np.ceil(np.log2(np.maximum((c_hi - c_lo).max(axis=1), 1e-30))).astype(np.int64)
+    for lev in np.unique(level):
+        h = 2.0 ** float(lev)
+        mine = np.flatnonzero(level == lev)
+        c_keys, c_owner = _cells(c_lo[mine] / h, c_hi[mine] / h, group[cand[mine]])
+        t_keys, t_owner = _cells(t_lo / h, t_hi / h, group[others], limit=_MAX_CELLS)
+        yield from _join(c_keys, cand[mine][c_owner], t_keys, others[t_owner])
+        # Boxes over _MAX_CELLS cells (a large floor under small glass) meet every candidate of their plane bin.
+        big = np.ones(len(others), bool)
+        big[t_owner] = False
+        big = np.flatnonzero(big)
+        if len(big):
+            yield from _join(group[cand[mine]], cand[mine], group[others[big]], others[big])
+
+
+# A triangle whose box covers more grid cells than this is paired with the candidates of its plane directly.
+_MAX_CELLS = 16
+
+
+def _cells(lo, hi, group, limit=None):
+    """Keys (int64, a hash of (group, i, j): two cells may share one, never one cell two) of the grid cells
+    that boxes [lo, hi] (m, 2) in cell units cover, and the box of each key; boxes over `limit` cells are left
+    out."""
+    first = np.floor(lo).astype(np.int64)
+    span = np.floor(hi).astype(np.int64) - first + 1
+    count = span[:, 0] * span[:, 1]
+    owner = np.arange(len(lo))
+    if limit is not None:
+        owner = owner[count <= limit]
+    c = count[owner]
+    rank = _ranks(c) if len(c) else np.zeros(0, np.int64)
+    who = np.repeat(owner, c)
+    i = first[who, 0] + rank % span[who, 0]
+    j = first[who, 1] + rank // span[who, 0]
+    with np.errstate(over="ignore"):
+        keys = (group[who].astype(np.int64) * np.int64(73856093)) ^ (i * np.int64(19349663)) ^ (j * np.int64(83492791))
+    return keys, who
+
+
+def _join(c_keys, c_tri, t_keys, t_tri):
+    """(candidate, triangle) pairs with equal keys, in chunks of about _CHUNK."""
+    if not len(c_keys) or not len(t_keys):
+        return
+    order = np.argsort(t_keys, kind="stable")
+    t_sorted = t_keys[order]
+    first = np.searchsorted(t_sorted, c_keys, side="left")
+    counts = np.searchsorted(t_sorted, c_keys, side="right") - first
+    ends = np.cumsum(counts)
+    start = 0
+    while start < len(c_keys):
+        stop = max(int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _CHUNK, side="right")), start + 1)
+        c = counts[start:stop]
+        if c.sum():
+            a = np.repeat(c_tri[start:stop], c)
+            b = t_tri[order[np.repeat(first[start:stop], c) + _ranks(c)]]
+            other = a != b
+            yield a[other].astype(np.int64), b[other].astype(np.int64)
+        start = stop
+
+
+def _overlap(a, b, dominant) -> np.ndarray:
+    """(m,) bool: triangles a and b (m, 3, 3) overlap with some area, seen along their common normal (projected
+    by dropping each pair's dominant axis); touching along an edge or a corner is not overlap."""
+    axes = np.array([[1, 2], [2, 0], [0, 1]])[dominant]                  # (m, 2) the two kept axes
+    pa = np.take_along_axis(a, axes[:, None, :], 2)                       # (m, 3, 2)
+    pb = np.take_along_axis(b, axes[:, None, :], 2)
+    # Per component (x, y of each corner) arrays: NumPy's reductions over axes of length 3 are slow.
+    ax, ay = [pa[:, c, 0] for c in range(3)], [pa[:, c, 1] for c in range(3)]
+    bx, by = [pb[:, c, 0] for c in range(3)], [pb[:, c, 1] for c in range(3)]
+    size = np.maximum.reduce([np.maximum.reduce(v) - np.minimum.reduce(v) for v in (ax, ay, bx, by)])
+    margin = 1e-6 * size
+    separated = np.zeros(len(a), bool)
+    for xs, ys in ((ax, ay), (bx, by)):
+        for k in range(3):
+            ex, ey = xs[(k + 1) % 3] - xs[k], ys[(k + 1) % 3] - ys[k]
+            length = np.sqrt(ex * ex + ey * ey)
+            nx, ny = -ey / np.where(length > 0, length, 1.0), ex / np.where(length > 0, length, 1.0)
+            sa = [x * nx + y * ny for x, y in zip(ax, ay)]
+            sb = [x * nx + y * ny for x, y in zip(bx, by)]
+            separated |= (np.maximum.reduce(sa) <= np.minimum.reduce(sb) + margin) | \
+                (np.maximum.reduce(sb) <= np.minimum.reduce(sa) + margin)
+    return ~separated
+
+
+def _barycentrics(tri, q):
+    """Barycentrics (w1, w2) of points q (m, 3) projected onto triangles tri (m, 3, 3), float32, and whether
+    they lie inside (with a margin of a millionth of the triangle's size, for points on a shared edge)."""
+    e1, e2, v = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], q - tri[:, 0]
+    d11, d12, d22 = (np.einsum("ij,ij->i", x, y) for x, y in ((e1, e1), (e1, e2), (e2, e2)))
+    v1, v2 = np.einsum("ij,ij->i", v, e1), np.einsum("ij,ij->i", v, e2)
+    det = d11 * d22 - d12 * d12
+    ok = det > 0
+    det = np.where(ok, det, 1.0)
+    w1 = (d22 * v1 - d12 * v2) / det
+    w2 = (d11 * v2 - d12 * v1) / det
+    tol = 1e-6
+    inside = ok & (w1 >= -tol) & (w2 >= -tol) & (w1 + w2 <= 1 + tol)
+    return w1.astype(np.float32), w2.astype(np.float32), inside
