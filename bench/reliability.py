@@ -51,6 +51,7 @@ class Case:
     status: int = 0                 # expected exit status
     expect: Callable | None = None  # (run, tmp) -> None or a message saying what is wrong
     interrupt: bool = False         # send SIGINT once the first frame is saved
+    file_size_limit: int | None = None  # RLIMIT_FSIZE in bytes: writes past it fail, as on a full disk
 
 
 def files(*names):
@@ -134,6 +135,10 @@ CASES = [
     Case("Ctrl-C once frame 1 of 3 is saved", ["{blend}", "-o", "{tmp}/c_#.png", "--frames", "1-3", "--resolution", "320x240"],
          blend="scene.ember.samples = 400; bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(0, 0, 0.5))",
          status=130, interrupt=True, expect=all_of(absent("c_3.png"), says("interrupted", "stderr"))),
+    Case("a write fails (60 KB file size limit), --frames 1-3", ["{blend}", "-o", "{tmp}/w_#.exr", "--frames", "1-3",
+                                                                 "--resolution", "320x240"],
+         blend="", status=1, file_size_limit=60_000,
+         expect=all_of(absent("w_1.exr"), says("no frame was saved; frames 1-3 were not", "stderr"))),
 ]
 
 
@@ -146,7 +151,8 @@ def run_case(case: Case, tmp: str):
         f.write(b"BLENDER-v500 this is not a blend file")
     cmd = [sys.executable, "-c", CLI, "render", *map(fill, case.args)]
     if not case.interrupt:
-        return subprocess.run(cmd, capture_output=True, text=True, cwd=tmp, timeout=300)
+        return subprocess.run(cmd, capture_output=True, text=True, cwd=tmp, timeout=300,
+                              preexec_fn=None if case.file_size_limit is None else lambda: _limit(case.file_size_limit))
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp)
     head = []
     for line in proc.stdout:
@@ -156,6 +162,11 @@ def run_case(case: Case, tmp: str):
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     return subprocess.CompletedProcess(cmd, proc.returncode, "".join(head) + out, err)
+
+
+def _limit(file_size: int) -> None:
+    import resource
+    resource.setrlimit(resource.RLIMIT_FSIZE, (file_size, resource.RLIM_INFINITY))
 
 
 def judge(case: Case, run, tmp: str) -> tuple[str, str]:

@@ -8,7 +8,9 @@ Without -o, frames go where `blender -b file.blend -a` would put them: the file'
 Blender's own rules (`//` relative to the .blend, `#` padding, the frame number appended when there is
 no `#`, the extension when the file asks for one) in the file's output format. Every output directory is
 created and checked before the first frame renders. A frame is written under a temporary name in its
-directory and renamed when complete, so an interrupted or failed frame never leaves a file behind.
+directory, checked to be whole (Blender's writers do not report a full disk) and renamed when complete, so
+an interrupted or failed frame never leaves a file behind nor replaces an earlier one; a failed save stops
+the render with one line naming the frames saved and the frames lost.
 
 Bad input gets one line on stderr and a non-zero exit (2 for a malformed command line); Ctrl-C stops
 the frame being rendered within a wave, keeps the frames finished before it, and exits with 130.
@@ -20,6 +22,7 @@ the same (prepare) and writes the frames with the same save_render_result.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import os
 import re
@@ -31,6 +34,7 @@ from typing import Any
 
 import bpy
 
+from .image_files import written_file_problem
 from .properties import SAMPLING_MODE_ITEMS
 
 EXIT_USAGE = 2
@@ -40,6 +44,8 @@ FORMATS = {".png": "PNG", ".exr": "OPEN_EXR", ".jpg": "JPEG", ".jpeg": "JPEG", "
 SEED_MAX = 2**31 - 1             # Blender's integer properties are 32-bit signed
 RESOLUTION_RANGE = (4, 65536)    # what scene.render.resolution_x/y accept
 INT_MAX = 2**31 - 1
+# A write that failed with less than this free on its disk is reported as a full disk.
+FULL_DISK_BYTES = 1 << 20
 
 
 class CliError(Exception):
@@ -355,12 +361,15 @@ def render_frames(job: RenderJob) -> int:
         try:
             bpy.ops.render.render(write_still=False, scene=scene.name)
         except RuntimeError as err:
-            raise CliError(_first_line(err)) from None
+            raise CliError(_with_outcome(f"frame {frame}: {_first_line(err)}", job, done, frame)) from None
         if interrupted():  # the render stopped early: its frame is incomplete, so it is not saved
             kept = saved_frames(done)
             print(f"ember: interrupted during frame {frame}: nothing saved for it; {kept}", file=sys.stderr)
             return EXIT_INTERRUPTED
-        save_render_result(scene, target)  # a frame that finished rendering is saved even if Ctrl-C comes now
+        try:  # a frame that finished rendering is saved even if Ctrl-C comes now
+            save_render_result(scene, target)
+        except CliError as err:  # a failed save stops the render, as Blender's own animation render does
+            raise CliError(_with_outcome(f"frame {frame}: {err}", job, done, frame)) from None
         done.append(frame)
         print(f"Ember | Frame {frame} | saved {target}", flush=True)
     if interrupted() and len(done) < len(frame_list):
@@ -396,23 +405,97 @@ def _use_format_of(scene, output: str) -> None:
 
 
 def save_render_result(scene, target: str) -> None:
-    """Write the render result with the scene's output settings, under a temporary name in the
-    target's directory, then rename: a failure or an interrupt never leaves a partial file."""
+    """Write the render result with the scene's output settings under a temporary name in the target's
+    directory, check that the file is whole, flush it to the disk, then rename it over the target. Blender's
+    writers log a failed write (a full disk) and return as if they had succeeded: the check catches it. A
+    failure or an interrupt never leaves a partial file, nor replaces an earlier file with a broken one."""
     result = bpy.data.images.get("Render Result")
     if result is None:
         raise CliError("Blender produced no render result")
     directory, name = os.path.split(target)
-    fd, partial = tempfile.mkstemp(prefix=f".{name}.", suffix=".partial", dir=directory)
+    try:
+        fd, partial = tempfile.mkstemp(prefix=f".{name}.", suffix=".partial", dir=directory)
+    except OSError as err:
+        raise CliError(f"cannot save {target}: {_first_line(err)}{_kept(target)}") from None
     os.close(fd)
     try:
-        result.save_render(partial, scene=scene)
+        with _blender_log() as log:
+            result.save_render(partial, scene=scene)
+        problem = written_file_problem(partial, scene.render.image_settings.file_format)
+        if problem is not None:
+            raise CliError(f"cannot save {target}: {_write_failure(directory, log, partial, target)}the file "
+                           f"Blender wrote is incomplete ({problem}){_kept(target)}")
         os.chmod(partial, 0o666 & ~_umask())  # mkstemp's file is private; a saved frame is not
+        _flush_to_disk(partial)
         os.replace(partial, target)
     except (RuntimeError, OSError) as err:
-        raise CliError(f"cannot save {target}: {_first_line(err)}") from None
+        raise CliError(f"cannot save {target}: {_first_line(err)}{_kept(target)}") from None
     finally:
         if os.path.exists(partial):
             os.remove(partial)
+
+
+def _flush_to_disk(path: str) -> None:
+    """fsync: a write error the file system reports late (a network disk, delayed allocation) raises
+    OSError here, and the frame is on the disk before its name replaces an earlier one."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _write_failure(directory: str, log: list[str], partial: str, target: str) -> str:
+    """Why a write failed, as far as can be told: a (nearly) full disk, else the error Blender logged."""
+    try:
+        stats = os.statvfs(directory)
+        free = stats.f_bavail * stats.f_frsize
+    except OSError:
+        free = FULL_DISK_BYTES
+    if free < FULL_DISK_BYTES:
+        return f"no space left on device ({free >> 10} KB free); "
+    errors = [re.sub(r"^\w+: ", "", line.split("ERROR", 1)[1].strip(" :")) for line in log if "ERROR" in line]
+    return f"Blender: {errors[-1].replace(partial, target).rstrip('.')}; " if errors else ""
+
+
+@contextlib.contextmanager
+def _blender_log():
+    """The lines Blender's C code writes to stdout and stderr in the block (its log, where it reports a
+    failed write and carries on), passed on to the same streams at its end and collected for the caller."""
+    lines: list[str] = []
+    with contextlib.ExitStack() as stack:
+        for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
+            stack.enter_context(_copied(fd, stream, lines))
+        yield lines
+
+
+@contextlib.contextmanager
+def _copied(fd: int, stream, lines: list[str]):
+    try:
+        held = tempfile.TemporaryFile()
+    except OSError:  # nowhere to hold them: the lines go straight through
+        held = None
+    if held is None:
+        yield
+        return
+    with held:
+        stream.flush()
+        saved = os.dup(fd)
+        os.dup2(held.fileno(), fd)
+        try:
+            yield
+        finally:
+            os.dup2(saved, fd)
+            os.close(saved)
+            held.seek(0)
+            text = held.read().decode("utf-8", "replace")
+            stream.write(text)
+            stream.flush()
+            lines.extend(text.splitlines())
+
+
+def _kept(target: str) -> str:
+    return "; the existing file is kept" if os.path.exists(target) else ""
 
 
 def _umask() -> int:
@@ -490,6 +573,22 @@ def _apply_options(scene, args, resolution) -> None:
     if resolution is not None:
         scene.render.resolution_x, scene.render.resolution_y = resolution
         scene.render.resolution_percentage = 100
+
+
+def _with_outcome(message: str, job: RenderJob, done: list[int], failed: int) -> str:
+    """`message`, and for several frames which were saved and which were lost (`failed` and the ones
+    after it)."""
+    if len(job.frames) == 1:
+        return message
+    return f"{message}; {frames_outcome(done, job.frames[job.frames.index(failed):])}"
+
+
+def frames_outcome(saved: list[int], lost: list[int]) -> str:
+    """'frames 1-6 were saved; frames 7-8 were not'."""
+    text = saved_frames(saved)
+    if lost:
+        text += f"; frame{'s' if len(lost) > 1 else ''} {_ranges(lost)} {'were' if len(lost) > 1 else 'was'} not"
+    return text
 
 
 def saved_frames(done: list[int]) -> str:

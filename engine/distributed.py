@@ -244,7 +244,7 @@ class FrameWriter:
         try:
             bpy.ops.render.render(write_still=False, scene=self.scene.name)
         except RuntimeError as err:
-            raise CliError(f"cannot write frame {frame}: {cli._first_line(err)}") from None
+            raise CliError(f"cannot write it: {cli._first_line(err)}") from None
         finally:
             _pending_frame = None
         cli.save_render_result(self.scene, target)
@@ -438,6 +438,11 @@ class Driver:
                 if time.perf_counter() - self.last_progress >= PROGRESS_INTERVAL_S:
                     self._progress()
             return 0
+        except CliError as err:  # which frames were saved and which were lost, on the same line
+            if len(self.plan.frames) == 1:
+                raise
+            lost = [f for f in self.plan.frames if f not in self.saved]
+            raise CliError(f"{err}; {cli.frames_outcome(sorted(self.saved), lost)}") from None
         finally:
             for worker in self.workers:
                 self._kill(worker)
@@ -496,7 +501,10 @@ class Driver:
         else:
             pixels, metadata = self._merge(task.frame, parts)
         target = self.plan.targets[task.frame]
-        self.writer.write(task.frame, target, pixels, first["width"], first["height"], metadata)
+        try:
+            self.writer.write(task.frame, target, pixels, first["width"], first["height"], metadata)
+        except CliError as err:
+            raise CliError(f"frame {task.frame}: {err}") from None
         self.saved.append(task.frame)
         print(f"Ember | Frame {task.frame} | saved {target}", flush=True)
         self._progress()

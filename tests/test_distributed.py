@@ -222,3 +222,22 @@ def test_bad_ray_input_is_one_line(animation, args, status, message):
     lines = run.stderr.strip().splitlines()
     assert run.returncode == status and len(lines) == 1 and message in lines[0], run.stderr
     assert not os.path.exists("/tmp/ember-never-written.exr")
+
+
+@needs_ray
+@pytest.mark.small_disk_size("24k")
+def test_a_full_disk_keeps_the_earlier_frames(cluster, animation, small_disk):
+    """The driver writes the frames (cli.save_render_result): on a disk with no room for a frame, the first
+    frame to arrive fails in one line saying which frames were lost, and every earlier file stays."""
+    old = {f: f"an earlier frame {f}".encode() for f in range(1, 6)}
+    for f, data in old.items():
+        (small_disk / f"f_{f}.exr").write_bytes(data)
+    run = ember("render", animation, "--frames", FRAMES, "--samples", "1", "--resolution", "64x48",
+                "-o", str(small_disk / "f_#.exr"), "--ray", cluster, "--workers", "2", "--threads", "1")
+    assert run.returncode == 1, run.stderr
+    last = run.stderr.strip().splitlines()[-1]
+    assert re.fullmatch(r"ember: error: frame \d: cannot save .*/f_\d\.exr: no space left on device .*; the existing "
+                        r"file is kept; no frame was saved; frames 1-5 were not", last), last
+    assert "Traceback" not in run.stderr and "| saved " not in run.stdout
+    assert {f: (small_disk / f"f_{f}.exr").read_bytes() for f in old} == old
+    assert sorted(os.listdir(small_disk)) == [f"f_{f}.exr" for f in old]

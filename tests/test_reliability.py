@@ -385,3 +385,75 @@ def test_smooth_normals_under_non_uniform_scale_use_the_inverse_transpose():
     normals = export_scene(depsgraph).scene.normals.astype(np.float64)
     normals /= np.linalg.norm(normals, axis=2, keepdims=True)
     assert normals.shape == expected.shape and np.allclose(normals, expected, atol=1e-5)
+
+
+# ---------------------------------------------------------------- 9. a failed save
+def ember_with_file_size_limit(limit_bytes, *args):
+    """The command line with RLIMIT_FSIZE: every write past `limit_bytes` fails (EFBIG; Python ignores
+    SIGXFSZ), a write error injected under Blender's own image writer, as a full disk gives it."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, resource.RLIM_INFINITY))
+    return subprocess.run([sys.executable, "-c", CLI_CODE, *args], capture_output=True, text=True, cwd=ROOT,
+                          timeout=300, preexec_fn=limit)
+
+
+def one_error_line(run) -> str:
+    no_traceback(run)
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ember: error: "), run.stderr
+    return lines[0]
+
+
+def no_partial_files(directory) -> None:
+    assert not [f for f in os.listdir(directory) if f.endswith(".partial")], os.listdir(directory)
+
+
+def test_a_failed_write_keeps_the_earlier_frame_and_names_the_lost_ones(tmp_path):
+    """Blender's writer logs a failed write and carries on: the truncated file was renamed over the frame
+    and reported saved (exit 0). Now the frame before it stays, the render stops there, exit 1."""
+    small_scene(320, 240)
+    path = save_copy(tmp_path / "scene.blend")
+    out = tmp_path / "out"
+    run = ember("render", path, "-o", str(out / "f_#.exr"), "--frames", "1", "--samples", "1")
+    assert run.returncode == 0, run.stderr
+    good = (out / "f_1.exr").read_bytes()
+    assert len(good) > 100_000
+    run = ember_with_file_size_limit(60_000, "render", path, "-o", str(out / "f_#.exr"), "--frames", "1-3",
+                                     "--samples", "2")
+    assert run.returncode == 1, run.stderr
+    line = one_error_line(run)
+    assert f"frame 1: cannot save {out / 'f_1.exr'}: " in line and "File too large" in line, line
+    assert line.endswith("the existing file is kept; no frame was saved; frames 1-3 were not"), line
+    assert (out / "f_1.exr").read_bytes() == good and sorted(os.listdir(out)) == ["f_1.exr"]
+    assert "saved" not in run.stdout
+
+    run = ember_with_file_size_limit(20_000, "render", path, "-o", str(out / "p.png"), "--samples", "1")
+    assert run.returncode == 1 and "cannot save" in one_error_line(run)
+    assert sorted(os.listdir(out)) == ["f_1.exr"]
+
+
+def test_a_full_disk_loses_no_frame_and_reports_the_lost_ones(tmp_path, small_disk):
+    """Uncompressed 160x120 RGBA float frames (310 KB) onto 1 MB: three fit. Before, the next ones were truncated or empty,
+    printed 'saved', exit 0; rendering frame 1 again replaced it with a broken file."""
+    from ember.engine.image_files import written_file_problem
+    scene = small_scene(160, 120)
+    scene.render.image_settings.exr_codec = "NONE"   # every frame the same size
+    path = save_copy(tmp_path / "scene.blend")
+    run = ember("render", path, "-o", str(small_disk / "f_#.exr"), "--frames", "1-6", "--samples", "1")
+    assert run.returncode == 1, run.stderr
+    line = one_error_line(run)
+    assert f"frame 4: cannot save {small_disk / 'f_4.exr'}: no space left on device" in line, line
+    assert line.endswith("frames 1-3 were saved; frames 4-6 were not"), line
+    saved = sorted(os.listdir(small_disk))
+    assert saved == ["f_1.exr", "f_2.exr", "f_3.exr"]
+    assert all(written_file_problem(str(small_disk / f), "OPEN_EXR") is None for f in saved)
+    assert load_exr(str(small_disk / "f_3.exr")).shape == (120, 160, 4)
+
+    first = (small_disk / "f_1.exr").read_bytes()
+    run = ember("render", path, "-o", str(small_disk / "f_#.exr"), "--frames", "1", "--samples", "2")
+    assert run.returncode == 1
+    assert one_error_line(run).endswith("the existing file is kept")
+    assert (small_disk / "f_1.exr").read_bytes() == first
+    no_partial_files(small_disk)
