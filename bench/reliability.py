@@ -135,6 +135,8 @@ CASES = [
     Case("Ctrl-C once frame 1 of 3 is saved", ["{blend}", "-o", "{tmp}/c_#.png", "--frames", "1-3", "--resolution", "320x240"],
          blend="scene.ember.samples = 400; bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(0, 0, 0.5))",
          status=130, interrupt=True, expect=all_of(absent("c_3.png"), says("interrupted", "stderr"))),
+    Case("--threads 1000", ["{blend}", "-o", "{tmp}/t.png", "--threads", "1000"], blend="",
+         expect=all_of(files("t.png"), says("--threads 1000 is more than the"))),
     Case("a write fails (60 KB file size limit), --frames 1-3", ["{blend}", "-o", "{tmp}/w_#.exr", "--frames", "1-3",
                                                                  "--resolution", "320x240"],
          blend="", status=1, file_size_limit=60_000,

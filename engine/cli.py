@@ -34,6 +34,7 @@ from typing import Any
 
 import bpy
 
+from ..kernels.accel import capped_threads
 from .image_files import written_file_problem
 from .properties import SAMPLING_MODE_ITEMS
 
@@ -569,7 +570,11 @@ def _apply_options(scene, args, resolution) -> None:
     if args.threads is not None:
         scene.render.threads_mode = "FIXED" if args.threads > 0 else "AUTO"
         if args.threads > 0:
-            scene.render.threads = args.threads
+            scene.render.threads = capped_threads(args.threads)
+            if scene.render.threads < args.threads:
+                print(f"Ember | Warning: --threads {args.threads} is more than the {scene.render.threads} "
+                      f"core{'s' if scene.render.threads > 1 else ''} usable here: rendering with "
+                      f"{scene.render.threads} threads", flush=True)
     if resolution is not None:
         scene.render.resolution_x, scene.render.resolution_y = resolution
         scene.render.resolution_percentage = 100

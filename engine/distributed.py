@@ -37,6 +37,7 @@ import bpy
 import numpy as np
 
 from . import cli
+from ..kernels.accel import usable_cores
 from .cli import CliError, UsageError
 from .merge import MergeError, exr_strings, load_pixels, merge_arrays, read_exr_channels
 from .session import format_time
@@ -302,7 +303,11 @@ def render_on_ray(args, job: cli.RenderJob) -> int:
             with open(args.file, "rb") as f:
                 blend = f.read()
             _warn_external_files(args.file)
-    local_workers = args.workers or cluster.workers or os.cpu_count() or 1
+    local_workers = args.workers or cluster.workers or usable_cores()
+    if cluster.local and local_workers > usable_cores():  # each a process with its own Blender: no more than the cores
+        _status(f"{local_workers} workers asked for, but {usable_cores()} cores can be used here: starting "
+                f"{usable_cores()}")
+        local_workers = usable_cores()
     with _connected(ray, cluster, local_workers):
         workers = local_workers if cluster.local else args.workers or _node_count(ray)
         cpus = int(ray.cluster_resources().get("CPU", 0))
@@ -311,7 +316,7 @@ def render_on_ray(args, job: cli.RenderJob) -> int:
                            f"pass --workers {max(cpus, 1)}")
         worker_args = copy.copy(args)
         if cluster.local and args.threads is None:  # the cores shared among the workers of this machine
-            worker_args.threads = max(1, (os.cpu_count() or 1) // workers)
+            worker_args.threads = max(1, usable_cores() // workers)
         driver = Driver(ray, plan, FrameWriter(scene), scene.ember,
                         ray.put(blend) if blend is not None else None, worker_args, workers)
         return driver.run()
@@ -533,7 +538,7 @@ class Driver:
         try:
             image[..., :3] = denoise(image[..., :3], aux.get("albedo"), aux.get("normal"),
                                      quality=self.ember.denoising_quality, prefilter=self.ember.denoising_prefilter,
-                                     threads=os.cpu_count() or 1)
+                                     threads=usable_cores())
         except (DenoiseError, ValueError) as err:
             raise CliError(f"cannot denoise frame {frame}: {err}") from None
         return np.ascontiguousarray(image[::-1]).reshape(-1)

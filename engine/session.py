@@ -27,7 +27,7 @@ import bpy
 import numpy as np
 
 from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays
-from ..kernels.accel import default_threads
+from ..kernels.accel import capped_threads
 from .export import ExportCancelled, ExportError, export_scene
 from .export.mesh import MeshCache
 from .export.camera import render_region
@@ -54,8 +54,19 @@ def seed_for_frame(ember, frame: int) -> int:
 
 
 def render_threads(render) -> int:
-    """scene.render.threads already reports the automatic count when threads_mode is AUTO."""
-    return max(1, int(render.threads))
+    """The threads a render runs: scene.render.threads (which reports the automatic count when threads_mode
+    is AUTO) up to the cores this process may use."""
+    return capped_threads(int(render.threads))
+
+
+def threads_warning(render) -> str | None:
+    """A line when a fixed thread count (Blender allows up to 1024) is more than the cores this process may
+    use; Ember renders with the cores."""
+    threads = render_threads(render)
+    if render.threads_mode != "FIXED" or int(render.threads) <= threads:
+        return None
+    return (f"{int(render.threads)} render threads asked for (Performance > Threads), but {threads} "
+            f"core{'s' if threads > 1 else ''} can be used here: rendering with {threads}")
 
 
 def render_settings(scene, region, *, samples: int | None = None, time_limit: float | None = None) -> RenderSettings:
@@ -301,6 +312,7 @@ class FinalRender:
         self._crypto_names = exported.crypto_names or {}
         engine.update_stats("", "Ember: building the scene")
         threads = render_threads(scene.render)
+        self._warn(filter(None, [threads_warning(scene.render)]))
         session = ProgressiveSession(lambda arrays: self._build(arrays, threads, persistent))
         try:
             renderer = session.load(exported.scene)
@@ -511,7 +523,7 @@ class _KeptScene:
     def take(self, scene, threads: int) -> Renderer | None:
         """The kept renderer updated to `scene`, or None when it cannot be (then build one)."""
         kept = self.renderer
-        if kept is None or kept.accel.threads != (threads if threads > 0 else default_threads()):
+        if kept is None or kept.accel.threads != capped_threads(threads):
             return None
         if not kept.update_scene(scene):
             return None

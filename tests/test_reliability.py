@@ -457,3 +457,50 @@ def test_a_full_disk_loses_no_frame_and_reports_the_lost_ones(tmp_path, small_di
     assert one_error_line(run).endswith("the existing file is kept")
     assert (small_disk / "f_1.exr").read_bytes() == first
     no_partial_files(small_disk)
+
+
+# ---------------------------------------------------------------- 10. more threads than cores
+def test_threads_are_capped_at_the_usable_cores(monkeypatch):
+    """A renderer asked for 1000 threads (Blender allows 1024) runs the cores' worth: its wave threads and
+    slots, and the worker processes it starts (threads - 1; before, 999 for a small scene)."""
+    from ember.engine.export import export_scene
+    from ember.kernels import Renderer
+    from ember.kernels import workers
+    from ember.kernels.accel import usable_cores
+    small_scene()
+    started = []
+    monkeypatch.setattr(workers.WorkerSet, "start", lambda self, count, *a: started.append(count) or False)
+    exported = export_scene(bpy.context.evaluated_depsgraph_get())
+    with Renderer(exported.scene, threads=1000, processes=True) as renderer:
+        assert renderer.accel.threads == usable_cores()
+        assert started == ([usable_cores() - 1] if usable_cores() > 1 else [])
+
+
+def test_blender_thread_count_beyond_the_cores_warns_and_renders_with_the_cores(monkeypatch, capfd):
+    """Render Properties > Performance > Threads: Fixed, 1000 (through F12's path, bpy.ops.render.render)."""
+    import ember.engine.session as session
+    from ember.kernels.accel import usable_cores
+    asked = []
+    build = session.Renderer
+    monkeypatch.setattr(session, "Renderer", lambda scene, threads=0, **k: asked.append(threads) or build(
+        scene, threads=threads, **k))
+    image = render_to_array(small_scene(), "EMBER", 2, threads=1000)   # threads_mode FIXED
+    assert asked == [usable_cores()] and np.all(image[..., 3] == 1.0)
+    out = capfd.readouterr().out
+    assert (f"Warning: 1000 render threads asked for (Performance > Threads), but {usable_cores()} core"
+            in out), out
+
+
+def test_cli_threads_beyond_the_cores_say_so_on_one_line(tmp_path):
+    """--threads 1000 on a process allowed one core (taskset): one line says so, and the render runs with 1."""
+    small_scene()
+    path = save_copy(tmp_path / "scene.blend")
+    run = subprocess.run([sys.executable, "-c", CLI_CODE, "render", path, "-o", str(tmp_path / "f.png"),
+                          "--threads", "1000"], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                         preexec_fn=lambda: os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}))
+    assert run.returncode == 0, run.stderr
+    no_traceback(run)
+    notes = [line for line in run.stdout.splitlines() if "--threads" in line]
+    assert notes == ["Ember | Warning: --threads 1000 is more than the 1 core usable here: rendering with 1 "
+                     "threads"], run.stdout
+    assert "worker process" not in run.stdout and (tmp_path / "f.png").exists()
