@@ -47,6 +47,9 @@ RESOLUTION_RANGE = (4, 65536)    # what scene.render.resolution_x/y accept
 INT_MAX = 2**31 - 1
 # A write that failed with less than this free on its disk is reported as a full disk.
 FULL_DISK_BYTES = 1 << 20
+# Blender's paths hold at most this many bytes (FILE_MAX - 1); it cuts longer ones and writes elsewhere.
+BLENDER_PATH_MAX = 1023
+PARTIAL_SUFFIX = ".partial"
 
 
 class CliError(Exception):
@@ -175,6 +178,7 @@ def check_output(path: str) -> str:
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise CliError(f"output {path!r} needs one of the extensions {', '.join(sorted(FORMATS))}")
+    partial_prefix(frame_path(path, 0, False))  # a name or path too long, before its directories are made
     ensure_writable_directory(os.path.dirname(path))
     return path
 
@@ -184,9 +188,7 @@ def ensure_writable_directory(directory: str) -> None:
     naming the real obstacle: a parent that is a file, a missing permission, a place that cannot
     hold directories."""
     directory = os.path.abspath(directory or ".")
-    existing = directory
-    while not os.path.exists(existing):
-        existing = os.path.dirname(existing)
+    existing = _existing_part(directory)
     if not os.path.isdir(existing):
         raise CliError(f"cannot write to {directory!r}: {existing!r} is a file, not a directory")
     try:
@@ -198,6 +200,13 @@ def ensure_writable_directory(directory: str) -> None:
             pass
     except OSError as err:
         raise CliError(f"cannot write files in {directory!r}: {_reason(err)}") from None
+
+
+def _existing_part(path: str) -> str:
+    """`path`, or the nearest of its parents that exists."""
+    while not os.path.exists(path):
+        path = os.path.dirname(path)
+    return path
 
 
 def _reason(err: OSError) -> str:
@@ -318,8 +327,10 @@ def prepare(args) -> RenderJob:
         targets = [frame_path(output, f, len(frame_list) > 1) for f in frame_list]
     else:
         targets = [_file_output_path(scene, f) for f in frame_list]
+    for target in targets:  # before any frame renders
+        partial_prefix(target)
     for directory in dict.fromkeys(os.path.dirname(t) for t in targets):
-        ensure_writable_directory(directory)  # before any frame renders
+        ensure_writable_directory(directory)
     return RenderJob(scene, frame_list, targets)
 
 
@@ -413,9 +424,9 @@ def save_render_result(scene, target: str) -> None:
     result = bpy.data.images.get("Render Result")
     if result is None:
         raise CliError("Blender produced no render result")
-    directory, name = os.path.split(target)
+    directory = os.path.dirname(target)
     try:
-        fd, partial = tempfile.mkstemp(prefix=f".{name}.", suffix=".partial", dir=directory)
+        fd, partial = tempfile.mkstemp(prefix=partial_prefix(target), suffix=PARTIAL_SUFFIX, dir=directory)
     except OSError as err:
         raise CliError(f"cannot save {target}: {_first_line(err)}{_kept(target)}") from None
     os.close(fd)
@@ -434,6 +445,36 @@ def save_render_result(scene, target: str) -> None:
     finally:
         if os.path.exists(partial):
             os.remove(partial)
+
+
+def partial_prefix(target: str) -> str:
+    """The start of the hidden name `target` is written under before it is renamed ('.NAME.', then mkstemp's
+    random letters and PARTIAL_SUFFIX), NAME shortened as needed to fit the file system's limit on names and
+    Blender's on paths; CliError when the target's own name or path cannot be written."""
+    directory, name = os.path.split(target)
+    encoded = os.fsencode(name)
+    try:
+        name_max = os.pathconf(_existing_part(directory), "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255
+    if len(encoded) > name_max:
+        raise CliError(f"the output file name {_abridged(name)} is {len(encoded)} bytes: the file system of "
+                       f"{_abridged(directory)} allows {name_max}")
+    if len(os.fsencode(target)) > BLENDER_PATH_MAX:
+        raise CliError(f"the output path {_abridged(target)} is {len(os.fsencode(target))} bytes: Blender writes "
+                       f"paths of up to {BLENDER_PATH_MAX}")
+    fixed = len(".." + "12345678" + PARTIAL_SUFFIX)
+    room = min(name_max, BLENDER_PATH_MAX - len(os.fsencode(directory)) - 1) - fixed
+    if room < 0:
+        raise CliError(f"the output directory {_abridged(directory)} is {len(os.fsencode(directory))} bytes: the "
+                       f"temporary file each frame is first written to needs a path of "
+                       f"{len(os.fsencode(directory)) + 1 + fixed}, and Blender writes paths of up to "
+                       f"{BLENDER_PATH_MAX}")
+    return "." + encoded[:room].decode("utf-8", "ignore") + "."
+
+
+def _abridged(text: str) -> str:
+    return repr(text if len(text) <= 80 else f"{text[:40]}...{text[-30:]}")
 
 
 def _flush_to_disk(path: str) -> None:

@@ -504,3 +504,32 @@ def test_cli_threads_beyond_the_cores_say_so_on_one_line(tmp_path):
     assert notes == ["Ember | Warning: --threads 1000 is more than the 1 core usable here: rendering with 1 "
                      "threads"], run.stdout
     assert "worker process" not in run.stdout and (tmp_path / "f.png").exists()
+
+
+# ---------------------------------------------------------------- 11. long output names
+def test_output_names_up_to_the_file_systems_limit_are_written(tmp_path):
+    """A 255-byte file name is valid; the hidden temporary name it is written through is shortened to fit
+    (before, '.NAME.XXXXXXXX.partial' went past 255 bytes: the frame rendered, then a traceback)."""
+    small_scene()
+    path = save_copy(tmp_path / "scene.blend")
+    name = "a" * (255 - len("_1.png")) + "_#.png"
+    run = ember("render", path, "-o", str(tmp_path / name), "--samples", "1", "--frames", "1")
+    assert run.returncode == 0, run.stderr
+    no_traceback(run)
+    assert (tmp_path / name.replace("#", "1")).exists() and len(name) == 255
+    no_partial_files(tmp_path)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda tmp: tmp / ("b" * 249 + "_#.png"), "is 256 bytes: the file system of "),  # frame 10 makes it 256
+    (lambda tmp: tmp.joinpath(*["d" * 200] * 5) / "f_#.png", "bytes: Blender writes paths of up to 1023"),
+])
+def test_output_names_too_long_fail_before_rendering(tmp_path, make, message):
+    small_scene()
+    path = save_copy(tmp_path / "scene.blend")
+    before = sorted(str(p) for p in tmp_path.rglob("*"))
+    run = ember("render", path, "-o", str(make(tmp_path)), "--samples", "1", "--frames", "9-10")
+    assert run.returncode == 1
+    assert message in one_error_line(run)
+    assert "Sample" not in run.stdout   # nothing rendered
+    assert sorted(str(p) for p in tmp_path.rglob("*")) == before   # no file, no directory, no stray partial
