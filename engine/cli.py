@@ -12,8 +12,9 @@ directory, checked to be whole (Blender's writers do not report a full disk) and
 an interrupted or failed frame never leaves a file behind nor replaces an earlier one; a failed save stops
 the render with one line naming the frames saved and the frames lost.
 
-Bad input gets one line on stderr and a non-zero exit (2 for a malformed command line); Ctrl-C stops
-the frame being rendered within a wave, keeps the frames finished before it, and exits with 130.
+Bad input gets one line on stderr and a non-zero exit (2 for a malformed command line); Ctrl-C, SIGTERM
+and SIGHUP stop the frame being rendered, keep the frames finished before it, and exit with 130, 143 or 129
+(engine/stop_signals.py).
 
 With --ray the frames (or sample ranges of them, --split-samples) are rendered by a Ray cluster's workers
 (engine/distributed.py, which imports Ray; the rest of Ember never does); this process opens the file all
@@ -35,6 +36,7 @@ from typing import Any
 import bpy
 
 from ..kernels.accel import capped_threads
+from . import stop_signals
 from .image_files import written_file_problem
 from .properties import SAMPLING_MODE_ITEMS
 
@@ -226,8 +228,7 @@ def frame_path(path: str, frame: int, many: bool) -> str:
 
 def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
-    previous = signal.getsignal(signal.SIGINT)
-    _install_interrupt_handler()
+    previous = stop_signals.install()
     try:
         return merge_command(args) if args.command == "merge" else render(args)
     except UsageError as err:
@@ -236,30 +237,15 @@ def main(argv: list[str]) -> int:
     except CliError as err:
         print(f"ember: error: {err}", file=sys.stderr)
         return EXIT_FAILED
-    except KeyboardInterrupt:  # a second Ctrl-C, or one before Ember's handler was in place
+    except KeyboardInterrupt:  # Ctrl-C before Ember's handler was in place
         print("ember: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def _install_interrupt_handler() -> None:
-    """The first Ctrl-C asks the render to stop (the frame in progress is dropped); a second one
-    quits at once."""
-    from .session import cancel_requested, clear_cancel, request_cancel
-    clear_cancel()
-
-    def handler(signum, frame):
-        if cancel_requested():
-            raise KeyboardInterrupt
-        request_cancel()
-
-    signal.signal(signal.SIGINT, handler)
+        stop_signals.restore(previous)
 
 
 def interrupted() -> bool:
-    from .session import cancel_requested
-    return cancel_requested()
+    return stop_signals.stopped()
 
 
 def merge_command(args) -> int:
@@ -376,8 +362,9 @@ def render_frames(job: RenderJob) -> int:
             raise CliError(_with_outcome(f"frame {frame}: {_first_line(err)}", job, done, frame)) from None
         if interrupted():  # the render stopped early: its frame is incomplete, so it is not saved
             kept = saved_frames(done)
-            print(f"ember: interrupted during frame {frame}: nothing saved for it; {kept}", file=sys.stderr)
-            return EXIT_INTERRUPTED
+            print(f"ember: {stop_signals.interrupted_by()} during frame {frame}: nothing saved for it; {kept}",
+                  file=sys.stderr)
+            return stop_signals.exit_status()
         try:  # a frame that finished rendering is saved even if Ctrl-C comes now
             save_render_result(scene, target)
         except CliError as err:  # a failed save stops the render, as Blender's own animation render does
@@ -385,9 +372,9 @@ def render_frames(job: RenderJob) -> int:
         done.append(frame)
         print(f"Ember | Frame {frame} | saved {target}", flush=True)
     if interrupted() and len(done) < len(frame_list):
-        print(f"ember: interrupted after frame {done[-1] if done else frame_list[0]}: {saved_frames(done)}",
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
+        print(f"ember: {stop_signals.interrupted_by()} after frame {done[-1] if done else frame_list[0]}: "
+              f"{saved_frames(done)}", file=sys.stderr)
+        return stop_signals.exit_status()
     return 0
 
 
@@ -426,10 +413,17 @@ def save_render_result(scene, target: str) -> None:
         raise CliError("Blender produced no render result")
     directory = os.path.dirname(target)
     try:
-        fd, partial = tempfile.mkstemp(prefix=partial_prefix(target), suffix=PARTIAL_SUFFIX, dir=directory)
+        with stop_signals.saving_to(lambda: tempfile.mkstemp(prefix=partial_prefix(target), suffix=PARTIAL_SUFFIX,
+                                                             dir=directory)) as (fd, partial):
+            os.close(fd)
+            _write_whole(result, scene, target, partial)
     except OSError as err:
         raise CliError(f"cannot save {target}: {_first_line(err)}{_kept(target)}") from None
-    os.close(fd)
+
+
+def _write_whole(result, scene, target: str, partial: str) -> None:
+    """save_render_result's write, check and rename of `partial` (removed whatever happens)."""
+    directory = os.path.dirname(target)
     try:
         with _blender_log() as log:
             result.save_render(partial, scene=scene)

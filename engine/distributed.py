@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from . import cli
+from . import cli, stop_signals
 from ..kernels.accel import usable_cores
 from .cli import CliError, UsageError
 from .merge import MergeError, exr_strings, load_pixels, merge_arrays, read_exr_channels
@@ -372,9 +372,12 @@ def _connected(ray, cluster: Cluster, local_workers: int):
     quiet = dict(log_to_driver=False, logging_level=logging.ERROR)
     try:
         if cluster.local:
-            # A Ray of this machine alone: on the loopback interface.
-            ray.init(address="local", num_cpus=local_workers, include_dashboard=False, _node_ip_address="127.0.0.1",
-                     **quiet)
+            # A Ray of this machine alone: on the loopback interface. Its processes start with the stop signals
+            # held, so that a signal to the process group (a farm's SIGTERM, Ctrl-C) does not end them under
+            # this driver (which would abort with Ray's stack dump): the driver stops them in order.
+            with stop_signals.held():
+                ray.init(address="local", num_cpus=local_workers, include_dashboard=False,
+                         _node_ip_address="127.0.0.1", **quiet)
         else:
             _check_reachable(cluster.address)
             with _deadline(INIT_TIMEOUT_S, f"cannot connect to the Ray cluster at {cluster.address}: no answer "
@@ -384,10 +387,25 @@ def _connected(ray, cluster: Cluster, local_workers: int):
         raise
     except Exception as err:
         raise CliError(f"cannot connect to the Ray cluster at {cluster.address}: {cli._first_line(err)}") from None
+    finally:
+        stop_signals.take_back()
     try:
         yield
     finally:
+        if cluster.local:
+            _end_local_ray()
         ray.shutdown()
+
+
+def _end_local_ray() -> None:
+    """Kill the local Ray's processes (this process's descendants: the driver renders nothing itself) before
+    ray.shutdown, which would send them SIGTERM, held since their start, and wait a second for each."""
+    import psutil  # Ray's own copy (ray/thirdparty_files, on sys.path once Ray is imported)
+    processes = psutil.Process().children(recursive=True)
+    for process in processes:
+        with contextlib.suppress(psutil.Error):
+            process.kill()
+    psutil.wait_procs(processes, timeout=5.0)
 
 
 def _check_reachable(address: str) -> None:
@@ -598,8 +616,8 @@ class Driver:
         if dropped:
             what = f"frame{'s' if len(dropped) > 1 else ''} {cli._ranges(dropped)} {'were' if len(dropped) > 1 else 'was'} " \
                    "not finished; "
-        print(f"ember: interrupted: {what}{cli.saved_frames(sorted(self.saved))}", file=sys.stderr)
-        return cli.EXIT_INTERRUPTED
+        print(f"ember: {stop_signals.interrupted_by()}: {what}{cli.saved_frames(sorted(self.saved))}", file=sys.stderr)
+        return stop_signals.exit_status()
 
 
 @contextlib.contextmanager

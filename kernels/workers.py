@@ -39,10 +39,15 @@ import weakref
 _HEADER = struct.Struct("<QI")   # pickle length, buffer count
 _LENGTH = struct.Struct("<Q")
 
-# Started in the child with `python -c`: register the package under its name in the parent (ember,
-# bl_ext.user_default.ember, ...), with empty namespace modules for the prefixes Blender makes up at run
-# time, then serve.
+# Started in the child with `python -c`: ignore the signals that stop a render (Ctrl-C and a farm's SIGTERM
+# reach the whole process group; the parent decides, and the child leaves when its pipes close), register
+# the package under its name in the parent (ember, bl_ext.user_default.ember, ...), with empty namespace
+# modules for the prefixes Blender makes up at run time, then serve.
 _BOOT = r"""
+import signal
+for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+    if hasattr(signal, name):
+        signal.signal(getattr(signal, name), signal.SIG_IGN)
 import importlib, importlib.util, json, sys, types
 cfg = json.loads(sys.argv[1])
 sys.path[:] = cfg["path"]
@@ -411,23 +416,27 @@ def _close_all(workers: list) -> None:
 # ---------------------------------------------------------------------------------------------- the child
 def serve() -> None:
     """The child's loop: build a Renderer from each scene it is sent, apply updates and render waves, until
-    the parent closes the pipe."""
+    the parent closes the pipe, or goes (then quietly: the parent stopped, a farm ended it, it crashed)."""
+    incoming = os.fdopen(0, "rb", buffering=1 << 16)
+    outgoing = os.fdopen(os.dup(1), "wb", buffering=1 << 16)
+    os.dup2(2, 1)            # prints (NumPy, Embree, a stray debug line) go to stderr, not into the protocol
+    sys.stdout = sys.stderr
+    try:
+        _serve(incoming, outgoing)
+    except (EOFError, OSError):  # the parent's end of a pipe is closed
+        os._exit(0)          # nothing left to flush into a broken pipe at exit either
+
+
+def _serve(incoming, outgoing) -> None:
     import numpy as np
 
     from .integrator import Renderer
     from .memory import trim_heap
 
-    incoming = os.fdopen(0, "rb", buffering=1 << 16)
-    outgoing = os.fdopen(os.dup(1), "wb", buffering=1 << 16)
-    os.dup2(2, 1)            # prints (NumPy, Embree, a stray debug line) go to stderr, not into the protocol
-    sys.stdout = sys.stderr
     renderer = None
     broken = None
     while True:
-        try:
-            message = receive(incoming)
-        except EOFError:
-            return
+        message = receive(incoming)
         kind = message[0]
         if kind in ("scene", "drop") and renderer is not None:
             renderer.close()       # its BVH and tables go now (the light sampler's cycle would keep them)

@@ -241,3 +241,57 @@ def test_a_full_disk_keeps_the_earlier_frames(cluster, animation, small_disk):
     assert "Traceback" not in run.stderr and "| saved " not in run.stdout
     assert {f: (small_disk / f"f_{f}.exr").read_bytes() for f in old} == old
     assert sorted(os.listdir(small_disk)) == [f"f_{f}.exr" for f in old]
+
+
+def _ray_driver_signalled(cluster_address, animation, out, sig):
+    """A driver in its own process group (session); `sig` goes to the whole group once a frame is saved, as
+    a farm manager (or Ctrl-C in a terminal) sends it."""
+    driver = subprocess.Popen(_command("render", animation, "--frames", "1-40", "--samples", SAMPLES,
+                                       "-o", str(out / "f_##.exr"), "--ray", cluster_address, "--threads", "1"),
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)
+    try:
+        for line in driver.stdout:
+            if "| saved " in line:
+                os.killpg(driver.pid, sig)
+                break
+        _, err = driver.communicate(timeout=120)
+    finally:
+        driver.kill()
+    return driver, err
+
+
+def _stopped_cleanly(driver, err, sig, out):
+    assert driver.returncode == 128 + sig, err
+    assert "Traceback" not in err and "received at time" not in err, err   # nor Ray's stack dump
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"ember: interrupted by {signal.Signals(sig).name}: ") and "saved" in last, err
+    files = sorted(os.listdir(out))
+    assert files and len(files) < 40 and all(re.fullmatch(r"f_\d\d\.exr", f) for f in files), files
+
+
+@needs_ray
+def test_sigterm_to_the_drivers_process_group(cluster, animation, tmp_path):
+    """Before: Ray's SIGTERM handler (a stack dump, exit 1) replaced Ember's."""
+    driver, err = _ray_driver_signalled(cluster, animation, tmp_path, signal.SIGTERM)
+    _stopped_cleanly(driver, err, signal.SIGTERM, tmp_path)
+
+
+@needs_ray
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_to_the_process_group_of_a_local_ray(animation, tmp_path, sig):
+    """--ray local:2 starts Ray's processes in the driver's process group: before, the signal ended them
+    under the driver, which aborted with Ray's stack dump. Now they ignore it, the driver stops them, and none
+    is left behind."""
+    import psutil  # Ray's copy
+    driver, err = _ray_driver_signalled("local:2", animation, tmp_path, sig)
+    _stopped_cleanly(driver, err, sig, tmp_path)
+    left = [p for p in psutil.process_iter() if _session(p.pid) == driver.pid]
+    assert not left, [p.cmdline() for p in left]
+
+
+def _session(pid):
+    try:
+        return os.getsid(pid)
+    except OSError:
+        return None

@@ -533,3 +533,106 @@ def test_output_names_too_long_fail_before_rendering(tmp_path, make, message):
     assert message in one_error_line(run)
     assert "Sample" not in run.stdout   # nothing rendered
     assert sorted(str(p) for p in tmp_path.rglob("*")) == before   # no file, no directory, no stray partial
+
+
+# ---------------------------------------------------------------- 12. signals
+# The command line in its own session (process group), with a hook that sends signals to that group from a
+# known point of the render: deterministic, and the signals travel as a farm manager's or a terminal's do.
+SIGNAL_HOOK = """
+import os, signal
+from ember.engine import cli, session
+from ember.kernels.accel import usable_cores
+SIGNALS, FRAME, POINT = {signals!r}, {frame!r}, {point!r}
+sent = []
+
+def send():
+    if not sent:
+        sent.append(1)
+        for sig in SIGNALS:
+            os.killpg(0, sig)   # each handled (in this, the main thread) before the next is sent
+
+progress = session.FinalRender._on_progress
+def on_progress(self, p, line):
+    progress(self, p, line)
+    if POINT == "render" and self.scene.frame_current == FRAME and p.workers >= min(1, usable_cores() - 1):
+        send()   # while worker processes render this frame's waves
+session.FinalRender._on_progress = on_progress
+
+check = cli.written_file_problem
+def written_file_problem(path, file_format):
+    if POINT == "save" and f"_{{FRAME}}." in path:
+        send()   # Blender has written the temporary file; it is not renamed yet
+    return check(path, file_format)
+cli.written_file_problem = written_file_problem
+"""
+
+
+def ember_signalled(tmp_path, signals, frame, point, frames="1-3", samples="64"):
+    scene = small_scene(320, 240)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(0, 0, 0.5))
+    scene.ember.use_denoising = False
+    path = save_copy(tmp_path / "scene.blend")
+    hook = SIGNAL_HOOK.format(signals=[int(s) for s in signals], frame=frame, point=point)
+    code = CLI_CODE.replace("import_ember(); ", "import_ember()\n" + hook + "\n")
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, "-c", code, "render", path, "-o", str(out / "f_#.png"), "--frames", frames,
+                          "--samples", samples], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                         start_new_session=True)
+    return run, out
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
+def test_a_signal_to_the_process_group_mid_frame_stops_cleanly(tmp_path, sig):
+    """SIGTERM and SIGHUP (a farm manager, a closed terminal) as Ctrl-C: the frame in progress is dropped, the
+    earlier one kept, exit 128 + the signal, one line; the worker processes, which get it too, stay quiet
+    (before: SIGTERM killed the command outright, a worker printed a BrokenPipeError or KeyboardInterrupt
+    traceback)."""
+    run, out = ember_signalled(tmp_path, [sig], frame=2, point="render")
+    assert run.returncode == 128 + sig, run.stderr
+    no_traceback(run)
+    name = "" if sig == signal.SIGINT else f" by {signal.Signals(sig).name}"
+    assert run.stderr.strip() == f"ember: interrupted{name} during frame 2: nothing saved for it; frame 1 was saved"
+    assert sorted(os.listdir(out)) == ["f_1.png"]
+
+
+def test_a_signal_during_a_save_saves_that_frame_and_stops(tmp_path):
+    run, out = ember_signalled(tmp_path, [signal.SIGTERM], frame=2, point="save", samples="1")
+    assert run.returncode == 143, run.stderr
+    no_traceback(run)
+    assert run.stderr.strip() == "ember: interrupted by SIGTERM after frame 2: frames 1-2 were saved"
+    assert sorted(os.listdir(out)) == ["f_1.png", "f_2.png"]   # whole: renamed after the check, not before
+
+
+@pytest.mark.parametrize("point", ["render", "save"])
+def test_a_second_signal_quits_at_once_without_a_traceback_or_a_partial_file(tmp_path, point):
+    """Two Ctrl-C in a row (before: Blender printed the engine's KeyboardInterrupt traceback)."""
+    run, out = ember_signalled(tmp_path, [signal.SIGINT, signal.SIGINT], frame=2, point=point,
+                               samples="64" if point == "render" else "1")
+    assert run.returncode == 130, run.stderr
+    no_traceback(run)
+    assert run.stderr.strip() == "ember: SIGINT again: quit at once; the frame in progress is not saved"
+    assert sorted(os.listdir(out)) == ["f_1.png"]   # no f_2.png, no .f_2.png.*.partial
+
+
+def test_sigterm_from_outside_once_a_frame_is_saved(tmp_path):
+    """As a farm manager sends it: to the process group, from another process, at no chosen point."""
+    scene = small_scene(320, 240)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(0, 0, 0.5))
+    path = save_copy(tmp_path / "scene.blend")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-c", CLI_CODE, "render", path, "-o", str(out / "f_#.png"), "--frames",
+                             "1-40", "--samples", "32"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=ROOT, start_new_session=True)
+    try:
+        for line in proc.stdout:
+            if "saved" in line:
+                os.killpg(proc.pid, signal.SIGTERM)
+                break
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143, stderr
+    assert "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert stderr.startswith("ember: interrupted by SIGTERM "), stderr
+    files = sorted(os.listdir(out))
+    assert "f_1.png" in files and len(files) < 40 and not [f for f in files if not f.endswith(".png")]
