@@ -7,10 +7,10 @@ Ember, render through bpy.ops.render.render so Blender's colour management and f
 Without -o, frames go where `blender -b file.blend -a` would put them: the file's output path with
 Blender's own rules (`//` relative to the .blend, `#` padding, the frame number appended when there is
 no `#`, the extension when the file asks for one) in the file's output format. Every output directory is
-created and checked before the first frame renders. A frame is written under a temporary name in its
-directory, checked to be whole (Blender's writers do not report a full disk) and renamed when complete, so
-an interrupted or failed frame never leaves a file behind nor replaces an earlier one; a failed save stops
-the render with one line naming the frames saved and the frames lost.
+created, and every output path checked, before the first frame renders. Frames are saved through
+engine/frame_save.py (a temporary name, a whole-file check, a rename), so an interrupted or failed frame
+never leaves a file behind nor replaces an earlier one; a failed save stops the render with one line naming
+the frames saved and the frames lost.
 
 Bad input gets one line on stderr and a non-zero exit (2 for a malformed command line); Ctrl-C, SIGTERM
 and SIGHUP stop the frame being rendered, keep the frames finished before it, and exit with 130, 143 or 129
@@ -23,11 +23,9 @@ the same (prepare) and writes the frames with the same save_render_result.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import errno
 import os
 import re
-import signal
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -37,7 +35,7 @@ import bpy
 
 from ..kernels.accel import capped_threads
 from . import stop_signals
-from .image_files import written_file_problem
+from .frame_save import SaveError, existing_part, first_line as _first_line, partial_prefix, save_render_result
 from .properties import SAMPLING_MODE_ITEMS
 
 EXIT_USAGE = 2
@@ -47,11 +45,6 @@ FORMATS = {".png": "PNG", ".exr": "OPEN_EXR", ".jpg": "JPEG", ".jpeg": "JPEG", "
 SEED_MAX = 2**31 - 1             # Blender's integer properties are 32-bit signed
 RESOLUTION_RANGE = (4, 65536)    # what scene.render.resolution_x/y accept
 INT_MAX = 2**31 - 1
-# A write that failed with less than this free on its disk is reported as a full disk.
-FULL_DISK_BYTES = 1 << 20
-# Blender's paths hold at most this many bytes (FILE_MAX - 1); it cuts longer ones and writes elsewhere.
-BLENDER_PATH_MAX = 1023
-PARTIAL_SUFFIX = ".partial"
 
 
 class CliError(Exception):
@@ -190,7 +183,7 @@ def ensure_writable_directory(directory: str) -> None:
     naming the real obstacle: a parent that is a file, a missing permission, a place that cannot
     hold directories."""
     directory = os.path.abspath(directory or ".")
-    existing = _existing_part(directory)
+    existing = existing_part(directory)
     if not os.path.isdir(existing):
         raise CliError(f"cannot write to {directory!r}: {existing!r} is a file, not a directory")
     try:
@@ -202,13 +195,6 @@ def ensure_writable_directory(directory: str) -> None:
             pass
     except OSError as err:
         raise CliError(f"cannot write files in {directory!r}: {_reason(err)}") from None
-
-
-def _existing_part(path: str) -> str:
-    """`path`, or the nearest of its parents that exists."""
-    while not os.path.exists(path):
-        path = os.path.dirname(path)
-    return path
 
 
 def _reason(err: OSError) -> str:
@@ -234,7 +220,7 @@ def main(argv: list[str]) -> int:
     except UsageError as err:
         print(f"ember: error: {err} (see --help)", file=sys.stderr)
         return EXIT_USAGE
-    except CliError as err:
+    except (CliError, SaveError) as err:
         print(f"ember: error: {err}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:  # Ctrl-C before Ember's handler was in place
@@ -367,7 +353,7 @@ def render_frames(job: RenderJob) -> int:
             return stop_signals.exit_status()
         try:  # a frame that finished rendering is saved even if Ctrl-C comes now
             save_render_result(scene, target)
-        except CliError as err:  # a failed save stops the render, as Blender's own animation render does
+        except SaveError as err:  # a failed save stops the render, as Blender's own animation render does
             raise CliError(_with_outcome(f"frame {frame}: {err}", job, done, frame)) from None
         done.append(frame)
         print(f"Ember | Frame {frame} | saved {target}", flush=True)
@@ -401,143 +387,6 @@ def _use_format_of(scene, output: str) -> None:
     settings.file_format = FORMATS[os.path.splitext(output)[1].lower()]
     if settings.file_format == "OPEN_EXR":
         settings.color_depth = "32"
-
-
-def save_render_result(scene, target: str) -> None:
-    """Write the render result with the scene's output settings under a temporary name in the target's
-    directory, check that the file is whole, flush it to the disk, then rename it over the target. Blender's
-    writers log a failed write (a full disk) and return as if they had succeeded: the check catches it. A
-    failure or an interrupt never leaves a partial file, nor replaces an earlier file with a broken one."""
-    result = bpy.data.images.get("Render Result")
-    if result is None:
-        raise CliError("Blender produced no render result")
-    directory = os.path.dirname(target)
-    try:
-        with stop_signals.saving_to(lambda: tempfile.mkstemp(prefix=partial_prefix(target), suffix=PARTIAL_SUFFIX,
-                                                             dir=directory)) as (fd, partial):
-            os.close(fd)
-            _write_whole(result, scene, target, partial)
-    except OSError as err:
-        raise CliError(f"cannot save {target}: {_first_line(err)}{_kept(target)}") from None
-
-
-def _write_whole(result, scene, target: str, partial: str) -> None:
-    """save_render_result's write, check and rename of `partial` (removed whatever happens)."""
-    directory = os.path.dirname(target)
-    try:
-        with _blender_log() as log:
-            result.save_render(partial, scene=scene)
-        problem = written_file_problem(partial, scene.render.image_settings.file_format)
-        if problem is not None:
-            raise CliError(f"cannot save {target}: {_write_failure(directory, log, partial, target)}the file "
-                           f"Blender wrote is incomplete ({problem}){_kept(target)}")
-        os.chmod(partial, 0o666 & ~_umask())  # mkstemp's file is private; a saved frame is not
-        _flush_to_disk(partial)
-        os.replace(partial, target)
-    except (RuntimeError, OSError) as err:
-        raise CliError(f"cannot save {target}: {_first_line(err)}{_kept(target)}") from None
-    finally:
-        if os.path.exists(partial):
-            os.remove(partial)
-
-
-def partial_prefix(target: str) -> str:
-    """The start of the hidden name `target` is written under before it is renamed ('.NAME.', then mkstemp's
-    random letters and PARTIAL_SUFFIX), NAME shortened as needed to fit the file system's limit on names and
-    Blender's on paths; CliError when the target's own name or path cannot be written."""
-    directory, name = os.path.split(target)
-    encoded = os.fsencode(name)
-    try:
-        name_max = os.pathconf(_existing_part(directory), "PC_NAME_MAX")
-    except (OSError, ValueError):
-        name_max = 255
-    if len(encoded) > name_max:
-        raise CliError(f"the output file name {_abridged(name)} is {len(encoded)} bytes: the file system of "
-                       f"{_abridged(directory)} allows {name_max}")
-    if len(os.fsencode(target)) > BLENDER_PATH_MAX:
-        raise CliError(f"the output path {_abridged(target)} is {len(os.fsencode(target))} bytes: Blender writes "
-                       f"paths of up to {BLENDER_PATH_MAX}")
-    fixed = len(".." + "12345678" + PARTIAL_SUFFIX)
-    room = min(name_max, BLENDER_PATH_MAX - len(os.fsencode(directory)) - 1) - fixed
-    if room < 0:
-        raise CliError(f"the output directory {_abridged(directory)} is {len(os.fsencode(directory))} bytes: the "
-                       f"temporary file each frame is first written to needs a path of "
-                       f"{len(os.fsencode(directory)) + 1 + fixed}, and Blender writes paths of up to "
-                       f"{BLENDER_PATH_MAX}")
-    return "." + encoded[:room].decode("utf-8", "ignore") + "."
-
-
-def _abridged(text: str) -> str:
-    return repr(text if len(text) <= 80 else f"{text[:40]}...{text[-30:]}")
-
-
-def _flush_to_disk(path: str) -> None:
-    """fsync: a write error the file system reports late (a network disk, delayed allocation) raises
-    OSError here, and the frame is on the disk before its name replaces an earlier one."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _write_failure(directory: str, log: list[str], partial: str, target: str) -> str:
-    """Why a write failed, as far as can be told: a (nearly) full disk, else the error Blender logged."""
-    try:
-        stats = os.statvfs(directory)
-        free = stats.f_bavail * stats.f_frsize
-    except OSError:
-        free = FULL_DISK_BYTES
-    if free < FULL_DISK_BYTES:
-        return f"no space left on device ({free >> 10} KB free); "
-    errors = [re.sub(r"^\w+: ", "", line.split("ERROR", 1)[1].strip(" :")) for line in log if "ERROR" in line]
-    return f"Blender: {errors[-1].replace(partial, target).rstrip('.')}; " if errors else ""
-
-
-@contextlib.contextmanager
-def _blender_log():
-    """The lines Blender's C code writes to stdout and stderr in the block (its log, where it reports a
-    failed write and carries on), passed on to the same streams at its end and collected for the caller."""
-    lines: list[str] = []
-    with contextlib.ExitStack() as stack:
-        for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
-            stack.enter_context(_copied(fd, stream, lines))
-        yield lines
-
-
-@contextlib.contextmanager
-def _copied(fd: int, stream, lines: list[str]):
-    try:
-        held = tempfile.TemporaryFile()
-    except OSError:  # nowhere to hold them: the lines go straight through
-        held = None
-    if held is None:
-        yield
-        return
-    with held:
-        stream.flush()
-        saved = os.dup(fd)
-        os.dup2(held.fileno(), fd)
-        try:
-            yield
-        finally:
-            os.dup2(saved, fd)
-            os.close(saved)
-            held.seek(0)
-            text = held.read().decode("utf-8", "replace")
-            stream.write(text)
-            stream.flush()
-            lines.extend(text.splitlines())
-
-
-def _kept(target: str) -> str:
-    return "; the existing file is kept" if os.path.exists(target) else ""
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
 
 
 def _register_ember() -> None:
@@ -647,9 +496,3 @@ def _ranges(frames: list[int]) -> str:
             parts.append(str(start) if start == f else f"{start}-{f}")
             start = None
     return ", ".join(parts)
-
-
-def _first_line(err: BaseException) -> str:
-    text = str(err).strip().splitlines()
-    line = text[0] if text else type(err).__name__
-    return line.removeprefix("Error: ").strip()

@@ -11,7 +11,7 @@ Three parts:
   killed, its node lost) has its task put back at the head of the queue and a replacement started.
 - FrameWriter: frames reach the files through Blender's own writer in the driver's bpy, which opened the
   same .blend: a small render engine hands the worker's pixels to Blender as its render result, and the
-  command line's own save (cli.save_render_result) writes them, so colour management, format, metadata
+  command line's own save (frame_save.save_render_result) writes them, so colour management, format, metadata
   and file naming are exactly those of `python -m ember render` without --ray.
 
 Ray is an optional dependency of the command line (requirements-ray.txt, `python3.11 dev.py setup --ray`):
@@ -37,6 +37,7 @@ import bpy
 import numpy as np
 
 from . import cli, stop_signals
+from .frame_save import SaveError, save_render_result
 from ..kernels.accel import usable_cores
 from .cli import CliError, UsageError
 from .merge import MergeError, exr_strings, load_pixels, merge_arrays, read_exr_channels
@@ -164,10 +165,10 @@ class RenderWorker:
                 out = self._aux_passes(os.path.join(tmp, "passes.exr")) if self.aux else {}
                 _use_exr(scene.render.image_settings, multilayer=False)
                 path = os.path.join(tmp, "frame.exr")
-                cli.save_render_result(scene, path)
+                save_render_result(scene, path)
                 pixels, width, height = load_pixels(path)
                 fields = exr_strings(path)
-        except (CliError, MergeError, RuntimeError) as err:
+        except (CliError, SaveError, MergeError, RuntimeError) as err:
             return {"error": f"frame {frame}: {cli._first_line(err)}"}
         out.update(pixels=pixels, width=width, height=height, samples=int(fields.get("ember.samples", 0)),
                    metadata={k: v for k, v in fields.items() if k.startswith("ember.")},
@@ -176,7 +177,7 @@ class RenderWorker:
 
     def _aux_passes(self, path: str) -> dict:
         """The denoiser's albedo and normal passes, (H, W, 3) rows bottom-up, through a multilayer file."""
-        cli.save_render_result(self.scene, path)
+        save_render_result(self.scene, path)
         layer = self.scene.view_layers[0].name
         wanted = {"albedo": ("Denoising Albedo", "RGB"), "normal": ("Denoising Normal", "XYZ")}
         names = {kind: [f"{layer}.{wanted[kind][0]}.{c}" for c in wanted[kind][1]] for kind in self.aux}
@@ -248,7 +249,7 @@ class FrameWriter:
             raise CliError(f"cannot write it: {cli._first_line(err)}") from None
         finally:
             _pending_frame = None
-        cli.save_render_result(self.scene, target)
+        save_render_result(self.scene, target)
 
 
 # ---------------------------------------------------------------------------------------------- driver
@@ -526,7 +527,7 @@ class Driver:
         target = self.plan.targets[task.frame]
         try:
             self.writer.write(task.frame, target, pixels, first["width"], first["height"], metadata)
-        except CliError as err:
+        except (CliError, SaveError) as err:
             raise CliError(f"frame {task.frame}: {err}") from None
         self.saved.append(task.frame)
         print(f"Ember | Frame {task.frame} | saved {target}", flush=True)
@@ -616,7 +617,8 @@ class Driver:
         if dropped:
             what = f"frame{'s' if len(dropped) > 1 else ''} {cli._ranges(dropped)} {'were' if len(dropped) > 1 else 'was'} " \
                    "not finished; "
-        print(f"ember: {stop_signals.interrupted_by()}: {what}{cli.saved_frames(sorted(self.saved))}", file=sys.stderr)
+        print(f"ember: {stop_signals.interrupted_by()}: {what}{cli.saved_frames(sorted(self.saved))}",
+              file=sys.stderr)
         return stop_signals.exit_status()
 
 

@@ -227,7 +227,7 @@ def test_bad_ray_input_is_one_line(animation, args, status, message):
 @needs_ray
 @pytest.mark.small_disk_size("24k")
 def test_a_full_disk_keeps_the_earlier_frames(cluster, animation, small_disk):
-    """The driver writes the frames (cli.save_render_result): on a disk with no room for a frame, the first
+    """The driver writes the frames (frame_save.save_render_result): on a disk with no room for a frame, the first
     frame to arrive fails in one line saying which frames were lost, and every earlier file stays."""
     old = {f: f"an earlier frame {f}".encode() for f in range(1, 6)}
     for f, data in old.items():

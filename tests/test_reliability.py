@@ -435,8 +435,8 @@ def test_a_failed_write_keeps_the_earlier_frame_and_names_the_lost_ones(tmp_path
 
 
 def test_a_full_disk_loses_no_frame_and_reports_the_lost_ones(tmp_path, small_disk):
-    """Uncompressed 160x120 RGBA float frames (310 KB) onto 1 MB: three fit. Before, the next ones were truncated or empty,
-    printed 'saved', exit 0; rendering frame 1 again replaced it with a broken file."""
+    """Uncompressed 160x120 RGBA float frames (310 KB) onto 1 MB: three fit. Before, the next ones were
+    truncated or empty, printed 'saved', exit 0; rendering frame 1 again replaced it with a broken file."""
     from ember.engine.image_files import written_file_problem
     scene = small_scene(160, 120)
     scene.render.image_settings.exr_codec = "NONE"   # every frame the same size
@@ -540,7 +540,7 @@ def test_output_names_too_long_fail_before_rendering(tmp_path, make, message):
 # known point of the render: deterministic, and the signals travel as a farm manager's or a terminal's do.
 SIGNAL_HOOK = """
 import os, signal
-from ember.engine import cli, session
+from ember.engine import frame_save, session
 from ember.kernels.accel import usable_cores
 SIGNALS, FRAME, POINT = {signals!r}, {frame!r}, {point!r}
 sent = []
@@ -558,12 +558,12 @@ def on_progress(self, p, line):
         send()   # while worker processes render this frame's waves
 session.FinalRender._on_progress = on_progress
 
-check = cli.written_file_problem
+check = frame_save.written_file_problem
 def written_file_problem(path, file_format):
     if POINT == "save" and f"_{{FRAME}}." in path:
         send()   # Blender has written the temporary file; it is not renamed yet
     return check(path, file_format)
-cli.written_file_problem = written_file_problem
+frame_save.written_file_problem = written_file_problem
 """
 
 
