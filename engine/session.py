@@ -11,8 +11,8 @@
 
 The viewport (viewport.ViewportSession) runs a ProgressiveSession on its worker thread and publishes
 frames. Sync once, snapshot, let go: everything is read from the depsgraph before the kernel starts.
-Esc (and the command line's Ctrl-C, through request_cancel) is polled during export, between the stages
-of the scene build and between waves.
+Esc (and the command line's Ctrl-C and SIGTERM, through request_cancel) is polled during export, between
+the stages of the scene build, and while the waves render: those in flight then leave at their next bounce.
 """
 from __future__ import annotations
 
@@ -128,7 +128,8 @@ class ProgressiveSession:
     every display_s seconds (the first wave always; never when display_s is None or once should_stop() is
     True), on_display(film, denoised), denoised being the whole film denoised by `previews` when they are
     due (PreviewDenoiser), else None (show the film itself); then on_progress(progress, line), line being
-    Cycles' statistics line. should_stop() is polled between waves: the waves in flight finish.
+    Cycles' statistics line. should_stop() is polled while the waves render (Renderer.render): the waves in
+    flight leave at their next bounce.
     """
 
     def __init__(self, build: Callable[[SceneArrays], Renderer]):

@@ -185,7 +185,7 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
     with Renderer(materials, threads=2) as renderer:
         renderer.render(RenderSettings(samples=2, seed=1))
         assert renderer._workers is None and renderer.remote_waves == 0
-        # A render of many paths starts them at once (stopped here after its first wave).
+        # A render of many paths starts them at once (stopped here at once).
         renderer.render(RenderSettings(samples=integrator.WORKER_START_PATHS // (40 * 24) + 1, seed=1),
                         should_stop=lambda: True)
         assert renderer._workers is not None and len(renderer._workers.workers) == 1
