@@ -73,7 +73,7 @@ def partial_prefix(target: str) -> str:
     encoded = os.fsencode(name)
     try:
         name_max = os.pathconf(existing_part(directory), "PC_NAME_MAX")
-    except (OSError, ValueError):
+    except (OSError, ValueError, AttributeError):   # AttributeError: no pathconf (Windows)
         name_max = 255
     if len(encoded) > name_max:
         raise SaveError(f"the output file name {_abridged(name)} is {len(encoded)} bytes: the file system of "

@@ -28,14 +28,15 @@ class Incomplete(Exception):
 class _Reader:
     """Random access to a file's bytes; reading past its end raises Incomplete."""
 
-    def __init__(self, fd: int):
-        self.fd = fd
-        self.size = os.fstat(fd).st_size
+    def __init__(self, file):
+        self.file = file
+        self.size = os.fstat(file.fileno()).st_size
 
     def at(self, offset: int, n: int) -> bytes:
         if offset < 0 or offset + n > self.size:
             raise Incomplete(f"it ends at byte {self.size}, inside data it declares up to byte {offset + n}")
-        data = os.pread(self.fd, n, offset)
+        self.file.seek(offset)
+        data = self.file.read(n)
         if len(data) != n:
             raise Incomplete(f"it could not be read back at byte {offset}")
         return data
@@ -48,21 +49,16 @@ def written_file_problem(path: str, file_format: str) -> str | None:
     """None when the image file at `path`, written as Blender's `file_format` (ImageFormatSettings
     .file_format: PNG, OPEN_EXR, ...), is whole; else why it is not, in a few words."""
     try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError as err:
-        return f"it cannot be read back ({err.strerror or err})"
-    try:
-        reader = _Reader(fd)
-        if reader.size == 0:
-            return "it is empty"
-        _check_no_hole(fd, reader.size)
-        _CHECKS.get(file_format, _decodes)(reader, path)
+        with open(path, "rb") as file:
+            reader = _Reader(file)
+            if reader.size == 0:
+                return "it is empty"
+            _check_no_hole(file.fileno(), reader.size)
+            _CHECKS.get(file_format, _decodes)(reader, path)
     except Incomplete as err:
         return str(err)
     except OSError as err:
         return f"it cannot be read back ({err.strerror or err})"
-    finally:
-        os.close(fd)
     return None
 
 

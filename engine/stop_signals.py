@@ -33,9 +33,7 @@ def install() -> dict:
     _received = None
     clear_cancel()
     previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
-    for sig in STOP_SIGNALS:
-        signal.signal(sig, _handler)
-        signal.siginterrupt(sig, False)
+    take_back()
     return previous
 
 
@@ -89,7 +87,8 @@ def take_back() -> None:
     SIGTERM: an exit with status 1, a stack dump)."""
     for sig in STOP_SIGNALS:
         signal.signal(sig, _handler)
-        signal.siginterrupt(sig, False)
+        if hasattr(signal, "siginterrupt"):   # POSIX
+            signal.siginterrupt(sig, False)
 
 
 @contextlib.contextmanager
