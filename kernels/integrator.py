@@ -261,7 +261,9 @@ class Renderer:
         self._update_depth = 0
         self._workers = None
         self._wave_pool = None
-        self._stop = threading.Event()   # set: the waves of the render in progress leave at their next bounce
+        # Set: the waves of the render in progress leave at their next bounce (a worker process's reader thread
+        # sets its renderer's when the parent stops the render).
+        self.stop_waves = threading.Event()
         self._stop_poll = None           # the render's should_stop, polled by its own thread (see _check_stop)
         self._render_thread = None
         self.generation = 0              # the render in progress, or the last (see _GENERATIONS)
@@ -536,7 +538,7 @@ class Renderer:
         total = int(settings.samples)
         start = time.perf_counter()
         self.generation = next(_GENERATIONS)
-        self._stop.clear()
+        self.stop_waves.clear()
         self._stop_poll, self._render_thread = should_stop, threading.get_ident()
         embree_start = self.accel.seconds_in_embree
         rays_start = self.accel.rays_traced
@@ -653,7 +655,7 @@ class Renderer:
         if stopped and film.samples_done >= total:
             stopped = False  # the stop came with the last wave: the render is complete
         self._stop_poll = self._render_thread = None   # every wave is back: trace_paths is free to run again
-        self._stop.clear()
+        self.stop_waves.clear()
         return RenderResult(film, progress, stopped, self.dropped_triangles)
 
     def _wave_result(self, future, should_stop):
@@ -667,18 +669,18 @@ class Renderer:
     def _stop_requested(self, should_stop) -> bool:
         """Whether the render in progress is to stop: once should_stop() says so, the waves in flight are told
         (here and in the worker processes), and leave at their next bounce."""
-        if not self._stop.is_set() and should_stop is not None and should_stop():
-            self._stop.set()
+        if not self.stop_waves.is_set() and should_stop is not None and should_stop():
+            self.stop_waves.set()
             if self._workers is not None:
                 self._workers.stop(self.generation)
-        return self._stop.is_set()
+        return self.stop_waves.is_set()
 
     def _check_stop(self) -> None:
         """Between the bounces of a wave: WaveStopped at a stop request. A wave on the render's own thread (one
         thread: the waves run there) polls should_stop itself, as nothing else does meanwhile."""
         if threading.get_ident() == self._render_thread:
             self._stop_requested(self._stop_poll)
-        if self._stop.is_set():
+        if self.stop_waves.is_set():
             raise WaveStopped()
 
     def _rate(self) -> float | None:
@@ -719,7 +721,7 @@ class Renderer:
     def _wave_in_slot(self, *args):
         slot = self._slots.take()
         try:
-            if self._stop.is_set():   # it waited for its slot past a stop request
+            if self.stop_waves.is_set():   # it waited for its slot past a stop request
                 raise WaveStopped()
             if slot is not None:
                 try:

@@ -529,7 +529,7 @@ class _Inbox:
         with self._lock:
             self._wave = generation
             if self.renderer is not None:
-                stop = self.renderer._stop
+                stop = self.renderer.stop_waves
                 stop.set() if generation <= self._stopped else stop.clear()
 
     def _read(self) -> None:
@@ -542,6 +542,6 @@ class _Inbox:
                 with self._lock:
                     self._stopped = max(self._stopped, message[1])
                     if self._wave is not None and self._wave <= self._stopped and self.renderer is not None:
-                        self.renderer._stop.set()
+                        self.renderer.stop_waves.set()
         except (EOFError, OSError, ValueError, pickle.UnpicklingError):
             self._queue.put(None)

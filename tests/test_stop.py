@@ -37,7 +37,7 @@ class Bounces:
         def counting(*args, **kwargs):
             with self._lock:
                 self.count += 1
-                self.after_stop += renderer._stop.is_set()
+                self.after_stop += renderer.stop_waves.is_set()
                 if self.count == stop_at:
                     self.requested.set()
             return intersect(*args, **kwargs)
