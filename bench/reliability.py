@@ -50,7 +50,8 @@ class Case:
     blend: str | None = None        # bpy code after BASE, or None for no file
     status: int = 0                 # expected exit status
     expect: Callable | None = None  # (run, tmp) -> None or a message saying what is wrong
-    interrupt: bool = False         # send SIGINT once the first frame is saved
+    interrupt: int = 0              # a signal to send to the process group once the first frame is saved
+    file_size_limit: int | None = None  # RLIMIT_FSIZE in bytes: writes past it fail, as on a full disk
 
 
 def files(*names):
@@ -133,7 +134,22 @@ CASES = [
                                     "--resolution", "640x480"], blend="", expect=files("t.exr")),
     Case("Ctrl-C once frame 1 of 3 is saved", ["{blend}", "-o", "{tmp}/c_#.png", "--frames", "1-3", "--resolution", "320x240"],
          blend="scene.ember.samples = 400; bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(0, 0, 0.5))",
-         status=130, interrupt=True, expect=all_of(absent("c_3.png"), says("interrupted", "stderr"))),
+         status=130, interrupt=signal.SIGINT, expect=all_of(absent("c_3.png"), says("interrupted", "stderr"))),
+    Case("SIGTERM to the process group once frame 1 of 3 is saved",
+         ["{blend}", "-o", "{tmp}/t_#.png", "--frames", "1-3", "--resolution", "320x240"],
+         blend="scene.ember.samples = 400; bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(0, 0, 0.5))",
+         status=143, interrupt=signal.SIGTERM,
+         expect=all_of(files("t_1.png"), absent("t_3.png"), says("interrupted by SIGTERM", "stderr"))),
+    Case("--threads 1000", ["{blend}", "-o", "{tmp}/t.png", "--threads", "1000"], blend="",
+         expect=all_of(files("t.png"), says("--threads 1000 is more than the"))),
+    Case("output name of 255 bytes", ["{blend}", "-o", "{tmp}/" + "n" * 251 + ".png"], blend="",
+         expect=files("n" * 251 + ".png")),
+    Case("output name of 256 bytes", ["{blend}", "-o", "{tmp}/" + "n" * 252 + ".png"], blend="", status=1,
+         expect=all_of(says("is 256 bytes", "stderr"), lambda r, t: "rendered before failing" if "Sample" in r.stdout else None)),
+    Case("a write fails (60 KB file size limit), --frames 1-3", ["{blend}", "-o", "{tmp}/w_#.exr", "--frames", "1-3",
+                                                                 "--resolution", "320x240"],
+         blend="", status=1, file_size_limit=60_000,
+         expect=all_of(absent("w_1.exr"), says("no frame was saved; frames 1-3 were not", "stderr"))),
 ]
 
 
@@ -146,16 +162,23 @@ def run_case(case: Case, tmp: str):
         f.write(b"BLENDER-v500 this is not a blend file")
     cmd = [sys.executable, "-c", CLI, "render", *map(fill, case.args)]
     if not case.interrupt:
-        return subprocess.run(cmd, capture_output=True, text=True, cwd=tmp, timeout=300)
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp)
+        return subprocess.run(cmd, capture_output=True, text=True, cwd=tmp, timeout=300,
+                              preexec_fn=None if case.file_size_limit is None else lambda: _limit(case.file_size_limit))
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp,
+                            start_new_session=True)
     head = []
     for line in proc.stdout:
         head.append(line)
         if "saved" in line:
             break
-    proc.send_signal(signal.SIGINT)
+    os.killpg(proc.pid, case.interrupt)   # as a terminal's Ctrl-C or a farm manager sends it: to the group
     out, err = proc.communicate(timeout=60)
     return subprocess.CompletedProcess(cmd, proc.returncode, "".join(head) + out, err)
+
+
+def _limit(file_size: int) -> None:
+    import resource
+    resource.setrlimit(resource.RLIMIT_FSIZE, (file_size, resource.RLIM_INFINITY))
 
 
 def judge(case: Case, run, tmp: str) -> tuple[str, str]:

@@ -7,11 +7,14 @@ Ember, render through bpy.ops.render.render so Blender's colour management and f
 Without -o, frames go where `blender -b file.blend -a` would put them: the file's output path with
 Blender's own rules (`//` relative to the .blend, `#` padding, the frame number appended when there is
 no `#`, the extension when the file asks for one) in the file's output format. Every output directory is
-created and checked before the first frame renders. A frame is written under a temporary name in its
-directory and renamed when complete, so an interrupted or failed frame never leaves a file behind.
+created, and every output path checked, before the first frame renders. Frames are saved through
+engine/frame_save.py (a temporary name, a whole-file check, a rename), so an interrupted or failed frame
+never leaves a file behind nor replaces an earlier one; a failed save stops the render with one line naming
+the frames saved and the frames lost.
 
-Bad input gets one line on stderr and a non-zero exit (2 for a malformed command line); Ctrl-C stops
-the frame being rendered within a wave, keeps the frames finished before it, and exits with 130.
+Bad input gets one line on stderr and a non-zero exit (2 for a malformed command line); Ctrl-C, SIGTERM
+and SIGHUP stop the frame being rendered, keep the frames finished before it, and exit with 130, 143 or 129
+(engine/stop_signals.py).
 
 With --ray the frames (or sample ranges of them, --split-samples) are rendered by a Ray cluster's workers
 (engine/distributed.py, which imports Ray; the rest of Ember never does); this process opens the file all
@@ -23,7 +26,6 @@ import argparse
 import errno
 import os
 import re
-import signal
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -31,6 +33,9 @@ from typing import Any
 
 import bpy
 
+from ..kernels.accel import capped_threads
+from . import stop_signals
+from .frame_save import SaveError, existing_part, first_line as _first_line, partial_prefix, save_render_result
 from .properties import SAMPLING_MODE_ITEMS
 
 EXIT_USAGE = 2
@@ -168,6 +173,7 @@ def check_output(path: str) -> str:
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise CliError(f"output {path!r} needs one of the extensions {', '.join(sorted(FORMATS))}")
+    partial_prefix(frame_path(path, 0, False))  # a name or path too long, before its directories are made
     ensure_writable_directory(os.path.dirname(path))
     return path
 
@@ -177,9 +183,7 @@ def ensure_writable_directory(directory: str) -> None:
     naming the real obstacle: a parent that is a file, a missing permission, a place that cannot
     hold directories."""
     directory = os.path.abspath(directory or ".")
-    existing = directory
-    while not os.path.exists(existing):
-        existing = os.path.dirname(existing)
+    existing = existing_part(directory)
     if not os.path.isdir(existing):
         raise CliError(f"cannot write to {directory!r}: {existing!r} is a file, not a directory")
     try:
@@ -210,40 +214,24 @@ def frame_path(path: str, frame: int, many: bool) -> str:
 
 def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
-    previous = signal.getsignal(signal.SIGINT)
-    _install_interrupt_handler()
+    previous = stop_signals.install()
     try:
         return merge_command(args) if args.command == "merge" else render(args)
     except UsageError as err:
         print(f"ember: error: {err} (see --help)", file=sys.stderr)
         return EXIT_USAGE
-    except CliError as err:
+    except (CliError, SaveError) as err:
         print(f"ember: error: {err}", file=sys.stderr)
         return EXIT_FAILED
-    except KeyboardInterrupt:  # a second Ctrl-C, or one before Ember's handler was in place
+    except KeyboardInterrupt:  # Ctrl-C before Ember's handler was in place
         print("ember: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def _install_interrupt_handler() -> None:
-    """The first Ctrl-C asks the render to stop (the frame in progress is dropped); a second one
-    quits at once."""
-    from .session import cancel_requested, clear_cancel, request_cancel
-    clear_cancel()
-
-    def handler(signum, frame):
-        if cancel_requested():
-            raise KeyboardInterrupt
-        request_cancel()
-
-    signal.signal(signal.SIGINT, handler)
+        stop_signals.restore(previous)
 
 
 def interrupted() -> bool:
-    from .session import cancel_requested
-    return cancel_requested()
+    return stop_signals.stopped()
 
 
 def merge_command(args) -> int:
@@ -311,8 +299,10 @@ def prepare(args) -> RenderJob:
         targets = [frame_path(output, f, len(frame_list) > 1) for f in frame_list]
     else:
         targets = [_file_output_path(scene, f) for f in frame_list]
+    for target in targets:  # before any frame renders
+        partial_prefix(target)
     for directory in dict.fromkeys(os.path.dirname(t) for t in targets):
-        ensure_writable_directory(directory)  # before any frame renders
+        ensure_writable_directory(directory)
     return RenderJob(scene, frame_list, targets)
 
 
@@ -355,18 +345,22 @@ def render_frames(job: RenderJob) -> int:
         try:
             bpy.ops.render.render(write_still=False, scene=scene.name)
         except RuntimeError as err:
-            raise CliError(_first_line(err)) from None
+            raise CliError(_with_outcome(f"frame {frame}: {_first_line(err)}", job, done, frame)) from None
         if interrupted():  # the render stopped early: its frame is incomplete, so it is not saved
             kept = saved_frames(done)
-            print(f"ember: interrupted during frame {frame}: nothing saved for it; {kept}", file=sys.stderr)
-            return EXIT_INTERRUPTED
-        save_render_result(scene, target)  # a frame that finished rendering is saved even if Ctrl-C comes now
+            print(f"ember: {stop_signals.interrupted_by()} during frame {frame}: nothing saved for it; {kept}",
+                  file=sys.stderr)
+            return stop_signals.exit_status()
+        try:  # a frame that finished rendering is saved even if Ctrl-C comes now
+            save_render_result(scene, target)
+        except SaveError as err:  # a failed save stops the render, as Blender's own animation render does
+            raise CliError(_with_outcome(f"frame {frame}: {err}", job, done, frame)) from None
         done.append(frame)
         print(f"Ember | Frame {frame} | saved {target}", flush=True)
     if interrupted() and len(done) < len(frame_list):
-        print(f"ember: interrupted after frame {done[-1] if done else frame_list[0]}: {saved_frames(done)}",
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
+        print(f"ember: {stop_signals.interrupted_by()} after frame {done[-1] if done else frame_list[0]}: "
+              f"{saved_frames(done)}", file=sys.stderr)
+        return stop_signals.exit_status()
     return 0
 
 
@@ -393,32 +387,6 @@ def _use_format_of(scene, output: str) -> None:
     settings.file_format = FORMATS[os.path.splitext(output)[1].lower()]
     if settings.file_format == "OPEN_EXR":
         settings.color_depth = "32"
-
-
-def save_render_result(scene, target: str) -> None:
-    """Write the render result with the scene's output settings, under a temporary name in the
-    target's directory, then rename: a failure or an interrupt never leaves a partial file."""
-    result = bpy.data.images.get("Render Result")
-    if result is None:
-        raise CliError("Blender produced no render result")
-    directory, name = os.path.split(target)
-    fd, partial = tempfile.mkstemp(prefix=f".{name}.", suffix=".partial", dir=directory)
-    os.close(fd)
-    try:
-        result.save_render(partial, scene=scene)
-        os.chmod(partial, 0o666 & ~_umask())  # mkstemp's file is private; a saved frame is not
-        os.replace(partial, target)
-    except (RuntimeError, OSError) as err:
-        raise CliError(f"cannot save {target}: {_first_line(err)}") from None
-    finally:
-        if os.path.exists(partial):
-            os.remove(partial)
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
 
 
 def _register_ember() -> None:
@@ -486,10 +454,30 @@ def _apply_options(scene, args, resolution) -> None:
     if args.threads is not None:
         scene.render.threads_mode = "FIXED" if args.threads > 0 else "AUTO"
         if args.threads > 0:
-            scene.render.threads = args.threads
+            scene.render.threads = capped_threads(args.threads)
+            if scene.render.threads < args.threads:
+                print(f"Ember | Warning: --threads {args.threads} is more than the {scene.render.threads} "
+                      f"core{'s' if scene.render.threads > 1 else ''} usable here: rendering with "
+                      f"{scene.render.threads} threads", flush=True)
     if resolution is not None:
         scene.render.resolution_x, scene.render.resolution_y = resolution
         scene.render.resolution_percentage = 100
+
+
+def _with_outcome(message: str, job: RenderJob, done: list[int], failed: int) -> str:
+    """`message`, and for several frames which were saved and which were lost (`failed` and the ones
+    after it)."""
+    if len(job.frames) == 1:
+        return message
+    return f"{message}; {frames_outcome(done, job.frames[job.frames.index(failed):])}"
+
+
+def frames_outcome(saved: list[int], lost: list[int]) -> str:
+    """'frames 1-6 were saved; frames 7-8 were not'."""
+    text = saved_frames(saved)
+    if lost:
+        text += f"; frame{'s' if len(lost) > 1 else ''} {_ranges(lost)} {'were' if len(lost) > 1 else 'was'} not"
+    return text
 
 
 def saved_frames(done: list[int]) -> str:
@@ -508,9 +496,3 @@ def _ranges(frames: list[int]) -> str:
             parts.append(str(start) if start == f else f"{start}-{f}")
             start = None
     return ", ".join(parts)
-
-
-def _first_line(err: BaseException) -> str:
-    text = str(err).strip().splitlines()
-    line = text[0] if text else type(err).__name__
-    return line.removeprefix("Error: ").strip()

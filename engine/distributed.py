@@ -11,7 +11,7 @@ Three parts:
   killed, its node lost) has its task put back at the head of the queue and a replacement started.
 - FrameWriter: frames reach the files through Blender's own writer in the driver's bpy, which opened the
   same .blend: a small render engine hands the worker's pixels to Blender as its render result, and the
-  command line's own save (cli.save_render_result) writes them, so colour management, format, metadata
+  command line's own save (frame_save.save_render_result) writes them, so colour management, format, metadata
   and file naming are exactly those of `python -m ember render` without --ray.
 
 Ray is an optional dependency of the command line (requirements-ray.txt, `python3.11 dev.py setup --ray`):
@@ -36,7 +36,9 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from . import cli
+from . import cli, stop_signals
+from .frame_save import SaveError, save_render_result
+from ..kernels.accel import usable_cores
 from .cli import CliError, UsageError
 from .merge import MergeError, exr_strings, load_pixels, merge_arrays, read_exr_channels
 from .session import format_time
@@ -163,10 +165,10 @@ class RenderWorker:
                 out = self._aux_passes(os.path.join(tmp, "passes.exr")) if self.aux else {}
                 _use_exr(scene.render.image_settings, multilayer=False)
                 path = os.path.join(tmp, "frame.exr")
-                cli.save_render_result(scene, path)
+                save_render_result(scene, path)
                 pixels, width, height = load_pixels(path)
                 fields = exr_strings(path)
-        except (CliError, MergeError, RuntimeError) as err:
+        except (CliError, SaveError, MergeError, RuntimeError) as err:
             return {"error": f"frame {frame}: {cli._first_line(err)}"}
         out.update(pixels=pixels, width=width, height=height, samples=int(fields.get("ember.samples", 0)),
                    metadata={k: v for k, v in fields.items() if k.startswith("ember.")},
@@ -175,7 +177,7 @@ class RenderWorker:
 
     def _aux_passes(self, path: str) -> dict:
         """The denoiser's albedo and normal passes, (H, W, 3) rows bottom-up, through a multilayer file."""
-        cli.save_render_result(self.scene, path)
+        save_render_result(self.scene, path)
         layer = self.scene.view_layers[0].name
         wanted = {"albedo": ("Denoising Albedo", "RGB"), "normal": ("Denoising Normal", "XYZ")}
         names = {kind: [f"{layer}.{wanted[kind][0]}.{c}" for c in wanted[kind][1]] for kind in self.aux}
@@ -244,10 +246,10 @@ class FrameWriter:
         try:
             bpy.ops.render.render(write_still=False, scene=self.scene.name)
         except RuntimeError as err:
-            raise CliError(f"cannot write frame {frame}: {cli._first_line(err)}") from None
+            raise CliError(f"cannot write it: {cli._first_line(err)}") from None
         finally:
             _pending_frame = None
-        cli.save_render_result(self.scene, target)
+        save_render_result(self.scene, target)
 
 
 # ---------------------------------------------------------------------------------------------- driver
@@ -302,7 +304,11 @@ def render_on_ray(args, job: cli.RenderJob) -> int:
             with open(args.file, "rb") as f:
                 blend = f.read()
             _warn_external_files(args.file)
-    local_workers = args.workers or cluster.workers or os.cpu_count() or 1
+    local_workers = args.workers or cluster.workers or usable_cores()
+    if cluster.local and local_workers > usable_cores():  # each a process with its own Blender: no more than the cores
+        _status(f"{local_workers} workers asked for, but {usable_cores()} cores can be used here: starting "
+                f"{usable_cores()}")
+        local_workers = usable_cores()
     with _connected(ray, cluster, local_workers):
         workers = local_workers if cluster.local else args.workers or _node_count(ray)
         cpus = int(ray.cluster_resources().get("CPU", 0))
@@ -311,7 +317,7 @@ def render_on_ray(args, job: cli.RenderJob) -> int:
                            f"pass --workers {max(cpus, 1)}")
         worker_args = copy.copy(args)
         if cluster.local and args.threads is None:  # the cores shared among the workers of this machine
-            worker_args.threads = max(1, (os.cpu_count() or 1) // workers)
+            worker_args.threads = max(1, usable_cores() // workers)
         driver = Driver(ray, plan, FrameWriter(scene), scene.ember,
                         ray.put(blend) if blend is not None else None, worker_args, workers)
         return driver.run()
@@ -367,9 +373,12 @@ def _connected(ray, cluster: Cluster, local_workers: int):
     quiet = dict(log_to_driver=False, logging_level=logging.ERROR)
     try:
         if cluster.local:
-            # A Ray of this machine alone: on the loopback interface.
-            ray.init(address="local", num_cpus=local_workers, include_dashboard=False, _node_ip_address="127.0.0.1",
-                     **quiet)
+            # A Ray of this machine alone: on the loopback interface. Its processes start with the stop signals
+            # held, so that a signal to the process group (a farm's SIGTERM, Ctrl-C) does not end them under
+            # this driver (which would abort with Ray's stack dump): the driver stops them in order.
+            with stop_signals.held():
+                ray.init(address="local", num_cpus=local_workers, include_dashboard=False,
+                         _node_ip_address="127.0.0.1", **quiet)
         else:
             _check_reachable(cluster.address)
             with _deadline(INIT_TIMEOUT_S, f"cannot connect to the Ray cluster at {cluster.address}: no answer "
@@ -379,10 +388,25 @@ def _connected(ray, cluster: Cluster, local_workers: int):
         raise
     except Exception as err:
         raise CliError(f"cannot connect to the Ray cluster at {cluster.address}: {cli._first_line(err)}") from None
+    finally:
+        stop_signals.take_back()
     try:
         yield
     finally:
+        if cluster.local:
+            _end_local_ray()
         ray.shutdown()
+
+
+def _end_local_ray() -> None:
+    """Kill the local Ray's processes (this process's descendants: the driver renders nothing itself) before
+    ray.shutdown, which would send them SIGTERM, held since their start, and wait a second for each."""
+    import psutil  # Ray's own copy (ray/thirdparty_files, on sys.path once Ray is imported)
+    processes = psutil.Process().children(recursive=True)
+    for process in processes:
+        with contextlib.suppress(psutil.Error):
+            process.kill()
+    psutil.wait_procs(processes, timeout=5.0)
 
 
 def _check_reachable(address: str) -> None:
@@ -438,6 +462,11 @@ class Driver:
                 if time.perf_counter() - self.last_progress >= PROGRESS_INTERVAL_S:
                     self._progress()
             return 0
+        except CliError as err:  # which frames were saved and which were lost, on the same line
+            if len(self.plan.frames) == 1:
+                raise
+            lost = [f for f in self.plan.frames if f not in self.saved]
+            raise CliError(f"{err}; {cli.frames_outcome(sorted(self.saved), lost)}") from None
         finally:
             for worker in self.workers:
                 self._kill(worker)
@@ -496,7 +525,10 @@ class Driver:
         else:
             pixels, metadata = self._merge(task.frame, parts)
         target = self.plan.targets[task.frame]
-        self.writer.write(task.frame, target, pixels, first["width"], first["height"], metadata)
+        try:
+            self.writer.write(task.frame, target, pixels, first["width"], first["height"], metadata)
+        except (CliError, SaveError) as err:
+            raise CliError(f"frame {task.frame}: {err}") from None
         self.saved.append(task.frame)
         print(f"Ember | Frame {task.frame} | saved {target}", flush=True)
         self._progress()
@@ -525,7 +557,7 @@ class Driver:
         try:
             image[..., :3] = denoise(image[..., :3], aux.get("albedo"), aux.get("normal"),
                                      quality=self.ember.denoising_quality, prefilter=self.ember.denoising_prefilter,
-                                     threads=os.cpu_count() or 1)
+                                     threads=usable_cores())
         except (DenoiseError, ValueError) as err:
             raise CliError(f"cannot denoise frame {frame}: {err}") from None
         return np.ascontiguousarray(image[::-1]).reshape(-1)
@@ -585,8 +617,9 @@ class Driver:
         if dropped:
             what = f"frame{'s' if len(dropped) > 1 else ''} {cli._ranges(dropped)} {'were' if len(dropped) > 1 else 'was'} " \
                    "not finished; "
-        print(f"ember: interrupted: {what}{cli.saved_frames(sorted(self.saved))}", file=sys.stderr)
-        return cli.EXIT_INTERRUPTED
+        print(f"ember: {stop_signals.interrupted_by()}: {what}{cli.saved_frames(sorted(self.saved))}",
+              file=sys.stderr)
+        return stop_signals.exit_status()
 
 
 @contextlib.contextmanager

@@ -14,6 +14,8 @@ import struct
 
 import numpy as np
 
+from .image_files import EXR_MULTIPART, exr_headers
+
 
 class MergeError(Exception):
     """A one-line reason the merge cannot be done."""
@@ -25,19 +27,11 @@ def exr_strings(path: str) -> dict[str, str]:
         data = f.read(1 << 20)
     if data[:4] != b"\x76\x2f\x31\x01":
         raise MergeError(f"{path} is not an OpenEXR file")
-    out, pos = {}, 8
     try:
-        while data[pos] != 0:
-            end = data.index(b"\0", pos)
-            kind_end = data.index(b"\0", end + 1)
-            size = struct.unpack_from("<i", data, kind_end + 1)[0]
-            if data[end + 1:kind_end] == b"string":
-                out[data[pos:end].decode("utf-8", "replace")] = \
-                    data[kind_end + 5:kind_end + 5 + size].decode("utf-8", "replace")
-            pos = kind_end + 5 + size
+        header = exr_headers(data)[0][0]
     except (ValueError, IndexError, struct.error):
         raise MergeError(f"{path}: unreadable OpenEXR header") from None
-    return out
+    return {name: value.decode("utf-8", "replace") for name, (kind, value) in header.items() if kind == "string"}
 
 
 def samples_of(path: str) -> int:
@@ -73,23 +67,11 @@ def read_exr_channels(path: str, names) -> dict[str, np.ndarray]:
     What Ember's Ray workers write for the passes Blender cannot hand back to Python headless."""
     with open(path, "rb") as f:
         data = f.read()
-    multipart = bool(struct.unpack_from("<I", data, 4)[0] & 0x1000)
-    parts, pos = [], 8
-    while True:  # headers: attributes (name\0 type\0 size value) up to a \0; multi-part: up to an empty header
-        header = {}
-        while data[pos] != 0:
-            end = data.index(b"\0", pos)
-            kind_end = data.index(b"\0", end + 1)
-            size = struct.unpack_from("<i", data, kind_end + 1)[0]
-            header[data[pos:end].decode()] = data[kind_end + 5:kind_end + 5 + size]
-            pos = kind_end + 5 + size
-        pos += 1
-        parts.append(header)
-        if not multipart or data[pos] == 0:
-            pos += multipart
-            break
+    parts, flags, pos = exr_headers(data)
+    multipart = bool(flags & EXR_MULTIPART)
     found = {}
     for header in parts:
+        header = {name: value for name, (_, value) in header.items()}
         if header["compression"][0] != 0:
             raise MergeError(f"{path}: compressed OpenEXR (only uncompressed files are read)")
         channels, raw, i = [], header["channels"], 0

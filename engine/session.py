@@ -11,8 +11,8 @@
 
 The viewport (viewport.ViewportSession) runs a ProgressiveSession on its worker thread and publishes
 frames. Sync once, snapshot, let go: everything is read from the depsgraph before the kernel starts.
-Esc (and the command line's Ctrl-C, through request_cancel) is polled during export, between the stages
-of the scene build and between waves.
+Esc (and the command line's Ctrl-C and SIGTERM, through request_cancel) is polled during export, between
+the stages of the scene build, and while the waves render: those in flight then leave at their next bounce.
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ import bpy
 import numpy as np
 
 from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays
-from ..kernels.accel import default_threads
+from ..kernels.accel import capped_threads
 from .export import ExportCancelled, ExportError, export_scene
 from .export.mesh import MeshCache
 from .export.camera import render_region
@@ -54,8 +54,19 @@ def seed_for_frame(ember, frame: int) -> int:
 
 
 def render_threads(render) -> int:
-    """scene.render.threads already reports the automatic count when threads_mode is AUTO."""
-    return max(1, int(render.threads))
+    """The threads a render runs: scene.render.threads (which reports the automatic count when threads_mode
+    is AUTO) up to the cores this process may use."""
+    return capped_threads(int(render.threads))
+
+
+def threads_warning(render) -> str | None:
+    """A line when a fixed thread count (Blender allows up to 1024) is more than the cores this process may
+    use; Ember renders with the cores."""
+    threads = render_threads(render)
+    if render.threads_mode != "FIXED" or int(render.threads) <= threads:
+        return None
+    return (f"{int(render.threads)} render threads asked for (Performance > Threads), but {threads} "
+            f"core{'s' if threads > 1 else ''} can be used here: rendering with {threads}")
 
 
 def render_settings(scene, region, *, samples: int | None = None, time_limit: float | None = None) -> RenderSettings:
@@ -117,7 +128,8 @@ class ProgressiveSession:
     every display_s seconds (the first wave always; never when display_s is None or once should_stop() is
     True), on_display(film, denoised), denoised being the whole film denoised by `previews` when they are
     due (PreviewDenoiser), else None (show the film itself); then on_progress(progress, line), line being
-    Cycles' statistics line. should_stop() is polled between waves: the waves in flight finish.
+    Cycles' statistics line. should_stop() is polled while the waves render (Renderer.render): the waves in
+    flight leave at their next bounce.
     """
 
     def __init__(self, build: Callable[[SceneArrays], Renderer]):
@@ -301,6 +313,7 @@ class FinalRender:
         self._crypto_names = exported.crypto_names or {}
         engine.update_stats("", "Ember: building the scene")
         threads = render_threads(scene.render)
+        self._warn(filter(None, [threads_warning(scene.render)]))
         session = ProgressiveSession(lambda arrays: self._build(arrays, threads, persistent))
         try:
             renderer = session.load(exported.scene)
@@ -513,7 +526,7 @@ class _KeptScene:
     def take(self, scene, threads: int) -> Renderer | None:
         """The kept renderer updated to `scene`, or None when it cannot be (then build one)."""
         kept = self.renderer
-        if kept is None or kept.accel.threads != (threads if threads > 0 else default_threads()):
+        if kept is None or kept.accel.threads != capped_threads(threads):
             return None
         if not kept.update_scene(scene):
             return None

@@ -37,8 +37,19 @@ _MIN_CHUNK = 8192
 _CHUNKS_PER_THREAD = 4
 
 
-def default_threads() -> int:
-    return max(1, os.cpu_count() or 1)
+def usable_cores() -> int:
+    """The cores this process may run on: its CPU affinity (taskset, a container's cpuset), else all."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):   # no affinity on this platform
+        return max(1, os.cpu_count() or 1)
+
+
+def capped_threads(requested: int) -> int:
+    """The threads a render runs for `requested` (0 or less: automatic): every usable core, and never more,
+    since threads beyond the cores (and the worker processes that come with them) only contend."""
+    cores = usable_cores()
+    return cores if requested <= 0 else min(requested, cores)
 
 
 class Hits:
@@ -137,7 +148,7 @@ class Accel:
         the same, array for array, keep their BVH instead of being built again.
         indexed : (vertices (V, 3) float32, indices (T, 3) uint32), the same triangles as positions shared
         by their vertices (SceneArrays.bvh_vertices): Embree builds from them, about 1.5x faster."""
-        self.threads = threads if threads > 0 else default_threads()
+        self.threads = capped_threads(threads)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.triangle_count = len(positions)
         self.seconds_in_embree = 0.0  # time spent inside run() calls, summed over calls and threads

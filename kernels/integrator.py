@@ -13,10 +13,12 @@ from __future__ import annotations
 import collections
 import dataclasses
 import functools
+import itertools
 import threading
 import time
 import weakref
 from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
 
@@ -44,7 +46,7 @@ from .scene import (OBJ_PASS_INDEX, Camera, Lights, Materials, SceneArrays, Worl
 from .shading import Shading
 from .shading.world import WorldShader
 from .textures import Texture
-from .workers import WaveSlots, WorkerLost, WorkerSet, python_executable
+from .workers import WaveSlots, WaveStopped, WorkerLost, WorkerSet, python_executable
 
 SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
 # Russian roulette decides on the surfaces that rays hit once their path has scattered this many times
@@ -83,6 +85,14 @@ WORKER_START_S = 1.5
 WORKER_START_PATHS = 2_000_000
 WORKER_MAX_BYTES = 512 << 20
 WORKER_MAX_TRIANGLES = 1 << 18
+
+# A stop request (should_stop(): Esc, Ctrl-C) is polled at least this often while the render waits for its
+# waves; the waves in flight, here and in the worker processes, are then told at once and leave at their next
+# bounce, so a stop takes about this plus one bounce, whatever the size of the waves.
+STOP_POLL_S = 0.05
+# Every render of this process has its own number: a worker process (which may serve renderers one after
+# another) stops the waves of the render it is told, and of none after it.
+_GENERATIONS = itertools.count(1)
 
 
 @dataclass(frozen=True)
@@ -252,6 +262,12 @@ class Renderer:
         self._update_depth = 0
         self._workers = None
         self._wave_pool = None
+        # Set: the waves of the render in progress leave at their next bounce (a worker process's reader thread
+        # sets its renderer's when the parent stops the render).
+        self.stop_waves = threading.Event()
+        self._stop_poll = None           # the render's should_stop, polled by its own thread (see _check_stop)
+        self._render_thread = None
+        self.generation = 0              # the render in progress, or the last (see _GENERATIONS)
         def poll():
             if should_stop is not None and should_stop():
                 raise Cancelled()
@@ -525,7 +541,10 @@ class Renderer:
         """Render sample passes over the region in waves of rows.
 
         on_tile(film, row0, row1) runs after each wave with the region rows it refined;
-        should_stop() is polled between waves; on_progress(progress) reports after each wave.
+        on_progress(progress) reports after each wave. should_stop() is polled after each wave, every
+        STOP_POLL_S while the render waits for one, and between the bounces of waves on the render's own
+        thread; once it is True the waves in flight (worker processes' too) leave at their next bounce, and
+        what they had done is dropped.
         """
         cam = self.scene.camera
         x0, y0, x1, y1 = settings.validate(cam.width, cam.height)
@@ -534,6 +553,9 @@ class Renderer:
                     cryptomatte=settings.cryptomatte, cryptomatte_depth=settings.cryptomatte_depth)
         total = int(settings.samples)
         start = time.perf_counter()
+        self.generation = next(_GENERATIONS)
+        self.stop_waves.clear()
+        self._stop_poll, self._render_thread = should_stop, threading.get_ident()
         embree_start = self.accel.seconds_in_embree
         rays_start = self.accel.rays_traced
         progress = Progress(0, total, 0.0, 0.0)
@@ -616,7 +638,13 @@ class Renderer:
             r0, r1, spp, future = in_flight.popleft()
             if future.cancelled():
                 continue
-            sums, half, counts, bad, aux = future.result()
+            try:
+                sums, half, counts, bad, aux = self._wave_result(future, should_stop)
+            except WaveStopped:   # left at a stop request: its paths are incomplete, none is added
+                stopped, pending = True, []
+                for *_, queued in in_flight:
+                    queued.cancel()
+                continue
             film.add_rows(r0, sums, counts if adaptive else spp, half, aux)
             progress.paths += int(counts.sum())
             progress.nonfinite_paths += bad
@@ -632,16 +660,44 @@ class Renderer:
                 on_progress(progress)
             if self._workers_undecided() and self._worth_workers(progress):
                 self.start_workers()
-            # A time limit always lets the first full pass finish, as Cycles' does.
-            if not stopped and ((should_stop is not None and should_stop()) or (
+            # A time limit always lets the first full pass finish, as Cycles' does; its waves in flight finish
+            # too (a stop request has them leave at their next bounce).
+            if not stopped and (self._stop_requested(should_stop) or (
                     film.samples_done > 0 and self._out_of_time(settings, start))):
                 stopped = True
-                pending = []  # finish the waves running, start no more
+                pending = []  # start no more waves
                 for *_, queued in in_flight:
                     queued.cancel()
         if stopped and film.samples_done >= total:
             stopped = False  # the stop came with the last wave: the render is complete
+        self._stop_poll = self._render_thread = None   # every wave is back: trace_paths is free to run again
+        self.stop_waves.clear()
         return RenderResult(film, progress, stopped, self.dropped_triangles)
+
+    def _wave_result(self, future, should_stop):
+        """future.result(), polling should_stop() every STOP_POLL_S meanwhile (a wave can take seconds)."""
+        while True:
+            try:
+                return future.result(timeout=STOP_POLL_S)
+            except FutureTimeout:
+                self._stop_requested(should_stop)
+
+    def _stop_requested(self, should_stop) -> bool:
+        """Whether the render in progress is to stop: once should_stop() says so, the waves in flight are told
+        (here and in the worker processes), and leave at their next bounce."""
+        if not self.stop_waves.is_set() and should_stop is not None and should_stop():
+            self.stop_waves.set()
+            if self._workers is not None:
+                self._workers.stop(self.generation)
+        return self.stop_waves.is_set()
+
+    def _check_stop(self) -> None:
+        """Between the bounces of a wave: WaveStopped at a stop request. A wave on the render's own thread (one
+        thread: the waves run there) polls should_stop itself, as nothing else does meanwhile."""
+        if threading.get_ident() == self._render_thread:
+            self._stop_requested(self._stop_poll)
+        if self.stop_waves.is_set():
+            raise WaveStopped()
 
     def _rate(self) -> float | None:
         """Paths per second of the render so far on all its threads, from its waves' own times (the
@@ -681,9 +737,11 @@ class Renderer:
     def _wave_in_slot(self, *args):
         slot = self._slots.take()
         try:
+            if self.stop_waves.is_set():   # it waited for its slot past a stop request
+                raise WaveStopped()
             if slot is not None:
                 try:
-                    result, rays, seconds = slot.render_rows(args)
+                    result, rays, seconds = slot.render_rows(args, self.generation)
                 except WorkerLost as err:
                     self._workers.lost(slot, err)
                     slot = None
@@ -701,9 +759,12 @@ class Renderer:
         return settings.time_limit_s > 0 and time.perf_counter() - start >= settings.time_limit_s
 
     def _submit(self, fn, *args):
-        if self._wave_pool is None:
+        if self._wave_pool is None:   # one thread: the wave runs now, its outcome kept as a pool's would be
             future = Future()
-            future.set_result(fn(*args))
+            try:
+                future.set_result(fn(*args))
+            except Exception as err:  # noqa: BLE001 - raised again by future.result(), as from a pool
+                future.set_exception(err)
             return future
         return self._wave_pool.submit(fn, *args)
 
@@ -831,6 +892,7 @@ class Renderer:
                      0.0 if self.scene.camera.kind == "ORTHO" else self._pixel_size)
         wave.aux = aux
         for step in range(max_scatters + int(settings.transparent_max_bounces) + 1):
+            self._check_stop()
             hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split, state.time)
             if state.partner is not None:
                 _hand_over(state, hits)
@@ -838,6 +900,7 @@ class Renderer:
             if step > 0 and self.lights.has_surface_lights:
                 ended = self._lights_hit(wave, state, rays, hits)
             self._escaped(wave, state, rays, hits, ended)
+            self._check_stop()   # also between the bounce's long stages: tracing, shading, light samples
             found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
             if state.continuation is not None:
                 found = self._roulette_stops(state, hits, found)
@@ -852,6 +915,7 @@ class Renderer:
             hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
                               caustics=caustics)
             shading = self.shading.surface(hit)
+            self._check_stop()
             if aux is not None and step == 0:
                 self._data_passes(aux, state, hit, shading.closures, settings)
             if state.features is not None:
@@ -869,7 +933,9 @@ class Renderer:
             if nee:
                 focus = self._world_focus(hit, shading.closures)
                 self._next_event(wave, state, hit, shading.closures, numbers, focus)
+                self._check_stop()
             bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
+            self._check_stop()
             if state.pass_weights is not None:
                 self._first_bounce_shares(state, shading.closures, bs)
             if wave.nee and self._glass_escapes_on:
@@ -1379,6 +1445,7 @@ class Renderer:
         else:
             px, py, pz = hit.p
         ls = self.lights.sample(px, py, pz, u_select, u1, u2, focus)
+        self._check_stop()
         le = ls.radiance
         useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
         if not len(useful):

@@ -39,10 +39,15 @@ import weakref
 _HEADER = struct.Struct("<QI")   # pickle length, buffer count
 _LENGTH = struct.Struct("<Q")
 
-# Started in the child with `python -c`: register the package under its name in the parent (ember,
-# bl_ext.user_default.ember, ...), with empty namespace modules for the prefixes Blender makes up at run
-# time, then serve.
+# Started in the child with `python -c`: ignore the signals that stop a render (Ctrl-C and a farm's SIGTERM
+# reach the whole process group; the parent decides, and the child leaves when its pipes close), register
+# the package under its name in the parent (ember, bl_ext.user_default.ember, ...), with empty namespace
+# modules for the prefixes Blender makes up at run time, then serve.
 _BOOT = r"""
+import signal
+for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+    if hasattr(signal, name):
+        signal.signal(getattr(signal, name), signal.SIG_IGN)
 import importlib, importlib.util, json, sys, types
 cfg = json.loads(sys.argv[1])
 sys.path[:] = cfg["path"]
@@ -64,6 +69,10 @@ importlib.import_module(cfg["kernels"] + ".workers").serve()
 
 class WorkerLost(Exception):
     """The child process exited, failed or could not be reached; its wave runs in the parent."""
+
+
+class WaveStopped(Exception):
+    """A wave left between two bounces at a stop request (here or in a child): nothing of it is kept."""
 
 
 # ---------------------------------------------------------------------------------------------- framing
@@ -197,21 +206,35 @@ class Worker:
             self.error = WorkerLost(f"{type(err).__name__}: {err}")
             self.close()
 
-    def render_rows(self, args: tuple):
-        """Renderer._render_rows(*args) in the child: (its result, rays traced, seconds in Embree)."""
+    def render_rows(self, args: tuple, generation: int):
+        """Renderer._render_rows(*args) in the child, for the render `generation` of the parent's renderer:
+        (its result, rays traced, seconds in Embree); WaveStopped when stop() reached it first."""
         if self.closed or not self.ready:
             raise WorkerLost("the worker is closed")
         try:
             with self._write:
-                send(self._in, ("rows", args))
+                send(self._in, ("rows", args, generation))
             reply = receive(self._out)
         except (OSError, EOFError, ValueError, pickle.UnpicklingError) as err:
             self.close()
             raise WorkerLost(f"{type(err).__name__}: {err}") from err
+        if reply[0] == "stopped":
+            raise WaveStopped()
         if reply[0] != "ok":
             self.close()
             raise WorkerLost(f"the worker failed: {reply[1]}")
         return reply[1], reply[2], reply[3]
+
+    def stop(self, generation: int) -> None:
+        """Have the child leave, at its next bounce, a wave of the render `generation` or an earlier one (its
+        reader thread takes this while the wave runs)."""
+        if self.closed or not self.ready:
+            return
+        try:
+            with self._write:
+                send(self._in, ("stop", generation))
+        except (OSError, ValueError):
+            pass   # gone: its wave's reply says so
 
     def release(self) -> None:
         """Drop the child's scene and keep the child in the pool (closed instead when it is not healthy)."""
@@ -386,6 +409,13 @@ class WorkerSet:
         for worker in workers:
             worker.forward(method, args, kwargs)
 
+    def stop(self, generation: int) -> None:
+        """Tell every worker at once to leave the waves of render `generation` (Worker.stop)."""
+        with self._lock:
+            workers = [] if self._closed else list(self.workers)
+        for worker in workers:
+            worker.stop(generation)
+
     @property
     def ready(self) -> int:
         return sum(1 for w in self.workers if w.ready and not w.closed)
@@ -411,23 +441,28 @@ def _close_all(workers: list) -> None:
 # ---------------------------------------------------------------------------------------------- the child
 def serve() -> None:
     """The child's loop: build a Renderer from each scene it is sent, apply updates and render waves, until
-    the parent closes the pipe."""
+    the parent closes the pipe, or goes (then quietly: the parent stopped, a farm ended it, it crashed)."""
+    incoming = os.fdopen(0, "rb", buffering=1 << 16)
+    outgoing = os.fdopen(os.dup(1), "wb", buffering=1 << 16)
+    os.dup2(2, 1)            # prints (NumPy, Embree, a stray debug line) go to stderr, not into the protocol
+    sys.stdout = sys.stderr
+    try:
+        _serve(incoming, outgoing)
+    except (EOFError, OSError):  # the parent's end of a pipe is closed
+        os._exit(0)          # nothing left to flush into a broken pipe at exit either
+
+
+def _serve(incoming, outgoing) -> None:
     import numpy as np
 
     from .integrator import Renderer
     from .memory import trim_heap
 
-    incoming = os.fdopen(0, "rb", buffering=1 << 16)
-    outgoing = os.fdopen(os.dup(1), "wb", buffering=1 << 16)
-    os.dup2(2, 1)            # prints (NumPy, Embree, a stray debug line) go to stderr, not into the protocol
-    sys.stdout = sys.stderr
+    inbox = _Inbox(incoming)
     renderer = None
     broken = None
     while True:
-        try:
-            message = receive(incoming)
-        except EOFError:
-            return
+        message = inbox.next()
         kind = message[0]
         if kind in ("scene", "drop") and renderer is not None:
             renderer.close()       # its BVH and tables go now (the light sampler's cycle would keep them)
@@ -439,9 +474,10 @@ def serve() -> None:
                 send(outgoing, ("error", traceback.format_exc(limit=4)))
                 return
             del message
+            inbox.renderer = renderer
             send(outgoing, ("ready",))
         elif kind == "drop":
-            renderer = broken = None
+            renderer = broken = inbox.renderer = None
             trim_heap()
         elif kind == "call":
             try:
@@ -454,10 +490,58 @@ def serve() -> None:
                 send(outgoing, ("error", broken or "no scene"))
                 return
             rays, seconds = renderer.accel.rays_traced, renderer.accel.seconds_in_embree
+            inbox.start_wave(message[2])
             try:
                 result = renderer._render_rows(*message[1])
+            except WaveStopped:
+                send(outgoing, ("stopped",))
+                continue
             except BaseException:  # noqa: BLE001
                 send(outgoing, ("error", traceback.format_exc(limit=4)))
                 return
             send(outgoing, ("ok", result, renderer.accel.rays_traced - rays,
                             renderer.accel.seconds_in_embree - seconds))
+
+
+class _Inbox:
+    """The child's messages, read by a thread of their own, so that a stop reaches the wave that runs (as its
+    renderer's stop flag, seen at the next bounce) while the others wait their turn."""
+
+    def __init__(self, incoming):
+        self._incoming = incoming
+        self._queue = queue.Queue()
+        self._lock = threading.Lock()
+        self._stopped = 0        # the latest render generation the parent stopped
+        self._wave = None        # the generation of the wave running, None between waves
+        self.renderer = None
+        threading.Thread(target=self._read, daemon=True, name="ember-worker-inbox").start()
+
+    def next(self):
+        """The next message other than a stop; EOFError when the parent has closed the pipe."""
+        message = self._queue.get()
+        if message is None:
+            raise EOFError("the parent closed the pipe")
+        with self._lock:
+            self._wave = None
+        return message
+
+    def start_wave(self, generation: int) -> None:
+        with self._lock:
+            self._wave = generation
+            if self.renderer is not None:
+                stop = self.renderer.stop_waves
+                stop.set() if generation <= self._stopped else stop.clear()
+
+    def _read(self) -> None:
+        try:
+            while True:
+                message = receive(self._incoming)
+                if message[0] != "stop":
+                    self._queue.put(message)
+                    continue
+                with self._lock:
+                    self._stopped = max(self._stopped, message[1])
+                    if self._wave is not None and self._wave <= self._stopped and self.renderer is not None:
+                        self.renderer.stop_waves.set()
+        except (EOFError, OSError, ValueError, pickle.UnpicklingError):
+            self._queue.put(None)

@@ -222,3 +222,76 @@ def test_bad_ray_input_is_one_line(animation, args, status, message):
     lines = run.stderr.strip().splitlines()
     assert run.returncode == status and len(lines) == 1 and message in lines[0], run.stderr
     assert not os.path.exists("/tmp/ember-never-written.exr")
+
+
+@needs_ray
+@pytest.mark.small_disk_size("24k")
+def test_a_full_disk_keeps_the_earlier_frames(cluster, animation, small_disk):
+    """The driver writes the frames (frame_save.save_render_result): on a disk with no room for a frame, the first
+    frame to arrive fails in one line saying which frames were lost, and every earlier file stays."""
+    old = {f: f"an earlier frame {f}".encode() for f in range(1, 6)}
+    for f, data in old.items():
+        (small_disk / f"f_{f}.exr").write_bytes(data)
+    run = ember("render", animation, "--frames", FRAMES, "--samples", "1", "--resolution", "64x48",
+                "-o", str(small_disk / "f_#.exr"), "--ray", cluster, "--workers", "2", "--threads", "1")
+    assert run.returncode == 1, run.stderr
+    last = run.stderr.strip().splitlines()[-1]
+    assert re.fullmatch(r"ember: error: frame \d: cannot save .*/f_\d\.exr: no space left on device .*; the existing "
+                        r"file is kept; no frame was saved; frames 1-5 were not", last), last
+    assert "Traceback" not in run.stderr and "| saved " not in run.stdout
+    assert {f: (small_disk / f"f_{f}.exr").read_bytes() for f in old} == old
+    assert sorted(os.listdir(small_disk)) == [f"f_{f}.exr" for f in old]
+
+
+def _ray_driver_signalled(cluster_address, animation, out, sig):
+    """A driver in its own process group (session); `sig` goes to the whole group once a frame is saved, as
+    a farm manager (or Ctrl-C in a terminal) sends it."""
+    driver = subprocess.Popen(_command("render", animation, "--frames", "1-40", "--samples", SAMPLES,
+                                       "-o", str(out / "f_##.exr"), "--ray", cluster_address, "--threads", "1"),
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)
+    try:
+        for line in driver.stdout:
+            if "| saved " in line:
+                os.killpg(driver.pid, sig)
+                break
+        _, err = driver.communicate(timeout=120)
+    finally:
+        driver.kill()
+    return driver, err
+
+
+def _stopped_cleanly(driver, err, sig, out):
+    assert driver.returncode == 128 + sig, err
+    assert "Traceback" not in err and "received at time" not in err, err   # nor Ray's stack dump
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"ember: interrupted by {signal.Signals(sig).name}: ") and "saved" in last, err
+    files = sorted(os.listdir(out))
+    assert files and len(files) < 40 and all(re.fullmatch(r"f_\d\d\.exr", f) for f in files), files
+
+
+@needs_ray
+def test_sigterm_to_the_drivers_process_group(cluster, animation, tmp_path):
+    """Before: Ray's SIGTERM handler (a stack dump, exit 1) replaced Ember's."""
+    driver, err = _ray_driver_signalled(cluster, animation, tmp_path, signal.SIGTERM)
+    _stopped_cleanly(driver, err, signal.SIGTERM, tmp_path)
+
+
+@needs_ray
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_to_the_process_group_of_a_local_ray(animation, tmp_path, sig):
+    """--ray local:2 starts Ray's processes in the driver's process group: before, the signal ended them
+    under the driver, which aborted with Ray's stack dump. Now they ignore it, the driver stops them, and none
+    is left behind."""
+    import psutil  # Ray's copy
+    driver, err = _ray_driver_signalled("local:2", animation, tmp_path, sig)
+    _stopped_cleanly(driver, err, sig, tmp_path)
+    left = [p for p in psutil.process_iter() if _session(p.pid) == driver.pid]
+    assert not left, [p.cmdline() for p in left]
+
+
+def _session(pid):
+    try:
+        return os.getsid(pid)
+    except OSError:
+        return None

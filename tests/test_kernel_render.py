@@ -159,10 +159,11 @@ def test_tiles_progress_and_memory_bound(monkeypatch):
 
 def test_should_stop_keeps_a_finite_partial_image():
     scene = cornell_box(64, 64, wall_subdivisions=2, sphere_segments=8)
-    calls = []
-    result = render(scene, RenderSettings(samples=50, wave_size=1024), threads=1,
-                    should_stop=lambda: calls.append(1) or len(calls) >= 3)
-    assert result.stopped_early and len(calls) == 3
+    tiles = []   # should_stop() is also polled between bounces: stop once two waves are in the film
+    with Renderer(scene, threads=1) as renderer:
+        result = renderer.render(RenderSettings(samples=50, wave_size=1024), should_stop=lambda: len(tiles) >= 2,
+                                 on_tile=lambda film, r0, r1: tiles.append((r0, r1)))
+    assert result.stopped_early and len(tiles) == 2
     assert np.isfinite(result.image).all()
     assert result.progress.samples_done == 0  # stopped inside the first pass
     assert result.image[..., 3].max() == 1.0  # but the rows it reached are there

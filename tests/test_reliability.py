@@ -385,3 +385,254 @@ def test_smooth_normals_under_non_uniform_scale_use_the_inverse_transpose():
     normals = export_scene(depsgraph).scene.normals.astype(np.float64)
     normals /= np.linalg.norm(normals, axis=2, keepdims=True)
     assert normals.shape == expected.shape and np.allclose(normals, expected, atol=1e-5)
+
+
+# ---------------------------------------------------------------- 9. a failed save
+def ember_with_file_size_limit(limit_bytes, *args):
+    """The command line with RLIMIT_FSIZE: every write past `limit_bytes` fails (EFBIG; Python ignores
+    SIGXFSZ), a write error injected under Blender's own image writer, as a full disk gives it."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, resource.RLIM_INFINITY))
+    return subprocess.run([sys.executable, "-c", CLI_CODE, *args], capture_output=True, text=True, cwd=ROOT,
+                          timeout=300, preexec_fn=limit)
+
+
+def one_error_line(run) -> str:
+    no_traceback(run)
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ember: error: "), run.stderr
+    return lines[0]
+
+
+def no_partial_files(directory) -> None:
+    assert not [f for f in os.listdir(directory) if f.endswith(".partial")], os.listdir(directory)
+
+
+def test_a_failed_write_keeps_the_earlier_frame_and_names_the_lost_ones(tmp_path):
+    """Blender's writer logs a failed write and carries on: the truncated file was renamed over the frame
+    and reported saved (exit 0). Now the frame before it stays, the render stops there, exit 1."""
+    small_scene(320, 240)
+    path = save_copy(tmp_path / "scene.blend")
+    out = tmp_path / "out"
+    run = ember("render", path, "-o", str(out / "f_#.exr"), "--frames", "1", "--samples", "1")
+    assert run.returncode == 0, run.stderr
+    good = (out / "f_1.exr").read_bytes()
+    assert len(good) > 100_000
+    run = ember_with_file_size_limit(60_000, "render", path, "-o", str(out / "f_#.exr"), "--frames", "1-3",
+                                     "--samples", "2")
+    assert run.returncode == 1, run.stderr
+    line = one_error_line(run)
+    assert f"frame 1: cannot save {out / 'f_1.exr'}: " in line and "File too large" in line, line
+    assert line.endswith("the existing file is kept; no frame was saved; frames 1-3 were not"), line
+    assert (out / "f_1.exr").read_bytes() == good and sorted(os.listdir(out)) == ["f_1.exr"]
+    assert "saved" not in run.stdout
+
+    run = ember_with_file_size_limit(20_000, "render", path, "-o", str(out / "p.png"), "--samples", "1")
+    assert run.returncode == 1 and "cannot save" in one_error_line(run)
+    assert sorted(os.listdir(out)) == ["f_1.exr"]
+
+
+def test_a_full_disk_loses_no_frame_and_reports_the_lost_ones(tmp_path, small_disk):
+    """Uncompressed 160x120 RGBA float frames (310 KB) onto 1 MB: three fit. Before, the next ones were
+    truncated or empty, printed 'saved', exit 0; rendering frame 1 again replaced it with a broken file."""
+    from ember.engine.image_files import written_file_problem
+    scene = small_scene(160, 120)
+    scene.render.image_settings.exr_codec = "NONE"   # every frame the same size
+    path = save_copy(tmp_path / "scene.blend")
+    run = ember("render", path, "-o", str(small_disk / "f_#.exr"), "--frames", "1-6", "--samples", "1")
+    assert run.returncode == 1, run.stderr
+    line = one_error_line(run)
+    assert f"frame 4: cannot save {small_disk / 'f_4.exr'}: no space left on device" in line, line
+    assert line.endswith("frames 1-3 were saved; frames 4-6 were not"), line
+    saved = sorted(os.listdir(small_disk))
+    assert saved == ["f_1.exr", "f_2.exr", "f_3.exr"]
+    assert all(written_file_problem(str(small_disk / f), "OPEN_EXR") is None for f in saved)
+    assert load_exr(str(small_disk / "f_3.exr")).shape == (120, 160, 4)
+
+    first = (small_disk / "f_1.exr").read_bytes()
+    run = ember("render", path, "-o", str(small_disk / "f_#.exr"), "--frames", "1", "--samples", "2")
+    assert run.returncode == 1
+    assert one_error_line(run).endswith("the existing file is kept")
+    assert (small_disk / "f_1.exr").read_bytes() == first
+    no_partial_files(small_disk)
+
+
+# ---------------------------------------------------------------- 10. more threads than cores
+def test_threads_are_capped_at_the_usable_cores(monkeypatch):
+    """A renderer asked for 1000 threads (Blender allows 1024) runs the cores' worth: its wave threads and
+    slots, and the worker processes it starts (threads - 1; before, 999 for a small scene)."""
+    from ember.engine.export import export_scene
+    from ember.kernels import Renderer
+    from ember.kernels import workers
+    from ember.kernels.accel import usable_cores
+    small_scene()
+    started = []
+    monkeypatch.setattr(workers.WorkerSet, "start", lambda self, count, *a: started.append(count) or False)
+    exported = export_scene(bpy.context.evaluated_depsgraph_get())
+    with Renderer(exported.scene, threads=1000, processes=True) as renderer:
+        assert renderer.accel.threads == usable_cores()
+        assert started == ([usable_cores() - 1] if usable_cores() > 1 else [])
+
+
+def test_blender_thread_count_beyond_the_cores_warns_and_renders_with_the_cores(monkeypatch, capfd):
+    """Render Properties > Performance > Threads: Fixed, 1000 (through F12's path, bpy.ops.render.render)."""
+    import ember.engine.session as session
+    from ember.kernels.accel import usable_cores
+    asked = []
+    build = session.Renderer
+    monkeypatch.setattr(session, "Renderer", lambda scene, threads=0, **k: asked.append(threads) or build(
+        scene, threads=threads, **k))
+    image = render_to_array(small_scene(), "EMBER", 2, threads=1000)   # threads_mode FIXED
+    assert asked == [usable_cores()] and np.all(image[..., 3] == 1.0)
+    out = capfd.readouterr().out
+    assert (f"Warning: 1000 render threads asked for (Performance > Threads), but {usable_cores()} core"
+            in out), out
+
+
+def test_cli_threads_beyond_the_cores_say_so_on_one_line(tmp_path):
+    """--threads 1000 on a process allowed one core (taskset): one line says so, and the render runs with 1."""
+    small_scene()
+    path = save_copy(tmp_path / "scene.blend")
+    run = subprocess.run([sys.executable, "-c", CLI_CODE, "render", path, "-o", str(tmp_path / "f.png"),
+                          "--threads", "1000"], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                         preexec_fn=lambda: os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}))
+    assert run.returncode == 0, run.stderr
+    no_traceback(run)
+    notes = [line for line in run.stdout.splitlines() if "--threads" in line]
+    assert notes == ["Ember | Warning: --threads 1000 is more than the 1 core usable here: rendering with 1 "
+                     "threads"], run.stdout
+    assert "worker process" not in run.stdout and (tmp_path / "f.png").exists()
+
+
+# ---------------------------------------------------------------- 11. long output names
+def test_output_names_up_to_the_file_systems_limit_are_written(tmp_path):
+    """A 255-byte file name is valid; the hidden temporary name it is written through is shortened to fit
+    (before, '.NAME.XXXXXXXX.partial' went past 255 bytes: the frame rendered, then a traceback)."""
+    small_scene()
+    path = save_copy(tmp_path / "scene.blend")
+    name = "a" * (255 - len("_1.png")) + "_#.png"
+    run = ember("render", path, "-o", str(tmp_path / name), "--samples", "1", "--frames", "1")
+    assert run.returncode == 0, run.stderr
+    no_traceback(run)
+    assert (tmp_path / name.replace("#", "1")).exists() and len(name) == 255
+    no_partial_files(tmp_path)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda tmp: tmp / ("b" * 249 + "_#.png"), "is 256 bytes: the file system of "),  # frame 10 makes it 256
+    (lambda tmp: tmp.joinpath(*["d" * 200] * 5) / "f_#.png", "bytes: Blender writes paths of up to 1023"),
+])
+def test_output_names_too_long_fail_before_rendering(tmp_path, make, message):
+    small_scene()
+    path = save_copy(tmp_path / "scene.blend")
+    before = sorted(str(p) for p in tmp_path.rglob("*"))
+    run = ember("render", path, "-o", str(make(tmp_path)), "--samples", "1", "--frames", "9-10")
+    assert run.returncode == 1
+    assert message in one_error_line(run)
+    assert "Sample" not in run.stdout   # nothing rendered
+    assert sorted(str(p) for p in tmp_path.rglob("*")) == before   # no file, no directory, no stray partial
+
+
+# ---------------------------------------------------------------- 12. signals
+# The command line in its own session (process group), with a hook that sends signals to that group from a
+# known point of the render: deterministic, and the signals travel as a farm manager's or a terminal's do.
+SIGNAL_HOOK = """
+import os, signal
+from ember.engine import frame_save, session
+from ember.kernels.accel import usable_cores
+SIGNALS, FRAME, POINT = {signals!r}, {frame!r}, {point!r}
+sent = []
+
+def send():
+    if not sent:
+        sent.append(1)
+        for sig in SIGNALS:
+            os.killpg(0, sig)   # each handled (in this, the main thread) before the next is sent
+
+progress = session.FinalRender._on_progress
+def on_progress(self, p, line):
+    progress(self, p, line)
+    if POINT == "render" and self.scene.frame_current == FRAME and p.workers >= min(1, usable_cores() - 1):
+        send()   # while worker processes render this frame's waves
+session.FinalRender._on_progress = on_progress
+
+check = frame_save.written_file_problem
+def written_file_problem(path, file_format):
+    if POINT == "save" and f"_{{FRAME}}." in path:
+        send()   # Blender has written the temporary file; it is not renamed yet
+    return check(path, file_format)
+frame_save.written_file_problem = written_file_problem
+"""
+
+
+def ember_signalled(tmp_path, signals, frame, point, frames="1-3", samples="64"):
+    scene = small_scene(320, 240)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(0, 0, 0.5))
+    scene.ember.use_denoising = False
+    path = save_copy(tmp_path / "scene.blend")
+    hook = SIGNAL_HOOK.format(signals=[int(s) for s in signals], frame=frame, point=point)
+    code = CLI_CODE.replace("import_ember(); ", "import_ember()\n" + hook + "\n")
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, "-c", code, "render", path, "-o", str(out / "f_#.png"), "--frames", frames,
+                          "--samples", samples], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                         start_new_session=True)
+    return run, out
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
+def test_a_signal_to_the_process_group_mid_frame_stops_cleanly(tmp_path, sig):
+    """SIGTERM and SIGHUP (a farm manager, a closed terminal) as Ctrl-C: the frame in progress is dropped, the
+    earlier one kept, exit 128 + the signal, one line; the worker processes, which get it too, stay quiet
+    (before: SIGTERM killed the command outright, a worker printed a BrokenPipeError or KeyboardInterrupt
+    traceback)."""
+    run, out = ember_signalled(tmp_path, [sig], frame=2, point="render")
+    assert run.returncode == 128 + sig, run.stderr
+    no_traceback(run)
+    name = "" if sig == signal.SIGINT else f" by {signal.Signals(sig).name}"
+    assert run.stderr.strip() == f"ember: interrupted{name} during frame 2: nothing saved for it; frame 1 was saved"
+    assert sorted(os.listdir(out)) == ["f_1.png"]
+
+
+def test_a_signal_during_a_save_saves_that_frame_and_stops(tmp_path):
+    run, out = ember_signalled(tmp_path, [signal.SIGTERM], frame=2, point="save", samples="1")
+    assert run.returncode == 143, run.stderr
+    no_traceback(run)
+    assert run.stderr.strip() == "ember: interrupted by SIGTERM after frame 2: frames 1-2 were saved"
+    assert sorted(os.listdir(out)) == ["f_1.png", "f_2.png"]   # whole: renamed after the check, not before
+
+
+@pytest.mark.parametrize("point", ["render", "save"])
+def test_a_second_signal_quits_at_once_without_a_traceback_or_a_partial_file(tmp_path, point):
+    """Two Ctrl-C in a row (before: Blender printed the engine's KeyboardInterrupt traceback)."""
+    run, out = ember_signalled(tmp_path, [signal.SIGINT, signal.SIGINT], frame=2, point=point,
+                               samples="64" if point == "render" else "1")
+    assert run.returncode == 130, run.stderr
+    no_traceback(run)
+    assert run.stderr.strip() == "ember: SIGINT again: quit at once; the frame in progress is not saved"
+    assert sorted(os.listdir(out)) == ["f_1.png"]   # no f_2.png, no .f_2.png.*.partial
+
+
+def test_sigterm_from_outside_once_a_frame_is_saved(tmp_path):
+    """As a farm manager sends it: to the process group, from another process, at no chosen point."""
+    scene = small_scene(320, 240)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(0, 0, 0.5))
+    path = save_copy(tmp_path / "scene.blend")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-c", CLI_CODE, "render", path, "-o", str(out / "f_#.png"), "--frames",
+                             "1-40", "--samples", "32"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=ROOT, start_new_session=True)
+    try:
+        for line in proc.stdout:
+            if "saved" in line:
+                os.killpg(proc.pid, signal.SIGTERM)
+                break
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143, stderr
+    assert "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert stderr.startswith("ember: interrupted by SIGTERM "), stderr
+    files = sorted(os.listdir(out))
+    assert "f_1.png" in files and len(files) < 40 and not [f for f in files if not f.endswith(".png")]

@@ -12,7 +12,7 @@ import pytest
 from bpy_helpers import export_current
 
 from ember.kernels import Renderer, RenderSettings
-from ember.kernels import integrator, workers
+from ember.kernels import accel, integrator, workers
 from ember.kernels.integrator import Progress
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -185,7 +185,7 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
     with Renderer(materials, threads=2) as renderer:
         renderer.render(RenderSettings(samples=2, seed=1))
         assert renderer._workers is None and renderer.remote_waves == 0
-        # A render of many paths starts them at once (stopped here after its first wave).
+        # A render of many paths starts them at once (stopped here at once).
         renderer.render(RenderSettings(samples=integrator.WORKER_START_PATHS // (40 * 24) + 1, seed=1),
                         should_stop=lambda: True)
         assert renderer._workers is not None and len(renderer._workers.workers) == 1
@@ -196,9 +196,10 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
         assert renderer._workers is not None and renderer._workers.workers == []
         assert "MB are over" in renderer._workers.skipped and renderer.worker_failures == []
         assert renderer.start_workers() is False
-    # Many threads: as many children as their copies fit in the bound.
+    # Many threads (on as many cores): as many children as their copies fit in the bound.
     size = workers.pickled_size(workers.pickled(("scene", materials)))
     monkeypatch.setattr(integrator, "WORKER_MAX_BYTES", 2 * size + 1)
+    monkeypatch.setattr(accel, "usable_cores", lambda: 6)
     workers.close_pool()
     with Renderer(materials, threads=6, processes=True) as renderer:
         assert len(renderer._workers.workers) == 2 and renderer.wait_for_workers() == 2
