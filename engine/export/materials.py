@@ -11,7 +11,10 @@ closures from them (kernels.shading.nodes).
 - Inputs: a constant, an RGB or Value node, or an Image Texture's Color or Alpha output looked up with
   the mesh's render UV map. Any other node feeding an input: the socket's own value, with a warning
   naming the material, the node and the input.
-- Reroutes, muted links, muted nodes and node groups are seen through, as Blender evaluates them.
+- Reroutes, muted links, muted nodes and node groups are seen through, as Blender evaluates them; links
+  Blender marks invalid are left out, as Cycles leaves them out, with a warning. A tree holding a loop
+  (or reading a group that holds one) renders black, as in Cycles, with a warning naming the loop.
+  Chains and nesting of any depth are read (engine/export/graph.py).
 - Any other shader node: DEFAULT_ALBEDO grey diffuse, with a warning. Nothing connected to the Surface
   (or no output node): black, as in Cycles. Objects without a material: Cycles' default surface, a
   Principled BSDF with its defaults (DEFAULT_SURFACE). Volume and Displacement outputs: ignored with a warning.
@@ -37,6 +40,7 @@ import numpy as np
 from ...kernels import Materials
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
 from ...kernels.textures import srgb_to_linear
+from .graph import indexed_links, invalid_links, links_into, node_loop, run_nested
 from .nodes import ProgramBuilder
 
 DEFAULT_ALBEDO = 0.8
@@ -96,7 +100,7 @@ def output_node(tree):
 
 
 def _live_link(socket):
-    return next((lk for lk in socket.links if lk.is_valid and not lk.is_muted), None)
+    return next((lk for lk in links_into(socket) if lk.is_valid and not lk.is_muted), None)
 
 
 def _passed_through(node, output):
@@ -342,10 +346,20 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
     """One material's shader. Everything Ember cannot render goes into a single warning line. The UV
     maps whose tangents it reads are appended to uv_maps ('' for the render UV map), the mesh attributes
     its node program reads added to attributes."""
-    reader = _MaterialReader(images, material.pass_index)
     tree = material.node_tree
     if tree is None:  # a material without nodes renders its viewport colour, as in Cycles
         return diffuse_shader(rgb(material.diffuse_color), name=material.name)
+    loop = node_loop(tree)
+    if loop is not None:
+        warnings.append(f"Material '{material.name}': its node tree has a loop ({loop}), which Blender cannot "
+                        f"evaluate: rendered black, as in Cycles")
+        return Shader((), material.name)
+    with indexed_links():
+        return _read_tree(material, tree, _MaterialReader(images, material.pass_index), warnings, uv_maps,
+                          attributes)
+
+
+def _read_tree(material, tree, reader, warnings, uv_maps, attributes) -> Shader:
     out = output_node(tree)
     closures = () if out is None else tuple(reader.closures(source_of(out.inputs["Surface"]), ()))
     if out is not None:
@@ -356,6 +370,7 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
         displacement = out.inputs.get("Displacement")
         if displacement is not None and source_of(displacement).node is not None:
             reader.issues.append("Displacement output is not supported, ignored")
+    reader.issues.extend(invalid_links(tree))
     if reader.issues:
         warnings.append(f"Material '{material.name}': " + "; ".join(dict.fromkeys(reader.issues)))
     if uv_maps is not None:
@@ -381,6 +396,10 @@ class _MaterialReader:
 
     def closures(self, source: Source, factors: tuple) -> list[Closure]:
         """The closures of the shader tree feeding a shader socket, with their Mix Shader factors."""
+        return run_nested(self._closures(source, factors))
+
+    def _closures(self, source: Source, factors: tuple):
+        """Step (engine/export/graph.py) of closures()."""
         node, groups = source.node, source.groups
         if node is None:  # nothing connected: Cycles renders black
             return []
@@ -390,12 +409,15 @@ class _MaterialReader:
             first, second = (source_of(node.inputs[i], groups) for i in (1, 2))
             out = []
             if fac.varies or fac.value[0] < 1.0:
-                out += self.closures(first, factors + ((fac, False),))
+                out += yield self._closures(first, factors + ((fac, False),))
             if fac.varies or fac.value[0] > 0.0:
-                out += self.closures(second, factors + ((fac, True),))
+                out += yield self._closures(second, factors + ((fac, True),))
             return out
         if kind == "ShaderNodeAddShader":
-            return [c for i in (0, 1) for c in self.closures(source_of(node.inputs[i], groups), factors)]
+            out = []
+            for i in (0, 1):
+                out += yield self._closures(source_of(node.inputs[i], groups), factors)
+            return out
         if kind not in CLOSURE_NODES:
             self.issues.append(f"{node.bl_label} '{node.name}' is not supported, rendered grey ({DEFAULT_ALBEDO})")
             return [Closure("DIFFUSE", (("Color", Param.of(GREY3)),), (), factors)]
@@ -469,6 +491,10 @@ class _MaterialReader:
 
     def param(self, socket, groups, channels: int, node) -> Param:
         """An input as a constant, or a constant times an Image Texture's Color or Alpha."""
+        return run_nested(self._param(socket, groups, channels, node))
+
+    def _param(self, socket, groups, channels: int, node):
+        """Step (engine/export/graph.py) of param()."""
         source = source_of(socket, groups)
         if source.node is None or source.kind in ("ShaderNodeRGB", "ShaderNodeValue"):
             return Param.of(_socket_value(source.socket, channels))
@@ -478,7 +504,7 @@ class _MaterialReader:
                 getattr(source.node, "mode", "RGB") == "RGB":
             # One channel of an image (glTF's packed metallic-roughness and occlusion maps) or a constant.
             channel = ("Red", "Green", "Blue", "R", "G", "B").index(source.socket.identifier) % 3
-            inner = self.param(source.node.inputs[0], source.groups, 3, source.node)
+            inner = yield self._param(source.node.inputs[0], source.groups, 3, source.node)
             if inner.link is not None:
                 return self.program_param(socket, groups, channels)
             if inner.texture < 0:

@@ -20,8 +20,9 @@ import mathutils
 import numpy as np
 
 from ...kernels import World
-from .materials import (BLACK3, MISSING_IMAGE_COLOR, ImagePixels, ImageTextures, Source, output_node,
-                        read_image, rgb, source_of)
+from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
+from .materials import (BLACK3, MISSING_IMAGE_COLOR, ImagePixels, ImageTextures, Source, output_node, read_image,
+                        rgb, source_of)
 from .nodes import ProgramBuilder
 
 DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
@@ -35,11 +36,18 @@ def export_world(world, warnings: list[str], images=None) -> World:
         return World(color=np.zeros(3, np.float32))
     if world.node_tree is None:
         return World(color=np.array(rgb(world.color), np.float32))
+    loop = node_loop(world.node_tree)
+    if loop is not None:
+        warnings.append(f"World '{world.name}': its node tree has a loop ({loop}), which Blender cannot "
+                        f"evaluate: rendered black, as in Cycles")
+        return World(color=np.zeros(3, np.float32))
     issues: list[str] = []
-    if _needs_program(world.node_tree):
-        result = _program_world(world, images if images is not None else ImageTextures(warnings), issues)
-    else:
-        result = _read_tree(world.node_tree, issues, warnings)
+    with indexed_links():
+        if _needs_program(world.node_tree):
+            result = _program_world(world, images if images is not None else ImageTextures(warnings), issues)
+        else:
+            result = _read_tree(world.node_tree, issues, warnings)
+    issues.extend(invalid_links(world.node_tree))
     if issues:
         warnings.append(f"World '{world.name}': " + "; ".join(dict.fromkeys(issues)))
     return result
@@ -95,7 +103,7 @@ def _program_world(world, images, issues: list[str]) -> World:
     """The world's shader tree as a program whose output is the background radiance."""
     builder = ProgramBuilder(images, issues, set(), [])
     out = output_node(world.node_tree)
-    radiance = _radiance_of(builder, source_of(out.inputs["Surface"]), issues)
+    radiance = run_nested(_radiance_of(builder, source_of(out.inputs["Surface"]), issues))
     if isinstance(radiance, tuple):  # folded: a constant world after all
         return World(color=np.maximum(np.array(radiance, np.float32), 0.0))
     return World(color=np.zeros(3, np.float32), program=builder.program(), output=radiance,
@@ -110,25 +118,14 @@ def map_resolution(world) -> int:
     settings = getattr(world, "cycles", None)
     if settings is not None and getattr(settings, "sampling_method", "AUTOMATIC") == "MANUAL":
         return max(int(settings.sample_map_resolution), 4)
-    widths = [int(node.image.size[0]) for node in _tree_nodes(world.node_tree)
+    widths = [int(node.image.size[0]) for node in tree_nodes(world.node_tree)
               if node.bl_idname == "ShaderNodeTexEnvironment" and node.image is not None and node.image.size[0] > 0]
     return int(np.clip(max(widths), 256, 8192)) if widths else 1024
 
 
-def _tree_nodes(tree, seen=None):
-    """Every node of a node tree and of the groups inside it."""
-    seen = set() if seen is None else seen
-    if tree is None or tree.name_full in seen:
-        return
-    seen.add(tree.name_full)
-    for node in tree.nodes:
-        yield node
-        if node.bl_idname == "ShaderNodeGroup":
-            yield from _tree_nodes(node.node_tree, seen)
-
-
 def _radiance_of(builder, source: Source, issues: list[str]):
-    """The radiance of a world shader socket's tree: a Ref (RGBA) or a constant triple."""
+    """Step (engine/export/graph.py): the radiance of a world shader socket's tree, a Ref (RGBA) or a
+    constant triple."""
     node, groups = source.node, source.groups
     if node is None:
         return BLACK3
@@ -137,11 +134,13 @@ def _radiance_of(builder, source: Source, issues: list[str]):
         strength = builder.input(node.inputs["Strength"], groups, "VALUE")
         return builder.vector_op("SCALE", color, strength)
     if source.kind == "ShaderNodeAddShader":
-        a, b = (_radiance_of(builder, source_of(node.inputs[i], groups), issues) for i in (0, 1))
+        a = yield _radiance_of(builder, source_of(node.inputs[0], groups), issues)
+        b = yield _radiance_of(builder, source_of(node.inputs[1], groups), issues)
         return builder.vector_op("ADD", a, b)
     if source.kind == "ShaderNodeMixShader":
         fac = builder.input(node.inputs[0], groups, "VALUE")
-        a, b = (_radiance_of(builder, source_of(node.inputs[i], groups), issues) for i in (1, 2))
+        a = yield _radiance_of(builder, source_of(node.inputs[1], groups), issues)
+        b = yield _radiance_of(builder, source_of(node.inputs[2], groups), issues)
         return builder.mix(fac, a, b)
     issues.append(f"{node.bl_label} is not supported in a world, rendered as constant grey")
     return DEFAULT_WORLD_COLOR
