@@ -8,6 +8,8 @@ Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Emission, Holdout;
 as diffuse); each closure keeps its inputs and the Mix factors above it, and the kernel builds Cycles'
 closures from them (kernels.shading.nodes).
 
+- Constant values that are not numbers read 0 (Cycles drops a closure whose weight is not a number), and
+  a constant emission brighter than lights.MAX_LIGHT_RADIANCE is clamped to it, as lights are; each warned.
 - Inputs: a constant, an RGB or Value node, or an Image Texture's Color or Alpha output looked up with
   the mesh's render UV map. Any other node feeding an input: the socket's own value, with a warning
   naming the material, the node and the input.
@@ -33,7 +35,8 @@ for images that have it (the Image Texture's Alpha output).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -41,7 +44,8 @@ from ...kernels import Materials
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
 from ...kernels.textures import srgb_to_linear
 from .graph import indexed_links, invalid_links, links_into, node_loop, run_nested
-from .nodes import ProgramBuilder
+from .lights import MAX_LIGHT_RADIANCE
+from .nodes import ProgramBuilder, socket_has_nan
 
 DEFAULT_ALBEDO = 0.8
 MISSING_IMAGE_COLOR = (1.0, 0.0, 1.0)
@@ -254,6 +258,8 @@ CLOSURE_NODES = {
     # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
     "ShaderNodeSubsurfaceScattering": ("DIFFUSE", ("Color",)),
 }
+# The (colour, strength) inputs of the closures that emit.
+EMISSION_INPUTS = {"EMISSION": ("Color", "Strength"), "PRINCIPLED": ("Emission Color", "Emission Strength")}
 # Closure inputs that take a direction from a node: a Normal Map (normals) or a Tangent node.
 NORMAL_INPUTS = ("Normal", "Coat Normal")
 # Inputs Ember does not render yet, each with the value at which it has no effect.
@@ -424,7 +430,7 @@ class _MaterialReader:
         closure_kind, names = CLOSURE_NODES[kind]
         sockets = {s.identifier: s for s in node.inputs}  # unavailable sockets are not found by name
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
-        inputs += self.directions(node, groups)
+        inputs = self.limit_emission(node, closure_kind, inputs) + self.directions(node, groups)
         self.check_unsupported(node, closure_kind, groups)
         return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
 
@@ -489,6 +495,30 @@ class _MaterialReader:
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
 
+    def limit_emission(self, node, kind: str, inputs: tuple) -> tuple:
+        """The closure's inputs, a constant emission brighter than MAX_LIGHT_RADIANCE clamped to it (with a
+        warning), as the light export clamps lamps: past it float32 arithmetic overflows (Cycles then
+        drops the sample's light, or its pixel sums become inf) and the denoiser returns black."""
+        names = EMISSION_INPUTS.get(kind)
+        params = dict(inputs)
+        if names is None or params[names[1]].link is not None:
+            return inputs
+        color, strength = params[names[0]], params[names[1]]
+        scale = max(abs(v) for v in color.value) if color.link is None else 1.0
+        if not abs(strength.value[0]) * scale > MAX_LIGHT_RADIANCE:
+            return inputs
+        limited = replace(strength, value=(math.copysign(MAX_LIGHT_RADIANCE / scale, strength.value[0]),))
+        self.issues.append(f"{node.bl_label} '{node.name}' {names[1]} {strength.value[0]:g} is too bright for "
+                           f"Ember's float32 arithmetic: clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
+        return tuple((name, limited if name == names[1] else p) for name, p in inputs)
+
+    def constant(self, socket, channels: int, owner) -> tuple:
+        """A socket's own value (socket_value), saying so when part of it is not a number (read as 0, as
+        Cycles drops a closure whose weight is not a number)."""
+        if socket_has_nan(socket):
+            self.issues.append(f"{owner.bl_label} '{owner.name}' {socket.name} is not a number, read as 0")
+        return _socket_value(socket, channels)
+
     def param(self, socket, groups, channels: int, node) -> Param:
         """An input as a constant, or a constant times an Image Texture's Color or Alpha."""
         return run_nested(self._param(socket, groups, channels, node))
@@ -497,7 +527,7 @@ class _MaterialReader:
         """Step (engine/export/graph.py) of param()."""
         source = source_of(socket, groups)
         if source.node is None or source.kind in ("ShaderNodeRGB", "ShaderNodeValue"):
-            return Param.of(_socket_value(source.socket, channels))
+            return Param.of(self.constant(source.socket, channels, source.node or node))
         if source.kind == "ShaderNodeTexImage" and _plain_image(source):
             return self.image_param(source)
         if source.kind in ("ShaderNodeSeparateColor", "ShaderNodeSeparateRGB") and \

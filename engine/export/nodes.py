@@ -68,6 +68,9 @@ class ProgramBuilder:
         want = want or _TYPES.get(socket.type, "VALUE")
         source = source_of(socket, groups)
         if source.node is None:
+            if socket_has_nan(source.socket):
+                node = source.socket.node
+                self.issues.append(f"{node.bl_label} '{node.name}' {source.socket.name} is not a number, read as 0")
             return socket_constant(source.socket, want)
         return (yield from self._output(source, socket, want))
 
@@ -181,6 +184,12 @@ def node_options(node) -> dict:
             value = tuple(value)
         out[prop.identifier] = value
     return out
+
+
+def socket_has_nan(socket) -> bool:
+    """Whether an unlinked socket's value is, in part, not a number (a script or a file can set one)."""
+    value = getattr(socket, "default_value", 0.0)
+    return bool(np.isnan(np.asarray(value[:] if hasattr(value, "__len__") else value, np.float64)).any())
 
 
 def socket_constant(socket, want: str) -> tuple:

@@ -2,7 +2,9 @@
 node program.
 
 Supported, with Cycles as the reference:
-- No world: black. A world without a node tree: its colour.
+- No world: black. A world without a node tree: its colour. A Strength that is not a number reads 0
+  (black, as in Cycles); a constant world brighter than lights.MAX_LIGHT_RADIANCE is clamped to it, as
+  lights are; both warned.
 - World Output <- Background (or Emission) with a constant Color and Strength: a constant world.
 - The same with an Environment Texture (equirectangular) as Color, its Vector unlinked, Texture
   Coordinate (Generated or Object), or a Mapping node fed by those, with a constant Mapping and Strength:
@@ -23,7 +25,8 @@ from ...kernels import World
 from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
 from .materials import (BLACK3, MISSING_IMAGE_COLOR, ImagePixels, ImageTextures, Source, output_node, read_image,
                         rgb, source_of)
-from .nodes import ProgramBuilder
+from .lights import MAX_LIGHT_RADIANCE
+from .nodes import ProgramBuilder, socket_has_nan
 
 DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
 TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on the world
@@ -63,11 +66,33 @@ def _read_tree(tree, issues: list[str], warnings: list[str]) -> World:
         issues.append(f"{surface.node.bl_label} is not supported, rendered as constant grey")
         return World(color=np.array(DEFAULT_WORLD_COLOR, np.float32))
     node, groups = surface.node, surface.groups
-    strength = max(float(source_of(node.inputs["Strength"], groups).socket.default_value), 0.0)
+    strength = _strength(source_of(node.inputs["Strength"], groups).socket, node, issues)
     color = source_of(node.inputs["Color"], groups)
     if color.node is None or color.kind == "ShaderNodeRGB":
-        return World(color=np.array(rgb(color.socket.default_value), np.float32), strength=strength)
-    return _environment(color, strength, issues, warnings)
+        if socket_has_nan(color.socket):
+            issues.append(f"{node.bl_label} Color is not a number, read as 0")
+        value = np.array(rgb(color.socket.default_value), np.float32)
+        return World(color=value, strength=_limited(strength, float(value.max()), node, issues))
+    return _environment(color, strength, node, issues, warnings)
+
+
+def _strength(socket, node, issues: list[str]) -> float:
+    """A Background's constant Strength, >= 0; one that is not a number reads 0 (Cycles renders such a
+    world black), with a warning."""
+    if socket_has_nan(socket):
+        issues.append(f"{node.bl_label} Strength is not a number, read as 0")
+        return 0.0
+    return max(float(socket.default_value), 0.0)
+
+
+def _limited(strength: float, peak: float, node, issues: list[str]) -> float:
+    """strength, clamped (with a warning) so that strength x peak (the brightest colour it scales) stays
+    within MAX_LIGHT_RADIANCE, as the lights and materials are clamped."""
+    if not strength * peak > MAX_LIGHT_RADIANCE:
+        return strength
+    issues.append(f"{node.bl_label} Strength {strength:g} is too bright for Ember's float32 arithmetic: "
+                  f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
+    return MAX_LIGHT_RADIANCE / peak
 
 
 def _needs_program(tree) -> bool:
@@ -105,7 +130,12 @@ def _program_world(world, images, issues: list[str]) -> World:
     out = output_node(world.node_tree)
     radiance = run_nested(_radiance_of(builder, source_of(out.inputs["Surface"]), issues))
     if isinstance(radiance, tuple):  # folded: a constant world after all
-        return World(color=np.maximum(np.array(radiance, np.float32), 0.0))
+        color = np.maximum(np.array(radiance, np.float64), 0.0)
+        if color.max() > MAX_LIGHT_RADIANCE:
+            issues.append(f"its radiance {color.max():g} is too bright for Ember's float32 arithmetic: clamped "
+                          f"to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
+            color *= MAX_LIGHT_RADIANCE / color.max()
+        return World(color=color.astype(np.float32))
     return World(color=np.zeros(3, np.float32), program=builder.program(), output=radiance,
                  map_resolution=map_resolution(world))
 
@@ -146,8 +176,9 @@ def _radiance_of(builder, source: Source, issues: list[str]):
     return DEFAULT_WORLD_COLOR
 
 
-def _environment(texture: Source, strength: float, issues: list[str], warnings: list[str]) -> World:
-    """A plain equirectangular Environment Texture: the HDRI world, sampled from the image itself."""
+def _environment(texture: Source, strength: float, background, issues: list[str], warnings: list[str]) -> World:
+    """A plain equirectangular Environment Texture (feeding the node `background`): the HDRI world,
+    sampled from the image itself."""
     node = texture.node
     missing = World(color=np.array(MISSING_IMAGE_COLOR, np.float32), strength=strength)  # as Cycles
     if node.image is None:
@@ -157,8 +188,9 @@ def _environment(texture: Source, strength: float, issues: list[str], warnings: 
     if pixels is None:
         return missing
     env_from_world = _env_from_world(source_of(node.inputs["Vector"], texture.groups))
-    return World(color=np.array(BLACK3, np.float32), hdri=_radiance(pixels), strength=strength,
-                 env_from_world=env_from_world)
+    hdri = _radiance(pixels)
+    return World(color=np.array(BLACK3, np.float32), hdri=hdri,
+                 strength=_limited(strength, float(hdri.max()), background, issues), env_from_world=env_from_world)
 
 
 def _radiance(pixels: ImagePixels) -> np.ndarray:
