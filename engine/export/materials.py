@@ -1,7 +1,7 @@
-"""Materials and images: Blender shader node trees -> kernel Shaders (closures with their inputs), images ->
-texture arrays.
+"""Materials: Blender shader node trees -> kernel Shaders (closures with their inputs); the images they read
+are loaded by images.py.
 
-This module owns the reading of shader node trees (also used by world.py) and of image pixels.
+This module owns the reading of shader node trees (also used by world.py).
 Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
 and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
 Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Emission, Holdout; Subsurface Scattering
@@ -27,11 +27,7 @@ closures from them (kernels.shading.nodes).
   export. Anything else feeding those inputs (Bump, Object-space normal maps, radial tangents), thin film:
   ignored with a warning.
 
-Images: 8-bit images come back from Blender undecoded. Those in an sRGB space are handed to the kernel
-sRGB-encoded and flagged, so it decodes them after filtering as Cycles does (the world's HDRI is decoded
-here); Non-Color and linear ones are used as stored. Float images come back already scene linear. An image
-that cannot be loaded renders MISSING_IMAGE_COLOR, as in Cycles, with a warning naming it. Alpha is kept
-for images that have it (the Image Texture's Alpha output).
+An image that cannot be loaded renders MISSING_IMAGE_COLOR, as in Cycles, with a warning naming it.
 """
 from __future__ import annotations
 
@@ -42,7 +38,7 @@ import numpy as np
 
 from ...kernels import Materials
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
-from ...kernels.textures import srgb_to_linear
+from .images import ImageTextures
 from .graph import indexed_links, invalid_links, links_into, node_loop, run_nested
 from .lights import MAX_LIGHT_RADIANCE
 from .nodes import ProgramBuilder, socket_has_nan
@@ -52,9 +48,6 @@ MISSING_IMAGE_COLOR = (1.0, 0.0, 1.0)
 BLACK3 = (0.0, 0.0, 0.0)
 WHITE3 = (1.0, 1.0, 1.0)
 GREY3 = (DEFAULT_ALBEDO,) * 3
-
-# Byte images in these colour spaces (besides data ones such as Non-Color) hold linear values already.
-LINEAR_BYTE_SPACES = ("Linear Rec.709", "scene_linear")
 
 
 # ---- Node trees -------------------------------------------------------------------------------------
@@ -130,109 +123,6 @@ def rgb(value) -> tuple:
     """A colour socket value as a non-negative, finite RGB triple (alpha dropped)."""
     c = np.nan_to_num(np.asarray(value[:3], np.float64))
     return tuple(float(x) for x in np.maximum(c, 0.0))
-
-
-# ---- Images -----------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class ImagePixels:
-    """An image's pixels as Blender holds them.
-
-    array : (H, W, C) float32, C in {1, 3, 4} (alpha only where asked for and not all 1), row 0 at the
-        bottom, finite and non-negative.
-    srgb : the values are sRGB-encoded (an 8-bit image in an sRGB space); the kernel decodes them after
-        filtering, as Cycles does. Otherwise they are linear.
-    """
-    array: np.ndarray
-    srgb: bool
-
-    def linear(self) -> np.ndarray:
-        return srgb_to_linear(self.array) if self.srgb else self.array
-
-
-def read_image(image, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
-    """An image's pixels; None (with a warning) when Blender cannot load it. alpha: keep the alpha
-    channel when the image has one that is not 1 everywhere."""
-    n = len(image.pixels)  # asking for the pixels loads the image (file, packed or generated)
-    width, height = image.size
-    if n == 0 or width * height == 0:
-        warnings.append(f"Image '{image.name}' could not be loaded ({image.filepath or 'no file'}): "
-                        f"rendered magenta")
-        return None
-    flat = np.empty(n, np.float32)
-    image.pixels.foreach_get(flat)
-    channels = n // (width * height)
-    pixels = flat.reshape(height, width, channels)
-    keep_alpha = alpha and channels == 4 and image.alpha_mode != "NONE" and bool(np.any(pixels[:, :, 3] < 1.0))
-    pixels = pixels[:, :, :4 if keep_alpha else 3 if channels >= 3 else 1]
-    if keep_alpha and _associates_alpha(image) and not image.is_float:
-        # Cycles stores colour associated with alpha; Blender's float buffers already are, byte images
-        # with straight alpha are associated here (in their stored encoding, as Cycles' loader does).
-        pixels = pixels.copy()
-        pixels[:, :, :3] *= pixels[:, :, 3:4]
-    if image.is_float:  # float files (EXR, HDR) may hold negative or non-finite values; light cannot
-        return ImagePixels(np.where(np.isfinite(pixels) & (pixels > 0), pixels, np.float32(0)), False)
-    matrix = _linear_space_matrix(image.colorspace_settings.name)
-    if matrix is not None and not image.colorspace_settings.is_data:
-        # A linear space other than scene linear: converted at load, as Cycles converts such byte images
-        # (to half floats; out-of-gamut values stay negative, as there).
-        pixels = pixels.copy()
-        pixels[:, :, :3] = (pixels[:, :, :3] @ matrix.T).astype(np.float16)
-        return ImagePixels(pixels, False)
-    return ImagePixels(np.ascontiguousarray(pixels), _is_srgb(image, warnings))
-
-
-def _associates_alpha(image) -> bool:
-    """Whether Cycles stores this image's colour premultiplied by its alpha (not for data, channel-packed
-    or ignored alpha), and the image holds it straight."""
-    return not image.colorspace_settings.is_data and image.alpha_mode == "STRAIGHT"
-
-
-# Linear colour spaces of Blender's configuration, with the mathutils conversion to scene linear (Blender's
-# OCIO): a byte image in one of them holds linear values in those primaries.
-_LINEAR_SPACES = {"ACEScg": "from_acescg_to_scene_linear", "ACES2065-1": "from_aces_to_scene_linear",
-                  "Linear Rec.2020": "from_rec2020_linear_to_scene_linear",
-                  "Linear CIE-XYZ D65": "from_xyz_d65_to_scene_linear"}
-
-
-def _linear_space_matrix(name: str) -> np.ndarray | None:
-    """(3, 3) float32 matrix taking RGB in the linear space `name` to scene linear, None for others."""
-    method = _LINEAR_SPACES.get(name)
-    if method is None:
-        return None
-    from mathutils import Color
-    convert = getattr(Color, method)
-    return np.array([tuple(convert(Color(e))) for e in np.eye(3)], np.float32).T
-
-
-def _is_srgb(image, warnings: list[str]) -> bool:
-    """Whether an 8-bit image holds sRGB-encoded values (Blender returns them undecoded)."""
-    settings = image.colorspace_settings
-    if settings.is_data or settings.name in LINEAR_BYTE_SPACES:
-        return False
-    if settings.name != "sRGB":
-        warnings.append(f"Image '{image.name}': colour space '{settings.name}' is not supported for 8-bit "
-                        f"images (sRGB, Non-Color and the linear spaces are), read as sRGB")
-    return True
-
-
-class ImageTextures:
-    """The texture list of one export: one array per image, shared by every material using it."""
-
-    def __init__(self, warnings: list[str]):
-        self.loaded: list[ImagePixels] = []
-        self._index: dict[str, int | None] = {}
-        self._warnings = warnings
-
-    def index(self, image) -> int | None:
-        """The image's texture index, None when it cannot be loaded."""
-        key = image.name_full
-        if key not in self._index:
-            pixels = read_image(image, self._warnings, alpha=True)
-            self._index[key] = None if pixels is None else len(self.loaded)
-            if pixels is not None:
-                self.loaded.append(pixels)
-        return self._index[key]
 
 
 # ---- Materials --------------------------------------------------------------------------------------
@@ -335,7 +225,7 @@ class MaterialTable:
 
     @property
     def textures(self) -> tuple:
-        """SceneArrays.textures: (H, W, C) float32 arrays."""
+        """SceneArrays.textures: (H, W, C) uint8 or float32 arrays (images.ImagePixels)."""
         return tuple(image.array for image in self.images.loaded)
 
     @property

@@ -39,7 +39,7 @@ _OPTION_TYPES = ("ENUM", "BOOLEAN", "INT", "FLOAT", "STRING")
 class ProgramBuilder:
     """Compiles the nodes feeding one material's closure inputs into one program.
 
-    images : materials.ImageTextures of the export (image nodes register their images there).
+    images : images.ImageTextures of the export (image nodes register their images there).
     issues : the material's warning list (what cannot be evaluated, named).
     attributes : the export's set of attribute names the programs read (the mesh export reads them).
     """

@@ -23,8 +23,8 @@ import numpy as np
 
 from ...kernels import World
 from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
-from .materials import (BLACK3, MISSING_IMAGE_COLOR, ImagePixels, ImageTextures, Source, output_node, read_image,
-                        rgb, source_of)
+from .images import ImagePixels, ImageTextures, read_image
+from .materials import BLACK3, MISSING_IMAGE_COLOR, Source, output_node, rgb, source_of
 from .lights import MAX_LIGHT_RADIANCE
 from .nodes import ProgramBuilder, socket_has_nan
 
@@ -34,7 +34,7 @@ TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on
 
 def export_world(world, warnings: list[str], images=None) -> World:
     """scene.world (may be None) as a kernels.World. Problems go to `warnings` in one line. images: the
-    export's materials.ImageTextures, which world programs read their images from."""
+    export's images.ImageTextures, which world programs read their images from."""
     if world is None:  # Cycles renders black without a world
         return World(color=np.zeros(3, np.float32))
     if world.node_tree is None:
