@@ -227,12 +227,17 @@ class PreviewDenoiser:
 def denoised_film(film, quality: str, prefilter: str, threads: int) -> np.ndarray:
     """The film's image (H, W, 4) with its colour denoised by OpenImageDenoise, guided by the film's
     albedo and normal passes when it has them; raises what the denoiser raises."""
-    from .denoise import denoise
+    from .denoise import DenoiseError, denoise
     image = film.resolve()
+    lit = bool(np.any(image[..., :3] > 0))
     image[..., :3] = denoise(image[..., :3],
                              film.resolve_pass("denoising_albedo") if "denoising_albedo" in film.aux else None,
                              film.resolve_pass("denoising_normal") if "denoising_normal" in film.aux else None,
                              quality=quality, prefilter=prefilter, threads=threads)
+    if lit and not np.any(image[..., :3] > 0):
+        # OIDN's exposure estimate overflows its float32 sums for pixels near the float32 limit (~1e37):
+        # it then returns zeros.
+        raise DenoiseError("it returned a black image for a lit one (pixel values near the float32 limit)")
     return image
 
 

@@ -598,7 +598,9 @@ class SceneArrays:
         standing for that array.
     uvs : (T, 3, 2) float32, per-corner texture coordinates.
     material_ids : (T,) int32, rows of `materials`.
-    textures : tuple of (H, W, C) float32 arrays, C in {1, 3, 4}, row 0 at the bottom.
+    textures : tuple of (H, W, C) arrays, C in {1, 3, 4}, row 0 at the bottom: float32, or uint8 for 8-bit
+        images (k stands for k / 255; a 4-channel one holds straight colour, which the kernel associates
+        with alpha texel by texel: kernels.textures.Texture).
     texture_srgb : tuple of bool, one per texture (or empty: all linear). True marks a texture stored
         sRGB-encoded and decoded after filtering, as Cycles does with 8-bit sRGB images.
     tangents : (T, 3, 4) float32 or None: per-corner world-space MikkTSpace tangent (xyz) of the render
@@ -748,7 +750,8 @@ class SceneArrays:
                      and tex.shape[0] >= 1 and tex.shape[1] >= 1,
                      f"textures[{i}]", f"must be an (H, W, C) array with C in 1, 3, 4, got "
                      f"{getattr(tex, 'shape', type(tex).__name__)}")
-            _check_array(tex, f"textures[{i}]", tex.shape, np.float32)
+            _check_array(tex, f"textures[{i}]", tex.shape, np.uint8 if tex.dtype == np.uint8 else np.float32,
+                         finite=tex.dtype != np.uint8)
         _require(len(self.texture_srgb) in (0, len(self.textures)), "texture_srgb",
                  f"needs one flag per texture ({len(self.textures)}), got {len(self.texture_srgb)}")
         self.materials.validate(len(self.textures))

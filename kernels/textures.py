@@ -1,4 +1,5 @@
-"""Bilinear texture lookups on linear float32 images stored row 0 at the bottom (Blender's order).
+"""Textures: images stored as the kernel keeps them (8-bit ones as bytes), and bilinear lookups on them,
+row 0 at the bottom (Blender's order).
 
 Texel centres sit at (i + 0.5) / W, as in Cycles' linear interpolation.
 """
@@ -23,59 +24,89 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
                     np.power(np.maximum(c + np.float32(0.055), 0) * np.float32(1 / 1.055), np.float32(2.4)))
 
 
-class Texture:
-    """A texture prepared for lookups: one contiguous float32 row of H*W texels per channel, RGB and,
-    for 4-channel images, alpha (straight, never sRGB-encoded).
+# An 8-bit texel k reads k x (1/255) in float32: what Blender's image.pixels gives for it.
+BYTE_SCALE = np.float32(1.0 / 255.0)
+# Texels per block when a whole texture is walked (means): a few MB of float32 at a time.
+_BLOCK = 1 << 20
 
-    srgb=True: colour texels are sRGB-encoded and decoded after filtering, like Cycles' 8-bit sRGB images.
-    The colour of 4-channel images is stored as the engine hands it over: associated (premultiplied by
-    alpha) for ordinary images, as Cycles stores them; lookup(unassociate=True) divides the filtered
-    colour by the filtered alpha, as Cycles does when an Image Texture's Alpha output is used.
+
+class Texture:
+    """A texture prepared for lookups: its texels as they are stored, (H*W, C) with C = 1 (grey), 3 (RGB)
+    or 4 (RGBA), row 0 at the bottom, a texel's channels side by side (a gather reads one cache line per
+    texel). Nothing is converted up front: each lookup gathers the texels it needs and makes them float32
+rows, one per channel (gather).
+
+    uint8 texels are 8-bit images as Blender holds them (k reads k / 255), 1 byte per channel, as Cycles
+    keeps them (uchar4); float32 texels are read as they are. A grey texture reads its one channel as the
+    three of its colour. srgb=True: colour texels are sRGB-encoded and decoded after filtering, like Cycles'
+    8-bit sRGB images. Alpha is never encoded. The colour of a 4-channel texture is associated (premultiplied
+    by alpha), as Cycles stores it: float32 textures hold it so (the engine hands them over so), uint8 ones
+    hold it straight and each gathered texel is associated, so that 8-bit texels stay bytes.
+    lookup(unassociate=True) divides the filtered colour by the filtered alpha, as Cycles does when an
+    Image Texture's Alpha output is used.
     """
 
     def __init__(self, image: np.ndarray, srgb: bool = False):
         self.srgb = srgb
         h, w, c = image.shape
-        rgb = image[:, :, :3] if c >= 3 else np.repeat(image[:, :, :1], 3, axis=2)
         self.height, self.width = h, w
-        # (H*W, 3): a texel's three channels side by side, so that a gather reads one cache line per texel
-        # (a third less time than three channel rows on an HDRI); channels is its (3, H*W) view.
-        self.texels = np.ascontiguousarray(rgb.reshape(h * w, 3), np.float32)
-        self.channels = self.texels.T
-        self.alpha = np.ascontiguousarray(image[:, :, 3].reshape(1, h * w), np.float32) if c == 4 else None
+        self._bytes = image.dtype == np.uint8
+        # No copy for a contiguous uint8 or float32 image (what the export hands over).
+        self.texels = np.ascontiguousarray(image, None if self._bytes else np.float32).reshape(h * w, c)
+        self.has_alpha = c == 4
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the texture keeps."""
+        return self.texels.nbytes
+
+    def gather(self, index: np.ndarray) -> np.ndarray:
+        """(3, n) float32 colours, or (4, n) with alpha last for RGBA textures, of the texels at flat
+        indices `index` (row * width + column); colour associated, still sRGB-encoded when srgb."""
+        return self._decoded(np.take(self.texels, index, axis=0))
+
+    def _decoded(self, t: np.ndarray) -> np.ndarray:
+        """Stored texels (n, C) as gather returns them: one contiguous float32 row per channel."""
+        planes = np.ascontiguousarray(t.T, dtype=np.float32)
+        if self._bytes:
+            planes *= BYTE_SCALE
+            if self.has_alpha:
+                planes[:3] *= planes[3]
+        if len(planes) == 1:
+            planes = np.repeat(planes, 3, axis=0)
+        return planes
+
+    def means(self) -> np.ndarray:
+        """(4,) float32: the mean colour (R, G, B, associated, as stored) and alpha (1 without one), a
+        block of texels at a time (float32 sums within a block, float64 across)."""
+        total = np.zeros(4 if self.has_alpha else 3, np.float64)
+        for start in range(0, len(self.texels), _BLOCK):
+            total += self._decoded(self.texels[start:start + _BLOCK]).sum(axis=1)
+        mean = total / max(len(self.texels), 1)
+        return np.append(mean[:3], mean[3] if self.has_alpha else 1.0).astype(np.float32)
 
     def lookup_alpha(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(N,) float32 bilinear alpha at u, v (repeat); 1 for images without alpha."""
-        if self.alpha is None:
+        if not self.has_alpha:
             return np.ones(len(u), np.float32)
-        return self._bilinear(self.alpha, u, v, True)[0]
+        return self._filtered(self._corners(u, v, True))[3]
 
     def lookup(self, u: np.ndarray, v: np.ndarray, wrap_v: bool = True, unassociate: bool = False) -> np.ndarray:
         """(3, N) float32 bilinear samples at texture coordinates u, v (repeat wrap in u; in v repeat
         or clamp to edge)."""
-        corners = self._corners(u, v, wrap_v)
-        (i00, i01, i10, i11), fx, fy = corners
-        # Gathered from the interleaved texels, (n, 3), then (3, n) again.
-        t, fx, fy = self.texels, fx[:, None], fy[:, None]
-        top = np.take(t, i00, axis=0) * (1 - fx) + np.take(t, i01, axis=0) * fx
-        bot = np.take(t, i10, axis=0) * (1 - fx) + np.take(t, i11, axis=0) * fx
-        value = np.ascontiguousarray((top * (1 - fy) + bot * fy).T)
-        if unassociate and self.alpha is not None:
-            a = self._planes(self.alpha, corners)[0]
+        filtered = self._filtered(self._corners(u, v, wrap_v))
+        value = filtered[:3]
+        if unassociate and self.has_alpha:
+            a = filtered[3]
             partial = (a != 0) & (a != 1)
             value = np.where(partial, value / np.where(partial, a, np.float32(1.0)), value)
-        return srgb_to_linear(value) if self.srgb else value
+        return srgb_to_linear(value) if self.srgb else np.ascontiguousarray(value)
 
-    def _bilinear(self, c: np.ndarray, u: np.ndarray, v: np.ndarray, wrap_v: bool) -> np.ndarray:
-        """Bilinear samples of the planes c (k, H*W): (k, N)."""
-        return self._planes(c, self._corners(u, v, wrap_v))
-
-    @staticmethod
-    def _planes(c: np.ndarray, corners) -> np.ndarray:
+    def _filtered(self, corners) -> np.ndarray:
+        """(3 or 4, N) bilinear blend of the four gathered corners."""
         (i00, i01, i10, i11), fx, fy = corners
-        fx, fy = fx[None, :], fy[None, :]
-        top = np.take(c, i00, axis=1) * (1 - fx) + np.take(c, i01, axis=1) * fx
-        bot = np.take(c, i10, axis=1) * (1 - fx) + np.take(c, i11, axis=1) * fx
+        top = self.gather(i00) * (1 - fx) + self.gather(i01) * fx
+        bot = self.gather(i10) * (1 - fx) + self.gather(i11) * fx
         return top * (1 - fy) + bot * fy
 
     def _corners(self, u: np.ndarray, v: np.ndarray, wrap_v: bool):

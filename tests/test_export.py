@@ -536,8 +536,9 @@ def test_image_textures_srgb_float_and_non_color():
     assert len(textures) == 3  # one per image, shared by the materials that use it
     # 8-bit sRGB stays encoded and flagged: the kernel decodes after filtering, as Cycles does.
     assert result.scene.texture_srgb == (True, False, False)
-    np.testing.assert_allclose(textures[0], rows[..., :3], atol=1e-6)
-    np.testing.assert_allclose(textures[1], rows[..., :3], atol=1e-6)
+    assert textures[0].dtype == textures[1].dtype == np.uint8  # 8-bit images stay bytes: k stands for k / 255
+    np.testing.assert_allclose(textures[0] / 255, rows[..., :3], atol=1e-6)
+    np.testing.assert_allclose(textures[1] / 255, rows[..., :3], atol=1e-6)
     np.testing.assert_allclose(textures[2], rows[..., :3] * 4, atol=1e-6)
     rows = [material_row(result, m) for m in range(1, 6)]
     assert [r[1] for r in rows] == [0, 1, 2, 0, -1]

@@ -6,7 +6,9 @@
 
 Both read a camera's lens, sensor, shift, clipping and depth of field (_lens), the pixel filter and the
 panorama alike. Blender's camera looks down its local -Z with +Y up, as the kernel's, so world matrices are
-used as they are (scale removed). Also here: the render resolution and the render region.
+used as they are (scale removed). A camera whose focal length, sensor size or orthographic scale is zero
+or not a number sees nothing of the scene, as in Cycles: it renders the world along its view axis, with a
+warning. Also here: the render resolution and the render region.
 """
 from __future__ import annotations
 
@@ -63,6 +65,11 @@ def export_camera(camera_ob, scene, width: int, height: int, warnings: list[str]
                         f"50 mm lens")
         return Camera(**frame)
     lens, sensor, fields = _lens(camera_ob)
+    problem = degenerate_view(fields["kind"], lens, sensor, fields["ortho_scale"], camera_ob.data.sensor_fit)
+    if problem is not None:
+        warnings.append(f"Camera '{camera_ob.name}': {problem}, so it sees nothing of the scene (as in Cycles): "
+                        f"rendered the world along its view axis")
+        return blind_camera(**frame)
     if fields["kind"] == "PANO":
         from .panorama import export_panorama
         panorama_type, panorama = export_panorama(camera_ob, scene, width, height, warnings)
@@ -80,6 +87,33 @@ def _lens(camera_ob) -> tuple[float, float, dict]:
         fields.update(depth_of_field(camera_ob, cam.type))
     sensor = cam.sensor_height if cam.sensor_fit == "VERTICAL" else cam.sensor_width
     return cam.lens, sensor, fields
+
+
+def perspective_fov(lens: float, sensor: float) -> float | None:
+    """The field of view 2 atan(sensor / (2 lens)) of a perspective lens, radians; None when it is not in
+    (0, pi): a focal length or sensor size of zero, negative or not a number (Blender's interface stops
+    at 1 mm, but a script can set NaN and a file can hold anything)."""
+    with np.errstate(all="ignore"):
+        fov = float(2.0 * np.arctan(np.float64(sensor) / (2.0 * np.float64(lens))))
+    return fov if 0.0 < fov < math.pi and lens > 0 and sensor > 0 else None
+
+
+def degenerate_view(kind: str, lens: float, sensor: float, ortho_scale: float, sensor_fit: str) -> str | None:
+    """What makes a camera's projection degenerate (its rays all start at one point or leave along the
+    image plane, or are not numbers: Cycles' camera then sees no geometry), or None."""
+    if kind == "ORTHO":
+        return None if 0.0 < ortho_scale < math.inf else f"its orthographic scale is {ortho_scale:g}"
+    if kind != "PERSP" or perspective_fov(lens, sensor) is not None:
+        return None
+    side = "height" if sensor_fit == "VERTICAL" else "width"
+    return f"its focal length is {lens:g} mm with a sensor {side} of {sensor:g} mm"
+
+
+def blind_camera(**frame) -> Camera:
+    """A camera seeing no geometry: every ray starts at the camera and ends at once, so each pixel shows
+    the world along the view axis (what a degenerate Cycles camera shows of a constant world)."""
+    return Camera(kind="ORTHO", ortho_scale=float(np.finfo(np.float32).tiny), clip_start=0.0,
+                  clip_end=float(np.finfo(np.float32).tiny), **frame)
 
 
 def pixel_filter(scene) -> dict:
@@ -212,6 +246,8 @@ def _through_camera(world_from_camera, film: dict, camera_ob, scene, camera_zoom
         lens = float(lens)
         fields = dict(kind="PERSP", sensor_fit="AUTO", shift_x=0.0, shift_y=0.0, ortho_scale=6.0,
                       clip_start=float(clip_start), clip_end=float(clip_end))
+    if degenerate_view(fields["kind"], lens, sensor, fields["ortho_scale"], fields["sensor_fit"]) is not None:
+        return blind_camera(world_from_camera=world_from_camera, **film)
     width, height = film["width"], film["height"]
     fac = camera_zoom_factor(camera_zoom)
     fit = fields["sensor_fit"]

@@ -1,17 +1,22 @@
-"""Materials and images: Blender shader node trees -> kernel Shaders (closures with their inputs), images ->
-texture arrays.
+"""Materials: Blender shader node trees -> kernel Shaders (closures with their inputs); the images they read
+are loaded by images.py.
 
-This module owns the reading of shader node trees (also used by world.py) and of image pixels.
+This module owns the reading of shader node trees (also used by world.py).
 Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
 and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
 Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Emission, Holdout; Subsurface Scattering
 as diffuse); each closure keeps its inputs and the Mix factors above it, and the kernel builds Cycles'
 closures from them (kernels.shading.nodes).
 
+- Constant values that are not numbers read 0 (Cycles drops a closure whose weight is not a number), and
+  a constant emission brighter than lights.MAX_LIGHT_RADIANCE is clamped to it, as lights are; each warned.
 - Inputs: a constant, an RGB or Value node, or an Image Texture's Color or Alpha output looked up with
   the mesh's render UV map. Any other node feeding an input: the socket's own value, with a warning
   naming the material, the node and the input.
-- Reroutes, muted links, muted nodes and node groups are seen through, as Blender evaluates them.
+- Reroutes, muted links, muted nodes and node groups are seen through, as Blender evaluates them; links
+  Blender marks invalid are left out, as Cycles leaves them out, with a warning. A tree holding a loop
+  (or reading a group that holds one) renders black, as in Cycles, with a warning naming the loop.
+  Chains and nesting of any depth are read (engine/export/graph.py).
 - Any other shader node: DEFAULT_ALBEDO grey diffuse, with a warning. Nothing connected to the Surface
   (or no output node): black, as in Cycles. Objects without a material: Cycles' default surface, a
   Principled BSDF with its defaults (DEFAULT_SURFACE). Volume and Displacement outputs: ignored with a warning.
@@ -22,31 +27,27 @@ closures from them (kernels.shading.nodes).
   export. Anything else feeding those inputs (Bump, Object-space normal maps, radial tangents), thin film:
   ignored with a warning.
 
-Images: 8-bit images come back from Blender undecoded. Those in an sRGB space are handed to the kernel
-sRGB-encoded and flagged, so it decodes them after filtering as Cycles does (the world's HDRI is decoded
-here); Non-Color and linear ones are used as stored. Float images come back already scene linear. An image
-that cannot be loaded renders MISSING_IMAGE_COLOR, as in Cycles, with a warning naming it. Alpha is kept
-for images that have it (the Image Texture's Alpha output).
+An image that cannot be loaded renders MISSING_IMAGE_COLOR, as in Cycles, with a warning naming it.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ...kernels import Materials
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
-from ...kernels.textures import srgb_to_linear
-from .nodes import ProgramBuilder
+from .images import ImageTextures
+from .graph import indexed_links, invalid_links, links_into, node_loop, run_nested
+from .lights import MAX_LIGHT_RADIANCE
+from .nodes import ProgramBuilder, socket_has_nan
 
 DEFAULT_ALBEDO = 0.8
 MISSING_IMAGE_COLOR = (1.0, 0.0, 1.0)
 BLACK3 = (0.0, 0.0, 0.0)
 WHITE3 = (1.0, 1.0, 1.0)
 GREY3 = (DEFAULT_ALBEDO,) * 3
-
-# Byte images in these colour spaces (besides data ones such as Non-Color) hold linear values already.
-LINEAR_BYTE_SPACES = ("Linear Rec.709", "scene_linear")
 
 
 # ---- Node trees -------------------------------------------------------------------------------------
@@ -96,7 +97,7 @@ def output_node(tree):
 
 
 def _live_link(socket):
-    return next((lk for lk in socket.links if lk.is_valid and not lk.is_muted), None)
+    return next((lk for lk in links_into(socket) if lk.is_valid and not lk.is_muted), None)
 
 
 def _passed_through(node, output):
@@ -124,109 +125,6 @@ def rgb(value) -> tuple:
     return tuple(float(x) for x in np.maximum(c, 0.0))
 
 
-# ---- Images -----------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class ImagePixels:
-    """An image's pixels as Blender holds them.
-
-    array : (H, W, C) float32, C in {1, 3, 4} (alpha only where asked for and not all 1), row 0 at the
-        bottom, finite and non-negative.
-    srgb : the values are sRGB-encoded (an 8-bit image in an sRGB space); the kernel decodes them after
-        filtering, as Cycles does. Otherwise they are linear.
-    """
-    array: np.ndarray
-    srgb: bool
-
-    def linear(self) -> np.ndarray:
-        return srgb_to_linear(self.array) if self.srgb else self.array
-
-
-def read_image(image, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
-    """An image's pixels; None (with a warning) when Blender cannot load it. alpha: keep the alpha
-    channel when the image has one that is not 1 everywhere."""
-    n = len(image.pixels)  # asking for the pixels loads the image (file, packed or generated)
-    width, height = image.size
-    if n == 0 or width * height == 0:
-        warnings.append(f"Image '{image.name}' could not be loaded ({image.filepath or 'no file'}): "
-                        f"rendered magenta")
-        return None
-    flat = np.empty(n, np.float32)
-    image.pixels.foreach_get(flat)
-    channels = n // (width * height)
-    pixels = flat.reshape(height, width, channels)
-    keep_alpha = alpha and channels == 4 and image.alpha_mode != "NONE" and bool(np.any(pixels[:, :, 3] < 1.0))
-    pixels = pixels[:, :, :4 if keep_alpha else 3 if channels >= 3 else 1]
-    if keep_alpha and _associates_alpha(image) and not image.is_float:
-        # Cycles stores colour associated with alpha; Blender's float buffers already are, byte images
-        # with straight alpha are associated here (in their stored encoding, as Cycles' loader does).
-        pixels = pixels.copy()
-        pixels[:, :, :3] *= pixels[:, :, 3:4]
-    if image.is_float:  # float files (EXR, HDR) may hold negative or non-finite values; light cannot
-        return ImagePixels(np.where(np.isfinite(pixels) & (pixels > 0), pixels, np.float32(0)), False)
-    matrix = _linear_space_matrix(image.colorspace_settings.name)
-    if matrix is not None and not image.colorspace_settings.is_data:
-        # A linear space other than scene linear: converted at load, as Cycles converts such byte images
-        # (to half floats; out-of-gamut values stay negative, as there).
-        pixels = pixels.copy()
-        pixels[:, :, :3] = (pixels[:, :, :3] @ matrix.T).astype(np.float16)
-        return ImagePixels(pixels, False)
-    return ImagePixels(np.ascontiguousarray(pixels), _is_srgb(image, warnings))
-
-
-def _associates_alpha(image) -> bool:
-    """Whether Cycles stores this image's colour premultiplied by its alpha (not for data, channel-packed
-    or ignored alpha), and the image holds it straight."""
-    return not image.colorspace_settings.is_data and image.alpha_mode == "STRAIGHT"
-
-
-# Linear colour spaces of Blender's configuration, with the mathutils conversion to scene linear (Blender's
-# OCIO): a byte image in one of them holds linear values in those primaries.
-_LINEAR_SPACES = {"ACEScg": "from_acescg_to_scene_linear", "ACES2065-1": "from_aces_to_scene_linear",
-                  "Linear Rec.2020": "from_rec2020_linear_to_scene_linear",
-                  "Linear CIE-XYZ D65": "from_xyz_d65_to_scene_linear"}
-
-
-def _linear_space_matrix(name: str) -> np.ndarray | None:
-    """(3, 3) float32 matrix taking RGB in the linear space `name` to scene linear, None for others."""
-    method = _LINEAR_SPACES.get(name)
-    if method is None:
-        return None
-    from mathutils import Color
-    convert = getattr(Color, method)
-    return np.array([tuple(convert(Color(e))) for e in np.eye(3)], np.float32).T
-
-
-def _is_srgb(image, warnings: list[str]) -> bool:
-    """Whether an 8-bit image holds sRGB-encoded values (Blender returns them undecoded)."""
-    settings = image.colorspace_settings
-    if settings.is_data or settings.name in LINEAR_BYTE_SPACES:
-        return False
-    if settings.name != "sRGB":
-        warnings.append(f"Image '{image.name}': colour space '{settings.name}' is not supported for 8-bit "
-                        f"images (sRGB, Non-Color and the linear spaces are), read as sRGB")
-    return True
-
-
-class ImageTextures:
-    """The texture list of one export: one array per image, shared by every material using it."""
-
-    def __init__(self, warnings: list[str]):
-        self.loaded: list[ImagePixels] = []
-        self._index: dict[str, int | None] = {}
-        self._warnings = warnings
-
-    def index(self, image) -> int | None:
-        """The image's texture index, None when it cannot be loaded."""
-        key = image.name_full
-        if key not in self._index:
-            pixels = read_image(image, self._warnings, alpha=True)
-            self._index[key] = None if pixels is None else len(self.loaded)
-            if pixels is not None:
-                self.loaded.append(pixels)
-        return self._index[key]
-
-
 # ---- Materials --------------------------------------------------------------------------------------
 
 # Shader nodes Ember renders -> kernel closure kinds, with the inputs it reads (Blender 5.0 names).
@@ -250,6 +148,8 @@ CLOSURE_NODES = {
     # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
     "ShaderNodeSubsurfaceScattering": ("DIFFUSE", ("Color",)),
 }
+# The (colour, strength) inputs of the closures that emit.
+EMISSION_INPUTS = {"EMISSION": ("Color", "Strength"), "PRINCIPLED": ("Emission Color", "Emission Strength")}
 # Closure inputs that take a direction from a node: a Normal Map (normals) or a Tangent node.
 NORMAL_INPUTS = ("Normal", "Coat Normal")
 # Inputs Ember does not render yet, each with the value at which it has no effect.
@@ -325,7 +225,7 @@ class MaterialTable:
 
     @property
     def textures(self) -> tuple:
-        """SceneArrays.textures: (H, W, C) float32 arrays."""
+        """SceneArrays.textures: (H, W, C) uint8 or float32 arrays (images.ImagePixels)."""
         return tuple(image.array for image in self.images.loaded)
 
     @property
@@ -342,10 +242,20 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
     """One material's shader. Everything Ember cannot render goes into a single warning line. The UV
     maps whose tangents it reads are appended to uv_maps ('' for the render UV map), the mesh attributes
     its node program reads added to attributes."""
-    reader = _MaterialReader(images, material.pass_index)
     tree = material.node_tree
     if tree is None:  # a material without nodes renders its viewport colour, as in Cycles
         return diffuse_shader(rgb(material.diffuse_color), name=material.name)
+    loop = node_loop(tree)
+    if loop is not None:
+        warnings.append(f"Material '{material.name}': its node tree has a loop ({loop}), which Blender cannot "
+                        f"evaluate: rendered black, as in Cycles")
+        return Shader((), material.name)
+    with indexed_links():
+        return _read_tree(material, tree, _MaterialReader(images, material.pass_index), warnings, uv_maps,
+                          attributes)
+
+
+def _read_tree(material, tree, reader, warnings, uv_maps, attributes) -> Shader:
     out = output_node(tree)
     closures = () if out is None else tuple(reader.closures(source_of(out.inputs["Surface"]), ()))
     if out is not None:
@@ -356,6 +266,7 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
         displacement = out.inputs.get("Displacement")
         if displacement is not None and source_of(displacement).node is not None:
             reader.issues.append("Displacement output is not supported, ignored")
+    reader.issues.extend(invalid_links(tree))
     if reader.issues:
         warnings.append(f"Material '{material.name}': " + "; ".join(dict.fromkeys(reader.issues)))
     if uv_maps is not None:
@@ -381,6 +292,10 @@ class _MaterialReader:
 
     def closures(self, source: Source, factors: tuple) -> list[Closure]:
         """The closures of the shader tree feeding a shader socket, with their Mix Shader factors."""
+        return run_nested(self._closures(source, factors))
+
+    def _closures(self, source: Source, factors: tuple):
+        """Step (engine/export/graph.py) of closures()."""
         node, groups = source.node, source.groups
         if node is None:  # nothing connected: Cycles renders black
             return []
@@ -390,19 +305,22 @@ class _MaterialReader:
             first, second = (source_of(node.inputs[i], groups) for i in (1, 2))
             out = []
             if fac.varies or fac.value[0] < 1.0:
-                out += self.closures(first, factors + ((fac, False),))
+                out += yield self._closures(first, factors + ((fac, False),))
             if fac.varies or fac.value[0] > 0.0:
-                out += self.closures(second, factors + ((fac, True),))
+                out += yield self._closures(second, factors + ((fac, True),))
             return out
         if kind == "ShaderNodeAddShader":
-            return [c for i in (0, 1) for c in self.closures(source_of(node.inputs[i], groups), factors)]
+            out = []
+            for i in (0, 1):
+                out += yield self._closures(source_of(node.inputs[i], groups), factors)
+            return out
         if kind not in CLOSURE_NODES:
             self.issues.append(f"{node.bl_label} '{node.name}' is not supported, rendered grey ({DEFAULT_ALBEDO})")
             return [Closure("DIFFUSE", (("Color", Param.of(GREY3)),), (), factors)]
         closure_kind, names = CLOSURE_NODES[kind]
         sockets = {s.identifier: s for s in node.inputs}  # unavailable sockets are not found by name
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
-        inputs += self.directions(node, groups)
+        inputs = self.limit_emission(node, closure_kind, inputs) + self.directions(node, groups)
         self.check_unsupported(node, closure_kind, groups)
         return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
 
@@ -467,18 +385,46 @@ class _MaterialReader:
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
 
+    def limit_emission(self, node, kind: str, inputs: tuple) -> tuple:
+        """The closure's inputs, a constant emission brighter than MAX_LIGHT_RADIANCE clamped to it (with a
+        warning), as the light export clamps lamps: past it float32 arithmetic overflows (Cycles then
+        drops the sample's light, or its pixel sums become inf) and the denoiser returns black."""
+        names = EMISSION_INPUTS.get(kind)
+        params = dict(inputs)
+        if names is None or params[names[1]].link is not None:
+            return inputs
+        color, strength = params[names[0]], params[names[1]]
+        scale = max(abs(v) for v in color.value) if color.link is None else 1.0
+        if not abs(strength.value[0]) * scale > MAX_LIGHT_RADIANCE:
+            return inputs
+        limited = replace(strength, value=(math.copysign(MAX_LIGHT_RADIANCE / scale, strength.value[0]),))
+        self.issues.append(f"{node.bl_label} '{node.name}' {names[1]} {strength.value[0]:g} is too bright for "
+                           f"Ember's float32 arithmetic: clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
+        return tuple((name, limited if name == names[1] else p) for name, p in inputs)
+
+    def constant(self, socket, channels: int, owner) -> tuple:
+        """A socket's own value (socket_value), saying so when part of it is not a number (read as 0, as
+        Cycles drops a closure whose weight is not a number)."""
+        if socket_has_nan(socket):
+            self.issues.append(f"{owner.bl_label} '{owner.name}' {socket.name} is not a number, read as 0")
+        return _socket_value(socket, channels)
+
     def param(self, socket, groups, channels: int, node) -> Param:
         """An input as a constant, or a constant times an Image Texture's Color or Alpha."""
+        return run_nested(self._param(socket, groups, channels, node))
+
+    def _param(self, socket, groups, channels: int, node):
+        """Step (engine/export/graph.py) of param()."""
         source = source_of(socket, groups)
         if source.node is None or source.kind in ("ShaderNodeRGB", "ShaderNodeValue"):
-            return Param.of(_socket_value(source.socket, channels))
+            return Param.of(self.constant(source.socket, channels, source.node or node))
         if source.kind == "ShaderNodeTexImage" and _plain_image(source):
             return self.image_param(source)
         if source.kind in ("ShaderNodeSeparateColor", "ShaderNodeSeparateRGB") and \
                 getattr(source.node, "mode", "RGB") == "RGB":
             # One channel of an image (glTF's packed metallic-roughness and occlusion maps) or a constant.
             channel = ("Red", "Green", "Blue", "R", "G", "B").index(source.socket.identifier) % 3
-            inner = self.param(source.node.inputs[0], source.groups, 3, source.node)
+            inner = yield self._param(source.node.inputs[0], source.groups, 3, source.node)
             if inner.link is not None:
                 return self.program_param(socket, groups, channels)
             if inner.texture < 0:

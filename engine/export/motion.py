@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...kernels import motion as kernel_motion
+from .camera import perspective_fov
 from .mesh import instance_key
 
 CURVE_SAMPLES = 257  # Blender 5.0 reads the shutter curve at 257 points (curvemapping_to_array, size 256)
@@ -131,7 +132,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
         if not np.allclose(keys, keys[len(keys) // 2], rtol=0, atol=1e-7):
             samples.objects[key] = keys
     centre = _fov(camera_ob) if camera_ob is not None else None
-    if len(fovs) == 2 and centre is not None and fovs != [centre, centre]:
+    if len(fovs) == 2 and centre is not None and None not in fovs and fovs != [centre, centre]:
         samples.camera_fov = (fovs[0], fovs[1])  # Cycles' perspective motion (camera.h: perspective_pre/post)
     if camera_keys:
         stride = (largest - 1) // (camera_keys - 1)
@@ -196,12 +197,13 @@ def vector_fields(samples: VectorSamples | None, geometry, camera_matrix) -> dic
 
 
 def _fov(camera_ob) -> float | None:
-    """A perspective camera's field of view across its fitted sensor, None for anything else."""
+    """A perspective camera's field of view across its fitted sensor, None for anything else (or a
+    degenerate lens)."""
     cam = getattr(camera_ob, "data", None)
     if camera_ob.type != "CAMERA" or cam.type != "PERSP":
         return None
     sensor = cam.sensor_height if cam.sensor_fit == "VERTICAL" else cam.sensor_width
-    return float(2.0 * math.atan(sensor / (2.0 * cam.lens)))
+    return perspective_fov(cam.lens, sensor)
 
 
 def _track_deformation(ob, key, step: int, first: dict, deforming: set) -> None:

@@ -9,7 +9,9 @@ folding). Reroutes, muted nodes and groups are seen through (materials.source_of
 a procedural texture reads Generated coordinates, of an Image Texture the render UV map, as in Cycles.
 
 A node Ember cannot evaluate gives its consumer that input's own value, with a warning naming the node
-and the input. Cycles in the graph (Blender refuses them, but a file may hold one) are cut the same way.
+and the input. A tree holding a loop renders black before it gets here (graph.node_loop); one met while
+compiling anyway is cut the same way. Compilers that read inputs are steps run by graph.run_nested,
+so a chain of any length compiles without recursion.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from ...kernels.shading import sky
 from ...kernels.shading.ops import OPS, PURE_OPS
 from ...kernels.shading.program import constant, convert
 from . import node_tables
+from .graph import run_nested
 
 F32 = np.float32
 
@@ -36,7 +39,7 @@ _OPTION_TYPES = ("ENUM", "BOOLEAN", "INT", "FLOAT", "STRING")
 class ProgramBuilder:
     """Compiles the nodes feeding one material's closure inputs into one program.
 
-    images : materials.ImageTextures of the export (image nodes register their images there).
+    images : images.ImageTextures of the export (image nodes register their images there).
     issues : the material's warning list (what cannot be evaluated, named).
     attributes : the export's set of attribute names the programs read (the mesh export reads them).
     """
@@ -57,14 +60,21 @@ class ProgramBuilder:
     # ---------------------------------------------------------------- inputs
     def input(self, socket, groups: tuple, want: str | None = None):
         """What feeds an input socket: a Ref into the program, or a constant tuple (1 or 3 floats)."""
+        return run_nested(self.read(socket, groups, want))
+
+    def read(self, socket, groups: tuple, want: str | None = None):
+        """input() as a step for compilers (engine/export/graph.py): `value = yield builder.read(...)`."""
         from .materials import source_of
         want = want or _TYPES.get(socket.type, "VALUE")
         source = source_of(socket, groups)
         if source.node is None:
+            if socket_has_nan(source.socket):
+                node = source.socket.node
+                self.issues.append(f"{node.bl_label} '{node.name}' {source.socket.name} is not a number, read as 0")
             return socket_constant(source.socket, want)
-        return self.output(source, socket, want)
+        return (yield from self._output(source, socket, want))
 
-    def output(self, source, consumer, want: str):
+    def _output(self, source, consumer, want: str):
         """A node output (materials.Source) as the consumer reads it: a Ref, or a folded constant."""
         node, groups = source.node, source.groups
         key = (node.as_pointer(), tuple(g.as_pointer() for g in groups))
@@ -75,7 +85,7 @@ class ProgramBuilder:
         if key not in self._memo:
             self._visiting.add(key)
             try:
-                self._memo[key] = self._compile(node, groups, consumer)
+                self._memo[key] = yield self._compile(node, groups, consumer)
             finally:
                 self._visiting.discard(key)
         compiled = self._memo[key]
@@ -119,6 +129,7 @@ class ProgramBuilder:
         return len(self.ops) - 1
 
     def _compile(self, node, groups, consumer):
+        """The node's compiler: its result, or the step that computes it."""
         compiler = self._compilers.get(node.bl_idname)
         if compiler is None:
             self.issues.append(f"{node.bl_label} node '{node.name}' feeding {consumer.name} is not supported, "
@@ -127,9 +138,10 @@ class ProgramBuilder:
         return compiler(self, node, groups)
 
     # ---------------------------------------------------------------- helpers for compilers
-    def node_inputs(self, node, groups, *, vector_default: str | None = None) -> dict:
-        """Every enabled input of a node by identifier. An unlinked Vector reads the coordinate Cycles
-        gives it (vector_default: 'Generated' or 'UV'), a Normal the shading normal (left out)."""
+    def node_inputs(self, node, groups, *, vector_default: str | None = None):
+        """Step: every enabled input of a node by identifier (a dict). An unlinked Vector reads the
+        coordinate Cycles gives it (vector_default: 'Generated' or 'UV'), a Normal the shading normal
+        (left out)."""
         from .materials import source_of
         out = {}
         for s in node.inputs:
@@ -141,7 +153,7 @@ class ProgramBuilder:
             elif not linked and s.identifier == "Normal" and s.hide_value:
                 continue
             else:
-                out[s.identifier] = self.input(s, groups)
+                out[s.identifier] = yield self.read(s, groups)
         return out
 
     def coordinate(self, name: str) -> Ref:
@@ -172,6 +184,12 @@ def node_options(node) -> dict:
             value = tuple(value)
         out[prop.identifier] = value
     return out
+
+
+def socket_has_nan(socket) -> bool:
+    """Whether an unlinked socket's value is, in part, not a number (a script or a file can set one)."""
+    value = getattr(socket, "default_value", 0.0)
+    return bool(np.isnan(np.asarray(value[:] if hasattr(value, "__len__") else value, np.float64)).any())
 
 
 def socket_constant(socket, want: str) -> tuple:
@@ -215,7 +233,9 @@ def fold(op: Op) -> dict | None:
 
 
 # ---------------------------------------------------------------- node compilers
-# compiler(builder, node, groups) -> op index, a dict of constant outputs, or None (warned).
+# compiler(builder, node, groups) -> op index, a dict of constant outputs, or None (warned); a compiler
+# that reads inputs is a step (engine/export/graph.py): `value = yield builder.read(socket, groups)`, or
+# `inputs = yield builder.node_inputs(node, groups)`, then returns its result.
 
 def _linked_outputs(node) -> tuple:
     return tuple(o.identifier for o in node.outputs if o.is_linked) or tuple(o.identifier for o in node.outputs)
@@ -272,8 +292,8 @@ def _vertex_color(builder, node, groups):
 
 def _plain(builder, node, groups):
     """A node read with all its inputs and options as they are."""
-    return builder.add(node.bl_idname, builder.node_inputs(node, groups), node_options(node),
-                       outputs=_linked_outputs(node))
+    inputs = yield builder.node_inputs(node, groups)
+    return builder.add(node.bl_idname, inputs, node_options(node), outputs=_linked_outputs(node))
 
 
 def _light_path(builder, node, groups):
@@ -292,8 +312,8 @@ def _normal_map(builder, node, groups):
         return None
     if node.space == "TANGENT":
         builder.tangent_uv_maps.append(node.uv_map)
-    inputs = {"Color": builder.input(node.inputs["Color"], groups, "RGBA"),
-              "Strength": builder.input(node.inputs["Strength"], groups, "VALUE")}
+    inputs = {"Color": (yield builder.read(node.inputs["Color"], groups, "RGBA")),
+              "Strength": (yield builder.read(node.inputs["Strength"], groups, "VALUE"))}
     return builder.add(node.bl_idname, inputs, {"space": node.space})
 
 
@@ -311,14 +331,15 @@ def _image(builder, node, groups):
     options = {"texture": texture, "interpolation": node.interpolation, "extension": node.extension,
                "projection": node.projection, "projection_blend": float(node.projection_blend),
                "unassociate": bool(unassociate)}
-    return builder.add(node.bl_idname, builder.node_inputs(node, groups, vector_default="UV"), options)
+    inputs = yield builder.node_inputs(node, groups, vector_default="UV")
+    return builder.add(node.bl_idname, inputs, options)
 
 
 def _texture(builder, node, groups):
     """A procedural texture: an unlinked Vector reads Generated coordinates."""
     _check_texture_mapping(builder, node)
-    return builder.add(node.bl_idname, builder.node_inputs(node, groups, vector_default="Generated"),
-                       node_options(node), outputs=_linked_outputs(node))
+    inputs = yield builder.node_inputs(node, groups, vector_default="Generated")
+    return builder.add(node.bl_idname, inputs, node_options(node), outputs=_linked_outputs(node))
 
 
 def _check_texture_mapping(builder, node) -> None:
@@ -334,14 +355,15 @@ def _check_texture_mapping(builder, node) -> None:
 
 def _color_ramp(builder, node, groups):
     table, interpolate = node_tables.color_ramp_table(node.color_ramp)
-    return builder.add(node.bl_idname, builder.node_inputs(node, groups), {"table": table, "interpolate": interpolate})
+    inputs = yield builder.node_inputs(node, groups)
+    return builder.add(node.bl_idname, inputs, {"table": table, "interpolate": interpolate})
 
 
 def _curves(baker):
     def compile_curves(builder, node, groups):
         table, lo, hi, extrapolate = baker(node.mapping)
-        return builder.add(node.bl_idname, builder.node_inputs(node, groups),
-                           {"table": table, "min_x": lo, "max_x": hi, "extrapolate": extrapolate})
+        inputs = yield builder.node_inputs(node, groups)
+        return builder.add(node.bl_idname, inputs, {"table": table, "min_x": lo, "max_x": hi, "extrapolate": extrapolate})
     return compile_curves
 
 
@@ -355,7 +377,8 @@ def _environment(builder, node, groups):
         texture = -1 if index is None else index
     options = {"texture": texture, "interpolation": node.interpolation, "projection": node.projection,
                "extension": "REPEAT", "unassociate": False}
-    return builder.add(node.bl_idname, builder.node_inputs(node, groups, vector_default="Generated"), options)
+    inputs = yield builder.node_inputs(node, groups, vector_default="Generated")
+    return builder.add(node.bl_idname, inputs, options)
 
 
 def _sky(builder, node, groups):
@@ -368,7 +391,7 @@ def _sky(builder, node, groups):
         return {"Color": (0.0, 0.0, 0.0)}
     accepted = inspect.signature(sky.precompute_sky).parameters
     settings = {k: v for k, v in node_options(node).items() if k in accepted}
-    inputs = builder.node_inputs(node, groups, vector_default="Generated")
+    inputs = yield builder.node_inputs(node, groups, vector_default="Generated")
     inputs.setdefault("Vector", builder.coordinate("Generated"))
     return builder.add(node.bl_idname, inputs, {"precomputed": sky.precompute_sky(**settings)})
 
@@ -381,12 +404,13 @@ def _tangent(builder, node, groups):
 
 def _normal(builder, node, groups):
     direction = tuple(float(v) for v in node.outputs["Normal"].default_value)
-    return builder.add(node.bl_idname, builder.node_inputs(node, groups), {"direction": direction},
-                       outputs=_linked_outputs(node))
+    inputs = yield builder.node_inputs(node, groups)
+    return builder.add(node.bl_idname, inputs, {"direction": direction}, outputs=_linked_outputs(node))
 
 
 def _bump(builder, node, groups):
-    return builder.add(node.bl_idname, builder.node_inputs(node, groups), {"invert": bool(node.invert)})
+    inputs = yield builder.node_inputs(node, groups)
+    return builder.add(node.bl_idname, inputs, {"invert": bool(node.invert)})
 
 
 COMPILERS = {

@@ -2,7 +2,9 @@
 node program.
 
 Supported, with Cycles as the reference:
-- No world: black. A world without a node tree: its colour.
+- No world: black. A world without a node tree: its colour. A Strength that is not a number reads 0
+  (black, as in Cycles); a constant world brighter than lights.MAX_LIGHT_RADIANCE is clamped to it, as
+  lights are; both warned.
 - World Output <- Background (or Emission) with a constant Color and Strength: a constant world.
 - The same with an Environment Texture (equirectangular) as Color, its Vector unlinked, Texture
   Coordinate (Generated or Object), or a Mapping node fed by those, with a constant Mapping and Strength:
@@ -20,9 +22,11 @@ import mathutils
 import numpy as np
 
 from ...kernels import World
-from .materials import (BLACK3, MISSING_IMAGE_COLOR, ImagePixels, ImageTextures, Source, output_node,
-                        read_image, rgb, source_of)
-from .nodes import ProgramBuilder
+from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
+from .images import ImagePixels, ImageTextures, read_image
+from .materials import BLACK3, MISSING_IMAGE_COLOR, Source, output_node, rgb, source_of
+from .lights import MAX_LIGHT_RADIANCE
+from .nodes import ProgramBuilder, socket_has_nan
 
 DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
 TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on the world
@@ -30,16 +34,23 @@ TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on
 
 def export_world(world, warnings: list[str], images=None) -> World:
     """scene.world (may be None) as a kernels.World. Problems go to `warnings` in one line. images: the
-    export's materials.ImageTextures, which world programs read their images from."""
+    export's images.ImageTextures, which world programs read their images from."""
     if world is None:  # Cycles renders black without a world
         return World(color=np.zeros(3, np.float32))
     if world.node_tree is None:
         return World(color=np.array(rgb(world.color), np.float32))
+    loop = node_loop(world.node_tree)
+    if loop is not None:
+        warnings.append(f"World '{world.name}': its node tree has a loop ({loop}), which Blender cannot "
+                        f"evaluate: rendered black, as in Cycles")
+        return World(color=np.zeros(3, np.float32))
     issues: list[str] = []
-    if _needs_program(world.node_tree):
-        result = _program_world(world, images if images is not None else ImageTextures(warnings), issues)
-    else:
-        result = _read_tree(world.node_tree, issues, warnings)
+    with indexed_links():
+        if _needs_program(world.node_tree):
+            result = _program_world(world, images if images is not None else ImageTextures(warnings), issues)
+        else:
+            result = _read_tree(world.node_tree, issues, warnings)
+    issues.extend(invalid_links(world.node_tree))
     if issues:
         warnings.append(f"World '{world.name}': " + "; ".join(dict.fromkeys(issues)))
     return result
@@ -55,11 +66,33 @@ def _read_tree(tree, issues: list[str], warnings: list[str]) -> World:
         issues.append(f"{surface.node.bl_label} is not supported, rendered as constant grey")
         return World(color=np.array(DEFAULT_WORLD_COLOR, np.float32))
     node, groups = surface.node, surface.groups
-    strength = max(float(source_of(node.inputs["Strength"], groups).socket.default_value), 0.0)
+    strength = _strength(source_of(node.inputs["Strength"], groups).socket, node, issues)
     color = source_of(node.inputs["Color"], groups)
     if color.node is None or color.kind == "ShaderNodeRGB":
-        return World(color=np.array(rgb(color.socket.default_value), np.float32), strength=strength)
-    return _environment(color, strength, issues, warnings)
+        if socket_has_nan(color.socket):
+            issues.append(f"{node.bl_label} Color is not a number, read as 0")
+        value = np.array(rgb(color.socket.default_value), np.float32)
+        return World(color=value, strength=_limited(strength, float(value.max()), node, issues))
+    return _environment(color, strength, node, issues, warnings)
+
+
+def _strength(socket, node, issues: list[str]) -> float:
+    """A Background's constant Strength, >= 0; one that is not a number reads 0 (Cycles renders such a
+    world black), with a warning."""
+    if socket_has_nan(socket):
+        issues.append(f"{node.bl_label} Strength is not a number, read as 0")
+        return 0.0
+    return max(float(socket.default_value), 0.0)
+
+
+def _limited(strength: float, peak: float, node, issues: list[str]) -> float:
+    """strength, clamped (with a warning) so that strength x peak (the brightest colour it scales) stays
+    within MAX_LIGHT_RADIANCE, as the lights and materials are clamped."""
+    if not strength * peak > MAX_LIGHT_RADIANCE:
+        return strength
+    issues.append(f"{node.bl_label} Strength {strength:g} is too bright for Ember's float32 arithmetic: "
+                  f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
+    return MAX_LIGHT_RADIANCE / peak
 
 
 def _needs_program(tree) -> bool:
@@ -95,9 +128,14 @@ def _program_world(world, images, issues: list[str]) -> World:
     """The world's shader tree as a program whose output is the background radiance."""
     builder = ProgramBuilder(images, issues, set(), [])
     out = output_node(world.node_tree)
-    radiance = _radiance_of(builder, source_of(out.inputs["Surface"]), issues)
+    radiance = run_nested(_radiance_of(builder, source_of(out.inputs["Surface"]), issues))
     if isinstance(radiance, tuple):  # folded: a constant world after all
-        return World(color=np.maximum(np.array(radiance, np.float32), 0.0))
+        color = np.maximum(np.array(radiance, np.float64), 0.0)
+        if color.max() > MAX_LIGHT_RADIANCE:
+            issues.append(f"its radiance {color.max():g} is too bright for Ember's float32 arithmetic: clamped "
+                          f"to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
+            color *= MAX_LIGHT_RADIANCE / color.max()
+        return World(color=color.astype(np.float32))
     return World(color=np.zeros(3, np.float32), program=builder.program(), output=radiance,
                  map_resolution=map_resolution(world))
 
@@ -110,25 +148,14 @@ def map_resolution(world) -> int:
     settings = getattr(world, "cycles", None)
     if settings is not None and getattr(settings, "sampling_method", "AUTOMATIC") == "MANUAL":
         return max(int(settings.sample_map_resolution), 4)
-    widths = [int(node.image.size[0]) for node in _tree_nodes(world.node_tree)
+    widths = [int(node.image.size[0]) for node in tree_nodes(world.node_tree)
               if node.bl_idname == "ShaderNodeTexEnvironment" and node.image is not None and node.image.size[0] > 0]
     return int(np.clip(max(widths), 256, 8192)) if widths else 1024
 
 
-def _tree_nodes(tree, seen=None):
-    """Every node of a node tree and of the groups inside it."""
-    seen = set() if seen is None else seen
-    if tree is None or tree.name_full in seen:
-        return
-    seen.add(tree.name_full)
-    for node in tree.nodes:
-        yield node
-        if node.bl_idname == "ShaderNodeGroup":
-            yield from _tree_nodes(node.node_tree, seen)
-
-
 def _radiance_of(builder, source: Source, issues: list[str]):
-    """The radiance of a world shader socket's tree: a Ref (RGBA) or a constant triple."""
+    """Step (engine/export/graph.py): the radiance of a world shader socket's tree, a Ref (RGBA) or a
+    constant triple."""
     node, groups = source.node, source.groups
     if node is None:
         return BLACK3
@@ -137,18 +164,21 @@ def _radiance_of(builder, source: Source, issues: list[str]):
         strength = builder.input(node.inputs["Strength"], groups, "VALUE")
         return builder.vector_op("SCALE", color, strength)
     if source.kind == "ShaderNodeAddShader":
-        a, b = (_radiance_of(builder, source_of(node.inputs[i], groups), issues) for i in (0, 1))
+        a = yield _radiance_of(builder, source_of(node.inputs[0], groups), issues)
+        b = yield _radiance_of(builder, source_of(node.inputs[1], groups), issues)
         return builder.vector_op("ADD", a, b)
     if source.kind == "ShaderNodeMixShader":
         fac = builder.input(node.inputs[0], groups, "VALUE")
-        a, b = (_radiance_of(builder, source_of(node.inputs[i], groups), issues) for i in (1, 2))
+        a = yield _radiance_of(builder, source_of(node.inputs[1], groups), issues)
+        b = yield _radiance_of(builder, source_of(node.inputs[2], groups), issues)
         return builder.mix(fac, a, b)
     issues.append(f"{node.bl_label} is not supported in a world, rendered as constant grey")
     return DEFAULT_WORLD_COLOR
 
 
-def _environment(texture: Source, strength: float, issues: list[str], warnings: list[str]) -> World:
-    """A plain equirectangular Environment Texture: the HDRI world, sampled from the image itself."""
+def _environment(texture: Source, strength: float, background, issues: list[str], warnings: list[str]) -> World:
+    """A plain equirectangular Environment Texture (feeding the node `background`): the HDRI world,
+    sampled from the image itself."""
     node = texture.node
     missing = World(color=np.array(MISSING_IMAGE_COLOR, np.float32), strength=strength)  # as Cycles
     if node.image is None:
@@ -158,8 +188,9 @@ def _environment(texture: Source, strength: float, issues: list[str], warnings: 
     if pixels is None:
         return missing
     env_from_world = _env_from_world(source_of(node.inputs["Vector"], texture.groups))
-    return World(color=np.array(BLACK3, np.float32), hdri=_radiance(pixels), strength=strength,
-                 env_from_world=env_from_world)
+    hdri = _radiance(pixels)
+    return World(color=np.array(BLACK3, np.float32), hdri=hdri,
+                 strength=_limited(strength, float(hdri.max()), background, issues), env_from_world=env_from_world)
 
 
 def _radiance(pixels: ImagePixels) -> np.ndarray:

@@ -489,12 +489,10 @@ def sky(hits, inputs, op):
 
 def _image_lookup(tex, u, v, op):
     """(colour (3, n), alpha (n,)) of one image lookup, unassociated and decoded as the node asks."""
-    planes = tex.channels if tex.alpha is None else np.concatenate([tex.channels, tex.alpha])
-    values = sample_planes(planes, tex.width, tex.height, u, v, op.option("interpolation", "Linear"),
-                           op.option("extension", "REPEAT"))
+    values = sample_texture(tex, u, v, op.option("interpolation", "Linear"), op.option("extension", "REPEAT"))
     color = values[:3]
-    alpha = values[3] if tex.alpha is not None else np.ones(len(u), F32)
-    if op.option("unassociate", False) and tex.alpha is not None:
+    alpha = values[3] if tex.has_alpha else np.ones(len(u), F32)
+    if op.option("unassociate", False) and tex.has_alpha:
         partial = (alpha != 0) & (alpha != 1)
         color = np.where(partial, color / np.where(partial, alpha, ONE), color)
     if tex.srgb:
@@ -606,8 +604,11 @@ def _taps(x: np.ndarray, size: int, interpolation: str):
     return np.stack([i, i + 1]), np.stack([ONE - t, t])
 
 
-def sample_planes(planes: np.ndarray, width: int, height: int, u, v, interpolation: str, extension: str):
-    """(C, n) filtered values of (C, H*W) texel planes (row 0 at the bottom) at (u, v)."""
+def sample_texture(tex, u, v, interpolation: str, extension: str):
+    """(C, n) filtered values of a kernels.textures.Texture at (u, v): colour (3 rows) and, for RGBA
+    textures, alpha. Each filter tap gathers just the n texels it reads (Texture.gather: as float32,
+    associated), weighs and sums them; the texture itself is never copied or converted whole."""
+    width, height = tex.width, tex.height
     u = np.nan_to_num(np.clip(u, -1e6, 1e6), nan=0.0).astype(F32)
     v = np.nan_to_num(np.clip(v, -1e6, 1e6), nan=0.0).astype(F32)
     xi, xw = _taps(u, width, interpolation)
@@ -617,11 +618,11 @@ def sample_planes(planes: np.ndarray, width: int, height: int, u, v, interpolati
     if extension == "CLIP":
         xw = xw * x_in
         yw = yw * y_in
-    out = np.zeros((len(planes), len(u)), F32)
+    out = np.zeros((4 if tex.has_alpha else 3, len(u)), F32)
     for a in range(len(yi)):
         row = yi[a] * width
         for b in range(len(xi)):
-            out += np.take(planes, row + xi[b], axis=1) * (yw[a] * xw[b])
+            out += tex.gather(row + xi[b]) * (yw[a] * xw[b])
     return out
 
 

@@ -147,8 +147,26 @@ class ProgramRun:
         """The output ref points to, converted to the type the consumer wants: (n,) or (n, 3)."""
         outputs = self._outputs.get(ref.op)
         if outputs is None:
-            outputs = self._outputs[ref.op] = self._run(ref.op)
+            self._evaluate(ref.op)
+            outputs = self._outputs[ref.op]
         return convert(outputs[ref.output], ref.type, ref.want, self.hits.n)
+
+    def _evaluate(self, target: int) -> None:
+        """Run op target and the ops it reads that have not run yet, each op's inputs first and in the
+        order they are listed: on an explicit stack, so a chain of any length runs without recursion."""
+        stack = [target]
+        while stack:
+            i = stack[-1]
+            if i in self._outputs:
+                stack.pop()
+                continue
+            waiting = [v.op for _, v in self.program.ops[i].inputs
+                       if isinstance(v, Ref) and v.op not in self._outputs]
+            if waiting:
+                stack.extend(reversed(waiting))
+                continue
+            stack.pop()
+            self._outputs[i] = self._run(i)
 
     def _run(self, i: int) -> dict:
         op = self.program.ops[i]

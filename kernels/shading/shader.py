@@ -96,11 +96,9 @@ class Shading:
         # The rest is built by kind: closures of one kind, options and plain inputs from all materials
         # become one batch over all their hits (one Principled stack per wave, not one per material).
         self._batches, self._alone = _batches(self._rest, [s.bump_map_correction for s in self.shaders])
-        # Per texture: mean R, G, B and alpha over the image (alpha 1 for images without one).
-        # (The channel rows made contiguous again: the mean sums them in the same order as ever.)
-        self._texture_means = [np.append(np.ascontiguousarray(t.channels).mean(axis=1),
-                                         t.alpha.mean() if t.alpha is not None else 1.0).astype(F32)
-                               for t in textures]
+        # Per texture: mean R, G, B and alpha over the image (alpha 1 for images without one), made when an
+        # emission estimate first asks for it.
+        self._texture_means: dict[int, np.ndarray] = {}
 
     # ---------------------------------------------------------------- per wave
     def surface(self, hit, closures: bool = True) -> SurfaceShading:
@@ -237,7 +235,9 @@ class Shading:
         """A Param's value averaged over its texture: (channels,)."""
         value = _as_channels(np.asarray(p.value, F32), channels)
         if p.texture >= 0:
-            mean = self._texture_means[p.texture]
+            mean = self._texture_means.get(p.texture)
+            if mean is None:
+                mean = self._texture_means[p.texture] = self.textures[p.texture].means()
             looked = mean[3:4] if p.alpha else mean[p.channel:p.channel + 1] if p.channel >= 0 else mean[:3]
             value = value * _as_channels(looked, channels)
         return value

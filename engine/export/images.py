@@ -1,0 +1,260 @@
+"""Images: Blender images -> the texture arrays the kernel keeps (kernels.textures.Texture), in as little
+memory as their pixels need.
+
+8-bit images stay bytes, uint8, as Cycles keeps them (uchar4; 1 byte per channel where Blender's
+image.pixels hands out 4-byte floats). A plain image file (PNG, JPEG, TIFF, not packed, not edited in
+Blender) is read straight from the file with Blender's own OpenImageIO, as Blender's loader reads it (the
+same decoder and options, grey expanded as Blender expands it, row 0 at the bottom), a block of rows at a
+time: the bytes are never held as floats, and Blender need not load its own copy. Any other 8-bit image
+(packed, generated, painted, another format) comes from image.pixels, k / 255 as float32, turned back into
+its bytes. Float images (EXR, HDR, 16-bit PNG) stay float32. Channels no texture reads (alpha that is 1
+everywhere, the copies of grey) are dropped in the array's own memory.
+
+Colour: 8-bit images in an sRGB space are handed to the kernel sRGB-encoded and flagged, so that it decodes
+them after filtering as Cycles does (the world's HDRI is decoded here); Non-Color and linear ones are used
+as stored; float images are scene linear already. Alpha is kept for images that have it (the Image
+Texture's Alpha output): 8-bit colour with straight alpha stays straight bytes, which the kernel associates
+texel by texel (Cycles stores it associated); 8-bit colour that must stay as stored (data, channel-packed or
+premultiplied alpha) goes over as float32.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...kernels.textures import BYTE_SCALE, srgb_to_linear
+
+# Byte images in these colour spaces (besides data ones such as Non-Color) hold linear values already.
+LINEAR_BYTE_SPACES = ("Linear Rec.709", "scene_linear")
+# File formats read straight from the file, with Blender's read options for each (imbuf/intern/oiio:
+# imb_load_png, imb_load_jpeg, imb_load_tiff); anything else comes through image.pixels.
+FILE_FORMATS = {"png": {"oiio:UnassociatedAlpha": 1}, "jpeg": {"jpeg:com_attributes": 0},
+                "tiff": {"oiio:UnassociatedAlpha": 1}}
+# Values per block when a whole image is walked: a few MB of temporaries at a time.
+_BLOCK = 1 << 22
+
+
+@dataclass(frozen=True)
+class ImagePixels:
+    """An image's pixels as the kernel keeps them.
+
+    array : (H, W, C), C in {1, 3, 4} (alpha only where asked for and not all 1; grey as one channel),
+        row 0 at the bottom: uint8 for 8-bit images (k stands for k / 255; with 4 channels, straight
+        colour), float32 otherwise (finite and non-negative for float images; colour associated).
+    srgb : the values are sRGB-encoded (an 8-bit image in an sRGB space); the kernel decodes them after
+        filtering, as Cycles does. Otherwise they are linear.
+    """
+    array: np.ndarray
+    srgb: bool
+
+    def linear(self) -> np.ndarray:
+        """(H, W, C) float32 linear values (colour associated with alpha)."""
+        values = _as_float(self.array, associate=self.array.shape[2] == 4)
+        return srgb_to_linear(values) if self.srgb else values
+
+
+def read_image(image, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
+    """An image's pixels; None (with a warning) when Blender cannot load it. alpha: keep the alpha
+    channel when the image has one that is not 1 everywhere."""
+    pixels = file_bytes(image)
+    if pixels is None:
+        pixels = _blender_pixels(image)
+    if pixels is None:
+        warnings.append(f"Image '{image.name}' could not be loaded ({image.filepath or 'no file'}): "
+                        f"rendered magenta")
+        return None
+    channels = pixels.shape[2]
+    one = 255 if pixels.dtype == np.uint8 else 1.0
+    keep_alpha = alpha and channels == 4 and image.alpha_mode != "NONE" and pixels[:, :, 3].min() < one
+    pixels = _narrowed(pixels, 4 if keep_alpha else 3 if channels >= 3 else 1)
+    if pixels.dtype != np.uint8:  # float files (EXR, HDR) may hold negative or non-finite values; light cannot
+        return ImagePixels(_cleaned(pixels), False)
+    matrix = _linear_space_matrix(image.colorspace_settings.name)
+    if matrix is not None and not image.colorspace_settings.is_data:
+        # A linear space other than scene linear: converted at load, as Cycles converts such byte images
+        # (to half floats; out-of-gamut values stay negative, as there).
+        pixels = _as_float(pixels, associate=keep_alpha and _associates_alpha(image))
+        pixels[:, :, :3] = (pixels[:, :, :3] @ matrix.T).astype(np.float16)
+        return ImagePixels(pixels, False)
+    srgb = _is_srgb(image, warnings)
+    if keep_alpha and not _associates_alpha(image):
+        return ImagePixels(_as_float(pixels), srgb)   # uint8 RGBA would be associated by the kernel
+    return ImagePixels(pixels, srgb)
+
+
+def _associates_alpha(image) -> bool:
+    """Whether Cycles stores this image's colour premultiplied by its alpha (not for data, channel-packed
+    or ignored alpha), and the image holds it straight."""
+    return not image.colorspace_settings.is_data and image.alpha_mode == "STRAIGHT"
+
+
+# Linear colour spaces of Blender's configuration, with the mathutils conversion to scene linear (Blender's
+# OCIO): a byte image in one of them holds linear values in those primaries.
+_LINEAR_SPACES = {"ACEScg": "from_acescg_to_scene_linear", "ACES2065-1": "from_aces_to_scene_linear",
+                  "Linear Rec.2020": "from_rec2020_linear_to_scene_linear",
+                  "Linear CIE-XYZ D65": "from_xyz_d65_to_scene_linear"}
+
+
+def _linear_space_matrix(name: str) -> np.ndarray | None:
+    """(3, 3) float32 matrix taking RGB in the linear space `name` to scene linear, None for others."""
+    method = _LINEAR_SPACES.get(name)
+    if method is None:
+        return None
+    from mathutils import Color
+    convert = getattr(Color, method)
+    return np.array([tuple(convert(Color(e))) for e in np.eye(3)], np.float32).T
+
+
+def _is_srgb(image, warnings: list[str]) -> bool:
+    """Whether an 8-bit image holds sRGB-encoded values (Blender returns them undecoded)."""
+    settings = image.colorspace_settings
+    if settings.is_data or settings.name in LINEAR_BYTE_SPACES:
+        return False
+    if settings.name != "sRGB":
+        warnings.append(f"Image '{image.name}': colour space '{settings.name}' is not supported for 8-bit "
+                        f"images (sRGB, Non-Color and the linear spaces are), read as sRGB")
+    return True
+
+
+# ---------------------------------------------------------------- reading
+def file_bytes(image) -> np.ndarray | None:
+    """(H, W, C) uint8 of an 8-bit image read from its file as Blender reads it (C = 1 for grey, where
+    Blender repeats it in R, G and B; grey with alpha becomes RGBA, as there), row 0 at the bottom; None
+    when the image is not a plain 8-bit file of FILE_FORMATS that OpenImageIO opens (Blender reads it)."""
+    if image.source != "FILE" or image.packed_file is not None or image.is_dirty or image.use_deinterlace \
+            or image.is_multiview:
+        return None
+    path = image.filepath_from_user()
+    oiio = _openimageio()
+    if oiio is None or not path or not os.path.isfile(path):
+        return None
+    reader = oiio.ImageInput.open(path)
+    if reader is None:
+        oiio.geterror()
+        return None
+    try:
+        options = FILE_FORMATS.get(reader.format_name())
+        spec = reader.spec()
+        if options is None or spec.format != oiio.UINT8 or not 1 <= spec.nchannels <= 4 or spec.depth > 1:
+            return None
+        reader.close()
+        config = oiio.ImageSpec()
+        for name, value in options.items():
+            config.attribute(name, value)
+        reader = oiio.ImageInput.open(path, config)
+        return None if reader is None else _read_rows(reader, reader.spec())
+    finally:
+        if reader is not None:
+            reader.close()
+
+
+def _read_rows(reader, spec) -> np.ndarray | None:
+    """The image's rows, a block at a time, bottom row first; grey with alpha expanded to RGBA."""
+    height, width, channels = spec.height, spec.width, spec.nchannels
+    out = np.empty((height, width, 4 if channels == 2 else channels), np.uint8)
+    rows = max(1, _BLOCK // (width * channels))
+    for y0 in range(0, height, rows):
+        y1 = min(height, y0 + rows)
+        block = reader.read_scanlines(0, 0, y0, y1, 0, 0, channels, "uint8")
+        if block is None or block.shape[:2] != (y1 - y0, width):
+            return None
+        block = block.reshape(y1 - y0, width, channels)[::-1]
+        target = out[height - y1:height - y0]
+        if channels == 2:
+            target[:, :, :3] = block[:, :, :1]
+            target[:, :, 3] = block[:, :, 1]
+        else:
+            target[...] = block
+    return out
+
+
+def _openimageio():
+    """Blender's own OpenImageIO module, None where it cannot be imported."""
+    try:
+        import bpy
+        bpy.utils.expose_bundled_modules()
+        import OpenImageIO
+    except (ImportError, AttributeError):
+        return None
+    return OpenImageIO
+
+
+def _blender_pixels(image) -> np.ndarray | None:
+    """(H, W, C) of image.pixels (Blender loads the image for it): uint8 for 8-bit images, float32 for
+    float ones; None when Blender cannot load it."""
+    n = len(image.pixels)  # asking for the pixels loads the image (file, packed or generated)
+    width, height = image.size
+    if n == 0 or width * height == 0:
+        return None
+    flat = np.empty(n, np.float32)
+    image.pixels.foreach_get(flat)
+    shape = (height, width, n // (width * height))
+    if image.is_float:
+        return flat.reshape(shape)
+    out = np.empty(n, np.uint8)   # Blender gave k * (1 / 255): back to k
+    for start in range(0, n, _BLOCK):
+        out[start:start + _BLOCK] = np.rint(flat[start:start + _BLOCK] * np.float32(255.0))
+    return out.reshape(shape)
+
+
+# ---------------------------------------------------------------- in place, a block at a time
+def _narrowed(pixels: np.ndarray, channels: int) -> np.ndarray:
+    """pixels[:, :, :channels], contiguous, made in pixels' own memory (which shrinks to it) when pixels
+    owns it: a big image is never held twice."""
+    height, width, have = pixels.shape
+    if have == channels:
+        return pixels
+    owner = pixels if pixels.base is None else pixels.base
+    if owner.base is not None or not owner.flags.c_contiguous or owner.size != pixels.size:
+        return np.ascontiguousarray(pixels[:, :, :channels])
+    flat = owner.reshape(-1)
+    rows = max(1, _BLOCK // (width * have))
+    for y0 in range(0, height, rows):
+        y1 = min(height, y0 + rows)
+        # The block lands at or before where it was read from, and is copied out first.
+        flat[y0 * width * channels:y1 * width * channels] = pixels[y0:y1, :, :channels].reshape(-1)
+    del flat, pixels
+    owner.resize(height * width * channels, refcheck=False)
+    return owner.reshape(height, width, channels)
+
+
+def _cleaned(pixels: np.ndarray) -> np.ndarray:
+    """Float pixels with every value that is not finite and positive set to 0, in place."""
+    flat = pixels.reshape(-1)
+    for start in range(0, len(flat), _BLOCK):
+        block = flat[start:start + _BLOCK]
+        block[~(np.isfinite(block) & (block > 0))] = 0.0
+    return pixels
+
+
+def _as_float(pixels: np.ndarray, associate: bool = False) -> np.ndarray:
+    """float32 values of pixels (k / 255 for uint8, as Blender gives them; colour times alpha when
+    associate); float pixels as they are."""
+    if pixels.dtype != np.uint8:
+        return pixels
+    out = pixels.astype(np.float32)
+    out *= BYTE_SCALE
+    if associate:
+        out[:, :, :3] *= out[:, :, 3:4]
+    return out
+
+
+class ImageTextures:
+    """The texture list of one export: one array per image, shared by every material using it."""
+
+    def __init__(self, warnings: list[str]):
+        self.loaded: list[ImagePixels] = []
+        self._index: dict[str, int | None] = {}
+        self._warnings = warnings
+
+    def index(self, image) -> int | None:
+        """The image's texture index, None when it cannot be loaded."""
+        key = image.name_full
+        if key not in self._index:
+            pixels = read_image(image, self._warnings, alpha=True)
+            self._index[key] = None if pixels is None else len(self.loaded)
+            if pixels is not None:
+                self.loaded.append(pixels)
+        return self._index[key]

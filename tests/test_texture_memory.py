@@ -1,0 +1,133 @@
+"""8-bit images stay bytes from the file to the kernel (engine/export/images.py, kernels/textures.py): read
+from their file as Blender reads it, 1 byte per channel, never a float copy of the whole image; lookups on
+them equal, bit for bit, lookups on the float values Blender's image.pixels gives."""
+import tracemalloc
+
+import bpy
+import numpy as np
+import pytest
+
+from bpy_helpers import export_current, new_scene, quad_object
+
+from ember.engine.export.images import file_bytes, read_image
+from ember.kernels import Renderer
+from ember.kernels.shading.ops import sample_texture
+from ember.kernels.textures import BYTE_SCALE, Texture
+
+
+def _oiio():
+    bpy.utils.expose_bundled_modules()
+    import OpenImageIO
+    return OpenImageIO
+
+
+def write_image(path: str, pixels: np.ndarray) -> str:
+    """Write (H, W, C) uint8 pixels, row 0 at the top, with Blender's OpenImageIO (the format by extension)."""
+    oiio = _oiio()
+    height, width, channels = pixels.shape
+    out = oiio.ImageOutput.create(path)
+    assert out.open(path, oiio.ImageSpec(width, height, channels, "uint8")), oiio.geterror()
+    assert out.write_image(np.ascontiguousarray(pixels)), out.geterror()
+    out.close()
+    return path
+
+
+def _pattern(height: int, width: int, channels: int, seed: int = 1) -> np.ndarray:
+    """Every byte value, in a pattern that compresses (a smooth field plus a little noise)."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:height, 0:width]
+    planes = [(x * 7 + y * 3) % 256, (x * y) % 256, (x + 5 * y) % 256, 128 + 127 * np.sin(x / 9.0 + y / 5.0)]
+    image = np.stack(planes[:channels], -1) + rng.integers(0, 2, (height, width, channels))
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+def _blender_floats(image) -> np.ndarray:
+    """image.pixels as Blender gives them: (H, W, 4) float32, row 0 at the bottom."""
+    flat = np.empty(len(image.pixels), np.float32)
+    image.pixels.foreach_get(flat)
+    width, height = image.size
+    return flat.reshape(height, width, -1)
+
+
+@pytest.mark.parametrize("name, channels", [("grey.png", 1), ("grey_alpha.png", 2), ("rgb.png", 3),
+                                            ("rgba.png", 4), ("photo.jpg", 3), ("grey.jpg", 1),
+                                            ("rgba.tif", 4)])
+def test_8bit_files_are_read_as_blender_reads_them(tmp_path, name, channels):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    path = write_image(str(tmp_path / name), _pattern(37, 53, channels))
+    image = bpy.data.images.load(path)
+    read = file_bytes(image)
+    assert read is not None and read.dtype == np.uint8
+    expected = _blender_floats(image)          # Blender: RGBA, grey in R, G and B, alpha 255 when absent
+    got = read.astype(np.float32) * BYTE_SCALE
+    if got.shape[2] == 1:
+        got = np.repeat(got, 3, axis=2)
+    np.testing.assert_array_equal(got, expected[:, :, :got.shape[2]])
+    if got.shape[2] == 3:
+        assert (expected[:, :, 3] == 1).all()
+
+
+def test_images_blender_reads_itself_still_become_bytes():
+    """Generated, packed or painted images come through image.pixels and are turned back into bytes."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    image = bpy.data.images.new("Painted", 19, 11, alpha=True)
+    values = _pattern(11, 19, 4).astype(np.float32) / 255
+    image.pixels.foreach_set(values.ravel())
+    assert file_bytes(image) is None
+    pixels = read_image(image, [], alpha=True)
+    assert pixels.array.dtype == np.uint8 and pixels.array.shape == (11, 19, 4)
+    np.testing.assert_array_equal(pixels.array * BYTE_SCALE, _blender_floats(image))
+
+
+def test_an_8bit_texture_stays_bytes_from_file_to_kernel(tmp_path):
+    """The design promise: an 8-bit RGB image costs Ember 3 bytes per texel, in the export (while reading
+    it, beside blocks of a few MB) and in the renderer, which shares the export's array."""
+    size = 2048
+    path = write_image(str(tmp_path / "big.png"), _pattern(size, size, 3))
+    scene = new_scene(8, 8)
+    material = bpy.data.materials.new("Textured")
+    tree = material.node_tree
+    texture = tree.nodes.new("ShaderNodeTexImage")
+    texture.image = bpy.data.images.load(path)
+    tree.links.new(texture.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Base Color"])
+    quad_object("Plane", (-2, 0, -1), (4, 0, 0), (0, 0, 4), material)
+    tracemalloc.start()
+    try:
+        exported = export_current()
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    (stored,) = exported.scene.textures
+    assert stored.dtype == np.uint8 and stored.nbytes == 3 * size * size
+    assert peak < 3 * size * size + (16 << 20), f"export peak {peak / 2**20:.0f} MB"
+    scene_arrays = exported.scene.validate().scene
+    with Renderer(scene_arrays, threads=1) as renderer:
+        kept = renderer.textures[0]
+        assert kept.nbytes == stored.nbytes and np.shares_memory(kept.texels, stored)
+
+
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_byte_texture_lookups_equal_float_lookups_bit_for_bit(channels):
+    """What the export handed over before (k / 255 as float32, colour times alpha for RGBA, grey in three
+    channels) and what it hands over now (the bytes) look up alike, in every filter and extension."""
+    rng = np.random.default_rng(7)
+    stored = rng.integers(0, 256, (13, 17, channels), dtype=np.uint8)
+    stored[0, :3, -1] = (0, 255, 128)          # alpha 0, 1 and between, for unassociation
+    floats = stored.astype(np.float32) * BYTE_SCALE
+    if channels == 4:
+        floats[:, :, :3] *= floats[:, :, 3:4]
+    if channels == 1:
+        floats = np.repeat(floats, 3, axis=2)
+    as_bytes, as_floats = Texture(stored, srgb=True), Texture(floats, srgb=True)
+    u = rng.uniform(-1.5, 2.5, 500).astype(np.float32)
+    v = rng.uniform(-1.5, 2.5, 500).astype(np.float32)
+    for interpolation in ("Closest", "Linear", "Cubic"):
+        for extension in ("REPEAT", "EXTEND", "CLIP", "MIRROR"):
+            np.testing.assert_array_equal(sample_texture(as_bytes, u, v, interpolation, extension),
+                                          sample_texture(as_floats, u, v, interpolation, extension))
+    for unassociate in (False, True):
+        np.testing.assert_array_equal(as_bytes.lookup(u, v, unassociate=unassociate),
+                                      as_floats.lookup(u, v, unassociate=unassociate))
+    np.testing.assert_array_equal(as_bytes.lookup_alpha(u, v), as_floats.lookup_alpha(u, v))
+    np.testing.assert_allclose(as_bytes.means(), as_floats.means(), rtol=1e-6)
+    assert as_bytes.nbytes == stored.nbytes
