@@ -137,7 +137,7 @@ FARM_CHILD = os.path.join(os.path.dirname(os.path.abspath(__file__)), "farm_work
 @pytest.mark.skipif(not (sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64")),
                     reason="installs the linux-x64 package")
 def test_farm_worker_renders_with_the_installed_extension_and_factory_startup_drops_it(linux_package, tmp_path):
-    """A render farm's worker (docs/INSTALL.md, Render farms): Ember installed once into the worker's user
+    """A render farm's worker (docs/install.md, Render farms): Ember installed once into the worker's user
     resources; then, each in a fresh process, a worker that loads the preferences as `blender -b scene.blend
     -E EMBER -f 1` does renders frame 1 to the .blend's output path with Ember, and one started like
     `--factory-startup` has no Ember (the trap the farm notes warn about): -E EMBER is refused."""
