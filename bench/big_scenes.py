@@ -162,8 +162,9 @@ def measure(engine: str, kind: str, triangles: int, instances: int = 0, width: i
     return json.loads(line[len("RESULT "):])
 
 
-# README's memory budget for a render: per triangle (export arrays, shading table, Embree's BVH), per pixel
-# (Ember's float64 film and Blender's float32 result), and a fixed part (working set, Blender's caches).
+# The memory budget for a render (docs/performance.md): per triangle (export arrays, shading table, Embree's
+# BVH), per pixel (Ember's float64 film and Blender's float32 result), and a fixed part (working set, Blender's
+# caches).
 BUDGET_BYTES_PER_TRIANGLE = 500
 BUDGET_BYTES_PER_PIXEL = 64
 BUDGET_FIXED_MB = 300
@@ -235,7 +236,7 @@ def main() -> int:
     ap.add_argument("--instance-triangles", type=int, default=100_000)
     ap.add_argument("--repeats", type=int, default=3, help="runs per engine and scene (medians)")
     ap.add_argument("--budget", action="store_true",
-                    help="only the memory budget check: 10M triangles at 3840x2160, against README's formula")
+                    help="only the memory budget check: 10M triangles at 3840x2160, against the formula")
     ap.add_argument("--speed", action="store_true",
                     help="only the tracing speed of instances against their flattened copies (kernel only)")
     args = ap.parse_args()

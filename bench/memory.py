@@ -6,7 +6,7 @@ For every size: the wall time of the render call, the process's peak resident me
 render, and the peak of Ember's own NumPy memory (tracemalloc; Blender's C allocations are not in it).
 Renders that last long enough get a worker process (kernels/workers.py): its peak resident memory
 (RUSAGE_CHILDREN, after it exits with the renderer) is printed beside, as the memory the render adds to the
-machine. The README's formula is checked against the figures:
+machine. The formula of docs/performance.md (Memory) is checked against the figures:
 
     Ember's memory = 32 bytes per pixel (the float64 RGBA film; the benchmark turns adaptive sampling off,
                      whose buffers make it 49) + a working set of at most WORKING_SET_MB

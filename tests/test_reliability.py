@@ -262,7 +262,7 @@ def test_memory_is_the_film_plus_a_bounded_working_set(monkeypatch):
             extra[size] = tracemalloc.get_traced_memory()[1] - ADAPTIVE_BYTES_PER_PIXEL * size * size
         finally:
             tracemalloc.stop()
-    # The working set is the waves in flight, so: within the README's bound at both sizes (192 MB for two
+    # The working set is the waves in flight, so: within docs/performance.md's bound at both sizes (192 MB for two
     # threads' waves of 131,072 paths, so half of it for one; 56 and 62 MB measured), and no buffer of 8 or
     # more bytes per pixel beyond the film (before: 64 bytes per pixel more).
     assert max(extra.values()) < 96e6, extra
