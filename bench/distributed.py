@@ -1,4 +1,5 @@
-"""Frames per minute of a 24-frame animation on 1, 2 and 4 local Ray workers (issue 14, "Many machines").
+"""Frames per minute of a 24-frame animation on local Ray workers (1, 2, 4 by default; `--ray local:N` starts
+no more workers than the machine has cores, so on 2 cores the 4-worker run uses 2).
 
     .venv/bin/python bench/distributed.py [--frames 24] [--samples 384] [--size 64] [--workers 1,2,4]
 

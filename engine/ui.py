@@ -218,8 +218,25 @@ class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
         layout.prop(rd, "use_persistent_data", text="Persistent Data")
 
 
+class EMBER_LIGHT_PT_shadow(EmberPanel, bpy.types.Panel):
+    """Light > Cast Shadow, which Ember renders (EEVEE's shadow panel holds settings Ember does not read)."""
+    bl_label = "Shadow"
+    bl_context = "data"
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES and context.light is not None
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(context.light, "use_shadow", text="Cast Shadow")
+
+
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths, EMBER_RENDER_PT_film,
-           EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance, EMBER_VIEWLAYER_PT_passes)
+           EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance, EMBER_VIEWLAYER_PT_passes,
+           EMBER_LIGHT_PT_shadow)
 
 
 def register():

@@ -757,3 +757,17 @@ def test_nan_and_zero_area_faces_do_not_break_export():
     assert result.triangle_count == 12
     validated = result.scene.validate()
     assert 0 < validated.dropped_triangles < 12
+
+
+def test_world_fog_and_light_groups_are_not_dropped_silently():
+    """Nothing Ember cannot render yet is dropped without a word: a world's Volume output, light groups."""
+    scene = camera_only_scene()
+    world = bpy.data.worlds.new("Foggy")
+    scene.world = world
+    tree = world.node_tree
+    out = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputWorld")
+    tree.links.new(tree.nodes.new("ShaderNodeVolumePrincipled").outputs[0], out.inputs["Volume"])
+    bpy.context.view_layer.lightgroups.add(name="Key")
+    warnings = export_current().warnings
+    assert any("World 'Foggy'" in w and "Volume output" in w for w in warnings), warnings
+    assert any("light groups are not supported" in w for w in warnings), warnings

@@ -2,7 +2,8 @@
 groups inside node groups, reroutes) compile without recursion (engine/export/graph.py) and run without
 it (kernels/shading/program.py), and render the value Cycles renders, or where Cycles gives up (its SVM
 stack holds about 250 nested Mix Shaders with a varying factor), the closed form. A loop in a node tree,
-which Blender marks invalid, is ignored as Cycles ignores it, with a warning naming its nodes.
+which Blender cannot evaluate, renders the material or world black as in Cycles, with a warning naming its
+nodes; links Blender marks invalid for other reasons are left out, as in Cycles, with a warning.
 
 Export times are printed (pytest -s), not asserted.
 """

@@ -90,6 +90,10 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         raise ExportError("Scene has no camera")
     default_width, default_height = render_resolution(scene)
     warnings: list[str] = []
+    groups = getattr(depsgraph.view_layer, "lightgroups", None)
+    if groups is not None and len(groups):
+        warnings.append(f"View layer '{depsgraph.view_layer.name}': light groups are not supported yet: "
+                        f"no Light Group passes")
     camera = export_camera(camera_ob.evaluated_get(depsgraph), scene,
                            default_width if width is None else width,
                            default_height if height is None else height, warnings)

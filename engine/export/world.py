@@ -51,6 +51,9 @@ def export_world(world, warnings: list[str], images=None) -> World:
         else:
             result = _read_tree(world.node_tree, issues, warnings)
     issues.extend(invalid_links(world.node_tree))
+    out = output_node(world.node_tree)
+    if out is not None and "Volume" in out.inputs and source_of(out.inputs["Volume"]).node is not None:
+        issues.append("its Volume output (world fog) is not supported yet, ignored")
     if issues:
         warnings.append(f"World '{world.name}': " + "; ".join(dict.fromkeys(issues)))
     return result
