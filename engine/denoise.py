@@ -332,9 +332,9 @@ class _Watch:
     (the run's fraction done; False cancels the run); poll(), on the caller's thread, hands the whole
     denoise's fraction to `progress` and stops everything once it answers False."""
 
-    def __init__(self, progress: Callable[[float], bool] | None, total_work: float):
+    def __init__(self, progress: Callable[[float], bool] | None):
         self.progress = progress
-        self.total_work = max(float(total_work), 1.0)
+        self.total_work = 1.0       # set once the tiles are planned
         self.done_work = 0.0
         self.run_work = 0.0
         self.run_fraction = 0.0
@@ -476,7 +476,7 @@ def denoise_image(read: Callable, height: int, width: int, write: Callable, *, a
     level = QUALITIES[quality]
     prefiltered = aux if prefilter == "ACCURATE" else ()
     device = _device(int(threads), library_dir)
-    watch = _Watch(progress, 0)
+    watch = _Watch(progress)
     with device.lock:
         filters = {}
         try:
@@ -485,7 +485,7 @@ def denoise_image(read: Callable, height: int, width: int, write: Callable, *, a
             filters["color"] = _Filter(device, ("color",) + aux, level, watch, hdr=True,
                                        clean_aux=(prefilter != "FAST") if aux else None)
             tiles = _plan(filters, prefiltered, height, width, tile_pixels, tile_size)
-            watch.total_work = sum(_work(tile, len(prefiltered)) for tile in tiles)
+            watch.total_work = float(sum(_work(tile, len(prefiltered)) for tile in tiles))
             input_scale = auto_exposure(lambda rows, cols: _image("color", read("color", rows, cols)),
                                         height, width, tile_pixels, watch.poll) if len(tiles) > 1 else None
             for tile in tiles:

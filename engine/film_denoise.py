@@ -21,8 +21,7 @@ AUX_PASSES = {"albedo": "denoising_albedo", "normal": "denoising_normal"}
 # Rows are resolved in bands of about this many pixels (their float64 temporaries: 32 bytes a pixel).
 READ_BAND_PIXELS = 1 << 18
 # After a time limit: OIDN's fast network, the albedo and normal denoised together with the colour (they
-# hold the same noise as the colour: cleanAux off). Measured at 768 x 768 on two cores, about a fifteenth
-# of the time of Cycles' default (HIGH, ACCURATE).
+# carry the render's noise: cleanAux off); a tenth of the time of Cycles' default (HIGH, ACCURATE) or less.
 FAST_OPTIONS = ("FAST", "FAST")
 
 
