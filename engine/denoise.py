@@ -2,6 +2,16 @@
 
     ok, why = available()
     clean = denoise(color, albedo, normal, quality="HIGH", prefilter="ACCURATE", threads=2)
+    finished = denoise_image(read, height, width, write, aux=("albedo", "normal"), progress=progress)
+
+Memory: an image is denoised a tile at a time (denoise_tiles: windows of at most TILE_PIXELS pixels with
+OIDN's overlaps, so that the result is the whole image's), read and written through callbacks by
+denoise_image: what a denoise takes is bounded by its tiles, whatever the image's size. OIDN 2.3.3's own
+maxMemoryMB would bound only OIDN's scratch memory, and OIDN needs its input and output images whole.
+
+Progress and stopping: every OIDN run executes on a helper thread while the caller's thread polls
+OIDN's progress monitor (oidnSetFilterProgressMonitorFunction) and calls progress(fraction) a few times a
+second; False from it cancels the run through the monitor and the denoise returns without its image.
 
 No new dependency: the library is the one beside Blender's own libraries, found with find_library() (or
 in a directory given explicitly, in which case bpy is never imported). Images are (H, W, 3) float arrays,
@@ -56,8 +66,11 @@ import os
 import sys
 import threading
 from contextlib import contextmanager
+from typing import Callable
 
 import numpy as np
+
+from .denoise_tiles import TILE_PIXELS, Tile, auto_exposure, plan_tiles
 
 # OIDNQuality (oidn.h)
 QUALITIES = {"HIGH": 6, "BALANCED": 5, "FAST": 4}
@@ -67,8 +80,13 @@ _DEVICE_TYPE_CPU = 1   # OIDN_DEVICE_TYPE_CPU
 _FORMAT_FLOAT3 = 3     # OIDN_FORMAT_FLOAT3
 _ERROR_NAMES = {1: "unknown error", 2: "invalid argument", 3: "invalid operation", 4: "out of memory",
                 5: "unsupported hardware", 6: "cancelled"}   # OIDNError
+_ERROR_CANCELLED = 6
+# How often the caller's thread looks at a running denoise's progress (and whether to stop it), in seconds.
+POLL_S = 0.1
 
 _p, _s, _i, _b, _z = ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int, ctypes.c_bool, ctypes.c_size_t
+# OIDNProgressMonitorFunction: (userPtr, fraction of the filter's run done) -> whether to go on
+_PROGRESS_MONITOR = ctypes.CFUNCTYPE(_b, _p, ctypes.c_double)
 # name -> (restype, argtypes), written from oidn.h of OIDN 2.x. Enums are C ints; handles opaque pointers.
 _PROTOTYPES = {
     "oidnIsCPUDeviceSupported": (_b, ()),
@@ -84,6 +102,9 @@ _PROTOTYPES = {
     "oidnSetSharedFilterImage": (None, (_p, _s, _p, _i, _z, _z, _z, _z, _z)),
     "oidnSetFilterBool": (None, (_p, _s, _b)),
     "oidnSetFilterInt": (None, (_p, _s, _i)),
+    "oidnGetFilterInt": (_i, (_p, _s)),
+    "oidnSetFilterFloat": (None, (_p, _s, ctypes.c_float)),
+    "oidnSetFilterProgressMonitorFunction": (None, (_p, _PROGRESS_MONITOR, _p)),
     "oidnCommitFilter": (None, (_p,)),
     "oidnExecuteFilter": (None, (_p,)),
     "oidnReleaseFilter": (None, (_p,)),
@@ -223,24 +244,33 @@ class _Device:
         finally:
             self.library.oidnReleaseFilter(handle)
 
-    def run(self, images: dict, quality: int, hdr: bool | None = None, clean_aux: bool | None = None) -> None:
-        """One RT filter over shared (H, W, 3) float32 images keyed by OIDN's names (color, albedo, normal,
-        output); bool parameters left at OIDN's defaults when None."""
-        lib = self.library
-        with self.filter() as flt:
-            for name, image in images.items():
-                height, width = image.shape[:2]
-                lib.oidnSetSharedFilterImage(flt, name.encode(), image.ctypes.data, _FORMAT_FLOAT3,
-                                             width, height, 0, image.strides[1], image.strides[0])
-            if hdr is not None:
-                lib.oidnSetFilterBool(flt, b"hdr", hdr)
-            if clean_aux is not None:
-                lib.oidnSetFilterBool(flt, b"cleanAux", clean_aux)
-            lib.oidnSetFilterInt(flt, b"quality", quality)
-            lib.oidnCommitFilter(flt)
-            self.check(f"committing the filter of {', '.join(images)}")
-            lib.oidnExecuteFilter(flt)
-            self.check(f"denoising {', '.join(n for n in images if n != 'output')}")
+    def execute(self, flt, watch: "_Watch", doing: str) -> bool:
+        """Run a committed filter on a helper thread while this one polls the watch, so that progress
+        and stops (Esc, an interrupt's handler) are answered on this thread while OIDN works. False when
+        the watch cancelled the run. OIDN keeps errors per thread: the helper reads them."""
+        outcome = []
+
+        def work():
+            self.library.oidnExecuteFilter(flt)
+            outcome.append(self.library.error(self.handle))
+
+        helper = threading.Thread(target=work, name="ember-denoise", daemon=True)
+        helper.start()
+        try:
+            while helper.is_alive():
+                helper.join(POLL_S)
+                watch.poll()
+        except BaseException:   # stop OIDN before its images go away
+            watch.stopped = True
+            helper.join()
+            raise
+        code, text = outcome[0]
+        if code == _ERROR_CANCELLED:
+            return False
+        if code != 0:
+            raise DenoiseError(f"OpenImageDenoise error while denoising {doing} "
+                               f"({_ERROR_NAMES.get(code, f'error {code}')}): {text}")
+        return not watch.stopped
 
     def release(self) -> None:
         if self.handle:
@@ -296,6 +326,101 @@ def release_devices() -> None:
             device.release()
 
 
+# ---------------------------------------------------------------- filters and their runs
+class _Watch:
+    """Progress and stop of one denoise over all its filter runs. OIDN calls monitor() on its own thread
+    (the run's fraction done; False cancels the run); poll(), on the caller's thread, hands the whole
+    denoise's fraction to `progress` and stops everything once it answers False."""
+
+    def __init__(self, progress: Callable[[float], bool] | None):
+        self.progress = progress
+        self.total_work = 1.0       # set once the tiles are planned
+        self.done_work = 0.0
+        self.run_work = 0.0
+        self.run_fraction = 0.0
+        self.stopped = False
+        self.monitor = _PROGRESS_MONITOR(self._monitor)   # kept alive while OIDN may call it
+
+    def _monitor(self, _user, fraction) -> bool:
+        self.run_fraction = fraction
+        return not self.stopped
+
+    def begin(self, work: float) -> None:
+        self.run_work, self.run_fraction = float(work), 0.0
+
+    def end(self) -> None:
+        self.done_work += self.run_work
+        self.run_work = self.run_fraction = 0.0
+
+    def poll(self) -> bool:
+        """False once the denoise is to stop."""
+        if self.progress is not None and not self.stopped:
+            done = (self.done_work + self.run_fraction * self.run_work) / self.total_work
+            self.stopped = not self.progress(min(done, 1.0))
+        return not self.stopped
+
+
+class _Filter:
+    """One RT filter of a denoise, run over each of its windows: OIDN builds its network again only when
+    the window's size changes."""
+
+    def __init__(self, device: _Device, names: tuple, quality: int, watch: _Watch, hdr: bool | None = None,
+                 clean_aux: bool | None = None):
+        lib = device.library
+        self.device, self.names, self.watch = device, names, watch
+        self.handle = lib.oidnNewFilter(device.handle, b"RT")
+        device.check("creating an RT filter")
+        try:
+            if hdr is not None:
+                lib.oidnSetFilterBool(self.handle, b"hdr", hdr)
+            if clean_aux is not None:
+                lib.oidnSetFilterBool(self.handle, b"cleanAux", clean_aux)
+            lib.oidnSetFilterInt(self.handle, b"quality", quality)
+            lib.oidnSetFilterProgressMonitorFunction(self.handle, watch.monitor, None)
+            device.check("setting up an RT filter")
+        except BaseException:
+            self.release()
+            raise
+
+    def overlap(self) -> tuple[int, int]:
+        """(tileOverlap, tileAlignment) of this filter's network: how far a window must reach beyond the
+        tile it denoises, and the multiple of pixels its offsets keep. OIDN knows them once the filter is
+        committed (they depend on the network it picks for its images and quality): a 16 x 16 stand-in
+        of each image tells."""
+        stand_in = np.zeros((16, 16, 3), np.float32)
+        self._commit({name: stand_in for name in self.names + ("output",)})
+        lib = self.device.library
+        overlap, alignment = (lib.oidnGetFilterInt(self.handle, b"tileOverlap"),
+                              lib.oidnGetFilterInt(self.handle, b"tileAlignment"))
+        self.device.check("reading the filter's tile overlap")
+        return overlap, max(alignment, 1)
+
+    def _commit(self, images: dict, input_scale: float | None = None) -> None:
+        lib = self.device.library
+        for name, image in images.items():
+            height, width = image.shape[:2]
+            lib.oidnSetSharedFilterImage(self.handle, name.encode(), image.ctypes.data, _FORMAT_FLOAT3,
+                                         width, height, 0, image.strides[1], image.strides[0])
+        if input_scale is not None:
+            lib.oidnSetFilterFloat(self.handle, b"inputScale", input_scale)
+        lib.oidnCommitFilter(self.handle)
+        self.device.check(f"committing the filter of {', '.join(images)}")
+
+    def run(self, images: dict, input_scale: float | None = None) -> bool:
+        """Denoise shared (h, w, 3) float32 images keyed by OIDN's names (the inputs and output); input_scale
+        None: OIDN's own (its auto-exposure). False when the watch stopped it."""
+        self._commit(images, input_scale)
+        self.watch.begin(images["output"].shape[0] * images["output"].shape[1])
+        finished = self.device.execute(self.handle, self.watch, ", ".join(n for n in images if n != "output"))
+        self.watch.end()
+        return finished
+
+    def release(self) -> None:
+        if self.handle:
+            self.device.library.oidnReleaseFilter(self.handle)
+            self.handle = None
+
+
 # ---------------------------------------------------------------- denoising
 def _shareable(image: np.ndarray) -> bool:
     """OIDN can read it in place: float32, channels contiguous, pixels and rows at positive strides."""
@@ -321,39 +446,131 @@ def _image(name: str, image, shape: tuple | None = None) -> np.ndarray:
     return image
 
 
-def denoise(color, albedo=None, normal=None, *, quality: str = "HIGH", prefilter: str = "ACCURATE",
-            threads: int = 0, library_dir: str | None = None) -> np.ndarray:
-    """Denoise color (H, W, 3) linear HDR with OIDN's RT filter, guided by albedo (H, W, 3) in [0, 1] and
-    normal (H, W, 3) in [-1, 1] when given. quality: HIGH, BALANCED or FAST; prefilter: NONE, FAST or
-    ACCURATE (see the module docstring); threads: OIDN's numThreads (0: all cores); library_dir: the
-    directory holding OIDN (None: the running Blender's). Returns a new (H, W, 3) float32 image.
-    Raises ValueError for bad arguments (named in the message) and DenoiseError when OIDN is missing or
-    reports an error."""
+def _check_options(quality: str, prefilter: str, threads) -> None:
     if quality not in QUALITIES:
         raise ValueError(f"quality: expected one of {tuple(QUALITIES)}, got {quality!r}")
     if prefilter not in PREFILTERS:
         raise ValueError(f"prefilter: expected one of {PREFILTERS}, got {prefilter!r}")
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
         raise ValueError(f"threads: expected a non-negative integer (0: all cores), got {threads!r}")
+
+
+def denoise_image(read: Callable, height: int, width: int, write: Callable, *, aux: tuple = (),
+                  quality: str = "HIGH", prefilter: str = "ACCURATE", threads: int = 0,
+                  library_dir: str | None = None, tile_pixels: int = TILE_PIXELS, tile_size: int | None = None,
+                  progress: Callable[[float], bool] | None = None) -> bool:
+    """Denoise an H x W image read and written a tile at a time, so that memory is bounded by the tile,
+    whatever the image's size (plan_tiles: the whole image when it has at most tile_pixels pixels;
+    tile_size forces smaller tiles).
+
+    read(name, rows, cols) -> (h, w, 3) float array of that window of 'color' or of an auxiliary image
+    named in aux ('albedo', or 'albedo' and 'normal'); write(rows, cols, image) gets each tile's denoised
+    (h, w, 3) float32 colour, once, tiles in rows top-down. progress(fraction) -> bool is called on this
+    thread a few times a second while OIDN runs (every OIDN call runs on a helper thread): False stops the
+    denoise (OIDN's run is cancelled) and denoise_image returns False, having written the tiles before.
+    True when every tile was written. Options and errors as denoise()."""
+    _check_options(quality, prefilter, threads)
+    if "normal" in aux and "albedo" not in aux:
+        raise ValueError("normal: OpenImageDenoise uses a normal image only together with an albedo image")
+    aux = tuple(name for name in ("albedo", "normal") if name in aux)
+    level = QUALITIES[quality]
+    prefiltered = aux if prefilter == "ACCURATE" else ()
+    device = _device(int(threads), library_dir)
+    watch = _Watch(progress)
+    with device.lock:
+        filters = {}
+        try:
+            for name in prefiltered:
+                filters[name] = _Filter(device, (name,), level, watch)
+            filters["color"] = _Filter(device, ("color",) + aux, level, watch, hdr=True,
+                                       clean_aux=(prefilter != "FAST") if aux else None)
+            tiles = _plan(filters, prefiltered, height, width, tile_pixels, tile_size)
+            watch.total_work = float(sum(_work(tile, len(prefiltered)) for tile in tiles))
+            input_scale = auto_exposure(lambda rows, cols: _image("color", read("color", rows, cols)),
+                                        height, width, tile_pixels, watch.poll) if len(tiles) > 1 else None
+            for tile in tiles:
+                if not watch.poll() or not _denoise_tile(filters, tile, read, write, aux, prefiltered, input_scale):
+                    return False
+            return True
+        finally:
+            for flt in filters.values():
+                flt.release()
+
+
+def _plan(filters: dict, prefiltered: tuple, height: int, width: int, tile_pixels: int,
+          tile_size: int | None) -> list[Tile]:
+    """plan_tiles with the overlaps and alignment of the denoise's networks (read only when it tiles)."""
+    if tile_size is None and height * width <= tile_pixels:
+        return plan_tiles(height, width, 0, 0, 1, tile_pixels)
+    color_overlap, alignment = filters["color"].overlap()
+    aux_overlap = 0
+    for name in prefiltered:
+        overlap, align = filters[name].overlap()
+        aux_overlap, alignment = max(aux_overlap, overlap), int(np.lcm(alignment, align))
+    return plan_tiles(height, width, color_overlap, aux_overlap, alignment, tile_pixels, tile_size)
+
+
+def _work(tile: Tile, prefilters: int) -> int:
+    """Pixels OIDN runs its network over for a tile: the colour window, and the auxiliary window once per
+    prefiltered image (a progress measure: every network costs about the same per pixel)."""
+    def pixels(rows, cols):
+        return (rows.stop - rows.start) * (cols.stop - cols.start)
+    return pixels(tile.color_rows, tile.color_cols) + prefilters * pixels(tile.aux_rows, tile.aux_cols)
+
+
+def _denoise_tile(filters: dict, tile: Tile, read, write, aux: tuple, prefiltered: tuple,
+                  input_scale: float | None) -> bool:
+    """One tile: its auxiliary images prefiltered over their window, the colour over its own, the tile
+    written; False when stopped."""
+    rows, cols = tile.color_rows, tile.color_cols
+    shape = (rows.stop - rows.start, cols.stop - cols.start)
+    images = {"color": _image("color", read("color", rows, cols), shape)}
+    for name in aux:
+        if name in prefiltered:
+            noisy = _image(name, read(name, tile.aux_rows, tile.aux_cols),
+                           (tile.aux_rows.stop - tile.aux_rows.start, tile.aux_cols.stop - tile.aux_cols.start))
+            clean = np.empty_like(noisy)
+            if not filters[name].run({name: noisy, "output": clean}):
+                return False
+            del noisy
+            images[name] = clean[rows.start - tile.aux_rows.start:rows.stop - tile.aux_rows.start,
+                                 cols.start - tile.aux_cols.start:cols.stop - tile.aux_cols.start]
+        else:
+            images[name] = _image(name, read(name, rows, cols), shape)
+    output = np.empty(shape + (3,), np.float32)
+    if not filters["color"].run({**images, "output": output}, input_scale):
+        return False
+    write(tile.rows, tile.cols, output[tile.rows.start - rows.start:tile.rows.stop - rows.start,
+                                       tile.cols.start - cols.start:tile.cols.stop - cols.start])
+    return True
+
+
+def denoise(color, albedo=None, normal=None, *, quality: str = "HIGH", prefilter: str = "ACCURATE",
+            threads: int = 0, library_dir: str | None = None, tile_pixels: int = TILE_PIXELS,
+            tile_size: int | None = None, progress: Callable[[float], bool] | None = None) -> np.ndarray | None:
+    """Denoise color (H, W, 3) linear HDR with OIDN's RT filter, guided by albedo (H, W, 3) in [0, 1] and
+    normal (H, W, 3) in [-1, 1] when given. quality: HIGH, BALANCED or FAST; prefilter: NONE, FAST or
+    ACCURATE (see the module docstring); threads: OIDN's numThreads (0: all cores); library_dir: the
+    directory holding OIDN (None: the running Blender's); tile_pixels, tile_size and progress as
+    denoise_image().
+    Returns a new (H, W, 3) float32 image, or None when progress stopped it.
+    Raises ValueError for bad arguments (named in the message) and DenoiseError when OIDN is missing or
+    reports an error."""
+    _check_options(quality, prefilter, threads)
     if normal is not None and albedo is None:
         raise ValueError("normal: OpenImageDenoise uses a normal image only together with an albedo image")
-    color = _image("color", color)
-    shape = color.shape[:2]
-    aux = {}
-    if albedo is not None:
-        aux["albedo"] = _image("albedo", albedo, shape)
-    if normal is not None:
-        aux["normal"] = _image("normal", normal, shape)
-
-    level = QUALITIES[quality]
-    device = _device(int(threads), library_dir)
+    images = {"color": _image("color", color)}
+    shape = images["color"].shape[:2]
+    for name, image in (("albedo", albedo), ("normal", normal)):
+        if image is not None:
+            images[name] = _image(name, image, shape)
     output = np.empty(shape + (3,), np.float32)
-    with device.lock:
-        if prefilter == "ACCURATE":
-            for name, image in list(aux.items()):
-                clean = np.empty(shape + (3,), np.float32)
-                device.run({name: image, "output": clean}, level)
-                aux[name] = clean
-        device.run({"color": color, **aux, "output": output}, level, hdr=True,
-                   clean_aux=(prefilter != "FAST") if aux else None)
-    return output
+
+    def write(rows, cols, tile):
+        output[rows, cols] = tile
+
+    finished = denoise_image(lambda name, rows, cols: images[name][rows, cols], *shape, write,
+                             aux=tuple(images)[1:], quality=quality, prefilter=prefilter, threads=threads,
+                             library_dir=library_dir, tile_pixels=tile_pixels, tile_size=tile_size,
+                             progress=progress)
+    return output if finished else None

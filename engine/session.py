@@ -33,6 +33,7 @@ from .export.mesh import MeshCache
 from .export.camera import render_region
 from .export.motion import sample_motion, sample_vector_motion
 from . import cryptomatte
+from .film_denoise import NonFiniteTile, denoise_film, denoised_film, final_options
 from .passes import enabled_passes, kernel_passes, mist_settings
 from .version import EMBER_VERSION
 
@@ -177,7 +178,8 @@ class ProgressiveSession:
             if last_display and now - last_display < display_s:
                 return
             last_display = now
-            on_display(film, previews.display(film, now) if previews is not None and film.samples_done > 0 else None)
+            on_display(film, previews.display(film, now, should_stop)
+                       if previews is not None and film.samples_done > 0 else None)
 
         def report(progress) -> None:
             on_progress(progress, stats_line(progress, settings.time_limit_s))
@@ -208,37 +210,23 @@ class PreviewDenoiser:
         self.next_s = 0.0
         self.failed: str | None = None
 
-    def display(self, film, now: float | None) -> np.ndarray | None:
-        """The denoised film (H, W, 4), or None (not due yet, or failed): now None forces it (the end)."""
+    def display(self, film, now: float | None, should_stop: Callable[[], bool] | None = None) -> np.ndarray | None:
+        """The denoised film (H, W, 4), or None (not due yet, failed, or should_stop() during it): now None
+        forces it (the end)."""
         if self.failed is not None or (now is not None and now < self.next_s):
             return None
         start = time.perf_counter()
         try:
-            image = denoised_film(film, self.quality, self.prefilter, self.threads)
+            image = denoised_film(film, self.quality, self.prefilter, self.threads, should_stop)
         except Exception as err:
             self.failed = f"{type(err).__name__}: {err}"
             print(f"Ember: denoised previews failed, they stay noisy: {self.failed}", flush=True)
             return None
+        if image is None:
+            return None
         spent = time.perf_counter() - start
         self.next_s = time.perf_counter() + max(self.interval_s, 3.0 * spent)
         return image
-
-
-def denoised_film(film, quality: str, prefilter: str, threads: int) -> np.ndarray:
-    """The film's image (H, W, 4) with its colour denoised by OpenImageDenoise, guided by the film's
-    albedo and normal passes when it has them; raises what the denoiser raises."""
-    from .denoise import DenoiseError, denoise
-    image = film.resolve()
-    lit = bool(np.any(image[..., :3] > 0))
-    image[..., :3] = denoise(image[..., :3],
-                             film.resolve_pass("denoising_albedo") if "denoising_albedo" in film.aux else None,
-                             film.resolve_pass("denoising_normal") if "denoising_normal" in film.aux else None,
-                             quality=quality, prefilter=prefilter, threads=threads)
-    if lit and not np.any(image[..., :3] > 0):
-        # OIDN's exposure estimate overflows its float32 sums for pixels near the float32 limit (~1e37):
-        # it then returns zeros.
-        raise DenoiseError("it returned a black image for a lit one (pixel values near the float32 limit)")
-    return image
 
 
 # ====================================================================== final renders
@@ -348,9 +336,9 @@ class FinalRender:
         if len(renderer.worker_failures) > failures:  # the image is whole (their waves ran here), only slower
             self._warn(["a worker process failed, its waves ran in this process: "
                         + renderer.worker_failures[failures]])
-        self._stamp_metadata(result.film)
-        if self._denoise and not self.cancelled and result.film.samples_done > 0:
-            self._denoise_final(result.film)
+        options = final_options(scene.ember, result.stopped_early, self.should_stop())
+        denoised = options is not None and result.film.samples_done > 0 and self._denoise_final(result.film, options)
+        self._stamp_metadata(result.film, denoised)
         self._finish_message(result, exported)
 
     def _build(self, scene: SceneArrays, threads: int, persistent: bool) -> Renderer:
@@ -360,7 +348,7 @@ class FinalRender:
         return kept if kept is not None else Renderer(scene, threads=threads, should_stop=self.should_stop,
                                                       reuse=_kept.renderer if persistent else None)
 
-    def _stamp_metadata(self, film) -> None:
+    def _stamp_metadata(self, film, denoised: bool) -> None:
         """The render's metadata (on Blender's whole result, as Cycles stamps its own): the samples it holds
         and their offset (python -m ember merge weighs partial renders by them), and the Cryptomatte
         manifests (the compositor's Cryptomatte node and other tools read names from them)."""
@@ -370,29 +358,57 @@ class FinalRender:
         full.stamp_data_add_field("ember.samples", str(film.samples_done))
         full.stamp_data_add_field("ember.sample_offset", str(int(self.scene.ember.sample_offset)))
         full.stamp_data_add_field("ember.adaptive", "1" if self.scene.ember.use_adaptive_sampling else "0")
-        full.stamp_data_add_field("ember.denoised", "1" if self._denoise else "0")
+        full.stamp_data_add_field("ember.denoised", "1" if denoised else "0")
         for kind in film.crypto:
             for key, value in cryptomatte.metadata(self.depsgraph.view_layer.name, kind,
                                                    self._crypto_names.get(kind, ())).items():
                 full.stamp_data_add_field(key, value)
 
-    def _denoise_final(self, film) -> None:
-        """Denoise the finished image once and write it as Combined; on any failure the noisy image
-        stays, with a warning (a finished frame is never lost)."""
-        ember = self.scene.ember
-        self.engine.update_stats("", "Ember: denoising")
+    def _denoise_final(self, film, options: tuple) -> bool:
+        """Denoise the finished image with options (quality, prefilter), each tile written to Blender as it
+        comes, with progress; Esc stops it. Stopped, failed or non-finite, the rows written are put back
+        noisy (a failure with a warning): a finished frame is never lost. True when denoised."""
         start = time.perf_counter()
+        written = 0   # region rows [0, written) hold denoised tiles: tiles come in rows top-down
+
+        def write(rows, cols, rgb):
+            nonlocal written
+            step = max(1, WRITE_CHUNK_PIXELS // max(rgb.shape[1], 1))
+            for r0 in range(rows.start, rows.stop, step):
+                r1 = min(rows.stop, r0 + step)
+                self.write_rows(film, r0, r1, cols, rgb[r0 - rows.start:r1 - rows.start])
+            written = max(written, rows.stop)
+
+        self._last_print = -math.inf   # the denoise's first line is printed at once
+        finished = False
         try:
-            image = denoised_film(film, ember.denoising_quality, ember.denoising_prefilter,
-                                  render_threads(self.scene.render))
+            finished = denoise_film(film, write, options, render_threads(self.scene.render),
+                                    lambda fraction: self._report_denoise(fraction, start, options))
+        except NonFiniteTile as err:
+            self._warn([f"denoising failed, the image is not denoised: {err}"])
         except Exception as err:  # the library missing, OIDN's own error, a bug: keep the noisy image
             self._warn([f"denoising failed, the image is not denoised: {type(err).__name__}: {err}"])
-            return
-        if not np.isfinite(image[..., :3]).all():
-            self._warn(["denoising gave non-finite pixels, the image is not denoised"])
-            return
-        self._write_combined(image, film)
+        if not finished:
+            self._dirty = (0, written) if written else None
+            self._flush(film)
+            return False
         self.denoise_seconds = time.perf_counter() - start
+        return True
+
+    def _report_denoise(self, fraction: float, start: float, options: tuple) -> bool:
+        """The denoise's progress as the render's own (stats, progress bar, a line every PRINT_INTERVAL_S in
+        background mode); False once the user stops it."""
+        elapsed = time.perf_counter() - start
+        remaining = elapsed * (1.0 - fraction) / fraction if fraction > 0 else math.inf
+        line = (f"Denoising ({options[0].title()}) {fraction:.0%} | Elapsed {format_time(elapsed)} | "
+                f"Remaining {format_time(remaining)}")
+        self.engine.update_stats("", line)
+        self.engine.update_progress(min(fraction, 1.0))
+        now = time.perf_counter()
+        if _background() and now - self._last_print >= PRINT_INTERVAL_S:
+            self._last_print = now
+            print(f"Ember | Frame {self.scene.frame_current} | {line}", flush=True)
+        return not self.should_stop()
 
     def _cancel(self) -> None:
         """Stopped before rendering: hand Blender an empty result all the same (saving a render that
@@ -455,24 +471,29 @@ class FinalRender:
         for r0 in range(row0, row1, step):
             self.write_rows(film, r0, min(row1, r0 + step))
 
-    def write_rows(self, film, row0: int, row1: int) -> None:
-        """Region rows [row0, row1) (row 0 at the top) -> a sub-result of Blender's (rows bottom-up,
-        coordinates relative to the border region when there is one)."""
-        rows = film.resolve(row0, row1)
-        result = self.engine.begin_result(0, film.height - row1, film.width, row1 - row0,
+    def write_rows(self, film, row0: int, row1: int, cols: slice | None = None,
+                   denoised: np.ndarray | None = None) -> None:
+        """Region rows [row0, row1) (row 0 at the top) and columns cols (None: all) -> a sub-result of
+        Blender's (rows bottom-up, coordinates relative to the border region when there is one), with every
+        pass: Blender merges each pass of a sub-result, written or not. denoised: the (rows, cols, 3) colour
+        to write as Combined (the film's own then goes to Noisy Image)."""
+        cols = slice(0, film.width) if cols is None else cols
+        rows = film.resolve(row0, row1)[:, cols]
+        combined = rows if denoised is None else np.concatenate([denoised, rows[..., 3:]], axis=-1)
+        result = self.engine.begin_result(cols.start, film.height - row1, cols.stop - cols.start, row1 - row0,
                                           layer=self.depsgraph.view_layer.name)
         try:
             layer = result.layers[0]
-            _set_rect(layer, "Combined", rows)
+            _set_rect(layer, "Combined", combined)
             crypto = {}
             for p in self._passes:
                 if p.kernel.startswith("crypto:"):
                     _, kind, index = p.kernel.split(":")
                     if kind not in crypto:
-                        crypto[kind] = film.resolve_crypto(kind, row0, row1)
+                        crypto[kind] = film.resolve_crypto(kind, row0, row1)[:, cols]
                     _set_rect(layer, p.name, crypto[kind][..., 4 * int(index):4 * int(index) + 4])
                 elif p.kernel:
-                    values = film.resolve_pass(p.kernel, row0, row1)
+                    values = film.resolve_pass(p.kernel, row0, row1)[:, cols]
                     if p.channels == 4 and values.shape[-1] == 3:  # an RGBA AOV: opaque
                         values = np.concatenate([values, np.ones(values.shape[:-1] + (1,), np.float32)], axis=-1)
                     _set_rect(layer, p.name, values)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ember.engine import denoise as dn
+from ember.engine import denoise_tiles as tiling
 from ember.kernels import Materials, Renderer, RenderSettings
 from ember.kernels.shapes import cornell_box
 
@@ -231,3 +232,150 @@ def test_bad_arguments_name_the_argument(kwargs, name):
     args = dict(color=np.zeros((8, 8, 3), np.float32)) | kwargs
     with pytest.raises(ValueError, match=f"^{name}:"):
         dn.denoise(args.pop("color"), **args)
+
+
+# ---------------------------------------------------------------- tiles
+@pytest.fixture(scope="module")
+def wide_render():
+    """(color, albedo, normal) of the Cornell box at 384 x 256, 4 spp: large enough for interior tiles whose
+    windows end inside the image."""
+    with Renderer(cornell_box(384, 256), threads=2) as renderer:
+        result = renderer.render(RenderSettings(samples=4, seed=1, passes=AUX))
+    return result.image[..., :3], result.film.resolve_pass(AUX[0]), result.film.resolve_pass(AUX[1])
+
+
+def _denoise_tiles(images, **options):
+    """denoise_image over arrays: the output, and the (rows, cols) of every window read and tile written."""
+    height, width = images["color"].shape[:2]
+    output = np.full((height, width, 3), np.nan, np.float32)
+    reads, writes = [], []
+
+    def read(name, rows, cols):
+        reads.append((name, rows, cols))
+        return images[name][rows, cols]
+
+    def write(rows, cols, tile):
+        writes.append((rows, cols))
+        assert np.isnan(output[rows, cols]).all()   # every pixel written once
+        output[rows, cols] = tile
+    finished = dn.denoise_image(read, height, width, write, aux=tuple(images)[1:], threads=2, **options)
+    return finished, output, reads, writes
+
+
+# A tiled denoise is bit for bit the whole image's when both use the same inputScale (measured); they differ
+# by the auto-exposure alone, Ember's float64 sums against OIDN's float32 ones: measured 3.7e-6 (FAST,
+# ACCURATE) and 6.1e-6 (HIGH, FAST) of the image's largest value. Overlaps cut to 3/4 of OIDN's leave seams
+# of 7e-4 to 2e-3 (0.5: 3e-3 to 5e-3).
+TILED_TOLERANCE = 2e-5
+
+
+@pytest.mark.parametrize("quality, prefilter, width, height, tile, count", [
+    ("FAST", "ACCURATE", 384, 256, 128, 6),   # albedo and normal prefiltered over windows around the colour's
+    ("HIGH", "FAST", 256, 192, 64, 12),
+])
+def test_tiled_denoise_is_the_whole_images(wide_render, monkeypatch, quality, prefilter, width, height, tile, count):
+    images = dict(zip(("color", "albedo", "normal"), (np.ascontiguousarray(i[:height, :width]) for i in wide_render)))
+    whole = dn.denoise(*images.values(), quality=quality, prefilter=prefilter, threads=2)
+    finished, tiled, reads, writes = _denoise_tiles(images, quality=quality, prefilter=prefilter, tile_size=tile)
+    assert finished and len(writes) == count and np.isfinite(tiled).all()
+    assert all(rows.start % 16 == 0 and cols.start % 16 == 0 for _, rows, cols in reads)
+    colour = [(rows, cols) for name, rows, cols in reads if name == "color"]   # the auto-exposure, then tiles
+    assert len(colour) == count + 1 and colour[0] == (slice(0, height), slice(0, width))
+    assert all((rows.stop - rows.start) * (cols.stop - cols.start) < height * width for rows, cols in colour[1:])
+    scale = float(np.abs(whole).max())
+    assert np.abs(tiled - whole).max() <= TILED_TOLERANCE * scale
+    # The tolerance tells a seam: the same tiles with too little overlap fail it.
+    overlap = dn._Filter.overlap
+    monkeypatch.setattr(dn._Filter, "overlap", lambda self: (overlap(self)[0] * 3 // 4 // 16 * 16, 16))
+    seamed = dn.denoise(*images.values(), quality=quality, prefilter=prefilter, threads=2, tile_size=tile)
+    assert np.abs(seamed - whole).max() > 10 * TILED_TOLERANCE * scale
+
+
+def test_tile_plan():
+    """Tiles cover the image once, start at multiples of the alignment, and their windows reach the overlaps
+    beyond them inside the image; planned from a pixel budget, no auxiliary window exceeds it; an image
+    within the budget is one window."""
+    height, width, color_overlap, aux_overlap, alignment, budget = 1000, 3000, 96, 112, 16, 700 * 700
+    tiles = tiling.plan_tiles(height, width, color_overlap, aux_overlap, alignment, budget)
+    covered = np.zeros((height, width), np.int32)
+    for t in tiles:
+        covered[t.rows, t.cols] += 1
+        assert t.rows.start % alignment == 0 and t.cols.start % alignment == 0
+        assert t.color_rows == slice(max(0, t.rows.start - 96), min(height, t.rows.stop + 96))
+        assert t.aux_cols == slice(max(0, t.cols.start - 208), min(width, t.cols.stop + 208))
+        assert (t.aux_rows.stop - t.aux_rows.start) * (t.aux_cols.stop - t.aux_cols.start) <= budget
+    # Tiles of at most 272 pixels (700 - 2 x 208, down to a multiple of 16), evened out to 256.
+    assert (covered == 1).all() and len(tiles) == 4 * 12 and tiles[1].cols == slice(256, 512)
+    whole = tiling.plan_tiles(700, 700, color_overlap, aux_overlap, alignment, budget)
+    assert len(whole) == 1 and whole[0].aux_rows == slice(0, 700) and whole[0].aux_cols == slice(0, 700)
+
+
+def test_reads_stay_within_the_tile_budget(wide_render):
+    """Memory follows the tiles: a tiled denoise asks for no window, and no band of its auto-exposure, larger
+    than its pixel budget (here 300 x 300 pixels of a 384 x 256 image: 96-pixel tiles, 3 x 4)."""
+    images = dict(zip(("color", "albedo", "normal"), wide_render))
+    budget = 300 * 300
+    finished, _, reads, writes = _denoise_tiles(images, quality="FAST", prefilter="FAST", tile_pixels=budget)
+    assert finished and len(writes) == 12
+    assert max((rows.stop - rows.start) * (cols.stop - cols.start) for _, rows, cols in reads) <= budget
+
+
+def test_auto_exposure_closed_forms():
+    """0.18 over the geometric mean of the 16 x 16 bins' mean luminance, bins at floor(i H / bins): two
+    halves of luminance a and b give 0.18 / sqrt(ab); black bins (and negative colour, clamped) do not count;
+    an all-black image gives 1."""
+    luminance = np.array([0.212671, 0.715160, 0.072169])
+    image = np.zeros((40, 64, 3), np.float32)      # 3 bins of 13-14 rows, 4 of 16 columns
+    image[:, :32] = 0.5 / luminance.sum()
+    image[:, 32:] = 8.0 / luminance.sum()
+    read = lambda rows, cols: image[rows, cols]   # noqa: E731
+    assert tiling.auto_exposure(read, 40, 64) == pytest.approx(0.18 / 2.0, rel=1e-6)
+    image[:, 32:] = -1.0
+    assert tiling.auto_exposure(read, 40, 64) == pytest.approx(0.18 / 0.5, rel=1e-6)
+    image[:] = 0.0
+    assert tiling.auto_exposure(read, 40, 64) == 1.0
+
+
+# ---------------------------------------------------------------- progress and stopping
+def test_progress_goes_from_zero_to_one(renders):
+    color, albedo, normal, _ = renders
+    seen = []
+    out = dn.denoise(color, albedo, normal, threads=2, progress=lambda fraction: seen.append(fraction) or True)
+    assert out is not None and np.array_equal(out, dn.denoise(color, albedo, normal, threads=2))
+    assert seen and all(0.0 <= f <= 1.0 for f in seen) and seen == sorted(seen) and seen[-1] == 1.0
+
+
+@pytest.mark.parametrize("stop_when", ["at once", "during a run"])
+def test_progress_answering_false_stops_cleanly(wide_render, monkeypatch, stop_when):
+    """False from progress: at once (before OIDN runs), or once OIDN has reported progress of a run (the run
+    is then under way, and OIDN cancels it through its monitor): denoise returns None without an error, the
+    caller's images are untouched, and the next denoise runs. A tiled denoise stopped half-way has written
+    the tiles before the stop, none after."""
+    images = dict(zip(("color", "albedo", "normal"), wide_render))
+    before = {name: image.copy() for name, image in images.items()}
+    outcomes = []
+    execute = dn._Device.execute
+    monkeypatch.setattr(dn._Device, "execute", lambda *args: outcomes.append(execute(*args)) or outcomes[-1])
+    calls = []
+
+    def progress(fraction):
+        calls.append(fraction)
+        return stop_when != "at once" and fraction == 0.0
+    assert dn.denoise(*images.values(), quality="FAST", threads=2, progress=progress) is None
+    assert calls[-1] > 0.0 if stop_when == "during a run" else calls == [0.0] and outcomes == []
+    assert outcomes.count(False) <= 1 and outcomes[-1:] in ([], [False])   # the last run was stopped
+    assert all(np.array_equal(images[name], before[name]) for name in images)
+    finished, output, _, writes = _denoise_tiles(images, quality="FAST", tile_size=128,
+                                                 progress=lambda fraction: fraction < 0.5)
+    assert not finished and 0 < len(writes) < 6
+    assert dn.denoise(*images.values(), quality="FAST", threads=2) is not None
+
+
+def test_an_error_in_progress_stops_oidn_and_comes_back(renders):
+    color, albedo, normal, _ = renders
+
+    def progress(fraction):
+        raise KeyError("from progress")
+    with pytest.raises(KeyError, match="from progress"):
+        dn.denoise(color, albedo, normal, threads=2, progress=progress)
+    assert dn.denoise(color, albedo, normal, threads=2) is not None

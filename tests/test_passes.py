@@ -23,11 +23,20 @@ from ember.engine.session import FinalRender
 class _Rect:
     def __init__(self, store, name, x, y, w, h, channels):
         self.store, self.name, self.box, self.channels = store, name, (x, y, w, h), channels
+        self.values = None
 
     def foreach_set(self, values):
         x, y, w, h = self.box
+        self.values = np.asarray(values, np.float32).reshape(h, w, self.channels).copy()
+
+    def merge(self):
+        """Blender merges every pass of a sub-result into the render, written or not (unwritten: blank,
+        NaN here so that tests see it); a later write wins where rectangles overlap."""
         plane = self.store.setdefault(self.name, {})
-        plane[(x, y, w, h)] = np.asarray(values, np.float32).reshape(h, w, self.channels).copy()
+        plane.pop(self.box, None)
+        x, y, w, h = self.box
+        plane[self.box] = self.values if self.values is not None else np.full((h, w, self.channels), np.nan,
+                                                                              np.float32)
 
 
 class _Pass:
@@ -58,7 +67,9 @@ class RecordingEngine:
         return _Result(self, x, y, w, h)
 
     def end_result(self, result, cancel=False):
-        pass
+        if not cancel:
+            for p in result.layers[0].passes.values():
+                p.rect.merge()
 
     def report(self, kind, message):
         self.reports.append((kind, message))
@@ -79,7 +90,7 @@ class RecordingEngine:
         bpy.context.scene.frame_set(frame, subframe=subframe)
 
     def image(self, name) -> np.ndarray:
-        """(H, W, C) of a pass, row 0 at the top, the last write of each rectangle winning."""
+        """(H, W, C) of a pass, row 0 at the top, the last write winning."""
         h, w = self.resolution_y, self.resolution_x
         pieces = self.store[name]
         c = next(iter(pieces.values())).shape[2]
@@ -249,8 +260,8 @@ def test_interactive_final_render_shows_denoised_previews(monkeypatch):
     shown = []
     original = session.PreviewDenoiser.display
 
-    def spy(self, film, now):
-        image = original(self, film, now)
+    def spy(self, film, now, *rest):
+        image = original(self, film, now, *rest)
         shown.append(image is not None)
         return image
     monkeypatch.setattr(session.PreviewDenoiser, "display", spy)
@@ -423,11 +434,168 @@ def test_denoising_off_is_the_noisy_image_and_a_failure_keeps_it(monkeypatch, ca
     off = render(scene, samples=4, use_denoising=False)
     np.testing.assert_array_equal(off.image("Combined"), noisy)
     import ember.engine.denoise as dn
+    import ember.engine.film_denoise as film_denoise
 
     def broken(*args, **kwargs):
         raise dn.DenoiseError("simulated failure")
-    monkeypatch.setattr(dn, "denoise", broken)
+    monkeypatch.setattr(film_denoise, "denoise_image", broken)
     capsys.readouterr()
     failed = render(scene, samples=4, use_denoising=True)
     np.testing.assert_array_equal(failed.image("Combined"), noisy)
     assert "denoising failed" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------- the final denoise: which, tiles, stops
+def noisy_scene():
+    """plane_scene with a cube over the floor (noise to denoise) and the Noisy Image kept."""
+    scene = plane_scene()
+    bpy.ops.mesh.primitive_cube_add(size=2.0, location=(0.3, -0.2, 1.5))
+    scene.view_layers[0].ember.denoising_store_passes = True
+    return scene
+
+
+class StoppingEngine(RecordingEngine):
+    """Esc injected: test_break() answers `stop` (headless Blender's is always False)."""
+    stop = False
+
+    def test_break(self):
+        return self.stop
+
+
+def spy_denoiser(monkeypatch, tile_size=None, on_tile=None):
+    """Record the (quality, prefilter) of every film denoise; tile_size forces tiles; on_tile() after each
+    tile written."""
+    from ember.engine import denoise as dn
+    from ember.engine import film_denoise
+    calls = []
+
+    def spy(read, height, width, write, **options):
+        calls.append((options["quality"], options["prefilter"]))
+
+        def write_then(rows, cols, rgb):
+            write(rows, cols, rgb)
+            if on_tile is not None:
+                on_tile()
+        return dn.denoise_image(read, height, width, write_then, tile_size=tile_size, **options)
+    monkeypatch.setattr(film_denoise, "denoise_image", spy)
+    return calls
+
+
+def render_with(engine_class, scene, samples=4, **ember):
+    scene.ember.samples, scene.ember.use_adaptive_sampling = samples, False
+    for key, value in ember.items():
+        setattr(scene.ember, key, value)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    engine = engine_class(scene, depsgraph.view_layer)
+    FinalRender(engine, depsgraph).run()
+    return engine
+
+
+def test_final_denoise_options():
+    """Esc or Ctrl-C: none (Cycles keeps what was rendered); a time limit that stopped the render: OIDN's
+    fast settings; else the scene's."""
+    from types import SimpleNamespace
+
+    from ember.engine.film_denoise import final_options
+    ember = SimpleNamespace(use_denoising=True, denoising_quality="HIGH", denoising_prefilter="ACCURATE")
+    assert final_options(ember, stopped_early=False, user_stopped=False) == ("HIGH", "ACCURATE")
+    assert final_options(ember, stopped_early=True, user_stopped=False) == ("FAST", "FAST")
+    assert final_options(ember, stopped_early=True, user_stopped=True) is None
+    assert final_options(ember, stopped_early=False, user_stopped=True) is None
+    ember.use_denoising = False
+    assert final_options(ember, stopped_early=False, user_stopped=False) is None
+
+
+def test_a_time_limit_denoises_fast_and_shows_progress(monkeypatch, capsys):
+    """A render the time limit stopped (its first pass always completes) is denoised with OIDN's fast
+    settings, its progress printed as the render's; a render that finished uses the scene's settings."""
+    calls = spy_denoiser(monkeypatch)
+    scene = noisy_scene()
+    capsys.readouterr()
+    engine = render_with(RecordingEngine, scene, samples=4096, use_denoising=True, time_limit=1e-6)
+    out = capsys.readouterr().out
+    assert calls == [("FAST", "FAST")] and "stopped: 1/4096 samples" in out
+    assert "| Denoising (Fast) 0% | Elapsed 00:00.00 | Remaining --:--" in out
+    assert not np.array_equal(engine.image("Combined"), engine.image("Noisy Image"))
+    assert np.isfinite(engine.image("Combined")).all()
+    render_with(RecordingEngine, scene, samples=4, use_denoising=True, time_limit=0.0)
+    assert calls[1] == ("HIGH", "ACCURATE")
+
+
+def test_esc_during_the_render_keeps_the_noisy_image(monkeypatch):
+    calls = spy_denoiser(monkeypatch)
+
+    class EscWhileRendering(StoppingEngine):
+        def update_progress(self, fraction):
+            self.stop = True      # Esc once the first wave is in
+    engine = render_with(EscWhileRendering, noisy_scene(), samples=64, use_denoising=True)
+    assert calls == []
+    np.testing.assert_array_equal(engine.image("Combined"), engine.image("Noisy Image"))
+    assert np.isfinite(engine.image("Combined")).all()
+
+
+def test_esc_during_the_denoise_puts_the_noisy_image_back(monkeypatch):
+    """Tiles already written denoised are written noisy again, every pass with them; nothing is lost."""
+    box = {}
+    calls = spy_denoiser(monkeypatch, tile_size=16, on_tile=lambda: setattr(box["engine"], "stop", True))
+
+    class Esc(StoppingEngine):
+        def __init__(self, *args):
+            super().__init__(*args)
+            box["engine"] = self
+    engine = render_with(Esc, noisy_scene(), samples=4, use_denoising=True)
+    assert calls == [("HIGH", "ACCURATE")] and engine.stop
+    written = [box for box in engine.store["Combined"] if box[2] == 16]     # the first (16-pixel) tile
+    assert written, "a denoised tile was written before Esc"
+    np.testing.assert_array_equal(engine.image("Combined"), engine.image("Noisy Image"))
+    assert np.isfinite(engine.image("Denoising Albedo")).all() and np.isfinite(engine.image("Depth")).all()
+
+
+def test_tiles_are_written_with_every_pass(monkeypatch):
+    """A tiled denoise writes each tile with all its passes (Blender merges every pass of a sub-result):
+    the image is the whole image denoised at once; the passes are the undenoised render's."""
+    scene = noisy_scene()
+    plain = render_with(RecordingEngine, scene, samples=4, use_denoising=False)
+    whole = render_with(RecordingEngine, scene, samples=4, use_denoising=True)
+    spy_denoiser(monkeypatch, tile_size=16)
+    tiled = render_with(RecordingEngine, scene, samples=4, use_denoising=True)
+    assert {box[2] for box in tiled.store["Combined"]} >= {16, 8}    # 24 pixels wide: tiles of 16 and 8
+    combined = tiled.image("Combined")
+    assert np.isfinite(combined).all() and not np.array_equal(combined, tiled.image("Noisy Image"))
+    np.testing.assert_allclose(combined, whole.image("Combined"), rtol=0, atol=1e-5 * np.abs(combined).max())
+    for name in ("Depth", "Normal", "Denoising Albedo"):
+        np.testing.assert_array_equal(tiled.image(name), plain.image(name))
+    np.testing.assert_array_equal(tiled.image("Noisy Image"), plain.image("Combined"))
+
+
+def test_denoised_render_keeps_its_passes_through_blender():
+    """Through bpy.ops.render.render: the denoised Combined does not wipe the other passes (Blender merges
+    every pass of the sub-results the denoised image is written in): Depth and Normal are the undenoised
+    render's."""
+    from exr import render_multilayer
+    scene = plane_scene()
+    bpy.ops.mesh.primitive_cube_add(size=2.0, location=(0.3, -0.2, 1.5))
+    scene.render.engine, scene.ember.samples = "EMBER", 4
+    layer = scene.view_layers[0].name
+    renders = {}
+    for denoise in (False, True):
+        scene.ember.use_denoising = denoise
+        renders[denoise] = render_multilayer(scene)[0]
+    assert not np.array_equal(renders[True][f"{layer}.Combined"]["R"], renders[False][f"{layer}.Combined"]["R"])
+    for name in ("Depth", "Normal"):
+        planes = renders[False][f"{layer}.{name}"]
+        assert max(float(np.abs(plane).max()) for plane in planes.values()) > 0.1
+        for channel, plane in planes.items():
+            np.testing.assert_array_equal(renders[True][f"{layer}.{name}"][channel], plane)
+
+
+def test_a_time_limit_denoises_fast_through_blender(monkeypatch, capsys):
+    from exr import render_multilayer
+    calls = spy_denoiser(monkeypatch)
+    scene = noisy_scene()
+    scene.render.engine = "EMBER"
+    scene.ember.samples, scene.ember.use_adaptive_sampling, scene.ember.time_limit = 4096, False, 1e-6
+    parts, _ = render_multilayer(scene)
+    assert calls == [("FAST", "FAST")] and "| Denoising (Fast) 0% |" in capsys.readouterr().out
+    combined = parts[f"{scene.view_layers[0].name}.Combined"]
+    assert all(np.isfinite(combined[c]).all() for c in "RGBA")
