@@ -77,6 +77,23 @@ def diffuse_material(name, color=(0.8, 0.8, 0.8), principled=False, image=None):
     return mat
 
 
+def node_material(name, idname, **inputs):
+    """A material made of one shader node with the given input values (and node options as attributes)."""
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    node = tree.nodes.new(idname)
+    for key, value in inputs.items():
+        if key.startswith("opt_"):
+            setattr(node, key[4:], value)
+        else:
+            socket = node.inputs[key.replace("_", " ")]
+            socket.default_value = (*value, 1.0) if socket.type == "RGBA" else value
+    tree.links.new(node.outputs[0], out.inputs["Surface"])
+    return mat
+
+
 def emission_material(name, color=(1, 1, 1), strength=1.0):
     mat = bpy.data.materials.new(name)
     tree = mat.node_tree

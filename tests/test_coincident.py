@@ -10,8 +10,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, new_scene, quad_object, render_to_array,
-                         replicate_render, set_world)
+from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, new_scene, node_material, quad_object,
+                         render_to_array, replicate_render, set_world)
 from ember.kernels.coincident import Coincident
 
 
@@ -55,15 +55,7 @@ def test_partners_lie_on_one_another_with_some_area():
 
 
 def _glass(name, color=(1, 1, 1), ior=1.5):
-    mat = bpy.data.materials.new(name)
-    tree = mat.node_tree
-    tree.nodes.clear()
-    glass = tree.nodes.new("ShaderNodeBsdfGlass")
-    glass.inputs["Color"].default_value = (*color, 1.0)
-    glass.inputs["IOR"].default_value = ior
-    glass.inputs["Roughness"].default_value = 0.0
-    tree.links.new(glass.outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
-    return mat
+    return node_material(name, "ShaderNodeBsdfGlass", Color=color, IOR=ior, Roughness=0.0)
 
 
 def _cylinder(name, radius, z0, z1, material, inward=False):

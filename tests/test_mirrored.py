@@ -12,7 +12,7 @@ import itertools
 import bpy
 import pytest
 
-from bpy_helpers import compare_to_cycles, diffuse_material, new_scene, quad_object, set_world
+from bpy_helpers import compare_to_cycles, diffuse_material, new_scene, node_material, quad_object, set_world
 from test_motion_blur import _linear
 
 SIGNS = list(itertools.product((1, -1), repeat=3))   # (1, 1, 1) ... (-1, -1, -1)
@@ -30,18 +30,6 @@ def _facing_material() -> bpy.types.Material:
     mix.inputs["B"].default_value = (0.8, 0.1, 0.1, 1.0)
     tree.links.new(geometry.outputs["Backfacing"], mix.inputs["Factor"])
     tree.links.new(mix.outputs["Result"], shader.inputs["Base Color"])
-    return mat
-
-
-def _glass_material() -> bpy.types.Material:
-    mat = bpy.data.materials.new("Glass")
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    glass = tree.nodes.new("ShaderNodeBsdfGlass")
-    glass.inputs["Roughness"].default_value = 0.0
-    glass.inputs["IOR"].default_value = 1.5
-    tree.links.new(glass.outputs[0], out.inputs["Surface"])
     return mat
 
 
@@ -71,7 +59,8 @@ def mirrored_scene(kind: str, material: str = "facing") -> bpy.types.Scene:
     wall = diffuse_material("Wall", (0.5, 0.5, 0.5))
     quad_object("Wall", (-5, 1.5, -1), (10, 0, 0), (0, 0, 5), wall)
     quad_object("Floor", (-5, -5, -0.2), (10, 0, 0), (0, 6.5, 0), wall)
-    mat = _facing_material() if material == "facing" else _glass_material()
+    mat = _facing_material() if material == "facing" else \
+        node_material("Glass", "ShaderNodeBsdfGlass", Roughness=0.0, IOR=1.5)
     if kind == "instance":
         source = bpy.data.collections.new("Source")   # not linked to the scene: seen only through instances
         ob = _monkey(mat, subdivisions=1)

@@ -8,24 +8,7 @@ import numpy as np
 import pytest
 
 from bpy_helpers import REPLICATE_SEEDS, add_camera, compare_to_cycles, diffuse_material, mesh_object, new_scene, \
-    quad_object, render_to_array, replicate_render, set_world
-
-
-def node_material(name, idname, **inputs):
-    """A material made of one shader node with the given input values (and node options as attributes)."""
-    mat = bpy.data.materials.new(name)
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    node = tree.nodes.new(idname)
-    for key, value in inputs.items():
-        if key.startswith("opt_"):
-            setattr(node, key[4:], value)
-        else:
-            socket = node.inputs[key.replace("_", " ")]
-            socket.default_value = (*value, 1.0) if socket.type == "RGBA" else value
-    tree.links.new(node.outputs[0], out.inputs["Surface"])
-    return mat
+    node_material, quad_object, render_to_array, replicate_render, set_world
 
 
 def sphere(location, material, radius=0.45):

@@ -101,14 +101,7 @@ class RecordingEngine:
 
 
 def render(scene, samples=4, **ember):
-    scene.ember.samples = samples
-    scene.ember.use_adaptive_sampling = False
-    for key, value in ember.items():
-        setattr(scene.ember, key, value)
-    depsgraph = bpy.context.evaluated_depsgraph_get()
-    engine = RecordingEngine(scene, depsgraph.view_layer)
-    FinalRender(engine, depsgraph).run()
-    return engine
+    return render_with(RecordingEngine, scene, samples, **ember)
 
 
 def plane_scene(width=24, height=16, ortho=False):
@@ -482,6 +475,7 @@ def spy_denoiser(monkeypatch, tile_size=None, on_tile=None):
 
 
 def render_with(engine_class, scene, samples=4, **ember):
+    """A final render through FinalRender with a stand-in engine of engine_class, as Blender would run it."""
     scene.ember.samples, scene.ember.use_adaptive_sampling = samples, False
     for key, value in ember.items():
         setattr(scene.ember, key, value)
