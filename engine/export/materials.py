@@ -4,8 +4,8 @@ are loaded by images.py.
 This module owns the reading of shader node trees (also used by world.py).
 Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
 and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
-Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Emission, Holdout; Subsurface Scattering
-as diffuse); each closure keeps its inputs and the Mix factors above it, and the kernel builds Cycles'
+Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Emission, Holdout; Subsurface
+Scattering as diffuse); each closure keeps its inputs and the Mix factors above it, and the kernel builds Cycles'
 closures from them (kernels.shading.nodes).
 
 - Constant values that are not numbers read 0 (Cycles drops a closure whose weight is not a number), and
@@ -143,6 +143,7 @@ CLOSURE_NODES = {
     "ShaderNodeBsdfSheen": ("SHEEN", ("Color", "Roughness")),
     "ShaderNodeBsdfTranslucent": ("TRANSLUCENT", ("Color",)),
     "ShaderNodeBsdfTransparent": ("TRANSPARENT", ("Color",)),
+    "ShaderNodeBsdfToon": ("TOON", ("Color", "Size", "Smooth")),
     "ShaderNodeEmission": ("EMISSION", ("Color", "Strength")),
     "ShaderNodeHoldout": ("HOLDOUT", ()),
     # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
@@ -331,6 +332,8 @@ class _MaterialReader:
             options.append(("distribution", distribution))
         if kind == "METALLIC":
             options.append(("fresnel", node.fresnel_type))
+        if kind == "TOON":
+            options.append(("component", node.component))
         return tuple(options)
 
     def directions(self, node, groups) -> tuple:

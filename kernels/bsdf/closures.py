@@ -26,19 +26,23 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
-from . import diffuse, fresnel, sheen
+from . import diffuse, fresnel, sheen, toon
 
 # Lobe ids.
-LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY = range(9)
+(LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY, TOON_DIFFUSE,
+ TOON_GLOSSY) = range(11)
 # Lobes with a roughness-dependent singular (delta) limit; eval of a singular closure is 0.
 MICROFACET_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
 # Cycles drops closures whose sample weight is below this (`CLOSURE_WEIGHT_CUTOFF`).
 WEIGHT_CUTOFF = np.float32(1e-5)
 # Lobes Cycles counts as diffuse (CLOSURE_IS_BSDF_DIFFUSE) for the bump shadowing term.
-DIFFUSE_LOBES = (LAMBERT, OREN_NAYAR, SHEEN, TRANSLUCENT)
+DIFFUSE_LOBES = (LAMBERT, OREN_NAYAR, SHEEN, TRANSLUCENT, TOON_DIFFUSE)
 # Cycles' light passes (kernel/film/light_passes.h): diffuse-like closures count as diffuse, reflecting
 # microfacets as glossy, glass as glossy on its reflection side, the rest as transmission.
-GLOSSY_LOBES = (REFLECTION, ASHIKHMIN_SHIRLEY)
+GLOSSY_LOBES = (REFLECTION, ASHIKHMIN_SHIRLEY, TOON_GLOSSY)
+# Lobes whose sampled direction keeps the value their sampler gave it, as Cycles keeps the sampling
+# closure's own eval: re-evaluating a toon cone narrower than float32's acos resolution gives 0.
+SELF_EVALUATED = (TOON_DIFFUSE, TOON_GLOSSY)
 
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
@@ -46,9 +50,9 @@ ZERO, ONE = F32(0.0), F32(1.0)
 # Per-closure parameter columns and their defaults: scalars (C,) and colours (3, C).
 # soften: 1 where a diffuse closure on another normal takes the shadowing term's softening (Cycles skips
 # it when the material turns Bump Map Correction off). dist: a microfacet lobe's distribution (0 GGX,
-# 1 Beckmann: microfacet.GGX / BECKMANN).
+# 1 Beckmann: microfacet.GGX / BECKMANN). size, smooth: a toon closure's angles (toon.toon_angles).
 _SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0, "soften": 1.0,
-            "dist": 0.0}
+            "dist": 0.0, "size": 0.0, "smooth": 0.0}
 _COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0}
 
 
@@ -356,8 +360,10 @@ class ClosureSet:
             # Otherwise: the whole (non-delta) mixture at the sampled direction.
             s = np.flatnonzero(~out.delta & (out.pdf > 0))
             if len(s):
+                own = (out.weight[:, s] * out.pdf[s], out.pdf[s].copy())
                 f, pdf = self.eval_at(s, tuple(c[s] for c in out.wi))
                 self._sampled_bump(s, row[s], out, f, pdf)
+                self._sampled_self(s, row[s], out, f, pdf, own)
                 good = pdf > 0
                 sampling.put_columns(out.weight, s, np.where(good, f / np.where(good, pdf, ONE), ZERO))
                 out.pdf[s] = pdf
@@ -385,6 +391,22 @@ class ClosureSet:
         f_c, pdf_c = self._eval_closures(wi, r, bump=False)
         f[:, fix] += f_c * lost
         pdf[fix] += (pdf_c * lost * self.sw[r] / self.total_sw[s[fix]]).astype(F32)
+
+    def _sampled_self(self, s, rows, out, f, pdf, own):
+        """For closures of SELF_EVALUATED lobes that sampled, put their sampler's (f |cos|, pdf) own (lobe
+        values at hits s) in the mixture (f, pdf, in place) in place of eval_at's evaluation of them: Cycles
+        keeps the sampling closure's own eval. The bump term is that of a sample (_sampled_bump)."""
+        fix = np.flatnonzero(np.isin(self.lobe[rows], SELF_EVALUATED))
+        if not len(fix):
+            return
+        r, h = rows[fix], s[fix]
+        wi = tuple(c[h] for c in out.wi)
+        f_c, pdf_c = self._eval_closures(wi, r, bump=False)
+        term = self._bump_term(r, wi) if self._bumped is not None else None
+        term = np.ones(len(r), F32) if term is None else np.where(self._diffuse[r], term, ONE)
+        f_own = own[0][:, fix] * np.take(self.weight, r, axis=1)
+        f[:, fix] += (f_own - f_c) * term
+        pdf[fix] += ((own[1][fix] - pdf_c) * (term > 0) * self.sw[r] / self.total_sw[h]).astype(F32)
 
     def _sample_lambert(self, out, hits, rows, u1, u2):
         """Only Lambert closures, all on the shading normal: a cosine sample about it. Every closure of
@@ -668,15 +690,35 @@ def _sheen_sample(cs, rows, wo, u1, u2, uc):
     return wi, weight, pdf, False
 
 
+def _toon_diffuse_eval(cs, rows, wo, wi):
+    return toon.diffuse_toon_eval(wo, wi, cs.size[rows], cs.smooth[rows])
+
+
+def _toon_diffuse_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = toon.diffuse_toon_sample(wo, cs.size[rows], cs.smooth[rows], u1, u2)
+    return wi, weight, pdf, False
+
+
+def _toon_glossy_eval(cs, rows, wo, wi):
+    return toon.glossy_toon_eval(wo, wi, cs.size[rows], cs.smooth[rows])
+
+
+def _toon_glossy_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = toon.glossy_toon_sample(wo, cs.size[rows], cs.smooth[rows], u1, u2)
+    return wi, weight, pdf, False
+
+
 def _transparent_sample(cs, rows, wo, u1, u2, uc):
     wi = (-wo[0], -wo[1], -wo[2])
     n = len(rows)
     return wi, np.ones(n, F32), np.ones(n, F32), True
 
 
-EVAL = {LAMBERT: _lambert_eval, OREN_NAYAR: _oren_nayar_eval, TRANSLUCENT: _translucent_eval, SHEEN: _sheen_eval}
+EVAL = {LAMBERT: _lambert_eval, OREN_NAYAR: _oren_nayar_eval, TRANSLUCENT: _translucent_eval, SHEEN: _sheen_eval,
+        TOON_DIFFUSE: _toon_diffuse_eval, TOON_GLOSSY: _toon_glossy_eval}
 SAMPLE = {LAMBERT: _lambert_sample, OREN_NAYAR: _oren_nayar_sample, TRANSLUCENT: _translucent_sample,
-          SHEEN: _sheen_sample, TRANSPARENT: _transparent_sample}
+          SHEEN: _sheen_sample, TRANSPARENT: _transparent_sample, TOON_DIFFUSE: _toon_diffuse_sample,
+          TOON_GLOSSY: _toon_glossy_sample}
 
 
 def register_lobe(lobe: int, eval_fn, sample_fn) -> None:

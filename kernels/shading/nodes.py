@@ -17,6 +17,7 @@ from .. import sampling
 from ..bsdf import closures as lobes
 from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
+from ..bsdf.toon import toon_angles
 from ..paths import DIFFUSE as DIFFUSE_LABEL
 from ..scene import Closure, NormalMap, Param, Tangent
 from . import normals, ops
@@ -44,6 +45,7 @@ DEFAULTS = {
                  "Anisotropy": 0.0, "Rotation": 0.0},
     "SHEEN": {"Color": GREY, "Roughness": 0.5},
     "TRANSLUCENT": {"Color": GREY},
+    "TOON": {"Color": GREY, "Size": 0.5, "Smooth": 0.0},
     "TRANSPARENT": {"Color": WHITE},
     "EMISSION": {"Color": WHITE, "Strength": 1.0},
     "HOLDOUT": {},
@@ -284,6 +286,20 @@ def _sheen_sample_weight(weight, albedo):
     return (np.abs(sampling.channel_mean(np.asarray(weight, F32))) * albedo).astype(F32)
 
 
+def _toon(c, ctx, w, b):
+    """Toon BSDF: one diffuse or glossy toon closure on the node's normal (not tilted for specular
+    reflection), weight colour x mix weight; the caustics switch drops the glossy one as a glossy closure."""
+    if b is not None:
+        glossy = c.option("component", "DIFFUSE") == "GLOSSY"
+        color = ctx.input(c, "Color")
+        if glossy:
+            color = _times(color, _made(ctx))
+        size, smooth = toon_angles(ctx.input(c, "Size"), ctx.input(c, "Smooth"))
+        b.add(lobes.TOON_GLOSSY if glossy else lobes.TOON_DIFFUSE, ctx.idx, color * w, normal=ctx.normal_arg,
+              size=size, smooth=smooth, **({} if glossy else _soften(ctx)))
+    return Built()
+
+
 def _emission(c, ctx, w, b):
     # Not clamped: Cycles emits what the nodes compute, negative values too (a node program's output).
     return Built(emission=ctx.input(c, "Color") * (ctx.input(c, "Strength") * w))
@@ -480,7 +496,7 @@ def layering_weight(layer_albedo: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 _BUILDERS = {"DIFFUSE": _diffuse, "PRINCIPLED": _principled, "GLOSSY": _glossy, "GLASS": _glass,
              "REFRACTION": _refraction, "METALLIC": _metallic, "SHEEN": _sheen, "TRANSLUCENT": _translucent,
-             "TRANSPARENT": _transparent, "EMISSION": _emission, "HOLDOUT": _holdout}
+             "TRANSPARENT": _transparent, "TOON": _toon, "EMISSION": _emission, "HOLDOUT": _holdout}
 
 
 # ---------------------------------------------------------------- what a closure may do, without hits
