@@ -133,3 +133,13 @@ def test_size_zero_toon_mixed_with_diffuse_keeps_its_sampled_light(component):
     mean, se = mean_and_stderr(s.weight, axis=1)
     expected = 0.5 * toon_color + 0.5 * diffuse_color
     assert np.all(np.abs(mean - expected) < 4 * se + 1e-6), (mean, expected, se)
+
+
+def test_a_glossy_toon_is_diffuse_like_for_the_denoising_features():
+    """Cycles counts every closure that is neither microfacet nor singular as rough (roughness^2 = 1): a
+    glossy toon's colour is the denoising albedo, read at its own hit."""
+    from ember.kernels import passes
+    cs = surface([toon_closure("GLOSSY", (0.2, 0.5, 0.7), 0.1)], 3)
+    _, diffuse, specular, done = passes.denoising_features(cs, 3, tuple(np.zeros((3, 3), F32)))
+    assert done.all() and not specular.any()
+    np.testing.assert_allclose(diffuse, np.float32([[0.2], [0.5], [0.7]]).repeat(3, axis=1), rtol=1e-6)

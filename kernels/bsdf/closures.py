@@ -33,6 +33,8 @@ from . import diffuse, fresnel, sheen, toon
  TOON_GLOSSY) = range(11)
 # Lobes with a roughness-dependent singular (delta) limit; eval of a singular closure is 0.
 MICROFACET_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
+# Lobes that are always singular (Cycles' CLOSURE_IS_BSDF_SINGULAR).
+SINGULAR_LOBES = (TRANSPARENT,)
 # Cycles drops closures whose sample weight is below this (`CLOSURE_WEIGHT_CUTOFF`).
 WEIGHT_CUTOFF = np.float32(1e-5)
 # Lobes Cycles counts as diffuse (CLOSURE_IS_BSDF_DIFFUSE) for the bump shadowing term.
