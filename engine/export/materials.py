@@ -4,9 +4,9 @@ are loaded by images.py.
 This module owns the reading of shader node trees (also used by world.py).
 Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
 and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
-Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Emission, Holdout; Subsurface
-Scattering as diffuse); each closure keeps its inputs and the Mix factors above it, and the kernel builds Cycles'
-closures from them (kernels.shading.nodes).
+Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Ray Portal, Emission, Holdout;
+Subsurface Scattering as diffuse); each closure keeps its inputs and the Mix factors above it, and the
+kernel builds Cycles' closures from them (kernels.shading.nodes).
 
 - Constant values that are not numbers read 0 (Cycles drops a closure whose weight is not a number), and
   a constant emission brighter than lights.MAX_LIGHT_RADIANCE is clamped to it, as lights are; each warned.
@@ -144,11 +144,14 @@ CLOSURE_NODES = {
     "ShaderNodeBsdfTranslucent": ("TRANSLUCENT", ("Color",)),
     "ShaderNodeBsdfTransparent": ("TRANSPARENT", ("Color",)),
     "ShaderNodeBsdfToon": ("TOON", ("Color", "Size", "Smooth")),
+    "ShaderNodeBsdfRayPortal": ("PORTAL", ("Color", "Position", "Direction")),
     "ShaderNodeEmission": ("EMISSION", ("Color", "Strength")),
     "ShaderNodeHoldout": ("HOLDOUT", ()),
     # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
     "ShaderNodeSubsurfaceScattering": ("DIFFUSE", ("Color",)),
 }
+# Vector inputs read only when linked: unlinked, they stand for the hit's position or the ray's direction.
+LINKED_ONLY_INPUTS = ("Position", "Direction")
 # The (colour, strength) inputs of the closures that emit.
 EMISSION_INPUTS = {"EMISSION": ("Color", "Strength"), "PRINCIPLED": ("Emission Color", "Emission Strength")}
 # Closure inputs that take a direction from a node: a Normal Map (normals) or a Tangent node.
@@ -320,6 +323,7 @@ class _MaterialReader:
             return [Closure("DIFFUSE", (("Color", Param.of(GREY3)),), (), factors)]
         closure_kind, names = CLOSURE_NODES[kind]
         sockets = {s.identifier: s for s in node.inputs}  # unavailable sockets are not found by name
+        names = tuple(n for n in names if n not in LINKED_ONLY_INPUTS or source_of(sockets[n], groups).node is not None)
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
         inputs = self.limit_emission(node, closure_kind, inputs) + self.directions(node, groups)
         self.check_unsupported(node, closure_kind, groups)

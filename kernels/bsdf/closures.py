@@ -30,11 +30,11 @@ from . import diffuse, fresnel, sheen, toon
 
 # Lobe ids.
 (LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY, TOON_DIFFUSE,
- TOON_GLOSSY) = range(11)
+ TOON_GLOSSY, PORTAL) = range(12)
 # Lobes with a roughness-dependent singular (delta) limit; eval of a singular closure is 0.
 MICROFACET_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
 # Lobes that are always singular (Cycles' CLOSURE_IS_BSDF_SINGULAR).
-SINGULAR_LOBES = (TRANSPARENT,)
+SINGULAR_LOBES = (TRANSPARENT, PORTAL)
 # Cycles drops closures whose sample weight is below this (`CLOSURE_WEIGHT_CUTOFF`).
 WEIGHT_CUTOFF = np.float32(1e-5)
 # Lobes Cycles counts as diffuse (CLOSURE_IS_BSDF_DIFFUSE) for the bump shadowing term.
@@ -53,9 +53,10 @@ ZERO, ONE = F32(0.0), F32(1.0)
 # soften: 1 where a diffuse closure on another normal takes the shadowing term's softening (Cycles skips
 # it when the material turns Bump Map Correction off). dist: a microfacet lobe's distribution (0 GGX,
 # 1 Beckmann: microfacet.GGX / BECKMANN). size, smooth: a toon closure's angles (toon.toon_angles).
+# origin, direction: where a Ray Portal sends the ray on, world space (origin NaN: from the hit itself).
 _SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0, "soften": 1.0,
             "dist": 0.0, "size": 0.0, "smooth": 0.0}
-_COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0}
+_COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0, "origin": np.nan, "direction": 0.0}
 
 
 class ClosureBuilder:
@@ -229,7 +230,7 @@ class ClosureSet:
         return np.bincount(self.hit, live, minlength=self.n_hits) > 0
 
     def _delta_mask(self) -> np.ndarray:
-        delta = self.lobe == TRANSPARENT
+        delta = np.isin(self.lobe, SINGULAR_LOBES)
         singular = [k for k in (REFLECTION, REFRACTION, GLASS) if k in self.kinds]
         if singular:
             micro = np.isin(self.lobe, singular)
@@ -311,7 +312,7 @@ class ClosureSet:
         return f, pdf
 
     def _eval_lobe(self, k, rows, wi):
-        if k == TRANSPARENT:
+        if k in SINGULAR_LOBES:
             return np.zeros((3, len(rows)), F32), np.zeros(len(rows), F32)
         value, pdf = EVAL[k](self, rows, _pick(self.wo, rows), wi)
         f = value * np.take(self.weight, rows, axis=1)
@@ -452,6 +453,9 @@ class ClosureSet:
         for k in np.unique(lobe):
             sel = np.flatnonzero(lobe == k)
             r, h = rows[sel], hits[sel]
+            if k == PORTAL:
+                self._sample_portals(out, h, r)
+                continue
             wi, weight, pdf, transmit = SAMPLE[k](self, r, _pick(self.wo, r), u1[h], u2[h], uc[h])
             world = _to_world(tuple(np.take(c, r, axis=1) for c in self.frame), wi)
             for axis in range(3):
@@ -461,6 +465,22 @@ class ClosureSet:
             out.transmit[h] = transmit
             out.delta[h] = self.delta[r] | np.isinf(pdf)
             out.transparent[h] = k == TRANSPARENT
+
+    def _sample_portals(self, out, hits, rows):
+        """Ray Portal closures rows at hits send the ray on from their origin along their direction (world
+        space), weight 1 and pdf inf: a pass-through like transparency, Cycles' integrate_surface_ray_portal.
+        Which side of the surface that is, the integrator decides (it has the geometric normal)."""
+        for axis in range(3):
+            out.wi[axis][hits] = self.direction[axis, rows]
+        sampling.put_columns(out.weight, hits, ONE)
+        out.pdf[hits] = np.inf
+        out.delta[hits] = out.transparent[hits] = out.portal[hits] = True
+        origin = np.take(self.origin, rows, axis=1)
+        moved = np.flatnonzero(np.isfinite(origin[0]))
+        if len(moved):
+            if out.origin is None:
+                out.origin = np.full((3, len(out.pdf)), np.nan, F32)
+            out.origin[:, hits[moved]] = origin[:, moved]
 
     def _sample_warp(self, out, hits, warp, u1, u2):
         if not len(hits):
@@ -640,9 +660,11 @@ def class_albedo(cs, n_hits: int):
 
 class BsdfSample:
     """Per hit: direction wi (world), throughput weight (3, N), pdf (N,) for MIS (inf for delta),
-    delta, transmit (wi goes through the surface) and transparent (a pass-through) masks, and row, the
-    closure table row that was picked (-1: none), whose lobe says diffuse or glossy (Light Path)."""
-    __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent", "row")
+    delta, transmit (wi goes through the surface), transparent (a pass-through: a Transparent closure or a
+    Ray Portal, which counts no bounce) and portal (a Ray Portal) masks, and row, the closure table row that
+    was picked (-1: none), whose lobe says diffuse or glossy (Light Path). origin: None, or (3, N) float32
+    where a Ray Portal moves the ray's start (NaN elsewhere: the ray leaves from the hit)."""
+    __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent", "portal", "origin", "row")
 
     def __init__(self, n: int):
         self.wi = (np.zeros(n, F32), np.zeros(n, F32), np.ones(n, F32))
@@ -651,6 +673,8 @@ class BsdfSample:
         self.delta = np.zeros(n, bool)
         self.transmit = np.zeros(n, bool)
         self.transparent = np.zeros(n, bool)
+        self.portal = np.zeros(n, bool)
+        self.origin = None
         self.row = np.full(n, -1, np.int64)
 
 

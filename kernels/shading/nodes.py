@@ -28,6 +28,7 @@ ZERO, ONE = F32(0.0), F32(1.0)
 CUTOFF = F32(1e-5)  # Cycles' CLOSURE_WEIGHT_CUTOFF: lighter layers are not made
 
 WHITE, GREY = (1.0, 1.0, 1.0), (0.8, 0.8, 0.8)
+UNSET = (float("nan"),) * 3  # a vector input that stands for something of the hit when it is not linked
 # Blender 5.0's defaults of the inputs Ember reads (node_shader_bsdf_*.cc, node_shader_emission.cc).
 DEFAULTS = {
     "PRINCIPLED": {"Base Color": GREY, "Metallic": 0.0, "Roughness": 0.5, "IOR": 1.5, "Alpha": 1.0,
@@ -46,6 +47,8 @@ DEFAULTS = {
     "SHEEN": {"Color": GREY, "Roughness": 0.5},
     "TRANSLUCENT": {"Color": GREY},
     "TOON": {"Color": GREY, "Size": 0.5, "Smooth": 0.0},
+    # Unlinked, Position is the hit's (Cycles links it to the position) and Direction (0, 0, 0) the ray's.
+    "PORTAL": {"Color": WHITE, "Position": UNSET, "Direction": (0.0, 0.0, 0.0)},
     "TRANSPARENT": {"Color": WHITE},
     "EMISSION": {"Color": WHITE, "Strength": 1.0},
     "HOLDOUT": {},
@@ -300,6 +303,33 @@ def _toon(c, ctx, w, b):
     return Built()
 
 
+def portal_weight(c: Closure, ctx: Context, w: np.ndarray) -> np.ndarray:
+    """(3, n) a Ray Portal's closure weight, 0 where Cycles would not make it (below its cutoff)."""
+    weight = ctx.input(c, "Color") * w
+    return np.where(np.abs(weight.mean(axis=0)) >= CUTOFF, weight, ZERO).astype(F32)
+
+
+def _portal(c, ctx, w, b):
+    """Ray Portal BSDF (Cycles' bsdf_ray_portal_setup): weight colour x mix weight; the ray goes on from
+    Position along Direction, or straight on where Direction is zero; a Position within 3.2e-5 of the hit
+    (Cycles' squared 1e-9) is the hit itself, which the ray leaves as from any surface. Direction is
+    normalised: Cycles traces it as given, and a direction that is not of unit length gives the next hit a
+    viewer direction that is not either."""
+    if b is not None:
+        origin = ctx.input(c, "Position")
+        hit_p = np.stack([ctx.take(a) for a in ctx.hit.p])
+        origin = np.where(np.isnan(origin), hit_p, origin)
+        moved = np.sum(np.square(origin - hit_p), axis=0) > F32(1e-9)
+        direction = ctx.input(c, "Direction")
+        length = np.sqrt(np.sum(np.square(direction), axis=0))
+        ahead = np.stack([-a for a in ctx.wo])
+        usable = (length > 0) & np.isfinite(length)
+        direction = np.where(usable, direction / np.where(usable, length, ONE), ahead).astype(F32)
+        b.add(lobes.PORTAL, ctx.idx, portal_weight(c, ctx, w), origin=np.where(moved, origin, np.nan),
+              direction=direction)
+    return Built()
+
+
 def _emission(c, ctx, w, b):
     # Not clamped: Cycles emits what the nodes compute, negative values too (a node program's output).
     return Built(emission=ctx.input(c, "Color") * (ctx.input(c, "Strength") * w))
@@ -496,7 +526,8 @@ def layering_weight(layer_albedo: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 _BUILDERS = {"DIFFUSE": _diffuse, "PRINCIPLED": _principled, "GLOSSY": _glossy, "GLASS": _glass,
              "REFRACTION": _refraction, "METALLIC": _metallic, "SHEEN": _sheen, "TRANSLUCENT": _translucent,
-             "TRANSPARENT": _transparent, "TOON": _toon, "EMISSION": _emission, "HOLDOUT": _holdout}
+             "TRANSPARENT": _transparent, "TOON": _toon, "PORTAL": _portal, "EMISSION": _emission,
+             "HOLDOUT": _holdout}
 
 
 # ---------------------------------------------------------------- what a closure may do, without hits
@@ -531,7 +562,7 @@ def may_be_transparent(c: Closure) -> bool:
 
 def may_transmit(c: Closure) -> bool:
     """Whether rays may go through the closure's surface (refract, pass straight, or scatter to its back)."""
-    if c.kind in ("GLASS", "REFRACTION", "TRANSLUCENT"):
+    if c.kind in ("GLASS", "REFRACTION", "TRANSLUCENT", "PORTAL"):
         return True
     return may_be_transparent(c) or (c.kind == "PRINCIPLED" and _param_may_differ(c, "Transmission Weight", 0.0))
 
