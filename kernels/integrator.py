@@ -1345,10 +1345,10 @@ class Renderer:
     def _continues(self, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
         """Update the path state with the sampled BSDF (focus: the world's at these hits, _world_focus);
         return the indices of the paths that go on."""
-        portal = bs.portal
-        if portal.any():  # a Ray Portal's ray leaves on the side its direction points to (any side)
-            bs.transmit = np.where(portal, _leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
-        ok = (_leaves_its_side(bs.wi, hit.ng, bs.transmit) | portal) & (bs.pdf > 0)
+        portal, free = bs.portal, bs.any_side
+        if free.any():  # hair and Ray Portal samples leave on the side they point to, untested (as in Cycles)
+            bs.through = np.where(free, _leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
+        ok = (_leaves_its_side(bs.wi, hit.ng, bs.transmit) | free) & (bs.pdf > 0)
         throughput = state.throughput * bs.weight
         alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
         passing = bs.transparent
@@ -1402,7 +1402,7 @@ class Renderer:
     def _crossings(self, state, hit, alive, bs) -> None:
         """The coincident triangle each ray going through its surface meets at once (kernels.coincident),
         for the next intersection; not for a ray whose hit was itself handed over."""
-        through = np.take(bs.transmit, alive) & ~state.handed
+        through = np.take(_below(bs), alive) & ~state.handed
         if bs.origin is not None:  # a portal's ray that starts elsewhere crosses nothing here
             through &= ~np.isfinite(np.take(bs.origin[0], alive))
         through = np.flatnonzero(through)
@@ -1414,7 +1414,7 @@ class Renderer:
             state.partner_uv[0, through], state.partner_uv[1, through] = b1, b2
 
     def _spawn(self, hit, alive, bs) -> "Rays":
-        rays = self._rays_from(hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(bs.transmit, alive))
+        rays = self._rays_from(hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(_below(bs), alive))
         if bs.origin is not None:
             # A Ray Portal that moves the ray: it starts exactly there, and may meet this surface again.
             origin = np.take(bs.origin, alive, axis=1)
@@ -1658,6 +1658,11 @@ def _leaves_its_side(w, g, transmit) -> np.ndarray:
     by): a reflection above it, a transmission below it (Cycles' test)."""
     side = w[0] * g[0] + w[1] * g[1] + w[2] * g[2]
     return np.where(transmit, side < 0, side > 0)
+
+
+def _below(bs) -> np.ndarray:
+    """(N,) bool: a BSDF sample's ray leaves below the surface (its label's side, unless it is untested)."""
+    return bs.transmit if bs.through is None else bs.through
 
 
 def _clamp(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray:

@@ -266,3 +266,78 @@ def test_what_the_camera_sees_of_the_world_through_a_portal_is_a_hole_in_a_trans
     assert blocks["CYCLES"].min() < 0.2 and blocks["CYCLES"].max() == 1.0  # the skyward portal, the floor
     tolerance = 6 * 0.5 / np.sqrt(samples * 64)
     np.testing.assert_allclose(blocks["EMBER"], blocks["CYCLES"], atol=tolerance)
+
+
+# ---------------------------------------------------------------- Hair BSDF on meshes
+HAIR = "ShaderNodeBsdfHair"
+
+
+def hair_card(name, component="Reflection", color=(0.8, 0.6, 0.4), roughness=(0.2, 0.6), offset=0.0,
+              uv_tangent=True):
+    """A Hair BSDF as on a hair card: its tangent from the UV map (a Tangent node), or unlinked (the
+    triangle's p2 - p0, as Cycles takes it on a mesh)."""
+    mat, tree, out = _material(name)
+    node = tree.nodes.new(HAIR)
+    node.component = component
+    node.inputs["Color"].default_value = (*color, 1.0)
+    node.inputs["RoughnessU"].default_value, node.inputs["RoughnessV"].default_value = roughness
+    node.inputs["Offset"].default_value = offset
+    if uv_tangent:
+        tangent = tree.nodes.new("ShaderNodeTangent")
+        tangent.direction_type = "UV_MAP"
+        tree.links.new(tangent.outputs["Tangent"], node.inputs["Tangent"])
+    tree.links.new(node.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def hair_scene(width=64, height=48):
+    """An empty scene for hair, with Cycles' light tree off. Cycles' hair samplers reach directions its eval
+    excludes (below the normal; reflection beyond 90 degrees round the hair) and its reflection sampler
+    reports a pdf that is not its density, so what a hair closure reflects depends on how lights are
+    chosen, not only on the closure: where Cycles' light tree gives a lamp behind the normal no probability,
+    the BSDF's samples toward it count in full, where Ember weighs them by MIS. With one lamp and the tree
+    off, both choose it always and agree."""
+    scene = new_scene(width, height)
+    scene.cycles.use_light_tree = False
+    set_world(scene, color=(0.0, 0.0, 0.0))
+    return scene
+
+
+def test_hair_bsdf_on_hair_cards():
+    """Cards with UV tangents at a few angles, some lit from behind: reflection (shifted by Offset),
+    transmission, rough reflection, and both mixed."""
+    from bpy_helpers import quad_object
+    scene = hair_scene()
+    cards = [hair_card("Reflection", offset=0.15), hair_card("Transmission", "Transmission", (0.9, 0.7, 0.5)),
+             hair_card("Rough reflection", roughness=(0.5, 0.9), color=(0.5, 0.6, 0.9))]
+    mixed, tree, out = _material("Both")
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.inputs[0].default_value = 0.4
+    for i, component in enumerate(("Reflection", "Transmission")):
+        node = tree.nodes.new(HAIR)
+        node.component = component
+        node.inputs["RoughnessU"].default_value = 0.3
+        tree.links.new(node.outputs[0], mix.inputs[1 + i])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    cards.append(mixed)
+    for i, mat in enumerate(cards):
+        card = quad_object(mat.name, (-0.4, 0, -0.6), (0.8, 0, 0), (0, 0, 1.2), mat)
+        card.location = (-1.8 + 1.2 * i, 0, 1.0)
+        card.rotation_euler = (0.3 * i - 0.4, 0.5 - 0.25 * i, 0.2 * i)
+    add_light(scene, "AREA", (3.5, 0.5, 2.0), 300, size=1.5, rotation=(0.0, 1.2, 0.0))
+    add_camera(scene, (0, -4.5, 1.2), (0, 0, 1.0), lens=35)
+    compare_to_cycles(scene, samples=256, max_bounces=4)
+
+
+def test_hair_bsdf_on_smooth_spheres_takes_each_triangles_edge_for_its_tangent():
+    """Unlinked, the tangent is each triangle's p2 - p0 (in the order Blender lists the corners): a faceted,
+    per-triangle look, the same in both."""
+    scene = hair_scene()
+    materials = [hair_card("Edges", uv_tangent=False, roughness=(0.1, 1.0)),
+                 hair_card("Edges rough", uv_tangent=False, roughness=(0.4, 0.5), offset=0.1, color=(0.5, 0.7, 0.9)),
+                 hair_card("Edges transmission", "Transmission", uv_tangent=False, roughness=(0.3, 0.3))]
+    grid_of_spheres(materials, 3)
+    no_terminator_offset()
+    add_light(scene, "AREA", (2, -3, 4), 600, size=2.0, rotation=(0.6, 0.3, 0.0))
+    add_camera(scene, (0, -4.2, 1.0), (0, 0, 0.6), lens=40)
+    compare_to_cycles(scene, samples=256, max_bounces=4)

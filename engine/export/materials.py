@@ -4,8 +4,8 @@ are loaded by images.py.
 This module owns the reading of shader node trees (also used by world.py).
 Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
 and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
-Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Ray Portal, Emission, Holdout;
-Subsurface Scattering as diffuse); each closure keeps its inputs and the Mix factors above it, and the
+Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Ray Portal, Hair, Emission,
+Holdout; Subsurface Scattering as diffuse); each closure keeps its inputs and the Mix factors above it, and the
 kernel builds Cycles' closures from them (kernels.shading.nodes).
 
 - Constant values that are not numbers read 0 (Cycles drops a closure whose weight is not a number), and
@@ -145,10 +145,16 @@ CLOSURE_NODES = {
     "ShaderNodeBsdfTransparent": ("TRANSPARENT", ("Color",)),
     "ShaderNodeBsdfToon": ("TOON", ("Color", "Size", "Smooth")),
     "ShaderNodeBsdfRayPortal": ("PORTAL", ("Color", "Position", "Direction")),
+    "ShaderNodeBsdfHair": ("HAIR", ("Color", "Offset", "RoughnessU", "RoughnessV")),
     "ShaderNodeEmission": ("EMISSION", ("Color", "Strength")),
     "ShaderNodeHoldout": ("HOLDOUT", ()),
     # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
     "ShaderNodeSubsurfaceScattering": ("DIFFUSE", ("Color",)),
+}
+# Why some shader nodes are not rendered (others: "is not supported").
+UNSUPPORTED_NODES = {
+    "ShaderNodeBsdfHairPrincipled": "is not supported (a model for hair curves; on a mesh Cycles shades it about "
+                                    "each triangle's first edge)",
 }
 # Vector inputs read only when linked: unlinked, they stand for the hit's position or the ray's direction.
 LINKED_ONLY_INPUTS = ("Position", "Direction")
@@ -319,7 +325,8 @@ class _MaterialReader:
                 out += yield self._closures(source_of(node.inputs[i], groups), factors)
             return out
         if kind not in CLOSURE_NODES:
-            self.issues.append(f"{node.bl_label} '{node.name}' is not supported, rendered grey ({DEFAULT_ALBEDO})")
+            why = UNSUPPORTED_NODES.get(kind, "is not supported")
+            self.issues.append(f"{node.bl_label} '{node.name}' {why}, rendered grey ({DEFAULT_ALBEDO})")
             return [Closure("DIFFUSE", (("Color", Param.of(GREY3)),), (), factors)]
         closure_kind, names = CLOSURE_NODES[kind]
         sockets = {s.identifier: s for s in node.inputs}  # unavailable sockets are not found by name
@@ -336,7 +343,7 @@ class _MaterialReader:
             options.append(("distribution", distribution))
         if kind == "METALLIC":
             options.append(("fresnel", node.fresnel_type))
-        if kind == "TOON":
+        if kind in ("TOON", "HAIR"):
             options.append(("component", node.component))
         return tuple(options)
 

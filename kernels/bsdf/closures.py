@@ -26,11 +26,11 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
-from . import diffuse, fresnel, sheen, toon
+from . import diffuse, fresnel, hair, sheen, toon
 
 # Lobe ids.
 (LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY, TOON_DIFFUSE,
- TOON_GLOSSY, PORTAL) = range(12)
+ TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION) = range(14)
 # Lobes with a roughness-dependent singular (delta) limit; eval of a singular closure is 0.
 MICROFACET_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
 # Lobes that are always singular (Cycles' CLOSURE_IS_BSDF_SINGULAR).
@@ -41,10 +41,16 @@ WEIGHT_CUTOFF = np.float32(1e-5)
 DIFFUSE_LOBES = (LAMBERT, OREN_NAYAR, SHEEN, TRANSLUCENT, TOON_DIFFUSE)
 # Cycles' light passes (kernel/film/light_passes.h): diffuse-like closures count as diffuse, reflecting
 # microfacets as glossy, glass as glossy on its reflection side, the rest as transmission.
-GLOSSY_LOBES = (REFLECTION, ASHIKHMIN_SHIRLEY, TOON_GLOSSY)
+GLOSSY_LOBES = (REFLECTION, ASHIKHMIN_SHIRLEY, TOON_GLOSSY, HAIR_REFLECTION)
+# Lobes Cycles counts as transmission (CLOSURE_IS_BSDF_TRANSMISSION) for its Transmission Color pass.
+TRANSMISSION_LOBES = (REFRACTION, HAIR_TRANSMISSION)
 # Lobes whose sampled direction keeps the value their sampler gave it, as Cycles keeps the sampling
-# closure's own eval: re-evaluating a toon cone narrower than float32's acos resolution gives 0.
-SELF_EVALUATED = (TOON_DIFFUSE, TOON_GLOSSY)
+# closure's own eval: re-evaluating a toon cone narrower than float32's acos resolution gives 0, and the
+# hair lobes' samplers reach directions their eval does not (and report another pdf).
+SELF_EVALUATED = (TOON_DIFFUSE, TOON_GLOSSY, HAIR_REFLECTION, HAIR_TRANSMISSION)
+# Lobes whose samples leave on whichever side of the surface they point to, untested (Cycles' hair
+# samplers and Ray Portal): the integrator sees which side that is.
+ANY_SIDE_LOBES = (PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION)
 
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
@@ -54,9 +60,10 @@ ZERO, ONE = F32(0.0), F32(1.0)
 # it when the material turns Bump Map Correction off). dist: a microfacet lobe's distribution (0 GGX,
 # 1 Beckmann: microfacet.GGX / BECKMANN). size, smooth: a toon closure's angles (toon.toon_angles).
 # origin, direction: where a Ray Portal sends the ray on, world space (origin NaN: from the hit itself).
+# r1, r2, offset, hair_t: a hair closure's roughnesses, highlight shift and unit tangent (world space).
 _SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0, "soften": 1.0,
-            "dist": 0.0, "size": 0.0, "smooth": 0.0}
-_COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0, "origin": np.nan, "direction": 0.0}
+            "dist": 0.0, "size": 0.0, "smooth": 0.0, "r1": 1.0, "r2": 1.0, "offset": 0.0}
+_COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0, "origin": np.nan, "direction": 0.0, "hair_t": 0.0}
 
 
 class ClosureBuilder:
@@ -465,16 +472,18 @@ class ClosureSet:
             out.transmit[h] = transmit
             out.delta[h] = self.delta[r] | np.isinf(pdf)
             out.transparent[h] = k == TRANSPARENT
+            out.any_side[h] = k in ANY_SIDE_LOBES
 
     def _sample_portals(self, out, hits, rows):
         """Ray Portal closures rows at hits send the ray on from their origin along their direction (world
         space), weight 1 and pdf inf: a pass-through like transparency, Cycles' integrate_surface_ray_portal.
-        Which side of the surface that is, the integrator decides (it has the geometric normal)."""
+        Which side of the surface that is, the integrator sees (it has the geometric normal)."""
         for axis in range(3):
             out.wi[axis][hits] = self.direction[axis, rows]
         sampling.put_columns(out.weight, hits, ONE)
         out.pdf[hits] = np.inf
-        out.delta[hits] = out.transparent[hits] = out.portal[hits] = True
+        for mask in (out.delta, out.transparent, out.portal, out.any_side, out.transmit):
+            mask[hits] = True
         origin = np.take(self.origin, rows, axis=1)
         moved = np.flatnonzero(np.isfinite(origin[0]))
         if len(moved):
@@ -651,7 +660,7 @@ def class_albedo(cs, n_hits: int):
     glass = lobe == GLASS
     parts = (total * np.isin(lobe, DIFFUSE_LOBES),
              total * np.isin(lobe, GLOSSY_LOBES) + reflect * glass,
-             total * (lobe == REFRACTION) + transmit * glass)
+             total * np.isin(lobe, TRANSMISSION_LOBES) + transmit * glass)
     for o, part in zip(out, parts):
         for k in range(3):
             o[k] = np.bincount(cs.hit, part[k], minlength=n_hits)
@@ -660,11 +669,14 @@ def class_albedo(cs, n_hits: int):
 
 class BsdfSample:
     """Per hit: direction wi (world), throughput weight (3, N), pdf (N,) for MIS (inf for delta),
-    delta, transmit (wi goes through the surface), transparent (a pass-through: a Transparent closure or a
-    Ray Portal, which counts no bounce) and portal (a Ray Portal) masks, and row, the closure table row that
-    was picked (-1: none), whose lobe says diffuse or glossy (Light Path). origin: None, or (3, N) float32
-    where a Ray Portal moves the ray's start (NaN elsewhere: the ray leaves from the hit)."""
-    __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent", "portal", "origin", "row")
+    delta, transmit (the lobe transmits: Cycles' LABEL_TRANSMIT), transparent (a pass-through: a Transparent
+    closure or a Ray Portal, which counts no bounce), portal (a Ray Portal) and any_side (ANY_SIDE_LOBES: no
+    side test) masks, and row, the closure table row that was picked (-1: none), whose lobe says diffuse or
+    glossy (Light Path). origin: None, or (3, N) float32 where a Ray Portal moves the ray's start (NaN
+    elsewhere: the ray leaves from the hit). through: None, or (N,) where the ray leaves below the surface
+    when that is not what transmit says (the integrator sets it for any_side samples)."""
+    __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent", "portal", "any_side", "origin",
+                 "through", "row")
 
     def __init__(self, n: int):
         self.wi = (np.zeros(n, F32), np.zeros(n, F32), np.ones(n, F32))
@@ -674,7 +686,8 @@ class BsdfSample:
         self.transmit = np.zeros(n, bool)
         self.transparent = np.zeros(n, bool)
         self.portal = np.zeros(n, bool)
-        self.origin = None
+        self.any_side = np.zeros(n, bool)
+        self.origin = self.through = None
         self.row = np.full(n, -1, np.int64)
 
 
@@ -734,6 +747,31 @@ def _toon_glossy_sample(cs, rows, wo, u1, u2, uc):
     return wi, weight, pdf, False
 
 
+def _hair_args(cs, rows):
+    """A hair closure's tangent in its local frame, and its roughnesses and offset."""
+    tangent = _to_local(tuple(np.take(c, rows, axis=1) for c in cs.frame),
+                        tuple(np.take(c, rows) for c in cs.hair_t))
+    return tangent, cs.r1[rows], cs.r2[rows], cs.offset[rows]
+
+
+def _hair_reflection_eval(cs, rows, wo, wi):
+    return hair.hair_reflection_eval(wo, wi, *_hair_args(cs, rows))
+
+
+def _hair_reflection_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = hair.hair_reflection_sample(wo, *_hair_args(cs, rows), u1, u2)
+    return wi, weight, pdf, False
+
+
+def _hair_transmission_eval(cs, rows, wo, wi):
+    return hair.hair_transmission_eval(wo, wi, *_hair_args(cs, rows))
+
+
+def _hair_transmission_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = hair.hair_transmission_sample(wo, *_hair_args(cs, rows), u1, u2)
+    return wi, weight, pdf, True
+
+
 def _transparent_sample(cs, rows, wo, u1, u2, uc):
     wi = (-wo[0], -wo[1], -wo[2])
     n = len(rows)
@@ -741,10 +779,12 @@ def _transparent_sample(cs, rows, wo, u1, u2, uc):
 
 
 EVAL = {LAMBERT: _lambert_eval, OREN_NAYAR: _oren_nayar_eval, TRANSLUCENT: _translucent_eval, SHEEN: _sheen_eval,
-        TOON_DIFFUSE: _toon_diffuse_eval, TOON_GLOSSY: _toon_glossy_eval}
+        TOON_DIFFUSE: _toon_diffuse_eval, TOON_GLOSSY: _toon_glossy_eval, HAIR_REFLECTION: _hair_reflection_eval,
+        HAIR_TRANSMISSION: _hair_transmission_eval}
 SAMPLE = {LAMBERT: _lambert_sample, OREN_NAYAR: _oren_nayar_sample, TRANSLUCENT: _translucent_sample,
           SHEEN: _sheen_sample, TRANSPARENT: _transparent_sample, TOON_DIFFUSE: _toon_diffuse_sample,
-          TOON_GLOSSY: _toon_glossy_sample}
+          TOON_GLOSSY: _toon_glossy_sample, HAIR_REFLECTION: _hair_reflection_sample,
+          HAIR_TRANSMISSION: _hair_transmission_sample}
 
 
 def register_lobe(lobe: int, eval_fn, sample_fn) -> None:

@@ -49,6 +49,7 @@ DEFAULTS = {
     "TOON": {"Color": GREY, "Size": 0.5, "Smooth": 0.0},
     # Unlinked, Position is the hit's (Cycles links it to the position) and Direction (0, 0, 0) the ray's.
     "PORTAL": {"Color": WHITE, "Position": UNSET, "Direction": (0.0, 0.0, 0.0)},
+    "HAIR": {"Color": GREY, "Offset": 0.0, "RoughnessU": 0.1, "RoughnessV": 1.0},
     "TRANSPARENT": {"Color": WHITE},
     "EMISSION": {"Color": WHITE, "Strength": 1.0},
     "HOLDOUT": {},
@@ -155,8 +156,8 @@ class Context:
                     self._specular = self.with_normal(valid)
         return self._specular
 
-    def tangent(self, closure: Closure, rotation: str, axis, anisotropic: bool = True):
-        """The closure's Tangent input rotated about axis by 2 pi x the rotation input: a Tangent node's
+    def tangent(self, closure: Closure, rotation: str | None, axis, anisotropic: bool = True):
+        """The closure's Tangent input rotated about axis by 2 pi x the rotation input (None: not): a Tangent node's
         UV-map tangent, or unlinked Cycles' default, the radial tangent about the object's Z axis (only
         made when the closure is anisotropic). None: no tangent (the closure takes an arbitrary one)."""
         spec = closure.input("Tangent")
@@ -176,7 +177,7 @@ class Context:
             return None
         if t is None:
             return None
-        angle = self.input(closure, rotation)
+        angle = 0.0 if rotation is None else self.input(closure, rotation)
         if np.any(angle != 0):
             t = normals.rotate_about(t, axis, F32(2.0 * np.pi) * angle)
         return t
@@ -327,6 +328,28 @@ def _portal(c, ctx, w, b):
         direction = np.where(usable, direction / np.where(usable, length, ONE), ahead).astype(F32)
         b.add(lobes.PORTAL, ctx.idx, portal_weight(c, ctx, w), origin=np.where(moved, origin, np.nan),
               direction=direction)
+    return Built()
+
+
+def _hair(c, ctx, w, b):
+    """Hair BSDF (Cycles' bsdf_hair_*_setup on a triangle): weight colour x mix weight, on the normal tilted
+    for specular reflection; roughnesses clamped to [0.001, 1]. Its tangent is the Tangent input (normalised,
+    the highlight shifted by -Offset), or unlinked the triangle's p2 - p0 (Cycles' dPdv, reversed on back
+    faces) with no shift: one direction per triangle, in the order Blender lists its corners."""
+    if b is not None:
+        given = ctx.tangent(c, None, ctx.ns, anisotropic=False)
+        if given is None:
+            edge = ctx.hit.edges(ctx.idx)[1]
+            sign = np.where(ctx.take(ctx.hit.backfacing), F32(-1.0), ONE)
+            tangent = normals.safe_normalize(tuple(edge[:, k] * sign for k in range(3)))
+            offset = ZERO
+        else:
+            tangent, offset = normals.safe_normalize(given), -ctx.input(c, "Offset")
+        transmission = c.option("component", "Reflection") == "Transmission"
+        b.add(lobes.HAIR_TRANSMISSION if transmission else lobes.HAIR_REFLECTION, ctx.idx, ctx.input(c, "Color") * w,
+              normal=ctx.specular().normal_arg, hair_t=tangent, offset=offset,
+              r1=np.clip(ctx.input(c, "RoughnessU"), F32(0.001), ONE),
+              r2=np.clip(ctx.input(c, "RoughnessV"), F32(0.001), ONE))
     return Built()
 
 
@@ -526,7 +549,7 @@ def layering_weight(layer_albedo: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 _BUILDERS = {"DIFFUSE": _diffuse, "PRINCIPLED": _principled, "GLOSSY": _glossy, "GLASS": _glass,
              "REFRACTION": _refraction, "METALLIC": _metallic, "SHEEN": _sheen, "TRANSLUCENT": _translucent,
-             "TRANSPARENT": _transparent, "TOON": _toon, "PORTAL": _portal, "EMISSION": _emission,
+             "TRANSPARENT": _transparent, "TOON": _toon, "PORTAL": _portal, "HAIR": _hair, "EMISSION": _emission,
              "HOLDOUT": _holdout}
 
 
