@@ -585,7 +585,7 @@ def may_be_transparent(c: Closure) -> bool:
 
 def may_transmit(c: Closure) -> bool:
     """Whether rays may go through the closure's surface (refract, pass straight, or scatter to its back)."""
-    if c.kind in ("GLASS", "REFRACTION", "TRANSLUCENT", "PORTAL"):
+    if c.kind in ("GLASS", "REFRACTION", "TRANSLUCENT", "PORTAL", "HAIR"):
         return True
     return may_be_transparent(c) or (c.kind == "PRINCIPLED" and _param_may_differ(c, "Transmission Weight", 0.0))
 
