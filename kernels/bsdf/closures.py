@@ -175,6 +175,7 @@ class ClosureSet:
         self._wo_world = wo
         self._frame = self._wo = None
         self.kinds = sorted({int(ch["lobe"]) for ch in chunks})
+        self.self_evaluated = any(k in SELF_EVALUATED for k in self.kinds)
         self.delta = self._delta_mask()
         # Lambert alone is evaluated in world space, without frames (the common case of diffuse scenes).
         self.lambert_only = self.kinds == [LAMBERT] and self._bumped is None
@@ -370,10 +371,11 @@ class ClosureSet:
             # Otherwise: the whole (non-delta) mixture at the sampled direction.
             s = np.flatnonzero(~out.delta & (out.pdf > 0))
             if len(s):
-                own = (out.weight[:, s] * out.pdf[s], out.pdf[s].copy())
+                own = (out.weight[:, s] * out.pdf[s], out.pdf[s].copy()) if self.self_evaluated else None
                 f, pdf = self.eval_at(s, tuple(c[s] for c in out.wi))
                 self._sampled_bump(s, row[s], out, f, pdf)
-                self._sampled_self(s, row[s], out, f, pdf, own)
+                if own is not None:
+                    self._sampled_self(s, row[s], out, f, pdf, own)
                 good = pdf > 0
                 sampling.put_columns(out.weight, s, np.where(good, f / np.where(good, pdf, ONE), ZERO))
                 out.pdf[s] = pdf
