@@ -10,7 +10,10 @@ its weight, times an albedo estimate for microfacet lobes). Then, per hit:
 Sampling picks one closure in proportion to its sample weight. A delta closure (a mirror, smooth glass,
 transparency) gives its own direction with weight weight_j * w_j / P(j) and pdf = inf (nothing else can
 find that direction). Otherwise the chosen lobe proposes the direction and the whole mixture is evaluated
-there: weight = f / pdf, one-sample MIS over the lobes (balance heuristic), as Cycles does.
+there: weight = f / pdf, one-sample MIS over the lobes (balance heuristic), as Cycles does; the lobe that
+sampled enters that sum with its sampler's own value where the two differ (SELF_EVALUATED: toon, hair), as
+Cycles keeps the sampling closure's eval. A Ray Portal is a delta closure whose sample also moves the ray's
+start (BsdfSample.origin).
 
 The table is sorted by hit; lobes of one kind are evaluated together, in their local frames (z along the
 closure's own normal: shading, coat or bump-mapped; x along its tangent for anisotropic lobes).
