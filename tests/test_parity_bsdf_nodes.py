@@ -235,7 +235,7 @@ def portal_panels_scene(width=80, height=40):
                 diffuse_material("Floor", (0.5, 0.5, 0.5)))
     panels = [portal_material("Half diffuse", mix_with="ShaderNodeBsdfDiffuse"),
               portal_material("Half transparent", mix_with="ShaderNodeBsdfTransparent", fac=0.5),
-              portal_material("Skyward", direction=(0.0, 0.3, 1.0), color=(0.9, 0.6, 0.4)),
+              portal_material("Skyward", direction=(0.0, 0.6, 0.8), color=(0.9, 0.6, 0.4)),
               portal_material("Sideways", offset=(3.0, 0.0, 0.0))]
     for i, mat in enumerate(panels):
         x = -2.25 + 1.5 * i

@@ -100,3 +100,16 @@ def test_the_export_reads_position_and_direction_only_when_linked():
     assert plain.input("Position") is None and plain.input("Direction") is None
     assert moved.input("Position").link is not None and moved.input("Direction") is not None
     assert not [w for w in result.warnings if "Portal" in w]
+
+
+def test_a_constant_direction_that_is_not_of_unit_length_is_normalised_with_a_warning():
+    pytest.importorskip("bpy")
+    from bpy_helpers import camera_only_scene, export_current
+    from test_export import add_cube
+    from test_parity_bsdf_nodes import portal_material
+    camera_only_scene()
+    add_cube().data.materials.append(portal_material("Long", direction=(0, 0, 3)))
+    add_cube(location=(3, 0, 0)).data.materials.append(portal_material("Unit", direction=(0, 0.6, 0.8)))
+    result = export_current()
+    warned = [w for w in result.warnings if "Portal" in w]
+    assert len(warned) == 1 and "'Long'" in warned[0] and "length 3" in warned[0], warned

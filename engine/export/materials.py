@@ -334,6 +334,7 @@ class _MaterialReader:
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
         inputs = self.limit_emission(node, closure_kind, inputs) + self.directions(node, groups)
         self.check_unsupported(node, closure_kind, groups)
+        self.check_direction(node, dict(inputs).get("Direction"))
         return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
 
     def options(self, node, kind: str) -> tuple:
@@ -398,6 +399,16 @@ class _MaterialReader:
             self.issues.append(f"{label} subsurface scattering is rendered as diffuse")
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
+
+    def check_direction(self, node, direction: Param | None) -> None:
+        """A Ray Portal's Direction is normalised; Cycles traces a constant one of another length as given, which
+        its next hit sees as a viewer direction that is not of unit length either: say so."""
+        if direction is None or direction.varies:
+            return
+        length = math.sqrt(sum(v * v for v in direction.value))
+        if length > 0 and abs(length - 1.0) > 1e-3:
+            self.issues.append(f"{node.bl_label} '{node.name}' Direction has length {length:g}: normalised (Cycles "
+                               f"traces it as given)")
 
     def limit_emission(self, node, kind: str, inputs: tuple) -> tuple:
         """The closure's inputs, a constant emission brighter than MAX_LIGHT_RADIANCE clamped to it (with a
