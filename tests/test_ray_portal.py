@@ -4,7 +4,6 @@ reads of its node."""
 import numpy as np
 import pytest
 
-from ember.kernels.bsdf import closures as lobes
 from ember.kernels.scene import Closure, Materials, Param, Shader
 from ember.kernels.shading import Shading
 from test_closures import FakeHit
