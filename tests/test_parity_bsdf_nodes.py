@@ -251,7 +251,7 @@ def portal_panels_scene(width=80, height=40):
 
 
 def test_ray_portals_mixed_turned_and_moved_under_a_sun_and_a_lamp():
-    compare_to_cycles(portal_panels_scene(), samples=256, max_bounces=4)
+    compare_to_cycles(portal_panels_scene(), samples=128, max_bounces=4)
 
 
 def test_what_the_camera_sees_of_the_world_through_a_portal_is_a_hole_in_a_transparent_film():
