@@ -869,6 +869,8 @@ class Renderer:
         if self._coincident is not None:
             state.partner, state.partner_uv = np.full(n, -1, np.int64), np.zeros((2, n), np.float32)
             state.handed = np.zeros(n, bool)
+        if self.shading.has_portal:
+            state.portal = np.zeros(n, np.int32)
         if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux or "denoising_depth" in aux):
             state.features = np.ones((3, n), np.float32)
         if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
@@ -913,7 +915,7 @@ class Renderer:
             # of distance, bounce after bounce (kernel/util/differential.h).
             state.dp = state.dp + t_hit * wave.spread_dd
             hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
-                              caustics=caustics)
+                              caustics=caustics, portal=state.portal)
             shading = self.shading.surface(hit)
             self._check_stop()
             if aux is not None and step == 0:
@@ -1208,8 +1210,11 @@ class Renderer:
         if not len(looked):
             return
         d = rays.dirs
-        ray = RayInfo(state.bounce[looked], state.transparent[looked], emission=True,
-                      lobes=None if state.lobes is None else state.lobes[:, looked]) if self.environment.shader else None
+        ray = None
+        if self.environment.shader:
+            ray = RayInfo(state.bounce[looked], state.transparent[looked], emission=True,
+                          lobes=None if state.lobes is None else state.lobes[:, looked],
+                          portal=None if state.portal is None else state.portal[looked])
         light = self.environment.radiance(d[looked, 0], d[looked, 1], d[looked, 2], ray)
         if environment_pass:
             camera = np.flatnonzero(state.bounce[miss] == 0)
@@ -1340,16 +1345,22 @@ class Renderer:
     def _continues(self, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
         """Update the path state with the sampled BSDF (focus: the world's at these hits, _world_focus);
         return the indices of the paths that go on."""
-        ok = _leaves_its_side(bs.wi, hit.ng, bs.transmit) & (bs.pdf > 0)
+        portal, free = bs.portal, bs.any_side
+        if free.any():  # hair and Ray Portal samples leave on the side they point to, untested (as in Cycles)
+            bs.through = np.where(free, _leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
+        ok = (_leaves_its_side(bs.wi, hit.ng, bs.transmit) | free) & (bs.pdf > 0)
         throughput = state.throughput * bs.weight
         alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
         passing = bs.transparent
-        # Past the last bounce a path still passes through transparent surfaces (as in Cycles).
-        alive &= passing | (state.bounce < wave.max_scatters)
+        # Past the last bounce a path still passes through transparent surfaces (as in Cycles), not portals.
+        alive &= (passing & ~portal) | (state.bounce < wave.max_scatters)
         state.transparent = state.transparent + passing
         alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
         state.bounce = state.bounce + ~passing
-        state.bsdf_pdf = np.where(passing, state.bsdf_pdf, bs.pdf)
+        if state.portal is not None:
+            state.portal = state.portal + portal
+        # What a portal's ray finds counts in full (Cycles' PATH_RAY_MIS_SKIP): its pdf is inf.
+        state.bsdf_pdf = np.where(passing & ~portal, state.bsdf_pdf, bs.pdf)
         if focus is not None or state.focus is not None:
             # Like bsdf_pdf, a transparent pass-through keeps the focus of the vertex before.
             now = focus if focus is not None else WorldFocus.none(len(state))
@@ -1391,7 +1402,10 @@ class Renderer:
     def _crossings(self, state, hit, alive, bs) -> None:
         """The coincident triangle each ray going through its surface meets at once (kernels.coincident),
         for the next intersection; not for a ray whose hit was itself handed over."""
-        through = np.flatnonzero(np.take(bs.transmit, alive) & ~state.handed)
+        through = np.take(_below(bs), alive) & ~state.handed
+        if bs.origin is not None:  # a portal's ray that starts elsewhere crosses nothing here
+            through &= ~np.isfinite(np.take(bs.origin[0], alive))
+        through = np.flatnonzero(through)
         state.partner[:] = -1
         if len(through):
             rows = alive[through]
@@ -1400,7 +1414,13 @@ class Renderer:
             state.partner_uv[0, through], state.partner_uv[1, through] = b1, b2
 
     def _spawn(self, hit, alive, bs) -> "Rays":
-        return self._rays_from(hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(bs.transmit, alive))
+        rays = self._rays_from(hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(_below(bs), alive))
+        if bs.origin is not None:
+            # A Ray Portal that moves the ray: it starts exactly there, and may meet this surface again.
+            origin = np.take(bs.origin, alive, axis=1)
+            moved = np.flatnonzero(np.isfinite(origin[0]))
+            rays.origins[moved] = origin[:, moved].T
+        return rays
 
     def _rays_from(self, hit, rows, w, transmit) -> "Rays":
         """Rays leaving the hits rows along directions w (3 tuple of (n,)), from origins moved off the surface
@@ -1512,13 +1532,14 @@ class Renderer:
         """_shadow for shadow rays leaving the paths `paths` (state rows)."""
         return self._shadow(origins, dirs, t_max, wave, np.take(state.bounce, paths),
                             None if state.lobes is None else np.take(state.lobes, paths, axis=1),
-                            None if state.time is None else state.time.take(paths))
+                            None if state.time is None else state.time.take(paths),
+                            None if state.portal is None else np.take(state.portal, paths))
 
-    def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None, times=None) -> np.ndarray:
+    def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None) -> np.ndarray:
         """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
         transparent surfaces, the product of their transparency (Cycles' transparent shadows).
-        depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None):
-        what the Light Path node reads."""
+        depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None),
+        portal its Ray Portals passed (or None): what the Light Path node reads."""
         n = len(origins)
         split = wave.split
         if not self.shading.transparent.any():
@@ -1537,7 +1558,8 @@ class Renderer:
                              (d[:, 0], d[:, 1], d[:, 2]), self.shading.needs_uv)
             passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
             hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
-                              lobes=None if lobes is None else lobes[:, live[found]])
+                              lobes=None if lobes is None else lobes[:, live[found]],
+                              portal=None if portal is None else portal[live[found]])
             passes = self.shading.transparency(hit)
             out[:, live[found]] *= passes
             through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]
@@ -1636,6 +1658,11 @@ def _leaves_its_side(w, g, transmit) -> np.ndarray:
     by): a reflection above it, a transmission below it (Cycles' test)."""
     side = w[0] * g[0] + w[1] * g[1] + w[2] * g[2]
     return np.where(transmit, side < 0, side > 0)
+
+
+def _below(bs) -> np.ndarray:
+    """(N,) bool: a BSDF sample's ray leaves below the surface (its label's side, unless it is untested)."""
+    return bs.transmit if bs.through is None else bs.through
 
 
 def _clamp(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray:

@@ -155,10 +155,13 @@ class RayInfo:
     (a light sample of the world). lobes: (4, N) paths.PathState.lobes (label bits, diffuse, glossy and
     transmission bounces) or None when no Light Path node reads them. caustics: None, or the render's
     (reflective, refractive) caustics switches when one is off (RenderSettings.caustics_*; lobes is then
-    tracked): closures of that kind are not made where the ray comes from a diffuse bounce."""
-    __slots__ = ("depth", "transparent", "length", "shadow", "dp", "emission", "camera", "lobes", "caustics")
+    tracked): closures of that kind are not made where the ray comes from a diffuse bounce. portal: (N,) Ray
+    Portals passed so far, or None for none."""
+    __slots__ = ("depth", "transparent", "length", "shadow", "dp", "emission", "camera", "lobes", "caustics",
+                 "portal")
 
     def __init__(self, depth, transparent, length=None, shadow: bool = False, dp=None, emission: bool = False,
-                 camera: bool = True, lobes=None, caustics=None):
+                 camera: bool = True, lobes=None, caustics=None, portal=None):
         self.depth, self.transparent, self.length, self.shadow, self.dp = depth, transparent, length, shadow, dp
         self.emission, self.camera, self.lobes, self.caustics = emission, camera, lobes, caustics
+        self.portal = portal

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bsdf.closures import DIFFUSE_LOBES, closure_albedos
+from .bsdf.closures import MICROFACET_LOBES, SINGULAR_LOBES, closure_albedos
 
 # name -> (channels, kind)
 PASSES = {
@@ -94,8 +94,11 @@ def denoising_features(closures, n_hits: int, fallback):
         return normal, diffuse, specular, np.ones(n_hits, bool)
     albedo = closure_albedos(closures)
     sw = np.asarray(closures.sw, np.float32)
+    # Cycles' bsdf_get_specular_roughness_squared: alpha_x alpha_y for microfacet lobes, 0 for singular ones,
+    # 1 for the rest (diffuse, sheen, toon).
     rough2 = np.broadcast_to(closures.ax, sw.shape) * np.broadcast_to(closures.ay, sw.shape)
-    diffuse_like = np.isin(closures.lobe, DIFFUSE_LOBES) | (rough2 > np.float32(0.075 ** 2))
+    diffuse_like = ~(np.isin(closures.lobe, SINGULAR_LOBES) | (
+        np.isin(closures.lobe, MICROFACET_LOBES) & ~(rough2 > np.float32(0.075 ** 2))))
     for k in range(3):
         diffuse[k] = np.bincount(closures.hit, np.where(diffuse_like, albedo[k], 0), minlength=n_hits)
         specular[k] = np.bincount(closures.hit, np.where(diffuse_like, 0, albedo[k]), minlength=n_hits)

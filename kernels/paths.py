@@ -45,6 +45,8 @@ class PathState:
     partner_uv: np.ndarray | None = None  # (2, N) float32: that hit's barycentrics (u, v)
     handed: np.ndarray | None = None   # (N,) bool: the ray's hit was handed over from a coincident one (its
     #                                    own crossing is not handed on again)
+    portal: np.ndarray | None = None   # (N,) int32 Ray Portals passed (Light Path's Portal Depth); None in
+    #                                    scenes without Ray Portal closures
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -80,6 +82,8 @@ class PathState:
             self.partner = np.take(self.partner, idx)
             self.partner_uv = np.take(self.partner_uv, idx, axis=1)
             self.handed = np.take(self.handed, idx)
+        if self.portal is not None:
+            self.portal = np.take(self.portal, idx)
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

@@ -49,6 +49,16 @@ def sample_uniform_cone(ux: np.ndarray, uy: np.ndarray, cos_max: np.ndarray):
     return r * np.cos(phi), r * np.sin(phi), z
 
 
+def sample_uniform_cone_precise(ux: np.ndarray, uy: np.ndarray, one_minus_cos_max):
+    """sample_uniform_cone given 1 - cos of the half-angle, which keeps cones narrower than float32's
+    cosines (half-angles below about 3e-4 rad) apart from a single direction. Returns x, y, z."""
+    t = ux * np.asarray(one_minus_cos_max, np.float32)
+    z = np.float32(1.0) - t
+    r = np.sqrt(np.maximum(t * (np.float32(2.0) - t), np.float32(0.0)))
+    phi = np.float32(2.0 * np.pi) * uy
+    return r * np.cos(phi), r * np.sin(phi), z
+
+
 def uniform_cone_pdf(cos_max) -> np.ndarray:
     return np.float32(1.0) / (np.float32(2.0 * np.pi) * (np.float32(1.0) - cos_max))
 

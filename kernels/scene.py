@@ -142,7 +142,7 @@ def _plain(value):
 
 # Closure nodes a material can be made of (Blender's shader nodes, read by the engine's export).
 CLOSURE_KINDS = ("DIFFUSE", "PRINCIPLED", "GLOSSY", "GLASS", "REFRACTION", "METALLIC", "SHEEN", "TRANSLUCENT",
-                 "TRANSPARENT", "EMISSION", "HOLDOUT")
+                 "TRANSPARENT", "TOON", "PORTAL", "HAIR", "EMISSION", "HOLDOUT")
 
 
 @dataclass(frozen=True)

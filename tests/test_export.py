@@ -397,11 +397,11 @@ def test_diffuse_and_emission_shaders():
 
 
 def test_unsupported_nodes_render_grey_with_one_warning_per_material():
-    mat = bpy.data.materials.new("Toon")
+    mat = bpy.data.materials.new("Odd")
     tree = mat.node_tree
     mix = tree.nodes.new("ShaderNodeMixShader")
     tree.links.new(mix.outputs[0], tree.nodes["Material Output"].inputs["Surface"])
-    tree.links.new(tree.nodes.new("ShaderNodeBsdfToon").outputs[0], mix.inputs[1])
+    tree.links.new(tree.nodes.new("ShaderNodeEeveeSpecular").outputs[0], mix.inputs[1])
     tree.links.new(tree.nodes.new("ShaderNodeBsdfHairPrincipled").outputs[0], mix.inputs[2])
     metal, bsdf = new_material("Metal")
     bsdf.inputs["Metallic"].default_value = 1.0
@@ -412,12 +412,12 @@ def test_unsupported_nodes_render_grey_with_one_warning_per_material():
     ob.data.materials.append(mat)
     ob.data.materials.append(metal)
     result = export()
-    toon = result.scene.materials.shaders[1].closures
-    assert [c.kind for c in toon] == ["DIFFUSE", "DIFFUSE"]
-    np.testing.assert_allclose(toon[0].input("Color").value, DEFAULT_ALBEDO)
-    assert [(p.value, second) for p, second in toon[0].factors] == [((0.5,), False)]
-    warned = [w for w in result.warnings if "'Toon'" in w]
-    assert len(warned) == 1 and "Toon BSDF" in warned[0] and "Principled Hair BSDF" in warned[0]
+    odd = result.scene.materials.shaders[1].closures
+    assert [c.kind for c in odd] == ["DIFFUSE", "DIFFUSE"]
+    np.testing.assert_allclose(odd[0].input("Color").value, DEFAULT_ALBEDO)
+    assert [(p.value, second) for p, second in odd[0].factors] == [((0.5,), False)]
+    warned = [w for w in result.warnings if "'Odd'" in w]
+    assert len(warned) == 1 and "Specular BSDF" in warned[0] and "Principled Hair BSDF" in warned[0]
     (principled,) = result.scene.materials.shaders[2].closures
     assert principled.kind == "PRINCIPLED" and principled.input("Metallic").value == (1.0,)
     assert principled.input("Roughness").value == (0.5,)  # the socket's own value

@@ -4,9 +4,9 @@ are loaded by images.py.
 This module owns the reading of shader node trees (also used by world.py).
 Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
 and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
-Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Emission, Holdout; Subsurface Scattering
-as diffuse); each closure keeps its inputs and the Mix factors above it, and the kernel builds Cycles'
-closures from them (kernels.shading.nodes).
+Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Ray Portal, Hair, Emission,
+Holdout; Subsurface Scattering as diffuse); each closure keeps its inputs and the Mix factors above it, and the
+kernel builds Cycles' closures from them (kernels.shading.nodes).
 
 - Constant values that are not numbers read 0 (Cycles drops a closure whose weight is not a number), and
   a constant emission brighter than lights.MAX_LIGHT_RADIANCE is clamped to it, as lights are; each warned.
@@ -143,11 +143,21 @@ CLOSURE_NODES = {
     "ShaderNodeBsdfSheen": ("SHEEN", ("Color", "Roughness")),
     "ShaderNodeBsdfTranslucent": ("TRANSLUCENT", ("Color",)),
     "ShaderNodeBsdfTransparent": ("TRANSPARENT", ("Color",)),
+    "ShaderNodeBsdfToon": ("TOON", ("Color", "Size", "Smooth")),
+    "ShaderNodeBsdfRayPortal": ("PORTAL", ("Color", "Position", "Direction")),
+    "ShaderNodeBsdfHair": ("HAIR", ("Color", "Offset", "RoughnessU", "RoughnessV")),
     "ShaderNodeEmission": ("EMISSION", ("Color", "Strength")),
     "ShaderNodeHoldout": ("HOLDOUT", ()),
     # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
     "ShaderNodeSubsurfaceScattering": ("DIFFUSE", ("Color",)),
 }
+# Why some shader nodes are not rendered (others: "is not supported").
+UNSUPPORTED_NODES = {
+    "ShaderNodeBsdfHairPrincipled": "is not supported (a model for hair curves; on a mesh Cycles shades it about "
+                                    "each triangle's first edge)",
+}
+# Vector inputs read only when linked: unlinked, they stand for the hit's position or the ray's direction.
+LINKED_ONLY_INPUTS = ("Position", "Direction")
 # The (colour, strength) inputs of the closures that emit.
 EMISSION_INPUTS = {"EMISSION": ("Color", "Strength"), "PRINCIPLED": ("Emission Color", "Emission Strength")}
 # Closure inputs that take a direction from a node: a Normal Map (normals) or a Tangent node.
@@ -315,13 +325,16 @@ class _MaterialReader:
                 out += yield self._closures(source_of(node.inputs[i], groups), factors)
             return out
         if kind not in CLOSURE_NODES:
-            self.issues.append(f"{node.bl_label} '{node.name}' is not supported, rendered grey ({DEFAULT_ALBEDO})")
+            why = UNSUPPORTED_NODES.get(kind, "is not supported")
+            self.issues.append(f"{node.bl_label} '{node.name}' {why}, rendered grey ({DEFAULT_ALBEDO})")
             return [Closure("DIFFUSE", (("Color", Param.of(GREY3)),), (), factors)]
         closure_kind, names = CLOSURE_NODES[kind]
         sockets = {s.identifier: s for s in node.inputs}  # unavailable sockets are not found by name
+        names = tuple(n for n in names if n not in LINKED_ONLY_INPUTS or source_of(sockets[n], groups).node is not None)
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
         inputs = self.limit_emission(node, closure_kind, inputs) + self.directions(node, groups)
         self.check_unsupported(node, closure_kind, groups)
+        self.check_direction(node, dict(inputs).get("Direction"))
         return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
 
     def options(self, node, kind: str) -> tuple:
@@ -331,6 +344,8 @@ class _MaterialReader:
             options.append(("distribution", distribution))
         if kind == "METALLIC":
             options.append(("fresnel", node.fresnel_type))
+        if kind in ("TOON", "HAIR"):
+            options.append(("component", node.component))
         return tuple(options)
 
     def directions(self, node, groups) -> tuple:
@@ -384,6 +399,16 @@ class _MaterialReader:
             self.issues.append(f"{label} subsurface scattering is rendered as diffuse")
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
+
+    def check_direction(self, node, direction: Param | None) -> None:
+        """A Ray Portal's Direction is normalised; Cycles traces a constant one of another length as given, which
+        its next hit sees as a viewer direction that is not of unit length either: say so."""
+        if direction is None or direction.varies:
+            return
+        length = math.sqrt(sum(v * v for v in direction.value))
+        if length > 0 and abs(length - 1.0) > 1e-3:
+            self.issues.append(f"{node.bl_label} '{node.name}' Direction has length {length:g}: normalised (Cycles "
+                               f"traces it as given)")
 
     def limit_emission(self, node, kind: str, inputs: tuple) -> tuple:
         """The closure's inputs, a constant emission brighter than MAX_LIGHT_RADIANCE clamped to it (with a

@@ -298,10 +298,8 @@ def _plain(builder, node, groups):
 
 def _light_path(builder, node, groups):
     outputs = _linked_outputs(node)
-    unsupported = [o for o in outputs if o in ("Is Volume Scatter Ray", "Portal Depth")]
-    if unsupported:
-        builder.issues.append(f"Light Path '{node.name}' {', '.join(unsupported)}: Ember has no volumes or "
-                              f"portals, read zero")
+    if "Is Volume Scatter Ray" in outputs:
+        builder.issues.append(f"Light Path '{node.name}' Is Volume Scatter Ray: Ember has no volumes, read zero")
     return builder.add(node.bl_idname, {}, outputs=outputs)
 
 

@@ -10,7 +10,10 @@ its weight, times an albedo estimate for microfacet lobes). Then, per hit:
 Sampling picks one closure in proportion to its sample weight. A delta closure (a mirror, smooth glass,
 transparency) gives its own direction with weight weight_j * w_j / P(j) and pdf = inf (nothing else can
 find that direction). Otherwise the chosen lobe proposes the direction and the whole mixture is evaluated
-there: weight = f / pdf, one-sample MIS over the lobes (balance heuristic), as Cycles does.
+there: weight = f / pdf, one-sample MIS over the lobes (balance heuristic), as Cycles does; the lobe that
+sampled enters that sum with its sampler's own value where the two differ (SELF_EVALUATED: toon, hair), as
+Cycles keeps the sampling closure's eval. A Ray Portal is a delta closure whose sample also moves the ray's
+start (BsdfSample.origin).
 
 The table is sorted by hit; lobes of one kind are evaluated together, in their local frames (z along the
 closure's own normal: shading, coat or bump-mapped; x along its tangent for anisotropic lobes).
@@ -26,19 +29,31 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
-from . import diffuse, fresnel, sheen
+from . import diffuse, fresnel, hair, sheen, toon
 
 # Lobe ids.
-LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY = range(9)
+(LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY, TOON_DIFFUSE,
+ TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION) = range(14)
 # Lobes with a roughness-dependent singular (delta) limit; eval of a singular closure is 0.
 MICROFACET_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
+# Lobes that are always singular (Cycles' CLOSURE_IS_BSDF_SINGULAR).
+SINGULAR_LOBES = (TRANSPARENT, PORTAL)
 # Cycles drops closures whose sample weight is below this (`CLOSURE_WEIGHT_CUTOFF`).
 WEIGHT_CUTOFF = np.float32(1e-5)
 # Lobes Cycles counts as diffuse (CLOSURE_IS_BSDF_DIFFUSE) for the bump shadowing term.
-DIFFUSE_LOBES = (LAMBERT, OREN_NAYAR, SHEEN, TRANSLUCENT)
+DIFFUSE_LOBES = (LAMBERT, OREN_NAYAR, SHEEN, TRANSLUCENT, TOON_DIFFUSE)
 # Cycles' light passes (kernel/film/light_passes.h): diffuse-like closures count as diffuse, reflecting
 # microfacets as glossy, glass as glossy on its reflection side, the rest as transmission.
-GLOSSY_LOBES = (REFLECTION, ASHIKHMIN_SHIRLEY)
+GLOSSY_LOBES = (REFLECTION, ASHIKHMIN_SHIRLEY, TOON_GLOSSY, HAIR_REFLECTION)
+# Lobes Cycles counts as transmission (CLOSURE_IS_BSDF_TRANSMISSION) for its Transmission Color pass.
+TRANSMISSION_LOBES = (REFRACTION, HAIR_TRANSMISSION)
+# Lobes whose sampled direction keeps the value their sampler gave it, as Cycles keeps the sampling
+# closure's own eval: re-evaluating a toon cone narrower than float32's acos resolution gives 0, and the
+# hair lobes' samplers reach directions their eval does not (and report another pdf).
+SELF_EVALUATED = (TOON_DIFFUSE, TOON_GLOSSY, HAIR_REFLECTION, HAIR_TRANSMISSION)
+# Lobes whose samples leave on whichever side of the surface they point to, untested (Cycles' hair
+# samplers and Ray Portal): the integrator sees which side that is.
+ANY_SIDE_LOBES = (PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION)
 
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
@@ -46,10 +61,12 @@ ZERO, ONE = F32(0.0), F32(1.0)
 # Per-closure parameter columns and their defaults: scalars (C,) and colours (3, C).
 # soften: 1 where a diffuse closure on another normal takes the shadowing term's softening (Cycles skips
 # it when the material turns Bump Map Correction off). dist: a microfacet lobe's distribution (0 GGX,
-# 1 Beckmann: microfacet.GGX / BECKMANN).
+# 1 Beckmann: microfacet.GGX / BECKMANN). size, smooth: a toon closure's angles (toon.toon_angles).
+# origin, direction: where a Ray Portal sends the ray on, world space (origin NaN: from the hit itself).
+# r1, r2, offset, hair_t: a hair closure's roughnesses, highlight shift and unit tangent (world space).
 _SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0, "soften": 1.0,
-            "dist": 0.0}
-_COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0}
+            "dist": 0.0, "size": 0.0, "smooth": 0.0, "r1": 1.0, "r2": 1.0, "offset": 0.0}
+_COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0, "origin": np.nan, "direction": 0.0, "hair_t": 0.0}
 
 
 class ClosureBuilder:
@@ -161,6 +178,7 @@ class ClosureSet:
         self._wo_world = wo
         self._frame = self._wo = None
         self.kinds = sorted({int(ch["lobe"]) for ch in chunks})
+        self.self_evaluated = any(k in SELF_EVALUATED for k in self.kinds)
         self.delta = self._delta_mask()
         # Lambert alone is evaluated in world space, without frames (the common case of diffuse scenes).
         self.lambert_only = self.kinds == [LAMBERT] and self._bumped is None
@@ -223,7 +241,7 @@ class ClosureSet:
         return np.bincount(self.hit, live, minlength=self.n_hits) > 0
 
     def _delta_mask(self) -> np.ndarray:
-        delta = self.lobe == TRANSPARENT
+        delta = np.isin(self.lobe, SINGULAR_LOBES)
         singular = [k for k in (REFLECTION, REFRACTION, GLASS) if k in self.kinds]
         if singular:
             micro = np.isin(self.lobe, singular)
@@ -305,7 +323,7 @@ class ClosureSet:
         return f, pdf
 
     def _eval_lobe(self, k, rows, wi):
-        if k == TRANSPARENT:
+        if k in SINGULAR_LOBES:
             return np.zeros((3, len(rows)), F32), np.zeros(len(rows), F32)
         value, pdf = EVAL[k](self, rows, _pick(self.wo, rows), wi)
         f = value * np.take(self.weight, rows, axis=1)
@@ -356,8 +374,11 @@ class ClosureSet:
             # Otherwise: the whole (non-delta) mixture at the sampled direction.
             s = np.flatnonzero(~out.delta & (out.pdf > 0))
             if len(s):
+                own = (out.weight[:, s] * out.pdf[s], out.pdf[s].copy()) if self.self_evaluated else None
                 f, pdf = self.eval_at(s, tuple(c[s] for c in out.wi))
                 self._sampled_bump(s, row[s], out, f, pdf)
+                if own is not None:
+                    self._sampled_self(s, row[s], out, f, pdf, own)
                 good = pdf > 0
                 sampling.put_columns(out.weight, s, np.where(good, f / np.where(good, pdf, ONE), ZERO))
                 out.pdf[s] = pdf
@@ -385,6 +406,22 @@ class ClosureSet:
         f_c, pdf_c = self._eval_closures(wi, r, bump=False)
         f[:, fix] += f_c * lost
         pdf[fix] += (pdf_c * lost * self.sw[r] / self.total_sw[s[fix]]).astype(F32)
+
+    def _sampled_self(self, s, rows, out, f, pdf, own):
+        """For closures of SELF_EVALUATED lobes that sampled, put their sampler's (f |cos|, pdf) own (lobe
+        values at hits s) in the mixture (f, pdf, in place) in place of eval_at's evaluation of them: Cycles
+        keeps the sampling closure's own eval. The bump term is that of a sample (_sampled_bump)."""
+        fix = np.flatnonzero(np.isin(self.lobe[rows], SELF_EVALUATED))
+        if not len(fix):
+            return
+        r, h = rows[fix], s[fix]
+        wi = tuple(c[h] for c in out.wi)
+        f_c, pdf_c = self._eval_closures(wi, r, bump=False)
+        term = self._bump_term(r, wi) if self._bumped is not None else None
+        term = np.ones(len(r), F32) if term is None else np.where(self._diffuse[r], term, ONE)
+        f_own = own[0][:, fix] * np.take(self.weight, r, axis=1)
+        f[:, fix] += (f_own - f_c) * term
+        pdf[fix] += ((own[1][fix] - pdf_c) * (term > 0) * self.sw[r] / self.total_sw[h]).astype(F32)
 
     def _sample_lambert(self, out, hits, rows, u1, u2):
         """Only Lambert closures, all on the shading normal: a cosine sample about it. Every closure of
@@ -428,6 +465,9 @@ class ClosureSet:
         for k in np.unique(lobe):
             sel = np.flatnonzero(lobe == k)
             r, h = rows[sel], hits[sel]
+            if k == PORTAL:
+                self._sample_portals(out, h, r)
+                continue
             wi, weight, pdf, transmit = SAMPLE[k](self, r, _pick(self.wo, r), u1[h], u2[h], uc[h])
             world = _to_world(tuple(np.take(c, r, axis=1) for c in self.frame), wi)
             for axis in range(3):
@@ -437,6 +477,24 @@ class ClosureSet:
             out.transmit[h] = transmit
             out.delta[h] = self.delta[r] | np.isinf(pdf)
             out.transparent[h] = k == TRANSPARENT
+            out.any_side[h] = k in ANY_SIDE_LOBES
+
+    def _sample_portals(self, out, hits, rows):
+        """Ray Portal closures rows at hits send the ray on from their origin along their direction (world
+        space), weight 1 and pdf inf: a pass-through like transparency, Cycles' integrate_surface_ray_portal.
+        Which side of the surface that is, the integrator sees (it has the geometric normal)."""
+        for axis in range(3):
+            out.wi[axis][hits] = self.direction[axis, rows]
+        sampling.put_columns(out.weight, hits, ONE)
+        out.pdf[hits] = np.inf
+        for mask in (out.delta, out.transparent, out.portal, out.any_side, out.transmit):
+            mask[hits] = True
+        origin = np.take(self.origin, rows, axis=1)
+        moved = np.flatnonzero(np.isfinite(origin[0]))
+        if len(moved):
+            if out.origin is None:
+                out.origin = np.full((3, len(out.pdf)), np.nan, F32)
+            out.origin[:, hits[moved]] = origin[:, moved]
 
     def _sample_warp(self, out, hits, warp, u1, u2):
         if not len(hits):
@@ -607,7 +665,7 @@ def class_albedo(cs, n_hits: int):
     glass = lobe == GLASS
     parts = (total * np.isin(lobe, DIFFUSE_LOBES),
              total * np.isin(lobe, GLOSSY_LOBES) + reflect * glass,
-             total * (lobe == REFRACTION) + transmit * glass)
+             total * np.isin(lobe, TRANSMISSION_LOBES) + transmit * glass)
     for o, part in zip(out, parts):
         for k in range(3):
             o[k] = np.bincount(cs.hit, part[k], minlength=n_hits)
@@ -616,9 +674,14 @@ def class_albedo(cs, n_hits: int):
 
 class BsdfSample:
     """Per hit: direction wi (world), throughput weight (3, N), pdf (N,) for MIS (inf for delta),
-    delta, transmit (wi goes through the surface) and transparent (a pass-through) masks, and row, the
-    closure table row that was picked (-1: none), whose lobe says diffuse or glossy (Light Path)."""
-    __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent", "row")
+    delta, transmit (the lobe transmits: Cycles' LABEL_TRANSMIT), transparent (a pass-through: a Transparent
+    closure or a Ray Portal, which counts no bounce), portal (a Ray Portal) and any_side (ANY_SIDE_LOBES: no
+    side test) masks, and row, the closure table row that was picked (-1: none), whose lobe says diffuse or
+    glossy (Light Path). origin: None, or (3, N) float32 where a Ray Portal moves the ray's start (NaN
+    elsewhere: the ray leaves from the hit). through: None, or (N,) where the ray leaves below the surface
+    when that is not what transmit says (the integrator sets it for any_side samples)."""
+    __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent", "portal", "any_side", "origin",
+                 "through", "row")
 
     def __init__(self, n: int):
         self.wi = (np.zeros(n, F32), np.zeros(n, F32), np.ones(n, F32))
@@ -627,6 +690,9 @@ class BsdfSample:
         self.delta = np.zeros(n, bool)
         self.transmit = np.zeros(n, bool)
         self.transparent = np.zeros(n, bool)
+        self.portal = np.zeros(n, bool)
+        self.any_side = np.zeros(n, bool)
+        self.origin = self.through = None
         self.row = np.full(n, -1, np.int64)
 
 
@@ -668,15 +734,62 @@ def _sheen_sample(cs, rows, wo, u1, u2, uc):
     return wi, weight, pdf, False
 
 
+def _toon_diffuse_eval(cs, rows, wo, wi):
+    return toon.diffuse_toon_eval(wo, wi, cs.size[rows], cs.smooth[rows])
+
+
+def _toon_diffuse_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = toon.diffuse_toon_sample(wo, cs.size[rows], cs.smooth[rows], u1, u2)
+    return wi, weight, pdf, False
+
+
+def _toon_glossy_eval(cs, rows, wo, wi):
+    return toon.glossy_toon_eval(wo, wi, cs.size[rows], cs.smooth[rows])
+
+
+def _toon_glossy_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = toon.glossy_toon_sample(wo, cs.size[rows], cs.smooth[rows], u1, u2)
+    return wi, weight, pdf, False
+
+
+def _hair_args(cs, rows):
+    """A hair closure's tangent in its local frame, and its roughnesses and offset."""
+    tangent = _to_local(tuple(np.take(c, rows, axis=1) for c in cs.frame),
+                        tuple(np.take(c, rows) for c in cs.hair_t))
+    return tangent, cs.r1[rows], cs.r2[rows], cs.offset[rows]
+
+
+def _hair_reflection_eval(cs, rows, wo, wi):
+    return hair.hair_reflection_eval(wo, wi, *_hair_args(cs, rows))
+
+
+def _hair_reflection_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = hair.hair_reflection_sample(wo, *_hair_args(cs, rows), u1, u2)
+    return wi, weight, pdf, False
+
+
+def _hair_transmission_eval(cs, rows, wo, wi):
+    return hair.hair_transmission_eval(wo, wi, *_hair_args(cs, rows))
+
+
+def _hair_transmission_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = hair.hair_transmission_sample(wo, *_hair_args(cs, rows), u1, u2)
+    return wi, weight, pdf, True
+
+
 def _transparent_sample(cs, rows, wo, u1, u2, uc):
     wi = (-wo[0], -wo[1], -wo[2])
     n = len(rows)
     return wi, np.ones(n, F32), np.ones(n, F32), True
 
 
-EVAL = {LAMBERT: _lambert_eval, OREN_NAYAR: _oren_nayar_eval, TRANSLUCENT: _translucent_eval, SHEEN: _sheen_eval}
+EVAL = {LAMBERT: _lambert_eval, OREN_NAYAR: _oren_nayar_eval, TRANSLUCENT: _translucent_eval, SHEEN: _sheen_eval,
+        TOON_DIFFUSE: _toon_diffuse_eval, TOON_GLOSSY: _toon_glossy_eval, HAIR_REFLECTION: _hair_reflection_eval,
+        HAIR_TRANSMISSION: _hair_transmission_eval}
 SAMPLE = {LAMBERT: _lambert_sample, OREN_NAYAR: _oren_nayar_sample, TRANSLUCENT: _translucent_sample,
-          SHEEN: _sheen_sample, TRANSPARENT: _transparent_sample}
+          SHEEN: _sheen_sample, TRANSPARENT: _transparent_sample, TOON_DIFFUSE: _toon_diffuse_sample,
+          TOON_GLOSSY: _toon_glossy_sample, HAIR_REFLECTION: _hair_reflection_sample,
+          HAIR_TRANSMISSION: _hair_transmission_sample}
 
 
 def register_lobe(lobe: int, eval_fn, sample_fn) -> None:

@@ -17,6 +17,7 @@ from .. import sampling
 from ..bsdf import closures as lobes
 from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
+from ..bsdf.toon import toon_angles
 from ..paths import DIFFUSE as DIFFUSE_LABEL
 from ..scene import Closure, NormalMap, Param, Tangent
 from . import normals, ops
@@ -27,6 +28,7 @@ ZERO, ONE = F32(0.0), F32(1.0)
 CUTOFF = F32(1e-5)  # Cycles' CLOSURE_WEIGHT_CUTOFF: lighter layers are not made
 
 WHITE, GREY = (1.0, 1.0, 1.0), (0.8, 0.8, 0.8)
+UNSET = (float("nan"),) * 3  # a vector input that stands for something of the hit when it is not linked
 # Blender 5.0's defaults of the inputs Ember reads (node_shader_bsdf_*.cc, node_shader_emission.cc).
 DEFAULTS = {
     "PRINCIPLED": {"Base Color": GREY, "Metallic": 0.0, "Roughness": 0.5, "IOR": 1.5, "Alpha": 1.0,
@@ -44,6 +46,10 @@ DEFAULTS = {
                  "Anisotropy": 0.0, "Rotation": 0.0},
     "SHEEN": {"Color": GREY, "Roughness": 0.5},
     "TRANSLUCENT": {"Color": GREY},
+    "TOON": {"Color": GREY, "Size": 0.5, "Smooth": 0.0},
+    # Unlinked, Position is the hit's (Cycles links it to the position) and Direction (0, 0, 0) the ray's.
+    "PORTAL": {"Color": WHITE, "Position": UNSET, "Direction": (0.0, 0.0, 0.0)},
+    "HAIR": {"Color": GREY, "Offset": 0.0, "RoughnessU": 0.1, "RoughnessV": 1.0},
     "TRANSPARENT": {"Color": WHITE},
     "EMISSION": {"Color": WHITE, "Strength": 1.0},
     "HOLDOUT": {},
@@ -150,8 +156,8 @@ class Context:
                     self._specular = self.with_normal(valid)
         return self._specular
 
-    def tangent(self, closure: Closure, rotation: str, axis, anisotropic: bool = True):
-        """The closure's Tangent input rotated about axis by 2 pi x the rotation input: a Tangent node's
+    def tangent(self, closure: Closure, rotation: str | None, axis, anisotropic: bool = True):
+        """The closure's Tangent input rotated about axis by 2 pi x the rotation input (None: not): a Tangent node's
         UV-map tangent, or unlinked Cycles' default, the radial tangent about the object's Z axis (only
         made when the closure is anisotropic). None: no tangent (the closure takes an arbitrary one)."""
         spec = closure.input("Tangent")
@@ -171,7 +177,7 @@ class Context:
             return None
         if t is None:
             return None
-        angle = self.input(closure, rotation)
+        angle = 0.0 if rotation is None else self.input(closure, rotation)
         if np.any(angle != 0):
             t = normals.rotate_about(t, axis, F32(2.0 * np.pi) * angle)
         return t
@@ -282,6 +288,69 @@ def _sheen_sample_weight(weight, albedo):
     picked in proportion to the light it reflects, and its albedo (Denoising Albedo, Diffuse Color) is
     weight x albedo. A closure whose albedo Cycles would drop gets 0 and is not made."""
     return (np.abs(sampling.channel_mean(np.asarray(weight, F32))) * albedo).astype(F32)
+
+
+def _toon(c, ctx, w, b):
+    """Toon BSDF: one diffuse or glossy toon closure on the node's normal (not tilted for specular
+    reflection), weight colour x mix weight; the caustics switch drops the glossy one as a glossy closure."""
+    if b is not None:
+        glossy = c.option("component", "DIFFUSE") == "GLOSSY"
+        color = ctx.input(c, "Color")
+        if glossy:
+            color = _times(color, _made(ctx))
+        size, smooth = toon_angles(ctx.input(c, "Size"), ctx.input(c, "Smooth"))
+        b.add(lobes.TOON_GLOSSY if glossy else lobes.TOON_DIFFUSE, ctx.idx, color * w, normal=ctx.normal_arg,
+              size=size, smooth=smooth, **({} if glossy else _soften(ctx)))
+    return Built()
+
+
+def portal_weight(c: Closure, ctx: Context, w: np.ndarray) -> np.ndarray:
+    """(3, n) a Ray Portal's closure weight, 0 where Cycles would not make it (below its cutoff)."""
+    weight = ctx.input(c, "Color") * w
+    return np.where(np.abs(weight.mean(axis=0)) >= CUTOFF, weight, ZERO).astype(F32)
+
+
+def _portal(c, ctx, w, b):
+    """Ray Portal BSDF (Cycles' bsdf_ray_portal_setup): weight colour x mix weight; the ray goes on from
+    Position along Direction, or straight on where Direction is zero; a Position within 3.2e-5 of the hit
+    (Cycles' squared 1e-9) is the hit itself, which the ray leaves as from any surface. Direction is
+    normalised: Cycles traces it as given, and a direction that is not of unit length gives the next hit a
+    viewer direction that is not either."""
+    if b is not None:
+        origin = ctx.input(c, "Position")
+        hit_p = np.stack([ctx.take(a) for a in ctx.hit.p])
+        origin = np.where(np.isnan(origin), hit_p, origin)
+        moved = np.sum(np.square(origin - hit_p), axis=0) > F32(1e-9)
+        direction = ctx.input(c, "Direction")
+        length = np.sqrt(np.sum(np.square(direction), axis=0))
+        ahead = np.stack([-a for a in ctx.wo])
+        usable = (length > 0) & np.isfinite(length)
+        direction = np.where(usable, direction / np.where(usable, length, ONE), ahead).astype(F32)
+        b.add(lobes.PORTAL, ctx.idx, portal_weight(c, ctx, w), origin=np.where(moved, origin, np.nan),
+              direction=direction)
+    return Built()
+
+
+def _hair(c, ctx, w, b):
+    """Hair BSDF (Cycles' bsdf_hair_*_setup on a triangle): weight colour x mix weight, on the normal tilted
+    for specular reflection; roughnesses clamped to [0.001, 1]. Its tangent is the Tangent input (normalised,
+    the highlight shifted by -Offset), or unlinked the triangle's p2 - p0 (Cycles' dPdv, reversed on back
+    faces) with no shift: one direction per triangle, in the order Blender lists its corners."""
+    if b is not None:
+        given = ctx.tangent(c, None, ctx.ns, anisotropic=False)
+        if given is None:
+            edge = ctx.hit.edges(ctx.idx)[1]
+            sign = np.where(ctx.take(ctx.hit.backfacing), F32(-1.0), ONE)
+            tangent = normals.safe_normalize(tuple(edge[:, k] * sign for k in range(3)))
+            offset = ZERO
+        else:
+            tangent, offset = normals.safe_normalize(given), -ctx.input(c, "Offset")
+        transmission = c.option("component", "Reflection") == "Transmission"
+        b.add(lobes.HAIR_TRANSMISSION if transmission else lobes.HAIR_REFLECTION, ctx.idx, ctx.input(c, "Color") * w,
+              normal=ctx.specular().normal_arg, hair_t=tangent, offset=offset,
+              r1=np.clip(ctx.input(c, "RoughnessU"), F32(0.001), ONE),
+              r2=np.clip(ctx.input(c, "RoughnessV"), F32(0.001), ONE))
+    return Built()
 
 
 def _emission(c, ctx, w, b):
@@ -480,7 +549,8 @@ def layering_weight(layer_albedo: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 _BUILDERS = {"DIFFUSE": _diffuse, "PRINCIPLED": _principled, "GLOSSY": _glossy, "GLASS": _glass,
              "REFRACTION": _refraction, "METALLIC": _metallic, "SHEEN": _sheen, "TRANSLUCENT": _translucent,
-             "TRANSPARENT": _transparent, "EMISSION": _emission, "HOLDOUT": _holdout}
+             "TRANSPARENT": _transparent, "TOON": _toon, "PORTAL": _portal, "HAIR": _hair, "EMISSION": _emission,
+             "HOLDOUT": _holdout}
 
 
 # ---------------------------------------------------------------- what a closure may do, without hits
@@ -515,7 +585,7 @@ def may_be_transparent(c: Closure) -> bool:
 
 def may_transmit(c: Closure) -> bool:
     """Whether rays may go through the closure's surface (refract, pass straight, or scatter to its back)."""
-    if c.kind in ("GLASS", "REFRACTION", "TRANSLUCENT"):
+    if c.kind in ("GLASS", "REFRACTION", "TRANSLUCENT", "PORTAL", "HAIR"):
         return True
     return may_be_transparent(c) or (c.kind == "PRINCIPLED" and _param_may_differ(c, "Transmission Weight", 0.0))
 

@@ -399,7 +399,8 @@ def light_path(hits, inputs, op):
            # Shadow rays, the world and lights are one bounce further (Cycles adds 1 for them).
            "Ray Depth": depth + F32(1.0 if further else 0.0),
            "Transparent Depth": take(ray.transparent) if ray is not None else zero,
-           "Is Volume Scatter Ray": zero, "Portal Depth": zero}
+           "Is Volume Scatter Ray": zero,
+           "Portal Depth": take(ray.portal) if ray is not None and ray.portal is not None else zero}
     lobes = None if ray is None or ray.lobes is None else np.take(ray.lobes, hits.idx, axis=1)
     for name, (row, bit) in LOBE_OUTPUTS.items():
         if lobes is None:

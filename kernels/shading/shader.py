@@ -13,6 +13,7 @@ from .ops import OPS
 from .program import HitInputs, ProgramRun
 
 F32 = np.float32
+ZERO = F32(0.0)
 
 
 class SurfaceShading:
@@ -80,6 +81,7 @@ class Shading:
                                     bool)
         self.transmissive = np.array([any(nodes.may_transmit(c) for c in s.closures) for s in self.shaders], bool)
         self.has_holdout = any(c.kind == "HOLDOUT" for s in self.shaders for c in s.closures)
+        self.has_portal = any(c.kind == "PORTAL" for s in self.shaders for c in s.closures)
         # Whether any hit has more than one lobe to choose from (a Principled BSDF, a Mix, a delta lobe).
         self.layered = np.array([_mixes_lobes(s.closures) for s in self.shaders], bool)
         self.mixes_lobes = bool(self.layered.any())
@@ -170,7 +172,9 @@ class Shading:
 
     def transparency(self, hit) -> np.ndarray:
         """(3, N) float32: the share of light that passes straight through each hit (transparent
-        shadows): the sum of its Transparent closures, Principled alpha included."""
+        shadows): the sum of its Transparent closures, Principled alpha included. A Ray Portal stops shadow
+        rays, except at a hit that also has a transparent closure: there Cycles' shadow rays pass the sum
+        of both (the portal's weight joins the transparency it sums, shade_shadow.h)."""
         n = len(hit)
         wo = tuple(-c for c in hit.d)
         out = np.zeros((3, n), F32)
@@ -178,9 +182,17 @@ class Shading:
             if not self.transparent[m]:
                 continue
             ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
+            passed = np.zeros((3, len(idx)), F32)
+            made = np.zeros(len(idx), bool)
+            portals = [c for c in self.shaders[m].closures if c.kind == "PORTAL"]
             for closure in self.shaders[m].closures:
                 if nodes.may_be_transparent(closure):
-                    out[:, idx] += nodes.transparency(closure, ctx, self._mix_weight(closure, ctx))
+                    t = nodes.transparency(closure, ctx, self._mix_weight(closure, ctx))
+                    passed += t
+                    made |= np.abs(t.mean(axis=0)) >= nodes.CUTOFF
+            for closure in portals:
+                passed += np.where(made, nodes.portal_weight(closure, ctx, self._mix_weight(closure, ctx)), ZERO)
+            out[:, idx] += passed
         return out
 
     def mean_emission(self, mat: np.ndarray) -> np.ndarray:
