@@ -1150,6 +1150,9 @@ class Renderer:
         idx, live = idx[out], live[out]
         wx, wy, wz = wx[out], wy[out], wz[out]
         light = self.environment.radiance(wx, wy, wz)
+        sun = self.lights.suns_seen(wx, wy, wz)   # after a singular bounce: no MIS
+        if sun is not None:
+            light = light + sun
 
         def branch_class(first):  # at the first hit, the class of the branch not taken (glossy, transmission)
             diffuse, glossy = pass_classes(closures, r[live[first]], (wx[first], wy[first], wz[first]))
@@ -1241,10 +1244,17 @@ class Renderer:
                 focus = None if state.focus is None else state.focus.take(miss[mis])
                 sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]],
                                                            self.lights.pdf_world(mx[mis], my[mis], mz[mis], focus)))
+        later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
+        if len(later) and len(self.lights.sun_discs):
+            sun = self.lights.suns_seen(mx[later], my[later], mz[later],
+                                        state.bsdf_pdf[miss[later]] if wave.nee else None)
+            sun *= np.take(state.throughput, miss[later], axis=1)
+            if state.escape_scale is not None:
+                sun *= np.take(state.escape_scale, miss[later])
+            env[:, later] += sun
         env = _clamp(wave, env, state.bounce[miss] > 1)
         _accumulate(wave.radiance, state.path[miss], env)
         if state.pass_weights is not None:
-            later = np.flatnonzero(state.bounce[miss] > 0)
             self._light_passes(wave, state, miss[later], env[:, later])
 
     # ---- stage: the surface-interaction record of the rays that hit

@@ -159,6 +159,9 @@ class LightSampler:
         cone = (self.sun_cos < np.float32(1.0)) & (sin2 > 0)
         self.sun_radiance = np.where(cone[:, None], lights.radiance / (np.pi * np.where(cone, sin2, 1.0))[:, None],
                                      lights.radiance).astype(np.float32)
+        # Suns with a disc: rays that leave the scene toward one see it (Cycles' integrate_sun_lights).
+        self.sun_discs = np.flatnonzero((self.kind == SUN) & cone & (self.radiance_of.max(axis=1) > 0)) \
+            if self.light_count else np.zeros(0, np.int64)
         self.area = np.where(self.kind == RECT, self.size[:, 0] * self.size[:, 1],
                              np.float32(np.pi / 4) * self.size[:, 0] * self.size[:, 1]).astype(np.float32)
 
@@ -576,6 +579,27 @@ class LightSampler:
     def samples_world(self) -> bool:
         """Whether next-event estimation can choose the world."""
         return self.has_lights and self.select_pmf[self.world_index] > 0
+
+    def suns_seen(self, dx, dy, dz, bsdf_pdf=None):
+        """(3, n) radiance of the sun discs that rays leaving the scene along d (x, y, z of (n,)) look into, each
+        weighed by MIS (power heuristic) against its own light samples given the pdf of the BSDF sample that
+        chose d (None: not weighed, as after a singular bounce), as Cycles' escaped rays see suns; None when
+        the scene has no sun with a disc."""
+        if not len(self.sun_discs):
+            return None
+        out = np.zeros((3, len(dx)), np.float32)
+        for k in self.sun_discs:
+            zx, zy, zz = self.axes[k, :, 2]
+            inside = np.flatnonzero(dx * zx + dy * zy + dz * zz >= self.sun_cos[k])
+            if not len(inside):
+                continue
+            weight = np.ones(len(inside), np.float32)
+            if bsdf_pdf is not None and self.select_pmf[k] > 0:
+                light_pdf = np.float32(self.select_pmf[k]) * sampling.uniform_cone_pdf(self.sun_cos[k])
+                weight = sampling.power_heuristic(np.take(bsdf_pdf, inside),
+                                                  np.full(len(inside), light_pdf, np.float32))
+            out[:, inside] += self.sun_radiance[k][:, None] * weight
+        return out
 
     def pdf_world(self, dx, dy, dz, focus=None) -> np.ndarray:
         """pdf (solid angle, with selection) with which NEE would have sampled world directions d (focus: as
