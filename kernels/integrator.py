@@ -41,8 +41,8 @@ from .paths import PathState
 from .rng import PathRng, seed_paths
 from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, SAMPLING_PATTERNS, TIME, Samples, sample_strata
 from .camera import camera_frame
-from .scene import (OBJ_PASS_INDEX, Camera, Lights, Materials, SceneArrays, World, same_arrays, same_triangles,
-                    usable_placements)
+from .scene import (OBJ_PASS_INDEX, OBJ_TERMINATOR, TERMINATOR_OFFSET, Camera, Lights, Materials, SceneArrays, World,
+                    same_arrays, same_triangles, usable_placements)
 from .shading import Shading
 from .shading.world import WorldShader
 from .textures import Texture
@@ -358,6 +358,7 @@ class Renderer:
         self._ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self._prototype_boxes))
         self.lights = self._light_sampler()
         self._find_coincident()
+        self._find_terminator()
         poll()
 
     def _build_shading(self) -> None:
@@ -376,6 +377,16 @@ class Renderer:
         layered = self.shading.layered
         used = np.bincount(self._triangles.material_ids, minlength=len(layered))[:len(layered)] > 0
         self._layered = bool((layered & used).any())
+
+    def _find_terminator(self) -> None:
+        """Each object row's Shadow Terminator Geometry Offset (SceneArrays.objects), one for all without an
+        object table, or None when every object has it off."""
+        objects = self.scene.objects
+        if objects is None or not len(objects):
+            self._terminator = np.float32(TERMINATOR_OFFSET)
+            return
+        values = objects[:, OBJ_TERMINATOR]
+        self._terminator = values if (values > 0).any() else None
 
     def _find_coincident(self) -> None:
         """The coincident partners of the static plain triangles rays may pass through (kernels.coincident)."""
@@ -448,6 +459,7 @@ class Renderer:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             self._triangles.place(moved)
         self.shading.data.set_objects(scene.objects)
+        self._find_terminator()
         self._ray_epsilon = _ray_epsilon(*scene_extent(scene, self._prototype_boxes))
         if emitters_moved and lights:
             self.lights = self._light_sampler()
@@ -499,6 +511,7 @@ class Renderer:
         elif new.objects is not None:
             self.scene = dataclasses.replace(self.scene, objects=new.objects)
             self.shading.data.set_objects(new.objects)
+            self._find_terminator()
         # The lights go in first: update_materials then builds the light sampler once, for everything.
         self.scene = dataclasses.replace(self.scene, lights=new.lights)
         self.update_materials(new.materials, new.textures, new.texture_srgb, new.world)
@@ -1491,6 +1504,13 @@ class Renderer:
         # Leave from the side of the surface the light is on (a light behind a transmitting surface).
         sign = np.where(wx * gx + wy * gy + wz * gz < 0, np.float32(-1.0), np.float32(1.0))
         sx, sy, sz = np.take(px, idx), np.take(py, idx), np.take(pz, idx)
+        lift = self._terminator_lift(hit, active[idx], (wx, wy, wz), (gx, gy, gz))
+        if lift is not None:
+            rows, offset = lift
+            sx, sy, sz = sx.copy(), sy.copy(), sz.copy()
+            sx[rows] += offset[:, 0]
+            sy[rows] += offset[:, 1]
+            sz[rows] += offset[:, 2]
         eps = self._offset(sx, sy, sz) * sign
         dist = np.take(ls.dist, idx)
         ox, oy, oz = sx + gx * eps, sy + gy * eps, sz + gz * eps
@@ -1537,6 +1557,30 @@ class Renderer:
             wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
             return _class_shares(*eval_split(closures, paths[first], wi))
         self._add_from_vertex(wave, state, paths, contribution, reflecting)
+
+    def _terminator_lift(self, hit, hits, light, ng):
+        """Cycles' shadow terminator offset (shadow_ray_offset, kernel/light/sample.h): shadow rays toward
+        lights near the horizon of a smooth low-poly surface leave from the smooth surface its normals
+        describe, lifted off the flat triangle, in proportion as the light nears the horizon, below each
+        object's Geometry Offset (Object > Shading > Shadow Terminator; 0.1 by default). Returns (rows of
+        the shadow rays lifted, their (m, 3) offsets), or None."""
+        if self._terminator is None:
+            return None
+        cutoff = self._terminator if np.ndim(self._terminator) == 0 else \
+            np.take(self._terminator, self._triangles.object_rows(np.take(hit.prim, hits)))
+        nl = sum(np.take(hit.ns[k], hits) * light[k] for k in range(3))
+        turned = np.where(nl < 0, np.float32(-1.0), np.float32(1.0))      # a light on the shading normal's back
+        nl = np.abs(nl)
+        side = tuple(c * turned for c in ng)
+        ngl = sum(side[k] * light[k] for k in range(3))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            amount = np.where(nl < cutoff, np.clip(2.0 - (ngl + nl) / cutoff, 0.0, 1.0),
+                              np.clip(1.0 - ngl / cutoff, 0.0, 1.0))
+        rows = np.flatnonzero((amount > 0) & (cutoff > 0))
+        if not len(rows):
+            return None
+        offset = hit.smooth_offset(hits[rows], tuple(c[rows] for c in side))
+        return rows, offset * amount[rows, None].astype(np.float32)
 
     def _shadow_of(self, origins, dirs, t_max, wave, state, paths) -> np.ndarray:
         """_shadow for shadow rays leaving the paths `paths` (state rows)."""

@@ -87,6 +87,41 @@ class SurfaceHit:
         p0 = rows[:, P0:P0 + 3]
         return tuple(self._move(idx, c, True) for c in (p0, p0 + rows[:, E1:E1 + 3], p0 + rows[:, E2:E2 + 3]))
 
+    def smooth_offset(self, idx: np.ndarray, ng) -> np.ndarray:
+        """(n, 3) float32: how far Cycles lifts the start of a shadow ray off the hits idx to the smooth surface
+        their corner normals describe (shadow_ray_smooth_surface_offset, kernel/light/sample.h, after Hanika's
+        "Hacking the shadow terminator"): a parabola through the corners along their normals, bounded by each
+        corner's tangent plane. ng (x, y, z of (n,)): the side the ray leaves on. Hits on moving triangles
+        are not lifted."""
+        rows = self._table.rows_of(np.take(self.prim, idx)).astype(np.float64)
+        v0 = rows[:, P0:P0 + 3]
+        v1, v2 = v0 + rows[:, E1:E1 + 3], v0 + rows[:, E2:E2 + 3]
+        n0, n1, n2 = rows[:, N0:N0 + 3], rows[:, N1:N1 + 3], rows[:, N2:N2 + 3]
+        b1, b2 = np.take(self._b1, idx).astype(np.float64)[:, None], np.take(self._b2, idx).astype(np.float64)[:, None]
+        b0 = 1.0 - b1 - b2
+        p = v0 * b0 + v1 * b1 + v2 * b2
+        n = n0 * b0 + n1 * b1 + n2 * b2            # the interpolated normal, not normalised (as Cycles)
+
+        def dot(x, y):
+            return np.einsum("ij,ij->i", x, y)
+        u, v = b0[:, 0], b1[:, 0]
+        a, b, c = dot(n2 - n0, v0 - v2), dot(n2 - n1, v1 - v2), dot(n1 - n0, v1 - v0)
+        h = a * u * (u - 1) + (a + b + c) * u * v + b * v * (v - 1)
+        front = dot(n, np.stack(ng, axis=1)) > 0
+        # Each corner's tangent plane bounds the lift (its local linear envelope), on the side the ray leaves.
+        out_of = [np.maximum(np.maximum(dot(vj - vi, ni), dot(vk - vi, ni)), 0.0)
+                  for vi, ni, vj, vk in ((v0, n0, v1, v2), (v1, n1, v0, v2), (v2, n2, v0, v1))]
+        above = [np.maximum(dot(vi - p, ni) + e, 0.0) for vi, ni, e in zip((v0, v1, v2), (n0, n1, n2), out_of)]
+        into = [np.maximum(np.maximum(dot(vi - vj, ni), dot(vi - vk, ni)), 0.0)
+                for vi, ni, vj, vk in ((v0, n0, v1, v2), (v1, n1, v0, v2), (v2, n2, v0, v1))]
+        below = [np.maximum(dot(p - vi, ni) + e, 0.0) for vi, ni, e in zip((v0, v1, v2), (n0, n1, n2), into)]
+        h = np.where(front, np.maximum(np.minimum.reduce(above), 0.5 * h),
+                     np.minimum(-np.minimum.reduce(below), 0.5 * h))
+        offset = (n * h[:, None]).astype(np.float32)
+        if self._moved is not None:
+            offset[np.take(self._moved[0], idx) >= 0] = 0.0
+        return offset
+
     def tangent_frame(self, idx: np.ndarray):
         """At hits idx: the interpolated, unnormalized tangent (x, y, z) and bitangent sign (n,), and the
         unnormalized interpolated corner normal (x, y, z), not flipped for back faces: what Cycles'

@@ -19,7 +19,7 @@ import pytest
 from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World
 from ember.kernels.geometry import TriangleTable, flatten_instances
 from ember.kernels.lights import LightSampler
-from ember.kernels.scene import Instances, Prototype, object_row
+from ember.kernels.scene import OBJ_RANDOM, Instances, Prototype, object_row
 from ember.kernels.shapes import look_at, uv_sphere
 
 
@@ -191,7 +191,7 @@ def test_blender_instances_are_exported_once_and_render_as_copies(monkeypatch):
     assert inst is not None and len(inst.prototypes) == 1 and inst.count == 5
     assert result.triangle_count == 2 + 5 * 1280 and len(result.scene.positions) == 2
     # Each instance keeps its own object row (Object Info > Random differs per copy).
-    assert len(set(result.scene.objects[inst.object_ids, -1].tolist())) == 5
+    assert len(set(result.scene.objects[inst.object_ids, OBJ_RANDOM].tolist())) == 5
     instanced = render_to_array(scene, "EMBER", 16, seed=5)
     monkeypatch.setattr(mesh_export, "INSTANCE_MIN_TRIANGLES", 10**12)
     assert export_current().scene.instances is None

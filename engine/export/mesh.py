@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels.geometry import normal_matrices
-from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
+from ...kernels.scene import (OBJECT_COLUMNS, TERMINATOR_OFFSET, CornerRows, Instances, Prototype, object_rows,
+                              padded_triangles)
 from ...kernels.shading.ops import map_to_sphere
 from .materials import MaterialTable
 
@@ -215,8 +216,9 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
         if object_key[0] not in described:
             described[object_key[0]] = object_inputs(ob)
+        location, size, color, pass_index, own, terminator = described[object_key[0]]
         rows.setdefault((mesh_key, slot_rows[object_key]), []).append(
-            (*described[object_key[0]][:-1], instance_random(inst, described[object_key[0]][-1])))
+            (location, size, color, pass_index, instance_random(inst, own), terminator))
         keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
         assets.setdefault((mesh_key, slot_rows[object_key]), []).append(_asset_name(ob))
         slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
@@ -245,7 +247,8 @@ def slot_materials(ob) -> tuple:
 
 def object_inputs(ob) -> tuple:
     """What an object's rows of the object table take from the object and its mesh: (texture space
-    location, size, colour, pass index, its own random number: Blender's sync hashes its name)."""
+    location, size, colour, pass index, its own random number: Blender's sync hashes its name, its Shadow
+    Terminator Geometry Offset)."""
     from ...kernels.shading.hash import hash_uint2
     h = 0
     for c in ob.name.encode("utf-8"):
@@ -253,8 +256,9 @@ def object_inputs(ob) -> tuple:
     own_random = np.float32(int(hash_uint2(np.array([h], np.uint32), np.array([0], np.uint32))[0])) \
         * np.float32(1.0 / 0xFFFFFFFF)
     mesh = ob.data
+    terminator = float(getattr(ob, "shadow_terminator_geometry_offset", TERMINATOR_OFFSET))
     return (tuple(mesh.texspace_location), tuple(mesh.texspace_size), tuple(ob.color), ob.pass_index,
-            float(own_random))
+            float(own_random), terminator)
 
 
 def instance_random(inst, own_random: float) -> float:
@@ -266,9 +270,9 @@ def instance_random(inst, own_random: float) -> float:
 
 def instance_row(inst, ob, matrix) -> np.ndarray:
     """The object table row of an instance (kernels.scene.object_row)."""
-    location, size, color, pass_index, own = object_inputs(ob)
+    location, size, color, pass_index, own, terminator = object_inputs(ob)
     return object_rows(np.asarray(matrix, np.float64)[None], [location], [size], [color], [pass_index],
-                       [instance_random(inst, own)])[0]
+                       [instance_random(inst, own)], [terminator])[0]
 
 
 def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -> dict:
@@ -355,6 +359,9 @@ def _check_visibility(ob, warnings: list[str]) -> None:
     if not all(getattr(ob, name) for name in RAY_VISIBILITY) or ob.is_holdout or ob.is_shadow_catcher:
         warnings.append(f"Object '{ob.name}': ray visibility, holdout and shadow catcher settings are not "
                         f"supported, rendered as a plain object")
+    if float(getattr(ob, "shadow_terminator_shading_offset", 0.0)) > 0:
+        warnings.append(f"Object '{ob.name}': Shadow Terminator > Shading Offset is not supported yet, ignored "
+                        f"(Geometry Offset is)")
 
 
 def read_mesh(mesh) -> LocalMesh:
