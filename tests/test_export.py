@@ -125,6 +125,25 @@ def test_subdivision_modifier_is_applied():
     assert export().triangle_count == 6 * 16 * 2
 
 
+def test_a_mesh_in_edit_mode_exports_as_in_object_mode():
+    # A file saved in Edit Mode opens with the object still in it (an F12 from Edit Mode is the same): its
+    # mesh then lists BMesh's layers as attributes, without 'position', '.corner_vert' or 'material_index'.
+    ob = add_cube()
+    ob.modifiers.new("subsurf", "SUBSURF").levels = 1
+    for name in ("A", "B"):
+        ob.data.materials.append(new_material(name)[0])
+    ob.data.polygons.foreach_set("material_index", np.array([0, 1, 0, 0, 1, 1], np.int32))
+    ob.data.update()
+    object_mode = export()
+    bpy.ops.object.mode_set(mode="EDIT")
+    assert ob.data.is_editmode
+    edit_mode = export()
+    np.testing.assert_array_equal(edit_mode.scene.positions, object_mode.scene.positions)
+    np.testing.assert_array_equal(edit_mode.scene.material_ids, object_mode.scene.material_ids)
+    np.testing.assert_array_equal(edit_mode.scene.uvs, object_mode.scene.uvs)
+    assert len(np.unique(edit_mode.scene.material_ids)) == 2 and np.ptp(edit_mode.scene.uvs) > 0.5
+
+
 def test_collection_instances_with_rotation_and_scale():
     source = bpy.data.collections.new("Source")  # not linked to the scene: renders only as instances
     bpy.ops.mesh.primitive_cube_add(size=1)

@@ -14,6 +14,7 @@ triangle's UV gradient; both with a warning.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 
@@ -146,14 +147,15 @@ class MeshCache:
                 # a curve...) may change meshes that show no update of their own: read them all again.
                 self._meshes.clear()
 
-    def mesh(self, inst, ob) -> LocalMesh:
+    def mesh(self, inst, ob, mesh) -> LocalMesh:
+        """The triangles of `mesh` (readable_mesh(ob)), read again only if they may have changed."""
         key = (ob.data.as_pointer(), ob.data.name_full)
         owners = {ob.original.name_full, ob.data.name_full}
         if inst.is_instance and inst.parent is not None:
             owners.add(inst.parent.original.name_full)
         local = self._meshes.get(key)
         if local is None or owners & self._changed:
-            local = self._meshes[key] = read_mesh(ob.data)
+            local = self._meshes[key] = read_mesh(mesh)
             self.reads += 1
         self._used.add(key)
         return local
@@ -194,23 +196,24 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         if not is_rendered(inst, ob, warnings):
             continue
         mesh_key = ob.data.as_pointer()
-        if mesh_key not in meshes:
-            meshes[mesh_key] = read_mesh(ob.data) if cache is None else cache.mesh(inst, ob)
-        if meshes[mesh_key].triangle_count == 0:
-            empty.add(instance_key(inst))
-            continue
-        # Instances share meshes, but slots linked to the object can give one mesh different materials.
-        object_key = (ob.as_pointer(), mesh_key)
-        if object_key not in slot_rows:
-            slot_rows[object_key] = materials.slot_ids(ob)
-            signatures[object_key] = slot_materials(ob)
-            _check_visibility(ob, warnings)
-        uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
-        if uv_maps and mesh_key not in tangents:
-            tangents[mesh_key] = read_tangents(ob.data, meshes[mesh_key], uv_maps, ob.name, warnings)
-        names = materials.attribute_names(slot_rows[object_key])
-        if names and mesh_key not in attributes:
-            attributes[mesh_key] = read_attributes(ob.data, names, ob.name, warnings)
+        with readable_mesh(ob) as mesh:
+            if mesh_key not in meshes:
+                meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
+            if meshes[mesh_key].triangle_count == 0:
+                empty.add(instance_key(inst))
+                continue
+            # Instances share meshes, but slots linked to the object can give one mesh different materials.
+            object_key = (ob.as_pointer(), mesh_key)
+            if object_key not in slot_rows:
+                slot_rows[object_key] = materials.slot_ids(ob)
+                signatures[object_key] = slot_materials(ob)
+                _check_visibility(ob, warnings)
+            uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
+            if uv_maps and mesh_key not in tangents:
+                tangents[mesh_key] = read_tangents(mesh, meshes[mesh_key], uv_maps, ob.name, warnings)
+            names = materials.attribute_names(slot_rows[object_key])
+            if names and mesh_key not in attributes:
+                attributes[mesh_key] = read_attributes(mesh, names, ob.name, warnings)
         matrix = np.array(inst.matrix_world)
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
         if object_key[0] not in described:
@@ -355,6 +358,20 @@ def _check_visibility(ob, warnings: list[str]) -> None:
     if not all(getattr(ob, name) for name in RAY_VISIBILITY) or ob.is_holdout or ob.is_shadow_catcher:
         warnings.append(f"Object '{ob.name}': ray visibility, holdout and shadow catcher settings are not "
                         f"supported, rendered as a plain object")
+
+
+@contextlib.contextmanager
+def readable_mesh(ob):
+    """The evaluated mesh of `ob` to read from. An object in Edit Mode (a file saved in it opens in it, and
+    F12 renders it so) has a mesh that lists only its BMesh's layers as attributes, without 'position',
+    '.corner_vert' or 'material_index', and UV maps that read empty: its to_mesh() copy has them all."""
+    if not ob.data.is_editmode:
+        yield ob.data
+        return
+    try:
+        yield ob.to_mesh()
+    finally:
+        ob.to_mesh_clear()
 
 
 def read_mesh(mesh) -> LocalMesh:
