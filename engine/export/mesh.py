@@ -388,17 +388,34 @@ def read_mesh(mesh) -> LocalMesh:
     corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", n_corners, np.int32)
     positions = _read(mesh.attributes["position"].data, "vector", 3 * len(mesh.vertices), np.float32)
     corners = np.take(corner_verts, tri_loops)
+    vertices = positions.reshape(-1, 3)
     if mesh.normals_domain == "POINT":
         # Blender's corner normals are then its vertex normals, copied: a quarter of the rows to read and move.
-        normal_rows = _read(mesh.vertex_normals, "vector", 3 * len(mesh.vertices), np.float32)
+        normal_rows = _read(mesh.vertex_normals, "vector", 3 * len(mesh.vertices), np.float32).reshape(-1, 3)
         normal_index = corners
+    elif mesh.normals_domain == "FACE":
+        # A mesh of flat faces only: Cycles shades each triangle by its own normal, where Blender's corner
+        # normals give a face's triangles the face's. They differ on quads and n-gons that are not planar
+        # (sculpted or displaced terrain). Flat faces of a mesh with corner normals keep the face's, in
+        # Cycles too.
+        normal_rows = triangle_normals(vertices, corners)
+        normal_index = np.repeat(np.arange(t, dtype=np.uint32), 3)
     else:
-        normal_rows = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32)
+        normal_rows = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32).reshape(-1, 3)
         normal_index = tri_loops
-    return LocalMesh(vertices=positions.reshape(-1, 3), corners=corners,
-                     normal_rows=normal_rows.reshape(-1, 3), normal_index=normal_index,
+    return LocalMesh(vertices=vertices, corners=corners,
+                     normal_rows=normal_rows, normal_index=normal_index,
                      uvs=_corner_uvs(mesh, tri_loops),
                      slots=_triangle_slots(mesh, t))
+
+
+def triangle_normals(vertices: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(T, 3) float32 unit normals of triangles (corners (T*3,) or (T, 3) vertex indices) by their winding,
+    in the space of `vertices` (V, 3); zero for a triangle without area."""
+    p = np.take(vertices, corners.reshape(-1, 3), axis=0)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.sqrt(np.einsum("ti,ti->t", n, n))
+    return (n / np.where(length > 0, length, 1.0)[:, None]).astype(np.float32)
 
 
 def _read(collection, name: str, size: int, dtype) -> np.ndarray:
