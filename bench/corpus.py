@@ -129,7 +129,9 @@ class Comparison:
 
     @property
     def whole_z(self) -> float:
-        return self.mean_relative / self.mean_relative_se if self.mean_relative_se > 0 else 0.0
+        if self.mean_relative_se > 0:
+            return self.mean_relative / self.mean_relative_se
+        return 0.0 if self.mean_relative == 0 else float("inf")
 
     @property
     def beyond_noise(self) -> bool:
@@ -151,6 +153,13 @@ def block_sums(x: np.ndarray, block: int = BLOCK) -> np.ndarray:
 def pixel_variance(renders: np.ndarray) -> np.ndarray:
     """(R, H, W) replicate renders -> (H, W) variance of one render's pixel (ddof 1)."""
     return renders.var(axis=0, ddof=1)
+
+
+def noise_ratio(variance_ember: float, variance_cycles: float) -> float:
+    """Ember's noise over Cycles' from their summed variances; 1 when neither has any."""
+    if variance_cycles > 0:
+        return float(np.sqrt(variance_ember / variance_cycles))
+    return 1.0 if variance_ember == 0 else float("inf")
 
 
 def compare(cycles: np.ndarray, ember: np.ndarray) -> Comparison:
@@ -175,12 +184,15 @@ def compare(cycles: np.ndarray, ember: np.ndarray) -> Comparison:
     whole_c, whole_e = mean_c.mean(), mean_e.mean()
     pixels = c.shape[1] * c.shape[2]
     whole_se = np.sqrt(var_c.sum() / rc + var_e.sum() / re_) / pixels
+    if whole_c > 0:
+        mean_relative, mean_relative_se = whole_e / whole_c - 1.0, whole_se / whole_c
+    else:  # a black Cycles image (nothing the camera sees is lit): Ember's must be black too
+        mean_relative, mean_relative_se = (0.0 if whole_e == 0 else float("inf")), 0.0
     return Comparison(
-        mean_relative=float(whole_e / whole_c - 1.0) if whole_c > 0 else float("nan"),
-        mean_relative_se=float(whole_se / whole_c) if whole_c > 0 else float("nan"),
+        mean_relative=float(mean_relative), mean_relative_se=float(mean_relative_se),
         p90_over_cycles_noise=float(np.percentile((np.abs(difference) / sigma_c)[counted], 90)),
         p90_z=float(np.percentile(np.abs(block_z)[counted], 90)),
-        noise_ratio=float(np.sqrt(block_var_e.sum() / block_var_c.sum())) if block_var_c.sum() > 0 else float("nan"),
+        noise_ratio=noise_ratio(block_var_e.sum(), block_var_c.sum()),
         block_z=block_z, blocks_counted=int(counted.sum()), blocks_equal=int(equal.sum()))
 
 

@@ -64,6 +64,15 @@ def test_plain_background_blocks_are_left_out():
     assert abs(result.p90_z - 1.645) < 0.6       # 50 blocks
 
 
+def test_black_images_compare_without_nan():
+    black = np.zeros((2, 16, 16, 4), np.float32)
+    result = corpus.compare(black, black)
+    assert (result.mean_relative, result.noise_ratio, result.beyond_noise) == (0.0, 1.0, False)
+    lit = black.copy()
+    lit[:, :8] = 0.5
+    assert corpus.compare(black, lit).beyond_noise
+
+
 def test_reports_are_read_from_a_renders_output():
     stdout = ("Fra:1 Mem:10M | Sample 1/4\n"
               "Ember | Frame 1 | Warning: Material 'A': Displacement output is not supported, ignored\n"
