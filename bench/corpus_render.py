@@ -59,7 +59,23 @@ def lacking_settings(scene) -> list[str]:
         if active:
             value = getattr(c, name.split(" ")[0])
             lacking.append(f"{name}={round(value, 4) if isinstance(value, float) else value}")
+    offset = smooth_objects_with_terminator_offset(scene)
+    if offset:
+        lacking.append(f"shadow_terminator_geometry_offset (object setting, {offset} smooth-shaded objects)")
     return lacking
+
+
+def smooth_objects_with_terminator_offset(scene) -> int:
+    """Rendered mesh objects with smooth faces whose Shadow Terminator Geometry Offset (Cycles' default 0.1)
+    is on: Cycles lifts their shadow rays off the surface, Ember does not."""
+    count = 0
+    for ob in scene.objects:
+        if ob.type != "MESH" or ob.hide_render or ob.shadow_terminator_geometry_offset <= 0:
+            continue
+        smooth = np.zeros(len(ob.data.polygons), bool)
+        ob.data.polygons.foreach_get("use_smooth", smooth)
+        count += bool(smooth.any())
+    return count
 
 
 def map_cycles_settings(scene) -> dict:

@@ -85,6 +85,21 @@ def test_reports_are_read_from_a_renders_output():
     assert errors == ["Ember: invalid scene data: no triangles"]
 
 
+# ---------------------------------------------------------------- settings
+def test_cycles_settings_are_mapped_or_listed_as_lacking():
+    from bench import corpus_render
+    scene = new_scene(16, 16)
+    mesh_object("Smooth", [(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 1, 2)], smooth=True)
+    mesh_object("Flat", [(0, 0, 1), (1, 0, 1), (0, 1, 1)], [(0, 1, 2)])
+    scene.cycles.sample_clamp_indirect, scene.cycles.blur_glossy, scene.cycles.film_exposure = 3.0, 0.25, 2.0
+    mapped = corpus_render.map_cycles_settings(scene)
+    assert (scene.ember.sample_clamp_indirect, scene.ember.blur_glossy) == (3.0, 0.25)
+    assert mapped["sample_clamp_indirect"] == 3.0 and mapped["max_bounces"] == scene.cycles.max_bounces
+    lacking = corpus_render.lacking_settings(scene)
+    assert "diffuse_bounces=4" in lacking and "film_exposure=2.0" in lacking
+    assert "shadow_terminator_geometry_offset (object setting, 1 smooth-shaded objects)" in lacking
+
+
 # ---------------------------------------------------------------- the tool on .blend files
 def build_scene(film_exposure: float):
     """A floor and a box under an area lamp, with Cycles settings Ember takes over, and a material Ember
