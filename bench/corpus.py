@@ -18,8 +18,9 @@ noise. Per file the tool prints
     standard deviation of one Cycles render's block mean). With both estimates the mean of two renders
     and equal noise, it is |N(0, 1)|: about 1.64. Blocks without noise in either engine that agree to
     0.1% (a plain background) are left out, and counted apart;
-  - Ember's noise over Cycles' (the ratio of their block variances), the time ratio, Ember's warnings
-    and the Cycles settings Ember lacks;
+  - Ember's noise over Cycles' (the square root of the ratio of their summed block variances), the time
+    ratio (of the mean wall time of bpy.ops.render.render over the two renders: export, build and
+    render, not the process start), Ember's warnings and the Cycles settings Ember lacks;
   - a verdict: 'beyond noise' when the 90th percentile of the blocks' differences over the noise of the
     difference (both engines' noise) exceeds 2.5, or the whole image's difference exceeds 4 standard
     errors;
@@ -27,6 +28,11 @@ and writes OUT/<file>.png: Cycles | Ember | a heat map of the blocks' difference
 Ember brighter, blue: darker; full colour at 5 standard errors) over a dim copy of the Cycles image.
 The images are shown with the sRGB curve, not the file's view transform. At the end: a markdown table
 (also OUT/summary.md) to paste into an issue.
+
+To find the cause of a difference, --set PATH=VALUE changes a scene setting in both engines' processes
+before anything else (Ember then takes it over like the file's own), e.g. --set cycles.diffuse_bounces=1024
+to take a Cycles limit Ember lacks out of the comparison; reduce the file itself (hide objects, swap
+materials) in copies of it.
 """
 from __future__ import annotations
 
@@ -314,7 +320,8 @@ def report_lines(r: FileResult, samples: int) -> list[str]:
         lines.append("  Ember uses the file's " + ", ".join(f"{k}={v}" for k, v in r.mapped.items()))
     lines.append("  Ember lacks: " + (", ".join(r.lacking) if r.lacking else "nothing the file sets"))
     if r.missing_images:
-        lines.append(f"  images missing from the file's folder: {r.missing_images} (both engines render them as missing)")
+        lines.append(f"  images missing from the file's folder: {r.missing_images} "
+                     f"(both engines render them as missing)")
     lines.append(f"  Ember's warnings ({len(r.warnings)})" + (":" if r.warnings else ""))
     lines += [f"    - {w}" for w in r.warnings]
     lines.append(f"  verdict: {r.verdict}" + (f"  -> {r.png}" if r.png else ""))
@@ -338,7 +345,8 @@ def summary_table(results: list[FileResult], args) -> str:
             continue
         c = r.comparison
         rows.append(f"| {r.name} | {r.saved_by} | {c.mean_relative:+.2%} ± {c.mean_relative_se:.2%} | "
-                    f"{c.p90_over_cycles_noise:.2f} | {c.p90_z:.2f} | {c.noise_ratio:.2f} | {r.time_ratio:.1f} | {len(r.warnings)} | "
+                    f"{c.p90_over_cycles_noise:.2f} | {c.p90_z:.2f} | {c.noise_ratio:.2f} | {r.time_ratio:.1f} | "
+                    f"{len(r.warnings)} | "
                     f"{lacks} | {r.verdict} |")
     notes = [f"- {r.name}: " + "; ".join(r.warnings) for r in results if r.warnings]
     return head + "\n".join(rows) + ("\n\nEmber's warnings:\n" + "\n".join(notes) if notes else "") + "\n"

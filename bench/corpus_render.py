@@ -50,7 +50,8 @@ def lacking_settings(scene) -> list[str]:
         bounces = getattr(c, f"{kind}_bounces")
         if bounces < c.max_bounces:
             lacking.append(f"{kind}_bounces={bounces}")
-    checks = (("min_light_bounces", c.min_light_bounces > 0), ("min_transparent_bounces", c.min_transparent_bounces > 0),
+    checks = (("min_light_bounces", c.min_light_bounces > 0),
+              ("min_transparent_bounces", c.min_transparent_bounces > 0),
               ("light_sampling_threshold", c.light_sampling_threshold > 0), ("use_light_tree", not c.use_light_tree),
               ("film_exposure", c.film_exposure != 1.0), ("use_fast_gi", c.use_fast_gi),
               ("texture_limit_render", c.texture_limit_render != "OFF"), ("shading_system (OSL)", c.shading_system),
