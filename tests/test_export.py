@@ -125,6 +125,25 @@ def test_subdivision_modifier_is_applied():
     assert export().triangle_count == 6 * 16 * 2
 
 
+def test_a_mesh_in_edit_mode_exports_as_in_object_mode():
+    # A file saved in Edit Mode opens with the object still in it (an F12 from Edit Mode is the same): its
+    # mesh then lists BMesh's layers as attributes, without 'position', '.corner_vert' or 'material_index'.
+    ob = add_cube()
+    ob.modifiers.new("subsurf", "SUBSURF").levels = 1
+    for name in ("A", "B"):
+        ob.data.materials.append(new_material(name)[0])
+    ob.data.polygons.foreach_set("material_index", np.array([0, 1, 0, 0, 1, 1], np.int32))
+    ob.data.update()
+    object_mode = export()
+    bpy.ops.object.mode_set(mode="EDIT")
+    assert ob.data.is_editmode
+    edit_mode = export()
+    np.testing.assert_array_equal(edit_mode.scene.positions, object_mode.scene.positions)
+    np.testing.assert_array_equal(edit_mode.scene.material_ids, object_mode.scene.material_ids)
+    np.testing.assert_array_equal(edit_mode.scene.uvs, object_mode.scene.uvs)
+    assert len(np.unique(edit_mode.scene.material_ids)) == 2 and np.ptp(edit_mode.scene.uvs) > 0.5
+
+
 def test_collection_instances_with_rotation_and_scale():
     source = bpy.data.collections.new("Source")  # not linked to the scene: renders only as instances
     bpy.ops.mesh.primitive_cube_add(size=1)
@@ -237,6 +256,43 @@ def test_flat_and_mirrored_normals():
         np.testing.assert_allclose(np.abs(np.einsum("tci,ti->tc", n, geometric)), 1.0, atol=1e-5)
 
 
+def test_flat_faces_are_shaded_by_each_triangles_own_normal():
+    # Cycles shades the faces of a mesh of flat faces only by the normal of the triangle hit: a quad that is
+    # not planar (a sculpted or displaced terrain) shows its two triangles' normals, where Blender's corner
+    # normals give both the face's. In a mesh with corner normals (a smooth face and a sharp edge beside the
+    # flat one) Cycles shades the flat face by those corner normals: the face's.
+    folded = [(0, 0, 0), (2, 0, 0), (2, 2, 0.8), (0, 2, 0)]
+    objects = {}
+    for name, x, scale, corner_domain in (("Flat", -10, (1, 2, 1), False), ("Mirrored", 0, (-1, 1, 1), False),
+                                          ("Corner", 10, (1, 1, 1), True)):
+        mesh = bpy.data.meshes.new(name)
+        if corner_domain:
+            mesh.from_pydata(folded + [(0, 4, 0), (2, 4, 0.3)], [], [(0, 1, 2, 3), (3, 2, 5, 4)])
+            mesh.polygons[1].use_smooth = True
+            sharp = mesh.attributes.new("sharp_edge", "BOOLEAN", "EDGE")
+            sharp.data[next(e.index for e in mesh.edges if set(e.vertices) == {4, 5})].value = True
+        else:
+            mesh.from_pydata(folded, [], [(0, 1, 2, 3)])
+        ob = bpy.data.objects.new(name, mesh)
+        ob.location, ob.scale, ob.rotation_euler = (x, 0, 0), scale, (0.3, 0.2, 0.1)
+        bpy.context.scene.collection.objects.link(ob)
+        objects[name] = ob
+    dg = bpy.context.evaluated_depsgraph_get()
+    result = export()
+    normals = unit(result.scene.normals.astype(np.float64))
+    for name, ob in objects.items():
+        ob_eval = ob.evaluated_get(dg)
+        mesh = ob_eval.data
+        assert mesh.normals_domain == ("CORNER" if name == "Corner" else "FACE")
+        normal_matrix = ob_eval.matrix_world.to_3x3().inverted_safe().transposed()
+        own = np.array([(normal_matrix @ tri.normal).normalized()[:] for tri in mesh.loop_triangles[:2]])
+        face = np.array((normal_matrix @ mesh.polygons[0].normal).normalized()[:])
+        assert np.abs(own[0] @ own[1]) < 0.99   # the folded quad's triangles differ
+        expected = np.array([face, face]) if name == "Corner" else own
+        np.testing.assert_allclose(triangles_near(result, ob, normals)[:2], np.repeat(expected[:, None], 3, axis=1),
+                                   atol=1e-5)
+
+
 def test_smooth_sharp_and_custom_normals():
     smooth = add_cube(location=(-10, 0, 0))
     smooth.data.shade_smooth()
@@ -268,7 +324,8 @@ def test_smooth_sharp_and_custom_normals():
 
 def test_smooth_meshes_read_their_vertex_normals_as_blender_gives_its_corner_normals():
     """A mesh smooth all over (normals_domain POINT) is read by its vertex normals, a quarter of the rows of
-    its corner normals; the triangles' normals are Blender's corner normals bit for bit either way."""
+    its corner normals, and its triangles' normals are Blender's corner normals bit for bit; a mesh flat all
+    over (FACE) has a row per triangle, its own normal (the face's, to float precision, on planar faces)."""
     from ember.engine.export.mesh import read_mesh
     smooth = add_cube(location=(-10, 0, 0))
     smooth.data.shade_smooth()
@@ -278,16 +335,20 @@ def test_smooth_meshes_read_their_vertex_normals_as_blender_gives_its_corner_nor
         mesh = ob.evaluated_get(dg).data
         assert mesh.normals_domain == domain
         local = read_mesh(mesh)
-        assert len(local.normal_rows) == (len(mesh.vertices) if domain == "POINT" else len(mesh.loops))
+        assert len(local.normal_rows) == (len(mesh.vertices) if domain == "POINT" else len(mesh.loop_triangles))
         corner = np.array([c.vector[:] for c in mesh.corner_normals], np.float32)
         loops = np.array([tri.loops[:] for tri in mesh.loop_triangles]).reshape(-1)
-        np.testing.assert_array_equal(local.normals, corner[loops])
+        if domain == "POINT":
+            np.testing.assert_array_equal(local.normals, corner[loops])
+        else:
+            np.testing.assert_allclose(local.normals, corner[loops], atol=1e-6)
 
 
 def test_plain_normals_are_rows_gathered_by_index_for_every_copy():
     """The export keeps the plain triangles' normals as CornerRows: each mesh's normals moved once per
     copy (here one smooth mesh shown by two objects, mirrored and rotated, and a flat cube), each corner
-    reading its copy's row; they are Blender's corner normals either way."""
+    reading its copy's row; they are Blender's corner normals either way (the flat cube's are its triangles'
+    normals, its faces' as its faces are planar)."""
     from ember.kernels.scene import CornerRows
     first = add_cube(location=(-10, 0, 0), rotation=(0.3, 0.1, 0.7), scale=(1, 2, 0.5))
     first.data.shade_smooth()
@@ -305,7 +366,7 @@ def test_plain_normals_are_rows_gathered_by_index_for_every_copy():
     for ob in (first, second, flat):
         np.testing.assert_allclose(triangles_near(result, ob, np.asarray(positions)), blender_corners(ob)[0],
                                    atol=1e-5)
-    assert len(normals.rows) == 2 * 8 + 24      # the smooth mesh's 8 vertices twice, the flat cube's 24 face corners
+    assert len(normals.rows) == 2 * 8 + 12      # the smooth mesh's 8 vertices twice, the flat cube's 12 triangles
     dense = unit(np.asarray(normals).astype(np.float64))
     for ob in (first, second, flat):
         np.testing.assert_allclose(triangles_near(result, ob, dense), blender_corners(ob)[1], atol=1e-5)

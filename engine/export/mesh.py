@@ -14,6 +14,7 @@ triangle's UV gradient; both with a warning.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 
@@ -147,14 +148,15 @@ class MeshCache:
                 # a curve...) may change meshes that show no update of their own: read them all again.
                 self._meshes.clear()
 
-    def mesh(self, inst, ob) -> LocalMesh:
+    def mesh(self, inst, ob, mesh) -> LocalMesh:
+        """The triangles of `mesh` (readable_mesh(ob)), read again only if they may have changed."""
         key = (ob.data.as_pointer(), ob.data.name_full)
         owners = {ob.original.name_full, ob.data.name_full}
         if inst.is_instance and inst.parent is not None:
             owners.add(inst.parent.original.name_full)
         local = self._meshes.get(key)
         if local is None or owners & self._changed:
-            local = self._meshes[key] = read_mesh(ob.data)
+            local = self._meshes[key] = read_mesh(mesh)
             self.reads += 1
         self._used.add(key)
         return local
@@ -195,23 +197,24 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         if not is_rendered(inst, ob, warnings):
             continue
         mesh_key = ob.data.as_pointer()
-        if mesh_key not in meshes:
-            meshes[mesh_key] = read_mesh(ob.data) if cache is None else cache.mesh(inst, ob)
-        if meshes[mesh_key].triangle_count == 0:
-            empty.add(instance_key(inst))
-            continue
-        # Instances share meshes, but slots linked to the object can give one mesh different materials.
-        object_key = (ob.as_pointer(), mesh_key)
-        if object_key not in slot_rows:
-            slot_rows[object_key] = materials.slot_ids(ob)
-            signatures[object_key] = slot_materials(ob)
-            _check_visibility(ob, warnings)
-        uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
-        if uv_maps and mesh_key not in tangents:
-            tangents[mesh_key] = read_tangents(ob.data, meshes[mesh_key], uv_maps, ob.name, warnings)
-        names = materials.attribute_names(slot_rows[object_key])
-        if names and mesh_key not in attributes:
-            attributes[mesh_key] = read_attributes(ob.data, names, ob.name, warnings)
+        with readable_mesh(ob) as mesh:
+            if mesh_key not in meshes:
+                meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
+            if meshes[mesh_key].triangle_count == 0:
+                empty.add(instance_key(inst))
+                continue
+            # Instances share meshes, but slots linked to the object can give one mesh different materials.
+            object_key = (ob.as_pointer(), mesh_key)
+            if object_key not in slot_rows:
+                slot_rows[object_key] = materials.slot_ids(ob)
+                signatures[object_key] = slot_materials(ob)
+                _check_visibility(ob, warnings)
+            uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
+            if uv_maps and mesh_key not in tangents:
+                tangents[mesh_key] = read_tangents(mesh, meshes[mesh_key], uv_maps, ob.name, warnings)
+            names = materials.attribute_names(slot_rows[object_key])
+            if names and mesh_key not in attributes:
+                attributes[mesh_key] = read_attributes(mesh, names, ob.name, warnings)
         matrix = np.array(inst.matrix_world)
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
         if object_key[0] not in described:
@@ -364,6 +367,20 @@ def _check_visibility(ob, warnings: list[str]) -> None:
                         f"(Geometry Offset is)")
 
 
+@contextlib.contextmanager
+def readable_mesh(ob):
+    """The evaluated mesh of `ob` to read from. An object in Edit Mode (a file saved in it opens in it, and
+    F12 renders it so) has a mesh that lists only its BMesh's layers as attributes, without 'position',
+    '.corner_vert' or 'material_index', and UV maps that read empty: its to_mesh() copy has them all."""
+    if not ob.data.is_editmode:
+        yield ob.data
+        return
+    try:
+        yield ob.to_mesh()
+    finally:
+        ob.to_mesh_clear()
+
+
 def read_mesh(mesh) -> LocalMesh:
     """An evaluated mesh's triangles in object space."""
     mesh.calc_loop_triangles()
@@ -378,17 +395,34 @@ def read_mesh(mesh) -> LocalMesh:
     corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", n_corners, np.int32)
     positions = _read(mesh.attributes["position"].data, "vector", 3 * len(mesh.vertices), np.float32)
     corners = np.take(corner_verts, tri_loops)
+    vertices = positions.reshape(-1, 3)
     if mesh.normals_domain == "POINT":
         # Blender's corner normals are then its vertex normals, copied: a quarter of the rows to read and move.
-        normal_rows = _read(mesh.vertex_normals, "vector", 3 * len(mesh.vertices), np.float32)
+        normal_rows = _read(mesh.vertex_normals, "vector", 3 * len(mesh.vertices), np.float32).reshape(-1, 3)
         normal_index = corners
+    elif mesh.normals_domain == "FACE":
+        # A mesh of flat faces only: Cycles shades each triangle by its own normal, where Blender's corner
+        # normals give a face's triangles the face's. They differ on quads and n-gons that are not planar
+        # (sculpted or displaced terrain). Flat faces of a mesh with corner normals keep the face's, in
+        # Cycles too.
+        normal_rows = triangle_normals(vertices, corners)
+        normal_index = np.repeat(np.arange(t, dtype=np.uint32), 3)
     else:
-        normal_rows = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32)
+        normal_rows = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32).reshape(-1, 3)
         normal_index = tri_loops
-    return LocalMesh(vertices=positions.reshape(-1, 3), corners=corners,
-                     normal_rows=normal_rows.reshape(-1, 3), normal_index=normal_index,
+    return LocalMesh(vertices=vertices, corners=corners,
+                     normal_rows=normal_rows, normal_index=normal_index,
                      uvs=_corner_uvs(mesh, tri_loops),
                      slots=_triangle_slots(mesh, t))
+
+
+def triangle_normals(vertices: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(T, 3) float32 unit normals of triangles (corners (T*3,) or (T, 3) vertex indices) by their winding,
+    in the space of `vertices` (V, 3); zero for a triangle without area."""
+    p = np.take(vertices, corners.reshape(-1, 3), axis=0)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.sqrt(np.einsum("ti,ti->t", n, n))
+    return (n / np.where(length > 0, length, 1.0)[:, None]).astype(np.float32)
 
 
 def _read(collection, name: str, size: int, dtype) -> np.ndarray:
