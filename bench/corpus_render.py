@@ -37,7 +37,8 @@ import bpy  # noqa: E402
 from tests.bpy_helpers import ensure_registered, load_exr  # noqa: E402
 
 # scene.cycles -> scene.ember, same meaning and units.
-SHARED_SETTINGS = ("max_bounces", "transparent_max_bounces", "sample_clamp_direct", "sample_clamp_indirect",
+SHARED_SETTINGS = ("max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces",
+                   "transparent_max_bounces", "sample_clamp_direct", "sample_clamp_indirect",
                    "blur_glossy", "caustics_reflective", "caustics_refractive", "pixel_filter_type", "filter_width")
 
 
@@ -46,10 +47,8 @@ def lacking_settings(scene) -> list[str]:
     'name=value' (only those not at the value that makes them inert)."""
     c = scene.cycles
     lacking = []
-    for kind in ("diffuse", "glossy", "transmission"):
-        bounces = getattr(c, f"{kind}_bounces")
-        if bounces < c.max_bounces:
-            lacking.append(f"{kind}_bounces={bounces}")
+    if c.volume_bounces > 0:
+        lacking.append(f"volume_bounces={c.volume_bounces}")
     checks = (("min_light_bounces", c.min_light_bounces > 0),
               ("min_transparent_bounces", c.min_transparent_bounces > 0),
               ("light_sampling_threshold", c.light_sampling_threshold > 0), ("use_light_tree", not c.use_light_tree),
@@ -60,23 +59,16 @@ def lacking_settings(scene) -> list[str]:
         if active:
             value = getattr(c, name.split(" ")[0])
             lacking.append(f"{name}={round(value, 4) if isinstance(value, float) else value}")
-    offset = smooth_objects_with_terminator_offset(scene)
-    if offset:
-        lacking.append(f"shadow_terminator_geometry_offset (object setting, {offset} smooth-shaded objects)")
+    shading = terminator_shading_offsets(scene)
+    if shading:
+        lacking.append(f"shadow_terminator_shading_offset (object setting, {shading} objects)")
     return lacking
 
 
-def smooth_objects_with_terminator_offset(scene) -> int:
-    """Rendered mesh objects with smooth faces whose Shadow Terminator Geometry Offset (Cycles' default 0.1)
-    is on: Cycles lifts their shadow rays off the surface, Ember does not."""
-    count = 0
-    for ob in scene.objects:
-        if ob.type != "MESH" or ob.hide_render or ob.shadow_terminator_geometry_offset <= 0:
-            continue
-        smooth = np.zeros(len(ob.data.polygons), bool)
-        ob.data.polygons.foreach_get("use_smooth", smooth)
-        count += bool(smooth.any())
-    return count
+def terminator_shading_offsets(scene) -> int:
+    """Rendered mesh objects with a Shadow Terminator Shading Offset, which Ember does not render yet."""
+    return sum(1 for ob in scene.objects
+               if ob.type == "MESH" and not ob.hide_render and ob.shadow_terminator_shading_offset > 0)
 
 
 def map_cycles_settings(scene) -> dict:

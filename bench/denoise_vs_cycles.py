@@ -63,6 +63,7 @@ def timed(engine, width, height, seconds, threads):
     else:
         e = scene.ember
         e.samples, e.max_bounces, e.time_limit = 1 << 16, 6, seconds
+        e.diffuse_bounces = e.glossy_bounces = e.transmission_bounces = 6   # as configure_cycles
         e.use_adaptive_sampling, e.sample_clamp_direct, e.sample_clamp_indirect, e.blur_glossy = False, 0, 0, 0
         e.pixel_filter_type, e.use_denoising = "BOX", True
     import tempfile

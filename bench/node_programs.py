@@ -83,6 +83,7 @@ def engine_rate(scene, engine: str, samples: int) -> float:
         configure_cycles(scene, samples, 0, MAX_BOUNCES)
     else:
         scene.ember.samples, scene.ember.max_bounces, scene.ember.seed = samples, MAX_BOUNCES, 0
+        scene.ember.diffuse_bounces = scene.ember.glossy_bounces = scene.ember.transmission_bounces = MAX_BOUNCES
         scene.ember.sample_clamp_direct = scene.ember.sample_clamp_indirect = scene.ember.blur_glossy = 0.0
         scene.ember.use_adaptive_sampling = False
         scene.ember.pixel_filter_type = "BOX"

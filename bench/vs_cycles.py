@@ -192,6 +192,7 @@ def render(scene, engine: str, samples: int, cfg: Config, *, seed: int = TIMED_S
     else:
         e = scene.ember
         e.samples, e.seed, e.max_bounces, e.sampling_mode = samples, seed, cfg.max_bounces, mode
+        e.diffuse_bounces = e.glossy_bounces = e.transmission_bounces = cfg.max_bounces   # as configure_cycles
         e.sample_clamp_direct = e.sample_clamp_indirect = e.blur_glossy = 0.0  # as configure_cycles
         e.use_adaptive_sampling = False
         e.pixel_filter_type = "BOX"  # as configure_cycles

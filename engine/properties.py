@@ -28,8 +28,19 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
         name="Viewport Samples", description="Samples per pixel in the viewport's rendered mode (0 = unlimited)",
         default=32, min=0, max=1 << 24, soft_max=4096)
     max_bounces: IntProperty(
-        name="Max Bounces", description="Bounces after the first hit, as in Cycles: 0 gives direct light only",
-        default=8, min=0, max=1024)
+        name="Total", description="Bounces after the first hit, as in Cycles: 0 gives direct light only",
+        default=12, min=0, max=1024)
+    diffuse_bounces: IntProperty(
+        name="Diffuse", description="Diffuse reflections a path may make, as Cycles' Diffuse bounces: past them "
+                                    "it takes only the light of what it meets next",
+        default=4, min=0, max=1024)
+    glossy_bounces: IntProperty(
+        name="Glossy", description="Glossy and mirror reflections a path may make, as Cycles' Glossy bounces",
+        default=4, min=0, max=1024)
+    transmission_bounces: IntProperty(
+        name="Transmission", description="Passages through surfaces (refraction, translucency) a path may make, "
+                                         "as Cycles' Transmission bounces",
+        default=12, min=0, max=1024)
     transparent_max_bounces: IntProperty(
         name="Transparent Bounces",
         description="Transparent surfaces (alpha, Transparent BSDF) a path may pass straight through, as in "

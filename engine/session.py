@@ -76,6 +76,9 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
     return RenderSettings(
         samples=int(samples if samples is not None else ember.samples),
         max_bounces=int(ember.max_bounces),
+        diffuse_bounces=int(ember.diffuse_bounces),
+        glossy_bounces=int(ember.glossy_bounces),
+        transmission_bounces=int(ember.transmission_bounces),
         transparent_max_bounces=int(ember.transparent_max_bounces),
         clamp_direct=float(ember.sample_clamp_direct),
         clamp_indirect=float(ember.sample_clamp_indirect),

@@ -81,8 +81,12 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
-        layout.prop(context.scene.ember, "max_bounces")
-        layout.prop(context.scene.ember, "transparent_max_bounces")
+        col = layout.column(heading="Max Bounces", align=True)
+        col.prop(context.scene.ember, "max_bounces")
+        col.prop(context.scene.ember, "diffuse_bounces")
+        col.prop(context.scene.ember, "glossy_bounces")
+        col.prop(context.scene.ember, "transmission_bounces")
+        col.prop(context.scene.ember, "transparent_max_bounces", text="Transparent")
         col = layout.column(align=True)
         col.prop(context.scene.ember, "sample_clamp_direct")
         col.prop(context.scene.ember, "sample_clamp_indirect")

@@ -111,6 +111,13 @@ class RenderSettings:
     transparent_background: bool = False
     wave_size: int | None = None
     transparent_max_bounces: int = 8
+    # Cycles' per-type limits (Light Paths > Max Bounces: Diffuse, Glossy, Transmission), None for none: a path
+    # that has reflected diffusely (glossily) more often than diffuse_bounces (glossy_bounces), or gone through
+    # surfaces more often than transmission_bounces, only takes the emission and the world of what it meets
+    # next, as after max_bounces.
+    diffuse_bounces: int | None = None
+    glossy_bounces: int | None = None
+    transmission_bounces: int | None = None
     # Cycles' Clamp Direct and Clamp Indirect: a contribution whose |R| + |G| + |B| exceeds 3 x the limit
     # is scaled down to it (0: off). Direct: light reaching the first hit or the camera; indirect: the rest.
     clamp_direct: float = 0.0
@@ -172,6 +179,10 @@ class RenderSettings:
             raise ValueError(f"time_limit_s: must be finite and non-negative, got {self.time_limit_s}")
         if int(self.transparent_max_bounces) < 0:
             raise ValueError(f"transparent_max_bounces: must be non-negative, got {self.transparent_max_bounces}")
+        for name in ("diffuse_bounces", "glossy_bounces", "transmission_bounces"):
+            value = getattr(self, name)
+            if value is not None and int(value) < 0:
+                raise ValueError(f"{name}: must be non-negative (None: no limit of its own), got {value}")
         if self.wave_size is not None and int(self.wave_size) < 1:
             raise ValueError(f"wave_size: must be positive, got {self.wave_size}")
         if int(self.adaptive_min_samples) < 0:
@@ -891,7 +902,7 @@ class Renderer:
         # The caustics switches read the last bounce's label too.
         caustics = None if settings.caustics_reflective and settings.caustics_refractive else \
             (bool(settings.caustics_reflective), bool(settings.caustics_refractive))
-        if self.shading.reads_lobes or caustics is not None:
+        if self.shading.reads_lobes or caustics is not None or _type_limits(settings) is not None:
             state.lobes = np.zeros((4, n), np.int32)
         if settings.filter_glossy > 0:
             state.min_ray_pdf = np.full(n, np.inf, np.float32)
@@ -1135,7 +1146,7 @@ class Renderer:
             return
         row = bs.row
         chosen = np.flatnonzero((row >= 0) & bs.delta & ~bs.transparent & (bs.pdf > 0) &
-                                (state.bounce < wave.max_scatters))
+                                _may_scatter(wave, state))
         if not len(chosen):
             return
         r = row[chosen]
@@ -1376,7 +1387,7 @@ class Renderer:
         alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
         passing = bs.transparent
         # Past the last bounce a path still passes through transparent surfaces (as in Cycles), not portals.
-        alive &= (passing & ~portal) | (state.bounce < wave.max_scatters)
+        alive &= (passing & ~portal) | _may_scatter(wave, state)
         state.transparent = state.transparent + passing
         alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
         state.bounce = state.bounce + ~passing
@@ -1478,7 +1489,7 @@ class Renderer:
         (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
         # Paths past their last bounce only pass through transparent surfaces: no direct light there; nor
         # where the closures are all singular (a mirror, smooth glass): their evaluation is zero.
-        active = np.flatnonzero((state.bounce < wave.max_scatters) & closures.evaluable())
+        active = np.flatnonzero(_may_scatter(wave, state) & closures.evaluable())
         if len(active) < len(state):
             if not len(active):
                 return
@@ -1819,6 +1830,26 @@ def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, q
                                max(-(-height // _WAVES_PER_PASS), MIN_WAVE_PATHS // (width * spp))))
     bands = [(r, min(height, r + rows_per_wave)) for r in range(0, height, rows_per_wave)]
     return spp, bands
+
+
+def _type_limits(settings):
+    """The per-type bounce limits (diffuse, glossy, transmission) that can end a path before max_bounces does,
+    as a (3, 1) int32 column (a limit of its own or max_bounces), or None when none of them can."""
+    top = int(settings.max_bounces)
+    limits = [top if v is None else int(v) for v in (settings.diffuse_bounces, settings.glossy_bounces,
+                                                    settings.transmission_bounces)]
+    return None if min(limits) >= top else np.array(limits, np.int32)[:, None]
+
+
+def _may_scatter(wave, state) -> np.ndarray:
+    """(N,) bool: the paths that may still scatter at their hits (light samples, BSDF samples): not past
+    max_bounces, nor past a per-type limit (Cycles ends a path after the bounce that reaches either, letting it
+    take only the emission and the world of what it meets next: PATH_RAY_TERMINATE_AFTER_TRANSPARENT)."""
+    ok = state.bounce < wave.max_scatters
+    limits = _type_limits(wave.settings)
+    if limits is not None:
+        ok &= np.all(state.lobes[1:4] <= limits, axis=0)
+    return ok
 
 
 def _hand_over(state, hits) -> None:

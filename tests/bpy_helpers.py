@@ -136,12 +136,13 @@ def set_world(scene, color=(0.0, 0.0, 0.0), strength=1.0, hdri=None, rotation=(0
 def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces: int = 8,
                     threads: int = 2, clamp: tuple = (0.0, 0.0), blur_glossy: float = 0.0,
                     pixel_filter: tuple = ("BOX", 1.0), denoise: bool = False,
-                    caustics: tuple = (True, True)) -> np.ndarray:
+                    caustics: tuple = (True, True), type_bounces: tuple | None = None) -> np.ndarray:
     """Render the scene with CYCLES or EMBER; return (H, W, 4) float32 linear RGBA, row 0 at the top.
     clamp: (direct, indirect) sample clamping and blur_glossy Filter Glossy on both engines (0: off, the
     oracle's configuration); caustics: the (reflective, refractive) Caustics switches on both engines (on,
     the oracle's); pixel_filter: (type, width) on both engines (the oracle's: a 1-pixel box);
-    denoise: each engine's default denoiser (off for the oracle)."""
+    denoise: each engine's default denoiser (off for the oracle); type_bounces: (diffuse, glossy, transmission)
+    bounce limits on both engines (None: max_bounces each, the oracle's)."""
     render = scene.render
     render.engine = engine
     render.threads_mode = "FIXED"
@@ -150,7 +151,7 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
     render.image_settings.color_depth = "32"
     render.use_file_extension = True
     if engine == "CYCLES":
-        configure_cycles(scene, samples, seed, max_bounces)
+        configure_cycles(scene, samples, seed, max_bounces, type_bounces)
         scene.cycles.sample_clamp_direct, scene.cycles.sample_clamp_indirect = clamp
         scene.cycles.blur_glossy = blur_glossy
         scene.cycles.caustics_reflective, scene.cycles.caustics_refractive = caustics
@@ -160,6 +161,8 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
         scene.ember.samples = samples
         scene.ember.seed = seed
         scene.ember.max_bounces = max_bounces
+        e = scene.ember
+        e.diffuse_bounces, e.glossy_bounces, e.transmission_bounces = type_bounces or (max_bounces,) * 3
         scene.ember.transparent_max_bounces = max_bounces
         scene.ember.sample_clamp_direct, scene.ember.sample_clamp_indirect = clamp
         scene.ember.blur_glossy = blur_glossy
@@ -173,9 +176,10 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
         return load_exr(render.filepath)
 
 
-def configure_cycles(scene, samples: int, seed: int, max_bounces: int) -> None:
+def configure_cycles(scene, samples: int, seed: int, max_bounces: int, type_bounces: tuple | None = None) -> None:
     """Cycles as the oracle: CPU, plain path tracing, no clamping, denoising or adaptive sampling,
-    one-pixel box filter; light tree at its default."""
+    one-pixel box filter; light tree at its default. type_bounces: (diffuse, glossy, transmission) limits,
+    None for max_bounces each."""
     c = scene.cycles
     c.device = "CPU"
     c.samples = samples
@@ -188,9 +192,7 @@ def configure_cycles(scene, samples: int, seed: int, max_bounces: int) -> None:
     c.pixel_filter_type = "BOX"
     c.filter_width = 1.0
     c.max_bounces = max_bounces
-    c.diffuse_bounces = max_bounces
-    c.glossy_bounces = max_bounces
-    c.transmission_bounces = max_bounces
+    c.diffuse_bounces, c.glossy_bounces, c.transmission_bounces = type_bounces or (max_bounces,) * 3
     c.transparent_max_bounces = max_bounces
     c.blur_glossy = 0.0
     c.caustics_reflective = True

@@ -96,8 +96,10 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
     assert (scene.ember.sample_clamp_indirect, scene.ember.blur_glossy) == (3.0, 0.25)
     assert mapped["sample_clamp_indirect"] == 3.0 and mapped["max_bounces"] == scene.cycles.max_bounces
     lacking = corpus_render.lacking_settings(scene)
-    assert "diffuse_bounces=4" in lacking and "film_exposure=2.0" in lacking
-    assert "shadow_terminator_geometry_offset (object setting, 1 smooth-shaded objects)" in lacking
+    assert mapped["diffuse_bounces"] == scene.cycles.diffuse_bounces == scene.ember.diffuse_bounces
+    assert "film_exposure=2.0" in lacking and not any("bounces" in item for item in lacking)
+    bpy.data.objects["Smooth"].shadow_terminator_shading_offset = 0.2
+    assert "shadow_terminator_shading_offset (object setting, 1 objects)" in corpus_render.lacking_settings(scene)
 
 
 # ---------------------------------------------------------------- the tool on .blend files

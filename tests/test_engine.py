@@ -45,7 +45,9 @@ def test_panels_users_need_are_there():
 def test_settings_defaults():
     scene = new_scene()
     e = scene.ember
-    assert (e.samples, e.max_bounces, e.seed, e.use_animated_seed, e.time_limit) == (64, 8, 0, False, 0.0)
+    assert (e.samples, e.max_bounces, e.seed, e.use_animated_seed, e.time_limit) == (64, 12, 0, False, 0.0)
+    # Cycles' defaults for the per-type limits.
+    assert (e.diffuse_bounces, e.glossy_bounces, e.transmission_bounces, e.transparent_max_bounces) == (4, 4, 12, 8)
     assert e.sampling_mode == "NEE_MIS"
 
 

@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, emission_material, mesh_object,
+from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, emission_material, mesh_object, node_material,
                          new_scene, quad_object, set_world)
 
 BOX = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0), (-1, -1, 2), (1, -1, 2), (1, 1, 2), (-1, 1, 2)]
@@ -130,3 +130,23 @@ def test_shadow_terminator_of_a_low_poly_smooth_sphere(geometry_offset):
     scene.collection.objects.link(sun)
     set_world(scene, (0.0, 0.0, 0.0))
     compare_to_cycles(scene, samples=64, max_bounces=1)
+
+
+@pytest.mark.parametrize("limits", [(4, 4, 12), (1, 2, 2), (12, 0, 1)])
+def test_per_type_bounce_limits_match_cycles(limits):
+    """Cycles' Diffuse, Glossy and Transmission bounce limits under a Total of 12 (its defaults, 4 4 12, first):
+    a white room lit through its ceiling, with a mirror-like metal ball and a glass ball. A path past a limit
+    only takes the light of what it meets next. Without the limits, the room read 36% bright in the corpus."""
+    diffuse, glossy, transmission = limits
+    scene = new_scene(48, 48)
+    white = diffuse_material("White", (0.8, 0.8, 0.8))
+    mesh_object("Box", BOX, [(0, 1, 2, 3), (4, 7, 6, 5), (3, 2, 6, 7), (0, 3, 7, 4), (1, 5, 6, 2)], white)
+    quad_object("Lamp", (-0.4, -0.4, 1.98), (0, 0.8, 0), (0.8, 0, 0), emission_material("Lamp", strength=8.0))
+    for x, shader, inputs in ((-0.45, "ShaderNodeBsdfAnisotropic", dict(Roughness=0.1)),
+                              (0.45, "ShaderNodeBsdfGlass", dict(Roughness=0.0, IOR=1.5))):
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(x, 0.2, 0.35))
+        bpy.ops.object.shade_smooth()
+        bpy.context.active_object.data.materials.append(node_material(shader, shader, **inputs))
+    add_camera(scene, (0, -3.5, 1), (0, 0, 0.8), lens=30)
+    set_world(scene, color=(0, 0, 0))
+    compare_to_cycles(scene, samples=128, max_bounces=12, type_bounces=limits)

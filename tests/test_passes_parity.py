@@ -26,6 +26,7 @@ def render(engine, seed):
     else:
         e = scene.ember
         e.samples, e.seed, e.max_bounces, e.transparent_max_bounces = SAMPLES, seed, 8, 8
+        e.diffuse_bounces = e.glossy_bounces = e.transmission_bounces = 8   # as configure_cycles
         e.use_adaptive_sampling = e.use_denoising = False
         e.sample_clamp_direct = e.sample_clamp_indirect = e.blur_glossy = 0.0
         e.pixel_filter_type = "BOX"
@@ -146,6 +147,7 @@ def test_colour_albedos_of_metal_and_tinted_glass_match_cycles():
         else:
             e = scene.ember
             e.samples, e.max_bounces = 16, 8
+            e.diffuse_bounces = e.glossy_bounces = e.transmission_bounces = 8   # as configure_cycles
             e.use_adaptive_sampling = e.use_denoising = False
             e.pixel_filter_type = "BOX"
         parts, _ = render_multilayer(scene)
