@@ -33,10 +33,12 @@ class Coincident:
         self._positions = positions
 
     @classmethod
-    def find(cls, positions, through: np.ndarray, offset) -> "Coincident | None":
+    def find(cls, positions, through: np.ndarray, offset, objects: np.ndarray | None = None) -> "Coincident | None":
         """Partners of the triangles `through` (T,) bool marks (those a ray may pass through) among all the
         triangles (SceneArrays.positions, world space); offset(|p|max) -> the distance a new ray's origin is
         moved off a surface at that size of coordinate: planes closer than twice that lie on one another.
+        objects: (T,) each triangle's object row, or None; partners are then of another object (a finely
+        subdivided glass's neighbouring triangles are not looked at: a mesh lying on itself is left alone).
         None when no triangle has a partner."""
         candidates = np.flatnonzero(through)
         if not len(candidates) or len(positions) < 2:
@@ -56,7 +58,10 @@ class Coincident:
         distance = 2.0 * offset(np.maximum(np.maximum(size[:, 0], size[:, 1]), size[:, 2]))
         found = []
         for shift in (0.0, 0.5):
-            for a, b in _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift):
+            for a, b in _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift, objects):
+                if objects is not None:
+                    apart = objects[a] != objects[b]
+                    a, b = a[apart], b[apart]
                 margin = distance[a, None]
                 near = (np.abs(d[a] - d[b]) <= distance[a]) & np.all(
                     (lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
@@ -105,59 +110,80 @@ def _ranks(counts: np.ndarray) -> np.ndarray:
     return np.arange(ends[-1]) - np.repeat(ends - counts, counts)
 
 
-def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: float):
+def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: float, objects=None):
     """(a, b) index pairs in chunks, a a candidate and b != a a triangle whose normal falls in a's bin of
-    PLANE_ANGLE (bins moved by `shift` of a bin: two passes catch the pairs one bin edge splits) and whose box,
-    seen along that normal, shares a cell of a grid as fine as a's size (so that a small triangle on a big
-    plane of small ones meets its neighbours only, not the whole plane)."""
+    PLANE_ANGLE, whose plane lies in a's slab of planes and whose box, seen along that normal, shares a cell of
+    the bin's grid (bins, slabs and cells moved by `shift` of one: two passes catch the pairs an edge splits).
+    A bin's cells are about as wide as its candidates (their geometric mean), so that a triangle on a plane of
+    many meets its neighbours only; a box of more than _MAX_CELLS cells meets its whole slab instead."""
     key = np.floor(n / PLANE_ANGLE + shift).astype(np.int64)
     # One int64 per bin (a hash: two bins may share one, which only adds pairs the exact tests drop).
-    key = (key[:, 0] * np.int64(73856093)) ^ (key[:, 1] * np.int64(19349663)) ^ (key[:, 2] * np.int64(83492791))
-    _, group = np.unique(key, return_inverse=True)
-    group = group.ravel()
-    group[~ok] = -1                                    # degenerate triangles have no plane
+    key = _hash(key[:, 0], key[:, 1], key[:, 2])
+    _, nbin = np.unique(key, return_inverse=True)
+    nbin = nbin.ravel()
+    nbin[~ok] = -1                                     # degenerate triangles have no plane
     # A candidate alone in its bin (a smooth glass's triangles, each turned its own way) has no partner.
-    members = np.bincount(group[ok], minlength=group.max() + 1)
+    members = np.bincount(nbin[ok], minlength=nbin.max() + 1)
     cand = candidates[ok[candidates]]
-    cand = cand[members[group[cand]] > 1]
+    cand = cand[members[nbin[cand]] > 1]
     if not len(cand):
         return
-    # Only triangles in a candidate's plane bin and within the box of its candidates matter; each is seen
-    # along its candidates' dominant axis.
-    others = np.flatnonzero(np.isin(group, group[cand]))
-    g_lo = np.full((group.max() + 1, 3), np.inf, np.float32)
-    g_hi = np.full((group.max() + 1, 3), -np.inf, np.float32)
-    reach = distance[cand, None].astype(np.float32)
-    np.minimum.at(g_lo, group[cand], lo[cand] - reach)
-    np.maximum.at(g_hi, group[cand], hi[cand] + reach)
-    go = group[others]
-    others = others[np.all((lo[others] <= g_hi[go]) & (hi[others] >= g_lo[go]), axis=1)]
+    others = np.flatnonzero(np.isin(nbin, nbin[cand]))
+    # Each bin seen along its candidates' dominant axis, in cells of its candidates' geometric mean size.
     axes = np.array([[1, 2], [2, 0], [0, 1]])
-    drop = np.zeros(group.max() + 1, np.int64)
-    drop[group[cand]] = dominant[cand]
-    seen = axes[drop[group[others]]]                                                   # (m, 2)
-    t_lo, t_hi = np.take_along_axis(lo[others], seen, 1), np.take_along_axis(hi[others], seen, 1)
-    c_seen = axes[dominant[cand]]
+    drop = np.zeros(nbin.max() + 1, np.int64)
+    drop[nbin[cand]] = dominant[cand]
+    c_seen, t_seen = axes[dominant[cand]], axes[drop[nbin[others]]]
     c_lo = np.take_along_axis(lo[cand], c_seen, 1) - distance[cand, None]
     c_hi = np.take_along_axis(hi[cand], c_seen, 1) + distance[cand, None]
-    # Cells as wide as the candidate's box, in powers of two: each candidate covers at most 2 x 2 of them.
-    level = np.ceil(np.log2(np.maximum((c_hi - c_lo).max(axis=1), 1e-30))).astype(np.int64)
-    for lev in np.unique(level):
-        h = 2.0 ** float(lev)
-        mine = np.flatnonzero(level == lev)
-        c_keys, c_owner = _cells(c_lo[mine] / h, c_hi[mine] / h, group[cand[mine]])
-        t_keys, t_owner = _cells(t_lo / h, t_hi / h, group[others], limit=_MAX_CELLS)
-        yield from _join(c_keys, cand[mine][c_owner], t_keys, others[t_owner])
-        # Boxes over _MAX_CELLS cells (a large floor under small glass) meet every candidate of their plane bin.
-        big = np.ones(len(others), bool)
-        big[t_owner] = False
+    t_lo, t_hi = np.take_along_axis(lo[others], t_seen, 1), np.take_along_axis(hi[others], t_seen, 1)
+    size = np.log2(np.maximum((c_hi - c_lo).max(axis=1), 1e-30)).astype(np.float64)
+    mean = np.bincount(nbin[cand], size, minlength=len(drop)) / np.maximum(np.bincount(nbin[cand], minlength=len(drop)), 1)
+    cell = np.exp2(np.round(mean))                     # per bin
+    # Slabs of planes one cell thick (far thicker than the distance partners may be apart).
+    c_cell, t_cell = cell[nbin[cand]], cell[nbin[others]]
+    c_group = _hash(nbin[cand], np.floor(d[cand] / c_cell + shift).astype(np.int64), 0)
+    t_group = _hash(nbin[others], np.floor(d[others] / t_cell + shift).astype(np.int64), 0)
+    if objects is not None:
+        # Only slabs that hold more than one object's triangles can hold a partner.
+        groups = np.concatenate([c_group, t_group])
+        owners = np.concatenate([objects[cand], objects[others]])
+        order = np.lexsort((owners, groups))
+        g, o = groups[order], owners[order]
+        new_owner = np.r_[True, (g[1:] != g[:-1]) | (o[1:] != o[:-1])]
+        keys, count = np.unique(g[new_owner], return_counts=True)
+        shared = keys[count > 1]
+        c_in, t_in = np.isin(c_group, shared), np.isin(t_group, shared)
+        cand, c_group, c_lo, c_hi, c_cell = cand[c_in], c_group[c_in], c_lo[c_in], c_hi[c_in], c_cell[c_in]
+        others, t_group, t_lo, t_hi, t_cell = others[t_in], t_group[t_in], t_lo[t_in], t_hi[t_in], t_cell[t_in]
+        if not len(cand):
+            return
+    c_keys, c_owner = _cells(c_lo / c_cell[:, None] + shift, c_hi / c_cell[:, None] + shift, c_group, _MAX_CELLS)
+    t_keys, t_owner = _cells(t_lo / t_cell[:, None] + shift, t_hi / t_cell[:, None] + shift, t_group, _MAX_CELLS)
+    yield from _join(c_keys, cand[c_owner], t_keys, others[t_owner])
+    # Boxes over _MAX_CELLS cells (a large floor under small glass, a large pane over small tiles) meet every
+    # triangle of their slab on the other side.
+    for side_keys, side, side_owner, other_keys, other in ((c_group, cand, c_owner, t_group, others),
+                                                         (t_group, others, t_owner, c_group, cand)):
+        big = np.ones(len(side), bool)
+        big[side_owner] = False
         big = np.flatnonzero(big)
         if len(big):
-            yield from _join(group[cand[mine]], cand[mine], group[others[big]], others[big])
+            if side is cand:
+                yield from _join(side_keys[big], side[big], other_keys, other)
+            else:
+                yield from _join(other_keys, other, side_keys[big], side[big])
 
 
-# A triangle whose box covers more grid cells than this is paired with the candidates of its plane directly.
-_MAX_CELLS = 16
+def _hash(i, j, k):
+    """One int64 for integer triples (two triples may share one)."""
+    with np.errstate(over="ignore"):
+        return (np.asarray(i, np.int64) * np.int64(73856093)) ^ (np.asarray(j, np.int64) * np.int64(19349663)) \
+            ^ (np.asarray(k, np.int64) * np.int64(83492791))
+
+
+# A box covering more grid cells than this is paired with its whole slab of planes on the other side.
+_MAX_CELLS = 1024
 
 
 def _cells(lo, hi, group, limit=None):
@@ -175,9 +201,7 @@ def _cells(lo, hi, group, limit=None):
     who = np.repeat(owner, c)
     i = first[who, 0] + rank % span[who, 0]
     j = first[who, 1] + rank // span[who, 0]
-    with np.errstate(over="ignore"):
-        keys = (group[who].astype(np.int64) * np.int64(73856093)) ^ (i * np.int64(19349663)) ^ (j * np.int64(83492791))
-    return keys, who
+    return _hash(group[who], i, j), who
 
 
 def _join(c_keys, c_tri, t_keys, t_tri):

@@ -407,7 +407,7 @@ class Renderer:
             through &= self.scene.motion_ids < 0
         eps = self._ray_epsilon
         self._coincident = Coincident.find(self.scene.positions, through,
-                                           lambda size: eps + np.float32(2.0 ** -16) * size) \
+                                           lambda size: eps + np.float32(2.0 ** -16) * size, self.scene.object_ids) \
             if through.any() else None
 
     def _light_sampler(self) -> LightSampler:

@@ -52,6 +52,13 @@ def test_partners_lie_on_one_another_with_some_area():
         np.testing.assert_allclose(point, (x, y, 0), atol=1e-6)
     assert partner[2] == -1                        # (5, 5) lies on no partner
     assert Coincident.find(positions, np.zeros(len(positions), bool), _offset) is None
+    # With object rows, partners are of another object: a mesh lying on itself (a finely subdivided glass's
+    # neighbours, its own doubled faces) is left alone.
+    objects = np.int32([0, 0, 1, 1, 2, 2, 3, 3, 4, 4])
+    by_object = Coincident.find(positions, through, _offset, objects)
+    assert set(by_object.partners[by_object.offsets[2]:by_object.offsets[3]].tolist()) == {0}
+    objects[:4] = 0                                  # the pane now belongs to the floor's object
+    assert Coincident.find(positions, through, _offset, objects) is None
 
 
 def _glass(name, color=(1, 1, 1), ior=1.5):
