@@ -23,6 +23,7 @@ from ...kernels.programs import Op, Program, Ref
 from ...kernels.shading import sky
 from ...kernels.shading.ops import OPS, PURE_OPS
 from ...kernels.shading.program import constant, convert
+from ..version import blender_version
 from . import node_tables
 from .graph import run_nested
 
@@ -339,7 +340,8 @@ def _texture(builder, node, groups):
     """A procedural texture: an unlinked Vector reads Generated coordinates."""
     _check_texture_mapping(builder, node)
     inputs = yield builder.node_inputs(node, groups, vector_default="Generated")
-    return builder.add(node.bl_idname, inputs, node_options(node), outputs=_linked_outputs(node))
+    options = dict(node_options(node), cycles_version=blender_version())
+    return builder.add(node.bl_idname, inputs, options, outputs=_linked_outputs(node))
 
 
 def _check_texture_mapping(builder, node) -> None:
