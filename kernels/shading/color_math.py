@@ -267,6 +267,7 @@ _MATH = {
     "FLOORED_MODULO": lambda a, b, c: np.where(b != 0, _fma(-np.floor(_safe_divide(a, b)), b, a), F32(0.0)),
     "WRAP": lambda a, b, c: _wrapf(a, b, c),
     "SNAP": lambda a, b, c: np.floor(_safe_divide(a, b)) * b,
+    "ROUND": lambda a, b, c: np.floor(a + F32(0.5)),
     "PINGPONG": lambda a, b, c: _pingpong(a, b),
     "SINE": lambda a, b, c: np.sin(a),
     "COSINE": lambda a, b, c: np.cos(a),
@@ -367,6 +368,13 @@ _VECTOR_VALUE = {
     "LENGTH": lambda a, b: _len(a),
 }
 VECTOR_MATH_OPERATIONS = tuple(_VECTOR) + tuple(_VECTOR_VALUE)
+# Operations newer than Blender 5.0, by the release that added them (Cycles' svm/math_util.h there).
+OPERATIONS_SINCE = {"ROUND": (5, 2)}
+
+
+def operations_in(version, operations) -> tuple:
+    """The operations of `operations` that the Blender `version` ((major, minor, ...)) offers."""
+    return tuple(op for op in operations if tuple(version[:2]) >= OPERATIONS_SINCE.get(op, (0, 0)))
 
 
 def vector_math(vector=0.0, vector_001=0.0, vector_002=0.0, scale=1.0, *, operation: str = "ADD") -> dict:
