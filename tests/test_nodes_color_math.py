@@ -458,9 +458,9 @@ def test_rgb_to_bw_weights_are_cycles():
     if bpy.app.version[:2] == (5, 0):
         np.testing.assert_array_equal(got[0, :, 0], cm.RGB_TO_Y)
     else:
-        # Cycles 5.3 derives the same weights in float32 a step differently: R and B an ulp lower
+        # Cycles 5.3 derives the same weights in float32 a step differently: R and B up to 2 ulp lower
         # (docs/blender-versions.md). Ember keeps 5.0's.
-        np.testing.assert_array_max_ulp(got[0, :, 0], cm.RGB_TO_Y, maxulp=1)
+        np.testing.assert_array_max_ulp(got[0, :, 0], cm.RGB_TO_Y, maxulp=2)
     # The same numbers from Blender's colour management (the path node_tables.color_constants takes).
     constants = node_tables.color_constants()
     np.testing.assert_allclose(constants["rgb_to_y"], cm.RGB_TO_Y, rtol=0, atol=3e-7)
