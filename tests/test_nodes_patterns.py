@@ -58,6 +58,9 @@ def _sinf_is_the_system_one() -> bool:
 
 SINF_IS_GLIBC = _sinf_is_the_system_one()
 BIT_EXACT = AVX2_KERNEL and SINF_IS_GLIBC     # the Cycles these tests claim to reproduce bit for bit
+# Blender 5.3's compiled Brick rounds differently from 5.0's (same source): Ember keeps 5.0's rounding.
+BRICK_5_0_ONLY = pytest.mark.xfail(bpy.app.version[:2] >= (5, 3), strict=True,
+                                   reason="Cycles 5.3 rounds the Brick texture differently (docs/blender-versions.md)")
 
 
 def assert_matches(ours, cycles, exact=True, rtol=RTOL, atol=ATOL):
@@ -163,6 +166,7 @@ BRICK_OPTIONS = [
 ]
 
 
+@BRICK_5_0_ONLY
 @pytest.mark.parametrize("options", BRICK_OPTIONS, ids=["default", "offset_squash", "every_row"])
 def test_brick_options(options):
     p = pattern_points(7, count=1500, big=1e5)
@@ -174,6 +178,7 @@ def test_brick_options(options):
     assert_matches(grey(pt.brick(p, **options)["Fac"]), fac)
 
 
+@BRICK_5_0_ONLY
 def test_brick_per_hit_inputs():
     """Scale, Mortar Size, Bias, Brick Width, Row Height and Mortar Smooth (a third of it 0: hard
     mortar edges) per hit."""
