@@ -451,7 +451,10 @@ def test_filter_glossy_matches_cycles():
     sharp, se_s = mean_and_se("EMBER", 0.0)
     assert abs(blurred - cycles) < 3.5 * np.hypot(se_b, se_c), (blurred, cycles, se_b, se_c)
     assert abs(sharp - cycles) > 3.5 * np.hypot(se_s, se_c), (sharp, cycles, se_s, se_c)
-    compare_to_cycles(scene, samples=64, max_bounces=4, blur_glossy=1.0)
+    # The caustic makes the image mean heavy-tailed: at 64 samples its noise alone can pass 2%, so the
+    # mean's tolerance is 4.5 of its standard errors there (twice the variance of the 128-sample means).
+    mean_tol = max(0.02, 4.5 * np.sqrt(2.0) * np.hypot(se_b, se_c) / cycles)
+    compare_to_cycles(scene, samples=64, max_bounces=4, blur_glossy=1.0, mean_tol=mean_tol)
 
 
 def caustics_scene():
