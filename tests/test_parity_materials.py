@@ -45,6 +45,9 @@ def grid_of_spheres(materials, columns):
     return rows
 
 
+@pytest.mark.xfail(bpy.app.version[:2] >= (5, 3), strict=True,
+                   reason="Cycles 5.3's Oren-Nayar renders brighter than 5.0's from the same bsdf_oren_nayar.h "
+                          "(docs/blender-versions.md): the Rough Diffuse sphere differs")
 def test_principled_sphere_row_under_an_hdri():
     """Metal smooth and rough, plastic, glass, coat and sheen: the Principled layer stack."""
     scene = new_scene(96, 48)
