@@ -85,3 +85,30 @@ def test_vector_math_round_exists_from_5_2(version, offered):
     assert ("ROUND" in cm.operations_in(version, cm.VECTOR_MATH_OPERATIONS)) == offered
     np.testing.assert_array_equal(cm.vector_math((0.5, -0.5, 1.49), operation="ROUND")["Vector"],
                                   [[1.0, 0.0, 1.0]])
+
+
+@pytest.mark.skipif(bpy.app.version < (5, 3, 0), reason="these nodes and inputs are Blender 5.3's")
+def test_what_5_1_to_5_3_added_and_ember_does_not_render_warns_by_name():
+    """Raycast, Scene Time, Principled Thin Wall, Glass anisotropy: each named in the material's warning."""
+    from bpy_helpers import camera_only_scene
+    scene = camera_only_scene()
+    mat = bpy.data.materials.new("New")
+    tree = mat.node_tree
+    bsdf = tree.nodes["Principled BSDF"]
+    tree.links.new(tree.nodes.new("ShaderNodeRaycast").outputs[0], bsdf.inputs["Roughness"])
+    tree.links.new(tree.nodes.new("GeometryNodeInputSceneTime").outputs["Seconds"], bsdf.inputs["Metallic"])
+    bsdf.inputs["Thin Wall"].default_value = True
+    glass = tree.nodes.new("ShaderNodeBsdfGlass")
+    glass.inputs["Anisotropy"].default_value = 0.5
+    add = tree.nodes.new("ShaderNodeAddShader")
+    tree.links.new(bsdf.outputs[0], add.inputs[0])
+    tree.links.new(glass.outputs[0], add.inputs[1])
+    tree.links.new(add.outputs[0], tree.nodes["Material Output"].inputs["Surface"])
+    mesh = bpy.data.meshes.new("Quad")
+    mesh.from_pydata([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [], [(0, 1, 2, 3)])
+    mesh.materials.append(mat)
+    scene.collection.objects.link(bpy.data.objects.new("Quad", mesh))
+    text = " ".join(export_current().warnings)
+    for named in ("Raycast node 'Raycast'", "Scene Time node", "Thin Wall is not supported",
+                  "Glass BSDF 'Glass BSDF' Anisotropy is not supported"):
+        assert named in text, (named, text)
