@@ -97,8 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "off, which ranges cannot merge, and gives each pixel a sequence of its own "
                              "(the Sobol-Burley pattern), so that ranges merge into exactly the whole")
     ray = render.add_argument_group(
-        "many machines", "Spread the frames over a Ray cluster (Ray is optional: python3.11 dev.py setup --ray). "
-                         "Frames are written by this process, as they arrive, exactly as without --ray.")
+        "many machines", "Spread the frames over a Ray cluster (Ray is optional: "
+                         "python3 dev.py --blender 5.0 setup --ray). Frames are written by this process, as they "
+                         "arrive, exactly as without --ray.")
     ray.add_argument("--ray", metavar="ADDRESS",
                      help="render on a Ray cluster: auto, HOST:6379, ray://HOST:10001 (Ray Client), or local[:N] "
                           "to start Ray here with N workers (default: the cores)")

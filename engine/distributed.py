@@ -14,7 +14,7 @@ Three parts:
   command line's own save (frame_save.save_render_result) writes them, so colour management, format, metadata
   and file naming are exactly those of `python -m ember render` without --ray.
 
-Ray is an optional dependency of the command line (requirements-ray.txt, `python3.11 dev.py setup --ray`):
+Ray is an optional dependency of the command line (requirements-ray.txt, `python3 dev.py --blender 5.0 setup --ray`):
 it is imported here only, lazily; the extension never imports this module.
 """
 from __future__ import annotations
@@ -43,7 +43,7 @@ from .cli import CliError, UsageError
 from .merge import MergeError, exr_strings, load_pixels, merge_arrays, read_exr_channels
 from .session import format_time
 
-RAY_MISSING = "--ray needs Ray: python3.11 dev.py setup --ray"
+RAY_MISSING = "--ray needs Ray: python3 dev.py --blender 5.0 setup --ray"
 CONNECT_TIMEOUT_S = 5.0      # an unreachable head node fails after this, not after Ray's own minutes of retries
 INIT_TIMEOUT_S = 60.0        # ray.init against a reachable port that does not answer as Ray would
 POLL_S = 0.2                 # how often the driver looks for Ctrl-C while it waits for results

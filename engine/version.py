@@ -1,5 +1,6 @@
 """Ember's version, read once from blender_manifest.toml: the manifest is the one place it is written,
-and it ships in every package, so a render can say which build made it."""
+and it ships in every package, so a render can say which build made it; and the version of the Blender it
+runs in, whose Cycles is the reference where Cycles changed (docs/blender-versions.md)."""
 from __future__ import annotations
 
 import os
@@ -14,3 +15,10 @@ def _read_version() -> str:
 
 
 EMBER_VERSION = _read_version()
+
+
+def blender_version() -> tuple:
+    """(major, minor, patch) of the running Blender: export passes it to the kernel functions that follow
+    a particular Cycles release."""
+    import bpy
+    return tuple(bpy.app.version)

@@ -96,13 +96,22 @@ def update_part(update) -> str:
         if data.type == "LIGHT":
             return LIGHTS
         return FULL if update.is_updated_geometry else INSTANCES
-    if kind == "LIGHT":
+    if kind == "LIGHT" or (kind == "NODETREE" and _is_light_node_tree(data)):
         return LIGHTS
     if kind in SHADING_ID_TYPES or (kind == "NODETREE" and data.bl_idname == "ShaderNodeTree"):
         return SHADING
     if kind in GEOMETRY_ID_TYPES:
         return FULL if update.is_updated_geometry else INSTANCES
     return FULL
+
+
+def _is_light_node_tree(tree) -> bool:
+    """Whether a node tree is a light's own (Blender 5.3 gives every light one, and an edit of the light
+    updates it too): such an update is the light's, not a material's."""
+    import bpy
+    original = tree.original
+    return bool(original.is_embedded_data) and any(light.node_tree == original for light in bpy.data.lights
+                                                   if getattr(light, "node_tree", None) is not None)
 
 
 def scene_changes(updates) -> frozenset:

@@ -192,10 +192,12 @@ class NormalMap:
     space : one of NORMAL_MAP_SPACES. TANGENT reads the mesh's tangents (SceneArrays.tangents); without
         them the normal is left unperturbed, as Cycles does without its tangent attribute. WORLD reads
         the colour as a world direction; BLENDER_WORLD negates its y and z first.
+    invert_green : the node's DirectX convention (Blender 5.1+): green negated.
     """
     color: Param
     strength: Param = Param((1.0,))
     space: str = "TANGENT"
+    invert_green: bool = False
 
     def params(self):
         yield self.color

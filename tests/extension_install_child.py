@@ -27,6 +27,14 @@ def embreex_importable() -> bool:
     return importlib.util.find_spec("embreex") is not None
 
 
+def node_tree(bpy, owner):
+    """A material's or world's node tree. Blender 4.x makes one only when asked (use_nodes, which 5.x
+    deprecates: its materials and worlds always have one)."""
+    if bpy.app.version < (5, 0, 0):
+        owner.use_nodes = True
+    return owner.node_tree
+
+
 def build_scene(bpy):
     """Camera above a large diffuse plane under a uniform world: the top of the image is sky, the
     bottom plane, whose radiance is albedo x world."""
@@ -45,7 +53,7 @@ def build_scene(bpy):
     scene.camera = cam
 
     mat = bpy.data.materials.new("Plane")
-    tree = mat.node_tree
+    tree = node_tree(bpy, mat)
     tree.nodes.clear()
     bsdf = tree.nodes.new("ShaderNodeBsdfDiffuse")
     bsdf.inputs["Color"].default_value = (PLANE_ALBEDO,) * 3 + (1.0,)
@@ -57,7 +65,7 @@ def build_scene(bpy):
 
     world = bpy.data.worlds.new("World")
     scene.world = world
-    tree = world.node_tree
+    tree = node_tree(bpy, world)
     tree.nodes.clear()
     bg = tree.nodes.new("ShaderNodeBackground")
     bg.inputs["Color"].default_value = WORLD_COLOR + (1.0,)

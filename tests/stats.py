@@ -6,6 +6,13 @@ import math
 import numpy as np
 
 
+def trapezoid(y, x=None, axis: int = -1):
+    """The trapezoid rule: NumPy 2 renamed np.trapz to np.trapezoid (np.trapz is gone); NumPy 1.26 has only
+    the old name."""
+    rule = getattr(np, "trapezoid", None) or np.trapz
+    return rule(y, x, axis=axis)
+
+
 def chi2_upper_quantile(dof: int, z: float = 4.0) -> float:
     """Wilson-Hilferty approximation of the chi-square quantile z standard deviations above the mean
     (z = 4: a false alarm about once in 30,000 runs)."""

@@ -14,7 +14,7 @@ from ember.kernels.bsdf import ashikhmin_shirley as ash
 from ember.kernels.bsdf import fresnel as fr
 from ember.kernels.bsdf import microfacet as mf
 from ember.kernels.bsdf import tables
-from stats import assert_chi2, mean_and_stderr
+from stats import assert_chi2, mean_and_stderr, trapezoid
 
 pytestmark = pytest.mark.filterwarnings("error")  # no RuntimeWarning may leak from the kernels
 
@@ -434,7 +434,7 @@ def test_f82_tint():
     c = np.linspace(0, 1, 200_001, dtype=np.float64)
     raw = f0[:, None] + (1 - f0[:, None]) * (1 - c) ** 5 - b[:, None] * c * (1 - c) ** 6
     assert raw.min() > 0 and raw.max() <= 1 + 1e-7  # the clamp is idle for these values
-    mean = np.trapz(2 * c * fr.f82(c.astype(F32), f0, b), c, axis=1)
+    mean = trapezoid(2 * c * fr.f82(c.astype(F32), f0, b), c, axis=1)
     assert np.allclose(fr.f82_fss(f0, b), mean, atol=1e-5)  # exact for the polynomial
 
 
@@ -458,7 +458,7 @@ def test_generalized_schlick_exponent():
     assert np.allclose(f[0, 1:], (1 - cos_t[1:]) ** 5, rtol=1e-5)  # the refracted angle from the dense side
     for e in (0.5, 5.0, 40.0):
         c = np.linspace(0, 1, 100_001)
-        num = np.trapz(2 * c * (1 - c) ** e, c)
+        num = trapezoid(2 * c * (1 - c) ** e, c)
         fss = fr.generalized_schlick_fss(0.0, 1.0, 1.0, e, 1.0)
         assert np.isclose(fss, num, rtol=1e-4)
 
@@ -468,14 +468,14 @@ def test_dielectric_fss_fit(eta):
     """Kulla-Conty's fit of the mean dielectric Fresnel, against the integral. It is a fit: over
     eta in [1.05, 3] it is within 0.0065 of the integral (worst near eta = 1.2), hence the bound 0.01."""
     c = np.linspace(0, 1, 100_001)
-    num = np.trapz(2 * c * fr.dielectric(c.astype(F32), F32(eta))[0], c)
+    num = trapezoid(2 * c * fr.dielectric(c.astype(F32), F32(eta))[0], c)
     assert abs(fr.dielectric_fss(eta) - num) < 1e-2
 
 
 def test_conductor_fss_is_the_fitted_f82_mean():
     n, k = F32([[0.2], [1.1], [2.5]]), F32([[3.0], [2.0], [0.5]])
     c = np.linspace(0, 1, 100_001)
-    num = np.trapz(2 * c * fr.conductor(c.astype(F32), n, k), c, axis=1)
+    num = trapezoid(2 * c * fr.conductor(c.astype(F32), n, k), c, axis=1)
     assert np.allclose(fr.conductor_fss(n, k)[:, 0], num, atol=0.02)  # F82 fit of a real conductor
 
 

@@ -16,7 +16,7 @@ from bpy_helpers import (compare_to_cycles, diffuse_material, emission_material,
                          render_to_array, set_world)
 from ember.kernels import lens, pixel_filter
 from ember.kernels.scene import Camera
-from stats import assert_chi2
+from stats import assert_chi2, trapezoid
 
 FILTERS = [("GAUSSIAN", 1.5), ("BLACKMAN_HARRIS", 1.5), ("BLACKMAN_HARRIS", 2.5), ("GAUSSIAN", 0.7)]
 
@@ -43,7 +43,7 @@ def test_filter_table_is_the_profiles_inverse_cdf(kind, width):
     grid = np.linspace(-half, half, 100_001)
     f = pixel_filter.profile(kind, grid, width)
     h = half / (pixel_filter.TABLE_SIZE - 2)
-    delta = f.max() * h / np.trapz(f, grid)
+    delta = f.max() * h / trapezoid(f, grid)
     levels = np.arange(len(table)) / (len(table) - 1)
     error = np.abs(_exact_cdf(kind, width, table) - levels)
     assert error.max() <= delta, (error.max(), delta)

@@ -26,8 +26,9 @@ try:
     HAVE_RAY = bool(ray.__version__)
 except ImportError:
     HAVE_RAY = False
-needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="Ray is not installed here: python3.11 dev.py setup --ray "
-                                                    "(dev.py test and CI install it)")
+needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="Ray is not installed here: python3 dev.py --blender 5.0 setup "
+                                                    "--ray (dev.py test and CI install it on Blender 5.0's Python 3.11; "
+                                                    "Ray 2.40 has no Python 3.13 build)")
 
 FRAMES = "1-5"
 # About 0.45 s of rendering a frame on one thread: long enough to kill a worker in the middle of one, and for the
@@ -74,7 +75,7 @@ def reference(animation, tmp_path_factory):
 def cluster(request):
     """A head node (1 CPU) and a second node (2 CPUs): room for two workers and a replacement."""
     if not HAVE_RAY:
-        pytest.skip("Ray is not installed here: python3.11 dev.py setup --ray")
+        pytest.skip("Ray is not installed here: python3 dev.py --blender 5.0 setup --ray")
     from ray.cluster_utils import Cluster
     common = dict(node_ip_address="127.0.0.1", object_store_memory=100 * 1024 * 1024)
     nodes = Cluster(initialize_head=True, head_node_args=dict(num_cpus=1, include_dashboard=False, **common))
@@ -204,7 +205,7 @@ def test_without_ray_one_line(animation, tmp_path):
     run = subprocess.run([sys.executable, "-c", code, "render", "--ray", "local:2"], capture_output=True, text=True,
                          timeout=120, cwd=ROOT)
     assert run.returncode == 1
-    assert run.stderr.strip() == "ember: error: --ray needs Ray: python3.11 dev.py setup --ray"
+    assert run.stderr.strip() == "ember: error: --ray needs Ray: python3 dev.py --blender 5.0 setup --ray"
     run = subprocess.run([sys.executable, "-c", code, "render", animation, "--samples", "1", "-o",
                           str(tmp_path / "f.exr")], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert run.returncode == 0 and (tmp_path / "f.exr").exists(), run.stderr

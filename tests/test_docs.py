@@ -13,7 +13,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 README = os.path.join(ROOT, "README.md")
 DOCS = os.path.join(ROOT, "docs")
 README_MAX_BYTES = 8192
-COMMANDS = ("python3.11 dev.py demo", "python3.11 dev.py test")
+COMMANDS = ("python3 dev.py demo", "python3 dev.py test")
 
 FENCE = re.compile(r"^\s*(```|~~~)")
 HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")

@@ -724,6 +724,7 @@ def test_mapping_rotation_matches_cycles(empty_scene):
     uv = np.zeros((height, width, 4), np.float32)
     uv[..., 0] = ((np.arange(width) + 0.5) / width)[None, :]
     uv[..., 1] = ((np.arange(height) + 0.5) / height)[:, None]
+    uv[..., 3] = 1.0   # opaque: from Blender 5.2 Cycles multiplies a Straight float image's colour by its alpha
     env = hdri_world(empty_scene, new_image("UV", uv, float_buffer=True), "POINT", (0.3, 0.5, 1.0))
     env.interpolation = "Closest"
     camera = empty_scene.camera

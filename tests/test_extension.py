@@ -33,11 +33,13 @@ def test_version_shown_is_the_manifests():
 def test_manifest_bundles_embreex_for_every_platform_and_never_numpy():
     data = manifest()
     wheels = [os.path.basename(w) for w in data["wheels"]]
-    assert len(wheels) == len(data["platforms"]) and all(w.startswith("embreex-") for w in wheels)
-    assert all("-cp311-cp311-" in w for w in wheels), "Blender 4.2 to 5.0 run Python 3.11"
+    assert len(wheels) == 2 * len(data["platforms"]) and all(w.startswith("embreex-") for w in wheels)
+    # Blender 4.2 to 5.0 run Python 3.11, 5.1 and later 3.13: each platform bundles both.
+    assert sum("-cp311-cp311-" in w for w in wheels) == sum("-cp313-cp313-" in w for w in wheels) == len(
+        data["platforms"])
     assert not any("numpy" in w for w in wheels), "Blender ships numpy"
-    # cp311 wheels cannot load in Blender 5.1+ (Python 3.13): the maximum must exclude it.
-    assert tuple(map(int, data["blender_version_max"].split("."))) <= (5, 1, 0)
+    # The range is the tested one: 4.2 LTS up to 5.3 (the maximum is exclusive).
+    assert (data["blender_version_min"], data["blender_version_max"]) == ("4.2.0", "5.4.0")
 
 
 @pytest.fixture(scope="module")

@@ -8,6 +8,7 @@ point of its render. Float inputs come from a Separate XYZ of a probe vector (ex
 """
 from __future__ import annotations
 
+import bpy
 import numpy as np
 import pytest
 
@@ -172,12 +173,13 @@ def test_math_operation_list_is_blenders():
     n = bpy.data.materials.new("ops").node_tree.nodes.new("ShaderNodeMath")
     assert set(n.bl_rna.properties["operation"].enum_items.keys()) == set(cm.MATH_OPERATIONS)
     n = bpy.data.materials.new("vops").node_tree.nodes.new("ShaderNodeVectorMath")
-    assert set(n.bl_rna.properties["operation"].enum_items.keys()) == set(cm.VECTOR_MATH_OPERATIONS)
+    assert set(n.bl_rna.properties["operation"].enum_items.keys()) == set(VECTOR_OPS)
     n = bpy.data.materials.new("mix").node_tree.nodes.new("ShaderNodeMix")
     assert set(n.bl_rna.properties["blend_type"].enum_items.keys()) == set(cm.BLEND_TYPES)
 
 
 # ---------------------------------------------------------------- Vector Math
+VECTOR_OPS = cm.operations_in(bpy.app.version, cm.VECTOR_MATH_OPERATIONS)   # this Blender's
 def _vector_points(large=False):
     r = rng(3 + large)
     n = 160
@@ -215,7 +217,7 @@ _LARGE_VECTOR_OPS = ("ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "M
 
 @pytest.mark.parametrize("large", [False, True], ids=["moderate", "large"])
 def test_vector_math_every_operation(large):
-    ops = _LARGE_VECTOR_OPS if large else cm.VECTOR_MATH_OPERATIONS
+    ops = _LARGE_VECTOR_OPS if large else VECTOR_OPS
     a, b, c, s = _vector_points(large)
     got = probe_variants([_vector_math_builder(o) for o in ops], a=a, b=b, c=c, s=s)
     scale = np.maximum(1.0, np.linalg.norm(a, axis=1) * np.maximum(1.0, np.linalg.norm(b, axis=1)))[:, None]
@@ -453,7 +455,12 @@ def test_color_adjustment_nodes():
 def test_rgb_to_bw_weights_are_cycles():
     unit = np.eye(3, dtype=F32)
     got = probe_variants([lambda tree, s: node(tree, "ShaderNodeRGBToBW", {0: s["c"]}).outputs[0]], c=unit)
-    np.testing.assert_array_equal(got[0, :, 0], cm.RGB_TO_Y)
+    if bpy.app.version[:2] == (5, 0):
+        np.testing.assert_array_equal(got[0, :, 0], cm.RGB_TO_Y)
+    else:
+        # Cycles 5.3 derives the same weights in float32 a step differently: R and B up to 2 ulp lower
+        # (docs/blender-versions.md). Ember keeps 5.0's.
+        np.testing.assert_array_max_ulp(got[0, :, 0], cm.RGB_TO_Y, maxulp=2)
     # The same numbers from Blender's colour management (the path node_tables.color_constants takes).
     constants = node_tables.color_constants()
     np.testing.assert_allclose(constants["rgb_to_y"], cm.RGB_TO_Y, rtol=0, atol=3e-7)

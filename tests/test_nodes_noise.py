@@ -13,6 +13,7 @@ itself rounds differently; there the tests still hold everything to float precis
 Probe inputs: every per-hit value comes through a Separate XYZ of a probe vector (exact), not through
 the Attribute node's Fac, which Cycles computes as the average of the three components.
 """
+import bpy
 import numpy as np
 import pytest
 
@@ -22,6 +23,13 @@ from tests.node_probe import AVX2_KERNEL, cycles_probe, sweep
 
 F32 = np.float32
 RTOL, ATOL = 2e-5, 2e-6
+# The reference is this Blender's Cycles: the kernel rounds as it does (noise.cycles_rounding).
+CYCLES = {"cycles_version": tuple(bpy.app.version)}
+# Blender 5.3's compiled fractal loops and Wave round differently from 5.0's (same source; Perlin itself is
+# followed bit for bit): Ember keeps 5.0's rounding there, which distortion and octaves amplify.
+ROUNDING_5_0_ONLY = pytest.mark.xfail(bpy.app.version[:2] >= (5, 3), strict=True,
+                                      reason="Cycles 5.3 rounds fractal noise and Wave differently "
+                                             "(docs/blender-versions.md)")
 
 
 TYPES = ["FBM", "MULTIFRACTAL", "HYBRID_MULTIFRACTAL", "RIDGED_MULTIFRACTAL", "HETERO_TERRAIN"]
@@ -187,7 +195,9 @@ def test_snoise_is_bit_exact(dims):
                     {"Scale": 1.0, "Detail": 0.0}, "Fac")
     cycles = cycles_probe(build, {"probe": p, "probe2": w})
     coords = N._coords(p, w[:, 0], N.DIMENSIONS[dims], len(p))
-    assert_matches(grey(N.snoise(coords)), cycles)
+    with N.cycles_rounding(bpy.app.version):
+        ours = N.snoise(coords)
+    assert_matches(grey(ours), cycles)
 
 
 def test_perlin_vanishes_on_the_lattice():
@@ -226,6 +236,7 @@ def noise_inputs():
 NOISE_CASES = [(d, t, True) for d in DIMS for t in TYPES] + [(d, "FBM", False) for d in DIMS]
 
 
+@ROUNDING_5_0_ONLY
 @pytest.mark.parametrize("dims,noise_type,normalize", NOISE_CASES)
 def test_noise_texture_per_hit_inputs(dims, noise_type, normalize):
     """Every input per hit (Detail 0..15 with fractions, beyond-range values, Distortion with many
@@ -234,7 +245,7 @@ def test_noise_texture_per_hit_inputs(dims, noise_type, normalize):
     options = {"noise_dimensions": dims, "noise_type": noise_type, "normalize": normalize}
     cycles = cycles_probe(texture("ShaderNodeTexNoise", options, wired, {}, "Color"), probes)
     ours = N.noise_texture(probes["probe"], dimensions=dims, noise_type=noise_type, normalize=normalize,
-                           **kwargs)
+                           **kwargs, **CYCLES)
     assert_matches(ours["Color"], cycles)
     np.testing.assert_array_equal(ours["Fac"], ours["Color"][:, 0])
 
@@ -247,6 +258,7 @@ CONSTANT_SETTINGS = [
 ]
 
 
+@ROUNDING_5_0_ONLY
 @pytest.mark.parametrize("dims", DIMS)
 @pytest.mark.parametrize("noise_type", TYPES)
 def test_noise_texture_constant_inputs(dims, noise_type):
@@ -259,7 +271,7 @@ def test_noise_texture_constant_inputs(dims, noise_type):
         cycles = cycles_probe(build, probes)
         kwargs = {key.lower(): value for key, value in constants.items()}
         ours = N.noise_texture(probes["probe"], probes["probe2"][:, 0], dimensions=dims, noise_type=noise_type,
-                               **kwargs)
+                               **kwargs, **CYCLES)
         assert_matches(ours["Color"], cycles)
 
 
@@ -273,7 +285,7 @@ def test_noise_texture_fully_constant_node():
         build = texture("ShaderNodeTexNoise", {"noise_dimensions": "1D"}, {}, constants, "Color")
         cycles = cycles_probe(build, probes)
         kwargs = {key.lower(): value for key, value in constants.items()}
-        ours = N.noise_texture(probes["probe"], dimensions="1D", **kwargs)
+        ours = N.noise_texture(probes["probe"], dimensions="1D", **kwargs, **CYCLES)
         assert_matches(ours["Color"], cycles, exact=False)
 
 
@@ -285,7 +297,7 @@ def test_noise_texture_large_coordinates(dims):
     build = texture("ShaderNodeTexNoise", {"noise_dimensions": dims}, {"W": ("probe2", 0)},
                     {"Scale": 1.0, "Detail": 3.0}, "Fac")
     cycles = cycles_probe(build, {"probe": p, "probe2": w})
-    ours = N.noise_texture(p, w[:, 0], scale=1.0, detail=3.0, dimensions=dims, outputs=("Fac",))
+    ours = N.noise_texture(p, w[:, 0], scale=1.0, detail=3.0, dimensions=dims, outputs=("Fac",), **CYCLES)
     assert_matches(grey(ours["Fac"]), cycles)
 
 
@@ -370,15 +382,17 @@ def assert_wave_matches(ours, cycles, profile):
         assert_matches(ours, cycles)
 
 
+@ROUNDING_5_0_ONLY
 @pytest.mark.parametrize("wave_type,direction,profile", WAVE_CASES)
 def test_wave_texture_per_hit_inputs(wave_type, direction, profile):
     probes, wired, kwargs = wave_inputs()
     options = wave_options(wave_type, direction, profile)
     cycles = cycles_probe(texture("ShaderNodeTexWave", options, wired, {}, "Color"), probes)
-    ours = N.wave_texture(probes["probe"], **options, **kwargs)
+    ours = N.wave_texture(probes["probe"], **options, **kwargs, **CYCLES)
     assert_wave_matches(ours["Color"], cycles, profile)
 
 
+@ROUNDING_5_0_ONLY
 @pytest.mark.parametrize("profile", ["SIN", "SAW", "TRI"])
 def test_wave_texture_constant_inputs(profile):
     probes = {"probe": sweep(-2, 2, 512, seed=13)}
@@ -386,5 +400,5 @@ def test_wave_texture_constant_inputs(profile):
         options = wave_options("RINGS", "SPHERICAL", profile)
         cycles = cycles_probe(texture("ShaderNodeTexWave", options, {}, constants, "Fac"), probes)
         kwargs = {key.lower().replace(" ", "_"): value for key, value in constants.items()}
-        ours = N.wave_texture(probes["probe"], **options, **kwargs)["Fac"]
+        ours = N.wave_texture(probes["probe"], **options, **kwargs, **CYCLES)["Fac"]
         assert_wave_matches(grey(ours), cycles, profile)

@@ -58,6 +58,9 @@ def _sinf_is_the_system_one() -> bool:
 
 SINF_IS_GLIBC = _sinf_is_the_system_one()
 BIT_EXACT = AVX2_KERNEL and SINF_IS_GLIBC     # the Cycles these tests claim to reproduce bit for bit
+# Blender 5.3's compiled Brick rounds differently from 5.0's (same source): Ember keeps 5.0's rounding.
+BRICK_5_0_ONLY = pytest.mark.xfail(bpy.app.version[:2] >= (5, 3), strict=True,
+                                   reason="Cycles 5.3 rounds the Brick texture differently (docs/blender-versions.md)")
 
 
 def assert_matches(ours, cycles, exact=True, rtol=RTOL, atol=ATOL):
@@ -163,6 +166,7 @@ BRICK_OPTIONS = [
 ]
 
 
+@BRICK_5_0_ONLY
 @pytest.mark.parametrize("options", BRICK_OPTIONS, ids=["default", "offset_squash", "every_row"])
 def test_brick_options(options):
     p = pattern_points(7, count=1500, big=1e5)
@@ -174,6 +178,7 @@ def test_brick_options(options):
     assert_matches(grey(pt.brick(p, **options)["Fac"]), fac)
 
 
+@BRICK_5_0_ONLY
 def test_brick_per_hit_inputs():
     """Scale, Mortar Size, Bias, Brick Width, Row Height and Mortar Smooth (a third of it 0: hard
     mortar edges) per hit."""
@@ -214,7 +219,7 @@ def test_magic_depths(depth):
     p = np.concatenate([sweep(-3, 3, 500, 10), sweep(-1e3, 1e3, 50, 11), sweep(-1e7, 1e7, 50, 12)])
     cycles = texture_probe("ShaderNodeTexMagic", p, "Color", options={"turbulence_depth": depth},
                            inputs={"Distortion": 2.5})
-    ours = pt.magic(p, distortion=2.5, turbulence_depth=depth)["Color"]
+    ours = pt.magic(p, distortion=2.5, turbulence_depth=depth, cycles_version=bpy.app.version)["Color"]
     if BIT_EXACT:
         np.testing.assert_array_equal(ours, cycles)
     elif depth <= 2:
@@ -230,7 +235,7 @@ def test_magic_per_hit_scale_and_distortion():
     q = np.stack([scale, distortion, scale], 1).astype(F32)
     cycles = texture_probe("ShaderNodeTexMagic", p, "Fac", options={"turbulence_depth": 4},
                            linked={"Scale": ("probe2", 0), "Distortion": ("probe2", 1)}, extra={"probe2": q})
-    ours = pt.magic(p, scale=q[:, 0], distortion=q[:, 1], turbulence_depth=4)
+    ours = pt.magic(p, scale=q[:, 0], distortion=q[:, 1], turbulence_depth=4, cycles_version=bpy.app.version)
     assert_matches(grey(ours["Fac"]), cycles)
     np.testing.assert_allclose(ours["Fac"], ours["Color"].mean(axis=1), rtol=1e-6)
 

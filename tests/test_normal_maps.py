@@ -294,3 +294,29 @@ def test_validate_checks_normal_map_inputs():
                 Closure("DIFFUSE", (("Normal", Tangent()),))):
         with pytest.raises(ValueError, match="DIFFUSE"):
             _scene(None, Shader((bad,))).validate()
+
+
+@pytest.mark.skipif(bpy.app.version < (5, 1, 0), reason="the Normal Map's convention switch is Blender 5.1's")
+@pytest.mark.parametrize("space", ["WORLD", "BLENDER_WORLD"])
+def test_directx_convention_matches_cycles(space):
+    """Normal Map in the DirectX convention (green negated) through bpy: Ember's node program against this
+    Blender's Cycles, one probe colour per pixel; OpenGL differs from both where green is not 0.5."""
+    from tests.node_probe import probe_scene, render_probe, sweep
+
+    colors = sweep(0.0, 1.0, 64, seed=3)
+
+    def build(convention):
+        def graph(tree, sockets):
+            node = tree.nodes.new("ShaderNodeNormalMap")
+            node.space, node.convention = space, convention
+            tree.links.new(sockets["probe"], node.inputs["Color"])
+            return node.outputs["Normal"]
+        return graph
+
+    scene, count = probe_scene(build("DIRECTX"), {"probe": colors})
+    cycles = render_probe(scene, count, "CYCLES")
+    ember = render_probe(scene, count, "EMBER")
+    np.testing.assert_allclose(ember, cycles, atol=2e-6)
+    scene, count = probe_scene(build("OPENGL"), {"probe": colors})
+    opengl = render_probe(scene, count, "EMBER")
+    assert np.abs(opengl - cycles).max() > 0.1

@@ -28,6 +28,9 @@ def grid_of_spheres(materials, columns):
     return rows
 
 
+@pytest.mark.xfail(bpy.app.version[:2] >= (5, 3), strict=True,
+                   reason="Cycles 5.3's Oren-Nayar renders brighter than 5.0's from the same bsdf_oren_nayar.h "
+                          "(docs/blender-versions.md): the Rough Diffuse sphere differs")
 def test_principled_sphere_row_under_an_hdri():
     """Metal smooth and rough, plastic, glass, coat and sheen: the Principled layer stack."""
     scene = new_scene(96, 48)
@@ -436,7 +439,10 @@ def test_filter_glossy_matches_cycles():
     sharp, se_s = mean_and_se("EMBER", 0.0)
     assert abs(blurred - cycles) < 3.5 * np.hypot(se_b, se_c), (blurred, cycles, se_b, se_c)
     assert abs(sharp - cycles) > 3.5 * np.hypot(se_s, se_c), (sharp, cycles, se_s, se_c)
-    compare_to_cycles(scene, samples=64, max_bounces=4, blur_glossy=1.0)
+    # The caustic makes the image mean heavy-tailed: at 64 samples its noise alone can pass 2%, so the
+    # mean's tolerance is 4.5 of its standard errors there (twice the variance of the 128-sample means).
+    mean_tol = max(0.02, 4.5 * np.sqrt(2.0) * np.hypot(se_b, se_c) / cycles)
+    compare_to_cycles(scene, samples=64, max_bounces=4, blur_glossy=1.0, mean_tol=mean_tol)
 
 
 def caustics_scene():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 
 import numpy as np
+import bpy
 import pytest
 
 from bpy_helpers import REPLICATE_SEEDS, configure_cycles
@@ -111,6 +112,9 @@ def test_pass_matches_cycles(renders, name):
     assert z.max() < 5, (name, float(z.max()), np.unravel_index(int(z.argmax()), z.shape))
 
 
+@pytest.mark.xfail(bpy.app.version[:2] >= (5, 3), strict=True,
+                   reason="Cycles 5.3 weighs the Denoising Albedo by roughness (smooth specular-to-diffuse blend, "
+                          "736ebe56f, 0ea9d49a4, 00d09f9f5); Ember follows 5.0's (docs/blender-versions.md)")
 def test_colour_albedos_of_metal_and_tinted_glass_match_cycles():
     """A metal's colour lives in its Fresnel (F82 tint, F0 = base colour) and tinted glass's in its
     transmission tint, not in their closure weights: the Denoising Albedo, Glossy Color and Transmission

@@ -319,6 +319,9 @@ def test_moving_an_instanced_emitter_updates_the_light_sampler(counts):
     np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.xfail(bpy.app.version[:2] >= (5, 3), strict=True,
+                   reason="Blender 5.3's depsgraph tags the objects using an edited material for geometry: "
+                          "Ember exports the scene again (the same image, more work)")
 def test_editing_a_material_colour_updates_materials_only(counts):
     scene, ball, panel, lamp = studio()
     color = ball.data.materials[0].node_tree.nodes["Diffuse BSDF"].inputs["Color"]
@@ -388,7 +391,9 @@ def test_which_part_each_update_changes():
         assert updates.after(lambda: setattr(ball, "location", (0, 0, 1))) == {INSTANCES}
         # A material edit tags the objects and meshes using it for shading too: their instances are read
         # again, and found unchanged.
-        assert updates.after(lambda: setattr(color, "default_value", (0, 1, 0, 1))) == {SHADING, INSTANCES}
+        # Blender 5.3 also tags those objects for geometry: a full export there (docs/blender-versions.md).
+        material_edit = {SHADING, INSTANCES} if bpy.app.version[:2] < (5, 3) else {SHADING, INSTANCES, FULL}
+        assert updates.after(lambda: setattr(color, "default_value", (0, 1, 0, 1))) == material_edit
         assert updates.after(lambda: setattr(lamp.data, "energy", 10.0)) == {LIGHTS}
         assert updates.after(lambda: setattr(lamp, "location", (0, 0, 4))) == {LIGHTS}
         assert updates.after(lambda: setattr(ball, "pass_index", 3)) == {INSTANCES}

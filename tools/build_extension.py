@@ -1,13 +1,15 @@
-#!/usr/bin/env python3.11
+#!/usr/bin/env python3
 """Build Ember's Blender extension packages: one zip per platform in dist/, embreex bundled.
 
-    .venv/bin/python tools/build_extension.py            # or: python3.11 dev.py package
+    .venv313/bin/python tools/build_extension.py         # or: python3 dev.py package
     .venv/bin/python tools/build_extension.py --update-manifest   # after changing the embreex pin
 
 Steps:
-1. Download the embreex cp311 wheel of every platform in the manifest into ./wheels/ (not in git), with
-   `pip download --only-binary=:all: --no-deps --python-version 3.11 --platform TAG`. A wheel already
-   there is not downloaded again, so a second build works offline.
+1. Download the embreex wheels of every platform in the manifest into ./wheels/ (not in git), one per
+   Python that the supported Blenders embed (cp311: Blender 4.2 to 5.0; cp313: 5.1 and later; Blender
+   installs the one for its own Python), with `pip download --only-binary=:all: --no-deps
+   --python-version X.Y --platform TAG`. A wheel already there is not downloaded again, so a second build
+   works offline.
 2. Check that the manifest's `wheels` list names exactly those files. The list is pinned in git (the
    version is pinned in requirements.txt), so the manifest in git is the one that is built and validated;
    --update-manifest rewrites the list from the downloaded files instead of failing.
@@ -34,7 +36,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MANIFEST = os.path.join(ROOT, "blender_manifest.toml")
 WHEELS = os.path.join(ROOT, "wheels")
 DIST = os.path.join(ROOT, "dist")
-PYTHON_VERSION = "3.11"  # the Python of Blender 4.2 to 5.0, the versions the manifest accepts
+# The Pythons of the Blenders the manifest accepts: 3.11 (Blender 4.2 to 5.0) and 3.13 (5.1 to 5.3).
+PYTHON_VERSIONS = ("3.11", "3.13")
 
 # Blender platform -> the pip platform tag to download for, and the wheel file name pattern it gives.
 # macOS wheels of embreex 4.4 need macOS 13 or newer; Linux ones glibc 2.28 (manylinux_2_28).
@@ -70,7 +73,8 @@ def blender_ext_path() -> str:
     """blender_ext.py inside the installed bpy package (found without importing bpy)."""
     spec = importlib.util.find_spec("bpy")
     if spec is None or not spec.submodule_search_locations:
-        sys.exit("build_extension: bpy is not installed; run with .venv/bin/python (python3.11 dev.py setup)")
+        sys.exit("build_extension: bpy is not installed; run with a development environment's python "
+                 "(python3 dev.py setup)")
     for location in spec.submodule_search_locations:
         found = sorted(glob.glob(os.path.join(location, "*", "scripts", "addons_core", "bl_pkg", "cli",
                                               "blender_ext.py")))
@@ -79,32 +83,36 @@ def blender_ext_path() -> str:
     sys.exit("build_extension: blender_ext.py not found inside the bpy package")
 
 
-def wheel_for(platform: str, version: str) -> str | None:
-    """The downloaded cp311 embreex wheel for a Blender platform, or None."""
-    pattern = f"embreex-{version}-cp311-cp311{PLATFORMS[platform][1]}"
+def wheel_for(platform: str, version: str, python: str) -> str | None:
+    """The downloaded embreex wheel for a Blender platform and a Python ("3.13"), or None."""
+    tag = "cp" + python.replace(".", "")
+    pattern = f"embreex-{version}-{tag}-{tag}{PLATFORMS[platform][1]}"
     names = sorted(n for n in os.listdir(WHEELS) if fnmatch.fnmatch(n, pattern))
     if len(names) > 1:
-        sys.exit(f"build_extension: several wheels in wheels/ for {platform}: {names}; remove the stale ones")
+        sys.exit(f"build_extension: several {tag} wheels in wheels/ for {platform}: {names}; remove the stale ones")
     return names[0] if names else None
 
 
-def download_wheels(platforms: list[str], version: str) -> list[str]:
-    """Download (unless present) one wheel per platform; return the manifest's relative paths."""
+def download_wheels(platforms: list[str], version: str) -> dict[str, list[str]]:
+    """Download (unless present) one wheel per platform and Python; return {platform: the manifest's
+    relative paths of its wheels}."""
     os.makedirs(WHEELS, exist_ok=True)
-    paths = []
+    paths = {}
     for platform in platforms:
         if platform not in PLATFORMS:
             sys.exit(f"build_extension: no wheel source known for platform {platform!r}; add it to PLATFORMS")
-        if wheel_for(platform, version) is None:
-            print(f"build_extension: downloading embreex {version} for {platform}", flush=True)
-            subprocess.run([sys.executable, "-m", "pip", "download", f"embreex=={version}",
-                            "--only-binary=:all:", "--no-deps", "--python-version", PYTHON_VERSION,
-                            "--platform", PLATFORMS[platform][0], "-d", WHEELS,
-                            "--disable-pip-version-check", "-q"], check=True)
-        name = wheel_for(platform, version)
-        if name is None:
-            sys.exit(f"build_extension: pip downloaded no cp311 wheel for {platform}")
-        paths.append(f"./wheels/{name}")
+        paths[platform] = []
+        for python in PYTHON_VERSIONS:
+            if wheel_for(platform, version, python) is None:
+                print(f"build_extension: downloading embreex {version} for {platform}, Python {python}", flush=True)
+                subprocess.run([sys.executable, "-m", "pip", "download", f"embreex=={version}",
+                                "--only-binary=:all:", "--no-deps", "--python-version", python,
+                                "--platform", PLATFORMS[platform][0], "-d", WHEELS,
+                                "--disable-pip-version-check", "-q"], check=True)
+            name = wheel_for(platform, version, python)
+            if name is None:
+                sys.exit(f"build_extension: pip downloaded no Python {python} wheel for {platform}")
+            paths[platform].append(f"./wheels/{name}")
     return paths
 
 
@@ -169,20 +177,21 @@ def build(update_manifest: bool = False, quiet: bool = False) -> dict[str, str]:
     if not platforms:
         sys.exit("build_extension: blender_manifest.toml declares no platforms")
     wheels = download_wheels(platforms, version)
-    check_manifest_wheels(wheels, update_manifest)
+    check_manifest_wheels([w for platform in platforms for w in wheels[platform]], update_manifest)
     manifest = load_manifest()
     blender_ext("validate", ROOT)
     os.makedirs(DIST, exist_ok=True)
     blender_ext("build", "--source-dir", ROOT, "--output-dir", DIST, "--split-platforms")
     packages = {}
-    for platform, wheel in zip(platforms, wheels):
+    for platform in platforms:
         path = package_path(manifest, platform)
         blender_ext("validate", path)
-        names = check_package(path, [wheel])
+        names = check_package(path, wheels[platform])
         packages[platform] = path
         if not quiet:
             print(f"build_extension: {os.path.relpath(path, ROOT)}: {os.path.getsize(path) / 1e6:.1f} MB, "
-                  f"{len(names)} files, bundles {os.path.basename(wheel)}", flush=True)
+                  f"{len(names)} files, bundles {', '.join(os.path.basename(w) for w in wheels[platform])}",
+                  flush=True)
     return packages
 
 

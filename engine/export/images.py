@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels.textures import BYTE_SCALE, srgb_to_linear
+from ..version import blender_version
 
 # Byte images in these colour spaces (besides data ones such as Non-Color) hold linear values already.
 LINEAR_BYTE_SPACES = ("Linear Rec.709", "scene_linear")
@@ -70,7 +71,10 @@ def read_image(image, warnings: list[str], alpha: bool = False) -> ImagePixels |
     keep_alpha = alpha and channels == 4 and image.alpha_mode != "NONE" and pixels[:, :, 3].min() < one
     pixels = _narrowed(pixels, 4 if keep_alpha else 3 if channels >= 3 else 1)
     if pixels.dtype != np.uint8:  # float files (EXR, HDR) may hold negative or non-finite values; light cannot
-        return ImagePixels(_cleaned(pixels), False)
+        pixels = _cleaned(pixels)
+        if keep_alpha and _associates_float_alpha(image):
+            pixels[:, :, :3] *= pixels[:, :, 3:4]
+        return ImagePixels(pixels, False)
     matrix = _linear_space_matrix(image.colorspace_settings.name)
     if matrix is not None and not image.colorspace_settings.is_data:
         # A linear space other than scene linear: converted at load, as Cycles converts such byte images
@@ -82,6 +86,18 @@ def read_image(image, warnings: list[str], alpha: bool = False) -> ImagePixels |
     if keep_alpha and not _associates_alpha(image):
         return ImagePixels(_as_float(pixels), srgb)   # uint8 RGBA would be associated by the kernel
     return ImagePixels(pixels, srgb)
+
+
+# From Blender 5.2, Cycles honours the image's alpha mode for float pixels too: Straight colour is
+# associated at load (Cycles a50e77ae5, util/image_metadata.cpp); before, float pixels were taken as
+# associated whatever the mode. Loaded EXR files are Premultiplied; generated and painted float images
+# are Straight.
+FLOAT_STRAIGHT_ASSOCIATED_FROM = (5, 2)
+
+
+def _associates_float_alpha(image) -> bool:
+    """Whether the Cycles of this Blender multiplies a float image's colour by its alpha at load."""
+    return _associates_alpha(image) and blender_version()[:2] >= FLOAT_STRAIGHT_ASSOCIATED_FROM
 
 
 def _associates_alpha(image) -> bool:

@@ -163,9 +163,11 @@ EMISSION_INPUTS = {"EMISSION": ("Color", "Strength"), "PRINCIPLED": ("Emission C
 # Closure inputs that take a direction from a node: a Normal Map (normals) or a Tangent node.
 NORMAL_INPUTS = ("Normal", "Coat Normal")
 # Inputs Ember does not render yet, each with the value at which it has no effect.
+# Inputs a Blender may lack (Thin Wall, dispersion and glass anisotropy came with 5.1 to 5.3) are checked
+# where the node has them.
 UNSUPPORTED_INPUTS = {
-    "PRINCIPLED": (("Thin Film Thickness", 0.0),),
-    "GLASS": (("Thin Film Thickness", 0.0),),
+    "PRINCIPLED": (("Thin Film Thickness", 0.0), ("Thin Wall", False), ("Transmission Dispersion Scale", 0.0)),
+    "GLASS": (("Thin Film Thickness", 0.0), ("Anisotropy", 0.0)),
     "METALLIC": (("Thin Film Thickness", 0.0),),
 }
 
@@ -378,7 +380,7 @@ class _MaterialReader:
         strength = self.param(node.inputs["Strength"], source.groups, 1, node)
         if node.space == "TANGENT":
             self.tangent_uv_maps.append(node.uv_map)
-        return NormalMap(color, strength, node.space)
+        return NormalMap(color, strength, node.space, getattr(node, "convention", "OPENGL") == "DIRECTX")
 
     def tangent(self, source: Source, socket, groups) -> Tangent | Param | None:
         """A Tangent input: a UV Map Tangent node as the kernel's Tangent, any other node (a radial Tangent,
@@ -392,7 +394,7 @@ class _MaterialReader:
     def check_unsupported(self, node, kind: str, groups) -> None:
         label = f"{node.bl_label} '{node.name}'"
         for name, neutral in UNSUPPORTED_INPUTS.get(kind, ()):
-            if self.is_set(node.inputs[name], neutral, groups):
+            if name in node.inputs and self.is_set(node.inputs[name], neutral, groups):
                 self.issues.append(f"{label} {name} is not supported, ignored")
         if node.bl_idname == "ShaderNodeSubsurfaceScattering" or (
                 kind == "PRINCIPLED" and self.is_set(node.inputs["Subsurface Weight"], 0.0, groups)):

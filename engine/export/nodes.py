@@ -23,6 +23,7 @@ from ...kernels.programs import Op, Program, Ref
 from ...kernels.shading import sky
 from ...kernels.shading.ops import OPS, PURE_OPS
 from ...kernels.shading.program import constant, convert
+from ..version import blender_version
 from . import node_tables
 from .graph import run_nested
 
@@ -312,7 +313,10 @@ def _normal_map(builder, node, groups):
         builder.tangent_uv_maps.append(node.uv_map)
     inputs = {"Color": (yield builder.read(node.inputs["Color"], groups, "RGBA")),
               "Strength": (yield builder.read(node.inputs["Strength"], groups, "VALUE"))}
-    return builder.add(node.bl_idname, inputs, {"space": node.space})
+    # Blender 5.1 added the DirectX convention; its Base option matters only on displaced surfaces, which
+    # Ember does not render (their Displacement output is ignored with a warning).
+    options = {"space": node.space, "convention": getattr(node, "convention", "OPENGL")}
+    return builder.add(node.bl_idname, inputs, options)
 
 
 def _image(builder, node, groups):
@@ -337,7 +341,8 @@ def _texture(builder, node, groups):
     """A procedural texture: an unlinked Vector reads Generated coordinates."""
     _check_texture_mapping(builder, node)
     inputs = yield builder.node_inputs(node, groups, vector_default="Generated")
-    return builder.add(node.bl_idname, inputs, node_options(node), outputs=_linked_outputs(node))
+    options = dict(node_options(node), cycles_version=blender_version())
+    return builder.add(node.bl_idname, inputs, options, outputs=_linked_outputs(node))
 
 
 def _check_texture_mapping(builder, node) -> None:
@@ -400,6 +405,15 @@ def _tangent(builder, node, groups):
     return builder.add(node.bl_idname, {}, {"direction_type": node.direction_type, "axis": node.axis})
 
 
+def _vector_transform(builder, node, groups):
+    """Light space (Blender 5.3) exists in Cycles' light shaders, which Ember does not run: passed through."""
+    if "LIGHT" in (node.convert_from, node.convert_to):
+        builder.issues.append(f"Vector Transform '{node.name}': Light space is not supported, the vector is "
+                              f"passed through")
+    inputs = yield builder.node_inputs(node, groups)
+    return builder.add(node.bl_idname, inputs, node_options(node), outputs=_linked_outputs(node))
+
+
 def _normal(builder, node, groups):
     direction = tuple(float(v) for v in node.outputs["Normal"].default_value)
     inputs = yield builder.node_inputs(node, groups)
@@ -412,7 +426,7 @@ def _bump(builder, node, groups):
 
 
 COMPILERS = {
-    "ShaderNodeVectorTransform": _plain,
+    "ShaderNodeVectorTransform": _vector_transform,
     "ShaderNodeNormal": _normal,
     "ShaderNodeCameraData": _plain,
     "ShaderNodeWireframe": _plain,

@@ -357,6 +357,7 @@ _VECTOR = {
     "MODULO": lambda a, b, c, s: _vfmod(a, b),
     "WRAP": lambda a, b, c, s: _vfloored_mod(a - c, b - c) + c,
     "SNAP": lambda a, b, c, s: np.floor(_safe_divide(a, b)) * b,
+    "ROUND": lambda a, b, c, s: np.floor(a + F32(0.5)),
     "SINE": lambda a, b, c, s: np.sin(a),
     "COSINE": lambda a, b, c, s: np.cos(a),
     "TANGENT": lambda a, b, c, s: np.tan(a),
@@ -367,6 +368,13 @@ _VECTOR_VALUE = {
     "LENGTH": lambda a, b: _len(a),
 }
 VECTOR_MATH_OPERATIONS = tuple(_VECTOR) + tuple(_VECTOR_VALUE)
+# Operations newer than Blender 5.0, by the release that added them (Cycles' svm/math_util.h there).
+OPERATIONS_SINCE = {"ROUND": (5, 2)}
+
+
+def operations_in(version, operations) -> tuple:
+    """The operations of `operations` that the Blender `version` ((major, minor, ...)) offers."""
+    return tuple(op for op in operations if tuple(version[:2]) >= OPERATIONS_SINCE.get(op, (0, 0)))
 
 
 def vector_math(vector=0.0, vector_001=0.0, vector_002=0.0, scale=1.0, *, operation: str = "ADD") -> dict:

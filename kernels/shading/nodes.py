@@ -133,7 +133,8 @@ class Context:
         color = self.shading.param(spec.color, self, 3)
         strength = self.shading.param(spec.strength, self, 1)
         frame = self._frame() if spec.space == "TANGENT" else None
-        return normals.normal_map(color, strength, spec.space, self.hit_ns, self.take(self.hit.backfacing), frame)
+        return normals.normal_map(color, strength, spec.space, self.hit_ns, self.take(self.hit.backfacing), frame,
+                                  spec.invert_green)
 
     def with_normal(self, normal) -> "Context":
         """This context on another (unit) normal; itself for None."""

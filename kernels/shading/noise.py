@@ -2,7 +2,7 @@
 
 Sources: `kernel/svm/noise.h` (Perlin), `fractal_noise.h`, `noisetex.h`, `white_noise.h`, `wave.h`.
 The results are bit-exact with Cycles' x86-64 AVX2 CPU kernel as Blender 5.0 ships it (probed: see
-tests/test_nodes_noise.py). That kernel uses the SIMD Perlin variants (their interpolation order, fmod
+tests/test_nodes_noise.py); Perlin noise also as Blender 5.3's kernel rounds it (`cycles_rounding`). That kernel uses the SIMD Perlin variants (their interpolation order, fmod
 as c - trunc(c / 1e5) * 1e5) and is compiled with -ffp-contract=fast and -freciprocal-math: many
 multiply-adds are fused, divisions by constants are multiplications. Where a fused multiply-add changes
 the rounding it is written fma(a, b, c) below; which ones the compiler fused was found by probing, not
@@ -26,6 +26,7 @@ per block size (_Tape); a large block of one frequency whose cells span a small 
 from __future__ import annotations
 
 import threading
+from contextlib import contextmanager
 from functools import lru_cache
 
 import numpy as np
@@ -40,6 +41,31 @@ WRAP_PERIOD = F32(100000.0)       # Perlin repeats every 1e5 per axis, for preci
 WRAP_RECIPROCAL = F32(1e-5)       # what the compiler divides by 1e5 with (-freciprocal-math)
 WRAP_FROM = F32(1000000.0)        # where the wrapped coordinate is shifted by 1/2 (off the lattice)
 DIMENSIONS = {"1D": 1, "2D": 2, "3D": 3, "4D": 4}
+
+
+# ---- Which Cycles' rounding -------------------------------------------------------------------------
+# Perlin's source is the same in Blender 5.0 and 5.3, its compiled rounding is not: Cycles made `mix` one
+# template for every type (commit 1a3cb5e0b, in 5.3), and since then the SIMD Perlin's mixes are a
+# separate multiply and add, the 3D/4D coordinate wrap subtracts q * 1e5 unfused, and the 1D mix is
+# fma(u, b - a, a). Probed bit for bit against bpy 5.0.1 and 5.3.0 (docs/blender-versions.md).
+UNFUSED_MIX_FROM = (5, 3)
+_ROUNDING = threading.local()
+
+
+@contextmanager
+def cycles_rounding(version):
+    """Round Perlin noise, on this thread and inside the block, as the Cycles of Blender `version`
+    ((major, minor, ...)) does; None: Blender 5.0's."""
+    before = getattr(_ROUNDING, "unfused", False)
+    _ROUNDING.unfused = version is not None and tuple(version[:2]) >= UNFUSED_MIX_FROM
+    try:
+        yield
+    finally:
+        _ROUNDING.unfused = before
+
+
+def _unfused() -> bool:
+    return getattr(_ROUNDING, "unfused", False)
 
 
 # ---- Perlin ---------------------------------------------------------------------------------------
@@ -111,7 +137,8 @@ def _lattice(x, s: H.Scratch, call):
 def _interpolate(gradients, index, planes, out, s: H.Scratch, call):
     """Perlin's corner values and their interpolation into out (m,): the corner gradients, rows of
     gradients (d, G) at index (2^d, m), dotted with the offsets to the corners in axis order (as
-    _gradient_table), then faded and mixed, each mix a multiply-add fused as the kernel's (fma). The
+    _gradient_table), then faded and mixed, each mix a multiply-add fused as the kernel's (fma; unfused
+    under Blender 5.3's rounding). The
     corners form a broadcast grid (2,) * d + (m,) (_corner_shapes): one call per step for all of them."""
     d, _, m = planes.shape
     shapes = [shape + (m,) for shape in _corner_shapes(d)]
@@ -140,6 +167,10 @@ def _interpolate(gradients, index, planes, out, s: H.Scratch, call):
         rows //= 2
         lo, hi = g[:rows], g[rows:2 * rows]
         diff = call(np.subtract, hi, lo, out=s("mix_diff", (rows, m), F32))
+        if _unfused():
+            call(np.multiply, fade[axis], diff, out=diff)
+            call(np.add, diff, lo, out=lo if rows > 1 else out[None])
+            continue
         mixed = call(np.multiply, fade[axis], diff, dtype=np.float64, out=s("mix64", (rows, m), np.float64))
         call(np.add, mixed, lo, out=mixed)
         call(np.copyto, lo if rows > 1 else out, mixed if rows > 1 else mixed[0], casting="same_kind")
@@ -239,13 +270,14 @@ def _plan(d: int, m: int):
         _PLANS.plans, _PLANS.generation = {}, s.generation
     sizes = _block_sizes(_BLOCK >> d)
     size = next(b for b in sizes if b >= m)
-    plan = _PLANS.plans.get((d, size))
+    unfused = _unfused()      # the tape records one rounding's calls
+    plan = _PLANS.plans.get((d, size, unfused))
     if plan is None:
-        if (d, sizes[-1]) not in _PLANS.plans:
-            _PLANS.plans[(d, sizes[-1])] = _record(d, sizes[-1], s)
-        plan = _PLANS.plans[(d, size)] = _record(d, size, s)
+        if (d, sizes[-1], unfused) not in _PLANS.plans:
+            _PLANS.plans[(d, sizes[-1], unfused)] = _record(d, sizes[-1], s)
+        plan = _PLANS.plans[(d, size, unfused)] = _record(d, size, s)
         if _PLANS.generation != s.generation:
-            _PLANS.plans, _PLANS.generation = {(d, size): plan}, s.generation
+            _PLANS.plans, _PLANS.generation = {(d, size, unfused): plan}, s.generation
     return plan
 
 
@@ -278,6 +310,9 @@ def _perlin_1d(x):
     # The scalar kernel's fade, ((t t) t) b, and its contraction of mix(g0 fx, g1 (fx - 1), u).
     u = fma(fx, fma(fx, F32(6.0), F32(-15.0)), F32(10.0))
     u *= (fx * fx) * fx
+    if _unfused():
+        a = g0 * fx
+        return fma(u, g1 * (fx - ONE) - a, a)
     return fma(g0, fx, u * fma(-g0, fx, g1 * (fx - ONE)))
 
 
@@ -317,7 +352,7 @@ def _wrap(c, d: int):
     """A coordinate as snoise feeds it to Perlin: fmod(c, 1e5), plus 1/2 where |c| >= 1e6.
 
     1D calls fmodf (exact). 2D-4D use the SIMD fmod as compiled: q = trunc(c * float32(1e-5)), then
-    c - q * 1e5 fused. Only |c| >= 1e5 can change, so only those take the float64 path (where
+    c - q * 1e5 fused (3D and 4D unfused under Blender 5.3's rounding). Only |c| >= 1e5 can change, so only those take the float64 path (where
     c - q * 1e5 is exact: q has 24 significant bits, 1e5 = 3125 * 2^5 has 12, and c is close to q 1e5)."""
     big = np.abs(c) >= WRAP_PERIOD
     if not big.any():
@@ -326,6 +361,8 @@ def _wrap(c, d: int):
     cb = c[big]
     if d == 1:
         wrapped = np.fmod(cb, WRAP_PERIOD)
+    elif d >= 3 and _unfused():
+        wrapped = cb - np.trunc(cb * WRAP_RECIPROCAL) * WRAP_PERIOD
     else:
         q = np.trunc(cb * WRAP_RECIPROCAL)
         wrapped = (cb.astype(np.float64) - q.astype(np.float64) * float(WRAP_PERIOD)).astype(F32)
@@ -632,8 +669,16 @@ def _distort(c, s, distortion, d: int, axis: int):
 
 def noise_texture(vector, w=0.0, scale=5.0, detail=2.0, roughness=0.5, lacunarity=2.0, offset=0.0,
                   gain=1.0, distortion=0.0, *, dimensions="3D", noise_type="FBM", normalize=True,
-                  outputs=("Fac", "Color")):
-    """The Noise Texture node: {"Fac": (N,), "Color": (N, 3)} (Color costs two more fractals)."""
+                  outputs=("Fac", "Color"), cycles_version=None):
+    """The Noise Texture node: {"Fac": (N,), "Color": (N, 3)} (Color costs two more fractals), rounded as
+    the Cycles of Blender `cycles_version` (cycles_rounding)."""
+    with cycles_rounding(cycles_version):
+        return _noise_texture(vector, w, scale, detail, roughness, lacunarity, offset, gain, distortion,
+                              dimensions, noise_type, normalize, outputs)
+
+
+def _noise_texture(vector, w, scale, detail, roughness, lacunarity, offset, gain, distortion, dimensions,
+                   noise_type, normalize, outputs):
     d = DIMENSIONS[dimensions]
     n = _hit_count(vector, w, scale, detail, roughness, lacunarity, offset, gain, distortion)
     if n == 0:
@@ -733,12 +778,14 @@ def wave(vector, scale, distortion, detail, detail_scale, detail_roughness, phas
 
 def wave_texture(vector, scale=5.0, distortion=0.0, detail=2.0, detail_scale=1.0, detail_roughness=0.5,
                  phase_offset=0.0, *, wave_type="BANDS", bands_direction="X", rings_direction="X",
-                 wave_profile="SIN"):
-    """The Wave Texture node: {"Color": (N, 3) grey, "Fac": (N,)}."""
+                 wave_profile="SIN", cycles_version=None):
+    """The Wave Texture node: {"Color": (N, 3) grey, "Fac": (N,)}, its noise rounded as the Cycles of
+    Blender `cycles_version` (cycles_rounding)."""
     n = _hit_count(vector, scale, distortion, detail, detail_scale, detail_roughness, phase_offset)
     if n == 0:
         return {"Color": np.zeros((0, 3), F32), "Fac": np.zeros(0, F32)}
-    fac = wave(_coords(vector, 0.0, 3, n), scale, distortion, detail, detail_scale, detail_roughness,
-               phase_offset, wave_type=wave_type, bands_direction=bands_direction,
-               rings_direction=rings_direction, wave_profile=wave_profile)
+    with cycles_rounding(cycles_version):
+        fac = wave(_coords(vector, 0.0, 3, n), scale, distortion, detail, detail_scale, detail_roughness,
+                   phase_offset, wave_type=wave_type, bands_direction=bands_direction,
+                   rings_direction=rings_direction, wave_profile=wave_profile)
     return {"Color": np.repeat(fac[:, None], 3, axis=1), "Fac": fac}

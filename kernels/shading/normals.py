@@ -17,7 +17,8 @@ F32 = np.float32
 ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
 
 
-def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfacing: np.ndarray, frame):
+def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfacing: np.ndarray, frame,
+               invert_green: bool = False):
     """The Normal Map node's Normal at n hits.
 
     color : (3, n) the node's Color, each axis stored as (x + 1) / 2. strength : (n,).
@@ -25,8 +26,11 @@ def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfaci
     ns : the hits' unit shading normal, flipped toward the viewer on back faces (Cycles' sd->N).
     frame : (tangent, sign, normal) of SurfaceHit.tangent_frame, unnormalized and not flipped, or None
         (no tangents: the normal is left as it is, as Cycles does without its tangent attribute).
+    invert_green : the DirectX convention (Blender 5.1+): the green axis is negated, in every space.
     """
     c = F32(2.0) * (np.asarray(color, F32) - HALF)
+    if invert_green:
+        c[1] = -c[1]
     strength = np.asarray(strength, F32)
     if space == "TANGENT":
         if frame is None:

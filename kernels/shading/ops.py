@@ -431,7 +431,8 @@ def normal_map(hits, inputs, op):
     space = op.option("space", "TANGENT")
     ns = tuple(hits.N[:, k] for k in range(3))
     frame = hits.hit.tangent_frame(hits.idx) if space == "TANGENT" else None
-    out = normals.normal_map(color, strength, space, ns, hits.backfacing, frame)
+    out = normals.normal_map(color, strength, space, ns, hits.backfacing, frame,
+                             op.option("convention", "OPENGL") == "DIRECTX")
     return {"Normal": np.stack(out, axis=1)}
 
 

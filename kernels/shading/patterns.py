@@ -296,20 +296,31 @@ def brick(vector, color1=(0.8, 0.8, 0.8), color2=(0.2, 0.2, 0.2), mortar=(0.0, 0
 
 # ---- Magic --------------------------------------------------------------------------------------
 
-def magic(vector, scale=5.0, distortion=1.0, *, turbulence_depth: int = 2) -> dict:
+# Blender 5.2's Cycles scales the point before wrapping it to (-2pi, 2pi), as OSL and EEVEE do (Cycles
+# commit ae48bccc9); 5.0 and 5.1 wrapped the unscaled point and scaled the sines' arguments.
+MAGIC_SCALE_FIRST_FROM = (5, 2)
+
+
+def magic(vector, scale=5.0, distortion=1.0, *, turbulence_depth: int = 2, cycles_version=None) -> dict:
     """Magic Texture: nested sines and cosines of the point's coordinates (wrapped to (-2pi, 2pi) by C's
-    fmod first), `turbulence_depth` (0..10) rounds deep; Fac is the mean of the colour.
+    fmod first), `turbulence_depth` (0..10) rounds deep; Fac is the mean of the colour. cycles_version:
+    the Blender whose Cycles is followed (MAGIC_SCALE_FIRST_FROM); None: 5.0's.
 
     Each round feeds the last one's values times Distortion into the next sine, so differences grow by
     about 3 * Distortion per round: this uses glibc's sinf/cosf and rounds as Cycles' compiled kernel
     does (one fused multiply-add in the first round, a reciprocal for the final division), which makes
     it bit-exact rather than merely close.
     """
-    p = np.fmod(_vector(vector), TWO_PI)
-    px, py, pz = p[:, 0], p[:, 1], p[:, 2]
     s = _scalar(scale)
     d = _scalar(distortion)
     five = F32(5.0)
+    scale_first = cycles_version is not None and tuple(cycles_version[:2]) >= MAGIC_SCALE_FIRST_FROM
+    if scale_first:
+        p = np.fmod(_vector(vector) * (s[:, None] if np.ndim(s) else s), TWO_PI)
+        s = ONE
+    else:
+        p = np.fmod(_vector(vector), TWO_PI)
+    px, py, pz = p[:, 0], p[:, 1], p[:, 2]
     x = sinf((px + py + pz) * five * s)
     y = cosf((-px + py - pz) * five * s)
     z = -cosf((-px - py + pz) * five * s)
@@ -317,8 +328,8 @@ def magic(vector, scale=5.0, distortion=1.0, *, turbulence_depth: int = 2) -> di
     if n > 0:
         x = x * d
         z = z * d
-        # The compiler fuses y * d into the subtraction (y * d has no other use).
-        y = -cosf(_fma(-y, d, x) + z) * d
+        # Blender 5.0's compiler fuses y * d into the subtraction (y * d has no other use); 5.3's does not.
+        y = -cosf((x - y * d if scale_first else _fma(-y, d, x)) + z) * d
     if n > 1:
         x = cosf(x - y - z) * d
     if n > 2:
