@@ -252,7 +252,12 @@ class LightSampler:
         return 2.0 * np.pi * self.tri_area * lum
 
     def _world_power(self) -> float:
-        """In the sun's unit (W/m^2): the world's flux into a sphere over the sphere's cross-section."""
+        """In the sun's unit (W/m^2): the world's flux into a sphere over the sphere's cross-section. 0 for a
+        world of one colour in every direction, which, as in Cycles (LightManager's background light needs a
+        spatially varying world), is no light: BSDF rays find it, with MIS weight 1, and next-event
+        estimation spends its samples on the lamps (a constant grey world took half of them)."""
+        if not self.environment.varies:
+            return 0.0
         return float(4 * np.pi * self.environment.mean_luminance())
 
     def _distant_mask(self) -> np.ndarray:

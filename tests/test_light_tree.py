@@ -25,12 +25,17 @@ def many_lights(k=100, seed=1, kinds=(0, 1, 3, 4), radius=(0.0, 0.2)):
                   spot_cos=np.float32([(0.5, 0.1)] * k), sun_half_angle=np.zeros(k, np.float32))
 
 
+def sky():
+    """A small HDRI world: it varies with direction, so next-event estimation samples it."""
+    return World(hdri=np.float32(np.random.default_rng(6).uniform(0.1, 0.5, (8, 16, 3))))
+
+
 def mixed_sampler(monkeypatch, world=True):
     """Lights of every local kind, emissive triangles and a world, with the tree forced on."""
     monkeypatch.setattr(lights_module, "TREE_MIN_DIVERGENCE", 0.0)
     tri = np.float32(np.random.default_rng(2).uniform(-3, 3, (40, 3, 3)))
     return sampler_for(lights=many_lights(), positions=tri, emission=(2.0, 1.5, 1.0),
-                       world=World(color=np.float32([0.3, 0.3, 0.3])) if world else None)
+                       world=sky() if world else None)
 
 
 def at(p, n):
@@ -215,8 +220,7 @@ def test_solid_angle_choice_matches_its_pmf_and_favours_the_near_triangle():
     near = sampler.selection_pmf(np.arange(k), *at(centroid - (0, 0, 0.05), k))
     assert near[0] > 0.8, near   # measured 0.95; the power pmf gives each of the lamp's halves 0.43
     # With a world too: the triangles share the local half of the choices, the world keeps its own.
-    lit = sampler_for(positions=np.concatenate([lamp, extra]), emission=(3.0, 2.0, 1.0),
-                      world=World(color=np.float32([0.3, 0.3, 0.3])))
+    lit = sampler_for(positions=np.concatenate([lamp, extra]), emission=(3.0, 2.0, 1.0), world=sky())
     assert lit.selection == "solid angle"
     kw = lit.world_index + 1
     for p in [centroid - (0, 0, 0.05), (1.5, 0.0, 1.4)]:
@@ -311,3 +315,4 @@ def test_every_emitter_that_lights_a_point_can_be_chosen(seed, monkeypatch):
     n = 4000
     chosen, _ = sampler.choose_at(rng.random(n, dtype=np.float32), *at(under_spot, n))
     assert np.count_nonzero(chosen == 0) > 0
+

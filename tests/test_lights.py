@@ -301,3 +301,20 @@ def test_light_choice_frequencies_match_the_selection_pmf():
     chosen = sampler.choose(np.random.default_rng(8).random(n, dtype=np.float32))
     counts = np.bincount(chosen, minlength=len(pmf))
     assert_chi2(counts, pmf * n)
+
+
+def test_a_world_of_one_colour_is_no_light():
+    """As in Cycles, a world of one colour in every direction is not sampled by next-event estimation (BSDF
+    rays find it, with MIS weight 1): the lamps get every light sample. A world that varies (an HDRI) is."""
+    lamp = Lights(kind=np.int32([0]), position=np.float32([(0, 0, 2)]), frame=np.eye(3, dtype=np.float32)[None],
+                  radiance=np.float32([(5.0,) * 3]), radius=np.zeros(1, np.float32), size=np.zeros((1, 2), np.float32),
+                  spot_cos=np.float32([(1.0, 0.0)]), sun_half_angle=np.zeros(1, np.float32))
+    grey = sampler_for(lights=lamp, world=World(color=np.float32([0.3, 0.3, 0.3])))
+    assert grey.select_pmf[grey.world_index] == 0 and grey.select_pmf[0] == 1 and not grey.samples_world()
+    d = np.float32([[0, 0, 1], [1, 0, 0]])
+    np.testing.assert_array_equal(grey.pdf_world(*d.T), 0.0)
+    sky = np.float32(np.random.default_rng(14).uniform(0.1, 1.0, (8, 16, 3)))
+    lit = sampler_for(lights=lamp, world=World(hdri=sky))
+    assert lit.samples_world() and 0 < lit.select_pmf[lit.world_index] < 1
+    flat = sampler_for(lights=lamp, world=World(hdri=np.full((8, 16, 3), 0.3, np.float32)))
+    assert not flat.samples_world()
