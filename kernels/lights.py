@@ -157,9 +157,12 @@ class LightSampler:
         self.size = lights.size.astype(np.float32)
         self.spot = lights.spot_cos.astype(np.float32)
         self.sun_cos = np.cos(lights.sun_half_angle).astype(np.float32)
-        # A sun of angular radius a and radiance L gives E = L pi sin^2(a) facing it: L = E / (pi sin^2 a).
+        # A sun of angular radius a and radiance L gives E = L pi sin^2(a) facing it: L = E / (pi sin^2 a),
+        # with a the cone actually sampled, that of the float32 cosine (Blender's default 0.526 degree sun:
+        # float32 rounds its 1 - cos by 0.14%, and the sun read that much bright).
         # Suns whose cone rounds to a single direction in float32 are delta lights and keep E itself.
-        sin2 = np.sin(lights.sun_half_angle.astype(np.float64)) ** 2
+        cos_sampled = self.sun_cos.astype(np.float64)
+        sin2 = (1.0 - cos_sampled) * (1.0 + cos_sampled)
         cone = (self.sun_cos < np.float32(1.0)) & (sin2 > 0)
         self.sun_radiance = np.where(cone[:, None], lights.radiance / (np.pi * np.where(cone, sin2, 1.0))[:, None],
                                      lights.radiance).astype(np.float32)

@@ -216,9 +216,12 @@ def test_irradiance_from_a_sized_point_light_is_cycles_facing_disk():
     assert abs(m - 6.3665) < 4 * se + 2e-3
 
 
-@pytest.mark.parametrize("angle_deg, sun_half", [(0.0, 0.0), (35.0, 0.0), (35.0, math.radians(6))])
+@pytest.mark.parametrize("angle_deg, sun_half", [(0.0, 0.0), (35.0, 0.0), (35.0, math.radians(6)),
+                                                 (35.0, math.radians(0.526 / 2))])
 def test_sun_at_a_known_angle_on_a_diffuse_plane(angle_deg, sun_half):
-    """A diffuse plane of albedo rho under a sun of irradiance E at angle a: radiance rho / pi * E cos a."""
+    """A diffuse plane of albedo rho under a sun of irradiance E at angle a: radiance rho / pi * E cos a.
+    Blender's default sun (0.526 degrees) is a cone narrow enough that float32 rounds its cosine by 0.14%
+    of 1 - cos: its radiance must follow the cone actually sampled."""
     rho, e = 0.6, 3.0
     a = math.radians(angle_deg)
     frame = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
@@ -231,6 +234,8 @@ def test_sun_at_a_known_angle_on_a_diffuse_plane(angle_deg, sun_half):
     expected = rho / np.pi * e * math.cos(a)
     if sun_half == 0:
         assert np.allclose(img, expected, rtol=1e-4)  # a delta light: exact, sample by sample
+    elif sun_half < 0.01:
+        assert abs(img.mean() - expected) < 3e-4 * expected, img.mean() / expected - 1   # noise: 3e-5
     else:
         assert abs(img.mean() - expected) < 0.01 * expected
 
