@@ -125,7 +125,7 @@ _STATS: list[tuple[float, str]] = []
 
 
 @bpy.app.handlers.persistent
-def _record_stats(stats, *_):
+def record_stats(stats, *_):
     _STATS.append((time.perf_counter(), str(stats)))
     if _PROGRESS["label"]:
         _report_progress(str(stats))
@@ -198,6 +198,13 @@ def render(scene, engine: str, samples: int, cfg: Config, *, seed: int = TIMED_S
         e.pixel_filter_type = "BOX"  # as configure_cycles
         e.use_denoising = False
         e.time_limit, e.use_animated_seed = time_limit, False
+    return measured_render(scene, keep_image)
+
+
+def measured_render(scene, keep_image: bool = False) -> Run:
+    """One bpy.ops.render.render of the scene as it is configured, timed, with what its stats lines say
+    (record_stats must be among bpy.app.handlers.render_stats); keep_image: the (H, W, 3) linear image too."""
+    r = scene.render
     _STATS.clear()
     # Ember's renderer is freed by the cyclic collector (about 330 MB at 1M triangles): collect now, so
     # memory stays flat and no collection lands inside a timed render.
@@ -212,13 +219,13 @@ def render(scene, engine: str, samples: int, cfg: Config, *, seed: int = TIMED_S
             bpy.ops.render.render(write_still=keep_image)
             wall = time.perf_counter() - start
         image = load_exr(r.filepath)[..., :3].astype(np.float64) if keep_image else None
-    run = Run(engine, samples, wall, image=image)
+    run = Run(r.engine, scene.cycles.samples if r.engine == "CYCLES" else scene.ember.samples, wall, image=image)
     lines = [(t - start, s) for t, s in _STATS]
-    (_parse_cycles if engine == "CYCLES" else _parse_ember)(run, lines)
+    (_parse_cycles if r.engine == "CYCLES" else _parse_ember)(run, lines)
     return run
 
 
-def _own_rate(run: Run, pixels: int) -> float | None:
+def own_rate(run: Run, pixels: int) -> float | None:
     """Paths/s over the engine's own render time: Ember's kernel figure, Cycles' from its stats lines."""
     if run.kernel_paths_s:
         return run.kernel_paths_s
@@ -315,7 +322,7 @@ def speed(cfg: Config, name: str, samples: int, modes) -> dict:
         wall_n = median([r.wall_s for r in runs[label]["full"]])
         wall_1 = median([r.wall_s for r in runs[label]["one"]])
         per_sample = max(wall_n - wall_1, 1e-9) / max(samples - 1, 1)
-        own = [_own_rate(r, pixels) for r in runs[label]["full"] if _own_rate(r, pixels)]
+        own = [own_rate(r, pixels) for r in runs[label]["full"] if own_rate(r, pixels)]
         v = {"engine": engine, **kw, "wall_s": wall_n, "wall_1spp_s": wall_1,
              "paths_per_s": pixels * samples / wall_n,
              "paths_per_s_excl_startup": pixels / per_sample,
@@ -455,7 +462,7 @@ def equal_time(cfg: Config, name: str, ref_samples: int, refresh: bool) -> dict:
             mses = [float(np.mean((run.image - ref) ** 2)) for run in runs]
             mse = float(np.mean(mses))
             times = [run.render_s for run in runs]
-            rates = [_own_rate(run, pixels) for run in runs]
+            rates = [own_rate(run, pixels) for run in runs]
             run = runs[-1]
             row[engine] = {"rmse_raw": math.sqrt(mse), "rmse": math.sqrt(max(mse - ref_noise_mse, 0.0)),
                            "samples": int(round(np.mean([r.samples_done for r in runs]))),
@@ -550,7 +557,7 @@ def per_sample_variance(cfg: Config, name: str, samples: int, seeds: int) -> dic
         per_pixel = images.var(axis=0, ddof=1) * samples
         # Its standard error from the spread of the seeds' own squared deviations (the delta method on the mean).
         deviations = ((images - images.mean(axis=0)) ** 2).mean(axis=(1, 2)) * samples * seeds / (seeds - 1)
-        rates = [_own_rate(r, size * size) for r in runs]
+        rates = [own_rate(r, size * size) for r in runs]
         result[engine] = {"variance": float(per_pixel.mean()),
                           "variance_standard_error": float(deviations.std(ddof=1) / math.sqrt(seeds)),
                           "median_pixel_variance": float(np.median(per_pixel)),
@@ -596,7 +603,7 @@ def main() -> None:
     ap.add_argument("--json", help="where to write the figures (default bench/results/vs_cycles[_quick].json)")
     args = ap.parse_args()
     cfg = QUICK if args.quick else FULL
-    bpy.app.handlers.render_stats.append(_record_stats)
+    bpy.app.handlers.render_stats.append(record_stats)
     scenes.cornell_scene(8, 8)  # registers Ember
     available = bpy.context.scene.ember.bl_rna.properties["sampling_mode"].enum_items.keys()
     modes = [m for m in cfg.ember_modes if m in available]

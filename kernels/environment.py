@@ -179,6 +179,11 @@ class Environment:
     def is_constant(self) -> bool:
         return self._distribution is None
 
+    @property
+    def varies(self) -> bool:
+        """Whether the radiance changes with direction (an HDRI, a program whose bake is not one colour)."""
+        return self._distribution is not None and not self._distribution.uniform
+
     def to_env(self, dx, dy, dz):
         r = self.rotation
         return (r[0, 0] * dx + r[0, 1] * dy + r[0, 2] * dz,
@@ -275,6 +280,8 @@ class _BilinearDistribution:
         # The map's mean luminance x sin(theta), for the world's share in light selection.
         self.mean_weight = float((np.maximum(luminance(rgb).astype(np.float64), 0.0) *
                                   np.sin(theta)[:, None]).mean())
+        # One colour in every direction: nothing for light samples to find that BSDF rays miss.
+        self.uniform = bool((rgb == rgb[:1, :1]).all())
         # Cycles weighs its map by the average of |R|, |G|, |B| (scene/light.cpp background_cdf).
         level = np.abs(rgb.astype(np.float32)).mean(axis=2)
         if not np.any(level > 0):  # a black map: sample uniformly in (u, v), weighted by sin(theta)

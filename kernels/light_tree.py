@@ -1,20 +1,32 @@
 """A light tree: per-shading-point selection among the local emitters (lights with a position and
 emissive triangles), after Cycles' light tree (Estevez and Kulla's many-lights importance).
 
-The tree is a binary BVH over the emitters' boxes, built once per scene by splitting the centroids at a
-quantile along their longest extent, left-complete: with 2^D leaf slots for n emitters (D the smallest
-depth with 2^D >= n), every emitter sits at depth D and empty slots have no power. Each node keeps its box,
-its power (the sum of its emitters') and a cone bounding the directions its emitters emit around
-(axis, spread theta_o; every emitter lights the half-space in front of its normal, theta_e = pi/2).
+The tree is a binary BVH over the emitters' boxes, built once per scene in two levels, as Cycles builds
+its: the emitters of a group (the emissive triangles of one object, or of one instance) stand together
+as one unit beside the lone emitters (lights), the units are split at their centroids' median along
+the longest extent until each stands alone, and a group's unit then splits the same way over its own
+emitters. A lamp beside a large emissive mesh thus competes with the mesh as a whole near the top of the
+tree, not with thousands of its triangles one level after another. Leaves hold one emitter. Each node
+keeps its box, its power (the sum of its emitters') and a cone bounding the directions its emitters emit
+around (axis, spread theta_o; every emitter lights the half-space in front of its normal, theta_e = pi/2).
 
-At a shading point P a walk from the root picks a child with probability proportional to its importance
-    I(node, P) = power * cos(theta') / max(distance^2, radius^2),
-    theta' = max(0, theta - theta_o - theta_u),
-theta the angle between the cone axis and the direction from the box centre to P, theta_u the half angle
-the box's bounding sphere subtends at P (pi inside it), the cosine 0 beyond pi/2 (every emitter of the
-node faces away from P: it cannot light P) and at least COS_FLOOR before (rounding never starves an
-emitter that can). The importance depends on P only, not on a normal: the MIS pdfs of BSDF rays know only
-the ray origin. Where both children have no importance the walk goes by power, so every emitter with power
+At a shading point P a walk from the root picks a child with probability in proportion to an upper bound
+of the light it can send P,
+    I_max = power * cos(max(0, theta - theta_o - theta_u)) / max(d, r / 2)^2,
+with d the distance from the box centre to P, r the radius of the box's bounding sphere (Cycles clamps
+the distance at r / 2 too), theta the angle between the cone axis and the direction from the box centre
+to P and theta_u the half angle the bounding sphere subtends at P (pi inside it); the cosine is 0 beyond
+pi/2 (every emitter of the node faces away from P) and at least COS_FLOOR before (rounding never starves
+an emitter that can light P); nodes whose emitters emit every way have no orientation factor.
+Where the choice is between units and a group is among them, the probability is instead the mean of that
+choice and the one by a lower bound,
+    I_min = power * cos(theta + theta_o + theta_u) / (d + r)^2, and 0 when P is inside the sphere,
+as Cycles chooses everywhere (kernel/light/tree.h; the lower bound's share goes by the upper one where
+both children's lower bounds are 0): the upper bound of a mesh P stands on counts the triangles beside
+P, which send it little, and alone starves a lamp next to it. Among lamps, and within a mesh, the upper
+bound alone is the better guide (100 lamps over a floor: a third of the variance per sample of the
+mean). The importance depends on P only, not on a normal: the MIS pdfs of BSDF rays know only the ray
+origin. Where both children have no upper bound the walk goes by power, so every emitter with power
 that can light P keeps a non-zero probability, and `pmf(e, P)`, the product of the child probabilities on
 e's root path, is exactly the probability the walk chose e with.
 """
@@ -33,40 +45,43 @@ class LightTree:
     """Selection among n local emitters by a walk down a BVH of their boxes, power and orientation.
 
     lo, hi : (n, 3) float64 emitter bounding boxes; power : (n,) float64 (> 0);
-    axis : (n, 3) unit emission axes; spread : (n,) float64 theta_o (pi: emits every way)."""
+    axis : (n, 3) unit emission axes; spread : (n,) float64 theta_o (pi: emits every way);
+    group : (n,) int64 or None: emitters with the same non-negative group number (an emissive object's
+    triangles) form a subtree of their own; -1, or None for all, stands alone."""
 
-    def __init__(self, lo, hi, power, axis, spread):
+    def __init__(self, lo, hi, power, axis, spread, group=None):
         n = len(power)
-        depth = max(int(np.ceil(np.log2(max(n, 1)))), 1)
-        self.depth = depth
         centroid = 0.5 * (lo + hi)
         # Centroids snapped to a grid far finer than any useful split: copies of a scene that differ by
         # float rounding only (an instance and its flattened copy) build the same tree, ties by index.
         cell = max(float(np.abs(centroid).max(initial=0.0)), 1e-3) * 2.0 ** -14
-        order = _split_order(np.round(centroid / cell), depth)  # (2^depth,) emitter per leaf slot, -1 empty
-        leaves = 1 << depth
-        first_leaf = leaves - 1                                # heap layout: children of k are 2k+1, 2k+2
-        nodes = 2 * leaves - 1
-        n_lo = np.full((nodes, 3), np.inf)
-        n_hi = np.full((nodes, 3), -np.inf)
-        n_power = np.zeros(nodes)
-        n_axis = np.zeros((nodes, 3))
-        n_spread = np.full(nodes, np.pi)
-        full = order >= 0
-        slots = first_leaf + np.flatnonzero(full)
-        e = order[full]
-        n_lo[slots], n_hi[slots], n_power[slots] = lo[e], hi[e], power[e]
-        n_axis[slots], n_spread[slots] = axis[e], spread[e]
+        unit = _units(group, n)
+        self.units = int(unit.max(initial=-1)) + 1
+        unit_lo = np.full((self.units, 3), np.inf)
+        unit_hi = np.full_like(unit_lo, -np.inf)
+        np.minimum.at(unit_lo, unit, lo)
+        np.maximum.at(unit_hi, unit, hi)
+        unit_centroid = np.round(0.5 * (unit_lo + unit_hi) / cell)
+        nodes = _build(np.round(centroid / cell), unit_centroid, unit)
+        self.left, self.right, self.parent, self.emitter_at, level, splits_units = nodes
+        self.depth = max(int(level.max(initial=0)), 1)
+        count = len(self.left)
+        n_lo, n_hi = np.zeros((count, 3)), np.zeros((count, 3))
+        n_power, n_axis, n_spread = np.zeros(count), np.zeros((count, 3)), np.full(count, np.pi)
+        leaf = np.flatnonzero(self.emitter_at >= 0)
+        e = self.emitter_at[leaf]
+        n_lo[leaf], n_hi[leaf], n_power[leaf], n_axis[leaf], n_spread[leaf] = lo[e], hi[e], power[e], axis[e], spread[e]
         self.leaf_of = np.full(n, -1, np.int64)
-        self.leaf_of[e] = slots
-        self.emitter_at = np.full(nodes, -1, np.int64)
-        self.emitter_at[slots] = e
-        for level in range(depth - 1, -1, -1):                 # bottom-up unions
-            k = np.arange((1 << level) - 1, (1 << (level + 1)) - 1)
-            a, b = 2 * k + 1, 2 * k + 2
+        self.leaf_of[e] = leaf
+        grouped = np.zeros(count, bool)                        # the subtree holds a group's emitters
+        grouped[leaf] = np.bincount(unit, minlength=self.units)[unit[e]] > 1
+        for depth in range(int(level.max(initial=0)) - 1, -1, -1):      # bottom-up unions
+            k = np.flatnonzero((level == depth) & (self.left >= 0))
+            a, b = self.left[k], self.right[k]
             n_lo[k] = np.minimum(n_lo[a], n_lo[b])
             n_hi[k] = np.maximum(n_hi[a], n_hi[b])
             n_power[k] = n_power[a] + n_power[b]
+            grouped[k] = grouped[a] | grouped[b]
             n_axis[k], n_spread[k] = _merge_cones(n_axis[a], n_spread[a], n_power[a] > 0,
                                                   n_axis[b], n_spread[b], n_power[b] > 0)
         empty = n_power <= 0
@@ -76,50 +91,63 @@ class LightTree:
         extent = max(float(np.abs(n_hi[~empty]).max(initial=0.0)), float(np.abs(n_lo[~empty]).max(initial=0.0)), 1e-3)
         # A floor under distance^2 far below any light's size: a point on a zero-size lamp stays finite.
         floor2 = (extent * 1e-6) ** 2
-        # One row per node, gathered whole: centre, cone axis, relative power, radius^2 (floored), radius,
+        # One row per node, gathered whole: centre, cone axis, relative power, (r / 2)^2 (floored), radius,
         # spread, emits every way.
-        table = np.zeros((nodes, 12), np.float32)
+        table = np.zeros((count, 12), np.float32)
         table[:, 0:3] = centre
         table[:, 3:6] = n_axis
         table[:, 6] = n_power / max(n_power[0], 1e-300)       # relative: float32 never overflows
-        table[:, 7] = np.maximum(radius * radius, floor2)
+        table[:, 7] = np.maximum(0.25 * radius * radius, floor2)
         table[:, 8] = radius
         table[:, 9] = n_spread
         table[:, 10] = n_spread >= np.pi                       # emits every way: no orientation factor
         self._table = table
-        internal = np.arange(leaves - 1)
+        # Where units of which one or more is a group are chosen between, the lower bounds count too.
+        self._blend = splits_units & grouped
+        inner = np.flatnonzero(self.left >= 0)
+        self._left_power = np.full(count, 0.5)
         with np.errstate(divide="ignore", invalid="ignore"):
-            self._left_power = np.nan_to_num(n_power[2 * internal + 1] / n_power[internal], nan=0.5)
+            self._left_power[inner] = np.nan_to_num(n_power[self.left[inner]] / n_power[inner], nan=0.5)
 
     # ------------------------------------------------------------------ importance
-    def _importance(self, node, px, py, pz):
-        """(N,) float32 importance of node[i] at point i."""
+    def _bounds(self, node, px, py, pz):
+        """(N,) float32 upper and lower bounds of the light node[i] can send point i (module docstring)."""
         g = np.take(self._table, node, axis=0).T
         vx, vy, vz = px - g[0], py - g[1], pz - g[2]
         d2 = vx * vx + vy * vy + vz * vz
-        unoriented = g[6] / np.maximum(d2, g[7])
+        r = g[8]
+        outside = d2 > r * r
+        d = np.sqrt(d2)
+        upper = g[6] / np.maximum(d2, g[7])
+        reach = d + r
+        lower = np.where(outside, g[6] / np.maximum(reach * reach, g[7]), np.float32(0.0))
         omni = g[10] > 0
         if omni.all():
-            return unoriented
-        inv_d = np.float32(1.0) / np.sqrt(np.maximum(d2, np.float32(1e-30)))
+            return upper, lower
+        inv_d = np.float32(1.0) / np.maximum(d, np.float32(1e-30))
         cos_t = np.clip((vx * g[3] + vy * g[4] + vz * g[5]) * inv_d, np.float32(-1.0), np.float32(1.0))
-        sin_u = g[8] * inv_d
+        sin_u = r * inv_d
         theta_u = np.where(sin_u < 1, np.arcsin(np.minimum(sin_u, np.float32(1.0))), _PI)
-        theta_p = np.maximum(np.arccos(cos_t) - g[9] - theta_u, np.float32(0.0))
-        orient = np.where(theta_p < _HALF_PI, np.maximum(np.cos(theta_p), COS_FLOOR), np.float32(0.0))
-        return np.where(omni, unoriented, unoriented * orient)
+        theta = np.arccos(cos_t)
+        theta_p = np.maximum(theta - g[9] - theta_u, np.float32(0.0))
+        nearest = np.where(theta_p < _HALF_PI, np.maximum(np.cos(theta_p), COS_FLOOR), np.float32(0.0))
+        theta_f = theta + g[9] + theta_u
+        farthest = np.where(theta_f < _HALF_PI, np.cos(np.minimum(theta_f, _HALF_PI)), np.float32(0.0))
+        return np.where(omni, upper, upper * nearest), np.where(omni, lower, lower * farthest)
 
     def _left_probability(self, node, px, py, pz):
         """(N,) float64 probability of going to the left child of internal node[i] at point i."""
-        ia = self._importance(2 * node + 1, px, py, pz).astype(np.float64)
-        ib = self._importance(2 * node + 2, px, py, pz).astype(np.float64)
-        total = ia + ib
+        a_max, a_min = (x.astype(np.float64) for x in self._bounds(np.take(self.left, node), px, py, pz))
+        b_max, b_min = (x.astype(np.float64) for x in self._bounds(np.take(self.right, node), px, py, pz))
+        total_max, total_min = a_max + b_max, a_min + b_min
         with np.errstate(divide="ignore", invalid="ignore"):
-            by_importance = ia / total
-        ok = (total > 0) & np.isfinite(by_importance)
+            p = a_max / total_max
+            blend = np.take(self._blend, node) & (total_min > 0)
+            p = np.where(blend, 0.5 * (p + a_min / np.where(blend, total_min, 1.0)), p)
+        ok = (total_max > 0) & np.isfinite(p)
         if ok.all():
-            return by_importance
-        return np.where(ok, by_importance, np.take(self._left_power, node))
+            return p
+        return np.where(ok, p, np.take(self._left_power, node))
 
     # ------------------------------------------------------------------ sampling and pmf
     def sample(self, u, px, py, pz):
@@ -127,19 +155,22 @@ class LightTree:
         u = np.asarray(u, np.float64).copy()
         node = np.zeros(len(u), np.int64)
         pmf = np.ones(len(u))
+        walking = np.arange(len(u))
         for _ in range(self.depth):
-            p_left = self._left_probability(node, px, py, pz)
-            left = u < p_left
+            walking = walking[np.take(self.left, np.take(node, walking)) >= 0]
+            if not len(walking):
+                break
+            at = node[walking]
+            p_left = self._left_probability(at, px[walking], py[walking], pz[walking])
+            uw = u[walking]
+            left = uw < p_left
             prob = np.where(left, p_left, 1.0 - p_left)
-            # Reuse u within the chosen child (float64: depth ~20 halvings keep 30 bits).
-            u = np.where(left, u, u - p_left) / np.where(prob > 0, prob, 1.0)
-            u = np.clip(u, 0.0, np.nextafter(1.0, 0.0))
-            pmf *= prob
-            node = np.where(left, 2 * node + 1, 2 * node + 2)
-        emitter = np.take(self.emitter_at, node)
-        # Rounding could in principle land on an empty slot (probability 0): report no emitter then.
-        pmf = np.where(emitter >= 0, pmf, 0.0)
-        return np.maximum(emitter, 0), pmf
+            # Reuse u within the chosen child (float64: 53 bits last a walk of a few dozen levels).
+            uw = np.where(left, uw, uw - p_left) / np.where(prob > 0, prob, 1.0)
+            u[walking] = np.clip(uw, 0.0, np.nextafter(1.0, 0.0))
+            pmf[walking] *= prob
+            node[walking] = np.where(left, np.take(self.left, at), np.take(self.right, at))
+        return np.take(self.emitter_at, node), pmf
 
     def pmf(self, emitter, px, py, pz):
         """(N,) float64 probability that the walk from point i picks emitter[i] (0 for emitters not in it)."""
@@ -148,11 +179,16 @@ class LightTree:
         known = leaf >= 0
         node = np.where(known, leaf, 0)
         pmf = np.ones(len(node))
+        climbing = np.flatnonzero(known)
         for _ in range(self.depth):
-            parent = (node - 1) // 2
-            p_left = self._left_probability(parent, px, py, pz)
-            pmf *= np.where(node == 2 * parent + 1, p_left, 1.0 - p_left)
-            node = parent
+            climbing = climbing[np.take(self.parent, np.take(node, climbing)) >= 0]
+            if not len(climbing):
+                break
+            at = node[climbing]
+            parent = np.take(self.parent, at)
+            p_left = self._left_probability(parent, px[climbing], py[climbing], pz[climbing])
+            pmf[climbing] *= np.where(np.take(self.left, parent) == at, p_left, 1.0 - p_left)
+            node[climbing] = parent
         return np.where(known, pmf, 0.0)
 
     def pmf_all(self, px, py, pz):
@@ -164,32 +200,71 @@ class LightTree:
         return self.pmf(e, *rep).reshape(m, n)
 
 
-def _split_order(centroid, depth):
-    """(2^depth,) emitter index per leaf slot (-1 empty): at each level every node's emitters are sorted
-    along their centroids' longest extent and the left child takes as many as its subtree holds (at most
-    half), so the tree is left-complete and spatially coherent."""
+def _units(group, n: int) -> np.ndarray:
+    """(n,) int64 unit of each emitter: one per group of two or more emitters, one per lone emitter."""
+    if group is None:
+        return np.arange(n, dtype=np.int64)
+    group = np.asarray(group, np.int64)
+    keys, inverse, counts = np.unique(group, return_inverse=True, return_counts=True)
+    alone = (keys[inverse] < 0) | (counts[inverse] < 2)
+    key = np.where(alone, -1 - np.arange(n), inverse)                  # lone emitters: keys of their own
+    return np.unique(key, return_inverse=True)[1].astype(np.int64)
+
+
+def _build(centroid, unit_centroid, unit):
+    """The tree's nodes, top-down, a level at a time: (left, right, parent, emitter_at, level) (K,) int64
+    each, -1 for none, and (K,) bool: the node splits units; node 0 is the root. A node holding several
+    units splits them (whole) at the median of their centroids along those centroids' longest extent; a
+    node holding one unit of several emitters splits the emitters likewise at theirs; a node of one emitter
+    is a leaf."""
     n = len(centroid)
-    perm = np.arange(n)
-    starts, counts = np.zeros(1, np.int64), np.full(1, n, np.int64)  # per node of the level
-    for level in range(depth):
-        cap = 1 << (depth - level - 1)                         # leaves under each child
-        seg = np.repeat(np.arange(len(starts)), counts)
-        c = centroid[perm]
-        nonempty = counts > 0
-        s = starts[nonempty]
-        lo = np.minimum.reduceat(c, s, axis=0)
-        hi = np.maximum.reduceat(c, s, axis=0)
-        axis_of = np.zeros(len(starts), np.int64)
-        axis_of[nonempty] = np.argmax(hi - lo, axis=1)
-        key = c[np.arange(n), axis_of[seg]]
-        perm = perm[np.lexsort((np.arange(n), key, seg))]      # stable: ties keep their order
-        left = np.minimum(counts, cap)
-        starts = np.stack([starts, starts + left], axis=1).ravel()
-        counts = np.stack([left, counts - left], axis=1).ravel()
-    order = np.full(1 << depth, -1, np.int64)
-    filled = counts > 0                                        # every leaf holds 0 or 1 emitter now
-    order[np.flatnonzero(filled)] = perm[starts[filled]]
-    return order
+    perm = np.lexsort((np.arange(n), unit))                            # each unit's emitters side by side
+    size = max(2 * n - 1, 1)                                           # a binary tree of n leaves
+    left, right, parent, emitter_at = (np.full(size, -1, np.int64) for _ in range(4))
+    level = np.zeros(size, np.int64)
+    splits_units = np.zeros(size, bool)
+    start, count, node = np.zeros(1, np.int64), np.full(1, n, np.int64), np.zeros(1, np.int64)
+    made, depth = 1, 0
+    while len(start) and n:
+        single = count == 1
+        emitter_at[node[single]] = perm[start[single]]
+        start, count, node = start[~single], count[~single], node[~single]
+        if not len(start):
+            break
+        seg = np.repeat(np.arange(len(start)), count)
+        first = np.cumsum(count) - count
+        pos = np.arange(int(count.sum())) - np.repeat(first, count) + np.repeat(start, count)
+        e = perm[pos]
+        u = unit[e]
+        units = np.add.reduceat(_starts(u, seg).astype(np.int64), first)
+        by_unit = units > 1
+        c = np.where(by_unit[seg][:, None], unit_centroid[u], centroid[e])
+        axis = np.argmax(np.maximum.reduceat(c, first, axis=0) - np.minimum.reduceat(c, first, axis=0), axis=1)
+        key = c[np.arange(len(pos)), axis[seg]]
+        order = np.lexsort((np.arange(len(pos)), u, key, seg))          # stable; a unit stays whole
+        perm[pos] = e[order]
+        starts = np.cumsum(_starts(u[order], seg))
+        rank = starts - np.repeat(starts[first], count)                  # each position's unit, 0 first
+        in_left_units = np.add.reduceat((rank < np.repeat((units + 1) // 2, count)).astype(np.int64), first)
+        left_count = np.where(by_unit, in_left_units, (count + 1) // 2)
+        depth += 1
+        a = made + 2 * np.arange(len(start))
+        made += 2 * len(start)
+        left[node], right[node] = a, a + 1
+        splits_units[node] = by_unit
+        parent[a], parent[a + 1] = node, node
+        level[a], level[a + 1] = depth, depth
+        start = np.stack([start, start + left_count], axis=1).ravel()
+        count = np.stack([left_count, count - left_count], axis=1).ravel()
+        node = np.stack([a, a + 1], axis=1).ravel()
+    return left, right, parent, emitter_at, level, splits_units
+
+
+def _starts(u, seg) -> np.ndarray:
+    """(m,) bool: where a new unit begins in the segments' concatenated positions."""
+    new = np.ones(len(u), bool)
+    new[1:] = (u[1:] != u[:-1]) | (seg[1:] != seg[:-1])
+    return new
 
 
 def _merge_cones(axis_a, spread_a, has_a, axis_b, spread_b, has_b):

@@ -40,8 +40,10 @@ def test_convex_sphere_of_albedo_half_renders_half_l(mode):
     # Pixels well inside the sphere's outline (radius about 12 px around the centre of 32x32).
     yy, xx = np.mgrid[0:32, 0:32] + 0.5
     inside = ((yy - 16) ** 2 + (xx - 16) ** 2 < 9 ** 2).ravel()
-    if mode == "COSINE":
-        assert np.allclose(samples[:, :, inside], 1.0, rtol=1e-4)  # exact up to float32 rounding at grazing angles
+    if mode in ("COSINE", "NEE_MIS"):
+        # Exact up to float32 rounding at grazing angles: NEE_MIS samples no world of one colour as a light
+        # (as Cycles), so its BSDF rays alone find it.
+        assert np.allclose(samples[:, :, inside], 1.0, rtol=1e-4)
     else:
         m, se = mean_and_stderr(samples[:, 0, inside].mean(axis=1))
         assert abs(m - 1.0) < 4 * se, (m, se)

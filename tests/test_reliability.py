@@ -324,13 +324,13 @@ def test_benchmark_reference_render_shows_progress(tmp_path, monkeypatch, capfd)
     from bench import vs_cycles
     monkeypatch.setattr(vs_cycles, "RESULTS_DIR", str(tmp_path))
     monkeypatch.setattr(vs_cycles, "PROGRESS_INTERVAL_S", 0.0)
-    bpy.app.handlers.render_stats.append(vs_cycles._record_stats)
+    bpy.app.handlers.render_stats.append(vs_cycles.record_stats)
     try:
         cfg = vs_cycles.Config(threads=2, max_bounces=2)
         scene = vs_cycles.build_scene("cornell", 16, cfg)
         vs_cycles.reference(scene, "cornell", 8, cfg, refresh=True)
     finally:
-        bpy.app.handlers.render_stats.remove(vs_cycles._record_stats)
+        bpy.app.handlers.render_stats.remove(vs_cycles.record_stats)
     captured = capfd.readouterr()
     assert "rendering the Cycles reference for cornell" in captured.out
     assert "reference cornell, half 2/2: sample" in captured.err
