@@ -305,6 +305,7 @@ def test_noise_pass_is_the_variance_of_the_mean(mode):
     stratified first bounce of NEE_MIS the halves it compares are each less even than the whole, so it
     overstates the variance: it must not understate it."""
     scene = plane_scene()
+    set_world(scene, hdri="forest.exr")   # a sky that varies, sampled by NEE as a light (one colour is not)
     scene.view_layers[0].ember.use_pass_noise = True
     bpy.ops.mesh.primitive_cube_add(size=2.0, location=(0.3, -0.2, 1.5))
     images, noise = [], []

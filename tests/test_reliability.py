@@ -104,6 +104,7 @@ def test_light_choice_does_not_depend_on_far_geometry():
     pmfs = []
     for half in (2.0, 50_000.0):
         scene = lamp_on_floor(half)
+        set_world(scene, hdri="forest.exr", strength=0.05)  # a world of one colour is no light for NEE
         exported = export_scene(bpy.context.evaluated_depsgraph_get())
         with Renderer(exported.scene, threads=1) as renderer:
             pmfs.append(renderer.lights.select_pmf.copy())
