@@ -22,12 +22,12 @@ REFERENCE = os.path.join(os.path.dirname(__file__), "data", "denoise_demo_refere
 
 @pytest.mark.skipif(not os.path.exists(REFERENCE), reason="the reference image is not there")
 def test_denoised_demo_is_as_close_to_the_reference_as_cycles():
-    """Issue 13 set "at least 5x" on the demo as it was; since sun discs are met by BSDF rays (as in
-    Cycles) the demo has sharp sun highlights, and both engines' denoised errors sit on the same floor
-    (mostly the denoiser's smoothing of detail). Cycles, the oracle, rendered in the same
-    run, is the bar: at 16 samples Ember's noisy image is no worse than Cycles' and its denoised image no
-    worse than Cycles' denoised one, within three standard errors of the seeds' scatter. Ember's less noisy input gives it the smaller
-    ratio of the two errors (docs/performance.md). The denoiser must still do its work: at least 4x."""
+    """Issue 13 set "at least 5x" on the demo as it was; since sun discs are met by BSDF rays (as in Cycles) the
+    demo has sharp sun highlights, and both engines' denoised errors sit on the same floor (mostly the
+    denoiser's smoothing of detail). Cycles, the oracle, rendered in the same run, is the bar: at 16 samples
+    Ember's noisy image is no worse than Cycles' and its denoised image no worse than Cycles' denoised one,
+    within three standard errors of the seeds' scatter. Ember's less noisy input gives it the smaller ratio of
+    the two errors (docs/performance.md). The denoiser must still do its work: at least 4x."""
     data = np.load(REFERENCE)
     reference, variance = data["reference"].astype(np.float64), float(data["variance"])
 
