@@ -220,6 +220,11 @@ def run_scene(name: str, cfg: Config, args) -> dict:
     except FileNotFoundError as err:
         out(f"\n== {name}: skipped: {err}")
         return {"scene": name, "skipped": str(err)}
+    except RuntimeError as err:   # the importer failed (bpy 5.3's wheel lacks the Draco library Buggy needs)
+        lines = [line.strip() for line in str(err).splitlines() if "Error" in line and "Traceback" not in line]
+        reason = f"Blender could not import {spec.model}: {lines[-1] if lines else type(err).__name__}"
+        out(f"\n== {name}: skipped: {reason}")
+        return {"scene": name, "skipped": reason}
     volumes = prepare(scene, cfg)
     out(f"\n== {name}: {spec.title}; {real_scenes.triangle_count():,} triangles"
         + (f"; {volumes} volume shader(s) disconnected" if volumes else ""))
