@@ -1360,8 +1360,8 @@ class Renderer:
     def _sample_bsdf(self, wave, hit, closures, numbers) -> BsdfSample:
         u_lobe, uc = numbers[LOBE] if LOBE in numbers else (np.zeros(len(hit), np.float32),) * 2
         u1, u2 = numbers[BSDF]
-        if wave.settings.mode == "NEE_MIS":
-            return closures.sample(u_lobe, u1, u2, uc)
+        if wave.settings.mode == "NEE_MIS":   # the closure by the direction's own first number, as Cycles
+            return closures.sample(None, u1, u2, uc)
         lecture = wave.settings.mode == "LECTURE"
 
         def warp(idx, ux, uy):

@@ -262,3 +262,25 @@ def test_caustics_switches_drop_closures_after_diffuse_bounces(switches):
     refraction = Closure("REFRACTION", (("Roughness", Param.of(0.3)),), (("distribution", "GGX"),))
     np.testing.assert_array_equal(lobes_at(built(refraction, switches), lobes.REFRACTION),
                                   ~after_diffuse if not refractive else True)
+
+
+def test_closure_picked_by_the_directions_own_number_samples_the_mixture():
+    """NEE_MIS picks the closure with the direction's first number, rescaled (choose_rescaled): the same
+    closures in the same proportions, the number uniform again within each, and the mixture pdf sampled."""
+    cs = closure_set(LAYERED)
+    u = np.random.default_rng(3).random(N, dtype=np.float32)
+    row, stretched = cs.choose_rescaled(u)
+    np.testing.assert_array_equal(row, cs.choose(u))
+    assert stretched.min() >= 0 and stretched.max() < 1
+    lobe = cs.lobe[row]
+    kinds, picked = np.unique(lobe, return_counts=True)
+    assert len(kinds) == 3 and picked.min() > 1000
+    for kind in kinds:   # uniform within each closure: its deciles hold a tenth each (chi-square)
+        mine = stretched[lobe == kind]
+        counts = np.histogram(mine, bins=10, range=(0, 1))[0]
+        assert_chi2(counts[None, :].astype(float), np.full((1, 10), len(mine) / 10))
+    rng = np.random.default_rng(4)
+    u1, u2, uc = (rng.random(N, dtype=np.float32) for _ in range(3))
+    s = cs.sample(None, u1, u2, uc)
+    ok = s.pdf > 0
+    assert_chi2(sphere_bins(*(c[ok] for c in s.wi)), expected_counts(LAYERED, N))
