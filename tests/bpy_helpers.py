@@ -143,13 +143,26 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
     the oracle's); pixel_filter: (type, width) on both engines (the oracle's: a 1-pixel box);
     denoise: each engine's default denoiser (off for the oracle); type_bounces: (diffuse, glossy, transmission)
     bounce limits on both engines (None: max_bounces each, the oracle's)."""
+    configure_engine(scene, engine, samples, seed, max_bounces, threads, clamp, blur_glossy, pixel_filter, denoise,
+                     caustics, type_bounces)
+    render = scene.render
+    render.image_settings.file_format = "OPEN_EXR"
+    render.image_settings.color_depth = "32"
+    render.use_file_extension = True
+    with tempfile.TemporaryDirectory() as tmp:
+        render.filepath = os.path.join(tmp, "frame.exr")
+        bpy.ops.render.render(write_still=True)
+        return load_exr(render.filepath)
+
+
+def configure_engine(scene, engine: str, samples: int, seed: int = 0, max_bounces: int = 8, threads: int = 2,
+                     clamp: tuple = (0.0, 0.0), blur_glossy: float = 0.0, pixel_filter: tuple = ("BOX", 1.0),
+                     denoise: bool = False, caustics: tuple = (True, True), type_bounces: tuple | None = None) -> None:
+    """Set the scene up to render with CYCLES or EMBER as render_to_array does (its arguments)."""
     render = scene.render
     render.engine = engine
     render.threads_mode = "FIXED"
     render.threads = threads
-    render.image_settings.file_format = "OPEN_EXR"
-    render.image_settings.color_depth = "32"
-    render.use_file_extension = True
     if engine == "CYCLES":
         configure_cycles(scene, samples, seed, max_bounces, type_bounces)
         scene.cycles.sample_clamp_direct, scene.cycles.sample_clamp_indirect = clamp
@@ -170,10 +183,6 @@ def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces
         scene.ember.use_adaptive_sampling = False   # as configure_cycles
         scene.ember.pixel_filter_type, scene.ember.filter_width = pixel_filter
         scene.ember.use_denoising = denoise
-    with tempfile.TemporaryDirectory() as tmp:
-        render.filepath = os.path.join(tmp, "frame.exr")
-        bpy.ops.render.render(write_still=True)
-        return load_exr(render.filepath)
 
 
 def configure_cycles(scene, samples: int, seed: int, max_bounces: int, type_bounces: tuple | None = None) -> None:
