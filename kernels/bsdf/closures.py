@@ -335,15 +335,7 @@ class ClosureSet:
     # ---------------------------------------------------------------- sampling
     def choose(self, u: np.ndarray) -> np.ndarray:
         """One closure per hit, in proportion to the sample weights: (N,) row, -1 where a hit has none."""
-        if self.single:
-            return np.where(self.total_sw > 0, self.row_of_hit, -1)
-        cum = np.cumsum(self.sw, dtype=np.float64)
-        before = np.where(self.start > 0, cum[np.maximum(self.start - 1, 0)], 0.0) if len(cum) else \
-            np.zeros(self.n_hits)
-        target = before + u.astype(np.float64) * self.total_sw
-        row = np.searchsorted(cum, target, side="right") if len(cum) else np.zeros(self.n_hits, np.int64)
-        row = np.clip(row, self.start, self.start + self.count - 1)
-        return np.where((self.count > 0) & (self.total_sw > 0), row, -1)
+        return self._pick(u, rescale=False)[0]
 
     def choose_rescaled(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """choose(u), and u stretched back to [0, 1) over the chosen closure's share of the interval, as Cycles
@@ -351,12 +343,21 @@ class ClosureSet:
         then samples the closure's direction, and (closure, direction) are stratified together instead of
         by two independent sequences (a Principled BSDF's diffuse and specular pair under a grey sky: a fifth
         of the per-sample variance)."""
-        row = self.choose(u)
+        return self._pick(u, rescale=True)
+
+    def _pick(self, u: np.ndarray, rescale: bool):
+        """(row per hit, -1 where none; u rescaled within the chosen closure's share, or u when not asked)."""
         if self.single:
-            return row, u
+            return np.where(self.total_sw > 0, self.row_of_hit, -1), u
         cum = np.cumsum(self.sw, dtype=np.float64)
+        if not len(cum):
+            return np.full(self.n_hits, -1, np.int64), u
         before = np.where(self.start > 0, cum[np.maximum(self.start - 1, 0)], 0.0)
         target = before + u.astype(np.float64) * self.total_sw
+        row = np.clip(np.searchsorted(cum, target, side="right"), self.start, self.start + self.count - 1)
+        row = np.where((self.count > 0) & (self.total_sw > 0), row, -1)
+        if not rescale:
+            return row, u
         r = np.maximum(row, 0)
         lo = np.where(r > 0, cum[np.maximum(r - 1, 0)], 0.0)
         width = np.take(self.sw, r).astype(np.float64)
