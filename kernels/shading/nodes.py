@@ -428,29 +428,43 @@ def _metallic(c, ctx, w, b):
 
 
 # ---------------------------------------------------------------- Principled BSDF
+def _constant(c, name: str, value: float) -> bool:
+    """Whether a closure's input is `value` at every hit (a plain constant, or unset with that default): the
+    layer it weighs can be skipped without evaluating anything (a batch's input varies by piece: never)."""
+    p = c.input(name)
+    if p is None:
+        return DEFAULTS[c.kind][name] == value
+    return isinstance(p, Param) and not p.varies and p.value == (value,)
+
+
 def _principled(c, ctx, w, b):
-    """Cycles' Principled BSDF layer stack (module docstring); emission dimmed by the layers above it."""
+    """Cycles' Principled BSDF layer stack (module docstring); emission dimmed by the layers above it.
+    Layers whose weight input is a constant 0 are skipped (every hit's weight would be cut off anyway)."""
     n = len(ctx.idx)
     get = lambda name: ctx.input(c, name)  # noqa: E731
     weight = np.broadcast_to(w, (3, n)).astype(F32)
     multiscatter = c.option("distribution", "MULTI_GGX") == "MULTI_GGX"
     # 0. Alpha: a transparent closure for what the surface lets through.
-    alpha = np.clip(get("Alpha"), 0.0, 1.0)
-    if b is not None:
-        b.add(lobes.TRANSPARENT, ctx.idx, weight * (ONE - alpha))
-    weight = weight * alpha
+    if not _constant(c, "Alpha", 1.0):
+        alpha = np.clip(get("Alpha"), 0.0, 1.0)
+        if b is not None:
+            b.add(lobes.TRANSPARENT, ctx.idx, weight * (ONE - alpha))
+        weight = weight * alpha
     # Glossy closures dropped by the caustics switch take no light from the layers below either (Cycles
     # skips their setup, layering included); refraction keeps its share (Context.caustics).
     made = _made(ctx)
 
     def glossy(mask):  # the hits of mask whose glossy closures the caustics switch keeps
         return np.flatnonzero(mask if made is None else mask & (made > 0))
-    coat_w = np.maximum(get("Coat Weight"), ZERO)
+    no_coat = _constant(c, "Coat Weight", 0.0)
+    coat_w = None if no_coat else np.maximum(get("Coat Weight"), ZERO)
     # The coat's normal: its Coat Normal input, else the node's Normal.
-    coat = ctx.with_normal(ctx.normal_input(c, "Coat Normal"))
+    coat = ctx if no_coat else ctx.with_normal(ctx.normal_input(c, "Coat Normal"))
     # 1. Sheen, on the normal partway to the coat's normal, by the coat's weight.
-    sheen_w = np.maximum(get("Sheen Weight"), ZERO)
-    has = np.flatnonzero(sheen_w > CUTOFF)
+    has = ()
+    if not _constant(c, "Sheen Weight", 0.0):
+        sheen_w = np.maximum(get("Sheen Weight"), ZERO)
+        has = np.flatnonzero(sheen_w > CUTOFF)
     if len(has):
         sheen = ctx
         if coat is not ctx:
@@ -466,7 +480,7 @@ def _principled(c, ctx, w, b):
                   normal=_rows(sheen.normal_arg, has), rough=rough, **_soften(sheen))
         sampling.put_columns(weight, has, layering_weight(sheen_weight * albedo, np.take(weight, has, axis=1)))
     # 2. Coat: GGX with exact dielectric Fresnel at the coat IOR, then its tint along the refracted path.
-    has = np.flatnonzero(coat_w > CUTOFF)
+    has = () if no_coat else np.flatnonzero(coat_w > CUTOFF)
     if len(has):
         cw = coat_w[has]
         ior_c = np.maximum(get("Coat IOR")[has], ONE)
@@ -487,8 +501,10 @@ def _principled(c, ctx, w, b):
             factor = ONE + (np.power(np.take(tint, tinted, axis=1), depth) - ONE) * cw[tinted]
             sampling.scale_columns(weight, has[tinted], factor)
     # 3. Emission, under sheen and coat.
-    strength = get("Emission Strength")
-    emission = np.maximum(get("Emission Color"), ZERO) * strength * weight if np.any(strength != 0) else None
+    emission = None
+    if not _constant(c, "Emission Strength", 0.0):
+        strength = get("Emission Strength")
+        emission = np.maximum(get("Emission Color"), ZERO) * strength * weight if np.any(strength != 0) else None
     if b is None:
         return Built(emission=emission)
     base = np.maximum(get("Base Color"), ZERO)
@@ -501,16 +517,19 @@ def _principled(c, ctx, w, b):
     ior = np.maximum(get("IOR"), F32(1e-5))
     specular_tint = np.maximum(get("Specular Tint"), ZERO)
     # 4. Metal: F82-tint conductor.
-    metallic = np.clip(get("Metallic"), 0.0, 1.0)
-    has = glossy(metallic > CUTOFF)
-    if len(has):
-        mf.add_f82(anisotropic, spec, metallic[has] * np.take(weight, has, axis=1), ax[has], ay[has],
-                   np.take(clamped, has, axis=1),
-                   np.minimum(np.take(specular_tint, has, axis=1), ONE), multiscatter, sub=has)
-    weight = weight * (ONE - metallic)
+    if not _constant(c, "Metallic", 0.0):
+        metallic = np.clip(get("Metallic"), 0.0, 1.0)
+        has = glossy(metallic > CUTOFF)
+        if len(has):
+            mf.add_f82(anisotropic, spec, metallic[has] * np.take(weight, has, axis=1), ax[has], ay[has],
+                       np.take(clamped, has, axis=1),
+                       np.minimum(np.take(specular_tint, has, axis=1), ONE), multiscatter, sub=has)
+        weight = weight * (ONE - metallic)
     # 5. Transmission: GGX glass, tinted by sqrt(base) through refraction.
-    transmission = np.clip(get("Transmission Weight"), 0.0, 1.0)
-    has = np.flatnonzero(transmission > CUTOFF)
+    has = ()
+    if not _constant(c, "Transmission Weight", 0.0):
+        transmission = np.clip(get("Transmission Weight"), 0.0, 1.0)
+        has = np.flatnonzero(transmission > CUTOFF)
     if len(has):
         refracted = _made(ctx, refractive=True)
         mf.add_glass(b, spec, transmission[has] * np.take(weight, has, axis=1), alpha_r[has], ior[has],
@@ -518,7 +537,8 @@ def _principled(c, ctx, w, b):
                      transmission_tint=np.sqrt(np.take(clamped, has, axis=1)) *
                      (ONE if refracted is None else refracted[has]),
                      specular_tint=np.take(specular_tint, has, axis=1), multiscatter=multiscatter, sub=has)
-    weight = weight * (ONE - transmission)
+    if not _constant(c, "Transmission Weight", 0.0):
+        weight = weight * (ONE - transmission)
     # 6. Specular: dielectric GGX reflection; Specular IOR Level scales F0 (and the IOR with it).
     f0 = np.square((ior - ONE) / (ior + ONE))
     eta = ior
@@ -535,9 +555,12 @@ def _principled(c, ctx, w, b):
                                  f0[has] * np.take(specular_tint, has, axis=1), multiscatter, sub=has)
         sampling.put_columns(weight, has, layering_weight(albedo, np.take(weight, has, axis=1)))
     # 7. Diffuse (subsurface scattering is rendered as the diffuse it would be without its radius).
-    sss = np.clip(get("Subsurface Weight"), 0.0, 1.0)
-    b.add(lobes.LAMBERT, ctx.idx, clamped * sss * weight, normal=spec.normal_arg, **_soften(spec))
-    _diffuse_lobe(b, ctx, base * (ONE - sss) * weight, np.clip(get("Diffuse Roughness"), 0.0, 1.0), clamped)
+    if _constant(c, "Subsurface Weight", 0.0):
+        _diffuse_lobe(b, ctx, base * weight, np.clip(get("Diffuse Roughness"), 0.0, 1.0), clamped)
+    else:
+        sss = np.clip(get("Subsurface Weight"), 0.0, 1.0)
+        b.add(lobes.LAMBERT, ctx.idx, clamped * sss * weight, normal=spec.normal_arg, **_soften(spec))
+        _diffuse_lobe(b, ctx, base * (ONE - sss) * weight, np.clip(get("Diffuse Roughness"), 0.0, 1.0), clamped)
     return Built(emission=emission)
 
 
