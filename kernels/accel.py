@@ -76,6 +76,11 @@ class RayTimes:
                        else np.take(value, idx, axis=0) for key, value in self._cache.items()}
         return kept
 
+    @staticmethod
+    def concat(a: "RayTimes", b: "RayTimes") -> "RayTimes":
+        """The times of a's paths, then b's (what is cached is made again when asked for)."""
+        return RayTimes(np.concatenate([a.times, b.times]))
+
     def cached(self, key, make):
         value = self._cache.get(key)
         if value is None:

@@ -240,6 +240,10 @@ class WorldFocus:
     def put(self, idx, other: "WorldFocus") -> None:
         self.data[:, idx] = other.data
 
+    @staticmethod
+    def concat(a: "WorldFocus", b: "WorldFocus") -> "WorldFocus":
+        return WorldFocus(np.concatenate([a.data, b.data], axis=1))
+
 
 def sample_linear(u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """x in [0, 1) with density proportional to (1 - x) a + x b (a, b >= 0), by inverting its cdf

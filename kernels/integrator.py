@@ -65,12 +65,17 @@ _WAVES_PER_PASS = 4
 # threads, 0.26 s in one), and small waves on two threads only contend for the GIL.
 MIN_WAVE_PATHS = 1 << 16
 
-# Paths per wave when RenderSettings.wave_size is None (automatic): every bounce runs Python once per
-# material and lobe of the wave, so scenes whose materials mix lobes (Principled layers, Mix Shaders) get
-# twice the paths to spread it over. Measured on two threads: the eight Principled spheres 14% more paths/s
-# with the larger waves, the diffuse Cornell box 6% fewer.
+# Paths traced at once (automatic): every bounce runs Python once per material and lobe of the batch, so
+# scenes whose materials mix lobes (Principled layers, Mix Shaders) get twice the paths to spread it over.
+# Measured on two threads: the eight Principled spheres 14% more paths/s with the larger batches, the
+# diffuse Cornell box 6% fewer.
 WAVE_SIZE = 1 << 17
 LAYERED_WAVE_SIZE = 1 << 18
+# Paths per wave when RenderSettings.wave_size is None: this many times the paths traced at once. New paths
+# start as others end (trace_paths), so a wave's long paths pay the stages' fixed cost per bounce once per
+# wave, not once per batch: on glass scenes a third of the time went to bounces of a few hundred paths
+# (the glTF TransmissionTest at 160x120: waves four times as large took 25% less time).
+WAVE_SPAN = 4
 
 # Worker processes (kernels/workers.py): a renderer with several threads starts threads - 1 children once
 # a render has this many seconds left by its rate so far (a child takes about 0.3 s to start and build its
@@ -99,9 +104,9 @@ _GENERATIONS = itertools.count(1)
 class RenderSettings:
     """How to render. region is (x0, y0, x1, y1) in full-frame pixels, row 0 at the top, end
     exclusive; None for the whole frame. time_limit_s = 0 means none. A wave holds at most
-    wave_size paths, which bounds memory whatever the resolution (None: automatic, WAVE_SIZE or, for
-    materials that mix lobes, LAYERED_WAVE_SIZE; the image is the same for any wave size to float
-    rounding, and the same bit for bit for any thread count)."""
+    wave_size paths, which bounds memory whatever the resolution (None: automatic, WAVE_SPAN times the
+    paths traced at once, WAVE_SIZE or, for materials that mix lobes, LAYERED_WAVE_SIZE; the image is the
+    same for any wave size to float rounding, and the same bit for bit for any thread count)."""
     samples: int = 64
     max_bounces: int = 8
     mode: str = "NEE_MIS"
@@ -417,6 +422,13 @@ class Renderer:
         """The paths per wave a render with these settings uses (their wave_size, or the automatic one)."""
         if settings.wave_size is not None:
             return int(settings.wave_size)
+        return WAVE_SPAN * self._live_paths()
+
+    def live_paths(self, settings: RenderSettings) -> int:
+        """The most paths a wave traces at once (what bounds its memory)."""
+        return min(self.wave_size(settings), self._live_paths())
+
+    def _live_paths(self) -> int:
         return LAYERED_WAVE_SIZE if self._layered else WAVE_SIZE
 
     @_forwarded
@@ -632,7 +644,7 @@ class Renderer:
                     # A time-limited render starts with a 1-sample pass too: its waves give the rate that
                     # fits the next passes to the limit, whatever the limit.
                     quick = settings.quick_first_pass or settings.time_limit_s > 0
-                    spp, bands = _plan_pass(width, height, done, last, wave, quick)
+                    spp, bands = _plan_pass(width, height, done, last, wave, quick, self.live_paths(settings))
                     if adaptive:  # passes end where the next convergence check falls
                         next_check = min_samples if done < min_samples else \
                             done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP
@@ -656,7 +668,8 @@ class Renderer:
                 r0, r1 = pending.pop(0)
                 active = ~film.converged[r0:r1] if adaptive else None
                 in_flight.append((r0, r1, pass_spp, self._submit(self._wave, settings, x0, y0, width, r0, r1,
-                                                                 pass_first, pass_spp, pass_split, active)))
+                                                                 pass_first, pass_spp, pass_split, active,
+                                                                 self.live_paths(settings))))
             if not in_flight:
                 break
             r0, r1, spp, future = in_flight.popleft()
@@ -745,12 +758,12 @@ class Renderer:
             return False
         return progress.elapsed_s * (1.0 - progress.fraction) / progress.fraction > WORKER_START_S
 
-    def _wave(self, settings, x0, y0, width, r0, r1, first_sample, spp, split, active=None):
+    def _wave(self, settings, x0, y0, width, r0, r1, first_sample, spp, split, active=None, live=None):
         """_render_rows(...) in a free slot: this process or a ready worker process (timed on the render's
         _wave_clock). A worker that is lost (closed, exited, failed) gives its slot back to this process,
         and the wave runs here."""
         began = time.perf_counter()
-        result = self._wave_in_slot(settings, x0, y0, width, r0, r1, first_sample, spp, split, active)
+        result = self._wave_in_slot(settings, x0, y0, width, r0, r1, first_sample, spp, split, active, live)
         seconds = time.perf_counter() - began
         split = bool(split)
         with self._count_lock:
@@ -792,56 +805,57 @@ class Renderer:
             return future
         return self._wave_pool.submit(fn, *args)
 
-    def _render_rows(self, settings, x0, y0, width, r0, r1, first_sample, spp, split, active=None):
+    def _render_rows(self, settings, x0, y0, width, r0, r1, first_sample, spp, split, active=None, live=None):
         """One wave: region rows [r0, r1), spp samples per pixel of those `active` ((rows, W) bool, None:
-        all). Returns ((rows, W, 4) float64 sums, (rows, W, 3) sums of the odd samples, (rows, W) sample
-        counts, count of dropped non-finite paths). Paths are pixel-major so each pixel's samples are
-        adjacent."""
-        cam = self.scene.camera
+        all), at most `live` paths traced at once (None: live_paths; the render passes its own, so that a
+        worker process traces the wave in the same batches). Returns ((rows, W, 4) float64 sums, (rows, W, 3)
+        sums of the odd samples, (rows, W) sample counts, count of dropped non-finite paths). Paths are
+        pixel-major so each pixel's samples are adjacent; what each path starts from (pixel, sample, random
+        numbers) is made as its batch starts, so that the wave holds only its radiance and alpha per path."""
         rows = r1 - r0
         npix = rows * width
         pixels = np.arange(npix, dtype=np.int64) if active is None else np.flatnonzero(active)
-        pix = np.repeat(pixels, spp)
-        sample = np.tile(np.arange(first_sample, first_sample + spp, dtype=np.uint32), len(pixels))
-        row = (pix // width + (y0 + r0)).astype(np.int32)
-        col = (pix % width + x0).astype(np.int32)
-        pixel_index = row.astype(np.uint32) * np.uint32(cam.width) + col.astype(np.uint32)
-        rng = PathRng(*seed_paths(pixel_index, sample, settings.seed))
+        paths = _WavePaths(settings, self.scene.camera, x0, y0 + r0, width, pixels, first_sample, spp)
+        n = len(paths)
         # Overflow and invalid values are expected at the edges of float32 (huge lights, degenerate
         # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
         # is per thread, so it is set here, in the thread that runs the wave.
-        aux = {name: np.zeros((passes.channels(name), len(pix)), np.float32) for name in settings.passes} \
+        aux = {name: np.zeros((passes.channels(name), n), np.float32) for name in settings.passes} \
             if settings.passes or settings.cryptomatte else None
         if settings.cryptomatte:
             for kind in settings.cryptomatte:
-                aux["crypto_" + kind] = np.zeros((1, len(pix)), np.float32)
-            aux["crypto_weight"] = np.zeros((1, len(pix)), np.float32)
-        strata = sample_strata(settings.sampling_pattern, settings.seed, cam.width, cam.height,
-                               int(settings.sample_offset) + int(settings.samples), row, col, pixel_index, sample,
-                               ranged=int(settings.sample_offset) > 0, first=bool(settings.blue_noise_first),
-                               repeats=spp)
+                aux["crypto_" + kind] = np.zeros((1, n), np.float32)
+            aux["crypto_weight"] = np.zeros((1, n), np.float32)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
-            radiance, alpha = self.trace_paths(rng, row, col, settings, split, strata=strata,
-                                               aux=aux)
+            radiance, alpha = self._trace(paths, settings, split, aux=aux,
+                                          live=self.live_paths(settings) if live is None else live)
         bad = ~np.isfinite(radiance).all(axis=0)
         n_bad = int(np.count_nonzero(bad))
         if n_bad:
             radiance[:, bad] = 0.0
-        rgba = np.empty((4, len(pix)), np.float64)
-        rgba[:3] = radiance
-        rgba[3] = alpha
+        del bad
         sums = np.zeros((npix, 4), np.float64)
-        sums[pixels] = rgba.reshape(4, len(pixels), spp).sum(axis=2).T
+        half = np.zeros((npix, 3), np.float64) if settings.adaptive_threshold > 0 else None
+        odd = (np.arange(first_sample, first_sample + spp) & 1).astype(bool)   # by a path's place in its pixel
+        # Whole pixels at a time, in float64: each pixel's sums are the same as over the whole wave at once.
+        step = max(1, _SUM_BLOCK // spp)
+        for lo in range(0, len(pixels), step):
+            hi = min(len(pixels), lo + step)
+            rgba = np.empty((4, (hi - lo) * spp), np.float64)
+            rgba[:3] = radiance[:, lo * spp:hi * spp]
+            rgba[3] = alpha[lo * spp:hi * spp]
+            block = rgba.reshape(4, hi - lo, spp)
+            sums[pixels[lo:hi]] = block.sum(axis=2).T
+            if half is not None:
+                half[pixels[lo:hi]] = np.where(odd, block[:3], 0.0).sum(axis=2).T
+            del rgba, block
         counts = np.zeros(npix, np.int64)
         counts[pixels] = spp
-        half = None
-        if settings.adaptive_threshold > 0:
-            odd = (sample & np.uint32(1)).astype(bool)
-            half = np.zeros((npix, 3), np.float64)
-            half[pixels] = np.where(odd, rgba[:3], 0.0).reshape(3, len(pixels), spp).sum(axis=2).T
+        if half is not None:
             half = half.reshape(rows, width, 3)
         aux_out = None
         if aux is not None:
+            pix, sample = paths.pixel_and_sample()
             aux_out = {}
             first = sample == 0
             if "noise" in aux:  # the odd-numbered samples' sum (Cycles' adaptive sampling estimate)
@@ -868,17 +882,65 @@ class Renderer:
 
     # ---------------------------------------------------------------- one wave of paths
     def trace_paths(self, rng: PathRng, row: np.ndarray, col: np.ndarray, settings: RenderSettings,
-                    split: bool = True, strata=None, aux: dict | None = None):
+                    split: bool = True, strata=None, aux: dict | None = None, live: int | None = None):
         """Trace one path per (row, col) entry. Returns radiance (3, N) float32 and alpha (N,) float32.
 
         strata = (pixel, sample, index) per path (samples.sample_strata): in NEE_MIS mode the camera
         jitter and the first vertex's light and BSDF numbers then come from the stratified sequence (the
-        rest of the path, and the LECTURE and COSINE modes, use the PCG2D stream alone)."""
-        n = len(row)
+        rest of the path, and the LECTURE and COSINE modes, use the PCG2D stream alone). live: see _trace."""
+        return self._trace(_GivenPaths(rng, row, col, strata), settings, split, aux, live)
+
+    def _trace(self, paths, settings: RenderSettings, split: bool = True, aux: dict | None = None,
+               live: int | None = None):
+        """trace_paths for the paths of `paths` (_GivenPaths, _WavePaths: what each starts from, made a
+        batch at a time).
+
+        live: the most paths traced at once (None: all N). The paths start in their order, a batch at a
+        time: when fewer than half of `live` are left, the next ones start beside them (their camera rays
+        and first bounce a batch of their own, then one batch with the others), so that a wave's long paths
+        (glass, many bounces) go on beside new ones rather than alone, bounce after bounce, each bounce
+        paying the stages' fixed cost for a few paths. Each path's numbers are its own: the radiance is
+        the same whichever batches the paths shared."""
+        n = len(paths)
         radiance = np.zeros((3, n), np.float32)
         alpha = np.ones(n, np.float32)
         nee = settings.mode == "NEE_MIS" and self.lights.has_lights
-        samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, nee,
+        max_scatters = int(settings.max_bounces) + 1
+        wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
+                     0.0 if self.scene.camera.kind == "ORTHO" else self._pixel_size)
+        wave.aux = aux
+        # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
+        last = max_scatters + int(settings.transparent_max_bounces)
+        live = n if live is None else max(1, int(live))
+        started = 0
+        going = None   # the paths past their first bounce: (PathState, Rays), or None
+        while True:
+            if started < n and (going is None or 2 * len(going[0]) < live):
+                size = live - (0 if going is None else len(going[0]))
+                spp = getattr(paths, "spp", 1)
+                if size > spp:
+                    size -= size % spp     # whole pixels: their places in the sequence are found once
+                end = min(n, started + size)
+                fresh = self._start_paths(wave, paths, started, end)
+                started = end
+                if fresh is not None:
+                    fresh = self._step(wave, *fresh, first=True, last=last)
+                if fresh is not None:
+                    going = fresh if going is None else \
+                        (PathState.concat(going[0], fresh[0]), _concat_rays(going[1], fresh[1]))
+                continue
+            if going is None:
+                break
+            going = self._step(wave, *going, first=False, last=last)
+        return radiance, alpha
+
+    def _start_paths(self, wave, paths, start: int, end: int):
+        """The camera rays of the paths [start, end): (PathState, Rays), None when none is traced."""
+        settings = wave.settings
+        aux = wave.aux
+        n = end - start
+        rng, row, col, strata = paths.batch(start, end)
+        samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, wave.nee,
                           lobes=self.shading.mixes_lobes)  # a lobe to choose: its numbers are drawn
         jx, jy = samples.camera()
         camera = self.scene.camera
@@ -889,6 +951,8 @@ class Renderer:
                                       camera.height, self.scene.rolling_shutter).astype(np.float32)
         rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
         state = PathState.start(n, samples)
+        if start:
+            state.path = state.path + start
         state.time = None if times is None else RayTimes(times)
         if self._coincident is not None:
             state.partner, state.partner_uv = np.full(n, -1, np.int64), np.zeros((2, n), np.float32)
@@ -899,83 +963,86 @@ class Renderer:
             state.features = np.ones((3, n), np.float32)
         if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
             state.pass_weights = np.zeros((6, n), np.float32)
-        # The caustics switches read the last bounce's label too.
-        caustics = None if settings.caustics_reflective and settings.caustics_refractive else \
-            (bool(settings.caustics_reflective), bool(settings.caustics_refractive))
-        if self.shading.reads_lobes or caustics is not None or _type_limits(settings) is not None:
+        if self.shading.reads_lobes or _caustics(settings) is not None or _type_limits(settings) is not None:
             state.lobes = np.zeros((4, n), np.int32)
         if settings.filter_glossy > 0:
             state.min_ray_pdf = np.full(n, np.inf, np.float32)
-        if self.scene.camera.kind == "ORTHO":
+        if camera.kind == "ORTHO":
             state.dp[:] = self._pixel_size
         if camera.kind == "PANO":
             traced = np.flatnonzero(rays.t_max > 0)  # outside a fisheye's circle: black, alpha 1 (Cycles)
+            if not len(traced):
+                return None
             if len(traced) < n:
                 state.compact(traced)
                 rays = Rays(rays.origins[traced], rays.dirs[traced], rays.t_max[traced])
-        max_scatters = int(settings.max_bounces) + 1
-        wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
-                     0.0 if self.scene.camera.kind == "ORTHO" else self._pixel_size)
-        wave.aux = aux
-        for step in range(max_scatters + int(settings.transparent_max_bounces) + 1):
+        return state, rays
+
+    def _step(self, wave, state, rays, first: bool, last: int):
+        """One step of the paths: trace their rays, take what they find, shade, sample lights and the next
+        direction. first: the paths' camera rays (they all are; otherwise none is). Returns the paths that
+        go on and their next rays, or None."""
+        settings, aux = wave.settings, wave.aux
+        self._check_stop()
+        hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, state.time)
+        if state.partner is not None:
+            _hand_over(state, hits)
+        ended = None
+        if not first and self.lights.has_surface_lights:
+            ended = self._lights_hit(wave, state, rays, hits)
+        self._escaped(wave, state, rays, hits, ended)
+        self._check_stop()   # also between the bounce's long stages: tracing, shading, light samples
+        found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
+        if state.continuation is not None:
+            found = self._roulette_stops(state, hits, found)
+        if not len(found):
+            return None
+        state.compact(found)
+        hit = self._surface_hit(hits, rays, found, state.time)
+        t_hit = np.take(hits.t, found)
+        # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
+        # of distance, bounce after bounce (kernel/util/differential.h).
+        state.dp = state.dp + t_hit * wave.spread_dd
+        hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
+                          caustics=_caustics(settings), portal=state.portal)
+        shading = self.shading.surface(hit)
+        self._check_stop()
+        if aux is not None and first:
+            self._data_passes(aux, state, hit, shading.closures, settings)
+        if state.features is not None:
+            self._denoising_features(aux, state, hit, shading, t_hit)
+        if state.min_ray_pdf is not None:
+            _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
+        if self._emissive:
+            self._emission_on_hit(wave, state, hit, shading, hits, rays, found)
+        if self.shading.has_holdout:
+            self._holdout(wave, state, shading)
+        if state.continuation is not None:
+            _roulette_weights(state)
+        numbers = state.samples.bounce(0 if first else 1)
+        focus = None
+        if wave.nee:
+            focus = self._world_focus(hit, shading.closures)
+            self._next_event(wave, state, hit, shading.closures, numbers, focus)
             self._check_stop()
-            hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, split, state.time)
-            if state.partner is not None:
-                _hand_over(state, hits)
-            ended = None
-            if step > 0 and self.lights.has_surface_lights:
-                ended = self._lights_hit(wave, state, rays, hits)
-            self._escaped(wave, state, rays, hits, ended)
-            self._check_stop()   # also between the bounce's long stages: tracing, shading, light samples
-            found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
-            if state.continuation is not None:
-                found = self._roulette_stops(state, hits, found)
-            if not len(found):
-                break
-            state.compact(found)
-            hit = self._surface_hit(hits, rays, found, state.time)
-            t_hit = np.take(hits.t, found)
-            # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
-            # of distance, bounce after bounce (kernel/util/differential.h).
-            state.dp = state.dp + t_hit * wave.spread_dd
-            hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
-                              caustics=caustics, portal=state.portal)
-            shading = self.shading.surface(hit)
-            self._check_stop()
-            if aux is not None and step == 0:
-                self._data_passes(aux, state, hit, shading.closures, settings)
-            if state.features is not None:
-                self._denoising_features(aux, state, hit, shading, t_hit)
-            if state.min_ray_pdf is not None:
-                _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
-            if self._emissive:
-                self._emission_on_hit(wave, state, hit, shading, hits, rays, found)
-            if self.shading.has_holdout:
-                self._holdout(wave, state, shading)
-            if state.continuation is not None:
-                _roulette_weights(state)
-            numbers = state.samples.bounce(step)
-            focus = None
-            if nee:
-                focus = self._world_focus(hit, shading.closures)
-                self._next_event(wave, state, hit, shading.closures, numbers, focus)
-                self._check_stop()
-            bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
-            self._check_stop()
-            if state.pass_weights is not None:
-                self._first_bounce_shares(state, shading.closures, bs)
-            if wave.nee and self._glass_escapes_on:
-                self._glass_escapes(wave, state, hit, shading.closures, bs)
-            alive = self._continues(wave, hit, state, bs, numbers, focus)
-            if state.lobes is not None:
-                state.track_lobes(bs, shading.closures, bs.transparent)
-            if not len(alive):
-                break
-            state.compact(alive)
-            if state.partner is not None:
-                self._crossings(state, hit, alive, bs)
-            rays = self._spawn(hit, alive, bs)
-        return radiance, alpha
+        bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
+        self._check_stop()
+        if state.pass_weights is not None:
+            self._first_bounce_shares(state, shading.closures, bs)
+        if wave.nee and self._glass_escapes_on:
+            self._glass_escapes(wave, state, hit, shading.closures, bs)
+        alive = self._continues(wave, hit, state, bs, numbers, focus)
+        if state.lobes is not None:
+            state.track_lobes(bs, shading.closures, bs.transparent)
+        # A path takes at most `last` + 1 steps (its rays: the camera's, one per bounce or pass-through).
+        alive = alive[np.take(state.segments, alive) < last]
+        if not len(alive):
+            return None
+        state.compact(alive)
+        state.segments = state.segments + 1
+        if state.partner is not None:
+            self._crossings(state, hit, alive, bs)
+        return state, self._spawn(hit, alive, bs)
 
     # ---- stage: data passes of the camera rays' first surface (kernels.passes)
     def _data_passes(self, aux: dict, state, hit, closures, settings) -> None:
@@ -1677,6 +1744,76 @@ class Rays(NamedTuple):
     t_max: np.ndarray
 
 
+class _GivenPaths:
+    """Paths given whole: their random number streams, rows, columns and strata (trace_paths)."""
+
+    def __init__(self, rng: PathRng, row, col, strata):
+        self.rng, self.row, self.col, self.strata = rng, row, col, strata
+
+    def __len__(self) -> int:
+        return len(self.row)
+
+    def batch(self, start: int, end: int):
+        """(PathRng, row, col, strata) of the paths [start, end)."""
+        if start == 0 and end == len(self.row):
+            return self.rng, self.row, self.col, self.strata
+        part = slice(start, end)
+        # (A stratum shared by every path is one value.)
+        strata = None if self.strata is None else tuple(s if np.size(s) == 1 else s[part] for s in self.strata)
+        return PathRng(self.rng.x[part], self.rng.y[part]), self.row[part], self.col[part], strata
+
+
+# Paths per block where a wave's per-path results are summed per pixel in float64.
+_SUM_BLOCK = 1 << 16
+
+
+class _WavePaths:
+    """The paths of a wave, pixel-major: path k is sample first + k % spp of pixel pixels[k // spp] of the
+    band whose top row is `top` (region pixels numbered along rows of `width`, from column x0). What a path
+    starts from is made for each batch as it starts (the same values as for the whole wave at once)."""
+
+    def __init__(self, settings, camera, x0: int, top: int, width: int, pixels: np.ndarray, first: int, spp: int):
+        self.settings, self.camera = settings, camera
+        self.x0, self.top, self.width = x0, top, width
+        self.pixels, self.first, self.spp = pixels, first, spp
+
+    def __len__(self) -> int:
+        return len(self.pixels) * self.spp
+
+    def pixel_and_sample(self, start: int = 0, end: int | None = None):
+        """(pixel (n,) int64 within the band, sample (n,) uint32) of the paths [start, end)."""
+        k = np.arange(start, len(self) if end is None else end, dtype=np.int64)
+        return np.take(self.pixels, k // self.spp), (self.first + k % self.spp).astype(np.uint32)
+
+    def batch(self, start: int, end: int):
+        """(PathRng, row, col, strata) of the paths [start, end)."""
+        settings, cam, spp = self.settings, self.camera, self.spp
+        pix, sample = self.pixel_and_sample(start, end)
+        row = (pix // self.width + self.top).astype(np.int32)
+        col = (pix % self.width + self.x0).astype(np.int32)
+        pixel_index = row.astype(np.uint32) * np.uint32(cam.width) + col.astype(np.uint32)
+        rng = PathRng(*seed_paths(pixel_index, sample, settings.seed))
+        # Whole pixels: each pixel's place in the sequence is found once for its spp paths.
+        whole = start % spp == 0 and (end - start) % spp == 0
+        strata = sample_strata(settings.sampling_pattern, settings.seed, cam.width, cam.height,
+                               int(settings.sample_offset) + int(settings.samples), row, col, pixel_index, sample,
+                               ranged=int(settings.sample_offset) > 0, first=bool(settings.blue_noise_first),
+                               repeats=spp if whole else 1)
+        return rng, row, col, strata
+
+
+def _concat_rays(a: Rays, b: Rays) -> Rays:
+    return Rays(*(np.concatenate([x, y]) for x, y in zip(a, b)))
+
+
+def _caustics(settings):
+    """The Caustics switches (reflective, refractive) when one is off, None when both are on (the last
+    bounce's label is then read)."""
+    if settings.caustics_reflective and settings.caustics_refractive:
+        return None
+    return bool(settings.caustics_reflective), bool(settings.caustics_refractive)
+
+
 def _same_instances(a, b) -> bool:
     """The same prototypes (array for array), placed by the same number of instances in the same order
     (their transforms may differ)."""
@@ -1815,12 +1952,15 @@ def _paced(rate: float, left_s: float, queued_paths: int, pixels: int, threads: 
     return max(fit, 0), wave
 
 
-def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, quick_first: bool = True):
+def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, quick_first: bool = True,
+               band_pixels: int | None = None):
     """Samples per pixel of the next pass and its bands of rows, one wave each.
 
     The first pass takes one sample, for a quick first image (unless quick_first is False); later passes
-    take enough samples to fill _WAVES_PER_PASS waves. The plan depends only on the image and the settings,
-    never on the thread count, so every thread count sums the same numbers in the same order.
+    take enough samples to fill _WAVES_PER_PASS waves. A band holds at most band_pixels pixels where it can
+    (a wave's sums per pixel are its own: at few samples per pixel, a wave of many paths would hold
+    buffers for as many pixels). The plan depends only on the image and the settings, never on the thread
+    count, so every thread count sums the same numbers in the same order.
     """
     if done == 0 and quick_first:
         spp = 1
@@ -1828,6 +1968,8 @@ def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, q
         spp = int(np.clip(wave_size * _WAVES_PER_PASS // (width * height), 1, total - done))
     rows_per_wave = max(1, min(wave_size // (width * spp),
                                max(-(-height // _WAVES_PER_PASS), MIN_WAVE_PATHS // (width * spp))))
+    if band_pixels is not None:
+        rows_per_wave = max(1, min(rows_per_wave, band_pixels // width))
     bands = [(r, min(height, r + rows_per_wave)) for r in range(0, height, rows_per_wave)]
     return spp, bands
 

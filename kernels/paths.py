@@ -5,6 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .accel import RayTimes
+from .environment import WorldFocus
 from .samples import Samples
 
 # Cycles' closure labels, as PathState.lobes[0] holds the last bounce's (kernel/closure/bsdf_util.h).
@@ -47,11 +49,13 @@ class PathState:
     #                                    own crossing is not handed on again)
     portal: np.ndarray | None = None   # (N,) int32 Ray Portals passed (Light Path's Portal Depth); None in
     #                                    scenes without Ray Portal closures
+    segments: np.ndarray | None = None  # (N,) int32: the rays traced so far (the wave loop's step count)
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
         return cls(np.arange(n), np.ones((3, n), np.float32), np.full(n, np.inf, np.float32), samples,
-                   np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n, np.float32))
+                   np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n, np.float32),
+                   segments=np.zeros(n, np.int32))
 
     def compact(self, idx: np.ndarray) -> None:
         """Keep only the paths idx (in that order)."""
@@ -84,6 +88,45 @@ class PathState:
             self.handed = np.take(self.handed, idx)
         if self.portal is not None:
             self.portal = np.take(self.portal, idx)
+        if self.segments is not None:
+            self.segments = np.take(self.segments, idx)
+
+    @classmethod
+    def concat(cls, a: "PathState", b: "PathState") -> "PathState":
+        """The paths of a, then those of b: two batches of one wave, both past their camera rays (their
+        first vertex's stratified numbers drawn). A per-vertex record one batch lacks (None) is what it
+        means there: continuation and escape scale 1, the world focus none."""
+        def cat(x, y, fill, axis=-1):
+            if x is None and y is None:
+                return None
+            if x is None:
+                x = fill(len(a), y)
+            if y is None:
+                y = fill(len(b), x)
+            return np.concatenate([x, y], axis=axis)
+
+        def ones(n, like):
+            return np.ones(n, like.dtype)
+
+        def required(n, like):
+            raise ValueError("PathState.concat: the batches record different things")
+
+        state = cls(cat(a.path, b.path, required), cat(a.throughput, b.throughput, required),
+                    cat(a.bsdf_pdf, b.bsdf_pdf, required), Samples.concat(a.samples, b.samples),
+                    cat(a.bounce, b.bounce, required), cat(a.transparent, b.transparent, required),
+                    cat(a.dp, b.dp, required))
+        for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
+                     "portal", "segments"):
+            setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
+        state.continuation = cat(a.continuation, b.continuation, ones)
+        state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)
+        if a.focus is not None or b.focus is not None:
+            fa = a.focus if a.focus is not None else WorldFocus.none(len(a))
+            fb = b.focus if b.focus is not None else WorldFocus.none(len(b))
+            state.focus = WorldFocus.concat(fa, fb)
+        if a.time is not None or b.time is not None:
+            state.time = RayTimes.concat(a.time, b.time)
+        return state
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels

@@ -135,6 +135,16 @@ class Samples:
             return first
         return {d: self.rng.next_2d() for d in self.block}
 
+    @staticmethod
+    def concat(a: "Samples", b: "Samples") -> "Samples":
+        """The numbers of a's paths, then b's; both past their first vertex (its stratified numbers drawn)."""
+        if a._first is not None or b._first is not None or a.block != b.block:
+            raise ValueError("Samples.concat: batches before their first vertex, or of other dimensions")
+        joined = Samples.__new__(Samples)
+        joined.rng = PathRng(np.concatenate([a.rng.x, b.rng.x]), np.concatenate([a.rng.y, b.rng.y]))
+        joined.block, joined._strata, joined._seed, joined._first = a.block, None, a._seed, None
+        return joined
+
     def take(self, idx: np.ndarray) -> "Samples":
         """The numbers of the paths idx only."""
         kept = Samples.__new__(Samples)

@@ -140,13 +140,13 @@ def test_accel_chunked_queries_match_one_call():
 def test_tiles_progress_and_memory_bound(monkeypatch):
     scene = cornell_box(64, 48, wall_subdivisions=2, sphere_segments=8)
     largest = []
-    original = Renderer.trace_paths
+    original = Renderer._trace
 
-    def spy(self, rng, row, col, *args, **kwargs):
-        largest.append(len(row))
-        return original(self, rng, row, col, *args, **kwargs)
+    def spy(self, paths, *args, **kwargs):
+        largest.append(len(paths))
+        return original(self, paths, *args, **kwargs)
 
-    monkeypatch.setattr(Renderer, "trace_paths", spy)
+    monkeypatch.setattr(Renderer, "_trace", spy)
     tiles, reports = [], []
     result = render(scene, RenderSettings(samples=6, wave_size=1000), threads=2,
                     on_tile=lambda film, r0, r1: tiles.append((r0, r1, film.samples_done)),

@@ -1,6 +1,7 @@
-"""The automatic wave size (RenderSettings.wave_size None): waves of WAVE_SIZE paths, twice as many when the
-materials mix lobes; the image is the same whatever the wave size, to float rounding (where a path falls in
-its wave can change a value by one float32 step: 8 of 6,144 values at 48x32, 4 samples, waves of 512 against
+"""The automatic wave size (RenderSettings.wave_size None): WAVE_SIZE paths traced at once, twice as many when
+the materials mix lobes, and waves WAVE_SPAN times that, whose paths start as others end; the image is the
+same whatever the wave size and the paths traced at once, to float rounding (where a path falls in its
+batch can change a value by one float32 step: 8 of 6,144 values at 48x32, 4 samples, waves of 512 against
 4,096 paths)."""
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ import numpy as np
 from bpy_helpers import export_current
 
 from ember.kernels import Renderer, RenderSettings
-from ember.kernels.integrator import LAYERED_WAVE_SIZE, WAVE_SIZE, _plan_pass
+from ember.kernels import integrator
+from ember.kernels.integrator import LAYERED_WAVE_SIZE, WAVE_SIZE, WAVE_SPAN, _plan_pass
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench import scenes  # noqa: E402
@@ -26,8 +28,10 @@ def _renderer(build) -> Renderer:
 def test_layered_materials_get_larger_waves_and_the_same_image():
     with _renderer(lambda: scenes.materials_scene(64, 48)) as renderer:
         assert renderer._layered
-        assert renderer.wave_size(RenderSettings()) == LAYERED_WAVE_SIZE
+        assert renderer.wave_size(RenderSettings()) == WAVE_SPAN * LAYERED_WAVE_SIZE
+        assert renderer.live_paths(RenderSettings()) == LAYERED_WAVE_SIZE
         assert renderer.wave_size(RenderSettings(wave_size=1000)) == 1000
+        assert renderer.live_paths(RenderSettings(wave_size=1000)) == 1000
         # 64 x 48 pixels x 256 samples: after the first pass the two sizes take other samples per pass
         # (at 96 samples both took all 95 left in one pass, and the test could not fail).
         assert _plan_pass(64, 48, 1, 256, LAYERED_WAVE_SIZE) != _plan_pass(64, 48, 1, 256, WAVE_SIZE)
@@ -40,7 +44,8 @@ def test_diffuse_scenes_keep_the_default_waves():
     with _renderer(lambda: scenes.cornell_scene(32, 32)) as renderer:
         # Its unused default material row is a Principled BSDF: only the materials triangles use count.
         assert renderer.shading.mixes_lobes and not renderer._layered
-        assert renderer.wave_size(RenderSettings()) == WAVE_SIZE
+        assert renderer.wave_size(RenderSettings()) == WAVE_SPAN * WAVE_SIZE
+        assert renderer.live_paths(RenderSettings()) == WAVE_SIZE
 
 
 def test_background_renders_start_with_full_passes():
@@ -54,3 +59,56 @@ def test_background_renders_start_with_full_passes():
         full = renderer.render(RenderSettings(samples=40, seed=2, wave_size=4096, quick_first_pass=False))
     assert quick.progress.paths == full.progress.paths == 64 * 48 * 40
     np.testing.assert_allclose(full.image, quick.image, rtol=1e-6, atol=1e-7)
+
+
+def test_paths_start_as_others_end_and_the_image_stays(monkeypatch):
+    """A wave of more paths than are traced at once starts them batch by batch, beside the long paths of
+    the batches before (the glass of the materials scene keeps paths bouncing): no bounce traces more than
+    the live paths, more than one batch starts, and the image is the one of tracing the wave at once, to
+    float rounding, and the same for one and two threads."""
+    sizes, starts = [], []
+    original_step, original_start = Renderer._step, Renderer._start_paths
+
+    def step(self, wave, state, rays, **kwargs):
+        sizes.append(len(state))
+        return original_step(self, wave, state, rays, **kwargs)
+
+    def start(self, wave, paths, begin, end):
+        starts.append(end - begin)
+        return original_start(self, wave, paths, begin, end)
+
+    paths = 64 * 48 * 16
+    settings = RenderSettings(samples=16, seed=5, wave_size=paths // 4, max_bounces=12)
+    scenes.materials_scene(64, 48)
+    scene = export_current().scene
+    with Renderer(scene, threads=1) as renderer:   # (worker processes would not see the patches)
+        at_once = renderer.render(settings).image
+        monkeypatch.setattr(integrator, "LAYERED_WAVE_SIZE", 1500)
+        monkeypatch.setattr(Renderer, "_step", step)
+        monkeypatch.setattr(Renderer, "_start_paths", start)
+        batched = renderer.render(settings).image
+    assert sum(starts) == paths and max(sizes) <= 1500 and len(starts) > paths // 1500
+    assert min(starts[1:]) < 1500   # later batches fill what the paths still going leave
+    np.testing.assert_allclose(batched, at_once, rtol=1e-6, atol=1e-7)
+    with Renderer(scene, threads=1, processes=False) as one, Renderer(scene, threads=2, processes=False) as two:
+        assert np.array_equal(one.render(settings).image, two.render(settings).image)
+
+
+def test_a_batch_starts_from_what_the_whole_wave_would():
+    """_WavePaths makes what each path starts from (pixel, sample, random numbers, strata) as its batch
+    starts: the same values as made for the whole wave, for batches of whole pixels and of parts of one."""
+    from ember.kernels.integrator import _WavePaths
+    scenes.cornell_scene(48, 32)
+    camera = export_current().scene.camera
+    pixels = np.flatnonzero(np.random.default_rng(3).random(48 * 5) < 0.7)  # an adaptive wave's pixels
+    for pattern in ("AUTOMATIC", "SOBOL_BURLEY"):
+        settings = RenderSettings(samples=40, seed=9, sampling_pattern=pattern)
+        paths = _WavePaths(settings, camera, 0, 12, 48, pixels, 8, 6)
+        rng, row, col, strata = paths.batch(0, len(paths))
+        assert len(row) == len(paths) == 6 * len(pixels)
+        for lo, hi in ((0, 12), (12, 19), (19, 300), (300, len(paths))):
+            b_rng, b_row, b_col, b_strata = paths.batch(lo, hi)
+            assert np.array_equal(b_row, row[lo:hi]) and np.array_equal(b_col, col[lo:hi])
+            assert np.array_equal(b_rng.x, rng.x[lo:hi]) and np.array_equal(b_rng.y, rng.y[lo:hi])
+            for mine, whole in zip(b_strata, strata):
+                assert np.array_equal(mine, whole if np.size(whole) == 1 else whole[lo:hi])
