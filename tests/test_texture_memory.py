@@ -1,6 +1,7 @@
 """8-bit images stay bytes from the file to the kernel (engine/export/images.py, kernels/textures.py): read
 from their file as Blender reads it, 1 byte per channel, never a float copy of the whole image; lookups on
 them equal, bit for bit, lookups on the float values Blender's image.pixels gives."""
+import os
 import tracemalloc
 
 import bpy
@@ -52,11 +53,18 @@ def _blender_floats(image) -> np.ndarray:
 @pytest.mark.parametrize("name, channels", [("grey.png", 1), ("grey_alpha.png", 2), ("rgb.png", 3),
                                             ("rgba.png", 4), ("photo.jpg", 3), ("grey.jpg", 1),
                                             ("rgba.tif", 4)])
-def test_8bit_files_are_read_as_blender_reads_them(tmp_path, name, channels):
+@pytest.mark.parametrize("packed", [False, True])
+def test_8bit_files_are_read_as_blender_reads_them(tmp_path, name, channels, packed):
+    """From their file, or packed (as glTF files and many .blend files carry their textures; the file is then
+    gone): as bytes, equal to what Blender reads."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     path = write_image(str(tmp_path / name), _pattern(37, 53, channels))
     image = bpy.data.images.load(path)
+    if packed:
+        image.pack()
+        os.remove(path)
     read = file_bytes(image)
+    assert (image.packed_file is not None) == packed and not image.is_dirty
     assert read is not None and read.dtype == np.uint8
     expected = _blender_floats(image)          # Blender: RGBA, grey in R, G and B, alpha 255 when absent
     got = read.astype(np.float32) * BYTE_SCALE
