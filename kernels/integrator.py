@@ -917,9 +917,8 @@ class Renderer:
         while True:
             if started < n and (going is None or 2 * len(going[0]) < live):
                 size = live - (0 if going is None else len(going[0]))
-                spp = getattr(paths, "spp", 1)
-                if size > spp:
-                    size -= size % spp     # whole pixels: their places in the sequence are found once
+                if size > paths.spp:
+                    size -= size % paths.spp   # whole pixels: their places in the sequence are found once
                 end = min(n, started + size)
                 fresh = self._start_paths(wave, paths, started, end)
                 started = end
@@ -1746,6 +1745,7 @@ class Rays(NamedTuple):
 
 class _GivenPaths:
     """Paths given whole: their random number streams, rows, columns and strata (trace_paths)."""
+    spp = 1   # paths per pixel side by side (a batch starts anywhere)
 
     def __init__(self, rng: PathRng, row, col, strata):
         self.rng, self.row, self.col, self.strata = rng, row, col, strata

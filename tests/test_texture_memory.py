@@ -76,7 +76,7 @@ def test_8bit_files_are_read_as_blender_reads_them(tmp_path, name, channels, pac
 
 
 def test_images_blender_reads_itself_still_become_bytes():
-    """Generated, packed or painted images come through image.pixels and are turned back into bytes."""
+    """Generated or painted images come through image.pixels and are turned back into bytes."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     image = bpy.data.images.new("Painted", 19, 11, alpha=True)
     values = _pattern(11, 19, 4).astype(np.float32) / 255

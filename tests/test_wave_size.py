@@ -74,7 +74,7 @@ def test_paths_start_as_others_end_and_the_image_stays(monkeypatch):
         return original_step(self, wave, state, rays, **kwargs)
 
     def start(self, wave, paths, begin, end):
-        starts.append(end - begin)
+        starts.append((begin, end, len(paths)))
         return original_start(self, wave, paths, begin, end)
 
     paths = 64 * 48 * 16
@@ -87,8 +87,12 @@ def test_paths_start_as_others_end_and_the_image_stays(monkeypatch):
         monkeypatch.setattr(Renderer, "_step", step)
         monkeypatch.setattr(Renderer, "_start_paths", start)
         batched = renderer.render(settings).image
-    assert sum(starts) == paths and max(sizes) <= 1500 and len(starts) > paths // 1500
-    assert min(starts[1:]) < 1500   # later batches fill what the paths still going leave
+    sizes_started = [end - begin for begin, end, _ in starts]
+    assert sum(sizes_started) == paths and max(sizes) <= 1500 and len(starts) > paths // 1500
+    # A batch inside a wave (neither its first nor its remainder) that starts while paths are going fills
+    # only what they leave.
+    inside = [end - begin for begin, end, n in starts if 0 < begin and end < n]
+    assert inside and min(inside) < max(sizes_started)
     np.testing.assert_allclose(batched, at_once, rtol=1e-6, atol=1e-7)
     with Renderer(scene, threads=1, processes=False) as one, Renderer(scene, threads=2, processes=False) as two:
         assert np.array_equal(one.render(settings).image, two.render(settings).image)

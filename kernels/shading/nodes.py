@@ -428,24 +428,16 @@ def _metallic(c, ctx, w, b):
 
 
 # ---------------------------------------------------------------- Principled BSDF
-def _constant(c, name: str, value: float) -> bool:
-    """Whether a closure's input is `value` at every hit (a plain constant, or unset with that default): the
-    layer it weighs can be skipped without evaluating anything (a batch's input varies by piece: never)."""
-    p = c.input(name)
-    if p is None:
-        return DEFAULTS[c.kind][name] == value
-    return isinstance(p, Param) and not p.varies and p.value == (value,)
-
-
 def _principled(c, ctx, w, b):
     """Cycles' Principled BSDF layer stack (module docstring); emission dimmed by the layers above it.
-    Layers whose weight input is a constant 0 are skipped (every hit's weight would be cut off anyway)."""
+    Layers whose weight input is a constant 0 (_param_may_differ) are skipped: every hit's weight would be cut
+    off anyway."""
     n = len(ctx.idx)
     get = lambda name: ctx.input(c, name)  # noqa: E731
     weight = np.broadcast_to(w, (3, n)).astype(F32)
     multiscatter = c.option("distribution", "MULTI_GGX") == "MULTI_GGX"
     # 0. Alpha: a transparent closure for what the surface lets through.
-    if not _constant(c, "Alpha", 1.0):
+    if _param_may_differ(c, "Alpha", 1.0):
         alpha = np.clip(get("Alpha"), 0.0, 1.0)
         if b is not None:
             b.add(lobes.TRANSPARENT, ctx.idx, weight * (ONE - alpha))
@@ -456,15 +448,13 @@ def _principled(c, ctx, w, b):
 
     def glossy(mask):  # the hits of mask whose glossy closures the caustics switch keeps
         return np.flatnonzero(mask if made is None else mask & (made > 0))
-    no_coat = _constant(c, "Coat Weight", 0.0)
+    no_coat = not _param_may_differ(c, "Coat Weight", 0.0)
     coat_w = None if no_coat else np.maximum(get("Coat Weight"), ZERO)
     # The coat's normal: its Coat Normal input, else the node's Normal.
     coat = ctx if no_coat else ctx.with_normal(ctx.normal_input(c, "Coat Normal"))
     # 1. Sheen, on the normal partway to the coat's normal, by the coat's weight.
-    has = ()
-    if not _constant(c, "Sheen Weight", 0.0):
-        sheen_w = np.maximum(get("Sheen Weight"), ZERO)
-        has = np.flatnonzero(sheen_w > CUTOFF)
+    sheen_w = np.maximum(get("Sheen Weight"), ZERO) if _param_may_differ(c, "Sheen Weight", 0.0) else None
+    has = () if sheen_w is None else np.flatnonzero(sheen_w > CUTOFF)
     if len(has):
         sheen = ctx
         if coat is not ctx:
@@ -502,7 +492,7 @@ def _principled(c, ctx, w, b):
             sampling.scale_columns(weight, has[tinted], factor)
     # 3. Emission, under sheen and coat.
     emission = None
-    if not _constant(c, "Emission Strength", 0.0):
+    if _param_may_differ(c, "Emission Strength", 0.0):
         strength = get("Emission Strength")
         emission = np.maximum(get("Emission Color"), ZERO) * strength * weight if np.any(strength != 0) else None
     if b is None:
@@ -517,7 +507,7 @@ def _principled(c, ctx, w, b):
     ior = np.maximum(get("IOR"), F32(1e-5))
     specular_tint = np.maximum(get("Specular Tint"), ZERO)
     # 4. Metal: F82-tint conductor.
-    if not _constant(c, "Metallic", 0.0):
+    if _param_may_differ(c, "Metallic", 0.0):
         metallic = np.clip(get("Metallic"), 0.0, 1.0)
         has = glossy(metallic > CUTOFF)
         if len(has):
@@ -526,18 +516,16 @@ def _principled(c, ctx, w, b):
                        np.minimum(np.take(specular_tint, has, axis=1), ONE), multiscatter, sub=has)
         weight = weight * (ONE - metallic)
     # 5. Transmission: GGX glass, tinted by sqrt(base) through refraction.
-    has = ()
-    if not _constant(c, "Transmission Weight", 0.0):
+    if _param_may_differ(c, "Transmission Weight", 0.0):
         transmission = np.clip(get("Transmission Weight"), 0.0, 1.0)
         has = np.flatnonzero(transmission > CUTOFF)
-    if len(has):
-        refracted = _made(ctx, refractive=True)
-        mf.add_glass(b, spec, transmission[has] * np.take(weight, has, axis=1), alpha_r[has], ior[has],
-                     reflection_tint=np.ones((3, len(has)), F32) * (ONE if made is None else made[has]),
-                     transmission_tint=np.sqrt(np.take(clamped, has, axis=1)) *
-                     (ONE if refracted is None else refracted[has]),
-                     specular_tint=np.take(specular_tint, has, axis=1), multiscatter=multiscatter, sub=has)
-    if not _constant(c, "Transmission Weight", 0.0):
+        if len(has):
+            refracted = _made(ctx, refractive=True)
+            mf.add_glass(b, spec, transmission[has] * np.take(weight, has, axis=1), alpha_r[has], ior[has],
+                         reflection_tint=np.ones((3, len(has)), F32) * (ONE if made is None else made[has]),
+                         transmission_tint=np.sqrt(np.take(clamped, has, axis=1)) *
+                         (ONE if refracted is None else refracted[has]),
+                         specular_tint=np.take(specular_tint, has, axis=1), multiscatter=multiscatter, sub=has)
         weight = weight * (ONE - transmission)
     # 6. Specular: dielectric GGX reflection; Specular IOR Level scales F0 (and the IOR with it).
     f0 = np.square((ior - ONE) / (ior + ONE))
@@ -555,7 +543,7 @@ def _principled(c, ctx, w, b):
                                  f0[has] * np.take(specular_tint, has, axis=1), multiscatter, sub=has)
         sampling.put_columns(weight, has, layering_weight(albedo, np.take(weight, has, axis=1)))
     # 7. Diffuse (subsurface scattering is rendered as the diffuse it would be without its radius).
-    if _constant(c, "Subsurface Weight", 0.0):
+    if not _param_may_differ(c, "Subsurface Weight", 0.0):
         _diffuse_lobe(b, ctx, base * weight, np.clip(get("Diffuse Roughness"), 0.0, 1.0), clamped)
     else:
         sss = np.clip(get("Subsurface Weight"), 0.0, 1.0)
@@ -579,9 +567,12 @@ _BUILDERS = {"DIFFUSE": _diffuse, "PRINCIPLED": _principled, "GLOSSY": _glossy, 
 
 # ---------------------------------------------------------------- what a closure may do, without hits
 def _param_may_differ(c: Closure, name: str, neutral) -> bool:
+    """Whether an input may be other than `neutral` at some hit (a batch's input, varying by piece, may)."""
     p = c.input(name)
     if p is None:
         return DEFAULTS[c.kind][name] != neutral
+    if not isinstance(p, Param):
+        return True
     return p.varies or tuple(p.value) not in ((neutral,), (neutral,) * 3)
 
 
