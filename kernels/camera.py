@@ -13,6 +13,7 @@ import numpy as np
 from . import motion, pixel_filter
 from .lens import sample_aperture
 from .scene import Camera
+from .vec import matmul
 
 
 def view_plane(camera: Camera) -> tuple[float, float, float, float]:
@@ -67,8 +68,8 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
                                             points)
         eye, rot = camera_frame(camera)
         rot32 = rot.astype(np.float32)
-        dirs = local @ rot32.T
-        origins = eye.astype(np.float32) + start @ rot32.T + dirs * np.float32(camera.clip_start)
+        dirs = matmul(local, rot32.T)
+        origins = eye.astype(np.float32) + matmul(start, rot32.T) + dirs * np.float32(camera.clip_start)
         t_max = np.where(valid, np.float32(camera.clip_end - camera.clip_start), np.float32(0.0))
         return (np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32),
                 t_max.astype(np.float32))
@@ -99,12 +100,12 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
             focus = np.float32(camera.focus_distance)
             inv = np.float32(1) / np.sqrt(lx * lx + ly * ly + focus * focus)
             local = np.stack([-lx * inv, -ly * inv, -focus * inv], 1)
-            dirs = local @ rot32.T
-            start = np.stack([px + lx, py + ly, np.zeros(n, np.float32)], 1) @ rot32.T
+            dirs = matmul(local, rot32.T)
+            start = matmul(np.stack([px + lx, py + ly, np.zeros(n, np.float32)], 1), rot32.T)
             origins = eye.astype(np.float32) + start + dirs * (np.float32(camera.clip_start) / (focus * inv))[:, None]
         else:
             dirs = np.broadcast_to(-rot32[:, 2], (n, 3))
-            origins = (eye.astype(np.float32) + np.stack([px, py, np.zeros(n, np.float32)], 1) @ rot32.T
+            origins = (eye.astype(np.float32) + matmul(np.stack([px, py, np.zeros(n, np.float32)], 1), rot32.T)
                        + dirs * np.float32(camera.clip_start))
         t_max = np.full(n, camera.clip_end - camera.clip_start, np.float32)
         return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max
@@ -116,12 +117,12 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
         focus = np.float32(camera.focus_distance)
         fx, fy = px * focus - lx, py * focus - ly
         inv = np.float32(1.0) / np.sqrt(fx * fx + fy * fy + focus * focus)
-        dirs = np.stack([fx * inv, fy * inv, -focus * inv], 1) @ rot32.T
-        start = np.stack([lx, ly, np.zeros(n, np.float32)], 1) @ rot32.T
+        dirs = matmul(np.stack([fx * inv, fy * inv, -focus * inv], 1), rot32.T)
+        start = matmul(np.stack([lx, ly, np.zeros(n, np.float32)], 1), rot32.T)
         origins = eye.astype(np.float32) + start + dirs * (np.float32(camera.clip_start) / cos_axis)[:, None]
     else:
         local = np.stack([px * inv_len, py * inv_len, -inv_len], 1)  # unit, z component is -cos
-        dirs = local @ rot32.T
+        dirs = matmul(local, rot32.T)
         origins = eye.astype(np.float32) + dirs * (np.float32(camera.clip_start) / cos_axis)[:, None]
     t_max = (np.float32(camera.clip_end - camera.clip_start) / cos_axis).astype(np.float32)
     return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max

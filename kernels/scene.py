@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .programs import Program, Ref
+from .vec import matmul
 
 CAMERA_KINDS = ("PERSP", "ORTHO", "PANO")
 PIXEL_FILTERS = ("BOX", "GAUSSIAN", "BLACKMAN_HARRIS")
@@ -1045,7 +1046,7 @@ def _finite_rows(a: np.ndarray) -> np.ndarray:
         return np.full(len(a), bool(np.isfinite(a[0]).all()))
     flat = a.reshape(len(a), -1)
     with np.errstate(over="ignore", invalid="ignore"):
-        ok = np.isfinite(flat @ np.ones(flat.shape[1], flat.dtype))
+        ok = np.isfinite(matmul(flat, np.ones(flat.shape[1], flat.dtype)))
     doubt = np.flatnonzero(~ok)
     if len(doubt):
         ok[doubt] = np.isfinite(flat[doubt]).all(axis=1)

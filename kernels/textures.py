@@ -13,8 +13,11 @@ LUMINANCE_REC709 = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 
 def luminance(rgb) -> np.ndarray:
-    """Luminance of (..., 3) linear Rec. 709 colours."""
-    return np.tensordot(LUMINANCE_REC709, np.asarray(rgb, np.float32), axes=([0], [-1]))
+    """Luminance of (..., 3) linear Rec. 709 colours. Three products, not a matrix product: NumPy hands those
+    to its BLAS, whose threads then spin on the other cores (see kernels/workers.py's child environment)."""
+    rgb = np.asarray(rgb, np.float32)
+    r, g, b = LUMINANCE_REC709
+    return rgb[..., 0] * r + rgb[..., 1] * g + rgb[..., 2] * b
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:

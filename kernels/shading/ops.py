@@ -15,6 +15,7 @@ from ..paths import DIFFUSE, GLOSSY, REFLECT, SINGULAR, TRANSMIT
 from ..scene import OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TEXSPACE_LOC, \
     OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR
 from ..textures import srgb_to_linear
+from ..vec import matmul
 from . import color_math as cm
 from . import gabor as gb
 from . import noise as ns
@@ -79,7 +80,7 @@ def object_normal(hits, n: np.ndarray) -> np.ndarray:
 def camera_point(hits, p: np.ndarray) -> np.ndarray:
     """Cycles' camera space: x right, y up, z ahead of the camera. In a world p is a direction (Cycles adds
     the camera position first, so only the rotation applies)."""
-    local = (p if getattr(hits, "world", False) else p - hits.scene.camera_eye) @ hits.scene.camera_rotation
+    local = matmul(p if getattr(hits, "world", False) else p - hits.scene.camera_eye, hits.scene.camera_rotation)
     return local * np.array([1.0, 1.0, -1.0], F32)
 
 
@@ -128,12 +129,12 @@ def camera_from_world(hits, v: np.ndarray, kind: str) -> np.ndarray:
     """World -> Cycles' camera space (z ahead) of points, vectors or normals (normalized)."""
     if kind == "POINT":
         return camera_point(hits, v)
-    out = (v @ hits.scene.camera_rotation) * _FLIP_Z
+    out = matmul(v, hits.scene.camera_rotation) * _FLIP_Z
     return _normalize(out) if kind == "NORMAL" else out.astype(F32)
 
 
 def world_from_camera(hits, v: np.ndarray, kind: str) -> np.ndarray:
-    out = (v * _FLIP_Z) @ hits.scene.camera_rotation.T
+    out = matmul(v * _FLIP_Z, hits.scene.camera_rotation.T)
     if kind == "POINT":
         return (out + hits.scene.camera_eye).astype(F32)
     return _normalize(out) if kind == "NORMAL" else out.astype(F32)
@@ -165,7 +166,7 @@ def normal_node(hits, inputs, op):
     direction = np.asarray(op.option("direction", (0.0, 0.0, 1.0)), F32)
     direction = direction / max(float(np.linalg.norm(direction)), 1e-30)
     normal = _normalize(np.array(full(inputs["Normal"], hits.n, 3), F32))
-    return {"Normal": np.broadcast_to(direction, (hits.n, 3)), "Dot": (normal @ direction).astype(F32)}
+    return {"Normal": np.broadcast_to(direction, (hits.n, 3)), "Dot": matmul(normal, direction).astype(F32)}
 
 
 def camera_data(hits, inputs, op):
@@ -246,7 +247,7 @@ def tex_coord(hits, inputs, op):
                 out[name] = object_point(hits, hits.P)
             else:
                 m = np.asarray(matrix, F32).reshape(3, 4)
-                out[name] = hits.P @ m[:, :3].T + m[:, 3]
+                out[name] = matmul(hits.P, m[:, :3].T) + m[:, 3]
         elif name == "Camera":
             out[name] = camera_point(hits, hits.P)
         elif name == "Window":

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..programs import Program, Ref
+from ..vec import matmul
 from .color_math import RGB_TO_Y, vector_to_float
 
 F32 = np.float32
@@ -248,7 +249,7 @@ def convert(a, have: str, want: str, n: int) -> np.ndarray:
     if have == want or (have != "VALUE" and want != "VALUE"):
         out = a
     elif want == "VALUE":
-        out = a @ RGB_TO_Y if have == "RGBA" else vector_to_float(a)
+        out = matmul(a, RGB_TO_Y) if have == "RGBA" else vector_to_float(a)
     else:
         out = np.repeat(np.reshape(a, (-1, 1)), 3, axis=1) if a.ndim else np.full(3, a, F32)
     if out.ndim == 0 or (want == "VALUE" and out.shape[0] != n) or (want != "VALUE" and out.ndim == 1):
