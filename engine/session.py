@@ -26,7 +26,7 @@ from typing import Callable
 import bpy
 import numpy as np
 
-from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays
+from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays, prestart_workers
 from ..kernels.accel import capped_threads
 from .export import ExportCancelled, ExportError, export_scene
 from .export.mesh import MeshCache
@@ -128,7 +128,7 @@ class ProgressiveSession:
                                 on_rows=..., on_display=..., on_progress=...)
         session.close()                                # or: with session: ...
 
-    After every wave of a render: on_rows(film, row0, row1) with the region rows it refined; then, at most
+    After every wave of a render: on_rows(film, row0, row1) with the span of region rows it refined; then, at most
     every display_s seconds (the first wave always; never when display_s is None or once should_stop() is
     True), on_display(film, denoised), denoised being the whole film denoised by `previews` when they are
     due (PreviewDenoiser), else None (show the film itself); then on_progress(progress, line), line being
@@ -286,6 +286,9 @@ class FinalRender:
             motion = sample_motion(engine, self.depsgraph, camera_ob) if camera_ob is not None else None
             vector = sample_vector_motion(engine, self.depsgraph, camera_ob) if camera_ob is not None else None
             persistent = persistent_data(scene) and motion is None and vector is None
+            if not (persistent and _kept.renderer is not None):   # a kept renderer has its workers
+                prestart_workers(capped_threads(render_threads(scene.render)),
+                                 width * height * int(scene.ember.samples))
             exported = export_scene(self.depsgraph, engine.camera_override, width=width, height=height,
                                     should_stop=self.should_stop, motion=motion, vector=vector,
                                     instance_everything=persistent, mesh_cache=_kept.meshes if persistent else None)

@@ -4,8 +4,9 @@
     result = render(scene, RenderSettings(samples=64))
     result.image  # (H, W, 4) float32 linear RGBA, row 0 at the top
 """
-from .integrator import SAMPLING_MODES, Cancelled, Progress, Renderer, RenderResult, RenderSettings, render
+from .integrator import (SAMPLING_MODES, Cancelled, Progress, Renderer, RenderResult, RenderSettings, prestart_workers,
+                         render)
 from .scene import LIGHT_KINDS, Camera, Lights, Materials, SceneArrays, World
 
 __all__ = ["SAMPLING_MODES", "LIGHT_KINDS", "Camera", "Cancelled", "Lights", "Materials", "Progress", "Renderer",
-           "RenderResult", "RenderSettings", "SceneArrays", "World", "render"]
+           "RenderResult", "RenderSettings", "SceneArrays", "World", "prestart_workers", "render"]

@@ -113,11 +113,15 @@ class CryptoFilm:
         keep = (weights > 0) & (ids != 0)
         self._insert(pixels[keep], ids[keep], weights[keep].astype(np.float64))
 
-    def merge(self, other: "CryptoFilm", row0: int = 0) -> None:
-        """Add another accumulator's slots (its rows going to rows row0...) as one call of `add` would."""
-        assert other.width == self.width and row0 + other.height <= self.height
+    def merge(self, other: "CryptoFilm", rows: int | range = 0) -> None:
+        """Add another accumulator's slots (its rows going to the rows `rows`, a range, or row `rows` and
+        those after it) as one call of `add` would."""
+        if not isinstance(rows, range):
+            rows = range(rows, rows + other.height)
+        assert other.width == self.width and len(rows) == other.height and (not rows or rows[-1] < self.height)
         pixel, slot = np.nonzero(other.ids)
-        self._insert(pixel + row0 * self.width, other.ids[pixel, slot], other.weights[pixel, slot])
+        row = np.asarray(rows, np.int64)[pixel // self.width]
+        self._insert(row * self.width + pixel % self.width, other.ids[pixel, slot], other.weights[pixel, slot])
 
     def _insert(self, pixels: np.ndarray, ids: np.ndarray, weights: np.ndarray) -> None:
         if not len(pixels):

@@ -40,26 +40,29 @@ class Film:
         # Cryptomatte: ranked (id, weight) slots per kind (kernels.cryptomatte).
         self.crypto = {kind: CryptoFilm(height, width, cryptomatte_depth) for kind in cryptomatte}
 
-    def add_rows(self, row0: int, row_sums: np.ndarray, samples, half_sums: np.ndarray | None = None,
+    def add_rows(self, rows: int | range, row_sums: np.ndarray, samples, half_sums: np.ndarray | None = None,
                  aux: dict | None = None) -> None:
-        """Add (rows, width, 4) sums starting at region row row0, holding `samples` samples per pixel (an
-        int, or (rows, width) counts with adaptive sampling), and then (rows, width, 3) sums of their odd
-        samples."""
-        rows = row_sums.shape[0]
-        self.sums[row0:row0 + rows] += row_sums
-        self.pixel_samples[row0:row0 + rows] += np.asarray(samples, np.int32)
+        """Add (rows, width, 4) sums to the region rows `rows` (a range, or the first of consecutive rows),
+        holding `samples` samples per pixel (an int, or (rows, width) counts with adaptive sampling), and
+        then (rows, width, 3) sums of their odd samples."""
+        if not isinstance(rows, range):
+            rows = range(rows, rows + row_sums.shape[0])
+        assert len(rows) == row_sums.shape[0]
+        at = slice(rows.start, rows.stop, rows.step)
+        self.sums[at] += row_sums
+        self.pixel_samples[at] += np.asarray(samples, np.int32)
         if half_sums is not None:
-            self.half[row0:row0 + rows] += half_sums.astype(np.float32)
+            self.half[at] += half_sums.astype(np.float32)
         for name, values in (aux or {}).items():
             if name.startswith("crypto_"):
-                self.crypto[name[len("crypto_"):]].merge(values, row0)
+                self.crypto[name[len("crypto_"):]].merge(values, rows)
                 continue
             if _passes.is_first(name):
                 plane, written = values
-                target = self.aux[name][row0:row0 + rows]
+                target = self.aux[name][at]     # a view: written into the film
                 target[written] = plane[written]
             else:
-                self.aux[name][row0:row0 + rows] += values.astype(self.aux[name].dtype)
+                self.aux[name][at] += values.astype(self.aux[name].dtype)
 
     def resolve_crypto(self, kind: str, row0: int = 0, row1: int | None = None) -> np.ndarray:
         """(rows, width, 4 x layers) float32 Cryptomatte layers of one kind (ids ranked by coverage)."""

@@ -46,7 +46,8 @@ from .scene import (OBJ_PASS_INDEX, OBJ_TERMINATOR, TERMINATOR_OFFSET, Camera, L
 from .shading import Shading
 from .shading.world import WorldShader
 from .textures import Texture
-from .workers import WaveSlots, WaveStopped, WorkerLost, WorkerSet, python_executable
+from .vec import matmul
+from .workers import WaveSlots, WaveStopped, WorkerLost, WorkerSet, prestart, python_executable
 
 SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
 # Russian roulette decides on the surfaces that rays hit once their path has scattered this many times
@@ -85,9 +86,10 @@ WAVE_SPAN = 4
 # of the work, which releases the GIL, is larger there too), and the children's copies of the arrays stay
 # within WORKER_MAX_BYTES together (many cores, a big texture: fewer children).
 WORKER_START_S = 1.5
-# ... or at once when a render has this many paths (2-4 s at 0.5-1M paths/s): a time-limited render, the
-# eight spheres at 256x256 and 32 samples.
-WORKER_START_PATHS = 2_000_000
+# ... or at once when a render has this many paths (0.5-1 s at 0.5-1M paths/s): a child from the pool is
+# ready in 0.1-0.2 s (and prestart_workers has the pool's children start while the scene is exported), and
+# until then the render runs on one thread (WaveSlots.reserve), so a child costs a short render little.
+WORKER_START_PATHS = 1 << 19
 WORKER_MAX_BYTES = 512 << 20
 WORKER_MAX_TRIANGLES = 1 << 18
 
@@ -258,6 +260,13 @@ def _forwarded(method):
             self._workers.forward(method.__name__, args, kwargs)
         return result
     return update
+
+
+def prestart_workers(threads: int, paths: int) -> None:
+    """Before a render of `paths` paths on `threads` threads exports its scene: start the worker processes
+    its Renderer will take (kernels/workers.py prestart), when it will start them at once."""
+    if threads > 1 and paths >= WORKER_START_PATHS and python_executable() is not None:
+        prestart(threads - 1)
 
 
 class Renderer:
@@ -576,7 +585,8 @@ class Renderer:
                on_progress: Callable[[Progress], None] | None = None) -> RenderResult:
         """Render sample passes over the region in waves of rows.
 
-        on_tile(film, row0, row1) runs after each wave with the region rows it refined;
+        on_tile(film, row0, row1) runs after each wave with the span of region rows it refined (a wave's band
+        is every few rows of the span: _plan_pass);
         on_progress(progress) reports after each wave. should_stop() is polled after each wave, every
         STOP_POLL_S while the render waits for one, and between the bounces of waves on the render's own
         thread; once it is True the waves in flight (worker processes' too) leave at their next bounce, and
@@ -606,7 +616,7 @@ class Renderer:
         # on the thread count. Waves of the next pass are queued while the last ones of a pass finish (a
         # pass's bands differ in cost: rows of sky and rows of glass), except before a convergence check,
         # which reads the whole film.
-        in_flight = collections.deque()   # (r0, r1, spp, future), in plan order
+        in_flight = collections.deque()   # (rows, spp, future), in plan order
         # Paths and seconds of this render's waves, each on its own thread, for waves side by side (False)
         # and waves split over the threads (True).
         self._wave_clock = {False: [0, 0.0], True: [0, 0.0]}
@@ -628,7 +638,7 @@ class Renderer:
                             break
                     wave, last = self.wave_size(settings), total
                     rate = self._rate()
-                    queued = sum((r1 - r0) * width * s for r0, r1, s, _ in in_flight)   # paths planned, not in
+                    queued = sum(len(rows) * width * s for rows, s, _ in in_flight)   # paths planned, not in
                     if done and settings.time_limit_s > 0 and rate:
                         # Near the time limit the next pass takes only the samples that fit in the time
                         # left at the rate so far, after the waves still in flight, in shorter waves: the
@@ -665,14 +675,14 @@ class Renderer:
                     pass_split = len(bands) < self.accel.threads
                     done += spp
             while pending and len(in_flight) < depth:
-                r0, r1 = pending.pop(0)
-                active = ~film.converged[r0:r1] if adaptive else None
-                in_flight.append((r0, r1, pass_spp, self._submit(self._wave, settings, x0, y0, width, r0, r1,
+                rows = pending.pop(0)
+                active = ~film.converged[_slice(rows)] if adaptive else None
+                in_flight.append((rows, pass_spp, self._submit(self._wave, settings, x0, y0, width, rows,
                                                                  pass_first, pass_spp, pass_split, active,
                                                                  self.live_paths(settings))))
             if not in_flight:
                 break
-            r0, r1, spp, future = in_flight.popleft()
+            rows, spp, future = in_flight.popleft()
             if future.cancelled():
                 continue
             try:
@@ -682,7 +692,7 @@ class Renderer:
                 for *_, queued in in_flight:
                     queued.cancel()
                 continue
-            film.add_rows(r0, sums, counts if adaptive else spp, half, aux)
+            film.add_rows(rows, sums, counts if adaptive else spp, half, aux)
             progress.paths += int(counts.sum())
             progress.nonfinite_paths += bad
             progress.elapsed_s = time.perf_counter() - start
@@ -692,7 +702,7 @@ class Renderer:
             progress.fraction = progress.paths / (width * height * total)
             progress.workers = max(progress.workers, self.worker_count)
             if on_tile is not None:
-                on_tile(film, r0, r1)
+                on_tile(film, rows.start, rows[-1] + 1)
             if on_progress is not None:
                 on_progress(progress)
             if self._workers_undecided() and self._worth_workers(progress):
@@ -758,12 +768,12 @@ class Renderer:
             return False
         return progress.elapsed_s * (1.0 - progress.fraction) / progress.fraction > WORKER_START_S
 
-    def _wave(self, settings, x0, y0, width, r0, r1, first_sample, spp, split, active=None, live=None):
+    def _wave(self, settings, x0, y0, width, rows, first_sample, spp, split, active=None, live=None):
         """_render_rows(...) in a free slot: this process or a ready worker process (timed on the render's
         _wave_clock). A worker that is lost (closed, exited, failed) gives its slot back to this process,
         and the wave runs here."""
         began = time.perf_counter()
-        result = self._wave_in_slot(settings, x0, y0, width, r0, r1, first_sample, spp, split, active, live)
+        result = self._wave_in_slot(settings, x0, y0, width, rows, first_sample, spp, split, active, live)
         seconds = time.perf_counter() - began
         split = bool(split)
         with self._count_lock:
@@ -805,17 +815,19 @@ class Renderer:
             return future
         return self._wave_pool.submit(fn, *args)
 
-    def _render_rows(self, settings, x0, y0, width, r0, r1, first_sample, spp, split, active=None, live=None):
-        """One wave: region rows [r0, r1), spp samples per pixel of those `active` ((rows, W) bool, None:
-        all), at most `live` paths traced at once (None: live_paths; the render passes its own, so that a
+    def _render_rows(self, settings, x0, y0, width, rows, first_sample, spp, split, active=None, live=None):
+        """One wave: the region rows `rows` (a range: a band of every rows.step-th row), spp samples per pixel
+        of those `active` ((rows, W) bool, None: all), at most `live` paths traced at once (None: live_paths; the render passes its own, so that a
         worker process traces the wave in the same batches). Returns ((rows, W, 4) float64 sums, (rows, W, 3)
         sums of the odd samples, (rows, W) sample counts, count of dropped non-finite paths). Paths are
         pixel-major so each pixel's samples are adjacent; what each path starts from (pixel, sample, random
         numbers) is made as its batch starts, so that the wave holds only its radiance and alpha per path."""
-        rows = r1 - r0
+        band = rows
+        rows = len(band)
         npix = rows * width
         pixels = np.arange(npix, dtype=np.int64) if active is None else np.flatnonzero(active)
-        paths = _WavePaths(settings, self.scene.camera, x0, y0 + r0, width, pixels, first_sample, spp)
+        paths = _WavePaths(settings, self.scene.camera, x0, range(y0 + band.start, y0 + band.stop, band.step), width,
+                           pixels, first_sample, spp)
         n = len(paths)
         # Overflow and invalid values are expected at the edges of float32 (huge lights, degenerate
         # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
@@ -1053,7 +1065,7 @@ class Renderer:
                 eye, rotation = self._camera_frame
                 d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
                 out[0, paths] = np.sqrt((d * d).sum(axis=0)) if self.scene.camera.kind == "PANO" else \
-                    -(rotation[:, 2] @ d)
+                    -matmul(rotation[:, 2], d)
             elif name == "position":
                 out[:, paths] = np.stack(hit.p)
             elif name == "object_index":
@@ -1095,7 +1107,7 @@ class Renderer:
             elif name == "mist":
                 eye, rotation = self._camera_frame
                 d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
-                distance = np.abs(rotation[:, 2] @ d) if self.scene.camera.kind == "ORTHO" else \
+                distance = np.abs(matmul(rotation[:, 2], d)) if self.scene.camera.kind == "ORTHO" else \
                     np.sqrt((d * d).sum(axis=0))
                 start, depth, falloff = settings.mist
                 mist = np.clip((distance - start) / max(depth, 1e-30), 0.0, 1.0) ** falloff
@@ -1144,7 +1156,7 @@ class Renderer:
                 _add_albedo(aux, paths, state.features[:, rows] * diffuse[:, rows])
             if "denoising_normal" in aux:
                 rotation = self._camera_frame[1].astype(np.float32)  # columns: right, up, back
-                aux["denoising_normal"][:, paths] = (rotation.T @ normal[:, rows]) * \
+                aux["denoising_normal"][:, paths] = matmul(rotation.T, normal[:, rows]) * \
                     np.array([1, 1, -1], np.float32)[:, None]
             state.features[:, rows] = np.nan
         waiting = open_[~done[open_]]
@@ -1769,12 +1781,13 @@ _SUM_BLOCK = 1 << 16
 
 class _WavePaths:
     """The paths of a wave, pixel-major: path k is sample first + k % spp of pixel pixels[k // spp] of the
-    band whose top row is `top` (region pixels numbered along rows of `width`, from column x0). What a path
-    starts from is made for each batch as it starts (the same values as for the whole wave at once)."""
+    band of image rows `rows` (a range; its pixels numbered along its rows of `width`, from column x0). What a
+    path starts from is made for each batch as it starts (the same values as for the whole wave at once)."""
 
-    def __init__(self, settings, camera, x0: int, top: int, width: int, pixels: np.ndarray, first: int, spp: int):
+    def __init__(self, settings, camera, x0: int, rows: range, width: int, pixels: np.ndarray, first: int,
+                 spp: int):
         self.settings, self.camera = settings, camera
-        self.x0, self.top, self.width = x0, top, width
+        self.x0, self.rows, self.width = x0, rows, width
         self.pixels, self.first, self.spp = pixels, first, spp
 
     def __len__(self) -> int:
@@ -1789,7 +1802,7 @@ class _WavePaths:
         """(PathRng, row, col, strata) of the paths [start, end)."""
         settings, cam, spp = self.settings, self.camera, self.spp
         pix, sample = self.pixel_and_sample(start, end)
-        row = (pix // self.width + self.top).astype(np.int32)
+        row = (pix // self.width * self.rows.step + self.rows.start).astype(np.int32)
         col = (pix % self.width + self.x0).astype(np.int32)
         pixel_index = row.astype(np.uint32) * np.uint32(cam.width) + col.astype(np.uint32)
         rng = PathRng(*seed_paths(pixel_index, sample, settings.seed))
@@ -1889,7 +1902,7 @@ def _raster(camera: Camera, world_from_camera, p: np.ndarray) -> np.ndarray:
     `camera` placed at world_from_camera (4, 4)."""
     m = np.asarray(world_from_camera, np.float64)
     rotation = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
-    local = rotation.T @ (p - m[:3, 3][:, None])
+    local = matmul(rotation.T, p - m[:3, 3][:, None])
     if camera.kind == "PANO":
         sx, sy = panorama.panorama_raster(camera, (local / np.linalg.norm(local, axis=0)).T)
         return np.stack([sx, camera.height - sy])
@@ -1954,13 +1967,16 @@ def _paced(rate: float, left_s: float, queued_paths: int, pixels: int, threads: 
 
 def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, quick_first: bool = True,
                band_pixels: int | None = None):
-    """Samples per pixel of the next pass and its bands of rows, one wave each.
+    """Samples per pixel of the next pass and its bands of rows (ranges of region rows), one wave each.
 
     The first pass takes one sample, for a quick first image (unless quick_first is False); later passes
     take enough samples to fill _WAVES_PER_PASS waves. A band holds at most band_pixels pixels where it can
     (a wave's sums per pixel are its own: at few samples per pixel, a wave of many paths would hold
-    buffers for as many pixels). The plan depends only on the image and the settings, never on the thread
-    count, so every thread count sums the same numbers in the same order.
+    buffers for as many pixels). The bands interleave: of n bands, band j holds rows j, j + n, j + 2n...,
+    so that the waves of a pass cost about the same wherever the image's costly rows are (rows of glass
+    and rows of sky), and the last waves of a pass on two cores end together. The plan depends only on
+    the image and the settings, never on the thread count, so every thread count sums the same numbers
+    in the same order.
     """
     if done == 0 and quick_first:
         spp = 1
@@ -1970,8 +1986,13 @@ def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, q
                                max(-(-height // _WAVES_PER_PASS), MIN_WAVE_PATHS // (width * spp))))
     if band_pixels is not None:
         rows_per_wave = max(1, min(rows_per_wave, band_pixels // width))
-    bands = [(r, min(height, r + rows_per_wave)) for r in range(0, height, rows_per_wave)]
-    return spp, bands
+    count = -(-height // rows_per_wave)
+    return spp, [range(j, height, count) for j in range(count)]
+
+
+def _slice(rows: range) -> slice:
+    """The rows of a band as a slice (of the film's arrays)."""
+    return slice(rows.start, rows.stop, rows.step)
 
 
 def _type_limits(settings):

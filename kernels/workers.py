@@ -67,6 +67,10 @@ importlib.import_module(cfg["kernels"] + ".workers").serve()
 """
 
 
+# What OpenBLAS, MKL, OpenMP and Accelerate read for their thread counts, when the library loads.
+_BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
+
+
 class WorkerLost(Exception):
     """The child process exited, failed or could not be reached; its wave runs in the parent."""
 
@@ -156,8 +160,12 @@ class Worker:
         # (On Windows a console program started from Blender's window would open a console of its own.)
         # -I -S: no site-packages, .pth hooks or PYTHON* variables of this machine; the parent's sys.path
         # (Blender's, with the wheels' site-packages) is the child's whole path.
+        # One thread for the BLAS NumPy may be linked with: a child is one core's worth of waves, and an
+        # OpenBLAS pool spins its threads for a while after every matrix product, on the cores the parent
+        # and the other children render on (a textured scene's waves took 1.5x as long beside such a child).
+        env = dict(os.environ, **{name: "1" for name in _BLAS_THREADS})
         self.process = subprocess.Popen([exe, "-I", "-S", "-c", _BOOT, cfg], stdin=subprocess.PIPE,
-                                        stdout=subprocess.PIPE, bufsize=0,
+                                        stdout=subprocess.PIPE, bufsize=0, env=env,
                                         creationflags=getattr(subprocess, "CREATE_NO_WINDOW", 0))
         self._in = io.BufferedWriter(self.process.stdin, 1 << 16)
         self._out = io.BufferedReader(self.process.stdout, 1 << 16)
@@ -295,6 +303,20 @@ def _pool_take() -> Worker | None:
     return None
 
 
+def prestart(count: int) -> None:
+    """Have `count` idle workers in this process's pool, starting the missing ones now: a render about to
+    export its scene calls this, so that the children's start (their imports, about 0.3 s) runs meanwhile
+    on another core. Unused, they exit after IDLE_S like any idle worker."""
+    with _pool_lock:
+        idle = sum(1 for worker in _pool if not worker.closed)
+    for _ in range(count - idle):
+        try:
+            worker = Worker()
+        except (OSError, WorkerLost):
+            return    # the render starts its own, or says why it cannot
+        _pool_put(worker)
+
+
 def _expire(worker: Worker, since: float) -> None:
     with _pool_lock:
         if worker not in _pool or worker.idle_since != since:
@@ -315,6 +337,11 @@ def close_pool() -> None:
 atexit.register(close_pool)
 
 
+# The longest a loading worker holds a local slot for itself (WaveSlots.reserve): a child from the pool
+# loads a real scene in 0.1-0.2 s, a new one in 0.4-0.6 s (its imports first).
+RESERVE_S = 1.0
+
+
 class WaveSlots:
     """Where the next wave may run: None (a thread of this process) or a ready Worker. There are always as
     many slots as wave threads; a worker that becomes ready takes the place of a local slot, and a worker
@@ -324,6 +351,7 @@ class WaveSlots:
         self._queue = queue.Queue()
         self._lock = threading.Lock()
         self._retire = 0
+        self._reserved = set()   # loading workers that hold a local slot (reserve)
         for _ in range(local):
             self._queue.put(None)
 
@@ -340,9 +368,36 @@ class WaveSlots:
     def give(self, slot) -> None:
         self._queue.put(slot)
 
-    def add_worker(self, worker: Worker) -> None:
+    def reserve(self, worker: Worker, seconds: float) -> None:
+        """Hold a local slot for `worker` while it loads, for at most `seconds`: waves wait for it meanwhile
+        rather than run on another thread of this process, where they would contend for the GIL with the
+        waves already running (two threads of one process reach about 1.3x one thread on real scenes, a
+        worker 2x) and keep the worker waiting for a slot once it is ready. The slot comes back when the
+        worker fails or the time is up."""
         with self._lock:
             self._retire += 1
+            self._reserved.add(worker)
+        timer = threading.Timer(seconds, self.unreserve, args=(worker,))
+        timer.daemon = True
+        timer.start()
+
+    def unreserve(self, worker: Worker) -> None:
+        """Give back the local slot held for `worker` (nothing when it holds none)."""
+        with self._lock:
+            if worker not in self._reserved:
+                return
+            self._reserved.discard(worker)
+            if self._retire:     # no local slot retired for it yet
+                self._retire -= 1
+                return
+        self._queue.put(None)
+
+    def add_worker(self, worker: Worker) -> None:
+        with self._lock:
+            if worker in self._reserved:    # it takes the local slot held for it
+                self._reserved.discard(worker)
+            else:
+                self._retire += 1
         self._queue.put(worker)
 
 
@@ -382,6 +437,7 @@ class WorkerSet:
                     return True
             with self._lock:
                 self.workers.append(worker)
+            self.slots.reserve(worker, RESERVE_S)
             worker.load(payload, self._ready, self._failed)
         return True
 
@@ -395,6 +451,7 @@ class WorkerSet:
 
     def _failed(self, worker: Worker) -> None:
         self.failures.append(str(worker.error))
+        self.slots.unreserve(worker)
 
     def lost(self, worker: Worker, err: Exception) -> None:
         worker.error = err

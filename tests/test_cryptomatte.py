@@ -137,6 +137,23 @@ def test_merge_rows_equals_accumulating_in_place():
     np.testing.assert_array_equal(merged.layers(spp, 2, 5), merged.layers(spp)[2:5])
 
 
+def test_merge_interleaved_rows_equals_accumulating_in_place():
+    """A wave's band of every third row (integrator._plan_pass interleaves them) merges into its rows."""
+    rng = np.random.default_rng(12)
+    h, w, spp = 7, 4, 24
+    pixels, ids, weights = _samples(rng, h, w, h * w * spp, ids_per_pixel=4)
+    whole = CryptoFilm(h, w, depth=4)
+    whole.add(pixels, ids, weights)
+    merged = CryptoFilm(h, w, depth=4)
+    for j in range(3):
+        rows = range(j, h, 3)
+        part = CryptoFilm(len(rows), w, depth=4)
+        inside = np.flatnonzero(pixels // w % 3 == j)
+        part.add(pixels[inside] // w // 3 * w + pixels[inside] % w, ids[inside], weights[inside])
+        merged.merge(part, rows)
+    np.testing.assert_allclose(merged.layers(spp), whole.layers(spp), rtol=1e-6, atol=0)
+
+
 def test_more_ids_than_slots():
     """Ids past the slots are dropped (Cycles adds them to the last slot): the kept coverages stay exact;
     within one call the heaviest new ids take the free slots; across calls the first come keep them."""

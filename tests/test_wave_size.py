@@ -61,6 +61,37 @@ def test_background_renders_start_with_full_passes():
     np.testing.assert_allclose(full.image, quick.image, rtol=1e-6, atol=1e-7)
 
 
+def test_the_bands_of_a_pass_interleave_and_the_image_stays(monkeypatch):
+    """A pass's bands interleave (band j of n: rows j, j + n, ...) so that its waves cost alike: every row is
+    in one band, no band is over the wave size; the image, its passes, Cryptomatte and adaptive sampling's
+    counts are those of one band of every row, to float rounding."""
+    for width, height, done, total, size in ((256, 256, 0, 32, LAYERED_WAVE_SIZE), (160, 120, 1, 128, 1 << 18),
+                                             (64, 48, 0, 40, 4096), (300, 7, 0, 64, 1024)):
+        spp, bands = _plan_pass(width, height, done, total, size, quick_first=False)
+        n = len(bands)
+        assert sorted(r for band in bands for r in band) == list(range(height))
+        assert all(band == range(j, height, n) for j, band in enumerate(bands))
+        assert all(len(band) * width * spp <= max(size, width * spp) for band in bands)
+    assert len(_plan_pass(64, 48, 0, 40, 4096, quick_first=False)[1]) > 1
+    settings = dict(samples=40, seed=2, passes=("normal", "diffuse_direct", "depth"), cryptomatte=("object",),
+                    adaptive_threshold=0.05, adaptive_min_samples=8)
+    plan, planned = integrator._plan_pass, []
+    monkeypatch.setattr(integrator, "_plan_pass", lambda *a: planned.append(plan(*a)) or planned[-1])
+    with _renderer(lambda: scenes.materials_scene(64, 48)) as renderer:
+        many = renderer.render(RenderSettings(wave_size=4096, **settings))
+        assert sum(len(bands) > 1 for _, bands in planned) > len(planned) // 2   # the 1-sample pass is one band
+        planned.clear()
+        monkeypatch.setattr(integrator, "MIN_WAVE_PATHS", 1 << 30)   # no pass cut into waves for two cores
+        one = renderer.render(RenderSettings(wave_size=1 << 22, **settings))
+        assert all(bands == [range(48)] for _, bands in planned)
+    np.testing.assert_allclose(many.image, one.image, rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(many.film.pixel_samples, one.film.pixel_samples)
+    assert 0 < np.count_nonzero(many.film.pixel_samples < 40) < 64 * 48   # adaptive sampling stopped some
+    for name in settings["passes"]:
+        np.testing.assert_allclose(many.film.aux[name], one.film.aux[name], rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(many.film.crypto["object"].ids, one.film.crypto["object"].ids)
+
+
 def test_paths_start_as_others_end_and_the_image_stays(monkeypatch):
     """A wave of more paths than are traced at once starts them batch by batch, beside the long paths of
     the batches before (the glass of the materials scene keeps paths bouncing): no bounce traces more than
@@ -100,16 +131,19 @@ def test_paths_start_as_others_end_and_the_image_stays(monkeypatch):
 
 def test_a_batch_starts_from_what_the_whole_wave_would():
     """_WavePaths makes what each path starts from (pixel, sample, random numbers, strata) as its batch
-    starts: the same values as made for the whole wave, for batches of whole pixels and of parts of one."""
+    starts: the same values as made for the whole wave, for batches of whole pixels and of parts of one.
+    The wave's band is every third row from row 12 (interleaved bands): its pixels are on those rows."""
     from ember.kernels.integrator import _WavePaths
     scenes.cornell_scene(48, 32)
     camera = export_current().scene.camera
     pixels = np.flatnonzero(np.random.default_rng(3).random(48 * 5) < 0.7)  # an adaptive wave's pixels
     for pattern in ("AUTOMATIC", "SOBOL_BURLEY"):
         settings = RenderSettings(samples=40, seed=9, sampling_pattern=pattern)
-        paths = _WavePaths(settings, camera, 0, 12, 48, pixels, 8, 6)
+        paths = _WavePaths(settings, camera, 0, range(12, 27, 3), 48, pixels, 8, 6)
         rng, row, col, strata = paths.batch(0, len(paths))
         assert len(row) == len(paths) == 6 * len(pixels)
+        assert np.array_equal(row, 12 + 3 * (np.repeat(pixels, 6) // 48))
+        assert np.array_equal(col, np.repeat(pixels, 6) % 48)
         for lo, hi in ((0, 12), (12, 19), (19, 300), (300, len(paths))):
             b_rng, b_row, b_col, b_strata = paths.batch(lo, hi)
             assert np.array_equal(b_row, row[lo:hi]) and np.array_equal(b_col, col[lo:hi])

@@ -209,6 +209,75 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
         assert "triangles are over 1000" in renderer._workers.skipped and renderer._workers.workers == []
 
 
+def test_a_loading_worker_holds_a_local_slot_until_ready_failed_or_late():
+    """WaveSlots.reserve: while a worker loads, waves wait for it rather than run on a second thread of this
+    process; the slot comes back when the worker fails or its time is up, and a ready worker takes it."""
+    import queue
+    import threading
+
+    def taken(slots, timeout=10.0):
+        out = queue.Queue()
+        threading.Thread(target=lambda: out.put(slots.take()), daemon=True).start()
+        return out
+
+    worker, late = object(), object()
+    slots = workers.WaveSlots(2)
+    slots.reserve(worker, 60.0)
+    assert slots.take() is None                 # one local slot is left
+    waiting = taken(slots)
+    with pytest.raises(queue.Empty):
+        waiting.get(timeout=0.2)                # the second waits for the worker...
+    slots.add_worker(worker)
+    assert waiting.get(timeout=10) is worker    # ...and gets it, without a local slot retired twice
+    slots.give(None)
+    slots.give(worker)
+    assert {id(slots.take()), id(slots.take())} == {id(None), id(worker)}
+    # A worker that fails gives its slot back; so does one that is not ready in time.
+    slots = workers.WaveSlots(2)
+    slots.reserve(worker, 60.0)
+    assert slots.take() is None
+    waiting = taken(slots)
+    slots.unreserve(worker)
+    assert waiting.get(timeout=10) is None
+    slots = workers.WaveSlots(2)
+    slots.reserve(late, 0.05)
+    assert slots.take() is None and taken(slots).get(timeout=10) is None
+    slots.add_worker(late)                      # ready after its time: it takes the place of a local slot
+    slots.give(None)
+    slots.give(None)
+    assert slots.take() is late
+
+
+def test_prestarted_workers_wait_in_the_pool_for_the_renderer(materials):
+    """A render about to export starts the workers its Renderer will take (prestart_workers), only when the
+    Renderer would start them at once."""
+    workers.close_pool()
+    integrator.prestart_workers(2, integrator.WORKER_START_PATHS - 1)
+    integrator.prestart_workers(1, integrator.WORKER_START_PATHS)
+    assert workers._pool == []
+    integrator.prestart_workers(2, integrator.WORKER_START_PATHS)
+    assert len(workers._pool) == 1
+    integrator.prestart_workers(2, integrator.WORKER_START_PATHS)    # one is there already
+    assert len(workers._pool) == 1
+    pid = workers._pool[0].process.pid
+    with Renderer(materials, threads=2, processes=True) as renderer:
+        assert renderer.wait_for_workers() == 1 and renderer._workers.reused == 1
+        assert renderer._workers.workers[0].process.pid == pid
+
+
+def test_children_run_their_blas_on_one_thread():
+    """A child's BLAS threads would spin on the cores the parent renders on after each matrix product."""
+    child = workers.Worker()
+    try:
+        environ = open(f"/proc/{child.process.pid}/environ", "rb").read().split(b"\0") \
+            if os.path.exists(f"/proc/{child.process.pid}/environ") else None
+    finally:
+        child.close()
+    if environ is not None:
+        for name in workers._BLAS_THREADS:
+            assert name.encode() + b"=1" in environ
+
+
 def test_the_start_waits_for_a_render_with_time_left():
     # 10% done after 0.2 s: 1.8 s left, over WORKER_START_S; 90% done: 0.02 s left.
     assert Renderer._worth_workers(Progress(1, 10, 0.1, 0.2, paths=100))
@@ -230,9 +299,14 @@ def test_f12_renders_with_worker_processes_and_says_so(tmp_path, monkeypatch, ca
     monkeypatch.setattr(integrator, "WORKER_START_PATHS", 1)
     monkeypatch.setattr(integrator, "LAYERED_WAVE_SIZE", 1024)   # many waves, so that the worker gets some
     monkeypatch.setattr(integrator, "MIN_WAVE_PATHS", 1024)
+    prestarted = []
+    original = integrator.prestart
+    monkeypatch.setattr(integrator, "prestart", lambda count: prestarted.append(count) or original(count))
+    workers.close_pool()
     helped = render_to_array(scene, "EMBER", 24, seed=3)
     out = capfd.readouterr().out
     assert "1 worker process" in out, out[-500:]
+    assert prestarted == [1]    # started before the export, taken by the renderer
     monkeypatch.setattr(integrator, "WORKER_START_PATHS", 1 << 60)
     monkeypatch.setattr(integrator, "WORKER_START_S", 1e9)
     threads_only = render_to_array(scene, "EMBER", 24, seed=3)
