@@ -114,6 +114,46 @@ def test_an_8bit_texture_stays_bytes_from_file_to_kernel(tmp_path):
         assert kept.nbytes == stored.nbytes and np.shares_memory(kept.texels, stored)
 
 
+def test_image_files_are_decoded_on_threads_during_the_export(tmp_path, monkeypatch):
+    """The export starts decoding the image files of every material's tree (and of the node groups they use;
+    each material's own tree is named alike) on threads, and the textures are what reading them one by one
+    gives."""
+    import threading
+    from ember.engine.export import images
+    paths = [write_image(str(tmp_path / f"t{k}.png"), _pattern(29 + k, 31, 3, seed=k)) for k in range(3)]
+    scene = new_scene(8, 8)
+    group = bpy.data.node_groups.new("Wear", "ShaderNodeTree")
+    group.interface.new_socket("Color", in_out="OUTPUT", socket_type="NodeSocketColor")
+    inner = group.nodes.new("ShaderNodeTexImage")
+    inner.image = bpy.data.images.load(paths[2])
+    inner.image.pack()
+    output = group.nodes.new("NodeGroupOutput")
+    group.links.new(inner.outputs["Color"], output.inputs["Color"])
+    for k, name in enumerate(("A", "B")):
+        material = bpy.data.materials.new(name)
+        tree = material.node_tree
+        texture = tree.nodes.new("ShaderNodeTexImage")
+        texture.image = bpy.data.images.load(paths[k])
+        bsdf = tree.nodes["Principled BSDF"]
+        tree.links.new(texture.outputs["Color"], bsdf.inputs["Base Color"])
+        if k == 1:
+            node = tree.nodes.new("ShaderNodeGroup")
+            node.node_tree = group
+            tree.links.new(node.outputs["Color"], bsdf.inputs["Emission Color"])
+        quad_object(f"Plane{k}", (-2 + 2 * k, 0, -1), (2, 0, 0), (0, 0, 2), material)
+    decoded = []
+    original = images._read_file
+    monkeypatch.setattr(images, "_read_file",
+                        lambda oiio, path: decoded.append(threading.current_thread().name) or original(oiio, path))
+    exported = export_current()
+    assert len(decoded) == 3 and all(name.startswith("ember-images") for name in decoded)
+    expected = sorted((images.file_bytes(bpy.data.images[f"t{k}.png"]) for k in range(3)), key=len)
+    got = sorted(exported.scene.textures, key=len)
+    assert len(got) == 3
+    for texture, pixels in zip(got, expected):
+        np.testing.assert_array_equal(np.asarray(texture), pixels)
+
+
 @pytest.mark.parametrize("channels", [1, 3, 4])
 def test_byte_texture_lookups_equal_float_lookups_bit_for_bit(channels):
     """What the export handed over before (k / 255 as float32, colour times alpha for RGBA, grey in three

@@ -27,6 +27,7 @@ from ...kernels import SceneArrays
 from ...kernels.cryptomatte import hash_names
 from ...kernels.memory import small_pages, trim_heap
 from .camera import export_camera, render_region, render_resolution
+from .images import shader_images
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
 from .mesh import export_geometry
@@ -99,10 +100,14 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                            default_height if height is None else height, warnings)
     materials = MaterialTable(warnings)
     poll = Poller(should_stop)
-    geometry = export_geometry(depsgraph, materials, warnings, poll,
-                               moving=frozenset(motion.objects) if motion is not None else frozenset(),
-                               instance_everything=instance_everything, cache=mesh_cache)
-    world = export_world(scene.world, warnings, materials.images)
+    with materials.images:   # the scene's image files are decoded on threads while the meshes are read
+        materials.images.prefetch(shader_images(
+            [m.node_tree for m in depsgraph.ids if isinstance(m, bpy.types.Material)]
+            + [scene.world.node_tree if scene.world is not None else None]))
+        geometry = export_geometry(depsgraph, materials, warnings, poll,
+                                   moving=frozenset(motion.objects) if motion is not None else frozenset(),
+                                   instance_everything=instance_everything, cache=mesh_cache)
+        world = export_world(scene.world, warnings, materials.images)
     lights = export_lights(depsgraph, warnings, poll)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
                     "asset": list(geometry.instance_assets or []), "material": list(materials.names)}

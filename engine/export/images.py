@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +37,9 @@ FILE_FORMATS = {"png": {"oiio:UnassociatedAlpha": 1}, "jpeg": {"jpeg:com_attribu
                 "tiff": {"oiio:UnassociatedAlpha": 1}}
 # Values per block when a whole image is walked: a few MB of temporaries at a time.
 _BLOCK = 1 << 22
+
+
+_UNREAD = object()   # read_image's decoded: not read yet
 
 
 @dataclass(frozen=True)
@@ -57,10 +61,11 @@ class ImagePixels:
         return srgb_to_linear(values) if self.srgb else values
 
 
-def read_image(image, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
+def read_image(image, warnings: list[str], alpha: bool = False, decoded=_UNREAD) -> ImagePixels | None:
     """An image's pixels; None (with a warning) when Blender cannot load it. alpha: keep the alpha
-    channel when the image has one that is not 1 everywhere."""
-    pixels = file_bytes(image)
+    channel when the image has one that is not 1 everywhere. decoded: what file_bytes(image) gives, when
+    it was read already (ImageTextures.prefetch)."""
+    pixels = file_bytes(image) if decoded is _UNREAD else decoded
     if pixels is None:
         pixels = _blender_pixels(image)
     if pixels is None:
@@ -141,27 +146,32 @@ def file_bytes(image) -> np.ndarray | None:
     reads it (C = 1 for grey, where Blender repeats it in R, G and B; grey with alpha becomes RGBA, as there),
     row 0 at the bottom; None when the image is not a plain 8-bit file of FILE_FORMATS that OpenImageIO opens
     (Blender reads it)."""
-    if image.source != "FILE" or image.is_dirty or image.use_deinterlace or image.is_multiview:
-        return None
     oiio = _openimageio()
     if oiio is None:
         return None
+    with tempfile.TemporaryDirectory(prefix="ember-") as folder:
+        path = _file_of(image, folder)
+        return None if path is None else _read_file(oiio, path)
+
+
+def _file_of(image, folder: str) -> str | None:
+    """The file to read an image from (a packed one written into `folder` first), None when the image is not
+    read from a file. Touches bpy: on the export's thread only."""
+    if image.source != "FILE" or image.is_dirty or image.use_deinterlace or image.is_multiview:
+        return None
     if image.packed_file is None:
         path = image.filepath_from_user()
-        if not path or not os.path.isfile(path):
-            return None
-        return _read_file(oiio, path)
+        return path if path and os.path.isfile(path) else None
     if len(image.packed_files) != 1:
         return None
     # A packed file (glTF and .blend files carry their textures so) goes through a file of its own: Blender's
     # OpenImageIO module reads files, not memory. Through image.pixels it would be decoded to floats, four
     # channels, the whole image at once (about 0.1 s and 64 MB per 2048 x 2048 texture).
     extension = os.path.splitext(image.filepath or image.name)[1].lower()
-    with tempfile.TemporaryDirectory(prefix="ember-") as folder:
-        path = os.path.join(folder, "packed" + extension)
-        with open(path, "wb") as f:
-            f.write(image.packed_file.data)
-        return _read_file(oiio, path)
+    path = os.path.join(folder, f"packed{len(os.listdir(folder))}{extension}")
+    with open(path, "wb") as f:
+        f.write(image.packed_file.data)
+    return path
 
 
 def _read_file(oiio, path: str) -> np.ndarray | None:
@@ -283,13 +293,77 @@ class ImageTextures:
         self.loaded: list[ImagePixels] = []
         self._index: dict[str, int | None] = {}
         self._warnings = warnings
+        self._decoding: dict[str, Future] = {}
+        self._pool = None
+        self._folder = None
+
+    def prefetch(self, images) -> None:
+        """Start decoding these images' files on threads while the export goes on (index() then waits for
+        its image, if it is still being read). OpenImageIO releases the GIL: two threads read the
+        stained-glass lamp's nineteen 8-bit textures in half the time one takes, and beside the export of
+        the meshes. Call close() when the export is over."""
+        oiio = _openimageio()
+        if oiio is None:
+            return
+        for image in images:
+            key = image.name_full
+            if key in self._decoding or key in self._index:
+                continue
+            if self._folder is None:
+                self._folder = tempfile.TemporaryDirectory(prefix="ember-")
+                self._pool = ThreadPoolExecutor(PREFETCH_THREADS, "ember-images")
+            path = _file_of(image, self._folder.name)
+            if path is not None:
+                self._decoding[key] = self._pool.submit(_read_file, oiio, path)
 
     def index(self, image) -> int | None:
         """The image's texture index, None when it cannot be loaded."""
         key = image.name_full
         if key not in self._index:
-            pixels = read_image(image, self._warnings, alpha=True)
+            decoding = self._decoding.pop(key, None)
+            pixels = read_image(image, self._warnings, alpha=True,
+                                **({} if decoding is None else {"decoded": decoding.result()}))
             self._index[key] = None if pixels is None else len(self.loaded)
             if pixels is not None:
                 self.loaded.append(pixels)
         return self._index[key]
+
+    def close(self) -> None:
+        """Drop what prefetch read that no material used, and its files."""
+        if self._pool is not None:
+            for decoding in self._decoding.values():
+                decoding.cancel()
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        self._decoding.clear()
+        if self._folder is not None:
+            self._folder.cleanup()
+            self._folder = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+# Threads that decode image files during an export: OpenImageIO's own decoders are single-threaded per file.
+PREFETCH_THREADS = max(1, min(4, os.cpu_count() or 1))
+
+
+def shader_images(trees) -> list:
+    """The images of the Image and Environment Texture nodes in these node trees and the groups they use
+    (each once, in the order met)."""
+    found, seen = {}, set()
+    stack = [tree for tree in trees if tree is not None]
+    while stack:
+        tree = stack.pop()
+        if tree.as_pointer() in seen:    # (a material's own tree is named "Shader Nodetree", as all are)
+            continue
+        seen.add(tree.as_pointer())
+        for node in tree.nodes:
+            if node.type in ("TEX_IMAGE", "TEX_ENVIRONMENT") and node.image is not None:
+                found.setdefault(node.image.name_full, node.image)
+            elif node.type == "GROUP" and node.node_tree is not None:
+                stack.append(node.node_tree)
+    return list(found.values())
