@@ -36,7 +36,7 @@ from .coincident import Coincident
 from .geometry import NG, TriangleTable, prototype_boxes, scene_extent
 from .interaction import RayInfo, SurfaceHit
 from .lights import LightSampler
-from .memory import small_pages, trim_heap
+from .memory import kept_heap, small_pages, trim_heap
 from .paths import PathState
 from .rng import PathRng, seed_paths
 from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, SAMPLING_PATTERNS, TIME, Samples, sample_strata
@@ -592,6 +592,10 @@ class Renderer:
         thread; once it is True the waves in flight (worker processes' too) leave at their next bounce, and
         what they had done is dropped.
         """
+        with kept_heap():   # the waves' arrays are freed and made again at every bounce
+            return self._render(settings, on_tile, should_stop, on_progress)
+
+    def _render(self, settings, on_tile, should_stop, on_progress) -> RenderResult:
         cam = self.scene.camera
         x0, y0, x1, y1 = settings.validate(cam.width, cam.height)
         width, height = x1 - x0, y1 - y0

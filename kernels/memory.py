@@ -33,21 +33,69 @@ import threading
 import numpy as np
 
 _trim = None
+_mallopt = None
+
+
+def _libc(name: str, argtypes):
+    """A glibc function, False off Linux or without glibc."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        function = getattr(ctypes.CDLL("libc.so.6"), name)
+    except (OSError, AttributeError):
+        return False
+    function.argtypes, function.restype = argtypes, ctypes.c_int
+    return function
 
 
 def trim_heap() -> None:
     """Return the C heap's free pages to the system (glibc's malloc_trim); a no-op elsewhere."""
     global _trim
     if _trim is None:
-        _trim = False
-        if sys.platform.startswith("linux"):
-            try:
-                _trim = ctypes.CDLL("libc.so.6").malloc_trim
-                _trim.argtypes, _trim.restype = [ctypes.c_size_t], ctypes.c_int
-            except (OSError, AttributeError):
-                _trim = False
+        _trim = _libc("malloc_trim", [ctypes.c_size_t])
     if _trim:
         _trim(0)
+
+
+# glibc's mallopt parameters, and what its dynamic thresholds reach in a process that frees big NumPy arrays
+# (the values kept_heap leaves behind; setting them turns the dynamic adjustment off).
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+KEPT_BYTES = 1 << 30
+SETTLED_MMAP_BYTES, SETTLED_TRIM_BYTES = 32 << 20, 64 << 20
+_kept_depth = 0
+
+
+def keep_freed_memory(keep: bool = True) -> bool:
+    """Have glibc keep freed memory for the next allocation (keep) or give big blocks back to the system as
+    it settles on its own (not keep). A render frees and allocates its waves' arrays (megabytes each)
+    at every bounce: glibc gave them back each time and the next ones faulted fresh zeroed pages, some
+    100,000 page faults and a tenth of a 2-second render in the kernel. False where this is not glibc."""
+    global _mallopt
+    if _mallopt is None:
+        _mallopt = _libc("mallopt", [ctypes.c_int, ctypes.c_int])
+    if not _mallopt:
+        return False
+    mmap, trim = (KEPT_BYTES, KEPT_BYTES) if keep else (SETTLED_MMAP_BYTES, SETTLED_TRIM_BYTES)
+    return bool(_mallopt(_M_MMAP_THRESHOLD, mmap)) and bool(_mallopt(_M_TRIM_THRESHOLD, trim))
+
+
+@contextlib.contextmanager
+def kept_heap():
+    """keep_freed_memory() inside (a render); when the last of nested or concurrent uses leaves, glibc
+    settles again and the kept memory goes back to the system (trim_heap)."""
+    global _kept_depth
+    with _lock:
+        if _kept_depth == 0:
+            keep_freed_memory(True)
+        _kept_depth += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _kept_depth -= 1
+            if _kept_depth == 0:
+                keep_freed_memory(False)
+                trim_heap()
 
 
 def _advice_switch():

@@ -513,8 +513,9 @@ def _serve(incoming, outgoing) -> None:
     import numpy as np
 
     from .integrator import Renderer
-    from .memory import trim_heap
+    from .memory import keep_freed_memory, trim_heap
 
+    keep_freed_memory()   # a child renders waves and nothing else (memory.keep_freed_memory); "drop" trims
     inbox = _Inbox(incoming)
     renderer = None
     broken = None

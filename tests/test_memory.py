@@ -127,3 +127,27 @@ def test_export_and_renderer_build_without_advice_and_restore_it(monkeypatch):
     renderer.close()
     assert 0 < exported_calls < len(seen) and not any(seen), seen
     assert advice()
+
+
+def test_a_render_keeps_freed_memory_for_its_next_arrays():
+    """Inside kept_heap (a render), an array freed and made again reuses its pages instead of faulting fresh
+    ones from the system; once the render is over, glibc gives big blocks back again."""
+    import resource
+    if not memory.keep_freed_memory(False):
+        pytest.skip("not glibc")
+
+    def faults_of_the_second():
+        first = np.ones(8 << 20)       # 64 MB: over glibc's settled mmap threshold
+        del first
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+        second = np.ones(8 << 20)
+        del second
+        return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+
+    settled = faults_of_the_second()
+    with memory.kept_heap():
+        with memory.kept_heap():       # nested (a viewport and an F12 render)
+            kept = faults_of_the_second()
+        assert faults_of_the_second() < settled / 4
+    assert settled >= 16 and kept < settled / 4
+    assert faults_of_the_second() >= 16
