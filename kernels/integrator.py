@@ -772,12 +772,12 @@ class Renderer:
             return False
         return progress.elapsed_s * (1.0 - progress.fraction) / progress.fraction > WORKER_START_S
 
-    def _wave(self, settings, x0, y0, width, rows, first_sample, spp, split, active=None, live=None):
+    def _wave(self, settings, x0, y0, width, band, first_sample, spp, split, active=None, live=None):
         """_render_rows(...) in a free slot: this process or a ready worker process (timed on the render's
         _wave_clock). A worker that is lost (closed, exited, failed) gives its slot back to this process,
         and the wave runs here."""
         began = time.perf_counter()
-        result = self._wave_in_slot(settings, x0, y0, width, rows, first_sample, spp, split, active, live)
+        result = self._wave_in_slot(settings, x0, y0, width, band, first_sample, spp, split, active, live)
         seconds = time.perf_counter() - began
         split = bool(split)
         with self._count_lock:
@@ -819,19 +819,19 @@ class Renderer:
             return future
         return self._wave_pool.submit(fn, *args)
 
-    def _render_rows(self, settings, x0, y0, width, rows, first_sample, spp, split, active=None, live=None):
-        """One wave: the region rows `rows` (a range: a band of every rows.step-th row), spp samples per pixel
-        of those `active` ((rows, W) bool, None: all), at most `live` paths traced at once (None: live_paths; the render passes its own, so that a
-        worker process traces the wave in the same batches). Returns ((rows, W, 4) float64 sums, (rows, W, 3)
-        sums of the odd samples, (rows, W) sample counts, count of dropped non-finite paths). Paths are
-        pixel-major so each pixel's samples are adjacent; what each path starts from (pixel, sample, random
-        numbers) is made as its batch starts, so that the wave holds only its radiance and alpha per path."""
-        band = rows
+    def _render_rows(self, settings, x0, y0, width, band, first_sample, spp, split, active=None, live=None):
+        """One wave: the region rows of `band` (a range: every band.step-th row, _plan_pass), spp samples per
+        pixel of those `active` ((rows, W) bool, None: all), at most `live` paths traced at once (None:
+        live_paths; the render passes its own, so that a worker process traces the wave in the same batches).
+        Returns ((rows, W, 4) float64 sums, (rows, W, 3) sums of the odd samples, (rows, W) sample counts,
+        count of dropped non-finite paths). Paths are pixel-major so each pixel's samples are adjacent; what
+        each path starts from (pixel, sample, random numbers) is made as its batch starts, so that the wave
+        holds only its radiance and alpha per path."""
         rows = len(band)
         npix = rows * width
         pixels = np.arange(npix, dtype=np.int64) if active is None else np.flatnonzero(active)
-        paths = _WavePaths(settings, self.scene.camera, x0, range(y0 + band.start, y0 + band.stop, band.step), width,
-                           pixels, first_sample, spp)
+        image_rows = range(y0 + band.start, y0 + band.stop, band.step)
+        paths = _WavePaths(settings, self.scene.camera, x0, image_rows, width, pixels, first_sample, spp)
         n = len(paths)
         # Overflow and invalid values are expected at the edges of float32 (huge lights, degenerate
         # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
