@@ -265,17 +265,15 @@ def test_prestarted_workers_wait_in_the_pool_for_the_renderer(materials):
         assert renderer._workers.workers[0].process.pid == pid
 
 
-def test_children_run_their_blas_on_one_thread():
+def test_children_run_their_blas_on_one_thread(monkeypatch):
     """A child's BLAS threads would spin on the cores the parent renders on after each matrix product."""
-    child = workers.Worker()
-    try:
-        environ = open(f"/proc/{child.process.pid}/environ", "rb").read().split(b"\0") \
-            if os.path.exists(f"/proc/{child.process.pid}/environ") else None
-    finally:
-        child.close()
-    if environ is not None:
-        for name in workers._BLAS_THREADS:
-            assert name.encode() + b"=1" in environ
+    started = []
+    popen = workers.subprocess.Popen
+    monkeypatch.setattr(workers.subprocess, "Popen", lambda *a, **k: started.append(k) or popen(*a, **k))
+    workers.Worker().close()
+    (kwargs,) = started
+    assert all(kwargs["env"][name] == "1" for name in workers._BLAS_THREADS)
+    assert kwargs["env"]["PATH"] == os.environ["PATH"]    # the rest of the environment goes on
 
 
 def test_the_start_waits_for_a_render_with_time_left():
