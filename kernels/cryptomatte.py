@@ -113,11 +113,8 @@ class CryptoFilm:
         keep = (weights > 0) & (ids != 0)
         self._insert(pixels[keep], ids[keep], weights[keep].astype(np.float64))
 
-    def merge(self, other: "CryptoFilm", rows: int | range = 0) -> None:
-        """Add another accumulator's slots (its rows going to the rows `rows`, a range, or row `rows` and
-        those after it) as one call of `add` would."""
-        if not isinstance(rows, range):
-            rows = range(rows, rows + other.height)
+    def merge(self, other: "CryptoFilm", rows: range) -> None:
+        """Add another accumulator's slots (its rows going to the rows `rows`) as one call of `add` would."""
         assert other.width == self.width and len(rows) == other.height and (not rows or rows[-1] < self.height)
         pixel, slot = np.nonzero(other.ids)
         row = np.asarray(rows, np.int64)[pixel // self.width]

@@ -40,13 +40,11 @@ class Film:
         # Cryptomatte: ranked (id, weight) slots per kind (kernels.cryptomatte).
         self.crypto = {kind: CryptoFilm(height, width, cryptomatte_depth) for kind in cryptomatte}
 
-    def add_rows(self, rows: int | range, row_sums: np.ndarray, samples, half_sums: np.ndarray | None = None,
+    def add_rows(self, rows: range, row_sums: np.ndarray, samples, half_sums: np.ndarray | None = None,
                  aux: dict | None = None) -> None:
-        """Add (rows, width, 4) sums to the region rows `rows` (a range, or the first of consecutive rows),
-        holding `samples` samples per pixel (an int, or (rows, width) counts with adaptive sampling), and
-        then (rows, width, 3) sums of their odd samples."""
-        if not isinstance(rows, range):
-            rows = range(rows, rows + row_sums.shape[0])
+        """Add (rows, width, 4) sums to the region rows `rows` (a wave's band), holding `samples` samples per
+        pixel (an int, or (rows, width) counts with adaptive sampling), and then (rows, width, 3) sums of
+        their odd samples."""
         assert len(rows) == row_sums.shape[0]
         at = slice(rows.start, rows.stop, rows.step)
         self.sums[at] += row_sums

@@ -680,7 +680,7 @@ class Renderer:
                     done += spp
             while pending and len(in_flight) < depth:
                 rows = pending.pop(0)
-                active = ~film.converged[_slice(rows)] if adaptive else None
+                active = ~film.converged[rows] if adaptive else None      # (a range indexes as a list)
                 in_flight.append((rows, pass_spp, self._submit(self._wave, settings, x0, y0, width, rows,
                                                                  pass_first, pass_spp, pass_split, active,
                                                                  self.live_paths(settings))))
@@ -1992,11 +1992,6 @@ def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, q
         rows_per_wave = max(1, min(rows_per_wave, band_pixels // width))
     count = -(-height // rows_per_wave)
     return spp, [range(j, height, count) for j in range(count)]
-
-
-def _slice(rows: range) -> slice:
-    """The rows of a band as a slice (of the film's arrays)."""
-    return slice(rows.start, rows.stop, rows.step)
 
 
 def _type_limits(settings):

@@ -18,7 +18,7 @@ def matmul(a, b) -> np.ndarray:
     a, b = np.asarray(a), np.asarray(b)
     dtype = np.result_type(a, b)
     a, b = a.astype(dtype, copy=False), b.astype(dtype, copy=False)
-    if a.shape[-1] != b.shape[0] or a.ndim > 2 or b.ndim > 2:
+    if not 1 <= a.ndim <= 2 or not 1 <= b.ndim <= 2 or a.shape[-1] != b.shape[0]:
         raise ValueError(f"matmul: shapes {a.shape} and {b.shape} do not chain")
     if a.ndim == 2 and b.ndim == 2 and a.shape[0] > b.shape[1]:
         # Rows of vectors times a matrix: the transposed product, term by term along the long axis (a

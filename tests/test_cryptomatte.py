@@ -120,38 +120,25 @@ def test_layers_rank_and_normalise_like_an_exact_tally():
     np.testing.assert_allclose(once.layers(spp), layers, rtol=1e-6, atol=0)
 
 
-def test_merge_rows_equals_accumulating_in_place():
+@pytest.mark.parametrize("bands", [[range(0, 2), range(2, 5), range(5, 6)],          # consecutive rows
+                                   [range(0, 6, 3), range(1, 6, 3), range(2, 6, 3)]])  # interleaved (_plan_pass)
+def test_merge_rows_equals_accumulating_in_place(bands):
+    """Each band's accumulator (its rows numbered from 0, filled in two calls) merges into the band's rows."""
     rng = np.random.default_rng(11)
     h, w, spp = 6, 4, 24
     pixels, ids, weights = _samples(rng, h, w, h * w * spp, ids_per_pixel=4)
     whole = CryptoFilm(h, w, depth=4)
     whole.add(pixels, ids, weights)
     merged = CryptoFilm(h, w, depth=4)
-    for row0, row1 in ((0, 2), (2, 5), (5, 6)):
-        part = CryptoFilm(row1 - row0, w, depth=4)
-        inside = (pixels >= row0 * w) & (pixels < row1 * w)
-        for half in np.array_split(np.flatnonzero(inside), 2):
-            part.add(pixels[half] - row0 * w, ids[half], weights[half])
-        merged.merge(part, row0)
-    np.testing.assert_allclose(merged.layers(spp), whole.layers(spp), rtol=1e-6, atol=0)
-    np.testing.assert_array_equal(merged.layers(spp, 2, 5), merged.layers(spp)[2:5])
-
-
-def test_merge_interleaved_rows_equals_accumulating_in_place():
-    """A wave's band of every third row (integrator._plan_pass interleaves them) merges into its rows."""
-    rng = np.random.default_rng(12)
-    h, w, spp = 7, 4, 24
-    pixels, ids, weights = _samples(rng, h, w, h * w * spp, ids_per_pixel=4)
-    whole = CryptoFilm(h, w, depth=4)
-    whole.add(pixels, ids, weights)
-    merged = CryptoFilm(h, w, depth=4)
-    for j in range(3):
-        rows = range(j, h, 3)
+    for rows in bands:
         part = CryptoFilm(len(rows), w, depth=4)
-        inside = np.flatnonzero(pixels // w % 3 == j)
-        part.add(pixels[inside] // w // 3 * w + pixels[inside] % w, ids[inside], weights[inside])
+        row = pixels // w
+        inside = np.flatnonzero(np.isin(row, rows))
+        for half in np.array_split(inside, 2):
+            part.add((row[half] - rows.start) // rows.step * w + pixels[half] % w, ids[half], weights[half])
         merged.merge(part, rows)
     np.testing.assert_allclose(merged.layers(spp), whole.layers(spp), rtol=1e-6, atol=0)
+    np.testing.assert_array_equal(merged.layers(spp, 2, 5), merged.layers(spp)[2:5])
 
 
 def test_more_ids_than_slots():

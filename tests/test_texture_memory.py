@@ -116,12 +116,17 @@ def test_an_8bit_texture_stays_bytes_from_file_to_kernel(tmp_path):
 
 def test_image_files_are_decoded_on_threads_during_the_export(tmp_path, monkeypatch):
     """The export starts decoding the image files of every material's tree (and of the node groups they use;
-    each material's own tree is named alike) on threads, and the textures are what reading them one by one
-    gives."""
+    each material's own tree is named alike) and of the world's on threads, each once (a plain HDRI world
+    too), and the textures are what reading them one by one gives."""
     import threading
     from ember.engine.export import images
-    paths = [write_image(str(tmp_path / f"t{k}.png"), _pattern(29 + k, 31, 3, seed=k)) for k in range(3)]
+    paths = [write_image(str(tmp_path / f"t{k}.png"), _pattern(29 + k, 31, 3, seed=k)) for k in range(4)]
     scene = new_scene(8, 8)
+    world = bpy.data.worlds.new("Sky")
+    scene.world = world
+    sky = world.node_tree.nodes.new("ShaderNodeTexEnvironment")
+    sky.image = bpy.data.images.load(paths[3])
+    world.node_tree.links.new(sky.outputs["Color"], world.node_tree.nodes["Background"].inputs["Color"])
     group = bpy.data.node_groups.new("Wear", "ShaderNodeTree")
     group.interface.new_socket("Color", in_out="OUTPUT", socket_type="NodeSocketColor")
     inner = group.nodes.new("ShaderNodeTexImage")
@@ -146,7 +151,8 @@ def test_image_files_are_decoded_on_threads_during_the_export(tmp_path, monkeypa
     monkeypatch.setattr(images, "_read_file",
                         lambda oiio, path: decoded.append(threading.current_thread().name) or original(oiio, path))
     exported = export_current()
-    assert len(decoded) == 3 and all(name.startswith("ember-images") for name in decoded)
+    assert len(decoded) == 4 and all(name.startswith("ember-images") for name in decoded)
+    assert exported.scene.world.hdri is not None
     expected = sorted((images.file_bytes(bpy.data.images[f"t{k}.png"]) for k in range(3)), key=len)
     got = sorted(exported.scene.textures, key=len)
     assert len(got) == 3

@@ -215,7 +215,8 @@ def test_a_loading_worker_holds_a_local_slot_until_ready_failed_or_late():
     import queue
     import threading
 
-    def taken(slots, timeout=10.0):
+    def taken(slots):
+        """What slots.take() gives on another thread (a queue to wait on)."""
         out = queue.Queue()
         threading.Thread(target=lambda: out.put(slots.take()), daemon=True).start()
         return out

@@ -39,7 +39,7 @@ FILE_FORMATS = {"png": {"oiio:UnassociatedAlpha": 1}, "jpeg": {"jpeg:com_attribu
 _BLOCK = 1 << 22
 
 
-_UNREAD = object()   # read_image's decoded: not read yet
+_UNREAD = object()   # read_image's file_pixels: not read yet
 
 
 @dataclass(frozen=True)
@@ -61,11 +61,11 @@ class ImagePixels:
         return srgb_to_linear(values) if self.srgb else values
 
 
-def read_image(image, warnings: list[str], alpha: bool = False, decoded=_UNREAD) -> ImagePixels | None:
+def read_image(image, warnings: list[str], alpha: bool = False, file_pixels=_UNREAD) -> ImagePixels | None:
     """An image's pixels; None (with a warning) when Blender cannot load it. alpha: keep the alpha
-    channel when the image has one that is not 1 everywhere. decoded: what file_bytes(image) gives, when
-    it was read already (ImageTextures.prefetch)."""
-    pixels = file_bytes(image) if decoded is _UNREAD else decoded
+    channel when the image has one that is not 1 everywhere. file_pixels: file_bytes(image), when it was
+    read already (ImageTextures.read)."""
+    pixels = file_bytes(image) if file_pixels is _UNREAD else file_pixels
     if pixels is None:
         pixels = _blender_pixels(image)
     if pixels is None:
@@ -316,13 +316,17 @@ class ImageTextures:
             if path is not None:
                 self._decoding[key] = self._pool.submit(_read_file, oiio, path)
 
+    def read(self, image, alpha: bool = False) -> ImagePixels | None:
+        """read_image(image), from the file's bytes prefetch decoded when it did."""
+        decoding = self._decoding.pop(image.name_full, None)
+        return read_image(image, self._warnings, alpha,
+                          decoding.result() if decoding is not None else file_bytes(image))
+
     def index(self, image) -> int | None:
         """The image's texture index, None when it cannot be loaded."""
         key = image.name_full
         if key not in self._index:
-            decoding = self._decoding.pop(key, None)
-            pixels = read_image(image, self._warnings, alpha=True,
-                                **({} if decoding is None else {"decoded": decoding.result()}))
+            pixels = self.read(image, alpha=True)
             self._index[key] = None if pixels is None else len(self.loaded)
             if pixels is not None:
                 self.loaded.append(pixels)

@@ -23,7 +23,7 @@ import numpy as np
 
 from ...kernels import World
 from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
-from .images import ImagePixels, ImageTextures, read_image
+from .images import ImagePixels, ImageTextures
 from .materials import BLACK3, MISSING_IMAGE_COLOR, Source, output_node, rgb, source_of
 from .lights import MAX_LIGHT_RADIANCE
 from .nodes import ProgramBuilder, socket_has_nan
@@ -45,11 +45,12 @@ def export_world(world, warnings: list[str], images=None) -> World:
                         f"evaluate: rendered black, as in Cycles")
         return World(color=np.zeros(3, np.float32))
     issues: list[str] = []
+    images = images if images is not None else ImageTextures(warnings)
     with indexed_links():
         if _needs_program(world.node_tree):
-            result = _program_world(world, images if images is not None else ImageTextures(warnings), issues)
+            result = _program_world(world, images, issues)
         else:
-            result = _read_tree(world.node_tree, issues, warnings)
+            result = _read_tree(world.node_tree, issues, images)
     issues.extend(invalid_links(world.node_tree))
     out = output_node(world.node_tree)
     if out is not None and "Volume" in out.inputs and source_of(out.inputs["Volume"]).node is not None:
@@ -59,7 +60,7 @@ def export_world(world, warnings: list[str], images=None) -> World:
     return result
 
 
-def _read_tree(tree, issues: list[str], warnings: list[str]) -> World:
+def _read_tree(tree, issues: list[str], images: ImageTextures) -> World:
     """The worlds _needs_program leaves: nothing, an unsupported shader, a constant, or a plain HDRI."""
     out = output_node(tree)
     surface = Source(None, None) if out is None else source_of(out.inputs["Surface"])
@@ -76,7 +77,7 @@ def _read_tree(tree, issues: list[str], warnings: list[str]) -> World:
             issues.append(f"{node.bl_label} Color is not a number, read as 0")
         value = np.array(rgb(color.socket.default_value), np.float32)
         return World(color=value, strength=_limited(strength, float(value.max()), node, issues))
-    return _environment(color, strength, node, issues, warnings)
+    return _environment(color, strength, node, issues, images)
 
 
 def _strength(socket, node, issues: list[str]) -> float:
@@ -179,7 +180,7 @@ def _radiance_of(builder, source: Source, issues: list[str]):
     return DEFAULT_WORLD_COLOR
 
 
-def _environment(texture: Source, strength: float, background, issues: list[str], warnings: list[str]) -> World:
+def _environment(texture: Source, strength: float, background, issues: list[str], images: ImageTextures) -> World:
     """A plain equirectangular Environment Texture (feeding the node `background`): the HDRI world,
     sampled from the image itself."""
     node = texture.node
@@ -187,7 +188,7 @@ def _environment(texture: Source, strength: float, background, issues: list[str]
     if node.image is None:
         issues.append("Environment Texture has no image, rendered magenta")
         return missing
-    pixels = read_image(node.image, warnings)
+    pixels = images.read(node.image)
     if pixels is None:
         return missing
     env_from_world = _env_from_world(source_of(node.inputs["Vector"], texture.groups))
