@@ -20,7 +20,7 @@ such an image as 3 bytes per texel (engine/export/images.py); Cycles as 4 (uchar
 --display forces the interactive path (rows written every wave, as F12 in the interface does) in
 background mode, where Ember would otherwise write every row once at the end. --layered gives the sphere a
 Principled BSDF with metal and coat layers: materials that mix lobes get waves twice as large (the automatic
-wave size, kernels.integrator.LAYERED_WAVE_SIZE), and the bound on the working set doubles with them.
+wave size, kernels.schedule.LAYERED_WAVE_SIZE), and the bound on the working set doubles with them.
 """
 from __future__ import annotations
 

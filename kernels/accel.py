@@ -24,7 +24,7 @@ from .scene import same_arrays
 # Plain triangles from this many on get Embree's quick (low-quality) BVH first, which builds 3-4x faster
 # and traces about 15-20% slower, so that the first samples come sooner; the render's further waves
 # bring the usual (medium) BVH in the background and move to it when it is ready (Accel.refine). The
-# hits are the same on either tree. The same bound as the worker processes' (integrator.WORKER_MAX_TRIANGLES).
+# hits are the same on either tree. The same bound as the worker processes' (schedule.WORKER_MAX_TRIANGLES).
 QUICK_BVH_TRIANGLES = 1 << 18
 # ... and the medium BVH is worth building only for a render with at least this many seconds left per
 # plain triangle. Measured on the bench's box with a 1M-triangle sphere (256x256, 16 spp, 2 cores): the

@@ -10,21 +10,15 @@ max_bounces + 1 times (the lecture's "max path length").
 """
 from __future__ import annotations
 
-import collections
 import dataclasses
 import functools
-import itertools
-import threading
-import time
 import weakref
-from concurrent.futures import Future, ThreadPoolExecutor
-from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import dataclass, field
+from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, NamedTuple
 
 import numpy as np
 
-from . import motion, panorama, passes, sampling
+from . import motion, panorama, passes, sampling, schedule
 from .accel import Accel, RayTimes
 from .camera import generate_rays, view_plane
 from .environment import Environment, WorldFocus
@@ -39,7 +33,7 @@ from .lights import LightSampler
 from .memory import kept_heap, small_pages, trim_heap
 from .paths import PathState
 from .rng import PathRng, seed_paths
-from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, SAMPLING_PATTERNS, TIME, Samples, sample_strata
+from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples, sample_strata
 from .camera import camera_frame
 from .scene import (OBJ_PASS_INDEX, OBJ_TERMINATOR, TERMINATOR_OFFSET, Camera, Lights, Materials, SceneArrays, World,
                     same_arrays, same_triangles, usable_placements)
@@ -47,9 +41,9 @@ from .shading import Shading
 from .shading.world import WorldShader
 from .textures import Texture
 from .vec import matmul
-from .workers import WaveSlots, WaveStopped, WorkerLost, WorkerSet, prestart, python_executable
+from .schedule import Progress, RenderResult, WaveCrew, WaveJob, render_passes
+from .settings import RenderSettings
 
-SAMPLING_MODES = ("NEE_MIS", "COSINE", "LECTURE")
 # Russian roulette decides on the surfaces that rays hit once their path has scattered this many times
 # (Cycles: bounce > min_bounce, min_bounce 1 by default; NEE_MIS only: LECTURE and COSINE stay the plain
 # estimators they are, for teaching and as references).
@@ -58,192 +52,9 @@ ROULETTE_DEPTH = 2
 # around that lobe (Environment.focus); less in proportion where other closures share the sampling weight.
 FOCUS_SHARE = 0.8
 
-# A pass is cut into at least this many waves when the image allows, so that two cores have
-# independent work; wave_size then bounds each wave.
-_WAVES_PER_PASS = 4
-# ... but no wave is cut below this many paths: a wave pays about 50 ms of Python per bounce sequence
-# whatever its size (the eight spheres' 1-sample first pass at 256x256 took 0.48 s in four waves on two
-# threads, 0.26 s in one), and small waves on two threads only contend for the GIL.
-MIN_WAVE_PATHS = 1 << 16
-
-# Paths traced at once (automatic): every bounce runs Python once per material and lobe of the batch, so
-# scenes whose materials mix lobes (Principled layers, Mix Shaders) get twice the paths to spread it over.
-# Measured on two threads: the eight Principled spheres 14% more paths/s with the larger batches, the
-# diffuse Cornell box 6% fewer.
-WAVE_SIZE = 1 << 17
-LAYERED_WAVE_SIZE = 1 << 18
-# Paths per wave when RenderSettings.wave_size is None: this many times the paths traced at once. New paths
-# start as others end (trace_paths), so a wave's long paths pay the stages' fixed cost per bounce once per
-# wave, not once per batch: on glass scenes a third of the time went to bounces of a few hundred paths
-# (the glTF TransmissionTest at 160x120: waves four times as large took 25% less time).
-WAVE_SPAN = 4
-
-# Worker processes (kernels/workers.py): a renderer with several threads starts threads - 1 children once
-# a render has this many seconds left by its rate so far (a child takes about 0.3 s to start and build its
-# copy of a small scene). Each child holds a copy of the scene's arrays (textures included) and builds its
-# own BVH: scenes over WORKER_MAX_TRIANGLES stay in one process, with threads (on a 1M-triangle box a
-# child cost more than it brought: 0.70x Cycles' paths/s against 0.86x with threads alone; Embree's share
-# of the work, which releases the GIL, is larger there too), and the children's copies of the arrays stay
-# within WORKER_MAX_BYTES together (many cores, a big texture: fewer children).
-WORKER_START_S = 1.5
-# ... or at once when a render has this many paths (0.5-1 s at 0.5-1M paths/s): a child from the pool is
-# ready in 0.1-0.2 s (and prestart_workers has the pool's children start while the scene is exported), and
-# until then the render runs on one thread (WaveSlots.reserve), so a child costs a short render little.
-WORKER_START_PATHS = 1 << 19
-WORKER_MAX_BYTES = 512 << 20
-WORKER_MAX_TRIANGLES = 1 << 18
-
-# A stop request (should_stop(): Esc, Ctrl-C) is polled at least this often while the render waits for its
-# waves; the waves in flight, here and in the worker processes, are then told at once and leave at their next
-# bounce, so a stop takes about this plus one bounce, whatever the size of the waves.
-STOP_POLL_S = 0.05
-# Every render of this process has its own number: a worker process (which may serve renderers one after
-# another) stops the waves of the render it is told, and of none after it.
-_GENERATIONS = itertools.count(1)
-
-
-@dataclass(frozen=True)
-class RenderSettings:
-    """How to render. region is (x0, y0, x1, y1) in full-frame pixels, row 0 at the top, end
-    exclusive; None for the whole frame. time_limit_s = 0 means none. A wave holds at most
-    wave_size paths, which bounds memory whatever the resolution (None: automatic, WAVE_SPAN times the
-    paths traced at once, WAVE_SIZE or, for materials that mix lobes, LAYERED_WAVE_SIZE; the image is the
-    same for any wave size to float rounding, and the same bit for bit for any thread count)."""
-    samples: int = 64
-    max_bounces: int = 8
-    mode: str = "NEE_MIS"
-    seed: int = 0
-    time_limit_s: float = 0.0
-    region: tuple | None = None
-    transparent_background: bool = False
-    wave_size: int | None = None
-    transparent_max_bounces: int = 8
-    # Cycles' per-type limits (Light Paths > Max Bounces: Diffuse, Glossy, Transmission), None for none: a path
-    # that has reflected diffusely (glossily) more often than diffuse_bounces (glossy_bounces), or gone through
-    # surfaces more often than transmission_bounces, only takes the emission and the world of what it meets
-    # next, as after max_bounces.
-    diffuse_bounces: int | None = None
-    glossy_bounces: int | None = None
-    transmission_bounces: int | None = None
-    # Cycles' Clamp Direct and Clamp Indirect: a contribution whose |R| + |G| + |B| exceeds 3 x the limit
-    # is scaled down to it (0: off). Direct: light reaching the first hit or the camera; indirect: the rest.
-    clamp_direct: float = 0.0
-    clamp_indirect: float = 0.0
-    # Cycles' Filter Glossy (0: off): after a bounce of small pdf, glossy closures are made at least
-    # sqrt(1 - f x pdf) / 2 rough, f = 1 / filter_glossy, trading a little blur for fewer fireflies.
-    filter_glossy: float = 0.0
-    # Cycles' Caustics switches (Light Paths > Caustics): off, a ray that comes from a diffuse bounce finds
-    # no glossy reflection (reflective) or no refraction (refractive) closures where it lands, so that
-    # light no longer reaches diffuse surfaces through mirrors and glass: no caustics, and their noise, at
-    # the cost of that light.
-    caustics_reflective: bool = True
-    caustics_refractive: bool = True
-    # Adaptive sampling as Cycles' (0: off): after adaptive_min_samples (0: Cycles' automatic count,
-    # ceil(16 / threshold^0.3)) and every ADAPTIVE_STEP samples, pixels whose noise estimate is under the
-    # threshold stop taking samples.
-    adaptive_threshold: float = 0.0
-    adaptive_min_samples: int = 0
-    # Data passes to record besides the image (kernels.passes.PASSES names), e.g. ("depth", "normal").
-    passes: tuple = ()
-    # The Mist pass: (start, depth, falloff exponent) in scene units (the world's Mist Pass settings).
-    mist: tuple = (5.0, 25.0, 2.0)
-    # A sample range of the frame (Cycles' Sample Offset): samples sample_offset .. sample_offset + samples - 1
-    # of each pixel's sequence, so that ranges rendered apart and merged by sample count make the whole.
-    sample_offset: int = 0
-    # How the first vertex's numbers are laid out (kernels.samples.sample_strata, Cycles' Sampling Pattern):
-    # "AUTOMATIC", one Owen-scrambled Sobol sequence shared by the pixels so that neighbours' errors are blue
-    # noise, as Cycles' final renders; "SOBOL_BURLEY", a sequence of each pixel's own, which sample ranges
-    # of one frame need to merge into exactly the whole (the blue-noise layout depends on the sample count).
-    sampling_pattern: str = "AUTOMATIC"
-    # With AUTOMATIC, sample 0 of every pixel from a one-sample blue-noise sequence of its own, so that the
-    # first image is blue noise by itself (Cycles' pattern for interactive renders: the viewport's).
-    blue_noise_first: bool = False
-    # A first pass of one sample per pixel, for a quick first image (the interface and the viewport); a
-    # render nobody watches (background mode) starts with full passes, which keep every core busy at once.
-    quick_first_pass: bool = True
-    # Cryptomatte: the kinds to record ("object", "material", "asset") and the ids kept per pixel (Levels).
-    cryptomatte: tuple = ()
-    cryptomatte_depth: int = 6
-
-    def validate(self, width: int, height: int) -> tuple[int, int, int, int]:
-        if self.mode not in SAMPLING_MODES:
-            raise ValueError(f"mode: must be one of {SAMPLING_MODES}, got {self.mode!r}")
-        if int(self.samples) < 1:
-            raise ValueError(f"samples: must be at least 1, got {self.samples}")
-        if self.sampling_pattern not in SAMPLING_PATTERNS:
-            raise ValueError(f"sampling_pattern: must be one of {SAMPLING_PATTERNS}, got {self.sampling_pattern!r}")
-        if int(self.sample_offset) < 0:
-            raise ValueError(f"sample_offset: must be non-negative, got {self.sample_offset}")
-        unknown = [p for p in self.passes if not passes.known(p)]
-        if unknown:
-            raise ValueError(f"passes: unknown {unknown}, known {tuple(passes.PASSES)}")
-        unknown = [k for k in self.cryptomatte if k not in passes.CRYPTO_KINDS]
-        if unknown:
-            raise ValueError(f"cryptomatte: unknown {unknown}, known {passes.CRYPTO_KINDS}")
-        if int(self.max_bounces) < 0:
-            raise ValueError(f"max_bounces: must be non-negative, got {self.max_bounces}")
-        if not (np.isfinite(self.time_limit_s) and self.time_limit_s >= 0):
-            raise ValueError(f"time_limit_s: must be finite and non-negative, got {self.time_limit_s}")
-        if int(self.transparent_max_bounces) < 0:
-            raise ValueError(f"transparent_max_bounces: must be non-negative, got {self.transparent_max_bounces}")
-        for name in ("diffuse_bounces", "glossy_bounces", "transmission_bounces"):
-            value = getattr(self, name)
-            if value is not None and int(value) < 0:
-                raise ValueError(f"{name}: must be non-negative (None: no limit of its own), got {value}")
-        if self.wave_size is not None and int(self.wave_size) < 1:
-            raise ValueError(f"wave_size: must be positive, got {self.wave_size}")
-        if int(self.adaptive_min_samples) < 0:
-            raise ValueError(f"adaptive_min_samples: must be non-negative (0 is automatic), got "
-                             f"{self.adaptive_min_samples}")
-        for name in ("clamp_direct", "clamp_indirect", "filter_glossy", "adaptive_threshold"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: must be finite and non-negative (0 is off), got {value}")
-        x0, y0, x1, y1 = self.region if self.region is not None else (0, 0, width, height)
-        if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
-            raise ValueError(f"region: {self.region} is empty or outside the {width}x{height} frame")
-        return int(x0), int(y0), int(x1), int(y1)
-
-
-@dataclass
-class Progress:
-    """What a render has done so far, passed to on_progress after every wave."""
-    samples_done: int          # samples every pixel of the region has
-    samples_total: int
-    fraction: float            # of all paths of the render, 0..1
-    elapsed_s: float
-    paths: int = 0
-    rays: int = 0
-    seconds_in_embree: float = 0.0
-    nonfinite_paths: int = 0   # paths whose radiance came out NaN or inf and were dropped
-    workers: int = 0           # worker processes that rendered waves (kernels/workers.py), the most at once
-
-    @property
-    def paths_per_s(self) -> float:
-        return self.paths / self.elapsed_s if self.elapsed_s > 0 else 0.0
-
-    @property
-    def rays_per_s(self) -> float:
-        return self.rays / self.elapsed_s if self.elapsed_s > 0 else 0.0
-
 
 class Cancelled(Exception):
     """should_stop() asked a Renderer to stop while it was being built."""
-
-
-@dataclass
-class RenderResult:
-    """What a render made. The image is resolved from the film when asked for (a full-frame float32
-    copy): a caller that streams the result can read it in bands with film.resolve(row0, row1)."""
-    film: Film = field(repr=False)
-    progress: Progress
-    stopped_early: bool
-    dropped_triangles: int = 0
-
-    @property
-    def image(self) -> np.ndarray:
-        """(H, W, 4) float32 linear RGBA of the region, row 0 at the top."""
-        return self.film.resolve()
 
 
 def _forwarded(method):
@@ -256,17 +67,10 @@ def _forwarded(method):
             result = method(self, *args, **kwargs)
         finally:
             self._update_depth -= 1
-        if self._update_depth == 0 and self._workers is not None and result is not False:
-            self._workers.forward(method.__name__, args, kwargs)
+        if self._update_depth == 0 and result is not False:
+            self.crew.forward(method.__name__, args, kwargs)
         return result
     return update
-
-
-def prestart_workers(threads: int, paths: int) -> None:
-    """Before a render of `paths` paths on `threads` threads exports its scene: start the worker processes
-    its Renderer will take (kernels/workers.py prestart), when it will start them at once."""
-    if threads > 1 and paths >= WORKER_START_PATHS and python_executable() is not None:
-        prestart(threads - 1)
 
 
 class Renderer:
@@ -285,14 +89,7 @@ class Renderer:
         None starts them when a render has WORKER_START_PATHS paths, or WORKER_START_S left by its rate
         after a wave; True now; False never. The image is the same bit for bit wherever its waves run."""
         self._update_depth = 0
-        self._workers = None
-        self._wave_pool = None
-        # Set: the waves of the render in progress leave at their next bounce (a worker process's reader thread
-        # sets its renderer's when the parent stops the render).
-        self.stop_waves = threading.Event()
-        self._stop_poll = None           # the render's should_stop, polled by its own thread (see _check_stop)
-        self._render_thread = None
-        self.generation = 0              # the render in progress, or the last (see _GENERATIONS)
+        self.crew: WaveCrew | None = None   # where the waves run (kernels.schedule), once the BVH says the threads
         def poll():
             if should_stop is not None and should_stop():
                 raise Cancelled()
@@ -324,50 +121,39 @@ class Renderer:
                 raise
             self.accel = accel.result()
         trim_heap()
-        threads = self.accel.threads
-        self._wave_pool = ThreadPoolExecutor(threads, "ember-wave") if threads > 1 else None
-        self._processes = processes if threads > 1 and python_executable() is not None else False
-        self._slots = WaveSlots(threads)
-        self.remote_waves = 0    # waves rendered by worker processes (all renders)
-        self._count_lock = threading.Lock()
-        self._wave_clock = {False: [0, 0.0], True: [0, 0.0]}   # see render
-        if self._processes:
+        self.crew = WaveCrew(self.accel.threads, processes)
+        if self.crew.processes:
             self.start_workers()
 
     def start_workers(self) -> bool:
         """Start the worker processes now (they join the waves as they become ready); False when this
         renderer does not use them (one thread, processes=False, no Python to start, a big scene)."""
-        if self._processes is False:
-            return False
-        if self._workers is None:
-            self._workers = WorkerSet(self._slots)
-            triangles = len(self._triangles.material_ids)
-            if triangles > WORKER_MAX_TRIANGLES:
-                self._workers.skipped = f"{triangles} triangles are over {WORKER_MAX_TRIANGLES}"
-                self._processes = False
-                return False
-            if not self._workers.start(self.accel.threads - 1, self.scene, WORKER_MAX_BYTES):
-                self._processes = False   # not again for this renderer
-                return False
-        return True
+        return self.crew.start_workers(self.scene, len(self._triangles.material_ids),
+                                       f"{type(self).__module__}:{type(self).__qualname__}")
 
     def wait_for_workers(self, timeout_s: float = 60.0) -> int:
         """Block until every started worker is ready or failed; the number ready."""
-        deadline = time.perf_counter() + timeout_s
-        workers = self._workers.workers if self._workers is not None else []
-        while time.perf_counter() < deadline and any(not w.ready and not w.closed for w in workers):
-            time.sleep(0.01)
-        return self._workers.ready if self._workers is not None else 0
+        return self.crew.wait_for_workers(timeout_s)
 
     @property
     def worker_count(self) -> int:
         """Worker processes ready to render this renderer's waves."""
-        return self._workers.ready if self._workers is not None else 0
+        return self.crew.worker_count
 
     @property
     def worker_failures(self) -> list[str]:
         """Why worker processes were not started, failed or were dropped (their waves ran here)."""
-        return list(self._workers.failures) if self._workers is not None else []
+        return self.crew.worker_failures
+
+    @property
+    def remote_waves(self) -> int:
+        """Waves rendered by worker processes (all renders)."""
+        return self.crew.remote_waves
+
+    @property
+    def stop_waves(self):
+        """Set while the waves of the render in progress are to leave at their next bounce."""
+        return self.crew.stop_waves
 
     def _build_tables(self, poll) -> None:
         self._triangles = TriangleTable(self.scene, deferred=True)
@@ -431,14 +217,14 @@ class Renderer:
         """The paths per wave a render with these settings uses (their wave_size, or the automatic one)."""
         if settings.wave_size is not None:
             return int(settings.wave_size)
-        return WAVE_SPAN * self._live_paths()
+        return schedule.WAVE_SPAN * self._live_paths()
 
     def live_paths(self, settings: RenderSettings) -> int:
         """The most paths a wave traces at once (what bounds its memory)."""
         return min(self.wave_size(settings), self._live_paths())
 
     def _live_paths(self) -> int:
-        return LAYERED_WAVE_SIZE if self._layered else WAVE_SIZE
+        return schedule.LAYERED_WAVE_SIZE if self._layered else schedule.WAVE_SIZE
 
     @_forwarded
     def set_camera(self, camera: Camera) -> None:
@@ -564,11 +350,8 @@ class Renderer:
     def close(self) -> None:
         """Stop the threads and drop the big arrays now: the light sampler calls back into this
         renderer, a reference cycle that plain reference counting would never free."""
-        if self._wave_pool is not None:
-            self._wave_pool.shutdown(wait=True)
-            self._wave_pool = None
-        if self._workers is not None:
-            self._workers.close()
+        if self.crew is not None:
+            self.crew.close()
         self.accel.close()
         self.lights = None
 
@@ -586,247 +369,28 @@ class Renderer:
         """Render sample passes over the region in waves of rows.
 
         on_tile(film, row0, row1) runs after each wave with the span of region rows it refined (a wave's band
-        is every few rows of the span: _plan_pass);
+        is every few rows of the span: kernels.schedule.plan_pass);
         on_progress(progress) reports after each wave. should_stop() is polled after each wave, every
         STOP_POLL_S while the render waits for one, and between the bounces of waves on the render's own
         thread; once it is True the waves in flight (worker processes' too) leave at their next bounce, and
         what they had done is dropped.
         """
         with kept_heap():   # the waves' arrays are freed and made again at every bounce
-            return self._render(settings, on_tile, should_stop, on_progress)
+            return render_passes(self, self.crew, settings, on_tile, should_stop, on_progress)
 
-    def _render(self, settings, on_tile, should_stop, on_progress) -> RenderResult:
-        cam = self.scene.camera
-        x0, y0, x1, y1 = settings.validate(cam.width, cam.height)
-        width, height = x1 - x0, y1 - y0
-        film = Film(width, height, adaptive=settings.adaptive_threshold > 0, passes=settings.passes,
-                    cryptomatte=settings.cryptomatte, cryptomatte_depth=settings.cryptomatte_depth)
-        total = int(settings.samples)
-        start = time.perf_counter()
-        self.generation = next(_GENERATIONS)
-        self.stop_waves.clear()
-        self._stop_poll, self._render_thread = should_stop, threading.get_ident()
-        embree_start = self.accel.seconds_in_embree
-        rays_start = self.accel.rays_traced
-        progress = Progress(0, total, 0.0, 0.0)
-        stopped = False
-        done = 0
-        adaptive = settings.adaptive_threshold > 0
-        min_samples = adaptive_min_samples(settings) if adaptive else total
-        if self._workers_undecided() and width * height * total >= WORKER_START_PATHS:
-            self.start_workers()
-        # Waves run concurrently (NumPy and Embree release the GIL, and worker processes share nothing);
-        # their results are added to the film in the order they were planned, so the image does not depend
-        # on the thread count. Waves of the next pass are queued while the last ones of a pass finish (a
-        # pass's bands differ in cost: rows of sky and rows of glass), except before a convergence check,
-        # which reads the whole film.
-        in_flight = collections.deque()   # (rows, spp, future), in plan order
-        # Paths and seconds of this render's waves, each on its own thread, for waves side by side (False)
-        # and waves split over the threads (True).
-        self._wave_clock = {False: [0, 0.0], True: [0, 0.0]}
-        pending = []                      # bands of the planned pass not yet submitted
-        pass_spp = pass_first = 0
-        pass_split = False
-        depth = 1 if self.accel.threads == 1 else 2 * self.accel.threads   # waves submitted ahead
-        while True:
-            if not pending and not stopped and done < total:
-                check = adaptive and done >= min_samples and (done - min_samples) % ADAPTIVE_STEP == 0
-                if check and in_flight:
-                    pass  # add every wave in flight first
-                elif done and self._out_of_time(settings, start):
-                    stopped = True  # a pass never starts after the limit
-                else:
-                    if check:
-                        film.update_convergence(settings.adaptive_threshold)
-                        if film.converged.all():
-                            break
-                    wave, last = self.wave_size(settings), total
-                    rate = self._rate()
-                    queued = sum(len(rows) * width * s for rows, s, _ in in_flight)   # paths planned, not in
-                    if done and settings.time_limit_s > 0 and rate:
-                        # Near the time limit the next pass takes only the samples that fit in the time
-                        # left at the rate so far, after the waves still in flight, in shorter waves: the
-                        # render ends close to its limit, not up to a wave or a pass after it (as Cycles'
-                        # scheduler fits its samples to the time left).
-                        active = int(np.count_nonzero(~film.converged)) if adaptive else width * height
-                        fit, wave = _paced(rate, settings.time_limit_s - (time.perf_counter() - start), queued,
-                                           active, self.accel.threads, wave)
-                        last = min(total, done + fit)
-                    if last == done:
-                        stopped = True  # not even one more sample fits before the limit
-                        continue
-                    # A time-limited render starts with a 1-sample pass too: its waves give the rate that
-                    # fits the next passes to the limit, whatever the limit.
-                    quick = settings.quick_first_pass or settings.time_limit_s > 0
-                    spp, bands = _plan_pass(width, height, done, last, wave, quick, self.live_paths(settings))
-                    if adaptive:  # passes end where the next convergence check falls
-                        next_check = min_samples if done < min_samples else \
-                            done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP
-                        spp = max(1, min(spp, next_check - done))
-                    if done or (spp < total and not quick):
-                        # More than a quick first pass to come: a big scene's deferred triangle table is
-                        # built (until then, gathers compute the rows they need), and its quick BVH is
-                        # replaced by the medium one once the rate so far says the render has long enough
-                        # to go (accel.QUICK_BVH_TRIANGLES), both on threads.
-                        self._triangles.build_rows()
-                        if rate:
-                            time_left = ((total - done) * width * height + queued) / rate
-                            if settings.time_limit_s > 0:
-                                time_left = min(time_left, settings.time_limit_s - progress.elapsed_s)
-                            self.accel.refine(time_left)
-                    pending = list(bands)
-                    pass_spp, pass_first = spp, int(settings.sample_offset) + done
-                    pass_split = len(bands) < self.accel.threads
-                    done += spp
-            while pending and len(in_flight) < depth:
-                rows = pending.pop(0)
-                active = ~film.converged[rows] if adaptive else None      # (a range indexes as a list)
-                in_flight.append((rows, pass_spp, self._submit(self._wave, settings, x0, y0, width, rows,
-                                                                 pass_first, pass_spp, pass_split, active,
-                                                                 self.live_paths(settings))))
-            if not in_flight:
-                break
-            rows, spp, future = in_flight.popleft()
-            if future.cancelled():
-                continue
-            try:
-                sums, half, counts, bad, aux = self._wave_result(future, should_stop)
-            except WaveStopped:   # left at a stop request: its paths are incomplete, none is added
-                stopped, pending = True, []
-                for *_, queued in in_flight:
-                    queued.cancel()
-                continue
-            film.add_rows(rows, sums, counts if adaptive else spp, half, aux)
-            progress.paths += int(counts.sum())
-            progress.nonfinite_paths += bad
-            progress.elapsed_s = time.perf_counter() - start
-            progress.rays = self.accel.rays_traced - rays_start
-            progress.seconds_in_embree = self.accel.seconds_in_embree - embree_start
-            progress.samples_done = film.samples_done
-            progress.fraction = progress.paths / (width * height * total)
-            progress.workers = max(progress.workers, self.worker_count)
-            if on_tile is not None:
-                on_tile(film, rows.start, rows[-1] + 1)
-            if on_progress is not None:
-                on_progress(progress)
-            if self._workers_undecided() and self._worth_workers(progress):
-                self.start_workers()
-            # A time limit always lets the first full pass finish, as Cycles' does; its waves in flight finish
-            # too (a stop request has them leave at their next bounce).
-            if not stopped and (self._stop_requested(should_stop) or (
-                    film.samples_done > 0 and self._out_of_time(settings, start))):
-                stopped = True
-                pending = []  # start no more waves
-                for *_, queued in in_flight:
-                    queued.cancel()
-        if stopped and film.samples_done >= total:
-            stopped = False  # the stop came with the last wave: the render is complete
-        self._stop_poll = self._render_thread = None   # every wave is back: trace_paths is free to run again
-        self.stop_waves.clear()
-        return RenderResult(film, progress, stopped, self.dropped_triangles)
+    def prepare_pass(self) -> None:
+        """More than a quick first pass is to come: a big scene's deferred triangle table is built (until then,
+        gathers compute the rows they need)."""
+        self._triangles.build_rows()
 
-    def _wave_result(self, future, should_stop):
-        """future.result(), polling should_stop() every STOP_POLL_S meanwhile (a wave can take seconds)."""
-        while True:
-            try:
-                return future.result(timeout=STOP_POLL_S)
-            except FutureTimeout:
-                self._stop_requested(should_stop)
-
-    def _stop_requested(self, should_stop) -> bool:
-        """Whether the render in progress is to stop: once should_stop() says so, the waves in flight are told
-        (here and in the worker processes), and leave at their next bounce."""
-        if not self.stop_waves.is_set() and should_stop is not None and should_stop():
-            self.stop_waves.set()
-            if self._workers is not None:
-                self._workers.stop(self.generation)
-        return self.stop_waves.is_set()
-
-    def _check_stop(self) -> None:
-        """Between the bounces of a wave: WaveStopped at a stop request. A wave on the render's own thread (one
-        thread: the waves run there) polls should_stop itself, as nothing else does meanwhile."""
-        if threading.get_ident() == self._render_thread:
-            self._stop_requested(self._stop_poll)
-        if self.stop_waves.is_set():
-            raise WaveStopped()
-
-    def _rate(self) -> float | None:
-        """Paths per second of the render so far on all its threads, from its waves' own times (the
-        render's wall time would also count the first waves' start-up, and miss the work of the waves still
-        running): the rate of the waves that run side by side, one per thread, times the threads; until
-        there are such waves, that of the waves split over the threads. None before the first wave."""
-        with self._count_lock:
-            for split, (paths, seconds) in sorted(self._wave_clock.items()):
-                if paths and seconds > 0:
-                    return paths / seconds * (1 if split else self.accel.threads)
-        return None
-
-    def _workers_undecided(self) -> bool:
-        """Automatic worker processes (processes=None) not started yet."""
-        return self._processes is None and self._workers is None
-
-    @staticmethod
-    def _worth_workers(progress: Progress) -> bool:
-        """Whether the render has WORKER_START_S left at its rate so far."""
-        if progress.paths <= 0 or progress.fraction >= 1.0:
-            return False
-        return progress.elapsed_s * (1.0 - progress.fraction) / progress.fraction > WORKER_START_S
-
-    def _wave(self, settings, x0, y0, width, band, first_sample, spp, split, active=None, live=None):
-        """_render_rows(...) in a free slot: this process or a ready worker process (timed on the render's
-        _wave_clock). A worker that is lost (closed, exited, failed) gives its slot back to this process,
-        and the wave runs here."""
-        began = time.perf_counter()
-        result = self._wave_in_slot(settings, x0, y0, width, band, first_sample, spp, split, active, live)
-        seconds = time.perf_counter() - began
-        split = bool(split)
-        with self._count_lock:
-            self._wave_clock[split][0] += int(result[2].sum())
-            self._wave_clock[split][1] += seconds
-        return result
-
-    def _wave_in_slot(self, *args):
-        slot = self._slots.take()
-        try:
-            if self.stop_waves.is_set():   # it waited for its slot past a stop request
-                raise WaveStopped()
-            if slot is not None:
-                try:
-                    result, rays, seconds = slot.render_rows(args, self.generation)
-                except WorkerLost as err:
-                    self._workers.lost(slot, err)
-                    slot = None
-                else:
-                    self.accel.count(rays, seconds)
-                    with self._count_lock:
-                        self.remote_waves += 1
-                    return result
-            return self._render_rows(*args)
-        finally:
-            self._slots.give(slot)
-
-    @staticmethod
-    def _out_of_time(settings: RenderSettings, start: float) -> bool:
-        return settings.time_limit_s > 0 and time.perf_counter() - start >= settings.time_limit_s
-
-    def _submit(self, fn, *args):
-        if self._wave_pool is None:   # one thread: the wave runs now, its outcome kept as a pool's would be
-            future = Future()
-            try:
-                future.set_result(fn(*args))
-            except Exception as err:  # noqa: BLE001 - raised again by future.result(), as from a pool
-                future.set_exception(err)
-            return future
-        return self._wave_pool.submit(fn, *args)
-
-    def _render_rows(self, settings, x0, y0, width, band, first_sample, spp, split, active=None, live=None):
-        """One wave: the region rows of `band` (a range: every band.step-th row, _plan_pass), spp samples per
-        pixel of those `active` ((rows, W) bool, None: all), at most `live` paths traced at once (None:
-        live_paths; the render passes its own, so that a worker process traces the wave in the same batches).
+    def render_wave(self, settings: RenderSettings, job: WaveJob):
+        """One wave (kernels.schedule.WaveJob: its band of rows, samples, pixels and live paths).
         Returns ((rows, W, 4) float64 sums, (rows, W, 3) sums of the odd samples, (rows, W) sample counts,
         count of dropped non-finite paths). Paths are pixel-major so each pixel's samples are adjacent; what
         each path starts from (pixel, sample, random numbers) is made as its batch starts, so that the wave
         holds only its radiance and alpha per path."""
+        x0, y0, width, band = job.x0, job.y0, job.width, job.rows
+        first_sample, spp, split, active, live = job.first_sample, job.spp, job.split, job.active, job.live
         rows = len(band)
         npix = rows * width
         pixels = np.arange(npix, dtype=np.int64) if active is None else np.flatnonzero(active)
@@ -998,7 +562,7 @@ class Renderer:
         direction. first: the paths' camera rays (they all are; otherwise none is). Returns the paths that
         go on and their next rays, or None."""
         settings, aux = wave.settings, wave.aux
-        self._check_stop()
+        self.crew.check_stop()
         hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, state.time)
         if state.partner is not None:
             _hand_over(state, hits)
@@ -1006,7 +570,7 @@ class Renderer:
         if not first and self.lights.has_surface_lights:
             ended = self._lights_hit(wave, state, rays, hits)
         self._escaped(wave, state, rays, hits, ended)
-        self._check_stop()   # also between the bounce's long stages: tracing, shading, light samples
+        self.crew.check_stop()   # also between the bounce's long stages: tracing, shading, light samples
         found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
         if state.continuation is not None:
             found = self._roulette_stops(state, hits, found)
@@ -1021,7 +585,7 @@ class Renderer:
         hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
                           caustics=_caustics(settings), portal=state.portal)
         shading = self.shading.surface(hit)
-        self._check_stop()
+        self.crew.check_stop()
         if aux is not None and first:
             self._data_passes(aux, state, hit, shading.closures, settings)
         if state.features is not None:
@@ -1039,9 +603,9 @@ class Renderer:
         if wave.nee:
             focus = self._world_focus(hit, shading.closures)
             self._next_event(wave, state, hit, shading.closures, numbers, focus)
-            self._check_stop()
+            self.crew.check_stop()
         bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
-        self._check_stop()
+        self.crew.check_stop()
         if state.pass_weights is not None:
             self._first_bounce_shares(state, shading.closures, bs)
         if wave.nee and self._glass_escapes_on:
@@ -1581,7 +1145,7 @@ class Renderer:
         else:
             px, py, pz = hit.p
         ls = self.lights.sample(px, py, pz, u_select, u1, u2, focus)
-        self._check_stop()
+        self.crew.check_stop()
         le = ls.radiance
         useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
         if not len(useful):
@@ -1945,53 +1509,6 @@ def _accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> N
     for k in range(3):
         channel = radiance[k]
         channel[paths] += value[k]
-
-
-ADAPTIVE_STEP = 16  # samples between convergence checks, as Cycles' adaptive_step
-
-
-def adaptive_min_samples(settings: RenderSettings) -> int:
-    """Samples before the first convergence check: the setting, or Cycles' automatic count (threshold
-    0.1 -> 32, 0.01 -> 64, 0.001 -> 128), at least 4."""
-    if settings.adaptive_min_samples > 0:
-        return max(4, int(settings.adaptive_min_samples))
-    return max(4, int(np.ceil(16.0 / settings.adaptive_threshold ** 0.3)))
-
-
-def _paced(rate: float, left_s: float, queued_paths: int, pixels: int, threads: int, wave_size: int):
-    """(samples, wave size) of a pass planned with left_s seconds of a time limit to go, at rate paths/s on
-    all threads, with queued_paths planned before it: the samples per pixel whose paths end nearest the
-    limit (0 when less than half a sample's time is left), in waves of at most half the time left to them
-    on one thread (never below MIN_WAVE_PATHS), so that the last waves end near the limit too."""
-    after_queued = left_s - queued_paths / rate      # the time left when this pass's waves start
-    fit = int(rate * after_queued / max(pixels, 1) + 0.5)
-    wave = min(wave_size, max(MIN_WAVE_PATHS, int(rate / max(threads, 1) * after_queued / 2)))
-    return max(fit, 0), wave
-
-
-def _plan_pass(width: int, height: int, done: int, total: int, wave_size: int, quick_first: bool = True,
-               band_pixels: int | None = None):
-    """Samples per pixel of the next pass and its bands of rows (ranges of region rows), one wave each.
-
-    The first pass takes one sample, for a quick first image (unless quick_first is False); later passes
-    take enough samples to fill _WAVES_PER_PASS waves. A band holds at most band_pixels pixels where it can
-    (a wave's sums per pixel are its own: at few samples per pixel, a wave of many paths would hold
-    buffers for as many pixels). The bands interleave: of n bands, band j holds rows j, j + n, j + 2n...,
-    so that the waves of a pass cost about the same wherever the image's costly rows are (rows of glass
-    and rows of sky), and the last waves of a pass on two cores end together. The plan depends only on
-    the image and the settings, never on the thread count, so every thread count sums the same numbers
-    in the same order.
-    """
-    if done == 0 and quick_first:
-        spp = 1
-    else:
-        spp = int(np.clip(wave_size * _WAVES_PER_PASS // (width * height), 1, total - done))
-    rows_per_wave = max(1, min(wave_size // (width * spp),
-                               max(-(-height // _WAVES_PER_PASS), MIN_WAVE_PATHS // (width * spp))))
-    if band_pixels is not None:
-        rows_per_wave = max(1, min(rows_per_wave, band_pixels // width))
-    count = -(-height // rows_per_wave)
-    return spp, [range(j, height, count) for j in range(count)]
 
 
 def _type_limits(settings):

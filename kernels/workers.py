@@ -6,10 +6,15 @@ one thread's rate on the eight Principled spheres (0.54 against 0.39M paths/s) w
 (0.70M). Cycles' threads share nothing in Python; these processes share nothing either.
 
 How: a child is a plain Python (sys.executable, the parent's sys.path) that imports this package, nothing of
-Blender. It receives the parent's validated scene once, builds its own Renderer (its own Embree BVH: Embree
-scenes cannot be shared between processes), and then renders waves: it gets the arguments of
-Renderer._render_rows and sends back its result, the same arrays bit for bit, since the child runs the same
-code on the same data. Between renders the parent forwards its incremental updates (camera, instances,
+Blender. It receives the parent's validated scene once, with the name of the runner to build from it (the
+parent's renderer class, "module:class": this module knows only what a runner does, below), builds its own
+(its own Embree BVH: Embree scenes cannot be shared between processes), and then renders waves: it gets a
+wave's settings and job (kernels.schedule.WaveJob) and sends back the runner's render_wave result, the same
+arrays bit for bit, since the child runs the same code on the same data.
+
+A runner is built as runner(scene, threads=1, processes=False) and provides render_wave(settings, job),
+stop_waves (a threading.Event its waves poll between bounces), accel.rays_traced and
+accel.seconds_in_embree (counters), close(), and the update methods the parent forwards by name. Between renders the parent forwards its incremental updates (camera, instances,
 materials, lights, the next frame's scene) in order, so a child stays the parent's twin. When the renderer
 closes, its children drop their scene and wait in a pool for the next renderer of this process (an F12
 render again, the next frame without Persistent Data), which then skips their start; idle ones exit after
@@ -145,7 +150,7 @@ def python_executable() -> str | None:
 
 
 class Worker:
-    """One child process and its pipes. load() gives it a scene (in the background); render_rows() is called by
+    """One child process and its pipes. load() gives it a scene (in the background); render_wave() is called by
     one thread at a time (the wave slots); forward() may be called between renders, from another thread;
     release() drops the scene and puts the child in this process's pool of idle workers, for the next
     renderer (a fresh render then skips the child's start, about 0.3 s)."""
@@ -177,7 +182,7 @@ class Worker:
         self.idle_since = None  # in the pool since (time.monotonic())
 
     def load(self, payload, on_ready, on_failed) -> None:
-        """Send a scene (pickled(("scene", scene))) and wait for the child's Renderer in the background;
+        """Send a scene (pickled(("scene", scene, runner))) and wait for the child's Renderer in the background;
         on_ready(self) or on_failed(self) then. Updates forwarded meanwhile follow the scene."""
         self._write.acquire()   # the scene goes first: forwarded updates wait for it
         self.ready, self.loading, self.error = False, True, None
@@ -214,14 +219,14 @@ class Worker:
             self.error = WorkerLost(f"{type(err).__name__}: {err}")
             self.close()
 
-    def render_rows(self, args: tuple, generation: int):
-        """Renderer._render_rows(*args) in the child, for the render `generation` of the parent's renderer:
-        (its result, rays traced, seconds in Embree); WaveStopped when stop() reached it first."""
+    def render_wave(self, settings, job, generation: int):
+        """The runner's render_wave(settings, job) in the child, for the render `generation` of the parent's
+        renderer: (its result, rays traced, seconds in Embree); WaveStopped when stop() reached it first."""
         if self.closed or not self.ready:
             raise WorkerLost("the worker is closed")
         try:
             with self._write:
-                send(self._in, ("rows", args, generation))
+                send(self._in, ("wave", settings, job, generation))
             reply = receive(self._out)
         except (OSError, EOFError, ValueError, pickle.UnpicklingError) as err:
             self.close()
@@ -415,11 +420,11 @@ class WorkerSet:
         self._closed = False
         self._finalizer = weakref.finalize(self, _close_all, self.workers)
 
-    def start(self, count: int, scene, max_bytes: int) -> bool:
-        """Give up to count workers the scene, as many as their copies of it fit in max_bytes (each child
-        holds a copy, and its own BVH); none when one copy does not. They join the slots as they become
-        ready."""
-        payload = pickled(("scene", scene))
+    def start(self, count: int, scene, max_bytes: int, runner: str) -> bool:
+        """Give up to count workers the scene and the runner to build from it ("module:class"), as many as
+        their copies of it fit in max_bytes (each child holds a copy, and its own BVH); none when one copy
+        does not. They join the slots as they become ready."""
+        payload = pickled(("scene", scene, runner))
         size = pickled_size(payload)
         if size > max_bytes:
             self.skipped = f"the scene's {size >> 20} MB are over {max_bytes >> 20} MB"
@@ -480,7 +485,7 @@ class WorkerSet:
     def close(self) -> None:
         """Give the healthy workers back to the pool (still loading ones follow when ready), close the
         others. Their slots, if taken again, turn back into local ones (a released worker renders no
-        wave for this renderer: render_rows raises WorkerLost)."""
+        wave for this renderer: render_wave raises WorkerLost)."""
         with self._lock:
             self._closed = True
             workers = list(self.workers)
@@ -497,7 +502,7 @@ def _close_all(workers: list) -> None:
 
 # ---------------------------------------------------------------------------------------------- the child
 def serve() -> None:
-    """The child's loop: build a Renderer from each scene it is sent, apply updates and render waves, until
+    """The child's loop: build a runner from each scene it is sent, apply updates and render waves, until
     the parent closes the pipe, or goes (then quietly: the parent stopped, a farm ended it, it crashed)."""
     incoming = os.fdopen(0, "rb", buffering=1 << 16)
     outgoing = os.fdopen(os.dup(1), "wb", buffering=1 << 16)
@@ -510,9 +515,10 @@ def serve() -> None:
 
 
 def _serve(incoming, outgoing) -> None:
+    import importlib
+
     import numpy as np
 
-    from .integrator import Renderer
     from .memory import keep_freed_memory, trim_heap
 
     keep_freed_memory()   # a child renders waves and nothing else (memory.keep_freed_memory); "drop" trims
@@ -527,7 +533,8 @@ def _serve(incoming, outgoing) -> None:
         if kind == "scene":
             renderer = broken = None
             try:
-                renderer = Renderer(message[1], threads=1, processes=False)
+                module, _, name = message[2].partition(":")
+                renderer = getattr(importlib.import_module(module), name)(message[1], threads=1, processes=False)
             except BaseException:  # noqa: BLE001 - tell the parent, which renders without this child
                 send(outgoing, ("error", traceback.format_exc(limit=4)))
                 return
@@ -543,14 +550,14 @@ def _serve(incoming, outgoing) -> None:
                     getattr(renderer, message[1])(*message[2], **message[3])
             except BaseException:  # noqa: BLE001 - the twin is no longer the parent's: say so at the next wave
                 broken = traceback.format_exc(limit=4)
-        elif kind == "rows":
+        elif kind == "wave":
             if broken is not None or renderer is None:
                 send(outgoing, ("error", broken or "no scene"))
                 return
             rays, seconds = renderer.accel.rays_traced, renderer.accel.seconds_in_embree
-            inbox.start_wave(message[2])
+            inbox.start_wave(message[3])
             try:
-                result = renderer._render_rows(*message[1])
+                result = renderer.render_wave(message[1], message[2])
             except WaveStopped:
                 send(outgoing, ("stopped",))
                 continue

@@ -78,13 +78,13 @@ def render_exr(bpy, scene, wave_size=None, processes=None):
     """Render with Ember to a linear EXR; return (H, W, 4) float32, row 0 at the top. wave_size: force
     the kernel's wave size (many waves); processes False: no worker processes."""
     import numpy as np
-    integrator = sys.modules[MODULE + ".kernels.integrator"]
+    schedule = sys.modules[MODULE + ".kernels.schedule"]
     if wave_size is not None:
-        integrator.WAVE_SIZE = integrator.LAYERED_WAVE_SIZE = wave_size
-    integrator.WORKER_START_S = 1e9 if processes is False else 1.5
-    start_paths = integrator.WORKER_START_PATHS
+        schedule.WAVE_SIZE = schedule.LAYERED_WAVE_SIZE = wave_size
+    schedule.WORKER_START_S = 1e9 if processes is False else 1.5
+    start_paths = schedule.WORKER_START_PATHS
     if processes is False:
-        integrator.WORKER_START_PATHS = 1 << 60
+        schedule.WORKER_START_PATHS = 1 << 60
     scene.render.engine = "EMBER"
     scene.ember.samples = 8
     # The checks are exact colours of flat regions: a one-pixel box and no denoiser, as the parity tests.
@@ -94,7 +94,7 @@ def render_exr(bpy, scene, wave_size=None, processes=None):
     scene.render.filepath = os.path.join(WORK_DIR, "frame.exr")
     scene.render.use_file_extension = False
     bpy.ops.render.render(write_still=True)
-    integrator.WORKER_START_PATHS = start_paths
+    schedule.WORKER_START_PATHS = start_paths
     image = bpy.data.images.load(scene.render.filepath, check_existing=False)
     w, h = image.size
     pixels = np.empty(w * h * 4, np.float32)
@@ -139,9 +139,9 @@ def main() -> dict:
 
     # Worker processes from the installed package (bl_ext.user_default.ember): the child imports it under
     # that name, with embreex from the bundled wheel. A render forced to use them is the same image.
-    integrator = sys.modules[MODULE + ".kernels.integrator"]
+    schedule = sys.modules[MODULE + ".kernels.schedule"]
     workers = sys.modules[MODULE + ".kernels.workers"]
-    integrator.WORKER_START_PATHS, integrator.MIN_WAVE_PATHS = 1, 64
+    schedule.WORKER_START_PATHS, schedule.MIN_WAVE_PATHS = 1, 64
     scene.ember.use_adaptive_sampling = False
     plain = render_exr(bpy, scene, wave_size=64, processes=False)
     render_exr(bpy, scene, wave_size=64)   # starts a worker, which outlives this short render in the pool

@@ -121,7 +121,7 @@ def test_layers_rank_and_normalise_like_an_exact_tally():
 
 
 @pytest.mark.parametrize("bands", [[range(0, 2), range(2, 5), range(5, 6)],          # consecutive rows
-                                   [range(0, 6, 3), range(1, 6, 3), range(2, 6, 3)]])  # interleaved (_plan_pass)
+                                   [range(0, 6, 3), range(1, 6, 3), range(2, 6, 3)]])  # interleaved (plan_pass)
 def test_merge_rows_equals_accumulating_in_place(bands):
     """Each band's accumulator (its rows numbered from 0, filled in two calls) merges into the band's rows."""
     rng = np.random.default_rng(11)

@@ -178,34 +178,34 @@ def test_time_limit_stops_the_render():
 
 
 def test_passes_near_the_time_limit_take_the_samples_that_fit():
-    """integrator._paced: at 1M paths/s with 0.5 s left and 100k paths still queued (0.1 s), a 10k-pixel
+    """schedule.paced: at 1M paths/s with 0.5 s left and 100k paths still queued (0.1 s), a 10k-pixel
     image fits 40 more samples; waves shrink to half the 0.4 s left to them on one of 2 threads (100k
     paths), never below MIN_WAVE_PATHS; less than half a sample's time left gives 0."""
-    from ember.kernels import integrator
-    assert integrator._paced(1e6, 0.5, 100_000, 10_000, 2, 1 << 18) == (40, 100_000)
-    assert integrator._paced(1e6, 0.5, 100_000, 10_000, 2, 50_000) == (40, 50_000)
-    assert integrator._paced(1e6, 0.101, 100_000, 10_000, 2, 1 << 18) == (0, integrator.MIN_WAVE_PATHS)
-    assert integrator._paced(1e6, 0.106, 100_000, 10_000, 2, 1 << 18)[0] == 1
-    assert integrator._paced(1e6, 0.05, 100_000, 10_000, 2, 1 << 18)[0] == 0    # the queue alone overruns
+    from ember.kernels import schedule
+    assert schedule.paced(1e6, 0.5, 100_000, 10_000, 2, 1 << 18) == (40, 100_000)
+    assert schedule.paced(1e6, 0.5, 100_000, 10_000, 2, 50_000) == (40, 50_000)
+    assert schedule.paced(1e6, 0.101, 100_000, 10_000, 2, 1 << 18) == (0, schedule.MIN_WAVE_PATHS)
+    assert schedule.paced(1e6, 0.106, 100_000, 10_000, 2, 1 << 18)[0] == 1
+    assert schedule.paced(1e6, 0.05, 100_000, 10_000, 2, 1 << 18)[0] == 0    # the queue alone overruns
 
 
 def test_a_time_limited_render_starts_with_one_sample_and_paces_by_its_waves(monkeypatch):
     """Whatever quick_first_pass says, a time-limited render's first pass is one sample (its waves give
     the rate); later passes are cut to what the rate says fits; a render that runs out of time before
     its samples is stopped early."""
-    from ember.kernels import integrator
+    from ember.kernels import schedule
     scene = cornell_box(32, 32, wall_subdivisions=2, sphere_segments=8)
     planned, paced = [], []
-    plan, pace = integrator._plan_pass, integrator._paced
-    monkeypatch.setattr(integrator, "_plan_pass", lambda *a: planned.append(a) or plan(*a))
-    monkeypatch.setattr(integrator, "_paced", lambda *a: paced.append(a) or pace(*a))
+    plan, pace = schedule.plan_pass, schedule.paced
+    monkeypatch.setattr(schedule, "plan_pass", lambda *a: planned.append(a) or plan(*a))
+    monkeypatch.setattr(schedule, "paced", lambda *a: paced.append(a) or pace(*a))
     with Renderer(scene, threads=2) as renderer:
         result = renderer.render(RenderSettings(samples=10_000, time_limit_s=0.5, quick_first_pass=False))
         assert planned[0][5] is True and result.progress.samples_done >= 1
         assert result.stopped_early and result.progress.samples_done < 10_000
         assert paced and all(rate > 0 for rate, *_ in paced)
         # The rate comes from the waves' own times: side-by-side waves count once per thread.
-        clock = renderer._wave_clock
+        clock = renderer.crew.clock
         assert clock[False][0] + clock[True][0] == result.progress.paths
         planned.clear()
         renderer.render(RenderSettings(samples=4, quick_first_pass=False))

@@ -11,7 +11,7 @@ import pytest
 from kernel_helpers import inside_emitting_sphere
 
 from ember.kernels import Renderer, RenderSettings
-from ember.kernels import integrator
+from ember.kernels import schedule
 from ember.kernels.workers import WaveStopped
 
 BOUNCES = 300
@@ -75,17 +75,17 @@ def test_worker_processes_are_told_at_once_and_serve_the_next_render(sphere):
         reference = renderer.render(settings).image
     with Renderer(sphere, threads=2, processes=True) as renderer:
         assert renderer.wait_for_workers() == 1
-        worker = renderer._workers.workers[0]
+        worker = renderer.crew.workers.workers[0]
         outcomes = []
-        render_rows = worker.render_rows
+        render_wave = worker.render_wave
 
         def recorded(*args):
             try:
-                return render_rows(*args)
+                return render_wave(*args)
             except WaveStopped:
                 outcomes.append("stopped")
                 raise
-        worker.render_rows = recorded
+        worker.render_wave = recorded
         bounces = Bounces(renderer, stop_at=4)
         result = renderer.render(settings, should_stop=bounces.requested.is_set)
         assert result.stopped_early and result.progress.paths == 0
@@ -98,7 +98,7 @@ def test_worker_processes_are_told_at_once_and_serve_the_next_render(sphere):
 
 def test_a_time_limit_still_lets_the_waves_in_flight_finish(sphere, monkeypatch):
     """The time limit stops planning new passes; it does not drop the work of the waves running."""
-    monkeypatch.setattr(integrator.Renderer, "_out_of_time", staticmethod(lambda settings, start: True))
+    monkeypatch.setattr(schedule, "out_of_time", lambda settings, start: True)
     with Renderer(sphere, threads=2, processes=False) as renderer:
         result = renderer.render(RenderSettings(samples=8, seed=1, max_bounces=4, mode="COSINE", time_limit_s=1.0))
     assert result.stopped_early and result.film.samples_done >= 1 and result.progress.paths > 0

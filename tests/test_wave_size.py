@@ -13,8 +13,8 @@ import numpy as np
 from bpy_helpers import export_current
 
 from ember.kernels import Renderer, RenderSettings
-from ember.kernels import integrator
-from ember.kernels.integrator import LAYERED_WAVE_SIZE, WAVE_SIZE, WAVE_SPAN, _plan_pass
+from ember.kernels import schedule
+from ember.kernels.schedule import LAYERED_WAVE_SIZE, WAVE_SIZE, WAVE_SPAN, plan_pass
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench import scenes  # noqa: E402
@@ -34,7 +34,7 @@ def test_layered_materials_get_larger_waves_and_the_same_image():
         assert renderer.live_paths(RenderSettings(wave_size=1000)) == 1000
         # 64 x 48 pixels x 256 samples: after the first pass the two sizes take other samples per pass
         # (at 96 samples both took all 95 left in one pass, and the test could not fail).
-        assert _plan_pass(64, 48, 1, 256, LAYERED_WAVE_SIZE) != _plan_pass(64, 48, 1, 256, WAVE_SIZE)
+        assert plan_pass(64, 48, 1, 256, LAYERED_WAVE_SIZE) != plan_pass(64, 48, 1, 256, WAVE_SIZE)
         automatic = renderer.render(RenderSettings(samples=256, seed=4)).image
         fixed = renderer.render(RenderSettings(samples=256, seed=4, wave_size=WAVE_SIZE)).image
     np.testing.assert_allclose(automatic, fixed, rtol=1e-6, atol=1e-7)
@@ -51,8 +51,8 @@ def test_diffuse_scenes_keep_the_default_waves():
 def test_background_renders_start_with_full_passes():
     """quick_first_pass False (background mode): the first pass is a full one, every wave at once; the image
     is the same sum of the same samples, in another order (float rounding)."""
-    assert _plan_pass(256, 256, 0, 32, LAYERED_WAVE_SIZE)[0] == 1
-    spp, bands = _plan_pass(256, 256, 0, 32, LAYERED_WAVE_SIZE, quick_first=False)
+    assert plan_pass(256, 256, 0, 32, LAYERED_WAVE_SIZE)[0] == 1
+    spp, bands = plan_pass(256, 256, 0, 32, LAYERED_WAVE_SIZE, quick_first=False)
     assert spp == 16 and len(bands) == 4
     with _renderer(lambda: scenes.materials_scene(64, 48)) as renderer:
         quick = renderer.render(RenderSettings(samples=40, seed=2, wave_size=4096))
@@ -67,21 +67,21 @@ def test_the_bands_of_a_pass_interleave_and_the_image_stays(monkeypatch):
     counts are those of one band of every row, to float rounding."""
     for width, height, done, total, size in ((256, 256, 0, 32, LAYERED_WAVE_SIZE), (160, 120, 1, 128, 1 << 18),
                                              (64, 48, 0, 40, 4096), (300, 7, 0, 64, 1024)):
-        spp, bands = _plan_pass(width, height, done, total, size, quick_first=False)
+        spp, bands = plan_pass(width, height, done, total, size, quick_first=False)
         n = len(bands)
         assert sorted(r for band in bands for r in band) == list(range(height))
         assert all(band == range(j, height, n) for j, band in enumerate(bands))
         assert all(len(band) * width * spp <= max(size, width * spp) for band in bands)
-    assert len(_plan_pass(64, 48, 0, 40, 4096, quick_first=False)[1]) > 1
+    assert len(plan_pass(64, 48, 0, 40, 4096, quick_first=False)[1]) > 1
     settings = dict(samples=40, seed=2, passes=("normal", "diffuse_direct", "depth"), cryptomatte=("object",),
                     adaptive_threshold=0.05, adaptive_min_samples=8)
-    plan, planned = integrator._plan_pass, []
-    monkeypatch.setattr(integrator, "_plan_pass", lambda *a: planned.append(plan(*a)) or planned[-1])
+    plan, planned = schedule.plan_pass, []
+    monkeypatch.setattr(schedule, "plan_pass", lambda *a: planned.append(plan(*a)) or planned[-1])
     with _renderer(lambda: scenes.materials_scene(64, 48)) as renderer:
         many = renderer.render(RenderSettings(wave_size=4096, **settings))
         assert sum(len(bands) > 1 for _, bands in planned) > len(planned) // 2   # the 1-sample pass is one band
         planned.clear()
-        monkeypatch.setattr(integrator, "MIN_WAVE_PATHS", 1 << 30)   # no pass cut into waves for two cores
+        monkeypatch.setattr(schedule, "MIN_WAVE_PATHS", 1 << 30)   # no pass cut into waves for two cores
         one = renderer.render(RenderSettings(wave_size=1 << 22, **settings))
         assert all(bands == [range(48)] for _, bands in planned)
     np.testing.assert_allclose(many.image, one.image, rtol=1e-6, atol=1e-7)
@@ -114,7 +114,7 @@ def test_paths_start_as_others_end_and_the_image_stays(monkeypatch):
     scene = export_current().scene
     with Renderer(scene, threads=1) as renderer:   # (worker processes would not see the patches)
         at_once = renderer.render(settings).image
-        monkeypatch.setattr(integrator, "LAYERED_WAVE_SIZE", 1500)
+        monkeypatch.setattr(schedule, "LAYERED_WAVE_SIZE", 1500)
         monkeypatch.setattr(Renderer, "_step", step)
         monkeypatch.setattr(Renderer, "_start_paths", start)
         batched = renderer.render(settings).image

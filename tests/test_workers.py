@@ -12,8 +12,8 @@ import pytest
 from bpy_helpers import export_current
 
 from ember.kernels import Renderer, RenderSettings
-from ember.kernels import accel, integrator, workers
-from ember.kernels.integrator import Progress
+from ember.kernels import accel, schedule, workers
+from ember.kernels.schedule import Progress
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench import scenes  # noqa: E402
@@ -121,7 +121,7 @@ def test_a_worker_that_dies_mid_render_loses_no_wave(materials, reference):
     _, images0, _ = reference
     with Renderer(materials, threads=2, processes=True) as renderer:
         assert renderer.wait_for_workers() == 1
-        child = renderer._workers.workers[0].process
+        child = renderer.crew.workers.workers[0].process
         waves = []
 
         def kill_after_a_remote_wave(progress):
@@ -144,11 +144,11 @@ def test_closed_renderers_leave_their_workers_to_the_next_one(materials, referen
     workers.close_pool()
     with Renderer(materials, threads=2, processes=True) as first:
         assert first.wait_for_workers() == 1
-        pid = first._workers.workers[0].process.pid
+        pid = first.crew.workers.workers[0].process.pid
     assert [w.process.pid for w in workers._pool] == [pid]
     with Renderer(materials, threads=2, processes=True) as second:
-        assert second.wait_for_workers() == 1 and second._workers.reused == 1
-        assert second._workers.workers[0].process.pid == pid and workers._pool == []
+        assert second.wait_for_workers() == 1 and second.crew.workers.reused == 1
+        assert second.crew.workers.workers[0].process.pid == pid and workers._pool == []
         _, images = _render(second)
         assert second.remote_waves > 0
     _assert_same(images, images0)
@@ -156,18 +156,18 @@ def test_closed_renderers_leave_their_workers_to_the_next_one(materials, referen
     monkeypatch.setattr(workers, "IDLE_S", 0.2)
     with Renderer(materials, threads=2, processes=True) as third:
         assert third.wait_for_workers() == 1
-        child = third._workers.workers[0]
+        child = third.crew.workers.workers[0]
     assert workers._pool == [child]
     child.process.wait(timeout=10)
     assert workers._pool == [] and child.closed
     # A pooled worker that died meanwhile is not taken.
     with Renderer(materials, threads=2, processes=True) as fourth:
         assert fourth.wait_for_workers() == 1
-        child = fourth._workers.workers[0]
+        child = fourth.crew.workers.workers[0]
     child.process.kill()
     child.process.wait()
     with Renderer(materials, threads=2, processes=True) as fifth:
-        assert fifth.wait_for_workers() == 1 and fifth._workers.reused == 0
+        assert fifth.wait_for_workers() == 1 and fifth.crew.workers.reused == 0
 
 
 def test_a_worker_that_cannot_build_the_scene_is_not_used(materials, monkeypatch):
@@ -184,29 +184,29 @@ def test_a_worker_that_cannot_build_the_scene_is_not_used(materials, monkeypatch
 def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
     with Renderer(materials, threads=2) as renderer:
         renderer.render(RenderSettings(samples=2, seed=1))
-        assert renderer._workers is None and renderer.remote_waves == 0
+        assert renderer.crew.workers is None and renderer.remote_waves == 0
         # A render of many paths starts them at once (stopped here at once).
-        renderer.render(RenderSettings(samples=integrator.WORKER_START_PATHS // (40 * 24) + 1, seed=1),
+        renderer.render(RenderSettings(samples=schedule.WORKER_START_PATHS // (40 * 24) + 1, seed=1),
                         should_stop=lambda: True)
-        assert renderer._workers is not None and len(renderer._workers.workers) == 1
+        assert renderer.crew.workers is not None and len(renderer.crew.workers.workers) == 1
     with Renderer(materials, threads=1, processes=True) as renderer:   # one thread: nothing to share
-        assert renderer._workers is None
-    monkeypatch.setattr(integrator, "WORKER_MAX_BYTES", 1 << 10)
+        assert renderer.crew.workers is None
+    monkeypatch.setattr(schedule, "WORKER_MAX_BYTES", 1 << 10)
     with Renderer(materials, threads=2, processes=True) as renderer:
-        assert renderer._workers is not None and renderer._workers.workers == []
-        assert "MB are over" in renderer._workers.skipped and renderer.worker_failures == []
+        assert renderer.crew.workers is not None and renderer.crew.workers.workers == []
+        assert "MB are over" in renderer.crew.workers.skipped and renderer.worker_failures == []
         assert renderer.start_workers() is False
     # Many threads (on as many cores): as many children as their copies fit in the bound.
-    size = workers.pickled_size(workers.pickled(("scene", materials)))
-    monkeypatch.setattr(integrator, "WORKER_MAX_BYTES", 2 * size + 1)
+    size = workers.pickled_size(workers.pickled(("scene", materials, f"{Renderer.__module__}:{Renderer.__qualname__}")))
+    monkeypatch.setattr(schedule, "WORKER_MAX_BYTES", 2 * size + 1)
     monkeypatch.setattr(accel, "usable_cores", lambda: 6)
     workers.close_pool()
     with Renderer(materials, threads=6, processes=True) as renderer:
-        assert len(renderer._workers.workers) == 2 and renderer.wait_for_workers() == 2
+        assert len(renderer.crew.workers.workers) == 2 and renderer.wait_for_workers() == 2
         _, images = _render(renderer, RenderSettings(samples=2, seed=1, wave_size=1024))
-    monkeypatch.setattr(integrator, "WORKER_MAX_TRIANGLES", 1000)
+    monkeypatch.setattr(schedule, "WORKER_MAX_TRIANGLES", 1000)
     with Renderer(materials, threads=2, processes=True) as renderer:
-        assert "triangles are over 1000" in renderer._workers.skipped and renderer._workers.workers == []
+        assert "triangles are over 1000" in renderer.crew.workers.skipped and renderer.crew.workers.workers == []
 
 
 def test_a_loading_worker_holds_a_local_slot_until_ready_failed_or_late():
@@ -253,17 +253,17 @@ def test_prestarted_workers_wait_in_the_pool_for_the_renderer(materials):
     """A render about to export starts the workers its Renderer will take (prestart_workers), only when the
     Renderer would start them at once."""
     workers.close_pool()
-    integrator.prestart_workers(2, integrator.WORKER_START_PATHS - 1)
-    integrator.prestart_workers(1, integrator.WORKER_START_PATHS)
+    schedule.prestart_workers(2, schedule.WORKER_START_PATHS - 1)
+    schedule.prestart_workers(1, schedule.WORKER_START_PATHS)
     assert workers._pool == []
-    integrator.prestart_workers(2, integrator.WORKER_START_PATHS)
+    schedule.prestart_workers(2, schedule.WORKER_START_PATHS)
     assert len(workers._pool) == 1
-    integrator.prestart_workers(2, integrator.WORKER_START_PATHS)    # one is there already
+    schedule.prestart_workers(2, schedule.WORKER_START_PATHS)    # one is there already
     assert len(workers._pool) == 1
     pid = workers._pool[0].process.pid
     with Renderer(materials, threads=2, processes=True) as renderer:
-        assert renderer.wait_for_workers() == 1 and renderer._workers.reused == 1
-        assert renderer._workers.workers[0].process.pid == pid
+        assert renderer.wait_for_workers() == 1 and renderer.crew.workers.reused == 1
+        assert renderer.crew.workers.workers[0].process.pid == pid
 
 
 def test_children_run_their_blas_on_one_thread(monkeypatch):
@@ -279,9 +279,9 @@ def test_children_run_their_blas_on_one_thread(monkeypatch):
 
 def test_the_start_waits_for_a_render_with_time_left():
     # 10% done after 0.2 s: 1.8 s left, over WORKER_START_S; 90% done: 0.02 s left.
-    assert Renderer._worth_workers(Progress(1, 10, 0.1, 0.2, paths=100))
-    assert not Renderer._worth_workers(Progress(9, 10, 0.9, 0.2, paths=900))
-    assert not Renderer._worth_workers(Progress(0, 10, 0.0, 0.0))
+    assert schedule.worth_workers(Progress(1, 10, 0.1, 0.2, paths=100))
+    assert not schedule.worth_workers(Progress(9, 10, 0.9, 0.2, paths=900))
+    assert not schedule.worth_workers(Progress(0, 10, 0.0, 0.0))
 
 
 def test_f12_renders_with_worker_processes_and_says_so(tmp_path, monkeypatch, capfd):
@@ -295,19 +295,19 @@ def test_f12_renders_with_worker_processes_and_says_so(tmp_path, monkeypatch, ca
     scene.ember.use_denoising = False
     scene.render.threads_mode, scene.render.threads = "FIXED", 2
     capfd.readouterr()
-    monkeypatch.setattr(integrator, "WORKER_START_PATHS", 1)
-    monkeypatch.setattr(integrator, "LAYERED_WAVE_SIZE", 1024)   # many waves, so that the worker gets some
-    monkeypatch.setattr(integrator, "MIN_WAVE_PATHS", 1024)
+    monkeypatch.setattr(schedule, "WORKER_START_PATHS", 1)
+    monkeypatch.setattr(schedule, "LAYERED_WAVE_SIZE", 1024)   # many waves, so that the worker gets some
+    monkeypatch.setattr(schedule, "MIN_WAVE_PATHS", 1024)
     prestarted = []
-    original = integrator.prestart
-    monkeypatch.setattr(integrator, "prestart", lambda count: prestarted.append(count) or original(count))
+    original = schedule.prestart
+    monkeypatch.setattr(schedule, "prestart", lambda count: prestarted.append(count) or original(count))
     workers.close_pool()
     helped = render_to_array(scene, "EMBER", 24, seed=3)
     out = capfd.readouterr().out
     assert "1 worker process" in out, out[-500:]
     assert prestarted == [1]    # started before the export, taken by the renderer
-    monkeypatch.setattr(integrator, "WORKER_START_PATHS", 1 << 60)
-    monkeypatch.setattr(integrator, "WORKER_START_S", 1e9)
+    monkeypatch.setattr(schedule, "WORKER_START_PATHS", 1 << 60)
+    monkeypatch.setattr(schedule, "WORKER_START_S", 1e9)
     threads_only = render_to_array(scene, "EMBER", 24, seed=3)
     np.testing.assert_array_equal(helped, threads_only)
     assert "worker process" not in capfd.readouterr().out
