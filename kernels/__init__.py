@@ -4,7 +4,7 @@
     result = render(scene, RenderSettings(samples=64))
     result.image  # (H, W, 4) float32 linear RGBA, row 0 at the top
 """
-from .integrator import Cancelled, Renderer, render
+from .renderer import Cancelled, Renderer, render
 from .schedule import Progress, RenderResult, prestart_workers
 from .settings import SAMPLING_MODES, RenderSettings
 from .scene import LIGHT_KINDS, Camera, Lights, Materials, SceneArrays, World

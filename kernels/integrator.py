@@ -10,38 +10,23 @@ max_bounces + 1 times (the lecture's "max path length").
 """
 from __future__ import annotations
 
-import dataclasses
-import functools
-import weakref
-from concurrent.futures import ThreadPoolExecutor
-from typing import Callable, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
-from . import motion, panorama, passes, sampling, schedule
-from .accel import Accel, RayTimes
+from . import motion, panorama, passes, sampling
+from .accel import RayTimes
 from .camera import generate_rays, view_plane
-from .environment import Environment, WorldFocus
-from .cryptomatte import CryptoFilm
-from .film import Film
+from .environment import WorldFocus
 from .bsdf.closures import GLASS, BsdfSample, class_albedo, eval_split, glossy_axes, pass_classes
 from .bsdf.microfacet_closures import singular_glass_other_branch
-from .coincident import Coincident
-from .geometry import NG, TriangleTable, prototype_boxes, scene_extent
+from .geometry import NG
 from .interaction import RayInfo, SurfaceHit
-from .lights import LightSampler
-from .memory import kept_heap, small_pages, trim_heap
 from .paths import PathState
 from .rng import PathRng, seed_paths
 from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples, sample_strata
-from .camera import camera_frame
-from .scene import (OBJ_PASS_INDEX, OBJ_TERMINATOR, TERMINATOR_OFFSET, Camera, Lights, Materials, SceneArrays, World,
-                    same_arrays, same_triangles, usable_placements)
-from .shading import Shading
-from .shading.world import WorldShader
-from .textures import Texture
+from .scene import OBJ_PASS_INDEX, Camera
 from .vec import matmul
-from .schedule import Progress, RenderResult, WaveCrew, WaveJob, render_passes
 from .settings import RenderSettings
 
 # Russian roulette decides on the surfaces that rays hit once their path has scattered this many times
@@ -53,1256 +38,838 @@ ROULETTE_DEPTH = 2
 FOCUS_SHARE = 0.8
 
 
-class Cancelled(Exception):
-    """should_stop() asked a Renderer to stop while it was being built."""
+def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict | None = None,
+           live: int | None = None):
+    """trace_paths for the paths of `paths` (GivenPaths, WavePaths: what each starts from, made a
+    batch at a time).
 
+    live: the most paths traced at once (None: all N). The paths start in their order, a batch at a
+    time: when fewer than half of `live` are left, the next ones start beside them (their camera rays
+    and first bounce a batch of their own, then one batch with the others), so that a wave's long paths
+    (glass, many bounces) go on beside new ones rather than alone, bounce after bounce, each bounce
+    paying the stages' fixed cost for a few paths. Each path's numbers are its own: the radiance is
+    the same whichever batches the paths shared."""
+    n = len(paths)
+    radiance = np.zeros((3, n), np.float32)
+    alpha = np.ones(n, np.float32)
+    nee = settings.mode == "NEE_MIS" and tables.lights.has_lights
+    max_scatters = int(settings.max_bounces) + 1
+    wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
+                 0.0 if tables.scene.camera.kind == "ORTHO" else tables.pixel_size)
+    wave.aux = aux
+    # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
+    last = max_scatters + int(settings.transparent_max_bounces)
+    live = n if live is None else max(1, int(live))
+    started = 0
+    going = None   # the paths past their first bounce: (PathState, Rays), or None
+    while True:
+        if started < n and (going is None or 2 * len(going[0]) < live):
+            size = live - (0 if going is None else len(going[0]))
+            if size > paths.spp:
+                size -= size % paths.spp   # whole pixels: their places in the sequence are found once
+            end = min(n, started + size)
+            fresh = start_paths(tables, wave, paths, started, end)
+            started = end
+            if fresh is not None:
+                fresh = step(tables, wave, *fresh, first=True, last=last)
+            if fresh is not None:
+                going = fresh if going is None else \
+                    (PathState.concat(going[0], fresh[0]), _concat_rays(going[1], fresh[1]))
+            continue
+        if going is None:
+            break
+        going = step(tables, wave, *going, first=False, last=last)
+    return radiance, alpha
 
-def _forwarded(method):
-    """An incremental update that worker processes apply too (after this renderer did, without error), so
-    that they stay its twins; updates called by updates are not sent again."""
-    @functools.wraps(method)
-    def update(self, *args, **kwargs):
-        self._update_depth += 1
-        try:
-            result = method(self, *args, **kwargs)
-        finally:
-            self._update_depth -= 1
-        if self._update_depth == 0 and result is not False:
-            self.crew.forward(method.__name__, args, kwargs)
-        return result
-    return update
-
-
-class Renderer:
-    """A validated scene with its acceleration structure, ready to render any number of times; between
-    renders, moved instances, edited materials and lights can be swapped in without building it again
-    (update_instances, update_materials, update_lights: the viewport's incremental updates)."""
-
-    @small_pages()  # a scene's arrays written once: no huge-page compaction stalls (kernels.memory)
-    def __init__(self, scene: SceneArrays, threads: int = 0, should_stop: Callable[[], bool] | None = None,
-                 reuse: "Renderer | None" = None, processes: bool | None = None):
-        """should_stop() is polled between the stages of the build (each stage is one long C or NumPy
-        call that cannot be interrupted); Cancelled is raised when it returns True.
-        reuse : the renderer of an earlier frame (persistent data): its instanced meshes whose triangles
-        have not changed keep their BVH (see also update_scene, which keeps everything).
-        processes : whether waves may run in worker processes (threads - 1 of them, kernels/workers.py):
-        None starts them when a render has WORKER_START_PATHS paths, or WORKER_START_S left by its rate
-        after a wave; True now; False never. The image is the same bit for bit wherever its waves run."""
-        self._update_depth = 0
-        self.crew: WaveCrew | None = None   # where the waves run (kernels.schedule), once the BVH says the threads
-        def poll():
-            if should_stop is not None and should_stop():
-                raise Cancelled()
-        poll()
-        checked = scene.validate()
-        self.scene = checked.scene
-        self.dropped_triangles = checked.dropped_triangles
-        self.nonfinite_triangles = checked.nonfinite_triangles
-        poll()
-        moving = self.scene.has_motion and self.scene.motion_ids is not None
-        # Embree builds its BVH (C code, the GIL released) while NumPy builds the shading tables.
-        with ThreadPoolExecutor(1, "ember-bvh") as builder:
-            accel = builder.submit(Accel, self.scene.positions, threads,
-                                   *((self.scene.motion_ids, self.scene.motion, self.scene.motion_reference)
-                                     if moving else (None, (), ())), instances=self.scene.instances,
-                                   reuse=reuse.accel if reuse is not None and reuse.accel is not None else None,
-                                   indexed=(self.scene.bvh_vertices, self.scene.bvh_indices)
-                                   if self.scene.bvh_vertices is not None else None)
-            try:
-                poll()
-                # Triangles near float32's limits overflow in their normals: paths that hit them are
-                # dropped and counted like any non-finite path, so NumPy need not print about them.
-                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                    self._build_tables(poll)
-            except BaseException:
-                error = accel.exception()
-                if error is None:
-                    accel.result().close()
-                raise
-            self.accel = accel.result()
-        trim_heap()
-        self.crew = WaveCrew(self.accel.threads, processes)
-        if self.crew.processes:
-            self.start_workers()
-
-    def start_workers(self) -> bool:
-        """Start the worker processes now (they join the waves as they become ready); False when this
-        renderer does not use them (one thread, processes=False, no Python to start, a big scene)."""
-        return self.crew.start_workers(self.scene, len(self._triangles.material_ids),
-                                       f"{type(self).__module__}:{type(self).__qualname__}")
-
-    def wait_for_workers(self, timeout_s: float = 60.0) -> int:
-        """Block until every started worker is ready or failed; the number ready."""
-        return self.crew.wait_for_workers(timeout_s)
-
-    @property
-    def worker_count(self) -> int:
-        """Worker processes ready to render this renderer's waves."""
-        return self.crew.worker_count
-
-    @property
-    def worker_failures(self) -> list[str]:
-        """Why worker processes were not started, failed or were dropped (their waves ran here)."""
-        return self.crew.worker_failures
-
-    @property
-    def remote_waves(self) -> int:
-        """Waves rendered by worker processes (all renders)."""
-        return self.crew.remote_waves
-
-    @property
-    def stop_waves(self):
-        """Set while the waves of the render in progress are to leave at their next bounce."""
-        return self.crew.stop_waves
-
-    def _build_tables(self, poll) -> None:
-        self._triangles = TriangleTable(self.scene, deferred=True)
-        # Motion blur: each moving object's decomposed motion and the inverse of the matrix its stored
-        # positions were made with (hits are moved from there to where the object is at the path's time).
-        self._motion = [motion.decompose(np.asarray(keys, np.float64)) for keys in self.scene.motion]
-        self._motion_inverse = [np.linalg.inv(np.asarray(ref, np.float64)) for ref in self.scene.motion_reference]
-        poll()
-        self._build_shading()
-        self._pixel_size = _pixel_spread(self.scene.camera)
-        self._camera_frame = camera_frame(self.scene.camera)
-        self._prototype_boxes = prototype_boxes(self.scene)
-        self._ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self._prototype_boxes))
-        self.lights = self._light_sampler()
-        self._find_coincident()
-        self._find_terminator()
-        poll()
-
-    def _build_shading(self) -> None:
-        """Textures, materials and the world: what a material edit rebuilds (update_materials)."""
-        srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
-        self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
-        self.shading = Shading(self.scene.materials, self.textures, self.scene, self._triangles)
-        world = self.scene.world
-        self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
-        # Smooth glass finds the world along both branches (_glass_escapes) unless the world's radiance
-        # depends on the ray, which the branch not taken has no path state for.
-        self._glass_escapes_on = not self.environment.varies_with_ray
-        self._emissive = bool(self.shading.emissive.any())
-        # Whether a material that triangles use mixes lobes (the automatic wave size; rows nothing uses,
-        # such as the default material's, do not count).
-        layered = self.shading.layered
-        used = np.bincount(self._triangles.material_ids, minlength=len(layered))[:len(layered)] > 0
-        self._layered = bool((layered & used).any())
-
-    def _find_terminator(self) -> None:
-        """Each object row's Shadow Terminator Geometry Offset (SceneArrays.objects), one for all without an
-        object table, or None when every object has it off."""
-        objects = self.scene.objects
-        if objects is None or not len(objects):
-            self._terminator = np.float32(TERMINATOR_OFFSET)
-            return
-        values = objects[:, OBJ_TERMINATOR]
-        self._terminator = values if (values > 0).any() else None
-
-    def _find_coincident(self) -> None:
-        """The coincident partners of the static plain triangles rays may pass through (kernels.coincident)."""
-        through = np.take(self.shading.transmissive, self.scene.material_ids) if len(self.scene.material_ids) \
-            else np.zeros(0, bool)
-        if self.scene.motion_ids is not None and self.scene.has_motion:
-            through &= self.scene.motion_ids < 0
-        eps = self._ray_epsilon
-        self._coincident = Coincident.find(self.scene.positions, through,
-                                           lambda size: eps + np.float32(2.0 ** -16) * size, self.scene.object_ids) \
-            if through.any() else None
-
-    def _light_sampler(self) -> LightSampler:
-        return LightSampler(self.scene, self.environment, _Emitters(self))
-
-    def wave_size(self, settings: RenderSettings) -> int:
-        """The paths per wave a render with these settings uses (their wave_size, or the automatic one)."""
-        if settings.wave_size is not None:
-            return int(settings.wave_size)
-        return schedule.WAVE_SPAN * self._live_paths()
-
-    def live_paths(self, settings: RenderSettings) -> int:
-        """The most paths a wave traces at once (what bounds its memory)."""
-        return min(self.wave_size(settings), self._live_paths())
-
-    def _live_paths(self) -> int:
-        return schedule.LAYERED_WAVE_SIZE if self._layered else schedule.WAVE_SIZE
-
-    @_forwarded
-    def set_camera(self, camera: Camera) -> None:
-        """Look through another camera without rebuilding anything (the viewport's view changes).
-        Call between renders, never during one."""
-        camera.validate()
-        self.scene = dataclasses.replace(self.scene, camera=camera)
-        self._pixel_size = _pixel_spread(camera)
-        self._camera_frame = camera_frame(camera)
-        self.shading.data.set_camera(camera)
-
-    # ---------------------------------------------------------------- incremental updates
-    # The viewport changes a built scene in place rather than building it again (Cycles' Blender sync
-    # tags what changed the same way). Each update leaves the renderer as a new Renderer of the changed
-    # scene would be, table for table, so the images are the same bit for bit. They raise ValueError
-    # before changing anything when the change does not fit the built scene (the caller then builds a
-    # new Renderer). Call them between renders, never during one.
-
-    @_forwarded
-    def update_instances(self, world_from_object: np.ndarray, objects: np.ndarray | None = None,
-                         lights: bool = True) -> None:
-        """Move the scene's instances (kernels.scene.Instances): world_from_object (K, 4, 4) float64, one per
-        instance of the built scene, in its order; objects: the object table with the moved objects' rows
-        (SceneArrays.objects, the same rows), None to keep it. The plain triangles stay where they are.
-
-        Rebuilt: the top level of the BVH (the meshes' BVHs are kept), the triangle table's instance
-        matrices, the object table, the ray offset's scene scale, and the light sampler when an emissive
-        instance moved (lights=False leaves that to the caller, which rebuilds it anyway). Nothing else
-        depends on where instances are."""
-        inst = self.scene.instances
-        if inst is None or not inst.count:
-            raise ValueError("update_instances: the scene has no instances")
-        if self.scene.has_motion or self.scene.vector_motion is not None:
-            raise ValueError("update_instances: a scene with motion blur or a Vector pass is built whole")
-        m = np.asarray(world_from_object, np.float64)
-        if m.shape != inst.world_from_object.shape:
-            raise ValueError(f"update_instances: {m.shape[0] if m.ndim else 0} transforms for {inst.count} instances")
-        if not usable_placements(m).all():
-            raise ValueError("update_instances: a transform is not finite or flattens its mesh")
-        emitters_moved = self._emitters_moved(inst, m)
-        moved = dataclasses.replace(inst, world_from_object=np.ascontiguousarray(m))
-        scene = dataclasses.replace(self.scene, instances=moved,
-                                    objects=self.scene.objects if objects is None else objects)
-        rows = None if self.scene.objects is None else self.scene.objects.shape
-        if (None if scene.objects is None else scene.objects.shape) != rows:
-            raise ValueError("update_instances: the object table must keep its rows")
-        scene.validate_objects()
-        self.scene = scene
-        self.accel.move_instances(moved.world_from_object)
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            self._triangles.place(moved)
-        self.shading.data.set_objects(scene.objects)
-        self._find_terminator()
-        self._ray_epsilon = _ray_epsilon(*scene_extent(scene, self._prototype_boxes))
-        if emitters_moved and lights:
-            self.lights = self._light_sampler()
-
-    def _emitters_moved(self, instances, world_from_object: np.ndarray) -> bool:
-        """Whether an instance whose prototype has emissive triangles gets another transform."""
-        if not self.lights.instanced_emitters:
-            return False
-        emits = np.array([self.shading.emissive[p.material_ids].any() for p in instances.prototypes])
-        moved = (world_from_object != instances.world_from_object).any(axis=(1, 2))
-        return bool(emits[instances.prototype[moved]].any())
-
-    @_forwarded
-    def update_materials(self, materials: Materials, textures: tuple = (), texture_srgb: tuple = (),
-                         world: World | None = None) -> None:
-        """New materials, textures and world (None: keep it): a material, node tree, image or world edit.
-        The material table keeps its rows (triangles keep their material ids). Rebuilt: the textures, the
-        shading tables and node programs, the environment and the light sampler; geometry and BVHs are
-        kept."""
-        scene = dataclasses.replace(self.scene, materials=materials, textures=tuple(textures),
-                                    texture_srgb=tuple(texture_srgb),
-                                    world=self.scene.world if world is None else world)
-        scene.validate_shading()
-        self.scene = scene
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            self._build_shading()
-            self.lights = self._light_sampler()
-            self._find_coincident()
-
-    @_forwarded
-    def update_scene(self, scene: SceneArrays) -> bool:
-        """The next frame of an animation with persistent data: when its geometry is this renderer's (the
-        plain triangles and the instanced meshes equal array for array, the same instances in the same
-        order, nothing moving during the shutter), swap in what a frame may change (the instances'
-        transforms and the object table, materials, textures and world, lights, camera, Cryptomatte ids)
-        and return True: the renderer is then as a new Renderer of `scene` would be, and its images the
-        same bit for bit. Otherwise return False, changing nothing (build a new Renderer, with reuse=self to
-        keep the BVHs of unchanged meshes). Raises ValueError for invalid data, as Renderer() does."""
-        checked = scene.validate(clean=self.scene)
-        new, old = checked.scene, self.scene
-        if new.has_motion or old.has_motion or new.vector_motion is not None or old.vector_motion is not None:
-            return False
-        if not (same_triangles(new, old) and _same_instances(new.instances, old.instances)
-                and (new.objects is None) == (old.objects is None)
-                and (new.objects is None or new.objects.shape == old.objects.shape)):
-            return False
-        if new.instances is not None and new.instances.count:
-            self.update_instances(new.instances.world_from_object, new.objects, lights=False)
-        elif new.objects is not None:
-            self.scene = dataclasses.replace(self.scene, objects=new.objects)
-            self.shading.data.set_objects(new.objects)
-            self._find_terminator()
-        # The lights go in first: update_materials then builds the light sampler once, for everything.
-        self.scene = dataclasses.replace(self.scene, lights=new.lights)
-        self.update_materials(new.materials, new.textures, new.texture_srgb, new.world)
-        self.set_camera(new.camera)
-        self.scene = dataclasses.replace(self.scene, crypto_ids=new.crypto_ids)
-        self.dropped_triangles = checked.dropped_triangles
-        self.nonfinite_triangles = checked.nonfinite_triangles
-        return True
-
-    @_forwarded
-    def update_lights(self, lights: Lights) -> None:
-        """New Blender lights (moved, edited, added or removed): only the light sampler is rebuilt."""
-        lights.validate()
-        self.scene = dataclasses.replace(self.scene, lights=lights)
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            self.lights = self._light_sampler()
-
-    def close(self) -> None:
-        """Stop the threads and drop the big arrays now: the light sampler calls back into this
-        renderer, a reference cycle that plain reference counting would never free."""
-        if self.crew is not None:
-            self.crew.close()
-        self.accel.close()
-        self.lights = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    # ---------------------------------------------------------------- progressive loop
-    def render(self, settings: RenderSettings,
-               on_tile: Callable[[Film, int, int], None] | None = None,
-               should_stop: Callable[[], bool] | None = None,
-               on_progress: Callable[[Progress], None] | None = None) -> RenderResult:
-        """Render sample passes over the region in waves of rows.
-
-        on_tile(film, row0, row1) runs after each wave with the span of region rows it refined (a wave's band
-        is every few rows of the span: kernels.schedule.plan_pass);
-        on_progress(progress) reports after each wave. should_stop() is polled after each wave, every
-        STOP_POLL_S while the render waits for one, and between the bounces of waves on the render's own
-        thread; once it is True the waves in flight (worker processes' too) leave at their next bounce, and
-        what they had done is dropped.
-        """
-        with kept_heap():   # the waves' arrays are freed and made again at every bounce
-            return render_passes(self, self.crew, settings, on_tile, should_stop, on_progress)
-
-    def prepare_pass(self) -> None:
-        """More than a quick first pass is to come: a big scene's deferred triangle table is built (until then,
-        gathers compute the rows they need)."""
-        self._triangles.build_rows()
-
-    def render_wave(self, settings: RenderSettings, job: WaveJob):
-        """One wave (kernels.schedule.WaveJob: its band of rows, samples, pixels and live paths).
-        Returns ((rows, W, 4) float64 sums, (rows, W, 3) sums of the odd samples, (rows, W) sample counts,
-        count of dropped non-finite paths). Paths are pixel-major so each pixel's samples are adjacent; what
-        each path starts from (pixel, sample, random numbers) is made as its batch starts, so that the wave
-        holds only its radiance and alpha per path."""
-        x0, y0, width, band = job.x0, job.y0, job.width, job.rows
-        first_sample, spp, split, active, live = job.first_sample, job.spp, job.split, job.active, job.live
-        rows = len(band)
-        npix = rows * width
-        pixels = np.arange(npix, dtype=np.int64) if active is None else np.flatnonzero(active)
-        image_rows = range(y0 + band.start, y0 + band.stop, band.step)
-        paths = _WavePaths(settings, self.scene.camera, x0, image_rows, width, pixels, first_sample, spp)
-        n = len(paths)
-        # Overflow and invalid values are expected at the edges of float32 (huge lights, degenerate
-        # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
-        # is per thread, so it is set here, in the thread that runs the wave.
-        aux = {name: np.zeros((passes.channels(name), n), np.float32) for name in settings.passes} \
-            if settings.passes or settings.cryptomatte else None
-        if settings.cryptomatte:
-            for kind in settings.cryptomatte:
-                aux["crypto_" + kind] = np.zeros((1, n), np.float32)
-            aux["crypto_weight"] = np.zeros((1, n), np.float32)
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
-            radiance, alpha = self._trace(paths, settings, split, aux=aux,
-                                          live=self.live_paths(settings) if live is None else live)
-        bad = ~np.isfinite(radiance).all(axis=0)
-        n_bad = int(np.count_nonzero(bad))
-        if n_bad:
-            radiance[:, bad] = 0.0
-        del bad
-        sums = np.zeros((npix, 4), np.float64)
-        half = np.zeros((npix, 3), np.float64) if settings.adaptive_threshold > 0 else None
-        odd = (np.arange(first_sample, first_sample + spp) & 1).astype(bool)   # by a path's place in its pixel
-        # Whole pixels at a time, in float64: each pixel's sums are the same as over the whole wave at once.
-        step = max(1, _SUM_BLOCK // spp)
-        for lo in range(0, len(pixels), step):
-            hi = min(len(pixels), lo + step)
-            rgba = np.empty((4, (hi - lo) * spp), np.float64)
-            rgba[:3] = radiance[:, lo * spp:hi * spp]
-            rgba[3] = alpha[lo * spp:hi * spp]
-            block = rgba.reshape(4, hi - lo, spp)
-            sums[pixels[lo:hi]] = block.sum(axis=2).T
-            if half is not None:
-                half[pixels[lo:hi]] = np.where(odd, block[:3], 0.0).sum(axis=2).T
-            del rgba, block
-        counts = np.zeros(npix, np.int64)
-        counts[pixels] = spp
-        if half is not None:
-            half = half.reshape(rows, width, 3)
-        aux_out = None
-        if aux is not None:
-            pix, sample = paths.pixel_and_sample()
-            aux_out = {}
-            first = sample == 0
-            if "noise" in aux:  # the odd-numbered samples' sum (Cycles' adaptive sampling estimate)
-                aux["noise"] = np.where((sample & np.uint32(1)).astype(bool), radiance, 0.0).astype(np.float64)
-            weight = aux.pop("crypto_weight", None)
-            for kind in settings.cryptomatte:
-                ids = aux.pop("crypto_" + kind)[0]
-                wave_film = CryptoFilm(rows, width, settings.cryptomatte_depth)
-                wave_film.add(pix, ids, weight[0])
-                aux_out["crypto_" + kind] = wave_film
-            for name, values in aux.items():
-                c = len(values)
-                if passes.is_first(name):
-                    plane = np.zeros((npix, c), np.float32)
-                    written = np.zeros(npix, bool)
-                    plane[pix[first]] = values[:, first].T
-                    written[pix[first]] = True
-                    aux_out[name] = (plane.reshape(rows, width, c), written.reshape(rows, width))
-                else:
-                    total = np.zeros((npix, c), np.float64)
-                    total[pixels] = values.reshape(c, len(pixels), spp).sum(axis=2).T
-                    aux_out[name] = total.reshape(rows, width, c)
-        return sums.reshape(rows, width, 4), half, counts.reshape(rows, width), n_bad, aux_out
-
-    # ---------------------------------------------------------------- one wave of paths
-    def trace_paths(self, rng: PathRng, row: np.ndarray, col: np.ndarray, settings: RenderSettings,
-                    split: bool = True, strata=None, aux: dict | None = None, live: int | None = None):
-        """Trace one path per (row, col) entry. Returns radiance (3, N) float32 and alpha (N,) float32.
-
-        strata = (pixel, sample, index) per path (samples.sample_strata): in NEE_MIS mode the camera
-        jitter and the first vertex's light and BSDF numbers then come from the stratified sequence (the
-        rest of the path, and the LECTURE and COSINE modes, use the PCG2D stream alone). live: see _trace."""
-        return self._trace(_GivenPaths(rng, row, col, strata), settings, split, aux, live)
-
-    def _trace(self, paths, settings: RenderSettings, split: bool = True, aux: dict | None = None,
-               live: int | None = None):
-        """trace_paths for the paths of `paths` (_GivenPaths, _WavePaths: what each starts from, made a
-        batch at a time).
-
-        live: the most paths traced at once (None: all N). The paths start in their order, a batch at a
-        time: when fewer than half of `live` are left, the next ones start beside them (their camera rays
-        and first bounce a batch of their own, then one batch with the others), so that a wave's long paths
-        (glass, many bounces) go on beside new ones rather than alone, bounce after bounce, each bounce
-        paying the stages' fixed cost for a few paths. Each path's numbers are its own: the radiance is
-        the same whichever batches the paths shared."""
-        n = len(paths)
-        radiance = np.zeros((3, n), np.float32)
-        alpha = np.ones(n, np.float32)
-        nee = settings.mode == "NEE_MIS" and self.lights.has_lights
-        max_scatters = int(settings.max_bounces) + 1
-        wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
-                     0.0 if self.scene.camera.kind == "ORTHO" else self._pixel_size)
-        wave.aux = aux
-        # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
-        last = max_scatters + int(settings.transparent_max_bounces)
-        live = n if live is None else max(1, int(live))
-        started = 0
-        going = None   # the paths past their first bounce: (PathState, Rays), or None
-        while True:
-            if started < n and (going is None or 2 * len(going[0]) < live):
-                size = live - (0 if going is None else len(going[0]))
-                if size > paths.spp:
-                    size -= size % paths.spp   # whole pixels: their places in the sequence are found once
-                end = min(n, started + size)
-                fresh = self._start_paths(wave, paths, started, end)
-                started = end
-                if fresh is not None:
-                    fresh = self._step(wave, *fresh, first=True, last=last)
-                if fresh is not None:
-                    going = fresh if going is None else \
-                        (PathState.concat(going[0], fresh[0]), _concat_rays(going[1], fresh[1]))
-                continue
-            if going is None:
-                break
-            going = self._step(wave, *going, first=False, last=last)
-        return radiance, alpha
-
-    def _start_paths(self, wave, paths, start: int, end: int):
-        """The camera rays of the paths [start, end): (PathState, Rays), None when none is traced."""
-        settings = wave.settings
-        aux = wave.aux
-        n = end - start
-        rng, row, col, strata = paths.batch(start, end)
-        samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, wave.nee,
-                          lobes=self.shading.mixes_lobes)  # a lobe to choose: its numbers are drawn
-        jx, jy = samples.camera()
-        camera = self.scene.camera
-        lens = samples.camera_extra(LENS) if camera.aperture_radius > 0 else None
-        times = None
-        if self.scene.has_motion:
-            times = motion.sample_time(samples.camera_extra(TIME)[0], self.scene.shutter_table, row,
-                                      camera.height, self.scene.rolling_shutter).astype(np.float32)
-        rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
-        state = PathState.start(n, samples)
-        if start:
-            state.path = state.path + start
-        state.time = None if times is None else RayTimes(times)
-        if self._coincident is not None:
-            state.partner, state.partner_uv = np.full(n, -1, np.int64), np.zeros((2, n), np.float32)
-            state.handed = np.zeros(n, bool)
-        if self.shading.has_portal:
-            state.portal = np.zeros(n, np.int32)
-        if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux or "denoising_depth" in aux):
-            state.features = np.ones((3, n), np.float32)
-        if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
-            state.pass_weights = np.zeros((6, n), np.float32)
-        if self.shading.reads_lobes or _caustics(settings) is not None or _type_limits(settings) is not None:
-            state.lobes = np.zeros((4, n), np.int32)
-        if settings.filter_glossy > 0:
-            state.min_ray_pdf = np.full(n, np.inf, np.float32)
-        if camera.kind == "ORTHO":
-            state.dp[:] = self._pixel_size
-        if camera.kind == "PANO":
-            traced = np.flatnonzero(rays.t_max > 0)  # outside a fisheye's circle: black, alpha 1 (Cycles)
-            if not len(traced):
-                return None
-            if len(traced) < n:
-                state.compact(traced)
-                rays = Rays(rays.origins[traced], rays.dirs[traced], rays.t_max[traced])
-        return state, rays
-
-    def _step(self, wave, state, rays, first: bool, last: int):
-        """One step of the paths: trace their rays, take what they find, shade, sample lights and the next
-        direction. first: the paths' camera rays (they all are; otherwise none is). Returns the paths that
-        go on and their next rays, or None."""
-        settings, aux = wave.settings, wave.aux
-        self.crew.check_stop()
-        hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, state.time)
-        if state.partner is not None:
-            _hand_over(state, hits)
-        ended = None
-        if not first and self.lights.has_surface_lights:
-            ended = self._lights_hit(wave, state, rays, hits)
-        self._escaped(wave, state, rays, hits, ended)
-        self.crew.check_stop()   # also between the bounce's long stages: tracing, shading, light samples
-        found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
-        if state.continuation is not None:
-            found = self._roulette_stops(state, hits, found)
-        if not len(found):
+def start_paths(tables, wave, paths, start: int, end: int):
+    """The camera rays of the paths [start, end): (PathState, Rays), None when none is traced."""
+    settings = wave.settings
+    aux = wave.aux
+    n = end - start
+    rng, row, col, strata = paths.batch(start, end)
+    samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, wave.nee,
+                      lobes=tables.shading.mixes_lobes)  # a lobe to choose: its numbers are drawn
+    jx, jy = samples.camera()
+    camera = tables.scene.camera
+    lens = samples.camera_extra(LENS) if camera.aperture_radius > 0 else None
+    times = None
+    if tables.scene.has_motion:
+        times = motion.sample_time(samples.camera_extra(TIME)[0], tables.scene.shutter_table, row,
+                                  camera.height, tables.scene.rolling_shutter).astype(np.float32)
+    rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
+    state = PathState.start(n, samples)
+    if start:
+        state.path = state.path + start
+    state.time = None if times is None else RayTimes(times)
+    if tables.coincident is not None:
+        state.partner, state.partner_uv = np.full(n, -1, np.int64), np.zeros((2, n), np.float32)
+        state.handed = np.zeros(n, bool)
+    if tables.shading.has_portal:
+        state.portal = np.zeros(n, np.int32)
+    if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux or "denoising_depth" in aux):
+        state.features = np.ones((3, n), np.float32)
+    if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
+        state.pass_weights = np.zeros((6, n), np.float32)
+    if tables.shading.reads_lobes or _caustics(settings) is not None or _type_limits(settings) is not None:
+        state.lobes = np.zeros((4, n), np.int32)
+    if settings.filter_glossy > 0:
+        state.min_ray_pdf = np.full(n, np.inf, np.float32)
+    if camera.kind == "ORTHO":
+        state.dp[:] = tables.pixel_size
+    if camera.kind == "PANO":
+        traced = np.flatnonzero(rays.t_max > 0)  # outside a fisheye's circle: black, alpha 1 (Cycles)
+        if not len(traced):
             return None
-        state.compact(found)
-        hit = self._surface_hit(hits, rays, found, state.time)
-        t_hit = np.take(hits.t, found)
-        # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
-        # of distance, bounce after bounce (kernel/util/differential.h).
-        state.dp = state.dp + t_hit * wave.spread_dd
-        hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
-                          caustics=_caustics(settings), portal=state.portal)
-        shading = self.shading.surface(hit)
-        self.crew.check_stop()
-        if aux is not None and first:
-            self._data_passes(aux, state, hit, shading.closures, settings)
-        if state.features is not None:
-            self._denoising_features(aux, state, hit, shading, t_hit)
-        if state.min_ray_pdf is not None:
-            _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
-        if self._emissive:
-            self._emission_on_hit(wave, state, hit, shading, hits, rays, found)
-        if self.shading.has_holdout:
-            self._holdout(wave, state, shading)
-        if state.continuation is not None:
-            _roulette_weights(state)
-        numbers = state.samples.bounce(0 if first else 1)
-        focus = None
-        if wave.nee:
-            focus = self._world_focus(hit, shading.closures)
-            self._next_event(wave, state, hit, shading.closures, numbers, focus)
-            self.crew.check_stop()
-        bs = self._sample_bsdf(wave, hit, shading.closures, numbers)
-        self.crew.check_stop()
-        if state.pass_weights is not None:
-            self._first_bounce_shares(state, shading.closures, bs)
-        if wave.nee and self._glass_escapes_on:
-            self._glass_escapes(wave, state, hit, shading.closures, bs)
-        alive = self._continues(wave, hit, state, bs, numbers, focus)
-        if state.lobes is not None:
-            state.track_lobes(bs, shading.closures, bs.transparent)
-        # A path takes at most `last` + 1 steps (its rays: the camera's, one per bounce or pass-through).
-        alive = alive[np.take(state.segments, alive) < last]
-        if not len(alive):
-            return None
-        state.compact(alive)
-        state.segments = state.segments + 1
-        if state.partner is not None:
-            self._crossings(state, hit, alive, bs)
-        return state, self._spawn(hit, alive, bs)
+        if len(traced) < n:
+            state.compact(traced)
+            rays = Rays(rays.origins[traced], rays.dirs[traced], rays.t_max[traced])
+    return state, rays
 
-    # ---- stage: data passes of the camera rays' first surface (kernels.passes)
-    def _data_passes(self, aux: dict, state, hit, closures, settings) -> None:
-        paths = state.path
-        n = len(hit)
-        colours = None  # the closure classes' colours, made once for the three Color passes
-        for name, out in aux.items():
-            if name == "depth":
-                eye, rotation = self._camera_frame
-                d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
-                out[0, paths] = np.sqrt((d * d).sum(axis=0)) if self.scene.camera.kind == "PANO" else \
-                    -matmul(rotation[:, 2], d)
-            elif name == "position":
-                out[:, paths] = np.stack(hit.p)
-            elif name == "object_index":
-                if self.scene.objects is not None:
-                    rows = self._triangles.object_rows(hit.prim)
-                    out[0, paths] = np.take(self.scene.objects[:, OBJ_PASS_INDEX], rows)
-            elif name == "material_index":
-                indices = np.asarray(self.scene.materials.pass_indices or (0,) * self.scene.materials.count,
-                                     np.float32)
-                out[0, paths] = np.take(indices, hit.mat)
-            elif name == "normal":
-                out[:, paths] = passes.closure_normal(closures, n, hit.ns)
-            elif name == "uv":
-                u, v = hit.uv_at(np.arange(n))
-                out[0, paths], out[1, paths] = u, v
-            elif name.startswith("crypto_"):
-                kind = name[len("crypto_"):]
-                table = (self.scene.crypto_ids or {}).get(kind)
-                if kind == "weight":  # the sample's matte weight: what reaches the camera from here
-                    out[0, paths] = state.throughput.mean(axis=0)
-                elif table is not None and len(table):
-                    rows = hit.mat if kind == "material" else \
-                        self._triangles.object_rows(hit.prim)
-                    if rows is not None:
-                        out[0, paths] = np.take(table, rows)
-            elif name == "vector":
-                if self.scene.vector_motion is not None:
-                    out[:, paths] = self._motion_vectors(hit)
-                if "vector_weight" in aux:
-                    aux["vector_weight"][0, paths] = 1.0
-            elif name.startswith("aov:"):
-                _, aov_name, which = name.split(":")
-                out[:, paths] = self.shading.aov(hit, aov_name, 3 if which == "color" else 1)
-            elif name in ("diffuse_color", "glossy_color", "transmission_color"):
-                if colours is None:
-                    colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),
-                                       class_albedo(closures, n)))
-                out[:, paths] = colours[name] * state.throughput
-            elif name == "mist":
-                eye, rotation = self._camera_frame
-                d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
-                distance = np.abs(matmul(rotation[:, 2], d)) if self.scene.camera.kind == "ORTHO" else \
-                    np.sqrt((d * d).sum(axis=0))
-                start, depth, falloff = settings.mist
-                mist = np.clip((distance - start) / max(depth, 1e-30), 0.0, 1.0) ** falloff
-                out[0, paths] = (1.0 - mist) * state.throughput.mean(axis=0)
+def step(tables, wave, state, rays, first: bool, last: int):
+    """One step of the paths: trace their rays, take what they find, shade, sample lights and the next
+    direction. first: the paths' camera rays (they all are; otherwise none is). Returns the paths that
+    go on and their next rays, or None."""
+    settings, aux = wave.settings, wave.aux
+    tables.crew.check_stop()
+    hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, state.time)
+    if state.partner is not None:
+        _hand_over(state, hits)
+    ended = None
+    if not first and tables.lights.has_surface_lights:
+        ended = _lights_hit(tables, wave, state, rays, hits)
+    _escaped(tables, wave, state, rays, hits, ended)
+    tables.crew.check_stop()   # also between the bounce's long stages: tracing, shading, light samples
+    found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
+    if state.continuation is not None:
+        found = _roulette_stops(tables, state, hits, found)
+    if not len(found):
+        return None
+    state.compact(found)
+    hit = _surface_hit(tables, hits, rays, found, state.time)
+    t_hit = np.take(hits.t, found)
+    # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
+    # of distance, bounce after bounce (kernel/util/differential.h).
+    state.dp = state.dp + t_hit * wave.spread_dd
+    hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
+                      caustics=_caustics(settings), portal=state.portal)
+    shading = tables.shading.surface(hit)
+    tables.crew.check_stop()
+    if aux is not None and first:
+        _data_passes(tables, aux, state, hit, shading.closures, settings)
+    if state.features is not None:
+        _denoising_features(tables, aux, state, hit, shading, t_hit)
+    if state.min_ray_pdf is not None:
+        _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
+    if tables.emissive:
+        _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found)
+    if tables.shading.has_holdout:
+        _holdout(wave, state, shading)
+    if state.continuation is not None:
+        _roulette_weights(state)
+    numbers = state.samples.bounce(0 if first else 1)
+    focus = None
+    if wave.nee:
+        focus = _world_focus(tables, hit, shading.closures)
+        _next_event(tables, wave, state, hit, shading.closures, numbers, focus)
+        tables.crew.check_stop()
+    bs = _sample_bsdf(tables, wave, hit, shading.closures, numbers)
+    tables.crew.check_stop()
+    if state.pass_weights is not None:
+        _first_bounce_shares(tables, state, shading.closures, bs)
+    if wave.nee and tables.glass_escapes_on:
+        _glass_escapes(tables, wave, state, hit, shading.closures, bs)
+    alive = _continues(tables, wave, hit, state, bs, numbers, focus)
+    if state.lobes is not None:
+        state.track_lobes(bs, shading.closures, bs.transparent)
+    # A path takes at most `last` + 1 steps (its rays: the camera's, one per bounce or pass-through).
+    alive = alive[np.take(state.segments, alive) < last]
+    if not len(alive):
+        return None
+    state.compact(alive)
+    state.segments = state.segments + 1
+    if state.partner is not None:
+        _crossings(tables, state, hit, alive, bs)
+    return state, _spawn(tables, hit, alive, bs)
 
-    def _motion_vectors(self, hit) -> np.ndarray:
-        """(4, n) Cycles' Vector pass at the hits: (previous - current, current - next) raster positions."""
-        before, after, cam_before, cam_after = self.scene.vector_motion
-        p = np.stack([c.astype(np.float64) for c in hit.p])          # (3, n)
-        rows = self._triangles.object_rows(hit.prim)
-        if rows is None:
-            rows = np.zeros(len(hit), np.int64)
-        camera = self.scene.camera
+# ---- stage: data passes of the camera rays' first surface (kernels.passes)
+def _data_passes(tables, aux: dict, state, hit, closures, settings) -> None:
+    paths = state.path
+    n = len(hit)
+    colours = None  # the closure classes' colours, made once for the three Color passes
+    for name, out in aux.items():
+        if name == "depth":
+            eye, rotation = tables.camera_frame
+            d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
+            out[0, paths] = np.sqrt((d * d).sum(axis=0)) if tables.scene.camera.kind == "PANO" else \
+                -matmul(rotation[:, 2], d)
+        elif name == "position":
+            out[:, paths] = np.stack(hit.p)
+        elif name == "object_index":
+            if tables.scene.objects is not None:
+                rows = tables.triangles.object_rows(hit.prim)
+                out[0, paths] = np.take(tables.scene.objects[:, OBJ_PASS_INDEX], rows)
+        elif name == "material_index":
+            indices = np.asarray(tables.scene.materials.pass_indices or (0,) * tables.scene.materials.count,
+                                 np.float32)
+            out[0, paths] = np.take(indices, hit.mat)
+        elif name == "normal":
+            out[:, paths] = passes.closure_normal(closures, n, hit.ns)
+        elif name == "uv":
+            u, v = hit.uv_at(np.arange(n))
+            out[0, paths], out[1, paths] = u, v
+        elif name.startswith("crypto_"):
+            kind = name[len("crypto_"):]
+            table = (tables.scene.crypto_ids or {}).get(kind)
+            if kind == "weight":  # the sample's matte weight: what reaches the camera from here
+                out[0, paths] = state.throughput.mean(axis=0)
+            elif table is not None and len(table):
+                rows = hit.mat if kind == "material" else \
+                    tables.triangles.object_rows(hit.prim)
+                if rows is not None:
+                    out[0, paths] = np.take(table, rows)
+        elif name == "vector":
+            if tables.scene.vector_motion is not None:
+                out[:, paths] = _motion_vectors(tables, hit)
+            if "vector_weight" in aux:
+                aux["vector_weight"][0, paths] = 1.0
+        elif name.startswith("aov:"):
+            _, aov_name, which = name.split(":")
+            out[:, paths] = tables.shading.aov(hit, aov_name, 3 if which == "color" else 1)
+        elif name in ("diffuse_color", "glossy_color", "transmission_color"):
+            if colours is None:
+                colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),
+                                   class_albedo(closures, n)))
+            out[:, paths] = colours[name] * state.throughput
+        elif name == "mist":
+            eye, rotation = tables.camera_frame
+            d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
+            distance = np.abs(matmul(rotation[:, 2], d)) if tables.scene.camera.kind == "ORTHO" else \
+                np.sqrt((d * d).sum(axis=0))
+            start, depth, falloff = settings.mist
+            mist = np.clip((distance - start) / max(depth, 1e-30), 0.0, 1.0) ** falloff
+            out[0, paths] = (1.0 - mist) * state.throughput.mean(axis=0)
 
-        def moved(m):  # (K, 3, 4) per object row
-            m = m[rows]
-            return np.einsum("nij,jn->in", m[:, :, :3], p) + m[:, :, 3].T
+def _motion_vectors(tables, hit) -> np.ndarray:
+    """(4, n) Cycles' Vector pass at the hits: (previous - current, current - next) raster positions."""
+    before, after, cam_before, cam_after = tables.scene.vector_motion
+    p = np.stack([c.astype(np.float64) for c in hit.p])          # (3, n)
+    rows = tables.triangles.object_rows(hit.prim)
+    if rows is None:
+        rows = np.zeros(len(hit), np.int64)
+    camera = tables.scene.camera
 
-        centre = _raster(camera, camera.world_from_camera, p)
-        pre = _raster(camera, cam_before, moved(before))
-        post = _raster(camera, cam_after, moved(after))
-        return np.concatenate([pre - centre, centre - post]).astype(np.float32)
+    def moved(m):  # (K, 3, 4) per object row
+        m = m[rows]
+        return np.einsum("nij,jn->in", m[:, :, :3], p) + m[:, :, 3].T
 
-    def _denoising_features(self, aux: dict, state, hit, shading, t_hit) -> None:
-        """Cycles' denoising features: written at the first hit that is not mostly specular (the depth
-        summed over the segments until then, each weighted by the feature throughput). The albedo also
-        takes the emission of emitters that paths still looking for it meet, times the feature throughput,
-        as the world's colour (Cycles' film_write_emission_or_background_pass): an emitter the camera sees
-        has its emission as albedo. Albedo is kept within [0, 1], what OpenImageDenoise reads."""
-        closures = shading.closures
-        open_ = np.flatnonzero(~np.isnan(state.features[0]))
-        if not len(open_):
-            return
-        if "denoising_depth" in aux:
-            aux["denoising_depth"][0, state.path[open_]] += state.features[:, open_].mean(axis=0) * \
-                np.take(t_hit, open_)
-        if "denoising_albedo" in aux and self._emissive:
-            lit = open_[np.take(self.shading.emissive, np.take(hit.mat, open_))]
-            if len(lit):
-                _add_albedo(aux, state.path[lit], state.features[:, lit] * np.take(shading.emission, lit, axis=1))
-        normal, diffuse, specular, done = passes.denoising_features(closures, len(hit), hit.ns)
-        rows = open_[done[open_]]
-        if len(rows):
-            paths = state.path[rows]
-            if "denoising_albedo" in aux:
-                _add_albedo(aux, paths, state.features[:, rows] * diffuse[:, rows])
-            if "denoising_normal" in aux:
-                rotation = self._camera_frame[1].astype(np.float32)  # columns: right, up, back
-                aux["denoising_normal"][:, paths] = matmul(rotation.T, normal[:, rows]) * \
-                    np.array([1, 1, -1], np.float32)[:, None]
-            state.features[:, rows] = np.nan
-        waiting = open_[~done[open_]]
-        state.features[:, waiting] *= specular[:, waiting]
+    centre = _raster(camera, camera.world_from_camera, p)
+    pre = _raster(camera, cam_before, moved(before))
+    post = _raster(camera, cam_after, moved(after))
+    return np.concatenate([pre - centre, centre - post]).astype(np.float32)
 
-    # ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
-    def _lights_hit(self, wave, state, rays, hits) -> np.ndarray:
-        """Count the lights the rays meet before their hits (each a transparent bounce, as in Cycles);
-        return the (N,) mask of the paths that end at one, their transparent bounces spent."""
-        o, d = rays.origins, rays.dirs
-        seeing = state.bounce > 0   # camera rays do not see lights
-        budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
-        met = self.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget)
-        met.crossed[~seeing] = 0
-        state.transparent = state.transparent + met.crossed
-        lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
-        if lit.any():
-            idx = np.flatnonzero(lit)
-            le = np.take(state.throughput * le, idx, axis=1)
-            if wave.nee:
-                le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
-            le = _clamp(wave, le, np.take(state.bounce, idx) > 1)
-            _accumulate(wave.radiance, state.path[idx], le)
-            if state.pass_weights is not None:
-                self._light_passes(wave, state, idx, le)
-        return met.stopped & seeing
-
-    # ---- light passes: what a contribution to the image adds to Cycles' Diffuse/Glossy/Transmission passes
-    def _light_passes(self, wave, state, rows, value, shadow: bool = False, first=None) -> None:
-        """value (3, m): clamped contributions of the paths rows (state rows). Light found by a ray is direct
-        at bounce 1 (it lit the first hit), by a shadow ray at bounce 0; deeper it is indirect. Each splits by
-        the path's class shares of its first bounce (first: (positions, (6, k) shares) for shadow rays at
-        the first hit, split by the closures there)."""
-        if not len(rows):
-            return
-        aux = wave.aux
-        shares = np.take(state.pass_weights, rows, axis=1)
-        bounce = np.take(state.bounce, rows)
-        direct = bounce == (0 if shadow else 1)
-        if first is not None and len(first[0]):
-            shares[:, first[0]] = first[1]
+def _denoising_features(tables, aux: dict, state, hit, shading, t_hit) -> None:
+    """Cycles' denoising features: written at the first hit that is not mostly specular (the depth
+    summed over the segments until then, each weighted by the feature throughput). The albedo also
+    takes the emission of emitters that paths still looking for it meet, times the feature throughput,
+    as the world's colour (Cycles' film_write_emission_or_background_pass): an emitter the camera sees
+    has its emission as albedo. Albedo is kept within [0, 1], what OpenImageDenoise reads."""
+    closures = shading.closures
+    open_ = np.flatnonzero(~np.isnan(state.features[0]))
+    if not len(open_):
+        return
+    if "denoising_depth" in aux:
+        aux["denoising_depth"][0, state.path[open_]] += state.features[:, open_].mean(axis=0) * \
+            np.take(t_hit, open_)
+    if "denoising_albedo" in aux and tables.emissive:
+        lit = open_[np.take(tables.shading.emissive, np.take(hit.mat, open_))]
+        if len(lit):
+            _add_albedo(aux, state.path[lit], state.features[:, lit] * np.take(shading.emission, lit, axis=1))
+    normal, diffuse, specular, done = passes.denoising_features(closures, len(hit), hit.ns)
+    rows = open_[done[open_]]
+    if len(rows):
         paths = state.path[rows]
-        parts = (shares[:3], shares[3:], np.float32(1) - shares[:3] - shares[3:])
-        for cls, share in zip(("diffuse", "glossy", "transmission"), parts):
-            for suffix, sel in (("direct", direct), ("indirect", ~direct)):
-                name = f"{cls}_{suffix}"
-                if name in aux:
-                    pick = np.flatnonzero(sel)
-                    if len(pick):
-                        aux[name][:, paths[pick]] += value[:, pick] * share[:, pick]
+        if "denoising_albedo" in aux:
+            _add_albedo(aux, paths, state.features[:, rows] * diffuse[:, rows])
+        if "denoising_normal" in aux:
+            rotation = tables.camera_frame[1].astype(np.float32)  # columns: right, up, back
+            aux["denoising_normal"][:, paths] = matmul(rotation.T, normal[:, rows]) * \
+                np.array([1, 1, -1], np.float32)[:, None]
+        state.features[:, rows] = np.nan
+    waiting = open_[~done[open_]]
+    state.features[:, waiting] *= specular[:, waiting]
 
-    # ---- stage: smooth glass sees the world along the branch it did not take
-    def _glass_escapes(self, wave, state, hit, closures, bs) -> None:
-        """Smooth glass chooses reflection or refraction at random (with probability P and 1 - P) and weighs
-        the branch taken by 1 / its probability: the sun reflected by a window once in twenty samples is a
-        firefly. Where the chosen closure is singular glass, the branch not taken is traced one segment too:
-        if it leaves the scene, what it sees of the world is added at once, weighted by that branch's own
-        Fresnel factor; and what the taken branch sees of the world if it leaves at once is scaled by its
-        probability (state.escape_scale, read by _escaped). Each branch's light from the world along its
-        first segment then counts in full whichever branch was taken, and what it finds on surfaces (and
-        lamps) as before, so the estimate is unbiased and the world's part of it no longer a lottery. Cycles
-        follows one branch (it has nothing of this)."""
-        state.escape_scale = None
-        if GLASS not in closures.kinds:
-            return
-        row = bs.row
-        chosen = np.flatnonzero((row >= 0) & bs.delta & ~bs.transparent & (bs.pdf > 0) &
-                                _may_scatter(wave, state))
-        if not len(chosen):
-            return
-        r = row[chosen]
-        smooth = (closures.lobe[r] == GLASS) & closures.delta[r]
-        chosen, r = chosen[smooth], r[smooth]
-        if not len(chosen):
-            return
-        wi, weight, transmit, p_taken, ok = singular_glass_other_branch(closures, chosen, r, bs.transmit[chosen])
-        scale = np.ones(len(state), np.float32)
-        scale[chosen] = p_taken
-        state.escape_scale = scale
-        # The other branch must leave on its side of the true surface, as _continues asks of a sample.
-        ok &= _leaves_its_side(wi, tuple(np.take(c, chosen) for c in hit.ng), transmit)
-        live = np.flatnonzero(ok)
-        if not len(live):
-            return
-        idx = chosen[live]
-        wx, wy, wz = (c[live] for c in wi)
-        rays = self._rays_from(hit, idx, (wx, wy, wz), transmit[live])
-        hits = self.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split,
-                                    None if state.time is None else state.time.take(idx))
-        out = np.flatnonzero(hits.prim < 0)
-        if not len(out):
-            return
-        idx, live = idx[out], live[out]
-        wx, wy, wz = wx[out], wy[out], wz[out]
-        light = self.environment.radiance(wx, wy, wz)
-        sun = self.lights.suns_seen(wx, wy, wz)   # after a singular bounce: no MIS
-        if sun is not None:
-            light = light + sun
-
-        def branch_class(first):  # at the first hit, the class of the branch not taken (glossy, transmission)
-            diffuse, glossy = pass_classes(closures, r[live[first]], (wx[first], wy[first], wz[first]))
-            return np.concatenate([np.repeat(diffuse[None, :], 3, axis=0),
-                                   np.repeat(glossy[None, :], 3, axis=0)]).astype(np.float32)
-        self._add_from_vertex(wave, state, idx, np.take(state.throughput, idx, axis=1) * weight[:, live] * light,
-                              branch_class)
-
-    def _add_from_vertex(self, wave, state, rows, value, first_shares) -> None:
-        """Add (3, n) contributions of light found from the current vertex of the paths rows (state rows): by
-        a shadow ray, or along the glass branch not taken. Clamped as direct light at the first hit, indirect
-        deeper; in the light passes, split at the first hit by first_shares(positions in rows) -> (6, k)
-        class shares, deeper as the path's first bounce was."""
-        value = _clamp(wave, value, np.take(state.bounce, rows) > 0)
-        _accumulate(wave.radiance, state.path[rows], value)
+# ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
+def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
+    """Count the lights the rays meet before their hits (each a transparent bounce, as in Cycles);
+    return the (N,) mask of the paths that end at one, their transparent bounces spent."""
+    o, d = rays.origins, rays.dirs
+    seeing = state.bounce > 0   # camera rays do not see lights
+    budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
+    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget)
+    met.crossed[~seeing] = 0
+    state.transparent = state.transparent + met.crossed
+    lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
+    if lit.any():
+        idx = np.flatnonzero(lit)
+        le = np.take(state.throughput * le, idx, axis=1)
+        if wave.nee:
+            le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
+        le = _clamp(wave, le, np.take(state.bounce, idx) > 1)
+        _accumulate(wave.radiance, state.path[idx], le)
         if state.pass_weights is not None:
-            first = np.flatnonzero(np.take(state.bounce, rows) == 0)
-            shares = first_shares(first) if len(first) else None
-            self._light_passes(wave, state, rows, value, shadow=True, first=(first, shares))
+            _light_passes(tables, wave, state, idx, le)
+    return met.stopped & seeing
 
-    def _first_bounce_shares(self, state, closures, bs) -> None:
-        """At the first scattering (not a transparent pass-through), the class shares of the sampled
-        direction: the chosen closure's class for a singular lobe, the mixture's split otherwise (Cycles'
-        pass_diffuse_weight and pass_glossy_weight)."""
-        rows = np.flatnonzero((state.bounce == 0) & ~bs.transparent & (bs.row >= 0))
-        if not len(rows):
-            return
-        wi = tuple(np.take(c, rows) for c in bs.wi)
-        delta = np.take(bs.delta, rows)
-        shares = np.zeros((6, len(rows)), np.float32)
-        d = np.flatnonzero(delta)
-        if len(d):
-            diffuse, glossy = pass_classes(closures, np.take(bs.row, rows[d]), tuple(c[d] for c in wi))
-            shares[:3, d], shares[3:, d] = diffuse.astype(np.float32), glossy.astype(np.float32)
-        m = np.flatnonzero(~delta)
-        if len(m):
-            shares[:, m] = _class_shares(*eval_split(closures, rows[m], tuple(c[m] for c in wi)))
-        state.pass_weights[:, rows] = shares
+# ---- light passes: what a contribution to the image adds to Cycles' Diffuse/Glossy/Transmission passes
+def _light_passes(tables, wave, state, rows, value, shadow: bool = False, first=None) -> None:
+    """value (3, m): clamped contributions of the paths rows (state rows). Light found by a ray is direct
+    at bounce 1 (it lit the first hit), by a shadow ray at bounce 0; deeper it is indirect. Each splits by
+    the path's class shares of its first bounce (first: (positions, (6, k) shares) for shadow rays at
+    the first hit, split by the closures there)."""
+    if not len(rows):
+        return
+    aux = wave.aux
+    shares = np.take(state.pass_weights, rows, axis=1)
+    bounce = np.take(state.bounce, rows)
+    direct = bounce == (0 if shadow else 1)
+    if first is not None and len(first[0]):
+        shares[:, first[0]] = first[1]
+    paths = state.path[rows]
+    parts = (shares[:3], shares[3:], np.float32(1) - shares[:3] - shares[3:])
+    for cls, share in zip(("diffuse", "glossy", "transmission"), parts):
+        for suffix, sel in (("direct", direct), ("indirect", ~direct)):
+            name = f"{cls}_{suffix}"
+            if name in aux:
+                pick = np.flatnonzero(sel)
+                if len(pick):
+                    aux[name][:, paths[pick]] += value[:, pick] * share[:, pick]
 
-    # ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
-    def _escaped(self, wave, state, rays, hits, ended=None):
-        """The world seen by the rays that hit nothing (ended: (N,) mask of paths that ended before)."""
-        miss = np.flatnonzero((hits.prim < 0) if ended is None else (hits.prim < 0) & ~ended)
-        if not len(miss):
-            return
-        keep = np.ones(len(miss), bool)
-        if wave.settings.transparent_background:
-            # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
-            direct = state.bounce[miss] == 0
-            seen = miss[direct]
-            if len(seen):
-                wave.alpha[state.path[seen]] -= np.take(state.throughput, seen, axis=1).mean(axis=0)
-                keep = ~direct
-        # The world's radiance, evaluated once: for the Environment pass (what the camera sees of the world,
-        # transparent film or not), the image and the denoising albedo.
-        environment_pass = wave.aux is not None and "environment" in wave.aux
-        looked = miss if environment_pass else miss[keep]
-        if not len(looked):
-            return
-        d = rays.dirs
-        ray = None
-        if self.environment.shader:
-            ray = RayInfo(state.bounce[looked], state.transparent[looked], emission=True,
-                          lobes=None if state.lobes is None else state.lobes[:, looked],
-                          portal=None if state.portal is None else state.portal[looked])
-        light = self.environment.radiance(d[looked, 0], d[looked, 1], d[looked, 2], ray)
-        if environment_pass:
-            camera = np.flatnonzero(state.bounce[miss] == 0)
-            wave.aux["environment"][:, state.path[miss[camera]]] += \
-                np.take(state.throughput, miss[camera], axis=1) * light[:, camera]
-            light = light[:, keep]
-        miss = miss[keep]
-        if not len(miss):
-            return
-        mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
-        env = np.take(state.throughput, miss, axis=1) * light
+# ---- stage: smooth glass sees the world along the branch it did not take
+def _glass_escapes(tables, wave, state, hit, closures, bs) -> None:
+    """Smooth glass chooses reflection or refraction at random (with probability P and 1 - P) and weighs
+    the branch taken by 1 / its probability: the sun reflected by a window once in twenty samples is a
+    firefly. Where the chosen closure is singular glass, the branch not taken is traced one segment too:
+    if it leaves the scene, what it sees of the world is added at once, weighted by that branch's own
+    Fresnel factor; and what the taken branch sees of the world if it leaves at once is scaled by its
+    probability (state.escape_scale, read by _escaped). Each branch's light from the world along its
+    first segment then counts in full whichever branch was taken, and what it finds on surfaces (and
+    lamps) as before, so the estimate is unbiased and the world's part of it no longer a lottery. Cycles
+    follows one branch (it has nothing of this)."""
+    state.escape_scale = None
+    if GLASS not in closures.kinds:
+        return
+    row = bs.row
+    chosen = np.flatnonzero((row >= 0) & bs.delta & ~bs.transparent & (bs.pdf > 0) &
+                            _may_scatter(wave, state))
+    if not len(chosen):
+        return
+    r = row[chosen]
+    smooth = (closures.lobe[r] == GLASS) & closures.delta[r]
+    chosen, r = chosen[smooth], r[smooth]
+    if not len(chosen):
+        return
+    wi, weight, transmit, p_taken, ok = singular_glass_other_branch(closures, chosen, r, bs.transmit[chosen])
+    scale = np.ones(len(state), np.float32)
+    scale[chosen] = p_taken
+    state.escape_scale = scale
+    # The other branch must leave on its side of the true surface, as _continues asks of a sample.
+    ok &= _leaves_its_side(wi, tuple(np.take(c, chosen) for c in hit.ng), transmit)
+    live = np.flatnonzero(ok)
+    if not len(live):
+        return
+    idx = chosen[live]
+    wx, wy, wz = (c[live] for c in wi)
+    rays = _rays_from(tables, hit, idx, (wx, wy, wz), transmit[live])
+    hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split,
+                                None if state.time is None else state.time.take(idx))
+    out = np.flatnonzero(hits.prim < 0)
+    if not len(out):
+        return
+    idx, live = idx[out], live[out]
+    wx, wy, wz = wx[out], wy[out], wz[out]
+    light = tables.environment.radiance(wx, wy, wz)
+    sun = tables.lights.suns_seen(wx, wy, wz)   # after a singular bounce: no MIS
+    if sun is not None:
+        light = light + sun
+
+    def branch_class(first):  # at the first hit, the class of the branch not taken (glossy, transmission)
+        diffuse, glossy = pass_classes(closures, r[live[first]], (wx[first], wy[first], wz[first]))
+        return np.concatenate([np.repeat(diffuse[None, :], 3, axis=0),
+                               np.repeat(glossy[None, :], 3, axis=0)]).astype(np.float32)
+    _add_from_vertex(tables, wave, state, idx, np.take(state.throughput, idx, axis=1) * weight[:, live] * light,
+                          branch_class)
+
+def _add_from_vertex(tables, wave, state, rows, value, first_shares) -> None:
+    """Add (3, n) contributions of light found from the current vertex of the paths rows (state rows): by
+    a shadow ray, or along the glass branch not taken. Clamped as direct light at the first hit, indirect
+    deeper; in the light passes, split at the first hit by first_shares(positions in rows) -> (6, k)
+    class shares, deeper as the path's first bounce was."""
+    value = _clamp(wave, value, np.take(state.bounce, rows) > 0)
+    _accumulate(wave.radiance, state.path[rows], value)
+    if state.pass_weights is not None:
+        first = np.flatnonzero(np.take(state.bounce, rows) == 0)
+        shares = first_shares(first) if len(first) else None
+        _light_passes(tables, wave, state, rows, value, shadow=True, first=(first, shares))
+
+def _first_bounce_shares(tables, state, closures, bs) -> None:
+    """At the first scattering (not a transparent pass-through), the class shares of the sampled
+    direction: the chosen closure's class for a singular lobe, the mixture's split otherwise (Cycles'
+    pass_diffuse_weight and pass_glossy_weight)."""
+    rows = np.flatnonzero((state.bounce == 0) & ~bs.transparent & (bs.row >= 0))
+    if not len(rows):
+        return
+    wi = tuple(np.take(c, rows) for c in bs.wi)
+    delta = np.take(bs.delta, rows)
+    shares = np.zeros((6, len(rows)), np.float32)
+    d = np.flatnonzero(delta)
+    if len(d):
+        diffuse, glossy = pass_classes(closures, np.take(bs.row, rows[d]), tuple(c[d] for c in wi))
+        shares[:3, d], shares[3:, d] = diffuse.astype(np.float32), glossy.astype(np.float32)
+    m = np.flatnonzero(~delta)
+    if len(m):
+        shares[:, m] = _class_shares(*eval_split(closures, rows[m], tuple(c[m] for c in wi)))
+    state.pass_weights[:, rows] = shares
+
+# ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
+def _escaped(tables, wave, state, rays, hits, ended=None):
+    """The world seen by the rays that hit nothing (ended: (N,) mask of paths that ended before)."""
+    miss = np.flatnonzero((hits.prim < 0) if ended is None else (hits.prim < 0) & ~ended)
+    if not len(miss):
+        return
+    keep = np.ones(len(miss), bool)
+    if wave.settings.transparent_background:
+        # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
+        direct = state.bounce[miss] == 0
+        seen = miss[direct]
+        if len(seen):
+            wave.alpha[state.path[seen]] -= np.take(state.throughput, seen, axis=1).mean(axis=0)
+            keep = ~direct
+    # The world's radiance, evaluated once: for the Environment pass (what the camera sees of the world,
+    # transparent film or not), the image and the denoising albedo.
+    environment_pass = wave.aux is not None and "environment" in wave.aux
+    looked = miss if environment_pass else miss[keep]
+    if not len(looked):
+        return
+    d = rays.dirs
+    ray = None
+    if tables.environment.shader:
+        ray = RayInfo(state.bounce[looked], state.transparent[looked], emission=True,
+                      lobes=None if state.lobes is None else state.lobes[:, looked],
+                      portal=None if state.portal is None else state.portal[looked])
+    light = tables.environment.radiance(d[looked, 0], d[looked, 1], d[looked, 2], ray)
+    if environment_pass:
+        camera = np.flatnonzero(state.bounce[miss] == 0)
+        wave.aux["environment"][:, state.path[miss[camera]]] += \
+            np.take(state.throughput, miss[camera], axis=1) * light[:, camera]
+        light = light[:, keep]
+    miss = miss[keep]
+    if not len(miss):
+        return
+    mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
+    env = np.take(state.throughput, miss, axis=1) * light
+    if state.escape_scale is not None:
+        env *= np.take(state.escape_scale, miss)
+    if state.features is not None and wave.aux is not None and "denoising_albedo" in wave.aux:
+        # A path still looking for its denoising features sees the world: the world's colour times the
+        # feature throughput is its albedo, as in Cycles.
+        seen = np.flatnonzero(~np.isnan(state.features[0, miss]))
+        if len(seen):
+            _add_albedo(wave.aux, state.path[miss[seen]], state.features[:, miss[seen]] * light[:, seen])
+    if wave.nee:
+        mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
+        if len(mis):
+            heuristic = sampling.balance_heuristic if tables.environment.mis_balance else sampling.power_heuristic
+            focus = None if state.focus is None else state.focus.take(miss[mis])
+            sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]],
+                                                       tables.lights.pdf_world(mx[mis], my[mis], mz[mis], focus)))
+    later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
+    if len(later) and len(tables.lights.sun_discs):
+        sun = tables.lights.suns_seen(mx[later], my[later], mz[later],
+                                    state.bsdf_pdf[miss[later]] if wave.nee else None)
+        sun *= np.take(state.throughput, miss[later], axis=1)
         if state.escape_scale is not None:
-            env *= np.take(state.escape_scale, miss)
-        if state.features is not None and wave.aux is not None and "denoising_albedo" in wave.aux:
-            # A path still looking for its denoising features sees the world: the world's colour times the
-            # feature throughput is its albedo, as in Cycles.
-            seen = np.flatnonzero(~np.isnan(state.features[0, miss]))
-            if len(seen):
-                _add_albedo(wave.aux, state.path[miss[seen]], state.features[:, miss[seen]] * light[:, seen])
-        if wave.nee:
-            mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
-            if len(mis):
-                heuristic = sampling.balance_heuristic if self.environment.mis_balance else sampling.power_heuristic
-                focus = None if state.focus is None else state.focus.take(miss[mis])
-                sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]],
-                                                           self.lights.pdf_world(mx[mis], my[mis], mz[mis], focus)))
-        later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
-        if len(later) and len(self.lights.sun_discs):
-            sun = self.lights.suns_seen(mx[later], my[later], mz[later],
-                                        state.bsdf_pdf[miss[later]] if wave.nee else None)
-            sun *= np.take(state.throughput, miss[later], axis=1)
-            if state.escape_scale is not None:
-                sun *= np.take(state.escape_scale, miss[later])
-            env[:, later] += sun
-        env = _clamp(wave, env, state.bounce[miss] > 1)
-        _accumulate(wave.radiance, state.path[miss], env)
-        if state.pass_weights is not None:
-            self._light_passes(wave, state, miss[later], env[:, later])
+            sun *= np.take(state.escape_scale, miss[later])
+        env[:, later] += sun
+    env = _clamp(wave, env, state.bounce[miss] > 1)
+    _accumulate(wave.radiance, state.path[miss], env)
+    if state.pass_weights is not None:
+        _light_passes(tables, wave, state, miss[later], env[:, later])
 
-    # ---- stage: the surface-interaction record of the rays that hit
-    def _surface_hit(self, hits, rays, found, times=None) -> SurfaceHit:
-        d = rays.dirs
-        direction = (np.take(d[:, 0], found), np.take(d[:, 1], found), np.take(d[:, 2], found))
-        prim = np.take(hits.prim, found)
-        return SurfaceHit(self._triangles, prim, np.take(hits.u, found),
-                          np.take(hits.v, found), direction, self.shading.needs_uv,
-                          self._hit_motion(prim, times) if self.accel.moves else None)
+# ---- stage: the surface-interaction record of the rays that hit
+def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
+    d = rays.dirs
+    direction = (np.take(d[:, 0], found), np.take(d[:, 1], found), np.take(d[:, 2], found))
+    prim = np.take(hits.prim, found)
+    return SurfaceHit(tables.triangles, prim, np.take(hits.u, found),
+                      np.take(hits.v, found), direction, tables.shading.needs_uv,
+                      _hit_motion(tables, prim, times) if tables.accel.moves else None)
 
-    def _hit_motion(self, prim, times):
-        """(hits on moving triangles, (m, 3, 4) matrices taking the triangles' stored positions to where
-        they are at each hit's time, (m, 3, 3) the same for normals), or None when no hit moves. The
-        matrices are cached per path (times: the hits' RayTimes), so later bounces reuse them."""
-        ids = np.take(self.scene.motion_ids, prim)
-        rows = np.flatnonzero(ids >= 0)
-        if not len(rows):
-            return None
-        delta = np.empty((len(rows), 3, 4), np.float32)
-        normal = np.empty((len(rows), 3, 3), np.float32)
-        for i in np.unique(ids[rows]):
-            sel = np.flatnonzero(ids[rows] == i)
-            d, n = times.cached(("moved", i), lambda t, i=i: self._moved_by(i, t))
-            delta[sel], normal[sel] = d[rows[sel]], n[rows[sel]]
-        return rows, delta, normal
+def _hit_motion(tables, prim, times):
+    """(hits on moving triangles, (m, 3, 4) matrices taking the triangles' stored positions to where
+    they are at each hit's time, (m, 3, 3) the same for normals), or None when no hit moves. The
+    matrices are cached per path (times: the hits' RayTimes), so later bounces reuse them."""
+    ids = np.take(tables.scene.motion_ids, prim)
+    rows = np.flatnonzero(ids >= 0)
+    if not len(rows):
+        return None
+    delta = np.empty((len(rows), 3, 4), np.float32)
+    normal = np.empty((len(rows), 3, 3), np.float32)
+    for i in np.unique(ids[rows]):
+        sel = np.flatnonzero(ids[rows] == i)
+        d, n = times.cached(("moved", i), lambda t, i=i: _moved_by(tables, i, t))
+        delta[sel], normal[sel] = d[rows[sel]], n[rows[sel]]
+    return rows, delta, normal
 
-    def _moved_by(self, i: int, t: np.ndarray):
-        """(n, 3, 4) M(t) M_ref^-1 and (n, 3, 3) its normal matrix (inverse transpose) for object i."""
-        m = motion.interpolate(self._motion[i], t)
-        ref = self._motion_inverse[i]
-        delta = np.empty((len(t), 3, 4), np.float64)
-        delta[:, :, :3] = m[:, :, :3] @ ref[:3, :3]
-        delta[:, :, 3] = m[:, :, :3] @ ref[:3, 3] + m[:, :, 3]
-        rows3 = delta[:, :, :3]  # inverse transpose = rows' cross products / determinant (cofactors)
-        cof = np.stack([np.cross(rows3[:, 1], rows3[:, 2]), np.cross(rows3[:, 2], rows3[:, 0]),
-                        np.cross(rows3[:, 0], rows3[:, 1])], axis=1)
-        det = np.einsum("ni,ni->n", rows3[:, 0], cof[:, 0])
-        normal = cof / np.where(np.abs(det) > 1e-30, det, 1.0)[:, None, None]
-        return delta.astype(np.float32), normal.astype(np.float32)
+def _moved_by(tables, i: int, t: np.ndarray):
+    """(n, 3, 4) M(t) M_ref^-1 and (n, 3, 3) its normal matrix (inverse transpose) for object i."""
+    m = motion.interpolate(tables.motion[i], t)
+    ref = tables.motion_inverse[i]
+    delta = np.empty((len(t), 3, 4), np.float64)
+    delta[:, :, :3] = m[:, :, :3] @ ref[:3, :3]
+    delta[:, :, 3] = m[:, :, :3] @ ref[:3, 3] + m[:, :, 3]
+    rows3 = delta[:, :, :3]  # inverse transpose = rows' cross products / determinant (cofactors)
+    cof = np.stack([np.cross(rows3[:, 1], rows3[:, 2]), np.cross(rows3[:, 2], rows3[:, 0]),
+                    np.cross(rows3[:, 0], rows3[:, 1])], axis=1)
+    det = np.einsum("ni,ni->n", rows3[:, 0], cof[:, 0])
+    normal = cof / np.where(np.abs(det) > 1e-30, det, 1.0)[:, None, None]
+    return delta.astype(np.float32), normal.astype(np.float32)
 
-    # ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
-    def _emission_on_hit(self, wave, state, hit, shading, hits, rays, found):
-        lit = np.flatnonzero(np.take(self.shading.emissive, hit.mat))
-        if not len(lit):
-            return
-        le = np.take(state.throughput, lit, axis=1) * np.take(shading.emission, lit, axis=1)
-        if wave.aux is not None and "emission" in wave.aux:
-            seen = np.flatnonzero(np.take(state.bounce, lit) == 0)  # emitters the camera sees
-            wave.aux["emission"][:, state.path[lit[seen]]] += le[:, seen]
-        if wave.nee:
-            mis = np.flatnonzero(np.isfinite(np.take(state.bsdf_pdf, lit)))
-            if len(mis):
-                sel = lit[mis]
-                gx, gy, gz = (np.take(c, sel) for c in hit.ng)
-                dx, dy, dz = (np.take(c, sel) for c in hit.d)
-                cos_l = gx * dx + gy * dy + gz * dz
-                ray = found[sel]  # index of these rays before compaction
-                o = rays.origins
-                light_pdf = self.lights.pdf_triangle_hit(
-                    np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
-                    np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray))
-                le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
-        le = _clamp(wave, le, np.take(state.bounce, lit) > 1)
-        _accumulate(wave.radiance, state.path[lit], le)
-        if state.pass_weights is not None:
-            later = np.flatnonzero(np.take(state.bounce, lit) > 0)
-            self._light_passes(wave, state, lit[later], le[:, later])
+# ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
+def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
+    lit = np.flatnonzero(np.take(tables.shading.emissive, hit.mat))
+    if not len(lit):
+        return
+    le = np.take(state.throughput, lit, axis=1) * np.take(shading.emission, lit, axis=1)
+    if wave.aux is not None and "emission" in wave.aux:
+        seen = np.flatnonzero(np.take(state.bounce, lit) == 0)  # emitters the camera sees
+        wave.aux["emission"][:, state.path[lit[seen]]] += le[:, seen]
+    if wave.nee:
+        mis = np.flatnonzero(np.isfinite(np.take(state.bsdf_pdf, lit)))
+        if len(mis):
+            sel = lit[mis]
+            gx, gy, gz = (np.take(c, sel) for c in hit.ng)
+            dx, dy, dz = (np.take(c, sel) for c in hit.d)
+            cos_l = gx * dx + gy * dy + gz * dz
+            ray = found[sel]  # index of these rays before compaction
+            o = rays.origins
+            light_pdf = tables.lights.pdf_triangle_hit(
+                np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
+                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray))
+            le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
+    le = _clamp(wave, le, np.take(state.bounce, lit) > 1)
+    _accumulate(wave.radiance, state.path[lit], le)
+    if state.pass_weights is not None:
+        later = np.flatnonzero(np.take(state.bounce, lit) > 0)
+        _light_passes(tables, wave, state, lit[later], le[:, later])
 
-    # ---- stage: Holdout closures cut a hole in alpha where the camera sees them
-    @staticmethod
-    def _holdout(wave, state, shading):
-        held = np.flatnonzero((shading.holdout > 0) & (state.bounce == 0))
-        if len(held):
-            share = np.take(shading.holdout, held) * np.take(state.throughput, held, axis=1).mean(axis=0)
-            wave.alpha[state.path[held]] -= share
+# ---- stage: Holdout closures cut a hole in alpha where the camera sees them
+def _holdout(wave, state, shading):
+    held = np.flatnonzero((shading.holdout > 0) & (state.bounce == 0))
+    if len(held):
+        share = np.take(shading.holdout, held) * np.take(state.throughput, held, axis=1).mean(axis=0)
+        wave.alpha[state.path[held]] -= share
 
-    # ---- stage: sample the next direction from the closure mixture
-    def _sample_bsdf(self, wave, hit, closures, numbers) -> BsdfSample:
-        u_lobe, uc = numbers[LOBE] if LOBE in numbers else (np.zeros(len(hit), np.float32),) * 2
-        u1, u2 = numbers[BSDF]
-        if wave.settings.mode == "NEE_MIS":   # the closure by the direction's own first number, as Cycles
-            return closures.sample(None, u1, u2, uc)
-        lecture = wave.settings.mode == "LECTURE"
+# ---- stage: sample the next direction from the closure mixture
+def _sample_bsdf(tables, wave, hit, closures, numbers) -> BsdfSample:
+    u_lobe, uc = numbers[LOBE] if LOBE in numbers else (np.zeros(len(hit), np.float32),) * 2
+    u1, u2 = numbers[BSDF]
+    if wave.settings.mode == "NEE_MIS":   # the closure by the direction's own first number, as Cycles
+        return closures.sample(None, u1, u2, uc)
+    lecture = wave.settings.mode == "LECTURE"
 
-        def warp(idx, ux, uy):
-            nx, ny, nz = (np.take(c, idx) for c in hit.ns)
-            if lecture:
-                lx, ly, lz, sin_t = sampling.sample_lecture_hemisphere(ux, uy)
-                pdf = sampling.lecture_hemisphere_pdf(sin_t)
-            else:
-                lx, ly, lz = sampling.sample_cosine_hemisphere(ux, uy)
-                pdf = sampling.cosine_hemisphere_pdf(lz)
-            return sampling.local_to_world(lx, ly, lz, nx, ny, nz), pdf
-        return closures.sample(u_lobe, u1, u2, uc, warp=warp)
-
-    # ---- stage: absorb what cannot continue, count bounces, then Russian roulette
-    def _continues(self, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
-        """Update the path state with the sampled BSDF (focus: the world's at these hits, _world_focus);
-        return the indices of the paths that go on."""
-        portal, free = bs.portal, bs.any_side
-        if free.any():  # hair and Ray Portal samples leave on the side they point to, untested (as in Cycles)
-            bs.through = np.where(free, _leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
-        ok = (_leaves_its_side(bs.wi, hit.ng, bs.transmit) | free) & (bs.pdf > 0)
-        throughput = state.throughput * bs.weight
-        alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
-        passing = bs.transparent
-        # Past the last bounce a path still passes through transparent surfaces (as in Cycles), not portals.
-        alive &= (passing & ~portal) | _may_scatter(wave, state)
-        state.transparent = state.transparent + passing
-        alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
-        state.bounce = state.bounce + ~passing
-        if state.portal is not None:
-            state.portal = state.portal + portal
-        # What a portal's ray finds counts in full (Cycles' PATH_RAY_MIS_SKIP): its pdf is inf.
-        state.bsdf_pdf = np.where(passing & ~portal, state.bsdf_pdf, bs.pdf)
-        if focus is not None or state.focus is not None:
-            # Like bsdf_pdf, a transparent pass-through keeps the focus of the vertex before.
-            now = focus if focus is not None else WorldFocus.none(len(state))
-            if state.focus is not None and passing.any():
-                kept = np.flatnonzero(passing)
-                now.put(kept, state.focus.take(kept))
-            state.focus = now
-        if state.min_ray_pdf is not None:
-            state.min_ray_pdf = np.where(passing, state.min_ray_pdf, np.minimum(state.min_ray_pdf, bs.pdf))
-        # After a few bounces, Russian roulette judges the surface the new ray will hit, as Cycles does
-        # (path_state_continuation_probability, decided in intersect_closest): the ray is traced whatever
-        # the verdict, and what it finds emitting counts in full; only the surface's shading (its light
-        # sample and the next bounce) goes on with probability q = min(sqrt(max throughput), 1), weighted
-        # by 1/q. The square root keeps paths longer than q = max throughput would.
-        state.continuation = None
-        if wave.nee:
-            roulette = ~passing & (state.bounce >= ROULETTE_DEPTH)
-            if roulette.any():
-                q = np.sqrt(np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]),
-                                       np.float32(1.0)))
-                q = np.where(roulette, q, np.float32(1.0))
-                state.continuation = np.where(numbers[LIGHT][1] < q, q, np.float32(0.0))
-        state.throughput = throughput
-        return np.flatnonzero(alive)
-
-    def _roulette_stops(self, state, hits, found) -> np.ndarray:
-        """found without the paths that Russian roulette stopped at a surface that does not emit: those end
-        here; a stopped path whose surface emits stays for its emission (_roulette_weights then ends it)."""
-        stop = np.take(state.continuation, found) == 0
-        if not stop.any():
-            return found
-        if self._emissive:
-            stopped = np.flatnonzero(stop)
-            mats = self._triangles.materials(np.take(hits.prim, np.take(found, stopped)))
-            stop[stopped] = ~np.take(self.shading.emissive, mats)
-        return found[~stop]
-
-    # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
-    def _crossings(self, state, hit, alive, bs) -> None:
-        """The coincident triangle each ray going through its surface meets at once (kernels.coincident),
-        for the next intersection; not for a ray whose hit was itself handed over."""
-        through = np.take(_below(bs), alive) & ~state.handed
-        if bs.origin is not None:  # a portal's ray that starts elsewhere crosses nothing here
-            through &= ~np.isfinite(np.take(bs.origin[0], alive))
-        through = np.flatnonzero(through)
-        state.partner[:] = -1
-        if len(through):
-            rows = alive[through]
-            partner, b1, b2 = self._coincident.crossing(np.take(hit.prim, rows), *(np.take(c, rows) for c in hit.p))
-            state.partner[through] = partner
-            state.partner_uv[0, through], state.partner_uv[1, through] = b1, b2
-
-    def _spawn(self, hit, alive, bs) -> "Rays":
-        rays = self._rays_from(hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(_below(bs), alive))
-        if bs.origin is not None:
-            # A Ray Portal that moves the ray: it starts exactly there, and may meet this surface again.
-            origin = np.take(bs.origin, alive, axis=1)
-            moved = np.flatnonzero(np.isfinite(origin[0]))
-            rays.origins[moved] = origin[:, moved].T
-        return rays
-
-    def _rays_from(self, hit, rows, w, transmit) -> "Rays":
-        """Rays leaving the hits rows along directions w (3 tuple of (n,)), from origins moved off the surface
-        to the side they leave on (below it where transmit)."""
-        px, py, pz = (np.take(c, rows) for c in hit.p)
-        sign = np.where(transmit, np.float32(-1.0), np.float32(1.0))
-        gx, gy, gz = (np.take(c, rows) * sign for c in hit.ng)
-        eps = self._offset(px, py, pz)
-        origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
-        return Rays(origins, np.stack(w, axis=1), np.full(len(rows), np.inf, np.float32))
-
-    def _offset(self, px, py, pz):
-        """Distance to move a spawned ray's origin along the normal: scene scale plus float32 ulps."""
-        return self._ray_epsilon + np.float32(2.0 ** -16) * np.maximum(np.maximum(np.abs(px), np.abs(py)), np.abs(pz))
-
-    # ---- stage: next-event estimation, one shadow ray toward a sampled light
-    def _world_focus(self, hit, closures):
-        """environment.WorldFocus per hit, about its main glossy lobe (closures.glossy_axes); None when the world
-        is not sampled as a light or cannot focus (a constant world, World.focus off)."""
-        if not (self.environment.focuses and self.lights.samples_world()):
-            return None
-        hits, axis, radius, share = glossy_axes(closures)
-        if not len(hits):
-            return None
-        focus = WorldFocus.none(len(hit))
-        focus.put(hits, self.environment.focus(*axis, radius, share * np.float32(FOCUS_SHARE)))
-        return focus
-
-    def _next_event(self, wave, state, hit, closures, numbers, focus=None):
-        """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light.
-        focus: the world's light samples' (_world_focus), per hit."""
-        (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
-        # Paths past their last bounce only pass through transparent surfaces: no direct light there; nor
-        # where the closures are all singular (a mirror, smooth glass): their evaluation is zero.
-        active = np.flatnonzero(_may_scatter(wave, state) & closures.evaluable())
-        if len(active) < len(state):
-            if not len(active):
-                return
-            u_select, u1, u2 = u_select[active], u1[active], u2[active]
-            px, py, pz = (c[active] for c in hit.p)
-            focus = None if focus is None else focus.take(active)
+    def warp(idx, ux, uy):
+        nx, ny, nz = (np.take(c, idx) for c in hit.ns)
+        if lecture:
+            lx, ly, lz, sin_t = sampling.sample_lecture_hemisphere(ux, uy)
+            pdf = sampling.lecture_hemisphere_pdf(sin_t)
         else:
-            px, py, pz = hit.p
-        ls = self.lights.sample(px, py, pz, u_select, u1, u2, focus)
-        self.crew.check_stop()
-        le = ls.radiance
-        useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
-        if not len(useful):
+            lx, ly, lz = sampling.sample_cosine_hemisphere(ux, uy)
+            pdf = sampling.cosine_hemisphere_pdf(lz)
+        return sampling.local_to_world(lx, ly, lz, nx, ny, nz), pdf
+    return closures.sample(u_lobe, u1, u2, uc, warp=warp)
+
+# ---- stage: absorb what cannot continue, count bounces, then Russian roulette
+def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
+    """Update the path state with the sampled BSDF (focus: the world's at these hits, _world_focus);
+    return the indices of the paths that go on."""
+    portal, free = bs.portal, bs.any_side
+    if free.any():  # hair and Ray Portal samples leave on the side they point to, untested (as in Cycles)
+        bs.through = np.where(free, _leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
+    ok = (_leaves_its_side(bs.wi, hit.ng, bs.transmit) | free) & (bs.pdf > 0)
+    throughput = state.throughput * bs.weight
+    alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
+    passing = bs.transparent
+    # Past the last bounce a path still passes through transparent surfaces (as in Cycles), not portals.
+    alive &= (passing & ~portal) | _may_scatter(wave, state)
+    state.transparent = state.transparent + passing
+    alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
+    state.bounce = state.bounce + ~passing
+    if state.portal is not None:
+        state.portal = state.portal + portal
+    # What a portal's ray finds counts in full (Cycles' PATH_RAY_MIS_SKIP): its pdf is inf.
+    state.bsdf_pdf = np.where(passing & ~portal, state.bsdf_pdf, bs.pdf)
+    if focus is not None or state.focus is not None:
+        # Like bsdf_pdf, a transparent pass-through keeps the focus of the vertex before.
+        now = focus if focus is not None else WorldFocus.none(len(state))
+        if state.focus is not None and passing.any():
+            kept = np.flatnonzero(passing)
+            now.put(kept, state.focus.take(kept))
+        state.focus = now
+    if state.min_ray_pdf is not None:
+        state.min_ray_pdf = np.where(passing, state.min_ray_pdf, np.minimum(state.min_ray_pdf, bs.pdf))
+    # After a few bounces, Russian roulette judges the surface the new ray will hit, as Cycles does
+    # (path_state_continuation_probability, decided in intersect_closest): the ray is traced whatever
+    # the verdict, and what it finds emitting counts in full; only the surface's shading (its light
+    # sample and the next bounce) goes on with probability q = min(sqrt(max throughput), 1), weighted
+    # by 1/q. The square root keeps paths longer than q = max throughput would.
+    state.continuation = None
+    if wave.nee:
+        roulette = ~passing & (state.bounce >= ROULETTE_DEPTH)
+        if roulette.any():
+            q = np.sqrt(np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]),
+                                   np.float32(1.0)))
+            q = np.where(roulette, q, np.float32(1.0))
+            state.continuation = np.where(numbers[LIGHT][1] < q, q, np.float32(0.0))
+    state.throughput = throughput
+    return np.flatnonzero(alive)
+
+def _roulette_stops(tables, state, hits, found) -> np.ndarray:
+    """found without the paths that Russian roulette stopped at a surface that does not emit: those end
+    here; a stopped path whose surface emits stays for its emission (_roulette_weights then ends it)."""
+    stop = np.take(state.continuation, found) == 0
+    if not stop.any():
+        return found
+    if tables.emissive:
+        stopped = np.flatnonzero(stop)
+        mats = tables.triangles.materials(np.take(hits.prim, np.take(found, stopped)))
+        stop[stopped] = ~np.take(tables.shading.emissive, mats)
+    return found[~stop]
+
+# ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
+def _crossings(tables, state, hit, alive, bs) -> None:
+    """The coincident triangle each ray going through its surface meets at once (kernels.coincident),
+    for the next intersection; not for a ray whose hit was itself handed over."""
+    through = np.take(_below(bs), alive) & ~state.handed
+    if bs.origin is not None:  # a portal's ray that starts elsewhere crosses nothing here
+        through &= ~np.isfinite(np.take(bs.origin[0], alive))
+    through = np.flatnonzero(through)
+    state.partner[:] = -1
+    if len(through):
+        rows = alive[through]
+        partner, b1, b2 = tables.coincident.crossing(np.take(hit.prim, rows), *(np.take(c, rows) for c in hit.p))
+        state.partner[through] = partner
+        state.partner_uv[0, through], state.partner_uv[1, through] = b1, b2
+
+def _spawn(tables, hit, alive, bs) -> "Rays":
+    rays = _rays_from(tables, hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(_below(bs), alive))
+    if bs.origin is not None:
+        # A Ray Portal that moves the ray: it starts exactly there, and may meet this surface again.
+        origin = np.take(bs.origin, alive, axis=1)
+        moved = np.flatnonzero(np.isfinite(origin[0]))
+        rays.origins[moved] = origin[:, moved].T
+    return rays
+
+def _rays_from(tables, hit, rows, w, transmit) -> "Rays":
+    """Rays leaving the hits rows along directions w (3 tuple of (n,)), from origins moved off the surface
+    to the side they leave on (below it where transmit)."""
+    px, py, pz = (np.take(c, rows) for c in hit.p)
+    sign = np.where(transmit, np.float32(-1.0), np.float32(1.0))
+    gx, gy, gz = (np.take(c, rows) * sign for c in hit.ng)
+    eps = _offset(tables, px, py, pz)
+    origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
+    return Rays(origins, np.stack(w, axis=1), np.full(len(rows), np.inf, np.float32))
+
+def _offset(tables, px, py, pz):
+    """Distance to move a spawned ray's origin along the normal: scene scale plus float32 ulps."""
+    return tables.ray_epsilon + np.float32(2.0 ** -16) * np.maximum(np.maximum(np.abs(px), np.abs(py)), np.abs(pz))
+
+# ---- stage: next-event estimation, one shadow ray toward a sampled light
+def _world_focus(tables, hit, closures):
+    """environment.WorldFocus per hit, about its main glossy lobe (closures.glossy_axes); None when the world
+    is not sampled as a light or cannot focus (a constant world, World.focus off)."""
+    if not (tables.environment.focuses and tables.lights.samples_world()):
+        return None
+    hits, axis, radius, share = glossy_axes(closures)
+    if not len(hits):
+        return None
+    focus = WorldFocus.none(len(hit))
+    focus.put(hits, tables.environment.focus(*axis, radius, share * np.float32(FOCUS_SHARE)))
+    return focus
+
+def _next_event(tables, wave, state, hit, closures, numbers, focus=None):
+    """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light.
+    focus: the world's light samples' (_world_focus), per hit."""
+    (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
+    # Paths past their last bounce only pass through transparent surfaces: no direct light there; nor
+    # where the closures are all singular (a mirror, smooth glass): their evaluation is zero.
+    active = np.flatnonzero(_may_scatter(wave, state) & closures.evaluable())
+    if len(active) < len(state):
+        if not len(active):
             return
-        f, bsdf_pdf = closures.eval_at(active[useful], (ls.wx[useful], ls.wy[useful], ls.wz[useful]))
-        keep = np.flatnonzero((f[0] > 0) | (f[1] > 0) | (f[2] > 0))
-        idx = useful[keep]  # rows of the light sample; active[idx] are the paths
-        if not len(idx):
-            return
-        f, bsdf_pdf = np.take(f, keep, axis=1), bsdf_pdf[keep]
-        gx, gy, gz = (np.take(c, active[idx]) for c in hit.ng)
-        wx, wy, wz = np.take(ls.wx, idx), np.take(ls.wy, idx), np.take(ls.wz, idx)
-        # Leave from the side of the surface the light is on (a light behind a transmitting surface).
-        sign = np.where(wx * gx + wy * gy + wz * gz < 0, np.float32(-1.0), np.float32(1.0))
-        sx, sy, sz = np.take(px, idx), np.take(py, idx), np.take(pz, idx)
-        lift = self._terminator_lift(hit, active[idx], (wx, wy, wz), (gx, gy, gz))
-        if lift is not None:
-            rows, offset = lift
-            sx, sy, sz = sx.copy(), sy.copy(), sz.copy()
-            sx[rows] += offset[:, 0]
-            sy[rows] += offset[:, 1]
-            sz[rows] += offset[:, 2]
-        eps = self._offset(sx, sy, sz) * sign
-        dist = np.take(ls.dist, idx)
-        ox, oy, oz = sx + gx * eps, sy + gy * eps, sz + gz * eps
-        # Aim from the offset origin at the sampled point itself: keeping the direction from the
-        # surface point would shift the ray by eps and, at grazing angles, make it cross the
-        # emitter's plane before the point (a lamp 1 cm under a ceiling shadowed itself that way).
-        finite = np.isfinite(dist)
-        safe = np.where(finite, dist, np.float32(0.0))
-        ax, ay, az = sx + wx * safe - ox, sy + wy * safe - oy, sz + wz * safe - oz
-        to_point = np.sqrt(ax * ax + ay * ay + az * az)
-        inv = np.float32(1.0) / np.maximum(to_point, np.float32(1e-30))
-        wx, wy, wz = np.where(finite, ax * inv, wx), np.where(finite, ay * inv, wy), np.where(finite, az * inv, wz)
-        # Stop short of the sampled point so that the emitter itself does not count as an occluder.
-        t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - np.abs(eps), np.inf).astype(np.float32)
-        origins = np.stack([ox, oy, oz], axis=1)
-        paths = active[idx]
-        dirs = np.stack([wx, wy, wz], axis=1)
-        # Lights with Cast Shadow off are not blocked: no shadow ray, as in Cycles.
-        traced = np.flatnonzero(np.take(ls.shadowed, idx))
-        if len(traced) == len(idx):
-            transmittance = self._shadow_of(origins, dirs, t_max, wave, state, paths)
-        else:
-            transmittance = np.ones((3, len(idx)), np.float32)
-            if len(traced):
-                transmittance[:, traced] = self._shadow_of(origins[traced], dirs[traced], t_max[traced], wave,
-                                                           state, paths[traced])
-        vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
-        if not len(vis):
-            return
-        rows = idx[vis]
-        paths = active[rows]
-        pdf = np.take(ls.pdf, rows)
-        # MIS: the power heuristic, but against the world's light samples the world's own (Environment.
-        # mis_balance: the balance heuristic with a compensated distribution; escaped rays use it too).
-        heuristic = sampling.power_heuristic(pdf, bsdf_pdf[vis])
-        if self.environment.mis_balance:
-            heuristic = np.where(np.take(ls.world, rows), sampling.balance_heuristic(pdf, bsdf_pdf[vis]), heuristic)
-        w = np.where(np.take(ls.delta, rows), np.float32(1.0), heuristic)
-        contribution = np.take(state.throughput, paths, axis=1) * np.take(f, vis, axis=1) * \
-            np.take(transmittance, vis, axis=1) * \
-            np.take(ls.radiance, rows, axis=1) * (w / pdf)
+        u_select, u1, u2 = u_select[active], u1[active], u2[active]
+        px, py, pz = (c[active] for c in hit.p)
+        focus = None if focus is None else focus.take(active)
+    else:
+        px, py, pz = hit.p
+    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus)
+    tables.crew.check_stop()
+    le = ls.radiance
+    useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
+    if not len(useful):
+        return
+    f, bsdf_pdf = closures.eval_at(active[useful], (ls.wx[useful], ls.wy[useful], ls.wz[useful]))
+    keep = np.flatnonzero((f[0] > 0) | (f[1] > 0) | (f[2] > 0))
+    idx = useful[keep]  # rows of the light sample; active[idx] are the paths
+    if not len(idx):
+        return
+    f, bsdf_pdf = np.take(f, keep, axis=1), bsdf_pdf[keep]
+    gx, gy, gz = (np.take(c, active[idx]) for c in hit.ng)
+    wx, wy, wz = np.take(ls.wx, idx), np.take(ls.wy, idx), np.take(ls.wz, idx)
+    # Leave from the side of the surface the light is on (a light behind a transmitting surface).
+    sign = np.where(wx * gx + wy * gy + wz * gz < 0, np.float32(-1.0), np.float32(1.0))
+    sx, sy, sz = np.take(px, idx), np.take(py, idx), np.take(pz, idx)
+    lift = _terminator_lift(tables, hit, active[idx], (wx, wy, wz), (gx, gy, gz))
+    if lift is not None:
+        rows, offset = lift
+        sx, sy, sz = sx.copy(), sy.copy(), sz.copy()
+        sx[rows] += offset[:, 0]
+        sy[rows] += offset[:, 1]
+        sz[rows] += offset[:, 2]
+    eps = _offset(tables, sx, sy, sz) * sign
+    dist = np.take(ls.dist, idx)
+    ox, oy, oz = sx + gx * eps, sy + gy * eps, sz + gz * eps
+    # Aim from the offset origin at the sampled point itself: keeping the direction from the
+    # surface point would shift the ray by eps and, at grazing angles, make it cross the
+    # emitter's plane before the point (a lamp 1 cm under a ceiling shadowed itself that way).
+    finite = np.isfinite(dist)
+    safe = np.where(finite, dist, np.float32(0.0))
+    ax, ay, az = sx + wx * safe - ox, sy + wy * safe - oy, sz + wz * safe - oz
+    to_point = np.sqrt(ax * ax + ay * ay + az * az)
+    inv = np.float32(1.0) / np.maximum(to_point, np.float32(1e-30))
+    wx, wy, wz = np.where(finite, ax * inv, wx), np.where(finite, ay * inv, wy), np.where(finite, az * inv, wz)
+    # Stop short of the sampled point so that the emitter itself does not count as an occluder.
+    t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - np.abs(eps), np.inf).astype(np.float32)
+    origins = np.stack([ox, oy, oz], axis=1)
+    paths = active[idx]
+    dirs = np.stack([wx, wy, wz], axis=1)
+    # Lights with Cast Shadow off are not blocked: no shadow ray, as in Cycles.
+    traced = np.flatnonzero(np.take(ls.shadowed, idx))
+    if len(traced) == len(idx):
+        transmittance = _shadow_of(tables, origins, dirs, t_max, wave, state, paths)
+    else:
+        transmittance = np.ones((3, len(idx)), np.float32)
+        if len(traced):
+            transmittance[:, traced] = _shadow_of(tables, origins[traced], dirs[traced], t_max[traced], wave,
+                                                       state, paths[traced])
+    vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
+    if not len(vis):
+        return
+    rows = idx[vis]
+    paths = active[rows]
+    pdf = np.take(ls.pdf, rows)
+    # MIS: the power heuristic, but against the world's light samples the world's own (Environment.
+    # mis_balance: the balance heuristic with a compensated distribution; escaped rays use it too).
+    heuristic = sampling.power_heuristic(pdf, bsdf_pdf[vis])
+    if tables.environment.mis_balance:
+        heuristic = np.where(np.take(ls.world, rows), sampling.balance_heuristic(pdf, bsdf_pdf[vis]), heuristic)
+    w = np.where(np.take(ls.delta, rows), np.float32(1.0), heuristic)
+    contribution = np.take(state.throughput, paths, axis=1) * np.take(f, vis, axis=1) * \
+        np.take(transmittance, vis, axis=1) * \
+        np.take(ls.radiance, rows, axis=1) * (w / pdf)
 
-        def reflecting(first):  # light reaching the first hit: split by the closures that reflect it there
-            wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
-            return _class_shares(*eval_split(closures, paths[first], wi))
-        self._add_from_vertex(wave, state, paths, contribution, reflecting)
+    def reflecting(first):  # light reaching the first hit: split by the closures that reflect it there
+        wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
+        return _class_shares(*eval_split(closures, paths[first], wi))
+    _add_from_vertex(tables, wave, state, paths, contribution, reflecting)
 
-    def _terminator_lift(self, hit, hits, light, ng):
-        """Cycles' shadow terminator offset (shadow_ray_offset, kernel/light/sample.h): shadow rays toward
-        lights near the horizon of a smooth low-poly surface leave from the smooth surface its normals
-        describe, lifted off the flat triangle, in proportion as the light nears the horizon, below each
-        object's Geometry Offset (Object > Shading > Shadow Terminator; 0.1 by default). Returns (rows of
-        the shadow rays lifted, their (m, 3) offsets), or None."""
-        if self._terminator is None:
-            return None
-        cutoff = self._terminator if np.ndim(self._terminator) == 0 else \
-            np.take(self._terminator, self._triangles.object_rows(np.take(hit.prim, hits)))
-        nl = sum(np.take(hit.ns[k], hits) * light[k] for k in range(3))
-        turned = np.where(nl < 0, np.float32(-1.0), np.float32(1.0))      # a light on the shading normal's back
-        nl = np.abs(nl)
-        side = tuple(c * turned for c in ng)
-        ngl = sum(side[k] * light[k] for k in range(3))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            amount = np.where(nl < cutoff, np.clip(2.0 - (ngl + nl) / cutoff, 0.0, 1.0),
-                              np.clip(1.0 - ngl / cutoff, 0.0, 1.0))
-        rows = np.flatnonzero((amount > 0) & (cutoff > 0))
-        if not len(rows):
-            return None
-        offset = hit.smooth_offset(hits[rows], tuple(c[rows] for c in side))
-        return rows, offset * amount[rows, None].astype(np.float32)
+def _terminator_lift(tables, hit, hits, light, ng):
+    """Cycles' shadow terminator offset (shadow_ray_offset, kernel/light/sample.h): shadow rays toward
+    lights near the horizon of a smooth low-poly surface leave from the smooth surface its normals
+    describe, lifted off the flat triangle, in proportion as the light nears the horizon, below each
+    object's Geometry Offset (Object > Shading > Shadow Terminator; 0.1 by default). Returns (rows of
+    the shadow rays lifted, their (m, 3) offsets), or None."""
+    if tables.terminator is None:
+        return None
+    cutoff = tables.terminator if np.ndim(tables.terminator) == 0 else \
+        np.take(tables.terminator, tables.triangles.object_rows(np.take(hit.prim, hits)))
+    nl = sum(np.take(hit.ns[k], hits) * light[k] for k in range(3))
+    turned = np.where(nl < 0, np.float32(-1.0), np.float32(1.0))      # a light on the shading normal's back
+    nl = np.abs(nl)
+    side = tuple(c * turned for c in ng)
+    ngl = sum(side[k] * light[k] for k in range(3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        amount = np.where(nl < cutoff, np.clip(2.0 - (ngl + nl) / cutoff, 0.0, 1.0),
+                          np.clip(1.0 - ngl / cutoff, 0.0, 1.0))
+    rows = np.flatnonzero((amount > 0) & (cutoff > 0))
+    if not len(rows):
+        return None
+    offset = hit.smooth_offset(hits[rows], tuple(c[rows] for c in side))
+    return rows, offset * amount[rows, None].astype(np.float32)
 
-    def _shadow_of(self, origins, dirs, t_max, wave, state, paths) -> np.ndarray:
-        """_shadow for shadow rays leaving the paths `paths` (state rows)."""
-        return self._shadow(origins, dirs, t_max, wave, np.take(state.bounce, paths),
-                            None if state.lobes is None else np.take(state.lobes, paths, axis=1),
-                            None if state.time is None else state.time.take(paths),
-                            None if state.portal is None else np.take(state.portal, paths))
+def _shadow_of(tables, origins, dirs, t_max, wave, state, paths) -> np.ndarray:
+    """_shadow for shadow rays leaving the paths `paths` (state rows)."""
+    return _shadow(tables, origins, dirs, t_max, wave, np.take(state.bounce, paths),
+                        None if state.lobes is None else np.take(state.lobes, paths, axis=1),
+                        None if state.time is None else state.time.take(paths),
+                        None if state.portal is None else np.take(state.portal, paths))
 
-    def _shadow(self, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None) -> np.ndarray:
-        """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
-        transparent surfaces, the product of their transparency (Cycles' transparent shadows).
-        depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None),
-        portal its Ray Portals passed (or None): what the Light Path node reads."""
-        n = len(origins)
-        split = wave.split
-        if not self.shading.transparent.any():
-            blocked = self.accel.occluded(origins, dirs, t_max, split, times)
-            return np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
-        out = np.ones((3, n), np.float32)
-        live = np.arange(n)
-        origins, t_left = origins.copy(), t_max.copy()
-        for _ in range(int(wave.settings.transparent_max_bounces) + 1):
-            hits = self.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
-            found = np.flatnonzero(hits.prim >= 0)
-            if not len(found):
-                break
-            d = dirs[live[found]]
-            hit = SurfaceHit(self._triangles, hits.prim[found], hits.u[found], hits.v[found],
-                             (d[:, 0], d[:, 1], d[:, 2]), self.shading.needs_uv)
-            passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
-            hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
-                              lobes=None if lobes is None else lobes[:, live[found]],
-                              portal=None if portal is None else portal[live[found]])
-            passes = self.shading.transparency(hit)
-            out[:, live[found]] *= passes
-            through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]
-            if not len(through):
-                break
-            # Continue just past the transparent surface.
-            t = hits.t[through]
-            step = t + self._offset(*(origins[through, k] for k in range(3)))
-            origins = origins[through] + dirs[live[through]] * step[:, None]
-            t_left = t_left[through] - step
-            live = live[through]
-            keep = t_left > 0
-            origins, t_left, live = origins[keep], t_left[keep], live[keep]
-            if not len(live):
-                break
-        else:
-            out[:, live] = 0.0  # more transparent surfaces than the limit: opaque, as in Cycles
-        return out
+def _shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None) -> np.ndarray:
+    """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
+    transparent surfaces, the product of their transparency (Cycles' transparent shadows).
+    depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None),
+    portal its Ray Portals passed (or None): what the Light Path node reads."""
+    n = len(origins)
+    split = wave.split
+    if not tables.shading.transparent.any():
+        blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
+        return np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
+    out = np.ones((3, n), np.float32)
+    live = np.arange(n)
+    origins, t_left = origins.copy(), t_max.copy()
+    for _ in range(int(wave.settings.transparent_max_bounces) + 1):
+        hits = tables.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
+        found = np.flatnonzero(hits.prim >= 0)
+        if not len(found):
+            break
+        d = dirs[live[found]]
+        hit = SurfaceHit(tables.triangles, hits.prim[found], hits.u[found], hits.v[found],
+                         (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv)
+        passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
+        hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
+                          lobes=None if lobes is None else lobes[:, live[found]],
+                          portal=None if portal is None else portal[live[found]])
+        passes = tables.shading.transparency(hit)
+        out[:, live[found]] *= passes
+        through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]
+        if not len(through):
+            break
+        # Continue just past the transparent surface.
+        t = hits.t[through]
+        step = t + _offset(tables, *(origins[through, k] for k in range(3)))
+        origins = origins[through] + dirs[live[through]] * step[:, None]
+        t_left = t_left[through] - step
+        live = live[through]
+        keep = t_left > 0
+        origins, t_left, live = origins[keep], t_left[keep], live[keep]
+        if not len(live):
+            break
+    else:
+        out[:, live] = 0.0  # more transparent surfaces than the limit: opaque, as in Cycles
+    return out
 
-    # ---------------------------------------------------------------- emitters for the light sampler
-    def _triangle_emission(self, tri, b1=None, b2=None, toward=None) -> np.ndarray:
-        """(3, n) emitted radiance of triangles tri at barycentrics (b1, b2) seen from direction
-        -toward (the direction from the receiver to the light); without barycentrics, the material's
-        mean (textures averaged), for power estimates."""
-        mat = self._triangles.materials(tri)
-        if b1 is None:
-            return self.shading.mean_emission(mat)
-        if toward is None:  # seen head-on, along the triangle's normal
-            g = self._triangles.gather(tri)
-            toward = (-g[NG], -g[NG + 1], -g[NG + 2])
-        hit = SurfaceHit(self._triangles, tri, b1, b2, toward, self.shading.needs_uv)
-        return self.shading.surface(hit, closures=False).emission
+# ---------------------------------------------------------------- emitters for the light sampler
+def triangle_emission(tables, tri, b1=None, b2=None, toward=None) -> np.ndarray:
+    """(3, n) emitted radiance of triangles tri at barycentrics (b1, b2) seen from direction
+    -toward (the direction from the receiver to the light); without barycentrics, the material's
+    mean (textures averaged), for power estimates."""
+    mat = tables.triangles.materials(tri)
+    if b1 is None:
+        return tables.shading.mean_emission(mat)
+    if toward is None:  # seen head-on, along the triangle's normal
+        g = tables.triangles.gather(tri)
+        toward = (-g[NG], -g[NG + 1], -g[NG + 2])
+    hit = SurfaceHit(tables.triangles, tri, b1, b2, toward, tables.shading.needs_uv)
+    return tables.shading.surface(hit, closures=False).emission
 
 
 class _Wave:
@@ -1323,7 +890,7 @@ class Rays(NamedTuple):
     t_max: np.ndarray
 
 
-class _GivenPaths:
+class GivenPaths:
     """Paths given whole: their random number streams, rows, columns and strata (trace_paths)."""
     spp = 1   # paths per pixel side by side (a batch starts anywhere)
 
@@ -1343,11 +910,8 @@ class _GivenPaths:
         return PathRng(self.rng.x[part], self.rng.y[part]), self.row[part], self.col[part], strata
 
 
-# Paths per block where a wave's per-path results are summed per pixel in float64.
-_SUM_BLOCK = 1 << 16
 
-
-class _WavePaths:
+class WavePaths:
     """The paths of a wave, pixel-major: path k is sample first + k % spp of pixel pixels[k // spp] of the
     band of image rows `rows` (a range; its pixels numbered along its rows of `width`, from column x0). What a
     path starts from is made for each batch as it starts (the same values as for the whole wave at once)."""
@@ -1393,37 +957,6 @@ def _caustics(settings):
     if settings.caustics_reflective and settings.caustics_refractive:
         return None
     return bool(settings.caustics_reflective), bool(settings.caustics_refractive)
-
-
-def _same_instances(a, b) -> bool:
-    """The same prototypes (array for array), placed by the same number of instances in the same order
-    (their transforms may differ)."""
-    if a is None or b is None or not a.count or not b.count:
-        return (a is None or not a.count) and (b is None or not b.count)
-    return (len(a.prototypes) == len(b.prototypes) and same_arrays(a.prototype, b.prototype)
-            and same_arrays(a.object_ids, b.object_ids)
-            and all(same_triangles(p, q) for p, q in zip(a.prototypes, b.prototypes)))
-
-
-class _Emitters:
-    """The light sampler's view of the emissive materials (see LightSampler)."""
-
-    def __init__(self, renderer: "Renderer"):
-        self.emissive = renderer.shading.emissive
-        self.varies = renderer.shading.emission_varies
-        self._renderer = weakref.proxy(renderer)
-
-    def __call__(self, tri, b1=None, b2=None, toward=None):
-        return self._renderer._triangle_emission(tri, b1, b2, toward)
-
-
-def _pixel_spread(camera: Camera) -> float:
-    """View-plane units per pixel: the spread of camera rays (perspective: radians at the centre;
-    panoramas: Cycles' differential at the frame's centre)."""
-    if camera.kind == "PANO":
-        return float(panorama.pixel_spread(camera))
-    xmin, xmax, _, _ = view_plane(camera)
-    return float(xmax - xmin) / max(camera.width, 1)
 
 
 def _filter_glossy(closures, min_ray_pdf: np.ndarray, filter_glossy: float) -> None:
@@ -1543,16 +1076,3 @@ def _hand_over(state, hits) -> None:
         hits.t[rows] = 0.0
 
 
-def _ray_epsilon(lo: np.ndarray, hi: np.ndarray) -> np.float32:
-    """The absolute part of the offset of spawned rays (the relative part, 2^-16 |p|, is in _offset):
-    scaled down with tiny scenes, and never above Cycles' 2^-16 near the origin, so that a huge ground
-    plane far away does not lift every ray in the scene off its surface."""
-    extent = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
-    return np.float32(min(max(extent, 1e-3) * 1e-6, 2.0 ** -16))
-
-
-def render(scene: SceneArrays, settings: RenderSettings = RenderSettings(), threads: int = 0,
-           **callbacks) -> RenderResult:
-    """Validate, build and render in one call. See Renderer.render for the callbacks."""
-    with Renderer(scene, threads) as renderer:
-        return renderer.render(settings, **callbacks)

@@ -309,7 +309,7 @@ def out_of_time(settings: RenderSettings, start: float) -> bool:
 
 def render_passes(tracer, crew: "WaveCrew", settings: RenderSettings, on_tile=None, should_stop=None,
                   on_progress=None) -> RenderResult:
-    """The progressive loop of one render of `tracer` (kernels.integrator.Renderer: render_wave, wave_size,
+    """The progressive loop of one render of `tracer` (kernels.renderer.Renderer: render_wave, wave_size,
     live_paths, prepare_pass, start_workers, accel, scene) with its waves run by `crew`. See
     Renderer.render for the callbacks."""
     cam = tracer.scene.camera

@@ -14,11 +14,11 @@ arrays bit for bit, since the child runs the same code on the same data.
 
 A runner is built as runner(scene, threads=1, processes=False) and provides render_wave(settings, job),
 stop_waves (a threading.Event its waves poll between bounces), accel.rays_traced and
-accel.seconds_in_embree (counters), close(), and the update methods the parent forwards by name. Between renders the parent forwards its incremental updates (camera, instances,
-materials, lights, the next frame's scene) in order, so a child stays the parent's twin. When the renderer
-closes, its children drop their scene and wait in a pool for the next renderer of this process (an F12
-render again, the next frame without Persistent Data), which then skips their start; idle ones exit after
-IDLE_S.
+accel.seconds_in_embree (counters), close(), and the update methods the parent forwards by name: between
+renders the parent forwards its incremental updates (camera, instances, materials, lights, the next frame's
+scene) in order, so a child stays the parent's twin. When the renderer closes, its children drop their scene
+and wait in a pool for the next renderer of this process (an F12 render again, the next frame without
+Persistent Data), which then skips their start; idle ones exit after IDLE_S.
 
 The protocol is pickles over the child's stdin and stdout (the child points its own stdout at stderr, so
 stray prints cannot break it); NumPy arrays travel as out-of-band buffers, written from and read into their

@@ -225,12 +225,12 @@ def replace_world(monkeypatch, **fields) -> None:
     the test (worker processes get the renderer's scene, so they follow)."""
     import dataclasses
 
-    import ember.kernels.integrator as integrator
-    build = integrator.Renderer.__init__
+    from ember.kernels import renderer as renderer_module
+    build = renderer_module.Renderer.__init__
 
     def replaced(self, arrays, *args, **kwargs):
         build(self, dataclasses.replace(arrays, world=dataclasses.replace(arrays.world, **fields)), *args, **kwargs)
-    monkeypatch.setattr(integrator.Renderer, "__init__", replaced)
+    monkeypatch.setattr(renderer_module.Renderer, "__init__", replaced)
 
 
 def plain_world_sampling(monkeypatch) -> None:

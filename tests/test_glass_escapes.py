@@ -1,4 +1,4 @@
-"""Smooth glass sees the world along the branch it did not take (Renderer._glass_escapes): the same image
+"""Smooth glass sees the world along the branch it did not take (kernels/integrator.py _glass_escapes): the same image
 as following one branch, with less noise where the glass reflects or refracts a bright world."""
 import bpy
 import numpy as np
@@ -6,7 +6,7 @@ import numpy as np
 import bpy_helpers
 from bpy_helpers import diffuse_material, new_scene, quad_object, replicate_render, set_world
 
-import ember.kernels.integrator as integrator
+from ember.kernels import renderer as renderer_module
 
 
 def glass_scene(size=32):
@@ -27,12 +27,12 @@ def glass_scene(size=32):
 
 def one_branch(monkeypatch):
     """Make Ember's renderers follow one branch of smooth glass, as Cycles does, for the rest of the test."""
-    build = integrator.Renderer._build_shading
+    build = renderer_module.Renderer._build_shading
 
     def plain(self):
         build(self)
-        self._glass_escapes_on = False
-    monkeypatch.setattr(integrator.Renderer, "_build_shading", plain)
+        self.glass_escapes_on = False
+    monkeypatch.setattr(renderer_module.Renderer, "_build_shading", plain)
 
 
 def test_glass_escapes_change_the_noise_not_the_image(monkeypatch):

@@ -4,7 +4,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ember.kernels import Renderer, RenderSettings, render
+from ember.kernels import Renderer, RenderSettings, integrator, render
 from ember.kernels.accel import Accel
 from ember.kernels.shapes import box, cornell_box
 from kernel_helpers import inside_emitting_sphere, sphere_in_furnace, trace_samples
@@ -140,13 +140,13 @@ def test_accel_chunked_queries_match_one_call():
 def test_tiles_progress_and_memory_bound(monkeypatch):
     scene = cornell_box(64, 48, wall_subdivisions=2, sphere_segments=8)
     largest = []
-    original = Renderer._trace
+    original = integrator.trace
 
-    def spy(self, paths, *args, **kwargs):
+    def spy(tables, paths, *args, **kwargs):
         largest.append(len(paths))
-        return original(self, paths, *args, **kwargs)
+        return original(tables, paths, *args, **kwargs)
 
-    monkeypatch.setattr(Renderer, "_trace", spy)
+    monkeypatch.setattr(integrator, "trace", spy)
     tiles, reports = [], []
     result = render(scene, RenderSettings(samples=6, wave_size=1000), threads=2,
                     on_tile=lambda film, r0, r1: tiles.append((r0, r1, film.samples_done)),

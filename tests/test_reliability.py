@@ -198,14 +198,14 @@ def test_esc_is_heard_during_export_and_scene_build(monkeypatch):
     command line; it is made True here at two moments."""
     import ember.engine.export.mesh as mesh_export
     import ember.engine.session as session
-    import ember.kernels.integrator as integrator
+    from ember.kernels import renderer as renderer_module
     scene = small_scene()
     for i in range(20):
         mesh_object(f"Tri{i}", [(i, 0, 0), (i + 1, 0, 0), (i, 0, 1)], [(0, 1, 2)])
     reads, builds = [], []
-    read_mesh, accel = mesh_export.read_mesh, integrator.Accel
+    read_mesh, accel = mesh_export.read_mesh, renderer_module.Accel
     monkeypatch.setattr(mesh_export, "read_mesh", lambda m: reads.append(1) or read_mesh(m))
-    monkeypatch.setattr(integrator, "Accel", lambda *a, **k: builds.append(1) or accel(*a, **k))
+    monkeypatch.setattr(renderer_module, "Accel", lambda *a, **k: builds.append(1) or accel(*a, **k))
 
     monkeypatch.setattr(session.FinalRender, "should_stop", lambda self: True)
     render_to_array(scene, "EMBER", 2)

@@ -92,17 +92,17 @@ def test_renders_are_the_same_deferred_or_not(monkeypatch, mode):
     scene = _plain_scene()
     settings = RenderSettings(samples=4, seed=5)
     with Renderer(scene, threads=2) as renderer:
-        assert renderer._triangles._rows is not None
+        assert renderer.triangles._rows is not None
         reference = renderer.render(settings).image
     monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
     if mode == "computed":
         monkeypatch.setattr(TriangleTable, "build_rows", lambda self: None)
     with Renderer(scene, threads=2) as renderer:
         if mode == "built":
-            renderer._triangles.build_rows()
-            renderer._triangles._building.join()
+            renderer.triangles.build_rows()
+            renderer.triangles._building.join()
         image = renderer.render(settings).image
-        assert (renderer._triangles._rows is None) == (mode == "computed")
+        assert (renderer.triangles._rows is None) == (mode == "computed")
     np.testing.assert_array_equal(image, reference)
 
 
@@ -112,11 +112,11 @@ def test_the_table_is_built_once_a_render_has_more_than_its_quick_first_pass(mon
     monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
     with Renderer(_plain_scene(), threads=2) as renderer:
         renderer.render(RenderSettings(samples=1, seed=5))
-        assert renderer._triangles._building is None and renderer._triangles._rows is None
+        assert renderer.triangles._building is None and renderer.triangles._rows is None
         renderer.render(RenderSettings(samples=4, seed=5))
-        assert renderer._triangles._building is not None
-        renderer._triangles._building.join()
-        assert renderer._triangles._rows is not None
+        assert renderer.triangles._building is not None
+        renderer.triangles._building.join()
+        assert renderer.triangles._rows is not None
 
 
 def _assert_same_image(a, b, seed: int) -> None:

@@ -68,7 +68,7 @@ def counts(monkeypatch):
 
     monkeypatch.setattr(vp, "Renderer", CountingRenderer)
     monkeypatch.setattr(embree, "Mesh", CountingMesh)
-    monkeypatch.setattr("ember.kernels.integrator.LightSampler", CountingSampler)
+    monkeypatch.setattr("ember.kernels.renderer.LightSampler", CountingSampler)
     monkeypatch.setattr(mesh_export, "read_mesh", counting_read)
     return record
 

@@ -12,8 +12,7 @@ import numpy as np
 
 from bpy_helpers import export_current
 
-from ember.kernels import Renderer, RenderSettings
-from ember.kernels import schedule
+from ember.kernels import Renderer, RenderSettings, integrator, schedule
 from ember.kernels.schedule import LAYERED_WAVE_SIZE, WAVE_SIZE, WAVE_SPAN, plan_pass
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -98,15 +97,15 @@ def test_paths_start_as_others_end_and_the_image_stays(monkeypatch):
     the live paths, more than one batch starts, and the image is the one of tracing the wave at once, to
     float rounding, and the same for one and two threads."""
     sizes, starts = [], []
-    original_step, original_start = Renderer._step, Renderer._start_paths
+    original_step, original_start = integrator.step, integrator.start_paths
 
-    def step(self, wave, state, rays, **kwargs):
+    def step(tables, wave, state, rays, **kwargs):
         sizes.append(len(state))
-        return original_step(self, wave, state, rays, **kwargs)
+        return original_step(tables, wave, state, rays, **kwargs)
 
-    def start(self, wave, paths, begin, end):
+    def start(tables, wave, paths, begin, end):
         starts.append((begin, end, len(paths)))
-        return original_start(self, wave, paths, begin, end)
+        return original_start(tables, wave, paths, begin, end)
 
     paths = 64 * 48 * 16
     settings = RenderSettings(samples=16, seed=5, wave_size=paths // 4, max_bounces=12)
@@ -115,8 +114,8 @@ def test_paths_start_as_others_end_and_the_image_stays(monkeypatch):
     with Renderer(scene, threads=1) as renderer:   # (worker processes would not see the patches)
         at_once = renderer.render(settings).image
         monkeypatch.setattr(schedule, "LAYERED_WAVE_SIZE", 1500)
-        monkeypatch.setattr(Renderer, "_step", step)
-        monkeypatch.setattr(Renderer, "_start_paths", start)
+        monkeypatch.setattr(integrator, "step", step)
+        monkeypatch.setattr(integrator, "start_paths", start)
         batched = renderer.render(settings).image
     sizes_started = [end - begin for begin, end, _ in starts]
     assert sum(sizes_started) == paths and max(sizes) <= 1500 and len(starts) > paths // 1500
@@ -130,16 +129,16 @@ def test_paths_start_as_others_end_and_the_image_stays(monkeypatch):
 
 
 def test_a_batch_starts_from_what_the_whole_wave_would():
-    """_WavePaths makes what each path starts from (pixel, sample, random numbers, strata) as its batch
+    """WavePaths makes what each path starts from (pixel, sample, random numbers, strata) as its batch
     starts: the same values as made for the whole wave, for batches of whole pixels and of parts of one.
     The wave's band is every third row from row 12 (interleaved bands): its pixels are on those rows."""
-    from ember.kernels.integrator import _WavePaths
+    from ember.kernels.integrator import WavePaths
     scenes.cornell_scene(48, 32)
     camera = export_current().scene.camera
     pixels = np.flatnonzero(np.random.default_rng(3).random(48 * 5) < 0.7)  # an adaptive wave's pixels
     for pattern in ("AUTOMATIC", "SOBOL_BURLEY"):
         settings = RenderSettings(samples=40, seed=9, sampling_pattern=pattern)
-        paths = _WavePaths(settings, camera, 0, range(12, 27, 3), 48, pixels, 8, 6)
+        paths = WavePaths(settings, camera, 0, range(12, 27, 3), 48, pixels, 8, 6)
         rng, row, col, strata = paths.batch(0, len(paths))
         assert len(row) == len(paths) == 6 * len(pixels)
         assert np.array_equal(row, 12 + 3 * (np.repeat(pixels, 6) // 48))

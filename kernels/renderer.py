@@ -1,0 +1,501 @@
+"""The Renderer: a scene built for rendering (BVH, triangle, shading and light tables), ready to render any
+number of times (kernels/schedule.py runs the progressive loop, kernels/integrator.py traces a wave's paths),
+updated in place between renders by the viewport's and the next frame's changes, and closed.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import weakref
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable
+
+import numpy as np
+
+from . import motion, panorama, passes, schedule
+from .accel import Accel
+from .camera import view_plane
+from .environment import Environment
+from .cryptomatte import CryptoFilm
+from .film import Film
+from .coincident import Coincident
+from .geometry import TriangleTable, prototype_boxes, scene_extent
+from .lights import LightSampler
+from .memory import kept_heap, small_pages, trim_heap
+from .rng import PathRng
+from .camera import camera_frame
+from .scene import (OBJ_TERMINATOR, TERMINATOR_OFFSET, Camera, Lights, Materials, SceneArrays, World, same_arrays,
+                    same_triangles, usable_placements)
+from .shading import Shading
+from .shading.world import WorldShader
+from .textures import Texture
+from . import integrator
+from .schedule import Progress, RenderResult, WaveCrew, WaveJob, render_passes
+from .settings import RenderSettings
+
+# Paths per block where a wave's per-path results are summed per pixel in float64.
+_SUM_BLOCK = 1 << 16
+
+
+class Cancelled(Exception):
+    """should_stop() asked a Renderer to stop while it was being built."""
+
+
+def _forwarded(method):
+    """An incremental update that worker processes apply too (after this renderer did, without error), so
+    that they stay its twins; updates called by updates are not sent again."""
+    @functools.wraps(method)
+    def update(self, *args, **kwargs):
+        self._update_depth += 1
+        try:
+            result = method(self, *args, **kwargs)
+        finally:
+            self._update_depth -= 1
+        if self._update_depth == 0 and result is not False:
+            self.crew.forward(method.__name__, args, kwargs)
+        return result
+    return update
+
+
+class Renderer:
+    """A validated scene with its acceleration structure, ready to render any number of times; between
+    renders, moved instances, edited materials and lights can be swapped in without building it again
+    (update_instances, update_materials, update_lights: the viewport's incremental updates)."""
+
+    @small_pages()  # a scene's arrays written once: no huge-page compaction stalls (kernels.memory)
+    def __init__(self, scene: SceneArrays, threads: int = 0, should_stop: Callable[[], bool] | None = None,
+                 reuse: "Renderer | None" = None, processes: bool | None = None):
+        """should_stop() is polled between the stages of the build (each stage is one long C or NumPy
+        call that cannot be interrupted); Cancelled is raised when it returns True.
+        reuse : the renderer of an earlier frame (persistent data): its instanced meshes whose triangles
+        have not changed keep their BVH (see also update_scene, which keeps everything).
+        processes : whether waves may run in worker processes (threads - 1 of them, kernels/workers.py):
+        None starts them when a render has WORKER_START_PATHS paths, or WORKER_START_S left by its rate
+        after a wave; True now; False never. The image is the same bit for bit wherever its waves run."""
+        self._update_depth = 0
+        self.crew: WaveCrew | None = None   # where the waves run (kernels.schedule), once the BVH says the threads
+        def poll():
+            if should_stop is not None and should_stop():
+                raise Cancelled()
+        poll()
+        checked = scene.validate()
+        self.scene = checked.scene
+        self.dropped_triangles = checked.dropped_triangles
+        self.nonfinite_triangles = checked.nonfinite_triangles
+        poll()
+        moving = self.scene.has_motion and self.scene.motion_ids is not None
+        # Embree builds its BVH (C code, the GIL released) while NumPy builds the shading tables.
+        with ThreadPoolExecutor(1, "ember-bvh") as builder:
+            accel = builder.submit(Accel, self.scene.positions, threads,
+                                   *((self.scene.motion_ids, self.scene.motion, self.scene.motion_reference)
+                                     if moving else (None, (), ())), instances=self.scene.instances,
+                                   reuse=reuse.accel if reuse is not None and reuse.accel is not None else None,
+                                   indexed=(self.scene.bvh_vertices, self.scene.bvh_indices)
+                                   if self.scene.bvh_vertices is not None else None)
+            try:
+                poll()
+                # Triangles near float32's limits overflow in their normals: paths that hit them are
+                # dropped and counted like any non-finite path, so NumPy need not print about them.
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                    self._build_tables(poll)
+            except BaseException:
+                error = accel.exception()
+                if error is None:
+                    accel.result().close()
+                raise
+            self.accel = accel.result()
+        trim_heap()
+        self.crew = WaveCrew(self.accel.threads, processes)
+        if self.crew.processes:
+            self.start_workers()
+
+    def start_workers(self) -> bool:
+        """Start the worker processes now (they join the waves as they become ready); False when this
+        renderer does not use them (one thread, processes=False, no Python to start, a big scene)."""
+        return self.crew.start_workers(self.scene, len(self.triangles.material_ids),
+                                       f"{type(self).__module__}:{type(self).__qualname__}")
+
+    def wait_for_workers(self, timeout_s: float = 60.0) -> int:
+        """Block until every started worker is ready or failed; the number ready."""
+        return self.crew.wait_for_workers(timeout_s)
+
+    @property
+    def worker_count(self) -> int:
+        """Worker processes ready to render this renderer's waves."""
+        return self.crew.worker_count
+
+    @property
+    def worker_failures(self) -> list[str]:
+        """Why worker processes were not started, failed or were dropped (their waves ran here)."""
+        return self.crew.worker_failures
+
+    @property
+    def remote_waves(self) -> int:
+        """Waves rendered by worker processes (all renders)."""
+        return self.crew.remote_waves
+
+    @property
+    def stop_waves(self):
+        """Set while the waves of the render in progress are to leave at their next bounce."""
+        return self.crew.stop_waves
+
+    def _build_tables(self, poll) -> None:
+        self.triangles = TriangleTable(self.scene, deferred=True)
+        # Motion blur: each moving object's decomposed motion and the inverse of the matrix its stored
+        # positions were made with (hits are moved from there to where the object is at the path's time).
+        self.motion = [motion.decompose(np.asarray(keys, np.float64)) for keys in self.scene.motion]
+        self.motion_inverse = [np.linalg.inv(np.asarray(ref, np.float64)) for ref in self.scene.motion_reference]
+        poll()
+        self._build_shading()
+        self.pixel_size = _pixel_spread(self.scene.camera)
+        self.camera_frame = camera_frame(self.scene.camera)
+        self.prototype_boxes = prototype_boxes(self.scene)
+        self.ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self.prototype_boxes))
+        self.lights = self._light_sampler()
+        self._find_coincident()
+        self._find_terminator()
+        poll()
+
+    def _build_shading(self) -> None:
+        """Textures, materials and the world: what a material edit rebuilds (update_materials)."""
+        srgb = self.scene.texture_srgb or (False,) * len(self.scene.textures)
+        self.textures = [Texture(t, bool(flag)) for t, flag in zip(self.scene.textures, srgb)]
+        self.shading = Shading(self.scene.materials, self.textures, self.scene, self.triangles)
+        world = self.scene.world
+        self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
+        # Smooth glass finds the world along both branches (_glass_escapes) unless the world's radiance
+        # depends on the ray, which the branch not taken has no path state for.
+        self.glass_escapes_on = not self.environment.varies_with_ray
+        self.emissive = bool(self.shading.emissive.any())
+        # Whether a material that triangles use mixes lobes (the automatic wave size; rows nothing uses,
+        # such as the default material's, do not count).
+        layered = self.shading.layered
+        used = np.bincount(self.triangles.material_ids, minlength=len(layered))[:len(layered)] > 0
+        self._layered = bool((layered & used).any())
+
+    def _find_terminator(self) -> None:
+        """Each object row's Shadow Terminator Geometry Offset (SceneArrays.objects), one for all without an
+        object table, or None when every object has it off."""
+        objects = self.scene.objects
+        if objects is None or not len(objects):
+            self.terminator = np.float32(TERMINATOR_OFFSET)
+            return
+        values = objects[:, OBJ_TERMINATOR]
+        self.terminator = values if (values > 0).any() else None
+
+    def _find_coincident(self) -> None:
+        """The coincident partners of the static plain triangles rays may pass through (kernels.coincident)."""
+        through = np.take(self.shading.transmissive, self.scene.material_ids) if len(self.scene.material_ids) \
+            else np.zeros(0, bool)
+        if self.scene.motion_ids is not None and self.scene.has_motion:
+            through &= self.scene.motion_ids < 0
+        eps = self.ray_epsilon
+        self.coincident = Coincident.find(self.scene.positions, through,
+                                           lambda size: eps + np.float32(2.0 ** -16) * size, self.scene.object_ids) \
+            if through.any() else None
+
+    def _light_sampler(self) -> LightSampler:
+        return LightSampler(self.scene, self.environment, _Emitters(self))
+
+    def wave_size(self, settings: RenderSettings) -> int:
+        """The paths per wave a render with these settings uses (their wave_size, or the automatic one)."""
+        if settings.wave_size is not None:
+            return int(settings.wave_size)
+        return schedule.WAVE_SPAN * self._live_paths()
+
+    def live_paths(self, settings: RenderSettings) -> int:
+        """The most paths a wave traces at once (what bounds its memory)."""
+        return min(self.wave_size(settings), self._live_paths())
+
+    def _live_paths(self) -> int:
+        return schedule.LAYERED_WAVE_SIZE if self._layered else schedule.WAVE_SIZE
+
+    @_forwarded
+    def set_camera(self, camera: Camera) -> None:
+        """Look through another camera without rebuilding anything (the viewport's view changes).
+        Call between renders, never during one."""
+        camera.validate()
+        self.scene = dataclasses.replace(self.scene, camera=camera)
+        self.pixel_size = _pixel_spread(camera)
+        self.camera_frame = camera_frame(camera)
+        self.shading.data.set_camera(camera)
+
+    # ---------------------------------------------------------------- incremental updates
+    # The viewport changes a built scene in place rather than building it again (Cycles' Blender sync
+    # tags what changed the same way). Each update leaves the renderer as a new Renderer of the changed
+    # scene would be, table for table, so the images are the same bit for bit. They raise ValueError
+    # before changing anything when the change does not fit the built scene (the caller then builds a
+    # new Renderer). Call them between renders, never during one.
+
+    @_forwarded
+    def update_instances(self, world_from_object: np.ndarray, objects: np.ndarray | None = None,
+                         lights: bool = True) -> None:
+        """Move the scene's instances (kernels.scene.Instances): world_from_object (K, 4, 4) float64, one per
+        instance of the built scene, in its order; objects: the object table with the moved objects' rows
+        (SceneArrays.objects, the same rows), None to keep it. The plain triangles stay where they are.
+
+        Rebuilt: the top level of the BVH (the meshes' BVHs are kept), the triangle table's instance
+        matrices, the object table, the ray offset's scene scale, and the light sampler when an emissive
+        instance moved (lights=False leaves that to the caller, which rebuilds it anyway). Nothing else
+        depends on where instances are."""
+        inst = self.scene.instances
+        if inst is None or not inst.count:
+            raise ValueError("update_instances: the scene has no instances")
+        if self.scene.has_motion or self.scene.vector_motion is not None:
+            raise ValueError("update_instances: a scene with motion blur or a Vector pass is built whole")
+        m = np.asarray(world_from_object, np.float64)
+        if m.shape != inst.world_from_object.shape:
+            raise ValueError(f"update_instances: {m.shape[0] if m.ndim else 0} transforms for {inst.count} instances")
+        if not usable_placements(m).all():
+            raise ValueError("update_instances: a transform is not finite or flattens its mesh")
+        emitters_moved = self._emitters_moved(inst, m)
+        moved = dataclasses.replace(inst, world_from_object=np.ascontiguousarray(m))
+        scene = dataclasses.replace(self.scene, instances=moved,
+                                    objects=self.scene.objects if objects is None else objects)
+        rows = None if self.scene.objects is None else self.scene.objects.shape
+        if (None if scene.objects is None else scene.objects.shape) != rows:
+            raise ValueError("update_instances: the object table must keep its rows")
+        scene.validate_objects()
+        self.scene = scene
+        self.accel.move_instances(moved.world_from_object)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            self.triangles.place(moved)
+        self.shading.data.set_objects(scene.objects)
+        self._find_terminator()
+        self.ray_epsilon = _ray_epsilon(*scene_extent(scene, self.prototype_boxes))
+        if emitters_moved and lights:
+            self.lights = self._light_sampler()
+
+    def _emitters_moved(self, instances, world_from_object: np.ndarray) -> bool:
+        """Whether an instance whose prototype has emissive triangles gets another transform."""
+        if not self.lights.instanced_emitters:
+            return False
+        emits = np.array([self.shading.emissive[p.material_ids].any() for p in instances.prototypes])
+        moved = (world_from_object != instances.world_from_object).any(axis=(1, 2))
+        return bool(emits[instances.prototype[moved]].any())
+
+    @_forwarded
+    def update_materials(self, materials: Materials, textures: tuple = (), texture_srgb: tuple = (),
+                         world: World | None = None) -> None:
+        """New materials, textures and world (None: keep it): a material, node tree, image or world edit.
+        The material table keeps its rows (triangles keep their material ids). Rebuilt: the textures, the
+        shading tables and node programs, the environment and the light sampler; geometry and BVHs are
+        kept."""
+        scene = dataclasses.replace(self.scene, materials=materials, textures=tuple(textures),
+                                    texture_srgb=tuple(texture_srgb),
+                                    world=self.scene.world if world is None else world)
+        scene.validate_shading()
+        self.scene = scene
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            self._build_shading()
+            self.lights = self._light_sampler()
+            self._find_coincident()
+
+    @_forwarded
+    def update_scene(self, scene: SceneArrays) -> bool:
+        """The next frame of an animation with persistent data: when its geometry is this renderer's (the
+        plain triangles and the instanced meshes equal array for array, the same instances in the same
+        order, nothing moving during the shutter), swap in what a frame may change (the instances'
+        transforms and the object table, materials, textures and world, lights, camera, Cryptomatte ids)
+        and return True: the renderer is then as a new Renderer of `scene` would be, and its images the
+        same bit for bit. Otherwise return False, changing nothing (build a new Renderer, with reuse=self to
+        keep the BVHs of unchanged meshes). Raises ValueError for invalid data, as Renderer() does."""
+        checked = scene.validate(clean=self.scene)
+        new, old = checked.scene, self.scene
+        if new.has_motion or old.has_motion or new.vector_motion is not None or old.vector_motion is not None:
+            return False
+        if not (same_triangles(new, old) and _same_instances(new.instances, old.instances)
+                and (new.objects is None) == (old.objects is None)
+                and (new.objects is None or new.objects.shape == old.objects.shape)):
+            return False
+        if new.instances is not None and new.instances.count:
+            self.update_instances(new.instances.world_from_object, new.objects, lights=False)
+        elif new.objects is not None:
+            self.scene = dataclasses.replace(self.scene, objects=new.objects)
+            self.shading.data.set_objects(new.objects)
+            self._find_terminator()
+        # The lights go in first: update_materials then builds the light sampler once, for everything.
+        self.scene = dataclasses.replace(self.scene, lights=new.lights)
+        self.update_materials(new.materials, new.textures, new.texture_srgb, new.world)
+        self.set_camera(new.camera)
+        self.scene = dataclasses.replace(self.scene, crypto_ids=new.crypto_ids)
+        self.dropped_triangles = checked.dropped_triangles
+        self.nonfinite_triangles = checked.nonfinite_triangles
+        return True
+
+    @_forwarded
+    def update_lights(self, lights: Lights) -> None:
+        """New Blender lights (moved, edited, added or removed): only the light sampler is rebuilt."""
+        lights.validate()
+        self.scene = dataclasses.replace(self.scene, lights=lights)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            self.lights = self._light_sampler()
+
+    def close(self) -> None:
+        """Stop the threads and drop the big arrays now: the light sampler calls back into this
+        renderer, a reference cycle that plain reference counting would never free."""
+        if self.crew is not None:
+            self.crew.close()
+        self.accel.close()
+        self.lights = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # ---------------------------------------------------------------- progressive loop
+    def render(self, settings: RenderSettings,
+               on_tile: Callable[[Film, int, int], None] | None = None,
+               should_stop: Callable[[], bool] | None = None,
+               on_progress: Callable[[Progress], None] | None = None) -> RenderResult:
+        """Render sample passes over the region in waves of rows.
+
+        on_tile(film, row0, row1) runs after each wave with the span of region rows it refined (a wave's band
+        is every few rows of the span: kernels.schedule.plan_pass);
+        on_progress(progress) reports after each wave. should_stop() is polled after each wave, every
+        STOP_POLL_S while the render waits for one, and between the bounces of waves on the render's own
+        thread; once it is True the waves in flight (worker processes' too) leave at their next bounce, and
+        what they had done is dropped.
+        """
+        with kept_heap():   # the waves' arrays are freed and made again at every bounce
+            return render_passes(self, self.crew, settings, on_tile, should_stop, on_progress)
+
+    def prepare_pass(self) -> None:
+        """More than a quick first pass is to come: a big scene's deferred triangle table is built (until then,
+        gathers compute the rows they need)."""
+        self.triangles.build_rows()
+
+    def render_wave(self, settings: RenderSettings, job: WaveJob):
+        """One wave (kernels.schedule.WaveJob: its band of rows, samples, pixels and live paths).
+        Returns ((rows, W, 4) float64 sums, (rows, W, 3) sums of the odd samples, (rows, W) sample counts,
+        count of dropped non-finite paths). Paths are pixel-major so each pixel's samples are adjacent; what
+        each path starts from (pixel, sample, random numbers) is made as its batch starts, so that the wave
+        holds only its radiance and alpha per path."""
+        x0, y0, width, band = job.x0, job.y0, job.width, job.rows
+        first_sample, spp, split, active, live = job.first_sample, job.spp, job.split, job.active, job.live
+        rows = len(band)
+        npix = rows * width
+        pixels = np.arange(npix, dtype=np.int64) if active is None else np.flatnonzero(active)
+        image_rows = range(y0 + band.start, y0 + band.stop, band.step)
+        paths = integrator.WavePaths(settings, self.scene.camera, x0, image_rows, width, pixels, first_sample, spp)
+        n = len(paths)
+        # Overflow and invalid values are expected at the edges of float32 (huge lights, degenerate
+        # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
+        # is per thread, so it is set here, in the thread that runs the wave.
+        aux = {name: np.zeros((passes.channels(name), n), np.float32) for name in settings.passes} \
+            if settings.passes or settings.cryptomatte else None
+        if settings.cryptomatte:
+            for kind in settings.cryptomatte:
+                aux["crypto_" + kind] = np.zeros((1, n), np.float32)
+            aux["crypto_weight"] = np.zeros((1, n), np.float32)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+            radiance, alpha = integrator.trace(self, paths, settings, split, aux=aux,
+                                               live=self.live_paths(settings) if live is None else live)
+        bad = ~np.isfinite(radiance).all(axis=0)
+        n_bad = int(np.count_nonzero(bad))
+        if n_bad:
+            radiance[:, bad] = 0.0
+        del bad
+        sums = np.zeros((npix, 4), np.float64)
+        half = np.zeros((npix, 3), np.float64) if settings.adaptive_threshold > 0 else None
+        odd = (np.arange(first_sample, first_sample + spp) & 1).astype(bool)   # by a path's place in its pixel
+        # Whole pixels at a time, in float64: each pixel's sums are the same as over the whole wave at once.
+        step = max(1, _SUM_BLOCK // spp)
+        for lo in range(0, len(pixels), step):
+            hi = min(len(pixels), lo + step)
+            rgba = np.empty((4, (hi - lo) * spp), np.float64)
+            rgba[:3] = radiance[:, lo * spp:hi * spp]
+            rgba[3] = alpha[lo * spp:hi * spp]
+            block = rgba.reshape(4, hi - lo, spp)
+            sums[pixels[lo:hi]] = block.sum(axis=2).T
+            if half is not None:
+                half[pixels[lo:hi]] = np.where(odd, block[:3], 0.0).sum(axis=2).T
+            del rgba, block
+        counts = np.zeros(npix, np.int64)
+        counts[pixels] = spp
+        if half is not None:
+            half = half.reshape(rows, width, 3)
+        aux_out = None
+        if aux is not None:
+            pix, sample = paths.pixel_and_sample()
+            aux_out = {}
+            first = sample == 0
+            if "noise" in aux:  # the odd-numbered samples' sum (Cycles' adaptive sampling estimate)
+                aux["noise"] = np.where((sample & np.uint32(1)).astype(bool), radiance, 0.0).astype(np.float64)
+            weight = aux.pop("crypto_weight", None)
+            for kind in settings.cryptomatte:
+                ids = aux.pop("crypto_" + kind)[0]
+                wave_film = CryptoFilm(rows, width, settings.cryptomatte_depth)
+                wave_film.add(pix, ids, weight[0])
+                aux_out["crypto_" + kind] = wave_film
+            for name, values in aux.items():
+                c = len(values)
+                if passes.is_first(name):
+                    plane = np.zeros((npix, c), np.float32)
+                    written = np.zeros(npix, bool)
+                    plane[pix[first]] = values[:, first].T
+                    written[pix[first]] = True
+                    aux_out[name] = (plane.reshape(rows, width, c), written.reshape(rows, width))
+                else:
+                    total = np.zeros((npix, c), np.float64)
+                    total[pixels] = values.reshape(c, len(pixels), spp).sum(axis=2).T
+                    aux_out[name] = total.reshape(rows, width, c)
+        return sums.reshape(rows, width, 4), half, counts.reshape(rows, width), n_bad, aux_out
+
+    # ---------------------------------------------------------------- one wave of paths
+    def trace_paths(self, rng: PathRng, row: np.ndarray, col: np.ndarray, settings: RenderSettings,
+                    split: bool = True, strata=None, aux: dict | None = None, live: int | None = None):
+        """Trace one path per (row, col) entry. Returns radiance (3, N) float32 and alpha (N,) float32.
+
+        strata = (pixel, sample, index) per path (samples.sample_strata): in NEE_MIS mode the camera
+        jitter and the first vertex's light and BSDF numbers then come from the stratified sequence (the
+        rest of the path, and the LECTURE and COSINE modes, use the PCG2D stream alone). live: see _trace."""
+        return integrator.trace(self, integrator.GivenPaths(rng, row, col, strata), settings, split, aux, live)
+
+
+def _same_instances(a, b) -> bool:
+    """The same prototypes (array for array), placed by the same number of instances in the same order
+    (their transforms may differ)."""
+    if a is None or b is None or not a.count or not b.count:
+        return (a is None or not a.count) and (b is None or not b.count)
+    return (len(a.prototypes) == len(b.prototypes) and same_arrays(a.prototype, b.prototype)
+            and same_arrays(a.object_ids, b.object_ids)
+            and all(same_triangles(p, q) for p, q in zip(a.prototypes, b.prototypes)))
+
+
+class _Emitters:
+    """The light sampler's view of the emissive materials (see LightSampler)."""
+
+    def __init__(self, renderer: "Renderer"):
+        self.emissive = renderer.shading.emissive
+        self.varies = renderer.shading.emission_varies
+        self._renderer = weakref.proxy(renderer)
+
+    def __call__(self, tri, b1=None, b2=None, toward=None):
+        return integrator.triangle_emission(self._renderer, tri, b1, b2, toward)
+
+
+def _pixel_spread(camera: Camera) -> float:
+    """View-plane units per pixel: the spread of camera rays (perspective: radians at the centre;
+    panoramas: Cycles' differential at the frame's centre)."""
+    if camera.kind == "PANO":
+        return float(panorama.pixel_spread(camera))
+    xmin, xmax, _, _ = view_plane(camera)
+    return float(xmax - xmin) / max(camera.width, 1)
+
+
+def _ray_epsilon(lo: np.ndarray, hi: np.ndarray) -> np.float32:
+    """The absolute part of the offset of spawned rays (the relative part, 2^-16 |p|, is in _offset):
+    scaled down with tiny scenes, and never above Cycles' 2^-16 near the origin, so that a huge ground
+    plane far away does not lift every ray in the scene off its surface."""
+    extent = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
+    return np.float32(min(max(extent, 1e-3) * 1e-6, 2.0 ** -16))
+
+
+def render(scene: SceneArrays, settings: RenderSettings = RenderSettings(), threads: int = 0,
+           **callbacks) -> RenderResult:
+    """Validate, build and render in one call. See Renderer.render for the callbacks."""
+    with Renderer(scene, threads) as renderer:
+        return renderer.render(settings, **callbacks)
