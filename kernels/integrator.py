@@ -14,19 +14,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import motion, panorama, passes, sampling
+from . import motion, passes, sampling
 from .accel import RayTimes
-from .camera import generate_rays, view_plane
+from .camera import generate_rays
 from .environment import WorldFocus
-from .bsdf.closures import GLASS, BsdfSample, class_albedo, eval_split, glossy_axes, pass_classes
+from .bsdf.closures import GLASS, BsdfSample, eval_split, glossy_axes, pass_classes
 from .bsdf.microfacet_closures import singular_glass_other_branch
 from .geometry import NG
 from .interaction import RayInfo, SurfaceHit
 from .paths import PathState
 from .rng import PathRng, seed_paths
 from .samples import BSDF, LENS, LIGHT, LIGHT_POINT, LOBE, TIME, Samples, sample_strata
-from .scene import OBJ_PASS_INDEX, Camera
-from .vec import matmul
 from .settings import RenderSettings
 
 # Russian roulette decides on the surfaces that rays hit once their path has scattered this many times
@@ -155,9 +153,9 @@ def step(tables, wave, state, rays, first: bool, last: int):
     shading = tables.shading.surface(hit)
     tables.crew.check_stop()
     if aux is not None and first:
-        _data_passes(tables, aux, state, hit, shading.closures, settings)
+        passes.write_data(tables, aux, state, hit, shading.closures, settings)
     if state.features is not None:
-        _denoising_features(tables, aux, state, hit, shading, t_hit)
+        passes.write_denoising_features(tables, aux, state, hit, shading, t_hit)
     if state.min_ray_pdf is not None:
         _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
     if tables.emissive:
@@ -175,7 +173,7 @@ def step(tables, wave, state, rays, first: bool, last: int):
     bs = _sample_bsdf(tables, wave, hit, shading.closures, numbers)
     tables.crew.check_stop()
     if state.pass_weights is not None:
-        _first_bounce_shares(tables, state, shading.closures, bs)
+        passes.first_bounce_shares(tables, state, shading.closures, bs)
     if wave.nee and tables.glass_escapes_on:
         _glass_escapes(tables, wave, state, hit, shading.closures, bs)
     alive = _continues(tables, wave, hit, state, bs, numbers, focus)
@@ -191,112 +189,6 @@ def step(tables, wave, state, rays, first: bool, last: int):
         _crossings(tables, state, hit, alive, bs)
     return state, _spawn(tables, hit, alive, bs)
 
-# ---- stage: data passes of the camera rays' first surface (kernels.passes)
-def _data_passes(tables, aux: dict, state, hit, closures, settings) -> None:
-    paths = state.path
-    n = len(hit)
-    colours = None  # the closure classes' colours, made once for the three Color passes
-    for name, out in aux.items():
-        if name == "depth":
-            eye, rotation = tables.camera_frame
-            d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
-            out[0, paths] = np.sqrt((d * d).sum(axis=0)) if tables.scene.camera.kind == "PANO" else \
-                -matmul(rotation[:, 2], d)
-        elif name == "position":
-            out[:, paths] = np.stack(hit.p)
-        elif name == "object_index":
-            if tables.scene.objects is not None:
-                rows = tables.triangles.object_rows(hit.prim)
-                out[0, paths] = np.take(tables.scene.objects[:, OBJ_PASS_INDEX], rows)
-        elif name == "material_index":
-            indices = np.asarray(tables.scene.materials.pass_indices or (0,) * tables.scene.materials.count,
-                                 np.float32)
-            out[0, paths] = np.take(indices, hit.mat)
-        elif name == "normal":
-            out[:, paths] = passes.closure_normal(closures, n, hit.ns)
-        elif name == "uv":
-            u, v = hit.uv_at(np.arange(n))
-            out[0, paths], out[1, paths] = u, v
-        elif name.startswith("crypto_"):
-            kind = name[len("crypto_"):]
-            table = (tables.scene.crypto_ids or {}).get(kind)
-            if kind == "weight":  # the sample's matte weight: what reaches the camera from here
-                out[0, paths] = state.throughput.mean(axis=0)
-            elif table is not None and len(table):
-                rows = hit.mat if kind == "material" else \
-                    tables.triangles.object_rows(hit.prim)
-                if rows is not None:
-                    out[0, paths] = np.take(table, rows)
-        elif name == "vector":
-            if tables.scene.vector_motion is not None:
-                out[:, paths] = _motion_vectors(tables, hit)
-            if "vector_weight" in aux:
-                aux["vector_weight"][0, paths] = 1.0
-        elif name.startswith("aov:"):
-            _, aov_name, which = name.split(":")
-            out[:, paths] = tables.shading.aov(hit, aov_name, 3 if which == "color" else 1)
-        elif name in ("diffuse_color", "glossy_color", "transmission_color"):
-            if colours is None:
-                colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),
-                                   class_albedo(closures, n)))
-            out[:, paths] = colours[name] * state.throughput
-        elif name == "mist":
-            eye, rotation = tables.camera_frame
-            d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
-            distance = np.abs(matmul(rotation[:, 2], d)) if tables.scene.camera.kind == "ORTHO" else \
-                np.sqrt((d * d).sum(axis=0))
-            start, depth, falloff = settings.mist
-            mist = np.clip((distance - start) / max(depth, 1e-30), 0.0, 1.0) ** falloff
-            out[0, paths] = (1.0 - mist) * state.throughput.mean(axis=0)
-
-def _motion_vectors(tables, hit) -> np.ndarray:
-    """(4, n) Cycles' Vector pass at the hits: (previous - current, current - next) raster positions."""
-    before, after, cam_before, cam_after = tables.scene.vector_motion
-    p = np.stack([c.astype(np.float64) for c in hit.p])          # (3, n)
-    rows = tables.triangles.object_rows(hit.prim)
-    if rows is None:
-        rows = np.zeros(len(hit), np.int64)
-    camera = tables.scene.camera
-
-    def moved(m):  # (K, 3, 4) per object row
-        m = m[rows]
-        return np.einsum("nij,jn->in", m[:, :, :3], p) + m[:, :, 3].T
-
-    centre = _raster(camera, camera.world_from_camera, p)
-    pre = _raster(camera, cam_before, moved(before))
-    post = _raster(camera, cam_after, moved(after))
-    return np.concatenate([pre - centre, centre - post]).astype(np.float32)
-
-def _denoising_features(tables, aux: dict, state, hit, shading, t_hit) -> None:
-    """Cycles' denoising features: written at the first hit that is not mostly specular (the depth
-    summed over the segments until then, each weighted by the feature throughput). The albedo also
-    takes the emission of emitters that paths still looking for it meet, times the feature throughput,
-    as the world's colour (Cycles' film_write_emission_or_background_pass): an emitter the camera sees
-    has its emission as albedo. Albedo is kept within [0, 1], what OpenImageDenoise reads."""
-    closures = shading.closures
-    open_ = np.flatnonzero(~np.isnan(state.features[0]))
-    if not len(open_):
-        return
-    if "denoising_depth" in aux:
-        aux["denoising_depth"][0, state.path[open_]] += state.features[:, open_].mean(axis=0) * \
-            np.take(t_hit, open_)
-    if "denoising_albedo" in aux and tables.emissive:
-        lit = open_[np.take(tables.shading.emissive, np.take(hit.mat, open_))]
-        if len(lit):
-            _add_albedo(aux, state.path[lit], state.features[:, lit] * np.take(shading.emission, lit, axis=1))
-    normal, diffuse, specular, done = passes.denoising_features(closures, len(hit), hit.ns)
-    rows = open_[done[open_]]
-    if len(rows):
-        paths = state.path[rows]
-        if "denoising_albedo" in aux:
-            _add_albedo(aux, paths, state.features[:, rows] * diffuse[:, rows])
-        if "denoising_normal" in aux:
-            rotation = tables.camera_frame[1].astype(np.float32)  # columns: right, up, back
-            aux["denoising_normal"][:, paths] = matmul(rotation.T, normal[:, rows]) * \
-                np.array([1, 1, -1], np.float32)[:, None]
-        state.features[:, rows] = np.nan
-    waiting = open_[~done[open_]]
-    state.features[:, waiting] *= specular[:, waiting]
 
 # ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
 def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
@@ -314,35 +206,12 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
         le = np.take(state.throughput * le, idx, axis=1)
         if wave.nee:
             le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
-        le = _clamp(wave, le, np.take(state.bounce, idx) > 1)
-        _accumulate(wave.radiance, state.path[idx], le)
+        le = passes.clamp(wave, le, np.take(state.bounce, idx) > 1)
+        passes.accumulate(wave.radiance, state.path[idx], le)
         if state.pass_weights is not None:
-            _light_passes(tables, wave, state, idx, le)
+            passes.write_light(tables, wave, state, idx, le)
     return met.stopped & seeing
 
-# ---- light passes: what a contribution to the image adds to Cycles' Diffuse/Glossy/Transmission passes
-def _light_passes(tables, wave, state, rows, value, shadow: bool = False, first=None) -> None:
-    """value (3, m): clamped contributions of the paths rows (state rows). Light found by a ray is direct
-    at bounce 1 (it lit the first hit), by a shadow ray at bounce 0; deeper it is indirect. Each splits by
-    the path's class shares of its first bounce (first: (positions, (6, k) shares) for shadow rays at
-    the first hit, split by the closures there)."""
-    if not len(rows):
-        return
-    aux = wave.aux
-    shares = np.take(state.pass_weights, rows, axis=1)
-    bounce = np.take(state.bounce, rows)
-    direct = bounce == (0 if shadow else 1)
-    if first is not None and len(first[0]):
-        shares[:, first[0]] = first[1]
-    paths = state.path[rows]
-    parts = (shares[:3], shares[3:], np.float32(1) - shares[:3] - shares[3:])
-    for cls, share in zip(("diffuse", "glossy", "transmission"), parts):
-        for suffix, sel in (("direct", direct), ("indirect", ~direct)):
-            name = f"{cls}_{suffix}"
-            if name in aux:
-                pick = np.flatnonzero(sel)
-                if len(pick):
-                    aux[name][:, paths[pick]] += value[:, pick] * share[:, pick]
 
 # ---- stage: smooth glass sees the world along the branch it did not take
 def _glass_escapes(tables, wave, state, hit, closures, bs) -> None:
@@ -396,39 +265,9 @@ def _glass_escapes(tables, wave, state, hit, closures, bs) -> None:
         diffuse, glossy = pass_classes(closures, r[live[first]], (wx[first], wy[first], wz[first]))
         return np.concatenate([np.repeat(diffuse[None, :], 3, axis=0),
                                np.repeat(glossy[None, :], 3, axis=0)]).astype(np.float32)
-    _add_from_vertex(tables, wave, state, idx, np.take(state.throughput, idx, axis=1) * weight[:, live] * light,
+    passes.add_light(tables, wave, state, idx, np.take(state.throughput, idx, axis=1) * weight[:, live] * light,
                           branch_class)
 
-def _add_from_vertex(tables, wave, state, rows, value, first_shares) -> None:
-    """Add (3, n) contributions of light found from the current vertex of the paths rows (state rows): by
-    a shadow ray, or along the glass branch not taken. Clamped as direct light at the first hit, indirect
-    deeper; in the light passes, split at the first hit by first_shares(positions in rows) -> (6, k)
-    class shares, deeper as the path's first bounce was."""
-    value = _clamp(wave, value, np.take(state.bounce, rows) > 0)
-    _accumulate(wave.radiance, state.path[rows], value)
-    if state.pass_weights is not None:
-        first = np.flatnonzero(np.take(state.bounce, rows) == 0)
-        shares = first_shares(first) if len(first) else None
-        _light_passes(tables, wave, state, rows, value, shadow=True, first=(first, shares))
-
-def _first_bounce_shares(tables, state, closures, bs) -> None:
-    """At the first scattering (not a transparent pass-through), the class shares of the sampled
-    direction: the chosen closure's class for a singular lobe, the mixture's split otherwise (Cycles'
-    pass_diffuse_weight and pass_glossy_weight)."""
-    rows = np.flatnonzero((state.bounce == 0) & ~bs.transparent & (bs.row >= 0))
-    if not len(rows):
-        return
-    wi = tuple(np.take(c, rows) for c in bs.wi)
-    delta = np.take(bs.delta, rows)
-    shares = np.zeros((6, len(rows)), np.float32)
-    d = np.flatnonzero(delta)
-    if len(d):
-        diffuse, glossy = pass_classes(closures, np.take(bs.row, rows[d]), tuple(c[d] for c in wi))
-        shares[:3, d], shares[3:, d] = diffuse.astype(np.float32), glossy.astype(np.float32)
-    m = np.flatnonzero(~delta)
-    if len(m):
-        shares[:, m] = _class_shares(*eval_split(closures, rows[m], tuple(c[m] for c in wi)))
-    state.pass_weights[:, rows] = shares
 
 # ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
 def _escaped(tables, wave, state, rays, hits, ended=None):
@@ -474,7 +313,7 @@ def _escaped(tables, wave, state, rays, hits, ended=None):
         # feature throughput is its albedo, as in Cycles.
         seen = np.flatnonzero(~np.isnan(state.features[0, miss]))
         if len(seen):
-            _add_albedo(wave.aux, state.path[miss[seen]], state.features[:, miss[seen]] * light[:, seen])
+            passes.add_albedo(wave.aux, state.path[miss[seen]], state.features[:, miss[seen]] * light[:, seen])
     if wave.nee:
         mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
         if len(mis):
@@ -490,10 +329,10 @@ def _escaped(tables, wave, state, rays, hits, ended=None):
         if state.escape_scale is not None:
             sun *= np.take(state.escape_scale, miss[later])
         env[:, later] += sun
-    env = _clamp(wave, env, state.bounce[miss] > 1)
-    _accumulate(wave.radiance, state.path[miss], env)
+    env = passes.clamp(wave, env, state.bounce[miss] > 1)
+    passes.accumulate(wave.radiance, state.path[miss], env)
     if state.pass_weights is not None:
-        _light_passes(tables, wave, state, miss[later], env[:, later])
+        passes.write_light(tables, wave, state, miss[later], env[:, later])
 
 # ---- stage: the surface-interaction record of the rays that hit
 def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
@@ -556,11 +395,11 @@ def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
                 np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
                 np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray))
             le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
-    le = _clamp(wave, le, np.take(state.bounce, lit) > 1)
-    _accumulate(wave.radiance, state.path[lit], le)
+    le = passes.clamp(wave, le, np.take(state.bounce, lit) > 1)
+    passes.accumulate(wave.radiance, state.path[lit], le)
     if state.pass_weights is not None:
         later = np.flatnonzero(np.take(state.bounce, lit) > 0)
-        _light_passes(tables, wave, state, lit[later], le[:, later])
+        passes.write_light(tables, wave, state, lit[later], le[:, later])
 
 # ---- stage: Holdout closures cut a hole in alpha where the camera sees them
 def _holdout(wave, state, shading):
@@ -779,8 +618,8 @@ def _next_event(tables, wave, state, hit, closures, numbers, focus=None):
 
     def reflecting(first):  # light reaching the first hit: split by the closures that reflect it there
         wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
-        return _class_shares(*eval_split(closures, paths[first], wi))
-    _add_from_vertex(tables, wave, state, paths, contribution, reflecting)
+        return passes.class_shares(*eval_split(closures, paths[first], wi))
+    passes.add_light(tables, wave, state, paths, contribution, reflecting)
 
 def _terminator_lift(tables, hit, hits, light, ng):
     """Cycles' shadow terminator offset (shadow_ray_offset, kernel/light/sample.h): shadow rays toward
@@ -910,7 +749,6 @@ class GivenPaths:
         return PathRng(self.rng.x[part], self.rng.y[part]), self.row[part], self.col[part], strata
 
 
-
 class WavePaths:
     """The paths of a wave, pixel-major: path k is sample first + k % spp of pixel pixels[k // spp] of the
     band of image rows `rows` (a range; its pixels numbered along its rows of `width`, from column x0). What a
@@ -981,53 +819,6 @@ def _below(bs) -> np.ndarray:
     return bs.transmit if bs.through is None else bs.through
 
 
-def _clamp(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray:
-    """Cycles' sample clamping (film_clamp_light) of (3, n) contributions: scaled so that |R| + |G| + |B|
-    is at most 3 x Clamp Indirect where `indirect`, 3 x Clamp Direct elsewhere (Cycles triples the
-    setting, scene/integrator.cpp); a limit of 0 is off. Direct is
-    Cycles' bounce - 1 <= 0 for light found by rays (the camera's, or the first hit's BSDF ray) and the
-    first hit's own shadow rays."""
-    direct_limit, indirect_limit = wave.settings.clamp_direct, wave.settings.clamp_indirect
-    if not direct_limit and not indirect_limit:
-        return value
-    limit = np.where(indirect, np.float32(3 * indirect_limit or np.inf), np.float32(3 * direct_limit or np.inf))
-    total = np.abs(value).sum(axis=0)
-    over = total > limit
-    if not over.any():
-        return value
-    return value * np.where(over, limit / np.where(over, total, np.float32(1.0)), np.float32(1.0)).astype(np.float32)
-
-
-def _raster(camera: Camera, world_from_camera, p: np.ndarray) -> np.ndarray:
-    """(2, n) raster positions (x right, y up, in pixels of the full frame) of world points p (3, n) seen by
-    `camera` placed at world_from_camera (4, 4)."""
-    m = np.asarray(world_from_camera, np.float64)
-    rotation = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
-    local = matmul(rotation.T, p - m[:3, 3][:, None])
-    if camera.kind == "PANO":
-        sx, sy = panorama.panorama_raster(camera, (local / np.linalg.norm(local, axis=0)).T)
-        return np.stack([sx, camera.height - sy])
-    xmin, xmax, ymin, ymax = view_plane(camera)
-    if camera.kind == "ORTHO":
-        px, py = local[0], local[1]
-    else:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            px, py = local[0] / -local[2], local[1] / -local[2]
-    return np.stack([(px - xmin) / (xmax - xmin) * camera.width, (py - ymin) / (ymax - ymin) * camera.height])
-
-
-def _class_shares(f, f_diffuse, f_glossy) -> np.ndarray:
-    """(6, n): the diffuse and glossy parts of f per channel (Cycles' safe_divide: 0 where f is 0)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.nan_to_num(np.concatenate([f_diffuse / f, f_glossy / f]), nan=0.0, posinf=0.0,
-                             neginf=0.0).astype(np.float32)
-
-
-def _add_albedo(aux: dict, paths: np.ndarray, albedo: np.ndarray) -> None:
-    """Add (3, n) albedo to the Denoising Albedo of paths (one entry per path), kept within [0, 1]."""
-    aux["denoising_albedo"][:, paths] = np.minimum(aux["denoising_albedo"][:, paths] + np.maximum(albedo, 0.0), 1.0)
-
-
 def _roulette_weights(state) -> None:
     """After a surface's emission counted: the paths Russian roulette stopped here end (their throughput
     becomes 0, so they add nothing and _continues drops them); the others are divided by their q (Cycles'
@@ -1035,13 +826,6 @@ def _roulette_weights(state) -> None:
     c = state.continuation
     state.throughput = np.where(c > 0, state.throughput / np.where(c > 0, c, np.float32(1.0)), np.float32(0.0))
     state.continuation = None
-
-
-def _accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> None:
-    """radiance[:, paths] += value, one channel at a time (3x faster than the 2-D fancy index)."""
-    for k in range(3):
-        channel = radiance[k]
-        channel[paths] += value[k]
 
 
 def _type_limits(settings):

@@ -37,7 +37,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bsdf.closures import MICROFACET_LOBES, SINGULAR_LOBES, closure_albedos
+from . import panorama
+from .bsdf.closures import MICROFACET_LOBES, SINGULAR_LOBES, class_albedo, closure_albedos, eval_split, pass_classes
+from .camera import view_plane
+from .scene import OBJ_PASS_INDEX, Camera
+from .vec import matmul
 
 # name -> (channels, kind)
 PASSES = {
@@ -120,3 +124,228 @@ def closure_normal(closures, n_hits: int, fallback) -> np.ndarray:
     ok = length > 0
     out[:, ok] = (summed[:, ok] / length[ok]).astype(np.float32)
     return out
+
+
+# ---------------------------------------------------------------- writing: a wave's paths into the passes
+# Functions over (scene tables, wave, path state), as the integrator's stages (kernels/integrator.py).
+
+def add_light(tables, wave, state, rows, value, first_shares) -> None:
+    """Add (3, n) contributions of light found from the current vertex of the paths rows (state rows): by
+    a shadow ray, or along the glass branch not taken. Clamped as direct light at the first hit, indirect
+    deeper; in the light passes, split at the first hit by first_shares(positions in rows) -> (6, k)
+    class shares, deeper as the path's first bounce was."""
+    value = clamp(wave, value, np.take(state.bounce, rows) > 0)
+    accumulate(wave.radiance, state.path[rows], value)
+    if state.pass_weights is not None:
+        first = np.flatnonzero(np.take(state.bounce, rows) == 0)
+        shares = first_shares(first) if len(first) else None
+        write_light(tables, wave, state, rows, value, shadow=True, first=(first, shares))
+
+
+def clamp(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray:
+    """Cycles' sample clamping (film_clamp_light) of (3, n) contributions: scaled so that |R| + |G| + |B|
+    is at most 3 x Clamp Indirect where `indirect`, 3 x Clamp Direct elsewhere (Cycles triples the
+    setting, scene/integrator.cpp); a limit of 0 is off. Direct is
+    Cycles' bounce - 1 <= 0 for light found by rays (the camera's, or the first hit's BSDF ray) and the
+    first hit's own shadow rays."""
+    direct_limit, indirect_limit = wave.settings.clamp_direct, wave.settings.clamp_indirect
+    if not direct_limit and not indirect_limit:
+        return value
+    limit = np.where(indirect, np.float32(3 * indirect_limit or np.inf), np.float32(3 * direct_limit or np.inf))
+    total = np.abs(value).sum(axis=0)
+    over = total > limit
+    if not over.any():
+        return value
+    return value * np.where(over, limit / np.where(over, total, np.float32(1.0)), np.float32(1.0)).astype(np.float32)
+
+
+def accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> None:
+    """radiance[:, paths] += value, one channel at a time (3x faster than the 2-D fancy index)."""
+    for k in range(3):
+        channel = radiance[k]
+        channel[paths] += value[k]
+
+
+# ---- light passes: what a contribution to the image adds to Cycles' Diffuse/Glossy/Transmission passes
+def write_light(tables, wave, state, rows, value, shadow: bool = False, first=None) -> None:
+    """value (3, m): clamped contributions of the paths rows (state rows). Light found by a ray is direct
+    at bounce 1 (it lit the first hit), by a shadow ray at bounce 0; deeper it is indirect. Each splits by
+    the path's class shares of its first bounce (first: (positions, (6, k) shares) for shadow rays at
+    the first hit, split by the closures there)."""
+    if not len(rows):
+        return
+    aux = wave.aux
+    shares = np.take(state.pass_weights, rows, axis=1)
+    bounce = np.take(state.bounce, rows)
+    direct = bounce == (0 if shadow else 1)
+    if first is not None and len(first[0]):
+        shares[:, first[0]] = first[1]
+    paths = state.path[rows]
+    parts = (shares[:3], shares[3:], np.float32(1) - shares[:3] - shares[3:])
+    for cls, share in zip(("diffuse", "glossy", "transmission"), parts):
+        for suffix, sel in (("direct", direct), ("indirect", ~direct)):
+            name = f"{cls}_{suffix}"
+            if name in aux:
+                pick = np.flatnonzero(sel)
+                if len(pick):
+                    aux[name][:, paths[pick]] += value[:, pick] * share[:, pick]
+
+
+def first_bounce_shares(tables, state, closures, bs) -> None:
+    """At the first scattering (not a transparent pass-through), the class shares of the sampled
+    direction: the chosen closure's class for a singular lobe, the mixture's split otherwise (Cycles'
+    pass_diffuse_weight and pass_glossy_weight)."""
+    rows = np.flatnonzero((state.bounce == 0) & ~bs.transparent & (bs.row >= 0))
+    if not len(rows):
+        return
+    wi = tuple(np.take(c, rows) for c in bs.wi)
+    delta = np.take(bs.delta, rows)
+    shares = np.zeros((6, len(rows)), np.float32)
+    d = np.flatnonzero(delta)
+    if len(d):
+        diffuse, glossy = pass_classes(closures, np.take(bs.row, rows[d]), tuple(c[d] for c in wi))
+        shares[:3, d], shares[3:, d] = diffuse.astype(np.float32), glossy.astype(np.float32)
+    m = np.flatnonzero(~delta)
+    if len(m):
+        shares[:, m] = class_shares(*eval_split(closures, rows[m], tuple(c[m] for c in wi)))
+    state.pass_weights[:, rows] = shares
+
+
+def class_shares(f, f_diffuse, f_glossy) -> np.ndarray:
+    """(6, n): the diffuse and glossy parts of f per channel (Cycles' safe_divide: 0 where f is 0)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.nan_to_num(np.concatenate([f_diffuse / f, f_glossy / f]), nan=0.0, posinf=0.0,
+                             neginf=0.0).astype(np.float32)
+
+
+# ---- stage: data passes of the camera rays' first surface (kernels.passes)
+def write_data(tables, aux: dict, state, hit, closures, settings) -> None:
+    paths = state.path
+    n = len(hit)
+    colours = None  # the closure classes' colours, made once for the three Color passes
+    for name, out in aux.items():
+        if name == "depth":
+            eye, rotation = tables.camera_frame
+            d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
+            out[0, paths] = np.sqrt((d * d).sum(axis=0)) if tables.scene.camera.kind == "PANO" else \
+                -matmul(rotation[:, 2], d)
+        elif name == "position":
+            out[:, paths] = np.stack(hit.p)
+        elif name == "object_index":
+            if tables.scene.objects is not None:
+                rows = tables.triangles.object_rows(hit.prim)
+                out[0, paths] = np.take(tables.scene.objects[:, OBJ_PASS_INDEX], rows)
+        elif name == "material_index":
+            indices = np.asarray(tables.scene.materials.pass_indices or (0,) * tables.scene.materials.count,
+                                 np.float32)
+            out[0, paths] = np.take(indices, hit.mat)
+        elif name == "normal":
+            out[:, paths] = closure_normal(closures, n, hit.ns)
+        elif name == "uv":
+            u, v = hit.uv_at(np.arange(n))
+            out[0, paths], out[1, paths] = u, v
+        elif name.startswith("crypto_"):
+            kind = name[len("crypto_"):]
+            table = (tables.scene.crypto_ids or {}).get(kind)
+            if kind == "weight":  # the sample's matte weight: what reaches the camera from here
+                out[0, paths] = state.throughput.mean(axis=0)
+            elif table is not None and len(table):
+                rows = hit.mat if kind == "material" else \
+                    tables.triangles.object_rows(hit.prim)
+                if rows is not None:
+                    out[0, paths] = np.take(table, rows)
+        elif name == "vector":
+            if tables.scene.vector_motion is not None:
+                out[:, paths] = motion_vectors(tables, hit)
+            if "vector_weight" in aux:
+                aux["vector_weight"][0, paths] = 1.0
+        elif name.startswith("aov:"):
+            _, aov_name, which = name.split(":")
+            out[:, paths] = tables.shading.aov(hit, aov_name, 3 if which == "color" else 1)
+        elif name in ("diffuse_color", "glossy_color", "transmission_color"):
+            if colours is None:
+                colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),
+                                   class_albedo(closures, n)))
+            out[:, paths] = colours[name] * state.throughput
+        elif name == "mist":
+            eye, rotation = tables.camera_frame
+            d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
+            distance = np.abs(matmul(rotation[:, 2], d)) if tables.scene.camera.kind == "ORTHO" else \
+                np.sqrt((d * d).sum(axis=0))
+            start, depth, falloff = settings.mist
+            mist = np.clip((distance - start) / max(depth, 1e-30), 0.0, 1.0) ** falloff
+            out[0, paths] = (1.0 - mist) * state.throughput.mean(axis=0)
+
+
+def motion_vectors(tables, hit) -> np.ndarray:
+    """(4, n) Cycles' Vector pass at the hits: (previous - current, current - next) raster positions."""
+    before, after, cam_before, cam_after = tables.scene.vector_motion
+    p = np.stack([c.astype(np.float64) for c in hit.p])          # (3, n)
+    rows = tables.triangles.object_rows(hit.prim)
+    if rows is None:
+        rows = np.zeros(len(hit), np.int64)
+    camera = tables.scene.camera
+
+    def moved(m):  # (K, 3, 4) per object row
+        m = m[rows]
+        return np.einsum("nij,jn->in", m[:, :, :3], p) + m[:, :, 3].T
+
+    centre = _raster(camera, camera.world_from_camera, p)
+    pre = _raster(camera, cam_before, moved(before))
+    post = _raster(camera, cam_after, moved(after))
+    return np.concatenate([pre - centre, centre - post]).astype(np.float32)
+
+
+def _raster(camera: Camera, world_from_camera, p: np.ndarray) -> np.ndarray:
+    """(2, n) raster positions (x right, y up, in pixels of the full frame) of world points p (3, n) seen by
+    `camera` placed at world_from_camera (4, 4)."""
+    m = np.asarray(world_from_camera, np.float64)
+    rotation = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
+    local = matmul(rotation.T, p - m[:3, 3][:, None])
+    if camera.kind == "PANO":
+        sx, sy = panorama.panorama_raster(camera, (local / np.linalg.norm(local, axis=0)).T)
+        return np.stack([sx, camera.height - sy])
+    xmin, xmax, ymin, ymax = view_plane(camera)
+    if camera.kind == "ORTHO":
+        px, py = local[0], local[1]
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            px, py = local[0] / -local[2], local[1] / -local[2]
+    return np.stack([(px - xmin) / (xmax - xmin) * camera.width, (py - ymin) / (ymax - ymin) * camera.height])
+
+
+def write_denoising_features(tables, aux: dict, state, hit, shading, t_hit) -> None:
+    """Cycles' denoising features: written at the first hit that is not mostly specular (the depth
+    summed over the segments until then, each weighted by the feature throughput). The albedo also
+    takes the emission of emitters that paths still looking for it meet, times the feature throughput,
+    as the world's colour (Cycles' film_write_emission_or_background_pass): an emitter the camera sees
+    has its emission as albedo. Albedo is kept within [0, 1], what OpenImageDenoise reads."""
+    closures = shading.closures
+    open_ = np.flatnonzero(~np.isnan(state.features[0]))
+    if not len(open_):
+        return
+    if "denoising_depth" in aux:
+        aux["denoising_depth"][0, state.path[open_]] += state.features[:, open_].mean(axis=0) * \
+            np.take(t_hit, open_)
+    if "denoising_albedo" in aux and tables.emissive:
+        lit = open_[np.take(tables.shading.emissive, np.take(hit.mat, open_))]
+        if len(lit):
+            add_albedo(aux, state.path[lit], state.features[:, lit] * np.take(shading.emission, lit, axis=1))
+    normal, diffuse, specular, done = denoising_features(closures, len(hit), hit.ns)
+    rows = open_[done[open_]]
+    if len(rows):
+        paths = state.path[rows]
+        if "denoising_albedo" in aux:
+            add_albedo(aux, paths, state.features[:, rows] * diffuse[:, rows])
+        if "denoising_normal" in aux:
+            rotation = tables.camera_frame[1].astype(np.float32)  # columns: right, up, back
+            aux["denoising_normal"][:, paths] = matmul(rotation.T, normal[:, rows]) * \
+                np.array([1, 1, -1], np.float32)[:, None]
+        state.features[:, rows] = np.nan
+    waiting = open_[~done[open_]]
+    state.features[:, waiting] *= specular[:, waiting]
+
+
+def add_albedo(aux: dict, paths: np.ndarray, albedo: np.ndarray) -> None:
+    """Add (3, n) albedo to the Denoising Albedo of paths (one entry per path), kept within [0, 1]."""
+    aux["denoising_albedo"][:, paths] = np.minimum(aux["denoising_albedo"][:, paths] + np.maximum(albedo, 0.0), 1.0)

@@ -6,7 +6,8 @@
 
 The scenes cover every sampling mode, emissive triangles, Blender lights of each kind, an HDRI world, a
 texture and the transparent film, and (exported through bpy) bench/scenes.py's row of Principled spheres:
-metal, plastic, glass, coat, sheen. Small images and few samples: it runs in a few seconds.
+metal, plastic, glass, coat, sheen, once with every data and light pass and Cryptomatte. Small images and
+few samples: it runs in a few seconds.
 """
 from __future__ import annotations
 
@@ -77,12 +78,25 @@ def materials():
     exported = export_scene(bpy.context.evaluated_depsgraph_get(), width=48, height=32)
     yield "materials", exported.scene, RenderSettings(samples=4, max_bounces=6)
     yield "materials small waves", exported.scene, RenderSettings(samples=4, max_bounces=6, wave_size=512)
+    yield "materials passes", exported.scene, RenderSettings(samples=4, max_bounces=6, passes=PASSES,
+                                                             cryptomatte=("object", "material"))
+
+
+# Every pass but the Vector pass (which needs a scene with motion) and the adaptive noise estimate.
+PASSES = ("depth", "position", "object_index", "material_index", "normal", "uv", "denoising_albedo",
+          "denoising_normal", "denoising_depth", "mist", "emission", "environment", "diffuse_direct",
+          "diffuse_indirect", "diffuse_color", "glossy_direct", "glossy_indirect", "glossy_color",
+          "transmission_direct", "transmission_indirect", "transmission_color")
 
 
 def main() -> None:
     for name, scene, settings in (*cases(), *materials()):
         result = render(scene, settings, threads=2)
         print(f"{name:24s} {digest(result.image)}  mean {result.image[..., :3].mean():.6f}")
+        for extra in settings.passes:
+            print(f"  pass {extra:20s} {digest(result.film.resolve_pass(extra))}")
+        for kind in settings.cryptomatte:
+            print(f"  cryptomatte {kind:13s} {digest(result.film.resolve_crypto(kind))}")
 
 
 if __name__ == "__main__":
