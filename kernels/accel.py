@@ -21,15 +21,14 @@ from embreex import mesh_construction, rtcore_scene
 from . import embree, motion
 from .scene import same_arrays
 
-# Plain triangles from this many on get Embree's quick (low-quality) BVH first, which builds 3-4x faster
-# and traces about 15-20% slower, so that the first samples come sooner; the render's further waves
+# Plain triangles from this many on get Embree's quick (low-quality) BVH first, which builds several times
+# faster and traces somewhat slower, so that the first samples come sooner; the render's further waves
 # bring the usual (medium) BVH in the background and move to it when it is ready (Accel.refine). The
 # hits are the same on either tree. The same bound as the worker processes' (schedule.WORKER_MAX_TRIANGLES).
 QUICK_BVH_TRIANGLES = 1 << 18
 # ... and the medium BVH is worth building only for a render with at least this many seconds left per
-# plain triangle. Measured on the bench's box with a 1M-triangle sphere (256x256, 16 spp, 2 cores): the
-# quick BVH alone renders 5-13% slower than the medium one, while building the medium one beside the
-# render costs 0.25-0.3 s, so it pays from about 4 s of render per million triangles.
+# plain triangle: what the faster tree saves must repay its build beside the render
+# (docs/architecture.md, Big scenes).
 REFINE_SECONDS_PER_TRIANGLE = 4e-6
 
 # Below this many rays a batch runs as one call: splitting costs more than it saves.

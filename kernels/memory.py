@@ -11,16 +11,14 @@ nothing.
 NumPy advises the kernel to back every array of 4 MB or more with huge pages (madvise MADV_HUGEPAGE). Where
 the kernel's transparent_hugepage/defrag setting is "madvise" (the default of many distributions) and no
 huge page is free, each first touch of such an array then waits for a synchronous compaction instead of
-taking small pages (numpy/numpy#31590). Building a scene writes a few hundred MB of fresh arrays once: on
-this project's machine the first write of a 1M-triangle mesh's corners took 110-145 ms with the advice
-against 34-36 ms without, and the whole F12 of that mesh 0.68-0.74 s against 0.55-0.57 s. `small_pages`
-turns the advice off while a scene is exported and its renderer built, and restores it after.
+taking small pages (numpy/numpy#31590). Building a scene writes a few hundred MB of fresh arrays once, which
+such stalls slow down by a third (docs/architecture.md, Memory). `small_pages` turns the advice off while a
+scene is exported and its renderer built, and restores it after.
 
 It does so only where a stall can happen: when the kernel would compact for madvised memory (defrag
 "always", "madvise" or "defer+madvise") and has less than HUGE_PAGES_FREE_MB free in blocks of a huge page
 or more (/proc/buddyinfo). With that much free, huge pages come without compaction, and they are the faster
-way by far: a 1M-triangle F12 faults 35k times instead of 78k, its system time falls from 0.26-0.35 s to
-0.15-0.26 s, and its wall time from 0.31-0.37 s to 0.22-0.28 s (Cycles: 0.25-0.27 s; stop 24, 2 cores).
+way by far: half the page faults, and less system and wall time.
 """
 from __future__ import annotations
 

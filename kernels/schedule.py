@@ -26,36 +26,34 @@ from .film import Film
 from .settings import RenderSettings
 from .workers import WaveSlots, WaveStopped, WorkerLost, WorkerSet, prestart, python_executable
 
+# The measurements behind these numbers are in docs/architecture.md (The wavefront; Threads and worker
+# processes).
 # A pass is cut into at least this many waves when the image allows, so that two cores have
 # independent work; wave_size then bounds each wave.
 _WAVES_PER_PASS = 4
-# ... but no wave is cut below this many paths: a wave pays about 50 ms of Python per bounce sequence
-# whatever its size (the eight spheres' 1-sample first pass at 256x256 took 0.48 s in four waves on two
-# threads, 0.26 s in one), and small waves on two threads only contend for the GIL.
+# ... but no wave is cut below this many paths: a wave pays a fixed cost in Python per bounce whatever its
+# size, and small waves on two threads only contend for the GIL.
 MIN_WAVE_PATHS = 1 << 16
 
 # Paths traced at once (automatic): every bounce runs Python once per material and lobe of the batch, so
-# scenes whose materials mix lobes (Principled layers, Mix Shaders) get twice the paths to spread it over.
-# Measured on two threads: the eight Principled spheres 14% more paths/s with the larger batches, the
-# diffuse Cornell box 6% fewer.
+# scenes whose materials mix lobes (Principled layers, Mix Shaders) get twice the paths to spread it over;
+# diffuse scenes are faster with the smaller batches.
 WAVE_SIZE = 1 << 17
 LAYERED_WAVE_SIZE = 1 << 18
 # Paths per wave when RenderSettings.wave_size is None: this many times the paths traced at once. New paths
-# start as others end (trace_paths), so a wave's long paths pay the stages' fixed cost per bounce once per
-# wave, not once per batch: on glass scenes a third of the time went to bounces of a few hundred paths
-# (the glTF TransmissionTest at 160x120: waves four times as large took 25% less time).
+# start as others end (trace_paths), so a wave's long paths (glass) pay the stages' fixed cost per bounce
+# once per wave, not once per batch.
 WAVE_SPAN = 4
 
 # Worker processes (kernels/workers.py): a renderer with several threads starts threads - 1 children once
-# a render has this many seconds left by its rate so far (a child takes about 0.3 s to start and build its
-# copy of a small scene). Each child holds a copy of the scene's arrays (textures included) and builds its
-# own BVH: scenes over WORKER_MAX_TRIANGLES stay in one process, with threads (on a 1M-triangle box a
-# child cost more than it brought: 0.70x Cycles' paths/s against 0.86x with threads alone; Embree's share
-# of the work, which releases the GIL, is larger there too), and the children's copies of the arrays stay
-# within WORKER_MAX_BYTES together (many cores, a big texture: fewer children).
+# a render has this many seconds left by its rate so far, enough to repay a child's start. Each child holds
+# a copy of the scene's arrays (textures included) and builds its own BVH: scenes over WORKER_MAX_TRIANGLES
+# stay in one process, with threads (there a child costs more than it brings, and Embree's share of the
+# work, which releases the GIL, is larger), and the children's copies of the arrays stay within
+# WORKER_MAX_BYTES together (many cores, a big texture: fewer children).
 WORKER_START_S = 1.5
-# ... or at once when a render has this many paths (0.5-1 s at 0.5-1M paths/s): a child from the pool is
-# ready in 0.1-0.2 s (and prestart_workers has the pool's children start while the scene is exported), and
+# ... or at once when a render has this many paths (about a second's work): a child from the pool is ready
+# in a fraction of that (prestart_workers has the pool's children start while the scene is exported), and
 # until then the render runs on one thread (WaveSlots.reserve), so a child costs a short render little.
 WORKER_START_PATHS = 1 << 19
 WORKER_MAX_BYTES = 512 << 20

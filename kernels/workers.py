@@ -167,7 +167,7 @@ class Worker:
         # (Blender's, with the wheels' site-packages) is the child's whole path.
         # One thread for the BLAS NumPy may be linked with: a child is one core's worth of waves, and an
         # OpenBLAS pool spins its threads for a while after every matrix product, on the cores the parent
-        # and the other children render on (a textured scene's waves took 1.5x as long beside such a child).
+        # and the other children render on.
         env = dict(os.environ, **{name: "1" for name in _BLAS_THREADS})
         self.process = subprocess.Popen([exe, "-I", "-S", "-c", _BOOT, cfg], stdin=subprocess.PIPE,
                                         stdout=subprocess.PIPE, bufsize=0, env=env,
@@ -342,8 +342,8 @@ def close_pool() -> None:
 atexit.register(close_pool)
 
 
-# The longest a loading worker holds a local slot for itself (WaveSlots.reserve): a child from the pool
-# loads a real scene in 0.1-0.2 s, a new one in 0.4-0.6 s (its imports first).
+# The longest a loading worker holds a local slot for itself (WaveSlots.reserve): longer than a child takes
+# to load a real scene, new or from the pool, and short enough that a failing child costs little.
 RESERVE_S = 1.0
 
 
