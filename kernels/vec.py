@@ -9,15 +9,15 @@ Vector layouts. The kernels hold 3-vectors in two layouts, each where it pays:
   (3, N) throughput, BSDF lobes, light sampling, warps, normals. Each component is contiguous, so every
   operation is one contiguous loop and masks or np.take select lanes per component; a column of (N, 3)
   rows is a strided view, and an (N,) factor broadcast over (N, 3) rows runs inner loops three long.
-  Helpers for this layout end in `_xyz` and return tuples.
+  Helpers for this layout end in `_xyz`; those that return a vector return a tuple.
 - Rows, (N, 3) (or (..., 3)): where vectors arrive or leave as rows. Embree takes rays as (N, 3) float32
   origins and directions, Blender's buffers and the triangle table hold (V, 3) and (T, 3) rows, and shader
-  node sockets are (N, 3) vectors. Helpers for this layout end in `_rows`.
+  node sockets are (N, 3) vectors. Helpers for this layout end in `_rows` (and `columns`).
 
 Data changes layout once, where it crosses such a boundary (`np.stack(xyz, axis=1)`, `rows.T`).
 
 Rounding. Images are kept bit for bit, so each helper's arithmetic is part of its contract, and two helpers
-that differ only in rounding are not interchangeable: dot_xyz and dot_rows sum the float32 products left to
+that differ only in rounding are not interchangeable: dot_xyz and dot_rows sum the products left to
 right, ((x + y) + z); the `_einsum` helpers sum with np.einsum, in the order NumPy chooses (the shading ops
 are written with them); `fma` and `cross_rows_fused` round as Cycles' AVX2 kernels do (shading nodes that
 reproduce Cycles bit for bit).

@@ -3,6 +3,10 @@ small matrices and long arrays of vectors, without BLAS, equal to `@`
 to rounding and in its dtype (NumPy 1.26's value-based casting and NumPy 2's rules alike)."""
 from __future__ import annotations
 
+import ast
+import pathlib
+import re
+
 import numpy as np
 import pytest
 
@@ -158,3 +162,52 @@ def test_fused_products_round_once():
     fused_x = [math.fma(float(ay), float(bz), -float(np.float32(az) * np.float32(by)))
                for ay, bz, az, by in zip(a[:, 1], b[:, 2], a[:, 2], b[:, 1])]
     assert np.array_equal(cross[:, 0], np.array(fused_x).astype(np.float32))
+
+
+# ---------------------------------------------------------------- one home
+KERNELS = pathlib.Path(vec.__file__).parent
+# vec's dtype names and constants, and the names modules gave their own copies before they moved here.
+VOCABULARY_CONSTANTS = {"F32", "F64", "I32", "U32", "ZERO", "HALF", "ONE", "TWO", "PI", "HALF_PI", "TWO_PI",
+                        "INV_PI", "INV_2PI", "INV_4PI", "INV_TWO_PI", "INV_FOUR_PI"}
+# dot, _dot3, cross, length, _len, norm, normalize, _normalized, safe_normalize, fma, dot_rows, ... (not
+# normal_map: a name must be one of these words, optionally followed by digits or by _ and more).
+VECTOR_HELPER = re.compile(r"_*(safe_)?(dot|cross|normali[sz]ed?|length|len|norm|fma)(\d+|_\w*)?")
+
+
+def _module_level_definitions(path: pathlib.Path):
+    """(line, name, kind) of the names a module binds at its top level: constants and functions."""
+    for node in ast.parse(path.read_text(), str(path)).body:
+        if isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            for target in targets:
+                for name in ast.walk(target):
+                    if isinstance(name, ast.Name):
+                        yield node.lineno, name.id, "constant"
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            yield node.lineno, node.name, "function"
+
+
+def test_no_kernel_module_but_vec_defines_the_vocabulary():
+    """The float32 constants and the dot / cross / length / normalize helpers live in kernels/vec.py alone:
+    a module imports them (`from ..vec import F32, ONE, dot_xyz`) instead of writing its own copy."""
+    modules = sorted(p for p in KERNELS.rglob("*.py") if p.name != "vec.py")
+    assert len(modules) > 30
+    copies = [f"{path.relative_to(KERNELS.parent)}:{line} {name}"
+              for path in modules for line, name, kind in _module_level_definitions(path)
+              if (kind == "constant" and name.lstrip("_") in VOCABULARY_CONSTANTS)
+              or (kind == "function" and VECTOR_HELPER.fullmatch(name))]
+    assert not copies, "define these in kernels/vec.py and import them: " + ", ".join(copies)
+
+
+def test_the_scan_sees_the_definitions_it_forbids(tmp_path):
+    source = tmp_path / "sample.py"
+    source.write_text("import numpy as np\nF32 = np.float32\nZERO, ONE = F32(0.0), F32(1.0)\n_PI: float = 3.14\n"
+                      "def _dot(a, b):\n    pass\ndef normal_map():\n    pass\n")
+    found = {(name, kind) for _, name, kind in _module_level_definitions(source)}
+    assert {("F32", "constant"), ("ZERO", "constant"), ("ONE", "constant"), ("_PI", "constant")} <= found
+    assert [n for n, k in found if k == "function" and VECTOR_HELPER.fullmatch(n)] == ["_dot"]
+    for name in ("dot", "_dot3", "cross", "length", "_length2", "_len", "_norm", "normalize", "_normalized",
+                 "safe_normalize", "fma", "dot_rows", "normalize_floored_xyz"):
+        assert VECTOR_HELPER.fullmatch(name), name
+    for name in ("normal_map", "normal_matrices", "_normal_input", "lengths_of", "crossing"):
+        assert not VECTOR_HELPER.fullmatch(name), name
