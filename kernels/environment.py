@@ -11,11 +11,7 @@ import numpy as np
 from . import sampling
 from .scene import World
 from .textures import Texture, luminance
-
-F32 = np.float32
-ONE = F32(1.0)
-INV_2PI = np.float32(0.5 / np.pi)
-INV_PI = np.float32(1.0 / np.pi)
+from .vec import F32, INV_2PI, INV_PI, ONE, PI, TWO_PI
 
 
 def direction_to_equirect(dx, dy, dz):
@@ -27,8 +23,8 @@ def direction_to_equirect(dx, dy, dz):
 
 def equirect_to_direction(u, v):
     """Inverse of direction_to_equirect. Returns dx, dy, dz and sin(theta)."""
-    phi = (np.float32(0.5) - u) * np.float32(2.0 * np.pi)
-    theta = (np.float32(1.0) - v) * np.float32(np.pi)
+    phi = (np.float32(0.5) - u) * TWO_PI
+    theta = (np.float32(1.0) - v) * PI
     sin_t = np.sin(theta)
     return np.cos(phi) * sin_t, np.sin(phi) * sin_t, np.cos(theta), sin_t
 

@@ -8,6 +8,7 @@ import threading
 import numpy as np
 
 from .scene import CornerRows, SceneArrays, corner_values
+from .vec import cross_xyz, dot_rows, normalize_floored_xyz
 
 # Columns of the per-triangle table gathered for every hit (one contiguous row per component).
 P0, E1, E2, NG, N0, N1, N2, UV0, UV1, UV2 = 0, 3, 6, 9, 12, 15, 18, 21, 23, 25
@@ -165,14 +166,12 @@ class TriangleTable:
         e1 = _apply(linear, g[:, E1:E1 + 3])
         e2 = _apply(linear, g[:, E2:E2 + 3])
         out[:, E1:E1 + 3], out[:, E2:E2 + 3] = e1, e2
-        out[:, NG:NG + 3] = np.stack(unit_rows(e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1],
-                                               e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
-                                               e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), axis=1)
+        out[:, NG:NG + 3] = np.stack(normalize_floored_xyz(cross_xyz(e1.T, e2.T)), axis=1)
         # A mirroring transform turns the winding over, not the face: its front stays Blender's.
         out[:, NG:NG + 3] *= np.take(self._det_sign, k)[:, None]
         for col in (N0, N1, N2):
             n = _apply(normal, g[:, col:col + 3])
-            out[:, col:col + 3] = np.stack(unit_rows(n[:, 0], n[:, 1], n[:, 2]), axis=1)
+            out[:, col:col + 3] = np.stack(normalize_floored_xyz(n.T), axis=1)
         out[:, UV0:] = g[:, UV0:]
         return out
 
@@ -222,7 +221,7 @@ class TriangleTable:
                 t[sel, 4 * c:4 * c + 3] = np.where(length[:, None] > 0, v / np.where(length > 0, length, 1)[:, None], 0)
                 t[sel, 4 * c + 3] *= sign
                 m = _apply(normal, n[sel, 3 * c:3 * c + 3])
-                n[sel, 3 * c:3 * c + 3] = np.stack(unit_rows(m[:, 0], m[:, 1], m[:, 2]), axis=1)
+                n[sel, 3 * c:3 * c + 3] = np.stack(normalize_floored_xyz(m.T), axis=1)
         t, n = t.T, n.T
         tangent = tuple(w0 * t[k] + b1 * t[4 + k] + b2 * t[8 + k] for k in range(3))
         sign = w0 * t[3] + b1 * t[7] + b2 * t[11]
@@ -370,7 +369,7 @@ def _fill_rows(table: np.ndarray, p: np.ndarray, n: np.ndarray, uvs: np.ndarray,
     if mirrored is not None:
         np.negative(ng, out=ng, where=mirrored[:, None])
     normals = table[:, N0:N2 + 3].reshape(t, 3, 3)
-    length2 = _length2(n)
+    length2 = dot_rows(n, n)
     np.multiply(n, (np.float32(1.0) / np.sqrt(np.maximum(length2, np.float32(1e-37))))[:, :, None], out=normals)
     # A zero-length corner normal falls back to the face normal.
     zero_t, zero_c = np.nonzero(length2 < np.float32(1e-30))
@@ -379,19 +378,8 @@ def _fill_rows(table: np.ndarray, p: np.ndarray, n: np.ndarray, uvs: np.ndarray,
     table[:, UV0:UV2 + 2] = uvs.reshape(t, 6)
 
 
-def _length2(v: np.ndarray) -> np.ndarray:
-    """x * x + y * y + z * z over the last axis, in that order."""
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    return x * x + y * y + z * z
-
-
 def _inverse_length(v: np.ndarray) -> np.ndarray:
-    return np.float32(1.0) / np.sqrt(np.maximum(_length2(v), np.float32(1e-37)))
-
-
-def unit_rows(x, y, z):
-    inv = np.float32(1.0) / np.sqrt(np.maximum(x * x + y * y + z * z, np.float32(1e-37)))
-    return x * inv, y * inv, z * inv
+    return np.float32(1.0) / np.sqrt(np.maximum(dot_rows(v, v), np.float32(1e-37)))
 
 
 def extent(positions: np.ndarray):

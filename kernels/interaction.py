@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import E1, E2, N0, N1, N2, NG, P0, TriangleTable, interpolate_uv
+from .vec import dot_rows_einsum
 
 
 class SurfaceHit:
@@ -102,19 +103,20 @@ class SurfaceHit:
         p = v0 * b0 + v1 * b1 + v2 * b2
         n = n0 * b0 + n1 * b1 + n2 * b2            # the interpolated normal, not normalised (as Cycles)
 
-        def dot(x, y):
-            return np.einsum("ij,ij->i", x, y)
         u, v = b0[:, 0], b1[:, 0]
-        a, b, c = dot(n2 - n0, v0 - v2), dot(n2 - n1, v1 - v2), dot(n1 - n0, v1 - v0)
+        a, b, c = (dot_rows_einsum(n2 - n0, v0 - v2), dot_rows_einsum(n2 - n1, v1 - v2),
+                   dot_rows_einsum(n1 - n0, v1 - v0))
         h = a * u * (u - 1) + (a + b + c) * u * v + b * v * (v - 1)
-        front = dot(n, np.stack(ng, axis=1)) > 0
+        front = dot_rows_einsum(n, np.stack(ng, axis=1)) > 0
         # Each corner's tangent plane bounds the lift (its local linear envelope), on the side the ray leaves.
-        out_of = [np.maximum(np.maximum(dot(vj - vi, ni), dot(vk - vi, ni)), 0.0)
+        out_of = [np.maximum(np.maximum(dot_rows_einsum(vj - vi, ni), dot_rows_einsum(vk - vi, ni)), 0.0)
                   for vi, ni, vj, vk in ((v0, n0, v1, v2), (v1, n1, v0, v2), (v2, n2, v0, v1))]
-        above = [np.maximum(dot(vi - p, ni) + e, 0.0) for vi, ni, e in zip((v0, v1, v2), (n0, n1, n2), out_of)]
-        into = [np.maximum(np.maximum(dot(vi - vj, ni), dot(vi - vk, ni)), 0.0)
+        above = [np.maximum(dot_rows_einsum(vi - p, ni) + e, 0.0)
+                 for vi, ni, e in zip((v0, v1, v2), (n0, n1, n2), out_of)]
+        into = [np.maximum(np.maximum(dot_rows_einsum(vi - vj, ni), dot_rows_einsum(vi - vk, ni)), 0.0)
                 for vi, ni, vj, vk in ((v0, n0, v1, v2), (v1, n1, v0, v2), (v2, n2, v0, v1))]
-        below = [np.maximum(dot(p - vi, ni) + e, 0.0) for vi, ni, e in zip((v0, v1, v2), (n0, n1, n2), into)]
+        below = [np.maximum(dot_rows_einsum(p - vi, ni) + e, 0.0)
+                 for vi, ni, e in zip((v0, v1, v2), (n0, n1, n2), into)]
         h = np.where(front, np.maximum(np.minimum.reduce(above), 0.5 * h),
                      np.minimum(-np.minimum.reduce(below), 0.5 * h))
         offset = (n * h[:, None]).astype(np.float32)

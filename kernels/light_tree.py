@@ -34,11 +34,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .vec import HALF_PI, PI
+
 # Below this cosine of theta' (but in front of the cone), the orientation factor is held here: a box at
 # a grazing angle still lights P, and float32 rounding of the angles must not make it unreachable.
 COS_FLOOR = np.float32(1e-3)
-_HALF_PI = np.float32(np.pi / 2)
-_PI = np.float32(np.pi)
 
 
 class LightTree:
@@ -127,12 +127,12 @@ class LightTree:
         inv_d = np.float32(1.0) / np.maximum(d, np.float32(1e-30))
         cos_t = np.clip((vx * g[3] + vy * g[4] + vz * g[5]) * inv_d, np.float32(-1.0), np.float32(1.0))
         sin_u = r * inv_d
-        theta_u = np.where(sin_u < 1, np.arcsin(np.minimum(sin_u, np.float32(1.0))), _PI)
+        theta_u = np.where(sin_u < 1, np.arcsin(np.minimum(sin_u, np.float32(1.0))), PI)
         theta = np.arccos(cos_t)
         theta_p = np.maximum(theta - g[9] - theta_u, np.float32(0.0))
-        nearest = np.where(theta_p < _HALF_PI, np.maximum(np.cos(theta_p), COS_FLOOR), np.float32(0.0))
+        nearest = np.where(theta_p < HALF_PI, np.maximum(np.cos(theta_p), COS_FLOOR), np.float32(0.0))
         theta_f = theta + g[9] + theta_u
-        farthest = np.where(theta_f < _HALF_PI, np.cos(np.minimum(theta_f, _HALF_PI)), np.float32(0.0))
+        farthest = np.where(theta_f < HALF_PI, np.cos(np.minimum(theta_f, HALF_PI)), np.float32(0.0))
         return np.where(omni, upper, upper * nearest), np.where(omni, lower, lower * farthest)
 
     def _left_probability(self, node, px, py, pz):

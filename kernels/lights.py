@@ -33,6 +33,7 @@ from .geometry import emissive_instanced, scene_extent
 from .light_tree import LightTree
 from .scene import LIGHT_KINDS, SceneArrays
 from .textures import luminance
+from .vec import PI, cross_xyz, dot_xyz, normalize_floored_xyz
 
 POINT, SPOT, SUN, RECT, DISK = (LIGHT_KINDS[k] for k in ("POINT", "SPOT", "SUN", "RECT", "DISK"))
 # An emissive triangle is sampled by the solid angle it subtends from points nearer its plane than its
@@ -449,7 +450,7 @@ class LightSampler:
         qz = c[2] + r * (ex * tz + ey * bz)
         wx, wy, wz, dist = _direction(px, py, pz, qx, qy, qz)
         cos_l = wx * ax + wy * ay + wz * az
-        pdf = _area_to_solid_angle(np.float32(np.pi) * r * r, dist, cos_l)
+        pdf = _area_to_solid_angle(PI * r * r, dist, cos_l)
         # The spot cone is evaluated along the sampled ray, as Cycles does (this softens its edge).
         radiance = self.radiance_of[light].T * self._spot_attenuation(light, -wx, -wy, -wz)[None, :]
         # Delta lights: the exact direction, radiance becomes intensity / distance^2.
@@ -571,9 +572,9 @@ class LightSampler:
             return spherical, np.zeros(0, np.float32), None
         ax, ay, az = ax[near], ay[near], az[near]
         e1, e2 = (tuple(g[k, near] for k in range(r, r + 3)) for r in (_TE1, _TE2))
-        a = _normalized(ax, ay, az)
-        b = _normalized(ax + e1[0], ay + e1[1], az + e1[2])
-        c = _normalized(ax + e2[0], ay + e2[1], az + e2[2])
+        a = normalize_floored_xyz((ax, ay, az))
+        b = normalize_floored_xyz((ax + e1[0], ay + e1[1], az + e1[2]))
+        c = normalize_floored_xyz((ax + e2[0], ay + e2[1], az + e2[2]))
         omega = _solid_angle(a, b, c)
         keep = omega > SPHERICAL_MIN_SR
         spherical[near[keep]] = True
@@ -731,7 +732,7 @@ class LightSampler:
         hx, hy, hz = ox + t * dx - c[0], oy + t * dy - c[1], oz + t * dz - c[2]
         inside = (hx * hx + hy * hy + hz * hz <= r * r) & (denom > 0) & np.isfinite(t)
         t = np.where(inside, t, np.float32(-1.0))
-        pdf = _area_to_solid_angle(np.float32(np.pi) * r * r, np.abs(t), np.abs(denom))
+        pdf = _area_to_solid_angle(PI * r * r, np.abs(t), np.abs(denom))
         att = self._spot_attenuation(k, -dx, -dy, -dz)
         return t, pdf, att
 
@@ -830,7 +831,7 @@ class SolidAngleChoice:
 
     def _pmfs(self, px, py, pz) -> np.ndarray:
         """(k, n) float32 probability of each triangle at each point; columns sum to 1."""
-        units = [_normalized(v[0] - px, v[1] - py, v[2] - pz) for v in self._vertices]
+        units = [normalize_floored_xyz((v[0] - px, v[1] - py, v[2] - pz)) for v in self._vertices]
         w = np.empty((len(self._corners), len(px)), np.float32)
         for k, (i, j, m) in enumerate(self._corners):
             np.multiply(_solid_angle(units[i], units[j], units[m]), self._lum[k], out=w[k])
@@ -985,33 +986,20 @@ def _area_to_solid_angle(area, dist, cos_l):
     return np.where((cos_l > 0) & np.isfinite(pdf), pdf, np.float32(0.0)).astype(np.float32)
 
 
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _normalized(x, y, z):
-    inv = np.float32(1.0) / np.sqrt(np.maximum(x * x + y * y + z * z, np.float32(1e-37)))
-    return x * inv, y * inv, z * inv
-
-
 def _solid_angle(a, b, c):
     """Solid angle of the spherical triangle with unit corners a, b, c (Van Oosterom and Strackee)."""
-    triple = np.abs(_dot(a, _cross(b, c)))
-    return np.float32(2.0) * np.arctan2(triple, np.float32(1.0) + _dot(a, b) + _dot(b, c) + _dot(c, a))
+    triple = np.abs(dot_xyz(a, cross_xyz(b, c)))
+    return np.float32(2.0) * np.arctan2(triple, np.float32(1.0) + dot_xyz(a, b) + dot_xyz(b, c) + dot_xyz(c, a))
 
 
 def _sample_spherical_triangle(a, b, c, omega, u1, u2):
     """Unit directions uniform over the spherical triangle a, b, c (Arvo 1995), per component."""
-    n_ab = _normalized(*_cross(a, b))
-    n_ac = _normalized(*_cross(a, c))
-    cos_alpha = np.clip(_dot(n_ab, n_ac), np.float32(-1.0), np.float32(1.0))
+    n_ab = normalize_floored_xyz(cross_xyz(a, b))
+    n_ac = normalize_floored_xyz(cross_xyz(a, c))
+    cos_alpha = np.clip(dot_xyz(n_ab, n_ac), np.float32(-1.0), np.float32(1.0))
     sin_alpha = np.sqrt(np.maximum(np.float32(1.0) - cos_alpha * cos_alpha, np.float32(0.0)))
     alpha = np.arccos(cos_alpha)
-    cos_c = _dot(a, b)
+    cos_c = dot_xyz(a, b)
     area = u1 * omega
     s, t = np.sin(area - alpha), np.cos(area - alpha)
     u = t - cos_alpha
@@ -1019,21 +1007,21 @@ def _sample_spherical_triangle(a, b, c, omega, u1, u2):
     with np.errstate(divide="ignore", invalid="ignore"):
         q = ((v * t - u * s) * cos_alpha - v) / ((v * s + u * t) * sin_alpha)
     q = np.clip(np.nan_to_num(q, nan=1.0), np.float32(-1.0), np.float32(1.0))
-    ca = _dot(c, a)
-    perp = _normalized(c[0] - ca * a[0], c[1] - ca * a[1], c[2] - ca * a[2])
+    ca = dot_xyz(c, a)
+    perp = normalize_floored_xyz((c[0] - ca * a[0], c[1] - ca * a[1], c[2] - ca * a[2]))
     sq = np.sqrt(np.maximum(np.float32(1.0) - q * q, np.float32(0.0)))
     c_hat = (q * a[0] + sq * perp[0], q * a[1] + sq * perp[1], q * a[2] + sq * perp[2])
-    cb = _dot(c_hat, b)
+    cb = dot_xyz(c_hat, b)
     z = np.float32(1.0) - u2 * (np.float32(1.0) - cb)
-    perp = _normalized(c_hat[0] - cb * b[0], c_hat[1] - cb * b[1], c_hat[2] - cb * b[2])
+    perp = normalize_floored_xyz((c_hat[0] - cb * b[0], c_hat[1] - cb * b[1], c_hat[2] - cb * b[2]))
     sz = np.sqrt(np.maximum(np.float32(1.0) - z * z, np.float32(0.0)))
     return z * b[0] + sz * perp[0], z * b[1] + sz * perp[1], z * b[2] + sz * perp[2]
 
 
 def _barycentrics(d, e1, e2):
     """(b1, b2) of the point p0 + d on the triangle with edges e1, e2 (each x, y, z)."""
-    d11, d12, d22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
-    d1, d2 = _dot(d, e1), _dot(d, e2)
+    d11, d12, d22 = dot_xyz(e1, e1), dot_xyz(e1, e2), dot_xyz(e2, e2)
+    d1, d2 = dot_xyz(d, e1), dot_xyz(d, e2)
     det = d11 * d22 - d12 * d12
     det = np.where(det != 0, det, np.float32(1e-30))
     return (d22 * d1 - d12 * d2) / det, (d11 * d2 - d12 * d1) / det

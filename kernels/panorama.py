@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .vec import length_xyz
+
 if TYPE_CHECKING:
     from .scene import Camera
 
@@ -230,7 +232,7 @@ PROJECTIONS = {
 # Each takes the parameters and a direction x, y, z (N,) float64 (any length); returns u, v.
 
 def equirectangular_inverse(p, x, y, z):
-    phi, theta = np.arctan2(y, x), np.arccos(np.clip(z / _norm(x, y, z), -1.0, 1.0))
+    phi, theta = np.arctan2(y, x), np.arccos(np.clip(z / length_xyz((x, y, z)), -1.0, 1.0))
     return ((phi + p["longitude_min"]) / (p["longitude_min"] - p["longitude_max"]),
             (theta - (0.5 * np.pi - p["latitude_min"])) / (p["latitude_min"] - p["latitude_max"]))
 
@@ -240,7 +242,7 @@ def equiangular_cubemap_face_inverse(p, x, y, z):
 
 
 def mirrorball_inverse(p, x, y, z):
-    n = _norm(x, y, z)
+    n = length_xyz((x, y, z))
     x, y, z = x / n, y / n - 1.0, z / n  # the ball's normal is the half vector of the view and d
     scale = 2.0 * np.sqrt(np.maximum(-0.5 * y, 0.0))
     scale = np.where(scale > 0, scale, 1.0)
@@ -254,7 +256,7 @@ def fisheye_equidistant_inverse(p, x, y, z):
 
 
 def fisheye_equisolid_inverse(p, x, y, z):
-    theta = np.arccos(np.clip(x / _norm(x, y, z), -1.0, 1.0))
+    theta = np.arccos(np.clip(x / length_xyz((x, y, z)), -1.0, 1.0))
     radius = 2.0 * p["fisheye_lens"] * np.sin(0.5 * theta)
     a, b = _azimuth(y, z)
     return 0.5 - radius * a / p["sensor_width"], 0.5 + radius * b / p["sensor_height"]
@@ -262,7 +264,7 @@ def fisheye_equisolid_inverse(p, x, y, z):
 
 def fisheye_lens_polynomial_inverse(p, x, y, z):
     """Newton's method on theta = polynomial(r), from the linear term's root, as Cycles does."""
-    theta = -np.arccos(np.clip(x / _norm(x, y, z), -1.0, 1.0))
+    theta = -np.arccos(np.clip(x / length_xyz((x, y, z)), -1.0, 1.0))
     k = [p[name] for name in _POLYNOMIAL]
     radius = (theta - k[0]) / k[1]
     for _ in range(_NEWTON_STEPS):
@@ -277,10 +279,6 @@ def central_cylindrical_inverse(p, x, y, z):
     radius = p["central_cylindrical_radius"]
     v0, v1 = p["central_cylindrical_range_v_min"] / radius, p["central_cylindrical_range_v_max"] / radius
     return (np.arctan2(y, x) - u0) / (u1 - u0), (z / np.hypot(x, y) - v0) / (v1 - v0)
-
-
-def _norm(x, y, z):
-    return np.sqrt(x * x + y * y + z * z)
 
 
 def _azimuth(y, z):

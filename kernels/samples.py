@@ -22,9 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from .rng import PathRng, blue_noise_offsets, reverse_bits, stratified_2d
+from .vec import HALF
 
 CAMERA, LIGHT, LIGHT_POINT, BSDF, LOBE, LENS, TIME = 0, 1, 2, 3, 4, 5, 6
-HALF = np.float32(0.5)
 # The dimensions a bounce draws from the PCG2D stream, in order, with and without next-event estimation;
 # LOBE comes last, drawn only in scenes whose materials have more than one lobe to choose from.
 NEE_BLOCK = (LIGHT, LIGHT_POINT, BSDF)

@@ -7,14 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 
-PI = np.float32(np.pi)
-INV_PI = np.float32(1.0 / np.pi)
+from .vec import HALF_PI, INV_4PI, INV_PI, PI, TWO_PI, cross_xyz, dot_xyz
 
 
 def sample_cosine_hemisphere(ux: np.ndarray, uy: np.ndarray):
     """Cosine-weighted direction (Malley: uniform disk lifted to the hemisphere). Returns x, y, z."""
     r = np.sqrt(ux)
-    phi = np.float32(2.0 * np.pi) * uy
+    phi = TWO_PI * uy
     x = r * np.cos(phi)
     y = r * np.sin(phi)
     z = np.sqrt(np.maximum(np.float32(1.0) - ux, np.float32(0.0)))
@@ -30,8 +29,8 @@ def sample_lecture_hemisphere(ux: np.ndarray, uy: np.ndarray):
 
     Its pdf per solid angle is 1 / (pi^2 sin(theta)), so the estimator weight is pi^2 sin(theta).
     """
-    theta = np.float32(np.pi / 2) * uy
-    phi = np.float32(2.0 * np.pi) * ux - PI
+    theta = HALF_PI * uy
+    phi = TWO_PI * ux - PI
     sin_t = np.sin(theta)
     return np.cos(phi) * sin_t, np.sin(phi) * sin_t, np.cos(theta), sin_t
 
@@ -45,7 +44,7 @@ def sample_uniform_cone(ux: np.ndarray, uy: np.ndarray, cos_max: np.ndarray):
     """Uniform direction in the cone around +z with half-angle acos(cos_max). Returns x, y, z."""
     z = np.float32(1.0) - ux * (np.float32(1.0) - cos_max)
     r = np.sqrt(np.maximum(np.float32(1.0) - z * z, np.float32(0.0)))
-    phi = np.float32(2.0 * np.pi) * uy
+    phi = TWO_PI * uy
     return r * np.cos(phi), r * np.sin(phi), z
 
 
@@ -55,28 +54,28 @@ def sample_uniform_cone_precise(ux: np.ndarray, uy: np.ndarray, one_minus_cos_ma
     t = ux * np.asarray(one_minus_cos_max, np.float32)
     z = np.float32(1.0) - t
     r = np.sqrt(np.maximum(t * (np.float32(2.0) - t), np.float32(0.0)))
-    phi = np.float32(2.0 * np.pi) * uy
+    phi = TWO_PI * uy
     return r * np.cos(phi), r * np.sin(phi), z
 
 
 def uniform_cone_pdf(cos_max) -> np.ndarray:
-    return np.float32(1.0) / (np.float32(2.0 * np.pi) * (np.float32(1.0) - cos_max))
+    return np.float32(1.0) / (TWO_PI * (np.float32(1.0) - cos_max))
 
 
 def sample_uniform_disk(ux: np.ndarray, uy: np.ndarray):
     """Uniform point in the unit disk (polar map). Returns x, y."""
     r = np.sqrt(ux)
-    phi = np.float32(2.0 * np.pi) * uy
+    phi = TWO_PI * uy
     return r * np.cos(phi), r * np.sin(phi)
 
 
-UNIFORM_SPHERE_PDF = np.float32(0.25 / np.pi)
+UNIFORM_SPHERE_PDF = INV_4PI
 
 
 def sample_uniform_sphere(ux: np.ndarray, uy: np.ndarray):
     z = np.float32(1.0) - np.float32(2.0) * ux
     r = np.sqrt(np.maximum(np.float32(1.0) - z * z, np.float32(0.0)))
-    phi = np.float32(2.0 * np.pi) * uy
+    phi = TWO_PI * uy
     return r * np.cos(phi), r * np.sin(phi), z
 
 
@@ -114,14 +113,14 @@ class SphericalRectangle:
     does below S = 1e-5 or at grazing angles)."""
 
     def __init__(self, p, c, ex, ey, lu, lv):
-        ez = _cross3(ex, ey)
+        ez = cross_xyz(ex, ey)
         d = tuple(ci - pi for ci, pi in zip(c, p))
-        z0 = _dot3(d, ez)
+        z0 = dot_xyz(d, ez)
         # The frame's z away from the rectangle: the rectangle lies at z0 <= 0.
         flip = np.where(z0 > 0, np.float32(-1.0), np.float32(1.0))
         self.ez = tuple(e * flip for e in ez)
         self.z0 = z0 * flip
-        xc, yc = _dot3(d, ex), _dot3(d, ey)
+        xc, yc = dot_xyz(d, ex), dot_xyz(d, ey)
         half_u, half_v = np.float32(0.5) * lu, np.float32(0.5) * lv
         self.x0, self.x1, self.y0, self.y1 = xc - half_u, xc + half_u, yc - half_v, yc + half_v
         z2 = self.z0 * self.z0
@@ -167,14 +166,6 @@ class SphericalRectangle:
             area = dist * dist / (self.lu * self.lv * cos_light)
         pdf = np.where(self.usable, spherical, area)
         return np.where((cos_light > 0) & np.isfinite(pdf), pdf, np.float32(0.0)).astype(np.float32)
-
-
-def _dot3(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _cross3(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 def balance_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:

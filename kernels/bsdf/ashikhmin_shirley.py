@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
+from ..vec import F32, ONE, ZERO
+
 EPS = F32(1e-6)
 SINGULAR_ALPHA = F32(1e-4)
 INV_8PI = F32(1.0 / (8.0 * np.pi))

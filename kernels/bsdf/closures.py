@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
+from ..vec import F32, INV_PI, ONE, ZERO, cross_xyz, dot_xyz, length_xyz
 from . import diffuse, fresnel, hair, sheen, toon
 
 # Lobe ids.
@@ -54,9 +55,6 @@ SELF_EVALUATED = (TOON_DIFFUSE, TOON_GLOSSY, HAIR_REFLECTION, HAIR_TRANSMISSION)
 # Lobes whose samples leave on whichever side of the surface they point to, untested (Cycles' hair
 # samplers and Ray Portal): the integrator sees which side that is.
 ANY_SIDE_LOBES = (PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION)
-
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
 
 # Per-closure parameter columns and their defaults: scalars (C,) and colours (3, C).
 # soften: 1 where a diffuse closure on another normal takes the shadowing term's softening (Cycles skips
@@ -307,7 +305,7 @@ class ClosureSet:
         if self.lambert_only:
             n = self.normal
             cos = wi_world[0] * n[0, idx] + wi_world[1] * n[1, idx] + wi_world[2] * n[2, idx]
-            pdf = np.maximum(cos, ZERO) * sampling.INV_PI
+            pdf = np.maximum(cos, ZERO) * INV_PI
             return np.take(self.weight, idx, axis=1) * pdf, pdf
         wi = _to_local(tuple(np.take(c, idx, axis=1) for c in self.frame), wi_world)
         if len(self.kinds) == 1:
@@ -834,19 +832,19 @@ def _frames(n: np.ndarray, t: np.ndarray | None):
     tx, ty, tz, bx, by, bz = sampling.orthonormal_basis(nx, ny, nz)
     given = np.isfinite(t[0]) if t is not None else None
     if given is not None and given.any():
-        d = t[0] * nx + t[1] * ny + t[2] * nz
+        d = dot_xyz(t, (nx, ny, nz))
         gx, gy, gz = t[0] - d * nx, t[1] - d * ny, t[2] - d * nz
-        length = np.sqrt(gx * gx + gy * gy + gz * gz)
+        length = length_xyz((gx, gy, gz))
         ok = given & (length > F32(1e-8))
         inv = np.where(ok, ONE / np.where(ok, length, ONE), ZERO)
         tx, ty, tz = (np.where(ok, g * inv, a) for g, a in ((gx, tx), (gy, ty), (gz, tz)))
-        bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+        bx, by, bz = cross_xyz((nx, ny, nz), (tx, ty, tz))
     return np.stack([tx, ty, tz]), np.stack([bx, by, bz]), np.stack([nx, ny, nz])
 
 
 def _to_local(frame, w):
     t, b, n = frame
-    return tuple((w[0] * a[0] + w[1] * a[1] + w[2] * a[2]).astype(F32) for a in (t, b, n))
+    return tuple(dot_xyz(w, a).astype(F32) for a in (t, b, n))
 
 
 def _to_world(frame, w):

@@ -19,12 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..sampling import INV_PI, PI, cosine_hemisphere_pdf, sample_cosine_hemisphere
+from ..sampling import cosine_hemisphere_pdf, sample_cosine_hemisphere
+from ..vec import F32, HALF_PI, INV_PI, ONE, PI, ZERO
 
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
 TWO_THIRDS = F32(2.0 / 3.0)
-HALF_PI = F32(np.pi / 2)
 FLT_MIN = np.finfo(np.float32).tiny
 
 

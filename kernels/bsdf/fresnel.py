@@ -18,8 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
+from ..vec import F32, ONE, ZERO
 
 # The F82 models sample Schlick's curve at cos = 1/7 (about 82 degrees), where 1 - cos = 6/7.
 F82_ONE_MINUS_COS = 6.0 / 7.0

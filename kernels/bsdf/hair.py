@@ -27,26 +27,13 @@ from __future__ import annotations
 
 import numpy as np
 
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
-PI = F32(np.pi)
-HALF_PI = F32(np.pi / 2)
-
-
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _normalize(v):
-    length = np.sqrt(_dot(v, v))
-    inv = np.where(length > 0, ONE / np.where(length > 0, length, ONE), ZERO)
-    return tuple((c * inv).astype(F32) for c in v)
+from ..vec import F32, HALF_PI, ONE, PI, ZERO, dot_xyz, normalize_xyz
 
 
 def _latitude(t, w):
     """(sin-like height along T, unit direction of w about T, latitude pi/2 - acos(w.T))."""
-    z = _dot(t, w)
-    about = _normalize(tuple(wc - tc * z for wc, tc in zip(w, t)))
+    z = dot_xyz(t, w)
+    about = tuple(c.astype(F32) for c in normalize_xyz(tuple(wc - tc * z for wc, tc in zip(w, t))))
     return about, (HALF_PI - np.arccos(np.clip(z, -ONE, ONE))).astype(F32)
 
 
@@ -65,7 +52,7 @@ def _theta_pdf(t, r1, a, b, cos_theta_i):
 def _eval(wo, wi, tangent, r1, r2, offset, transmission: bool):
     locy, theta_r = _latitude(tangent, wo)
     wi_about, theta_i = _latitude(tangent, wi)
-    cos_phi = _dot(wi_about, locy)
+    cos_phi = dot_xyz(wi_about, locy)
     a, b = _theta_range(theta_r, r1, offset)
     t = (theta_i + theta_r) * F32(0.5) - offset
     away = HALF_PI - np.abs(theta_i) >= F32(0.001)

@@ -53,10 +53,9 @@ import numpy as np
 
 from . import fresnel as fr
 from . import tables
-from ..sampling import INV_PI, channel_mean
+from ..sampling import channel_mean
+from ..vec import F32, HALF, INV_PI, ONE, ZERO, dot_xyz, normalize_xyz
 
-F32 = np.float32
-ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
 SINGULAR_ALPHA2 = F32(2e-10)
 SINGULAR_ETA = F32(1e-4)
 GGX, BECKMANN = 0, 1  # the `distribution` argument of the lobe functions
@@ -71,17 +70,6 @@ class MicrofacetSample(NamedTuple):
 
 
 # ---------------------------------------------------------------- small vector helpers
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _normalize(x, y, z):
-    """Unit vector; the zero vector stays zero (Cycles' safe_divide)."""
-    length = np.sqrt(x * x + y * y + z * z)
-    inv = np.where(length > 0, ONE / np.where(length > 0, length, ONE), ZERO)
-    return x * inv, y * inv, z * inv
-
-
 def _f32(x):
     return np.asarray(x, dtype=np.float32)
 
@@ -186,7 +174,7 @@ def sample_visible_normal_beckmann(wo, alpha_x, alpha_y, u1, u2):
     Returns h, three (N,) float32 with h.z > 0."""
     ax, ay = _f32(alpha_x), _f32(alpha_y)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        vx, vy, vz = _normalize(ax * wo[0], ay * wo[1], wo[2])
+        vx, vy, vz = normalize_xyz((ax * wo[0], ay * wo[1], wo[2]))
         # Normal incidence: a 2D Gaussian of slopes.
         r = np.sqrt(-np.log(np.maximum(u1, np.finfo(np.float32).tiny)))
         phi = F32(2.0 * np.pi) * u2
@@ -226,7 +214,7 @@ def sample_visible_normal_beckmann(wo, alpha_x, alpha_y, u1, u2):
         at_normal = vz >= F32(0.99999)
         sx = np.where(at_normal, normal_x, general_x) * ax
         sy = np.where(at_normal, normal_y, general_y) * ay
-        h = _normalize(-sx, -sy, np.ones_like(sx))
+        h = normalize_xyz((-sx, -sy, np.ones_like(sx)))
     ok = np.isfinite(h[0]) & np.isfinite(h[1]) & np.isfinite(h[2])
     return tuple(np.where(ok, c, d).astype(np.float32) for c, d in zip(h, (ZERO, ZERO, ONE)))
 
@@ -256,20 +244,20 @@ def sample_visible_normal(wo, alpha_x, alpha_y, u1, u2, distribution=GGX):
     if distribution == BECKMANN:
         return sample_visible_normal_beckmann(wo, alpha_x, alpha_y, u1, u2)
     ax, ay = _f32(alpha_x), _f32(alpha_y)
-    vx, vy, vz = _normalize(ax * wo[0], ay * wo[1], wo[2])
+    vx, vy, vz = normalize_xyz((ax * wo[0], ay * wo[1], wo[2]))
     phi = F32(2.0 * np.pi) * u1
     z = (ONE - u2) * (ONE + vz) - vz
     sin_theta = np.sqrt(np.clip(ONE - z * z, ZERO, ONE))
     hx = sin_theta * np.cos(phi) + vx
     hy = sin_theta * np.sin(phi) + vy
     hz = z + vz
-    return _normalize(ax * hx, ay * hy, np.maximum(hz, ZERO))
+    return normalize_xyz((ax * hx, ay * hy, np.maximum(hz, ZERO)))
 
 
 def visible_normal_pdf(wo, h, alpha_x, alpha_y, distribution=GGX):
     """D_wo(h) = G1(wo) max(wo.h, 0) D(h) / wo.z, the density of sample_visible_normal. (N,)."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        pdf = (smith_G1(wo, alpha_x, alpha_y, distribution) * np.maximum(_dot(wo, h), ZERO)
+        pdf = (smith_G1(wo, alpha_x, alpha_y, distribution) * np.maximum(dot_xyz(wo, h), ZERO)
                * _D(distribution)(h, alpha_x, alpha_y)
                / wo[2])
     return np.where((wo[2] > 0) & np.isfinite(pdf), pdf, ZERO).astype(np.float32)
@@ -284,7 +272,7 @@ def _reflection_common(wo, h, alpha_x, alpha_y, distribution):
 def _refraction_common(wo, wi, h, alpha_x, alpha_y, eta, distribution):
     """D / wo.z |wo.h| |wi.h| / (wi.h + wo.h / eta)^2: the refraction analogue of _reflection_common,
     the Jacobian of Walter et al. 2007 written as Cycles does (eta^2 kept, see the module docstring)."""
-    cos_ho, cos_hi = _dot(wo, h), _dot(wi, h)
+    cos_ho, cos_hi = dot_xyz(wo, h), dot_xyz(wi, h)
     denom = cos_hi + cos_ho / eta
     return _D(distribution)(h, alpha_x, alpha_y) / wo[2] * np.abs(cos_ho * cos_hi) / (denom * denom)
 
@@ -308,8 +296,8 @@ def eval_reflection(wo, wi, alpha_x, alpha_y, fresnel, distribution=GGX):
     Zero below either horizon, for singular lobes, and where F = 0 in all channels (as Cycles)."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         valid = (wo[2] > 0) & (wi[2] > 0) & ~is_singular(alpha_x, alpha_y)
-        h = _normalize(wo[0] + wi[0], wo[1] + wi[1], wo[2] + wi[2])
-        cos_h = np.where(valid, np.clip(_dot(wo, h), ZERO, ONE), ONE)
+        h = normalize_xyz((wo[0] + wi[0], wo[1] + wi[1], wo[2] + wi[2]))
+        cos_h = np.where(valid, np.clip(dot_xyz(wo, h), ZERO, ONE), ONE)
         f = fresnel(cos_h)
         common = _reflection_common(wo, h, alpha_x, alpha_y, distribution)
         lam = _lambda(distribution)
@@ -325,8 +313,8 @@ def sample_reflection(wo, alpha_x, alpha_y, fresnel, u1, u2, distribution=GGX):
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         singular = is_singular(alpha_x, alpha_y) & np.ones(np.shape(u1), bool)
         h = _select(singular, (ZERO, ZERO, ONE), sample_visible_normal(wo, alpha_x, alpha_y, u1, u2, distribution))
-        cos_h = np.clip(_dot(wo, h), ZERO, ONE)
-        wi = _normalize(*(F32(2.0) * cos_h * hc - oc for hc, oc in zip(h, wo)))
+        cos_h = np.clip(dot_xyz(wo, h), ZERO, ONE)
+        wi = normalize_xyz(tuple(F32(2.0) * cos_h * hc - oc for hc, oc in zip(h, wo)))
         f = fresnel(np.where(wo[2] > 0, cos_h, ONE))
         valid = (wo[2] > 0) & (wi[2] > 0) & _nonzero(f)
         lam = _lambda(distribution)
@@ -340,7 +328,7 @@ def sample_reflection(wo, alpha_x, alpha_y, fresnel, u1, u2, distribution=GGX):
 # ---------------------------------------------------------------- refraction and glass
 def _transmission_half_vector(wo, wi, eta):
     """h = normalize(-(eta wi + wo)), Cycles' generalised half vector (it may face either way)."""
-    return _normalize(-(eta * wi[0] + wo[0]), -(eta * wi[1] + wo[1]), -(eta * wi[2] + wo[2]))
+    return normalize_xyz((-(eta * wi[0] + wo[0]), -(eta * wi[1] + wo[1]), -(eta * wi[2] + wo[2])))
 
 
 def refraction_is_physical(wo, wi, eta):
@@ -351,7 +339,7 @@ def refraction_is_physical(wo, wi, eta):
     with np.errstate(divide="ignore", invalid="ignore"):
         h = _transmission_half_vector(wo, wi, eta)
         flip = np.where(h[2] < 0, -ONE, ONE)
-        return (wo[2] > 0) & (wi[2] < 0) & (flip * _dot(wo, h) > 0) & (flip * _dot(wi, h) < 0)
+        return (wo[2] > 0) & (wi[2] < 0) & (flip * dot_xyz(wo, h) > 0) & (flip * dot_xyz(wi, h) < 0)
 
 
 def _reflect_probability(r, t):
@@ -368,8 +356,8 @@ def _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel, distribution):
         valid = (wo[2] > 0) & (wi[2] != 0) & ~is_singular(alpha_x, alpha_y)
         valid &= ~(transmit & (np.abs(eta - ONE) < SINGULAR_ETA))
         h = _select(transmit, _transmission_half_vector(wo, wi, eta),
-                    _normalize(wo[0] + wi[0], wo[1] + wi[1], wo[2] + wi[2]))
-        cos_h = np.where(valid, np.clip(np.abs(_dot(wo, h)), ZERO, ONE), ONE)
+                    normalize_xyz((wo[0] + wi[0], wo[1] + wi[1], wo[2] + wi[2])))
+        cos_h = np.where(valid, np.clip(np.abs(dot_xyz(wo, h)), ZERO, ONE), ONE)
         r, t = fresnel(cos_h, eta)
         # No refracted ray at the microfacet: T = 0 whatever the model says (refraction-only lobe).
         t = np.where((fr.refracted_cos_sq(cos_h, eta) <= 0)[None, :], ZERO, t)
@@ -389,7 +377,7 @@ def _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc, distribut
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         singular = is_singular(alpha_x, alpha_y) & np.ones(np.shape(u1), bool)
         h = _select(singular, (ZERO, ZERO, ONE), sample_visible_normal(wo, alpha_x, alpha_y, u1, u2, distribution))
-        cos_h = np.clip(_dot(wo, h), ZERO, ONE)
+        cos_h = np.clip(dot_xyz(wo, h), ZERO, ONE)
         cos_h = np.where(wo[2] > 0, cos_h, ONE)
         r, t = fresnel(cos_h, eta)
         cos_t_sq = fr.refracted_cos_sq(cos_h, eta)
@@ -399,8 +387,8 @@ def _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc, distribut
         # Refraction through h (Cycles' refract_angle): wi = (cos_h / eta - cos_t) h - wo / eta.
         cos_t = np.sqrt(np.maximum(cos_t_sq, ZERO))
         k = cos_h / eta - cos_t
-        wi_t = _normalize(*(k * hc - oc / eta for hc, oc in zip(h, wo)))
-        wi_r = _normalize(*(F32(2.0) * cos_h * hc - oc for hc, oc in zip(h, wo)))
+        wi_t = normalize_xyz(tuple(k * hc - oc / eta for hc, oc in zip(h, wo)))
+        wi_r = normalize_xyz(tuple(F32(2.0) * cos_h * hc - oc for hc, oc in zip(h, wo)))
         wi = _select(refract, wi_t, wi_r)
         valid = ((wo[2] > 0) & np.isfinite(p_reflect) & np.where(refract, wi[2] < 0, wi[2] > 0))
         delta = singular | (refract & (np.abs(eta - ONE) < SINGULAR_ETA))

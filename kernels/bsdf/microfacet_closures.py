@@ -27,9 +27,8 @@ from . import closures as lobes
 from . import fresnel as fr
 from . import microfacet as mf
 from ..sampling import channel_mean
+from ..vec import F32, ONE, ZERO
 
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
 F_ONE, F_DIELECTRIC, F_F82, F_CONDUCTOR, F_REMAP = range(5)
 GGX, BECKMANN = mf.GGX, mf.BECKMANN
 

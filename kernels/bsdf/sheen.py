@@ -28,10 +28,8 @@ import os
 
 import numpy as np
 
-from ..sampling import INV_PI, sample_uniform_disk
-
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
+from ..sampling import sample_uniform_disk
+from ..vec import F32, INV_PI, ONE, ZERO
 
 TABLE_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "sheen_ltc.npz")
 TABLE_SIZE = 32                 # cells per axis: mu = i / 31, roughness = j / 31

@@ -27,8 +27,7 @@ import os
 
 import numpy as np
 
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
+from ..vec import F32, ONE, ZERO
 
 DATA_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "microfacet_tables.npz")
 

@@ -25,11 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..sampling import local_to_world, sample_uniform_cone_precise
-
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
-HALF_PI = F32(np.pi / 2)
-INV_2PI = F32(0.5 / np.pi)
+from ..vec import F32, HALF_PI, INV_2PI, ONE, ZERO
 
 
 def toon_angles(size, smooth):

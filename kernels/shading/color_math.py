@@ -17,7 +17,7 @@ Conventions (the node program runner depends on them):
   C's truncating float->int and fmod, its NaN-blind min/max/clamp (`a > b ? a : b`). Cycles' CPU kernels
   are built with -ffp-contract=fast (fused multiply-add on AVX2) and -freciprocal-math: where that decides
   the result beyond rounding noise (a product cancelling against a sum) the fused form is reproduced
-  (`_fma`); elsewhere results agree to a few ulp.
+  (kernels.vec.fma); elsewhere results agree to a few ulp.
 - Colour-space constants (luminance weights, XYZ -> RGB, Rec.709 -> RGB) default to Blender's own OCIO
   config (scene linear = Linear Rec.709); engine/export/node_tables.color_constants() reads them from the
   config in use.
@@ -28,8 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-F32 = np.float32
-F64 = np.float64
+from ..vec import F32, PI, columns, cross_rows_fused, dot_rows, fma, length_rows, normalize_rows
 
 # ---------------------------------------------------------------- colour-space constants
 # Luminance of scene-linear RGB (Cycles' kernel_data.film.rgb_to_y): row Y of (Cycles' ACES AP0 -> XYZ D65
@@ -104,9 +103,8 @@ _CIE_XYZ = np.array([
     [0.0002, 0.0001, 0.0000], [0.0002, 0.0001, 0.0000], [0.0001, 0.0000, 0.0000],
     [0.0001, 0.0000, 0.0000], [0.0001, 0.0000, 0.0000], [0.0000, 0.0000, 0.0000]], F32)
 
-_PI = F32(np.pi)                      # M_PI_F
-_TO_RADIANS = _PI / F32(180.0)        # M_PI_F / 180.0f, folded in float32
-_TO_DEGREES = F32(180.0) / _PI
+_TO_RADIANS = PI / F32(180.0)         # M_PI_F / 180.0f, folded in float32
+_TO_DEGREES = F32(180.0) / PI
 _FLT_EPSILON = F32(np.finfo(F32).eps)
 _INT_MIN = F32(-2147483648.0)         # what x86 makes of an out-of-range float -> int cast
 
@@ -124,13 +122,6 @@ def _v(x) -> np.ndarray:
     if a.ndim == 0 or a.shape == (1,):
         return np.broadcast_to(a.reshape(1, 1), (1, 3))
     return a.reshape(1, 3) if a.ndim == 1 else a
-
-
-def _col(x: np.ndarray) -> np.ndarray:
-    """A float (or bool) array as three equal columns, to combine with (N, 3): repeated in full, since numpy
-    broadcasting (N, 1) against (N, 3) runs 3-long inner loops, some 20x slower than same-shape arrays."""
-    x = x[..., None]
-    return np.repeat(x, 3, -1) if x.size > 1 else x
 
 
 def _max(a, b):
@@ -158,12 +149,6 @@ def _safe_divide(a, b) -> np.ndarray:
     return out
 
 
-def _fma(a, b, c) -> np.ndarray:
-    """a * b + c rounded once, as the FMA Cycles' AVX2 kernels compile it to (the float32 product is exact
-    in float64; a double rounding differs from a true FMA only on exact float64 ties)."""
-    return (np.asarray(a, F64) * b + c).astype(F32)
-
-
 def _is_int(b: np.ndarray) -> np.ndarray:
     """`b == (float)(int)b` with C's truncating cast on x86 (out of range and NaN -> INT_MIN)."""
     small = np.abs(b) < F32(2147483648.0)
@@ -172,21 +157,6 @@ def _is_int(b: np.ndarray) -> np.ndarray:
 
 def _fract(x):
     return x - np.floor(x)
-
-
-def _dot(a, b) -> np.ndarray:
-    """Cycles' dot(): SSE4 dpps, products and sums each rounded, ((x + y) + z)."""
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
-
-
-def _len(a) -> np.ndarray:
-    return np.sqrt(_dot(a, a))
-
-
-def _safe_normalize(a) -> np.ndarray:
-    t = _len(a)
-    inv = _safe_divide(F32(1.0), t)
-    return np.where(_col(t != 0), a * _col(inv), a)
 
 
 def _interp(a, b, t):
@@ -213,7 +183,7 @@ def _wrapf(value, vmax, vmin):
     """Cycles' wrapf (Godot's): value - range * floor((value - min) / range); min where range == 0."""
     rng = vmax - vmin
     q = np.floor(_safe_divide(value - vmin, rng))
-    return np.where(rng != 0, _fma(-rng, q, value), vmin)
+    return np.where(rng != 0, fma(-rng, q, value), vmin)
 
 
 def _pingpong(a, b):
@@ -226,7 +196,7 @@ def _smooth_min(a, b, k):
     safe_k = np.where(k != 0, k, F32(1.0))
     h = np.fmax(k - np.abs(a - b), F32(0.0)) / safe_k
     m = np.fmin(a, b)
-    return np.where(k != 0, _fma(-(h * h * h * k), F32(1.0 / 6.0), m), m)
+    return np.where(k != 0, fma(-(h * h * h * k), F32(1.0 / 6.0), m), m)
 
 
 def _sign(a):
@@ -242,7 +212,7 @@ _MATH = {
     "SUBTRACT": lambda a, b, c: a - b,
     "MULTIPLY": lambda a, b, c: a * b,
     "DIVIDE": lambda a, b, c: _safe_divide(a, b),
-    "MULTIPLY_ADD": lambda a, b, c: _fma(a, b, c),
+    "MULTIPLY_ADD": lambda a, b, c: fma(a, b, c),
     "POWER": lambda a, b, c: _pow(a, b),
     "LOGARITHM": lambda a, b, c: _log(a, b),
     "SQRT": lambda a, b, c: np.sqrt(_max(a, F32(0.0))),
@@ -264,7 +234,7 @@ _MATH = {
     "TRUNC": lambda a, b, c: _trunc(a),
     "FRACT": lambda a, b, c: _fract(a),
     "MODULO": lambda a, b, c: np.where(b != 0, np.fmod(a, np.where(b != 0, b, F32(1.0))), F32(0.0)),
-    "FLOORED_MODULO": lambda a, b, c: np.where(b != 0, _fma(-np.floor(_safe_divide(a, b)), b, a), F32(0.0)),
+    "FLOORED_MODULO": lambda a, b, c: np.where(b != 0, fma(-np.floor(_safe_divide(a, b)), b, a), F32(0.0)),
     "WRAP": lambda a, b, c: _wrapf(a, b, c),
     "SNAP": lambda a, b, c: np.floor(_safe_divide(a, b)) * b,
     "PINGPONG": lambda a, b, c: _pingpong(a, b),
@@ -297,40 +267,33 @@ def math(value=0.5, value_001=0.5, value_002=0.5, *, operation: str = "ADD", use
 
 
 # ---------------------------------------------------------------- Vector Math
-def _cross(a, b):
-    """Cycles' SSE cross(): msub, i.e. fma(a.y, b.z, -(a.z * b.y)) per component on AVX2."""
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([_fma(ay, bz, -(az * by)), _fma(az, bx, -(ax * bz)), _fma(ax, by, -(ay * bx))], -1)
-
-
 def _project(a, b):
-    len2 = _dot(b, b)
-    return np.where(_col(len2 != 0), _col(_safe_divide(_dot(a, b), len2)) * b, F32(0.0))
+    len2 = dot_rows(b, b)
+    return np.where(columns(len2 != 0), columns(_safe_divide(dot_rows(a, b), len2)) * b, F32(0.0))
 
 
 def _reflect(a, b):
-    n = _safe_normalize(b)
-    return a - F32(2.0) * n * _col(_dot(a, n))
+    n = normalize_rows(b)
+    return a - F32(2.0) * n * columns(dot_rows(a, n))
 
 
 def _refract(a, b, eta):
-    n = _safe_normalize(b)
-    d = _dot(n, a)
+    n = normalize_rows(b)
+    d = dot_rows(n, a)
     k = F32(1.0) - eta * eta * (F32(1.0) - d * d)
-    r = _col(eta) * a - _col(eta * d + np.sqrt(_max(k, F32(0.0)))) * n
-    return np.where(_col(k < 0), F32(0.0), r)
+    r = columns(eta) * a - columns(eta * d + np.sqrt(_max(k, F32(0.0)))) * n
+    return np.where(columns(k < 0), F32(0.0), r)
 
 
 def _vfmod(a, b):
     """Cycles' SSE fmod(): a - trunc(a / b) * b (fused), 0 where b == 0."""
     q = np.trunc(_safe_divide(a, b))
-    return np.where(b != 0, _fma(-q, b, a), F32(0.0))
+    return np.where(b != 0, fma(-q, b, a), F32(0.0))
 
 
 def _vfloored_mod(a, b):
     q = np.floor(_safe_divide(a, b))
-    return np.where(b != 0, _fma(-q, b, a), F32(0.0))
+    return np.where(b != 0, fma(-q, b, a), F32(0.0))
 
 
 _VECTOR = {
@@ -338,14 +301,14 @@ _VECTOR = {
     "SUBTRACT": lambda a, b, c, s: a - b,
     "MULTIPLY": lambda a, b, c, s: a * b,
     "DIVIDE": lambda a, b, c, s: _safe_divide(a, b),
-    "MULTIPLY_ADD": lambda a, b, c, s: _fma(a, b, c),
-    "CROSS_PRODUCT": lambda a, b, c, s: _cross(a, b),
+    "MULTIPLY_ADD": lambda a, b, c, s: fma(a, b, c),
+    "CROSS_PRODUCT": lambda a, b, c, s: cross_rows_fused(a, b),
     "PROJECT": lambda a, b, c, s: _project(a, b),
     "REFLECT": lambda a, b, c, s: _reflect(a, b),
     "REFRACT": lambda a, b, c, s: _refract(a, b, s),
-    "FACEFORWARD": lambda a, b, c, s: np.where(_col(_dot(c, b) < 0), a, -a),
-    "SCALE": lambda a, b, c, s: a * _col(s),
-    "NORMALIZE": lambda a, b, c, s: _safe_normalize(a),
+    "FACEFORWARD": lambda a, b, c, s: np.where(columns(dot_rows(c, b) < 0), a, -a),
+    "SCALE": lambda a, b, c, s: a * columns(s),
+    "NORMALIZE": lambda a, b, c, s: normalize_rows(a),
     "ABSOLUTE": lambda a, b, c, s: np.abs(a),
     "POWER": lambda a, b, c, s: _pow(a, b),
     "SIGN": lambda a, b, c, s: _sign(a),
@@ -363,9 +326,9 @@ _VECTOR = {
     "TANGENT": lambda a, b, c, s: np.tan(a),
 }
 _VECTOR_VALUE = {
-    "DOT_PRODUCT": lambda a, b: _dot(a, b),
-    "DISTANCE": lambda a, b: _len(a - b),
-    "LENGTH": lambda a, b: _len(a),
+    "DOT_PRODUCT": lambda a, b: dot_rows(a, b),
+    "DISTANCE": lambda a, b: length_rows(a - b),
+    "LENGTH": lambda a, b: length_rows(a),
 }
 VECTOR_MATH_OPERATIONS = tuple(_VECTOR) + tuple(_VECTOR_VALUE)
 # Operations newer than Blender 5.0, by the release that added them (Cycles' svm/math_util.h there).
@@ -482,7 +445,7 @@ def _blend_hue(t, c1, c2):
     hsv2 = rgb_to_hsv(c2)
     hsv = rgb_to_hsv(c1)
     hsv = np.stack(np.broadcast_arrays(hsv2[..., 0], hsv[..., 1], hsv[..., 2]), -1)
-    return np.where(_col(hsv2[..., 1] != 0), _interp(c1, hsv_to_rgb(hsv), t), c1)
+    return np.where(columns(hsv2[..., 1] != 0), _interp(c1, hsv_to_rgb(hsv), t), c1)
 
 
 def _blend_saturation(t, tm, c1, c2):
@@ -490,7 +453,7 @@ def _blend_saturation(t, tm, c1, c2):
     hsv2 = rgb_to_hsv(c2)
     s = tm[..., 0] * hsv[..., 1] + t[..., 0] * hsv2[..., 1]
     out = hsv_to_rgb(np.stack(np.broadcast_arrays(hsv[..., 0], s, hsv[..., 2]), -1))
-    return np.where(_col(hsv[..., 1] != 0), out, c1)
+    return np.where(columns(hsv[..., 1] != 0), out, c1)
 
 
 def _blend_value(t, tm, c1, c2):
@@ -504,7 +467,7 @@ def _blend_color(t, c1, c2):
     hsv2 = rgb_to_hsv(c2)
     hsv = rgb_to_hsv(c1)
     hsv = np.stack(np.broadcast_arrays(hsv2[..., 0], hsv2[..., 1], hsv[..., 2]), -1)
-    return np.where(_col(hsv2[..., 1] != 0), _interp(c1, hsv_to_rgb(hsv), t), c1)
+    return np.where(columns(hsv2[..., 1] != 0), _interp(c1, hsv_to_rgb(hsv), t), c1)
 
 
 def _blend_overlay(t, tm, c1, c2):
@@ -519,7 +482,7 @@ def _blend_soft_light(t, tm, c1, c2):
     return tm * c1 + t * ((one - c1) * c2 * c1 + c1 * scr)
 
 
-_BLEND = {  # blend_type -> f(t, tm, c1, c2); t and tm are the factor and 1 - factor as _col columns
+_BLEND = {  # blend_type -> f(t, tm, c1, c2); t and tm are the factor and 1 - factor as columns()
     "MIX": lambda t, tm, a, b: _interp(a, b, t),
     "ADD": lambda t, tm, a, b: _interp(a, a + b, t),
     "MULTIPLY": lambda t, tm, a, b: _interp(a, a * b, t),
@@ -549,7 +512,7 @@ def mix_color(factor, a, b, *, blend_type: str = "MIX", clamp_factor: bool = Tru
     t = _f(factor)
     if clamp_factor:
         t = _saturate(t)
-    t = _col(t)
+    t = columns(t)
     c1, c2 = _v(a), _v(b)
     with np.errstate(all="ignore"):
         out = _BLEND[blend_type](t, F32(1.0) - t, c1, c2)
@@ -570,7 +533,7 @@ def mix(factor=0.5, a=0.0, b=0.0, *, data_type: str = "FLOAT", factor_mode: str 
         return {"Result": mix_color(factor, a, b, blend_type=blend_type, clamp_factor=clamp_factor,
                                     clamp_result=clamp_result)}
     if data_type == "VECTOR":
-        t = _v(factor) if factor_mode == "NON_UNIFORM" else _col(_f(factor))
+        t = _v(factor) if factor_mode == "NON_UNIFORM" else columns(_f(factor))
         a, b = _v(a), _v(b)
     else:
         t, a, b = _f(factor), _f(a), _f(b)
@@ -683,7 +646,7 @@ def hue_saturation(hue=0.5, saturation=1.0, value=1.0, fac=1.0, color=0.8) -> di
     """Hue/Saturation/Value node (`svm_node_hsv`): {"Color": (N, 3)}: hue shifted by Hue - 1/2 and wrapped,
     saturation scaled and clamped to [0, 1], value scaled, mixed with the input by Fac, negatives -> 0."""
     c = _v(color)
-    fac = _col(_f(fac))
+    fac = columns(_f(fac))
     with np.errstate(all="ignore"):
         hsv = rgb_to_hsv(c)
         h = _fract(hsv[..., 0] + _f(hue) + F32(0.5))
@@ -698,15 +661,15 @@ def bright_contrast(color=1.0, bright=0.0, contrast=0.0) -> dict:
     """Bright/Contrast node: {"Color": max((1 + contrast) c + bright - contrast / 2, 0)}."""
     c = _v(color)
     contrast = _f(contrast)
-    a = _col(F32(1.0) + contrast)
-    b = _col(_f(bright) - contrast * F32(0.5))
-    return {"Color": _max(_fma(a, c, b), F32(0.0))}
+    a = columns(F32(1.0) + contrast)
+    b = columns(_f(bright) - contrast * F32(0.5))
+    return {"Color": _max(fma(a, c, b), F32(0.0))}
 
 
 def gamma(color=1.0, gamma=1.0) -> dict:  # noqa: A002
     """Gamma node: {"Color": c ** gamma for positive channels (others kept); all 1 when gamma == 0}."""
     c = _v(color)
-    g = _col(_f(gamma))
+    g = columns(_f(gamma))
     with np.errstate(all="ignore"):
         out = np.where(c > 0, np.power(np.where(c > 0, c, F32(1.0)), g), c)
     return {"Color": np.where(g == 0, F32(1.0), out).astype(F32, copy=False)}
@@ -715,13 +678,13 @@ def gamma(color=1.0, gamma=1.0) -> dict:  # noqa: A002
 def invert(fac=1.0, color=0.0) -> dict:
     """Invert node: {"Color": fac (1 - c) + (1 - fac) c}."""
     c = _v(color)
-    f = _col(_f(fac))
+    f = columns(_f(fac))
     return {"Color": (f * (F32(1.0) - c) + (F32(1.0) - f) * c).astype(F32, copy=False)}
 
 
 def color_to_float(color, rgb_to_y=RGB_TO_Y) -> np.ndarray:
     """Colour -> float as Cycles converts on a link and RGB to BW computes: luminance, (N,)."""
-    return _dot(_v(color), np.asarray(rgb_to_y, F32))
+    return dot_rows(_v(color), np.asarray(rgb_to_y, F32))
 
 
 def vector_to_float(vector) -> np.ndarray:
@@ -743,14 +706,14 @@ def blackbody(temperature=6500.0, *, rec709_to_rgb=REC709_TO_RGB) -> dict:
         i = np.searchsorted(_BLACKBODY_EDGES, t, side="right")
         r, g, b = _BLACKBODY_R[i], _BLACKBODY_G[i], _BLACKBODY_B[i]
         t_inv = _safe_divide(F32(1.0), t)
-        red = _fma(r[..., 0], t_inv, r[..., 1] * t) + r[..., 2]
-        green = _fma(g[..., 0], t_inv, g[..., 1] * t) + g[..., 2]
-        blue = _fma(_fma(_fma(b[..., 0], t, b[..., 1]), t, b[..., 2]), t, b[..., 3])
+        red = fma(r[..., 0], t_inv, r[..., 1] * t) + r[..., 2]
+        green = fma(g[..., 0], t_inv, g[..., 1] * t) + g[..., 2]
+        blue = fma(fma(fma(b[..., 0], t, b[..., 1]), t, b[..., 2]), t, b[..., 3])
         rgb = np.stack([red, green, blue], -1)
-        rgb = np.where(_col(t >= 12000), _BLACKBODY_HOT, np.where(_col(t < 800), _BLACKBODY_COLD, rgb))
+        rgb = np.where(columns(t >= 12000), _BLACKBODY_HOT, np.where(columns(t < 800), _BLACKBODY_COLD, rgb))
         if rec709_to_rgb is not None:
             m = np.asarray(rec709_to_rgb, F32)
-            rgb = np.stack([_dot(rgb, m[k]) for k in range(3)], -1)
+            rgb = np.stack([dot_rows(rgb, m[k]) for k in range(3)], -1)
     return {"Color": _max(rgb, F32(0.0)).astype(F32, copy=False)}
 
 
@@ -765,11 +728,11 @@ def wavelength(wavelength=500.0, *, xyz_to_rgb=XYZ_TO_RGB) -> dict:  # noqa: A00
         i = np.where(small, np.trunc(np.where(small, ii, F32(0.0))), _INT_MIN)
         valid = (i >= 0) & (i < 80)
         k = np.where(valid, i, F32(0.0)).astype(np.intp)
-        frac = _col(ii - np.where(valid, i, F32(0.0)))
+        frac = columns(ii - np.where(valid, i, F32(0.0)))
         xyz = _interp(_CIE_XYZ[k], _CIE_XYZ[k + 1], frac)
         m = np.asarray(xyz_to_rgb, F32)
-        rgb = np.stack([_dot(xyz, m[c]) for c in range(3)], -1) * F32(1.0 / 2.52)
-        rgb = np.where(_col(valid), rgb, F32(0.0))
+        rgb = np.stack([dot_rows(xyz, m[c]) for c in range(3)], -1) * F32(1.0 / 2.52)
+        rgb = np.where(columns(valid), rgb, F32(0.0))
     return {"Color": _max(rgb, F32(0.0)).astype(F32, copy=False)}
 
 
@@ -790,14 +753,14 @@ def _rotate(m: np.ndarray, v: np.ndarray) -> np.ndarray:
     for k in range(3):
         row = m[..., k, :]
         acc = v[..., 2] * row[..., 2]
-        acc = _fma(v[..., 1], row[..., 1], acc)
-        out.append(_fma(v[..., 0], row[..., 0], acc))
+        acc = fma(v[..., 1], row[..., 1], acc)
+        out.append(fma(v[..., 0], row[..., 0], acc))
     return np.stack(out, -1)
 
 
 def _rotate_transposed(m: np.ndarray, v: np.ndarray) -> np.ndarray:
     """transform_direction_transposed: dot products with the columns."""
-    return np.stack([_dot(m[..., :, k], v) for k in range(3)], -1)
+    return np.stack([dot_rows(m[..., :, k], v) for k in range(3)], -1)
 
 
 def mapping(vector=0.0, location=0.0, rotation=0.0, scale=1.0, *, vector_type: str = "POINT") -> dict:
@@ -813,7 +776,7 @@ def mapping(vector=0.0, location=0.0, rotation=0.0, scale=1.0, *, vector_type: s
         elif vector_type == "VECTOR":
             out = _rotate(m, v * s)
         elif vector_type == "NORMAL":
-            out = _safe_normalize(_rotate(m, _safe_divide(v, s)))
+            out = normalize_rows(_rotate(m, _safe_divide(v, s)))
         else:
             out = np.zeros(np.broadcast_shapes(v.shape, loc.shape, rot.shape, s.shape), F32)
     return {"Vector": out.astype(F32, copy=False)}
@@ -850,11 +813,11 @@ def vector_rotate(vector=0.0, center=0.0, axis=(0.0, 0.0, 1.0), angle=0.0, rotat
                 length = np.ones(1, F32)
             else:
                 ax = _v(axis)
-                length = _len(ax)
+                length = length_rows(ax)
             a = _f(angle)
             a = -a if invert else a
-            unit = _safe_divide(ax, _col(length))
-            out = np.where(_col(length != 0), _rotate_around_axis(v - ctr, unit, _col(a)[..., 0]) + ctr, v)
+            unit = _safe_divide(ax, columns(length))
+            out = np.where(columns(length != 0), _rotate_around_axis(v - ctr, unit, columns(a)[..., 0]) + ctr, v)
     return {"Vector": out.astype(F32, copy=False)}
 
 
@@ -898,7 +861,7 @@ def _curves(fac, v, table, min_x, max_x, extrapolate):
     with np.errstate(all="ignore"):
         rel = (v - F32(min_x)) / rng
         out = np.stack([ramp_lookup(table[:, k], rel[..., k], True, extrapolate) for k in range(3)], -1)
-        fac = _col(_f(fac))
+        fac = columns(_f(fac))
         return ((F32(1.0) - fac) * v + fac * out).astype(F32, copy=False)
 
 

@@ -22,13 +22,10 @@ import itertools
 
 import numpy as np
 
+from ..vec import F32, HALF, ONE, PI, TWO_PI, ZERO
 from .hash import hash_float3_to_float, hash_float3_to_float2, hash_float4_to_float, \
     hash_float4_to_float2, hash_float4_to_float3
 
-F32 = np.float32
-ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
-PI = F32(np.pi)
-TWO_PI = F32(2.0) * PI
 IMPULSES_COUNT = 8
 MIN_FREQUENCY = F32(0.001)
 # 6 standard deviations of the noise: sqrt(impulses * E[w^2] (= 1/2) * integral of the squared kernel)

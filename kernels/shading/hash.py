@@ -22,7 +22,7 @@ import threading
 
 import numpy as np
 
-U32, I32, F32 = np.uint32, np.int32, np.float32
+from ..vec import F32, I32, U32
 
 _LOOKUP3_SEED = 0xDEADBEEF + 13     # a = b = c = seed + (words << 2)
 _UINT_TO_UNIT = F32(2.0 ** -32)     # Cycles: 1.0f / (float)0xFFFFFFFFu, which rounds to 2^-32

@@ -20,11 +20,10 @@ from ..bsdf.sheen import sheen_albedo
 from ..bsdf.toon import toon_angles
 from ..paths import DIFFUSE as DIFFUSE_LABEL
 from ..scene import Closure, NormalMap, Param, Tangent
+from ..vec import F32, ONE, TWO_PI, ZERO, normalize_xyz
 from . import normals, ops
 from .program import HitInputs
 
-F32 = np.float32
-ZERO, ONE = F32(0.0), F32(1.0)
 CUTOFF = F32(1e-5)  # Cycles' CLOSURE_WEIGHT_CUTOFF: lighter layers are not made
 
 WHITE, GREY = (1.0, 1.0, 1.0), (0.8, 0.8, 0.8)
@@ -127,7 +126,7 @@ class Context:
         """A Normal or Coat Normal input at the hits: a normal map's normal, or None when unlinked."""
         spec = closure.input(name)
         if isinstance(spec, Param) and spec.link is not None:  # a program's normal (a Bump, a Normal Map)
-            return normals.safe_normalize(tuple(self.shading.param(spec, self, 3)))
+            return normalize_xyz(tuple(self.shading.param(spec, self, 3)))
         if not isinstance(spec, NormalMap):
             return None
         color = self.shading.param(spec.color, self, 3)
@@ -163,7 +162,7 @@ class Context:
         made when the closure is anisotropic). None: no tangent (the closure takes an arbitrary one)."""
         spec = closure.input("Tangent")
         if isinstance(spec, Param):  # a program's vector (a radial Tangent node, ...)
-            t = normals.safe_normalize(tuple(self.shading.param(spec, self, 3)))
+            t = normalize_xyz(tuple(self.shading.param(spec, self, 3)))
         elif isinstance(spec, Tangent):
             if "uv_tangent" not in self._shared:
                 self._shared["uv_tangent"] = normals.uv_tangent(self._frame(), self.hit_ns)
@@ -180,7 +179,7 @@ class Context:
             return None
         angle = 0.0 if rotation is None else self.input(closure, rotation)
         if np.any(angle != 0):
-            t = normals.rotate_about(t, axis, F32(2.0 * np.pi) * angle)
+            t = normals.rotate_about(t, axis, TWO_PI * angle)
         return t
 
     def _frame(self):
@@ -342,10 +341,10 @@ def _hair(c, ctx, w, b):
         if given is None:
             edge = ctx.hit.edges(ctx.idx)[1]
             sign = np.where(ctx.take(ctx.hit.backfacing), F32(-1.0), ONE)
-            tangent = normals.safe_normalize(tuple(edge[:, k] * sign for k in range(3)))
+            tangent = normalize_xyz(tuple(edge[:, k] * sign for k in range(3)))
             offset = ZERO
         else:
-            tangent, offset = normals.safe_normalize(given), -ctx.input(c, "Offset")
+            tangent, offset = normalize_xyz(given), -ctx.input(c, "Offset")
         transmission = c.option("component", "Reflection") == "Transmission"
         b.add(lobes.HAIR_TRANSMISSION if transmission else lobes.HAIR_REFLECTION, ctx.idx, ctx.input(c, "Color") * w,
               normal=ctx.specular().normal_arg, hair_t=tangent, offset=offset,
@@ -459,7 +458,7 @@ def _principled(c, ctx, w, b):
         sheen = ctx
         if coat is not ctx:
             t = np.clip(coat_w, 0.0, 1.0)
-            sheen = ctx.with_normal(normals.safe_normalize(tuple(n + (m - n) * t for n, m in zip(ctx.ns, coat.ns))))
+            sheen = ctx.with_normal(normalize_xyz(tuple(n + (m - n) * t for n, m in zip(ctx.ns, coat.ns))))
         rough = np.clip(get("Sheen Roughness")[has], 0.0, 1.0)
         sheen_weight = sheen_w[has] * np.maximum(np.take(get("Sheen Tint"), has, axis=1), ZERO) * \
             np.take(weight, has, axis=1)

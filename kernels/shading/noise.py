@@ -31,10 +31,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..vec import F32, HALF, HALF_PI, I32, INV_2PI, ONE, U32, ZERO, fma
 from . import hash as H
-
-F32, I32, U32 = np.float32, np.int32, np.uint32
-ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
 
 NOISE_SCALE = {1: F32(0.25), 2: F32(0.6616), 3: F32(0.9820), 4: F32(0.8344)}  # OSL's, to about [-1, 1]
 WRAP_PERIOD = F32(100000.0)       # Perlin repeats every 1e5 per axis, for precision
@@ -69,15 +67,6 @@ def _unfused() -> bool:
 
 
 # ---- Perlin ---------------------------------------------------------------------------------------
-
-def fma(a, b, c):
-    """a * b + c rounded once to float32, as a fused multiply-add. The float32 product is exact in
-    float64; rounding the float64 sum and then to float32 differs from one rounding only when the first
-    lands exactly on a float32 halfway point (roughly one case in 2^28)."""
-    r = np.multiply(a, b, dtype=np.float64)
-    r += c
-    return r.astype(F32)
-
 
 def _negate_if_bit(value, h, bit: int):
     """value, negated (sign bit flipped, in place) where bit `bit` of the uint32 hash h is set."""
@@ -733,8 +722,6 @@ def white_noise_texture(vector, w=0.0, *, dimensions="3D", outputs=("Value", "Co
 
 _RING_AXES = {"X": (1, 2), "Y": (0, 2), "Z": (0, 1), "SPHERICAL": (0, 1, 2)}
 _BAND_AXIS = {"X": 0, "Y": 1, "Z": 2}
-INV_TWO_PI = ONE / F32(2.0 * np.pi)      # 1 / M_2PI_F
-HALF_PI = F32(0.5 * np.pi)
 
 
 def _sinf(x):
@@ -768,7 +755,7 @@ def wave(vector, scale, distortion, detail, detail_scale, detail_roughness, phas
         n = fma(distortion, f * F32(2.0) - ONE, n)
     if wave_profile == "SIN":
         return HALF + HALF * _sinf(n - HALF_PI)
-    n *= INV_TWO_PI
+    n *= INV_2PI
     if wave_profile == "SAW":
         return n - np.floor(n)
     if wave_profile == "TRI":

@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-F32 = np.float32
-ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
+from ..vec import F32, HALF, ONE, ZERO, cross_xyz, dot_xyz, normalize_xyz
 
 
 def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfacing: np.ndarray, frame,
@@ -38,19 +37,19 @@ def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfaci
         t, sign, n = frame
         cx, cy = c[0] * strength, c[1] * strength
         cz = ONE + (c[2] - ONE) * np.clip(strength, 0.0, 1.0)
-        b = _scale(cross(n, t), sign)
-        out = safe_normalize(tuple(cx * t[k] + cy * b[k] + cz * n[k] for k in range(3)))
+        b = _scale(cross_xyz(n, t), sign)
+        out = normalize_xyz(tuple(cx * t[k] + cy * b[k] + cz * n[k] for k in range(3)))
         out = _flip(out, backfacing)
     else:
         if space == "BLENDER_WORLD":  # Blender's convention: y and z point the other way
             c = np.stack([c[0], -c[1], -c[2]])
-        out = _flip(safe_normalize(tuple(c)), backfacing)
+        out = _flip(normalize_xyz(tuple(c)), backfacing)
         weak = strength != ONE
         if weak.any():
             s = np.maximum(strength, ZERO)
-            blended = safe_normalize(tuple(ns[k] + (out[k] - ns[k]) * s for k in range(3)))
+            blended = normalize_xyz(tuple(ns[k] + (out[k] - ns[k]) * s for k in range(3)))
             out = tuple(np.where(weak, blended[k], out[k]) for k in range(3))
-    length2 = dot(out, out)
+    length2 = dot_xyz(out, out)
     bad = ~(np.isfinite(length2) & (length2 > ZERO))
     if bad.any():
         out = tuple(np.where(bad, ns[k], out[k]) for k in range(3))
@@ -65,20 +64,20 @@ def uv_tangent(frame, ns):
         return None
     t = frame[0]
     with np.errstate(invalid="ignore", divide="ignore"):
-        side = cross(t, ns)
-        length = np.sqrt(dot(side, side))
+        side = cross_xyz(t, ns)
+        length = np.sqrt(dot_xyz(side, side))
         side = tuple(np.where(length > F32(1e-12), c / length, np.float32(np.nan)) for c in side)
-    return tuple(np.asarray(c, F32) for c in cross(ns, side))
+    return tuple(np.asarray(c, F32) for c in cross_xyz(ns, side))
 
 
 def valid_specular_normal(ng, wo, n):
     """Cycles' ensure_valid_specular_reflection: where the mirror of wo about n falls below
     min(0.9 ng.wo, 0.01) over the geometric normal ng, n tilted toward ng just enough to lift it there.
     ng faces the viewer (wo . ng >= 0); all unit vectors."""
-    iz = dot(wo, ng)
+    iz = dot_xyz(wo, ng)
     threshold = np.minimum(F32(0.9) * iz, F32(0.01))
-    i_n = dot(wo, n)
-    r_z = F32(2.0) * i_n * dot(n, ng) - iz
+    i_n = dot_xyz(wo, n)
+    r_z = F32(2.0) * i_n * dot_xyz(n, ng) - iz
     low = np.flatnonzero(r_z < threshold)
     if not len(low):
         return n
@@ -87,13 +86,13 @@ def valid_specular_normal(ng, wo, n):
     m = tuple(c[low] for c in n)
     iz, t = iz[low], threshold[low]
     # X: n's direction within the tangent plane of ng (n itself if n is along ng).
-    d = dot(m, g)
+    d = dot_xyz(m, g)
     x = tuple(m[k] - d * g[k] for k in range(3))
-    length = np.sqrt(dot(x, x))
+    length = np.sqrt(dot_xyz(x, x))
     ok = length > ZERO
     inv = np.where(ok, ONE / np.where(ok, length, ONE), ZERO)
     x = tuple(np.where(ok, x[k] * inv, m[k]) for k in range(3))
-    ix = dot(w, x)
+    ix = dot_xyz(w, x)
     a = ix * ix + iz * iz
     b = F32(2.0) * (a + iz * t)
     c = np.square(t + iz)
@@ -112,25 +111,9 @@ def valid_specular_normal(ng, wo, n):
 def rotate_about(v, axis, angle: np.ndarray):
     """v rotated by angle (radians, (n,)) about the unit axis, right-handed (Rodrigues)."""
     cos, sin = np.cos(angle).astype(F32), np.sin(angle).astype(F32)
-    along = dot(axis, v) * (ONE - cos)
-    across = cross(axis, v)
+    along = dot_xyz(axis, v) * (ONE - cos)
+    across = cross_xyz(axis, v)
     return tuple((cos * v[k] + along * axis[k] + sin * across[k]).astype(F32) for k in range(3))
-
-
-def safe_normalize(v):
-    """v / |v|, zero where |v| is zero (Cycles' safe_normalize)."""
-    length = np.sqrt(dot(v, v))
-    ok = length > ZERO
-    inv = np.where(ok, ONE / np.where(ok, length, ONE), ZERO)
-    return tuple(c * inv for c in v)
-
-
-def dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 def _scale(v, s):

@@ -15,7 +15,7 @@ from ..paths import DIFFUSE, GLOSSY, REFLECT, SINGULAR, TRANSMIT
 from ..scene import OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TEXSPACE_LOC, \
     OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR
 from ..textures import srgb_to_linear
-from ..vec import matmul
+from ..vec import F32, HALF, INV_2PI, INV_PI, ONE, ZERO, dot_rows_einsum, matmul, normalize_rows_einsum
 from . import color_math as cm
 from . import gabor as gb
 from . import noise as ns
@@ -25,24 +25,11 @@ from .program import make_orthonormals
 from . import sky as sk
 from . import voronoi as vr
 
-F32 = np.float32
-ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
-
-
 
 def full(x, n: int, channels: int = 1) -> np.ndarray:
     """An input as a full (n,) or (n, 3) float32 array (constants broadcast, not copied)."""
     a = np.asarray(x, F32)
     return np.broadcast_to(a, (n,) if channels == 1 else (n, 3))
-
-
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
-
-
-def _normalize(v):
-    length = np.sqrt(_dot(v, v))
-    return v / np.where(length > 0, length, ONE)[:, None]
 
 
 # ---------------------------------------------------------------- geometry and coordinates
@@ -74,7 +61,7 @@ def _texture_space(hits, local: np.ndarray) -> np.ndarray:
 def object_normal(hits, n: np.ndarray) -> np.ndarray:
     """World normals into object space (Cycles' object_inverse_normal_transform): M^T n, normalized."""
     m = hits.objects()[:, OBJ_WORLD_LINEAR:OBJ_WORLD_LINEAR + 9].reshape(-1, 3, 3)
-    return _normalize(np.einsum("nji,nj->ni", m, n))
+    return normalize_rows_einsum(np.einsum("nji,nj->ni", m, n))
 
 
 def camera_point(hits, p: np.ndarray) -> np.ndarray:
@@ -117,7 +104,7 @@ def to_world(hits, v: np.ndarray, kind: str) -> np.ndarray:
     """Object -> world space (Cycles' object_*_transform)."""
     if kind == "NORMAL":  # by the inverse transpose: (object_from_world)^T n
         a = _object_linear(hits, OBJ_FROM_WORLD).reshape(-1, 3, 4)[:, :, :3]
-        return _normalize(np.einsum("nji,nj->ni", a, v)).astype(F32)
+        return normalize_rows_einsum(np.einsum("nji,nj->ni", a, v)).astype(F32)
     m = _object_linear(hits, OBJ_WORLD_LINEAR).reshape(-1, 3, 3)
     out = np.einsum("nij,nj->ni", m, v)
     if kind == "POINT":
@@ -130,14 +117,14 @@ def camera_from_world(hits, v: np.ndarray, kind: str) -> np.ndarray:
     if kind == "POINT":
         return camera_point(hits, v)
     out = matmul(v, hits.scene.camera_rotation) * _FLIP_Z
-    return _normalize(out) if kind == "NORMAL" else out.astype(F32)
+    return normalize_rows_einsum(out) if kind == "NORMAL" else out.astype(F32)
 
 
 def world_from_camera(hits, v: np.ndarray, kind: str) -> np.ndarray:
     out = matmul(v * _FLIP_Z, hits.scene.camera_rotation.T)
     if kind == "POINT":
         return (out + hits.scene.camera_eye).astype(F32)
-    return _normalize(out) if kind == "NORMAL" else out.astype(F32)
+    return normalize_rows_einsum(out) if kind == "NORMAL" else out.astype(F32)
 
 
 def vector_transform(hits, inputs, op):
@@ -165,7 +152,7 @@ def normal_node(hits, inputs, op):
     """The Normal node: its own direction (normalized) and the dot product with the input normal."""
     direction = np.asarray(op.option("direction", (0.0, 0.0, 1.0)), F32)
     direction = direction / max(float(np.linalg.norm(direction)), 1e-30)
-    normal = _normalize(np.array(full(inputs["Normal"], hits.n, 3), F32))
+    normal = normalize_rows_einsum(np.array(full(inputs["Normal"], hits.n, 3), F32))
     return {"Normal": np.broadcast_to(direction, (hits.n, 3)), "Dot": matmul(normal, direction).astype(F32)}
 
 
@@ -173,7 +160,7 @@ def camera_data(hits, inputs, op):
     """The Camera Data node: the shading point in Cycles' camera space (View Vector normalized, its z as
     View Z Depth, its length as View Distance)."""
     c = camera_point(hits, hits.P)
-    distance = np.sqrt(_dot(c, c))
+    distance = np.sqrt(dot_rows_einsum(c, c))
     return {"View Vector": c / np.where(distance > 0, distance, ONE)[:, None], "View Z Depth": c[:, 2],
             "View Distance": distance.astype(F32)}
 
@@ -188,15 +175,16 @@ def wireframe(hits, inputs, op):
         a, b = make_orthonormals(hits.Ng)
         wi, dp = hits.I, hits.dp[:, None]
         across = [d * dp for d in (a, b)]
-        across = [d - _dot(d, wi)[:, None] * wi for d in across]
-        width = F32(0.5) * (np.sqrt(_dot(across[0], across[0])) + np.sqrt(_dot(across[1], across[1])))
+        across = [d - dot_rows_einsum(d, wi)[:, None] * wi for d in across]
+        width = F32(0.5) * (np.sqrt(dot_rows_einsum(across[0], across[0]))
+                            + np.sqrt(dot_rows_einsum(across[1], across[1])))
     width = (width * HALF * size) ** 2
     corners = hits.hit.corners(hits.idx)
     near = np.zeros(n, bool)
     for i in range(3):
         edge = corners[i] - corners[i - 1]
         crs = np.cross(edge, hits.P - corners[i])
-        near |= _dot(crs, crs) < _dot(edge, edge) * width
+        near |= dot_rows_einsum(crs, crs) < dot_rows_einsum(edge, edge) * width
     return {"Fac": near.astype(F32)}
 
 
@@ -215,7 +203,7 @@ def radial_tangent(hits, axis: str = "Z") -> np.ndarray:
     a = hits.objects()[:, OBJ_FROM_WORLD:OBJ_FROM_WORLD + 12].reshape(-1, 3, 4)[:, :, :3]
     t = np.einsum("nji,nj->ni", a, t)  # object_normal_transform: (object_from_world)^T t
     n = hits.N
-    return np.cross(n, _normalize(np.cross(t, n))).astype(F32)
+    return np.cross(n, normalize_rows_einsum(np.cross(t, n))).astype(F32)
 
 
 def tangent_node(hits, inputs, op):
@@ -228,7 +216,7 @@ def tangent_node(hits, inputs, op):
         return {"Tangent": np.zeros((hits.n, 3), F32)}
     t = np.stack(frame[0], axis=1)
     n = hits.N
-    return {"Tangent": np.cross(n, _normalize(np.cross(t, n))).astype(F32)}
+    return {"Tangent": np.cross(n, normalize_rows_einsum(np.cross(t, n))).astype(F32)}
 
 
 def tex_coord(hits, inputs, op):
@@ -254,7 +242,7 @@ def tex_coord(hits, inputs, op):
             out[name] = window_point(hits, hits.P)
         elif name == "Reflection":
             i, n = hits.I, hits.N
-            out[name] = (F32(2.0) * _dot(i, n)[:, None] * n - i).astype(F32)
+            out[name] = (F32(2.0) * dot_rows_einsum(i, n)[:, None] * n - i).astype(F32)
     return out
 
 
@@ -331,7 +319,7 @@ def attribute(hits, inputs, op):
 def layer_weight(hits, inputs, op):
     n = hits.n
     normal = _normal_input(hits, inputs)
-    cos = _dot(hits.I, normal)
+    cos = dot_rows_einsum(hits.I, normal)
     blend = full(inputs["Blend"], n)
     eta = np.maximum(ONE - blend, F32(1e-5))
     eta = np.where(hits.backfacing, eta, ONE / eta)
@@ -348,7 +336,7 @@ def fresnel_node(hits, inputs, op):
     normal = _normal_input(hits, inputs)
     eta = np.maximum(full(inputs["IOR"], hits.n), F32(1e-5))
     eta = np.where(hits.backfacing, ONE / eta, eta)
-    return {"Fac": fresnel_dielectric_cos(_dot(hits.I, normal), eta)}
+    return {"Fac": fresnel_dielectric_cos(dot_rows_einsum(hits.I, normal), eta)}
 
 
 def fresnel_dielectric_cos(cos_i, eta) -> np.ndarray:
@@ -468,12 +456,12 @@ def environment(hits, inputs, op):
     if texture < 0:
         return {"Color": np.broadcast_to(np.array([1.0, 0.0, 1.0], F32), (n, 3)), "Alpha": np.ones(n, F32)}
     d = full(inputs["Vector"], n, 3)
-    length = np.sqrt(_dot(d, d))
+    length = np.sqrt(dot_rows_einsum(d, d))
     d = d / np.where(length > 0, length, ONE)[:, None]
     x, y, z = d[:, 0], d[:, 1], d[:, 2]
     if op.option("projection", "EQUIRECTANGULAR") == "EQUIRECTANGULAR":
-        u = HALF - np.arctan2(y, x) * F32(0.5 / np.pi)
-        v = ONE - np.arccos(np.clip(z, -ONE, ONE)) * F32(1.0 / np.pi)
+        u = HALF - np.arctan2(y, x) * INV_2PI
+        v = ONE - np.arccos(np.clip(z, -ONE, ONE)) * INV_PI
         zero = length == 0
         u, v = np.where(zero, ZERO, u), np.where(zero, ZERO, v)
     else:  # mirror ball: the inverse of Cycles' mirrorball_to_direction
@@ -561,9 +549,9 @@ def map_to_sphere(p: np.ndarray) -> np.ndarray:
     p = np.asarray(p, F32)
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     length2 = x * x + y * y + z * z
-    u = np.where((x == 0) & (y == 0), ZERO, HALF - np.arctan2(x, y) * F32(0.5 / np.pi))
+    u = np.where((x == 0) & (y == 0), ZERO, HALF - np.arctan2(x, y) * INV_2PI)
     with np.errstate(invalid="ignore", divide="ignore"):
-        v = ONE - np.arccos(np.clip(z / np.sqrt(length2), -ONE, ONE)) * F32(1.0 / np.pi)
+        v = ONE - np.arccos(np.clip(z / np.sqrt(length2), -ONE, ONE)) * INV_PI
     some = length2 > 0
     return np.stack([np.where(some, u, ZERO), np.where(some, v, ZERO), np.zeros_like(u)], 1).astype(F32)
 
@@ -575,7 +563,7 @@ def map_to_tube(p: np.ndarray) -> np.ndarray:
     length = np.sqrt(x * x + y * y)
     some = length > 0
     safe = np.where(some, length, ONE)
-    u = (ONE - np.arctan2(x / safe, y / safe) * F32(1.0 / np.pi)) * HALF
+    u = (ONE - np.arctan2(x / safe, y / safe) * INV_PI) * HALF
     v = (z + ONE) * HALF
     return np.stack([np.where(some, u, ZERO), np.where(some, v, ZERO), np.zeros_like(u)], 1).astype(F32)
 

@@ -12,16 +12,15 @@ Cycles' arithmetic is float32 and so is this; its float -> int casts truncate, i
 the dividend (numpy's fmod on int32 does the same), and its brick noise wraps in uint32. Cycles' x86-64
 kernel for AVX2 CPUs is compiled with -ffp-contract=fast: some multiply-adds become one fused
 instruction, rounded once. Where it does so (found by comparing against the kernel) this rounds the same
-way (`_fma`), and with glibc's sines the results are bit-identical to that kernel's - except the Radial
+way (`fma`), and with glibc's sines the results are bit-identical to that kernel's - except the Radial
 gradient, whose atan2f is within an ulp of glibc's.
 """
 from __future__ import annotations
 
 import numpy as np
 
-F32, I32, U32 = np.float32, np.int32, np.uint32
-ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
-TWO_PI = F32(6.2831853071795864)   # M_2PI_F
+from ..vec import F32, F64, HALF, I32, ONE, TWO_PI, U32, ZERO, fma
+
 _INT_MIN = I32(-2 ** 31)
 
 
@@ -32,7 +31,7 @@ _INT_MIN = I32(-2 ** 31)
 # routines: a double-precision polynomial after reduction by pi/2 (its coefficients and the 4/pi bits
 # are the library's data) - bit for bit on the million arguments checked against glibc 2.36, near
 # multiples of pi/2 included. About 1-3 ms per 65k values (NumPy's float32 sin: 0.1 ms).
-_F64, _U64, _I64 = np.float64, np.uint64, np.int64
+_U64, _I64 = np.uint64, np.int64
 _HPI_INV_2P24 = float.fromhex("0x1.45f306dc9c883p+23")    # 2/pi, scaled by 2^24
 _HPI = float.fromhex("0x1.921fb54442d18p0")               # pi/2
 _PI_2P_M62 = float.fromhex("0x1.921fb54442d18p-62")       # 2pi * 2^-64
@@ -57,7 +56,7 @@ def _reduce_large(bits: np.ndarray):
     acc = ((high >> _U64(32)) | (low << _U64(32))) + mid
     quadrant = (acc + (_U64(1) << _U64(61))) >> _U64(62)
     acc = acc - (quadrant << _U64(62))
-    return acc.view(_I64).astype(_F64) * _PI_2P_M62, quadrant.astype(_I64)
+    return acc.view(_I64).astype(F64) * _PI_2P_M62, quadrant.astype(_I64)
 
 
 _QUADRANT_SIGN = np.array([1.0, -1.0, -1.0, 1.0])      # glibc's sign[n & 3] for the reduced argument
@@ -71,7 +70,7 @@ _MEDIUM_TOP = U32(0x48F)                                # |y| < 2^18
 
 def _sincosf(y, cosine: bool) -> np.ndarray:
     y = np.asarray(y, F32)
-    x = y.astype(_F64)
+    x = y.astype(F64)
     # |y| < 120: glibc's one multiply-subtract by pi/2, rounded as it does (below pi/4 glibc skips it,
     # which is the same: n = 0).
     with np.errstate(invalid="ignore"):
@@ -87,7 +86,7 @@ def _sincosf(y, cosine: bool) -> np.ndarray:
         medium = large & (top < _MEDIUM_TOP)
         xm = x[medium]
         nm = (np.asarray(xm * _HPI_INV_2P24).astype(_I64) + 0x800000) >> 24
-        fm = nm.astype(_F64)
+        fm = nm.astype(F64)
         xr[medium] = ((xm - fm * _PIO2_PARTS[0]) - fm * _PIO2_PARTS[1]) - fm * _PIO2_PARTS[2]
         n[medium] = nm
         huge = large & ~medium
@@ -161,19 +160,10 @@ def _floor_to_int(x: np.ndarray) -> np.ndarray:
     return np.where(inside, np.where(inside, f, ZERO).astype(I32), _INT_MIN)
 
 
-def _fma(a, b, c) -> np.ndarray:
-    """a * b + c rounded once, as the FMA instruction Cycles' AVX2 kernel compiles it to (the product of two
-    floats is exact in float64; rounding the float64 sum again to float32 differs from one rounding only
-    in rare ties)."""
-    r = np.multiply(a, b, dtype=_F64)
-    r += c
-    return r.astype(F32)
-
-
 def _smoothstep(f: np.ndarray) -> np.ndarray:
     """Cycles' smoothstepf: 3f^2 - 2f^3 on [0, 1] (3f^2 fused into the subtraction), clamped outside."""
     ff = f * f
-    s = _fma(F32(3.0), ff, -(F32(2.0) * ff * f))
+    s = fma(F32(3.0), ff, -(F32(2.0) * ff * f))
     return np.where(f <= ZERO, ZERO, np.where(f >= ONE, ONE, s)).astype(F32, copy=False)
 
 
@@ -221,15 +211,15 @@ def gradient(vector, *, gradient_type: str = "LINEAR") -> dict:
     elif gradient_type == "EASING":
         r = np.clip(x, ZERO, ONE)
         t = r * r
-        f = _fma(F32(3.0), t, -(F32(2.0) * t * r))
+        f = fma(F32(3.0), t, -(F32(2.0) * t * r))
     elif gradient_type == "DIAGONAL":
         f = (x + y) * HALF
     elif gradient_type == "RADIAL":
         # The kernel multiplies by 1/(2pi) and fuses the + 1/2; atan2f is within an ulp of glibc's.
-        f = _fma(np.arctan2(y.astype(_F64), x).astype(F32), ONE / TWO_PI, HALF)
+        f = fma(np.arctan2(y.astype(F64), x).astype(F32), ONE / TWO_PI, HALF)
     elif gradient_type in ("SPHERICAL", "QUADRATIC_SPHERE"):
         # 0.999999 rather than 1 makes unit vectors give exactly 0.
-        r = np.maximum(F32(0.999999) - np.sqrt(_fma(z, z, _fma(x, x, y * y))), ZERO)
+        r = np.maximum(F32(0.999999) - np.sqrt(fma(z, z, fma(x, x, y * y))), ZERO)
         f = r if gradient_type == "SPHERICAL" else r * r
     else:
         raise ValueError(f"unknown gradient_type {gradient_type!r}")
@@ -289,8 +279,8 @@ def brick(vector, color1=(0.8, 0.8, 0.8), color2=(0.2, 0.2, 0.2), mortar=(0.0, 0
     color = np.empty((n, 3), F32)
     for i in range(3):          # per channel: contiguous (N,) arrays are much faster than (N, 3) broadcasts
         # The kernel fuses one product of each sum into its addition.
-        brick_color = np.where(in_brick, _fma(tint, c2[:, i], (ONE - tint) * c1[:, i]), c1[:, i])
-        color[:, i] = _fma(c3[:, i], fac, brick_color * (ONE - fac))
+        brick_color = np.where(in_brick, fma(tint, c2[:, i], (ONE - tint) * c1[:, i]), c1[:, i])
+        color[:, i] = fma(c3[:, i], fac, brick_color * (ONE - fac))
     return _color_fac(color, np.broadcast_to(fac, (n,)))
 
 
@@ -329,7 +319,7 @@ def magic(vector, scale=5.0, distortion=1.0, *, turbulence_depth: int = 2, cycle
         x = x * d
         z = z * d
         # Blender 5.0's compiler fuses y * d into the subtraction (y * d has no other use); 5.3's does not.
-        y = -cosf((x - y * d if scale_first else _fma(-y, d, x)) + z) * d
+        y = -cosf((x - y * d if scale_first else fma(-y, d, x)) + z) * d
     if n > 1:
         x = cosf(x - y - z) * d
     if n > 2:

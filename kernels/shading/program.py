@@ -10,10 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..programs import Program, Ref
-from ..vec import matmul
+from ..vec import F32, matmul
 from .color_math import RGB_TO_Y, vector_to_float
-
-F32 = np.float32
 
 
 class HitInputs:

@@ -7,13 +7,11 @@ from ..bsdf.closures import LAMBERT, ClosureBuilder, ClosureSet
 from ..camera import camera_frame, view_plane
 from ..scene import Camera, Closure, Materials, Param, object_row
 from ..textures import Texture, finite_uv, luminance
+from ..vec import F32, ZERO
 from . import nodes
 from . import ops
 from .ops import OPS
 from .program import HitInputs, ProgramRun
-
-F32 = np.float32
-ZERO = F32(0.0)
 
 
 class SurfaceShading:

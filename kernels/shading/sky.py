@@ -29,17 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..vec import F32, F64, HALF, HALF_PI, INV_2PI, INV_4PI, INV_PI, ONE, PI, TWO_PI, ZERO, length_rows, length_xyz
 from .patterns import cosf, sinf
 
-F32, F64 = np.float32, np.float64
-ZERO, HALF, ONE = F32(0.0), F32(0.5), F32(1.0)
-PI = F32(3.1415926535897932)           # M_PI_F
-HALF_PI = F32(1.5707963267948966)      # M_PI_2_F
-TWO_PI = F32(6.2831853071795864)       # M_2PI_F
-INV_PI = F32(0.3183098861837067)       # M_1_PI_F
-INV_TWO_PI = F32(0.1591549430918953)   # M_1_2PI_F
 TWO_OVER_PI = F32(0.6366197723675813)  # M_2_PI_F
-INV_FOUR_PI = F32(0.0795774715459476)  # M_1_4PI_F
 
 SKY_TYPES = ("SINGLE_SCATTERING", "MULTIPLE_SCATTERING", "PREETHAM", "HOSEK_WILKIE")
 TABLE_WIDTH, TABLE_HEIGHT = 512, 256   # Cycles' SkyLoader
@@ -105,10 +98,6 @@ def _ray_sphere(origin_z, dir_z, radius):
         root = np.sqrt(d)
     t = np.where(d >= b * b, -b + root, -b - root)
     return np.where(((c > ZERO) & (b > ZERO)) | (d < ZERO), F32(-1.0), t).astype(F32, copy=False)
-
-
-def _length(x, y, z):
-    return np.sqrt(x * x + y * y + z * z)
 
 
 def _wrap_sun(elevation: float, rotation: float):
@@ -189,7 +178,7 @@ class _Atmosphere:
         depth = np.zeros((4,) + cos_theta.shape, F32)
         for step in range(self.STEPS):
             t = F32(step + 0.5) * t_step
-            h = np.maximum(_length(sx * t, ZERO, r0 + cos_theta * t) - self.EARTH_RADIUS, ZERO)
+            h = np.maximum(length_xyz((sx * t, ZERO, r0 + cos_theta * t)) - self.EARTH_RADIUS, ZERO)
             depth += self.coefficients(h)[0] * t_step
         return _expf(-depth)
 
@@ -212,7 +201,7 @@ class _Atmosphere:
         molecular_phase = self.RAYLEIGH_PHASE_SCALE * (ONE + cos_theta * cos_theta)
         g2 = self.G * self.G
         den = (ONE + g2) + F32(2.0) * self.G * cos_theta
-        aerosol_phase = (INV_FOUR_PI * (ONE - g2)) / (den * np.sqrt(den))
+        aerosol_phase = (INV_4PI * (ONE - g2)) / (den * np.sqrt(den))
         dt = t_d / F32(self.STEPS)
         lut = self.lut
         top_column = self.LUT_W - 1
@@ -229,7 +218,7 @@ class _Atmosphere:
         for i in range(self.STEPS):
             t = F32(i + 0.5) * dt
             x, y, z = dx * t, dy * t, origin_z + dz * t
-            distance = _length(x, y, z)
+            distance = length_xyz((x, y, z))
             h = np.maximum(distance - self.EARTH_RADIUS, ZERO)
             normalized_h = h / self.THICKNESS
             sample_cos = (x / distance) * sun_x + (z / distance) * sun_z
@@ -247,7 +236,7 @@ class _Atmosphere:
 
             # Multiple scattering (lookup_multiscattering): from the ground, and the fit of the rest.
             omega = TWO_PI * (ONE - np.sqrt(np.maximum(ONE - np.square(self.EARTH_RADIUS / distance), ZERO)))
-            ground = ((INV_FOUR_PI * omega * albedo) * to_ground) * (ground_at_sun / sample_at_sun) \
+            ground = ((INV_4PI * omega * albedo) * to_ground) * (ground_at_sun / sample_at_sun) \
                 * sample_cos
             fit = ONE / (ONE + F32(5.0) * _expf(F32(-17.92) * sample_cos))
             ms = fit_colour * fit + ground
@@ -377,11 +366,11 @@ class _SingleScattering:
     def optical_depth(self, px, py, pz, dx, dy, dz):
         """(..., 3) optical depth factors from a point to the top of the atmosphere."""
         ex, ey, ez = self.to_air(px, py, pz, dx, dy, dz)
-        length = _length(px - ex, py - ey, pz - ez)
+        length = length_xyz((px - ex, py - ey, pz - ez))
         sx, sy, sz = length * dx, length * dy, length * dz
         depth = np.zeros(np.shape(length) + (3,), F32)
         for node, weight in zip(self.QUADRATURE_NODES, self.QUADRATURE_WEIGHTS):
-            h = _length(px + node * sx, py + node * sy, pz + node * sz) - self.EARTH_RADIUS
+            h = length_xyz((px + node * sx, py + node * sy, pz + node * sz)) - self.EARTH_RADIUS
             depth += self.densities(h) * weight
         return depth * length[..., None]
 
@@ -410,7 +399,7 @@ class _SingleScattering:
         """Single scattering of sunlight into rays from (0, 0, origin_z): (21, N) spectra."""
         zeros = np.zeros_like(dx)
         ex, ey, ez = self.to_air(zeros, zeros, origin_z + zeros, dx, dy, dz)
-        segment_length = _length(zeros - ex, zeros - ey, origin_z - ez) / F32(self.STEPS)
+        segment_length = length_xyz((zeros - ex, zeros - ey, origin_z - ez)) / F32(self.STEPS)
         seg = (segment_length * dx, segment_length * dy, segment_length * dz)
         rayleigh_phase, mie_phase = self.phases(dx * sun[0] + dy * sun[1] + dz * sun[2])
         air, aerosol, ozone = (F32(v) for v in density_scale)
@@ -422,7 +411,7 @@ class _SingleScattering:
         px, py, pz = zeros + HALF * seg[0], zeros + HALF * seg[1], origin_z + HALF * seg[2]
         sun_b = [np.broadcast_to(F32(c), dx.shape) for c in sun]
         for _ in range(self.STEPS):
-            h = _length(px, py, pz) - self.EARTH_RADIUS
+            h = length_xyz((px, py, pz)) - self.EARTH_RADIUS
             density = self.densities(h)
             density = (air * density[..., 0], aerosol * density[..., 1], ozone * density[..., 2])
             for k in range(3):
@@ -613,16 +602,12 @@ def _spherical(direction: np.ndarray):
     return theta, phi
 
 
-def _length3(v):
-    return np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])
-
-
 def _nishita(direction: np.ndarray, sky: Sky) -> np.ndarray:
     theta, phi = _spherical(direction)
     st, sp = sky.sun_elevation - HALF_PI, sky.sun_rotation - HALF_PI
     sun = np.array([sinf(st) * cosf(sp), sinf(st) * sinf(sp), cosf(st)], F32).reshape(1, 3)
-    sun_angle = F32(2.0) * _libm(lambda a: np.arctan2(a, _length3(direction + sun).astype(F64)),
-                                 _length3(direction - sun))
+    sun_angle = F32(2.0) * _libm(lambda a: np.arctan2(a, length_rows(direction + sun).astype(F64)),
+                                 length_rows(direction - sun))
     half = sky.angular_diameter * HALF
     elevation = HALF_PI - theta
     xyz = np.zeros((len(direction), 3), F32)
@@ -634,7 +619,7 @@ def _nishita(direction: np.ndarray, sky: Sky) -> np.ndarray:
             limb = ONE - F32(0.6) * (ONE - np.sqrt(ONE - np.square(a / half)))
             colour = sky.sun_bottom + y[:, None] * (sky.sun_top - sky.sun_bottom)
             xyz[disc] = colour * sky.sun_intensity * limb[:, None]
-    u = (-phi - HALF_PI + sky.sun_rotation) * INV_TWO_PI
+    u = (-phi - HALF_PI + sky.sun_rotation) * INV_2PI
     u = u - np.floor(u)
     v = np.copysign(np.sqrt(np.abs(elevation) * TWO_OVER_PI), elevation) * HALF + HALF
     xyz = xyz + _bilinear_extend(sky.table, u, v)

@@ -28,11 +28,10 @@ import itertools
 
 import numpy as np
 
+from ..vec import F32, HALF, I32, ONE, TWO, ZERO
 from .hash import (hash_float_to_float, hash_float_to_float3, hash_int2_to_float2, hash_int2_to_float3,
                    hash_int3_to_float3, hash_int4_to_float4, hash_int_to_float_grid, thread_scratch)
 
-F32, I32 = np.float32, np.int32
-ZERO, HALF, ONE, TWO = F32(0.0), F32(0.5), F32(1.0), F32(2.0)
 FLT_MAX = F32(np.finfo(np.float32).max)
 EDGE_EPSILON = F32(0.0001)        # bisectors of points closer than sqrt of this are skipped
 FIRST_DISTANCE = F32(8.0)          # fractal Distance to Edge starts from this

@@ -12,10 +12,9 @@ import numpy as np
 from ..environment import equirect_to_direction
 from ..interaction import RayInfo
 from ..scene import World, object_row
+from ..vec import F32
 from .ops import OPS
 from .program import ProgramRun
-
-F32 = np.float32
 
 
 class _Directions:
