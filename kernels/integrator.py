@@ -18,8 +18,7 @@ from . import motion, passes, sampling
 from .accel import RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
-from .bsdf.closures import GLASS, BsdfSample, eval_split, glossy_axes, pass_classes
-from .bsdf.microfacet_closures import singular_glass_other_branch
+from .bsdf.closures import BsdfSample, eval_split, glossy_axes, pass_classes
 from .geometry import NG
 from .interaction import RayInfo, SurfaceHit
 from .paths import PathState
@@ -225,7 +224,7 @@ def _glass_escapes(tables, wave, state, hit, closures, bs) -> None:
     lamps) as before, so the estimate is unbiased and the world's part of it no longer a lottery. Cycles
     follows one branch (it has nothing of this)."""
     state.escape_scale = None
-    if GLASS not in closures.kinds:
+    if not closures.branches:
         return
     row = bs.row
     chosen = np.flatnonzero((row >= 0) & bs.delta & ~bs.transparent & (bs.pdf > 0) &
@@ -233,11 +232,11 @@ def _glass_escapes(tables, wave, state, hit, closures, bs) -> None:
     if not len(chosen):
         return
     r = row[chosen]
-    smooth = (closures.lobe[r] == GLASS) & closures.delta[r]
+    smooth = closures.two_branched(r)
     chosen, r = chosen[smooth], r[smooth]
     if not len(chosen):
         return
-    wi, weight, transmit, p_taken, ok = singular_glass_other_branch(closures, chosen, r, bs.transmit[chosen])
+    wi, weight, transmit, p_taken, ok = closures.other_branch(chosen, r, bs.transmit[chosen])
     scale = np.ones(len(state), np.float32)
     scale[chosen] = p_taken
     state.escape_scale = scale

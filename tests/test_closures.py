@@ -3,7 +3,7 @@ sampling against the mixture pdf, weights against eval / pdf, energy, and Cycles
 import numpy as np
 import pytest
 
-from ember.kernels.bsdf import closures as lobes
+from ember.kernels.bsdf import lobes
 from ember.kernels.scene import Closure, Materials, Param, Shader
 from ember.kernels.shading import Shading
 from stats import assert_chi2, mean_and_stderr
@@ -284,3 +284,21 @@ def test_closure_picked_by_the_directions_own_number_samples_the_mixture():
     s = cs.sample(None, u1, u2, uc)
     ok = s.pdf > 0
     assert_chi2(sphere_bins(*(c[ok] for c in s.wi)), expected_counts(LAYERED, N))
+
+
+def test_every_lobe_is_in_the_one_table_and_the_integrator_names_none():
+    """bsdf/registry.py's LOBES holds every lobe id, with a sample function (the Ray Portal's is the closure
+    table's own) and an eval for every lobe that is not always singular; lobes.CLASSES says what each is. The
+    integrator asks the closure set about two-branched lobes and never names one."""
+    import os
+    import re
+
+    from ember.kernels.bsdf import registry
+    ids = set(range(len(lobes.CLASSES)))
+    assert set(registry.LOBES) == ids
+    for k, lobe in registry.LOBES.items():
+        assert (lobe.eval is None) == (k in lobes.SINGULAR_LOBES), lobe.name
+        assert (lobe.sample is None) == (k == lobes.PORTAL), lobe.name
+    names = [n for n in dir(lobes) if n.isupper()]
+    source = open(os.path.join(os.path.dirname(lobes.__file__), "..", "integrator.py")).read()
+    assert not [n for n in names if re.search(r"\b" + n + r"\b", source)]

@@ -13,7 +13,7 @@ from bpy_helpers import replicate_render
 from stats import assert_chi2
 
 from ember.kernels import sampling
-from ember.kernels.bsdf import closures as cl
+from ember.kernels.bsdf import closures, lobes
 from ember.kernels.environment import Environment, WorldFocus, _BilinearDistribution
 from ember.kernels.scene import World
 
@@ -133,12 +133,12 @@ def _closures(specs):
     wo = np.array([s[4] for s in specs], np.float32).T
     wo /= np.linalg.norm(wo, axis=0)
     ns = (np.zeros(n, np.float32), np.zeros(n, np.float32), np.ones(n, np.float32))
-    b = cl.ClosureBuilder(n, ns, tuple(wo))
+    b = closures.ClosureBuilder(n, ns, tuple(wo))
     for i, (lobe, alpha, eta, weight, _) in enumerate(specs):
         hit = np.array([i])
         b.add(lobe, hit, np.full((3, 1), weight, np.float32), ax=alpha, ay=alpha, eta=eta)
         if weight < 1:
-            b.add(cl.LAMBERT, hit, np.full((3, 1), 1 - weight, np.float32))
+            b.add(lobes.LAMBERT, hit, np.full((3, 1), 1 - weight, np.float32))
     return b.finish(), wo
 
 
@@ -150,17 +150,17 @@ def test_glossy_axes_are_the_mirror_and_refracted_directions():
     lobes, lobes wider than MAX_AXIS_RADIUS and lobes with less than MIN_AXIS_SHARE of the weight are left
     out."""
     oblique = (0.6, 0.0, 0.8)
-    specs = [(cl.REFLECTION, 0.1, 1.0, 1.0, oblique),          # 0 mirror direction
-             (cl.REFRACTION, 0.1, 1.5, 1.0, oblique),          # 1 into glass
-             (cl.GLASS, 0.1, 1.5, 1.0, (0.0, 0.0, 1.0)),       # 2 glass, normal incidence: refract
-             (cl.GLASS, 0.1, 1 / 1.5, 1.0, (0.9, 0.0, 0.3)),   # 3 glass from inside past the critical angle
-             (cl.REFLECTION, 0.2, 1.0, 0.5, oblique),          # 4 half of the weight
-             (cl.REFLECTION, 0.0, 1.0, 1.0, oblique),          # 5 singular
-             (cl.REFLECTION, 0.9, 1.0, 1.0, oblique),          # 6 too wide
-             (cl.REFLECTION, 0.1, 1.0, 0.1, oblique),          # 7 too small a share
-             (cl.REFLECTION, 0.25, 1.0, 1.0, oblique)]         # 8 rougher than 0
+    specs = [(lobes.REFLECTION, 0.1, 1.0, 1.0, oblique),          # 0 mirror direction
+             (lobes.REFRACTION, 0.1, 1.5, 1.0, oblique),          # 1 into glass
+             (lobes.GLASS, 0.1, 1.5, 1.0, (0.0, 0.0, 1.0)),       # 2 glass, normal incidence: refract
+             (lobes.GLASS, 0.1, 1 / 1.5, 1.0, (0.9, 0.0, 0.3)),   # 3 glass from inside past the critical angle
+             (lobes.REFLECTION, 0.2, 1.0, 0.5, oblique),          # 4 half of the weight
+             (lobes.REFLECTION, 0.0, 1.0, 1.0, oblique),          # 5 singular
+             (lobes.REFLECTION, 0.9, 1.0, 1.0, oblique),          # 6 too wide
+             (lobes.REFLECTION, 0.1, 1.0, 0.1, oblique),          # 7 too small a share
+             (lobes.REFLECTION, 0.25, 1.0, 1.0, oblique)]         # 8 rougher than 0
     cs, wo = _closures(specs)
-    hits, (dx, dy, dz), radius, share = cl.glossy_axes(cs)
+    hits, (dx, dy, dz), radius, share = closures.glossy_axes(cs)
     np.testing.assert_array_equal(hits, [0, 1, 2, 3, 4, 8])
     d = np.stack([dx, dy, dz])
     np.testing.assert_allclose(d[:, 0], [-0.6, 0.0, 0.8], atol=1e-6)               # mirror of wo about +z
@@ -172,7 +172,7 @@ def test_glossy_axes_are_the_mirror_and_refracted_directions():
     np.testing.assert_allclose(d[:, 3], wo[:, 3] * [-1, -1, 1], atol=1e-6)          # reflected, not refracted
     assert share[3] == pytest.approx(1.0)
     assert share[4] == pytest.approx(0.5, rel=1e-5)
-    np.testing.assert_allclose(radius[0], 2 * math.atan(float(cl.AXIS_TILT) * 0.1), rtol=1e-5)
+    np.testing.assert_allclose(radius[0], 2 * math.atan(float(closures.AXIS_TILT) * 0.1), rtol=1e-5)
     assert radius[5] > radius[0]
     assert radius[1] < radius[0]   # entering glass bends the lobe less than a mirror does
 

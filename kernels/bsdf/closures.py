@@ -11,7 +11,7 @@ Sampling picks one closure in proportion to its sample weight. A delta closure (
 transparency) gives its own direction with weight weight_j * w_j / P(j) and pdf = inf (nothing else can
 find that direction). Otherwise the chosen lobe proposes the direction and the whole mixture is evaluated
 there: weight = f / pdf, one-sample MIS over the lobes (balance heuristic), as Cycles does; the lobe that
-sampled enters that sum with its sampler's own value where the two differ (SELF_EVALUATED: toon, hair), as
+sampled enters that sum with its sampler's own value where the two differ (lobes.SELF_EVALUATED: toon, hair), as
 Cycles keeps the sampling closure's eval. A Ray Portal is a delta closure whose sample also moves the ray's
 start (BsdfSample.origin).
 
@@ -29,32 +29,14 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
-from ..vec import F32, INV_PI, ONE, ZERO, cross_xyz, dot_xyz, length_xyz
-from . import diffuse, fresnel, hair, sheen, toon
+from ..vec import F32, INV_PI, ONE, ZERO
+from . import fresnel, frames
+from .lobes import (ANY_SIDE_LOBES, ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, GLOSSY_LOBES, LAMBERT, MICROFACET_LOBES,
+                    PORTAL, REFLECTION, REFRACTION, SELF_EVALUATED, SINGULAR_LOBES, TRANSMISSION_LOBES, TRANSPARENT)
+from .registry import LOBES
 
-# Lobe ids.
-(LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY, TOON_DIFFUSE,
- TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION) = range(14)
-# Lobes with a roughness-dependent singular (delta) limit; eval of a singular closure is 0.
-MICROFACET_LOBES = (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY)
-# Lobes that are always singular (Cycles' CLOSURE_IS_BSDF_SINGULAR).
-SINGULAR_LOBES = (TRANSPARENT, PORTAL)
 # Cycles drops closures whose sample weight is below this (`CLOSURE_WEIGHT_CUTOFF`).
 WEIGHT_CUTOFF = np.float32(1e-5)
-# Lobes Cycles counts as diffuse (CLOSURE_IS_BSDF_DIFFUSE) for the bump shadowing term.
-DIFFUSE_LOBES = (LAMBERT, OREN_NAYAR, SHEEN, TRANSLUCENT, TOON_DIFFUSE)
-# Cycles' light passes (kernel/film/light_passes.h): diffuse-like closures count as diffuse, reflecting
-# microfacets as glossy, glass as glossy on its reflection side, the rest as transmission.
-GLOSSY_LOBES = (REFLECTION, ASHIKHMIN_SHIRLEY, TOON_GLOSSY, HAIR_REFLECTION)
-# Lobes Cycles counts as transmission (CLOSURE_IS_BSDF_TRANSMISSION) for its Transmission Color pass.
-TRANSMISSION_LOBES = (REFRACTION, HAIR_TRANSMISSION)
-# Lobes whose sampled direction keeps the value their sampler gave it, as Cycles keeps the sampling
-# closure's own eval: re-evaluating a toon cone narrower than float32's acos resolution gives 0, and the
-# hair lobes' samplers reach directions their eval does not (and report another pdf).
-SELF_EVALUATED = (TOON_DIFFUSE, TOON_GLOSSY, HAIR_REFLECTION, HAIR_TRANSMISSION)
-# Lobes whose samples leave on whichever side of the surface they point to, untested (Cycles' hair
-# samplers and Ray Portal): the integrator sees which side that is.
-ANY_SIDE_LOBES = (PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION)
 
 # Per-closure parameter columns and their defaults: scalars (C,) and colours (3, C).
 # soften: 1 where a diffuse closure on another normal takes the shadowing term's softening (Cycles skips
@@ -205,14 +187,14 @@ class ClosureSet:
     def frame(self):
         """(tangent, bitangent, normal) rows of every closure, each (3, C), made on first use."""
         if self._frame is None:
-            self._frame = _frames(self.normal, self._tangent)
+            self._frame = frames.frames(self.normal, self._tangent)
         return self._frame
 
     @property
     def wo(self):
         """The viewer direction in every closure's local frame."""
         if self._wo is None:
-            self._wo = _to_local(self.frame, tuple(np.take(a, self.hit) for a in self._wo_world))
+            self._wo = frames.to_local(self.frame, tuple(np.take(a, self.hit) for a in self._wo_world))
         return self._wo
 
     def blur(self, roughness: np.ndarray) -> None:
@@ -307,7 +289,7 @@ class ClosureSet:
             cos = wi_world[0] * n[0, idx] + wi_world[1] * n[1, idx] + wi_world[2] * n[2, idx]
             pdf = np.maximum(cos, ZERO) * INV_PI
             return np.take(self.weight, idx, axis=1) * pdf, pdf
-        wi = _to_local(tuple(np.take(c, idx, axis=1) for c in self.frame), wi_world)
+        wi = frames.to_local(tuple(np.take(c, idx, axis=1) for c in self.frame), wi_world)
         if len(self.kinds) == 1:
             return self._eval_lobe(self.kinds[0], idx, wi)
         f = np.zeros((3, len(idx)), F32)
@@ -323,7 +305,7 @@ class ClosureSet:
     def _eval_lobe(self, k, rows, wi):
         if k in SINGULAR_LOBES:
             return np.zeros((3, len(rows)), F32), np.zeros(len(rows), F32)
-        value, pdf = EVAL[k](self, rows, _pick(self.wo, rows), wi)
+        value, pdf = LOBES[k].eval(self, rows, _pick(self.wo, rows), wi)
         f = value * np.take(self.weight, rows, axis=1)
         if k in MICROFACET_LOBES:
             live = ~self.delta[rows]
@@ -489,8 +471,8 @@ class ClosureSet:
             if k == PORTAL:
                 self._sample_portals(out, h, r)
                 continue
-            wi, weight, pdf, transmit = SAMPLE[k](self, r, _pick(self.wo, r), u1[h], u2[h], uc[h])
-            world = _to_world(tuple(np.take(c, r, axis=1) for c in self.frame), wi)
+            wi, weight, pdf, transmit = LOBES[k].sample(self, r, _pick(self.wo, r), u1[h], u2[h], uc[h])
+            world = frames.to_world(tuple(np.take(c, r, axis=1) for c in self.frame), wi)
             for axis in range(3):
                 out.wi[axis][h] = world[axis]
             sampling.put_columns(out.weight, h, weight)
@@ -555,6 +537,38 @@ class ClosureSet:
         with np.errstate(divide="ignore", invalid="ignore"):
             pdf = np.bincount(local, pdf_c * self.sw[idx], minlength=len(hits)) / total
         return f, np.where(total > 0, pdf, 0.0).astype(F32)
+
+    # ---------------------------------------------------------------- two-branched singular lobes
+    @property
+    def branches(self) -> bool:
+        """Whether a closure of the set may be two-branched (registry.Lobe.other_branch: smooth glass)."""
+        return any(k in _TWO_BRANCHED for k in self.kinds)
+
+    def two_branched(self, rows: np.ndarray) -> np.ndarray:
+        """(n,) bool: the closure rows that are singular now and of a two-branched lobe."""
+        return np.isin(self.lobe[rows], _TWO_BRANCHED) & self.delta[rows]
+
+    def other_branch(self, hits: np.ndarray, rows: np.ndarray, transmitted: np.ndarray):
+        """The branch the two-branched closures `rows` (of the hits `hits`, which sampled them, taking the
+        transmitted branch where `transmitted`) did not take, by their lobe's registry.Lobe.other_branch:
+        (world directions, weight (3, n), transmit (n,), probability of the branch taken (n,), ok (n,))."""
+        kinds = np.unique(self.lobe[rows])
+        if len(kinds) == 1:
+            return LOBES[int(kinds[0])].other_branch(self, hits, rows, transmitted)
+        n = len(rows)
+        wi, weight = tuple(np.zeros(n, F32) for _ in range(3)), np.zeros((3, n), F32)
+        transmit, p_taken, ok = np.zeros(n, bool), np.ones(n, F32), np.zeros(n, bool)
+        for k in kinds:
+            s = np.flatnonzero(self.lobe[rows] == k)
+            w_s, weight[:, s], transmit[s], p_taken[s], ok[s] = LOBES[int(k)].other_branch(
+                self, hits[s], rows[s], transmitted[s])
+            for axis in range(3):
+                wi[axis][s] = w_s[axis]
+        return wi, weight, transmit, p_taken, ok
+
+
+# Lobes with two singular branches, whose branch not taken a path may look along (registry.Lobe.other_branch).
+_TWO_BRANCHED = tuple(k for k, lobe in sorted(LOBES.items()) if lobe.other_branch is not None)
 
 
 # glossy_axes: the lobes that gather light about one direction (a mirror's or a refraction's, blurred by
@@ -717,139 +731,10 @@ class BsdfSample:
         self.row = np.full(n, -1, np.int64)
 
 
-# ---------------------------------------------------------------- lobes: eval(cs, rows, wo, wi) -> (f_cos, pdf)
-# and sample(cs, rows, wo, u1, u2, uc) -> (wi, weight, pdf, transmit); local frames; weight = f_cos / pdf.
-def _lambert_eval(cs, rows, wo, wi):
-    return diffuse.lambert_eval(wo, wi)
-
-
-def _lambert_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf = diffuse.lambert_sample(wo, u1, u2)
-    return wi, weight, pdf, False
-
-
-def _oren_nayar_eval(cs, rows, wo, wi):
-    return diffuse.oren_nayar_eval(wo, wi, cs.rough[rows], np.take(cs.c0, rows, axis=1))
-
-
-def _oren_nayar_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf = diffuse.oren_nayar_sample(wo, cs.rough[rows], np.take(cs.c0, rows, axis=1), u1, u2)
-    return wi, weight, pdf, False
-
-
-def _translucent_eval(cs, rows, wo, wi):
-    return diffuse.translucent_eval(wo, wi)
-
-
-def _translucent_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf = diffuse.translucent_sample(wo, u1, u2)
-    return wi, weight, pdf, True
-
-
-def _sheen_eval(cs, rows, wo, wi):
-    return sheen.sheen_eval(wo, wi, cs.rough[rows])
-
-
-def _sheen_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf = sheen.sheen_sample(wo, cs.rough[rows], u1, u2)
-    return wi, weight, pdf, False
-
-
-def _toon_diffuse_eval(cs, rows, wo, wi):
-    return toon.diffuse_toon_eval(wo, wi, cs.size[rows], cs.smooth[rows])
-
-
-def _toon_diffuse_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf = toon.diffuse_toon_sample(wo, cs.size[rows], cs.smooth[rows], u1, u2)
-    return wi, weight, pdf, False
-
-
-def _toon_glossy_eval(cs, rows, wo, wi):
-    return toon.glossy_toon_eval(wo, wi, cs.size[rows], cs.smooth[rows])
-
-
-def _toon_glossy_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf = toon.glossy_toon_sample(wo, cs.size[rows], cs.smooth[rows], u1, u2)
-    return wi, weight, pdf, False
-
-
-def _hair_args(cs, rows):
-    """A hair closure's tangent in its local frame, and its roughnesses and offset."""
-    tangent = _to_local(tuple(np.take(c, rows, axis=1) for c in cs.frame),
-                        tuple(np.take(c, rows) for c in cs.hair_t))
-    return tangent, cs.r1[rows], cs.r2[rows], cs.offset[rows]
-
-
-def _hair_reflection_eval(cs, rows, wo, wi):
-    return hair.hair_reflection_eval(wo, wi, *_hair_args(cs, rows))
-
-
-def _hair_reflection_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf = hair.hair_reflection_sample(wo, *_hair_args(cs, rows), u1, u2)
-    return wi, weight, pdf, False
-
-
-def _hair_transmission_eval(cs, rows, wo, wi):
-    return hair.hair_transmission_eval(wo, wi, *_hair_args(cs, rows))
-
-
-def _hair_transmission_sample(cs, rows, wo, u1, u2, uc):
-    wi, weight, pdf = hair.hair_transmission_sample(wo, *_hair_args(cs, rows), u1, u2)
-    return wi, weight, pdf, True
-
-
-def _transparent_sample(cs, rows, wo, u1, u2, uc):
-    wi = (-wo[0], -wo[1], -wo[2])
-    n = len(rows)
-    return wi, np.ones(n, F32), np.ones(n, F32), True
-
-
-EVAL = {LAMBERT: _lambert_eval, OREN_NAYAR: _oren_nayar_eval, TRANSLUCENT: _translucent_eval, SHEEN: _sheen_eval,
-        TOON_DIFFUSE: _toon_diffuse_eval, TOON_GLOSSY: _toon_glossy_eval, HAIR_REFLECTION: _hair_reflection_eval,
-        HAIR_TRANSMISSION: _hair_transmission_eval}
-SAMPLE = {LAMBERT: _lambert_sample, OREN_NAYAR: _oren_nayar_sample, TRANSLUCENT: _translucent_sample,
-          SHEEN: _sheen_sample, TRANSPARENT: _transparent_sample, TOON_DIFFUSE: _toon_diffuse_sample,
-          TOON_GLOSSY: _toon_glossy_sample, HAIR_REFLECTION: _hair_reflection_sample,
-          HAIR_TRANSMISSION: _hair_transmission_sample}
-
-
-def register_lobe(lobe: int, eval_fn, sample_fn) -> None:
-    """Add a lobe family's eval and sample (the microfacet module registers its own)."""
-    EVAL[lobe] = eval_fn
-    SAMPLE[lobe] = sample_fn
-
-
 # ---------------------------------------------------------------- frames
 def _is_singular(ax, ay):
     """Cycles treats a microfacet lobe with alpha_x * alpha_y <= 2e-10 as perfectly smooth."""
     return ax * ay <= F32(2e-10)
-
-
-def _frames(n: np.ndarray, t: np.ndarray | None):
-    """(tangent, bitangent, normal) rows, each (3, C): t orthogonalised against n, or an arbitrary
-    frame where no tangent was given (t None, or NaN rows)."""
-    nx, ny, nz = n
-    tx, ty, tz, bx, by, bz = sampling.orthonormal_basis(nx, ny, nz)
-    given = np.isfinite(t[0]) if t is not None else None
-    if given is not None and given.any():
-        d = dot_xyz(t, (nx, ny, nz))
-        gx, gy, gz = t[0] - d * nx, t[1] - d * ny, t[2] - d * nz
-        length = length_xyz((gx, gy, gz))
-        ok = given & (length > F32(1e-8))
-        inv = np.where(ok, ONE / np.where(ok, length, ONE), ZERO)
-        tx, ty, tz = (np.where(ok, g * inv, a) for g, a in ((gx, tx), (gy, ty), (gz, tz)))
-        bx, by, bz = cross_xyz((nx, ny, nz), (tx, ty, tz))
-    return np.stack([tx, ty, tz]), np.stack([bx, by, bz]), np.stack([nx, ny, nz])
-
-
-def _to_local(frame, w):
-    t, b, n = frame
-    return tuple(dot_xyz(w, a).astype(F32) for a in (t, b, n))
-
-
-def _to_world(frame, w):
-    t, b, n = frame
-    return tuple((w[0] * t[k] + w[1] * b[k] + w[2] * n[k]).astype(F32) for k in range(3))
 
 
 def _pick(w, idx):

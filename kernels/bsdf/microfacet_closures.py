@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import ashikhmin_shirley as ash
-from . import closures as lobes
+from . import frames, lobes
 from . import fresnel as fr
 from . import microfacet as mf
 from ..sampling import channel_mean
@@ -269,13 +269,22 @@ def _take(w, s):
     return tuple(np.take(c, s) for c in w)
 
 
-def _ashikhmin_shirley_eval(cs, rows, wo, wi):
+def ashikhmin_shirley_eval(cs, rows, wo, wi):
     return ash.eval_ashikhmin_shirley(wo, wi, *_params(cs, rows, "ax", "ay"))
 
 
-def _ashikhmin_shirley_sample(cs, rows, wo, u1, u2, uc):
+def ashikhmin_shirley_sample(cs, rows, wo, u1, u2, uc):
     wi, weight, pdf, _ = ash.sample_ashikhmin_shirley(wo, *_params(cs, rows, "ax", "ay"), u1, u2)
     return wi, weight, pdf, False
+
+
+# The lobes' functions in the closure table (registry.LOBES), each distribution's own.
+reflection_eval = _by_distribution_eval(_reflection_eval)
+reflection_sample = _by_distribution_sample(_reflection_sample)
+refraction_eval = _by_distribution_eval(_refraction_eval)
+refraction_sample = _by_distribution_sample(_refraction_sample)
+glass_eval = _by_distribution_eval(_glass_eval)
+glass_sample = _by_distribution_sample(_glass_sample)
 
 
 def singular_glass_other_branch(cs, hits, rows, transmitted):
@@ -298,21 +307,13 @@ def singular_glass_other_branch(cs, hits, rows, transmitted):
         p_reflect = mf._reflect_probability(r, t)
     other_reflects = transmitted
     zero = np.zeros(len(rows), F32)
-    wi, weight, pdf, transmit = lobes.SAMPLE[lobes.GLASS](cs, rows, wo, zero, zero,
-                                                          np.where(other_reflects, ZERO, ONE).astype(F32))
+    wi, weight, pdf, transmit = glass_sample(cs, rows, wo, zero, zero,
+                                             np.where(other_reflects, ZERO, ONE).astype(F32))
     p_other = np.where(other_reflects, p_reflect, ONE - p_reflect)
     chance = np.isfinite(p_other) & (p_other > 0) & (p_other < 1)
     ok = chance & (pdf > 0) & (transmit != transmitted)
     scale = np.take(cs.weight, rows, axis=1) * (cs.total_sw[hits] / np.take(cs.sw, rows)) * np.where(ok, p_other, ZERO)
-    world = lobes._to_world(tuple(np.take(c, rows, axis=1) for c in cs.frame), wi)
+    world = frames.to_world(tuple(np.take(c, rows, axis=1) for c in cs.frame), wi)
     # The taken branch's probability whether or not the other one could be followed (an invalid direction).
     return world, np.where(ok, weight * scale, ZERO).astype(F32), transmit, \
         np.where(chance, ONE - p_other, ONE).astype(F32), ok
-
-
-lobes.register_lobe(lobes.REFLECTION, _by_distribution_eval(_reflection_eval),
-                    _by_distribution_sample(_reflection_sample))
-lobes.register_lobe(lobes.GLASS, _by_distribution_eval(_glass_eval), _by_distribution_sample(_glass_sample))
-lobes.register_lobe(lobes.REFRACTION, _by_distribution_eval(_refraction_eval),
-                    _by_distribution_sample(_refraction_sample))
-lobes.register_lobe(lobes.ASHIKHMIN_SHIRLEY, _ashikhmin_shirley_eval, _ashikhmin_shirley_sample)

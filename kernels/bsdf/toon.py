@@ -18,7 +18,7 @@ lobe only asks wi.z >= 0; the glossy one wo.z > 0 and wi.z > 0 (eval and sample)
 one_minus_cos (a Taylor expansion below 0.02 rad), so a Size of 0 gives a cone of 1.6e-5 rad, not a
 division by zero. theta is acos of a float32 cosine, as in Cycles: the eval of such a narrow cone is 0
 almost everywhere, while its sampler reports theta = 0 (the closure table keeps the sampler's value for
-the lobe that sampled, closures.SELF_EVALUATED).
+the lobe that sampled, lobes.SELF_EVALUATED).
 """
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import sampling
-from ..bsdf import closures as lobes
+from ..bsdf import lobes
 from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
 from ..bsdf.toon import toon_angles

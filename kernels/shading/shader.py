@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bsdf.closures import LAMBERT, ClosureBuilder, ClosureSet
+from ..bsdf.closures import ClosureBuilder, ClosureSet
+from ..bsdf.lobes import LAMBERT
 from ..camera import camera_frame, view_plane
 from ..scene import Camera, Closure, Materials, Param, object_row
 from ..textures import Texture, finite_uv, luminance

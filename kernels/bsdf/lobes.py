@@ -1,0 +1,54 @@
+"""The lobe families' ids and what each is: the vocabulary the closure table, the integrator's passes and the
+node compiler share. Which functions evaluate and sample each lobe, and what its parameter columns mean, is
+registry.py's table.
+"""
+from __future__ import annotations
+
+# Lobe ids.
+(LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY, TOON_DIFFUSE,
+ TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION) = range(14)
+
+# What a lobe is, as flags:
+# DIFFUSE       Cycles' CLOSURE_IS_BSDF_DIFFUSE: the bump shadowing term's softening, the Diffuse light passes.
+# GLOSSY        reflecting microfacets and the like: the Glossy light passes (glass counts as glossy on its
+#               reflection side, as Cycles' kernel/film/light_passes.h).
+# TRANSMISSION  Cycles' CLOSURE_IS_BSDF_TRANSMISSION: the Transmission light and Color passes.
+# MICROFACET    a roughness-dependent singular (delta) limit; eval of a singular closure is 0.
+# SINGULAR      always singular (Cycles' CLOSURE_IS_BSDF_SINGULAR).
+# SELF_EVALUATED  a sampled direction keeps the value its sampler gave it, as Cycles keeps the sampling
+#               closure's own eval: re-evaluating a toon cone narrower than float32's acos resolution gives 0,
+#               and the hair lobes' samplers reach directions their eval does not (and report another pdf).
+# ANY_SIDE      samples leave on whichever side of the surface they point to, untested (Cycles' hair samplers
+#               and Ray Portal): the integrator sees which side that is.
+DIFFUSE, GLOSSY, TRANSMISSION, MICROFACET, SINGULAR, SELF_EVALUATING, ANY_SIDE = (1 << i for i in range(7))
+
+CLASSES = {
+    LAMBERT: DIFFUSE,
+    OREN_NAYAR: DIFFUSE,
+    TRANSLUCENT: DIFFUSE,
+    SHEEN: DIFFUSE,
+    TRANSPARENT: SINGULAR,
+    REFLECTION: MICROFACET | GLOSSY,
+    REFRACTION: MICROFACET | TRANSMISSION,
+    GLASS: MICROFACET,
+    ASHIKHMIN_SHIRLEY: MICROFACET | GLOSSY,
+    TOON_DIFFUSE: DIFFUSE | SELF_EVALUATING,
+    TOON_GLOSSY: GLOSSY | SELF_EVALUATING,
+    PORTAL: SINGULAR | ANY_SIDE,
+    HAIR_REFLECTION: GLOSSY | SELF_EVALUATING | ANY_SIDE,
+    HAIR_TRANSMISSION: TRANSMISSION | SELF_EVALUATING | ANY_SIDE,
+}
+
+
+def lobes_with(flag: int) -> tuple:
+    """The ids of the lobes that have `flag`, in id order."""
+    return tuple(k for k, classes in sorted(CLASSES.items()) if classes & flag)
+
+
+MICROFACET_LOBES = lobes_with(MICROFACET)
+SINGULAR_LOBES = lobes_with(SINGULAR)
+DIFFUSE_LOBES = lobes_with(DIFFUSE)
+GLOSSY_LOBES = lobes_with(GLOSSY)
+TRANSMISSION_LOBES = lobes_with(TRANSMISSION)
+SELF_EVALUATED = lobes_with(SELF_EVALUATING)
+ANY_SIDE_LOBES = lobes_with(ANY_SIDE)
