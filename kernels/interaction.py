@@ -202,3 +202,9 @@ class RayInfo:
         self.depth, self.transparent, self.length, self.shadow, self.dp = depth, transparent, length, shadow, dp
         self.emission, self.camera, self.lobes, self.caustics = emission, camera, lobes, caustics
         self.portal = portal
+
+
+def spawn_offset(epsilon, px, py, pz):
+    """Distance to move a spawned ray's origin along the normal: the scene's scale (epsilon, the renderer's
+    ray_epsilon) plus float32 ulps."""
+    return epsilon + np.float32(2.0 ** -16) * np.maximum(np.maximum(np.abs(px), np.abs(py)), np.abs(pz))

@@ -147,3 +147,23 @@ class PathState:
 
     def __len__(self) -> int:
         return len(self.path)
+
+
+def type_limits(settings):
+    """The per-type bounce limits (diffuse, glossy, transmission) that can end a path before max_bounces does,
+    as a (3, 1) int32 column (a limit of its own or max_bounces), or None when none of them can."""
+    top = int(settings.max_bounces)
+    limits = [top if v is None else int(v) for v in (settings.diffuse_bounces, settings.glossy_bounces,
+                                                    settings.transmission_bounces)]
+    return None if min(limits) >= top else np.array(limits, np.int32)[:, None]
+
+
+def may_scatter(wave, state) -> np.ndarray:
+    """(N,) bool: the paths that may still scatter at their hits (light samples, BSDF samples): not past
+    max_bounces, nor past a per-type limit (Cycles ends a path after the bounce that reaches either, letting it
+    take only the emission and the world of what it meets next: PATH_RAY_TERMINATE_AFTER_TRANSPARENT)."""
+    ok = state.bounce < wave.max_scatters
+    limits = type_limits(wave.settings)
+    if limits is not None:
+        ok &= np.all(state.lobes[1:4] <= limits, axis=0)
+    return ok

@@ -30,6 +30,7 @@ from .shading import Shading
 from .shading.world import WorldShader
 from .textures import Texture
 from . import integrator
+from .lights import nee
 from .schedule import Progress, RenderResult, WaveCrew, WaveJob, render_passes
 from .settings import RenderSettings
 
@@ -474,7 +475,7 @@ class _Emitters:
         self._renderer = weakref.proxy(renderer)
 
     def __call__(self, tri, b1=None, b2=None, toward=None):
-        return integrator.triangle_emission(self._renderer, tri, b1, b2, toward)
+        return nee.triangle_emission(self._renderer, tri, b1, b2, toward)
 
 
 def _pixel_spread(camera: Camera) -> float:

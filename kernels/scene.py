@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .panorama import PANORAMA_PARAMS, POSITIVE_PARAMS
 from .programs import Program, Ref
 from .vec import matmul
 
@@ -110,7 +111,6 @@ class Camera:
         _require(self.filter_type in PIXEL_FILTERS, "camera.filter_type",
                  f"must be one of {PIXEL_FILTERS}, got {self.filter_type!r}")
         _require(self.filter_width > 0, "camera.filter_width", "must be positive")
-        from .panorama import PANORAMA_PARAMS, POSITIVE_PARAMS
         _require(self.panorama_type in PANORAMA_PARAMS, "camera.panorama_type",
                  f"must be one of {tuple(PANORAMA_PARAMS)}, got {self.panorama_type!r}")
         if self.kind == "PANO":

@@ -111,7 +111,7 @@ def test_instanced_emitters_are_lights_of_their_own():
     np.testing.assert_array_equal(got.tri_ids, want.tri_ids)
     # The flattened copies' corners were rounded to float32 in world space (3e-7 at these coordinates);
     # unit normals of the lamp's 0.06-wide triangles carry that rounding over their edge length.
-    np.testing.assert_allclose(got._tri_table, want._tri_table, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(got.tri_table, want.tri_table, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(got.pmf32, want.pmf32, rtol=1e-5)
     # MIS on a BSDF ray's hit finds the same light, plain or instanced triangle numbers alike.
     tri = np.concatenate([got.tri_ids[::7], [0, 1, 5, len(flat.positions) - 1]])

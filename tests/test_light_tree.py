@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ember.kernels import Camera, Lights, Renderer, RenderSettings, World
-from ember.kernels import lights as lights_module
+from ember.kernels.lights import selection as light_selection
 from ember.kernels.light_tree import LightTree
 from ember.kernels.shapes import cornell_box, look_at, quad, subdivided_quad, uv_sphere
 from kernel_helpers import make_scene, trace_samples
@@ -33,7 +33,7 @@ def sky():
 
 def mixed_sampler(monkeypatch, world=True):
     """Lights of every local kind, emissive triangles and a world, with the tree forced on."""
-    monkeypatch.setattr(lights_module, "TREE_MIN_DIVERGENCE", 0.0)
+    monkeypatch.setattr(light_selection, "TREE_MIN_DIVERGENCE", 0.0)
     tri = np.float32(np.random.default_rng(2).uniform(-3, 3, (40, 3, 3)))
     return sampler_for(lights=many_lights(), positions=tri, emission=(2.0, 1.5, 1.0),
                        world=sky() if world else None)
@@ -67,7 +67,7 @@ def test_global_pmf_below_threshold_is_unchanged(monkeypatch):
     """Without a tree (too few emitters) choose_at is choose() with select_pmf, whatever the point."""
     sampler = mixed_sampler(monkeypatch)
     assert sampler.uses_tree
-    monkeypatch.setattr(lights_module, "TREE_MIN_EMITTERS", 10 ** 9)
+    monkeypatch.setattr(light_selection, "TREE_MIN_EMITTERS", 10 ** 9)
     sampler = mixed_sampler(monkeypatch)
     assert not sampler.uses_tree
     n = 300_000
@@ -127,7 +127,7 @@ def _floor_scene(lights=None, emitters=None, size=16, eye=(0, -9, 7), target=(0,
 def _tree_against_global(scene, monkeypatch, samples):
     settings = RenderSettings(mode="NEE_MIS", max_bounces=2, seed=7)
     tree = trace_samples(scene, settings, samples)
-    monkeypatch.setattr(lights_module, "TREE_MIN_EMITTERS", 10 ** 9)
+    monkeypatch.setattr(light_selection, "TREE_MIN_EMITTERS", 10 ** 9)
     flat = trace_samples(scene, settings, samples)
     means = []
     for run in (tree, flat):
@@ -189,7 +189,7 @@ def test_tree_only_where_it_pays():
         normals=np.concatenate([cornell.normals[keep], lamp_n]), uvs=np.zeros((keep.sum() + 72, 3, 2), np.float32),
         material_ids=np.concatenate([cornell.material_ids[keep], np.full(72, 3, np.int32)]))
     lamps = many_lights(k=100, seed=9, radius=(0.02, 0.05))
-    few = many_lights(k=lights_module.TREE_MIN_EMITTERS - 1, seed=9, radius=(0.02, 0.05))
+    few = many_lights(k=light_selection.TREE_MIN_EMITTERS - 1, seed=9, radius=(0.02, 0.05))
     chosen = {}
     for name, scene in (("compact", compact), ("lamps", _floor_scene(lights=lamps)),
                         ("few", _floor_scene(lights=few)), ("cornell", cornell)):
@@ -227,7 +227,7 @@ def test_solid_angle_choice_matches_its_pmf_and_favours_the_near_triangle():
     for p in [centroid - (0, 0, 0.05), (1.5, 0.0, 1.4)]:
         pmf = lit.selection_pmf(np.arange(kw), *at(p, kw)).astype(np.float64)
         pmf[-1] = lit.select_pmf[-1]
-        assert abs(pmf.sum() - 1) < 1e-5 and abs(pmf[:-1].sum() - (1 - lights_module.DISTANT_SHARE)) < 1e-5, pmf
+        assert abs(pmf.sum() - 1) < 1e-5 and abs(pmf[:-1].sum() - (1 - light_selection.DISTANT_SHARE)) < 1e-5, pmf
         n = 300_000
         chosen, select = lit.choose_at(rng.random(n, dtype=np.float32), *at(p, n))
         np.testing.assert_allclose(select, pmf[chosen].astype(np.float32), rtol=1e-6)
@@ -246,7 +246,7 @@ def test_quad_lamp_solid_angle_choice_same_mean_lower_variance(monkeypatch):
     scene = _floor_scene(emitters=lamp, eye=(0, -0.2, 0.5), target=(0, 0.3, 0))
     settings = RenderSettings(mode="NEE_MIS", max_bounces=1, seed=7)
     chosen = trace_samples(scene, settings, 256)
-    monkeypatch.setattr(lights_module, "SOLID_ANGLE_MAX_EMITTERS", 0)
+    monkeypatch.setattr(light_selection, "SOLID_ANGLE_MAX_EMITTERS", 0)
     flat = trace_samples(scene, settings, 256)
     (m_c, se_c), (m_f, se_f) = (mean_and_stderr(run.mean(axis=(1, 2))) for run in (chosen, flat))
     assert abs(m_c - m_f) < 4 * np.hypot(se_c, se_f), (m_c, se_c, m_f, se_f)
@@ -295,7 +295,7 @@ def test_every_emitter_that_lights_a_point_can_be_chosen(seed, monkeypatch):
     hair in front of each lamp, beside it, between lamps (inside the nodes' boxes) and scattered around,
     every lamp that can light the point has a non-zero selection probability, and the delta spot is chosen
     there (a delta light is found by no BSDF ray: only its light samples light the point)."""
-    monkeypatch.setattr(lights_module, "TREE_MIN_DIVERGENCE", 0.0)
+    monkeypatch.setattr(light_selection, "TREE_MIN_DIVERGENCE", 0.0)
     lights = _lamp_set(seed)
     sampler = sampler_for(lights=lights)
     assert sampler.uses_tree

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from ember.kernels import Camera, Lights, Materials, Renderer, RenderSettings, World, render
-from ember.kernels import lights as lights_module
+from ember.kernels.lights import selection as light_selection
+from ember.kernels.lights import triangles as light_triangles
 from ember.kernels import sampling
 from ember.kernels.environment import Environment
 from ember.kernels.lights import LightSampler
@@ -140,8 +141,8 @@ def test_emissive_triangle_sampling_matches_its_mis_pdf(size):
         centre = positions.reshape(-1, 3).mean(axis=0)
         theta_max = 1.2 if size == 1.0 else 0.03
         chi2_directions((s.wx, s.wy, s.wz), pdf_of, centre - np.float32(P), theta_max=theta_max)
-        spherical = sampler._spherical_choice(np.take(sampler._tri_table, [0], axis=0).T, np.int32([0]),
-                                              *(np.float32([c]) for c in P))[0][0]
+        spherical = light_triangles.spherical_choice(sampler, np.take(sampler.tri_table, [0], axis=0).T,
+                                                     np.int32([0]), *(np.float32([c]) for c in P))[0][0]
         assert spherical == (size == 1.0)
 
 
@@ -150,10 +151,10 @@ def test_emissive_triangles_are_sampled_by_solid_angle_within_their_longest_edge
     Cycles' kernel/light/triangle.h describes). Either way the irradiance under the triangle is its closed form."""
     positions, _ = quad((-0.5, -0.5, 2.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))   # faces down; diagonal sqrt 2
     sampler = sampler_for(positions=positions, emission=(3, 3, 3))
-    table = np.take(sampler._tri_table, [0, 0, 0, 0], axis=0).T
+    table = np.take(sampler.tri_table, [0, 0, 0, 0], axis=0).T
     heights = np.float32([1.3, 1.4, 1.43, 1.5])   # below the plane by these; the longest edge is 1.414
-    spherical = sampler._spherical_choice(table, np.int32([0, 0, 0, 0]), np.zeros(4, np.float32),
-                                          np.zeros(4, np.float32), np.float32(2.0) - heights)[0]
+    spherical = light_triangles.spherical_choice(sampler, table, np.int32([0, 0, 0, 0]), np.zeros(4, np.float32),
+                                                 np.zeros(4, np.float32), np.float32(2.0) - heights)[0]
     assert spherical.tolist() == [True, True, False, False]
     for h in (0.5, 3.0):   # both ways of sampling give the irradiance of a uniformly emitting square
         a = 0.5 / h        # half side over height: E = L * 4 * a / sqrt(1 + a^2) * atan(a / sqrt(1 + a^2))
@@ -360,7 +361,7 @@ def test_light_samples_go_to_the_glowing_part_of_an_emission_map(monkeypatch):
     (m_n, se_n), (m_c, se_c) = (mean_and_stderr(run.mean(axis=(1, 2))) for run in (nee, cosine))
     assert abs(m_n - m_c) < 4 * np.hypot(se_n, se_c), (m_n, se_n, m_c, se_c)
     # Every triangle at the map's mean, as before: half the light samples land on black.
-    monkeypatch.setattr(lights_module, "_emission_estimates",
+    monkeypatch.setattr(light_selection, "emission_estimates",
                         lambda emission, tri, materials, varies: emission(tri).T.astype(np.float32))
     flat = trace_samples(scene, RenderSettings(mode="NEE_MIS", max_bounces=1, seed=3), 256)
     ratio = nee.var(axis=0).mean() / flat.var(axis=0).mean()

@@ -147,7 +147,7 @@ def test_light_proxies_find_what_testing_every_light_finds():
                     size=np.float32([(0, 0)] * len(grid) + [(0.4, 0.3)] * 12), spot_cos=np.float32([(1, 0)] * k),
                     sun_half_angle=np.zeros(k, np.float32))
     sampler = sampler_for(lights)
-    assert isinstance(sampler._proxy, LightProxies)
+    assert isinstance(sampler.proxy, LightProxies)
     n = 4000
     o = np.c_[rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), np.zeros(n)].astype(np.float32)
     d = rng.normal(size=(n, 3))
@@ -157,10 +157,10 @@ def test_light_proxies_find_what_testing_every_light_finds():
     t_max = np.full(n, np.inf, np.float32)
 
     def hits(ray, light):
-        t, _, _ = sampler._hit_pairs(ray, light, *(a[ray] for a in args))
+        t, _, _ = sampler.hit_pairs(ray, light, *(a[ray] for a in args))
         keep = t > 0
         return set(zip(ray[keep].tolist(), light[keep].tolist()))
-    found = hits(*sampler._proxy.candidates(*args, t_max))
+    found = hits(*sampler.proxy.candidates(*args, t_max))
     everything = hits(np.tile(np.arange(n), k), np.repeat(np.arange(k), n))
     assert found == everything
     assert {light for _, light in found} == set(range(k))  # every light, area lights too, is met

@@ -99,9 +99,9 @@ def test_update_instances_equals_a_new_renderer(counts):
         renderer.update_instances(m, objects)
         assert counts["meshes"] == meshes and counts["samplers"] == samplers + 1
         after = renderer.render(SETTINGS).image
-        table = renderer.lights._tri_table
+        table = renderer.lights.tri_table
     with Renderer(_moved(scene, m, objects), threads=2) as fresh:
-        np.testing.assert_array_equal(table, fresh.lights._tri_table)
+        np.testing.assert_array_equal(table, fresh.lights.tri_table)
         want = fresh.render(SETTINGS).image
     np.testing.assert_array_equal(after, want)
     assert np.abs(after - before).max() > 0.1

@@ -1,0 +1,69 @@
+"""Area lights: rectangles sampled uniformly in the solid angle they subtend, disks uniformly in their area, as
+Cycles samples them (kernel/light/area.h); sample, and intersect for BSDF rays.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import sampling
+from .common import DISK, RECT, area_to_solid_angle, direction
+
+
+def sample(sampler, out, idx, light, px, py, pz, u1, u2):
+    """Rectangles uniformly in the solid angle they subtend, disks uniformly in their area, as Cycles
+    samples them (kernel/light/area.h): the MIS weights, and so what overlapping lamps add up to
+    (intersect), are Cycles'."""
+    sx, sy = sampler.size[light, 0], sampler.size[light, 1]
+    disk = sampler.kind[light] == DISK
+    dx_, dy_ = sampling.sample_uniform_disk(u1, u2)
+    a = dx_ * np.float32(0.5) * sx
+    b = dy_ * np.float32(0.5) * sy
+    c = sampler.position[light].T
+    xa, ya, za = sampler.axis(light, 0), sampler.axis(light, 1), sampler.axis(light, 2)
+    qx = c[0] + a * xa[0] + b * ya[0]
+    qy = c[1] + a * xa[1] + b * ya[1]
+    qz = c[2] + a * xa[2] + b * ya[2]
+    rect = np.flatnonzero(~disk)
+    if len(rect):
+        spherical = rectangles(sampler, light[rect], px[rect], py[rect], pz[rect])
+        q = spherical.sample(u1[rect], u2[rect])
+        qx[rect], qy[rect], qz[rect] = q
+    wx, wy, wz, dist = direction(px, py, pz, qx, qy, qz)
+    cos_l = wx * za[0] + wy * za[1] + wz * za[2]  # > 0: the point is on the emitting (-Z) side
+    pdf = area_to_solid_angle(sampler.area[light], dist, cos_l)
+    if len(rect):
+        pdf[rect] = spherical.pdf(dist[rect], cos_l[rect])
+    radiance = np.where(cos_l > 0, sampler.radiance_of[light].T, np.float32(0.0))
+    out.set(idx, wx, wy, wz, dist, radiance, pdf)
+
+
+def rectangles(sampler, light, px, py, pz) -> sampling.SphericalRectangle:
+    """Rectangular lights as seen from points p."""
+    c, xa, ya = sampler.position[light].T, sampler.axis(light, 0), sampler.axis(light, 1)
+    return sampling.SphericalRectangle((px, py, pz), tuple(c), tuple(xa), tuple(ya),
+                                       sampler.size[light, 0], sampler.size[light, 1])
+
+
+def intersect(sampler, k, ox, oy, oz, dx, dy, dz):
+    """Rays against area lights k (rectangles and disks, emitting toward their -Z)."""
+    c = sampler.position[k].T
+    xa, ya, za = sampler.axis(k, 0), sampler.axis(k, 1), sampler.axis(k, 2)
+    denom = dx * za[0] + dy * za[1] + dz * za[2]          # > 0: travelling into the emitting face
+    # The plane's distance as Cycles computes it (ray_quad_intersect): coplanar lamps meet a ray at
+    # the same float wherever their centres are, and the ray steps over all but the first (intersect).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = ((c[0] * za[0] + c[1] * za[1] + c[2] * za[2]) - (ox * za[0] + oy * za[1] + oz * za[2])) / denom
+    hx, hy, hz = ox + t * dx - c[0], oy + t * dy - c[1], oz + t * dz - c[2]
+    with np.errstate(invalid="ignore"):
+        a = (hx * xa[0] + hy * xa[1] + hz * xa[2]) / sampler.size[k, 0]
+        b = (hx * ya[0] + hy * ya[1] + hz * ya[2]) / sampler.size[k, 1]
+    inside = np.where(sampler.kind[k] == DISK, a * a + b * b <= np.float32(0.25),
+                      (np.abs(a) <= np.float32(0.5)) & (np.abs(b) <= np.float32(0.5)))
+    valid = inside & (denom > 0) & np.isfinite(t)
+    t = np.where(valid, t, np.float32(-1.0))
+    pdf = area_to_solid_angle(sampler.area[k], np.abs(t), np.abs(denom))
+    rect = np.flatnonzero(valid & (sampler.kind[k] == RECT))
+    if len(rect):
+        seen = rectangles(sampler, k[rect], ox[rect], oy[rect], oz[rect])
+        pdf[rect] = seen.pdf(t[rect], denom[rect])
+    return t, pdf, np.ones(len(k), np.float32)

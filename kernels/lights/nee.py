@@ -1,0 +1,214 @@
+"""Next-event estimation: a light sample for every path at its hit, the shadow ray toward it (through
+transparent surfaces, as Cycles' transparent shadows), and the MIS-weighted direct light added to the path; the
+world's light samples focused on glossy lobes; the emission of triangles that the light sampler evaluates.
+Functions over (scene tables, wave, path state), as the integrator's stages (kernels/integrator.py).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import passes, sampling
+from ..bsdf.closures import eval_split, glossy_axes
+from ..environment import WorldFocus
+from ..geometry import NG
+from ..interaction import RayInfo, SurfaceHit, spawn_offset
+from ..paths import may_scatter
+from ..samples import LIGHT, LIGHT_POINT
+
+# At a shading point whose closures are all one glossy lobe, the share of the world's light samples drawn
+# around that lobe (Environment.focus); less in proportion where other closures share the sampling weight.
+FOCUS_SHARE = 0.8
+
+
+# ---- stage: next-event estimation, one shadow ray toward a sampled light
+def world_focus(tables, hit, closures):
+    """environment.WorldFocus per hit, about its main glossy lobe (closures.glossy_axes); None when the world
+    is not sampled as a light or cannot focus (a constant world, World.focus off)."""
+    if not (tables.environment.focuses and tables.lights.samples_world()):
+        return None
+    hits, axis, radius, share = glossy_axes(closures)
+    if not len(hits):
+        return None
+    focus = WorldFocus.none(len(hit))
+    focus.put(hits, tables.environment.focus(*axis, radius, share * np.float32(FOCUS_SHARE)))
+    return focus
+
+
+def next_event(tables, wave, state, hit, closures, numbers, focus=None):
+    """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light.
+    focus: the world's light samples' (_world_focus), per hit."""
+    (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
+    # Paths past their last bounce only pass through transparent surfaces: no direct light there; nor
+    # where the closures are all singular (a mirror, smooth glass): their evaluation is zero.
+    active = np.flatnonzero(may_scatter(wave, state) & closures.evaluable())
+    if len(active) < len(state):
+        if not len(active):
+            return
+        u_select, u1, u2 = u_select[active], u1[active], u2[active]
+        px, py, pz = (c[active] for c in hit.p)
+        focus = None if focus is None else focus.take(active)
+    else:
+        px, py, pz = hit.p
+    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus)
+    tables.crew.check_stop()
+    le = ls.radiance
+    useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
+    if not len(useful):
+        return
+    f, bsdf_pdf = closures.eval_at(active[useful], (ls.wx[useful], ls.wy[useful], ls.wz[useful]))
+    keep = np.flatnonzero((f[0] > 0) | (f[1] > 0) | (f[2] > 0))
+    idx = useful[keep]  # rows of the light sample; active[idx] are the paths
+    if not len(idx):
+        return
+    f, bsdf_pdf = np.take(f, keep, axis=1), bsdf_pdf[keep]
+    gx, gy, gz = (np.take(c, active[idx]) for c in hit.ng)
+    wx, wy, wz = np.take(ls.wx, idx), np.take(ls.wy, idx), np.take(ls.wz, idx)
+    # Leave from the side of the surface the light is on (a light behind a transmitting surface).
+    sign = np.where(wx * gx + wy * gy + wz * gz < 0, np.float32(-1.0), np.float32(1.0))
+    sx, sy, sz = np.take(px, idx), np.take(py, idx), np.take(pz, idx)
+    lift = terminator_lift(tables, hit, active[idx], (wx, wy, wz), (gx, gy, gz))
+    if lift is not None:
+        rows, offset = lift
+        sx, sy, sz = sx.copy(), sy.copy(), sz.copy()
+        sx[rows] += offset[:, 0]
+        sy[rows] += offset[:, 1]
+        sz[rows] += offset[:, 2]
+    eps = spawn_offset(tables.ray_epsilon, sx, sy, sz) * sign
+    dist = np.take(ls.dist, idx)
+    ox, oy, oz = sx + gx * eps, sy + gy * eps, sz + gz * eps
+    # Aim from the offset origin at the sampled point itself: keeping the direction from the
+    # surface point would shift the ray by eps and, at grazing angles, make it cross the
+    # emitter's plane before the point (a lamp 1 cm under a ceiling shadowed itself that way).
+    finite = np.isfinite(dist)
+    safe = np.where(finite, dist, np.float32(0.0))
+    ax, ay, az = sx + wx * safe - ox, sy + wy * safe - oy, sz + wz * safe - oz
+    to_point = np.sqrt(ax * ax + ay * ay + az * az)
+    inv = np.float32(1.0) / np.maximum(to_point, np.float32(1e-30))
+    wx, wy, wz = np.where(finite, ax * inv, wx), np.where(finite, ay * inv, wy), np.where(finite, az * inv, wz)
+    # Stop short of the sampled point so that the emitter itself does not count as an occluder.
+    t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - np.abs(eps), np.inf).astype(np.float32)
+    origins = np.stack([ox, oy, oz], axis=1)
+    paths = active[idx]
+    dirs = np.stack([wx, wy, wz], axis=1)
+    # Lights with Cast Shadow off are not blocked: no shadow ray, as in Cycles.
+    traced = np.flatnonzero(np.take(ls.shadowed, idx))
+    if len(traced) == len(idx):
+        transmittance = shadow_of(tables, origins, dirs, t_max, wave, state, paths)
+    else:
+        transmittance = np.ones((3, len(idx)), np.float32)
+        if len(traced):
+            transmittance[:, traced] = shadow_of(tables, origins[traced], dirs[traced], t_max[traced], wave,
+                                                       state, paths[traced])
+    vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
+    if not len(vis):
+        return
+    rows = idx[vis]
+    paths = active[rows]
+    pdf = np.take(ls.pdf, rows)
+    # MIS: the power heuristic, but against the world's light samples the world's own (Environment.
+    # mis_balance: the balance heuristic with a compensated distribution; escaped rays use it too).
+    heuristic = sampling.power_heuristic(pdf, bsdf_pdf[vis])
+    if tables.environment.mis_balance:
+        heuristic = np.where(np.take(ls.world, rows), sampling.balance_heuristic(pdf, bsdf_pdf[vis]), heuristic)
+    w = np.where(np.take(ls.delta, rows), np.float32(1.0), heuristic)
+    contribution = np.take(state.throughput, paths, axis=1) * np.take(f, vis, axis=1) * \
+        np.take(transmittance, vis, axis=1) * \
+        np.take(ls.radiance, rows, axis=1) * (w / pdf)
+
+    def reflecting(first):  # light reaching the first hit: split by the closures that reflect it there
+        wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
+        return passes.class_shares(*eval_split(closures, paths[first], wi))
+    passes.add_light(tables, wave, state, paths, contribution, reflecting)
+
+
+def terminator_lift(tables, hit, hits, light, ng):
+    """Cycles' shadow terminator offset (shadow_ray_offset, kernel/light/sample.h): shadow rays toward
+    lights near the horizon of a smooth low-poly surface leave from the smooth surface its normals
+    describe, lifted off the flat triangle, in proportion as the light nears the horizon, below each
+    object's Geometry Offset (Object > Shading > Shadow Terminator; 0.1 by default). Returns (rows of
+    the shadow rays lifted, their (m, 3) offsets), or None."""
+    if tables.terminator is None:
+        return None
+    cutoff = tables.terminator if np.ndim(tables.terminator) == 0 else \
+        np.take(tables.terminator, tables.triangles.object_rows(np.take(hit.prim, hits)))
+    nl = sum(np.take(hit.ns[k], hits) * light[k] for k in range(3))
+    turned = np.where(nl < 0, np.float32(-1.0), np.float32(1.0))      # a light on the shading normal's back
+    nl = np.abs(nl)
+    side = tuple(c * turned for c in ng)
+    ngl = sum(side[k] * light[k] for k in range(3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        amount = np.where(nl < cutoff, np.clip(2.0 - (ngl + nl) / cutoff, 0.0, 1.0),
+                          np.clip(1.0 - ngl / cutoff, 0.0, 1.0))
+    rows = np.flatnonzero((amount > 0) & (cutoff > 0))
+    if not len(rows):
+        return None
+    offset = hit.smooth_offset(hits[rows], tuple(c[rows] for c in side))
+    return rows, offset * amount[rows, None].astype(np.float32)
+
+
+def shadow_of(tables, origins, dirs, t_max, wave, state, paths) -> np.ndarray:
+    """_shadow for shadow rays leaving the paths `paths` (state rows)."""
+    return shadow(tables, origins, dirs, t_max, wave, np.take(state.bounce, paths),
+                        None if state.lobes is None else np.take(state.lobes, paths, axis=1),
+                        None if state.time is None else state.time.take(paths),
+                        None if state.portal is None else np.take(state.portal, paths))
+
+
+def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None) -> np.ndarray:
+    """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
+    transparent surfaces, the product of their transparency (Cycles' transparent shadows).
+    depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None),
+    portal its Ray Portals passed (or None): what the Light Path node reads."""
+    n = len(origins)
+    split = wave.split
+    if not tables.shading.transparent.any():
+        blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
+        return np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
+    out = np.ones((3, n), np.float32)
+    live = np.arange(n)
+    origins, t_left = origins.copy(), t_max.copy()
+    for _ in range(int(wave.settings.transparent_max_bounces) + 1):
+        hits = tables.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
+        found = np.flatnonzero(hits.prim >= 0)
+        if not len(found):
+            break
+        d = dirs[live[found]]
+        hit = SurfaceHit(tables.triangles, hits.prim[found], hits.u[found], hits.v[found],
+                         (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv)
+        passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
+        hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
+                          lobes=None if lobes is None else lobes[:, live[found]],
+                          portal=None if portal is None else portal[live[found]])
+        passes = tables.shading.transparency(hit)
+        out[:, live[found]] *= passes
+        through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]
+        if not len(through):
+            break
+        # Continue just past the transparent surface.
+        t = hits.t[through]
+        step = t + spawn_offset(tables.ray_epsilon, *(origins[through, k] for k in range(3)))
+        origins = origins[through] + dirs[live[through]] * step[:, None]
+        t_left = t_left[through] - step
+        live = live[through]
+        keep = t_left > 0
+        origins, t_left, live = origins[keep], t_left[keep], live[keep]
+        if not len(live):
+            break
+    else:
+        out[:, live] = 0.0  # more transparent surfaces than the limit: opaque, as in Cycles
+    return out
+
+
+# ---------------------------------------------------------------- emitters for the light sampler
+def triangle_emission(tables, tri, b1=None, b2=None, toward=None) -> np.ndarray:
+    """(3, n) emitted radiance of triangles tri at barycentrics (b1, b2) seen from direction
+    -toward (the direction from the receiver to the light); without barycentrics, the material's
+    mean (textures averaged), for power estimates."""
+    mat = tables.triangles.materials(tri)
+    if b1 is None:
+        return tables.shading.mean_emission(mat)
+    if toward is None:  # seen head-on, along the triangle's normal
+        g = tables.triangles.gather(tri)
+        toward = (-g[NG], -g[NG + 1], -g[NG + 2])
+    hit = SurfaceHit(tables.triangles, tri, b1, b2, toward, tables.shading.needs_uv)
+    return tables.shading.surface(hit, closures=False).emission

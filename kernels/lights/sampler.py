@@ -1,0 +1,415 @@
+"""The LightSampler: a scene's emitters (Blender lights, emissive triangles, the world) in one table, the choice
+among them (selection.py), sampling a direction toward the chosen one by its kind's module, and the lights
+BSDF rays meet (intersect). LightSample and LightHits are what they return.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..environment import Environment
+from ..rng import pcg2d, to_unit_float
+from ..geometry import emissive_instanced
+from ..light_tree import LightTree
+from ..scene import SceneArrays
+from ..textures import luminance
+from . import area, point_spot, selection, sun, triangles, world
+from .common import DISK, POINT, RECT, SPOT, SUN
+from .proxies import PROXY_MIN_LIGHTS, LightProxies
+from .triangles import TAREA, TE1, TE2, TLE, TN, TP0, TRI_COLUMNS
+
+
+class LightSample:
+    """Per shading point: unit direction (wx, wy, wz), distance (inf for the world and the sun),
+    radiance (3, N) arriving along it, pdf (N,) per unit solid angle times the selection probability,
+    delta (N,) bool for lights no BSDF ray can hit, world (N,) bool for samples of the world, shadowed (N,)
+    bool: surfaces can block the sample (False for a light with Cast Shadow off)."""
+    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world", "shadowed")
+
+    def __init__(self, n: int):
+        self.wx = np.zeros(n, np.float32)
+        self.wy = np.zeros(n, np.float32)
+        self.wz = np.ones(n, np.float32)
+        self.dist = np.full(n, np.inf, np.float32)
+        self.radiance = np.zeros((3, n), np.float32)
+        self.pdf = np.zeros(n, np.float32)
+        self.delta = np.zeros(n, bool)
+        self.world = np.zeros(n, bool)
+        self.shadowed = np.ones(n, bool)
+
+    def set(self, idx, wx, wy, wz, dist, radiance, pdf, delta=False):
+        if len(idx) == len(self.wx):  # every point chose this kind: no scatter needed
+            idx = slice(None)
+        self.wx[idx], self.wy[idx], self.wz[idx] = wx, wy, wz
+        self.dist[idx] = dist
+        self.radiance[:, idx] = radiance
+        self.pdf[idx] = pdf
+        self.delta[idx] = delta
+
+
+class LightHits:
+    """What BSDF rays meet of the lights with a surface (LightSampler.intersect), per ray: hit (N,) bool,
+    radiance (3, N) and pdf (N,) (solid angle, with selection) of the light returned; crossed (N,) int32,
+    the lights met (each a transparent bounce); stopped (N,) bool, the path ends at its last light."""
+    __slots__ = ("hit", "radiance", "pdf", "crossed", "stopped")
+
+    def __init__(self, n: int):
+        self.hit = np.zeros(n, bool)
+        self.radiance = np.zeros((3, n), np.float32)
+        self.pdf = np.zeros(n, np.float32)
+        self.crossed = np.zeros(n, np.int32)
+        self.stopped = np.zeros(n, bool)
+
+
+class LightSampler:
+    """All emitters of a scene and one power-proportional distribution over them.
+
+    Entities are numbered: Blender lights [0, L), emissive triangles [L, L + E), then the world.
+    """
+
+    def __init__(self, scene: SceneArrays, environment: Environment, triangle_emission):
+        """triangle_emission: the emissive materials. triangle_emission(tri_ids) -> (3, n) mean emitted radiance
+        of those triangles (textures averaged); triangle_emission(tri_ids, b1, b2, toward) -> (3, n) radiance
+        at barycentrics (b1, b2) toward -toward; .emissive (M,) bool, the materials that emit;
+        .varies (M,) bool, those whose emission changes over the surface or with the direction."""
+        lights = scene.lights
+        self.environment = environment
+        self.light_count = lights.count
+        self.kind = lights.kind
+        self.shadowed = lights.shadowed()
+        self.position = lights.position.astype(np.float32)
+        self.axes = lights.frame.astype(np.float32)              # (L, 3, 3): columns x, y, z
+        self.radiance_of = lights.radiance.astype(np.float32)
+        self.radius = lights.radius.astype(np.float32)
+        self.size = lights.size.astype(np.float32)
+        self.spot = lights.spot_cos.astype(np.float32)
+        self.sun_cos = np.cos(lights.sun_half_angle).astype(np.float32)
+        # A sun of angular radius a and radiance L gives E = L pi sin^2(a) facing it: L = E / (pi sin^2 a),
+        # with a the cone actually sampled, that of the float32 cosine (Blender's default 0.526 degree sun:
+        # float32 rounds its 1 - cos by 0.14%, and the sun read that much bright).
+        # Suns whose cone rounds to a single direction in float32 are delta lights and keep E itself.
+        cos_sampled = self.sun_cos.astype(np.float64)
+        sin2 = (1.0 - cos_sampled) * (1.0 + cos_sampled)
+        cone = (self.sun_cos < np.float32(1.0)) & (sin2 > 0)
+        self.sun_radiance = np.where(cone[:, None], lights.radiance / (np.pi * np.where(cone, sin2, 1.0))[:, None],
+                                     lights.radiance).astype(np.float32)
+        # Suns with a disc: rays that leave the scene toward one see it (Cycles' integrate_sun_lights).
+        self.sun_discs = np.flatnonzero((self.kind == SUN) & cone & (self.radiance_of.max(axis=1) > 0)) \
+            if self.light_count else np.zeros(0, np.int64)
+        self.area = np.where(self.kind == RECT, self.size[:, 0] * self.size[:, 1],
+                             np.float32(np.pi / 4) * self.size[:, 0] * self.size[:, 1]).astype(np.float32)
+
+        # Emissive triangles: two-sided, uniform over their area.
+        emits = np.asarray(triangle_emission.emissive, bool)
+        # Triangles of moving objects (motion blur) are left to BSDF rays, which find them where they are
+        # at the path's time (with MIS weight 1: their light pdf is 0); the table would place them wrong.
+        sampled = emits[scene.material_ids]
+        if scene.has_motion and scene.motion_ids is not None:
+            sampled &= scene.motion_ids < 0
+        plain_ids = np.flatnonzero(sampled).astype(np.int32)
+        # Emissive triangles of instances (kernels.scene.Instances) come after the plain ones, each instance's
+        # copy a light of its own, numbered as ray hits report them.
+        instanced_ids, instanced_corners, instanced_materials = emissive_instanced(scene, emits)
+        # Each triangle's own emission: the material's where it is constant, an estimate from a few points
+        # of the triangle where a texture or layers make it vary. Triangles that show none are left to BSDF
+        # rays (light pdf 0, so MIS weight 1), as Cycles leaves emitters it estimates weak: an emission map
+        # is mostly black (Damaged Helmet: 98% of its triangles), and light samples on the black part are
+        # wasted.
+        candidates = np.concatenate([plain_ids, instanced_ids]) if len(instanced_ids) else plain_ids
+        varies = np.asarray(triangle_emission.varies, bool)
+        estimate = selection.emission_estimates(triangle_emission, candidates,
+                                       np.concatenate([scene.material_ids[plain_ids], instanced_materials]), varies)
+        keep = np.abs(estimate).max(axis=1, initial=0.0) > 0
+        n_plain = len(plain_ids)
+        plain_ids, estimate = plain_ids[keep[:n_plain]], estimate[keep]
+        instanced_ids, instanced_corners = instanced_ids[keep[n_plain:]], instanced_corners[keep[n_plain:]]
+        instanced_materials = instanced_materials[keep[n_plain:]]
+        self.tri_ids = np.concatenate([plain_ids, instanced_ids]) if len(instanced_ids) else plain_ids
+        p = scene.positions[plain_ids].astype(np.float64)
+        if len(instanced_ids):
+            p = np.concatenate([p, instanced_corners])
+        e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+        cross = np.cross(e1, e2)
+        tri_area = 0.5 * np.linalg.norm(cross, axis=1)
+        self.tri_area = tri_area.astype(np.float32)
+        # Position of each scene triangle in the emissive list (-1 for non-emissive), for MIS on hits.
+        # (Instanced ones are looked up in tri_ids, see _slots.)
+        self.tri_slot = np.full(scene.triangle_count, -1, np.int32)
+        self.tri_slot[plain_ids] = np.arange(len(plain_ids), dtype=np.int32)
+        self.plain_count = scene.triangle_count
+        self.has_instances = scene.instances is not None and scene.instances.count > 0
+        self._instanced = len(instanced_ids) > 0
+        # Triangles whose emission varies (a texture, layers above it) are evaluated at the sampled point.
+        materials = np.concatenate([scene.material_ids[plain_ids], instanced_materials])
+        self.tri_textured = bool(varies[materials].any())
+        # One row per emissive triangle, gathered whole (rows of a (E, K) table gather fastest).
+        table = np.zeros((len(self.tri_ids), TRI_COLUMNS), np.float32)
+        table[:, TP0:TP0 + 3] = p[:, 0]
+        table[:, TE1:TE1 + 3] = e1
+        table[:, TE2:TE2 + 3] = e2
+        table[:, TN:TN + 3] = cross / np.maximum(2 * tri_area, 1e-300)[:, None]
+        table[:, TAREA] = tri_area
+        self.tri_table = table
+        # Squared longest edge of each emissive triangle: the reach of its solid-angle sampling.
+        self.tri_reach2 = np.max(np.stack([(e1 * e1).sum(1), (e2 * e2).sum(1), ((e2 - e1) ** 2).sum(1)]),
+                                  axis=0).astype(np.float32) if len(self.tri_ids) else np.zeros(0, np.float32)
+        self.triangle_emission = triangle_emission
+        table[:, TLE:TLE + 3] = estimate
+
+        surface = ((self.kind == RECT) | (self.kind == DISK) | (((self.kind == POINT) | (self.kind == SPOT))
+                                                                 & (self.radius > 0)))
+        self.has_surface_lights = bool(surface.any())
+        self.surface_ids = np.flatnonzero(surface)
+        self.proxy = (LightProxies(self.surface_ids, self.kind, self.position, self.radius, self.size)
+                       if len(self.surface_ids) > PROXY_MIN_LIGHTS else None)
+        power = np.concatenate([self._light_power(), self._triangle_power(), [self._world_power()]])
+        power = np.where(np.isfinite(power) & (power > 0), power, 0.0)
+        self.world_index = self.light_count + len(self.tri_ids)
+        self.has_lights = power.sum() > 0
+        self.select_pmf = selection.power_pmf(power, self.distant_mask())
+        self._cdf = np.cumsum(self.select_pmf)
+        if self.has_lights:
+            self._cdf /= self._cdf[-1]
+        self.pmf32 = self.select_pmf.astype(np.float32)
+        self.tree_divergence = 0.0
+        self.tree = selection.local_choice(self, power, scene) if self.has_lights else None
+
+    @property
+    def instanced_emitters(self) -> bool:
+        """Some emissive triangles belong to instances: the table moves with them (a new sampler then)."""
+        return self._instanced
+
+    # ------------------------------------------------------------------ power estimates
+    def _light_power(self) -> np.ndarray:
+        lum = luminance(self.radiance_of).astype(np.float64) if self.light_count else np.zeros(0)
+        r2 = self.radius.astype(np.float64) ** 2
+        # Sized point lights act as a disk of radiance L facing every point: intensity L pi r^2.
+        sphere = np.where(r2 > 0, lum * np.pi * r2, lum) * 4 * np.pi
+        cone = (1.0 - 0.5 * (self.spot[:, 0] + np.minimum(1.0, self.spot[:, 0] + self.spot[:, 1]))).astype(np.float64)
+        spot = sphere * np.clip(cone, 1e-4, 1.0) / 2.0
+        sun = lum  # irradiance (W/m^2): compared with the world's only (see DISTANT_SHARE)
+        area = lum * self.area * np.pi
+        return np.select([self.kind == POINT, self.kind == SPOT, self.kind == SUN], [sphere, spot, sun], area)
+
+    def _triangle_power(self) -> np.ndarray:
+        if not len(self.tri_ids):
+            return np.zeros(0)
+        lum = luminance(self.tri_table[:, TLE:TLE + 3]).astype(np.float64)
+        return 2.0 * np.pi * self.tri_area * lum
+
+    def _world_power(self) -> float:
+        """In the sun's unit (W/m^2): the world's flux into a sphere over the sphere's cross-section. 0 for a
+        world of one colour in every direction, which, as in Cycles (LightManager's background light needs a
+        spatially varying world), is no light: BSDF rays find it, with MIS weight 1, and next-event
+        estimation spends its samples on the lamps (a constant grey world took half of them)."""
+        if not self.environment.varies:
+            return 0.0
+        return float(4 * np.pi * self.environment.mean_luminance())
+
+    def distant_mask(self) -> np.ndarray:
+        """(L + E + 1,) bool: the emitters whose power is per unit area (suns and the world)."""
+        return np.concatenate([self.kind == SUN, np.zeros(len(self.tri_ids), bool), [True]])
+
+    # ------------------------------------------------------------------ the light tree
+
+    @property
+    def uses_tree(self) -> bool:
+        return isinstance(self.tree, LightTree)
+
+    @property
+    def selection(self) -> str:
+        """How shading points choose among the local emitters: "power" (one pmf everywhere), "tree" (a
+        light tree per point) or "solid angle" (SolidAngleChoice per point)."""
+        if self.tree is None:
+            return "power"
+        return "tree" if isinstance(self.tree, LightTree) else "solid angle"
+
+    def choose_at(self, u_select, px, py, pz):
+        """(emitter (n,) int64, selection probability (n,) float32) per shading point p (selection.choose_at)."""
+        return selection.choose_at(self, u_select, px, py, pz)
+
+    def selection_pmf(self, emitter, px, py, pz):
+        """(n,) float32 probability that NEE at point p chooses emitter (selection.selection_pmf)."""
+        return selection.selection_pmf(self, emitter, px, py, pz)
+
+    # ------------------------------------------------------------------ sampling
+    def choose(self, u_select: np.ndarray) -> np.ndarray:
+        """(n,) int64 emitter index per number in [0, 1): lights, then emissive triangles, then the world,
+        each with probability select_pmf."""
+        if len(self._cdf) == 1:
+            return np.zeros(len(u_select), np.int64)
+        # float64: a float32 cdf would round the intervals of millions of small emitters.
+        return np.minimum(np.searchsorted(self._cdf, u_select.astype(np.float64), side="right"), len(self._cdf) - 1)
+
+    def sample(self, px, py, pz, u_select, u1, u2, focus=None) -> LightSample:
+        """Choose an emitter for each shading point p and sample a direction toward it. focus: the world's
+        (environment.WorldFocus per shading point) when its light samples focus on glossy lobes."""
+        n = len(px)
+        out = LightSample(n)
+        if not self.has_lights or n == 0:
+            return out
+        chosen, select = self.choose_at(u_select, px, py, pz)
+        if not self.shadowed.all():
+            lamp = chosen < self.light_count
+            out.shadowed = ~lamp | np.take(self.shadowed, np.where(lamp, chosen, 0))
+        if self.light_count:
+            for kind, method in ((POINT, point_spot.sample), (SPOT, point_spot.sample), (SUN, sun.sample),
+                                 (RECT, area.sample), (DISK, area.sample)):
+                idx = np.flatnonzero((chosen < self.light_count) & (np.take(self.kind, np.minimum(chosen, self.light_count - 1)) == kind))
+                if len(idx):
+                    method(self, out, idx, chosen[idx], px[idx], py[idx], pz[idx], u1[idx], u2[idx])
+        tri = np.flatnonzero((chosen >= self.light_count) & (chosen < self.world_index))
+        if len(tri):
+            triangles.sample(self, out, tri, chosen[tri] - self.light_count, px[tri], py[tri], pz[tri], u1[tri], u2[tri])
+        if self.select_pmf[self.world_index] > 0:
+            picked = np.flatnonzero(chosen == self.world_index)
+            if len(picked):
+                world.sample(self, out, picked, u1[picked], u2[picked], None if focus is None else focus.take(picked))
+        out.pdf *= select
+        return out
+
+    def axis(self, light, k):
+        """(3, n) world direction of the chosen lights' local axis k."""
+        return self.axes[light, :, k].T
+
+    # ------------------------------------------------------------------ pdfs of what BSDF rays find
+
+    # ------------------------------------------------------------------ pdfs of what BSDF rays find
+    def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz) -> np.ndarray:
+        """pdf (solid angle, with selection) of NEE from o for this point of emissive triangle tri
+        (triangles.pdf_hit)."""
+        return triangles.pdf_hit(self, tri, dist, cos_l, ox, oy, oz)
+
+    def pdf_world(self, dx, dy, dz, focus=None) -> np.ndarray:
+        """pdf (solid angle, with selection) of NEE for world directions d (world.pdf)."""
+        return world.pdf(self, dx, dy, dz, focus)
+
+    def suns_seen(self, dx, dy, dz, bsdf_pdf=None):
+        """(3, n) radiance of the sun discs that rays leaving the scene along d look into, MIS-weighed
+        (sun.seen); None when the scene has no sun with a disc."""
+        return sun.seen(self, dx, dy, dz, bsdf_pdf)
+
+    def samples_world(self) -> bool:
+        """Whether next-event estimation can choose the world."""
+        return self.has_lights and self.select_pmf[self.world_index] > 0
+
+    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None) -> "LightHits":
+        """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max, as Cycles'
+        BSDF rays meet them (kernel/light/light.h lights_intersect, integrator/shade_light.h).
+
+        A ray finds the nearest light before the geometry, counts its emission and goes on from there
+        with its start just past that distance, as through a transparent surface: each light it meets
+        takes one of its transparent bounces, and the light that takes the last one (budget (N,) int,
+        the transparent bounces the path has left; at least the first light is counted) ends the path
+        there. A light at the distance of the last one found, to the float, is stepped over (Cycles
+        moves the ray's start to the next float after the hit): of coincident lamps the first in the
+        scene's order is seen, alone. Without a budget every light before t_max is met.
+
+        The caller weights what it gets by MIS with one pdf, so where a ray meets several lights one of
+        them is returned, chosen in proportion to its radiance, with its radiance divided by that
+        probability: the expectation is the sum over the lights, each with its own MIS weight."""
+        n = len(ox)
+        out = LightHits(n)
+        if not self.has_surface_lights or n == 0:
+            return out
+        ray, light = self._candidates(ox, oy, oz, dx, dy, dz, t_max)
+        if not len(ray):
+            return out
+        t, light_pdf, le = self.hit_pairs(ray, light, ox[ray], oy[ray], oz[ray], dx[ray], dy[ray], dz[ray])
+        ok = np.flatnonzero((t > 0) & (t < t_max[ray]))
+        # Nearest first; of lights at one distance, the first in the scene's order (Cycles' loop keeps
+        # a light only when it is strictly nearer than the one it has).
+        order = ok[np.lexsort((light[ok], t[ok], ray[ok]))]
+        ray, light, t, light_pdf, le = ray[order], light[order], t[order], light_pdf[order], le[:, order]
+        met, crossed = _met_in_turn(ray, t, n, budget)
+        out.crossed = crossed
+        if budget is not None:
+            out.stopped = crossed >= np.maximum(budget, 1)
+        ray, light, light_pdf, le = ray[met], light[met], light_pdf[met], le[:, met]
+        weight = le[0] + le[1] + le[2]
+        keep = np.flatnonzero(weight > 0)
+        ray, light, light_pdf, le, weight = ray[keep], light[keep], light_pdf[keep], le[:, keep], weight[keep]
+        if not len(ray):
+            return out
+        chosen, share = _choose_per_ray(ray, weight.astype(np.float64), _ray_uniform(ox, oy, oz, dx, dy, dz)[ray])
+        rays = ray[chosen]
+        out.hit[rays] = True
+        out.radiance[:, rays] = le[:, chosen] / share.astype(np.float32)
+        out.pdf[rays] = self.selection_pmf(light[chosen], ox[rays], oy[rays], oz[rays]) * light_pdf[chosen]
+        return out
+
+    def _candidates(self, ox, oy, oz, dx, dy, dz, t_max):
+        """(ray, light) index pairs that may hit: every ray against every surface light, or, with many
+        lights, the pairs whose bounding shapes the ray crosses (found by Embree)."""
+        if self.proxy is None:
+            n, k = len(ox), len(self.surface_ids)
+            return np.tile(np.arange(n), k), np.repeat(self.surface_ids, n)
+        return self.proxy.candidates(ox, oy, oz, dx, dy, dz, t_max)
+
+    def hit_pairs(self, ray, light, ox, oy, oz, dx, dy, dz):
+        """Per (ray, light) pair: distance (-1 for a miss), pdf per solid angle of that light's
+        sampling (without selection) and the radiance arriving (3, P)."""
+        p = len(ray)
+        t = np.full(p, -1.0, np.float32)
+        pdf = np.zeros(p, np.float32)
+        le = np.zeros((3, p), np.float32)
+        kind = np.take(self.kind, light)
+        for sel, method in ((np.flatnonzero((kind == POINT) | (kind == SPOT)), point_spot.intersect),
+                            (np.flatnonzero((kind == RECT) | (kind == DISK)), area.intersect)):
+            if len(sel):
+                lk = light[sel]
+                t_k, pdf_k, att = method(self, lk, ox[sel], oy[sel], oz[sel], dx[sel], dy[sel], dz[sel])
+                t[sel], pdf[sel] = t_k, pdf_k
+                le[:, sel] = self.radiance_of[lk].T * att[None, :]
+        return t, pdf, le
+
+
+def _ray_uniform(ox, oy, oz, dx, dy, dz) -> np.ndarray:
+    """(N,) float32 in [0, 1): a hash of each ray's bits. Deterministic (every thread count gives the
+    same image) and independent of the path's own random numbers for the purpose it serves."""
+    bits = [np.ascontiguousarray(a, np.float32).view(np.uint32) for a in (ox, oy, oz, dx, dy, dz)]
+    x, y = pcg2d(bits[0] ^ bits[3], bits[1] ^ bits[4])
+    x, y = pcg2d(x ^ bits[2], y ^ bits[5])
+    return to_unit_float(x)
+
+
+def _met_in_turn(ray, t, n: int, budget):
+    """Candidates sorted by ray, then distance t (float32): which a ray meets in turn (mask), and how many
+    each of the n rays meets, (N,) int32. A candidate is met when it lies beyond the next float after the
+    last one met; a ray stops meeting lights at max(budget, 1) (None: no limit)."""
+    met = np.zeros(len(ray), bool)
+    crossed = np.zeros(n, np.int32)
+    if not len(ray):
+        return met, crossed
+    starts = np.flatnonzero(np.r_[True, ray[1:] != ray[:-1]])
+    sizes = np.diff(np.r_[starts, len(ray)])
+    rays = ray[starts]
+    limit = sizes if budget is None else np.minimum(sizes, np.maximum(np.take(budget, rays), 1))
+    last = np.full(len(starts), -np.inf, np.float32)
+    count = np.zeros(len(starts), np.int64)
+    group = np.arange(len(starts))
+    rank = 0
+    while len(group):
+        at = starts[group] + rank
+        beyond = t[at] > np.nextafter(last[group], np.float32(np.inf))
+        met[at[beyond]] = True
+        took = group[beyond]
+        last[took] = t[at[beyond]]
+        count[took] += 1
+        rank += 1
+        group = group[(rank < sizes[group]) & (count[group] < limit[group])]
+    crossed[rays] = count
+    return met, crossed
+
+
+def _choose_per_ray(ray, weight, u):
+    """Candidates sorted by ray, weight > 0 each, u one uniform per candidate (its ray's): one candidate
+    per ray, chosen with probability weight / (sum of its ray's weights). Returns (indices of the
+    chosen candidates, their probabilities)."""
+    starts = np.flatnonzero(np.r_[True, ray[1:] != ray[:-1]])
+    counts = np.diff(np.r_[starts, len(ray)])
+    cum = np.cumsum(weight)
+    before = np.repeat(np.r_[0.0, cum[starts[1:] - 1]], counts)   # sum of the weights of earlier rays
+    total = np.repeat(np.add.reduceat(weight, starts), counts)
+    below = (cum - weight - before) <= u * total                    # True, ..., True, False, ... per ray
+    chosen = starts + np.maximum(np.add.reduceat(below.astype(np.int64), starts) - 1, 0)
+    return chosen, weight[chosen] / total[chosen]

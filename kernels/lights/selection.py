@@ -1,0 +1,244 @@
+"""Choosing an emitter: one pmf by power everywhere (distant emitters taking DISTANT_SHARE), or per shading point
+among the local ones, by a light tree (kernels.light_tree) or, among a few emissive triangles, by the solid
+angle each subtends (SolidAngleChoice).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import scene_extent
+from ..light_tree import LightTree
+from ..textures import luminance
+from ..vec import normalize_floored_xyz
+from .common import DISK, RECT
+from .triangles import TE1, TE2, TLE, TN, TP0, solid_angle
+
+# When a scene has both local and distant emitters, the distant ones (suns, world) get this share of
+# the light choices. It cannot come from comparing powers: a sun's or the world's power is per unit
+# area, and turning it into watts takes an arbitrary area (the scene's bounding sphere made a 1 km floor
+# starve the lamps). Cycles' light tree weighs distant lights at its root by their own importance,
+# not by the scene's size, too; a fixed half is never more than 2x from the best split for either side.
+DISTANT_SHARE = 0.5
+# With at least this many local emitters (point, spot and area lights, emissive triangles, with power)
+# the local ones may be chosen per shading point by a light tree (kernels.light_tree), as Cycles always
+# does; a single one needs no choice. The walk costs a few NumPy passes per level (the 200-lamp bench
+# scene: 1.5 against 1.6-1.9 M paths/s, for a third of the variance per sample). A few lamps gain the
+# most (kernel, 32x32, 128 spp, two bounces, against the power pmf: variance per sample 0.26x with a
+# three-point set-up of two area lights and a point light, 0.07x with two point lamps over a floor, 0.09x
+# with four area lights; time +10-25%). Until stop 23 the bound was 16, to keep few-light scenes' images.
+TREE_MIN_EMITTERS = 2
+# From two to this many local emitters, all emissive triangles (a lamp modelled as a quad, say), each
+# shading point chooses among them in proportion to the light each sends it: luminance times the solid
+# angle it subtends there, computed exactly (SolidAngleChoice), instead of by the tree's bounds. The power
+# pmf sends half the samples of a point beside the lamp's near half to its far half. The Cornell box's
+# quad lamp: 24% less variance per sample for 4-6% more time.
+SOLID_ANGLE_MAX_EMITTERS = 4
+# ... and, for the triangles of a single emissive object, only where its choices differ from the power
+# pmf's: at probe points in the scene's box, the total variation distance between the two pmfs (estimated
+# from the tree's own samples) must reach this. Several lights, or lights and emissive objects, always
+# get the tree, as in Cycles: over a large floor the probes miss the few places where a lamp must win
+# against the emissive mesh beside it (a lamp inside an emissive glass shade scored 0.09, and the power
+# pmf gave the lamp 1% of the samples there against the tree's 19%).
+# Measured (1 thread, 16k-path waves, 8 bounces): the Cornell box's lamp cut into 8-200 triangles scores
+# 0.06-0.07, and the tree renders it at 0.74-0.98x the efficiency (1 / (variance x time)) of the power
+# pmf; a whole-ceiling panel of 8-200 triangles 0.15-0.18, and 1.1x (72 and 200 triangles); 8-200 lamps
+# spread over a floor (tests/test_light_tree.py) 0.31-0.35, and 1.4-7x; bench/vs_cycles.py's 200 lamps 0.29.
+TREE_MIN_DIVERGENCE = 0.1
+# Probe points and tree samples per probe for that estimate (fixed seed: the choice is deterministic).
+_TREE_PROBES, _TREE_PROBE_SAMPLES = 256, 64
+
+
+def local_choice(sampler, power, scene):
+    """How shading points choose among the local emitters with power, when not by the global pmf: a
+    SolidAngleChoice among two to SOLID_ANGLE_MAX_EMITTERS emissive triangles; a LightTree over
+    TREE_MIN_EMITTERS or more emitters whose choices differ enough from the global pmf's
+    (TREE_MIN_DIVERGENCE, measured at points in the box of the scene's triangles); else None. Also the
+    distant emitters' own distribution for the points that choose one."""
+    distant = sampler.distant_mask()
+    local = np.flatnonzero(~distant & (power > 0))
+    few = 2 <= len(local) <= SOLID_ANGLE_MAX_EMITTERS and bool((local >= sampler.light_count).all())
+    if len(local) < TREE_MIN_EMITTERS and not few:
+        return None
+    sampler.distant_ids = np.flatnonzero(distant & (sampler.select_pmf > 0))
+    # Exactly 1 without distant emitters: a rounded sum would send a few points to none.
+    sampler.local_share = float(sampler.select_pmf[local].sum()) if len(sampler.distant_ids) else 1.0
+    sampler.tree_ids = local
+    sampler.tree_slot = np.full(len(power), -1, np.int64)
+    sampler.tree_slot[local] = np.arange(len(local))
+    sampler.distant_cdf = np.cumsum(sampler.select_pmf[sampler.distant_ids])
+    if len(sampler.distant_cdf):
+        sampler.distant_cdf /= sampler.distant_cdf[-1]
+    if few:
+        return SolidAngleChoice(np.take(sampler.tri_table, local - sampler.light_count, axis=0), power[local])
+    lo, hi = np.zeros((len(local), 3)), np.zeros((len(local), 3))
+    axis, spread = np.zeros((len(local), 3)), np.full(len(local), np.pi)
+    is_light = local < sampler.light_count
+    k = local[is_light]
+    c = sampler.position[k].astype(np.float64)
+    area = (sampler.kind[k] == RECT) | (sampler.kind[k] == DISK)
+    x, y = sampler.axes[k, :, 0].astype(np.float64), sampler.axes[k, :, 1].astype(np.float64)
+    half = np.where(area[:, None], np.abs(x) * (0.5 * sampler.size[k, 0:1]) + np.abs(y) * (0.5 * sampler.size[k, 1:2]),
+                    sampler.radius[k, None].astype(np.float64))
+    lo[is_light], hi[is_light] = c - half, c + half
+    # Area lights emit toward their -Z only; point and spot lights (conservatively) every way.
+    axis[is_light] = np.where(area[:, None], -sampler.axes[k, :, 2], np.float64([0, 0, 1]))
+    spread[is_light] = np.where(area, 0.0, np.pi)
+    t = np.take(sampler.tri_table, local[~is_light] - sampler.light_count, axis=0).astype(np.float64)
+    p0 = t[:, TP0:TP0 + 3]
+    corners = np.stack([p0, p0 + t[:, TE1:TE1 + 3], p0 + t[:, TE2:TE2 + 3]])
+    lo[~is_light], hi[~is_light] = corners.min(axis=0), corners.max(axis=0)
+    axis[~is_light] = t[:, TN:TN + 3]  # two-sided: spread pi, every way
+    group = np.full(len(local), -1, np.int64)
+    group[~is_light] = triangle_groups(sampler, scene, local[~is_light] - sampler.light_count)
+    tree = LightTree(lo, hi, power[local], axis, spread, group)
+    has_geometry = len(scene.positions) or (scene.instances is not None and scene.instances.count)
+    box = scene_extent(scene) if has_geometry else None
+    sampler.tree_divergence = _divergence(tree, sampler.select_pmf[local] / sampler.local_share, box)
+    return tree if tree.units > 1 or sampler.tree_divergence >= TREE_MIN_DIVERGENCE else None
+
+
+def triangle_groups(sampler, scene, rows) -> np.ndarray:
+    """(m,) int64 group of the emissive triangles at rows of the table: their object (their material when
+    the scene has no object table), or their instance; the light tree keeps each group together."""
+    tri = sampler.tri_ids[rows]
+    plain = tri < sampler.plain_count
+    by = scene.object_ids if scene.object_ids is not None else scene.material_ids
+    group = np.zeros(len(tri), np.int64)
+    group[plain] = np.take(by, tri[plain])
+    if not plain.all():
+        bases = scene.instances.bases(sampler.plain_count)
+        offset = int(np.max(by, initial=-1)) + 1
+        group[~plain] = offset + np.searchsorted(bases, tri[~plain], side="right") - 1
+    return group
+
+
+def choose_at(sampler, u_select, px, py, pz):
+    """(emitter (n,) int64, selection probability (n,) float32) per shading point p: the light tree
+    for the local emitters (their DISTANT_SHARE complement), the distant ones by their fixed pmf.
+    Without a tree, choose() and select_pmf."""
+    if sampler.tree is None:
+        chosen = sampler.choose(u_select)
+        return chosen, np.take(sampler.pmf32, chosen)
+    u = u_select.astype(np.float64)
+    share = sampler.local_share
+    chosen = np.zeros(len(u), np.int64)
+    select = np.zeros(len(u), np.float64)
+    local = np.flatnonzero(u < share) if share < 1 else np.arange(len(u))
+    if len(local):
+        e, pmf = sampler.tree.sample(u[local] / share, px[local], py[local], pz[local])
+        chosen[local] = sampler.tree_ids[e]
+        select[local] = share * pmf
+    if share < 1:
+        far = np.flatnonzero(u >= share)
+        if len(far):
+            ud = (u[far] - share) / (1.0 - share)
+            j = np.minimum(np.searchsorted(sampler.distant_cdf, ud, side="right"), len(sampler.distant_ids) - 1)
+            chosen[far] = sampler.distant_ids[j]
+            select[far] = sampler.select_pmf[chosen[far]]
+    return chosen, select.astype(np.float32)
+
+
+def selection_pmf(sampler, emitter, px, py, pz):
+    """(n,) float32 probability that NEE at point p chooses emitter (any index but the world's)."""
+    if sampler.tree is None:
+        return np.take(sampler.pmf32, emitter)
+    slot = np.take(sampler.tree_slot, emitter)
+    local = sampler.tree.pmf(slot, px, py, pz) * sampler.local_share
+    return np.where(slot >= 0, local, np.take(sampler.select_pmf, emitter)).astype(np.float32)
+
+
+class SolidAngleChoice:
+    """A shading point's choice among a few emissive triangles (rows of the emissive-triangle table), in
+    proportion to luminance x the solid angle each subtends at the point: the light each would send it,
+    but for the point's own cosine and for shadows. Where all subtend nothing (the point in their plane,
+    or float32 underflow), in proportion to power. LightTree's interface: slots are row numbers."""
+
+    def __init__(self, rows: np.ndarray, power: np.ndarray):
+        rows = np.asarray(rows, np.float32)
+        p0 = rows[:, TP0:TP0 + 3]
+        corners = np.stack([p0, p0 + rows[:, TE1:TE1 + 3], p0 + rows[:, TE2:TE2 + 3]], axis=1)
+        # Corners shared by the triangles (a quad's two) are normalised once per point.
+        self._vertices, inverse = np.unique(corners.reshape(-1, 3), axis=0, return_inverse=True)
+        self._corners = inverse.reshape(-1, 3)
+        self._lum = luminance(rows[:, TLE:TLE + 3]).astype(np.float32)
+        self._power_pmf = (np.asarray(power, np.float64) / float(np.sum(power))).astype(np.float32)
+
+    def _pmfs(self, px, py, pz) -> np.ndarray:
+        """(k, n) float32 probability of each triangle at each point; columns sum to 1."""
+        units = [normalize_floored_xyz((v[0] - px, v[1] - py, v[2] - pz)) for v in self._vertices]
+        w = np.empty((len(self._corners), len(px)), np.float32)
+        for k, (i, j, m) in enumerate(self._corners):
+            np.multiply(solid_angle(units[i], units[j], units[m]), self._lum[k], out=w[k])
+        total = w.sum(axis=0)
+        ok = np.isfinite(total) & (total > 0)
+        if ok.all():
+            w /= total
+            return w
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(ok, w / np.where(ok, total, np.float32(1.0)), self._power_pmf[:, None])
+
+    def sample(self, u, px, py, pz):
+        """(slot (N,) int64, pmf (N,) float32) for numbers u (N,) in [0, 1)."""
+        p = self._pmfs(px, py, pz)
+        cdf = np.cumsum(p[:-1], axis=0)
+        slot = (np.asarray(u)[None, :] >= cdf).sum(axis=0)
+        return slot, p[slot, np.arange(len(slot))]
+
+    def pmf(self, slot, px, py, pz):
+        """(N,) float32 probability that point i chooses slot[i] (0 for -1: not among them)."""
+        slot = np.asarray(slot)
+        known = slot >= 0
+        p = self._pmfs(px, py, pz)
+        return np.where(known, p[np.where(known, slot, 0), np.arange(len(slot))], np.float32(0.0))
+
+
+def _divergence(tree: LightTree, pmf: np.ndarray, box) -> float:
+    """Mean over probe points (uniform in box, (lo, hi) corners, with a fixed seed) of the total variation
+    distance between the tree's pmf there and pmf (n,), the global one over the same emitters:
+    0.5 E_tree |1 - pmf / pmf_tree|, from the tree's own samples. Without a box (no triangles), 1.
+    Points in the box, not on the triangles: an instanced scene and its flattened copy score alike."""
+    if box is None:
+        return 1.0
+    rng = np.random.default_rng(0x7EE)
+    lo, hi = box
+    probes = (lo + (hi - lo) * rng.random((_TREE_PROBES, 3))).astype(np.float32)
+    p = np.repeat(probes, _TREE_PROBE_SAMPLES, axis=0).T
+    emitter, pmf_tree = tree.sample(rng.random(p.shape[1]), p[0], p[1], p[2])
+    ok = pmf_tree > 0
+    return float(0.5 * np.mean(np.abs(1.0 - pmf[emitter[ok]] / pmf_tree[ok])))
+
+
+# Barycentrics (b1, b2) of the points where a triangle of varying emission is looked at for its estimate:
+# its centre and a point near each corner.
+_ESTIMATE_POINTS = ((1 / 3, 1 / 3), (0.1, 0.1), (0.8, 0.1), (0.1, 0.8))
+# Triangles looked at per call (bounds the shading's temporaries).
+_ESTIMATE_CHUNK = 1 << 16
+
+
+def emission_estimates(triangle_emission, tri: np.ndarray, materials: np.ndarray, varies: np.ndarray) -> np.ndarray:
+    """(n, 3) float32 emitted radiance of triangles tri: the material's mean where it is constant; the mean
+    over _ESTIMATE_POINTS of the triangle, seen head-on, where it varies."""
+    estimate = np.zeros((len(tri), 3), np.float32)
+    if not len(tri):
+        return estimate
+    estimate[:] = triangle_emission(tri).T
+    rows = np.flatnonzero(varies[materials])
+    for start in range(0, len(rows), _ESTIMATE_CHUNK):
+        chunk = rows[start:start + _ESTIMATE_CHUNK]
+        total = np.zeros((3, len(chunk)), np.float32)
+        for b1, b2 in _ESTIMATE_POINTS:
+            total += triangle_emission(tri[chunk], np.full(len(chunk), b1, np.float32),
+                                       np.full(len(chunk), b2, np.float32))
+        estimate[chunk] = total.T / np.float32(len(_ESTIMATE_POINTS))
+    return estimate
+
+
+def power_pmf(power: np.ndarray, distant: np.ndarray) -> np.ndarray:
+    """(K,) float64 probabilities of choosing each emitter: by power within the local and within the
+    distant group; the distant group as a whole gets DISTANT_SHARE when both groups can emit."""
+    local_total, distant_total = power[~distant].sum(), power[distant].sum()
+    if local_total > 0 and distant_total > 0:
+        share = np.where(distant, DISTANT_SHARE / distant_total, (1.0 - DISTANT_SHARE) / local_total)
+        return (power * share).astype(np.float64)
+    total = local_total + distant_total
+    return (power / total if total > 0 else power).astype(np.float64)

@@ -1,0 +1,41 @@
+"""Suns: directions in the cone of the sun's disc (a delta light when the cone rounds to one direction), and
+the discs that rays leaving the scene look into.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import sampling
+
+
+def sample(sampler, out, idx, light, px, py, pz, u1, u2):
+    zx, zy, zz = sampler.axis(light, 2)  # toward the sun
+    cos_max = sampler.sun_cos[light]
+    delta = cos_max >= np.float32(1.0)
+    lx, ly, lz = sampling.sample_uniform_cone(u1, u2, cos_max)
+    wx, wy, wz = sampling.local_to_world(lx, ly, lz, zx, zy, zz)
+    wx, wy, wz = np.where(delta, zx, wx), np.where(delta, zy, wy), np.where(delta, zz, wz)
+    pdf = np.where(delta, np.float32(1.0), sampling.uniform_cone_pdf(np.minimum(cos_max, np.float32(1 - 1e-7))))
+    out.set(idx, wx, wy, wz, np.float32(np.inf), sampler.sun_radiance[light].T, pdf, delta)
+
+
+def seen(sampler, dx, dy, dz, bsdf_pdf=None):
+    """(3, n) radiance of the sun discs that rays leaving the scene along d (x, y, z of (n,)) look into, each
+    weighed by MIS (power heuristic) against its own light samples given the pdf of the BSDF sample that
+    chose d (None: not weighed, as after a singular bounce), as Cycles' escaped rays see suns; None when
+    the scene has no sun with a disc."""
+    if not len(sampler.sun_discs):
+        return None
+    out = np.zeros((3, len(dx)), np.float32)
+    for k in sampler.sun_discs:
+        zx, zy, zz = sampler.axes[k, :, 2]
+        inside = np.flatnonzero(dx * zx + dy * zy + dz * zz >= sampler.sun_cos[k])
+        if not len(inside):
+            continue
+        weight = np.ones(len(inside), np.float32)
+        if bsdf_pdf is not None and sampler.select_pmf[k] > 0:
+            light_pdf = np.float32(sampler.select_pmf[k]) * sampling.uniform_cone_pdf(sampler.sun_cos[k])
+            weight = sampling.power_heuristic(np.take(bsdf_pdf, inside),
+                                              np.full(len(inside), light_pdf, np.float32))
+        out[:, inside] += sampler.sun_radiance[k][:, None] * weight
+    return out
