@@ -12,8 +12,8 @@ Three layers, so that everything but the last few GPU calls runs headless in tes
 Sync once, snapshot, let go (as in session.py): the worker sees only SceneArrays, RenderSettings and
 kernels.Camera values. It never touches bpy, and bpy never waits for it except in stop().
 
-Edits update incrementally, as Cycles' Blender sync tracks what changed: view_update sorts
-depsgraph.updates into parts (update_part). A moved object re-reads only the instances' transforms and
+Edits update incrementally, as Cycles' Blender sync tracks what changed: view_update has
+depsgraph.updates sorted into parts (engine/export/updates.py, per data type). A moved object re-reads only the instances' transforms and
 object rows, and the worker moves its Renderer's instances (the top level of the BVH is recommitted, no
 mesh BVH is rebuilt); a shader, image or world edit re-reads the materials and the world, and the
 worker rebuilds shading, environment and light sampler; a light edit re-reads the lights, and the worker
@@ -41,7 +41,7 @@ import numpy as np
 from ..kernels import Camera, Renderer, RenderSettings, SceneArrays
 from .export import ExportError, export_scene
 from .export.camera import region_camera, stand_in_camera, view_camera_object
-from .export.updates import export_instances, export_lights, export_shading
+from .export.updates import FULL, export_changes, scene_changes, visibility_key
 from .session import PreviewDenoiser, ProgressiveSession, render_settings, render_threads
 
 # The largest finite half float: the texture is RGBA16F and an inf there turns the viewport black.
@@ -55,82 +55,6 @@ PREVIEW_PIXELS = 1 << 14
 DISPLAY_INTERVAL_S = 0.1
 # stop() waits this long for the worker; it finishes the waves in flight, which take milliseconds.
 STOP_TIMEOUT_S = 10.0
-
-
-# ====================================================================== what the depsgraph says changed
-def is_content_update(update) -> bool:
-    """True when a depsgraph update can change the rendered image.
-
-    Cameras are invisible: moving or editing one matters only when the view looks through it, and
-    view_draw sees that in the view itself. Updates without any flag (the scene after a selection,
-    node trees next to their material) change nothing by themselves.
-    """
-    if not (update.is_updated_transform or update.is_updated_geometry or update.is_updated_shading):
-        return False
-    data = update.id
-    if data.id_type == "CAMERA" or (data.id_type == "OBJECT" and data.type == "CAMERA"):
-        return False
-    return True
-
-
-# What a depsgraph update asks of the viewport's scene, cheapest first: re-read the instances' transforms
-# and object rows, the materials and world, or the lights (engine/export/updates.py); FULL is a new export.
-INSTANCES, SHADING, LIGHTS, FULL = "instances", "shading", "lights", "full"
-# Data-blocks whose edits reach the image only through shaders (images and textures through the
-# materials and the world that read them).
-SHADING_ID_TYPES = ("MATERIAL", "WORLD", "IMAGE", "TEXTURE")
-# Object data Ember turns into triangles (curves, surfaces and text are CURVE): edited geometry is a new
-# export; their other updates come along with their objects' (a material edit tags its meshes for shading).
-GEOMETRY_ID_TYPES = ("MESH", "CURVE", "METABALL")
-
-
-def update_part(update) -> str:
-    """The part of the scene one content update (is_content_update) changes, as Cycles' Blender sync
-    sorts them: an object's transform or object-level settings (INSTANCES; an object whose geometry was
-    evaluated again is FULL), a shader, image or world (SHADING), a light object or light data (LIGHTS).
-    Anything else (collections, the scene, geometry nodes trees, unknown data) is FULL: when unsure,
-    export everything."""
-    data = update.id
-    kind = data.id_type
-    if kind == "OBJECT":
-        if data.type == "LIGHT":
-            return LIGHTS
-        return FULL if update.is_updated_geometry else INSTANCES
-    if kind == "LIGHT" or (kind == "NODETREE" and _is_light_node_tree(data)):
-        return LIGHTS
-    if kind in SHADING_ID_TYPES or (kind == "NODETREE" and data.bl_idname == "ShaderNodeTree"):
-        return SHADING
-    if kind in GEOMETRY_ID_TYPES:
-        return FULL if update.is_updated_geometry else INSTANCES
-    return FULL
-
-
-def _is_light_node_tree(tree) -> bool:
-    """Whether a node tree is a light's own (Blender 5.3 gives every light one, and an edit of the light
-    updates it too): such an update is the light's, not a material's."""
-    import bpy
-    original = tree.original
-    return bool(original.is_embedded_data) and any(light.node_tree == original for light in bpy.data.lights
-                                                   if getattr(light, "node_tree", None) is not None)
-
-
-def scene_changes(updates) -> frozenset:
-    """The parts of the scene that depsgraph.updates change (update_part of each content update); empty
-    when nothing Ember renders changed."""
-    return frozenset(update_part(update) for update in updates if is_content_update(update))
-
-
-def scene_needs_export(updates) -> bool:
-    """Whether any of depsgraph.updates changes what Ember renders (see is_content_update)."""
-    return bool(scene_changes(updates))
-
-
-def visibility_key(depsgraph) -> tuple:
-    """What the export sees besides the updates: hiding an object in the view layer (the eye icon)
-    reaches view_update as a bare scene update, so the set of visible objects is compared as well."""
-    scene = depsgraph.scene_eval
-    world = scene.world.name_full if scene.world is not None else ""
-    return frozenset(ob.name_full for ob in depsgraph.objects), world
 
 
 # ====================================================================== images for the display
@@ -562,29 +486,19 @@ class ViewportRender:
         session, all in one restart. False, with nothing handed over, when a part no longer lines up with
         the last export: then only a full export will do."""
         current = self.session.scene
-        if current is None or self._index is None:
+        changes = None if current is None or self._index is None else \
+            export_changes(depsgraph, self._index, parts, current)
+        if changes is None:
             return False
-        placed = shading = lights = None
-        if INSTANCES in parts:
-            placed = export_instances(depsgraph, self._index)
-            if placed is None:
-                return False
-            if _same_placement(current, *placed):
-                placed = None   # object-level updates that change nothing Ember reads (a material edit's)
-        if SHADING in parts:
-            shading = export_shading(depsgraph, self._index)
-            if shading is None:
-                return False
-        if LIGHTS in parts:
-            lights = export_lights(depsgraph, [])
         with self.session.batch():
-            if placed is not None:
-                self.session.update_instances(*placed)
-            if shading is not None:
+            if changes.instances is not None:
+                self.session.update_instances(*changes.instances)
+            if changes.shading is not None:
+                shading = changes.shading
                 self.session.update_materials(shading.materials, shading.textures, shading.texture_srgb,
                                               shading.world)
-            if lights is not None:
-                self.session.update_lights(lights)
+            if changes.lights is not None:
+                self.session.update_lights(changes.lights)
             self.session.update_settings(settings, viewport_denoise(depsgraph.scene))
         return True
 
@@ -647,13 +561,6 @@ class ViewportRender:
         self.session.stop()
         self._texture = None
         self._texture_frame = None
-
-
-def _same_placement(scene: SceneArrays, world_from_object: np.ndarray, objects: np.ndarray) -> bool:
-    """Whether a scene's instances and object table already are these."""
-    current = scene.instances.world_from_object if scene.instances is not None else np.zeros((0, 4, 4))
-    table = scene.objects if scene.objects is not None else np.zeros((0, objects.shape[1]), np.float32)
-    return np.array_equal(current, world_from_object) and np.array_equal(table, objects)
 
 
 def new_viewport(scene) -> ViewportRender:

@@ -19,6 +19,7 @@ from ember.engine import viewport as vp
 from ember.engine.render_engine import EmberRenderEngine
 from ember.engine.session import render_settings
 from ember.engine.export.camera import camera_zoom_factor, region_camera, stand_in_camera, view_camera
+from ember.engine.export.updates import scene_needs_export
 from ember.engine.viewport import (HALF_MAX, UNLIMITED_SAMPLES, ViewportRender, ViewportSession, display_pixels,
                                    gpu_pixels)
 from ember.kernels import RenderSettings
@@ -488,7 +489,7 @@ def test_which_depsgraph_updates_trigger_an_export():
     bpy.context.evaluated_depsgraph_get()
     diffuse = mat.node_tree.nodes["Diffuse BSDF"].inputs["Color"]
     background = world.node_tree.nodes["Background"].inputs["Color"]
-    with DepsgraphUpdates(lambda depsgraph: vp.scene_needs_export(depsgraph.updates)) as updates:
+    with DepsgraphUpdates(lambda depsgraph: scene_needs_export(depsgraph.updates)) as updates:
         assert updates.after(lambda: setattr(quad, "location", (0.5, 0, 0))) is True
         assert updates.after(lambda: setattr(diffuse, "default_value", (1, 0, 0, 1))) is True
         assert updates.after(lambda: setattr(background, "default_value", (0, 1, 0, 1))) is True

@@ -17,8 +17,8 @@ import pytest
 from bpy_helpers import diffuse_material, emission_material, new_scene, quad_object, set_world
 from ember.engine import viewport as vp
 from ember.engine.export import mesh as mesh_export
-from ember.engine.export.updates import export_instances
-from ember.engine.viewport import FULL, INSTANCES, LIGHTS, SHADING, ViewportRender, scene_changes
+from ember.engine.export.updates import FULL, INSTANCES, LIGHTS, SHADING, export_instances, scene_changes
+from ember.engine.viewport import ViewportRender
 from ember.kernels import Lights, Materials, Renderer, RenderSettings, World, embree
 from ember.kernels import lights as kernel_lights
 from ember.kernels.scene import object_row
