@@ -1,30 +1,11 @@
-"""The viewport's rendered mode: a progressive render that starts over when the scene or the view changes.
+"""The viewport's background render session: a worker thread that restarts a session.ProgressiveSession on
+every change and publishes Frames (draw.py), a quick low-resolution preview first.
 
-Three layers, so that everything but the last few GPU calls runs headless in tests:
-
-    export.camera     region_camera: the 3D view's projection (Blender's BKE_camera_params_from_view3d) as
-                      a kernels.Camera, which compares by value: equal cameras render equal images
-    ViewportSession   a worker thread that restarts a session.ProgressiveSession on every change and
-                      publishes Frames, a quick low-resolution preview first; no bpy anywhere
-    ViewportRender    the RenderEngine's view_update / view_draw: reads bpy on the main thread, hands the
-                      session arrays and numbers, and draws the latest Frame with the gpu module
-
-Sync once, snapshot, let go (as in session.py): the worker sees only SceneArrays, RenderSettings and
-kernels.Camera values. It never touches bpy, and bpy never waits for it except in stop().
-
-Edits update incrementally, as Cycles' Blender sync tracks what changed: view_update has
-depsgraph.updates sorted into parts (engine/export/updates.py, per data type). A moved object re-reads only the instances' transforms and
-object rows, and the worker moves its Renderer's instances (the top level of the BVH is recommitted, no
-mesh BVH is rebuilt); a shader, image or world edit re-reads the materials and the world, and the
-worker rebuilds shading, environment and light sampler; a light edit re-reads the lights, and the worker
-rebuilds the light sampler (ProgressiveSession.load applies them). Anything else, or a partial read that
-no longer lines up with the last export (engine/export/updates.py), is a full export and a new Renderer.
-To make moves cheap the viewport exports every mesh as an instance of itself
-(export_scene(..., instance_everything=True)), as Cycles' viewport does: its dynamic BVH type skips
-apply_static_transforms, so every object keeps its own BVH and its transform; final renders copy single
-meshes into world space, which traces faster (about 20% here, bench/viewport_updates.py). An update
-restarts from sample 0 and renders what a full export of the edited scene would, bit for bit
-(tests/test_viewport_updates.py).
+Sync once, snapshot, let go (as in engine/session.py): the worker sees only SceneArrays, RenderSettings and
+kernels.Camera values. It never touches bpy, and bpy never waits for it except in stop(). Partial updates
+(engine/export/updates.py) reach its ProgressiveSession, which applies them to the Renderer it built: a
+moved object recommits the top level of the BVH, a shader edit rebuilds shading, environment and light
+sampler, a light edit the light sampler; a new export builds a new Renderer.
 """
 from __future__ import annotations
 
@@ -34,20 +15,13 @@ import math
 import threading
 import weakref
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
-from ..kernels import Camera, Renderer, RenderSettings, SceneArrays
-from .export import ExportError, export_scene
-from .export.camera import region_camera, stand_in_camera, view_camera_object
-from .export.updates import FULL, export_changes, scene_changes, visibility_key
-from .session import PreviewDenoiser, ProgressiveSession, render_settings, render_threads
+from ...kernels import Camera, Renderer, RenderSettings, SceneArrays
+from ..session import PreviewDenoiser, ProgressiveSession
+from .draw import Frame, display_pixels, upsample
 
-# The largest finite half float: the texture is RGBA16F and an inf there turns the viewport black.
-HALF_MAX = 65504.0
-# scene.ember.preview_samples = 0 means "until the view changes"; this is the property's own maximum.
-UNLIMITED_SAMPLES = 1 << 24
 # A restart first renders one sample at a resolution with about this many pixels, so that orbiting
 # the view answers at once even when a full-resolution sample takes seconds.
 PREVIEW_PIXELS = 1 << 14
@@ -55,27 +29,6 @@ PREVIEW_PIXELS = 1 << 14
 DISPLAY_INTERVAL_S = 0.1
 # stop() waits this long for the worker; it finishes the waves in flight, which take milliseconds.
 STOP_TIMEOUT_S = 10.0
-
-
-# ====================================================================== images for the display
-class Frame(NamedTuple):
-    """One published image. image : (H, W, 4) float32, read-only, row 0 at the top, finite and within
-    the half-float range. samples_done counts full-resolution samples (0 for the quick preview)."""
-    image: np.ndarray
-    samples_done: int
-    samples_total: int
-    generation: int
-
-
-def display_pixels(image: np.ndarray) -> np.ndarray:
-    """A float32 copy that an RGBA16F texture can hold: NaN -> 0, everything clamped to +-HALF_MAX."""
-    out = np.nan_to_num(np.asarray(image, np.float32), nan=0.0, posinf=HALF_MAX, neginf=-HALF_MAX)
-    return np.clip(out, -HALF_MAX, HALF_MAX, out=out)
-
-
-def gpu_pixels(image: np.ndarray) -> np.ndarray:
-    """(H*W*4,) float32, contiguous, bottom row first: the order gpu.types.GPUTexture reads."""
-    return np.ascontiguousarray(image[::-1], np.float32).reshape(-1)
 
 
 def preview_size(width: int, height: int, pixels: int) -> tuple[int, int] | None:
@@ -87,27 +40,6 @@ def preview_size(width: int, height: int, pixels: int) -> tuple[int, int] | None
     return max(1, round(width / scale)), max(1, round(height / scale))
 
 
-def upsample(image: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Nearest-neighbour resize of (h, w, C) to (height, width, C)."""
-    rows = np.arange(height) * image.shape[0] // height
-    cols = np.arange(width) * image.shape[1] // width
-    return image[rows][:, cols]
-
-
-def status_text(frame: Frame | None, busy: bool, error: str | None) -> str:
-    """The line Blender shows in the viewport's corner, in Cycles' words."""
-    if error:
-        return f"Ember: {error}"
-    if frame is None:
-        return "Ember: preparing" if busy else ""
-    if frame.samples_done == 0:
-        return "Ember: preview"
-    if frame.samples_total >= UNLIMITED_SAMPLES:
-        return f"Sample {frame.samples_done}"
-    return f"Sample {frame.samples_done}/{frame.samples_total}"
-
-
-# ====================================================================== the worker
 @dataclass(frozen=True)
 class _Job:
     generation: int
@@ -140,6 +72,7 @@ class ViewportSession:
         session.update_instances(world_from_object, objects)   # objects moved: the built one is updated,
         session.update_materials(materials, textures, srgb, world)  # ... shaders edited
         session.update_lights(lights)                  # ... lights changed
+        session.apply(changes)                         # the three above, as export/updates.export_changes read them
         session.update_view(camera)                    # every draw, a kernels.Camera: restarts if it differs
         frame = session.snapshot()                     # latest Frame or None, never blocks on the render
         session.stop()                                 # joins the worker
@@ -205,6 +138,18 @@ class ViewportSession:
     def update_lights(self, lights) -> None:
         """Lights moved, edited, added or removed: the scene's whole light table. Restarts."""
         self._queue("lights", (lights,), lambda scene: dataclasses.replace(scene, lights=lights))
+
+    def apply(self, changes) -> None:
+        """The parts of the scene an edit changed, read again (engine/export/updates.Changes: None where a
+        part is unchanged), in one restart."""
+        with self.batch():
+            if changes.instances is not None:
+                self.update_instances(*changes.instances)
+            if changes.shading is not None:
+                shading = changes.shading
+                self.update_materials(shading.materials, shading.textures, shading.texture_srgb, shading.world)
+            if changes.lights is not None:
+                self.update_lights(changes.lights)
 
     def _queue(self, part: str, arguments: tuple, change) -> None:
         with self._cond:
@@ -404,165 +349,3 @@ class ViewportSession:
             self._samples_done = int(samples_done)
             if finished:
                 self._busy = False
-
-
-# ====================================================================== the RenderEngine's side
-def viewport_settings(scene) -> RenderSettings:
-    """Kernel settings for the viewport: scene.ember as for F12, with the viewport's sample count (and the
-    denoiser's passes when previews are denoised)."""
-    samples = int(scene.ember.preview_samples) or UNLIMITED_SAMPLES
-    settings = render_settings(scene, None, samples=samples, time_limit=0.0)
-    # Cycles' interactive pattern: the first sample blue noise on its own (the first image after every change).
-    settings = dataclasses.replace(settings, blue_noise_first=True)
-    if viewport_denoise(scene) is not None:
-        inputs = scene.ember.denoising_input_passes
-        names = ("denoising_albedo",) if inputs == "RGB_ALBEDO" else \
-            ("denoising_albedo", "denoising_normal") if inputs == "RGB_ALBEDO_NORMAL" else ()
-        settings = dataclasses.replace(settings, passes=names)
-    return settings
-
-
-def viewport_denoise(scene) -> tuple | None:
-    """(quality, prefilter) when the viewport's previews are denoised, else None."""
-    ember = scene.ember
-    return (ember.denoising_quality, ember.denoising_prefilter) if ember.use_preview_denoising else None
-
-
-def film_size(region_width: int, region_height: int, pixel_size: int) -> tuple[int, int]:
-    """The film behind a region: one film pixel per pixel_size x pixel_size screen pixels
-    (RenderEngine.get_preview_pixel_size: 2 on high-DPI screens with the Automatic setting)."""
-    pixel_size = max(1, int(pixel_size))
-    return max(1, round(region_width / pixel_size)), max(1, round(region_height / pixel_size))
-
-
-class ViewportRender:
-    """One engine instance's viewport: view_update exports (the whole scene, or only the parts the
-    depsgraph says changed), view_draw follows the view and draws.
-
-    It holds no reference to the engine (the engine holds it): Blender frees the engine, the
-    engine's __del__ calls free(), and the worker stops.
-    """
-
-    def __init__(self, threads: int = 0, **session_options):
-        self.session = ViewportSession(threads, **session_options)
-        # Should the engine's __del__ never run, the worker still stops when this object goes.
-        weakref.finalize(self, self.session.stop)
-        self._visibility = None
-        self._index = None            # the last full export's ExportIndex (None: export everything next)
-        self._texture = None
-        self._texture_frame = None
-
-    # ------------------------------------------------------------------ view_update
-    def view_update(self, engine, context, depsgraph) -> None:
-        """Main thread: export what changed (everything on the first call, when the visible objects
-        changed, or when an update is more than a move, a shader or a light edit), then follow the view."""
-        scene = depsgraph.scene
-        settings = viewport_settings(scene)
-        visibility = visibility_key(depsgraph)
-        parts = scene_changes(depsgraph.updates)
-        if self._visibility is None or visibility != self._visibility or FULL in parts \
-                or (parts and not self._update(depsgraph, parts, settings)):
-            self._export(engine, context, depsgraph, settings)
-            self._visibility = visibility
-        elif not parts:
-            self.session.update_settings(settings, viewport_denoise(scene))
-        self.session.update_view(self.view_camera(engine, context, depsgraph))
-
-    def _export(self, engine, context, depsgraph, settings: RenderSettings) -> None:
-        """The whole scene, every mesh instanced (so that moving objects later only moves instances)."""
-        width, height = self._film_size(engine, context, depsgraph)
-        override = None if depsgraph.scene_eval.camera is not None else stand_in_camera()
-        self._index = None
-        try:
-            exported = export_scene(depsgraph, override, width=width, height=height, instance_everything=True)
-        except ExportError as err:
-            self.session.fail(str(err))
-            return
-        self.session.update_scene(exported.scene, settings, viewport_denoise(depsgraph.scene))
-        self._index = exported.index
-
-    def _update(self, depsgraph, parts: frozenset, settings: RenderSettings) -> bool:
-        """Read only the changed parts of the scene again (engine/export/updates.py) and hand them to the
-        session, all in one restart. False, with nothing handed over, when a part no longer lines up with
-        the last export: then only a full export will do."""
-        current = self.session.scene
-        changes = None if current is None or self._index is None else \
-            export_changes(depsgraph, self._index, parts, current)
-        if changes is None:
-            return False
-        with self.session.batch():
-            if changes.instances is not None:
-                self.session.update_instances(*changes.instances)
-            if changes.shading is not None:
-                shading = changes.shading
-                self.session.update_materials(shading.materials, shading.textures, shading.texture_srgb,
-                                              shading.world)
-            if changes.lights is not None:
-                self.session.update_lights(changes.lights)
-            self.session.update_settings(settings, viewport_denoise(depsgraph.scene))
-        return True
-
-    # ------------------------------------------------------------------ view_draw
-    def prepare_draw(self, engine, context, depsgraph) -> Frame | None:
-        """Everything view_draw does but the GPU calls: follow settings and view, report, ask for
-        the next draw while refining, and return the frame to show."""
-        scene = depsgraph.scene
-        # Editing scene.ember does not always reach view_update: compare here too (a few RNA reads).
-        self.session.update_settings(viewport_settings(scene), viewport_denoise(scene))
-        self.session.update_view(self.view_camera(engine, context, depsgraph))
-        frame = self.session.snapshot()
-        engine.update_stats("", status_text(frame, self.session.busy, self.session.error))
-        if self.session.needs_redraw:
-            engine.tag_redraw()
-        return frame
-
-    def view_draw(self, engine, context, depsgraph) -> None:
-        frame = self.prepare_draw(engine, context, depsgraph)
-        if frame is not None:
-            self._draw(engine, depsgraph.scene, frame, context.region.width, context.region.height)
-
-    def _draw(self, engine, scene, frame: Frame, region_width: int, region_height: int) -> None:
-        """The only code that needs a GPU (headless tests run it against a recording stand-in for
-        the gpu module): upload each new frame once, draw it over the region through Blender's
-        display transform."""
-        import gpu
-        from gpu_extras.presets import draw_texture_2d
-
-        if frame is not self._texture_frame:
-            height, width = frame.image.shape[:2]
-            pixels = gpu_pixels(frame.image)
-            buffer = gpu.types.Buffer("FLOAT", pixels.size, pixels)
-            self._texture = gpu.types.GPUTexture((width, height), format="RGBA16F", data=buffer)
-            self._texture_frame = frame
-        gpu.state.blend_set("ALPHA_PREMULT")
-        engine.bind_display_space_shader(scene)
-        draw_texture_2d(self._texture, (0, 0), region_width, region_height)
-        engine.unbind_display_space_shader()
-        gpu.state.blend_set("NONE")
-
-    # ------------------------------------------------------------------ shared
-    def view_camera(self, engine, context, depsgraph) -> Camera:
-        width, height = self._film_size(engine, context, depsgraph)
-        space, region_data = context.space_data, context.region_data
-        camera_object = None
-        if region_data.view_perspective == "CAMERA":
-            camera_object = view_camera_object(space, depsgraph.scene)
-            if camera_object is not None:
-                camera_object = camera_object.evaluated_get(depsgraph)
-        return region_camera(space, region_data, width, height, camera_object, depsgraph.scene)
-
-    @staticmethod
-    def _film_size(engine, context, depsgraph) -> tuple[int, int]:
-        return film_size(context.region.width, context.region.height,
-                         engine.get_preview_pixel_size(depsgraph.scene))
-
-    def free(self) -> None:
-        """Stop and join the worker; drop the GPU texture."""
-        self.session.stop()
-        self._texture = None
-        self._texture_frame = None
-
-
-def new_viewport(scene) -> ViewportRender:
-    """The viewport of one engine instance, with the scene's thread count."""
-    return ViewportRender(render_threads(scene.render))
