@@ -15,7 +15,9 @@ Three parts:
   and file naming are exactly those of `python -m ember render` without --ray.
 
 Ray is an optional dependency of the command line (requirements-ray.txt, `python3 dev.py --blender 5.0 setup --ray`):
-it is imported here only, lazily; the extension never imports this module.
+it is imported here only, lazily; the extension never imports this module. What the single-process command
+line does alike (opening the file with the options, skipping frames on disk, the errors and exit codes) is
+batch.py's.
 """
 from __future__ import annotations
 
@@ -36,10 +38,11 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from . import cli, stop_signals
-from .frame_save import SaveError, save_render_result
 from ..kernels.accel import usable_cores
-from .cli import CliError, UsageError
+from . import stop_signals
+from .batch import (EXIT_FAILED, CliError, RenderJob, UsageError, frame_ranges, frames_outcome, interrupted,
+                    open_scene, saved_frames, skip_existing)
+from .frame_save import SaveError, first_line, save_render_result
 from .merge import MergeError, exr_strings, load_pixels, merge_arrays, read_exr_channels
 from .session import format_time
 
@@ -129,13 +132,13 @@ class RenderWorker:
 
     def _open(self, blend: bytes | None, args):
         if blend is None:
-            scene = cli.open_scene(args)  # the file at its path (seen by every node), or the demo scene
+            scene = open_scene(args)  # the file at its path (seen by every node), or the demo scene
         else:  # a private copy, removed once Blender has read it: nothing is ever saved
             with tempfile.TemporaryDirectory(prefix="ember-ray-") as tmp:
                 local = os.path.join(tmp, os.path.basename(args.file))
                 with open(local, "wb") as f:
                     f.write(blend)
-                scene = cli.open_scene(args, local)
+                scene = open_scene(args, local)
         scene.render.use_stamp = False  # burnt-in stamps: the driver's save draws them, once
         if self.aux:  # Denoising Albedo / Normal, for the driver's denoiser
             for layer in scene.view_layers:
@@ -169,7 +172,7 @@ class RenderWorker:
                 pixels, width, height = load_pixels(path)
                 fields = exr_strings(path)
         except (CliError, SaveError, MergeError, RuntimeError) as err:
-            return {"error": f"frame {frame}: {cli._first_line(err)}"}
+            return {"error": f"frame {frame}: {first_line(err)}"}
         out.update(pixels=pixels, width=width, height=height, samples=int(fields.get("ember.samples", 0)),
                    metadata={k: v for k, v in fields.items() if k.startswith("ember.")},
                    warnings=_warnings(printed.getvalue()), seconds=time.perf_counter() - start)
@@ -246,7 +249,7 @@ class FrameWriter:
         try:
             bpy.ops.render.render(write_still=False, scene=self.scene.name)
         except RuntimeError as err:
-            raise CliError(f"cannot write it: {cli._first_line(err)}") from None
+            raise CliError(f"cannot write it: {first_line(err)}") from None
         finally:
             _pending_frame = None
         save_render_result(self.scene, target)
@@ -289,7 +292,7 @@ class Plan:
     tasks: deque = field(default_factory=deque)
 
 
-def render_on_ray(args, job: cli.RenderJob) -> int:
+def render_on_ray(args, job: RenderJob) -> int:
     """The --ray hook of the command line: plan, connect, run the driver, disconnect."""
     ray = require_ray()
     scene, cluster = job.scene, args.cluster
@@ -344,7 +347,7 @@ def _plan(args, job) -> Plan:
         denoise = {"RGB": (), "RGB_ALBEDO": ("albedo",)}.get(inputs, ("albedo", "normal"))
     plan = Plan([], {}, ranges, denoise)
     for frame, target in zip(job.frames, job.targets):
-        if cli.skip_existing(scene, frame, target):
+        if skip_existing(scene, frame, target):
             continue
         plan.frames.append(frame)
         plan.targets[frame] = target
@@ -387,7 +390,7 @@ def _connected(ray, cluster: Cluster, local_workers: int):
     except CliError:
         raise
     except Exception as err:
-        raise CliError(f"cannot connect to the Ray cluster at {cluster.address}: {cli._first_line(err)}") from None
+        raise CliError(f"cannot connect to the Ray cluster at {cluster.address}: {first_line(err)}") from None
     finally:
         stop_signals.take_back()
     try:
@@ -452,7 +455,7 @@ class Driver:
     def run(self) -> int:
         try:
             while len(self.saved) < len(self.plan.frames):
-                if cli.interrupted():
+                if interrupted():
                     return self._interrupted()
                 self._dispatch()
                 self._check_alive()
@@ -466,7 +469,7 @@ class Driver:
             if len(self.plan.frames) == 1:
                 raise
             lost = [f for f in self.plan.frames if f not in self.saved]
-            raise CliError(f"{err}; {cli.frames_outcome(sorted(self.saved), lost)}") from None
+            raise CliError(f"{err}; {frames_outcome(sorted(self.saved), lost)}") from None
         finally:
             for worker in self.workers:
                 self._kill(worker)
@@ -495,7 +498,7 @@ class Driver:
         except self.ray.exceptions.RayTaskError as err:
             cause = err.cause if getattr(err, "cause", None) is not None else err
             raise CliError(f"worker {worker.number} failed on {task.label() if task else 'start'}: "
-                           f"{type(cause).__name__}: {cli._first_line(cause)}") from None
+                           f"{type(cause).__name__}: {first_line(cause)}") from None
         if value.get("error"):
             raise CliError(value["error"])
         if task is None:
@@ -615,9 +618,9 @@ class Driver:
         dropped = sorted({w.task.frame for w in self.workers if w.task} | set(self.parts))
         what = ""
         if dropped:
-            what = f"frame{'s' if len(dropped) > 1 else ''} {cli._ranges(dropped)} {'were' if len(dropped) > 1 else 'was'} " \
+            what = f"frame{'s' if len(dropped) > 1 else ''} {frame_ranges(dropped)} {'were' if len(dropped) > 1 else 'was'} " \
                    "not finished; "
-        print(f"ember: {stop_signals.interrupted_by()}: {what}{cli.saved_frames(sorted(self.saved))}",
+        print(f"ember: {stop_signals.interrupted_by()}: {what}{saved_frames(sorted(self.saved))}",
               file=sys.stderr)
         return stop_signals.exit_status()
 
@@ -628,7 +631,7 @@ def _deadline(seconds: float, message: str):
     Python cannot interrupt, and nothing has been started yet that would need cleaning up."""
     def expire():
         print(f"ember: error: {message}", file=sys.stderr, flush=True)
-        os._exit(cli.EXIT_FAILED)
+        os._exit(EXIT_FAILED)
     timer = threading.Timer(seconds, expire)
     timer.daemon = True
     timer.start()
