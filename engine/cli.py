@@ -17,9 +17,9 @@ and SIGHUP stop the frame being rendered, keep the frames finished before it, an
 (engine/stop_signals.py).
 
 With --ray the frames (or sample ranges of them, --split-samples) are rendered by a Ray cluster's workers
-(engine/distributed.py, which imports Ray; the rest of Ember never does); this process opens the file all
-the same (prepare) and writes the frames with the same save_render_result. What both share (the job, opening
-the file with the options, the errors and exit codes) is engine/batch.py's.
+(engine/distributed.py; engine/ray_cluster.py imports Ray, the rest of Ember never does); this process opens
+the file all the same (prepare) and writes the frames with the same save_render_result. What both share (the
+job, opening the file with the options, the errors and exit codes) is engine/batch.py's.
 """
 from __future__ import annotations
 
