@@ -40,12 +40,18 @@ class RenderJob:
     targets: list[str]
 
 
+def match_option(option: str, text: str, pattern: str, example: str) -> re.Match:
+    """An option's text matched in full by `pattern`, or a UsageError saying what it must look like."""
+    m = re.fullmatch(pattern, text)
+    if m is None:
+        raise UsageError(f"{option} must look like {example}, got {text!r}")
+    return m
+
+
 def parse_resolution(text: str | None):
     if text is None:
         return None
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not m:
-        raise UsageError(f"--resolution must look like 1280x720, got {text!r}")
+    m = match_option("--resolution", text, r"\s*(\d+)\s*[xX]\s*(\d+)\s*", "1280x720")
     lo, hi = RESOLUTION_RANGE
     width, height = int(m.group(1)), int(m.group(2))
     if not (lo <= width <= hi and lo <= height <= hi):
@@ -88,23 +94,19 @@ def register_ember() -> None:
         register()
 
 
+# Command-line options -> the scene.ember property each sets (when given), and how its value is written there.
+EMBER_OPTIONS = (("samples", "samples", None), ("max_bounces", "max_bounces", None), ("mode", "sampling_mode", None),
+                 ("seed", "seed", None), ("pattern", "sampling_pattern", lambda p: p.upper().replace("-", "_")),
+                 ("time_limit", "time_limit", None), ("denoise", "use_denoising", None))
+
+
 def _apply_options(scene, args, resolution) -> None:
     scene.render.engine = "EMBER"
     ember = scene.ember
-    if args.samples is not None:
-        ember.samples = args.samples
-    if args.max_bounces is not None:
-        ember.max_bounces = args.max_bounces
-    if args.mode is not None:
-        ember.sampling_mode = args.mode
-    if args.seed is not None:
-        ember.seed = args.seed
-    if args.pattern is not None:
-        ember.sampling_pattern = args.pattern.upper().replace("-", "_")
-    if args.time_limit is not None:
-        ember.time_limit = args.time_limit
-    if args.denoise is not None:
-        ember.use_denoising = args.denoise
+    for option, prop, convert in EMBER_OPTIONS:
+        value = getattr(args, option)
+        if value is not None:
+            setattr(ember, prop, value if convert is None else convert(value))
     if args.sample_offset is not None:
         ember.sample_offset = args.sample_offset
         # Ranges merge by sample count: every pixel must hold them all, and none may be denoised; and each

@@ -34,7 +34,7 @@ import bpy
 
 from . import stop_signals
 from .batch import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_USAGE, CliError, RenderJob, UsageError, frames_outcome,
-                    interrupted, open_scene, saved_frames, skip_existing)
+                    interrupted, match_option, open_scene, saved_frames, skip_existing)
 from .frame_save import SaveError, existing_part, first_line, partial_prefix, save_render_result
 from .properties import SAMPLING_MODE_ITEMS
 
@@ -110,9 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
 def parse_frames(text: str | None):
     if text is None:
         return None
-    m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", text)
-    if not m:
-        raise UsageError(f"--frames must look like 5 or 1-24, got {text!r}")
+    m = match_option("--frames", text, r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", "5 or 1-24")
     start = int(m.group(1))
     end = int(m.group(2)) if m.group(2) is not None else start
     if end < start:
