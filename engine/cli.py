@@ -17,8 +17,9 @@ and SIGHUP stop the frame being rendered, keep the frames finished before it, an
 (engine/stop_signals.py).
 
 With --ray the frames (or sample ranges of them, --split-samples) are rendered by a Ray cluster's workers
-(engine/distributed.py, which imports Ray; the rest of Ember never does); this process opens the file all
-the same (prepare) and writes the frames with the same save_render_result.
+(engine/distributed.py; engine/ray_cluster.py imports Ray, the rest of Ember never does); this process opens
+the file all the same (prepare) and writes the frames with the same save_render_result. What both share (the
+job, opening the file with the options, the errors and exit codes) is engine/batch.py's.
 """
 from __future__ import annotations
 
@@ -28,31 +29,17 @@ import os
 import re
 import sys
 import tempfile
-from dataclasses import dataclass
-from typing import Any
 
 import bpy
 
-from ..kernels.accel import capped_threads
 from . import stop_signals
-from .frame_save import SaveError, existing_part, first_line as _first_line, partial_prefix, save_render_result
+from .batch import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_USAGE, CliError, RenderJob, UsageError, frames_outcome,
+                    interrupted, match_option, open_scene, saved_frames, skip_existing)
+from .frame_save import SaveError, existing_part, first_line, partial_prefix, save_render_result
 from .properties import SAMPLING_MODE_ITEMS
 
-EXIT_USAGE = 2
-EXIT_FAILED = 1
-EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a process stopped by Ctrl-C
 FORMATS = {".png": "PNG", ".exr": "OPEN_EXR", ".jpg": "JPEG", ".jpeg": "JPEG", ".tif": "TIFF", ".tiff": "TIFF"}
 SEED_MAX = 2**31 - 1             # Blender's integer properties are 32-bit signed
-RESOLUTION_RANGE = (4, 65536)    # what scene.render.resolution_x/y accept
-INT_MAX = 2**31 - 1
-
-
-class CliError(Exception):
-    """A one-line message for the user."""
-
-
-class UsageError(CliError):
-    """A malformed command line: exit status 2, as argparse's own errors."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -123,9 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
 def parse_frames(text: str | None):
     if text is None:
         return None
-    m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", text)
-    if not m:
-        raise UsageError(f"--frames must look like 5 or 1-24, got {text!r}")
+    m = match_option("--frames", text, r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", "5 or 1-24")
     start = int(m.group(1))
     end = int(m.group(2)) if m.group(2) is not None else start
     if end < start:
@@ -134,19 +119,6 @@ def parse_frames(text: str | None):
     if not (-limit <= start and end <= limit):
         raise UsageError(f"--frames must lie within -{limit} to {limit}, got {text!r}")
     return start, end
-
-
-def parse_resolution(text: str | None):
-    if text is None:
-        return None
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not m:
-        raise UsageError(f"--resolution must look like 1280x720, got {text!r}")
-    lo, hi = RESOLUTION_RANGE
-    width, height = int(m.group(1)), int(m.group(2))
-    if not (lo <= width <= hi and lo <= height <= hi):
-        raise UsageError(f"--resolution must be from {lo}x{lo} to {hi}x{hi} pixels (Blender's limits), got {text!r}")
-    return width, height
 
 
 def check_options(args) -> None:
@@ -231,10 +203,6 @@ def main(argv: list[str]) -> int:
         stop_signals.restore(previous)
 
 
-def interrupted() -> bool:
-    return stop_signals.stopped()
-
-
 def merge_command(args) -> int:
     from .merge import MergeError, merge
     for path in args.inputs:
@@ -247,15 +215,6 @@ def merge_command(args) -> int:
         raise CliError(str(err)) from None
     print(f"Ember | merged {len(args.inputs)} renders, {total} samples -> {output}", flush=True)
     return 0
-
-
-@dataclass
-class RenderJob:
-    """What a render of frames needs once the file is open: the scene (options applied) and where each
-    frame goes. The single-process loop and the Ray driver (engine/distributed.py) share it."""
-    scene: Any
-    frames: list[int]
-    targets: list[str]
 
 
 def render(args) -> int:
@@ -307,32 +266,6 @@ def prepare(args) -> RenderJob:
     return RenderJob(scene, frame_list, targets)
 
 
-def open_scene(args, path: str | None = None):
-    """Register Ember, open `path` (default: args.file; none: build the demo scene), select the scene
-    args.scene names and apply the command line's options to it. The file is never saved."""
-    resolution = parse_resolution(args.resolution)
-    path = path if path is not None else args.file
-    _register_ember()
-    if path is not None:
-        try:
-            bpy.ops.wm.open_mainfile(filepath=os.path.abspath(path), load_ui=False)
-        except RuntimeError as err:
-            raise CliError(f"cannot open {args.file or path}: {_first_line(err)}") from None
-    else:
-        from .demo import build_demo_scene
-        build_demo_scene()
-
-    scene = bpy.data.scenes.get(args.scene) if args.scene else bpy.context.scene
-    if scene is None:
-        raise CliError(f"no scene named {args.scene!r} in {args.file}")
-    if bpy.context.window is not None and bpy.context.window.scene != scene:
-        bpy.context.window.scene = scene
-    _apply_options(scene, args, resolution)
-    if scene.camera is None:
-        raise CliError(f"scene {scene.name!r} has no camera")
-    return scene
-
-
 def render_frames(job: RenderJob) -> int:
     """The single-process loop: render each frame in this process and save it."""
     scene, frame_list = job.scene, job.frames
@@ -346,7 +279,7 @@ def render_frames(job: RenderJob) -> int:
         try:
             bpy.ops.render.render(write_still=False, scene=scene.name)
         except RuntimeError as err:
-            raise CliError(_with_outcome(f"frame {frame}: {_first_line(err)}", job, done, frame)) from None
+            raise CliError(_with_outcome(f"frame {frame}: {first_line(err)}", job, done, frame)) from None
         if interrupted():  # the render stopped early: its frame is incomplete, so it is not saved
             kept = saved_frames(done)
             print(f"ember: {stop_signals.interrupted_by()} during frame {frame}: nothing saved for it; {kept}",
@@ -365,14 +298,6 @@ def render_frames(job: RenderJob) -> int:
     return 0
 
 
-def skip_existing(scene, frame: int, target: str) -> bool:
-    """True (with a line saying so) when `target` exists and the file's Overwrite option is off."""
-    if scene.render.use_overwrite or not os.path.exists(target):
-        return False
-    print(f"Ember | Frame {frame} | {target} exists and the file's Overwrite option is off: skipped", flush=True)
-    return True
-
-
 def _file_output_path(scene, frame: int) -> str:
     """Where blender -b FILE -a writes `frame`: Blender's own rules, absolute."""
     if scene.render.is_movie_format:
@@ -388,13 +313,6 @@ def _use_format_of(scene, output: str) -> None:
     settings.file_format = FORMATS[os.path.splitext(output)[1].lower()]
     if settings.file_format == "OPEN_EXR":
         settings.color_depth = "32"
-
-
-def _register_ember() -> None:
-    """Register the add-on unless an enabled Ember extension already did."""
-    if not hasattr(bpy.types.Scene, "ember"):
-        from .. import register
-        register()
 
 
 # --passes names -> View Layer toggles (and Ember's Denoising Data)
@@ -428,72 +346,9 @@ def _use_passes(scene, text: str, output: str | None) -> None:
     settings.color_depth = "32"
 
 
-def _apply_options(scene, args, resolution) -> None:
-    scene.render.engine = "EMBER"
-    ember = scene.ember
-    if args.samples is not None:
-        ember.samples = args.samples
-    if args.max_bounces is not None:
-        ember.max_bounces = args.max_bounces
-    if args.mode is not None:
-        ember.sampling_mode = args.mode
-    if args.seed is not None:
-        ember.seed = args.seed
-    if args.pattern is not None:
-        ember.sampling_pattern = args.pattern.upper().replace("-", "_")
-    if args.time_limit is not None:
-        ember.time_limit = args.time_limit
-    if args.denoise is not None:
-        ember.use_denoising = args.denoise
-    if args.sample_offset is not None:
-        ember.sample_offset = args.sample_offset
-        # Ranges merge by sample count: every pixel must hold them all, and none may be denoised; and each
-        # pixel reads its own sequence (the blue-noise layout depends on the whole frame's sample count,
-        # which a range does not know), so that ranges merge into exactly the whole rendered alike.
-        ember.use_adaptive_sampling = ember.use_denoising = False
-        ember.sampling_pattern = "SOBOL_BURLEY"
-    if args.threads is not None:
-        scene.render.threads_mode = "FIXED" if args.threads > 0 else "AUTO"
-        if args.threads > 0:
-            scene.render.threads = capped_threads(args.threads)
-            if scene.render.threads < args.threads:
-                print(f"Ember | Warning: --threads {args.threads} is more than the {scene.render.threads} "
-                      f"core{'s' if scene.render.threads > 1 else ''} usable here: rendering with "
-                      f"{scene.render.threads} threads", flush=True)
-    if resolution is not None:
-        scene.render.resolution_x, scene.render.resolution_y = resolution
-        scene.render.resolution_percentage = 100
-
-
 def _with_outcome(message: str, job: RenderJob, done: list[int], failed: int) -> str:
     """`message`, and for several frames which were saved and which were lost (`failed` and the ones
     after it)."""
     if len(job.frames) == 1:
         return message
     return f"{message}; {frames_outcome(done, job.frames[job.frames.index(failed):])}"
-
-
-def frames_outcome(saved: list[int], lost: list[int]) -> str:
-    """'frames 1-6 were saved; frames 7-8 were not'."""
-    text = saved_frames(saved)
-    if lost:
-        text += f"; frame{'s' if len(lost) > 1 else ''} {_ranges(lost)} {'were' if len(lost) > 1 else 'was'} not"
-    return text
-
-
-def saved_frames(done: list[int]) -> str:
-    if not done:
-        return "no frame was saved"
-    return f"frame {done[0]} was saved" if len(done) == 1 else f"frames {_ranges(done)} were saved"
-
-
-def _ranges(frames: list[int]) -> str:
-    """[1, 2, 3, 5] -> '1-3, 5'."""
-    parts, start = [], None
-    for i, f in enumerate(frames):
-        if start is None:
-            start = f
-        if i + 1 == len(frames) or frames[i + 1] != f + 1:
-            parts.append(str(start) if start == f else f"{start}-{f}")
-            start = None
-    return ", ".join(parts)

@@ -15,20 +15,20 @@ Three parts:
   and file naming are exactly those of `python -m ember render` without --ray.
 
 Ray is an optional dependency of the command line (requirements-ray.txt, `python3 dev.py --blender 5.0 setup --ray`):
-it is imported here only, lazily; the extension never imports this module.
+ray_cluster.py imports it, lazily, and connects to the cluster; the extension never imports this module. What
+the single-process command line does alike (opening the file with the options, skipping frames on disk, the
+errors and exit codes) is batch.py's.
 """
 from __future__ import annotations
 
 import contextlib
 import copy
 import io
-import logging
 import os
 import re
 import socket
 import sys
 import tempfile
-import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -36,16 +36,15 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from . import cli, stop_signals
-from .frame_save import SaveError, save_render_result
 from ..kernels.accel import usable_cores
-from .cli import CliError, UsageError
+from . import stop_signals
+from .batch import (CliError, RenderJob, UsageError, frame_ranges, frames_outcome, interrupted, open_scene,
+                    saved_frames, skip_existing)
+from .frame_save import SaveError, first_line, save_render_result
 from .merge import MergeError, exr_strings, load_pixels, merge_arrays, read_exr_channels
+from .ray_cluster import connected, node_count, parse_cluster, require_ray
 from .session import format_time
 
-RAY_MISSING = "--ray needs Ray: python3 dev.py --blender 5.0 setup --ray"
-CONNECT_TIMEOUT_S = 5.0      # an unreachable head node fails after this, not after Ray's own minutes of retries
-INIT_TIMEOUT_S = 60.0        # ray.init against a reachable port that does not answer as Ray would
 POLL_S = 0.2                 # how often the driver looks for Ctrl-C while it waits for results
 PROGRESS_INTERVAL_S = 10.0   # a progress line at least this often, besides one per saved frame
 START_TIMEOUT_S = 300.0      # with no worker left, how long to wait for a replacement to start
@@ -54,38 +53,6 @@ WRITER_ENGINE = "EMBER_RAY_WRITER"
 
 
 # ---------------------------------------------------------------------------------------------- options
-@dataclass(frozen=True)
-class Cluster:
-    """Where to render: a new local Ray with `workers` slots, or an existing cluster at `address`."""
-    address: str          # "local", "auto", "HOST:PORT" or "ray://HOST:PORT"
-    workers: int | None   # local:N
-
-    @property
-    def local(self) -> bool:
-        return self.address == "local"
-
-
-def require_ray():
-    try:
-        import ray
-    except ImportError:
-        raise CliError(RAY_MISSING) from None
-    return ray
-
-
-def parse_cluster(text: str) -> Cluster:
-    text = text.strip()
-    m = re.fullmatch(r"local(?::(\d+))?", text)
-    if m:
-        workers = int(m.group(1)) if m.group(1) else None
-        if workers is not None and not 1 <= workers <= 4096:
-            raise UsageError(f"--ray local:N needs N from 1 to 4096, got {text!r}")
-        return Cluster("local", workers)
-    if text == "auto" or re.fullmatch(r"(ray://)?[^\s:/]+:\d+", text):
-        return Cluster(text, None)
-    raise UsageError(f"--ray takes auto, HOST:PORT, ray://HOST:PORT or local[:N], got {text!r}")
-
-
 def check_ray_options(args) -> None:
     """What can be checked before the file opens; Ray missing is one line (exit 1)."""
     args.cluster = parse_cluster(args.ray)
@@ -129,13 +96,13 @@ class RenderWorker:
 
     def _open(self, blend: bytes | None, args):
         if blend is None:
-            scene = cli.open_scene(args)  # the file at its path (seen by every node), or the demo scene
+            scene = open_scene(args)  # the file at its path (seen by every node), or the demo scene
         else:  # a private copy, removed once Blender has read it: nothing is ever saved
             with tempfile.TemporaryDirectory(prefix="ember-ray-") as tmp:
                 local = os.path.join(tmp, os.path.basename(args.file))
                 with open(local, "wb") as f:
                     f.write(blend)
-                scene = cli.open_scene(args, local)
+                scene = open_scene(args, local)
         scene.render.use_stamp = False  # burnt-in stamps: the driver's save draws them, once
         if self.aux:  # Denoising Albedo / Normal, for the driver's denoiser
             for layer in scene.view_layers:
@@ -169,7 +136,7 @@ class RenderWorker:
                 pixels, width, height = load_pixels(path)
                 fields = exr_strings(path)
         except (CliError, SaveError, MergeError, RuntimeError) as err:
-            return {"error": f"frame {frame}: {cli._first_line(err)}"}
+            return {"error": f"frame {frame}: {first_line(err)}"}
         out.update(pixels=pixels, width=width, height=height, samples=int(fields.get("ember.samples", 0)),
                    metadata={k: v for k, v in fields.items() if k.startswith("ember.")},
                    warnings=_warnings(printed.getvalue()), seconds=time.perf_counter() - start)
@@ -246,7 +213,7 @@ class FrameWriter:
         try:
             bpy.ops.render.render(write_still=False, scene=self.scene.name)
         except RuntimeError as err:
-            raise CliError(f"cannot write it: {cli._first_line(err)}") from None
+            raise CliError(f"cannot write it: {first_line(err)}") from None
         finally:
             _pending_frame = None
         save_render_result(self.scene, target)
@@ -289,7 +256,7 @@ class Plan:
     tasks: deque = field(default_factory=deque)
 
 
-def render_on_ray(args, job: cli.RenderJob) -> int:
+def render_on_ray(args, job: RenderJob) -> int:
     """The --ray hook of the command line: plan, connect, run the driver, disconnect."""
     ray = require_ray()
     scene, cluster = job.scene, args.cluster
@@ -309,8 +276,8 @@ def render_on_ray(args, job: cli.RenderJob) -> int:
         _status(f"{local_workers} workers asked for, but {usable_cores()} cores can be used here: starting "
                 f"{usable_cores()}")
         local_workers = usable_cores()
-    with _connected(ray, cluster, local_workers):
-        workers = local_workers if cluster.local else args.workers or _node_count(ray)
+    with connected(ray, cluster, local_workers):
+        workers = local_workers if cluster.local else args.workers or node_count(ray)
         cpus = int(ray.cluster_resources().get("CPU", 0))
         if workers > cpus:
             raise CliError(f"{workers} workers need {workers} CPUs of the Ray cluster, which has {cpus}: "
@@ -344,7 +311,7 @@ def _plan(args, job) -> Plan:
         denoise = {"RGB": (), "RGB_ALBEDO": ("albedo",)}.get(inputs, ("albedo", "normal"))
     plan = Plan([], {}, ranges, denoise)
     for frame, target in zip(job.frames, job.targets):
-        if cli.skip_existing(scene, frame, target):
+        if skip_existing(scene, frame, target):
             continue
         plan.frames.append(frame)
         plan.targets[frame] = target
@@ -361,70 +328,6 @@ def _warn_external_files(path: str) -> None:
         print(f"Ember | Ray | Warning: the workers receive {os.path.basename(path)}'s bytes, not the {len(relative)} "
               f"file(s) it names relative to itself ({relative[0]}): pack them (File > External Data > Pack "
               f"Resources) or keep the .blend where every node sees it and pass --shared-path", file=sys.stderr)
-
-
-def _node_count(ray) -> int:
-    return max(1, sum(1 for node in ray.nodes() if node.get("Alive") and node.get("Resources", {}).get("CPU")))
-
-
-@contextlib.contextmanager
-def _connected(ray, cluster: Cluster, local_workers: int):
-    """ray.init for the cluster (workers' output stays in their logs), ray.shutdown after."""
-    quiet = dict(log_to_driver=False, logging_level=logging.ERROR)
-    try:
-        if cluster.local:
-            # A Ray of this machine alone: on the loopback interface. Its processes start with the stop signals
-            # held, so that a signal to the process group (a farm's SIGTERM, Ctrl-C) does not end them under
-            # this driver (which would abort with Ray's stack dump): the driver stops them in order.
-            with stop_signals.held():
-                ray.init(address="local", num_cpus=local_workers, include_dashboard=False,
-                         _node_ip_address="127.0.0.1", **quiet)
-        else:
-            _check_reachable(cluster.address)
-            with _deadline(INIT_TIMEOUT_S, f"cannot connect to the Ray cluster at {cluster.address}: no answer "
-                                           f"in {INIT_TIMEOUT_S:.0f} s (is it a Ray head node, of Ray 2.40.0?)"):
-                ray.init(address=cluster.address, **quiet)
-    except CliError:
-        raise
-    except Exception as err:
-        raise CliError(f"cannot connect to the Ray cluster at {cluster.address}: {cli._first_line(err)}") from None
-    finally:
-        stop_signals.take_back()
-    try:
-        yield
-    finally:
-        if cluster.local:
-            _end_local_ray()
-        ray.shutdown()
-
-
-def _end_local_ray() -> None:
-    """Kill the local Ray's processes (this process's descendants: the driver renders nothing itself) before
-    ray.shutdown, which would send them SIGTERM, held since their start, and wait a second for each."""
-    import psutil  # Ray's own copy (ray/thirdparty_files, on sys.path once Ray is imported)
-    processes = psutil.Process().children(recursive=True)
-    for process in processes:
-        with contextlib.suppress(psutil.Error):
-            process.kill()
-    psutil.wait_procs(processes, timeout=5.0)
-
-
-def _check_reachable(address: str) -> None:
-    """A TCP connection to HOST:PORT within CONNECT_TIMEOUT_S ("auto" is Ray's own to find). Ray connects to a
-    head node at 127.0.0.1 or localhost through the machine's network address: that one is checked."""
-    if address == "auto":
-        return
-    resolved = address
-    if not address.startswith("ray://"):
-        from ray._private.services import resolve_ip_for_localhost
-        resolved = resolve_ip_for_localhost(address)
-    host, port = resolved.removeprefix("ray://").rsplit(":", 1)
-    try:
-        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
-    except OSError as err:
-        reason = "timed out" if isinstance(err, TimeoutError) else (err.strerror or str(err))
-        via = f" (Ray's {resolved})" if resolved != address else ""
-        raise CliError(f"cannot reach the Ray cluster at {address}{via}: {reason}") from None
 
 
 class Driver:
@@ -452,7 +355,7 @@ class Driver:
     def run(self) -> int:
         try:
             while len(self.saved) < len(self.plan.frames):
-                if cli.interrupted():
+                if interrupted():
                     return self._interrupted()
                 self._dispatch()
                 self._check_alive()
@@ -466,7 +369,7 @@ class Driver:
             if len(self.plan.frames) == 1:
                 raise
             lost = [f for f in self.plan.frames if f not in self.saved]
-            raise CliError(f"{err}; {cli.frames_outcome(sorted(self.saved), lost)}") from None
+            raise CliError(f"{err}; {frames_outcome(sorted(self.saved), lost)}") from None
         finally:
             for worker in self.workers:
                 self._kill(worker)
@@ -495,7 +398,7 @@ class Driver:
         except self.ray.exceptions.RayTaskError as err:
             cause = err.cause if getattr(err, "cause", None) is not None else err
             raise CliError(f"worker {worker.number} failed on {task.label() if task else 'start'}: "
-                           f"{type(cause).__name__}: {cli._first_line(cause)}") from None
+                           f"{type(cause).__name__}: {first_line(cause)}") from None
         if value.get("error"):
             raise CliError(value["error"])
         if task is None:
@@ -615,27 +518,11 @@ class Driver:
         dropped = sorted({w.task.frame for w in self.workers if w.task} | set(self.parts))
         what = ""
         if dropped:
-            what = f"frame{'s' if len(dropped) > 1 else ''} {cli._ranges(dropped)} {'were' if len(dropped) > 1 else 'was'} " \
+            what = f"frame{'s' if len(dropped) > 1 else ''} {frame_ranges(dropped)} {'were' if len(dropped) > 1 else 'was'} " \
                    "not finished; "
-        print(f"ember: {stop_signals.interrupted_by()}: {what}{cli.saved_frames(sorted(self.saved))}",
+        print(f"ember: {stop_signals.interrupted_by()}: {what}{saved_frames(sorted(self.saved))}",
               file=sys.stderr)
         return stop_signals.exit_status()
-
-
-@contextlib.contextmanager
-def _deadline(seconds: float, message: str):
-    """Past `seconds` inside the block, one line and exit 1: ray.init retries for minutes in native code that
-    Python cannot interrupt, and nothing has been started yet that would need cleaning up."""
-    def expire():
-        print(f"ember: error: {message}", file=sys.stderr, flush=True)
-        os._exit(cli.EXIT_FAILED)
-    timer = threading.Timer(seconds, expire)
-    timer.daemon = True
-    timer.start()
-    try:
-        yield
-    finally:
-        timer.cancel()
 
 
 def _reason(err) -> str:

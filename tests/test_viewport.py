@@ -18,9 +18,14 @@ from bpy_helpers import diffuse_material, mesh_object, new_scene, set_world
 from ember.engine import viewport as vp
 from ember.engine.render_engine import EmberRenderEngine
 from ember.engine.session import render_settings
-from ember.engine.export.camera import camera_zoom_factor, region_camera, stand_in_camera, view_camera
-from ember.engine.viewport import (HALF_MAX, UNLIMITED_SAMPLES, ViewportRender, ViewportSession, display_pixels,
-                                   gpu_pixels)
+from ember.engine.export.camera import (camera_zoom_factor, region_camera, stand_in_camera, view_camera,
+                                       view_camera_object)
+from ember.engine.export.updates import scene_needs_export
+from ember.engine.viewport import ViewportRender
+from ember.engine.viewport import session as viewport_session
+from ember.engine.viewport.draw import (HALF_MAX, UNLIMITED_SAMPLES, Display, Frame, display_pixels, gpu_pixels,
+                                        status_text)
+from ember.engine.viewport.session import ViewportSession, preview_size
 from ember.kernels import RenderSettings
 from ember.kernels.camera import generate_rays, view_plane
 from ember.kernels.shapes import look_at
@@ -180,7 +185,7 @@ def test_camera_view_reads_the_scene_camera():
     space, r3d = area.spaces.active, area.spaces.active.region_3d
     r3d.view_perspective = "CAMERA"
     r3d.view_camera_zoom = 10.0
-    camera_ob = vp.view_camera_object(space, scene).evaluated_get(bpy.context.evaluated_depsgraph_get())
+    camera_ob = view_camera_object(space, scene).evaluated_get(bpy.context.evaluated_depsgraph_get())
     camera = region_camera(space, r3d, 600, 400, camera_ob)
     fac = camera_zoom_factor(10.0)
     assert camera.fov_rad == pytest.approx(2 * math.atan(36.0 / (2 * 35.0 * fac)))  # add_camera's 35 mm
@@ -199,7 +204,7 @@ def test_camera_view_takes_the_cameras_depth_of_field_and_the_films_filter():
     area = next(a for a in bpy.data.screens["Layout"].areas if a.type == "VIEW_3D")
     space, r3d = area.spaces.active, area.spaces.active.region_3d
     depsgraph = bpy.context.evaluated_depsgraph_get()
-    camera_ob = vp.view_camera_object(space, scene).evaluated_get(depsgraph)
+    camera_ob = view_camera_object(space, scene).evaluated_get(depsgraph)
     r3d.view_perspective = "CAMERA"
     kernel = region_camera(space, r3d, 600, 400, camera_ob, scene)
     assert kernel.aperture_radius == pytest.approx(35e-3 / 4.0) and kernel.focus_distance == pytest.approx(4.0)
@@ -227,7 +232,7 @@ def test_camera_view_through_a_panoramic_camera(kind):
     r3d.view_perspective = "CAMERA"
     r3d.view_camera_offset = (0.0, 0.0)
     depsgraph = bpy.context.evaluated_depsgraph_get()
-    camera_ob = vp.view_camera_object(space, scene).evaluated_get(depsgraph)
+    camera_ob = view_camera_object(space, scene).evaluated_get(depsgraph)
     final = dataclasses.replace(export_camera(camera_ob, scene, 60, 40, []), filter_type="BOX")
     rows, cols = (a.ravel() for a in np.indices((40, 60)))
     half = np.full(len(rows), 0.5, np.float32)
@@ -273,7 +278,7 @@ def test_finite_sample_count_finishes(sessions):
     frame = session.snapshot()
     assert (frame.samples_done, frame.samples_total) == (5, 5)
     assert not session.needs_redraw  # finished and taken: nothing more to draw
-    assert vp.status_text(frame, session.busy, session.error) == "Sample 5/5"
+    assert status_text(frame, session.busy, session.error) == "Sample 5/5"
 
 
 def test_scene_change_restarts_from_zero(sessions):
@@ -396,7 +401,7 @@ def test_quick_preview_comes_first(sessions):
     session.update_scene(world_scene(), COSINE)
     wait_until(lambda: session.samples_done >= 1)
     assert published[0] == (0, (24, 32, 4))
-    assert vp.preview_size(32, 24, 64) == (9, 7) and vp.preview_size(32, 24, 10_000) is None
+    assert preview_size(32, 24, 64) == (9, 7) and preview_size(32, 24, 10_000) is None
 
 
 def test_invalid_scene_is_reported_not_raised(sessions):
@@ -407,7 +412,7 @@ def test_invalid_scene_is_reported_not_raised(sessions):
     session.update_scene(bad, COSINE)
     error = wait_until(lambda: session.error)
     assert "material_ids" in error and not session.busy
-    assert vp.status_text(session.snapshot(), session.busy, error).startswith("Ember: ")
+    assert status_text(session.snapshot(), session.busy, error).startswith("Ember: ")
     session.update_scene(world_scene(), COSINE)  # a good scene renders again
     wait_until(lambda: session.samples_done >= 1)
     assert session.error is None
@@ -440,12 +445,12 @@ def test_session_frames_stay_in_half_float_range(sessions):
 
 
 def test_status_text():
-    frame = vp.Frame(np.zeros((1, 1, 4), np.float32), 3, 32, 1)
-    assert vp.status_text(frame, True, None) == "Sample 3/32"
-    assert vp.status_text(frame._replace(samples_total=UNLIMITED_SAMPLES), True, None) == "Sample 3"
-    assert vp.status_text(frame._replace(samples_done=0), True, None) == "Ember: preview"
-    assert vp.status_text(None, True, None) == "Ember: preparing"
-    assert vp.status_text(frame, False, "Scene has no camera") == "Ember: Scene has no camera"
+    frame = Frame(np.zeros((1, 1, 4), np.float32), 3, 32, 1)
+    assert status_text(frame, True, None) == "Sample 3/32"
+    assert status_text(frame._replace(samples_total=UNLIMITED_SAMPLES), True, None) == "Sample 3"
+    assert status_text(frame._replace(samples_done=0), True, None) == "Ember: preview"
+    assert status_text(None, True, None) == "Ember: preparing"
+    assert status_text(frame, False, "Scene has no camera") == "Ember: Scene has no camera"
 
 
 # ====================================================================== bpy: diffing and glue
@@ -488,7 +493,7 @@ def test_which_depsgraph_updates_trigger_an_export():
     bpy.context.evaluated_depsgraph_get()
     diffuse = mat.node_tree.nodes["Diffuse BSDF"].inputs["Color"]
     background = world.node_tree.nodes["Background"].inputs["Color"]
-    with DepsgraphUpdates(lambda depsgraph: vp.scene_needs_export(depsgraph.updates)) as updates:
+    with DepsgraphUpdates(lambda depsgraph: scene_needs_export(depsgraph.updates)) as updates:
         assert updates.after(lambda: setattr(quad, "location", (0.5, 0, 0))) is True
         assert updates.after(lambda: setattr(diffuse, "default_value", (1, 0, 0, 1))) is True
         assert updates.after(lambda: setattr(background, "default_value", (0, 1, 0, 1))) is True
@@ -634,12 +639,12 @@ def test_a_view_change_reuses_the_built_scene(sessions, monkeypatch):
     """Orbiting must not rebuild Embree's BVH: only a new export builds a new Renderer."""
     builds = []
 
-    class CountingRenderer(vp.Renderer):
+    class CountingRenderer(viewport_session.Renderer):
         def __init__(self, *args, **kwargs):
             builds.append(1)
             super().__init__(*args, **kwargs)
 
-    monkeypatch.setattr(vp, "Renderer", CountingRenderer)
+    monkeypatch.setattr(viewport_session, "Renderer", CountingRenderer)
     session = sessions()
     session.update_view(view())
     session.update_scene(world_scene(), COSINE)
@@ -656,7 +661,7 @@ def test_a_view_change_reuses_the_built_scene(sessions, monkeypatch):
 def test_view_draw_follows_the_drawing_recipe(monkeypatch):
     """The GPU calls themselves, against a recording stand-in for the gpu module (the real one
     refuses to run headless): blend, display-space shader, one texture per new frame, bottom row first."""
-    calls = []
+    calls, uploaded = [], []
 
     class Buffer:
         def __init__(self, fmt, size, data):
@@ -666,7 +671,7 @@ def test_view_draw_follows_the_drawing_recipe(monkeypatch):
     class GPUTexture:
         def __init__(self, size, format, data):
             calls.append(("texture", size, format))
-            self.data = data.data
+            uploaded.append(data.data)
 
     gpu = SimpleNamespace(types=SimpleNamespace(Buffer=Buffer, GPUTexture=GPUTexture),
                           state=SimpleNamespace(blend_set=lambda mode: calls.append(("blend", mode))))
@@ -675,20 +680,18 @@ def test_view_draw_follows_the_drawing_recipe(monkeypatch):
     monkeypatch.setitem(sys.modules, "gpu_extras.presets", presets)
     engine = SimpleNamespace(bind_display_space_shader=lambda scene: calls.append(("bind", scene)),
                              unbind_display_space_shader=lambda: calls.append(("unbind",)))
-    viewport = ViewportRender(1)
-    try:
-        image = np.zeros((2, 3, 4), np.float32)
-        image[0] = 1.0  # the top row
-        frame = vp.Frame(image, 1, 4, 1)
-        viewport._draw(engine, "scene", frame, 300, 200)
-        assert calls == [("texture", (3, 2), "RGBA16F"), ("blend", "ALPHA_PREMULT"), ("bind", "scene"),
-                         ("draw", (0, 0), 300, 200), ("unbind",), ("blend", "NONE")]
-        np.testing.assert_array_equal(viewport._texture.data[-12:], 1.0)  # the top row goes last
-        calls.clear()
-        viewport._draw(engine, "scene", frame, 300, 200)
-        assert not [c for c in calls if c[0] == "texture"]  # the same frame is not uploaded again
-    finally:
-        viewport.free()
+    display = Display()
+    image = np.zeros((2, 3, 4), np.float32)
+    image[0] = 1.0  # the top row
+    frame = Frame(image, 1, 4, 1)
+    display.draw(engine, "scene", frame, 300, 200)
+    assert calls == [("texture", (3, 2), "RGBA16F"), ("blend", "ALPHA_PREMULT"), ("bind", "scene"),
+                     ("draw", (0, 0), 300, 200), ("unbind",), ("blend", "NONE")]
+    np.testing.assert_array_equal(uploaded[-1][-12:], 1.0)  # the top row goes last
+    calls.clear()
+    display.draw(engine, "scene", frame, 300, 200)
+    assert not [c for c in calls if c[0] == "texture"]  # the same frame is not uploaded again
+    display.free()
 
 
 def test_viewport_previews_are_denoised_when_asked(sessions):

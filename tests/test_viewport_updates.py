@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from bpy_helpers import diffuse_material, emission_material, new_scene, quad_object, set_world
-from ember.engine import viewport as vp
 from ember.engine.export import mesh as mesh_export
-from ember.engine.export.updates import export_instances
-from ember.engine.viewport import FULL, INSTANCES, LIGHTS, SHADING, ViewportRender, scene_changes
+from ember.engine.export.updates import FULL, INSTANCES, LIGHTS, SHADING, export_instances, scene_changes
+from ember.engine.viewport import ViewportRender
+from ember.engine.viewport import session as viewport_session
 from ember.kernels import Lights, Materials, Renderer, RenderSettings, World, embree
 from ember.kernels import lights as kernel_lights
 from ember.kernels.scene import object_row
@@ -33,7 +33,7 @@ def counts(monkeypatch):
     """Counts Renderer builds and updates, Embree mesh BVHs, mesh reads and light samplers."""
     record = dict.fromkeys(("builds", "instances", "materials", "lights", "meshes", "mesh_reads", "samplers"), 0)
 
-    class CountingRenderer(vp.Renderer):
+    class CountingRenderer(viewport_session.Renderer):
         def __init__(self, *args, **kwargs):
             record["builds"] += 1
             super().__init__(*args, **kwargs)
@@ -66,7 +66,7 @@ def counts(monkeypatch):
         record["mesh_reads"] += 1
         return read_mesh(mesh)
 
-    monkeypatch.setattr(vp, "Renderer", CountingRenderer)
+    monkeypatch.setattr(viewport_session, "Renderer", CountingRenderer)
     monkeypatch.setattr(embree, "Mesh", CountingMesh)
     monkeypatch.setattr("ember.kernels.renderer.LightSampler", CountingSampler)
     monkeypatch.setattr(mesh_export, "read_mesh", counting_read)
@@ -188,7 +188,7 @@ def test_embree_scene_moves_its_instances_like_a_new_one():
 # ====================================================================== the session's queue
 @pytest.fixture
 def session(counts):
-    made = vp.ViewportSession(1, display_interval_s=0.0)
+    made = viewport_session.ViewportSession(1, display_interval_s=0.0)
     yield made
     assert made.stop()
 
@@ -207,7 +207,7 @@ SESSION_VIEW = view(eye=(0, -7, 3), target=(0, 0, 1), width=40, height=30)
 
 def _session_image(scene):
     """A new session's finished image of the scene."""
-    reference = vp.ViewportSession(1, display_interval_s=0.0)
+    reference = viewport_session.ViewportSession(1, display_interval_s=0.0)
     try:
         reference.update_view(SESSION_VIEW)
         reference.update_scene(scene, SETTINGS)

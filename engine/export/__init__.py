@@ -9,8 +9,10 @@ runs on a job thread: everything comes from the depsgraph.
         engine.report({'WARNING'}, line)
     scene = result.scene.validate().scene
 
-mesh.py reads geometry, materials.py shader nodes and images, world.py the world, camera.py the camera;
-updates.py reads parts of a scene again (the viewport's incremental updates).
+mesh.py reads geometry, materials.py the material table, world.py the world, lights.py the lights, camera.py
+the camera; node trees are walked by graph.py and sockets.py and compiled to programs by nodes.py, images
+loaded by images.py; updates.py classifies what a depsgraph update changed and reads those parts again (the
+viewport's incremental updates).
 """
 from __future__ import annotations
 

@@ -115,7 +115,7 @@ def tree_nodes(tree):
 
 def invalid_links(tree) -> list[str]:
     """What to tell about the links Blender marks invalid in a tree and its groups (sockets that cannot
-    connect, or a loop): Cycles leaves them out, and so does materials.source_of."""
+    connect, or a loop): Cycles leaves them out, and so does sockets.source_of."""
     return [f"the link from {lk.from_node.bl_label} '{lk.from_node.name}' to {lk.to_node.bl_label} "
             f"'{lk.to_node.name}' {lk.to_socket.name} is invalid, ignored as in Cycles"
             for t in node_trees(tree) for lk in t.links if not lk.is_valid and not lk.is_muted]

@@ -1,7 +1,7 @@
-"""Materials: Blender shader node trees -> kernel Shaders (closures with their inputs); the images they read
-are loaded by images.py.
+"""Materials: Blender shader node trees -> kernel Shaders (closures with their inputs), and the material table
+of an export (MaterialTable). What feeds a socket is read by sockets.py (as world.py reads it), the nodes
+computing closure inputs are compiled by nodes.py, and the images they read are loaded by images.py.
 
-This module owns the reading of shader node trees (also used by world.py).
 Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
 and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
 Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Ray Portal, Hair, Emission,
@@ -27,102 +27,26 @@ kernel builds Cycles' closures from them (kernels.shading.nodes).
   export. Anything else feeding those inputs (Bump, Object-space normal maps, radial tangents), thin film:
   ignored with a warning.
 
-An image that cannot be loaded renders MISSING_IMAGE_COLOR, as in Cycles, with a warning naming it.
+An image that cannot be loaded renders sockets.MISSING_IMAGE_COLOR, as in Cycles, with a warning naming it.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from ...kernels import Materials
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
+from .graph import indexed_links, invalid_links, node_loop, run_nested
 from .images import ImageTextures
-from .graph import indexed_links, invalid_links, links_into, node_loop, run_nested
 from .lights import MAX_LIGHT_RADIANCE
-from .nodes import ProgramBuilder, socket_has_nan
+from .nodes import ProgramBuilder
+from .sockets import MISSING_IMAGE_COLOR, Source, output_node, rgb, socket_has_nan, source_of
 
 DEFAULT_ALBEDO = 0.8
-MISSING_IMAGE_COLOR = (1.0, 0.0, 1.0)
-BLACK3 = (0.0, 0.0, 0.0)
 WHITE3 = (1.0, 1.0, 1.0)
 GREY3 = (DEFAULT_ALBEDO,) * 3
-
-
-# ---- Node trees -------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class Source:
-    """What feeds an input socket, once reroutes, muted links, muted nodes and groups are seen through.
-
-    node : the node computing the value, or None when the value is a constant.
-    socket : the node's output socket; when node is None, the input socket whose default_value applies.
-    groups : the group nodes the node sits inside, outermost first (needed to follow the node's inputs).
-    """
-    node: object
-    socket: object
-    groups: tuple = ()
-
-    @property
-    def kind(self) -> str | None:
-        return self.node.bl_idname if self.node is not None else None
-
-
-def source_of(socket, groups: tuple = ()) -> Source:
-    """Follow the links into an input socket to the node that computes its value."""
-    while True:
-        link = _live_link(socket)
-        if link is None:
-            return Source(None, socket, groups)
-        node, output = link.from_node, link.from_socket
-        if node.bl_idname == "NodeReroute":
-            step = node.inputs[0], groups
-        elif node.mute:
-            step = _passed_through(node, output), groups
-        elif node.bl_idname == "ShaderNodeGroup":
-            step = _by_identifier(_group_output(node.node_tree), output.identifier), groups + (node,)
-        elif node.bl_idname == "NodeGroupInput" and groups:
-            step = _by_identifier(groups[-1], output.identifier), groups[:-1]
-        else:
-            return Source(node, output, groups)
-        if step[0] is None:  # nothing passes through (muted node, empty group): the input's own value
-            return Source(None, socket, groups)
-        socket, groups = step
-
-
-def output_node(tree):
-    """The output node Cycles renders from (its own target first, then 'All'), or None."""
-    return tree.get_output_node("CYCLES") or tree.get_output_node("ALL")
-
-
-def _live_link(socket):
-    return next((lk for lk in links_into(socket) if lk.is_valid and not lk.is_muted), None)
-
-
-def _passed_through(node, output):
-    """The input a muted node passes to `output`, or None."""
-    return next((lk.from_socket for lk in node.internal_links if lk.to_socket == output), None)
-
-
-def _group_output(tree):
-    if tree is None:
-        return None
-    outputs = [n for n in tree.nodes if n.bl_idname == "NodeGroupOutput"]
-    return next((n for n in outputs if n.is_active_output), outputs[0] if outputs else None)
-
-
-def _by_identifier(node, identifier: str):
-    """The node's input socket with that identifier (group sockets match by identifier, not name)."""
-    if node is None:
-        return None
-    return next((s for s in node.inputs if s.identifier == identifier), None)
-
-
-def rgb(value) -> tuple:
-    """A colour socket value as a non-negative, finite RGB triple (alpha dropped)."""
-    c = np.nan_to_num(np.asarray(value[:3], np.float64))
-    return tuple(float(x) for x in np.maximum(c, 0.0))
 
 
 # ---- Materials --------------------------------------------------------------------------------------

@@ -5,7 +5,7 @@ A closure input fed by such nodes becomes a Ref into the material's program. Eve
 per material (a subgraph shared by several inputs runs once per hit), in dependency order. Unlinked
 inputs are constants; a node whose inputs are all constants and that reads nothing of the hit (math,
 colour, a texture at a constant point) is evaluated here, once, and becomes a constant itself (constant
-folding). Reroutes, muted nodes and groups are seen through (materials.source_of). An unlinked Vector of
+folding). Reroutes, muted nodes and groups are seen through (sockets.source_of). An unlinked Vector of
 a procedural texture reads Generated coordinates, of an Image Texture the render UV map, as in Cycles.
 
 A node Ember cannot evaluate gives its consumer that input's own value, with a warning naming the node
@@ -26,6 +26,7 @@ from ...kernels.shading.program import constant, convert
 from ..version import blender_version
 from . import node_tables
 from .graph import run_nested
+from .sockets import socket_has_nan, source_of
 
 F32 = np.float32
 
@@ -65,7 +66,6 @@ class ProgramBuilder:
 
     def read(self, socket, groups: tuple, want: str | None = None):
         """input() as a step for compilers (engine/export/graph.py): `value = yield builder.read(...)`."""
-        from .materials import source_of
         want = want or _TYPES.get(socket.type, "VALUE")
         source = source_of(socket, groups)
         if source.node is None:
@@ -76,7 +76,7 @@ class ProgramBuilder:
         return (yield from self._output(source, socket, want))
 
     def _output(self, source, consumer, want: str):
-        """A node output (materials.Source) as the consumer reads it: a Ref, or a folded constant."""
+        """A node output (sockets.Source) as the consumer reads it: a Ref, or a folded constant."""
         node, groups = source.node, source.groups
         key = (node.as_pointer(), tuple(g.as_pointer() for g in groups))
         if key in self._visiting:
@@ -143,7 +143,6 @@ class ProgramBuilder:
         """Step: every enabled input of a node by identifier (a dict). An unlinked Vector reads the
         coordinate Cycles gives it (vector_default: 'Generated' or 'UV'), a Normal the shading normal
         (left out)."""
-        from .materials import source_of
         out = {}
         for s in node.inputs:
             if not s.enabled or s.type not in _TYPES:
@@ -185,12 +184,6 @@ def node_options(node) -> dict:
             value = tuple(value)
         out[prop.identifier] = value
     return out
-
-
-def socket_has_nan(socket) -> bool:
-    """Whether an unlinked socket's value is, in part, not a number (a script or a file can set one)."""
-    value = getattr(socket, "default_value", 0.0)
-    return bool(np.isnan(np.asarray(value[:] if hasattr(value, "__len__") else value, np.float64)).any())
 
 
 def socket_constant(socket, want: str) -> tuple:

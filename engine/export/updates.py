@@ -1,6 +1,12 @@
-"""Partial exports: what the viewport reads again when the depsgraph says only part of the scene changed.
+"""What a depsgraph update changed, and reading that part of the scene again: the viewport's incremental
+updates, as Cycles' Blender sync tracks what changed per data type (BlenderSync::sync_recalc,
+intern/cycles/blender/sync.cpp) and re-syncs only that.
 
-The viewport exports the whole scene once with every mesh a prototype placed by its instances
+Classifying (scene_changes): each content update is sorted by the type of its data-block (RECALC) into the
+part of the scene it changes, cheapest first: INSTANCES (objects moved or their object-level settings),
+SHADING (materials, images, the world), LIGHTS, or FULL (anything else: when unsure, export everything).
+
+Reading again: the viewport exports the whole scene once with every mesh a prototype placed by its instances
 (export_scene(..., instance_everything=True)), and keeps the ExportIndex that export made: which instance
 each object row is, which material each material row is. Later edits read only the part they touched,
 with the same code the full export runs, so each part equals what a full export of the edited scene
@@ -9,6 +15,7 @@ would make:
     export_instances(depsgraph, index)   the instances' transforms and object rows (objects moved)
     export_shading(depsgraph, index)     the material table, its images and the world (shaders edited)
     export_lights(depsgraph, warnings)   the lights (engine/export/lights.py: read whole, it is cheap)
+    export_changes(depsgraph, index, parts, scene)   the parts scene_changes named, together
 
 The first two return None when the scene no longer lines up with the index (an object added, removed
 or hidden; a slot given another material; a material that now reads tangents or mesh attributes): the
@@ -21,14 +28,115 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ...kernels import Materials, World
+from ...kernels import Lights, Materials, SceneArrays, World
 from ...kernels.scene import OBJECT_COLUMNS
 from .lights import export_lights
 from .materials import MaterialTable
 from .mesh import Geometry, instance_key, instance_row, is_rendered, slot_materials
 from .world import export_world
 
-__all__ = ["ExportIndex", "Shading", "export_index", "export_instances", "export_lights", "export_shading"]
+__all__ = ["FULL", "INSTANCES", "LIGHTS", "SHADING", "Changes", "ExportIndex", "Shading", "export_changes",
+           "export_index", "export_instances", "export_lights", "export_shading", "is_content_update",
+           "scene_changes", "scene_needs_export", "update_part", "visibility_key"]
+
+# The parts of a scene an update can change, cheapest first: the instances' transforms and object rows, the
+# materials and world, the lights; FULL is a new export.
+INSTANCES, SHADING, LIGHTS, FULL = "instances", "shading", "lights", "full"
+
+
+# ====================================================================== what the depsgraph says changed
+def is_content_update(update) -> bool:
+    """True when a depsgraph update can change the rendered image.
+
+    Cameras are invisible: moving or editing one matters only when the view looks through it, and
+    view_draw sees that in the view itself. Updates without any flag (the scene after a selection,
+    node trees next to their material) change nothing by themselves.
+    """
+    if not (update.is_updated_transform or update.is_updated_geometry or update.is_updated_shading):
+        return False
+    data = update.id
+    if data.id_type == "CAMERA" or (data.id_type == "OBJECT" and data.type == "CAMERA"):
+        return False
+    return True
+
+
+def _object_part(update) -> str:
+    """A light object is its light; any other object's transform or object-level settings are its instances
+    (an object whose geometry was evaluated again is a new export)."""
+    if update.id.type == "LIGHT":
+        return LIGHTS
+    return _geometry_part(update)
+
+
+def _geometry_part(update) -> str:
+    """Object data Ember turns into triangles: edited geometry is a new export; their other updates come along
+    with their objects' (a material edit tags its meshes for shading)."""
+    return FULL if update.is_updated_geometry else INSTANCES
+
+
+def _node_tree_part(update) -> str:
+    """A light's own node tree is the light's; any other shader tree reaches the image through the materials
+    and world that use it; other trees (geometry nodes) are a new export."""
+    tree = update.id
+    if _is_light_node_tree(tree):
+        return LIGHTS
+    return SHADING if tree.bl_idname == "ShaderNodeTree" else FULL
+
+
+def _is_light_node_tree(tree) -> bool:
+    """Whether a node tree is a light's own (Blender 5.3 gives every light one, and an edit of the light
+    updates it too): such an update is the light's, not a material's."""
+    original = tree.original
+    return bool(original.is_embedded_data) and any(light.node_tree == original for light in bpy.data.lights
+                                                   if getattr(light, "node_tree", None) is not None)
+
+
+def _shading_part(update) -> str:
+    return SHADING
+
+
+def _lights_part(update) -> str:
+    return LIGHTS
+
+
+# Per data-block type (ID.id_type), the part of the scene an update of it changes. Curves, surfaces and text
+# are CURVE. Images and textures reach the image only through the materials and the world that read them.
+RECALC = {
+    "OBJECT": _object_part,
+    "MESH": _geometry_part, "CURVE": _geometry_part, "METABALL": _geometry_part,
+    "LIGHT": _lights_part,
+    "NODETREE": _node_tree_part,
+    "MATERIAL": _shading_part, "WORLD": _shading_part, "IMAGE": _shading_part, "TEXTURE": _shading_part,
+}
+
+
+def update_part(update) -> str:
+    """The part of the scene one content update (is_content_update) changes: RECALC's for its data-block's
+    type; anything else (collections, the scene, unknown data) is FULL."""
+    recalc = RECALC.get(update.id.id_type)
+    return FULL if recalc is None else recalc(update)
+
+
+def scene_changes(updates) -> frozenset:
+    """The parts of the scene that depsgraph.updates change (update_part of each content update); empty
+    when nothing Ember renders changed."""
+    return frozenset(update_part(update) for update in updates if is_content_update(update))
+
+
+def scene_needs_export(updates) -> bool:
+    """Whether any of depsgraph.updates changes what Ember renders (see is_content_update)."""
+    return bool(scene_changes(updates))
+
+
+def visibility_key(depsgraph) -> tuple:
+    """What the export sees besides the updates: hiding an object in the view layer (the eye icon)
+    reaches view_update as a bare scene update, so the set of visible objects is compared as well."""
+    scene = depsgraph.scene_eval
+    world = scene.world.name_full if scene.world is not None else ""
+    return frozenset(ob.name_full for ob in depsgraph.objects), world
+
+
+# ====================================================================== reading parts again
 
 
 @dataclass(frozen=True)
@@ -130,3 +238,41 @@ def export_shading(depsgraph, index: ExportIndex) -> Shading | None:
         return None
     world = export_world(depsgraph.scene_eval.world, warnings, materials.images)
     return Shading(materials.to_kernel(), materials.textures, materials.texture_srgb, world)
+
+
+@dataclass(frozen=True)
+class Changes:
+    """The parts of a scene read again (export_changes); None where a part is unchanged.
+
+    instances : (world_from_object, objects) as export_instances returns them.
+    """
+    instances: tuple | None
+    shading: Shading | None
+    lights: Lights | None
+
+
+def export_changes(depsgraph, index: ExportIndex, parts: frozenset, scene: SceneArrays) -> Changes | None:
+    """The parts (scene_changes) of the scene read again, to replace those of `scene`, the scene made by the
+    export the index describes with every change so far. None when a part no longer lines up with that
+    export: then only a full export will do."""
+    placed = shading = lights = None
+    if INSTANCES in parts:
+        placed = export_instances(depsgraph, index)
+        if placed is None:
+            return None
+        if _same_placement(scene, *placed):
+            placed = None   # object-level updates that change nothing Ember reads (a material edit's)
+    if SHADING in parts:
+        shading = export_shading(depsgraph, index)
+        if shading is None:
+            return None
+    if LIGHTS in parts:
+        lights = export_lights(depsgraph, [])
+    return Changes(placed, shading, lights)
+
+
+def _same_placement(scene: SceneArrays, world_from_object: np.ndarray, objects: np.ndarray) -> bool:
+    """Whether a scene's instances and object table already are these."""
+    current = scene.instances.world_from_object if scene.instances is not None else np.zeros((0, 4, 4))
+    table = scene.objects if scene.objects is not None else np.zeros((0, objects.shape[1]), np.float32)
+    return np.array_equal(current, world_from_object) and np.array_equal(table, objects)

@@ -24,9 +24,9 @@ import numpy as np
 from ...kernels import World
 from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
 from .images import ImagePixels, ImageTextures
-from .materials import BLACK3, MISSING_IMAGE_COLOR, Source, output_node, rgb, source_of
 from .lights import MAX_LIGHT_RADIANCE
-from .nodes import ProgramBuilder, socket_has_nan
+from .nodes import ProgramBuilder
+from .sockets import BLACK3, MISSING_IMAGE_COLOR, Source, output_node, rgb, socket_has_nan, source_of
 
 DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
 TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on the world
