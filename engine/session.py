@@ -326,7 +326,7 @@ class FinalRender:
                 _kept.drop()    # Persistent Data turned off: let the kept scene go
         if persistent:
             _kept.set(renderer)
-        failures = len(renderer.worker_failures)   # a kept renderer's earlier frames were warned about
+        failures = len(renderer.crew.worker_failures)   # a kept renderer's earlier frames were warned about
         with _kept if persistent else session:
             # Zero-area triangles (bevels, text) are dropped silently: no ray can hit them, in Cycles either.
             if renderer.nonfinite_triangles:
@@ -339,9 +339,9 @@ class FinalRender:
         if self._previews is not None:
             self._dirty = (0, result.film.height)  # denoised previews wrote Combined alone: every row again
         self._flush(result.film)
-        if len(renderer.worker_failures) > failures:  # the image is whole (their waves ran here), only slower
+        if len(renderer.crew.worker_failures) > failures:  # the image is whole (their waves ran here), only slower
             self._warn(["a worker process failed, its waves ran in this process: "
-                        + renderer.worker_failures[failures]])
+                        + renderer.crew.worker_failures[failures]])
         options = final_options(scene.ember, result.stopped_early, self.should_stop())
         denoised = options is not None and result.film.samples_done > 0 and self._denoise_final(result.film, options)
         self._stamp_metadata(result.film, denoised)

@@ -137,3 +137,29 @@ class Film:
         grown[1:, :] |= busy[:-1, :]
         grown[:-1, :] |= busy[1:, :]
         self.converged = ~grown
+
+
+# Paths per block where a wave's per-path results are summed per pixel in float64.
+_SUM_BLOCK = 1 << 16
+
+
+def pixel_sums(radiance, alpha, pixels, npix: int, first_sample: int, spp: int, half: bool):
+    """A wave's per-pixel sums from its paths' radiance (3, N) and alpha (N,), pixel-major (spp paths per pixel
+    of `pixels`, the wave's pixels that took samples): ((npix, 4) float64 RGBA sums, and with `half` the (npix, 3)
+    sums of the odd-numbered samples, for adaptive sampling's noise estimate, else None)."""
+    sums = np.zeros((npix, 4), np.float64)
+    half_sums = np.zeros((npix, 3), np.float64) if half else None
+    odd = (np.arange(first_sample, first_sample + spp) & 1).astype(bool)   # by a path's place in its pixel
+    # Whole pixels at a time, in float64: each pixel's sums are the same as over the whole wave at once.
+    step = max(1, _SUM_BLOCK // spp)
+    for lo in range(0, len(pixels), step):
+        hi = min(len(pixels), lo + step)
+        rgba = np.empty((4, (hi - lo) * spp), np.float64)
+        rgba[:3] = radiance[:, lo * spp:hi * spp]
+        rgba[3] = alpha[lo * spp:hi * spp]
+        block = rgba.reshape(4, hi - lo, spp)
+        sums[pixels[lo:hi]] = block.sum(axis=2).T
+        if half_sums is not None:
+            half_sums[pixels[lo:hi]] = np.where(odd, block[:3], 0.0).sum(axis=2).T
+        del rgba, block
+    return sums, half_sums

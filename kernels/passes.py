@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import panorama
+from .cryptomatte import CryptoFilm
 from .bsdf.closures import class_albedo, closure_albedos, eval_split, pass_classes
 from .bsdf.lobes import MICROFACET_LOBES, SINGULAR_LOBES
 from .camera import view_plane
@@ -124,6 +125,49 @@ def closure_normal(closures, n_hits: int, fallback) -> np.ndarray:
     length = np.sqrt((summed * summed).sum(axis=0))
     ok = length > 0
     out[:, ok] = (summed[:, ok] / length[ok]).astype(np.float32)
+    return out
+
+
+# ---------------------------------------------------------------- a wave's buffers and planes
+def wave_buffers(settings, n: int) -> dict | None:
+    """Per-path buffers of a wave of n paths for the passes and Cryptomatte the settings ask for (None: none)."""
+    if not (settings.passes or settings.cryptomatte):
+        return None
+    aux = {name: np.zeros((channels(name), n), np.float32) for name in settings.passes}
+    for kind in settings.cryptomatte:
+        aux["crypto_" + kind] = np.zeros((1, n), np.float32)
+    if settings.cryptomatte:
+        aux["crypto_weight"] = np.zeros((1, n), np.float32)
+    return aux
+
+
+def wave_planes(aux: dict, settings, pix, sample, pixels, spp: int, rows: int, width: int, radiance) -> dict:
+    """A wave's pass planes from its per-path buffers: each path's pixel `pix` (its place in the wave's
+    rows x width) and sample number `sample`; `pixels` the wave's pixels that took spp samples each; FIRST passes
+    as (plane, written) from sample 0, the others summed per pixel; Cryptomatte as a CryptoFilm per kind."""
+    npix = rows * width
+    out = {}
+    first = sample == 0
+    if "noise" in aux:  # the odd-numbered samples' sum (Cycles' adaptive sampling estimate)
+        aux["noise"] = np.where((sample & np.uint32(1)).astype(bool), radiance, 0.0).astype(np.float64)
+    weight = aux.pop("crypto_weight", None)
+    for kind in settings.cryptomatte:
+        ids = aux.pop("crypto_" + kind)[0]
+        wave_film = CryptoFilm(rows, width, settings.cryptomatte_depth)
+        wave_film.add(pix, ids, weight[0])
+        out["crypto_" + kind] = wave_film
+    for name, values in aux.items():
+        c = len(values)
+        if is_first(name):
+            plane = np.zeros((npix, c), np.float32)
+            written = np.zeros(npix, bool)
+            plane[pix[first]] = values[:, first].T
+            written[pix[first]] = True
+            out[name] = (plane.reshape(rows, width, c), written.reshape(rows, width))
+        else:
+            total = np.zeros((npix, c), np.float64)
+            total[pixels] = values.reshape(c, len(pixels), spp).sum(axis=2).T
+            out[name] = total.reshape(rows, width, c)
     return out
 
 

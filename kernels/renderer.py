@@ -16,8 +16,7 @@ from . import motion, panorama, passes, schedule
 from .accel import Accel
 from .camera import view_plane
 from .environment import Environment
-from .cryptomatte import CryptoFilm
-from .film import Film
+from .film import Film, pixel_sums
 from .coincident import Coincident
 from .geometry import TriangleTable, prototype_boxes, scene_extent
 from .lights import LightSampler
@@ -34,8 +33,6 @@ from .lights import nee
 from .schedule import Progress, RenderResult, WaveCrew, WaveJob, render_passes
 from .settings import RenderSettings
 
-# Paths per block where a wave's per-path results are summed per pixel in float64.
-_SUM_BLOCK = 1 << 16
 
 
 class Cancelled(Exception):
@@ -115,25 +112,6 @@ class Renderer:
         renderer does not use them (one thread, processes=False, no Python to start, a big scene)."""
         return self.crew.start_workers(self.scene, len(self.triangles.material_ids),
                                        f"{type(self).__module__}:{type(self).__qualname__}")
-
-    def wait_for_workers(self, timeout_s: float = 60.0) -> int:
-        """Block until every started worker is ready or failed; the number ready."""
-        return self.crew.wait_for_workers(timeout_s)
-
-    @property
-    def worker_count(self) -> int:
-        """Worker processes ready to render this renderer's waves."""
-        return self.crew.worker_count
-
-    @property
-    def worker_failures(self) -> list[str]:
-        """Why worker processes were not started, failed or were dropped (their waves ran here)."""
-        return self.crew.worker_failures
-
-    @property
-    def remote_waves(self) -> int:
-        """Waves rendered by worker processes (all renders)."""
-        return self.crew.remote_waves
 
     @property
     def stop_waves(self):
@@ -385,12 +363,7 @@ class Renderer:
         # Overflow and invalid values are expected at the edges of float32 (huge lights, degenerate
         # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
         # is per thread, so it is set here, in the thread that runs the wave.
-        aux = {name: np.zeros((passes.channels(name), n), np.float32) for name in settings.passes} \
-            if settings.passes or settings.cryptomatte else None
-        if settings.cryptomatte:
-            for kind in settings.cryptomatte:
-                aux["crypto_" + kind] = np.zeros((1, n), np.float32)
-            aux["crypto_weight"] = np.zeros((1, n), np.float32)
+        aux = passes.wave_buffers(settings, n)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
             radiance, alpha = integrator.trace(self, paths, settings, split, aux=aux,
                                                live=self.live_paths(settings) if live is None else live)
@@ -399,50 +372,13 @@ class Renderer:
         if n_bad:
             radiance[:, bad] = 0.0
         del bad
-        sums = np.zeros((npix, 4), np.float64)
-        half = np.zeros((npix, 3), np.float64) if settings.adaptive_threshold > 0 else None
-        odd = (np.arange(first_sample, first_sample + spp) & 1).astype(bool)   # by a path's place in its pixel
-        # Whole pixels at a time, in float64: each pixel's sums are the same as over the whole wave at once.
-        step = max(1, _SUM_BLOCK // spp)
-        for lo in range(0, len(pixels), step):
-            hi = min(len(pixels), lo + step)
-            rgba = np.empty((4, (hi - lo) * spp), np.float64)
-            rgba[:3] = radiance[:, lo * spp:hi * spp]
-            rgba[3] = alpha[lo * spp:hi * spp]
-            block = rgba.reshape(4, hi - lo, spp)
-            sums[pixels[lo:hi]] = block.sum(axis=2).T
-            if half is not None:
-                half[pixels[lo:hi]] = np.where(odd, block[:3], 0.0).sum(axis=2).T
-            del rgba, block
+        sums, half = pixel_sums(radiance, alpha, pixels, npix, first_sample, spp, settings.adaptive_threshold > 0)
         counts = np.zeros(npix, np.int64)
         counts[pixels] = spp
         if half is not None:
             half = half.reshape(rows, width, 3)
-        aux_out = None
-        if aux is not None:
-            pix, sample = paths.pixel_and_sample()
-            aux_out = {}
-            first = sample == 0
-            if "noise" in aux:  # the odd-numbered samples' sum (Cycles' adaptive sampling estimate)
-                aux["noise"] = np.where((sample & np.uint32(1)).astype(bool), radiance, 0.0).astype(np.float64)
-            weight = aux.pop("crypto_weight", None)
-            for kind in settings.cryptomatte:
-                ids = aux.pop("crypto_" + kind)[0]
-                wave_film = CryptoFilm(rows, width, settings.cryptomatte_depth)
-                wave_film.add(pix, ids, weight[0])
-                aux_out["crypto_" + kind] = wave_film
-            for name, values in aux.items():
-                c = len(values)
-                if passes.is_first(name):
-                    plane = np.zeros((npix, c), np.float32)
-                    written = np.zeros(npix, bool)
-                    plane[pix[first]] = values[:, first].T
-                    written[pix[first]] = True
-                    aux_out[name] = (plane.reshape(rows, width, c), written.reshape(rows, width))
-                else:
-                    total = np.zeros((npix, c), np.float64)
-                    total[pixels] = values.reshape(c, len(pixels), spp).sum(axis=2).T
-                    aux_out[name] = total.reshape(rows, width, c)
+        aux_out = None if aux is None else passes.wave_planes(aux, settings, *paths.pixel_and_sample(), pixels, spp,
+                                                              rows, width, radiance)
         return sums.reshape(rows, width, 4), half, counts.reshape(rows, width), n_bad, aux_out
 
     # ---------------------------------------------------------------- one wave of paths

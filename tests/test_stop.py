@@ -74,7 +74,7 @@ def test_worker_processes_are_told_at_once_and_serve_the_next_render(sphere):
     with Renderer(sphere, threads=2, processes=False) as renderer:
         reference = renderer.render(settings).image
     with Renderer(sphere, threads=2, processes=True) as renderer:
-        assert renderer.wait_for_workers() == 1
+        assert renderer.crew.wait_for_workers() == 1
         worker = renderer.crew.workers.workers[0]
         outcomes = []
         render_wave = worker.render_wave
@@ -89,10 +89,10 @@ def test_worker_processes_are_told_at_once_and_serve_the_next_render(sphere):
         bounces = Bounces(renderer, stop_at=4)
         result = renderer.render(settings, should_stop=bounces.requested.is_set)
         assert result.stopped_early and result.progress.paths == 0
-        assert outcomes == ["stopped"] and renderer.remote_waves == 0
-        assert renderer.worker_failures == [] and renderer.worker_count == 1
+        assert outcomes == ["stopped"] and renderer.crew.remote_waves == 0
+        assert renderer.crew.worker_failures == [] and renderer.crew.worker_count == 1
         image = renderer.render(settings).image
-        assert renderer.remote_waves > 0
+        assert renderer.crew.remote_waves > 0
     np.testing.assert_array_equal(image, reference)
 
 

@@ -78,26 +78,26 @@ def test_frames_round_trip_arrays_without_copies_in_the_pickle():
 def test_worker_processes_render_the_same_image_passes_and_counts(materials, reference):
     result0, images0, adaptive0 = reference
     with Renderer(materials, threads=2, processes=True) as renderer:
-        assert renderer.wait_for_workers() == 1, renderer.worker_failures
+        assert renderer.crew.wait_for_workers() == 1, renderer.crew.worker_failures
         result, images = _render(renderer)
-        assert renderer.remote_waves > 0 and result.progress.workers == 1
+        assert renderer.crew.remote_waves > 0 and result.progress.workers == 1
         _assert_same(images, images0)
         assert result.progress.rays == result0.progress.rays
         assert result.progress.paths == result0.progress.paths
         # Adaptive sampling sends each wave its pixels still rendering.
-        before = renderer.remote_waves
+        before = renderer.crew.remote_waves
         adaptive = renderer.render(RenderSettings(samples=40, seed=5, wave_size=1024, adaptive_threshold=0.05,
                                                   adaptive_min_samples=8)).image
-        assert renderer.remote_waves > before
+        assert renderer.crew.remote_waves > before
         np.testing.assert_array_equal(adaptive, adaptive0)
-        assert renderer.worker_failures == []
+        assert renderer.crew.worker_failures == []
 
 
 def test_updates_reach_the_workers(materials):
     """The camera, a material edit and the next frame's scene are applied in the workers too."""
     import bpy
     with Renderer(materials, threads=2, processes=True) as renderer:
-        assert renderer.wait_for_workers() == 1
+        assert renderer.crew.wait_for_workers() == 1
         bpy.context.scene.camera.location.x += 0.3
         for material in bpy.data.materials:
             if material.node_tree is not None:
@@ -107,10 +107,10 @@ def test_updates_reach_the_workers(materials):
                         node.inputs["Roughness"].default_value = 0.35
         edited = export_current().scene
         assert renderer.update_scene(edited)
-        before = renderer.remote_waves
+        before = renderer.crew.remote_waves
         _, images = _render(renderer)
-        assert renderer.remote_waves > before
-        assert renderer.worker_failures == []
+        assert renderer.crew.remote_waves > before
+        assert renderer.crew.worker_failures == []
     with Renderer(edited, threads=2, processes=False) as fresh:
         _, expected = _render(fresh)
     _assert_same(images, expected)
@@ -120,22 +120,22 @@ def test_updates_reach_the_workers(materials):
 def test_a_worker_that_dies_mid_render_loses_no_wave(materials, reference):
     _, images0, _ = reference
     with Renderer(materials, threads=2, processes=True) as renderer:
-        assert renderer.wait_for_workers() == 1
+        assert renderer.crew.wait_for_workers() == 1
         child = renderer.crew.workers.workers[0].process
         waves = []
 
         def kill_after_a_remote_wave(progress):
-            waves.append(renderer.remote_waves)
-            if renderer.remote_waves and child.poll() is None:
+            waves.append(renderer.crew.remote_waves)
+            if renderer.crew.remote_waves and child.poll() is None:
                 child.kill()
         _, images = _render(renderer, on_progress=kill_after_a_remote_wave)
         assert child.poll() is not None and max(waves) > 0
         _assert_same(images, images0)
-        assert len(renderer.worker_failures) == 1
+        assert len(renderer.crew.worker_failures) == 1
         # The next render runs in this process alone, and is the same again.
-        after = renderer.remote_waves
+        after = renderer.crew.remote_waves
         _, again = _render(renderer)
-        assert renderer.remote_waves == after
+        assert renderer.crew.remote_waves == after
         _assert_same(again, images0)
 
 
@@ -143,31 +143,31 @@ def test_closed_renderers_leave_their_workers_to_the_next_one(materials, referen
     _, images0, _ = reference
     workers.close_pool()
     with Renderer(materials, threads=2, processes=True) as first:
-        assert first.wait_for_workers() == 1
+        assert first.crew.wait_for_workers() == 1
         pid = first.crew.workers.workers[0].process.pid
     assert [w.process.pid for w in workers._pool] == [pid]
     with Renderer(materials, threads=2, processes=True) as second:
-        assert second.wait_for_workers() == 1 and second.crew.workers.reused == 1
+        assert second.crew.wait_for_workers() == 1 and second.crew.workers.reused == 1
         assert second.crew.workers.workers[0].process.pid == pid and workers._pool == []
         _, images = _render(second)
-        assert second.remote_waves > 0
+        assert second.crew.remote_waves > 0
     _assert_same(images, images0)
     # Idle workers exit after IDLE_S.
     monkeypatch.setattr(workers, "IDLE_S", 0.2)
     with Renderer(materials, threads=2, processes=True) as third:
-        assert third.wait_for_workers() == 1
+        assert third.crew.wait_for_workers() == 1
         child = third.crew.workers.workers[0]
     assert workers._pool == [child]
     child.process.wait(timeout=10)
     assert workers._pool == [] and child.closed
     # A pooled worker that died meanwhile is not taken.
     with Renderer(materials, threads=2, processes=True) as fourth:
-        assert fourth.wait_for_workers() == 1
+        assert fourth.crew.wait_for_workers() == 1
         child = fourth.crew.workers.workers[0]
     child.process.kill()
     child.process.wait()
     with Renderer(materials, threads=2, processes=True) as fifth:
-        assert fifth.wait_for_workers() == 1 and fifth.crew.workers.reused == 0
+        assert fifth.crew.wait_for_workers() == 1 and fifth.crew.workers.reused == 0
 
 
 def test_a_worker_that_cannot_build_the_scene_is_not_used(materials, monkeypatch):
@@ -175,16 +175,16 @@ def test_a_worker_that_cannot_build_the_scene_is_not_used(materials, monkeypatch
     workers.close_pool()
     monkeypatch.setattr(workers, "_BOOT", "import sys; sys.exit(3)")
     with Renderer(materials, threads=2, processes=True) as renderer:
-        assert renderer.wait_for_workers() == 0
-        assert len(renderer.worker_failures) == 1
+        assert renderer.crew.wait_for_workers() == 0
+        assert len(renderer.crew.worker_failures) == 1
         _, images = _render(renderer, RenderSettings(samples=2, seed=1, wave_size=1024))
-        assert renderer.remote_waves == 0
+        assert renderer.crew.remote_waves == 0
 
 
 def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
     with Renderer(materials, threads=2) as renderer:
         renderer.render(RenderSettings(samples=2, seed=1))
-        assert renderer.crew.workers is None and renderer.remote_waves == 0
+        assert renderer.crew.workers is None and renderer.crew.remote_waves == 0
         # A render of many paths starts them at once (stopped here at once).
         renderer.render(RenderSettings(samples=schedule.WORKER_START_PATHS // (40 * 24) + 1, seed=1),
                         should_stop=lambda: True)
@@ -194,7 +194,7 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
     monkeypatch.setattr(schedule, "WORKER_MAX_BYTES", 1 << 10)
     with Renderer(materials, threads=2, processes=True) as renderer:
         assert renderer.crew.workers is not None and renderer.crew.workers.workers == []
-        assert "MB are over" in renderer.crew.workers.skipped and renderer.worker_failures == []
+        assert "MB are over" in renderer.crew.workers.skipped and renderer.crew.worker_failures == []
         assert renderer.start_workers() is False
     # Many threads (on as many cores): as many children as their copies fit in the bound.
     size = workers.pickled_size(workers.pickled(("scene", materials, f"{Renderer.__module__}:{Renderer.__qualname__}")))
@@ -202,7 +202,7 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
     monkeypatch.setattr(accel, "usable_cores", lambda: 6)
     workers.close_pool()
     with Renderer(materials, threads=6, processes=True) as renderer:
-        assert len(renderer.crew.workers.workers) == 2 and renderer.wait_for_workers() == 2
+        assert len(renderer.crew.workers.workers) == 2 and renderer.crew.wait_for_workers() == 2
         _, images = _render(renderer, RenderSettings(samples=2, seed=1, wave_size=1024))
     monkeypatch.setattr(schedule, "WORKER_MAX_TRIANGLES", 1000)
     with Renderer(materials, threads=2, processes=True) as renderer:
@@ -262,7 +262,7 @@ def test_prestarted_workers_wait_in_the_pool_for_the_renderer(materials):
     assert len(workers._pool) == 1
     pid = workers._pool[0].process.pid
     with Renderer(materials, threads=2, processes=True) as renderer:
-        assert renderer.wait_for_workers() == 1 and renderer.crew.workers.reused == 1
+        assert renderer.crew.wait_for_workers() == 1 and renderer.crew.workers.reused == 1
         assert renderer.crew.workers.workers[0].process.pid == pid
 
 
