@@ -16,7 +16,7 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from bench._common import import_ember  # noqa: E402
+from bench.common import import_ember  # noqa: E402
 
 import_ember()
 import bpy  # noqa: E402

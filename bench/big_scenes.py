@@ -104,7 +104,7 @@ def build(kind: str, triangles: int, instances: int, width: int = 128, height: i
 CHILD = r"""
 import json, os, sys, time
 sys.path.insert(0, %(root)r)
-from bench._common import import_ember; import_ember()
+from bench.common import import_ember; import_ember()
 from bench.big_scenes import build
 import bpy
 
@@ -197,7 +197,7 @@ def instancing_speed(repeats: int = 3) -> tuple[float, float]:
     medians of `repeats` interleaved runs."""
     import numpy as np
     sys.path.insert(0, ROOT)
-    from bench._common import import_ember
+    from bench.common import import_ember
     import_ember()
     from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World
     from ember.kernels.geometry import flatten_instances

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from bench._common import import_ember, median  # noqa: E402
+from bench.common import import_ember, median  # noqa: E402
 
 import_ember()
 from ember.engine import denoise as dn  # noqa: E402

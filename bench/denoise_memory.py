@@ -23,7 +23,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 def child(size: int, quality: str, tiles: int, whole: bool) -> None:
     sys.path.insert(0, ROOT)
-    from bench._common import import_ember
+    from bench.common import import_ember
     import_ember()
     import numpy as np
     from ember.engine import denoise as dn

@@ -20,7 +20,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from bench._common import ROOT, import_ember  # noqa: E402
+from bench.common import ROOT, import_ember  # noqa: E402
 
 import_ember()
 import bpy  # noqa: E402

@@ -26,7 +26,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
-from bench._common import import_ember  # noqa: E402
+from bench.common import import_ember  # noqa: E402
 
 import_ember()
 import bpy  # noqa: E402

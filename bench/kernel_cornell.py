@@ -14,7 +14,7 @@ import time
 
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from bench._common import import_ember, median  # noqa: E402
+from bench.common import import_ember, median  # noqa: E402
 
 ember = import_ember()
 from ember.kernels import Renderer, RenderSettings  # noqa: E402

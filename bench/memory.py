@@ -38,7 +38,7 @@ LAYERED_WORKING_SET_MB = 384  # the same with waves of 262k paths (materials tha
 CHILD = r"""
 import json, os, resource, sys, time, tracemalloc
 sys.path.insert(0, %(root)r); sys.path.insert(0, os.path.join(%(root)r, "tests"))
-from bench._common import import_ember; import_ember()
+from bench.common import import_ember; import_ember()
 import bpy
 from bpy_helpers import diffuse_material, mesh_object, new_scene, set_world
 import ember.engine.session as session
@@ -104,7 +104,7 @@ out.close()
 TEXTURE_CHILD = r"""
 import json, os, sys, time
 sys.path.insert(0, %(root)r); sys.path.insert(0, os.path.join(%(root)r, "tests"))
-from bench._common import import_ember; import_ember()
+from bench.common import import_ember; import_ember()
 import bpy
 from bpy_helpers import new_scene, quad_object, set_world
 

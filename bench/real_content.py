@@ -39,7 +39,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from bench._common import ROOT, import_ember, median  # noqa: E402
+from bench.common import ROOT, import_ember, median  # noqa: E402
 
 import_ember()
 import bpy  # noqa: E402

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-CLI = ("import sys; sys.path.insert(0, %r); from bench._common import import_ember; import_ember(); "
+CLI = ("import sys; sys.path.insert(0, %r); from bench.common import import_ember; import_ember(); "
        "import runpy; sys.argv = ['ember'] + sys.argv[1:]; runpy.run_module('ember', run_name='__main__')" % ROOT)
 
 # A .blend is built by a child bpy process from one of these snippets (run after a base scene: camera,

@@ -29,7 +29,7 @@ import time
 from types import SimpleNamespace
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from bench._common import import_ember, median  # noqa: E402
+from bench.common import import_ember, median  # noqa: E402
 
 import_ember()
 import bpy  # noqa: E402

@@ -43,7 +43,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from bench._common import ROOT, import_ember, median  # noqa: E402
+from bench.common import ROOT, import_ember, median  # noqa: E402
 
 ember = import_ember()
 import bpy  # noqa: E402
@@ -474,7 +474,7 @@ def equal_time(cfg: Config, name: str, ref_samples: int, refresh: bool) -> dict:
                            "channel_means": run.image.mean(axis=(0, 1)).tolist()}
             last[engine] = run.image
         row["rmse_ratio"] = row["EMBER"]["rmse"] / row["CYCLES"]["rmse"]
-        row["rmse_ratio_standard_error"] = _ratio_standard_error(
+        row["rmse_ratio_standard_error"] = ratio_standard_error(
             row["rmse_ratio"], *([x ** 2 for x in row[e]["per_seed_rmse"]] for e in ("EMBER", "CYCLES")))
         row["rmse_raw_ratio"] = row["EMBER"]["rmse_raw"] / row["CYCLES"]["rmse_raw"]
         # Neither engine stops exactly on time (Ember finishes the waves in flight): at equal time the
@@ -527,7 +527,7 @@ def timed_seeds(cfg: Config, name: str, budget: float) -> tuple:
     return tuple(per_budget.get(budget, (TIMED_SEED,)))
 
 
-def _ratio_standard_error(ratio: float, ember_mse: list, cycles_mse: list) -> float | None:
+def ratio_standard_error(ratio: float, ember_mse: list, cycles_mse: list) -> float | None:
     """Standard error of sqrt(mean(ember_mse) / mean(cycles_mse)) from the seeds' scatter (the delta method),
     or None with fewer than two seeds per engine."""
     if len(ember_mse) < 2 or len(cycles_mse) < 2:

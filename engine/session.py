@@ -7,7 +7,7 @@
                         an output driver.
     FinalRender         one F12: export, then a ProgressiveSession on the render job's thread streaming
                         rows into Blender's RenderResult; passes, Cryptomatte metadata, the final
-                        denoise and Persistent Data's kept renderer (_kept) are its own.
+                        denoise and Persistent Data's kept renderer (kept) are its own.
 
 The viewport (viewport.ViewportSession) runs a ProgressiveSession on its worker thread and publishes
 frames. Sync once, snapshot, let go: everything is read from the depsgraph before the kernel starts.
@@ -286,12 +286,12 @@ class FinalRender:
             motion = sample_motion(engine, self.depsgraph, camera_ob) if camera_ob is not None else None
             vector = sample_vector_motion(engine, self.depsgraph, camera_ob) if camera_ob is not None else None
             persistent = persistent_data(scene) and motion is None and vector is None
-            if not (persistent and _kept.renderer is not None):   # a kept renderer has its workers
+            if not (persistent and kept.renderer is not None):   # a kept renderer has its workers
                 prestart_workers(capped_threads(render_threads(scene.render)),
                                  width * height * int(scene.ember.samples))
             exported = export_scene(self.depsgraph, engine.camera_override, width=width, height=height,
                                     should_stop=self.should_stop, motion=motion, vector=vector,
-                                    instance_everything=persistent, mesh_cache=_kept.meshes if persistent else None)
+                                    instance_everything=persistent, mesh_cache=kept.meshes if persistent else None)
         except ExportCancelled:
             return self._cancel()
         except ExportError as err:
@@ -323,11 +323,11 @@ class FinalRender:
             return
         finally:
             if not persistent:
-                _kept.drop()    # Persistent Data turned off: let the kept scene go
+                kept.drop()    # Persistent Data turned off: let the kept scene go
         if persistent:
-            _kept.set(renderer)
+            kept.set(renderer)
         failures = len(renderer.crew.worker_failures)   # a kept renderer's earlier frames were warned about
-        with _kept if persistent else session:
+        with kept if persistent else session:
             # Zero-area triangles (bevels, text) are dropped silently: no ray can hit them, in Cycles either.
             if renderer.nonfinite_triangles:
                 self._warn([f"skipped {renderer.nonfinite_triangles} triangles whose corners are not finite "
@@ -350,9 +350,9 @@ class FinalRender:
     def _build(self, scene: SceneArrays, threads: int, persistent: bool) -> Renderer:
         """With Persistent Data the kept renderer updated to `scene` when it can be, else a new one (reusing
         the kept one's unchanged meshes)."""
-        kept = _kept.take(scene, threads) if persistent else None
-        return kept if kept is not None else Renderer(scene, threads=threads, should_stop=self.should_stop,
-                                                      reuse=_kept.renderer if persistent else None)
+        updated = kept.take(scene, threads) if persistent else None
+        return updated if updated is not None else Renderer(scene, threads=threads, should_stop=self.should_stop,
+                                                            reuse=kept.renderer if persistent else None)
 
     def _stamp_metadata(self, film, denoised: bool) -> None:
         """The render's metadata (on Blender's whole result, as Cycles stamps its own): the samples it holds
@@ -557,13 +557,13 @@ class _KeptScene:
 
     def take(self, scene, threads: int) -> Renderer | None:
         """The kept renderer updated to `scene`, or None when it cannot be (then build one)."""
-        kept = self.renderer
-        if kept is None or kept.accel.threads != capped_threads(threads):
+        renderer = self.renderer
+        if renderer is None or renderer.accel.threads != capped_threads(threads):
             return None
-        if not kept.update_scene(scene):
+        if not renderer.update_scene(scene):
             return None
         self.updated += 1
-        return kept
+        return renderer
 
     def set(self, renderer: Renderer) -> None:
         if renderer is not self.renderer:
@@ -586,12 +586,12 @@ class _KeptScene:
             self.drop()
 
 
-_kept = _KeptScene()
+kept = _KeptScene()
 
 
 def drop_kept_scene() -> None:
     """Free the renderer Persistent Data kept (unregister, or Persistent Data turned off)."""
-    _kept.drop()
+    kept.drop()
 
 
 def _set_rect(layer, name: str, rows: np.ndarray) -> None:

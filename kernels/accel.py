@@ -239,6 +239,16 @@ class Accel:
         self._refining.start()
         return True
 
+    @property
+    def refine_started(self) -> bool:
+        """Whether refine has started building the medium BVH (it may still be building: refining)."""
+        return self._refining is not None
+
+    @property
+    def refining(self) -> bool:
+        """Whether refine's build is running now."""
+        return self._refining is not None and self._refining.is_alive()
+
     def wait_refined(self) -> None:
         """Block until refine's build (if any) is in."""
         if self._refining is not None:

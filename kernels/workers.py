@@ -308,6 +308,11 @@ def _pool_take() -> Worker | None:
     return None
 
 
+def pooled() -> list:
+    """The idle workers in this process's pool, oldest first (a copy)."""
+    return list(_pool)
+
+
 def prestart(count: int) -> None:
     """Have `count` idle workers in this process's pool, starting the missing ones now: a render about to
     export its scene calls this, so that the children's start (their imports, about 0.3 s) runs meanwhile

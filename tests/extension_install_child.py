@@ -148,9 +148,9 @@ def main() -> dict:
 
     def pooled():
         deadline = time.monotonic() + 30.0
-        while not workers._pool and time.monotonic() < deadline:
+        while not workers.pooled() and time.monotonic() < deadline:
             time.sleep(0.05)
-        return [w.process.pid for w in workers._pool]
+        return [w.process.pid for w in workers.pooled()]
     first = pooled()
     helped = render_exr(bpy, scene, wave_size=64)   # takes it from the pool: ready within the render
     result["worker_image_equal"] = bool(np.array_equal(plain, helped))

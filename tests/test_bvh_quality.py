@@ -64,7 +64,7 @@ def test_a_cancelled_build_raises_and_closing_stops_the_refine(monkeypatch):
     a = Accel(corners, threads=2, indexed=(vertices, indices))
     assert a.refine()
     a.close()                            # cancels the build if it is still running, and waits for it
-    assert not a._refining.is_alive()
+    assert a.refine_started and not a.refining
     assert a.quality in ("low", "medium")
     assert not a.refine()                # a closed Accel starts nothing
 
@@ -111,9 +111,9 @@ def test_a_render_moves_to_the_medium_bvh_after_its_first_pass_with_the_same_ima
         assert renderer.accel.quality == "low"
         # One sample is one quick pass: nothing more to come, no refine.
         renderer.render(RenderSettings(samples=1, seed=3))
-        assert renderer.accel._refining is None
+        assert not renderer.accel.refine_started
         got = renderer.render(settings).image
-        assert renderer.accel._refining is not None      # started with the second pass
+        assert renderer.accel.refine_started      # started with the second pass
         renderer.accel.wait_refined()
         assert renderer.accel.quality == "medium"
         again = renderer.render(settings).image
@@ -123,12 +123,12 @@ def test_a_render_moves_to_the_medium_bvh_after_its_first_pass_with_the_same_ima
     # passes follow.
     with Renderer(_scene(), threads=2) as renderer:
         renderer.render(RenderSettings(samples=8, seed=3, quick_first_pass=False, wave_size=24 * 24))
-        assert renderer.accel._refining is not None      # a first pass of 4 samples, then another
+        assert renderer.accel.refine_started      # a first pass of 4 samples, then another
     with Renderer(_scene(), threads=2) as renderer:
         renderer.render(RenderSettings(samples=4, seed=3, quick_first_pass=False, wave_size=24 * 24))
-        assert renderer.accel._refining is None          # one pass in all
+        assert not renderer.accel.refine_started          # one pass in all
     monkeypatch.setattr(accel, "REFINE_SECONDS_PER_TRIANGLE", 86400.0)
     with Renderer(_scene(), threads=2) as renderer:
         renderer.render(settings)
-        assert renderer.accel._refining is None          # the render ends long before a refine would pay
+        assert not renderer.accel.refine_started          # the render ends long before a refine would pay
         assert renderer.accel.quality == "low"

@@ -14,7 +14,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 def ember(*args, timeout=300):
     """Run the command line with this interpreter, the checkout importable as `ember`."""
-    code = ("import sys; sys.path.insert(0, %r); from bench._common import import_ember; import_ember(); "
+    code = ("import sys; sys.path.insert(0, %r); from bench.common import import_ember; import_ember(); "
             "import runpy; sys.argv = ['ember'] + sys.argv[1:]; runpy.run_module('ember', run_name='__main__')" % ROOT)
     return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=timeout,
                           cwd=ROOT)

@@ -38,7 +38,7 @@ SAMPLES = "3072"
 
 
 def _command(*args):
-    code = ("import sys; sys.path.insert(0, %r); from bench._common import import_ember; import_ember(); "
+    code = ("import sys; sys.path.insert(0, %r); from bench.common import import_ember; import_ember(); "
             "import runpy; sys.argv = ['ember'] + sys.argv[1:]; runpy.run_module('ember', run_name='__main__')" % ROOT)
     return [sys.executable, "-c", code, *args]
 
@@ -199,7 +199,7 @@ def test_ctrl_c_keeps_the_finished_frames(cluster, animation, tmp_path):
 def test_without_ray_one_line(animation, tmp_path):
     """Ray hidden from the command line's process (as if not installed): --ray is one line and exit 1, and
     everything else, the extension's registration and a render included, works without it."""
-    code = ("import sys; sys.modules['ray'] = None; sys.path.insert(0, %r); from bench._common import import_ember; "
+    code = ("import sys; sys.modules['ray'] = None; sys.path.insert(0, %r); from bench.common import import_ember; "
             "import_ember(); import runpy; sys.argv = ['ember'] + sys.argv[1:]; "
             "runpy.run_module('ember', run_name='__main__')" % ROOT)
     run = subprocess.run([sys.executable, "-c", code, "render", "--ray", "local:2"], capture_output=True, text=True,

@@ -42,7 +42,7 @@ def _animated_scene():
 @pytest.fixture(autouse=True)
 def _fresh_kept_scene():
     session.drop_kept_scene()
-    session._kept.updated = session._kept.built = 0
+    session.kept.updated = session.kept.built = 0
     yield
     session.drop_kept_scene()
 
@@ -63,16 +63,16 @@ def _frame(scene, frame):
 def test_moved_object_and_edited_light_update_the_kept_scene():
     scene = _animated_scene()
     _frame(scene, 1)
-    assert session._kept.built == 1 and session._kept.renderer is not None
-    assert session._kept.meshes.reads == 3                              # floor, ball, cube
+    assert session.kept.built == 1 and session.kept.renderer is not None
+    assert session.kept.meshes.reads == 3                              # floor, ball, cube
     second = _frame(scene, 2)
-    assert session._kept.built == 1 and session._kept.updated == 1      # updated, not built again
+    assert session.kept.built == 1 and session.kept.updated == 1      # updated, not built again
     # Blender kept the render depsgraph, whose updates name only the cube's transform and the lamp: the
     # export reuses the meshes it read for frame 1.
-    assert session._kept.meshes.reads == 0
+    assert session.kept.meshes.reads == 0
     session.drop_kept_scene()
     fresh = _frame(scene, 2)
-    assert session._kept.built == 2
+    assert session.kept.built == 2
     np.testing.assert_array_equal(second, fresh)
     assert not np.array_equal(second, _frame(scene, 1))               # the frames do differ
 
@@ -90,9 +90,9 @@ def test_a_deformed_mesh_rebuilds_and_the_others_keep_their_bvh():
     key.keyframe_insert("value", frame=2)
     _frame(scene, 1)
     second = _frame(scene, 2)
-    assert session._kept.built == 2 and session._kept.updated == 0
-    assert session._kept.meshes.reads == 1                   # the ball alone is read again
-    accel = session._kept.renderer.accel
+    assert session.kept.built == 2 and session.kept.updated == 0
+    assert session.kept.meshes.reads == 1                   # the ball alone is read again
+    accel = session.kept.renderer.accel
     assert accel.meshes_reused == len(accel.meshes) - 1       # all but the deformed ball's
     session.drop_kept_scene()
     np.testing.assert_array_equal(second, _frame(scene, 2))
@@ -102,4 +102,4 @@ def test_without_persistent_data_nothing_is_kept():
     scene = _animated_scene()
     scene.render.use_persistent_data = False
     _frame(scene, 1)
-    assert session._kept.renderer is None and session._kept.built == 0
+    assert session.kept.renderer is None and session.kept.built == 0

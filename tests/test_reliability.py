@@ -16,7 +16,7 @@ from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, load_e
                          render_to_array, set_world)
 from test_cli import ROOT, ember
 
-CLI_CODE = ("import sys; sys.path.insert(0, %r); from bench._common import import_ember; import_ember(); "
+CLI_CODE = ("import sys; sys.path.insert(0, %r); from bench.common import import_ember; import_ember(); "
             "import runpy; sys.argv = ['ember'] + sys.argv[1:]; runpy.run_module('ember', run_name='__main__')" % ROOT)
 
 

@@ -145,10 +145,10 @@ def test_closed_renderers_leave_their_workers_to_the_next_one(materials, referen
     with Renderer(materials, threads=2, processes=True) as first:
         assert first.crew.wait_for_workers() == 1
         pid = first.crew.workers.workers[0].process.pid
-    assert [w.process.pid for w in workers._pool] == [pid]
+    assert [w.process.pid for w in workers.pooled()] == [pid]
     with Renderer(materials, threads=2, processes=True) as second:
         assert second.crew.wait_for_workers() == 1 and second.crew.workers.reused == 1
-        assert second.crew.workers.workers[0].process.pid == pid and workers._pool == []
+        assert second.crew.workers.workers[0].process.pid == pid and workers.pooled() == []
         _, images = _render(second)
         assert second.crew.remote_waves > 0
     _assert_same(images, images0)
@@ -157,9 +157,9 @@ def test_closed_renderers_leave_their_workers_to_the_next_one(materials, referen
     with Renderer(materials, threads=2, processes=True) as third:
         assert third.crew.wait_for_workers() == 1
         child = third.crew.workers.workers[0]
-    assert workers._pool == [child]
+    assert workers.pooled() == [child]
     child.process.wait(timeout=10)
-    assert workers._pool == [] and child.closed
+    assert workers.pooled() == [] and child.closed
     # A pooled worker that died meanwhile is not taken.
     with Renderer(materials, threads=2, processes=True) as fourth:
         assert fourth.crew.wait_for_workers() == 1
@@ -255,12 +255,12 @@ def test_prestarted_workers_wait_in_the_pool_for_the_renderer(materials):
     workers.close_pool()
     schedule.prestart_workers(2, schedule.WORKER_START_PATHS - 1)
     schedule.prestart_workers(1, schedule.WORKER_START_PATHS)
-    assert workers._pool == []
+    assert workers.pooled() == []
     schedule.prestart_workers(2, schedule.WORKER_START_PATHS)
-    assert len(workers._pool) == 1
+    assert len(workers.pooled()) == 1
     schedule.prestart_workers(2, schedule.WORKER_START_PATHS)    # one is there already
-    assert len(workers._pool) == 1
-    pid = workers._pool[0].process.pid
+    assert len(workers.pooled()) == 1
+    pid = workers.pooled()[0].process.pid
     with Renderer(materials, threads=2, processes=True) as renderer:
         assert renderer.crew.wait_for_workers() == 1 and renderer.crew.workers.reused == 1
         assert renderer.crew.workers.workers[0].process.pid == pid

@@ -41,7 +41,7 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
-from bench._common import import_ember  # noqa: E402
+from bench.common import import_ember  # noqa: E402
 
 import_ember()
 from ember.kernels.bsdf import sheen  # noqa: E402

@@ -18,7 +18,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from bench._common import import_ember  # noqa: E402
+from bench.common import import_ember  # noqa: E402
 
 import_ember()
 from ember.kernels import Lights, RenderSettings, World, render  # noqa: E402
