@@ -19,30 +19,21 @@ from .triangles import TE1, TE2, TLE, TN, TP0, solid_angle
 # starve the lamps). Cycles' light tree weighs distant lights at its root by their own importance,
 # not by the scene's size, too; a fixed half is never more than 2x from the best split for either side.
 DISTANT_SHARE = 0.5
+# The measurements behind these numbers are in docs/architecture.md (Lights).
 # With at least this many local emitters (point, spot and area lights, emissive triangles, with power)
 # the local ones may be chosen per shading point by a light tree (kernels.light_tree), as Cycles always
-# does; a single one needs no choice. The walk costs a few NumPy passes per level (the 200-lamp bench
-# scene: 1.5 against 1.6-1.9 M paths/s, for a third of the variance per sample). A few lamps gain the
-# most (kernel, 32x32, 128 spp, two bounces, against the power pmf: variance per sample 0.26x with a
-# three-point set-up of two area lights and a point light, 0.07x with two point lamps over a floor, 0.09x
-# with four area lights; time +10-25%). Until stop 23 the bound was 16, to keep few-light scenes' images.
+# does; a single one needs no choice. Even a few lamps gain far more variance than the walk costs time.
 TREE_MIN_EMITTERS = 2
 # From two to this many local emitters, all emissive triangles (a lamp modelled as a quad, say), each
 # shading point chooses among them in proportion to the light each sends it: luminance times the solid
 # angle it subtends there, computed exactly (SolidAngleChoice), instead of by the tree's bounds. The power
-# pmf sends half the samples of a point beside the lamp's near half to its far half. The Cornell box's
-# quad lamp: 24% less variance per sample for 4-6% more time.
+# pmf sends half the samples of a point beside the lamp's near half to its far half.
 SOLID_ANGLE_MAX_EMITTERS = 4
 # ... and, for the triangles of a single emissive object, only where its choices differ from the power
 # pmf's: at probe points in the scene's box, the total variation distance between the two pmfs (estimated
-# from the tree's own samples) must reach this. Several lights, or lights and emissive objects, always
-# get the tree, as in Cycles: over a large floor the probes miss the few places where a lamp must win
-# against the emissive mesh beside it (a lamp inside an emissive glass shade scored 0.09, and the power
-# pmf gave the lamp 1% of the samples there against the tree's 19%).
-# Measured (1 thread, 16k-path waves, 8 bounces): the Cornell box's lamp cut into 8-200 triangles scores
-# 0.06-0.07, and the tree renders it at 0.74-0.98x the efficiency (1 / (variance x time)) of the power
-# pmf; a whole-ceiling panel of 8-200 triangles 0.15-0.18, and 1.1x (72 and 200 triangles); 8-200 lamps
-# spread over a floor (tests/test_light_tree.py) 0.31-0.35, and 1.4-7x; bench/vs_cycles.py's 200 lamps 0.29.
+# from the tree's own samples) must reach this; below it the tree costs more time than it saves variance.
+# Several lights, or lights and emissive objects, always get the tree, as in Cycles: over a large floor the
+# probes miss the few places where a lamp must win against the emissive mesh beside it.
 TREE_MIN_DIVERGENCE = 0.1
 # Probe points and tree samples per probe for that estimate (fixed seed: the choice is deterministic).
 _TREE_PROBES, _TREE_PROBE_SAMPLES = 256, 64

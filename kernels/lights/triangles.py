@@ -12,10 +12,9 @@ from .common import area_to_solid_angle, direction
 # An emissive triangle is sampled by the solid angle it subtends from points nearer its plane than its
 # longest edge, and by area from farther points, where the two pdfs hardly differ and area sampling costs
 # a fifth: the comparison Cycles' comment describes (kernel/light/triangle.h). Cycles' code divides the
-# distance by twice the triangle's area as well (N unnormalised), so its reach grows with the triangle's
-# size: 0.18 instead of 0.71 from the Cornell box's lamp halves; measured there, 0.5% more variance per
-# sample for 3% less time. This rule does not depend on the scene's scale. Below this solid angle a
-# triangle is sampled by area whatever the distance: tiny spherical triangles lose float precision.
+# distance by twice the triangle's area as well (N unnormalised), so its reach depends on the triangle's
+# size; this rule does not depend on the scene's scale. Below this solid angle a triangle is sampled by area
+# whatever the distance: tiny spherical triangles lose float precision.
 SPHERICAL_MIN_SR = 1e-3
 # Columns of the emissive-triangle table (LightSampler.tri_table): corner 0, two edges, unit normal, area, mean
 # radiance.
