@@ -75,6 +75,7 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
         going = step(tables, wave, *going, first=False, last=last)
     return radiance, alpha
 
+
 def start_paths(tables, wave, paths, start: int, end: int):
     """The camera rays of the paths [start, end): (PathState, Rays), None when none is traced."""
     settings = wave.settings
@@ -119,11 +120,11 @@ def start_paths(tables, wave, paths, start: int, end: int):
             rays = Rays(rays.origins[traced], rays.dirs[traced], rays.t_max[traced])
     return state, rays
 
+
 def step(tables, wave, state, rays, first: bool, last: int):
     """One step of the paths: trace their rays, take what they find, shade, sample lights and the next
     direction. first: the paths' camera rays (they all are; otherwise none is). Returns the paths that
     go on and their next rays, or None."""
-    settings, aux = wave.settings, wave.aux
     tables.crew.check_stop()
     hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, state.time)
     if state.partner is not None:
@@ -139,6 +140,15 @@ def step(tables, wave, state, rays, first: bool, last: int):
     if not len(found):
         return None
     state.compact(found)
+    return _surface_vertex(tables, wave, state, rays, hits, found, first, last)
+
+
+def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: int):
+    """The paths `state` (compacted to the rays' hits `found`) at the surfaces they met: shading, data
+    passes, emission, holdout, next-event estimation, the next direction, roulette. Returns the paths that go
+    on and their next rays, or None. (A participating medium adds a vertex stage of its own beside this one:
+    docs/architecture.md, Where new content goes.)"""
+    settings, aux = wave.settings, wave.aux
     hit = _surface_hit(tables, hits, rays, found, state.time)
     t_hit = np.take(hits.t, found)
     # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
@@ -330,6 +340,7 @@ def _escaped(tables, wave, state, rays, hits, ended=None):
     if state.pass_weights is not None:
         passes.write_light(tables, wave, state, miss[later], env[:, later])
 
+
 # ---- stage: the surface-interaction record of the rays that hit
 def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
     d = rays.dirs
@@ -338,6 +349,7 @@ def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
     return SurfaceHit(tables.triangles, prim, np.take(hits.u, found),
                       np.take(hits.v, found), direction, tables.shading.needs_uv,
                       _hit_motion(tables, prim, times) if tables.accel.moves else None)
+
 
 def _hit_motion(tables, prim, times):
     """(hits on moving triangles, (m, 3, 4) matrices taking the triangles' stored positions to where
@@ -355,6 +367,7 @@ def _hit_motion(tables, prim, times):
         delta[sel], normal[sel] = d[rows[sel]], n[rows[sel]]
     return rows, delta, normal
 
+
 def _moved_by(tables, i: int, t: np.ndarray):
     """(n, 3, 4) M(t) M_ref^-1 and (n, 3, 3) its normal matrix (inverse transpose) for object i."""
     m = motion.interpolate(tables.motion[i], t)
@@ -368,6 +381,7 @@ def _moved_by(tables, i: int, t: np.ndarray):
     det = np.einsum("ni,ni->n", rows3[:, 0], cof[:, 0])
     normal = cof / np.where(np.abs(det) > 1e-30, det, 1.0)[:, None, None]
     return delta.astype(np.float32), normal.astype(np.float32)
+
 
 # ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
 def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
@@ -397,12 +411,14 @@ def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
         later = np.flatnonzero(np.take(state.bounce, lit) > 0)
         passes.write_light(tables, wave, state, lit[later], le[:, later])
 
+
 # ---- stage: Holdout closures cut a hole in alpha where the camera sees them
 def _holdout(wave, state, shading):
     held = np.flatnonzero((shading.holdout > 0) & (state.bounce == 0))
     if len(held):
         share = np.take(shading.holdout, held) * np.take(state.throughput, held, axis=1).mean(axis=0)
         wave.alpha[state.path[held]] -= share
+
 
 # ---- stage: sample the next direction from the closure mixture
 def _sample_bsdf(tables, wave, hit, closures, numbers) -> BsdfSample:
@@ -422,6 +438,7 @@ def _sample_bsdf(tables, wave, hit, closures, numbers) -> BsdfSample:
             pdf = sampling.cosine_hemisphere_pdf(lz)
         return sampling.local_to_world(lx, ly, lz, nx, ny, nz), pdf
     return closures.sample(u_lobe, u1, u2, uc, warp=warp)
+
 
 # ---- stage: absorb what cannot continue, count bounces, then Russian roulette
 def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
@@ -468,6 +485,7 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
     state.throughput = throughput
     return np.flatnonzero(alive)
 
+
 def _roulette_stops(tables, state, hits, found) -> np.ndarray:
     """found without the paths that Russian roulette stopped at a surface that does not emit: those end
     here; a stopped path whose surface emits stays for its emission (_roulette_weights then ends it)."""
@@ -479,6 +497,7 @@ def _roulette_stops(tables, state, hits, found) -> np.ndarray:
         mats = tables.triangles.materials(np.take(hits.prim, np.take(found, stopped)))
         stop[stopped] = ~np.take(tables.shading.emissive, mats)
     return found[~stop]
+
 
 # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
 def _crossings(tables, state, hit, alive, bs) -> None:
@@ -495,6 +514,7 @@ def _crossings(tables, state, hit, alive, bs) -> None:
         state.partner[through] = partner
         state.partner_uv[0, through], state.partner_uv[1, through] = b1, b2
 
+
 def _spawn(tables, hit, alive, bs) -> "Rays":
     rays = _rays_from(tables, hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(_below(bs), alive))
     if bs.origin is not None:
@@ -503,6 +523,7 @@ def _spawn(tables, hit, alive, bs) -> "Rays":
         moved = np.flatnonzero(np.isfinite(origin[0]))
         rays.origins[moved] = origin[:, moved].T
     return rays
+
 
 def _rays_from(tables, hit, rows, w, transmit) -> "Rays":
     """Rays leaving the hits rows along directions w (3 tuple of (n,)), from origins moved off the surface

@@ -174,6 +174,7 @@ def wave_planes(aux: dict, settings, pix, sample, pixels, spp: int, rows: int, w
 # ---------------------------------------------------------------- writing: a wave's paths into the passes
 # Functions over (scene tables, wave, path state), as the integrator's stages (kernels/integrator.py).
 
+
 def add_light(tables, wave, state, rows, value, first_shares) -> None:
     """Add (3, n) contributions of light found from the current vertex of the paths rows (state rows): by
     a shadow ray, or along the glass branch not taken. Clamped as direct light at the first hit, indirect

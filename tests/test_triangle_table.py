@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from ember.kernels import Renderer, RenderSettings
-from ember.kernels import geometry
-from ember.kernels.geometry import TriangleTable, flatten_instances
+from ember.kernels.geometry import triangles as geometry
+from ember.kernels.geometry import TriangleTable, extent, flatten_instances
 from ember.kernels.scene import CornerRows
 
 from test_instancing import _scene
@@ -187,7 +187,7 @@ def test_corners_kept_as_indexed_vertices_give_the_same_scene(monkeypatch):
                                   bvh_vertices=vertices, bvh_indices=index)
     checked = indexed.validate()
     assert checked.dropped_triangles == 0 and checked.scene.positions is indexed.positions
-    for a, b in zip(geometry.extent(indexed.positions), geometry.extent(scene.positions)):
+    for a, b in zip(extent(indexed.positions), extent(scene.positions)):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(TriangleTable(indexed).rows, TriangleTable(scene).rows)
     prim = np.arange(0, len(scene.positions), 3)
