@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import pathlib
 import re
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -140,15 +141,20 @@ def test_row_helpers_take_leading_axes_and_constants():
     assert vec.columns(np.ones(1)).shape == (1, 1)
 
 
+def _fma64(x: float, y: float, z: float) -> float:
+    """x * y + z rounded once to float64 (Python 3.13's math.fma; exact in fractions, then one rounding)."""
+    return float(Fraction(x) * Fraction(y) + Fraction(z))
+
+
 def test_fused_products_round_once():
-    """fma and cross_rows_fused against Python's math.fma, number by number (a product and a sum rounded
-    once in float64, then to float32: equal but for exact float64 ties, which random data does not hit)."""
-    import math
+    """fma and cross_rows_fused against a fused multiply-add rounded once in float64 (_fma64, what math.fma
+    gives on Python 3.13), number by number, then to float32: equal but for exact float64 ties, which random
+    data does not hit."""
     rng = np.random.default_rng(7)
     a, b, c = (rng.normal(size=(300, 3)).astype(np.float32) for _ in range(3))
     got = vec.fma(a, b, c)
     assert got.shape == (300, 3) and got.dtype == np.float32
-    expected = np.array([math.fma(float(x), float(y), float(z)) for x, y, z in
+    expected = np.array([_fma64(float(x), float(y), float(z)) for x, y, z in
                          zip(a.ravel(), b.ravel(), c.ravel())]).astype(np.float32).reshape(300, 3)
     assert np.array_equal(got, expected)
     # Broadcasting either way, and numbers.
@@ -159,7 +165,7 @@ def test_fused_products_round_once():
     cross = vec.cross_rows_fused(a, b)
     assert cross.shape == (300, 3) and cross.dtype == np.float32
     np.testing.assert_allclose(cross, np.cross(a.astype(np.float64), b), atol=1e-5)
-    fused_x = [math.fma(float(ay), float(bz), -float(np.float32(az) * np.float32(by)))
+    fused_x = [_fma64(float(ay), float(bz), -float(np.float32(az) * np.float32(by)))
                for ay, bz, az, by in zip(a[:, 1], b[:, 2], a[:, 2], b[:, 1])]
     assert np.array_equal(cross[:, 0], np.array(fused_x).astype(np.float32))
 
