@@ -10,7 +10,8 @@ its weight, times an albedo estimate for microfacet lobes). Then, per hit:
 This module builds the table (ClosureBuilder, ClosureSet) and answers what is asked of it as a whole; the
 mixture is evaluated in mixture_eval, sampled in mixture_sample (one closure picked by its sample weight,
 one-sample MIS over the lobes), and a closure on another normal than its hit's shading normal takes the
-bump shadowing term of bump.py.
+bump shadowing term of bump.py. light_passes and focus read the table for the passes and for world focus
+sampling.
 
 The table is sorted by hit; lobes of one kind are evaluated together, in their local frames (z along the
 closure's own normal: shading, coat or bump-mapped; x along its tangent for anisotropic lobes).
@@ -20,12 +21,13 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
-from ..vec import F32, ONE, ZERO
-from . import fresnel, frames
+from ..vec import F32
+from . import frames
 from .bump import BumpShadowing
-from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, GLOSSY_LOBES, LAMBERT, REFLECTION, REFRACTION,
-                    SELF_EVALUATED, SINGULAR_LOBES, TRANSMISSION_LOBES)
-from .mixture_eval import eval_at, eval_closures, hit_rows
+from .light_passes import weight_albedo
+from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, LAMBERT, REFLECTION, REFRACTION, SELF_EVALUATED,
+                    SINGULAR_LOBES)
+from .mixture_eval import eval_at
 from .mixture_sample import BsdfSample, pick_closures, sample
 from .registry import LOBES
 
@@ -169,7 +171,7 @@ class ClosureSet:
             transmit = _concat([g[1] if g is not None else np.zeros((3, n), F32) for g, n in parts], order)
             missing = np.flatnonzero(np.isnan(reflect[0]))
             if len(missing):
-                reflect[:, missing] = _weight_albedo(self.weight[:, missing], self.sw[missing])
+                reflect[:, missing] = weight_albedo(self.weight[:, missing], self.sw[missing])
             self._albedo = (reflect, transmit)
         return self._albedo
 
@@ -290,137 +292,3 @@ def _concat(parts, order):
     axis = parts[0].ndim - 1
     joined = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=axis)
     return joined if order is None else np.take(joined, order, axis=axis)
-
-
-# glossy_axes: the lobes that gather light about one direction (a mirror's or a refraction's, blurred by
-# roughness) are reflection, refraction, glass and Ashikhmin-Shirley.
-MAX_AXIS_RADIUS = F32(1.0)    # radians: a lobe wider than this gathers from too much of the sphere to focus on
-MIN_AXIS_RADIUS = F32(0.02)
-MIN_AXIS_SHARE = F32(0.2)     # a lobe with less of its hit's sampling weight is not worth focusing on
-AXIS_TILT = F32(2.0)          # microfacet normals within atan(2 alpha) of the macro normal: 80% of GGX's
-
-
-def glossy_axes(cs):
-    """Each hit's main glossy lobe: (hits, (dx, dy, dz), radius, share) for the hits that have one, where d is
-    the world direction about which the lobe gathers light, radius (radians) holds most of it and share is
-    its part of the hit's sampling weight (at least MIN_AXIS_SHARE); a rough microfacet lobe narrower than
-    MAX_AXIS_RADIUS qualifies. d is the mirror direction about the closure's normal, or the refracted one
-    (glass: the branch that Fresnel favours at the macro normal, with its probability in the share). The
-    radius is how far d moves when the microfacet normal tilts by atan(2 alpha): twice the tilt for
-    reflection, |1 - cos_i / (eta cos_t)| times it for refraction (Snell's law differentiated)."""
-    lobe = cs.lobe
-    cand = ((lobe == REFLECTION) | (lobe == REFRACTION) | (lobe == GLASS) | (lobe == ASHIKHMIN_SHIRLEY)) & \
-        ~cs.delta & (cs.sw >= MIN_AXIS_SHARE * np.take(cs.total_sw, cs.hit))
-    rows = np.flatnonzero(cand)
-    empty = np.zeros(0, F32)
-    if not len(rows):
-        return np.zeros(0, np.int64), (empty, empty, empty), empty, empty
-    h = cs.hit[rows]
-    nx, ny, nz = np.take(cs.normal, rows, axis=1)
-    wx, wy, wz = (np.take(a, h) for a in cs.wo_world)
-    cos = wx * nx + wy * ny + wz * nz
-    flip = np.where(cos < 0, F32(-1.0), ONE)
-    nx, ny, nz, c = nx * flip, ny * flip, nz * flip, np.abs(cos)
-    lobe = lobe[rows]
-    tilt = np.arctan(AXIS_TILT * np.maximum(cs.ax[rows], cs.ay[rows]))
-    branch = np.ones(len(rows), F32)
-    k, scale, spread = F32(2.0) * c, np.ones(len(rows), F32), np.full(len(rows), F32(2.0))
-    dielectric = np.flatnonzero((lobe == REFRACTION) | (lobe == GLASS))
-    if len(dielectric):
-        eta = cs.eta[rows[dielectric]]
-        cd = c[dielectric]
-        f, cos_t = fresnel.dielectric(cd, eta)
-        glass = lobe[dielectric] == GLASS
-        refract = (~glass | (f < F32(0.5))) & (cos_t > 0)
-        branch[dielectric] = np.where(glass, np.where(refract, ONE - f, f), (cos_t > 0).astype(F32))
-        inv_eta = ONE / eta
-        k[dielectric] = np.where(refract, inv_eta * cd - cos_t, k[dielectric])
-        scale[dielectric] = np.where(refract, inv_eta, ONE)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            spread[dielectric] = np.where(refract, np.abs(ONE - cd / (eta * cos_t)), F32(2.0))
-    radius = np.maximum(spread * tilt, MIN_AXIS_RADIUS)
-    share = np.where(np.isfinite(radius) & (radius <= MAX_AXIS_RADIUS),
-                     cs.sw[rows] * branch / np.take(cs.total_sw, h), F32(0.0))
-    if len(h) > 1 and not np.all(h[1:] != h[:-1]):
-        # Several candidates at a hit (rows are in hit order): keep the heaviest, the last in (hit, share) order.
-        order = np.lexsort((share, h))
-        hs = h[order]
-        best = order[np.append(hs[1:] != hs[:-1], True)]
-    else:
-        best = np.arange(len(h))
-    dx, dy, dz = (k * n - scale * w for n, w in ((nx, wx), (ny, wy), (nz, wz)))
-    norm = np.sqrt(dx * dx + dy * dy + dz * dz)
-    best = best[(share[best] >= MIN_AXIS_SHARE) & (norm[best] > 0)]   # > 0 is False for a NaN normal too
-    norm = norm[best]
-    return h[best], (dx[best] / norm, dy[best] / norm, dz[best] / norm), radius[best], share[best]
-
-
-def pass_classes(cs, idx, wi):
-    """(diffuse, glossy) (n,) bool of closures idx toward world directions wi (n,), as Cycles' bsdf_eval_accum
-    sorts them for its light passes (anything else is transmission)."""
-    lobe = cs.lobe[idx]
-    diffuse = np.isin(lobe, DIFFUSE_LOBES)
-    glossy = np.isin(lobe, GLOSSY_LOBES)
-    if GLASS in cs.kinds:
-        n = np.take(cs.normal, idx, axis=1)
-        glossy |= (lobe == GLASS) & (wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] > 0)
-    return diffuse, glossy
-
-
-def eval_split(cs, hits: np.ndarray, wi):
-    """ClosureSet.eval_at with its diffuse and glossy parts: (f (3, n), f_diffuse (3, n), f_glossy (3, n))."""
-    if cs.single:
-        rows = cs.row_of_hit[hits]
-        have = np.flatnonzero(rows >= 0)
-        out = [np.zeros((3, len(hits)), F32) for _ in range(3)]
-        if len(have):
-            w = tuple(c[have] for c in wi)
-            f, _ = eval_closures(cs, w, rows[have])
-            diffuse, glossy = pass_classes(cs, rows[have], w)
-            out[0][:, have], out[1][:, have], out[2][:, have] = f, f * diffuse, f * glossy
-        return tuple(out)
-    idx, local = hit_rows(cs, hits)
-    w = tuple(np.take(c, local) for c in wi)
-    f_c, _ = eval_closures(cs, w, idx)
-    diffuse, glossy = pass_classes(cs, idx, w)
-    return tuple(np.stack([np.bincount(local, part[k], minlength=len(hits)) for k in range(3)]).astype(F32)
-                 for part in (f_c, f_c * diffuse, f_c * glossy))
-
-
-def _weight_albedo(weight, sw) -> np.ndarray:
-    """(3, C) the weight times the sample weight over the weight's mean: the albedo of a closure whose
-    colour is all in its weight (its sample weight is the mean weight times the lobe's estimated albedo)."""
-    weight = np.asarray(weight, F32)
-    mean = weight.mean(axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return (weight * np.where(mean > 0, np.asarray(sw, F32) / mean, 0.0)).astype(F32)
-
-
-def closure_albedos(cs) -> np.ndarray:
-    """(3, C) each closure's albedo estimate, Cycles' bsdf_albedo (reflection and transmission): the one
-    the closure gave (a metal's Fresnel colour, glass's tints), else its weight times its sample weight
-    over its mean weight."""
-    if cs.albedo is not None:
-        return (cs.albedo[0] + cs.albedo[1]).astype(F32)
-    return _weight_albedo(cs.weight, cs.sw)
-
-
-def class_albedo(cs, n_hits: int):
-    """(diffuse, glossy, transmission) (3, n) colours of the hits' closures (Cycles' surface_shader_diffuse,
-    _glossy, _transmission): each closure's albedo (closure_albedos) summed in its class; glass gives its
-    reflection to glossy and its transmission to transmission, as Cycles' bsdf_albedo(reflection,
-    transmission) splits them."""
-    out = [np.zeros((3, n_hits), F32) for _ in range(3)]
-    if not len(cs):
-        return tuple(out)
-    lobe = cs.lobe
-    reflect, transmit = cs.albedo if cs.albedo is not None else (_weight_albedo(cs.weight, cs.sw), ZERO)
-    total = reflect + transmit
-    glass = lobe == GLASS
-    parts = (total * np.isin(lobe, DIFFUSE_LOBES),
-             total * np.isin(lobe, GLOSSY_LOBES) + reflect * glass,
-             total * np.isin(lobe, TRANSMISSION_LOBES) + transmit * glass)
-    for o, part in zip(out, parts):
-        for k in range(3):
-            o[k] = np.bincount(cs.hit, part[k], minlength=n_hits)
-    return tuple(out)
