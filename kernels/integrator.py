@@ -18,7 +18,8 @@ from . import motion, passes, sampling
 from .accel import RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
-from .bsdf.closures import BsdfSample, pass_classes
+from .bsdf.light_passes import pass_classes
+from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit, spawn_offset
 from .lights import nee
 from .paths import PathState, may_scatter, type_limits

@@ -38,8 +38,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import panorama
+from .bsdf.light_passes import class_albedo, closure_albedos, eval_split, pass_classes
 from .cryptomatte import CryptoFilm
-from .bsdf.closures import class_albedo, closure_albedos, eval_split, pass_classes
 from .bsdf.lobes import MICROFACET_LOBES, SINGULAR_LOBES
 from .camera import view_plane
 from .scene import OBJ_PASS_INDEX, Camera

@@ -178,7 +178,7 @@ def test_the_closure_takes_the_triangles_edge_and_its_samples_any_side():
     """Unlinked, a hair closure's tangent is its triangle's p2 - p0; its samples keep the sampler's weight (the
     colour), wherever they point, and leave the side test to the integrator (any_side); the Transmission Color
     pass counts the transmission component (Cycles' CLOSURE_IS_BSDF_TRANSMISSION)."""
-    from ember.kernels.bsdf import closures, lobes
+    from ember.kernels.bsdf import light_passes, lobes
     from ember.kernels.scene import Closure, Materials, Param, Shader
     from ember.kernels.shading import Shading
     from test_closures import FakeHit
@@ -201,7 +201,7 @@ def test_the_closure_takes_the_triangles_edge_and_its_samples_any_side():
         assert s.any_side[ok].all() and (s.transmit[ok] == (component == "Transmission")).all()
         assert (s.wi[2][ok] < 0).any() and (s.wi[2][ok] > 0).any()  # no side test
         np.testing.assert_allclose(s.weight[:, ok], np.float32(color)[:, None].repeat(ok.sum(), axis=1), rtol=1e-5)
-        _, _, transmission = closures.class_albedo(cs, n)
+        _, _, transmission = light_passes.class_albedo(cs, n)
         assert transmission.any() == (component == "Transmission")
 
 

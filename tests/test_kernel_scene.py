@@ -70,20 +70,20 @@ def test_big_meshes_are_checked_on_threads_with_the_same_answer(monkeypatch):
     """Above _PARALLEL_TRIANGLES the usable-triangle check runs in slices on threads, each in blocks of
     _BLOCK_TRIANGLES: the same answer, triangle for triangle (degenerate, non-finite and tiny ones among
     them, in every slice and block)."""
-    from ember.kernels import scene as kernel_scene
+    from ember.kernels.scene import triangles
     rng = np.random.default_rng(1)
     pos = rng.random((30_001, 3, 3)).astype(np.float32)
     pos[::100, 1] = pos[::100, 0]
     pos[5::777, 2, 1] = np.nan
     pos[7::999] *= np.float32(1e-30)
-    serial = kernel_scene._usable_slice(pos)
-    monkeypatch.setattr(kernel_scene, "_PARALLEL_TRIANGLES", 1000)
-    monkeypatch.setattr(kernel_scene.os, "cpu_count", lambda: 4)
-    np.testing.assert_array_equal(kernel_scene._usable_triangles(pos), serial)
-    monkeypatch.setattr(kernel_scene, "_BLOCK_TRIANGLES", 1234)   # blocks that end inside each slice
-    np.testing.assert_array_equal(kernel_scene._usable_triangles(pos), serial)
-    monkeypatch.setattr(kernel_scene, "_PARALLEL_TRIANGLES", 10**9)
-    np.testing.assert_array_equal(kernel_scene._usable_triangles(pos), serial)
+    serial = triangles._usable_slice(pos)
+    monkeypatch.setattr(triangles, "_PARALLEL_TRIANGLES", 1000)
+    monkeypatch.setattr(triangles.os, "cpu_count", lambda: 4)
+    np.testing.assert_array_equal(triangles._usable_triangles(pos), serial)
+    monkeypatch.setattr(triangles, "_BLOCK_TRIANGLES", 1234)   # blocks that end inside each slice
+    np.testing.assert_array_equal(triangles._usable_triangles(pos), serial)
+    monkeypatch.setattr(triangles, "_PARALLEL_TRIANGLES", 10**9)
+    np.testing.assert_array_equal(triangles._usable_triangles(pos), serial)
     assert (~serial).sum() > 300
 
 

@@ -1,6 +1,6 @@
 """Light samples of the world focused on glossy lobes (issue 11): at a shading point whose sampling weight is
 mostly one rough microfacet lobe, part of the world's light samples are drawn from the map's block around
-that lobe's direction (environment.Environment.focus, closures.glossy_axes); the MIS weights use the
+that lobe's direction (environment.Environment.focus, focus.glossy_axes); the MIS weights use the
 mixture's pdf, so the image is the same and the noise lower."""
 import math
 
@@ -13,7 +13,7 @@ from bpy_helpers import replicate_render
 from stats import assert_chi2
 
 from ember.kernels import sampling
-from ember.kernels.bsdf import closures, lobes
+from ember.kernels.bsdf import closures, focus, lobes
 from ember.kernels.environment import Environment, WorldFocus, _BilinearDistribution
 from ember.kernels.scene import World
 
@@ -143,7 +143,7 @@ def _closures(specs):
 
 
 def test_glossy_axes_are_the_mirror_and_refracted_directions():
-    """closures.glossy_axes: a reflection lobe gathers about the mirror direction, a refraction lobe about
+    """focus.glossy_axes: a reflection lobe gathers about the mirror direction, a refraction lobe about
     Snell's direction; glass about the branch that Fresnel favours (refraction at normal incidence, with a
     share of 1 - F; reflection under total internal reflection); the share is the lobe's part of the
     sampling weight; the radius grows with alpha and is twice the microfacet tilt for reflection. Singular
@@ -160,7 +160,7 @@ def test_glossy_axes_are_the_mirror_and_refracted_directions():
              (lobes.REFLECTION, 0.1, 1.0, 0.1, oblique),          # 7 too small a share
              (lobes.REFLECTION, 0.25, 1.0, 1.0, oblique)]         # 8 rougher than 0
     cs, wo = _closures(specs)
-    hits, (dx, dy, dz), radius, share = closures.glossy_axes(cs)
+    hits, (dx, dy, dz), radius, share = focus.glossy_axes(cs)
     np.testing.assert_array_equal(hits, [0, 1, 2, 3, 4, 8])
     d = np.stack([dx, dy, dz])
     np.testing.assert_allclose(d[:, 0], [-0.6, 0.0, 0.8], atol=1e-6)               # mirror of wo about +z
@@ -172,7 +172,7 @@ def test_glossy_axes_are_the_mirror_and_refracted_directions():
     np.testing.assert_allclose(d[:, 3], wo[:, 3] * [-1, -1, 1], atol=1e-6)          # reflected, not refracted
     assert share[3] == pytest.approx(1.0)
     assert share[4] == pytest.approx(0.5, rel=1e-5)
-    np.testing.assert_allclose(radius[0], 2 * math.atan(float(closures.AXIS_TILT) * 0.1), rtol=1e-5)
+    np.testing.assert_allclose(radius[0], 2 * math.atan(float(focus.AXIS_TILT) * 0.1), rtol=1e-5)
     assert radius[5] > radius[0]
     assert radius[1] < radius[0]   # entering glass bends the lobe less than a mirror does
 

@@ -342,7 +342,7 @@ def refraction_is_physical(wo, wi, eta):
         return (wo[2] > 0) & (wi[2] < 0) & (flip * dot_xyz(wo, h) > 0) & (flip * dot_xyz(wi, h) < 0)
 
 
-def _reflect_probability(r, t):
+def reflect_probability(r, t):
     """Cycles' choice of reflection: mean(R) / mean(R + T); NaN where both vanish (caller masks)."""
     return channel_mean(r) / channel_mean(r + t)
 
@@ -361,7 +361,7 @@ def _eval_dielectric(wo, wi, alpha_x, alpha_y, eta, fresnel, distribution):
         r, t = fresnel(cos_h, eta)
         # No refracted ray at the microfacet: T = 0 whatever the model says (refraction-only lobe).
         t = np.where((fr.refracted_cos_sq(cos_h, eta) <= 0)[None, :], ZERO, t)
-        p_reflect = _reflect_probability(r, t)
+        p_reflect = reflect_probability(r, t)
         common = np.where(transmit, _refraction_common(wo, wi, h, alpha_x, alpha_y, eta, distribution),
                           _reflection_common(wo, h, alpha_x, alpha_y, distribution))
         lam = _lambda(distribution)
@@ -382,7 +382,7 @@ def _sample_dielectric(wo, alpha_x, alpha_y, eta, fresnel, u1, u2, uc, distribut
         r, t = fresnel(cos_h, eta)
         cos_t_sq = fr.refracted_cos_sq(cos_h, eta)
         t = np.where((cos_t_sq <= 0)[None, :], ZERO, t)
-        p_reflect = _reflect_probability(r, t)
+        p_reflect = reflect_probability(r, t)
         refract = uc >= p_reflect
         # Refraction through h (Cycles' refract_angle): wi = (cos_h / eta - cos_t) h - wo / eta.
         cos_t = np.sqrt(np.maximum(cos_t_sq, ZERO))

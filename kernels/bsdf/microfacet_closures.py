@@ -304,7 +304,7 @@ def singular_glass_other_branch(cs, hits, rows, transmitted):
     r, t = _glass_fresnel(cs, rows)(cos_h, eta)
     t = np.where((fr.refracted_cos_sq(cos_h, eta) <= 0)[None, :], ZERO, t)
     with np.errstate(divide="ignore", invalid="ignore"):
-        p_reflect = mf._reflect_probability(r, t)
+        p_reflect = mf.reflect_probability(r, t)
     other_reflects = transmitted
     zero = np.zeros(len(rows), F32)
     wi, weight, pdf, transmit = glass_sample(cs, rows, wo, zero, zero,

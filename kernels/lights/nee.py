@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import passes, sampling
-from ..bsdf.closures import eval_split, glossy_axes
+from ..bsdf.focus import glossy_axes
+from ..bsdf.light_passes import eval_split
 from ..environment import WorldFocus
 from ..geometry import NG
 from ..interaction import RayInfo, SurfaceHit, spawn_offset
@@ -22,7 +23,7 @@ FOCUS_SHARE = 0.8
 
 # ---- stage: next-event estimation, one shadow ray toward a sampled light
 def world_focus(tables, hit, closures):
-    """environment.WorldFocus per hit, about its main glossy lobe (closures.glossy_axes); None when the world
+    """environment.WorldFocus per hit, about its main glossy lobe (bsdf.focus.glossy_axes); None when the world
     is not sampled as a light or cannot focus (a constant world, World.focus off)."""
     if not (tables.environment.focuses and tables.lights.samples_world()):
         return None

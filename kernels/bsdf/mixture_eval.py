@@ -1,0 +1,105 @@
+"""Evaluating the closure mixture (closures.ClosureSet) toward given directions: each closure's lobe in its
+local frame, times its weight, with the bump shadowing term (bump.py), summed per hit.
+
+    f(wi)   = sum_j weight_j * f_j(wi) |cos|                (delta lobes contribute nothing)
+    pdf(wi) = sum_j sample_weight_j * pdf_j(wi) / sum_j sample_weight_j
+
+Lobes of one kind are evaluated together, by their registry entry.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import sampling
+from ..vec import F32, INV_PI, ZERO
+from . import frames
+from .lobes import MICROFACET_LOBES, SINGULAR_LOBES
+from .registry import LOBES
+
+
+def eval_at(cs, hits: np.ndarray, wi) -> tuple[np.ndarray, np.ndarray]:
+    """The mixture of the hits `hits` (ascending, unique) at their world directions wi (n,).
+    Returns f |cos| (3, n) and pdf (n,)."""
+    if cs.single:
+        rows = cs.row_of_hit[hits]
+        have = rows >= 0
+        if have.all():
+            return eval_closures(cs, wi, rows)
+        f, pdf = np.zeros((3, len(hits)), F32), np.zeros(len(hits), F32)
+        sel = np.flatnonzero(have)
+        f[:, sel], pdf[sel] = eval_closures(cs, tuple(c[sel] for c in wi), rows[sel])
+        return f, pdf
+    idx, local = hit_rows(cs, hits)
+    f_c, pdf_c = eval_closures(cs, tuple(np.take(c, local) for c in wi), idx)
+    f = np.stack([np.bincount(local, f_c[k], minlength=len(hits)) for k in range(3)]).astype(F32)
+    total = cs.total_sw[hits]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pdf = np.bincount(local, pdf_c * cs.sw[idx], minlength=len(hits)) / total
+    return f, np.where(total > 0, pdf, 0.0).astype(F32)
+
+
+def eval_closures(cs, wi_world, idx, bump: bool = True):
+    """f |cos| (3, n) times the closure weight, and pdf (n,), of closures idx at wi_world (n,); with
+    the bump shadowing term of an evaluation unless bump is False."""
+    f, pdf = _eval_unshadowed(cs, wi_world, idx)
+    bumped = cs.bump.select(idx, wi_world, cs.normal, cs.soften) if bump and cs.bump is not None else None
+    if bumped is not None:  # the term is 1 elsewhere: only the bumped closures change
+        sel, term = bumped
+        sampling.scale_columns(f, sel, term)
+        pdf[sel] = np.where(term > 0, pdf[sel], ZERO)
+    return f, pdf
+
+
+def hit_rows(cs, hits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every closure row of the hits `hits` of a set sorted by hit (not single): (rows, the entry of hits
+    each belongs to), in hit order."""
+    count = cs.count[hits]
+    idx = np.repeat(cs.start[hits], count) + _ranges(count)
+    local = np.repeat(np.arange(len(hits)), count)
+    return idx, local
+
+
+def take_each(w, idx):
+    """Entries idx of each component of a direction tuple w."""
+    return tuple(np.take(c, idx) for c in w)
+
+
+def _eval_unshadowed(cs, wi_world, idx):
+    """eval_closures without the bump shadowing term."""
+    if cs.lambert_only:
+        n = cs.normal
+        cos = wi_world[0] * n[0, idx] + wi_world[1] * n[1, idx] + wi_world[2] * n[2, idx]
+        pdf = np.maximum(cos, ZERO) * INV_PI
+        return np.take(cs.weight, idx, axis=1) * pdf, pdf
+    wi = frames.to_local(tuple(np.take(c, idx, axis=1) for c in cs.frame), wi_world)
+    if len(cs.kinds) == 1:
+        return _eval_lobe(cs, cs.kinds[0], idx, wi)
+    f = np.zeros((3, len(idx)), F32)
+    pdf = np.zeros(len(idx), F32)
+    lobe = cs.lobe[idx]
+    for k in cs.kinds:
+        sel = np.flatnonzero(lobe == k)
+        if len(sel):
+            f_k, pdf[sel] = _eval_lobe(cs, k, idx[sel], take_each(wi, sel))
+            sampling.put_columns(f, sel, f_k)
+    return f, pdf
+
+
+def _eval_lobe(cs, k, rows, wi):
+    if k in SINGULAR_LOBES:
+        return np.zeros((3, len(rows)), F32), np.zeros(len(rows), F32)
+    value, pdf = LOBES[k].eval(cs, rows, take_each(cs.wo, rows), wi)
+    f = value * np.take(cs.weight, rows, axis=1)
+    if k in MICROFACET_LOBES:
+        live = ~cs.delta[rows]
+        f, pdf = np.where(live, f, ZERO), np.where(live, pdf, ZERO)
+    return f, pdf
+
+
+def _ranges(count: np.ndarray) -> np.ndarray:
+    """0..count[i]-1 for every i, concatenated."""
+    total = int(count.sum())
+    if total == 0:
+        return np.zeros(0, np.int64)
+    offsets = np.repeat(np.cumsum(count) - count, count)
+    return np.arange(total) - offsets

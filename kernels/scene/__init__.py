@@ -1,0 +1,46 @@
+"""The scene as plain arrays: what the kernel renders, and the only thing the engine hands it.
+
+Everything is in Blender world space (right-handed, Z up), linear scene-referred RGB.
+Shapes use named letters: T triangles, M materials, L lights.
+
+Texture arrays follow Blender's pixel order: row 0 is the bottom of the image (v = 0), so a lookup
+at UV (u, v) reads row v * H and column u * W. Rendered images (the film) have row 0 at the top.
+
+The kernel's public data model, one module per part, every name importable from here:
+    arrays      SceneArrays, the record the engine hands the kernel, and its validation (ValidatedScene)
+    camera      Camera
+    lights      Lights, the light table (LIGHT_KINDS)
+    world       World, what rays that leave the scene see
+    materials   Materials of Shaders, Closures and their inputs (Param, NormalMap, Tangent)
+    objects     the object table's columns (OBJ_*) and rows
+    triangles   per-triangle arrays: CornerRows, comparing, checking and cleaning them
+    instances   Prototype and Instances: meshes stored once, placed many times
+    checks      the validation vocabulary the parts share (require, check_array)
+"""
+from __future__ import annotations
+
+from .arrays import SceneArrays, ValidatedScene
+from .camera import CAMERA_KINDS, PIXEL_FILTERS, SENSOR_FITS, Camera
+from .instances import Instances, Prototype, usable_placements
+from .lights import LIGHT_KINDS, Lights
+from .materials import (CLOSURE_KINDS, INPUT_NODES, NORMAL_MAP_SPACES, Closure, Materials, NormalMap, Param, Shader,
+                        Tangent, diffuse_shader)
+from .objects import (OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TERMINATOR,
+                      OBJ_TEXSPACE_LOC, OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR, OBJECT_COLUMNS, TERMINATOR_OFFSET,
+                      mirrored_objects, object_row, object_rows)
+from .triangles import CornerRows, corner_values, padded_triangles, same_arrays, same_triangles
+from .world import World
+
+__all__ = [
+    "SceneArrays", "ValidatedScene",
+    "CAMERA_KINDS", "PIXEL_FILTERS", "SENSOR_FITS", "Camera",
+    "Instances", "Prototype", "usable_placements",
+    "LIGHT_KINDS", "Lights",
+    "CLOSURE_KINDS", "INPUT_NODES", "NORMAL_MAP_SPACES", "Closure", "Materials", "NormalMap", "Param", "Shader",
+    "Tangent", "diffuse_shader",
+    "OBJ_COLOR", "OBJ_FROM_WORLD", "OBJ_LOCATION", "OBJ_PASS_INDEX", "OBJ_RANDOM", "OBJ_TERMINATOR",
+    "OBJ_TEXSPACE_LOC", "OBJ_TEXSPACE_SIZE", "OBJ_WORLD_LINEAR", "OBJECT_COLUMNS", "TERMINATOR_OFFSET",
+    "mirrored_objects", "object_row", "object_rows",
+    "CornerRows", "corner_values", "padded_triangles", "same_arrays", "same_triangles",
+    "World",
+]

@@ -1,0 +1,204 @@
+"""SceneArrays, the record of arrays the engine hands the kernel, with its validation (every part checked, bad
+triangles dropped: ValidatedScene)."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import Camera
+from .checks import check_array, require, require_finite
+from .instances import Instances, clean_instances
+from .lights import Lights
+from .materials import Materials
+from .objects import OBJECT_COLUMNS, mirrored_objects
+from .triangles import check_material_ids, check_triangles, clean_triangles, same_arrays, same_triangles
+from .world import World
+
+
+@dataclass(frozen=True)
+class SceneArrays:
+    """A whole scene as arrays. Build it, call validate(), hand it to kernels.render().
+
+    positions : (T, 3, 3) float32, world-space corners of each triangle, or a CornerRows standing for them.
+        A triangle's front (its geometric normal) is the side cross(p1 - p0, p2 - p0) points to, except on
+        the triangles of a mirroring object row (mirrored_objects), which keep their mesh's winding and
+        whose front is the other side, as in Blender; an instance with a mirroring transform likewise.
+    normals : (T, 3, 3) float32, per-corner shading normals (need not be unit length), or a CornerRows
+        standing for that array.
+    uvs : (T, 3, 2) float32, per-corner texture coordinates.
+    material_ids : (T,) int32, rows of `materials`.
+    textures : tuple of (H, W, C) arrays, C in {1, 3, 4}, row 0 at the bottom: float32, or uint8 for 8-bit
+        images (k stands for k / 255; a 4-channel one holds straight colour, which the kernel associates
+        with alpha texel by texel: kernels.textures.Texture).
+    texture_srgb : tuple of bool, one per texture (or empty: all linear). True marks a texture stored
+        sRGB-encoded and decoded after filtering, as Cycles does with 8-bit sRGB images.
+    tangents : (T, 3, 4) float32 or None: per-corner world-space MikkTSpace tangent (xyz) of the render
+        UV map and its bitangent sign (w, +-1: B = sign * N x T); None when no material reads tangents
+        (tangent-space normal maps, Tangent nodes). Zero rows mean "no tangent" (Cycles then leaves the
+        normal unperturbed).
+    attributes : ((name, (T, 3, C) float32), ...) per-corner attributes the node programs read, C in 1..4:
+        "uv:<map>" (C = 2), "color:<name>" (vertex colours, C = 4), "attr:<name>" (generic attributes).
+    objects : (K, OBJECT_COLUMNS) float32 or None: one row per object instance (OBJ_* columns), for
+        the Texture Coordinate (Generated, Object, Normal) and Object Info nodes.
+    object_ids : (T,) int32 or None: each triangle's row of `objects` (both or neither are given).
+    motion : ((K, 4, 4) float64, ...) world_from_object at K >= 2 motion steps evenly spread over the
+        shutter (time 0 to 1), one entry per moving object; motion_reference, one (4, 4) per entry: the
+        matrix the triangles' world-space positions were made with. motion_ids : (T,) int32 or None:
+        each triangle's entry of `motion`, -1 for static triangles.
+    shutter_table : (256,) float32 or None: path time from a uniform number (kernels.motion.shutter_table);
+        rolling_shutter : None, or the rolling shutter's duration (Cycles' TOP rolling shutter).
+    vector_motion : the Vector pass's neighbours in time, or None: ((K, 3, 4) per object row taking stored
+        positions to the previous frame's, (K, 3, 4) to the next frame's, (4, 4) world_from_camera of the
+        previous frame, (4, 4) of the next).
+    crypto_ids : Cryptomatte ids (kernels.cryptomatte.hash_name of the names), or None: {"object": (K,) and
+        "asset": (K,) float32 per row of `objects`, "material": (M,) float32 per material}.
+    instances : Instances or None: meshes stored once in object space and placed by transforms, besides
+        the T plain triangles above. They never move during the shutter (moving objects are plain).
+    bvh_vertices, bvh_indices : (V, 3) float32 and (T, 3) uint32, or None: the plain triangles again as an
+        indexed mesh, vertices[indices] equal to positions corner for corner (the export has them at hand);
+        Embree builds its BVH from them about 1.5x faster than from the corners. Optional.
+    """
+    positions: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    material_ids: np.ndarray
+    materials: Materials = field(default_factory=Materials)
+    textures: tuple = ()
+    texture_srgb: tuple = ()
+    world: World = field(default_factory=World)
+    camera: Camera = field(default_factory=Camera)
+    lights: Lights = field(default_factory=Lights)
+    tangents: np.ndarray | None = None
+    attributes: tuple = ()
+    objects: np.ndarray | None = None
+    object_ids: np.ndarray | None = None
+    motion: tuple = ()
+    motion_reference: tuple = ()
+    motion_ids: np.ndarray | None = None
+    shutter_table: np.ndarray | None = None
+    rolling_shutter: float | None = None
+    crypto_ids: dict | None = None
+    vector_motion: tuple | None = None
+    instances: Instances | None = None
+    bvh_vertices: np.ndarray | None = None
+    bvh_indices: np.ndarray | None = None
+
+    @property
+    def has_motion(self) -> bool:
+        """Anything moves during the shutter: paths then carry a time."""
+        return self.shutter_table is not None and (self.camera.motion is not None or len(self.motion) > 0
+                                                   or self.camera.fov_motion is not None)
+
+    @property
+    def triangle_count(self) -> int:
+        """Plain triangles (instanced ones not counted: see instanced_triangle_count)."""
+        return len(self.positions)
+
+    @property
+    def instanced_triangle_count(self) -> int:
+        return 0 if self.instances is None else self.instances.triangle_total
+
+    def mirrored_triangles(self) -> np.ndarray | None:
+        """(T,) bool: the plain triangles whose object mirrors them (mirrored_objects), whose front is the
+        side opposite the winding's; None when none is (or the scene has no object table)."""
+        if self.objects is None or self.object_ids is None or not len(self.objects):
+            return None
+        mirrored = mirrored_objects(self.objects)
+        return np.take(mirrored, self.object_ids) if mirrored.any() else None
+
+    def validate(self, clean: "SceneArrays | None" = None) -> "ValidatedScene":
+        """Check every field; drop degenerate or non-finite triangles.
+
+        Raises ValueError naming the field for wrong shapes, dtypes, indices or non-finite data
+        in anything but triangle corners. Returns the cleaned scene and the number of dropped triangles.
+        clean : a scene validate() returned before (the last frame's): triangles equal to its own, plain or
+        of a prototype, are known clean and not looked at again.
+        """
+        t = len(self.positions) if hasattr(self.positions, "__len__") else -1
+        check_triangles(self, "", None)
+        self.validate_objects()
+        require(len(self.motion) == len(self.motion_reference), "motion_reference", "needs one matrix per motion")
+        for i, keys in enumerate(self.motion):
+            keys = np.asarray(keys)
+            require(keys.ndim == 3 and keys.shape[0] >= 2 and keys.shape[1:] == (4, 4), f"motion[{i}]",
+                    f"must be (K >= 2, 4, 4), got {keys.shape}")
+            require_finite(keys, f"motion[{i}]")
+        if self.motion_ids is not None:
+            check_array(self.motion_ids, "motion_ids", (t,), np.int32)
+            if t:
+                require(self.motion_ids.min() >= -1 and self.motion_ids.max() < len(self.motion), "motion_ids",
+                        f"must be in [-1, {len(self.motion)})")
+        if self.shutter_table is not None:
+            check_array(self.shutter_table, "shutter_table", (len(self.shutter_table),), np.float32)
+        self.validate_shading()
+        if self.instances is not None:
+            self.instances.validate(self.materials.count, None if self.objects is None else len(self.objects))
+        self.camera.validate()
+        self.lights.validate()
+
+        require((self.bvh_vertices is None) == (self.bvh_indices is None), "bvh_vertices",
+                "bvh_vertices and bvh_indices come together")
+        if self.bvh_vertices is not None:
+            check_array(self.bvh_vertices, "bvh_vertices", (len(self.bvh_vertices), 3), np.float32, finite=False)
+            check_array(self.bvh_indices, "bvh_indices", (t, 3), np.uint32)
+            if t:
+                require(int(self.bvh_indices.max()) < len(self.bvh_vertices), "bvh_indices",
+                        f"must be below {len(self.bvh_vertices)}")
+        if clean is not None and same_triangles(self, clean) and same_arrays(self.bvh_indices, clean.bvh_indices):
+            changes, dropped, repaired, nonfinite = {}, 0, 0, 0
+        else:
+            changes, dropped, repaired, nonfinite = clean_triangles(self, ("object_ids", "motion_ids", "bvh_indices"))
+        if self.instances is not None:
+            changes["instances"], more_dropped, more_repaired, more_nonfinite = clean_instances(
+                self.instances, clean.instances if clean is not None else None)
+            dropped += more_dropped
+            nonfinite += more_nonfinite
+            repaired += more_repaired
+        scene = dataclasses.replace(self, **changes) if changes else self
+        return ValidatedScene(scene, dropped, repaired, nonfinite)
+
+    def validate_objects(self) -> None:
+        """Check the object table and each triangle's row of it (part of validate(); on its own when the
+        viewport moves objects: Renderer.update_instances)."""
+        t = len(self.positions) if hasattr(self.positions, "__len__") else -1
+        require((self.objects is None) == (self.object_ids is None), "objects",
+                "objects and object_ids come together")
+        if self.objects is not None:
+            k = len(self.objects)
+            check_array(self.objects, "objects", (k, OBJECT_COLUMNS), np.float32)
+            check_array(self.object_ids, "object_ids", (t,), np.int32)
+            if t:
+                require(self.object_ids.min() >= 0 and self.object_ids.max() < k, "object_ids",
+                        f"must be in [0, {k})")
+
+    def validate_shading(self) -> None:
+        """Check textures, materials and the world against each other and the triangles' material ids (part
+        of validate(); on its own when the viewport edits materials: Renderer.update_materials)."""
+        for i, tex in enumerate(self.textures):
+            require(isinstance(tex, np.ndarray) and tex.ndim == 3 and tex.shape[2] in (1, 3, 4)
+                    and tex.shape[0] >= 1 and tex.shape[1] >= 1,
+                    f"textures[{i}]", f"must be an (H, W, C) array with C in 1, 3, 4, got "
+                    f"{getattr(tex, 'shape', type(tex).__name__)}")
+            check_array(tex, f"textures[{i}]", tex.shape, np.uint8 if tex.dtype == np.uint8 else np.float32,
+                        finite=tex.dtype != np.uint8)
+        require(len(self.texture_srgb) in (0, len(self.textures)), "texture_srgb",
+                f"needs one flag per texture ({len(self.textures)}), got {len(self.texture_srgb)}")
+        self.materials.validate(len(self.textures))
+        if self.world.program is not None:
+            self.world.program.validate(len(self.textures))
+        check_material_ids(self, "", self.materials.count)
+        if self.instances is not None:
+            for i, proto in enumerate(self.instances.prototypes):
+                check_material_ids(proto, f"instances.prototypes[{i}].", self.materials.count)
+        self.world.validate()
+
+
+@dataclass(frozen=True)
+class ValidatedScene:
+    """A SceneArrays that passed validate(), with what cleaning it took."""
+    scene: SceneArrays
+    dropped_triangles: int
+    repaired_normals: int
+    nonfinite_triangles: int = 0    # of the dropped: corners not finite (NaN, or beyond float32)

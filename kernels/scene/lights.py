@@ -1,0 +1,61 @@
+"""The light table: Lights, Blender's lights as L rows in radiometric terms, LIGHT_KINDS, and its validation."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .checks import check_array, require
+
+LIGHT_KINDS = {"POINT": 0, "SPOT": 1, "SUN": 2, "RECT": 3, "DISK": 4}
+
+
+@dataclass(frozen=True)
+class Lights:
+    """Blender lights, L rows, converted to radiometric terms by the engine's export.
+
+    kind : (L,) int32, a value of LIGHT_KINDS.
+    position : (L, 3) float32, centre (unused for SUN).
+    frame : (L, 3, 3) float32, world_from_light rotation: columns are the light's x, y and z axes.
+        Blender lights shine down their local -Z.
+    radiance : (L, 3) float32. POINT/SPOT/RECT/DISK with size: emitted radiance W/(sr m^2);
+        zero-size POINT/SPOT: intensity W/sr; SUN: irradiance W/m^2 on a surface facing it.
+    radius : (L,) float32, radius of POINT/SPOT, 0 for a delta light. As in Cycles, a sized point
+        light lights each point as a disk of this radius facing that point.
+    size : (L, 2) float32, full extents along the light's x and y (RECT, DISK/ellipse).
+    spot_cos : (L, 2) float32, cosine of the spot's half angle and of the start of its blend.
+    sun_half_angle : (L,) float32, half the sun's angular diameter, radians.
+    cast_shadow : (L,) bool or None (every light casts shadows): False for a light whose light no surface
+        blocks (Blender's Cast Shadow off; Cycles then traces no shadow ray for it).
+    """
+    kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    frame: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3), np.float32))
+    radiance: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    radius: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    size: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    spot_cos: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    sun_half_angle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    cast_shadow: np.ndarray | None = None
+
+    @property
+    def count(self) -> int:
+        return len(self.kind)
+
+    def shadowed(self) -> np.ndarray:
+        """(L,) bool: the lights whose light surfaces block."""
+        return np.ones(self.count, bool) if self.cast_shadow is None else self.cast_shadow
+
+    def validate(self) -> None:
+        n = len(self.kind)
+        check_array(self.kind, "lights.kind", (n,), np.int32)
+        require(np.all(np.isin(self.kind, list(LIGHT_KINDS.values()))), "lights.kind",
+                f"must be values of {LIGHT_KINDS}")
+        shapes = {"position": (n, 3), "frame": (n, 3, 3), "radiance": (n, 3), "radius": (n,),
+                  "size": (n, 2), "spot_cos": (n, 2), "sun_half_angle": (n,)}
+        for name, shape in shapes.items():
+            check_array(getattr(self, name), f"lights.{name}", shape, np.float32)
+        for name in ("radiance", "radius", "size", "sun_half_angle"):
+            require(np.all(getattr(self, name) >= 0), f"lights.{name}", "must be non-negative")
+        if self.cast_shadow is not None:
+            check_array(self.cast_shadow, "lights.cast_shadow", (n,), np.bool_, finite=False)

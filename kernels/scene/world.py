@@ -1,0 +1,60 @@
+"""The world: World, what a ray that leaves the scene sees (a colour, an equirectangular map or a node
+program), how it is sampled as a light, and its validation."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..programs import Program, Ref
+from .checks import check_array, require
+
+
+@dataclass(frozen=True)
+class World:
+    """What a ray that leaves the scene sees.
+
+    color : (3,) float32 radiance, used when hdri is None.
+    hdri : (H, W, 3) float32 equirectangular map, row 0 at the bottom (Blender's order), or None.
+    strength : multiplies color or hdri.
+    env_from_world : (3, 3) float32 rotation taking a world direction to the direction the map is
+        looked up with: the Mapping node's rotation R for a POINT mapping, R^T for TEXTURE.
+    program, output : a node program (kernels.programs) and the Ref of its radiance, for any other world
+        tree (a gradient, a sky, a Mix of backgrounds): evaluated per escaped ray, color, hdri and
+        strength unused. It reads SceneArrays.textures.
+    map_resolution : width of the equirectangular map the program is baked into for importance sampling
+        (Cycles' world Map Resolution; the height is half of it).
+    mis_compensation : sample the world as a light only where it is brighter than its mean, with the balance
+        heuristic against BSDF rays (environment.Environment); False: in proportion to its radiance with the
+        power heuristic, as Cycles does (same image, more noise).
+    focus : at glossy shading points, draw part of the world's light samples from the map around the
+        main glossy lobe's direction (environment.Environment.focus); False: from the whole map, as Cycles
+        does (same image, more noise). Neither applies to a world program with a Light Path node.
+    """
+    color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
+    hdri: np.ndarray | None = None
+    strength: float = 1.0
+    env_from_world: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
+    program: Program | None = None
+    output: Ref | None = None
+    map_resolution: int = 1024
+    mis_compensation: bool = True
+    focus: bool = True
+
+    def validate(self) -> None:
+        check_array(self.color, "world.color", (3,), np.float32)
+        require(np.all(self.color >= 0), "world.color", "must be non-negative")
+        require(np.isfinite(self.strength) and self.strength >= 0, "world.strength",
+                f"must be finite and non-negative, got {self.strength}")
+        check_array(self.env_from_world, "world.env_from_world", (3, 3), np.float32)
+        if self.hdri is not None:
+            h = self.hdri
+            require(h.ndim == 3 and h.shape[2] == 3 and h.shape[0] >= 1 and h.shape[1] >= 1,
+                    "world.hdri", f"must be (H, W, 3), got {h.shape}")
+            check_array(h, "world.hdri", h.shape, np.float32)
+            require(np.all(h >= 0), "world.hdri", "must be non-negative")
+        require((self.program is None) == (self.output is None), "world.program", "comes with its output")
+        if self.program is not None:
+            require(isinstance(self.output, Ref) and 0 <= self.output.op < len(self.program), "world.output",
+                    f"must be a Ref into the world's program of {len(self.program)} ops")
+            require(int(self.map_resolution) >= 4, "world.map_resolution", "must be at least 4")
