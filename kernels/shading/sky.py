@@ -17,10 +17,8 @@ properties as plain values, with Blender's identifiers); `sky_texture(vector, ..
 The result is XYZ converted to the scene's linear Rec.709 with the matrix Cycles derives from Blender's
 colour configuration, negative values clamped to 0.
 
-Float32 throughout, in Cycles' order of operations. The precomputation uses the C library's float
-functions in Cycles; here glibc's sinf/cosf are reproduced exactly (`patterns.sinf`) and exp, log, pow,
-acos... are evaluated in float64 and rounded, which agrees with glibc's float functions in all but ~0.1%
-of arguments, by one unit in the last place.
+Float32 throughout, in Cycles' order of operations, with the C library's float functions as Cycles
+calls them (kernels.shading.libm).
 """
 from __future__ import annotations
 
@@ -30,21 +28,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..vec import F32, F64, HALF, HALF_PI, INV_2PI, INV_4PI, INV_PI, ONE, PI, TWO_PI, ZERO, length_rows, length_xyz
-from .patterns import cosf, sinf
+from .libm import cosf, expf, libm, sinf
 
 TWO_OVER_PI = F32(0.6366197723675813)  # M_2_PI_F
 
 SKY_TYPES = ("SINGLE_SCATTERING", "MULTIPLE_SCATTERING", "PREETHAM", "HOSEK_WILKIE")
 TABLE_WIDTH, TABLE_HEIGHT = 512, 256   # Cycles' SkyLoader
-
-
-def _libm(fn, x) -> np.ndarray:
-    """A float function of the C library: float64 evaluation rounded to float32."""
-    return fn(np.asarray(x, F32).astype(F64)).astype(F32)
-
-
-def _expf(x):
-    return _libm(np.exp, x)
 
 
 # ---- XYZ -> scene linear ----------------------------------------------------------------------------
@@ -156,13 +145,13 @@ class _Atmosphere:
     def coefficients(self, h):
         """At altitudes h (km): extinction, aerosol scattering and molecular scattering, each (4, ...)."""
         s = functools.partial(self._spectral, ndim=h.ndim + 1)
-        aerosol = self.AEROSOL_BASE_DENSITY * (_expf(-h / self.AEROSOL_HEIGHT_SCALE)
+        aerosol = self.AEROSOL_BASE_DENSITY * (expf(-h / self.AEROSOL_HEIGHT_SCALE)
                                                + self.AEROSOL_BACKGROUND_DENSITY / self.AEROSOL_BASE_DENSITY)
         aerosol = aerosol * self.aerosol
-        log_h = _libm(np.log, np.maximum(h, F32(1e-4)))
-        ozone = F32(3.78547397e20) * _expf(-np.square(log_h - F32(3.22261)) * F32(5.55555555) - log_h)
-        powh = _libm(lambda v: np.power(v, F64(F32(1.16364243))), h)
-        molecular = _expf(F32(-0.07771971) * powh)
+        log_h = libm(np.log, np.maximum(h, F32(1e-4)))
+        ozone = F32(3.78547397e20) * expf(-np.square(log_h - F32(3.22261)) * F32(5.55555555) - log_h)
+        powh = libm(lambda v: np.power(v, F64(F32(1.16364243))), h)
+        molecular = expf(F32(-0.07771971) * powh)
         absorb_a = s(self.AEROSOL_ABSORPTION) * aerosol
         scatter_a = s(self.AEROSOL_SCATTERING) * aerosol
         absorb_m = s(self.OZONE_CROSS_SECTION * self.OZONE_MEAN_DOBSON) * ozone * self.ozone
@@ -180,7 +169,7 @@ class _Atmosphere:
             t = F32(step + 0.5) * t_step
             h = np.maximum(length_xyz((sx * t, ZERO, r0 + cos_theta * t)) - self.EARTH_RADIUS, ZERO)
             depth += self.coefficients(h)[0] * t_step
-        return _expf(-depth)
+        return expf(-depth)
 
     def precompute_lut(self):
         u = np.arange(self.LUT_W, dtype=F32) / F32(self.LUT_W - 1)
@@ -238,12 +227,12 @@ class _Atmosphere:
             omega = TWO_PI * (ONE - np.sqrt(np.maximum(ONE - np.square(self.EARTH_RADIUS / distance), ZERO)))
             ground = ((INV_4PI * omega * albedo) * to_ground) * (ground_at_sun / sample_at_sun) \
                 * sample_cos
-            fit = ONE / (ONE + F32(5.0) * _expf(F32(-17.92) * sample_cos))
+            fit = ONE / (ONE + F32(5.0) * expf(F32(-17.92) * sample_cos))
             ms = fit_colour * fit + ground
 
             source = irradiance * (scatter_m * (molecular_phase * to_sun + ms)
                                    + scatter_a * (aerosol_phase * to_sun + ms))
-            step = _expf(-dt * extinction)
+            step = expf(-dt * extinction)
             # Frostbite's energy-conserving integration over the step (Hillaire).
             integral = (source - source * step) / np.maximum(extinction, F32(1e-7))
             radiance += transmittance * integral
@@ -350,8 +339,8 @@ class _SingleScattering:
 
     def densities(self, h):
         """(..., 3): Rayleigh, Mie and ozone density factors at height h (m)."""
-        rayleigh = _expf(-h / self.RAYLEIGH_SCALE)
-        mie = _expf(-h / self.MIE_SCALE)
+        rayleigh = expf(-h / self.RAYLEIGH_SCALE)
+        mie = expf(-h / self.MIE_SCALE)
         # C evaluates the ozone profile in double (its literals are double).
         ozone = np.maximum(0.0, 1.0 - np.abs(h.astype(F64) - 25000.0) / 15000.0).astype(F32)
         return np.stack([rayleigh, mie, ozone], axis=-1)
@@ -385,7 +374,7 @@ class _SingleScattering:
         g2 = self.MIE_G * self.MIE_G
         base = (ONE + g2) - F32(2.0) * self.MIE_G * mu
         mie = (F32(3.0) * (ONE - g2) * (ONE + mu * mu)) / \
-            (F32(8.0) * PI * (F32(2.0) + g2) * _libm(lambda v: np.power(v, 1.5), base))
+            (F32(8.0) * PI * (F32(2.0) + g2) * libm(lambda v: np.power(v, 1.5), base))
         return rayleigh, mie
 
     def to_xyz(self, spectrum):
@@ -419,7 +408,7 @@ class _SingleScattering:
             lit = ~self.earth_blocks(px, py, pz, *sun_b)
             light = self.optical_depth(px, py, pz, *sun_b)
             total = [depth[k] + scale * light[..., k] for k, scale in enumerate((air, aerosol, ozone))]
-            attenuation = _expf(-((total[0] * rayleigh + total[1] * mie_extinction) + total[2] * ozone_coeff))
+            attenuation = expf(-((total[0] * rayleigh + total[1] * mie_extinction) + total[2] * ozone_coeff))
             scattering = rayleigh_phase * (density[0] * rayleigh) + mie_phase * (density[1] * self.MIE_COEFF)
             contribution = ((attenuation * scattering) * self.IRRADIANCE[:, None]) * segment_length
             spectrum += np.where(lit, contribution, ZERO)
@@ -469,7 +458,7 @@ def _single_scattering_sun(sun_elevation, angular_diameter, altitude_m, air, aer
     depth = model.optical_depth(zeros, zeros, zeros + model.EARTH_RADIUS + altitude, dx, dy, dz)
     tau = (model.RAYLEIGH_COEFF[:, None] * depth[:, 0] * F32(air)
            + F32(1.11) * model.MIE_COEFF * depth[:, 1] * F32(aerosol))
-    spectrum = model.IRRADIANCE[:, None] * _expf(-tau) / solid_angle
+    spectrum = model.IRRADIANCE[:, None] * expf(-tau) / solid_angle
     xyz = model.to_xyz(spectrum)
     return xyz[0], xyz[1]
 
@@ -477,28 +466,28 @@ def _single_scattering_sun(sun_elevation, angular_diameter, altitude_m, air, aer
 def earth_intersection_angle(altitude_m: float) -> np.float32:
     """How far below the horizon the ground starts, seen from the altitude (SKY_earth_intersection_angle)."""
     earth = F32(6371.0)
-    return HALF_PI - _libm(np.arcsin, earth / (earth + F32(altitude_m) / F32(1000.0)))
+    return HALF_PI - libm(np.arcsin, earth / (earth + F32(altitude_m) / F32(1000.0)))
 
 
 # ---- Preetham (shader_nodes.cpp sky_texture_precompute_preetham) -------------------------------------
 
 def _perez(lam, cos_theta, gamma, cos_gamma):
     """Perez's sky luminance distribution at zenith angle theta and sun angle gamma."""
-    return (ONE + lam[0] * _expf(lam[1] / cos_theta)) * \
-        (ONE + lam[2] * _expf(lam[3] * gamma) + lam[4] * cos_gamma * cos_gamma)
+    return (ONE + lam[0] * expf(lam[1] / cos_theta)) * \
+        (ONE + lam[2] * expf(lam[3] * gamma) + lam[4] * cos_gamma * cos_gamma)
 
 
 def _preetham(sun_direction, turbidity):
     d = np.asarray(sun_direction, F32)
     d = d / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    theta = _libm(np.arccos, d[2])
+    theta = libm(np.arccos, d[2])
     phi = F32(np.arctan2(F64(d[0]), F64(d[1])))     # sky_spherical_coordinates: atan2(x, y)
     t = F32(turbidity)
     th2 = theta * theta
     th3 = th2 * theta
     t2 = t * t
     chi = (F32(4.0 / 9.0) - t / F32(120.0)) * (PI - F32(2.0) * theta)
-    zenith_y = ((F32(4.0453) * t - F32(4.9710)) * _libm(np.tan, chi) - F32(0.2155) * t + F32(2.4192)) \
+    zenith_y = ((F32(4.0453) * t - F32(4.9710)) * libm(np.tan, chi) - F32(0.2155) * t + F32(2.4192)) \
         * F32(0.06)
     zenith_x = ((F32(0.00166) * th3 - F32(0.00375) * th2 + F32(0.00209) * theta) * t2
                 + (F32(-0.02903) * th3 + F32(0.06377) * th2 - F32(0.03202) * theta + F32(0.00394)) * t
@@ -597,8 +586,8 @@ def _bilinear_extend(table: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndar
 
 def _spherical(direction: np.ndarray):
     """direction_to_spherical: (theta from +Z, phi = atan2(y, x))."""
-    theta = _libm(np.arccos, np.clip(direction[:, 2], -ONE, ONE))
-    phi = _libm(lambda v: np.arctan2(v, direction[:, 0].astype(F64)), direction[:, 1])
+    theta = libm(np.arccos, np.clip(direction[:, 2], -ONE, ONE))
+    phi = libm(lambda v: np.arctan2(v, direction[:, 0].astype(F64)), direction[:, 1])
     return theta, phi
 
 
@@ -606,7 +595,7 @@ def _nishita(direction: np.ndarray, sky: Sky) -> np.ndarray:
     theta, phi = _spherical(direction)
     st, sp = sky.sun_elevation - HALF_PI, sky.sun_rotation - HALF_PI
     sun = np.array([sinf(st) * cosf(sp), sinf(st) * sinf(sp), cosf(st)], F32).reshape(1, 3)
-    sun_angle = F32(2.0) * _libm(lambda a: np.arctan2(a, length_rows(direction + sun).astype(F64)),
+    sun_angle = F32(2.0) * libm(lambda a: np.arctan2(a, length_rows(direction + sun).astype(F64)),
                                  length_rows(direction - sun))
     half = sky.angular_diameter * HALF
     elevation = HALF_PI - theta
@@ -631,7 +620,7 @@ def _preetham_eval(direction: np.ndarray, sky: Sky) -> np.ndarray:
     phi = -phi + HALF_PI
     cos_psi = (sinf(theta) * sinf(sky.sun_theta) * cosf(sky.sun_phi - phi)
                + cosf(theta) * cosf(sky.sun_theta))
-    gamma = _libm(np.arccos, np.clip(cos_psi, -ONE, ONE))
+    gamma = libm(np.arccos, np.clip(cos_psi, -ONE, ONE))
     theta = np.minimum(theta, HALF_PI - F32(0.001))
     cos_theta, cos_gamma = cosf(theta), cosf(gamma)
     x = sky.radiance[1] * _perez(sky.config[1], cos_theta, gamma, cos_gamma)
