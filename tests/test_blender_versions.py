@@ -11,7 +11,7 @@ import pytest
 
 from bpy_helpers import ensure_registered, export_current, render_to_array
 from ember.engine import demo
-from ember.kernels.shading import color_math as cm
+from ember.kernels.shading import math_nodes
 from ember.kernels.shading import noise as N
 from ember.kernels.shading import patterns as pt
 from tests.node_probe import sweep
@@ -82,8 +82,8 @@ def test_perlin_rounding_switches_at_5_3_and_stays_within_float_precision():
 
 @pytest.mark.parametrize("version,offered", [((5, 0, 1), False), ((5, 2, 0), True), ((5, 3, 0), True)])
 def test_vector_math_round_exists_from_5_2(version, offered):
-    assert ("ROUND" in cm.operations_in(version, cm.VECTOR_MATH_OPERATIONS)) == offered
-    np.testing.assert_array_equal(cm.vector_math((0.5, -0.5, 1.49), operation="ROUND")["Vector"],
+    assert ("ROUND" in math_nodes.operations_in(version, math_nodes.VECTOR_MATH_OPERATIONS)) == offered
+    np.testing.assert_array_equal(math_nodes.vector_math((0.5, -0.5, 1.49), operation="ROUND")["Vector"],
                                   [[1.0, 0.0, 1.0]])
 
 

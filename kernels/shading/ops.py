@@ -16,7 +16,7 @@ from ..scene import OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ
     OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR
 from ..textures import srgb_to_linear
 from ..vec import F32, HALF, INV_2PI, INV_PI, ONE, ZERO, dot_rows_einsum, matmul, normalize_rows_einsum
-from . import color_math as cm
+from . import color_nodes, curve_nodes, math_nodes, mix_nodes, vector_nodes
 from . import gabor as gb
 from . import noise as ns
 from . import normals
@@ -643,8 +643,9 @@ PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ"}
 
 
 # ---------------------------------------------------------------- texture, colour and math nodes
-# The node functions of noise.py, voronoi.py, gabor.py, patterns.py and color_math.py take snake_case
-# keywords named after the node's sockets and options; these adapters pass what the program holds.
+# The node functions of noise.py, voronoi.py, gabor.py, patterns.py, math_nodes.py, color_nodes.py,
+# mix_nodes.py, vector_nodes.py and curve_nodes.py take snake_case keywords named after the node's sockets
+# and options; these adapters pass what the program holds.
 
 
 def _snake(identifier: str) -> str:
@@ -694,33 +695,33 @@ _TEXTURES = {
     "ShaderNodeTexMagic": node_op(pt.magic),
 }
 _CONVERTERS = {
-    "ShaderNodeMath": node_op(cm.math),
-    "ShaderNodeVectorMath": node_op(cm.vector_math),
-    "ShaderNodeMix": node_op(cm.mix, inputs=_MIX_INPUTS, result_key=_mix_result),
-    "ShaderNodeMixRGB": node_op(cm.mix_rgb, inputs={"Fac": "fac", "Color1": "color1", "Color2": "color2"}),
-    "ShaderNodeMapRange": node_op(cm.map_range, inputs={"Value": "value", "From Min": "from_min",
-                                                        "From Max": "from_max", "To Min": "to_min",
-                                                        "To Max": "to_max", "Steps": "steps",
-                                                        "Vector": "value", "From_Min_FLOAT3": "from_min",
-                                                        "From_Max_FLOAT3": "from_max",
-                                                        "To_Min_FLOAT3": "to_min", "To_Max_FLOAT3": "to_max",
-                                                        "Steps_FLOAT3": "steps"}),
-    "ShaderNodeClamp": node_op(cm.clamp),
-    "ShaderNodeSeparateColor": node_op(cm.separate_color),
-    "ShaderNodeCombineColor": node_op(cm.combine_color),
-    "ShaderNodeHueSaturation": node_op(cm.hue_saturation),
-    "ShaderNodeBrightContrast": node_op(cm.bright_contrast),
-    "ShaderNodeGamma": node_op(cm.gamma),
-    "ShaderNodeInvert": node_op(cm.invert),
-    "ShaderNodeRGBToBW": node_op(cm.rgb_to_bw),
-    "ShaderNodeBlackbody": node_op(cm.blackbody),
-    "ShaderNodeWavelength": node_op(cm.wavelength),
-    "ShaderNodeMapping": node_op(cm.mapping),
-    "ShaderNodeVectorRotate": node_op(cm.vector_rotate),
-    "ShaderNodeValToRGB": node_op(cm.color_ramp),
-    "ShaderNodeRGBCurve": node_op(cm.rgb_curves),
-    "ShaderNodeVectorCurve": node_op(cm.vector_curves),
-    "ShaderNodeFloatCurve": node_op(cm.float_curve),
+    "ShaderNodeMath": node_op(math_nodes.math),
+    "ShaderNodeVectorMath": node_op(math_nodes.vector_math),
+    "ShaderNodeMix": node_op(mix_nodes.mix, inputs=_MIX_INPUTS, result_key=_mix_result),
+    "ShaderNodeMixRGB": node_op(mix_nodes.mix_rgb, inputs={"Fac": "fac", "Color1": "color1", "Color2": "color2"}),
+    "ShaderNodeMapRange": node_op(math_nodes.map_range, inputs={"Value": "value", "From Min": "from_min",
+                                                                "From Max": "from_max", "To Min": "to_min",
+                                                                "To Max": "to_max", "Steps": "steps",
+                                                                "Vector": "value", "From_Min_FLOAT3": "from_min",
+                                                                "From_Max_FLOAT3": "from_max",
+                                                                "To_Min_FLOAT3": "to_min", "To_Max_FLOAT3": "to_max",
+                                                                "Steps_FLOAT3": "steps"}),
+    "ShaderNodeClamp": node_op(math_nodes.clamp),
+    "ShaderNodeSeparateColor": node_op(color_nodes.separate_color),
+    "ShaderNodeCombineColor": node_op(color_nodes.combine_color),
+    "ShaderNodeHueSaturation": node_op(color_nodes.hue_saturation),
+    "ShaderNodeBrightContrast": node_op(color_nodes.bright_contrast),
+    "ShaderNodeGamma": node_op(color_nodes.gamma),
+    "ShaderNodeInvert": node_op(color_nodes.invert),
+    "ShaderNodeRGBToBW": node_op(color_nodes.rgb_to_bw),
+    "ShaderNodeBlackbody": node_op(color_nodes.blackbody),
+    "ShaderNodeWavelength": node_op(color_nodes.wavelength),
+    "ShaderNodeMapping": node_op(vector_nodes.mapping),
+    "ShaderNodeVectorRotate": node_op(vector_nodes.vector_rotate),
+    "ShaderNodeValToRGB": node_op(curve_nodes.color_ramp),
+    "ShaderNodeRGBCurve": node_op(curve_nodes.rgb_curves),
+    "ShaderNodeVectorCurve": node_op(curve_nodes.vector_curves),
+    "ShaderNodeFloatCurve": node_op(curve_nodes.float_curve),
 }
 OPS.update(_TEXTURES)
 OPS.update(_CONVERTERS)

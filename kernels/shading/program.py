@@ -11,7 +11,7 @@ import numpy as np
 
 from ..programs import Program, Ref
 from ..vec import F32, matmul
-from .color_math import RGB_TO_Y, vector_to_float
+from .color_nodes import RGB_TO_Y, vector_to_float
 
 
 class HitInputs:
@@ -241,7 +241,7 @@ def constant(value: tuple):
 
 
 def convert(a, have: str, want: str, n: int) -> np.ndarray:
-    """A value between socket types as Blender converts on a link: colour to float by Cycles' luminance (color_math.RGB_TO_Y), vector
+    """A value between socket types as Blender converts on a link: colour to float by Cycles' luminance (color_nodes.RGB_TO_Y), vector
     to float by the average, float to vector or colour by splatting."""
     a = np.asarray(a, F32)
     if have == want or (have != "VALUE" and want != "VALUE"):
