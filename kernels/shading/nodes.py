@@ -21,7 +21,8 @@ from ..bsdf.toon import toon_angles
 from ..paths import DIFFUSE as DIFFUSE_LABEL
 from ..scene import Closure, NormalMap, Param, Tangent
 from ..vec import F32, ONE, TWO_PI, ZERO, normalize_xyz
-from . import normals, ops
+from . import normals
+from .input_ops import radial_tangent
 from .program import HitInputs
 
 CUTOFF = F32(1e-5)  # Cycles' CLOSURE_WEIGHT_CUTOFF: lighter layers are not made
@@ -170,7 +171,7 @@ class Context:
         elif spec is None and anisotropic:
             if "radial_tangent" not in self._shared:
                 hits = HitInputs(self.shading.data, self.hit, self.idx)
-                radial = ops.radial_tangent(hits, "Z")
+                radial = radial_tangent(hits, "Z")
                 self._shared["radial_tangent"] = tuple(np.ascontiguousarray(radial[:, k]) for k in range(3))
             t = self._shared["radial_tangent"]
         else:

@@ -10,7 +10,7 @@ from ..scene import Camera, Closure, Materials, Param, object_row
 from ..textures import Texture, finite_uv, luminance
 from ..vec import F32, ZERO
 from . import nodes
-from . import ops
+from .input_ops import reads_lobes
 from .ops import OPS
 from .program import HitInputs, ProgramRun
 
@@ -71,8 +71,8 @@ class Shading:
         self.data = ShadingData(textures, scene, triangles)
         world = getattr(scene, "world", None)
         # Whether a Light Path node reads the last bounce's lobe: the integrator tracks it only then.
-        self.reads_lobes = any(ops.reads_lobes(s.program) for s in self.shaders) or (
-            world is not None and world.program is not None and ops.reads_lobes(world.program))
+        self.reads_lobes = any(reads_lobes(s.program) for s in self.shaders) or (
+            world is not None and world.program is not None and reads_lobes(world.program))
         self.emissive = np.array([_may_emit(s.closures) for s in self.shaders], bool)
         # Emission that depends on more than the material: a texture, or layers above it (Principled).
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)
