@@ -11,8 +11,8 @@ import pytest
 
 from bpy_helpers import ensure_registered, export_current, render_to_array
 from ember.engine import demo
-from ember.kernels.shading import color_math as cm
-from ember.kernels.shading import noise as N
+from ember.kernels.shading import math_nodes
+from ember.kernels.shading import perlin
 from ember.kernels.shading import patterns as pt
 from tests.node_probe import sweep
 
@@ -71,19 +71,19 @@ def test_magic_follows_the_release_that_changed_it():
 def test_perlin_rounding_switches_at_5_3_and_stays_within_float_precision():
     p = sweep(-40, 40, 512, seed=2)
     coords = tuple(p[:, k] for k in range(3))
-    with N.cycles_rounding((5, 2, 0)):
-        old = N.snoise(coords)
-    with N.cycles_rounding((5, 3, 0)):
-        new = N.snoise(coords)
+    with perlin.cycles_rounding((5, 2, 0)):
+        old = perlin.snoise(coords)
+    with perlin.cycles_rounding((5, 3, 0)):
+        new = perlin.snoise(coords)
     assert (old != new).any()
     np.testing.assert_allclose(old, new, rtol=0, atol=2e-6)
-    np.testing.assert_array_equal(old, N.snoise(coords))   # outside the context: 5.0's
+    np.testing.assert_array_equal(old, perlin.snoise(coords))   # outside the context: 5.0's
 
 
 @pytest.mark.parametrize("version,offered", [((5, 0, 1), False), ((5, 2, 0), True), ((5, 3, 0), True)])
 def test_vector_math_round_exists_from_5_2(version, offered):
-    assert ("ROUND" in cm.operations_in(version, cm.VECTOR_MATH_OPERATIONS)) == offered
-    np.testing.assert_array_equal(cm.vector_math((0.5, -0.5, 1.49), operation="ROUND")["Vector"],
+    assert ("ROUND" in math_nodes.operations_in(version, math_nodes.VECTOR_MATH_OPERATIONS)) == offered
+    np.testing.assert_array_equal(math_nodes.vector_math((0.5, -0.5, 1.49), operation="ROUND")["Vector"],
                                   [[1.0, 0.0, 1.0]])
 
 

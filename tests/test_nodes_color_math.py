@@ -1,5 +1,6 @@
-"""Colour, maths and converter nodes (kernels/shading/color_math.py, engine/export/node_tables.py) against
-Cycles itself, probed pixel-exactly (tests/node_probe.py), at float precision.
+"""Colour, maths and converter nodes (kernels/shading/math_nodes.py, color_nodes.py, mix_nodes.py,
+vector_nodes.py, curve_nodes.py; engine/export/node_tables.py) against Cycles itself, probed
+pixel-exactly (tests/node_probe.py), at float precision.
 
 Many node variants share one render: each variant gets its own block of pixels holding the same points,
 and a chain of Mix nodes (factor 1 exactly on the variant's block, 0 elsewhere: a (1 - 0) + b 0 = a, exact
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from ember.engine.export import node_tables
-from ember.kernels.shading import color_math as cm
+from ember.kernels.shading import color_nodes, curve_nodes, math_nodes, mix_nodes, vector_nodes
 from tests.node_probe import cycles_probe
 
 F32 = np.float32
@@ -158,28 +159,28 @@ def _math_builder(operation, use_clamp=False):
 
 @pytest.mark.parametrize("group", ["general", "powers"])
 def test_math_every_operation(group):
-    ops = [o for o in cm.MATH_OPERATIONS if (o in _FINITE_ONLY_ON_SMALL) == (group == "powers")]
+    ops = [o for o in math_nodes.MATH_OPERATIONS if (o in _FINITE_ONLY_ON_SMALL) == (group == "powers")]
     points = _power_points() if group == "powers" else _math_points()
     variants = [(o, False) for o in ops] + [(o, True) for o in ops[:8]]
     got = probe_variants([_math_builder(o, c) for o, c in variants], p=points)
     a, b, c = points.T
     for (op, use_clamp), cycles in zip(variants, got):
-        ours = cm.math(a, b, c, operation=op, use_clamp=use_clamp)["Value"]
+        ours = math_nodes.math(a, b, c, operation=op, use_clamp=use_clamp)["Value"]
         check(f"Math {op} clamp={use_clamp}", ours, cycles[:, 0], points=[points])
 
 
 def test_math_operation_list_is_blenders():
     import bpy
     n = bpy.data.materials.new("ops").node_tree.nodes.new("ShaderNodeMath")
-    assert set(n.bl_rna.properties["operation"].enum_items.keys()) == set(cm.MATH_OPERATIONS)
+    assert set(n.bl_rna.properties["operation"].enum_items.keys()) == set(math_nodes.MATH_OPERATIONS)
     n = bpy.data.materials.new("vops").node_tree.nodes.new("ShaderNodeVectorMath")
     assert set(n.bl_rna.properties["operation"].enum_items.keys()) == set(VECTOR_OPS)
     n = bpy.data.materials.new("mix").node_tree.nodes.new("ShaderNodeMix")
-    assert set(n.bl_rna.properties["blend_type"].enum_items.keys()) == set(cm.BLEND_TYPES)
+    assert set(n.bl_rna.properties["blend_type"].enum_items.keys()) == set(mix_nodes.BLEND_TYPES)
 
 
 # ---------------------------------------------------------------- Vector Math
-VECTOR_OPS = cm.operations_in(bpy.app.version, cm.VECTOR_MATH_OPERATIONS)   # this Blender's
+VECTOR_OPS = math_nodes.operations_in(bpy.app.version, math_nodes.VECTOR_MATH_OPERATIONS)   # this Blender's
 def _vector_points(large=False):
     r = rng(3 + large)
     n = 160
@@ -222,7 +223,7 @@ def test_vector_math_every_operation(large):
     got = probe_variants([_vector_math_builder(o) for o in ops], a=a, b=b, c=c, s=s)
     scale = np.maximum(1.0, np.linalg.norm(a, axis=1) * np.maximum(1.0, np.linalg.norm(b, axis=1)))[:, None]
     for op, cycles in zip(ops, got):
-        out = cm.vector_math(a, b, c, s, operation=op)
+        out = math_nodes.vector_math(a, b, c, s, operation=op)
         ours = out["Value"][:, None] if op in ("DOT_PRODUCT", "DISTANCE", "LENGTH") else out["Vector"]
         check(f"Vector Math {op}", ours, cycles, scale=scale, points=[a, b, c, s])
 
@@ -247,7 +248,7 @@ def _colors(k, n=150):
 
 def test_mix_color_every_blend_type():
     a, b, f = _colors(0)
-    variants = [(t, False, False) for t in cm.BLEND_TYPES] + [(t, True, True) for t in cm.BLEND_TYPES]
+    variants = [(t, False, False) for t in mix_nodes.BLEND_TYPES] + [(t, True, True) for t in mix_nodes.BLEND_TYPES]
 
     def builder(blend, clamp_factor, clamp_result):
         def build(tree, s):
@@ -258,7 +259,7 @@ def test_mix_color_every_blend_type():
 
     got = probe_variants([builder(*v) for v in variants], a=a, b=b, f=f)
     for (blend, cf, cr), cycles in zip(variants, got):
-        ours = cm.mix(f, a, b, data_type="RGBA", blend_type=blend, clamp_factor=cf, clamp_result=cr)["Result"]
+        ours = mix_nodes.mix(f, a, b, data_type="RGBA", blend_type=blend, clamp_factor=cf, clamp_result=cr)["Result"]
         check(f"Mix {blend} clamp factor={cf} result={cr}", ours, cycles, scale=4.0, points=[a, b, f])
 
 
@@ -296,13 +297,13 @@ def test_mix_float_vector_and_legacy_mixrgb():
                          a=a, b=b, f=f, fv=fv)
     for (data_type, mode, cf), cycles in zip(variants, got):
         if data_type == "FLOAT":
-            ours = cm.mix(f, a[:, 0], b[:, 1], data_type="FLOAT", clamp_factor=cf)["Result"][:, None]
+            ours = mix_nodes.mix(f, a[:, 0], b[:, 1], data_type="FLOAT", clamp_factor=cf)["Result"][:, None]
         else:
-            ours = cm.mix(fv if mode == "NON_UNIFORM" else f, a, b, data_type="VECTOR", factor_mode=mode,
-                          clamp_factor=cf)["Result"]
+            ours = mix_nodes.mix(fv if mode == "NON_UNIFORM" else f, a, b, data_type="VECTOR", factor_mode=mode,
+                                 clamp_factor=cf)["Result"]
         check(f"Mix {data_type} {mode} clamp={cf}", ours, cycles, scale=4.0)
     for (blend, use_clamp), cycles in zip(legacy, got[len(variants):]):
-        ours = cm.mix_rgb(f, a, b, blend_type=blend, use_clamp=use_clamp)["Color"]
+        ours = mix_nodes.mix_rgb(f, a, b, blend_type=blend, use_clamp=use_clamp)["Color"]
         check(f"MixRGB {blend} clamp={use_clamp}", ours, cycles, scale=4.0)
 
 
@@ -337,7 +338,7 @@ def test_map_range_float_every_interpolation():
 
     got = probe_variants([builder(*v) for v in variants], p=p, q=q)
     for (interp, clamp), cycles in zip(variants, got):
-        ours = cm.map_range(*p.T, *q.T, interpolation_type=interp, clamp=clamp)["Result"]
+        ours = math_nodes.map_range(*p.T, *q.T, interpolation_type=interp, clamp=clamp)["Result"]
         check(f"Map Range {interp} clamp={clamp}", ours, cycles[:, 0], scale=10.0, points=[p, q])
 
 
@@ -363,8 +364,8 @@ def test_map_range_vector_every_interpolation():
 
     got = probe_variants([builder(*v) for v in variants], **arrays)
     for (interp, clamp), cycles in zip(variants, got):
-        ours = cm.map_range(*arrays.values(), data_type="FLOAT_VECTOR", interpolation_type=interp,
-                            clamp=clamp)["Vector"]
+        ours = math_nodes.map_range(*arrays.values(), data_type="FLOAT_VECTOR", interpolation_type=interp,
+                                    clamp=clamp)["Vector"]
         check(f"Vector Map Range {interp} clamp={clamp}", ours, cycles, scale=10.0)
 
 
@@ -376,7 +377,7 @@ def test_clamp_both_types():
     got = probe_variants([lambda tree, s, t=t: node(tree, "ShaderNodeClamp", {0: s["p.x"], 1: s["p.y"], 2: s["p.z"]},
                                                     clamp_type=t).outputs[0] for t in variants], p=p)
     for t, cycles in zip(variants, got):
-        check(f"Clamp {t}", cm.clamp(*p.T, clamp_type=t)["Result"], cycles[:, 0])
+        check(f"Clamp {t}", math_nodes.clamp(*p.T, clamp_type=t)["Result"], cycles[:, 0])
 
 
 # ---------------------------------------------------------------- colour converters
@@ -412,13 +413,13 @@ def test_separate_combine_color_and_xyz():
 
     got = probe_variants([sep(m) for m in modes] + [comb(m) for m in modes] + [xyz], c=c, k=hsx)
     for mode, cycles in zip(modes, got[:3]):
-        out = cm.separate_color(c, mode=mode)
+        out = color_nodes.separate_color(c, mode=mode)
         check(f"Separate Color {mode}", np.stack([out["Red"], out["Green"], out["Blue"]], -1), cycles, points=[c])
     for mode, cycles in zip(modes, got[3:6]):
-        check(f"Combine Color {mode}", cm.combine_color(*hsx.T, mode=mode)["Color"], cycles, scale=2.0,
+        check(f"Combine Color {mode}", color_nodes.combine_color(*hsx.T, mode=mode)["Color"], cycles, scale=2.0,
               points=[hsx])
-    parts = cm.separate_xyz(c)
-    check("Separate/Combine XYZ", cm.combine_xyz(parts["Z"], parts["X"], parts["Y"])["Vector"], got[6])
+    parts = vector_nodes.separate_xyz(c)
+    check("Separate/Combine XYZ", vector_nodes.combine_xyz(parts["Z"], parts["X"], parts["Y"])["Vector"], got[6])
 
 
 def test_color_adjustment_nodes():
@@ -442,29 +443,30 @@ def test_color_adjustment_nodes():
         lambda tree, s: node(tree, "ShaderNodeMath", {0: s["k"], 1: s["m.x"]}, operation="ADD").outputs[0],
     ]
     got = probe_variants(builders, c=c, k=k, m=m, g=g)
-    check("Hue/Saturation/Value", cm.hue_saturation(*k.T, m[:, 0], c)["Color"], got[0], scale=4.0, points=[c, k, m])
-    check("Bright/Contrast", cm.bright_contrast(c, m[:, 1], m[:, 2])["Color"], got[1], scale=4.0)
-    check("Gamma", cm.gamma(c, g)["Color"], got[2], points=[c, g])
-    check("Invert", cm.invert(m[:, 0], c)["Color"], got[3], scale=4.0)
-    check("RGB to BW", cm.rgb_to_bw(c)["Val"][:, None], got[4])
+    check("Hue/Saturation/Value", color_nodes.hue_saturation(*k.T, m[:, 0], c)["Color"], got[0], scale=4.0,
+          points=[c, k, m])
+    check("Bright/Contrast", color_nodes.bright_contrast(c, m[:, 1], m[:, 2])["Color"], got[1], scale=4.0)
+    check("Gamma", color_nodes.gamma(c, g)["Color"], got[2], points=[c, g])
+    check("Invert", color_nodes.invert(m[:, 0], c)["Color"], got[3], scale=4.0)
+    check("RGB to BW", color_nodes.rgb_to_bw(c)["Val"][:, None], got[4])
     # The links' implicit conversions: a colour into a float input (luminance), a vector (the average).
-    check("colour -> float", (cm.color_to_float(c) + m[:, 0])[:, None], got[5], scale=2.0)
-    check("vector -> float", (cm.vector_to_float(k) + m[:, 0])[:, None], got[6], scale=2.0)
+    check("colour -> float", (color_nodes.color_to_float(c) + m[:, 0])[:, None], got[5], scale=2.0)
+    check("vector -> float", (color_nodes.vector_to_float(k) + m[:, 0])[:, None], got[6], scale=2.0)
 
 
 def test_rgb_to_bw_weights_are_cycles():
     unit = np.eye(3, dtype=F32)
     got = probe_variants([lambda tree, s: node(tree, "ShaderNodeRGBToBW", {0: s["c"]}).outputs[0]], c=unit)
     if bpy.app.version[:2] == (5, 0):
-        np.testing.assert_array_equal(got[0, :, 0], cm.RGB_TO_Y)
+        np.testing.assert_array_equal(got[0, :, 0], color_nodes.RGB_TO_Y)
     else:
         # Cycles 5.3 derives the same weights in float32 a step differently: R and B up to 2 ulp lower
         # (docs/blender-versions.md). Ember keeps 5.0's.
-        np.testing.assert_array_max_ulp(got[0, :, 0], cm.RGB_TO_Y, maxulp=2)
+        np.testing.assert_array_max_ulp(got[0, :, 0], color_nodes.RGB_TO_Y, maxulp=2)
     # The same numbers from Blender's colour management (the path node_tables.color_constants takes).
     constants = node_tables.color_constants()
-    np.testing.assert_allclose(constants["rgb_to_y"], cm.RGB_TO_Y, rtol=0, atol=3e-7)
-    np.testing.assert_allclose(constants["xyz_to_rgb"], cm.XYZ_TO_RGB, rtol=0, atol=3e-7)
+    np.testing.assert_allclose(constants["rgb_to_y"], color_nodes.RGB_TO_Y, rtol=0, atol=3e-7)
+    np.testing.assert_allclose(constants["xyz_to_rgb"], color_nodes.XYZ_TO_RGB, rtol=0, atol=3e-7)
     assert constants["rec709_to_rgb"] is None
 
 
@@ -479,8 +481,8 @@ def test_blackbody_and_wavelength():
     got = probe_variants([lambda tree, s: node(tree, "ShaderNodeBlackbody", {0: s["t.x"]}).outputs[0],
                           lambda tree, s: node(tree, "ShaderNodeWavelength", {0: s["t.y"]}).outputs[0]],
                          t=np.stack([t, lam, np.zeros(n)], -1))
-    check("Blackbody", cm.blackbody(t)["Color"], got[0], scale=2.0, points=[t])
-    check("Wavelength", cm.wavelength(lam)["Color"], got[1], points=[lam])
+    check("Blackbody", color_nodes.blackbody(t)["Color"], got[0], scale=2.0, points=[t])
+    check("Wavelength", color_nodes.wavelength(lam)["Color"], got[1], points=[lam])
 
 
 # ---------------------------------------------------------------- Mapping, Vector Rotate
@@ -508,7 +510,7 @@ def test_mapping_every_type():
     got = probe_variants(builders, **p)
     size = np.linalg.norm(p["v"], axis=1) * np.abs(p["sc"]).max(1) + np.linalg.norm(p["loc"], axis=1)
     for t, cycles in zip(types, got):
-        ours = cm.mapping(p["v"], p["loc"], p["rot"], p["sc"], vector_type=t)["Vector"]
+        ours = vector_nodes.mapping(p["v"], p["loc"], p["rot"], p["sc"], vector_type=t)["Vector"]
         scale = np.maximum(1.0, size / np.maximum(np.abs(p["sc"]).min(1), 0.1) if t == "TEXTURE" else size)[:, None]
         check(f"Mapping {t}", ours, cycles, scale=scale, points=[p["v"], p["rot"], p["sc"]])
 
@@ -529,8 +531,8 @@ def test_vector_rotate_every_type():
     got = probe_variants([builder(*v) for v in variants], **p)
     scale = np.maximum(1.0, np.linalg.norm(p["v"], axis=1) + np.linalg.norm(p["loc"], axis=1))[:, None]
     for (t, inv), cycles in zip(variants, got):
-        ours = cm.vector_rotate(p["v"], p["loc"], p["ax"], p["ang"][:, 0], p["rot"], rotation_type=t,
-                                invert=inv)["Vector"]
+        ours = vector_nodes.vector_rotate(p["v"], p["loc"], p["ax"], p["ang"][:, 0], p["rot"], rotation_type=t,
+                                          invert=inv)["Vector"]
         check(f"Vector Rotate {t} invert={inv}", ours, cycles, scale=scale, points=[p["v"], p["ax"]])
 
 
@@ -571,9 +573,11 @@ def test_color_ramp_every_interpolation():
     got = probe_variants(builders, f=f)
     assert all(t.shape == (257, 4) for t, _ in tables)
     for v, (table, interpolate), cycles in zip(variants, tables, got):
-        check(f"Color Ramp {v}", cm.color_ramp(f, table=table, interpolate=interpolate)["Color"], cycles, points=[f])
+        check(f"Color Ramp {v}", curve_nodes.color_ramp(f, table=table, interpolate=interpolate)["Color"], cycles,
+              points=[f])
     table, interpolate = tables[-1]
-    check("Color Ramp alpha", cm.color_ramp(f, table=table, interpolate=interpolate)["Alpha"][:, None], got[-1])
+    check("Color Ramp alpha", curve_nodes.color_ramp(f, table=table, interpolate=interpolate)["Alpha"][:, None],
+          got[-1])
 
 
 def _edit_curve(curve, points, handle="AUTO"):
@@ -627,9 +631,9 @@ def test_rgb_and_vector_curves():
     for (kind, extend, clip), (table, lo, hi, extrapolate), cycles in zip(variants, tables, got):
         assert extrapolate == (extend == "EXTRAPOLATED")
         if kind == "rgb":
-            ours = cm.rgb_curves(fac, c, table=table, min_x=lo, max_x=hi, extrapolate=extrapolate)["Color"]
+            ours = curve_nodes.rgb_curves(fac, c, table=table, min_x=lo, max_x=hi, extrapolate=extrapolate)["Color"]
         else:
-            ours = cm.vector_curves(fac, v, table=table, min_x=lo, max_x=hi, extrapolate=extrapolate)["Vector"]
+            ours = curve_nodes.vector_curves(fac, v, table=table, min_x=lo, max_x=hi, extrapolate=extrapolate)["Vector"]
         check(f"{kind} curves extend={extend} clip={clip} range=({lo}, {hi})", ours, cycles, scale=2.0)
     assert tables[2][1:3] == (-0.25, F32(1.3)) and tables[0][1:3] == (0.0, 1.0) and tables[4][1:3] == (-1.0, 1.0)
 
@@ -654,47 +658,47 @@ def test_float_curve():
 
     got = probe_variants([builder(*v) for v in variants], x=x, fac=fac)
     for (extend, _), (table, lo, hi, extrapolate), cycles in zip(variants, tables, got):
-        ours = cm.float_curve(fac, x, table=table, min_x=lo, max_x=hi, extrapolate=extrapolate)["Value"]
+        ours = curve_nodes.float_curve(fac, x, table=table, min_x=lo, max_x=hi, extrapolate=extrapolate)["Value"]
         check(f"Float Curve {extend} range=({lo}, {hi})", ours[:, None], cycles, scale=2.0, points=[x, fac])
     assert tables[2][1:3] == (np.float32(0.2), np.float32(0.8))
 
 
 # ---------------------------------------------------------------- closed forms and conventions (no render)
 def test_constants_broadcast_and_stay_float32():
-    for op in cm.MATH_OPERATIONS:
-        out = cm.math(0.3, 2.0, 0.5, operation=op)["Value"]
+    for op in math_nodes.MATH_OPERATIONS:
+        out = math_nodes.math(0.3, 2.0, 0.5, operation=op)["Value"]
         assert out.dtype == F32 and out.shape == (1,), op
-    for op in cm.VECTOR_MATH_OPERATIONS:
-        out = cm.vector_math((1.0, -2.0, 0.5), 0.25, 0.0, 2.0, operation=op)
+    for op in math_nodes.VECTOR_MATH_OPERATIONS:
+        out = math_nodes.vector_math((1.0, -2.0, 0.5), 0.25, 0.0, 2.0, operation=op)
         assert out["Vector"].dtype == F32 and out["Vector"].shape == (1, 3), op
         assert out["Value"].dtype == F32, op
     hits = np.arange(12, dtype=F32).reshape(4, 3)
-    for blend in cm.BLEND_TYPES:
-        out = cm.mix(0.25, hits, (0.5, 0.5, 0.5), data_type="RGBA", blend_type=blend)["Result"]
+    for blend in mix_nodes.BLEND_TYPES:
+        out = mix_nodes.mix(0.25, hits, (0.5, 0.5, 0.5), data_type="RGBA", blend_type=blend)["Result"]
         assert out.dtype == F32 and out.shape == (4, 3), blend
-    assert cm.map_range(np.zeros(5, F32), 0.0, 1.0, 2.0, 3.0)["Result"].shape == (5,)
+    assert math_nodes.map_range(np.zeros(5, F32), 0.0, 1.0, 2.0, 3.0)["Result"].shape == (5,)
 
 
 def test_closed_forms():
     r = rng(70)
     c = r.uniform(0, 1, (1000, 3)).astype(F32)
-    np.testing.assert_allclose(cm.hsv_to_rgb(cm.rgb_to_hsv(c)), c, atol=1e-6)
-    np.testing.assert_allclose(cm.hsl_to_rgb(cm.rgb_to_hsl(c)), c, atol=1e-6)
+    np.testing.assert_allclose(color_nodes.hsv_to_rgb(color_nodes.rgb_to_hsv(c)), c, atol=1e-6)
+    np.testing.assert_allclose(color_nodes.hsl_to_rgb(color_nodes.rgb_to_hsl(c)), c, atol=1e-6)
     # Default ramp (black -> white, linear) baked and looked up: the identity on [0, 1], clamped outside.
     table = np.repeat(np.arange(257, dtype=F32)[:, None] / 256, 4, 1)
     f = np.linspace(-0.5, 1.5, 101, dtype=F32)
-    np.testing.assert_allclose(cm.color_ramp(f, table=table)["Alpha"], np.clip(f, 0, 1), atol=1e-6)
+    np.testing.assert_allclose(curve_nodes.color_ramp(f, table=table)["Alpha"], np.clip(f, 0, 1), atol=1e-6)
     # An identity curve table extrapolates to the identity.
     line = np.linspace(0, 1, 257, dtype=F32)
-    np.testing.assert_allclose(cm.float_curve(1.0, f, table=line)["Value"], f, atol=2e-6)
+    np.testing.assert_allclose(curve_nodes.float_curve(1.0, f, table=line)["Value"], f, atol=2e-6)
     # Math guards: x / 0 = 0, sqrt and log of negatives 0, negative ** fraction 0, x ** 0 = 1.
-    assert cm.math(3.0, 0.0, operation="DIVIDE")["Value"][0] == 0
-    assert cm.math(-4.0, operation="SQRT")["Value"][0] == 0
-    assert cm.math(-4.0, 2.0, operation="LOGARITHM")["Value"][0] == 0
-    assert cm.math(-8.0, 1 / 3, operation="POWER")["Value"][0] == 0
-    assert cm.math(-2.0, 3.0, operation="POWER")["Value"][0] == -8
-    assert cm.math(0.0, 0.0, operation="POWER")["Value"][0] == 1
-    assert cm.math(7.0, -3.0, operation="FLOORED_MODULO")["Value"][0] == -2
-    assert cm.math(-7.0, 3.0, operation="MODULO")["Value"][0] == -1
+    assert math_nodes.math(3.0, 0.0, operation="DIVIDE")["Value"][0] == 0
+    assert math_nodes.math(-4.0, operation="SQRT")["Value"][0] == 0
+    assert math_nodes.math(-4.0, 2.0, operation="LOGARITHM")["Value"][0] == 0
+    assert math_nodes.math(-8.0, 1 / 3, operation="POWER")["Value"][0] == 0
+    assert math_nodes.math(-2.0, 3.0, operation="POWER")["Value"][0] == -8
+    assert math_nodes.math(0.0, 0.0, operation="POWER")["Value"][0] == 1
+    assert math_nodes.math(7.0, -3.0, operation="FLOORED_MODULO")["Value"][0] == -2
+    assert math_nodes.math(-7.0, 3.0, operation="MODULO")["Value"][0] == -1
     # Luminance weights sum to one (within the float32 rounding of the config's matrices).
-    assert abs(float(cm.RGB_TO_Y.sum()) - 1.0) < 2e-6
+    assert abs(float(color_nodes.RGB_TO_Y.sum()) - 1.0) < 2e-6

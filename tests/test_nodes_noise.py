@@ -1,9 +1,10 @@
-"""Hashes, Perlin noise and the Noise, White Noise and Wave texture nodes (kernels.shading.hash, .noise)
-against Cycles itself: tests/node_probe.py renders the node at exact points, one pixel per point.
+"""Hashes, Perlin noise and the Noise, White Noise and Wave texture nodes (kernels.shading.hash, .perlin,
+.fractal_noise, .noise) against Cycles itself: tests/node_probe.py renders the node at exact points, one
+pixel per point.
 
 The reference is Cycles' x86-64 CPU kernel as Blender 5.0 ships it (the AVX2 variant on a CPU that has
 AVX2 and FMA): compiled with -ffp-contract=fast and -freciprocal-math, so its multiply-adds are fused and
-its divisions by constants are multiplications. kernels.shading.noise rounds the same way, so the
+its divisions by constants are multiplications. kernels.shading.perlin rounds the same way, so the
 comparisons below are bit-exact, except the Wave's sine profile (NumPy is not glibc's sinf: within an
 ulp). Bit-exactness is what makes distortion with many octaves agree at all: an ulp in a distorted
 coordinate, times lacunarity^15, is a different noise value. On another kernel (SSE4.2, Arm) Cycles
@@ -17,13 +18,14 @@ import bpy
 import numpy as np
 import pytest
 
+from ember.kernels.shading import fractal_noise, perlin
 from ember.kernels.shading import hash as H
 from ember.kernels.shading import noise as N
 from tests.node_probe import AVX2_KERNEL, cycles_probe, sweep
 
 F32 = np.float32
 RTOL, ATOL = 2e-5, 2e-6
-# The reference is this Blender's Cycles: the kernel rounds as it does (noise.cycles_rounding).
+# The reference is this Blender's Cycles: the kernel rounds as it does (perlin.cycles_rounding).
 CYCLES = {"cycles_version": tuple(bpy.app.version)}
 # Blender 5.3's compiled fractal loops and Wave round differently from 5.0's (same source; Perlin itself is
 # followed bit for bit): Ember keeps 5.0's rounding there, which distortion and octaves amplify.
@@ -195,8 +197,8 @@ def test_snoise_is_bit_exact(dims):
                     {"Scale": 1.0, "Detail": 0.0}, "Fac")
     cycles = cycles_probe(build, {"probe": p, "probe2": w})
     coords = N._coords(p, w[:, 0], N.DIMENSIONS[dims], len(p))
-    with N.cycles_rounding(bpy.app.version):
-        ours = N.snoise(coords)
+    with perlin.cycles_rounding(bpy.app.version):
+        ours = perlin.snoise(coords)
     assert_matches(grey(ours), cycles)
 
 
@@ -204,7 +206,7 @@ def test_perlin_vanishes_on_the_lattice():
     rng = np.random.default_rng(1)
     for d in (1, 2, 3, 4):
         lattice = tuple(rng.integers(-50000, 50000, 256).astype(F32) for _ in range(d))
-        np.testing.assert_array_equal(N.snoise(lattice), np.zeros(256, F32))
+        np.testing.assert_array_equal(perlin.snoise(lattice), np.zeros(256, F32))
 
 
 # ---- Noise Texture ----------------------------------------------------------------------------------
@@ -319,10 +321,10 @@ def test_fractal_closed_forms():
     """Roughness 0 leaves one octave: fBM = snoise/2 + 1/2 at any Detail; Multifractal = 1 + snoise."""
     rng = np.random.default_rng(4)
     p = tuple(rng.uniform(-9, 9, 400).astype(F32) for _ in range(3))
-    s = N.snoise(p)
-    np.testing.assert_array_equal(N.fbm(p, 4.0, 0.0, 2.0), s * F32(0.5) + F32(0.5))
-    np.testing.assert_array_equal(N.multi_fractal(p, 0.0, 0.5, 2.0), s + F32(1.0))
-    np.testing.assert_array_equal(N.fbm(p, 0.0, 0.5, 2.0, normalize=False), s)
+    s = perlin.snoise(p)
+    np.testing.assert_array_equal(fractal_noise.fbm(p, 4.0, 0.0, 2.0), s * F32(0.5) + F32(0.5))
+    np.testing.assert_array_equal(fractal_noise.multi_fractal(p, 0.0, 0.5, 2.0), s + F32(1.0))
+    np.testing.assert_array_equal(fractal_noise.fbm(p, 0.0, 0.5, 2.0, normalize=False), s)
 
 
 def test_node_functions_broadcast_constants():

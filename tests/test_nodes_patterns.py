@@ -28,6 +28,7 @@ import pytest
 
 from ember.kernels.shading import patterns as pt
 from ember.kernels.shading import sky as sk
+from ember.kernels.shading import sky_scattering
 from tests.node_probe import AVX2_KERNEL, cycles_probe, probe_scene, render_probe, sweep
 
 F32 = np.float32
@@ -374,9 +375,9 @@ def test_sky_settings_wrap_like_cycles():
 
 def test_sky_table_symmetry_and_xyz_matrix():
     table = sk.precompute_sky(sun_elevation=0.4).table
-    assert table.shape == (3, sk.TABLE_HEIGHT, sk.TABLE_WIDTH)
+    assert table.shape == (3, sky_scattering.TABLE_HEIGHT, sky_scattering.TABLE_WIDTH)
     np.testing.assert_array_equal(table, table[:, :, ::-1])    # mirrored about the sun's azimuth
-    assert (table[:, sk.TABLE_HEIGHT // 2:] > 0).all()
+    assert (table[:, sky_scattering.TABLE_HEIGHT // 2:] > 0).all()
     # Cycles' XYZ -> Rec.709 for Blender's OCIO config: D65 white maps to grey 1.
     white = np.array([[0.95047, 1.0, 1.08883]], F32)
     np.testing.assert_allclose(sk.xyz_to_rgb_clamped(white), [[1, 1, 1]], atol=5e-4)

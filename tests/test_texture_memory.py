@@ -12,7 +12,7 @@ from bpy_helpers import export_current, new_scene, quad_object
 
 from ember.engine.export.images import file_bytes, read_image
 from ember.kernels import Renderer
-from ember.kernels.shading.ops import sample_texture
+from ember.kernels.shading.image_ops import sample_texture
 from ember.kernels.textures import BYTE_SCALE, Texture
 
 

@@ -25,7 +25,7 @@ import numpy as np
 from ...kernels.geometry import normal_matrices
 from ...kernels.scene import (OBJECT_COLUMNS, TERMINATOR_OFFSET, CornerRows, Instances, Prototype, object_rows,
                               padded_triangles)
-from ...kernels.shading.ops import map_to_sphere
+from ...kernels.shading.image_ops import map_to_sphere
 from .materials import MaterialTable
 
 # A mesh placed by two or more instances is stored once in object space and instanced (two-level BVH,

@@ -1,6 +1,6 @@
 """Colour ramps and curve mappings baked into the tables the kernel samples, as Cycles' Blender sync bakes
 them (`intern/cycles/blender/shader.cpp` and `util.h`, Blender 5.0); and the colour-space constants of the
-OCIO config in use (kernels.shading.color_math reads all of these).
+OCIO config in use (kernels.shading.color_nodes and curve_nodes read all of these).
 
 What Cycles does, and so what this module does:
 - A Color Ramp becomes RAMP_TABLE_SIZE + 1 = 257 RGBA entries, entry i = the ramp evaluated at
@@ -84,11 +84,11 @@ def float_curve_table(mapping) -> tuple[np.ndarray, float, float, bool]:
 def color_constants() -> dict:
     """The scene-linear colour constants of the OCIO config in use, as Cycles derives them
     (scene/shader.cpp `init_xyz_transforms`): XYZ via the aces_interchange role and Cycles' ACES AP0 ->
-    XYZ D65 matrix. Returns keyword arguments for color_math: rgb_to_y (3,), xyz_to_rgb (3, 3),
+    XYZ D65 matrix. Returns keyword arguments for color_nodes: rgb_to_y (3,), xyz_to_rgb (3, 3),
     rec709_to_rgb (3, 3), or None when scene linear is Rec.709 (within Cycles' 0.001).
 
     Computed in float64 from Blender's own conversions (mathutils.Color), so within ~1e-7 of the float32
-    values Cycles computes (for Blender's default config, color_math.RGB_TO_Y holds Cycles' exact ones)."""
+    values Cycles computes (for Blender's default config, color_nodes.RGB_TO_Y holds Cycles' exact ones)."""
     from mathutils import Color
 
     def matrix(convert) -> np.ndarray:  # columns: the images of the unit colours

@@ -37,7 +37,7 @@ glossy_anisotropy = mf.glossy_anisotropy
 ior_from_f0 = fr.ior_from_f0
 
 
-# ---------------------------------------------------------------- setup (called by kernels.shading.nodes)
+# ---------------------------------------------------------------- setup (called by the closure nodes of kernels/shading)
 def add_glossy(b, ctx, color, w, ax, ay, multiscatter: bool, sub=None, distribution=mf.GGX):
     """Glossy BSDF: GGX or Beckmann reflection with F = 1, weight colour x mix weight; its colour is the
     Fss of the compensation (Cycles' bsdf_microfacet_setup_fresnel_constant, multiscatter GGX only)."""

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..programs import Program, Ref
 from ..vec import F32, matmul
-from .color_math import RGB_TO_Y, vector_to_float
+from .color_nodes import RGB_TO_Y, vector_to_float
 
 
 class HitInputs:
@@ -235,14 +235,20 @@ def _barycentric_step(e1: np.ndarray, e2: np.ndarray, d: np.ndarray):
     return ((g22 * r1 - g12 * r2) * inv).astype(F32), ((g11 * r2 - g12 * r1) * inv).astype(F32)
 
 
+def full(x, n: int, channels: int = 1) -> np.ndarray:
+    """An input as a full (n,) or (n, 3) float32 array (constants broadcast, not copied)."""
+    a = np.asarray(x, F32)
+    return np.broadcast_to(a, (n,) if channels == 1 else (n, 3))
+
+
 def constant(value: tuple):
     """A folded input: a Python float for VALUE, a (3,) float32 array for VECTOR and RGBA."""
     return float(value[0]) if len(value) == 1 else np.asarray(value, F32)
 
 
 def convert(a, have: str, want: str, n: int) -> np.ndarray:
-    """A value between socket types as Blender converts on a link: colour to float by Cycles' luminance (color_math.RGB_TO_Y), vector
-    to float by the average, float to vector or colour by splatting."""
+    """A value between socket types as Blender converts on a link: colour to float by Cycles' luminance
+    (color_nodes.RGB_TO_Y), vector to float by the average, float to vector or colour by splatting."""
     a = np.asarray(a, F32)
     if have == want or (have != "VALUE" and want != "VALUE"):
         out = a

@@ -10,7 +10,9 @@ from ..scene import Camera, Closure, Materials, Param, object_row
 from ..textures import Texture, finite_uv, luminance
 from ..vec import F32, ZERO
 from . import nodes
-from . import ops
+from .bsdf_nodes import portal_weight
+from .node_context import CUTOFF, DEFAULTS, Context
+from .input_ops import reads_lobes
 from .ops import OPS
 from .program import HitInputs, ProgramRun
 
@@ -71,8 +73,8 @@ class Shading:
         self.data = ShadingData(textures, scene, triangles)
         world = getattr(scene, "world", None)
         # Whether a Light Path node reads the last bounce's lobe: the integrator tracks it only then.
-        self.reads_lobes = any(ops.reads_lobes(s.program) for s in self.shaders) or (
-            world is not None and world.program is not None and ops.reads_lobes(world.program))
+        self.reads_lobes = any(reads_lobes(s.program) for s in self.shaders) or (
+            world is not None and world.program is not None and reads_lobes(world.program))
         self.emissive = np.array([_may_emit(s.closures) for s in self.shaders], bool)
         # Emission that depends on more than the material: a texture, or layers above it (Principled).
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)
@@ -125,7 +127,7 @@ class Shading:
             idx = hits_of(m)
             if not len(idx):
                 continue
-            ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
+            ctx = Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
             for closure in closure_list:
                 out = nodes.build(closure, ctx, self._mix_weight(closure, ctx), builder)
                 _collect(out, idx, emission, holdout)
@@ -149,7 +151,7 @@ class Shading:
         idx = np.concatenate([s[2] for s in segments])
         bounds = np.cumsum([0] + [len(s[2]) for s in segments])
         batch = _BatchClosure([(c, lo, hi) for (_, c, _), lo, hi in zip(segments, bounds[:-1], bounds[1:])])
-        ctx = nodes.Context(self, hit, idx, wo, self.shaders[segments[0][0]].bump_map_correction)
+        ctx = Context(self, hit, idx, wo, self.shaders[segments[0][0]].bump_map_correction)
         weight = np.concatenate([self._mix_weight(c, _Sub(hit, ctx.idx[lo:hi])) for c, lo, hi in batch.pieces])
         _collect(nodes.build(batch, ctx, weight, builder), idx, emission, holdout)
 
@@ -180,7 +182,7 @@ class Shading:
         for m, idx in _by_material(hit.mat):
             if not self.transparent[m]:
                 continue
-            ctx = nodes.Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
+            ctx = Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
             passed = np.zeros((3, len(idx)), F32)
             made = np.zeros(len(idx), bool)
             portals = [c for c in self.shaders[m].closures if c.kind == "PORTAL"]
@@ -188,9 +190,9 @@ class Shading:
                 if nodes.may_be_transparent(closure):
                     t = nodes.transparency(closure, ctx, self._mix_weight(closure, ctx))
                     passed += t
-                    made |= np.abs(t.mean(axis=0)) >= nodes.CUTOFF
+                    made |= np.abs(t.mean(axis=0)) >= CUTOFF
             for closure in portals:
-                passed += np.where(made, nodes.portal_weight(closure, ctx, self._mix_weight(closure, ctx)), ZERO)
+                passed += np.where(made, portal_weight(closure, ctx, self._mix_weight(closure, ctx)), ZERO)
             out[:, idx] += passed
         return out
 
@@ -317,7 +319,7 @@ class _BatchClosure:
             return None
         if len(params) == 1:
             return params[0]
-        default = Param.of(nodes.DEFAULTS[self.kind][name])
+        default = Param.of(DEFAULTS[self.kind][name])
         params = [p if p is not None else default for p in params]
         if all(p == params[0] for p in params[1:]):  # one value for all (often: the node's default)
             return params[0]
@@ -406,7 +408,7 @@ def _plain_diffuse(closures):
             rough is not None and (rough.varies or rough.value[0] >= 1e-5)) or (
             color is not None and color.link is not None):
         return None
-    return color or Param.of(nodes.DEFAULTS["DIFFUSE"]["Color"])
+    return color or Param.of(DEFAULTS["DIFFUSE"]["Color"])
 
 
 def _mixes_lobes(closures) -> bool:

@@ -1,0 +1,203 @@
+"""The Image Texture and Environment Texture ops (Cycles' svm_node_tex_image, svm_node_tex_image_box and
+svm_node_tex_environment), and the texture lookups under them (the filters and extensions of
+kernel/device/cpu/image.h, over kernels.textures.Texture): `sample_texture`, `map_to_sphere`,
+`map_to_tube`.
+
+Each op is as kernels.shading.ops describes it, `op(hits, inputs, op) -> {output name: array}`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..textures import srgb_to_linear
+from ..vec import F32, HALF, INV_2PI, INV_PI, ONE, ZERO, dot_rows_einsum
+from .input_ops import object_normal
+from .program import full
+
+
+# ---------------------------------------------------------------- the ops
+def image(hits, inputs, op):
+    """The Image Texture node (Cycles' svm_node_tex_image and svm_node_tex_image_box, with the lookups of
+    kernel/device/cpu/image.h): Closest, Linear or Cubic (B-spline) interpolation; Repeat, Extend, Clip
+    (texels outside read zero) or Mirror extension; Flat, Box (blended by the object-space normal),
+    Sphere and Tube projection. 8-bit sRGB images are filtered encoded and decoded after."""
+    n = hits.n
+    texture = op.option("texture", -1)
+    vector = inputs.get("Vector")
+    p = hits.uv if vector is None else full(vector, n, 3)
+    if texture < 0:  # missing image: Cycles' magenta
+        return {"Color": np.broadcast_to(np.array([1.0, 0.0, 1.0], F32), (n, 3)), "Alpha": np.ones(n, F32)}
+    tex = hits.scene.textures[texture]
+    projection = op.option("projection", "FLAT")
+    if projection == "BOX":
+        color, alpha = _box(hits, tex, p, op)
+    else:
+        if projection in ("SPHERE", "TUBE"):  # from the [0, 1] box to [-1, 1] first
+            p = (map_to_sphere if projection == "SPHERE" else map_to_tube)((p - HALF) * F32(2.0))
+        color, alpha = _image_lookup(tex, p[:, 0], p[:, 1], op)
+    return {"Color": np.ascontiguousarray(color.T, F32), "Alpha": alpha.astype(F32)}
+
+
+def environment(hits, inputs, op):
+    """The Environment Texture node (svm_node_tex_environment): the direction, normalized, looked up in an
+    equirectangular map or a mirror ball."""
+    n = hits.n
+    texture = op.option("texture", -1)
+    if texture < 0:
+        return {"Color": np.broadcast_to(np.array([1.0, 0.0, 1.0], F32), (n, 3)), "Alpha": np.ones(n, F32)}
+    d = full(inputs["Vector"], n, 3)
+    length = np.sqrt(dot_rows_einsum(d, d))
+    d = d / np.where(length > 0, length, ONE)[:, None]
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    if op.option("projection", "EQUIRECTANGULAR") == "EQUIRECTANGULAR":
+        u = HALF - np.arctan2(y, x) * INV_2PI
+        v = ONE - np.arccos(np.clip(z, -ONE, ONE)) * INV_PI
+        zero = length == 0
+        u, v = np.where(zero, ZERO, u), np.where(zero, ZERO, v)
+    else:  # mirror ball: the inverse of Cycles' mirrorball_to_direction
+        y = y - ONE
+        div = F32(2.0) * np.sqrt(np.maximum(F32(-0.5) * y, ZERO))
+        div = np.where(div > 0, div, ONE)
+        u, v = HALF * (x / div + ONE), HALF * (z / div + ONE)
+    color, alpha = _image_lookup(hits.scene.textures[texture], u, v, op)
+    return {"Color": np.ascontiguousarray(color.T, F32), "Alpha": alpha.astype(F32)}
+
+
+# ---------------------------------------------------------------- lookups
+def _image_lookup(tex, u, v, op):
+    """(colour (3, n), alpha (n,)) of one image lookup, unassociated and decoded as the node asks."""
+    values = sample_texture(tex, u, v, op.option("interpolation", "Linear"), op.option("extension", "REPEAT"))
+    color = values[:3]
+    alpha = values[3] if tex.has_alpha else np.ones(len(u), F32)
+    if op.option("unassociate", False) and tex.has_alpha:
+        partial = (alpha != 0) & (alpha != 1)
+        color = np.where(partial, color / np.where(partial, alpha, ONE), color)
+    if tex.srgb:
+        color = srgb_to_linear(color)
+    return color, alpha
+
+
+def _box(hits, tex, p, op):
+    """Box projection: three planar lookups weighted by the object-space normal's share of each axis."""
+    signed = object_normal(hits, hits.N)
+    a = np.abs(signed)
+    a = a / np.maximum(a.sum(axis=1, keepdims=True), F32(1e-30))
+    weight = _box_weights(a[:, 0], a[:, 1], a[:, 2], F32(op.option("projection_blend", 0.0)))
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    planes = ((np.where(signed[:, 0] < 0, ONE - y, y), z), (np.where(signed[:, 1] > 0, ONE - x, x), z),
+              (np.where(signed[:, 2] > 0, ONE - y, y), x))
+    color = np.zeros((3, hits.n), F32)
+    alpha = np.zeros(hits.n, F32)
+    for k, (u, v) in enumerate(planes):
+        sel = np.flatnonzero(weight[k] > 0)
+        if len(sel):
+            c, al = _image_lookup(tex, u[sel], v[sel], op)
+            color[:, sel] += weight[k][sel] * c
+            alpha[sel] += weight[k][sel] * al
+    return color, alpha
+
+
+def _box_weights(nx, ny, nz, blend):
+    """(3, n) weights of the X, Y and Z projections (svm_node_tex_image_box's seven zones)."""
+    limit = HALF * (ONE + blend)
+    w = np.zeros((3, len(nx)), F32)
+    only_x = (nx > limit * (nx + ny)) & (nx > limit * (nx + nz))
+    only_y = ~only_x & (ny > limit * (nx + ny)) & (ny > limit * (ny + nz))
+    only_z = ~only_x & ~only_y & (nz > limit * (nx + nz)) & (nz > limit * (ny + nz))
+    rest = ~(only_x | only_y | only_z)
+    w[0, only_x], w[1, only_y], w[2, only_z] = 1, 1, 1
+    if not blend > 0:
+        w[0, rest] = 1  # Cycles falls back to one side
+        return w
+    with np.errstate(invalid="ignore", divide="ignore"):
+        def ramp(a, b):
+            return np.clip((a / (a + b) - HALF * (ONE - blend)) / blend, ZERO, ONE)
+        xy = rest & (nz < (ONE - limit) * (ny + nx))
+        yz = rest & ~xy & (nx < (ONE - limit) * (ny + nz))
+        xz = rest & ~xy & ~yz & (ny < (ONE - limit) * (nx + nz))
+        three = rest & ~xy & ~yz & ~xz
+        t = ramp(nx, ny)
+        w[0] = np.where(xy, t, w[0])
+        w[1] = np.where(xy, ONE - t, w[1])
+        t = ramp(ny, nz)
+        w[1] = np.where(yz, t, w[1])
+        w[2] = np.where(yz, ONE - t, w[2])
+        t = ramp(nx, nz)
+        w[0] = np.where(xz, t, w[0])
+        w[2] = np.where(xz, ONE - t, w[2])
+        for k, c in enumerate((nx, ny, nz)):
+            w[k] = np.where(three, ((F32(2.0) - limit) * c + (limit - ONE)) / (F32(2.0) * limit - ONE), w[k])
+    return w
+
+
+def map_to_sphere(p: np.ndarray) -> np.ndarray:
+    """Cycles' map_to_sphere (util/math_float3.h) of (n, 3) points: (u, v, 0), float32."""
+    p = np.asarray(p, F32)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    length2 = x * x + y * y + z * z
+    u = np.where((x == 0) & (y == 0), ZERO, HALF - np.arctan2(x, y) * INV_2PI)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = ONE - np.arccos(np.clip(z / np.sqrt(length2), -ONE, ONE)) * INV_PI
+    some = length2 > 0
+    return np.stack([np.where(some, u, ZERO), np.where(some, v, ZERO), np.zeros_like(u)], 1).astype(F32)
+
+
+def map_to_tube(p: np.ndarray) -> np.ndarray:
+    """Cycles' map_to_tube (util/math_float3.h) of (n, 3) points: (u, v, 0), float32."""
+    p = np.asarray(p, F32)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    length = np.sqrt(x * x + y * y)
+    some = length > 0
+    safe = np.where(some, length, ONE)
+    u = (ONE - np.arctan2(x / safe, y / safe) * INV_PI) * HALF
+    v = (z + ONE) * HALF
+    return np.stack([np.where(some, u, ZERO), np.where(some, v, ZERO), np.zeros_like(u)], 1).astype(F32)
+
+
+def _wrap(i: np.ndarray, size: int, extension: str):
+    """Texel indices under the extension mode, and which are inside (CLIP reads zero outside)."""
+    if extension == "REPEAT":
+        return np.mod(i, size), None
+    if extension == "MIRROR":
+        m = np.abs(i + (i < 0)) % (2 * size)
+        return np.where(m >= size, 2 * size - m - 1, m), None
+    inside = (i >= 0) & (i < size)
+    return np.clip(i, 0, size - 1), (inside if extension == "CLIP" else None)
+
+
+def _taps(x: np.ndarray, size: int, interpolation: str):
+    """Per axis: texel indices (k, n) int64 and weights (k, n) float32 of the filter."""
+    if interpolation == "Closest":
+        return np.floor(x * F32(size)).astype(np.int64)[None], np.ones((1, len(x)), F32)
+    s = x * F32(size) - HALF
+    i = np.floor(s)
+    t = (s - i).astype(F32)
+    i = i.astype(np.int64)
+    if interpolation in ("Cubic", "Smart"):
+        t2, t3 = t * t, t * t * t
+        w = np.stack([(ONE - t) ** 3 / F32(6.0), (F32(3.0) * t3 - F32(6.0) * t2 + F32(4.0)) / F32(6.0),
+                      (F32(-3.0) * t3 + F32(3.0) * t2 + F32(3.0) * t + ONE) / F32(6.0), t3 / F32(6.0)])
+        return np.stack([i - 1, i, i + 1, i + 2]), w.astype(F32)
+    return np.stack([i, i + 1]), np.stack([ONE - t, t])
+
+
+def sample_texture(tex, u, v, interpolation: str, extension: str):
+    """(C, n) filtered values of a kernels.textures.Texture at (u, v): colour (3 rows) and, for RGBA
+    textures, alpha. Each filter tap gathers just the n texels it reads (Texture.gather: as float32,
+    associated), weighs and sums them; the texture itself is never copied or converted whole."""
+    width, height = tex.width, tex.height
+    u = np.nan_to_num(np.clip(u, -1e6, 1e6), nan=0.0).astype(F32)
+    v = np.nan_to_num(np.clip(v, -1e6, 1e6), nan=0.0).astype(F32)
+    xi, xw = _taps(u, width, interpolation)
+    yi, yw = _taps(v, height, interpolation)
+    xi, x_in = _wrap(xi, width, extension)
+    yi, y_in = _wrap(yi, height, extension)
+    if extension == "CLIP":
+        xw = xw * x_in
+        yw = yw * y_in
+    out = np.zeros((4 if tex.has_alpha else 3, len(u)), F32)
+    for a in range(len(yi)):
+        row = yi[a] * width
+        for b in range(len(xi)):
+            out += tex.gather(row + xi[b]) * (yw[a] * xw[b])
+    return out
