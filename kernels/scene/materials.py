@@ -92,7 +92,7 @@ class Closure:
 
     kind : one of CLOSURE_KINDS.
     inputs : ((socket name, Param), ...) by Blender's input names ("Base Color", "Roughness", ...);
-        inputs left out take the node's defaults (kernels.shading.nodes). "Normal" and "Coat Normal"
+        inputs left out take the node's defaults (kernels.shading.node_context.DEFAULTS). "Normal" and "Coat Normal"
         may hold a NormalMap, "Tangent" a Tangent (INPUT_NODES); left out, they are the shading normal
         and an arbitrary tangent.
     options : ((name, value), ...) the node's enum settings, e.g. ("distribution", "MULTI_GGX").

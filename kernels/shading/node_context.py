@@ -220,7 +220,7 @@ def times_made(a, made):
 
 def soften(ctx) -> dict:
     """Diffuse closures on a normal map are softened by the bump shadowing term, unless the material
-    turns Bump Map Correction off (kernels.bsdf.closures)."""
+    turns Bump Map Correction off (kernels.bsdf.bump)."""
     return {} if ctx.bump_map_correction or not ctx.normal_given else {"soften": ZERO}
 
 
