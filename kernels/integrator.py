@@ -23,8 +23,7 @@ from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit, spawn_offset
 from .lights import nee
 from .paths import PathState, may_scatter, type_limits
-from .rng import PathRng, seed_paths
-from .samples import BSDF, LENS, LIGHT, LOBE, TIME, Samples, sample_strata
+from .samples import BSDF, LENS, LIGHT, LOBE, TIME, Samples
 from .settings import RenderSettings
 
 # Russian roulette decides on the surfaces that rays hit once their path has scattered this many times
@@ -553,62 +552,6 @@ class Rays(NamedTuple):
     origins: np.ndarray
     dirs: np.ndarray
     t_max: np.ndarray
-
-
-class GivenPaths:
-    """Paths given whole: their random number streams, rows, columns and strata (trace_paths)."""
-    spp = 1   # paths per pixel side by side (a batch starts anywhere)
-
-    def __init__(self, rng: PathRng, row, col, strata):
-        self.rng, self.row, self.col, self.strata = rng, row, col, strata
-
-    def __len__(self) -> int:
-        return len(self.row)
-
-    def batch(self, start: int, end: int):
-        """(PathRng, row, col, strata) of the paths [start, end)."""
-        if start == 0 and end == len(self.row):
-            return self.rng, self.row, self.col, self.strata
-        part = slice(start, end)
-        # (A stratum shared by every path is one value.)
-        strata = None if self.strata is None else tuple(s if np.size(s) == 1 else s[part] for s in self.strata)
-        return PathRng(self.rng.x[part], self.rng.y[part]), self.row[part], self.col[part], strata
-
-
-class WavePaths:
-    """The paths of a wave, pixel-major: path k is sample first + k % spp of pixel pixels[k // spp] of the
-    band of image rows `rows` (a range; its pixels numbered along its rows of `width`, from column x0). What a
-    path starts from is made for each batch as it starts (the same values as for the whole wave at once)."""
-
-    def __init__(self, settings, camera, x0: int, rows: range, width: int, pixels: np.ndarray, first: int,
-                 spp: int):
-        self.settings, self.camera = settings, camera
-        self.x0, self.rows, self.width = x0, rows, width
-        self.pixels, self.first, self.spp = pixels, first, spp
-
-    def __len__(self) -> int:
-        return len(self.pixels) * self.spp
-
-    def pixel_and_sample(self, start: int = 0, end: int | None = None):
-        """(pixel (n,) int64 within the band, sample (n,) uint32) of the paths [start, end)."""
-        k = np.arange(start, len(self) if end is None else end, dtype=np.int64)
-        return np.take(self.pixels, k // self.spp), (self.first + k % self.spp).astype(np.uint32)
-
-    def batch(self, start: int, end: int):
-        """(PathRng, row, col, strata) of the paths [start, end)."""
-        settings, cam, spp = self.settings, self.camera, self.spp
-        pix, sample = self.pixel_and_sample(start, end)
-        row = (pix // self.width * self.rows.step + self.rows.start).astype(np.int32)
-        col = (pix % self.width + self.x0).astype(np.int32)
-        pixel_index = row.astype(np.uint32) * np.uint32(cam.width) + col.astype(np.uint32)
-        rng = PathRng(*seed_paths(pixel_index, sample, settings.seed))
-        # Whole pixels: each pixel's place in the sequence is found once for its spp paths.
-        whole = start % spp == 0 and (end - start) % spp == 0
-        strata = sample_strata(settings.sampling_pattern, settings.seed, cam.width, cam.height,
-                               int(settings.sample_offset) + int(settings.samples), row, col, pixel_index, sample,
-                               ranged=int(settings.sample_offset) > 0, first=bool(settings.blue_noise_first),
-                               repeats=spp if whole else 1)
-        return rng, row, col, strata
 
 
 def _concat_rays(a: Rays, b: Rays) -> Rays:

@@ -21,6 +21,7 @@ from .coincident import Coincident
 from .geometry import TriangleTable, prototype_boxes, scene_extent
 from .lights import LightSampler
 from .memory import kept_heap, small_pages, trim_heap
+from .paths import GivenPaths, WavePaths
 from .rng import PathRng
 from .camera import camera_frame
 from .scene import (OBJ_TERMINATOR, TERMINATOR_OFFSET, Camera, Lights, Materials, SceneArrays, World, same_arrays,
@@ -358,7 +359,7 @@ class Renderer:
         npix = rows * width
         pixels = np.arange(npix, dtype=np.int64) if active is None else np.flatnonzero(active)
         image_rows = range(y0 + band.start, y0 + band.stop, band.step)
-        paths = integrator.WavePaths(settings, self.scene.camera, x0, image_rows, width, pixels, first_sample, spp)
+        paths = WavePaths(settings, self.scene.camera, x0, image_rows, width, pixels, first_sample, spp)
         n = len(paths)
         # Overflow and invalid values are expected at the edges of float32 (huge lights, degenerate
         # geometry): the paths they spoil are dropped and counted below, not printed by NumPy. errstate
@@ -389,7 +390,7 @@ class Renderer:
         strata = (pixel, sample, index) per path (samples.sample_strata): in NEE_MIS mode the camera
         jitter and the first vertex's light and BSDF numbers then come from the stratified sequence (the
         rest of the path, and the LECTURE and COSINE modes, use the PCG2D stream alone). live: see _trace."""
-        return integrator.trace(self, integrator.GivenPaths(rng, row, col, strata), settings, split, aux, live)
+        return integrator.trace(self, GivenPaths(rng, row, col, strata), settings, split, aux, live)
 
 
 def _same_instances(a, b) -> bool:

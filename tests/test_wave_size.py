@@ -132,7 +132,7 @@ def test_a_batch_starts_from_what_the_whole_wave_would():
     """WavePaths makes what each path starts from (pixel, sample, random numbers, strata) as its batch
     starts: the same values as made for the whole wave, for batches of whole pixels and of parts of one.
     The wave's band is every third row from row 12 (interleaved bands): its pixels are on those rows."""
-    from ember.kernels.integrator import WavePaths
+    from ember.kernels.paths import WavePaths
     scenes.cornell_scene(48, 32)
     camera = export_current().scene.camera
     pixels = np.flatnonzero(np.random.default_rng(3).random(48 * 5) < 0.7)  # an adaptive wave's pixels
