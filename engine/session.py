@@ -29,7 +29,7 @@ import numpy as np
 from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays, prestart_workers
 from ..kernels.accel import capped_threads
 from .export import ExportCancelled, ExportError, export_scene
-from .export.mesh import MeshCache
+from .export.geometry import MeshCache
 from .export.camera import render_region
 from .export.motion import sample_motion, sample_vector_motion
 from . import cryptomatte
@@ -551,7 +551,7 @@ class _KeptScene:
 
     def __init__(self):
         self.renderer: Renderer | None = None
-        self.meshes = MeshCache()     # the meshes the export read for the last frame (export.mesh.MeshCache)
+        self.meshes = MeshCache()     # the meshes the export read for the last frame (export.geometry.MeshCache)
         self.updated = 0     # frames that took the kept renderer, and frames that built one (tests read them)
         self.built = 0
 
