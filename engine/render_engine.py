@@ -8,7 +8,8 @@ import traceback
 import bpy
 
 from .passes import register_passes
-from .session import FinalRender, drop_kept_scene
+from .persistent import drop_kept_scene
+from .session import FinalRender
 from .viewport import new_viewport, stop_all_sessions
 
 

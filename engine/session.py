@@ -6,8 +6,9 @@
                         Blender only through callbacks, the way Cycles' session knows it only through
                         an output driver.
     FinalRender         one F12: export, then a ProgressiveSession on the render job's thread streaming
-                        rows into Blender's RenderResult; passes, Cryptomatte metadata, the final
-                        denoise and Persistent Data's kept renderer (kept) are its own.
+                        rows into Blender's RenderResult (through result_writer.ResultWriter: passes,
+                        Cryptomatte metadata) and the final denoise; it takes Persistent Data's kept
+                        renderer from persistent.kept.
 
 The viewport (viewport.ViewportSession) runs a ProgressiveSession on its worker thread and publishes
 frames. Sync once, snapshot, let go: everything is read from the depsgraph before the kernel starts.
@@ -29,12 +30,13 @@ import numpy as np
 from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays, prestart_workers
 from ..kernels.accel import capped_threads
 from .export import ExportCancelled, ExportError, export_scene
-from .export.mesh import MeshCache
 from .export.camera import render_region
 from .export.motion import sample_motion, sample_vector_motion
 from . import cryptomatte
 from .film_denoise import NonFiniteTile, denoise_film, denoised_film, final_options
 from .passes import enabled_passes, kernel_passes, mist_settings
+from .persistent import kept, persistent_data
+from .result_writer import WRITE_CHUNK_PIXELS, ResultWriter
 from .version import EMBER_VERSION
 
 # The Image Editor is refreshed at most this often (Cycles updates a few times a second); the first and
@@ -43,8 +45,6 @@ DISPLAY_INTERVAL_S = 0.25
 # Denoised progressive display of interactive final renders: at most this often (and at most a quarter of
 # the time: PreviewDenoiser).
 PREVIEW_DENOISE_INTERVAL_S = 1.0
-# Rows go to Blender in sub-results of at most this many pixels (4 MB of float32 RGBA each).
-WRITE_CHUNK_PIXELS = 1 << 18
 # In background mode (command line, render farms) a progress line is printed at most this often.
 PRINT_INTERVAL_S = 2.0
 
@@ -267,7 +267,7 @@ class FinalRender:
         self._region: Region | None = None
         self._dirty: tuple[int, int] | None = None  # region rows changed since they were last written
         self.cancelled = False
-        self._passes = []           # engine.passes.Pass, besides Combined
+        self._result = ResultWriter(engine, depsgraph.view_layer.name)
         self._denoise = False
         self._previews = None       # denoised progressive display (interactive final renders)
         self._crypto_names = {}     # Cryptomatte kind -> names (the manifests)
@@ -301,7 +301,7 @@ class FinalRender:
         self._region = self._find_region(width, height)
         settings = render_settings(scene, (self._region.x0, self._region.y0, self._region.x1, self._region.y1))
         view_layer = self.depsgraph.view_layer
-        self._passes = enabled_passes(scene, view_layer)
+        self._result.passes = enabled_passes(scene, view_layer)
         self._denoise = bool(scene.ember.use_denoising)
         if self._denoise and not _background():
             self._previews = PreviewDenoiser((scene.ember.denoising_quality, scene.ember.denoising_prefilter),
@@ -344,7 +344,7 @@ class FinalRender:
                         + renderer.crew.worker_failures[failures]])
         options = final_options(scene.ember, result.stopped_early, self.should_stop())
         denoised = options is not None and result.film.samples_done > 0 and self._denoise_final(result.film, options)
-        self._stamp_metadata(result.film, denoised)
+        self._result.stamp_metadata(result.film, denoised, scene.ember, self._crypto_names)
         self._finish_message(result, exported)
 
     def _build(self, scene: SceneArrays, threads: int, persistent: bool) -> Renderer:
@@ -353,22 +353,6 @@ class FinalRender:
         updated = kept.take(scene, threads) if persistent else None
         return updated if updated is not None else Renderer(scene, threads=threads, should_stop=self.should_stop,
                                                             reuse=kept.renderer if persistent else None)
-
-    def _stamp_metadata(self, film, denoised: bool) -> None:
-        """The render's metadata (on Blender's whole result, as Cycles stamps its own): the samples it holds
-        and their offset (python -m ember merge weighs partial renders by them), and the Cryptomatte
-        manifests (the compositor's Cryptomatte node and other tools read names from them)."""
-        full = self.engine.get_result()
-        if full is None:
-            return
-        full.stamp_data_add_field("ember.samples", str(film.samples_done))
-        full.stamp_data_add_field("ember.sample_offset", str(int(self.scene.ember.sample_offset)))
-        full.stamp_data_add_field("ember.adaptive", "1" if self.scene.ember.use_adaptive_sampling else "0")
-        full.stamp_data_add_field("ember.denoised", "1" if denoised else "0")
-        for kind in film.crypto:
-            for key, value in cryptomatte.metadata(self.depsgraph.view_layer.name, kind,
-                                                   self._crypto_names.get(kind, ())).items():
-                full.stamp_data_add_field(key, value)
 
     def _denoise_final(self, film, options: tuple) -> bool:
         """Denoise the finished image with options (quality, prefilter), each tile written to Blender as it
@@ -382,7 +366,7 @@ class FinalRender:
             step = max(1, WRITE_CHUNK_PIXELS // max(rgb.shape[1], 1))
             for r0 in range(rows.start, rows.stop, step):
                 r1 = min(rows.stop, r0 + step)
-                self.write_rows(film, r0, r1, cols, rgb[r0 - rows.start:r1 - rows.start])
+                self._result.write_rows(film, r0, r1, cols, rgb[r0 - rows.start:r1 - rows.start])
             written = max(written, rows.stop)
 
         self._last_print = -math.inf   # the denoise's first line is printed at once
@@ -457,7 +441,7 @@ class FinalRender:
             self._flush(film)
         else:  # the whole region, denoised: Cycles' progressive display does the same
             self._dirty = None
-            self._write_combined(denoised, film)
+            self._result.write_combined(denoised, film)
 
     def _on_progress(self, progress, line: str) -> None:
         self.engine.update_stats("", line)
@@ -475,51 +459,7 @@ class FinalRender:
         self._dirty = None
         step = max(1, WRITE_CHUNK_PIXELS // max(film.width, 1))
         for r0 in range(row0, row1, step):
-            self.write_rows(film, r0, min(row1, r0 + step))
-
-    def write_rows(self, film, row0: int, row1: int, cols: slice | None = None,
-                   denoised: np.ndarray | None = None) -> None:
-        """Region rows [row0, row1) (row 0 at the top) and columns cols (None: all) -> a sub-result of
-        Blender's (rows bottom-up, coordinates relative to the border region when there is one), with every
-        pass: Blender merges each pass of a sub-result, written or not. denoised: the (rows, cols, 3) colour
-        to write as Combined (the film's own then goes to Noisy Image)."""
-        cols = slice(0, film.width) if cols is None else cols
-        rows = film.resolve(row0, row1)[:, cols]
-        combined = rows if denoised is None else np.concatenate([denoised, rows[..., 3:]], axis=-1)
-        result = self.engine.begin_result(cols.start, film.height - row1, cols.stop - cols.start, row1 - row0,
-                                          layer=self.depsgraph.view_layer.name)
-        try:
-            layer = result.layers[0]
-            _set_rect(layer, "Combined", combined)
-            crypto = {}
-            for p in self._passes:
-                if p.kernel.startswith("crypto:"):
-                    _, kind, index = p.kernel.split(":")
-                    if kind not in crypto:
-                        crypto[kind] = film.resolve_crypto(kind, row0, row1)[:, cols]
-                    _set_rect(layer, p.name, crypto[kind][..., 4 * int(index):4 * int(index) + 4])
-                elif p.kernel:
-                    values = film.resolve_pass(p.kernel, row0, row1)[:, cols]
-                    if p.channels == 4 and values.shape[-1] == 3:  # an RGBA AOV: opaque
-                        values = np.concatenate([values, np.ones(values.shape[:-1] + (1,), np.float32)], axis=-1)
-                    _set_rect(layer, p.name, values)
-                else:
-                    _set_rect(layer, p.name, rows)
-
-        finally:
-            self.engine.end_result(result)
-
-    def _write_combined(self, image: np.ndarray, film) -> None:
-        """The whole region's Combined pass (the denoised image), in chunks of rows."""
-        step = max(1, WRITE_CHUNK_PIXELS // max(film.width, 1))
-        for row0 in range(0, film.height, step):
-            row1 = min(film.height, row0 + step)
-            result = self.engine.begin_result(0, film.height - row1, film.width, row1 - row0,
-                                              layer=self.depsgraph.view_layer.name)
-            try:
-                _set_rect(result.layers[0], "Combined", image[row0:row1])
-            finally:
-                self.engine.end_result(result)
+            self._result.write_rows(film, r0, min(row1, r0 + step))
 
     def _finish_message(self, result, exported) -> None:
         p = result.progress
@@ -534,71 +474,6 @@ class FinalRender:
         self.engine.update_stats("", message)
         if _background():
             print(f"Ember | Frame {self.scene.frame_current} | {message}", flush=True)
-
-
-def persistent_data(scene) -> bool:
-    """Blender's Persistent Data (Render Properties > Performance > Final Render, as for Cycles): keep the
-    built scene between final renders, so the frames of an animation reuse what did not change."""
-    return bool(scene.render.use_persistent_data)
-
-
-class _KeptScene:
-    """The renderer of the last final render, kept while Persistent Data is on (one per process: frames
-    render one after another). The next frame takes it when only transforms, materials, lights or the
-    camera changed (Renderer.update_scene), or else builds anew reusing the BVHs of the meshes that did not
-    change (Renderer(reuse=...)). With every mesh an instance (export_scene(instance_everything=True)), a
-    moved object changes only its transform, as in the viewport."""
-
-    def __init__(self):
-        self.renderer: Renderer | None = None
-        self.meshes = MeshCache()     # the meshes the export read for the last frame (export.mesh.MeshCache)
-        self.updated = 0     # frames that took the kept renderer, and frames that built one (tests read them)
-        self.built = 0
-
-    def take(self, scene, threads: int) -> Renderer | None:
-        """The kept renderer updated to `scene`, or None when it cannot be (then build one)."""
-        renderer = self.renderer
-        if renderer is None or renderer.accel.threads != capped_threads(threads):
-            return None
-        if not renderer.update_scene(scene):
-            return None
-        self.updated += 1
-        return renderer
-
-    def set(self, renderer: Renderer) -> None:
-        if renderer is not self.renderer:
-            if self.renderer is not None:
-                self.renderer.close()
-            self.renderer = renderer
-            self.built += 1
-
-    def drop(self) -> None:
-        if self.renderer is not None:
-            self.renderer.close()
-            self.renderer = None
-        self.meshes = MeshCache()
-
-    def __enter__(self):
-        return self.renderer
-
-    def __exit__(self, kind, *exc):
-        if kind is not None:   # a failed render keeps nothing
-            self.drop()
-
-
-kept = _KeptScene()
-
-
-def drop_kept_scene() -> None:
-    """Free the renderer Persistent Data kept (unregister, or Persistent Data turned off)."""
-    kept.drop()
-
-
-def _set_rect(layer, name: str, rows: np.ndarray) -> None:
-    """Rows (row 0 at the top) into a render result pass (Blender's rows go bottom-up)."""
-    target = layer.passes.get(name)
-    if target is not None:
-        target.rect.foreach_set(np.ascontiguousarray(rows[::-1], dtype=np.float32).ravel())
 
 
 # Set by the command line's interrupt handler; every final render polls it with Esc.

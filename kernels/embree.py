@@ -7,7 +7,7 @@ reaches the same Embree library that embreex ships (no new dependency) and uses 
 leaves out:
 
 - rtcSetSharedGeometryBuffer: Embree reads vertices and indices straight from NumPy arrays (kept alive by
-  the Mesh object), no copy; a 1M-triangle indexed mesh commits about 5x faster than embreex's flat one.
+  the Mesh object), no copy: a commit skips embreex's copy of three corners per triangle and its memory.
 - RTC_GEOMETRY_TYPE_INSTANCE: a mesh's BVH is built once and placed by any number of 3x4 transforms,
   Cycles' and Embree's two-level layout; the top level is tiny, so memory grows with unique geometry.
   Instances move without rebuilding any mesh BVH (Scene.set_transforms: rtcGetGeometry,
@@ -18,9 +18,8 @@ leaves out:
   rtcSetSceneProgressMonitorFunction can cancel.
 - rtcIntersect16 / rtcOccluded16 on packets laid out by NumPy (Embree's SOA RTCRayHit16): one ctypes
   call per 16 rays, with the GIL released while Embree traces. It reports which instance a ray hit, which
-  embreex's loop does not. Measured against embreex's single-ray loop on 1M rays into a 1M-triangle mesh:
-  the same hits and distances bit for bit; about 10% slower for closest hits and up to 60% for short
-  shadow rays (packing and one Python-level call per 16 rays).
+  embreex's loop does not, and finds the same hits and distances bit for bit; but packing the rays and one
+  Python-level call per 16 rays cost more than embreex's Cython loop, most for short shadow rays.
 
 So every query that needs no instance id (all queries of a scene without instances, and shadow rays of
 any scene) runs through embreex's Cython loop on the scene built here: `Scene.embreex()` hands embreex an

@@ -132,8 +132,8 @@ class Renderer:
         self.prototype_boxes = prototype_boxes(self.scene)
         self.ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self.prototype_boxes))
         self.lights = self._light_sampler()
-        self._find_coincident()
-        self._find_terminator()
+        self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon)
+        self.terminator = terminator_offsets(self.scene)
         poll()
 
     def _build_shading(self) -> None:
@@ -151,28 +151,7 @@ class Renderer:
         # such as the default material's, do not count).
         layered = self.shading.layered
         used = np.bincount(self.triangles.material_ids, minlength=len(layered))[:len(layered)] > 0
-        self._layered = bool((layered & used).any())
-
-    def _find_terminator(self) -> None:
-        """Each object row's Shadow Terminator Geometry Offset (SceneArrays.objects), one for all without an
-        object table, or None when every object has it off."""
-        objects = self.scene.objects
-        if objects is None or not len(objects):
-            self.terminator = np.float32(TERMINATOR_OFFSET)
-            return
-        values = objects[:, OBJ_TERMINATOR]
-        self.terminator = values if (values > 0).any() else None
-
-    def _find_coincident(self) -> None:
-        """The coincident partners of the static plain triangles rays may pass through (kernels.coincident)."""
-        through = np.take(self.shading.transmissive, self.scene.material_ids) if len(self.scene.material_ids) \
-            else np.zeros(0, bool)
-        if self.scene.motion_ids is not None and self.scene.has_motion:
-            through &= self.scene.motion_ids < 0
-        eps = self.ray_epsilon
-        self.coincident = Coincident.find(self.scene.positions, through,
-                                           lambda size: eps + np.float32(2.0 ** -16) * size, self.scene.object_ids) \
-            if through.any() else None
+        self.layered = bool((layered & used).any())
 
     def _light_sampler(self) -> LightSampler:
         return LightSampler(self.scene, self.environment, _Emitters(self))
@@ -188,7 +167,7 @@ class Renderer:
         return min(self.wave_size(settings), self._live_paths())
 
     def _live_paths(self) -> int:
-        return schedule.LAYERED_WAVE_SIZE if self._layered else schedule.WAVE_SIZE
+        return schedule.LAYERED_WAVE_SIZE if self.layered else schedule.WAVE_SIZE
 
     @_forwarded
     def set_camera(self, camera: Camera) -> None:
@@ -241,7 +220,7 @@ class Renderer:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             self.triangles.place(moved)
         self.shading.data.set_objects(scene.objects)
-        self._find_terminator()
+        self.terminator = terminator_offsets(self.scene)
         self.ray_epsilon = _ray_epsilon(*scene_extent(scene, self.prototype_boxes))
         if emitters_moved and lights:
             self.lights = self._light_sampler()
@@ -269,7 +248,7 @@ class Renderer:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             self._build_shading()
             self.lights = self._light_sampler()
-            self._find_coincident()
+            self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon)
 
     @_forwarded
     def update_scene(self, scene: SceneArrays) -> bool:
@@ -293,7 +272,7 @@ class Renderer:
         elif new.objects is not None:
             self.scene = dataclasses.replace(self.scene, objects=new.objects)
             self.shading.data.set_objects(new.objects)
-            self._find_terminator()
+            self.terminator = terminator_offsets(self.scene)
         # The lights go in first: update_materials then builds the light sampler once, for everything.
         self.scene = dataclasses.replace(self.scene, lights=new.lights)
         self.update_materials(new.materials, new.textures, new.texture_srgb, new.world)
@@ -401,6 +380,26 @@ def _same_instances(a, b) -> bool:
     return (len(a.prototypes) == len(b.prototypes) and same_arrays(a.prototype, b.prototype)
             and same_arrays(a.object_ids, b.object_ids)
             and all(same_triangles(p, q) for p, q in zip(a.prototypes, b.prototypes)))
+
+def terminator_offsets(scene: SceneArrays):
+    """Each object row's Shadow Terminator Geometry Offset (SceneArrays.objects), one for all without an
+    object table, or None when every object has it off."""
+    objects = scene.objects
+    if objects is None or not len(objects):
+        return np.float32(TERMINATOR_OFFSET)
+    values = objects[:, OBJ_TERMINATOR]
+    return values if (values > 0).any() else None
+
+
+def coincident_partners(scene: SceneArrays, shading, ray_epsilon) -> Coincident | None:
+    """The coincident partners of the static plain triangles rays may pass through (kernels.coincident)."""
+    through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
+    if scene.motion_ids is not None and scene.has_motion:
+        through &= scene.motion_ids < 0
+    eps = ray_epsilon
+    return Coincident.find(scene.positions, through, lambda size: eps + np.float32(2.0 ** -16) * size,
+                           scene.object_ids) if through.any() else None
+
 
 
 class _Emitters:

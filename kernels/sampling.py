@@ -171,9 +171,9 @@ class SphericalRectangle:
 def balance_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
     """MIS weight of the strategy with pdf_a (beta = 1). Infinite pdf_a (a delta) gets weight 1. The world's
     light samples and BSDF rays use it when the world's distribution is compensated (environment.Environment.
-    mis_balance): MIS compensation is derived for it, and it measured 8-15% less variance than the power
-    heuristic under forest.exr and interior.exr (19% more under 200 small lamps, which keep the power
-    heuristic)."""
+    mis_balance): MIS compensation is derived for it, so the compensated world is less noisy with it than
+    with the power heuristic; many small lamps are noisier with it and keep the power heuristic
+    (docs/architecture.md, Next-event estimation)."""
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         w = pdf_a / (pdf_a + pdf_b)
     return np.where(np.isfinite(w), w, np.where(pdf_a > 0, np.float32(1.0), np.float32(0.0))).astype(np.float32)

@@ -179,10 +179,10 @@ def _blender_scene():
 
 
 def test_blender_instances_are_exported_once_and_render_as_copies(monkeypatch):
-    import ember.engine.export.mesh as mesh_export
+    import ember.engine.export.instances as instances_export
     from bpy_helpers import export_current, render_to_array
     scene = _blender_scene()
-    monkeypatch.setattr(mesh_export, "INSTANCE_MIN_TRIANGLES", 1)
+    monkeypatch.setattr(instances_export, "INSTANCE_MIN_TRIANGLES", 1)
     result = export_current()
     inst = result.scene.instances
     assert inst is not None and len(inst.prototypes) == 1 and inst.count == 5
@@ -190,7 +190,7 @@ def test_blender_instances_are_exported_once_and_render_as_copies(monkeypatch):
     # Each instance keeps its own object row (Object Info > Random differs per copy).
     assert len(set(result.scene.objects[inst.object_ids, OBJ_RANDOM].tolist())) == 5
     instanced = render_to_array(scene, "EMBER", 16, seed=5)
-    monkeypatch.setattr(mesh_export, "INSTANCE_MIN_TRIANGLES", 10**12)
+    monkeypatch.setattr(instances_export, "INSTANCE_MIN_TRIANGLES", 10**12)
     assert export_current().scene.instances is None
     flat = render_to_array(scene, "EMBER", 16, seed=5)
     assert instanced[..., :3].mean() > 0.05
@@ -202,9 +202,9 @@ def test_blender_instances_are_exported_once_and_render_as_copies(monkeypatch):
 def test_moving_instances_stay_plain(monkeypatch):
     """Motion blur moves plain triangles: a mesh with a moving instance is not instanced."""
     import bpy
-    import ember.engine.export.mesh as mesh_export
+    import ember.engine.export.instances as instances_export
     scene = _blender_scene()
-    monkeypatch.setattr(mesh_export, "INSTANCE_MIN_TRIANGLES", 1)
+    monkeypatch.setattr(instances_export, "INSTANCE_MIN_TRIANGLES", 1)
     mover = bpy.data.objects["Copy0"]
     mover.keyframe_insert("location", frame=1)
     mover.location.x += 1

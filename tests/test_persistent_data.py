@@ -13,7 +13,7 @@ import tempfile
 
 from bpy_helpers import diffuse_material, load_exr, new_scene, quad_object, render_to_array, set_world
 
-import ember.engine.session as session
+import ember.engine.persistent as persistent
 
 
 def _animated_scene():
@@ -41,10 +41,10 @@ def _animated_scene():
 
 @pytest.fixture(autouse=True)
 def _fresh_kept_scene():
-    session.drop_kept_scene()
-    session.kept.updated = session.kept.built = 0
+    persistent.drop_kept_scene()
+    persistent.kept.updated = persistent.kept.built = 0
     yield
-    session.drop_kept_scene()
+    persistent.drop_kept_scene()
 
 
 def _frame(scene, frame):
@@ -63,16 +63,16 @@ def _frame(scene, frame):
 def test_moved_object_and_edited_light_update_the_kept_scene():
     scene = _animated_scene()
     _frame(scene, 1)
-    assert session.kept.built == 1 and session.kept.renderer is not None
-    assert session.kept.meshes.reads == 3                              # floor, ball, cube
+    assert persistent.kept.built == 1 and persistent.kept.renderer is not None
+    assert persistent.kept.meshes.reads == 3                              # floor, ball, cube
     second = _frame(scene, 2)
-    assert session.kept.built == 1 and session.kept.updated == 1      # updated, not built again
+    assert persistent.kept.built == 1 and persistent.kept.updated == 1      # updated, not built again
     # Blender kept the render depsgraph, whose updates name only the cube's transform and the lamp: the
     # export reuses the meshes it read for frame 1.
-    assert session.kept.meshes.reads == 0
-    session.drop_kept_scene()
+    assert persistent.kept.meshes.reads == 0
+    persistent.drop_kept_scene()
     fresh = _frame(scene, 2)
-    assert session.kept.built == 2
+    assert persistent.kept.built == 2
     np.testing.assert_array_equal(second, fresh)
     assert not np.array_equal(second, _frame(scene, 1))               # the frames do differ
 
@@ -90,11 +90,11 @@ def test_a_deformed_mesh_rebuilds_and_the_others_keep_their_bvh():
     key.keyframe_insert("value", frame=2)
     _frame(scene, 1)
     second = _frame(scene, 2)
-    assert session.kept.built == 2 and session.kept.updated == 0
-    assert session.kept.meshes.reads == 1                   # the ball alone is read again
-    accel = session.kept.renderer.accel
+    assert persistent.kept.built == 2 and persistent.kept.updated == 0
+    assert persistent.kept.meshes.reads == 1                   # the ball alone is read again
+    accel = persistent.kept.renderer.accel
     assert accel.meshes_reused == len(accel.meshes) - 1       # all but the deformed ball's
-    session.drop_kept_scene()
+    persistent.drop_kept_scene()
     np.testing.assert_array_equal(second, _frame(scene, 2))
 
 
@@ -102,4 +102,4 @@ def test_without_persistent_data_nothing_is_kept():
     scene = _animated_scene()
     scene.render.use_persistent_data = False
     _frame(scene, 1)
-    assert session.kept.renderer is None and session.kept.built == 0
+    assert persistent.kept.renderer is None and persistent.kept.built == 0

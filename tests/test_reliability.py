@@ -196,15 +196,15 @@ def test_ctrl_c_keeps_finished_frames_saves_nothing_else_and_exits_130(tmp_path)
 def test_esc_is_heard_during_export_and_scene_build(monkeypatch):
     """FinalRender.should_stop is Esc (engine.test_break, always False headless) or Ctrl-C on the
     command line; it is made True here at two moments."""
-    import ember.engine.export.mesh as mesh_export
+    import ember.engine.export.geometry as geometry_export
     import ember.engine.session as session
     from ember.kernels import renderer as renderer_module
     scene = small_scene()
     for i in range(20):
         mesh_object(f"Tri{i}", [(i, 0, 0), (i + 1, 0, 0), (i, 0, 1)], [(0, 1, 2)])
     reads, builds = [], []
-    read_mesh, accel = mesh_export.read_mesh, renderer_module.Accel
-    monkeypatch.setattr(mesh_export, "read_mesh", lambda m: reads.append(1) or read_mesh(m))
+    read_mesh, accel = geometry_export.read_mesh, renderer_module.Accel
+    monkeypatch.setattr(geometry_export, "read_mesh", lambda m: reads.append(1) or read_mesh(m))
     monkeypatch.setattr(renderer_module, "Accel", lambda *a, **k: builds.append(1) or accel(*a, **k))
 
     monkeypatch.setattr(session.FinalRender, "should_stop", lambda self: True)

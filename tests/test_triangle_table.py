@@ -30,7 +30,7 @@ def test_deferred_rows_equal_the_built_table(monkeypatch):
     monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
     scene = _plain_scene()
     eager, deferred = TriangleTable(scene), TriangleTable(scene, deferred=True)
-    assert deferred._rows is None        # nothing built yet: gathers compute their rows
+    assert not deferred.rows_built        # nothing built yet: gathers compute their rows
     total = len(scene.positions)
     prim = np.random.default_rng(1).integers(0, total, 3 * total).astype(np.int32)
     b1 = np.random.default_rng(3).uniform(0, 0.5, len(prim)).astype(np.float32)
@@ -43,11 +43,11 @@ def test_deferred_rows_equal_the_built_table(monkeypatch):
             np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
 
     check()
-    assert deferred._rows is None
+    assert not deferred.rows_built
     deferred.build_rows()
     deferred.build_rows()                # a second call starts nothing more
-    deferred._building.join()
-    assert deferred._rows is not None and deferred._source is None
+    deferred.wait_rows()
+    assert deferred.rows_built and deferred._source is None
     check()
     np.testing.assert_array_equal(deferred.rows, eager.rows)
     # .rows builds the table when it is asked for before build_rows.
@@ -68,7 +68,7 @@ def test_a_mesh_without_uvs_gives_the_same_rows_as_zeros(monkeypatch):
     prim = np.random.default_rng(1).integers(0, len(dense.positions), 200).astype(np.int32)
     np.testing.assert_array_equal(deferred.gather(prim), eager.gather(prim))
     deferred.build_rows()
-    deferred._building.join()
+    deferred.wait_rows()
     np.testing.assert_array_equal(deferred.rows, eager.rows)
     # A non-finite row seen by every corner is repaired to zeros, as the array would be.
     bad = dataclasses.replace(dense, uvs=np.broadcast_to(np.full((1, 1, 2), np.nan, np.float32), dense.uvs.shape))
@@ -78,11 +78,11 @@ def test_a_mesh_without_uvs_gives_the_same_rows_as_zeros(monkeypatch):
 def test_small_or_instanced_scenes_build_at_once(monkeypatch):
     scene = _plain_scene()
     assert len(scene.positions) < geometry.DEFERRED_ROWS
-    assert TriangleTable(scene, deferred=True)._rows is not None
+    assert TriangleTable(scene, deferred=True).rows_built
     # Instances place their rows as they are gathered: their table is never deferred, whatever its size.
     monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
-    assert TriangleTable(_scene().validate().scene, deferred=True)._rows is not None
-    assert TriangleTable(scene, deferred=True)._rows is None
+    assert TriangleTable(_scene().validate().scene, deferred=True).rows_built
+    assert not TriangleTable(scene, deferred=True).rows_built
 
 
 @pytest.mark.parametrize("mode", ["computed", "built"])
@@ -92,7 +92,7 @@ def test_renders_are_the_same_deferred_or_not(monkeypatch, mode):
     scene = _plain_scene()
     settings = RenderSettings(samples=4, seed=5)
     with Renderer(scene, threads=2) as renderer:
-        assert renderer.triangles._rows is not None
+        assert renderer.triangles.rows_built
         reference = renderer.render(settings).image
     monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
     if mode == "computed":
@@ -100,9 +100,9 @@ def test_renders_are_the_same_deferred_or_not(monkeypatch, mode):
     with Renderer(scene, threads=2) as renderer:
         if mode == "built":
             renderer.triangles.build_rows()
-            renderer.triangles._building.join()
+            renderer.triangles.wait_rows()
         image = renderer.render(settings).image
-        assert (renderer.triangles._rows is None) == (mode == "computed")
+        assert (not renderer.triangles.rows_built) == (mode == "computed")
     np.testing.assert_array_equal(image, reference)
 
 
@@ -112,11 +112,11 @@ def test_the_table_is_built_once_a_render_has_more_than_its_quick_first_pass(mon
     monkeypatch.setattr(geometry, "DEFERRED_ROWS", 1)
     with Renderer(_plain_scene(), threads=2) as renderer:
         renderer.render(RenderSettings(samples=1, seed=5))
-        assert renderer.triangles._building is None and renderer.triangles._rows is None
+        assert not renderer.triangles.building and not renderer.triangles.rows_built
         renderer.render(RenderSettings(samples=4, seed=5))
-        assert renderer.triangles._building is not None
-        renderer.triangles._building.join()
-        assert renderer.triangles._rows is not None
+        assert renderer.triangles.building
+        renderer.triangles.wait_rows()
+        assert renderer.triangles.rows_built
 
 
 def _assert_same_image(a, b, seed: int) -> None:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from bpy_helpers import diffuse_material, emission_material, new_scene, quad_object, set_world
-from ember.engine.export import mesh as mesh_export
+from ember.engine.export import geometry as geometry_export
 from ember.engine.export.updates import FULL, INSTANCES, LIGHTS, SHADING, export_instances, scene_changes
 from ember.engine.viewport import ViewportRender
 from ember.engine.viewport import session as viewport_session
@@ -60,7 +60,7 @@ def counts(monkeypatch):
             record["samplers"] += 1
             super().__init__(*args, **kwargs)
 
-    read_mesh = mesh_export.read_mesh
+    read_mesh = geometry_export.read_mesh
 
     def counting_read(mesh):
         record["mesh_reads"] += 1
@@ -69,7 +69,7 @@ def counts(monkeypatch):
     monkeypatch.setattr(viewport_session, "Renderer", CountingRenderer)
     monkeypatch.setattr(embree, "Mesh", CountingMesh)
     monkeypatch.setattr("ember.kernels.renderer.LightSampler", CountingSampler)
-    monkeypatch.setattr(mesh_export, "read_mesh", counting_read)
+    monkeypatch.setattr(geometry_export, "read_mesh", counting_read)
     return record
 
 

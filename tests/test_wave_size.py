@@ -26,7 +26,7 @@ def _renderer(build) -> Renderer:
 
 def test_layered_materials_get_larger_waves_and_the_same_image():
     with _renderer(lambda: scenes.materials_scene(64, 48)) as renderer:
-        assert renderer._layered
+        assert renderer.layered
         assert renderer.wave_size(RenderSettings()) == WAVE_SPAN * LAYERED_WAVE_SIZE
         assert renderer.live_paths(RenderSettings()) == LAYERED_WAVE_SIZE
         assert renderer.wave_size(RenderSettings(wave_size=1000)) == 1000
@@ -42,7 +42,7 @@ def test_layered_materials_get_larger_waves_and_the_same_image():
 def test_diffuse_scenes_keep_the_default_waves():
     with _renderer(lambda: scenes.cornell_scene(32, 32)) as renderer:
         # Its unused default material row is a Principled BSDF: only the materials triangles use count.
-        assert renderer.shading.mixes_lobes and not renderer._layered
+        assert renderer.shading.mixes_lobes and not renderer.layered
         assert renderer.wave_size(RenderSettings()) == WAVE_SPAN * WAVE_SIZE
         assert renderer.live_paths(RenderSettings()) == WAVE_SIZE
 

@@ -9,10 +9,10 @@ runs on a job thread: everything comes from the depsgraph.
         engine.report({'WARNING'}, line)
     scene = result.scene.validate().scene
 
-mesh.py reads geometry, materials.py the material table, world.py the world, lights.py the lights, camera.py
-the camera; node trees are walked by graph.py and sockets.py and compiled to programs by nodes.py, images
-loaded by images.py; updates.py classifies what a depsgraph update changed and reads those parts again (the
-viewport's incremental updates).
+geometry.py exports the meshes (mesh.py reads one, instances.py decides and names instances), materials.py
+the material table, world.py the world, lights.py the lights, camera.py the camera; node trees are walked
+by graph.py and sockets.py and compiled to programs by nodes.py, images loaded by images.py; updates.py
+classifies what a depsgraph update changed and reads those parts again (the viewport's incremental updates).
 """
 from __future__ import annotations
 
@@ -29,10 +29,10 @@ from ...kernels import SceneArrays
 from ...kernels.cryptomatte import hash_names
 from ...kernels.memory import small_pages, trim_heap
 from .camera import export_camera, render_region, render_resolution
+from .geometry import export_geometry
 from .images import shader_images
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
-from .mesh import export_geometry
 from .motion import scene_motion, vector_fields
 from .updates import ExportIndex, export_index
 from .world import export_world
@@ -83,7 +83,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     motion : motion.MotionSamples (motion.sample_motion) for motion blur, or None.
     instance_everything : every mesh a prototype placed by its instances, even when used once (the
         viewport, whose moved objects then only change their transforms: updates.py).
-    mesh_cache : mesh.MeshCache keeping meshes between the frames of an animation (Persistent Data), or None.
+    mesh_cache : geometry.MeshCache keeping meshes between the frames of an animation (Persistent Data), or None.
     Raises ExportError when there is no camera.
     """
     start = time.perf_counter()

@@ -22,7 +22,7 @@ import numpy as np
 
 from ...kernels import motion as kernel_motion
 from .camera import perspective_fov
-from .mesh import instance_key
+from .instances import instance_key
 
 CURVE_SAMPLES = 257  # Blender 5.0 reads the shutter curve at 257 points (curvemapping_to_array, size 256)
 MAX_STEPS = 7

@@ -30,9 +30,10 @@ import numpy as np
 
 from ...kernels import Lights, Materials, SceneArrays, World
 from ...kernels.scene import OBJECT_COLUMNS
+from .geometry import Geometry
+from .instances import instance_key, instance_row, is_rendered, slot_materials
 from .lights import export_lights
 from .materials import MaterialTable
-from .mesh import Geometry, instance_key, instance_row, is_rendered, slot_materials
 from .world import export_world
 
 __all__ = ["FULL", "INSTANCES", "LIGHTS", "SHADING", "Changes", "ExportIndex", "Shading", "export_changes",
@@ -143,8 +144,8 @@ def visibility_key(depsgraph) -> tuple:
 class ExportIndex:
     """What names the rows of an exported scene, so that a later partial export lines up with them.
 
-    instance_keys : per object row (SceneArrays.objects), its instance (mesh.instance_key).
-    slot_materials : per object row, mesh.slot_materials of its object when it was exported.
+    instance_keys : per object row (SceneArrays.objects), its instance (instances.instance_key).
+    slot_materials : per object row, instances.slot_materials of its object when it was exported.
     empty_keys : rendered mesh instances without triangles (they have no row).
     instance_rows : (K,) int32 object row of each instance (Instances.object_ids), or None without instances.
     movable : every object row is an instance; otherwise some objects were copied into world space and

@@ -89,6 +89,21 @@ class TriangleTable:
             rows = self._rows
         return rows
 
+    @property
+    def rows_built(self) -> bool:
+        """Whether the table's rows are built (until then a deferred table computes the rows a gather needs)."""
+        return self._rows is not None
+
+    @property
+    def building(self) -> bool:
+        """Whether build_rows has started its thread (it may have finished: wait_rows)."""
+        return self._building is not None
+
+    def wait_rows(self) -> None:
+        """Block until build_rows' thread, if it started one, is done."""
+        if self._building is not None:
+            self._building.join()
+
     def build_rows(self) -> None:
         """Start building deferred rows on a thread (nothing when they are built or being built)."""
         with self._build_lock:

@@ -10,11 +10,11 @@ neighbour cells. The kernel's orientation is the node's, plus a hashed random an
 by 6 standard deviations of the noise (Cycles' empirical constant).
 
 Hashes (float bits of the cell, impulse seed 3i, 3i+1, 3i+2) depend on the cell only, so they are
-computed once per distinct cell of the wave and gathered per hit. Cost per hit: 9 (2D) or 27 (3D) cells x
-8 impulses of distance tests, and the kernel (exp, 2 cos, sin; 3D isotropic adds 4 trig) for the impulses
-that reach the hit (pi/9 of them in 2D, 4.19/27 in 3D); per distinct cell, 4 (2D) or up to 6 (3D) Jenkins
-hashes per impulse. For 65k hits on a unit sphere at Scale 5 (2 cores): about 75 ms in 2D, 220-270 ms in
-3D; a wave spread over about as many cells as hits pays the hashes per hit (3D: ~0.5 s).
+computed once per distinct cell of the wave and gathered per hit: 4 (2D) or up to 6 (3D) Jenkins hashes
+per impulse, which neighbouring hits share. What stays per hit is 9 (2D) or 27 (3D) cells x 8 impulses of
+distance tests, and the kernel (exp, 2 cos, sin; 3D isotropic adds 4 trig) only for the impulses that
+reach the hit (pi/9 of them in 2D, 4.19/27 in 3D). A wave spread over about as many cells as hits shares
+nothing and pays the hashes per hit.
 """
 from __future__ import annotations
 

@@ -14,9 +14,8 @@ Cost is 3^d cells per octave (1D 3, 2D 9, 3D 27, 4D 81), Smooth F1 5^d (4D: 625 
 F2, Distance to Edge and N-Sphere Radius take all 3^d neighbours at once, as (3^d, hits) tables for
 chunks of hits (_Hood, in reused work arrays: a wave's call costs tens of NumPy calls, not thousands);
 when the hits' cells span a small box (a low frequency on a surface) its cells are hashed once and
-gathered. Smooth F1 runs neighbour by neighbour over all hits, so memory stays O(N). For 65k hits
-spread over a wide range (one thread), per octave: 3D F1 ~30 ms, F2 ~35 ms, Smooth F1 ~115 ms,
-Distance to Edge ~40 ms, N-Sphere Radius ~50 ms; 4D F1 ~80 ms, Smooth F1 ~1.1 s.
+gathered. Smooth F1 runs neighbour by neighbour over all hits, so memory stays O(N): its 5^d
+neighbourhood as one table would be 625 rows per hit in 4D.
 """
 from __future__ import annotations
 

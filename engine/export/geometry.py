@@ -1,0 +1,344 @@
+"""Geometry: the depsgraph's object instances -> world-space triangle arrays.
+
+Every instance whose object is a mesh is exported: mesh objects with their modifiers applied, and the
+evaluated meshes Blender itself hands out as instances for curves, text, surfaces, metaballs,
+geometry-nodes output, collection instances and particles (the set Cycles reads too; the curve or text
+object itself carries no triangles). Each evaluated mesh is read once in object space, and all its
+instances are transformed together, one matmul per group.
+
+This module owns the Geometry record, export_geometry (the walk over the instances), the MeshCache that
+keeps meshes between frames, and the assembly of the plain triangles into world space; reading a mesh is
+engine/export/mesh.py, deciding and naming instances engine/export/instances.py.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...kernels.geometry import normal_matrices
+from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
+from .instances import (asset_name, check_visibility, instance_key, instance_random, instanced_groups, is_rendered,
+                        object_inputs, slot_materials)
+from .materials import MaterialTable
+from .mesh import LocalMesh, read_attributes, read_mesh, read_tangents, readable_mesh
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """All triangles of the scene in world space, T in total.
+
+    positions, normals : kernels.scene.CornerRows standing for (T, 3, 3) float32 arrays (positions: the
+    arrays of bvh; a (T, 3, 3) array where its vertex numbers would not fit uint32); uvs : (T, 3, 2) float32;
+    material_ids : (T,) int32.
+    instance_count : object instances that contributed triangles.
+    tangents : (T, 3, 4) float32 world-space tangents and bitangent signs (SceneArrays.tangents), zero
+        for meshes whose materials read none; None when no material reads them.
+    attributes : ((name, (T, 3, C) float32), ...) the attributes node programs read (SceneArrays.attributes),
+        zero on meshes without them.
+    objects, object_ids : the object table (SceneArrays.objects), one row per instance, and each
+        triangle's row.
+    """
+    positions: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    material_ids: np.ndarray
+    instance_count: int
+    tangents: np.ndarray | None = None
+    attributes: tuple = ()
+    objects: np.ndarray | None = None
+    object_ids: np.ndarray | None = None
+    instance_keys: list | None = None      # per object row: instance_key() (motion blur)
+    instance_matrices: list | None = None  # per object row: the (4, 4) world matrix its triangles used
+    instance_assets: list | None = None    # per object row: the top-most parent's name (Cryptomatte asset)
+    slot_materials: list | None = None     # per object row: slot_materials() of its object
+    empty_keys: frozenset = frozenset()    # instance keys of rendered mesh instances without triangles
+    instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
+    bvh: tuple | None = None               # (vertices, indices): the plain triangles indexed (SceneArrays.bvh_vertices)
+
+
+class MeshCache:
+    """The meshes read for the last frame, reused by the next one where the depsgraph says their geometry
+    did not change (Persistent Data: Blender then keeps the render depsgraph between frames, and its
+    updates list only what changed since). An entry is keyed by the evaluated mesh's address and name, and
+    is used only when neither the object that shows the mesh nor its instancer nor the mesh itself has a
+    geometry update; an update of the geometry of anything but objects, meshes, collections and data that
+    holds no mesh (a node tree, a curve) empties the cache."""
+
+    def __init__(self):
+        self._meshes: dict[tuple, LocalMesh] = {}
+        self._changed: set = set()
+        self._used: set = set()
+        self.reads = 0      # meshes read from Blender in the last export (tests read it)
+
+    def begin(self, depsgraph) -> None:
+        self._changed, self._used, self.reads = set(), set(), 0
+        for update in depsgraph.updates:
+            if not update.is_updated_geometry:
+                continue
+            kind = update.id.id_type
+            if kind in ("OBJECT", "MESH"):
+                self._changed.add(update.id.name_full)
+            elif kind not in ("COLLECTION", "KEY", "LIGHT", "CAMERA", "SCENE", "WORLD", "MATERIAL"):
+                # A collection or a shape key is tagged with its objects or mesh (which carry their own
+                # updates); lights, cameras, worlds and materials hold no mesh. Anything else (a node tree,
+                # a curve...) may change meshes that show no update of their own: read them all again.
+                self._meshes.clear()
+
+    def mesh(self, inst, ob, mesh) -> LocalMesh:
+        """The triangles of `mesh` (readable_mesh(ob)), read again only if they may have changed."""
+        key = (ob.data.as_pointer(), ob.data.name_full)
+        owners = {ob.original.name_full, ob.data.name_full}
+        if inst.is_instance and inst.parent is not None:
+            owners.add(inst.parent.original.name_full)
+        local = self._meshes.get(key)
+        if local is None or owners & self._changed:
+            local = self._meshes[key] = read_mesh(mesh)
+            self.reads += 1
+        self._used.add(key)
+        return local
+
+    def end(self) -> None:
+        """Forget the meshes this frame did not show."""
+        self._meshes = {key: mesh for key, mesh in self._meshes.items() if key in self._used}
+
+
+def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None,
+                    moving: set | frozenset = frozenset(), instance_everything: bool = False,
+                    cache: MeshCache | None = None) -> Geometry:
+    """Read every rendered mesh instance; register the materials its slots use in `materials`.
+    poll() is called for every instance (it raises to cancel the export). moving : instance keys
+    (instance_key) of objects that move during the shutter: their meshes are never instanced.
+    instance_everything : every mesh is a prototype placed by its instances, even when used once (the
+    viewport: an object that moves then only changes its transform, engine/export/updates.py).
+    cache : a MeshCache that keeps meshes between frames (Persistent Data), or None."""
+    if cache is not None:
+        cache.begin(depsgraph)
+    meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
+    tangents: dict[int, np.ndarray] = {}     # evaluated mesh pointer -> (T*3, 4) object-space tangents
+    slot_rows: dict[tuple, tuple] = {}       # (object, mesh) pointers -> material row of each slot
+    groups: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> world_from_object matrices
+    rows: dict[tuple, list] = {}             # (mesh pointer, slot rows) -> object table rows
+    attributes: dict[int, dict] = {}         # evaluated mesh pointer -> {name: (T*3, C) float32}
+    keys: dict[tuple, list] = {}             # (mesh pointer, slot rows) -> instance keys
+    assets: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> asset names
+    slots: dict[tuple, list] = {}            # (mesh pointer, slot rows) -> slot_materials() of each instance
+    signatures: dict[tuple, tuple] = {}      # (object, mesh) pointers -> slot_materials()
+    empty: set = set()                       # instance keys of meshes without triangles
+    described: dict[int, tuple] = {}         # object pointer -> what its object rows take from it
+    for inst in depsgraph.object_instances:
+        if poll is not None:
+            poll()
+        # An instance is only valid during its iteration step: copy what is needed now.
+        ob = inst.object
+        if not is_rendered(inst, ob, warnings):
+            continue
+        mesh_key = ob.data.as_pointer()
+        with readable_mesh(ob) as mesh:
+            if mesh_key not in meshes:
+                meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
+            if meshes[mesh_key].triangle_count == 0:
+                empty.add(instance_key(inst))
+                continue
+            # Instances share meshes, but slots linked to the object can give one mesh different materials.
+            object_key = (ob.as_pointer(), mesh_key)
+            if object_key not in slot_rows:
+                slot_rows[object_key] = materials.slot_ids(ob)
+                signatures[object_key] = slot_materials(ob)
+                check_visibility(ob, warnings)
+            uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
+            if uv_maps and mesh_key not in tangents:
+                tangents[mesh_key] = read_tangents(mesh, meshes[mesh_key], uv_maps, ob.name, warnings)
+            names = materials.attribute_names(slot_rows[object_key])
+            if names and mesh_key not in attributes:
+                attributes[mesh_key] = read_attributes(mesh, names, ob.name, warnings)
+        matrix = np.array(inst.matrix_world)
+        groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
+        if object_key[0] not in described:
+            described[object_key[0]] = object_inputs(ob)
+        location, size, color, pass_index, own, terminator = described[object_key[0]]
+        rows.setdefault((mesh_key, slot_rows[object_key]), []).append(
+            (location, size, color, pass_index, instance_random(inst, own), terminator))
+        keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
+        assets.setdefault((mesh_key, slot_rows[object_key]), []).append(asset_name(ob))
+        slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
+    if cache is not None:
+        cache.end()
+    instanced = instanced_groups(groups, meshes, keys, moving, instance_everything)
+    # Object table rows per group, all of a group's instances at once.
+    rows = {group: object_rows(np.stack(groups[group]), *(np.array(column) for column in zip(*inputs)))
+            for group, inputs in rows.items()}
+    return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows, instanced),
+                               instance_keys=[k for group in keys.values() for k in group],
+                               instance_matrices=[m for group in groups.values() for m in group],
+                               instance_assets=[a for group in assets.values() for a in group],
+                               slot_materials=[m for group in slots.values() for m in group],
+                               empty_keys=frozenset(empty))
+
+
+def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, object_rows: dict,
+              instanced: set = frozenset()) -> Geometry:
+    """Transform every plain group of instances into preallocated world-space arrays; the instanced groups
+    become prototypes (object space) and transforms. Object table rows follow the groups' order."""
+    plain = {group: matrices for group, matrices in groups.items() if group not in instanced}
+    total = sum(meshes[key].triangle_count * len(matrices) for (key, _), matrices in plain.items())
+    # The plain triangles' corners are the BVH's world vertices gathered by its indices (kernels.scene.
+    # CornerRows) wherever the vertex numbers fit uint32; else a (T, 3, 3) array.
+    plain_vertices = sum(len(meshes[key].vertices) * len(matrices) for (key, _), matrices in plain.items())
+    indexed = 0 < plain_vertices < 2**32
+    positions = None if indexed else padded_triangles(total)
+    # The plain triangles' normals stay where Blender keeps them, moved into world space once per
+    # instance: rows, and each triangle corner's row (kernels.scene.CornerRows).
+    normal_rows, normal_index, row_count = [], [], 0
+    # One mesh placed once (a big scanned or sculpted mesh alone, say): its UVs are the world's as they are.
+    alone = next(iter(plain)) if len(plain) == 1 and len(next(iter(plain.values()))) == 1 else None
+    uvs = meshes[alone[0]].uvs.reshape(total, 3, 2) if alone is not None else np.empty((total, 3, 2), np.float32)
+    material_ids = np.empty(total, np.int32)
+    world_tangents = np.zeros((total, 3, 4), np.float32) if tangents else None
+    widths: dict[str, int] = {}
+    for per_mesh in attributes.values():
+        for name, values in per_mesh.items():
+            widths[name] = max(widths.get(name, 0), values.shape[1])
+    attribute_arrays = {name: np.zeros((total, 3, c), np.float32) for name, c in sorted(widths.items())}
+    objects = np.concatenate(list(object_rows.values())) if object_rows else np.zeros((0, OBJECT_COLUMNS), np.float32)
+    object_ids = np.empty(total, np.int32)
+    prototypes, prototype_ids, placements, instance_rows = [], [], [], []
+    # The plain triangles once more as an indexed mesh (world vertices shared by their triangles): Embree
+    # builds its BVH from it about 1.5x faster than from the corners (SceneArrays.bvh_vertices).
+    bvh_vertices, bvh_indices, vertex_count = [], [], 0
+    first_row = 0
+    start = 0
+    for group, matrices in groups.items():
+        key, rows = group
+        mesh = meshes[key]
+        k, t = len(matrices), mesh.triangle_count
+        # Blender clamps slot indices beyond the last slot to it.
+        table = np.array(rows, np.int32)
+        mesh_materials = table[np.clip(mesh.slots, 0, len(table) - 1)]
+        if group in instanced:
+            per_mesh = attributes.get(key, {})
+            prototypes.append(Prototype(
+                positions=mesh.positions.reshape(t, 3, 3), normals=mesh.normals.reshape(t, 3, 3),
+                uvs=mesh.uvs.reshape(t, 3, 2), material_ids=mesh_materials,
+                tangents=tangents[key].reshape(t, 3, 4) if key in tangents else None,
+                attributes=tuple((name, np.ascontiguousarray(v.reshape(t, 3, -1))) for name, v in per_mesh.items())))
+            prototype_ids.extend([len(prototypes) - 1] * k)
+            placements.extend(matrices)
+            instance_rows.extend(range(first_row, first_row + k))
+            first_row += k
+            continue
+        end = start + k * t
+        moved, moved_normals = _transform(mesh, np.stack(matrices), None if indexed else positions[start:end])
+        normal_rows.append(moved_normals)
+        normal_index.append(mesh.normal_index.reshape(t, 3))
+        row_count += moved_normals.shape[0] * moved_normals.shape[1]
+        v = len(mesh.vertices)
+        bvh_vertices.append(moved.reshape(-1, 3))
+        # Vertex numbers within uint32 are made in uint32 (the corners are non-negative int32).
+        wide = np.int64 if vertex_count + k * v >= 2**32 else np.uint32
+        if k == 1 and vertex_count == 0:
+            bvh_indices.append(mesh.corners.reshape(t, 3).astype(wide, copy=False) if wide is np.int64
+                               else mesh.corners.reshape(t, 3).view(np.uint32))
+        else:
+            bvh_indices.append((mesh.corners.reshape(1, t, 3).astype(wide)
+                                + (vertex_count + v * np.arange(k, dtype=np.int64)).astype(wide)[:, None, None])
+                               .reshape(-1, 3))
+        vertex_count += k * v
+        if key in tangents:
+            transform_tangents(tangents[key], np.stack(matrices), world_tangents[start:end].reshape(k, t * 3, 4))
+        if group != alone:
+            uvs[start:end].reshape(k, t, 3, 2)[:] = mesh.uvs.reshape(t, 3, 2)
+        material_ids[start:end].reshape(k, t)[:] = mesh_materials
+        object_ids[start:end].reshape(k, t)[:] = np.arange(first_row, first_row + k, dtype=np.int32)[:, None]
+        for name, values in attributes.get(key, {}).items():
+            attribute_arrays[name][start:end].reshape(k, t, 3, -1)[..., :values.shape[1]] = values.reshape(t, 3, -1)
+        first_row += k
+        start = end
+    instance_count = sum(len(matrices) for matrices in groups.values())
+    instances = Instances(tuple(prototypes), np.array(prototype_ids, np.int32),
+                          np.array(placements, np.float64).reshape(-1, 4, 4),
+                          np.array(instance_rows, np.int32)) if prototypes else None
+    if bvh_vertices and vertex_count < 2**32:
+        # One spare vertex after the array lets Embree read the vertices in place (kernels.embree).
+        vertices = np.empty(3 * vertex_count + 3, np.float32)[:3 * vertex_count].reshape(-1, 3)
+        np.concatenate(bvh_vertices, out=vertices)
+        bvh = (vertices, (bvh_indices[0] if len(bvh_indices) == 1 else np.concatenate(bvh_indices))
+               .astype(np.uint32, copy=False))
+    else:
+        bvh = None
+    if indexed:
+        positions = CornerRows(*bvh)
+    normals = _plain_normals(normal_rows, normal_index, row_count)
+    return Geometry(positions, normals, uvs, material_ids, instance_count, world_tangents,
+                    tuple(attribute_arrays.items()), objects, object_ids, instances=instances, bvh=bvh)
+
+
+def _plain_normals(rows: list, indices: list, row_count: int):
+    """The plain triangles' normals from each group's moved rows (K, N, 3) and its mesh's (T, 3) row numbers:
+    a CornerRows (one rows array, each copy's numbers offset to its own rows), or the (T, 3, 3) array
+    itself where the rows outnumber uint32."""
+    if row_count >= 2**32:
+        return np.concatenate([np.take(r, i, axis=1).reshape(-1, 3, 3) for r, i in zip(rows, indices)])
+    if len(rows) == 1 and len(rows[0]) == 1:      # one mesh placed once: its arrays as they are
+        i = indices[0]   # int32 corners (non-negative: seen as uint32, shared with the BVH's indices) or uint32
+        return CornerRows(rows[0][0], i.view(np.uint32) if i.dtype == np.int32 else i.astype(np.uint32, copy=False))
+    index, first = [], 0
+    for r, i in zip(rows, indices):
+        k, n = r.shape[0], r.shape[1]
+        offsets = (first + n * np.arange(k, dtype=np.int64)).astype(np.uint32)
+        index.append((i.astype(np.uint32)[None] + offsets[:, None, None]).reshape(-1, 3))
+        first += k * n
+    return CornerRows(np.concatenate([r.reshape(-1, 3) for r in rows]) if rows else np.zeros((0, 3), np.float32),
+                      np.concatenate(index) if index else np.zeros((0, 3), np.uint32))
+
+
+def _transform(mesh: LocalMesh, world_from_object: np.ndarray, positions_out: np.ndarray | None):
+    """K instances of a mesh in world space, world_from_object (K, 4, 4) float64: the moved vertices, (K, V, 3)
+    float32, and the moved normal rows, (K, N, 3) float32 (where Blender keeps the normals: a shading normal
+    per row, gathered by mesh.normal_index). positions_out (K*T, 3, 3) float32, when given, gets the
+    corners: the moved vertices (fewer than the corners) gathered.
+
+    Positions keep their winding, so a mirrored instance's geometric normal flips while its shading
+    normals (inverse-transpose) point the way Blender shows them; the kernel reconciles the two per side.
+    """
+    k = len(world_from_object)
+    linear = world_from_object[:, :3, :3]
+    # Transforms beyond float32 give inf coordinates: validate() drops those triangles and says so.
+    with np.errstate(over="ignore", invalid="ignore"):
+        moved = np.matmul(mesh.vertices[None], linear.transpose(0, 2, 1).astype(np.float32))
+        moved += world_from_object[:, None, :3, 3].astype(np.float32)
+        if positions_out is not None:
+            _gather(moved, mesh.corners, positions_out.reshape(k, -1, 3))
+    # The normals are moved where Blender keeps them (no more of them than triangle corners); each row is
+    # the product the corners' gathered array held, rounded to float32 the same way.
+    moved_normals = np.matmul(mesh.normal_rows[None], normal_matrices(linear).transpose(0, 2, 1)).astype(np.float32)
+    return moved, moved_normals
+
+
+def _gather(rows: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:
+    """out[i] = rows[i][index] for (K, N, C) rows and (K, M, C) out; a 2D gather per instance for a few
+    instances (several times faster than one gather along axis 1), one along axis 1 for many."""
+    if len(rows) > 4:
+        np.take(rows, index, axis=1, out=out, mode="clip")
+        return
+    for i in range(len(rows)):
+        np.take(rows[i], index, axis=0, out=out[i], mode="clip")
+
+
+def transform_tangents(tangents: np.ndarray, world_from_object: np.ndarray, out: np.ndarray) -> None:
+    """K instances of (C, 4) object-space tangents and signs into out (K, C, 4), world_from_object (K, 4, 4).
+
+    Tangents are directions on the surface: they transform with the matrix itself, then are brought back to
+    unit length. Cycles evaluates a normal map in object space with MikkTSpace's unit tangents; keeping
+    them unit here keeps their weight against the (unit) normal under a scaled instance. A mirroring
+    matrix flips the sign, as the cross product N x T flips with it.
+    """
+    linear = world_from_object[:, :3, :3]
+    with np.errstate(over="ignore", invalid="ignore"):
+        t = np.matmul(tangents[None, :, :3].astype(np.float64), linear.transpose(0, 2, 1))
+        length = np.linalg.norm(t, axis=2, keepdims=True)
+        t = np.where(length > 0, t / np.where(length > 0, length, 1.0), 0.0)
+    out[:, :, :3] = t
+    out[:, :, 3] = tangents[None, :, 3] * np.sign(np.linalg.det(linear))[:, None]

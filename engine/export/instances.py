@@ -1,0 +1,107 @@
+"""Depsgraph instances: which ones Ember renders, what names one across frames, the object table row of
+each, and which meshes are instanced rather than copied into world space.
+
+The export (engine/export/geometry.py), the viewport's instance updates (engine/export/updates.py) and
+motion blur (engine/export/motion.py) all decide and name instances here, so they agree on them.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ...kernels.scene import TERMINATOR_OFFSET, object_rows
+
+# A mesh placed by two or more instances is stored once in object space and instanced (two-level BVH,
+# kernels.scene.Instances) when its copies together would hold at least this many triangles; smaller sets
+# are copied into world space, which traces a little faster (no transform per ray and per hit).
+INSTANCE_MIN_TRIANGLES = 20_000
+
+# Object types that carry geometry Ember cannot render yet.
+UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds", "VOLUME": "volumes"}
+RAY_VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
+                  "visible_volume_scatter", "visible_shadow")
+
+
+def is_rendered(inst, ob, warnings: list[str]) -> bool:
+    """Whether Ember renders this depsgraph instance: a mesh, shown, and not hidden for render (unsupported
+    kinds of geometry warn in `warnings`)."""
+    if ob.type != "MESH":
+        if ob.type in UNSUPPORTED_TYPES:
+            warnings.append(f"Object '{ob.name}': {UNSUPPORTED_TYPES[ob.type]} are not supported, "
+                            f"not rendered")
+        return False
+    # A render depsgraph has already dropped objects hidden for render; a viewport one has not. Particles
+    # of a hidden object still render, so an instance follows its instancer.
+    owner = (inst.parent if inst.is_instance else None) or ob
+    return inst.show_self and not owner.hide_render
+
+
+def check_visibility(ob, warnings: list[str]) -> None:
+    """Warn in `warnings` about the object's settings Ember renders as a plain object or ignores."""
+    if not all(getattr(ob, name) for name in RAY_VISIBILITY) or ob.is_holdout or ob.is_shadow_catcher:
+        warnings.append(f"Object '{ob.name}': ray visibility, holdout and shadow catcher settings are not "
+                        f"supported, rendered as a plain object")
+    if float(getattr(ob, "shadow_terminator_shading_offset", 0.0)) > 0:
+        warnings.append(f"Object '{ob.name}': Shadow Terminator > Shading Offset is not supported yet, ignored "
+                        f"(Geometry Offset is)")
+
+
+def instance_key(inst) -> tuple:
+    """What names one object instance across frames (motion blur): the object, and for instances the
+    instancer and the persistent id."""
+    if inst.is_instance:
+        return (inst.object.name, inst.parent.name if inst.parent else "", tuple(inst.persistent_id))
+    return (inst.object.name, "", ())
+
+
+def asset_name(ob) -> str:
+    """Cryptomatte's asset: the object's top-most parent (Cycles' Blender sync)."""
+    while ob.parent is not None:
+        ob = ob.parent
+    return ob.name
+
+
+def slot_materials(ob) -> tuple:
+    """The materials in an object's slots by name ('' for an empty slot): what picks its material rows."""
+    return tuple(slot.material.name_full if slot.material is not None else "" for slot in ob.material_slots)
+
+
+def object_inputs(ob) -> tuple:
+    """What an object's rows of the object table take from the object and its mesh: (texture space
+    location, size, colour, pass index, its own random number: Blender's sync hashes its name, its Shadow
+    Terminator Geometry Offset)."""
+    from ...kernels.shading.hash import hash_uint2
+    h = 0
+    for c in ob.name.encode("utf-8"):
+        h = (h * 37 + c) & 0xFFFFFFFF
+    own_random = np.float32(int(hash_uint2(np.array([h], np.uint32), np.array([0], np.uint32))[0])) \
+        * np.float32(1.0 / 0xFFFFFFFF)
+    mesh = ob.data
+    terminator = float(getattr(ob, "shadow_terminator_geometry_offset", TERMINATOR_OFFSET))
+    return (tuple(mesh.texspace_location), tuple(mesh.texspace_size), tuple(ob.color), ob.pass_index,
+            float(own_random), terminator)
+
+
+def instance_random(inst, own_random: float) -> float:
+    """Cycles' random number of an instance: its random id, or for an object itself its own (object_inputs)."""
+    if inst.is_instance:
+        return float(np.float32(inst.random_id & 0xFFFFFFFF) * np.float32(1.0 / 0xFFFFFFFF))
+    return own_random
+
+
+def instance_row(inst, ob, matrix) -> np.ndarray:
+    """The object table row of an instance (kernels.scene.object_row)."""
+    location, size, color, pass_index, own, terminator = object_inputs(ob)
+    return object_rows(np.asarray(matrix, np.float64)[None], [location], [size], [color], [pass_index],
+                       [instance_random(inst, own)], [terminator])[0]
+
+
+def instanced_groups(groups: dict, meshes: dict, keys: dict, moving, instance_everything: bool) -> set:
+    """The groups (mesh pointer, slot rows) stored once and placed by transforms: every group when
+    instance_everything, else those of two or more instances that together hold INSTANCE_MIN_TRIANGLES.
+    groups : group -> world_from_object matrices; meshes : mesh pointer -> LocalMesh; keys : group ->
+    instance keys; moving : instance keys of objects that move during the shutter."""
+    # Groups with a moving member stay plain: motion blur moves plain triangles (kernels.accel._Moving).
+    return set(groups) if instance_everything else \
+        {group for group, matrices in groups.items()
+         if len(matrices) >= 2 and len(matrices) * meshes[group[0]].triangle_count >= INSTANCE_MIN_TRIANGLES
+         and not any(key in moving for key in keys[group])}
