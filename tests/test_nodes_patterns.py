@@ -386,3 +386,16 @@ def test_sky_table_symmetry_and_xyz_matrix():
 def test_hosek_wilkie_is_not_available():
     with pytest.raises(NotImplementedError):
         sk.precompute_sky("HOSEK_WILKIE")
+
+
+def test_checker_takes_nan_and_inf_coordinates_as_even_cells():
+    """Cycles casts a NaN or infinite floor to INT_MIN, an even cell: with constant colours (one lookup into the
+    two colours) such a coordinate gave an index out of range. Each such axis counts as even, as 2^25 does."""
+    bad = np.float32([np.nan, np.inf, -np.inf])
+    for k in range(3):
+        co = np.tile(np.float32([0.13, 0.37, 0.71]), (3, 1))
+        even = co.copy()
+        co[:, k] = bad
+        even[:, k] = np.float32(2.0 ** 25)
+        got, want = pt.checker(co, scale=1.0), pt.checker(even, scale=1.0)
+        assert np.array_equal(got["Fac"], want["Fac"]) and np.array_equal(got["Color"], want["Color"])

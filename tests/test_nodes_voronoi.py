@@ -409,3 +409,17 @@ def test_gabor_value_lies_within_intensity():
         assert all(v.dtype == np.float32 and v.shape == (3000,) for v in out.values())
         assert np.all(np.abs(2 * out["Value"] - 1) <= out["Intensity"] + 1e-6)
         assert np.all((out["Phase"] >= 0) & (out["Phase"] <= 1))
+
+
+def test_a_nan_detail_is_no_detail():
+    """Cycles clamps Detail to [0, 15] with a clamp that makes NaN 0: Voronoi raised on a per-hit NaN Detail and
+    Noise gave NaN; both now give what Detail 0 gives (and inf what 15 gives)."""
+    from ember.kernels.shading.noise import noise_texture
+    co = np.random.default_rng(5).random((4, 3)).astype(np.float32)
+    detail = np.float32([0.0, np.nan, 15.0, np.inf])
+    like = np.float32([0.0, 0.0, 15.0, 15.0])
+    for texture in (voronoi_texture, noise_texture):
+        got, want = texture(co, detail=detail), texture(co, detail=like)
+        assert got.keys() == want.keys()
+        for name in got:
+            assert np.array_equal(np.asarray(got[name]), np.asarray(want[name])), (texture.__name__, name)

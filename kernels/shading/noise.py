@@ -90,7 +90,7 @@ def _noise_texture(vector, w, scale, detail, roughness, lacunarity, offset, gain
         return {"Fac": np.zeros(0, F32), "Color": np.zeros((0, 3), F32)}
     scale = np.asarray(scale, F32)
     p = tuple(c * scale for c in _coords(vector, w, d, n))
-    detail = np.clip(np.asarray(detail, F32), ZERO, F32(15.0))
+    detail = np.fmin(np.fmax(np.asarray(detail, F32), ZERO), F32(15.0))   # NaN: 0, as Cycles' clamp
     roughness = np.maximum(np.asarray(roughness, F32), ZERO)
     lacunarity, offset, gain = (np.asarray(x, F32) for x in (lacunarity, offset, gain))
     distortion = np.asarray(distortion, F32)

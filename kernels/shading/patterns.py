@@ -84,6 +84,8 @@ def checker(vector, color1=(0.8, 0.8, 0.8), color2=(0.2, 0.2, 0.2), scale=5.0) -
     p = (p + F32(1e-6)) * F32(0.999999)
     f = np.floor(p)
     parity = f - F32(2.0) * np.floor(f * HALF)          # 0 or 1 per axis
+    # NaN and inf coordinates cast to INT_MIN in Cycles, which is even.
+    parity = np.where(np.isfinite(parity), parity, ZERO)
     total = parity[:, 0] + parity[:, 1] + parity[:, 2]
     fac = total - F32(2.0) * np.floor(total * HALF)
     c1, c2 = _vector(color1), _vector(color2)

@@ -178,7 +178,8 @@ def voronoi_texture(vector=0.0, w=0.0, scale=5.0, detail=0.0, roughness=0.5, lac
     vec = np.asarray(vector, F32)
     vec = np.broadcast_to(vec, (1, 3)) if vec.size == 1 else vec.reshape(-1, 3)
     w, scale = _param(w), _param(scale)
-    params = {"detail": np.clip(_param(detail), ZERO, F32(15.0)),
+    # fmax / fmin: a NaN Detail is 0, as Cycles' clamp makes it.
+    params = {"detail": np.fmin(np.fmax(_param(detail), ZERO), F32(15.0)),
               "roughness": np.clip(_param(roughness), ZERO, ONE),
               "lacunarity": _param(lacunarity),
               "smoothness": np.clip(_param(smoothness) / TWO, ZERO, HALF),
