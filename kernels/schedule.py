@@ -196,10 +196,12 @@ class WaveCrew:
 
     # ---------------------------------------------------------------- a render's waves
     def begin(self, should_stop) -> None:
-        """A render starts: a new generation, its stop flag down, should_stop polled by its thread."""
+        """A render starts: a new generation, its stop flag down, should_stop polled by its thread, a clock of
+        its own waves."""
         self.generation = next(GENERATIONS)
         self.stop_waves.clear()
         self._poll, self._thread = should_stop, threading.get_ident()
+        self.clock = {False: [0, 0.0], True: [0, 0.0]}   # this render's waves only (rate)
 
     def end(self) -> None:
         """Every wave of the render is back."""
@@ -333,9 +335,6 @@ def render_passes(tracer, crew: "WaveCrew", settings: RenderSettings, on_tile=No
     # pass's bands differ in cost: rows of sky and rows of glass), except before a convergence check,
     # which reads the whole film.
     in_flight = collections.deque()   # (rows, spp, future), in plan order
-    # Paths and seconds of this render's waves, each on its own thread, for waves side by side (False)
-    # and waves split over the threads (True).
-    crew.clock = {False: [0, 0.0], True: [0, 0.0]}
     pending = []                      # bands of the planned pass not yet submitted
     pass_spp = pass_first = 0
     pass_split = False
