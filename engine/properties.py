@@ -41,6 +41,10 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
         name="Transmission", description="Passages through surfaces (refraction, translucency) a path may make, "
                                          "as Cycles' Transmission bounces",
         default=12, min=0, max=1024)
+    volume_bounces: IntProperty(
+        name="Volume", description="Scattering events in volumes a path may take after its first, as Cycles' "
+                                   "Volume bounces (0: single scattering in volumes)",
+        default=0, min=0, max=1024)
     transparent_max_bounces: IntProperty(
         name="Transparent Bounces",
         description="Transparent surfaces (alpha, Transparent BSDF) a path may pass straight through, as in "

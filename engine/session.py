@@ -79,6 +79,7 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         diffuse_bounces=int(ember.diffuse_bounces),
         glossy_bounces=int(ember.glossy_bounces),
         transmission_bounces=int(ember.transmission_bounces),
+        volume_bounces=int(ember.volume_bounces),
         transparent_max_bounces=int(ember.transparent_max_bounces),
         clamp_direct=float(ember.sample_clamp_direct),
         clamp_indirect=float(ember.sample_clamp_indirect),

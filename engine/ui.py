@@ -86,6 +86,7 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
         col.prop(context.scene.ember, "diffuse_bounces")
         col.prop(context.scene.ember, "glossy_bounces")
         col.prop(context.scene.ember, "transmission_bounces")
+        col.prop(context.scene.ember, "volume_bounces")
         col.prop(context.scene.ember, "transparent_max_bounces", text="Transparent")
         col = layout.column(align=True)
         col.prop(context.scene.ember, "sample_clamp_direct")

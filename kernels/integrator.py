@@ -22,14 +22,11 @@ from .bsdf.light_passes import pass_classes
 from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit, spawn_offset
 from .lights import nee
-from .paths import PathState, may_scatter, type_limits
-from .samples import BSDF, LENS, LIGHT, LOBE, TIME, Samples
+from .media import stage as media_stage
+from .paths import PathState, may_scatter, roulette_verdict, type_limits
+from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
 
-# Russian roulette decides on the surfaces that rays hit once their path has scattered this many times
-# (Cycles: bounce > min_bounce, min_bounce 1 by default; NEE_MIS only: LECTURE and COSINE stay the plain
-# estimators they are, for teaching and as references).
-ROULETTE_DEPTH = 2
 
 
 def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict | None = None,
@@ -109,6 +106,9 @@ def start_paths(tables, wave, paths, start: int, end: int):
         state.lobes = np.zeros((4, n), np.int32)
     if settings.filter_glossy > 0:
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
+    if tables.media is not None:
+        state.media = np.repeat(tables.camera_media[:, None], n, axis=1)
+        state.volume_bounces = np.zeros(n, np.int32)
     if camera.kind == "ORTHO":
         state.dp[:] = tables.pixel_size
     if camera.kind == "PANO":
@@ -132,15 +132,28 @@ def step(tables, wave, state, rays, first: bool, last: int):
     ended = None
     if not first and tables.lights.has_surface_lights:
         ended = _lights_hit(tables, wave, state, rays, hits)
+    scattered = None
+    if state.media is not None:
+        scattered = media_stage.segments(tables, wave, state, rays, hits, ended, first)
+        if scattered is not None:
+            ended = scattered.mask if ended is None else ended | scattered.mask
     _escaped(tables, wave, state, rays, hits, ended)
     tables.crew.check_stop()   # also between the bounce's long stages: tracing, shading, light samples
     found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
     if state.continuation is not None:
         found = _roulette_stops(tables, state, hits, found)
+    medium = None
+    if scattered is not None:
+        medium = media_stage.vertex(tables, wave, state.rows(scattered.rows), scattered, first, last)
+        if medium is not None:
+            medium = (medium[0], Rays(*medium[1], np.full(len(medium[0]), np.inf, np.float32)))
     if not len(found):
-        return None
+        return medium
     state.compact(found)
-    return _surface_vertex(tables, wave, state, rays, hits, found, first, last)
+    surface = _surface_vertex(tables, wave, state, rays, hits, found, first, last)
+    if medium is None or surface is None:
+        return surface if medium is None else medium
+    return PathState.concat(surface[0], medium[0]), _concat_rays(surface[1], medium[1])
 
 
 def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: int):
@@ -193,6 +206,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     state.segments = state.segments + 1
     if state.partner is not None:
         _crossings(tables, state, hit, alive, bs)
+    if state.media is not None:
+        media_stage.cross_surfaces(tables, state, hit, alive, np.take(_below(bs), alive))
     return state, _spawn(tables, hit, alive, bs)
 
 
@@ -210,6 +225,8 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     if lit.any():
         idx = np.flatnonzero(lit)
         le = np.take(state.throughput * le, idx, axis=1)
+        if state.media is not None:   # the media before the light (their scattering is the segment's own)
+            le *= media_stage.transmittance_to(tables, state, rays, idx, np.take(met.t, idx))
         if wave.nee:
             le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
         le = passes.clamp(wave, le, np.take(state.bounce, idx) > 1)
@@ -453,7 +470,10 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
     passing = bs.transparent
     # Past the last bounce a path still passes through transparent surfaces (as in Cycles), not portals.
     alive &= (passing & ~portal) | may_scatter(wave, state)
-    state.transparent = state.transparent + passing
+    # A volume's boundary (a material with only a Volume output) is passed without counting (Cycles'
+    # volume_bounds_bounce).
+    state.transparent = state.transparent + (passing if tables.media is None else
+                                             passing & ~np.take(tables.media.boundary, hit.mat))
     alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
     state.bounce = state.bounce + ~passing
     if state.portal is not None:
@@ -474,14 +494,7 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
     # the verdict, and what it finds emitting counts in full; only the surface's shading (its light
     # sample and the next bounce) goes on with probability q = min(sqrt(max throughput), 1), weighted
     # by 1/q. The square root keeps paths longer than q = max throughput would.
-    state.continuation = None
-    if wave.nee:
-        roulette = ~passing & (state.bounce >= ROULETTE_DEPTH)
-        if roulette.any():
-            q = np.sqrt(np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]),
-                                   np.float32(1.0)))
-            q = np.where(roulette, q, np.float32(1.0))
-            state.continuation = np.where(numbers[LIGHT][1] < q, q, np.float32(0.0))
+    state.continuation = roulette_verdict(wave, state, throughput, numbers, ~passing)
     state.throughput = throughput
     return np.flatnonzero(alive)
 

@@ -1,6 +1,7 @@
 """The state that travels with every live path of a wave, declared once, with one compact()."""
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -8,7 +9,12 @@ import numpy as np
 from .accel import RayTimes
 from .environment import WorldFocus
 from .rng import PathRng, seed_paths
-from .samples import Samples, sample_strata
+from .samples import LIGHT, Samples, sample_strata
+
+# Russian roulette decides on the surfaces that rays hit once their path has scattered this many times
+# (Cycles: bounce > min_bounce, min_bounce 1 by default; NEE_MIS only: LECTURE and COSINE stay the plain
+# estimators they are, for teaching and as references).
+ROULETTE_DEPTH = 2
 
 # Cycles' closure labels, as PathState.lobes[0] holds the last bounce's (kernel/closure/bsdf_util.h).
 DIFFUSE, GLOSSY, SINGULAR, REFLECT, TRANSMIT = 1, 2, 4, 8, 16
@@ -51,6 +57,10 @@ class PathState:
     portal: np.ndarray | None = None   # (N,) int32 Ray Portals passed (Light Path's Portal Depth); None in
     #                                    scenes without Ray Portal closures
     segments: np.ndarray | None = None  # (N,) int32: the rays traced so far (the wave loop's step count)
+    media: np.ndarray | None = None    # (STACK_SIZE, N) int32 or None: the media each path is inside (ids of
+    #                                    kernels.media.Media, -1 empty slots: Cycles' volume stack); None in
+    #                                    scenes without media
+    volume_bounces: np.ndarray | None = None  # (N,) int32 scattering events in media so far (with media)
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -91,6 +101,9 @@ class PathState:
             self.portal = np.take(self.portal, idx)
         if self.segments is not None:
             self.segments = np.take(self.segments, idx)
+        if self.media is not None:
+            self.media = np.take(self.media, idx, axis=1)
+            self.volume_bounces = np.take(self.volume_bounces, idx)
 
     @classmethod
     def concat(cls, a: "PathState", b: "PathState") -> "PathState":
@@ -117,7 +130,7 @@ class PathState:
                     cat(a.bounce, b.bounce, required), cat(a.transparent, b.transparent, required),
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
-                     "portal", "segments"):
+                     "portal", "segments", "media", "volume_bounces"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)
         state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)
@@ -128,6 +141,12 @@ class PathState:
         if a.time is not None or b.time is not None:
             state.time = RayTimes.concat(a.time, b.time)
         return state
+
+    def rows(self, idx: np.ndarray) -> "PathState":
+        """A new state of the paths idx only (this one unchanged)."""
+        part = copy.copy(self)
+        part.compact(idx)
+        return part
 
     def track_lobes(self, bs, closures, passing: np.ndarray) -> None:
         """After a bounce (bs: the BsdfSample, closures: the ClosureSet it came from): Cycles' ray labels
@@ -159,6 +178,21 @@ def type_limits(settings):
     return None if min(limits) >= top else np.array(limits, np.int32)[:, None]
 
 
+def roulette_verdict(wave, state, throughput, numbers, eligible):
+    """Russian roulette's verdict on what the paths' next rays hit (PathState.continuation), or None: after
+    ROULETTE_DEPTH bounces (state.bounce counts the one just taken), where eligible, q = min(sqrt(max
+    throughput), 1) and the verdict q if u < q (u: the vertex's second LIGHT number), else 0."""
+    if not wave.nee:
+        return None
+    u = numbers[LIGHT][1]
+    roulette = eligible & (state.bounce >= ROULETTE_DEPTH)
+    if not roulette.any():
+        return None
+    q = np.sqrt(np.minimum(np.maximum(np.maximum(throughput[0], throughput[1]), throughput[2]), np.float32(1.0)))
+    q = np.where(roulette, q, np.float32(1.0))
+    return np.where(u < q, q, np.float32(0.0))
+
+
 def may_scatter(wave, state) -> np.ndarray:
     """(N,) bool: the paths that may still scatter at their hits (light samples, BSDF samples): not past
     max_bounces, nor past a per-type limit (Cycles ends a path after the bounce that reaches either, letting it
@@ -167,6 +201,8 @@ def may_scatter(wave, state) -> np.ndarray:
     limits = type_limits(wave.settings)
     if limits is not None:
         ok &= np.all(state.lobes[1:4] <= limits, axis=0)
+    if state.volume_bounces is not None:
+        ok &= state.volume_bounces <= int(wave.settings.volume_bounces)
     return ok
 
 

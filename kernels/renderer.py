@@ -20,6 +20,7 @@ from .film import Film, pixel_sums
 from .coincident import Coincident
 from .geometry import TriangleTable, prototype_boxes, scene_extent
 from .lights import LightSampler
+from .media.medium import Media
 from .memory import kept_heap, small_pages, trim_heap
 from .paths import GivenPaths, WavePaths
 from .rng import PathRng
@@ -103,6 +104,7 @@ class Renderer:
                     accel.result().close()
                 raise
             self.accel = accel.result()
+        self._build_media()
         trim_heap()
         self.crew = WaveCrew(self.accel.threads, processes)
         if self.crew.processes:
@@ -152,6 +154,19 @@ class Renderer:
         layered = self.shading.layered
         used = np.bincount(self.triangles.material_ids, minlength=len(layered))[:len(layered)] > 0
         self.layered = bool((layered & used).any())
+
+    def _build_media(self) -> None:
+        """The participating media (kernels.media) and the stack camera paths start with; None without."""
+        self.media, self.camera_media = None, None
+        if not (any(s.volume for s in self.scene.materials.shaders) or self.scene.world.volume is not None):
+            return
+        self.triangles.wait_rows()
+        self.media = Media(self.shading, self.triangles, self.scene.world.volume,
+                           scene_extent(self.scene, self.prototype_boxes), self.shading.data)
+        eye, _ = self.camera_frame
+        self.camera_media = self.media.start_stack(1, self.accel, eye)[:, 0]
+        # Smooth glass's second branch (integrator._glass_escapes) does not know the media along it.
+        self.glass_escapes_on = False
 
     def _light_sampler(self) -> LightSampler:
         return LightSampler(self.scene, self.environment, _Emitters(self))

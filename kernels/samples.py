@@ -9,6 +9,7 @@ Every decision owns a 2D dimension, named here once:
     LIGHT_POINT   the point on the chosen light
     BSDF          the direction sampled from the chosen lobe
     LOBE          (lobe selection, spare)
+    VOLUME_*      the camera ray's light sample in a medium: where along the ray, which light and where on it
 
 The first vertex of an NEE_MIS path takes its numbers from a stratified sequence (Owen-scrambled Sobol, laid
 out over the pixels by sample_strata), one sequence per dimension (rng.stratified_2d with the dimension's id),
@@ -25,6 +26,9 @@ from .rng import PathRng, blue_noise_offsets, reverse_bits, stratified_2d
 from .vec import HALF
 
 CAMERA, LIGHT, LIGHT_POINT, BSDF, LOBE, LENS, TIME = 0, 1, 2, 3, 4, 5, 6
+# The camera ray's segment through media (kernels.media.stage.direct_light): the distance and its strategy,
+# the light's choice and the point on it.
+VOLUME_DISTANCE, VOLUME_LIGHT = 7, 8
 # The dimensions a bounce draws from the PCG2D stream, in order, with and without next-event estimation;
 # LOBE comes last, drawn only in scenes whose materials have more than one lobe to choose from.
 NEE_BLOCK = (LIGHT, LIGHT_POINT, BSDF)

@@ -34,6 +34,9 @@ class RenderSettings:
     diffuse_bounces: int | None = None
     glossy_bounces: int | None = None
     transmission_bounces: int | None = None
+    # Cycles' Volume bounces (Light Paths > Max Bounces > Volume, 0 by default): a path scatters in media at
+    # most volume_bounces + 1 times; after that it takes only what it meets, as after max_bounces.
+    volume_bounces: int = 0
     # Cycles' Clamp Direct and Clamp Indirect: a contribution whose |R| + |G| + |B| exceeds 3 x the limit
     # is scaled down to it (0: off). Direct: light reaching the first hit or the camera; indirect: the rest.
     clamp_direct: float = 0.0
@@ -95,6 +98,8 @@ class RenderSettings:
             raise ValueError(f"time_limit_s: must be finite and non-negative, got {self.time_limit_s}")
         if int(self.transparent_max_bounces) < 0:
             raise ValueError(f"transparent_max_bounces: must be non-negative, got {self.transparent_max_bounces}")
+        if int(self.volume_bounces) < 0:
+            raise ValueError(f"volume_bounces: must be non-negative, got {self.volume_bounces}")
         for name in ("diffuse_bounces", "glossy_bounces", "transmission_bounces"):
             value = getattr(self, name)
             if value is not None and int(value) < 0:

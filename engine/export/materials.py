@@ -75,6 +75,22 @@ CLOSURE_NODES = {
     # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
     "ShaderNodeSubsurfaceScattering": ("DIFFUSE", ("Color",)),
 }
+# Shader nodes a Volume output is made of -> kernel volume kinds (kernels.scene.VOLUME_KINDS), with the inputs
+# read (Blender 5.0 names; the phase parameters Blender hides for another phase are read all the same) and the
+# string inputs kept as options (attribute names).
+VOLUME_NODES = {
+    "ShaderNodeVolumeScatter": ("VOLUME_SCATTER", ("Color", "Density", "Anisotropy", "IOR", "Backscatter",
+                                                   "Alpha", "Diameter"), ()),
+    "ShaderNodeVolumeAbsorption": ("VOLUME_ABSORPTION", ("Color", "Density"), ()),
+    "ShaderNodeVolumePrincipled": ("PRINCIPLED_VOLUME", (
+        "Color", "Density", "Anisotropy", "Absorption Color", "Emission Strength", "Emission Color",
+        "Blackbody Intensity", "Blackbody Tint", "Temperature"),
+        ("Color Attribute", "Density Attribute", "Temperature Attribute")),
+    "ShaderNodeVolumeCoefficients": ("VOLUME_COEFFICIENTS", (
+        "Absorption Coefficients", "Scatter Coefficients", "Emission Coefficients", "Anisotropy", "IOR",
+        "Backscatter", "Alpha", "Diameter"), ()),
+    "ShaderNodeEmission": ("EMISSION", ("Color", "Strength"), ()),
+}
 # Why some shader nodes are not rendered (others: "is not supported").
 UNSUPPORTED_NODES = {
     "ShaderNodeBsdfHairPrincipled": "is not supported (a model for hair curves; on a mesh Cycles shades it about "
@@ -194,11 +210,12 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
 def _read_tree(material, tree, reader, warnings, uv_maps, attributes) -> Shader:
     out = output_node(tree)
     closures = () if out is None else tuple(reader.closures(source_of(out.inputs["Surface"]), ()))
+    volume, volume_only = (), False
     if out is not None:
-        if source_of(out.inputs["Volume"]).node is not None:
-            reader.issues.append("volume shaders are not supported and it has no surface shader: rendered as a "
-                                 "black surface" if not closures else "volume shaders are not supported, the "
-                                 "volume is ignored")
+        volume = tuple(reader.volume_closures(source_of(out.inputs["Volume"]), ()))
+        # A Volume output and nothing on the Surface: the surface is the volume's invisible boundary (Cycles'
+        # SD_HAS_ONLY_VOLUME); a Surface whose shader folds to nothing stays black, as in Cycles.
+        volume_only = bool(volume) and source_of(out.inputs["Surface"]).node is None
         displacement = out.inputs.get("Displacement")
         if displacement is not None and source_of(displacement).node is not None:
             reader.issues.append("Displacement output is not supported, ignored")
@@ -212,8 +229,26 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes) -> Shader:
     aovs = tuple((node.aov_name, reader.param(node.inputs["Color"], (), 3, node),
                   reader.param(node.inputs["Value"], (), 1, node))
                  for node in tree.nodes if node.bl_idname == "ShaderNodeOutputAOV" and not node.mute)
-    correction = getattr(getattr(material, "cycles", None), "use_bump_map_correction", True)
-    return Shader(closures, material.name, bool(correction), reader.program.program(), aovs)
+    settings = getattr(material, "cycles", None)
+    correction = getattr(settings, "use_bump_map_correction", True)
+    interpolation = getattr(settings, "volume_interpolation", "LINEAR")
+    return Shader(closures, material.name, bool(correction), reader.program.program(), aovs, volume, volume_only,
+                  interpolation if interpolation in ("LINEAR", "CLOSEST", "CUBIC") else "LINEAR")
+
+
+def read_volume(tree, name: str, images: ImageTextures, issues: list[str]) -> Shader | None:
+    """The Volume output of a node tree (a world's) as a Shader of volume closures and their program, or None
+    when nothing feeds it. What it cannot render goes to issues."""
+    out = output_node(tree)
+    if out is None or "Volume" not in out.inputs or source_of(out.inputs["Volume"]).node is None:
+        return None
+    reader = _MaterialReader(images)
+    with indexed_links():
+        volume = tuple(reader.volume_closures(source_of(out.inputs["Volume"]), ()))
+    issues.extend(reader.issues)
+    if not volume:
+        return None
+    return Shader((), name, program=reader.program.program(), volume=volume)
 
 
 class _MaterialReader:
@@ -262,6 +297,46 @@ class _MaterialReader:
         self.check_unsupported(node, closure_kind, groups)
         self.check_direction(node, dict(inputs).get("Direction"))
         return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
+
+    def volume_closures(self, source: Source, factors: tuple) -> list[Closure]:
+        """The volume closures of the shader tree feeding a Volume output, with their Mix Shader factors."""
+        return run_nested(self._volume_closures(source, factors))
+
+    def _volume_closures(self, source: Source, factors: tuple):
+        """Step (engine/export/graph.py) of volume_closures()."""
+        node, groups = source.node, source.groups
+        if node is None:
+            return []
+        kind = source.kind
+        if kind in ("ShaderNodeMixShader", "ShaderNodeAddShader"):
+            out = []
+            fac = self.volume_param(node.inputs[0], groups, 1, node) if kind == "ShaderNodeMixShader" else None
+            for i, second in ((1, False), (2, True)) if fac is not None else ((0, None), (1, None)):
+                if fac is not None and not fac.varies and fac.value[0] == (0.0 if second else 1.0):
+                    continue
+                below = factors if fac is None else factors + ((fac, second),)
+                out += yield self._volume_closures(source_of(node.inputs[i], groups), below)
+            return out
+        if kind not in VOLUME_NODES:
+            self.issues.append(f"{node.bl_label} '{node.name}' is not a volume shader: the Volume output ignores it, "
+                               f"as Cycles does")
+            return []
+        volume_kind, names, strings = VOLUME_NODES[kind]
+        inputs = tuple((name, self.volume_param(node.inputs[name], groups, _channels(node.inputs[name]), node))
+                       for name in names if name in node.inputs)
+        options = tuple((name, str(node.inputs[name].default_value)) for name in strings if name in node.inputs)
+        phase = getattr(node, "phase", None)
+        if phase is not None:
+            options += (("phase", phase),)
+        return [Closure(volume_kind, inputs, options, factors)]
+
+    def volume_param(self, socket, groups, channels: int, node) -> Param:
+        """A volume closure's input: a constant, or the node program's value at each point of the medium
+        (image lookups included: a volume has no UVs, the program reads what Cycles reads there)."""
+        source = source_of(socket, groups)
+        if source.node is None or source.kind in ("ShaderNodeRGB", "ShaderNodeValue"):
+            return Param.of(self.constant(source.socket, channels, source.node or node))
+        return self.program_param(socket, groups, channels)
 
     def options(self, node, kind: str) -> tuple:
         options = []

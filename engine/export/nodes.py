@@ -278,6 +278,12 @@ def _attribute(builder, node, groups):
     return builder.add("ATTRIBUTE", {}, {"name": name})
 
 
+def _volume_info(builder, node, groups):
+    """Volume Info: the grids named color, density, flame and temperature at a point of a volume (zero
+    elsewhere, as in Cycles)."""
+    return builder.add("VOLUME_INFO", {})
+
+
 def _vertex_color(builder, node, groups):
     name = "color:" + node.layer_name
     builder.attributes.add(name)
@@ -446,6 +452,7 @@ COMPILERS = {
     "ShaderNodeNewGeometry": _geometry,
     "ShaderNodeObjectInfo": _object_info,
     "ShaderNodeAttribute": _attribute,
+    "ShaderNodeVolumeInfo": _volume_info,
     "ShaderNodeVertexColor": _vertex_color,
     "ShaderNodeLayerWeight": _plain,
     "ShaderNodeFresnel": _plain,

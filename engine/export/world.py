@@ -18,6 +18,8 @@ Supported, with Cycles as the reference:
 """
 from __future__ import annotations
 
+import dataclasses
+
 import mathutils
 import numpy as np
 
@@ -25,6 +27,7 @@ from ...kernels import World
 from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
 from .images import ImagePixels, ImageTextures
 from .lights import MAX_LIGHT_RADIANCE
+from .materials import read_volume
 from .nodes import ProgramBuilder
 from .sockets import BLACK3, MISSING_IMAGE_COLOR, Source, output_node, rgb, socket_has_nan, source_of
 
@@ -52,9 +55,9 @@ def export_world(world, warnings: list[str], images=None) -> World:
         else:
             result = _read_tree(world.node_tree, issues, images)
     issues.extend(invalid_links(world.node_tree))
-    out = output_node(world.node_tree)
-    if out is not None and "Volume" in out.inputs and source_of(out.inputs["Volume"]).node is not None:
-        issues.append("its Volume output (world fog) is not supported yet, ignored")
+    volume = read_volume(world.node_tree, world.name, images, issues)
+    if volume is not None:
+        result = dataclasses.replace(result, volume=volume)
     if issues:
         warnings.append(f"World '{world.name}': " + "; ".join(dict.fromkeys(issues)))
     return result

@@ -14,6 +14,8 @@ from ..environment import WorldFocus
 from ..geometry import NG
 from ..interaction import RayInfo, SurfaceHit, spawn_offset
 from ..paths import may_scatter
+from ..media import stack as volume_stack
+from ..media import tracking
 from ..samples import LIGHT, LIGHT_POINT
 
 # At a shading point whose closures are all one glossy lobe, the share of the world's light samples drawn
@@ -91,15 +93,21 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
     origins = np.stack([ox, oy, oz], axis=1)
     paths = active[idx]
     dirs = np.stack([wx, wy, wz], axis=1)
+    stack = None
+    if state.media is not None:
+        # A shadow ray that leaves through the surface (toward a light behind it) enters or leaves the
+        # medium there, as the path's ray would (Cycles copies the stack and enters or exits for it).
+        through = np.where(sign < 0, tables.media.of_hits(np.take(hit.prim, paths)), -1).astype(np.int32)
+        stack = volume_stack.cross(np.take(state.media, paths, axis=1), through, np.take(hit.backfacing, paths))
     # Lights with Cast Shadow off are not blocked: no shadow ray, as in Cycles.
     traced = np.flatnonzero(np.take(ls.shadowed, idx))
     if len(traced) == len(idx):
-        transmittance = shadow_of(tables, origins, dirs, t_max, wave, state, paths)
+        transmittance = shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack)
     else:
         transmittance = np.ones((3, len(idx)), np.float32)
         if len(traced):
             transmittance[:, traced] = shadow_of(tables, origins[traced], dirs[traced], t_max[traced], wave,
-                                                       state, paths[traced])
+                                                 state, paths[traced], None if stack is None else stack[:, traced])
     vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
     if not len(vis):
         return
@@ -120,6 +128,49 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
         wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
         return passes.class_shares(*eval_split(closures, paths[first], wi))
     passes.add_light(tables, wave, state, paths, contribution, reflecting)
+
+
+def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=None) -> None:
+    """Next-event estimation at points p (m, 3) where the paths rows (state rows) scatter in a medium: a light
+    sample, the phase closures' value toward it (mixture: media.scatter.PhaseMixture over the m points; rays
+    arrived along d, a 3 tuple of (m,)), the shadow ray's transmittance through surfaces and media, MIS
+    against the phase function's own sampling (Cycles' integrate_volume_direct_light). numbers: (u_select,
+    u1, u2) (m,) each; scale: (3, m) a factor on the paths' throughput (a distance's weight), or None."""
+    u_select, u1, u2 = numbers
+    px, py, pz = (np.ascontiguousarray(p[:, k], np.float32) for k in range(3))
+    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None)
+    le = ls.radiance
+    f, phase_pdf = mixture.evaluate(d, (ls.wx, ls.wy, ls.wz))
+    useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)) &
+                            ((f[0] > 0) | (f[1] > 0) | (f[2] > 0)))
+    if not len(useful):
+        return
+    paths = rows[useful]
+    dist = np.take(ls.dist, useful)
+    finite = np.isfinite(dist)
+    dirs = np.stack([np.take(c, useful) for c in (ls.wx, ls.wy, ls.wz)], axis=1)
+    t_max = np.where(finite, dist * np.float32(1.0 - 1e-4), np.inf).astype(np.float32)
+    origins = np.ascontiguousarray(p[useful], np.float32)
+    traced = np.flatnonzero(np.take(ls.shadowed, useful))
+    transmittance = np.ones((3, len(useful)), np.float32)
+    if len(traced):
+        transmittance[:, traced] = shadow_of(tables, origins[traced], dirs[traced], t_max[traced], wave, state,
+                                             paths[traced])
+    vis = np.flatnonzero((transmittance[0] != 0) | (transmittance[1] != 0) | (transmittance[2] != 0))
+    if not len(vis):
+        return
+    at = useful[vis]
+    pdf = np.take(ls.pdf, at)
+    heuristic = sampling.power_heuristic(pdf, phase_pdf[at])
+    if tables.environment.mis_balance:
+        heuristic = np.where(np.take(ls.world, at), sampling.balance_heuristic(pdf, phase_pdf[at]), heuristic)
+    w = np.where(np.take(ls.delta, at), np.float32(1.0), heuristic)
+    contribution = np.take(state.throughput, rows[at], axis=1) * np.take(f, at, axis=1) * \
+        np.take(transmittance, vis, axis=1) * np.take(le, at, axis=1) * (w / pdf)
+    if scale is not None:
+        contribution *= np.take(scale, at, axis=1)
+    passes.add_light(tables, wave, state, rows[at], contribution,
+                     lambda first: np.zeros((6, len(first)), np.float32))
 
 
 def terminator_lift(tables, hit, hits, light, ng):
@@ -147,30 +198,57 @@ def terminator_lift(tables, hit, hits, light, ng):
     return rows, offset * amount[rows, None].astype(np.float32)
 
 
-def shadow_of(tables, origins, dirs, t_max, wave, state, paths) -> np.ndarray:
-    """_shadow for shadow rays leaving the paths `paths` (state rows)."""
+def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None) -> np.ndarray:
+    """_shadow for shadow rays leaving the paths `paths` (state rows); stack: their volume stacks (K, n) when
+    they differ from the paths' (None: the paths' own, when the scene has media)."""
+    seeds = None
+    if state.media is not None:
+        stack = np.take(state.media, paths, axis=1) if stack is None else stack
+        rng = state.samples.rng
+        seeds = (np.take(rng.x, paths), np.take(rng.y, paths))
     return shadow(tables, origins, dirs, t_max, wave, np.take(state.bounce, paths),
-                        None if state.lobes is None else np.take(state.lobes, paths, axis=1),
-                        None if state.time is None else state.time.take(paths),
-                        None if state.portal is None else np.take(state.portal, paths))
+                  None if state.lobes is None else np.take(state.lobes, paths, axis=1),
+                  None if state.time is None else state.time.take(paths),
+                  None if state.portal is None else np.take(state.portal, paths), stack, seeds)
 
 
-def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None) -> np.ndarray:
+def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None, stack=None,
+           seeds=None) -> np.ndarray:
     """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
-    transparent surfaces, the product of their transparency (Cycles' transparent shadows).
+    transparent surfaces, the product of their transparency (Cycles' transparent shadows); through media
+    (stack: the rays' volume stacks (K, n), seeds their paths' PCG2D states, or None), their transmittance,
+    the stacks changing where the rays pass a surface with a volume.
     depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None),
     portal its Ray Portals passed (or None): what the Light Path node reads."""
     n = len(origins)
     split = wave.split
+    if stack is not None and not (stack >= 0).any() and not tables.media.has_volume.any():
+        stack = None
     if not tables.shading.transparent.any():
         blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
-        return np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
+        out = np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
+        if stack is None:
+            return out
+        open_ = np.flatnonzero(~blocked & (stack >= 0).any(axis=0))
+        out = np.array(out)
+        if len(open_):
+            out[:, open_] *= tracking.transmittance(tables.media, stack[:, open_], origins[open_], dirs[open_],
+                                                    t_max[open_], tuple(np.take(s, open_) for s in seeds))
+        return out
     out = np.ones((3, n), np.float32)
     live = np.arange(n)
     origins, t_left = origins.copy(), t_max.copy()
-    for _ in range(int(wave.settings.transparent_max_bounces) + 1):
+    for crossing in range(int(wave.settings.transparent_max_bounces) + 1):
         hits = tables.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
         found = np.flatnonzero(hits.prim >= 0)
+        if stack is not None:
+            # The media along the segment to the surface met (or to the light).
+            inside = np.flatnonzero((stack[:, live] >= 0).any(axis=0))
+            if len(inside):
+                end = np.where(hits.prim[inside] >= 0, hits.t[inside], t_left[inside]).astype(np.float32)
+                out[:, live[inside]] *= tracking.transmittance(
+                    tables.media, stack[:, live[inside]], origins[inside], dirs[live[inside]], end,
+                    tuple(np.take(s, live[inside]) for s in seeds), salt=1 + crossing)
         if not len(found):
             break
         d = dirs[live[found]]
@@ -185,6 +263,14 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
         through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]
         if not len(through):
             break
+        if stack is not None:
+            prim = hits.prim[through]
+            medium = tables.media.of_hits(prim)
+            g = tables.triangles.gather(prim)
+            d = dirs[live[through]]
+            behind = g[NG] * d[:, 0] + g[NG + 1] * d[:, 1] + g[NG + 2] * d[:, 2] > 0
+            stack = stack.copy()
+            stack[:, live[through]] = volume_stack.cross(stack[:, live[through]], medium, behind)
         # Continue just past the transparent surface.
         t = hits.t[through]
         step = t + spawn_offset(tables.ray_epsilon, *(origins[through, k] for k in range(3)))

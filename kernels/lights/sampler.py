@@ -49,8 +49,9 @@ class LightSample:
 class LightHits:
     """What BSDF rays meet of the lights with a surface (LightSampler.intersect), per ray: hit (N,) bool,
     radiance (3, N) and pdf (N,) (solid angle, with selection) of the light returned; crossed (N,) int32,
-    the lights met (each a transparent bounce); stopped (N,) bool, the path ends at its last light."""
-    __slots__ = ("hit", "radiance", "pdf", "crossed", "stopped")
+    the lights met (each a transparent bounce); stopped (N,) bool, the path ends at its last light; t (N,)
+    float32 the distance to the light returned."""
+    __slots__ = ("hit", "radiance", "pdf", "crossed", "stopped", "t")
 
     def __init__(self, n: int):
         self.hit = np.zeros(n, bool)
@@ -58,6 +59,7 @@ class LightHits:
         self.pdf = np.zeros(n, np.float32)
         self.crossed = np.zeros(n, np.int32)
         self.stopped = np.zeros(n, bool)
+        self.t = np.zeros(n, np.float32)
 
 
 class LightSampler:
@@ -324,15 +326,16 @@ class LightSampler:
         out.crossed = crossed
         if budget is not None:
             out.stopped = crossed >= np.maximum(budget, 1)
-        ray, light, light_pdf, le = ray[met], light[met], light_pdf[met], le[:, met]
+        ray, light, light_pdf, le, t = ray[met], light[met], light_pdf[met], le[:, met], t[met]
         weight = le[0] + le[1] + le[2]
         keep = np.flatnonzero(weight > 0)
-        ray, light, light_pdf, le, weight = ray[keep], light[keep], light_pdf[keep], le[:, keep], weight[keep]
+        ray, light, light_pdf, le, weight, t = ray[keep], light[keep], light_pdf[keep], le[:, keep], weight[keep], t[keep]
         if not len(ray):
             return out
         chosen, share = _choose_per_ray(ray, weight.astype(np.float64), _ray_uniform(ox, oy, oz, dx, dy, dz)[ray])
         rays = ray[chosen]
         out.hit[rays] = True
+        out.t[rays] = t[chosen]
         out.radiance[:, rays] = le[:, chosen] / share.astype(np.float32)
         out.pdf[rays] = self.selection_pmf(light[chosen], ox[rays], oy[rays], oz[rays]) * light_pdf[chosen]
         return out

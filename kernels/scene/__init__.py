@@ -23,8 +23,8 @@ from .arrays import SceneArrays, ValidatedScene
 from .camera import CAMERA_KINDS, PIXEL_FILTERS, SENSOR_FITS, Camera
 from .instances import Instances, Prototype, usable_placements
 from .lights import LIGHT_KINDS, Lights
-from .materials import (CLOSURE_KINDS, INPUT_NODES, NORMAL_MAP_SPACES, Closure, Materials, NormalMap, Param, Shader,
-                        Tangent, diffuse_shader)
+from .materials import (CLOSURE_KINDS, INPUT_NODES, NORMAL_MAP_SPACES, VOLUME_KINDS, Closure, Materials, NormalMap,
+                        Param, Shader, Tangent, diffuse_shader)
 from .objects import (OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TERMINATOR,
                       OBJ_TEXSPACE_LOC, OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR, OBJECT_COLUMNS, TERMINATOR_OFFSET,
                       mirrored_objects, object_row, object_rows)
@@ -36,7 +36,7 @@ __all__ = [
     "CAMERA_KINDS", "PIXEL_FILTERS", "SENSOR_FITS", "Camera",
     "Instances", "Prototype", "usable_placements",
     "LIGHT_KINDS", "Lights",
-    "CLOSURE_KINDS", "INPUT_NODES", "NORMAL_MAP_SPACES", "Closure", "Materials", "NormalMap", "Param", "Shader",
+    "CLOSURE_KINDS", "INPUT_NODES", "NORMAL_MAP_SPACES", "VOLUME_KINDS", "Closure", "Materials", "NormalMap", "Param", "Shader",
     "Tangent", "diffuse_shader",
     "OBJ_COLOR", "OBJ_FROM_WORLD", "OBJ_LOCATION", "OBJ_PASS_INDEX", "OBJ_RANDOM", "OBJ_TERMINATOR",
     "OBJ_TEXSPACE_LOC", "OBJ_TEXSPACE_SIZE", "OBJ_WORLD_LINEAR", "OBJECT_COLUMNS", "TERMINATOR_OFFSET",

@@ -12,6 +12,8 @@ from .checks import require
 # Closure nodes a material can be made of (Blender's shader nodes, read by the engine's export).
 CLOSURE_KINDS = ("DIFFUSE", "PRINCIPLED", "GLOSSY", "GLASS", "REFRACTION", "METALLIC", "SHEEN", "TRANSLUCENT",
                  "TRANSPARENT", "TOON", "PORTAL", "HAIR", "EMISSION", "HOLDOUT")
+# Closure nodes a Volume output can be made of (an Emission node there emits light per unit length).
+VOLUME_KINDS = ("VOLUME_SCATTER", "VOLUME_ABSORPTION", "PRINCIPLED_VOLUME", "VOLUME_COEFFICIENTS", "EMISSION")
 
 
 @dataclass(frozen=True)
@@ -134,12 +136,20 @@ class Shader:
     program : the material's node program (kernels.programs), which linked Params read.
     aovs : the material's AOV Output nodes, ((name, colour Param (3), value Param (1)), ...): the Shader AOV
         passes read them at the camera rays' first hit.
+    volume : the closures of the material's Volume output (kinds VOLUME_KINDS; their Params read the same
+        program): the medium inside the closed meshes that wear the material (kernels.media).
+    volume_only : the Surface output is empty and the Volume output is not: the surface is an invisible
+        boundary (Cycles' SD_HAS_ONLY_VOLUME), not a black one.
+    interpolation : the material's Volume > Interpolation (LINEAR, CLOSEST, CUBIC), for voxel grids.
     """
     closures: tuple = ()
     name: str = ""
     bump_map_correction: bool = True
     program: Program = Program()
     aovs: tuple = ()
+    volume: tuple = ()
+    volume_only: bool = False
+    interpolation: str = "LINEAR"
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),
@@ -179,9 +189,10 @@ class Materials:
             require(isinstance(shader, Shader), f"materials[{i}]", "must be a Shader")
             require(isinstance(shader.program, Program), f"materials[{i}]", "program must be a Program")
             shader.program.validate(n_textures)
-            for closure in shader.closures:
+            for closure in shader.closures + shader.volume:
                 where = f"materials[{i}] ({shader.name or 'unnamed'}) {closure.kind}"
-                require(closure.kind in CLOSURE_KINDS, where, f"kind must be one of {CLOSURE_KINDS}")
+                kinds = VOLUME_KINDS if closure in shader.volume else CLOSURE_KINDS
+                require(closure.kind in kinds, where, f"kind must be one of {kinds}")
                 for name, value in closure.inputs + tuple(("Fac", p) for p, _ in closure.factors):
                     _check_input(value, f"{where} {name}", name, n_textures)
                 if closure.kind == "EMISSION" or closure.kind == "PRINCIPLED":

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..programs import Program, Ref
 from .checks import check_array, require
+from .materials import Materials, Shader
 
 
 @dataclass(frozen=True)
@@ -30,6 +31,8 @@ class World:
     focus : at glossy shading points, draw part of the world's light samples from the map around the
         main glossy lobe's direction (environment.Environment.focus); False: from the whole map, as Cycles
         does (same image, more noise). Neither applies to a world program with a Light Path node.
+    volume : the world's Volume output as a materials.Shader (its volume closures and their program), or
+        None: a medium filling the whole scene, as Cycles' world volume (kernels.media).
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None
@@ -40,6 +43,7 @@ class World:
     map_resolution: int = 1024
     mis_compensation: bool = True
     focus: bool = True
+    volume: object = None
 
     def validate(self) -> None:
         check_array(self.color, "world.color", (3,), np.float32)
@@ -58,3 +62,7 @@ class World:
             require(isinstance(self.output, Ref) and 0 <= self.output.op < len(self.program), "world.output",
                     f"must be a Ref into the world's program of {len(self.program)} ops")
             require(int(self.map_resolution) >= 4, "world.map_resolution", "must be at least 4")
+        if self.volume is not None:
+            require(isinstance(self.volume, Shader) and self.volume.volume, "world.volume",
+                    "must be a Shader with volume closures")
+            Materials((self.volume,)).validate(1 << 30)

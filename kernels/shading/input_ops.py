@@ -302,6 +302,25 @@ def attribute(hits, inputs, op):
     return {"Color": vec, "Vector": vec, "Fac": fac, "Alpha": alpha}
 
 
+def volume_info(hits, inputs, op):
+    """Volume Info: the grids Blender names color, density, flame and temperature (Cycles' standard volume
+    attributes), zero where the point has none (a mesh's volume, a surface)."""
+    n = hits.n
+    out = {}
+    for socket, name, channels in (("Color", "color", 3), ("Density", "density", 1), ("Flame", "flame", 1),
+                                   ("Temperature", "temperature", 1)):
+        values = hits.attribute("attr:" + name)
+        if values is None:
+            out[socket] = np.zeros((n, 3) if channels == 3 else n, F32)
+        elif channels == 3:
+            out[socket] = np.ascontiguousarray(np.repeat(values[:, :1], 3, axis=1) if values.shape[1] == 1
+                                               else values[:, :3], F32)
+        else:
+            out[socket] = np.ascontiguousarray(values[:, 0] if values.shape[1] == 1 else values[:, :3].mean(axis=1),
+                                               F32)
+    return out
+
+
 # ---------------------------------------------------------------- facing: Layer Weight, Fresnel
 def layer_weight(hits, inputs, op):
     n = hits.n

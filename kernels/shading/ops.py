@@ -18,7 +18,8 @@ from . import sky as sk
 from . import voronoi as vr
 from .image_ops import environment, image
 from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geometry, layer_weight, light_path, \
-    normal_map, normal_node, object_info, separate_xyz, tangent_node, tex_coord, uv_map, vector_transform, wireframe
+    normal_map, normal_node, object_info, separate_xyz, tangent_node, tex_coord, uv_map, vector_transform, \
+    volume_info, wireframe
 from .program import full
 
 
@@ -35,6 +36,7 @@ OPS = {
     "ShaderNodeNewGeometry": geometry,
     "ShaderNodeObjectInfo": object_info,
     "ATTRIBUTE": attribute,
+    "VOLUME_INFO": volume_info,
     "ShaderNodeLayerWeight": layer_weight,
     "ShaderNodeFresnel": fresnel_node,
     "ShaderNodeLightPath": light_path,

@@ -1,6 +1,8 @@
 """Evaluating materials over a wave's hits: inputs as arrays, then each closure node's closures."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..bsdf.closures import ClosureBuilder, ClosureSet
@@ -15,6 +17,9 @@ from .node_context import CUTOFF, DEFAULTS, Context
 from .input_ops import reads_lobes
 from .ops import OPS
 from .program import HitInputs, ProgramRun
+
+
+VOLUME_BOUNDARY = Closure("TRANSPARENT", (("Color", Param.of((1.0, 1.0, 1.0))),))
 
 
 class SurfaceShading:
@@ -68,7 +73,11 @@ class Shading:
     """The scene's shaders, ready to be evaluated at hits."""
 
     def __init__(self, materials: Materials, textures: list[Texture], scene=None, triangles=None):
-        self.shaders = materials.shaders
+        # A material with only a Volume output has an invisible surface, the boundary of its medium: rays
+        # and shadow rays go straight through it (Cycles' SD_HAS_ONLY_VOLUME), as through a white
+        # Transparent BSDF (the integrator does not count them as transparent bounces).
+        self.shaders = tuple(replace(s, closures=(VOLUME_BOUNDARY,)) if s.volume_only else s
+                             for s in materials.shaders)
         self.textures = textures
         self.data = ShadingData(textures, scene, triangles)
         world = getattr(scene, "world", None)

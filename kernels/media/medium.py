@@ -1,0 +1,222 @@
+"""The scene's participating media, as Cycles keeps them on its volume stack: one medium per (object,
+material) pair whose material has a Volume output (the inside of that object's closed surfaces of that
+material), and the world's Volume output (everywhere), each with a majorant: a bound on its extinction (and
+emission) that null-scattering distance sampling draws tentative collisions against (kernels.media.tracking).
+
+A medium whose inputs are all constants is homogeneous: evaluated once, its majorant is its largest
+extinction. Otherwise the majorant is estimated as Cycles estimates its octree's (bvh/octree.cpp,
+kernel/bake/bake.h kernel_volume_density_evaluate): the shader evaluated at random points of cells over the
+medium's bounds, the largest extinction or emission found, here with Cycles' run-time margin (x 1.5,
+shade_volume.h volume_estimate_extrema). Where a point still exceeds it, the null collision's weight turns
+negative and the estimate stays unbiased (tracking.py), only noisier.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import E1, E2, NG, P0
+from ..shading.volume import PhaseClosure, VolumeCoefficients, VolumeShader
+from ..vec import F32
+
+WORLD_KEY = -1            # the world's medium key (no object, no material)
+STACK_SIZE = 8            # media a path can be inside at once (Cycles sizes its stack to the scene's nesting)
+MAJORANT_CELLS = 12       # cells per axis over a heterogeneous medium's bounds for the majorant estimate
+MAJORANT_SAMPLES = 4      # random points per cell
+MAJORANT_MARGIN = 1.5     # Cycles' margin on an estimated majorant
+CAMERA_PROBE = (0.30151134, 0.30151134, 0.90453403)  # the direction the camera's media are found along
+
+
+class Media:
+    """The media of a scene and their majorants. Ids index the tables; -1 on a stack is an empty slot."""
+
+    def __init__(self, shading, triangles, world_volume, extent, data):
+        """shading : shading.Shading (its shaders' volume closures); triangles : geometry.TriangleTable;
+        world_volume : kernels.scene.Shader or None; extent : (lo, hi) of the scene, for a world medium that
+        varies; data : shading.shader.ShadingData."""
+        self.shaders = {m: VolumeShader(s, data) for m, s in enumerate(shading.shaders) if s.volume}
+        self.triangles = triangles
+        count = len(shading.shaders)
+        self.has_volume = np.zeros(count, bool)
+        self.has_volume[list(self.shaders)] = True
+        self.boundary = np.array([bool(s.volume_only) for s in shading.shaders], bool)
+        self.material, self.object, self.lo, self.hi = [], [], [], []
+        self.world = -1
+        if world_volume is not None:
+            self.world = self._add(-1, -1, np.asarray(extent[0], F32), np.asarray(extent[1], F32))
+            self.shaders[-1] = VolumeShader(world_volume, data)
+        self._keys = np.zeros(0, np.int64)
+        self._ids = np.zeros(0, np.int32)
+        self._count = count
+        if self.shaders.keys() - {-1} and triangles is not None:
+            self._index_meshes(triangles, count)
+        self.material = np.asarray(self.material, np.int32)
+        self.object = np.asarray(self.object, np.int32)
+        self.lo, self.hi = np.asarray(self.lo, F32).reshape(-1, 3), np.asarray(self.hi, F32).reshape(-1, 3)
+        self.homogeneous = np.array([self.shaders[m].homogeneous for m in self.material], bool)
+        self._constant: dict[int, VolumeCoefficients] = {}
+        self.majorant = np.array([self._estimate_majorant(i) for i in range(len(self.material))], F32)
+
+    def __len__(self) -> int:
+        return len(self.material)
+
+    def _add(self, material: int, obj: int, lo, hi) -> int:
+        self.material.append(material)
+        self.object.append(obj)
+        self.lo.append(lo)
+        self.hi.append(hi)
+        return len(self.material) - 1
+
+    def _index_meshes(self, triangles, count: int) -> None:
+        """A medium per (object, material) of the triangles whose material has a volume, with its bounds."""
+        prim = np.flatnonzero(np.take(self.has_volume, triangles.material_ids))
+        if triangles.instanced:
+            prim = prim[prim < triangles.plain_count]   # instanced volumes: not yet (their boundary is plain)
+        if not len(prim):
+            return
+        objects = triangles.object_rows(prim)
+        objects = np.zeros(len(prim), np.int32) if objects is None else objects
+        keys = objects.astype(np.int64) * count + np.take(triangles.material_ids, prim)
+        unique, inverse = np.unique(keys, return_inverse=True)
+        g = triangles.gather(prim)
+        corners = [np.stack([g[P0 + k], g[P0 + k] + g[E1 + k], g[P0 + k] + g[E2 + k]]) for k in range(3)]
+        ids = []
+        for j, key in enumerate(unique):
+            rows = np.flatnonzero(inverse == j)
+            lo = np.array([c[:, rows].min() for c in corners], F32)
+            hi = np.array([c[:, rows].max() for c in corners], F32)
+            ids.append(self._add(int(key % count), int(key // count), lo, hi))
+        self._keys, self._ids = unique, np.asarray(ids, np.int32)
+
+    # ---------------------------------------------------------------- where
+    def of_hits(self, prim: np.ndarray) -> np.ndarray:
+        """(n,) the medium behind each hit triangle's surface, -1 where its material has no volume."""
+        out = np.full(len(prim), -1, np.int32)
+        if not len(self._keys):
+            return out
+        mats = self.triangles.materials(prim)
+        inside = np.flatnonzero(np.take(self.has_volume, mats))
+        if not len(inside):
+            return out
+        objects = self.triangles.object_rows(prim[inside])
+        objects = np.zeros(len(inside), np.int32) if objects is None else objects
+        keys = objects.astype(np.int64) * self._count + mats[inside]
+        at = np.minimum(np.searchsorted(self._keys, keys), len(self._keys) - 1)
+        found = self._keys[at] == keys
+        out[inside[found]] = self._ids[at[found]]
+        return out
+
+    def start_stack(self, n: int, accel=None, eye=None) -> np.ndarray:
+        """(STACK_SIZE, n) int32 the stack a camera path starts with: the world's medium, and the media whose
+        closed surfaces hold the camera (Cycles' volume_stack_init and integrator_intersect_volume_stack: along
+        a ray from the eye, a medium whose surface is met from behind before from the front holds it)."""
+        stack = np.full((STACK_SIZE, n), -1, np.int32)
+        slot = 0
+        if self.world >= 0:
+            stack[0] = self.world
+            slot = 1
+        for medium in self.camera_media(accel, eye):
+            if slot < STACK_SIZE:
+                stack[slot] = medium
+                slot += 1
+        return stack
+
+    def camera_media(self, accel, eye) -> list:
+        if accel is None or eye is None or not len(self._keys):
+            return []
+        origin = np.asarray(eye, F32).reshape(1, 3)
+        direction = np.asarray(CAMERA_PROBE, F32).reshape(1, 3)
+        entered, inside = set(), []
+        t_min = 0.0
+        for _ in range(256):
+            hits = accel.intersect(origin + direction * np.float32(t_min), direction, np.full(1, np.inf, F32))
+            if hits.prim[0] < 0:
+                break
+            prim = hits.prim[:1]
+            medium = int(self.of_hits(prim)[0])
+            if medium >= 0:
+                g = self.triangles.gather(prim)
+                behind = float(g[NG][0] * direction[0, 0] + g[NG + 1][0] * direction[0, 1] +
+                               g[NG + 2][0] * direction[0, 2]) > 0
+                if behind and medium not in entered and medium not in inside:
+                    inside.append(medium)
+                elif not behind:
+                    entered.add(medium)
+            t_min += float(hits.t[0]) + 1e-4 * max(1.0, abs(t_min))
+        return inside
+
+    # ---------------------------------------------------------------- what
+    def coefficients(self, ids: np.ndarray, p: np.ndarray, d: np.ndarray, ray=None,
+                     emission: bool = True) -> VolumeCoefficients:
+        """The coefficients of media ids (n,) (-1: none, zeros) at points p (n, 3) seen along d (n, 3)."""
+        n = len(ids)
+        out = VolumeCoefficients.zeros(n)
+        for medium in np.unique(ids):
+            if medium < 0:
+                continue
+            idx = np.flatnonzero(ids == medium)
+            out.add(self._evaluate(int(medium), p[idx], d[idx], ray, emission), idx)
+        return out
+
+    def stack_coefficients(self, stack: np.ndarray, p: np.ndarray, d: np.ndarray, ray=None,
+                           emission: bool = True) -> VolumeCoefficients:
+        """The sum of the coefficients of each path's media (stack (K, n))."""
+        out = VolumeCoefficients.zeros(stack.shape[1])
+        for k in range(stack.shape[0]):
+            if (stack[k] >= 0).any():
+                out.add(self.coefficients(stack[k], p, d, ray, emission))
+        return out
+
+    def stack_majorant(self, stack: np.ndarray) -> np.ndarray:
+        """(n,) the sum of the majorants of each path's media."""
+        table = np.append(self.majorant, F32(0.0))
+        return np.take(table, stack).sum(axis=0).astype(F32)
+
+    def stack_homogeneous(self, stack: np.ndarray) -> np.ndarray:
+        """(n,) each path's media are all homogeneous."""
+        table = np.append(self.homogeneous, True)
+        return np.take(table, stack).all(axis=0)
+
+    def _evaluate(self, medium: int, p, d, ray, emission: bool) -> VolumeCoefficients:
+        material = int(self.material[medium])
+        shader = self.shaders[material]
+        n = len(p)
+        if shader.homogeneous:
+            c = self._constant.get(medium)
+            if c is None:
+                c = self._constant[medium] = shader.evaluate(p[:1], d[:1], self._objects(medium, 1))
+            return _broadcast(c, n, emission)
+        return shader.evaluate(p, d, self._objects(medium, n), ray=ray, emission=emission)
+
+    def _objects(self, medium: int, n: int):
+        obj = int(self.object[medium])
+        return None if obj < 0 else np.full(n, obj, np.int32)
+
+    def _estimate_majorant(self, medium: int) -> float:
+        material = int(self.material[medium])
+        shader = self.shaders[material]
+        lo, hi = self.lo[medium].astype(np.float64), self.hi[medium].astype(np.float64)
+        if shader.homogeneous:
+            points = ((lo + hi) / 2)[None].astype(F32)
+            cells = 1
+        else:
+            cells = MAJORANT_CELLS
+            rng = np.random.default_rng(0x15B4F88D + medium)
+            size = (hi - lo) / cells
+            pad = 0.2 * size    # Cycles pads each cell by 0.2 of its size (octree.cpp fill_shader_input)
+            index = np.stack(np.meshgrid(*(np.arange(cells),) * 3, indexing="ij"), -1).reshape(-1, 1, 3)
+            jitter = rng.random((len(index), MAJORANT_SAMPLES, 3))
+            points = (lo - pad + index * size + jitter * (size + 2 * pad)).reshape(-1, 3).astype(F32)
+        d = np.zeros_like(points)
+        d[:, 2] = -1.0
+        c = shader.evaluate(points, d, self._objects(medium, len(points)))
+        peak = float(max(c.sigma_t.max(initial=0.0), c.emission.max(initial=0.0)))
+        if cells == 1:
+            return peak
+        return max(peak * MAJORANT_MARGIN, 1e-6) if peak > 0 else 0.0
+
+
+def _broadcast(c: VolumeCoefficients, n: int, emission: bool) -> VolumeCoefficients:
+    phases = [PhaseClosure(p.phase, np.repeat(p.weight, n, axis=1),
+                           {k: np.repeat(v, n) for k, v in p.params.items()}) for p in c.phases]
+    return VolumeCoefficients(np.repeat(c.sigma_s, n, axis=1), np.repeat(c.sigma_t, n, axis=1),
+                              np.repeat(c.emission, n, axis=1) if emission else np.zeros((3, n), F32), phases)

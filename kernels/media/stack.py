@@ -1,0 +1,28 @@
+"""The volume stack: the media a path is inside, changed where its rays cross a surface whose material has a
+Volume output (Cycles' volume_stack_enter_exit, kernel/integrator/volume_stack.h): a ray that meets the
+surface from the front enters the medium behind it, from behind leaves it. A medium is on a stack once; a
+full stack takes no more (as Cycles')."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def cross(stack: np.ndarray, medium: np.ndarray, leaving: np.ndarray) -> np.ndarray:
+    """The stacks (K, n) after the rays cross into (or, leaving, out of) media (n,) (-1: no medium there)."""
+    rows = np.flatnonzero(medium >= 0)
+    if not len(rows):
+        return stack
+    stack = stack.copy()
+    m = medium[rows]
+    part = stack[:, rows]
+    present = part == m[None]
+    out = leaving[rows]
+    part[:, out] = np.where(present[:, out], -1, part[:, out])
+    enter = np.flatnonzero(~out & ~present.any(axis=0))
+    if len(enter):
+        empty = part[:, enter] < 0
+        slot = np.argmax(empty, axis=0)
+        room = empty.any(axis=0)
+        part[slot[room], enter[room]] = m[enter[room]]
+    stack[:, rows] = part
+    return stack

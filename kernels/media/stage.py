@@ -1,0 +1,254 @@
+"""The path loop's medium stages (kernels/integrator.py runs them in `step`): the segment of each ray inside
+media (distance sampling, tracking.py: a scattering event before the ray's hit, or the medium's transmittance
+and emission on the way to it), the vertex where a path scatters (next-event estimation with the phase
+function, then a phase sample, as Cycles' integrate_volume_direct_light and integrate_volume_phase_scatter),
+and the volume stack's changes where rays go through surfaces (stack.py)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import passes
+from ..lights import nee
+from ..paths import DIFFUSE, GLOSSY, SINGULAR, may_scatter, roulette_verdict
+from ..lights.common import SPOT
+from ..samples import BSDF, LIGHT, LIGHT_POINT, VOLUME_DISTANCE, VOLUME_LIGHT
+from ..vec import F32, ONE, ZERO
+from ..shading.volume import PhaseClosure
+from . import equiangular
+from . import stack as volume_stack
+from .scatter import PhaseMixture
+from .tracking import track, transmittance, uniforms
+
+# tracking.uniforms salts: the segment's collisions, the phase closure pick, the segment's light sample.
+SEGMENT_SALT, PICK_SALT, DIRECT_SALT, LIGHT_HIT_SALT = 0, 7, 11, 13
+
+
+@dataclass
+class Scattered:
+    """The paths (of a step's N) that scatter in a medium before their rays' hits.
+
+    mask : (N,) bool; rows : their indices; t : (m,) distances along their rays; origins, dirs : (m, 3);
+    lit : (m,) bool, their segment took its light sample already (direct_light), the vertex takes none."""
+    mask: np.ndarray
+    rows: np.ndarray
+    t: np.ndarray
+    origins: np.ndarray
+    dirs: np.ndarray
+    lit: np.ndarray
+
+
+def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -> Scattered | None:
+    """Track the rays of the paths inside media to their hits (or out of the scene): what their media emit
+    toward them is added, their throughput takes the segment's weight; the paths that scatter first are
+    returned (None when none does)."""
+    inside = (state.media >= 0).any(axis=0)
+    if ended is not None:
+        inside &= ~ended
+    inside = np.flatnonzero(inside)
+    if not len(inside):
+        return None
+    prim = np.take(hits.prim, inside)
+    t_end = np.where(prim >= 0, np.take(hits.t, inside), np.float32(np.inf)).astype(F32)
+    may = may_scatter(wave, state)[inside]
+    if state.continuation is not None:
+        may &= np.take(state.continuation, inside) > 0
+    rng = state.samples.rng
+    origins, dirs = rays.origins[inside], rays.dirs[inside]
+    seg = track(tables.media, state.media[:, inside], origins, dirs, t_end,
+                (np.take(rng.x, inside), np.take(rng.y, inside)), may, salt=SEGMENT_SALT)
+    throughput = np.take(state.throughput, inside, axis=1)
+    lit = np.zeros(len(inside), bool)
+    if wave.nee:
+        lit = direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first)
+    if np.any(seg.emission != 0):
+        le = throughput * seg.emission
+        bounce = np.take(state.bounce, inside)
+        le = passes.clamp(wave, le, bounce > 1)
+        passes.accumulate(wave.radiance, state.path[inside], le)
+        if wave.aux is not None and "emission" in wave.aux:
+            seen = np.flatnonzero(bounce == 0)
+            wave.aux["emission"][:, state.path[inside[seen]]] += le[:, seen]
+        if state.pass_weights is not None:
+            later = np.flatnonzero(bounce > 0)
+            passes.write_light(tables, wave, state, inside[later], le[:, later])
+    state.throughput[:, inside] = throughput * seg.weight
+    if not seg.scattered.any():
+        return None
+    picked = np.flatnonzero(seg.scattered)
+    mask = np.zeros(len(state), bool)
+    mask[inside[picked]] = True
+    return Scattered(mask, inside[picked], seg.t[picked], origins[picked], dirs[picked], lit[picked])
+
+
+def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: bool = False) -> np.ndarray:
+    """A light sample taken somewhere along each segment of the paths inside (state rows) through homogeneous
+    media, as Cycles takes one per segment (volume_integrate_null_scattering): a light is chosen from the
+    segment's middle, the distance is drawn by one-sample MIS (balance heuristic) of equiangular sampling
+    toward the chosen light's point and distance sampling (Cycles' MULTIPLE_IMPORTANCE volume sampling, 50/50;
+    distance alone toward a light at infinity), and at that distance the light is sampled as at a scattering
+    vertex (nee.medium_next_event), weighted by the transmittance to it over the distance's pdf. Camera rays
+    (first) take their numbers from the stratified sequence, deeper rays from their paths' streams hashed.
+    Returns the (len(inside),) mask of the segments that took it: their scattering vertices take none."""
+    media = tables.media
+    rows = np.flatnonzero(may & media.stack_homogeneous(state.media[:, inside]))
+    done = np.zeros(len(inside), bool)
+    if not len(rows):
+        return done
+    paths = inside[rows]
+    o, dvec, end = origins[rows], dirs[rows], t_end[rows].astype(np.float64)
+    c = media.stack_coefficients(state.media[:, paths], o, dvec, emission=False)
+    sigma_t = c.sigma_t.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        albedo = np.where(sigma_t > 0, c.sigma_s / np.where(sigma_t > 0, sigma_t, 1.0), 0.0)
+    total = albedo.sum(axis=0)
+    scatters = total > 0
+    done[rows] = True   # a medium that does not scatter reflects no light: nothing to sample
+    keep = np.flatnonzero(scatters)
+    if not len(keep):
+        return done
+    rows, paths, o, dvec, end = rows[keep], paths[keep], o[keep], dvec[keep], end[keep]
+    sigma_t, prob = sigma_t[:, keep], (albedo[:, keep] / total[keep])
+    phases = _phases_of(c.phases, keep)
+    rng = state.samples.rng
+    seeds = (np.take(rng.x, paths), np.take(rng.y, paths))
+    mean_free = 1.0 / np.maximum(sigma_t.max(axis=0), 1e-30)
+    reach = np.where(np.isfinite(end), end, 2.0 * mean_free)
+    ref = (o + dvec * (reach / 2)[:, None]).astype(F32)
+    if first:
+        ua, ub = (np.take(u, paths) for u in state.samples.camera_extra(VOLUME_LIGHT))
+        us_, ut_ = (np.take(u, paths) for u in state.samples.camera_extra(VOLUME_DISTANCE))
+    else:
+        ua, ub = uniforms(seeds, 0, DIRECT_SALT)
+        us_, ut_ = uniforms(seeds, 2, DIRECT_SALT)
+    uc, _ = uniforms(seeds, 1, DIRECT_SALT)
+    ls = tables.lights.sample(*(np.ascontiguousarray(ref[:, k]) for k in range(3)), ua, ub, uc, None)
+    point = ref + np.stack([ls.wx, ls.wy, ls.wz], axis=1) * np.where(np.isfinite(ls.dist), ls.dist, 0.0)[:, None]
+    aimed = np.isfinite(ls.dist) & (ls.pdf > 0)
+    lo, hi = np.zeros(len(rows)), end.copy()
+    lights = tables.lights
+    if lights.light_count and (lights.kind == SPOT).any():
+        # Toward a spot light, only the part of the ray inside its cone (distance sampling covers the rest).
+        chosen, _ = lights.choose_at(ua, *(np.ascontiguousarray(ref[:, k]) for k in range(3)))
+        lamp = np.minimum(chosen, lights.light_count - 1)
+        spot = np.flatnonzero((chosen < lights.light_count) & (np.take(lights.kind, lamp) == SPOT) & aimed)
+        if len(spot):
+            light = lamp[spot]
+            # A sized spot shines from a disk: its cone's apex moves back so that the cone holds the disk's.
+            cos_half = np.clip(lights.spot[light, 0].astype(np.float64), 0.0, 1.0 - 1e-6)
+            axis = -lights.axis(light, 2).T.astype(np.float64)
+            back = lights.radius[light] / np.sqrt(1.0 - cos_half * cos_half)
+            t0, t1, met = equiangular.cone_range(o[spot], dvec[spot], lights.position[light] - axis * back[:, None],
+                                                 axis, cos_half, end[spot])
+            lo[spot], hi[spot] = t0, t1
+            aimed[spot[~met]] = False
+    us, ut = us_, ut_
+    t_eq, _ = equiangular.sample(o, dvec, point, lo, hi, ut.astype(np.float64))
+    # Both strategies from one number: the first half of us picks equiangular sampling, then its own rescaled.
+    use_eq = aimed & (us < 0.5)
+    ud = np.where(aimed, np.where(use_eq, us * 2.0, us * 2.0 - 1.0), us).astype(np.float64)
+    channel = np.minimum((ud[None] >= np.cumsum(prob, axis=0)).sum(axis=0), 2)
+    t_dist = -np.log1p(-ut.astype(np.float64)) / sigma_t[channel, np.arange(len(rows))]
+    t = np.where(use_eq, t_eq, t_dist)
+    decay = np.exp(-sigma_t * t)
+    pdf_dist = (prob * sigma_t * decay).sum(axis=0)
+    pdf_eq = np.where(aimed & (t >= lo) & (t < hi), equiangular.pdf(o, dvec, point, lo, hi, t), 0.0)
+    pdf = np.where(aimed, 0.5 * pdf_eq + 0.5 * pdf_dist, pdf_dist)
+    valid = np.flatnonzero((t < end) & (pdf > 0) & np.isfinite(t))
+    if not len(valid):
+        return done
+    scale = (decay[:, valid] / pdf[valid]).astype(F32)
+    p = (o[valid] + dvec[valid] * t[valid, None]).astype(F32)
+    ue, uf = uniforms(seeds, 3, DIRECT_SALT)
+    ug, _ = uniforms(seeds, 4, DIRECT_SALT)
+    nee.medium_next_event(tables, wave, state, paths[valid], p, tuple(np.ascontiguousarray(dvec[valid, k]) for k in
+                                                                       range(3)),
+                          PhaseMixture(_phases_of(phases, valid), len(valid)),
+                          (ue[valid], uf[valid], ug[valid]), scale)
+    return done
+
+
+def _phases_of(phases, idx):
+    """The phase closures (shading.volume.PhaseClosure) of the points idx only."""
+    return [PhaseClosure(c.phase, np.take(c.weight, idx, axis=1), {k: np.take(v, idx) for k, v in c.params.items()})
+            for c in phases]
+
+
+def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
+    """The paths `state` (those of `scattered`) at their scattering points: light samples through the phase
+    function, then the next direction from it. Returns (state, (origins, dirs)) of those that go on, or None."""
+    n = len(state)
+    p = (scattered.origins + scattered.dirs * scattered.t[:, None]).astype(F32)
+    d = tuple(np.ascontiguousarray(scattered.dirs[:, k]) for k in range(3))
+    coefficients = tables.media.stack_coefficients(state.media, p, scattered.dirs, emission=False)
+    mixture = PhaseMixture(coefficients.phases, n)
+    if state.continuation is not None:   # Russian roulette's survivors (tracking let only them scatter)
+        c = state.continuation
+        state.throughput = state.throughput / np.where(c > 0, c, ONE)
+        state.continuation = None
+    numbers = state.samples.bounce(0 if first else 1)
+    if wave.nee:
+        own = np.flatnonzero(~scattered.lit)   # those whose segment took no light sample of its own
+        if len(own):
+            (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
+            nee.medium_next_event(tables, wave, state, own, p[own], tuple(c[own] for c in d),
+                                  mixture if len(own) == n else PhaseMixture(_phases_of(coefficients.phases, own),
+                                                                             len(own)),
+                                  (u_select[own], u1[own], u2[own]))
+    u1, u2 = numbers[BSDF]
+    rng = state.samples.rng
+    u_pick = uniforms((rng.x, rng.y), 0, PICK_SALT)[0]
+    wo, f, pdf = mixture.sample(d, u_pick, u1, u2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        weight = np.where(pdf > 0, f / np.where(pdf > 0, pdf, ONE), ZERO)
+    if state.pass_weights is not None:
+        first_hit = np.flatnonzero(state.bounce == 0)
+        state.pass_weights[:, first_hit] = 0.0   # light scattered by a medium: none of the surface classes
+    throughput = state.throughput * weight
+    alive = (pdf > 0) & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
+    state.bounce = state.bounce + 1
+    state.volume_bounces = state.volume_bounces + 1
+    state.bsdf_pdf = pdf.astype(F32)
+    state.focus = None
+    state.escape_scale = None
+    if state.min_ray_pdf is not None:
+        state.min_ray_pdf = np.minimum(state.min_ray_pdf, pdf)
+    if state.lobes is not None:   # a volume scatter is none of the surface labels (Cycles' LABEL_VOLUME_SCATTER)
+        state.lobes[0] &= ~(DIFFUSE | GLOSSY | SINGULAR)
+    if state.partner is not None:
+        state.partner[:] = -1
+        state.handed[:] = False
+    state.continuation = roulette_verdict(wave, state, throughput, numbers, np.ones(n, bool))
+    state.throughput = throughput
+    alive &= np.take(state.segments, np.arange(n)) < last
+    alive = np.flatnonzero(alive)
+    if not len(alive):
+        return None
+    state.compact(alive)
+    state.segments = state.segments + 1
+    dirs = np.stack([c[alive] for c in wo], axis=1).astype(F32)
+    return state, (p[alive], dirs)
+
+
+def transmittance_to(tables, state, rays, rows, t) -> np.ndarray:
+    """(3, m) the transmittance of the paths rows' media along their rays to distances t (a light they meet)."""
+    out = np.ones((3, len(rows)), F32)
+    inside = np.flatnonzero((np.take(state.media, rows, axis=1) >= 0).any(axis=0))
+    if len(inside):
+        paths = rows[inside]
+        rng = state.samples.rng
+        out[:, inside] = transmittance(tables.media, state.media[:, paths], rays.origins[paths], rays.dirs[paths],
+                                       t[inside].astype(F32), (np.take(rng.x, paths), np.take(rng.y, paths)),
+                                       salt=LIGHT_HIT_SALT)
+    return out
+
+
+def cross_surfaces(tables, state, hit, alive, below) -> None:
+    """The stacks of the paths (state, compacted to the hits `alive`) whose next rays go through their hits'
+    surfaces (below): the media behind them entered, or left where the ray met the surface from behind."""
+    if not below.any():
+        return
+    prim = np.take(hit.prim, alive)
+    medium = np.where(below, tables.media.of_hits(prim), -1).astype(np.int32)
+    state.media = volume_stack.cross(state.media, medium, np.take(hit.backfacing, alive))

@@ -1,0 +1,197 @@
+"""Distance sampling in media by null scattering, as Cycles 5.x integrates volumes by default
+(kernel/integrator/shade_volume.h: tentative collisions drawn against a majorant, each a real or a null
+event; Mitsuba 3's volpath.cpp is the readable reference).
+
+Along a ray segment [0, t_end) inside the media of a path's stack, collisions are drawn with density
+majorant * exp(-majorant t) (the majorant: the sum of the stack's media's, medium.Media). At each one:
+
+- the emission there is gathered, weight x emission / majorant (a collision estimate of the integral of
+  transmittance times emission along the segment);
+- a path that may scatter takes a real scattering event, a null event or is absorbed, with probabilities
+  in proportion to sigma_s, |sigma_n| = |majorant - sigma_t| and sigma_a, each summed over the colour channels
+  weighted by the path's weight so far (spectral tracking: grey media then have weights of exactly 1, and a
+  majorant that a point exceeds gives a negative null weight, not a bias). The scattering event's weight
+  is 1 / (majorant P_scatter): the phase closures' weights (which sum to sigma_s) multiply it at the vertex;
+- a path that may not scatter (past its bounces, a shadow ray) multiplies its weight by sigma_n / majorant
+  (ratio tracking), and is stopped by Russian roulette once its weight is small.
+
+Paths whose media are all homogeneous and that may not scatter take the closed forms: transmittance
+exp(-sigma_t L) and emission (1 - exp(-sigma_t L)) / sigma_t x emission.
+
+Each collision draws its two numbers from the path's stream hashed with the collision's number, without
+advancing the stream: a path's numbers do not depend on which paths share its batch.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..rng import pcg2d, to_unit_float
+from ..vec import F32, ONE, ZERO
+
+MAX_COLLISIONS = 4096      # a segment's collisions at most (a guard: its path then ends)
+ROULETTE_WEIGHT = F32(0.1)  # ratio tracking's weight below which Russian roulette may stop the path
+
+
+@dataclass
+class Segment:
+    """What a segment of n paths through their media gave.
+
+    scattered : (n,) bool, a real scattering event at distance t.
+    t : (n,) float32 distance of that event (t_end elsewhere).
+    weight : (3, n) float32 factor on the path's throughput: to the scattering event (times the phase closures'
+        weights there), or through the whole segment; 0 for an absorbed path.
+    emission : (3, n) float32 radiance emitted along the segment toward the ray's origin (times the path's
+        throughput before the segment).
+    """
+    scattered: np.ndarray
+    t: np.ndarray
+    weight: np.ndarray
+    emission: np.ndarray
+
+
+def uniforms(seeds, k: int, salt: int = 0):
+    """Two uniform numbers per path for collision k, hashed from the paths' PCG2D states (x, y)."""
+    x, y = seeds
+    key = np.uint32((k * 0x9E3779B9 + salt * 0x85EBCA6B) & 0xFFFFFFFF)
+    a, b = pcg2d(x ^ key, y + np.uint32((k + 0x68E31DA4 * (salt + 1)) & 0xFFFFFFFF))
+    return to_unit_float(a), to_unit_float(b)
+
+
+def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emission: bool = True,
+          salt: int = 0) -> Segment:
+    """Distance sampling for n paths (stack (K, n), origins and unit dirs (n, 3), t_end (n,) which may be
+    inf, seeds: their (x, y) PCG2D states, may_scatter (n,) bool)."""
+    n = len(t_end)
+    weight = np.ones((3, n), F32)
+    gathered = np.zeros((3, n), F32)
+    scattered = np.zeros(n, bool)
+    t_event = np.array(t_end, F32, copy=True)
+    majorant = media.stack_majorant(stack)
+    closed = media.stack_homogeneous(stack) & (majorant > 0)
+    if closed.any():
+        _closed_form(media, stack, origins, dirs, t_end, closed & ~may_scatter, weight, gathered, emission)
+        _homogeneous(media, stack, origins, dirs, t_end, closed & may_scatter, seeds, salt, weight, gathered,
+                     scattered, t_event, emission)
+    live = np.flatnonzero(~closed & (majorant > 0))
+    t = np.zeros(n, np.float64)
+    x, y = seeds
+    for k in range(MAX_COLLISIONS):
+        if not len(live):
+            break
+        u1, u2 = uniforms((x[live], y[live]), k, salt)
+        bar = majorant[live]
+        t[live] += -np.log1p(-u1.astype(np.float64)) / bar
+        inside = t[live] < t_end[live]
+        live, u2, bar = live[inside], u2[inside], bar[inside]
+        if not len(live):
+            break
+        tl = t[live].astype(F32)
+        p = origins[live] + dirs[live] * tl[:, None]
+        c = media.stack_coefficients(stack[:, live], p, dirs[live], ray, emission)
+        w = weight[:, live]
+        inv = ONE / bar
+        if emission:
+            gathered[:, live] += w * c.emission * inv
+        sigma_n = bar - c.sigma_t
+        scatter = may_scatter[live]
+        new_w = w * sigma_n * inv            # ratio tracking (and the null event's weight when P_n = sigma_n/bar)
+        ended = np.zeros(len(live), bool)
+        if scatter.any():
+            s = np.flatnonzero(scatter)
+            ws = np.abs(w[:, s])
+            ss, sn = c.sigma_s[:, s], sigma_n[:, s]
+            sa = np.maximum(c.sigma_t[:, s] - ss, ZERO)
+            p_s, p_n, p_a = (ws * ss).sum(0), (ws * np.abs(sn)).sum(0), (ws * sa).sum(0)
+            total = p_s + p_n + p_a
+            ok = total > 0
+            total = np.where(ok, total, ONE)
+            p_s, p_n = p_s / total, p_n / total
+            u = u2[s]
+            real = ok & (u < p_s)
+            null = ok & ~real & (u < p_s + p_n)
+            # Scattering: 1 / (majorant P_s), the phase closures' weights come at the vertex.
+            scale = np.where(real, ONE / (bar[s] * np.where(real, p_s, ONE)), ZERO)
+            new_w[:, s] = np.where(null, w[:, s] * sn / (bar[s] * np.where(null, p_n, ONE)), w[:, s] * scale)
+            rows = live[s[real]]
+            scattered[rows] = True
+            t_event[rows] = tl[s[real]]
+            ended[s] = ~null
+        plain = np.flatnonzero(~scatter)
+        if len(plain):
+            small = np.abs(new_w[:, plain]).max(axis=0)
+            risky = small < ROULETTE_WEIGHT
+            if risky.any():
+                q = np.where(risky, small / ROULETTE_WEIGHT, ONE)
+                survive = ~risky | (u2[plain] < q)
+                new_w[:, plain] = np.where(survive, new_w[:, plain] / np.where(survive, q, ONE), ZERO)
+                ended[plain] = ~survive
+        weight[:, live] = new_w
+        live = live[~ended]
+    else:
+        weight[:, live] = 0.0
+    return Segment(scattered, t_event, weight, gathered)
+
+
+def transmittance(media, stack, origins, dirs, t_end, seeds, salt: int = 1) -> np.ndarray:
+    """(3, n) the transmittance of the segments (an unbiased estimate where a medium varies)."""
+    return track(media, stack, origins, dirs, t_end, seeds, np.zeros(len(t_end), bool), emission=False,
+                 salt=salt).weight
+
+
+def _homogeneous(media, stack, origins, dirs, t_end, rows, seeds, salt, weight, gathered, scattered, t_event,
+                 emission: bool) -> None:
+    """Paths that may scatter in homogeneous media: the distance drawn in proportion to one colour channel's
+    extinction, the channel picked in proportion to the path's weight times the albedo and the channels
+    combined by the one-sample MIS of their pdfs (Cycles' volume_sample_channel and homogeneous distance
+    sampling, shade_volume.h); a medium that only absorbs is its transmittance exactly; the emission is
+    its closed form."""
+    idx = np.flatnonzero(rows)
+    if not len(idx):
+        return
+    _closed_form(media, stack, origins, dirs, t_end, rows, weight, gathered, emission)
+    c = media.stack_coefficients(stack[:, idx], origins[idx], dirs[idx], emission=False)
+    sigma_t = c.sigma_t.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        albedo = np.where(sigma_t > 0, c.sigma_s / np.where(sigma_t > 0, sigma_t, 1.0), 0.0)
+    w = albedo    # (the segment's weights start at 1: the channel in proportion to the albedo alone)
+    total = w.sum(axis=0)
+    some = total > 0
+    if not some.any():
+        return      # nothing scatters: the closed form's transmittance is exact
+    idx, sigma_t, w, total = idx[some], sigma_t[:, some], w[:, some], total[some]
+    p = w / total
+    u1, u2 = uniforms(tuple(np.take(s_, idx) for s_ in seeds), 0, salt + 101)
+    channel = np.minimum((u1[None] >= np.cumsum(p, axis=0)).sum(axis=0), 2)
+    rate = sigma_t[channel, np.arange(len(idx))]
+    t = -np.log1p(-u2.astype(np.float64)) / rate
+    end = t_end[idx].astype(np.float64)
+    scatter = t < end
+    at = np.where(scatter, t, np.where(np.isfinite(end), end, 0.0))
+    decay = np.exp(-sigma_t * at)
+    # pdf of the distance (scattering) or of passing (the segment's end), over the channels' mixture.
+    pdf = np.where(scatter, (p * sigma_t * decay).sum(axis=0), (p * decay).sum(axis=0))
+    through = np.where(np.isfinite(end) | scatter, 1.0, 0.0)
+    new = np.where(pdf > 0, decay / np.where(pdf > 0, pdf, 1.0), 0.0) * through
+    weight[:, idx] = new.astype(F32)   # in place of the closed form's transmittance
+    scattered[idx] = scatter
+    t_event[idx] = np.where(scatter, t, t_event[idx]).astype(F32)
+
+
+def _closed_form(media, stack, origins, dirs, t_end, rows, weight, gathered, emission: bool) -> None:
+    idx = np.flatnonzero(rows)
+    if not len(idx):
+        return
+    c = media.stack_coefficients(stack[:, idx], origins[idx], dirs[idx], emission=emission)
+    length = t_end[idx].astype(F32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        optical = c.sigma_t * length
+        optical = np.where(c.sigma_t > 0, optical, ZERO)
+        through = np.exp(-optical).astype(F32)
+        weight[:, idx] = through
+        if emission:
+            # The emission integrated along the segment: (1 - T) / sigma_t, or L where sigma_t = 0.
+            span = np.where(c.sigma_t > 0, (ONE - through) / np.where(c.sigma_t > 0, c.sigma_t, ONE),
+                            np.where(np.isfinite(length), length, ZERO))
+            gathered[:, idx] = c.emission * span
