@@ -1,0 +1,203 @@
+"""Voxel grids: a dense block of voxel values placed in an object's space, looked up at points as Cycles
+samples volume grids, and the coarse maxima a distance sampler needs for its majorant.
+
+Conventions, as Cycles (Blender 5.0 on) samples a grid (kernel/util/image_3d.h, kernel_image_interp_3d):
+
+- Index space. Voxel (i, j, k) holds its value at the integer index point (i, j, k): OpenVDB's convention,
+  which Cycles adopted in Blender 5.0 ("Use grid voxel corners as value locations like OpenVDB"; before, the
+  kernel subtracted half a voxel). A point is taken to index space by the inverse of the grid's
+  index-to-object transform (scene/image_vdb.cpp: transform_3d = transform_inverse(index_to_object)).
+- Closest reads the voxel at floor(P), so voxel i answers for P in [i, i + 1).
+- Linear blends the 8 voxels floor(P) + {0, 1}^3 with weights t = P - floor(P).
+- Cubic is the uniform cubic B-spline over floor(P) - 1 ... floor(P) + 2 (fill_cubic_weights): its weights
+  are non-negative and sum to 1, so, as Linear, it never leaves the range of the voxels it reads.
+- A voxel outside the stored block reads the grid's background (NanoVDB's accessor returns the root's
+  background outside the active tree; 0 for density).
+- Four-channel grids (the smoke domain's premultiplied RGBA colour) are un-premultiplied after the
+  interpolation when alpha is neither ~0 nor 1 (kernel/geom/volume.h, volume_attribute_float4).
+
+Cycles' stochastic one-tap filtering (interp_stochastic) picks one voxel at random with the filter's weights,
+so its expectation is the deterministic filter computed here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..vec import F32, F64, matmul
+
+INTERPOLATIONS = ("CLOSEST", "LINEAR", "CUBIC")
+# Voxels a lookup reads beyond its cell, per side: how far Cycles dilates the active voxels before it builds
+# a volume's bounding mesh (scene/volume.cpp, create_volume_mesh: pad 1 for Linear, 2 for Cubic).
+PADDING = {"CLOSEST": 0, "LINEAR": 1, "CUBIC": 2}
+# The block grid starts two voxels below the stored block: a Cubic lookup with floor(P) = -2 still reads
+# voxel 0, and one with floor(P) = n reads voxel n - 1 (see max_per_block).
+_BLOCK_ORIGIN = -2
+
+
+@dataclass(frozen=True, eq=False)
+class VoxelGrid:
+    """A dense grid of voxel values in an object's space.
+
+    values : (nx, ny, nz, C) float32, C = 1 (density, temperature, flame, heat), 3 (colour, velocity) or 4
+        (premultiplied RGBA); values[i, j, k] sits at index point (i, j, k).
+    index_to_object : (4, 4) float64, index coordinates of `values` -> the object's local space (the VDB
+        transform, offset by the stored block's first voxel).
+    background : the value outside the stored block, a scalar or (C,).
+    active_box : ((i0, j0, k0), (i1, j1, k1)) inclusive index bounds of the active voxels (above Cycles'
+        clipping), the region bounds() and the boundary mesh enclose; None: the whole block.
+    """
+    values: np.ndarray
+    index_to_object: np.ndarray
+    background: np.ndarray | float = 0.0
+    active_box: tuple | None = None
+    object_to_index: np.ndarray = field(init=False, repr=False)
+    _blocks: dict = field(init=False, repr=False, default_factory=dict)
+
+    def __post_init__(self):
+        values = np.ascontiguousarray(self.values, dtype=F32)
+        if values.ndim == 3:
+            values = values[..., None]
+        if values.ndim != 4 or values.shape[3] not in (1, 3, 4):
+            raise ValueError(f"VoxelGrid values must be (nx, ny, nz, C) with C in 1, 3, 4, not {values.shape}")
+        index_to_object = np.asarray(self.index_to_object, dtype=F64)
+        background = np.broadcast_to(np.asarray(self.background, dtype=F32), (values.shape[3],)).copy()
+        box = self.active_box
+        if box is None:
+            box = ((0, 0, 0), tuple(n - 1 for n in values.shape[:3]))
+        box = tuple(tuple(int(c) for c in corner) for corner in box)
+        object.__setattr__(self, "values", values)
+        object.__setattr__(self, "index_to_object", index_to_object)
+        object.__setattr__(self, "background", background)
+        object.__setattr__(self, "active_box", box)
+        object.__setattr__(self, "object_to_index", np.linalg.inv(index_to_object))
+
+    @property
+    def channels(self) -> int:
+        return self.values.shape[3]
+
+    @property
+    def shape(self) -> tuple:
+        return self.values.shape[:3]
+
+    # ---------------------------------------------------------------- lookups
+    def index_coordinates(self, points) -> np.ndarray:
+        """(n, 3) object-space points -> (n, 3) float64 index coordinates P."""
+        points = np.asarray(points, dtype=F64).reshape(-1, 3)
+        return matmul(points, self.object_to_index[:3, :3].T) + self.object_to_index[:3, 3]
+
+    def lookup(self, points, interpolation: str = "LINEAR") -> np.ndarray:
+        """(n, 3) float32 object-space points -> (n, C) float32 values, interpolated as Cycles does
+        (module docstring); interpolation is 'CLOSEST', 'LINEAR' or 'CUBIC'."""
+        if interpolation not in INTERPOLATIONS:
+            raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, not {interpolation!r}")
+        p = self.index_coordinates(points)
+        cell = np.floor(p)
+        t = (p - cell).astype(F32)
+        cell = cell.astype(np.int64)
+        if interpolation == "CLOSEST":
+            out = self._gather(cell[:, 0], cell[:, 1], cell[:, 2])
+        elif interpolation == "LINEAR":
+            out = self._blend(cell, [np.stack([1 - t[:, a], t[:, a]]) for a in range(3)], first=0)
+        else:
+            out = self._blend(cell, [cubic_bspline_weights(t[:, a]) for a in range(3)], first=-1)
+        return _unpremultiply(out) if self.channels == 4 else out
+
+    def _blend(self, cell: np.ndarray, weights: list, first: int) -> np.ndarray:
+        """Sum over the taps cell + first + (a, b, c) of weights[0][a] * weights[1][b] * weights[2][c] * value."""
+        out = np.zeros((len(cell), self.channels), dtype=F32)
+        for a, wx in enumerate(weights[0]):
+            for b, wy in enumerate(weights[1]):
+                wxy = wx * wy
+                for c, wz in enumerate(weights[2]):
+                    tap = self._gather(cell[:, 0] + first + a, cell[:, 1] + first + b, cell[:, 2] + first + c)
+                    out += (wxy * wz)[:, None] * tap
+        return out
+
+    def _gather(self, i, j, k) -> np.ndarray:
+        """(n, C) values of the voxels (i, j, k), the background outside the stored block."""
+        nx, ny, nz = self.shape
+        inside = (i >= 0) & (i < nx) & (j >= 0) & (j < ny) & (k >= 0) & (k < nz)
+        flat = (np.clip(i, 0, nx - 1) * ny + np.clip(j, 0, ny - 1)) * nz + np.clip(k, 0, nz - 1)
+        return np.where(inside[:, None], self.values.reshape(-1, self.channels)[flat], self.background)
+
+    # ---------------------------------------------------------------- extent
+    def box_corners(self, padding: int = 0) -> np.ndarray:
+        """(8, 3) float64 object-space corners of the active box grown by `padding` voxels per side; corner n
+        takes the maximum on axis a where bit a of n is set."""
+        lo = np.asarray(self.active_box[0], dtype=F64) - padding
+        hi = np.asarray(self.active_box[1], dtype=F64) + padding
+        corners = np.array([[(hi if (n >> a) & 1 else lo)[a] for a in range(3)] for n in range(8)])
+        return matmul(corners, self.index_to_object[:3, :3].T) + self.index_to_object[:3, 3]
+
+    def bounds(self, padding: int = 0) -> np.ndarray:
+        """(2, 3) float32 object-space AABB (min, max) of the active box grown by `padding` voxels (PADDING
+        gives Cycles' padding per interpolation)."""
+        corners = self.box_corners(padding)
+        return np.stack([corners.min(axis=0), corners.max(axis=0)]).astype(F32)
+
+    # ---------------------------------------------------------------- majorants
+    def max_per_block(self, block: int = 8) -> np.ndarray:
+        """(bx, by, bz) float32: for each block of block^3 cells, the largest channel-wise |value| of the
+        voxels any lookup in it reads (its voxels and one more below, two more above: Cubic's taps; the
+        background outside the stored block), so no Closest, Linear or Cubic lookup at a point of the block exceeds it (the weights
+        of all three are non-negative and sum to 1). Un-premultiplied colour (C = 4) is not bounded.
+
+        Block b holds the points whose floor(P) lies in [-2 + b * block, -2 + (b + 1) * block): the blocks
+        start two voxels below the stored block and cover every point where a lookup can differ from the
+        background; block_to_object() places them."""
+        if block not in self._blocks:
+            self._blocks[block] = self._block_maxima(block)
+        return self._blocks[block]
+
+    def _block_maxima(self, block: int) -> np.ndarray:
+        counts = [-(-(n - _BLOCK_ORIGIN + 1) // block) for n in self.shape]
+        magnitude = np.abs(self.values).max(axis=3)
+        outside = F32(np.abs(self.background).max())
+        # Voxels _BLOCK_ORIGIN - 1 ... the last block's end + 1: every voxel the blocks' lookups read.
+        padded = np.full([c * block + 3 for c in counts], outside, dtype=F32)
+        start = -(_BLOCK_ORIGIN - 1)
+        padded[start:start + self.shape[0], start:start + self.shape[1], start:start + self.shape[2]] = magnitude
+        for axis, count in enumerate(counts):
+            # Cells floor(P) = s ... s + block - 1 read voxels s - 1 ... s + block + 1 (Cubic): a window of
+            # block + 3 voxels per block, taken one axis at a time (a box maximum is separable).
+            windows = [np.take(padded, np.arange(offset, offset + count * block, block), axis=axis)
+                       for offset in range(block + 3)]
+            padded = np.maximum.reduce(windows)
+        return padded
+
+    def block_to_object(self, block: int = 8) -> np.ndarray:
+        """(4, 4) float64: block coordinates (block b spans [b, b + 1) per axis) -> object space."""
+        index_from_block = np.diag([block, block, block, 1.0])
+        index_from_block[:3, 3] = _BLOCK_ORIGIN
+        return self.index_to_object @ index_from_block
+
+    def block_max_at(self, points, block: int = 8) -> np.ndarray:
+        """(n, 3) object-space points -> (n,) float32: max_per_block() of each point's block, the
+        background's magnitude outside the blocks."""
+        maxima = self.max_per_block(block)
+        cell = np.floor(self.index_coordinates(points)).astype(np.int64)
+        b = np.floor_divide(cell - _BLOCK_ORIGIN, block)
+        inside = np.all((b >= 0) & (b < maxima.shape), axis=1)
+        b = np.clip(b, 0, np.asarray(maxima.shape) - 1)
+        return np.where(inside, maxima[b[:, 0], b[:, 1], b[:, 2]], F32(np.abs(self.background).max()))
+
+
+def cubic_bspline_weights(t: np.ndarray) -> np.ndarray:
+    """(4, n) float32 uniform cubic B-spline weights of the taps floor(P) - 1 ... floor(P) + 2 for
+    t = P - floor(P) (Cycles' fill_cubic_weights, kernel/util/image_3d.h)."""
+    t = np.asarray(t, dtype=F32)
+    sixth = F32(1.0 / 6.0)
+    return np.stack([((-sixth * t + F32(0.5)) * t - F32(0.5)) * t + sixth,
+                     ((F32(0.5) * t - 1) * t) * t + F32(2.0 / 3.0),
+                     ((F32(-0.5) * t + F32(0.5)) * t + F32(0.5)) * t + sixth,
+                     sixth * t * t * t])
+
+
+def _unpremultiply(rgba: np.ndarray) -> np.ndarray:
+    """Cycles' volume_attribute_float4: RGB / alpha where alpha > 1e-6 and alpha != 1."""
+    alpha = rgba[:, 3:4]
+    divide = (alpha > F32(1e-6)) & (alpha != 1)
+    rgba[:, :3] = np.where(divide, rgba[:, :3] / np.where(divide, alpha, F32(1)), rgba[:, :3])
+    return rgba
