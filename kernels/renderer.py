@@ -162,7 +162,7 @@ class Renderer:
             return
         self.triangles.wait_rows()
         self.media = Media(self.shading, self.triangles, self.scene.world.volume,
-                           scene_extent(self.scene, self.prototype_boxes), self.shading.data)
+                           scene_extent(self.scene, self.prototype_boxes), self.shading.data, self.scene.volumes)
         eye, _ = self.camera_frame
         self.camera_media = self.media.start_stack(1, self.accel, eye)[:, 0]
         # Smooth glass's second branch (integrator._glass_escapes) does not know the media along it.

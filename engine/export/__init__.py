@@ -119,7 +119,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          camera=camera, lights=lights, tangents=geometry.tangents,
                          attributes=geometry.attributes, objects=geometry.objects, object_ids=geometry.object_ids,
                          crypto_ids={kind: hash_names(names) for kind, names in crypto_names.items()},
-                         instances=geometry.instances,
+                         instances=geometry.instances, volumes=geometry.volumes,
                          **(dict(bvh_vertices=geometry.bvh[0], bvh_indices=geometry.bvh[1]) if geometry.bvh else {}),
                          **scene_motion(motion, geometry),
                          **vector_fields(vector, geometry, camera.world_from_camera))

@@ -24,6 +24,7 @@ from .instances import (asset_name, check_visibility, instance_key, instance_ran
                         object_inputs, slot_materials)
 from .materials import MaterialTable
 from .mesh import LocalMesh, read_attributes, read_mesh, read_tangents, readable_mesh
+from .volumes import is_volume, read_volume
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,7 @@ class Geometry:
     empty_keys: frozenset = frozenset()    # instance keys of rendered mesh instances without triangles
     instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
     bvh: tuple | None = None               # (vertices, indices): the plain triangles indexed (SceneArrays.bvh_vertices)
+    volumes: tuple = ()                    # ((object row, {name: VoxelGrid}, density scale), ...) (SceneArrays.volumes)
 
 
 class MeshCache:
@@ -128,6 +130,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     signatures: dict[tuple, tuple] = {}      # (object, mesh) pointers -> slot_materials()
     empty: set = set()                       # instance keys of meshes without triangles
     described: dict[int, tuple] = {}         # object pointer -> what its object rows take from it
+    volume_sources: dict = {}                # Volume or smoke domain data pointer -> its volumes.VolumeSource
+    grids: dict[tuple, list] = {}            # (mesh pointer, slot rows) -> (grids, density scale) or None
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -136,25 +140,45 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         if not is_rendered(inst, ob, warnings):
             continue
         mesh_key = ob.data.as_pointer()
-        with readable_mesh(ob) as mesh:
+        object_key = (ob.as_pointer(), mesh_key)
+        if ob.type == "VOLUME" or (ob.type == "MESH" and is_volume(ob)):
+            # A Volume object or a smoke domain: its grids' boundary box, wearing the object's materials (the
+            # default volume without one), its grids looked up where its medium is shaded.
+            if object_key not in slot_rows:
+                slot_rows[object_key] = materials.slot_ids(ob) if len(ob.material_slots) else \
+                    (materials.default_volume_id(),)
+                signatures[object_key] = slot_materials(ob)
+                check_visibility(ob, warnings)
             if mesh_key not in meshes:
-                meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
+                source = read_volume(ob, depsgraph.scene.frame_current, materials.interpolation(slot_rows[object_key]))
+                warnings.extend(source.warnings)
+                meshes[mesh_key] = boundary_mesh(source.vertices, source.triangles)
+                volume_sources[mesh_key] = source
             if meshes[mesh_key].triangle_count == 0:
                 empty.add(instance_key(inst))
                 continue
-            # Instances share meshes, but slots linked to the object can give one mesh different materials.
-            object_key = (ob.as_pointer(), mesh_key)
-            if object_key not in slot_rows:
-                slot_rows[object_key] = materials.slot_ids(ob)
-                signatures[object_key] = slot_materials(ob)
-                check_visibility(ob, warnings)
-            uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
-            if uv_maps and mesh_key not in tangents:
-                tangents[mesh_key] = read_tangents(mesh, meshes[mesh_key], uv_maps, ob.name, warnings)
-            names = materials.attribute_names(slot_rows[object_key])
-            if names and mesh_key not in attributes:
-                attributes[mesh_key] = read_attributes(mesh, names, ob.name, warnings)
+        else:
+            with readable_mesh(ob) as mesh:
+                if mesh_key not in meshes:
+                    meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
+                if meshes[mesh_key].triangle_count == 0:
+                    empty.add(instance_key(inst))
+                    continue
+                # Instances share meshes, but slots linked to the object can give one mesh different materials.
+                if object_key not in slot_rows:
+                    slot_rows[object_key] = materials.slot_ids(ob)
+                    signatures[object_key] = slot_materials(ob)
+                    check_visibility(ob, warnings)
+                uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
+                if uv_maps and mesh_key not in tangents:
+                    tangents[mesh_key] = read_tangents(mesh, meshes[mesh_key], uv_maps, ob.name, warnings)
+                names = materials.attribute_names(slot_rows[object_key])
+                if names and mesh_key not in attributes:
+                    attributes[mesh_key] = read_attributes(mesh, names, ob.name, warnings)
         matrix = np.array(inst.matrix_world)
+        source = volume_sources.get(mesh_key)
+        grids.setdefault((mesh_key, slot_rows[object_key]), []).append(
+            None if source is None or not source.grids else (source.grids, volume_density(source, matrix)))
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
         if object_key[0] not in described:
             described[object_key[0]] = object_inputs(ob)
@@ -170,12 +194,36 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     # Object table rows per group, all of a group's instances at once.
     rows = {group: object_rows(np.stack(groups[group]), *(np.array(column) for column in zip(*inputs)))
             for group, inputs in rows.items()}
+    row_grids = [g for group in grids.values() for g in group]
     return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows, instanced),
+                               volumes=tuple((row, g[0], g[1]) for row, g in enumerate(row_grids) if g is not None),
                                instance_keys=[k for group in keys.values() for k in group],
                                instance_matrices=[m for group in groups.values() for m in group],
                                instance_assets=[a for group in assets.values() for a in group],
                                slot_materials=[m for group in slots.values() for m in group],
                                empty_keys=frozenset(empty))
+
+
+def boundary_mesh(vertices: np.ndarray, triangles: np.ndarray) -> LocalMesh:
+    """A volume's boundary (object space, outward triangles) as a LocalMesh: flat normals, no UVs, slot 0."""
+    t = len(triangles)
+    corners = np.ascontiguousarray(triangles, np.int32).reshape(-1)
+    p = vertices[triangles] if t else np.zeros((0, 3, 3), np.float32)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) if t else np.zeros((0, 3), np.float32)
+    n = (n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)).astype(np.float32)
+    return LocalMesh(np.ascontiguousarray(vertices, np.float32), corners, n,
+                     np.repeat(np.arange(t, dtype=np.int32), 3), np.zeros((3 * t, 2), np.float32),
+                     np.zeros(t, np.int32))
+
+
+def volume_density(source, world_from_object: np.ndarray) -> float:
+    """Cycles' object_volume_density (scene/object.cpp): a Volume object whose Render > Space is Object has
+    its density follow the object's scale, 1 / |M normalize(1, 1, 1)|; 1 otherwise."""
+    if not source.object_space:
+        return 1.0
+    unit = np.full(3, 1.0 / np.sqrt(3.0))
+    length = float(np.linalg.norm(world_from_object[:3, :3] @ unit))
+    return 1.0 / length if length > 0 else 1.0
 
 
 def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, object_rows: dict,

@@ -16,15 +16,15 @@ from ...kernels.scene import TERMINATOR_OFFSET, object_rows
 INSTANCE_MIN_TRIANGLES = 20_000
 
 # Object types that carry geometry Ember cannot render yet.
-UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds", "VOLUME": "volumes"}
+UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds"}
 RAY_VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
                   "visible_volume_scatter", "visible_shadow")
 
 
 def is_rendered(inst, ob, warnings: list[str]) -> bool:
-    """Whether Ember renders this depsgraph instance: a mesh, shown, and not hidden for render (unsupported
-    kinds of geometry warn in `warnings`)."""
-    if ob.type != "MESH":
+    """Whether Ember renders this depsgraph instance: a mesh or a Volume object, shown, and not hidden for
+    render (unsupported kinds of geometry warn in `warnings`)."""
+    if ob.type not in ("MESH", "VOLUME"):
         if ob.type in UNSUPPORTED_TYPES:
             warnings.append(f"Object '{ob.name}': {UNSUPPORTED_TYPES[ob.type]} are not supported, "
                             f"not rendered")
@@ -77,8 +77,13 @@ def object_inputs(ob) -> tuple:
         * np.float32(1.0 / 0xFFFFFFFF)
     mesh = ob.data
     terminator = float(getattr(ob, "shadow_terminator_geometry_offset", TERMINATOR_OFFSET))
-    return (tuple(mesh.texspace_location), tuple(mesh.texspace_size), tuple(ob.color), ob.pass_index,
-            float(own_random), terminator)
+    if hasattr(mesh, "texspace_location"):
+        location, size = tuple(mesh.texspace_location), tuple(mesh.texspace_size)
+    else:   # a Volume: its bounding box
+        corners = np.array([tuple(c) for c in ob.bound_box], np.float64)
+        lo, hi = corners.min(axis=0), corners.max(axis=0)
+        location, size = tuple((lo + hi) / 2), tuple((hi - lo) / 2)
+    return (location, size, tuple(ob.color), ob.pass_index, float(own_random), terminator)
 
 
 def instance_random(inst, own_random: float) -> float:

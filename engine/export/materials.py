@@ -118,6 +118,14 @@ DEFAULT_SURFACE = Shader((Closure("PRINCIPLED", (("Base Color", Param.of(GREY3))
                          "default surface")
 
 
+# Cycles' default volume shader (scene/shader.cpp): a Principled Volume with its defaults, read through the
+# volume's density grid; its key in a MaterialTable is no Blender material's name.
+DEFAULT_VOLUME = Shader((), "default volume", volume=(Closure("PRINCIPLED_VOLUME", (), (
+    ("Color Attribute", ""), ("Density Attribute", "density"), ("Temperature Attribute", "temperature"))),),
+    volume_only=True)
+DEFAULT_VOLUME_KEY = "\x00default volume"
+
+
 class MaterialTable:
     """The materials of one export. Row 0 is the default surface of objects without a material."""
 
@@ -148,6 +156,20 @@ class MaterialTable:
             if attributes:
                 self._attributes[row] = frozenset(attributes)
         return self._ids[key]
+
+    def default_volume_id(self) -> int:
+        """The row of Cycles' default volume (a Principled Volume with its defaults, scene/shader.cpp), for
+        Volume objects without a material."""
+        if DEFAULT_VOLUME_KEY not in self._ids:
+            self._ids[DEFAULT_VOLUME_KEY] = len(self._rows)
+            self._rows.append(DEFAULT_VOLUME)
+            self._pass_indices.append(0)
+            self.names.append("default_volume")
+        return self._ids[DEFAULT_VOLUME_KEY]
+
+    def interpolation(self, rows) -> str:
+        """The volume interpolation of the first of these rows with a volume (LINEAR without one)."""
+        return next((self._rows[r].interpolation for r in rows if self._rows[r].volume), "LINEAR")
 
     def tangent_uv_maps(self, rows) -> tuple[str, ...]:
         """The UV maps whose tangents the materials of these rows read ('' for the render UV map);

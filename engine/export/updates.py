@@ -33,7 +33,7 @@ from ...kernels.scene import OBJECT_COLUMNS
 from .geometry import Geometry
 from .instances import instance_key, instance_row, is_rendered, slot_materials
 from .lights import export_lights
-from .materials import MaterialTable
+from .materials import DEFAULT_VOLUME_KEY, MaterialTable
 from .world import export_world
 
 __all__ = ["FULL", "INSTANCES", "LIGHTS", "SHADING", "Changes", "ExportIndex", "Shading", "export_changes",
@@ -231,6 +231,9 @@ def export_shading(depsgraph, index: ExportIndex) -> Shading | None:
     evaluated = {data.name_full: data for data in depsgraph.ids if isinstance(data, bpy.types.Material)}
     materials = MaterialTable(warnings)
     for key in index.material_keys[1:]:
+        if key == DEFAULT_VOLUME_KEY:
+            materials.default_volume_id()
+            continue
         material = evaluated.get(key)
         if material is None:
             return None

@@ -29,10 +29,11 @@ CAMERA_PROBE = (0.30151134, 0.30151134, 0.90453403)  # the direction the camera'
 class Media:
     """The media of a scene and their majorants. Ids index the tables; -1 on a stack is an empty slot."""
 
-    def __init__(self, shading, triangles, world_volume, extent, data):
+    def __init__(self, shading, triangles, world_volume, extent, data, volumes=()):
         """shading : shading.Shading (its shaders' volume closures); triangles : geometry.TriangleTable;
         world_volume : kernels.scene.Shader or None; extent : (lo, hi) of the scene, for a world medium that
-        varies; data : shading.shader.ShadingData."""
+        varies; data : shading.shader.ShadingData; volumes : SceneArrays.volumes (the objects' grids)."""
+        self.grids = {int(row): (grids, float(scale)) for row, grids, scale in volumes}
         self.shaders = {m: VolumeShader(s, data) for m, s in enumerate(shading.shaders) if s.volume}
         self.triangles = triangles
         count = len(shading.shaders)
@@ -52,7 +53,8 @@ class Media:
         self.material = np.asarray(self.material, np.int32)
         self.object = np.asarray(self.object, np.int32)
         self.lo, self.hi = np.asarray(self.lo, F32).reshape(-1, 3), np.asarray(self.hi, F32).reshape(-1, 3)
-        self.homogeneous = np.array([self.shaders[m].homogeneous for m in self.material], bool)
+        self.homogeneous = np.array([self.shaders[m].constant and not (self.shaders[m].reads_grids and int(o) in self.grids)
+                                     for m, o in zip(self.material, self.object)], bool)
         self._constant: dict[int, VolumeCoefficients] = {}
         self.majorant = np.array([self._estimate_majorant(i) for i in range(len(self.material))], F32)
 
@@ -180,26 +182,38 @@ class Media:
         material = int(self.material[medium])
         shader = self.shaders[material]
         n = len(p)
-        if shader.homogeneous:
+        if self.homogeneous[medium]:
             c = self._constant.get(medium)
             if c is None:
-                c = self._constant[medium] = shader.evaluate(p[:1], d[:1], self._objects(medium, 1))
+                c = self._constant[medium] = self._scaled(medium, shader.evaluate(p[:1], d[:1],
+                                                                                  self._objects(medium, 1)))
             return _broadcast(c, n, emission)
-        return shader.evaluate(p, d, self._objects(medium, n), ray=ray, emission=emission)
+        grids = self.grids.get(int(self.object[medium]), ({}, 1.0))[0]
+        return self._scaled(medium, shader.evaluate(p, d, self._objects(medium, n), grids, ray=ray,
+                                                    emission=emission))
+
+    def _scaled(self, medium: int, c: VolumeCoefficients) -> VolumeCoefficients:
+        """A Volume object's coefficients times its density scale (Object space: they follow its scale)."""
+        scale = self.grids.get(int(self.object[medium]), (None, 1.0))[1]
+        if scale == 1.0:
+            return c
+        scale = F32(scale)
+        for phase in c.phases:
+            phase.weight = phase.weight * scale
+        return VolumeCoefficients(c.sigma_s * scale, c.sigma_t * scale, c.emission * scale, c.phases)
 
     def _objects(self, medium: int, n: int):
         obj = int(self.object[medium])
         return None if obj < 0 else np.full(n, obj, np.int32)
 
     def _estimate_majorant(self, medium: int) -> float:
-        material = int(self.material[medium])
-        shader = self.shaders[material]
         lo, hi = self.lo[medium].astype(np.float64), self.hi[medium].astype(np.float64)
-        if shader.homogeneous:
+        if self.homogeneous[medium]:
             points = ((lo + hi) / 2)[None].astype(F32)
             cells = 1
         else:
-            cells = MAJORANT_CELLS
+            # Grids have finer features than node programs usually do: twice the cells per axis.
+            cells = MAJORANT_CELLS * (2 if int(self.object[medium]) in self.grids else 1)
             rng = np.random.default_rng(0x15B4F88D + medium)
             size = (hi - lo) / cells
             pad = 0.2 * size    # Cycles pads each cell by 0.2 of its size (octree.cpp fill_shader_input)
@@ -208,7 +222,7 @@ class Media:
             points = (lo - pad + index * size + jitter * (size + 2 * pad)).reshape(-1, 3).astype(F32)
         d = np.zeros_like(points)
         d[:, 2] = -1.0
-        c = shader.evaluate(points, d, self._objects(medium, len(points)))
+        c = self._evaluate(medium, points, d, None, True)
         peak = float(max(c.sigma_t.max(initial=0.0), c.emission.max(initial=0.0)))
         if cells == 1:
             return peak

@@ -59,6 +59,9 @@ class SceneArrays:
     bvh_vertices, bvh_indices : (V, 3) float32 and (T, 3) uint32, or None: the plain triangles again as an
         indexed mesh, vertices[indices] equal to positions corner for corner (the export has them at hand);
         Embree builds its BVH from them about 1.5x faster than from the corners. Optional.
+    volumes : ((object row, {name: kernels.media.grid.VoxelGrid}, density scale), ...): the voxel grids of the
+        objects that are volumes (Volume objects, smoke domains), looked up by their media's shaders, and the
+        factor on their coefficients (Cycles' object_volume_density).
     """
     positions: np.ndarray
     normals: np.ndarray
@@ -84,6 +87,7 @@ class SceneArrays:
     instances: Instances | None = None
     bvh_vertices: np.ndarray | None = None
     bvh_indices: np.ndarray | None = None
+    volumes: tuple = ()
 
     @property
     def has_motion(self) -> bool:

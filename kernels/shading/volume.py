@@ -160,10 +160,11 @@ class VolumeShader:
         self.program = shader.program
         self.interpolation = shader.interpolation
         self.data = data
-        # Constant inputs everywhere (no program, no grid): one evaluation gives the medium's coefficients.
-        self.homogeneous = not any(p.varies for c in self.closures for p in c.params()) and not any(
-            dict(c.options).get(k) for c in self.closures for k in ("Density Attribute", "Color Attribute",
-                                                                     "Temperature Attribute"))
+        # Constant inputs everywhere (no program): one evaluation gives a medium's coefficients, unless it reads
+        # grids (Principled Volume's attributes) and its object has them.
+        self.constant = not any(p.varies for c in self.closures for p in c.params())
+        self.reads_grids = any(dict(c.options).get(k) for c in self.closures
+                               for k in ("Density Attribute", "Color Attribute", "Temperature Attribute"))
         self.emits = any(_may_emit(c) for c in self.closures)
 
     def evaluate(self, p: np.ndarray, d: np.ndarray, objects: np.ndarray | None, grids=None, ray=None,
