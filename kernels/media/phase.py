@@ -52,8 +52,7 @@ from typing import Callable
 import numpy as np
 
 from ..shading.cycles_math import cycles_max, cycles_min
-from ..shading.program import make_orthonormals
-from ..vec import F32, I32, INV_2PI, INV_4PI, INV_PI, PI, TWO_PI, U32, dot_xyz, normalize_xyz
+from ..vec import F32, I32, INV_2PI, INV_4PI, INV_PI, PI, TWO_PI, U32, dot_xyz, make_orthonormals_xyz, normalize_xyz
 
 # Phase kinds; NONE marks an empty closure slot of a mixture.
 HENYEY_GREENSTEIN, FOURNIER_FORAND, DRAINE, RAYLEIGH = range(4)
@@ -458,11 +457,11 @@ def _finite(pdf):
 def _direction(d, cos_theta, u2):
     """volume_util.h phase_sample_direction: the direction at angle acos(cos_theta) from the unit d, at
     azimuth 2 pi u2 in Cycles' make_orthonormals frame about d; normalised. (x, y, z) float32."""
-    t, b = make_orthonormals(np.stack(d, axis=1))
+    t, b = make_orthonormals_xyz(d)
     sin_theta = np.sqrt(cycles_max(1 - cos_theta * cos_theta, F32(0.0)))
     phi = TWO_PI * u2
     x, y = sin_theta * np.cos(phi), sin_theta * np.sin(phi)
-    return normalize_xyz(tuple(x * t[:, k] + y * b[:, k] + cos_theta * d[k] for k in range(3)))
+    return normalize_xyz(tuple(x * t[k] + y * b[k] + cos_theta * d[k] for k in range(3)))
 
 
 def _as_params(params):
