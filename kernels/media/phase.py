@@ -523,7 +523,8 @@ def evaluate_mixture(kinds, weights, params, wi, wo):
     (kernel/integrator/volume_shader.h): kinds (K, n) int (or (K,): the same at every point; NONE: no
     closure), weights (K, n) float32, the closures' sample weights (>= 0), params (K, 3, n) ->
     (value, pdf) (n,) float32 with value = sum(w_k f_k) * (1 / sum(w_k)) and pdf = sum(w_k pdf_k) / sum(w_k),
-    0 where no weight."""
+    0 where no weight. The caller fills the slots as Cycles would: at most 8 (MAX_VOLUME_CLOSURE), identical
+    closures of stacked volumes merged into one (volume_shader_merge_closures)."""
     kinds, weights, params = _mixture_inputs(kinds, weights, params)
     cos_theta = cos_theta_of(_as_direction(wi), _as_direction(wo))
     total = np.zeros(weights.shape[1], F32)
