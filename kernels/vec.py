@@ -80,6 +80,18 @@ def normalize_floored_xyz(v):
     return tuple(c * inv for c in v)
 
 
+def make_orthonormals_xyz(n):
+    """Cycles' make_orthonormals of unit component vectors n: a = (1, 1, 1) x n (or (-1, 1, 1) x n where n's
+    components are all equal) divided by its length (floored at 1e-30), and b = n x a. Returns (a, b), each
+    a tuple (x, y, z), in n's dtype. (shading.program.make_orthonormals is the same frame for (N, 3) rows.)"""
+    x, y, z = n
+    equal = (x == y) & (x == z)
+    a = (z - y, np.where(equal, x + z, x - z), np.where(equal, -y - x, y - x))
+    length = np.maximum(length_xyz(a), 1e-30)
+    a = tuple(c / length for c in a)
+    return a, cross_xyz(n, a)
+
+
 # ---------------------------------------------------------------- rows: (..., 3)
 def dot_rows(a, b):
     """a . b over the last axis of (..., 3) arrays (shapes that broadcast): (...,), summed left to right,

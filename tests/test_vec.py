@@ -104,6 +104,25 @@ def test_the_two_component_normalizations_differ_only_below_the_floor_and_for_na
     assert np.isnan(floored[0][1]) and np.isnan(floored[1][1])
 
 
+def test_make_orthonormals_is_cycles_frame():
+    """make_orthonormals_xyz: (a, b, n) right-handed and orthonormal, the frame shading.program's rows version
+    gives (both Cycles' make_orthonormals), the (-1, 1, 1) cross product where n's components are equal."""
+    from ember.kernels.shading.program import make_orthonormals
+    n = _rows(500, 8)[1:]
+    n = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
+    n[0] = np.float32(1 / np.sqrt(3))
+    a, b = vec.make_orthonormals_xyz(tuple(n.T))
+    assert all(c.dtype == np.float32 for c in (*a, *b))
+    rows_a, rows_b = make_orthonormals(n)
+    np.testing.assert_allclose(np.stack(a, axis=1), rows_a, atol=1e-6)
+    np.testing.assert_allclose(np.stack(b, axis=1), rows_b, atol=1e-6)
+    frame = np.stack([np.stack(a, axis=1), np.stack(b, axis=1), n], axis=1).astype(np.float64)    # (N, 3, 3)
+    np.testing.assert_allclose(frame @ frame.transpose(0, 2, 1), np.broadcast_to(np.eye(3), frame.shape), atol=1e-6)
+    np.testing.assert_allclose(np.linalg.det(frame), 1.0, atol=1e-6)
+    expected = np.cross([-1.0, 1.0, 1.0], n[0].astype(np.float64))
+    np.testing.assert_allclose(np.array(a)[:, 0], expected / np.linalg.norm(expected), atol=1e-6)
+
+
 # ---------------------------------------------------------------- rows (..., 3)
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_row_helpers_match_numpy(dtype):
