@@ -109,6 +109,9 @@ def start_paths(tables, wave, paths, start: int, end: int):
     if tables.media is not None:
         state.media = np.repeat(tables.camera_media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
+        state.volume_bounds = np.zeros(n, np.int32)
+        if camera.kind != "ORTHO":
+            media_stage.clip_crossings(tables, state, rays.origins)
     if camera.kind == "ORTHO":
         state.dp[:] = tables.pixel_size
     if camera.kind == "PANO":
@@ -198,12 +201,23 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     alive = _continues(tables, wave, hit, state, bs, numbers, focus)
     if state.lobes is not None:
         state.track_lobes(bs, shading.closures, bs.transparent)
-    # A path takes at most `last` + 1 steps (its rays: the camera's, one per bounce or pass-through).
-    alive = alive[np.take(state.segments, alive) < last]
+    # A path takes at most `last` + 1 steps (its rays: the camera's, one per bounce or pass-through); a
+    # volume's invisible boundary is not one, up to Cycles' VOLUME_BOUNDS_MAX crossings.
+    bounds = None if tables.media is None else bs.transparent & np.take(tables.media.boundary, hit.mat)
+    if bounds is None:
+        alive = alive[np.take(state.segments, alive) < last]
+    else:
+        alive = alive[np.where(bounds[alive], np.take(state.volume_bounds, alive) < media_stage.VOLUME_BOUNDS_MAX,
+                               np.take(state.segments, alive) < last)]
     if not len(alive):
         return None
     state.compact(alive)
-    state.segments = state.segments + 1
+    if bounds is None:
+        state.segments = state.segments + 1
+    else:
+        crossed = bounds[alive]
+        state.segments = state.segments + ~crossed
+        state.volume_bounds = state.volume_bounds + crossed
     if state.partner is not None:
         _crossings(tables, state, hit, alive, bs)
     if state.media is not None:

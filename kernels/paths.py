@@ -61,6 +61,8 @@ class PathState:
     #                                    kernels.media.Media, -1 empty slots: Cycles' volume stack); None in
     #                                    scenes without media
     volume_bounces: np.ndarray | None = None  # (N,) int32 scattering events in media so far (with media)
+    volume_bounds: np.ndarray | None = None   # (N,) int32 volume boundaries passed (with media; Cycles'
+    #                                           volume_bounds_bounce)
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -104,6 +106,7 @@ class PathState:
         if self.media is not None:
             self.media = np.take(self.media, idx, axis=1)
             self.volume_bounces = np.take(self.volume_bounces, idx)
+            self.volume_bounds = np.take(self.volume_bounds, idx)
 
     @classmethod
     def concat(cls, a: "PathState", b: "PathState") -> "PathState":
@@ -130,7 +133,7 @@ class PathState:
                     cat(a.bounce, b.bounce, required), cat(a.transparent, b.transparent, required),
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
-                     "portal", "segments", "media", "volume_bounces"):
+                     "portal", "segments", "media", "volume_bounces", "volume_bounds"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)
         state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)

@@ -286,14 +286,14 @@ def test_unwritable_output_messages_name_the_real_obstacle(tmp_path, place, mess
 
 
 def test_odd_lights_and_materials_warn_in_order_and_render_finite(tmp_path):
-    """A volume-only material, a negative and a 1e38 W light, a missing image with a Blender-relative
+    """A BSDF in a material's Volume output, a negative and a 1e38 W light, a missing image with a Blender-relative
     path and a 1e30-scaled object: a warning each, printed before 'saved', absolute paths, a finite
     image, no NumPy warnings."""
     scene = small_scene()
     fog = bpy.data.materials.new("Fog")
     tree = fog.node_tree
     tree.nodes.clear()
-    volume = tree.nodes.new("ShaderNodeVolumePrincipled")
+    volume = tree.nodes.new("ShaderNodeBsdfDiffuse")
     tree.links.new(volume.outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs["Volume"])
     mesh_object("Cloud", [(-0.5, 0, 0.2), (0.5, 0, 0.2), (0, 0, 1)], [(0, 1, 2)], fog)
     for name, energy in (("Negative", -100.0), ("Blinding", 1e38)):
@@ -313,7 +313,7 @@ def test_odd_lights_and_materials_warn_in_order_and_render_finite(tmp_path):
     assert run.returncode == 0, run.stderr
     no_traceback(run)
     out = run.stdout
-    for text in ("Material 'Fog': volume shaders are not supported", "Light 'Negative' has negative power",
+    for text in ("Material 'Fog': Diffuse BSDF 'Diffuse BSDF' is not a volume shader", "Light 'Negative' has negative power",
                  "Light 'Blinding' is too bright", f"({tmp_path / 'nowhere' / 'x.png'})"):
         assert text in out and out.index(text) < out.index("saved"), out
     assert "//" not in out

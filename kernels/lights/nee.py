@@ -204,8 +204,7 @@ def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None) -> n
     seeds = None
     if state.media is not None:
         stack = np.take(state.media, paths, axis=1) if stack is None else stack
-        rng = state.samples.rng
-        seeds = (np.take(rng.x, paths), np.take(rng.y, paths))
+        seeds = tracking.ray_keys(state, paths)
     return shadow(tables, origins, dirs, t_max, wave, np.take(state.bounce, paths),
                   None if state.lobes is None else np.take(state.lobes, paths, axis=1),
                   None if state.time is None else state.time.take(paths),

@@ -12,6 +12,7 @@ import numpy as np
 from .. import passes
 from ..lights import nee
 from ..paths import DIFFUSE, GLOSSY, SINGULAR, may_scatter, roulette_verdict
+from ..geometry import NG
 from ..lights.common import SPOT
 from ..samples import BSDF, LIGHT, LIGHT_POINT, VOLUME_DISTANCE, VOLUME_LIGHT
 from ..vec import F32, ONE, ZERO
@@ -19,8 +20,9 @@ from ..shading.volume import PhaseClosure
 from . import equiangular
 from . import stack as volume_stack
 from .scatter import PhaseMixture
-from .tracking import track, transmittance, uniforms
+from .tracking import ray_keys, track, transmittance, uniforms
 
+VOLUME_BOUNDS_MAX = 1024   # volume boundaries a path may pass (Cycles' VOLUME_BOUNDS_MAX, a guard)
 # tracking.uniforms salts: the segment's collisions, the phase closure pick, the segment's light sample.
 SEGMENT_SALT, PICK_SALT, DIRECT_SALT, LIGHT_HIT_SALT = 0, 7, 11, 13
 
@@ -54,10 +56,9 @@ def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -
     may = may_scatter(wave, state)[inside]
     if state.continuation is not None:
         may &= np.take(state.continuation, inside) > 0
-    rng = state.samples.rng
     origins, dirs = rays.origins[inside], rays.dirs[inside]
-    seg = track(tables.media, state.media[:, inside], origins, dirs, t_end,
-                (np.take(rng.x, inside), np.take(rng.y, inside)), may, salt=SEGMENT_SALT)
+    seg = track(tables.media, state.media[:, inside], origins, dirs, t_end, ray_keys(state, inside), may,
+                salt=SEGMENT_SALT)
     throughput = np.take(state.throughput, inside, axis=1)
     lit = np.zeros(len(inside), bool)
     if wave.nee:
@@ -111,8 +112,7 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     rows, paths, o, dvec, end = rows[keep], paths[keep], o[keep], dvec[keep], end[keep]
     sigma_t, prob = sigma_t[:, keep], (albedo[:, keep] / total[keep])
     phases = _phases_of(c.phases, keep)
-    rng = state.samples.rng
-    seeds = (np.take(rng.x, paths), np.take(rng.y, paths))
+    seeds = ray_keys(state, paths)
     mean_free = 1.0 / np.maximum(sigma_t.max(axis=0), 1e-30)
     reach = np.where(np.isfinite(end), end, 2.0 * mean_free)
     ref = (o + dvec * (reach / 2)[:, None]).astype(F32)
@@ -197,8 +197,7 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
                                                                              len(own)),
                                   (u_select[own], u1[own], u2[own]))
     u1, u2 = numbers[BSDF]
-    rng = state.samples.rng
-    u_pick = uniforms((rng.x, rng.y), 0, PICK_SALT)[0]
+    u_pick = uniforms(ray_keys(state, np.arange(n)), 0, PICK_SALT)[0]
     wo, f, pdf = mixture.sample(d, u_pick, u1, u2)
     with np.errstate(divide="ignore", invalid="ignore"):
         weight = np.where(pdf > 0, f / np.where(pdf > 0, pdf, ONE), ZERO)
@@ -237,11 +236,38 @@ def transmittance_to(tables, state, rays, rows, t) -> np.ndarray:
     inside = np.flatnonzero((np.take(state.media, rows, axis=1) >= 0).any(axis=0))
     if len(inside):
         paths = rows[inside]
-        rng = state.samples.rng
         out[:, inside] = transmittance(tables.media, state.media[:, paths], rays.origins[paths], rays.dirs[paths],
-                                       t[inside].astype(F32), (np.take(rng.x, paths), np.take(rng.y, paths)),
-                                       salt=LIGHT_HIT_SALT)
+                                       t[inside].astype(F32), ray_keys(state, paths), salt=LIGHT_HIT_SALT)
     return out
+
+
+def clip_crossings(tables, state, origins) -> None:
+    """Camera rays start at the near clip distance: the stacks of the paths take the volume boundaries between
+    the eye (whose media Media.start_stack found) and their rays' origins, as Cycles' volume stack
+    initialisation traces from the camera (integrator/intersect_volume_stack.h)."""
+    eye = np.asarray(tables.camera_frame[0], F32)
+    offset = origins - eye
+    length = np.sqrt(np.einsum("ij,ij->i", offset, offset)).astype(F32)
+    live = np.flatnonzero(length > 0)
+    start = np.broadcast_to(eye, (len(live), 3)).copy()
+    for _ in range(64):
+        if not len(live):
+            return
+        dirs = (offset[live] / length[live, None]).astype(F32)
+        left = length[live] - np.sqrt(np.einsum("ij,ij->i", start - eye, start - eye)).astype(F32)
+        hits = tables.accel.intersect(start, dirs, np.maximum(left, F32(0.0)))
+        found = np.flatnonzero((hits.prim >= 0) & (left > 0))
+        if not len(found):
+            return
+        prim = hits.prim[found]
+        g = tables.triangles.gather(prim)
+        d = dirs[found]
+        behind = g[NG] * d[:, 0] + g[NG + 1] * d[:, 1] + g[NG + 2] * d[:, 2] > 0
+        rows = live[found]
+        state.media[:, rows] = volume_stack.cross(state.media[:, rows], tables.media.of_hits(prim), behind)
+        step = hits.t[found] + F32(1e-5) * np.maximum(F32(1.0), np.abs(start[found]).max(axis=1))
+        start = start[found] + d * step[:, None]
+        live = rows
 
 
 def cross_surfaces(tables, state, hit, alive, below) -> None:

@@ -59,6 +59,16 @@ def uniforms(seeds, k: int, salt: int = 0):
     return to_unit_float(a), to_unit_float(b)
 
 
+def ray_keys(state, rows):
+    """The numbers' keys of the current rays of the paths rows (state rows) for tracking.uniforms: their PCG2D
+    states mixed with the number of rays they traced before, so that every ray of a path (whose stream does
+    not advance at a first vertex's stratified numbers, nor at a volume's boundary) draws its own."""
+    rng = state.samples.rng
+    count = (np.take(state.segments, rows) + np.take(state.volume_bounds, rows)).astype(np.uint32)
+    return (np.take(rng.x, rows) ^ (count * np.uint32(0x9E3779B9)),
+            np.take(rng.y, rows) + count * np.uint32(0x632BE5AB))
+
+
 def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emission: bool = True,
           salt: int = 0) -> Segment:
     """Distance sampling for n paths (stack (K, n), origins and unit dirs (n, 3), t_end (n,) which may be
