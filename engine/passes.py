@@ -46,6 +46,11 @@ DATA_PASSES = (
     Pass("use_pass_transmission_direct", "Transmission Direct", 3, "RGB", "COLOR", "transmission_direct"),
     Pass("use_pass_transmission_indirect", "Transmission Indirect", 3, "RGB", "COLOR", "transmission_indirect"),
     Pass("use_pass_transmission_color", "Transmission Color", 3, "RGB", "COLOR", "transmission_color"),
+    # A file set up for Cycles' Volume passes (View Layer > Passes with Cycles) gets them from Ember too.
+    Pass("ember.use_pass_volume_direct|cycles.use_pass_volume_direct", "Volume Direct", 3, "RGB", "COLOR",
+         "volume_direct"),
+    Pass("ember.use_pass_volume_indirect|cycles.use_pass_volume_indirect", "Volume Indirect", 3, "RGB", "COLOR",
+         "volume_indirect"),
 )
 DENOISING_ALBEDO = Pass("", "Denoising Albedo", 3, "RGB", "COLOR", "denoising_albedo")
 DENOISING_NORMAL = Pass("", "Denoising Normal", 3, "XYZ", "VECTOR", "denoising_normal")
@@ -54,6 +59,9 @@ NOISY_IMAGE = Pass("", "Noisy Image", 4, "RGBA", "COLOR", "")
 
 
 def _toggle(view_layer, path: str) -> bool:
+    """A pass's toggle (a property path from the view layer; "a|b": either of two, Ember's own and Cycles')."""
+    if "|" in path:
+        return any(_toggle(view_layer, p) for p in path.split("|"))
     owner = view_layer
     *parents, name = path.split(".")
     for parent in parents:
@@ -121,8 +129,9 @@ def kernel_passes(scene, view_layer, denoise_inputs: str | None) -> tuple:
     names = [p.kernel for p in enabled_passes(scene, view_layer) if p.kernel and not p.kernel.startswith("crypto:")]
     if "vector" in names:
         names.append("vector_weight")
-    # Direct and indirect light are read divided by their class's colour: record it too.
-    names += [n.split("_")[0] + "_color" for n in names if n.endswith(("_direct", "_indirect"))]
+    # Direct and indirect light are read divided by their class's colour: record it too (volumes have none).
+    names += [n.split("_")[0] + "_color" for n in names
+              if n.endswith(("_direct", "_indirect")) and not n.startswith("volume_")]
     if denoise_inputs in ("RGB_ALBEDO", "RGB_ALBEDO_NORMAL"):
         names.append("denoising_albedo")
     if denoise_inputs == "RGB_ALBEDO_NORMAL":
@@ -141,6 +150,14 @@ class EmberViewLayerSettings(bpy.types.PropertyGroup):
     use_pass_noise: BoolProperty(
         name="Noise", description="The variance of each pixel's mean (Ember's own pass): where the image is "
                                   "still noisy and by how much",
+        default=False)
+    use_pass_volume_direct: BoolProperty(
+        name="Volume Direct", description="Light scattered once in volumes toward the camera: what paths whose "
+                                          "first scattering is in a medium find there (Cycles' Volume Direct)",
+        default=False)
+    use_pass_volume_indirect: BoolProperty(
+        name="Volume Indirect", description="The rest of the light of paths whose first scattering is in a "
+                                            "medium (Cycles' Volume Indirect)",
         default=False)
     denoising_store_passes: BoolProperty(
         name="Denoising Data",

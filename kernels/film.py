@@ -85,7 +85,8 @@ class Film:
                 return np.where(weight > 0, values / weight, 0.0).astype(np.float32)
         if _passes.kind(name) == "MIST":
             return (1.0 - mean).astype(np.float32)
-        if _passes.kind(name) == "LIGHT":  # divided by the class's colour, as Cycles' pass accessor does
+        if _passes.kind(name) == "LIGHT" and not name.startswith("volume_"):
+            # Divided by the class's colour, as Cycles' pass accessor does (Volume has no colour pass).
             colour = self.aux[name.split("_")[0] + "_color"][row0:row1] * scale[:, :, None]
             with np.errstate(divide="ignore", invalid="ignore"):
                 return np.where(colour != 0, mean / colour, 0.0).astype(np.float32)

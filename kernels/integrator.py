@@ -101,7 +101,7 @@ def start_paths(tables, wave, paths, start: int, end: int):
     if aux is not None and ("denoising_albedo" in aux or "denoising_normal" in aux or "denoising_depth" in aux):
         state.features = np.ones((3, n), np.float32)
     if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
-        state.pass_weights = np.zeros((6, n), np.float32)
+        state.pass_weights = np.zeros((6 if tables.media is None else 7, n), np.float32)
     if tables.shading.reads_lobes or _caustics(settings) is not None or type_limits(settings) is not None:
         state.lobes = np.zeros((4, n), np.int32)
     if settings.filter_glossy > 0:
@@ -221,7 +221,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     if state.partner is not None:
         _crossings(tables, state, hit, alive, bs)
     if state.media is not None:
-        media_stage.cross_surfaces(tables, state, hit, alive, np.take(_below(bs), alive))
+        media_stage.enter_exit_surfaces(tables, state, hit, alive, np.take(_below(bs), alive))
     return state, _spawn(tables, hit, alive, bs)
 
 

@@ -23,7 +23,8 @@ Two kinds, as in Cycles:
   closure classes (diffuse-like; reflecting microfacets and glass seen from outside; the rest), direct when
   it lit the first hit. Read, as Cycles reads them, divided by the class's Color pass (the first hit's
   closure colours of that class): Combined = Emission + Environment + sum over classes of
-  (Direct + Indirect) x Color.
+  (Direct + Indirect) x Color + Volume Direct + Volume Indirect. Volume Direct and Indirect (no Color pass, as
+  in Cycles) take what paths whose first scattering was in a medium find.
 - Vector (WEIGHTED): Cycles' motion vectors, in pixels: (previous - current) and (current - next) raster
   positions of the camera rays' first surface point (x right, y up), the object's and the camera's
   transforms one frame before and after; averaged over the samples that hit a surface.
@@ -64,7 +65,11 @@ PASSES = {
     "diffuse_direct": (3, "LIGHT"), "diffuse_indirect": (3, "LIGHT"), "diffuse_color": (3, "MEAN"),
     "glossy_direct": (3, "LIGHT"), "glossy_indirect": (3, "LIGHT"), "glossy_color": (3, "MEAN"),
     "transmission_direct": (3, "LIGHT"), "transmission_indirect": (3, "LIGHT"), "transmission_color": (3, "MEAN"),
+    "volume_direct": (3, "LIGHT"), "volume_indirect": (3, "LIGHT"),
 }
+# PathState.pass_weights' rows: the diffuse and glossy shares (RGB) of the first bounce, and in scenes with media
+# a seventh, 1 where the first scattering was in a medium (Cycles' PATH_RAY_VOLUME_PASS).
+VOLUME_ROW = 6
 BACKGROUND_DEPTH = 1e10
 
 
@@ -225,10 +230,20 @@ def write_light(tables, wave, state, rows, value, shadow: bool = False, first=No
     bounce = np.take(state.bounce, rows)
     direct = bounce == (0 if shadow else 1)
     if first is not None and len(first[0]):
-        shares[:, first[0]] = first[1]
+        given = first[1]
+        shares[:len(given), first[0]] = given
+        if len(given) < len(shares):   # a surface's own split: none of it is the medium's
+            shares[len(given):, first[0]] = 0.0
     paths = state.path[rows]
-    parts = (shares[:3], shares[3:], np.float32(1) - shares[:3] - shares[3:])
-    for cls, share in zip(("diffuse", "glossy", "transmission"), parts):
+    surface = np.float32(1)
+    parts = [("diffuse", shares[:3]), ("glossy", shares[3:6]), ("transmission", None)]
+    if len(shares) > VOLUME_ROW:
+        surface = np.float32(1) - shares[VOLUME_ROW]
+        parts.append(("volume", shares[VOLUME_ROW:VOLUME_ROW + 1]))
+        shares = shares[:VOLUME_ROW] * surface
+    parts[0], parts[1] = ("diffuse", shares[:3]), ("glossy", shares[3:6])
+    parts[2] = ("transmission", surface - shares[:3] - shares[3:6])
+    for cls, share in parts:
         for suffix, sel in (("direct", direct), ("indirect", ~direct)):
             name = f"{cls}_{suffix}"
             if name in aux:
@@ -254,7 +269,9 @@ def first_bounce_shares(tables, state, closures, bs) -> None:
     m = np.flatnonzero(~delta)
     if len(m):
         shares[:, m] = class_shares(*eval_split(closures, rows[m], tuple(c[m] for c in wi)))
-    state.pass_weights[:, rows] = shares
+    state.pass_weights[:VOLUME_ROW, rows] = shares
+    if len(state.pass_weights) > VOLUME_ROW:
+        state.pass_weights[VOLUME_ROW, rows] = 0.0
 
 
 def class_shares(f, f_diffuse, f_glossy) -> np.ndarray:

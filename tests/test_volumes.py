@@ -165,17 +165,17 @@ def test_cone_range_is_where_the_ray_is_inside_the_cone():
 
 # ---------------------------------------------------------------- the volume stack
 def test_volume_stack_enters_once_and_leaves():
-    from ember.kernels.media.stack import cross
+    from ember.kernels.media.stack import enter_exit
     stack = np.full((3, 4), -1, np.int32)
     stack[0] = 0                                        # every path in the world's medium
-    stack = cross(stack, np.array([2, 2, -1, 5]), np.array([False, True, False, False]))
+    stack = enter_exit(stack, np.array([2, 2, -1, 5]), np.array([False, True, False, False]))
     assert stack[:, 0].tolist() == [0, 2, -1]          # entered
     assert stack[:, 1].tolist() == [0, -1, -1]         # left a medium it was not in: nothing changes
     assert stack[:, 2].tolist() == [0, -1, -1]         # no medium there
-    stack = cross(stack, np.array([2, 7, 7, 5]), np.array([False, False, False, False]))
+    stack = enter_exit(stack, np.array([2, 7, 7, 5]), np.array([False, False, False, False]))
     assert stack[:, 0].tolist() == [0, 2, -1]          # a medium is on a stack once
     assert stack[:, 3].tolist() == [0, 5, -1]
-    stack = cross(stack, np.array([2, -1, -1, 5]), np.array([True, False, False, True]))
+    stack = enter_exit(stack, np.array([2, -1, -1, 5]), np.array([True, False, False, True]))
     assert stack[:, 0].tolist() == [0, -1, -1] and stack[:, 3].tolist() == [0, -1, -1]
 
 

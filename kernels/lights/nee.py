@@ -98,7 +98,7 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
         # A shadow ray that leaves through the surface (toward a light behind it) enters or leaves the
         # medium there, as the path's ray would (Cycles copies the stack and enters or exits for it).
         through = np.where(sign < 0, tables.media.of_hits(np.take(hit.prim, paths)), -1).astype(np.int32)
-        stack = volume_stack.cross(np.take(state.media, paths, axis=1), through, np.take(hit.backfacing, paths))
+        stack = volume_stack.enter_exit(np.take(state.media, paths, axis=1), through, np.take(hit.backfacing, paths))
     # Lights with Cast Shadow off are not blocked: no shadow ray, as in Cycles.
     traced = np.flatnonzero(np.take(ls.shadowed, idx))
     if len(traced) == len(idx):
@@ -169,8 +169,14 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
         np.take(transmittance, vis, axis=1) * np.take(le, at, axis=1) * (w / pdf)
     if scale is not None:
         contribution *= np.take(scale, at, axis=1)
-    passes.add_light(tables, wave, state, rows[at], contribution,
-                     lambda first: np.zeros((6, len(first)), np.float32))
+    passes.add_light(tables, wave, state, rows[at], contribution, _volume_shares)
+
+
+def _volume_shares(first) -> np.ndarray:
+    """Light scattered by a medium at a path's first scattering: the Volume passes' (passes.VOLUME_ROW)."""
+    shares = np.zeros((passes.VOLUME_ROW + 1, len(first)), np.float32)
+    shares[passes.VOLUME_ROW] = 1.0
+    return shares
 
 
 def terminator_lift(tables, hit, hits, light, ng):
@@ -269,7 +275,7 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
             d = dirs[live[through]]
             behind = g[NG] * d[:, 0] + g[NG + 1] * d[:, 1] + g[NG + 2] * d[:, 2] > 0
             stack = stack.copy()
-            stack[:, live[through]] = volume_stack.cross(stack[:, live[through]], medium, behind)
+            stack[:, live[through]] = volume_stack.enter_exit(stack[:, live[through]], medium, behind)
         # Continue just past the transparent surface.
         t = hits.t[through]
         step = t + spawn_offset(tables.ray_epsilon, *(origins[through, k] for k in range(3)))

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def cross(stack: np.ndarray, medium: np.ndarray, leaving: np.ndarray) -> np.ndarray:
+def enter_exit(stack: np.ndarray, medium: np.ndarray, leaving: np.ndarray) -> np.ndarray:
     """The stacks (K, n) after the rays cross into (or, leaving, out of) media (n,) (-1: no medium there)."""
     rows = np.flatnonzero(medium >= 0)
     if not len(rows):

@@ -201,9 +201,10 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     wo, f, pdf = mixture.sample(d, u_pick, u1, u2)
     with np.errstate(divide="ignore", invalid="ignore"):
         weight = np.where(pdf > 0, f / np.where(pdf > 0, pdf, ONE), ZERO)
-    if state.pass_weights is not None:
+    if state.pass_weights is not None:   # the first scattering in a medium: the Volume passes' (Cycles)
         first_hit = np.flatnonzero(state.bounce == 0)
-        state.pass_weights[:, first_hit] = 0.0   # light scattered by a medium: none of the surface classes
+        state.pass_weights[:, first_hit] = 0.0
+        state.pass_weights[passes.VOLUME_ROW, first_hit] = 1.0
     throughput = state.throughput * weight
     alive = (pdf > 0) & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
     state.bounce = state.bounce + 1
@@ -264,17 +265,17 @@ def clip_crossings(tables, state, origins) -> None:
         d = dirs[found]
         behind = g[NG] * d[:, 0] + g[NG + 1] * d[:, 1] + g[NG + 2] * d[:, 2] > 0
         rows = live[found]
-        state.media[:, rows] = volume_stack.cross(state.media[:, rows], tables.media.of_hits(prim), behind)
+        state.media[:, rows] = volume_stack.enter_exit(state.media[:, rows], tables.media.of_hits(prim), behind)
         step = hits.t[found] + F32(1e-5) * np.maximum(F32(1.0), np.abs(start[found]).max(axis=1))
         start = start[found] + d * step[:, None]
         live = rows
 
 
-def cross_surfaces(tables, state, hit, alive, below) -> None:
+def enter_exit_surfaces(tables, state, hit, alive, below) -> None:
     """The stacks of the paths (state, compacted to the hits `alive`) whose next rays go through their hits'
     surfaces (below): the media behind them entered, or left where the ray met the surface from behind."""
     if not below.any():
         return
     prim = np.take(hit.prim, alive)
     medium = np.where(below, tables.media.of_hits(prim), -1).astype(np.int32)
-    state.media = volume_stack.cross(state.media, medium, np.take(hit.backfacing, alive))
+    state.media = volume_stack.enter_exit(state.media, medium, np.take(hit.backfacing, alive))
