@@ -18,6 +18,7 @@ ROULETTE_DEPTH = 2
 
 # Cycles' closure labels, as PathState.lobes[0] holds the last bounce's (kernel/closure/bsdf_util.h).
 DIFFUSE, GLOSSY, SINGULAR, REFLECT, TRANSMIT = 1, 2, 4, 8, 16
+VOLUME_SCATTER = 32   # the last bounce scattered in a medium (Cycles' LABEL_VOLUME_SCATTER)
 
 
 @dataclass

@@ -128,7 +128,7 @@ def test_equiangular_samples_follow_their_pdf_and_it_integrates_to_one():
     grid = np.linspace(0.0, 4.0, 40001)
     dens = equiangular.pdf(origins[:1].repeat(len(grid), 0), dirs[:1].repeat(len(grid), 0),
                            point[:1].repeat(len(grid), 0), 0.0, 4.0, grid)
-    assert abs(np.trapezoid(dens, grid) - 1.0) < 1e-6
+    assert abs(((dens[1:] + dens[:-1]) / 2 * np.diff(grid)).sum() - 1.0) < 1e-6   # (NumPy 1.26: no trapezoid)
     assert np.allclose(pdf, equiangular.pdf(origins, dirs, point, t_min, t_max, t), rtol=1e-9)
     # Chi-square of the samples in 40 bins against the pdf's bin masses.
     edges = np.linspace(0.0, 4.0, 41)

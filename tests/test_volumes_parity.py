@@ -228,3 +228,28 @@ def test_volume_direct_and_indirect_passes():
         # through the cloud of the world (its transmittance times the world, where no path scattered).
         rest = run["Combined"] - run["Volume Direct"] - run["Volume Indirect"]
         assert rest.min() > -1e-4 and (rest <= np.array([0.1, 0.12, 0.15]) + 1e-4).all()
+
+
+def test_light_path_is_volume_scatter_ray():
+    """A floor that is red to rays that scattered in a medium last (Light Path > Is Volume Scatter Ray drives a
+    Mix Shader of two diffuse BSDFs) and grey to the rest, under a fog box: what the fog sees of the floor is
+    red."""
+    scene = stage()
+    floor = bpy.data.materials.new("Floor")
+    tree = floor.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    path = tree.nodes.new("ShaderNodeLightPath")
+    grey = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    red = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    red.inputs["Color"].default_value = (0.9, 0.05, 0.05, 1.0)
+    tree.links.new(path.outputs["Is Volume Scatter Ray"], mix.inputs[0])
+    tree.links.new(grey.outputs[0], mix.inputs[1])
+    tree.links.new(red.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    bpy.data.objects["Floor"].data.materials.append(floor)
+    m, _ = volume_material("Fog", "ShaderNodeVolumeScatter", Density=1.5)
+    box("Fog", (-0.7, -0.7, 0.3), (0.7, 0.7, 1.3), m)
+    lamp(scene, "POINT", (2, -2, 3), 300)
+    compare(scene, volume_bounces=1)

@@ -298,8 +298,6 @@ def _plain(builder, node, groups):
 
 def _light_path(builder, node, groups):
     outputs = _linked_outputs(node)
-    if "Is Volume Scatter Ray" in outputs:
-        builder.issues.append(f"Light Path '{node.name}' Is Volume Scatter Ray: Ember has no volumes, read zero")
     return builder.add(node.bl_idname, {}, outputs=outputs)
 
 

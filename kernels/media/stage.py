@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import passes
 from ..lights import nee
-from ..paths import DIFFUSE, GLOSSY, SINGULAR, may_scatter, roulette_verdict
+from ..paths import VOLUME_SCATTER, may_scatter, roulette_verdict
 from ..geometry import NG
 from ..lights.common import SPOT
 from ..samples import BSDF, LIGHT, LIGHT_POINT, VOLUME_DISTANCE, VOLUME_LIGHT
@@ -214,8 +214,8 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     state.escape_scale = None
     if state.min_ray_pdf is not None:
         state.min_ray_pdf = np.minimum(state.min_ray_pdf, pdf)
-    if state.lobes is not None:   # a volume scatter is none of the surface labels (Cycles' LABEL_VOLUME_SCATTER)
-        state.lobes[0] &= ~(DIFFUSE | GLOSSY | SINGULAR)
+    if state.lobes is not None:   # none of the surface labels (Cycles' LABEL_VOLUME_SCATTER), no surface count
+        state.lobes[0] = VOLUME_SCATTER
     if state.partner is not None:
         state.partner[:] = -1
         state.handed[:] = False

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..paths import DIFFUSE, GLOSSY, REFLECT, SINGULAR, TRANSMIT
+from ..paths import DIFFUSE, GLOSSY, REFLECT, SINGULAR, TRANSMIT, VOLUME_SCATTER
 from ..scene import OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TEXSPACE_LOC, \
     OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR
 from ..vec import F32, HALF, ONE, ZERO, dot_rows_einsum, matmul, normalize_rows_einsum
@@ -368,6 +368,7 @@ def _normal_input(hits, inputs):
 # Light Path outputs read from the path's last bounce (PathState.lobes): (row, label bit or None).
 LOBE_OUTPUTS = {"Is Diffuse Ray": (0, DIFFUSE), "Is Glossy Ray": (0, GLOSSY), "Is Singular Ray": (0, SINGULAR),
                 "Is Reflection Ray": (0, REFLECT), "Is Transmission Ray": (0, TRANSMIT),
+                "Is Volume Scatter Ray": (0, VOLUME_SCATTER),
                 "Diffuse Depth": (1, None), "Glossy Depth": (2, None), "Transmission Depth": (3, None)}
 
 
@@ -395,7 +396,6 @@ def light_path(hits, inputs, op):
            # Shadow rays, the world and lights are one bounce further (Cycles adds 1 for them).
            "Ray Depth": depth + F32(1.0 if further else 0.0),
            "Transparent Depth": take(ray.transparent) if ray is not None else zero,
-           "Is Volume Scatter Ray": zero,
            "Portal Depth": take(ray.portal) if ray is not None and ray.portal is not None else zero}
     lobes = None if ray is None or ray.lobes is None else np.take(ray.lobes, hits.idx, axis=1)
     for name, (row, bit) in LOBE_OUTPUTS.items():
