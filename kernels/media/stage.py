@@ -22,6 +22,7 @@ from . import stack as volume_stack
 from .scatter import PhaseMixture
 from .tracking import ray_keys, track, transmittance, uniforms
 
+MAX_CONES = 64             # spot lights whose cones a segment's light sample looks at
 VOLUME_BOUNDS_MAX = 1024   # volume boundaries a path may pass (Cycles' VOLUME_BOUNDS_MAX, a guard)
 # tracking.uniforms salts: the segment's collisions, the phase closure pick, the segment's light sample.
 SEGMENT_SALT, PICK_SALT, DIRECT_SALT, LIGHT_HIT_SALT = 0, 7, 11, 13
@@ -128,21 +129,35 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     aimed = np.isfinite(ls.dist) & (ls.pdf > 0)
     lo, hi = np.zeros(len(rows)), end.copy()
     lights = tables.lights
-    if lights.light_count and (lights.kind == SPOT).any():
-        # Toward a spot light, only the part of the ray inside its cone (distance sampling covers the rest).
+    spots = np.flatnonzero(lights.kind[:lights.light_count] == SPOT) if lights.light_count else ()
+    if len(spots):
+        # Toward a spot light, only the part of the ray inside its cone (distance sampling covers the rest). A
+        # ray that misses the chosen spot's cone aims at one of the spots whose cones it crosses instead (picked
+        # at random, the equiangular density being conditional on its centre; the light sample at the distance
+        # drawn is a light sample as any): otherwise its distance alone, drawn along a thin fog, would find the
+        # other beams rarely and brightly.
         chosen, _ = lights.choose_at(ua, *(np.ascontiguousarray(ref[:, k]) for k in range(3)))
         lamp = np.minimum(chosen, lights.light_count - 1)
-        spot = np.flatnonzero((chosen < lights.light_count) & (np.take(lights.kind, lamp) == SPOT) & aimed)
-        if len(spot):
-            light = lamp[spot]
-            # A sized spot shines from a disk: its cone's apex moves back so that the cone holds the disk's.
-            cos_half = np.clip(lights.spot[light, 0].astype(np.float64), 0.0, 1.0 - 1e-6)
-            axis = -lights.axis(light, 2).T.astype(np.float64)
-            back = lights.radius[light] / np.sqrt(1.0 - cos_half * cos_half)
-            t0, t1, met = equiangular.cone_range(o[spot], dvec[spot], lights.position[light] - axis * back[:, None],
-                                                 axis, cos_half, end[spot])
-            lo[spot], hi[spot] = t0, t1
-            aimed[spot[~met]] = False
+        on_spot = (chosen < lights.light_count) & (np.take(lights.kind, lamp) == SPOT) & aimed
+        ranges = [_cone_range(lights, int(j), o, dvec, end) for j in spots[:MAX_CONES]]
+        crossed = np.stack([r[2] for r in ranges]) if ranges else np.zeros((0, len(rows)), bool)
+        for k, j in enumerate(spots[:MAX_CONES]):
+            mine = np.flatnonzero(on_spot & (lamp == j))
+            lo[mine], hi[mine] = ranges[k][0][mine], ranges[k][1][mine]
+            aimed[mine] = ranges[k][2][mine]
+        missed = np.flatnonzero(on_spot & ~aimed & crossed.any(axis=0)) if len(crossed) else np.zeros(0, int)
+        if len(missed):
+            counts = crossed[:, missed].sum(axis=0)
+            pick = np.minimum((uniforms(tuple(np.take(x, missed) for x in seeds), 5, DIRECT_SALT)[0]
+                               * counts).astype(np.int64), counts - 1)
+            order = np.cumsum(crossed[:, missed], axis=0) - 1   # the rank of each crossed cone
+            which = np.argmax((order == pick[None]) & crossed[:, missed], axis=0)
+            for k in np.unique(which):
+                sel = missed[which == k]
+                j = int(spots[k])
+                lo[sel], hi[sel] = ranges[k][0][sel], ranges[k][1][sel]
+                point[sel] = lights.position[j]
+                aimed[sel] = True
     us, ut = us_, ut_
     t_eq, _ = equiangular.sample(o, dvec, point, lo, hi, ut.astype(np.float64))
     # Both strategies from one number: the first half of us picks equiangular sampling, then its own rescaled.
@@ -167,6 +182,17 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
                           PhaseMixture(_phases_of(phases, valid), len(valid)),
                           (ue[valid], uf[valid], ug[valid]), scale)
     return done
+
+
+def _cone_range(lights, j: int, o, dvec, end):
+    """(t0, t1, crossed) of the rays (o, dvec, [0, end)) in spot light j's cone; a sized spot shines from a disk:
+    its cone's apex moves back so that the cone holds the disk's."""
+    cos_half = float(np.clip(lights.spot[j, 0], 0.0, 1.0 - 1e-6))
+    axis = -lights.axis(np.array([j]), 2).T[0].astype(np.float64)
+    back = float(lights.radius[j]) / np.sqrt(1.0 - cos_half * cos_half)
+    n = len(o)
+    apex = np.broadcast_to(lights.position[j] - axis * back, (n, 3))
+    return equiangular.cone_range(o, dvec, apex, np.broadcast_to(axis, (n, 3)), np.full(n, cos_half), end)
 
 
 def _phases_of(phases, idx):
