@@ -130,15 +130,19 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
     passes.add_light(tables, wave, state, paths, contribution, reflecting)
 
 
-def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=None) -> None:
+def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=None, chosen=None) -> None:
     """Next-event estimation at points p (m, 3) where the paths rows (state rows) scatter in a medium: a light
     sample, the phase closures' value toward it (mixture: media.scatter.PhaseMixture over the m points; rays
     arrived along d, a 3 tuple of (m,)), the shadow ray's transmittance through surfaces and media, MIS
     against the phase function's own sampling (Cycles' integrate_volume_direct_light). numbers: (u_select,
-    u1, u2) (m,) each; scale: (3, m) a factor on the paths' throughput (a distance's weight), or None."""
+    u1, u2) (m,) each; scale: (3, m) a factor on the paths' throughput (a distance's weight), or None;
+    chosen: (emitters, their probabilities), the lights to sample (u_select unused), without MIS, or None."""
     u_select, u1, u2 = numbers
     px, py, pz = (np.ascontiguousarray(p[:, k], np.float32) for k in range(3))
-    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None)
+    if chosen is None:
+        ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None)
+    else:
+        ls = tables.lights.sample_chosen(px, py, pz, chosen[0], chosen[1], u1, u2, None)
     le = ls.radiance
     f, phase_pdf = mixture.evaluate(d, (ls.wx, ls.wy, ls.wz))
     useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)) &
@@ -164,7 +168,7 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     heuristic = sampling.power_heuristic(pdf, phase_pdf[at])
     if tables.environment.mis_balance:
         heuristic = np.where(np.take(ls.world, at), sampling.balance_heuristic(pdf, phase_pdf[at]), heuristic)
-    w = np.where(np.take(ls.delta, at), np.float32(1.0), heuristic)
+    w = np.where(np.take(ls.delta, at) | (chosen is not None), np.float32(1.0), heuristic)
     contribution = np.take(state.throughput, rows[at], axis=1) * np.take(f, at, axis=1) * \
         np.take(transmittance, vis, axis=1) * np.take(le, at, axis=1) * (w / pdf)
     if scale is not None:

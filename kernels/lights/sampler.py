@@ -246,10 +246,18 @@ class LightSampler:
         """Choose an emitter for each shading point p and sample a direction toward it. focus: the world's
         (environment.WorldFocus per shading point) when its light samples focus on glossy lobes."""
         n = len(px)
+        if not self.has_lights or n == 0:
+            return LightSample(n)
+        chosen, select = self.choose_at(u_select, px, py, pz)
+        return self.sample_chosen(px, py, pz, chosen, select, u1, u2, focus)
+
+    def sample_chosen(self, px, py, pz, chosen, select, u1, u2, focus=None) -> LightSample:
+        """sample() with the emitters already chosen (chosen (n,) emitter numbers, select (n,) the probability
+        each was chosen with, which the pdf includes)."""
+        n = len(px)
         out = LightSample(n)
         if not self.has_lights or n == 0:
             return out
-        chosen, select = self.choose_at(u_select, px, py, pz)
         if not self.shadowed.all():
             lamp = chosen < self.light_count
             out.shadowed = ~lamp | np.take(self.shadowed, np.where(lamp, chosen, 0))

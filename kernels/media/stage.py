@@ -22,6 +22,7 @@ from . import stack as volume_stack
 from .scatter import PhaseMixture
 from .tracking import ray_keys, track, transmittance, uniforms
 
+NO_MIS_PDF = F32(1e-30)
 MAX_CONES = 64             # spot lights whose cones a segment's light sample looks at
 VOLUME_BOUNDS_MAX = 1024   # volume boundaries a path may pass (Cycles' VOLUME_BOUNDS_MAX, a guard)
 # tracking.uniforms salts: the segment's collisions, the phase closure pick, the segment's light sample.
@@ -119,46 +120,23 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     ref = (o + dvec * (reach / 2)[:, None]).astype(F32)
     if first:
         ua, ub = (np.take(u, paths) for u in state.samples.camera_extra(VOLUME_LIGHT))
-        us_, ut_ = (np.take(u, paths) for u in state.samples.camera_extra(VOLUME_DISTANCE))
+        us, ut = (np.take(u, paths) for u in state.samples.camera_extra(VOLUME_DISTANCE))
     else:
         ua, ub = uniforms(seeds, 0, DIRECT_SALT)
-        us_, ut_ = uniforms(seeds, 2, DIRECT_SALT)
+        us, ut = uniforms(seeds, 2, DIRECT_SALT)
     uc, _ = uniforms(seeds, 1, DIRECT_SALT)
-    ls = tables.lights.sample(*(np.ascontiguousarray(ref[:, k]) for k in range(3)), ua, ub, uc, None)
+    lights = tables.lights
+    rx, ry, rz = (np.ascontiguousarray(ref[:, k]) for k in range(3))
+    chosen, select = lights.choose_at(ua, rx, ry, rz)
+    chosen, select = np.array(chosen), np.asarray(select, np.float64).copy()
+    ls = lights.sample_chosen(rx, ry, rz, chosen, select.astype(F32), ub, uc)
     point = ref + np.stack([ls.wx, ls.wy, ls.wz], axis=1) * np.where(np.isfinite(ls.dist), ls.dist, 0.0)[:, None]
     aimed = np.isfinite(ls.dist) & (ls.pdf > 0)
     lo, hi = np.zeros(len(rows)), end.copy()
-    lights = tables.lights
-    spots = np.flatnonzero(lights.kind[:lights.light_count] == SPOT) if lights.light_count else ()
+    spots = np.flatnonzero(lights.kind[:lights.light_count] == SPOT)[:MAX_CONES] if lights.light_count else ()
     if len(spots):
-        # Toward a spot light, only the part of the ray inside its cone (distance sampling covers the rest). A
-        # ray that misses the chosen spot's cone aims at one of the spots whose cones it crosses instead (picked
-        # at random, the equiangular density being conditional on its centre; the light sample at the distance
-        # drawn is a light sample as any): otherwise its distance alone, drawn along a thin fog, would find the
-        # other beams rarely and brightly.
-        chosen, _ = lights.choose_at(ua, *(np.ascontiguousarray(ref[:, k]) for k in range(3)))
-        lamp = np.minimum(chosen, lights.light_count - 1)
-        on_spot = (chosen < lights.light_count) & (np.take(lights.kind, lamp) == SPOT) & aimed
-        ranges = [_cone_range(lights, int(j), o, dvec, end) for j in spots[:MAX_CONES]]
-        crossed = np.stack([r[2] for r in ranges]) if ranges else np.zeros((0, len(rows)), bool)
-        for k, j in enumerate(spots[:MAX_CONES]):
-            mine = np.flatnonzero(on_spot & (lamp == j))
-            lo[mine], hi[mine] = ranges[k][0][mine], ranges[k][1][mine]
-            aimed[mine] = ranges[k][2][mine]
-        missed = np.flatnonzero(on_spot & ~aimed & crossed.any(axis=0)) if len(crossed) else np.zeros(0, int)
-        if len(missed):
-            counts = crossed[:, missed].sum(axis=0)
-            pick = np.minimum((uniforms(tuple(np.take(x, missed) for x in seeds), 5, DIRECT_SALT)[0]
-                               * counts).astype(np.int64), counts - 1)
-            order = np.cumsum(crossed[:, missed], axis=0) - 1   # the rank of each crossed cone
-            which = np.argmax((order == pick[None]) & crossed[:, missed], axis=0)
-            for k in np.unique(which):
-                sel = missed[which == k]
-                j = int(spots[k])
-                lo[sel], hi[sel] = ranges[k][0][sel], ranges[k][1][sel]
-                point[sel] = lights.position[j]
-                aimed[sel] = True
-    us, ut = us_, ut_
+        _toward_spots(lights, spots, chosen, select, point, aimed, lo, hi, o, dvec, end, (rx, ry, rz),
+                      uniforms(seeds, 5, DIRECT_SALT)[0])
     t_eq, _ = equiangular.sample(o, dvec, point, lo, hi, ut.astype(np.float64))
     # Both strategies from one number: the first half of us picks equiangular sampling, then its own rescaled.
     use_eq = aimed & (us < 0.5)
@@ -176,12 +154,48 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     scale = (decay[:, valid] / pdf[valid]).astype(F32)
     p = (o[valid] + dvec[valid] * t[valid, None]).astype(F32)
     ue, uf = uniforms(seeds, 3, DIRECT_SALT)
-    ug, _ = uniforms(seeds, 4, DIRECT_SALT)
+    # The light chosen for the segment is sampled again from the distance drawn (Cycles samples "the same
+    # light again" there), with the probability it was chosen with: no MIS against the phase function, whose
+    # rays from these segments' scattering vertices count no light the segment's sample could find.
     nee.medium_next_event(tables, wave, state, paths[valid], p, tuple(np.ascontiguousarray(dvec[valid, k]) for k in
                                                                        range(3)),
                           PhaseMixture(_phases_of(phases, valid), len(valid)),
-                          (ue[valid], uf[valid], ug[valid]), scale)
+                          (None, ue[valid], uf[valid]), scale, (chosen[valid], select[valid].astype(F32)))
     return done
+
+
+def _toward_spots(lights, spots, chosen, select, point, aimed, lo, hi, o, dvec, end, ref, u):
+    """Narrow the segments' equiangular sampling toward spot lights to their cones (distance sampling covers
+    the rest), in place. A segment whose chosen spot's cone it misses takes one of the spots whose cones it
+    crosses instead, at random: a light is then chosen with probability P(L) + P(missed) / (cones crossed) for
+    the spots it crosses (select), 0 for those it misses (they do not light it), P(L) for other lights."""
+    n = len(chosen)
+    ranges = [_cone_range(lights, int(j), o, dvec, end) for j in spots]
+    crossed = np.stack([r[2] for r in ranges])
+    pmf = np.stack([lights.selection_pmf(np.full(n, j), *ref).astype(np.float64) for j in spots])
+    missed = (pmf * ~crossed).sum(axis=0)
+    count = crossed.sum(axis=0)
+    share = np.where(count > 0, missed / np.maximum(count, 1), 0.0)
+    slot = np.full(n, -1)
+    for k, j in enumerate(spots):
+        slot[chosen == j] = k
+    on_spot = slot >= 0
+    hit = on_spot & crossed[np.maximum(slot, 0), np.arange(n)]
+    repick = on_spot & ~hit & (count > 0)
+    if repick.any():
+        rows = np.flatnonzero(repick)
+        rank = np.minimum((u[rows] * count[rows]).astype(np.int64), count[rows] - 1)
+        order = np.cumsum(crossed[:, rows], axis=0) - 1
+        slot[rows] = np.argmax((order == rank[None]) & crossed[:, rows], axis=0)
+        chosen[rows] = spots[slot[rows]]
+        point[rows] = lights.position[chosen[rows]]
+    aimed[on_spot & ~hit & ~repick] = False
+    picked = np.flatnonzero(hit | repick)
+    for k in np.unique(slot[picked]):
+        rows = picked[slot[picked] == k]
+        lo[rows], hi[rows] = ranges[k][0][rows], ranges[k][1][rows]
+        select[rows] = pmf[k, rows] + share[rows]
+        aimed[rows] = True
 
 
 def _cone_range(lights, j: int, o, dvec, end):
@@ -235,7 +249,9 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     alive = (pdf > 0) & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
     state.bounce = state.bounce + 1
     state.volume_bounces = state.volume_bounces + 1
-    state.bsdf_pdf = pdf.astype(F32)
+    # Where the segment took its light sample without MIS (direct_light), the phase sample's rays count no light
+    # that sampling can find: a pdf that MIS weighs to 0 against any light's, to 1 where none samples it.
+    state.bsdf_pdf = np.where(scattered.lit, NO_MIS_PDF, pdf).astype(F32)
     state.focus = None
     state.escape_scale = None
     if state.min_ray_pdf is not None:
