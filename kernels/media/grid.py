@@ -36,6 +36,9 @@ PADDING = {"CLOSEST": 0, "LINEAR": 1, "CUBIC": 2}
 _BLOCK_ORIGIN = -2
 
 
+_BORDER = 4   # background voxels around the stored block: a cubic lookup's 4 taps fit in it outside the block
+
+
 @dataclass(frozen=True, eq=False)
 class VoxelGrid:
     """A dense grid of voxel values in an object's space.
@@ -106,21 +109,42 @@ class VoxelGrid:
 
     def _blend(self, cell: np.ndarray, weights: list, first: int) -> np.ndarray:
         """Sum over the taps cell + first + (a, b, c) of weights[0][a] * weights[1][b] * weights[2][c] * value."""
+        flat, strides = self._padded()
+        taps = len(weights[0])
+        base = self._base(cell + first, taps, strides)
         out = np.zeros((len(cell), self.channels), dtype=F32)
         for a, wx in enumerate(weights[0]):
             for b, wy in enumerate(weights[1]):
                 wxy = wx * wy
                 for c, wz in enumerate(weights[2]):
-                    tap = self._gather(cell[:, 0] + first + a, cell[:, 1] + first + b, cell[:, 2] + first + c)
-                    out += (wxy * wz)[:, None] * tap
+                    out += (wxy * wz)[:, None] * np.take(flat, base + (a * strides[0] + b * strides[1] + c), axis=0)
         return out
 
     def _gather(self, i, j, k) -> np.ndarray:
         """(n, C) values of the voxels (i, j, k), the background outside the stored block."""
-        nx, ny, nz = self.shape
-        inside = (i >= 0) & (i < nx) & (j >= 0) & (j < ny) & (k >= 0) & (k < nz)
-        flat = (np.clip(i, 0, nx - 1) * ny + np.clip(j, 0, ny - 1)) * nz + np.clip(k, 0, nz - 1)
-        return np.where(inside[:, None], self.values.reshape(-1, self.channels)[flat], self.background)
+        flat, strides = self._padded()
+        return np.take(flat, self._base(np.stack([i, j, k], axis=1), 1, strides), axis=0)
+
+    def _base(self, cell: np.ndarray, taps: int, strides) -> np.ndarray:
+        """Flat indices into the padded values of the first taps at cell (n, 3): each axis moved by the border
+        and clamped so that all taps stay in the padded block; a cell far outside reads the border alone."""
+        lo = cell + _BORDER
+        dims = np.array(self.shape) + 2 * _BORDER - taps
+        lo = np.clip(lo, 0, dims)
+        return lo[:, 0] * strides[0] + lo[:, 1] * strides[1] + lo[:, 2]
+
+    def _padded(self):
+        """The values with a border of _BORDER background voxels on each side, flat (N, C), and the strides of
+        its i and j axes: lookups read it without bounds tests (made on first use)."""
+        cached = self.__dict__.get("_padded_cache")
+        if cached is None:
+            nx, ny, nz = self.shape
+            b = _BORDER
+            block = np.full((nx + 2 * b, ny + 2 * b, nz + 2 * b, self.channels), self.background, F32)
+            block[b:b + nx, b:b + ny, b:b + nz] = self.values
+            cached = (block.reshape(-1, self.channels), ((ny + 2 * b) * (nz + 2 * b), nz + 2 * b))
+            object.__setattr__(self, "_padded_cache", cached)
+        return cached
 
     # ---------------------------------------------------------------- extent
     def box_corners(self, padding: int = 0) -> np.ndarray:

@@ -56,6 +56,7 @@ class Media:
         self.homogeneous = np.array([self.shaders[m].constant and not (self.shaders[m].reads_grids and int(o) in self.grids)
                                      for m, o in zip(self.material, self.object)], bool)
         self._constant: dict[int, VolumeCoefficients] = {}
+        self.cell_majorants: dict[int, tuple] = {}   # varying media: (cells^3 majorants, their lo, cell size)
         self.majorant = np.array([self._estimate_majorant(i) for i in range(len(self.material))], F32)
 
     def __len__(self) -> int:
@@ -151,6 +152,8 @@ class Media:
                      emission: bool = True) -> VolumeCoefficients:
         """The coefficients of media ids (n,) (-1: none, zeros) at points p (n, 3) seen along d (n, 3)."""
         n = len(ids)
+        if n and ids[0] >= 0 and (ids == ids[0]).all():   # one medium at every point: no scatter into zeros
+            return self._evaluate(int(ids[0]), p, d, ray, emission)
         out = VolumeCoefficients.zeros(n)
         for medium in np.unique(ids):
             if medium < 0:
@@ -162,10 +165,12 @@ class Media:
     def stack_coefficients(self, stack: np.ndarray, p: np.ndarray, d: np.ndarray, ray=None,
                            emission: bool = True) -> VolumeCoefficients:
         """The sum of the coefficients of each path's media (stack (K, n))."""
+        used = [k for k in range(stack.shape[0]) if (stack[k] >= 0).any()]
+        if len(used) == 1:
+            return self.coefficients(stack[used[0]], p, d, ray, emission)
         out = VolumeCoefficients.zeros(stack.shape[1])
-        for k in range(stack.shape[0]):
-            if (stack[k] >= 0).any():
-                out.add(self.coefficients(stack[k], p, d, ray, emission))
+        for k in used:
+            out.add(self.coefficients(stack[k], p, d, ray, emission))
         return out
 
     def stack_majorant(self, stack: np.ndarray) -> np.ndarray:
@@ -223,10 +228,73 @@ class Media:
         d = np.zeros_like(points)
         d[:, 2] = -1.0
         c = self._evaluate(medium, points, d, None, True)
-        peak = float(max(c.sigma_t.max(initial=0.0), c.emission.max(initial=0.0)))
+        per_point = np.maximum(c.sigma_t.max(axis=0), c.emission.max(axis=0))
+        peak = float(per_point.max(initial=0.0))
         if cells == 1:
             return peak
+        # Per cell, the largest value of it and its neighbours (a point between samples of two cells), with the
+        # margin: the majorant of a segment is the largest over the cells it crosses (segment_majorant).
+        grid = per_point.reshape((cells,) * 3 + (MAJORANT_SAMPLES,)).max(axis=3).astype(np.float64)
+        padded = np.pad(grid, 1, mode="edge")
+        dilated = np.max([padded[a:a + cells, b:b + cells, c_:c_ + cells] for a in range(3) for b in range(3)
+                          for c_ in range(3)], axis=0)
+        if int(self.object[medium]) < 0:   # the world's fog goes on past the scene's bounds: its own majorant
+            return max(peak * MAJORANT_MARGIN, 1e-6) if peak > 0 else 0.0
+        self.cell_majorants[medium] = (np.maximum(dilated * MAJORANT_MARGIN, 1e-6).astype(F32),
+                                       lo.astype(F32), ((hi - lo) / cells).astype(F32))
         return max(peak * MAJORANT_MARGIN, 1e-6) if peak > 0 else 0.0
+
+    def segment_majorant(self, stack: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
+                         t_end: np.ndarray) -> np.ndarray:
+        """(n,) the majorant of each segment [0, t_end) through its stack's media: per varying medium, the largest
+        of its cells (cell_majorants) that points along the segment (every half cell, within the medium's
+        bounds) fall in; the medium's own majorant for a segment without end (the world's fog) or past
+        SEGMENT_SAMPLES points."""
+        n = stack.shape[1]
+        out = np.zeros(n, F32)
+        for k in range(stack.shape[0]):
+            ids = stack[k]
+            for medium in np.unique(ids[ids >= 0]):
+                rows = np.flatnonzero(ids == medium)
+                value = np.full(len(rows), self.majorant[medium], F32)
+                cells = self.cell_majorants.get(int(medium))
+                if cells is not None:
+                    value = _along(cells, self.lo[medium], self.hi[medium], origins[rows], dirs[rows], t_end[rows],
+                                   value)
+                out[rows] += value
+        return out
+
+
+SEGMENT_SAMPLES = 96   # points a segment's majorant looks at, at most (half a cell apart)
+
+
+def _along(cells, lo, hi, origins, dirs, t_end, fallback) -> np.ndarray:
+    """The largest cell majorant over points every half cell along the segments' parts inside [lo, hi]; fallback
+    for segments too long (more than SEGMENT_SAMPLES points) or without end."""
+    grid, base, size = cells
+    g = np.asarray(grid.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(dirs != 0, 1.0 / dirs, np.inf)
+        t0 = np.nanmax(np.minimum((lo - origins) * inv, (hi - origins) * inv), axis=1)
+        t1 = np.nanmin(np.maximum((lo - origins) * inv, (hi - origins) * inv), axis=1)
+    t0 = np.maximum(t0, 0.0)
+    t1 = np.minimum(t1, t_end)
+    step = 0.5 * float(size.min())
+    count = np.ceil(np.maximum(t1 - t0, 0.0) / step).astype(np.int64) + 1
+    usable = np.isfinite(t1) & (count <= SEGMENT_SAMPLES)
+    out = fallback.copy()
+    rows = np.flatnonzero(usable)
+    if not len(rows):
+        return out
+    k = int(count[rows].max())
+    t = t0[rows, None] + np.minimum(np.arange(k)[None], count[rows, None] - 1) * step
+    t = np.minimum(t, t1[rows, None])
+    p = origins[rows, None, :] + dirs[rows, None, :] * t[..., None]
+    idx = np.clip(np.floor((p - base) / size).astype(np.int64), 0, g - 1)
+    values = grid[idx[..., 0], idx[..., 1], idx[..., 2]]
+    empty = t1[rows] <= t0[rows]
+    out[rows] = np.where(empty, np.float32(0.0), values.max(axis=1))
+    return out
 
 
 def _broadcast(c: VolumeCoefficients, n: int, emission: bool) -> VolumeCoefficients:

@@ -80,6 +80,12 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
     t_event = np.array(t_end, F32, copy=True)
     majorant = media.stack_majorant(stack)
     closed = media.stack_homogeneous(stack) & (majorant > 0)
+    varying = np.flatnonzero(~closed & (majorant > 0))
+    if len(varying) and hasattr(media, "segment_majorant"):
+        # Varying media: the largest majorant of the cells each segment crosses, not the medium's largest.
+        majorant = majorant.copy()
+        majorant[varying] = media.segment_majorant(stack[:, varying], origins[varying], dirs[varying],
+                                                   np.asarray(t_end, F32)[varying])
     if closed.any():
         _closed_form(media, stack, origins, dirs, t_end, closed & ~may_scatter, weight, gathered, emission)
         _homogeneous(media, stack, origins, dirs, t_end, closed & may_scatter, seeds, salt, weight, gathered,
