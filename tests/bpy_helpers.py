@@ -77,8 +77,9 @@ def diffuse_material(name, color=(0.8, 0.8, 0.8), principled=False, image=None):
     return mat
 
 
-def node_material(name, idname, **inputs):
-    """A material made of one shader node with the given input values (and node options as attributes)."""
+def node_material(name, idname, output="Surface", **inputs):
+    """A material made of one shader node with the given input values (and node options as attributes), in the
+    material output's `output` (Surface or Volume)."""
     mat = bpy.data.materials.new(name)
     tree = mat.node_tree
     tree.nodes.clear()
@@ -89,8 +90,8 @@ def node_material(name, idname, **inputs):
             setattr(node, key[4:], value)
         else:
             socket = node.inputs[key.replace("_", " ")]
-            socket.default_value = (*value, 1.0) if socket.type == "RGBA" else value
-    tree.links.new(node.outputs[0], out.inputs["Surface"])
+            socket.default_value = (*value, 1.0) if socket.type == "RGBA" and len(value) == 3 else value
+    tree.links.new(node.outputs[0], out.inputs[output])
     return mat
 
 

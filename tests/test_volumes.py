@@ -4,11 +4,10 @@ media in a uniform world (a volume furnace, each phase function), equiangular sa
 the volume stack's crossings, and the null-scattering estimator's mean against exp(-optical depth)."""
 import math
 
-import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import export_current, mesh_object, new_scene, render_to_array, set_world
+from bpy_helpers import export_current, mesh_object, new_scene, node_material, render_to_array, set_world
 
 CUBE_FACES = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
 
@@ -19,21 +18,15 @@ def box(name, lo, hi, material=None):
 
 
 def volume_material(name, kind, surface=None, **inputs):
-    """A material with `kind` (a volume node) in its Volume output and, optionally, a surface node."""
-    m = bpy.data.materials.new(name)
+    """A material with `kind` (a volume node) in its Volume output and, optionally, a surface node: (material,
+    the volume node)."""
+    options = {("opt_phase" if k == "phase" else k): v for k, v in inputs.items()}
+    m = node_material(name, kind, output="Volume", **options)
     tree = m.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    node = tree.nodes.new(kind)
-    for key, value in inputs.items():
-        if key == "phase":
-            node.phase = value
-        else:
-            node.inputs[key].default_value = value
-    tree.links.new(node.outputs[0], out.inputs["Volume"])
     if surface is not None:
+        out = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
         tree.links.new(tree.nodes.new(surface).outputs[0], out.inputs["Surface"])
-    return m, node
+    return m, next(n for n in tree.nodes if n.bl_idname == kind)
 
 
 def orthographic_view(scene, z=3.0, scale=1.0):
@@ -221,16 +214,32 @@ def test_ratio_tracking_is_unbiased_even_below_the_true_extinction(majorant):
         assert abs(estimate.mean() - truth) < 5 * se, (estimate.mean(), truth, se)
 
 
-def test_volume_outputs_are_read_into_media():
+def test_volume_outputs_are_read_into_media(tmp_path):
     """A material's Volume output (with a surface and without), and the default volume of a Volume object without
-    a material, reach the kernel's scene."""
-    scene = new_scene(8, 8)
+    a material (with its grid attached to its object row), reach the kernel's scene."""
+    import bpy
+    from ember.engine.export.volumes import openvdb_module
+    new_scene(8, 8)
     glass, _ = volume_material("Red glass", "ShaderNodeVolumeAbsorption", "ShaderNodeBsdfGlass",
                                Color=(0.9, 0.2, 0.2, 1.0))
     fog, _ = volume_material("Fog", "ShaderNodeVolumeScatter", Density=0.3, phase="MIE")
     box("Glass", (-1, -1, 0), (0, 0, 1), glass)
     box("Fog", (0.5, 0.5, 0), (1.5, 1.5, 1), fog)
-    shaders = {s.name: s for s in export_current().scene.materials.shaders}
+    vdb = openvdb_module()
+    if vdb is not None:
+        grid = vdb.FloatGrid()
+        grid.name = "density"
+        grid.copyFromArray(np.ones((4, 4, 4), np.float32), ijk=(0, 0, 0))
+        vdb.write(str(tmp_path / "cube.vdb"), grids=[grid])
+        volume = bpy.data.volumes.new("Cube")
+        volume.filepath = str(tmp_path / "cube.vdb")
+        bpy.context.scene.collection.objects.link(bpy.data.objects.new("Cube", volume))
+    scene = export_current().scene
+    shaders = {s.name: s for s in scene.materials.shaders}
     assert [c.kind for c in shaders["Red glass"].volume] == ["VOLUME_ABSORPTION"]
     assert not shaders["Red glass"].volume_only and shaders["Red glass"].closures
     assert shaders["Fog"].volume_only and dict(shaders["Fog"].volume[0].options)["phase"] == "MIE"
+    if vdb is not None:
+        assert shaders["default volume"].volume_only
+        ((row, grids, scale),) = scene.volumes
+        assert set(grids) == {"density"} and scale == 1.0 and 0 <= row < len(scene.objects)

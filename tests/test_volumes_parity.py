@@ -4,7 +4,6 @@ of the difference. Each scene is one a user makes: a Principled Volume cloud wit
 glass filled with a coloured absorption, world fog crossed by a spot light's beam, a camera inside a fog box,
 a Noise texture driving density, each Volume Scatter phase function, emission and blackbody, Volume
 Coefficients, overlapping media, multiple scattering, and a Volume object reading an OpenVDB file."""
-import math
 
 import bpy
 import numpy as np

@@ -104,6 +104,18 @@ def _rayleigh(cos_theta):
     return (F32(0.1875) * INV_PI) * (1 + cos_theta * cos_theta)
 
 
+def _draine_special_cases(g, alpha, value, hg, rayleigh):
+    """value where Cycles' Draine is itself; hg() where its alpha is about 0 (Henyey-Greenstein), rayleigh() where g
+    is about 0 and alpha about 1 (phase_draine and phase_draine_sample_cos, volume_util.h)."""
+    as_hg = np.abs(alpha) < 1e-3
+    if np.any(as_hg):
+        value = np.where(as_hg, hg(), value)
+    as_rayleigh = (np.abs(g) < 1e-3) & (alpha > 0.999)
+    if np.any(as_rayleigh):
+        value = np.where(as_rayleigh, rayleigh(), value)
+    return value
+
+
 def _draine(g, alpha, cos_theta):
     """volume_util.h phase_draine (Draine 2003): HG(g) (1 + alpha cos^2) / (1 + alpha (1 + 2 g^2) / 3);
     Rayleigh where |g| < 1e-3 and alpha > 0.999 (whatever alpha), HG where |alpha| < 1e-3."""
@@ -111,13 +123,7 @@ def _draine(g, alpha, cos_theta):
     fac = 1 + g2 - 2 * g * cos_theta
     pdf = ((1 - g2) * (1 + alpha * (cos_theta * cos_theta))) / (
         (1 + (alpha * (1 + 2 * g2)) * (1 / 3)) * (4 * PI) * fac * np.sqrt(fac))
-    as_hg = np.abs(alpha) < 1e-3
-    if np.any(as_hg):
-        pdf = np.where(as_hg, _hg(g, cos_theta), pdf)
-    as_rayleigh = (np.abs(g) < 1e-3) & (alpha > 0.999)
-    if np.any(as_rayleigh):
-        pdf = np.where(as_rayleigh, _rayleigh(cos_theta), pdf)
-    return pdf
+    return _draine_special_cases(g, alpha, pdf, lambda: _hg(g, cos_theta), lambda: _rayleigh(cos_theta))
 
 
 def _ff_delta(n, sin_half_sqr):
@@ -201,13 +207,7 @@ def _draine_sample_cos(g, alpha, u1):
         b_2 = (3 + alpha) * inv_alpha * (0.5 - u1)
         inv_u = -_fast_inv_cbrtf(b_2 + np.sqrt(b_2 * b_2 + (inv_alpha * inv_alpha) * inv_alpha))
         cos_theta = np.where(small_g, 1 / inv_u - inv_u / alpha, cos_theta)
-    as_hg = np.abs(alpha) < 1e-3
-    if np.any(as_hg):
-        cos_theta = np.where(as_hg, _hg_sample_cos(g, u1), cos_theta)
-    as_rayleigh = (np.abs(g) < 1e-3) & (alpha > 0.999)
-    if np.any(as_rayleigh):
-        cos_theta = np.where(as_rayleigh, _rayleigh_sample_cos(u1), cos_theta)
-    return cos_theta
+    return _draine_special_cases(g, alpha, cos_theta, lambda: _hg_sample_cos(g, u1), lambda: _rayleigh_sample_cos(u1))
 
 
 def _ff_sample_cos(n, v, c3, u1):
