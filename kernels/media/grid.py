@@ -133,6 +133,15 @@ class VoxelGrid:
         lo = np.clip(lo, 0, dims)
         return lo[:, 0] * strides[0] + lo[:, 1] * strides[1] + lo[:, 2]
 
+    def __getstate__(self):
+        """Pickled (to worker processes) without the lookups' padded copy, made again where it is used."""
+        state = dict(self.__dict__)
+        state.pop("_padded_cache", None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+
     def _padded(self):
         """The values with a border of _BORDER background voxels on each side, flat (N, C), and the strides of
         its i and j axes: lookups read it without bounds tests (made on first use)."""

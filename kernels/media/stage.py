@@ -22,6 +22,8 @@ from . import stack as volume_stack
 from .scatter import PhaseMixture
 from .tracking import ray_keys, track, transmittance, uniforms
 
+# The direction pdf a scattering vertex records when its segment's light sample took no MIS: MIS then weighs
+# what its phase ray finds to 0 against any light that sampling can choose, and to 1 where none can.
 NO_MIS_PDF = F32(1e-30)
 MAX_CONES = 64             # spot lights whose cones a segment's light sample looks at
 VOLUME_BOUNDS_MAX = 1024   # volume boundaries a path may pass (Cycles' VOLUME_BOUNDS_MAX, a guard)
@@ -90,8 +92,8 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     media, as Cycles takes one per segment (volume_integrate_null_scattering): a light is chosen from the
     segment's middle, the distance is drawn by one-sample MIS (balance heuristic) of equiangular sampling
     toward the chosen light's point and distance sampling (Cycles' MULTIPLE_IMPORTANCE volume sampling, 50/50;
-    distance alone toward a light at infinity), and at that distance the light is sampled as at a scattering
-    vertex (nee.medium_next_event), weighted by the transmittance to it over the distance's pdf. Camera rays
+    distance alone toward a light at infinity), and at that distance the same light is sampled again
+    (nee.medium_next_event with its choice), weighted by the transmittance to it over the distance's pdf. Camera rays
     (first) take their numbers from the stratified sequence, deeper rays from their paths' streams hashed.
     Returns the (len(inside),) mask of the segments that took it: their scattering vertices take none."""
     media = tables.media
