@@ -162,7 +162,8 @@ class Renderer:
             return
         self.triangles.wait_rows()
         self.media = Media(self.shading, self.triangles, self.scene.world.volume,
-                           scene_extent(self.scene, self.prototype_boxes), self.shading.data, self.scene.volumes)
+                           scene_extent(self.scene, self.prototype_boxes), self.shading.data, self.scene.volumes,
+                           self.scene.instances)
         eye, _ = self.camera_frame
         self.camera_media = self.media.start_stack(1, self.accel, eye)[:, 0]
         # Smooth glass's second branch (integrator._glass_escapes) does not know the media along it.
@@ -193,6 +194,8 @@ class Renderer:
         self.pixel_size = _pixel_spread(camera)
         self.camera_frame = camera_frame(camera)
         self.shading.data.set_camera(camera)
+        if self.media is not None:   # the media the eye is in
+            self.camera_media = self.media.start_stack(1, self.accel, self.camera_frame[0])[:, 0]
 
     # ---------------------------------------------------------------- incremental updates
     # The viewport changes a built scene in place rather than building it again (Cycles' Blender sync
@@ -239,6 +242,8 @@ class Renderer:
         self.ray_epsilon = _ray_epsilon(*scene_extent(scene, self.prototype_boxes))
         if emitters_moved and lights:
             self.lights = self._light_sampler()
+        if self.media is not None:
+            self._build_media()
 
     def _emitters_moved(self, instances, world_from_object: np.ndarray) -> bool:
         """Whether an instance whose prototype has emissive triangles gets another transform."""
@@ -264,6 +269,7 @@ class Renderer:
             self._build_shading()
             self.lights = self._light_sampler()
             self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon)
+            self._build_media()
 
     @_forwarded
     def update_scene(self, scene: SceneArrays) -> bool:
@@ -277,6 +283,8 @@ class Renderer:
         checked = scene.validate(clean=self.scene)
         new, old = checked.scene, self.scene
         if new.has_motion or old.has_motion or new.vector_motion is not None or old.vector_motion is not None:
+            return False
+        if new.volumes or old.volumes:   # voxel grids (a VDB sequence's frame) are read again with the scene
             return False
         if not (same_triangles(new, old) and _same_instances(new.instances, old.instances)
                 and (new.objects is None) == (old.objects is None)

@@ -29,10 +29,11 @@ CAMERA_PROBE = (0.30151134, 0.30151134, 0.90453403)  # the direction the camera'
 class Media:
     """The media of a scene and their majorants. Ids index the tables; -1 on a stack is an empty slot."""
 
-    def __init__(self, shading, triangles, world_volume, extent, data, volumes=()):
+    def __init__(self, shading, triangles, world_volume, extent, data, volumes=(), instances=None):
         """shading : shading.Shading (its shaders' volume closures); triangles : geometry.TriangleTable;
         world_volume : kernels.scene.Shader or None; extent : (lo, hi) of the scene, for a world medium that
-        varies; data : shading.shader.ShadingData; volumes : SceneArrays.volumes (the objects' grids)."""
+        varies; data : shading.shader.ShadingData; volumes : SceneArrays.volumes (the objects' grids);
+        instances : SceneArrays.instances (instanced meshes' volumes: a medium per instance)."""
         self.grids = {int(row): (grids, float(scale)) for row, grids, scale in volumes}
         self.shaders = {m: VolumeShader(s, data) for m, s in enumerate(shading.shaders) if s.volume}
         self.triangles = triangles
@@ -49,7 +50,7 @@ class Media:
         self._ids = np.zeros(0, np.int32)
         self._count = count
         if self.shaders.keys() - {-1} and triangles is not None:
-            self._index_meshes(triangles, count)
+            self._index_meshes(triangles, count, instances)
         self.material = np.asarray(self.material, np.int32)
         self.object = np.asarray(self.object, np.int32)
         self.lo, self.hi = np.asarray(self.lo, F32).reshape(-1, 3), np.asarray(self.hi, F32).reshape(-1, 3)
@@ -69,26 +70,30 @@ class Media:
         self.hi.append(hi)
         return len(self.material) - 1
 
-    def _index_meshes(self, triangles, count: int) -> None:
-        """A medium per (object, material) of the triangles whose material has a volume, with its bounds."""
-        prim = np.flatnonzero(np.take(self.has_volume, triangles.material_ids))
-        if triangles.instanced:
-            prim = prim[prim < triangles.plain_count]   # instanced volumes: not yet (their boundary is plain)
-        if not len(prim):
-            return
-        objects = triangles.object_rows(prim)
-        objects = np.zeros(len(prim), np.int32) if objects is None else objects
-        keys = objects.astype(np.int64) * count + np.take(triangles.material_ids, prim)
-        unique, inverse = np.unique(keys, return_inverse=True)
-        g = triangles.gather(prim)
-        corners = [np.stack([g[P0 + k], g[P0 + k] + g[E1 + k], g[P0 + k] + g[E2 + k]]) for k in range(3)]
-        ids = []
-        for j, key in enumerate(unique):
-            rows = np.flatnonzero(inverse == j)
-            lo = np.array([c[:, rows].min() for c in corners], F32)
-            hi = np.array([c[:, rows].max() for c in corners], F32)
-            ids.append(self._add(int(key % count), int(key // count), lo, hi))
-        self._keys, self._ids = unique, np.asarray(ids, np.int32)
+    def _index_meshes(self, triangles, count: int, instances=None) -> None:
+        """A medium per (object, material) of the triangles whose material has a volume, with its bounds: the
+        plain triangles' objects, and each instance of a prototype with such triangles."""
+        keys, bounds = [], []
+        prim = np.flatnonzero(np.take(self.has_volume, triangles.material_ids[:triangles.plain_count]))
+        if len(prim):
+            objects = triangles.object_rows(prim)
+            objects = np.zeros(len(prim), np.int32) if objects is None else objects
+            plain = objects.astype(np.int64) * count + np.take(triangles.material_ids, prim)
+            unique, inverse = np.unique(plain, return_inverse=True)
+            g = triangles.gather(prim)
+            corners = [np.stack([g[P0 + k], g[P0 + k] + g[E1 + k], g[P0 + k] + g[E2 + k]]) for k in range(3)]
+            for j, key in enumerate(unique):
+                rows = np.flatnonzero(inverse == j)
+                keys.append(int(key))
+                bounds.append((np.array([c[:, rows].min() for c in corners], F32),
+                               np.array([c[:, rows].max() for c in corners], F32)))
+        if instances is not None:
+            for key, lo, hi in _instanced_media(instances, self.has_volume, count):
+                keys.append(key)
+                bounds.append((lo, hi))
+        order = np.argsort(keys, kind="stable")
+        ids = [self._add(keys[i] % count, keys[i] // count, *bounds[i]) for i in order]
+        self._keys, self._ids = np.asarray(keys, np.int64)[order], np.asarray(ids, np.int32)
 
     # ---------------------------------------------------------------- where
     def of_hits(self, prim: np.ndarray) -> np.ndarray:
@@ -263,6 +268,28 @@ class Media:
                                    value)
                 out[rows] += value
         return out
+
+
+def _instanced_media(instances, has_volume, count):
+    """(key, lo, hi) per instance and material with a volume in its prototype: key = object row * count +
+    material, the world box of the prototype's triangles of that material under the instance's transform."""
+    out = []
+    for p, proto in enumerate(instances.prototypes):
+        mats = np.unique(proto.material_ids[np.take(has_volume, proto.material_ids)])
+        if not len(mats):
+            continue
+        boxes = {}
+        for m in mats:
+            corners = proto.positions[proto.material_ids == m].reshape(-1, 3).astype(np.float64)
+            lo, hi = corners.min(axis=0), corners.max(axis=0)
+            boxes[int(m)] = np.array([[(hi if (c >> a) & 1 else lo)[a] for a in range(3)] for c in range(8)])
+        for k in np.flatnonzero(instances.prototype == p):
+            matrix = np.asarray(instances.world_from_object[k], np.float64)
+            row = int(instances.object_ids[k]) if instances.object_ids is not None else 0
+            for m, box in boxes.items():
+                world = box @ matrix[:3, :3].T + matrix[:3, 3]
+                out.append((row * count + m, world.min(axis=0).astype(F32), world.max(axis=0).astype(F32)))
+    return out
 
 
 SEGMENT_SAMPLES = 96   # points a segment's majorant looks at, at most (half a cell apart)
