@@ -47,9 +47,11 @@ class LightTree:
     lo, hi : (n, 3) float64 emitter bounding boxes; power : (n,) float64 (> 0);
     axis : (n, 3) unit emission axes; spread : (n,) float64 theta_o (pi: emits every way);
     group : (n,) int64 or None: emitters with the same non-negative group number (an emissive object's
-    triangles) form a subtree of their own; -1, or None for all, stands alone."""
+    triangles) form a subtree of their own; -1, or None for all, stands alone.
+    emission : (n,) float64 theta_e, the angle beyond the cone where the emitter no longer lights anything
+    (pi / 2 for surfaces, a spot light's half angle), or None for pi / 2 everywhere (Cycles' theta_e)."""
 
-    def __init__(self, lo, hi, power, axis, spread, group=None):
+    def __init__(self, lo, hi, power, axis, spread, group=None, emission=None):
         n = len(power)
         centroid = 0.5 * (lo + hi)
         # Centroids snapped to a grid far finer than any useful split: copies of a scene that differ by
@@ -68,9 +70,12 @@ class LightTree:
         count = len(self.left)
         n_lo, n_hi = np.zeros((count, 3)), np.zeros((count, 3))
         n_power, n_axis, n_spread = np.zeros(count), np.zeros((count, 3)), np.full(count, np.pi)
+        n_emission = np.full(count, HALF_PI, np.float64)
         leaf = np.flatnonzero(self.emitter_at >= 0)
         e = self.emitter_at[leaf]
         n_lo[leaf], n_hi[leaf], n_power[leaf], n_axis[leaf], n_spread[leaf] = lo[e], hi[e], power[e], axis[e], spread[e]
+        if emission is not None:
+            n_emission[leaf] = emission[e]
         self.leaf_of = np.full(n, -1, np.int64)
         self.leaf_of[e] = leaf
         grouped = np.zeros(count, bool)                        # the subtree holds a group's emitters
@@ -84,6 +89,8 @@ class LightTree:
             grouped[k] = grouped[a] | grouped[b]
             n_axis[k], n_spread[k] = _merge_cones(n_axis[a], n_spread[a], n_power[a] > 0,
                                                   n_axis[b], n_spread[b], n_power[b] > 0)
+            n_emission[k] = np.maximum(np.where(n_power[a] > 0, n_emission[a], 0.0),
+                                       np.where(n_power[b] > 0, n_emission[b], 0.0))
         empty = n_power <= 0
         n_lo[empty], n_hi[empty] = 0.0, 0.0
         centre = 0.5 * (n_lo + n_hi)
@@ -101,6 +108,7 @@ class LightTree:
         table[:, 8] = radius
         table[:, 9] = n_spread
         table[:, 10] = n_spread >= np.pi                       # emits every way: no orientation factor
+        table[:, 11] = n_emission
         self._table = table
         # Where units of which one or more is a group are chosen between, the lower bounds count too.
         self._blend = splits_units & grouped
@@ -130,9 +138,9 @@ class LightTree:
         theta_u = np.where(sin_u < 1, np.arcsin(np.minimum(sin_u, np.float32(1.0))), PI)
         theta = np.arccos(cos_t)
         theta_p = np.maximum(theta - g[9] - theta_u, np.float32(0.0))
-        nearest = np.where(theta_p < HALF_PI, np.maximum(np.cos(theta_p), COS_FLOOR), np.float32(0.0))
+        nearest = np.where(theta_p < g[11], np.maximum(np.cos(theta_p), COS_FLOOR), np.float32(0.0))
         theta_f = theta + g[9] + theta_u
-        farthest = np.where(theta_f < HALF_PI, np.cos(np.minimum(theta_f, HALF_PI)), np.float32(0.0))
+        farthest = np.where(theta_f < g[11], np.cos(np.minimum(theta_f, HALF_PI)), np.float32(0.0))
         return np.where(omni, upper, upper * nearest), np.where(omni, lower, lower * farthest)
 
     def _left_probability(self, node, px, py, pz):

@@ -10,7 +10,8 @@ from ..geometry import scene_extent
 from ..light_tree import LightTree
 from ..textures import luminance
 from ..vec import normalize_floored_xyz
-from .common import DISK, RECT
+from ..vec import HALF_PI
+from .common import DISK, RECT, SPOT
 from .triangles import TE1, TE2, TLE, TN, TP0, solid_angle
 
 # When a scene has both local and distant emitters, the distant ones (suns, world) get this share of
@@ -71,9 +72,13 @@ def local_choice(sampler, power, scene):
     half = np.where(area[:, None], np.abs(x) * (0.5 * sampler.size[k, 0:1]) + np.abs(y) * (0.5 * sampler.size[k, 1:2]),
                     sampler.radius[k, None].astype(np.float64))
     lo[is_light], hi[is_light] = c - half, c + half
-    # Area lights emit toward their -Z only; point and spot lights (conservatively) every way.
-    axis[is_light] = np.where(area[:, None], -sampler.axes[k, :, 2], np.float64([0, 0, 1]))
-    spread[is_light] = np.where(area, 0.0, np.pi)
+    # Area lights emit toward their -Z only, spot lights within their cone around it (theta_e, their half angle:
+    # the cone's sphere, theta_u, widens it for a sized spot), point lights every way.
+    spot = sampler.kind[k] == SPOT
+    axis[is_light] = np.where((area | spot)[:, None], -sampler.axes[k, :, 2], np.float64([0, 0, 1]))
+    spread[is_light] = np.where(area | spot, 0.0, np.pi)
+    emission = np.full(len(local), HALF_PI)
+    emission[np.flatnonzero(is_light)[spot]] = np.arccos(np.clip(sampler.spot[k[spot], 0].astype(np.float64), -1, 1))
     t = np.take(sampler.tri_table, local[~is_light] - sampler.light_count, axis=0).astype(np.float64)
     p0 = t[:, TP0:TP0 + 3]
     corners = np.stack([p0, p0 + t[:, TE1:TE1 + 3], p0 + t[:, TE2:TE2 + 3]])
@@ -81,7 +86,7 @@ def local_choice(sampler, power, scene):
     axis[~is_light] = t[:, TN:TN + 3]  # two-sided: spread pi, every way
     group = np.full(len(local), -1, np.int64)
     group[~is_light] = triangle_groups(sampler, scene, local[~is_light] - sampler.light_count)
-    tree = LightTree(lo, hi, power[local], axis, spread, group)
+    tree = LightTree(lo, hi, power[local], axis, spread, group, emission)
     has_geometry = len(scene.positions) or (scene.instances is not None and scene.instances.count)
     box = scene_extent(scene) if has_geometry else None
     sampler.tree_divergence = _divergence(tree, sampler.select_pmf[local] / sampler.local_share, box)
