@@ -2,7 +2,7 @@
 directions against its pdf (chi-square over cos_theta and azimuth, shown to fail against a wrong pdf);
 sample's value and pdf against evaluate; Henyey-Greenstein's mean cosine; Rayleigh, Fournier-Forand and
 Draine against the published formulas written out here; the Mie fit against Cycles' formula by hand; the
-mixture as Cycles picks and evaluates it; edge cases finite and quiet."""
+mixture the medium vertex samples and evaluates (kernels/media/scatter.py); edge cases finite and quiet."""
 import math
 import warnings
 
@@ -11,7 +11,7 @@ import pytest
 
 from ember.kernels import sampling
 from ember.kernels.media import phase
-from ember.kernels.media.phase import DRAINE, FOURNIER_FORAND, HENYEY_GREENSTEIN, NONE, PHASES, RAYLEIGH
+from ember.kernels.media.phase import DRAINE, FOURNIER_FORAND, HENYEY_GREENSTEIN, PHASES, RAYLEIGH
 from stats import chi2_statistic, mean_and_stderr, trapezoid
 
 N = 200_000
@@ -450,94 +450,71 @@ def test_volume_scatter_closures():
         phase.scatter_closures("ISOTROPIC")
 
 
-# ---------------------------------------------------------------- mixtures
-MIXTURES = {      # (kind, weight, params) closures
-    "HG + Rayleigh + Draine": [(HENYEY_GREENSTEIN, 0.3, hg(0.6)[1]), (RAYLEIGH, 0.5, phase.rayleigh_params()),
-                               (DRAINE, 0.2, draine(-0.3, 1.0)[1])],
-    **{f"Mie {d} um": phase.scatter_closures("MIE", diameter=d) for d in (0.05, 0.5, 20.0)},
+# ---------------------------------------------------------------- mixtures (kernels/media/scatter.py)
+MIXTURES = {      # the phase closures of a scattering point: (phase, sample weight, node inputs)
+    "HG + Rayleigh + Draine": [("HENYEY_GREENSTEIN", 0.3, {"Anisotropy": 0.6}), ("RAYLEIGH", 0.5, {}),
+                               ("DRAINE", 0.2, {"Anisotropy": -0.3, "Alpha": 1.0})],
+    **{f"Mie {d} um": [("MIE", 1.0, {"Diameter": d})] for d in (0.05, 0.5, 20.0)},
 }
+
+
+def phase_mixture(closures, n):
+    from ember.kernels.media.scatter import PhaseMixture
+    from ember.kernels.shading.volume import PhaseClosure
+    return PhaseMixture([PhaseClosure(kind, np.full((3, n), w, np.float32),
+                                      {k: np.full(n, v, np.float32) for k, v in inputs.items()})
+                         for kind, w, inputs in closures], n)
 
 
 @pytest.mark.parametrize("name", [pytest.param(name, marks=FLOAT32_DRAINE) if name == "Mie 0.05 um" else name
                                   for name in MIXTURES])
 def test_mixture_sampler_matches_the_mixture_pdf(name):
-    """Picking a closure by weight, then sampling it, gives directions distributed as evaluate_mixture's pdf
-    (weighted sum of pdfs over the sum of weights); the picks follow the weights, and the returned pdf is the
-    picked closure's own, as Cycles returns it."""
-    kinds, weights, params = phase.stack_closures(MIXTURES[name], N)
+    """The medium vertex's phase sample (media.scatter.PhaseMixture: a closure picked by its sample weight,
+    then sampled) gives directions distributed as the mixture's pdf (the weighted sum of the lobes' pdfs over
+    the sum of weights), which is the pdf it returns; the value is the weighted sum of the lobes."""
+    mixture = phase_mixture(MIXTURES[name], N)
     wi = random_directions(N, seed=11)
     u1, u2 = uniforms(N, seed=12)
-    wo, value, pdf, picked = phase.sample_mixture(kinds, weights, params, wi, u1, u2)
-    total = weights[:, 0].astype(np.float64).sum()
+    u_pick = uniforms(N, seed=13)[0]
+    ray = tuple(-c for c in wi)                       # PhaseMixture takes the ray's direction, -wi
+    wo, f, pdf = mixture.sample(ray, u_pick, u1, u2)
+    lobes = [(kind, float(weight[0, 0]), params[:, :1]) for kind, weight, params in mixture.lobes]
+    total = sum(w for _, w, _ in lobes)
 
     def mixture_pdf(mu):
-        return sum(float(weights[k, 0]) * PHASES[int(kinds[k, 0])].eval(params[k][:, :1].astype(np.float64), mu)
-                   for k in range(len(kinds))) / total
+        return sum(w * PHASES[kind].eval(params.astype(np.float64), mu) for kind, w, params in lobes) / total
     edges = equal_mass_edges(mixture_pdf)
     counts = sampled_cells(wi, wo, edges)
     assert p_value(counts, cell_masses(mixture_pdf, edges)) > P_MIN
-    only_first = float64_pdf(int(kinds[0, 0]), params[0][:, :1])
-    assert p_value(counts, cell_masses(only_first, edges)) < P_MIN
-
-    _, rescaled = phase.pick_closure(weights, u1)
-    for k in range(len(kinds)):
-        share, se = mean_and_stderr(picked == k)
-        assert abs(share - weights[k, 0] / total) < 4 * se
-        at = picked == k
-        cos_sampled = PHASES[int(kinds[k, 0])].sample(params[k][:, at], rescaled[at])
-        assert np.array_equal(pdf[at], PHASES[int(kinds[k, 0])].eval(params[k][:, at], cos_sampled))
-    assert np.array_equal(value, pdf)
+    only_first = float64_pdf(lobes[0][0], lobes[0][2])
+    assert len(lobes) == 1 or p_value(counts, cell_masses(only_first, edges)) < P_MIN
+    # What it returns is the mixture evaluated at the direction it sampled (the pdf MIS reads), and with grey
+    # weights the value is the weights' sum times that pdf.
+    f_again, pdf_again = mixture.evaluate(ray, wo)
+    np.testing.assert_array_equal(pdf, pdf_again)
+    np.testing.assert_array_equal(f, f_again)
+    np.testing.assert_allclose(f[0], pdf * total, rtol=1e-5, atol=1e-7)
 
 
-def test_mixture_evaluation_is_the_weighted_mean():
+def test_mixture_evaluation_weighs_each_lobe_by_its_colour():
+    """PhaseMixture.evaluate: the spectral value sum_k w_k(colour) p_k and the pdf sum_k |mean w_k| p_k /
+    sum_k |mean w_k|, against the lobes evaluated one by one."""
+    from ember.kernels.media.scatter import PhaseMixture
+    from ember.kernels.shading.volume import PhaseClosure
     n = 1000
     rng = np.random.default_rng(13)
     wi, wo = random_directions(n, seed=14), random_directions(n, seed=15)
-    weights = rng.random((3, n)).astype(np.float32)
-    weights[1, :100] = 0.0                                                 # absent closures...
-    kinds = np.array([[HENYEY_GREENSTEIN] * n, [FOURNIER_FORAND] * n, [DRAINE] * n], np.int32)
-    kinds[2, 100:200] = NONE                                               # ...and empty slots
-    kinds[0, 200:300] = RAYLEIGH                                           # kinds mixed along a slot
-    params = np.stack([phase.henyey_greenstein_params(rng.uniform(-0.9, 0.9, n)),
-                       phase.fournier_forand_params(rng.uniform(1.02, 1.4, n), rng.uniform(0.01, 0.4, n)),
-                       phase.draine_params(rng.uniform(-0.9, 0.9, n), rng.uniform(0.0, 5.0, n))])
-    value, pdf = phase.evaluate_mixture(kinds, weights, params, wi, wo)
-    assert value.dtype == pdf.dtype == np.float32
-    each = np.zeros((3, n), np.float32)
-    for k in range(3):
-        for kind in (HENYEY_GREENSTEIN, FOURNIER_FORAND, DRAINE, RAYLEIGH):
-            at = kinds[k] == kind
-            each[k, at] = phase.evaluate(kind, params[k][:, at], tuple(c[at] for c in wi),
-                                         tuple(c[at] for c in wo))[1]
-    w = np.where(kinds >= 0, weights, 0).astype(np.float64)
-    want = (w * each).sum(0) / w.sum(0)
-    np.testing.assert_allclose(pdf, want, rtol=2e-6)
-    np.testing.assert_allclose(value, want, rtol=2e-6)
-    # A point without closures: nothing.
-    empty = phase.evaluate_mixture([[HENYEY_GREENSTEIN]], np.zeros((1, 1), np.float32), np.zeros((1, 3, 1)),
-                                   tuple(c[:1] for c in wi), tuple(c[:1] for c in wo))
-    assert empty[0].tolist() == empty[1].tolist() == [0.0]
-
-
-def test_pick_closure_is_cycles_reservoir():
-    """volume_shader_phase_pick by hand for three closures: accept the first, then closure k where
-    u < w_k / (w_0 + ... + w_k), rescaling u each step."""
-    weights = np.float32([[0.2], [0.5], [0.3]])
-    for u in (0.0, 0.1, 0.3, 0.5, 0.55, 0.8, 0.99):
-        picked, rescaled = phase.pick_closure(weights, np.float32([u]))
-        x, pick, total = np.float32(u), 0, weights[0, 0]
-        for k in (1, 2):
-            total = total + weights[k, 0]
-            thresh = weights[k, 0] / total
-            if x < thresh:
-                pick, x = k, x / thresh
-            else:
-                x = (x - thresh) / (np.float32(1) - thresh)
-        assert (int(picked[0]), rescaled[0]) == (pick, x)
-    picked, _ = phase.pick_closure(np.float32([[0.0], [0.0], [0.7]]), np.float32([0.4]))
-    assert picked.tolist() == [2]
-    picked, _ = phase.pick_closure(np.zeros((2, 1), np.float32), np.float32([0.4]))
-    assert picked.tolist() == [-1]
+    w_hg, w_ff = rng.random((3, n)).astype(np.float32), rng.random((3, n)).astype(np.float32)
+    g, ior, b = rng.uniform(-0.9, 0.9, n), rng.uniform(1.02, 1.4, n), rng.uniform(0.01, 0.4, n)
+    mixture = PhaseMixture([PhaseClosure("HENYEY_GREENSTEIN", w_hg, {"Anisotropy": g.astype(np.float32)}),
+                            PhaseClosure("FOURNIER_FORAND", w_ff, {"IOR": ior.astype(np.float32),
+                                                                   "Backscatter": b.astype(np.float32)})], n)
+    f, pdf = mixture.evaluate(tuple(-c for c in wi), wo)
+    p_hg = phase.evaluate(HENYEY_GREENSTEIN, phase.henyey_greenstein_params(g), wi, wo)[1].astype(np.float64)
+    p_ff = phase.evaluate(FOURNIER_FORAND, phase.fournier_forand_params(ior, b), wi, wo)[1].astype(np.float64)
+    np.testing.assert_allclose(f, w_hg * p_hg + w_ff * p_ff, rtol=1e-5, atol=1e-7)
+    s_hg, s_ff = w_hg.mean(axis=0), w_ff.mean(axis=0)
+    np.testing.assert_allclose(pdf, (s_hg * p_hg + s_ff * p_ff) / (s_hg + s_ff), rtol=1e-5, atol=1e-7)
 
 
 # ---------------------------------------------------------------- edge cases
@@ -570,11 +547,12 @@ def test_edge_cases_are_finite_and_quiet():
                 assert a.dtype == np.float32 and np.all(np.isfinite(a)), (kind, params[:, 0])
             wo_s, _, pdf = phase.sample(kind, params, wi, u, u[::-1])
             np.testing.assert_allclose(np.linalg.norm(np.stack(wo_s), axis=0), 1.0, rtol=1e-6)
-        kinds, weights, params = phase.stack_closures([(HENYEY_GREENSTEIN, 0.0, hg(0.5)[1]),
-                                                       (DRAINE, 1.0, draine(0.0, -0.5)[1])], n)
-        for a in (*phase.evaluate_mixture(kinds, weights, params, wi, wo),
-                  *phase.sample_mixture(kinds, weights, params, wi, u, u)[0],
-                  *phase.sample_mixture(kinds, weights, params, wi, u, u)[1:3]):
+        # A mixture with a weightless lobe and a Draine without density: the medium vertex's values stay finite.
+        mixture = phase_mixture([("HENYEY_GREENSTEIN", 0.0, {"Anisotropy": 0.5}),
+                                 ("DRAINE", 1.0, {"Anisotropy": 0.0, "Alpha": -0.5})], n)
+        ray = tuple(-c for c in wi)
+        for a in (*mixture.evaluate(ray, wo), *mixture.sample(ray, u, u, u[::-1])[0],
+                  *mixture.sample(ray, u, u, u[::-1])[1:]):
             assert np.all(np.isfinite(a))
 
 

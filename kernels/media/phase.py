@@ -1,8 +1,8 @@
 """The phase functions of Cycles 5.x's volume scattering closures, over n scattering points: Henyey-Greenstein,
 Fournier-Forand, Draine and Rayleigh (Cycles' kernel/closure/volume_util.h, called by volume_henyey_greenstein.h,
 volume_fournier_forand.h, volume_draine.h and volume_rayleigh.h), their setup from the nodes' inputs (Cycles'
-svm_alloc_closure_volume_scatter in kernel/svm/closure.h, the Mie fit included), and the mixture of a point's
-phase closures (kernel/integrator/volume_shader.h).
+svm_alloc_closure_volume_scatter in kernel/svm/closure.h, the Mie fit included). A point's closures are mixed by
+kernels/media/scatter.py.
 
 Directions, in Cycles' names and signs. At a scattering point `wi` points back toward the previous vertex (the
 viewer: Cycles' sd->wi = -ray.D) and `wo` away from the point, along the scattered ray or toward a light:
@@ -54,9 +54,8 @@ import numpy as np
 from ..shading.cycles_math import cycles_max, cycles_min
 from ..vec import F32, I32, INV_2PI, INV_4PI, INV_PI, PI, TWO_PI, U32, dot_xyz, make_orthonormals_xyz, normalize_xyz
 
-# Phase kinds; NONE marks an empty closure slot of a mixture.
+# Phase kinds.
 HENYEY_GREENSTEIN, FOURNIER_FORAND, DRAINE, RAYLEIGH = range(4)
-NONE = -1
 PARAM_ROWS = 3
 
 # Cycles' clamps at setup (volume_henyey_greenstein.h, volume_draine.h, volume_fournier_forand.h).
@@ -433,17 +432,6 @@ def scatter_closures(phase: str = "HENYEY_GREENSTEIN", anisotropy=0.0, ior=1.33,
     return [(kind, np.ones(params.shape[1], F32), params)]
 
 
-def stack_closures(closures, n: int | None = None):
-    """A list of (kind, weight, params) closures (numbers, (n,) and (3, n) or (3, 1) arrays) as the columns of
-    a mixture over n points: kinds (K, n) int32, weights (K, n) float32, params (K, 3, n) float32."""
-    if n is None:
-        n = max(max(np.size(w), np.shape(p)[1]) for _, w, p in closures)
-    kinds = np.stack([np.full(n, kind, I32) for kind, _, _ in closures])
-    weights = np.stack([np.broadcast_to(np.asarray(w, F32), (n,)) for _, w, _ in closures])
-    params = np.stack([np.broadcast_to(np.asarray(p, F32), (PARAM_ROWS, n)) for _, _, p in closures])
-    return kinds, weights, params
-
-
 # ---------------------------------------------------------------- evaluate and sample
 def cos_theta_of(wi, wo):
     """cos of the scattering angle, dot(-wi, wo), as Cycles' phase closures take it. (n,) float32."""
@@ -494,94 +482,3 @@ def sample(kind: int, params, wi, u1, u2):
     pdf = np.where(ok, pdf, F32(0.0)).astype(F32, copy=False)
     wo = _direction((-wi[0], -wi[1], -wi[2]), cos_theta, u2)
     return wo, pdf.copy(), pdf
-
-
-# ---------------------------------------------------------------- mixtures of a point's closures
-def _mixture_inputs(kinds, weights, params):
-    weights = np.asarray(weights, F32)
-    kinds = np.broadcast_to(np.asarray(kinds, I32).reshape(len(weights), -1), weights.shape)
-    params = np.broadcast_to(np.asarray(params, F32), (len(weights), PARAM_ROWS, weights.shape[1]))
-    return kinds, np.where(kinds >= 0, weights, F32(0.0)), params
-
-
-def _eval_kinds(kinds, params, cos_theta):
-    """Each point's own kind evaluated at its cos_theta: kinds (n,), params (3, n) -> pdf (n,) float32, 0 for
-    NONE and where not finite."""
-    pdf = np.zeros(cos_theta.shape, F32)
-    for kind in np.unique(kinds):
-        if kind == NONE:
-            continue
-        if np.all(kinds == kind):
-            return _finite(PHASES[int(kind)].eval(params, cos_theta))
-        at = np.flatnonzero(kinds == kind)
-        pdf[at] = PHASES[int(kind)].eval(params[:, at], cos_theta[at])
-    return _finite(pdf)
-
-
-def evaluate_mixture(kinds, weights, params, wi, wo):
-    """The mixture of up to K phase closures per point, as Cycles' volume_shader_phase_eval
-    (kernel/integrator/volume_shader.h): kinds (K, n) int (or (K,): the same at every point; NONE: no
-    closure), weights (K, n) float32, the closures' sample weights (>= 0), params (K, 3, n) ->
-    (value, pdf) (n,) float32 with value = sum(w_k f_k) * (1 / sum(w_k)) and pdf = sum(w_k pdf_k) / sum(w_k),
-    0 where no weight. The caller fills the slots as Cycles would: at most 8 (MAX_VOLUME_CLOSURE), identical
-    closures of stacked volumes merged into one (volume_shader_merge_closures)."""
-    kinds, weights, params = _mixture_inputs(kinds, weights, params)
-    cos_theta = cos_theta_of(_as_direction(wi), _as_direction(wo))
-    total = np.zeros(weights.shape[1], F32)
-    weighted = np.zeros(weights.shape[1], F32)
-    for k in range(len(weights)):
-        weighted += _eval_kinds(kinds[k], params[k], cos_theta) * weights[k]
-        total += weights[k]
-    some = total > 0
-    safe_total = np.where(some, total, F32(1.0))
-    inv_total = np.where(some, 1 / safe_total, F32(0.0))
-    pdf = np.where(some, weighted / safe_total, F32(0.0))
-    return _finite(weighted * inv_total), _finite(pdf)
-
-
-def pick_closure(weights, u1):
-    """Cycles' volume_shader_phase_pick: closure k with probability w_k / sum(w), by reservoir sampling over
-    the closures in order (the first always accepted; closure k replaces the pick where u1 < w_k / (w_0 + ...
-    + w_k)), u1 rescaled to [0, 1) at each step for reuse. weights (K, n) (0 for an empty slot), u1 (n,) ->
-    (picked (n,) int32, -1 where all weights are 0; the rescaled u1 (n,) float32)."""
-    weights = np.asarray(weights, F32)
-    u1 = np.asarray(u1, F32).copy()
-    picked = np.where(weights[0] > 0, 0, -1).astype(I32)
-    total = weights[0].copy()
-    with np.errstate(all="ignore"):
-        for k in range(1, len(weights)):
-            total = total + weights[k]
-            # An empty slot while the sum is 0 (which Cycles never allocates) leaves u1 as it is.
-            thresh = np.where(total > 0, weights[k] / np.where(total > 0, total, F32(1.0)), F32(0.0))
-            take = u1 < thresh
-            picked[take] = k
-            u1 = np.where(take, u1 / thresh, (u1 - thresh) / (1 - thresh)).astype(F32, copy=False)
-    return picked, u1
-
-
-def sample_mixture(kinds, weights, params, wi, u1, u2):
-    """A direction from the mixture as Cycles' integrate_volume_phase_scatter takes it: pick_closure, then
-    that closure's sampler with the rescaled u1 -> (wo (x, y, z), value (n,), pdf (n,), picked (n,) int32).
-    value and pdf are the picked closure's own, as Cycles returns (and uses for MIS), not the mixture's
-    (evaluate_mixture at wo); the directions are distributed as the mixture. pdf 0 and wo = -wi where a point
-    has no closure (picked -1)."""
-    kinds, weights, params = _mixture_inputs(kinds, weights, params)
-    wi = _as_direction(wi)
-    picked, u1 = pick_closure(weights, u1)
-    n = weights.shape[1]
-    lanes = np.arange(n)
-    slot = np.maximum(picked, 0)
-    kind = np.where(picked >= 0, kinds[slot, lanes], NONE)
-    chosen = params[slot, :, lanes].T                                # (3, n)
-    wo = tuple(-c for c in wi)
-    value, pdf = np.zeros(n, F32), np.zeros(n, F32)
-    for k in np.unique(kind):
-        if k == NONE:
-            continue
-        at = np.flatnonzero(kind == k)
-        sub_wo, sub_value, sub_pdf = sample(int(k), chosen[:, at], tuple(c[at] for c in wi), u1[at],
-                                            np.asarray(u2, F32)[at])
-        for c, s in zip(wo, sub_wo):
-            c[at] = s
-        value[at], pdf[at] = sub_value, sub_pdf
-    return wo, value, pdf, picked
