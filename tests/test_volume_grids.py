@@ -1,14 +1,14 @@
 """Voxel grids (kernels/media/grid.py) and their export from Blender (engine/export/volumes.py): .vdb files
 written here with Blender's own openvdb module, loaded as Volume objects in headless bpy, read back and
 looked up against the fields written (closed forms at voxel points, cell middles and inside the grid), the
-transform, the bounds, the block maxima, the warnings; geometry-nodes volumes and smoke domains."""
+transform, the bounds, the warnings; geometry-nodes volumes and smoke domains."""
 import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from bpy_helpers import camera_only_scene  # noqa: E402
-from ember.engine.export.volumes import (boundary_mesh, export_volumes, fluid_grid, is_volume,  # noqa: E402
+from bpy_helpers import camera_only_scene, export_current  # noqa: E402
+from ember.engine.export.volumes import (boundary_mesh, fluid_grid, is_volume,  # noqa: E402
                                          openvdb_module, read_volume)
 from ember.kernels.media.grid import PADDING, VoxelGrid  # noqa: E402
 
@@ -181,21 +181,6 @@ def test_bounds_enclose_the_active_voxels_and_the_padding(fields):
     np.testing.assert_allclose(fields.grids["density"].bounds(), [[-extent] * 3, [extent] * 3])
 
 
-def test_block_maxima_bound_every_lookup(fields):
-    rng = np.random.default_rng(3)
-    for name in ("density", "ramp", "color"):
-        grid = fields.grids[name]
-        lo, hi = grid.bounds(3)
-        points = (lo + rng.random((20000, 3)) * (hi - lo)).astype(np.float32)
-        for block in (4, 8):
-            bound = grid.block_max_at(points, block)
-            for interpolation in ("CLOSEST", "LINEAR", "CUBIC"):
-                value = np.abs(grid.lookup(points, interpolation)).max(axis=1)
-                assert np.all(value <= bound), (name, block, interpolation)
-        # Blocks are coarse but not loose: some block holds the grid's largest value.
-        assert grid.max_per_block().max() == np.abs(grid.values).max()
-
-
 def test_boundary_is_a_closed_outward_box_around_the_padded_voxels(fields):
     assert fields.triangles.shape == (12, 3) and fields.vertices.dtype == np.float32
     for padding in (0, 1, 2):
@@ -263,23 +248,26 @@ def test_geometry_nodes_volume_read_without_touching_bpy_data(scene):
     ob.location = (3, 0, 0)
     counts = {kind: len(getattr(bpy.data, kind)) for kind in ("objects", "meshes", "volumes", "node_groups")}
     dirty = bpy.data.is_dirty
-    sources = export_volumes(bpy.context.evaluated_depsgraph_get())
-    assert [source.name for source in sources] == ["Emitter"]
-    density = sources[0].grids["density"]
-    assert sources[0].warnings == []
+    exported = export_current()
+    ((row, grids, scale),) = exported.scene.volumes
+    density = grids["density"]
+    assert not [w for w in exported.warnings if "Emitter" in w]
     np.testing.assert_allclose(density.lookup(np.zeros((1, 3), np.float32)), [[0.75]])
     # Blender 5's Volume Cube puts its first and last values on Min and Max (-1 and 1 by default).
     np.testing.assert_allclose(density.bounds(), [[-1, -1, -1], [1, 1, 1]], atol=1e-6)
-    np.testing.assert_allclose(sources[0].world_from_object[:3, 3], [3, 0, 0])
+    # Its boundary is placed where the object is (the padded box around x = 3).
+    x = np.asarray(exported.scene.positions)[..., 0]
+    assert 1.5 < x.min() < 2.0 and 4.0 < x.max() < 4.5
     assert {kind: len(getattr(bpy.data, kind)) for kind in counts} == counts
     assert bpy.data.is_dirty == dirty
 
 
 def test_view_layer_without_volumes_exports_none(fields):
-    assert len(export_volumes(bpy.context.evaluated_depsgraph_get())) == 1
+    """View Layer > Filter > Volumes off: no volume object is rendered, as in Cycles."""
+    assert len(export_current().scene.volumes) == 1
     bpy.context.view_layer.use_volumes = False
     try:
-        assert export_volumes(bpy.context.evaluated_depsgraph_get()) == []
+        assert export_current().scene.volumes == ()
     finally:
         bpy.context.view_layer.use_volumes = True
 

@@ -142,6 +142,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         mesh_key = ob.data.as_pointer()
         object_key = (ob.as_pointer(), mesh_key)
         if ob.type == "VOLUME" or (ob.type == "MESH" and is_volume(ob)):
+            if not depsgraph.view_layer.use_volumes:   # View Layer > Filter > Volumes off: none, as in Cycles
+                continue
             # A Volume object or a smoke domain: its grids' boundary box, wearing the object's materials (the
             # default volume without one), its grids looked up where its medium is shaded.
             if object_key not in slot_rows:

@@ -2,10 +2,9 @@
 read into kernels.media.grid.VoxelGrid records (Cycles' blender/volume.cpp: sync_volume_object and
 sync_smoke_volume).
 
-    sources = export_volumes(depsgraph)
-    for source in sources:
-        warnings.extend(source.warnings)
-        density = source.grids.get("density")   # a VoxelGrid, or None
+    source = read_volume(ob_eval, frame)      # engine/export/geometry.py reads each rendered volume so
+    warnings.extend(source.warnings)
+    density = source.grids.get("density")     # a VoxelGrid, or None
 
 Volume objects. Blender evaluates the volume (the frame of a file sequence, modifiers, geometry nodes) and
 Cycles reads the evaluated grids. Ember reads them through the `openvdb` module that Blender ships
@@ -131,31 +130,6 @@ def fluid_gas_domain(ob):
 def is_volume(ob) -> bool:
     """Whether Cycles renders the evaluated object as a volume: a Volume object or a smoke domain."""
     return ob.type == "VOLUME" or (ob.type == "MESH" and fluid_gas_domain(ob) is not None)
-
-
-def export_volumes(depsgraph, interpolation: str = "LINEAR", grid_names=None) -> list[VolumeSource]:
-    """A VolumeSource for every rendered volume instance of the evaluated depsgraph (none when the view
-    layer's Volumes are off, as Cycles). interpolation : the material's volume interpolation, which pads the
-    boundary (PADDING). grid_names : read only these grids (Cycles reads the attributes its shaders use);
-    None reads all."""
-    if not depsgraph.view_layer.use_volumes:
-        return []
-    frame = depsgraph.scene.frame_current
-    read: dict[int, VolumeSource] = {}      # evaluated data pointer -> its source
-    sources = []
-    for inst in depsgraph.object_instances:
-        ob = inst.object
-        owner = (inst.parent if inst.is_instance else None) or ob
-        if not inst.show_self or owner.hide_render or not is_volume(ob):
-            continue
-        key = ob.data.as_pointer()
-        if key not in read:
-            read[key] = read_volume(ob, frame, interpolation, grid_names)
-        source = read[key]
-        sources.append(VolumeSource(ob.name, source.kind, source.grids,
-                                    source.vertices, source.triangles, np.array(inst.matrix_world, dtype=np.float64),
-                                    source.step_size, source.object_space, list(source.warnings)))
-    return sources
 
 
 def read_volume(ob, frame: int, interpolation: str = "LINEAR", grid_names=None) -> VolumeSource:

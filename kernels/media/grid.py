@@ -1,5 +1,5 @@
 """Voxel grids: a dense block of voxel values placed in an object's space, looked up at points as Cycles
-samples volume grids, and the coarse maxima a distance sampler needs for its majorant.
+samples volume grids (the media's majorants come from the shader's values, kernels/media/medium.py).
 
 Conventions, as Cycles (Blender 5.0 on) samples a grid (kernel/util/image_3d.h, kernel_image_interp_3d):
 
@@ -31,11 +31,6 @@ INTERPOLATIONS = ("CLOSEST", "LINEAR", "CUBIC")
 # Voxels a lookup reads beyond its cell, per side: how far Cycles dilates the active voxels before it builds
 # a volume's bounding mesh (scene/volume.cpp, create_volume_mesh: pad 1 for Linear, 2 for Cubic).
 PADDING = {"CLOSEST": 0, "LINEAR": 1, "CUBIC": 2}
-# The block grid starts two voxels below the stored block: a Cubic lookup with floor(P) = -2 still reads
-# voxel 0, and one with floor(P) = n reads voxel n - 1 (see max_per_block).
-_BLOCK_ORIGIN = -2
-
-
 _BORDER = 4   # background voxels around the stored block: a cubic lookup's 4 taps fit in it outside the block
 
 
@@ -56,7 +51,6 @@ class VoxelGrid:
     background: np.ndarray | float = 0.0
     active_box: tuple | None = None
     object_to_index: np.ndarray = field(init=False, repr=False)
-    _blocks: dict = field(init=False, repr=False, default_factory=dict)
 
     def __post_init__(self):
         values = np.ascontiguousarray(self.values, dtype=F32)
@@ -169,53 +163,6 @@ class VoxelGrid:
         gives Cycles' padding per interpolation)."""
         corners = self.box_corners(padding)
         return np.stack([corners.min(axis=0), corners.max(axis=0)]).astype(F32)
-
-    # ---------------------------------------------------------------- majorants
-    def max_per_block(self, block: int = 8) -> np.ndarray:
-        """(bx, by, bz) float32: for each block of block^3 cells, the largest channel-wise |value| of the
-        voxels any lookup in it reads (its voxels and one more below, two more above: Cubic's taps; the
-        background outside the stored block), so no Closest, Linear or Cubic lookup at a point of the block exceeds it (the weights
-        of all three are non-negative and sum to 1). Un-premultiplied colour (C = 4) is not bounded.
-
-        Block b holds the points whose floor(P) lies in [-2 + b * block, -2 + (b + 1) * block): the blocks
-        start two voxels below the stored block and cover every point where a lookup can differ from the
-        background; block_to_object() places them."""
-        if block not in self._blocks:
-            self._blocks[block] = self._block_maxima(block)
-        return self._blocks[block]
-
-    def _block_maxima(self, block: int) -> np.ndarray:
-        counts = [-(-(n - _BLOCK_ORIGIN + 1) // block) for n in self.shape]
-        magnitude = np.abs(self.values).max(axis=3)
-        outside = F32(np.abs(self.background).max())
-        # Voxels _BLOCK_ORIGIN - 1 ... the last block's end + 1: every voxel the blocks' lookups read.
-        padded = np.full([c * block + 3 for c in counts], outside, dtype=F32)
-        start = -(_BLOCK_ORIGIN - 1)
-        padded[start:start + self.shape[0], start:start + self.shape[1], start:start + self.shape[2]] = magnitude
-        for axis, count in enumerate(counts):
-            # Cells floor(P) = s ... s + block - 1 read voxels s - 1 ... s + block + 1 (Cubic): a window of
-            # block + 3 voxels per block, taken one axis at a time (a box maximum is separable).
-            windows = [np.take(padded, np.arange(offset, offset + count * block, block), axis=axis)
-                       for offset in range(block + 3)]
-            padded = np.maximum.reduce(windows)
-        return padded
-
-    def block_to_object(self, block: int = 8) -> np.ndarray:
-        """(4, 4) float64: block coordinates (block b spans [b, b + 1) per axis) -> object space."""
-        index_from_block = np.diag([block, block, block, 1.0])
-        index_from_block[:3, 3] = _BLOCK_ORIGIN
-        return self.index_to_object @ index_from_block
-
-    def block_max_at(self, points, block: int = 8) -> np.ndarray:
-        """(n, 3) object-space points -> (n,) float32: max_per_block() of each point's block, the
-        background's magnitude outside the blocks."""
-        maxima = self.max_per_block(block)
-        cell = np.floor(self.index_coordinates(points)).astype(np.int64)
-        b = np.floor_divide(cell - _BLOCK_ORIGIN, block)
-        inside = np.all((b >= 0) & (b < maxima.shape), axis=1)
-        b = np.clip(b, 0, np.asarray(maxima.shape) - 1)
-        return np.where(inside, maxima[b[:, 0], b[:, 1], b[:, 2]], F32(np.abs(self.background).max()))
-
 
 def cubic_bspline_weights(t: np.ndarray) -> np.ndarray:
     """(4, n) float32 uniform cubic B-spline weights of the taps floor(P) - 1 ... floor(P) + 2 for

@@ -18,7 +18,6 @@ from ..geometry import E1, E2, NG, P0
 from ..shading.volume import PhaseClosure, VolumeCoefficients, VolumeShader
 from ..vec import F32
 
-WORLD_KEY = -1            # the world's medium key (no object, no material)
 STACK_SIZE = 8            # media a path can be inside at once (Cycles sizes its stack to the scene's nesting)
 MAJORANT_CELLS = 12       # cells per axis over a heterogeneous medium's bounds for the majorant estimate
 MAJORANT_SAMPLES = 4      # random points per cell
@@ -54,7 +53,8 @@ class Media:
         self.material = np.asarray(self.material, np.int32)
         self.object = np.asarray(self.object, np.int32)
         self.lo, self.hi = np.asarray(self.lo, F32).reshape(-1, 3), np.asarray(self.hi, F32).reshape(-1, 3)
-        self.homogeneous = np.array([self.shaders[m].constant and not (self.shaders[m].reads_grids and int(o) in self.grids)
+        self.homogeneous = np.array([self.shaders[m].constant and not (self.shaders[m].reads_grids and
+                                                                       int(o) in self.grids)
                                      for m, o in zip(self.material, self.object)], bool)
         self._constant: dict[int, VolumeCoefficients] = {}
         self.cell_majorants: dict[int, tuple] = {}   # varying media: (cells^3 majorants, their lo, cell size)

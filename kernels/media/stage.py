@@ -265,7 +265,7 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
         state.handed[:] = False
     state.continuation = roulette_verdict(wave, state, throughput, numbers, np.ones(n, bool))
     state.throughput = throughput
-    alive &= np.take(state.segments, np.arange(n)) < last
+    alive &= state.segments < last
     alive = np.flatnonzero(alive)
     if not len(alive):
         return None

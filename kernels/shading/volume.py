@@ -18,6 +18,7 @@ import numpy as np
 from ..scene import OBJECT_COLUMNS, object_row
 from ..vec import F32, ONE, ZERO
 from .color_nodes import REC709_TO_RGB, blackbody
+from .input_ops import object_point
 from .ops import OPS
 from .program import ProgramRun
 
@@ -139,7 +140,6 @@ class PointInputs:
             return None
         key = ("grid", name)
         if key not in self._cache:
-            from .input_ops import object_point
             self._cache[key] = np.asarray(grid.lookup(object_point(self, self.P), self._interpolation), F32)
         return self._cache[key]
 
