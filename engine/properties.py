@@ -45,6 +45,27 @@ class EmberSceneSettings(bpy.types.PropertyGroup):
         name="Volume", description="Scattering events in volumes a path may take after its first, as Cycles' "
                                    "Volume bounces (0: single scattering in volumes)",
         default=0, min=0, max=1024)
+    volume_biased: BoolProperty(
+        name="Biased",
+        description="Ray-march volumes that vary, in steps of their own size (as Cycles' Biased option): less noise "
+                    "per sample, at the cost of some bias that shrinks with the steps. Off: null scattering, "
+                    "unbiased (Cycles' default)",
+        default=False)
+    volume_step_rate: FloatProperty(
+        name="Step Rate Render",
+        description="Scale the biased ray marcher's steps in final renders (each volume's own step: its voxel size, "
+                    "or a tenth of its object's size, times its material's Step Rate), as Cycles' Step Rate: "
+                    "higher is faster and coarser",
+        default=1.0, min=0.01, max=100.0, soft_min=0.1)
+    volume_preview_step_rate: FloatProperty(
+        name="Viewport",
+        description="The same for the viewport's rendered mode",
+        default=1.0, min=0.01, max=100.0, soft_min=0.1)
+    volume_max_steps: IntProperty(
+        name="Max Steps",
+        description="Most steps the biased ray marcher takes through a volume: longer segments take longer steps "
+                    "(as Cycles' Max Steps)",
+        default=1024, min=2, max=65536)
     transparent_max_bounces: IntProperty(
         name="Transparent Bounces",
         description="Transparent surfaces (alpha, Transparent BSDF) a path may pass straight through, as in "

@@ -70,8 +70,9 @@ def threads_warning(render) -> str | None:
             f"core{'s' if threads > 1 else ''} can be used here: rendering with {threads}")
 
 
-def render_settings(scene, region, *, samples: int | None = None, time_limit: float | None = None) -> RenderSettings:
-    """Kernel settings from scene.ember and scene.render."""
+def render_settings(scene, region, *, samples: int | None = None, time_limit: float | None = None,
+                    viewport: bool = False) -> RenderSettings:
+    """Kernel settings from scene.ember and scene.render (viewport: for the viewport's rendered mode)."""
     ember = scene.ember
     return RenderSettings(
         samples=int(samples if samples is not None else ember.samples),
@@ -80,6 +81,9 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         glossy_bounces=int(ember.glossy_bounces),
         transmission_bounces=int(ember.transmission_bounces),
         volume_bounces=int(ember.volume_bounces),
+        volume_biased=bool(ember.volume_biased),
+        volume_step_rate=float(ember.volume_preview_step_rate if viewport else ember.volume_step_rate),
+        volume_max_steps=int(ember.volume_max_steps),
         transparent_max_bounces=int(ember.transparent_max_bounces),
         clamp_direct=float(ember.sample_clamp_direct),
         clamp_indirect=float(ember.sample_clamp_indirect),

@@ -97,6 +97,61 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
         col.prop(context.scene.ember, "caustics_refractive", text="Refractive")
 
 
+class EMBER_RENDER_PT_volumes(EmberPanel, bpy.types.Panel):
+    bl_label = "Volumes"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        ember = context.scene.ember
+        layout.prop(ember, "volume_biased")
+        col = layout.column(align=True)
+        col.active = ember.volume_biased
+        col.prop(ember, "volume_step_rate")
+        col.prop(ember, "volume_preview_step_rate")
+        col.prop(ember, "volume_max_steps")
+
+
+class EMBER_MATERIAL_PT_volume(EmberPanel, bpy.types.Panel):
+    """Material > Settings > Volume: Cycles' settings of the material's medium, which Ember reads."""
+    bl_label = "Volume"
+    bl_context = "material"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def poll(cls, context):
+        material = getattr(context, "material", None)
+        return context.engine in cls.COMPAT_ENGINES and material is not None and hasattr(material, "cycles")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.material.cycles
+        layout.prop(settings, "volume_interpolation", text="Interpolation")
+        layout.prop(settings, "volume_step_rate", text="Step Rate")
+
+
+class EMBER_WORLD_PT_volume(EmberPanel, bpy.types.Panel):
+    """World > Settings > Volume: Cycles' step size of the world's medium, which Ember reads."""
+    bl_label = "Volume"
+    bl_context = "world"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def poll(cls, context):
+        world = getattr(context, "world", None)
+        return context.engine in cls.COMPAT_ENGINES and world is not None and hasattr(world, "cycles")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(context.world.cycles, "volume_step_size", text="Step Size")
+
+
 class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):
     bl_label = "Film"
     bl_options = {"DEFAULT_CLOSED"}
@@ -242,9 +297,9 @@ class EMBER_LIGHT_PT_shadow(EmberPanel, bpy.types.Panel):
         layout.prop(context.light, "use_shadow", text="Cast Shadow")
 
 
-CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths, EMBER_RENDER_PT_film,
-           EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance, EMBER_VIEWLAYER_PT_passes,
-           EMBER_LIGHT_PT_shadow)
+CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths,
+           EMBER_RENDER_PT_volumes, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance,
+           EMBER_VIEWLAYER_PT_passes, EMBER_LIGHT_PT_shadow, EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume)
 
 
 def register():

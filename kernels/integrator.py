@@ -240,7 +240,7 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
         idx = np.flatnonzero(lit)
         le = np.take(state.throughput * le, idx, axis=1)
         if state.media is not None:   # the media before the light (their scattering is the segment's own)
-            le *= media_stage.transmittance_to(tables, state, rays, idx, np.take(met.t, idx))
+            le *= media_stage.transmittance_to(tables, wave, state, rays, idx, np.take(met.t, idx))
         if wave.nee:
             le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
         le = passes.clamp(wave, le, np.take(state.bounce, idx) > 1)

@@ -37,6 +37,12 @@ class RenderSettings:
     # Cycles' Volume bounces (Light Paths > Max Bounces > Volume, 0 by default): a path scatters in media at
     # most volume_bounces + 1 times; after that it takes only what it meets, as after max_bounces.
     volume_bounces: int = 0
+    # Cycles' Biased volume option (Render > Volumes): media that vary are ray-marched (kernels/media/march.py)
+    # with steps of their own size times volume_step_rate, at most volume_max_steps per segment, instead of
+    # null scattering.
+    volume_biased: bool = False
+    volume_step_rate: float = 1.0
+    volume_max_steps: int = 1024
     # Cycles' Clamp Direct and Clamp Indirect: a contribution whose |R| + |G| + |B| exceeds 3 x the limit
     # is scaled down to it (0: off). Direct: light reaching the first hit or the camera; indirect: the rest.
     clamp_direct: float = 0.0
@@ -100,6 +106,10 @@ class RenderSettings:
             raise ValueError(f"transparent_max_bounces: must be non-negative, got {self.transparent_max_bounces}")
         if int(self.volume_bounces) < 0:
             raise ValueError(f"volume_bounces: must be non-negative, got {self.volume_bounces}")
+        if not float(self.volume_step_rate) > 0:
+            raise ValueError(f"volume_step_rate: must be positive, got {self.volume_step_rate}")
+        if int(self.volume_max_steps) < 1:
+            raise ValueError(f"volume_max_steps: must be at least 1, got {self.volume_max_steps}")
         for name in ("diffuse_bounces", "glossy_bounces", "transmission_bounces"):
             value = getattr(self, name)
             if value is not None and int(value) < 0:

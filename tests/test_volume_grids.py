@@ -249,8 +249,9 @@ def test_geometry_nodes_volume_read_without_touching_bpy_data(scene):
     counts = {kind: len(getattr(bpy.data, kind)) for kind in ("objects", "meshes", "volumes", "node_groups")}
     dirty = bpy.data.is_dirty
     exported = export_current()
-    ((row, grids, scale),) = exported.scene.volumes
+    ((row, grids, scale, step),) = exported.scene.volumes
     density = grids["density"]
+    assert step == pytest.approx(2.0 / 7.0)   # the voxel size: 8 values from -1 to 1 (the Biased option's step)
     assert not [w for w in exported.warnings if "Emitter" in w]
     np.testing.assert_allclose(density.lookup(np.zeros((1, 3), np.float32)), [[0.75]])
     # Blender 5's Volume Cube puts its first and last values on Min and Max (-1 and 1 by default).

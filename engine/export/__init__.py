@@ -93,9 +93,6 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         raise ExportError("Scene has no camera")
     default_width, default_height = render_resolution(scene)
     warnings: list[str] = []
-    if getattr(getattr(scene, "cycles", None), "volume_biased", False):
-        warnings.append("Render > Volumes > Biased (ray marching) is not supported: volumes are rendered unbiased "
-                        "(null scattering, Cycles' default), the same image without the marching's bias")
     groups = getattr(depsgraph.view_layer, "lightgroups", None)
     if groups is not None and len(groups):
         warnings.append(f"View layer '{depsgraph.view_layer.name}': light groups are not supported yet: "

@@ -58,7 +58,7 @@ class Geometry:
     empty_keys: frozenset = frozenset()    # instance keys of rendered mesh instances without triangles
     instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
     bvh: tuple | None = None               # (vertices, indices): the plain triangles indexed (SceneArrays.bvh_vertices)
-    volumes: tuple = ()                    # ((object row, {name: VoxelGrid}, density scale), ...) (SceneArrays.volumes)
+    volumes: tuple = ()                    # ((object row, {name: VoxelGrid}, density scale, step), ...) (SceneArrays.volumes)
 
 
 class MeshCache:
@@ -180,7 +180,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         matrix = np.array(inst.matrix_world)
         source = volume_sources.get(mesh_key)
         grids.setdefault((mesh_key, slot_rows[object_key]), []).append(
-            None if source is None or not source.grids else (source.grids, volume_density(source, matrix)))
+            None if source is None or not source.grids else (source.grids, volume_density(source, matrix),
+                                                             volume_step(source, matrix)))
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
         if object_key[0] not in described:
             described[object_key[0]] = object_inputs(ob)
@@ -198,7 +199,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             for group, inputs in rows.items()}
     row_grids = [g for group in grids.values() for g in group]
     return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows, instanced),
-                               volumes=tuple((row, g[0], g[1]) for row, g in enumerate(row_grids) if g is not None),
+                               volumes=tuple((row, *g) for row, g in enumerate(row_grids) if g is not None),
                                instance_keys=[k for group in keys.values() for k in group],
                                instance_matrices=[m for group in groups.values() for m in group],
                                instance_assets=[a for group in assets.values() for a in group],
@@ -226,6 +227,20 @@ def volume_density(source, world_from_object: np.ndarray) -> float:
     unit = np.full(3, 1.0 / np.sqrt(3.0))
     length = float(np.linalg.norm(world_from_object[:3, :3] @ unit))
     return 1.0 / length if length > 0 else 1.0
+
+
+def volume_step(source, world_from_object: np.ndarray) -> float:
+    """The world-space step the Biased option marches a Volume object with before its material's and the
+    scene's Step Rates, as Cycles' Object::compute_volume_step_size: Render > Step Size when set (in object space
+    when Space is Object: the smallest component of M (s, s, s)), else the voxel size, the smallest component
+    of the index-to-world transform applied to (1, 1, 1), the least over the grids. 0: none."""
+    matrix = np.asarray(world_from_object, np.float64)[:3, :3]
+    if source.step_size > 0:
+        size = float(source.step_size)
+        return float(np.abs(matrix @ np.full(3, size)).min()) if source.object_space else size
+    steps = [float(np.abs(matrix @ grid.index_to_object[:3, :3] @ np.ones(3)).min()) for grid in source.grids.values()]
+    steps = [s for s in steps if s > 0]
+    return min(steps) if steps else 0.0
 
 
 def _assemble(meshes: dict, groups: dict, tangents: dict, attributes: dict, object_rows: dict,

@@ -255,7 +255,8 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes) -> Shader:
     correction = getattr(settings, "use_bump_map_correction", True)
     interpolation = getattr(settings, "volume_interpolation", "LINEAR")
     return Shader(closures, material.name, bool(correction), reader.program.program(), aovs, volume, volume_only,
-                  interpolation if interpolation in ("LINEAR", "CLOSEST", "CUBIC") else "LINEAR")
+                  interpolation if interpolation in ("LINEAR", "CLOSEST", "CUBIC") else "LINEAR",
+                  float(getattr(settings, "volume_step_rate", 1.0)))
 
 
 def read_volume(tree, name: str, images: ImageTextures, issues: list[str]) -> Shader | None:

@@ -57,7 +57,9 @@ def export_world(world, warnings: list[str], images=None) -> World:
     issues.extend(invalid_links(world.node_tree))
     volume = read_volume(world.node_tree, world.name, images, issues)
     if volume is not None:
-        result = dataclasses.replace(result, volume=volume)
+        # The world's Volume > Step Size is its medium's step rate, as Cycles' sync hands it (blender/shader.cpp).
+        step = float(getattr(getattr(world, "cycles", None), "volume_step_size", 1.0))
+        result = dataclasses.replace(result, volume=dataclasses.replace(volume, volume_step_rate=step))
     if issues:
         warnings.append(f"World '{world.name}': " + "; ".join(dict.fromkeys(issues)))
     return result

@@ -26,7 +26,7 @@ def viewport_settings(scene) -> RenderSettings:
     """Kernel settings for the viewport: scene.ember as for F12, with the viewport's sample count (and the
     denoiser's passes when previews are denoised)."""
     samples = int(scene.ember.preview_samples) or UNLIMITED_SAMPLES
-    settings = render_settings(scene, None, samples=samples, time_limit=0.0)
+    settings = render_settings(scene, None, samples=samples, time_limit=0.0, viewport=True)
     # Cycles' interactive pattern: the first sample blue noise on its own (the first image after every change).
     settings = dataclasses.replace(settings, blue_noise_first=True)
     if viewport_denoise(scene) is not None:

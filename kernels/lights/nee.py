@@ -16,6 +16,7 @@ from ..interaction import RayInfo, SurfaceHit, spawn_offset
 from ..paths import may_scatter
 from ..media import stack as volume_stack
 from ..media import tracking
+from ..media.march import marching
 from ..samples import LIGHT, LIGHT_POINT
 
 # At a shading point whose closures are all one glossy lobe, the share of the world's light samples drawn
@@ -242,7 +243,8 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
         out = np.array(out)
         if len(open_):
             out[:, open_] *= tracking.transmittance(tables.media, stack[:, open_], origins[open_], dirs[open_],
-                                                    t_max[open_], tuple(np.take(s, open_) for s in seeds))
+                                                    t_max[open_], tuple(np.take(s, open_) for s in seeds),
+                                                    march=marching(wave.settings))
         return out
     out = np.ones((3, n), np.float32)
     live = np.arange(n)
@@ -257,7 +259,7 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
                 end = np.where(hits.prim[inside] >= 0, hits.t[inside], t_left[inside]).astype(np.float32)
                 out[:, live[inside]] *= tracking.transmittance(
                     tables.media, stack[:, live[inside]], origins[inside], dirs[live[inside]], end,
-                    tuple(np.take(s, live[inside]) for s in seeds), salt=1 + crossing)
+                    tuple(np.take(s, live[inside]) for s in seeds), salt=1 + crossing, march=marching(wave.settings))
         if not len(found):
             break
         d = dirs[live[found]]

@@ -33,7 +33,8 @@ class Media:
         world_volume : kernels.scene.Shader or None; extent : (lo, hi) of the scene, for a world medium that
         varies; data : shading.shader.ShadingData; volumes : SceneArrays.volumes (the objects' grids);
         instances : SceneArrays.instances (instanced meshes' volumes: a medium per instance)."""
-        self.grids = {int(row): (grids, float(scale)) for row, grids, scale in volumes}
+        self.grids = {int(row): (grids, float(scale)) for row, grids, scale, _ in volumes}
+        voxel_steps = {int(row): float(step) for row, _, _, step in volumes}
         self.shaders = {m: VolumeShader(s, data) for m, s in enumerate(shading.shaders) if s.volume}
         self.triangles = triangles
         count = len(shading.shaders)
@@ -56,6 +57,10 @@ class Media:
         self.homogeneous = np.array([self.shaders[m].constant and not (self.shaders[m].reads_grids and
                                                                        int(o) in self.grids)
                                      for m, o in zip(self.material, self.object)], bool)
+        rates = [float(getattr(s, "volume_step_rate", 1.0)) for s in shading.shaders]
+        world_rate = float(getattr(world_volume, "volume_step_rate", 1.0))
+        self.step = np.array([self._step_size(i, rates, world_rate, voxel_steps) for i in range(len(self.material))],
+                             np.float64).reshape(-1)
         self._constant: dict[int, VolumeCoefficients] = {}
         self.cell_majorants: dict[int, tuple] = {}   # varying media: (cells^3 majorants, their lo, cell size)
         self.majorant = np.array([self._estimate_majorant(i) for i in range(len(self.material))], F32)
@@ -215,6 +220,20 @@ class Media:
     def _objects(self, medium: int, n: int):
         obj = int(self.object[medium])
         return None if obj < 0 else np.full(n, obj, np.int32)
+
+    def _step_size(self, medium: int, rates, world_rate: float, voxel_steps: dict) -> float:
+        """The step the Biased option marches medium with (march.py), before the scene's Step Rate: inf for a
+        homogeneous one; the world's Step Size; per object its voxel size (or its own Step Size) or a tenth of
+        its bounds' mean side, times its material's Step Rate (Cycles' Object::compute_volume_step_size)."""
+        if self.homogeneous[medium]:
+            return np.inf
+        obj = int(self.object[medium])
+        if obj < 0:
+            return world_rate
+        voxel = voxel_steps.get(obj, 0.0)
+        size = voxel if voxel > 0 else 0.1 * float(np.mean(self.hi[medium].astype(np.float64) -
+                                                             self.lo[medium].astype(np.float64)))
+        return size * rates[int(self.material[medium])]
 
     def _estimate_majorant(self, medium: int) -> float:
         lo, hi = self.lo[medium].astype(np.float64), self.hi[medium].astype(np.float64)

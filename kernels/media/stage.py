@@ -19,6 +19,7 @@ from ..vec import F32, ONE, ZERO
 from ..shading.volume import PhaseClosure
 from . import equiangular
 from . import stack as volume_stack
+from .march import marching
 from .scatter import PhaseMixture
 from .tracking import ray_keys, track, transmittance, uniforms
 
@@ -36,13 +37,16 @@ class Scattered:
     """The paths (of a step's N) that scatter in a medium before their rays' hits.
 
     mask : (N,) bool; rows : their indices; t : (m,) distances along their rays; origins, dirs : (m, 3);
-    lit : (m,) bool, their segment took its light sample already (direct_light), the vertex takes none."""
+    lit : (m,) bool, their segment took its light sample already (direct_light), the vertex takes none;
+    shade_t : (m,) distances of the points whose phase closures they take (a marched step's, march.py), or None:
+    their own."""
     mask: np.ndarray
     rows: np.ndarray
     t: np.ndarray
     origins: np.ndarray
     dirs: np.ndarray
     lit: np.ndarray
+    shade_t: np.ndarray | None = None
 
 
 def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -> Scattered | None:
@@ -62,7 +66,7 @@ def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -
         may &= np.take(state.continuation, inside) > 0
     origins, dirs = rays.origins[inside], rays.dirs[inside]
     seg = track(tables.media, state.media[:, inside], origins, dirs, t_end, ray_keys(state, inside), may,
-                salt=SEGMENT_SALT)
+                salt=SEGMENT_SALT, march=marching(wave.settings))
     throughput = np.take(state.throughput, inside, axis=1)
     lit = np.zeros(len(inside), bool)
     if wave.nee:
@@ -84,7 +88,8 @@ def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -
     picked = np.flatnonzero(seg.scattered)
     mask = np.zeros(len(state), bool)
     mask[inside[picked]] = True
-    return Scattered(mask, inside[picked], seg.t[picked], origins[picked], dirs[picked], lit[picked])
+    return Scattered(mask, inside[picked], seg.t[picked], origins[picked], dirs[picked], lit[picked],
+                     None if seg.shade_t is None else seg.shade_t[picked])
 
 
 def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: bool = False) -> np.ndarray:
@@ -223,7 +228,9 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     n = len(state)
     p = (scattered.origins + scattered.dirs * scattered.t[:, None]).astype(F32)
     d = tuple(np.ascontiguousarray(scattered.dirs[:, k]) for k in range(3))
-    coefficients = tables.media.stack_coefficients(state.media, p, scattered.dirs, emission=False)
+    shaded = p if scattered.shade_t is None else \
+        (scattered.origins + scattered.dirs * scattered.shade_t[:, None]).astype(F32)
+    coefficients = tables.media.stack_coefficients(state.media, shaded, scattered.dirs, emission=False)
     mixture = PhaseMixture(coefficients.phases, n)
     if state.continuation is not None:   # Russian roulette's survivors (tracking let only them scatter)
         c = state.continuation
@@ -275,14 +282,15 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     return state, (p[alive], dirs)
 
 
-def transmittance_to(tables, state, rays, rows, t) -> np.ndarray:
+def transmittance_to(tables, wave, state, rays, rows, t) -> np.ndarray:
     """(3, m) the transmittance of the paths rows' media along their rays to distances t (a light they meet)."""
     out = np.ones((3, len(rows)), F32)
     inside = np.flatnonzero((np.take(state.media, rows, axis=1) >= 0).any(axis=0))
     if len(inside):
         paths = rows[inside]
         out[:, inside] = transmittance(tables.media, state.media[:, paths], rays.origins[paths], rays.dirs[paths],
-                                       t[inside].astype(F32), ray_keys(state, paths), salt=LIGHT_HIT_SALT)
+                                       t[inside].astype(F32), ray_keys(state, paths), salt=LIGHT_HIT_SALT,
+                                       march=marching(wave.settings))
     return out
 
 

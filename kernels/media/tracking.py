@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rng import pcg2d, to_unit_float
+from .march import Marching, stack_steps
+from .march import march as march_segments
 from ..vec import F32, ONE, ZERO
 
 MAX_COLLISIONS = 4096      # a segment's collisions at most (a guard: its path then ends)
@@ -44,11 +46,14 @@ class Segment:
         weights there), or through the whole segment; 0 for an absorbed path.
     emission : (3, n) float32 radiance emitted along the segment toward the ray's origin (times the path's
         throughput before the segment).
+    shade_t : (n,) float32 distance of the point whose coefficients (phase closures) a scattering event takes,
+        or None: the event's own point (ray marching shades a step at one point, march.py).
     """
     scattered: np.ndarray
     t: np.ndarray
     weight: np.ndarray
     emission: np.ndarray
+    shade_t: np.ndarray | None = None
 
 
 def uniforms(seeds, k: int, salt: int = 0):
@@ -70,16 +75,31 @@ def ray_keys(state, rows):
 
 
 def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emission: bool = True,
-          salt: int = 0) -> Segment:
+          salt: int = 0, march: Marching | None = None, shadow: bool = False) -> Segment:
     """Distance sampling for n paths (stack (K, n), origins and unit dirs (n, 3), t_end (n,) which may be
-    inf, seeds: their (x, y) PCG2D states, may_scatter (n,) bool)."""
+    inf, seeds: their (x, y) PCG2D states, may_scatter (n,) bool). With march (the Biased option), stacks with
+    a varying medium are marched (march.py; shadow: the segments are shadow rays'), not tracked."""
     n = len(t_end)
     weight = np.ones((3, n), F32)
     gathered = np.zeros((3, n), F32)
     scattered = np.zeros(n, bool)
     t_event = np.array(t_end, F32, copy=True)
+    shade_t = None
     majorant = media.stack_majorant(stack)
     closed = media.stack_homogeneous(stack) & (majorant > 0)
+    if march is not None:
+        marched = np.flatnonzero(np.isfinite(stack_steps(media, stack, march)))
+        if len(marched):
+            out = march_segments(media, stack[:, marched], origins[marched], dirs[marched],
+                                 np.asarray(t_end)[marched], tuple(np.take(s_, marched) for s_ in seeds),
+                                 may_scatter[marched], stack_steps(media, stack[:, marched], march),
+                                 march.max_steps, shadow, ray, emission, salt, uniforms)
+            scattered[marched], t_event[marched] = out[0], out[1]
+            shade_t = t_event.copy()
+            shade_t[marched] = out[2]
+            weight[:, marched], gathered[:, marched] = out[3], out[4]
+            majorant = majorant.copy()
+            majorant[marched] = 0.0     # (the tracking below leaves them alone)
     varying = np.flatnonzero(~closed & (majorant > 0))
     if len(varying) and hasattr(media, "segment_majorant"):
         # Varying media: the largest majorant of the cells each segment crosses, not the medium's largest.
@@ -147,13 +167,15 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
         live = live[~ended]
     else:
         weight[:, live] = 0.0
-    return Segment(scattered, t_event, weight, gathered)
+    return Segment(scattered, t_event, weight, gathered, shade_t)
 
 
-def transmittance(media, stack, origins, dirs, t_end, seeds, salt: int = 1) -> np.ndarray:
-    """(3, n) the transmittance of the segments (an unbiased estimate where a medium varies)."""
+def transmittance(media, stack, origins, dirs, t_end, seeds, salt: int = 1, march: Marching | None = None
+                  ) -> np.ndarray:
+    """(3, n) the transmittance of the segments (an unbiased estimate where a medium varies and march is None;
+    marched as shadow rays are with the Biased option)."""
     return track(media, stack, origins, dirs, t_end, seeds, np.zeros(len(t_end), bool), emission=False,
-                 salt=salt).weight
+                 salt=salt, march=march, shadow=True).weight
 
 
 def _homogeneous(media, stack, origins, dirs, t_end, rows, seeds, salt, weight, gathered, scattered, t_event,

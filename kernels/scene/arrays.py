@@ -59,9 +59,10 @@ class SceneArrays:
     bvh_vertices, bvh_indices : (V, 3) float32 and (T, 3) uint32, or None: the plain triangles again as an
         indexed mesh, vertices[indices] equal to positions corner for corner (the export has them at hand);
         Embree builds its BVH from them about 1.5x faster than from the corners. Optional.
-    volumes : ((object row, {name: kernels.media.grid.VoxelGrid}, density scale), ...): the voxel grids of the
-        objects that are volumes (Volume objects, smoke domains), looked up by their media's shaders, and the
-        factor on their coefficients (Cycles' object_volume_density).
+    volumes : ((object row, {name: kernels.media.grid.VoxelGrid}, density scale, step), ...): the voxel grids of
+        the objects that are volumes (Volume objects, smoke domains), looked up by their media's shaders, the
+        factor on their coefficients (Cycles' object_volume_density), and the world-space step the Biased
+        option marches them with before the Step Rates (0: none).
     """
     positions: np.ndarray
     normals: np.ndarray

@@ -141,6 +141,8 @@ class Shader:
     volume_only : the Surface output is empty and the Volume output is not: the surface is an invisible
         boundary (Cycles' SD_HAS_ONLY_VOLUME), not a black one.
     interpolation : the material's Volume > Interpolation (LINEAR, CLOSEST, CUBIC), for voxel grids.
+    volume_step_rate : the material's Volume > Step Rate (the world's Volume > Step Size), on the steps the Biased
+        option marches its medium with (kernels/media/march.py).
     """
     closures: tuple = ()
     name: str = ""
@@ -150,6 +152,7 @@ class Shader:
     volume: tuple = ()
     volume_only: bool = False
     interpolation: str = "LINEAR"
+    volume_step_rate: float = 1.0
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),
