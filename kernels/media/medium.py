@@ -271,7 +271,7 @@ class Media:
     def segment_majorant(self, stack: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
                          t_end: np.ndarray) -> np.ndarray:
         """(n,) the majorant of each segment [0, t_end) through its stack's media: per varying medium, the largest
-        of its cells (cell_majorants) that points along the segment (every half cell, within the medium's
+        of its cells (cell_majorants) that points along the segment (a cell apart, within the medium's
         bounds) fall in; the medium's own majorant for a segment without end (the world's fog) or past
         SEGMENT_SAMPLES points."""
         n = stack.shape[1]
@@ -311,12 +311,14 @@ def _instanced_media(instances, has_volume, count):
     return out
 
 
-SEGMENT_SAMPLES = 96   # points a segment's majorant looks at, at most (half a cell apart)
+SEGMENT_SAMPLES = 64   # points a segment's majorant looks at, at most (a cell apart)
 
 
 def _along(cells, lo, hi, origins, dirs, t_end, fallback) -> np.ndarray:
-    """The largest cell majorant over points every half cell along the segments' parts inside [lo, hi]; fallback
-    for segments too long (more than SEGMENT_SAMPLES points) or without end."""
+    """The largest cell majorant over points a cell apart (the cells' smallest side) along the segments' parts
+    inside [lo, hi]; fallback for segments too long (more than SEGMENT_SAMPLES points) or without end. Every
+    point of a segment is then within half a cell of a sample, so in its cell or a neighbour on each axis, whose
+    value the sample's dilated majorant holds."""
     grid, base, size = cells
     g = np.asarray(grid.shape)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -325,7 +327,7 @@ def _along(cells, lo, hi, origins, dirs, t_end, fallback) -> np.ndarray:
         t1 = np.nanmin(np.maximum((lo - origins) * inv, (hi - origins) * inv), axis=1)
     t0 = np.maximum(t0, 0.0)
     t1 = np.minimum(t1, t_end)
-    step = 0.5 * float(size.min())
+    step = float(size.min())
     count = np.ceil(np.maximum(t1 - t0, 0.0) / step).astype(np.int64) + 1
     usable = np.isfinite(t1) & (count <= SEGMENT_SAMPLES)
     out = fallback.copy()
@@ -333,11 +335,16 @@ def _along(cells, lo, hi, origins, dirs, t_end, fallback) -> np.ndarray:
     if not len(rows):
         return out
     k = int(count[rows].max())
-    t = t0[rows, None] + np.minimum(np.arange(k)[None], count[rows, None] - 1) * step
-    t = np.minimum(t, t1[rows, None])
-    p = origins[rows, None, :] + dirs[rows, None, :] * t[..., None]
-    idx = np.clip(np.floor((p - base) / size).astype(np.int64), 0, g - 1)
-    values = grid[idx[..., 0], idx[..., 1], idx[..., 2]]
+    t = t0[rows, None] + np.minimum(np.arange(k, dtype=np.float32)[None], count[rows, None] - 1) * np.float32(step)
+    t = np.minimum(t, t1[rows, None]).astype(np.float32)
+    # Cell coordinates along each ray: a + b t per axis, flattened into the grid's index.
+    a = ((origins[rows] - base) / size).astype(np.float32)
+    b = (dirs[rows] / size).astype(np.float32)
+    flat = np.zeros(t.shape, np.int64)
+    for axis in range(3):
+        index = np.clip(np.floor(a[:, axis, None] + b[:, axis, None] * t).astype(np.int64), 0, g[axis] - 1)
+        flat = flat * g[axis] + index
+    values = np.take(grid.reshape(-1), flat)
     empty = t1[rows] <= t0[rows]
     out[rows] = np.where(empty, np.float32(0.0), values.max(axis=1))
     return out

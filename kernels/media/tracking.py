@@ -34,6 +34,7 @@ from ..vec import F32, ONE, ZERO
 
 MAX_COLLISIONS = 4096      # a segment's collisions at most (a guard: its path then ends)
 ROULETTE_WEIGHT = F32(0.1)  # ratio tracking's weight below which Russian roulette may stop the path
+TAIL, TAIL_BATCH = 2048, 8  # below TAIL paths still tracking, each shader call takes TAIL_BATCH collisions
 
 
 @dataclass
@@ -113,19 +114,10 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
     live = np.flatnonzero(~closed & (majorant > 0))
     t = np.zeros(n, np.float64)
     x, y = seeds
-    for k in range(MAX_COLLISIONS):
-        if not len(live):
-            break
-        u1, u2 = uniforms((x[live], y[live]), k, salt)
-        bar = majorant[live]
-        t[live] += -np.log1p(-u1.astype(np.float64)) / bar
-        inside = t[live] < t_end[live]
-        live, u2, bar = live[inside], u2[inside], bar[inside]
-        if not len(live):
-            break
-        tl = t[live].astype(F32)
-        p = origins[live] + dirs[live] * tl[:, None]
-        c = media.stack_coefficients(stack[:, live], p, dirs[live], ray, emission)
+
+    def collide(live, tl, c, u2, bar):
+        """One tentative collision of the paths live at distances tl with coefficients c: emission gathered,
+        weights updated, events taken; returns the mask of those that stop."""
         w = weight[:, live]
         inv = ONE / bar
         if emission:
@@ -164,8 +156,44 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
                 new_w[:, plain] = np.where(survive, new_w[:, plain] / np.where(survive, q, ONE), ZERO)
                 ended[plain] = ~survive
         weight[:, live] = new_w
-        live = live[~ended]
-    else:
+        return ended
+
+    k = 0
+    while len(live) and k < MAX_COLLISIONS:
+        # A few paths still tracking (a wave's tail) take several collisions per shader call: their points are
+        # drawn ahead (the distances do not depend on the events) and evaluated at once; the events are then
+        # taken in order, the same as one by one.
+        batch = min(TAIL_BATCH if len(live) < TAIL else 1, MAX_COLLISIONS - k)
+        draws = [uniforms((x[live], y[live]), k + j, salt) for j in range(batch)]
+        bar = majorant[live]
+        times, reach = [], t[live]
+        for u1, _ in draws:
+            reach = reach + -np.log1p(-u1.astype(np.float64)) / bar
+            times.append(reach)
+        ahead = np.stack(times)
+        ends = t_end[live]
+        jj, ii = np.nonzero(ahead < ends[None])
+        slot = np.full(ahead.shape, -1, np.int64)
+        slot[jj, ii] = np.arange(len(ii))
+        tl_all = ahead[jj, ii].astype(F32)
+        c_all = None
+        if len(ii):
+            rows = live[ii]
+            c_all = media.stack_coefficients(stack[:, rows], origins[rows] + dirs[rows] * tl_all[:, None], dirs[rows],
+                                             ray, emission)
+        pos = np.arange(len(live))
+        for j in range(batch):
+            t[live[pos]] = ahead[j, pos]
+            pos = pos[ahead[j, pos] < ends[pos]]
+            if not len(pos):
+                break
+            at = slot[j, pos]
+            c = c_all if batch == 1 else c_all.take(at)
+            ended = collide(live[pos], tl_all[at], c, draws[j][1][pos], bar[pos])
+            pos = pos[~ended]
+        live = live[pos]
+        k += batch
+    if len(live):
         weight[:, live] = 0.0
     return Segment(scattered, t_event, weight, gathered, shade_t)
 

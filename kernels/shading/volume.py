@@ -89,6 +89,12 @@ class VolumeCoefficients:
                 params[k] = full
             self.phases.append(PhaseClosure(p.phase, weight, params))
 
+    def take(self, idx: np.ndarray) -> "VolumeCoefficients":
+        """The coefficients of the points idx."""
+        return VolumeCoefficients(self.sigma_s[:, idx], self.sigma_t[:, idx], self.emission[:, idx],
+                                  [PhaseClosure(p.phase, p.weight[:, idx], {k: v[idx] for k, v in p.params.items()})
+                                   for p in self.phases])
+
 
 class _Points:
     """The SurfaceHit fields input ops read at medium points: only the path state (Light Path)."""
