@@ -12,8 +12,9 @@ majorant * exp(-majorant t) (the majorant: the sum of the stack's media's, mediu
   weighted by the path's weight so far (spectral tracking: grey media then have weights of exactly 1, and a
   majorant that a point exceeds gives a negative null weight, not a bias). The scattering event's weight
   is 1 / (majorant P_scatter): the phase closures' weights (which sum to sigma_s) multiply it at the vertex;
-- a path that may not scatter (past its bounces, a shadow ray) multiplies its weight by sigma_n / majorant
-  (ratio tracking), and is stopped by Russian roulette once its weight is small.
+- a path that may not scatter (past its bounces) multiplies its weight by sigma_n / majorant (ratio tracking),
+  and is stopped by Russian roulette once its weight is small. Shadow rays (transmittance()) take Cycles'
+  telescoping estimator instead (telescope.py), ratio tracking only where a segment has no end.
 
 Paths whose media are all homogeneous and that may not scatter take the closed forms: transmittance
 exp(-sigma_t L) and emission (1 - exp(-sigma_t L)) / sigma_t x emission.
@@ -28,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rng import pcg2d, to_unit_float
+from . import telescope
 from .march import Marching, stack_steps
 from .march import march as march_segments
 from ..vec import F32, ONE, ZERO
@@ -107,6 +109,15 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
         majorant = majorant.copy()
         majorant[varying] = media.segment_majorant(stack[:, varying], origins[varying], dirs[varying],
                                                    np.asarray(t_end, F32)[varying])
+    if shadow and march is None and len(varying):
+        # Shadow rays through varying media: Cycles' telescoping estimator (telescope.py), not ratio tracking.
+        ended = varying[np.isfinite(np.asarray(t_end)[varying]) & (majorant[varying] > 0)]
+        if len(ended):
+            weight[:, ended] = telescope.transmittance(media, stack[:, ended], origins[ended], dirs[ended],
+                                                       np.asarray(t_end)[ended], tuple(np.take(s_, ended) for s_ in seeds),
+                                                       majorant[ended], uniforms, salt)
+            majorant = majorant.copy()
+            majorant[ended] = 0.0     # (the tracking below leaves them alone)
     if closed.any():
         _closed_form(media, stack, origins, dirs, t_end, closed & ~may_scatter, weight, gathered, emission)
         _homogeneous(media, stack, origins, dirs, t_end, closed & may_scatter, seeds, salt, weight, gathered,
@@ -200,8 +211,9 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
 
 def transmittance(media, stack, origins, dirs, t_end, seeds, salt: int = 1, march: Marching | None = None
                   ) -> np.ndarray:
-    """(3, n) the transmittance of the segments (an unbiased estimate where a medium varies and march is None;
-    marched as shadow rays are with the Biased option)."""
+    """(3, n) the transmittance of the segments: closed forms through homogeneous media; where a medium varies,
+    Cycles' telescoping estimate (telescope.py; ratio tracking for a segment without end), or marched as shadow
+    rays are with the Biased option."""
     return track(media, stack, origins, dirs, t_end, seeds, np.zeros(len(t_end), bool), emission=False,
                  salt=salt, march=march, shadow=True).weight
 
