@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rng import pcg2d, to_unit_float
+from ..vec import F32, ONE, ZERO
 from . import telescope
 from .march import Marching, stack_steps
 from .march import march as march_segments
-from ..vec import F32, ONE, ZERO
 
 MAX_COLLISIONS = 4096      # a segment's collisions at most (a guard: its path then ends)
 ROULETTE_WEIGHT = F32(0.1)  # ratio tracking's weight below which Russian roulette may stop the path
@@ -91,12 +91,13 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
     majorant = media.stack_majorant(stack)
     closed = media.stack_homogeneous(stack) & (majorant > 0)
     if march is not None:
-        marched = np.flatnonzero(np.isfinite(stack_steps(media, stack, march)))
+        steps = stack_steps(media, stack, march)
+        marched = np.flatnonzero(np.isfinite(steps))
         if len(marched):
             out = march_segments(media, stack[:, marched], origins[marched], dirs[marched],
                                  np.asarray(t_end)[marched], tuple(np.take(s_, marched) for s_ in seeds),
-                                 may_scatter[marched], stack_steps(media, stack[:, marched], march),
-                                 march.max_steps, shadow, ray, emission, salt, uniforms)
+                                 may_scatter[marched], steps[marched], march.max_steps, shadow, ray, emission, salt,
+                                 uniforms)
             scattered[marched], t_event[marched] = out[0], out[1]
             shade_t = t_event.copy()
             shade_t[marched] = out[2]
