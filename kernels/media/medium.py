@@ -188,6 +188,11 @@ class Media:
         table = np.append(self.majorant, F32(0.0))
         return np.take(table, stack).sum(axis=0).astype(F32)
 
+    def stack_emits(self, stack: np.ndarray) -> np.ndarray:
+        """(n,) some medium of each path's stack has an emission closure."""
+        table = np.append(np.array([self.shaders[int(m)].emits for m in self.material], bool), False)
+        return np.take(table, stack).any(axis=0)
+
     def stack_homogeneous(self, stack: np.ndarray) -> np.ndarray:
         """(n,) each path's media are all homogeneous."""
         table = np.append(self.homogeneous, True)

@@ -13,8 +13,9 @@ majorant * exp(-majorant t) (the majorant: the sum of the stack's media's, mediu
   majorant that a point exceeds gives a negative null weight, not a bias). The scattering event's weight
   is 1 / (majorant P_scatter): the phase closures' weights (which sum to sigma_s) multiply it at the vertex;
 - a path that may not scatter (past its bounces) multiplies its weight by sigma_n / majorant (ratio tracking),
-  and is stopped by Russian roulette once its weight is small. Shadow rays (transmittance()) take Cycles'
-  telescoping estimator instead (telescope.py), ratio tracking only where a segment has no end.
+  and is stopped by Russian roulette once its weight is small. Shadow rays (transmittance()), and such paths
+  through media that emit nothing, take Cycles' telescoping estimator of the transmittance instead
+  (telescope.py); ratio tracking stays where a segment has no end or gathers emission.
 
 Paths whose media are all homogeneous and that may not scatter take the closed forms: transmittance
 exp(-sigma_t L) and emission (1 - exp(-sigma_t L)) / sigma_t x emission.
@@ -110,9 +111,13 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
         majorant = majorant.copy()
         majorant[varying] = media.segment_majorant(stack[:, varying], origins[varying], dirs[varying],
                                                    np.asarray(t_end, F32)[varying])
-    if shadow and march is None and len(varying):
-        # Shadow rays through varying media: Cycles' telescoping estimator (telescope.py), not ratio tracking.
-        ended = varying[np.isfinite(np.asarray(t_end)[varying]) & (majorant[varying] > 0)]
+    if march is None and len(varying):
+        # Segments that only need their transmittance (shadow rays, paths that may not scatter through media
+        # that emit nothing) take Cycles' shadow estimator (telescope.py), not ratio tracking.
+        quiet = ~may_scatter[varying]
+        if emission and not shadow:
+            quiet &= ~media.stack_emits(stack[:, varying]) if hasattr(media, "stack_emits") else False
+        ended = varying[quiet & np.isfinite(np.asarray(t_end)[varying]) & (majorant[varying] > 0)]
         if len(ended):
             weight[:, ended] = telescope.transmittance(media, stack[:, ended], origins[ended], dirs[ended],
                                                        np.asarray(t_end)[ended], tuple(np.take(s_, ended) for s_ in seeds),
