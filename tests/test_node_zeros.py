@@ -1,6 +1,6 @@
 """Geometry > Pointiness and Random Per Island, the Attribute node's Object, Instancer and View Layer types and
 the Wireframe node: closed forms of what Blender's Cycles sync computes (engine/export/mesh_topology.py,
-engine/export/properties.py), the export's values, and parity with Cycles."""
+engine/export/rgba_attributes.py), the export's values, and parity with Cycles."""
 import math
 
 import bpy

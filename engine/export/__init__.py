@@ -35,7 +35,7 @@ from .images import shader_images
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
 from .motion import scene_motion, vector_fields
-from .properties import view_layer_attribute
+from .rgba_attributes import view_layer_attribute
 from .updates import ExportIndex, export_index
 from .world import export_world
 

@@ -24,7 +24,7 @@ from .instances import (asset_name, check_visibility, instance_key, instance_ran
                         object_inputs, slot_materials)
 from .materials import MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_attributes, read_mesh, read_tangents, readable_mesh
-from .properties import instancer_attribute, object_attribute
+from .rgba_attributes import instancer_attribute, object_attribute
 from .volumes import is_volume, read_volume
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from ...kernels.shading.image_ops import map_to_sphere
 from . import mesh_topology
 
-# Attribute name kinds the object table holds (engine/export/properties.py), not the mesh.
+# Attribute name kinds the object table holds (engine/export/rgba_attributes.py), not the mesh.
 OBJECT_ATTRIBUTE_KINDS = ("object", "instancer")
 
 

@@ -44,7 +44,7 @@ class ProgramBuilder:
     images : images.ImageTextures of the export (image nodes register their images there).
     issues : the material's warning list (what cannot be evaluated, named).
     attributes : the export's set of attribute names the programs read (the mesh export reads them).
-    layer_attribute : name -> (r, g, b, a), the View Layer attribute lookup (properties.view_layer_attribute
+    layer_attribute : name -> (r, g, b, a), the View Layer attribute lookup (rgba_attributes.view_layer_attribute
         of the render's scene and view layer), or None without one.
     """
 
@@ -281,7 +281,7 @@ def _object_info(builder, node, groups):
 
 def _attribute(builder, node, groups):
     """Geometry attributes are the mesh's, Object and Instancer ones the object table's (read at export per
-    instance, engine/export/properties.py); View Layer ones are looked up now and folded into constants, as
+    instance, engine/export/rgba_attributes.py); View Layer ones are looked up now and folded into constants, as
     Cycles' resolve_view_layer_attributes does (intern/cycles/blender/shader.cpp)."""
     kind = node.attribute_type
     if kind == "VIEW_LAYER":

@@ -36,7 +36,7 @@ from .instances import instance_key, instance_row, is_rendered, slot_materials
 from .lights import export_lights
 from .materials import DEFAULT_VOLUME_KEY, MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS
-from .properties import view_layer_attribute
+from .rgba_attributes import view_layer_attribute
 from .world import export_world
 
 __all__ = ["FULL", "INSTANCES", "LIGHTS", "SHADING", "Changes", "ExportIndex", "Shading", "export_changes",
