@@ -17,6 +17,7 @@ classifies what a depsgraph update changed and reads those parts again (the view
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import os
 import re
@@ -34,6 +35,7 @@ from .images import shader_images
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
 from .motion import scene_motion, vector_fields
+from .rgba_attributes import view_layer_attribute
 from .updates import ExportIndex, export_index
 from .world import export_world
 
@@ -100,7 +102,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     camera = export_camera(camera_ob.evaluated_get(depsgraph), scene,
                            default_width if width is None else width,
                            default_height if height is None else height, warnings)
-    materials = MaterialTable(warnings)
+    layer_attribute = functools.partial(view_layer_attribute, scene, depsgraph.view_layer_eval)
+    materials = MaterialTable(warnings, layer_attribute)
     poll = Poller(should_stop)
     with materials.images:   # the scene's image files are decoded on threads while the meshes are read
         materials.images.prefetch(shader_images(
@@ -109,7 +112,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         geometry = export_geometry(depsgraph, materials, warnings, poll,
                                    moving=frozenset(motion.objects) if motion is not None else frozenset(),
                                    instance_everything=instance_everything, cache=mesh_cache)
-        world = export_world(scene.world, warnings, materials.images)
+        world = export_world(scene.world, warnings, materials.images, layer_attribute)
     lights = export_lights(depsgraph, warnings, poll)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
                     "asset": list(geometry.instance_assets or []), "material": list(materials.names)}
@@ -120,6 +123,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          attributes=geometry.attributes, objects=geometry.objects, object_ids=geometry.object_ids,
                          crypto_ids={kind: hash_names(names) for kind, names in crypto_names.items()},
                          instances=geometry.instances, volumes=geometry.volumes,
+                         object_attributes=geometry.object_attributes,
                          **(dict(bvh_vertices=geometry.bvh[0], bvh_indices=geometry.bvh[1]) if geometry.bvh else {}),
                          **scene_motion(motion, geometry),
                          **vector_fields(vector, geometry, camera.world_from_camera))

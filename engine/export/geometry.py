@@ -23,7 +23,8 @@ from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, o
 from .instances import (asset_name, check_visibility, instance_key, instance_random, instanced_groups, is_rendered,
                         object_inputs, slot_materials)
 from .materials import MaterialTable
-from .mesh import LocalMesh, read_attributes, read_mesh, read_tangents, readable_mesh
+from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_attributes, read_mesh, read_tangents, readable_mesh
+from .rgba_attributes import instancer_attribute, object_attribute
 from .volumes import is_volume, read_volume
 
 
@@ -59,6 +60,7 @@ class Geometry:
     instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
     bvh: tuple | None = None               # (vertices, indices): the plain triangles indexed (SceneArrays.bvh_vertices)
     volumes: tuple = ()                    # ((object row, {name: VoxelGrid}, density scale, step), ...) (SceneArrays.volumes)
+    object_attributes: tuple = ()          # ((name, (K, 4) float32), ...) per object row (SceneArrays.object_attributes)
 
 
 class MeshCache:
@@ -132,6 +134,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     described: dict[int, tuple] = {}         # object pointer -> what its object rows take from it
     volume_sources: dict = {}                # Volume or smoke domain data pointer -> its volumes.VolumeSource
     grids: dict[tuple, list] = {}            # (mesh pointer, slot rows) -> (grids, density scale) or None
+    properties: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> {object attribute name: RGBA} per instance
+    object_values: dict[tuple, dict] = {}    # (object pointer, name) -> an Object attribute's RGBA
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -189,6 +193,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         rows.setdefault((mesh_key, slot_rows[object_key]), []).append(
             (location, size, color, pass_index, instance_random(inst, own), terminator))
         keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
+        properties.setdefault((mesh_key, slot_rows[object_key]), []).append(
+            _object_attributes(inst, ob, materials.attribute_names(slot_rows[object_key]), object_values))
         assets.setdefault((mesh_key, slot_rows[object_key]), []).append(asset_name(ob))
         slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
     if cache is not None:
@@ -199,12 +205,41 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             for group, inputs in rows.items()}
     row_grids = [g for group in grids.values() for g in group]
     return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows, instanced),
+                               object_attributes=_attribute_table(properties),
                                volumes=tuple((row, *g) for row, g in enumerate(row_grids) if g is not None),
                                instance_keys=[k for group in keys.values() for k in group],
                                instance_matrices=[m for group in groups.values() for m in group],
                                instance_assets=[a for group in assets.values() for a in group],
                                slot_materials=[m for group in slots.values() for m in group],
                                empty_keys=frozenset(empty))
+
+
+def _object_attributes(inst, ob, names: tuple, cache: dict) -> dict:
+    """{name: RGBA} of the Object ("object:") and Instancer ("instancer:") attributes among names, for one
+    depsgraph instance (read while it is valid); Object ones are the object's, read once per object."""
+    out = {}
+    for name in names:
+        kind, _, key = name.partition(":")
+        if kind not in OBJECT_ATTRIBUTE_KINDS:
+            continue
+        if kind == "instancer" and inst.is_instance:
+            out[name] = instancer_attribute(inst, ob, key)
+            continue
+        cached = (ob.as_pointer(), key)
+        if cached not in cache:
+            cache[cached] = object_attribute(ob, key)
+        out[name] = cache[cached]
+    return out
+
+
+def _attribute_table(properties: dict) -> tuple:
+    """SceneArrays.object_attributes from each group's per-instance {name: RGBA} (the object rows' order);
+    zero, alpha too, for an instance whose materials do not read the name (as Cycles leaves it unset)."""
+    per_row = [values for group in properties.values() for values in group]
+    names = sorted(set().union(*per_row)) if per_row else []
+    zero = (0.0, 0.0, 0.0, 0.0)
+    return tuple((name, np.array([values.get(name, zero) for values in per_row], np.float32).reshape(-1, 4))
+                 for name in names)
 
 
 def boundary_mesh(vertices: np.ndarray, triangles: np.ndarray) -> LocalMesh:

@@ -129,9 +129,11 @@ DEFAULT_VOLUME_KEY = "\x00default volume"
 class MaterialTable:
     """The materials of one export. Row 0 is the default surface of objects without a material."""
 
-    def __init__(self, warnings: list[str]):
+    def __init__(self, warnings: list[str], layer_attribute=None):
+        """layer_attribute : the View Layer attribute lookup node programs fold (nodes.ProgramBuilder)."""
         self.images = ImageTextures(warnings)
         self._warnings = warnings
+        self._layer_attribute = layer_attribute
         self._rows: list[Shader] = [DEFAULT_SURFACE]
         self._pass_indices: list[int] = [0]
         self.names: list[str] = ["default_surface"]   # per row, for Cryptomatte (Cycles' name for no material)
@@ -148,7 +150,8 @@ class MaterialTable:
             row = self._ids[key] = len(self._rows)
             uv_maps: list[str] = []
             attributes: set[str] = set()
-            self._rows.append(read_material(material, self.images, self._warnings, uv_maps, attributes))
+            self._rows.append(read_material(material, self.images, self._warnings, uv_maps, attributes,
+                                            self._layer_attribute))
             self._pass_indices.append(int(material.pass_index))
             self.names.append(material.name)
             if uv_maps:
@@ -178,7 +181,7 @@ class MaterialTable:
 
     def attribute_names(self, rows) -> tuple[str, ...]:
         """The mesh attributes the node programs of these rows read (kernels.scene.SceneArrays.attributes
-        names), sorted."""
+        names), and their object attributes (SceneArrays.object_attributes names), sorted."""
         return tuple(sorted(set().union(*(self._attributes.get(row, ()) for row in rows))))
 
     @property
@@ -212,10 +215,10 @@ class MaterialTable:
 
 
 def read_material(material, images: ImageTextures, warnings: list[str], uv_maps: list[str] | None = None,
-                  attributes: set[str] | None = None) -> Shader:
+                  attributes: set[str] | None = None, layer_attribute=None) -> Shader:
     """One material's shader. Everything Ember cannot render goes into a single warning line. The UV
     maps whose tangents it reads are appended to uv_maps ('' for the render UV map), the mesh attributes
-    its node program reads added to attributes."""
+    its node program reads added to attributes. layer_attribute : nodes.ProgramBuilder's."""
     tree = material.node_tree
     if tree is None:  # a material without nodes renders its viewport colour, as in Cycles
         return diffuse_shader(rgb(material.diffuse_color), name=material.name)
@@ -225,7 +228,7 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
                         f"evaluate: rendered black, as in Cycles")
         return Shader((), material.name)
     with indexed_links():
-        return _read_tree(material, tree, _MaterialReader(images, material.pass_index), warnings, uv_maps,
+        return _read_tree(material, tree, _MaterialReader(images, material.pass_index, layer_attribute), warnings, uv_maps,
                           attributes)
 
 
@@ -259,13 +262,13 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes) -> Shader:
                   float(getattr(settings, "volume_step_rate", 1.0)))
 
 
-def read_volume(tree, name: str, images: ImageTextures, issues: list[str]) -> Shader | None:
+def read_volume(tree, name: str, images: ImageTextures, issues: list[str], layer_attribute=None) -> Shader | None:
     """The Volume output of a node tree (a world's) as a Shader of volume closures and their program, or None
     when nothing feeds it. What it cannot render goes to issues."""
     out = output_node(tree)
     if out is None or "Volume" not in out.inputs or source_of(out.inputs["Volume"]).node is None:
         return None
-    reader = _MaterialReader(images)
+    reader = _MaterialReader(images, layer_attribute=layer_attribute)
     with indexed_links():
         volume = tuple(reader.volume_closures(source_of(out.inputs["Volume"]), ()))
     issues.extend(reader.issues)
@@ -277,12 +280,13 @@ def read_volume(tree, name: str, images: ImageTextures, issues: list[str]) -> Sh
 class _MaterialReader:
     """Reads one material's node tree into closures, collecting what it cannot render in `issues`."""
 
-    def __init__(self, images: ImageTextures, pass_index: int = 0):
+    def __init__(self, images: ImageTextures, pass_index: int = 0, layer_attribute=None):
         self.images = images
         self.issues: list[str] = []
         self.tangent_uv_maps: list[str] = []  # UV maps whose tangents the closures read ('' = render map)
         self.attributes: set[str] = set()     # mesh attributes the node program reads
-        self.program = ProgramBuilder(images, self.issues, self.attributes, self.tangent_uv_maps, pass_index)
+        self.program = ProgramBuilder(images, self.issues, self.attributes, self.tangent_uv_maps, pass_index,
+                                      layer_attribute=layer_attribute)
 
     def closures(self, source: Source, factors: tuple) -> list[Closure]:
         """The closures of the shader tree feeding a shader socket, with their Mix Shader factors."""

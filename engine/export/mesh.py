@@ -21,6 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels.shading.image_ops import map_to_sphere
+from . import mesh_topology
+
+# Attribute name kinds the object table holds (engine/export/rgba_attributes.py), not the mesh.
+OBJECT_ATTRIBUTE_KINDS = ("object", "instancer")
 
 
 @dataclass(frozen=True)
@@ -213,13 +217,19 @@ def _triangle_slots(mesh, t: int) -> np.ndarray:
 
 def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -> dict:
     """{name: (T*3, C) float32} per triangle corner of an evaluated mesh, for the names node programs
-    read: "uv:<map>", "color:<name>" ('' for the render colour attribute), "attr:<name>". Missing ones
-    are left out (they read zero, as in Cycles)."""
+    read: "uv:<map>", "color:<name>" ('' for the render colour attribute), "attr:<name>", and the Geometry
+    node's "geom:pointiness" and "geom:random_per_island" (mesh_topology.py). Missing ones are left out (they
+    read zero, as in Cycles); object attributes ("object:", "instancer:") are the object table's."""
     out = {}
     t = len(mesh.loop_triangles)
     tri_loops = _read(mesh.loop_triangles, "loops", t * 3, np.uint32)
     for name in names:
         kind, _, key = name.partition(":")
+        if kind in OBJECT_ATTRIBUTE_KINDS:
+            continue
+        if kind == "geom":
+            out[name] = _topology_attribute(mesh, key, tri_loops)
+            continue
         if kind == "uv":
             layer = mesh.uv_layers.get(key)
             if layer is not None:
@@ -245,6 +255,20 @@ def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -
             continue
         out[name] = np.take(values, corners, axis=0)
     return out
+
+
+def _topology_attribute(mesh, key: str, tri_loops: np.ndarray) -> np.ndarray:
+    """(T*3, 1) float32 Pointiness (per vertex, at each corner) or Random Per Island (per triangle)."""
+    corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
+    edges = _read(mesh.edges, "vertices", 2 * len(mesh.edges), np.int32)
+    v = len(mesh.vertices)
+    if key == "pointiness":
+        positions = _read(mesh.attributes["position"].data, "vector", 3 * v, np.float32).reshape(-1, 3)
+        normals = _read(mesh.vertex_normals, "vector", 3 * v, np.float32).reshape(-1, 3)
+        per_vertex = mesh_topology.pointiness(positions, normals, edges)
+        return np.take(per_vertex, np.take(corner_verts, tri_loops))[:, None]
+    per_triangle = mesh_topology.random_per_island(v, edges, np.take(corner_verts, tri_loops[0::3]))
+    return np.repeat(per_triangle, 3)[:, None]
 
 
 # Attribute data types: (property, components).

@@ -44,11 +44,14 @@ class ProgramBuilder:
     images : images.ImageTextures of the export (image nodes register their images there).
     issues : the material's warning list (what cannot be evaluated, named).
     attributes : the export's set of attribute names the programs read (the mesh export reads them).
+    layer_attribute : name -> (r, g, b, a), the View Layer attribute lookup (rgba_attributes.view_layer_attribute
+        of the render's scene and view layer), or None without one.
     """
 
     def __init__(self, images, issues: list[str], attributes: set[str], tangent_uv_maps: list[str],
-                 material_pass_index: int = 0, compilers: dict | None = None):
+                 material_pass_index: int = 0, compilers: dict | None = None, layer_attribute=None):
         self.images, self.issues, self.attributes = images, issues, attributes
+        self.layer_attribute = layer_attribute
         self.tangent_uv_maps = tangent_uv_maps
         self.material_pass_index = material_pass_index
         self._compilers = COMPILERS if compilers is None else compilers
@@ -98,6 +101,8 @@ class ProgramBuilder:
     def result(compiled, output: str, have: str, want: str):
         """An output of what add() returned (an op index or folded constants) as a consumer reads it."""
         if isinstance(compiled, dict):  # folded
+            if f"{output}:{want}" in compiled:   # a folded output as a consumer of that type reads it
+                return compiled[f"{output}:{want}"]
             return fold_convert(compiled[output], have, want)
         return Ref(compiled, output, have, want)
 
@@ -257,11 +262,16 @@ def _uv_map(builder, node, groups):
     return builder.add(node.bl_idname, {}, {"uv_map": node.uv_map})
 
 
+# The Geometry outputs that are mesh attributes made at export (engine/export/mesh_topology.py), as Cycles' sync
+# makes ATTR_STD_POINTINESS and ATTR_STD_RANDOM_PER_ISLAND only for meshes whose shaders read them.
+TOPOLOGY_ATTRIBUTES = {"Pointiness": "geom:pointiness", "Random Per Island": "geom:random_per_island"}
+
+
 def _geometry(builder, node, groups):
     outputs = _linked_outputs(node)
-    for name in ("Pointiness", "Random Per Island"):
-        if name in outputs:
-            builder.issues.append(f"Geometry '{node.name}' {name} is not supported, reads zero")
+    for name in outputs:
+        if name in TOPOLOGY_ATTRIBUTES:
+            builder.attributes.add(TOPOLOGY_ATTRIBUTES[name])
     return builder.add(node.bl_idname, {}, outputs=outputs)
 
 
@@ -270,12 +280,33 @@ def _object_info(builder, node, groups):
 
 
 def _attribute(builder, node, groups):
-    if node.attribute_type != "GEOMETRY":
-        builder.issues.append(f"Attribute '{node.name}': {node.attribute_type.replace('_', ' ').title()} "
-                              f"attributes are not supported, read zero")
-    name = "attr:" + node.attribute_name
+    """Geometry attributes are the mesh's, Object and Instancer ones the object table's (read at export per
+    instance, engine/export/rgba_attributes.py); View Layer ones are looked up now and folded into constants, as
+    Cycles' resolve_view_layer_attributes does (intern/cycles/blender/shader.cpp)."""
+    kind = node.attribute_type
+    if kind == "VIEW_LAYER":
+        return _view_layer_attribute(builder, node)
+    prefix = {"OBJECT": "object:", "INSTANCER": "instancer:"}.get(kind, "attr:")
+    name = prefix + node.attribute_name
     builder.attributes.add(name)
     return builder.add("ATTRIBUTE", {}, {"name": name})
+
+
+def _view_layer_attribute(builder, node) -> dict:
+    """A View Layer attribute's outputs as constants. Cycles folds every output as its consumer reads it:
+    a float consumer of Color or Vector gets the average of r, g, b (not the colour-to-float conversion);
+    the ":VALUE" entries say so (ProgramBuilder.result)."""
+    lookup = builder.layer_attribute
+    if lookup is None:
+        builder.issues.append(f"Attribute '{node.name}': no view layer to read '{node.attribute_name}' from, "
+                              f"reads zero")
+        r = g = b = a = 0.0
+    else:
+        r, g, b, a = (float(v) for v in lookup(node.attribute_name))
+    f32 = np.float32
+    average = float((f32(r) + f32(g) + f32(b)) / f32(3.0))
+    return {"Color": (r, g, b), "Vector": (r, g, b), "Fac": (average,), "Alpha": (a,),
+            "Color:VALUE": (average,), "Vector:VALUE": (average,)}
 
 
 def _volume_info(builder, node, groups):
@@ -338,6 +369,8 @@ def _texture(builder, node, groups):
     """A procedural texture: an unlinked Vector reads Generated coordinates."""
     _check_texture_mapping(builder, node)
     inputs = yield builder.node_inputs(node, groups, vector_default="Generated")
+    if any(s.identifier == "Vector" and not s.enabled for s in node.inputs):
+        inputs.setdefault("Vector", (0.0, 0.0, 0.0))   # 1D modes have no Vector (not even by name): W alone is read
     options = dict(node_options(node), cycles_version=blender_version())
     return builder.add(node.bl_idname, inputs, options, outputs=_linked_outputs(node))
 

@@ -23,6 +23,7 @@ caller then exports the whole scene again, as Cycles' Blender sync falls back to
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import bpy
@@ -34,6 +35,8 @@ from .geometry import Geometry
 from .instances import instance_key, instance_row, is_rendered, slot_materials
 from .lights import export_lights
 from .materials import DEFAULT_VOLUME_KEY, MaterialTable
+from .mesh import OBJECT_ATTRIBUTE_KINDS
+from .rgba_attributes import view_layer_attribute
 from .world import export_world
 
 __all__ = ["FULL", "INSTANCES", "LIGHTS", "SHADING", "Changes", "ExportIndex", "Shading", "export_changes",
@@ -179,7 +182,7 @@ def export_instances(depsgraph, index: ExportIndex) -> tuple[np.ndarray, np.ndar
     """The instances read again: (world_from_object (K, 4, 4) float64 per instance, objects (R, OBJECT_COLUMNS)
     float32 per object row), in the order of the export the index describes; None when the rendered
     instances are no longer the same ones with the same material slots. Meshes are not read."""
-    if not index.movable:
+    if not index.movable or _reads_object_attributes(index):
         return None
     row_of = {key: r for r, key in enumerate(index.instance_keys)}
     if len(row_of) != len(index.instance_keys):   # two instances under one key cannot be told apart
@@ -214,6 +217,13 @@ def export_instances(depsgraph, index: ExportIndex) -> tuple[np.ndarray, np.ndar
     return world_from_object[index.instance_rows], np.stack(rows)
 
 
+def _reads_object_attributes(index: ExportIndex) -> bool:
+    """Whether a material reads Object or Instancer attributes: their values are kept beside the object
+    table (SceneArrays.object_attributes), which an instance update does not read again, so such scenes are
+    exported again instead."""
+    return any(name.partition(":")[0] in OBJECT_ATTRIBUTE_KINDS for _, names in index.mesh_needs for name in names)
+
+
 @dataclass(frozen=True)
 class Shading:
     """The shading part of a SceneArrays (its fields of the same names)."""
@@ -229,7 +239,8 @@ def export_shading(depsgraph, index: ExportIndex) -> Shading | None:
     attributes)."""
     warnings: list[str] = []
     evaluated = {data.name_full: data for data in depsgraph.ids if isinstance(data, bpy.types.Material)}
-    materials = MaterialTable(warnings)
+    layer_attribute = functools.partial(view_layer_attribute, depsgraph.scene_eval, depsgraph.view_layer_eval)
+    materials = MaterialTable(warnings, layer_attribute)
     for key in index.material_keys[1:]:
         if key == DEFAULT_VOLUME_KEY:
             materials.default_volume_id()
@@ -240,7 +251,7 @@ def export_shading(depsgraph, index: ExportIndex) -> Shading | None:
         materials.material_id(material)
     if materials.mesh_needs() != index.mesh_needs:
         return None
-    world = export_world(depsgraph.scene_eval.world, warnings, materials.images)
+    world = export_world(depsgraph.scene_eval.world, warnings, materials.images, layer_attribute)
     return Shading(materials.to_kernel(), materials.textures, materials.texture_srgb, world)
 
 

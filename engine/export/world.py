@@ -35,9 +35,10 @@ DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
 TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on the world
 
 
-def export_world(world, warnings: list[str], images=None) -> World:
+def export_world(world, warnings: list[str], images=None, layer_attribute=None) -> World:
     """scene.world (may be None) as a kernels.World. Problems go to `warnings` in one line. images: the
-    export's images.ImageTextures, which world programs read their images from."""
+    export's images.ImageTextures, which world programs read their images from. layer_attribute: the View
+    Layer attribute lookup (nodes.ProgramBuilder)."""
     if world is None:  # Cycles renders black without a world
         return World(color=np.zeros(3, np.float32))
     if world.node_tree is None:
@@ -51,11 +52,11 @@ def export_world(world, warnings: list[str], images=None) -> World:
     images = images if images is not None else ImageTextures(warnings)
     with indexed_links():
         if _needs_program(world.node_tree):
-            result = _program_world(world, images, issues)
+            result = _program_world(world, images, issues, layer_attribute)
         else:
             result = _read_tree(world.node_tree, issues, images)
     issues.extend(invalid_links(world.node_tree))
-    volume = read_volume(world.node_tree, world.name, images, issues)
+    volume = read_volume(world.node_tree, world.name, images, issues, layer_attribute)
     if volume is not None:
         # The world's Volume > Step Size is its medium's step rate, as Cycles' sync hands it (blender/shader.cpp).
         step = float(getattr(getattr(world, "cycles", None), "volume_step_size", 1.0))
@@ -133,9 +134,9 @@ def _needs_program(tree) -> bool:
     return not constant or moved or np.ptp(scale) != 0
 
 
-def _program_world(world, images, issues: list[str]) -> World:
+def _program_world(world, images, issues: list[str], layer_attribute=None) -> World:
     """The world's shader tree as a program whose output is the background radiance."""
-    builder = ProgramBuilder(images, issues, set(), [])
+    builder = ProgramBuilder(images, issues, set(), [], layer_attribute=layer_attribute)
     out = output_node(world.node_tree)
     radiance = run_nested(_radiance_of(builder, source_of(out.inputs["Surface"]), issues))
     if isinstance(radiance, tuple):  # folded: a constant world after all

@@ -42,6 +42,9 @@ class SceneArrays:
         "uv:<map>" (C = 2), "color:<name>" (vertex colours, C = 4), "attr:<name>" (generic attributes).
     objects : (K, OBJECT_COLUMNS) float32 or None: one row per object instance (OBJ_* columns), for
         the Texture Coordinate (Generated, Object, Normal) and Object Info nodes.
+    object_attributes : ((name, (K, 4) float32), ...) per row of `objects`, the RGBA values of the Attribute
+        node's Object ("object:<name>") and Instancer ("instancer:<name>") attributes; zero (alpha too) where
+        an object has none, as in Cycles.
     object_ids : (T,) int32 or None: each triangle's row of `objects` (both or neither are given).
     motion : ((K, 4, 4) float64, ...) world_from_object at K >= 2 motion steps evenly spread over the
         shutter (time 0 to 1), one entry per moving object; motion_reference, one (4, 4) per entry: the
@@ -89,6 +92,7 @@ class SceneArrays:
     bvh_vertices: np.ndarray | None = None
     bvh_indices: np.ndarray | None = None
     volumes: tuple = ()
+    object_attributes: tuple = ()
 
     @property
     def has_motion(self) -> bool:
@@ -177,6 +181,9 @@ class SceneArrays:
             if t:
                 require(self.object_ids.min() >= 0 and self.object_ids.max() < k, "object_ids",
                         f"must be in [0, {k})")
+        for name, values in self.object_attributes:
+            k = 0 if self.objects is None else len(self.objects)
+            check_array(values, f"object_attributes[{name!r}]", (k, 4), np.float32)
 
     def validate_shading(self) -> None:
         """Check textures, materials and the world against each other and the triangles' material ids (part

@@ -243,9 +243,18 @@ def geometry(hits, inputs, op):
             out[name] = hits.backfacing.astype(F32)
         elif name == "Tangent":
             out[name] = radial_tangent(hits, "Z")
-        else:  # Pointiness, Random Per Island: the export warned
-            out[name] = np.zeros((hits.n,) if name in ("Pointiness", "Random Per Island") else (hits.n, 3), F32)
+        elif name == "Pointiness":         # a vertex attribute, interpolated (Cycles' ATTR_STD_POINTINESS)
+            out[name] = _float_attribute(hits, "geom:pointiness", True)
+        elif name == "Random Per Island":  # a face attribute, not interpolated (ATTR_STD_RANDOM_PER_ISLAND)
+            out[name] = _float_attribute(hits, "geom:random_per_island", False)
     return out
+
+
+def _float_attribute(hits, name: str, interpolate: bool) -> np.ndarray:
+    """(n,) a one-channel attribute made at export (engine/export/mesh_topology.py); 0 where the scene has
+    none, as Cycles' attribute lookup gives."""
+    values = hits.attribute(name, interpolate)
+    return np.zeros(hits.n, F32) if values is None else np.ascontiguousarray(values[:, 0], F32)
 
 
 def wireframe(hits, inputs, op):

@@ -14,6 +14,10 @@ from ..vec import F32, matmul
 from .color_nodes import RGB_TO_Y, vector_to_float
 
 
+# Attribute names whose values are per object row, not per corner.
+OBJECT_ATTRIBUTE_PREFIXES = ("object:", "instancer:")
+
+
 class HitInputs:
     """What the input nodes read at some hits of a wave (interaction.SurfaceHit + indices), computed on
     first use and kept: positions, normals, the viewer direction, UVs, attributes, object data.
@@ -102,14 +106,21 @@ class HitInputs:
             self._cache["prim"] = np.take(self.hit.prim, self.idx)
         return self._cache["prim"]
 
-    def attribute(self, name: str) -> np.ndarray | None:
-        """(n, C) float32 interpolated per-corner attribute (kernels.scene.SceneArrays.attributes), None
-        when the scene does not have it."""
-        key = ("attr", name)
+    def attribute(self, name: str, interpolate: bool = True) -> np.ndarray | None:
+        """(n, C) float32 per-corner attribute (kernels.scene.SceneArrays.attributes) interpolated over the
+        triangles, or (interpolate=False, a face attribute) the first corner's; an object attribute
+        ("object:", "instancer:": SceneArrays.object_attributes) of the hits' object rows. None when the
+        scene does not have it."""
+        key = ("attr", name, interpolate)
         if key not in self._cache:
+            if name.startswith(OBJECT_ATTRIBUTE_PREFIXES):
+                self._cache[key] = self.scene.object_attribute(name, self.prim)
+                return self._cache[key]
             rows = self.scene.attribute(name, self.prim)          # (n, 3, C)
             if rows is None:
                 self._cache[key] = None
+            elif not interpolate:
+                self._cache[key] = np.ascontiguousarray(rows[:, 0])
             else:
                 b1, b2 = self.barycentrics()
                 w0 = F32(1.0) - b1 - b2

@@ -45,6 +45,8 @@ class ShadingData:
         self.textures = textures
         self.triangles = triangles
         self.set_objects(scene.objects if scene is not None else None)
+        # Object and Instancer attributes: name -> (K, 4) per object row (SceneArrays.object_attributes).
+        self.object_attributes = dict(getattr(scene, "object_attributes", ()) or ())
         self.set_camera(scene.camera if scene is not None else Camera())
 
     def set_objects(self, objects: np.ndarray | None) -> None:
@@ -55,6 +57,11 @@ class ShadingData:
     def attribute(self, name: str, prim: np.ndarray) -> np.ndarray | None:
         """(n, 3, C) per-corner values of an attribute on triangles prim, None when no mesh has it."""
         return None if self.triangles is None else self.triangles.attribute(name, prim)
+
+    def object_attribute(self, name: str, prim: np.ndarray) -> np.ndarray | None:
+        """(n, 4) RGBA values of an object attribute at triangles prim, None when no object has it."""
+        table = self.object_attributes.get(name)
+        return None if table is None else np.take(table, self.object_rows(prim), axis=0)
 
     def object_rows(self, prim: np.ndarray) -> np.ndarray:
         """(n,) rows of objects for triangles prim."""

@@ -20,7 +20,7 @@ from ..vec import F32, ONE, ZERO
 from .color_nodes import REC709_TO_RGB, blackbody
 from .input_ops import object_point
 from .ops import OPS
-from .program import ProgramRun
+from .program import OBJECT_ATTRIBUTE_PREFIXES, ProgramRun
 
 # Stefan-Boltzmann's constant as Principled Volume's blackbody emission uses it (W m^-2 K^-4, per
 # micrometre of wavelength and per steradian: svm_node_principled_volume).
@@ -138,9 +138,13 @@ class PointInputs:
             return np.broadcast_to(_IDENTITY_OBJECT, (self.n, OBJECT_COLUMNS))
         return self.memo("objects", lambda: np.take(self.scene.objects, self._rows, axis=0))
 
-    def attribute(self, name: str) -> np.ndarray | None:
+    def attribute(self, name: str, interpolate: bool = True) -> np.ndarray | None:
         """(n, C) a grid's values at the points (its name, or the Attribute node's "attr:" name), None when the
-        medium has no grid of that name."""
+        medium has no grid of that name; an object attribute ("object:", "instancer:") of the points' object
+        rows (none in the world's medium)."""
+        if name.startswith(OBJECT_ATTRIBUTE_PREFIXES):
+            table = self.scene.object_attributes.get(name) if self._rows is not None else None
+            return None if table is None else np.take(table, self._rows, axis=0)
         grid = self._grids.get(name[5:] if name.startswith("attr:") else name)
         if grid is None:
             return None

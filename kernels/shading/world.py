@@ -47,8 +47,8 @@ class DirectionInputs:
             self._cache[key] = compute()
         return self._cache[key]
 
-    def attribute(self, name):
-        return None
+    def attribute(self, name, interpolate: bool = True):
+        return None   # no object, no mesh: every attribute reads zero, as in Cycles' background
 
     def objects(self) -> np.ndarray:
         return np.broadcast_to(_IDENTITY_OBJECT, (self.n, len(_IDENTITY_OBJECT)))
