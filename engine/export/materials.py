@@ -57,13 +57,13 @@ CLOSURE_NODES = {
         "Base Color", "Metallic", "Roughness", "IOR", "Alpha", "Diffuse Roughness", "Subsurface Weight",
         "Specular IOR Level", "Specular Tint", "Anisotropic", "Anisotropic Rotation", "Transmission Weight",
         "Coat Weight", "Coat Roughness", "Coat IOR", "Coat Tint", "Sheen Weight", "Sheen Roughness", "Sheen Tint",
-        "Emission Color", "Emission Strength")),
+        "Emission Color", "Emission Strength", "Thin Film Thickness", "Thin Film IOR")),
     "ShaderNodeBsdfDiffuse": ("DIFFUSE", ("Color", "Roughness")),
     "ShaderNodeBsdfAnisotropic": ("GLOSSY", ("Color", "Roughness", "Anisotropy", "Rotation")),
-    "ShaderNodeBsdfGlass": ("GLASS", ("Color", "Roughness", "IOR")),
+    "ShaderNodeBsdfGlass": ("GLASS", ("Color", "Roughness", "IOR", "Thin Film Thickness", "Thin Film IOR")),
     "ShaderNodeBsdfRefraction": ("REFRACTION", ("Color", "Roughness", "IOR")),
     "ShaderNodeBsdfMetallic": ("METALLIC", ("Base Color", "Edge Tint", "IOR", "Extinction", "Roughness",
-                                            "Anisotropy", "Rotation")),
+                                            "Anisotropy", "Rotation", "Thin Film Thickness", "Thin Film IOR")),
     "ShaderNodeBsdfSheen": ("SHEEN", ("Color", "Roughness")),
     "ShaderNodeBsdfTranslucent": ("TRANSLUCENT", ("Color",)),
     "ShaderNodeBsdfTransparent": ("TRANSPARENT", ("Color",)),
@@ -106,9 +106,8 @@ NORMAL_INPUTS = ("Normal", "Coat Normal")
 # Inputs a Blender may lack (Thin Wall, dispersion and glass anisotropy came with 5.1 to 5.3) are checked
 # where the node has them.
 UNSUPPORTED_INPUTS = {
-    "PRINCIPLED": (("Thin Film Thickness", 0.0), ("Thin Wall", False), ("Transmission Dispersion Scale", 0.0)),
-    "GLASS": (("Thin Film Thickness", 0.0), ("Anisotropy", 0.0)),
-    "METALLIC": (("Thin Film Thickness", 0.0),),
+    "PRINCIPLED": (("Thin Wall", False), ("Transmission Dispersion Scale", 0.0)),
+    "GLASS": (("Anisotropy", 0.0),),
 }
 
 
