@@ -29,13 +29,13 @@ def _light(scene):
 
 
 def test_principled_dielectric_and_glass_under_a_film():
-    """A dark plastic under a soap film (500 nm, IOR 1.33), one whose film is thinner than 1 nm (the IOR
+    """A dark plastic under a soap film (500 nm, IOR 1.33; its Specular Tint scales the film's F0), one whose film is thinner than 1 nm (the IOR
     blend), a clear glass with a film (transmission: its back faces divide the film IOR) and a film with no
     specular layer under it (IOR Level 0: Cycles makes the layer for the film alone)."""
     scene = _scene()
     materials = [
         node_material("Soap", P, Base_Color=(0.02, 0.02, 0.03), Roughness=0.05, Thin_Film_Thickness=500.0,
-                      Thin_Film_IOR=1.33),
+                      Thin_Film_IOR=1.33, Specular_Tint=(0.7, 0.85, 1.0)),
         node_material("Thinnest", P, Base_Color=(0.1, 0.1, 0.4), Roughness=0.2, Thin_Film_Thickness=0.6,
                       Thin_Film_IOR=2.0),
         node_material("Filmed glass", P, Transmission_Weight=1.0, Roughness=0.0, Thin_Film_Thickness=350.0,

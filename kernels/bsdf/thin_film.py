@@ -195,9 +195,8 @@ def remapped(cos_i, eta, f0, thickness_nm, film_ior) -> np.ndarray:
     scale = (f0_real > F32(1e-5)) & ~np.all(f == ONE, axis=0)
     if not np.any(scale):
         return f
-    safe = np.where(scale, f0_real, ONE)
-    s = fr.clamp01((f - ONE) / (safe - ONE))
-    factor = fr.clamp01(fr.color(f0, num)) / safe
+    s = fr.clamp01((f - ONE) / np.where(scale, f0_real - ONE, F32(-1.0)))
+    factor = fr.clamp01(fr.color(f0, num)) / np.where(scale, f0_real, ONE)
     return np.where(scale[None, :], f * (ONE + (factor - ONE) * s), f).astype(F32)
 
 
