@@ -98,6 +98,8 @@ UNSUPPORTED_NODES = {
 }
 # Vector inputs read only when linked: unlinked, they stand for the hit's position or the ray's direction.
 LINKED_ONLY_INPUTS = ("Position", "Direction")
+# Inputs read where the node has them (the Glass and Metallic BSDFs' thin film came with Blender 5.0).
+OPTIONAL_INPUTS = ("Thin Film Thickness", "Thin Film IOR")
 # The (colour, strength) inputs of the closures that emit.
 EMISSION_INPUTS = {"EMISSION": ("Color", "Strength"), "PRINCIPLED": ("Emission Color", "Emission Strength")}
 # Closure inputs that take a direction from a node: a Normal Map (normals) or a Tangent node.
@@ -313,6 +315,7 @@ class _MaterialReader:
             return [Closure("DIFFUSE", (("Color", Param.of(GREY3)),), (), factors)]
         closure_kind, names = CLOSURE_NODES[kind]
         sockets = {s.identifier: s for s in node.inputs}  # unavailable sockets are not found by name
+        names = tuple(n for n in names if n in sockets or n not in OPTIONAL_INPUTS)
         names = tuple(n for n in names if n not in LINKED_ONLY_INPUTS or source_of(sockets[n], groups).node is not None)
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
         inputs = self.limit_emission(node, closure_kind, inputs) + self.directions(node, groups)
