@@ -57,13 +57,13 @@ CLOSURE_NODES = {
         "Base Color", "Metallic", "Roughness", "IOR", "Alpha", "Diffuse Roughness", "Subsurface Weight",
         "Specular IOR Level", "Specular Tint", "Anisotropic", "Anisotropic Rotation", "Transmission Weight",
         "Coat Weight", "Coat Roughness", "Coat IOR", "Coat Tint", "Sheen Weight", "Sheen Roughness", "Sheen Tint",
-        "Emission Color", "Emission Strength")),
+        "Emission Color", "Emission Strength", "Thin Film Thickness", "Thin Film IOR")),
     "ShaderNodeBsdfDiffuse": ("DIFFUSE", ("Color", "Roughness")),
     "ShaderNodeBsdfAnisotropic": ("GLOSSY", ("Color", "Roughness", "Anisotropy", "Rotation")),
-    "ShaderNodeBsdfGlass": ("GLASS", ("Color", "Roughness", "IOR")),
+    "ShaderNodeBsdfGlass": ("GLASS", ("Color", "Roughness", "IOR", "Thin Film Thickness", "Thin Film IOR")),
     "ShaderNodeBsdfRefraction": ("REFRACTION", ("Color", "Roughness", "IOR")),
     "ShaderNodeBsdfMetallic": ("METALLIC", ("Base Color", "Edge Tint", "IOR", "Extinction", "Roughness",
-                                            "Anisotropy", "Rotation")),
+                                            "Anisotropy", "Rotation", "Thin Film Thickness", "Thin Film IOR")),
     "ShaderNodeBsdfSheen": ("SHEEN", ("Color", "Roughness")),
     "ShaderNodeBsdfTranslucent": ("TRANSLUCENT", ("Color",)),
     "ShaderNodeBsdfTransparent": ("TRANSPARENT", ("Color",)),
@@ -98,6 +98,8 @@ UNSUPPORTED_NODES = {
 }
 # Vector inputs read only when linked: unlinked, they stand for the hit's position or the ray's direction.
 LINKED_ONLY_INPUTS = ("Position", "Direction")
+# Inputs read where the node has them (the Glass and Metallic BSDFs' thin film came with Blender 5.0).
+OPTIONAL_INPUTS = ("Thin Film Thickness", "Thin Film IOR")
 # The (colour, strength) inputs of the closures that emit.
 EMISSION_INPUTS = {"EMISSION": ("Color", "Strength"), "PRINCIPLED": ("Emission Color", "Emission Strength")}
 # Closure inputs that take a direction from a node: a Normal Map (normals) or a Tangent node.
@@ -106,9 +108,8 @@ NORMAL_INPUTS = ("Normal", "Coat Normal")
 # Inputs a Blender may lack (Thin Wall, dispersion and glass anisotropy came with 5.1 to 5.3) are checked
 # where the node has them.
 UNSUPPORTED_INPUTS = {
-    "PRINCIPLED": (("Thin Film Thickness", 0.0), ("Thin Wall", False), ("Transmission Dispersion Scale", 0.0)),
-    "GLASS": (("Thin Film Thickness", 0.0), ("Anisotropy", 0.0)),
-    "METALLIC": (("Thin Film Thickness", 0.0),),
+    "PRINCIPLED": (("Thin Wall", False), ("Transmission Dispersion Scale", 0.0)),
+    "GLASS": (("Anisotropy", 0.0),),
 }
 
 
@@ -318,6 +319,7 @@ class _MaterialReader:
             return [Closure("DIFFUSE", (("Color", Param.of(GREY3)),), (), factors)]
         closure_kind, names = CLOSURE_NODES[kind]
         sockets = {s.identifier: s for s in node.inputs}  # unavailable sockets are not found by name
+        names = tuple(n for n in names if n in sockets or n not in OPTIONAL_INPUTS)
         names = tuple(n for n in names if n not in LINKED_ONLY_INPUTS or source_of(sockets[n], groups).node is not None)
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
         inputs = self.limit_emission(node, closure_kind, inputs) + self.directions(node, groups)

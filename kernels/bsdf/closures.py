@@ -40,8 +40,10 @@ WEIGHT_CUTOFF = np.float32(1e-5)
 # 1 Beckmann: microfacet.GGX / BECKMANN). size, smooth: a toon closure's angles (toon.toon_angles).
 # origin, direction: where a Ray Portal sends the ray on, world space (origin NaN: from the hit itself).
 # r1, r2, offset, hair_t: a hair closure's roughnesses, highlight shift and unit tangent (world space).
+# film_t, film_ior: a microfacet closure's thin film, thickness in nm and IOR (0: none).
 _SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0, "soften": 1.0,
-            "dist": 0.0, "size": 0.0, "smooth": 0.0, "r1": 1.0, "r2": 1.0, "offset": 0.0}
+            "dist": 0.0, "size": 0.0, "smooth": 0.0, "r1": 1.0, "r2": 1.0, "offset": 0.0, "film_t": 0.0,
+            "film_ior": 0.0}
 _COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0, "origin": np.nan, "direction": 0.0, "hair_t": 0.0}
 
 

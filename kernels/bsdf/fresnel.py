@@ -12,7 +12,8 @@ The microfacet lobes take Fresnel models as callables, made by the factories at 
     glass lobes      : fresnel(cos_h, eta) -> (R (3, N), T (3, N))
 A lobe calls its callable once per call, on arrays of the full length N, with finite cos_h in [0, 1].
 
-Not here: thin-film iridescence (Belcour-Barla), which Cycles applies when a thin film is > 0.1 nm.
+Thin-film iridescence (Belcour-Barla), which Cycles applies over these models when a film is thicker than
+0.1 nm, is thin_film.py's.
 """
 from __future__ import annotations
 

@@ -11,9 +11,13 @@ A microfacet closure carries alpha_x, alpha_y, eta (far side over the viewer's s
     F_CONDUCTOR  c0 = n, c1 = k (Metallic BSDF, physical conductor)
     F_REMAP      c0 = F0, c1 = reflection tint, c2 = transmission tint, F90 = 1 (Principled specular and
                  transmission, Glass): the exact curve remapped onto [F0, 1]
+    F_F82_FILM, F_CONDUCTOR_FILM, F_REMAP_FILM  the same under a thin film (thin_film.py) of `film_t` nm
+                 and IOR `film_ior`: Cycles' models when Thin Film Thickness > 0.1 nm
 
 Setup, as Cycles: the sample weight is mean(weight) x mean(estimated albedo); with multiscatter GGX, eval
-is scaled by 1/E (`eval_scale`) and the weight (and sample weight) by E + Fms (1 - E). Beckmann is never
+is scaled by 1/E (`eval_scale`) and the weight (and sample weight) by E + Fms (1 - E). Under a thin film
+Cycles estimates the albedo by the film's Fresnel at mu (its tables know no film), while the compensation's
+Fss stays the plain model's (`bsdf_microfacet_estimate_albedo`, `bsdf_microfacet_setup_fresnel_*`). Beckmann is never
 compensated (Cycles has multiscatter for GGX only); its albedo estimate is the GGX one, as in Cycles.
 The Ashikhmin-Shirley closure (Glossy only) is its own lobe, closures.ASHIKHMIN_SHIRLEY: F = 1, alpha
 clamped to [1e-4, 1], sample weight the mean of its weight.
@@ -26,10 +30,11 @@ from . import ashikhmin_shirley as ash
 from . import frames, lobes
 from . import fresnel as fr
 from . import microfacet as mf
+from . import thin_film as tf
 from ..sampling import channel_mean
 from ..vec import F32, ONE, ZERO
 
-F_ONE, F_DIELECTRIC, F_F82, F_CONDUCTOR, F_REMAP = range(5)
+F_ONE, F_DIELECTRIC, F_F82, F_CONDUCTOR, F_REMAP, F_F82_FILM, F_CONDUCTOR_FILM, F_REMAP_FILM = range(8)
 GGX, BECKMANN = mf.GGX, mf.BECKMANN
 
 principled_anisotropy = mf.principled_anisotropy
@@ -54,38 +59,78 @@ def add_ashikhmin_shirley(b, ctx, color, w, ax, ay, sub=None):
     b.add(lobes.ASHIKHMIN_SHIRLEY, hits, color * w, normal=normal, ax=np.clip(ax, lo, hi), ay=np.clip(ay, lo, hi))
 
 
-def add_f82(b, ctx, weight, ax, ay, f0, tint, multiscatter: bool, sub=None, distribution=mf.GGX):
+def add_f82(b, ctx, weight, ax, ay, f0, tint, multiscatter: bool, sub=None, distribution=mf.GGX, film=None):
     """F82-tint conductor (Principled metal with F0 = base colour and tint = specular tint; Metallic BSDF,
-    GGX or Beckmann)."""
+    GGX or Beckmann). film: (thickness nm, film IOR) (n,) each, or None (every add_* takes it: _film)."""
     hits, normal, mu = _where(ctx, sub)
     multiscatter = multiscatter and distribution == mf.GGX
     b_term = np.where(np.all(tint == ONE, axis=0), ZERO, fr.f82_tint_b(f0, tint))
     albedo = mf.albedo_f82(ax, ay, mu, f0, b_term)
     fss = fr.f82_fss(f0, b_term) if multiscatter else None
-    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_F82, c0=f0, c1=b_term,
-                    dist=distribution)
+    mode, albedo, film_cols = _film(film, F_F82, F_F82_FILM, albedo,
+                                    lambda on, t, i: tf.iridescence(mu[on], t, i, *_f82_film(f0, b_term, on)))
+    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, mode, c0=f0, c1=b_term,
+                    dist=distribution, **film_cols)
 
 
-def add_conductor(b, ctx, weight, ax, ay, n, k, multiscatter: bool, sub=None, distribution=mf.GGX):
+def add_conductor(b, ctx, weight, ax, ay, n, k, multiscatter: bool, sub=None, distribution=mf.GGX, film=None):
     """Metallic BSDF, physical conductor: exact Fresnel of complex IOR n + ik (GGX or Beckmann)."""
     hits, normal, mu = _where(ctx, sub)
     multiscatter = multiscatter and distribution == mf.GGX
     albedo = mf.albedo_conductor(mu, n, k)
     fss = fr.conductor_fss(n, k) if multiscatter else None
-    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_CONDUCTOR, c0=n, c1=k,
-                    dist=distribution)
+    mode, albedo, film_cols = _film(film, F_CONDUCTOR, F_CONDUCTOR_FILM, albedo, lambda on, t, i: tf.iridescence(
+        mu[on], t, i, n=_columns(n, on, len(mu)), k=_columns(k, on, len(mu))))
+    _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, mode, c0=n, c1=k,
+                    dist=distribution, **film_cols)
 
 
-def add_specular(b, ctx, weight, ax, ay, eta, f0, multiscatter: bool, sub=None) -> np.ndarray:
+def add_specular(b, ctx, weight, ax, ay, eta, f0, multiscatter: bool, sub=None, film=None) -> np.ndarray:
     """Principled specular: GGX reflection with the remapped Fresnel. Returns the layering albedo (3, n):
     the closure weight times its estimated reflection albedo."""
     hits, normal, mu = _where(ctx, sub)
     f0 = np.clip(f0, 0.0, 1.0)
     albedo = mf.albedo_remapped(ax, ay, mu, eta, f0)
     fss = fr.generalized_schlick_fss(f0, ONE, eta, F32(-1.0), ONE) if multiscatter else None
-    weight = _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, F_REMAP, eta=eta,
-                             c0=f0, c1=ONE, c2=ZERO)
+    mode, albedo, film_cols = _film(film, F_REMAP, F_REMAP_FILM, albedo, lambda on, t, i: tf.remapped(
+        mu[on], _rows(eta, on), _columns(f0, on, len(mu)), t, i))
+    weight = _add_reflection(b, hits, normal, weight, albedo, ax, ay, mu, fss, multiscatter, mode, eta=eta,
+                             c0=f0, c1=ONE, c2=ZERO, **film_cols)
     return weight * albedo
+
+
+def _film(film, plain_mode, film_mode, albedo, film_fresnel):
+    """A closure's Fresnel mode, albedo estimate and film columns: where the film counts (thicker than
+    0.1 nm), the film mode and the film's Fresnel at mu, film_fresnel(rows, thickness, film IOR) (3, r),
+    for albedo, as Cycles' estimate does; elsewhere, and without a film, the plain ones."""
+    if film is None:
+        return plain_mode, albedo, {}
+    thickness, film_ior = film
+    on = np.flatnonzero(tf.film_on(thickness))
+    if not len(on):
+        return plain_mode, albedo, {}
+    albedo = np.array(np.broadcast_to(albedo, (3, len(thickness))), F32)
+    albedo[:, on] = film_fresnel(on, thickness[on], film_ior[on])
+    mode = np.where(tf.film_on(thickness), F32(film_mode), F32(plain_mode))
+    return mode, albedo, {"film_t": thickness, "film_ior": film_ior}
+
+
+def _f82_film(f0, b_term, on=None):
+    """The conductor arguments (eta, n, k, f82) of thin_film.iridescence for F82-tint rows `on` (None: all)."""
+    if on is not None:
+        num = np.shape(b_term)[-1]
+        f0, b_term = _columns(f0, on, num), _columns(b_term, on, num)
+    n, k, g = tf.f82_conductor(f0, b_term)
+    return None, n, k, g
+
+
+def _columns(c, on, num):
+    return np.take(fr.color(c, num), on, axis=1)
+
+
+def _rows(x, on):
+    x = np.asarray(x, F32)
+    return x if x.ndim == 0 else x[on]
 
 
 def add_coat(b, ctx, sub, weight, alpha, ior) -> np.ndarray:
@@ -102,10 +147,11 @@ def add_coat(b, ctx, sub, weight, alpha, ior) -> np.ndarray:
 
 
 def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, specular_tint, multiscatter: bool,
-              sub=None, distribution=mf.GGX):
+              sub=None, distribution=mf.GGX, film=None):
     """GGX or Beckmann glass (Glass BSDF, Principled transmission): remapped Fresnel with F0 = F0(IOR) x
     specular tint, reflection and transmission tints; eta = IOR from outside, 1/IOR from inside (back
-    faces)."""
+    faces). A film's IOR is divided by the IOR on back faces: outside-film-glass seen from the glass is
+    1-(film/IOR)-(1/IOR) (Cycles' adjust_thin_film_ior_at_backface)."""
     multiscatter = multiscatter and distribution == mf.GGX
     hits, normal, mu = _where(ctx, sub)
     back = ctx.take(ctx.hit.backfacing) if sub is None else ctx.take(ctx.hit.backfacing)[sub]
@@ -115,6 +161,16 @@ def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, sp
     f0 = np.clip(f0, 0.0, 1.0)
     weight = np.broadcast_to(weight, (3, n))
     reflect, transmit = mf.albedo_remapped_parts(alpha, alpha, mu, eta, f0, ONE, reflection_tint, transmission_tint)
+    mode, film_cols = F_REMAP, {}
+    if film is not None and np.any(tf.film_on(film[0])):
+        thickness, film_ior = film[0], np.where(back, film[1] * (ONE / ior), film[1]).astype(F32)
+        on = np.flatnonzero(tf.film_on(thickness))
+        f = tf.remapped(mu[on], eta[on], f0[:, on], thickness[on], film_ior[on])
+        reflect, transmit = np.array(reflect), np.array(transmit)
+        reflect[:, on] = f * _columns(reflection_tint, on, n)
+        transmit[:, on] = (ONE - f) * _columns(transmission_tint, on, n)
+        mode = np.where(tf.film_on(thickness), F32(F_REMAP_FILM), F32(F_REMAP))
+        film_cols = {"film_t": thickness, "film_ior": film_ior}
     albedo = reflect + transmit
     sw = np.abs(channel_mean(weight)) * channel_mean(albedo)
     eval_scale = ONE
@@ -124,8 +180,8 @@ def add_glass(b, ctx, weight, alpha, ior, reflection_tint, transmission_tint, sp
         sw = sw * channel_mean(factor)
     b.add(lobes.GLASS, hits, weight, sample_weight=sw, normal=normal, ax=alpha, ay=alpha, eta=eta,
           albedo=(weight * reflect, weight * transmit),
-          eval_scale=eval_scale, fresnel=F_REMAP, c0=f0, c1=reflection_tint, c2=transmission_tint,
-          **_dist(distribution))
+          eval_scale=eval_scale, fresnel=mode, c0=f0, c1=reflection_tint, c2=transmission_tint,
+          **_dist(distribution), **film_cols)
 
 
 def add_refraction(b, ctx, weight, alpha, ior, sub=None, distribution=mf.GGX):
@@ -185,13 +241,33 @@ def _reflection_fresnel(cs, rows):
                 out[:, s] = fr.conductor(cos_h[s], c0[:, s], c1[:, s])
             elif m == F_REMAP:
                 out[:, s] = fr.remapped(cos_h[s], eta[s], c0[:, s], ONE)[0] * c1[:, s]
+            elif m == F_REMAP_FILM:
+                out[:, s] = tf.remapped(cos_h[s], eta[s], c0[:, s], *film(s)) * c1[:, s]
+            elif m == F_F82_FILM:
+                out[:, s] = tf.iridescence(cos_h[s], *film(s), *_f82_film(c0[:, s], c1[:, s]))
+            elif m == F_CONDUCTOR_FILM:
+                out[:, s] = tf.iridescence(cos_h[s], *film(s), n=c0[:, s], k=c1[:, s])
         return out
+
+    def film(s):
+        return np.take(cs.film_t, rows[s]), np.take(cs.film_ior, rows[s])
     return fresnel
 
 
 def _glass_fresnel(cs, rows):
     c0, c1, c2 = (np.take(c, rows, axis=1) for c in (cs.c0, cs.c1, cs.c2))
-    return fr.remapped_glass(c0, ONE, c1, c2)
+    plain = fr.remapped_glass(c0, ONE, c1, c2)
+    on = np.flatnonzero(np.take(cs.fresnel, rows) == F_REMAP_FILM)
+    if not len(on):
+        return plain
+    thickness, film_ior = np.take(cs.film_t, rows[on]), np.take(cs.film_ior, rows[on])
+
+    def fresnel(cos_h, eta):
+        r, t = plain(cos_h, eta)
+        f = tf.remapped(cos_h[on], np.broadcast_to(eta, cos_h.shape)[on], c0[:, on], thickness, film_ior)
+        r[:, on], t[:, on] = f * c1[:, on], (ONE - f) * c2[:, on]
+        return r, t
+    return fresnel
 
 
 def _params(cs, rows, *names):

@@ -124,7 +124,7 @@ def _transparent_sample(cs, rows, wo, u1, u2, uc):
 _MICROFACET_COLUMNS = {"ax": "alpha x", "ay": "alpha y", "dist": "distribution (GGX, Beckmann)",
                        "eval_scale": "1 / E, multiscatter", "fresnel": "Fresnel mode (microfacet_closures.F_*)",
                        "eta": "far side over the viewer's side", "c0": "F0 or n", "c1": "F82 b, k or reflection tint",
-                       "c2": "transmission tint"}
+                       "c2": "transmission tint", "film_t": "thin film thickness, nm", "film_ior": "thin film IOR"}
 _HAIR_COLUMNS = {"r1": "roughness along the strand", "r2": "roughness around it", "offset": "highlight shift",
                  "hair_t": "unit tangent, world space"}
 _TOON_COLUMNS = {"size": "cone angle", "smooth": "smooth angle"}

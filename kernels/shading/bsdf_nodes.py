@@ -17,7 +17,8 @@ from ..bsdf.sheen import sheen_albedo
 from ..bsdf.toon import toon_angles
 from ..scene import Closure
 from ..vec import F32, ONE, ZERO, normalize_xyz
-from .node_context import Built, CUTOFF, Context, caustics_made, normal_rows, soften, times_made, with_tangent
+from .node_context import (Built, CUTOFF, Context, caustics_made, normal_rows, soften, thin_film, times_made,
+                           with_tangent)
 
 
 # ---------------------------------------------------------------- simple nodes
@@ -176,7 +177,7 @@ def glass_bsdf(c, ctx, w, b):
         mf.add_glass(b, ctx.specular(), w, alpha, ior, reflection_tint=times_made(color, caustics_made(ctx)),
                      transmission_tint=times_made(color, caustics_made(ctx, refractive=True)),
                      specular_tint=None, multiscatter=c.option("distribution", "MULTI_GGX") == "MULTI_GGX",
-                     distribution=_distribution(c))
+                     distribution=_distribution(c), film=thin_film(c, ctx, "Thin Film Thickness", "Thin Film IOR"))
     return Built()
 
 
@@ -197,11 +198,13 @@ def metallic_bsdf(c, ctx, w, b):
         weight = np.broadcast_to(times_made(w, caustics_made(ctx)), (3, len(w)))
         spec = ctx.specular()
         b = with_tangent(b, ctx, ctx.tangent(c, "Rotation", ctx.ns, bool(np.any(ax != ay))))
+        film = thin_film(c, ctx, "Thin Film Thickness", "Thin Film IOR")
         if c.option("fresnel", "F82") == "PHYSICAL_CONDUCTOR":
             mf.add_conductor(b, spec, weight, ax, ay, np.maximum(ctx.input(c, "IOR"), ZERO),
                              np.maximum(ctx.input(c, "Extinction"), ZERO), multiscatter,
-                             distribution=_distribution(c))
+                             distribution=_distribution(c), film=film)
         else:
             mf.add_f82(b, spec, weight, ax, ay, np.clip(ctx.input(c, "Base Color"), 0.0, 1.0),
-                       np.clip(ctx.input(c, "Edge Tint"), 0.0, 1.0), multiscatter, distribution=_distribution(c))
+                       np.clip(ctx.input(c, "Edge Tint"), 0.0, 1.0), multiscatter, distribution=_distribution(c),
+                       film=film)
     return Built()

@@ -1,32 +1,19 @@
 """Cycles' colour nodes over arrays of hits (Blender 5.0, `kernel/svm/*.h`): Separate/Combine Color,
 Hue/Saturation/Value, Bright/Contrast, Gamma, Invert, RGB to BW, Blackbody, Wavelength; the colour models
-they use (HSV, HSL: `util/color.h`); the scene-linear colour constants; and the conversions Cycles inserts
-on links (colour -> float by luminance, vector -> float by the average).
+they use (HSV, HSL: `util/color.h`); and the conversions Cycles inserts on links (colour -> float by
+luminance, vector -> float by the average).
 
-Inputs, outputs and numerics follow the conventions of kernels.shading.cycles_math. Colour-space constants
-(luminance weights, XYZ -> RGB, Rec.709 -> RGB) default to Blender's own OCIO config (scene linear =
-Linear Rec.709); engine/export/node_tables.color_constants() reads them from the config in use.
+Inputs, outputs and numerics follow the conventions of kernels.shading.cycles_math. The colour-space
+constants (luminance weights, XYZ -> RGB, Rec.709 -> RGB) are kernels.colorspace's, named here too.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from ..colorspace import REC709_TO_RGB, RGB_TO_Y, XYZ_TO_RGB  # noqa: F401  (re-exported)
 from ..vec import F32, columns, dot_rows, fma
 from .cycles_math import INT_MIN, as_float, as_vector, cycles_max, cycles_min, fract, interp, safe_divide, saturate
 
-
-# ---------------------------------------------------------------- colour-space constants
-# Luminance of scene-linear RGB (Cycles' kernel_data.film.rgb_to_y): row Y of (Cycles' ACES AP0 -> XYZ D65
-# matrix, scene/shader.cpp) x (OCIO's scene_linear -> aces_interchange). For Blender's config this is
-# Rec.709's luminance: float32 values exactly as Cycles 5.0 holds them (probed: RGB to BW of unit colours).
-RGB_TO_Y = np.array([0.21263912, 0.71516913, 0.07219276], F32)
-# CIE XYZ (D65) -> scene-linear RGB (kernel_data.film.xyz_to_r/g/b), the same derivation in float64 for
-# Blender's config (Cycles' own float32 arithmetic may differ in the last digit; Wavelength agrees to 3e-7).
-XYZ_TO_RGB = np.array([[3.2409700, -1.5373843, -0.49861140],
-                       [-0.96924340, 1.8759667, 0.041554690],
-                       [0.055629883, -0.20397648, 1.0569712]], F32)
-# Rec.709 -> scene linear: None when the scene-linear space is Rec.709 (Cycles' film.is_rec709).
-REC709_TO_RGB = None
 
 # ---------------------------------------------------------------- Cycles' tables (kernel/tables.h)
 # Blackbody: 800 K..12000 K piecewise fit, R, G = a/t + b t + c, B = ((a t + b) t + c) t + d, Rec.709.

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..bsdf import lobes
+from ..bsdf.thin_film import film_on
 from ..paths import DIFFUSE as DIFFUSE_LABEL
 from ..scene import Closure, NormalMap, Param, Tangent
 from ..vec import F32, TWO_PI, ZERO, normalize_xyz
@@ -28,14 +29,15 @@ DEFAULTS = {
                    "Specular Tint": WHITE, "Anisotropic": 0.0, "Anisotropic Rotation": 0.0,
                    "Transmission Weight": 0.0, "Coat Weight": 0.0, "Coat Roughness": 0.03, "Coat IOR": 1.5,
                    "Coat Tint": WHITE, "Sheen Weight": 0.0, "Sheen Roughness": 0.5, "Sheen Tint": WHITE,
-                   "Emission Color": WHITE, "Emission Strength": 0.0},
+                   "Emission Color": WHITE, "Emission Strength": 0.0, "Thin Film Thickness": 0.0,
+                   "Thin Film IOR": 1.33},
     "DIFFUSE": {"Color": GREY, "Roughness": 0.0},
     "GLOSSY": {"Color": GREY, "Roughness": 0.5, "Anisotropy": 0.0, "Rotation": 0.0},
-    "GLASS": {"Color": WHITE, "Roughness": 0.0, "IOR": 1.5},
+    "GLASS": {"Color": WHITE, "Roughness": 0.0, "IOR": 1.5, "Thin Film Thickness": 0.0, "Thin Film IOR": 1.33},
     "REFRACTION": {"Color": WHITE, "Roughness": 0.0, "IOR": 1.5},
     "METALLIC": {"Base Color": (0.617, 0.577, 0.540), "Edge Tint": (0.695, 0.726, 0.770),
                  "IOR": (2.757, 2.513, 2.231), "Extinction": (3.867, 3.404, 3.009), "Roughness": 0.5,
-                 "Anisotropy": 0.0, "Rotation": 0.0},
+                 "Anisotropy": 0.0, "Rotation": 0.0, "Thin Film Thickness": 0.0, "Thin Film IOR": 1.33},
     "SHEEN": {"Color": GREY, "Roughness": 0.5},
     "TRANSLUCENT": {"Color": GREY},
     "TOON": {"Color": GREY, "Size": 0.5, "Smooth": 0.0},
@@ -227,6 +229,22 @@ def soften(ctx) -> dict:
 def normal_rows(normal, sub):
     """A per-hit normal at hits sub (None stays None: the shading normal)."""
     return None if normal is None else tuple(np.take(c, sub) for c in normal)
+
+
+def thin_film(c: Closure, ctx: Context, thickness: str, ior: str):
+    """A closure's thin film at the context's hits: (thickness nm (n,), film IOR (n,), at least 1e-5 as
+    Cycles clamps it), or None where no hit's film is thicker than Cycles' 0.1 nm cutoff."""
+    if not param_may_differ(c, thickness, 0.0):
+        return None
+    t = ctx.input(c, thickness)
+    if not np.any(film_on(t)):
+        return None
+    return t.astype(F32), np.maximum(ctx.input(c, ior), F32(1e-5)).astype(F32)
+
+
+def film_rows(film, sub):
+    """A thin film (thin_film) at the hits sub of its context."""
+    return None if film is None else (film[0][sub], film[1][sub])
 
 
 def param_may_differ(c: Closure, name: str, neutral) -> bool:

@@ -12,7 +12,9 @@ from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
 from ..vec import F32, ONE, ZERO, normalize_xyz
 from .bsdf_nodes import diffuse_lobe, sheen_sample_weight
-from .node_context import Built, CUTOFF, caustics_made, normal_rows, param_may_differ, soften, with_tangent
+from ..bsdf.thin_film import film_on
+from .node_context import (Built, CUTOFF, caustics_made, film_rows, normal_rows, param_may_differ, soften, thin_film,
+                           with_tangent)
 
 
 def principled_bsdf(c, ctx, w, b):
@@ -93,6 +95,8 @@ def principled_bsdf(c, ctx, w, b):
     anisotropic = with_tangent(b, ctx, ctx.tangent(c, "Anisotropic Rotation", ctx.ns, bool(np.any(ax != ay))))
     ior = np.maximum(get("IOR"), F32(1e-5))
     specular_tint = np.maximum(get("Specular Tint"), ZERO)
+    # Thin film over metal, transmission and specular (Cycles' svm_node_closure_principled).
+    film = thin_film(c, ctx, "Thin Film Thickness", "Thin Film IOR")
     # 4. Metal: F82-tint conductor.
     if param_may_differ(c, "Metallic", 0.0):
         metallic = np.clip(get("Metallic"), 0.0, 1.0)
@@ -100,7 +104,8 @@ def principled_bsdf(c, ctx, w, b):
         if len(has):
             mf.add_f82(anisotropic, spec, metallic[has] * np.take(weight, has, axis=1), ax[has], ay[has],
                        np.take(clamped, has, axis=1),
-                       np.minimum(np.take(specular_tint, has, axis=1), ONE), multiscatter, sub=has)
+                       np.minimum(np.take(specular_tint, has, axis=1), ONE), multiscatter, sub=has,
+                       film=film_rows(film, has))
         weight = weight * (ONE - metallic)
     # 5. Transmission: GGX glass, tinted by sqrt(base) through refraction.
     if param_may_differ(c, "Transmission Weight", 0.0):
@@ -112,7 +117,8 @@ def principled_bsdf(c, ctx, w, b):
                          reflection_tint=np.ones((3, len(has)), F32) * (ONE if made is None else made[has]),
                          transmission_tint=np.sqrt(np.take(clamped, has, axis=1)) *
                          (ONE if refracted is None else refracted[has]),
-                         specular_tint=np.take(specular_tint, has, axis=1), multiscatter=multiscatter, sub=has)
+                         specular_tint=np.take(specular_tint, has, axis=1), multiscatter=multiscatter, sub=has,
+                         film=film_rows(film, has))
         weight = weight * (ONE - transmission)
     # 6. Specular: dielectric GGX reflection; Specular IOR Level scales F0 (and the IOR with it).
     f0 = np.square((ior - ONE) / (ior + ONE))
@@ -123,11 +129,14 @@ def principled_bsdf(c, ctx, w, b):
         f0 = np.where(adjusted, f0 * F32(2.0) * level, f0)
         eta_adj = mf.ior_from_f0(f0)
         eta = np.where(adjusted, np.where(ior < ONE, ONE / eta_adj, eta_adj), eta)
-    # Hits whose layers above left no weight (metal, glass) make no specular closure: skip their tables.
-    has = glossy((eta != ONE) & np.any(weight != ZERO, axis=0))
+    # Made where eta != 1 or a film counts. Hits whose layers above left no weight (metal, glass) make no
+    # specular closure: skip their tables.
+    makes = eta != ONE if film is None else (eta != ONE) | film_on(film[0])
+    has = glossy(makes & np.any(weight != ZERO, axis=0))
     if len(has):
         albedo = mf.add_specular(anisotropic, spec, np.take(weight, has, axis=1), ax[has], ay[has], eta[has],
-                                 f0[has] * np.take(specular_tint, has, axis=1), multiscatter, sub=has)
+                                 f0[has] * np.take(specular_tint, has, axis=1), multiscatter, sub=has,
+                                 film=film_rows(film, has))
         sampling.put_columns(weight, has, layering_weight(albedo, np.take(weight, has, axis=1)))
     # 7. Diffuse (subsurface scattering is rendered as the diffuse it would be without its radius).
     if not param_may_differ(c, "Subsurface Weight", 0.0):
