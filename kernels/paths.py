@@ -173,6 +173,20 @@ class PathState:
         return len(self.path)
 
 
+def ray_keys(state, rows):
+    """The keys (x, y) of the current rays of the paths rows (state rows) for rng.keyed_uniforms: their PCG2D
+    states mixed with the number of rays they traced before (segments, and volume boundaries passed where the
+    scene has media), so that every ray of a path (whose stream does not advance at a first vertex's
+    stratified numbers, nor at a volume's boundary) draws its own."""
+    rng = state.samples.rng
+    count = np.take(state.segments, rows)
+    if state.volume_bounds is not None:
+        count = count + np.take(state.volume_bounds, rows)
+    count = count.astype(np.uint32)
+    return (np.take(rng.x, rows) ^ (count * np.uint32(0x9E3779B9)),
+            np.take(rng.y, rows) + count * np.uint32(0x632BE5AB))
+
+
 def type_limits(settings):
     """The per-type bounce limits (diffuse, glossy, transmission) that can end a path before max_bounces does,
     as a (3, 1) int32 column (a limit of its own or max_bounces), or None when none of them can."""
