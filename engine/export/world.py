@@ -38,6 +38,14 @@ TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on
 def export_world(world, warnings: list[str], images=None) -> World:
     """scene.world (may be None) as a kernels.World. Problems go to `warnings` in one line. images: the
     export's images.ImageTextures, which world programs read their images from."""
+    result = _export_world(world, warnings, images)
+    if world is None:
+        return result
+    # Blender's sync hands Cycles the world's Light Settings > Distance as the integrator's AO distance.
+    return dataclasses.replace(result, ao_distance=max(float(world.light_settings.distance), 0.0))
+
+
+def _export_world(world, warnings: list[str], images) -> World:
     if world is None:  # Cycles renders black without a world
         return World(color=np.zeros(3, np.float32))
     if world.node_tree is None:
@@ -135,7 +143,7 @@ def _needs_program(tree) -> bool:
 
 def _program_world(world, images, issues: list[str]) -> World:
     """The world's shader tree as a program whose output is the background radiance."""
-    builder = ProgramBuilder(images, issues, set(), [])
+    builder = ProgramBuilder(images, issues, set(), [], traces=False)
     out = output_node(world.node_tree)
     radiance = run_nested(_radiance_of(builder, source_of(out.inputs["Surface"]), issues))
     if isinstance(radiance, tuple):  # folded: a constant world after all
