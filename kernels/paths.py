@@ -31,7 +31,7 @@ class PathState:
     transparent: np.ndarray  # (N,) int32: transparent surfaces passed straight through so far
     dp: np.ndarray          # (N,) float32: the ray's position spread (Cycles' compact differential dP)
     min_ray_pdf: np.ndarray | None = None  # (N,) float32: the smallest BSDF pdf of the path so far (Filter
-    #                                        Glossy), inf for camera rays; None when not filtering
+    #                                        Glossy, Bevel), inf for camera rays; None when neither reads it
     lobes: np.ndarray | None = None  # (4, N) int32 or None: the last bounce's LABEL_* bits and the diffuse,
     #                                  glossy and transmission bounce counts (Light Path), when read
     time: object = None     # accel.RayTimes or None: the paths' times in the shutter (motion blur)
