@@ -23,7 +23,7 @@ from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit, spawn_offset
 from .lights import nee
 from .media import stage as media_stage
-from .paths import PathState, may_scatter, roulette_verdict, type_limits
+from .paths import PathState, may_scatter, ray_keys, roulette_verdict, type_limits
 from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
 
@@ -104,7 +104,7 @@ def start_paths(tables, wave, paths, start: int, end: int):
         state.pass_weights = np.zeros((6 if tables.media is None else 7, n), np.float32)
     if tables.shading.reads_lobes or _caustics(settings) is not None or type_limits(settings) is not None:
         state.lobes = np.zeros((4, n), np.int32)
-    if settings.filter_glossy > 0:
+    if settings.filter_glossy > 0 or tables.shading.bevels:  # Cycles' Bevel skips blurry bounces too
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
     if tables.media is not None:
         state.media = np.repeat(tables.camera_media[:, None], n, axis=1)
@@ -172,13 +172,16 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     state.dp = state.dp + t_hit * wave.spread_dd
     hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
                       caustics=_caustics(settings), portal=state.portal)
+    if tables.shading.traces:  # Ambient Occlusion and Bevel nodes trace here (Cycles' shade_surface_raytrace)
+        hit.ray.keys = ray_keys(state, np.arange(len(state)))
+        hit.ray.time, hit.ray.min_ray_pdf, hit.ray.split = state.time, state.min_ray_pdf, wave.split
     shading = tables.shading.surface(hit)
     tables.crew.check_stop()
     if aux is not None and first:
         passes.write_data(tables, aux, state, hit, shading.closures, settings)
     if state.features is not None:
         passes.write_denoising_features(tables, aux, state, hit, shading, t_hit)
-    if state.min_ray_pdf is not None:
+    if state.min_ray_pdf is not None and settings.filter_glossy > 0:
         _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
     if tables.emissive:
         _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found)

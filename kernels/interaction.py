@@ -193,15 +193,19 @@ class RayInfo:
     transmission bounces) or None when no Light Path node reads them. caustics: None, or the render's
     (reflective, refractive) caustics switches when one is off (RenderSettings.caustics_*; lobes is then
     tracked): closures of that kind are not made where the ray comes from a diffuse bounce. portal: (N,) Ray
-    Portals passed so far, or None for none."""
+    Portals passed so far, or None for none. keys: the paths' (x, y) keys (paths.ray_keys) where shader nodes
+    may trace rays (a path's surface vertex, as Cycles' shade_surface_raytrace), else None; with them time
+    (accel.RayTimes or None), min_ray_pdf ((N,) or None: PathState.min_ray_pdf) and split (the wave's)."""
     __slots__ = ("depth", "transparent", "length", "shadow", "dp", "emission", "camera", "lobes", "caustics",
-                 "portal")
+                 "portal", "keys", "time", "min_ray_pdf", "split")
 
     def __init__(self, depth, transparent, length=None, shadow: bool = False, dp=None, emission: bool = False,
-                 camera: bool = True, lobes=None, caustics=None, portal=None):
+                 camera: bool = True, lobes=None, caustics=None, portal=None, keys=None, time=None,
+                 min_ray_pdf=None, split: bool = True):
         self.depth, self.transparent, self.length, self.shadow, self.dp = depth, transparent, length, shadow, dp
         self.emission, self.camera, self.lobes, self.caustics = emission, camera, lobes, caustics
         self.portal = portal
+        self.keys, self.time, self.min_ray_pdf, self.split = keys, time, min_ray_pdf, split
 
 
 def spawn_offset(epsilon, px, py, pz):

@@ -31,7 +31,7 @@ class PathState:
     transparent: np.ndarray  # (N,) int32: transparent surfaces passed straight through so far
     dp: np.ndarray          # (N,) float32: the ray's position spread (Cycles' compact differential dP)
     min_ray_pdf: np.ndarray | None = None  # (N,) float32: the smallest BSDF pdf of the path so far (Filter
-    #                                        Glossy), inf for camera rays; None when not filtering
+    #                                        Glossy, Bevel), inf for camera rays; None when neither reads it
     lobes: np.ndarray | None = None  # (4, N) int32 or None: the last bounce's LABEL_* bits and the diffuse,
     #                                  glossy and transmission bounce counts (Light Path), when read
     time: object = None     # accel.RayTimes or None: the paths' times in the shutter (motion blur)
@@ -171,6 +171,20 @@ class PathState:
 
     def __len__(self) -> int:
         return len(self.path)
+
+
+def ray_keys(state, rows):
+    """The keys (x, y) of the current rays of the paths rows (state rows) for rng.keyed_uniforms: their PCG2D
+    states mixed with the number of rays they traced before (segments, and volume boundaries passed where the
+    scene has media), so that every ray of a path (whose stream does not advance at a first vertex's
+    stratified numbers, nor at a volume's boundary) draws its own."""
+    rng = state.samples.rng
+    count = np.take(state.segments, rows)
+    if state.volume_bounds is not None:
+        count = count + np.take(state.volume_bounds, rows)
+    count = count.astype(np.uint32)
+    return (np.take(rng.x, rows) ^ (count * np.uint32(0x9E3779B9)),
+            np.take(rng.y, rows) + count * np.uint32(0x632BE5AB))
 
 
 def type_limits(settings):

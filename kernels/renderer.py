@@ -28,6 +28,7 @@ from .camera import camera_frame
 from .scene import (OBJ_TERMINATOR, TERMINATOR_OFFSET, Camera, Lights, Materials, SceneArrays, World, same_arrays,
                     same_triangles, usable_placements)
 from .shading import Shading
+from .shading.raytrace import ShaderRays
 from .shading.world import WorldShader
 from .textures import Texture
 from . import integrator
@@ -104,6 +105,7 @@ class Renderer:
                     accel.result().close()
                 raise
             self.accel = accel.result()
+        self._give_shader_rays()
         self._build_media()
         trim_heap()
         self.crew = WaveCrew(self.accel.threads, processes)
@@ -154,6 +156,12 @@ class Renderer:
         layered = self.shading.layered
         used = np.bincount(self.triangles.material_ids, minlength=len(layered))[:len(layered)] > 0
         self.layered = bool((layered & used).any())
+
+    def _give_shader_rays(self) -> None:
+        """What the Ambient Occlusion and Bevel nodes trace with (raytrace.ShaderRays): the BVH, the triangle
+        table, the ray offset's scale; again when any of these or the shading changes."""
+        self.shading.data.rays = ShaderRays(self.accel, self.triangles, self.ray_epsilon,
+                                            self.scene.world.ao_distance)
 
     def _build_media(self) -> None:
         """The participating media (kernels.media) and the stack camera paths start with; None without."""
@@ -240,6 +248,7 @@ class Renderer:
         self.shading.data.set_objects(scene.objects)
         self.terminator = terminator_offsets(self.scene)
         self.ray_epsilon = _ray_epsilon(*scene_extent(scene, self.prototype_boxes))
+        self._give_shader_rays()
         if emitters_moved and lights:
             self.lights = self._light_sampler()
         if self.media is not None:
@@ -267,6 +276,7 @@ class Renderer:
         self.scene = scene
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             self._build_shading()
+            self._give_shader_rays()
             self.lights = self._light_sampler()
             self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon)
             self._build_media()

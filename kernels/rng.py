@@ -51,6 +51,16 @@ def seed_paths(pixel_index: np.ndarray, sample_index: np.ndarray | int, user_see
     return x.astype(np.uint32, copy=False), y.astype(np.uint32, copy=False)
 
 
+def keyed_uniforms(seeds, k: int, salt: int = 0):
+    """Two uniform float32 numbers per path for draw k of the decision `salt`, hashed from keys (x, y) (the
+    paths' PCG2D states, paths.ray_keys) without advancing any stream: media collisions, shader nodes that
+    trace rays."""
+    x, y = seeds
+    key = np.uint32((k * 0x9E3779B9 + salt * 0x85EBCA6B) & 0xFFFFFFFF)
+    a, b = pcg2d(x ^ key, y + np.uint32((k + 0x68E31DA4 * (salt + 1)) & 0xFFFFFFFF))
+    return to_unit_float(a), to_unit_float(b)
+
+
 class PathRng:
     """The per-path PCG2D state of a wave, updated in place by each draw."""
 

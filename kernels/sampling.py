@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .vec import HALF_PI, INV_4PI, INV_PI, PI, TWO_PI, cross_xyz, dot_xyz
+from .vec import HALF, HALF_PI, INV_4PI, INV_PI, PI, TWO_PI, cross_xyz, dot_xyz
 
 
 def sample_cosine_hemisphere(ux: np.ndarray, uy: np.ndarray):
@@ -67,6 +67,23 @@ def sample_uniform_disk(ux: np.ndarray, uy: np.ndarray):
     r = np.sqrt(ux)
     phi = TWO_PI * uy
     return r * np.cos(phi), r * np.sin(phi)
+
+
+def sample_uniform_disk_concentric(ux: np.ndarray, uy: np.ndarray):
+    """Uniform point in the unit disk by Shirley's concentric map (Cycles' sample_uniform_disk,
+    kernel/sample/mapping.h): squares to rings, keeping stratification. Returns x, y."""
+    one, zero = np.float32(1.0), np.float32(0.0)
+    a = np.float32(2.0) * ux - one
+    b = np.float32(2.0) * uy - one
+    wide = a * a > b * b
+    r = np.where(wide, a, b)
+    quarter_pi = HALF_PI * HALF
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi = np.where(wide, quarter_pi * (b / a), HALF_PI - quarter_pi * (a / b))
+    centre = (a == zero) & (b == zero)
+    phi = np.where(centre, zero, phi)
+    r = np.where(centre, zero, r)
+    return (r * np.cos(phi)).astype(np.float32), (r * np.sin(phi)).astype(np.float32)
 
 
 UNIFORM_SPHERE_PDF = INV_4PI

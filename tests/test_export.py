@@ -467,8 +467,8 @@ def test_unsupported_nodes_render_grey_with_one_warning_per_material():
     metal, bsdf = new_material("Metal")
     bsdf.inputs["Metallic"].default_value = 1.0
     bsdf.inputs["Base Color"].default_value = (0.5, 0.5, 0.5, 1.0)
-    ao = metal.node_tree.nodes.new("ShaderNodeAmbientOcclusion")
-    metal.node_tree.links.new(ao.outputs["AO"], bsdf.inputs["Roughness"])
+    falloff = metal.node_tree.nodes.new("ShaderNodeLightFalloff")
+    metal.node_tree.links.new(falloff.outputs["Linear"], bsdf.inputs["Roughness"])
     ob = add_cube()
     ob.data.materials.append(mat)
     ob.data.materials.append(metal)
@@ -483,7 +483,7 @@ def test_unsupported_nodes_render_grey_with_one_warning_per_material():
     assert principled.kind == "PRINCIPLED" and principled.input("Metallic").value == (1.0,)
     assert principled.input("Roughness").value == (0.5,)  # the socket's own value
     metallic = [w for w in result.warnings if "'Metal'" in w]
-    assert len(metallic) == 1 and "Ambient Occlusion node" in metallic[0] and "feeding Roughness" in metallic[0]
+    assert len(metallic) == 1 and "Light Falloff node" in metallic[0] and "feeding Roughness" in metallic[0]
 
 
 def test_mix_and_add_shaders_keep_their_factors():
@@ -672,16 +672,32 @@ def test_unsupported_world_nodes_warn_once(empty_scene):
     np.testing.assert_allclose(result.scene.world.color, 0.05)
     (line,) = [w for w in result.warnings if "'Odd'" in w]
     assert "Diffuse BSDF" in line
-    empty_scene.world = bpy.data.worlds.new("Occluded")
+    empty_scene.world = bpy.data.worlds.new("Fallen")
     tree = empty_scene.world.node_tree
     background = tree.nodes["Background"]
     background.inputs["Color"].default_value = (0.2, 0.3, 0.4, 1.0)
-    ao = tree.nodes.new("ShaderNodeAmbientOcclusion")
-    tree.links.new(ao.outputs["Color"], background.inputs["Color"])
+    tree.links.new(tree.nodes.new("ShaderNodeLightFalloff").outputs["Linear"], background.inputs["Color"])
     result = export()
     np.testing.assert_allclose(result.scene.world.color, (0.2, 0.3, 0.4), rtol=1e-6)
-    (line,) = [w for w in result.warnings if "'Occluded'" in w]
-    assert "Ambient Occlusion" in line and "Color" in line
+    (line,) = [w for w in result.warnings if "'Fallen'" in w]
+    assert "Light Falloff" in line and "Color" in line
+
+
+def test_ambient_occlusion_in_a_world_is_one(empty_scene):
+    """Cycles traces no rays for a world (its background node mask has no RAYTRACE): AO is 1 and the Color
+    passes, folded to a constant world, without a warning; the world's AO distance is exported."""
+    empty_scene.world = bpy.data.worlds.new("Occluded")
+    tree = empty_scene.world.node_tree
+    background = tree.nodes["Background"]
+    ao = tree.nodes.new("ShaderNodeAmbientOcclusion")
+    ao.inputs["Color"].default_value = (0.2, 0.3, 0.4, 1.0)
+    tree.links.new(ao.outputs["Color"], background.inputs["Color"])
+    empty_scene.world.light_settings.distance = 3.5
+    result = export()
+    np.testing.assert_allclose(result.scene.world.color, (0.2, 0.3, 0.4), rtol=1e-6)
+    assert result.scene.world.program is None
+    assert not [w for w in result.warnings if "'Occluded'" in w]
+    assert result.scene.world.ao_distance == pytest.approx(3.5)
 
 
 def hdri_world(scene, image, vector_type=None, rotation=(0.0, 0.0, 0.0)):

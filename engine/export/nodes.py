@@ -49,9 +49,13 @@ class ProgramBuilder:
     """
 
     def __init__(self, images, issues: list[str], attributes: set[str], tangent_uv_maps: list[str],
-                 material_pass_index: int = 0, compilers: dict | None = None, layer_attribute=None):
+                 material_pass_index: int = 0, compilers: dict | None = None, layer_attribute=None,
+                 traces: bool = True):
         self.images, self.issues, self.attributes = images, issues, attributes
         self.layer_attribute = layer_attribute
+        # Whether the program may trace rays (a material's; not a world's, where Cycles evaluates its nodes
+        # without KERNEL_FEATURE_NODE_RAYTRACE: Ambient Occlusion there is 1 and folds).
+        self.traces = traces
         self.tangent_uv_maps = tangent_uv_maps
         self.material_pass_index = material_pass_index
         self._compilers = COMPILERS if compilers is None else compilers
@@ -450,6 +454,25 @@ def _normal(builder, node, groups):
     return builder.add(node.bl_idname, inputs, {"direction": direction}, outputs=_linked_outputs(node))
 
 
+def _ambient_occlusion(builder, node, groups):
+    """Ambient Occlusion, traced at hits (kernels/shading/raytrace.py). An unlinked Distance of 0 reads the
+    world's AO distance (Cycles' NODE_AO_GLOBAL_RADIUS, scene/shader_nodes.cpp). Where Cycles traces nothing
+    (a world) AO is 1 and Color passes through."""
+    inputs = yield builder.node_inputs(node, groups)
+    if not builder.traces and not isinstance(inputs["Color"], Ref):
+        return {"AO": (1.0,), "Color": tuple(inputs["Color"])}
+    distance = node.inputs["Distance"]
+    options = {"samples": int(node.samples), "inside": bool(node.inside), "only_local": bool(node.only_local),
+               "world_distance": source_of(distance, groups).node is None and float(distance.default_value) == 0.0}
+    return builder.add(node.bl_idname, inputs, options)
+
+
+def _bevel(builder, node, groups):
+    """Bevel, traced at hits (kernels/shading/raytrace.py)."""
+    inputs = yield builder.node_inputs(node, groups)
+    return builder.add(node.bl_idname, inputs, {"samples": int(node.samples)})
+
+
 def _bump(builder, node, groups):
     inputs = yield builder.node_inputs(node, groups)
     return builder.add(node.bl_idname, inputs, {"invert": bool(node.invert)})
@@ -476,6 +499,8 @@ COMPILERS = {
     "ShaderNodeVectorCurve": _curves(node_tables.vector_curves_table),
     "ShaderNodeFloatCurve": _curves(node_tables.float_curve_table),
     "ShaderNodeBump": _bump,
+    "ShaderNodeAmbientOcclusion": _ambient_occlusion,
+    "ShaderNodeBevel": _bevel,
     "ShaderNodeValue": _value,
     "ShaderNodeRGB": _rgb,
     "ShaderNodeTexCoord": _tex_coord,

@@ -39,6 +39,14 @@ def export_world(world, warnings: list[str], images=None, layer_attribute=None) 
     """scene.world (may be None) as a kernels.World. Problems go to `warnings` in one line. images: the
     export's images.ImageTextures, which world programs read their images from. layer_attribute: the View
     Layer attribute lookup (nodes.ProgramBuilder)."""
+    result = _export_world(world, warnings, images, layer_attribute)
+    if world is None:
+        return result
+    # Blender's sync hands Cycles the world's Light Settings > Distance as the integrator's AO distance.
+    return dataclasses.replace(result, ao_distance=max(float(world.light_settings.distance), 0.0))
+
+
+def _export_world(world, warnings: list[str], images, layer_attribute) -> World:
     if world is None:  # Cycles renders black without a world
         return World(color=np.zeros(3, np.float32))
     if world.node_tree is None:
@@ -136,7 +144,7 @@ def _needs_program(tree) -> bool:
 
 def _program_world(world, images, issues: list[str], layer_attribute=None) -> World:
     """The world's shader tree as a program whose output is the background radiance."""
-    builder = ProgramBuilder(images, issues, set(), [], layer_attribute=layer_attribute)
+    builder = ProgramBuilder(images, issues, set(), [], layer_attribute=layer_attribute, traces=False)
     out = output_node(world.node_tree)
     radiance = run_nested(_radiance_of(builder, source_of(out.inputs["Surface"]), issues))
     if isinstance(radiance, tuple):  # folded: a constant world after all

@@ -30,12 +30,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..rng import keyed_uniforms as uniforms
 from ..vec import F32
 
 THROUGHPUT_EPSILON = 1e-6   # Cycles' VOLUME_THROUGHPUT_EPSILON: a shadow ray's marching stops below it
 PDF_CUTOFF = 1e-8           # Cycles' VOLUME_SAMPLE_PDF_CUTOFF: a scattering distance of smaller pdf is not taken
 FAR = float(np.finfo(np.float32).max)   # a segment without end marches to FLT_MAX, as Cycles' rays do
-MARCH_SALT = 211            # tracking.uniforms salt of a segment's marching numbers
+MARCH_SALT = 211            # rng.keyed_uniforms salt of a segment's marching numbers
 
 
 @dataclass(frozen=True)
@@ -60,9 +61,9 @@ def stack_steps(media, stack: np.ndarray, march: Marching) -> np.ndarray:
 
 
 def march(media, stack, origins, dirs, t_end, seeds, may_scatter, steps, max_steps: int, shadow: bool, ray,
-          emission: bool, salt: int, uniforms):
+          emission: bool, salt: int):
     """March n segments (stack (K, n), origins and unit dirs (n, 3), t_end (n,) which may be inf, steps (n,) their
-    step sizes, may_scatter (n,) bool; uniforms: tracking.uniforms). Returns (scattered, t, shade_t, weight,
+    step sizes, may_scatter (n,) bool). Returns (scattered, t, shade_t, weight,
     emission) as tracking.Segment holds them, shade_t the distance of the point whose coefficients the
     scattering event takes."""
     n = len(t_end)

@@ -16,18 +16,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..rng import keyed_uniforms as uniforms
 from ..vec import F32
 
 RATIO = 0.9            # r of the geometric distribution of the debiasing order
 CUT_OFF = 4            # the highest order (Cycles' cut_off)
 MAX_STEPS = 1024       # Cycles' VOLUME_MAX_STEPS: k at most
 CHUNK = 1 << 18        # points evaluated per shader call at most
-SALT = 307             # tracking.uniforms salt of a segment's numbers
+SALT = 307             # rng.keyed_uniforms salt of a segment's numbers
 
 
-def transmittance(media, stack, origins, dirs, t_end, seeds, sigma_c, uniforms, salt: int = 0) -> np.ndarray:
+def transmittance(media, stack, origins, dirs, t_end, seeds, sigma_c, salt: int = 0) -> np.ndarray:
     """(3, n) the transmittance of n shadow segments (stack (K, n), origins and unit dirs (n, 3), finite t_end (n,),
-    sigma_c (n,) their extinction's range; uniforms: tracking.uniforms) by the telescoping estimator."""
+    sigma_c (n,) their extinction's range) by the telescoping estimator."""
     n = len(t_end)
     length = np.asarray(t_end, np.float64)
     k = np.clip(np.rint(np.asarray(sigma_c, np.float64) * length), 1, MAX_STEPS).astype(np.int64)

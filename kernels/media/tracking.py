@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rng import pcg2d, to_unit_float
+from ..paths import ray_keys
+from ..rng import keyed_uniforms as uniforms
 from ..vec import F32, ONE, ZERO
 from . import telescope
 from .march import Marching, stack_steps
@@ -60,24 +61,6 @@ class Segment:
     shade_t: np.ndarray | None = None
 
 
-def uniforms(seeds, k: int, salt: int = 0):
-    """Two uniform numbers per path for collision k, hashed from the paths' PCG2D states (x, y)."""
-    x, y = seeds
-    key = np.uint32((k * 0x9E3779B9 + salt * 0x85EBCA6B) & 0xFFFFFFFF)
-    a, b = pcg2d(x ^ key, y + np.uint32((k + 0x68E31DA4 * (salt + 1)) & 0xFFFFFFFF))
-    return to_unit_float(a), to_unit_float(b)
-
-
-def ray_keys(state, rows):
-    """The numbers' keys of the current rays of the paths rows (state rows) for tracking.uniforms: their PCG2D
-    states mixed with the number of rays they traced before, so that every ray of a path (whose stream does
-    not advance at a first vertex's stratified numbers, nor at a volume's boundary) draws its own."""
-    rng = state.samples.rng
-    count = (np.take(state.segments, rows) + np.take(state.volume_bounds, rows)).astype(np.uint32)
-    return (np.take(rng.x, rows) ^ (count * np.uint32(0x9E3779B9)),
-            np.take(rng.y, rows) + count * np.uint32(0x632BE5AB))
-
-
 def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emission: bool = True,
           salt: int = 0, march: Marching | None = None, shadow: bool = False) -> Segment:
     """Distance sampling for n paths (stack (K, n), origins and unit dirs (n, 3), t_end (n,) which may be
@@ -97,8 +80,7 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
         if len(marched):
             out = march_segments(media, stack[:, marched], origins[marched], dirs[marched],
                                  np.asarray(t_end)[marched], tuple(np.take(s_, marched) for s_ in seeds),
-                                 may_scatter[marched], steps[marched], march.max_steps, shadow, ray, emission, salt,
-                                 uniforms)
+                                 may_scatter[marched], steps[marched], march.max_steps, shadow, ray, emission, salt)
             scattered[marched], t_event[marched] = out[0], out[1]
             shade_t = t_event.copy()
             shade_t[marched] = out[2]
@@ -121,7 +103,7 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
         if len(ended):
             weight[:, ended] = telescope.transmittance(media, stack[:, ended], origins[ended], dirs[ended],
                                                        np.asarray(t_end)[ended], tuple(np.take(s_, ended) for s_ in seeds),
-                                                       majorant[ended], uniforms, salt)
+                                                       majorant[ended], salt)
             majorant = majorant.copy()
             majorant[ended] = 0.0     # (the tracking below leaves them alone)
     if closed.any():

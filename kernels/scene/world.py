@@ -33,6 +33,9 @@ class World:
         does (same image, more noise). Neither applies to a world program with a Light Path node.
     volume : the world's Volume output as a materials.Shader (its volume closures and their program), or
         None: a medium filling the whole scene, as Cycles' world volume (kernels.media).
+    ao_distance : the world's Ambient Occlusion distance (World > Light Settings > Distance; 10 without a
+        world, as Blender's sync sets Cycles' integrator), read by Ambient Occlusion nodes whose Distance is an
+        unlinked 0 (Cycles' NODE_AO_GLOBAL_RADIUS, kernel/svm/ao.h).
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None
@@ -44,6 +47,7 @@ class World:
     mis_compensation: bool = True
     focus: bool = True
     volume: object = None
+    ao_distance: float = 10.0
 
     def validate(self) -> None:
         check_array(self.color, "world.color", (3,), np.float32)
@@ -51,6 +55,7 @@ class World:
         require(np.isfinite(self.strength) and self.strength >= 0, "world.strength",
                 f"must be finite and non-negative, got {self.strength}")
         check_array(self.env_from_world, "world.env_from_world", (3, 3), np.float32)
+        require(self.ao_distance >= 0, "world.ao_distance", f"must be non-negative, got {self.ao_distance}")
         if self.hdri is not None:
             h = self.hdri
             require(h.ndim == 3 and h.shape[2] == 3 and h.shape[0] >= 1 and h.shape[1] >= 1,

@@ -21,6 +21,7 @@ from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geomet
     normal_map, normal_node, object_info, separate_xyz, tangent_node, tex_coord, uv_map, vector_transform, \
     volume_info, wireframe
 from .program import full
+from .raytrace import ambient_occlusion_node, bevel_node
 
 
 # ---------------------------------------------------------------- the Sky Texture, its tables precomputed at export
@@ -51,6 +52,8 @@ OPS = {
     "ShaderNodeCameraData": camera_data,
     "ShaderNodeWireframe": wireframe,
     "ShaderNodeTexSky": sky,
+    "ShaderNodeAmbientOcclusion": ambient_occlusion_node,
+    "ShaderNodeBevel": bevel_node,
 }
 # Ops that read nothing of the hits besides their inputs: folded at export when those are constants.
 PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ"}

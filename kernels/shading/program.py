@@ -7,6 +7,8 @@ closures read colours as (3, n), which Shading.param transposes.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..programs import Program, Ref
@@ -16,6 +18,34 @@ from .color_nodes import RGB_TO_Y, vector_to_float
 
 # Attribute names whose values are per object row, not per corner.
 OBJECT_ATTRIBUTE_PREFIXES = ("object:", "instancer:")
+
+
+@dataclass
+class TracedHits:
+    """The hits of a node program that may trace (program.HitInputs.tracing).
+
+    rays : raytrace.ShaderRays. p, n, ng : (n, 3) float32 position, shading and true normal (both flipped to the
+    viewer, as Cycles' sd->N and sd->Ng). backfacing : (n,) bool. objects : (n,) int32 object rows.
+    keys : (x, y) uint32 of the paths (paths.ray_keys). time : accel.RayTimes or None.
+    min_ray_pdf : (n,) float32 or None (the path's smallest BSDF pdf so far). split : spread ray queries
+    over the accel's threads.
+    """
+    rays: object
+    p: np.ndarray
+    n: np.ndarray
+    ng: np.ndarray
+    backfacing: np.ndarray
+    objects: np.ndarray
+    keys: tuple
+    time: object = None
+    min_ray_pdf: np.ndarray | None = None
+    split: bool = True
+
+    def take(self, idx: np.ndarray) -> "TracedHits":
+        return TracedHits(self.rays, self.p[idx], self.n[idx], self.ng[idx], self.backfacing[idx],
+                          self.objects[idx], tuple(np.take(k, idx) for k in self.keys),
+                          None if self.time is None else self.time.take(idx),
+                          None if self.min_ray_pdf is None else self.min_ray_pdf[idx], self.split)
 
 
 class HitInputs:
@@ -136,6 +166,21 @@ class HitInputs:
                 self.hit.uv_at(self.idx)
             self._cache["uv"] = np.stack([u, v, np.zeros_like(u)], axis=1)
         return self._cache["uv"]
+
+    def tracing(self):
+        """What the nodes that trace rays need at these hits (raytrace.TracedHits), or None where Cycles traces
+        none: anywhere but a path's surface vertex (shadow rays' transparency, lights' emission), or without a
+        scene to trace (ShadingData.rays)."""
+        rays, ray = self.scene.rays, self.hit.ray
+        if rays is None or ray is None or ray.keys is None:
+            return None
+        if "tracing" not in self._cache:
+            idx = self.idx
+            self._cache["tracing"] = TracedHits(
+                rays, self.P, self.N, self.Ng, self.backfacing, rays.object_rows(self.prim),
+                tuple(np.take(k, idx) for k in ray.keys), None if ray.time is None else ray.time.take(idx),
+                None if ray.min_ray_pdf is None else np.take(ray.min_ray_pdf, idx), ray.split)
+        return self._cache["tracing"]
 
     def objects(self) -> np.ndarray:
         """(n, OBJECT_COLUMNS) float32 object table rows of the hits' instances."""

@@ -44,6 +44,9 @@ class ShadingData:
         triangle number)."""
         self.textures = textures
         self.triangles = triangles
+        # raytrace.ShaderRays, what the Ambient Occlusion and Bevel nodes trace with: the renderer gives it once
+        # the scene's BVH is built; None traces nothing (AO 1, Bevel the shading normal).
+        self.rays = None
         self.set_objects(scene.objects if scene is not None else None)
         # Object and Instancer attributes: name -> (K, 4) per object row (SceneArrays.object_attributes).
         self.object_attributes = dict(getattr(scene, "object_attributes", ()) or ())
@@ -91,6 +94,11 @@ class Shading:
         # Whether a Light Path node reads the last bounce's lobe: the integrator tracks it only then.
         self.reads_lobes = any(reads_lobes(s.program) for s in self.shaders) or (
             world is not None and world.program is not None and reads_lobes(world.program))
+        # Whether a material's program traces rays (Ambient Occlusion, Bevel): the integrator then hands its
+        # surface vertices' keys to the programs; a Bevel also reads the path's smallest BSDF pdf.
+        kinds = {op.kind for s in self.shaders if s.program is not None for op in s.program.ops}
+        self.traces = bool(kinds & {"ShaderNodeAmbientOcclusion", "ShaderNodeBevel"})
+        self.bevels = "ShaderNodeBevel" in kinds
         self.emissive = np.array([_may_emit(s.closures) for s in self.shaders], bool)
         # Emission that depends on more than the material: a texture, or layers above it (Principled).
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)

@@ -1,0 +1,286 @@
+"""The shader nodes that trace rays, Ambient Occlusion and Bevel, as Cycles 5.x computes them
+(kernel/svm/ao.h, kernel/svm/bevel.h), batched over the hits of a material in a wave: one ray query per
+sample index for all hits at once (and per surface passed, for rays that look only for their own object).
+
+Cycles runs these nodes only where a path shades a surface (shaders holding one are flagged SD_HAS_RAYTRACE,
+scene/svm.cpp, and shaded by the shade_surface_raytrace kernel, kernel/integrator/intersect_closest.h). Its
+other evaluations leave KERNEL_FEATURE_NODE_RAYTRACE out of their node masks (kernel/features.h): in shadow
+rays' transparency, lights' emission, the world and volumes AO is 1 and Bevel gives the shading normal.
+Here that is HitInputs.tracing() returning None: only the integrator's surface vertex gives its paths' keys.
+
+Random numbers: Cycles draws sample i of n of a node from its Sobol-Burley sequence at index sample * n + i
+(path_branched_rng_2D, dimensions PRNG_SURFACE_AO and PRNG_SURFACE_BEVEL): an aligned block, so the n
+directions of one evaluation are stratified together. Ember takes points 0..n-1 of an Owen-scrambled Sobol
+sequence scrambled per ray (rng.stratified_2d seeded by the path's keys): stratified alike. It matters beyond
+noise: AO through a Color Ramp averages a nonlinear function of the n-sample estimate, whose mean depends on
+the estimate's variance (with independent numbers a clamped ramp read 2-4% darker than Cycles in penumbrae).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import N0, N1, N2, NG
+from ..interaction import spawn_offset
+from ..rng import keyed_uniforms, pcg2d, stratified_2d
+from ..sampling import sample_uniform_disk_concentric
+from ..vec import F32, ONE, TWO_PI, ZERO, columns, dot_rows, normalize_rows
+from .program import TracedHits, make_orthonormals
+
+# rng.stratified_2d dimensions of the AO directions and the Bevel disks (apart from samples.py's), and the
+# rng.keyed_uniforms salt (apart from the media's) of Bevel's choice of hits beyond LOCAL_MAX_HITS.
+AO_DIMENSION, BEVEL_DIMENSION, BEVEL_PICK_SALT = 40, 41, 1442
+# Cycles' LOCAL_MAX_HITS (kernel/types.h): a Bevel ray keeps a random subset of this many of its hits.
+LOCAL_MAX_HITS = 4
+# Surfaces a ray looking for its own object passes at most (other objects' surfaces, or its own for Bevel):
+# beyond them it is taken as unoccluded (AO) or as meeting no more (Bevel).
+MAX_LAYERS = 16
+# Cycles skips Bevel on blurry indirect rays: where the path's smallest BSDF pdf so far is below this.
+BEVEL_MIN_RAY_PDF = F32(8.0)
+
+
+class ShaderRays:
+    """What shader nodes trace with: the scene's accel.Accel and geometry.TriangleTable, the scale of the
+    offset rays start with (the renderer's ray_epsilon) and the world's AO distance (World.ao_distance:
+    an AO node's unlinked Distance of 0 reads it, Cycles' NODE_AO_GLOBAL_RADIUS)."""
+
+    def __init__(self, accel, triangles, epsilon, ao_distance: float = 10.0):
+        self.accel, self.triangles = accel, triangles
+        self.epsilon, self.ao_distance = F32(epsilon), float(ao_distance)
+
+    def object_rows(self, prim: np.ndarray) -> np.ndarray:
+        rows = self.triangles.object_rows(prim)
+        return np.zeros(len(prim), np.int32) if rows is None else rows
+
+    def offset_origins(self, p: np.ndarray, ng: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """(n, 3) origins moved off the surfaces (points p, unit normals ng) to the side directions d leave on,
+        as the integrator spawns rays (Cycles starts at P and skips the hit's own triangle instead)."""
+        eps = spawn_offset(self.epsilon, p[:, 0], p[:, 1], p[:, 2])
+        side = np.where(dot_rows(d, ng) >= 0, eps, -eps).astype(F32)
+        return (p + ng * columns(side)).astype(F32)
+
+
+def branch_numbers(keys, branch: int, dimension: int):
+    """Two float32 numbers per ray for sample `branch` of a node's samples: point `branch` of an Owen-scrambled
+    Sobol sequence scrambled by the ray's keys (x, y) and the dimension, so that a node's samples 0..n-1 are
+    stratified together as Cycles' path_branched_rng_2D gives them."""
+    scramble = pcg2d(keys[0], keys[1])[0]
+    return stratified_2d(scramble, np.full(len(scramble), branch, np.uint32), 0, dimension)
+
+
+# ---------------------------------------------------------------- Ambient Occlusion (svm/ao.h)
+def ambient_occlusion(hits: TracedHits, normal: np.ndarray, distance: np.ndarray, samples: int,
+                      inside: bool = False, only_local: bool = False) -> np.ndarray:
+    """(n,) float32 the unoccluded share of `samples` rays per hit, as svm_ao: directions cosine-distributed
+    about normal (n, 3) (reversed with inside), a uniform disk point lifted to the hemisphere; a ray is
+    occluded by any surface within distance (n,) (only_local: of the hit's own object). A hit with
+    distance <= 0 or samples < 1 reads 1."""
+    n = len(distance)
+    out = np.ones(n, F32)
+    live = np.flatnonzero(distance > 0)
+    if samples < 1 or not len(live):
+        return out
+    h = hits.take(live)
+    axis = -normal[live] if inside else normal[live]
+    t, b = make_orthonormals(np.ascontiguousarray(axis, F32))
+    t_max = np.ascontiguousarray(distance[live], F32)
+    unoccluded = np.zeros(len(live), np.int32)
+    for sample in range(samples):
+        dx, dy = sample_uniform_disk_concentric(*branch_numbers(h.keys, sample, AO_DIMENSION))
+        dz = np.sqrt(np.maximum(ONE - dx * dx - dy * dy, ZERO))
+        d = (t * columns(dx) + b * columns(dy) + axis * columns(dz)).astype(F32)
+        origins = h.rays.offset_origins(h.p, h.ng, d)
+        if only_local:
+            blocked = np.zeros(len(live), bool)
+            for rows, _, _, _, _ in _own_hits(h, origins, d, t_max, first_only=True):
+                blocked[rows] = True
+        else:
+            blocked = h.rays.accel.occluded(origins, d, t_max, h.split, h.time)
+        unoccluded += ~blocked
+    out[live] = unoccluded.astype(F32) / F32(samples)
+    return out
+
+
+# ---------------------------------------------------------------- Bevel (svm/bevel.h)
+def cubic_root(xi: np.ndarray) -> np.ndarray:
+    """x in [0, 1] with 10x^2 - 20x^3 + 15x^4 - 4x^5 = xi: the radius (over R) of the cubic falloff
+    10 (R - r)^3 / (pi R^5) on the disk, by Cycles' Newton iteration (from 0.25, at most 10 steps, until
+    |f| < 1e-6, each step clamped to [0, 1])."""
+    x = np.full(np.shape(xi), F32(0.25), F32)
+    going = np.ones(np.shape(xi), bool)
+    for _ in range(10):
+        x2 = x * x
+        x3 = x2 * x
+        nx = ONE - x
+        f = F32(10.0) * x2 - F32(20.0) * x3 + F32(15.0) * x2 * x2 - F32(4.0) * x2 * x3 - xi
+        f_ = F32(20.0) * (x * nx) * (nx * nx)
+        going &= ~((np.abs(f) < F32(1e-6)) | (f_ == ZERO))
+        if not going.any():
+            break
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = np.where(going, np.clip(x - f / f_, ZERO, ONE), x).astype(F32)
+    return x
+
+
+def bevel(hits: TracedHits, radius: np.ndarray, samples: int) -> np.ndarray:
+    """(n, 3) float32 normals averaged over the hit's object around each hit, as svm_bevel: per sample an axis
+    of the frame about Ng (Ng with probability 1/2, either tangent 1/4), a point of the disk across it drawn
+    from the cubic falloff of radius (n,), a ray along the axis through the disk's point, 2h long (h the
+    falloff sphere's height there); every hit of it on the object (a random LOCAL_MAX_HITS of them, weighted
+    up, where there are more) adds its smooth normal weighted by MIS over the three axes (power heuristic)
+    and the falloff at its distance over the disk's pdf. The shading normal where radius <= 0, samples < 1,
+    after a blurry bounce (min ray pdf below 8), or where nothing was met; flipped on back faces."""
+    n = len(radius)
+    out = np.array(hits.n, F32, copy=True)
+    ok = radius > 0
+    if hits.min_ray_pdf is not None:
+        ok &= ~(hits.min_ray_pdf < BEVEL_MIN_RAY_PDF)
+    live = np.flatnonzero(ok)
+    if samples < 1 or not len(live):
+        return out
+    h = hits.take(live)
+    m = len(live)
+    r_max = np.ascontiguousarray(radius[live], F32)
+    frame_t, frame_b = make_orthonormals(h.ng)
+    total = np.zeros((m, 3), np.float64)
+    for sample in range(samples):
+        u_axis, u_r = branch_numbers(h.keys, sample, BEVEL_DIMENSION)
+        along_n, along_t = u_axis < F32(0.5), (u_axis >= F32(0.5)) & (u_axis < F32(0.75))
+        along_b = ~(along_n | along_t)
+        # The axis drawn becomes disk_n; the one it replaced takes its place in the disk's plane.
+        disk_n = np.where(columns(along_n), h.ng, np.where(columns(along_t), frame_t, frame_b))
+        disk_t = np.where(columns(along_t), h.ng, frame_t)
+        disk_b = np.where(columns(along_b), h.ng, frame_b)
+        quarter, half = F32(0.25), F32(0.5)
+        pick = [np.where(c, half, quarter) for c in (along_n, along_t, along_b)]
+        u_phi = np.where(along_n, u_axis * F32(2.0), np.where(along_t, (u_axis - half) * F32(4.0),
+                                                               (u_axis - F32(0.75)) * F32(4.0)))
+        phi = TWO_PI * u_phi
+        disk_r = cubic_root(u_r) * r_max
+        height = np.sqrt(np.maximum(r_max * r_max - disk_r * disk_r, ZERO))
+        disk_p = disk_t * columns(disk_r * np.cos(phi)) + disk_b * columns(disk_r * np.sin(phi))
+        origins = (h.p + disk_n * columns(height) + disk_p).astype(F32)
+        d = np.ascontiguousarray(-disk_n, F32)
+        found = list(_own_hits(h, origins, d, F32(2.0) * height))
+        if not found:
+            continue
+        rows, prim, t, u, v = (np.concatenate(c) for c in zip(*found))
+        count = np.bincount(rows, minlength=m)
+        keep, scale = _pick_hits(rows, count, h.keys, sample)
+        rows, prim, t, u, v = rows[keep], prim[keep], t[keep], u[keep], v[keep]
+        g = h.rays.triangles.rows_of(prim)
+        hit_ng = g[:, NG:NG + 3]
+        w0 = ONE - u - v
+        smooth = normalize_rows(g[:, N0:N0 + 3] * columns(w0) + g[:, N1:N1 + 3] * columns(u)
+                                + g[:, N2:N2 + 3] * columns(v))
+        normal = np.where(columns(dot_rows(smooth, smooth) > 0), smooth, hit_ng)
+        pdf_n, pdf_t, pdf_b = (p[rows] * np.abs(dot_rows(a[rows], hit_ng))
+                               for p, a in zip(pick, (disk_n, disk_t, disk_b)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w = pdf_n / (pdf_n * pdf_n + pdf_t * pdf_t + pdf_b * pdf_b) * scale[rows]
+            hit_p = origins[rows] + d[rows] * columns(t)
+            distance = np.sqrt(dot_rows(hit_p - h.p[rows], hit_p - h.p[rows]))
+            # The falloff at the hit over its pdf on the disk: (R - r)^3 / (R - disk_r)^3, zero beyond R.
+            near = np.maximum(r_max[rows] - distance, ZERO)
+            w = w * (near / (r_max[rows] - disk_r[rows])) ** 3
+        w = np.where(np.isfinite(w), w, ZERO)
+        np.add.at(total, rows, normal.astype(np.float64) * w[:, None])
+    summed = normalize_rows(total.astype(F32))
+    met = dot_rows(summed, summed) > 0
+    summed = np.where(columns(h.backfacing), -summed, summed)
+    out[live] = np.where(columns(met), summed, h.n)
+    return out
+
+
+def _pick_hits(rows: np.ndarray, count: np.ndarray, keys, sample: int):
+    """Which of the hits (rays `rows`, in the order met; count per ray) Bevel keeps: all of a ray with at most
+    LOCAL_MAX_HITS, else a uniformly random LOCAL_MAX_HITS of them (what Cycles' reservoir of local hits
+    keeps), and each ray's weight: count / LOCAL_MAX_HITS where it dropped some, else 1."""
+    scale = np.where(count > LOCAL_MAX_HITS, count.astype(F32) / F32(LOCAL_MAX_HITS), ONE).astype(F32)
+    keep = np.ones(len(rows), bool)
+    many = np.flatnonzero(count[rows] > LOCAL_MAX_HITS)
+    if not len(many):
+        return keep, scale
+    ray = rows[many]
+    # Each hit a random number (its ray's keys and its place among the ray's hits); a ray keeps its smallest.
+    by_ray = np.argsort(ray, kind="stable")
+    place = np.empty(len(many), np.uint32)
+    place[by_ray] = np.arange(len(many)) - np.searchsorted(ray[by_ray], ray[by_ray])
+    x, y = (np.take(k, ray) for k in keys)
+    chance = keyed_uniforms((x ^ (place * np.uint32(0x2C1B3C6D)), y), sample, BEVEL_PICK_SALT)[0]
+    ranked = np.lexsort((chance, ray))
+    rank = np.arange(len(many)) - np.searchsorted(ray[ranked], ray[ranked])
+    keep[many[ranked]] = rank < LOCAL_MAX_HITS
+    return keep, scale
+
+
+def _own_hits(hits: TracedHits, origins: np.ndarray, d: np.ndarray, t_max: np.ndarray, first_only: bool = False):
+    """The hits of rays (origins, unit directions d (n, 3), lengths t_max (n,)) on each ray's own object
+    (hits.objects), passing the surfaces of others: per surface layer met, (rays, prim, t, u, v) of those
+    on the ray's object, t from the first origin (Cycles' scene_intersect_local). first_only: rays stop at
+    their first own hit (AO's Only Local asks whether there is one)."""
+    rays = hits.rays
+    live = np.arange(len(origins))
+    o = origins
+    travelled = np.zeros(len(origins), F32)
+    t_max = np.broadcast_to(np.asarray(t_max, F32), (len(origins),))
+    for _ in range(MAX_LAYERS):
+        if not len(live):
+            return
+        left = (t_max[live] - travelled[live]).astype(F32)
+        met = rays.accel.intersect(o, d[live], left, hits.split, None if hits.time is None else hits.time.take(live))
+        found = np.flatnonzero(met.prim >= 0)
+        if not len(found):
+            return
+        ray = live[found]
+        prim = met.prim[found]
+        step = met.t[found]
+        t = travelled[ray] + step
+        own = rays.object_rows(prim) == hits.objects[ray]
+        if own.any():
+            yield ray[own], prim[own], t[own], met.u[found][own], met.v[found][own]
+        go_on = ~own if first_only else np.ones(len(found), bool)
+        found, ray, prim, step, t = found[go_on], ray[go_on], prim[go_on], step[go_on], t[go_on]
+        # On from just past the surface met, off it on the side the ray leaves.
+        point = (o[found] + d[ray] * columns(step)).astype(F32)
+        o = rays.offset_origins(point, rays.triangles.rows_of(prim)[:, NG:NG + 3], d[ray])
+        travelled[ray] = t
+        live = ray
+
+
+
+# ---------------------------------------------------------------- the ops (kernels/shading/ops.py)
+def ambient_occlusion_node(hits, inputs, op):
+    """The Ambient Occlusion node (svm_node_ao): AO, and Color times AO. Options: samples, inside,
+    only_local, world_distance (an unlinked Distance of 0: the world's AO distance). The Normal input (when
+    linked) is normalized; the shading normal otherwise. Where nothing is traced (HitInputs.tracing), AO 1."""
+    n = hits.n
+    color = np.broadcast_to(np.asarray(inputs["Color"], F32), (n, 3))
+    traced = hits.tracing() if hasattr(hits, "tracing") else None
+    ao = np.ones(n, F32)
+    if traced is not None:
+        distance = np.broadcast_to(np.asarray(inputs["Distance"], F32), (n,))
+        if op.option("world_distance", False):
+            distance = np.full(n, F32(traced.rays.ao_distance))
+        normal = hits.N
+        if "Normal" in inputs:
+            given = normalize_rows(np.broadcast_to(np.asarray(inputs["Normal"], F32), (n, 3)))
+            normal = np.where(columns(dot_rows(given, given) > 0), given, hits.N)
+        ao = ambient_occlusion(traced, normal, distance, int(op.option("samples", 16)),
+                               bool(op.option("inside", False)), bool(op.option("only_local", False)))
+    return {"AO": ao, "Color": (color * columns(ao)).astype(F32)}
+
+
+def bevel_node(hits, inputs, op):
+    """The Bevel node (svm_node_bevel): the bevelled normal; with its Normal input linked, that normal moved
+    by what bevelling changed, normalize(Normal + bevel - N). Option: samples. Where nothing is traced
+    (HitInputs.tracing), the shading normal."""
+    n = hits.n
+    traced = hits.tracing() if hasattr(hits, "tracing") else None
+    if traced is None:
+        return {"Normal": np.ascontiguousarray(hits.N, F32)}
+    radius = np.broadcast_to(np.asarray(inputs["Radius"], F32), (n,))
+    out = bevel(traced, radius, int(op.option("samples", 4)))
+    if "Normal" in inputs:
+        given = np.broadcast_to(np.asarray(inputs["Normal"], F32), (n, 3))
+        out = normalize_rows((given + (out - hits.N)).astype(F32))
+    return {"Normal": out.astype(F32)}
