@@ -13,7 +13,7 @@ from ..bsdf.light_passes import eval_split
 from ..environment import WorldFocus
 from ..geometry import NG
 from ..interaction import RayInfo, SurfaceHit, spawn_offset
-from ..paths import may_scatter
+from ..paths import may_scatter, ray_keys
 from ..media import stack as volume_stack
 from ..media import tracking
 from ..media.march import marching
@@ -215,7 +215,7 @@ def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None) -> n
     seeds = None
     if state.media is not None:
         stack = np.take(state.media, paths, axis=1) if stack is None else stack
-        seeds = tracking.ray_keys(state, paths)
+        seeds = ray_keys(state, paths)
     return shadow(tables, origins, dirs, t_max, wave, np.take(state.bounce, paths),
                   None if state.lobes is None else np.take(state.lobes, paths, axis=1),
                   None if state.time is None else state.time.take(paths),

@@ -11,9 +11,10 @@ import numpy as np
 
 from .. import passes
 from ..lights import nee
-from ..paths import VOLUME_SCATTER, may_scatter, roulette_verdict
+from ..paths import VOLUME_SCATTER, may_scatter, ray_keys, roulette_verdict
 from ..geometry import NG
 from ..lights.common import SPOT
+from ..rng import keyed_uniforms as uniforms
 from ..samples import BSDF, LIGHT, LIGHT_POINT, VOLUME_DISTANCE, VOLUME_LIGHT
 from ..vec import F32, ONE, ZERO
 from ..shading.volume import PhaseClosure
@@ -21,14 +22,14 @@ from . import equiangular
 from . import stack as volume_stack
 from .march import marching
 from .scatter import PhaseMixture
-from .tracking import ray_keys, track, transmittance, uniforms
+from .tracking import track, transmittance
 
 # The direction pdf a scattering vertex records when its segment's light sample took no MIS: MIS then weighs
 # what its phase ray finds to 0 against any light that sampling can choose, and to 1 where none can.
 NO_MIS_PDF = F32(1e-30)
 MAX_CONES = 64             # spot lights whose cones a segment's light sample looks at
 VOLUME_BOUNDS_MAX = 1024   # volume boundaries a path may pass (Cycles' VOLUME_BOUNDS_MAX, a guard)
-# tracking.uniforms salts: the segment's collisions, the phase closure pick, the segment's light sample.
+# rng.keyed_uniforms salts: the segment's collisions, the phase closure pick, the segment's light sample.
 SEGMENT_SALT, PICK_SALT, DIRECT_SALT, LIGHT_HIT_SALT = 0, 7, 11, 13
 
 

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..paths import ray_keys
 from ..rng import keyed_uniforms as uniforms
 from ..vec import F32, ONE, ZERO
 from . import telescope
