@@ -163,3 +163,11 @@ def test_bump_method_matches_cycles():
     scene.camera.location = (0.0, -2.5, 2.0)
     report = compare_to_cycles(scene, samples=64)
     print(report)
+
+
+def test_adaptive_subdivision_is_named():
+    new_scene()
+    ob = grid_object("P", n=2, material=displaced_material("D", Height=1.0))
+    modifier = ob.modifiers.new("Subdivision", "SUBSURF")
+    modifier.use_adaptive_subdivision = True
+    assert any("'P': adaptive subdivision is not supported" in w for w in export_current().warnings)

@@ -99,6 +99,16 @@ def displace_mesh(mesh, local: LocalMesh, per_slot: tuple, object_row: np.ndarra
     return replace(local, vertices=vertices, **_normals(local, vertices, moved, keeps, mesh))
 
 
+def check_adaptive_subdivision(ob, warnings: list[str]) -> None:
+    """Adaptive subdivision (the Subdivision Surface modifier's Adaptive Subdivision option in Blender 5.x,
+    diced by Cycles per pixel or object edge length) is not done: say so."""
+    for modifier in getattr(ob, "modifiers", ()):
+        if modifier.type == "SUBSURF" and getattr(modifier, "use_adaptive_subdivision", False) and modifier.show_render:
+            warnings.append(f"Object '{ob.name}': adaptive subdivision is not supported, the mesh Blender evaluates "
+                            f"is rendered")
+            return
+
+
 def _read_vertex_normals(mesh) -> np.ndarray:
     out = np.empty(3 * len(mesh.vertices), np.float32)
     mesh.vertex_normals.foreach_get("vector", out)

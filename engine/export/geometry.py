@@ -21,7 +21,7 @@ import numpy as np
 from ...kernels.geometry import normal_matrices
 from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
 from ...kernels.textures import Texture
-from .displacement import displace_mesh
+from .displacement import check_adaptive_subdivision, displace_mesh
 from .instances import (asset_name, check_visibility, instance_key, instance_random, instanced_groups, is_rendered,
                         object_inputs, slot_materials)
 from .materials import MaterialTable
@@ -178,6 +178,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                     slot_rows[object_key] = materials.slot_ids(ob)
                     signatures[object_key] = slot_materials(ob)
                     check_visibility(ob, warnings)
+                    check_adaptive_subdivision(ob.original, warnings)
                 if mesh_key not in displaced:
                     displaced.add(mesh_key)
                     meshes[mesh_key] = _displaced(inst, ob, mesh, meshes[mesh_key], materials,
