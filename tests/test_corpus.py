@@ -75,12 +75,12 @@ def test_black_images_compare_without_nan():
 
 def test_reports_are_read_from_a_renders_output():
     stdout = ("Fra:1 Mem:10M | Sample 1/4\n"
-              "Ember | Frame 1 | Warning: Material 'A': Displacement output is not supported, ignored\n"
-              "Ember | Frame 1 | Warning: Material 'A': Displacement output is not supported, ignored\n"
+              "Ember | Frame 1 | Warning: Material 'A': Wireframe node 'W' is not supported\n"
+              "Ember | Frame 1 | Warning: Material 'A': Wireframe node 'W' is not supported\n"
               "Ember | Frame 1 | Warning: Light 'L' of type X is not supported\n"
               "Error: Ember: invalid scene data: no triangles\n")
     warnings, errors = corpus.parse_reports(stdout)
-    assert warnings == ["Material 'A': Displacement output is not supported, ignored",
+    assert warnings == ["Material 'A': Wireframe node 'W' is not supported",
                         "Light 'L' of type X is not supported"]
     assert errors == ["Ember: invalid scene data: no triangles"]
 
@@ -105,13 +105,16 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
 # ---------------------------------------------------------------- the tool on .blend files
 def build_scene(film_exposure: float):
     """A floor and a box under an area lamp, with Cycles settings Ember takes over, and a material Ember
-    warns about (a displacement of constant height, which changes nothing in Cycles)."""
+    warns about (a Noise texture's Texture Mapping panel, on a value multiplied by 0: nothing changes in Cycles)."""
     scene = new_scene(48, 32)
     floor = diffuse_material("Floor", (0.7, 0.7, 0.7))
     mesh_object("Floor", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [(0, 1, 2, 3)], floor)
     box = diffuse_material("Box", (0.8, 0.3, 0.2))
-    displacement = box.node_tree.nodes.new("ShaderNodeDisplacement")
-    box.node_tree.links.new(displacement.outputs[0], box.node_tree.nodes["Material Output"].inputs["Displacement"])
+    noise, times = box.node_tree.nodes.new("ShaderNodeTexNoise"), box.node_tree.nodes.new("ShaderNodeMath")
+    noise.texture_mapping.translation = (1.0, 0.0, 0.0)
+    times.operation, times.inputs[1].default_value = "MULTIPLY", 0.0
+    box.node_tree.links.new(noise.outputs["Fac"], times.inputs[0])
+    box.node_tree.links.new(times.outputs[0], next(n for n in box.node_tree.nodes if n.type.startswith("BSDF")).inputs["Roughness"])
     verts = [(x, y, z) for z in (0, 1.5) for y in (-0.7, 0.7) for x in (-0.7, 0.7)]
     faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
     mesh_object("Box", verts, faces, box)
@@ -150,13 +153,13 @@ def test_the_tool_runs_every_file_and_tables_them(corpus_run):
     assert run.returncode == 0, run.stderr
     same, exposed, broken = (table_row(run.stdout, n) for n in ("same.blend", "exposed.blend", "broken.blend"))
     assert same[-1] == "within noise", run.stdout
-    assert same[7] == "1"                                    # the displacement warning, once for both renders
+    assert same[7] == "1"                                    # the Texture Mapping warning, once for both renders
     assert exposed[-1] == "beyond noise" and "film_exposure=2.0" in exposed[8]
     mean = float(re.match(r"([+-][\d.]+)%", exposed[2]).group(1)) / 100
     assert abs(mean - (0.5 - 1.0)) < 0.05                    # Cycles' image is twice Ember's
     assert broken[-1].startswith("failed: Cycles:") and "Ember:" in broken[-1]
     assert "sample_clamp_indirect=5.0" in run.stdout and "pixel_filter_type=GAUSSIAN" in run.stdout
-    assert "Displacement output is not supported" in run.stdout
+    assert "Texture Mapping panel settings are not supported" in run.stdout
     assert (out / "summary.md").read_text().count("| same.blend |") == 1
 
 

@@ -20,6 +20,8 @@ import numpy as np
 
 from ...kernels.geometry import normal_matrices
 from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
+from ...kernels.textures import Texture
+from .displacement import check_adaptive_subdivision, displace_mesh
 from .instances import (asset_name, check_visibility, instance_key, instance_random, instanced_groups, is_rendered,
                         object_inputs, slot_materials)
 from .materials import MaterialTable
@@ -136,6 +138,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     grids: dict[tuple, list] = {}            # (mesh pointer, slot rows) -> (grids, density scale) or None
     properties: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> {object attribute name: RGBA} per instance
     object_values: dict[tuple, dict] = {}    # (object pointer, name) -> an Object attribute's RGBA
+    displaced: set = set()                   # evaluated mesh pointers whose true displacement is done
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -175,6 +178,11 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                     slot_rows[object_key] = materials.slot_ids(ob)
                     signatures[object_key] = slot_materials(ob)
                     check_visibility(ob, warnings)
+                    check_adaptive_subdivision(ob.original, warnings)
+                if mesh_key not in displaced:
+                    displaced.add(mesh_key)
+                    meshes[mesh_key] = _displaced(inst, ob, mesh, meshes[mesh_key], materials,
+                                                  slot_rows[object_key], warnings)
                 uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
                 if uv_maps and mesh_key not in tangents:
                     tangents[mesh_key] = read_tangents(mesh, meshes[mesh_key], uv_maps, ob.name, warnings)
@@ -212,6 +220,20 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                                instance_assets=[a for group in assets.values() for a in group],
                                slot_materials=[m for group in slots.values() for m in group],
                                empty_keys=frozenset(empty))
+
+
+def _displaced(inst, ob, mesh, local: LocalMesh, materials: MaterialTable, rows: tuple, warnings) -> LocalMesh:
+    """The mesh with the true displacement of its materials applied (displacement.py), once per mesh, with
+    the object data and transform of the first instance showing it (as Cycles takes the first object)."""
+    per_slot = materials.true_displacements(rows)
+    if not any(per_slot):
+        return local
+    matrix = np.array(inst.matrix_world)
+    location, size, color, pass_index, own, terminator = object_inputs(ob)
+    row = object_rows(matrix[None], np.array([location]), np.array([size]), np.array([color]), np.array([pass_index]),
+                      np.array([instance_random(inst, own)]), np.array([terminator]))[0]
+    textures = [Texture(t, bool(flag)) for t, flag in zip(materials.textures, materials.texture_srgb)]
+    return displace_mesh(mesh, local, per_slot, row, matrix, textures, ob.name, warnings)
 
 
 def _object_attributes(inst, ob, names: tuple, cache: dict) -> dict:

@@ -19,7 +19,8 @@ kernel builds Cycles' closures from them (kernels.shading.nodes).
   Chains and nesting of any depth are read (engine/export/graph.py).
 - Any other shader node: DEFAULT_ALBEDO grey diffuse, with a warning. Nothing connected to the Surface
   (or no output node): black, as in Cycles. Objects without a material: Cycles' default surface, a
-  Principled BSDF with its defaults (DEFAULT_SURFACE). Volume and Displacement outputs: ignored with a warning.
+  Principled BSDF with its defaults (DEFAULT_SURFACE). Volume outputs: media (volumes.md). The Displacement output:
+  bump on the closures' unlinked normals (methods Bump, Both) and vertices moved (Displacement, Both: displacement.py).
 - Normal and Coat Normal inputs: a Normal Map node (Tangent, World or Blender World space; its Color a
   constant, an RGB node or an Image Texture, its Strength a constant or a Value node) becomes a
   kernels.scene.NormalMap. Tangent inputs: a Tangent node in UV Map direction becomes a Tangent. The
@@ -37,8 +38,10 @@ from dataclasses import replace
 import numpy as np
 
 from ...kernels import Materials
+from ...kernels.programs import Ref
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
 from .graph import indexed_links, invalid_links, node_loop, run_nested
+from .displacement import METHODS, TrueDisplacement
 from .images import ImageTextures
 from .lights import MAX_LIGHT_RADIANCE
 from .nodes import ProgramBuilder
@@ -141,6 +144,7 @@ class MaterialTable:
         self._ids: dict[str, int] = {}
         self._tangent_maps: dict[int, tuple[str, ...]] = {}
         self._attributes: dict[int, frozenset] = {}
+        self._displacements: dict[int, TrueDisplacement] = {}
 
     def material_id(self, material) -> int:
         """Row of a material (None for an empty slot), read on first use."""
@@ -151,8 +155,11 @@ class MaterialTable:
             row = self._ids[key] = len(self._rows)
             uv_maps: list[str] = []
             attributes: set[str] = set()
+            displaced: list = []
             self._rows.append(read_material(material, self.images, self._warnings, uv_maps, attributes,
-                                            self._layer_attribute))
+                                            self._layer_attribute, displaced))
+            if displaced:
+                self._displacements[row] = displaced[0]
             self._pass_indices.append(int(material.pass_index))
             self.names.append(material.name)
             if uv_maps:
@@ -193,9 +200,14 @@ class MaterialTable:
 
     def mesh_needs(self) -> tuple:
         """Per row, what its shader asks of the meshes beyond positions, normals and UVs: (tangent UV
-        maps, attribute names). A material edit that changes it needs the meshes read again."""
-        return tuple((self._tangent_maps.get(row, ()), tuple(sorted(self._attributes.get(row, ()))))
+        maps, attribute names, true displacement). A material edit that changes it needs the meshes read again."""
+        return tuple((self._tangent_maps.get(row, ()), tuple(sorted(self._attributes.get(row, ()))),
+                      self._displacements[row].signature if row in self._displacements else None)
                      for row in range(len(self._rows)))
+
+    def true_displacements(self, rows) -> tuple:
+        """Per row of `rows`, the displacement.TrueDisplacement that moves its vertices, or None."""
+        return tuple(self._displacements.get(row) for row in rows)
 
     def slot_ids(self, ob) -> tuple[int, ...]:
         """The rows of an object's material slots; (0,) for an object without slots."""
@@ -216,10 +228,12 @@ class MaterialTable:
 
 
 def read_material(material, images: ImageTextures, warnings: list[str], uv_maps: list[str] | None = None,
-                  attributes: set[str] | None = None, layer_attribute=None) -> Shader:
+                  attributes: set[str] | None = None, layer_attribute=None,
+                  true_displacement: list | None = None) -> Shader:
     """One material's shader. Everything Ember cannot render goes into a single warning line. The UV
     maps whose tangents it reads are appended to uv_maps ('' for the render UV map), the mesh attributes
-    its node program reads added to attributes. layer_attribute : nodes.ProgramBuilder's."""
+    its node program reads added to attributes. layer_attribute : nodes.ProgramBuilder's. Its Displacement
+    output, when it moves vertices (displacement.TrueDisplacement), is appended to true_displacement."""
     tree = material.node_tree
     if tree is None:  # a material without nodes renders its viewport colour, as in Cycles
         return diffuse_shader(rgb(material.diffuse_color), name=material.name)
@@ -230,11 +244,19 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
         return Shader((), material.name)
     with indexed_links():
         return _read_tree(material, tree, _MaterialReader(images, material.pass_index, layer_attribute), warnings, uv_maps,
-                          attributes)
+                          attributes, true_displacement)
 
 
-def _read_tree(material, tree, reader, warnings, uv_maps, attributes) -> Shader:
+def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displacement=None) -> Shader:
     out = output_node(tree)
+    displacement = None if out is None else out.inputs.get("Displacement")
+    method = getattr(material, "displacement_method", "BUMP")
+    if displacement is not None and source_of(displacement).node is not None:
+        moves, _, bumps = METHODS.get(method, METHODS["BUMP"])
+        if bumps and source_of(out.inputs["Surface"]).node is not None:
+            reader.bump_from_displacement(displacement)
+        if moves and true_displacement is not None:
+            true_displacement.append(reader.true_displacement(displacement, method == "BOTH"))
     closures = () if out is None else tuple(reader.closures(source_of(out.inputs["Surface"]), ()))
     volume, volume_only = (), False
     if out is not None:
@@ -242,9 +264,6 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes) -> Shader:
         # A Volume output and nothing on the Surface: the surface is the volume's invisible boundary (Cycles'
         # SD_HAS_ONLY_VOLUME); a Surface whose shader folds to nothing stays black, as in Cycles.
         volume_only = bool(volume) and source_of(out.inputs["Surface"]).node is None
-        displacement = out.inputs.get("Displacement")
-        if displacement is not None and source_of(displacement).node is not None:
-            reader.issues.append("Displacement output is not supported, ignored")
     reader.issues.extend(invalid_links(tree))
     if reader.issues:
         warnings.append(f"Material '{material.name}': " + "; ".join(dict.fromkeys(reader.issues)))
@@ -288,6 +307,31 @@ class _MaterialReader:
         self.attributes: set[str] = set()     # mesh attributes the node program reads
         self.program = ProgramBuilder(images, self.issues, self.attributes, self.tangent_uv_maps, pass_index,
                                       layer_attribute=layer_attribute)
+        self.bump_normal: Param | None = None  # the normal bump from displacement gives unlinked Normal inputs
+
+    def bump_from_displacement(self, socket) -> None:
+        """Cycles' bump from displacement (ShaderGraph::bump_from_displacement, scene/shader_graph.cpp): the
+        Displacement output's component along the normal as the height of a Bump node (Distance 1, Filter
+        Width 0.1, Strength 1) whose normal replaces the unlinked Normal inputs of the closures."""
+        value = self.program.input(socket, (), "VECTOR")
+        if not isinstance(value, Ref):
+            return   # a constant offset has no gradient: the normal stays
+        normal = Ref(self.program.add("ShaderNodeNewGeometry", {}, outputs=("Normal",)), "Normal", "VECTOR", "VECTOR")
+        height = self.program.result(self.program.add("ShaderNodeVectorMath", {"Vector": value, "Vector_001": normal},
+                                                      {"operation": "DOT_PRODUCT"}), "Value", "VALUE", "VALUE")
+        bump = self.program.add("ShaderNodeBump", {"Height": height, "Distance": (1.0,), "Filter Width": (0.1,),
+                                                   "Strength": (1.0,)}, {"invert": False})
+        self.bump_normal = Param.of((0.0, 0.0, 0.0), link=Ref(bump, "Normal", "VECTOR", "VECTOR"))
+
+    def true_displacement(self, socket, keeps_normals: bool) -> TrueDisplacement:
+        """The Displacement output compiled into a program of its own, for the mesh's vertices."""
+        attributes: set[str] = set()
+        uv_maps: list[str] = []
+        builder = ProgramBuilder(self.images, self.issues, attributes, uv_maps, self.program.material_pass_index,
+                                 layer_attribute=self.program.layer_attribute, traces=False)
+        value = builder.input(socket, (), "VECTOR")
+        return TrueDisplacement(builder.program(), value, keeps_normals, frozenset(attributes),
+                                tuple(dict.fromkeys(uv_maps)))
 
     def closures(self, source: Source, factors: tuple) -> list[Closure]:
         """The closures of the shader tree feeding a shader socket, with their Mix Shader factors."""
@@ -323,6 +367,7 @@ class _MaterialReader:
         names = tuple(n for n in names if n not in LINKED_ONLY_INPUTS or source_of(sockets[n], groups).node is not None)
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
         inputs = self.limit_emission(node, closure_kind, inputs) + self.directions(node, groups)
+        inputs += self.bumped_normals(node, groups, dict(inputs))
         self.check_unsupported(node, closure_kind, groups)
         self.check_direction(node, dict(inputs).get("Direction"))
         return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
@@ -396,6 +441,15 @@ class _MaterialReader:
             if value is not None:
                 out.append((name, value))
         return tuple(out)
+
+    def bumped_normals(self, node, groups, given: dict) -> tuple:
+        """The bump-from-displacement normal for the node's Normal and Coat Normal inputs that read the shading
+        normal (unlinked), as Cycles' SetNormal node sets the shading normal they default to."""
+        if self.bump_normal is None:
+            return ()
+        return tuple((name, self.bump_normal) for name in NORMAL_INPUTS
+                     if name in node.inputs and node.inputs[name].enabled and name not in given
+                     and source_of(node.inputs[name], groups).node is None)
 
     def normal_map(self, source: Source, socket, groups) -> NormalMap | Param | None:
         """A Normal or Coat Normal input: a Normal Map node as the kernel's NormalMap, any other node (an

@@ -345,8 +345,8 @@ def _normal_map(builder, node, groups):
         builder.tangent_uv_maps.append(node.uv_map)
     inputs = {"Color": (yield builder.read(node.inputs["Color"], groups, "RGBA")),
               "Strength": (yield builder.read(node.inputs["Strength"], groups, "VALUE"))}
-    # Blender 5.1 added the DirectX convention; its Base option matters only on displaced surfaces, which
-    # Ember does not render (their Displacement output is ignored with a warning).
+    # Blender 5.1 added the DirectX convention; its Base option (the displaced or undisplaced surface's
+    # normal under "Displacement and Bump") is not read.
     options = {"space": node.space, "convention": getattr(node, "convention", "OPENGL")}
     return builder.add(node.bl_idname, inputs, options)
 
@@ -478,7 +478,18 @@ def _bump(builder, node, groups):
     return builder.add(node.bl_idname, inputs, {"invert": bool(node.invert)})
 
 
+def _displacement(builder, node, groups):
+    """Displacement and Vector Displacement (kernels/shading/displace.py); tangent space reads the render UV
+    map's tangents (Cycles' ATTR_STD_UV_TANGENT)."""
+    inputs = yield builder.node_inputs(node, groups)
+    if node.bl_idname == "ShaderNodeVectorDisplacement" and node.space == "TANGENT":
+        builder.tangent_uv_maps.append("")
+    return builder.add(node.bl_idname, inputs, {"space": node.space})
+
+
 COMPILERS = {
+    "ShaderNodeDisplacement": _displacement,
+    "ShaderNodeVectorDisplacement": _displacement,
     "ShaderNodeVectorTransform": _vector_transform,
     "ShaderNodeNormal": _normal,
     "ShaderNodeCameraData": _plain,

@@ -16,6 +16,7 @@ from . import noise as ns
 from . import patterns as pt
 from . import sky as sk
 from . import voronoi as vr
+from .displace import displacement_node, vector_displacement_node
 from .image_ops import environment, image
 from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geometry, layer_weight, light_path, \
     normal_map, normal_node, object_info, separate_xyz, tangent_node, tex_coord, uv_map, vector_transform, \
@@ -54,6 +55,8 @@ OPS = {
     "ShaderNodeTexSky": sky,
     "ShaderNodeAmbientOcclusion": ambient_occlusion_node,
     "ShaderNodeBevel": bevel_node,
+    "ShaderNodeDisplacement": displacement_node,
+    "ShaderNodeVectorDisplacement": vector_displacement_node,
 }
 # Ops that read nothing of the hits besides their inputs: folded at export when those are constants.
 PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ"}
