@@ -145,3 +145,14 @@ def test_scenes_without_settings_take_no_visibility_path():
     _scene()
     result = export_current()
     assert result.scene.object_visibility is None
+
+
+def test_light_ray_visibility_warns_by_name_and_setting():
+    import bpy
+    from bpy_helpers import export_current
+    _scene()
+    sun = bpy.data.objects["Sun"]
+    sun.visible_glossy = False
+    sun.visible_camera = True
+    warnings = [w for w in export_current().warnings if "'Sun'" in w]
+    assert len(warnings) == 1 and "Camera" in warnings[0] and "Glossy" in warnings[0] and "Diffuse" not in warnings[0]
