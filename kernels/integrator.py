@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import motion, passes, sampling
+from . import motion, passes, sampling, visibility
 from .accel import RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
@@ -102,7 +102,8 @@ def start_paths(tables, wave, paths, start: int, end: int):
         state.features = np.ones((3, n), np.float32)
     if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
         state.pass_weights = np.zeros((6 if tables.media is None else 7, n), np.float32)
-    if tables.shading.reads_lobes or _caustics(settings) is not None or type_limits(settings) is not None:
+    if tables.shading.reads_lobes or _caustics(settings) is not None or type_limits(settings) is not None \
+            or tables.visibility is not None:   # (a ray's type follows its last bounce's label: visibility.py)
         state.lobes = np.zeros((4, n), np.int32)
     if settings.filter_glossy > 0 or tables.shading.bevels:  # Cycles' Bevel skips blurry bounces too
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
@@ -132,6 +133,9 @@ def step(tables, wave, state, rays, first: bool, last: int):
     hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, state.time)
     if state.partner is not None:
         _hand_over(state, hits)
+    if tables.visibility is not None:
+        visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, visibility.ray_types(state, first),
+                               wave.split, state.time)
     ended = None
     if not first and tables.lights.has_surface_lights:
         ended = _lights_hit(tables, wave, state, rays, hits)
@@ -150,6 +154,8 @@ def step(tables, wave, state, rays, first: bool, last: int):
         medium = media_stage.vertex(tables, wave, state.rows(scattered.rows), scattered, first, last)
         if medium is not None:
             medium = (medium[0], Rays(*medium[1], np.full(len(medium[0]), np.inf, np.float32)))
+    if tables.visibility is not None:
+        found = _held_out(tables, wave, state, hits, found)
     if not len(found):
         return medium
     state.compact(found)
@@ -452,6 +458,22 @@ def _holdout(wave, state, shading):
     if len(held):
         share = np.take(shading.holdout, held) * np.take(state.throughput, held, axis=1).mean(axis=0)
         wave.alpha[state.path[held]] -= share
+
+
+# ---- stage: holdout objects cut a hole in alpha where the camera sees them, and end the path there
+def _held_out(tables, wave, state, hits, found) -> np.ndarray:
+    """found without the camera paths (bounce 0: only transparent surfaces passed, Cycles'
+    PATH_RAY_TRANSPARENT_BACKGROUND) that met a holdout object: each takes its throughput's mean off the
+    pixel's alpha and ends, as Cycles' integrate_surface_holdout with a holdout weight of one. Later rays
+    see the object as a plain one (Cycles tests the holdout for camera paths only)."""
+    camera = found[np.take(state.bounce, found) == 0]
+    if not len(camera):
+        return found
+    held = camera[visibility.holdouts(tables, np.take(hits.prim, camera))]
+    if not len(held):
+        return found
+    wave.alpha[state.path[held]] -= np.take(state.throughput, held, axis=1).mean(axis=0)
+    return np.setdiff1d(found, held, assume_unique=True)
 
 
 # ---- stage: sample the next direction from the closure mixture

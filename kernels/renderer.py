@@ -31,6 +31,7 @@ from .shading import Shading
 from .shading.raytrace import ShaderRays
 from .shading.world import WorldShader
 from .textures import Texture
+from .visibility import object_visibility
 from . import integrator
 from .lights import nee
 from .schedule import Progress, RenderResult, WaveCrew, WaveJob, render_passes
@@ -138,6 +139,7 @@ class Renderer:
         self.lights = self._light_sampler()
         self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon)
         self.terminator = terminator_offsets(self.scene)
+        self.visibility = object_visibility(self.scene)
         poll()
 
     def _build_shading(self) -> None:
@@ -306,6 +308,8 @@ class Renderer:
             self.scene = dataclasses.replace(self.scene, objects=new.objects)
             self.shading.data.set_objects(new.objects)
             self.terminator = terminator_offsets(self.scene)
+        self.scene = dataclasses.replace(self.scene, object_visibility=new.object_visibility)
+        self.visibility = object_visibility(self.scene)
         # The lights go in first: update_materials then builds the light sampler once, for everything.
         self.scene = dataclasses.replace(self.scene, lights=new.lights)
         self.update_materials(new.materials, new.textures, new.texture_srgb, new.world)

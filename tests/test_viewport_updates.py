@@ -363,6 +363,15 @@ def test_a_geometry_edit_exports_everything(counts):
     np.testing.assert_array_equal(got, want)
 
 
+def test_a_ray_visibility_edit_exports_everything(counts):
+    """Turning the ball's camera visibility off in the viewport shows as a new export would (the object table's
+    visibility is read with the full export)."""
+    scene, ball, panel, lamp = studio()
+    cost, got, want = edit_and_compare(counts, lambda: setattr(ball, "visible_camera", False))
+    assert cost["builds"] == 1, cost
+    np.testing.assert_array_equal(got, want)
+
+
 def test_another_material_in_a_slot_exports_everything(counts):
     """Switching a slot from the object's material to the mesh's is a transform and shading update of the
     object alone: its slots no longer match the export's, so everything is exported."""

@@ -25,10 +25,12 @@ import time
 from dataclasses import dataclass
 
 import bpy
+import numpy as np
 
 from ...kernels import SceneArrays
 from ...kernels.cryptomatte import hash_names
 from ...kernels.memory import small_pages, trim_heap
+from ...kernels.scene.objects import ALL_RAYS
 from .camera import export_camera, render_region, render_resolution
 from .geometry import export_geometry
 from .images import shader_images
@@ -74,6 +76,14 @@ class ExportCancelled(Exception):
 
 
 @small_pages()
+def object_visibility(per_row: list | None) -> np.ndarray | None:
+    """SceneArrays.object_visibility from the object rows' instance_visibility(), None when every row is seen
+    by every ray and none is a holdout (the kernel then skips every visibility test)."""
+    if not per_row or all(v == ALL_RAYS for v in per_row):
+        return None
+    return np.array(per_row, np.uint8)
+
+
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
                  motion=None, vector=None, instance_everything: bool = False, mesh_cache=None) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
@@ -124,6 +134,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          crypto_ids={kind: hash_names(names) for kind, names in crypto_names.items()},
                          instances=geometry.instances, volumes=geometry.volumes,
                          object_attributes=geometry.object_attributes,
+                         object_visibility=object_visibility(geometry.instance_visibility),
                          **(dict(bvh_vertices=geometry.bvh[0], bvh_indices=geometry.bvh[1]) if geometry.bvh else {}),
                          **scene_motion(motion, geometry),
                          **vector_fields(vector, geometry, camera.world_from_camera))

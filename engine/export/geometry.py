@@ -22,8 +22,8 @@ from ...kernels.geometry import normal_matrices
 from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
 from ...kernels.textures import Texture
 from .displacement import check_adaptive_subdivision, displace_mesh
-from .instances import (asset_name, check_visibility, instance_key, instance_random, instanced_groups, is_rendered,
-                        object_inputs, slot_materials)
+from .instances import (asset_name, check_visibility, instance_key, instance_random, instance_visibility,
+                        instanced_groups, is_rendered, object_inputs, slot_materials)
 from .materials import MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_attributes, read_mesh, read_tangents, readable_mesh
 from .rgba_attributes import instancer_attribute, object_attribute
@@ -57,6 +57,7 @@ class Geometry:
     instance_keys: list | None = None      # per object row: instance_key() (motion blur)
     instance_matrices: list | None = None  # per object row: the (4, 4) world matrix its triangles used
     instance_assets: list | None = None    # per object row: the top-most parent's name (Cryptomatte asset)
+    instance_visibility: list | None = None  # per object row: instance_visibility() (SceneArrays.object_visibility)
     slot_materials: list | None = None     # per object row: slot_materials() of its object
     empty_keys: frozenset = frozenset()    # instance keys of rendered mesh instances without triangles
     instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
@@ -139,12 +140,17 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     properties: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> {object attribute name: RGBA} per instance
     object_values: dict[tuple, dict] = {}    # (object pointer, name) -> an Object attribute's RGBA
     displaced: set = set()                   # evaluated mesh pointers whose true displacement is done
+    visibility: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> instance_visibility() per instance
+    view_layer = depsgraph.view_layer_eval
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
         # An instance is only valid during its iteration step: copy what is needed now.
         ob = inst.object
         if not is_rendered(inst, ob, warnings):
+            continue
+        seen_by = instance_visibility(inst, ob, view_layer)
+        if not seen_by:   # no ray sees it: not rendered (as Cycles' sync)
             continue
         mesh_key = ob.data.as_pointer()
         object_key = (ob.as_pointer(), mesh_key)
@@ -204,6 +210,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         properties.setdefault((mesh_key, slot_rows[object_key]), []).append(
             _object_attributes(inst, ob, materials.attribute_names(slot_rows[object_key]), object_values))
         assets.setdefault((mesh_key, slot_rows[object_key]), []).append(asset_name(ob))
+        visibility.setdefault((mesh_key, slot_rows[object_key]), []).append(seen_by)
         slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
     if cache is not None:
         cache.end()
@@ -218,6 +225,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                                instance_keys=[k for group in keys.values() for k in group],
                                instance_matrices=[m for group in groups.values() for m in group],
                                instance_assets=[a for group in assets.values() for a in group],
+                               instance_visibility=[v for group in visibility.values() for v in group],
                                slot_materials=[m for group in slots.values() for m in group],
                                empty_keys=frozenset(empty))
 

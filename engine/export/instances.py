@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from ...kernels.scene import TERMINATOR_OFFSET, object_rows
+from ...kernels.scene.objects import (HOLDOUT, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_SHADOW,
+                                      RAY_TRANSMIT)
 
 # A mesh placed by two or more instances is stored once in object space and instanced (two-level BVH,
 # kernels.scene.Instances) when its copies together would hold at least this many triangles; smaller sets
@@ -17,8 +19,11 @@ INSTANCE_MIN_TRIANGLES = 20_000
 
 # Object types that carry geometry Ember cannot render yet.
 UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds"}
-RAY_VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
-                  "visible_volume_scatter", "visible_shadow")
+# Object > Visibility > Ray Visibility, each with its bit of SceneArrays.object_visibility (Cycles' sync:
+# intern/cycles/blender/object.cpp, object_ray_visibility).
+RAY_VISIBILITY = (("visible_camera", RAY_CAMERA), ("visible_diffuse", RAY_DIFFUSE), ("visible_glossy", RAY_GLOSSY),
+                  ("visible_transmission", RAY_TRANSMIT), ("visible_volume_scatter", RAY_SCATTER),
+                  ("visible_shadow", RAY_SHADOW))
 
 
 def is_rendered(inst, ob, warnings: list[str]) -> bool:
@@ -35,11 +40,31 @@ def is_rendered(inst, ob, warnings: list[str]) -> bool:
     return inst.show_self and not owner.hide_render
 
 
+def ray_visibility(ob) -> int:
+    """The object's own Ray Visibility bits."""
+    return sum(bit for name, bit in RAY_VISIBILITY if getattr(ob, name, True))
+
+
+def instance_visibility(inst, ob, view_layer) -> int:
+    """An instance's SceneArrays.object_visibility bits, as Cycles' sync (intern/cycles/blender/object.cpp,
+    sync_object): the object's Ray Visibility, and its instancer's too; a holdout (the object's Holdout or a
+    holdout collection of the view layer: Object.holdout_get) is HOLDOUT; in an indirect-only collection (and
+    not a holdout) camera rays do not see it. 0: no ray sees it, and it is not rendered at all.
+    view_layer : the evaluated view layer (depsgraph.view_layer_eval: the original one answers False)."""
+    parent = (inst.parent if inst.is_instance else None) or ob
+    bits = ray_visibility(ob)
+    if parent != ob:
+        bits &= ray_visibility(parent)
+    holdout = bool(parent.holdout_get(view_layer=view_layer))
+    if not holdout and parent.indirect_only_get(view_layer=view_layer):
+        bits &= ~RAY_CAMERA
+    return bits | HOLDOUT if bits and holdout else bits
+
+
 def check_visibility(ob, warnings: list[str]) -> None:
     """Warn in `warnings` about the object's settings Ember renders as a plain object or ignores."""
-    if not all(getattr(ob, name) for name in RAY_VISIBILITY) or ob.is_holdout or ob.is_shadow_catcher:
-        warnings.append(f"Object '{ob.name}': ray visibility, holdout and shadow catcher settings are not "
-                        f"supported, rendered as a plain object")
+    if ob.is_shadow_catcher:
+        warnings.append(f"Object '{ob.name}': Shadow Catcher is not supported yet, rendered as a plain object")
     if float(getattr(ob, "shadow_terminator_shading_offset", 0.0)) > 0:
         warnings.append(f"Object '{ob.name}': Shadow Terminator > Shading Offset is not supported yet, ignored "
                         f"(Geometry Offset is)")

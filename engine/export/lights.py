@@ -26,6 +26,12 @@ BLACKBODY_RANGE_K = (800.0, 12000.0)
 MAX_LIGHT_RADIANCE = 1e20
 
 
+# A light object's Ray Visibility settings, their labels and Blender's defaults.
+LIGHT_VISIBILITY = (("visible_camera", "Camera", False), ("visible_diffuse", "Diffuse", True),
+                    ("visible_glossy", "Glossy", True), ("visible_transmission", "Transmission", True),
+                    ("visible_volume_scatter", "Volume Scatter", True))
+
+
 def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
     """Every light instance; poll() is called for each instance (it raises to cancel the export)."""
     rows = []
@@ -35,6 +41,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
         ob = inst.object
         if ob.type != "LIGHT":
             continue
+        check_light_visibility(ob, warnings)
         row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings)
         if row is not None:
             rows.append(row)
@@ -52,6 +59,16 @@ def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
         sun_half_angle=np.array(columns[7], np.float32),
         cast_shadow=np.array(columns[8], bool),
     )
+
+
+def check_light_visibility(ob, warnings: list[str]) -> None:
+    """Warn about a light's Ray Visibility that Ember does not render: a light seen by the camera (off by
+    default; Ember's camera rays never see lights), or one that a kind of bounce does not see (Cycles then
+    leaves the matching closures out of its light samples: light/common.h, is_light_shader_visible_to_path)."""
+    changed = [label for name, label, default in LIGHT_VISIBILITY if bool(getattr(ob, name, default)) != default]
+    if changed:
+        warnings.append(f"Light '{ob.name}': Ray Visibility ({', '.join(changed)}) is not supported yet, "
+                        f"rendered with the defaults (Camera off, the others on)")
 
 
 def light_strength(light) -> np.ndarray:

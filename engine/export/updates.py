@@ -32,7 +32,7 @@ import numpy as np
 from ...kernels import Lights, Materials, SceneArrays, World
 from ...kernels.scene import OBJECT_COLUMNS
 from .geometry import Geometry
-from .instances import instance_key, instance_row, is_rendered, slot_materials
+from .instances import instance_key, instance_row, instance_visibility, is_rendered, slot_materials
 from .lights import export_lights
 from .materials import DEFAULT_VOLUME_KEY, MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS
@@ -155,6 +155,8 @@ class ExportIndex:
         moving them takes a full export.
     material_keys : per material row, MaterialTable.keys.
     mesh_needs : per material row, MaterialTable.mesh_needs().
+    visibility : per object row, instances.instance_visibility (Ray Visibility, holdout): a change of it takes
+        a full export.
     """
     instance_keys: tuple
     slot_materials: tuple
@@ -163,6 +165,7 @@ class ExportIndex:
     movable: bool
     material_keys: tuple
     mesh_needs: tuple
+    visibility: tuple = ()
 
 
 def export_index(geometry: Geometry, materials: MaterialTable) -> ExportIndex:
@@ -175,7 +178,8 @@ def export_index(geometry: Geometry, materials: MaterialTable) -> ExportIndex:
     return ExportIndex(instance_keys=tuple(geometry.instance_keys or ()),
                        slot_materials=tuple(geometry.slot_materials or ()), empty_keys=geometry.empty_keys,
                        instance_rows=instance_rows, movable=bool(movable), material_keys=materials.keys,
-                       mesh_needs=materials.mesh_needs())
+                       mesh_needs=materials.mesh_needs(),
+                       visibility=tuple(geometry.instance_visibility or ()))
 
 
 def export_instances(depsgraph, index: ExportIndex) -> tuple[np.ndarray, np.ndarray] | None:
@@ -206,6 +210,8 @@ def export_instances(depsgraph, index: ExportIndex) -> tuple[np.ndarray, np.ndar
             signatures[object_key] = slot_materials(ob)
         if rows[r] is not None or signatures[object_key] != index.slot_materials[r]:
             return None
+        if index.visibility and instance_visibility(inst, ob, depsgraph.view_layer_eval) != index.visibility[r]:
+            return None                   # Ray Visibility or holdout changed: the kernel's table is rebuilt whole
         matrix = np.array(inst.matrix_world)
         matrices[r] = matrix
         rows[r] = instance_row(inst, ob, matrix)

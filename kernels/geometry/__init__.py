@@ -10,9 +10,9 @@ A new primitive type (curves, points) is a module beside triangles.py: docs/arch
 goes) says what it provides.
 """
 from .instances import (apply_matrices, emissive_instanced, extent, flatten_instances, instance_boxes,
-                        normal_matrices, prototype_boxes, scene_extent)
+                        lights_of, normal_matrices, prototype_boxes, scene_extent)
 from .triangles import (DEFERRED_ROWS, E1, E2, N0, N1, N2, NG, P0, UV0, UV1, UV2, TriangleTable, interpolate_uv)
 
 __all__ = ["DEFERRED_ROWS", "E1", "E2", "N0", "N1", "N2", "NG", "P0", "UV0", "UV1", "UV2", "TriangleTable",
            "apply_matrices", "emissive_instanced", "extent", "flatten_instances", "instance_boxes",
-           "interpolate_uv", "normal_matrices", "prototype_boxes", "scene_extent"]
+           "interpolate_uv", "lights_of", "normal_matrices", "prototype_boxes", "scene_extent"]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene import CornerRows, SceneArrays, corner_values
+from ..scene.objects import BSDF_RAYS
 
 
 
@@ -66,18 +67,28 @@ def scene_extent(scene: SceneArrays, local: list | None = None):
     return lo, hi
 
 
+def lights_of(scene: SceneArrays) -> np.ndarray | None:
+    """(K,) bool per object row: its emissive triangles are lights for the light sampler, as Cycles'
+    Object::usable_as_light: some BSDF ray sees the object (Ray Visibility); None when all are."""
+    vis = scene.object_visibility
+    if vis is None:
+        return None
+    return (vis & BSDF_RAYS) != 0
+
+
 def emissive_instanced(scene: SceneArrays, emits: np.ndarray):
-    """The instanced triangles whose material emits: (scene triangle numbers (E,) int64 ascending,
+    """The instanced triangles whose material emits, of objects that are lights (lights_of): (scene triangle numbers (E,) int64 ascending,
     world-space corners (E, 3, 3) float64, material rows (E,) int32)."""
     inst = scene.instances
     ids, corners, mats = [], [], []
     if inst is not None and inst.count:
         bases = inst.bases(len(scene.positions))
         local = [np.flatnonzero(emits[p.material_ids]) for p in inst.prototypes]
+        lit = lights_of(scene)
         for k in range(inst.count):
             proto = inst.prototype[k]
             tri = local[proto]
-            if not len(tri):
+            if not len(tri) or (lit is not None and not lit[inst.object_ids[k]]):
                 continue
             m = inst.world_from_object[k]
             p = inst.prototypes[proto].positions[tri].astype(np.float64)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import passes, sampling
+from .. import passes, sampling, visibility
 from ..bsdf.focus import glossy_axes
 from ..bsdf.light_passes import eval_split
 from ..environment import WorldFocus
@@ -234,8 +234,16 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     split = wave.split
     if stack is not None and not (stack >= 0).any() and not tables.media.has_volume.any():
         stack = None
+    hidden = shadow_hidden(tables)
     if not tables.shading.transparent.any():
         blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
+        if hidden:   # what blocks them may be an object shadow rays do not see: the closest one that they do
+            rows = np.flatnonzero(blocked)
+            hits = tables.accel.intersect(origins[rows], dirs[rows], t_max[rows], split,
+                                          None if times is None else times.take(rows))
+            visibility.skip_hidden(tables, origins[rows], dirs[rows], t_max[rows], hits, visibility.SHADOW,
+                                   split, None if times is None else times.take(rows))
+            blocked[rows] = hits.prim >= 0
         out = np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
         if stack is None:
             return out
@@ -251,6 +259,9 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     origins, t_left = origins.copy(), t_max.copy()
     for crossing in range(int(wave.settings.transparent_max_bounces) + 1):
         hits = tables.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
+        if hidden:
+            visibility.skip_hidden(tables, origins, dirs[live], t_left, hits, visibility.SHADOW, split,
+                                   None if times is None else times.take(live))
         found = np.flatnonzero(hits.prim >= 0)
         if stack is not None:
             # The media along the segment to the surface met (or to the light).
@@ -295,6 +306,12 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     else:
         out[:, live] = 0.0  # more transparent surfaces than the limit: opaque, as in Cycles
     return out
+
+
+def shadow_hidden(tables) -> bool:
+    """Some object is not seen by shadow rays (Ray Visibility > Shadow off): they step past it."""
+    vis = tables.visibility
+    return vis is not None and bool(((vis & visibility.SHADOW) == 0).any())
 
 
 # ---------------------------------------------------------------- emitters for the light sampler

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..environment import Environment
 from ..rng import pcg2d, to_unit_float
-from ..geometry import emissive_instanced
+from ..geometry import emissive_instanced, lights_of
 from ..light_tree import LightTree
 from ..scene import SceneArrays
 from ..textures import luminance
@@ -107,6 +107,9 @@ class LightSampler:
         sampled = emits[scene.material_ids]
         if scene.has_motion and scene.motion_ids is not None:
             sampled &= scene.motion_ids < 0
+        lit = lights_of(scene)   # objects no BSDF ray sees are no lights (Ray Visibility)
+        if lit is not None and scene.object_ids is not None:
+            sampled &= lit[scene.object_ids]
         plain_ids = np.flatnonzero(sampled).astype(np.int32)
         # Emissive triangles of instances (kernels.scene.Instances) come after the plain ones, each instance's
         # copy a light of its own, numbered as ray hits report them.

@@ -46,6 +46,10 @@ class SceneArrays:
         node's Object ("object:<name>") and Instancer ("instancer:<name>") attributes; zero (alpha too) where
         an object has none, as in Cycles.
     object_ids : (T,) int32 or None: each triangle's row of `objects` (both or neither are given).
+    object_visibility : (K,) uint8 or None, per row of `objects`: the rays that see the object (Cycles'
+        PathRayVisibilityFlag bits, kernels.visibility: camera 1, transmission 2, diffuse 4, glossy 8,
+        volume scatter 16, shadow 32) and 128 for a holdout; None: every ray sees every object, none is a
+        holdout.
     motion : ((K, 4, 4) float64, ...) world_from_object at K >= 2 motion steps evenly spread over the
         shutter (time 0 to 1), one entry per moving object; motion_reference, one (4, 4) per entry: the
         matrix the triangles' world-space positions were made with. motion_ids : (T,) int32 or None:
@@ -93,6 +97,7 @@ class SceneArrays:
     bvh_indices: np.ndarray | None = None
     volumes: tuple = ()
     object_attributes: tuple = ()
+    object_visibility: np.ndarray | None = None
 
     @property
     def has_motion(self) -> bool:
@@ -181,6 +186,9 @@ class SceneArrays:
             if t:
                 require(self.object_ids.min() >= 0 and self.object_ids.max() < k, "object_ids",
                         f"must be in [0, {k})")
+        if self.object_visibility is not None:
+            require(self.objects is not None, "object_visibility", "needs the object table")
+            check_array(self.object_visibility, "object_visibility", (len(self.objects),), np.uint8)
         for name, values in self.object_attributes:
             k = 0 if self.objects is None else len(self.objects)
             check_array(values, f"object_attributes[{name!r}]", (k, 4), np.float32)

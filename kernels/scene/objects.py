@@ -13,6 +13,13 @@ OBJ_COLOR, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TERMINATOR = 30, 34, 35, 36
 OBJECT_COLUMNS = 37
 # Cycles' default Shadow Terminator > Geometry Offset (Object > Shading).
 TERMINATOR_OFFSET = 0.1
+# SceneArrays.object_visibility: the rays that see an object, Cycles' PathRayVisibilityFlag bits (kernel/types.h),
+# and Ember's own bit for a holdout object (Object > Visibility > Holdout, a holdout collection).
+RAY_CAMERA, RAY_TRANSMIT, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_SHADOW = 1, 2, 4, 8, 16, 32
+ALL_RAYS = 63
+HOLDOUT = 128
+# The rays that make an object's emission a light for the light sampler (Cycles' Object::usable_as_light).
+BSDF_RAYS = RAY_TRANSMIT | RAY_DIFFUSE | RAY_GLOSSY | RAY_SCATTER
 
 
 def object_row(world_from_object, texspace_location=(0.0, 0.0, 0.0), texspace_size=(1.0, 1.0, 1.0),

@@ -1,0 +1,91 @@
+"""Object ray visibility and holdout: which rays may hit an object (Object > Visibility > Ray Visibility,
+indirect-only collections) and which objects cut a hole in the film where the camera sees them.
+
+Cycles gives every object a mask of ray types (scene/object.cpp, kobject.visibility) and every ray the
+type of the bounce that sent it (integrator/path_state.h, path_state_next): a camera ray, and a ray
+that only passed transparent surfaces since, is CAMERA; after a bounce, TRANSMIT for a transmission,
+else DIFFUSE or GLOSSY (singular counts as glossy), VOLUME_SCATTER after a scatter in a medium; shadow
+rays are SHADOW. Its BVH skips objects whose mask lacks the ray's type. Here the closest hit is traced as
+usual and, where the object it found does not see that type of ray, traced again from just past it, as
+the transparent shadow loop steps past transparent surfaces (kernels/lights/nee.py).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .accel import Hits
+from .interaction import spawn_offset
+from .paths import DIFFUSE, TRANSMIT, VOLUME_SCATTER as SCATTER_LABEL
+from .scene.objects import (ALL_RAYS, HOLDOUT, RAY_CAMERA as CAMERA, RAY_DIFFUSE as DIFFUSE_RAY,
+                            RAY_GLOSSY as GLOSSY_RAY, RAY_SCATTER as SCATTER_RAY, RAY_SHADOW as SHADOW,
+                            RAY_TRANSMIT as TRANSMIT_RAY)
+
+# A ray steps past at most this many objects that do not see it, as a safeguard (each is one more query).
+MAX_SKIPS = 64
+
+
+def object_visibility(scene) -> np.ndarray | None:
+    """(K,) uint8 per row of the object table (SceneArrays.object_visibility), or None when every object is
+    seen by every ray and none is a holdout: then nothing here runs and images stay as they were."""
+    vis = scene.object_visibility
+    if vis is None or scene.objects is None or not len(vis) or (vis == ALL_RAYS).all():
+        return None
+    return np.asarray(vis, np.uint8)
+
+
+def ray_types(state, first: bool) -> np.ndarray:
+    """(N,) uint8: the visibility bit of each path's current ray. A path still on its camera ray (bounce 0:
+    only transparent surfaces passed) is CAMERA; else the label of its last bounce (PathState.lobes)."""
+    n = len(state)
+    if first or state.lobes is None:
+        return np.full(n, CAMERA, np.uint8)
+    label = state.lobes[0]
+    kind = np.where((label & SCATTER_LABEL) != 0, SCATTER_RAY,
+                    np.where((label & TRANSMIT) != 0, TRANSMIT_RAY,
+                             np.where((label & DIFFUSE) != 0, DIFFUSE_RAY, GLOSSY_RAY)))
+    return np.where(state.bounce == 0, CAMERA, kind).astype(np.uint8)
+
+
+def hidden(tables, prim: np.ndarray, types) -> np.ndarray:
+    """(n,) bool: the hits prim (all >= 0) are on objects that rays of `types` ((n,) or one uint8) do not see."""
+    rows = tables.triangles.object_rows(prim)
+    return (np.take(tables.visibility, rows) & types) == 0
+
+
+def holdouts(tables, prim: np.ndarray) -> np.ndarray:
+    """(n,) bool: the hits prim are on holdout objects."""
+    return (np.take(tables.visibility, tables.triangles.object_rows(prim)) & HOLDOUT) != 0
+
+
+def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = True, times=None) -> Hits:
+    """The closest hits of the rays among objects that see them: where `hits` (from tables.accel.intersect of
+    the same rays) found an object that rays of `types` ((N,) uint8, or one value) do not see, the ray is
+    traced again from just past that hit. t stays the distance from the ray's own origin. Changes hits."""
+    types = np.broadcast_to(np.asarray(types, np.uint8), (len(origins),))
+    live = np.flatnonzero(hits.prim >= 0)
+    live = live[hidden(tables, hits.prim[live], types[live])]
+    for _ in range(MAX_SKIPS):
+        if not len(live):
+            return hits
+        o = origins[live]
+        t = hits.t[live]
+        step = t + spawn_offset(tables.ray_epsilon, o[:, 0], o[:, 1], o[:, 2])
+        left = t_max[live] - step
+        hits.prim[live] = -1
+        hits.t[live] = np.inf
+        go = np.flatnonzero(left > 0)
+        live, step, left = live[go], step[go], left[go]
+        if not len(live):
+            return hits
+        start = np.ascontiguousarray(origins[live] + dirs[live] * step[:, None], np.float32)
+        again = tables.accel.intersect(start, np.ascontiguousarray(dirs[live]), left.astype(np.float32), split,
+                                       None if times is None else times.take(live))
+        found = np.flatnonzero(again.prim >= 0)
+        at = live[found]
+        hits.prim[at] = again.prim[found]
+        hits.t[at] = again.t[found] + step[found]
+        hits.u[at], hits.v[at] = again.u[found], again.v[found]
+        live = at[hidden(tables, again.prim[found], types[at])]
+    hits.prim[live] = -1   # past the safeguard: nothing found
+    hits.t[live] = np.inf
+    return hits
