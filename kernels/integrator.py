@@ -220,7 +220,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         alive = alive[np.where(bounds[alive], np.take(state.volume_bounds, alive) < media_stage.VOLUME_BOUNDS_MAX,
                                np.take(state.segments, alive) < last)]
     exits = None
-    if bs.subsurface is not None:   # the paths that picked a BSSRDF walk beneath the surface and come out
+    if bs.subsurface is not None:   # the paths that picked a subsurface closure walk beneath the surface and come out
         walking = np.take(bs.subsurface, alive)
         if walking.any():
             exits = _subsurface_exits(tables, wave, state.rows(alive[walking]), hit, closures, bs, alive[walking],
@@ -245,9 +245,9 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     return PathState.concat(going[0], exits[0]), _concat_rays(going[1], exits[1])
 
 
-# ---- stage: subsurface scattering (kernels.subsurface), between a BSSRDF's pick and its exit point
+# ---- stage: subsurface scattering (kernels.subsurface), between a subsurface closure's pick and its exit point
 def _subsurface_exits(tables, wave, state, hit, closures, bs, rows, last):
-    """The paths `state` (of the hits rows, which picked a BSSRDF) walk beneath their surfaces; where a walk
+    """The paths `state` (of the hits rows, which picked a subsurface closure) walk beneath their surfaces; where a walk
     comes out, the exit point is a surface vertex of its own (Cycles' INTERSECT_SUBSURFACE, then SHADE_SURFACE
     with PATH_RAY_SUBSURFACE). Returns the paths that go on from there and their rays, or None."""
     out, prim, u, v, t, direction, throughput = subsurface.enter(tables, state, hit, closures, bs, rows)
@@ -520,7 +520,7 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
     throughput = state.throughput * bs.weight
     alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
     passing = bs.transparent
-    # A BSSRDF's pick counts no bounce and keeps the MIS pdf: the exit's diffuse bounce counts (Cycles'
+    # A subsurface closure's pick counts no bounce and keeps the MIS pdf: the exit's diffuse bounce counts (Cycles'
     # subsurface_bounce leaves path_state_next to the exit).
     entering = np.zeros(len(passing), bool) if bs.subsurface is None else bs.subsurface
     # Past the last bounce a path still passes through transparent surfaces (as in Cycles), not portals.
