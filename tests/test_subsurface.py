@@ -113,8 +113,13 @@ def _sss_scene(method, node=False, furnace=False):
 
 @pytest.mark.parametrize("node", [False, True])
 def test_white_subsurface_sphere_in_a_white_world_is_the_world(node):
-    """A furnace: albedo 1, no absorption, the sphere vanishes into the world (within noise, fixed seed)."""
+    """A furnace: albedo 1, no absorption, the sphere vanishes into the world (within noise, fixed seed). Up to
+    Blender 5.1 Cycles' Random Walk is the legacy model (radius / (4 pi), short walks that the 256-step bound
+    cuts): there the furnace must lose what Cycles' loses."""
     scene = _sss_scene("RANDOM_WALK", node=node, furnace=True)
+    if bpy.app.version < (5, 2, 0):
+        H.compare_to_cycles(scene, samples=32)
+        return
     img = H.render_to_array(scene, "EMBER", 32, seed=3)[..., :3]
     sphere = img[14:34, 14:34]
     assert abs(sphere.mean() - 1.0) < 0.02, sphere.mean(axis=(0, 1))

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import bpy
 import numpy as np
 
 from ...kernels import Materials
@@ -125,6 +126,15 @@ DEFAULT_VOLUME = Shader((), "default volume", volume=(Closure("PRINCIPLED_VOLUME
     ("Color Attribute", ""), ("Density Attribute", "density"), ("Temperature Attribute", "temperature"))),),
     volume_only=True)
 DEFAULT_VOLUME_KEY = "\x00default volume"
+
+
+def _subsurface_method(node, kind: str) -> str:
+    """The node's subsurface method as Cycles of this Blender runs it: up to 5.1, Random Walk is the model that
+    Cycles 5.2 renamed Random Walk (Legacy) (radius / (4 pi), the legacy albedo fit)."""
+    method = node.subsurface_method if kind == "PRINCIPLED" else node.falloff
+    if method == "RANDOM_WALK" and bpy.app.version < (5, 2, 0):
+        return "RANDOM_WALK_LEGACY"
+    return method
 
 
 class MaterialTable:
@@ -376,10 +386,10 @@ class _MaterialReader:
             options.append(("fresnel", node.fresnel_type))
         if kind in ("TOON", "HAIR"):
             options.append(("component", node.component))
-        if kind == "PRINCIPLED" and node.subsurface_method != "RANDOM_WALK":  # the default, read as such
-            options.append(("subsurface_method", node.subsurface_method))
-        if kind == "SUBSURFACE":
-            options.append(("subsurface_method", node.falloff))
+        if kind in ("PRINCIPLED", "SUBSURFACE"):
+            method = _subsurface_method(node, kind)
+            if method != "RANDOM_WALK":  # the default, read as such
+                options.append(("subsurface_method", method))
         return tuple(options)
 
     def directions(self, node, groups) -> tuple:
@@ -429,7 +439,7 @@ class _MaterialReader:
             if name in node.inputs and self.is_set(node.inputs[name], neutral, groups):
                 self.issues.append(f"{label} {name} is not supported, ignored")
         if (kind == "SUBSURFACE" or (kind == "PRINCIPLED" and self.is_set(node.inputs["Subsurface Weight"], 0.0, groups))
-                ) and (node.falloff if kind == "SUBSURFACE" else node.subsurface_method) == "BURLEY":
+                ) and _subsurface_method(node, kind) == "BURLEY":
             self.issues.append(f"{label} Christensen-Burley subsurface scattering is rendered as Random Walk")
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")

@@ -19,9 +19,12 @@ from ..vec import F32, ONE, ZERO, normalize_xyz
 from . import lobes
 from .microfacet import sample_visible_normal
 
-# Methods (the dist column): Cycles' CLOSURE_BSSRDF_RANDOM_WALK_ID, _RANDOM_WALK_SKIN_ID, _BURLEY_ID.
-RANDOM_WALK, RANDOM_WALK_SKIN, BURLEY = 0, 1, 2
-METHODS = {"RANDOM_WALK": RANDOM_WALK, "RANDOM_WALK_SKIN": RANDOM_WALK_SKIN, "BURLEY": BURLEY}
+# Methods (the dist column): Cycles' CLOSURE_BSSRDF_RANDOM_WALK_ID, _RANDOM_WALK_SKIN_ID, _BURLEY_ID and
+# _RANDOM_WALK_LEGACY_ID (the Random Walk of Cycles up to Blender 5.1: radius / (4 pi), the legacy albedo fit; the
+# export names it for those Blenders' Random Walk).
+RANDOM_WALK, RANDOM_WALK_SKIN, BURLEY, RANDOM_WALK_LEGACY = 0, 1, 2, 3
+METHODS = {"RANDOM_WALK": RANDOM_WALK, "RANDOM_WALK_SKIN": RANDOM_WALK_SKIN, "BURLEY": BURLEY,
+           "RANDOM_WALK_LEGACY": RANDOM_WALK_LEGACY}
 MIN_RADIUS = F32(1e-8)
 CUTOFF = F32(1e-5)          # CLOSURE_WEIGHT_CUTOFF      # types.h BSSRDF_MIN_RADIUS: thinner channels become a Lambert closure
 
@@ -47,7 +50,7 @@ def _dipole_alpha_prime(rd, fourthird_a):
 
 
 def setup_radius(radius, albedo, ior, method):
-    """bssrdf_setup_radius: Burley's radius x 1/(4 pi); Random Walk (Skin)'s x sqrt(3 (1 - alpha')) with alpha'
+    """bssrdf_setup_radius: Burley's and Random Walk (Legacy)'s radius x 1/(4 pi); Random Walk (Skin)'s x sqrt(3 (1 - alpha')) with alpha'
     the dipole's single-scattering albedo for the surface albedo and IOR (Jensen's Fdr); Random Walk as given.
     radius, albedo (3, n); ior, method (n,)."""
     radius = np.array(radius, np.float64)
@@ -58,7 +61,7 @@ def setup_radius(radius, albedo, ior, method):
     if np.any(skin):
         ap = _dipole_alpha_prime(np.asarray(albedo, np.float64), fourthird_a)
         radius = np.where(skin, radius * np.sqrt(3.0 * (1.0 - ap)), radius)
-    radius = np.where(method == BURLEY, radius * (0.25 / np.pi), radius)
+    radius = np.where((method == BURLEY) | (method == RANDOM_WALK_LEGACY), radius * (0.25 / np.pi), radius)
     return radius.astype(F32)
 
 
