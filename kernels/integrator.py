@@ -14,8 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import motion, passes, sampling, visibility
-from .accel import RayTimes
+from . import motion, passes, sampling, subsurface, visibility
+from .accel import Hits, RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
 from .bsdf.light_passes import pass_classes
@@ -165,51 +165,58 @@ def step(tables, wave, state, rays, first: bool, last: int):
     return PathState.concat(surface[0], medium[0]), _concat_rays(surface[1], medium[1])
 
 
-def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: int):
+def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: int, subsurface_exit: bool = False):
     """The paths `state` (compacted to the rays' hits `found`) at the surfaces they met: shading, data
     passes, emission, holdout, next-event estimation, the next direction, roulette. Returns the paths that go
     on and their next rays, or None. (A participating medium adds a vertex stage of its own beside this one:
-    docs/architecture.md, Where new content goes.)"""
+    docs/architecture.md, Where new content goes.) subsurface_exit: the points where subsurface walks left
+    the surface, shaded as Cycles shades them (kernels.subsurface.exit_closures; no emission, holdout, data
+    passes or roulette)."""
     settings, aux = wave.settings, wave.aux
     hit = _surface_hit(tables, hits, rays, found, state.time)
     t_hit = np.take(hits.t, found)
-    # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
-    # of distance, bounce after bounce (kernel/util/differential.h).
-    state.dp = state.dp + t_hit * wave.spread_dd
+    if not subsurface_exit:
+        # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
+        # of distance, bounce after bounce (kernel/util/differential.h).
+        state.dp = state.dp + t_hit * wave.spread_dd
     hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
                       caustics=_caustics(settings), portal=state.portal)
-    if tables.shading.traces:  # Ambient Occlusion and Bevel nodes trace here (Cycles' shade_surface_raytrace)
-        hit.ray.keys = ray_keys(state, np.arange(len(state)))
-        hit.ray.time, hit.ray.min_ray_pdf, hit.ray.split = state.time, state.min_ray_pdf, wave.split
-    shading = tables.shading.surface(hit)
-    tables.crew.check_stop()
-    if aux is not None and first:
-        passes.write_data(tables, aux, state, hit, shading.closures, settings)
-    if state.features is not None:
-        passes.write_denoising_features(tables, aux, state, hit, shading, t_hit)
-    if state.min_ray_pdf is not None and settings.filter_glossy > 0:
-        _filter_glossy(shading.closures, state.min_ray_pdf, settings.filter_glossy)
-    if tables.emissive:
-        _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found)
-    if tables.shading.has_holdout:
-        _holdout(wave, state, shading)
-    if state.continuation is not None:
-        _roulette_weights(state)
+    if subsurface_exit:
+        closures = subsurface.exit_closures(hit)
+    else:
+        if tables.shading.traces:  # Ambient Occlusion and Bevel nodes trace here (Cycles' shade_surface_raytrace)
+            hit.ray.keys = ray_keys(state, np.arange(len(state)))
+            hit.ray.time, hit.ray.min_ray_pdf, hit.ray.split = state.time, state.min_ray_pdf, wave.split
+        shading = tables.shading.surface(hit)
+        closures = shading.closures
+        tables.crew.check_stop()
+        if aux is not None and first:
+            passes.write_data(tables, aux, state, hit, closures, settings)
+        if state.features is not None:
+            passes.write_denoising_features(tables, aux, state, hit, shading, t_hit)
+        if state.min_ray_pdf is not None and settings.filter_glossy > 0:
+            _filter_glossy(closures, state.min_ray_pdf, settings.filter_glossy)
+        if tables.emissive:
+            _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found)
+        if tables.shading.has_holdout:
+            _holdout(wave, state, shading)
+        if state.continuation is not None:
+            _roulette_weights(state)
     numbers = state.samples.bounce(0 if first else 1)
     focus = None
     if wave.nee:
-        focus = nee.world_focus(tables, hit, shading.closures)
-        nee.next_event(tables, wave, state, hit, shading.closures, numbers, focus)
+        focus = nee.world_focus(tables, hit, closures)
+        nee.next_event(tables, wave, state, hit, closures, numbers, focus)
         tables.crew.check_stop()
-    bs = _sample_bsdf(tables, wave, hit, shading.closures, numbers)
+    bs = _sample_bsdf(tables, wave, hit, closures, numbers)
     tables.crew.check_stop()
     if state.pass_weights is not None:
-        passes.first_bounce_shares(tables, state, shading.closures, bs)
+        passes.first_bounce_shares(tables, state, closures, bs)
     if wave.nee and tables.glass_escapes_on:
-        _glass_escapes(tables, wave, state, hit, shading.closures, bs)
+        _glass_escapes(tables, wave, state, hit, closures, bs)
     alive = _continues(tables, wave, hit, state, bs, numbers, focus)
     if state.lobes is not None:
-        state.track_lobes(bs, shading.closures, bs.transparent)
+        state.track_lobes(bs, closures, bs.transparent if bs.subsurface is None else bs.transparent | bs.subsurface)
     # A path takes at most `last` + 1 steps (its rays: the camera's, one per bounce or pass-through); a
     # volume's invisible boundary is not one, up to Cycles' VOLUME_BOUNDS_MAX crossings.
     bounds = None if tables.media is None else bs.transparent & np.take(tables.media.boundary, hit.mat)
@@ -218,8 +225,15 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     else:
         alive = alive[np.where(bounds[alive], np.take(state.volume_bounds, alive) < media_stage.VOLUME_BOUNDS_MAX,
                                np.take(state.segments, alive) < last)]
+    exits = None
+    if bs.subsurface is not None:   # the paths that picked a subsurface closure walk beneath the surface and come out
+        walking = np.take(bs.subsurface, alive)
+        if walking.any():
+            exits = _subsurface_exits(tables, wave, state.rows(alive[walking]), hit, closures, bs, alive[walking],
+                                      last)
+            alive = alive[~walking]
     if not len(alive):
-        return None
+        return exits
     state.compact(alive)
     if bounds is None:
         state.segments = state.segments + 1
@@ -231,7 +245,28 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         _crossings(tables, state, hit, alive, bs)
     if state.media is not None:
         media_stage.enter_exit_surfaces(tables, state, hit, alive, np.take(_below(bs), alive))
-    return state, _spawn(tables, hit, alive, bs)
+    going = state, _spawn(tables, hit, alive, bs)
+    if exits is None:
+        return going
+    return PathState.concat(going[0], exits[0]), _concat_rays(going[1], exits[1])
+
+
+# ---- stage: subsurface scattering (kernels.subsurface), between a subsurface closure's pick and its exit point
+def _subsurface_exits(tables, wave, state, hit, closures, bs, rows, last):
+    """The paths `state` (of the hits rows, which picked a subsurface closure) walk beneath their surfaces; where a walk
+    comes out, the exit point is a surface vertex of its own (Cycles' INTERSECT_SUBSURFACE, then SHADE_SURFACE
+    with PATH_RAY_SUBSURFACE). Returns the paths that go on from there and their rays, or None."""
+    out, prim, u, v, t, direction, throughput = subsurface.enter(tables, state, hit, closures, bs, rows)
+    tables.crew.check_stop()
+    if not len(out):
+        return None
+    state.compact(out)
+    state.throughput = throughput
+    n = len(out)
+    # As Cycles, the exit is seen from outside: the ray arrives against the last flight's direction.
+    rays = Rays(np.zeros((n, 3), np.float32), np.ascontiguousarray(-direction.T), np.full(n, np.inf, np.float32))
+    return _surface_vertex(tables, wave, state, rays, Hits(prim, t, u, v), np.arange(n), first=False, last=last,
+                           subsurface_exit=True)
 
 
 # ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
@@ -507,6 +542,9 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
     throughput = state.throughput * bs.weight
     alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
     passing = bs.transparent
+    # A subsurface closure's pick counts no bounce and keeps the MIS pdf: the exit's diffuse bounce counts (Cycles'
+    # subsurface_bounce leaves path_state_next to the exit).
+    entering = np.zeros(len(passing), bool) if bs.subsurface is None else bs.subsurface
     # Past the last bounce a path still passes through transparent surfaces (as in Cycles), not portals.
     alive &= (passing & ~portal) | may_scatter(wave, state)
     # A volume's boundary (a material with only a Volume output) is passed without counting (Cycles'
@@ -514,11 +552,11 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
     state.transparent = state.transparent + (passing if tables.media is None else
                                              passing & ~np.take(tables.media.boundary, hit.mat))
     alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
-    state.bounce = state.bounce + ~passing
+    state.bounce = state.bounce + (~passing & ~entering)
     if state.portal is not None:
         state.portal = state.portal + portal
     # What a portal's ray finds counts in full (Cycles' PATH_RAY_MIS_SKIP): its pdf is inf.
-    state.bsdf_pdf = np.where(passing & ~portal, state.bsdf_pdf, bs.pdf)
+    state.bsdf_pdf = np.where((passing & ~portal) | entering, state.bsdf_pdf, bs.pdf)
     if focus is not None or state.focus is not None:
         # Like bsdf_pdf, a transparent pass-through keeps the focus of the vertex before.
         now = focus if focus is not None else WorldFocus.none(len(state))
@@ -527,13 +565,13 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
             now.put(kept, state.focus.take(kept))
         state.focus = now
     if state.min_ray_pdf is not None:
-        state.min_ray_pdf = np.where(passing, state.min_ray_pdf, np.minimum(state.min_ray_pdf, bs.pdf))
+        state.min_ray_pdf = np.where(passing | entering, state.min_ray_pdf, np.minimum(state.min_ray_pdf, bs.pdf))
     # After a few bounces, Russian roulette judges the surface the new ray will hit, as Cycles does
     # (path_state_continuation_probability, decided in intersect_closest): the ray is traced whatever
     # the verdict, and what it finds emitting counts in full; only the surface's shading (its light
     # sample and the next bounce) goes on with probability q = min(sqrt(max throughput), 1), weighted
     # by 1/q. The square root keeps paths longer than q = max throughput would.
-    state.continuation = roulette_verdict(wave, state, throughput, numbers, ~passing)
+    state.continuation = roulette_verdict(wave, state, throughput, numbers, ~passing & ~entering)
     state.throughput = throughput
     return np.flatnonzero(alive)
 

@@ -5,7 +5,7 @@ computing closure inputs are compiled by nodes.py, and the images they read are 
 Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
 and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
 Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Ray Portal, Hair, Emission,
-Holdout; Subsurface Scattering as diffuse); each closure keeps its inputs and the Mix factors above it, and the
+Holdout, Subsurface Scattering); each closure keeps its inputs and the Mix factors above it, and the
 kernel builds Cycles' closures from them (kernels.shading.nodes).
 
 - Constant values that are not numbers read 0 (Cycles drops a closure whose weight is not a number), and
@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import bpy
 import numpy as np
 
 from ...kernels import Materials
@@ -60,7 +61,8 @@ CLOSURE_NODES = {
         "Base Color", "Metallic", "Roughness", "IOR", "Alpha", "Diffuse Roughness", "Subsurface Weight",
         "Specular IOR Level", "Specular Tint", "Anisotropic", "Anisotropic Rotation", "Transmission Weight",
         "Coat Weight", "Coat Roughness", "Coat IOR", "Coat Tint", "Sheen Weight", "Sheen Roughness", "Sheen Tint",
-        "Emission Color", "Emission Strength", "Thin Film Thickness", "Thin Film IOR")),
+        "Emission Color", "Emission Strength", "Thin Film Thickness", "Thin Film IOR", "Subsurface Radius",
+        "Subsurface Scale", "Subsurface IOR", "Subsurface Anisotropy")),
     "ShaderNodeBsdfDiffuse": ("DIFFUSE", ("Color", "Roughness")),
     "ShaderNodeBsdfAnisotropic": ("GLOSSY", ("Color", "Roughness", "Anisotropy", "Rotation")),
     "ShaderNodeBsdfGlass": ("GLASS", ("Color", "Roughness", "IOR", "Thin Film Thickness", "Thin Film IOR")),
@@ -75,8 +77,7 @@ CLOSURE_NODES = {
     "ShaderNodeBsdfHair": ("HAIR", ("Color", "Offset", "RoughnessU", "RoughnessV")),
     "ShaderNodeEmission": ("EMISSION", ("Color", "Strength")),
     "ShaderNodeHoldout": ("HOLDOUT", ()),
-    # Subsurface scattering renders as the diffuse surface it would be without its radius (warned).
-    "ShaderNodeSubsurfaceScattering": ("DIFFUSE", ("Color",)),
+    "ShaderNodeSubsurfaceScattering": ("SUBSURFACE", ("Color", "Scale", "Radius", "IOR", "Roughness", "Anisotropy")),
 }
 # Shader nodes a Volume output is made of -> kernel volume kinds (kernels.scene.VOLUME_KINDS), with the inputs
 # read (Blender 5.0 names; the phase parameters Blender hides for another phase are read all the same) and the
@@ -128,6 +129,15 @@ DEFAULT_VOLUME = Shader((), "default volume", volume=(Closure("PRINCIPLED_VOLUME
     ("Color Attribute", ""), ("Density Attribute", "density"), ("Temperature Attribute", "temperature"))),),
     volume_only=True)
 DEFAULT_VOLUME_KEY = "\x00default volume"
+
+
+def _subsurface_method(node, kind: str) -> str:
+    """The node's subsurface method as Cycles of this Blender runs it: up to 5.1, Random Walk is the model that
+    Cycles 5.2 renamed Random Walk (Legacy) (radius / (4 pi), the legacy albedo fit)."""
+    method = node.subsurface_method if kind == "PRINCIPLED" else node.falloff
+    if method == "RANDOM_WALK" and bpy.app.version < (5, 2, 0):
+        return "RANDOM_WALK_LEGACY"
+    return method
 
 
 class MaterialTable:
@@ -421,6 +431,10 @@ class _MaterialReader:
             options.append(("fresnel", node.fresnel_type))
         if kind in ("TOON", "HAIR"):
             options.append(("component", node.component))
+        if kind in ("PRINCIPLED", "SUBSURFACE"):
+            method = _subsurface_method(node, kind)
+            if method != "RANDOM_WALK":  # the default, read as such
+                options.append(("subsurface_method", method))
         return tuple(options)
 
     def directions(self, node, groups) -> tuple:
@@ -478,9 +492,9 @@ class _MaterialReader:
         for name, neutral in UNSUPPORTED_INPUTS.get(kind, ()):
             if name in node.inputs and self.is_set(node.inputs[name], neutral, groups):
                 self.issues.append(f"{label} {name} is not supported, ignored")
-        if node.bl_idname == "ShaderNodeSubsurfaceScattering" or (
-                kind == "PRINCIPLED" and self.is_set(node.inputs["Subsurface Weight"], 0.0, groups)):
-            self.issues.append(f"{label} subsurface scattering is rendered as diffuse")
+        if (kind == "SUBSURFACE" or (kind == "PRINCIPLED" and self.is_set(node.inputs["Subsurface Weight"], 0.0, groups))
+                ) and _subsurface_method(node, kind) == "BURLEY":
+            self.issues.append(f"{label} Christensen-Burley subsurface scattering is rendered as Random Walk")
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 # Lobe ids.
 (LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY, TOON_DIFFUSE,
- TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION) = range(14)
+ TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION, BSSRDF) = range(15)
 
 # What a lobe is, as flags:
 # DIFFUSE       Cycles' CLOSURE_IS_BSDF_DIFFUSE: the bump shadowing term's softening, the Diffuse light passes.
@@ -20,7 +20,10 @@ from __future__ import annotations
 #               and the hair lobes' samplers reach directions their eval does not (and report another pdf).
 # ANY_SIDE      samples leave on whichever side of the surface they point to, untested (Cycles' hair samplers
 #               and Ray Portal): the integrator sees which side that is.
-DIFFUSE, GLOSSY, TRANSMISSION, MICROFACET, SINGULAR, SELF_EVALUATING, ANY_SIDE = (1 << i for i in range(7))
+# SUBSURFACE    a BSSRDF (Cycles' CLOSURE_IS_BSSRDF): nothing evaluates it (it is singular for the mixture), its
+#               sample is the direction into the surface a subsurface walk starts along (kernels/subsurface.py);
+#               diffuse for the light passes, as Cycles files it.
+DIFFUSE, GLOSSY, TRANSMISSION, MICROFACET, SINGULAR, SELF_EVALUATING, ANY_SIDE, SUBSURFACE = (1 << i for i in range(8))
 
 CLASSES = {
     LAMBERT: DIFFUSE,
@@ -37,6 +40,7 @@ CLASSES = {
     PORTAL: SINGULAR | ANY_SIDE,
     HAIR_REFLECTION: GLOSSY | SELF_EVALUATING | ANY_SIDE,
     HAIR_TRANSMISSION: TRANSMISSION | SELF_EVALUATING | ANY_SIDE,
+    BSSRDF: DIFFUSE | SINGULAR | SUBSURFACE,
 }
 
 
@@ -52,3 +56,4 @@ GLOSSY_LOBES = lobes_with(GLOSSY)
 TRANSMISSION_LOBES = lobes_with(TRANSMISSION)
 SELF_EVALUATED = lobes_with(SELF_EVALUATING)
 ANY_SIDE_LOBES = lobes_with(ANY_SIDE)
+SUBSURFACE_LOBES = lobes_with(SUBSURFACE)

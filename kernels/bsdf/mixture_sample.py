@@ -15,7 +15,7 @@ import numpy as np
 from .. import sampling
 from ..vec import F32, ONE, ZERO
 from . import frames
-from .lobes import ANY_SIDE_LOBES, PORTAL, SELF_EVALUATED, TRANSPARENT
+from .lobes import ANY_SIDE_LOBES, PORTAL, SELF_EVALUATED, SUBSURFACE_LOBES, TRANSPARENT
 from .mixture_eval import eval_at, eval_closures, take_each
 from .registry import LOBES
 
@@ -27,9 +27,10 @@ class BsdfSample:
     side test) masks, and row, the closure table row that was picked (-1: none), whose lobe says diffuse or
     glossy (Light Path). origin: None, or (3, N) float32 where a Ray Portal moves the ray's start (NaN
     elsewhere: the ray leaves from the hit). through: None, or (N,) where the ray leaves below the surface
-    when that is not what transmit says (the integrator sets it for any_side samples)."""
+    when that is not what transmit says (the integrator sets it for any_side samples). subsurface: None, or
+    (N,) bool where a BSSRDF was picked: wi is the direction a subsurface walk starts along (kernels.subsurface)."""
     __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent", "portal", "any_side", "origin",
-                 "through", "row")
+                 "through", "row", "subsurface")
 
     def __init__(self, n: int):
         self.wi = (np.zeros(n, F32), np.zeros(n, F32), np.ones(n, F32))
@@ -40,7 +41,7 @@ class BsdfSample:
         self.transparent = np.zeros(n, bool)
         self.portal = np.zeros(n, bool)
         self.any_side = np.zeros(n, bool)
-        self.origin = self.through = None
+        self.origin = self.through = self.subsurface = None
         self.row = np.full(n, -1, np.int64)
 
 
@@ -202,6 +203,10 @@ def _sample_lobes(cs, out, hits, rows, u1, u2, uc):
         out.delta[h] = cs.delta[r] | np.isinf(pdf)
         out.transparent[h] = k == TRANSPARENT
         out.any_side[h] = k in ANY_SIDE_LOBES
+        if k in SUBSURFACE_LOBES:
+            if out.subsurface is None:
+                out.subsurface = np.zeros(len(out.pdf), bool)
+            out.subsurface[h] = True
 
 
 def _sample_portals(cs, out, hits, rows):

@@ -18,9 +18,9 @@ from typing import Callable
 import numpy as np
 
 from ..vec import F32
-from . import diffuse, frames, hair, sheen, toon
+from . import bssrdf, diffuse, frames, hair, sheen, toon
 from . import microfacet_closures as mfc
-from .lobes import (ASHIKHMIN_SHIRLEY, GLASS, HAIR_REFLECTION, HAIR_TRANSMISSION, LAMBERT, OREN_NAYAR, PORTAL,
+from .lobes import (ASHIKHMIN_SHIRLEY, BSSRDF, GLASS, HAIR_REFLECTION, HAIR_TRANSMISSION, LAMBERT, OREN_NAYAR, PORTAL,
                     REFLECTION, REFRACTION, SHEEN, TOON_DIFFUSE, TOON_GLOSSY, TRANSLUCENT, TRANSPARENT)
 
 
@@ -121,6 +121,14 @@ def _transparent_sample(cs, rows, wo, u1, u2, uc):
     return wi, np.ones(n, F32), np.ones(n, F32), True
 
 
+def _bssrdf_sample(cs, rows, wo, u1, u2, uc):
+    """The direction a subsurface walk starts along (bssrdf.entry_sample); weight 1, pdf inf (the mixture's
+    delta rule gives it Cycles' bssrdf sample weight); pdf 0 where the viewer is below the closure's normal."""
+    wi, ok = bssrdf.entry_sample(wo, cs.ax[rows], cs.eta[rows], cs.dist[rows], u1, u2)
+    n = len(rows)
+    return wi, np.ones(n, F32), np.where(ok, np.float32(np.inf), np.float32(0.0)), True
+
+
 _MICROFACET_COLUMNS = {"ax": "alpha x", "ay": "alpha y", "dist": "distribution (GGX, Beckmann)",
                        "eval_scale": "1 / E, multiscatter", "fresnel": "Fresnel mode (microfacet_closures.F_*)",
                        "eta": "far side over the viewer's side", "c0": "F0 or n", "c1": "F82 b, k or reflection tint",
@@ -148,4 +156,7 @@ LOBES = {
     HAIR_REFLECTION: Lobe("hair reflection", _hair_reflection_eval, _hair_reflection_sample, columns=_HAIR_COLUMNS),
     HAIR_TRANSMISSION: Lobe("hair transmission", _hair_transmission_eval, _hair_transmission_sample,
                             columns=_HAIR_COLUMNS),
+    BSSRDF: Lobe("subsurface (BSSRDF)", None, _bssrdf_sample,
+                 columns={"c0": "radius, method-scaled", "c1": "albedo", "ax": "entry GGX alpha", "eta": "IOR",
+                          "offset": "anisotropy", "dist": "method (bssrdf.METHODS)"}),
 }

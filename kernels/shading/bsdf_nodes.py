@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
-from ..bsdf import lobes
+from ..bsdf import bssrdf, lobes
 from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
 from ..bsdf.toon import toon_angles
@@ -26,6 +26,19 @@ def diffuse_bsdf(c, ctx, w, b):
     if b is not None:
         color = ctx.input(c, "Color")
         diffuse_lobe(b, ctx, color * w, ctx.input(c, "Roughness"), np.clip(color, 0.0, 1.0))
+    return Built()
+
+
+def subsurface_scattering(c, ctx, w, b):
+    """The Subsurface Scattering node (svm_node_closure_bsdf's BSSRDF case): weight Color x the Mix weight, albedo
+    Color, Radius x Scale, the node's IOR, alpha = Roughness (clamped, not squared), Anisotropy, on its Normal."""
+    if b is not None:
+        color = ctx.input(c, "Color")
+        radius = np.maximum(ctx.input(c, "Radius") * ctx.input(c, "Scale"), ZERO)
+        method = bssrdf.METHODS[c.option("subsurface_method", "RANDOM_WALK")]
+        bssrdf.add_bssrdf(b, ctx.idx, color * w, color, radius, ctx.input(c, "IOR"),
+                          np.clip(ctx.input(c, "Roughness"), 0.0, 1.0), ctx.input(c, "Anisotropy"), method,
+                          normal=ctx.normal_arg, soften=soften(ctx))
     return Built()
 
 

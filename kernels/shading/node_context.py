@@ -30,7 +30,8 @@ DEFAULTS = {
                    "Transmission Weight": 0.0, "Coat Weight": 0.0, "Coat Roughness": 0.03, "Coat IOR": 1.5,
                    "Coat Tint": WHITE, "Sheen Weight": 0.0, "Sheen Roughness": 0.5, "Sheen Tint": WHITE,
                    "Emission Color": WHITE, "Emission Strength": 0.0, "Thin Film Thickness": 0.0,
-                   "Thin Film IOR": 1.33},
+                   "Thin Film IOR": 1.33, "Subsurface Radius": (1.0, 0.2, 0.1), "Subsurface Scale": 0.05,
+                   "Subsurface IOR": 1.4, "Subsurface Anisotropy": 0.0},
     "DIFFUSE": {"Color": GREY, "Roughness": 0.0},
     "GLOSSY": {"Color": GREY, "Roughness": 0.5, "Anisotropy": 0.0, "Rotation": 0.0},
     "GLASS": {"Color": WHITE, "Roughness": 0.0, "IOR": 1.5, "Thin Film Thickness": 0.0, "Thin Film IOR": 1.33},
@@ -47,6 +48,8 @@ DEFAULTS = {
     "TRANSPARENT": {"Color": WHITE},
     "EMISSION": {"Color": WHITE, "Strength": 1.0},
     "HOLDOUT": {},
+    "SUBSURFACE": {"Color": GREY, "Scale": 0.05, "Radius": (1.0, 0.2, 0.1), "IOR": 1.4, "Roughness": 1.0,
+                   "Anisotropy": 0.0},
 }
 
 

@@ -23,7 +23,8 @@ BUILDERS = {"DIFFUSE": bsdf_nodes.diffuse_bsdf, "PRINCIPLED": principled_bsdf, "
             "METALLIC": bsdf_nodes.metallic_bsdf, "SHEEN": bsdf_nodes.sheen_bsdf,
             "TRANSLUCENT": bsdf_nodes.translucent_bsdf, "TRANSPARENT": bsdf_nodes.transparent_bsdf,
             "TOON": bsdf_nodes.toon_bsdf, "PORTAL": bsdf_nodes.ray_portal_bsdf, "HAIR": bsdf_nodes.hair_bsdf,
-            "EMISSION": bsdf_nodes.emission, "HOLDOUT": bsdf_nodes.holdout}
+            "EMISSION": bsdf_nodes.emission, "HOLDOUT": bsdf_nodes.holdout,
+            "SUBSURFACE": bsdf_nodes.subsurface_scattering}
 
 
 def build(closure: Closure, ctx: Context, weight: np.ndarray, builder) -> Built:

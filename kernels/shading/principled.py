@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
-from ..bsdf import lobes
+from ..bsdf import bssrdf, lobes
 from ..bsdf import microfacet_closures as mf
 from ..bsdf.sheen import sheen_albedo
 from ..vec import F32, ONE, ZERO, normalize_xyz
@@ -138,12 +138,21 @@ def principled_bsdf(c, ctx, w, b):
                                  f0[has] * np.take(specular_tint, has, axis=1), multiscatter, sub=has,
                                  film=film_rows(film, has))
         sampling.put_columns(weight, has, layering_weight(albedo, np.take(weight, has, axis=1)))
-    # 7. Diffuse (subsurface scattering is rendered as the diffuse it would be without its radius).
+    # 7. Subsurface (a BSSRDF of the clamped base colour, Radius x Scale, the specular layer's eta, or Subsurface
+    # IOR for Skin; bssrdf.add_bssrdf) and diffuse.
     if not param_may_differ(c, "Subsurface Weight", 0.0):
         diffuse_lobe(b, ctx, base * weight, np.clip(get("Diffuse Roughness"), 0.0, 1.0), clamped)
     else:
         sss = np.clip(get("Subsurface Weight"), 0.0, 1.0)
-        b.add(lobes.LAMBERT, ctx.idx, clamped * sss * weight, normal=spec.normal_arg, **soften(spec))
+        has = np.flatnonzero(sss > CUTOFF)
+        if len(has):
+            method = bssrdf.METHODS[c.option("subsurface_method", "RANDOM_WALK")]
+            ior_s = get("Subsurface IOR") if method == bssrdf.RANDOM_WALK_SKIN else eta
+            radius = np.maximum(get("Subsurface Radius") * get("Subsurface Scale"), ZERO)
+            bssrdf.add_bssrdf(b, ctx.idx[has], sss[has] * np.take(clamped * weight, has, axis=1),
+                              np.take(clamped, has, axis=1), np.take(radius, has, axis=1), ior_s[has], alpha_r[has],
+                              get("Subsurface Anisotropy")[has], method, normal=normal_rows(spec.normal_arg, has),
+                              soften=soften(spec))
         diffuse_lobe(b, ctx, base * (ONE - sss) * weight, np.clip(get("Diffuse Roughness"), 0.0, 1.0), clamped)
     return Built(emission=emission)
 
