@@ -24,14 +24,13 @@ from .bsdf.closures import ClosureBuilder
 from .interaction import spawn_offset
 from .paths import ray_keys
 from .rng import keyed_uniforms
-from .vec import F32
+from .vec import F32, INV_2PI
 
 SALT = 307                  # rng.keyed_uniforms salt of the walk's numbers (3 draws of two per step)
 MAX_BOUNCES = 256           # types.h BSSRDF_MAX_BOUNCES
 SIMILARITY_LEVEL = 9        # subsurface_random_walk.h SUBSURFACE_RANDOM_WALK_SIMILARITY_LEVEL
 THROUGHPUT_EPSILON = 1e-6   # volume.h VOLUME_THROUGHPUT_EPSILON
 MIN_ALPHA = 0.2             # subsurface_random_walk_coefficients' floor on the single-scattering albedo
-INV_2PI = F32(0.5 / np.pi)
 
 
 # ---------------------------------------------------------------- coefficients

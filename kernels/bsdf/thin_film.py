@@ -26,7 +26,7 @@ import os
 import numpy as np
 
 from ..colorspace import XYZ_TO_RGB
-from ..vec import F32, ONE, ZERO
+from ..vec import F32, ONE, TWO_PI, ZERO
 from . import fresnel as fr
 from .tables import lookup_1d
 
@@ -35,7 +35,6 @@ DATA_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "th
 THICKNESS_CUTOFF = F32(0.1)
 # The table covers optical path differences of 0..60 um, in nm.
 TABLE_RANGE_NM = F32(60000.0)
-TWO_PI = F32(2.0 * np.pi)
 AIRY_ORDERS = 3
 
 _table: list[np.ndarray] = []
