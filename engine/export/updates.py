@@ -227,7 +227,7 @@ def _reads_object_attributes(index: ExportIndex) -> bool:
     """Whether a material reads Object or Instancer attributes: their values are kept beside the object
     table (SceneArrays.object_attributes), which an instance update does not read again, so such scenes are
     exported again instead."""
-    return any(name.partition(":")[0] in OBJECT_ATTRIBUTE_KINDS for _, names in index.mesh_needs for name in names)
+    return any(name.partition(":")[0] in OBJECT_ATTRIBUTE_KINDS for needs in index.mesh_needs for name in needs[1])
 
 
 @dataclass(frozen=True)
