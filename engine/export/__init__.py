@@ -75,7 +75,6 @@ class ExportCancelled(Exception):
     """should_stop() returned True during the export (Esc, or Ctrl-C on the command line)."""
 
 
-@small_pages()
 def object_visibility(per_row: list | None) -> np.ndarray | None:
     """SceneArrays.object_visibility from the object rows' instance_visibility(), None when every row is seen
     by every ray and none is a holdout (the kernel then skips every visibility test)."""
@@ -84,6 +83,7 @@ def object_visibility(per_row: list | None) -> np.ndarray | None:
     return np.array(per_row, np.uint8)
 
 
+@small_pages()
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
                  motion=None, vector=None, instance_everything: bool = False, mesh_cache=None) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
