@@ -10,20 +10,19 @@ max_bounces + 1 times (the lecture's "max path length").
 """
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
 from . import motion, passes, sampling, subsurface, visibility
 from .accel import Hits, RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
-from .bsdf.light_passes import pass_classes
+from .glass_escapes import glass_escapes
 from .bsdf.mixture_sample import BsdfSample
-from .interaction import RayInfo, SurfaceHit, spawn_offset
+from .interaction import RayInfo, SurfaceHit
 from .lights import nee
 from .media import stage as media_stage
 from .paths import PathState, may_scatter, ray_keys, roulette_verdict, type_limits
+from .rays import Rays, below, concat_rays, leaves_its_side, spawn
 from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
 
@@ -65,7 +64,7 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
                 fresh = step(tables, wave, *fresh, first=True, last=last)
             if fresh is not None:
                 going = fresh if going is None else \
-                    (PathState.concat(going[0], fresh[0]), _concat_rays(going[1], fresh[1]))
+                    (PathState.concat(going[0], fresh[0]), concat_rays(going[1], fresh[1]))
             continue
         if going is None:
             break
@@ -162,7 +161,7 @@ def step(tables, wave, state, rays, first: bool, last: int):
     surface = _surface_vertex(tables, wave, state, rays, hits, found, first, last)
     if medium is None or surface is None:
         return surface if medium is None else medium
-    return PathState.concat(surface[0], medium[0]), _concat_rays(surface[1], medium[1])
+    return PathState.concat(surface[0], medium[0]), concat_rays(surface[1], medium[1])
 
 
 def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: int, subsurface_exit: bool = False):
@@ -213,7 +212,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     if state.pass_weights is not None:
         passes.first_bounce_shares(tables, state, closures, bs)
     if wave.nee and tables.glass_escapes_on:
-        _glass_escapes(tables, wave, state, hit, closures, bs)
+        glass_escapes(tables, wave, state, hit, closures, bs)
     alive = _continues(tables, wave, hit, state, bs, numbers, focus)
     if state.lobes is not None:
         state.track_lobes(bs, closures, bs.transparent if bs.subsurface is None else bs.transparent | bs.subsurface)
@@ -244,11 +243,11 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     if state.partner is not None:
         _crossings(tables, state, hit, alive, bs)
     if state.media is not None:
-        media_stage.enter_exit_surfaces(tables, state, hit, alive, np.take(_below(bs), alive))
-    going = state, _spawn(tables, hit, alive, bs)
+        media_stage.enter_exit_surfaces(tables, state, hit, alive, np.take(below(bs), alive))
+    going = state, spawn(tables, hit, alive, bs)
     if exits is None:
         return going
-    return PathState.concat(going[0], exits[0]), _concat_rays(going[1], exits[1])
+    return PathState.concat(going[0], exits[0]), concat_rays(going[1], exits[1])
 
 
 # ---- stage: subsurface scattering (kernels.subsurface), between a subsurface closure's pick and its exit point
@@ -295,61 +294,6 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
 
 
 # ---- stage: smooth glass sees the world along the branch it did not take
-def _glass_escapes(tables, wave, state, hit, closures, bs) -> None:
-    """Smooth glass chooses reflection or refraction at random (with probability P and 1 - P) and weighs
-    the branch taken by 1 / its probability: the sun reflected by a window once in twenty samples is a
-    firefly. Where the chosen closure is singular glass, the branch not taken is traced one segment too:
-    if it leaves the scene, what it sees of the world is added at once, weighted by that branch's own
-    Fresnel factor; and what the taken branch sees of the world if it leaves at once is scaled by its
-    probability (state.escape_scale, read by _escaped). Each branch's light from the world along its
-    first segment then counts in full whichever branch was taken, and what it finds on surfaces (and
-    lamps) as before, so the estimate is unbiased and the world's part of it no longer a lottery. Cycles
-    follows one branch (it has nothing of this)."""
-    state.escape_scale = None
-    if not closures.branches:
-        return
-    row = bs.row
-    chosen = np.flatnonzero((row >= 0) & bs.delta & ~bs.transparent & (bs.pdf > 0) &
-                            may_scatter(wave, state))
-    if not len(chosen):
-        return
-    r = row[chosen]
-    smooth = closures.two_branched(r)
-    chosen, r = chosen[smooth], r[smooth]
-    if not len(chosen):
-        return
-    wi, weight, transmit, p_taken, ok = closures.other_branch(chosen, r, bs.transmit[chosen])
-    scale = np.ones(len(state), np.float32)
-    scale[chosen] = p_taken
-    state.escape_scale = scale
-    # The other branch must leave on its side of the true surface, as _continues asks of a sample.
-    ok &= _leaves_its_side(wi, tuple(np.take(c, chosen) for c in hit.ng), transmit)
-    live = np.flatnonzero(ok)
-    if not len(live):
-        return
-    idx = chosen[live]
-    wx, wy, wz = (c[live] for c in wi)
-    rays = _rays_from(tables, hit, idx, (wx, wy, wz), transmit[live])
-    hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split,
-                                None if state.time is None else state.time.take(idx))
-    out = np.flatnonzero(hits.prim < 0)
-    if not len(out):
-        return
-    idx, live = idx[out], live[out]
-    wx, wy, wz = wx[out], wy[out], wz[out]
-    light = tables.environment.radiance(wx, wy, wz)
-    sun = tables.lights.suns_seen(wx, wy, wz)   # after a singular bounce: no MIS
-    if sun is not None:
-        light = light + sun
-
-    def branch_class(first):  # at the first hit, the class of the branch not taken (glossy, transmission)
-        diffuse, glossy = pass_classes(closures, r[live[first]], (wx[first], wy[first], wz[first]))
-        return np.concatenate([np.repeat(diffuse[None, :], 3, axis=0),
-                               np.repeat(glossy[None, :], 3, axis=0)]).astype(np.float32)
-    passes.add_light(tables, wave, state, idx, np.take(state.throughput, idx, axis=1) * weight[:, live] * light,
-                          branch_class)
-
-
 # ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
 def _escaped(tables, wave, state, rays, hits, ended=None):
     """The world seen by the rays that hit nothing (ended: (N,) mask of paths that ended before)."""
@@ -537,8 +481,8 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
     return the indices of the paths that go on."""
     portal, free = bs.portal, bs.any_side
     if free.any():  # hair and Ray Portal samples leave on the side they point to, untested (as in Cycles)
-        bs.through = np.where(free, _leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
-    ok = (_leaves_its_side(bs.wi, hit.ng, bs.transmit) | free) & (bs.pdf > 0)
+        bs.through = np.where(free, leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
+    ok = (leaves_its_side(bs.wi, hit.ng, bs.transmit) | free) & (bs.pdf > 0)
     throughput = state.throughput * bs.weight
     alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
     passing = bs.transparent
@@ -593,7 +537,7 @@ def _roulette_stops(tables, state, hits, found) -> np.ndarray:
 def _crossings(tables, state, hit, alive, bs) -> None:
     """The coincident triangle each ray going through its surface meets at once (kernels.coincident),
     for the next intersection; not for a ray whose hit was itself handed over."""
-    through = np.take(_below(bs), alive) & ~state.handed
+    through = np.take(below(bs), alive) & ~state.handed
     if bs.origin is not None:  # a portal's ray that starts elsewhere crosses nothing here
         through &= ~np.isfinite(np.take(bs.origin[0], alive))
     through = np.flatnonzero(through)
@@ -605,27 +549,6 @@ def _crossings(tables, state, hit, alive, bs) -> None:
         state.partner_uv[0, through], state.partner_uv[1, through] = b1, b2
 
 
-def _spawn(tables, hit, alive, bs) -> "Rays":
-    rays = _rays_from(tables, hit, alive, tuple(np.take(c, alive) for c in bs.wi), np.take(_below(bs), alive))
-    if bs.origin is not None:
-        # A Ray Portal that moves the ray: it starts exactly there, and may meet this surface again.
-        origin = np.take(bs.origin, alive, axis=1)
-        moved = np.flatnonzero(np.isfinite(origin[0]))
-        rays.origins[moved] = origin[:, moved].T
-    return rays
-
-
-def _rays_from(tables, hit, rows, w, transmit) -> "Rays":
-    """Rays leaving the hits rows along directions w (3 tuple of (n,)), from origins moved off the surface
-    to the side they leave on (below it where transmit)."""
-    px, py, pz = (np.take(c, rows) for c in hit.p)
-    sign = np.where(transmit, np.float32(-1.0), np.float32(1.0))
-    gx, gy, gz = (np.take(c, rows) * sign for c in hit.ng)
-    eps = spawn_offset(tables.ray_epsilon, px, py, pz)
-    origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
-    return Rays(origins, np.stack(w, axis=1), np.full(len(rows), np.inf, np.float32))
-
-
 class _Wave:
     """Per-wave constants and outputs shared by the stages."""
     __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux")
@@ -635,17 +558,6 @@ class _Wave:
         self.radiance, self.alpha = radiance, alpha
         self.spread_dd = np.float32(spread_dd)  # the camera rays' direction spread per pixel (radians)
         self.aux = None  # the data passes being recorded ({name: (C, N)}), or None
-
-
-class Rays(NamedTuple):
-    """A wave's rays: origins (N, 3), unit directions (N, 3) and t_max (N,), float32."""
-    origins: np.ndarray
-    dirs: np.ndarray
-    t_max: np.ndarray
-
-
-def _concat_rays(a: Rays, b: Rays) -> Rays:
-    return Rays(*(np.concatenate([x, y]) for x, y in zip(a, b)))
 
 
 def _caustics(settings):
@@ -664,18 +576,6 @@ def _filter_glossy(closures, min_ray_pdf: np.ndarray, filter_glossy: float) -> N
     if need.any():
         closures.blur(np.where(need, np.sqrt(np.maximum(np.float32(1.0) - blur_pdf, 0)) * np.float32(0.5),
                                np.float32(0.0)).astype(np.float32))
-
-
-def _leaves_its_side(w, g, transmit) -> np.ndarray:
-    """(n,) bool: directions w leave on their side of the true surface (normal g, facing the ray it was hit
-    by): a reflection above it, a transmission below it (Cycles' test)."""
-    side = w[0] * g[0] + w[1] * g[1] + w[2] * g[2]
-    return np.where(transmit, side < 0, side > 0)
-
-
-def _below(bs) -> np.ndarray:
-    """(N,) bool: a BSDF sample's ray leaves below the surface (its label's side, unless it is untested)."""
-    return bs.transmit if bs.through is None else bs.through
 
 
 def _roulette_weights(state) -> None:

@@ -45,7 +45,7 @@ class PathState:
     #                                         PATH_RAY_TERMINATE_ON_NEXT_SURFACE); None before any roulette
     escape_scale: np.ndarray | None = None  # (N,) float32 factor on what the ray finds if it leaves the
     #                                         scene at once: the probability of the smooth-glass branch it
-    #                                         took (integrator._glass_escapes), 1 elsewhere; None when no path
+    #                                         took (glass_escapes.py), 1 elsewhere; None when no path
     #                                         took one at its last bounce
     focus: object = None    # environment.WorldFocus or None: how the vertex that sent each ray focused its
     #                         light samples of the world (for the MIS weight of the world the ray finds)

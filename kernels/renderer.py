@@ -149,7 +149,7 @@ class Renderer:
         self.shading = Shading(self.scene.materials, self.textures, self.scene, self.triangles)
         world = self.scene.world
         self.environment = Environment(world, WorldShader(world, self.shading.data) if world.program else None)
-        # Smooth glass finds the world along both branches (_glass_escapes) unless the world's radiance
+        # Smooth glass finds the world along both branches (glass_escapes.py) unless the world's radiance
         # depends on the ray, which the branch not taken has no path state for.
         self.glass_escapes_on = not self.environment.varies_with_ray
         self.emissive = bool(self.shading.emissive.any())
@@ -176,7 +176,7 @@ class Renderer:
                            self.scene.instances)
         eye, _ = self.camera_frame
         self.camera_media = self.media.start_stack(1, self.accel, eye)[:, 0]
-        # Smooth glass's second branch (integrator._glass_escapes) does not know the media along it.
+        # Smooth glass's second branch (glass_escapes.py) does not know the media along it.
         self.glass_escapes_on = False
 
     def _light_sampler(self) -> LightSampler:

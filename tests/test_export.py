@@ -212,6 +212,21 @@ def test_unsupported_geometry_types_warn():
     assert result.scene.object_visibility.tolist() == [63 - 32]
 
 
+def test_light_and_shadow_linking_warn_by_name():
+    """Light Linking and Shadow Linking collections (not rendered yet) are named in a warning, for an emitting
+    object's and a light's, and nothing is said where none is set."""
+    cube = add_cube()
+    assert not any("Linking" in w for w in export().warnings)
+    receivers = bpy.data.collections.new("Receivers")
+    cube.light_linking.receiver_collection = receivers
+    lamp = bpy.data.objects.new("Key", bpy.data.lights.new("Key", "POINT"))
+    bpy.context.scene.collection.objects.link(lamp)
+    lamp.light_linking.blocker_collection = receivers
+    warnings = export().warnings
+    assert any("'Cube'" in w and "Light Linking" in w for w in warnings), warnings
+    assert any("'Key'" in w and "Shadow Linking" in w for w in warnings), warnings
+
+
 def test_hidden_objects_and_non_geometry_are_skipped():
     add_cube(location=(3, 0, 0)).hide_render = True
     bpy.ops.object.text_add()

@@ -1,4 +1,4 @@
-"""Smooth glass sees the world along the branch it did not take (kernels/integrator.py _glass_escapes): the same image
+"""Smooth glass sees the world along the branch it did not take (kernels/glass_escapes.py): the same image
 as following one branch, with less noise where the glass reflects or refracts a bright world."""
 import bpy
 import numpy as np

@@ -18,6 +18,7 @@ import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
 from ...kernels.textures import luminance
+from .instances import check_light_linking
 
 # Blender's blackbody is defined for this range; colours are clamped outside it.
 BLACKBODY_RANGE_K = (800.0, 12000.0)
@@ -42,6 +43,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
         if ob.type != "LIGHT":
             continue
         check_light_visibility(ob, warnings)
+        check_light_linking(ob, "Light", warnings)
         row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings)
         if row is not None:
             rows.append(row)

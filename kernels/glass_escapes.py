@@ -1,0 +1,65 @@
+"""Smooth glass's other branch: what the branch a path did not take sees of the world along its first segment
+(called by the integrator's surface vertex when Renderer.glass_escapes_on)."""
+from __future__ import annotations
+
+import numpy as np
+
+from . import passes
+from .bsdf.light_passes import pass_classes
+from .paths import may_scatter
+from .rays import leaves_its_side, rays_from
+
+
+def glass_escapes(tables, wave, state, hit, closures, bs) -> None:
+    """Smooth glass chooses reflection or refraction at random (with probability P and 1 - P) and weighs
+    the branch taken by 1 / its probability: the sun reflected by a window once in twenty samples is a
+    firefly. Where the chosen closure is singular glass, the branch not taken is traced one segment too:
+    if it leaves the scene, what it sees of the world is added at once, weighted by that branch's own
+    Fresnel factor; and what the taken branch sees of the world if it leaves at once is scaled by its
+    probability (state.escape_scale, read by the integrator's escape stage). Each branch's light from the
+    world along its first segment then counts in full whichever branch was taken, and what it finds on
+    surfaces (and lamps) as before, so the estimate is unbiased and the world's part of it no longer a
+    lottery. Cycles follows one branch (it has nothing of this)."""
+    state.escape_scale = None
+    if not closures.branches:
+        return
+    row = bs.row
+    chosen = np.flatnonzero((row >= 0) & bs.delta & ~bs.transparent & (bs.pdf > 0) &
+                            may_scatter(wave, state))
+    if not len(chosen):
+        return
+    r = row[chosen]
+    smooth = closures.two_branched(r)
+    chosen, r = chosen[smooth], r[smooth]
+    if not len(chosen):
+        return
+    wi, weight, transmit, p_taken, ok = closures.other_branch(chosen, r, bs.transmit[chosen])
+    scale = np.ones(len(state), np.float32)
+    scale[chosen] = p_taken
+    state.escape_scale = scale
+    # The other branch must leave on its side of the true surface, as the integrator asks of a sample.
+    ok &= leaves_its_side(wi, tuple(np.take(c, chosen) for c in hit.ng), transmit)
+    live = np.flatnonzero(ok)
+    if not len(live):
+        return
+    idx = chosen[live]
+    wx, wy, wz = (c[live] for c in wi)
+    rays = rays_from(tables, hit, idx, (wx, wy, wz), transmit[live])
+    hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split,
+                                None if state.time is None else state.time.take(idx))
+    out = np.flatnonzero(hits.prim < 0)
+    if not len(out):
+        return
+    idx, live = idx[out], live[out]
+    wx, wy, wz = wx[out], wy[out], wz[out]
+    light = tables.environment.radiance(wx, wy, wz)
+    sun = tables.lights.suns_seen(wx, wy, wz)   # after a singular bounce: no MIS
+    if sun is not None:
+        light = light + sun
+
+    def branch_class(first):  # at the first hit, the class of the branch not taken (glossy, transmission)
+        diffuse, glossy = pass_classes(closures, r[live[first]], (wx[first], wy[first], wz[first]))
+        return np.concatenate([np.repeat(diffuse[None, :], 3, axis=0),
+                               np.repeat(glossy[None, :], 3, axis=0)]).astype(np.float32)
+    passes.add_light(tables, wave, state, idx, np.take(state.throughput, idx, axis=1) * weight[:, live] * light,
+                          branch_class)
