@@ -156,28 +156,36 @@ def test_multiple_scattering_in_a_dense_cloud():
     compare(scene, samples=128, volume_bounces=8)
 
 
-def test_volume_object_from_an_openvdb_file(tmp_path):
-    """A Volume object reading a .vdb file (a noisy ball of density, written here with Blender's own openvdb
-    module) with its default volume (no material), and again with a Principled Volume of density 8."""
+def vdb_ball(tmp_path, scale):
+    """A Volume object at (0, 0, 0.8) reading a .vdb written here with Blender's own openvdb module: a noisy
+    ball of density (scale x (1 - r^2 / 10^2) x (1 + 0.5 sin 0.7 i), voxels 0.06 wide). Returns (volume, object);
+    skips the test without the module."""
     from ember.engine.export.volumes import openvdb_module
     vdb = openvdb_module()
     if vdb is None:
         pytest.skip("Blender's openvdb module is not found")
     radius, n = 10, 11
     ijk = np.stack(np.meshgrid(*(np.arange(2 * n + 1) - n,) * 3, indexing="ij"), -1).astype(np.float64)
-    density = np.maximum(0.0, 1.0 - (ijk ** 2).sum(-1) / radius ** 2) * (1 + 0.5 * np.sin(0.7 * ijk[..., 0]))
+    density = scale * np.maximum(0.0, 1.0 - (ijk ** 2).sum(-1) / radius ** 2) * (1 + 0.5 * np.sin(0.7 * ijk[..., 0]))
     grid = vdb.FloatGrid()
     grid.name = "density"
     grid.copyFromArray(density.astype(np.float32), ijk=(-n, -n, -n))
     grid.transform = vdb.createLinearTransform(voxelSize=0.06)
     path = tmp_path / "ball.vdb"
     vdb.write(str(path), grids=[grid])
-    scene = stage()
     volume = bpy.data.volumes.new("Ball")
     volume.filepath = str(path)
     ob = bpy.data.objects.new("Ball", volume)
-    scene.collection.objects.link(ob)
+    bpy.context.scene.collection.objects.link(ob)
     ob.location = (0.0, 0.0, 0.8)
+    return volume, ob
+
+
+def test_volume_object_from_an_openvdb_file(tmp_path):
+    """A Volume object reading a .vdb file (a noisy ball of density, written here with Blender's own openvdb
+    module) with its default volume (no material), and again with a Principled Volume of density 8."""
+    scene = stage()
+    volume, _ = vdb_ball(tmp_path, 1.0)
     lamp(scene, "POINT", (2, -2, 3), 400)
     compare(scene)
     m, _ = volume_material("Ball", "ShaderNodeVolumePrincipled", Color=(0.9, 0.8, 0.7, 1.0), Density=8.0)
@@ -295,25 +303,9 @@ def test_biased_ray_marching_of_a_vdb_with_few_steps(tmp_path):
     """A Volume object (a rotated OpenVDB ball of density, its voxels 0.06 wide) marched with Max Steps 4 (each
     segment in four steps, the last cut short by the first's random offset) and Step Rate 3, against Cycles'
     marched image; the step is the voxel size in world space, as Cycles takes it."""
-    from ember.engine.export.volumes import openvdb_module
-    vdb = openvdb_module()
-    if vdb is None:
-        pytest.skip("Blender's openvdb module is not found")
-    radius, n = 10, 11
-    ijk = np.stack(np.meshgrid(*(np.arange(2 * n + 1) - n,) * 3, indexing="ij"), -1).astype(np.float64)
-    density = 8 * np.maximum(0.0, 1.0 - (ijk ** 2).sum(-1) / radius ** 2) * (1 + 0.5 * np.sin(0.7 * ijk[..., 0]))
-    grid = vdb.FloatGrid()
-    grid.name = "density"
-    grid.copyFromArray(density.astype(np.float32), ijk=(-n, -n, -n))
-    grid.transform = vdb.createLinearTransform(voxelSize=0.06)
-    path = tmp_path / "ball.vdb"
-    vdb.write(str(path), grids=[grid])
     scene = stage()
-    volume = bpy.data.volumes.new("Ball")
-    volume.filepath = str(path)
-    ob = bpy.data.objects.new("Ball", volume)
-    scene.collection.objects.link(ob)
-    ob.location, ob.rotation_euler = (0.0, 0.0, 0.8), (0.3, 0.2, 0.5)
+    _, ob = vdb_ball(tmp_path, 8.0)
+    ob.rotation_euler = (0.3, 0.2, 0.5)
     lamp(scene, "POINT", (2, -2, 3), 400)
     set_biased(scene, step_rate=3.0, max_steps=4)
     compare(scene)

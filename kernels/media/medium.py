@@ -61,6 +61,8 @@ class Media:
         world_rate = float(getattr(world_volume, "volume_step_rate", 1.0))
         self.step = np.array([self._step_size(i, rates, world_rate, voxel_steps) for i in range(len(self.material))],
                              np.float64).reshape(-1)
+        # Per medium (and -1, an empty slot: last) whether its shader has an emission closure (stack_emits).
+        self._emits = np.append(np.array([self.shaders[int(m)].emits for m in self.material], bool), False)
         self._constant: dict[int, VolumeCoefficients] = {}
         self.cell_majorants: dict[int, tuple] = {}   # varying media: (cells^3 majorants, their lo, cell size)
         self.majorant = np.array([self._estimate_majorant(i) for i in range(len(self.material))], F32)
@@ -190,8 +192,7 @@ class Media:
 
     def stack_emits(self, stack: np.ndarray) -> np.ndarray:
         """(n,) some medium of each path's stack has an emission closure."""
-        table = np.append(np.array([self.shaders[int(m)].emits for m in self.material], bool), False)
-        return np.take(table, stack).any(axis=0)
+        return np.take(self._emits, stack).any(axis=0)
 
     def stack_homogeneous(self, stack: np.ndarray) -> np.ndarray:
         """(n,) each path's media are all homogeneous."""
