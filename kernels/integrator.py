@@ -21,7 +21,7 @@ from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit
 from .lights import nee
 from .media import stage as media_stage
-from .paths import PathState, may_scatter, ray_keys, roulette_verdict, type_limits
+from .paths import PathState, facing_of, may_scatter, ray_keys, roulette_verdict, type_limits
 from .rays import Rays, below, concat_rays, leaves_its_side, spawn
 from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
@@ -106,6 +106,8 @@ def start_paths(tables, wave, paths, start: int, end: int):
         state.lobes = np.zeros((4, n), np.int32)
     if settings.filter_glossy > 0 or tables.shading.bevels:  # Cycles' Bevel skips blurry bounces too
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
+    if wave.nee and tables.lights.reads_facing:
+        state.mis_facing = np.zeros((4, n), np.float32)
     if tables.media is not None:
         state.media = np.repeat(tables.camera_media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
@@ -213,7 +215,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         passes.first_bounce_shares(tables, state, closures, bs)
     if wave.nee and tables.glass_escapes_on:
         glass_escapes(tables, wave, state, hit, closures, bs)
-    alive = _continues(tables, wave, hit, state, bs, numbers, focus)
+    alive = _continues(tables, wave, hit, state, bs, numbers, focus, closures)
     if state.lobes is not None:
         state.track_lobes(bs, closures, bs.transparent if bs.subsurface is None else bs.transparent | bs.subsurface)
     # A path takes at most `last` + 1 steps (its rays: the camera's, one per bounce or pass-through); a
@@ -275,7 +277,8 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     o, d = rays.origins, rays.dirs
     seeing = state.bounce > 0   # camera rays do not see lights
     budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
-    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget)
+    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget,
+                                  facing_of(state.mis_facing))
     met.crossed[~seeing] = 0
     state.transparent = state.transparent + met.crossed
     lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
@@ -422,7 +425,7 @@ def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
             o = rays.origins
             light_pdf = tables.lights.pdf_triangle_hit(
                 np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
-                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray))
+                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray), facing_of(state.mis_facing, sel))
             le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
     le = passes.clamp(wave, le, np.take(state.bounce, lit) > 1)
     passes.accumulate(wave.radiance, state.path[lit], le)
@@ -476,9 +479,9 @@ def _sample_bsdf(tables, wave, hit, closures, numbers) -> BsdfSample:
 
 
 # ---- stage: absorb what cannot continue, count bounces, then Russian roulette
-def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
-    """Update the path state with the sampled BSDF (focus: the world's at these hits, _world_focus);
-    return the indices of the paths that go on."""
+def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None) -> np.ndarray:
+    """Update the path state with the sampled BSDF (focus: the world's at these hits, _world_focus; closures:
+    theirs); return the indices of the paths that go on."""
     portal, free = bs.portal, bs.any_side
     if free.any():  # hair and Ray Portal samples leave on the side they point to, untested (as in Cycles)
         bs.through = np.where(free, leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
@@ -501,6 +504,11 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
         state.portal = state.portal + portal
     # What a portal's ray finds counts in full (Cycles' PATH_RAY_MIS_SKIP): its pdf is inf.
     state.bsdf_pdf = np.where((passing & ~portal) | entering, state.bsdf_pdf, bs.pdf)
+    if state.mis_facing is not None:   # kept, like bsdf_pdf, through what the path passes
+        now = np.flatnonzero(~((passing & ~portal) | entering))
+        facing = nee.shading_facing(tables, hit, closures)
+        for k in range(4):
+            state.mis_facing[k, now] = np.take(facing[k], now)
     if focus is not None or state.focus is not None:
         # Like bsdf_pdf, a transparent pass-through keeps the focus of the vertex before.
         now = focus if focus is not None else WorldFocus.none(len(state))

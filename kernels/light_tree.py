@@ -25,8 +25,14 @@ as Cycles chooses everywhere (kernel/light/tree.h; the lower bound's share goes 
 both children's lower bounds are 0): the upper bound of a mesh P stands on counts the triangles beside
 P, which send it little, and alone starves a lamp next to it. Among lamps, and within a mesh, the upper
 bound alone is the better guide (100 lamps over a floor: a third of the variance per sample of the
-mean). The importance depends on P only, not on a normal: the MIS pdfs of BSDF rays know only the ray
-origin. Where both children have no upper bound the walk goes by power, so every emitter with power
+mean). Where the point's normal N is given (`facing`: the shading normal of a surface point, and whether its
+closures transmit; the MIS pdfs of BSDF rays get the normal of the vertex the ray left, as Cycles keeps
+mis_origin_n), both bounds take Cycles' incidence factor (light_tree_importance): with theta_i the angle
+between N and the direction to the box centre (its absolute cosine where the closures transmit),
+    I_max x cos(max(theta_i - theta_u, 0)),   I_min x max(cos(theta_i + theta_u), 0),
+and a node wholly behind an opaque point (theta_i - theta_u beyond pi/2) gets 0: two lamps on either side of
+a wall no longer share its samples. A zero normal (a point in a medium) has no such factor.
+Where both children have no upper bound the walk goes by power, so every emitter with power
 that can light P keeps a non-zero probability, and `pmf(e, P)`, the product of the child probabilities on
 e's root path, is exactly the probability the walk chose e with.
 """
@@ -118,8 +124,9 @@ class LightTree:
             self._left_power[inner] = np.nan_to_num(n_power[self.left[inner]] / n_power[inner], nan=0.5)
 
     # ------------------------------------------------------------------ importance
-    def _bounds(self, node, px, py, pz):
-        """(N,) float32 upper and lower bounds of the light node[i] can send point i (module docstring)."""
+    def _bounds(self, node, px, py, pz, facing=None):
+        """(N,) float32 upper and lower bounds of the light node[i] can send point i (module docstring);
+        facing: (nx, ny, nz, two_sided) of the points, or None."""
         g = np.take(self._table, node, axis=0).T
         vx, vy, vz = px - g[0], py - g[1], pz - g[2]
         d2 = vx * vx + vy * vy + vz * vz
@@ -129,10 +136,12 @@ class LightTree:
         upper = g[6] / np.maximum(d2, g[7])
         reach = d + r
         lower = np.where(outside, g[6] / np.maximum(reach * reach, g[7]), np.float32(0.0))
+        inv_d = np.float32(1.0) / np.maximum(d, np.float32(1e-30))
+        if facing is not None:
+            upper, lower = _incidence(upper, lower, facing, vx * inv_d, vy * inv_d, vz * inv_d, r * inv_d)
         omni = g[10] > 0
         if omni.all():
             return upper, lower
-        inv_d = np.float32(1.0) / np.maximum(d, np.float32(1e-30))
         cos_t = np.clip((vx * g[3] + vy * g[4] + vz * g[5]) * inv_d, np.float32(-1.0), np.float32(1.0))
         sin_u = r * inv_d
         theta_u = np.where(sin_u < 1, np.arcsin(np.minimum(sin_u, np.float32(1.0))), PI)
@@ -143,10 +152,10 @@ class LightTree:
         farthest = np.where(theta_f < g[11], np.cos(np.minimum(theta_f, HALF_PI)), np.float32(0.0))
         return np.where(omni, upper, upper * nearest), np.where(omni, lower, lower * farthest)
 
-    def _left_probability(self, node, px, py, pz):
+    def _left_probability(self, node, px, py, pz, facing=None):
         """(N,) float64 probability of going to the left child of internal node[i] at point i."""
-        a_max, a_min = (x.astype(np.float64) for x in self._bounds(np.take(self.left, node), px, py, pz))
-        b_max, b_min = (x.astype(np.float64) for x in self._bounds(np.take(self.right, node), px, py, pz))
+        a_max, a_min = (x.astype(np.float64) for x in self._bounds(np.take(self.left, node), px, py, pz, facing))
+        b_max, b_min = (x.astype(np.float64) for x in self._bounds(np.take(self.right, node), px, py, pz, facing))
         total_max, total_min = a_max + b_max, a_min + b_min
         with np.errstate(divide="ignore", invalid="ignore"):
             p = a_max / total_max
@@ -158,8 +167,9 @@ class LightTree:
         return np.where(ok, p, np.take(self._left_power, node))
 
     # ------------------------------------------------------------------ sampling and pmf
-    def sample(self, u, px, py, pz):
-        """Walk down for each point with u (N,) in [0, 1). Returns (emitter (N,) int64, pmf (N,) float64)."""
+    def sample(self, u, px, py, pz, facing=None):
+        """Walk down for each point with u (N,) in [0, 1). Returns (emitter (N,) int64, pmf (N,) float64).
+        facing: (nx, ny, nz, two_sided) (N,) each, the points' normals and whether they transmit, or None."""
         u = np.asarray(u, np.float64).copy()
         node = np.zeros(len(u), np.int64)
         pmf = np.ones(len(u))
@@ -169,7 +179,7 @@ class LightTree:
             if not len(walking):
                 break
             at = node[walking]
-            p_left = self._left_probability(at, px[walking], py[walking], pz[walking])
+            p_left = self._left_probability(at, px[walking], py[walking], pz[walking], _rows(facing, walking))
             uw = u[walking]
             left = uw < p_left
             prob = np.where(left, p_left, 1.0 - p_left)
@@ -180,7 +190,7 @@ class LightTree:
             node[walking] = np.where(left, np.take(self.left, at), np.take(self.right, at))
         return np.take(self.emitter_at, node), pmf
 
-    def pmf(self, emitter, px, py, pz):
+    def pmf(self, emitter, px, py, pz, facing=None):
         """(N,) float64 probability that the walk from point i picks emitter[i] (0 for emitters not in it)."""
         emitter = np.asarray(emitter)
         leaf = np.where(emitter >= 0, np.take(self.leaf_of, np.maximum(emitter, 0)), -1)
@@ -194,7 +204,8 @@ class LightTree:
                 break
             at = node[climbing]
             parent = np.take(self.parent, at)
-            p_left = self._left_probability(parent, px[climbing], py[climbing], pz[climbing])
+            p_left = self._left_probability(parent, px[climbing], py[climbing], pz[climbing],
+                                            _rows(facing, climbing))
             pmf[climbing] *= np.where(np.take(self.left, parent) == at, p_left, 1.0 - p_left)
             node[climbing] = parent
         return np.where(known, pmf, 0.0)
@@ -206,6 +217,30 @@ class LightTree:
         e = np.tile(np.arange(n), m)
         rep = (np.repeat(c, n) for c in (px, py, pz))
         return self.pmf(e, *rep).reshape(m, n)
+
+
+def _rows(facing, idx):
+    """The facing tuple of the points idx only (None stays None)."""
+    return None if facing is None else tuple(np.take(c, idx) for c in facing)
+
+
+def _incidence(upper, lower, facing, tx, ty, tz, sin_u):
+    """The bounds times Cycles' incidence factor (module docstring): (tx, ty, tz) the unit direction from the box
+    centre to the points, sin_u the sine of the half angle the box's sphere subtends (1 or more inside it)."""
+    nx, ny, nz, two_sided = facing
+    cos_i = -(tx * nx + ty * ny + tz * nz)
+    cos_i = np.where(two_sided, np.abs(cos_i), cos_i)
+    sin_i = np.sqrt(np.maximum(np.float32(1.0) - cos_i * cos_i, np.float32(0.0)))
+    cos_u = np.where(sin_u < 1, np.sqrt(np.maximum(np.float32(1.0) - sin_u * sin_u, np.float32(0.0))),
+                     np.float32(-1.0))
+    sin_u = np.minimum(sin_u, np.float32(1.0))
+    c_min = np.where(cos_i >= cos_u, np.float32(1.0), cos_i * cos_u + sin_i * sin_u)
+    c_max = np.maximum(cos_i * cos_u - sin_i * sin_u, np.float32(0.0))
+    # A zero normal (a point in a medium) has no incidence factor.
+    free = (nx == 0) & (ny == 0) & (nz == 0)
+    c_min = np.where(free, np.float32(1.0), np.maximum(c_min, np.float32(0.0)))
+    c_max = np.where(free, np.float32(1.0), c_max)
+    return upper * c_min, lower * c_max
 
 
 def _units(group, n: int) -> np.ndarray:

@@ -21,6 +21,15 @@ DIFFUSE, GLOSSY, SINGULAR, REFLECT, TRANSMIT = 1, 2, 4, 8, 16
 VOLUME_SCATTER = 32   # the last bounce scattered in a medium (Cycles' LABEL_VOLUME_SCATTER)
 
 
+def facing_of(mis_facing, rows=None):
+    """PathState.mis_facing (or its columns rows) as the light choice's facing tuple (nx, ny, nz, two_sided);
+    None for None."""
+    if mis_facing is None:
+        return None
+    m = mis_facing if rows is None else np.take(mis_facing, rows, axis=1)
+    return m[0], m[1], m[2], m[3] > 0
+
+
 @dataclass
 class PathState:
     path: np.ndarray        # (N,) int64: wave index of the path, where its radiance is accumulated
@@ -64,6 +73,10 @@ class PathState:
     volume_bounces: np.ndarray | None = None  # (N,) int32 scattering events in media so far (with media)
     volume_bounds: np.ndarray | None = None   # (N,) int32 volume boundaries passed (with media; Cycles'
     #                                           volume_bounds_bounce)
+    mis_facing: np.ndarray | None = None  # (4, N) float32: the shading normal of the vertex each ray left and
+    #                                       1 where its closures transmit (Cycles' mis_origin_n and
+    #                                       PATH_RAY_MIS_HAD_TRANSMISSION; zeros: none), for the light tree's
+    #                                       choice in MIS pdfs; None where the light choice reads no normal
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -108,6 +121,8 @@ class PathState:
             self.media = np.take(self.media, idx, axis=1)
             self.volume_bounces = np.take(self.volume_bounces, idx)
             self.volume_bounds = np.take(self.volume_bounds, idx)
+        if self.mis_facing is not None:
+            self.mis_facing = np.take(self.mis_facing, idx, axis=1)
 
     @classmethod
     def concat(cls, a: "PathState", b: "PathState") -> "PathState":
@@ -134,7 +149,7 @@ class PathState:
                     cat(a.bounce, b.bounce, required), cat(a.transparent, b.transparent, required),
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
-                     "portal", "segments", "media", "volume_bounces", "volume_bounds"):
+                     "portal", "segments", "media", "volume_bounces", "volume_bounds", "mis_facing"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)
         state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)

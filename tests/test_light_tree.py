@@ -63,6 +63,53 @@ def test_tree_pmf_sums_to_one_and_matches_frequencies(world, monkeypatch):
         assert np.abs(pmf - sampler.select_pmf).max() > 1e-3
 
 
+def facing(n, normal, two_sided=False):
+    return tuple(np.full(n, c, np.float32) for c in normal) + (np.full(n, two_sided),)
+
+
+@pytest.mark.parametrize("two_sided", [False, True])
+def test_tree_pmf_with_a_normal_sums_to_one_and_matches_frequencies(two_sided, monkeypatch):
+    """With the shading point's normal (Cycles' incidence factor): the pmf still sums to 1, choose_at follows it
+    (chi-square) and reports it, the MIS pmf equals it, and it differs from the pmf without a normal."""
+    sampler = mixed_sampler(monkeypatch)
+    k = sampler.world_index + 1
+    rng = np.random.default_rng(13)
+    for p in rng.uniform(-5, 5, (3, 3)).astype(np.float32):
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        pmf = sampler.selection_pmf(np.arange(k), *at(p, k), facing(k, normal, two_sided)).astype(np.float64)
+        pmf[-1] = sampler.select_pmf[-1]
+        assert abs(pmf.sum() - 1) < 1e-5, pmf.sum()
+        n = 300_000
+        chosen, select = sampler.choose_at(rng.random(n, dtype=np.float32), *at(p, n), facing(n, normal, two_sided))
+        np.testing.assert_allclose(select, pmf[chosen].astype(np.float32), rtol=1e-6)
+        assert_chi2(np.bincount(chosen, minlength=k), pmf * n)
+        plain = sampler.selection_pmf(np.arange(k), *at(p, k)).astype(np.float64)
+        assert np.abs(pmf - plain)[:-1].max() > 1e-3
+
+
+def test_a_lamp_behind_an_opaque_point_is_not_chosen():
+    """Two lamps on either side of a wall: a point on one face chooses only the lamp in front of it (Cycles
+    gives a node behind an opaque surface no importance), both where the surface transmits, and both without
+    a normal; a zero normal (a point in a medium) is as no normal."""
+    lights = Lights(kind=np.zeros(2, np.int32), position=np.float32([(-1, 0, 0), (1, 0, 0)]),
+                    frame=np.repeat(np.eye(3, dtype=np.float32)[None], 2, axis=0),
+                    radiance=np.float32([(5,) * 3, (5,) * 3]), radius=np.float32([0.1, 0.1]),
+                    size=np.zeros((2, 2), np.float32), spot_cos=np.float32([(1.0, 0.0)] * 2),
+                    sun_half_angle=np.zeros(2, np.float32))
+    sampler = sampler_for(lights=lights)
+    assert sampler.uses_tree and sampler.reads_facing
+    p = at((-0.01, 0.3, 0.2), 2)
+    toward_first = sampler.selection_pmf(np.arange(2), *p, facing(2, (-1, 0, 0)))
+    np.testing.assert_allclose(toward_first, [1.0, 0.0])
+    np.testing.assert_allclose(sampler.selection_pmf(np.arange(2), *p, facing(2, (1, 0, 0))), [0.0, 1.0])
+    both = sampler.selection_pmf(np.arange(2), *p, facing(2, (-1, 0, 0), True))
+    assert (both > 0.2).all()
+    np.testing.assert_allclose(both.sum(), 1.0, rtol=1e-6)
+    np.testing.assert_allclose(sampler.selection_pmf(np.arange(2), *p, facing(2, (0, 0, 0))),
+                               sampler.selection_pmf(np.arange(2), *p))
+
+
 def test_global_pmf_below_threshold_is_unchanged(monkeypatch):
     """Without a tree (too few emitters) choose_at is choose() with select_pmf, whatever the point."""
     sampler = mixed_sampler(monkeypatch)

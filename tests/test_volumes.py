@@ -433,3 +433,50 @@ def test_biased_option_settings_and_step_sizes():
     assert steps["Smoke"] == pytest.approx(0.1 * 2.0 * 0.5)
     assert steps["world"] == pytest.approx(0.25)
     assert steps["Fog"] == np.inf
+
+
+class _Coloured:
+    """A homogeneous medium whose extinction and albedo differ per colour channel."""
+    sigma_t = np.float32([0.3, 0.6, 1.2])
+    albedo = np.float32([0.8, 0.5, 0.9])
+
+    def stack_majorant(self, stack):
+        return np.full(stack.shape[1], self.sigma_t.max(), np.float32)
+
+    def stack_homogeneous(self, stack):
+        return np.ones(stack.shape[1], bool)
+
+    def stack_coefficients(self, stack, p, d, ray=None, emission=True):
+        from ember.kernels.shading.volume import VolumeCoefficients
+        n = len(p)
+        sigma_t = np.repeat(self.sigma_t[:, None], n, 1)
+        return VolumeCoefficients(sigma_t * self.albedo[:, None], sigma_t, np.zeros((3, n), np.float32), [])
+
+
+@pytest.mark.parametrize("rare", [False, True])
+def test_homogeneous_scattering_and_passing_weights_are_unbiased(rare):
+    """Distance sampling in a coloured homogeneous segment of length L, plain and with the rarer scattering of
+    camera rays (RARE_SCATTER_SHARE of 1 - T): the passing paths' weights average T = exp(-sigma_t L) per
+    channel, and the scattering ones' weight x sigma_s x t averages the integral of sigma_s exp(-sigma_t t) t
+    over [0, L] (the distances' first moment), both within five standard errors; the rarer choice scatters
+    about RARE_SCATTER_SHARE as often."""
+    from ember.kernels.media.tracking import RARE_SCATTER_SHARE, track
+    n, length = 200_000, 2.0
+    rng = np.random.default_rng(17)
+    seeds = (rng.integers(0, 2**32, n, dtype=np.uint32), rng.integers(0, 2**32, n, dtype=np.uint32))
+    dirs = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (n, 1))
+    medium = _Coloured()
+    seg = track(medium, np.zeros((1, n), np.int32), np.zeros((n, 3), np.float32), dirs,
+                np.full(n, length, np.float32), seeds, np.ones(n, bool), rare=np.full(n, rare))
+    w = seg.weight.astype(np.float64)
+    t = seg.t.astype(np.float64)
+    s, a = medium.sigma_t.astype(np.float64), medium.albedo.astype(np.float64)
+    passing = np.where(seg.scattered, 0.0, w)
+    moment = np.where(seg.scattered, w * (s * a)[:, None] * t, 0.0)
+    expected_moment = a * (1 - np.exp(-s * length) * (1 + s * length)) / s
+    for estimate, truth in ((passing, np.exp(-s * length)), (moment, expected_moment)):
+        se = estimate.std(axis=1, ddof=1) / math.sqrt(n)
+        assert (np.abs(estimate.mean(axis=1) - truth) < 5 * se).all(), (estimate.mean(axis=1), truth, se)
+    plain = (a / a.sum() * -np.expm1(-s * length)).sum()
+    share = seg.scattered.mean() / plain
+    assert abs(share - (RARE_SCATTER_SHARE if rare else 1.0)) < 0.02, share

@@ -26,7 +26,7 @@ from . import frames
 from .bump import BumpShadowing
 from .light_passes import weight_albedo
 from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, LAMBERT, REFLECTION, REFRACTION, SELF_EVALUATED,
-                    SINGULAR_LOBES)
+                    SINGULAR_LOBES, TRANSMITTING_LOBES)
 from .mixture_eval import eval_at
 from .mixture_sample import BsdfSample, pick_closures, sample
 from .registry import LOBES
@@ -213,6 +213,15 @@ class ClosureSet:
             return (self.row_of_hit >= 0) & np.take(live, np.maximum(self.row_of_hit, 0)) if len(live) else \
                 np.zeros(self.n_hits, bool)
         return np.bincount(self.hit, live, minlength=self.n_hits) > 0
+
+    def transmits(self) -> np.ndarray:
+        """(N,) bool: hits with a closure that takes light from behind the surface (Cycles'
+        SD_BSDF_HAS_TRANSMISSION)."""
+        through = np.isin(self.lobe, TRANSMITTING_LOBES)
+        if self.single:
+            return (self.row_of_hit >= 0) & np.take(through, np.maximum(self.row_of_hit, 0)) if len(through) else \
+                np.zeros(self.n_hits, bool)
+        return np.bincount(self.hit, through, minlength=self.n_hits) > 0
 
     def _delta_mask(self) -> np.ndarray:
         delta = np.isin(self.lobe, SINGULAR_LOBES)

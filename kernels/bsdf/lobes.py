@@ -57,3 +57,6 @@ TRANSMISSION_LOBES = lobes_with(TRANSMISSION)
 SELF_EVALUATED = lobes_with(SELF_EVALUATING)
 ANY_SIDE_LOBES = lobes_with(ANY_SIDE)
 SUBSURFACE_LOBES = lobes_with(SUBSURFACE)
+# The lobes that take light from behind the surface (Cycles' SD_BSDF_HAS_TRANSMISSION): the light tree's
+# choice at such a point counts lights on both sides.
+TRANSMITTING_LOBES = tuple(sorted(set(TRANSMISSION_LOBES) | {TRANSLUCENT, GLASS}))

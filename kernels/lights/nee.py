@@ -38,6 +38,14 @@ def world_focus(tables, hit, closures):
     return focus
 
 
+def shading_facing(tables, hit, closures):
+    """(nx, ny, nz, two_sided) of the hits, what the light tree's choice reads at a surface point (Cycles passes
+    sd->N and SD_BSDF_HAS_TRANSMISSION), or None where the light choice reads no normal."""
+    if not tables.lights.reads_facing:
+        return None
+    return (*hit.ns, closures.transmits())
+
+
 def next_event(tables, wave, state, hit, closures, numbers, focus=None):
     """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light.
     focus: the world's light samples' (_world_focus), per hit."""
@@ -45,15 +53,17 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
     # Paths past their last bounce only pass through transparent surfaces: no direct light there; nor
     # where the closures are all singular (a mirror, smooth glass): their evaluation is zero.
     active = np.flatnonzero(may_scatter(wave, state) & closures.evaluable())
+    facing = shading_facing(tables, hit, closures)
     if len(active) < len(state):
         if not len(active):
             return
         u_select, u1, u2 = u_select[active], u1[active], u2[active]
         px, py, pz = (c[active] for c in hit.p)
         focus = None if focus is None else focus.take(active)
+        facing = None if facing is None else tuple(np.take(c, active) for c in facing)
     else:
         px, py, pz = hit.p
-    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus)
+    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus, facing)
     tables.crew.check_stop()
     le = ls.radiance
     useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))

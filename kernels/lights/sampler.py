@@ -228,13 +228,19 @@ class LightSampler:
             return "power"
         return "tree" if isinstance(self.tree, LightTree) else "solid angle"
 
-    def choose_at(self, u_select, px, py, pz):
+    def choose_at(self, u_select, px, py, pz, facing=None):
         """(emitter (n,) int64, selection probability (n,) float32) per shading point p (selection.choose_at)."""
-        return selection.choose_at(self, u_select, px, py, pz)
+        return selection.choose_at(self, u_select, px, py, pz, facing)
 
-    def selection_pmf(self, emitter, px, py, pz):
+    def selection_pmf(self, emitter, px, py, pz, facing=None):
         """(n,) float32 probability that NEE at point p chooses emitter (selection.selection_pmf)."""
-        return selection.selection_pmf(self, emitter, px, py, pz)
+        return selection.selection_pmf(self, emitter, px, py, pz, facing)
+
+    @property
+    def reads_facing(self) -> bool:
+        """Whether the choice depends on the shading point's normal (a light tree): the integrator then keeps
+        the normal of the vertex each ray left (PathState.mis_facing) for the MIS pdfs."""
+        return isinstance(self.tree, LightTree)
 
     # ------------------------------------------------------------------ sampling
     def choose(self, u_select: np.ndarray) -> np.ndarray:
@@ -245,13 +251,14 @@ class LightSampler:
         # float64: a float32 cdf would round the intervals of millions of small emitters.
         return np.minimum(np.searchsorted(self._cdf, u_select.astype(np.float64), side="right"), len(self._cdf) - 1)
 
-    def sample(self, px, py, pz, u_select, u1, u2, focus=None) -> LightSample:
+    def sample(self, px, py, pz, u_select, u1, u2, focus=None, facing=None) -> LightSample:
         """Choose an emitter for each shading point p and sample a direction toward it. focus: the world's
-        (environment.WorldFocus per shading point) when its light samples focus on glossy lobes."""
+        (environment.WorldFocus per shading point) when its light samples focus on glossy lobes; facing: the
+        points' (nx, ny, nz, two_sided) (selection.choose_at)."""
         n = len(px)
         if not self.has_lights or n == 0:
             return LightSample(n)
-        chosen, select = self.choose_at(u_select, px, py, pz)
+        chosen, select = self.choose_at(u_select, px, py, pz, facing)
         return self.sample_chosen(px, py, pz, chosen, select, u1, u2, focus)
 
     def sample_chosen(self, px, py, pz, chosen, select, u1, u2, focus=None) -> LightSample:
@@ -287,10 +294,10 @@ class LightSampler:
     # ------------------------------------------------------------------ pdfs of what BSDF rays find
 
     # ------------------------------------------------------------------ pdfs of what BSDF rays find
-    def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz) -> np.ndarray:
-        """pdf (solid angle, with selection) of NEE from o for this point of emissive triangle tri
-        (triangles.pdf_hit)."""
-        return triangles.pdf_hit(self, tri, dist, cos_l, ox, oy, oz)
+    def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz, facing=None) -> np.ndarray:
+        """pdf (solid angle, with selection) of NEE from o (facing as choose_at's) for this point of emissive
+        triangle tri (triangles.pdf_hit)."""
+        return triangles.pdf_hit(self, tri, dist, cos_l, ox, oy, oz, facing)
 
     def pdf_world(self, dx, dy, dz, focus=None) -> np.ndarray:
         """pdf (solid angle, with selection) of NEE for world directions d (world.pdf)."""
@@ -305,7 +312,7 @@ class LightSampler:
         """Whether next-event estimation can choose the world."""
         return self.has_lights and self.select_pmf[self.world_index] > 0
 
-    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None) -> "LightHits":
+    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None, facing=None) -> "LightHits":
         """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max, as Cycles'
         BSDF rays meet them (kernel/light/light.h lights_intersect, integrator/shade_light.h).
 
@@ -348,7 +355,9 @@ class LightSampler:
         out.hit[rays] = True
         out.t[rays] = t[chosen]
         out.radiance[:, rays] = le[:, chosen] / share.astype(np.float32)
-        out.pdf[rays] = self.selection_pmf(light[chosen], ox[rays], oy[rays], oz[rays]) * light_pdf[chosen]
+        out.pdf[rays] = self.selection_pmf(light[chosen], ox[rays], oy[rays], oz[rays],
+                                           None if facing is None else tuple(c[rays] for c in facing)) * \
+            light_pdf[chosen]
         return out
 
     def _candidates(self, ox, oy, oz, dx, dy, dz, t_max):

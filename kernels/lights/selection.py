@@ -108,10 +108,11 @@ def triangle_groups(sampler, scene, rows) -> np.ndarray:
     return group
 
 
-def choose_at(sampler, u_select, px, py, pz):
+def choose_at(sampler, u_select, px, py, pz, facing=None):
     """(emitter (n,) int64, selection probability (n,) float32) per shading point p: the light tree
     for the local emitters (their DISTANT_SHARE complement), the distant ones by their fixed pmf.
-    Without a tree, choose() and select_pmf."""
+    Without a tree, choose() and select_pmf. facing: the points' (nx, ny, nz, two_sided) for the tree's
+    incidence factor (light_tree module docstring), or None."""
     if sampler.tree is None:
         chosen = sampler.choose(u_select)
         return chosen, np.take(sampler.pmf32, chosen)
@@ -121,7 +122,8 @@ def choose_at(sampler, u_select, px, py, pz):
     select = np.zeros(len(u), np.float64)
     local = np.flatnonzero(u < share) if share < 1 else np.arange(len(u))
     if len(local):
-        e, pmf = sampler.tree.sample(u[local] / share, px[local], py[local], pz[local])
+        e, pmf = sampler.tree.sample(u[local] / share, px[local], py[local], pz[local],
+                                     None if facing is None else tuple(c[local] for c in facing))
         chosen[local] = sampler.tree_ids[e]
         select[local] = share * pmf
     if share < 1:
@@ -134,12 +136,13 @@ def choose_at(sampler, u_select, px, py, pz):
     return chosen, select.astype(np.float32)
 
 
-def selection_pmf(sampler, emitter, px, py, pz):
-    """(n,) float32 probability that NEE at point p chooses emitter (any index but the world's)."""
+def selection_pmf(sampler, emitter, px, py, pz, facing=None):
+    """(n,) float32 probability that NEE at point p (facing as choose_at's) chooses emitter (any index but the
+    world's)."""
     if sampler.tree is None:
         return np.take(sampler.pmf32, emitter)
     slot = np.take(sampler.tree_slot, emitter)
-    local = sampler.tree.pmf(slot, px, py, pz) * sampler.local_share
+    local = sampler.tree.pmf(slot, px, py, pz, facing) * sampler.local_share
     return np.where(slot >= 0, local, np.take(sampler.select_pmf, emitter)).astype(np.float32)
 
 
@@ -173,14 +176,14 @@ class SolidAngleChoice:
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(ok, w / np.where(ok, total, np.float32(1.0)), self._power_pmf[:, None])
 
-    def sample(self, u, px, py, pz):
+    def sample(self, u, px, py, pz, facing=None):
         """(slot (N,) int64, pmf (N,) float32) for numbers u (N,) in [0, 1)."""
         p = self._pmfs(px, py, pz)
         cdf = np.cumsum(p[:-1], axis=0)
         slot = (np.asarray(u)[None, :] >= cdf).sum(axis=0)
         return slot, p[slot, np.arange(len(slot))]
 
-    def pmf(self, slot, px, py, pz):
+    def pmf(self, slot, px, py, pz, facing=None):
         """(N,) float32 probability that point i chooses slot[i] (0 for -1: not among them)."""
         slot = np.asarray(slot)
         known = slot >= 0

@@ -91,7 +91,7 @@ def spherical_choice(sampler, g, slot, px, py, pz):
     return spherical, omega, (a, b, c)
 
 
-def pdf_hit(sampler, tri, dist, cos_l, ox, oy, oz) -> np.ndarray:
+def pdf_hit(sampler, tri, dist, cos_l, ox, oy, oz, facing=None) -> np.ndarray:
     """pdf (solid angle, with selection) with which NEE from the ray origin o would have sampled
     this point of emissive triangle tri (zero for triangles that do not emit)."""
     if not len(sampler.tri_ids):
@@ -99,7 +99,7 @@ def pdf_hit(sampler, tri, dist, cos_l, ox, oy, oz) -> np.ndarray:
     slot = slots(sampler, tri)
     ok = slot >= 0
     s = np.maximum(slot, 0)
-    pmf = sampler.selection_pmf(sampler.light_count + s, ox, oy, oz)
+    pmf = sampler.selection_pmf(sampler.light_count + s, ox, oy, oz, facing)
     g = np.take(sampler.tri_table, s, axis=0).T
     spherical, omega, _ = spherical_choice(sampler, g, s, ox, oy, oz)
     pdf = area_to_solid_angle(g[TAREA], dist, np.abs(cos_l))

@@ -66,8 +66,12 @@ def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -
     if state.continuation is not None:
         may &= np.take(state.continuation, inside) > 0
     origins, dirs = rays.origins[inside], rays.dirs[inside]
+    # A camera ray whose scattering could only end it (no volume bounce allowed after it: the segment's light
+    # sample already has the light it scatters toward the camera) scatters rarely, and the surface behind the
+    # medium keeps most of its samples (Cycles guides camera rays' scattering probability alike).
+    rare = (np.take(state.bounce, inside) == 0) if int(wave.settings.volume_bounces) == 0 and wave.nee else None
     seg = track(tables.media, state.media[:, inside], origins, dirs, t_end, ray_keys(state, inside), may,
-                salt=SEGMENT_SALT, march=marching(wave.settings))
+                salt=SEGMENT_SALT, march=marching(wave.settings), rare=rare)
     throughput = np.take(state.throughput, inside, axis=1)
     lit = np.zeros(len(inside), bool)
     if wave.nee:
@@ -150,16 +154,22 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     use_eq = aimed & (us < 0.5)
     ud = np.where(aimed, np.where(use_eq, us * 2.0, us * 2.0 - 1.0), us).astype(np.float64)
     channel = np.minimum((ud[None] >= np.cumsum(prob, axis=0)).sum(axis=0), 2)
-    t_dist = -np.log1p(-ut.astype(np.float64)) / sigma_t[channel, np.arange(len(rows))]
+    # Distance sampling is bounded to the part of the segment the light reaches, [lo, hi), as Cycles bounds it
+    # (volume_integrate_homogeneous: sample_exponential_distribution over the light's valid ray segment): in
+    # thin fog an unbounded distance lands past the segment's end, and the sample is lost, most of the time.
+    t_dist = _bounded_exponential(ut.astype(np.float64), sigma_t[channel, np.arange(len(rows))], lo, hi)
     t = np.where(use_eq, t_eq, t_dist)
     decay = np.exp(-sigma_t * t)
-    pdf_dist = (prob * sigma_t * decay).sum(axis=0)
+    pdf_dist = (prob * _bounded_exponential_pdf(t, sigma_t, lo, hi)).sum(axis=0)
     pdf_eq = np.where(aimed & (t >= lo) & (t < hi), equiangular.pdf(o, dvec, point, lo, hi, t), 0.0)
-    pdf = np.where(aimed, 0.5 * pdf_eq + 0.5 * pdf_dist, pdf_dist)
-    valid = np.flatnonzero((t < end) & (pdf > 0) & np.isfinite(t))
+    # One-sample MIS with the power heuristic, as volume_direct_scatter_mis: 2 p_s^2 / (p_eq^2 + p_dist^2) / p_s.
+    own = np.where(use_eq, pdf_eq, pdf_dist)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_pdf = np.where(aimed, 2.0 * own / (pdf_eq * pdf_eq + pdf_dist * pdf_dist), 1.0 / pdf_dist)
+    valid = np.flatnonzero((t < end) & (own > 0) & np.isfinite(t) & np.isfinite(inv_pdf) & (hi > lo))
     if not len(valid):
         return done
-    scale = (decay[:, valid] / pdf[valid]).astype(F32)
+    scale = (decay[:, valid] * inv_pdf[valid]).astype(F32)
     p = (o[valid] + dvec[valid] * t[valid, None]).astype(F32)
     ue, uf = uniforms(seeds, 3, DIRECT_SALT)
     # The light chosen for the segment is sampled again from the distance drawn (Cycles samples "the same
@@ -170,6 +180,22 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
                           PhaseMixture(_phases_of(phases, valid), len(valid)),
                           (None, ue[valid], uf[valid]), scale, (chosen[valid], select[valid].astype(F32)))
     return done
+
+
+def _bounded_exponential(u, sigma, lo, hi):
+    """Distances in [lo, hi) (hi may be inf) of density sigma exp(-sigma t) / (exp(-sigma lo) - exp(-sigma hi))
+    (Cycles' sample_exponential_distribution over an interval, kernel/sample/mapping.h)."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        kept = -np.expm1(-sigma * (hi - lo))
+        t = lo - np.log1p(-u * kept) / sigma
+    return np.clip(np.where(np.isfinite(t), t, lo), lo, hi)
+
+
+def _bounded_exponential_pdf(t, sigma, lo, hi):
+    """The density of _bounded_exponential at t, per row of sigma (C, n): 0 where sigma is."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        out = sigma * np.exp(-sigma * (t - lo)) / -np.expm1(-sigma * (hi - lo))
+    return np.where((sigma > 0) & np.isfinite(out), out, 0.0)
 
 
 def _toward_spots(lights, spots, chosen, select, point, aimed, lo, hi, o, dvec, end, ref, u):
@@ -197,7 +223,9 @@ def _toward_spots(lights, spots, chosen, select, point, aimed, lo, hi, o, dvec, 
         slot[rows] = np.argmax((order == rank[None]) & crossed[:, rows], axis=0)
         chosen[rows] = spots[slot[rows]]
         point[rows] = lights.position[chosen[rows]]
-    aimed[on_spot & ~hit & ~repick] = False
+    dark = on_spot & ~hit & ~repick   # a spot whose cone the segment misses: no light to sample (Cycles: none)
+    aimed[dark] = False
+    hi[dark] = lo[dark]
     picked = np.flatnonzero(hit | repick)
     for k in np.unique(slot[picked]):
         rows = picked[slot[picked] == k]
@@ -262,6 +290,8 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     # Where the segment took its light sample without MIS (direct_light), the phase sample's rays count no light
     # that sampling can find: a pdf that MIS weighs to 0 against any light's, to 1 where none samples it.
     state.bsdf_pdf = np.where(scattered.lit, NO_MIS_PDF, pdf).astype(F32)
+    if state.mis_facing is not None:
+        state.mis_facing[:] = 0.0   # a point in a medium: the light choice reads no normal there
     state.focus = None
     state.escape_scale = None
     if state.min_ray_pdf is not None:

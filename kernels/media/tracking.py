@@ -61,10 +61,11 @@ class Segment:
 
 
 def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emission: bool = True,
-          salt: int = 0, march: Marching | None = None, shadow: bool = False) -> Segment:
+          salt: int = 0, march: Marching | None = None, shadow: bool = False, rare=None) -> Segment:
     """Distance sampling for n paths (stack (K, n), origins and unit dirs (n, 3), t_end (n,) which may be
     inf, seeds: their (x, y) PCG2D states, may_scatter (n,) bool). With march (the Biased option), stacks with
-    a varying medium are marched (march.py; shadow: the segments are shadow rays'), not tracked."""
+    a varying medium are marched (march.py; shadow: the segments are shadow rays'), not tracked. rare: (n,)
+    bool, the paths whose scattering in a homogeneous medium is made rarer (_homogeneous), or None."""
     n = len(t_end)
     weight = np.ones((3, n), F32)
     gathered = np.zeros((3, n), F32)
@@ -108,7 +109,7 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
     if closed.any():
         _closed_form(media, stack, origins, dirs, t_end, closed & ~may_scatter, weight, gathered, emission)
         _homogeneous(media, stack, origins, dirs, t_end, closed & may_scatter, seeds, salt, weight, gathered,
-                     scattered, t_event, emission)
+                     scattered, t_event, emission, rare)
     live = np.flatnonzero(~closed & (majorant > 0))
     t = np.zeros(n, np.float64)
     x, y = seeds
@@ -205,8 +206,14 @@ def transmittance(media, stack, origins, dirs, t_end, seeds, salt: int = 1, marc
                  salt=salt, march=march, shadow=True).weight
 
 
+# The probability with which a `rare` path scatters in a homogeneous segment, as a share of the probability
+# (1 - T) that light does: Cycles' scattering probability guiding for camera rays (VSPG, shade_volume.h
+# volume_scatter_probability_homogeneous, defensive mix 0.75) where the guide finds no light scattered.
+RARE_SCATTER_SHARE = 0.25
+
+
 def _homogeneous(media, stack, origins, dirs, t_end, rows, seeds, salt, weight, gathered, scattered, t_event,
-                 emission: bool) -> None:
+                 emission: bool, rare=None) -> None:
     """Paths that may scatter in homogeneous media: the distance drawn in proportion to one colour channel's
     extinction, the channel picked in proportion to the path's weight times the albedo and the channels
     combined by the one-sample MIS of their pdfs (Cycles' volume_sample_channel and homogeneous distance
@@ -229,6 +236,16 @@ def _homogeneous(media, stack, origins, dirs, t_end, rows, seeds, salt, weight, 
     p = w / total
     u1, u2 = uniforms(tuple(np.take(s_, idx) for s_ in seeds), 0, salt + 101)
     channel = np.minimum((u1[None] >= np.cumsum(p, axis=0)).sum(axis=0), 2)
+    if rare is not None:
+        few = np.flatnonzero(np.take(rare, idx))
+        if len(few):
+            _rare(idx[few], sigma_t[:, few], p[:, few], channel[few], u2[few].astype(np.float64), t_end, weight,
+                  scattered, t_event)
+            keep = np.ones(len(idx), bool)
+            keep[few] = False
+            idx, sigma_t, p, channel, u2 = idx[keep], sigma_t[:, keep], p[:, keep], channel[keep], u2[keep]
+            if not len(idx):
+                return
     rate = sigma_t[channel, np.arange(len(idx))]
     t = -np.log1p(-u2.astype(np.float64)) / rate
     end = t_end[idx].astype(np.float64)
@@ -240,6 +257,32 @@ def _homogeneous(media, stack, origins, dirs, t_end, rows, seeds, salt, weight, 
     through = np.where(np.isfinite(end) | scatter, 1.0, 0.0)
     new = np.where(pdf > 0, decay / np.where(pdf > 0, pdf, 1.0), 0.0) * through
     weight[:, idx] = new.astype(F32)   # in place of the closed form's transmittance
+    scattered[idx] = scatter
+    t_event[idx] = np.where(scatter, t, t_event[idx]).astype(F32)
+
+
+def _rare(idx, sigma_t, p, channel, u, t_end, weight, scattered, t_event) -> None:
+    """_homogeneous's choice for the paths idx with a scattering probability RARE_SCATTER_SHARE x (1 - T) per
+    channel: a scattering distance drawn from the channel's exponential bounded to the segment, otherwise the
+    segment passed; weights over the pdfs of the channels' mixture (Cycles' volume_integrate_homogeneous)."""
+    n = len(idx)
+    end = t_end[idx].astype(np.float64)
+    kept = np.where(np.isfinite(end), -np.expm1(-sigma_t * np.where(np.isfinite(end), end, 0.0)), 1.0)   # 1 - T
+    q = RARE_SCATTER_SHARE * kept
+    q_ch = q[channel, np.arange(n)]
+    scatter = u < q_ch
+    rate = sigma_t[channel, np.arange(n)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.clip(u / q_ch, 0.0, 1.0)
+        t = -np.log1p(-v * kept[channel, np.arange(n)]) / rate
+        t = np.where(np.isfinite(end), np.minimum(t, end), t)
+        at = np.where(scatter, t, np.where(np.isfinite(end), end, 0.0))
+        decay = np.exp(-sigma_t * at)
+        density = np.where(kept > 0, sigma_t * decay / kept, 0.0)
+        pdf = np.where(scatter, (p * q * density).sum(axis=0), (p * (1.0 - q)).sum(axis=0))
+        new = np.where(pdf > 0, decay / np.where(pdf > 0, pdf, 1.0), 0.0)
+    new = new * np.where(np.isfinite(end) | scatter, 1.0, 0.0)
+    weight[:, idx] = new.astype(F32)
     scattered[idx] = scatter
     t_event[idx] = np.where(scatter, t, t_event[idx]).astype(F32)
 
