@@ -64,6 +64,9 @@ class PathState:
     volume_bounces: np.ndarray | None = None  # (N,) int32 scattering events in media so far (with media)
     volume_bounds: np.ndarray | None = None   # (N,) int32 volume boundaries passed (with media; Cycles'
     #                                           volume_bounds_bounce)
+    link_set: np.ndarray | None = None  # (N,) uint8 or None: the light set of the object the ray left (Light
+    #                                     Linking; Cycles' mis_ray_object), 0 for camera rays; None in scenes
+    #                                     without linking
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -108,6 +111,8 @@ class PathState:
             self.media = np.take(self.media, idx, axis=1)
             self.volume_bounces = np.take(self.volume_bounces, idx)
             self.volume_bounds = np.take(self.volume_bounds, idx)
+        if self.link_set is not None:
+            self.link_set = np.take(self.link_set, idx)
 
     @classmethod
     def concat(cls, a: "PathState", b: "PathState") -> "PathState":
@@ -134,7 +139,7 @@ class PathState:
                     cat(a.bounce, b.bounce, required), cat(a.transparent, b.transparent, required),
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
-                     "portal", "segments", "media", "volume_bounces", "volume_bounds"):
+                     "portal", "segments", "media", "volume_bounces", "volume_bounds", "link_set"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)
         state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)
