@@ -237,6 +237,16 @@ def test_volume_linking_warns_by_name_and_unlinked_scenes_take_no_path():
     assert len(warnings) == 2 and "emission" in warnings[0] and "dims" in warnings[1], warnings
 
 
+def test_the_linking_panels_show_with_ember():
+    """Blender's Light Linking and Shadow Linking panels sit under Object > Shading, which Ember shows."""
+    import bpy
+    from bpy_helpers import ensure_registered
+    ensure_registered()
+    assert "EMBER" in bpy.types.OBJECT_PT_shading.COMPAT_ENGINES
+    assert bpy.types.OBJECT_PT_light_linking.bl_parent_id == bpy.types.OBJECT_PT_shadow_linking.bl_parent_id == \
+        "OBJECT_PT_shading"
+
+
 def test_a_linking_change_makes_the_viewport_export_again():
     """The viewport's partial updates (engine/export/updates.py) give way to a full export when linking changes."""
     import bpy
