@@ -4,7 +4,9 @@ objects block which emitters' light.
 Every object row receives light in a light set and blocks it in a shadow set (kernels.scene.LightLinks; 0
 for objects no linking collection names); every emitter reaches a mask of light sets and is blocked by the
 objects of a mask of shadow sets (lamps: Lights.light_sets and shadow_sets; emissive triangles: their object
-row's; the world, which is no object in Blender, every set). As Cycles:
+row's; the world, which is no object in Blender, every set: Cycles' background emission checks no link,
+kernel/integrator/shade_background.h, and paths start as the background object, receiver set 0,
+kernel/integrator/path_state.h). As Cycles:
 - an emitter lights a point of an object when the object's receiver set is in its light mask
   (kernel/light/light.h light_link_object_match). Next-event estimation chooses among the emitters that
   reach the shading point's set only, as Cycles' light tree specialised per receiver set does
@@ -92,8 +94,10 @@ class ObjectLinks:
 
 def medium_receivers(tables, stacks: np.ndarray) -> np.ndarray:
     """(n,) uint8 light sets of points inside media, stacks (K, n) of medium ids: the object of the last medium
-    on each stack (Cycles shades a volume point with the object of the stack's last entry), 0 for the world's
-    fog and for points in no medium."""
+    on each stack (Cycles' volume light samples take the shading point's object as receiver, and a volume
+    point keeps the object of the last stack entry it evaluates: kernel/integrator/shade_volume.h,
+    volume_shader.h volume_shader_eval_entry), 0 for the
+    world's fog and for points in no medium."""
     filled = stacks >= 0
     last = np.where(filled.any(axis=0), stacks.shape[0] - 1 - np.argmax(filled[::-1], axis=0), 0)
     medium = stacks[last, np.arange(stacks.shape[1])]

@@ -26,7 +26,8 @@ def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool 
     chose d (None: not weighed, as after a singular bounce), as Cycles' escaped rays see suns; None when
     the scene has no sun with a disc. receiver: (n,) uint8 the light sets of the objects the rays left
     (Light Linking), or None: a ray sees only the suns that reach its set, and not the shadow-linked ones
-    (dedicated rays count those, kernels/shadow_linking.py) unless shadow_linked."""
+    (dedicated rays count those, kernels/shadow_linking.py) unless shadow_linked, as Cycles'
+    integrate_sun_lights (kernel/integrator/shade_background.h)."""
     if not len(sampler.sun_discs):
         return None
     out = np.zeros((3, len(dx)), np.float32)
