@@ -96,8 +96,7 @@ def medium_receivers(tables, stacks: np.ndarray) -> np.ndarray:
     """(n,) uint8 light sets of points inside media, stacks (K, n) of medium ids: the object of the last medium
     on each stack (Cycles' volume light samples take the shading point's object as receiver, and a volume
     point keeps the object of the last stack entry it evaluates: kernel/integrator/shade_volume.h,
-    volume_shader.h volume_shader_eval_entry), 0 for the
-    world's fog and for points in no medium."""
+    volume_shader.h volume_shader_eval_entry), 0 for the world's fog and for points in no medium."""
     filled = stacks >= 0
     last = np.where(filled.any(axis=0), stacks.shape[0] - 1 - np.argmax(filled[::-1], axis=0), 0)
     medium = stacks[last, np.arange(stacks.shape[1])]
