@@ -71,7 +71,6 @@ class ObjectLinks:
         # Some object's emission is blocked by some objects only: its BSDF rays' light takes dedicated rays.
         self.shadow_linked_rows = self.shadow_sets != ALL_SETS
         self.shadow_linking = bool(self.shadow_linked_rows.any() or (self.lamp_shadow != ALL_SETS).any())
-        self.blocks_some = bool((self.blocker != 0).any())
 
     def rows(self, triangles, prim: np.ndarray) -> np.ndarray:
         """(n,) object rows of the triangles prim (row 0 without an object table)."""
