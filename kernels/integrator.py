@@ -106,8 +106,8 @@ def start_paths(tables, wave, paths, start: int, end: int):
         state.lobes = np.zeros((4, n), np.int32)
     if settings.filter_glossy > 0 or tables.shading.bevels:  # Cycles' Bevel skips blurry bounces too
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
-    if tables.links is not None:
-        state.link_set = np.zeros(n, np.uint8)   # camera rays leave the world's object: light set 0
+    if tables.links is not None:   # camera rays leave the world's object (light set 0), no scattering
+        state.link_set, state.scattered = np.zeros(n, np.uint8), np.zeros(n, bool)
     if tables.media is not None:
         state.media = np.repeat(tables.camera_media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
@@ -137,6 +137,8 @@ def step(tables, wave, state, rays, first: bool, last: int):
     if tables.visibility is not None:
         visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, visibility.ray_types(state, first),
                                wave.split, state.time)
+    if tables.links is not None and not first:
+        shadow_linking.dedicated_light(tables, wave, state, rays, hits)
     ended = None
     if not first and tables.lights.has_surface_lights:
         ended = _lights_hit(tables, wave, state, rays, hits)
@@ -155,7 +157,6 @@ def step(tables, wave, state, rays, first: bool, last: int):
         medium = media_stage.vertex(tables, wave, state.rows(scattered.rows), scattered, first, last)
         if medium is not None:
             medium = (medium[0], Rays(*medium[1], np.full(len(medium[0]), np.inf, np.float32)))
-            shadow_linking.dedicated_light(tables, wave, *medium)
     if tables.visibility is not None:
         found = _held_out(tables, wave, state, hits, found)
     if not len(found):
@@ -219,7 +220,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         glass_escapes(tables, wave, state, hit, closures, bs, receiver)
     alive = _continues(tables, wave, hit, state, bs, numbers, focus)
     if receiver is not None:   # the next ray leaves this object (transparent pass-throughs keep the last one's)
-        state.link_set = np.where(bs.transparent, state.link_set, receiver)
+        state.link_set, state.scattered = np.where(bs.transparent, state.link_set, receiver), ~bs.transparent
     if state.lobes is not None:
         state.track_lobes(bs, closures, bs.transparent if bs.subsurface is None else bs.transparent | bs.subsurface)
     # A path takes at most `last` + 1 steps (its rays: the camera's, one per bounce or pass-through); a
@@ -251,7 +252,6 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     if state.media is not None:
         media_stage.enter_exit_surfaces(tables, state, hit, alive, np.take(below(bs), alive))
     going = state, spawn(tables, hit, alive, bs)
-    shadow_linking.dedicated_light(tables, wave, *going, ~np.take(bs.transparent, alive))
     if exits is None:
         return going
     return PathState.concat(going[0], exits[0]), concat_rays(going[1], exits[1])

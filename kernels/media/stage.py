@@ -232,7 +232,7 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     function, then the next direction from it. Returns (state, (origins, dirs)) of those that go on, or None."""
     n = len(state)
     if state.link_set is not None:   # the points receive (and their phase rays leave) as their media's objects
-        state.link_set = medium_receivers(tables, state.media)
+        state.link_set, state.scattered = medium_receivers(tables, state.media), np.ones(n, bool)
     p = (scattered.origins + scattered.dirs * scattered.t[:, None]).astype(F32)
     d = tuple(np.ascontiguousarray(scattered.dirs[:, k]) for k in range(3))
     shaded = p if scattered.shade_t is None else \
