@@ -104,7 +104,7 @@ def link_table(depsgraph) -> LinkTable:
         linked = sorted({names[kind] for names in table.emitters.values() if names[kind] is not None})
         if len(linked) > MAX_SETS:
             table.warnings.append(f"{label}: more than {MAX_SETS} linking collections; those past the "
-                                  f"{MAX_SETS}th are ignored (as in Blender): "
+                                  f"{MAX_SETS}th by name are ignored (Blender too ignores some): "
                                   + ", ".join(f"'{n}'" for n in linked[MAX_SETS:]))
             linked = linked[:MAX_SETS]
         bits = {name: 1 << i for i, name in enumerate(linked)}
@@ -125,7 +125,7 @@ def _emitters(depsgraph) -> list:
         linking = getattr(ob, "light_linking", None)
         if linking is None or (linking.receiver_collection is None and linking.blocker_collection is None):
             continue
-        if ob.evaluated_get(depsgraph).is_evaluated:   # not an object of this depsgraph (hidden, unused)
+        if ob.evaluated_get(depsgraph).is_evaluated:   # an object of this depsgraph (not hidden, not unused)
             found.append(ob)
     return found
 
@@ -156,7 +156,7 @@ def _build(linking: _Linking, bits: dict, collections: dict, label: str, warning
         linking.sets[key] = number
     if dropped:
         warnings.append(f"{label}: more than {MAX_SETS - 1} distinct sets of linked objects; these are linked as "
-                        f"if they were in no collection (as in Blender): " + ", ".join(f"'{n}'" for n in dropped))
+                        f"if they were in no collection (Blender too leaves those past its limit so): " + ", ".join(f"'{n}'" for n in dropped))
     included = dict.fromkeys(bits, 0)
     excluded = dict.fromkeys(bits, 0)
     for (inc, exc), number in numbers.items():
