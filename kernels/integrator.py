@@ -355,7 +355,8 @@ def _escaped(tables, wave, state, rays, hits, ended=None):
                 mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]])))
     later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
     if len(later) and len(tables.lights.sun_discs):
-        sun = tables.lights.suns_seen(mx[later], my[later], mz[later], state.bsdf_pdf[miss[later]] if wave.nee else None,
+        sun = tables.lights.suns_seen(mx[later], my[later], mz[later],
+                                      state.bsdf_pdf[miss[later]] if wave.nee else None,
                                       None if state.link_set is None else state.link_set[miss[later]])
         sun *= np.take(state.throughput, miss[later], axis=1)
         if state.escape_scale is not None:

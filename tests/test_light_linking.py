@@ -113,7 +113,8 @@ def test_emissive_mesh_linked_as_a_light_matches_cycles(linking):
     from bpy_helpers import emission_material, quad_object
     scene, balls, key = _spheres()
     key.data.energy = 30.0
-    panel = quad_object("Panel", (-1, -1.5, 2.8), (2, 0, 0), (0, 0.8, 0.4), emission_material("Glow", (1, 0.9, 0.8), 8.0))
+    panel = quad_object("Panel", (-1, -1.5, 2.8), (2, 0, 0), (0, 0.8, 0.4),
+                        emission_material("Glow", (1, 0.9, 0.8), 8.0))
     plain = _plain(scene)
     state = "INCLUDE" if linking == "receiver_collection" else "EXCLUDE"
     setattr(panel.light_linking, linking, _linking("PanelLinks", [balls[2]], state))

@@ -156,7 +156,8 @@ def _build(linking: _Linking, bits: dict, collections: dict, label: str, warning
         linking.sets[key] = number
     if dropped:
         warnings.append(f"{label}: more than {MAX_SETS - 1} distinct sets of linked objects; these are linked as "
-                        f"if they were in no collection (Blender too leaves those past its limit so): " + ", ".join(f"'{n}'" for n in dropped))
+                        f"if they were in no collection (Blender too leaves those past its limit so): "
+                        + ", ".join(f"'{n}'" for n in dropped))
     included = dict.fromkeys(bits, 0)
     excluded = dict.fromkeys(bits, 0)
     for (inc, exc), number in numbers.items():

@@ -111,8 +111,9 @@ class EmitterLinks:
 
     def __init__(self, sampler, objects: ObjectLinks, scene, power: np.ndarray, tri_rows: np.ndarray):
         rows = np.asarray(tri_rows, np.int64)
-        self.light = np.concatenate([objects.lamp_light, np.take(objects.light_sets, rows), [ALL_SETS]]).astype(np.uint64)
-        self.shadow = np.concatenate([objects.lamp_shadow, np.take(objects.shadow_sets, rows), [ALL_SETS]]).astype(np.uint64)
+        world = np.full(1, ALL_SETS)
+        self.light = np.concatenate([objects.lamp_light, np.take(objects.light_sets, rows), world])
+        self.shadow = np.concatenate([objects.lamp_shadow, np.take(objects.shadow_sets, rows), world])
         self.shadow_linked = self.shadow != ALL_SETS
         used = np.union1d(np.unique(objects.receiver), [0]).astype(np.int64)
         self.choices = {int(s): Choice(sampler, np.where(reaches(self.light, s), power, 0.0), scene) for s in used}

@@ -253,7 +253,8 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
             hits = tables.accel.intersect(origins[rows], dirs[rows], t_max[rows], split,
                                           None if times is None else times.take(rows))
             visibility.skip_where(tables, origins[rows], dirs[rows], t_max[rows], hits,
-                                  lambda prim, r: skipped(prim, rows[r]), split, None if times is None else times.take(rows))
+                                  lambda prim, r: skipped(prim, rows[r]), split,
+                                  None if times is None else times.take(rows))
             blocked[rows] = hits.prim >= 0
         out = np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
         if stack is None:
