@@ -10,7 +10,7 @@ from .paths import may_scatter
 from .rays import leaves_its_side, rays_from
 
 
-def glass_escapes(tables, wave, state, hit, closures, bs) -> None:
+def glass_escapes(tables, wave, state, hit, closures, bs, receiver=None) -> None:
     """Smooth glass chooses reflection or refraction at random (with probability P and 1 - P) and weighs
     the branch taken by 1 / its probability: the sun reflected by a window once in twenty samples is a
     firefly. Where the chosen closure is singular glass, the branch not taken is traced one segment too:
@@ -19,7 +19,9 @@ def glass_escapes(tables, wave, state, hit, closures, bs) -> None:
     probability (state.escape_scale, read by the integrator's escape stage). Each branch's light from the
     world along its first segment then counts in full whichever branch was taken, and what it finds on
     surfaces (and lamps) as before, so the estimate is unbiased and the world's part of it no longer a
-    lottery. Cycles follows one branch (it has nothing of this)."""
+    lottery. Cycles follows one branch (it has nothing of this). receiver: the hits' light sets (Light
+    Linking), or None: the branch not taken sees the suns that reach them, shadow-linked ones too (it met
+    nothing that could block them, and no dedicated ray goes its way: kernels/shadow_linking.py)."""
     state.escape_scale = None
     if not closures.branches:
         return
@@ -53,7 +55,8 @@ def glass_escapes(tables, wave, state, hit, closures, bs) -> None:
     idx, live = idx[out], live[out]
     wx, wy, wz = wx[out], wy[out], wz[out]
     light = tables.environment.radiance(wx, wy, wz)
-    sun = tables.lights.suns_seen(wx, wy, wz)   # after a singular bounce: no MIS
+    sun = tables.lights.suns_seen(wx, wy, wz, None, None if receiver is None else receiver[idx],
+                                  shadow_linked=True)   # after a singular bounce: no MIS
     if sun is not None:
         light = light + sun
 

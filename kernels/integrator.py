@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import motion, passes, sampling, subsurface, visibility
+from . import motion, passes, sampling, shadow_linking, subsurface, visibility
 from .accel import Hits, RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
@@ -108,6 +108,8 @@ def start_paths(tables, wave, paths, start: int, end: int):
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
     if wave.nee and tables.lights.reads_facing:
         state.mis_facing = np.zeros((4, n), np.float32)
+    if tables.links is not None:   # camera rays leave the world's object (light set 0), no scattering
+        state.link_set, state.scattered = np.zeros(n, np.uint8), np.zeros(n, bool)
     if tables.media is not None:
         state.media = np.repeat(tables.camera_media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
@@ -137,6 +139,8 @@ def step(tables, wave, state, rays, first: bool, last: int):
     if tables.visibility is not None:
         visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, visibility.ray_types(state, first),
                                wave.split, state.time)
+    if tables.links is not None and not first:
+        shadow_linking.dedicated_light(tables, wave, state, rays, hits)
     ended = None
     if not first and tables.lights.has_surface_lights:
         ended = _lights_hit(tables, wave, state, rays, hits)
@@ -204,18 +208,21 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         if state.continuation is not None:
             _roulette_weights(state)
     numbers = state.samples.bounce(0 if first else 1)
+    receiver = None if tables.links is None else tables.links.receivers(tables.triangles, hit.prim)
     focus = None
     if wave.nee:
         focus = nee.world_focus(tables, hit, closures)
-        nee.next_event(tables, wave, state, hit, closures, numbers, focus)
+        nee.next_event(tables, wave, state, hit, closures, numbers, focus, receiver)
         tables.crew.check_stop()
     bs = _sample_bsdf(tables, wave, hit, closures, numbers)
     tables.crew.check_stop()
     if state.pass_weights is not None:
         passes.first_bounce_shares(tables, state, closures, bs)
     if wave.nee and tables.glass_escapes_on:
-        glass_escapes(tables, wave, state, hit, closures, bs)
+        glass_escapes(tables, wave, state, hit, closures, bs, receiver)
     alive = _continues(tables, wave, hit, state, bs, numbers, focus, closures)
+    if receiver is not None:   # the next ray leaves this object (transparent pass-throughs keep the last one's)
+        state.link_set, state.scattered = np.where(bs.transparent, state.link_set, receiver), ~bs.transparent
     if state.lobes is not None:
         state.track_lobes(bs, closures, bs.transparent if bs.subsurface is None else bs.transparent | bs.subsurface)
     # A path takes at most `last` + 1 steps (its rays: the camera's, one per bounce or pass-through); a
@@ -277,8 +284,8 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     o, d = rays.origins, rays.dirs
     seeing = state.bounce > 0   # camera rays do not see lights
     budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
-    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget,
-                                  facing_of(state.mis_facing))
+    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget, state.link_set,
+                                  facing=facing_of(state.mis_facing))
     met.crossed[~seeing] = 0
     state.transparent = state.transparent + met.crossed
     lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
@@ -347,12 +354,13 @@ def _escaped(tables, wave, state, rays, hits, ended=None):
         if len(mis):
             heuristic = sampling.balance_heuristic if tables.environment.mis_balance else sampling.power_heuristic
             focus = None if state.focus is None else state.focus.take(miss[mis])
-            sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]],
-                                                       tables.lights.pdf_world(mx[mis], my[mis], mz[mis], focus)))
+            sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]], tables.lights.pdf_world(
+                mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]])))
     later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
     if len(later) and len(tables.lights.sun_discs):
         sun = tables.lights.suns_seen(mx[later], my[later], mz[later],
-                                    state.bsdf_pdf[miss[later]] if wave.nee else None)
+                                      state.bsdf_pdf[miss[later]] if wave.nee else None,
+                                      None if state.link_set is None else state.link_set[miss[later]])
         sun *= np.take(state.throughput, miss[later], axis=1)
         if state.escape_scale is not None:
             sun *= np.take(state.escape_scale, miss[later])
@@ -408,6 +416,8 @@ def _moved_by(tables, i: int, t: np.ndarray):
 # ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
 def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
     lit = np.flatnonzero(np.take(tables.shading.emissive, hit.mat))
+    if tables.links is not None:   # Light Linking: what the ray's object receives (kernels/lights/links.py)
+        lit = lit[shadow_linking.counted_emission(tables, state, hit, lit)]
     if not len(lit):
         return
     le = np.take(state.throughput, lit, axis=1) * np.take(shading.emission, lit, axis=1)
@@ -425,7 +435,8 @@ def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
             o = rays.origins
             light_pdf = tables.lights.pdf_triangle_hit(
                 np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
-                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray), facing_of(state.mis_facing, sel))
+                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray),
+                None if state.link_set is None else np.take(state.link_set, sel), facing_of(state.mis_facing, sel))
             le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
     le = passes.clamp(wave, le, np.take(state.bounce, lit) > 1)
     passes.accumulate(wave.radiance, state.path[lit], le)

@@ -179,7 +179,7 @@ class LightTree:
             if not len(walking):
                 break
             at = node[walking]
-            p_left = self._left_probability(at, px[walking], py[walking], pz[walking], _rows(facing, walking))
+            p_left = self._left_probability(at, px[walking], py[walking], pz[walking], rows_of(facing, walking))
             uw = u[walking]
             left = uw < p_left
             prob = np.where(left, p_left, 1.0 - p_left)
@@ -205,7 +205,7 @@ class LightTree:
             at = node[climbing]
             parent = np.take(self.parent, at)
             p_left = self._left_probability(parent, px[climbing], py[climbing], pz[climbing],
-                                            _rows(facing, climbing))
+                                            rows_of(facing, climbing))
             pmf[climbing] *= np.where(np.take(self.left, parent) == at, p_left, 1.0 - p_left)
             node[climbing] = parent
         return np.where(known, pmf, 0.0)
@@ -219,7 +219,7 @@ class LightTree:
         return self.pmf(e, *rep).reshape(m, n)
 
 
-def _rows(facing, idx):
+def rows_of(facing, idx):
     """The facing tuple of the points idx only (None stays None)."""
     return None if facing is None else tuple(np.take(c, idx) for c in facing)
 

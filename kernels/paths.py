@@ -77,6 +77,11 @@ class PathState:
     #                                       1 where its closures transmit (Cycles' mis_origin_n and
     #                                       PATH_RAY_MIS_HAD_TRANSMISSION; zeros: none), for the light tree's
     #                                       choice in MIS pdfs; None where the light choice reads no normal
+    link_set: np.ndarray | None = None  # (N,) uint8 or None: the light set of the object the ray left (Light
+    #                                     Linking; Cycles' mis_ray_object), 0 for camera rays; None in scenes
+    #                                     without linking
+    scattered: np.ndarray | None = None  # (N,) bool or None (with link_set): the ray leaves a scattering, not a
+    #                                      transparent pass-through (shadow linking's dedicated rays follow it)
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -123,6 +128,9 @@ class PathState:
             self.volume_bounds = np.take(self.volume_bounds, idx)
         if self.mis_facing is not None:
             self.mis_facing = np.take(self.mis_facing, idx, axis=1)
+        if self.link_set is not None:
+            self.link_set = np.take(self.link_set, idx)
+            self.scattered = np.take(self.scattered, idx)
 
     @classmethod
     def concat(cls, a: "PathState", b: "PathState") -> "PathState":
@@ -149,7 +157,8 @@ class PathState:
                     cat(a.bounce, b.bounce, required), cat(a.transparent, b.transparent, required),
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
-                     "portal", "segments", "media", "volume_bounces", "volume_bounds", "mis_facing"):
+                     "portal", "segments", "media", "volume_bounces", "volume_bounds", "mis_facing", "link_set",
+                     "scattered"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)
         state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)

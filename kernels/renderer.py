@@ -20,6 +20,7 @@ from .film import Film, pixel_sums
 from .coincident import Coincident
 from .geometry import TriangleTable, prototype_boxes, scene_extent
 from .lights import LightSampler
+from .lights.links import object_links
 from .media.medium import Media
 from .memory import kept_heap, small_pages, trim_heap
 from .paths import GivenPaths, WavePaths
@@ -140,6 +141,7 @@ class Renderer:
         self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon)
         self.terminator = terminator_offsets(self.scene)
         self.visibility = object_visibility(self.scene)
+        self.links = object_links(self.scene)   # Light and Shadow Linking (None: none)
         poll()
 
     def _build_shading(self) -> None:
@@ -308,10 +310,12 @@ class Renderer:
             self.scene = dataclasses.replace(self.scene, objects=new.objects)
             self.shading.data.set_objects(new.objects)
             self.terminator = terminator_offsets(self.scene)
-        self.scene = dataclasses.replace(self.scene, object_visibility=new.object_visibility)
+        self.scene = dataclasses.replace(self.scene, object_visibility=new.object_visibility,
+                                         light_links=new.light_links)
         self.visibility = object_visibility(self.scene)
         # The lights go in first: update_materials then builds the light sampler once, for everything.
         self.scene = dataclasses.replace(self.scene, lights=new.lights)
+        self.links = object_links(self.scene)
         self.update_materials(new.materials, new.textures, new.texture_srgb, new.world)
         self.set_camera(new.camera)
         self.scene = dataclasses.replace(self.scene, crypto_ids=new.crypto_ids)
@@ -324,6 +328,7 @@ class Renderer:
         """New Blender lights (moved, edited, added or removed): only the light sampler is rebuilt."""
         lights.validate()
         self.scene = dataclasses.replace(self.scene, lights=lights)
+        self.links = object_links(self.scene)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             self.lights = self._light_sampler()
 

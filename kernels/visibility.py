@@ -62,8 +62,15 @@ def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = T
     the same rays) found an object that rays of `types` ((N,) uint8, or one value) do not see, the ray is
     traced again from just past that hit. t stays the distance from the ray's own origin. Changes hits."""
     types = np.broadcast_to(np.asarray(types, np.uint8), (len(origins),))
+    return skip_where(tables, origins, dirs, t_max, hits, lambda prim, rays: hidden(tables, prim, types[rays]),
+                      split, times)
+
+
+def skip_where(tables, origins, dirs, t_max, hits: Hits, skipped, split: bool = True, times=None) -> Hits:
+    """skip_hidden for any rule: skipped(prim (m,), rays (m,)) -> (m,) bool, the hits prim (all >= 0) of the rays
+    (indices into origins) that the rays pass through. Changes hits."""
     live = np.flatnonzero(hits.prim >= 0)
-    live = live[hidden(tables, hits.prim[live], types[live])]
+    live = live[skipped(hits.prim[live], live)]
     for _ in range(MAX_SKIPS):
         if not len(live):
             return hits
@@ -85,7 +92,7 @@ def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = T
         hits.prim[at] = again.prim[found]
         hits.t[at] = again.t[found] + step[found]
         hits.u[at], hits.v[at] = again.u[found], again.v[found]
-        live = at[hidden(tables, again.prim[found], types[at])]
+        live = at[skipped(again.prim[found], at)]
     hits.prim[live] = -1   # past the safeguard: nothing found
     hits.t[live] = np.inf
     return hits

@@ -212,19 +212,18 @@ def test_unsupported_geometry_types_warn():
     assert result.scene.object_visibility.tolist() == [63 - 32]
 
 
-def test_light_and_shadow_linking_warn_by_name():
-    """Light Linking and Shadow Linking collections (not rendered yet) are named in a warning, for an emitting
-    object's and a light's, and nothing is said where none is set."""
+def test_light_and_shadow_linking_export_without_warnings():
+    """Light Linking and Shadow Linking collections, on an emitting object and on a light, are rendered
+    (test_light_linking.py): nothing warns, and a scene where none is set has no linking at all."""
     cube = add_cube()
-    assert not any("Linking" in w for w in export().warnings)
+    result = export()
+    assert result.scene.light_links is None and result.scene.lights.light_sets is None
     receivers = bpy.data.collections.new("Receivers")
     cube.light_linking.receiver_collection = receivers
     lamp = bpy.data.objects.new("Key", bpy.data.lights.new("Key", "POINT"))
     bpy.context.scene.collection.objects.link(lamp)
     lamp.light_linking.blocker_collection = receivers
-    warnings = export().warnings
-    assert any("'Cube'" in w and "Light Linking" in w for w in warnings), warnings
-    assert any("'Key'" in w and "Shadow Linking" in w for w in warnings), warnings
+    assert not any("Linking" in w for w in export().warnings)
 
 
 def test_hidden_objects_and_non_geometry_are_skipped():

@@ -77,11 +77,11 @@ def test_tree_pmf_with_a_normal_sums_to_one_and_matches_frequencies(two_sided, m
     for p in rng.uniform(-5, 5, (3, 3)).astype(np.float32):
         normal = rng.normal(size=3)
         normal /= np.linalg.norm(normal)
-        pmf = sampler.selection_pmf(np.arange(k), *at(p, k), facing(k, normal, two_sided)).astype(np.float64)
+        pmf = sampler.selection_pmf(np.arange(k), *at(p, k), facing=facing(k, normal, two_sided)).astype(np.float64)
         pmf[-1] = sampler.select_pmf[-1]
         assert abs(pmf.sum() - 1) < 1e-5, pmf.sum()
         n = 300_000
-        chosen, select = sampler.choose_at(rng.random(n, dtype=np.float32), *at(p, n), facing(n, normal, two_sided))
+        chosen, select = sampler.choose_at(rng.random(n, dtype=np.float32), *at(p, n), facing=facing(n, normal, two_sided))
         np.testing.assert_allclose(select, pmf[chosen].astype(np.float32), rtol=1e-6)
         assert_chi2(np.bincount(chosen, minlength=k), pmf * n)
         plain = sampler.selection_pmf(np.arange(k), *at(p, k)).astype(np.float64)
@@ -100,13 +100,13 @@ def test_a_lamp_behind_an_opaque_point_is_not_chosen():
     sampler = sampler_for(lights=lights)
     assert sampler.uses_tree and sampler.reads_facing
     p = at((-0.01, 0.3, 0.2), 2)
-    toward_first = sampler.selection_pmf(np.arange(2), *p, facing(2, (-1, 0, 0)))
+    toward_first = sampler.selection_pmf(np.arange(2), *p, facing=facing(2, (-1, 0, 0)))
     np.testing.assert_allclose(toward_first, [1.0, 0.0])
-    np.testing.assert_allclose(sampler.selection_pmf(np.arange(2), *p, facing(2, (1, 0, 0))), [0.0, 1.0])
-    both = sampler.selection_pmf(np.arange(2), *p, facing(2, (-1, 0, 0), True))
+    np.testing.assert_allclose(sampler.selection_pmf(np.arange(2), *p, facing=facing(2, (1, 0, 0))), [0.0, 1.0])
+    both = sampler.selection_pmf(np.arange(2), *p, facing=facing(2, (-1, 0, 0), True))
     assert (both > 0.2).all()
     np.testing.assert_allclose(both.sum(), 1.0, rtol=1e-6)
-    np.testing.assert_allclose(sampler.selection_pmf(np.arange(2), *p, facing(2, (0, 0, 0))),
+    np.testing.assert_allclose(sampler.selection_pmf(np.arange(2), *p, facing=facing(2, (0, 0, 0))),
                                sampler.selection_pmf(np.arange(2), *p))
 
 

@@ -34,6 +34,7 @@ from ...kernels.scene.objects import ALL_RAYS
 from .camera import export_camera, render_region, render_resolution
 from .geometry import export_geometry
 from .images import shader_images
+from .light_linking import light_links, link_table
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
 from .motion import scene_motion, vector_fields
@@ -115,15 +116,17 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     layer_attribute = functools.partial(view_layer_attribute, scene, depsgraph.view_layer_eval)
     materials = MaterialTable(warnings, layer_attribute)
     poll = Poller(should_stop)
+    links = link_table(depsgraph)
+    warnings.extend(links.warnings)
     with materials.images:   # the scene's image files are decoded on threads while the meshes are read
         materials.images.prefetch(shader_images(
             [m.node_tree for m in depsgraph.ids if isinstance(m, bpy.types.Material)]
             + [scene.world.node_tree if scene.world is not None else None]))
         geometry = export_geometry(depsgraph, materials, warnings, poll,
                                    moving=frozenset(motion.objects) if motion is not None else frozenset(),
-                                   instance_everything=instance_everything, cache=mesh_cache)
+                                   instance_everything=instance_everything, cache=mesh_cache, links=links)
         world = export_world(scene.world, warnings, materials.images, layer_attribute)
-    lights = export_lights(depsgraph, warnings, poll)
+    lights = export_lights(depsgraph, warnings, poll, links)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
                     "asset": list(geometry.instance_assets or []), "material": list(materials.names)}
     arrays = SceneArrays(positions=geometry.positions, normals=geometry.normals, uvs=geometry.uvs,
@@ -135,6 +138,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          instances=geometry.instances, volumes=geometry.volumes,
                          object_attributes=geometry.object_attributes,
                          object_visibility=object_visibility(geometry.instance_visibility),
+                         light_links=light_links(geometry.instance_links),
                          **(dict(bvh_vertices=geometry.bvh[0], bvh_indices=geometry.bvh[1]) if geometry.bvh else {}),
                          **scene_motion(motion, geometry),
                          **vector_fields(vector, geometry, camera.world_from_camera))
@@ -149,7 +153,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                         triangle_count=len(geometry.material_ids) + (geometry.instances.triangle_total
                                                                      if geometry.instances is not None else 0),
                         instance_count=geometry.instance_count, crypto_names=crypto_names,
-                        index=export_index(geometry, materials))
+                        index=export_index(geometry, materials, links.signature()))
 
 
 class Poller:

@@ -24,6 +24,7 @@ from ...kernels.textures import Texture
 from .displacement import check_adaptive_subdivision, displace_mesh
 from .instances import (asset_name, check_visibility, instance_key, instance_random, instance_visibility,
                         instanced_groups, is_rendered, object_inputs, slot_materials)
+from .light_linking import LinkTable, check_volume_linking
 from .materials import MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_attributes, read_mesh, read_tangents, readable_mesh
 from .rgba_attributes import instancer_attribute, object_attribute
@@ -58,6 +59,7 @@ class Geometry:
     instance_matrices: list | None = None  # per object row: the (4, 4) world matrix its triangles used
     instance_assets: list | None = None    # per object row: the top-most parent's name (Cryptomatte asset)
     instance_visibility: list | None = None  # per object row: instance_visibility() (SceneArrays.object_visibility)
+    instance_links: list | None = None     # per object row: (receiver set, blocker set, light and shadow masks)
     slot_materials: list | None = None     # per object row: slot_materials() of its object
     empty_keys: frozenset = frozenset()    # instance keys of rendered mesh instances without triangles
     instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
@@ -114,13 +116,14 @@ class MeshCache:
 
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None,
                     moving: set | frozenset = frozenset(), instance_everything: bool = False,
-                    cache: MeshCache | None = None) -> Geometry:
+                    cache: MeshCache | None = None, links: LinkTable | None = None) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
     poll() is called for every instance (it raises to cancel the export). moving : instance keys
     (instance_key) of objects that move during the shutter: their meshes are never instanced.
     instance_everything : every mesh is a prototype placed by its instances, even when used once (the
     viewport: an object that moves then only changes its transform, engine/export/updates.py).
-    cache : a MeshCache that keeps meshes between frames (Persistent Data), or None."""
+    cache : a MeshCache that keeps meshes between frames (Persistent Data), or None.
+    links : the scene's light_linking.LinkTable (None: nothing links)."""
     if cache is not None:
         cache.begin(depsgraph)
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
@@ -141,6 +144,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     object_values: dict[tuple, dict] = {}    # (object pointer, name) -> an Object attribute's RGBA
     displaced: set = set()                   # evaluated mesh pointers whose true displacement is done
     visibility: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> instance_visibility() per instance
+    linked: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> LinkTable.row() per instance
+    linking = links is not None and links.used
     view_layer = depsgraph.view_layer_eval
     for inst in depsgraph.object_instances:
         if poll is not None:
@@ -164,6 +169,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                     (materials.default_volume_id(),)
                 signatures[object_key] = slot_materials(ob)
                 check_visibility(ob, warnings)
+                if linking:
+                    check_volume_linking(ob, links, True, warnings)
             if mesh_key not in meshes:
                 source = read_volume(ob, depsgraph.scene.frame_current, materials.interpolation(slot_rows[object_key]))
                 warnings.extend(source.warnings)
@@ -185,6 +192,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                     signatures[object_key] = slot_materials(ob)
                     check_visibility(ob, warnings)
                     check_adaptive_subdivision(ob.original, warnings)
+                    if linking:
+                        check_volume_linking(ob, links, materials.has_volume(slot_rows[object_key]), warnings)
                 if mesh_key not in displaced:
                     displaced.add(mesh_key)
                     meshes[mesh_key] = _displaced(inst, ob, mesh, meshes[mesh_key], materials,
@@ -211,6 +220,9 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             _object_attributes(inst, ob, materials.attribute_names(slot_rows[object_key]), object_values))
         assets.setdefault((mesh_key, slot_rows[object_key]), []).append(asset_name(ob))
         visibility.setdefault((mesh_key, slot_rows[object_key]), []).append(seen_by)
+        if linking:
+            linked.setdefault((mesh_key, slot_rows[object_key]), []).append(
+                links.row(ob, inst.parent if inst.is_instance else None))
         slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
     if cache is not None:
         cache.end()
@@ -226,6 +238,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                                instance_matrices=[m for group in groups.values() for m in group],
                                instance_assets=[a for group in assets.values() for a in group],
                                instance_visibility=[v for group in visibility.values() for v in group],
+                               instance_links=[v for group in linked.values() for v in group] if linking else None,
                                slot_materials=[m for group in slots.values() for m in group],
                                empty_keys=frozenset(empty))
 

@@ -65,23 +65,9 @@ def check_visibility(ob, warnings: list[str]) -> None:
     """Warn in `warnings` about the object's settings Ember renders as a plain object or ignores."""
     if ob.is_shadow_catcher:
         warnings.append(f"Object '{ob.name}': Shadow Catcher is not supported yet, rendered as a plain object")
-    check_light_linking(ob, "Object", warnings)
     if float(getattr(ob, "shadow_terminator_shading_offset", 0.0)) > 0:
         warnings.append(f"Object '{ob.name}': Shadow Terminator > Shading Offset is not supported yet, ignored "
                         f"(Geometry Offset is)")
-
-
-def check_light_linking(ob, kind: str, warnings: list[str]) -> None:
-    """Warn about Light Linking (Object > Shading > Light Linking and Shadow Linking collections, Blender 4.0+),
-    which Ember does not render yet: the object lights (or is lit by) everything and casts every shadow."""
-    linking = getattr(ob, "light_linking", None)
-    if linking is None:
-        return
-    kinds = (("receiver_collection", "Light Linking"), ("blocker_collection", "Shadow Linking"))
-    used = [label for name, label in kinds if getattr(linking, name, None) is not None]
-    if used:
-        warnings.append(f"{kind} '{ob.name}': {' and '.join(used)} not supported yet, ignored (it lights and "
-                        f"shadows everything)")
 
 
 def instance_key(inst) -> tuple:

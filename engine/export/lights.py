@@ -18,7 +18,7 @@ import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
 from ...kernels.textures import luminance
-from .instances import check_light_linking
+from .light_linking import LinkTable, lamp_masks, link_table
 
 # Blender's blackbody is defined for this range; colours are clamped outside it.
 BLACKBODY_RANGE_K = (800.0, 12000.0)
@@ -33,9 +33,12 @@ LIGHT_VISIBILITY = (("visible_camera", "Camera", False), ("visible_diffuse", "Di
                     ("visible_volume_scatter", "Volume Scatter", True))
 
 
-def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
-    """Every light instance; poll() is called for each instance (it raises to cancel the export)."""
-    rows = []
+def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | None = None) -> Lights:
+    """Every light instance; poll() is called for each instance (it raises to cancel the export). links: the
+    scene's light_linking.LinkTable (read from the depsgraph when None)."""
+    if links is None:
+        links = link_table(depsgraph)
+    rows, masks = [], []
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -43,13 +46,14 @@ def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
         if ob.type != "LIGHT":
             continue
         check_light_visibility(ob, warnings)
-        check_light_linking(ob, "Light", warnings)
         row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings)
         if row is not None:
             rows.append(row)
+            masks.append(links.memberships(ob))
     if not rows:
         return Lights()
     columns = list(zip(*rows))
+    light_sets, shadow_sets = lamp_masks(masks)
     return Lights(
         kind=np.array(columns[0], np.int32),
         position=np.array(columns[1], np.float32).reshape(-1, 3),
@@ -60,6 +64,8 @@ def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
         spot_cos=np.array(columns[6], np.float32).reshape(-1, 2),
         sun_half_angle=np.array(columns[7], np.float32),
         cast_shadow=np.array(columns[8], bool),
+        light_sets=light_sets,
+        shadow_sets=shadow_sets,
     )
 
 

@@ -192,6 +192,10 @@ class MaterialTable:
         """The volume interpolation of the first of these rows with a volume (LINEAR without one)."""
         return next((self._rows[r].interpolation for r in rows if self._rows[r].volume), "LINEAR")
 
+    def has_volume(self, rows) -> bool:
+        """Whether any of these rows has a Volume output (the object is a medium)."""
+        return any(self._rows[r].volume for r in rows)
+
     def tangent_uv_maps(self, rows) -> tuple[str, ...]:
         """The UV maps whose tangents the materials of these rows read ('' for the render UV map);
         empty when they read none."""

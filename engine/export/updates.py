@@ -33,6 +33,7 @@ from ...kernels import Lights, Materials, SceneArrays, World
 from ...kernels.scene import OBJECT_COLUMNS
 from .geometry import Geometry
 from .instances import instance_key, instance_row, instance_visibility, is_rendered, slot_materials
+from .light_linking import link_table
 from .lights import export_lights
 from .materials import DEFAULT_VOLUME_KEY, MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS
@@ -157,6 +158,8 @@ class ExportIndex:
     mesh_needs : per material row, MaterialTable.mesh_needs().
     visibility : per object row, instances.instance_visibility (Ray Visibility, holdout): a change of it takes
         a full export.
+    linking : light_linking.LinkTable.signature() of the scene: a change of Light or Shadow Linking takes a full
+        export (it reaches object rows and lights alike).
     """
     instance_keys: tuple
     slot_materials: tuple
@@ -166,9 +169,10 @@ class ExportIndex:
     material_keys: tuple
     mesh_needs: tuple
     visibility: tuple = ()
+    linking: tuple = ()
 
 
-def export_index(geometry: Geometry, materials: MaterialTable) -> ExportIndex:
+def export_index(geometry: Geometry, materials: MaterialTable, linking: tuple = ()) -> ExportIndex:
     """The index of a full export, from its geometry and material table."""
     inst = geometry.instances
     rows = len(geometry.instance_keys or ())
@@ -179,7 +183,7 @@ def export_index(geometry: Geometry, materials: MaterialTable) -> ExportIndex:
                        slot_materials=tuple(geometry.slot_materials or ()), empty_keys=geometry.empty_keys,
                        instance_rows=instance_rows, movable=bool(movable), material_keys=materials.keys,
                        mesh_needs=materials.mesh_needs(),
-                       visibility=tuple(geometry.instance_visibility or ()))
+                       visibility=tuple(geometry.instance_visibility or ()), linking=linking)
 
 
 def export_instances(depsgraph, index: ExportIndex) -> tuple[np.ndarray, np.ndarray] | None:
@@ -277,6 +281,9 @@ def export_changes(depsgraph, index: ExportIndex, parts: frozenset, scene: Scene
     export the index describes with every change so far. None when a part no longer lines up with that
     export: then only a full export will do."""
     placed = shading = lights = None
+    links = link_table(depsgraph)
+    if links.signature() != index.linking:
+        return None
     if INSTANCES in parts:
         placed = export_instances(depsgraph, index)
         if placed is None:
@@ -288,7 +295,7 @@ def export_changes(depsgraph, index: ExportIndex, parts: frozenset, scene: Scene
         if shading is None:
             return None
     if LIGHTS in parts:
-        lights = export_lights(depsgraph, [])
+        lights = export_lights(depsgraph, [], links=links)
     return Changes(placed, shading, lights)
 
 

@@ -24,7 +24,8 @@ as Cycles' mesh lights do.
 Modules: selection (the choice of an emitter), sampler (LightSampler: the emitter table, sampling by kind,
 what BSDF rays meet), one module per kind with its sample / pdf / intersect (point_spot, sun, area, triangles,
 world), proxies (Embree's help for many lights), nee (next-event estimation and shadow rays: the integrator's
-light samples), common (what the kinds share).
+light samples), links (Light and Shadow Linking: the sets, the masks, a choice per light set), common (what
+the kinds share).
 """
 from .proxies import LightProxies
 from .sampler import LightHits, LightSample, LightSampler

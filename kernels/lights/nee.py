@@ -18,6 +18,7 @@ from ..media import stack as volume_stack
 from ..media import tracking
 from ..media.march import marching
 from ..samples import LIGHT, LIGHT_POINT
+from ..scene import ALL_SETS
 
 # At a shading point whose closures are all one glossy lobe, the share of the world's light samples drawn
 # around that lobe (Environment.focus); less in proportion where other closures share the sampling weight.
@@ -46,9 +47,10 @@ def shading_facing(tables, hit, closures):
     return (*hit.ns, closures.transmits())
 
 
-def next_event(tables, wave, state, hit, closures, numbers, focus=None):
+def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver=None):
     """Sample a light for every live path, trace the shadow rays, add the MIS-weighted direct light.
-    focus: the world's light samples' (_world_focus), per hit."""
+    focus: the world's light samples' (_world_focus), per hit; receiver: the hits' light sets (Light Linking),
+    or None."""
     (u_select, _), (u1, u2) = numbers[LIGHT], numbers[LIGHT_POINT]
     # Paths past their last bounce only pass through transparent surfaces: no direct light there; nor
     # where the closures are all singular (a mirror, smooth glass): their evaluation is zero.
@@ -61,9 +63,10 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
         px, py, pz = (c[active] for c in hit.p)
         focus = None if focus is None else focus.take(active)
         facing = None if facing is None else tuple(np.take(c, active) for c in facing)
+        receiver = None if receiver is None else receiver[active]
     else:
         px, py, pz = hit.p
-    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus, facing)
+    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus, receiver, facing)
     tables.crew.check_stop()
     le = ls.radiance
     useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
@@ -112,13 +115,15 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
         stack = volume_stack.enter_exit(np.take(state.media, paths, axis=1), through, np.take(hit.backfacing, paths))
     # Lights with Cast Shadow off are not blocked: no shadow ray, as in Cycles.
     traced = np.flatnonzero(np.take(ls.shadowed, idx))
+    masks = shadow_masks(tables, ls, idx)
     if len(traced) == len(idx):
-        transmittance = shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack)
+        transmittance = shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack, masks)
     else:
         transmittance = np.ones((3, len(idx)), np.float32)
         if len(traced):
             transmittance[:, traced] = shadow_of(tables, origins[traced], dirs[traced], t_max[traced], wave,
-                                                 state, paths[traced], None if stack is None else stack[:, traced])
+                                                 state, paths[traced], None if stack is None else stack[:, traced],
+                                                 None if masks is None else masks[traced])
     vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
     if not len(vis):
         return
@@ -141,17 +146,19 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
     passes.add_light(tables, wave, state, paths, contribution, reflecting)
 
 
-def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=None, chosen=None) -> None:
+def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=None, chosen=None,
+                      receiver=None) -> None:
     """Next-event estimation at points p (m, 3) where the paths rows (state rows) scatter in a medium: a light
     sample, the phase closures' value toward it (mixture: media.scatter.PhaseMixture over the m points; rays
     arrived along d, a 3 tuple of (m,)), the shadow ray's transmittance through surfaces and media, MIS
     against the phase function's own sampling (Cycles' integrate_volume_direct_light). numbers: (u_select,
     u1, u2) (m,) each; scale: (3, m) a factor on the paths' throughput (a distance's weight), or None;
-    chosen: (emitters, their probabilities), the lights to sample (u_select unused), without MIS, or None."""
+    chosen: (emitters, their probabilities), the lights to sample (u_select unused), without MIS, or None;
+    receiver: (m,) uint8 the points' light sets (Light Linking: their media's objects'), or None."""
     u_select, u1, u2 = numbers
     px, py, pz = (np.ascontiguousarray(p[:, k], np.float32) for k in range(3))
     if chosen is None:
-        ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None)
+        ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None, receiver)
     else:
         ls = tables.lights.sample_chosen(px, py, pz, chosen[0], chosen[1], u1, u2, None)
     le = ls.radiance
@@ -169,8 +176,9 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     traced = np.flatnonzero(np.take(ls.shadowed, useful))
     transmittance = np.ones((3, len(useful)), np.float32)
     if len(traced):
+        masks = shadow_masks(tables, ls, useful[traced])
         transmittance[:, traced] = shadow_of(tables, origins[traced], dirs[traced], t_max[traced], wave, state,
-                                             paths[traced])
+                                             paths[traced], masks=masks)
     vis = np.flatnonzero((transmittance[0] != 0) | (transmittance[1] != 0) | (transmittance[2] != 0))
     if not len(vis):
         return
@@ -219,9 +227,10 @@ def terminator_lift(tables, hit, hits, light, ng):
     return rows, offset * amount[rows, None].astype(np.float32)
 
 
-def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None) -> np.ndarray:
+def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None, masks=None) -> np.ndarray:
     """_shadow for shadow rays leaving the paths `paths` (state rows); stack: their volume stacks (K, n) when
-    they differ from the paths' (None: the paths' own, when the scene has media)."""
+    they differ from the paths' (None: the paths' own, when the scene has media); masks: the shadow masks of
+    the emitters they go to (shadow linking), or None."""
     seeds = None
     if state.media is not None:
         stack = np.take(state.media, paths, axis=1) if stack is None else stack
@@ -229,30 +238,33 @@ def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None) -> n
     return shadow(tables, origins, dirs, t_max, wave, np.take(state.bounce, paths),
                   None if state.lobes is None else np.take(state.lobes, paths, axis=1),
                   None if state.time is None else state.time.take(paths),
-                  None if state.portal is None else np.take(state.portal, paths), stack, seeds)
+                  None if state.portal is None else np.take(state.portal, paths), stack, seeds, masks)
 
 
 def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None, stack=None,
-           seeds=None) -> np.ndarray:
+           seeds=None, masks=None) -> np.ndarray:
     """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
     transparent surfaces, the product of their transparency (Cycles' transparent shadows); through media
     (stack: the rays' volume stacks (K, n), seeds their paths' PCG2D states, or None), their transmittance,
     the stacks changing where the rays pass a surface with a volume.
     depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None),
-    portal its Ray Portals passed (or None): what the Light Path node reads."""
+    portal its Ray Portals passed (or None): what the Light Path node reads. masks: (n,) uint64 the shadow
+    masks of the emitters the rays go to (Shadow Linking: they pass objects whose blocker set is not in it,
+    kernels/lights/links.py), or None."""
     n = len(origins)
     split = wave.split
     if stack is not None and not (stack >= 0).any() and not tables.media.has_volume.any():
         stack = None
-    hidden = shadow_hidden(tables)
+    skipped = _passed_objects(tables, masks)
     if not tables.shading.transparent.any():
         blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
-        if hidden:   # what blocks them may be an object shadow rays do not see: the closest one that they do
+        if skipped is not None:   # what blocks them may be an object they pass: the closest one that they do not
             rows = np.flatnonzero(blocked)
             hits = tables.accel.intersect(origins[rows], dirs[rows], t_max[rows], split,
                                           None if times is None else times.take(rows))
-            visibility.skip_hidden(tables, origins[rows], dirs[rows], t_max[rows], hits, visibility.SHADOW,
-                                   split, None if times is None else times.take(rows))
+            visibility.skip_where(tables, origins[rows], dirs[rows], t_max[rows], hits,
+                                  lambda prim, r: skipped(prim, rows[r]), split,
+                                  None if times is None else times.take(rows))
             blocked[rows] = hits.prim >= 0
         out = np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
         if stack is None:
@@ -269,9 +281,10 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     origins, t_left = origins.copy(), t_max.copy()
     for crossing in range(int(wave.settings.transparent_max_bounces) + 1):
         hits = tables.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
-        if hidden:
-            visibility.skip_hidden(tables, origins, dirs[live], t_left, hits, visibility.SHADOW, split,
-                                   None if times is None else times.take(live))
+        if skipped is not None:
+            visibility.skip_where(tables, origins, dirs[live], t_left, hits,
+                                  lambda prim, r, live=live: skipped(prim, live[r]), split,
+                                  None if times is None else times.take(live))
         found = np.flatnonzero(hits.prim >= 0)
         if stack is not None:
             # The media along the segment to the surface met (or to the light).
@@ -322,6 +335,29 @@ def shadow_hidden(tables) -> bool:
     """Some object is not seen by shadow rays (Ray Visibility > Shadow off): they step past it."""
     vis = tables.visibility
     return vis is not None and bool(((vis & visibility.SHADOW) == 0).any())
+
+
+def _passed_objects(tables, masks):
+    """The rule by which shadow rays pass objects, skipped(prim (m,), rays (m,)) -> (m,) bool (objects shadow
+    rays do not see; objects outside the shadow masks (n,) of the emitters the rays go to), or None when they
+    pass none."""
+    hidden = shadow_hidden(tables)
+    if masks is None or tables.links is None:
+        return (lambda prim, rays: visibility.hidden(tables, prim, visibility.SHADOW)) if hidden else None
+    links = tables.links
+
+    def skipped(prim, rays):
+        out = links.passes(links.rows(tables.triangles, prim), np.take(masks, rays))
+        return out | visibility.hidden(tables, prim, visibility.SHADOW) if hidden else out
+    return skipped
+
+
+def shadow_masks(tables, ls, rows):
+    """(m,) uint64 shadow masks of the emitters the light samples rows chose, or None when all are every set."""
+    if ls.emitter is None:
+        return None
+    masks = np.take(tables.lights.links.shadow, np.take(ls.emitter, rows))
+    return None if (masks == ALL_SETS).all() else masks
 
 
 # ---------------------------------------------------------------- emitters for the light sampler

@@ -9,11 +9,12 @@ import numpy as np
 from ..environment import Environment
 from ..rng import pcg2d, to_unit_float
 from ..geometry import emissive_instanced, lights_of
-from ..light_tree import LightTree
+from ..light_tree import LightTree, rows_of
 from ..scene import SceneArrays
 from ..textures import luminance
 from . import area, point_spot, selection, sun, triangles, world
 from .common import DISK, POINT, RECT, SPOT, SUN
+from .links import EmitterLinks, object_links, reaches, set_groups
 from .proxies import PROXY_MIN_LIGHTS, LightProxies
 from .triangles import TAREA, TE1, TE2, TLE, TN, TP0, TRI_COLUMNS
 
@@ -22,8 +23,10 @@ class LightSample:
     """Per shading point: unit direction (wx, wy, wz), distance (inf for the world and the sun),
     radiance (3, N) arriving along it, pdf (N,) per unit solid angle times the selection probability,
     delta (N,) bool for lights no BSDF ray can hit, world (N,) bool for samples of the world, shadowed (N,)
-    bool: surfaces can block the sample (False for a light with Cast Shadow off)."""
-    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world", "shadowed")
+    bool: surfaces can block the sample (False for a light with Cast Shadow off); emitter (N,) int64 the
+    emitters chosen, where the scene links lights (their shadow masks pick the shadow rays' blockers), else
+    None."""
+    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world", "shadowed", "emitter")
 
     def __init__(self, n: int):
         self.wx = np.zeros(n, np.float32)
@@ -35,6 +38,7 @@ class LightSample:
         self.delta = np.zeros(n, bool)
         self.world = np.zeros(n, bool)
         self.shadowed = np.ones(n, bool)
+        self.emitter = None
 
     def set(self, idx, wx, wy, wz, dist, radiance, pdf, delta=False):
         if len(idx) == len(self.wx):  # every point chose this kind: no scatter needed
@@ -169,14 +173,32 @@ class LightSampler:
         power = np.concatenate([self._light_power(), self._triangle_power(), [self._world_power()]])
         power = np.where(np.isfinite(power) & (power > 0), power, 0.0)
         self.world_index = self.light_count + len(self.tri_ids)
-        self.has_lights = power.sum() > 0
-        self.select_pmf = selection.power_pmf(power, self.distant_mask())
-        self._cdf = np.cumsum(self.select_pmf)
-        if self.has_lights:
-            self._cdf /= self._cdf[-1]
-        self.pmf32 = self.select_pmf.astype(np.float32)
-        self.tree_divergence = 0.0
-        self.tree = selection.local_choice(self, power, scene) if self.has_lights else None
+        self.choice = selection.Choice(self, power, scene)
+        self.has_lights = self.choice.has_lights
+        # Light Linking: a choice per light set that receivers use (links.py); None without linking.
+        objects = object_links(scene)
+        self.links = None if objects is None or not self.has_lights else \
+            EmitterLinks(self, objects, scene, power, self._triangle_rows(scene))
+
+    def _triangle_rows(self, scene) -> np.ndarray:
+        """(E,) int64 object row of each emissive triangle (0 without an object table)."""
+        tri = self.tri_ids
+        rows = np.zeros(len(tri), np.int64)
+        if scene.object_ids is None or not len(tri):
+            return rows
+        plain = tri < self.plain_count
+        rows[plain] = np.take(scene.object_ids, tri[plain])
+        if not plain.all():
+            bases = scene.instances.bases(self.plain_count)
+            k = np.searchsorted(bases, tri[~plain], side="right") - 1
+            rows[~plain] = np.take(scene.instances.object_ids, k)
+        return rows
+
+    # The global choice's parts (selection.Choice), as the sampler's own.
+    select_pmf = property(lambda self: self.choice.select_pmf)
+    pmf32 = property(lambda self: self.choice.pmf32)
+    tree = property(lambda self: self.choice.tree)
+    tree_divergence = property(lambda self: self.choice.tree_divergence)
 
     @property
     def instanced_emitters(self) -> bool:
@@ -228,37 +250,59 @@ class LightSampler:
             return "power"
         return "tree" if isinstance(self.tree, LightTree) else "solid angle"
 
-    def choose_at(self, u_select, px, py, pz, facing=None):
-        """(emitter (n,) int64, selection probability (n,) float32) per shading point p (selection.choose_at)."""
-        return selection.choose_at(self, u_select, px, py, pz, facing)
+    def choose_at(self, u_select, px, py, pz, receiver=None, facing=None):
+        """(emitter (n,) int64, selection probability (n,) float32) per shading point p (selection.choose_at);
+        receiver: (n,) uint8 the points' light sets (Light Linking), or None. A point whose set no emitter
+        reaches gets emitter 0 with probability 0. facing: the points' (nx, ny, nz, two_sided), or None."""
+        if receiver is None or self.links is None:
+            return selection.choose_at(self.choice, u_select, px, py, pz, facing)
+        chosen, select = np.zeros(len(px), np.int64), np.zeros(len(px), np.float32)
+        for s, idx in set_groups(receiver):
+            choice = self.links.choice(s)
+            if choice.has_lights:
+                chosen[idx], select[idx] = selection.choose_at(choice, u_select[idx], px[idx], py[idx], pz[idx],
+                                                               rows_of(facing, idx))
+        return chosen, select
 
-    def selection_pmf(self, emitter, px, py, pz, facing=None):
-        """(n,) float32 probability that NEE at point p chooses emitter (selection.selection_pmf)."""
-        return selection.selection_pmf(self, emitter, px, py, pz, facing)
+    def selection_pmf(self, emitter, px, py, pz, receiver=None, facing=None):
+        """(n,) float32 probability that NEE at point p chooses emitter (selection.selection_pmf); receiver and
+        facing as for choose_at."""
+        if receiver is None or self.links is None:
+            return selection.selection_pmf(self.choice, emitter, px, py, pz, facing)
+        out = np.empty(len(px), np.float32)
+        for s, idx in set_groups(receiver):
+            out[idx] = selection.selection_pmf(self.links.choice(s), np.take(emitter, idx), px[idx], py[idx], pz[idx],
+                                               rows_of(facing, idx))
+        return out
 
     @property
     def reads_facing(self) -> bool:
-        """Whether the choice depends on the shading point's normal (a light tree): the integrator then keeps
-        the normal of the vertex each ray left (PathState.mis_facing) for the MIS pdfs."""
-        return isinstance(self.tree, LightTree)
+        """Whether the choice may depend on the shading point's normal (a light tree, or linking's choices per
+        light set): the integrator then keeps the normal of the vertex each ray left (PathState.mis_facing) for
+        the MIS pdfs."""
+        return isinstance(self.tree, LightTree) or self.links is not None
+
+    def distant_pmf(self, emitter: int, n: int, receiver=None):
+        """The global pmf of a distant emitter (a sun, the world): one float32, or (n,) per receiver set."""
+        if receiver is None or self.links is None:
+            return self.pmf32[emitter]
+        return self.links.pmf(emitter, receiver)
 
     # ------------------------------------------------------------------ sampling
     def choose(self, u_select: np.ndarray) -> np.ndarray:
         """(n,) int64 emitter index per number in [0, 1): lights, then emissive triangles, then the world,
         each with probability select_pmf."""
-        if len(self._cdf) == 1:
-            return np.zeros(len(u_select), np.int64)
-        # float64: a float32 cdf would round the intervals of millions of small emitters.
-        return np.minimum(np.searchsorted(self._cdf, u_select.astype(np.float64), side="right"), len(self._cdf) - 1)
+        return selection.choose(self.choice, u_select)
 
-    def sample(self, px, py, pz, u_select, u1, u2, focus=None, facing=None) -> LightSample:
+    def sample(self, px, py, pz, u_select, u1, u2, focus=None, receiver=None, facing=None) -> LightSample:
         """Choose an emitter for each shading point p and sample a direction toward it. focus: the world's
-        (environment.WorldFocus per shading point) when its light samples focus on glossy lobes; facing: the
-        points' (nx, ny, nz, two_sided) (selection.choose_at)."""
+        (environment.WorldFocus per shading point) when its light samples focus on glossy lobes; receiver:
+        (n,) uint8 the points' light sets (Light Linking), or None; facing: the points' (nx, ny, nz,
+        two_sided) (selection.choose_at)."""
         n = len(px)
         if not self.has_lights or n == 0:
             return LightSample(n)
-        chosen, select = self.choose_at(u_select, px, py, pz, facing)
+        chosen, select = self.choose_at(u_select, px, py, pz, receiver, facing)
         return self.sample_chosen(px, py, pz, chosen, select, u1, u2, focus)
 
     def sample_chosen(self, px, py, pz, chosen, select, u1, u2, focus=None) -> LightSample:
@@ -271,6 +315,8 @@ class LightSampler:
         if not self.shadowed.all():
             lamp = chosen < self.light_count
             out.shadowed = ~lamp | np.take(self.shadowed, np.where(lamp, chosen, 0))
+        if self.links is not None:
+            out.emitter = chosen
         if self.light_count:
             for kind, method in ((POINT, point_spot.sample), (SPOT, point_spot.sample), (SUN, sun.sample),
                                  (RECT, area.sample), (DISK, area.sample)):
@@ -292,27 +338,28 @@ class LightSampler:
         return self.axes[light, :, k].T
 
     # ------------------------------------------------------------------ pdfs of what BSDF rays find
+    # receiver: (n,) uint8 the light sets of the objects the rays left (Light Linking), or None; facing: the
+    # normals of the vertices they left (choose_at), or None.
+    def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz, receiver=None, facing=None) -> np.ndarray:
+        """pdf (solid angle, with selection) of NEE from o for this point of emissive triangle tri
+        (triangles.pdf_hit)."""
+        return triangles.pdf_hit(self, tri, dist, cos_l, ox, oy, oz, receiver, facing)
 
-    # ------------------------------------------------------------------ pdfs of what BSDF rays find
-    def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz, facing=None) -> np.ndarray:
-        """pdf (solid angle, with selection) of NEE from o (facing as choose_at's) for this point of emissive
-        triangle tri (triangles.pdf_hit)."""
-        return triangles.pdf_hit(self, tri, dist, cos_l, ox, oy, oz, facing)
-
-    def pdf_world(self, dx, dy, dz, focus=None) -> np.ndarray:
+    def pdf_world(self, dx, dy, dz, focus=None, receiver=None) -> np.ndarray:
         """pdf (solid angle, with selection) of NEE for world directions d (world.pdf)."""
-        return world.pdf(self, dx, dy, dz, focus)
+        return world.pdf(self, dx, dy, dz, focus, receiver)
 
-    def suns_seen(self, dx, dy, dz, bsdf_pdf=None):
+    def suns_seen(self, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False):
         """(3, n) radiance of the sun discs that rays leaving the scene along d look into, MIS-weighed
-        (sun.seen); None when the scene has no sun with a disc."""
-        return sun.seen(self, dx, dy, dz, bsdf_pdf)
+        (sun.seen); None when the scene has no sun with a disc. shadow_linked: count the suns whose light
+        dedicated rays count (kernels/shadow_linking.py) too."""
+        return sun.seen(self, dx, dy, dz, bsdf_pdf, receiver, shadow_linked)
 
     def samples_world(self) -> bool:
         """Whether next-event estimation can choose the world."""
         return self.has_lights and self.select_pmf[self.world_index] > 0
 
-    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None, facing=None) -> "LightHits":
+    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None, receiver=None, facing=None) -> "LightHits":
         """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max, as Cycles'
         BSDF rays meet them (kernel/light/light.h lights_intersect, integrator/shade_light.h).
 
@@ -326,12 +373,19 @@ class LightSampler:
 
         The caller weights what it gets by MIS with one pdf, so where a ray meets several lights one of
         them is returned, chosen in proportion to its radiance, with its radiance divided by that
-        probability: the expectation is the sum over the lights, each with its own MIS weight."""
+        probability: the expectation is the sum over the lights, each with its own MIS weight.
+
+        receiver: (N,) uint8 the light sets of the objects the rays left, or None: with Light Linking a ray
+        meets only the lights that reach its set and are not shadow-linked (those take dedicated rays), as
+        Cycles' lights_intersect skips the others before counting them (kernel/light/light.h)."""
         n = len(ox)
         out = LightHits(n)
         if not self.has_surface_lights or n == 0:
             return out
         ray, light = self._candidates(ox, oy, oz, dx, dy, dz, t_max)
+        if receiver is not None and self.links is not None and len(ray):
+            keep = reaches(self.links.light[light], receiver[ray]) & ~self.links.shadow_linked[light]
+            ray, light = ray[keep], light[keep]
         if not len(ray):
             return out
         t, light_pdf, le = self.hit_pairs(ray, light, ox[ray], oy[ray], oz[ray], dx[ray], dy[ray], dz[ray])
@@ -356,9 +410,27 @@ class LightSampler:
         out.t[rays] = t[chosen]
         out.radiance[:, rays] = le[:, chosen] / share.astype(np.float32)
         out.pdf[rays] = self.selection_pmf(light[chosen], ox[rays], oy[rays], oz[rays],
-                                           None if facing is None else tuple(c[rays] for c in facing)) * \
-            light_pdf[chosen]
+                                           None if receiver is None else receiver[rays],
+                                           rows_of(facing, rays)) * light_pdf[chosen]
         return out
+
+    def shadow_linked_hits(self, ox, oy, oz, dx, dy, dz, t_max, receiver, facing=None):
+        """Every (ray, lamp) pair where a ray meets a shadow-linked lamp with a surface that reaches the ray's
+        light set (receiver (N,) uint8) before t_max (Cycles' lights_intersect_shadow_linked): (ray, lamp, t,
+        pdf per solid angle with selection, radiance (3, P))."""
+        empty = (np.zeros(0, np.int64),) * 2 + (np.zeros(0, np.float32),) * 2 + (np.zeros((3, 0), np.float32),)
+        if not self.has_surface_lights or self.links is None or not len(ox):
+            return empty
+        ray, light = self._candidates(ox, oy, oz, dx, dy, dz, t_max)
+        keep = reaches(self.links.light[light], receiver[ray]) & self.links.shadow_linked[light]
+        ray, light = ray[keep], light[keep]
+        if not len(ray):
+            return empty
+        t, light_pdf, le = self.hit_pairs(ray, light, ox[ray], oy[ray], oz[ray], dx[ray], dy[ray], dz[ray])
+        ok = np.flatnonzero((t > 0) & (t < t_max[ray]))
+        ray, light = ray[ok], light[ok]
+        pdf = self.selection_pmf(light, ox[ray], oy[ray], oz[ray], receiver[ray], rows_of(facing, ray)) * light_pdf[ok]
+        return ray, light, t[ok], pdf, le[:, ok]
 
     def _candidates(self, ox, oy, oz, dx, dy, dz, t_max):
         """(ray, light) index pairs that may hit: every ray against every surface light, or, with many

@@ -1,6 +1,7 @@
 """Choosing an emitter: one pmf by power everywhere (distant emitters taking DISTANT_SHARE), or per shading point
 among the local ones, by a light tree (kernels.light_tree) or, among a few emissive triangles, by the solid
-angle each subtends (SolidAngleChoice).
+angle each subtends (SolidAngleChoice). A Choice holds one such way of choosing, over all of a scene's emitters
+or over those one light set of Light Linking reaches (kernels.lights.links).
 """
 from __future__ import annotations
 
@@ -40,26 +41,43 @@ TREE_MIN_DIVERGENCE = 0.1
 _TREE_PROBES, _TREE_PROBE_SAMPLES = 256, 64
 
 
-def local_choice(sampler, power, scene):
+class Choice:
+    """One way of choosing among emitters with power (power (L + E + 1,) float64, zero for those not to be
+    chosen): select_pmf (float64) and pmf32 the global pmf, cdf its cumulative sum, and the per-point choice
+    among the local emitters (tree: a LightTree, a SolidAngleChoice or None, with the distant emitters' own
+    distribution: local_choice)."""
+
+    def __init__(self, sampler, power: np.ndarray, scene):
+        self.has_lights = bool(power.sum() > 0)
+        self.select_pmf = power_pmf(power, sampler.distant_mask())
+        self.cdf = np.cumsum(self.select_pmf)
+        if self.has_lights:
+            self.cdf /= self.cdf[-1]
+        self.pmf32 = self.select_pmf.astype(np.float32)
+        self.tree_divergence = 0.0
+        self.tree = local_choice(sampler, self, power, scene) if self.has_lights else None
+
+
+def local_choice(sampler, choice: Choice, power, scene):
     """How shading points choose among the local emitters with power, when not by the global pmf: a
     SolidAngleChoice among two to SOLID_ANGLE_MAX_EMITTERS emissive triangles; a LightTree over
     TREE_MIN_EMITTERS or more emitters whose choices differ enough from the global pmf's
     (TREE_MIN_DIVERGENCE, measured at points in the box of the scene's triangles); else None. Also the
-    distant emitters' own distribution for the points that choose one."""
+    distant emitters' own distribution for the points that choose one (set on `choice`)."""
     distant = sampler.distant_mask()
     local = np.flatnonzero(~distant & (power > 0))
     few = 2 <= len(local) <= SOLID_ANGLE_MAX_EMITTERS and bool((local >= sampler.light_count).all())
     if len(local) < TREE_MIN_EMITTERS and not few:
         return None
-    sampler.distant_ids = np.flatnonzero(distant & (sampler.select_pmf > 0))
+    choice.distant_ids = np.flatnonzero(distant & (choice.select_pmf > 0))
     # Exactly 1 without distant emitters: a rounded sum would send a few points to none.
-    sampler.local_share = float(sampler.select_pmf[local].sum()) if len(sampler.distant_ids) else 1.0
-    sampler.tree_ids = local
-    sampler.tree_slot = np.full(len(power), -1, np.int64)
-    sampler.tree_slot[local] = np.arange(len(local))
-    sampler.distant_cdf = np.cumsum(sampler.select_pmf[sampler.distant_ids])
-    if len(sampler.distant_cdf):
-        sampler.distant_cdf /= sampler.distant_cdf[-1]
+    choice.local_share = float(choice.select_pmf[local].sum()) if len(choice.distant_ids) else 1.0
+    choice.tree_ids = local
+    choice.tree_slot = np.full(len(power), -1, np.int64)
+    choice.tree_slot[local] = np.arange(len(local))
+    choice.distant_cdf = np.cumsum(choice.select_pmf[choice.distant_ids])
+    if len(choice.distant_cdf):
+        choice.distant_cdf /= choice.distant_cdf[-1]
     if few:
         return SolidAngleChoice(np.take(sampler.tri_table, local - sampler.light_count, axis=0), power[local])
     lo, hi = np.zeros((len(local), 3)), np.zeros((len(local), 3))
@@ -89,8 +107,8 @@ def local_choice(sampler, power, scene):
     tree = LightTree(lo, hi, power[local], axis, spread, group, emission)
     has_geometry = len(scene.positions) or (scene.instances is not None and scene.instances.count)
     box = scene_extent(scene) if has_geometry else None
-    sampler.tree_divergence = _divergence(tree, sampler.select_pmf[local] / sampler.local_share, box)
-    return tree if tree.units > 1 or sampler.tree_divergence >= TREE_MIN_DIVERGENCE else None
+    choice.tree_divergence = _divergence(tree, choice.select_pmf[local] / choice.local_share, box)
+    return tree if tree.units > 1 or choice.tree_divergence >= TREE_MIN_DIVERGENCE else None
 
 
 def triangle_groups(sampler, scene, rows) -> np.ndarray:
@@ -108,42 +126,50 @@ def triangle_groups(sampler, scene, rows) -> np.ndarray:
     return group
 
 
-def choose_at(sampler, u_select, px, py, pz, facing=None):
+def choose(choice: Choice, u_select: np.ndarray) -> np.ndarray:
+    """(n,) int64 emitter index per number in [0, 1), each with probability choice.select_pmf."""
+    if len(choice.cdf) == 1:
+        return np.zeros(len(u_select), np.int64)
+    # float64: a float32 cdf would round the intervals of millions of small emitters.
+    return np.minimum(np.searchsorted(choice.cdf, u_select.astype(np.float64), side="right"), len(choice.cdf) - 1)
+
+
+def choose_at(choice: Choice, u_select, px, py, pz, facing=None):
     """(emitter (n,) int64, selection probability (n,) float32) per shading point p: the light tree
     for the local emitters (their DISTANT_SHARE complement), the distant ones by their fixed pmf.
     Without a tree, choose() and select_pmf. facing: the points' (nx, ny, nz, two_sided) for the tree's
     incidence factor (light_tree module docstring), or None."""
-    if sampler.tree is None:
-        chosen = sampler.choose(u_select)
-        return chosen, np.take(sampler.pmf32, chosen)
+    if choice.tree is None:
+        chosen = choose(choice, u_select)
+        return chosen, np.take(choice.pmf32, chosen)
     u = u_select.astype(np.float64)
-    share = sampler.local_share
+    share = choice.local_share
     chosen = np.zeros(len(u), np.int64)
     select = np.zeros(len(u), np.float64)
     local = np.flatnonzero(u < share) if share < 1 else np.arange(len(u))
     if len(local):
-        e, pmf = sampler.tree.sample(u[local] / share, px[local], py[local], pz[local],
-                                     None if facing is None else tuple(c[local] for c in facing))
-        chosen[local] = sampler.tree_ids[e]
+        e, pmf = choice.tree.sample(u[local] / share, px[local], py[local], pz[local],
+                                    None if facing is None else tuple(c[local] for c in facing))
+        chosen[local] = choice.tree_ids[e]
         select[local] = share * pmf
     if share < 1:
         far = np.flatnonzero(u >= share)
         if len(far):
             ud = (u[far] - share) / (1.0 - share)
-            j = np.minimum(np.searchsorted(sampler.distant_cdf, ud, side="right"), len(sampler.distant_ids) - 1)
-            chosen[far] = sampler.distant_ids[j]
-            select[far] = sampler.select_pmf[chosen[far]]
+            j = np.minimum(np.searchsorted(choice.distant_cdf, ud, side="right"), len(choice.distant_ids) - 1)
+            chosen[far] = choice.distant_ids[j]
+            select[far] = choice.select_pmf[chosen[far]]
     return chosen, select.astype(np.float32)
 
 
-def selection_pmf(sampler, emitter, px, py, pz, facing=None):
+def selection_pmf(choice: Choice, emitter, px, py, pz, facing=None):
     """(n,) float32 probability that NEE at point p (facing as choose_at's) chooses emitter (any index but the
     world's)."""
-    if sampler.tree is None:
-        return np.take(sampler.pmf32, emitter)
-    slot = np.take(sampler.tree_slot, emitter)
-    local = sampler.tree.pmf(slot, px, py, pz, facing) * sampler.local_share
-    return np.where(slot >= 0, local, np.take(sampler.select_pmf, emitter)).astype(np.float32)
+    if choice.tree is None:
+        return np.take(choice.pmf32, emitter)
+    slot = np.take(choice.tree_slot, emitter)
+    local = choice.tree.pmf(slot, px, py, pz, facing) * choice.local_share
+    return np.where(slot >= 0, local, np.take(choice.select_pmf, emitter)).astype(np.float32)
 
 
 class SolidAngleChoice:

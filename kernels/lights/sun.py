@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
+from .links import reaches
 
 
 def sample(sampler, out, idx, light, px, py, pz, u1, u2):
@@ -19,21 +20,34 @@ def sample(sampler, out, idx, light, px, py, pz, u1, u2):
     out.set(idx, wx, wy, wz, np.float32(np.inf), sampler.sun_radiance[light].T, pdf, delta)
 
 
-def seen(sampler, dx, dy, dz, bsdf_pdf=None):
+def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False):
     """(3, n) radiance of the sun discs that rays leaving the scene along d (x, y, z of (n,)) look into, each
     weighed by MIS (power heuristic) against its own light samples given the pdf of the BSDF sample that
     chose d (None: not weighed, as after a singular bounce), as Cycles' escaped rays see suns; None when
-    the scene has no sun with a disc."""
+    the scene has no sun with a disc. receiver: (n,) uint8 the light sets of the objects the rays left
+    (Light Linking), or None: a ray sees only the suns that reach its set, and not the shadow-linked ones
+    (dedicated rays count those, kernels/shadow_linking.py) unless shadow_linked, as Cycles'
+    integrate_sun_lights (kernel/integrator/shade_background.h)."""
     if not len(sampler.sun_discs):
         return None
     out = np.zeros((3, len(dx)), np.float32)
+    links = sampler.links if receiver is not None else None
     for k in sampler.sun_discs:
         zx, zy, zz = sampler.axes[k, :, 2]
-        inside = np.flatnonzero(dx * zx + dy * zy + dz * zz >= sampler.sun_cos[k])
+        facing = dx * zx + dy * zy + dz * zz >= sampler.sun_cos[k]
+        if links is not None:
+            if links.shadow_linked[k] and not shadow_linked:
+                continue
+            facing &= reaches(links.light[k], receiver)
+        inside = np.flatnonzero(facing)
         if not len(inside):
             continue
         weight = np.ones(len(inside), np.float32)
-        if bsdf_pdf is not None and sampler.select_pmf[k] > 0:
+        if links is not None:
+            if bsdf_pdf is not None:   # the pmf of the receivers' own choice (0: weight 1)
+                light_pdf = links.pmf(k, receiver[inside]) * sampling.uniform_cone_pdf(sampler.sun_cos[k])
+                weight = sampling.power_heuristic(np.take(bsdf_pdf, inside), light_pdf)
+        elif bsdf_pdf is not None and sampler.select_pmf[k] > 0:
             light_pdf = np.float32(sampler.select_pmf[k]) * sampling.uniform_cone_pdf(sampler.sun_cos[k])
             weight = sampling.power_heuristic(np.take(bsdf_pdf, inside),
                                               np.full(len(inside), light_pdf, np.float32))

@@ -91,15 +91,16 @@ def spherical_choice(sampler, g, slot, px, py, pz):
     return spherical, omega, (a, b, c)
 
 
-def pdf_hit(sampler, tri, dist, cos_l, ox, oy, oz, facing=None) -> np.ndarray:
+def pdf_hit(sampler, tri, dist, cos_l, ox, oy, oz, receiver=None, facing=None) -> np.ndarray:
     """pdf (solid angle, with selection) with which NEE from the ray origin o would have sampled
-    this point of emissive triangle tri (zero for triangles that do not emit)."""
+    this point of emissive triangle tri (zero for triangles that do not emit); receiver: the light sets of the
+    points the rays left (Light Linking), or None."""
     if not len(sampler.tri_ids):
         return np.zeros(len(tri), np.float32)
     slot = slots(sampler, tri)
     ok = slot >= 0
     s = np.maximum(slot, 0)
-    pmf = sampler.selection_pmf(sampler.light_count + s, ox, oy, oz, facing)
+    pmf = sampler.selection_pmf(sampler.light_count + s, ox, oy, oz, receiver, facing)
     g = np.take(sampler.tri_table, s, axis=0).T
     spherical, omega, _ = spherical_choice(sampler, g, s, ox, oy, oz)
     pdf = area_to_solid_angle(g[TAREA], dist, np.abs(cos_l))

@@ -12,9 +12,10 @@ def sample(sampler, out, idx, u1, u2, focus=None):
     out.world[idx] = True
 
 
-def pdf(sampler, dx, dy, dz, focus=None) -> np.ndarray:
+def pdf(sampler, dx, dy, dz, focus=None, receiver=None) -> np.ndarray:
     """pdf (solid angle, with selection) with which NEE would have sampled world directions d (focus: as
-    given to sample())."""
+    given to sample(); receiver: the light sets of the points the rays left, or None)."""
     if not sampler.samples_world():
         return np.zeros(len(dx), np.float32)
-    return sampler.pmf32[sampler.world_index] * sampler.environment.direction_pdf(dx, dy, dz, focus)
+    return sampler.distant_pmf(sampler.world_index, len(dx), receiver) * \
+        sampler.environment.direction_pdf(dx, dy, dz, focus)

@@ -14,6 +14,7 @@ from ..lights import nee
 from ..paths import VOLUME_SCATTER, may_scatter, ray_keys, roulette_verdict
 from ..geometry import NG
 from ..lights.common import SPOT
+from ..lights.links import medium_receivers
 from ..rng import keyed_uniforms as uniforms
 from ..samples import BSDF, LIGHT, LIGHT_POINT, VOLUME_DISTANCE, VOLUME_LIGHT
 from ..vec import F32, ONE, ZERO
@@ -139,7 +140,8 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     uc, _ = uniforms(seeds, 1, DIRECT_SALT)
     lights = tables.lights
     rx, ry, rz = (np.ascontiguousarray(ref[:, k]) for k in range(3))
-    chosen, select = lights.choose_at(ua, rx, ry, rz)
+    receiver = None if state.link_set is None else medium_receivers(tables, state.media[:, paths])
+    chosen, select = lights.choose_at(ua, rx, ry, rz, receiver)
     chosen, select = np.array(chosen), np.asarray(select, np.float64).copy()
     ls = lights.sample_chosen(rx, ry, rz, chosen, select.astype(F32), ub, uc)
     point = ref + np.stack([ls.wx, ls.wy, ls.wz], axis=1) * np.where(np.isfinite(ls.dist), ls.dist, 0.0)[:, None]
@@ -148,7 +150,7 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     spots = np.flatnonzero(lights.kind[:lights.light_count] == SPOT)[:MAX_CONES] if lights.light_count else ()
     if len(spots):
         _toward_spots(lights, spots, chosen, select, point, aimed, lo, hi, o, dvec, end, (rx, ry, rz),
-                      uniforms(seeds, 5, DIRECT_SALT)[0])
+                      uniforms(seeds, 5, DIRECT_SALT)[0], receiver)
     t_eq, _ = equiangular.sample(o, dvec, point, lo, hi, ut.astype(np.float64))
     # Both strategies from one number: the first half of us picks equiangular sampling, then its own rescaled.
     use_eq = aimed & (us < 0.5)
@@ -178,7 +180,8 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     nee.medium_next_event(tables, wave, state, paths[valid], p, tuple(np.ascontiguousarray(dvec[valid, k]) for k in
                                                                        range(3)),
                           PhaseMixture(_phases_of(phases, valid), len(valid)),
-                          (None, ue[valid], uf[valid]), scale, (chosen[valid], select[valid].astype(F32)))
+                          (None, ue[valid], uf[valid]), scale, (chosen[valid], select[valid].astype(F32)),
+                          None if receiver is None else receiver[valid])
     return done
 
 
@@ -198,15 +201,16 @@ def _bounded_exponential_pdf(t, sigma, lo, hi):
     return np.where((sigma > 0) & np.isfinite(out), out, 0.0)
 
 
-def _toward_spots(lights, spots, chosen, select, point, aimed, lo, hi, o, dvec, end, ref, u):
+def _toward_spots(lights, spots, chosen, select, point, aimed, lo, hi, o, dvec, end, ref, u, receiver=None):
     """Narrow the segments' equiangular sampling toward spot lights to their cones (distance sampling covers
     the rest), in place. A segment whose chosen spot's cone it misses takes one of the spots whose cones it
     crosses instead, at random: a light is then chosen with probability P(L) + P(missed) / (cones crossed) for
-    the spots it crosses (select), 0 for those it misses (they do not light it), P(L) for other lights."""
+    the spots it crosses (select), 0 for those it misses (they do not light it), P(L) for other lights.
+    receiver: the segments' light sets (Light Linking), or None."""
     n = len(chosen)
     ranges = [_cone_range(lights, int(j), o, dvec, end) for j in spots]
     crossed = np.stack([r[2] for r in ranges])
-    pmf = np.stack([lights.selection_pmf(np.full(n, j), *ref).astype(np.float64) for j in spots])
+    pmf = np.stack([lights.selection_pmf(np.full(n, j), *ref, receiver).astype(np.float64) for j in spots])
     missed = (pmf * ~crossed).sum(axis=0)
     count = crossed.sum(axis=0)
     share = np.where(count > 0, missed / np.maximum(count, 1), 0.0)
@@ -255,6 +259,8 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     """The paths `state` (those of `scattered`) at their scattering points: light samples through the phase
     function, then the next direction from it. Returns (state, (origins, dirs)) of those that go on, or None."""
     n = len(state)
+    if state.link_set is not None:   # the points receive (and their phase rays leave) as their media's objects
+        state.link_set, state.scattered = medium_receivers(tables, state.media), np.ones(n, bool)
     p = (scattered.origins + scattered.dirs * scattered.t[:, None]).astype(F32)
     d = tuple(np.ascontiguousarray(scattered.dirs[:, k]) for k in range(3))
     shaded = p if scattered.shade_t is None else \
@@ -273,7 +279,8 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
             nee.medium_next_event(tables, wave, state, own, p[own], tuple(c[own] for c in d),
                                   mixture if len(own) == n else PhaseMixture(_phases_of(coefficients.phases, own),
                                                                              len(own)),
-                                  (u_select[own], u1[own], u2[own]))
+                                  (u_select[own], u1[own], u2[own]),
+                                  receiver=None if state.link_set is None else state.link_set[own])
     u1, u2 = numbers[BSDF]
     u_pick = uniforms(ray_keys(state, np.arange(n)), 0, PICK_SALT)[0]
     wo, f, pdf = mixture.sample(d, u_pick, u1, u2)

@@ -13,6 +13,7 @@ The kernel's public data model, one module per part, every name importable from 
     world       World, what rays that leave the scene see
     materials   Materials of Shaders, Closures and their inputs (Param, NormalMap, Tangent)
     objects     the object table's columns (OBJ_*) and rows
+    links       LightLinks: Light and Shadow Linking per object row (ALL_SETS)
     triangles   per-triangle arrays: CornerRows, comparing, checking and cleaning them
     instances   Prototype and Instances: meshes stored once, placed many times
     checks      the validation vocabulary the parts share (require, check_array)
@@ -23,6 +24,7 @@ from .arrays import SceneArrays, ValidatedScene
 from .camera import CAMERA_KINDS, PIXEL_FILTERS, SENSOR_FITS, Camera
 from .instances import Instances, Prototype, usable_placements
 from .lights import LIGHT_KINDS, Lights
+from .links import ALL_SETS, MAX_LINK_SETS, LightLinks
 from .materials import (CLOSURE_KINDS, INPUT_NODES, NORMAL_MAP_SPACES, VOLUME_KINDS, Closure, Materials, NormalMap,
                         Param, Shader, Tangent, diffuse_shader)
 from .objects import (OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TERMINATOR,
@@ -36,6 +38,7 @@ __all__ = [
     "CAMERA_KINDS", "PIXEL_FILTERS", "SENSOR_FITS", "Camera",
     "Instances", "Prototype", "usable_placements",
     "LIGHT_KINDS", "Lights",
+    "ALL_SETS", "MAX_LINK_SETS", "LightLinks",
     "CLOSURE_KINDS", "INPUT_NODES", "NORMAL_MAP_SPACES", "VOLUME_KINDS", "Closure", "Materials", "NormalMap", "Param", "Shader",
     "Tangent", "diffuse_shader",
     "OBJ_COLOR", "OBJ_FROM_WORLD", "OBJ_LOCATION", "OBJ_PASS_INDEX", "OBJ_RANDOM", "OBJ_TERMINATOR",

@@ -11,6 +11,7 @@ from .camera import Camera
 from .checks import check_array, require, require_finite
 from .instances import Instances, clean_instances
 from .lights import Lights
+from .links import LightLinks
 from .materials import Materials
 from .objects import OBJECT_COLUMNS, mirrored_objects
 from .triangles import check_material_ids, check_triangles, clean_triangles, same_arrays, same_triangles
@@ -50,6 +51,9 @@ class SceneArrays:
         PathRayVisibilityFlag bits, kernels.visibility: camera 1, transmission 2, diffuse 4, glossy 8,
         volume scatter 16, shadow 32) and 128 for a holdout; None: every ray sees every object, none is a
         holdout.
+    light_links : LightLinks or None, per row of `objects`: the light and shadow sets of Light and Shadow
+        Linking; None: no object is linked and every emissive object lights everything (lights keep their own
+        masks: Lights.light_sets, shadow_sets).
     motion : ((K, 4, 4) float64, ...) world_from_object at K >= 2 motion steps evenly spread over the
         shutter (time 0 to 1), one entry per moving object; motion_reference, one (4, 4) per entry: the
         matrix the triangles' world-space positions were made with. motion_ids : (T,) int32 or None:
@@ -98,6 +102,7 @@ class SceneArrays:
     volumes: tuple = ()
     object_attributes: tuple = ()
     object_visibility: np.ndarray | None = None
+    light_links: LightLinks | None = None
 
     @property
     def has_motion(self) -> bool:
@@ -189,6 +194,9 @@ class SceneArrays:
         if self.object_visibility is not None:
             require(self.objects is not None, "object_visibility", "needs the object table")
             check_array(self.object_visibility, "object_visibility", (len(self.objects),), np.uint8)
+        if self.light_links is not None:
+            require(self.objects is not None, "light_links", "needs the object table")
+            self.light_links.validate(len(self.objects))
         for name, values in self.object_attributes:
             k = 0 if self.objects is None else len(self.objects)
             check_array(values, f"object_attributes[{name!r}]", (k, 4), np.float32)

@@ -27,6 +27,9 @@ class Lights:
     sun_half_angle : (L,) float32, half the sun's angular diameter, radians.
     cast_shadow : (L,) bool or None (every light casts shadows): False for a light whose light no surface
         blocks (Blender's Cast Shadow off; Cycles then traces no shadow ray for it).
+    light_sets, shadow_sets : (L,) uint64 or None (every set: the light has no linking collection): the masks
+        of the light sets the light reaches and of the shadow sets whose objects block it (Light and Shadow
+        Linking: kernels.scene.links).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -37,6 +40,8 @@ class Lights:
     spot_cos: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     sun_half_angle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     cast_shadow: np.ndarray | None = None
+    light_sets: np.ndarray | None = None
+    shadow_sets: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -59,3 +64,6 @@ class Lights:
             require(np.all(getattr(self, name) >= 0), f"lights.{name}", "must be non-negative")
         if self.cast_shadow is not None:
             check_array(self.cast_shadow, "lights.cast_shadow", (n,), np.bool_, finite=False)
+        for name in ("light_sets", "shadow_sets"):
+            if getattr(self, name) is not None:
+                check_array(getattr(self, name), f"lights.{name}", (n,), np.uint64, finite=False)
