@@ -492,9 +492,6 @@ class _MaterialReader:
         for name, neutral in UNSUPPORTED_INPUTS.get(kind, ()):
             if name in node.inputs and self.is_set(node.inputs[name], neutral, groups):
                 self.issues.append(f"{label} {name} is not supported, ignored")
-        if (kind == "SUBSURFACE" or (kind == "PRINCIPLED" and self.is_set(node.inputs["Subsurface Weight"], 0.0, groups))
-                ) and _subsurface_method(node, kind) == "BURLEY":
-            self.issues.append(f"{label} Christensen-Burley subsurface scattering is rendered as Random Walk")
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
 

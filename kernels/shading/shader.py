@@ -107,6 +107,9 @@ class Shading:
         self.transmissive = np.array([any(nodes.may_transmit(c) for c in s.closures) for s in self.shaders], bool)
         self.has_holdout = any(c.kind == "HOLDOUT" for s in self.shaders for c in s.closures)
         self.has_portal = any(c.kind == "PORTAL" for s in self.shaders for c in s.closures)
+        # Whether a Christensen-Burley closure is made: it turns diffuse after a diffuse bounce, so the integrator
+        # then tracks the path's labels (PathState.lobes).
+        self.burley = any(c.option("subsurface_method") == "BURLEY" for s in self.shaders for c in s.closures)
         # Whether any hit has more than one lobe to choose from (a Principled BSDF, a Mix, a delta lobe).
         self.layered = np.array([_mixes_lobes(s.closures) for s in self.shaders], bool)
         self.mixes_lobes = bool(self.layered.any())
