@@ -1,5 +1,6 @@
 """Subsurface scattering beneath a surface: Cycles 5.x's random walk (`kernel/integrator/subsurface.h`,
-`subsurface_random_walk.h`), batched over a wave's walking paths (one ray query per step for all of them).
+`subsurface_random_walk.h`), batched over a wave's walking paths (one ray query per step for all of them);
+enter() hands Christensen-Burley's paths to kernels/subsurface_disk.py instead.
 
 A path whose closure pick chose a BSSRDF (kernels/bsdf/bssrdf.py: its entry direction and sample weight) walks
 inside the mesh of the object it entered: free flights in a homogeneous medium whose coefficients come from the
