@@ -102,7 +102,7 @@ def start_paths(tables, wave, paths, start: int, end: int):
     if aux is not None and any(passes.kind(name) == "LIGHT" for name in aux if passes.known(name)):
         state.pass_weights = np.zeros((6 if tables.media is None else 7, n), np.float32)
     if tables.shading.reads_lobes or _caustics(settings) is not None or type_limits(settings) is not None \
-            or tables.visibility is not None:   # (a ray's type follows its last bounce's label: visibility.py)
+            or tables.visibility is not None or tables.shading.burley:   # (visibility.py reads the last label)
         state.lobes = np.zeros((4, n), np.int32)
     if settings.filter_glossy > 0 or tables.shading.bevels:  # Cycles' Bevel skips blurry bounces too
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
@@ -264,7 +264,7 @@ def _subsurface_exits(tables, wave, state, hit, closures, bs, rows, last):
     """The paths `state` (of the hits rows, which picked a subsurface closure) walk beneath their surfaces; where a walk
     comes out, the exit point is a surface vertex of its own (Cycles' INTERSECT_SUBSURFACE, then SHADE_SURFACE
     with PATH_RAY_SUBSURFACE). Returns the paths that go on from there and their rays, or None."""
-    out, prim, u, v, t, direction, throughput = subsurface.enter(tables, state, hit, closures, bs, rows)
+    out, prim, u, v, t, direction, throughput = subsurface.enter(tables, state, hit, closures, bs, rows, wave.split)
     tables.crew.check_stop()
     if not len(out):
         return None

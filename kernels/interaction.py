@@ -20,8 +20,8 @@ class SurfaceHit:
     tangent_frame(idx) : the tangents of some hits, computed on demand.
     ray : the path state the Light Path node reads (RayInfo), None outside the integrator's loop.
     """
-    __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "ray", "programs", "_table", "_b1", "_b2",
-                 "_moved")
+    __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "ray", "programs", "normal_set", "_table",
+                 "_b1", "_b2", "_moved")
 
     def __init__(self, table: TriangleTable, prim, b1, b2, d, need_uv: bool, motion=None):
         """motion : None, or (rows, (m, 3, 4) matrices, (m, 3, 3) normal matrices) for hits on moving
@@ -61,6 +61,7 @@ class SurfaceHit:
         self.prim = prim
         self.ray = None
         self.programs = {}  # material -> (hit indices, ProgramRun): node programs run once per wave
+        self.normal_set = False  # ns holds the materials' set normals (Shading.surface, Shader.set_normal)
         self._table, self._b1, self._b2 = table, b1, b2
 
     @property

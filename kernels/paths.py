@@ -19,6 +19,9 @@ ROULETTE_DEPTH = 2
 # Cycles' closure labels, as PathState.lobes[0] holds the last bounce's (kernel/closure/bsdf_util.h).
 DIFFUSE, GLOSSY, SINGULAR, REFLECT, TRANSMIT = 1, 2, 4, 8, 16
 VOLUME_SCATTER = 32   # the last bounce scattered in a medium (Cycles' LABEL_VOLUME_SCATTER)
+# Not a label: set in PathState.lobes[0] once any bounce was diffuse, and kept (Cycles' PATH_RAY_DIFFUSE_ANCESTOR,
+# after which a Christensen-Burley closure is diffuse).
+DIFFUSE_ANCESTOR = 64
 
 
 def facing_of(mis_facing, rows=None):
@@ -188,7 +191,7 @@ class PathState:
         transmit = bs.transmit[idx]
         label = np.where(transmit, TRANSMIT, REFLECT) | np.where(diffuse, DIFFUSE, np.where(delta, GLOSSY | SINGULAR,
                                                                                              GLOSSY))
-        self.lobes[0, idx] = label
+        self.lobes[0, idx] = label | np.where(diffuse, DIFFUSE_ANCESTOR, self.lobes[0, idx] & DIFFUSE_ANCESTOR)
         self.lobes[1, idx] += ~transmit & diffuse
         self.lobes[2, idx] += ~transmit & ~diffuse
         self.lobes[3, idx] += transmit

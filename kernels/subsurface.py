@@ -1,5 +1,6 @@
 """Subsurface scattering beneath a surface: Cycles 5.x's random walk (`kernel/integrator/subsurface.h`,
-`subsurface_random_walk.h`), batched over a wave's walking paths (one ray query per step for all of them).
+`subsurface_random_walk.h`), batched over a wave's walking paths (one ray query per step for all of them);
+enter() hands Christensen-Burley's paths to kernels/subsurface_disk.py instead.
 
 A path whose closure pick chose a BSSRDF (kernels/bsdf/bssrdf.py: its entry direction and sample weight) walks
 inside the mesh of the object it entered: free flights in a homogeneous medium whose coefficients come from the
@@ -18,10 +19,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import sampling
+from . import sampling, subsurface_disk
 from .bsdf import bssrdf, lobes
 from .bsdf.closures import ClosureBuilder
 from .interaction import spawn_offset
+from .local_hits import LocalRays
 from .paths import ray_keys
 from .rng import keyed_uniforms
 from .vec import F32, INV_2PI
@@ -274,10 +276,37 @@ def _local_hits(accel, object_rows, origin, d, t_max, obj, times, live):
 
 
 # ---------------------------------------------------------------- what the integrator calls
-def enter(tables, state, hit, closures, bs, rows):
-    """The paths `state` (those of the hits rows that picked a BSSRDF, already weighted by its sample) walk
-    beneath their surfaces. Returns (rows of `state` that came out, prim, u, v, t, direction the last flight
-    took (3, m), throughput (3, m)); the caller makes the exit hits."""
+def enter(tables, state, hit, closures, bs, rows, split=True):
+    """The paths `state` (those of the hits rows that picked a BSSRDF, already weighted by its sample) go beneath
+    their surfaces: a random walk, or Christensen-Burley's disk probes (kernels/subsurface_disk.py). Returns
+    (rows of `state` that came out, prim, u, v, t, direction the exit is seen against (3, m), throughput (3, m));
+    the caller makes the exit hits."""
+    burley = closures.dist[bs.row[rows]] == bssrdf.BURLEY
+    if not burley.any():
+        return _walks(tables, state, hit, closures, bs, rows)
+    disks = np.flatnonzero(burley)
+    found = _disks(tables, state.rows(disks), hit, closures, bs, rows[disks], split)
+    walks = np.flatnonzero(~burley)
+    if not len(walks):
+        return found
+    walked = _walks(tables, state.rows(walks), hit, closures, bs, rows[walks])
+    return tuple(np.concatenate([a, b], axis=-1) for a, b in zip((disks[found[0]],) + found[1:],
+                                                                  (walks[walked[0]],) + walked[1:]))
+
+
+def _disks(tables, state, hit, closures, bs, rows, split):
+    """Christensen-Burley's disk probes of the paths `state` (of the hits rows)."""
+    local = LocalRays(tables.accel, tables.triangles, tables.ray_epsilon)
+    p = np.stack([np.take(c, rows) for c in hit.p], axis=1)
+    ng = np.stack([np.take(c, rows) for c in hit.ng], axis=1)
+    return subsurface_disk.disk(local, p, ng, np.take(hit.backfacing, rows), local.object_rows(np.take(hit.prim, rows)),
+                                np.take(closures.c0, bs.row[rows], axis=1), state.throughput,
+                                np.take(bs.subsurface_u, rows, axis=1), ray_keys(state, np.arange(len(state))), split,
+                                state.time)
+
+
+def _walks(tables, state, hit, closures, bs, rows):
+    """The random walks of the paths `state` (of the hits rows)."""
     picked = bs.row[rows]
     g = closures.offset[picked].astype(np.float64)
     method = closures.dist[picked]

@@ -41,6 +41,7 @@ import numpy as np
 from ...kernels import Materials
 from ...kernels.programs import Ref
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
+from ...kernels.shading.input_ops import UNDISPLACED_NORMAL, UNDISPLACED_POSITION
 from .graph import indexed_links, invalid_links, node_loop, run_nested
 from .displacement import METHODS, TrueDisplacement
 from .images import ImageTextures
@@ -268,7 +269,7 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displ
     if displacement is not None and source_of(displacement).node is not None:
         moves, _, bumps = METHODS.get(method, METHODS["BUMP"])
         if bumps and source_of(out.inputs["Surface"]).node is not None:
-            reader.bump_from_displacement(displacement)
+            reader.bump_from_displacement(displacement, undisplaced=method == "BOTH")
         if moves and true_displacement is not None:
             true_displacement.append(reader.true_displacement(displacement, method == "BOTH"))
     closures = () if out is None else tuple(reader.closures(source_of(out.inputs["Surface"]), ()))
@@ -293,7 +294,7 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displ
     interpolation = getattr(settings, "volume_interpolation", "LINEAR")
     return Shader(closures, material.name, bool(correction), reader.program.program(), aovs, volume, volume_only,
                   interpolation if interpolation in ("LINEAR", "CLOSEST", "CUBIC") else "LINEAR",
-                  float(getattr(settings, "volume_step_rate", 1.0)))
+                  float(getattr(settings, "volume_step_rate", 1.0)), reader.set_normal)
 
 
 def read_volume(tree, name: str, images: ImageTextures, issues: list[str], layer_attribute=None) -> Shader | None:
@@ -321,12 +322,14 @@ class _MaterialReader:
         self.attributes: set[str] = set()     # mesh attributes the node program reads
         self.program = ProgramBuilder(images, self.issues, self.attributes, self.tangent_uv_maps, pass_index,
                                       layer_attribute=layer_attribute)
-        self.bump_normal: Param | None = None  # the normal bump from displacement gives unlinked Normal inputs
+        self.set_normal: Ref | None = None  # the normal bump from displacement sets (Shader.set_normal)
 
-    def bump_from_displacement(self, socket) -> None:
+    def bump_from_displacement(self, socket, undisplaced: bool = False) -> None:
         """Cycles' bump from displacement (ShaderGraph::bump_from_displacement, scene/shader_graph.cpp): the
         Displacement output's component along the normal as the height of a Bump node (Distance 1, Filter
-        Width 0.1, Strength 1) whose normal replaces the unlinked Normal inputs of the closures."""
+        Width 0.1, Strength 1) whose normal becomes the shading normal (SetNormal: Shader.set_normal). undisplaced
+        ("Displacement and Bump"): on the undisplaced surface, in object space (kernels/shading/bump.py), which
+        reads the meshes' undisplaced positions and normals."""
         value = self.program.input(socket, (), "VECTOR")
         if not isinstance(value, Ref):
             return   # a constant offset has no gradient: the normal stays
@@ -334,8 +337,11 @@ class _MaterialReader:
         height = self.program.result(self.program.add("ShaderNodeVectorMath", {"Vector": value, "Vector_001": normal},
                                                       {"operation": "DOT_PRODUCT"}), "Value", "VALUE", "VALUE")
         bump = self.program.add("ShaderNodeBump", {"Height": height, "Distance": (1.0,), "Filter Width": (0.1,),
-                                                   "Strength": (1.0,)}, {"invert": False})
-        self.bump_normal = Param.of((0.0, 0.0, 0.0), link=Ref(bump, "Normal", "VECTOR", "VECTOR"))
+                                                   "Strength": (1.0,)}, {"invert": False, "undisplaced": True}
+                                if undisplaced else {"invert": False})
+        if undisplaced:
+            self.attributes.update((UNDISPLACED_POSITION, UNDISPLACED_NORMAL))
+        self.set_normal = Ref(bump, "Normal", "VECTOR", "VECTOR")
 
     def true_displacement(self, socket, keeps_normals: bool) -> TrueDisplacement:
         """The Displacement output compiled into a program of its own, for the mesh's vertices."""
@@ -381,7 +387,6 @@ class _MaterialReader:
         names = tuple(n for n in names if n not in LINKED_ONLY_INPUTS or source_of(sockets[n], groups).node is not None)
         inputs = tuple((name, self.param(sockets[name], groups, _channels(sockets[name]), node)) for name in names)
         inputs = self.limit_emission(node, closure_kind, inputs) + self.directions(node, groups)
-        inputs += self.bumped_normals(node, groups, dict(inputs))
         self.check_unsupported(node, closure_kind, groups)
         self.check_direction(node, dict(inputs).get("Direction"))
         return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
@@ -460,15 +465,6 @@ class _MaterialReader:
                 out.append((name, value))
         return tuple(out)
 
-    def bumped_normals(self, node, groups, given: dict) -> tuple:
-        """The bump-from-displacement normal for the node's Normal and Coat Normal inputs that read the shading
-        normal (unlinked), as Cycles' SetNormal node sets the shading normal they default to."""
-        if self.bump_normal is None:
-            return ()
-        return tuple((name, self.bump_normal) for name in NORMAL_INPUTS
-                     if name in node.inputs and node.inputs[name].enabled and name not in given
-                     and source_of(node.inputs[name], groups).node is None)
-
     def normal_map(self, source: Source, socket, groups) -> NormalMap | Param | None:
         """A Normal or Coat Normal input: a Normal Map node as the kernel's NormalMap, any other node (an
         object-space map warns there) as the program's vector, None when that folds to a constant."""
@@ -496,9 +492,6 @@ class _MaterialReader:
         for name, neutral in UNSUPPORTED_INPUTS.get(kind, ()):
             if name in node.inputs and self.is_set(node.inputs[name], neutral, groups):
                 self.issues.append(f"{label} {name} is not supported, ignored")
-        if (kind == "SUBSURFACE" or (kind == "PRINCIPLED" and self.is_set(node.inputs["Subsurface Weight"], 0.0, groups))
-                ) and _subsurface_method(node, kind) == "BURLEY":
-            self.issues.append(f"{label} Christensen-Burley subsurface scattering is rendered as Random Walk")
         if kind == "SHEEN" and node.distribution != "MICROFIBER":
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
 

@@ -18,6 +18,7 @@ import functools
 
 from dataclasses import dataclass
 
+import bpy
 import numpy as np
 
 from ...kernels.shading.image_ops import map_to_sphere
@@ -217,9 +218,11 @@ def _triangle_slots(mesh, t: int) -> np.ndarray:
 
 def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -> dict:
     """{name: (T*3, C) float32} per triangle corner of an evaluated mesh, for the names node programs
-    read: "uv:<map>", "color:<name>" ('' for the render colour attribute), "attr:<name>", and the Geometry
-    node's "geom:pointiness" and "geom:random_per_island" (mesh_topology.py). Missing ones are left out (they
-    read zero, as in Cycles); object attributes ("object:", "instancer:") are the object table's."""
+    read: "uv:<map>", "color:<name>" ('' for the render colour attribute), "attr:<name>", the Geometry
+    node's "geom:pointiness" and "geom:random_per_island" (mesh_topology.py), and "geom:undisplaced_position"
+    and "geom:undisplaced_normal" (this mesh, before true displacement moves it: _undisplaced_attribute).
+    Missing ones are left out (they read zero, as in Cycles); object attributes ("object:", "instancer:") are
+    the object table's."""
     out = {}
     t = len(mesh.loop_triangles)
     tri_loops = _read(mesh.loop_triangles, "loops", t * 3, np.uint32)
@@ -228,7 +231,8 @@ def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -
         if kind in OBJECT_ATTRIBUTE_KINDS:
             continue
         if kind == "geom":
-            out[name] = _topology_attribute(mesh, key, tri_loops)
+            out[name] = (_undisplaced_attribute if key.startswith("undisplaced_") else _topology_attribute)(
+                mesh, key, tri_loops)
             continue
         if kind == "uv":
             layer = mesh.uv_layers.get(key)
@@ -255,6 +259,24 @@ def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -
             continue
         out[name] = np.take(values, corners, axis=0)
     return out
+
+
+def _undisplaced_attribute(mesh, key: str, tri_loops: np.ndarray) -> np.ndarray:
+    """(T*3, C) float32 per corner, object space: the evaluated mesh's positions and a 1 ("undisplaced_position"), or
+    the normals Cycles keeps for the bump of Displacement and Bump ("undisplaced_normal",
+    ATTR_STD_NORMAL_UNDISPLACED, scene/mesh.cpp Mesh::add_undisplaced): from Blender 5.2 the shading normals
+    the mesh has before displacement (corner normals, else vertex normals; flat faces their own normal,
+    kernel/geom/primitive.h primitive_normal_set_undisplaced); before, the vertex normals on every face."""
+    if key == "undisplaced_normal" and bpy.app.version >= (5, 2, 0):
+        local = read_mesh(mesh)
+        return np.take(local.normal_rows, local.normal_index, axis=0).astype(np.float32)
+    corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
+    corners = np.take(corner_verts, tri_loops)
+    v = len(mesh.vertices)
+    if key == "undisplaced_normal":
+        return np.take(_read(mesh.vertex_normals, "vector", 3 * v, np.float32).reshape(-1, 3), corners, axis=0)
+    positions = _read(mesh.attributes["position"].data, "vector", 3 * v, np.float32).reshape(-1, 3)
+    return np.concatenate([np.take(positions, corners, axis=0), np.ones((len(corners), 1), np.float32)], axis=1)
 
 
 def _topology_attribute(mesh, key: str, tri_loops: np.ndarray) -> np.ndarray:

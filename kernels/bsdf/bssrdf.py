@@ -5,7 +5,9 @@ kernels/subsurface.py's.
 A BSSRDF is one closure of the mixture: it has a sample weight (mean weight x the number of channels
 whose radius is sampled) but no eval, so the mixture treats it as singular. Picked, its sample is the
 direction the walk starts along, with weight  weight x (sum of sample weights / its own)  (Cycles'
-surface_shader_bssrdf_sample_weight: the delta rule of mixture_sample).
+surface_shader_bssrdf_sample_weight: the delta rule of mixture_sample). Christensen-Burley's disk probes are
+kernels/subsurface_disk.py's; after a diffuse bounce (Cycles' PATH_RAY_DIFFUSE_ANCESTOR) a Burley closure is a
+Lambert closure of its whole weight, as bssrdf_setup makes it.
 
 Parameter columns (registry.LOBES[BSSRDF]): c0 the radius (per channel, method-scaled), c1 the albedo,
 ax the entry's GGX alpha, eta the IOR, offset the anisotropy, dist the method.
@@ -65,12 +67,14 @@ def setup_radius(radius, albedo, ior, method):
     return radius.astype(F32)
 
 
-def add_bssrdf(b, idx, weight, albedo, radius, ior, alpha, anisotropy, method, normal=None, soften=None):
+def add_bssrdf(b, idx, weight, albedo, radius, ior, alpha, anisotropy, method, normal=None, soften=None,
+               ancestor=None):
     """Cycles' bssrdf_alloc + bssrdf_setup for the hits idx: weight, albedo, radius (3, n); ior, alpha,
     anisotropy (n,); method one of METHODS' values (all hits). Channels of radius < BSSRDF_MIN_RADIUS go to
-    a Lambert closure on the BSSRDF's normal; the others make the BSSRDF with sample weight mean(weight) x
-    the channels kept. The anisotropy is clamped to [-0.99, 0.99] (Random Walk) or [-0.99, 0.9], the IOR to
-    [1.01, 3.8]."""
+    a Lambert closure on the BSSRDF's normal, and so do all channels of a Burley closure where ancestor ((n,)
+    bool or None) says the path had a diffuse bounce; the others make the BSSRDF with sample weight
+    mean(weight) x the channels kept. The anisotropy is clamped to [-0.99, 0.99] (Random Walk) or
+    [-0.99, 0.9], the IOR to [1.01, 3.8]."""
     weight = np.broadcast_to(np.asarray(weight, F32), (3, len(idx)))
     keep = np.flatnonzero(np.abs(sampling.channel_mean(weight)) >= CUTOFF)   # bssrdf_alloc's cutoff
     n = len(keep)
@@ -83,6 +87,8 @@ def add_bssrdf(b, idx, weight, albedo, radius, ior, alpha, anisotropy, method, n
     normal = None if normal is None else tuple(np.take(c, keep) for c in normal)
     radius = np.maximum(radius, ZERO)
     thin = radius < MIN_RADIUS
+    if method == BURLEY and ancestor is not None:
+        thin = thin | np.asarray(ancestor)[keep][None]
     extra = {} if soften is None else soften
     if thin.any():
         b.add(lobes.LAMBERT, idx, np.where(thin, weight, ZERO), normal=normal, **extra)
@@ -118,4 +124,10 @@ def entry_sample(wo, alpha, ior, method, u1, u2):
     rx, ry, rz = normalize_xyz((-neta * wo[0] + nk * hx, -neta * wo[1] + nk * hy, -neta * wo[2] + nk * hz))
     wi = (np.where(cosine, cx, rx), np.where(cosine, cy, ry), np.where(cosine, -cz, rz))
     ok = cosine | (wo[2] > ZERO)
+    # Christensen-Burley takes no entry direction (subsurface_bounce): its disk probes start at the hit.
+    # Straight through (-wo) passes the integrator's test of the side a transmission leaves on.
+    burley = method == BURLEY
+    if np.any(burley):
+        wi = tuple(np.where(burley, -w, c) for w, c in zip(wo, wi))
+        ok = ok | burley
     return tuple(c.astype(F32) for c in wi), ok

@@ -28,9 +28,11 @@ class BsdfSample:
     glossy (Light Path). origin: None, or (3, N) float32 where a Ray Portal moves the ray's start (NaN
     elsewhere: the ray leaves from the hit). through: None, or (N,) where the ray leaves below the surface
     when that is not what transmit says (the integrator sets it for any_side samples). subsurface: None, or
-    (N,) bool where a BSSRDF was picked: wi is the direction a subsurface walk starts along (kernels.subsurface)."""
+    (N,) bool where a BSSRDF was picked: wi is the direction a subsurface walk starts along (kernels.subsurface),
+    and subsurface_u (2, N) float32 the two numbers its lobe sample was given (Christensen-Burley's disk, which
+    takes no direction, draws its probe with them: stratified where the vertex's numbers are)."""
     __slots__ = ("wi", "weight", "pdf", "delta", "transmit", "transparent", "portal", "any_side", "origin",
-                 "through", "row", "subsurface")
+                 "through", "row", "subsurface", "subsurface_u")
 
     def __init__(self, n: int):
         self.wi = (np.zeros(n, F32), np.zeros(n, F32), np.ones(n, F32))
@@ -41,7 +43,7 @@ class BsdfSample:
         self.transparent = np.zeros(n, bool)
         self.portal = np.zeros(n, bool)
         self.any_side = np.zeros(n, bool)
-        self.origin = self.through = self.subsurface = None
+        self.origin = self.through = self.subsurface = self.subsurface_u = None
         self.row = np.full(n, -1, np.int64)
 
 
@@ -206,7 +208,9 @@ def _sample_lobes(cs, out, hits, rows, u1, u2, uc):
         if k in SUBSURFACE_LOBES:
             if out.subsurface is None:
                 out.subsurface = np.zeros(len(out.pdf), bool)
+                out.subsurface_u = np.zeros((2, len(out.pdf)), F32)
             out.subsurface[h] = True
+            out.subsurface_u[0, h], out.subsurface_u[1, h] = u1[h], u2[h]
 
 
 def _sample_portals(cs, out, hits, rows):

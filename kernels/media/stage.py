@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import passes
 from ..lights import nee
-from ..paths import VOLUME_SCATTER, may_scatter, ray_keys, roulette_verdict
+from ..paths import DIFFUSE_ANCESTOR, VOLUME_SCATTER, may_scatter, ray_keys, roulette_verdict
 from ..geometry import NG
 from ..lights.common import SPOT
 from ..lights.links import medium_receivers
@@ -304,7 +304,7 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     if state.min_ray_pdf is not None:
         state.min_ray_pdf = np.minimum(state.min_ray_pdf, pdf)
     if state.lobes is not None:   # none of the surface labels (Cycles' LABEL_VOLUME_SCATTER), no surface count
-        state.lobes[0] = VOLUME_SCATTER
+        state.lobes[0] = VOLUME_SCATTER | (state.lobes[0] & DIFFUSE_ANCESTOR)
     if state.partner is not None:
         state.partner[:] = -1
         state.handed[:] = False

@@ -143,6 +143,9 @@ class Shader:
     interpolation : the material's Volume > Interpolation (LINEAR, CLOSEST, CUBIC), for voxel grids.
     volume_step_rate : the material's Volume > Step Rate (the world's Volume > Step Size), on the steps the Biased
         option marches its medium with (kernels/media/march.py).
+    set_normal : None, or a Ref into the program: the normal that becomes the hits' shading normal before the
+        material is evaluated (Cycles' SetNormal, the bump its Displacement output makes under the Bump and
+        "Displacement and Bump" methods).
     """
     closures: tuple = ()
     name: str = ""
@@ -153,6 +156,7 @@ class Shader:
     volume_only: bool = False
     interpolation: str = "LINEAR"
     volume_step_rate: float = 1.0
+    set_normal: object = None
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),

@@ -38,7 +38,7 @@ def subsurface_scattering(c, ctx, w, b):
         method = bssrdf.METHODS[c.option("subsurface_method", "RANDOM_WALK")]
         bssrdf.add_bssrdf(b, ctx.idx, color * w, color, radius, ctx.input(c, "IOR"),
                           np.clip(ctx.input(c, "Roughness"), 0.0, 1.0), ctx.input(c, "Anisotropy"), method,
-                          normal=ctx.normal_arg, soften=soften(ctx))
+                          normal=ctx.normal_arg, soften=soften(ctx), ancestor=ctx.diffuse_ancestor())
     return Built()
 
 

@@ -12,12 +12,18 @@ import numpy as np
 from ..paths import DIFFUSE, GLOSSY, REFLECT, SINGULAR, TRANSMIT, VOLUME_SCATTER
 from ..scene import OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TEXSPACE_LOC, \
     OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR
-from ..vec import F32, HALF, ONE, ZERO, dot_rows_einsum, matmul, normalize_rows_einsum
+from ..vec import F32, HALF, ONE, ZERO, columns, dot_rows_einsum, matmul, normalize_rows_einsum
 from . import normals
 from .program import full, make_orthonormals
 
 
 # ---------------------------------------------------------------- coordinates and spaces
+# Per-corner attributes (kernels.scene.SceneArrays.attributes, object space) of a mesh before true displacement
+# moved it, stored for meshes whose material displaces with "Displacement and Bump" (kernels/shading/bump.py):
+# the position as (x, y, z, 1) (the 1 marks the meshes that have it) and the normal Cycles bumps from.
+UNDISPLACED_POSITION, UNDISPLACED_NORMAL = "geom:undisplaced_position", "geom:undisplaced_normal"
+
+
 def object_point(hits, p: np.ndarray) -> np.ndarray:
     """(n, 3) world points into the hits' object spaces."""
     rows = hits.objects()
@@ -27,11 +33,20 @@ def object_point(hits, p: np.ndarray) -> np.ndarray:
 
 def generated(hits) -> np.ndarray:
     """Blender's Generated coordinates: the object-space point in the mesh's texture space, [0, 1]^3 over
-    its bounding box (Cycles' ATTR_STD_GENERATED from the undeformed mesh; here the evaluated one). In a
-    world: the ray direction."""
+    its bounding box (Cycles' ATTR_STD_GENERATED from the undeformed mesh; here the evaluated one, before true
+    displacement where the mesh keeps that: UNDISPLACED_POSITION). In a world: the ray direction."""
     if getattr(hits, "world", False):
         return hits.P
-    return hits.memo("generated", lambda: _texture_space(hits, object_point(hits, hits.P)))
+    return hits.memo("generated", lambda: _texture_space(hits, _undisplaced_point(hits)))
+
+
+def _undisplaced_point(hits) -> np.ndarray:
+    # Cycles' Generated is an attribute: at a bump's offsets it follows the barycentrics (P_bary), not P.
+    p = object_point(hits, getattr(hits, "P_bary", hits.P))
+    kept = hits.attribute(UNDISPLACED_POSITION) if hasattr(hits, "attribute") else None
+    if kept is None:
+        return p
+    return np.where(columns(kept[:, 3] > HALF), kept[:, :3], p).astype(F32)
 
 
 def _texture_space(hits, local: np.ndarray) -> np.ndarray:

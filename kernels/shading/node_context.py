@@ -11,7 +11,7 @@ import numpy as np
 
 from ..bsdf import lobes
 from ..bsdf.thin_film import film_on
-from ..paths import DIFFUSE as DIFFUSE_LABEL
+from ..paths import DIFFUSE as DIFFUSE_LABEL, DIFFUSE_ANCESTOR
 from ..scene import Closure, NormalMap, Param, Tangent
 from ..vec import F32, TWO_PI, ZERO, normalize_xyz
 from . import normals
@@ -104,6 +104,14 @@ class Context:
             reflective, refractive = ray.caustics
             self._shared["caustics"] = (everywhere if reflective else direct, everywhere if refractive else direct)
         return self._shared["caustics"]
+
+    def diffuse_ancestor(self):
+        """(n,) bool: the paths at these hits had a diffuse bounce (Cycles' PATH_RAY_DIFFUSE_ANCESTOR); None where
+        no path state is tracked (the integrator tracks it where a material has a Christensen-Burley closure)."""
+        ray = getattr(self.hit, "ray", None)
+        if ray is None or ray.lobes is None:
+            return None
+        return (np.take(ray.lobes[0], self.idx) & DIFFUSE_ANCESTOR) != 0
 
     def mu(self, normal=None) -> np.ndarray:
         """cos of the angle between the viewer and the normal (the context's normal by default)."""

@@ -4,7 +4,8 @@ Every op is `op(hits, inputs, op) -> {output name: array}`: hits a program.HitIn
 the node's input values by name ((n,) or (n, 3) float32 arrays; a folded constant is a Python float or a
 (3,) array), op the kernels.programs.Op (its options). Numerics follow Cycles' SVM nodes
 (`kernel/svm/*.h`). The ops that read the hits are in input_ops.py, the image lookups in image_ops.py;
-the texture, colour and math nodes live in their own modules and are wrapped here (node_op).
+the texture, colour and math nodes live in their own modules and are wrapped here (node_op). One exception:
+the Bump op (bump.py) is `op(run, op)`, a program.ProgramRun, for it evaluates its Height at other points too.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from . import noise as ns
 from . import patterns as pt
 from . import sky as sk
 from . import voronoi as vr
+from .bump import bump_node
 from .displace import displacement_node, vector_displacement_node
 from .image_ops import environment, image
 from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geometry, layer_weight, light_path, \
@@ -57,6 +59,7 @@ OPS = {
     "ShaderNodeBevel": bevel_node,
     "ShaderNodeDisplacement": displacement_node,
     "ShaderNodeVectorDisplacement": vector_displacement_node,
+    "ShaderNodeBump": bump_node,   # takes the run, not the hits (program.ProgramRun._run)
 }
 # Ops that read nothing of the hits besides their inputs: folded at export when those are constants.
 PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ"}

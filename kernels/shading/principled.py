@@ -152,9 +152,13 @@ def principled_bsdf(c, ctx, w, b):
             bssrdf.add_bssrdf(b, ctx.idx[has], sss[has] * np.take(clamped * weight, has, axis=1),
                               np.take(clamped, has, axis=1), np.take(radius, has, axis=1), ior_s[has], alpha_r[has],
                               get("Subsurface Anisotropy")[has], method, normal=normal_rows(spec.normal_arg, has),
-                              soften=soften(spec))
+                              soften=soften(spec), ancestor=_taken(ctx.diffuse_ancestor(), has))
         diffuse_lobe(b, ctx, base * (ONE - sss) * weight, np.clip(get("Diffuse Roughness"), 0.0, 1.0), clamped)
     return Built(emission=emission)
+
+
+def _taken(a, sub):
+    return None if a is None else a[sub]
 
 
 def layering_weight(layer_albedo: np.ndarray, weight: np.ndarray) -> np.ndarray:

@@ -62,19 +62,36 @@ class HitInputs:
         self._cache = {}
         self._shift = shift
 
-    def shifted(self, steps, e1: np.ndarray, e2: np.ndarray) -> "HitInputs":
+    def shifted(self, steps, e1: np.ndarray, e2: np.ndarray, flip=None) -> "HitInputs":
         """The same hits moved across their triangles (edges e1, e2 (n, 3)), once per barycentric step
         (db1, db2) of `steps`, as one set of len(steps) n hits end to end: position, UVs and attributes
         follow, normals and the viewer direction stay (the Bump node's offset evaluations, run together:
-        every op works hit by hit, so each copy gets what a run of its own would)."""
+        every op works hit by hit, so each copy gets what a run of its own would). flip: (n,) bool or None,
+        hits whose attributes step the other way while their position steps as given (Cycles' back faces,
+        whose negated dPdu and dPdv turn the attributes' differentials around); P_bary follows the attributes."""
         copies = len(steps)
-        db1, db2 = (np.concatenate([step[k] for step in steps]) for k in (0, 1))
+        sign = None if flip is None or not np.any(flip) else np.where(flip, F32(-1.0), F32(1.0))
+        along = steps if sign is None else [(b1 * sign, b2 * sign) for b1, b2 in steps]
+        db1, db2 = (np.concatenate([step[k] for step in along]) for k in (0, 1))
         out = HitInputs(self.scene, self.hit, np.tile(self.idx, copies), (db1, db2))
         for key in ("N", "Ng", "I", "D", "backfacing", "prim", "objects"):
             if key in self._cache:
                 out._cache[key] = np.concatenate([self._cache[key]] * copies)
         out._cache["P"] = np.concatenate([(self.P + b1[:, None] * e1 + b2[:, None] * e2).astype(F32)
                                           for b1, b2 in steps])
+        if sign is not None:
+            out._cache["P_bary"] = np.concatenate([(self.P_bary + b1[:, None] * e1 + b2[:, None] * e2).astype(F32)
+                                                   for b1, b2 in along])
+        return out
+
+    def moved(self, p: np.ndarray, n: np.ndarray) -> "HitInputs":
+        """The same hits at the positions p with the shading normals n ((n, 3) world space each); the rest as
+        here (the undisplaced surface Displacement and Bump's bump is evaluated on, kernels/shading/bump.py)."""
+        out = HitInputs(self.scene, self.hit, self.idx, self._shift)
+        for key in ("Ng", "I", "D", "backfacing", "prim", "objects", "bary"):
+            if key in self._cache:
+                out._cache[key] = self._cache[key]
+        out._cache["P"], out._cache["N"] = np.asarray(p, F32), np.asarray(n, F32)
         return out
 
     def memo(self, key, compute):
@@ -95,6 +112,11 @@ class HitInputs:
     @property
     def N(self) -> np.ndarray:
         return self._vec("N", self.hit.ns)
+
+    @property
+    def P_bary(self) -> np.ndarray:
+        """The position as an attribute of the triangles' corners reads it here: P, but at hits shifted with flip."""
+        return self._cache["P_bary"] if "P_bary" in self._cache else self.P
 
     @property
     def Ng(self) -> np.ndarray:
@@ -198,6 +220,10 @@ class ProgramRun:
         self.program, self.hits, self._ops = program, inputs, ops
         self._outputs: dict[int, dict] = {}
 
+    def elsewhere(self, hits: HitInputs) -> "ProgramRun":
+        """A run of the same program and ops at other hits (the Bump node's offset points)."""
+        return ProgramRun(self.program, hits, self._ops)
+
     def value(self, ref: Ref) -> np.ndarray:
         """The output ref points to, converted to the type the consumer wants: (n,) or (n, 3)."""
         outputs = self._outputs.get(ref.op)
@@ -225,48 +251,12 @@ class ProgramRun:
 
     def _run(self, i: int) -> dict:
         op = self.program.ops[i]
-        if op.kind == "ShaderNodeBump":
-            return self._bump(op)
+        if op.kind == "ShaderNodeBump":   # it evaluates its Height again at other points: it takes the run
+            return self._ops[op.kind](self, op)
         inputs = {}
         for name, value in op.inputs:
             inputs[name] = self.value(value) if isinstance(value, Ref) else constant(value)
         return self._ops[op.kind](self.hits, inputs, op)
-
-
-    def _bump(self, op) -> dict:
-        """Cycles' Bump node (svm_node_set_bump): the height at the hit and at two offsets of the filter
-        width times the ray's spread, along make_orthonormals(Ng); N' = normalize(w |det| N - D sign(det)
-        grad), blended with N by Strength."""
-        hits, n = self.hits, self.hits.n
-        inputs = dict(op.inputs)
-        get = {k: (self.value(v) if isinstance(v, Ref) else constant(v)) for k, v in inputs.items() if k != "Height"}
-        normal_in = hits.N if "Normal" not in get else np.broadcast_to(np.asarray(get["Normal"], F32), (n, 3))
-        height = inputs.get("Height")
-        if not isinstance(height, Ref):
-            return {"Normal": np.ascontiguousarray(normal_in, F32)}
-        width = np.broadcast_to(np.asarray(get["Filter Width"], F32), (n,))
-        scale = np.broadcast_to(np.asarray(get["Distance"], F32), (n,))
-        if op.option("invert", False):
-            scale = -scale
-        strength = np.maximum(np.broadcast_to(np.asarray(get["Strength"], F32), (n,)), F32(0.0))
-        a, b = make_orthonormals(hits.Ng)
-        dp = hits.dp[:, None]
-        dpdx, dpdy = a * dp, b * dp
-        h_c = self.value(height)
-        e1, e2 = hits.hit.edges(hits.idx)
-        steps = [_barycentric_step(e1, e2, d * width[:, None]) for d in (dpdx, dpdy)]
-        h_x, h_y = np.split(ProgramRun(self.program, hits.shifted(steps, e1, e2), self._ops).value(height), 2)
-        rx = np.cross(dpdy, normal_in)
-        ry = np.cross(normal_in, dpdx)
-        det = np.einsum("ij,ij->i", dpdx, rx)
-        grad = (h_x - h_c)[:, None] * rx + (h_y - h_c)[:, None] * ry
-        out = (width * np.abs(det))[:, None] * normal_in - (scale * np.sign(det))[:, None] * grad
-        length = np.sqrt(np.einsum("ij,ij->i", out, out))
-        zero = ~(length > 0)
-        out = out / np.where(zero, F32(1.0), length)[:, None]
-        blended = strength[:, None] * out + (F32(1.0) - strength)[:, None] * normal_in
-        blended = blended / np.maximum(np.sqrt(np.einsum("ij,ij->i", blended, blended)), F32(1e-30))[:, None]
-        return {"Normal": np.where(zero[:, None], normal_in, blended).astype(F32)}
 
 
 def make_orthonormals(n: np.ndarray):
@@ -277,18 +267,6 @@ def make_orthonormals(n: np.ndarray):
     a = np.stack([z - y, np.where(equal, x + z, x - z), np.where(equal, -y - x, y - x)], axis=1)
     a = a / np.maximum(np.sqrt(np.einsum("ij,ij->i", a, a)), F32(1e-30))[:, None]
     return a.astype(F32), np.cross(n, a).astype(F32)
-
-
-def _barycentric_step(e1: np.ndarray, e2: np.ndarray, d: np.ndarray):
-    """(db1, db2) with db1 e1 + db2 e2 the projection of the world step d (n, 3) onto the triangle."""
-    g11 = np.einsum("ij,ij->i", e1, e1)
-    g12 = np.einsum("ij,ij->i", e1, e2)
-    g22 = np.einsum("ij,ij->i", e2, e2)
-    r1 = np.einsum("ij,ij->i", e1, d)
-    r2 = np.einsum("ij,ij->i", e2, d)
-    det = g11 * g22 - g12 * g12
-    inv = np.where(det > 0, F32(1.0) / np.where(det > 0, det, F32(1.0)), F32(0.0))
-    return ((g22 * r1 - g12 * r2) * inv).astype(F32), ((g11 * r2 - g12 * r1) * inv).astype(F32)
 
 
 def full(x, n: int, channels: int = 1) -> np.ndarray:

@@ -20,43 +20,27 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import N0, N1, N2, NG
-from ..interaction import spawn_offset
-from ..rng import keyed_uniforms, pcg2d, stratified_2d
+from ..local_hits import LocalRays, own_hits, pick_hits
+from ..rng import pcg2d, stratified_2d
 from ..sampling import sample_uniform_disk_concentric
 from ..vec import F32, ONE, TWO_PI, ZERO, columns, dot_rows, normalize_rows
 from .program import TracedHits, make_orthonormals
 
 # rng.stratified_2d dimensions of the AO directions and the Bevel disks (apart from samples.py's), and the
-# rng.keyed_uniforms salt (apart from the media's) of Bevel's choice of hits beyond LOCAL_MAX_HITS.
+# rng.keyed_uniforms salt (apart from the media's) of Bevel's choice of hits beyond local_hits.LOCAL_MAX_HITS.
 AO_DIMENSION, BEVEL_DIMENSION, BEVEL_PICK_SALT = 40, 41, 1442
-# Cycles' LOCAL_MAX_HITS (kernel/types.h): a Bevel ray keeps a random subset of this many of its hits.
-LOCAL_MAX_HITS = 4
-# Surfaces a ray looking for its own object passes at most (other objects' surfaces, or its own for Bevel):
-# beyond them it is taken as unoccluded (AO) or as meeting no more (Bevel).
-MAX_LAYERS = 16
 # Cycles skips Bevel on blurry indirect rays: where the path's smallest BSDF pdf so far is below this.
 BEVEL_MIN_RAY_PDF = F32(8.0)
 
 
-class ShaderRays:
-    """What shader nodes trace with: the scene's accel.Accel and geometry.TriangleTable, the scale of the
-    offset rays start with (the renderer's ray_epsilon) and the world's AO distance (World.ao_distance:
-    an AO node's unlinked Distance of 0 reads it, Cycles' NODE_AO_GLOBAL_RADIUS)."""
+class ShaderRays(LocalRays):
+    """What shader nodes trace with (local_hits.LocalRays: the BVH, the triangles, the offset's scale) and the
+    world's AO distance (World.ao_distance: an AO node's unlinked Distance of 0 reads it, Cycles'
+    NODE_AO_GLOBAL_RADIUS)."""
 
     def __init__(self, accel, triangles, epsilon, ao_distance: float = 10.0):
-        self.accel, self.triangles = accel, triangles
-        self.epsilon, self.ao_distance = F32(epsilon), float(ao_distance)
-
-    def object_rows(self, prim: np.ndarray) -> np.ndarray:
-        rows = self.triangles.object_rows(prim)
-        return np.zeros(len(prim), np.int32) if rows is None else rows
-
-    def offset_origins(self, p: np.ndarray, ng: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """(n, 3) origins moved off the surfaces (points p, unit normals ng) to the side directions d leave on,
-        as the integrator spawns rays (Cycles starts at P and skips the hit's own triangle instead)."""
-        eps = spawn_offset(self.epsilon, p[:, 0], p[:, 1], p[:, 2])
-        side = np.where(dot_rows(d, ng) >= 0, eps, -eps).astype(F32)
-        return (p + ng * columns(side)).astype(F32)
+        super().__init__(accel, triangles, epsilon)
+        self.ao_distance = float(ao_distance)
 
 
 def branch_numbers(keys, branch: int, dimension: int):
@@ -91,7 +75,7 @@ def ambient_occlusion(hits: TracedHits, normal: np.ndarray, distance: np.ndarray
         origins = h.rays.offset_origins(h.p, h.ng, d)
         if only_local:
             blocked = np.zeros(len(live), bool)
-            for rows, _, _, _, _ in _own_hits(h, origins, d, t_max, first_only=True):
+            for rows, _, _, _, _ in own_hits(h.rays, h.objects, origins, d, t_max, h.split, h.time, first_only=True):
                 blocked[rows] = True
         else:
             blocked = h.rays.accel.occluded(origins, d, t_max, h.split, h.time)
@@ -160,12 +144,12 @@ def bevel(hits: TracedHits, radius: np.ndarray, samples: int) -> np.ndarray:
         disk_p = disk_t * columns(disk_r * np.cos(phi)) + disk_b * columns(disk_r * np.sin(phi))
         origins = (h.p + disk_n * columns(height) + disk_p).astype(F32)
         d = np.ascontiguousarray(-disk_n, F32)
-        found = list(_own_hits(h, origins, d, F32(2.0) * height))
+        found = list(own_hits(h.rays, h.objects, origins, d, F32(2.0) * height, h.split, h.time))
         if not found:
             continue
         rows, prim, t, u, v = (np.concatenate(c) for c in zip(*found))
         count = np.bincount(rows, minlength=m)
-        keep, scale = _pick_hits(rows, count, h.keys, sample)
+        keep, scale = pick_hits(rows, count, h.keys, sample, BEVEL_PICK_SALT)
         rows, prim, t, u, v = rows[keep], prim[keep], t[keep], u[keep], v[keep]
         g = h.rays.triangles.rows_of(prim)
         hit_ng = g[:, NG:NG + 3]
@@ -189,63 +173,6 @@ def bevel(hits: TracedHits, radius: np.ndarray, samples: int) -> np.ndarray:
     summed = np.where(columns(h.backfacing), -summed, summed)
     out[live] = np.where(columns(met), summed, h.n)
     return out
-
-
-def _pick_hits(rows: np.ndarray, count: np.ndarray, keys, sample: int):
-    """Which of the hits (rays `rows`, in the order met; count per ray) Bevel keeps: all of a ray with at most
-    LOCAL_MAX_HITS, else a uniformly random LOCAL_MAX_HITS of them (what Cycles' reservoir of local hits
-    keeps), and each ray's weight: count / LOCAL_MAX_HITS where it dropped some, else 1."""
-    scale = np.where(count > LOCAL_MAX_HITS, count.astype(F32) / F32(LOCAL_MAX_HITS), ONE).astype(F32)
-    keep = np.ones(len(rows), bool)
-    many = np.flatnonzero(count[rows] > LOCAL_MAX_HITS)
-    if not len(many):
-        return keep, scale
-    ray = rows[many]
-    # Each hit a random number (its ray's keys and its place among the ray's hits); a ray keeps its smallest.
-    by_ray = np.argsort(ray, kind="stable")
-    place = np.empty(len(many), np.uint32)
-    place[by_ray] = np.arange(len(many)) - np.searchsorted(ray[by_ray], ray[by_ray])
-    x, y = (np.take(k, ray) for k in keys)
-    chance = keyed_uniforms((x ^ (place * np.uint32(0x2C1B3C6D)), y), sample, BEVEL_PICK_SALT)[0]
-    ranked = np.lexsort((chance, ray))
-    rank = np.arange(len(many)) - np.searchsorted(ray[ranked], ray[ranked])
-    keep[many[ranked]] = rank < LOCAL_MAX_HITS
-    return keep, scale
-
-
-def _own_hits(hits: TracedHits, origins: np.ndarray, d: np.ndarray, t_max: np.ndarray, first_only: bool = False):
-    """The hits of rays (origins, unit directions d (n, 3), lengths t_max (n,)) on each ray's own object
-    (hits.objects), passing the surfaces of others: per surface layer met, (rays, prim, t, u, v) of those
-    on the ray's object, t from the first origin (Cycles' scene_intersect_local). first_only: rays stop at
-    their first own hit (AO's Only Local asks whether there is one)."""
-    rays = hits.rays
-    live = np.arange(len(origins))
-    o = origins
-    travelled = np.zeros(len(origins), F32)
-    t_max = np.broadcast_to(np.asarray(t_max, F32), (len(origins),))
-    for _ in range(MAX_LAYERS):
-        if not len(live):
-            return
-        left = (t_max[live] - travelled[live]).astype(F32)
-        met = rays.accel.intersect(o, d[live], left, hits.split, None if hits.time is None else hits.time.take(live))
-        found = np.flatnonzero(met.prim >= 0)
-        if not len(found):
-            return
-        ray = live[found]
-        prim = met.prim[found]
-        step = met.t[found]
-        t = travelled[ray] + step
-        own = rays.object_rows(prim) == hits.objects[ray]
-        if own.any():
-            yield ray[own], prim[own], t[own], met.u[found][own], met.v[found][own]
-        go_on = ~own if first_only else np.ones(len(found), bool)
-        found, ray, prim, step, t = found[go_on], ray[go_on], prim[go_on], step[go_on], t[go_on]
-        # On from just past the surface met, off it on the side the ray leaves.
-        point = (o[found] + d[ray] * columns(step)).astype(F32)
-        o = rays.offset_origins(point, rays.triangles.rows_of(prim)[:, NG:NG + 3], d[ray])
-        travelled[ray] = t
-        live = ray
-
 
 
 # ---------------------------------------------------------------- the ops (kernels/shading/ops.py)

@@ -107,6 +107,10 @@ class Shading:
         self.transmissive = np.array([any(nodes.may_transmit(c) for c in s.closures) for s in self.shaders], bool)
         self.has_holdout = any(c.kind == "HOLDOUT" for s in self.shaders for c in s.closures)
         self.has_portal = any(c.kind == "PORTAL" for s in self.shaders for c in s.closures)
+        self._set_normals = [(m, s.set_normal) for m, s in enumerate(self.shaders) if s.set_normal is not None]
+        # Whether a Christensen-Burley closure is made: it turns diffuse after a diffuse bounce, so the integrator
+        # then tracks the path's labels (PathState.lobes).
+        self.burley = any(c.option("subsurface_method") == "BURLEY" for s in self.shaders for c in s.closures)
         # Whether any hit has more than one lobe to choose from (a Principled BSDF, a Mix, a delta lobe).
         self.layered = np.array([_mixes_lobes(s.closures) for s in self.shaders], bool)
         self.mixes_lobes = bool(self.layered.any())
@@ -132,6 +136,8 @@ class Shading:
         """Evaluate every hit's material (hit: interaction.SurfaceHit)."""
         n = len(hit)
         wo = tuple(-c for c in hit.d)
+        if self._set_normals and not hit.normal_set:
+            self._set_normal(hit)
         builder = ClosureBuilder(n, hit.ns, wo) if closures else None
         emission = np.zeros((3, n), F32)
         holdout = np.zeros(n, F32)
@@ -156,6 +162,19 @@ class Shading:
                 out = nodes.build(closure, ctx, self._mix_weight(closure, ctx), builder)
                 _collect(out, idx, emission, holdout)
         return SurfaceShading(builder.finish() if closures else None, emission, holdout)
+
+    def _set_normal(self, hit) -> None:
+        """Cycles' SetNormal: where a material has a set normal (Shader.set_normal), it becomes the hits' shading
+        normal before the material is evaluated, so its closures, its other nodes, light sampling and the passes all
+        read it (sd->N after the bump shader). Evaluated by a run of its own at the hits' normal as it was."""
+        hits_of = _material_hits(hit.mat, len(self.shaders))
+        for m, ref in self._set_normals:
+            idx = hits_of(m)
+            if len(idx):
+                normal = ProgramRun(self.shaders[m].program, HitInputs(self.data, hit, idx), OPS).value(ref)
+                for k in range(3):
+                    hit.ns[k][idx] = normal[:, k]
+        hit.normal_set = True
 
     def aov(self, hit, name: str, channels: int) -> np.ndarray:
         """(channels, n) the hits' value of the AOV `name` (its Color input for channels 3, its Value for 1),
