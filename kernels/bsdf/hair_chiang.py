@@ -87,8 +87,9 @@ def chiang_roughness(roughness, radial_roughness, coat):
 
     def variance(r):
         return np.square(F32(0.726) * r + F32(0.812) * r * r + F32(3.700) * r ** 20).astype(F32)
-    s = ((F32(0.265) * s + F32(1.194) * s * s + F32(5.372) * s ** 22) * SQRT_PI_8).astype(F32)
-    return variance(v), s, variance(m0)
+    with np.errstate(under="ignore"):   # the high powers of small roughnesses
+        s = ((F32(0.265) * s + F32(1.194) * s * s + F32(5.372) * s ** 22) * SQRT_PI_8).astype(F32)
+        return variance(v), s, variance(m0)
 
 
 def chiang_h(tangent, normal, wo):
@@ -237,6 +238,11 @@ def _attenuation(f, transmittance):
 # ---------------------------------------------------------------- eval and sample
 def chiang_eval(wo, wi, h, v, s, m0, alpha, eta, sigma):
     """(f |cos| (3, N), pdf (N,)) toward wi; see the module docstring."""
+    with np.errstate(under="ignore"):   # dark hair's attenuation and narrow lobes' tails
+        return _eval(wo, wi, h, v, s, m0, alpha, eta, sigma)
+
+
+def _eval(wo, wi, h, v, s, m0, alpha, eta, sigma):
     viewer = _Viewer(wo, h, v, s, m0, alpha, eta, sigma)
     sin_i = np.clip(wi[0], -ONE, ONE).astype(F32)
     phi = np.arctan2(-wi[1], wi[2]).astype(F32) - viewer.phi_o
@@ -247,6 +253,11 @@ def chiang_eval(wo, wi, h, v, s, m0, alpha, eta, sigma):
 def chiang_sample(wo, h, v, s, m0, alpha, eta, sigma, u1, u2, uc):
     """(wi, weight (3, N), pdf (N,), transmit (N,) bool): uc picks the lobe (then draws its latitude), u2 the
     latitude's azimuth about the tilted viewer, u1 the azimuth about the strand; see the module docstring."""
+    with np.errstate(under="ignore"):   # dark hair's attenuation and narrow lobes' tails
+        return _sample(wo, h, v, s, m0, alpha, eta, sigma, u1, u2, uc)
+
+
+def _sample(wo, h, v, s, m0, alpha, eta, sigma, u1, u2, uc):
     viewer = _Viewer(wo, h, v, s, m0, alpha, eta, sigma)
     n = len(viewer.sin_o)
     z = np.asarray(uc, F32).copy()

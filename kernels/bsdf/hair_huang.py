@@ -35,6 +35,8 @@ from .microfacet import sample_visible_normal
 
 INV_2PI = F32(1.0 / (2.0 * np.pi))
 TWO_OVER_PI = F32(2.0 / np.pi)
+# Cycles' Simpson node spacing across the fibre, over the roughness: R's, then TT and TRT's.
+NODE_SPACING = (F32(0.7), F32(0.8))
 
 
 # ---------------------------------------------------------------- small vector helpers (Cycles' local frame)
@@ -273,7 +275,7 @@ def _eval_r(p, wi, wo, h_min, h_len):
     q = p.take(live)
     wi_l, wo_l = tuple(c[live] for c in wi), tuple(c[live] for c in wo)
     wh = tuple(c for c in _normalize(tuple(a + b for a, b in zip(wi_l, wo_l))))
-    lane, node, h, weight, res = _simpson(h_min[live], h_len[live], q.roughness * F32(0.7))
+    lane, node, h, weight, res = _simpson(h_min[live], h_len[live], q.roughness * NODE_SPACING[0])
     b, circ = q.b[lane], q.circular[lane]
     wi_n = tuple(c[lane] for c in wi_l)
     wo_n = tuple(c[lane] for c in wo_l)
@@ -310,7 +312,7 @@ def _eval_residual(p, wi, wo, h_min, h_len, seeds):
         return out, beyond
     q = p.take(live)
     wi_l, wo_l = tuple(c[live] for c in wi), tuple(c[live] for c in wo)
-    lane, node, h, weight_s, res = _simpson(h_min[live], h_len[live], q.roughness * F32(0.8))
+    lane, node, h, weight_s, res = _simpson(h_min[live], h_len[live], q.roughness * NODE_SPACING[1])
     m = len(lane)
     b, circ, tilt, eta = q.b[lane], q.circular[lane], q.tilt[lane], q.eta[lane]
     rough = q.roughness[lane]
@@ -456,9 +458,10 @@ def huang_eval_parts(p: HuangParams, wo, wi):
         q = p.take(live)
         wi_l, wo_l = tuple(c[live] for c in local_i), tuple(c[live] for c in local_o)
         length = (hi[live] - lo[live]).astype(F32)
-        values = (np.broadcast_to(_eval_r(q, wi_l, wo_l, lo[live], length), (3, len(live))),
-                  *_eval_residual(q, wi_l, wo_l, lo[live], length, _seeds(wi_l, wo_l)))
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(under="ignore"):   # dark hair's attenuation and far lobes' tails
+            values = (np.broadcast_to(_eval_r(q, wi_l, wo_l, lo[live], length), (3, len(live))),
+                      *_eval_residual(q, wi_l, wo_l, lo[live], length, _seeds(wi_l, wo_l)))
+        with np.errstate(divide="ignore", invalid="ignore", under="ignore"):
             area = _cos_theta(wi_l) * dh[live]
             for part, value in zip(parts, values):
                 value = value / area
@@ -485,7 +488,12 @@ def huang_sample(p: HuangParams, u1, u2, uc):
 
 
 def huang_sample_lobes(p: HuangParams, u1, u2, uc):
-    """huang_sample, and the lobe each sample took (N,): 0 R, 1 TT, 2 TRT, 3 TRRT+."""
+    """huang_sample, and the lobe each sample took (N,): 0 R, 1 TT, 2 TRT, 3 TRRT+ (-1: none)."""
+    with np.errstate(under="ignore"):   # dark hair's attenuation and far lobes' tails
+        return _sample(p, u1, u2, uc)
+
+
+def _sample(p: HuangParams, u1, u2, uc):
     n = len(p.h)
     e1, e2_, e3, e4, e5, e6, e7, e8 = _extra_numbers(u1, u2, uc)
     wi = p.wi

@@ -48,6 +48,13 @@ CLASSES = {
 }
 
 
+# Self-evaluated lobes whose closure, alone at its hit, keeps its sample as the mixture's without the mixture being
+# evaluated there again: the result is the same (the kept value replaces the evaluation, and nothing else is in
+# the mixture), and the Huang hair's evaluation is a quadrature costing some twenty times its sample. The other
+# self-evaluated lobes keep the general path, bit for bit.
+SAMPLED_ALONE = (HAIR_HUANG,)
+
+
 def lobes_with(flag: int) -> tuple:
     """The ids of the lobes that have `flag`, in id order."""
     return tuple(k for k, classes in sorted(CLASSES.items()) if classes & flag)
