@@ -489,6 +489,31 @@ def test_huang_with_every_lobe_off_makes_no_closure_and_samples_keep_their_value
     assert s.any_side.all() and not s.transmit.any()
 
 
+def test_hair_closures_are_glossy_for_the_passes_and_filter_glossy_raises_their_roughness():
+    """Cycles files both models as glossy (CLOSURE_IS_BSDF_GLOSSY) with bsdf_hair_*_albedo as their colour, and
+    its Filter Glossy raises Chiang's mapped variances and scale and Huang's roughness to the blur's value."""
+    from ember.kernels.bsdf import light_passes
+    wo = np.array([0.2, -0.6, 0.7])
+    n = 3
+    for model in ("CHIANG", "HUANG"):
+        cs = hair_closures({"Color": (0.7, 0.5, 0.3), "Roughness": 0.2}, {"model": model}, EdgeHit(n, wo))
+        diffuse, glossy, transmission = light_passes.class_albedo(cs, n)
+        assert not diffuse.any() and not transmission.any() and (glossy > 0).all()
+        if model == "CHIANG":
+            expected = hc.chiang_albedo(cs.wo[0], cs.hair_h, cs.hair_v, cs.eta, cs.c0)
+        else:
+            from ember.kernels.bsdf.registry import huang_params as params
+            expected = hh.huang_albedo(params(cs, np.arange(n), cs.wo))
+        np.testing.assert_allclose(glossy, expected * cs.weight, rtol=1e-5)
+        before = (cs.hair_v.copy(), cs.rough.copy())
+        cs.blur(np.full(n, 0.6, F32))
+        if model == "CHIANG":
+            assert (before[0] < 0.6).all() and (cs.hair_v == F32(0.6)).all() and (cs.hair_s >= F32(0.6)).all()
+            assert (cs.hair_m0 == F32(0.6)).all()
+        else:
+            assert (before[1] < 0.6).all() and (cs.rough == F32(0.6)).all()
+
+
 # ---------------------------------------------------------------- through Blender
 def test_the_export_reads_the_node():
     pytest.importorskip("bpy")
@@ -563,7 +588,7 @@ def test_white_hair_in_a_furnace_matches_cycles(monkeypatch):
 
 
 # ---------------------------------------------------------------- on curves (with the curve geometry)
-def hair_curves_scene(model: str, parametrization: str = "MELANIN", strands: int = 400):
+def hair_curves_scene(model: str, parametrization: str = "MELANIN", strands: int = 3000):
     """A ball of short straight strands (a Curves object: positions and a radius attribute), one Principled Hair
     material of `model` with the given parametrization, a lamp and a dim world: for the parity tests of hair on
     curves, each model (issue 37), once curves render. Returns the scene."""
@@ -580,13 +605,13 @@ def hair_curves_scene(model: str, parametrization: str = "MELANIN", strands: int
     points = (roots[:, None, :] * (0.6 + steps[None, :, None])).reshape(-1, 3)
     curves.attributes["position"].data.foreach_set("vector", points.astype(np.float32).ravel())
     radius = curves.attributes.get("radius") or curves.attributes.new("radius", "FLOAT", "POINT")
-    radius.data.foreach_set("value", np.full(len(points), 0.01, np.float32))
+    radius.data.foreach_set("value", np.full(len(points), 0.015, np.float32))
     ob = bpy.data.objects.new("Fur", curves)
     scene.collection.objects.link(ob)
     ob.data.materials.append(node_material(f"{model} strands", HAIR, opt_model=model,
                                            opt_parametrization=parametrization, Melanin=0.4))
     set_world(scene, color=(0.05, 0.05, 0.06))
-    add_light(scene, "AREA", (2, -3, 3), 300, size=1.5, rotation=(0.6, 0.3, 0.0))
+    add_light(scene, "AREA", (2, -3, 3), 600, size=1.5, rotation=(0.6, 0.3, 0.0))
     add_camera(scene, (0, -4.0, 0.0), (0, 0, 0), lens=50)
     return scene
 

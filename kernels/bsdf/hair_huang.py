@@ -20,174 +20,23 @@ Cycles' own contract, kept: eval and sample report pdf 1 (its "TODO: better esti
 MIS), sample returns the lobe's value over that pdf (its weight), and eval is itself a random estimate: its
 quadrature draws half vectors from numbers hashed from the two directions (Cycles uses the path's LCG), so two
 evaluations of one pair agree. Every sample is a glossy reflection for the path (Cycles' LABEL_REFLECT), whichever
-side it leaves on. Cycles' fast_sincosf and fast_sinf are exact here.
+side it leaves on. Cycles' fast_sincosf and fast_sinf are exact here. The fibre's geometry and the microfacet terms are
+hair_fibre.py's.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..rng import keyed_uniforms, pcg2d
-from ..vec import F32, ONE, PI, TWO_PI, ZERO, make_orthonormals_xyz
-from . import tables
+from ..vec import F32, ONE, PI, TWO_PI, ZERO, normalize_xyz
+from . import hair_fibre as fb
 from .fresnel import dielectric
 from .hair_chiang import longitudinal
-from .microfacet import sample_visible_normal
 
 INV_2PI = F32(1.0 / (2.0 * np.pi))
 TWO_OVER_PI = F32(2.0 / np.pi)
 # Cycles' Simpson node spacing across the fibre, over the roughness: R's, then TT and TRT's.
 NODE_SPACING = (F32(0.7), F32(0.8))
-
-
-# ---------------------------------------------------------------- small vector helpers (Cycles' local frame)
-def _dot(a, b):
-    return (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]).astype(F32)
-
-
-def _neg(a):
-    return (-a[0], -a[1], -a[2])
-
-
-def _scale(a, s):
-    return tuple((c * s).astype(F32) for c in a)
-
-
-def _sub(a, b):
-    return tuple((x - y).astype(F32) for x, y in zip(a, b))
-
-
-def _reflect(incident, n):
-    d = F32(2.0) * _dot(incident, n)
-    return tuple((i - d * c).astype(F32) for i, c in zip(incident, n))
-
-
-def _refract_angle(incident, n, cos_t, inv_eta):
-    """Cycles' refract_angle; cos_t the refracted cosine relative to n, negative."""
-    k = inv_eta * _dot(n, incident) + cos_t
-    return tuple((k * c - inv_eta * i).astype(F32) for c, i in zip(n, incident))
-
-
-def _fresnel(cos_i, eta):
-    """Cycles' fresnel_dielectric: (F, the refracted cosine, negative; 0 under total internal reflection)."""
-    f, cos_t = dielectric(cos_i, eta)
-    return f, -cos_t
-
-
-def _cos_theta(w):
-    return np.sqrt(np.maximum(w[0] * w[0] + w[2] * w[2], ZERO)).astype(F32)
-
-
-def _dir_phi(w):
-    return np.arctan2(w[0], w[2]).astype(F32)
-
-
-def _visible(v, m, h):
-    return (_dot(v, h) > 0) & (_dot(v, m) > 0)
-
-
-def _visible2(wi, wo, m, h):
-    return _visible(wi, m, h) & _visible(wo, m, h)
-
-
-def _ggx_lambda(alpha2, cos_n):
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        t = alpha2 * np.maximum(ONE / (cos_n * cos_n) - ONE, ZERO)
-        return (F32(0.5) * (np.sqrt(ONE + t) - ONE)).astype(F32)
-
-
-def _ggx_g(alpha2, cos_i, cos_o):
-    return (ONE / (ONE + _ggx_lambda(alpha2, cos_i) + _ggx_lambda(alpha2, cos_o))).astype(F32)
-
-
-def _ggx_go(alpha2, cos_i, cos_o):
-    """bsdf_Go: the shadowing-masking term over the masking toward the incoming direction."""
-    li, lo = _ggx_lambda(alpha2, cos_i), _ggx_lambda(alpha2, cos_o)
-    return ((ONE + li) / (ONE + li + lo)).astype(F32)
-
-
-def _ggx_d(alpha2, cos_nh):
-    c2 = np.minimum(cos_nh * cos_nh, ONE)
-    return (alpha2 / (PI * np.square(ONE - c2 + alpha2 * c2))).astype(F32)
-
-
-# ---------------------------------------------------------------- the fibre's ellipse (Figure 5 of the paper)
-def _to_phi(gamma, b, circular):
-    return np.where(circular, gamma, np.arctan2(b * np.sin(gamma), np.cos(gamma))).astype(F32)
-
-
-def _to_gamma(phi, b, circular):
-    return np.where(circular, phi, np.arctan2(np.sin(phi), b * np.cos(phi))).astype(F32)
-
-
-def _sincos_phi(w):
-    c = _cos_theta(w)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return (w[0] / c).astype(F32), (w[2] / c).astype(F32)
-
-
-def _phi_to_h(phi, b, wi, circular):
-    g = _to_gamma(phi, b, circular)
-    sin_phi_i, cos_phi_i = _sincos_phi(wi)
-    ellipse = -cos_phi_i * np.sin(g) + b * sin_phi_i * np.cos(g)
-    return np.where(circular, -np.sin(phi), ellipse).astype(F32)
-
-
-def _h_to_gamma(h, b, wi, circular):
-    with np.errstate(invalid="ignore"):
-        ellipse = np.arctan2(wi[2], -b * wi[0]) - np.arccos(np.clip(-h, -ONE, ONE))
-        return np.where(circular, -np.arcsin(np.clip(h, -ONE, ONE)), ellipse).astype(F32)
-
-
-def _d_gamma_d_h(sin_phi_i, cos_phi_i, gamma, b, circular):
-    d = np.where(circular, np.cos(gamma), cos_phi_i * np.cos(gamma) + b * sin_phi_i * np.sin(gamma))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(d != 0, ONE / np.where(d != 0, d, ONE), ZERO).astype(F32)
-
-
-def _to_point(gamma, b):
-    return np.sin(gamma).astype(F32), (b * np.cos(gamma)).astype(F32)
-
-
-def _point_distance(g1, g2, b):
-    x1, y1 = _to_point(g1, b)
-    x2, y2 = _to_point(g2, b)
-    return np.sqrt(np.square(x1 - x2) + np.square(y1 - y2)).astype(F32)
-
-
-def _sphg_dir(theta, gamma, b, circular):
-    """The direction of latitude theta whose azimuth is the ellipse's normal at gamma."""
-    st, ct = np.sin(theta).astype(F32), np.cos(theta).astype(F32)
-    sg, cg = np.sin(gamma).astype(F32), np.cos(gamma).astype(F32)
-    plain = circular | (np.abs(cg) < F32(1e-6))
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        tan_phi = b * sg / cg
-        cos_phi = np.sign(cg) / np.sqrt(tan_phi * tan_phi + ONE)
-        sin_phi = cos_phi * tan_phi
-    sin_phi, cos_phi = np.where(plain, sg, sin_phi), np.where(plain, cg, cos_phi)
-    return (sin_phi * ct).astype(F32), np.broadcast_to(st, sg.shape).astype(F32), (cos_phi * ct).astype(F32)
-
-
-def _arc_length(e2, gamma):
-    return np.where(e2 == 0, ONE, np.sqrt(np.maximum(ONE - e2 * np.square(np.sin(gamma)), ZERO))).astype(F32)
-
-
-def _energy_scale(mu, rough_sqrt, eta):
-    """bsdf_hair_huang_energy_scale: 1 / the GGX glass albedo table at (sqrt(alpha), mu, eta)."""
-    return (ONE / tables.glass_E(rough_sqrt, mu, eta)).astype(F32)
-
-
-def _sample_wh(alpha, wi, wm, u1, u2):
-    """A visible GGX normal seen from wi about the mesonormal wm (sample_wh)."""
-    s, t = make_orthonormals_xyz(wm)
-    local = (_dot(wi, s), _dot(wi, t), _dot(wi, wm))
-    h = sample_visible_normal(local, alpha, alpha, u1, u2)
-    return tuple((h[0] * a + h[1] * c + h[2] * m).astype(F32) for a, c, m in zip(s, t, wm))
-
-
-def _trrt(t, r, a):
-    """bsdf_hair_huang_eval_trrt: the geometric series beyond TRT, from the earlier interactions."""
-    t_avg = np.maximum(ONE - r, F32(1e-5))
-    return (t * r * r * t_avg * a * a * a / (ONE - a * (ONE - t_avg))).astype(F32)
 
 
 # ---------------------------------------------------------------- per-closure quantities
@@ -274,32 +123,26 @@ def _eval_r(p, wi, wo, h_min, h_len):
         return out
     q = p.take(live)
     wi_l, wo_l = tuple(c[live] for c in wi), tuple(c[live] for c in wo)
-    wh = tuple(c for c in _normalize(tuple(a + b for a, b in zip(wi_l, wo_l))))
+    wh = normalize_xyz(tuple(a + b for a, b in zip(wi_l, wo_l)))
     lane, node, h, weight, res = _simpson(h_min[live], h_len[live], q.roughness * NODE_SPACING[0])
     b, circ = q.b[lane], q.circular[lane]
     wi_n = tuple(c[lane] for c in wi_l)
     wo_n = tuple(c[lane] for c in wo_l)
     wh_n = tuple(c[lane] for c in wh)
-    sin_phi_i, cos_phi_i = _sincos_phi(wi_n)
-    gamma = _h_to_gamma(h, b, wi_n, circ)
-    wm = _sphg_dir(q.tilt[lane], gamma, b, circ)
+    sin_phi_i, cos_phi_i = fb.sincos_phi(wi_n)
+    gamma = fb.h_to_gamma(h, b, wi_n, circ)
+    wm = fb.sphg_dir(q.tilt[lane], gamma, b, circ)
     macro = (wm[0], np.zeros_like(wm[0]), wm[2])
-    ok = _visible2(wi_n, wo_n, macro, wh_n)
+    ok = fb.visible2(wi_n, wo_n, macro, wh_n)
     alpha2 = np.square(q.roughness[lane])
-    cos_mi = _dot(wm, wi_n)
-    term = weight * _d_gamma_d_h(sin_phi_i, cos_phi_i, gamma, b, circ) * _ggx_d(alpha2, _dot(wm, wh_n)) * \
-        _ggx_g(alpha2, cos_mi, _dot(wm, wo_n)) * _arc_length(q.e2[lane], gamma) * \
-        _energy_scale(cos_mi, np.sqrt(q.roughness[lane]), q.eta[lane])
+    cos_mi = fb.dot(wm, wi_n)
+    term = weight * fb.d_gamma_d_h(sin_phi_i, cos_phi_i, gamma, b, circ) * fb.ggx_d(alpha2, fb.dot(wm, wh_n)) * \
+        fb.ggx_g(alpha2, cos_mi, fb.dot(wm, wo_n)) * fb.arc_length(q.e2[lane], gamma) * \
+        fb.energy_scale(cos_mi, np.sqrt(q.roughness[lane]), q.eta[lane])
     integral = np.bincount(lane, np.where(ok, term, ZERO), minlength=len(live)).astype(F32)
-    f = dielectric(_dot(wi_l, wh), q.eta)[0]
+    f = dielectric(fb.dot(wi_l, wh), q.eta)[0]
     out[live] = q.lobes[0] * F32(0.25) * f * integral * (F32(2.0 / 3.0) * res)
     return out
-
-
-def _normalize(v):
-    length = np.sqrt(_dot(v, v))
-    inv = np.where(length > 0, ONE / np.where(length > 0, length, ONE), ZERO)
-    return tuple((c * inv).astype(F32) for c in v)
 
 
 def _eval_residual(p, wi, wo, h_min, h_len, seeds):
@@ -326,94 +169,94 @@ def _eval_residual(p, wi, wo, h_min, h_len, seeds):
     keys = (seeds[0][live][lane] ^ node.astype(np.uint32), seeds[1][live][lane])
     u1, u2 = keyed_uniforms(keys, 0, salt=0x4855)
     u3, u4 = keyed_uniforms(keys, 1, salt=0x4855)
-    sin_phi_i, cos_phi_i = _sincos_phi(wi_n)
+    sin_phi_i, cos_phi_i = fb.sincos_phi(wi_n)
 
-    gamma_mi = _h_to_gamma(h, b, wi_n, circ)
-    wmi = _sphg_dir(tilt, gamma_mi, b, circ)
-    wmi_ = _sphg_dir(ZERO, gamma_mi, b, circ)
-    wh1 = _sample_wh(rough, wi_n, wmi, u1, u2)
-    cos_hi1 = _dot(wi_n, wh1)
-    cos_mi1 = _dot(wi_n, wmi)
-    r1, cos_t1 = _fresnel(cos_hi1, eta)
+    gamma_mi = fb.h_to_gamma(h, b, wi_n, circ)
+    wmi = fb.sphg_dir(tilt, gamma_mi, b, circ)
+    wmi_ = fb.sphg_dir(ZERO, gamma_mi, b, circ)
+    wh1 = fb.sample_wh(rough, wi_n, wmi, u1, u2)
+    cos_hi1 = fb.dot(wi_n, wh1)
+    cos_mi1 = fb.dot(wi_n, wmi)
+    r1, cos_t1 = fb.fresnel(cos_hi1, eta)
     t1 = ONE - r1
-    scale1 = _energy_scale(cos_mi1, rough_sqrt, eta)
-    wt = _refract_angle(wi_n, wh1, cos_t1, inv_eta)
-    phi_t = _dir_phi(wt)
-    gamma_mt = (F32(2.0) * _to_phi(phi_t, b, circ) - gamma_mi).astype(F32)
-    wmt = _sphg_dir(-tilt, gamma_mt, b, circ)
-    wmt_ = _sphg_dir(ZERO, gamma_mt, b, circ)
-    mwt = _neg(wt)
-    cos_mo1 = _dot(mwt, wmi)
-    cos_mi2 = _dot(mwt, wmt)
-    g1o = _ggx_go(alpha2, cos_mi1, cos_mo1)
-    ok = (cos_hi1 > 0) & _visible2(wi_n, mwt, wmi, wh1) & _visible2(wi_n, mwt, wmi_, wh1)
-    weight = weight_s * _d_gamma_d_h(sin_phi_i, cos_phi_i, gamma_mi, b, circ)
-    cos_wt = _cos_theta(wt)
+    scale1 = fb.energy_scale(cos_mi1, rough_sqrt, eta)
+    wt = fb.refract_angle(wi_n, wh1, cos_t1, inv_eta)
+    phi_t = fb.dir_phi(wt)
+    gamma_mt = (F32(2.0) * fb.to_phi(phi_t, b, circ) - gamma_mi).astype(F32)
+    wmt = fb.sphg_dir(-tilt, gamma_mt, b, circ)
+    wmt_ = fb.sphg_dir(ZERO, gamma_mt, b, circ)
+    mwt = fb.neg(wt)
+    cos_mo1 = fb.dot(mwt, wmi)
+    cos_mi2 = fb.dot(mwt, wmt)
+    g1o = fb.ggx_go(alpha2, cos_mi1, cos_mo1)
+    ok = (cos_hi1 > 0) & fb.visible2(wi_n, mwt, wmi, wh1) & fb.visible2(wi_n, mwt, wmi_, wh1)
+    weight = weight_s * fb.d_gamma_d_h(sin_phi_i, cos_phi_i, gamma_mi, b, circ)
+    cos_wt = fb.cos_theta(wt)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         path_t = np.where(circ, F32(2.0) * np.cos(gamma_mi - phi_t),
-                          -_point_distance(gamma_mi, gamma_mt + PI, b)) / cos_wt
+                          -fb.point_distance(gamma_mi, gamma_mt + PI, b)) / cos_wt
         a_t = np.exp(mu_a * path_t).astype(F32)
-    scale2 = _energy_scale(cos_mi2, rough_sqrt, inv_eta)
+    scale2 = fb.energy_scale(cos_mi2, rough_sqrt, inv_eta)
 
     s_tt = np.zeros((3, m), F32)
     s_trt = np.zeros((3, m), F32)
     s_trrt = np.zeros((3, m), F32)
     # TT: the half vector that refracts wt into wo.
-    tt = ok & tt_on & (_dot(wo_n, wt) >= inv_eta - F32(1e-5))
+    tt = ok & tt_on & (fb.dot(wo_n, wt) >= inv_eta - F32(1e-5))
     if tt.any():
         wh2 = tuple(a + inv_eta * c for a, c in zip(mwt, wo_n))
         with np.errstate(divide="ignore"):
-            rcp2 = (ONE / np.sqrt(_dot(wh2, wh2))).astype(F32)
-        wh2 = _scale(wh2, rcp2)
-        cos_mh2 = _dot(wmt, wh2)
+            rcp2 = (ONE / np.sqrt(fb.dot(wh2, wh2))).astype(F32)
+        wh2 = fb.scale(wh2, rcp2)
+        cos_mh2 = fb.dot(wmt, wh2)
         tt &= cos_mh2 >= 0
-        cos_hi2, cos_ho2, cos_mo2 = _dot(mwt, wh2), _dot(_neg(wo_n), wh2), _dot(_neg(wo_n), wmt)
+        cos_hi2, cos_ho2, cos_mo2 = fb.dot(mwt, wh2), fb.dot(fb.neg(wo_n), wh2), fb.dot(fb.neg(wo_n), wmt)
         t2 = (ONE - dielectric(cos_hi2, inv_eta)[0]) * scale2
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            result = weight * t1 * scale1 * t2 * _ggx_d(alpha2, cos_mh2) * g1o * _ggx_g(alpha2, cos_mi2, cos_mo2) * \
+            result = weight * t1 * scale1 * t2 * fb.ggx_d(alpha2, cos_mh2) * g1o * fb.ggx_g(alpha2, cos_mi2, cos_mo2) * \
                 a_t / cos_mo1 * cos_mi1 * cos_hi2 * cos_ho2 * rcp2 * rcp2
         good = tt & np.all(np.isfinite(result), axis=0)
-        s_tt = np.where(good, q.lobes[1][lane] * result * _arc_length(e2, gamma_mt), ZERO).astype(F32)
+        s_tt = np.where(good, q.lobes[1][lane] * result * fb.arc_length(e2, gamma_mt), ZERO).astype(F32)
     # TRT: a sampled reflection inside, then the half vector that refracts it into wo.
     trt = ok & trt_on
     if trt.any():
-        wh2 = _sample_wh(rough, mwt, wmt, u3, u4)
-        cos_hi2 = _dot(mwt, wh2)
+        wh2 = fb.sample_wh(rough, mwt, wmt, u3, u4)
+        cos_hi2 = fb.dot(mwt, wh2)
         trt &= cos_hi2 > 0
         r2 = dielectric(cos_hi2, inv_eta)[0]
-        wtr = _neg(_reflect(wt, wh2))
-        residual = _trrt(t1, r2, a_t)
-        tir = trt & (_dot(_neg(wtr), wo_n) < inv_eta - F32(1e-5))
-        seen = trt & ~tir & _visible2(mwt, _neg(wtr), wmt, wh2) & _visible2(mwt, _neg(wtr), wmt_, wh2)
-        phi_tr = _dir_phi(wtr)
-        gamma_mtr = (gamma_mi - F32(2.0) * (_to_phi(phi_t, b, circ) - _to_phi(phi_tr, b, circ)) + PI).astype(F32)
-        wmtr = _sphg_dir(-tilt, gamma_mtr, b, circ)
-        wmtr_ = _sphg_dir(ZERO, gamma_mtr, b, circ)
+        wtr = fb.neg(fb.reflect(wt, wh2))
+        residual = fb.trrt(t1, r2, a_t)
+        tir = trt & (fb.dot(fb.neg(wtr), wo_n) < inv_eta - F32(1e-5))
+        seen = trt & ~tir & fb.visible2(mwt, fb.neg(wtr), wmt, wh2) & fb.visible2(mwt, fb.neg(wtr), wmt_, wh2)
+        phi_tr = fb.dir_phi(wtr)
+        gamma_mtr = (gamma_mi - F32(2.0) * (fb.to_phi(phi_t, b, circ) - fb.to_phi(phi_tr, b, circ)) + PI).astype(F32)
+        wmtr = fb.sphg_dir(-tilt, gamma_mtr, b, circ)
+        wmtr_ = fb.sphg_dir(ZERO, gamma_mtr, b, circ)
         wh3 = tuple(a + inv_eta * c for a, c in zip(wtr, wo_n))
         with np.errstate(divide="ignore"):
-            rcp3 = (ONE / np.sqrt(_dot(wh3, wh3))).astype(F32)
-        wh3 = _scale(wh3, rcp3)
-        cos_mh3 = _dot(wmtr, wh3)
-        mwo = _neg(wo_n)
-        out_ok = (cos_mh3 >= 0) & _visible2(wtr, mwo, wmtr, wh3) & _visible2(wtr, mwo, wmtr_, wh3)
-        cos_hi3, cos_ho3, cos_mi3 = _dot(wh3, wtr), _dot(wh3, mwo), _dot(wmtr, wtr)
-        t3 = (ONE - dielectric(cos_hi3, inv_eta)[0]) * _energy_scale(cos_mi3, rough_sqrt, inv_eta)
+            rcp3 = (ONE / np.sqrt(fb.dot(wh3, wh3))).astype(F32)
+        wh3 = fb.scale(wh3, rcp3)
+        cos_mh3 = fb.dot(wmtr, wh3)
+        mwo = fb.neg(wo_n)
+        out_ok = (cos_mh3 >= 0) & fb.visible2(wtr, mwo, wmtr, wh3) & fb.visible2(wtr, mwo, wmtr_, wh3)
+        cos_hi3, cos_ho3, cos_mi3 = fb.dot(wh3, wtr), fb.dot(wh3, mwo), fb.dot(wmtr, wtr)
+        t3 = (ONE - dielectric(cos_hi3, inv_eta)[0]) * fb.energy_scale(cos_mi3, rough_sqrt, inv_eta)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             path_tr = -np.where(circ, F32(2.0) * np.abs(np.cos(phi_tr - gamma_mt)),
-                                _point_distance(gamma_mtr, gamma_mt, b)) / _cos_theta(wtr)
+                                fb.point_distance(gamma_mtr, gamma_mt, b)) / fb.cos_theta(wtr)
             a_tr = np.exp(mu_a * path_tr).astype(F32)
-            cos_mo2 = _dot(wmt, _neg(wtr))
-            result = weight * t1 * scale1 * r2 * scale2 * t3 * _ggx_d(alpha2, cos_mh3) * g1o * \
-                _ggx_go(alpha2, cos_mi2, cos_mo2) * _ggx_g(alpha2, cos_mi3, _dot(wmtr, mwo)) * a_t * a_tr / \
+            cos_mo2 = fb.dot(wmt, fb.neg(wtr))
+            result = weight * t1 * scale1 * r2 * scale2 * t3 * fb.ggx_d(alpha2, cos_mh3) * g1o * \
+                fb.ggx_go(alpha2, cos_mi2, cos_mo2) * fb.ggx_g(alpha2, cos_mi3, fb.dot(wmtr, mwo)) * a_t * a_tr / \
                 (cos_mo1 * cos_mo2) * cos_mi1 * cos_mi2 * cos_hi3 * cos_ho3 * rcp3 * rcp3
         good = seen & out_ok & np.all(np.isfinite(result), axis=0)
-        s_trt = np.where(good, q.lobes[2][lane] * result * _arc_length(e2, gamma_mtr), ZERO).astype(F32)
+        s_trt = np.where(good, q.lobes[2][lane] * result * fb.arc_length(e2, gamma_mtr), ZERO).astype(F32)
         counted = tir | seen
         s_trrt = np.where(counted & np.all(np.isfinite(residual), axis=0), weight * residual, ZERO).astype(F32)
 
     def per_lane(a):
         return np.stack([np.bincount(lane, a[k], minlength=len(live)) for k in range(3)]).astype(F32)
-    mm = longitudinal(wi_l[1], _cos_theta(wi_l), wo_l[1], _cos_theta(wo_l), F32(4.0) * q.roughness)
+    mm = longitudinal(wi_l[1], fb.cos_theta(wi_l), wo_l[1], fb.cos_theta(wo_l), F32(4.0) * q.roughness)
     coefficient = F32(2.0 / 3.0) * res
     out[:, live] = (per_lane(s_tt) + per_lane(s_trt)) * np.square(ONE / q.eta) * coefficient
     beyond[:, live] = per_lane(s_trrt) * mm * INV_2PI * TWO_OVER_PI * coefficient
@@ -433,15 +276,15 @@ def huang_eval_parts(p: HuangParams, wo, wi):
     local_i, local_o = p.wi, to_cycles(wi)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         tan_tilt = np.tan(p.tilt).astype(F32)
-        tan_o = local_o[1] / _cos_theta(local_o)
-        tan_i = local_i[1] / _cos_theta(local_i)
+        tan_o = local_o[1] / fb.cos_theta(local_o)
+        tan_i = local_i[1] / fb.cos_theta(local_i)
         ok = ~(tan_tilt * tan_o < -ONE)
         arg = np.maximum(-tan_tilt * tan_i, ZERO)
         ok &= arg <= ONE
         half_span = np.arccos(np.minimum(arg, ONE)).astype(F32)
-    phi_i = np.where(p.circular, ZERO, _dir_phi(local_i)).astype(F32)
-    lo = _phi_to_h(phi_i + half_span, p.b, local_i, p.circular)
-    hi = _phi_to_h(phi_i - half_span, p.b, local_i, p.circular)
+    phi_i = np.where(p.circular, ZERO, fb.dir_phi(local_i)).astype(F32)
+    lo = fb.phi_to_h(phi_i + half_span, p.b, local_i, p.circular)
+    hi = fb.phi_to_h(phi_i - half_span, p.b, local_i, p.circular)
     r = p.radius
     dh = np.full(n, F32(2.0))
     near = p.nearfield
@@ -462,7 +305,7 @@ def huang_eval_parts(p: HuangParams, wo, wi):
             values = (np.broadcast_to(_eval_r(q, wi_l, wo_l, lo[live], length), (3, len(live))),
                       *_eval_residual(q, wi_l, wo_l, lo[live], length, _seeds(wi_l, wo_l)))
         with np.errstate(divide="ignore", invalid="ignore", under="ignore"):
-            area = _cos_theta(wi_l) * dh[live]
+            area = fb.cos_theta(wi_l) * dh[live]
             for part, value in zip(parts, values):
                 value = value / area
                 part[:, live] = np.where(np.isfinite(value), value, ZERO)
@@ -501,68 +344,68 @@ def _sample(p: HuangParams, u1, u2, uc):
     rough = p.roughness
     alpha2, rough_sqrt = np.square(rough), np.sqrt(rough)
     h_div_r = np.where(p.nearfield, p.h / p.radius, np.asarray(u2, F32) * F32(2.0) - ONE).astype(F32)
-    gamma_mi = _h_to_gamma(h_div_r, b, wi, circ)
-    wmi_ = _sphg_dir(ZERO, gamma_mi, b, circ)
+    gamma_mi = fb.h_to_gamma(h_div_r, b, wi, circ)
+    wmi_ = fb.sphg_dir(ZERO, gamma_mi, b, circ)
     st, ct = np.sin(p.tilt).astype(F32), np.cos(p.tilt).astype(F32)
     wmi = (wmi_[0] * ct, np.broadcast_to(st, ct.shape).astype(F32), wmi_[2] * ct)
-    cos_mi1 = _dot(wmi, wi)
-    ok = (cos_mi1 >= 0) & (_dot(wmi_, wi) >= 0)
-    wh1 = _sample_wh(rough, wi, wmi, np.asarray(uc, F32), e1)
-    wr = _neg(_reflect(wi, wh1))
-    ok &= _visible(wi, wmi_, wh1)
-    r1, cos_t1 = _fresnel(_dot(wi, wh1), p.eta)
-    scale1 = _energy_scale(cos_mi1, rough_sqrt, p.eta)
-    r_energy = p.lobes[0] * r1 * scale1 * _visible(wr, wmi_, wh1) * _ggx_go(alpha2, cos_mi1, _dot(wmi, wr))
+    cos_mi1 = fb.dot(wmi, wi)
+    ok = (cos_mi1 >= 0) & (fb.dot(wmi_, wi) >= 0)
+    wh1 = fb.sample_wh(rough, wi, wmi, np.asarray(uc, F32), e1)
+    wr = fb.neg(fb.reflect(wi, wh1))
+    ok &= fb.visible(wi, wmi_, wh1)
+    r1, cos_t1 = fb.fresnel(fb.dot(wi, wh1), p.eta)
+    scale1 = fb.energy_scale(cos_mi1, rough_sqrt, p.eta)
+    r_energy = p.lobes[0] * r1 * scale1 * fb.visible(wr, wmi_, wh1) * fb.ggx_go(alpha2, cos_mi1, fb.dot(wmi, wr))
 
     inv_eta = (ONE / p.eta).astype(F32)
-    wt = _refract_angle(wi, wh1, cos_t1, inv_eta)
-    mwt = _neg(wt)
-    phi_t = _dir_phi(wt)
-    gamma_mt = (F32(2.0) * _to_phi(phi_t, b, circ) - gamma_mi).astype(F32)
-    wmt = _sphg_dir(-p.tilt, gamma_mt, b, circ)
-    wmt_ = _sphg_dir(ZERO, gamma_mt, b, circ)
-    wh2 = _sample_wh(rough, mwt, wmt, e2_, e3)
-    wtr = _neg(_reflect(wt, wh2))
-    cos_mi2 = _dot(mwt, wmt)
-    inside = ok & (cos_mi2 > 0) & _visible(mwt, wmi_, wh1) & _visible(mwt, wmt_, wh2)
+    wt = fb.refract_angle(wi, wh1, cos_t1, inv_eta)
+    mwt = fb.neg(wt)
+    phi_t = fb.dir_phi(wt)
+    gamma_mt = (F32(2.0) * fb.to_phi(phi_t, b, circ) - gamma_mi).astype(F32)
+    wmt = fb.sphg_dir(-p.tilt, gamma_mt, b, circ)
+    wmt_ = fb.sphg_dir(ZERO, gamma_mt, b, circ)
+    wh2 = fb.sample_wh(rough, mwt, wmt, e2_, e3)
+    wtr = fb.neg(fb.reflect(wt, wh2))
+    cos_mi2 = fb.dot(mwt, wmt)
+    inside = ok & (cos_mi2 > 0) & fb.visible(mwt, wmi_, wh1) & fb.visible(mwt, wmt_, wh2)
     mu_a = p.sigma
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         path_t = np.where(circ, F32(2.0) * np.cos(phi_t - gamma_mi),
-                          -_point_distance(gamma_mi, gamma_mt + PI, b)) / _cos_theta(wt)
+                          -fb.point_distance(gamma_mi, gamma_mt + PI, b)) / fb.cos_theta(wt)
         a_t = np.exp(mu_a * path_t).astype(F32)
-    r2, cos_t2 = _fresnel(_dot(mwt, wh2), inv_eta)
-    t1 = (ONE - r1) * scale1 * _ggx_go(alpha2, cos_mi1, _dot(wmi, mwt))
+    r2, cos_t2 = fb.fresnel(fb.dot(mwt, wh2), inv_eta)
+    t1 = (ONE - r1) * scale1 * fb.ggx_go(alpha2, cos_mi1, fb.dot(wmi, mwt))
     t2 = ONE - r2
-    scale2 = _energy_scale(cos_mi2, rough_sqrt, inv_eta)
-    wtt = _refract_angle(mwt, wh2, cos_t2, p.eta)
-    tt_ok = inside & (_dot(wmt, _neg(wtt)) > 0) & (t2 > 0) & _visible(_neg(wtt), wmt_, wh2)
-    tt = np.where(tt_ok, p.lobes[1] * t1 * a_t * t2 * scale2 * _ggx_go(alpha2, cos_mi2, _dot(wmt, _neg(wtt))),
+    scale2 = fb.energy_scale(cos_mi2, rough_sqrt, inv_eta)
+    wtt = fb.refract_angle(mwt, wh2, cos_t2, p.eta)
+    tt_ok = inside & (fb.dot(wmt, fb.neg(wtt)) > 0) & (t2 > 0) & fb.visible(fb.neg(wtt), wmt_, wh2)
+    tt = np.where(tt_ok, p.lobes[1] * t1 * a_t * t2 * scale2 * fb.ggx_go(alpha2, cos_mi2, fb.dot(wmt, fb.neg(wtt))),
                   ZERO).astype(F32)
 
-    phi_tr = _dir_phi(wtr)
-    gamma_mtr = (gamma_mi - F32(2.0) * (_to_phi(phi_t, b, circ) - _to_phi(phi_tr, b, circ)) + PI).astype(F32)
-    wmtr = _sphg_dir(-p.tilt, gamma_mtr, b, circ)
-    wh3 = _sample_wh(rough, wtr, wmtr, e4, e5)
-    r3, cos_t3 = _fresnel(_dot(wtr, wh3), inv_eta)
-    wtrt = _refract_angle(wtr, wh3, cos_t3, p.eta)
-    cos_mi3 = _dot(wmtr, wtr)
+    phi_tr = fb.dir_phi(wtr)
+    gamma_mtr = (gamma_mi - F32(2.0) * (fb.to_phi(phi_t, b, circ) - fb.to_phi(phi_tr, b, circ)) + PI).astype(F32)
+    wmtr = fb.sphg_dir(-p.tilt, gamma_mtr, b, circ)
+    wh3 = fb.sample_wh(rough, wtr, wmtr, e4, e5)
+    r3, cos_t3 = fb.fresnel(fb.dot(wtr, wh3), inv_eta)
+    wtrt = fb.refract_angle(wtr, wh3, cos_t3, p.eta)
+    cos_mi3 = fb.dot(wmtr, wtr)
     third = inside & (cos_mi3 > 0)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         path_tr = -np.where(circ, F32(2.0) * np.abs(np.cos(phi_tr - gamma_mt)),
-                            _point_distance(gamma_mt, gamma_mtr, b)) / _cos_theta(wtr)
+                            fb.point_distance(gamma_mt, gamma_mtr, b)) / fb.cos_theta(wtr)
         a_tr = np.exp(mu_a * path_tr).astype(F32)
-    tr = t1 * r2 * scale2 * a_t * a_tr * _energy_scale(cos_mi3, rough_sqrt, inv_eta) * \
-        _ggx_go(alpha2, cos_mi2, _dot(wmt, _neg(wtr)))
+    tr = t1 * r2 * scale2 * a_t * a_tr * fb.energy_scale(cos_mi3, rough_sqrt, inv_eta) * \
+        fb.ggx_go(alpha2, cos_mi2, fb.dot(wmt, fb.neg(wtr)))
     t3 = ONE - r3
     macro3 = (wmtr[0], np.zeros_like(wmtr[0]), wmtr[2])
-    trt_ok = third & (t3 > 0) & _visible2(wtr, _neg(wtrt), macro3, wh3)
-    trt = np.where(trt_ok, p.lobes[2] * tr * t3 * _ggx_go(alpha2, cos_mi3, _dot(wmtr, _neg(wtrt))), ZERO).astype(F32)
+    trt_ok = third & (t3 > 0) & fb.visible2(wtr, fb.neg(wtrt), macro3, wh3)
+    trt = np.where(trt_ok, p.lobes[2] * tr * t3 * fb.ggx_go(alpha2, cos_mi3, fb.dot(wmtr, fb.neg(wtrt))), ZERO).astype(F32)
     # TRRT+: Chiang's residual lobe, its latitude about the viewer's drawn with variance 4 roughness.
     rand_theta = np.maximum(e6, F32(1e-5))
     with np.errstate(under="ignore"):
         fac = ONE + F32(4.0) * rough * np.log(rand_theta + (ONE - rand_theta) * np.exp(-F32(0.5) / rough))
     sin_ti = wi[1]
-    cos_ti = _cos_theta(wi)
+    cos_ti = fb.cos_theta(wi)
     sin_o = np.clip(-fac * sin_ti + np.sqrt(np.maximum(ONE - fac * fac, ZERO)) * np.cos(TWO_PI * e7) * cos_ti,
                     -ONE, ONE).astype(F32)
     cos_o = np.sqrt(np.maximum(ONE - sin_o * sin_o, ZERO)).astype(F32)
@@ -572,7 +415,7 @@ def _sample(p: HuangParams, u1, u2, uc):
     t_avg = np.maximum(F32(0.5) * (t2 + t3), F32(1e-5))
     with np.errstate(divide="ignore", invalid="ignore"):
         a_res = a_avg * t_avg / (ONE - a_avg * (ONE - t_avg))
-    trrt = np.where(third, tr * r3 * a_res * _ggx_go(alpha2, cos_mi3, _dot(wmtr, _neg(_reflect(wtr, wh3)))),
+    trrt = np.where(third, tr * r3 * a_res * fb.ggx_go(alpha2, cos_mi3, fb.dot(wmtr, fb.neg(fb.reflect(wtr, wh3)))),
                     ZERO).astype(F32)
 
     r_energy = np.where(ok, r_energy, ZERO).astype(F32)
@@ -598,8 +441,8 @@ def _sample(p: HuangParams, u1, u2, uc):
 def huang_albedo(p: HuangParams):
     """(3, N) bsdf_hair_huang_albedo: the series of a specular circular fibre hit at h, for the passes."""
     wmi = (p.h, np.zeros_like(p.h), np.sqrt(np.maximum(ONE - p.h * p.h, ZERO)).astype(F32))
-    f, cos_t = _fresnel(_dot(wmi, p.wi), p.eta)
-    wt = _refract_angle(p.wi, wmi, cos_t, ONE / p.eta)
+    f, cos_t = fb.fresnel(fb.dot(wmi, p.wi), p.eta)
+    wt = fb.refract_angle(p.wi, wmi, cos_t, ONE / p.eta)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         a = np.exp(F32(2.0) * p.sigma * cos_t / (ONE - wt[1] * wt[1]))
         albedo = (a - F32(2.0) * f * a + f) / (ONE - f * a)
