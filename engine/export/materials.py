@@ -4,7 +4,7 @@ computing closure inputs are compiled by nodes.py, and the images they read are 
 
 Cycles is the reference for what a material looks like. From the material output's Surface, Mix Shader
 and Add Shader nodes are followed down to closure nodes (CLOSURE_NODES: Principled, Diffuse, Glossy,
-Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Ray Portal, Hair, Emission,
+Glass, Refraction, Metallic, Sheen, Translucent, Transparent, Toon, Ray Portal, Hair, Principled Hair, Emission,
 Holdout, Subsurface Scattering); each closure keeps its inputs and the Mix factors above it, and the
 kernel builds Cycles' closures from them (kernels.shading.nodes).
 
@@ -79,6 +79,11 @@ CLOSURE_NODES = {
     "ShaderNodeEmission": ("EMISSION", ("Color", "Strength")),
     "ShaderNodeHoldout": ("HOLDOUT", ()),
     "ShaderNodeSubsurfaceScattering": ("SUBSURFACE", ("Color", "Scale", "Radius", "IOR", "Roughness", "Anisotropy")),
+    # By socket identifier: Blender names the lobe scales Reflection, Transmission and Secondary Reflection.
+    "ShaderNodeBsdfHairPrincipled": ("PRINCIPLED_HAIR", (
+        "Color", "Melanin", "Melanin Redness", "Tint", "Absorption Coefficient", "Aspect Ratio", "Roughness",
+        "Radial Roughness", "Coat", "IOR", "Offset", "Random Color", "Random Roughness", "Random", "R lobe", "TT lobe",
+        "TRT lobe")),
 }
 # Shader nodes a Volume output is made of -> kernel volume kinds (kernels.scene.VOLUME_KINDS), with the inputs
 # read (Blender 5.0 names; the phase parameters Blender hides for another phase are read all the same) and the
@@ -97,10 +102,7 @@ VOLUME_NODES = {
     "ShaderNodeEmission": ("EMISSION", ("Color", "Strength"), ()),
 }
 # Why some shader nodes are not rendered (others: "is not supported").
-UNSUPPORTED_NODES = {
-    "ShaderNodeBsdfHairPrincipled": "is not supported (a model for hair curves; on a mesh Cycles shades it about "
-                                    "each triangle's first edge)",
-}
+UNSUPPORTED_NODES: dict = {}
 # Vector inputs read only when linked: unlinked, they stand for the hit's position or the ray's direction.
 LINKED_ONLY_INPUTS = ("Position", "Direction")
 # Inputs read where the node has them (the Glass and Metallic BSDFs' thin film came with Blender 5.0).
@@ -440,6 +442,8 @@ class _MaterialReader:
             options.append(("fresnel", node.fresnel_type))
         if kind in ("TOON", "HAIR"):
             options.append(("component", node.component))
+        if kind == "PRINCIPLED_HAIR":
+            options += [("model", node.model), ("parametrization", node.parametrization)]
         if kind in ("PRINCIPLED", "SUBSURFACE"):
             method = _subsurface_method(node, kind)
             if method != "RANDOM_WALK":  # the default, read as such

@@ -28,10 +28,13 @@ class BumpShadowing:
         self.bumped, self.shading, self.cos_d, self.diffuse = bumped, shading, cos_d, diffuse
 
     @classmethod
-    def of(cls, normal, shading, lobe) -> "BumpShadowing | None":
+    def of(cls, normal, shading, lobe, exempt=None) -> "BumpShadowing | None":
         """From the closures' normals (3, C), their hits' shading normals (3, C) and their lobes (C,); None
-        when every closure is on its shading normal."""
+        when every closure is on its shading normal. exempt (C,) bool: closures that take no term whatever
+        their normal (those of hits on curves, as Cycles skips the term there)."""
         bumped = np.any(normal != shading, axis=0)
+        if exempt is not None:
+            bumped &= ~exempt
         if not bumped.any():
             return None
         return cls(bumped, shading.astype(F32), np.einsum("ij,ij->j", shading, normal).astype(F32),

@@ -25,8 +25,8 @@ from ..vec import F32
 from . import frames
 from .bump import BumpShadowing
 from .light_passes import weight_albedo
-from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, LAMBERT, REFLECTION, REFRACTION, SELF_EVALUATED,
-                    SINGULAR_LOBES, TRANSMITTING_LOBES)
+from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, HAIR_CHIANG, HAIR_HUANG, LAMBERT, REFLECTION, REFRACTION,
+                    SELF_EVALUATED, SINGULAR_LOBES, TRANSMITTING_LOBES)
 from .mixture_eval import eval_at
 from .mixture_sample import BsdfSample, pick_closures, sample
 from .registry import LOBES
@@ -41,9 +41,13 @@ WEIGHT_CUTOFF = np.float32(1e-5)
 # origin, direction: where a Ray Portal sends the ray on, world space (origin NaN: from the hit itself).
 # r1, r2, offset, hair_t: a hair closure's roughnesses, highlight shift and unit tangent (world space).
 # film_t, film_ior: a microfacet closure's thin film, thickness in nm and IOR (0: none).
+# hair_v, hair_s, hair_m0, hair_h, aspect, coverage: a Principled Hair closure's longitudinal variance, logistic
+# scale, R variance, offset across the strand, aspect ratio and pixel coverage (hair_chiang, hair_huang).
+# on_curve: 1 for a closure of a hit on a curve, which takes no bump shadowing term (Cycles' bump_shadowing_term).
 _SCALARS = {"ax": 0.0, "ay": 0.0, "eta": 1.0, "rough": 0.0, "eval_scale": 1.0, "fresnel": 0.0, "soften": 1.0,
             "dist": 0.0, "size": 0.0, "smooth": 0.0, "r1": 1.0, "r2": 1.0, "offset": 0.0, "film_t": 0.0,
-            "film_ior": 0.0}
+            "film_ior": 0.0, "hair_v": 1.0, "hair_s": 1.0, "hair_m0": 1.0, "hair_h": 0.0, "aspect": 1.0,
+            "coverage": 1.0, "on_curve": 0.0}
 _COLOURS = {"c0": 0.0, "c1": 0.0, "c2": 0.0, "origin": np.nan, "direction": 0.0, "hair_t": 0.0}
 
 
@@ -133,7 +137,7 @@ class ClosureSet:
             normal = cat([ch["n"] if ch["n"] is not None else np.stack([np.take(a, ch["hit"]) for a in ns])
                           for ch in chunks])
             shading = np.stack([np.take(a, self.hit) for a in ns])
-            self.bump = BumpShadowing.of(normal, shading, self.lobe)
+            self.bump = BumpShadowing.of(normal, shading, self.lobe, self.on_curve > 0)
         else:
             normal = np.stack([np.take(a, self.hit) for a in ns]) if c else np.zeros((3, 0), F32)
         tangent = cat([ch["t"] if ch["t"] is not None else np.full((3, len(ch["hit"])), np.nan, F32)
@@ -196,12 +200,22 @@ class ClosureSet:
         to at least `roughness` (n_hits,) of its hit; what was set up from the old alphas (Fresnel, energy
         compensation) stays, as in Cycles. A sharp closure made rough is no longer delta."""
         micro = np.isin(self.lobe, (REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY))
+        if HAIR_CHIANG in self.kinds or HAIR_HUANG in self.kinds:
+            self._blur_hair(np.take(roughness, self.hit))
         if not micro.any():
             return
         r = np.take(roughness, self.hit)
         self.ax = np.where(micro, np.maximum(self.ax, r), self.ax).astype(F32)
         self.ay = np.where(micro, np.maximum(self.ay, r), self.ay).astype(F32)
         self.delta = self._delta_mask()
+
+    def _blur_hair(self, r: np.ndarray) -> None:
+        """Cycles' bsdf_hair_chiang_blur and bsdf_hair_huang_blur: the mapped variances and scale (Chiang) or the
+        roughness (Huang) raised to at least r."""
+        chiang, huang = self.lobe == HAIR_CHIANG, self.lobe == HAIR_HUANG
+        for name in ("hair_v", "hair_s", "hair_m0"):
+            setattr(self, name, np.where(chiang, np.maximum(getattr(self, name), r), getattr(self, name)).astype(F32))
+        self.rough = np.where(huang, np.maximum(self.rough, r), self.rough).astype(F32)
 
     def evaluable(self) -> np.ndarray:
         """(N,) bool: hits with a closure that eval_at can find non-zero, one that is not singular (delta,

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 # Lobe ids.
 (LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY, TOON_DIFFUSE,
- TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION, BSSRDF) = range(15)
+ TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION, BSSRDF, HAIR_CHIANG, HAIR_HUANG) = range(17)
 
 # What a lobe is, as flags:
 # DIFFUSE       Cycles' CLOSURE_IS_BSDF_DIFFUSE: the bump shadowing term's softening, the Diffuse light passes.
@@ -17,9 +17,10 @@ from __future__ import annotations
 # SINGULAR      always singular (Cycles' CLOSURE_IS_BSDF_SINGULAR).
 # SELF_EVALUATED  a sampled direction keeps the value its sampler gave it, as Cycles keeps the sampling
 #               closure's own eval: re-evaluating a toon cone narrower than float32's acos resolution gives 0,
-#               and the hair lobes' samplers reach directions their eval does not (and report another pdf).
-# ANY_SIDE      samples leave on whichever side of the surface they point to, untested (Cycles' hair samplers
-#               and Ray Portal): the integrator sees which side that is.
+#               the hair lobes' samplers reach directions their eval does not (and report another pdf), and the
+#               Huang hair's eval is a random quadrature that its sampler does not follow.
+# ANY_SIDE      samples leave on whichever side of the surface they point to, untested (Cycles' hair samplers,
+#               the Principled Hair's included, and Ray Portal): the integrator sees which side that is.
 # SUBSURFACE    a BSSRDF (Cycles' CLOSURE_IS_BSSRDF): nothing evaluates it (it is singular for the mixture), its
 #               sample is the direction into the surface a subsurface walk starts along (kernels/subsurface.py);
 #               diffuse for the light passes, as Cycles files it.
@@ -41,7 +42,17 @@ CLASSES = {
     HAIR_REFLECTION: GLOSSY | SELF_EVALUATING | ANY_SIDE,
     HAIR_TRANSMISSION: TRANSMISSION | SELF_EVALUATING | ANY_SIDE,
     BSSRDF: DIFFUSE | SINGULAR | SUBSURFACE,
+    # Cycles files both Principled Hair models as glossy (CLOSURE_IS_BSDF_GLOSSY), whatever side they scatter to.
+    HAIR_CHIANG: GLOSSY | ANY_SIDE,
+    HAIR_HUANG: GLOSSY | SELF_EVALUATING | ANY_SIDE,
 }
+
+
+# Self-evaluated lobes whose closure, alone at its hit, keeps its sample as the mixture's without the mixture being
+# evaluated there again: the result is the same (the kept value replaces the evaluation, and nothing else is in
+# the mixture), and the Huang hair's evaluation is a quadrature costing some twenty times its sample. The other
+# self-evaluated lobes keep the general path, bit for bit.
+SAMPLED_ALONE = (HAIR_HUANG,)
 
 
 def lobes_with(flag: int) -> tuple:
@@ -59,4 +70,4 @@ ANY_SIDE_LOBES = lobes_with(ANY_SIDE)
 SUBSURFACE_LOBES = lobes_with(SUBSURFACE)
 # The lobes that take light from behind the surface (Cycles' SD_BSDF_HAS_TRANSMISSION): the light tree's
 # choice at such a point counts lights on both sides.
-TRANSMITTING_LOBES = tuple(sorted(set(TRANSMISSION_LOBES) | {TRANSLUCENT, GLASS}))
+TRANSMITTING_LOBES = tuple(sorted(set(TRANSMISSION_LOBES) | {TRANSLUCENT, GLASS, HAIR_CHIANG, HAIR_HUANG}))

@@ -15,7 +15,7 @@ import numpy as np
 from .. import sampling
 from ..vec import F32, ONE, ZERO
 from . import frames
-from .lobes import ANY_SIDE_LOBES, PORTAL, SELF_EVALUATED, SUBSURFACE_LOBES, TRANSPARENT
+from .lobes import ANY_SIDE_LOBES, PORTAL, SAMPLED_ALONE, SELF_EVALUATED, SUBSURFACE_LOBES, TRANSPARENT
 from .mixture_eval import eval_at, eval_closures, take_each
 from .registry import LOBES
 
@@ -100,6 +100,8 @@ def sample(cs, u_lobe, u1, u2, uc, warp=None) -> BsdfSample:
         out.delta[has] = cs.delta[rows] | np.isinf(out.pdf[has])
         # Otherwise: the whole (non-delta) mixture at the sampled direction.
         s = np.flatnonzero(~out.delta & (out.pdf > 0))
+        if cs.self_evaluated and len(s):
+            s = _keep_alone(cs, out, s, row[s])
         if len(s):
             own = (out.weight[:, s] * out.pdf[s], out.pdf[s].copy()) if cs.self_evaluated else None
             f, pdf = eval_at(cs, s, tuple(c[s] for c in out.wi))
@@ -117,6 +119,19 @@ def sample(cs, u_lobe, u1, u2, uc, warp=None) -> BsdfSample:
         out.pdf[d] = np.inf
     sampling.put_columns(out.weight, np.flatnonzero(~(out.pdf > 0)), ZERO)
     return out
+
+
+def _keep_alone(cs, out, s, rows):
+    """Hits s whose only closure (rows) is of a lobes.SAMPLED_ALONE lobe take their sample's value times the
+    closure's weight (in out, in place); returns the other hits, whose mixture is still to evaluate."""
+    alone = np.isin(cs.lobe[rows], SAMPLED_ALONE)
+    if not cs.single:
+        alone &= cs.count[s] == 1
+    if not alone.any():
+        return s
+    a = np.flatnonzero(alone)
+    sampling.scale_columns(out.weight, s[a], np.take(cs.weight, rows[a], axis=1))
+    return s[~alone]
 
 
 def _sampled_bump(cs, s, rows, out, f, pdf):

@@ -18,10 +18,11 @@ from typing import Callable
 import numpy as np
 
 from ..vec import F32
-from . import bssrdf, diffuse, frames, hair, sheen, toon
+from . import bssrdf, diffuse, frames, hair, hair_chiang, hair_huang, sheen, toon
 from . import microfacet_closures as mfc
-from .lobes import (ASHIKHMIN_SHIRLEY, BSSRDF, GLASS, HAIR_REFLECTION, HAIR_TRANSMISSION, LAMBERT, OREN_NAYAR, PORTAL,
-                    REFLECTION, REFRACTION, SHEEN, TOON_DIFFUSE, TOON_GLOSSY, TRANSLUCENT, TRANSPARENT)
+from .lobes import (ASHIKHMIN_SHIRLEY, BSSRDF, GLASS, HAIR_CHIANG, HAIR_HUANG, HAIR_REFLECTION, HAIR_TRANSMISSION,
+                    LAMBERT, OREN_NAYAR, PORTAL, REFLECTION, REFRACTION, SHEEN, TOON_DIFFUSE, TOON_GLOSSY, TRANSLUCENT,
+                    TRANSPARENT)
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,35 @@ def _hair_transmission_sample(cs, rows, wo, u1, u2, uc):
     return wi, weight, pdf, True
 
 
+def _chiang_args(cs, rows):
+    """A Chiang hair closure's offset, variances, scale, tilt, IOR and absorption (hair_chiang)."""
+    return (cs.hair_h[rows], cs.hair_v[rows], cs.hair_s[rows], cs.hair_m0[rows], cs.offset[rows], cs.eta[rows],
+            np.take(cs.c0, rows, axis=1))
+
+
+def _chiang_eval(cs, rows, wo, wi):
+    return hair_chiang.chiang_eval(wo, wi, *_chiang_args(cs, rows))
+
+
+def _chiang_sample(cs, rows, wo, u1, u2, uc):
+    return hair_chiang.chiang_sample(wo, *_chiang_args(cs, rows), u1, u2, uc)
+
+
+def huang_params(cs, rows, wo) -> hair_huang.HuangParams:
+    """A Huang hair closure's parameters (hair_huang.HuangParams) with its viewer direction wo (closure frame)."""
+    return hair_huang.HuangParams(cs.rough[rows], cs.offset[rows], cs.eta[rows], cs.aspect[rows],
+                                  np.take(cs.c0, rows, axis=1), np.take(cs.c1, rows, axis=1), cs.hair_h[rows],
+                                  cs.coverage[rows], hair_huang.to_cycles(wo))
+
+
+def _huang_eval(cs, rows, wo, wi):
+    return hair_huang.huang_eval(huang_params(cs, rows, wo), wo, wi)
+
+
+def _huang_sample(cs, rows, wo, u1, u2, uc):
+    return hair_huang.huang_sample(huang_params(cs, rows, wo), u1, u2, uc)
+
+
 def _transparent_sample(cs, rows, wo, u1, u2, uc):
     wi = (-wo[0], -wo[1], -wo[2])
     n = len(rows)
@@ -136,6 +166,11 @@ _MICROFACET_COLUMNS = {"ax": "alpha x", "ay": "alpha y", "dist": "distribution (
 _HAIR_COLUMNS = {"r1": "roughness along the strand", "r2": "roughness around it", "offset": "highlight shift",
                  "hair_t": "unit tangent, world space"}
 _TOON_COLUMNS = {"size": "cone angle", "smooth": "smooth angle"}
+_CHIANG_COLUMNS = {"hair_h": "offset across the strand", "hair_v": "longitudinal variance", "hair_s": "logistic scale",
+                   "hair_m0": "R lobe variance", "offset": "scale tilt (-Offset)", "eta": "IOR", "c0": "absorption"}
+_HUANG_COLUMNS = {"hair_h": "offset across the fibre", "rough": "GGX alpha", "offset": "tilt (-Offset)", "eta": "IOR",
+                  "aspect": "minor over major axis", "c0": "absorption", "c1": "R, TT, TRT scales",
+                  "coverage": "half a pixel over the fibre's radius (1: far field)"}
 
 LOBES = {
     LAMBERT: Lobe("Lambert", _lambert_eval, _lambert_sample),
@@ -156,6 +191,8 @@ LOBES = {
     HAIR_REFLECTION: Lobe("hair reflection", _hair_reflection_eval, _hair_reflection_sample, columns=_HAIR_COLUMNS),
     HAIR_TRANSMISSION: Lobe("hair transmission", _hair_transmission_eval, _hair_transmission_sample,
                             columns=_HAIR_COLUMNS),
+    HAIR_CHIANG: Lobe("Principled Hair (Chiang)", _chiang_eval, _chiang_sample, columns=_CHIANG_COLUMNS),
+    HAIR_HUANG: Lobe("Principled Hair (Huang)", _huang_eval, _huang_sample, columns=_HUANG_COLUMNS),
     BSSRDF: Lobe("subsurface (BSSRDF)", None, _bssrdf_sample,
                  columns={"c0": "radius, method-scaled", "c1": "albedo", "ax": "entry GGX alpha", "eta": "IOR",
                           "offset": "anisotropy", "dist": "method (bssrdf.METHODS)"}),

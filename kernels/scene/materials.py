@@ -11,7 +11,7 @@ from .checks import require
 
 # Closure nodes a material can be made of (Blender's shader nodes, read by the engine's export).
 CLOSURE_KINDS = ("DIFFUSE", "PRINCIPLED", "GLOSSY", "GLASS", "REFRACTION", "METALLIC", "SHEEN", "TRANSLUCENT",
-                 "TRANSPARENT", "TOON", "PORTAL", "HAIR", "EMISSION", "HOLDOUT", "SUBSURFACE")
+                 "TRANSPARENT", "TOON", "PORTAL", "HAIR", "EMISSION", "HOLDOUT", "SUBSURFACE", "PRINCIPLED_HAIR")
 # Closure nodes a Volume output can be made of (an Emission node there emits light per unit length).
 VOLUME_KINDS = ("VOLUME_SCATTER", "VOLUME_ABSORPTION", "PRINCIPLED_VOLUME", "VOLUME_COEFFICIENTS", "EMISSION")
 

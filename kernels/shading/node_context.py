@@ -45,6 +45,13 @@ DEFAULTS = {
     # Unlinked, Position is the hit's (Cycles links it to the position) and Direction (0, 0, 0) the ray's.
     "PORTAL": {"Color": WHITE, "Position": UNSET, "Direction": (0.0, 0.0, 0.0)},
     "HAIR": {"Color": GREY, "Offset": 0.0, "RoughnessU": 0.1, "RoughnessV": 1.0},
+    # Inputs by identifier (the lobe scales are "R lobe", "TT lobe", "TRT lobe"; Blender shows Reflection,
+    # Transmission, Secondary Reflection).
+    "PRINCIPLED_HAIR": {"Color": (0.017513, 0.005763, 0.002059), "Melanin": 0.8, "Melanin Redness": 1.0,
+                        "Tint": WHITE, "Absorption Coefficient": (0.245531, 0.52, 1.365), "Aspect Ratio": 0.85,
+                        "Roughness": 0.3, "Radial Roughness": 0.3, "Coat": 0.0, "IOR": 1.55,
+                        "Offset": 0.034906585, "Random Color": 0.0, "Random Roughness": 0.0, "Random": 0.0,
+                        "R lobe": 1.0, "TT lobe": 1.0, "TRT lobe": 1.0},
     "TRANSPARENT": {"Color": WHITE},
     "EMISSION": {"Color": WHITE, "Strength": 1.0},
     "HOLDOUT": {},

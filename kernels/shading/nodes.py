@@ -1,7 +1,7 @@
 """Closure nodes -> closures, as Cycles' `svm_node_closure_bsdf` builds them (`kernel/svm/closure.h`).
 
 `build` hands a closure node to the function of its kind (BUILDERS: the Principled BSDF in principled.py,
-the other nodes in bsdf_nodes.py), which reads the node's inputs at the hits of one material
+the Principled Hair BSDF in hair_nodes.py, the other nodes in bsdf_nodes.py), which reads the node's inputs at the hits of one material
 (node_context.Context) and adds closures to the wave's ClosureBuilder (with the node's Mix Shader
 weight), or returns emission and holdout. Inputs a shader leaves out take Blender 5.0's defaults
 (node_context.DEFAULTS). And what a closure may do, asked without hits: emit, be transparent, transmit.
@@ -13,6 +13,7 @@ import numpy as np
 from ..scene import Closure, Param
 from ..vec import ONE, ZERO
 from . import bsdf_nodes
+from .hair_nodes import principled_hair_bsdf
 from .node_context import Built, Context, DEFAULTS, param_may_differ
 from .principled import principled_bsdf
 
@@ -24,7 +25,7 @@ BUILDERS = {"DIFFUSE": bsdf_nodes.diffuse_bsdf, "PRINCIPLED": principled_bsdf, "
             "TRANSLUCENT": bsdf_nodes.translucent_bsdf, "TRANSPARENT": bsdf_nodes.transparent_bsdf,
             "TOON": bsdf_nodes.toon_bsdf, "PORTAL": bsdf_nodes.ray_portal_bsdf, "HAIR": bsdf_nodes.hair_bsdf,
             "EMISSION": bsdf_nodes.emission, "HOLDOUT": bsdf_nodes.holdout,
-            "SUBSURFACE": bsdf_nodes.subsurface_scattering}
+            "SUBSURFACE": bsdf_nodes.subsurface_scattering, "PRINCIPLED_HAIR": principled_hair_bsdf}
 
 
 def build(closure: Closure, ctx: Context, weight: np.ndarray, builder) -> Built:
@@ -58,7 +59,7 @@ def may_be_transparent(c: Closure) -> bool:
 
 def may_transmit(c: Closure) -> bool:
     """Whether rays may go through the closure's surface (refract, pass straight, or scatter to its back)."""
-    if c.kind in ("GLASS", "REFRACTION", "TRANSLUCENT", "PORTAL", "HAIR"):
+    if c.kind in ("GLASS", "REFRACTION", "TRANSLUCENT", "PORTAL", "HAIR", "PRINCIPLED_HAIR"):
         return True
     return may_be_transparent(c) or (c.kind == "PRINCIPLED" and param_may_differ(c, "Transmission Weight", 0.0))
 
