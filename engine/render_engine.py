@@ -7,6 +7,7 @@ import traceback
 
 import bpy
 
+from .bake import bake
 from .passes import register_passes
 from .persistent import drop_kept_scene
 from .session import FinalRender
@@ -32,6 +33,10 @@ class EmberRenderEngine(bpy.types.RenderEngine):
         except Exception as err:  # a bug of Ember's: report it in one line; an escaping error crashes Blender
             traceback.print_exc()
             self.report({"ERROR"}, f"Ember: internal error, render abandoned: {type(err).__name__}: {err}")
+
+    def bake(self, depsgraph, obj, pass_type, pass_filter, width, height):
+        # Blender's bake operator, once per image: Ember's kernels bake it (engine/bake.py).
+        bake(self, depsgraph, obj, pass_type, pass_filter, width, height)
 
     def update_render_passes(self, scene=None, renderlayer=None):
         register_passes(self, scene, renderlayer)

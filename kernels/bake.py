@@ -1,0 +1,536 @@
+"""Baking: the texels of an object's image (or the corners of its colour attribute) as the starts of paths, and
+what each bake type records of them, as Cycles bakes.
+
+Blender rasterises the object's UV map and hands the engine each texel's triangle and barycentric
+coordinates (object_bake_api.cc, engine.cc's render_result_from_bake); Cycles turns a texel into a path that
+starts on the surface (kernel/integrator/init_from_bake.h): its barycentrics jittered inside the texel by the
+texel's differentials (sample 0 at its centre), nudged inwards where they fall exactly on a vertex, and
+converted to Embree's convention (Blender's (u, v) weigh corners 0 and 1; Embree's corners 1 and 2). The path
+sees the surface from above it, along the smooth normal (or from the camera with Bake > View From > Active
+Camera, the direction nudged to stay above the surface), and goes on as a camera path would from its first
+hit. What each bake type keeps is the pass Cycles' Blender session names "Combined" for it
+(intern/cycles/blender/session.cpp, bake_setup_pass):
+
+- POSITION, NORMAL, UV, ROUGHNESS: the first hit's position, the closures' average normal (the smooth normal
+  where no closure has another), the render UV map's (u, v, 1) and the closures' average roughness
+  (kernel/film/data_passes.h, kernel/integrator/surface_shader.h), averaged over the samples.
+- EMIT: the first hit's emission. ENVIRONMENT: the world seen along normalize(P) from the origin.
+- AO: an ambient occlusion ray per sample from the first hit, cosine-distributed about the diffuse closures'
+  normal, as far as the world's AO distance, through transparent surfaces (integrate_surface_ao).
+- COMBINED, DIFFUSE, GLOSSY, TRANSMISSION: whole paths (kernels/integrator.py) with Cycles' bake switches
+  (scene/integrator.cpp's filter_closures): the first hit keeps only the closure classes asked for
+  (glass goes only with both glossy and transmission), transparent closures there become holdout (the
+  bake sees the object itself, not what is behind it); without Direct light the first hit takes no light
+  sample and its rays do not see lamps or the world; without Indirect light the paths end after one bounce;
+  without Emit no surface emits. DIFFUSE, GLOSSY and TRANSMISSION read their light passes, divided by their
+  Color pass unless Color is asked for (Cycles' include_albedo), or the Color pass alone.
+- SHADOW: Cycles' shadow catcher pass with the object as the catcher: what reaches it with everything, over
+  what reaches it where only the object itself is there (kernel/film/read.h,
+  film_calculate_shadow_catcher), channel by channel, 1 where nothing reaches it.
+
+Cycles sums its Position bake over the samples instead of averaging it (the pass is not divided when it is
+read); Ember averages it, which is the same at one sample.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+
+from . import integrator, sampling
+from .accel import Hits
+from .bsdf.lobes import (BSSRDF, DIFFUSE_LOBES, GLASS, GLOSSY_LOBES, MICROFACET_LOBES, OREN_NAYAR, PORTAL,
+                         TRANSMISSION_LOBES, TRANSPARENT)
+from .geometry import E1, E2, P0
+from .interaction import RayInfo, SurfaceHit
+from .lights import nee
+from .paths import ray_keys
+from .rays import Rays, rays_from
+from .rng import PathRng, seed_paths
+from .samples import BSDF, Samples, sample_strata
+from .scene import SceneArrays
+from .scene.objects import ALL_RAYS
+from .scene.triangles import usable_triangles
+from .shading.hash import hash_float2_to_float2
+from .vec import F32
+
+# The bake types of Blender's bake operator (Cycles offers them all) and the passes they read.
+KINDS = ("COMBINED", "AO", "SHADOW", "POSITION", "NORMAL", "UV", "ROUGHNESS", "EMIT", "ENVIRONMENT", "DIFFUSE",
+         "GLOSSY", "TRANSMISSION")
+LIGHT_KINDS = ("DIFFUSE", "GLOSSY", "TRANSMISSION")
+# Blender's pass filter bits (DNA_scene_types.h, eBakePassFilter), as RenderEngine.bake receives them.
+FILTER_EMIT, FILTER_DIFFUSE, FILTER_GLOSSY, FILTER_TRANSMISSION = 1 << 1, 1 << 2, 1 << 3, 1 << 4
+FILTER_DIRECT, FILTER_INDIRECT, FILTER_COLOR = 1 << 6, 1 << 7, 1 << 8
+# Cycles' closure classes for its bake switches (kernel/svm/types.h: CLOSURE_IS_BSDF_DIFFUSE, _GLOSSY,
+# _TRANSMISSION; a BSSRDF is none of them).
+_DIFFUSE = tuple(k for k in DIFFUSE_LOBES if k != BSSRDF)
+# How many paths a bake traces at once, at most (texels x samples).
+CHUNK_PATHS = 1 << 17
+# Cycles' tries at a jittered point inside the texel's triangle before it keeps the centre (bake_jitter_barycentric).
+_JITTER_TRIES = 10
+
+
+@dataclass(frozen=True)
+class BakeTexels:
+    """The texels of one bake image, P = width x height, row 0 at the bottom (Blender's order).
+
+    prim : (P,) int64 scene triangle numbers (what ray hits report), -1 where the texel is not the object's.
+    u, v : (P,) float32 Blender's barycentrics: the weights of the triangle's corners 0 and 1.
+    differentials : (P, 4) float32 du/dx, du/dy, dv/dx, dv/dy across the texel.
+    seed : (P,) uint32 Blender's seeds (the vertex of a colour attribute's corner), or None: the texel's own."""
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    differentials: np.ndarray
+    width: int
+    height: int
+    seed: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class BakeJob:
+    """What to bake: kind (KINDS), Blender's pass_filter bits, and whether the surface is seen from the camera
+    (Bake > View From > Active Camera) rather than from above it."""
+    kind: str
+    pass_filter: int = -1
+    use_camera: bool = False
+
+    def has(self, bit: int) -> bool:
+        return bool(self.pass_filter & bit)
+
+
+def object_triangles(exported: SceneArrays, scene: SceneArrays, row: int) -> np.ndarray:
+    """(t,) int64 scene triangle numbers of object row `row`'s triangles in its mesh's order (Blender's loop
+    triangles, which a bake's primitive ids count), -1 for those validate() dropped; empty when the row has
+    none. exported: the scene as exported, scene: as validated (Renderer.scene)."""
+    if exported.object_ids is not None and len(exported.object_ids):
+        plain = np.flatnonzero(exported.object_ids == row)
+        if len(plain):
+            keep = usable_triangles(exported.positions[plain[0]:plain[-1] + 1])
+            out = np.full(len(plain), -1, np.int64)
+            out[keep] = np.flatnonzero(scene.object_ids == row)
+            return out
+    placed = exported.instances
+    if placed is None or placed.object_ids is None:
+        return np.zeros(0, np.int64)
+    k = np.flatnonzero(placed.object_ids == row)
+    kept = np.flatnonzero(scene.instances.object_ids == row) if scene.instances is not None else k[:0]
+    if not len(k) or not len(kept):
+        return np.zeros(0, np.int64)
+    keep = usable_triangles(placed.prototypes[placed.prototype[k[0]]].positions)
+    out = np.full(len(keep), -1, np.int64)
+    out[keep] = scene.instances.bases(scene.triangle_count)[kept[0]] + np.arange(int(keep.sum()))
+    return out
+
+
+# ---------------------------------------------------------------- texels -> first hits
+class BakePaths:
+    """The paths of some texels (their numbers `texels` in the image), spp samples each from sample `first`,
+    texel-major as a wave's pixels are: path k is sample first + k % spp of texel texels[k // spp]."""
+
+    def __init__(self, image: BakeTexels, texels: np.ndarray, first: int, spp: int, settings):
+        self.image, self.texels, self.first, self.spp, self.settings = image, texels, first, spp, settings
+
+    def __len__(self) -> int:
+        return len(self.texels) * self.spp
+
+    def batch(self, start: int, end: int):
+        """(texel numbers, sample numbers, PathRng, strata) of the paths [start, end)."""
+        k = np.arange(start, end, dtype=np.int64)
+        texel = np.take(self.texels, k // self.spp)
+        sample = (self.first + k % self.spp).astype(np.uint32)
+        image, settings = self.image, self.settings
+        # Blender's seed, where it gives one, makes the corners of one vertex see the same numbers (Cycles).
+        key = texel if image.seed is None else np.take(image.seed, texel).astype(np.int64)
+        row, col = (key // image.width).astype(np.int32), (key % image.width).astype(np.int32)
+        pixel_index = key.astype(np.uint32)
+        rng = PathRng(*seed_paths(pixel_index, sample, settings.seed))
+        whole = start % self.spp == 0 and (end - start) % self.spp == 0
+        strata = sample_strata(settings.sampling_pattern, settings.seed, image.width, max(image.height, 1),
+                               int(settings.samples), row, col, pixel_index, sample,
+                               repeats=self.spp if whole else 1)
+        return texel, sample, rng, strata
+
+
+def first_hits(tables, image: BakeTexels, texel: np.ndarray, jx: np.ndarray, jy: np.ndarray, use_camera: bool):
+    """The first hits of paths on texels `texel` with filter numbers (jx, jy) (0.5 at a texel's centre): (Hits
+    (t = 1), Rays from 1 above the surface toward it, dp (n,) the texel's footprint), as init_from_bake.h."""
+    prim = np.take(image.prim, texel)
+    u, v = np.take(image.u, texel).astype(F32), np.take(image.v, texel).astype(F32)
+    d = np.take(image.differentials, texel, axis=0).astype(F32)
+    g = tables.triangles.gather(prim)
+    corner = np.flatnonzero(((u == 0) | (u == 1)) & ((v == 0) | (v == 1)))
+    if len(corner):   # exactly on a vertex: nudged towards the centre, off the edges a ray would graze
+        u[corner], v[corner] = _towards_centre(tuple(c[corner] for c in g), u[corner], v[corner])
+    u, v = _jitter(u, v, jx, jy, d)
+    b1, b2 = v, F32(1.0) - u - v            # Embree's weights of corners 1 and 2
+    du = (d[:, 2], d[:, 3])                 # the same differentials in Embree's convention
+    dv = (-d[:, 0] - d[:, 2], -d[:, 1] - d[:, 3])
+    e1 = np.stack([g[E1 + k] for k in range(3)])
+    e2 = np.stack([g[E2 + k] for k in range(3)])
+    dp = F32(0.5) * (np.linalg.norm(e1 * du[0] + e2 * dv[0], axis=0) + np.linalg.norm(e1 * du[1] + e2 * dv[1], axis=0))
+    n = len(prim)
+    surface = SurfaceHit(tables.triangles, prim, b1, b2, (np.zeros(n, F32),) * 3, False)
+    p = np.stack(surface.p, axis=1)
+    normal = np.stack(surface.ns, axis=1)
+    toward = _from_camera(tables, p, normal, np.stack(surface.ng, axis=1)) if use_camera else normal
+    rays = Rays((p + toward).astype(F32), np.ascontiguousarray(-toward, F32), np.full(n, np.inf, F32))
+    return Hits(prim, np.ones(n, F32), b1, b2), rays, dp.astype(F32)
+
+
+def _jitter(u, v, jx, jy, d):
+    """Cycles' bake_jitter_barycentric: (u, v) moved by the texel's differentials times (j - 0.5), tried again
+    with hashed numbers where that leaves the triangle, kept where every try does."""
+    out_u, out_v = u.copy(), v.copy()
+    todo = np.arange(len(u))
+    for _ in range(_JITTER_TRIES):
+        ju = u[todo] + (jx - F32(0.5)) * d[todo, 0] + (jy - F32(0.5)) * d[todo, 1]
+        jv = v[todo] + (jx - F32(0.5)) * d[todo, 2] + (jy - F32(0.5)) * d[todo, 3]
+        inside = (ju > 0) & (jv > 0) & (ju + jv < 1)
+        out_u[todo[inside]], out_v[todo[inside]] = ju[inside], jv[inside]
+        todo, jx, jy = todo[~inside], jx[~inside], jy[~inside]
+        if not len(todo):
+            break
+        jx, jy = (np.asarray(c, F32) for c in hash_float2_to_float2((jx, jy)))
+    return out_u, out_v
+
+
+def _towards_centre(g, u, v):
+    """Cycles' bake_offset_towards_center: a point at a vertex moved towards the triangle's centre by 1e-4 of
+    its coordinates' size (at least 1e-4), as barycentrics clamped to [1e-5, 1 - 1e-5]."""
+    p0 = np.stack([g[P0 + k] for k in range(3)]).astype(np.float64)
+    v1, v2 = p0 + np.stack([g[E1 + k] for k in range(3)]), p0 + np.stack([g[E2 + k] for k in range(3)])
+    w = 1.0 - u - v
+    p = u * p0 + v * v1 + w * v2
+    to_centre = (p0 + v1 + v2) / 3.0 - p
+    length = np.linalg.norm(to_centre, axis=0)
+    step = np.minimum(length, np.maximum(np.abs(p).max(axis=0), 1.0) * 1e-4)
+    q = p + to_centre / np.where(length > 0, length, 1.0) * step
+    a, b, c = v1 - p0, v2 - p0, q - p0
+    d11, d12, d22 = (a * a).sum(axis=0), (a * b).sum(axis=0), (b * b).sum(axis=0)
+    d1, d2 = (c * a).sum(axis=0), (c * b).sum(axis=0)
+    denom = d11 * d22 - d12 * d12
+    ok = denom != 0
+    safe = np.where(ok, denom, 1.0)
+    ov = np.clip((d22 * d1 - d12 * d2) / safe, 1e-5, 1 - 1e-5)
+    ow = np.clip((d11 * d2 - d12 * d1) / safe, 1e-5, 1 - 1e-5)
+    ou = np.clip(1.0 - ov - ow, 1e-5, 1 - 1e-5)
+    return np.where(ok, ou, 0.0).astype(F32), np.where(ok, ov, 0.0).astype(F32)
+
+
+def _from_camera(tables, p, normal, ng):
+    """Cycles' view from the active camera: the direction toward the camera (its backward axis for an
+    orthographic one), kept 0.2 above the smooth normal, turned toward the normal on the surface's back and
+    never below the true surface (init_from_bake.h)."""
+    eye, rotation = tables.camera_frame
+    if tables.scene.camera.kind == "ORTHO":
+        d = np.broadcast_to(np.asarray(rotation[:, 2], F32), p.shape).copy()
+    else:
+        d = np.asarray(eye, F32)[None] - p
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), F32(1e-30))
+    dn = (d * normal).sum(axis=1, keepdims=True)
+    low = dn <= F32(0.2)
+    d = np.where(low, d - normal * (dn - F32(0.2)), d)
+    d = np.where(low, d / np.linalg.norm(d, axis=1, keepdims=True), d)
+    back = dn <= 0
+    mixed = d + (normal - d) * -dn
+    d = np.where(back, mixed / np.maximum(np.linalg.norm(mixed, axis=1, keepdims=True), F32(1e-30)), d)
+    dg = (d * ng).sum(axis=1, keepdims=True)
+    under = dg <= F32(1e-5)
+    d = np.where(under, d - ng * (dg - F32(1e-5)), d)
+    return (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(F32)
+
+
+def _shade_first(tables, state, hits, rays, dp, split):
+    """The SurfaceHit and SurfaceShading of the first hits, as the integrator's first vertex shades them."""
+    n = len(hits.prim)
+    d = rays.dirs
+    hit = SurfaceHit(tables.triangles, hits.prim, hits.u, hits.v, (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv)
+    hit.ray = RayInfo(state.bounce, state.transparent, hits.t, dp=dp, lobes=state.lobes, portal=state.portal)
+    if tables.shading.traces:
+        hit.ray.keys = ray_keys(state, np.arange(n))
+        hit.ray.time, hit.ray.min_ray_pdf, hit.ray.split = None, state.min_ray_pdf, split
+    return hit, tables.shading.surface(hit)
+
+
+# ---------------------------------------------------------------- whole paths: Cycles' bake switches
+class BakeRun:
+    """The integrator's view of a bake (integrator.trace's bake): where its paths start, and what Cycles' bake
+    switches leave out of them (scene/integrator.cpp, kernel/integrator/surface_shader.h)."""
+
+    def __init__(self, image: BakeTexels, job: BakeJob, kind: str, all_light: bool = False):
+        self.image, self.use_camera = image, job.use_camera
+        every = all_light or kind != "COMBINED" and kind not in LIGHT_KINDS
+        self.direct = every or job.has(FILTER_DIRECT)
+        self.emission = every or kind in LIGHT_KINDS or job.has(FILTER_EMIT)
+        if every:
+            keep = (True, True, True)
+        elif kind == "COMBINED":
+            keep = (job.has(FILTER_DIFFUSE), job.has(FILTER_GLOSSY), job.has(FILTER_TRANSMISSION))
+        else:
+            keep = (kind == "DIFFUSE", kind == "GLOSSY", kind == "TRANSMISSION")
+        dropped = (_DIFFUSE if not keep[0] else ()) + (GLOSSY_LOBES if not keep[1] else ()) + \
+            (TRANSMISSION_LOBES if not keep[2] else ()) + ((GLASS,) if not (keep[1] or keep[2]) else ())
+        self.dropped = np.array(dropped, np.int8)
+
+    def start(self, tables, wave, paths, start: int, end: int, last: int):
+        """The first vertex of the paths [start, end) (integrator.trace's start of a batch)."""
+        texel, sample, rng, strata = paths.batch(start, end)
+        settings = wave.settings
+        samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, wave.nee,
+                          lobes=tables.shading.mixes_lobes)
+        jx, jy = samples.camera()
+        hits, rays, dp = first_hits(tables, self.image, texel, jx, jy, self.use_camera)
+        state = integrator.new_paths(tables, wave, end - start, samples, start)
+        state.dp = dp
+        wave.spread_dd = F32(0.0)   # a bake's rays spread no further (Cycles: dD = 0)
+        return integrator.first_vertex(tables, wave, state, rays, hits, last)
+
+    def first_hit(self, wave, state, hit, shading) -> None:
+        """The first hit's closures as the bake keeps them: the classes asked for; transparent ones cut a hole
+        in alpha instead (Cycles' FILTER_CLOSURE_TRANSPARENT turns them into holdout)."""
+        cs = shading.closures
+        if not len(cs):
+            return
+        transparent = cs.lobe == TRANSPARENT
+        if transparent.any():
+            share = np.bincount(cs.hit[transparent], cs.weight[:, transparent].mean(axis=0), minlength=len(hit))
+            wave.alpha[state.path] -= share * state.throughput.mean(axis=0)
+        drop = transparent | np.isin(cs.lobe, self.dropped)
+        if drop.any():
+            shading.closures = cs.without(drop, hit.ns)
+
+    def sees_lights(self, bounce: np.ndarray) -> np.ndarray:
+        """(n,) bool: rays at these bounces see lamps and the world (not the first hit's without direct
+        light, which took no light sample either: integrator_intersect_skip_lights)."""
+        return (bounce != 1) | self.direct
+
+
+def _path_settings(settings, job: BakeJob, kind: str):
+    """The render settings of a bake's paths: one bounce without Indirect, no adaptive sampling."""
+    indirect = kind in ("SHADOW",) or job.has(FILTER_INDIRECT)
+    return dataclasses.replace(settings, adaptive_threshold=0.0,
+                               max_bounces=settings.max_bounces if indirect else 0,
+                               passes=_light_passes(job, kind), cryptomatte=())
+
+
+def _light_passes(job: BakeJob, kind: str) -> tuple:
+    if kind not in LIGHT_KINDS:
+        return ()
+    cls = kind.lower()
+    return (f"{cls}_direct", f"{cls}_indirect", f"{cls}_color")
+
+
+# ---------------------------------------------------------------- a chunk of texels
+def _trace_chunk(tables, image, job, settings, texels, spp, split, all_light=False):
+    """Whole paths of texels, spp each: ((C, m) per-texel sums of the pass, (m,) alpha sums)."""
+    kind = job.kind
+    paths = BakePaths(image, texels, 0, spp, settings)
+    aux = {name: np.zeros((3, len(paths)), F32) for name in settings.passes} or None
+    run = BakeRun(image, job, kind, all_light)
+    radiance, alpha = integrator.trace(tables, paths, settings, split, aux=aux,
+                                       live=tables.live_paths(settings), bake=run)
+    bad = ~np.isfinite(radiance).all(axis=0)
+    radiance[:, bad] = 0.0
+    m = len(texels)
+
+    def per_texel(values):
+        return values.astype(np.float64).reshape(len(values), m, spp).sum(axis=2)
+
+    if kind in LIGHT_KINDS:
+        cls = kind.lower()
+        for name in aux:
+            aux[name][:, bad] = 0.0
+        light = per_texel(aux[f"{cls}_direct"]) * job.has(FILTER_DIRECT) + \
+            per_texel(aux[f"{cls}_indirect"]) * job.has(FILTER_INDIRECT)
+        colour = per_texel(aux[f"{cls}_color"])
+        if not (job.has(FILTER_DIRECT) or job.has(FILTER_INDIRECT)):
+            value = colour
+        elif job.has(FILTER_COLOR):
+            value = light
+        else:   # light over colour, as Cycles reads a light pass without its albedo
+            with np.errstate(divide="ignore", invalid="ignore"):
+                value = np.where(colour != 0, light / np.where(colour != 0, colour, 1.0), 0.0) * spp
+        return value, per_texel(alpha[None])[0]
+    return per_texel(radiance), per_texel(alpha[None])[0]
+
+
+def _first_hit_chunk(tables, image, job, settings, texels, spp, split):
+    """What the first hits of texels record (the data passes, Emit, Environment, AO): (C, m) sums."""
+    kind = job.kind
+    paths = BakePaths(image, texels, 0, spp, settings)
+    texel, sample, rng, strata = paths.batch(0, len(paths))
+    nee_on = settings.mode == "NEE_MIS"
+    samples = Samples(rng, strata if nee_on else None, settings.seed, nee_on, lobes=tables.shading.mixes_lobes)
+    jx, jy = samples.camera()
+    hits, rays, dp = first_hits(tables, image, texel, jx, jy, job.use_camera)
+    n = len(texel)
+    if kind == "ENVIRONMENT":
+        p = rays.origins + rays.dirs   # the surface point
+        d = p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), F32(1e-30))
+        ray = RayInfo(np.zeros(n, np.int32), np.zeros(n, np.int32), emission=True) \
+            if tables.environment.shader else None
+        value = tables.environment.radiance(d[:, 0], d[:, 1], d[:, 2], ray)
+    elif kind == "POSITION":
+        value = (rays.origins + rays.dirs).T
+    else:
+        wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None)
+        state = integrator.new_paths(tables, wave, n, samples, 0)
+        hit, shading = _shade_first(tables, state, hits, rays, dp, split)
+        cs = shading.closures
+        if kind == "EMIT":
+            value = shading.emission
+        elif kind == "UV":
+            u, v = hit.uv_at(np.arange(n))
+            value = np.stack([u, v, np.ones(n, F32)])
+        elif kind == "NORMAL":
+            value = average_normal(cs, n, hit.ns)
+        elif kind == "ROUGHNESS":
+            value = np.broadcast_to(average_roughness(cs, n), (3, n))
+        else:
+            value = _ambient_occlusion(tables, wave, state, hit, cs, settings)
+    return np.asarray(value, np.float64).reshape(3, len(texels), spp).sum(axis=2), None
+
+
+def _weights(cs, rows):
+    return np.abs(cs.weight[:, rows].mean(axis=0))
+
+
+def average_normal(cs, n: int, fallback) -> np.ndarray:
+    """(3, n) Cycles' surface_shader_average_normal: the BSDF and BSSRDF closures' normals weighted by |their
+    mean weight|, normalised; the shading normal where there are none (transparent ones are holdout here)."""
+    out = np.stack([np.asarray(c, F32) for c in fallback]).copy()
+    rows = np.flatnonzero(cs.lobe != TRANSPARENT) if len(cs) else np.zeros(0, np.int64)
+    if not len(rows):
+        return out
+    w = _weights(cs, rows)
+    summed = np.stack([np.bincount(cs.hit[rows], cs.normal[k, rows] * w, minlength=n) for k in range(3)])
+    length = np.sqrt((summed * summed).sum(axis=0))
+    ok = length > 0
+    out[:, ok] = (summed[:, ok] / length[ok]).astype(F32)
+    return out
+
+
+def average_roughness(cs, n: int) -> np.ndarray:
+    """(n,) Cycles' surface_shader_average_roughness: per BSDF closure (bsdf_get_roughness_pass_squared, its
+    root twice) Oren-Nayar's roughness, a microfacet's sqrt of its alphas' geometric mean, 0 for singular ones,
+    1 for the rest; other diffuse ones left out; weighted by |mean weight|; 1 where none counts."""
+    out = np.ones(n, F32)
+    if not len(cs):
+        return out
+    lobe = cs.lobe
+    counted = ~np.isin(lobe, _DIFFUSE) | (lobe == OREN_NAYAR)
+    counted &= (lobe != TRANSPARENT) & (lobe != BSSRDF)
+    rows = np.flatnonzero(counted)
+    if not len(rows):
+        return out
+    ax, ay = np.broadcast_to(cs.ax, lobe.shape)[rows], np.broadcast_to(cs.ay, lobe.shape)[rows]
+    value = np.where(np.isin(lobe[rows], MICROFACET_LOBES), np.sqrt(np.sqrt(np.maximum(ax * ay, 0.0))), 1.0)
+    value = np.where(lobe[rows] == OREN_NAYAR, np.broadcast_to(cs.rough, lobe.shape)[rows], value)
+    value = np.where(np.isin(lobe[rows], (PORTAL,)) | cs.delta[rows] & ~np.isin(lobe[rows], MICROFACET_LOBES),
+                     0.0, value)
+    w = _weights(cs, rows)
+    total = np.bincount(cs.hit[rows], w, minlength=n)
+    summed = np.bincount(cs.hit[rows], w * value, minlength=n)
+    return np.where(total > 0, summed / np.where(total > 0, total, 1.0), 1.0).astype(F32)
+
+
+def _ambient_occlusion(tables, wave, state, hit, cs, settings) -> np.ndarray:
+    """(3, n) Cycles' AO pass at the first hits: alpha times the transmittance of one cosine-distributed ray
+    about the diffuse closures' normal, as far as the world's AO distance (integrate_surface_ao)."""
+    n = len(hit)
+    normal = np.stack([np.asarray(c, F32) for c in hit.ns]).copy()
+    alpha = np.ones((3, n), F32)
+    if len(cs):
+        diffuse = np.flatnonzero(np.isin(cs.lobe, _DIFFUSE))
+        if len(diffuse):
+            w = _weights(cs, diffuse)
+            summed = np.stack([np.bincount(cs.hit[diffuse], cs.normal[k, diffuse] * w, minlength=n) for k in range(3)])
+            length = np.sqrt((summed * summed).sum(axis=0))
+            ok = length > 0
+            normal[:, ok] = (summed[:, ok] / length[ok]).astype(F32)
+        clear = np.flatnonzero(cs.lobe == TRANSPARENT)
+        if len(clear):
+            transparency = np.stack([np.bincount(cs.hit[clear], cs.weight[k, clear], minlength=n) for k in range(3)])
+            alpha = np.clip(1.0 - transparency, 0.0, 1.0).astype(F32)
+    u1, u2 = state.samples.bounce(0)[BSDF]
+    lx, ly, lz = sampling.sample_cosine_hemisphere(u1, u2)
+    w = sampling.local_to_world(lx, ly, lz, *normal)
+    rows = np.arange(n)
+    rays = rays_from(tables, hit, rows, w, np.zeros(n, bool))
+    distance = np.full(n, F32(tables.scene.world.ao_distance), F32)
+    through = nee.shadow(tables, rays.origins, rays.dirs, distance, wave, np.zeros(n, np.int32))
+    return through * alpha
+
+
+# ---------------------------------------------------------------- the bake
+def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None) -> np.ndarray:
+    """(P, 4) float32 the bake of every texel (RGB and alpha; zero where prim is -1), the mean of
+    settings.samples samples. tables: a kernels.Renderer of the scene. should_stop() is polled between chunks."""
+    if job.kind not in KINDS:
+        raise ValueError(f"cannot bake {job.kind!r}: Ember bakes {', '.join(KINDS)}")
+    spp = max(1, int(settings.samples))
+    texels = np.flatnonzero(image.prim >= 0)
+    out = np.zeros((len(image.prim), 4), F32)
+    out[:, 3] = 1.0
+    if not len(texels):
+        return out
+    paths_settings = _path_settings(settings, job, job.kind)
+    step = max(1, CHUNK_PATHS // spp)
+    chunks = [texels[i:i + step] for i in range(0, len(texels), step)]
+    pool = getattr(tables.crew, "pool", None) if len(chunks) > 1 else None
+    split = pool is None
+
+    def each(work):
+        def one(chunk):
+            if should_stop is not None and should_stop():
+                return None
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+                return work(tables, image, job, paths_settings, chunk, spp, split)
+        return list(pool.map(one, chunks)) if pool is not None else [one(c) for c in chunks]
+
+    kind = job.kind
+    if kind == "SHADOW":
+        results = _shadow(tables, image, spp, each)
+    elif kind == "COMBINED" or kind in LIGHT_KINDS:
+        results = each(_trace_chunk)
+    else:
+        results = each(_first_hit_chunk)
+    for chunk, result in zip(chunks, results):
+        if result is None:
+            continue
+        value, alpha = result
+        out[chunk, :3] = (value / spp).T
+        if kind == "COMBINED":
+            out[chunk, 3] = alpha / spp
+    return out
+
+
+def _shadow(tables, image, spp: int, each) -> list:
+    """Cycles' shadow catcher pass with the baked object as the catcher: the light reaching it with everything
+    over the light reaching it where no other object is there (its split path sees the catchers alone), per
+    channel, 1 where none reaches it; over white by the object's alpha (film_calculate_shadow_catcher)."""
+    everything = each(functools.partial(_trace_chunk, all_light=True))
+    own = np.unique(tables.triangles.object_rows(image.prim[image.prim >= 0][:1]))
+    seen = tables.visibility
+    alone = np.zeros(len(tables.scene.objects), np.uint8)
+    alone[own] = ALL_RAYS if seen is None else seen[own]
+    tables.visibility = alone
+    try:
+        catcher = each(functools.partial(_trace_chunk, all_light=True))
+    finally:
+        tables.visibility = seen
+    out = []
+    for full, by_itself in zip(everything, catcher):
+        if full is None or by_itself is None:
+            out.append(None)
+            continue
+        (value, alpha), (own_value, _) = full, by_itself
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(own_value != 0, value / np.where(own_value != 0, own_value, 1.0), 1.0)
+        a = np.clip(alpha / spp, 0.0, 1.0)
+        out.append((((1.0 - a) + a * ratio) * spp, None))
+    return out
