@@ -33,6 +33,7 @@ read); Ember averages it, which is the same at one sample.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 from dataclasses import dataclass
@@ -46,7 +47,7 @@ from .bsdf.lobes import (BSSRDF, DIFFUSE_LOBES, GLASS, GLOSSY_LOBES, MICROFACET_
                          TRANSMISSION_LOBES, TRANSPARENT)
 from .geometry import E1, E2, P0
 from .interaction import RayInfo, SurfaceHit
-from .lights import nee
+from .lights import LightSampler, nee
 from .paths import ray_keys
 from .rays import Rays, rays_from
 from .rng import PathRng, seed_paths
@@ -265,7 +266,6 @@ class BakeRun:
         self.image, self.use_camera = image, job.use_camera
         every = all_light or kind != "COMBINED" and kind not in LIGHT_KINDS
         self.direct = every or job.has(FILTER_DIRECT)
-        self.emission = every or kind in LIGHT_KINDS or job.has(FILTER_EMIT)
         if every:
             keep = (True, True, True)
         elif kind == "COMBINED":
@@ -496,7 +496,8 @@ def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None) ->
     if kind == "SHADOW":
         results = _shadow(tables, image, spp, each)
     elif kind == "COMBINED" or kind in LIGHT_KINDS:
-        results = each(_trace_chunk)
+        with _surface_emission(tables, kind != "COMBINED" or job.has(FILTER_EMIT)):
+            results = each(_trace_chunk)
     else:
         results = each(_first_hit_chunk)
     for chunk, result in zip(chunks, results):
@@ -507,6 +508,32 @@ def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None) ->
         if kind == "COMBINED":
             out[chunk, 3] = alpha / spp
     return out
+
+
+@contextlib.contextmanager
+def _surface_emission(tables, on: bool):
+    """Without Emit no surface emits, whether a ray meets it or a light sample picks it (Cycles bakes so: its mesh
+    lights add nothing then); lamps and the world still light the scene."""
+    if on or not tables.emissive:
+        yield
+        return
+    lights, emissive = tables.lights, tables.emissive
+    tables.lights = LightSampler(tables.scene, tables.environment, _NoEmitters(len(tables.shading.emissive)))
+    tables.emissive = False
+    try:
+        yield
+    finally:
+        tables.lights, tables.emissive = lights, emissive
+
+
+class _NoEmitters:
+    """The light sampler's view of materials of which none emits (LightSampler's triangle_emission)."""
+
+    def __init__(self, materials: int):
+        self.emissive = self.varies = np.zeros(materials, bool)
+
+    def __call__(self, tri, b1=None, b2=None, toward=None):
+        return np.zeros((3, len(tri)), F32)
 
 
 def _shadow(tables, image, spp: int, each) -> list:

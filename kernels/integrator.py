@@ -216,7 +216,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
             passes.write_denoising_features(tables, aux, state, hit, shading, t_hit)
         if state.min_ray_pdf is not None and settings.filter_glossy > 0:
             _filter_glossy(closures, state.min_ray_pdf, settings.filter_glossy)
-        if tables.emissive and (wave.bake is None or wave.bake.emission):
+        if tables.emissive:
             _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found)
         if tables.shading.has_holdout:
             _holdout(wave, state, shading)
