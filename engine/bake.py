@@ -59,6 +59,38 @@ def _bake(engine, depsgraph, obj, pass_type: str, pass_filter: int, result, widt
     use_camera = scene.render.bake.view_from == "ACTIVE_CAMERA"
     if use_camera and scene.camera is None:
         raise BakeError("Bake > View From > Active Camera, but the scene has no camera")
+    key = (depsgraph.as_pointer(), obj.name, use_camera, width, height)
+    kept = getattr(engine, "_ember_bake", None)
+    if kept is None or kept.key != key:
+        drop_scene(engine)
+        kept = engine._ember_bake = _scene_for(engine, depsgraph, obj, key, use_camera, width, height, should_stop)
+    triangles = kept.triangles
+    if len(ids) and ids.max() >= len(triangles):
+        raise BakeError(f"object '{obj.name}': Blender baked triangle {int(ids.max())}, but its mesh has "
+                        f"{len(triangles)} (a modifier that Ember and Blender's bake evaluate differently?)")
+    prim = np.where(ids >= 0, np.take(triangles, np.maximum(ids, 0)) if len(triangles) else -1, -1)
+    texels = BakeTexels(prim, u, v, differentials, width, height, seed)
+    settings = render_settings(scene, None)
+    engine.update_stats("", f"Ember: baking {pass_type.title()}, {settings.samples} samples")
+    baked = bake_texels(kept.renderer, texels, BakeJob(pass_type, int(pass_filter), use_camera), settings,
+                        should_stop, engine.update_progress)
+    if should_stop():
+        return False
+    combined = result.layers[0].passes["Combined"]
+    c = combined.channels
+    combined.rect.foreach_set(np.ascontiguousarray(baked[:, :c], np.float32).ravel())
+    return True
+
+
+class _BakeScene:
+    """The scene a bake exported and built, kept by its engine for the object's next image (each UDIM tile and
+    each material's image is a call of its own: Blender's RE_bake_engine)."""
+
+    def __init__(self, key, renderer, triangles):
+        self.key, self.renderer, self.triangles = key, renderer, triangles
+
+
+def _scene_for(engine, depsgraph, obj, key, use_camera: bool, width: int, height: int, should_stop) -> _BakeScene:
     engine.update_stats("", "Ember: exporting scene")
     try:
         exported = export_scene(depsgraph, width=width, height=height, should_stop=should_stop,
@@ -71,23 +103,20 @@ def _bake(engine, depsgraph, obj, pass_type: str, pass_filter: int, result, widt
     if row is None:
         raise BakeError(f"object '{obj.name}' has no triangles Ember renders (is it visible to any ray?)")
     engine.update_stats("", "Ember: building the scene")
-    with Renderer(exported.scene, render_threads(scene.render), processes=False) as renderer:
-        triangles = object_triangles(exported.scene, renderer.scene, row)
-        if len(ids) and ids.max() >= len(triangles):
-            raise BakeError(f"object '{obj.name}': Blender baked triangle {int(ids.max())}, but its mesh has "
-                            f"{len(triangles)} (a modifier that Ember and Blender's bake evaluate differently?)")
-        prim = np.where(ids >= 0, np.take(triangles, np.maximum(ids, 0)) if len(triangles) else -1, -1)
-        texels = BakeTexels(prim, u, v, differentials, width, height, seed)
-        settings = render_settings(scene, None)
-        engine.update_stats("", f"Ember: baking {pass_type.title()}, {settings.samples} samples")
-        baked = bake_texels(renderer, texels, BakeJob(pass_type, int(pass_filter), use_camera), settings,
-                            should_stop)
-    if should_stop():
-        return False
-    combined = result.layers[0].passes["Combined"]
-    c = combined.channels
-    combined.rect.foreach_set(np.ascontiguousarray(baked[:, :c], np.float32).ravel())
-    return True
+    renderer = Renderer(exported.scene, render_threads(depsgraph.scene.render), processes=False)
+    return _BakeScene(key, renderer, object_triangles(exported.scene, renderer.scene, row))
+
+
+def drop_scene(engine) -> None:
+    """Close the scene a bake kept (when its engine is freed, or another bake begins)."""
+    try:
+        kept = getattr(engine, "_ember_bake", None)
+        if kept is not None:
+            engine._ember_bake = None
+    except ReferenceError:   # an engine whose RNA is gone: what it kept goes with it
+        return
+    if kept is not None:
+        kept.renderer.close()
 
 
 def read_texels(result, count: int):

@@ -36,8 +36,10 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import threading
 from dataclasses import dataclass
 from types import SimpleNamespace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -128,6 +130,21 @@ def object_triangles(exported: SceneArrays, scene: SceneArrays, row: int) -> np.
 
 
 # ---------------------------------------------------------------- texels -> first hits
+class FirstHits(NamedTuple):
+    """Where a bake's paths start: hits (accel.Hits, t = 1) of rays (Rays from 1 above the surface toward it);
+    dp (n,) the texel's footprint; p (n, 3) the points and normal (n, 3) their smooth normals."""
+    hits: Hits
+    rays: Rays
+    dp: np.ndarray
+    p: np.ndarray
+    normal: np.ndarray
+
+    def take(self, rows: np.ndarray) -> "FirstHits":
+        h = self.hits
+        return FirstHits(Hits(h.prim[rows], h.t[rows], h.u[rows], h.v[rows]), Rays(*(r[rows] for r in self.rays)),
+                         self.dp[rows], self.p[rows], self.normal[rows])
+
+
 class BakePaths:
     """The paths of some texels (their numbers `texels` in the image), spp samples each from sample `first`,
     texel-major as a wave's pixels are: path k is sample first + k % spp of texel texels[k // spp]."""
@@ -156,9 +173,10 @@ class BakePaths:
         return texel, sample, rng, strata
 
 
-def first_hits(tables, image: BakeTexels, texel: np.ndarray, jx: np.ndarray, jy: np.ndarray, use_camera: bool):
-    """The first hits of paths on texels `texel` with filter numbers (jx, jy) (0.5 at a texel's centre): (Hits
-    (t = 1), Rays from 1 above the surface toward it, dp (n,) the texel's footprint), as init_from_bake.h."""
+def first_hits(tables, image: BakeTexels, texel: np.ndarray, jx: np.ndarray, jy: np.ndarray,
+               use_camera: bool) -> FirstHits:
+    """The first hits of paths on texels `texel` with filter numbers (jx, jy) (0.5 at a texel's centre), as
+    init_from_bake.h makes them."""
     prim = np.take(image.prim, texel)
     u, v = np.take(image.u, texel).astype(F32), np.take(image.v, texel).astype(F32)
     d = np.take(image.differentials, texel, axis=0).astype(F32)
@@ -179,7 +197,7 @@ def first_hits(tables, image: BakeTexels, texel: np.ndarray, jx: np.ndarray, jy:
     normal = np.stack(surface.ns, axis=1)
     toward = _from_camera(tables, p, normal, np.stack(surface.ng, axis=1)) if use_camera else normal
     rays = Rays((p + toward).astype(F32), np.ascontiguousarray(-toward, F32), np.full(n, np.inf, F32))
-    return Hits(prim, np.ones(n, F32), b1, b2), rays, dp.astype(F32)
+    return FirstHits(Hits(prim, np.ones(n, F32), b1, b2), rays, dp.astype(F32), p, normal)
 
 
 def _jitter(u, v, jx, jy, d):
@@ -245,12 +263,12 @@ def _from_camera(tables, p, normal, ng):
     return (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(F32)
 
 
-def _shade_first(tables, state, hits, rays, dp, split):
+def _shade_first(tables, state, first: FirstHits, split):
     """The SurfaceHit and SurfaceShading of the first hits, as the integrator's first vertex shades them."""
+    hits, d = first.hits, first.rays.dirs
     n = len(hits.prim)
-    d = rays.dirs
     hit = SurfaceHit(tables.triangles, hits.prim, hits.u, hits.v, (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv)
-    hit.ray = RayInfo(state.bounce, state.transparent, hits.t, dp=dp, lobes=state.lobes, portal=state.portal)
+    hit.ray = RayInfo(state.bounce, state.transparent, hits.t, dp=first.dp, lobes=state.lobes, portal=state.portal)
     if tables.shading.traces:
         hit.ray.keys = ray_keys(state, np.arange(n))
         hit.ray.time, hit.ray.min_ray_pdf, hit.ray.split = None, state.min_ray_pdf, split
@@ -283,11 +301,11 @@ class BakeRun:
         samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, wave.nee,
                           lobes=tables.shading.mixes_lobes)
         jx, jy = samples.camera()
-        hits, rays, dp = first_hits(tables, self.image, texel, jx, jy, self.use_camera)
+        first = first_hits(tables, self.image, texel, jx, jy, self.use_camera)
         state = integrator.new_paths(tables, wave, end - start, samples, start)
-        state.dp = dp
+        state.dp = first.dp
         wave.spread_dd = F32(0.0)   # a bake's rays spread no further (Cycles: dD = 0)
-        return integrator.first_vertex(tables, wave, state, rays, hits, last)
+        return integrator.first_vertex(tables, wave, state, first.rays, first.hits, last)
 
     def first_hit(self, wave, state, hit, shading) -> None:
         """The first hit's closures as the bake keeps them: the classes asked for; transparent ones cut a hole
@@ -314,10 +332,10 @@ def _path_settings(settings, job: BakeJob, kind: str):
     indirect = kind in ("SHADOW",) or job.has(FILTER_INDIRECT)
     return dataclasses.replace(settings, adaptive_threshold=0.0,
                                max_bounces=settings.max_bounces if indirect else 0,
-                               passes=_light_passes(job, kind), cryptomatte=())
+                               passes=_light_passes(kind), cryptomatte=())
 
 
-def _light_passes(job: BakeJob, kind: str) -> tuple:
+def _light_passes(kind: str) -> tuple:
     if kind not in LIGHT_KINDS:
         return ()
     cls = kind.lower()
@@ -366,33 +384,48 @@ def _first_hit_chunk(tables, image, job, settings, texels, spp, split):
     nee_on = settings.mode == "NEE_MIS"
     samples = Samples(rng, strata if nee_on else None, settings.seed, nee_on, lobes=tables.shading.mixes_lobes)
     jx, jy = samples.camera()
-    hits, rays, dp = first_hits(tables, image, texel, jx, jy, job.use_camera)
+    first = first_hits(tables, image, texel, jx, jy, job.use_camera)
     n = len(texel)
     if kind == "ENVIRONMENT":
-        p = rays.origins + rays.dirs   # the surface point
-        d = p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), F32(1e-30))
+        d = first.p / np.maximum(np.linalg.norm(first.p, axis=1, keepdims=True), F32(1e-30))
         ray = RayInfo(np.zeros(n, np.int32), np.zeros(n, np.int32), emission=True) \
             if tables.environment.shader else None
         value = tables.environment.radiance(d[:, 0], d[:, 1], d[:, 2], ray)
     elif kind == "POSITION":
-        value = (rays.origins + rays.dirs).T
+        value = first.p.T
+    elif kind == "NORMAL":
+        # Only where a closure's normal may differ from the smooth normal (Cycles' SD_HAS_BUMP) is the material
+        # run: elsewhere the smooth normal is the closures' average.
+        value = first.normal.T.copy()
+        bumped = np.flatnonzero(np.take(_bumped_materials(tables), tables.triangles.materials(first.hits.prim)))
+        if len(bumped):
+            some = first.take(bumped)
+            wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None)
+            state = integrator.new_paths(tables, wave, len(bumped), samples.take(bumped), 0)
+            hit, shading = _shade_first(tables, state, some, split)
+            value[:, bumped] = average_normal(shading.closures, len(bumped), hit.ns)
     else:
         wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None)
         state = integrator.new_paths(tables, wave, n, samples, 0)
-        hit, shading = _shade_first(tables, state, hits, rays, dp, split)
+        hit, shading = _shade_first(tables, state, first, split)
         cs = shading.closures
         if kind == "EMIT":
             value = shading.emission
         elif kind == "UV":
             u, v = hit.uv_at(np.arange(n))
             value = np.stack([u, v, np.ones(n, F32)])
-        elif kind == "NORMAL":
-            value = average_normal(cs, n, hit.ns)
         elif kind == "ROUGHNESS":
             value = np.broadcast_to(average_roughness(cs, n), (3, n))
         else:
             value = _ambient_occlusion(tables, wave, state, hit, cs, settings)
     return np.asarray(value, np.float64).reshape(3, len(texels), spp).sum(axis=2), None
+
+
+def _bumped_materials(tables) -> np.ndarray:
+    """(M,) bool: materials with a closure whose Normal input is linked (a bump, a normal map, displacement's bump),
+    Cycles' SD_HAS_BUMP."""
+    return np.array([any(c.input("Normal") is not None for c in shader.closures)
+                     for shader in tables.scene.materials.shaders], bool)
 
 
 def _weights(cs, rows):
@@ -460,16 +493,20 @@ def _ambient_occlusion(tables, wave, state, hit, cs, settings) -> np.ndarray:
     lx, ly, lz = sampling.sample_cosine_hemisphere(u1, u2)
     w = sampling.local_to_world(lx, ly, lz, *normal)
     rows = np.arange(n)
-    rays = rays_from(tables, hit, rows, w, np.zeros(n, bool))
+    # A bumped normal's ray may point below the surface: it leaves on that side (Cycles' ray skips the
+    # triangle it leaves and goes through).
+    below = w[0] * hit.ng[0] + w[1] * hit.ng[1] + w[2] * hit.ng[2] < 0
+    rays = rays_from(tables, hit, rows, w, below)
     distance = np.full(n, F32(tables.scene.world.ao_distance), F32)
     through = nee.shadow(tables, rays.origins, rays.dirs, distance, wave, np.zeros(n, np.int32))
     return through * alpha
 
 
 # ---------------------------------------------------------------- the bake
-def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None) -> np.ndarray:
+def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None, on_progress=None) -> np.ndarray:
     """(P, 4) float32 the bake of every texel (RGB and alpha; zero where prim is -1), the mean of
-    settings.samples samples. tables: a kernels.Renderer of the scene. should_stop() is polled between chunks."""
+    settings.samples samples. tables: a kernels.Renderer of the scene. should_stop() is polled between chunks of
+    texels (CHUNK_PATHS paths), on this thread; on_progress(fraction done) is called there after each."""
     if job.kind not in KINDS:
         raise ValueError(f"cannot bake {job.kind!r}: Ember bakes {', '.join(KINDS)}")
     spp = max(1, int(settings.samples))
@@ -483,14 +520,24 @@ def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None) ->
     chunks = [texels[i:i + step] for i in range(0, len(texels), step)]
     pool = getattr(tables.crew, "pool", None) if len(chunks) > 1 else None
     split = pool is None
+    stop = threading.Event()
+    done = [0, len(chunks) * (2 if job.kind == "SHADOW" else 1)]
 
     def each(work):
         def one(chunk):
-            if should_stop is not None and should_stop():
+            if stop.is_set():
                 return None
             with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
                 return work(tables, image, job, paths_settings, chunk, spp, split)
-        return list(pool.map(one, chunks)) if pool is not None else [one(c) for c in chunks]
+        results = []
+        for result in (pool.map(one, chunks) if pool is not None else map(one, chunks)):
+            results.append(result)
+            done[0] += 1
+            if should_stop is not None and should_stop():
+                stop.set()   # the chunks not started yet are skipped
+            elif on_progress is not None:
+                on_progress(done[0] / done[1])
+        return results
 
     kind = job.kind
     if kind == "SHADOW":

@@ -18,7 +18,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import configure_engine, new_scene, set_world
+from bpy_helpers import configure_engine, export_current, new_scene, set_world
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SIZE = 32
@@ -43,7 +43,7 @@ def _object_with_image(ob, name):
 
 
 def _textured_principled(mat):
-    """Principled BSDF with UV-checkered base colour and roughness, and some emission."""
+    """Principled BSDF with UV-checkered base colour and roughness, bumps and some emission."""
     tree = mat.node_tree
     bsdf = tree.nodes["Principled BSDF"]
     coord = tree.nodes.new("ShaderNodeTexCoord")
@@ -59,6 +59,13 @@ def _textured_principled(mat):
     tree.links.new(ramp.outputs["Result"], bsdf.inputs["Roughness"])
     bsdf.inputs["Emission Color"].default_value = (1.0, 0.6, 0.3, 1.0)
     bsdf.inputs["Emission Strength"].default_value = 0.3
+    wave = tree.nodes.new("ShaderNodeTexWave")   # bumps: the Normal bake then averages the closures' normals
+    wave.inputs["Scale"].default_value = 3.0
+    bump = tree.nodes.new("ShaderNodeBump")
+    bump.inputs["Strength"].default_value = 0.4
+    bump.inputs["Distance"].default_value = 0.1
+    tree.links.new(wave.outputs["Fac"], bump.inputs["Height"])
+    tree.links.new(bump.outputs["Normal"], bsdf.inputs["Normal"])
 
 
 @pytest.fixture(scope="module")
@@ -155,6 +162,8 @@ def test_data_bakes_equal_cycles(plane_scene, kind, options):
     cycles = bake(scene, plane, image, "CYCLES", kind, **options)
     ember = bake(scene, plane, image, "EMBER", kind, **options)
     assert np.abs(cycles).max() > 1e-3, f"Cycles baked nothing for {kind}"
+    if kind == "NORMAL":
+        assert cycles[..., :3].std(axis=(0, 1)).max() > 0.01   # the bumps show
     np.testing.assert_allclose(ember, cycles, atol=2e-4, rtol=1e-4)
 
 
@@ -263,6 +272,85 @@ def test_colour_attribute_target_matches_cycles():
     assert_within_noise(*[[corners(engine, seed) for seed in SEEDS] for engine in ("CYCLES", "EMBER")], block=4)
 
 
+def test_an_image_per_material_each_baked(monkeypatch):
+    """Blender calls the engine once per image (a material each here, or a UDIM tile each); each gets its own
+    texels, and Ember exports and builds the scene once for them all."""
+    from ember.engine import bake as engine_bake
+    exports = []
+    export = engine_bake.export_scene
+    monkeypatch.setattr(engine_bake, "export_scene", lambda *a, **k: exports.append(1) or export(*a, **k))
+    scene = new_scene(SIZE, SIZE)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.8, segments=16, ring_count=8)
+    ob = bpy.context.active_object
+    images = [bpy.data.images.new(f"part {i}", SIZE, SIZE, float_buffer=True) for i in range(2)]
+    for image in images:
+        ob.data.materials.append(_image_node_material(image.name, image))
+    for i, face in enumerate(ob.data.polygons):
+        face.material_index = int(face.center.z > 0.2)
+
+    def both(engine):
+        bake(scene, ob, images[0], engine, "NORMAL", normal_space="OBJECT")
+        out = []
+        for image in images:
+            pixels = np.empty(SIZE * SIZE * 4, np.float32)
+            image.pixels.foreach_get(pixels)
+            out.append(pixels.reshape(SIZE, SIZE, 4))
+        return out
+    cycles, ember = both("CYCLES"), both("EMBER")
+    assert len(exports) == 1
+    for c, e in zip(cycles, ember):
+        assert (np.abs(c[..., :3]).sum(axis=2) > 0).sum() > 50
+        np.testing.assert_allclose(e, c, atol=2e-4)
+
+
+@pytest.mark.parametrize("case", ["mirrored", "instanced"])
+def test_mirrored_and_instanced_objects_bake_as_cycles(case, monkeypatch):
+    """A mirrored object's texels see its outside; an object whose mesh Ember stores once for many instances
+    finds its triangles among the instances'."""
+    scene = new_scene(SIZE, SIZE)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.8, segments=16, ring_count=8)
+    ob = bpy.context.active_object
+    bpy.ops.object.shade_smooth()
+    image = _object_with_image(ob, "sphere bake")
+    if case == "mirrored":
+        ob.scale = (-1.0, 1.0, 1.3)
+    else:
+        from ember.engine.export import instances
+        monkeypatch.setattr(instances, "INSTANCE_MIN_TRIANGLES", 1)
+        for i in range(3):
+            copy = bpy.data.objects.new(f"copy {i}", ob.data)
+            scene.collection.objects.link(copy)
+            copy.location = (3.0 + 2.0 * i, 0.0, 0.0)
+        assert export_current().scene.instances is not None
+    for kind, options in (("NORMAL", {"normal_space": "OBJECT"}), ("POSITION", {})):
+        cycles = bake(scene, ob, image, "CYCLES", kind, **options)
+        np.testing.assert_allclose(bake(scene, ob, image, "EMBER", kind, **options), cycles, atol=2e-4)
+
+
+def test_degenerate_triangles_leave_the_others_in_place():
+    """Ember drops a triangle without area; the texels of the triangles after it still find theirs."""
+    scene = new_scene(SIZE, SIZE)
+    verts = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (3, 0, 0), (4, 0, 0),
+             (2, 0, 0.2), (3, 0, 0.2), (3, 1, 0.2), (2, 1, 0.2)]
+    mesh = bpy.data.meshes.new("sliver")
+    mesh.from_pydata(verts, [], [(0, 1, 2, 3), (4, 5, 6), (7, 8, 9, 10)])
+    uv = mesh.uv_layers.new(name="UVMap")
+    corners = [(0.05, 0.05), (0.45, 0.05), (0.45, 0.45), (0.05, 0.45), (0.55, 0.55), (0.95, 0.6), (0.6, 0.95),
+               (0.05, 0.55), (0.45, 0.55), (0.45, 0.95), (0.05, 0.95)]
+    for loop, coord in zip(mesh.loops, corners):
+        uv.data[loop.index].uv = coord
+    ob = bpy.data.objects.new("sliver", mesh)
+    scene.collection.objects.link(ob)
+    image = _object_with_image(ob, "sliver bake")
+    cycles = bake(scene, ob, image, "CYCLES", "POSITION")
+    ember = bake(scene, ob, image, "EMBER", "POSITION")
+    baked = np.abs(ember[..., :3]).sum(axis=2) > 0
+    upper = np.zeros_like(baked)
+    upper[SIZE // 2:, :SIZE // 2] = True   # the last face's island
+    assert (baked & upper).sum() > 100
+    np.testing.assert_allclose(ember[baked], cycles[baked], atol=2e-4)
+
+
 # ---------------------------------------------------------------- what Ember cannot bake: reported, never a crash
 def test_object_no_ray_sees_is_reported(high_to_low):
     scene, low, high, image = high_to_low
@@ -287,9 +375,11 @@ def _ember(*args, timeout=300):
                           cwd=ROOT)
 
 
-def test_command_line_bake(tmp_path, high_to_low):
-    """python -m ember bake writes what the bake operator makes in Blender; bad input is one line and a non-zero
-    exit."""
+def test_command_line_bake(tmp_path, high_to_low, capsys):
+    """python -m ember bake writes what the bake operator makes in Blender (a subprocess, as a pipeline runs it);
+    Selected to Active and a pass filter from the line; bad input is one line and a non-zero exit (in this
+    process: the line's main, as the subprocess runs it)."""
+    from ember.engine.cli import main
     scene, low, high, image = high_to_low
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
@@ -306,13 +396,13 @@ def test_command_line_bake(tmp_path, high_to_low):
     np.testing.assert_allclose(pixels.reshape(SIZE, SIZE, 4), expected, atol=1e-5)
 
     png = tmp_path / "s2a.png"
-    run = _ember("bake", str(blend), "--type", "combined", "--object", "Plane", "--selected", high.name,
+    assert main(["bake", str(blend), "--type", "combined", "--object", "Plane", "--selected", high.name,
                  "--cage-extrusion", "0.6", "-o", str(png), "--resolution", "16x16", "--samples", "2",
-                 "--filter", "direct,diffuse")
-    assert run.returncode == 0, run.stderr
+                 "--filter", "direct,diffuse"]) == 0
     assert png.stat().st_size > 0
-
-    run = _ember("bake", str(blend), "--type", "diffuse", "--object", "Nope", "-o", str(png))
-    assert run.returncode == 1 and run.stderr.strip().count("\n") == 0 and "no object named 'Nope'" in run.stderr
-    run = _ember("bake", str(blend), "--type", "diffuse", "--filter", "direct,sparkle", "-o", str(png))
-    assert run.returncode == 2 and "--filter" in run.stderr
+    capsys.readouterr()
+    assert main(["bake", str(blend), "--type", "diffuse", "--object", "Nope", "-o", str(png)]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().count("\n") == 0 and "no object named 'Nope'" in err
+    assert main(["bake", str(blend), "--type", "diffuse", "--filter", "direct,sparkle", "-o", str(png)]) == 2
+    assert "--filter" in capsys.readouterr().err
