@@ -59,7 +59,8 @@ def _bake(engine, depsgraph, obj, pass_type: str, pass_filter: int, result, widt
     use_camera = scene.render.bake.view_from == "ACTIVE_CAMERA"
     if use_camera and scene.camera is None:
         raise BakeError("Bake > View From > Active Camera, but the scene has no camera")
-    key = (depsgraph.as_pointer(), obj.name, use_camera, width, height)
+    # The camera's frame is the image's only when the bake looks from it.
+    key = (depsgraph.as_pointer(), obj.name, use_camera, (width, height) if use_camera else None)
     kept = getattr(engine, "_ember_bake", None)
     if kept is None or kept.key != key:
         drop_scene(engine)
@@ -103,7 +104,10 @@ def _scene_for(engine, depsgraph, obj, key, use_camera: bool, width: int, height
     if row is None:
         raise BakeError(f"object '{obj.name}' has no triangles Ember renders (is it visible to any ray?)")
     engine.update_stats("", "Ember: building the scene")
-    renderer = Renderer(exported.scene, render_threads(depsgraph.scene.render), processes=False)
+    try:
+        renderer = Renderer(exported.scene, render_threads(depsgraph.scene.render), processes=False)
+    except ValueError as err:
+        raise BakeError(f"invalid scene data: {err}") from None
     return _BakeScene(key, renderer, object_triangles(exported.scene, renderer.scene, row))
 
 
