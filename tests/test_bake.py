@@ -351,6 +351,19 @@ def test_degenerate_triangles_leave_the_others_in_place():
     np.testing.assert_allclose(ember[baked], cycles[baked], atol=2e-4)
 
 
+def test_render_properties_show_the_bake_panels():
+    """Render Properties > Bake (Cycles' panels: Blender's bake settings and the bake type) shows with Ember."""
+    from types import SimpleNamespace
+    new_scene(SIZE, SIZE)
+    scene = bpy.context.scene
+    scene.render.engine = "EMBER"
+    scene.cycles.bake_type = "COMBINED"
+    context = SimpleNamespace(engine="EMBER", scene=scene)
+    for name in ("CYCLES_RENDER_PT_bake", "CYCLES_RENDER_PT_bake_influence", "CYCLES_RENDER_PT_bake_selected_to_active",
+                 "CYCLES_RENDER_PT_bake_output", "CYCLES_RENDER_PT_bake_output_margin"):
+        assert getattr(bpy.types, name).poll(context), name
+
+
 # ---------------------------------------------------------------- what Ember cannot bake: reported, never a crash
 def test_object_no_ray_sees_is_reported(high_to_low):
     scene, low, high, image = high_to_low
