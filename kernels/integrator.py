@@ -90,11 +90,9 @@ def start_paths(tables, wave, paths, start: int, end: int):
         times = motion.sample_time(samples.camera_extra(TIME)[0], tables.scene.shutter_table, row,
                                   camera.height, tables.scene.rolling_shutter).astype(np.float32)
     rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
-    state = new_paths(tables, wave, n, samples, start, times)
-    if tables.media is not None:
-        state.media = np.repeat(tables.camera_media[:, None], n, axis=1)
-        if camera.kind != "ORTHO":
-            media_stage.clip_crossings(tables, state, rays.origins)
+    state = new_paths(tables, wave, n, samples, start, times, tables.camera_media)
+    if tables.media is not None and camera.kind != "ORTHO":
+        media_stage.clip_crossings(tables, state, rays.origins)
     if camera.kind == "ORTHO":
         state.dp[:] = tables.pixel_size
     if camera.kind == "PANO":
@@ -107,10 +105,10 @@ def start_paths(tables, wave, paths, start: int, end: int):
     return state, rays
 
 
-def new_paths(tables, wave, n: int, samples, start: int, times=None) -> PathState:
+def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None) -> PathState:
     """The state of n new paths (wave indices start.., numbers `samples`, shutter times or None) with the records
-    the scene and the wave's passes ask for; in scenes with media, the world's medium alone around them (the
-    camera's paths then take the media around the eye)."""
+    the scene and the wave's passes ask for; in scenes with media, inside the media `media` (a (K,) volume stack:
+    the eye's), or None: the world's medium alone (a bake's paths, as Cycles starts them)."""
     settings, aux = wave.settings, wave.aux
     state = PathState.start(n, samples)
     if start:
@@ -131,7 +129,7 @@ def new_paths(tables, wave, n: int, samples, start: int, times=None) -> PathStat
     if settings.filter_glossy > 0 or tables.shading.bevels:  # Cycles' Bevel skips blurry bounces too
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
     if tables.media is not None:
-        state.media = tables.media.start_stack(n)
+        state.media = tables.media.start_stack(n) if media is None else np.repeat(media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
         state.volume_bounds = np.zeros(n, np.int32)
     return state
