@@ -59,9 +59,10 @@ def parse_resolution(text: str | None):
     return width, height
 
 
-def open_scene(args, path: str | None = None):
+def open_scene(args, path: str | None = None, need_camera: bool = True):
     """Register Ember, open `path` (default: args.file; none: build the demo scene), select the scene
-    args.scene names and apply the command line's options to it. The file is never saved."""
+    args.scene names and apply the command line's options to it (need_camera: a scene without a camera is
+    an error, as it is for a render, not for a bake). The file is never saved."""
     resolution = parse_resolution(args.resolution)
     path = path if path is not None else args.file
     register_ember()
@@ -80,7 +81,7 @@ def open_scene(args, path: str | None = None):
     if bpy.context.window is not None and bpy.context.window.scene != scene:
         bpy.context.window.scene = scene
     _apply_options(scene, args, resolution)
-    if scene.camera is None:
+    if scene.camera is None and need_camera:
         raise CliError(f"scene {scene.name!r} has no camera")
     return scene
 

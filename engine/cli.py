@@ -35,6 +35,7 @@ import bpy
 from . import stop_signals
 from .batch import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_USAGE, CliError, RenderJob, UsageError, frames_outcome,
                     interrupted, match_option, open_scene, saved_frames, skip_existing)
+from .bake_cli import add_parser as add_bake_parser, bake_file, check_bake_options
 from .frame_save import SaveError, existing_part, first_line, partial_prefix, save_render_result
 from .properties import SAMPLING_MODE_ITEMS
 
@@ -99,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     ray.add_argument("--shared-path", action=argparse.BooleanOptionalAction, default=None,
                      help="the workers open the .blend at its path (a file system all nodes see) instead of "
                           "receiving its bytes (default: the path with local, the bytes on a cluster)")
+    add_bake_parser(sub)
     merge = sub.add_parser("merge", help="merge sample ranges of one frame (renders made with --sample-offset)",
                            description="Average renders of sample ranges of one frame, weighted by the sample "
                                        "counts they hold (OpenEXR files written by Ember), into one image.")
@@ -189,6 +191,8 @@ def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
     previous = stop_signals.install()
     try:
+        if args.command == "bake":
+            return bake(args)
         return merge_command(args) if args.command == "merge" else render(args)
     except UsageError as err:
         print(f"ember: error: {err} (see --help)", file=sys.stderr)
@@ -215,6 +219,18 @@ def merge_command(args) -> int:
         raise CliError(str(err)) from None
     print(f"Ember | merged {len(args.inputs)} renders, {total} samples -> {output}", flush=True)
     return 0
+
+
+def bake(args) -> int:
+    """python -m ember bake (engine/bake_cli.py): the options checked, the output's directory made writable."""
+    for name, value, lo, hi in (("--samples", args.samples, 1, 1 << 24), ("--seed", args.seed, 0, SEED_MAX),
+                                ("--max-bounces", args.max_bounces, 0, 1024), ("--threads", args.threads, 0, 1024)):
+        if value is not None and not lo <= value <= hi:
+            raise UsageError(f"{name} must be from {lo} to {hi}, got {value}")
+    output, width, height = check_bake_options(args)
+    partial_prefix(output)
+    ensure_writable_directory(os.path.dirname(output))
+    return bake_file(args, output, width, height)
 
 
 def render(args) -> int:

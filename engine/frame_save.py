@@ -35,23 +35,29 @@ def save_render_result(scene, target: str) -> None:
     result = bpy.data.images.get("Render Result")
     if result is None:
         raise SaveError("Blender produced no render result")
+    save_file(target, lambda path: result.save_render(path, scene=scene), scene.render.image_settings.file_format)
+
+
+def save_file(target: str, write, file_format: str) -> None:
+    """What save_render_result does, for any file write(path) writes in Blender's `file_format` (a baked image:
+    engine/bake_cli.py)."""
     directory = os.path.dirname(target)
     try:
         with stop_signals.saving_to(lambda: tempfile.mkstemp(prefix=partial_prefix(target), suffix=PARTIAL_SUFFIX,
                                                              dir=directory)) as (fd, partial):
             os.close(fd)
-            _write_whole(result, scene, target, partial)
+            _write_whole(write, file_format, target, partial)
     except OSError as err:
         raise SaveError(f"cannot save {target}: {first_line(err)}{_kept(target)}") from None
 
 
-def _write_whole(result, scene, target: str, partial: str) -> None:
-    """save_render_result's write, check and rename of `partial` (removed whatever happens)."""
+def _write_whole(write, file_format: str, target: str, partial: str) -> None:
+    """save_file's write, check and rename of `partial` (removed whatever happens)."""
     directory = os.path.dirname(target)
     try:
         with _blender_log() as log:
-            result.save_render(partial, scene=scene)
-        problem = written_file_problem(partial, scene.render.image_settings.file_format)
+            write(partial)
+        problem = written_file_problem(partial, file_format)
         if problem is not None:
             raise SaveError(f"cannot save {target}: {_write_failure(directory, log, partial, target)}the file "
                             f"Blender wrote is incomplete ({problem}){_kept(target)}")

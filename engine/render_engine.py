@@ -1,12 +1,13 @@
 """The RenderEngine Blender calls: thin, it hands final renders to session.FinalRender and the
 viewport's rendered mode to viewport.ViewportRender (one per engine instance: one per 3D view), both
-adapters over one session.ProgressiveSession."""
+adapters over one session.ProgressiveSession; bakes to bake.bake."""
 from __future__ import annotations
 
 import traceback
 
 import bpy
 
+from .bake import bake, drop_scene
 from .passes import register_passes
 from .persistent import drop_kept_scene
 from .session import FinalRender
@@ -33,6 +34,10 @@ class EmberRenderEngine(bpy.types.RenderEngine):
             traceback.print_exc()
             self.report({"ERROR"}, f"Ember: internal error, render abandoned: {type(err).__name__}: {err}")
 
+    def bake(self, depsgraph, obj, pass_type, pass_filter, width, height):
+        # Blender's bake operator, once per image: Ember's kernels bake it (engine/bake.py).
+        bake(self, depsgraph, obj, pass_type, pass_filter, width, height)
+
     def update_render_passes(self, scene=None, renderlayer=None):
         register_passes(self, scene, renderlayer)
 
@@ -48,13 +53,14 @@ class EmberRenderEngine(bpy.types.RenderEngine):
             viewport.view_draw(self, context, depsgraph)
 
     def __del__(self):
-        # The viewport's worker must not outlive the engine. The RNA may already be gone here.
+        # The viewport's worker must not outlive the engine, nor a bake's scene. The RNA may already be gone here.
         try:
             viewport = getattr(self, "_viewport", None)
         except ReferenceError:
             return
         if viewport is not None:
             viewport.free()
+        drop_scene(self)
 
 
 CLASSES = (EmberRenderEngine,)

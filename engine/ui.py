@@ -18,6 +18,12 @@ EXTRA_PANELS = (
     "DATA_PT_camera_dof",
     "DATA_PT_camera_dof_aperture",
     "CYCLES_OBJECT_PT_motion_blur",   # per object: Motion Blur on/off, Steps (object.cycles, read by Ember)
+    # Render Properties > Bake: Blender's bake settings and Cycles' bake type, which Ember bakes (engine/bake.py).
+    "CYCLES_RENDER_PT_bake",
+    "CYCLES_RENDER_PT_bake_influence",
+    "CYCLES_RENDER_PT_bake_selected_to_active",
+    "CYCLES_RENDER_PT_bake_output",
+    "CYCLES_RENDER_PT_bake_output_margin",
 )
 _added: list = []
 

@@ -29,9 +29,9 @@ from .settings import RenderSettings
 
 
 def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict | None = None,
-           live: int | None = None):
+           live: int | None = None, bake=None):
     """trace_paths for the paths of `paths` (GivenPaths, WavePaths: what each starts from, made a
-    batch at a time).
+    batch at a time; a bake's texels with `bake`, kernels/bake.BakeRun, whose start makes their first vertex).
 
     live: the most paths traced at once (None: all N). The paths start in their order, a batch at a
     time: when fewer than half of `live` are left, the next ones start beside them (their camera rays
@@ -46,7 +46,7 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     max_scatters = int(settings.max_bounces) + 1
     wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
                  0.0 if tables.scene.camera.kind == "ORTHO" else tables.pixel_size)
-    wave.aux = aux
+    wave.aux, wave.bake = aux, bake
     # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
     last = max_scatters + int(settings.transparent_max_bounces)
     live = n if live is None else max(1, int(live))
@@ -58,10 +58,13 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
             if size > paths.spp:
                 size -= size % paths.spp   # whole pixels: their places in the sequence are found once
             end = min(n, started + size)
-            fresh = start_paths(tables, wave, paths, started, end)
+            if bake is None:
+                fresh = start_paths(tables, wave, paths, started, end)
+                if fresh is not None:
+                    fresh = step(tables, wave, *fresh, first=True, last=last)
+            else:
+                fresh = bake.start(tables, wave, paths, started, end, last)
             started = end
-            if fresh is not None:
-                fresh = step(tables, wave, *fresh, first=True, last=last)
             if fresh is not None:
                 going = fresh if going is None else \
                     (PathState.concat(going[0], fresh[0]), concat_rays(going[1], fresh[1]))
@@ -75,7 +78,6 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
 def start_paths(tables, wave, paths, start: int, end: int):
     """The camera rays of the paths [start, end): (PathState, Rays), None when none is traced."""
     settings = wave.settings
-    aux = wave.aux
     n = end - start
     rng, row, col, strata = paths.batch(start, end)
     samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, wave.nee,
@@ -88,6 +90,26 @@ def start_paths(tables, wave, paths, start: int, end: int):
         times = motion.sample_time(samples.camera_extra(TIME)[0], tables.scene.shutter_table, row,
                                   camera.height, tables.scene.rolling_shutter).astype(np.float32)
     rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
+    state = new_paths(tables, wave, n, samples, start, times, tables.camera_media)
+    if tables.media is not None and camera.kind != "ORTHO":
+        media_stage.clip_crossings(tables, state, rays.origins)
+    if camera.kind == "ORTHO":
+        state.dp[:] = tables.pixel_size
+    if camera.kind == "PANO":
+        traced = np.flatnonzero(rays.t_max > 0)  # outside a fisheye's circle: black, alpha 1 (Cycles)
+        if not len(traced):
+            return None
+        if len(traced) < n:
+            state.compact(traced)
+            rays = Rays(rays.origins[traced], rays.dirs[traced], rays.t_max[traced])
+    return state, rays
+
+
+def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None) -> PathState:
+    """The state of n new paths (wave indices start.., numbers `samples`, shutter times or None) with the records
+    the scene and the wave's passes ask for; in scenes with media, inside the media `media` (a (K,) volume stack:
+    the eye's), or None: the world's medium alone (a bake's paths, as Cycles starts them)."""
+    settings, aux = wave.settings, wave.aux
     state = PathState.start(n, samples)
     if start:
         state.path = state.path + start
@@ -111,21 +133,16 @@ def start_paths(tables, wave, paths, start: int, end: int):
     if tables.links is not None:   # camera rays leave the world's object (light set 0), no scattering
         state.link_set, state.scattered = np.zeros(n, np.uint8), np.zeros(n, bool)
     if tables.media is not None:
-        state.media = np.repeat(tables.camera_media[:, None], n, axis=1)
+        state.media = tables.media.start_stack(n) if media is None else np.repeat(media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
         state.volume_bounds = np.zeros(n, np.int32)
-        if camera.kind != "ORTHO":
-            media_stage.clip_crossings(tables, state, rays.origins)
-    if camera.kind == "ORTHO":
-        state.dp[:] = tables.pixel_size
-    if camera.kind == "PANO":
-        traced = np.flatnonzero(rays.t_max > 0)  # outside a fisheye's circle: black, alpha 1 (Cycles)
-        if not len(traced):
-            return None
-        if len(traced) < n:
-            state.compact(traced)
-            rays = Rays(rays.origins[traced], rays.dirs[traced], rays.t_max[traced])
-    return state, rays
+    return state
+
+
+def first_vertex(tables, wave, state, rays, hits, last: int):
+    """The first vertex of paths whose first hits are given (a bake's texels, kernels/bake.py), as step() goes on
+    once it has traced the camera's rays: (the paths that go on, their rays) or None."""
+    return _surface_vertex(tables, wave, state, rays, hits, np.arange(len(state)), first=True, last=last)
 
 
 def step(tables, wave, state, rays, first: bool, last: int):
@@ -193,6 +210,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
             hit.ray.keys = ray_keys(state, np.arange(len(state)))
             hit.ray.time, hit.ray.min_ray_pdf, hit.ray.split = state.time, state.min_ray_pdf, wave.split
         shading = tables.shading.surface(hit)
+        if first and wave.bake is not None:
+            wave.bake.first_hit(wave, state, hit, shading)
         closures = shading.closures
         tables.crew.check_stop()
         if aux is not None and first:
@@ -210,7 +229,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     numbers = state.samples.bounce(0 if first else 1)
     receiver = None if tables.links is None else tables.links.receivers(tables.triangles, hit.prim)
     focus = None
-    if wave.nee:
+    lit = wave.nee and not (first and wave.bake is not None and not wave.bake.direct)
+    if lit:
         focus = nee.world_focus(tables, hit, closures)
         nee.next_event(tables, wave, state, hit, closures, numbers, focus, receiver)
         tables.crew.check_stop()
@@ -218,7 +238,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     tables.crew.check_stop()
     if state.pass_weights is not None:
         passes.first_bounce_shares(tables, state, closures, bs)
-    if wave.nee and tables.glass_escapes_on:
+    if lit and tables.glass_escapes_on:
         glass_escapes(tables, wave, state, hit, closures, bs, receiver)
     alive = _continues(tables, wave, hit, state, bs, numbers, focus, closures)
     if receiver is not None:   # the next ray leaves this object (transparent pass-throughs keep the last one's)
@@ -283,6 +303,8 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     return the (N,) mask of the paths that end at one, their transparent bounces spent."""
     o, d = rays.origins, rays.dirs
     seeing = state.bounce > 0   # camera rays do not see lights
+    if wave.bake is not None:
+        seeing &= wave.bake.sees_lights(state.bounce)
     budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
     met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget, state.link_set,
                                   facing=facing_of(state.mis_facing))
@@ -308,6 +330,8 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
 def _escaped(tables, wave, state, rays, hits, ended=None):
     """The world seen by the rays that hit nothing (ended: (N,) mask of paths that ended before)."""
     miss = np.flatnonzero((hits.prim < 0) if ended is None else (hits.prim < 0) & ~ended)
+    if wave.bake is not None:
+        miss = miss[wave.bake.sees_lights(state.bounce[miss])]
     if not len(miss):
         return
     keep = np.ones(len(miss), bool)
@@ -570,13 +594,14 @@ def _crossings(tables, state, hit, alive, bs) -> None:
 
 class _Wave:
     """Per-wave constants and outputs shared by the stages."""
-    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux")
+    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux", "bake")
 
     def __init__(self, settings, nee, split, max_scatters, radiance, alpha, spread_dd=0.0):
         self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
         self.radiance, self.alpha = radiance, alpha
         self.spread_dd = np.float32(spread_dd)  # the camera rays' direction spread per pixel (radians)
         self.aux = None  # the data passes being recorded ({name: (C, N)}), or None
+        self.bake = None  # kernels/bake.BakeRun: what a bake leaves out of its paths (Cycles' filter_closures)
 
 
 def _caustics(settings):

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ...kernels import SceneArrays
+from ...kernels import Camera, SceneArrays
 from ...kernels.cryptomatte import hash_names
 from ...kernels.memory import small_pages, trim_heap
 from ...kernels.scene.objects import ALL_RAYS
@@ -86,7 +86,8 @@ def object_visibility(per_row: list | None) -> np.ndarray | None:
 
 @small_pages()
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
-                 motion=None, vector=None, instance_everything: bool = False, mesh_cache=None) -> ExportResult:
+                 motion=None, vector=None, instance_everything: bool = False, mesh_cache=None,
+                 need_camera: bool = True) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
 
     camera_override : a camera object to use instead of the scene's (RenderEngine.camera_override).
@@ -97,12 +98,13 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     instance_everything : every mesh a prototype placed by its instances, even when used once (the
         viewport, whose moved objects then only change their transforms: updates.py).
     mesh_cache : geometry.MeshCache keeping meshes between the frames of an animation (Persistent Data), or None.
-    Raises ExportError when there is no camera.
+    need_camera : False for a bake, which sees no camera unless it bakes from it (a default one stands in).
+    Raises ExportError when there is no camera and one is needed.
     """
     start = time.perf_counter()
     scene = depsgraph.scene_eval
     camera_ob = camera_override or scene.camera
-    if camera_ob is None:
+    if camera_ob is None and need_camera:
         raise ExportError("Scene has no camera")
     default_width, default_height = render_resolution(scene)
     warnings: list[str] = []
@@ -110,9 +112,9 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     if groups is not None and len(groups):
         warnings.append(f"View layer '{depsgraph.view_layer.name}': light groups are not supported yet: "
                         f"no Light Group passes")
-    camera = export_camera(camera_ob.evaluated_get(depsgraph), scene,
-                           default_width if width is None else width,
-                           default_height if height is None else height, warnings)
+    camera = Camera() if camera_ob is None else \
+        export_camera(camera_ob.evaluated_get(depsgraph), scene, default_width if width is None else width,
+                      default_height if height is None else height, warnings)
     layer_attribute = functools.partial(view_layer_attribute, scene, depsgraph.view_layer_eval)
     materials = MaterialTable(warnings, layer_attribute)
     poll = Poller(should_stop)

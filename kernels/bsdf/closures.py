@@ -217,6 +217,25 @@ class ClosureSet:
             setattr(self, name, np.where(chiang, np.maximum(getattr(self, name), r), getattr(self, name)).astype(F32))
         self.rough = np.where(huang, np.maximum(self.rough, r), self.rough).astype(F32)
 
+    def without(self, drop: np.ndarray, ns) -> "ClosureSet":
+        """A new set of the closures not in the (C,) mask drop, columns and all (ns: the hits' shading normals,
+        as the builder had them); what a bake leaves out of its first hits (kernels/bake.py)."""
+        keep = np.flatnonzero(~np.asarray(drop, bool))
+        albedo = self.albedo
+        chunks = []
+        for lobe in np.unique(self.lobe[keep]):
+            rows = keep[self.lobe[keep] == lobe]
+            chunk = {"hit": self.hit[rows], "lobe": int(lobe), "weight": self.weight[:, rows], "sw": self.sw[rows],
+                     "n": self.normal[:, rows], "t": None if self._tangent is None else self._tangent[:, rows]}
+            for name in _SCALARS:
+                chunk[name] = np.broadcast_to(getattr(self, name), self.lobe.shape)[rows]
+            for name in _COLOURS:
+                chunk[name] = np.broadcast_to(getattr(self, name), (3,) + self.lobe.shape)[:, rows]
+            if albedo is not None:
+                chunk["albedo"] = (albedo[0][:, rows], albedo[1][:, rows])
+            chunks.append(chunk)
+        return ClosureSet(self.n_hits, chunks, ns, self.wo_world)
+
     def evaluable(self) -> np.ndarray:
         """(N,) bool: hits with a closure that eval_at can find non-zero, one that is not singular (delta,
         transparent included). eval_at is zero at every other hit (none, or singular closures only), so

@@ -149,7 +149,7 @@ def clean_triangles(tris, extra: tuple = ()) -> tuple[dict, int, int, int]:
     normal, turned where tris.mirrored_triangles() says): (the changed fields, for dataclasses.replace;
     dropped count; repaired normals count; how many of the dropped have corners that are not finite)."""
     t = len(tris.positions)
-    keep = _usable_triangles(tris.positions)
+    keep = usable_triangles(tris.positions)
     # A non-finite normal or UV on a usable triangle falls back to the geometric normal / zero UV.
     normals = tris.normals
     uvs = tris.uvs
@@ -196,7 +196,7 @@ _PARALLEL_TRIANGLES = 1 << 19
 _BLOCK_TRIANGLES = 1 << 15
 
 
-def _usable_triangles(positions: np.ndarray) -> np.ndarray:
+def usable_triangles(positions: np.ndarray) -> np.ndarray:
     """(T,) bool: finite corners and non-zero area, relative to the triangle's own size (area x 2 above
     1e-12 x its longer edge squared, in float64).
 
