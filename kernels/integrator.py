@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import motion, passes, sampling, subsurface, visibility
+from . import motion, passes, sampling, shadow_catcher, subsurface, visibility
 from .accel import Hits, RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
@@ -47,6 +47,7 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
                  0.0 if tables.scene.camera.kind == "ORTHO" else tables.pixel_size)
     wave.aux = aux
+    wave.catcher = shadow_catcher.start(tables, wave, n, _Wave)
     # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
     last = max_scatters + int(settings.transparent_max_bounces)
     live = n if live is None else max(1, int(live))
@@ -65,11 +66,25 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
             if fresh is not None:
                 going = fresh if going is None else \
                     (PathState.concat(going[0], fresh[0]), concat_rays(going[1], fresh[1]))
+            _catch_up(tables, wave, last)
             continue
         if going is None:
-            break
+            if not _catch_up(tables, wave, last):
+                break
+            continue
         going = step(tables, wave, *going, first=False, last=last)
+        _catch_up(tables, wave, last)
+    if wave.catcher is not None:
+        shadow_catcher.finish(wave, radiance, alpha)
     return radiance, alpha
+
+
+def _catch_up(tables, wave, last: int) -> bool:
+    """One step of the shadow catchers' copies (kernels.shadow_catcher) beside the wave's own; whether some go on."""
+    going = None if wave.catcher is None else wave.catcher.take()
+    if going is not None:
+        wave.catcher.add(step(tables, wave.catcher.paths, *going, first=False, last=last))
+    return going is not None and wave.catcher.going is not None
 
 
 def start_paths(tables, wave, paths, start: int, end: int):
@@ -134,7 +149,7 @@ def step(tables, wave, state, rays, first: bool, last: int):
         _hand_over(state, hits)
     if tables.visibility is not None:
         visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, visibility.ray_types(state, first),
-                               wave.split, state.time)
+                               wave.split, state.time, wave.only_catchers is not None)
     ended = None
     if not first and tables.lights.has_surface_lights:
         ended = _lights_hit(tables, wave, state, rays, hits)
@@ -155,10 +170,13 @@ def step(tables, wave, state, rays, first: bool, last: int):
             medium = (medium[0], Rays(*medium[1], np.full(len(medium[0]), np.inf, np.float32)))
     if tables.visibility is not None:
         found = _held_out(tables, wave, state, hits, found)
+    copies = None if wave.catcher is None else shadow_catcher.split(tables, wave, state, rays, hits, found)
     if not len(found):
         return medium
     state.compact(found)
     surface = _surface_vertex(tables, wave, state, rays, hits, found, first, last)
+    if copies is not None:   # the shadow catchers' copies of the paths shade the same hits, for their own pass
+        wave.catcher.add(_surface_vertex(tables, wave.catcher.paths, copies[0], rays, hits, copies[1], first, last))
     if medium is None or surface is None:
         return surface if medium is None else medium
     return PathState.concat(surface[0], medium[0]), concat_rays(surface[1], medium[1])
@@ -275,7 +293,8 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     o, d = rays.origins, rays.dirs
     seeing = state.bounce > 0   # camera rays do not see lights
     budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
-    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget)
+    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget,
+                                  None if wave.only_catchers is None else wave.only_catchers.lights)
     met.crossed[~seeing] = 0
     state.transparent = state.transparent + met.crossed
     lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
@@ -551,13 +570,16 @@ def _crossings(tables, state, hit, alive, bs) -> None:
 
 class _Wave:
     """Per-wave constants and outputs shared by the stages."""
-    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux")
+    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux", "catcher",
+                 "only_catchers")
 
     def __init__(self, settings, nee, split, max_scatters, radiance, alpha, spread_dd=0.0):
         self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
         self.radiance, self.alpha = radiance, alpha
         self.spread_dd = np.float32(spread_dd)  # the camera rays' direction spread per pixel (radians)
         self.aux = None  # the data passes being recorded ({name: (C, N)}), or None
+        self.catcher = None  # kernels.shadow_catcher.CatcherWave where paths split at shadow catchers, or None
+        self.only_catchers = None  # the shadow_catcher.Catchers a wave of the catchers' copies sees, else None
 
 
 def _caustics(settings):

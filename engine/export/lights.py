@@ -36,6 +36,7 @@ LIGHT_VISIBILITY = (("visible_camera", "Camera", False), ("visible_diffuse", "Di
 def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
     """Every light instance; poll() is called for each instance (it raises to cancel the export)."""
     rows = []
+    catchers = []
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -47,6 +48,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
         row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings)
         if row is not None:
             rows.append(row)
+            catchers.append(light_is_shadow_catcher(inst, ob))
     if not rows:
         return Lights()
     columns = list(zip(*rows))
@@ -60,7 +62,16 @@ def export_lights(depsgraph, warnings: list[str], poll=None) -> Lights:
         spot_cos=np.array(columns[6], np.float32).reshape(-1, 2),
         sun_half_angle=np.array(columns[7], np.float32),
         cast_shadow=np.array(columns[8], bool),
+        shadow_catcher=None if all(catchers) else np.array(catchers, bool),
     )
+
+
+def light_is_shadow_catcher(inst, ob) -> bool:
+    """Whether shadow catchers receive the light in their own pass (kernels/shadow_catcher.py): the light
+    object's Visibility > Shadow Catcher, or its instancer's, which Blender turns on for new lights (Cycles'
+    sync_object sets is_shadow_catcher so for lights too; scene/light.cpp excludes the others)."""
+    parent = inst.parent if inst.is_instance else None
+    return bool(getattr(ob, "is_shadow_catcher", True)) or bool(parent is not None and parent.is_shadow_catcher)
 
 
 def check_light_visibility(ob, warnings: list[str]) -> None:

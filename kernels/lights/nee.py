@@ -53,7 +53,7 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
         focus = None if focus is None else focus.take(active)
     else:
         px, py, pz = hit.p
-    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus)
+    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus, catcher_emitters(wave))
     tables.crew.check_stop()
     le = ls.radiance
     useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
@@ -141,9 +141,9 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     u_select, u1, u2 = numbers
     px, py, pz = (np.ascontiguousarray(p[:, k], np.float32) for k in range(3))
     if chosen is None:
-        ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None)
+        ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None, catcher_emitters(wave))
     else:
-        ls = tables.lights.sample_chosen(px, py, pz, chosen[0], chosen[1], u1, u2, None)
+        ls = tables.lights.sample_chosen(px, py, pz, chosen[0], chosen[1], u1, u2, None, catcher_emitters(wave))
     le = ls.radiance
     f, phase_pdf = mixture.evaluate(d, (ls.wx, ls.wy, ls.wz))
     useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)) &
@@ -175,6 +175,12 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     if scale is not None:
         contribution *= np.take(scale, at, axis=1)
     passes.add_light(tables, wave, state, rows[at], contribution, _volume_shares)
+
+
+def catcher_emitters(wave):
+    """The emitters the wave's paths take light from: all (None), but on a shadow catcher's own paths
+    (kernels/shadow_catcher.py) the world, lights that are shadow catchers and the emission of shadow catchers."""
+    return None if wave.only_catchers is None else wave.only_catchers.emitters
 
 
 def _volume_shares(first) -> np.ndarray:
@@ -234,7 +240,9 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     split = wave.split
     if stack is not None and not (stack >= 0).any() and not tables.media.has_volume.any():
         stack = None
-    hidden = shadow_hidden(tables)
+    # A shadow catcher's own paths are shadowed by shadow catchers only (Cycles' SHADOW_CATCHER_PATH_VISIBILITY).
+    catchers = wave.only_catchers is not None
+    hidden = catchers or shadow_hidden(tables)
     if not tables.shading.transparent.any():
         blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
         if hidden:   # what blocks them may be an object shadow rays do not see: the closest one that they do
@@ -242,7 +250,7 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
             hits = tables.accel.intersect(origins[rows], dirs[rows], t_max[rows], split,
                                           None if times is None else times.take(rows))
             visibility.skip_hidden(tables, origins[rows], dirs[rows], t_max[rows], hits, visibility.SHADOW,
-                                   split, None if times is None else times.take(rows))
+                                   split, None if times is None else times.take(rows), catchers)
             blocked[rows] = hits.prim >= 0
         out = np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
         if stack is None:
@@ -261,7 +269,7 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
         hits = tables.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
         if hidden:
             visibility.skip_hidden(tables, origins, dirs[live], t_left, hits, visibility.SHADOW, split,
-                                   None if times is None else times.take(live))
+                                   None if times is None else times.take(live), catchers)
         found = np.flatnonzero(hits.prim >= 0)
         if stack is not None:
             # The media along the segment to the surface met (or to the light).

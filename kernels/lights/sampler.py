@@ -245,16 +245,19 @@ class LightSampler:
         # float64: a float32 cdf would round the intervals of millions of small emitters.
         return np.minimum(np.searchsorted(self._cdf, u_select.astype(np.float64), side="right"), len(self._cdf) - 1)
 
-    def sample(self, px, py, pz, u_select, u1, u2, focus=None) -> LightSample:
+    def sample(self, px, py, pz, u_select, u1, u2, focus=None, allowed=None) -> LightSample:
         """Choose an emitter for each shading point p and sample a direction toward it. focus: the world's
-        (environment.WorldFocus per shading point) when its light samples focus on glossy lobes."""
+        (environment.WorldFocus per shading point) when its light samples focus on glossy lobes. allowed:
+        (L + E + 1,) bool, the emitters these points may take light from (a shadow catcher's own paths:
+        kernels/shadow_catcher.py), or None for all; a sample of another carries no light, as Cycles'
+        light_sample then gives none, and the choice keeps its probabilities."""
         n = len(px)
         if not self.has_lights or n == 0:
             return LightSample(n)
         chosen, select = self.choose_at(u_select, px, py, pz)
-        return self.sample_chosen(px, py, pz, chosen, select, u1, u2, focus)
+        return self.sample_chosen(px, py, pz, chosen, select, u1, u2, focus, allowed)
 
-    def sample_chosen(self, px, py, pz, chosen, select, u1, u2, focus=None) -> LightSample:
+    def sample_chosen(self, px, py, pz, chosen, select, u1, u2, focus=None, allowed=None) -> LightSample:
         """sample() with the emitters already chosen (chosen (n,) emitter numbers, select (n,) the probability
         each was chosen with, which the pdf includes)."""
         n = len(px)
@@ -278,6 +281,8 @@ class LightSampler:
             if len(picked):
                 world.sample(self, out, picked, u1[picked], u2[picked], None if focus is None else focus.take(picked))
         out.pdf *= select
+        if allowed is not None:
+            out.radiance[:, ~np.take(allowed, chosen)] = 0.0
         return out
 
     def axis(self, light, k):
@@ -305,7 +310,7 @@ class LightSampler:
         """Whether next-event estimation can choose the world."""
         return self.has_lights and self.select_pmf[self.world_index] > 0
 
-    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None) -> "LightHits":
+    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None, allowed=None) -> "LightHits":
         """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max, as Cycles'
         BSDF rays meet them (kernel/light/light.h lights_intersect, integrator/shade_light.h).
 
@@ -319,12 +324,17 @@ class LightSampler:
 
         The caller weights what it gets by MIS with one pdf, so where a ray meets several lights one of
         them is returned, chosen in proportion to its radiance, with its radiance divided by that
-        probability: the expectation is the sum over the lights, each with its own MIS weight."""
+        probability: the expectation is the sum over the lights, each with its own MIS weight. allowed: (L,)
+        bool, the lights the rays see (a shadow catcher's own paths pass the others: Cycles' lights_intersect
+        skips lights excluded from them), or None for all."""
         n = len(ox)
         out = LightHits(n)
         if not self.has_surface_lights or n == 0:
             return out
         ray, light = self._candidates(ox, oy, oz, dx, dy, dz, t_max)
+        if allowed is not None:
+            seen = np.take(allowed, light)
+            ray, light = ray[seen], light[seen]
         if not len(ray):
             return out
         t, light_pdf, le = self.hit_pairs(ray, light, ox[ray], oy[ray], oz[ray], dx[ray], dy[ray], dz[ray])

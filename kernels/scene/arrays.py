@@ -48,8 +48,8 @@ class SceneArrays:
     object_ids : (T,) int32 or None: each triangle's row of `objects` (both or neither are given).
     object_visibility : (K,) uint8 or None, per row of `objects`: the rays that see the object (Cycles'
         PathRayVisibilityFlag bits, kernels.visibility: camera 1, transmission 2, diffuse 4, glossy 8,
-        volume scatter 16, shadow 32) and 128 for a holdout; None: every ray sees every object, none is a
-        holdout.
+        volume scatter 16, shadow 32), 64 for a shadow catcher and 128 for a holdout; None: every ray sees every
+        object, none is a shadow catcher or a holdout.
     motion : ((K, 4, 4) float64, ...) world_from_object at K >= 2 motion steps evenly spread over the
         shutter (time 0 to 1), one entry per moving object; motion_reference, one (4, 4) per entry: the
         matrix the triangles' world-space positions were made with. motion_ids : (T,) int32 or None:

@@ -27,6 +27,9 @@ class Lights:
     sun_half_angle : (L,) float32, half the sun's angular diameter, radians.
     cast_shadow : (L,) bool or None (every light casts shadows): False for a light whose light no surface
         blocks (Blender's Cast Shadow off; Cycles then traces no shadow ray for it).
+    shadow_catcher : (L,) bool or None (all True): the light object's Visibility > Shadow Catcher, which Blender
+        turns on for lights; False leaves the light out of what shadow catchers receive without the synthetic
+        objects (Cycles' SHADER_EXCLUDE_SHADOW_CATCHER: kernels/shadow_catcher.py).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -37,6 +40,7 @@ class Lights:
     spot_cos: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     sun_half_angle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     cast_shadow: np.ndarray | None = None
+    shadow_catcher: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -59,3 +63,5 @@ class Lights:
             require(np.all(getattr(self, name) >= 0), f"lights.{name}", "must be non-negative")
         if self.cast_shadow is not None:
             check_array(self.cast_shadow, "lights.cast_shadow", (n,), np.bool_, finite=False)
+        if self.shadow_catcher is not None:
+            check_array(self.shadow_catcher, "lights.shadow_catcher", (n,), np.bool_, finite=False)
