@@ -21,7 +21,8 @@ from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit
 from .lights import nee
 from .media import stage as media_stage
-from .paths import PathState, may_scatter, ray_keys, roulette_verdict, type_limits
+from .paths import (PathState, may_scatter, ray_keys, roulette_stops, roulette_verdict, roulette_weights,
+                    type_limits)
 from .rays import Rays, below, concat_rays, leaves_its_side, spawn
 from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
@@ -162,7 +163,7 @@ def step(tables, wave, state, rays, first: bool, last: int):
     tables.crew.check_stop()   # also between the bounce's long stages: tracing, shading, light samples
     found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
     if state.continuation is not None:
-        found = _roulette_stops(tables, state, hits, found)
+        found = roulette_stops(tables, state, hits, found)
     medium = None
     if scattered is not None:
         medium = media_stage.vertex(tables, wave, state.rows(scattered.rows), scattered, first, last)
@@ -218,7 +219,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         if tables.shading.has_holdout:
             _holdout(wave, state, shading)
         if state.continuation is not None:
-            _roulette_weights(state)
+            roulette_weights(state)
     numbers = state.samples.bounce(0 if first else 1)
     focus = None
     if wave.nee:
@@ -539,19 +540,6 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
     return np.flatnonzero(alive)
 
 
-def _roulette_stops(tables, state, hits, found) -> np.ndarray:
-    """found without the paths that Russian roulette stopped at a surface that does not emit: those end
-    here; a stopped path whose surface emits stays for its emission (_roulette_weights then ends it)."""
-    stop = np.take(state.continuation, found) == 0
-    if not stop.any():
-        return found
-    if tables.emissive:
-        stopped = np.flatnonzero(stop)
-        mats = tables.triangles.materials(np.take(hits.prim, np.take(found, stopped)))
-        stop[stopped] = ~np.take(tables.shading.emissive, mats)
-    return found[~stop]
-
-
 # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
 def _crossings(tables, state, hit, alive, bs) -> None:
     """The coincident triangle each ray going through its surface meets at once (kernels.coincident),
@@ -600,15 +588,6 @@ def _filter_glossy(closures, min_ray_pdf: np.ndarray, filter_glossy: float) -> N
                                np.float32(0.0)).astype(np.float32))
 
 
-def _roulette_weights(state) -> None:
-    """After a surface's emission counted: the paths Russian roulette stopped here end (their throughput
-    becomes 0, so they add nothing and _continues drops them); the others are divided by their q (Cycles'
-    integrate_surface_terminate)."""
-    c = state.continuation
-    state.throughput = np.where(c > 0, state.throughput / np.where(c > 0, c, np.float32(1.0)), np.float32(0.0))
-    state.continuation = None
-
-
 def _hand_over(state, hits) -> None:
     """Rays that leave a surface where a coincident one lies meet that one first, at distance zero (as Cycles'
     rays do, which skip only the primitive they leave); the others keep what Embree found."""
@@ -619,5 +598,3 @@ def _hand_over(state, hits) -> None:
         hits.prim[rows] = state.partner[rows]
         hits.u[rows], hits.v[rows] = state.partner_uv[0, rows], state.partner_uv[1, rows]
         hits.t[rows] = 0.0
-
-
