@@ -27,7 +27,7 @@ class Film:
     """
 
     def __init__(self, width: int, height: int, adaptive: bool = False, passes: tuple = (), cryptomatte: tuple = (),
-                 cryptomatte_depth: int = 6):
+                 cryptomatte_depth: int = 6, transparent: bool = False):
         self.width, self.height = width, height
         columns = width if adaptive else 1
         self.sums = np.zeros((height, width, 4), np.float64)
@@ -39,9 +39,11 @@ class Film:
         self.aux = {name: np.zeros((height, width, _passes.channels(name)),
                                    np.float64 if _passes.kind(name) == "NOISE" else np.float32)
                     for name in passes if _passes.recorded(name)}
-        # With shadow catchers Combined is read from their planes, as Cycles' (kernels/shadow_catcher.py).
+        # With shadow catchers Combined is read from their planes, as Cycles' (kernels/shadow_catcher.py): the
+        # approximate one of an opaque film (transparent: the film's) over the Environment pass.
         self.catchers = shadow_catcher.MATTE in self.aux
         self.approximate_catchers = shadow_catcher.approximate(passes)
+        self.catcher_background = self.approximate_catchers and not transparent
         # Cryptomatte: ranked (id, weight) slots per kind (kernels.cryptomatte).
         self.crypto = {kind: CryptoFilm(height, width, cryptomatte_depth) for kind in cryptomatte}
 
@@ -131,8 +133,8 @@ class Film:
         """The means of the shadow catchers' planes: matte, catcher, splits, and background (None without)."""
         planes = [self.resolve_pass(name, row0, row1) for name in
                   (shadow_catcher.MATTE, shadow_catcher.CATCHER, shadow_catcher.SPLITS)]
-        background = shadow_catcher.BACKGROUND
-        return (*planes, self.resolve_pass(background, row0, row1) if background in self.aux else None)
+        background = self.resolve_pass(shadow_catcher.BACKGROUND, row0, row1) if self.catcher_background else None
+        return (*planes, background)
 
     @property
     def samples_done(self) -> int:

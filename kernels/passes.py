@@ -70,7 +70,7 @@ PASSES = {
     "transmission_direct": (3, "LIGHT"), "transmission_indirect": (3, "LIGHT"), "transmission_color": (3, "MEAN"),
     "volume_direct": (3, "LIGHT"), "volume_indirect": (3, "LIGHT"),
     "catcher": (3, "MEAN"), "catcher_matte": (4, "MEAN"), "catcher_samples": (1, "MEAN"),
-    "catcher_background": (3, "MEAN"), "shadow_catcher": (3, "CATCHER"),
+    "shadow_catcher": (3, "CATCHER"),
 }
 # PathState.pass_weights' rows: the diffuse and glossy shares (RGB) of the first bounce, and in scenes with media
 # a seventh, 1 where the first scattering was in a medium (Cycles' PATH_RAY_VOLUME_PASS).

@@ -20,9 +20,9 @@ What Cycles does, and where (blender/cycles at v5.0.0; bpy 5.0.1 and 5.3.0 rende
 - kernel/film/read.h, film_calculate_shadow_catcher: Shadow Catcher pass = (Combined - matte) / catcher per
   channel (1 where the catcher is 0, and where no sample split), alpha-overed on white with Combined's alpha;
   film_calculate_shadow_catcher_matte_with_shadow: the "approximate" Combined, the matte over the shadow, alpha
-  (1 - a)(1 - clamp(mean(catcher pass))) + a with a the matte's; on an opaque film over the world behind the
-  catchers, which the copy records first (PATH_RAY_SHADOW_CATCHER_BACKGROUND: the Environment pass; scene/film.cpp
-  adds it for that).
+  (1 - a)(1 - clamp(mean(catcher pass))) + a with a the matte's; on an opaque film over the Environment pass
+  (PASS_BACKGROUND, which scene/film.cpp adds for it): the world the camera sees, and the world behind the
+  catchers, which the copy records first (PATH_RAY_SHADOW_CATCHER_BACKGROUND).
 - session/buffers.cpp get_actual_display_pass and blender/sync.cpp (sync_film): with a shadow catcher in the
   scene, Combined is the matte; "approximate" (with the shadow) unless the view layer's Shadow Catcher pass is
   on; the viewport is always approximate.
@@ -42,9 +42,9 @@ from .rays import concat_rays
 from .scene.objects import HOLDOUT, SHADOW_CATCHER
 
 # Planes the film records for shadow catchers (kernels.passes): the catcher pass (light of the copies), the matte
-# (RGB and alpha of what never split and what came before a split), the splits per pixel, and the world behind the
-# catchers (the approximate Combined of an opaque film).
-CATCHER, MATTE, SPLITS, BACKGROUND = "catcher", "catcher_matte", "catcher_samples", "catcher_background"
+# (RGB and alpha of what never split and what came before a split), the splits per pixel; and the Environment pass
+# (the approximate Combined of an opaque film lays the matte over it).
+CATCHER, MATTE, SPLITS, BACKGROUND = "catcher", "catcher_matte", "catcher_samples", "environment"
 # The view layer's Shadow Catcher pass (made from the planes when read).
 PASS = "shadow_catcher"
 
@@ -92,7 +92,7 @@ def approximate(passes) -> bool:
 
 def with_planes(settings, visibility):
     """The settings with the planes the film records for shadow catchers when the scene has one (the
-    world behind them for the approximate Combined of an opaque film), else as they are."""
+    Environment pass for the approximate Combined of an opaque film), else as they are."""
     if not has_catchers(visibility):
         return settings
     planes = (CATCHER, MATTE, SPLITS)
@@ -167,7 +167,7 @@ def split(tables, wave, state, rays, hits, found):
     matte = aux[MATTE]
     matte[:3, paths] = wave.radiance[:, paths]
     matte[3, paths] = wave.alpha[paths] - throughput.mean(axis=0)
-    if not wave.settings.transparent_background and (BACKGROUND in aux or "environment" in aux):
+    if not wave.settings.transparent_background and BACKGROUND in aux:
         _background(tables, wave, state, rays, at, paths, throughput)
     copies = state.rows(at)
     copies.features, copies.pass_weights = None, None   # (Cycles writes neither for the copies)
@@ -175,8 +175,8 @@ def split(tables, wave, state, rays, hits, found):
 
 
 def _background(tables, wave, state, rays, at, paths, throughput) -> None:
-    """The world along the camera rays behind the catchers they split at, into the Environment pass and the
-    approximate Combined's background (Cycles' PATH_RAY_SHADOW_CATCHER_BACKGROUND)."""
+    """The world along the camera rays behind the catchers they split at, into the Environment pass (Cycles'
+    PATH_RAY_SHADOW_CATCHER_BACKGROUND, on an opaque film)."""
     d = rays.dirs
     dx, dy, dz = (np.take(d[:, k], at) for k in range(3))
     ray = None
@@ -184,10 +184,7 @@ def _background(tables, wave, state, rays, at, paths, throughput) -> None:
         ray = RayInfo(np.take(state.bounce, at), np.take(state.transparent, at), emission=True,
                       lobes=None if state.lobes is None else np.take(state.lobes, at, axis=1),
                       portal=None if state.portal is None else np.take(state.portal, at))
-    light = throughput * tables.environment.radiance(dx, dy, dz, ray)
-    for name in (BACKGROUND, "environment"):
-        if name in wave.aux:
-            wave.aux[name][:, paths] += light
+    wave.aux[BACKGROUND][:, paths] += throughput * tables.environment.radiance(dx, dy, dz, ray)
 
 
 def finish(wave, radiance, alpha) -> None:
@@ -216,8 +213,8 @@ def shadow_pass(combined, matte, catcher, splits) -> np.ndarray:
 
 def combined(combined_rgba, matte, catcher, splits, background, approximate_: bool) -> np.ndarray:
     """(..., 4) Combined where the scene has shadow catchers: the matte, or with approximate_ the matte over the
-    shadow (Cycles' film_calculate_shadow_catcher_matte_with_shadow), over the world behind the catchers when
-    `background` (the plane's mean) is given (an opaque film), else with the shadow in alpha."""
+    shadow (Cycles' film_calculate_shadow_catcher_matte_with_shadow), over `background` (the Environment pass's
+    mean) when it is given (an opaque film), else with the shadow in alpha."""
     alpha = np.clip(matte[..., 3:4], 0.0, 1.0)
     if not approximate_:
         return np.concatenate([matte[..., :3], alpha], axis=-1).astype(np.float32)
