@@ -102,10 +102,14 @@ def _replicates(scene, engine: str, samples: int = SAMPLES) -> dict:
     return out
 
 
-def _assert_parity(scene, names=("Combined",), block: int = 8, z_block: float = 4.5, z_whole: float = 4.0) -> dict:
+def _assert_parity(scene, names=("Combined",), block: int = 8, z_block: float = 4.5, z_whole: float = 4.0,
+                   mean_tol: float = 0.01) -> dict:
     """Every pass of `names`, each channel: every block x block sum of Ember's mean within z_block standard
-    errors of Cycles', the whole image within z_whole (the noise of both, from their replicates; blocks
-    without noise must be equal to float rounding). Returns {pass: (Cycles' mean, Ember's mean)}."""
+    errors of Cycles' (the noise of both, from their replicates; blocks without noise must be equal to float
+    rounding), and the whole image's mean within z_whole standard errors or mean_tol of Cycles' (relative).
+    Combined and the pass are read from ratios and clamps of the pixels' sums (Cycles' film/read.h), whose
+    expectation at a finite sample count moves a little with the pixels' noise, which the two engines share
+    only in law: hence the relative margin for the whole image. Returns {pass: (Cycles' mean, Ember's mean)}."""
     cycles, ember = _replicates(scene, "CYCLES"), _replicates(scene, "EMBER")
     out = {}
     for name in names:
@@ -118,10 +122,11 @@ def _assert_parity(scene, names=("Combined",), block: int = 8, z_block: float = 
         diff, spread = blocks(e) - blocks(c), np.sqrt(blocks(var_c) + blocks(var_e))
         spread = np.maximum(spread, 1e-5 * np.maximum(np.abs(blocks(c)), 1.0))   # float rounding, not noise
         z = np.abs(diff) / spread
-        whole = (e.sum(axis=(0, 1)) - c.sum(axis=(0, 1))) / np.sqrt(var_c.sum(axis=(0, 1)) + var_e.sum(axis=(0, 1)) +
-                                                                   1e-12)
         assert z.max() < z_block, (name, z.max(), np.unravel_index(np.argmax(z), z.shape))
-        assert np.abs(whole).max() < z_whole, (name, whole)
+        mean_c, mean_e = c.mean(axis=(0, 1)), e.mean(axis=(0, 1))
+        se = np.sqrt(var_c.sum(axis=(0, 1)) + var_e.sum(axis=(0, 1))) / (h * w)
+        assert np.all(np.abs(mean_e - mean_c) <= np.maximum(z_whole * se, mean_tol * np.abs(mean_c)) + 1e-7), \
+            (name, mean_c, mean_e, se)
         out[name] = (c, e)
     return out
 
