@@ -1,9 +1,9 @@
 """Shadow catchers (kernels/shadow_catcher.py) against Cycles: a red ball on a catcher floor under a sun and a
 sky-like gradient world, rendered by both engines with an opaque and a transparent film, with and without the
-Shadow Catcher pass; a glossy catcher that reflects the ball, a light and an emitting ball that are no shadow
-catchers. Colour, alpha and the pass agree within noise (replicate renders, tests/bpy_helpers.py). Kernel
-level: without a shadow catcher nothing is recorded and nothing changes; worker processes render the planes bit
-for bit as threads do."""
+Shadow Catcher pass; a glossy catcher that reflects the ball, a light and an emitter (hidden from the camera)
+that are no shadow catchers, a chrome ball that reflects the floor. Colour, alpha and the pass agree within
+noise (replicate renders, tests/bpy_helpers.py). Kernel level: without a shadow catcher nothing is recorded;
+worker processes record the planes bit for bit as threads do. (Viewport edits: test_viewport_updates.py.)"""
 from __future__ import annotations
 
 import math
@@ -17,6 +17,8 @@ from bpy_helpers import REPLICATE_SEEDS, configure_engine
 
 SAMPLES = 64
 SIZE = 48
+# Rows and columns of the image left of the ball, where the sun casts its shadow on the floor.
+SHADOW = (slice(24, 36), slice(0, 16))
 
 
 def _gradient_world(scene):
@@ -64,7 +66,7 @@ def _scene(transparent=False, catcher_pass=False, floor=None):
     ball.data.materials.append(diffuse_material("Red", (0.8, 0.12, 0.08)))
     sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
     sun.data.energy, sun.data.angle = 3.0, 0.1
-    sun.rotation_euler = (0.7, 0.0, 0.8)
+    sun.rotation_euler = (1.0, 0.0, 0.8)
     scene.collection.objects.link(sun)
     scene.render.film_transparent = transparent
     layer = scene.view_layers[0]
@@ -103,13 +105,15 @@ def _replicates(scene, engine: str, samples: int = SAMPLES) -> dict:
 
 
 def _assert_parity(scene, names=("Combined",), block: int = 8, z_block: float = 4.5, z_whole: float = 4.0,
-                   mean_tol: float = 0.01) -> dict:
+                   mean_tol: float = 0.02) -> dict:
     """Every pass of `names`, each channel: every block x block sum of Ember's mean within z_block standard
     errors of Cycles' (the noise of both, from their replicates; blocks without noise must be equal to float
     rounding), and the whole image's mean within z_whole standard errors or mean_tol of Cycles' (relative).
     Combined and the pass are read from ratios and clamps of the pixels' sums (Cycles' film/read.h), whose
-    expectation at a finite sample count moves a little with the pixels' noise, which the two engines share
-    only in law: hence the relative margin for the whole image. Returns {pass: (Cycles' mean, Ember's mean)}."""
+    expectation at a finite sample count moves with the pixels' noise, which differs between the engines: the
+    transparent film's mean alpha here is 1% above Cycles' at 16 samples a render, 0.4% at 64, -0.1% at 256;
+    hence a relative margin for the whole image, as compare_to_cycles'. Returns {pass: (Cycles' mean, Ember's
+    mean)}."""
     cycles, ember = _replicates(scene, "CYCLES"), _replicates(scene, "EMBER")
     out = {}
     for name in names:
@@ -137,15 +141,15 @@ def test_combined_shows_the_shadow_as_cycles(transparent):
     floor gone. On an opaque film the shadow darkens the world behind the floor; on a transparent one the
     floor is transparent but for the shadow, which is black in alpha."""
     scene, _, _ = _scene(transparent)
-    c, e = _assert_parity(scene)["Combined"]
-    bottom = e[-6:]   # the floor, out of the shadow
+    e = _assert_parity(scene)["Combined"][1]
+    bottom, shadow = e[-6:], e[SHADOW]   # the floor out of the shadow, and in it
     if transparent:
         assert bottom[..., 3].mean() < 0.05 and np.abs(bottom[..., :3]).max() < 1e-6
-        assert e[..., 3].max() > 0.99   # the ball, opaque
+        assert e[..., 3].max() > 0.99 and shadow[..., 3].max() > 0.3   # the ball opaque, the shadow half
     else:
         assert np.all(e[..., 3] == 1.0)
-    shadow = e[..., 3] if transparent else 1.0 - e[..., :3].mean(axis=-1) / c[:8, :, :3].mean()
-    assert shadow.max() > 0.3
+        floor = shadow[..., :3].mean(axis=-1)
+        assert (1.0 - floor.min(axis=1) / floor.max(axis=1)).max() > 0.3   # the world darkened by the shadow
 
 
 def test_shadow_catcher_pass_and_matte():
@@ -155,7 +159,7 @@ def test_shadow_catcher_pass_and_matte():
     passes = _assert_parity(scene, ("Combined", "Shadow Catcher"))
     combined, catcher = passes["Combined"][1], passes["Shadow Catcher"][1]
     assert combined[-6:, :, 3].max() < 1e-6 and np.abs(combined[-6:, :, :3]).max() < 1e-6
-    assert catcher.min() < 0.5 and np.abs(catcher[:4] - 1.0).max() < 1e-6
+    assert catcher[SHADOW].min() < 0.6 and np.abs(catcher[:4] - 1.0).max() < 1e-6
 
 
 def test_reflections_and_lights_that_are_no_catchers():
