@@ -114,6 +114,10 @@ def start(tables, wave, n: int, new_wave):
     copies = new_wave(wave.settings, wave.nee, wave.split, wave.max_scatters, wave.aux[CATCHER],
                       np.ones(n, np.float32))
     copies.spread_dd, copies.only_catchers = wave.spread_dd, found
+    # What the copies see of the world and of emitters straight from the camera (through a transparent catcher)
+    # goes to the Environment and Emission passes too: Cycles' film_write_emission_or_background_pass makes no
+    # exception for them.
+    copies.aux = {name: wave.aux[name] for name in ("environment", "emission") if name in wave.aux} or None
     return CatcherWave(found, copies, n)
 
 
@@ -121,7 +125,8 @@ class CatcherWave:
     """A wave's shadow catcher state (the integrator's wave.catcher).
 
     paths : the wave record of the copies (the integrator's): their light is the wave's catcher plane, their
-        alpha a plane of their own (added to the wave's at the end), no other pass; only_catchers set.
+        alpha a plane of their own (added to the wave's at the end), no other pass but Environment and Emission;
+        only_catchers set.
     caught : (N,) bool per path of the wave, split already (PATH_RAY_SHADOW_CATCHER_HIT).
     going : the copies to trace next, (PathState, Rays), or None.
     """

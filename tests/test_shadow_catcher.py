@@ -135,13 +135,30 @@ def _assert_parity(scene, names=("Combined",), block: int = 8, z_block: float = 
     return out
 
 
-@pytest.mark.parametrize("transparent", [False, True])
-def test_combined_shows_the_shadow_as_cycles(transparent):
+def _see_through():
+    """A floor material that lets 40% of the light through (a Transparent BSDF mixed in)."""
+    import bpy
+    mat = bpy.data.materials.new("Veil")
+    tree = mat.node_tree
+    tree.nodes.clear()
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = 0.4
+    tree.links.new(tree.nodes.new("ShaderNodeBsdfDiffuse").outputs[0], mix.inputs[1])
+    tree.links.new(tree.nodes.new("ShaderNodeBsdfTransparent").outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    return mat
+
+
+@pytest.mark.parametrize("transparent, see_through", [(False, False), (True, False), (False, True)])
+def test_combined_shows_the_shadow_as_cycles(transparent, see_through):
     """Without the Shadow Catcher pass Combined is Cycles' approximate one: the ball over its shadow, and the
     floor gone. On an opaque film the shadow darkens the world behind the floor; on a transparent one the
-    floor is transparent but for the shadow, which is black in alpha."""
-    scene, _, _ = _scene(transparent)
+    floor is transparent but for the shadow, which is black in alpha. A floor that lets light through: what
+    the camera sees through it counts in the Environment pass the floor lies over as Cycles counts it."""
+    scene, _, _ = _scene(transparent, floor=_see_through if see_through else None)
     e = _assert_parity(scene)["Combined"][1]
+    if see_through:
+        return
     bottom, shadow = e[-6:], e[SHADOW]   # the floor out of the shadow, and in it
     if transparent:
         assert bottom[..., 3].mean() < 0.05 and np.abs(bottom[..., :3]).max() < 1e-6
