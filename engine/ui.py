@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import bpy
-from bl_ui.properties_object import has_geometry_visibility   # what Cycles' Visibility panel tests too
 
 from .version import EMBER_VERSION
 
@@ -308,7 +307,7 @@ class EMBER_OBJECT_PT_visibility_mask(EmberPanel, bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        return context.engine in cls.COMPAT_ENGINES and bool(has_geometry_visibility(context.object))
+        return context.engine in cls.COMPAT_ENGINES and _has_geometry_visibility(context.object)
 
     def draw(self, context):
         layout = self.layout
@@ -326,7 +325,7 @@ class EMBER_OBJECT_PT_visibility_rays(EmberPanel, bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        return context.engine in cls.COMPAT_ENGINES and bool(has_geometry_visibility(context.object))
+        return context.engine in cls.COMPAT_ENGINES and _has_geometry_visibility(context.object)
 
     def draw(self, context):
         layout = self.layout
@@ -341,6 +340,14 @@ class EMBER_OBJECT_PT_visibility_rays(EmberPanel, bpy.types.Panel):
         col.prop(ob, "visible_volume_scatter", text="Volume Scatter")
         if ob.type != "LIGHT":
             col.prop(ob, "visible_shadow", text="Shadow")
+
+
+def _has_geometry_visibility(ob) -> bool:
+    """The objects Cycles' Visibility panel shows masks and ray visibility for (has_geometry_visibility, in
+    bl_ui.properties_object from Blender 4.3 on and in Cycles' ui.py before)."""
+    return ob is not None and (ob.type in {"MESH", "CURVE", "SURFACE", "FONT", "META", "LIGHT", "VOLUME",
+                                           "POINTCLOUD", "CURVES"}
+                               or (ob.instance_type == "COLLECTION" and ob.instance_collection is not None))
 
 
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths,
