@@ -194,15 +194,16 @@ def _background(tables, wave, state, rays, at, paths, throughput) -> None:
 
 def finish(wave, radiance, alpha) -> None:
     """At the end of a wave: the matte of the paths that never split is their light and alpha; the copies'
-    transparency counts in the wave's alpha; a copy whose light came out NaN or infinite adds none."""
+    transparency counts in the wave's alpha; a path whose light came out NaN or infinite adds none to the
+    planes (the renderer drops it from the image)."""
     c = wave.catcher
     aux = wave.aux
     kept = ~c.caught
     aux[MATTE][:3, kept] = radiance[:, kept]
     aux[MATTE][3, kept] = alpha[kept]
     alpha += c.paths.alpha - np.float32(1.0)
-    plane = aux[CATCHER]
-    plane[:, ~np.isfinite(plane).all(axis=0)] = 0.0
+    for plane in (aux[CATCHER], aux[MATTE]):
+        plane[:, ~np.isfinite(plane).all(axis=0)] = 0.0
 
 
 # ---------------------------------------------------------------- reading the film
