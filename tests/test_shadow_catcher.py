@@ -27,6 +27,9 @@ def _gradient_world(scene):
     import bpy
     world = bpy.data.worlds.new("Sky")
     scene.world = world
+    # A small map for the world's light sampling (both engines read it): Cycles' default, 1024 wide, took most of
+    # each of its renders here; the images' expectation does not depend on it.
+    world.cycles.sampling_method, world.cycles.sample_map_resolution = "MANUAL", 256
     tree = world.node_tree
     tree.nodes.clear()
     coords = tree.nodes.new("ShaderNodeTexCoord")
