@@ -341,7 +341,7 @@ CLI_PASSES = {"depth": "use_pass_z", "position": "use_pass_position", "normal": 
               **{f"{c}_{k}": f"use_pass_{c}_{k}" for c in ("diffuse", "glossy", "transmission")
                  for k in ("direct", "indirect", "color")},
               "volume_direct": "use_pass_volume_direct", "volume_indirect": "use_pass_volume_indirect",
-              "denoising": "denoising_store_passes"}
+              "shadow_catcher": "use_pass_shadow_catcher", "denoising": "denoising_store_passes"}
 
 
 def _use_passes(scene, text: str, output: str | None) -> None:
@@ -358,7 +358,8 @@ def _use_passes(scene, text: str, output: str | None) -> None:
         for name in names:
             toggle = CLI_PASSES[name]
             setattr(layer.ember if toggle in ("denoising_store_passes", "use_pass_noise", "use_pass_volume_direct",
-                                              "use_pass_volume_indirect") else layer, toggle, True)
+                                              "use_pass_volume_indirect", "use_pass_shadow_catcher") else layer,
+                    toggle, True)
     settings = scene.render.image_settings
     settings.media_type = "MULTI_LAYER_IMAGE"
     settings.color_depth = "32"

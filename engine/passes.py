@@ -51,6 +51,10 @@ DATA_PASSES = (
          "volume_direct"),
     Pass("ember.use_pass_volume_indirect|cycles.use_pass_volume_indirect", "Volume Indirect", 3, "RGB", "COLOR",
          "volume_indirect"),
+    # On, Combined shows the synthetic objects alone over transparent shadow catchers (no shadows: Cycles' matte)
+    # and this pass the factor their shadows and reflections put on the footage (kernels/shadow_catcher.py).
+    Pass("ember.use_pass_shadow_catcher|cycles.use_pass_shadow_catcher", "Shadow Catcher", 3, "RGB", "COLOR",
+         "shadow_catcher"),
 )
 DENOISING_ALBEDO = Pass("", "Denoising Albedo", 3, "RGB", "COLOR", "denoising_albedo")
 DENOISING_NORMAL = Pass("", "Denoising Normal", 3, "XYZ", "VECTOR", "denoising_normal")
@@ -158,6 +162,11 @@ class EmberViewLayerSettings(bpy.types.PropertyGroup):
     use_pass_volume_indirect: BoolProperty(
         name="Volume Indirect", description="The rest of the light of paths whose first scattering is in a "
                                             "medium (Cycles' Volume Indirect)",
+        default=False)
+    use_pass_shadow_catcher: BoolProperty(
+        name="Shadow Catcher", description="The shadows and reflections that objects cast on shadow catchers, as "
+                                           "a factor to multiply the footage by; Combined then shows the objects "
+                                           "alone, without them (Cycles' Shadow Catcher pass)",
         default=False)
     denoising_store_passes: BoolProperty(
         name="Denoising Data",

@@ -252,6 +252,7 @@ class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
         row.prop(view_layer.ember, "use_pass_volume_indirect", text="Indirect", toggle=True)
         col.prop(view_layer, "use_pass_emit", text="Emission")
         col.prop(view_layer, "use_pass_environment")
+        col.prop(view_layer.ember, "use_pass_shadow_catcher")
         col = layout.column(heading="Cryptomatte")
         col.prop(view_layer, "use_pass_cryptomatte_object", text="Object")
         col.prop(view_layer, "use_pass_cryptomatte_material", text="Material")
@@ -303,9 +304,62 @@ class EMBER_LIGHT_PT_shadow(EmberPanel, bpy.types.Panel):
         layout.prop(context.light, "use_shadow", text="Cast Shadow")
 
 
+class EMBER_OBJECT_PT_visibility_mask(EmberPanel, bpy.types.Panel):
+    """Object > Visibility > Mask: Shadow Catcher and Holdout, which Ember renders as Cycles (Blender's own
+    Visibility panel shows them for Cycles only)."""
+    bl_label = "Mask"
+    bl_context = "object"
+    bl_parent_id = "OBJECT_PT_visibility"
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES and _has_geometry_visibility(context.object)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        col = layout.column()
+        col.prop(context.object, "is_shadow_catcher")
+        col.prop(context.object, "is_holdout", toggle=False)
+
+
+class EMBER_OBJECT_PT_visibility_rays(EmberPanel, bpy.types.Panel):
+    """Object > Visibility > Ray Visibility, as Cycles' panel of that name (kernels/visibility.py)."""
+    bl_label = "Ray Visibility"
+    bl_context = "object"
+    bl_parent_id = "OBJECT_PT_visibility"
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES and _has_geometry_visibility(context.object)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        ob = context.object
+        col = layout.column()
+        col.prop(ob, "visible_camera", text="Camera", toggle=False)
+        col.prop(ob, "visible_diffuse", text="Diffuse")
+        col.prop(ob, "visible_glossy", text="Glossy")
+        col.prop(ob, "visible_transmission", text="Transmission")
+        col.prop(ob, "visible_volume_scatter", text="Volume Scatter")
+        if ob.type != "LIGHT":
+            col.prop(ob, "visible_shadow", text="Shadow")
+
+
+def _has_geometry_visibility(ob) -> bool:
+    """The objects Cycles' Visibility panel shows masks and ray visibility for (has_geometry_visibility, in
+    bl_ui.properties_object from Blender 4.3 on and in Cycles' ui.py before)."""
+    return ob is not None and (ob.type in {"MESH", "CURVE", "SURFACE", "FONT", "META", "LIGHT", "VOLUME",
+                                           "POINTCLOUD", "CURVES"}
+                               or (ob.instance_type == "COLLECTION" and ob.instance_collection is not None))
+
+
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths,
            EMBER_RENDER_PT_volumes, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance,
-           EMBER_VIEWLAYER_PT_passes, EMBER_LIGHT_PT_shadow, EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume)
+           EMBER_VIEWLAYER_PT_passes, EMBER_LIGHT_PT_shadow, EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume,
+           EMBER_OBJECT_PT_visibility_mask, EMBER_OBJECT_PT_visibility_rays)
 
 
 def register():

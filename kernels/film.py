@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import passes as _passes
+from . import shadow_catcher
 from .cryptomatte import CryptoFilm
 
 
@@ -26,7 +27,7 @@ class Film:
     """
 
     def __init__(self, width: int, height: int, adaptive: bool = False, passes: tuple = (), cryptomatte: tuple = (),
-                 cryptomatte_depth: int = 6):
+                 cryptomatte_depth: int = 6, transparent: bool = False):
         self.width, self.height = width, height
         columns = width if adaptive else 1
         self.sums = np.zeros((height, width, 4), np.float64)
@@ -36,7 +37,13 @@ class Film:
         # Data passes (kernels.passes): float32 sums for averaged ones (normals, albedo and UVs need no more),
         # sample 0's values for the others.
         self.aux = {name: np.zeros((height, width, _passes.channels(name)),
-                                   np.float64 if _passes.kind(name) == "NOISE" else np.float32) for name in passes}
+                                   np.float64 if _passes.kind(name) == "NOISE" else np.float32)
+                    for name in passes if _passes.recorded(name)}
+        # With shadow catchers Combined is read from their planes, as Cycles' (kernels/shadow_catcher.py): the
+        # approximate one of an opaque film (transparent: the film's) over the Environment pass.
+        self.catchers = shadow_catcher.MATTE in self.aux
+        self.approximate_catchers = shadow_catcher.approximate(passes)
+        self.catcher_background = self.approximate_catchers and not transparent
         # Cryptomatte: ranked (id, weight) slots per kind (kernels.cryptomatte).
         self.crypto = {kind: CryptoFilm(height, width, cryptomatte_depth) for kind in cryptomatte}
 
@@ -71,6 +78,10 @@ class Film:
         """(rows, width, C) float32 of a data pass, as Cycles reads its passes: averaged ones divided by the
         pixel's samples; Depth 1e10 where sample 0 saw no surface."""
         row1 = self.height if row1 is None else row1
+        if name == shadow_catcher.PASS:
+            if not self.catchers:   # no shadow catcher: nothing to divide, 1 everywhere (as Cycles)
+                return np.ones((row1 - row0, self.width, 3), np.float32)
+            return shadow_catcher.shadow_pass(self.mean(row0, row1), *self._catcher_planes(row0, row1)[:3])
         values = self.aux[name][row0:row1]
         if _passes.is_first(name):
             if name == "depth":
@@ -101,11 +112,29 @@ class Film:
         return mean.astype(np.float32)
 
     def resolve(self, row0: int = 0, row1: int | None = None) -> np.ndarray:
-        """(rows, width, 4) float32 mean of rows [row0, row1); pixels without samples are zero."""
+        """(rows, width, 4) float32 Combined of rows [row0, row1): the mean of the samples, or where the scene has
+        shadow catchers, what Cycles shows of them (kernels/shadow_catcher.py); pixels without samples are zero."""
+        mean = self.mean(row0, row1)
+        if not self.catchers:
+            return mean
+        row1 = self.height if row1 is None else row1
+        out = shadow_catcher.combined(mean, *self._catcher_planes(row0, row1), self.approximate_catchers)
+        out[np.broadcast_to(self.pixel_samples[row0:row1] == 0, out.shape[:2])] = 0.0
+        return out
+
+    def mean(self, row0: int = 0, row1: int | None = None) -> np.ndarray:
+        """(rows, width, 4) float32 mean of the samples of rows [row0, row1); pixels without samples are zero."""
         row1 = self.height if row1 is None else row1
         count = self.pixel_samples[row0:row1].astype(np.float64)
         scale = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
         return (self.sums[row0:row1] * scale[:, :, None]).astype(np.float32)
+
+    def _catcher_planes(self, row0: int, row1: int):
+        """The means of the shadow catchers' planes: matte, catcher, splits, and background (None without)."""
+        planes = [self.resolve_pass(name, row0, row1) for name in
+                  (shadow_catcher.MATTE, shadow_catcher.CATCHER, shadow_catcher.SPLITS)]
+        background = self.resolve_pass(shadow_catcher.BACKGROUND, row0, row1) if self.catcher_background else None
+        return (*planes, background)
 
     @property
     def samples_done(self) -> int:

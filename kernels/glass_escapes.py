@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import passes
+from . import passes, visibility
 from .bsdf.light_passes import pass_classes
 from .paths import may_scatter
 from .rays import leaves_its_side, rays_from
@@ -47,8 +47,11 @@ def glass_escapes(tables, wave, state, hit, closures, bs, receiver=None) -> None
     idx = chosen[live]
     wx, wy, wz = (c[live] for c in wi)
     rays = rays_from(tables, hit, idx, (wx, wy, wz), transmit[live])
-    hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split,
-                                None if state.time is None else state.time.take(idx))
+    times = None if state.time is None else state.time.take(idx)
+    hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, times)
+    if wave.only_catchers is not None:   # a shadow catcher's own paths see shadow catchers only
+        visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, visibility.ALL_RAYS, wave.split,
+                               times, catchers_only=True)
     out = np.flatnonzero(hits.prim < 0)
     if not len(out):
         return

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import motion, passes, sampling, shadow_linking, subsurface, visibility
+from . import motion, passes, sampling, shadow_catcher, shadow_linking, subsurface, visibility
 from .accel import Hits, RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
@@ -21,7 +21,8 @@ from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit
 from .lights import nee
 from .media import stage as media_stage
-from .paths import PathState, facing_of, may_scatter, ray_keys, roulette_verdict, type_limits
+from .paths import (PathState, facing_of, may_scatter, ray_keys, roulette_stops, roulette_verdict,
+                    roulette_weights, type_limits)
 from .rays import Rays, below, concat_rays, leaves_its_side, spawn
 from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
@@ -47,6 +48,7 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
                  0.0 if tables.scene.camera.kind == "ORTHO" else tables.pixel_size)
     wave.aux, wave.bake = aux, bake
+    wave.catcher = shadow_catcher.start(tables, wave, n, _Wave)
     # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
     last = max_scatters + int(settings.transparent_max_bounces)
     live = n if live is None else max(1, int(live))
@@ -68,11 +70,25 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
             if fresh is not None:
                 going = fresh if going is None else \
                     (PathState.concat(going[0], fresh[0]), concat_rays(going[1], fresh[1]))
+            _catch_up(tables, wave, last)
             continue
         if going is None:
-            break
+            if not _catch_up(tables, wave, last):
+                break
+            continue
         going = step(tables, wave, *going, first=False, last=last)
+        _catch_up(tables, wave, last)
+    if wave.catcher is not None:
+        shadow_catcher.finish(wave, radiance, alpha)
     return radiance, alpha
+
+
+def _catch_up(tables, wave, last: int) -> bool:
+    """One step of the shadow catchers' copies (kernels.shadow_catcher) beside the wave's own; whether some go on."""
+    going = None if wave.catcher is None else wave.catcher.take()
+    if going is not None:
+        wave.catcher.add(step(tables, wave.catcher.paths, *going, first=False, last=last))
+    return going is not None and wave.catcher.going is not None
 
 
 def start_paths(tables, wave, paths, start: int, end: int):
@@ -155,7 +171,7 @@ def step(tables, wave, state, rays, first: bool, last: int):
         _hand_over(state, hits)
     if tables.visibility is not None:
         visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, visibility.ray_types(state, first),
-                               wave.split, state.time)
+                               wave.split, state.time, wave.only_catchers is not None)
     if tables.links is not None and not first:
         shadow_linking.dedicated_light(tables, wave, state, rays, hits)
     ended = None
@@ -170,7 +186,7 @@ def step(tables, wave, state, rays, first: bool, last: int):
     tables.crew.check_stop()   # also between the bounce's long stages: tracing, shading, light samples
     found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
     if state.continuation is not None:
-        found = _roulette_stops(tables, state, hits, found)
+        found = roulette_stops(tables, state, hits, found)
     medium = None
     if scattered is not None:
         medium = media_stage.vertex(tables, wave, state.rows(scattered.rows), scattered, first, last)
@@ -178,10 +194,13 @@ def step(tables, wave, state, rays, first: bool, last: int):
             medium = (medium[0], Rays(*medium[1], np.full(len(medium[0]), np.inf, np.float32)))
     if tables.visibility is not None:
         found = _held_out(tables, wave, state, hits, found)
+    copies = None if wave.catcher is None else shadow_catcher.split(tables, wave, state, rays, hits, found)
     if not len(found):
         return medium
     state.compact(found)
     surface = _surface_vertex(tables, wave, state, rays, hits, found, first, last)
+    if copies is not None:   # the shadow catchers' copies of the paths shade the same hits, for their own pass
+        wave.catcher.add(_surface_vertex(tables, wave.catcher.paths, copies[0], rays, hits, copies[1], first, last))
     if medium is None or surface is None:
         return surface if medium is None else medium
     return PathState.concat(surface[0], medium[0]), concat_rays(surface[1], medium[1])
@@ -225,7 +244,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         if tables.shading.has_holdout:
             _holdout(wave, state, shading)
         if state.continuation is not None:
-            _roulette_weights(state)
+            roulette_weights(state)
     numbers = state.samples.bounce(0 if first else 1)
     receiver = None if tables.links is None else tables.links.receivers(tables.triangles, hit.prim)
     focus = None
@@ -307,7 +326,8 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
         seeing &= wave.bake.sees_lights(state.bounce)
     budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
     met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget, state.link_set,
-                                  facing=facing_of(state.mis_facing))
+                                  facing=facing_of(state.mis_facing),
+                                  allowed=None if wave.only_catchers is None else wave.only_catchers.lights)
     met.crossed[~seeing] = 0
     state.transparent = state.transparent + met.crossed
     lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
@@ -563,19 +583,6 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None)
     return np.flatnonzero(alive)
 
 
-def _roulette_stops(tables, state, hits, found) -> np.ndarray:
-    """found without the paths that Russian roulette stopped at a surface that does not emit: those end
-    here; a stopped path whose surface emits stays for its emission (_roulette_weights then ends it)."""
-    stop = np.take(state.continuation, found) == 0
-    if not stop.any():
-        return found
-    if tables.emissive:
-        stopped = np.flatnonzero(stop)
-        mats = tables.triangles.materials(np.take(hits.prim, np.take(found, stopped)))
-        stop[stopped] = ~np.take(tables.shading.emissive, mats)
-    return found[~stop]
-
-
 # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
 def _crossings(tables, state, hit, alive, bs) -> None:
     """The coincident triangle each ray going through its surface meets at once (kernels.coincident),
@@ -594,7 +601,8 @@ def _crossings(tables, state, hit, alive, bs) -> None:
 
 class _Wave:
     """Per-wave constants and outputs shared by the stages."""
-    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux", "bake")
+    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux", "bake", "catcher",
+                 "only_catchers")
 
     def __init__(self, settings, nee, split, max_scatters, radiance, alpha, spread_dd=0.0):
         self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
@@ -602,6 +610,8 @@ class _Wave:
         self.spread_dd = np.float32(spread_dd)  # the camera rays' direction spread per pixel (radians)
         self.aux = None  # the data passes being recorded ({name: (C, N)}), or None
         self.bake = None  # kernels/bake.BakeRun: what a bake leaves out of its paths (Cycles' filter_closures)
+        self.catcher = None  # kernels.shadow_catcher.CatcherWave where paths split at shadow catchers, or None
+        self.only_catchers = None  # the shadow_catcher.Catchers a wave of the catchers' copies sees, else None
 
 
 def _caustics(settings):
@@ -622,15 +632,6 @@ def _filter_glossy(closures, min_ray_pdf: np.ndarray, filter_glossy: float) -> N
                                np.float32(0.0)).astype(np.float32))
 
 
-def _roulette_weights(state) -> None:
-    """After a surface's emission counted: the paths Russian roulette stopped here end (their throughput
-    becomes 0, so they add nothing and _continues drops them); the others are divided by their q (Cycles'
-    integrate_surface_terminate)."""
-    c = state.continuation
-    state.throughput = np.where(c > 0, state.throughput / np.where(c > 0, c, np.float32(1.0)), np.float32(0.0))
-    state.continuation = None
-
-
 def _hand_over(state, hits) -> None:
     """Rays that leave a surface where a coincident one lies meet that one first, at distance zero (as Cycles'
     rays do, which skip only the primitive they leave); the others keep what Embree found."""
@@ -641,5 +642,3 @@ def _hand_over(state, hits) -> None:
         hits.prim[rows] = state.partner[rows]
         hits.u[rows], hits.v[rows] = state.partner_uv[0, rows], state.partner_uv[1, rows]
         hits.t[rows] = 0.0
-
-

@@ -33,6 +33,9 @@ Two kinds, as in Cycles:
 - NOISE: an unbiased estimate of the variance of each pixel's mean: the squared difference between the
   mean of its odd-numbered samples and the mean of all (Cycles' adaptive sampling compares the same two);
   one estimate per pixel, so itself noisy (blur it to read it); 0 with fewer than two samples.
+- Shadow catchers (kernels/shadow_catcher.py): the planes Cycles keeps for them (MEAN; the renderer records
+  them whenever the scene has a shadow catcher) and the Shadow Catcher pass (CATCHER), made from them and
+  Combined when read, as Cycles' pass accessor makes it.
 """
 from __future__ import annotations
 
@@ -66,6 +69,8 @@ PASSES = {
     "glossy_direct": (3, "LIGHT"), "glossy_indirect": (3, "LIGHT"), "glossy_color": (3, "MEAN"),
     "transmission_direct": (3, "LIGHT"), "transmission_indirect": (3, "LIGHT"), "transmission_color": (3, "MEAN"),
     "volume_direct": (3, "LIGHT"), "volume_indirect": (3, "LIGHT"),
+    "catcher": (3, "MEAN"), "catcher_matte": (4, "MEAN"), "catcher_samples": (1, "MEAN"),
+    "shadow_catcher": (3, "CATCHER"),
 }
 # PathState.pass_weights' rows: the diffuse and glossy shares (RGB) of the first bounce, and in scenes with media
 # a seventh, 1 where the first scattering was in a medium (Cycles' PATH_RAY_VOLUME_PASS).
@@ -88,6 +93,11 @@ def is_first(name: str) -> bool:
 
 def kind(name: str) -> str:
     return "MEAN" if name.startswith("aov:") else PASSES[name][1]
+
+
+def recorded(name: str) -> bool:
+    """Whether the paths write the pass (a CATCHER pass is made from others when read)."""
+    return kind(name) != "CATCHER"
 
 
 def known(name: str) -> bool:
@@ -138,7 +148,7 @@ def wave_buffers(settings, n: int) -> dict | None:
     """Per-path buffers of a wave of n paths for the passes and Cryptomatte the settings ask for (None: none)."""
     if not (settings.passes or settings.cryptomatte):
         return None
-    aux = {name: np.zeros((channels(name), n), np.float32) for name in settings.passes}
+    aux = {name: np.zeros((channels(name), n), np.float32) for name in settings.passes if recorded(name)}
     for kind in settings.cryptomatte:
         aux["crypto_" + kind] = np.zeros((1, n), np.float32)
     if settings.cryptomatte:
@@ -226,6 +236,8 @@ def write_light(tables, wave, state, rows, value, shadow: bool = False, first=No
     if not len(rows):
         return
     aux = wave.aux
+    if wave.catcher is not None:   # paths split at a shadow catcher write no light pass (Cycles' light_passes.h)
+        value = value * ~np.take(wave.catcher.caught, state.path[rows])
     shares = np.take(state.pass_weights, rows, axis=1)
     bounce = np.take(state.bounce, rows)
     direct = bounce == (0 if shadow else 1)

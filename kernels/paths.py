@@ -238,6 +238,28 @@ def roulette_verdict(wave, state, throughput, numbers, eligible):
     return np.where(u < q, q, np.float32(0.0))
 
 
+def roulette_stops(tables, state, hits, found) -> np.ndarray:
+    """found without the paths that Russian roulette stopped at a surface that does not emit: those end
+    here; a stopped path whose surface emits stays for its emission (roulette_weights then ends it)."""
+    stop = np.take(state.continuation, found) == 0
+    if not stop.any():
+        return found
+    if tables.emissive:
+        stopped = np.flatnonzero(stop)
+        mats = tables.triangles.materials(np.take(hits.prim, np.take(found, stopped)))
+        stop[stopped] = ~np.take(tables.shading.emissive, mats)
+    return found[~stop]
+
+
+def roulette_weights(state) -> None:
+    """After a surface's emission counted: the paths Russian roulette stopped here end (their throughput
+    becomes 0, so they add nothing and no longer go on); the others are divided by their q (Cycles'
+    integrate_surface_terminate)."""
+    c = state.continuation
+    state.throughput = np.where(c > 0, state.throughput / np.where(c > 0, c, np.float32(1.0)), np.float32(0.0))
+    state.continuation = None
+
+
 def may_scatter(wave, state) -> np.ndarray:
     """(N,) bool: the paths that may still scatter at their hits (light samples, BSDF samples): not past
     max_bounces, nor past a per-type limit (Cycles ends a path after the bounce that reaches either, letting it

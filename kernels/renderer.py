@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import motion, panorama, passes, schedule
+from . import motion, panorama, passes, schedule, shadow_catcher
 from .accel import Accel
 from .camera import view_plane
 from .environment import Environment
@@ -360,6 +360,8 @@ class Renderer:
         thread; once it is True the waves in flight (worker processes' too) leave at their next bounce, and
         what they had done is dropped.
         """
+        # A scene with shadow catchers records their planes, whatever passes were asked for (Cycles' film.cpp).
+        settings = shadow_catcher.with_planes(settings, self.visibility)
         with kept_heap():   # the waves' arrays are freed and made again at every bounce
             return render_passes(self, self.crew, settings, on_tile, should_stop, on_progress)
 

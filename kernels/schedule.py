@@ -316,7 +316,8 @@ def render_passes(tracer, crew: "WaveCrew", settings: RenderSettings, on_tile=No
     x0, y0, x1, y1 = settings.validate(cam.width, cam.height)
     width, height = x1 - x0, y1 - y0
     film = Film(width, height, adaptive=settings.adaptive_threshold > 0, passes=settings.passes,
-                cryptomatte=settings.cryptomatte, cryptomatte_depth=settings.cryptomatte_depth)
+                cryptomatte=settings.cryptomatte, cryptomatte_depth=settings.cryptomatte_depth,
+                transparent=settings.transparent_background)
     total = int(settings.samples)
     start = time.perf_counter()
     crew.begin(should_stop)

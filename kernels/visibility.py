@@ -7,7 +7,8 @@ that only passed transparent surfaces since, is CAMERA; after a bounce, TRANSMIT
 else DIFFUSE or GLOSSY (singular counts as glossy), VOLUME_SCATTER after a scatter in a medium; shadow
 rays are SHADOW. Its BVH skips objects whose mask lacks the ray's type. Here the closest hit is traced as
 usual and, where the object it found does not see that type of ray, traced again from just past it, as
-the transparent shadow loop steps past transparent surfaces (kernels/lights/nee.py).
+the transparent shadow loop steps past transparent surfaces (kernels/lights/nee.py). The rays of a shadow
+catcher's own paths see shadow catchers only (kernels/shadow_catcher.py), which the same step past does.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from .interaction import spawn_offset
 from .paths import DIFFUSE, TRANSMIT, VOLUME_SCATTER as SCATTER_LABEL
 from .scene.objects import (ALL_RAYS, HOLDOUT, RAY_CAMERA as CAMERA, RAY_DIFFUSE as DIFFUSE_RAY,
                             RAY_GLOSSY as GLOSSY_RAY, RAY_SCATTER as SCATTER_RAY, RAY_SHADOW as SHADOW,
-                            RAY_TRANSMIT as TRANSMIT_RAY)
+                            RAY_TRANSMIT as TRANSMIT_RAY, SHADOW_CATCHER)
 
 # A ray steps past at most this many objects that do not see it, as a safeguard (each is one more query).
 MAX_SKIPS = 64
@@ -26,7 +27,8 @@ MAX_SKIPS = 64
 
 def object_visibility(scene) -> np.ndarray | None:
     """(K,) uint8 per row of the object table (SceneArrays.object_visibility), or None when every object is
-    seen by every ray and none is a holdout: then nothing here runs and images stay as they were."""
+    seen by every ray and none is a holdout or a shadow catcher: then nothing here runs and images stay as
+    they were."""
     vis = scene.object_visibility
     if vis is None or scene.objects is None or not len(vis) or (vis == ALL_RAYS).all():
         return None
@@ -46,10 +48,14 @@ def ray_types(state, first: bool) -> np.ndarray:
     return np.where(state.bounce == 0, CAMERA, kind).astype(np.uint8)
 
 
-def hidden(tables, prim: np.ndarray, types) -> np.ndarray:
-    """(n,) bool: the hits prim (all >= 0) are on objects that rays of `types` ((n,) or one uint8) do not see."""
-    rows = tables.triangles.object_rows(prim)
-    return (np.take(tables.visibility, rows) & types) == 0
+def hidden(tables, prim: np.ndarray, types, catchers_only: bool = False) -> np.ndarray:
+    """(n,) bool: the hits prim (all >= 0) are on objects that rays of `types` ((n,) or one uint8) do not see,
+    or, for catchers_only rays (a shadow catcher's own paths), that are no shadow catchers."""
+    vis = np.take(tables.visibility, tables.triangles.object_rows(prim))
+    unseen = (vis & types) == 0
+    if catchers_only:
+        unseen |= (vis & SHADOW_CATCHER) == 0
+    return unseen
 
 
 def holdouts(tables, prim: np.ndarray) -> np.ndarray:
@@ -57,13 +63,15 @@ def holdouts(tables, prim: np.ndarray) -> np.ndarray:
     return (np.take(tables.visibility, tables.triangles.object_rows(prim)) & HOLDOUT) != 0
 
 
-def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = True, times=None) -> Hits:
+def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = True, times=None,
+                catchers_only: bool = False) -> Hits:
     """The closest hits of the rays among objects that see them: where `hits` (from tables.accel.intersect of
-    the same rays) found an object that rays of `types` ((N,) uint8, or one value) do not see, the ray is
-    traced again from just past that hit. t stays the distance from the ray's own origin. Changes hits."""
+    the same rays) found an object that rays of `types` ((N,) uint8, or one value) do not see (or, with
+    catchers_only, no shadow catcher), the ray is traced again from just past that hit. t stays the distance
+    from the ray's own origin. Changes hits."""
     types = np.broadcast_to(np.asarray(types, np.uint8), (len(origins),))
-    return skip_where(tables, origins, dirs, t_max, hits, lambda prim, rays: hidden(tables, prim, types[rays]),
-                      split, times)
+    return skip_where(tables, origins, dirs, t_max, hits,
+                      lambda prim, rays: hidden(tables, prim, types[rays], catchers_only), split, times)
 
 
 def skip_where(tables, origins, dirs, t_max, hits: Hits, skipped, split: bool = True, times=None) -> Hits:

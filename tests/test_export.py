@@ -206,10 +206,9 @@ def test_unsupported_geometry_types_warn():
     result = export()
     assert result.triangle_count == 12
     assert any("'Hair'" in w and "hair curves" in w for w in result.warnings)
-    # Ray visibility is rendered (test_visibility.py); the shadow catcher is not yet, and says so.
-    assert not any("visibility" in w.lower() for w in result.warnings)
-    assert any("'Cube'" in w and "Shadow Catcher" in w for w in result.warnings)
-    assert result.scene.object_visibility.tolist() == [63 - 32]
+    # Ray visibility and the shadow catcher are rendered (test_visibility.py, test_shadow_catcher.py): no warning.
+    assert not any("visibility" in w.lower() or "Shadow Catcher" in w for w in result.warnings)
+    assert result.scene.object_visibility.tolist() == [63 - 32 + 64]
 
 
 def test_light_and_shadow_linking_export_without_warnings():

@@ -372,6 +372,19 @@ def test_a_ray_visibility_edit_exports_everything(counts):
     np.testing.assert_array_equal(got, want)
 
 
+def test_shadow_catcher_edits_show_as_a_new_export_would(counts):
+    """Making the floor a shadow catcher in the viewport exports everything (the object table's flags); then a
+    lamp's own Shadow Catcher off is a light update. Both show as a full export would."""
+    scene, ball, panel, lamp = studio()
+    floor = bpy.data.objects["Floor"]
+    cost, got, want = edit_and_compare(counts, lambda: setattr(floor, "is_shadow_catcher", True))
+    assert cost["builds"] == 1, cost
+    np.testing.assert_array_equal(got, want)
+    cost, got, want = edit_and_compare(counts, lambda: setattr(lamp, "is_shadow_catcher", False))
+    assert cost["builds"] == 0 and cost["lights"] == 1, cost
+    np.testing.assert_array_equal(got, want)
+
+
 def test_another_material_in_a_slot_exports_everything(counts):
     """Switching a slot from the object's material to the mesh's is a transform and shading update of the
     object alone: its slots no longer match the export's, so everything is exported."""

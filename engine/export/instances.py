@@ -10,7 +10,7 @@ import numpy as np
 
 from ...kernels.scene import TERMINATOR_OFFSET, object_rows
 from ...kernels.scene.objects import (HOLDOUT, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_SHADOW,
-                                      RAY_TRANSMIT)
+                                      RAY_TRANSMIT, SHADOW_CATCHER)
 
 # A mesh placed by two or more instances is stored once in object space and instanced (two-level BVH,
 # kernels.scene.Instances) when its copies together would hold at least this many triangles; smaller sets
@@ -49,7 +49,8 @@ def instance_visibility(inst, ob, view_layer) -> int:
     """An instance's SceneArrays.object_visibility bits, as Cycles' sync (intern/cycles/blender/object.cpp,
     sync_object): the object's Ray Visibility, and its instancer's too; a holdout (the object's Holdout or a
     holdout collection of the view layer: Object.holdout_get) is HOLDOUT; in an indirect-only collection (and
-    not a holdout) camera rays do not see it. 0: no ray sees it, and it is not rendered at all.
+    not a holdout) camera rays do not see it; the object's or its instancer's Shadow Catcher is SHADOW_CATCHER.
+    0: no ray sees it, and it is not rendered at all.
     view_layer : the evaluated view layer (depsgraph.view_layer_eval: the original one answers False)."""
     parent = (inst.parent if inst.is_instance else None) or ob
     bits = ray_visibility(ob)
@@ -58,13 +59,15 @@ def instance_visibility(inst, ob, view_layer) -> int:
     holdout = bool(parent.holdout_get(view_layer=view_layer))
     if not holdout and parent.indirect_only_get(view_layer=view_layer):
         bits &= ~RAY_CAMERA
-    return bits | HOLDOUT if bits and holdout else bits
+    if not bits:
+        return 0
+    if ob.is_shadow_catcher or parent.is_shadow_catcher:
+        bits |= SHADOW_CATCHER
+    return bits | HOLDOUT if holdout else bits
 
 
 def check_visibility(ob, warnings: list[str]) -> None:
-    """Warn in `warnings` about the object's settings Ember renders as a plain object or ignores."""
-    if ob.is_shadow_catcher:
-        warnings.append(f"Object '{ob.name}': Shadow Catcher is not supported yet, rendered as a plain object")
+    """Warn in `warnings` about the object's settings Ember ignores."""
     if float(getattr(ob, "shadow_terminator_shading_offset", 0.0)) > 0:
         warnings.append(f"Object '{ob.name}': Shadow Terminator > Shading Offset is not supported yet, ignored "
                         f"(Geometry Offset is)")

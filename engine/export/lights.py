@@ -38,7 +38,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
     scene's light_linking.LinkTable (read from the depsgraph when None)."""
     if links is None:
         links = link_table(depsgraph)
-    rows, masks = [], []
+    rows, masks, catchers = [], [], []
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -50,6 +50,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         if row is not None:
             rows.append(row)
             masks.append(links.memberships(ob))
+            catchers.append(light_is_shadow_catcher(inst, ob))
     if not rows:
         return Lights()
     columns = list(zip(*rows))
@@ -66,7 +67,16 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         cast_shadow=np.array(columns[8], bool),
         light_sets=light_sets,
         shadow_sets=shadow_sets,
+        shadow_catcher=None if all(catchers) else np.array(catchers, bool),
     )
+
+
+def light_is_shadow_catcher(inst, ob) -> bool:
+    """Whether shadow catchers receive the light in their own pass (kernels/shadow_catcher.py): the light
+    object's Visibility > Shadow Catcher, or its instancer's, which Blender turns on for new lights (Cycles'
+    sync_object sets is_shadow_catcher so for lights too; scene/light.cpp excludes the others)."""
+    parent = inst.parent if inst.is_instance else None
+    return bool(getattr(ob, "is_shadow_catcher", True)) or bool(parent is not None and parent.is_shadow_catcher)
 
 
 def check_light_visibility(ob, warnings: list[str]) -> None:

@@ -66,7 +66,7 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
         receiver = None if receiver is None else receiver[active]
     else:
         px, py, pz = hit.p
-    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus, receiver, facing)
+    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus, receiver, facing, catcher_emitters(wave))
     tables.crew.check_stop()
     le = ls.radiance
     useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
@@ -158,9 +158,9 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     u_select, u1, u2 = numbers
     px, py, pz = (np.ascontiguousarray(p[:, k], np.float32) for k in range(3))
     if chosen is None:
-        ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None, receiver)
+        ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None, receiver, None, catcher_emitters(wave))
     else:
-        ls = tables.lights.sample_chosen(px, py, pz, chosen[0], chosen[1], u1, u2, None)
+        ls = tables.lights.sample_chosen(px, py, pz, chosen[0], chosen[1], u1, u2, None, catcher_emitters(wave))
     le = ls.radiance
     f, phase_pdf = mixture.evaluate(d, (ls.wx, ls.wy, ls.wz))
     useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)) &
@@ -193,6 +193,12 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     if scale is not None:
         contribution *= np.take(scale, at, axis=1)
     passes.add_light(tables, wave, state, rows[at], contribution, _volume_shares)
+
+
+def catcher_emitters(wave):
+    """The emitters the wave's paths take light from: all (None), but on a shadow catcher's own paths
+    (kernels/shadow_catcher.py) the world, lights that are shadow catchers and the emission of shadow catchers."""
+    return None if wave.only_catchers is None else wave.only_catchers.emitters
 
 
 def _volume_shares(first) -> np.ndarray:
@@ -255,7 +261,8 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     split = wave.split
     if stack is not None and not (stack >= 0).any() and not tables.media.has_volume.any():
         stack = None
-    skipped = _passed_objects(tables, masks)
+    # A shadow catcher's own paths are shadowed by shadow catchers only (Cycles' SHADOW_CATCHER_PATH_VISIBILITY).
+    skipped = _passed_objects(tables, masks, wave.only_catchers is not None)
     if not tables.shading.transparent.any():
         blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
         if skipped is not None:   # what blocks them may be an object they pass: the closest one that they do not
@@ -337,18 +344,21 @@ def shadow_hidden(tables) -> bool:
     return vis is not None and bool(((vis & visibility.SHADOW) == 0).any())
 
 
-def _passed_objects(tables, masks):
+def _passed_objects(tables, masks, catchers: bool = False):
     """The rule by which shadow rays pass objects, skipped(prim (m,), rays (m,)) -> (m,) bool (objects shadow
-    rays do not see; objects outside the shadow masks (n,) of the emitters the rays go to), or None when they
-    pass none."""
-    hidden = shadow_hidden(tables)
+    rays do not see, or with catchers every object but the shadow catchers; objects outside the shadow masks
+    (n,) of the emitters the rays go to), or None when they pass none."""
+    hidden = catchers or shadow_hidden(tables)
+
+    def unseen(prim):
+        return visibility.hidden(tables, prim, visibility.SHADOW, catchers)
     if masks is None or tables.links is None:
-        return (lambda prim, rays: visibility.hidden(tables, prim, visibility.SHADOW)) if hidden else None
+        return (lambda prim, rays: unseen(prim)) if hidden else None
     links = tables.links
 
     def skipped(prim, rays):
         out = links.passes(links.rows(tables.triangles, prim), np.take(masks, rays))
-        return out | visibility.hidden(tables, prim, visibility.SHADOW) if hidden else out
+        return out | unseen(prim) if hidden else out
     return skipped
 
 

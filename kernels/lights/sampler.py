@@ -294,18 +294,21 @@ class LightSampler:
         each with probability select_pmf."""
         return selection.choose(self.choice, u_select)
 
-    def sample(self, px, py, pz, u_select, u1, u2, focus=None, receiver=None, facing=None) -> LightSample:
+    def sample(self, px, py, pz, u_select, u1, u2, focus=None, receiver=None, facing=None,
+               allowed=None) -> LightSample:
         """Choose an emitter for each shading point p and sample a direction toward it. focus: the world's
         (environment.WorldFocus per shading point) when its light samples focus on glossy lobes; receiver:
         (n,) uint8 the points' light sets (Light Linking), or None; facing: the points' (nx, ny, nz,
-        two_sided) (selection.choose_at)."""
+        two_sided) (selection.choose_at). allowed: (L + E + 1,) bool, the emitters these points may take light
+        from (a shadow catcher's own paths: kernels/shadow_catcher.py), or None for all; a sample of another
+        carries no light, as Cycles' light_sample then gives none, and the choice keeps its probabilities."""
         n = len(px)
         if not self.has_lights or n == 0:
             return LightSample(n)
         chosen, select = self.choose_at(u_select, px, py, pz, receiver, facing)
-        return self.sample_chosen(px, py, pz, chosen, select, u1, u2, focus)
+        return self.sample_chosen(px, py, pz, chosen, select, u1, u2, focus, allowed)
 
-    def sample_chosen(self, px, py, pz, chosen, select, u1, u2, focus=None) -> LightSample:
+    def sample_chosen(self, px, py, pz, chosen, select, u1, u2, focus=None, allowed=None) -> LightSample:
         """sample() with the emitters already chosen (chosen (n,) emitter numbers, select (n,) the probability
         each was chosen with, which the pdf includes)."""
         n = len(px)
@@ -331,6 +334,8 @@ class LightSampler:
             if len(picked):
                 world.sample(self, out, picked, u1[picked], u2[picked], None if focus is None else focus.take(picked))
         out.pdf *= select
+        if allowed is not None:
+            out.radiance[:, ~np.take(allowed, chosen)] = 0.0
         return out
 
     def axis(self, light, k):
@@ -359,7 +364,8 @@ class LightSampler:
         """Whether next-event estimation can choose the world."""
         return self.has_lights and self.select_pmf[self.world_index] > 0
 
-    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None, receiver=None, facing=None) -> "LightHits":
+    def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None, receiver=None, facing=None,
+                  allowed=None) -> "LightHits":
         """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max, as Cycles'
         BSDF rays meet them (kernel/light/light.h lights_intersect, integrator/shade_light.h).
 
@@ -377,7 +383,9 @@ class LightSampler:
 
         receiver: (N,) uint8 the light sets of the objects the rays left, or None: with Light Linking a ray
         meets only the lights that reach its set and are not shadow-linked (those take dedicated rays), as
-        Cycles' lights_intersect skips the others before counting them (kernel/light/light.h)."""
+        Cycles' lights_intersect skips the others before counting them (kernel/light/light.h). allowed: (L,)
+        bool, the lights the rays see (a shadow catcher's own paths pass the others: Cycles' lights_intersect
+        skips lights excluded from them), or None for all."""
         n = len(ox)
         out = LightHits(n)
         if not self.has_surface_lights or n == 0:
@@ -386,6 +394,9 @@ class LightSampler:
         if receiver is not None and self.links is not None and len(ray):
             keep = reaches(self.links.light[light], receiver[ray]) & ~self.links.shadow_linked[light]
             ray, light = ray[keep], light[keep]
+        if allowed is not None:
+            seen = np.take(allowed, light)
+            ray, light = ray[seen], light[seen]
         if not len(ray):
             return out
         t, light_pdf, le = self.hit_pairs(ray, light, ox[ray], oy[ray], oz[ray], dx[ray], dy[ray], dz[ray])

@@ -49,8 +49,8 @@ class SceneArrays:
     object_ids : (T,) int32 or None: each triangle's row of `objects` (both or neither are given).
     object_visibility : (K,) uint8 or None, per row of `objects`: the rays that see the object (Cycles'
         PathRayVisibilityFlag bits, kernels.visibility: camera 1, transmission 2, diffuse 4, glossy 8,
-        volume scatter 16, shadow 32) and 128 for a holdout; None: every ray sees every object, none is a
-        holdout.
+        volume scatter 16, shadow 32), 64 for a shadow catcher and 128 for a holdout; None: every ray sees every
+        object, none is a shadow catcher or a holdout.
     light_links : LightLinks or None, per row of `objects`: the light and shadow sets of Light and Shadow
         Linking; None: no object is linked and every emissive object lights everything (lights keep their own
         masks: Lights.light_sets, shadow_sets).

@@ -30,6 +30,9 @@ class Lights:
     light_sets, shadow_sets : (L,) uint64 or None (every set: the light has no linking collection): the masks
         of the light sets the light reaches and of the shadow sets whose objects block it (Light and Shadow
         Linking: kernels.scene.links).
+    shadow_catcher : (L,) bool or None (all True): the light object's Visibility > Shadow Catcher, which Blender
+        turns on for lights; False leaves the light out of what shadow catchers receive without the synthetic
+        objects (Cycles' SHADER_EXCLUDE_SHADOW_CATCHER: kernels/shadow_catcher.py).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -42,6 +45,7 @@ class Lights:
     cast_shadow: np.ndarray | None = None
     light_sets: np.ndarray | None = None
     shadow_sets: np.ndarray | None = None
+    shadow_catcher: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -67,3 +71,5 @@ class Lights:
         for name in ("light_sets", "shadow_sets"):
             if getattr(self, name) is not None:
                 check_array(getattr(self, name), f"lights.{name}", (n,), np.uint64, finite=False)
+        if self.shadow_catcher is not None:
+            check_array(self.shadow_catcher, "lights.shadow_catcher", (n,), np.bool_, finite=False)

@@ -14,9 +14,11 @@ OBJECT_COLUMNS = 37
 # Cycles' default Shadow Terminator > Geometry Offset (Object > Shading).
 TERMINATOR_OFFSET = 0.1
 # SceneArrays.object_visibility: the rays that see an object, Cycles' PathRayVisibilityFlag bits (kernel/types.h),
-# and Ember's own bit for a holdout object (Object > Visibility > Holdout, a holdout collection).
+# and Ember's own bits for a shadow catcher (Object > Visibility > Shadow Catcher: kernels/shadow_catcher.py) and a
+# holdout object (Object > Visibility > Holdout, a holdout collection).
 RAY_CAMERA, RAY_TRANSMIT, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_SHADOW = 1, 2, 4, 8, 16, 32
 ALL_RAYS = 63
+SHADOW_CATCHER = 64
 HOLDOUT = 128
 # The rays that make an object's emission a light for the light sampler (Cycles' Object::usable_as_light).
 BSDF_RAYS = RAY_TRANSMIT | RAY_DIFFUSE | RAY_GLOSSY | RAY_SCATTER
