@@ -106,6 +106,8 @@ def start_paths(tables, wave, paths, start: int, end: int):
         state.lobes = np.zeros((4, n), np.int32)
     if settings.filter_glossy > 0 or tables.shading.bevels:  # Cycles' Bevel skips blurry bounces too
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
+    if tables.shapes is not None:
+        state.self_key = np.full(n, -1, np.int64)
     if tables.media is not None:
         state.media = np.repeat(tables.camera_media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
@@ -132,9 +134,11 @@ def step(tables, wave, state, rays, first: bool, last: int):
     hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, state.time)
     if state.partner is not None:
         _hand_over(state, hits)
-    if tables.visibility is not None:
-        visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, visibility.ray_types(state, first),
-                               wave.split, state.time)
+    if tables.visibility is not None or state.self_key is not None:
+        # Past objects the ray's type does not see, and the curve or point the ray leaves (Cycles' rays skip it).
+        visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits,
+                               visibility.ray_types(state, first) if tables.visibility is not None else None,
+                               wave.split, state.time, state.self_key)
     ended = None
     if not first and tables.lights.has_surface_lights:
         ended = _lights_hit(tables, wave, state, rays, hits)
@@ -153,6 +157,8 @@ def step(tables, wave, state, rays, first: bool, last: int):
         medium = media_stage.vertex(tables, wave, state.rows(scattered.rows), scattered, first, last)
         if medium is not None:
             medium = (medium[0], Rays(*medium[1], np.full(len(medium[0]), np.inf, np.float32)))
+            if medium[0].self_key is not None:   # a ray leaving a point in a medium skips no curve
+                medium[0].self_key = np.full(len(medium[0]), -1, np.int64)
     if tables.visibility is not None:
         found = _held_out(tables, wave, state, hits, found)
     if not len(found):
@@ -234,6 +240,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     if not len(alive):
         return exits
     state.compact(alive)
+    if state.self_key is not None:
+        state.self_key = tables.triangles.self_keys(np.take(hit.prim, alive))
     if bounds is None:
         state.segments = state.segments + 1
     else:
@@ -367,7 +375,8 @@ def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
     prim = np.take(hits.prim, found)
     return SurfaceHit(tables.triangles, prim, np.take(hits.u, found),
                       np.take(hits.v, found), direction, tables.shading.needs_uv,
-                      _hit_motion(tables, prim, times) if tables.accel.moves else None)
+                      _hit_motion(tables, prim, times) if tables.accel.moves else None,
+                      None if tables.shapes is None else (np.take(rays.origins, found, axis=0), np.take(hits.t, found)))
 
 
 def _hit_motion(tables, prim, times):
@@ -413,6 +422,8 @@ def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
         wave.aux["emission"][:, state.path[lit[seen]]] += le[:, seen]
     if wave.nee:
         mis = np.flatnonzero(np.isfinite(np.take(state.bsdf_pdf, lit)))
+        if tables.shapes is not None:   # light samples reach emissive triangles only (Cycles: MIS on triangles)
+            mis = mis[np.take(hit.prim, lit[mis]) < tables.shapes.triangle_count]
         if len(mis):
             sel = lit[mis]
             gx, gy, gz = (np.take(c, sel) for c in hit.ng)
@@ -482,7 +493,7 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None) -> np.ndarray:
     portal, free = bs.portal, bs.any_side
     if free.any():  # hair and Ray Portal samples leave on the side they point to, untested (as in Cycles)
         bs.through = np.where(free, leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
-    ok = (leaves_its_side(bs.wi, hit.ng, bs.transmit) | free) & (bs.pdf > 0)
+    ok = (leaves_its_side(bs.wi, hit.side_ng, bs.transmit) | free) & (bs.pdf > 0)
     throughput = state.throughput * bs.weight
     alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
     passing = bs.transparent

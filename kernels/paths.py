@@ -64,6 +64,8 @@ class PathState:
     volume_bounces: np.ndarray | None = None  # (N,) int32 scattering events in media so far (with media)
     volume_bounds: np.ndarray | None = None   # (N,) int32 volume boundaries passed (with media; Cycles'
     #                                           volume_bounds_bounce)
+    self_key: np.ndarray | None = None  # (N,) int64 the curve or point the ray leaves, which it skips
+    #                                     (kernels.geometry.primitives), -1 none; None in scenes without them
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -108,6 +110,8 @@ class PathState:
             self.media = np.take(self.media, idx, axis=1)
             self.volume_bounces = np.take(self.volume_bounces, idx)
             self.volume_bounds = np.take(self.volume_bounds, idx)
+        if self.self_key is not None:
+            self.self_key = np.take(self.self_key, idx)
 
     @classmethod
     def concat(cls, a: "PathState", b: "PathState") -> "PathState":
@@ -134,7 +138,7 @@ class PathState:
                     cat(a.bounce, b.bounce, required), cat(a.transparent, b.transparent, required),
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
-                     "portal", "segments", "media", "volume_bounces", "volume_bounds"):
+                     "portal", "segments", "media", "volume_bounces", "volume_bounds", "self_key"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)
         state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)

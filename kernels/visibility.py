@@ -7,7 +7,8 @@ that only passed transparent surfaces since, is CAMERA; after a bounce, TRANSMIT
 else DIFFUSE or GLOSSY (singular counts as glossy), VOLUME_SCATTER after a scatter in a medium; shadow
 rays are SHADOW. Its BVH skips objects whose mask lacks the ray's type. Here the closest hit is traced as
 usual and, where the object it found does not see that type of ray, traced again from just past it, as
-the transparent shadow loop steps past transparent surfaces (kernels/lights/nee.py).
+the transparent shadow loop steps past transparent surfaces (kernels/lights/nee.py). Rays leaving a curve or
+a point step past that curve or point the same way (kernels/geometry/primitives.py).
 """
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ from .scene.objects import (ALL_RAYS, HOLDOUT, RAY_CAMERA as CAMERA, RAY_DIFFUSE
                             RAY_GLOSSY as GLOSSY_RAY, RAY_SCATTER as SCATTER_RAY, RAY_SHADOW as SHADOW,
                             RAY_TRANSMIT as TRANSMIT_RAY)
 
-# A ray steps past at most this many objects that do not see it, as a safeguard (each is one more query).
+# A ray steps past at most this many objects that do not see it (or hits on its own curve), as a safeguard
+# (each is one more query).
 MAX_SKIPS = 64
 
 
@@ -57,13 +59,42 @@ def holdouts(tables, prim: np.ndarray) -> np.ndarray:
     return (np.take(tables.visibility, tables.triangles.object_rows(prim)) & HOLDOUT) != 0
 
 
-def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = True, times=None) -> Hits:
+def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = True, times=None, keys=None) -> Hits:
     """The closest hits of the rays among objects that see them: where `hits` (from tables.accel.intersect of
-    the same rays) found an object that rays of `types` ((N,) uint8, or one value) do not see, the ray is
-    traced again from just past that hit. t stays the distance from the ray's own origin. Changes hits."""
-    types = np.broadcast_to(np.asarray(types, np.uint8), (len(origins),))
+    the same rays) found an object that rays of `types` ((N,) uint8, or one value; None: every object sees them)
+    do not see, the ray is traced again from just past that hit. keys: (N,) int64 the curve or point each ray
+    leaves (PrimitiveTable.self_keys, -1 none), or None: hits on it are stepped past too, as Cycles' rays skip
+    the primitive they leave. t stays the distance from the ray's own origin. Changes hits."""
+    tests = []
+    if types is not None:
+        types = np.broadcast_to(np.asarray(types, np.uint8), (len(origins),))
+        tests.append(lambda prim, rows: hidden(tables, prim, types[rows]))
+    if keys is not None:
+        tests.append(_own_primitive(tables, keys))
+    if len(tests) == 1:
+        return skip_hits(tables, origins, dirs, t_max, hits, tests[0], split, times)
+    return skip_hits(tables, origins, dirs, t_max, hits, lambda prim, rows: tests[0](prim, rows) | tests[1](prim, rows),
+                     split, times)
+
+
+def _own_primitive(tables, keys: np.ndarray):
+    """A skip_hits test: hits on the curve or point each ray left (keys per ray, -1 none)."""
+    def reject(prim, rows):
+        mine = np.take(keys, rows)
+        out = mine >= 0
+        if out.any():
+            sel = np.flatnonzero(out)
+            out[sel] = tables.triangles.self_keys(np.take(prim, sel)) == np.take(mine, sel)
+        return out
+    return reject
+
+
+def skip_hits(tables, origins, dirs, t_max, hits: Hits, reject, split: bool = True, times=None) -> Hits:
+    """The closest hits of the rays but those reject(prim, rows) turns down ((m,) bool for the hits prim of the
+    rays rows): each such ray is traced again from just past its hit, at most MAX_SKIPS times (then nothing is
+    found). t stays the distance from the ray's own origin. Changes hits."""
     live = np.flatnonzero(hits.prim >= 0)
-    live = live[hidden(tables, hits.prim[live], types[live])]
+    live = live[reject(hits.prim[live], live)]
     for _ in range(MAX_SKIPS):
         if not len(live):
             return hits
@@ -85,7 +116,7 @@ def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = T
         hits.prim[at] = again.prim[found]
         hits.t[at] = again.t[found] + step[found]
         hits.u[at], hits.v[at] = again.u[found], again.v[found]
-        live = at[hidden(tables, again.prim[found], types[at])]
+        live = at[reject(again.prim[found], at)]
     hits.prim[live] = -1   # past the safeguard: nothing found
     hits.t[live] = np.inf
     return hits

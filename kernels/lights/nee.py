@@ -102,13 +102,16 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
         stack = volume_stack.enter_exit(np.take(state.media, paths, axis=1), through, np.take(hit.backfacing, paths))
     # Lights with Cast Shadow off are not blocked: no shadow ray, as in Cycles.
     traced = np.flatnonzero(np.take(ls.shadowed, idx))
+    # A shadow ray leaving a curve or a point skips it, as Cycles' shadow rays skip the primitive they leave.
+    keys = None if tables.shapes is None else tables.triangles.self_keys(np.take(hit.prim, paths))
     if len(traced) == len(idx):
-        transmittance = shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack)
+        transmittance = shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack, keys)
     else:
         transmittance = np.ones((3, len(idx)), np.float32)
         if len(traced):
             transmittance[:, traced] = shadow_of(tables, origins[traced], dirs[traced], t_max[traced], wave,
-                                                 state, paths[traced], None if stack is None else stack[:, traced])
+                                                 state, paths[traced], None if stack is None else stack[:, traced],
+                                                 None if keys is None else keys[traced])
     vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
     if not len(vis):
         return
@@ -209,9 +212,10 @@ def terminator_lift(tables, hit, hits, light, ng):
     return rows, offset * amount[rows, None].astype(np.float32)
 
 
-def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None) -> np.ndarray:
+def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None, keys=None) -> np.ndarray:
     """_shadow for shadow rays leaving the paths `paths` (state rows); stack: their volume stacks (K, n) when
-    they differ from the paths' (None: the paths' own, when the scene has media)."""
+    they differ from the paths' (None: the paths' own, when the scene has media); keys: the curve or point each
+    leaves (PrimitiveTable.self_keys), or None."""
     seeds = None
     if state.media is not None:
         stack = np.take(state.media, paths, axis=1) if stack is None else stack
@@ -219,30 +223,36 @@ def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None) -> n
     return shadow(tables, origins, dirs, t_max, wave, np.take(state.bounce, paths),
                   None if state.lobes is None else np.take(state.lobes, paths, axis=1),
                   None if state.time is None else state.time.take(paths),
-                  None if state.portal is None else np.take(state.portal, paths), stack, seeds)
+                  None if state.portal is None else np.take(state.portal, paths), stack, seeds, keys)
 
 
 def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None, stack=None,
-           seeds=None) -> np.ndarray:
+           seeds=None, keys=None) -> np.ndarray:
     """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
     transparent surfaces, the product of their transparency (Cycles' transparent shadows); through media
     (stack: the rays' volume stacks (K, n), seeds their paths' PCG2D states, or None), their transmittance,
     the stacks changing where the rays pass a surface with a volume.
     depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None),
-    portal its Ray Portals passed (or None): what the Light Path node reads."""
+    portal its Ray Portals passed (or None): what the Light Path node reads. keys : (n,) the curve or point each
+    ray leaves, which it skips (PrimitiveTable.self_keys, -1 none), or None."""
     n = len(origins)
     split = wave.split
     if stack is not None and not (stack >= 0).any() and not tables.media.has_volume.any():
         stack = None
     hidden = shadow_hidden(tables)
+    if keys is not None and not (keys >= 0).any():
+        keys = None
     if not tables.shading.transparent.any():
         blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
-        if hidden:   # what blocks them may be an object shadow rays do not see: the closest one that they do
-            rows = np.flatnonzero(blocked)
+        if hidden or keys is not None:
+            # What blocks them may be an object shadow rays do not see, or the curve a ray leaves: the closest
+            # one that counts.
+            rows = np.flatnonzero(blocked if hidden else blocked & (keys >= 0))
             hits = tables.accel.intersect(origins[rows], dirs[rows], t_max[rows], split,
                                           None if times is None else times.take(rows))
-            visibility.skip_hidden(tables, origins[rows], dirs[rows], t_max[rows], hits, visibility.SHADOW,
-                                   split, None if times is None else times.take(rows))
+            visibility.skip_hidden(tables, origins[rows], dirs[rows], t_max[rows], hits,
+                                   visibility.SHADOW if hidden else None, split,
+                                   None if times is None else times.take(rows), None if keys is None else keys[rows])
             blocked[rows] = hits.prim >= 0
         out = np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
         if stack is None:
@@ -259,9 +269,10 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     origins, t_left = origins.copy(), t_max.copy()
     for crossing in range(int(wave.settings.transparent_max_bounces) + 1):
         hits = tables.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
-        if hidden:
-            visibility.skip_hidden(tables, origins, dirs[live], t_left, hits, visibility.SHADOW, split,
-                                   None if times is None else times.take(live))
+        if hidden or keys is not None:
+            visibility.skip_hidden(tables, origins, dirs[live], t_left, hits, visibility.SHADOW if hidden else None,
+                                   split, None if times is None else times.take(live),
+                                   None if keys is None else keys[live])
         found = np.flatnonzero(hits.prim >= 0)
         if stack is not None:
             # The media along the segment to the surface met (or to the light).
@@ -275,7 +286,8 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
             break
         d = dirs[live[found]]
         hit = SurfaceHit(tables.triangles, hits.prim[found], hits.u[found], hits.v[found],
-                         (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv)
+                         (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv,
+                         ray=None if tables.shapes is None else (origins[found], hits.t[found]))
         passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
         hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
                           lobes=None if lobes is None else lobes[:, live[found]],
