@@ -31,6 +31,9 @@ QUICK_BVH_TRIANGLES = 1 << 18
 # (docs/architecture.md, Big scenes).
 REFINE_SECONDS_PER_TRIANGLE = 4e-6
 
+# A ray from inside tubes or spheres steps past at most this many of their far walls (Accel._shape_hits).
+BACKFACE_SKIPS = 16
+
 # Below this many rays a batch runs as one call: splitting costs more than it saves.
 _MIN_CHUNK = 8192
 _CHUNKS_PER_THREAD = 4
@@ -222,6 +225,9 @@ class Accel:
         self._geometry_base[1 + len(placed):] = layout.plain_base
         bases = self._bases if self._bases is not None else np.zeros(0, np.int64)
         self._instance_base = np.concatenate([bases[:mesh_instances], layout.instance_base]).astype(np.int64)
+        linear = np.array([np.asarray(m, np.float64)[:3, :3] for _, m in placed]).reshape(-1, 3, 3)
+        with np.errstate(all="ignore"):
+            self._instance_inverse = np.linalg.inv(linear).astype(np.float32) if len(linear) else linear
         self.primitive_count = layout.total
         return placed
 
@@ -378,12 +384,54 @@ class Accel:
 
     def _shape_hits(self, origins, directions, t_max):
         """(prim, t, u, v) of a scene with curves or points: Embree's hits turned into the layout's numbers
-        (triangles as without them)."""
+        (triangles as without them), without hits on the inside of spheres and linear curves. Cycles builds its
+        Embree with EMBREE_BACKFACE_CULLING_CURVES and _SPHERES (build_files/build_environment/cmake/embree.cmake),
+        which its sphere and round linear intersectors honour, so a ray from inside one (a point's root in its
+        emitter, two overlapping) does not meet its far wall; embreex's Embree reports it, so such a hit is
+        stepped past (BACKFACE_SKIPS at most). (Catmull-Rom tubes report it in both.)"""
+        prim, t, u, v, ng = self._numbered_hits(origins, directions, t_max)
+        live = np.flatnonzero(self._inside_out(prim, ng, directions))
+        for _ in range(BACKFACE_SKIPS):
+            if not len(live):
+                break
+            o = origins[live]
+            step = t[live] + np.float32(2.0 ** -20) * (np.abs(o).max(axis=1) + t[live]) + np.float32(1e-30)
+            left = t_max[live] - step
+            prim[live], t[live] = -1, t_max[live]
+            go = np.flatnonzero(left > 0)
+            live, o, step, left = live[go], o[go], step[go], left[go]
+            if not len(live):
+                break
+            d = np.ascontiguousarray(directions[live])
+            p2, t2, u2, v2, ng2 = self._numbered_hits(np.ascontiguousarray(o + d * step[:, None], np.float32), d,
+                                                      left.astype(np.float32))
+            prim[live] = p2
+            t[live] = np.where(p2 >= 0, t2 + step, t_max[live])
+            u[live], v[live] = u2, v2
+            live = live[self._inside_out(p2, ng2, d)]
+        else:
+            prim[live], t[live] = -1, t_max[live]
+        return prim, t, u, v
+
+    def _inside_out(self, prim, ng, directions) -> np.ndarray:
+        """(n,) bool: hits on a sphere or linear curve seen from inside it (Embree's Ng along the ray)."""
+        shape = prim >= self._layout.triangle_count
+        if not shape.any():
+            return shape
+        sel = np.flatnonzero(shape)
+        culled = np.take(self._layout.part_culled, self._layout.locate(prim[sel])[0])
+        facing = np.einsum("ij,ij->i", ng[sel], directions[sel]) > 0
+        out = np.zeros(len(prim), bool)
+        out[sel] = culled & facing
+        return out
+
+    def _numbered_hits(self, origins, directions, t_max):
+        """One query: (prim, t, u, v, Ng) in the layout's numbers."""
         if self._packets is not None:
-            p, inst, t, u, v, geom = self._packets.intersect(origins, directions, t_max, geometry=True)
+            p, inst, t, u, v, geom, ng = self._packets.intersect(origins, directions, t_max, geometry=True)
         else:
             r = self._scene.run(origins, directions, dists=t_max.copy(), output=1)
-            p, t, u, v, geom = r["primID"], r["tfar"], r["u"], r["v"], r["geomID"]
+            p, t, u, v, geom, ng = r["primID"], r["tfar"], r["u"], r["v"], r["geomID"], r["Ng"]
             inst = np.full(len(p), -1, np.int32)
         hit = p >= 0
         plain = hit & (inst < 0)
@@ -394,7 +442,12 @@ class Accel:
         if self._static_ids is not None:
             moved = np.flatnonzero(plain & (base < 0))
             prim[moved] = self._static_ids[prim[moved]]
-        return prim, t, u, v
+        ng = np.asarray(ng, np.float32).reshape(-1, 3)
+        placed = np.flatnonzero(hit & (inst >= 0))
+        if len(placed):   # Embree's Ng of an instance's hit is in its object space: by the inverse transpose
+            ng = ng.copy()
+            ng[placed] = np.einsum("nji,nj->ni", np.take(self._instance_inverse, inst[placed], axis=0), ng[placed])
+        return prim, np.array(t, np.float32), np.array(u, np.float32), np.array(v, np.float32), ng
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,
                  split: bool = True, time: np.ndarray | None = None) -> np.ndarray:
@@ -410,6 +463,15 @@ class Accel:
 
         if self._scene is not None:
             self._run(job, n, split)
+            if self._layout is not None and self._layout.part_culled.any():
+                # Embree's answer counts the inside of spheres and linear curves, which Cycles' does not: the blocked rays
+                # are checked by their closest hit (_shape_hits culls such walls).
+                rows = np.flatnonzero(out)
+                if len(rows):
+                    times = None if time is None else time.take(rows) if isinstance(time, RayTimes) else \
+                        np.take(time, rows)
+                    again = self.intersect(origins[rows], directions[rows], t_max[rows], split, times)
+                    out[rows] = again.prim >= 0
         for moving in self._moving:
             sel = moving.crossing(origins, directions, t_max)
             sel = sel[~out[sel]]

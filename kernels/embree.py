@@ -65,7 +65,7 @@ _PROGRESS = ctypes.CFUNCTYPE(ctypes.c_bool, ctypes.c_void_p, ctypes.c_double)
 # then the hit (Ng xyz, u, v, primID, geomID, instID[levels], instPrimID[levels]). Rows past instID are
 # room for the instancing levels and instance-array ids a build may add; Embree never reads them here.
 _ORG, _TNEAR, _DIR, _TIME, _TFAR, _MASK, _ID, _FLAGS = 0, 3, 4, 7, 8, 9, 10, 11
-_U, _V, _PRIM, _GEOM, _INST = 15, 16, 17, 18, 19
+_NG, _U, _V, _PRIM, _GEOM, _INST = 12, 15, 16, 17, 18, 19
 _HIT_ROWS = 32          # RTCRayHit16 with headroom: 32 x 64 bytes per packet
 _RAY_ROWS = 12          # RTCRay16
 _LANES = 16
@@ -429,7 +429,8 @@ class Scene:
     def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray, geometry: bool = False):
         """Closest hits of (N, 3) float32 rays within (N,) t_max: (prim, instance, t, u, v), with prim -1
         and t = t_max for a miss, instance -1 for hits on the plain mesh and the shapes; geometry: then also
-        each hit's geometry (the top level's for hits outside instances, the instanced scene's within)."""
+        each hit's geometry (the top level's for hits outside instances, the instanced scene's within) and its
+        (N, 3) unnormalised geometric normal, Embree's Ng."""
         n = len(origins)
         buf, last = self._packets(origins, directions, t_max, _HIT_ROWS)
         bits = buf.view(np.uint32)
@@ -441,7 +442,8 @@ class Scene:
         out = (prim, inst, buf[:, _TFAR, :].reshape(-1)[:n], buf[:, _U, :].reshape(-1)[:n],
                buf[:, _V, :].reshape(-1)[:n])
         if geometry:
-            out += (bits[:, _GEOM, :].reshape(-1)[:n].view(np.int32),)
+            ng = np.stack([buf[:, _NG + k, :].reshape(-1)[:n] for k in range(3)], axis=1)
+            out += (bits[:, _GEOM, :].reshape(-1)[:n].view(np.int32), ng)
         return out
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:

@@ -85,6 +85,7 @@ class Renderer:
         self.scene = checked.scene
         self.dropped_triangles = checked.dropped_triangles
         self.nonfinite_triangles = checked.nonfinite_triangles
+        self.dropped_shapes = checked.dropped_shapes
         poll()
         moving = self.scene.has_motion and self.scene.motion_ids is not None
         # Curves and points follow the triangles in the numbering of hits (kernels/geometry/primitives.py).

@@ -69,12 +69,14 @@ def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = T
     if types is not None:
         types = np.broadcast_to(np.asarray(types, np.uint8), (len(origins),))
         tests.append(lambda prim, rows: hidden(tables, prim, types[rows]))
+    swap = None
     if keys is not None:
         tests.append(_own_primitive(tables, keys))
+        swap = _twin(tables, keys)
     if len(tests) == 1:
-        return skip_hits(tables, origins, dirs, t_max, hits, tests[0], split, times)
+        return skip_hits(tables, origins, dirs, t_max, hits, tests[0], split, times, swap)
     return skip_hits(tables, origins, dirs, t_max, hits, lambda prim, rows: tests[0](prim, rows) | tests[1](prim, rows),
-                     split, times)
+                     split, times, swap)
 
 
 def _own_primitive(tables, keys: np.ndarray):
@@ -89,11 +91,37 @@ def _own_primitive(tables, keys: np.ndarray):
     return reject
 
 
-def skip_hits(tables, origins, dirs, t_max, hits: Hits, reject, split: bool = True, times=None) -> Hits:
+def _twin(tables, keys: np.ndarray):
+    """A skip_hits swap: a hit on the curve or point a ray left, where an exact copy of it lies (PrimitiveTable.
+    twins), becomes a hit on the copy at the same place. Cycles' Embree filter turns the ray's own primitive down
+    and goes on to the copy at the very same distance; stepping past the hit would miss the copy."""
+    if not tables.triangles.has_twins:
+        return None
+
+    def swap(prim, rows):
+        mine = np.take(keys, rows)
+        sel = np.flatnonzero(mine >= 0)
+        if not len(sel):
+            return prim
+        own = tables.triangles.self_keys(np.take(prim, sel)) == np.take(mine, sel)
+        sel = sel[own]
+        if len(sel):
+            twin = tables.triangles.twin_prims(np.take(prim, sel))
+            found = twin >= 0
+            prim = prim.copy()
+            prim[sel[found]] = twin[found]
+        return prim
+    return swap
+
+
+def skip_hits(tables, origins, dirs, t_max, hits: Hits, reject, split: bool = True, times=None, swap=None) -> Hits:
     """The closest hits of the rays but those reject(prim, rows) turns down ((m,) bool for the hits prim of the
     rays rows): each such ray is traced again from just past its hit, at most MAX_SKIPS times (then nothing is
-    found). t stays the distance from the ray's own origin. Changes hits."""
+    found). swap(prim, rows), if given, first replaces hits by others at the same place (the hits' new prim).
+    t stays the distance from the ray's own origin. Changes hits."""
     live = np.flatnonzero(hits.prim >= 0)
+    if swap is not None:
+        hits.prim[live] = swap(hits.prim[live], live)
     live = live[reject(hits.prim[live], live)]
     for _ in range(MAX_SKIPS):
         if not len(live):
@@ -113,10 +141,10 @@ def skip_hits(tables, origins, dirs, t_max, hits: Hits, reject, split: bool = Tr
                                        None if times is None else times.take(live))
         found = np.flatnonzero(again.prim >= 0)
         at = live[found]
-        hits.prim[at] = again.prim[found]
+        hits.prim[at] = again.prim[found] if swap is None else swap(again.prim[found], at)
         hits.t[at] = again.t[found] + step[found]
         hits.u[at], hits.v[at] = again.u[found], again.v[found]
-        live = at[reject(again.prim[found], at)]
+        live = at[reject(hits.prim[at], at)]
     hits.prim[live] = -1   # past the safeguard: nothing found
     hits.t[live] = np.inf
     return hits

@@ -8,7 +8,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import compare_to_cycles, diffuse_material, export_current, mesh_object, new_scene, set_world
+from bpy_helpers import (compare_to_cycles, diffuse_material, export_current, mesh_object, new_scene, render_to_array,
+                         set_world)
 from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World, render
 from ember.kernels.interaction import SurfaceHit
 from ember.kernels.scene import Curves, Points, ShapeInstances, object_row
@@ -49,15 +50,15 @@ def random_spheres(count=40, seed=3):
 
 
 def nearest_sphere(spheres, o, d):
-    """The closed form: each ray's nearest sphere hit (the near root; the far one from inside), and which."""
+    """The closed form: each ray's nearest sphere hit seen from outside (the near root: Cycles' Embree culls a
+    sphere's inside, as its own point_intersect_test does), and which."""
     best_t, best = np.full(len(o), np.inf), np.full(len(o), -1)
     for i, (cx, cy, cz, r) in enumerate(spheres.astype(np.float64)):
         oc = o - (cx, cy, cz)
         b = np.einsum("ij,ij->i", oc, d)
         c = np.einsum("ij,ij->i", oc, oc) - r * r
         disc = b * b - c
-        root = np.sqrt(np.maximum(disc, 0))
-        t = np.where(-b - root > 0, -b - root, -b + root)
+        t = -b - np.sqrt(np.maximum(disc, 0))
         ok = (disc > 0) & (t > 0) & (t < best_t)
         best_t, best = np.where(ok, t, best_t), np.where(ok, i, best)
     return best_t, best
@@ -83,7 +84,7 @@ def test_rays_meet_points_as_the_spheres_they_are():
     ns = np.stack(hit.ns, axis=1)
     facing = np.where(hit.backfacing, -1.0, 1.0)[:, None]
     assert np.allclose(ns, outward * facing, atol=2e-3)
-    assert np.array_equal(hit.backfacing, np.einsum("ij,ij->i", outward, d[found]) > 0)
+    assert not hit.backfacing.any()   # seen from outside only
 
 
 def test_instanced_points_hit_as_their_world_space_copies():
@@ -112,16 +113,17 @@ def test_instanced_points_hit_as_their_world_space_copies():
     assert np.allclose(np.stack(hit_a.ns), np.stack(hit_b.ns), atol=1e-3)
 
 
-def test_a_ray_leaving_a_point_skips_it():
-    """A ray leaving a sphere inward meets its far side in Embree; leaving from it (its key), it passes through
-    to the sphere behind, as Cycles' rays skip the primitive they leave."""
-    spheres = np.array([[0, 0, 0, 0.5], [0, 3, 0, 0.5]], np.float32)
-    scene = shape_scene(points=Points(spheres, np.zeros(2, np.int32)))
-    o, d = [[0, -0.49, 0]], [[0, 1, 0]]      # just below the surface it leaves, as a spawned ray starts
-    hits, _, _, keys = trace(scene, o, d)
-    assert hits.prim[0] == 0 and abs(hits.t[0] - 0.99) < 1e-4         # the far side of its own sphere
-    skipped, _, _, _ = trace(scene, o, d, keys=keys)
-    assert skipped.prim[0] == 1 and abs(skipped.t[0] - 2.99) < 1e-4    # the next sphere
+def test_rays_skip_the_point_they_leave_and_the_inside_of_spheres():
+    """A ray from a sphere's surface skips that sphere, as Cycles' rays skip the primitive they leave; a ray from
+    inside one does not meet its far wall (Cycles' Embree culls back faces of spheres): both go on to the next."""
+    spheres = np.array([[0, 0, 0, 0.5], [0, 3, 0, 0.5], [0, 0, 0.6, 0.5]], np.float32)
+    scene = shape_scene(points=Points(spheres, np.zeros(3, np.int32)))
+    hits, _, _, keys = trace(scene, [[0, -0.7, 0]], [[0, 1, 0]])
+    assert hits.prim[0] == 0 and abs(hits.t[0] - 0.2) < 1e-4 and keys[0] == 0
+    leaving, _, _, _ = trace(scene, [[0, -0.5, 0]], [[0, 1, 0]], keys=keys)    # from its surface, into it
+    assert leaving.prim[0] == 1 and abs(leaving.t[0] - 3.0) < 1e-4
+    inside, _, _, _ = trace(scene, [[0, 0, 0.3]], [[0, 0, 1]])                 # from inside spheres 0 and 2
+    assert inside.prim[0] == -1
 
 
 def test_point_spheres_in_a_furnace_reflect_their_albedo():
@@ -193,3 +195,276 @@ def test_point_cloud_from_mesh_to_points_matches_cycles():
     assert exported.scene.points is not None and exported.scene.points.count == 42, exported.warnings
     assert not exported.warnings
     compare_to_cycles(scene, samples=64, max_bounces=3)
+
+
+# ---------------------------------------------------------------- curves
+def straight_curve(shape: str, radius=0.2, length=1.0) -> Curves:
+    """One straight curve along +x from the origin: two keys (Embree's Catmull-Rom curves get the ends twice)."""
+    keys = np.array([[0, 0, 0, radius], [length, 0, 0, radius]], np.float32)
+    return Curves(shape, keys, np.array([0, 2], np.int32), np.zeros(1, np.int32))
+
+
+def crossing_rays(count=3000, seed=5, max_axis=0.9):
+    """Rays from a shell around the curve toward points near it, none nearly parallel to its axis (x)."""
+    rng = np.random.default_rng(seed)
+    target = np.column_stack([rng.uniform(-0.4, 1.4, count), rng.normal(0, 0.15, (count, 2))])
+    d = rng.normal(size=(count, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d[np.abs(d[:, 0]) < max_axis]
+    target = target[:len(d)]
+    return target - 3.0 * d, d
+
+
+def capsule(o, d, p0, p1, r):
+    """The closed form of a capsule: the nearest hit of each ray on the cylinder of radius r about p0 p1 and the
+    spheres of radius r at p0 and p1 (inf where it misses)."""
+    axis = (p1 - p0) / np.linalg.norm(p1 - p0)
+    best = np.full(len(o), np.inf)
+    for c in (p0, p1):
+        oc = o - c
+        b = np.einsum("ij,ij->i", oc, d)
+        disc = b * b - (np.einsum("ij,ij->i", oc, oc) - r * r)
+        t = -b - np.sqrt(np.maximum(disc, 0))
+        best = np.where((disc > 0) & (t > 0) & (t < best), t, best)
+    t, s = cylinder(o, d, p0, axis, r)
+    inside = (s >= 0) & (s <= np.linalg.norm(p1 - p0))
+    return np.where(inside & (t < best), t, best)
+
+
+def cylinder(o, d, p0, axis, r, far: bool = False):
+    """The near (far: the far) hit of each ray on the infinite cylinder of radius r about p0 + s axis: (t, s), t
+    inf for none."""
+    dp = d - np.outer(d @ axis, axis)
+    op = (o - p0) - np.outer((o - p0) @ axis, axis)
+    a, b, c = np.einsum("ij,ij->i", dp, dp), 2 * np.einsum("ij,ij->i", dp, op), np.einsum("ij,ij->i", op, op) - r * r
+    disc = b * b - 4 * a * c
+    t = (-b + (1 if far else -1) * np.sqrt(np.maximum(disc, 0))) / (2 * a)
+    t = np.where((disc > 0) & (t > 0), t, np.inf)
+    return t, (o + d * np.where(np.isfinite(t), t, 0)[:, None] - p0) @ axis
+
+
+def test_a_linear_curve_is_a_capsule():
+    """Embree's ROUND_LINEAR_CURVE (Cycles' Linear 3D Curves) of one straight segment is a capsule: the cylinder
+    with a sphere at each end (a curve's first and last segment keep their end spheres; its joints are whole).
+    Rays within a few degrees of its axis can slip through Embree's cone test; these rays are not."""
+    o, d = crossing_rays()
+    hits, hit, found, _ = trace(shape_scene(curves=(straight_curve("LINEAR"),)), o, d)
+    t = capsule(o, d, np.zeros(3), np.array([1.0, 0, 0]), 0.2)
+    assert np.array_equal(hits.prim >= 0, np.isfinite(t)) and len(found) > 1000
+    assert np.allclose(hits.t[found], t[found], rtol=1e-4, atol=1e-5)
+    # The normal runs from the axis point at u to the hit (the end spheres' centres beyond the segment).
+    p = np.stack(hit.p, axis=1)
+    on_axis = np.column_stack([np.clip(p[:, 0], 0, 1), np.zeros((len(p), 2))])
+    radial = (p - on_axis) / np.linalg.norm(p - on_axis, axis=1, keepdims=True)
+    assert np.allclose(np.stack(hit.ns, axis=1), radial, atol=2e-3)
+    assert np.allclose(np.stack(hit.ng, axis=1), radial, atol=2e-3)
+    assert np.allclose(hit.barycentrics[0], np.clip(p[:, 0], 0, 1), atol=1e-3)   # u along the segment
+
+
+def test_a_round_curve_is_an_open_tube_along_its_spline():
+    """ROUND_CATMULL_ROM_CURVE (3D Curves): a straight two-key curve is the cylinder between its keys, open at the
+    ends; u follows the Catmull-Rom parameter (ends repeated: x = (u + 3u^2 - 2u^3) / 2) and dPdu its
+    derivative; the normal runs from the spline's point at u to the hit."""
+    o, d = crossing_rays()
+    hits, hit, found, _ = trace(shape_scene(curves=(straight_curve("ROUND"),)), o, d)
+    axis = np.array([1.0, 0, 0])
+    near, s = cylinder(o, d, np.zeros(3), axis, 0.2)
+    far, s_far = cylinder(o, d, np.zeros(3), axis, 0.2, far=True)   # through an open end, the inside wall
+    t = np.where((s >= 0) & (s <= 1), near, np.where((s_far >= 0) & (s_far <= 1), far, np.inf))
+    assert np.array_equal(hits.prim >= 0, np.isfinite(t)) and len(found) > 1000
+    assert np.allclose(hits.t[found], t[found], rtol=1e-3, atol=1e-4)
+    u = hit.barycentrics[0]
+    p = np.stack(hit.p, axis=1)
+    assert np.allclose(0.5 * (u + 3 * u * u - 2 * u ** 3), p[:, 0], atol=1e-3)
+    radial = p * np.array([0, 1, 1]) / np.linalg.norm(p[:, 1:], axis=1, keepdims=True)
+    inside = hit.backfacing    # the inside wall: the normal turned toward the viewer, into the tube
+    assert np.allclose(np.stack(hit.ns, axis=1), np.where(inside[:, None], -radial, radial), atol=2e-3)
+    assert inside.any() and not inside.all()
+    dpdu = hit.shapes.dpdu
+    assert np.allclose(dpdu[:, 1:], 0, atol=1e-5)
+    assert np.allclose(np.abs(dpdu[:, 0]), 0.5 * (1 + 6 * u - 6 * u * u), atol=1e-3)
+
+
+def test_a_ribbon_faces_the_ray_and_is_shaded_as_a_tube():
+    """FLAT_CATMULL_ROM_CURVE (Rounded Ribbons): the ribbon turns to face each ray, through the curve's axis; its
+    true normal faces the viewer and its shading normal is the tube's at the same place across it (Cycles'
+    curve_shader_setup), v = -offset / radius across it (Embree)."""
+    y = np.linspace(-0.18, 0.18, 13)
+    o = np.column_stack([np.full(13, 0.5), y, np.full(13, 3.0)])
+    d = np.tile([0.0, 0.0, -1.0], (13, 1))
+    hits, hit, found, _ = trace(shape_scene(curves=(straight_curve("RIBBON"),)), o, d)
+    assert len(found) == 13
+    assert np.allclose(hits.t, 3.0, atol=1e-4)
+    assert np.allclose(np.stack(hit.ng, axis=1), [0, 0, 1], atol=1e-6)
+    tube = np.column_stack([np.zeros(13), y / 0.2, np.sqrt(1 - (y / 0.2) ** 2)])
+    assert np.allclose(np.stack(hit.ns, axis=1), tube, atol=1e-3)
+    assert np.allclose(hit.shapes.v, -y / 0.2, atol=1e-3)
+
+
+@pytest.mark.parametrize("shape", ["ROUND", "RIBBON", "LINEAR"])
+def test_a_ray_leaving_a_curve_skips_all_of_it(shape):
+    """A ray from one arm of a U-shaped curve toward the other meets the curve again; Cycles' rays skip the whole
+    curve they leave (its segments are one primitive), and go on to the next curve. (Embree itself ignores flat
+    curves within twice their radius of a ray's origin.)"""
+    u_shape = np.array([[0, 0, 0, 0.05], [1, 0, 0, 0.05], [1, 1, 0, 0.05], [0, 1, 0, 0.05]], np.float32)
+    beyond = u_shape + np.array([0, 2, 0, 0], np.float32)
+    curves = Curves(shape, np.concatenate([u_shape, beyond]), np.array([0, 4, 8], np.int32), np.zeros(2, np.int32))
+    scene = shape_scene(curves=(curves,))
+    o, d = [[0.5, 0.06, 0.0]], [[0.0, 1.0, 0.0]]
+    hits, _, _, keys = trace(scene, o, d)
+    assert hits.prim[0] == 2 and keys[0] == 0                                # its own last segment
+    skipped, _, _, keys = trace(scene, o, d, keys=[0])
+    assert keys[0] == 1 and skipped.t[0] > 1.5                               # the next curve
+
+
+@pytest.mark.parametrize("shape", ["ROUND", "RIBBON", "LINEAR"])
+def test_instanced_curves_hit_as_their_world_space_copies(shape):
+    rng = np.random.default_rng(3)
+    sizes = rng.integers(2, 6, 20)
+    keys = np.concatenate([np.column_stack([np.cumsum(rng.normal(0, 0.3, (n, 3)), axis=0) + rng.uniform(-1, 1, 3),
+                                            rng.uniform(0.03, 0.1, n)]) for n in sizes]).astype(np.float32)
+    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
+    local = Curves(shape, keys, offsets, np.zeros(20, np.int32))
+    matrices = np.stack([_rotation_z(a, (1.2 * k, 0.1, 0), 1.0 + 0.5 * k) for k, a in enumerate((0.0, 1.1))])
+    placed = ShapeInstances((local,), np.zeros(2, np.int32), matrices, np.arange(2, dtype=np.int32))
+    copies = [dataclasses.replace(local, keys=_moved(keys, m), object_ids=np.full(20, k, np.int32))
+              for k, m in enumerate(matrices)]
+    flat = dataclasses.replace(local, keys=np.concatenate([c.keys for c in copies]),
+                               offsets=np.concatenate([offsets, offsets[1:] + offsets[-1]]).astype(np.int32),
+                               material_ids=np.zeros(40, np.int32), object_ids=np.repeat(np.arange(2, dtype=np.int32), 20))
+    objects = np.repeat(object_row(np.eye(4))[None], 2, axis=0)
+    o = rng.uniform(-3, 4, (4000, 3))
+    d = rng.normal(size=(4000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    none = np.zeros(0, np.int32)
+    a, hit_a, found_a, keys_a = trace(shape_scene(shape_instances=placed, objects=objects, object_ids=none), o, d)
+    b, hit_b, found_b, keys_b = trace(shape_scene(curves=(flat,), objects=objects, object_ids=none), o, d)
+    assert len(found_a) > 100
+    same = np.flatnonzero(a.prim == b.prim)   # Embree's tessellated tubes may round a grazing ray either way
+    assert len(same) >= len(a.prim) - 3
+    assert np.array_equal(keys_a[np.isin(found_a, same)], keys_b[np.isin(found_b, same)])
+    hit = np.isin(found_a, same) & np.isin(found_a, found_b)
+    assert np.allclose(a.t[found_a[hit]], b.t[found_a[hit]], rtol=1e-3, atol=1e-4)
+
+
+def hair_material(name="Hair"):
+    """Cycles' Hair BSDF: half reflection (with an offset), half transmission."""
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out, mix = tree.nodes.new("ShaderNodeOutputMaterial"), tree.nodes.new("ShaderNodeMixShader")
+    reflection, transmission = tree.nodes.new("ShaderNodeBsdfHair"), tree.nodes.new("ShaderNodeBsdfHair")
+    reflection.component, transmission.component = "Reflection", "Transmission"
+    reflection.inputs["Color"].default_value = (0.9, 0.7, 0.4, 1.0)
+    reflection.inputs["Offset"].default_value = 0.1
+    transmission.inputs["Color"].default_value = (0.8, 0.5, 0.2, 1.0)
+    tree.links.new(reflection.outputs[0], mix.inputs[1])
+    tree.links.new(transmission.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def furry_sphere(scene, count=800, children=0, material=None, location=(0, 0, 1), radius=1.0, collection=None):
+    """A UV sphere with a hair particle system (Blender's defaults but the count, length and radius), its hair on
+    the second material slot."""
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=radius, location=location)
+    ob = bpy.context.active_object
+    if collection is not None:
+        for owner in ob.users_collection:
+            owner.objects.unlink(ob)
+        collection.objects.link(ob)
+    ob.data.materials.append(diffuse_material("Skin", (0.3, 0.25, 0.2)))
+    ob.data.materials.append(material or diffuse_material("Fur", (0.7, 0.4, 0.2), principled=True))
+    ob.modifiers.new("Fur", "PARTICLE_SYSTEM")
+    part = ob.particle_systems[0].settings
+    part.type, part.count, part.hair_length, part.render_step = "HAIR", count, 0.4 * radius, 3
+    part.radius_scale, part.material = 0.03, 2
+    if children:
+        part.child_type, part.child_percent, part.rendered_child_count = "INTERPOLATED", children, children
+    return ob
+
+
+def sun_and_sky(scene):
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.data.energy = 3.0
+    sun.rotation_euler = (0.6, 0.3, 0.5)
+    scene.collection.objects.link(sun)
+    set_world(scene, (0.6, 0.7, 0.8))
+
+
+def test_furry_sphere_matches_cycles():
+    """Hair particles as 3D Curves, Principled BSDF, under a sun and a sky. Blender's jittered distribution puts
+    some strands exactly on top of one another: rays leaving one meet its copy, as in Cycles (PrimitiveTable.twins;
+    skipping the copy with its twin made the fur 0.4% brighter, 10% in some blocks)."""
+    scene = new_scene(48, 48)
+    sun_and_sky(scene)
+    scene.cycles_curves.shape = "THICK"
+    furry_sphere(scene, count=1500)
+    exported = export_current()
+    assert not exported.warnings, exported.warnings
+    (hair,) = exported.scene.curves
+    assert hair.shape == "ROUND" and hair.count == 1500 and len(hair.keys) == 1500 * 5   # the viewport's steps
+    from ember.kernels.geometry.primitives import element_twins
+    assert element_twins(hair) is not None
+    compare_to_cycles(scene, samples=64, max_bounces=3)
+
+
+def test_hair_bsdf_on_ribbons_matches_cycles():
+    """Cycles' Hair BSDF turns about the curve's dPdu (with its Offset) on Rounded Ribbons, the default shape."""
+    scene = new_scene(48, 48)
+    sun_and_sky(scene)
+    furry_sphere(scene, count=1500, material=hair_material())
+    compare_to_cycles(scene, samples=128, max_bounces=4)
+
+
+def test_instanced_fur_matches_cycles():
+    """A haired ball in a collection instanced twice: its hair is stored once and placed by both instances."""
+    scene = new_scene(48, 48)
+    sun_and_sky(scene)
+    scene.cycles_curves.shape = "THICK"
+    furball = bpy.data.collections.new("Furball")
+    furry_sphere(scene, count=300, children=10, location=(0, 0, 0), radius=0.6, collection=furball)
+    for k, x in enumerate((-1.1, 1.1)):
+        empty = bpy.data.objects.new(f"Ball {k}", None)
+        empty.instance_type, empty.instance_collection = "COLLECTION", furball
+        empty.location, empty.rotation_euler = (x, 0, 1), (0, 0, 0.7 * k)
+        scene.collection.objects.link(empty)
+    exported = export_current().scene
+    assert not exported.curves and exported.shape_instances.count == 2 and len(exported.shape_instances.prototypes) == 1
+    compare_to_cycles(scene, samples=64, max_bounces=3)
+
+
+def curves_object(name, curves, radius=0.02, material=None):
+    """A Curves object of the given polylines ((n, 3) each), all of one radius."""
+    data = bpy.data.hair_curves.new(name)
+    data.add_curves([len(c) for c in curves])
+    data.attributes["position"].data.foreach_set("vector", np.concatenate(curves).astype(np.float32).ravel())
+    radii = data.attributes.new("radius", "FLOAT", "POINT")
+    radii.data.foreach_set("value", np.full(len(data.points), radius, np.float32))
+    if material is not None:
+        data.materials.append(material)
+    ob = bpy.data.objects.new(name, data)
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def test_what_curves_cannot_render_is_warned_by_name(capfd):
+    """A curve of one point has no segment (Cycles cannot trace it either); moving curves render where they are at
+    the frame (no motion blur of curves yet): both say so, naming the object."""
+    scene = new_scene(24, 24)
+    set_world(scene, (0.5, 0.5, 0.5))
+    curves_object("Stubble", [np.array([[0, 0, 1]]), np.array([[0, 0, 0], [0, 0, 1], [0.2, 0, 1.5]])])
+    exported = export_current()
+    assert any("'Stubble'" in w and "single point" in w for w in exported.warnings), exported.warnings
+    assert exported.scene.curves[0].count == 1
+    swaying = curves_object("Swaying", [np.array([[1, 0, 0], [1, 0, 1], [1.2, 0, 1.5]])])
+    swaying.location = (0, 0, 0)
+    swaying.keyframe_insert("location", frame=1)
+    swaying.location = (0, 0, 0.5)
+    swaying.keyframe_insert("location", frame=2)
+    scene.render.use_motion_blur = True
+    scene.frame_set(1)
+    scene.ember.samples = 1
+    render_to_array(scene, "EMBER", 1)
+    out = capfd.readouterr().out
+    assert "'Swaying'" in out and "motion blur of curves and points" in out, out

@@ -3,7 +3,7 @@
 Embree gets each record's segments as Cycles' add_curves gives them (intern/cycles/bvh/embree.cpp): ROUND as
 RTC_GEOMETRY_TYPE_ROUND_CATMULL_ROM_CURVE (a tube swept along the spline), RIBBON as FLAT_CATMULL_ROM_CURVE (a
 ribbon turned to face each ray), LINEAR as ROUND_LINEAR_CURVE (cones between the keys with spheres at them), the
-tessellation rate Subdivisions + 1. Catmull-Rom curves get their first and last key twice more
+tessellation rate 2^Subdivisions (at most 16) + 1 (Scene::curve_subdivisions, intern/cycles/scene/scene.h). Catmull-Rom curves get their first and last key twice more
 (pack_motion_verts), so that every segment k of a curve reads keys k - 1 .. k + 2, clamped to the curve; a hit's
 u runs 0 to 1 along its segment.
 
@@ -42,6 +42,11 @@ def embree_buffers(curves: Curves) -> tuple[np.ndarray, np.ndarray]:
     padded[offsets[:-1] + 2 * np.arange(c)] = curves.keys[offsets[:-1]]
     padded[offsets[1:] + 2 * np.arange(c) + 1] = curves.keys[offsets[1:] - 1]
     return padded, (first_key + 2 * curve).astype(np.uint32)
+
+
+def tessellation_rate(subdivisions: int) -> int:
+    """Embree's tessellation rate of curves for the scene's Curves > Subdivisions, as Cycles sets it."""
+    return min(max(1 << subdivisions, 1), 16) + 1
 
 
 def segment_curves(curves: Curves, seg: np.ndarray) -> np.ndarray:

@@ -34,7 +34,8 @@ class ShapeLayout:
         SceneArrays.shape_instances (kernels.scene.Curves or Points).
     Parts, in numbering order (the plain curves, the curve instances, the plain points, the point instances),
     as (P,) arrays: part_base (int64, the first number), part_record, part_instance (-1 for world space),
-    part_kind (CURVE, POINT), part_key (int64, the first self key: curves, then points).
+    part_kind (CURVE, POINT), part_culled (bool: spheres and linear curves, whose inside is not hit), part_key
+    (int64, the first self key: curves, then points).
     plain_base : per world-space record (records[:plain_count]) its first number; instance_base : per shape
     instance its first number."""
 
@@ -54,6 +55,11 @@ class ShapeLayout:
         self.part_record = np.array([r for r, _ in parts], np.int32)
         self.part_instance = np.array([k for _, k in parts], np.int32)
         self.part_kind = np.array([CURVE if isinstance(records[r], Curves) else POINT for r, _ in parts], np.int8)
+        # Spheres and linear curves are seen from outside only in Cycles: its Embree is built with back faces of
+        # curves and spheres culled, which its round linear and sphere intersectors honour (its swept Catmull-Rom
+        # tubes report a far wall all the same, as ribbons face every ray).
+        self.part_culled = np.array([not isinstance(records[r], Curves) or records[r].shape == "LINEAR"
+                                     for r, _ in parts], bool)
         sizes = np.array([records[r].segment_count if isinstance(records[r], Curves) else records[r].count
                           for r, _ in parts], np.int64)
         keys = np.array([records[r].count for r, _ in parts], np.int64)
@@ -77,7 +83,7 @@ class ShapeLayout:
             if isinstance(record, Curves):
                 vertices, indices = curve_geometry.embree_buffers(record)
                 out.append(embree.Shape(embree.CURVE_GEOMETRY[record.shape], vertices, indices,
-                                        record.subdivisions + 1))
+                                        curve_geometry.tessellation_rate(record.subdivisions)))
             else:
                 out.append(embree.Shape(embree.SPHERE_POINT, point_geometry.embree_vertices(record)))
         return out
@@ -100,6 +106,42 @@ class PrimitiveTable:
         self._matrices = None if inst is None else np.ascontiguousarray(inst.world_from_object[:, :3, :4], F32)
         self._instance_objects = None if inst is None else inst.object_ids
         self.attribute_names = {name for r in self.layout.records for name, _ in r.attributes}
+        self._twins = None
+
+    # ---- exact copies (Blender's jittered hair puts some strands on top of one another)
+    @property
+    def has_twins(self) -> bool:
+        """Whether some curve or point has an exact copy in its record (twin_prims)."""
+        if self._twins is None:
+            self._twins = [element_twins(r) for r in self.layout.records]
+        return any(t is not None for t in self._twins)
+
+    def twin_prims(self, prim: np.ndarray) -> np.ndarray:
+        """(n,) the number of the same segment (or point) of the next exact copy of each primitive's curve (or
+        point), -1 where it has none."""
+        out = np.full(len(prim), -1, np.int64)
+        if not self.has_twins:
+            return out
+        part, local = self.layout.locate(prim)
+        record = np.take(self.layout.part_record, part)
+        for r in np.unique(record):
+            twins = self._twins[int(r)]
+            if twins is None:
+                continue
+            sel = np.flatnonzero(record == r)
+            rec = self.layout.records[int(r)]
+            loc = np.take(local, sel)
+            element = self._element(rec, loc)
+            twin = np.take(twins, element)
+            has = twin >= 0
+            if isinstance(rec, Curves):
+                starts = rec.segment_offsets()
+                moved = loc - np.take(starts, element) + np.take(starts, np.maximum(twin, 0))
+            else:
+                moved = np.maximum(twin, 0)
+            base = np.take(self.layout.part_base, np.take(part, sel))
+            out[sel[has]] = (base + moved)[has]
+        return out
 
     # ---- the triangle table's own, for triangles
     @property
@@ -341,3 +383,52 @@ def _corners(record, local: np.ndarray, values: np.ndarray) -> np.ndarray:
         value = np.take(values, local, axis=0)
     return np.repeat(value[:, None, :], 3, axis=1)
 
+
+
+def element_twins(record) -> np.ndarray | None:
+    """(C,) int64 per curve (or point) of a record the next one in a group of exact copies (same keys, radii
+    included, in the same order; same centre and radius), cyclically; -1 for one without copies. None when the
+    record has no copies at all."""
+    if isinstance(record, Curves):
+        n = record.count
+        if n < 2:
+            return None
+        bits = np.ascontiguousarray(record.keys).view(np.uint32).astype(np.uint64)
+        per_key = (bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) ^ \
+            (bits[:, 2] * np.uint64(0x165667B19E3779F9)) ^ (bits[:, 3] * np.uint64(0x27D4EB2F165667C5))
+        sizes = np.diff(record.offsets).astype(np.int64)
+        place = np.arange(len(bits), dtype=np.int64) - np.repeat(record.offsets[:-1].astype(np.int64), sizes)
+        per_key = per_key ^ (place.astype(np.uint64) * np.uint64(0x85EBCA77C2B2AE63))
+        with np.errstate(over="ignore"):
+            print_ = np.add.reduceat(per_key, record.offsets[:-1].astype(np.int64)) + sizes.astype(np.uint64)
+    else:
+        n = record.count
+        if n < 2:
+            return None
+        print_ = np.ascontiguousarray(record.points).view(np.uint64).reshape(n, 2)
+        print_ = print_[:, 0] * np.uint64(0x9E3779B97F4A7C15) ^ print_[:, 1]
+    order = np.argsort(print_, kind="stable")
+    ranked = print_[order]
+    same = np.flatnonzero(ranked[1:] == ranked[:-1])
+    if not len(same):
+        return None
+    twins = np.full(n, -1, np.int64)
+    start = np.concatenate([[True], ranked[1:] != ranked[:-1]])
+    group = np.cumsum(start) - 1
+    first = np.flatnonzero(start)
+    size = np.diff(np.concatenate([first, [n]]))
+    members = np.flatnonzero(size[group] >= 2)
+    for g in np.unique(group[members]):      # groups of copies are few: checked exactly, one by one
+        ids = order[first[g]:first[g] + size[g]]
+        exact = [i for i in ids if _same_element(record, ids[0], i)]
+        if len(exact) >= 2:
+            twins[exact] = np.roll(exact, -1)
+    return twins if (twins >= 0).any() else None
+
+
+def _same_element(record, a: int, b: int) -> bool:
+    if isinstance(record, Curves):
+        ka = record.keys[record.offsets[a]:record.offsets[a + 1]]
+        kb = record.keys[record.offsets[b]:record.offsets[b + 1]]
+        return len(ka) == len(kb) and bool(np.array_equal(ka, kb))
+    return bool(np.array_equal(record.points[a], record.points[b]))

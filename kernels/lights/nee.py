@@ -13,6 +13,7 @@ from ..bsdf.light_passes import eval_split
 from ..environment import WorldFocus
 from ..geometry import NG
 from ..interaction import RayInfo, SurfaceHit, spawn_offset
+from ..rays import unlifted
 from ..paths import may_scatter, ray_keys
 from ..media import stack as volume_stack
 from ..media import tracking
@@ -78,6 +79,8 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None):
         sy[rows] += offset[:, 1]
         sz[rows] += offset[:, 2]
     eps = spawn_offset(tables.ray_epsilon, sx, sy, sz) * sign
+    if hit.shapes is not None:
+        eps = unlifted(hit, active[idx], eps)
     dist = np.take(ls.dist, idx)
     ox, oy, oz = sx + gx * eps, sy + gy * eps, sz + gz * eps
     # Aim from the offset origin at the sampled point itself: keeping the direction from the

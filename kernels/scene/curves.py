@@ -28,7 +28,7 @@ class Curves:
     attributes : ((name, values), ...) float32, (K, C') per key (interpolated along a segment) or (C, C') per
         curve, C' in 1..4: the names node programs read ("attr:<name>", "color:<name>", "uv:<name>", "uv" the
         render UV; "std:intercept", "std:length", "std:random" for Curves Info).
-    subdivisions : Cycles' Curves > Subdivisions (Embree's tessellation rate is one more).
+    subdivisions : Cycles' Curves > Subdivisions (Embree's tessellation rate is 2^subdivisions + 1, at most 17).
     """
     shape: str
     keys: np.ndarray
