@@ -468,3 +468,177 @@ def test_what_curves_cannot_render_is_warned_by_name(capfd):
     render_to_array(scene, "EMBER", 1)
     out = capfd.readouterr().out
     assert "'Swaying'" in out and "motion blur of curves and points" in out, out
+
+
+# ---------------------------------------------------------------- Curves Info, Point Info, attributes
+def node_tree(nodes_links, name="Info"):
+    """A material from (node type, options) and links ((from node, output), (to node, input)) by index; node 0
+    is the Material Output."""
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    nodes, links = nodes_links
+    made = [tree.nodes.new("ShaderNodeOutputMaterial")]
+    for kind, options in nodes:
+        node = tree.nodes.new(kind)
+        for key, value in options.items():
+            if key.startswith("in:"):
+                node.inputs[key[3:]].default_value = value
+            else:
+                setattr(node, key, value)
+        made.append(node)
+    for (a, out), (b, into) in links:
+        tree.links.new(made[a].outputs[out], made[b].inputs[into])
+    return mat
+
+
+def grass(material, name="Grass"):
+    """A Curves object whose geometry nodes grow Catmull-Rom blades on a grid (poly lines resampled, typed
+    Catmull-Rom, bent by noise, radius 0.025)."""
+    data = bpy.data.hair_curves.new(name)
+    ob = bpy.data.objects.new(name, data)
+    bpy.context.scene.collection.objects.link(ob)
+    tree = bpy.data.node_groups.new(name, "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    new, link = tree.nodes.new, tree.links.new
+    grid = new("GeometryNodeMeshGrid")
+    grid.inputs["Size X"].default_value, grid.inputs["Size Y"].default_value = 2.5, 1.5
+    spread = new("GeometryNodeDistributePointsOnFaces")
+    spread.inputs["Density"].default_value, spread.inputs["Seed"].default_value = 60, 3
+    line = new("GeometryNodeCurvePrimitiveLine")
+    line.inputs["End"].default_value = (0, 0, 1.2)
+    on_points, realize = new("GeometryNodeInstanceOnPoints"), new("GeometryNodeRealizeInstances")
+    resample = new("GeometryNodeResampleCurve")
+    resample.inputs["Count"].default_value = 6
+    spline = new("GeometryNodeCurveSplineType")
+    spline.spline_type = "CATMULL_ROM"
+    noise, centre, scale = new("ShaderNodeTexNoise"), new("ShaderNodeVectorMath"), new("ShaderNodeVectorMath")
+    noise.inputs["Scale"].default_value = 1.5
+    centre.operation, centre.inputs[1].default_value = "SUBTRACT", (0.5, 0.5, 0.5)
+    scale.operation, scale.inputs["Scale"].default_value = "SCALE", 0.6
+    bend, radius, wear = new("GeometryNodeSetPosition"), new("GeometryNodeSetCurveRadius"), new("GeometryNodeSetMaterial")
+    radius.inputs["Radius"].default_value = 0.025
+    wear.inputs["Material"].default_value = material
+    link(grid.outputs["Mesh"], spread.inputs["Mesh"])
+    link(spread.outputs["Points"], on_points.inputs["Points"])
+    link(line.outputs["Curve"], on_points.inputs["Instance"])
+    for a, b in ((on_points, realize), (realize, resample), (resample, spline)):
+        link(a.outputs[0], b.inputs[0])
+    link(spline.outputs[0], bend.inputs["Geometry"])
+    link(noise.outputs["Color"], centre.inputs[0])
+    link(centre.outputs[0], scale.inputs[0])
+    link(scale.outputs[0], bend.inputs["Offset"])
+    for a, b in ((bend, radius), (radius, wear)):
+        link(a.outputs[0], b.inputs[0])
+    link(wear.outputs[0], tree.nodes.new("NodeGroupOutput").inputs[0])
+    ob.modifiers.new(name, "NODES").node_group = tree
+    return ob
+
+
+def test_geometry_nodes_grass_coloured_by_intercept_matches_cycles():
+    """Curves Info's Intercept through a Color Ramp into a Principled BSDF, on a Curves object's geometry-nodes
+    blades, Rounded Ribbons under a sun."""
+    scene = new_scene(48, 48)
+    set_world(scene, (0.3, 0.35, 0.4))
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.data.energy, sun.rotation_euler = 3.0, (0.7, 0.2, 0.4)
+    scene.collection.objects.link(sun)
+    mat = node_tree(([("ShaderNodeBsdfPrincipled", {}), ("ShaderNodeValToRGB", {}), ("ShaderNodeHairInfo", {})],
+                     [((1, 0), (0, 0)), ((2, "Color"), (1, "Base Color")), ((3, "Intercept"), (2, "Fac"))]))
+    ramp = mat.node_tree.nodes["Color Ramp"].color_ramp
+    ramp.elements[0].color, ramp.elements[1].color = (0.05, 0.15, 0.02, 1.0), (0.8, 0.9, 0.3, 1.0)
+    grass(mat)
+    exported = export_current()
+    (blades,) = exported.scene.curves
+    assert blades.shape == "RIBBON" and [name for name, _ in blades.attributes] == ["std:intercept"], exported.warnings
+    compare_to_cycles(scene, samples=64, max_bounces=3)
+
+
+@pytest.mark.parametrize("shape", ["ROUND", "RIBBON"])
+def test_curves_info_outputs_match_cycles(shape):
+    """Every Curves Info output as light: Intercept, Random and Length, then Thickness, |Tangent Normal.y| and Is
+    Strand (0.2 + 1 on curves, 0.2 on a wall of the same material behind them)."""
+    scene = new_scene(48, 48)
+    set_world(scene, (0.0, 0.0, 0.0))
+    scene.cycles_curves.shape = {"ROUND": "THICK", "RIBBON": "RIBBONS"}[shape]
+    first = node_tree(([("ShaderNodeEmission", {}), ("ShaderNodeCombineXYZ", {}), ("ShaderNodeHairInfo", {}),
+                        ("ShaderNodeMath", {"operation": "MULTIPLY", "in:Value_001": 0.5})],
+                       [((1, 0), (0, 0)), ((2, 0), (1, "Color")), ((3, "Intercept"), (2, "X")),
+                        ((3, "Random"), (2, "Y")), ((3, "Length"), (4, 0)), ((4, 0), (2, "Z"))]), "First")
+    second = node_tree(([("ShaderNodeEmission", {}), ("ShaderNodeCombineXYZ", {}), ("ShaderNodeHairInfo", {}),
+                         ("ShaderNodeMath", {"operation": "MULTIPLY", "in:Value_001": 15.0}),
+                         ("ShaderNodeSeparateXYZ", {}), ("ShaderNodeMath", {"operation": "ABSOLUTE"}),
+                         ("ShaderNodeMath", {"operation": "ADD", "in:Value_001": 0.2})],
+                        [((1, 0), (0, 0)), ((2, 0), (1, "Color")), ((3, "Thickness"), (4, 0)), ((4, 0), (2, "X")),
+                         ((3, "Tangent Normal"), (5, 0)), ((5, "Y"), (6, 0)), ((6, 0), (2, "Y")),
+                         ((3, "Is Strand"), (7, 0)), ((7, 0), (2, "Z"))]), "Second")
+    blades = grass(first)
+    compare_to_cycles(scene, samples=32, max_bounces=0)
+    blades.modifiers[0].node_group.nodes["Set Material"].inputs["Material"].default_value = second
+    mesh_object("Wall", [(-3, 1.5, 0), (3, 1.5, 0), (3, 1.5, 3), (-3, 1.5, 3)], [(0, 1, 2, 3)], second)
+    compare_to_cycles(scene, samples=32, max_bounces=0)
+
+
+def test_point_info_and_point_attributes_match_cycles():
+    """Point Info's Radius, Random and Position, mixed with a colour attribute stored on the points, as light;
+    the radii vary point by point (Random Value into Mesh to Points)."""
+    scene = new_scene(48, 48)
+    set_world(scene, (0.0, 0.0, 0.0))
+    mat = node_tree(([("ShaderNodeEmission", {}), ("ShaderNodeMix", {"data_type": "RGBA", "in:Factor": 0.5}),
+                      ("ShaderNodeCombineXYZ", {}), ("ShaderNodePointInfo", {}),
+                      ("ShaderNodeMath", {"operation": "MULTIPLY", "in:Value_001": 2.5}),
+                      ("ShaderNodeSeparateXYZ", {}), ("ShaderNodeMath", {"operation": "MULTIPLY", "in:Value_001": 0.4}),
+                      ("ShaderNodeAttribute", {"attribute_name": "tint"})],
+                     [((1, 0), (0, 0)), ((2, 2), (1, "Color")), ((3, 0), (2, 6)), ((8, "Color"), (2, 7)),
+                      ((4, "Radius"), (5, 0)), ((5, 0), (3, "X")), ((4, "Random"), (3, "Y")),
+                      ((4, "Position"), (6, 0)), ((6, "Z"), (7, 0)), ((7, 0), (3, "Z"))]))
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, radius=1.1, location=(0, 0, 1.2))
+    cloud = bpy.context.active_object
+    tree = bpy.data.node_groups.new("Cloud", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    new, link = tree.nodes.new, tree.links.new
+    into, out = new("NodeGroupInput"), new("NodeGroupOutput")
+    sizes = new("FunctionNodeRandomValue")
+    sizes.data_type, sizes.inputs["Min"].default_value, sizes.inputs["Max"].default_value = "FLOAT", 0.12, 0.3
+    points, store, wear = new("GeometryNodeMeshToPoints"), new("GeometryNodeStoreNamedAttribute"), \
+        new("GeometryNodeSetMaterial")
+    store.data_type, store.inputs["Name"].default_value = "FLOAT_COLOR", "tint"
+    wear.inputs["Material"].default_value = mat
+    link(into.outputs[0], points.inputs["Mesh"])
+    link(sizes.outputs["Value"], points.inputs["Radius"])
+    link(points.outputs[0], store.inputs[0])
+    link(new("GeometryNodeInputPosition").outputs[0], store.inputs["Value"])
+    link(store.outputs[0], wear.inputs[0])
+    link(wear.outputs[0], out.inputs[0])
+    cloud.modifiers.new("Cloud", "NODES").node_group = tree
+    exported = export_current()
+    assert sorted(name for name, _ in exported.scene.points.attributes) == ["attr:tint", "std:point_random"]
+    compare_to_cycles(scene, samples=32, max_bounces=0)
+
+
+@pytest.mark.parametrize("coordinates", ["UV", "Generated"])
+def test_hair_reads_its_emitters_uvs_and_colours_as_cycles(coordinates):
+    """Particle hair takes the emitter's render UV map, byte colours and Generated coordinates where each strand
+    grows (a checker over them, mixed with a colour attribute)."""
+    scene = new_scene(48, 48)
+    set_world(scene, (0.0, 0.0, 0.0))
+    scene.cycles_curves.shape = "THICK"
+    mat = node_tree(([("ShaderNodeEmission", {}), ("ShaderNodeMix", {"data_type": "RGBA", "in:Factor": 0.5}),
+                      ("ShaderNodeTexChecker", {"in:Scale": 6.0}), ("ShaderNodeTexCoord", {}),
+                      ("ShaderNodeVertexColor", {"layer_name": "Col"})],
+                     [((1, 0), (0, 0)), ((2, 2), (1, "Color")), ((3, "Color"), (2, 6)), ((5, "Color"), (2, 7)),
+                      ((4, coordinates), (3, "Vector"))]))
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.8, location=(0, 0, 1.2))
+    ob = bpy.context.active_object
+    colours = ob.data.color_attributes.new("Col", "BYTE_COLOR", "CORNER")
+    colours.data.foreach_set("color", np.random.default_rng(1).uniform(0, 1, 4 * len(ob.data.loops)).astype(np.float32))
+    ob.data.materials.append(mat)
+    ob.modifiers.new("Hair", "PARTICLE_SYSTEM")
+    part = ob.particle_systems[0].settings
+    part.type, part.count, part.hair_length, part.radius_scale, part.distribution = "HAIR", 2000, 0.5, 0.04, "RAND"
+    ob.show_instancer_for_render = False
+    (hair,) = export_current().scene.curves
+    assert {"uv", "color:Col", "std:root"} <= {name for name, _ in hair.attributes}
+    compare_to_cycles(scene, samples=32, max_bounces=0)

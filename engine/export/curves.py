@@ -105,8 +105,8 @@ def _render_color(data):
 
 def with_standard(local: LocalCurves, names: tuple, lengths: np.ndarray | None = None) -> LocalCurves:
     """The curves with the Curves Info attributes among names: "std:intercept" per key (0 to 1 along each curve
-    by length), "std:length" per curve (object space), "std:random" per curve (hash of its number)."""
-    wanted = [n for n in ("std:intercept", "std:length", "std:random") if n in names]
+    by length), "std:length" per curve (object space), "std:curve_random" per curve (hash of its number)."""
+    wanted = [n for n in ("std:intercept", "std:length", "std:curve_random") if n in names]
     if not wanted or not local.count:
         return local
     attributes = dict(local.attributes)
@@ -126,9 +126,9 @@ def with_standard(local: LocalCurves, names: tuple, lengths: np.ndarray | None =
                                                    along).astype(np.float32)[:, None]
         if "std:length" in wanted:
             attributes["std:length"] = length.astype(np.float32)[:, None]
-    if "std:random" in wanted:
+    if "std:curve_random" in wanted:
         index = np.arange(local.count, dtype=np.uint32)
-        attributes["std:random"] = hash_uint2_to_float(index, np.zeros(local.count, np.uint32)).astype(
+        attributes["std:curve_random"] = hash_uint2_to_float(index, np.zeros(local.count, np.uint32)).astype(
             np.float32)[:, None]
     return LocalCurves(local.keys, local.offsets, local.linear, local.slots, attributes, local.dropped)
 
@@ -232,8 +232,13 @@ def read_particle_hair(ob, systems: list, render: bool, slot_count: int, names: 
         return LocalCurves(np.zeros((0, 4), np.float32), np.zeros(1, np.int32), False, np.zeros(0, np.int32), {})
     attributes = {name: np.concatenate(parts) for name, parts in values.items()
                   if sum(len(p) for p in parts) == len(offsets) - 1}
-    local = LocalCurves(np.ascontiguousarray(np.concatenate(keys)), np.array(offsets, np.int32), False,
-                        np.concatenate(slots), attributes)
+    keys = np.ascontiguousarray(np.concatenate(keys))
+    offsets = np.array(offsets, np.int32)
+    # Generated coordinates: Cycles gives each strand its root's (kernels/shading/shape_ops.py).
+    roots = np.ones((len(offsets) - 1, 4), np.float32)    # x, y, z and 1: the strand has a root
+    roots[:, :3] = keys[offsets[:-1], :3]
+    attributes["std:root"] = roots
+    local = LocalCurves(keys, offsets, False, np.concatenate(slots), attributes)
     return with_standard(local, names)
 
 

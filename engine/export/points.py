@@ -30,7 +30,7 @@ class LocalPoints:
 
 def read_points(cloud, names: tuple, object_name: str, warnings: list[str]) -> LocalPoints:
     """An evaluated PointCloud's spheres and the attributes among `names` (the material table's names: "attr:",
-    "color:", "uv:" look the name up among the cloud's attributes; "std:random" is Point Info's Random)."""
+    "color:", "uv:" look the name up among the cloud's attributes; "std:point_random" is Point Info's Random)."""
     n = len(cloud.points)
     out = np.empty((n, 4), np.float32)
     if n:
@@ -54,7 +54,7 @@ def read_point_attributes(data, n: int, names: tuple, object_name: str, warnings
         kind, _, key = name.partition(":")
         if kind in OBJECT_ATTRIBUTE_KINDS or kind == "geom":
             continue
-        if name == "std:random":
+        if name == "std:point_random":
             index = np.arange(n, dtype=np.uint32)
             out[name] = hash_uint2_to_float(index, np.zeros(n, np.uint32)).astype(np.float32)[:, None]
             continue

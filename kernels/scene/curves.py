@@ -27,7 +27,8 @@ class Curves:
     object_ids : (C,) int32 rows of SceneArrays.objects, or None (a prototype's curves take their instance's).
     attributes : ((name, values), ...) float32, (K, C') per key (interpolated along a segment) or (C, C') per
         curve, C' in 1..4: the names node programs read ("attr:<name>", "color:<name>", "uv:<name>", "uv" the
-        render UV; "std:intercept", "std:length", "std:random" for Curves Info).
+        render UV; "std:intercept", "std:length", "std:curve_random" for Curves Info; "std:root", particle hair's
+        roots, for its Generated coordinates).
     subdivisions : Cycles' Curves > Subdivisions (Embree's tessellation rate is 2^subdivisions + 1, at most 17).
     """
     shape: str

@@ -19,7 +19,7 @@ class Points:
     material_ids : (P,) int32 rows of SceneArrays.materials.
     object_ids : (P,) int32 rows of SceneArrays.objects, or None (a prototype's points take their instance's).
     attributes : ((name, (P, C) float32), ...) per point, C in 1..4, the names node programs read
-        ("attr:<name>", "color:<name>", "uv:<name>"; "std:random", Point Info's Random).
+        ("attr:<name>", "color:<name>", "uv:<name>"; "std:point_random", Point Info's Random).
     """
     points: np.ndarray
     material_ids: np.ndarray
