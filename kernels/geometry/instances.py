@@ -79,9 +79,9 @@ def shape_boxes(scene: SceneArrays) -> tuple[np.ndarray, np.ndarray]:
     def box(values):
         if not len(values):
             return None
-        r = values[:, 3:4].astype(np.float64)
-        xyz = values[:, :3].astype(np.float64)
-        return (xyz - r).min(axis=0), (xyz + r).max(axis=0)
+        r = values[:, 3]   # column by column: a strided float32 pass each, no (n, 3) float64 copies
+        return (np.array([float((values[:, k] - r).min()) for k in range(3)]),
+                np.array([float((values[:, k] + r).max()) for k in range(3)]))
     boxes = [box(r.keys) for r in scene.curves] + ([box(scene.points.points)] if scene.points is not None else [])
     placed = scene.shape_instances
     if placed is not None and placed.count:
