@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import passes
+from . import passes, visibility
 from .bsdf.light_passes import pass_classes
 from .paths import may_scatter
 from .rays import leaves_its_side, rays_from
@@ -38,15 +38,18 @@ def glass_escapes(tables, wave, state, hit, closures, bs) -> None:
     scale[chosen] = p_taken
     state.escape_scale = scale
     # The other branch must leave on its side of the true surface, as the integrator asks of a sample.
-    ok &= leaves_its_side(wi, tuple(np.take(c, chosen) for c in hit.ng), transmit)
+    ok &= leaves_its_side(wi, tuple(np.take(c, chosen) for c in hit.side_ng), transmit)
     live = np.flatnonzero(ok)
     if not len(live):
         return
     idx = chosen[live]
     wx, wy, wz = (c[live] for c in wi)
     rays = rays_from(tables, hit, idx, (wx, wy, wz), transmit[live])
-    hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split,
-                                None if state.time is None else state.time.take(idx))
+    times = None if state.time is None else state.time.take(idx)
+    hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, times)
+    if tables.shapes is not None:   # the branch leaving a curve or a point passes it, as the path's ray would
+        visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, None, wave.split, times,
+                               tables.triangles.self_keys(np.take(hit.prim, idx)))
     out = np.flatnonzero(hits.prim < 0)
     if not len(out):
         return

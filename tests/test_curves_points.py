@@ -642,3 +642,33 @@ def test_hair_reads_its_emitters_uvs_and_colours_as_cycles(coordinates):
     (hair,) = export_current().scene.curves
     assert {"uv", "color:Col", "std:root"} <= {name for name, _ in hair.attributes}
     compare_to_cycles(scene, samples=32, max_bounces=0)
+
+
+def _glass():
+    return node_tree(([("ShaderNodeBsdfGlass", {})], [((1, 0), (0, 0))]), "Glass")
+
+
+def _subsurface():
+    return node_tree(([("ShaderNodeSubsurfaceScattering", {})], [((1, 0), (0, 0))]), "Subsurface")
+
+
+def _half_transparent():
+    return node_tree(([("ShaderNodeMixShader", {"in:Fac": 0.5}), ("ShaderNodeBsdfTransparent", {}),
+                      ("ShaderNodeBsdfDiffuse", {"in:Color": (0.8, 0.2, 0.1, 1.0)})],
+                     [((1, 0), (0, 0)), ((2, 0), (1, 1)), ((3, 0), (1, 2))]), "Half transparent")
+
+
+@pytest.mark.parametrize("make", [_glass, _subsurface, _half_transparent], ids=["glass", "subsurface", "transparent"])
+def test_glass_subsurface_and_transparent_hair_and_points_match_cycles(make):
+    """Smooth glass's branch not taken passes the strand it leaves too; a subsurface walk steps over curves (Cycles'
+    local intersection ignores them) and cannot leave a sphere from inside; transparent shadows through hair."""
+    scene = new_scene(32, 32)
+    sun_and_sky(scene)
+    scene.cycles_curves.shape = "THICK"
+    mat = make()
+    furry_sphere(scene, count=300, material=mat, radius=0.8, location=(0, 0, 1.2))
+    bpy.ops.mesh.primitive_ico_sphere_add(radius=0.5, location=(1.3, 0, 1))
+    cloud = bpy.context.active_object
+    cloud.data.materials.append(mat)
+    mesh_to_points(cloud, 0.08)
+    compare_to_cycles(scene, samples=64, max_bounces=3)
