@@ -18,6 +18,7 @@ EXTRA_PANELS = (
     "DATA_PT_camera_dof",
     "DATA_PT_camera_dof_aperture",
     "CYCLES_OBJECT_PT_motion_blur",   # per object: Motion Blur on/off, Steps (object.cycles, read by Ember)
+    "CYCLES_RENDER_PT_curves",        # Render > Curves: Shape, Subdivisions (scene.cycles_curves, read by Ember)
 )
 _added: list = []
 

@@ -672,3 +672,19 @@ def test_glass_subsurface_and_transparent_hair_and_points_match_cycles(make):
     cloud.data.materials.append(mat)
     mesh_to_points(cloud, 0.08)
     compare_to_cycles(scene, samples=64, max_bounces=3)
+
+
+def test_curves_and_points_embree_cannot_take_are_dropped_and_counted():
+    """A key that is not a finite number drops its curve, a negative radius its point (Embree would refuse them or
+    break its BVH); the engine warns with the count (SceneArrays.validate's dropped_shapes)."""
+    keys = np.array([[0, 0, 0, 0.1], [0, 0, 1, 0.1], [1, 0, 0, 0.1], [1, np.nan, 1, 0.1]], np.float32)
+    curves = Curves("ROUND", keys, np.array([0, 2, 4], np.int32), np.zeros(2, np.int32),
+                    attributes=(("std:length", np.array([[1.0], [2.0]], np.float32)),))
+    points = Points(np.array([[0, 0, 0, 0.1], [1, 1, 1, -0.1]], np.float32), np.zeros(2, np.int32))
+    checked = shape_scene(curves=(curves,), points=points).validate()
+    assert checked.dropped_shapes == 2
+    (kept,) = checked.scene.curves
+    assert kept.count == 1 and np.array_equal(kept.keys, keys[:2]) and dict(kept.attributes)["std:length"][0, 0] == 1
+    assert checked.scene.points.count == 1
+    with pytest.raises(ValueError, match="offsets"):
+        shape_scene(curves=(dataclasses.replace(curves, offsets=np.array([0, 1, 4], np.int32)),)).validate()
