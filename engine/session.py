@@ -337,6 +337,9 @@ class FinalRender:
             if renderer.nonfinite_triangles:
                 self._warn([f"skipped {renderer.nonfinite_triangles} triangles whose corners are not finite "
                             f"numbers (NaN, or beyond float32's range: an object scaled or placed too far)"])
+            if getattr(renderer, "dropped_shapes", 0):
+                self._warn([f"skipped {renderer.dropped_shapes} curves or points whose keys, centres or radii are not "
+                            f"finite numbers or whose radius is negative"])
             result = session.render(settings, self.should_stop, previews=self._previews,
                                     display_s=None if _background() else DISPLAY_INTERVAL_S,
                                     on_rows=self._on_rows, on_display=self._on_display, on_progress=self._on_progress)

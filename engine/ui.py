@@ -24,6 +24,7 @@ EXTRA_PANELS = (
     "CYCLES_RENDER_PT_bake_selected_to_active",
     "CYCLES_RENDER_PT_bake_output",
     "CYCLES_RENDER_PT_bake_output_margin",
+    "CYCLES_RENDER_PT_curves",        # Render > Curves: Shape, Subdivisions (scene.cycles_curves, read by Ember)
 )
 _added: list = []
 

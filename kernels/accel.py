@@ -31,6 +31,9 @@ QUICK_BVH_TRIANGLES = 1 << 18
 # (docs/architecture.md, Big scenes).
 REFINE_SECONDS_PER_TRIANGLE = 4e-6
 
+# A ray from inside tubes or spheres steps past at most this many of their far walls (Accel._shape_hits).
+BACKFACE_SKIPS = 16
+
 # Below this many rays a batch runs as one call: splitting costs more than it saves.
 _MIN_CHUNK = 8192
 _CHUNKS_PER_THREAD = 4
@@ -147,11 +150,14 @@ class Accel:
 
     def __init__(self, positions: np.ndarray, threads: int = 0, motion_ids: np.ndarray | None = None,
                  motion: tuple = (), motion_reference: tuple = (), instances=None, reuse: "Accel | None" = None,
-                 indexed: tuple | None = None):
+                 indexed: tuple | None = None, shapes=None):
         """reuse : the Accel of an earlier frame (persistent data): its instanced meshes whose triangles are
         the same, array for array, keep their BVH instead of being built again.
         indexed : (vertices (V, 3) float32, indices (T, 3) uint32), the same triangles as positions shared
-        by their vertices (SceneArrays.bvh_vertices): Embree builds from them, about 1.5x faster."""
+        by their vertices (SceneArrays.bvh_vertices): Embree builds from them, about 1.5x faster.
+        shapes : kernels.geometry.primitives.ShapeLayout of the scene's curves and points, or None: they join
+        the top level (world space) and its instances (prototypes), and hits on them report the numbers the
+        layout gives them, after the triangles'."""
         self.threads = capped_threads(threads)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.triangle_count = len(positions)
@@ -177,6 +183,8 @@ class Accel:
         self._refining = None     # the thread building the medium BVH (refine), once started
         self.refine_error = None  # why that build failed, if it did (the quick BVH then stays)
         self._cancel = threading.Event()   # stops refine's build (close)
+        self._layout = shapes
+        self._shape_geometries = ()   # the Embree Shapes of the world-space curves and points
         placed = []
         if instances is not None and instances.count:
             earlier = reuse.meshes if reuse is not None else []
@@ -188,7 +196,9 @@ class Accel:
             placed = [(meshes[p], m) for p, m in zip(instances.prototype, instances.world_from_object)]
             self._bases = instances.bases(self.triangle_count)
             self.triangle_count += instances.triangle_total
-        if len(positions) or placed:
+        if shapes is not None:
+            placed = self._place_shapes(shapes, placed)
+        if len(positions) or placed or self._shape_geometries:
             if not len(positions):
                 plain = None
             elif indexed is not None:
@@ -196,7 +206,30 @@ class Accel:
             else:
                 plain = embree.Triangles(np.asarray(positions, np.float32).reshape(-1, 3))
             quick = not placed and plain is not None and plain.triangle_count >= QUICK_BVH_TRIANGLES
-            self._use(embree.Scene(self._device, plain, placed, quality="low" if quick else "medium"))
+            self._use(embree.Scene(self._device, plain, placed, quality="low" if quick else "medium",
+                                   shapes=self._shape_geometries))
+
+    def _place_shapes(self, layout, placed: list) -> list:
+        """The curves and points of a ShapeLayout: its world-space records as geometries of the top level, its
+        prototypes as scenes of their own placed by the shape instances after the mesh instances. Returns the
+        placements of both; sets the tables that turn Embree's hits into the layout's numbers."""
+        shapes = layout.embree_shapes()
+        self._shape_geometries = tuple(shapes[:layout.plain_count])
+        mesh_instances = len(placed)
+        inst = layout.instances
+        if inst is not None and inst.count:
+            scenes = [embree.ShapeScene(self._device, s) for s in shapes[layout.plain_count:]]
+            placed = placed + [(scenes[p], m) for p, m in zip(inst.prototype, inst.world_from_object)]
+        # Per top-level geometry and per instance: the number of its first primitive (-1: triangles).
+        self._geometry_base = np.full(1 + len(placed) + len(self._shape_geometries), -1, np.int64)
+        self._geometry_base[1 + len(placed):] = layout.plain_base
+        bases = self._bases if self._bases is not None else np.zeros(0, np.int64)
+        self._instance_base = np.concatenate([bases[:mesh_instances], layout.instance_base]).astype(np.int64)
+        linear = np.array([np.asarray(m, np.float64)[:3, :3] for _, m in placed]).reshape(-1, 3, 3)
+        with np.errstate(all="ignore"):
+            self._instance_inverse = np.linalg.inv(linear).astype(np.float32) if len(linear) else linear
+        self.primitive_count = layout.total
+        return placed
 
     @property
     def quality(self) -> str | None:
@@ -226,7 +259,8 @@ class Accel:
 
         def build():
             try:
-                better = embree.Scene(self._device, quick.plain, quality="medium", cancel=self._cancel)
+                better = embree.Scene(self._device, quick.plain, quality="medium", cancel=self._cancel,
+                                      shapes=quick.shapes)
             except embree.BuildCancelled:
                 return
             except embree.EmbreeError as err:   # out of memory, say: the quick BVH serves on
@@ -260,6 +294,8 @@ class Accel:
         both see the move. Returns how many instances moved."""
         if self._bases is None:
             raise ValueError("move_instances: the scene has no instances")
+        if self._layout is not None:
+            raise ValueError("move_instances: a scene with curves or points is built whole")
         return self._static.set_transforms(world_from_object)
 
     @property
@@ -294,10 +330,15 @@ class Accel:
         if (self._scene is None and not self._moving) or n == 0:
             t[:] = np.inf
             return Hits(prim, t, u, v)
-        if self._bases is not None:
+        if self._layout is not None:
+            prim = np.full(n, -1, np.int64 if self.primitive_count > np.iinfo(np.int32).max else np.int32)
+        elif self._bases is not None:
             prim = np.full(n, -1, np.int64 if self.triangle_count > np.iinfo(np.int32).max else np.int32)
 
         def job(s: slice) -> None:
+            if self._layout is not None:
+                prim[s], t[s], u[s], v[s] = self._shape_hits(origins[s], directions[s], t_max[s])
+                return
             if self._packets is not None:
                 p, inst, t[s], u[s], v[s] = self._packets.intersect(origins[s], directions[s], t_max[s])
                 if self._static_ids is not None:
@@ -316,7 +357,8 @@ class Accel:
         else:
             t[:] = t_max
         if self._moving:
-            if self._static_ids is not None and self._scene is not None and self._packets is None:
+            if self._static_ids is not None and self._scene is not None and self._packets is None \
+                    and self._layout is None:
                 hit = prim >= 0
                 prim[hit] = self._static_ids[prim[hit]]
             t[prim < 0] = t_max[prim < 0]
@@ -340,6 +382,73 @@ class Accel:
             t[prim < 0] = np.inf
         return Hits(prim, t, u, v)
 
+    def _shape_hits(self, origins, directions, t_max):
+        """(prim, t, u, v) of a scene with curves or points: Embree's hits turned into the layout's numbers
+        (triangles as without them), without hits on the inside of spheres and linear curves. Cycles builds its
+        Embree with EMBREE_BACKFACE_CULLING_CURVES and _SPHERES (build_files/build_environment/cmake/embree.cmake),
+        which its sphere and round linear intersectors honour, so a ray from inside one (a point's root in its
+        emitter, two overlapping) does not meet its far wall; embreex's Embree reports it, so such a hit is
+        stepped past (BACKFACE_SKIPS at most). (Catmull-Rom tubes report it in both.)"""
+        prim, t, u, v, ng = self._numbered_hits(origins, directions, t_max)
+        live = np.flatnonzero(self._inside_out(prim, ng, directions))
+        for _ in range(BACKFACE_SKIPS):
+            if not len(live):
+                break
+            o = origins[live]
+            step = t[live] + np.float32(2.0 ** -20) * (np.abs(o).max(axis=1) + t[live]) + np.float32(1e-30)
+            left = t_max[live] - step
+            prim[live], t[live] = -1, t_max[live]
+            go = np.flatnonzero(left > 0)
+            live, o, step, left = live[go], o[go], step[go], left[go]
+            if not len(live):
+                break
+            d = np.ascontiguousarray(directions[live])
+            p2, t2, u2, v2, ng2 = self._numbered_hits(np.ascontiguousarray(o + d * step[:, None], np.float32), d,
+                                                      left.astype(np.float32))
+            prim[live] = p2
+            t[live] = np.where(p2 >= 0, t2 + step, t_max[live])
+            u[live], v[live] = u2, v2
+            live = live[self._inside_out(p2, ng2, d)]
+        else:
+            prim[live], t[live] = -1, t_max[live]
+        return prim, t, u, v
+
+    def _inside_out(self, prim, ng, directions) -> np.ndarray:
+        """(n,) bool: hits on a sphere or linear curve seen from inside it (Embree's Ng along the ray)."""
+        shape = prim >= self._layout.triangle_count
+        if not shape.any():
+            return shape
+        sel = np.flatnonzero(shape)
+        culled = np.take(self._layout.part_culled, self._layout.locate(prim[sel])[0])
+        facing = np.einsum("ij,ij->i", ng[sel], directions[sel]) > 0
+        out = np.zeros(len(prim), bool)
+        out[sel] = culled & facing
+        return out
+
+    def _numbered_hits(self, origins, directions, t_max):
+        """One query: (prim, t, u, v, Ng) in the layout's numbers."""
+        if self._packets is not None:
+            p, inst, t, u, v, geom, ng = self._packets.intersect(origins, directions, t_max, geometry=True)
+        else:
+            r = self._scene.run(origins, directions, dists=t_max.copy(), output=1)
+            p, t, u, v, geom, ng = r["primID"], r["tfar"], r["u"], r["v"], r["geomID"], r["Ng"]
+            inst = np.full(len(p), -1, np.int32)
+        hit = p >= 0
+        plain = hit & (inst < 0)
+        base = np.take(self._geometry_base, np.where(plain, geom, 0))
+        if len(self._instance_base):
+            base = np.where(inst >= 0, np.take(self._instance_base, np.maximum(inst, 0)), base)
+        prim = np.where(hit, np.where(base >= 0, base + p, p), -1)
+        if self._static_ids is not None:
+            moved = np.flatnonzero(plain & (base < 0))
+            prim[moved] = self._static_ids[prim[moved]]
+        ng = np.asarray(ng, np.float32).reshape(-1, 3)
+        placed = np.flatnonzero(hit & (inst >= 0))
+        if len(placed):   # Embree's Ng of an instance's hit is in its object space: by the inverse transpose
+            ng = ng.copy()
+            ng[placed] = np.einsum("nji,nj->ni", np.take(self._instance_inverse, inst[placed], axis=0), ng[placed])
+        return prim, np.array(t, np.float32), np.array(u, np.float32), np.array(v, np.float32), ng
+
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,
                  split: bool = True, time: np.ndarray | None = None) -> np.ndarray:
         """(N,) bool: True where something lies between the origin and t_max along the ray (at its time,
@@ -354,6 +463,15 @@ class Accel:
 
         if self._scene is not None:
             self._run(job, n, split)
+            if self._layout is not None and self._layout.part_culled.any():
+                # Embree's answer counts the inside of spheres and linear curves, which Cycles' does not: the blocked rays
+                # are checked by their closest hit (_shape_hits culls such walls).
+                rows = np.flatnonzero(out)
+                if len(rows):
+                    times = None if time is None else time.take(rows) if isinstance(time, RayTimes) else \
+                        np.take(time, rows)
+                    again = self.intersect(origins[rows], directions[rows], t_max[rows], split, times)
+                    out[rows] = again.prim >= 0
         for moving in self._moving:
             sel = moving.crossing(origins, directions, t_max)
             sel = sel[~out[sel]]

@@ -16,6 +16,10 @@ leaves out:
 - rtcSetSceneBuildQuality / rtcSetGeometryBuildQuality: a big mesh's first BVH is built LOW (Embree's
   Morton builder, several times faster) and a MEDIUM one later (kernels.accel.Accel.refine), whose build
   rtcSetSceneProgressMonitorFunction can cancel.
+- RTC_GEOMETRY_TYPE_SPHERE_POINT and the curve types Cycles uses (ROUND_CATMULL_ROM, FLAT_CATMULL_ROM,
+  ROUND_LINEAR): Shape reads their (V, 4) float32 x, y, z, radius vertices and segment indices in place, as a
+  geometry of the top level (world space) or of a ShapeScene of its own (instanced); hits on them report their
+  geometry (Scene.intersect's geometry=True).
 - rtcIntersect16 / rtcOccluded16 on packets laid out by NumPy (Embree's SOA RTCRayHit16): one ctypes
   call per 16 rays, with the GIL released while Embree traces. It reports which instance a ray hit, which
   embreex's loop does not, and finds the same hits and distances bit for bit; but packing the rays and one
@@ -42,8 +46,12 @@ import numpy as np
 
 # Enum values of Embree 4's headers.
 _GEOMETRY_TRIANGLE, _GEOMETRY_INSTANCE = 0, 121
+# RTCGeometryType of the curves and points Cycles traces (intern/cycles/bvh/embree.cpp, add_curves, add_points).
+CURVE_GEOMETRY = {"ROUND": 58, "RIBBON": 59, "LINEAR": 16}   # ROUND_CATMULL_ROM, FLAT_CATMULL_ROM, ROUND_LINEAR
+SPHERE_POINT = 50
 _BUFFER_INDEX, _BUFFER_VERTEX = 0, 1
-_FORMAT_UINT3, _FORMAT_FLOAT3, _FORMAT_FLOAT3X4_ROW_MAJOR = 0x5003, 0x9003, 0x9134
+_FORMAT_UINT, _FORMAT_UINT3, _FORMAT_FLOAT3, _FORMAT_FLOAT4 = 0x5001, 0x5003, 0x9003, 0x9004
+_FORMAT_FLOAT3X4_ROW_MAJOR = 0x9134
 _SCENE_FLAG_ROBUST = 1 << 2
 _ERROR_CANCELLED = 6
 # RTCBuildQuality: LOW is Embree's quick (Morton) builder, MEDIUM its binned SAH builder (Cycles' setting for
@@ -57,7 +65,7 @@ _PROGRESS = ctypes.CFUNCTYPE(ctypes.c_bool, ctypes.c_void_p, ctypes.c_double)
 # then the hit (Ng xyz, u, v, primID, geomID, instID[levels], instPrimID[levels]). Rows past instID are
 # room for the instancing levels and instance-array ids a build may add; Embree never reads them here.
 _ORG, _TNEAR, _DIR, _TIME, _TFAR, _MASK, _ID, _FLAGS = 0, 3, 4, 7, 8, 9, 10, 11
-_U, _V, _PRIM, _GEOM, _INST = 15, 16, 17, 18, 19
+_NG, _U, _V, _PRIM, _GEOM, _INST = 12, 15, 16, 17, 18, 19
 _HIT_ROWS = 32          # RTCRayHit16 with headroom: 32 x 64 bytes per packet
 _RAY_ROWS = 12          # RTCRay16
 _LANES = 16
@@ -109,6 +117,7 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "rtcSetSceneBuildQuality": (None, [vp, cint]),
         "rtcSetSceneProgressMonitorFunction": (None, [vp, _PROGRESS, vp]),
         "rtcSetGeometryBuildQuality": (None, [vp, cint]),
+        "rtcSetGeometryTessellationRate": (None, [vp, ctypes.c_float]),
         "rtcCommitScene": (None, [vp]),
         "rtcReleaseScene": (None, [vp]),
         "rtcRetainScene": (None, [vp]),
@@ -236,16 +245,72 @@ class Mesh(Triangles):
             self.handle = None
 
 
+class Shape:
+    """Curves or points in the layouts Embree reads in place, with no BVH of their own: a geometry of the top
+    level (Scene's `shapes`) or of a ShapeScene.
+
+    kind : an RTCGeometryType (CURVE_GEOMETRY's, SPHERE_POINT); vertices : (V, 4) float32 x, y, z, radius;
+    indices : (S,) uint32, each curve segment's first control vertex (None for points); tessellation : Embree's
+    tessellation rate of curves (Cycles': Subdivisions + 1)."""
+
+    def __init__(self, kind: int, vertices: np.ndarray, indices: np.ndarray | None = None,
+                 tessellation: float | None = None):
+        self.kind = kind
+        self.vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 4)
+        self.indices = None if indices is None else np.ascontiguousarray(indices, np.uint32).reshape(-1)
+        self.tessellation = tessellation
+
+    @property
+    def primitive_count(self) -> int:
+        return len(self.vertices) if self.indices is None else len(self.indices)
+
+    def attach(self, device: Device, scene_handle, geom_id: int, quality: str = "medium") -> None:
+        """A committed geometry of these buffers (read in place), attached to a scene as geom_id."""
+        lib = device.lib
+        geom = lib.rtcNewGeometry(device.handle, self.kind)
+        lib.rtcSetGeometryBuildQuality(geom, BUILD_QUALITY[quality])
+        if self.tessellation is not None:
+            lib.rtcSetGeometryTessellationRate(geom, float(self.tessellation))
+        if self.indices is not None:
+            lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_INDEX, 0, _FORMAT_UINT, self.indices.ctypes.data, 0, 4,
+                                           len(self.indices))
+        lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT4, self.vertices.ctypes.data, 0, 16,
+                                       len(self.vertices))
+        lib.rtcCommitGeometry(geom)
+        lib.rtcAttachGeometryByID(scene_handle, geom, geom_id)
+        lib.rtcReleaseGeometry(geom)
+
+
+class ShapeScene:
+    """One Shape in its own Embree scene (a bottom-level BVH), to be instanced like a Mesh."""
+
+    def __init__(self, device: Device, shape: Shape):
+        self.device, self.shape = device, shape
+        self.handle = device.lib.rtcNewScene(device.handle)
+        device.lib.rtcSetSceneFlags(self.handle, _SCENE_FLAG_ROBUST)
+        if shape.primitive_count:
+            shape.attach(device, self.handle, 0)
+        device.lib.rtcCommitScene(self.handle)
+        device.check("curves or points")
+
+    def __del__(self):
+        if getattr(self, "handle", None):
+            self.device.lib.rtcReleaseScene(self.handle)
+            self.handle = None
+
+
 class Scene:
-    """The top level: one mesh used as it is (geometry 0, world-space triangles) and instances of other
-    meshes placed by (3, 4) world_from_object transforms (geometries 1 ..).
+    """The top level: one mesh used as it is (geometry 0, world-space triangles), instances of other
+    meshes (or ShapeScenes) placed by (3, 4) world_from_object transforms (geometries 1 .. K), and curves and
+    points in world space (geometries K + 1 ..).
 
     Queries report each hit's instance (-1 for the plain mesh) and the triangle within its mesh."""
 
     def __init__(self, device: Device, plain: Triangles | None = None, instances=(), quality: str = "medium",
-                 cancel: threading.Event | None = None):
+                 cancel: threading.Event | None = None, shapes=()):
         """plain: the triangles used as they are, in the top level's own BVH (a Mesh's BVH is not used);
-        instances: iterable of (Mesh, (3, 4) or (4, 4) world_from_object).
+        instances: iterable of (Mesh or ShapeScene, (3, 4) or (4, 4) world_from_object); shapes: Shapes in
+        world space (curves, points), geometries K + 1, K + 2, ... of the top level.
         quality: the top level's BUILD_QUALITY ("low" builds several times faster, traces somewhat slower;
         hits are the same either way: only the tree differs, not the triangle test).
         cancel: an event that stops the build when set (Embree's progress monitor), and BuildCancelled is
@@ -277,6 +342,10 @@ class Scene:
             lib.rtcReleaseGeometry(geom)
             self._meshes.append(mesh)
         self.instance_count = len(placed)
+        self.shapes = tuple(shapes)   # kept alive: Embree reads their buffers in place
+        for j, shape in enumerate(self.shapes):
+            if shape.primitive_count:
+                shape.attach(device, self.handle, 1 + len(placed) + j, quality)
         lib.rtcCommitScene(self.handle)
         if cancel is not None:
             lib.rtcSetSceneProgressMonitorFunction(self.handle, _PROGRESS(), None)
@@ -357,9 +426,11 @@ class Scene:
         if p:
             fn(last.ctypes.data, scene, base + (p - 1) * stride, None)
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray):
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray, geometry: bool = False):
         """Closest hits of (N, 3) float32 rays within (N,) t_max: (prim, instance, t, u, v), with prim -1
-        and t = t_max for a miss, instance -1 for hits on the plain mesh."""
+        and t = t_max for a miss, instance -1 for hits on the plain mesh and the shapes; geometry: then also
+        each hit's geometry (the top level's for hits outside instances, the instanced scene's within) and its
+        (N, 3) unnormalised geometric normal, Embree's Ng."""
         n = len(origins)
         buf, last = self._packets(origins, directions, t_max, _HIT_ROWS)
         bits = buf.view(np.uint32)
@@ -368,8 +439,12 @@ class Scene:
         prim = bits[:, _PRIM, :].reshape(-1)[:n].view(np.int32)
         inst = bits[:, _INST, :].reshape(-1)[:n].view(np.int32)
         inst = np.where((inst < 0) | (prim < 0), np.int32(-1), inst - np.int32(1))
-        return (prim, inst, buf[:, _TFAR, :].reshape(-1)[:n], buf[:, _U, :].reshape(-1)[:n],
-                buf[:, _V, :].reshape(-1)[:n])
+        out = (prim, inst, buf[:, _TFAR, :].reshape(-1)[:n], buf[:, _U, :].reshape(-1)[:n],
+               buf[:, _V, :].reshape(-1)[:n])
+        if geometry:
+            ng = np.stack([buf[:, _NG + k, :].reshape(-1)[:n] for k in range(3)], axis=1)
+            out += (bits[:, _GEOM, :].reshape(-1)[:n].view(np.int32), ng)
+        return out
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
         """(N,) bool: something lies on the ray before t_max."""

@@ -40,7 +40,7 @@ def glass_escapes(tables, wave, state, hit, closures, bs, receiver=None) -> None
     scale[chosen] = p_taken
     state.escape_scale = scale
     # The other branch must leave on its side of the true surface, as the integrator asks of a sample.
-    ok &= leaves_its_side(wi, tuple(np.take(c, chosen) for c in hit.ng), transmit)
+    ok &= leaves_its_side(wi, tuple(np.take(c, chosen) for c in hit.side_ng), transmit)
     live = np.flatnonzero(ok)
     if not len(live):
         return
@@ -49,9 +49,13 @@ def glass_escapes(tables, wave, state, hit, closures, bs, receiver=None) -> None
     rays = rays_from(tables, hit, idx, (wx, wy, wz), transmit[live])
     times = None if state.time is None else state.time.take(idx)
     hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, times)
-    if wave.only_catchers is not None:   # a shadow catcher's own paths see shadow catchers only
-        visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, visibility.ALL_RAYS, wave.split,
-                               times, catchers_only=True)
+    if wave.only_catchers is not None or tables.shapes is not None:
+        # A shadow catcher's own paths see shadow catchers only; the branch leaving a curve or a point passes it,
+        # as the path's ray would.
+        visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits,
+                               visibility.ALL_RAYS if wave.only_catchers is not None else None, wave.split, times,
+                               None if tables.shapes is None else tables.triangles.self_keys(np.take(hit.prim, idx)),
+                               catchers_only=wave.only_catchers is not None)
     out = np.flatnonzero(hits.prim < 0)
     if not len(out):
         return

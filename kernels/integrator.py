@@ -148,6 +148,8 @@ def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None)
         state.mis_facing = np.zeros((4, n), np.float32)
     if tables.links is not None:   # camera rays leave the world's object (light set 0), no scattering
         state.link_set, state.scattered = np.zeros(n, np.uint8), np.zeros(n, bool)
+    if tables.shapes is not None:
+        state.self_key = np.full(n, -1, np.int64)
     if tables.media is not None:
         state.media = tables.media.start_stack(n) if media is None else np.repeat(media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
@@ -169,9 +171,11 @@ def step(tables, wave, state, rays, first: bool, last: int):
     hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, state.time)
     if state.partner is not None:
         _hand_over(state, hits)
-    if tables.visibility is not None:
-        visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits, visibility.ray_types(state, first),
-                               wave.split, state.time, wave.only_catchers is not None)
+    if tables.visibility is not None or state.self_key is not None:
+        # Past objects the ray's type does not see, and the curve or point the ray leaves (Cycles' rays skip it).
+        visibility.skip_hidden(tables, rays.origins, rays.dirs, rays.t_max, hits,
+                               visibility.ray_types(state, first) if tables.visibility is not None else None,
+                               wave.split, state.time, state.self_key, wave.only_catchers is not None)
     if tables.links is not None and not first:
         shadow_linking.dedicated_light(tables, wave, state, rays, hits)
     ended = None
@@ -192,6 +196,8 @@ def step(tables, wave, state, rays, first: bool, last: int):
         medium = media_stage.vertex(tables, wave, state.rows(scattered.rows), scattered, first, last)
         if medium is not None:
             medium = (medium[0], Rays(*medium[1], np.full(len(medium[0]), np.inf, np.float32)))
+            if medium[0].self_key is not None:   # a ray leaving a point in a medium skips no curve
+                medium[0].self_key = np.full(len(medium[0]), -1, np.int64)
     if tables.visibility is not None:
         found = _held_out(tables, wave, state, hits, found)
     copies = None if wave.catcher is None else shadow_catcher.split(tables, wave, state, rays, hits, found)
@@ -282,6 +288,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     if not len(alive):
         return exits
     state.compact(alive)
+    if state.self_key is not None:
+        state.self_key = tables.triangles.self_keys(np.take(hit.prim, alive))
     if bounds is None:
         state.segments = state.segments + 1
     else:
@@ -422,7 +430,8 @@ def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
     prim = np.take(hits.prim, found)
     return SurfaceHit(tables.triangles, prim, np.take(hits.u, found),
                       np.take(hits.v, found), direction, tables.shading.needs_uv,
-                      _hit_motion(tables, prim, times) if tables.accel.moves else None)
+                      _hit_motion(tables, prim, times) if tables.accel.moves else None,
+                      None if tables.shapes is None else (np.take(rays.origins, found, axis=0), np.take(hits.t, found)))
 
 
 def _hit_motion(tables, prim, times):
@@ -470,6 +479,8 @@ def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
         wave.aux["emission"][:, state.path[lit[seen]]] += le[:, seen]
     if wave.nee:
         mis = np.flatnonzero(np.isfinite(np.take(state.bsdf_pdf, lit)))
+        if tables.shapes is not None:   # light samples reach emissive triangles only (Cycles: MIS on triangles)
+            mis = mis[np.take(hit.prim, lit[mis]) < tables.shapes.triangle_count]
         if len(mis):
             sel = lit[mis]
             gx, gy, gz = (np.take(c, sel) for c in hit.ng)
@@ -540,7 +551,7 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None)
     portal, free = bs.portal, bs.any_side
     if free.any():  # hair and Ray Portal samples leave on the side they point to, untested (as in Cycles)
         bs.through = np.where(free, leaves_its_side(bs.wi, hit.ng, True), bs.transmit)
-    ok = (leaves_its_side(bs.wi, hit.ng, bs.transmit) | free) & (bs.pdf > 0)
+    ok = (leaves_its_side(bs.wi, hit.side_ng, bs.transmit) | free) & (bs.pdf > 0)
     throughput = state.throughput * bs.weight
     alive = ok & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
     passing = bs.transparent

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import E1, E2, N0, N1, N2, NG, P0, TriangleTable, interpolate_uv
+from .geometry.primitives import ShapeHits
 from .vec import dot_rows_einsum
 
 
@@ -19,14 +20,19 @@ class SurfaceHit:
     backfacing : (N,) bool, the ray hit the triangle's back (normals were flipped).
     tangent_frame(idx) : the tangents of some hits, computed on demand.
     ray : the path state the Light Path node reads (RayInfo), None outside the integrator's loop.
+    shapes : None in a scene of triangles alone; else kernels.geometry.primitives.ShapeHits of every hit (zeros on
+        triangles) with kind (N,) int8 (0 triangle, 1 curve, 2 point); its dpdu turned with the normals.
+    side_ng : the normal a sampled direction's side is tested against: ng, but on curves the shading normal
+        (Cycles' bsdf_sample tests curves against the closure's normal).
     """
     __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "ray", "programs", "normal_set", "_table",
-                 "_b1", "_b2", "_moved")
+                 "_b1", "_b2", "_moved", "shapes", "side_ng")
 
-    def __init__(self, table: TriangleTable, prim, b1, b2, d, need_uv: bool, motion=None):
+    def __init__(self, table: TriangleTable, prim, b1, b2, d, need_uv: bool, motion=None, ray=None):
         """motion : None, or (rows, (m, 3, 4) matrices, (m, 3, 3) normal matrices) for hits on moving
         objects (motion blur): each takes its triangle from where it is stored to where it was at the
-        path's time."""
+        path's time. ray : (origins (N, 3), t (N,)) of the rays that found the hits: hits on curves and points
+        (a table with them, kernels.geometry.primitives.PrimitiveTable) are placed along them."""
         g = table.gather(prim)
         w0 = np.float32(1.0) - b1 - b2
         self.p = tuple(g[P0 + k] + b1 * g[E1 + k] + b2 * g[E2 + k] for k in range(3))
@@ -47,6 +53,10 @@ class SurfaceHit:
         degenerate = len2 < np.float32(1e-12)
         if degenerate.any():  # opposing corner normals cancel: use the face normal
             ns = [np.where(degenerate, gk, c) for c, gk in zip(ns, (gx, gy, gz))]
+        self.shapes = None
+        if getattr(table, "layout", None) is not None:
+            ns, (gx, gy, gz), b1, b2 = self._shape_hits(table, prim, b1, b2, d, ray, ns, (gx, gy, gz))
+            w0 = np.float32(1.0) - b1 - b2
         dx, dy, dz = d
         # Face the geometric normal towards the side the ray came from, and the shading normal with
         # it (as Cycles does for back-facing hits): near a smooth object's silhouette the shading
@@ -55,6 +65,12 @@ class SurfaceHit:
         sign = np.where(self.backfacing, np.float32(-1.0), np.float32(1.0))
         self.ng = (gx * sign, gy * sign, gz * sign)
         self.ns = (ns[0] * sign, ns[1] * sign, ns[2] * sign)
+        self.side_ng = self.ng
+        if self.shapes is not None:
+            self.shapes.dpdu *= sign[:, None]
+            curve = self.shapes.kind == 1
+            if curve.any():
+                self.side_ng = tuple(np.where(curve, a, b) for a, b in zip(self.ns, self.ng))
         self.u, self.v = interpolate_uv(g, w0, b1, b2) if need_uv else (None, None)
         self.d = d
         self.mat = table.materials(prim)
@@ -63,6 +79,34 @@ class SurfaceHit:
         self.programs = {}  # material -> (hit indices, ProgramRun): node programs run once per wave
         self.normal_set = False  # ns holds the materials' set normals (Shading.surface, Shader.set_normal)
         self._table, self._b1, self._b2 = table, b1, b2
+
+    def _shape_hits(self, table, prim, b1, b2, d, ray, ns, g):
+        """The hits on curves and points (table.shape_hits) put in place of what the triangle rows gave them:
+        position, normals, and barycentrics (u along a curve's segment, 0 on a point: the weights of
+        PrimitiveTable.attribute's corners)."""
+        n = len(prim)
+        self.shapes = ShapeHits(n)
+        sel = np.flatnonzero(prim >= table.triangle_count)
+        if not len(sel):
+            return ns, g, b1, b2
+        if ray is None:
+            raise ValueError("SurfaceHit: hits on curves and points need the rays that found them")
+        origins, t = ray
+        dirs = np.stack([np.take(c, sel) for c in d], axis=1)
+        got = table.shape_hits(np.take(prim, sel), np.take(b1, sel), np.take(b2, sel),
+                               np.take(origins, sel, axis=0), dirs, np.take(t, sel))
+        for name in ShapeHits.__slots__:
+            getattr(self.shapes, name)[sel] = getattr(got, name)
+        self.shapes.kind[sel] = np.where(got.curve, np.int8(1), np.int8(2))
+        p = [np.array(c, np.float32, copy=True) for c in self.p]
+        ns = [np.array(c, np.float32, copy=True) for c in ns]
+        g = [np.array(c, np.float32, copy=True) for c in g]
+        for k in range(3):
+            p[k][sel], ns[k][sel], g[k][sel] = got.p[:, k], got.ns[:, k], got.ng[:, k]
+        self.p = tuple(p)
+        b1, b2 = np.array(b1, np.float32, copy=True), np.array(b2, np.float32, copy=True)
+        b1[sel], b2[sel] = got.b1, 0.0
+        return ns, tuple(g), b1, b2
 
     @property
     def barycentrics(self):
@@ -123,6 +167,8 @@ class SurfaceHit:
         offset = (n * h[:, None]).astype(np.float32)
         if self._moved is not None:
             offset[np.take(self._moved[0], idx) >= 0] = 0.0
+        if self.shapes is not None:   # Cycles lifts shadow rays off smooth triangles only
+            offset[np.take(self.shapes.kind, idx) != 0] = 0.0
         return offset
 
     def tangent_frame(self, idx: np.ndarray):

@@ -85,6 +85,8 @@ class PathState:
     #                                     without linking
     scattered: np.ndarray | None = None  # (N,) bool or None (with link_set): the ray leaves a scattering, not a
     #                                      transparent pass-through (shadow linking's dedicated rays follow it)
+    self_key: np.ndarray | None = None  # (N,) int64 the curve or point the ray leaves, which it skips
+    #                                     (kernels.geometry.primitives), -1 none; None in scenes without them
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -134,6 +136,8 @@ class PathState:
         if self.link_set is not None:
             self.link_set = np.take(self.link_set, idx)
             self.scattered = np.take(self.scattered, idx)
+        if self.self_key is not None:
+            self.self_key = np.take(self.self_key, idx)
 
     @classmethod
     def concat(cls, a: "PathState", b: "PathState") -> "PathState":
@@ -161,7 +165,7 @@ class PathState:
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
                      "portal", "segments", "media", "volume_bounces", "volume_bounds", "mis_facing", "link_set",
-                     "scattered"):
+                     "scattered", "self_key"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)
         state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)

@@ -38,8 +38,18 @@ def rays_from(tables, hit, rows, w, transmit) -> Rays:
     sign = np.where(transmit, np.float32(-1.0), np.float32(1.0))
     gx, gy, gz = (np.take(c, rows) * sign for c in hit.ng)
     eps = spawn_offset(tables.ray_epsilon, px, py, pz)
+    if hit.shapes is not None:
+        eps = unlifted(hit, rows, eps)
     origins = np.stack([px + gx * eps, py + gy * eps, pz + gz * eps], axis=1)
     return Rays(origins, np.stack(w, axis=1), np.full(len(rows), np.inf, np.float32))
+
+
+def unlifted(hit, rows, eps):
+    """The offsets eps of rays leaving the hits rows, 0 where they leave a curve or a point: Cycles starts those
+    on the surface itself (integrate_surface_ray_offset and shadow_ray_offset move off triangles only) and skips
+    the primitive they leave, as Ember does (PathState.self_key); a ray leaving one of two coincident strands
+    then meets the other one about half the time, as it does in Cycles."""
+    return np.where(np.take(hit.shapes.kind, rows) != 0, np.float32(0.0), eps)
 
 
 def leaves_its_side(w, g, transmit) -> np.ndarray:

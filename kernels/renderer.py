@@ -19,6 +19,7 @@ from .environment import Environment
 from .film import Film, pixel_sums
 from .coincident import Coincident
 from .geometry import TriangleTable, prototype_boxes, scene_extent
+from .geometry.primitives import PrimitiveTable, ShapeLayout
 from .lights import LightSampler
 from .lights.links import object_links
 from .media.medium import Media
@@ -85,8 +86,12 @@ class Renderer:
         self.scene = checked.scene
         self.dropped_triangles = checked.dropped_triangles
         self.nonfinite_triangles = checked.nonfinite_triangles
+        self.dropped_shapes = checked.dropped_shapes
         poll()
         moving = self.scene.has_motion and self.scene.motion_ids is not None
+        # Curves and points follow the triangles in the numbering of hits (kernels/geometry/primitives.py).
+        self.shapes = ShapeLayout(self.scene, self.scene.triangle_count + self.scene.instanced_triangle_count) \
+            if self.scene.has_shapes else None
         # Embree builds its BVH (C code, the GIL released) while NumPy builds the shading tables.
         with ThreadPoolExecutor(1, "ember-bvh") as builder:
             accel = builder.submit(Accel, self.scene.positions, threads,
@@ -94,7 +99,7 @@ class Renderer:
                                      if moving else (None, (), ())), instances=self.scene.instances,
                                    reuse=reuse.accel if reuse is not None and reuse.accel is not None else None,
                                    indexed=(self.scene.bvh_vertices, self.scene.bvh_indices)
-                                   if self.scene.bvh_vertices is not None else None)
+                                   if self.scene.bvh_vertices is not None else None, shapes=self.shapes)
             try:
                 poll()
                 # Triangles near float32's limits overflow in their normals: paths that hit them are
@@ -127,6 +132,8 @@ class Renderer:
 
     def _build_tables(self, poll) -> None:
         self.triangles = TriangleTable(self.scene, deferred=True)
+        if self.shapes is not None:   # hits on curves and points answered beside the triangles'
+            self.triangles = PrimitiveTable(self.triangles, self.scene, self.shapes)
         # Motion blur: each moving object's decomposed motion and the inverse of the matrix its stored
         # positions were made with (hits are moved from there to where the object is at the path's time).
         self.motion = [motion.decompose(np.asarray(keys, np.float64)) for keys in self.scene.motion]
@@ -159,6 +166,8 @@ class Renderer:
         # such as the default material's, do not count).
         layered = self.shading.layered
         used = np.bincount(self.triangles.material_ids, minlength=len(layered))[:len(layered)] > 0
+        if self.shapes is not None:
+            used[self.triangles.shape_materials()] = True
         self.layered = bool((layered & used).any())
 
     def _give_shader_rays(self) -> None:
@@ -230,6 +239,8 @@ class Renderer:
         inst = self.scene.instances
         if inst is None or not inst.count:
             raise ValueError("update_instances: the scene has no instances")
+        if self.shapes is not None:
+            raise ValueError("update_instances: a scene with curves or points is built whole")
         if self.scene.has_motion or self.scene.vector_motion is not None:
             raise ValueError("update_instances: a scene with motion blur or a Vector pass is built whole")
         m = np.asarray(world_from_object, np.float64)
@@ -299,6 +310,8 @@ class Renderer:
         if new.has_motion or old.has_motion or new.vector_motion is not None or old.vector_motion is not None:
             return False
         if new.volumes or old.volumes:   # voxel grids (a VDB sequence's frame) are read again with the scene
+            return False
+        if new.has_shapes or old.has_shapes:   # curves and points (hair that grows, points that move) are built again
             return False
         if not (same_triangles(new, old) and _same_instances(new.instances, old.instances)
                 and (new.objects is None) == (old.objects is None)

@@ -245,6 +245,17 @@ def walk(accel, object_rows, p0, d0, n0, ng0, obj, albedo, radius, g, van_de_hul
     return rows, prim, u, v, t, direction, thr[:, rows].astype(F32)
 
 
+def _triangles_only(object_rows, triangle_count: int):
+    """object_rows with no object for curves and points: a walk steps over them. Cycles' local intersection
+    ignores curves (kernel_embree_filter_occluded_local_func), and a walk inside a sphere never meets its inside
+    (culled)."""
+    def rows(prim):
+        out = object_rows(prim)
+        shape = prim >= triangle_count
+        return np.where(shape, np.int32(-1), out) if out is not None and shape.any() else out
+    return rows
+
+
 def _local_hits(accel, object_rows, origin, d, t_max, obj, times, live):
     """The first hit of each ray on its own object (obj, None: any), within t_max: (prim, t, u, v), t float64.
     Hits on other objects are stepped over (at most 8 times)."""
@@ -319,6 +330,8 @@ def _walks(tables, state, hit, closures, bs, rows):
     obj = None
     object_rows = tables.triangles.object_rows
     prim_rows = object_rows(np.take(hit.prim, rows))
+    if tables.shapes is not None:
+        object_rows = _triangles_only(object_rows, tables.shapes.triangle_count)
     if prim_rows is not None:
         obj = prim_rows
     return walk(tables.accel, object_rows, p0, d0, n0, ng0, obj, np.take(closures.c1, picked, axis=1),

@@ -9,6 +9,8 @@ rays are SHADOW. Its BVH skips objects whose mask lacks the ray's type. Here the
 usual and, where the object it found does not see that type of ray, traced again from just past it, as
 the transparent shadow loop steps past transparent surfaces (kernels/lights/nee.py). The rays of a shadow
 catcher's own paths see shadow catchers only (kernels/shadow_catcher.py), which the same step past does.
+the transparent shadow loop steps past transparent surfaces (kernels/lights/nee.py). Rays leaving a curve or
+a point step past that curve or point the same way (kernels/geometry/primitives.py).
 """
 from __future__ import annotations
 
@@ -21,7 +23,8 @@ from .scene.objects import (ALL_RAYS, HOLDOUT, RAY_CAMERA as CAMERA, RAY_DIFFUSE
                             RAY_GLOSSY as GLOSSY_RAY, RAY_SCATTER as SCATTER_RAY, RAY_SHADOW as SHADOW,
                             RAY_TRANSMIT as TRANSMIT_RAY, SHADOW_CATCHER)
 
-# A ray steps past at most this many objects that do not see it, as a safeguard (each is one more query).
+# A ray steps past at most this many objects that do not see it (or hits on its own curve), as a safeguard
+# (each is one more query).
 MAX_SKIPS = 64
 
 
@@ -63,22 +66,81 @@ def holdouts(tables, prim: np.ndarray) -> np.ndarray:
     return (np.take(tables.visibility, tables.triangles.object_rows(prim)) & HOLDOUT) != 0
 
 
-def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = True, times=None,
-                catchers_only: bool = False) -> Hits:
+def skip_hidden(tables, origins, dirs, t_max, hits: Hits, types, split: bool = True, times=None, keys=None,
+                catchers_only: bool = False, rule=None) -> Hits:
     """The closest hits of the rays among objects that see them: where `hits` (from tables.accel.intersect of
-    the same rays) found an object that rays of `types` ((N,) uint8, or one value) do not see (or, with
-    catchers_only, no shadow catcher), the ray is traced again from just past that hit. t stays the distance
-    from the ray's own origin. Changes hits."""
-    types = np.broadcast_to(np.asarray(types, np.uint8), (len(origins),))
-    return skip_where(tables, origins, dirs, t_max, hits,
-                      lambda prim, rays: hidden(tables, prim, types[rays], catchers_only), split, times)
+    the same rays) found an object that rays of `types` ((N,) uint8, or one value; None: every object sees them)
+    do not see (or, with catchers_only, no shadow catcher), or that rule(prim, rows) turns down (a skip_hits
+    test, or None), the ray is traced again from just past that hit. keys: (N,) int64 the curve or point each
+    ray leaves (PrimitiveTable.self_keys, -1 none), or None: hits on it are stepped past too, as Cycles' rays
+    skip the primitive they leave. t stays the distance from the ray's own origin. Changes hits."""
+    tests = []
+    if types is not None:
+        types = np.broadcast_to(np.asarray(types, np.uint8), (len(origins),))
+        tests.append(lambda prim, rows: hidden(tables, prim, types[rows], catchers_only))
+    if rule is not None:
+        tests.append(rule)
+    swap = None
+    if keys is not None:
+        tests.append(_own_primitive(tables, keys))
+        swap = _twin(tables, keys)
+    if not tests:
+        return hits
+    if len(tests) == 1:
+        return skip_hits(tables, origins, dirs, t_max, hits, tests[0], split, times, swap)
+
+    def reject(prim, rows):
+        out = tests[0](prim, rows)
+        for test in tests[1:]:
+            out = out | test(prim, rows)
+        return out
+    return skip_hits(tables, origins, dirs, t_max, hits, reject, split, times, swap)
 
 
-def skip_where(tables, origins, dirs, t_max, hits: Hits, skipped, split: bool = True, times=None) -> Hits:
-    """skip_hidden for any rule: skipped(prim (m,), rays (m,)) -> (m,) bool, the hits prim (all >= 0) of the rays
-    (indices into origins) that the rays pass through. Changes hits."""
+def _own_primitive(tables, keys: np.ndarray):
+    """A skip_hits test: hits on the curve or point each ray left (keys per ray, -1 none)."""
+    def reject(prim, rows):
+        mine = np.take(keys, rows)
+        out = mine >= 0
+        if out.any():
+            sel = np.flatnonzero(out)
+            out[sel] = tables.triangles.self_keys(np.take(prim, sel)) == np.take(mine, sel)
+        return out
+    return reject
+
+
+def _twin(tables, keys: np.ndarray):
+    """A skip_hits swap: a hit on the curve or point a ray left, where an exact copy of it lies (PrimitiveTable.
+    twins), becomes a hit on the copy at the same place. Cycles' Embree filter turns the ray's own primitive down
+    and goes on to the copy at the very same distance; stepping past the hit would miss the copy."""
+    if not tables.triangles.has_twins:
+        return None
+
+    def swap(prim, rows):
+        mine = np.take(keys, rows)
+        sel = np.flatnonzero(mine >= 0)
+        if not len(sel):
+            return prim
+        own = tables.triangles.self_keys(np.take(prim, sel)) == np.take(mine, sel)
+        sel = sel[own]
+        if len(sel):
+            twin = tables.triangles.twin_prims(np.take(prim, sel))
+            found = twin >= 0
+            prim = prim.copy()
+            prim[sel[found]] = twin[found]
+        return prim
+    return swap
+
+
+def skip_hits(tables, origins, dirs, t_max, hits: Hits, reject, split: bool = True, times=None, swap=None) -> Hits:
+    """The closest hits of the rays but those reject(prim, rows) turns down ((m,) bool for the hits prim of the
+    rays rows): each such ray is traced again from just past its hit, at most MAX_SKIPS times (then nothing is
+    found). swap(prim, rows), if given, first replaces hits by others at the same place (the hits' new prim).
+    t stays the distance from the ray's own origin. Changes hits."""
     live = np.flatnonzero(hits.prim >= 0)
-    live = live[skipped(hits.prim[live], live)]
+    if swap is not None:
+        hits.prim[live] = swap(hits.prim[live], live)
+    live = live[reject(hits.prim[live], live)]
     for _ in range(MAX_SKIPS):
         if not len(live):
             return hits
@@ -97,10 +159,10 @@ def skip_where(tables, origins, dirs, t_max, hits: Hits, skipped, split: bool = 
                                        None if times is None else times.take(live))
         found = np.flatnonzero(again.prim >= 0)
         at = live[found]
-        hits.prim[at] = again.prim[found]
+        hits.prim[at] = again.prim[found] if swap is None else swap(again.prim[found], at)
         hits.t[at] = again.t[found] + step[found]
         hits.u[at], hits.v[at] = again.u[found], again.v[found]
-        live = at[skipped(again.prim[found], at)]
+        live = at[reject(hits.prim[at], at)]
     hits.prim[live] = -1   # past the safeguard: nothing found
     hits.t[live] = np.inf
     return hits

@@ -36,7 +36,8 @@ def test_panels_users_need_are_there():
     ensure_registered()
     for name in ("RENDER_PT_format", "RENDER_PT_color_management", "DATA_PT_lens", "DATA_PT_camera",
                  "OBJECT_PT_visibility", "EEVEE_MATERIAL_PT_surface", "EEVEE_WORLD_PT_surface",
-                 "EEVEE_MATERIAL_PT_context_material", "RENDER_PT_frame_range", "DATA_PT_context_light"):
+                 "EEVEE_MATERIAL_PT_context_material", "RENDER_PT_frame_range", "DATA_PT_context_light",
+                 "CYCLES_RENDER_PT_curves", "PARTICLE_PT_hair_shape"):
         assert "EMBER" in getattr(bpy.types, name).COMPAT_ENGINES, name
     for name in ("EMBER_RENDER_PT_sampling", "EMBER_RENDER_PT_light_paths", "EMBER_RENDER_PT_film", "EMBER_LIGHT_PT_shadow",
                  "EMBER_OBJECT_PT_visibility_mask", "EMBER_OBJECT_PT_visibility_rays"):

@@ -141,6 +141,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          object_attributes=geometry.object_attributes,
                          object_visibility=object_visibility(geometry.instance_visibility),
                          light_links=light_links(geometry.instance_links),
+                         curves=geometry.curves, points=geometry.points, shape_instances=geometry.shape_instances,
                          **(dict(bvh_vertices=geometry.bvh[0], bvh_indices=geometry.bvh[1]) if geometry.bvh else {}),
                          **scene_motion(motion, geometry),
                          **vector_fields(vector, geometry, camera.world_from_camera))

@@ -24,9 +24,13 @@ from ...kernels.textures import Texture
 from .displacement import check_adaptive_subdivision, displace_mesh
 from .instances import (asset_name, check_visibility, instance_key, instance_random, instance_visibility,
                         instanced_groups, is_rendered, object_inputs, slot_materials)
-from .light_linking import LinkTable, check_volume_linking
+from .light_linking import ALL_MASK, LinkTable, check_volume_linking
+
+# The light_linking row of an object linked nowhere: no receiver or blocker set, in every light and shadow set.
+UNLINKED_ROW = (0, 0, ALL_MASK, ALL_MASK)
 from .materials import MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_attributes, read_mesh, read_tangents, readable_mesh
+from .shapes import ShapeExport
 from .rgba_attributes import instancer_attribute, object_attribute
 from .volumes import is_volume, read_volume
 
@@ -66,6 +70,9 @@ class Geometry:
     bvh: tuple | None = None               # (vertices, indices): the plain triangles indexed (SceneArrays.bvh_vertices)
     volumes: tuple = ()                    # ((object row, {name: VoxelGrid}, density scale, step), ...) (SceneArrays.volumes)
     object_attributes: tuple = ()          # ((name, (K, 4) float32), ...) per object row (SceneArrays.object_attributes)
+    curves: tuple = ()                     # world-space kernels.scene.Curves (SceneArrays.curves), rows after the meshes'
+    points: object = None                  # world-space kernels.scene.Points or None (SceneArrays.points)
+    shape_instances: object = None         # kernels.scene.ShapeInstances or None (SceneArrays.shape_instances)
 
 
 class MeshCache:
@@ -147,12 +154,19 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     linked: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> LinkTable.row() per instance
     linking = links is not None and links.used
     view_layer = depsgraph.view_layer_eval
+    shapes = ShapeExport(depsgraph, warnings, moving)   # curves and points (shapes.py)
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
         # An instance is only valid during its iteration step: copy what is needed now.
         ob = inst.object
+        if ob.type == "MESH" and inst.show_particles and shapes.has_hair(ob):
+            _add_shape(shapes, inst, ob, materials, view_layer, described, signatures, object_values, warnings,
+                       hair=True)
         if not is_rendered(inst, ob, warnings):
+            continue
+        if ob.type in ("POINTCLOUD", "CURVES"):
+            _add_shape(shapes, inst, ob, materials, view_layer, described, signatures, object_values, warnings)
             continue
         seen_by = instance_visibility(inst, ob, view_layer)
         if not seen_by:   # no ray sees it: not rendered (as Cycles' sync)
@@ -231,16 +245,60 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     rows = {group: object_rows(np.stack(groups[group]), *(np.array(column) for column in zip(*inputs)))
             for group, inputs in rows.items()}
     row_grids = [g for group in grids.values() for g in group]
-    return dataclasses.replace(_assemble(meshes, groups, tangents, attributes, rows, instanced),
-                               object_attributes=_attribute_table(properties),
-                               volumes=tuple((row, *g) for row, g in enumerate(row_grids) if g is not None),
-                               instance_keys=[k for group in keys.values() for k in group],
-                               instance_matrices=[m for group in groups.values() for m in group],
-                               instance_assets=[a for group in assets.values() for a in group],
-                               instance_visibility=[v for group in visibility.values() for v in group],
-                               instance_links=[v for group in linked.values() for v in group] if linking else None,
-                               slot_materials=[m for group in slots.values() for m in group],
-                               empty_keys=frozenset(empty))
+    geometry = _assemble(meshes, groups, tangents, attributes, rows, instanced)
+    per_row = dict(object_attributes=_attribute_table(properties),
+                   volumes=tuple((row, *g) for row, g in enumerate(row_grids) if g is not None),
+                   instance_keys=[k for group in keys.values() for k in group],
+                   instance_matrices=[m for group in groups.values() for m in group],
+                   instance_assets=[a for group in assets.values() for a in group],
+                   instance_visibility=[v for group in visibility.values() for v in group],
+                   instance_links=[v for group in linked.values() for v in group] if linking else None,
+                   slot_materials=[m for group in slots.values() for m in group],
+                   empty_keys=frozenset(empty))
+    if not shapes.empty:   # the curves' and points' object rows come after the meshes'
+        placed = shapes.assemble(len(per_row["instance_keys"]))
+        per_row.update(object_attributes=_attribute_table({**properties, "shapes": placed.properties}),
+                       instance_keys=per_row["instance_keys"] + placed.keys,
+                       instance_matrices=per_row["instance_matrices"] + placed.matrices,
+                       instance_assets=per_row["instance_assets"] + placed.assets,
+                       instance_visibility=per_row["instance_visibility"] + placed.visibility,
+                       slot_materials=per_row["slot_materials"] + placed.slots,
+                       objects=np.concatenate([geometry.objects, placed.objects]),
+                       instance_count=geometry.instance_count + len(placed.keys),
+                       curves=placed.curves, points=placed.points, shape_instances=placed.instances)
+        if linking:   # curves and points are lit and shadowed as objects linked nowhere
+            per_row["instance_links"] = per_row["instance_links"] + [UNLINKED_ROW] * len(placed.keys)
+            warnings.append("Light Linking: curves and points are lit and shadowed as if they were linked nowhere")
+    return dataclasses.replace(geometry, **per_row)
+
+
+def _add_shape(shapes: ShapeExport, inst, ob, materials: MaterialTable, view_layer, described: dict,
+               signatures: dict, object_values: dict, warnings: list[str], hair: bool = False) -> None:
+    """Hand one instance's curves or points (a Point Cloud or Curves object; hair: a mesh object's hair
+    particle systems) to the shape export, with what its object row takes."""
+    owner = (inst.parent if inst.is_instance else None) or ob
+    if owner.hide_render:
+        return
+    seen_by = instance_visibility(inst, ob, view_layer)
+    if not seen_by:
+        return
+    object_key = (ob.as_pointer(), ob.data.as_pointer())
+    rows = materials.slot_ids(ob)
+    if object_key not in signatures:
+        signatures[object_key] = slot_materials(ob)
+        check_visibility(ob, warnings)
+    names = materials.attribute_names(rows)
+    if ob.as_pointer() not in described:
+        described[ob.as_pointer()] = object_inputs(ob)
+    location, size, color, pass_index, own, terminator = described[ob.as_pointer()]
+    place = {"matrix": np.array(inst.matrix_world), "key": instance_key(inst), "asset": asset_name(ob),
+             "visibility": seen_by, "slots": signatures[object_key],
+             "inputs": (location, size, color, pass_index, instance_random(inst, own), terminator),
+             "properties": _object_attributes(inst, ob, names, object_values)}
+    if hair:
+        shapes.add_hair(ob, rows, names, place)
+    else:
+        shapes.add_data(ob, rows, names, place)
 
 
 def _displaced(inst, ob, mesh, local: LocalMesh, materials: MaterialTable, rows: tuple, warnings) -> LocalMesh:

@@ -17,8 +17,9 @@ from ...kernels.scene.objects import (HOLDOUT, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOS
 # are copied into world space, which traces a little faster (no transform per ray and per hit).
 INSTANCE_MIN_TRIANGLES = 20_000
 
-# Object types that carry geometry Ember cannot render yet.
-UNSUPPORTED_TYPES = {"CURVES": "hair curves", "POINTCLOUD": "point clouds"}
+# Object types whose geometry Ember renders: meshes (and what Blender hands out as meshes), volumes, point clouds
+# and Curves objects (engine/export/shapes.py).
+RENDERED_TYPES = ("MESH", "VOLUME", "POINTCLOUD", "CURVES")
 # Object > Visibility > Ray Visibility, each with its bit of SceneArrays.object_visibility (Cycles' sync:
 # intern/cycles/blender/object.cpp, object_ray_visibility).
 RAY_VISIBILITY = (("visible_camera", RAY_CAMERA), ("visible_diffuse", RAY_DIFFUSE), ("visible_glossy", RAY_GLOSSY),
@@ -27,12 +28,9 @@ RAY_VISIBILITY = (("visible_camera", RAY_CAMERA), ("visible_diffuse", RAY_DIFFUS
 
 
 def is_rendered(inst, ob, warnings: list[str]) -> bool:
-    """Whether Ember renders this depsgraph instance: a mesh or a Volume object, shown, and not hidden for
-    render (unsupported kinds of geometry warn in `warnings`)."""
-    if ob.type not in ("MESH", "VOLUME"):
-        if ob.type in UNSUPPORTED_TYPES:
-            warnings.append(f"Object '{ob.name}': {UNSUPPORTED_TYPES[ob.type]} are not supported, "
-                            f"not rendered")
+    """Whether Ember renders this depsgraph instance: a mesh, a Volume, Point Cloud or Curves object, shown, and not
+    hidden for render. (Cameras, lights and empties carry nothing to render; nor, in Cycles, does Grease Pencil.)"""
+    if ob.type not in RENDERED_TYPES:
         return False
     # A render depsgraph has already dropped objects hidden for render; a viewport one has not. Particles
     # of a hidden object still render, so an instance follows its instancer.

@@ -247,7 +247,7 @@ def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -
             attr = mesh.attributes.get(key)
         if attr is None:
             continue
-        values = _attribute_values(mesh, attr)
+        values = attribute_values(mesh, attr)
         if values is None:
             warnings.append(f"Object '{object_name}': attribute '{key}' ({attr.data_type}, {attr.domain}) is "
                             f"not supported, reads zero")
@@ -299,7 +299,9 @@ _ATTRIBUTE_TYPES = {"FLOAT": ("value", 1), "INT": ("value", 1), "INT8": ("value"
                     "BYTE_COLOR": ("color", 4)}
 
 
-def _attribute_values(mesh, attr) -> np.ndarray | None:
+def attribute_values(mesh, attr) -> np.ndarray | None:
+    """(n, C) float32 values of a generic attribute of any geometry (mesh, curves, points), None for a data type
+    Ember does not read; colours come linear (Blender's `color`)."""
     kind = _ATTRIBUTE_TYPES.get(attr.data_type)
     if kind is None:
         return None

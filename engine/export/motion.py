@@ -88,7 +88,8 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     samples = MotionSamples(shutter_table=shutter_table(scene.render), rolling_shutter=rolling_shutter(scene))
     per_key: dict = {}      # instance key -> key count
     for inst in depsgraph.object_instances:
-        if inst.object.type == "MESH":
+        # Curves and points are followed too, only to say that their motion is not rendered (export/shapes.py).
+        if inst.object.type in ("MESH", "CURVES", "POINTCLOUD"):
             count = key_count(inst.object.original)
             if inst.is_instance and inst.parent is not None:
                 parent = key_count(inst.parent.original)
@@ -116,7 +117,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                 key = instance_key(inst)
                 if key in per_key:
                     recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
-                    if i in (0, len(times) - 1) and not inst.is_instance:
+                    if i in (0, len(times) - 1) and not inst.is_instance and inst.object.type == "MESH":
                         _track_deformation(inst.object, key, i, vertices_first, deforming)
             if camera_keys:
                 camera_matrices.append(_rigid(np.array(camera_ob.evaluated_get(depsgraph).matrix_world)))

@@ -279,6 +279,24 @@ def _geometry(builder, node, groups):
     return builder.add(node.bl_idname, {}, outputs=outputs)
 
 
+# The Curves Info and Point Info outputs that are attributes the export makes (engine/export/curves.py,
+# points.py), as Cycles' sync makes ATTR_STD_CURVE_INTERCEPT, _LENGTH, _RANDOM and ATTR_STD_POINT_RANDOM only for
+# curves and points whose shaders read them.
+SHAPE_ATTRIBUTES = {"ShaderNodeHairInfo": {"Intercept": "std:intercept", "Length": "std:length",
+                                           "Random": "std:curve_random"},
+                    "ShaderNodePointInfo": {"Random": "std:point_random"}}
+
+
+def _shape_info(builder, node, groups):
+    """Curves Info and Point Info (kernels/shading/shape_ops.py)."""
+    outputs = _linked_outputs(node)
+    for name in outputs:
+        made = SHAPE_ATTRIBUTES[node.bl_idname].get(name)
+        if made is not None:
+            builder.attributes.add(made)
+    return builder.add(node.bl_idname, {}, outputs=outputs)
+
+
 def _object_info(builder, node, groups):
     return builder.add(node.bl_idname, {}, {"material_index": float(builder.material_pass_index)})
 
@@ -518,6 +536,8 @@ COMPILERS = {
     "ShaderNodeUVMap": _uv_map,
     "ShaderNodeNewGeometry": _geometry,
     "ShaderNodeObjectInfo": _object_info,
+    "ShaderNodeHairInfo": _shape_info,
+    "ShaderNodePointInfo": _shape_info,
     "ShaderNodeAttribute": _attribute,
     "ShaderNodeVolumeInfo": _volume_info,
     "ShaderNodeVertexColor": _vertex_color,

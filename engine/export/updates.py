@@ -177,8 +177,10 @@ def export_index(geometry: Geometry, materials: MaterialTable, linking: tuple = 
     inst = geometry.instances
     rows = len(geometry.instance_keys or ())
     instance_rows = None if inst is None else inst.object_ids
-    movable = len(geometry.material_ids) == 0 and (rows == 0 if inst is None else
-                                                   np.array_equal(np.sort(instance_rows), np.arange(rows)))
+    # Curves and points are copied into world space or instanced apart from the meshes: moving them is a new export.
+    shapes = bool(geometry.curves) or geometry.points is not None or geometry.shape_instances is not None
+    movable = len(geometry.material_ids) == 0 and not shapes and (
+        rows == 0 if inst is None else np.array_equal(np.sort(instance_rows), np.arange(rows)))
     return ExportIndex(instance_keys=tuple(geometry.instance_keys or ()),
                        slot_materials=tuple(geometry.slot_materials or ()), empty_keys=geometry.empty_keys,
                        instance_rows=instance_rows, movable=bool(movable), material_keys=materials.keys,

@@ -56,7 +56,7 @@ def instance_boxes(scene: SceneArrays, local: list | None = None) -> tuple[np.nd
 
 def scene_extent(scene: SceneArrays, local: list | None = None):
     """(lo, hi) float64 (3,) corners of the box around all triangles, plain and instanced (local: see
-    instance_boxes)."""
+    instance_boxes), and the curves and points."""
     lo, hi = extent(scene.positions)
     ilo, ihi = instance_boxes(scene, local)
     if len(ilo):
@@ -64,7 +64,39 @@ def scene_extent(scene: SceneArrays, local: list | None = None):
             lo, hi = np.minimum(lo, ilo.min(axis=0)), np.maximum(hi, ihi.max(axis=0))
         else:
             lo, hi = ilo.min(axis=0), ihi.max(axis=0)
+    if scene.has_shapes:
+        slo, shi = shape_boxes(scene)
+        if len(slo):
+            empty = not len(scene.positions) and not len(ilo)
+            lo = slo.min(axis=0) if empty else np.minimum(lo, slo.min(axis=0))
+            hi = shi.max(axis=0) if empty else np.maximum(hi, shi.max(axis=0))
     return lo, hi
+
+
+def shape_boxes(scene: SceneArrays) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (B, 3) float64 world boxes of the scene's curves and points (kernels.scene.Curves, Points): one per
+    world-space record and one per shape instance, radii included."""
+    def box(values):
+        if not len(values):
+            return None
+        r = values[:, 3]   # column by column: a strided float32 pass each, no (n, 3) float64 copies
+        return (np.array([float((values[:, k] - r).min()) for k in range(3)]),
+                np.array([float((values[:, k] + r).max()) for k in range(3)]))
+    boxes = [box(r.keys) for r in scene.curves] + ([box(scene.points.points)] if scene.points is not None else [])
+    placed = scene.shape_instances
+    if placed is not None and placed.count:
+        local = [box(p.keys if hasattr(p, "keys") else p.points) for p in placed.prototypes]
+        for k, p in enumerate(placed.prototype):
+            if local[p] is None:
+                continue
+            corners = np.array([np.where(np.array(bits, bool), local[p][1], local[p][0]) for bits in np.ndindex(2, 2, 2)])
+            m = placed.world_from_object[k]
+            world = corners @ m[:3, :3].T + m[:3, 3]
+            boxes.append((world.min(axis=0), world.max(axis=0)))
+    boxes = [b for b in boxes if b is not None]
+    if not boxes:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    return np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes])
 
 
 def lights_of(scene: SceneArrays) -> np.ndarray | None:

@@ -13,6 +13,7 @@ from ..bsdf.light_passes import eval_split
 from ..environment import WorldFocus
 from ..geometry import NG
 from ..interaction import RayInfo, SurfaceHit, spawn_offset
+from ..rays import unlifted
 from ..paths import may_scatter, ray_keys
 from ..media import stack as volume_stack
 from ..media import tracking
@@ -91,6 +92,8 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
         sy[rows] += offset[:, 1]
         sz[rows] += offset[:, 2]
     eps = spawn_offset(tables.ray_epsilon, sx, sy, sz) * sign
+    if hit.shapes is not None:
+        eps = unlifted(hit, active[idx], eps)
     dist = np.take(ls.dist, idx)
     ox, oy, oz = sx + gx * eps, sy + gy * eps, sz + gz * eps
     # Aim from the offset origin at the sampled point itself: keeping the direction from the
@@ -116,14 +119,17 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
     # Lights with Cast Shadow off are not blocked: no shadow ray, as in Cycles.
     traced = np.flatnonzero(np.take(ls.shadowed, idx))
     masks = shadow_masks(tables, ls, idx)
+    # A shadow ray leaving a curve or a point skips it, as Cycles' shadow rays skip the primitive they leave.
+    keys = None if tables.shapes is None else tables.triangles.self_keys(np.take(hit.prim, paths))
     if len(traced) == len(idx):
-        transmittance = shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack, masks)
+        transmittance = shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack, masks, keys)
     else:
         transmittance = np.ones((3, len(idx)), np.float32)
         if len(traced):
             transmittance[:, traced] = shadow_of(tables, origins[traced], dirs[traced], t_max[traced], wave,
                                                  state, paths[traced], None if stack is None else stack[:, traced],
-                                                 None if masks is None else masks[traced])
+                                                 None if masks is None else masks[traced],
+                                                 None if keys is None else keys[traced])
     vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
     if not len(vis):
         return
@@ -233,10 +239,11 @@ def terminator_lift(tables, hit, hits, light, ng):
     return rows, offset * amount[rows, None].astype(np.float32)
 
 
-def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None, masks=None) -> np.ndarray:
+def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None, masks=None, keys=None) -> np.ndarray:
     """_shadow for shadow rays leaving the paths `paths` (state rows); stack: their volume stacks (K, n) when
     they differ from the paths' (None: the paths' own, when the scene has media); masks: the shadow masks of
-    the emitters they go to (shadow linking), or None."""
+    the emitters they go to (shadow linking), or None; keys: the curve or point each leaves
+    (PrimitiveTable.self_keys), or None."""
     seeds = None
     if state.media is not None:
         stack = np.take(state.media, paths, axis=1) if stack is None else stack
@@ -244,11 +251,11 @@ def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None, mask
     return shadow(tables, origins, dirs, t_max, wave, np.take(state.bounce, paths),
                   None if state.lobes is None else np.take(state.lobes, paths, axis=1),
                   None if state.time is None else state.time.take(paths),
-                  None if state.portal is None else np.take(state.portal, paths), stack, seeds, masks)
+                  None if state.portal is None else np.take(state.portal, paths), stack, seeds, masks, keys)
 
 
 def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None, stack=None,
-           seeds=None, masks=None) -> np.ndarray:
+           seeds=None, masks=None, keys=None) -> np.ndarray:
     """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
     transparent surfaces, the product of their transparency (Cycles' transparent shadows); through media
     (stack: the rays' volume stacks (K, n), seeds their paths' PCG2D states, or None), their transmittance,
@@ -256,22 +263,26 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     depth : (n,) the bounce of the path each shadow ray leaves from, lobes its PathState.lobes (or None),
     portal its Ray Portals passed (or None): what the Light Path node reads. masks: (n,) uint64 the shadow
     masks of the emitters the rays go to (Shadow Linking: they pass objects whose blocker set is not in it,
-    kernels/lights/links.py), or None."""
+    kernels/lights/links.py), or None. keys : (n,) the curve or point each ray leaves, which it skips
+    (PrimitiveTable.self_keys, -1 none), or None."""
     n = len(origins)
     split = wave.split
     if stack is not None and not (stack >= 0).any() and not tables.media.has_volume.any():
         stack = None
     # A shadow catcher's own paths are shadowed by shadow catchers only (Cycles' SHADOW_CATCHER_PATH_VISIBILITY).
     skipped = _passed_objects(tables, masks, wave.only_catchers is not None)
+    if keys is not None and not (keys >= 0).any():
+        keys = None
     if not tables.shading.transparent.any():
         blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
-        if skipped is not None:   # what blocks them may be an object they pass: the closest one that they do not
-            rows = np.flatnonzero(blocked)
+        if skipped is not None or keys is not None:
+            # What blocks them may be an object they pass, or the curve a ray leaves: the closest one that counts.
+            rows = np.flatnonzero(blocked if skipped is not None else blocked & (keys >= 0))
             hits = tables.accel.intersect(origins[rows], dirs[rows], t_max[rows], split,
                                           None if times is None else times.take(rows))
-            visibility.skip_where(tables, origins[rows], dirs[rows], t_max[rows], hits,
-                                  lambda prim, r: skipped(prim, rows[r]), split,
-                                  None if times is None else times.take(rows))
+            visibility.skip_hidden(tables, origins[rows], dirs[rows], t_max[rows], hits, None, split,
+                                   None if times is None else times.take(rows), None if keys is None else keys[rows],
+                                   rule=None if skipped is None else (lambda prim, r: skipped(prim, rows[r])))
             blocked[rows] = hits.prim >= 0
         out = np.broadcast_to(np.where(blocked, np.float32(0.0), np.float32(1.0)), (3, n))
         if stack is None:
@@ -288,10 +299,10 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     origins, t_left = origins.copy(), t_max.copy()
     for crossing in range(int(wave.settings.transparent_max_bounces) + 1):
         hits = tables.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
-        if skipped is not None:
-            visibility.skip_where(tables, origins, dirs[live], t_left, hits,
-                                  lambda prim, r, live=live: skipped(prim, live[r]), split,
-                                  None if times is None else times.take(live))
+        if skipped is not None or keys is not None:
+            visibility.skip_hidden(tables, origins, dirs[live], t_left, hits, None, split,
+                                   None if times is None else times.take(live), None if keys is None else keys[live],
+                                   rule=None if skipped is None else (lambda prim, r, live=live: skipped(prim, live[r])))
         found = np.flatnonzero(hits.prim >= 0)
         if stack is not None:
             # The media along the segment to the surface met (or to the light).
@@ -305,7 +316,8 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
             break
         d = dirs[live[found]]
         hit = SurfaceHit(tables.triangles, hits.prim[found], hits.u[found], hits.v[found],
-                         (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv)
+                         (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv,
+                         ray=None if tables.shapes is None else (origins[found], hits.t[found]))
         passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
         hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
                           lobes=None if lobes is None else lobes[:, live[found]],

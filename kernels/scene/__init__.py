@@ -15,18 +15,23 @@ The kernel's public data model, one module per part, every name importable from 
     objects     the object table's columns (OBJ_*) and rows
     links       LightLinks: Light and Shadow Linking per object row (ALL_SETS)
     triangles   per-triangle arrays: CornerRows, comparing, checking and cleaning them
-    instances   Prototype and Instances: meshes stored once, placed many times
+    instances   Prototype and Instances: meshes stored once, placed many times; ShapeInstances: curves and
+                points stored once, placed many times
+    curves      Curves: curves with a radius along them, one shape per record (CURVE_SHAPES)
+    points      Points: spheres
     checks      the validation vocabulary the parts share (require, check_array)
 """
 from __future__ import annotations
 
 from .arrays import SceneArrays, ValidatedScene
 from .camera import CAMERA_KINDS, PIXEL_FILTERS, SENSOR_FITS, Camera
-from .instances import Instances, Prototype, usable_placements
+from .curves import CURVE_SHAPES, Curves
+from .instances import Instances, Prototype, ShapeInstances, usable_placements
 from .lights import LIGHT_KINDS, Lights
 from .links import ALL_SETS, MAX_LINK_SETS, LightLinks
 from .materials import (CLOSURE_KINDS, INPUT_NODES, NORMAL_MAP_SPACES, VOLUME_KINDS, Closure, Materials, NormalMap,
                         Param, Shader, Tangent, diffuse_shader)
+from .points import Points
 from .objects import (OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TERMINATOR,
                       OBJ_TEXSPACE_LOC, OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR, OBJECT_COLUMNS, TERMINATOR_OFFSET,
                       mirrored_objects, object_row, object_rows)
@@ -36,7 +41,8 @@ from .world import World
 __all__ = [
     "SceneArrays", "ValidatedScene",
     "CAMERA_KINDS", "PIXEL_FILTERS", "SENSOR_FITS", "Camera",
-    "Instances", "Prototype", "usable_placements",
+    "CURVE_SHAPES", "Curves", "Points",
+    "Instances", "Prototype", "ShapeInstances", "usable_placements",
     "LIGHT_KINDS", "Lights",
     "ALL_SETS", "MAX_LINK_SETS", "LightLinks",
     "CLOSURE_KINDS", "INPUT_NODES", "NORMAL_MAP_SPACES", "VOLUME_KINDS", "Closure", "Materials", "NormalMap", "Param", "Shader",

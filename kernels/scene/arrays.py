@@ -9,11 +9,13 @@ import numpy as np
 
 from .camera import Camera
 from .checks import check_array, require, require_finite
-from .instances import Instances, clean_instances
+from .curves import Curves
+from .instances import Instances, ShapeInstances, clean_instances
 from .lights import Lights
 from .links import LightLinks
 from .materials import Materials
 from .objects import OBJECT_COLUMNS, mirrored_objects
+from .points import Points
 from .triangles import check_material_ids, check_triangles, clean_triangles, same_arrays, same_triangles
 from .world import World
 
@@ -74,6 +76,11 @@ class SceneArrays:
         the objects that are volumes (Volume objects, smoke domains), looked up by their media's shaders, the
         factor on their coefficients (Cycles' object_volume_density), and the world-space step the Biased
         option marches them with before the Step Rates (0: none).
+    curves : (kernels.scene.Curves, ...) in world space, one record per shape (Cycles' curve shape of the scene,
+        and linear for curves of poly type); their object_ids are rows of `objects`.
+    points : kernels.scene.Points in world space, or None.
+    shape_instances : kernels.scene.ShapeInstances (curves and points stored once in object space, placed by
+        transforms), or None. A scene without any of these three renders triangles only, at no cost of theirs.
     """
     positions: np.ndarray
     normals: np.ndarray
@@ -103,6 +110,14 @@ class SceneArrays:
     object_attributes: tuple = ()
     object_visibility: np.ndarray | None = None
     light_links: LightLinks | None = None
+    curves: tuple = ()
+    points: Points | None = None
+    shape_instances: ShapeInstances | None = None
+
+    @property
+    def has_shapes(self) -> bool:
+        """The scene has curves or points (kernels.geometry.primitives then joins them to the triangles)."""
+        return bool(self.curves) or self.points is not None or self.shape_instances is not None
 
     @property
     def has_motion(self) -> bool:
@@ -175,8 +190,41 @@ class SceneArrays:
             dropped += more_dropped
             nonfinite += more_nonfinite
             repaired += more_repaired
+        shapes_dropped = 0
+        if self.has_shapes:
+            changes.update(self._cleaned_shapes())
+            shapes_dropped = changes.pop("shapes_dropped")
         scene = dataclasses.replace(self, **changes) if changes else self
-        return ValidatedScene(scene, dropped, repaired, nonfinite)
+        return ValidatedScene(scene, dropped, repaired, nonfinite, shapes_dropped)
+
+    def _cleaned_shapes(self) -> dict:
+        """Curves and points checked and cleaned (the ones Embree cannot take dropped, counted in
+        shapes_dropped)."""
+        objects = None if self.objects is None else len(self.objects)
+        count = self.materials.count
+        curves, dropped = [], 0
+        for i, record in enumerate(self.curves):
+            require(isinstance(record, Curves), f"curves[{i}]", "must be a kernels.scene.Curves")
+            record.validate(f"curves[{i}]", count, objects)
+            require(record.object_ids is not None or self.objects is None, f"curves[{i}].object_ids",
+                    "given when the scene has objects")
+            kept, d = record.cleaned()
+            curves.append(kept)
+            dropped += d
+        points = self.points
+        if points is not None:
+            require(isinstance(points, Points), "points", "must be a kernels.scene.Points")
+            points.validate("points", count, objects)
+            require(points.object_ids is not None or self.objects is None, "points.object_ids",
+                    "given when the scene has objects")
+            points, d = points.cleaned()
+            dropped += d
+        placed = self.shape_instances
+        if placed is not None:
+            placed.validate(count, objects)
+            placed, d = placed.cleaned()
+            dropped += d
+        return {"curves": tuple(curves), "points": points, "shape_instances": placed, "shapes_dropped": dropped}
 
     def validate_objects(self) -> None:
         """Check the object table and each triangle's row of it (part of validate(); on its own when the
@@ -230,3 +278,4 @@ class ValidatedScene:
     dropped_triangles: int
     repaired_normals: int
     nonfinite_triangles: int = 0    # of the dropped: corners not finite (NaN, or beyond float32)
+    dropped_shapes: int = 0         # curves and points dropped (a key, centre or radius not finite, a negative radius)

@@ -127,3 +127,57 @@ def usable_placements(world_from_object: np.ndarray) -> np.ndarray:
         det = np.linalg.det(linear) if len(m) else np.zeros(0)
     return np.isfinite(m).all(axis=(1, 2)) & np.isfinite(det) & (np.abs(det) > 0) \
         & (np.abs(m[:, :3, :]) < 3e38).all(axis=(1, 2))
+
+
+@dataclass(frozen=True)
+class ShapeInstances:
+    """Curves and points stored once in object space and placed by transforms (SceneArrays.shape_instances), as
+    Instances places meshes: each prototype (a kernels.scene.Curves or Points with object_ids None) is one
+    bottom-level Embree scene that every instance of it shares.
+
+    prototypes : tuple of Curves or Points.
+    prototype : (K,) int32, each instance's prototype.
+    world_from_object : (K, 4, 4) float64.
+    object_ids : (K,) int32, each instance's row of SceneArrays.objects.
+    """
+    prototypes: tuple
+    prototype: np.ndarray
+    world_from_object: np.ndarray
+    object_ids: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.prototype)
+
+    def validate(self, materials: int, objects: int | None) -> None:
+        k = len(self.prototype)
+        check_array(self.prototype, "shape_instances.prototype", (k,), np.int32)
+        check_array(self.world_from_object, "shape_instances.world_from_object", (k, 4, 4), np.float64)
+        require(objects is not None, "shape_instances.object_ids", "needs the object table")
+        check_array(self.object_ids, "shape_instances.object_ids", (k,), np.int32)
+        if k:
+            require(self.prototype.min() >= 0 and self.prototype.max() < len(self.prototypes),
+                    "shape_instances.prototype", f"must be in [0, {len(self.prototypes)})")
+            require(self.object_ids.min() >= 0 and self.object_ids.max() < objects, "shape_instances.object_ids",
+                    f"must be in [0, {objects})")
+        for i, proto in enumerate(self.prototypes):
+            require(proto.object_ids is None, f"shape_instances.prototypes[{i}].object_ids",
+                    "must be None (an instance gives its row)")
+            proto.validate(f"shape_instances.prototypes[{i}]", materials, None)
+
+    def cleaned(self) -> tuple["ShapeInstances", int]:
+        """Each prototype cleaned (kernels.scene.Curves.cleaned, Points.cleaned), the instances whose transform
+        is unusable dropped; and how many curves and points all that dropped, counted per instance."""
+        dropped = 0
+        prototypes = []
+        for i, proto in enumerate(self.prototypes):
+            kept, d = proto.cleaned()
+            prototypes.append(kept)
+            dropped += d * int(np.count_nonzero(self.prototype == i))
+        usable = usable_placements(self.world_from_object)
+        counts = np.array([p.count for p in prototypes], np.int64)
+        if len(counts):
+            dropped += int(counts[self.prototype[~usable]].sum())
+        return ShapeInstances(tuple(prototypes), np.ascontiguousarray(self.prototype[usable]),
+                              np.ascontiguousarray(self.world_from_object[usable]),
+                              np.ascontiguousarray(self.object_ids[usable])), dropped

@@ -127,10 +127,11 @@ def ray_portal_bsdf(c, ctx, w, b):
 
 
 def hair_bsdf(c, ctx, w, b):
-    """Hair BSDF (Cycles' bsdf_hair_*_setup on a triangle): weight colour x mix weight, on the normal tilted
+    """Hair BSDF (Cycles' bsdf_hair_*_setup, svm/closure.h): weight colour x mix weight, on the normal tilted
     for specular reflection; roughnesses clamped to [0.001, 1]. Its tangent is the Tangent input (normalised,
-    the highlight shifted by -Offset), or unlinked the triangle's p2 - p0 (Cycles' dPdv, reversed on back
-    faces) with no shift: one direction per triangle, in the order Blender lists its corners."""
+    the highlight shifted by -Offset); unlinked, on a curve the curve's dPdu with the shift, on a triangle its
+    p2 - p0 (Cycles' dPdv, reversed on back faces) with no shift: one direction per triangle, in the order
+    Blender lists its corners."""
     if b is not None:
         given = ctx.tangent(c, None, ctx.ns, anisotropic=False)
         if given is None:
@@ -138,6 +139,12 @@ def hair_bsdf(c, ctx, w, b):
             sign = np.where(ctx.take(ctx.hit.backfacing), F32(-1.0), ONE)
             tangent = normalize_xyz(tuple(edge[:, k] * sign for k in range(3)))
             offset = ZERO
+            curve = ctx.on_curves()
+            if curve is not None:
+                dpdu = np.take(ctx.hit.shapes.dpdu, ctx.idx, axis=0)
+                along = normalize_xyz(tuple(dpdu[:, k] for k in range(3)))
+                tangent = tuple(np.where(curve, a, e) for a, e in zip(along, tangent))
+                offset = np.where(curve, -ctx.input(c, "Offset"), ZERO).astype(F32)
         else:
             tangent, offset = normalize_xyz(given), -ctx.input(c, "Offset")
         transmission = c.option("component", "Reflection") == "Transmission"

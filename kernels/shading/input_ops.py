@@ -13,7 +13,7 @@ from ..paths import DIFFUSE, GLOSSY, REFLECT, SINGULAR, TRANSMIT, VOLUME_SCATTER
 from ..scene import OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TEXSPACE_LOC, \
     OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR
 from ..vec import F32, HALF, ONE, ZERO, columns, dot_rows_einsum, matmul, normalize_rows_einsum
-from . import normals
+from . import normals, shape_ops
 from .program import full, make_orthonormals
 
 
@@ -37,7 +37,10 @@ def generated(hits) -> np.ndarray:
     displacement where the mesh keeps that: UNDISPLACED_POSITION). In a world: the ray direction."""
     if getattr(hits, "world", False):
         return hits.P
-    return hits.memo("generated", lambda: _texture_space(hits, _undisplaced_point(hits)))
+    def make():
+        local = _undisplaced_point(hits)
+        return shape_ops.shape_generated(hits, _texture_space(hits, local), local, _texture_space)
+    return hits.memo("generated", make)
 
 
 def _undisplaced_point(hits) -> np.ndarray:
@@ -257,7 +260,7 @@ def geometry(hits, inputs, op):
         elif name == "Backfacing":
             out[name] = hits.backfacing.astype(F32)
         elif name == "Tangent":
-            out[name] = radial_tangent(hits, "Z")
+            out[name] = shape_ops.shape_tangent(hits, radial_tangent(hits, "Z"))
         elif name == "Pointiness":         # a vertex attribute, interpolated (Cycles' ATTR_STD_POINTINESS)
             out[name] = _float_attribute(hits, "geom:pointiness", True)
         elif name == "Random Per Island":  # a face attribute, not interpolated (ATTR_STD_RANDOM_PER_ISLAND)

@@ -165,9 +165,20 @@ class Context:
             if self.bump_map_correction:
                 ng = tuple(np.take(c, self.idx) for c in self.hit.ng)
                 valid = normals.valid_specular_normal(ng, self.wo, self.ns)
+                curve = self.on_curves()
+                if curve is not None and valid is not self.ns:   # Cycles leaves a curve's normal as it is
+                    valid = tuple(np.where(curve, a, b) for a, b in zip(self.ns, valid))
                 if valid is not self.ns:
                     self._specular = self.with_normal(valid)
         return self._specular
+
+    def on_curves(self):
+        """(n,) bool: the hits on curves (interaction.SurfaceHit.shapes), or None where none is."""
+        shapes = getattr(self.hit, "shapes", None)
+        if shapes is None:
+            return None
+        curve = np.take(shapes.kind, self.idx) == 1
+        return curve if curve.any() else None
 
     def tangent(self, closure: Closure, rotation: str | None, axis, anisotropic: bool = True):
         """The closure's Tangent input rotated about axis by 2 pi x the rotation input (None: not): a Tangent node's

@@ -25,6 +25,7 @@ from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geomet
     volume_info, wireframe
 from .program import full
 from .raytrace import ambient_occlusion_node, bevel_node
+from .shape_ops import curves_info, point_info
 
 
 # ---------------------------------------------------------------- the Sky Texture, its tables precomputed at export
@@ -39,6 +40,8 @@ OPS = {
     "ShaderNodeUVMap": uv_map,
     "ShaderNodeNewGeometry": geometry,
     "ShaderNodeObjectInfo": object_info,
+    "ShaderNodeHairInfo": curves_info,
+    "ShaderNodePointInfo": point_info,
     "ATTRIBUTE": attribute,
     "VOLUME_INFO": volume_info,
     "ShaderNodeLayerWeight": layer_weight,
