@@ -444,6 +444,8 @@ class _MaterialReader:
             options.append(("component", node.component))
         if kind == "PRINCIPLED_HAIR":
             options += [("model", node.model), ("parametrization", node.parametrization)]
+            if not node.inputs["Random"].is_linked:   # on curves it reads the curve's (Cycles' attributes())
+                self.attributes.add("std:curve_random")
         if kind in ("PRINCIPLED", "SUBSURFACE"):
             method = _subsurface_method(node, kind)
             if method != "RANDOM_WALK":  # the default, read as such

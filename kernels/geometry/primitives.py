@@ -339,6 +339,7 @@ class PrimitiveTable:
                 p, ng, ns, dpdu, vv = curve_geometry.hit_geometry(points, shape, uu, np.take(v, sel).astype(F32),
                                                                   o, d, tt)
                 out.curve[sel] = True
+                out.ribbon[sel] = record.shape == "RIBBON"
                 out.b1[sel] = uu
                 out.dpdu[sel] = dpdu
                 out.v[sel] = vv
@@ -358,15 +359,15 @@ class PrimitiveTable:
 class ShapeHits:
     """What n hits on curves and points yield, (n, 3) or (n,) float32: p, ng (not yet toward the viewer), ns,
     dpdu (zero on points), v (across a ribbon, else 0), b1 (u along a curve segment, 0 on points: the weight of
-    corner 1 in PrimitiveTable.attribute's corners), curve (bool), centre (a point's), radius (a point's
+    corner 1 in PrimitiveTable.attribute's corners), curve, ribbon (bool), centre (a point's), radius (a point's
     Point Info Radius, a curve's radius at u), kind (int8: 0 triangle, CURVE, POINT; SurfaceHit sets it)."""
-    __slots__ = ("p", "ng", "ns", "dpdu", "v", "b1", "curve", "centre", "radius", "kind")
+    __slots__ = ("p", "ng", "ns", "dpdu", "v", "b1", "curve", "ribbon", "centre", "radius", "kind")
 
     def __init__(self, n: int):
         self.p, self.ng, self.ns = (np.zeros((n, 3), F32) for _ in range(3))
         self.dpdu, self.centre = np.zeros((n, 3), F32), np.zeros((n, 3), F32)
         self.v, self.b1, self.radius = np.zeros(n, F32), np.zeros(n, F32), np.zeros(n, F32)
-        self.curve = np.zeros(n, bool)
+        self.curve, self.ribbon = np.zeros(n, bool), np.zeros(n, bool)
         self.kind = np.zeros(n, np.int8)
 
 

@@ -25,6 +25,9 @@ from ..bsdf import hair_huang as huang
 from ..bsdf import lobes
 from ..vec import F32, ONE, ZERO, cross_xyz, dot_xyz, make_orthonormals_xyz, normalize_xyz
 from .node_context import Built
+from .program import HitInputs
+
+CURVE_RANDOM = "std:curve_random"   # the export's ATTR_STD_CURVE_RANDOM, made where a Principled Hair's Random is free
 
 PARAMETRIZATIONS = ("COLOR", "MELANIN", "ABSORPTION")
 MODELS = ("CHIANG", "HUANG")
@@ -67,8 +70,22 @@ def mesh_hair_hits(hit, idx) -> HairHits:
 
 
 def hair_hits(ctx) -> HairHits:
-    own = getattr(ctx.hit, "hair_hits", None)
-    return own(ctx.idx) if own is not None else mesh_hair_hits(ctx.hit, ctx.idx)
+    """HairHits of the context's hits: on triangles mesh_hair_hits; on curves (SurfaceHit.shapes) what Cycles'
+    curve_shader_setup gives: dPdu, the tube's normals, v across a ribbon, and the curve's random value."""
+    g = mesh_hair_hits(ctx.hit, ctx.idx)
+    shapes = getattr(ctx.hit, "shapes", None)
+    if shapes is None:
+        return g
+    curve = np.take(shapes.curve, ctx.idx)
+    if not curve.any():
+        return g
+    dpdu = np.take(shapes.dpdu, ctx.idx, axis=0)
+    g.tangent = tuple(np.where(curve, dpdu[:, k], g.tangent[k]).astype(F32) for k in range(3))
+    g.curve = curve
+    g.ribbon_v = np.where(curve & np.take(shapes.ribbon, ctx.idx), np.take(shapes.v, ctx.idx), np.nan).astype(F32)
+    random = HitInputs(ctx.shading.data, ctx.hit, ctx.idx).attribute(CURVE_RANDOM)
+    g.random = None if random is None else np.ascontiguousarray(random[:, 0], F32)
+    return g
 
 
 def principled_hair_bsdf(c, ctx, w, b):
