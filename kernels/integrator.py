@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import motion, passes, sampling, shadow_catcher, shadow_linking, subsurface, visibility
+from . import emitters_seen, motion, passes, sampling, shadow_catcher, shadow_linking, subsurface, visibility
 from .accel import Hits, RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
@@ -21,7 +21,7 @@ from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit
 from .lights import nee
 from .media import stage as media_stage
-from .paths import (PathState, facing_of, may_scatter, ray_keys, roulette_stops, roulette_verdict,
+from .paths import (PathState, may_scatter, ray_keys, roulette_stops, roulette_verdict,
                     roulette_weights, type_limits)
 from .rays import Rays, below, concat_rays, leaves_its_side, spawn
 from .samples import BSDF, LENS, LOBE, TIME, Samples
@@ -180,13 +180,13 @@ def step(tables, wave, state, rays, first: bool, last: int):
         shadow_linking.dedicated_light(tables, wave, state, rays, hits)
     ended = None
     if not first and tables.lights.has_surface_lights:
-        ended = _lights_hit(tables, wave, state, rays, hits)
+        ended = emitters_seen.lights_hit(tables, wave, state, rays, hits)
     scattered = None
     if state.media is not None:
         scattered = media_stage.segments(tables, wave, state, rays, hits, ended, first)
         if scattered is not None:
             ended = scattered.mask if ended is None else ended | scattered.mask
-    _escaped(tables, wave, state, rays, hits, ended)
+    emitters_seen.escaped(tables, wave, state, rays, hits, ended)
     tables.crew.check_stop()   # also between the bounce's long stages: tracing, shading, light samples
     found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
     if state.continuation is not None:
@@ -246,7 +246,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         if state.min_ray_pdf is not None and settings.filter_glossy > 0:
             _filter_glossy(closures, state.min_ray_pdf, settings.filter_glossy)
         if tables.emissive:
-            _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found)
+            emitters_seen.emission_on_hit(tables, wave, state, hit, shading, hits, rays, found)
         if tables.shading.has_holdout:
             _holdout(wave, state, shading)
         if state.continuation is not None:
@@ -324,105 +324,6 @@ def _subsurface_exits(tables, wave, state, hit, closures, bs, rows, last):
                            subsurface_exit=True)
 
 
-# ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
-def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
-    """Count the lights the rays meet before their hits (each a transparent bounce, as in Cycles);
-    return the (N,) mask of the paths that end at one, their transparent bounces spent."""
-    o, d = rays.origins, rays.dirs
-    seeing = state.bounce > 0   # camera rays do not see lights
-    if wave.bake is not None:
-        seeing &= wave.bake.sees_lights(state.bounce)
-    budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
-    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget, state.link_set,
-                                  facing=facing_of(state.mis_facing),
-                                  allowed=None if wave.only_catchers is None else wave.only_catchers.lights)
-    met.crossed[~seeing] = 0
-    state.transparent = state.transparent + met.crossed
-    lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
-    if lit.any():
-        idx = np.flatnonzero(lit)
-        le = np.take(state.throughput * le, idx, axis=1)
-        if state.media is not None:   # the media before the light (their scattering is the segment's own)
-            le *= media_stage.transmittance_to(tables, wave, state, rays, idx, np.take(met.t, idx))
-        if wave.nee:
-            le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
-        le = passes.clamp(wave, le, np.take(state.bounce, idx) > 1)
-        passes.accumulate(wave.radiance, state.path[idx], le)
-        if state.pass_weights is not None:
-            passes.write_light(tables, wave, state, idx, le)
-    return met.stopped & seeing
-
-
-# ---- stage: smooth glass sees the world along the branch it did not take
-# ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
-def _escaped(tables, wave, state, rays, hits, ended=None):
-    """The world seen by the rays that hit nothing (ended: (N,) mask of paths that ended before)."""
-    miss = np.flatnonzero((hits.prim < 0) if ended is None else (hits.prim < 0) & ~ended)
-    if wave.bake is not None:
-        miss = miss[wave.bake.sees_lights(state.bounce[miss])]
-    if not len(miss):
-        return
-    keep = np.ones(len(miss), bool)
-    if wave.settings.transparent_background:
-        # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
-        direct = state.bounce[miss] == 0
-        seen = miss[direct]
-        if len(seen):
-            wave.alpha[state.path[seen]] -= np.take(state.throughput, seen, axis=1).mean(axis=0)
-            keep = ~direct
-    # The world's radiance, evaluated once: for the Environment pass (what the camera sees of the world,
-    # transparent film or not), the image and the denoising albedo.
-    environment_pass = wave.aux is not None and "environment" in wave.aux
-    looked = miss if environment_pass else miss[keep]
-    if not len(looked):
-        return
-    d = rays.dirs
-    ray = None
-    if tables.environment.shader:
-        ray = RayInfo(state.bounce[looked], state.transparent[looked], emission=True,
-                      lobes=None if state.lobes is None else state.lobes[:, looked],
-                      portal=None if state.portal is None else state.portal[looked])
-    light = tables.environment.radiance(d[looked, 0], d[looked, 1], d[looked, 2], ray)
-    if environment_pass:
-        camera = np.flatnonzero(state.bounce[miss] == 0)
-        wave.aux["environment"][:, state.path[miss[camera]]] += \
-            np.take(state.throughput, miss[camera], axis=1) * light[:, camera]
-        light = light[:, keep]
-    miss = miss[keep]
-    if not len(miss):
-        return
-    mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
-    env = np.take(state.throughput, miss, axis=1) * light
-    if state.escape_scale is not None:
-        env *= np.take(state.escape_scale, miss)
-    if state.features is not None and wave.aux is not None and "denoising_albedo" in wave.aux:
-        # A path still looking for its denoising features sees the world: the world's colour times the
-        # feature throughput is its albedo, as in Cycles.
-        seen = np.flatnonzero(~np.isnan(state.features[0, miss]))
-        if len(seen):
-            passes.add_albedo(wave.aux, state.path[miss[seen]], state.features[:, miss[seen]] * light[:, seen])
-    if wave.nee:
-        mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
-        if len(mis):
-            heuristic = sampling.balance_heuristic if tables.environment.mis_balance else sampling.power_heuristic
-            focus = None if state.focus is None else state.focus.take(miss[mis])
-            sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]], tables.lights.pdf_world(
-                mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]])))
-    later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
-    if len(later) and len(tables.lights.sun_discs):
-        sun = tables.lights.suns_seen(mx[later], my[later], mz[later],
-                                      state.bsdf_pdf[miss[later]] if wave.nee else None,
-                                      None if state.link_set is None else state.link_set[miss[later]])
-        sun *= np.take(state.throughput, miss[later], axis=1)
-        if state.escape_scale is not None:
-            sun *= np.take(state.escape_scale, miss[later])
-        env[:, later] += sun
-    env = passes.clamp(wave, env, state.bounce[miss] > 1)
-    passes.accumulate(wave.radiance, state.path[miss], env)
-    if state.pass_weights is not None:
-        passes.write_light(tables, wave, state, miss[later], env[:, later])
-
-
 # ---- stage: the surface-interaction record of the rays that hit
 def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
     d = rays.dirs
@@ -464,40 +365,6 @@ def _moved_by(tables, i: int, t: np.ndarray):
     det = np.einsum("ni,ni->n", rows3[:, 0], cof[:, 0])
     normal = cof / np.where(np.abs(det) > 1e-30, det, 1.0)[:, None, None]
     return delta.astype(np.float32), normal.astype(np.float32)
-
-
-# ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
-def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
-    lit = np.flatnonzero(np.take(tables.shading.emissive, hit.mat))
-    if tables.links is not None:   # Light Linking: what the ray's object receives (kernels/lights/links.py)
-        lit = lit[shadow_linking.counted_emission(tables, state, hit, lit)]
-    if not len(lit):
-        return
-    le = np.take(state.throughput, lit, axis=1) * np.take(shading.emission, lit, axis=1)
-    if wave.aux is not None and "emission" in wave.aux:
-        seen = np.flatnonzero(np.take(state.bounce, lit) == 0)  # emitters the camera sees
-        wave.aux["emission"][:, state.path[lit[seen]]] += le[:, seen]
-    if wave.nee:
-        mis = np.flatnonzero(np.isfinite(np.take(state.bsdf_pdf, lit)))
-        if tables.shapes is not None:   # light samples reach emissive triangles only (Cycles: MIS on triangles)
-            mis = mis[np.take(hit.prim, lit[mis]) < tables.shapes.triangle_count]
-        if len(mis):
-            sel = lit[mis]
-            gx, gy, gz = (np.take(c, sel) for c in hit.ng)
-            dx, dy, dz = (np.take(c, sel) for c in hit.d)
-            cos_l = gx * dx + gy * dy + gz * dz
-            ray = found[sel]  # index of these rays before compaction
-            o = rays.origins
-            light_pdf = tables.lights.pdf_triangle_hit(
-                np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
-                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray),
-                None if state.link_set is None else np.take(state.link_set, sel), facing_of(state.mis_facing, sel))
-            le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
-    le = passes.clamp(wave, le, np.take(state.bounce, lit) > 1)
-    passes.accumulate(wave.radiance, state.path[lit], le)
-    if state.pass_weights is not None:
-        later = np.flatnonzero(np.take(state.bounce, lit) > 0)
-        passes.write_light(tables, wave, state, lit[later], le[:, later])
 
 
 # ---- stage: Holdout closures cut a hole in alpha where the camera sees them

@@ -1,0 +1,144 @@
+"""The path loop's stages where rays find light (kernels/integrator.py runs them in `step`): lamps with a surface
+met before the rays' hits, emissive surfaces at the hits, and the world where rays leave the scene, each
+MIS-weighted against the light sampling that could have found the same light (Cycles' shade_light.h,
+shade_surface.h integrate_surface_emission, shade_background.h)."""
+from __future__ import annotations
+
+import numpy as np
+
+from . import passes, sampling, shadow_linking
+from .interaction import RayInfo
+from .media import stage as media_stage
+from .paths import facing_of
+
+# ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
+def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
+    """Count the lights the rays meet before their hits (each a transparent bounce, as in Cycles);
+    return the (N,) mask of the paths that end at one, their transparent bounces spent."""
+    o, d = rays.origins, rays.dirs
+    seeing = state.bounce > 0   # camera rays do not see lights
+    if wave.bake is not None:
+        seeing &= wave.bake.sees_lights(state.bounce)
+    budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
+    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget, state.link_set,
+                                  facing=facing_of(state.mis_facing),
+                                  allowed=None if wave.only_catchers is None else wave.only_catchers.lights)
+    met.crossed[~seeing] = 0
+    state.transparent = state.transparent + met.crossed
+    lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
+    if lit.any():
+        idx = np.flatnonzero(lit)
+        le = np.take(state.throughput * le, idx, axis=1)
+        if state.media is not None:   # the media before the light (their scattering is the segment's own)
+            le *= media_stage.transmittance_to(tables, wave, state, rays, idx, np.take(met.t, idx))
+        if wave.nee:
+            le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
+        le = passes.clamp(wave, le, np.take(state.bounce, idx) > 1)
+        passes.accumulate(wave.radiance, state.path[idx], le)
+        if state.pass_weights is not None:
+            passes.write_light(tables, wave, state, idx, le)
+    return met.stopped & seeing
+
+
+# ---- stage: smooth glass sees the world along the branch it did not take
+# ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
+def escaped(tables, wave, state, rays, hits, ended=None):
+    """The world seen by the rays that hit nothing (ended: (N,) mask of paths that ended before)."""
+    miss = np.flatnonzero((hits.prim < 0) if ended is None else (hits.prim < 0) & ~ended)
+    if wave.bake is not None:
+        miss = miss[wave.bake.sees_lights(state.bounce[miss])]
+    if not len(miss):
+        return
+    keep = np.ones(len(miss), bool)
+    if wave.settings.transparent_background:
+        # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
+        direct = state.bounce[miss] == 0
+        seen = miss[direct]
+        if len(seen):
+            wave.alpha[state.path[seen]] -= np.take(state.throughput, seen, axis=1).mean(axis=0)
+            keep = ~direct
+    # The world's radiance, evaluated once: for the Environment pass (what the camera sees of the world,
+    # transparent film or not), the image and the denoising albedo.
+    environment_pass = wave.aux is not None and "environment" in wave.aux
+    looked = miss if environment_pass else miss[keep]
+    if not len(looked):
+        return
+    d = rays.dirs
+    ray = None
+    if tables.environment.shader:
+        ray = RayInfo(state.bounce[looked], state.transparent[looked], emission=True,
+                      lobes=None if state.lobes is None else state.lobes[:, looked],
+                      portal=None if state.portal is None else state.portal[looked])
+    light = tables.environment.radiance(d[looked, 0], d[looked, 1], d[looked, 2], ray)
+    if environment_pass:
+        camera = np.flatnonzero(state.bounce[miss] == 0)
+        wave.aux["environment"][:, state.path[miss[camera]]] += \
+            np.take(state.throughput, miss[camera], axis=1) * light[:, camera]
+        light = light[:, keep]
+    miss = miss[keep]
+    if not len(miss):
+        return
+    mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
+    env = np.take(state.throughput, miss, axis=1) * light
+    if state.escape_scale is not None:
+        env *= np.take(state.escape_scale, miss)
+    if state.features is not None and wave.aux is not None and "denoising_albedo" in wave.aux:
+        # A path still looking for its denoising features sees the world: the world's colour times the
+        # feature throughput is its albedo, as in Cycles.
+        seen = np.flatnonzero(~np.isnan(state.features[0, miss]))
+        if len(seen):
+            passes.add_albedo(wave.aux, state.path[miss[seen]], state.features[:, miss[seen]] * light[:, seen])
+    if wave.nee:
+        mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
+        if len(mis):
+            heuristic = sampling.balance_heuristic if tables.environment.mis_balance else sampling.power_heuristic
+            focus = None if state.focus is None else state.focus.take(miss[mis])
+            sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]], tables.lights.pdf_world(
+                mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]])))
+    later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
+    if len(later) and len(tables.lights.sun_discs):
+        sun = tables.lights.suns_seen(mx[later], my[later], mz[later],
+                                      state.bsdf_pdf[miss[later]] if wave.nee else None,
+                                      None if state.link_set is None else state.link_set[miss[later]])
+        sun *= np.take(state.throughput, miss[later], axis=1)
+        if state.escape_scale is not None:
+            sun *= np.take(state.escape_scale, miss[later])
+        env[:, later] += sun
+    env = passes.clamp(wave, env, state.bounce[miss] > 1)
+    passes.accumulate(wave.radiance, state.path[miss], env)
+    if state.pass_weights is not None:
+        passes.write_light(tables, wave, state, miss[later], env[:, later])
+
+
+# ---- stage: emission on hit (MIS-weighted when NEE could have found the same point)
+def emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
+    lit = np.flatnonzero(np.take(tables.shading.emissive, hit.mat))
+    if tables.links is not None:   # Light Linking: what the ray's object receives (kernels/lights/links.py)
+        lit = lit[shadow_linking.counted_emission(tables, state, hit, lit)]
+    if not len(lit):
+        return
+    le = np.take(state.throughput, lit, axis=1) * np.take(shading.emission, lit, axis=1)
+    if wave.aux is not None and "emission" in wave.aux:
+        seen = np.flatnonzero(np.take(state.bounce, lit) == 0)  # emitters the camera sees
+        wave.aux["emission"][:, state.path[lit[seen]]] += le[:, seen]
+    if wave.nee:
+        mis = np.flatnonzero(np.isfinite(np.take(state.bsdf_pdf, lit)))
+        if tables.shapes is not None:   # light samples reach emissive triangles only (Cycles: MIS on triangles)
+            mis = mis[np.take(hit.prim, lit[mis]) < tables.shapes.triangle_count]
+        if len(mis):
+            sel = lit[mis]
+            gx, gy, gz = (np.take(c, sel) for c in hit.ng)
+            dx, dy, dz = (np.take(c, sel) for c in hit.d)
+            cos_l = gx * dx + gy * dy + gz * dz
+            ray = found[sel]  # index of these rays before compaction
+            o = rays.origins
+            light_pdf = tables.lights.pdf_triangle_hit(
+                np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
+                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray),
+                None if state.link_set is None else np.take(state.link_set, sel), facing_of(state.mis_facing, sel))
+            le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
+    le = passes.clamp(wave, le, np.take(state.bounce, lit) > 1)
+    passes.accumulate(wave.radiance, state.path[lit], le)
+    if state.pass_weights is not None:
+        later = np.flatnonzero(np.take(state.bounce, lit) > 0)
+        passes.write_light(tables, wave, state, lit[later], le[:, later])
