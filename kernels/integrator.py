@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import motion, passes, sampling, shadow_linking, subsurface, visibility
+from . import light_groups, motion, passes, sampling, shadow_linking, subsurface, visibility
 from .accel import Hits, RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
+from .escaped import escaped
 from .glass_escapes import glass_escapes
 from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit
@@ -47,6 +48,7 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
                  0.0 if tables.scene.camera.kind == "ORTHO" else tables.pixel_size)
     wave.aux = aux
+    wave.groups = passes.wave_groups(aux)
     # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
     last = max_scatters + int(settings.transparent_max_bounces)
     live = n if live is None else max(1, int(live))
@@ -149,7 +151,7 @@ def step(tables, wave, state, rays, first: bool, last: int):
         scattered = media_stage.segments(tables, wave, state, rays, hits, ended, first)
         if scattered is not None:
             ended = scattered.mask if ended is None else ended | scattered.mask
-    _escaped(tables, wave, state, rays, hits, ended)
+    escaped(tables, wave, state, rays, hits, ended)
     tables.crew.check_stop()   # also between the bounce's long stages: tracing, shading, light samples
     found = np.flatnonzero((hits.prim >= 0) if ended is None else (hits.prim >= 0) & ~ended)
     if state.continuation is not None:
@@ -298,77 +300,11 @@ def _lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
             le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
         le = passes.clamp(wave, le, np.take(state.bounce, idx) > 1)
         passes.accumulate(wave.radiance, state.path[idx], le)
+        if wave.groups is not None:
+            light_groups.write(wave, state.path[idx], le, light_groups.lamp_groups(tables, np.take(met.light, idx)))
         if state.pass_weights is not None:
             passes.write_light(tables, wave, state, idx, le)
     return met.stopped & seeing
-
-
-# ---- stage: smooth glass sees the world along the branch it did not take
-# ---- stage: escaped rays see the world (MIS-weighted against the world's light sampling)
-def _escaped(tables, wave, state, rays, hits, ended=None):
-    """The world seen by the rays that hit nothing (ended: (N,) mask of paths that ended before)."""
-    miss = np.flatnonzero((hits.prim < 0) if ended is None else (hits.prim < 0) & ~ended)
-    if not len(miss):
-        return
-    keep = np.ones(len(miss), bool)
-    if wave.settings.transparent_background:
-        # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
-        direct = state.bounce[miss] == 0
-        seen = miss[direct]
-        if len(seen):
-            wave.alpha[state.path[seen]] -= np.take(state.throughput, seen, axis=1).mean(axis=0)
-            keep = ~direct
-    # The world's radiance, evaluated once: for the Environment pass (what the camera sees of the world,
-    # transparent film or not), the image and the denoising albedo.
-    environment_pass = wave.aux is not None and "environment" in wave.aux
-    looked = miss if environment_pass else miss[keep]
-    if not len(looked):
-        return
-    d = rays.dirs
-    ray = None
-    if tables.environment.shader:
-        ray = RayInfo(state.bounce[looked], state.transparent[looked], emission=True,
-                      lobes=None if state.lobes is None else state.lobes[:, looked],
-                      portal=None if state.portal is None else state.portal[looked])
-    light = tables.environment.radiance(d[looked, 0], d[looked, 1], d[looked, 2], ray)
-    if environment_pass:
-        camera = np.flatnonzero(state.bounce[miss] == 0)
-        wave.aux["environment"][:, state.path[miss[camera]]] += \
-            np.take(state.throughput, miss[camera], axis=1) * light[:, camera]
-        light = light[:, keep]
-    miss = miss[keep]
-    if not len(miss):
-        return
-    mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
-    env = np.take(state.throughput, miss, axis=1) * light
-    if state.escape_scale is not None:
-        env *= np.take(state.escape_scale, miss)
-    if state.features is not None and wave.aux is not None and "denoising_albedo" in wave.aux:
-        # A path still looking for its denoising features sees the world: the world's colour times the
-        # feature throughput is its albedo, as in Cycles.
-        seen = np.flatnonzero(~np.isnan(state.features[0, miss]))
-        if len(seen):
-            passes.add_albedo(wave.aux, state.path[miss[seen]], state.features[:, miss[seen]] * light[:, seen])
-    if wave.nee:
-        mis = np.flatnonzero(np.isfinite(state.bsdf_pdf[miss]))
-        if len(mis):
-            heuristic = sampling.balance_heuristic if tables.environment.mis_balance else sampling.power_heuristic
-            focus = None if state.focus is None else state.focus.take(miss[mis])
-            sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]], tables.lights.pdf_world(
-                mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]])))
-    later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
-    if len(later) and len(tables.lights.sun_discs):
-        sun = tables.lights.suns_seen(mx[later], my[later], mz[later],
-                                      state.bsdf_pdf[miss[later]] if wave.nee else None,
-                                      None if state.link_set is None else state.link_set[miss[later]])
-        sun *= np.take(state.throughput, miss[later], axis=1)
-        if state.escape_scale is not None:
-            sun *= np.take(state.escape_scale, miss[later])
-        env[:, later] += sun
-    env = passes.clamp(wave, env, state.bounce[miss] > 1)
-    passes.accumulate(wave.radiance, state.path[miss], env)
-    if state.pass_weights is not None:
-        passes.write_light(tables, wave, state, miss[later], env[:, later])
 
 
 # ---- stage: the surface-interaction record of the rays that hit
@@ -440,6 +376,8 @@ def _emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
             le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
     le = passes.clamp(wave, le, np.take(state.bounce, lit) > 1)
     passes.accumulate(wave.radiance, state.path[lit], le)
+    if wave.groups is not None:
+        light_groups.write(wave, state.path[lit], le, light_groups.of_triangles(tables, np.take(hit.prim, lit)))
     if state.pass_weights is not None:
         later = np.flatnonzero(np.take(state.bounce, lit) > 0)
         passes.write_light(tables, wave, state, lit[later], le[:, later])
@@ -570,13 +508,14 @@ def _crossings(tables, state, hit, alive, bs) -> None:
 
 class _Wave:
     """Per-wave constants and outputs shared by the stages."""
-    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux")
+    __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux", "groups")
 
     def __init__(self, settings, nee, split, max_scatters, radiance, alpha, spread_dd=0.0):
         self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
         self.radiance, self.alpha = radiance, alpha
         self.spread_dd = np.float32(spread_dd)  # the camera rays' direction spread per pixel (radians)
         self.aux = None  # the data passes being recorded ({name: (C, N)}), or None
+        self.groups = None  # the light groups' passes among them ({group: (3, N)}), or None
 
 
 def _caustics(settings):

@@ -30,6 +30,8 @@ class Lights:
     light_sets, shadow_sets : (L,) uint64 or None (every set: the light has no linking collection): the masks
         of the light sets the light reaches and of the shadow sets whose objects block it (Light and Shadow
         Linking: kernels.scene.links).
+    light_groups : (L,) int32 or None (no light is in a group): each light's light group, NO_GROUP (-1) for
+        none (View Layer > Light Groups: kernels.scene.light_groups).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -42,6 +44,7 @@ class Lights:
     cast_shadow: np.ndarray | None = None
     light_sets: np.ndarray | None = None
     shadow_sets: np.ndarray | None = None
+    light_groups: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -67,3 +70,6 @@ class Lights:
         for name in ("light_sets", "shadow_sets"):
             if getattr(self, name) is not None:
                 check_array(getattr(self, name), f"lights.{name}", (n,), np.uint64, finite=False)
+        if self.light_groups is not None:
+            check_array(self.light_groups, "lights.light_groups", (n,), np.int32, finite=False)
+            require(not n or int(self.light_groups.min()) >= -1, "lights.light_groups", "must be -1 or more")
