@@ -18,6 +18,9 @@ EXTRA_PANELS = (
     "DATA_PT_camera_dof",
     "DATA_PT_camera_dof_aperture",
     "CYCLES_OBJECT_PT_motion_blur",   # per object: Motion Blur on/off, Steps (object.cycles, read by Ember)
+    "CYCLES_OBJECT_PT_lightgroup",    # Object > Shading > Light Group (Object.lightgroup, read by Ember)
+    "CYCLES_WORLD_PT_settings",       # World > Settings, for its Light Group (its other children stay Cycles')
+    "CYCLES_WORLD_PT_settings_light_group",   # World.lightgroup, read by Ember
 )
 _added: list = []
 
@@ -263,6 +266,26 @@ class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
             layout.prop(aov, "type", expand=True)
 
 
+class EMBER_VIEWLAYER_PT_passes_lightgroups(EmberPanel, bpy.types.Panel):
+    """View Layer > Passes > Light Groups: the view layer's list, as Cycles shows it (a Combined_<name> pass
+    each; emitters join one in Object > Shading > Light Group and World > Settings > Light Group)."""
+    bl_label = "Light Groups"
+    bl_context = "view_layer"
+    bl_parent_id = "EMBER_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        view_layer = context.view_layer
+        row = self.layout.row()
+        row.template_list("UI_UL_list", "lightgroups", view_layer, "lightgroups", view_layer,
+                          "active_lightgroup_index", rows=3)
+        col = row.column(align=True)
+        col.operator("scene.view_layer_add_lightgroup", icon="ADD", text="")
+        col.operator("scene.view_layer_remove_lightgroup", icon="REMOVE", text="")
+        if hasattr(bpy.types, "VIEWLAYER_MT_lightgroup_sync"):   # add the groups objects name, drop unused ones
+            col.separator()
+            col.menu("VIEWLAYER_MT_lightgroup_sync", icon="DOWNARROW_HLT", text="")
+
+
 class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
     bl_label = "Performance"
     bl_options = {"DEFAULT_CLOSED"}
@@ -299,21 +322,30 @@ class EMBER_LIGHT_PT_shadow(EmberPanel, bpy.types.Panel):
 
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths,
            EMBER_RENDER_PT_volumes, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance,
-           EMBER_VIEWLAYER_PT_passes, EMBER_LIGHT_PT_shadow, EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume)
+           EMBER_VIEWLAYER_PT_passes, EMBER_VIEWLAYER_PT_passes_lightgroups, EMBER_LIGHT_PT_shadow,
+           EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume)
 
 
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     for panel in _compat_panels():
-        if ENGINE not in panel.COMPAT_ENGINES:
+        if ENGINE in panel.COMPAT_ENGINES:
+            continue
+        if "COMPAT_ENGINES" in vars(panel):
             panel.COMPAT_ENGINES.add(ENGINE)
-            _added.append(panel)
+            _added.append((panel, False))
+        else:   # a set its base shares with other panels (all of Cycles'): this panel alone gets its own copy
+            panel.COMPAT_ENGINES = panel.COMPAT_ENGINES | {ENGINE}
+            _added.append((panel, True))
 
 
 def unregister():
-    for panel in _added:
-        panel.COMPAT_ENGINES.discard(ENGINE)
+    for panel, own in _added:
+        if own:
+            del panel.COMPAT_ENGINES
+        else:
+            panel.COMPAT_ENGINES.discard(ENGINE)
     _added.clear()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

@@ -29,12 +29,18 @@ class GroupTable:
 
     def of(self, ob, parent=None) -> int:
         """The group of an object, or of an instance of it made by `parent`: NO_GROUP for none."""
-        name = getattr(ob, "lightgroup", "") or (getattr(parent, "lightgroup", "") if parent is not None else "")
+        name = _group_name(ob) or (_group_name(parent) if parent is not None else "")
         return self.index.get(name, NO_GROUP)
 
     def world(self, world) -> int:
         """The world's group (NO_GROUP without a world or a group)."""
-        return NO_GROUP if world is None else self.index.get(getattr(world, "lightgroup", ""), NO_GROUP)
+        return NO_GROUP if world is None else self.index.get(_group_name(world), NO_GROUP)
+
+
+def _group_name(data) -> str:
+    """The Light Group of an object or world, read from the original: Blender 5.0 does not tag the depsgraph
+    when it changes, so an evaluated copy made before keeps the old name (5.3 does)."""
+    return getattr(getattr(data, "original", data), "lightgroup", "")
 
 
 def group_table(view_layer) -> GroupTable:
