@@ -275,3 +275,24 @@ def test_panels_users_set_groups_in():
         assert "EMBER" in getattr(bpy.types, name).COMPAT_ENGINES, name
     for name in ("CYCLES_RENDER_PT_sampling", "CYCLES_WORLD_PT_settings_surface"):
         assert "EMBER" not in getattr(bpy.types, name).COMPAT_ENGINES, name
+
+
+def test_worker_processes_write_the_same_group_passes():
+    """Waves rendered in worker processes (kernels/workers.py) bring their groups' passes back bit for bit."""
+    from bpy_helpers import export_current
+    from ember.kernels import Renderer, RenderSettings
+    from ember.kernels.passes import group_pass
+    _three_groups()
+    scene = export_current().scene
+    settings = RenderSettings(samples=4, seed=3, wave_size=1024, passes=tuple(group_pass(k) for k in range(3)))
+    images = []
+    for processes in (False, True):
+        with Renderer(scene, threads=2, processes=processes) as renderer:
+            if processes:
+                assert renderer.crew.wait_for_workers() == 1, renderer.crew.worker_failures
+            film = renderer.render(settings).film
+            assert not processes or renderer.crew.remote_waves > 0
+            images.append({name: np.asarray(values) for name, values in film.aux.items()})
+    for name in images[0]:
+        assert images[0][name].max() > 0, name
+        np.testing.assert_array_equal(images[1][name], images[0][name], err_msg=name)
