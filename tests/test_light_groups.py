@@ -296,3 +296,24 @@ def test_worker_processes_write_the_same_group_passes():
     for name in images[0]:
         assert images[0][name].max() > 0, name
         np.testing.assert_array_equal(images[1][name], images[0][name], err_msg=name)
+
+
+def test_scene_validation_names_the_light_groups_fields():
+    """A group table that does not fit the object table, or groups below NO_GROUP, are refused by name."""
+    import dataclasses
+
+    from ember.kernels.scene import LightGroups, Lights
+    from ember.kernels.shapes import cornell_box
+    scene = cornell_box(8, 8)
+    k = 0 if scene.objects is None else len(scene.objects)
+    with pytest.raises(ValueError, match="light_groups.objects"):
+        dataclasses.replace(scene, light_groups=LightGroups(np.zeros(k + 1, np.int32))).validate()
+    with pytest.raises(ValueError, match="light_groups.world"):
+        dataclasses.replace(scene, light_groups=LightGroups(np.zeros(k, np.int32), world=-2)).validate()
+    lights = Lights(kind=np.zeros(1, np.int32), position=np.zeros((1, 3), np.float32),
+                    frame=np.eye(3, dtype=np.float32)[None], radiance=np.ones((1, 3), np.float32),
+                    radius=np.zeros(1, np.float32), size=np.zeros((1, 2), np.float32),
+                    spot_cos=np.zeros((1, 2), np.float32), sun_half_angle=np.zeros(1, np.float32),
+                    light_groups=np.array([-3], np.int32))
+    with pytest.raises(ValueError, match="lights.light_groups"):
+        lights.validate()
