@@ -19,7 +19,7 @@ EXTRA_PANELS = (
     "DATA_PT_camera_dof_aperture",
     "CYCLES_OBJECT_PT_motion_blur",   # per object: Motion Blur on/off, Steps (object.cycles, read by Ember)
     "CYCLES_OBJECT_PT_lightgroup",    # Object > Shading > Light Group (Object.lightgroup, read by Ember)
-    "CYCLES_WORLD_PT_settings",       # World > Settings, for its Light Group (its other children stay Cycles')
+    "CYCLES_WORLD_PT_settings",       # World > Settings, the Light Group's parent
     "CYCLES_WORLD_PT_settings_light_group",   # World.lightgroup, read by Ember
 )
 _added: list = []
@@ -330,22 +330,14 @@ def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     for panel in _compat_panels():
-        if ENGINE in panel.COMPAT_ENGINES:
-            continue
-        if "COMPAT_ENGINES" in vars(panel):
+        if ENGINE not in panel.COMPAT_ENGINES:
             panel.COMPAT_ENGINES.add(ENGINE)
-            _added.append((panel, False))
-        else:   # a set its base shares with other panels (all of Cycles'): this panel alone gets its own copy
-            panel.COMPAT_ENGINES = panel.COMPAT_ENGINES | {ENGINE}
-            _added.append((panel, True))
+            _added.append(panel)
 
 
 def unregister():
-    for panel, own in _added:
-        if own:
-            del panel.COMPAT_ENGINES
-        else:
-            panel.COMPAT_ENGINES.discard(ENGINE)
+    for panel in _added:
+        panel.COMPAT_ENGINES.discard(ENGINE)
     _added.clear()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

@@ -266,15 +266,13 @@ def test_export_reads_groups_as_cycles():
 
 def test_panels_users_set_groups_in():
     """View Layer > Passes > Light Groups (Ember's), Object > Shading > Light Group and World > Settings > Light
-    Group (Cycles' panels, Ember added to them alone: Cycles' other panels stay Cycles')."""
+    Group (Cycles' panels, which Ember adds itself to)."""
     from bpy_helpers import ensure_registered
     ensure_registered()
     assert hasattr(bpy.types, "EMBER_VIEWLAYER_PT_passes_lightgroups")
     for name in ("CYCLES_OBJECT_PT_lightgroup", "CYCLES_WORLD_PT_settings", "CYCLES_WORLD_PT_settings_light_group",
                  "OBJECT_PT_shading"):
         assert "EMBER" in getattr(bpy.types, name).COMPAT_ENGINES, name
-    for name in ("CYCLES_RENDER_PT_sampling", "CYCLES_WORLD_PT_settings_surface"):
-        assert "EMBER" not in getattr(bpy.types, name).COMPAT_ENGINES, name
 
 
 def test_worker_processes_write_the_same_group_passes():
