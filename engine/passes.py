@@ -4,6 +4,9 @@ pass behind each (kernels.passes).
 
 Denoising data (Ember's View Layer > Passes > Denoising Data, as Cycles' "Denoising Data") adds Denoising
 Normal, Denoising Albedo and the Noisy Image when the render is denoised.
+
+View Layer > Light Groups adds a "Combined_<name>" pass per group (RGB), as Cycles registers them
+(intern/cycles/blender/addon/engine.py list_render_passes); they are never denoised (Cycles' PassMode::NOISY).
 """
 from __future__ import annotations
 
@@ -13,6 +16,7 @@ import bpy
 from bpy.props import BoolProperty, PointerProperty
 
 from . import cryptomatte
+from ..kernels.passes import group_pass
 
 
 @dataclass(frozen=True)
@@ -116,11 +120,18 @@ def aov_passes(view_layer) -> list[Pass]:
     return out
 
 
+def light_group_passes(view_layer) -> list[Pass]:
+    """View Layer > Light Groups: one "Combined_<name>" pass per group, in the list's order (the group's number,
+    engine/export/light_groups.py)."""
+    return [Pass("", f"Combined_{group.name}", 3, "RGB", "COLOR", group_pass(k))
+            for k, group in enumerate(getattr(view_layer, "lightgroups", ()))]
+
+
 def enabled_passes(scene, view_layer) -> list[Pass]:
     """The passes of a view layer besides Combined, in Blender's order."""
     out = [p for p in DATA_PASSES if _toggle(view_layer, p.toggle)
            and (p.kernel != "vector" or _vector_allowed(scene, view_layer))] + crypto_passes(view_layer) + \
-        aov_passes(view_layer)
+        aov_passes(view_layer) + light_group_passes(view_layer)
     if store_denoising_data(view_layer):
         out += [DENOISING_NORMAL, DENOISING_ALBEDO, DENOISING_DEPTH]
         if scene.ember.use_denoising:

@@ -25,6 +25,9 @@ EXTRA_PANELS = (
     "CYCLES_RENDER_PT_bake_output",
     "CYCLES_RENDER_PT_bake_output_margin",
     "CYCLES_RENDER_PT_curves",        # Render > Curves: Shape, Subdivisions (scene.cycles_curves, read by Ember)
+    "CYCLES_OBJECT_PT_lightgroup",    # Object > Shading > Light Group (Object.lightgroup, read by Ember)
+    "CYCLES_WORLD_PT_settings",       # World > Settings, the Light Group's parent
+    "CYCLES_WORLD_PT_settings_light_group",   # World.lightgroup, read by Ember
 )
 _added: list = []
 
@@ -271,6 +274,26 @@ class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
             layout.prop(aov, "type", expand=True)
 
 
+class EMBER_VIEWLAYER_PT_passes_lightgroups(EmberPanel, bpy.types.Panel):
+    """View Layer > Passes > Light Groups: the view layer's list, as Cycles shows it (a Combined_<name> pass
+    each; emitters join one in Object > Shading > Light Group and World > Settings > Light Group)."""
+    bl_label = "Light Groups"
+    bl_context = "view_layer"
+    bl_parent_id = "EMBER_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        view_layer = context.view_layer
+        row = self.layout.row()
+        row.template_list("UI_UL_list", "lightgroups", view_layer, "lightgroups", view_layer,
+                          "active_lightgroup_index", rows=3)
+        col = row.column(align=True)
+        col.operator("scene.view_layer_add_lightgroup", icon="ADD", text="")
+        col.operator("scene.view_layer_remove_lightgroup", icon="REMOVE", text="")
+        if hasattr(bpy.types, "VIEWLAYER_MT_lightgroup_sync"):   # add the groups objects name, drop unused ones
+            col.separator()
+            col.menu("VIEWLAYER_MT_lightgroup_sync", icon="DOWNARROW_HLT", text="")
+
+
 class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
     bl_label = "Performance"
     bl_options = {"DEFAULT_CLOSED"}
@@ -359,8 +382,9 @@ def _has_geometry_visibility(ob) -> bool:
 
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths,
            EMBER_RENDER_PT_volumes, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance,
-           EMBER_VIEWLAYER_PT_passes, EMBER_LIGHT_PT_shadow, EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume,
-           EMBER_OBJECT_PT_visibility_mask, EMBER_OBJECT_PT_visibility_rays)
+           EMBER_VIEWLAYER_PT_passes, EMBER_VIEWLAYER_PT_passes_lightgroups, EMBER_LIGHT_PT_shadow,
+           EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume, EMBER_OBJECT_PT_visibility_mask,
+           EMBER_OBJECT_PT_visibility_rays)
 
 
 def register():

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import passes, sampling, shadow_linking
+from . import light_groups, passes, sampling, shadow_linking
 from .interaction import RayInfo
 from .media import stage as media_stage
 from .paths import facing_of
@@ -35,6 +35,8 @@ def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
             le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
         le = passes.clamp(wave, le, np.take(state.bounce, idx) > 1)
         passes.accumulate(wave.radiance, state.path[idx], le)
+        if wave.groups is not None:
+            light_groups.write(wave, state.path[idx], le, light_groups.lamp_groups(tables, np.take(met.light, idx)))
         if state.pass_weights is not None:
             passes.write_light(tables, wave, state, idx, le)
     return met.stopped & seeing
@@ -74,6 +76,8 @@ def escaped(tables, wave, state, rays, hits, ended=None):
         camera = np.flatnonzero(state.bounce[miss] == 0)
         wave.aux["environment"][:, state.path[miss[camera]]] += \
             np.take(state.throughput, miss[camera], axis=1) * light[:, camera]
+        if wave.groups is not None and not keep.all():
+            _hidden_world(tables, wave, state, miss[~keep], light[:, ~keep])
         light = light[:, keep]
     miss = miss[keep]
     if not len(miss):
@@ -96,15 +100,24 @@ def escaped(tables, wave, state, rays, hits, ended=None):
             sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]], tables.lights.pdf_world(
                 mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]])))
     later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
+    world, suns = env, []   # the light groups' parts: the world's, and each sun's
     if len(later) and len(tables.lights.sun_discs):
+        if wave.groups is not None:
+            world = env.copy()
         sun = tables.lights.suns_seen(mx[later], my[later], mz[later],
                                       state.bsdf_pdf[miss[later]] if wave.nee else None,
-                                      None if state.link_set is None else state.link_set[miss[later]])
+                                      None if state.link_set is None else state.link_set[miss[later]],
+                                      parts=None if wave.groups is None else suns)
         sun *= np.take(state.throughput, miss[later], axis=1)
         if state.escape_scale is not None:
             sun *= np.take(state.escape_scale, miss[later])
         env[:, later] += sun
-    env = passes.clamp(wave, env, state.bounce[miss] > 1)
+    scale = passes.clamp_scale(wave, env, state.bounce[miss] > 1)
+    if wave.groups is not None:
+        passes.write_parts(wave, state.path[miss], light_groups.sky_parts(
+            tables, world, [(k, cols, share * _weights(state, miss[later[cols]])) for k, cols, share in suns],
+            later), env, scale)
+    env = env if scale is None else env * scale
     passes.accumulate(wave.radiance, state.path[miss], env)
     if state.pass_weights is not None:
         passes.write_light(tables, wave, state, miss[later], env[:, later])
@@ -139,6 +152,25 @@ def emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
             le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
     le = passes.clamp(wave, le, np.take(state.bounce, lit) > 1)
     passes.accumulate(wave.radiance, state.path[lit], le)
+    if wave.groups is not None:
+        light_groups.write(wave, state.path[lit], le, light_groups.of_triangles(tables, np.take(hit.prim, lit)))
     if state.pass_weights is not None:
         later = np.flatnonzero(np.take(state.bounce, lit) > 0)
         passes.write_light(tables, wave, state, lit[later], le[:, later])
+
+
+def _weights(state, rows) -> np.ndarray:
+    """(3, n) what reaches the camera of light arriving along the rays of state rows: their throughput, and
+    glass_escapes' share of the branch taken."""
+    out = np.take(state.throughput, rows, axis=1)
+    return out if state.escape_scale is None else out * np.take(state.escape_scale, rows)
+
+
+def _hidden_world(tables, wave, state, rows, light) -> None:
+    """A transparent film leaves the world the camera sees out of Combined, but Cycles still writes it to the
+    world's light group when the Environment pass asks for the world there (integrate_background evaluates it
+    for that pass, and film_write_background hands it to film_write_emission_or_background_pass with the
+    world's group): the world's (3, n) light along the camera rays of state rows."""
+    value = np.take(state.throughput, rows, axis=1) * light
+    value = passes.clamp(wave, value, np.zeros(len(rows), bool))
+    light_groups.write(wave, state.path[rows], value, light_groups.world_group(tables))

@@ -35,9 +35,9 @@ class Film:
         self.pixel_samples = np.zeros((height, columns), np.int32)
         self.converged = np.zeros((height, columns), bool)
         # Data passes (kernels.passes): float32 sums for averaged ones (normals, albedo and UVs need no more),
-        # sample 0's values for the others.
+        # sample 0's values for the others; float64 for the light groups, which add up to Combined's sums.
         self.aux = {name: np.zeros((height, width, _passes.channels(name)),
-                                   np.float64 if _passes.kind(name) == "NOISE" else np.float32)
+                                   np.float64 if _passes.kind(name) in ("NOISE", "LIGHTGROUP") else np.float32)
                     for name in passes if _passes.recorded(name)}
         # With shadow catchers Combined is read from their planes, as Cycles' (kernels/shadow_catcher.py): the
         # approximate one of an opaque film (transparent: the film's) over the Environment pass.

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import passes, visibility
+from . import light_groups, passes, visibility
 from .bsdf.light_passes import pass_classes
 from .paths import may_scatter
 from .rays import leaves_its_side, rays_from
@@ -61,15 +61,19 @@ def glass_escapes(tables, wave, state, hit, closures, bs, receiver=None) -> None
         return
     idx, live = idx[out], live[out]
     wx, wy, wz = wx[out], wy[out], wz[out]
-    light = tables.environment.radiance(wx, wy, wz)
+    world = light = tables.environment.radiance(wx, wy, wz)
+    suns = []   # each sun's share, for the light groups' passes
     sun = tables.lights.suns_seen(wx, wy, wz, None, None if receiver is None else receiver[idx],
-                                  shadow_linked=True)   # after a singular bounce: no MIS
+                                  shadow_linked=True,   # after a singular bounce: no MIS
+                                  parts=None if wave.groups is None else suns)
     if sun is not None:
         light = light + sun
+    carried = np.take(state.throughput, idx, axis=1) * weight[:, live]   # what reaches the camera of the light
+    groups = None if wave.groups is None else light_groups.sky_parts(
+        tables, carried * world, [(k, cols, carried[:, cols] * share) for k, cols, share in suns])
 
     def branch_class(first):  # at the first hit, the class of the branch not taken (glossy, transmission)
         diffuse, glossy = pass_classes(closures, r[live[first]], (wx[first], wy[first], wz[first]))
         return np.concatenate([np.repeat(diffuse[None, :], 3, axis=0),
                                np.repeat(glossy[None, :], 3, axis=0)]).astype(np.float32)
-    passes.add_light(tables, wave, state, idx, np.take(state.throughput, idx, axis=1) * weight[:, live] * light,
-                          branch_class)
+    passes.add_light(tables, wave, state, idx, carried * light, branch_class, groups)

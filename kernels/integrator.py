@@ -48,6 +48,7 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
                  0.0 if tables.scene.camera.kind == "ORTHO" else tables.pixel_size)
     wave.aux, wave.bake = aux, bake
+    wave.groups = passes.wave_groups(aux)
     wave.catcher = shadow_catcher.start(tables, wave, n, _Wave)
     # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
     last = max_scatters + int(settings.transparent_max_bounces)
@@ -480,7 +481,7 @@ def _crossings(tables, state, hit, alive, bs) -> None:
 class _Wave:
     """Per-wave constants and outputs shared by the stages."""
     __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux", "bake", "catcher",
-                 "only_catchers")
+                 "only_catchers", "groups")
 
     def __init__(self, settings, nee, split, max_scatters, radiance, alpha, spread_dd=0.0):
         self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
@@ -490,6 +491,7 @@ class _Wave:
         self.bake = None  # kernels/bake.BakeRun: what a bake leaves out of its paths (Cycles' filter_closures)
         self.catcher = None  # kernels.shadow_catcher.CatcherWave where paths split at shadow catchers, or None
         self.only_catchers = None  # the shadow_catcher.Catchers a wave of the catchers' copies sees, else None
+        self.groups = None  # the light groups' passes among them ({group: (3, N)}), or None
 
 
 def _caustics(settings):

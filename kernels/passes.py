@@ -30,6 +30,10 @@ Two kinds, as in Cycles:
   transforms one frame before and after; averaged over the samples that hit a surface.
 - Shader AOVs ("aov:<name>:color" or ":value", MEAN): the AOV Output node of that name at the camera rays'
   first hit (0 where the material has none), averaged over samples.
+- LIGHTGROUP ("lightgroup:<k>", MEAN): the Combined light of the emitters of light group k (View Layer > Light
+  Groups, Blender's "Combined_<name>"), with the path's throughput, MIS weights and clamping as in Combined, as
+  Cycles writes its light group passes (kernel/film/light_passes.h); kernels/light_groups.py finds each
+  contribution's emitter. Emitters in no group add to Combined only.
 - NOISE: an unbiased estimate of the variance of each pixel's mean: the squared difference between the
   mean of its odd-numbered samples and the mean of all (Cycles' adaptive sampling compares the same two);
   one estimate per pixel, so itself noisy (blur it to read it); 0 with fewer than two samples.
@@ -79,11 +83,15 @@ BACKGROUND_DEPTH = 1e10
 
 
 CRYPTO_KINDS = ("object", "material", "asset")
+# Light group k's pass: GROUP_PREFIX + str(k).
+GROUP_PREFIX = "lightgroup:"
 
 
 def channels(name: str) -> int:
     if name.startswith("aov:"):  # Shader AOVs: "aov:<name>:color" (3) or "aov:<name>:value" (1)
         return 3 if name.endswith(":color") else 1
+    if name.startswith(GROUP_PREFIX):
+        return 3
     return PASSES[name][0]
 
 
@@ -92,6 +100,8 @@ def is_first(name: str) -> bool:
 
 
 def kind(name: str) -> str:
+    if name.startswith(GROUP_PREFIX):
+        return "LIGHTGROUP"
     return "MEAN" if name.startswith("aov:") else PASSES[name][1]
 
 
@@ -101,7 +111,13 @@ def recorded(name: str) -> bool:
 
 
 def known(name: str) -> bool:
-    return name in PASSES or (name.startswith("aov:") and name.endswith((":color", ":value")))
+    return name in PASSES or (name.startswith("aov:") and name.endswith((":color", ":value"))) or \
+        (name.startswith(GROUP_PREFIX) and name[len(GROUP_PREFIX):].isdigit())
+
+
+def group_pass(k: int) -> str:
+    """The pass name of light group k."""
+    return f"{GROUP_PREFIX}{int(k)}"
 
 
 def denoising_features(closures, n_hits: int, fallback):
@@ -190,13 +206,18 @@ def wave_planes(aux: dict, settings, pix, sample, pixels, spp: int, rows: int, w
 # Functions over (scene tables, wave, path state), as the integrator's stages (kernels/integrator.py).
 
 
-def add_light(tables, wave, state, rows, value, first_shares) -> None:
+def add_light(tables, wave, state, rows, value, first_shares, groups=None) -> None:
     """Add (3, n) contributions of light found from the current vertex of the paths rows (state rows): by
     a shadow ray, or along the glass branch not taken. Clamped as direct light at the first hit, indirect
     deeper; in the light passes, split at the first hit by first_shares(positions in rows) -> (6, k)
-    class shares, deeper as the path's first bounce was."""
-    value = clamp(wave, value, np.take(state.bounce, rows) > 0)
+    class shares, deeper as the path's first bounce was. groups: the light groups' parts of value (write_parts),
+    or None."""
+    scale = clamp_scale(wave, value, np.take(state.bounce, rows) > 0)
+    unclamped = value
+    value = value if scale is None else value * scale
     accumulate(wave.radiance, state.path[rows], value)
+    if groups is not None and wave.groups is not None:
+        write_parts(wave, state.path[rows], groups, unclamped, scale)
     if state.pass_weights is not None:
         first = np.flatnonzero(np.take(state.bounce, rows) == 0)
         shares = first_shares(first) if len(first) else None
@@ -209,15 +230,21 @@ def clamp(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray:
     setting, scene/integrator.cpp); a limit of 0 is off. Direct is
     Cycles' bounce - 1 <= 0 for light found by rays (the camera's, or the first hit's BSDF ray) and the
     first hit's own shadow rays."""
+    scale = clamp_scale(wave, value, indirect)
+    return value if scale is None else value * scale
+
+
+def clamp_scale(wave, value: np.ndarray, indirect: np.ndarray) -> np.ndarray | None:
+    """(n,) float32 factors by which clamp() scales the contributions value (3, n), None when it leaves them."""
     direct_limit, indirect_limit = wave.settings.clamp_direct, wave.settings.clamp_indirect
     if not direct_limit and not indirect_limit:
-        return value
+        return None
     limit = np.where(indirect, np.float32(3 * indirect_limit or np.inf), np.float32(3 * direct_limit or np.inf))
     total = np.abs(value).sum(axis=0)
     over = total > limit
     if not over.any():
-        return value
-    return value * np.where(over, limit / np.where(over, total, np.float32(1.0)), np.float32(1.0)).astype(np.float32)
+        return None
+    return np.where(over, limit / np.where(over, total, np.float32(1.0)), np.float32(1.0)).astype(np.float32)
 
 
 def accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> None:
@@ -225,6 +252,41 @@ def accumulate(radiance: np.ndarray, paths: np.ndarray, value: np.ndarray) -> No
     for k in range(3):
         channel = radiance[k]
         channel[paths] += value[k]
+
+
+# ---- light groups' passes: a contribution in the pass of its emitter's group (kernels/light_groups.py finds it)
+def wave_groups(aux: dict | None) -> dict | None:
+    """{group: its (3, N) buffer of aux} for the light groups a wave records, None when it records none."""
+    if aux is None:
+        return None
+    found = {int(name[len(GROUP_PREFIX):]): values for name, values in aux.items() if name.startswith(GROUP_PREFIX)}
+    return found or None
+
+
+def write_groups(wave, paths: np.ndarray, value: np.ndarray, groups) -> None:
+    """Add contributions value (3, n) of the wave's paths `paths` to the passes of their emitters' groups: groups
+    (n,) int, or one int for all (NO_GROUP, -1, and groups without a pass: nowhere)."""
+    if np.ndim(groups) == 0:
+        target = wave.groups.get(int(groups))
+        if target is not None:
+            accumulate(target, paths, value)
+        return
+    for k, target in wave.groups.items():
+        mine = np.flatnonzero(groups == k)
+        if len(mine):
+            accumulate(target, paths[mine], value[:, mine])
+
+
+def write_parts(wave, paths: np.ndarray, parts, value: np.ndarray, scale: np.ndarray | None = None) -> None:
+    """write_groups for contributions value (3, n) of paths (n,) made of parts from emitters of different groups
+    (the world and the sun discs a ray looks into): parts, a list of (columns (m,) or None for all, groups (m,) or
+    one int, the part (3, m) or None for value's own); scale: the contributions' clamp_scale (None: unclamped)."""
+    for columns, groups, part in parts:
+        if part is None:
+            part = value if columns is None else value[:, columns]
+        if scale is not None:
+            part = part * (scale if columns is None else scale[columns])
+        write_groups(wave, paths if columns is None else paths[columns], part, groups)
 
 
 # ---- light passes: what a contribution to the image adds to Cycles' Diffuse/Glossy/Transmission passes

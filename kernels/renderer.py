@@ -324,7 +324,7 @@ class Renderer:
             self.shading.data.set_objects(new.objects)
             self.terminator = terminator_offsets(self.scene)
         self.scene = dataclasses.replace(self.scene, object_visibility=new.object_visibility,
-                                         light_links=new.light_links)
+                                         light_links=new.light_links, light_groups=new.light_groups)
         self.visibility = object_visibility(self.scene)
         # The lights go in first: update_materials then builds the light sampler once, for everything.
         self.scene = dataclasses.replace(self.scene, lights=new.lights)
@@ -408,6 +408,8 @@ class Renderer:
         n_bad = int(np.count_nonzero(bad))
         if n_bad:
             radiance[:, bad] = 0.0
+            for values in (passes.wave_groups(aux) or {}).values():   # the groups add up to the image still
+                values[:, bad] = 0.0
         del bad
         sums, half = pixel_sums(radiance, alpha, pixels, npix, first_sample, spp, settings.adaptive_threshold > 0)
         counts = np.zeros(npix, np.int64)

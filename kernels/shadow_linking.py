@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import passes, sampling, visibility
+from . import light_groups, passes, sampling, visibility
 from .interaction import RayInfo, SurfaceHit, spawn_offset
 from .lights.links import reaches
 from .lights.nee import shadow_of
@@ -115,6 +115,7 @@ def dedicated_light(tables, wave, state, rays, hits) -> None:
     useful = np.flatnonzero((le[0] > 0) | (le[1] > 0) | (le[2] > 0))
     if not len(useful):
         return
+    groups = None if wave.groups is None else _picked_groups(tables, kind[useful], which[useful], meshes, lamps, suns)
     ray, paths, le, t, masks, shadowed = ray[useful], paths[useful], le[:, useful], t[useful], masks[useful], \
         shadowed[useful]
     o, d = origins[ray], dirs[ray]
@@ -127,8 +128,24 @@ def dedicated_light(tables, wave, state, rays, hits) -> None:
     value = np.take(state.throughput, paths, axis=1) * le * transmittance
     value = passes.clamp(wave, value, np.take(state.bounce, paths) > 1)
     passes.accumulate(wave.radiance, state.path[paths], value)
+    if groups is not None:
+        light_groups.write(wave, state.path[paths], value, groups)
     if state.pass_weights is not None:
         passes.write_light(tables, wave, state, paths, value)
+
+
+def _picked_groups(tables, kind, which, meshes, lamps, suns) -> np.ndarray:
+    """(n,) int32 light groups of the picked emitters (kind 0: the triangles meshes[1][which], 1: the lamps
+    lamps[1][which], 2: the suns suns[1][which]), as Cycles' dedicated light writes its emitter's group
+    (kernel/integrator/shade_dedicated_light.h)."""
+    out = np.full(len(kind), light_groups.NO_GROUP, np.int32)
+    for k, emitters in ((0, meshes[1]), (1, lamps[1]), (2, suns[1])):
+        sel = np.flatnonzero(kind == k)
+        if len(sel):
+            chosen = np.take(emitters, np.take(which, sel))
+            out[sel] = light_groups.of_triangles(tables, chosen) if k == 0 else \
+                light_groups.lamp_groups(tables, chosen)
+    return out
 
 
 def _march(tables, wave, state, idx, origins, dirs, t_max, receiver, first):

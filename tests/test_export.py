@@ -856,9 +856,9 @@ def test_nan_and_zero_area_faces_do_not_break_export():
     assert 0 < validated.dropped_triangles < 12
 
 
-def test_world_fog_is_read_and_light_groups_are_not_dropped_silently():
-    """A world's Volume output becomes the world's medium (no warning); light groups, which Ember does not
-    render yet, are not dropped without a word."""
+def test_world_fog_is_read_and_light_groups_are_exported():
+    """A world's Volume output becomes the world's medium (no warning); a view layer's light groups need no
+    warning either (the world joins its group: tests/test_light_groups.py)."""
     scene = camera_only_scene()
     world = bpy.data.worlds.new("Foggy")
     scene.world = world
@@ -866,9 +866,11 @@ def test_world_fog_is_read_and_light_groups_are_not_dropped_silently():
     out = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputWorld")
     tree.links.new(tree.nodes.new("ShaderNodeVolumePrincipled").outputs[0], out.inputs["Volume"])
     bpy.context.view_layer.lightgroups.add(name="Key")
+    world.lightgroup = "Key"
     result = export_current()
     warnings = result.warnings
     assert not any("Volume" in w for w in warnings), warnings
     assert result.scene.world.volume is not None
     assert [c.kind for c in result.scene.world.volume.volume] == ["PRINCIPLED_VOLUME"]
-    assert any("light groups are not supported" in w for w in warnings), warnings
+    assert not any("light group" in w for w in warnings), warnings
+    assert result.scene.light_groups.world == 0

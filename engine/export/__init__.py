@@ -34,6 +34,7 @@ from ...kernels.scene.objects import ALL_RAYS
 from .camera import export_camera, render_region, render_resolution
 from .geometry import export_geometry
 from .images import shader_images
+from .light_groups import group_table, object_groups
 from .light_linking import light_links, link_table
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
@@ -108,10 +109,6 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         raise ExportError("Scene has no camera")
     default_width, default_height = render_resolution(scene)
     warnings: list[str] = []
-    groups = getattr(depsgraph.view_layer, "lightgroups", None)
-    if groups is not None and len(groups):
-        warnings.append(f"View layer '{depsgraph.view_layer.name}': light groups are not supported yet: "
-                        f"no Light Group passes")
     camera = Camera() if camera_ob is None else \
         export_camera(camera_ob.evaluated_get(depsgraph), scene, default_width if width is None else width,
                       default_height if height is None else height, warnings)
@@ -120,15 +117,17 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     poll = Poller(should_stop)
     links = link_table(depsgraph)
     warnings.extend(links.warnings)
+    groups = group_table(depsgraph.view_layer)
     with materials.images:   # the scene's image files are decoded on threads while the meshes are read
         materials.images.prefetch(shader_images(
             [m.node_tree for m in depsgraph.ids if isinstance(m, bpy.types.Material)]
             + [scene.world.node_tree if scene.world is not None else None]))
         geometry = export_geometry(depsgraph, materials, warnings, poll,
                                    moving=frozenset(motion.objects) if motion is not None else frozenset(),
-                                   instance_everything=instance_everything, cache=mesh_cache, links=links)
+                                   instance_everything=instance_everything, cache=mesh_cache, links=links,
+                                   light_groups=groups)
         world = export_world(scene.world, warnings, materials.images, layer_attribute)
-    lights = export_lights(depsgraph, warnings, poll, links)
+    lights = export_lights(depsgraph, warnings, poll, links, groups)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
                     "asset": list(geometry.instance_assets or []), "material": list(materials.names)}
     arrays = SceneArrays(positions=geometry.positions, normals=geometry.normals, uvs=geometry.uvs,
@@ -142,6 +141,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          object_visibility=object_visibility(geometry.instance_visibility),
                          light_links=light_links(geometry.instance_links),
                          curves=geometry.curves, points=geometry.points, shape_instances=geometry.shape_instances,
+                         light_groups=object_groups(geometry.instance_groups, groups.world(scene.world))
+                         if groups.used else None,
                          **(dict(bvh_vertices=geometry.bvh[0], bvh_indices=geometry.bvh[1]) if geometry.bvh else {}),
                          **scene_motion(motion, geometry),
                          **vector_fields(vector, geometry, camera.world_from_camera))

@@ -24,6 +24,7 @@ from ...kernels.textures import Texture
 from .displacement import check_adaptive_subdivision, displace_mesh
 from .instances import (asset_name, check_visibility, instance_key, instance_random, instance_visibility,
                         instanced_groups, is_rendered, object_inputs, slot_materials)
+from .light_groups import GroupTable
 from .light_linking import ALL_MASK, LinkTable, check_volume_linking
 
 # The light_linking row of an object linked nowhere: no receiver or blocker set, in every light and shadow set.
@@ -64,6 +65,7 @@ class Geometry:
     instance_assets: list | None = None    # per object row: the top-most parent's name (Cryptomatte asset)
     instance_visibility: list | None = None  # per object row: instance_visibility() (SceneArrays.object_visibility)
     instance_links: list | None = None     # per object row: (receiver set, blocker set, light and shadow masks)
+    instance_groups: list | None = None    # per object row: its light group (light_groups.GroupTable.of)
     slot_materials: list | None = None     # per object row: slot_materials() of its object
     empty_keys: frozenset = frozenset()    # instance keys of rendered mesh instances without triangles
     instances: Instances | None = None     # meshes stored once and placed by transforms (not in the arrays above)
@@ -123,14 +125,16 @@ class MeshCache:
 
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None,
                     moving: set | frozenset = frozenset(), instance_everything: bool = False,
-                    cache: MeshCache | None = None, links: LinkTable | None = None) -> Geometry:
+                    cache: MeshCache | None = None, links: LinkTable | None = None,
+                    light_groups: GroupTable | None = None) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
     poll() is called for every instance (it raises to cancel the export). moving : instance keys
     (instance_key) of objects that move during the shutter: their meshes are never instanced.
     instance_everything : every mesh is a prototype placed by its instances, even when used once (the
     viewport: an object that moves then only changes its transform, engine/export/updates.py).
     cache : a MeshCache that keeps meshes between frames (Persistent Data), or None.
-    links : the scene's light_linking.LinkTable (None: nothing links)."""
+    links : the scene's light_linking.LinkTable (None: nothing links); light_groups : the view layer's
+    light_groups.GroupTable (None: no light groups)."""
     if cache is not None:
         cache.begin(depsgraph)
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
@@ -153,6 +157,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     visibility: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> instance_visibility() per instance
     linked: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> LinkTable.row() per instance
     linking = links is not None and links.used
+    grouped: dict[tuple, list] = {}          # (mesh pointer, slot rows) -> GroupTable.of() per instance
+    grouping = light_groups is not None and light_groups.used
     view_layer = depsgraph.view_layer_eval
     shapes = ShapeExport(depsgraph, warnings, moving)   # curves and points (shapes.py)
     for inst in depsgraph.object_instances:
@@ -237,6 +243,9 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         if linking:
             linked.setdefault((mesh_key, slot_rows[object_key]), []).append(
                 links.row(ob, inst.parent if inst.is_instance else None))
+        if grouping:
+            grouped.setdefault((mesh_key, slot_rows[object_key]), []).append(
+                light_groups.of(ob, inst.parent if inst.is_instance else None))
         slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
     if cache is not None:
         cache.end()
@@ -253,6 +262,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                    instance_assets=[a for group in assets.values() for a in group],
                    instance_visibility=[v for group in visibility.values() for v in group],
                    instance_links=[v for group in linked.values() for v in group] if linking else None,
+                   instance_groups=[v for group in grouped.values() for v in group] if grouping else None,
                    slot_materials=[m for group in slots.values() for m in group],
                    empty_keys=frozenset(empty))
     if not shapes.empty:   # the curves' and points' object rows come after the meshes'
@@ -269,6 +279,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         if linking:   # curves and points are lit and shadowed as objects linked nowhere
             per_row["instance_links"] = per_row["instance_links"] + [UNLINKED_ROW] * len(placed.keys)
             warnings.append("Light Linking: curves and points are lit and shadowed as if they were linked nowhere")
+        if grouping:   # an emitting curve or point is in no light group
+            per_row["instance_groups"] = per_row["instance_groups"] + [NO_GROUP] * len(placed.keys)
     return dataclasses.replace(geometry, **per_row)
 
 

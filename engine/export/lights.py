@@ -18,6 +18,7 @@ import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
 from ...kernels.textures import luminance
+from .light_groups import GroupTable, group_table, lamp_groups
 from .light_linking import LinkTable, lamp_masks, link_table
 
 # Blender's blackbody is defined for this range; colours are clamped outside it.
@@ -33,12 +34,16 @@ LIGHT_VISIBILITY = (("visible_camera", "Camera", False), ("visible_diffuse", "Di
                     ("visible_volume_scatter", "Volume Scatter", True))
 
 
-def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | None = None) -> Lights:
+def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | None = None,
+                  groups: GroupTable | None = None) -> Lights:
     """Every light instance; poll() is called for each instance (it raises to cancel the export). links: the
-    scene's light_linking.LinkTable (read from the depsgraph when None)."""
+    scene's light_linking.LinkTable, groups: the view layer's light_groups.GroupTable (each read from the
+    depsgraph when None)."""
     if links is None:
         links = link_table(depsgraph)
-    rows, masks, catchers = [], [], []
+    if groups is None:
+        groups = group_table(depsgraph.view_layer)
+    rows, masks, catchers, in_groups = [], [], [], []
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
@@ -51,6 +56,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
             rows.append(row)
             masks.append(links.memberships(ob))
             catchers.append(light_is_shadow_catcher(inst, ob))
+            in_groups.append(groups.of(ob, inst.parent if inst.is_instance else None))
     if not rows:
         return Lights()
     columns = list(zip(*rows))
@@ -68,6 +74,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         light_sets=light_sets,
         shadow_sets=shadow_sets,
         shadow_catcher=None if all(catchers) else np.array(catchers, bool),
+        light_groups=lamp_groups(in_groups),
     )
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import passes, sampling, visibility
+from .. import light_groups, passes, sampling, visibility
 from ..bsdf.focus import glossy_axes
 from ..bsdf.light_passes import eval_split
 from ..environment import WorldFocus
@@ -149,7 +149,7 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
     def reflecting(first):  # light reaching the first hit: split by the closures that reflect it there
         wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
         return passes.class_shares(*eval_split(closures, paths[first], wi))
-    passes.add_light(tables, wave, state, paths, contribution, reflecting)
+    passes.add_light(tables, wave, state, paths, contribution, reflecting, _groups(tables, wave, ls, rows))
 
 
 def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=None, chosen=None,
@@ -198,7 +198,12 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
         np.take(transmittance, vis, axis=1) * np.take(le, at, axis=1) * (w / pdf)
     if scale is not None:
         contribution *= np.take(scale, at, axis=1)
-    passes.add_light(tables, wave, state, rows[at], contribution, _volume_shares)
+    passes.add_light(tables, wave, state, rows[at], contribution, _volume_shares, _groups(tables, wave, ls, at))
+
+
+def _groups(tables, wave, ls, rows):
+    """passes.add_light's light group parts of the light samples rows of ls: each its emitter's group."""
+    return None if wave.groups is None else [(None, light_groups.of_samples(tables, ls, rows), None)]
 
 
 def catcher_emitters(wave):
@@ -376,7 +381,7 @@ def _passed_objects(tables, masks, catchers: bool = False):
 
 def shadow_masks(tables, ls, rows):
     """(m,) uint64 shadow masks of the emitters the light samples rows chose, or None when all are every set."""
-    if ls.emitter is None:
+    if ls.emitter is None or tables.lights.links is None:   # (light groups alone also keep the emitters)
         return None
     masks = np.take(tables.lights.links.shadow, np.take(ls.emitter, rows))
     return None if (masks == ALL_SETS).all() else masks

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..environment import Environment
+from ..light_groups import emitter_groups
 from ..rng import pcg2d, to_unit_float
 from ..geometry import emissive_instanced, lights_of
 from ..light_tree import LightTree, rows_of
@@ -24,8 +25,8 @@ class LightSample:
     radiance (3, N) arriving along it, pdf (N,) per unit solid angle times the selection probability,
     delta (N,) bool for lights no BSDF ray can hit, world (N,) bool for samples of the world, shadowed (N,)
     bool: surfaces can block the sample (False for a light with Cast Shadow off); emitter (N,) int64 the
-    emitters chosen, where the scene links lights (their shadow masks pick the shadow rays' blockers), else
-    None."""
+    emitters chosen, where the scene links lights (their shadow masks pick the shadow rays' blockers) or puts
+    emitters in light groups (their groups' passes), else None."""
     __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world", "shadowed", "emitter")
 
     def __init__(self, n: int):
@@ -54,10 +55,11 @@ class LightHits:
     """What BSDF rays meet of the lights with a surface (LightSampler.intersect), per ray: hit (N,) bool,
     radiance (3, N) and pdf (N,) (solid angle, with selection) of the light returned; crossed (N,) int32,
     the lights met (each a transparent bounce); stopped (N,) bool, the path ends at its last light; t (N,)
-    float32 the distance to the light returned."""
-    __slots__ = ("hit", "radiance", "pdf", "crossed", "stopped", "t")
+    float32 the distance to the light returned; light (N,) int64 the lamp returned (where hit)."""
+    __slots__ = ("hit", "radiance", "pdf", "crossed", "stopped", "t", "light")
 
     def __init__(self, n: int):
+        self.light = np.zeros(n, np.int64)
         self.hit = np.zeros(n, bool)
         self.radiance = np.zeros((3, n), np.float32)
         self.pdf = np.zeros(n, np.float32)
@@ -179,6 +181,8 @@ class LightSampler:
         objects = object_links(scene)
         self.links = None if objects is None or not self.has_lights else \
             EmitterLinks(self, objects, scene, power, self._triangle_rows(scene))
+        # Light groups: each emitter's group (its light's pass), None when none is in one.
+        self.groups = emitter_groups(scene, self.light_count, lambda: self._triangle_rows(scene))
 
     def _triangle_rows(self, scene) -> np.ndarray:
         """(E,) int64 object row of each emissive triangle (0 without an object table)."""
@@ -318,7 +322,7 @@ class LightSampler:
         if not self.shadowed.all():
             lamp = chosen < self.light_count
             out.shadowed = ~lamp | np.take(self.shadowed, np.where(lamp, chosen, 0))
-        if self.links is not None:
+        if self.links is not None or self.groups is not None:
             out.emitter = chosen
         if self.light_count:
             for kind, method in ((POINT, point_spot.sample), (SPOT, point_spot.sample), (SUN, sun.sample),
@@ -354,11 +358,11 @@ class LightSampler:
         """pdf (solid angle, with selection) of NEE for world directions d (world.pdf)."""
         return world.pdf(self, dx, dy, dz, focus, receiver)
 
-    def suns_seen(self, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False):
+    def suns_seen(self, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None):
         """(3, n) radiance of the sun discs that rays leaving the scene along d look into, MIS-weighed
         (sun.seen); None when the scene has no sun with a disc. shadow_linked: count the suns whose light
-        dedicated rays count (kernels/shadow_linking.py) too."""
-        return sun.seen(self, dx, dy, dz, bsdf_pdf, receiver, shadow_linked)
+        dedicated rays count (kernels/shadow_linking.py) too; parts: a list that takes each sun's share."""
+        return sun.seen(self, dx, dy, dz, bsdf_pdf, receiver, shadow_linked, parts)
 
     def samples_world(self) -> bool:
         """Whether next-event estimation can choose the world."""
@@ -418,6 +422,7 @@ class LightSampler:
         chosen, share = _choose_per_ray(ray, weight.astype(np.float64), _ray_uniform(ox, oy, oz, dx, dy, dz)[ray])
         rays = ray[chosen]
         out.hit[rays] = True
+        out.light[rays] = light[chosen]
         out.t[rays] = t[chosen]
         out.radiance[:, rays] = le[:, chosen] / share.astype(np.float32)
         out.pdf[rays] = self.selection_pmf(light[chosen], ox[rays], oy[rays], oz[rays],

@@ -20,14 +20,15 @@ def sample(sampler, out, idx, light, px, py, pz, u1, u2):
     out.set(idx, wx, wy, wz, np.float32(np.inf), sampler.sun_radiance[light].T, pdf, delta)
 
 
-def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False):
+def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None):
     """(3, n) radiance of the sun discs that rays leaving the scene along d (x, y, z of (n,)) look into, each
     weighed by MIS (power heuristic) against its own light samples given the pdf of the BSDF sample that
     chose d (None: not weighed, as after a singular bounce), as Cycles' escaped rays see suns; None when
     the scene has no sun with a disc. receiver: (n,) uint8 the light sets of the objects the rays left
     (Light Linking), or None: a ray sees only the suns that reach its set, and not the shadow-linked ones
     (dedicated rays count those, kernels/shadow_linking.py) unless shadow_linked, as Cycles'
-    integrate_sun_lights (kernel/integrator/shade_background.h)."""
+    integrate_sun_lights (kernel/integrator/shade_background.h). parts: a list, or None: each sun's share is
+    appended to it, (sun, columns (m,), (3, m) radiance), for its light group's pass."""
     if not len(sampler.sun_discs):
         return None
     out = np.zeros((3, len(dx)), np.float32)
@@ -51,5 +52,8 @@ def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool 
             light_pdf = np.float32(sampler.select_pmf[k]) * sampling.uniform_cone_pdf(sampler.sun_cos[k])
             weight = sampling.power_heuristic(np.take(bsdf_pdf, inside),
                                               np.full(len(inside), light_pdf, np.float32))
-        out[:, inside] += sampler.sun_radiance[k][:, None] * weight
+        share = sampler.sun_radiance[k][:, None] * weight
+        out[:, inside] += share
+        if parts is not None:
+            parts.append((int(k), inside, share))
     return out

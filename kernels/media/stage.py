@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import passes
+from .. import light_groups, passes
 from ..lights import nee
 from ..paths import DIFFUSE_ANCESTOR, VOLUME_SCATTER, may_scatter, ray_keys, roulette_verdict
 from ..geometry import NG
@@ -82,6 +82,8 @@ def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -
         bounce = np.take(state.bounce, inside)
         le = passes.clamp(wave, le, bounce > 1)
         passes.accumulate(wave.radiance, state.path[inside], le)
+        if wave.groups is not None:   # the group of the medium's object
+            light_groups.write(wave, state.path[inside], le, light_groups.of_media(tables, state.media[:, inside]))
         if wave.aux is not None and "emission" in wave.aux:
             seen = np.flatnonzero(bounce == 0)
             wave.aux["emission"][:, state.path[inside[seen]]] += le[:, seen]

@@ -14,6 +14,7 @@ The kernel's public data model, one module per part, every name importable from 
     materials   Materials of Shaders, Closures and their inputs (Param, NormalMap, Tangent)
     objects     the object table's columns (OBJ_*) and rows
     links       LightLinks: Light and Shadow Linking per object row (ALL_SETS)
+    light_groups LightGroups: the light groups of the object rows and the world (NO_GROUP)
     triangles   per-triangle arrays: CornerRows, comparing, checking and cleaning them
     instances   Prototype and Instances: meshes stored once, placed many times; ShapeInstances: curves and
                 points stored once, placed many times
@@ -27,6 +28,7 @@ from .arrays import SceneArrays, ValidatedScene
 from .camera import CAMERA_KINDS, PIXEL_FILTERS, SENSOR_FITS, Camera
 from .curves import CURVE_SHAPES, Curves
 from .instances import Instances, Prototype, ShapeInstances, usable_placements
+from .light_groups import NO_GROUP, LightGroups
 from .lights import LIGHT_KINDS, Lights
 from .links import ALL_SETS, MAX_LINK_SETS, LightLinks
 from .materials import (CLOSURE_KINDS, INPUT_NODES, NORMAL_MAP_SPACES, VOLUME_KINDS, Closure, Materials, NormalMap,
@@ -45,6 +47,7 @@ __all__ = [
     "Instances", "Prototype", "ShapeInstances", "usable_placements",
     "LIGHT_KINDS", "Lights",
     "ALL_SETS", "MAX_LINK_SETS", "LightLinks",
+    "NO_GROUP", "LightGroups",
     "CLOSURE_KINDS", "INPUT_NODES", "NORMAL_MAP_SPACES", "VOLUME_KINDS", "Closure", "Materials", "NormalMap", "Param", "Shader",
     "Tangent", "diffuse_shader",
     "OBJ_COLOR", "OBJ_FROM_WORLD", "OBJ_LOCATION", "OBJ_PASS_INDEX", "OBJ_RANDOM", "OBJ_TERMINATOR",

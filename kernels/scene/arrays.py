@@ -11,6 +11,7 @@ from .camera import Camera
 from .checks import check_array, require, require_finite
 from .curves import Curves
 from .instances import Instances, ShapeInstances, clean_instances
+from .light_groups import LightGroups
 from .lights import Lights
 from .links import LightLinks
 from .materials import Materials
@@ -56,6 +57,9 @@ class SceneArrays:
     light_links : LightLinks or None, per row of `objects`: the light and shadow sets of Light and Shadow
         Linking; None: no object is linked and every emissive object lights everything (lights keep their own
         masks: Lights.light_sets, shadow_sets).
+    light_groups : LightGroups or None: the light groups (View Layer > Light Groups) of the emissive objects,
+        per row of `objects`, and of the world; None: none is in a group (lamps keep theirs in
+        Lights.light_groups).
     motion : ((K, 4, 4) float64, ...) world_from_object at K >= 2 motion steps evenly spread over the
         shutter (time 0 to 1), one entry per moving object; motion_reference, one (4, 4) per entry: the
         matrix the triangles' world-space positions were made with. motion_ids : (T,) int32 or None:
@@ -110,6 +114,7 @@ class SceneArrays:
     object_attributes: tuple = ()
     object_visibility: np.ndarray | None = None
     light_links: LightLinks | None = None
+    light_groups: LightGroups | None = None
     curves: tuple = ()
     points: Points | None = None
     shape_instances: ShapeInstances | None = None
@@ -245,6 +250,8 @@ class SceneArrays:
         if self.light_links is not None:
             require(self.objects is not None, "light_links", "needs the object table")
             self.light_links.validate(len(self.objects))
+        if self.light_groups is not None:
+            self.light_groups.validate(0 if self.objects is None else len(self.objects))
         for name, values in self.object_attributes:
             k = 0 if self.objects is None else len(self.objects)
             check_array(values, f"object_attributes[{name!r}]", (k, 4), np.float32)

@@ -33,6 +33,8 @@ class Lights:
     shadow_catcher : (L,) bool or None (all True): the light object's Visibility > Shadow Catcher, which Blender
         turns on for lights; False leaves the light out of what shadow catchers receive without the synthetic
         objects (Cycles' SHADER_EXCLUDE_SHADOW_CATCHER: kernels/shadow_catcher.py).
+    light_groups : (L,) int32 or None (no light is in a group): each light's light group, NO_GROUP (-1) for
+        none (View Layer > Light Groups: kernels.scene.light_groups).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -46,6 +48,7 @@ class Lights:
     light_sets: np.ndarray | None = None
     shadow_sets: np.ndarray | None = None
     shadow_catcher: np.ndarray | None = None
+    light_groups: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -73,3 +76,6 @@ class Lights:
                 check_array(getattr(self, name), f"lights.{name}", (n,), np.uint64, finite=False)
         if self.shadow_catcher is not None:
             check_array(self.shadow_catcher, "lights.shadow_catcher", (n,), np.bool_, finite=False)
+        if self.light_groups is not None:
+            check_array(self.light_groups, "lights.light_groups", (n,), np.int32, finite=False)
+            require(not n or int(self.light_groups.min()) >= -1, "lights.light_groups", "must be -1 or more")
