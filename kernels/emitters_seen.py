@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import light_groups, passes, sampling, shadow_linking
+from . import light_groups, passes, sampling, shadow_linking, visibility
 from .interaction import RayInfo
 from .media import stage as media_stage
 from .paths import facing_of
@@ -22,7 +22,8 @@ def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
     met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget, state.link_set,
                                   facing=facing_of(state.mis_facing),
-                                  allowed=None if wave.only_catchers is None else wave.only_catchers.lights)
+                                  allowed=None if wave.only_catchers is None else wave.only_catchers.lights,
+                                  types=lamp_ray_types(tables, state))
     met.crossed[~seeing] = 0
     state.transparent = state.transparent + met.crossed
     lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
@@ -104,10 +105,12 @@ def escaped(tables, wave, state, rays, hits, ended=None):
     if len(later) and len(tables.lights.sun_discs):
         if wave.groups is not None:
             world = env.copy()
+        types = lamp_ray_types(tables, state)
         sun = tables.lights.suns_seen(mx[later], my[later], mz[later],
                                       state.bsdf_pdf[miss[later]] if wave.nee else None,
                                       None if state.link_set is None else state.link_set[miss[later]],
-                                      parts=None if wave.groups is None else suns)
+                                      parts=None if wave.groups is None else suns,
+                                      types=None if types is None else types[miss[later]])
         sun *= np.take(state.throughput, miss[later], axis=1)
         if state.escape_scale is not None:
             sun *= np.take(state.escape_scale, miss[later])
@@ -157,6 +160,14 @@ def emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
     if state.pass_weights is not None:
         later = np.flatnonzero(np.take(state.bounce, lit) > 0)
         passes.write_light(tables, wave, state, lit[later], le[:, later])
+
+
+def lamp_ray_types(tables, state):
+    """(N,) uint8 the types of the paths' rays (visibility.ray_types) where a lamp has a bounce kind off
+    (kernels/lights/ray_visibility.py), else None."""
+    if tables.lights.visibility is None:
+        return None
+    return visibility.ray_types(state, False)
 
 
 def _weights(state, rows) -> np.ndarray:

@@ -63,9 +63,12 @@ def glass_escapes(tables, wave, state, hit, closures, bs, receiver=None) -> None
     wx, wy, wz = wx[out], wy[out], wz[out]
     world = light = tables.environment.radiance(wx, wy, wz)
     suns = []   # each sun's share, for the light groups' passes
+    types = None   # the branch's ray type, where a lamp has a bounce kind off (kernels/lights/ray_visibility.py)
+    if tables.lights.visibility is not None:
+        types = np.where(transmit[live], visibility.TRANSMIT_RAY, visibility.GLOSSY_RAY).astype(np.uint8)
     sun = tables.lights.suns_seen(wx, wy, wz, None, None if receiver is None else receiver[idx],
                                   shadow_linked=True,   # after a singular bounce: no MIS
-                                  parts=None if wave.groups is None else suns)
+                                  parts=None if wave.groups is None else suns, types=types)
     if sun is not None:
         light = light + sun
     carried = np.take(state.throughput, idx, axis=1) * weight[:, live]   # what reaches the camera of the light

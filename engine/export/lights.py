@@ -17,6 +17,8 @@ import math
 import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
+from ...kernels.scene.links import ALL_SETS
+from ...kernels.scene.objects import BSDF_RAYS, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
 from ...kernels.textures import luminance
 from .light_groups import GroupTable, group_table, lamp_groups
 from .light_linking import LinkTable, lamp_masks, link_table
@@ -28,10 +30,12 @@ BLACKBODY_RANGE_K = (800.0, 12000.0)
 MAX_LIGHT_RADIANCE = 1e20
 
 
-# A light object's Ray Visibility settings, their labels and Blender's defaults.
-LIGHT_VISIBILITY = (("visible_camera", "Camera", False), ("visible_diffuse", "Diffuse", True),
-                    ("visible_glossy", "Glossy", True), ("visible_transmission", "Transmission", True),
-                    ("visible_volume_scatter", "Volume Scatter", True))
+# A light object's Ray Visibility settings, their labels, Blender's defaults and the ray bit each gives
+# Lights.visibility (0: not rendered, warned about when changed).
+LIGHT_VISIBILITY = (("visible_camera", "Camera", False, 0), ("visible_diffuse", "Diffuse", True, RAY_DIFFUSE),
+                    ("visible_glossy", "Glossy", True, RAY_GLOSSY),
+                    ("visible_transmission", "Transmission", True, RAY_TRANSMIT),
+                    ("visible_volume_scatter", "Volume Scatter", True, RAY_SCATTER))
 
 
 def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | None = None,
@@ -43,16 +47,17 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         links = link_table(depsgraph)
     if groups is None:
         groups = group_table(depsgraph.view_layer)
-    rows, masks, catchers, in_groups = [], [], [], []
+    rows, masks, catchers, in_groups, seen, names = [], [], [], [], [], []
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
         ob = inst.object
         if ob.type != "LIGHT":
             continue
-        check_light_visibility(ob, warnings)
         row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings)
         if row is not None:
+            seen.append(light_visibility(ob, warnings))
+            names.append(ob.name)
             rows.append(row)
             masks.append(links.memberships(ob))
             catchers.append(light_is_shadow_catcher(inst, ob))
@@ -61,6 +66,12 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         return Lights()
     columns = list(zip(*rows))
     light_sets, shadow_sets = lamp_masks(masks)
+    visibility = None if all(v == BSDF_RAYS for v in seen) else np.array(seen, np.uint8)
+    if visibility is not None and shadow_sets is not None:
+        # Rays meet shadow-linked lamps in their own stage (kernels/shadow_linking.py), which does not read it.
+        for k in np.flatnonzero((visibility != BSDF_RAYS) & (shadow_sets != ALL_SETS)):
+            warnings.append(f"Light '{names[k]}': Ray Visibility of a shadow-linked light is not supported yet: "
+                            f"its surface is seen by every bounce")
     return Lights(
         kind=np.array(columns[0], np.int32),
         position=np.array(columns[1], np.float32).reshape(-1, 3),
@@ -75,6 +86,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         shadow_sets=shadow_sets,
         shadow_catcher=None if all(catchers) else np.array(catchers, bool),
         light_groups=lamp_groups(in_groups),
+        visibility=visibility,
     )
 
 
@@ -86,14 +98,19 @@ def light_is_shadow_catcher(inst, ob) -> bool:
     return bool(getattr(ob, "is_shadow_catcher", True)) or bool(parent is not None and parent.is_shadow_catcher)
 
 
-def check_light_visibility(ob, warnings: list[str]) -> None:
-    """Warn about a light's Ray Visibility that Ember does not render: a light seen by the camera (off by
-    default; Ember's camera rays never see lights), or one that a kind of bounce does not see (Cycles then
-    leaves the matching closures out of its light samples: light/common.h, is_light_shader_visible_to_path)."""
-    changed = [label for name, label, default in LIGHT_VISIBILITY if bool(getattr(ob, name, default)) != default]
-    if changed:
-        warnings.append(f"Light '{ob.name}': Ray Visibility ({', '.join(changed)}) is not supported yet, "
-                        f"rendered with the defaults (Camera off, the others on)")
+def light_visibility(ob, warnings: list[str]) -> int:
+    """The ray bits of a light object's Ray Visibility (Lights.visibility): the bounces it is seen by, whose
+    light samples may take it (Cycles' scene/light.cpp SHADER_EXCLUDE_* flags: kernels/lights/ray_visibility.py).
+    Warns about Camera, which Ember does not render: its camera rays never see lights."""
+    bits = 0
+    for name, label, default, bit in LIGHT_VISIBILITY:
+        on = bool(getattr(ob, name, default))
+        if not bit and on != default:
+            warnings.append(f"Light '{ob.name}': Ray Visibility > {label} is not supported yet, rendered "
+                            f"{'on' if default else 'off'}")
+        if bit and on:
+            bits |= bit
+    return bits
 
 
 def light_strength(light) -> np.ndarray:

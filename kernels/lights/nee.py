@@ -20,6 +20,8 @@ from ..media import tracking
 from ..media.march import marching
 from ..samples import LIGHT, LIGHT_POINT
 from ..scene import ALL_SETS
+from ..scene.objects import BSDF_RAYS
+from . import ray_visibility
 
 # At a shading point whose closures are all one glossy lobe, the share of the world's light samples drawn
 # around that lobe (Environment.focus); less in proportion where other closures share the sampling weight.
@@ -74,6 +76,8 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
     if not len(useful):
         return
     f, bsdf_pdf = closures.eval_at(active[useful], (ls.wx[useful], ls.wy[useful], ls.wz[useful]))
+    if ls.visibility is not None:
+        f = _visible_closures(closures, active[useful], ls, useful, f)
     keep = np.flatnonzero((f[0] > 0) | (f[1] > 0) | (f[2] > 0))
     idx = useful[keep]  # rows of the light sample; active[idx] are the paths
     if not len(idx):
@@ -168,6 +172,8 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     else:
         ls = tables.lights.sample_chosen(px, py, pz, chosen[0], chosen[1], u1, u2, None, catcher_emitters(wave))
     le = ls.radiance
+    if ls.visibility is not None:   # lights that volume scattering does not see (Cycles' shade_volume.h)
+        le = le * ~ray_visibility.scatter_excluded(ls.visibility)
     f, phase_pdf = mixture.evaluate(d, (ls.wx, ls.wy, ls.wz))
     useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)) &
                             ((f[0] > 0) | (f[1] > 0) | (f[2] > 0)))
@@ -199,6 +205,18 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     if scale is not None:
         contribution *= np.take(scale, at, axis=1)
     passes.add_light(tables, wave, state, rows[at], contribution, _volume_shares, _groups(tables, wave, ls, at))
+
+
+def _visible_closures(closures, paths, ls, rows, f):
+    """f of the light samples rows (at the hits paths) with the closures their lamps exclude left out
+    (kernels/lights/ray_visibility.py); the BSDF pdf stays that of every closure."""
+    vis = np.take(ls.visibility, rows)
+    sel = np.flatnonzero((vis & BSDF_RAYS) != BSDF_RAYS)
+    if len(sel):
+        f = f.copy()
+        f[:, sel] = ray_visibility.eval_visible(closures, np.take(paths, sel), tuple(
+            np.take(np.take(c, rows), sel) for c in (ls.wx, ls.wy, ls.wz)), np.take(vis, sel))
+    return f
 
 
 def _groups(tables, wave, ls, rows):

@@ -13,7 +13,7 @@ from ..geometry import emissive_instanced, lights_of
 from ..light_tree import LightTree, rows_of
 from ..scene import SceneArrays
 from ..textures import luminance
-from . import area, point_spot, selection, sun, triangles, world
+from . import area, point_spot, ray_visibility, selection, sun, triangles, world
 from .common import DISK, POINT, RECT, SPOT, SUN
 from .links import EmitterLinks, object_links, reaches, set_groups
 from .proxies import PROXY_MIN_LIGHTS, LightProxies
@@ -26,8 +26,10 @@ class LightSample:
     delta (N,) bool for lights no BSDF ray can hit, world (N,) bool for samples of the world, shadowed (N,)
     bool: surfaces can block the sample (False for a light with Cast Shadow off); emitter (N,) int64 the
     emitters chosen, where the scene links lights (their shadow masks pick the shadow rays' blockers) or puts
-    emitters in light groups (their groups' passes), else None."""
-    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world", "shadowed", "emitter")
+    emitters in light groups (their groups' passes), else None; visibility (N,) uint8 the ray visibility of the
+    emitters chosen where a lamp has a bounce kind off (kernels/lights/ray_visibility.py), else None."""
+    __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world", "shadowed", "emitter",
+                 "visibility")
 
     def __init__(self, n: int):
         self.wx = np.zeros(n, np.float32)
@@ -40,6 +42,7 @@ class LightSample:
         self.world = np.zeros(n, bool)
         self.shadowed = np.ones(n, bool)
         self.emitter = None
+        self.visibility = None
 
     def set(self, idx, wx, wy, wz, dist, radiance, pdf, delta=False):
         if len(idx) == len(self.wx):  # every point chose this kind: no scatter needed
@@ -84,6 +87,8 @@ class LightSampler:
         self.light_count = lights.count
         self.kind = lights.kind
         self.shadowed = lights.shadowed()
+        # (L,) uint8 each lamp's ray visibility, or None when every lamp sees every bounce.
+        self.visibility = lights.visibility
         self.position = lights.position.astype(np.float32)
         self.axes = lights.frame.astype(np.float32)              # (L, 3, 3): columns x, y, z
         self.radiance_of = lights.radiance.astype(np.float32)
@@ -324,6 +329,8 @@ class LightSampler:
             out.shadowed = ~lamp | np.take(self.shadowed, np.where(lamp, chosen, 0))
         if self.links is not None or self.groups is not None:
             out.emitter = chosen
+        if self.visibility is not None:
+            out.visibility = ray_visibility.of_emitters(self, chosen)
         if self.light_count:
             for kind, method in ((POINT, point_spot.sample), (SPOT, point_spot.sample), (SUN, sun.sample),
                                  (RECT, area.sample), (DISK, area.sample)):
@@ -358,18 +365,21 @@ class LightSampler:
         """pdf (solid angle, with selection) of NEE for world directions d (world.pdf)."""
         return world.pdf(self, dx, dy, dz, focus, receiver)
 
-    def suns_seen(self, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None):
+    def suns_seen(self, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None,
+                  types=None):
         """(3, n) radiance of the sun discs that rays leaving the scene along d look into, MIS-weighed
         (sun.seen); None when the scene has no sun with a disc. shadow_linked: count the suns whose light
-        dedicated rays count (kernels/shadow_linking.py) too; parts: a list that takes each sun's share."""
-        return sun.seen(self, dx, dy, dz, bsdf_pdf, receiver, shadow_linked, parts)
+        dedicated rays count (kernels/shadow_linking.py) too; parts: a list that takes each sun's share;
+        types: (n,) uint8 the rays' types (kernels/visibility.py ray_types), or None: a sun that does not see
+        a ray's type gives it nothing (kernels/lights/ray_visibility.py)."""
+        return sun.seen(self, dx, dy, dz, bsdf_pdf, receiver, shadow_linked, parts, types)
 
     def samples_world(self) -> bool:
         """Whether next-event estimation can choose the world."""
         return self.has_lights and self.select_pmf[self.world_index] > 0
 
     def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None, receiver=None, facing=None,
-                  allowed=None) -> "LightHits":
+                  allowed=None, types=None) -> "LightHits":
         """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max, as Cycles'
         BSDF rays meet them (kernel/light/light.h lights_intersect, integrator/shade_light.h).
 
@@ -389,7 +399,9 @@ class LightSampler:
         meets only the lights that reach its set and are not shadow-linked (those take dedicated rays), as
         Cycles' lights_intersect skips the others before counting them (kernel/light/light.h). allowed: (L,)
         bool, the lights the rays see (a shadow catcher's own paths pass the others: Cycles' lights_intersect
-        skips lights excluded from them), or None for all."""
+        skips lights excluded from them), or None for all. types: (N,) uint8 the rays' types (kernels/visibility.py
+        ray_types), or None: a lamp that does not see a ray's type is met and crossed but gives it no light
+        (kernels/lights/ray_visibility.py)."""
         n = len(ox)
         out = LightHits(n)
         if not self.has_surface_lights or n == 0:
@@ -404,6 +416,8 @@ class LightSampler:
         if not len(ray):
             return out
         t, light_pdf, le = self.hit_pairs(ray, light, ox[ray], oy[ray], oz[ray], dx[ray], dy[ray], dz[ray])
+        if types is not None and self.visibility is not None:
+            le[:, ray_visibility.unseen(np.take(self.visibility, light), np.take(types, ray))] = 0.0
         ok = np.flatnonzero((t > 0) & (t < t_max[ray]))
         # Nearest first; of lights at one distance, the first in the scene's order (Cycles' loop keeps
         # a light only when it is strictly nearer than the one it has).

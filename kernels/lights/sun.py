@@ -20,7 +20,7 @@ def sample(sampler, out, idx, light, px, py, pz, u1, u2):
     out.set(idx, wx, wy, wz, np.float32(np.inf), sampler.sun_radiance[light].T, pdf, delta)
 
 
-def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None):
+def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None, types=None):
     """(3, n) radiance of the sun discs that rays leaving the scene along d (x, y, z of (n,)) look into, each
     weighed by MIS (power heuristic) against its own light samples given the pdf of the BSDF sample that
     chose d (None: not weighed, as after a singular bounce), as Cycles' escaped rays see suns; None when
@@ -28,7 +28,8 @@ def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool 
     (Light Linking), or None: a ray sees only the suns that reach its set, and not the shadow-linked ones
     (dedicated rays count those, kernels/shadow_linking.py) unless shadow_linked, as Cycles'
     integrate_sun_lights (kernel/integrator/shade_background.h). parts: a list, or None: each sun's share is
-    appended to it, (sun, columns (m,), (3, m) radiance), for its light group's pass."""
+    appended to it, (sun, columns (m,), (3, m) radiance), for its light group's pass. types: (n,) uint8 the
+    rays' types, or None: a sun that does not see a ray's type gives it nothing (kernels/lights/ray_visibility.py)."""
     if not len(sampler.sun_discs):
         return None
     out = np.zeros((3, len(dx)), np.float32)
@@ -40,6 +41,8 @@ def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool 
             if links.shadow_linked[k] and not shadow_linked:
                 continue
             facing &= reaches(links.light[k], receiver)
+        if types is not None and sampler.visibility is not None:
+            facing &= (types & sampler.visibility[k]) != 0
         inside = np.flatnonzero(facing)
         if not len(inside):
             continue

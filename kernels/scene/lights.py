@@ -35,6 +35,9 @@ class Lights:
         objects (Cycles' SHADER_EXCLUDE_SHADOW_CATCHER: kernels/shadow_catcher.py).
     light_groups : (L,) int32 or None (no light is in a group): each light's light group, NO_GROUP (-1) for
         none (View Layer > Light Groups: kernels.scene.light_groups).
+    visibility : (L,) uint8 or None (all see every bounce): the light object's Ray Visibility as the object
+        table's ray bits (kernels.scene.objects RAY_DIFFUSE, _GLOSSY, _TRANSMIT, _SCATTER): the bounces whose
+        light samples may take the light and whose rays see it (kernels/lights/ray_visibility.py).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -49,6 +52,7 @@ class Lights:
     shadow_sets: np.ndarray | None = None
     shadow_catcher: np.ndarray | None = None
     light_groups: np.ndarray | None = None
+    visibility: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -79,3 +83,5 @@ class Lights:
         if self.light_groups is not None:
             check_array(self.light_groups, "lights.light_groups", (n,), np.int32, finite=False)
             require(not n or int(self.light_groups.min()) >= -1, "lights.light_groups", "must be -1 or more")
+        if self.visibility is not None:
+            check_array(self.visibility, "lights.visibility", (n,), np.uint8, finite=False)
