@@ -66,3 +66,48 @@ def test_defaults_export_nothing_and_camera_is_warned_about():
     assert exported.scene.lights.visibility is None and exported.warnings == []
     lamp.visible_camera = True
     assert [w for w in export_current().warnings if "'Lamp'" in w and "Camera" in w]
+
+
+def test_volume_scatter_off_matches_cycles():
+    """A fog box lit by a lamp that volume scattering does not see: only the world lights the fog, as in
+    Cycles (its light samples in the fog are dropped, shade_volume.h)."""
+    import bpy
+    from bpy_helpers import (compare_to_cycles, diffuse_material, export_current, mesh_object, new_scene,
+                             node_material, quad_object, render_to_array, set_world)
+    scene = new_scene(32, 32)
+    set_world(scene, color=(0.05, 0.05, 0.06))
+    quad_object("Floor", (-5, -5, 0), (10, 0, 0), (0, 10, 0), diffuse_material("Floor", (0.6, 0.6, 0.6)))
+    verts = [(x, y, z) for x in (-1.2, 1.2) for y in (-1.2, 1.2) for z in (0.05, 2.0)]
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    mesh_object("Fog", verts, faces, node_material("Fog", "ShaderNodeVolumePrincipled", output="Volume", Density=0.4))
+    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "POINT"))
+    lamp.data.energy, lamp.data.shadow_soft_size = 200.0, 0.1
+    lamp.location = (0.8, -0.5, 2.6)
+    scene.collection.objects.link(lamp)
+    plain = render_to_array(scene, "EMBER", 8, seed=3)
+    lamp.visible_volume_scatter = False
+    assert export_current().warnings == []
+    changed = render_to_array(scene, "EMBER", 8, seed=3)
+    assert np.abs(changed[..., :3] - plain[..., :3]).max() > 0.1
+    compare_to_cycles(scene, samples=32)
+
+
+def test_a_sun_that_glossy_rays_do_not_see_matches_cycles():
+    """A wide sun over the rough glossy half of the floor: its light samples leave the glossy closure out and
+    the glossy rays that look into its disc get nothing (shade_background.h)."""
+    import bpy
+    from bpy_helpers import compare_to_cycles, export_current
+    from bpy_helpers import render_to_array
+    scene, lamp = _scene()
+    lamp.data.energy = 0.0
+    bpy.data.objects.remove(bpy.data.objects["Wall"])
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.data.energy, sun.data.angle = 3.0, 0.3
+    sun.rotation_euler = (-0.9, 0.0, 0.0)   # behind the floor's far end: its glare on the glossy floor
+    scene.collection.objects.link(sun)
+    plain = render_to_array(scene, "EMBER", 16, seed=3)
+    sun.visible_glossy = False
+    assert export_current().warnings == []
+    changed = render_to_array(scene, "EMBER", 16, seed=3)
+    assert np.abs(changed[..., :3] - plain[..., :3]).max() > 0.1
+    compare_to_cycles(scene, samples=SAMPLES)
