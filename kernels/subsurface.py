@@ -1,6 +1,7 @@
 """Subsurface scattering beneath a surface: Cycles 5.x's random walk (`kernel/integrator/subsurface.h`,
-`subsurface_random_walk.h`), batched over a wave's walking paths (one ray query per step for all of them);
-enter() hands Christensen-Burley's paths to kernels/subsurface_disk.py instead.
+`subsurface_random_walk.h`), batched over a wave's walking paths (one ray query per step for all of them) while
+many go on, the last few handed to kernels/subsurface_tail.py; enter() hands Christensen-Burley's paths to
+kernels/subsurface_disk.py instead.
 
 A path whose closure pick chose a BSSRDF (kernels/bsdf/bssrdf.py: its entry direction and sample weight) walks
 inside the mesh of the object it entered: free flights in a homogeneous medium whose coefficients come from the
@@ -13,7 +14,9 @@ the integrator shades that point with a white Lambert closure on its normal faci
 (subsurface_shader_data_setup), without emission, holdout, data passes or roulette, and the entry counted no
 bounce (the exit's diffuse bounce counts).
 
-Each walk step draws its numbers from rng.keyed_uniforms keyed by the path's ray (paths.ray_keys) and the step.
+Each walk step draws its numbers from rng.keyed_uniforms keyed by the path's ray (paths.ray_keys) and the step
+(subsurface_medium.step_numbers, a chunk of steps at once). Why the walk runs in two ways: docs/architecture.md,
+Subsurface scattering.
 """
 from __future__ import annotations
 

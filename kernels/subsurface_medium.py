@@ -188,15 +188,15 @@ def local_hits(accel, object_rows, origin, d, t_max, obj, times, rows):
     """The first hit of each ray (origin, d (3, n) float64, t_max (n,)) on its own object (obj (n,), None: any),
     within t_max: (prim, t, u, v), t float64. rows (n,) the walks the rays belong to (for their times). Hits on
     other objects are stepped over (at most 8 times)."""
-    o = origin.T.astype(F32)
-    dirs = d.T.astype(F32)
+    o = np.ascontiguousarray(origin.T, F32)
+    dirs = np.ascontiguousarray(d.T, F32)
     tm = np.asarray(t_max, F32)
     tt = None if times is None else times.take(rows)
-    h = accel.intersect(np.ascontiguousarray(o), np.ascontiguousarray(dirs), tm, False, tt)
-    prim, t, u, v = h.prim.copy(), h.t.astype(np.float64), h.u.copy(), h.v.copy()
+    h = accel.intersect(o, dirs, tm, False, tt)
+    prim, t, u, v = h.prim, h.t.astype(np.float64), h.u, h.v     # fresh arrays of this query
     if obj is None or object_rows is None:
         return prim, t, u, v
-    base = np.zeros(len(prim))
+    base = None
     for _ in range(8):
         found = np.flatnonzero(prim >= 0)
         if not len(found):
@@ -205,13 +205,15 @@ def local_hits(accel, object_rows, origin, d, t_max, obj, times, rows):
         if not len(other):
             break
         step = t[other] * (1 + 1e-5) + 1e-6
+        if base is None:
+            base = np.zeros(len(prim))
         base[other] += step
         o2 = o[other] + dirs[other] * step[:, None].astype(F32)
         h2 = accel.intersect(np.ascontiguousarray(o2), np.ascontiguousarray(dirs[other]),
                              np.maximum(tm[other] - step.astype(F32), F32(0)), False,
                              None if tt is None else tt.take(other))
         prim[other], t[other], u[other], v[other] = h2.prim, h2.t, h2.u, h2.v
-    t = np.where(prim >= 0, t + base, np.inf)
+    t = np.where(prim >= 0, t if base is None else t + base, np.inf)
     return prim, t, u, v
 
 

@@ -4,8 +4,9 @@ together in NumPy while there are many).
 A batch of walks ends in a long tail: the last few walks of a wave can take a hundred steps or more (Cycles allows
 256), and a NumPy step costs about the same for three walks as for three hundred (a hundred calls on tiny
 arrays). Here each step of each walk is plain float arithmetic instead, the very operations of the NumPy step in
-the same order, so the numbers are the same bit for bit where NumPy's exp and log are the C library's (they are on
-machines without AVX-512; on those with it NumPy's own may differ in the last bit).
+the same order on the same numbers (subsurface_medium.step_numbers: NumPy takes their logs, sines and cosines for
+both), so the results are the same bit for bit where NumPy's exp is the C library's (it is on machines without
+AVX-512; on those NumPy's own may differ in the last bit).
 
 Steps are taken ahead: a walk's numbers are keyed by its step (rng.keyed_uniforms), so each walk takes TAIL_CHUNK
 steps as if none of its flights met the surface, the flights of all the walks go to Embree in one query, and
@@ -23,7 +24,7 @@ from .subsurface_medium import (DIFFUSION_LENGTH, G, ISOTROPIC_PDF, MAX_BOUNCES,
 from .vec import INV_2PI
 
 TAIL_CHUNK = 16             # steps taken ahead per walk and query
-_INV_2PI = float(INV_2PI)
+_INV_2PI_FLOAT = float(INV_2PI)   # Python float arithmetic is float64, as the NumPy step's
 _FOUR_PI = 4 * np.pi
 
 
@@ -84,6 +85,7 @@ def _ahead(const, state, numbers, bounce, flights, exp, sqrt):
     _step, operation for operation. Appends each flight (origin, direction, length: 7 floats) to flights.
     Returns (the terms each step's throughput is computed from (for _finish), whether the walk ended (faded),
     its state after the last step)."""
+    # WalkTable's rows, in their order
     (p0x, p0y, p0z, nx, ny, nz, mx, my, mz, tx, ty, tz, bx, by, bz, st0, st1, st2, ss0, ss1, ss2, sts0, sts1, sts2,
      sss0, sss1, sss2, a0, a1, a2, g, one_minus_g2, gf0, dl, phase_log, opposite, opp) = const
     px, py, pz, dx, dy, dz, t0, t1, t2 = state
@@ -134,8 +136,8 @@ def _ahead(const, state, numbers, bounce, flights, exp, sqrt):
         else:
             hg = ISOTROPIC_PDF
         cos_theta = cos_g if guided else ex * nx + ey * ny + ez * nz
-        fwd_f = _INV_2PI / ((dl - cos_theta) * phase_log) / hg
-        bwd_f = _INV_2PI / ((dl + cos_theta) * phase_log) / hg
+        fwd_f = _INV_2PI_FLOAT / ((dl - cos_theta) * phase_log) / hg
+        bwd_f = _INV_2PI_FLOAT / ((dl + cos_theta) * phase_log) / hg
         q = cos_theta / dl
         fwd_s, bwd_s = 1.0 - q, 1.0 + q
         if guided:

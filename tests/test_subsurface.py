@@ -94,12 +94,10 @@ def _mixed_walks(n, seed):
 
 
 def _libm_like_numpy():
-    """Whether NumPy's float64 exp, log, sin and cos are the C library's here (they are but with AVX-512, where
-    NumPy has its own): the walks' Python tail then gives the NumPy steps' numbers bit for bit."""
-    x = np.random.default_rng(0).uniform(-30.0, 30.0, 2000)
-    y = np.abs(x) + 1e-3
-    return all(np.array_equal(f(v), [m(t) for t in v]) for f, m, v in
-               ((np.exp, math.exp, x), (np.log, math.log, y), (np.sin, math.sin, x), (np.cos, math.cos, x)))
+    """Whether NumPy's float64 exp is the C library's here (it is but with AVX-512, where NumPy has its own): the
+    walks' Python tail then gives the NumPy steps' numbers bit for bit."""
+    x = np.random.default_rng(0).uniform(-40.0, 5.0, 4000)
+    return np.array_equal(np.exp(x), [math.exp(t) for t in x])
 
 
 def _assert_same_exits(a, b, exact, label):
