@@ -54,7 +54,8 @@ def seed_paths(pixel_index: np.ndarray, sample_index: np.ndarray | int, user_see
 def keyed_uniforms(seeds, k: int, salt: int = 0):
     """Two uniform float32 numbers per path for draw k of the decision `salt`, hashed from keys (x, y) (the
     paths' PCG2D states, paths.ray_keys) without advancing any stream: media collisions, shader nodes that
-    trace rays."""
+    trace rays. k may be an integer array that broadcasts against the keys ((K, 1): K draws of every path at
+    once, each the same as drawn alone)."""
     x, y = seeds
     key = np.uint32((k * 0x9E3779B9 + salt * 0x85EBCA6B) & 0xFFFFFFFF)
     a, b = pcg2d(x ^ key, y + np.uint32((k + 0x68E31DA4 * (salt + 1)) & 0xFFFFFFFF))

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from ember.kernels import subsurface
+from ember.kernels import subsurface_medium as medium
 from ember.kernels.accel import Hits
 from ember.kernels.bsdf import bssrdf
 
@@ -71,14 +72,138 @@ def test_white_slab_loses_no_energy(g):
     assert len(rows) > 0.99 * n
 
 
+def _mixed_walks(n, seed):
+    """Walks into a slab of depth 1 whose parameters vary per walk: albedo per channel (0 and 1 among them), radius
+    (a few flights to the far side or many), anisotropy of either sign, both models, entry directions and
+    throughputs."""
+    rng = np.random.default_rng(seed)
+    keys = (rng.integers(0, 2 ** 32, n, dtype=np.uint32), rng.integers(0, 2 ** 32, n, dtype=np.uint32))
+    albedo = rng.uniform(0.0, 1.0, (3, n))
+    albedo[:, ::7] = 1.0
+    albedo[1, 3::11] = 0.0
+    radius = rng.uniform(0.02, 0.4, (3, n))
+    g = np.where(rng.random(n) < 0.3, 0.0, rng.uniform(-0.9, 0.9, n))
+    van = rng.random(n) < 0.7
+    d0 = np.stack([rng.uniform(-0.5, 0.5, n), rng.uniform(-0.5, 0.5, n), -np.ones(n)])
+    d0 /= np.linalg.norm(d0, axis=0)
+    up = np.zeros((3, n))
+    up[2] = 1.0
+    thr = rng.uniform(0.2, 2.0, (3, n))
+    return (_Slab(1.0), None, np.zeros((3, n)), d0.astype(np.float32), up.astype(np.float32), up, None,
+            albedo.astype(np.float32), radius.astype(np.float32), g, van, thr.astype(np.float32), keys)
+
+
+def _libm_like_numpy():
+    """Whether NumPy's float64 exp is the C library's here (it is but with AVX-512, where NumPy has its own): the
+    walks' Python tail then gives the NumPy steps' numbers bit for bit."""
+    x = np.random.default_rng(0).uniform(-40.0, 5.0, 4000)
+    return np.array_equal(np.exp(x), [math.exp(t) for t in x])
+
+
+def _assert_same_exits(a, b, exact, label):
+    assert all(x.dtype == y.dtype and x.shape == y.shape for x, y in zip(a, b)), label
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]), label
+    for x, y in zip(a[2:], b[2:]):
+        if exact:
+            assert np.array_equal(x, y, equal_nan=True), label
+        else:
+            np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-7, err_msg=label)
+
+
+def test_python_tail_walks_as_the_numpy_steps_do(monkeypatch):
+    """kernels/subsurface_tail.py steps the last few walks in Python floats, TAIL_CHUNK steps ahead with one query,
+    keeping each walk's steps up to its first flight that met the surface: the exits, their order, lengths,
+    directions and throughputs are those of stepping every walk in NumPy to the end, whatever the chunk (3: the
+    last chunk before MAX_BOUNCES is shorter) and where the hand-over falls."""
+    from ember.kernels import subsurface_tail
+    args = _mixed_walks(300, 5)
+    monkeypatch.setattr(subsurface, "TAIL_WALKS", 0)
+    batch = subsurface.walk(*args)
+    assert len(batch[0]) > 200 and len(np.unique(batch[0])) == len(batch[0])
+    exact = _libm_like_numpy()
+    for tail_walks, chunk in ((10 ** 9, 16), (10 ** 9, 3), (40, 16)):
+        monkeypatch.setattr(subsurface, "TAIL_WALKS", tail_walks)
+        monkeypatch.setattr(subsurface_tail, "TAIL_CHUNK", chunk)
+        _assert_same_exits(batch, subsurface.walk(*args), exact, (tail_walks, chunk))
+
+
+def test_python_tail_takes_numpys_infinities_where_python_raises(monkeypatch):
+    """Where a walk's step divides by zero (here a channel of sigma_t 0 with throughput left in it, which a walk from
+    the entry never reaches) Python raises where NumPy gives inf: the tail steps that walk with NumPy's scalars, and
+    its exits are the NumPy steps' still."""
+    from ember.kernels import subsurface_tail
+    (accel, _, p0, d0, n0, _, _, albedo, radius, g, van, thr, keys) = _mixed_walks(60, 8)
+    table = medium.WalkTable(p0, d0, n0.astype(np.float64), albedo, radius, g, van, thr)
+    c, s = table.constants, table.state
+    rng = np.random.default_rng(9)
+    s[medium.POSITION][2] = rng.uniform(-0.9, -0.1, 60)
+    c[medium.HAVE_OPPOSITE], c[medium.OPPOSITE] = rng.random(60) < 0.5, 1.0
+    for rows in (medium.SIGMA_T, medium.SIGMA_S, medium.SIGMA_T_STAR, medium.SIGMA_S_STAR):
+        c[rows][2, ::3] = 0.0
+    s[medium.THROUGHPUT][2, ::3] = 5.0
+
+    def trace(origin, d, t_max, rows):
+        return medium.local_hits(accel, None, origin, d, t_max, None, None, rows)
+
+    numpy_scalars = []
+    ahead = subsurface_tail._ahead
+
+    def spy(*args):
+        numpy_scalars.append(args[-2] is np.exp)
+        return ahead(*args)
+    monkeypatch.setattr(subsurface_tail, "_ahead", spy)
+    found = []
+    for tail_walks in (0, 10 ** 9):
+        monkeypatch.setattr(subsurface, "TAIL_WALKS", tail_walks)
+        exits = medium.Exits()
+        with np.errstate(all="ignore"):
+            subsurface._steps(c.copy(), s.copy(), np.arange(60), keys, 1, trace, exits)
+        found.append(exits.gather())
+    assert any(numpy_scalars) and not all(numpy_scalars)
+    assert len(found[0][0]) > 40
+    _assert_same_exits(found[0], found[1], _libm_like_numpy(), "inf")
+
+
+def test_step_numbers_are_each_steps_own_draws():
+    """step_numbers draws a chunk of steps at once: each row is the keyed draw of that step alone (rng.keyed_uniforms
+    with the walk's salt), and the directions' local frames follow from them as each step would compute them."""
+    from ember.kernels import subsurface_medium as medium
+    from ember.kernels.rng import keyed_uniforms
+    rng = np.random.default_rng(2)
+    n = 50
+    keys = (rng.integers(0, 2 ** 32, n, dtype=np.uint32), rng.integers(0, 2 ** 32, n, dtype=np.uint32))
+    g, dl = rng.uniform(-0.9, 0.9, n), rng.uniform(1.01, 30.0, n)
+    phase_log = np.log((dl + 1.0) / (dl - 1.0))
+    numbers = medium.step_numbers(keys, 7, 5, g, dl, phase_log)
+    for j, step in enumerate(range(7, 12)):
+        u_ch, u_t = keyed_uniforms(keys, 3 * step, medium.SALT)
+        u_gs, u_gd = keyed_uniforms(keys, 3 * step + 1, medium.SALT)
+        r1, r2 = (x.astype(np.float64) for x in keyed_uniforms(keys, 3 * step + 2, medium.SALT))
+        row = numbers[j]
+        assert np.array_equal(row[medium.U_CHANNEL], u_ch) and np.array_equal(row[medium.U_GUIDED], u_gs)
+        assert np.array_equal(row[medium.U_BACKWARD], u_gd)
+        assert np.array_equal(row[medium.FLIGHT], -np.log(1.0 - u_t.astype(np.float64)))
+        cos_g = row[medium.GUIDED_COS]
+        np.testing.assert_allclose(cos_g, dl - (dl + 1) * ((dl - 1) / (dl + 1)) ** r1, rtol=1e-9, atol=1e-12)
+        sin_g = np.sqrt(1 - cos_g ** 2)
+        np.testing.assert_allclose(row[medium.GUIDED_X], sin_g * np.cos(2 * np.pi * r2), atol=1e-12)
+        gl = g if step <= medium.SIMILARITY_LEVEL else 0.0
+        cos_c = row[medium.CLASSIC_COS]
+        # Henyey-Greenstein's inverse cdf, isotropic past the similarity level.
+        expected = np.where(np.abs(gl) >= 1e-3, (1 + gl * gl - ((1 - gl * gl) / (1 - gl + 2 * gl * r1)) ** 2) /
+                            (2 * np.where(gl != 0, gl, 1.0)), 1 - 2 * r1)
+        np.testing.assert_allclose(cos_c, expected, atol=1e-9)
+        np.testing.assert_allclose(row[medium.CLASSIC_Y], np.sqrt(1 - cos_c ** 2) * np.sin(2 * np.pi * r2), atol=1e-12)
+
+
 def test_coefficients_invert_the_albedo():
     """van de Hulst's inversion: albedo 1 is (almost) no absorption, albedo 0 all absorption; sigma_t is
     1 / radius; the legacy fit (Skin) gives sigma_t / (1 - g)."""
-    sigma_t, alpha = subsurface.coefficients(np.array([[1.0], [0.5], [0.0]]), np.full((3, 1), 0.25),
-                                             np.array([0.0]), np.array([True]))
+    sigma_t, alpha = medium.coefficients(np.array([[1.0], [0.5], [0.0]]), np.full((3, 1), 0.25),
+                                         np.array([0.0]), np.array([True]))
     assert np.allclose(sigma_t, 4.0) and alpha[0, 0] > 0.9999 and alpha[2, 0] < 1e-3 and 0 < alpha[1, 0] < 1
-    sigma_t, _ = subsurface.coefficients(np.full((3, 1), 0.5), np.full((3, 1), 0.25), np.array([0.5]),
-                                         np.array([False]))
+    sigma_t, _ = medium.coefficients(np.full((3, 1), 0.5), np.full((3, 1), 0.25), np.array([0.5]),
+                                     np.array([False]))
     assert np.allclose(sigma_t, 8.0)
 
 
