@@ -36,12 +36,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..colorspace import RGB_TO_Y
-from ..vec import F32, ONE, PI, TWO_PI, ZERO, cross_xyz, dot_xyz, normalize_xyz
+from ..vec import F32, INV_2PI, ONE, PI, TWO_PI, ZERO, cross_xyz, dot_xyz, normalize_xyz
 from .fresnel import dielectric
 
 SQRT_PI_8 = F32(np.sqrt(np.pi / 8.0))
 LN_2PI = F32(np.log(2.0 * np.pi))
-INV_2PI = F32(1.0 / (2.0 * np.pi))
 # Cycles' melanin colours (bsdf_principled_hair_sigma_from_concentration).
 EUMELANIN = np.array([0.506, 0.841, 1.653], F32)
 PHEOMELANIN = np.array([0.343, 0.733, 1.924], F32)

@@ -28,12 +28,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..rng import keyed_uniforms, pcg2d
-from ..vec import F32, ONE, PI, TWO_PI, ZERO, normalize_xyz
+from ..vec import F32, INV_2PI, ONE, PI, TWO_PI, ZERO, normalize_xyz
 from . import hair_fibre as fb
 from .fresnel import dielectric
 from .hair_chiang import longitudinal
 
-INV_2PI = F32(1.0 / (2.0 * np.pi))
 TWO_OVER_PI = F32(2.0 / np.pi)
 # Cycles' Simpson node spacing across the fibre, over the roughness: R's, then TT and TRT's.
 NODE_SPACING = (F32(0.7), F32(0.8))

@@ -26,12 +26,12 @@ import numpy as np
 from ..scene import ALL_SETS
 from .selection import Choice
 
-ONE = np.uint64(1)
+BIT = np.uint64(1)   # the lowest set bit, shifted to a set's place in a mask
 
 
 def reaches(masks: np.ndarray, sets: np.ndarray) -> np.ndarray:
     """(n,) bool: set sets[i] is in mask masks[i] (both broadcast)."""
-    return ((np.asarray(masks, np.uint64) >> np.asarray(sets).astype(np.uint64)) & ONE) != 0
+    return ((np.asarray(masks, np.uint64) >> np.asarray(sets).astype(np.uint64)) & BIT) != 0
 
 
 def set_groups(sets: np.ndarray):
