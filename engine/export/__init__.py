@@ -31,6 +31,7 @@ from ...kernels import SceneArrays
 from ...kernels.cryptomatte import hash_names
 from ...kernels.memory import small_pages, trim_heap
 from ...kernels.scene.objects import ALL_RAYS
+from .adaptive import Dicing
 from .camera import export_camera, render_region, render_resolution
 from .geometry import export_geometry
 from .images import shader_images
@@ -110,9 +111,9 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     if groups is not None and len(groups):
         warnings.append(f"View layer '{depsgraph.view_layer.name}': light groups are not supported yet: "
                         f"no Light Group passes")
-    camera = export_camera(camera_ob.evaluated_get(depsgraph), scene,
-                           default_width if width is None else width,
-                           default_height if height is None else height, warnings)
+    width = default_width if width is None else width
+    height = default_height if height is None else height
+    camera = export_camera(camera_ob.evaluated_get(depsgraph), scene, width, height, warnings)
     layer_attribute = functools.partial(view_layer_attribute, scene, depsgraph.view_layer_eval)
     materials = MaterialTable(warnings, layer_attribute)
     poll = Poller(should_stop)
@@ -124,7 +125,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
             + [scene.world.node_tree if scene.world is not None else None]))
         geometry = export_geometry(depsgraph, materials, warnings, poll,
                                    moving=frozenset(motion.objects) if motion is not None else frozenset(),
-                                   instance_everything=instance_everything, cache=mesh_cache, links=links)
+                                   instance_everything=instance_everything, cache=mesh_cache, links=links,
+                                   dicing=Dicing(depsgraph, camera_ob.evaluated_get(depsgraph), width, height))
         world = export_world(scene.world, warnings, materials.images, layer_attribute)
     lights = export_lights(depsgraph, warnings, poll, links)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
