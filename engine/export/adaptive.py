@@ -35,6 +35,7 @@ from . import mesh_topology
 from .subdivision.cage import Cage, bilinear, bilinear_corners
 from .subdivision.dice import Tessellation, dice
 from .subdivision.dicing import DicingCamera
+from .subdivision import refine
 from .subdivision.refine import Unsupported
 from .subdivision.split import DiagSplit
 from .subdivision.surface import CatmullClarkSurface, LinearSurface
@@ -82,11 +83,13 @@ class Dicing:
             self._camera = DicingCamera(camera, self.offscreen)
         return self._camera
 
-    def tessellate(self, ob, warnings: list[str]) -> "AdaptiveMesh | None":
+    def tessellate(self, ob, warnings: list[str], poll=None) -> "AdaptiveMesh | None":
         """The diced mesh of an object Cycles would dice, or None (not such an object, or not dicable here:
-        then a warning names it and the mesh Blender evaluates is rendered)."""
+        then a warning names it and the mesh Blender evaluates is rendered). poll() is called as faces are
+        split (it raises to cancel)."""
         modifier = adaptive_modifier(ob, self.preview)
         if modifier is None:
+            _check_experimental(ob, self._scene, warnings)
             return None
         geometry = bpy.types.GeometrySet.from_evaluated_object(ob)
         base = geometry.mesh_base or geometry.mesh
@@ -109,8 +112,22 @@ class Dicing:
             rate, camera = float(modifier.adaptive_object_edge_length) * self.rate, None
         else:
             rate, camera = max(MIN_PIXEL_RATE, float(modifier.adaptive_pixel_size) * self.rate), self.camera
-        split = DiagSplit(cage, surface, rate, self.max_level, camera, np.array(ob.matrix_world)).run()
-        return AdaptiveMesh(base, geometry, cage, dice(split, surface), simple)
+        split = DiagSplit(cage, surface, rate, self.max_level, camera, np.array(ob.matrix_world)).run(poll)
+        uv_smooth = "NONE" if simple else modifier.uv_smooth
+        return AdaptiveMesh(base, geometry, cage, dice(split, surface), simple, uv_smooth,
+                            modifier.boundary_smooth == "PRESERVE_CORNERS", ob.name, warnings)
+
+
+def _check_experimental(ob, scene, warnings: list[str]) -> None:
+    """Blender 4.x's adaptive subdivision (the object's Cycles setting under the Experimental feature set, a
+    last Subdivision Surface modifier) is not diced: say so."""
+    modifiers = getattr(ob, "modifiers", None)
+    if not modifiers or modifiers[-1].type != "SUBSURF" or hasattr(modifiers[-1], "use_adaptive_subdivision"):
+        return
+    if getattr(getattr(ob, "cycles", None), "use_adaptive_subdivision", False) and \
+            getattr(getattr(scene, "cycles", None), "feature_set", "") == "EXPERIMENTAL":
+        warnings.append(f"Object '{ob.name}': adaptive subdivision is diced from Blender 5.0 on (the modifier's "
+                        f"option); here the mesh Blender evaluates is rendered")
 
 
 def read_cage(mesh) -> Cage:
@@ -136,6 +153,46 @@ def _has_creases(mesh) -> bool:
     return False
 
 
+def uv_surface(cage: Cage, uvs: np.ndarray, uv_smooth: str, keep_corners: bool) -> CatmullClarkSurface | None:
+    """The Catmull-Clark surface of a UV map (uvs (C, 2) per face corner) with the modifier's UV Smooth, or None
+    for UV Smooth None (linear). Cycles refines a UV map as OpenSubdiv's face-varying data (subd/osd.cpp): a
+    mesh of its own, one vertex per distinct value of each vertex (merge_smooth_fvar), its seams boundaries,
+    with the interpolation blender/util.h maps UV Smooth to; its kept corners here (OpenSubdiv's fvarLevel.cpp):
+    Keep Boundaries (FVAR_LINEAR_BOUNDARIES, the default) every boundary value, so seams and boundaries stay
+    straight; Keep Corners (CORNERS_ONLY) the values of one face; Keep Corners, Junctions (CORNERS_PLUS1) also
+    the values of a vertex with three values or more; Keep Corners, Junctions, Concave (CORNERS_PLUS2) also
+    the ends of seams inside the mesh and both values of a vertex with two when one is a corner; All
+    (LINEAR_NONE) only the corners Boundary Smooth keeps.
+    Raises refine.Unsupported where the map's mesh is not one these rules cover."""
+    if uv_smooth == "NONE":
+        return None
+    values = np.asarray(uvs, np.float32) + np.float32(0.0)          # -0 is 0, as Cycles' == has it
+    keys = np.concatenate([cage.corner_verts[:, None], values.view(np.int32).astype(np.int64)], axis=1)
+    unique, ids = np.unique(keys, axis=0, return_inverse=True)
+    vertex = unique[:, 0]
+    points = np.zeros((len(unique), 3))
+    points[:, :2] = unique[:, 1:].astype(np.int32).view(np.float32)
+    mesh = Cage(points, cage.face_starts, cage.face_sizes, ids.reshape(-1).astype(np.int64))
+    faces, boundary = refine.cage_valence(mesh)
+    edge = boundary > 0
+    corner = edge & (faces == 1)
+    if uv_smooth == "PRESERVE_BOUNDARIES":
+        kept = edge
+    elif uv_smooth == "SMOOTH_ALL":
+        kept = corner & keep_corners
+    else:
+        kept = corner
+        if uv_smooth != "PRESERVE_CORNERS":
+            kept = kept | (edge & (np.bincount(vertex, minlength=len(cage.positions))[vertex] >= 3))
+        if uv_smooth == "PRESERVE_CORNERS_JUNCTIONS_AND_CONCAVE":
+            values = np.bincount(vertex, minlength=len(cage.positions))
+            inner = refine.cage_valence(cage)[1] == 0
+            with_corner = np.bincount(vertex[corner], minlength=len(cage.positions)) > 0
+            kept = kept | (edge & inner[vertex] & (values[vertex] == 1)) | (edge & (values[vertex] == 2)
+                                                                             & with_corner[vertex])
+    return CatmullClarkSurface(mesh, kept=kept)
+
+
 def _face_values(mesh, name: str, dtype) -> np.ndarray | None:
     attr = mesh.attributes.get(name)
     if attr is None:
@@ -152,17 +209,22 @@ class AdaptiveMesh:
     cage: Cage
     tessellation: Tessellation
     simple: bool
+    uv_smooth: str          # the modifier's UV Smooth ("NONE" for Simple subdivision)
+    keep_corners: bool      # Boundary Smooth "Keep Corners"
+    name: str
+    warnings: list
 
     def __post_init__(self):
         tess, cage = self.tessellation, self.cage
         self.patches = cage.patches()
+        self._uv_surfaces = {}
         t = len(tess.triangles)
         self.triangle_face = self.patches.face[tess.triangle_patch]
         vertices = tess.positions.astype(np.float32)
         corners = tess.triangles.reshape(-1).astype(np.int32)
         smooth = self._smooth_faces()[self.triangle_face]
         uv_layer = next((uv for uv in self.base.uv_layers if uv.active_render), None)
-        uvs = self._corner_values(self._loop_uvs(uv_layer)).astype(np.float32) if uv_layer is not None else \
+        uvs = self._uv_values(uv_layer).astype(np.float32) if uv_layer is not None else \
             np.broadcast_to(np.zeros((1, 2), np.float32), (3 * t, 2))
         slots = _face_values(self.base, "material_index", np.int32)
         slots = slots[self.triangle_face] if slots is not None else np.zeros(t, np.int32)
@@ -198,7 +260,7 @@ class AdaptiveMesh:
             return np.zeros((3 * local.triangle_count, 4), np.float32)
         warnings.append(f"Object '{object_name}': tangents of adaptive subdivision are each triangle's UV gradient "
                         f"(not MikkTSpace)")
-        uvs = sphere_uvs(local.positions) if layer is None else self._corner_values(self._loop_uvs(layer))
+        uvs = sphere_uvs(local.positions) if layer is None else self._uv_values(layer)
         return triangle_tangents(local.positions, local.normals, uvs)
 
     def attributes(self, names: tuple, object_name: str, warnings: list[str]) -> dict:
@@ -217,7 +279,7 @@ class AdaptiveMesh:
             if kind == "uv":
                 layer = self.base.uv_layers.get(key)
                 if layer is not None:
-                    out[name] = self._corner_values(self._loop_uvs(layer)).astype(np.float32)
+                    out[name] = self._uv_values(layer).astype(np.float32)
                 continue
             colors = self.base.color_attributes
             if kind == "color":
@@ -244,8 +306,21 @@ class AdaptiveMesh:
             return np.ones(self.cage.face_count, bool)
         return ~sharp
 
-    def _loop_uvs(self, layer) -> np.ndarray:
-        return read_values(layer.uv, "vector", 2 * len(self.base.loops), np.float32).reshape(-1, 2)
+    def _uv_values(self, layer) -> np.ndarray:
+        """(T*3, 2) a UV map at the triangle corners: smoothed as UV Smooth says, else linearly."""
+        uvs = read_values(layer.uv, "vector", 2 * len(self.base.loops), np.float32).reshape(-1, 2)
+        if layer.name not in self._uv_surfaces:
+            try:
+                self._uv_surfaces[layer.name] = uv_surface(self.cage, uvs, self.uv_smooth, self.keep_corners)
+            except Unsupported as err:
+                self.warnings.append(f"Object '{self.name}': UV map '{layer.name}' is interpolated linearly over "
+                                     f"adaptive subdivision ({err} in it)")
+                self._uv_surfaces[layer.name] = None
+        surface = self._uv_surfaces[layer.name]
+        if surface is None:
+            return self._corner_values(uvs)
+        tess = self.tessellation
+        return surface.positions(np.repeat(tess.triangle_patch, 3), tess.corner_uv.reshape(-1, 2))[:, :2]
 
     def _corner_values(self, loop_values: np.ndarray) -> np.ndarray:
         """(T*3, C) per triangle corner: a face-corner attribute at the corners' patch (u, v)."""

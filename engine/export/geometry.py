@@ -187,7 +187,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         else:
             with readable_mesh(ob) as mesh:
                 if mesh_key not in meshes:
-                    adaptive = dicing.tessellate(ob, warnings) if dicing is not None else None
+                    adaptive = dicing.tessellate(ob, warnings, poll) if dicing is not None else None
                     if adaptive is not None:   # diced per camera: never kept between frames
                         diced[mesh_key], meshes[mesh_key] = adaptive, adaptive.local
                     else:

@@ -5,8 +5,9 @@ of control points per patch.
 One step makes a face point per face (the mean of its corners), an edge point per edge ((ends + the two face
 points) / 4 inside, the midpoint on a boundary) and moves each vertex: inside, with n edges, to
 ((n - 2) P + (sum of edge neighbours + sum of face points) / n) / n; on a boundary, to (a + 6 P + b) / 8 over its
-two boundary neighbours, except the corners kept where they are (a boundary vertex of one face, with
-EDGE_AND_CORNER: Boundary Smooth "Keep Corners"). After the first step every face is a quad and a patch's
+two boundary neighbours, except the corners kept where they are (with EDGE_AND_CORNER, Boundary Smooth
+"Keep Corners": the boundary vertices of one face; a UV map's own rules keep others, adaptive.py). A kept
+corner's vertex points stay kept at every level. After the first step every face is a quad and a patch's
 control points are a grid: (2^L + 1)^2 after L steps for a quad's patch, (2^(L-1) + 1)^2 for an n-gon's corner.
 
 Limit positions of the last level: inside (n^2 P + 4 sum of edge neighbours + sum of diagonal neighbours) /
@@ -29,20 +30,37 @@ class Unsupported(ValueError):
 
 @dataclass(frozen=True)
 class Level:
-    """A refinement level: positions (V, 3) float64; quads (Q, 4) int64 its faces; grids per group of patches
-    (quads' and n-gon corners'), each (P_g, n_g + 1, n_g + 1) int64 vertex indices, row j along v, column i along
-    u; cells (Q,) are the grids' cells in order, group by group, row by row."""
+    """A refinement level: positions (V, 3) float64; grids per group of patches (quads' and n-gon corners'),
+    each (P_g, n_g + 1, n_g + 1) int64 vertex indices, row j along v, column i along u (its cells are the
+    level's quads, cells()); kept (V,) bool the kept corners."""
     positions: np.ndarray
     grids: tuple
+    kept: np.ndarray
 
 
-def first_level(cage: Cage, keep_corners: bool) -> tuple[Level, np.ndarray]:
-    """One step from the cage's polygons. Returns the level and, per patch, (group, index in the group)."""
+def cage_valence(cage: Cage) -> tuple[np.ndarray, np.ndarray]:
+    """Per vertex of the cage: (its faces, its boundary edges), (V,) int64 each."""
+    f_of_loop = np.repeat(np.arange(cage.face_count), cage.face_sizes)
+    following = cage.corner_verts[cage.loop(f_of_loop, np.arange(len(f_of_loop)) - cage.face_starts[f_of_loop] + 1)]
+    v = len(cage.positions)
+    ends, count, _ = _edges(cage.corner_verts, following, v)
+    return np.bincount(cage.corner_verts, minlength=v), np.bincount(ends[count == 1].ravel(), minlength=v)
+
+
+def boundary_corners(cage: Cage) -> np.ndarray:
+    """(V,) bool: the cage's vertices on a boundary with one face (Boundary Smooth "Keep Corners" keeps them)."""
+    faces, boundary = cage_valence(cage)
+    return (boundary == 2) & (faces == 1)
+
+
+def first_level(cage: Cage, kept: np.ndarray) -> tuple[Level, np.ndarray]:
+    """One step from the cage's polygons, kept (V,) bool its kept corners. Returns the level and, per patch,
+    (group, index in the group)."""
     v = len(cage.positions)
     f_of_loop = np.repeat(np.arange(cage.face_count), cage.face_sizes)
     loop_next = cage.loop(f_of_loop, np.arange(len(f_of_loop)) - cage.face_starts[f_of_loop] + 1)
     positions, edge_of_loop, edges = _step(cage.positions, cage.corner_verts, cage.corner_verts[loop_next],
-                                           f_of_loop, cage.face_count, keep_corners)
+                                           f_of_loop, cage.face_count, kept)
     e = len(edges)
     ep = v + edge_of_loop                                 # each loop's edge point (edge to the next corner)
     fp = v + e + np.arange(cage.face_count)
@@ -60,17 +78,25 @@ def first_level(cage: Cage, keep_corners: bool) -> tuple[Level, np.ndarray]:
     index = np.empty((len(patches), 2), np.int64)
     index[quads] = np.stack([np.zeros(quads.sum(), np.int64), np.arange(quads.sum())], 1)
     index[patches.ngon] = np.stack([np.ones(len(nf), np.int64), np.arange(len(nf))], 1)
-    return Level(positions, (quad_grid.astype(np.int64), ngon_grid.astype(np.int64))), index
+    return Level(positions, (quad_grid.astype(np.int64), ngon_grid.astype(np.int64)),
+                 _children_kept(kept, len(positions))), index
 
 
-def next_level(level: Level, keep_corners: bool) -> Level:
+def _children_kept(kept: np.ndarray, count: int) -> np.ndarray:
+    """The next level's kept corners: the vertex points of the kept ones (listed first)."""
+    out = np.zeros(count, bool)
+    out[:len(kept)] = kept
+    return out
+
+
+def next_level(level: Level) -> Level:
     """One more step: every cell of every grid split in four, grids twice as fine."""
     quads = cells(level.grids)
     v = len(level.positions)
     loop_vert = quads.reshape(-1)
     loop_next = np.roll(quads, -1, axis=1).reshape(-1)
     positions, edge_of_loop, edges = _step(level.positions, loop_vert, loop_next,
-                                           np.repeat(np.arange(len(quads)), 4), len(quads), keep_corners)
+                                           np.repeat(np.arange(len(quads)), 4), len(quads), level.kept)
     e = len(edges)
     grids, first = [], 0
     for grid in level.grids:
@@ -86,7 +112,7 @@ def next_level(level: Level, keep_corners: bool) -> Level:
         fine[:, 1::2, 1::2] = v + e + face
         grids.append(fine)
         first += p * n * n
-    return Level(positions, tuple(grids))
+    return Level(positions, tuple(grids), _children_kept(level.kept, len(positions)))
 
 
 def cells(grids: tuple) -> np.ndarray:
@@ -123,27 +149,25 @@ def valence(positions: np.ndarray, quads: np.ndarray) -> Valence:
     return Valence(edges, faces, boundary, neighbours, boundary_neighbours, diagonals)
 
 
-def limit_positions(positions: np.ndarray, quads: np.ndarray, keep_corners: bool,
-                    stats: Valence | None = None) -> np.ndarray:
+def limit_positions(level: Level, quads: np.ndarray, stats: Valence | None = None) -> np.ndarray:
     """(V, 3) the limit position of each vertex of a level whose faces are all quads."""
+    positions = level.positions
     s = stats or valence(positions, quads)
     n = np.maximum(s.edges, 1)[:, None].astype(np.float64)
     out = (n * n * positions + 4.0 * s.neighbours + s.diagonals) / (n * (n + 5.0))
     edge = s.boundary > 0
     out[edge] = (s.boundary_neighbours[edge] + 4.0 * positions[edge]) / 6.0
-    out[_kept(s, keep_corners) | (s.faces == 0)] = positions[_kept(s, keep_corners) | (s.faces == 0)]
+    fixed = level.kept | (s.faces == 0)
+    out[fixed] = positions[fixed]
     return out
 
 
-def regular_vertices(stats: Valence, keep_corners: bool) -> np.ndarray:
-    """(V,) bool: vertices around which the surface is a bicubic B-spline's."""
+def regular_vertices(stats: Valence, kept: np.ndarray) -> np.ndarray:
+    """(V,) bool: vertices around which the surface is a bicubic B-spline's (a kept corner only with one face,
+    where the B-spline's mirrored points make it interpolate the corner)."""
     inside = (stats.boundary == 0) & (stats.edges == 4) & (stats.faces == 4)
-    edge = (stats.boundary == 2) & (stats.edges == 3) & (stats.faces == 2)
-    return inside | edge | (_kept(stats, keep_corners) & (stats.edges == 2))
-
-
-def _kept(stats: Valence, keep_corners: bool) -> np.ndarray:
-    return (stats.boundary == 2) & (stats.faces == 1) if keep_corners else np.zeros(len(stats.edges), bool)
+    edge = (stats.boundary == 2) & (stats.edges == 3) & (stats.faces == 2) & ~kept
+    return inside | edge | (kept & (stats.edges == 2) & (stats.faces == 1))
 
 
 def _edges(loop_vert: np.ndarray, loop_next: np.ndarray, v: int):
@@ -163,7 +187,7 @@ def _gather_sums(v: int, ends: np.ndarray, positions: np.ndarray) -> np.ndarray:
     return scatter_sum(ends.reshape(-1), positions[ends[:, ::-1].reshape(-1)], v)
 
 
-def _step(positions, loop_vert, loop_next, face_of_loop, face_count: int, keep_corners: bool):
+def _step(positions, loop_vert, loop_next, face_of_loop, face_count: int, kept: np.ndarray):
     """One Catmull-Clark step over polygons given as loops. Returns the new positions (vertex points, then
     edge points, then face points), each loop's edge and the edges' ends."""
     v = len(positions)
@@ -188,7 +212,6 @@ def _step(positions, loop_vert, loop_next, face_of_loop, face_count: int, keep_c
     vertex_points = ((n - 2.0) * positions + (neighbours + around) / n) / n
     edge = boundary == 2
     vertex_points[edge] = (_gather_sums(v, border, positions)[edge] + 6.0 * positions[edge]) / 8.0
-    kept = edge & (faces == 1) if keep_corners else np.zeros(v, bool)
     fixed = kept | (faces == 0)
     vertex_points[fixed] = positions[fixed]
     return np.concatenate([vertex_points, edge_points, face_points]), edge_of_loop, ends

@@ -382,11 +382,14 @@ class DiagSplit:
             sub.sides[3].own_edge, sub.sides[3].own_vertex = before.own_edge, before.own_edge
             self.split_quad(sub)
 
-    def run(self) -> "DiagSplit":
+    def run(self, poll=None) -> "DiagSplit":
+        """Split every face; poll() (when given) is called every few faces (it raises to cancel)."""
         limit = sys.getrecursionlimit()
         sys.setrecursionlimit(max(limit, 10_000))
         try:
             for face in range(self.cage.face_count):
+                if poll is not None and face % 64 == 0:
+                    poll()
                 if self.cage.face_sizes[face] == 4:
                     self.split_face_quad(face, int(self.patches.first[face]))
                 else:

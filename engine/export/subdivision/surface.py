@@ -84,21 +84,25 @@ def level_for(cage: Cage) -> int:
 
 class CatmullClarkSurface:
     """The Catmull-Clark limit surface of a cage (refine.py's rules). keep_corners : Boundary Smooth "Keep
-    Corners" (OpenSubdiv's EDGE_AND_CORNER), else boundary corners are smoothed (EDGE_ONLY).
-    Raises refine.Unsupported for topology the rules do not cover."""
+    Corners" (OpenSubdiv's EDGE_AND_CORNER), else boundary corners are smoothed (EDGE_ONLY); kept : (V,) bool
+    the cage's kept corners instead (a UV map's rules). Raises refine.Unsupported for topology the rules do
+    not cover."""
 
-    def __init__(self, cage: Cage, keep_corners: bool, level: int | None = None):
+    def __init__(self, cage: Cage, keep_corners: bool = False, level: int | None = None,
+                 kept: np.ndarray | None = None):
         self.patches = cage.patches()
         self.level = level or level_for(cage)
-        fine, self.index = refine.first_level(cage, keep_corners)
+        if kept is None:
+            kept = refine.boundary_corners(cage) if keep_corners else np.zeros(len(cage.positions), bool)
+        fine, self.index = refine.first_level(cage, kept)
         for _ in range(self.level - 1):
-            fine = refine.next_level(fine, keep_corners)
+            fine = refine.next_level(fine)
         self.grids = fine.grids
         quads = refine.cells(fine.grids)
         stats = refine.valence(fine.positions, quads)
-        self.limit = refine.limit_positions(fine.positions, quads, keep_corners, stats)
+        self.limit = refine.limit_positions(fine, quads, stats)
         self.limit_normals = _vertex_normals(self.limit, quads)
-        regular = refine.regular_vertices(stats, keep_corners)
+        regular = refine.regular_vertices(stats, fine.kept)
         self.regular = [regular[g[:, :-1, :-1]] & regular[g[:, :-1, 1:]] & regular[g[:, 1:, 1:]]
                         & regular[g[:, 1:, :-1]] for g in fine.grids]
         self.control = _extended_grids(fine.positions, quads, fine.grids)
