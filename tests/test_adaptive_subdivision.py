@@ -380,3 +380,38 @@ def test_textured_suzanne_matches_cycles():
     adaptive(ob, "CATMULL_CLARK", 2.0)
     add_camera(scene, (0.0, -3.2, 0.6), (0.0, 0.0, 0.0), lens=40.0)
     print(compare_to_cycles(scene, samples=64))
+
+
+def test_panels_show_the_adaptive_settings_for_ember():
+    """Blender draws the modifier's adaptive options and Cycles' Subdivision panel for Cycles only: Ember shows
+    Cycles' scene panel and its own object panel for the last Subdivision Surface modifier (a stand-in layout
+    records what it draws)."""
+    from types import SimpleNamespace
+
+    from bpy_helpers import ensure_registered
+    from ember.engine.ui import EMBER_OBJECT_PT_adaptive_subdivision as panel
+    scene = new_scene()
+    ensure_registered()
+    assert "EMBER" in bpy.types.CYCLES_RENDER_PT_subdivision.COMPAT_ENGINES
+    ob = grid_object("P", n=1)
+    adaptive(ob, adaptive_space="OBJECT")
+
+    class Layout:
+        def __init__(self):
+            self.drawn = []
+
+        def __getattr__(self, name):
+            return lambda *args, **kwargs: self.drawn.append((name, args[1] if len(args) > 1 else kwargs.get("text")))
+
+        def column(self, **kwargs):
+            return self
+    context = SimpleNamespace(engine="EMBER", object=ob, scene=scene)
+    assert panel.poll(context)
+    me = SimpleNamespace(layout=Layout())
+    panel.draw_header(me, context)
+    panel.draw(me, context)
+    drawn = [what for _, what in me.layout.drawn]
+    assert "use_adaptive_subdivision" in drawn and "adaptive_object_edge_length" in drawn, drawn
+    ob.modifiers.new("Bevel", "BEVEL")
+    assert not panel.poll(context)         # not the last modifier: Cycles would not dice it either
+    assert not panel.poll(SimpleNamespace(engine="CYCLES", object=ob, scene=scene))
