@@ -284,14 +284,28 @@ def test_uvs_slots_and_flat_faces_come_from_the_cage():
 
 
 # ---------------------------------------------------------------- warnings and the user's data
-def test_creases_are_named_and_the_evaluated_mesh_rendered():
-    """Catmull-Clark with edge creases is not diced: a warning names the object, and the mesh Blender evaluates
-    (at the modifier's levels) is rendered; without creases there is no warning."""
-    new_scene()
+def test_what_is_not_diced_is_named_and_rendered_as_blender_evaluates_it():
+    """Catmull-Clark with edge creases, and an object in Edit Mode, are not diced: a warning names the object,
+    and the mesh Blender evaluates (at the modifier's levels) is rendered; without them there is no warning,
+    and a collection instance shows the diced mesh again."""
+    new_scene().cycles.preview_dicing_rate = 2.0
     bpy.ops.mesh.primitive_cube_add()
     ob = bpy.context.object
     adaptive(ob, "CATMULL_CLARK", levels=2)
-    assert not any("adaptive" in w for w in export_current().warnings)
+    diced = export_current()
+    assert not any("adaptive" in w for w in diced.warnings) and diced.triangle_count > 2 * 6 * 16 * 2
+    collection = bpy.data.collections.new("C")
+    collection.objects.link(ob)
+    instancer = bpy.data.objects.new("I", None)
+    instancer.instance_type, instancer.instance_collection = "COLLECTION", collection
+    bpy.context.scene.collection.objects.link(instancer)
+    assert export_current().triangle_count == 2 * diced.triangle_count
+    bpy.data.objects.remove(instancer)
+    bpy.ops.object.mode_set(mode="EDIT")
+    result = export_current()
+    assert any("'Cube' is in Edit Mode: adaptive subdivision" in w for w in result.warnings), result.warnings
+    assert result.triangle_count == 6 * 16 * 2
+    bpy.ops.object.mode_set(mode="OBJECT")
     crease = ob.data.attributes.new("crease_edge", "FLOAT", "EDGE")
     crease.data[0].value = 1.0
     result = export_current()

@@ -95,6 +95,12 @@ class Dicing:
         base = geometry.mesh_base or geometry.mesh
         if base is None or len(base.polygons) == 0:
             return None
+        if base.is_editmode:
+            # Its mesh then lists only the edit mesh's layers (mesh.readable_mesh), and a full copy would be the
+            # subdivided mesh.
+            warnings.append(f"Object '{ob.name}' is in Edit Mode: adaptive subdivision is diced in Object Mode, "
+                            f"here the mesh Blender evaluates is rendered")
+            return None
         cage = read_cage(base)
         simple = modifier.subdivision_type == "SIMPLE"
         if not simple and modifier.use_creases and _has_creases(base):
