@@ -28,6 +28,7 @@ EXTRA_PANELS = (
     "CYCLES_OBJECT_PT_lightgroup",    # Object > Shading > Light Group (Object.lightgroup, read by Ember)
     "CYCLES_WORLD_PT_settings",       # World > Settings, the Light Group's parent
     "CYCLES_WORLD_PT_settings_light_group",   # World.lightgroup, read by Ember
+    "CYCLES_RENDER_PT_subdivision",   # scene.cycles: dicing rates, Max Subdivisions, dicing camera (adaptive)
 )
 _added: list = []
 
@@ -380,11 +381,53 @@ def _has_geometry_visibility(ob) -> bool:
                                or (ob.instance_type == "COLLECTION" and ob.instance_collection is not None))
 
 
+def subdivision_modifier(ob):
+    """The last modifier of ob when it is a Subdivision Surface with the adaptive options (Blender 5.0 on), else
+    None: the one adaptive subdivision reads (engine/export/adaptive.py)."""
+    modifiers = getattr(ob, "modifiers", None)
+    last = modifiers[-1] if modifiers else None
+    return last if last is not None and last.type == "SUBSURF" and hasattr(last, "adaptive_space") else None
+
+
+class EMBER_OBJECT_PT_adaptive_subdivision(EmberPanel, bpy.types.Panel):
+    """The adaptive options of the last Subdivision Surface modifier: Blender draws them in the modifier's own
+    panel only when Cycles is the render engine (MOD_subsurf.cc)."""
+    bl_label = "Adaptive Subdivision"
+    bl_context = "object"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES and subdivision_modifier(context.object) is not None
+
+    def draw_header(self, context):
+        self.layout.prop(subdivision_modifier(context.object), "use_adaptive_subdivision", text="")
+
+    def draw(self, context):
+        modifier = subdivision_modifier(context.object)
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.active = modifier.use_adaptive_subdivision
+        layout.label(text=f"Modifier '{modifier.name}'")
+        layout.prop(modifier, "adaptive_space", text="Space")
+        cycles = getattr(context.scene, "cycles", None)
+        rates = (getattr(cycles, "preview_dicing_rate", 8.0), getattr(cycles, "dicing_rate", 1.0))
+        if modifier.adaptive_space == "OBJECT":
+            layout.prop(modifier, "adaptive_object_edge_length")
+            texts = [f"{rate * modifier.adaptive_object_edge_length:.5g}" for rate in rates]
+        else:
+            layout.prop(modifier, "adaptive_pixel_size")
+            texts = [f"{max(rate * modifier.adaptive_pixel_size, 0.1):.2f} px" for rate in rates]
+        col = layout.column(align=True)
+        col.label(text=f"Viewport {texts[0]}, Render {texts[1]}")
+
+
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths,
            EMBER_RENDER_PT_volumes, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance,
            EMBER_VIEWLAYER_PT_passes, EMBER_VIEWLAYER_PT_passes_lightgroups, EMBER_LIGHT_PT_shadow,
            EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume, EMBER_OBJECT_PT_visibility_mask,
-           EMBER_OBJECT_PT_visibility_rays)
+           EMBER_OBJECT_PT_visibility_rays, EMBER_OBJECT_PT_adaptive_subdivision)
 
 
 def register():

@@ -220,9 +220,14 @@ def test_bump_method_matches_cycles():
     print(report)
 
 
-def test_adaptive_subdivision_is_named():
-    new_scene()
+def test_adaptive_subdivision_dices_instead_of_warning():
+    """A displaced mesh with adaptive subdivision is diced (test_adaptive_subdivision.py), not named in a
+    warning: more triangles than the modifier's levels give."""
+    scene = new_scene()
+    scene.cycles.preview_dicing_rate = 1.0
     ob = grid_object("P", n=2, material=displaced_material("D", Height=1.0))
     modifier = ob.modifiers.new("Subdivision", "SUBSURF")
     modifier.use_adaptive_subdivision = True
-    assert any("'P': adaptive subdivision is not supported" in w for w in export_current().warnings)
+    result = export_current()
+    assert not any("adaptive" in w for w in result.warnings), result.warnings
+    assert result.triangle_count > 2 * 4 * 4 ** modifier.levels

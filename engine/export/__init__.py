@@ -31,6 +31,7 @@ from ...kernels import Camera, SceneArrays
 from ...kernels.cryptomatte import hash_names
 from ...kernels.memory import small_pages, trim_heap
 from ...kernels.scene.objects import ALL_RAYS
+from .adaptive import Dicing
 from .camera import export_camera, render_region, render_resolution
 from .geometry import export_geometry
 from .images import shader_images
@@ -109,9 +110,10 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         raise ExportError("Scene has no camera")
     default_width, default_height = render_resolution(scene)
     warnings: list[str] = []
+    width = default_width if width is None else width
+    height = default_height if height is None else height
     camera = Camera() if camera_ob is None else \
-        export_camera(camera_ob.evaluated_get(depsgraph), scene, default_width if width is None else width,
-                      default_height if height is None else height, warnings)
+        export_camera(camera_ob.evaluated_get(depsgraph), scene, width, height, warnings)
     layer_attribute = functools.partial(view_layer_attribute, scene, depsgraph.view_layer_eval)
     materials = MaterialTable(warnings, layer_attribute)
     poll = Poller(should_stop)
@@ -125,7 +127,9 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         geometry = export_geometry(depsgraph, materials, warnings, poll,
                                    moving=frozenset(motion.objects) if motion is not None else frozenset(),
                                    instance_everything=instance_everything, cache=mesh_cache, links=links,
-                                   light_groups=groups)
+                                   light_groups=groups,
+                                   dicing=None if camera_ob is None else
+                                   Dicing(depsgraph, camera_ob.evaluated_get(depsgraph), width, height))
         world = export_world(scene.world, warnings, materials.images, layer_attribute)
     lights = export_lights(depsgraph, warnings, poll, links, groups)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],

@@ -48,10 +48,33 @@ class TrueDisplacement:
         return repr((self.program.ops, self.value, self.keeps_normals))
 
 
-def displace_mesh(mesh, local: LocalMesh, per_slot: tuple, object_row: np.ndarray, world_from_object: np.ndarray,
+class BlenderMesh:
+    """What displacement reads of an evaluated Blender mesh besides its LocalMesh (adaptive.AdaptiveMesh reads
+    the same of a diced one): vertex normals, attributes, tangents, flat faces. vertex_rows : None (the
+    LocalMesh's normal rows say where Blender keeps its normals)."""
+    vertex_rows = None
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+
+    def vertex_normals(self) -> np.ndarray:
+        return _read_vertex_normals(self.mesh)
+
+    def attributes(self, names: tuple, object_name: str, warnings: list[str]) -> dict:
+        return read_attributes(self.mesh, names, object_name, warnings)
+
+    def tangents(self, local: LocalMesh, uv_maps: tuple, object_name: str, warnings: list[str]) -> np.ndarray:
+        return read_tangents(self.mesh, local, uv_maps, object_name, warnings)
+
+    def flat_triangles(self, t: int) -> np.ndarray:
+        return _flat_triangles(self.mesh, t)
+
+
+def displace_mesh(source, local: LocalMesh, per_slot: tuple, object_row: np.ndarray, world_from_object: np.ndarray,
                   textures: list[Texture], object_name: str, warnings: list[str]) -> LocalMesh:
-    """`local` (read from the evaluated `mesh`) with its vertices moved by the materials of its slots
-    (per_slot: a TrueDisplacement or None per slot row) and its normals recomputed as Cycles does."""
+    """`local` (read from `source`, a BlenderMesh or an adaptive.AdaptiveMesh) with its vertices moved by the
+    materials of its slots (per_slot: a TrueDisplacement or None per slot row) and its normals recomputed as
+    Cycles does."""
     slots = np.clip(local.slots, 0, len(per_slot) - 1)
     moved = np.array([d is not None for d in per_slot])[slots]          # (T,) triangles displaced
     if not moved.any():
@@ -60,7 +83,7 @@ def displace_mesh(mesh, local: LocalMesh, per_slot: tuple, object_row: np.ndarra
     vertex_ids, first = np.unique(local.corners[corner_ids], return_index=True)
     corner = corner_ids[first]                                           # (V',) the corner shading each vertex
     m = np.asarray(world_from_object, np.float64)
-    normals_obj = _read_vertex_normals(mesh)[vertex_ids]
+    normals_obj = source.vertex_normals()[vertex_ids]
     inverse_t = np.linalg.pinv(m[:3, :3]).T
     n_world = normals_obj.astype(np.float64) @ inverse_t.T
     n_world /= np.maximum(np.linalg.norm(n_world, axis=1, keepdims=True), 1e-30)
@@ -78,11 +101,11 @@ def displace_mesh(mesh, local: LocalMesh, per_slot: tuple, object_row: np.ndarra
         c = corner[which]
         attributes = {}
         if displacement.attributes:
-            rows = read_attributes(mesh, tuple(sorted(displacement.attributes)), object_name, warnings)
+            rows = source.attributes(tuple(sorted(displacement.attributes)), object_name, warnings)
             attributes = {name: values[c] for name, values in rows.items()}
         tangents = None
         if displacement.tangent_uv_maps:
-            tangents = read_tangents(mesh, local, displacement.tangent_uv_maps, object_name, warnings)[c]
+            tangents = source.tangents(local, displacement.tangent_uv_maps, object_name, warnings)[c]
         inputs = VertexInputs(p_world[which].astype(np.float32), n_world[which].astype(np.float32),
                               np.asarray(local.uvs[c], np.float32), attributes, b1[which], b2[which],
                               object_row, textures, tangents)
@@ -96,17 +119,7 @@ def displace_mesh(mesh, local: LocalMesh, per_slot: tuple, object_row: np.ndarra
     vertices = local.vertices.copy()
     vertices[vertex_ids] += (offsets.astype(np.float64) @ linear_inverse.T).astype(np.float32)
     keeps = all(d is None or d.keeps_normals for d in per_slot)
-    return replace(local, vertices=vertices, **_normals(local, vertices, moved, keeps, mesh))
-
-
-def check_adaptive_subdivision(ob, warnings: list[str]) -> None:
-    """Adaptive subdivision (the Subdivision Surface modifier's Adaptive Subdivision option in Blender 5.x,
-    diced by Cycles per pixel or object edge length) is not done: say so."""
-    for modifier in getattr(ob, "modifiers", ()):
-        if modifier.type == "SUBSURF" and getattr(modifier, "use_adaptive_subdivision", False) and modifier.show_render:
-            warnings.append(f"Object '{ob.name}': adaptive subdivision is not supported, the mesh Blender evaluates "
-                            f"is rendered")
-            return
+    return replace(local, vertices=vertices, **_normals(local, vertices, moved, keeps, source))
 
 
 def _read_vertex_normals(mesh) -> np.ndarray:
@@ -132,11 +145,13 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return np.where(length > 0, v / np.where(length > 0, length, 1.0), 0.0)
 
 
-def _normals(local: LocalMesh, vertices: np.ndarray, moved: np.ndarray, keeps: bool, mesh) -> dict:
+def _normals(local: LocalMesh, vertices: np.ndarray, moved: np.ndarray, keeps: bool, source) -> dict:
     """The LocalMesh normal fields after displacement (mesh_displace.cpp's recompute)."""
     t = local.triangle_count
     if len(local.normal_rows) == t and np.array_equal(local.normal_index, np.repeat(np.arange(t), 3)):
         return {"normal_rows": triangle_normals(vertices, local.corners)}   # flat faces: their displaced normals
+    if source.vertex_rows is not None:
+        return {"normal_rows": _vertex_row_normals(local, vertices, moved, keeps, source.vertex_rows)}
     corner_domain = not np.array_equal(local.normal_index, local.corners)
     if keeps and not corner_domain:
         return {}
@@ -153,11 +168,27 @@ def _normals(local: LocalMesh, vertices: np.ndarray, moved: np.ndarray, keeps: b
     corner_ids = (touched[:, None] * 3 + np.arange(3)).ravel()
     v = local.corners[corner_ids]
     normals[corner_ids] = _unit(normals[corner_ids] + post[v] - pre[v])
-    flat = _flat_triangles(mesh, t) & moved
+    flat = source.flat_triangles(t) & moved
     if flat.any():
         faces = triangle_normals(vertices, local.corners)[flat]
         normals.reshape(-1, 3, 3)[flat] = faces[:, None, :]
     return {"normal_rows": normals.astype(np.float32), "normal_index": np.arange(3 * t, dtype=np.uint32)}
+
+
+def _vertex_row_normals(local: LocalMesh, vertices: np.ndarray, moved: np.ndarray, keeps: bool,
+                        vertex_rows: int) -> np.ndarray:
+    """Normal rows of a diced mesh after displacement: its first vertex_rows rows are its vertex normals
+    (recomputed from the displaced triangles, unless kept), the rest each flat triangle's own normal."""
+    rows = local.normal_rows.copy()
+    touched = np.flatnonzero(moved)
+    if not keeps:
+        post = _unit(vertex_normal_sums(vertices, local.corners, touched))
+        used = np.unique(local.corners.reshape(-1, 3)[touched])
+        rows[used] = post[used]
+    first = local.normal_index.reshape(-1, 3)[:, 0].astype(np.int64)
+    flat = np.flatnonzero((first >= vertex_rows) & moved)
+    rows[first[flat]] = triangle_normals(vertices, local.corners)[flat]
+    return rows.astype(np.float32)
 
 
 def _flat_triangles(mesh, t: int) -> np.ndarray:

@@ -21,7 +21,8 @@ import numpy as np
 from ...kernels.geometry import normal_matrices
 from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
 from ...kernels.textures import Texture
-from .displacement import check_adaptive_subdivision, displace_mesh
+from .adaptive import Dicing
+from .displacement import BlenderMesh, displace_mesh
 from .instances import (asset_name, check_visibility, instance_key, instance_random, instance_visibility,
                         instanced_groups, is_rendered, object_inputs, slot_materials)
 from .light_groups import GroupTable
@@ -30,7 +31,7 @@ from .light_linking import ALL_MASK, LinkTable, check_volume_linking
 # The light_linking row of an object linked nowhere: no receiver or blocker set, in every light and shadow set.
 UNLINKED_ROW = (0, 0, ALL_MASK, ALL_MASK)
 from .materials import MaterialTable
-from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_attributes, read_mesh, read_tangents, readable_mesh
+from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_mesh, readable_mesh
 from .shapes import ShapeExport
 from .rgba_attributes import instancer_attribute, object_attribute
 from .volumes import is_volume, read_volume
@@ -126,7 +127,7 @@ class MeshCache:
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None,
                     moving: set | frozenset = frozenset(), instance_everything: bool = False,
                     cache: MeshCache | None = None, links: LinkTable | None = None,
-                    light_groups: GroupTable | None = None) -> Geometry:
+                    light_groups: GroupTable | None = None, dicing: Dicing | None = None) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
     poll() is called for every instance (it raises to cancel the export). moving : instance keys
     (instance_key) of objects that move during the shutter: their meshes are never instanced.
@@ -134,7 +135,9 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     viewport: an object that moves then only changes its transform, engine/export/updates.py).
     cache : a MeshCache that keeps meshes between frames (Persistent Data), or None.
     links : the scene's light_linking.LinkTable (None: nothing links); light_groups : the view layer's
-    light_groups.GroupTable (None: no light groups)."""
+    light_groups.GroupTable (None: no light groups).
+    dicing : adaptive.Dicing for objects with adaptive subdivision (None: they are read as Blender evaluates
+    them)."""
     if cache is not None:
         cache.begin(depsgraph)
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
@@ -154,6 +157,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     properties: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> {object attribute name: RGBA} per instance
     object_values: dict[tuple, dict] = {}    # (object pointer, name) -> an Object attribute's RGBA
     displaced: set = set()                   # evaluated mesh pointers whose true displacement is done
+    diced: dict[int, object] = {}            # evaluated mesh pointer -> its adaptive.AdaptiveMesh
     visibility: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> instance_visibility() per instance
     linked: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> LinkTable.row() per instance
     linking = links is not None and links.used
@@ -202,7 +206,12 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         else:
             with readable_mesh(ob) as mesh:
                 if mesh_key not in meshes:
-                    meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
+                    adaptive = dicing.tessellate(ob, warnings, poll) if dicing is not None else None
+                    if adaptive is not None:   # diced per camera: never kept between frames
+                        diced[mesh_key], meshes[mesh_key] = adaptive, adaptive.local
+                    else:
+                        meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
+                source = diced.get(mesh_key) or BlenderMesh(mesh)
                 if meshes[mesh_key].triangle_count == 0:
                     empty.add(instance_key(inst))
                     continue
@@ -211,19 +220,18 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                     slot_rows[object_key] = materials.slot_ids(ob)
                     signatures[object_key] = slot_materials(ob)
                     check_visibility(ob, warnings)
-                    check_adaptive_subdivision(ob.original, warnings)
                     if linking:
                         check_volume_linking(ob, links, materials.has_volume(slot_rows[object_key]), warnings)
                 if mesh_key not in displaced:
                     displaced.add(mesh_key)
-                    meshes[mesh_key] = _displaced(inst, ob, mesh, meshes[mesh_key], materials,
+                    meshes[mesh_key] = _displaced(inst, ob, source, meshes[mesh_key], materials,
                                                   slot_rows[object_key], warnings)
                 uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
                 if uv_maps and mesh_key not in tangents:
-                    tangents[mesh_key] = read_tangents(mesh, meshes[mesh_key], uv_maps, ob.name, warnings)
+                    tangents[mesh_key] = source.tangents(meshes[mesh_key], uv_maps, ob.name, warnings)
                 names = materials.attribute_names(slot_rows[object_key])
                 if names and mesh_key not in attributes:
-                    attributes[mesh_key] = read_attributes(mesh, names, ob.name, warnings)
+                    attributes[mesh_key] = source.attributes(names, ob.name, warnings)
         matrix = np.array(inst.matrix_world)
         source = volume_sources.get(mesh_key)
         grids.setdefault((mesh_key, slot_rows[object_key]), []).append(
@@ -313,7 +321,7 @@ def _add_shape(shapes: ShapeExport, inst, ob, materials: MaterialTable, view_lay
         shapes.add_data(ob, rows, names, place)
 
 
-def _displaced(inst, ob, mesh, local: LocalMesh, materials: MaterialTable, rows: tuple, warnings) -> LocalMesh:
+def _displaced(inst, ob, source, local: LocalMesh, materials: MaterialTable, rows: tuple, warnings) -> LocalMesh:
     """The mesh with the true displacement of its materials applied (displacement.py), once per mesh, with
     the object data and transform of the first instance showing it (as Cycles takes the first object)."""
     per_slot = materials.true_displacements(rows)
@@ -324,7 +332,7 @@ def _displaced(inst, ob, mesh, local: LocalMesh, materials: MaterialTable, rows:
     row = object_rows(matrix[None], np.array([location]), np.array([size]), np.array([color]), np.array([pass_index]),
                       np.array([instance_random(inst, own)]), np.array([terminator]))[0]
     textures = [Texture(t, bool(flag)) for t, flag in zip(materials.textures, materials.texture_srgb)]
-    return displace_mesh(mesh, local, per_slot, row, matrix, textures, ob.name, warnings)
+    return displace_mesh(source, local, per_slot, row, matrix, textures, ob.name, warnings)
 
 
 def _object_attributes(inst, ob, names: tuple, cache: dict) -> dict:

@@ -85,14 +85,14 @@ def read_mesh(mesh) -> LocalMesh:
                          np.zeros(0, np.int32))
     n_corners = len(mesh.loops)
     # uint32 / int32 match Blender's storage: foreach_get then copies memory instead of converting.
-    tri_loops = _read(mesh.loop_triangles, "loops", t * 3, np.uint32)
-    corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", n_corners, np.int32)
-    positions = _read(mesh.attributes["position"].data, "vector", 3 * len(mesh.vertices), np.float32)
+    tri_loops = read_values(mesh.loop_triangles, "loops", t * 3, np.uint32)
+    corner_verts = read_values(mesh.attributes[".corner_vert"].data, "value", n_corners, np.int32)
+    positions = read_values(mesh.attributes["position"].data, "vector", 3 * len(mesh.vertices), np.float32)
     corners = np.take(corner_verts, tri_loops)
     vertices = positions.reshape(-1, 3)
     if mesh.normals_domain == "POINT":
         # Blender's corner normals are then its vertex normals, copied: a quarter of the rows to read and move.
-        normal_rows = _read(mesh.vertex_normals, "vector", 3 * len(mesh.vertices), np.float32).reshape(-1, 3)
+        normal_rows = read_values(mesh.vertex_normals, "vector", 3 * len(mesh.vertices), np.float32).reshape(-1, 3)
         normal_index = corners
     elif mesh.normals_domain == "FACE":
         # A mesh of flat faces only: Cycles shades each triangle by its own normal, where Blender's corner
@@ -102,7 +102,7 @@ def read_mesh(mesh) -> LocalMesh:
         normal_rows = triangle_normals(vertices, corners)
         normal_index = np.repeat(np.arange(t, dtype=np.uint32), 3)
     else:
-        normal_rows = _read(mesh.corner_normals, "vector", 3 * n_corners, np.float32).reshape(-1, 3)
+        normal_rows = read_values(mesh.corner_normals, "vector", 3 * n_corners, np.float32).reshape(-1, 3)
         normal_index = tri_loops
     return LocalMesh(vertices=vertices, corners=corners,
                      normal_rows=normal_rows, normal_index=normal_index,
@@ -119,7 +119,7 @@ def triangle_normals(vertices: np.ndarray, corners: np.ndarray) -> np.ndarray:
     return (n / np.where(length > 0, length, 1.0)[:, None]).astype(np.float32)
 
 
-def _read(collection, name: str, size: int, dtype) -> np.ndarray:
+def read_values(collection, name: str, size: int, dtype) -> np.ndarray:
     out = np.empty(size, dtype)
     collection.foreach_get(name, out)
     return out
@@ -132,7 +132,7 @@ def _corner_uvs(mesh, tri_loops: np.ndarray) -> np.ndarray:
         # No UV map: every corner's coordinates are (0, 0). One row seen T*3 times (a read-only view with a
         # zero stride), so a big mesh without UVs neither writes nor reads 24 bytes per triangle of zeros.
         return np.broadcast_to(np.zeros((1, 2), np.float32), (len(tri_loops), 2))
-    uvs = _read(layer.uv, "vector", 2 * len(mesh.loops), np.float32)
+    uvs = read_values(layer.uv, "vector", 2 * len(mesh.loops), np.float32)
     return np.take(uvs.reshape(-1, 2), tri_loops, axis=0)
 
 
@@ -162,10 +162,11 @@ def read_tangents(mesh, local: LocalMesh, uv_maps: tuple, object_name: str, warn
         # The failed call leaves the layer reference stale (it reads zeros): look it up again.
         return triangle_tangents(local.positions, local.normals, local_uvs(mesh, mesh.uv_layers[name]))
     n_corners = len(mesh.loops)
-    tri_loops = _read(mesh.loop_triangles, "loops", 3 * local.triangle_count, np.uint32)
+    tri_loops = read_values(mesh.loop_triangles, "loops", 3 * local.triangle_count, np.uint32)
     out = np.empty((len(tri_loops), 4), np.float32)
-    out[:, :3] = np.take(_read(mesh.loops, "tangent", 3 * n_corners, np.float32).reshape(-1, 3), tri_loops, axis=0)
-    out[:, 3] = np.take(_read(mesh.loops, "bitangent_sign", n_corners, np.float32), tri_loops)
+    tangents = read_values(mesh.loops, "tangent", 3 * n_corners, np.float32).reshape(-1, 3)
+    out[:, :3] = np.take(tangents, tri_loops, axis=0)
+    out[:, 3] = np.take(read_values(mesh.loops, "bitangent_sign", n_corners, np.float32), tri_loops)
     mesh.free_tangents()
     return out
 
@@ -176,8 +177,8 @@ def _uv_label(name: str) -> str:
 
 def local_uvs(mesh, layer) -> np.ndarray:
     """(T*3, 2) float32 coordinates of one UV map at the triangle corners."""
-    tri_loops = _read(mesh.loop_triangles, "loops", 3 * len(mesh.loop_triangles), np.uint32)
-    return np.take(_read(layer.uv, "vector", 2 * len(mesh.loops), np.float32).reshape(-1, 2), tri_loops, axis=0)
+    tri_loops = read_values(mesh.loop_triangles, "loops", 3 * len(mesh.loop_triangles), np.uint32)
+    return np.take(read_values(layer.uv, "vector", 2 * len(mesh.loops), np.float32).reshape(-1, 2), tri_loops, axis=0)
 
 
 def sphere_uvs(points: np.ndarray) -> np.ndarray:
@@ -212,8 +213,8 @@ def _triangle_slots(mesh, t: int) -> np.ndarray:
     material_index = mesh.attributes.get("material_index")
     if material_index is None:
         return np.zeros(t, np.int32)
-    face_slots = _read(material_index.data, "value", len(mesh.polygons), np.int32)
-    return np.take(face_slots, _read(mesh.loop_triangle_polygons, "value", t, np.int32))
+    face_slots = read_values(material_index.data, "value", len(mesh.polygons), np.int32)
+    return np.take(face_slots, read_values(mesh.loop_triangle_polygons, "value", t, np.int32))
 
 
 def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -> dict:
@@ -225,7 +226,7 @@ def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -
     the object table's."""
     out = {}
     t = len(mesh.loop_triangles)
-    tri_loops = _read(mesh.loop_triangles, "loops", t * 3, np.uint32)
+    tri_loops = read_values(mesh.loop_triangles, "loops", t * 3, np.uint32)
     for name in names:
         kind, _, key = name.partition(":")
         if kind in OBJECT_ATTRIBUTE_KINDS:
@@ -270,23 +271,23 @@ def _undisplaced_attribute(mesh, key: str, tri_loops: np.ndarray) -> np.ndarray:
     if key == "undisplaced_normal" and bpy.app.version >= (5, 2, 0):
         local = read_mesh(mesh)
         return np.take(local.normal_rows, local.normal_index, axis=0).astype(np.float32)
-    corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
+    corner_verts = read_values(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
     corners = np.take(corner_verts, tri_loops)
     v = len(mesh.vertices)
     if key == "undisplaced_normal":
-        return np.take(_read(mesh.vertex_normals, "vector", 3 * v, np.float32).reshape(-1, 3), corners, axis=0)
-    positions = _read(mesh.attributes["position"].data, "vector", 3 * v, np.float32).reshape(-1, 3)
+        return np.take(read_values(mesh.vertex_normals, "vector", 3 * v, np.float32).reshape(-1, 3), corners, axis=0)
+    positions = read_values(mesh.attributes["position"].data, "vector", 3 * v, np.float32).reshape(-1, 3)
     return np.concatenate([np.take(positions, corners, axis=0), np.ones((len(corners), 1), np.float32)], axis=1)
 
 
 def _topology_attribute(mesh, key: str, tri_loops: np.ndarray) -> np.ndarray:
     """(T*3, 1) float32 Pointiness (per vertex, at each corner) or Random Per Island (per triangle)."""
-    corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
-    edges = _read(mesh.edges, "vertices", 2 * len(mesh.edges), np.int32)
+    corner_verts = read_values(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
+    edges = read_values(mesh.edges, "vertices", 2 * len(mesh.edges), np.int32)
     v = len(mesh.vertices)
     if key == "pointiness":
-        positions = _read(mesh.attributes["position"].data, "vector", 3 * v, np.float32).reshape(-1, 3)
-        normals = _read(mesh.vertex_normals, "vector", 3 * v, np.float32).reshape(-1, 3)
+        positions = read_values(mesh.attributes["position"].data, "vector", 3 * v, np.float32).reshape(-1, 3)
+        normals = read_values(mesh.vertex_normals, "vector", 3 * v, np.float32).reshape(-1, 3)
         per_vertex = mesh_topology.pointiness(positions, normals, edges)
         return np.take(per_vertex, np.take(corner_verts, tri_loops))[:, None]
     per_triangle = mesh_topology.random_per_island(v, edges, np.take(corner_verts, tri_loops[0::3]))
@@ -318,8 +319,8 @@ def _domain_corners(mesh, domain: str, tri_loops: np.ndarray, t: int) -> np.ndar
     if domain == "CORNER":
         return tri_loops
     if domain == "POINT":
-        corner_verts = _read(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
+        corner_verts = read_values(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
         return np.take(corner_verts, tri_loops)
     if domain == "FACE":
-        return np.repeat(_read(mesh.loop_triangle_polygons, "value", t, np.int32), 3)
+        return np.repeat(read_values(mesh.loop_triangle_polygons, "value", t, np.int32), 3)
     return None
