@@ -79,11 +79,11 @@ def test_big_meshes_are_checked_on_threads_with_the_same_answer(monkeypatch):
     serial = triangles._usable_slice(pos)
     monkeypatch.setattr(triangles, "_PARALLEL_TRIANGLES", 1000)
     monkeypatch.setattr(triangles.os, "cpu_count", lambda: 4)
-    np.testing.assert_array_equal(triangles._usable_triangles(pos), serial)
+    np.testing.assert_array_equal(triangles.usable_triangles(pos), serial)
     monkeypatch.setattr(triangles, "_BLOCK_TRIANGLES", 1234)   # blocks that end inside each slice
-    np.testing.assert_array_equal(triangles._usable_triangles(pos), serial)
+    np.testing.assert_array_equal(triangles.usable_triangles(pos), serial)
     monkeypatch.setattr(triangles, "_PARALLEL_TRIANGLES", 10**9)
-    np.testing.assert_array_equal(triangles._usable_triangles(pos), serial)
+    np.testing.assert_array_equal(triangles.usable_triangles(pos), serial)
     assert (~serial).sum() > 300
 
 

@@ -160,7 +160,8 @@ class HitInputs:
 
     def attribute(self, name: str, interpolate: bool = True) -> np.ndarray | None:
         """(n, C) float32 per-corner attribute (kernels.scene.SceneArrays.attributes) interpolated over the
-        triangles, or (interpolate=False, a face attribute) the first corner's; an object attribute
+        triangles (exactly the corners' value where all three are equal, as a face attribute is), or
+        (interpolate=False, a face attribute) the first corner's; an object attribute
         ("object:", "instancer:": SceneArrays.object_attributes) of the hits' object rows. None when the
         scene does not have it."""
         key = ("attr", name, interpolate)
@@ -176,8 +177,12 @@ class HitInputs:
             else:
                 b1, b2 = self.barycentrics()
                 w0 = F32(1.0) - b1 - b2
-                self._cache[key] = (rows[:, 0] * w0[:, None] + rows[:, 1] * b1[:, None] +
-                                    rows[:, 2] * b2[:, None]).astype(F32, copy=False)
+                mixed = (rows[:, 0] * w0[:, None] + rows[:, 1] * b1[:, None] +
+                         rows[:, 2] * b2[:, None]).astype(F32, copy=False)
+                # A face attribute arrives as three equal corners: Cycles reads it per face, uninterpolated,
+                # and the weighted sum of three equal values can miss the value by an ulp.
+                same = (rows[:, 1] == rows[:, 0]) & (rows[:, 2] == rows[:, 0])
+                self._cache[key] = np.where(same, rows[:, 0], mixed)
         return self._cache[key]
 
     @property
