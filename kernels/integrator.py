@@ -17,6 +17,7 @@ from .accel import Hits, RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
 from .glass_escapes import glass_escapes
+from .bsdf.lobes import TRANSPARENT
 from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit
 from .lights import nee
@@ -26,6 +27,7 @@ from .paths import (PathState, may_scatter, ray_keys, roulette_stops, roulette_v
 from .rays import Rays, below, concat_rays, leaves_its_side, spawn
 from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
+from .vec import F32
 
 
 
@@ -200,13 +202,15 @@ def step(tables, wave, state, rays, first: bool, last: int):
             medium = (medium[0], Rays(*medium[1], np.full(len(medium[0]), np.inf, np.float32)))
             if medium[0].self_key is not None:   # a ray leaving a point in a medium skips no curve
                 medium[0].self_key = np.full(len(medium[0]), -1, np.int64)
+    through = None
     if tables.visibility is not None:
-        found = _held_out(tables, wave, state, hits, found)
+        found, through = _held_out(tables, wave, state, hits, found)
     copies = None if wave.catcher is None else shadow_catcher.split(tables, wave, state, rays, hits, found)
     if not len(found):
         return medium
     state.compact(found)
-    surface = _surface_vertex(tables, wave, state, rays, hits, found, first, last)
+    surface = _surface_vertex(tables, wave, state, rays, hits, found, first, last,
+                              held=None if through is None else np.searchsorted(found, through))
     if copies is not None:   # the shadow catchers' copies of the paths shade the same hits, for their own pass
         wave.catcher.add(_surface_vertex(tables, wave.catcher.paths, copies[0], rays, hits, copies[1], first, last))
     if medium is None or surface is None:
@@ -214,13 +218,14 @@ def step(tables, wave, state, rays, first: bool, last: int):
     return PathState.concat(surface[0], medium[0]), concat_rays(surface[1], medium[1])
 
 
-def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: int, subsurface_exit: bool = False):
+def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: int, subsurface_exit: bool = False,
+                    held=None):
     """The paths `state` (compacted to the rays' hits `found`) at the surfaces they met: shading, data
     passes, emission, holdout, next-event estimation, the next direction, roulette. Returns the paths that go
     on and their next rays, or None. (A participating medium adds a vertex stage of its own beside this one:
     docs/architecture.md, Where new content goes.) subsurface_exit: the points where subsurface walks left
     the surface, shaded as Cycles shades them (kernels.subsurface.exit_closures; no emission, holdout, data
-    passes or roulette)."""
+    passes or roulette). held: the rows met on a holdout object whose material may be transparent (_held_out)."""
     settings, aux = wave.settings, wave.aux
     hit = _surface_hit(tables, hits, rays, found, state.time)
     t_hit = np.take(hits.t, found)
@@ -239,6 +244,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         shading = tables.shading.surface(hit)
         if first and wave.bake is not None:
             wave.bake.first_hit(wave, state, hit, shading)
+        if held is not None:
+            _held_transparent(tables, wave, state, hit, shading, held)
         closures = shading.closures
         tables.crew.check_stop()
         if aux is not None and first:
@@ -378,19 +385,44 @@ def _holdout(wave, state, shading):
 
 
 # ---- stage: holdout objects cut a hole in alpha where the camera sees them, and end the path there
-def _held_out(tables, wave, state, hits, found) -> np.ndarray:
-    """found without the camera paths (bounce 0: only transparent surfaces passed, Cycles'
-    PATH_RAY_TRANSPARENT_BACKGROUND) that met a holdout object: each takes its throughput's mean off the
-    pixel's alpha and ends, as Cycles' integrate_surface_holdout with a holdout weight of one. Later rays
-    see the object as a plain one (Cycles tests the holdout for camera paths only)."""
+def _held_out(tables, wave, state, hits, found):
+    """(found, through): found without the camera paths (bounce 0: only transparent surfaces passed, Cycles'
+    PATH_RAY_TRANSPARENT_BACKGROUND) that met a holdout object of an opaque material: each takes its
+    throughput's mean off the pixel's alpha and ends, as Cycles' integrate_surface_holdout with a holdout weight
+    of one. through (or None): those on a material that may be transparent, kept in found: they are shaded,
+    and _held_transparent keeps only their transparency. Later rays see the object as a plain one (Cycles
+    tests the holdout for camera paths only)."""
     camera = found[np.take(state.bounce, found) == 0]
     if not len(camera):
-        return found
+        return found, None
     held = camera[visibility.holdouts(tables, np.take(hits.prim, camera))]
     if not len(held):
-        return found
+        return found, None
+    clear = np.take(tables.shading.transparent, tables.triangles.materials(np.take(hits.prim, held)))
+    through = held[clear] if clear.any() else None
+    held = held[~clear]
     wave.alpha[state.path[held]] -= np.take(state.throughput, held, axis=1).mean(axis=0)
-    return np.setdiff1d(found, held, assume_unique=True)
+    return np.setdiff1d(found, held, assume_unique=True), through
+
+
+def _held_transparent(tables, wave, state, hit, shading, held) -> None:
+    """Holdout objects with transparency, as Cycles' surface_shader_apply_holdout: at the rows held, the
+    material's transparent closures stay (the path goes on through them, a transparent bounce), every other
+    closure and the emission go, and the held share, one less the transparency, comes off the pixel's alpha.
+    Where no transparent closure was made the share is whole, and with no closure left the path ends."""
+    cs = shading.closures
+    rows = np.zeros(len(hit), bool)
+    rows[held] = True
+    kept = cs.lobe == TRANSPARENT
+    passed = np.zeros((3, len(hit)), F32)
+    np.add.at(passed, (slice(None), cs.hit[kept]), cs.weight[:, kept])
+    share = (F32(1.0) - np.take(passed, held, axis=1)) * np.take(state.throughput, held, axis=1)
+    wave.alpha[state.path[held]] -= share.mean(axis=0)
+    shading.closures = cs.without(np.take(rows, cs.hit) & ~kept, hit.ns)
+    # Holdout closures of the material count no more: the object's holdout took their place.
+    shading.emission = np.where(rows, F32(0.0), shading.emission)
+    if shading.holdout is not None:
+        shading.holdout = np.where(rows, F32(0.0), shading.holdout)
 
 
 # ---- stage: sample the next direction from the closure mixture

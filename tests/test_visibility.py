@@ -75,6 +75,25 @@ def test_object_holdout_cuts_a_hole_in_a_transparent_film():
     assert alpha.min() < 0.05   # the hole: where the camera sees the ball
 
 
+def test_a_holdout_object_keeps_its_material_s_transparency_as_in_cycles():
+    """Cycles' surface_shader_apply_holdout: a holdout object whose material is partly transparent (Principled
+    Alpha 0.4, an emission besides) cuts 0.4 of a hole; the rest of the light comes through it, from what lies
+    behind, and neither its diffuse nor its emission shows."""
+    import bpy
+    scene, ball = _scene()
+    scene.render.film_transparent = True
+    ball.is_holdout = True
+    material = ball.data.materials[0] = bpy.data.materials.new("Veil")
+    bsdf = material.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Alpha"].default_value = 0.4
+    bsdf.inputs["Emission Color"].default_value = (1.0, 0.2, 0.1, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = 2.0
+    alpha = _alpha_matches(scene)
+    # Where the camera sees the ball in front of the mirror: two of its surfaces, each holding out 0.4 of what
+    # passes, leave (1 - 0.4)^2 = 0.36: neither a whole hole nor none.
+    assert (np.abs(alpha - 0.36) < 0.02).sum() >= 20
+
+
 def test_collection_holdout_on_an_opaque_film():
     import bpy
     scene, ball = _scene()
