@@ -174,7 +174,7 @@ class Renderer:
         """What the Ambient Occlusion and Bevel nodes trace with (raytrace.ShaderRays): the BVH, the triangle
         table, the ray offset's scale; again when any of these or the shading changes."""
         self.shading.data.rays = ShaderRays(self.accel, self.triangles, self.ray_epsilon,
-                                            self.scene.world.ao_distance)
+                                            self.scene.world.ao_distance, self.visibility)
 
     def _build_media(self) -> None:
         """The participating media (kernels.media) and the stack camera paths start with; None without."""

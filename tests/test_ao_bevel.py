@@ -101,6 +101,24 @@ def test_ao_only_local_sees_its_own_object_alone():
         assert_share(local, 1.0 - disk_beyond(0.3), samples)
 
 
+def test_ao_passes_objects_shadow_rays_do_not_see():
+    """Cycles traces AO rays with PATH_RAY_VISIBILITY_SHADOW_OPAQUE (svm/ao.h): a wall whose Ray Visibility >
+    Shadow is off does not occlude; a second wall behind it, seen by shadows, does, at its own distance."""
+    from ember.kernels.scene.objects import ALL_RAYS, RAY_SHADOW
+    k, samples = 20000, 8
+    far_wall = quad((-0.7, -BIG, 0), (0, 2 * BIG, 0), (0, 0, 50))
+    positions = np.concatenate([FLOOR, WALL, far_wall]).astype(F32)
+    object_ids = np.repeat(np.arange(3, dtype=np.int32), 2)
+    objects = np.stack([object_row(np.eye(4)) for _ in range(3)])
+    visibility = np.array([ALL_RAYS, ALL_RAYS & ~RAY_SHADOW, ALL_RAYS], np.uint8)
+    scene = make_scene(positions, flat_normals(positions), objects=objects, object_ids=object_ids,
+                       object_visibility=visibility)
+    with Renderer(scene, 1) as r:
+        hits = traced(r, floor_points(k, 0.3), (0, 0, 1), obj=0)
+        assert_share(ambient_occlusion(hits, hits.n, np.full(k, 2.0, F32), samples), 1.0 - disk_beyond(1.0 / 2.0),
+                     samples)
+
+
 def box(lo, hi):
     """The 12 triangles of an axis-aligned box, fronts outward."""
     (x0, y0, z0), (x1, y1, z1) = lo, hi

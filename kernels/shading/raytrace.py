@@ -24,6 +24,8 @@ from ..local_hits import LocalRays, own_hits, pick_hits
 from ..rng import pcg2d, stratified_2d
 from ..sampling import sample_uniform_disk_concentric
 from ..vec import F32, ONE, TWO_PI, ZERO, columns, dot_rows, normalize_rows
+from ..scene.objects import RAY_SHADOW
+from ..visibility import skip_hits
 from .program import TracedHits, make_orthonormals
 
 # rng.stratified_2d dimensions of the AO directions and the Bevel disks (apart from samples.py's), and the
@@ -38,9 +40,26 @@ class ShaderRays(LocalRays):
     world's AO distance (World.ao_distance: an AO node's unlinked Distance of 0 reads it, Cycles'
     NODE_AO_GLOBAL_RADIUS)."""
 
-    def __init__(self, accel, triangles, epsilon, ao_distance: float = 10.0):
+    def __init__(self, accel, triangles, epsilon, ao_distance: float = 10.0, visibility=None):
         super().__init__(accel, triangles, epsilon)
         self.ao_distance = float(ao_distance)
+        # Objects shadow rays do not see (Ray Visibility > Shadow off), which AO rays pass too, as Cycles traces
+        # them with PATH_RAY_VISIBILITY_SHADOW_OPAQUE (svm/ao.h): (K,) bool per object row, or None for none.
+        unseen = None if visibility is None else (np.asarray(visibility) & RAY_SHADOW) == 0
+        self.shadow_unseen = unseen if unseen is not None and unseen.any() else None
+
+    @property
+    def ray_epsilon(self):
+        return self.epsilon
+
+    def ao_blocked(self, origins, d, t_max, split, time) -> np.ndarray:
+        """(n,) bool: something shadow rays see lies on the rays before t_max."""
+        if self.shadow_unseen is None:
+            return self.accel.occluded(origins, d, t_max, split, time)
+        hits = self.accel.intersect(origins, d, t_max, split, time)
+        hits = skip_hits(self, origins, d, t_max, hits,
+                         lambda prim, rows: np.take(self.shadow_unseen, self.object_rows(prim)), split, time)
+        return hits.prim >= 0
 
 
 def branch_numbers(keys, branch: int, dimension: int):
@@ -78,7 +97,7 @@ def ambient_occlusion(hits: TracedHits, normal: np.ndarray, distance: np.ndarray
             for rows, _, _, _, _ in own_hits(h.rays, h.objects, origins, d, t_max, h.split, h.time, first_only=True):
                 blocked[rows] = True
         else:
-            blocked = h.rays.accel.occluded(origins, d, t_max, h.split, h.time)
+            blocked = h.rays.ao_blocked(origins, d, t_max, h.split, h.time)
         unoccluded += ~blocked
     out[live] = unoccluded.astype(F32) / F32(samples)
     return out
