@@ -218,3 +218,24 @@ def test_other_bakes_are_not_denoised(bake_scene, kind):
     scene, floor, image = bake_scene
     off, on = (_bake(scene, floor, image, "EMBER", kind, LOW_SPP, 1, d) for d in (False, True))
     np.testing.assert_array_equal(on, off)
+
+
+def test_command_line_bake_denoises_as_asked(bake_scene, tmp_path):
+    """python -m ember bake --denoise / --no-denoise: the bake of the operator with Denoise on / off (to float
+    rounding: the line's process sums its texels' samples in another order, 4e-5 apart)."""
+    from ember.engine.cli import main
+    scene, floor, image = bake_scene
+    expected = {d: _bake(scene, floor, image, "EMBER", "COMBINED", LOW_SPP, 1, d) for d in (False, True)}
+    name = floor.name   # (the line's main opens the file here: the fixture's objects are gone after; last test)
+    blend = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    for denoise, flag in ((False, "--no-denoise"), (True, "--denoise")):
+        out = tmp_path / f"{flag}.exr"
+        assert main(["bake", str(blend), "--type", "combined", "--object", name, "-o", str(out), flag,
+                     "--margin", "0", "--resolution", f"{BAKE_SIZE}x{BAKE_SIZE}", "--samples", str(LOW_SPP),
+                     "--seed", "1", "--max-bounces", "3", "--threads", "2"]) == 0
+        loaded = bpy.data.images.load(str(out), check_existing=False)
+        pixels = np.empty(BAKE_SIZE * BAKE_SIZE * 4, np.float32)
+        loaded.pixels.foreach_get(pixels)
+        bpy.data.images.remove(loaded)
+        np.testing.assert_allclose(pixels.reshape(BAKE_SIZE, BAKE_SIZE, 4), expected[denoise], rtol=1e-4, atol=1e-5)
