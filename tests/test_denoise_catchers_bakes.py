@@ -148,6 +148,30 @@ def test_each_catcher_denoise_reads_what_cycles_reads(monkeypatch):
     assert matte.shape == shadow.shape
 
 
+@pytest.mark.parametrize("transparent", [False, True])
+def test_catcher_film_through_an_identity_denoiser_is_its_own_combined(monkeypatch, transparent):
+    """With a denoiser that hands its input back, the film's denoised image (a final render's tiles, the
+    viewport's and progressive previews) is the film's own Combined, on an opaque film (the matte over the world
+    darkened by the shadow) and a transparent one (the shadow in alpha), adaptive sampling's per-pixel counts
+    included: the denoised pieces are put together as the film puts the noisy ones."""
+    from bpy_helpers import export_current
+    from ember.engine import film_denoise
+    from ember.kernels import Renderer, RenderSettings
+
+    def identity(read, height, width, write, **options):
+        whole = (slice(0, height), slice(0, width))
+        write(*whole, read("color", *whole))
+        return True
+    monkeypatch.setattr(film_denoise, "denoise_image", identity)
+    _catcher_scene(transparent, catcher_pass=False)
+    settings = RenderSettings(samples=16, seed=3, transparent_background=transparent, adaptive_threshold=0.05,
+                              adaptive_min_samples=4, passes=("denoising_albedo", "denoising_normal"))
+    with Renderer(export_current().scene, threads=2) as renderer:
+        film = renderer.render(settings).film
+    assert film.catchers and film.pixel_samples.shape[1] > 1 and len(np.unique(film.pixel_samples)) > 1
+    np.testing.assert_allclose(film_denoise.denoised_film(film, "HIGH", "ACCURATE", 1), film.resolve(), atol=1e-6)
+
+
 # ---------------------------------------------------------------- bakes
 BAKE_SIZE = 64
 
