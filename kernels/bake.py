@@ -25,6 +25,10 @@ bake_setup_pass):
   what reaches it where only the object itself is there (kernel/film/read.h,
   film_calculate_shadow_catcher), channel by channel, 1 where nothing reaches it.
 
+For a denoiser (engine/bake.py denoises Combined and Shadow bakes, as Cycles does), the whole-path bakes also
+record each texel's Denoising Albedo and Normal, where its paths meet their first hit that is not mostly specular
+(kernels/passes.py write_denoising_features, as Cycles' bake paths write their denoising features).
+
 Cycles sums its Position bake over the samples instead of averaging it (the pass is not divided when it is
 read); Ember averages it, which is the same at one sample.
 """
