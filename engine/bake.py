@@ -19,12 +19,18 @@ import traceback
 import numpy as np
 
 from ..kernels import Renderer
-from ..kernels.bake import KINDS, BakeJob, BakeTexels, bake as bake_texels, object_triangles
+from ..kernels.bake import GUIDES, KINDS, BakeJob, BakeTexels, bake as bake_texels, object_triangles
 from .export import ExportCancelled, ExportError, export_scene
 from .session import cancel_requested, render_settings, render_threads
 
 # Each image of a bake needs its own result layer: Blender finds the image a result belongs to by its name.
 _LAYERS = itertools.count()
+# The bakes Cycles denoises when Render Properties > Sampling > Denoise is on: those whose pass supports denoising
+# (scene/pass.cpp support_denoise: Combined and the Shadow Catcher pass; blender/session.cpp bake_setup_pass turns
+# the denoiser off for the others).
+DENOISED_BAKES = ("COMBINED", "SHADOW")
+# The denoiser's input passes (Sampling > Denoise > Passes) -> the bake's guides (kernels/bake.py GUIDES).
+_GUIDES = {"RGB": (), "RGB_ALBEDO": GUIDES[:1], "RGB_ALBEDO_NORMAL": GUIDES}
 
 
 class BakeError(Exception):
@@ -73,13 +79,58 @@ def _bake(engine, depsgraph, obj, pass_type: str, pass_filter: int, result, widt
     texels = BakeTexels(prim, u, v, differentials, width, height, seed)
     settings = render_settings(scene, None)
     engine.update_stats("", f"Ember: baking {pass_type.title()}, {settings.samples} samples")
+    ember = scene.ember
+    denoise = bool(ember.use_denoising) and pass_type in DENOISED_BAKES
+    guides = dict.fromkeys(_GUIDES.get(ember.denoising_input_passes, GUIDES)) if denoise else None
     baked = bake_texels(kept.renderer, texels, BakeJob(pass_type, int(pass_filter), use_camera), settings,
-                        should_stop, engine.update_progress)
+                        should_stop, engine.update_progress, guides=guides)
     if should_stop():
         return False
+    if denoise:
+        denoise_bake(engine, baked, texels, pass_type, guides, ember, render_threads(scene.render), should_stop)
+        if should_stop():
+            return False
     combined = result.layers[0].passes["Combined"]
     c = combined.channels
     combined.rect.foreach_set(np.ascontiguousarray(baked[:, :c], np.float32).ravel())
+    return True
+
+
+def denoise_bake(engine, baked: np.ndarray, texels: BakeTexels, pass_type: str, guides: dict, ember, threads: int,
+                 should_stop) -> bool:
+    """Denoise a bake's colour in place, as Cycles denoises a bake (its film is the image of texels, denoised as a
+    render's: src/integrator/denoiser_oidn.cpp) with the scene's quality, prefilter and passes: the texels of the
+    object guided by their Denoising Albedo and Normal; a Shadow bake (Cycles' Shadow Catcher pass) with the
+    stand-in albedo Cycles gives that pass, and 1 where no texel is baked (the pass reads 1 where nothing split),
+    a Combined bake 0 there. Alpha is the bake's. A failure keeps the bake as it is, with a warning. True when
+    denoised."""
+    from .denoise import denoise
+    from .film_denoise import STAND_IN_ALBEDO
+    shape = (texels.height, texels.width, 3)
+    blank = texels.prim < 0
+    colour = baked[:, :3].copy()
+    if pass_type == "SHADOW":
+        colour[blank] = 1.0
+    albedo, normal = guides.get("denoising_albedo"), guides.get("denoising_normal")
+    noise_free = ()
+    if albedo is not None and pass_type == "SHADOW":
+        albedo, noise_free = np.full_like(albedo, STAND_IN_ALBEDO), ("albedo",)
+    engine.update_stats("", f"Ember: denoising the bake ({ember.denoising_quality.title()})")
+    try:
+        clean = denoise(colour.reshape(shape), None if albedo is None else albedo.reshape(shape),
+                        None if normal is None else normal.reshape(shape), quality=ember.denoising_quality,
+                        prefilter=ember.denoising_prefilter, threads=threads, noise_free=noise_free,
+                        progress=lambda fraction: not should_stop())
+    except Exception as err:  # the library missing, OIDN's own error: the bake stays as baked
+        engine.report({"WARNING"}, f"Ember: denoising failed, the bake is not denoised: {type(err).__name__}: {err}")
+        return False
+    if clean is None:
+        return False
+    clean = clean.reshape(-1, 3)
+    if not np.isfinite(clean).all() or (not np.any(clean > 0) and np.any(colour > 0)):
+        engine.report({"WARNING"}, "Ember: denoising gave non-finite or black texels, the bake is not denoised")
+        return False
+    baked[~blank, :3] = clean[~blank]
     return True
 
 

@@ -57,8 +57,10 @@ def add_parser(sub) -> None:
     bake.add_argument("--normal-space", choices=("tangent", "object"), default="tangent",
                       help="normal bakes: the space of the normals (default tangent)")
     bake.add_argument("--uv-map", help="the UV map to bake into (default: the active one)")
+    bake.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=None,
+                      help="denoise combined and shadow bakes, as Cycles does (default: the file's Denoise setting)")
     # What the render options of engine/batch.py read, unused by a bake.
-    bake.set_defaults(mode=None, pattern=None, time_limit=None, denoise=None, sample_offset=None)
+    bake.set_defaults(mode=None, pattern=None, time_limit=None, sample_offset=None)
 
 
 def check_bake_options(args) -> tuple[str, int, int]:

@@ -458,7 +458,7 @@ def _check_options(quality: str, prefilter: str, threads) -> None:
 def denoise_image(read: Callable, height: int, width: int, write: Callable, *, aux: tuple = (),
                   quality: str = "HIGH", prefilter: str = "ACCURATE", threads: int = 0,
                   library_dir: str | None = None, tile_pixels: int = TILE_PIXELS, tile_size: int | None = None,
-                  progress: Callable[[float], bool] | None = None) -> bool:
+                  progress: Callable[[float], bool] | None = None, noise_free: tuple = ()) -> bool:
     """Denoise an H x W image read and written a tile at a time, so that memory is bounded by the tile,
     whatever the image's size (plan_tiles: the whole image when it has at most tile_pixels pixels;
     tile_size forces smaller tiles).
@@ -468,13 +468,15 @@ def denoise_image(read: Callable, height: int, width: int, write: Callable, *, a
     (h, w, 3) float32 colour, once, tiles in rows top-down. progress(fraction) -> bool is called on this
     thread a few times a second while OIDN runs (every OIDN call runs on a helper thread): False stops the
     denoise (OIDN's run is cancelled) and denoise_image returns False, having written the tiles before.
-    True when every tile was written. Options and errors as denoise()."""
+    True when every tile was written. noise_free: auxiliary images that are never prefiltered (Cycles' stand-in
+    albedo of 0.5 for passes denoised without albedo, set after the real one was filtered). Options and errors as
+    denoise()."""
     _check_options(quality, prefilter, threads)
     if "normal" in aux and "albedo" not in aux:
         raise ValueError("normal: OpenImageDenoise uses a normal image only together with an albedo image")
     aux = tuple(name for name in ("albedo", "normal") if name in aux)
     level = QUALITIES[quality]
-    prefiltered = aux if prefilter == "ACCURATE" else ()
+    prefiltered = tuple(name for name in aux if name not in noise_free) if prefilter == "ACCURATE" else ()
     device = _device(int(threads), library_dir)
     watch = _Watch(progress)
     with device.lock:
@@ -547,11 +549,12 @@ def _denoise_tile(filters: dict, tile: Tile, read, write, aux: tuple, prefiltere
 
 def denoise(color, albedo=None, normal=None, *, quality: str = "HIGH", prefilter: str = "ACCURATE",
             threads: int = 0, library_dir: str | None = None, tile_pixels: int = TILE_PIXELS,
-            tile_size: int | None = None, progress: Callable[[float], bool] | None = None) -> np.ndarray | None:
+            tile_size: int | None = None, progress: Callable[[float], bool] | None = None,
+            noise_free: tuple = ()) -> np.ndarray | None:
     """Denoise color (H, W, 3) linear HDR with OIDN's RT filter, guided by albedo (H, W, 3) in [0, 1] and
     normal (H, W, 3) in [-1, 1] when given. quality: HIGH, BALANCED or FAST; prefilter: NONE, FAST or
     ACCURATE (see the module docstring); threads: OIDN's numThreads (0: all cores); library_dir: the
-    directory holding OIDN (None: the running Blender's); tile_pixels, tile_size and progress as
+    directory holding OIDN (None: the running Blender's); tile_pixels, tile_size, progress and noise_free as
     denoise_image().
     Returns a new (H, W, 3) float32 image, or None when progress stopped it.
     Raises ValueError for bad arguments (named in the message) and DenoiseError when OIDN is missing or
@@ -572,5 +575,5 @@ def denoise(color, albedo=None, normal=None, *, quality: str = "HIGH", prefilter
     finished = denoise_image(lambda name, rows, cols: images[name][rows, cols], *shape, write,
                              aux=tuple(images)[1:], quality=quality, prefilter=prefilter, threads=threads,
                              library_dir=library_dir, tile_pixels=tile_pixels, tile_size=tile_size,
-                             progress=progress)
+                             progress=progress, noise_free=noise_free)
     return output if finished else None

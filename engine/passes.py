@@ -3,7 +3,8 @@ channels Cycles 5.0 gives them (read from Cycles' own multilayer output: "Object
 pass behind each (kernels.passes).
 
 Denoising data (Ember's View Layer > Passes > Denoising Data, as Cycles' "Denoising Data") adds Denoising
-Normal, Denoising Albedo and the Noisy Image when the render is denoised.
+Normal, Denoising Albedo and, when the render is denoised, the Noisy Image (and the Noisy Shadow Catcher with
+the Shadow Catcher pass).
 
 View Layer > Light Groups adds a "Combined_<name>" pass per group (RGB), as Cycles registers them
 (intern/cycles/blender/addon/engine.py list_render_passes); they are never denoised (Cycles' PassMode::NOISY).
@@ -64,6 +65,8 @@ DENOISING_ALBEDO = Pass("", "Denoising Albedo", 3, "RGB", "COLOR", "denoising_al
 DENOISING_NORMAL = Pass("", "Denoising Normal", 3, "XYZ", "VECTOR", "denoising_normal")
 DENOISING_DEPTH = Pass("", "Denoising Depth", 1, "Z", "VALUE", "denoising_depth")
 NOISY_IMAGE = Pass("", "Noisy Image", 4, "RGBA", "COLOR", "")
+# The Shadow Catcher pass before denoising (Cycles' "Noisy Shadow Catcher", RGB).
+NOISY_SHADOW_CATCHER = Pass("", "Noisy Shadow Catcher", 3, "RGB", "COLOR", "shadow_catcher")
 
 
 def _toggle(view_layer, path: str) -> bool:
@@ -136,6 +139,8 @@ def enabled_passes(scene, view_layer) -> list[Pass]:
         out += [DENOISING_NORMAL, DENOISING_ALBEDO, DENOISING_DEPTH]
         if scene.ember.use_denoising:
             out.append(NOISY_IMAGE)
+            if any(p.kernel == "shadow_catcher" for p in out):
+                out.append(NOISY_SHADOW_CATCHER)
     return out
 
 

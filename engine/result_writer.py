@@ -23,14 +23,20 @@ class ResultWriter:
         self.passes = []            # engine.passes.Pass, besides Combined
 
     def write_rows(self, film, row0: int, row1: int, cols: slice | None = None,
-                   denoised: np.ndarray | None = None) -> None:
+                   denoised: np.ndarray | None = None, denoised_passes: dict | None = None) -> None:
         """Region rows [row0, row1) (row 0 at the top) and columns cols (None: all) -> a sub-result of
         Blender's (rows bottom-up, coordinates relative to the border region when there is one), with every
         pass: Blender merges each pass of a sub-result, written or not. denoised: the (rows, cols, 3) colour
-        to write as Combined (the film's own then goes to Noisy Image)."""
+        to write as Combined with the film's alpha, or (rows, cols, 4) all of it (the film's own then goes to
+        Noisy Image); denoised_passes: other passes' denoised values by pass name (the film's own then go to
+        their Noisy passes)."""
         cols = slice(0, film.width) if cols is None else cols
         rows = film.resolve(row0, row1)[:, cols]
-        combined = rows if denoised is None else np.concatenate([denoised, rows[..., 3:]], axis=-1)
+        if denoised is None or denoised.shape[-1] == 4:
+            combined = rows if denoised is None else denoised
+        else:
+            combined = np.concatenate([denoised, rows[..., 3:]], axis=-1)
+        denoised_passes = denoised_passes or {}
         result = self.engine.begin_result(cols.start, film.height - row1, cols.stop - cols.start, row1 - row0,
                                           layer=self.layer)
         try:
@@ -43,6 +49,8 @@ class ResultWriter:
                     if kind not in crypto:
                         crypto[kind] = film.resolve_crypto(kind, row0, row1)[:, cols]
                     _set_rect(layer, p.name, crypto[kind][..., 4 * int(index):4 * int(index) + 4])
+                elif p.name in denoised_passes:
+                    _set_rect(layer, p.name, denoised_passes[p.name])
                 elif p.kernel:
                     values = film.resolve_pass(p.kernel, row0, row1)[:, cols]
                     if p.channels == 4 and values.shape[-1] == 3:  # an RGBA AOV: opaque

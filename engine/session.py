@@ -369,12 +369,14 @@ class FinalRender:
         start = time.perf_counter()
         written = 0   # region rows [0, written) hold denoised tiles: tiles come in rows top-down
 
-        def write(rows, cols, rgb):
+        def write(rows, cols, pixels, passes):
             nonlocal written
-            step = max(1, WRITE_CHUNK_PIXELS // max(rgb.shape[1], 1))
+            step = max(1, WRITE_CHUNK_PIXELS // max(pixels.shape[1], 1))
             for r0 in range(rows.start, rows.stop, step):
                 r1 = min(rows.stop, r0 + step)
-                self._result.write_rows(film, r0, r1, cols, rgb[r0 - rows.start:r1 - rows.start])
+                band = slice(r0 - rows.start, r1 - rows.start)
+                self._result.write_rows(film, r0, r1, cols, pixels[band],
+                                        {name: values[band] for name, values in passes.items()})
             written = max(written, rows.stop)
 
         self._last_print = -math.inf   # the denoise's first line is printed at once

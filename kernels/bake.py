@@ -25,6 +25,10 @@ bake_setup_pass):
   what reaches it where only the object itself is there (kernel/film/read.h,
   film_calculate_shadow_catcher), channel by channel, 1 where nothing reaches it.
 
+For a denoiser (engine/bake.py denoises Combined and Shadow bakes, as Cycles does), the whole-path bakes also
+record each texel's Denoising Albedo and Normal, where its paths meet their first hit that is not mostly specular
+(kernels/passes.py write_denoising_features, as Cycles' bake paths write their denoising features).
+
 Cycles sums its Position bake over the samples instead of averaging it (the pass is not divided when it is
 read); Ember averages it, which is the same at one sample.
 """
@@ -51,12 +55,15 @@ from .samples import BSDF, Samples
 from .scene.objects import ALL_RAYS
 from .vec import F32
 
-__all__ = ["KINDS", "BakeJob", "BakeTexels", "bake", "object_triangles"]
+__all__ = ["GUIDES", "KINDS", "BakeJob", "BakeTexels", "bake", "object_triangles"]
 
 # The bake types of Blender's bake operator (Cycles offers them all) and the passes they read.
 KINDS = ("COMBINED", "AO", "SHADOW", "POSITION", "NORMAL", "UV", "ROUGHNESS", "EMIT", "ENVIRONMENT", "DIFFUSE",
          "GLOSSY", "TRANSMISSION")
 LIGHT_KINDS = ("DIFFUSE", "GLOSSY", "TRANSMISSION")
+# The bakes that trace whole paths, and the denoising passes they can record for a denoiser (bake's guides).
+TRACED_KINDS = ("COMBINED", "SHADOW") + LIGHT_KINDS
+GUIDES = ("denoising_albedo", "denoising_normal")
 # Blender's pass filter bits (DNA_scene_types.h, eBakePassFilter), as RenderEngine.bake receives them.
 FILTER_EMIT, FILTER_DIFFUSE, FILTER_GLOSSY, FILTER_TRANSMISSION = 1 << 1, 1 << 2, 1 << 3, 1 << 4
 FILTER_DIRECT, FILTER_INDIRECT, FILTER_COLOR = 1 << 6, 1 << 7, 1 << 8
@@ -143,12 +150,13 @@ class BakeRun:
         return (bounce != 1) | self.direct
 
 
-def _path_settings(settings, job: BakeJob, kind: str):
-    """The render settings of a bake's paths: one bounce without Indirect, no adaptive sampling."""
+def _path_settings(settings, job: BakeJob, kind: str, guides: tuple = ()):
+    """The render settings of a bake's paths: one bounce without Indirect, no adaptive sampling; guides: the
+    denoising passes they record besides their light (GUIDES)."""
     indirect = kind in ("SHADOW",) or job.has(FILTER_INDIRECT)
     return dataclasses.replace(settings, adaptive_threshold=0.0,
                                max_bounces=settings.max_bounces if indirect else 0,
-                               passes=_light_passes(kind), cryptomatte=())
+                               passes=_light_passes(kind) + tuple(guides), cryptomatte=())
 
 
 def _light_passes(kind: str) -> tuple:
@@ -160,7 +168,8 @@ def _light_passes(kind: str) -> tuple:
 
 # ---------------------------------------------------------------- a chunk of texels
 def _trace_chunk(tables, image, job, settings, texels, spp, split, all_light=False):
-    """Whole paths of texels, spp each: ((C, m) per-texel sums of the pass, (m,) alpha sums)."""
+    """Whole paths of texels, spp each: ((C, m) per-texel sums of the pass, (m,) alpha sums, {guide: (3, m)
+    per-texel sums} of the GUIDES the settings' passes name)."""
     kind = job.kind
     paths = BakePaths(image, texels, 0, spp, settings)
     aux = {name: np.zeros((3, len(paths)), F32) for name in settings.passes} or None
@@ -174,6 +183,7 @@ def _trace_chunk(tables, image, job, settings, texels, spp, split, all_light=Fal
     def per_texel(values):
         return values.astype(np.float64).reshape(len(values), m, spp).sum(axis=2)
 
+    guides = {name: per_texel(np.where(bad, 0.0, aux[name])) for name in GUIDES if name in settings.passes}
     if kind in LIGHT_KINDS:
         cls = kind.lower()
         for name in aux:
@@ -188,8 +198,8 @@ def _trace_chunk(tables, image, job, settings, texels, spp, split, all_light=Fal
         else:   # light over colour, as Cycles reads a light pass without its albedo
             with np.errstate(divide="ignore", invalid="ignore"):
                 value = np.where(colour != 0, light / np.where(colour != 0, colour, 1.0), 0.0) * spp
-        return value, per_texel(alpha[None])[0]
-    return per_texel(radiance), per_texel(alpha[None])[0]
+        return value, per_texel(alpha[None])[0], guides
+    return per_texel(radiance), per_texel(alpha[None])[0], guides
 
 
 def _first_hit_chunk(tables, image, job, settings, texels, spp, split):
@@ -234,7 +244,7 @@ def _first_hit_chunk(tables, image, job, settings, texels, spp, split):
             value = np.broadcast_to(average_roughness(cs, n), (3, n))
         else:
             value = _ambient_occlusion(tables, wave, state, hit, cs, settings)
-    return np.asarray(value, np.float64).reshape(3, len(texels), spp).sum(axis=2), None
+    return np.asarray(value, np.float64).reshape(3, len(texels), spp).sum(axis=2), None, {}
 
 
 def _bumped_materials(tables) -> np.ndarray:
@@ -319,10 +329,15 @@ def _ambient_occlusion(tables, wave, state, hit, cs, settings) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- the bake
-def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None, on_progress=None) -> np.ndarray:
+def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None, on_progress=None,
+         guides: dict | None = None) -> np.ndarray:
     """(P, 4) float32 the bake of every texel (RGB and alpha; zero where prim is -1), the mean of
     settings.samples samples. tables: a kernels.Renderer of the scene. should_stop() is polled between chunks of
-    texels (CHUNK_PATHS paths), on this thread; on_progress(fraction done) is called there after each."""
+    texels (CHUNK_PATHS paths), on this thread; on_progress(fraction done) is called there after each.
+    guides: a dict whose keys name GUIDES, for the bakes that trace whole paths (COMBINED, SHADOW and the light
+    bakes): each is set to the (P, 3) float32 mean of that pass over the texel's paths (zero where prim is -1),
+    as Cycles' bake paths record their denoising features (the film's Denoising Albedo and Normal, written at
+    the first hit that is not mostly specular: the baked surface's own unless it is a mirror)."""
     if job.kind not in KINDS:
         raise ValueError(f"cannot bake {job.kind!r}: Ember bakes {', '.join(KINDS)}")
     spp = max(1, int(settings.samples))
@@ -331,7 +346,13 @@ def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None, on
     out[:, 3] = 1.0
     if not len(texels):
         return out
-    paths_settings = _path_settings(settings, job, job.kind)
+    wanted = tuple(name for name in GUIDES if guides is not None and name in guides)
+    if guides is not None:
+        for name in guides:
+            if name not in GUIDES:
+                raise ValueError(f"guides: {name!r} is none of {GUIDES}")
+            guides[name] = np.zeros((len(image.prim), 3), F32)
+    paths_settings = _path_settings(settings, job, job.kind, wanted if job.kind in TRACED_KINDS else ())
     step = max(1, CHUNK_PATHS // spp)
     chunks = [texels[i:i + step] for i in range(0, len(texels), step)]
     pool = getattr(tables.crew, "pool", None) if len(chunks) > 1 else None
@@ -366,8 +387,10 @@ def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None, on
     for chunk, result in zip(chunks, results):
         if result is None:
             continue
-        value, alpha = result
+        value, alpha, sums = result
         out[chunk, :3] = (value / spp).T
+        for name, total in sums.items():
+            guides[name][chunk] = (total / spp).T
         if kind == "COMBINED":
             out[chunk, 3] = alpha / spp
     return out
@@ -418,9 +441,9 @@ def _shadow(tables, image, spp: int, each) -> list:
         if full is None or by_itself is None:
             out.append(None)
             continue
-        (value, alpha), (own_value, _) = full, by_itself
+        (value, alpha, guides), (own_value, _, _) = full, by_itself
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(own_value != 0, value / np.where(own_value != 0, own_value, 1.0), 1.0)
         a = np.clip(alpha / spp, 0.0, 1.0)
-        out.append((((1.0 - a) + a * ratio) * spp, None))
+        out.append((((1.0 - a) + a * ratio) * spp, None, guides))
     return out

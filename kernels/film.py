@@ -81,7 +81,7 @@ class Film:
         if name == shadow_catcher.PASS:
             if not self.catchers:   # no shadow catcher: nothing to divide, 1 everywhere (as Cycles)
                 return np.ones((row1 - row0, self.width, 3), np.float32)
-            return shadow_catcher.shadow_pass(self.mean(row0, row1), *self._catcher_planes(row0, row1)[:3])
+            return shadow_catcher.shadow_pass(self.mean(row0, row1), *self.catcher_planes(row0, row1)[:3])
         values = self.aux[name][row0:row1]
         if _passes.is_first(name):
             if name == "depth":
@@ -118,7 +118,7 @@ class Film:
         if not self.catchers:
             return mean
         row1 = self.height if row1 is None else row1
-        out = shadow_catcher.combined(mean, *self._catcher_planes(row0, row1), self.approximate_catchers)
+        out = shadow_catcher.combined(mean, *self.catcher_planes(row0, row1), self.approximate_catchers)
         out[np.broadcast_to(self.pixel_samples[row0:row1] == 0, out.shape[:2])] = 0.0
         return out
 
@@ -129,7 +129,7 @@ class Film:
         scale = np.divide(1.0, count, out=np.zeros_like(count), where=count > 0)
         return (self.sums[row0:row1] * scale[:, :, None]).astype(np.float32)
 
-    def _catcher_planes(self, row0: int, row1: int):
+    def catcher_planes(self, row0: int, row1: int):
         """The means of the shadow catchers' planes: matte, catcher, splits, and background (None without)."""
         planes = [self.resolve_pass(name, row0, row1) for name in
                   (shadow_catcher.MATTE, shadow_catcher.CATCHER, shadow_catcher.SPLITS)]

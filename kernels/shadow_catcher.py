@@ -217,14 +217,17 @@ def shadow_pass(combined, matte, catcher, splits) -> np.ndarray:
     return np.where(splits > 0, (1.0 - alpha) + alpha * ratio, 1.0).astype(np.float32)
 
 
-def combined(combined_rgba, matte, catcher, splits, background, approximate_: bool) -> np.ndarray:
+def combined(combined_rgba, matte, catcher, splits, background, approximate_: bool, shadow=None) -> np.ndarray:
     """(..., 4) Combined where the scene has shadow catchers: the matte, or with approximate_ the matte over the
     shadow (Cycles' film_calculate_shadow_catcher_matte_with_shadow), over `background` (the Environment pass's
-    mean) when it is given (an opaque film), else with the shadow in alpha."""
+    mean) when it is given (an opaque film), else with the shadow in alpha. shadow: the Shadow Catcher pass
+    (..., 3) to take the shadow from (a denoise's: Cycles reads the denoised pass there), None: made from the
+    planes."""
     alpha = np.clip(matte[..., 3:4], 0.0, 1.0)
     if not approximate_:
         return np.concatenate([matte[..., :3], alpha], axis=-1).astype(np.float32)
-    shadow = shadow_pass(combined_rgba, matte, catcher, splits)
+    if shadow is None:
+        shadow = shadow_pass(combined_rgba, matte, catcher, splits)
     alpha = (1.0 - alpha) * (1.0 - np.clip(shadow.mean(axis=-1, keepdims=True), 0.0, 1.0)) + alpha
     if background is None:
         return np.concatenate([matte[..., :3], alpha], axis=-1).astype(np.float32)
