@@ -18,7 +18,7 @@ import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
 from ...kernels.scene.links import ALL_SETS
-from ...kernels.scene.objects import BSDF_RAYS, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
+from ...kernels.scene.objects import BSDF_RAYS, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
 from ...kernels.textures import luminance
 from .light_groups import GroupTable, group_table, lamp_groups
 from .light_linking import LinkTable, lamp_masks, link_table
@@ -31,8 +31,9 @@ MAX_LIGHT_RADIANCE = 1e20
 
 
 # A light object's Ray Visibility settings, their labels, Blender's defaults and the ray bit each gives
-# Lights.visibility (0: not rendered, warned about when changed).
-LIGHT_VISIBILITY = (("visible_camera", "Camera", False, 0), ("visible_diffuse", "Diffuse", True, RAY_DIFFUSE),
+# Lights.visibility (Camera's, RAY_CAMERA, goes to Lights.camera instead: camera rays meet lamps in a stage of
+# their own, so the bounce kinds' bookkeeping stays off while only Camera is changed).
+LIGHT_VISIBILITY = (("visible_camera", "Camera", False, RAY_CAMERA), ("visible_diffuse", "Diffuse", True, RAY_DIFFUSE),
                     ("visible_glossy", "Glossy", True, RAY_GLOSSY),
                     ("visible_transmission", "Transmission", True, RAY_TRANSMIT),
                     ("visible_volume_scatter", "Volume Scatter", True, RAY_SCATTER))
@@ -56,7 +57,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
             continue
         row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings)
         if row is not None:
-            seen.append(light_visibility(ob, warnings))
+            seen.append(light_visibility(ob))
             names.append(ob.name)
             rows.append(row)
             masks.append(links.memberships(ob))
@@ -66,6 +67,8 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         return Lights()
     columns = list(zip(*rows))
     light_sets, shadow_sets = lamp_masks(masks)
+    camera = np.array([bool(v & RAY_CAMERA) for v in seen], bool)
+    seen = [v & BSDF_RAYS for v in seen]
     visibility = None if all(v == BSDF_RAYS for v in seen) else np.array(seen, np.uint8)
     if visibility is not None and shadow_sets is not None:
         # Rays meet shadow-linked lamps in their own stage (kernels/shadow_linking.py), which does not read it.
@@ -87,6 +90,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         shadow_catcher=None if all(catchers) else np.array(catchers, bool),
         light_groups=lamp_groups(in_groups),
         visibility=visibility,
+        camera=camera if camera.any() else None,
     )
 
 
@@ -98,17 +102,13 @@ def light_is_shadow_catcher(inst, ob) -> bool:
     return bool(getattr(ob, "is_shadow_catcher", True)) or bool(parent is not None and parent.is_shadow_catcher)
 
 
-def light_visibility(ob, warnings: list[str]) -> int:
-    """The ray bits of a light object's Ray Visibility (Lights.visibility): the bounces it is seen by, whose
-    light samples may take it (Cycles' scene/light.cpp SHADER_EXCLUDE_* flags: kernels/lights/ray_visibility.py).
-    Warns about Camera, which Ember does not render: its camera rays never see lights."""
+def light_visibility(ob) -> int:
+    """The ray bits of a light object's Ray Visibility: the bounces it is seen by, whose light samples may take
+    it (Lights.visibility; Cycles' scene/light.cpp SHADER_EXCLUDE_* flags: kernels/lights/ray_visibility.py), and
+    RAY_CAMERA where camera rays see it (Lights.camera: kernels/emitters_seen.py)."""
     bits = 0
-    for name, label, default, bit in LIGHT_VISIBILITY:
-        on = bool(getattr(ob, name, default))
-        if not bit and on != default:
-            warnings.append(f"Light '{ob.name}': Ray Visibility > {label} is not supported yet, rendered "
-                            f"{'on' if default else 'off'}")
-        if bit and on:
+    for name, _label, default, bit in LIGHT_VISIBILITY:
+        if getattr(ob, name, default):
             bits |= bit
     return bits
 
