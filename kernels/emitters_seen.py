@@ -8,6 +8,7 @@ import numpy as np
 
 from . import light_groups, passes, sampling, shadow_linking, visibility
 from .interaction import RayInfo
+from .lights import area
 from .media import stage as media_stage
 from .paths import facing_of
 
@@ -57,7 +58,8 @@ def _camera_hits(tables, wave, state, rays, hits, met):
     As Cycles' lights_intersect (kernel/light/light.h) for a ray of PATH_RAY_VISIBILITY_CAMERA: the other lamps
     are skipped, not met (no transparent bounce), and the lamps that are seen are met whatever the light and
     shadow linking (a camera ray is no receiver, and shadow-linked lamps are met by the main path's camera
-    rays); a shadow catcher's own paths still skip the lamps that are no shadow catchers."""
+    rays); a shadow catcher's own paths still skip the lamps that are no shadow catchers. Unlike BSDF rays,
+    which see an area light as its light samples do, camera rays see its Spread (no MIS pairs them)."""
     if tables.lights.camera is None or wave.bake is not None:
         return None
     rows = np.flatnonzero(state.bounce == 0)
@@ -70,6 +72,10 @@ def _camera_hits(tables, wave, state, rays, hits, met):
     budget = int(wave.settings.transparent_max_bounces) - np.take(state.transparent, rows)
     seen = tables.lights.intersect(o[rows, 0], o[rows, 1], o[rows, 2], d[rows, 0], d[rows, 1], d[rows, 2],
                                    np.take(hits.t, rows), budget, allowed=allowed)
+    if tables.lights.spread is not None:   # camera rays see an area light's spread (area.spread_attenuation)
+        hit = np.flatnonzero(seen.hit)
+        seen.radiance[:, hit] *= area.spread_attenuation(tables.lights, seen.light[hit], d[rows[hit], 0],
+                                                         d[rows[hit], 1], d[rows[hit], 2])
     for name in ("hit", "crossed", "stopped", "t", "light", "pdf"):
         getattr(met, name)[rows] = getattr(seen, name)
     met.radiance[:, rows] = seen.radiance

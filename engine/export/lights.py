@@ -91,6 +91,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         light_groups=lamp_groups(in_groups),
         visibility=visibility,
         camera=camera if camera.any() else None,
+        spread=np.array(columns[9], np.float32) if min(columns[9]) < math.pi else None,
     )
 
 
@@ -142,6 +143,7 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
     position = world_from_light[:3, 3]
     normalize = bool(getattr(light, "normalize", True))
     size = (0.0, 0.0)
+    spread = math.pi
     spot = (1.0, 0.0)
     radius = 0.0
     sun_half = 0.0
@@ -172,9 +174,12 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         if area <= 0:
             return None
         radiance = strength / (math.pi * area) if normalize else strength / math.pi
-        if float(getattr(light, "spread", math.pi)) < math.pi - 1e-4:
-            warnings.append(f"Area light '{name}': spread below 180 degrees is not supported; "
-                            f"rendered as a plain (180 degree) area light")
+        spread = min(max(float(getattr(light, "spread", math.pi)), 0.0), math.pi)
+        if spread < math.pi - 1e-4:
+            warnings.append(f"Area light '{name}': spread below 180 degrees is not supported for the light it "
+                            f"casts, which is a plain (180 degree) area light's (camera rays see the spread)")
+        else:
+            spread = math.pi
     else:
         warnings.append(f"Light '{name}' of type {light.type} is not supported")
         return None
@@ -183,7 +188,8 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         warnings.append(f"Light '{name}' is too bright for Ember's float32 arithmetic (power {float(light.energy):g} W): "
                         f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
         radiance = radiance * (MAX_LIGHT_RADIANCE / radiance.max())
-    return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)))
+    return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)),
+            spread)
 
 
 # ---------------------------------------------------------------- blackbody colour

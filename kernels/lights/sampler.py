@@ -91,6 +91,8 @@ class LightSampler:
         self.visibility = lights.visibility
         # (L,) bool the lamps camera rays see (Ray Visibility > Camera), or None when none is.
         self.camera = lights.camera
+        # (L,) float32 each lamp's spread (area lights; pi for the others), or None when every one is pi.
+        self.spread = lights.spread
         self.position = lights.position.astype(np.float32)
         self.axes = lights.frame.astype(np.float32)              # (L, 3, 3): columns x, y, z
         self.radiance_of = lights.radiance.astype(np.float32)

@@ -40,6 +40,8 @@ class Lights:
         light samples may take the light and whose rays see it (kernels/lights/ray_visibility.py).
     camera : (L,) bool or None (no light is): the light object's Ray Visibility > Camera, on for the lights that
         camera rays see (kernels/emitters_seen.py; Cycles' SHADER_EXCLUDE_CAMERA, scene/light.cpp).
+    spread : (L,) float32 or None (every area light spreads over pi): an area light's Spread, radians (pi for the
+        other kinds). Only what camera rays see of the light follows it (kernels/lights/area.py spread_attenuation).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -56,6 +58,7 @@ class Lights:
     light_groups: np.ndarray | None = None
     visibility: np.ndarray | None = None
     camera: np.ndarray | None = None
+    spread: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -90,3 +93,7 @@ class Lights:
             check_array(self.visibility, "lights.visibility", (n,), np.uint8, finite=False)
         if self.camera is not None:
             check_array(self.camera, "lights.camera", (n,), np.bool_, finite=False)
+        if self.spread is not None:
+            check_array(self.spread, "lights.spread", (n,), np.float32)
+            require(np.all((self.spread >= 0) & (self.spread <= np.float32(np.pi))), "lights.spread",
+                    "must be within [0, pi]")
