@@ -198,3 +198,43 @@ def test_camera_off_changes_nothing():
     exported = export_current()
     assert exported.warnings == []
     assert exported.scene.lights.camera.tolist() == [True, False]
+
+
+def _collection(name, objects):
+    collection = bpy.data.collections.new(name)
+    for ob in objects:
+        collection.objects.link(ob)
+    return collection
+
+
+def test_linked_lamps_are_seen_whatever_their_linking_as_cycles():
+    """Camera rays are no receivers: a sphere lamp that lights only a ball and an area lamp whose shadows only the
+    ball casts (shadow-linked) are both seen, as Cycles' lights_intersect meets them for camera rays."""
+    scene = _stage()
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=16, ring_count=8, radius=0.3, location=(0.2, -1.0, 0.3))
+    ball = bpy.context.object
+    ball.data.materials.append(diffuse_material("Ball", (0.8, 0.3, 0.2)))
+    bulb = _lamp(scene, "Bulb", "POINT", (-0.6, 0, 1.1), energy=100.0, shadow_soft_size=0.3)
+    bulb.light_linking.receiver_collection = _collection("Lit", [ball])
+    panel = _lamp(scene, "Panel", "AREA", (0.9, 0, 0.9), (-1.3, 0, 0), energy=60.0, shape="SQUARE", size=0.6)
+    panel.light_linking.blocker_collection = _collection("Blockers", [ball])
+    assert export_current().warnings == []
+    _assert_matches_cycles(scene)
+
+
+def test_a_lamp_before_a_holdout_and_a_shadow_catcher_as_cycles():
+    """A lamp in front of a holdout wall keeps its colour where the wall cuts alpha to 0; one over a shadow catcher
+    floor is seen in Combined and the catcher's alpha is Cycles' (a transparent film): colour within noise, alpha
+    per 4 x 4 block within 0.03."""
+    scene = _stage()
+    scene.objects["Floor"].is_shadow_catcher = True
+    wall = quad_object("Wall", (-0.2, 1.0, 0.0), (2.0, 0, 0), (0, 0, 2.5), diffuse_material("Wall", (0.5, 0.5, 0.5)))
+    wall.is_holdout = True
+    _lamp(scene, "Bulb", "POINT", (-0.9, 0, 0.5), energy=100.0, shadow_soft_size=0.3)
+    _lamp(scene, "Panel", "AREA", (0.9, 0, 1.2), (-1.3, 0, 0), energy=60.0, shape="SQUARE", size=0.6)
+    scene.render.film_transparent = True
+    _assert_matches_cycles(scene)
+    cycles = render_to_array(scene, "CYCLES", SAMPLES, seed=1)
+    ember = render_to_array(scene, "EMBER", SAMPLES, seed=1)
+    blocks = lambda a: a.reshape(8, 4, 8, 4).mean(axis=(1, 3))  # noqa: E731
+    assert np.abs(blocks(ember[..., 3]) - blocks(cycles[..., 3])).max() < 0.03
