@@ -126,19 +126,23 @@ def test_a_lamp_the_camera_sees_matches_cycles(kind):
 
 
 def test_spread_dims_the_lamp_off_its_normal_as_cycles():
-    """The spread lamps' discs where the camera sees them: every pixel inside a disc (it and its four neighbours
-    lit: no anti-aliased edge) within 2% of Cycles' colour; and the spread matters (a plain lamp looks other)."""
+    """The spread lamps' discs where the camera sees them, pixel by pixel: every pixel inside a disc (it and its
+    four neighbours lit: no anti-aliased edge; the spread still shades each pixel unevenly, hence noise) within
+    4.5 standard errors of Cycles' (replicate renders); and the spread matters (a plain lamp looks other)."""
     scene, lamps = _scene("rectangle_spread")
-    cycles = render_to_array(scene, "CYCLES", SAMPLES, seed=1)[..., 0]
-    ember = render_to_array(scene, "EMBER", SAMPLES, seed=1)[..., 0]
-    lit = cycles > 1.0
-    inside = lit[1:-1, 1:-1] & lit[:-2, 1:-1] & lit[2:, 1:-1] & lit[1:-1, :-2] & lit[1:-1, 2:]
+    cycles, ember = _replicates(scene, "CYCLES", _colour)["Combined"], _replicates(scene, "EMBER", _colour)["Combined"]
+    lit = cycles[0][..., 0] > 1.0
+    inside = np.zeros_like(lit)
+    inside[1:-1, 1:-1] = lit[1:-1, 1:-1] & lit[:-2, 1:-1] & lit[2:, 1:-1] & lit[1:-1, :-2] & lit[1:-1, 2:]
     assert inside.sum() > 10
-    np.testing.assert_allclose(ember[1:-1, 1:-1][inside], cycles[1:-1, 1:-1][inside], rtol=0.02)
+    se = np.maximum(np.sqrt(cycles[1] + ember[1]), 1e-4 * cycles[0])[inside]
+    z = np.abs(ember[0][inside] - cycles[0][inside]) / se
+    print(f"spread discs: {inside.sum()} pixels, worst z {z.max():.2f}")
+    assert z.max() < 4.5, z.max()
     for lamp in lamps:
         lamp.data.spread = math.pi
-    plain = render_to_array(scene, "EMBER", SAMPLES, seed=1)[..., 0]
-    assert np.abs(plain[1:-1, 1:-1][inside] / ember[1:-1, 1:-1][inside] - 1).max() > 0.2
+    plain = render_to_array(scene, "EMBER", SAMPLES, seed=1)[..., :3]
+    assert np.abs(plain[inside] / ember[0][inside] - 1).max() > 0.2
 
 
 def test_transparent_film_keeps_alpha_and_the_lamps_colour_as_cycles():
