@@ -242,3 +242,24 @@ def test_a_lamp_before_a_holdout_and_a_shadow_catcher_as_cycles():
     ember = render_to_array(scene, "EMBER", SAMPLES, seed=1)
     blocks = lambda a: a.reshape(8, 4, 8, 4).mean(axis=(1, 3))  # noqa: E731
     assert np.abs(blocks(ember[..., 3]) - blocks(cycles[..., 3])).max() < 0.03
+
+
+def test_a_lamp_the_camera_sees_is_its_denoising_albedo():
+    """Paths still looking for their denoising features take the light of a lamp they see as albedo (Cycles'
+    film_write_emission_or_background_pass): a dim area lamp filling an orthographic view reads its radiance,
+    strength / (pi area), in Ember's and in Cycles' Denoising Albedo."""
+    scene = new_scene(16, 16)
+    camera = scene.camera
+    camera.location, camera.rotation_euler = (0.0, 0.0, 5.0), (0.0, 0.0, 0.0)
+    camera.data.type, camera.data.ortho_scale = "ORTHO", 2.0
+    set_world(scene, color=(0.0, 0.0, 0.0))
+    _lamp(scene, "Panel", "AREA", (0, 0, 1), (math.pi, 0, 0), energy=0.3 * math.pi * 16.0, shape="SQUARE", size=4.0,
+          color=(0.8, 0.6, 0.4))
+    layer = scene.view_layers[0]
+    layer.cycles.denoising_store_passes = layer.ember.denoising_store_passes = True
+    expected = 0.3 * np.array([0.8, 0.6, 0.4])
+    for engine in ("CYCLES", "EMBER"):
+        configure_engine(scene, engine, 2, 1, denoise=True)
+        parts, _ = render_multilayer(scene)
+        albedo = np.stack([parts[f"{layer.name}.Denoising Albedo"][c] for c in "RGB"], axis=-1)
+        np.testing.assert_allclose(albedo, np.broadcast_to(expected, albedo.shape), rtol=1e-4, err_msg=engine)
