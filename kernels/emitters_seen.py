@@ -9,6 +9,7 @@ import numpy as np
 from . import light_groups, passes, sampling, shadow_linking, visibility
 from .interaction import RayInfo
 from .lights import area
+from .lights.sampler import LightHits
 from .media import stage as media_stage
 from .paths import facing_of
 
@@ -21,14 +22,22 @@ def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     if wave.bake is not None:
         seeing &= wave.bake.sees_lights(state.bounce)
     budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
-    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget, state.link_set,
-                                  facing=facing_of(state.mis_facing),
-                                  allowed=None if wave.only_catchers is None else wave.only_catchers.lights,
-                                  types=lamp_ray_types(tables, state))
-    met.crossed[~seeing] = 0
-    camera = _camera_hits(tables, wave, state, rays, hits, met)
-    if camera is not None:
-        seeing |= camera
+    camera = None if tables.lights.camera is None or wave.bake is not None else np.flatnonzero(state.bounce == 0)
+    if camera is not None and len(camera) == len(state):   # camera rays alone (the first step)
+        met = _camera_hits(tables, wave, state, rays, hits, slice(None))
+        seeing[:] = True
+    else:
+        met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget,
+                                      state.link_set, facing=facing_of(state.mis_facing),
+                                      allowed=None if wave.only_catchers is None else wave.only_catchers.lights,
+                                      types=lamp_ray_types(tables, state))
+        met.crossed[~seeing] = 0
+        if camera is not None and len(camera):   # camera rays beside others (past transparent surfaces)
+            seen = _camera_hits(tables, wave, state, rays, hits, camera)
+            for name in ("hit", "crossed", "stopped", "t", "light", "pdf"):
+                getattr(met, name)[camera] = getattr(seen, name)
+            met.radiance[:, camera] = seen.radiance
+            seeing[camera] = True
     state.transparent = state.transparent + met.crossed
     lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
     if lit.any():
@@ -52,36 +61,26 @@ def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     return met.stopped & seeing
 
 
-def _camera_hits(tables, wave, state, rays, hits, met):
-    """Where lamps have Ray Visibility > Camera on: the lamps camera rays (bounce 0, transparent surfaces
-    passed) meet before their hits, written into met's rows of those rays; the (N,) mask of those rays, or None.
-    As Cycles' lights_intersect (kernel/light/light.h) for a ray of PATH_RAY_VISIBILITY_CAMERA: the other lamps
-    are skipped, not met (no transparent bounce), and the lamps that are seen are met whatever the light and
-    shadow linking (a camera ray is no receiver, and shadow-linked lamps are met by the main path's camera
-    rays); a shadow catcher's own paths still skip the lamps that are no shadow catchers. Unlike BSDF rays,
-    which see an area light as its light samples do, camera rays see its Spread (no MIS pairs them)."""
-    if tables.lights.camera is None or wave.bake is not None:
-        return None
-    rows = np.flatnonzero(state.bounce == 0)
-    if not len(rows):
-        return None
+def _camera_hits(tables, wave, state, rays, hits, rows) -> LightHits:
+    """The lamps of Ray Visibility > Camera that the camera rays of state rows (bounce 0, transparent surfaces
+    passed; an index array or a slice) meet before their hits. As Cycles' lights_intersect (kernel/light/light.h)
+    for a ray of PATH_RAY_VISIBILITY_CAMERA: the other lamps are skipped, not met (no transparent bounce), and
+    the lamps that are seen are met whatever the light and shadow linking (a camera ray is no receiver, and
+    shadow-linked lamps are met by the main path's camera rays); a shadow catcher's own paths still skip the
+    lamps that are no shadow catchers. Unlike BSDF rays, which see an area light as its light samples do, camera
+    rays see its Spread (no MIS pairs them)."""
     allowed = tables.lights.camera
     if wave.only_catchers is not None:
         allowed = allowed & wave.only_catchers.lights
-    o, d = rays.origins, rays.dirs
-    budget = int(wave.settings.transparent_max_bounces) - np.take(state.transparent, rows)
-    seen = tables.lights.intersect(o[rows, 0], o[rows, 1], o[rows, 2], d[rows, 0], d[rows, 1], d[rows, 2],
-                                   np.take(hits.t, rows), budget, allowed=allowed)
+    o, d = rays.origins[rows], rays.dirs[rows]
+    budget = int(wave.settings.transparent_max_bounces) - state.transparent[rows]
+    seen = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t[rows], budget,
+                                   allowed=allowed)
     if tables.lights.spread is not None:   # camera rays see an area light's spread (area.spread_attenuation)
         hit = np.flatnonzero(seen.hit)
-        seen.radiance[:, hit] *= area.spread_attenuation(tables.lights, seen.light[hit], d[rows[hit], 0],
-                                                         d[rows[hit], 1], d[rows[hit], 2])
-    for name in ("hit", "crossed", "stopped", "t", "light", "pdf"):
-        getattr(met, name)[rows] = getattr(seen, name)
-    met.radiance[:, rows] = seen.radiance
-    out = np.zeros(len(state), bool)
-    out[rows] = True
-    return out
+        seen.radiance[:, hit] *= area.spread_attenuation(tables.lights, seen.light[hit], d[hit, 0], d[hit, 1],
+                                                         d[hit, 2])
+    return seen
 
 
 def _seen_by_camera(wave, state, rows, le, radiance) -> None:
