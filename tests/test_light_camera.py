@@ -263,3 +263,15 @@ def test_a_lamp_the_camera_sees_is_its_denoising_albedo():
         parts, _ = render_multilayer(scene)
         albedo = np.stack([parts[f"{layer.name}.Denoising Albedo"][c] for c in "RGB"], axis=-1)
         np.testing.assert_allclose(albedo, np.broadcast_to(expected, albedo.shape), rtol=1e-4, err_msg=engine)
+
+
+def test_lamps_seen_through_a_transparent_pane_as_cycles():
+    """Camera rays stay camera rays through transparent surfaces (Cycles' transparent bounce keeps the path's
+    visibility): a grey Transparent BSDF pane over the left of the frame dims the sphere lamp behind it, while the
+    area lamp beside it is seen directly, in the same steps as the floor's bounces."""
+    from bpy_helpers import node_material
+    scene, _ = _scene("point")
+    _lamp(scene, "Panel", "AREA", (0.9, 0, 1.2), (-1.3, 0, 0), energy=60.0, shape="SQUARE", size=0.6)
+    quad_object("Pane", (-2.0, -1.5, 0.0), (2.0, 0, 0), (0, 0, 2.5),
+                node_material("Pane", "ShaderNodeBsdfTransparent", Color=(0.5, 0.5, 0.5)))
+    _assert_matches_cycles(scene)
