@@ -275,3 +275,11 @@ def test_lamps_seen_through_a_transparent_pane_as_cycles():
     quad_object("Pane", (-2.0, -1.5, 0.0), (2.0, 0, 0), (0, 0, 2.5),
                 node_material("Pane", "ShaderNodeBsdfTransparent", Color=(0.5, 0.5, 0.5)))
     _assert_matches_cycles(scene)
+
+
+def test_soft_falloff_off_is_warned_about_by_name():
+    """Cycles makes a sized point or spot lamp of Soft Falloff off a sphere; Ember keeps the disk, and says so."""
+    scene, lamps = _scene("point")
+    lamps[0].data.use_soft_falloff = False
+    warnings = export_current().warnings
+    assert len(warnings) == 1 and "'Bulb'" in warnings[0] and "Soft Falloff" in warnings[0]

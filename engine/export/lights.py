@@ -150,6 +150,11 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
     if light.type in ("POINT", "SPOT"):
         kind = LIGHT_KINDS[light.type]
         radius = max(float(light.shadow_soft_size), 0.0)
+        if radius > 0 and not getattr(light, "use_soft_falloff", True):
+            # Cycles then makes the lamp a sphere (blender/light.cpp: is_sphere = !use_soft_falloff), sampled and
+            # seen as one; Ember's sized lamps are Soft Falloff's disk facing each point.
+            warnings.append(f"Light '{name}': Soft Falloff off (a sphere lamp) is not supported, rendered with "
+                            f"Soft Falloff on")
         intensity = strength / (4.0 * math.pi)
         if radius > 0:
             radiance = intensity / (math.pi * radius ** 2) if normalize else strength / math.pi
