@@ -8,23 +8,36 @@ import numpy as np
 
 from . import light_groups, passes, sampling, shadow_linking, visibility
 from .interaction import RayInfo
+from .lights import area
+from .lights.sampler import LightHits
 from .media import stage as media_stage
 from .paths import facing_of
 
-# ---- stage: lights with a surface, found by BSDF rays (Blender lights are invisible to the camera)
+# ---- stage: lights with a surface, found by BSDF rays and by camera rays (those of Ray Visibility > Camera)
 def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     """Count the lights the rays meet before their hits (each a transparent bounce, as in Cycles);
     return the (N,) mask of the paths that end at one, their transparent bounces spent."""
     o, d = rays.origins, rays.dirs
-    seeing = state.bounce > 0   # camera rays do not see lights
+    seeing = state.bounce > 0   # camera rays see only the lamps of _camera_hits
     if wave.bake is not None:
         seeing &= wave.bake.sees_lights(state.bounce)
     budget = np.where(seeing, int(wave.settings.transparent_max_bounces) - state.transparent, 0)
-    met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget, state.link_set,
-                                  facing=facing_of(state.mis_facing),
-                                  allowed=None if wave.only_catchers is None else wave.only_catchers.lights,
-                                  types=lamp_ray_types(tables, state))
-    met.crossed[~seeing] = 0
+    camera = None if tables.lights.camera is None or wave.bake is not None else np.flatnonzero(state.bounce == 0)
+    if camera is not None and len(camera) == len(state):   # camera rays alone (the first step)
+        met = _camera_hits(tables, wave, state, rays, hits, slice(None))
+        seeing[:] = True
+    else:
+        met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget,
+                                      state.link_set, facing=facing_of(state.mis_facing),
+                                      allowed=None if wave.only_catchers is None else wave.only_catchers.lights,
+                                      types=lamp_ray_types(tables, state))
+        met.crossed[~seeing] = 0
+        if camera is not None and len(camera):   # camera rays beside others (past transparent surfaces)
+            seen = _camera_hits(tables, wave, state, rays, hits, camera)
+            for name in ("hit", "crossed", "stopped", "t", "light", "pdf"):
+                getattr(met, name)[camera] = getattr(seen, name)
+            met.radiance[:, camera] = seen.radiance
+            seeing[camera] = True
     state.transparent = state.transparent + met.crossed
     lit, le, light_pdf = met.hit & seeing, met.radiance, met.pdf
     if lit.any():
@@ -32,15 +45,58 @@ def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
         le = np.take(state.throughput * le, idx, axis=1)
         if state.media is not None:   # the media before the light (their scattering is the segment's own)
             le *= media_stage.transmittance_to(tables, wave, state, rays, idx, np.take(met.t, idx))
-        if wave.nee:
-            le = le * sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx))
+        later = np.take(state.bounce, idx) > 0
+        if wave.nee:   # a camera ray's light is not weighed (Cycles' PATH_RAY_MIS_SKIP)
+            le = le * np.where(later, sampling.power_heuristic(np.take(state.bsdf_pdf, idx), np.take(light_pdf, idx)),
+                               np.float32(1))
         le = passes.clamp(wave, le, np.take(state.bounce, idx) > 1)
         passes.accumulate(wave.radiance, state.path[idx], le)
         if wave.groups is not None:
             light_groups.write(wave, state.path[idx], le, light_groups.lamp_groups(tables, np.take(met.light, idx)))
+        if camera is not None and not later.all():
+            _seen_by_camera(wave, state, idx[~later], le[:, ~later], np.take(met.radiance, idx[~later], axis=1))
+            idx, le = idx[later], le[:, later]
         if state.pass_weights is not None:
             passes.write_light(tables, wave, state, idx, le)
     return met.stopped & seeing
+
+
+def _camera_hits(tables, wave, state, rays, hits, rows) -> LightHits:
+    """The lamps of Ray Visibility > Camera that the camera rays of state rows (bounce 0, transparent surfaces
+    passed; an index array or a slice) meet before their hits. As Cycles' lights_intersect (kernel/light/light.h)
+    for a ray of PATH_RAY_VISIBILITY_CAMERA: the other lamps are skipped, not met (no transparent bounce), and
+    the lamps that are seen are met whatever the light and shadow linking (a camera ray is no receiver, and
+    shadow-linked lamps are met by the main path's camera rays); a shadow catcher's own paths still skip the
+    lamps that are no shadow catchers. Unlike BSDF rays, which see an area light as its light samples do, camera
+    rays see its Spread (no MIS pairs them)."""
+    allowed = tables.lights.camera
+    if wave.only_catchers is not None:
+        allowed = allowed & wave.only_catchers.lights
+    o, d = rays.origins[rows], rays.dirs[rows]
+    budget = int(wave.settings.transparent_max_bounces) - state.transparent[rows]
+    seen = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t[rows], budget,
+                                   allowed=allowed)
+    if tables.lights.spread is not None:   # camera rays see an area light's spread (area.spread_attenuation)
+        hit = np.flatnonzero(seen.hit)
+        seen.radiance[:, hit] *= area.spread_attenuation(tables.lights, seen.light[hit], d[hit, 0], d[hit, 1],
+                                                         d[hit, 2])
+    return seen
+
+
+def _seen_by_camera(wave, state, rows, le, radiance) -> None:
+    """What Cycles' film_write_surface_emission writes besides Combined and the light groups for a lamp (or
+    sun) a camera ray sees (kernel/film/light_passes.h film_write_emission_or_background_pass): the clamped
+    (3, n) le of state rows to the Emission pass (directly visible), and to the denoising albedo of the paths
+    still looking for it their feature throughput times the lamp's (3, n) radiance. No other light pass."""
+    if wave.aux is None:
+        return
+    if "emission" in wave.aux:
+        passes.accumulate(wave.aux["emission"], state.path[rows], le)
+    if state.features is not None and "denoising_albedo" in wave.aux:
+        open_ = np.flatnonzero(~np.isnan(np.take(state.features[0], rows)))
+        if len(open_):
+            passes.add_albedo(wave.aux, state.path[rows[open_]],
+                              np.take(state.features, rows[open_], axis=1) * radiance[:, open_])
 
 
 # ---- stage: smooth glass sees the world along the branch it did not take
@@ -52,6 +108,8 @@ def escaped(tables, wave, state, rays, hits, ended=None):
         miss = miss[wave.bake.sees_lights(state.bounce[miss])]
     if not len(miss):
         return
+    if tables.lights.camera is not None:
+        _suns_seen_by_camera(tables, wave, state, rays, miss)
     keep = np.ones(len(miss), bool)
     if wave.settings.transparent_background:
         # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
@@ -160,6 +218,35 @@ def emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
     if state.pass_weights is not None:
         later = np.flatnonzero(np.take(state.bounce, lit) > 0)
         passes.write_light(tables, wave, state, lit[later], le[:, later])
+
+
+def _suns_seen_by_camera(tables, wave, state, rays, miss) -> None:
+    """The discs of the suns with Ray Visibility > Camera on that the camera rays among the escaped rays (state
+    rows miss) look into: written as Cycles' integrate_sun_lights writes them (film_write_surface_emission), to
+    Combined, whatever the film's transparency (alpha is the world's), to the Emission pass and the suns' light
+    groups, unweighed (kernels/lights/sun.py seen_by_camera)."""
+    rows = miss[state.bounce[miss] == 0]
+    if not len(rows):
+        return
+    d = rays.dirs
+    parts = [] if wave.groups is not None else None
+    sun = tables.lights.camera_suns(d[rows, 0], d[rows, 1], d[rows, 2], parts)
+    if sun is None:
+        return
+    lit = np.flatnonzero(sun.max(axis=0) > 0)
+    if not len(lit):
+        return
+    value = sun[:, lit] * _weights(state, rows[lit])
+    scale = passes.clamp_scale(wave, value, np.zeros(len(lit), bool))
+    if wave.groups is not None:
+        columns = np.full(len(rows), -1, np.int64)
+        columns[lit] = np.arange(len(lit))
+        passes.write_parts(wave, state.path[rows[lit]], light_groups.sky_parts(
+            tables, None, [(k, cols, share * _weights(state, rows[cols])) for k, cols, share in parts], columns),
+            value, scale)
+    value = value if scale is None else value * scale
+    passes.accumulate(wave.radiance, state.path[rows[lit]], value)
+    _seen_by_camera(wave, state, rows[lit], value, sun[:, lit])
 
 
 def lamp_ray_types(tables, state):

@@ -183,7 +183,7 @@ def step(tables, wave, state, rays, first: bool, last: int):
     if tables.links is not None and not first:
         shadow_linking.dedicated_light(tables, wave, state, rays, hits)
     ended = None
-    if not first and tables.lights.has_surface_lights:
+    if tables.lights.has_surface_lights and (not first or tables.lights.camera is not None):
         ended = emitters_seen.lights_hit(tables, wave, state, rays, hits)
     scattered = None
     if state.media is not None:

@@ -166,13 +166,17 @@ def test_scenes_without_settings_take_no_visibility_path():
     assert result.scene.object_visibility is None
 
 
-def test_light_ray_visibility_warns_by_name_for_camera_only():
-    """A light's Glossy off renders (test_light_visibility.py); its Camera on is warned about, by name."""
+def test_light_ray_visibility_warns_no_more():
+    """A light's Glossy off renders (test_light_visibility.py), and so does its Camera on (test_light_camera.py):
+    neither warns; Camera goes to Lights.camera, Glossy to Lights.visibility."""
     import bpy
     from bpy_helpers import export_current
     _scene()
     sun = bpy.data.objects["Sun"]
     sun.visible_glossy = False
     sun.visible_camera = True
-    warnings = [w for w in export_current().warnings if "'Sun'" in w]
-    assert len(warnings) == 1 and "Camera" in warnings[0] and "Glossy" not in warnings[0]
+    exported = export_current()
+    assert exported.warnings == []
+    assert exported.scene.lights.camera.tolist() == [True]
+    from ember.kernels.scene.objects import BSDF_RAYS, RAY_GLOSSY
+    assert exported.scene.lights.visibility.tolist() == [BSDF_RAYS & ~RAY_GLOSSY]

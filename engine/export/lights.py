@@ -18,7 +18,7 @@ import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
 from ...kernels.scene.links import ALL_SETS
-from ...kernels.scene.objects import BSDF_RAYS, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
+from ...kernels.scene.objects import BSDF_RAYS, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
 from ...kernels.textures import luminance
 from .light_groups import GroupTable, group_table, lamp_groups
 from .light_linking import LinkTable, lamp_masks, link_table
@@ -31,8 +31,9 @@ MAX_LIGHT_RADIANCE = 1e20
 
 
 # A light object's Ray Visibility settings, their labels, Blender's defaults and the ray bit each gives
-# Lights.visibility (0: not rendered, warned about when changed).
-LIGHT_VISIBILITY = (("visible_camera", "Camera", False, 0), ("visible_diffuse", "Diffuse", True, RAY_DIFFUSE),
+# Lights.visibility (Camera's, RAY_CAMERA, goes to Lights.camera instead: camera rays meet lamps in a stage of
+# their own, so the bounce kinds' bookkeeping stays off while only Camera is changed).
+LIGHT_VISIBILITY = (("visible_camera", "Camera", False, RAY_CAMERA), ("visible_diffuse", "Diffuse", True, RAY_DIFFUSE),
                     ("visible_glossy", "Glossy", True, RAY_GLOSSY),
                     ("visible_transmission", "Transmission", True, RAY_TRANSMIT),
                     ("visible_volume_scatter", "Volume Scatter", True, RAY_SCATTER))
@@ -56,7 +57,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
             continue
         row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings)
         if row is not None:
-            seen.append(light_visibility(ob, warnings))
+            seen.append(light_visibility(ob))
             names.append(ob.name)
             rows.append(row)
             masks.append(links.memberships(ob))
@@ -66,6 +67,8 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         return Lights()
     columns = list(zip(*rows))
     light_sets, shadow_sets = lamp_masks(masks)
+    camera = np.array([bool(v & RAY_CAMERA) for v in seen], bool)
+    seen = [v & BSDF_RAYS for v in seen]
     visibility = None if all(v == BSDF_RAYS for v in seen) else np.array(seen, np.uint8)
     if visibility is not None and shadow_sets is not None:
         # Rays meet shadow-linked lamps in their own stage (kernels/shadow_linking.py), which does not read it.
@@ -87,6 +90,8 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         shadow_catcher=None if all(catchers) else np.array(catchers, bool),
         light_groups=lamp_groups(in_groups),
         visibility=visibility,
+        camera=camera if camera.any() else None,
+        spread=np.array(columns[9], np.float32) if min(columns[9]) < math.pi else None,
     )
 
 
@@ -98,17 +103,13 @@ def light_is_shadow_catcher(inst, ob) -> bool:
     return bool(getattr(ob, "is_shadow_catcher", True)) or bool(parent is not None and parent.is_shadow_catcher)
 
 
-def light_visibility(ob, warnings: list[str]) -> int:
-    """The ray bits of a light object's Ray Visibility (Lights.visibility): the bounces it is seen by, whose
-    light samples may take it (Cycles' scene/light.cpp SHADER_EXCLUDE_* flags: kernels/lights/ray_visibility.py).
-    Warns about Camera, which Ember does not render: its camera rays never see lights."""
+def light_visibility(ob) -> int:
+    """The ray bits of a light object's Ray Visibility: the bounces it is seen by, whose light samples may take
+    it (Lights.visibility; Cycles' scene/light.cpp SHADER_EXCLUDE_* flags: kernels/lights/ray_visibility.py), and
+    RAY_CAMERA where camera rays see it (Lights.camera: kernels/emitters_seen.py)."""
     bits = 0
-    for name, label, default, bit in LIGHT_VISIBILITY:
-        on = bool(getattr(ob, name, default))
-        if not bit and on != default:
-            warnings.append(f"Light '{ob.name}': Ray Visibility > {label} is not supported yet, rendered "
-                            f"{'on' if default else 'off'}")
-        if bit and on:
+    for name, _label, default, bit in LIGHT_VISIBILITY:
+        if getattr(ob, name, default):
             bits |= bit
     return bits
 
@@ -142,12 +143,18 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
     position = world_from_light[:3, 3]
     normalize = bool(getattr(light, "normalize", True))
     size = (0.0, 0.0)
+    spread = math.pi
     spot = (1.0, 0.0)
     radius = 0.0
     sun_half = 0.0
     if light.type in ("POINT", "SPOT"):
         kind = LIGHT_KINDS[light.type]
         radius = max(float(light.shadow_soft_size), 0.0)
+        if radius > 0 and not getattr(light, "use_soft_falloff", True):
+            # Cycles then makes the lamp a sphere (blender/light.cpp: is_sphere = !use_soft_falloff), sampled and
+            # seen as one; Ember's sized lamps are Soft Falloff's disk facing each point.
+            warnings.append(f"Light '{name}': Soft Falloff off (a sphere lamp) is not supported, rendered with "
+                            f"Soft Falloff on")
         intensity = strength / (4.0 * math.pi)
         if radius > 0:
             radiance = intensity / (math.pi * radius ** 2) if normalize else strength / math.pi
@@ -172,9 +179,12 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         if area <= 0:
             return None
         radiance = strength / (math.pi * area) if normalize else strength / math.pi
-        if float(getattr(light, "spread", math.pi)) < math.pi - 1e-4:
-            warnings.append(f"Area light '{name}': spread below 180 degrees is not supported; "
-                            f"rendered as a plain (180 degree) area light")
+        spread = min(max(float(getattr(light, "spread", math.pi)), 0.0), math.pi)
+        if spread < math.pi - 1e-4:
+            warnings.append(f"Area light '{name}': spread below 180 degrees is not supported for the light it "
+                            f"casts, which is a plain (180 degree) area light's (camera rays see the spread)")
+        else:
+            spread = math.pi
     else:
         warnings.append(f"Light '{name}' of type {light.type} is not supported")
         return None
@@ -183,7 +193,8 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         warnings.append(f"Light '{name}' is too bright for Ember's float32 arithmetic (power {float(light.energy):g} W): "
                         f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
         radiance = radiance * (MAX_LIGHT_RADIANCE / radiance.max())
-    return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)))
+    return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)),
+            spread)
 
 
 # ---------------------------------------------------------------- blackbody colour

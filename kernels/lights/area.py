@@ -67,3 +67,22 @@ def intersect(sampler, k, ox, oy, oz, dx, dy, dz):
         seen = rectangles(sampler, k[rect], ox[rect], oy[rect], oz[rect])
         pdf[rect] = seen.pdf(t[rect], denom[rect])
     return t, pdf, np.ones(len(k), np.float32)
+
+
+def spread_attenuation(sampler, k, dx, dy, dz) -> np.ndarray:
+    """(n,) float32 the factor by which an area light k (n,) of Spread below pi dims its radiance seen along d (the
+    rays' unit directions), 1 for every other lamp: Cycles' soft-box grid (kernel/light/area.h
+    area_light_spread_attenuation), max((tan(s/2) - tan a) N, 0) with a the angle between -d and the light's normal
+    and N = 1 / (tan(s/2) - s/2) (3 / (s/2)^3 below s/2 = 0.05), normalising the light's power
+    (scene/light.cpp); spread 0: pi along the normal alone."""
+    spread = np.take(sampler.spread, k).astype(np.float64)
+    za = sampler.axis(k, 2)
+    cos_a = np.clip((dx * za[0] + dy * za[1] + dz * za[2]).astype(np.float64), 1e-12, 1.0)
+    tan_a = np.sqrt(np.maximum(1.0 - cos_a * cos_a, 0.0)) / cos_a
+    half = spread / 2
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        tan_half = np.tan(half)
+        normal = np.where(half > 0.05, 1.0 / (tan_half - half), 3.0 / half ** 3)
+        out = np.where(half > 0, np.maximum((tan_half - tan_a) * normal, 0.0), np.where(tan_a > 1e-5, 0.0, np.pi))
+    area = (np.take(sampler.kind, k) == RECT) | (np.take(sampler.kind, k) == DISK)
+    return np.where(area & (spread < np.float32(np.pi)), out, 1.0).astype(np.float32)

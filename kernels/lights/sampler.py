@@ -89,6 +89,10 @@ class LightSampler:
         self.shadowed = lights.shadowed()
         # (L,) uint8 each lamp's ray visibility, or None when every lamp sees every bounce.
         self.visibility = lights.visibility
+        # (L,) bool the lamps camera rays see (Ray Visibility > Camera), or None when none is.
+        self.camera = lights.camera
+        # (L,) float32 each lamp's spread (area lights; pi for the others), or None when every one is pi.
+        self.spread = lights.spread
         self.position = lights.position.astype(np.float32)
         self.axes = lights.frame.astype(np.float32)              # (L, 3, 3): columns x, y, z
         self.radiance_of = lights.radiance.astype(np.float32)
@@ -373,6 +377,11 @@ class LightSampler:
         types: (n,) uint8 the rays' types (kernels/visibility.py ray_types), or None: a sun that does not see
         a ray's type gives it nothing (kernels/lights/ray_visibility.py)."""
         return sun.seen(self, dx, dy, dz, bsdf_pdf, receiver, shadow_linked, parts, types)
+
+    def camera_suns(self, dx, dy, dz, parts=None):
+        """(3, n) radiance of the sun discs of Ray Visibility > Camera that camera rays leaving the scene along d
+        look into (sun.seen_by_camera); None when no sun is seen by camera rays."""
+        return sun.seen_by_camera(self, dx, dy, dz, parts)
 
     def samples_world(self) -> bool:
         """Whether next-event estimation can choose the world."""

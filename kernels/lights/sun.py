@@ -60,3 +60,28 @@ def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool 
         if parts is not None:
             parts.append((int(k), inside, share))
     return out
+
+
+def seen_by_camera(sampler, dx, dy, dz, parts=None):
+    """(3, n) radiance of the sun discs that camera rays leaving the scene along d look into, of the suns whose
+    Ray Visibility > Camera is on (sampler.camera); None when there is none. As Cycles' integrate_sun_lights
+    (kernel/integrator/shade_background.h): unweighed (a camera ray skips MIS, PATH_RAY_MIS_SKIP), whatever the
+    light linking (camera rays are no receivers), and never a shadow-linked sun (it skips those for every ray).
+    parts: as seen's."""
+    if sampler.camera is None:
+        return None
+    suns = [k for k in sampler.sun_discs if sampler.camera[k]
+            and not (sampler.links is not None and sampler.links.shadow_linked[k])]
+    if not suns:
+        return None
+    out = np.zeros((3, len(dx)), np.float32)
+    for k in suns:
+        zx, zy, zz = sampler.axes[k, :, 2]
+        inside = np.flatnonzero(dx * zx + dy * zy + dz * zz >= sampler.sun_cos[k])
+        if not len(inside):
+            continue
+        share = np.repeat(sampler.sun_radiance[k][:, None], len(inside), axis=1)
+        out[:, inside] += share
+        if parts is not None:
+            parts.append((int(k), inside, share))
+    return out

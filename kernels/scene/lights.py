@@ -38,6 +38,10 @@ class Lights:
     visibility : (L,) uint8 or None (all see every bounce): the light object's Ray Visibility as the object
         table's ray bits (kernels.scene.objects RAY_DIFFUSE, _GLOSSY, _TRANSMIT, _SCATTER): the bounces whose
         light samples may take the light and whose rays see it (kernels/lights/ray_visibility.py).
+    camera : (L,) bool or None (no light is): the light object's Ray Visibility > Camera, on for the lights that
+        camera rays see (kernels/emitters_seen.py; Cycles' SHADER_EXCLUDE_CAMERA, scene/light.cpp).
+    spread : (L,) float32 or None (every area light spreads over pi): an area light's Spread, radians (pi for the
+        other kinds). Only what camera rays see of the light follows it (kernels/lights/area.py spread_attenuation).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -53,6 +57,8 @@ class Lights:
     shadow_catcher: np.ndarray | None = None
     light_groups: np.ndarray | None = None
     visibility: np.ndarray | None = None
+    camera: np.ndarray | None = None
+    spread: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -85,3 +91,9 @@ class Lights:
             require(not n or int(self.light_groups.min()) >= -1, "lights.light_groups", "must be -1 or more")
         if self.visibility is not None:
             check_array(self.visibility, "lights.visibility", (n,), np.uint8, finite=False)
+        if self.camera is not None:
+            check_array(self.camera, "lights.camera", (n,), np.bool_, finite=False)
+        if self.spread is not None:
+            check_array(self.spread, "lights.spread", (n,), np.float32)
+            require(np.all((self.spread >= 0) & (self.spread <= np.float32(np.pi))), "lights.spread",
+                    "must be within [0, pi]")
