@@ -118,6 +118,7 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "rtcSetSceneProgressMonitorFunction": (None, [vp, _PROGRESS, vp]),
         "rtcSetGeometryBuildQuality": (None, [vp, cint]),
         "rtcSetGeometryTessellationRate": (None, [vp, ctypes.c_float]),
+        "rtcSetGeometryTimeStepCount": (None, [vp, uint]),
         "rtcCommitScene": (None, [vp]),
         "rtcReleaseScene": (None, [vp]),
         "rtcRetainScene": (None, [vp]),
@@ -251,12 +252,17 @@ class Shape:
 
     kind : an RTCGeometryType (CURVE_GEOMETRY's, SPHERE_POINT); vertices : (V, 4) float32 x, y, z, radius;
     indices : (S,) uint32, each curve segment's first control vertex (None for points); tessellation : Embree's
-    tessellation rate of curves (Cycles': Subdivisions + 1)."""
+    tessellation rate of curves (Cycles': Subdivisions + 1). steps : None, or (T, V, 4) float32 vertices at T >= 2
+    times evenly spread over [0, 1] (motion blur): Embree's time steps, one vertex buffer each, interpolated
+    linearly at each ray's time (as Cycles' add_curves and add_points give them, intern/cycles/bvh/embree.cpp);
+    vertices is then not read by Embree."""
 
     def __init__(self, kind: int, vertices: np.ndarray, indices: np.ndarray | None = None,
-                 tessellation: float | None = None):
+                 tessellation: float | None = None, steps: np.ndarray | None = None):
         self.kind = kind
         self.vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 4)
+        self.steps = None if steps is None else np.ascontiguousarray(steps, np.float32).reshape(
+            len(steps), -1, 4)
         self.indices = None if indices is None else np.ascontiguousarray(indices, np.uint32).reshape(-1)
         self.tessellation = tessellation
 
@@ -274,8 +280,14 @@ class Shape:
         if self.indices is not None:
             lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_INDEX, 0, _FORMAT_UINT, self.indices.ctypes.data, 0, 4,
                                            len(self.indices))
-        lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT4, self.vertices.ctypes.data, 0, 16,
-                                       len(self.vertices))
+        if self.steps is None:
+            lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT4, self.vertices.ctypes.data, 0,
+                                           16, len(self.vertices))
+        else:
+            lib.rtcSetGeometryTimeStepCount(geom, len(self.steps))
+            for step, vertices in enumerate(self.steps):
+                lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, step, _FORMAT_FLOAT4, vertices.ctypes.data, 0,
+                                               16, len(vertices))
         lib.rtcCommitGeometry(geom)
         lib.rtcAttachGeometryByID(scene_handle, geom, geom_id)
         lib.rtcReleaseGeometry(geom)
@@ -388,8 +400,9 @@ class Scene:
             return None
         return _embreex_view(self.handle, self.device, slot)
 
-    def _packets(self, origins, directions, t_max, rows: int):
-        """Rays packed into (P, rows, 16) float32 packets, and the valid mask of the last packet."""
+    def _packets(self, origins, directions, t_max, rows: int, times=None):
+        """Rays packed into (P, rows, 16) float32 packets, and the valid mask of the last packet. times: (N,) each
+        ray's time in [0, 1] for geometries with time steps, or None (0)."""
         n = len(origins)
         p = -(-n // _LANES)
         buf = aligned_empty((p, rows, _LANES), np.float32)
@@ -405,6 +418,10 @@ class Scene:
                 buf[full, row, tail:] = 0.0
         buf[:, _TNEAR, :] = 0.0
         buf[:, _TIME, :] = 0.0
+        if times is not None:
+            buf[:full, _TIME, :] = times[:full * _LANES].reshape(full, _LANES)
+            if tail:
+                buf[full, _TIME, :tail] = times[full * _LANES:]
         bits = buf.view(np.uint32)
         bits[:, _MASK, :] = INVALID
         bits[:, _ID, :] = 0
@@ -426,13 +443,14 @@ class Scene:
         if p:
             fn(last.ctypes.data, scene, base + (p - 1) * stride, None)
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray, geometry: bool = False):
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray, geometry: bool = False,
+                  times: np.ndarray | None = None):
         """Closest hits of (N, 3) float32 rays within (N,) t_max: (prim, instance, t, u, v), with prim -1
         and t = t_max for a miss, instance -1 for hits on the plain mesh and the shapes; geometry: then also
         each hit's geometry (the top level's for hits outside instances, the instanced scene's within) and its
-        (N, 3) unnormalised geometric normal, Embree's Ng."""
+        (N, 3) unnormalised geometric normal, Embree's Ng. times: (N,) the rays' times (time steps), or None."""
         n = len(origins)
-        buf, last = self._packets(origins, directions, t_max, _HIT_ROWS)
+        buf, last = self._packets(origins, directions, t_max, _HIT_ROWS, times)
         bits = buf.view(np.uint32)
         bits[:, _PRIM:_INST + 1, :] = INVALID
         self._trace(self.device.lib.rtcIntersect16, buf, last)
@@ -446,10 +464,11 @@ class Scene:
             out += (bits[:, _GEOM, :].reshape(-1)[:n].view(np.int32), ng)
         return out
 
-    def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
-        """(N,) bool: something lies on the ray before t_max."""
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,
+                 times: np.ndarray | None = None) -> np.ndarray:
+        """(N,) bool: something lies on the ray before t_max (at the rays' times, or None)."""
         n = len(origins)
-        buf, last = self._packets(origins, directions, t_max, _RAY_ROWS)
+        buf, last = self._packets(origins, directions, t_max, _RAY_ROWS, times)
         self._trace(self.device.lib.rtcOccluded16, buf, last)
         # Embree marks an occluded ray by setting its tfar to -inf.
         return buf[:, _TFAR, :].reshape(-1)[:n] < 0

@@ -334,7 +334,8 @@ def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
     return SurfaceHit(tables.triangles, prim, np.take(hits.u, found),
                       np.take(hits.v, found), direction, tables.shading.needs_uv,
                       _hit_motion(tables, prim, times) if tables.accel.moves else None,
-                      None if tables.shapes is None else (np.take(rays.origins, found, axis=0), np.take(hits.t, found)))
+                      None if tables.shapes is None else (np.take(rays.origins, found, axis=0), np.take(hits.t, found),
+                                                          None if times is None else times.times))
 
 
 def _hit_motion(tables, prim, times):

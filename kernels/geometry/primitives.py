@@ -15,6 +15,8 @@ on its own key (kernels.visibility.skip_hits).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from .. import embree
@@ -82,11 +84,19 @@ class ShapeLayout:
         for record in self.records:
             if isinstance(record, Curves):
                 vertices, indices = curve_geometry.embree_buffers(record)
+                steps = None if record.motion is None else np.stack(
+                    [curve_geometry.embree_buffers(r)[0] for r in step_records(record)])
                 out.append(embree.Shape(embree.CURVE_GEOMETRY[record.shape], vertices, indices,
-                                        curve_geometry.tessellation_rate(record.subdivisions)))
+                                        curve_geometry.tessellation_rate(record.subdivisions), steps))
             else:
-                out.append(embree.Shape(embree.SPHERE_POINT, point_geometry.embree_vertices(record)))
+                out.append(embree.Shape(embree.SPHERE_POINT, point_geometry.embree_vertices(record),
+                                        steps=record.motion))
         return out
+
+    @property
+    def moves(self) -> bool:
+        """Some record has motion keys: rays need their times."""
+        return any(r.motion is not None for r in self.records)
 
     def locate(self, prim: np.ndarray):
         """(part, local number within its record) of curve and point numbers prim (all >= triangle_count)."""
@@ -323,17 +333,20 @@ class PrimitiveTable:
         return m
 
     def shape_hits(self, prim: np.ndarray, u: np.ndarray, v: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
-                   t: np.ndarray) -> "ShapeHits":
+                   t: np.ndarray, times: np.ndarray | None = None) -> "ShapeHits":
         """What hits on curves and points yield (prim all >= triangle_count; Embree's u, v; the rays' (n, 3)
-        origins and directions, (n,) distances): ShapeHits."""
+        origins and directions, (n,) distances; (n,) the rays' shutter times, for records with motion keys, or
+        None): ShapeHits."""
         n = len(prim)
         out = ShapeHits(n)
         for sel, record, local, instance in self._groups(prim):
             matrices = self._instance_matrices(instance)
             o, d, tt = origins[sel], dirs[sel], t[sel]
+            hit_times = None if times is None or record.motion is None else np.take(times, sel)
             if isinstance(record, Curves):
                 curve = curve_geometry.segment_curves(record, local)
-                points = curve_geometry.placed(curve_geometry.control_points(record, local, curve), matrices)
+                points = curve_geometry.placed(
+                    at_times(record, hit_times, lambda r: curve_geometry.control_points(r, local, curve)), matrices)
                 shape = np.full(len(sel), curve_geometry.SHAPE_IDS[record.shape], np.int8)
                 uu = np.take(u, sel).astype(F32)
                 p, ng, ns, dpdu, vv = curve_geometry.hit_geometry(points, shape, uu, np.take(v, sel).astype(F32),
@@ -345,13 +358,13 @@ class PrimitiveTable:
                 out.v[sel] = vv
                 # Curves Info's Thickness reads the stored radius (the object's on instances, as Cycles).
                 out.radius[sel] = curve_geometry.radius_along(
-                    curve_geometry.control_points(record, local, curve), uu)
+                    at_times(record, hit_times, lambda r: curve_geometry.control_points(r, local, curve)), uu)
             else:
-                centre = point_geometry.centres(record, local, matrices)
+                centre = at_times(record, hit_times, lambda r: point_geometry.centres(r, local, matrices))
                 p, ng = point_geometry.hit_geometry(centre, o, d, tt)
                 ns = ng
                 out.centre[sel] = centre
-                out.radius[sel] = point_geometry.radii(record, local, matrices)
+                out.radius[sel] = at_times(record, hit_times, lambda r: point_geometry.radii(r, local, matrices))
             out.p[sel], out.ng[sel], out.ns[sel] = p, ng, ns
         return out
 
@@ -369,6 +382,35 @@ class ShapeHits:
         self.v, self.b1, self.radius = np.zeros(n, F32), np.zeros(n, F32), np.zeros(n, F32)
         self.curve, self.ribbon = np.zeros(n, bool), np.zeros(n, bool)
         self.kind = np.zeros(n, np.int8)
+
+
+def step_records(record) -> list:
+    """A record with motion keys as one record per time step (its keys or points those of the step)."""
+    if isinstance(record, Curves):
+        return [dataclasses.replace(record, keys=keys, motion=None) for keys in record.motion]
+    return [dataclasses.replace(record, points=points, motion=None) for points in record.motion]
+
+
+def at_times(record, times: np.ndarray | None, read):
+    """read(record) where the record is still (times None or no motion keys), else read at each hit's time: the
+    two neighbouring steps' values mixed linearly, as Embree interpolates time steps and as Cycles' motion_keys
+    and point motion read them (step = min(floor(t (S - 1)), S - 2), intern/cycles/scene/hair.cpp)."""
+    if times is None or record.motion is None:
+        return read(record)
+    count = len(record.motion)
+    position = np.asarray(times, np.float32) * F32(count - 1)
+    step = np.clip(position.astype(np.int64), 0, count - 2)
+    f = (position - step.astype(F32)).astype(F32)
+    steps = step_records(record)
+    out = None
+    for s in np.unique(step):
+        a, b = read(steps[s]), read(steps[s + 1])
+        if out is None:
+            out = np.empty(a.shape, F32)
+        sel = np.flatnonzero(step == s)
+        w = f[sel].reshape((-1,) + (1,) * (a.ndim - 1))
+        out[sel] = ((F32(1) - w) * a[sel] + w * b[sel]).astype(F32)
+    return out
 
 
 def _corners(record, local: np.ndarray, values: np.ndarray) -> np.ndarray:

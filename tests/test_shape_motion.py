@@ -1,0 +1,106 @@
+"""Motion blur of curves and points in the kernel: motion keys as Embree time steps, read at each ray's time."""
+from __future__ import annotations
+
+import numpy as np
+
+from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World, motion, render
+from ember.kernels.interaction import SurfaceHit
+from ember.kernels.scene import Curves, Points
+from ember.kernels.shapes import look_at
+
+FLAT = np.ones(257, np.float32)   # a flat shutter curve, as Blender samples it
+
+
+def moving_scene(width=16, height=16, fov=np.radians(30), **fields) -> SceneArrays:
+    """A black diffuse material, a white world, a camera on -y looking at the origin, a flat shutter."""
+    empty = np.zeros((0, 3, 3), np.float32)
+    cam = Camera(world_from_camera=look_at((0, -5, 0), (0, 0, 0)), width=width, height=height, fov_rad=fov)
+    return SceneArrays(positions=empty, normals=empty, uvs=np.zeros((0, 3, 2), np.float32),
+                       material_ids=np.zeros(0, np.int32), materials=Materials.diffuse(np.zeros((1, 3), np.float32)),
+                       world=World(color=np.ones(3, np.float32)), camera=cam,
+                       shutter_table=motion.shutter_table(FLAT), **fields)
+
+
+def sliding_point(radius=0.1, x0=-1.0, x1=1.0, steps=3) -> Points:
+    """One sphere at the origin at the frame, sliding along x from x0 to x1 over the shutter."""
+    keys = np.zeros((steps, 1, 4), np.float32)
+    keys[:, 0, 0] = np.linspace(x0, x1, steps)
+    keys[:, 0, 3] = radius
+    return Points(keys[steps // 2].copy(), np.zeros(1, np.int32), motion=keys)
+
+
+def test_rays_meet_a_moving_point_where_it_is_at_their_time():
+    """Rays down -y through the origin at times t meet the sphere whose centre is at x = -1 + 2t exactly where
+    the sphere is then: hit for |x(t)| < r, at distance 5 - sqrt(r^2 - x^2), with the normal from that centre."""
+    scene = moving_scene(points=sliding_point(radius=0.3))
+    times = np.linspace(0.0, 1.0, 401, dtype=np.float32)
+    n = len(times)
+    origins = np.tile(np.float32([0, -5, 0]), (n, 1))
+    dirs = np.tile(np.float32([0, 1, 0]), (n, 1))
+    with Renderer(scene, threads=1) as r:
+        hits = r.accel.intersect(origins, dirs, np.full(n, np.inf, np.float32), time=times)
+        assert r.accel.occluded(origins, dirs, np.full(n, 10, np.float32), time=times).tolist() == \
+            (hits.prim >= 0).tolist()
+        found = np.flatnonzero(hits.prim >= 0)
+        hit = SurfaceHit(r.triangles, hits.prim[found], hits.u[found], hits.v[found],
+                         tuple(dirs[found, k] for k in range(3)), False,
+                         ray=(origins[found], hits.t[found], times[found]))
+    x = -1.0 + 2.0 * times.astype(np.float64)
+    inside = np.abs(x) < 0.3
+    edge = np.abs(np.abs(x) - 0.3) < 1e-4
+    assert ((hits.prim >= 0) == inside)[~edge].all()
+    expect_t = 5.0 - np.sqrt(np.maximum(0.09 - x ** 2, 0.0))
+    assert np.allclose(hits.t[found], expect_t[found], atol=2e-5)
+    centre = np.stack([x[found], np.zeros(len(found)), np.zeros(len(found))], axis=1)
+    p = origins[found] + dirs[found] * hits.t[found][:, None]
+    normal = (p - centre) / 0.3
+    assert np.allclose(hit.shapes.centre, centre, atol=1e-6)
+    assert np.allclose(np.stack(hit.shapes.ng, axis=1) if isinstance(hit.shapes.ng, tuple) else hit.shapes.ng,
+                       normal, atol=1e-4)
+
+
+def test_a_point_sliding_across_a_pixel_covers_it_for_its_width_over_its_travel():
+    """The closed form of motion blur: a black sphere of radius r sliding at constant speed from x = -1 to 1 over
+    the shutter covers a ray through the origin for 2r of its travel of 2, a time share r; Cycles' shutter table
+    of a flat curve spreads times uniformly over 255/256 of the shutter, so the share is r 256/255. The pixel
+    (a tiny field of view: the ray's neighbours see the same) is white world times the share it is uncovered."""
+    r, samples = 0.1, 512
+    scene = moving_scene(width=4, height=4, fov=1e-3, points=sliding_point(radius=r))
+    image = render(scene, RenderSettings(samples=samples, seed=11)).image[..., :3]
+    share = r * 256 / 255
+    n = image.shape[0] * image.shape[1] * samples
+    sigma = np.sqrt(share * (1 - share) / n)
+    assert abs((1.0 - image.mean()) - share) < 4 * sigma, (1.0 - image.mean(), share, sigma)
+
+
+def test_moving_curves_take_their_keys_at_each_ray_time():
+    """A linear curve (a capsule along z) moving along x as the sliding point does covers a ray through the
+    origin at the same times; its hits report the segment's keys where they are then."""
+    steps = 5
+    keys = np.zeros((steps, 2, 4), np.float32)
+    keys[:, :, 0] = np.linspace(-1, 1, steps)[:, None]
+    keys[:, 0, 2], keys[:, 1, 2] = -1.0, 1.0
+    keys[:, :, 3] = 0.2
+    curves = Curves("LINEAR", keys[steps // 2].copy(), np.array([0, 2], np.int32), np.zeros(1, np.int32),
+                    motion=keys)
+    times = np.linspace(0.0, 1.0, 201, dtype=np.float32)
+    n = len(times)
+    origins = np.tile(np.float32([0, -5, 0]), (n, 1))
+    dirs = np.tile(np.float32([0, 1, 0]), (n, 1))
+    with Renderer(moving_scene(curves=(curves,)), threads=1) as r:
+        hits = r.accel.intersect(origins, dirs, np.full(n, np.inf, np.float32), time=times)
+    x = -1.0 + 2.0 * times.astype(np.float64)
+    edge = np.abs(np.abs(x) - 0.2) < 1e-4
+    assert ((hits.prim >= 0) == (np.abs(x) < 0.2))[~edge].all()
+    found = (hits.prim >= 0) & ~edge
+    assert np.allclose(hits.t[found], 5.0 - np.sqrt(0.04 - x[found] ** 2), atol=2e-5)
+
+
+def test_a_still_record_with_equal_motion_keys_renders_as_without_them():
+    """Motion keys that do not move give the image the record gives alone, bit for bit (same rays, same hits)."""
+    still = Points(np.array([[0, 0, 0, 0.8]], np.float32), np.zeros(1, np.int32))
+    keys = np.repeat(still.points[None], 3, axis=0)
+    a = render(moving_scene(points=still), RenderSettings(samples=2, seed=3)).image
+    b = render(moving_scene(points=Points(still.points, still.material_ids, motion=keys)),
+               RenderSettings(samples=2, seed=3)).image
+    assert np.array_equal(a, b)
