@@ -342,7 +342,9 @@ def _hit_motion(tables, prim, times):
     """(hits on moving triangles, (m, 3, 4) matrices taking the triangles' stored positions to where
     they are at each hit's time, (m, 3, 3) the same for normals), or None when no hit moves. The
     matrices are cached per path (times: the hits' RayTimes), so later bounces reuse them."""
-    ids = np.take(tables.scene.motion_ids, prim)
+    ids = tables.scene.motion_ids
+    # Curves and points (numbered after the triangles) move by their own motion keys, not here.
+    ids = np.where(prim < len(ids), np.take(ids, np.minimum(prim, len(ids) - 1)), -1)
     rows = np.flatnonzero(ids >= 0)
     if not len(rows):
         return None

@@ -8,6 +8,13 @@ row of its own, after the meshes' rows (hair of a mesh object too, as Cycles mak
 The scene's Curves settings pick the shape (scene.cycles_curves: Rounded Ribbons, 3D Curves, Linear 3D Curves;
 Subdivisions), curves of poly type are linear whatever it is (intern/cycles/blender/curves.cpp, sync_hair);
 View Layer > Filter > Curves off renders no curves (Cycles' use_hair).
+
+Motion blur: an instance that moves (its transform over the shutter, motion.MotionSamples.objects) or deforms (its
+keys at each motion step, MotionSamples.shapes) is copied into world space at each of its motion steps, the
+kernel's time steps (kernels.scene.Curves.motion, Points.motion), never instanced. A deformation counts where any
+key moves (for curves its radius too), as Cycles' export_hair_curves_motion and export_pointcloud_motion decide
+(intern/cycles/blender/curves.cpp, pointcloud.cpp); keys whose number changes during the shutter give no
+deformation blur (a warning names the object).
 """
 from __future__ import annotations
 
@@ -38,6 +45,7 @@ class _Group:
     visibility: list = field(default_factory=list)
     slots: list = field(default_factory=list)
     properties: list = field(default_factory=list)
+    motion: list = field(default_factory=list)        # per instance (S, n, 4) world keys over the shutter, or None
 
 
 @dataclass
@@ -59,7 +67,7 @@ class ShapeRows:
 class ShapeExport:
     """Curves and points met by export_geometry's walk over the instances (add_*), assembled at its end."""
 
-    def __init__(self, depsgraph, warnings: list[str], moving=frozenset()):
+    def __init__(self, depsgraph, warnings: list[str], moving=frozenset(), motion=None):
         settings = getattr(depsgraph.scene_eval, "cycles_curves", None)
         self.shape = CYCLES_SHAPES.get(getattr(settings, "shape", "RIBBONS"), "RIBBON")
         self.subdivisions = int(getattr(settings, "subdivisions", 2))
@@ -67,6 +75,8 @@ class ShapeExport:
         self.use_hair = bool(getattr(depsgraph.view_layer, "use_strand", True))
         self.warnings = warnings
         self.moving = moving
+        self.transforms = motion.objects if motion is not None else {}   # instance key -> (S, 4, 4)
+        self.steps = motion.shapes if motion is not None else {}         # instance key -> its keys per step
         self._local: dict = {}           # data key -> LocalCurves or LocalPoints
         self._groups: dict = {}          # (data key, material rows) -> _Group
         self._warned: set = set()
@@ -102,11 +112,8 @@ class ShapeExport:
         local = self._local[key]
         if not local.count:
             return False
-        if place["key"] in self.moving and ob.name not in self._warned:
-            self._warned.add(ob.name)
-            self.warnings.append(f"Object '{ob.name}': motion blur of curves and points is not supported yet, "
-                                 f"they render where they are at the frame")
         group = self._groups.setdefault((key, rows), _Group())
+        group.motion.append(self._motion(key[0], local, place, ob))
         group.matrices.append(place["matrix"])
         group.inputs.append(place["inputs"])
         group.keys.append(place["key"])
@@ -115,6 +122,43 @@ class ShapeExport:
         group.slots.append(place["slots"])
         group.properties.append(place["properties"])
         return True
+
+    def _motion(self, kind: str, local, place: dict, ob) -> np.ndarray | None:
+        """(S, n, 4) float32 the instance's keys in world space at its S motion steps (each step's keys placed by
+        that step's transform), or None when it neither moves nor deforms."""
+        matrices = self.transforms.get(place["key"])
+        steps = self._deformation(kind, local, place["key"], ob)
+        if steps is not None and matrices is not None and len(steps) != len(matrices):
+            steps = None
+        if matrices is None and steps is None:
+            return None
+        values = local.points if isinstance(local, LocalPoints) else local.keys
+        count = len(matrices) if matrices is not None else len(steps)
+        return np.stack([_placed(values if steps is None else steps[k],
+                                 place["matrix"] if matrices is None else matrices[k]) for k in range(count)])
+
+    def _deformation(self, kind: str, local, key, ob) -> list | None:
+        """The instance's local keys at its motion steps when they differ from the frame's, else None."""
+        steps = self.steps.get(key)
+        if steps is None:
+            return None
+        points = isinstance(local, LocalPoints)
+        values = local.points if points else local.keys
+        same = all(len(k) == len(values) and (points or np.array_equal(o, local.offsets)) for o, k in steps)
+        if not same:
+            if ob.name not in self._warned:
+                self._warned.add(ob.name)
+                what = "points" if points else "curves or their keys"
+                self.warnings.append(f"Object '{ob.name}': its {what} change in number during the shutter; "
+                                     f"rendered without deformation motion blur")
+            return None
+        columns = slice(0, 3) if points else slice(0, 4)   # Cycles' points move by their positions alone
+        if kind == "HAIR":   # read back through the object's own transform at each step: its rounding is no motion
+            scale = float(np.abs(values[:, :3]).max(initial=0.0)) + 1.0
+            moved = any(not np.allclose(k[:, columns], values[:, columns], rtol=0, atol=1e-6 * scale) for _, k in steps)
+        else:
+            moved = any(not np.array_equal(k[:, columns], values[:, columns]) for _, k in steps)
+        return [k for _, k in steps] if moved else None
 
     def assemble(self, first_row: int) -> ShapeRows:
         """The kernel's records of everything added; object rows numbered from first_row."""
@@ -131,14 +175,15 @@ class ShapeExport:
             size = local.segment_count if isinstance(local, LocalCurves) else local.count
             tables.append(object_rows(matrices, *(np.array(column) for column in zip(*group.inputs))))
             ids = np.arange(row, row + k, dtype=np.int32)
-            if k >= 2 and k * size >= INSTANCE_MIN_PRIMITIVES and not any(x in self.moving for x in group.keys):
+            still = not any(x in self.moving for x in group.keys) and all(m is None for m in group.motion)
+            if k >= 2 and k * size >= INSTANCE_MIN_PRIMITIVES and still:
                 prototypes.append(self._record(local, table, None, None))
                 which.extend([len(prototypes) - 1] * k)
                 placements.append(matrices)
                 instance_rows.extend(ids)
             else:
-                for matrix, obj in zip(matrices, ids):
-                    record = self._record(local, table, matrix, obj)
+                for matrix, obj, moves in zip(matrices, ids, group.motion):
+                    record = self._record(local, table, matrix, obj, moves)
                     plain.setdefault("POINTS" if isinstance(record, Points) else record.shape, []).append(record)
             row += k
             out.keys += group.keys
@@ -156,21 +201,22 @@ class ShapeExport:
                                            np.array(instance_rows, np.int32))
         return out
 
-    def _record(self, local, table: np.ndarray, matrix, obj):
+    def _record(self, local, table: np.ndarray, matrix, obj, motion=None):
         """A kernel record of local data: in object space (matrix None: a prototype) or moved into world space,
-        on object row obj."""
+        on object row obj; motion: its world keys over the shutter (_motion), or None."""
         if isinstance(local, LocalPoints):
             values = _placed(local.points, matrix)
             n = local.count
             return Points(values, np.full(n, table[0], np.int32),
                           None if obj is None else np.full(n, obj, np.int32),
-                          tuple((name, np.ascontiguousarray(v, np.float32)) for name, v in local.attributes.items()))
+                          tuple((name, np.ascontiguousarray(v, np.float32)) for name, v in local.attributes.items()),
+                          motion)
         c = local.count
         materials = table[np.clip(local.slots, 0, len(table) - 1)].astype(np.int32)
         return Curves("LINEAR" if local.linear else self.shape, _placed(local.keys, matrix), local.offsets,
                       materials, None if obj is None else np.full(c, obj, np.int32),
                       tuple((name, np.ascontiguousarray(v, np.float32)) for name, v in local.attributes.items()),
-                      self.subdivisions)
+                      self.subdivisions, motion)
 
 
 def _placed(values: np.ndarray, matrix) -> np.ndarray:
@@ -219,7 +265,8 @@ def _join_curves(records: list) -> Curves:
     return Curves(records[0].shape, keys, offsets.astype(np.int32),
                   np.concatenate([r.material_ids for r in records]),
                   np.concatenate([r.object_ids for r in records]),
-                  _attribute_union(records, lambda r: len(r.keys), lambda r: r.count), records[0].subdivisions)
+                  _attribute_union(records, lambda r: len(r.keys), lambda r: r.count), records[0].subdivisions,
+                  _joined_motion([(r.keys, r.motion) for r in records]))
 
 
 def _join_points(records: list) -> Points:
@@ -227,4 +274,26 @@ def _join_points(records: list) -> Points:
         return records[0]
     return Points(np.concatenate([r.points for r in records]), np.concatenate([r.material_ids for r in records]),
                   np.concatenate([r.object_ids for r in records]),
-                  _attribute_union(records, lambda r: r.count, lambda r: r.count))
+                  _attribute_union(records, lambda r: r.count, lambda r: r.count),
+                  _joined_motion([(r.points, r.motion) for r in records]))
+
+
+def _joined_motion(parts: list) -> np.ndarray | None:
+    """The motion keys of records joined end to end, None when none moves: every record on the most steps any
+    has, a still one its keys at each, one of fewer steps mixed linearly onto them (the kernel's interpolation
+    between its own steps, so its motion is unchanged: step counts 2^s + 1 nest)."""
+    counts = [len(m) for _, m in parts if m is not None]
+    if not counts:
+        return None
+    steps = max(counts)
+    time = np.linspace(0.0, 1.0, steps)
+    out = []
+    for keys, motion in parts:
+        if motion is None:
+            out.append(np.broadcast_to(keys, (steps,) + keys.shape))
+            continue
+        position = time * (len(motion) - 1)
+        lo = np.minimum(position.astype(np.int64), len(motion) - 2)
+        f = (position - lo).astype(np.float32)[:, None, None]
+        out.append((1 - f) * motion[lo] + f * motion[lo + 1])
+    return np.ascontiguousarray(np.concatenate(out, axis=1), np.float32)
