@@ -222,13 +222,16 @@ class Accel:
         inst = layout.instances
         if inst is not None and inst.count:
             scenes = [embree.ShapeScene(self._device, s) for s in shapes[layout.plain_count:]]
-            placed = placed + [(scenes[p], m) for p, m in zip(inst.prototype, inst.world_from_object)]
+            moving = layout.instance_motion   # per shape instance its decomposed motion, or None
+            placed = placed + [(scenes[p], m, moving[k]) for k, (p, m) in
+                               enumerate(zip(inst.prototype, inst.world_from_object))]
         # Per top-level geometry and per instance: the number of its first primitive (-1: triangles).
         self._geometry_base = np.full(1 + len(placed) + len(self._shape_geometries), -1, np.int64)
         self._geometry_base[1 + len(placed):] = layout.plain_base
         bases = self._bases if self._bases is not None else np.zeros(0, np.int64)
         self._instance_base = np.concatenate([bases[:mesh_instances], layout.instance_base]).astype(np.int64)
-        linear = np.array([np.asarray(m, np.float64)[:3, :3] for _, m in placed]).reshape(-1, 3, 3)
+        self._placed_motion = [None] * mesh_instances + (list(layout.instance_motion) if inst is not None else [])
+        linear = np.array([np.asarray(entry[1], np.float64)[:3, :3] for entry in placed]).reshape(-1, 3, 3)
         with np.errstate(all="ignore"):
             self._instance_inverse = np.linalg.inv(linear).astype(np.float32) if len(linear) else linear
         self.primitive_count = layout.total
@@ -463,7 +466,15 @@ class Accel:
         placed = np.flatnonzero(hit & (inst >= 0))
         if len(placed):   # Embree's Ng of an instance's hit is in its object space: by the inverse transpose
             ng = ng.copy()
-            ng[placed] = np.einsum("nji,nj->ni", np.take(self._instance_inverse, inst[placed], axis=0), ng[placed])
+            inverse = np.take(self._instance_inverse, inst[placed], axis=0)
+            if times is not None:   # moving instances: their inverse at each ray's time
+                for k in np.unique(inst[placed]):
+                    decomposed = self._placed_motion[k]
+                    if decomposed is not None:
+                        sel = np.flatnonzero(inst[placed] == k)
+                        m = motion.interpolate(decomposed, np.take(times, placed[sel]).astype(np.float64))
+                        inverse[sel] = motion.affine_inverse(m)[:, :, :3].astype(np.float32)
+            ng[placed] = np.einsum("nji,nj->ni", inverse, ng[placed])
         return prim, np.array(t, np.float32), np.array(u, np.float32), np.array(v, np.float32), ng
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,

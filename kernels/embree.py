@@ -119,6 +119,7 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "rtcSetGeometryBuildQuality": (None, [vp, cint]),
         "rtcSetGeometryTessellationRate": (None, [vp, ctypes.c_float]),
         "rtcSetGeometryTimeStepCount": (None, [vp, uint]),
+        "rtcSetGeometryTransformQuaternion": (None, [vp, uint, vp]),
         "rtcCommitScene": (None, [vp]),
         "rtcReleaseScene": (None, [vp]),
         "rtcRetainScene": (None, [vp]),
@@ -321,8 +322,10 @@ class Scene:
     def __init__(self, device: Device, plain: Triangles | None = None, instances=(), quality: str = "medium",
                  cancel: threading.Event | None = None, shapes=()):
         """plain: the triangles used as they are, in the top level's own BVH (a Mesh's BVH is not used);
-        instances: iterable of (Mesh or ShapeScene, (3, 4) or (4, 4) world_from_object); shapes: Shapes in
-        world space (curves, points), geometries K + 1, K + 2, ... of the top level.
+        instances: iterable of (Mesh or ShapeScene, (3, 4) or (4, 4) world_from_object[, motion]); motion, when
+        given and not None, is a kernels.motion.Decomposed of S >= 2 steps over the shutter: the instance then moves,
+        Embree interpolating its steps at each ray's time (quaternion_steps); shapes: Shapes in world space (curves,
+        points), geometries K + 1, K + 2, ... of the top level.
         quality: the top level's BUILD_QUALITY ("low" builds several times faster, traces somewhat slower;
         hits are the same either way: only the tree differs, not the triangle test).
         cancel: an event that stops the build when set (Embree's progress monitor), and BuildCancelled is
@@ -344,11 +347,17 @@ class Scene:
             lib.rtcReleaseGeometry(geom)
         placed = list(instances)
         # The transforms as Embree holds them, (K, 3, 4) float32: set_transforms compares against them.
-        self._transforms = _transforms([matrix for _, matrix in placed])
-        for k, (mesh, _) in enumerate(placed):
+        self._transforms = _transforms([entry[1] for entry in placed])
+        for k, (mesh, *rest) in enumerate(placed):
             geom = lib.rtcNewGeometry(device.handle, _GEOMETRY_INSTANCE)
             lib.rtcSetGeometryInstancedScene(geom, mesh.handle)
-            lib.rtcSetGeometryTransform(geom, 0, _FORMAT_FLOAT3X4_ROW_MAJOR, self._transforms[k].ctypes.data)
+            steps = quaternion_steps(rest[1]) if len(rest) > 1 and rest[1] is not None else None
+            if steps is None:
+                lib.rtcSetGeometryTransform(geom, 0, _FORMAT_FLOAT3X4_ROW_MAJOR, self._transforms[k].ctypes.data)
+            else:
+                lib.rtcSetGeometryTimeStepCount(geom, len(steps))
+                for step in range(len(steps)):
+                    lib.rtcSetGeometryTransformQuaternion(geom, step, steps[step].ctypes.data)
             lib.rtcCommitGeometry(geom)
             lib.rtcAttachGeometryByID(self.handle, geom, 1 + k)
             lib.rtcReleaseGeometry(geom)
@@ -472,6 +481,21 @@ class Scene:
         self._trace(self.device.lib.rtcOccluded16, buf, last)
         # Embree marks an occluded ray by setting its tfar to -inf.
         return buf[:, _TFAR, :].reshape(-1)[:n] < 0
+
+
+def quaternion_steps(decomposed) -> np.ndarray:
+    """(S, 16) float32, 64-byte aligned: Embree's RTCQuaternionDecomposition of each motion step of a
+    kernels.motion.Decomposed (world = T R S with S upper triangular), filled as Cycles' add_instance fills it
+    (intern/cycles/bvh/embree.cpp): scale, skew (xy, xz, yz), shift 0, the quaternion (r, i, j, k) = (w, x, y, z),
+    translation. Embree slerps the quaternion and lerps the rest between steps."""
+    rotation, translation, scale = (np.asarray(a, np.float64) for a in decomposed)
+    out = aligned_empty((len(rotation), 16), np.float32)
+    out[:, 0], out[:, 1], out[:, 2] = scale[:, 0, 0], scale[:, 1, 1], scale[:, 2, 2]
+    out[:, 3], out[:, 4], out[:, 5] = scale[:, 0, 1], scale[:, 0, 2], scale[:, 1, 2]
+    out[:, 6:9] = 0.0
+    out[:, 9], out[:, 10:13] = rotation[:, 3], rotation[:, :3]
+    out[:, 13:16] = translation
+    return out
 
 
 def _transforms(world_from_object) -> np.ndarray:

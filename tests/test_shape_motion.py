@@ -5,7 +5,7 @@ import numpy as np
 
 from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World, motion, render
 from ember.kernels.interaction import SurfaceHit
-from ember.kernels.scene import Curves, Points
+from ember.kernels.scene import Curves, Points, ShapeInstances, object_row
 from ember.kernels.shapes import look_at
 
 FLAT = np.ones(257, np.float32)   # a flat shutter curve, as Blender samples it
@@ -104,3 +104,43 @@ def test_a_still_record_with_equal_motion_keys_renders_as_without_them():
     b = render(moving_scene(points=Points(still.points, still.material_ids, motion=keys)),
                RenderSettings(samples=2, seed=3)).image
     assert np.array_equal(a, b)
+
+
+def _turn(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.eye(4)
+    m[:2, :2] = [[c, -s], [s, c]]
+    return m
+
+
+def test_a_turning_instance_moves_its_points_along_the_arc():
+    """An instance turning half a circle about z over three motion steps (0, 90 and 180 degrees) carries its
+    sphere (at x = 1 in object space) along the arc, as Cycles' slerped object motion does: at time t its centre
+    is at angle pi t. A ray down through that point hits the sphere's top; one through the chord between steps
+    (where world-space keys mixed linearly would put it) misses."""
+    keys = np.stack([_turn(a) for a in (0.0, np.pi / 2, np.pi)])
+    placed = ShapeInstances((Points(np.array([[1, 0, 0, 0.2]], np.float32), np.zeros(1, np.int32)),),
+                            np.zeros(1, np.int32), keys[1:2].copy(), np.zeros(1, np.int32), (keys,),
+                            np.zeros(1, np.int32))
+    scene = moving_scene(shape_instances=placed, objects=object_row(np.eye(4))[None],
+                         object_ids=np.zeros(0, np.int32))
+    assert scene.has_motion
+    times = np.linspace(0.05, 0.95, 19, dtype=np.float32)
+    angle = np.pi * times.astype(np.float64)
+    arc = np.stack([np.cos(angle), np.sin(angle), np.full(len(times), 5.0)], axis=1)
+    step = np.minimum((times * 2).astype(int), 1)
+    f = times * 2 - step
+    chord = (1 - f)[:, None] * keys[step, :3, 0] + f[:, None] * keys[step + 1, :3, 0]
+    chord[:, 2] = 5.0
+    down = np.tile(np.float32([0, 0, -1]), (len(times), 1))
+    with Renderer(scene, threads=1) as r:
+        on_arc = r.accel.intersect(arc.astype(np.float32), down, np.full(len(times), np.inf, np.float32),
+                                   time=times)
+        hit = SurfaceHit(r.triangles, on_arc.prim, on_arc.u, on_arc.v, tuple(down[:, k] for k in range(3)), False,
+                         ray=(arc.astype(np.float32), on_arc.t, times))
+        on_chord = r.accel.intersect(chord.astype(np.float32), down, np.full(len(times), np.inf, np.float32),
+                                     time=times)
+    assert (on_arc.prim >= 0).all() and np.allclose(on_arc.t, 4.8, atol=1e-4)
+    assert np.allclose(hit.shapes.centre[:, :2], arc[:, :2], atol=1e-4)
+    gap = np.linalg.norm(chord[:, :2] - arc[:, :2], axis=1)
+    assert ((on_chord.prim >= 0) == (gap < 0.2 - 1e-4))[np.abs(gap - 0.2) > 1e-3].all()

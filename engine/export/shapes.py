@@ -9,9 +9,13 @@ The scene's Curves settings pick the shape (scene.cycles_curves: Rounded Ribbons
 Subdivisions), curves of poly type are linear whatever it is (intern/cycles/blender/curves.cpp, sync_hair);
 View Layer > Filter > Curves off renders no curves (Cycles' use_hair).
 
-Motion blur: an instance that moves (its transform over the shutter, motion.MotionSamples.objects) or deforms (its
-keys at each motion step, MotionSamples.shapes) is copied into world space at each of its motion steps, the
-kernel's time steps (kernels.scene.Curves.motion, Points.motion), never instanced. A deformation counts where any
+Motion blur, as Cycles keeps moving curves and points (intern/cycles/scene/object.cpp apply_static_transforms,
+bvh/embree.cpp add_instance, add_curves, add_points): an instance whose transform moves over the shutter
+(motion.MotionSamples.objects) stays in object space, placed by an instance with motion steps
+(kernels.scene.ShapeInstances.motion, slerped as Cycles' object motion); its deformation (its keys at each motion
+step, MotionSamples.shapes) becomes its prototype's time steps (kernels.scene.Curves.motion, Points.motion). One that
+only deforms is copied into world space at each of its steps, as Cycles applies a still object's transform to its
+motion keys too. Moving and deforming instances are never shared with still ones. A deformation counts where any
 key moves (for curves its radius too), as Cycles' export_hair_curves_motion and export_pointcloud_motion decide
 (intern/cycles/blender/curves.cpp, pointcloud.cpp); keys whose number changes during the shutter give no
 deformation blur (a warning names the object).
@@ -45,7 +49,7 @@ class _Group:
     visibility: list = field(default_factory=list)
     slots: list = field(default_factory=list)
     properties: list = field(default_factory=list)
-    motion: list = field(default_factory=list)        # per instance (S, n, 4) world keys over the shutter, or None
+    motion: list = field(default_factory=list)        # per instance ShapeExport._motion: how it moves, or None
 
 
 @dataclass
@@ -123,19 +127,16 @@ class ShapeExport:
         group.properties.append(place["properties"])
         return True
 
-    def _motion(self, kind: str, local, place: dict, ob) -> np.ndarray | None:
-        """(S, n, 4) float32 the instance's keys in world space at its S motion steps (each step's keys placed by
-        that step's transform), or None when it neither moves nor deforms."""
+    def _motion(self, kind: str, local, place: dict, ob) -> tuple | None:
+        """(transform, deformation) of an instance that moves, else None: its (S, 4, 4) world_from_object over the
+        shutter or None, and its (S, n, 4) float32 local keys over the shutter or None."""
         matrices = self.transforms.get(place["key"])
         steps = self._deformation(kind, local, place["key"], ob)
         if steps is not None and matrices is not None and len(steps) != len(matrices):
             steps = None
         if matrices is None and steps is None:
             return None
-        values = local.points if isinstance(local, LocalPoints) else local.keys
-        count = len(matrices) if matrices is not None else len(steps)
-        return np.stack([_placed(values if steps is None else steps[k],
-                                 place["matrix"] if matrices is None else matrices[k]) for k in range(count)])
+        return matrices, None if steps is None else np.ascontiguousarray(np.stack(steps), np.float32)
 
     def _deformation(self, kind: str, local, key, ob) -> list | None:
         """The instance's local keys at its motion steps when they differ from the frame's, else None."""
@@ -165,6 +166,7 @@ class ShapeExport:
         out = ShapeRows()
         plain: dict[str, list] = {}        # shape ("POINTS" for points) -> [(record in world space), ...]
         prototypes, which, placements, instance_rows = [], [], [], []
+        motions, motion_ids = [], []     # moving instances' (S, 4, 4) keys; per instance its entry or -1
         tables = []
         row = first_row
         for (key, rows), group in self._groups.items():
@@ -175,35 +177,63 @@ class ShapeExport:
             size = local.segment_count if isinstance(local, LocalCurves) else local.count
             tables.append(object_rows(matrices, *(np.array(column) for column in zip(*group.inputs))))
             ids = np.arange(row, row + k, dtype=np.int32)
-            still = not any(x in self.moving for x in group.keys) and all(m is None for m in group.motion)
-            if k >= 2 and k * size >= INSTANCE_MIN_PRIMITIVES and still:
+            if k >= 2 and k * size >= INSTANCE_MIN_PRIMITIVES and all(m is None for m in group.motion):
                 prototypes.append(self._record(local, table, None, None))
                 which.extend([len(prototypes) - 1] * k)
                 placements.append(matrices)
                 instance_rows.extend(ids)
-            else:
-                for matrix, obj, moves in zip(matrices, ids, group.motion):
-                    record = self._record(local, table, matrix, obj, moves)
+                motion_ids.extend([-1] * k)
+                row += k
+                self._rows(out, group)
+                continue
+            shared = None   # the group's prototype for its moving, undeformed instances
+            for matrix, obj, moves in zip(matrices, ids, group.motion):
+                transform, steps = moves if moves is not None else (None, None)
+                if transform is None:   # still, or deforming in place: copied into world space at each step
+                    record = self._record(local, table, matrix, obj, None if steps is None else
+                                          np.stack([_placed(keys, matrix) for keys in steps]))
                     plain.setdefault("POINTS" if isinstance(record, Points) else record.shape, []).append(record)
+                    continue
+                # Moving: an instance with motion steps, as Cycles keeps a moving object's geometry in object space
+                # (intern/cycles/scene/object.cpp apply_static_transforms; bvh/embree.cpp add_instance), its
+                # deformation as the prototype's own time steps.
+                if steps is None:
+                    if shared is None:
+                        prototypes.append(self._record(local, table, None, None))
+                        shared = len(prototypes) - 1
+                    which.append(shared)
+                else:
+                    prototypes.append(self._record(local, table, None, None, steps))
+                    which.append(len(prototypes) - 1)
+                placements.append(matrix[None])
+                instance_rows.append(obj)
+                motion_ids.append(len(motions))
+                motions.append(np.asarray(transform, np.float64))
             row += k
-            out.keys += group.keys
-            out.matrices += group.matrices
-            out.assets += group.assets
-            out.visibility += group.visibility
-            out.slots += group.slots
-            out.properties += group.properties
+            self._rows(out, group)
         out.objects = np.concatenate(tables) if tables else None
         out.curves = tuple(_join_curves(records) for shape, records in plain.items() if shape != "POINTS")
         out.points = _join_points(plain["POINTS"]) if "POINTS" in plain else None
         if prototypes:
             out.instances = ShapeInstances(tuple(prototypes), np.array(which, np.int32),
                                            np.concatenate(placements).astype(np.float64),
-                                           np.array(instance_rows, np.int32))
+                                           np.array(instance_rows, np.int32), tuple(motions),
+                                           np.array(motion_ids, np.int32) if motions else None)
         return out
+
+    @staticmethod
+    def _rows(out: ShapeRows, group: _Group) -> None:
+        """A group's per-row lists onto the ShapeRows'."""
+        out.keys += group.keys
+        out.matrices += group.matrices
+        out.assets += group.assets
+        out.visibility += group.visibility
+        out.slots += group.slots
+        out.properties += group.properties
 
     def _record(self, local, table: np.ndarray, matrix, obj, motion=None):
         """A kernel record of local data: in object space (matrix None: a prototype) or moved into world space,
-        on object row obj; motion: its world keys over the shutter (_motion), or None."""
+        on object row obj; motion: its keys over the shutter in the same space, or None."""
         if isinstance(local, LocalPoints):
             values = _placed(local.points, matrix)
             n = local.count

@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from .. import embree
+from .. import embree, motion
 from ..scene import Curves, Points, SceneArrays
 from ..vec import F32
 from . import curves as curve_geometry
@@ -46,6 +46,12 @@ class ShapeLayout:
         plain = list(scene.curves) + ([scene.points] if scene.points is not None else [])
         self.instances = scene.shape_instances
         protos = list(self.instances.prototypes) if self.instances is not None else []
+        # Per shape instance its motion decomposed as Cycles decomposes object motion (kernels.motion), or None.
+        inst = self.instances
+        decomposed = [motion.decompose(keys) for keys in inst.motion] if inst is not None else []
+        self.instance_motion = [] if inst is None else [
+            None if inst.motion_ids is None or inst.motion_ids[k] < 0 else decomposed[inst.motion_ids[k]]
+            for k in range(inst.count)]
         self.records = plain + protos
         self.plain_count = len(plain)
         parts = [(j, -1) for j, r in enumerate(plain) if isinstance(r, Curves)]
@@ -95,8 +101,8 @@ class ShapeLayout:
 
     @property
     def moves(self) -> bool:
-        """Some record has motion keys: rays need their times."""
-        return any(r.motion is not None for r in self.records)
+        """Some record has motion keys or some instance moves: rays need their times."""
+        return any(r.motion is not None for r in self.records) or any(m is not None for m in self.instance_motion)
 
     def locate(self, prim: np.ndarray):
         """(part, local number within its record) of curve and point numbers prim (all >= triangle_count)."""
@@ -325,11 +331,20 @@ class PrimitiveTable:
         return tuple(tangent), sign, tuple(normal)
 
     # ---- hits
-    def _instance_matrices(self, instance: np.ndarray) -> np.ndarray | None:
+    def _instance_matrices(self, instance: np.ndarray, times: np.ndarray | None = None) -> np.ndarray | None:
+        """(n, 3, 4) world_from_object of each hit's instance (identity for -1), None when none is placed; a
+        moving instance's at each hit's time (times (n,), or its frame matrix without them), interpolated as
+        Cycles interpolates object motion (kernels.motion.interpolate: Cycles' object_fetch_transform_motion)."""
         if self._matrices is None or (instance < 0).all():
             return None
         m = np.take(self._matrices, np.maximum(instance, 0), axis=0)
         m[instance < 0] = np.eye(3, 4, dtype=F32)
+        if times is not None:
+            moving = self.layout.instance_motion
+            for k in np.unique(instance[instance >= 0]):
+                if moving[k] is not None:
+                    sel = np.flatnonzero(instance == k)
+                    m[sel] = motion.interpolate(moving[k], np.take(times, sel).astype(np.float64)).astype(F32)
         return m
 
     def shape_hits(self, prim: np.ndarray, u: np.ndarray, v: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
@@ -340,7 +355,7 @@ class PrimitiveTable:
         n = len(prim)
         out = ShapeHits(n)
         for sel, record, local, instance in self._groups(prim):
-            matrices = self._instance_matrices(instance)
+            matrices = self._instance_matrices(instance, None if times is None else np.take(times, sel))
             o, d, tt = origins[sel], dirs[sel], t[sel]
             hit_times = None if times is None or record.motion is None else np.take(times, sel)
             if isinstance(record, Curves):

@@ -132,9 +132,12 @@ class SceneArrays:
 
     @property
     def shapes_move(self) -> bool:
-        """Some curves or points have motion keys (their records' motion)."""
+        """Some curves or points have motion keys (their records' motion) or are placed by moving instances."""
         records = list(self.curves) + ([self.points] if self.points is not None else [])
-        return any(getattr(r, "motion", None) is not None for r in records)
+        placed = self.shape_instances
+        if placed is not None:
+            records += list(placed.prototypes)
+        return any(getattr(r, "motion", None) is not None for r in records) or (placed is not None and placed.moves)
 
     @property
     def triangle_count(self) -> int:
