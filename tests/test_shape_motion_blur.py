@@ -207,3 +207,31 @@ def test_points_changing_in_number_are_warned_by_name():
     exported = export_blurred()
     assert any(f"'{ob.name}'" in w and "change in number" in w for w in exported.warnings), exported.warnings
     assert exported.scene.points.motion is None
+
+
+def test_instanced_hair_moving_with_its_instancer_matches_cycles():
+    """A furry ball in a collection instanced by two empties, one of them flying: the flying instance's hair moves
+    with it (an instance with motion steps), the still one stays where it is."""
+    scene = blurred_scene()
+    sun_and_sky(scene)
+    scene.cycles_curves.shape = "THICK"
+    furball = bpy.data.collections.new("Furball")
+    furry_sphere(scene, count=200, location=(0, 0, 0), radius=0.5, collection=furball)
+    empties = []
+    for k, x in enumerate((-1.0, 1.0)):
+        empty = bpy.data.objects.new(f"Ball {k}", None)
+        empty.instance_type, empty.instance_collection = "COLLECTION", furball
+        empty.location = (x, 0, 1)
+        scene.collection.objects.link(empty)
+        empties.append(empty)
+    flying = empties[1]
+    flying.keyframe_insert("location", frame=1)
+    flying.location = (1.0, 0.0, 2.0)
+    flying.keyframe_insert("location", frame=2)
+    _linear(flying)
+    scene.frame_set(1)
+    exported = export_blurred().scene
+    placed = exported.shape_instances   # the still ball is copied into world space (few strands), as without it
+    assert placed.count == 1 and len(placed.motion) == 1 and placed.motion_ids.tolist() == [0]
+    assert len(exported.curves) == 1 and exported.curves[0].motion is None
+    compare_to_cycles(scene, samples=64, max_bounces=3)
