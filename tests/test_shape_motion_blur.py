@@ -235,3 +235,15 @@ def test_instanced_hair_moving_with_its_instancer_matches_cycles():
     assert placed.count == 1 and len(placed.motion) == 1 and placed.motion_ids.tolist() == [0]
     assert len(exported.curves) == 1 and exported.curves[0].motion is None
     compare_to_cycles(scene, samples=64, max_bounces=3)
+
+
+def test_deformation_off_leaves_the_points_still():
+    """Object Properties > Motion Blur > Deformation off (Cycles' use_deform_motion): no motion keys."""
+    scene = blurred_scene(16, 16)
+    set_world(scene, (0.5, 0.5, 0.5))
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1, radius=0.5, location=(0, 0, 1))
+    cloud = swelling_points(bpy.context.active_object)
+    scene.frame_set(1)
+    assert export_blurred().scene.points.motion is not None
+    cloud.cycles.use_deform_motion = False
+    assert export_blurred().scene.points.motion is None

@@ -130,7 +130,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                     recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
                     if i in (0, len(times) - 1) and not inst.is_instance and inst.object.type == "MESH":
                         _track_deformation(inst.object, key, i, vertices_first, deforming)
-                    if inst.object.type in ("CURVES", "POINTCLOUD") or not inst.is_instance:
+                    if (inst.object.type in ("CURVES", "POINTCLOUD") or not inst.is_instance) and deform_motion(inst):
                         # Instances of one data-block (geometry nodes' points, a collection's hair) read it once.
                         data = (inst.object.type, inst.object.data.as_pointer() if inst.is_instance else key)
                         if data not in read:
@@ -239,6 +239,13 @@ def _track_deformation(ob, key, step: int, first: dict, deforming: set) -> None:
         first[key] = co
     elif key in first and (len(first[key]) != len(co) or not np.array_equal(first[key], co)):
         deforming.add(ob.name)
+
+
+def deform_motion(inst) -> bool:
+    """Object Properties > Motion Blur > Deformation (Cycles' use_deform_motion), of the instancer too for an
+    instance (Cycles' object_use_deform_motion, intern/cycles/blender/util.h)."""
+    owners = [inst.object] + ([inst.parent] if inst.is_instance and inst.parent is not None else [])
+    return all(bool(getattr(getattr(ob.original, "cycles", None), "use_deform_motion", True)) for ob in owners)
 
 
 def shape_steps(ob, render: bool):

@@ -379,7 +379,10 @@ class PrimitiveTable:
                 p, ng = point_geometry.hit_geometry(centre, o, d, tt)
                 ns = ng
                 out.centre[sel] = centre
-                out.radius[sel] = at_times(record, hit_times, lambda r: point_geometry.radii(r, local, matrices))
+                # Point Info's Radius is the frame's, through the instance's transform at the hit's time (Cycles'
+                # point_radius reads no motion step, intern/cycles/kernel/geom/point.h); Thickness above is at the
+                # hit's time (curve_thickness reads the motion keys).
+                out.radius[sel] = point_geometry.radii(record, local, matrices)
             out.p[sel], out.ng[sel], out.ns[sel] = p, ng, ns
         return out
 
