@@ -144,3 +144,26 @@ def test_a_turning_instance_moves_its_points_along_the_arc():
     assert np.allclose(hit.shapes.centre[:, :2], arc[:, :2], atol=1e-4)
     gap = np.linalg.norm(chord[:, :2] - arc[:, :2], axis=1)
     assert ((on_chord.prim >= 0) == (gap < 0.2 - 1e-4))[np.abs(gap - 0.2) > 1e-3].all()
+
+
+def test_worker_processes_render_moving_curves_and_points_as_threads_do():
+    """A deforming sphere and a turning instance: worker processes (which build the scene again from its arrays)
+    give the image the render's own thread gives, bit for bit."""
+    keys = np.stack([_turn(a) for a in (0.0, np.pi / 2, np.pi)])
+    placed = ShapeInstances((Points(np.array([[1, 0, 0, 0.3]], np.float32), np.zeros(1, np.int32)),),
+                            np.zeros(1, np.int32), keys[1:2].copy(), np.zeros(1, np.int32), (keys,),
+                            np.zeros(1, np.int32))
+    sliding = sliding_point(radius=0.4)
+    scene = moving_scene(width=24, height=24, points=Points(sliding.points, sliding.material_ids,
+                                                               np.zeros(1, np.int32), motion=sliding.motion),
+                         shape_instances=placed, objects=np.repeat(object_row(np.eye(4))[None], 1, axis=0),
+                         object_ids=np.zeros(0, np.int32))
+    settings = RenderSettings(samples=8, seed=2, wave_size=128)
+    with Renderer(scene, threads=1) as renderer:
+        alone = renderer.render(settings).image
+    with Renderer(scene, threads=2, processes=True) as renderer:
+        assert renderer.crew.wait_for_workers() == 1, renderer.crew.worker_failures
+        image = renderer.render(settings).image
+        assert renderer.crew.remote_waves > 0
+    np.testing.assert_array_equal(image, alone)
+    assert (image[..., :3] < 0.99).any()
