@@ -247,3 +247,84 @@ def test_deformation_off_leaves_the_points_still():
     assert export_blurred().scene.points.motion is not None
     cloud.cycles.use_deform_motion = False
     assert export_blurred().scene.points.motion is None
+
+
+def test_curves_changing_their_key_count_are_read_along_themselves():
+    """Curves resampled to more points frame by frame keep their number: each curve's keys at a motion step are
+    read along the step's curve (Cycles' interpolate_curve_points, which counts that as motion), without a
+    warning. The closed form on a straight strand: its keys stay evenly along the line."""
+    scene = blurred_scene(16, 16)
+    set_world(scene, (0.5, 0.5, 0.5))
+    ob = curves_object("Growing", [np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2]], float)], radius=0.05)
+    tree = bpy.data.node_groups.new("Grow", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    into, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    resample = tree.nodes.new("GeometryNodeResampleCurve")
+    count = tree.nodes.new("ShaderNodeMath")
+    count.inputs[1].default_value = 3.0
+    tree.links.new(time_driven(tree, 4.0), count.inputs[0])
+    tree.links.new(count.outputs[0], resample.inputs["Count"])
+    tree.links.new(into.outputs[0], resample.inputs["Curve"])
+    tree.links.new(resample.outputs[0], out.inputs[0])
+    ob.modifiers.new("grow", "NODES").node_group = tree
+    scene.frame_set(1)
+    exported = export_blurred()
+    assert not exported.warnings, exported.warnings
+    (strand,) = exported.scene.curves
+    assert len(strand.keys) == 7 and strand.motion is not None and strand.motion.shape == (3, 7, 4)
+    assert np.allclose(strand.motion[:, :, :2], 0.0, atol=1e-6)   # still on the line x = y = 0
+    assert np.allclose(strand.motion[:, :, 2], np.linspace(0, 2, 7), atol=1e-5)   # evenly along it
+
+
+def streaking_points(ob, speed=20.0):
+    """Geometry nodes turning the mesh into still points that carry a `velocity` attribute (units per second):
+    x speed times the point's height."""
+    tree = bpy.data.node_groups.new("Streak", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    into, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    points = tree.nodes.new("GeometryNodeMeshToPoints")
+    points.inputs["Radius"].default_value = 0.12
+    tree.links.new(into.outputs[0], points.inputs["Mesh"])
+    position = tree.nodes.new("GeometryNodeInputPosition")
+    split = tree.nodes.new("ShaderNodeSeparateXYZ")
+    tree.links.new(position.outputs[0], split.inputs[0])
+    scale = tree.nodes.new("ShaderNodeMath")
+    scale.operation = "MULTIPLY"
+    scale.inputs[1].default_value = speed
+    tree.links.new(split.outputs["Z"], scale.inputs[0])
+    velocity = tree.nodes.new("ShaderNodeCombineXYZ")
+    tree.links.new(scale.outputs[0], velocity.inputs["X"])
+    store = tree.nodes.new("GeometryNodeStoreNamedAttribute")
+    store.data_type, store.domain = "FLOAT_VECTOR", "POINT"
+    store.inputs["Name"].default_value = "velocity"
+    tree.links.new(points.outputs[0], store.inputs["Geometry"])
+    tree.links.new(velocity.outputs[0], store.inputs["Value"])
+    material = tree.nodes.new("GeometryNodeSetMaterial")
+    material.inputs["Material"].default_value = diffuse_material("Streaks", (0.02, 0.04, 0.1))
+    tree.links.new(store.outputs[0], material.inputs["Geometry"])
+    tree.links.new(material.outputs[0], out.inputs[0])
+    ob.modifiers.new("streak", "NODES").node_group = tree
+    return ob
+
+
+def test_points_with_a_velocity_attribute_match_cycles():
+    """Still points with a `velocity` attribute blur along it, half the shutter's seconds each way of the frame
+    (Cycles' attr_create_motion_from_velocity), here with the shutter opening at the frame (Cycles centres the
+    velocity's steps on the frame all the same)."""
+    scene = blurred_scene()
+    scene.render.motion_blur_position = "START"
+    set_world(scene, (0.6, 0.7, 0.8))
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, radius=0.9, location=(0, 0, 1))
+    streaking_points(bpy.context.active_object)
+    scene.frame_set(1)
+    exported = export_blurred()
+    assert not exported.warnings, exported.warnings
+    points = exported.scene.points
+    assert points.motion is not None and len(points.motion) == 3
+    half = 0.5 / (scene.render.fps / scene.render.fps_base)   # half the one-frame shutter, in seconds
+    z = points.points[:, 2] - 1.0   # the object sits at z = 1: its points' own heights
+    assert np.allclose(points.motion[2, :, 0] - points.points[:, 0], 20.0 * z * half, atol=1e-4)
+    assert np.allclose(points.motion[1], points.points)
+    compare_to_cycles(scene, samples=64, max_bounces=2, blocks=12)

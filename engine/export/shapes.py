@@ -17,8 +17,9 @@ step, MotionSamples.shapes) becomes its prototype's time steps (kernels.scene.Cu
 only deforms is copied into world space at each of its steps, as Cycles applies a still object's transform to its
 motion keys too. Moving and deforming instances are never shared with still ones. A deformation counts where any
 key moves (for curves its radius too), as Cycles' export_hair_curves_motion and export_pointcloud_motion decide
-(intern/cycles/blender/curves.cpp, pointcloud.cpp); keys whose number changes during the shutter give no
-deformation blur (a warning names the object).
+(intern/cycles/blender/curves.cpp, pointcloud.cpp); a Curves object's curve whose keys change in number is
+read along itself (resample_curves), as Cycles does; curves or points that change in number give no deformation
+blur (a warning names the object).
 """
 from __future__ import annotations
 
@@ -81,6 +82,10 @@ class ShapeExport:
         self.moving = moving
         self.transforms = motion.objects if motion is not None else {}   # instance key -> (S, 4, 4)
         self.steps = motion.shapes if motion is not None else {}         # instance key -> its keys per step
+        # Half the shutter in seconds: how far a `velocity` attribute moves keys each way (None: no motion blur).
+        r = depsgraph.scene_eval.render
+        self.velocity_time = None if motion is None else 0.5 * float(r.motion_blur_shutter) / (r.fps / r.fps_base)
+        self._velocity: dict = {}        # data key -> (n, 3) float32 velocity attribute, or None
         self._local: dict = {}           # data key -> LocalCurves or LocalPoints
         self._groups: dict = {}          # (data key, material rows) -> _Group
         self._warned: set = set()
@@ -102,6 +107,7 @@ class ShapeExport:
         if key not in self._local:
             self._local[key] = read_points(ob.data, names, ob.name, self.warnings) if kind == "POINTCLOUD" else \
                 read_curves(ob.data, names, ob.name, self.warnings)
+            self._velocity[key] = read_velocity(ob.data, self._local[key]) if self.velocity_time else None
         return self._add(key, rows, ob, place)
 
     def add_hair(self, ob, rows: tuple, names: tuple, place: dict) -> bool:
@@ -117,7 +123,7 @@ class ShapeExport:
         if not local.count:
             return False
         group = self._groups.setdefault((key, rows), _Group())
-        group.motion.append(self._motion(key[0], local, place, ob))
+        group.motion.append(self._motion(key, local, place, ob))
         group.matrices.append(place["matrix"])
         group.inputs.append(place["inputs"])
         group.keys.append(place["key"])
@@ -127,13 +133,23 @@ class ShapeExport:
         group.properties.append(place["properties"])
         return True
 
-    def _motion(self, kind: str, local, place: dict, ob) -> tuple | None:
+    def _motion(self, key, local, place: dict, ob) -> tuple | None:
         """(transform, deformation) of an instance that moves, else None: its (S, 4, 4) world_from_object over the
-        shutter or None, and its (S, n, 4) float32 local keys over the shutter or None."""
+        shutter or None, and its (S', n, 4) float32 local keys over the shutter or None (its own steps)."""
         matrices = self.transforms.get(place["key"])
-        steps = self._deformation(kind, local, place["key"], ob)
-        if steps is not None and matrices is not None and len(steps) != len(matrices):
-            steps = None
+        velocity = self._velocity.get(key)
+        if velocity is not None and _motion_settings(ob):
+            # Cycles' attr_create_motion_from_velocity: three steps, the keys half the shutter's seconds before
+            # and after the frame along their velocity (whatever the shutter's position), the radius unchanged;
+            # a geometry moved so is not read at the subframes (BlenderSync::sync_motion skips it).
+            values = local.points if isinstance(local, LocalPoints) else local.keys
+            steps = []
+            for sign in (-1.0, 0.0, 1.0):
+                moved = values.copy()
+                moved[:, :3] = values[:, :3] + velocity * np.float32(sign * self.velocity_time)
+                steps.append(moved)
+        else:
+            steps = self._deformation(key[0], local, place["key"], ob)
         if matrices is None and steps is None:
             return None
         return matrices, None if steps is None else np.ascontiguousarray(np.stack(steps), np.float32)
@@ -145,11 +161,19 @@ class ShapeExport:
             return None
         points = isinstance(local, LocalPoints)
         values = local.points if points else local.keys
+        if kind == "CURVES" and all(len(o) == len(local.offsets) for o, _ in steps):
+            # Curves keep their number but some change their keys' number: Cycles' export_hair_curves_motion
+            # reads those along the step's curve (interpolate_curve_points), which is motion whatever it gives.
+            changed = [not np.array_equal(o, local.offsets) for o, _ in steps]
+            steps = [(local.offsets, resample_curves(local.offsets, o, k)) if c else (o, k)
+                     for (o, k), c in zip(steps, changed)]
+            if any(changed):
+                return [k for _, k in steps]
         same = all(len(k) == len(values) and (points or np.array_equal(o, local.offsets)) for o, k in steps)
         if not same:
             if ob.name not in self._warned:
                 self._warned.add(ob.name)
-                what = "points" if points else "curves or their keys"
+                what = "points" if points else "curves"
                 self.warnings.append(f"Object '{ob.name}': its {what} change in number during the shutter; "
                                      f"rendered without deformation motion blur")
             return None
@@ -247,6 +271,48 @@ class ShapeExport:
                       materials, None if obj is None else np.full(c, obj, np.int32),
                       tuple((name, np.ascontiguousarray(v, np.float32)) for name, v in local.attributes.items()),
                       self.subdivisions, motion)
+
+
+def _motion_settings(ob) -> bool:
+    """Object Properties > Motion Blur and its Deformation both on (Cycles' need_motion and use_deform_motion)."""
+    settings = getattr(ob.original, "cycles", None)
+    return settings is None or (bool(getattr(settings, "use_motion_blur", True))
+                                and bool(getattr(settings, "use_deform_motion", True)))
+
+
+def read_velocity(data, local) -> np.ndarray | None:
+    """(n, 3) float32 the `velocity` attribute (a vector per point, units per second) of a Curves or Point Cloud
+    data-block whose keys are all kept, else None."""
+    attr = data.attributes.get("velocity")
+    n = len(data.points)
+    if attr is None or attr.domain != "POINT" or attr.data_type != "FLOAT_VECTOR" or not n:
+        return None
+    if (local.count if isinstance(local, LocalPoints) else len(local.keys)) != n:
+        return None   # curves of a single point were left out: the rows no longer match
+    values = np.empty(3 * n, np.float32)
+    attr.data.foreach_get("vector", values)
+    return values.reshape(n, 3)
+
+
+def resample_curves(offsets: np.ndarray, step_offsets: np.ndarray, step_keys: np.ndarray) -> np.ndarray:
+    """(K, 4) float32 keys for curves of `offsets` read from the same curves at a motion step, where some have
+    another number of keys: a curve of n keys takes its i-th at i / (n - 1) of the way along the step's curve of
+    m keys, mixed linearly between the two around (Cycles' interpolate_curve_points, in float32 as it); a curve
+    whose count is unchanged is copied as it is."""
+    n = np.diff(offsets).astype(np.int64)
+    m = np.diff(step_offsets).astype(np.int64)
+    curve = np.repeat(np.arange(len(n)), n)
+    i = np.arange(offsets[-1], dtype=np.int64) - np.repeat(offsets[:-1].astype(np.int64), n)
+    step_size = (np.float32(1) / np.maximum(n - 1, 1).astype(np.float32))[curve]
+    along = (i.astype(np.float32) * step_size) * (m - 1)[curve].astype(np.float32)
+    a = np.clip(along.astype(np.int64), 0, m[curve] - 1)
+    b = np.minimum(a + 1, m[curve] - 1)
+    f = (along - a).astype(np.float32)[:, None]
+    start = step_offsets[:-1].astype(np.int64)[curve]
+    out = (step_keys[start + a] + f * (step_keys[start + b] - step_keys[start + a])).astype(np.float32)
+    same = (n == m)[curve]
+    out[same] = step_keys[start[same] + i[same]]
+    return out
 
 
 def _placed(values: np.ndarray, matrix) -> np.ndarray:
