@@ -167,3 +167,21 @@ def test_worker_processes_render_moving_curves_and_points_as_threads_do():
         assert renderer.crew.remote_waves > 0
     np.testing.assert_array_equal(image, alone)
     assert (image[..., :3] < 0.99).any()
+
+
+def test_joined_records_keep_each_ones_motion():
+    """World-space records joined into one (engine/export/shapes.py): a still one repeats its keys at every step,
+    one of 3 steps put on the 5 steps of another moves as it did (the kernel's interpolation between its steps)."""
+    from ember.engine.export.shapes import _join_points
+    rng = np.random.default_rng(4)
+    still = Points(rng.random((2, 4)).astype(np.float32), np.zeros(2, np.int32), np.zeros(2, np.int32))
+    three = rng.random((3, 3, 4)).astype(np.float32)
+    five = rng.random((5, 1, 4)).astype(np.float32)
+    joined = _join_points([still,
+                           Points(three[1].copy(), np.zeros(3, np.int32), np.zeros(3, np.int32), motion=three),
+                           Points(five[2].copy(), np.zeros(1, np.int32), np.zeros(1, np.int32), motion=five)])
+    assert joined.motion.shape == (5, 6, 4)
+    assert np.array_equal(joined.motion[:, :2], np.broadcast_to(still.points, (5, 2, 4)))
+    assert np.array_equal(joined.motion[:, 5], five[:, 0])
+    assert np.array_equal(joined.motion[::2, 2:5], three)
+    assert np.allclose(joined.motion[1, 2:5], 0.5 * (three[0] + three[1]))
