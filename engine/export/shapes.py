@@ -178,9 +178,10 @@ class ShapeExport:
                                      f"rendered without deformation motion blur")
             return None
         columns = slice(0, 3) if points else slice(0, 4)   # Cycles' points move by their positions alone
-        if kind == "HAIR":   # read back through the object's own transform at each step: its rounding is no motion
-            scale = float(np.abs(values[:, :3]).max(initial=0.0)) + 1.0
-            moved = any(not np.allclose(k[:, columns], values[:, columns], rtol=0, atol=1e-6 * scale) for _, k in steps)
+        if kind == "HAIR":
+            # Read back through the object's own transform at each step: Cycles' ExportCurveSegmentsMotion takes a
+            # key (position and radius) as moved beyond 1e-5 only (intern/cycles/blender/curves.cpp).
+            moved = any((np.sum((k - values) ** 2, axis=1) > 1e-5 * 1e-5).any() for _, k in steps)
         else:
             moved = any(not np.array_equal(k[:, columns], values[:, columns]) for _, k in steps)
         return [k for _, k in steps] if moved else None
