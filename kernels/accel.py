@@ -230,7 +230,12 @@ class Accel:
         self._geometry_base[1 + len(placed):] = layout.plain_base
         bases = self._bases if self._bases is not None else np.zeros(0, np.int64)
         self._instance_base = np.concatenate([bases[:mesh_instances], layout.instance_base]).astype(np.int64)
-        self._placed_motion = [None] * mesh_instances + (list(layout.instance_motion) if inst is not None else [])
+        self._ng_motion = [None] * mesh_instances + (list(layout.instance_motion) if inst is not None else [])
+        # Only the spheres' and linear curves' Ng is read (_inside_out): moving instances of others skip its transform.
+        culled = np.zeros(len(self._ng_motion), bool)
+        placed_part = layout.part_instance >= 0
+        culled[mesh_instances + layout.part_instance[placed_part]] = layout.part_culled[placed_part]
+        self._ng_motion = [m if c else None for m, c in zip(self._ng_motion, culled)]
         linear = np.array([np.asarray(entry[1], np.float64)[:3, :3] for entry in placed]).reshape(-1, 3, 3)
         with np.errstate(all="ignore"):
             self._instance_inverse = np.linalg.inv(linear).astype(np.float32) if len(linear) else linear
@@ -467,9 +472,9 @@ class Accel:
         if len(placed):   # Embree's Ng of an instance's hit is in its object space: by the inverse transpose
             ng = ng.copy()
             inverse = np.take(self._instance_inverse, inst[placed], axis=0)
-            if times is not None:   # moving instances: their inverse at each ray's time
+            if times is not None:   # moving instances of spheres and linear curves: their inverse at each ray's time
                 for k in np.unique(inst[placed]):
-                    decomposed = self._placed_motion[k]
+                    decomposed = self._ng_motion[k]
                     if decomposed is not None:
                         sel = np.flatnonzero(inst[placed] == k)
                         m = motion.interpolate(decomposed, np.take(times, placed[sel]).astype(np.float64))
