@@ -328,3 +328,26 @@ def test_points_with_a_velocity_attribute_match_cycles():
     assert np.allclose(points.motion[2, :, 0] - points.points[:, 0], 20.0 * z * half, atol=1e-4)
     assert np.allclose(points.motion[1], points.points)
     compare_to_cycles(scene, samples=64, max_bounces=2, blocks=12)
+
+
+def test_curves_with_a_velocity_attribute_match_cycles():
+    """A Curves object whose points carry a `velocity` attribute (no modifier): three steps along it, as Cycles'
+    attr_create_motion_from_velocity for hair; the radius stays. (Without the velocity: a block 12.6 standard
+    errors off; with it 1.7 at most.)"""
+    scene = blurred_scene()
+    sun_and_sky(scene)
+    strands = [np.array([[x, 0, 0.3], [x, 0, 1.0], [x + 0.1, 0, 1.8]]) for x in np.linspace(-1.0, 1.0, 6)]
+    ob = curves_object("Drifting", strands, radius=0.07, material=diffuse_material("Drift", (0.05, 0.02, 0.02)))
+    velocity = ob.data.attributes.new("velocity", "FLOAT_VECTOR", "POINT")
+    heights = np.concatenate(strands)[:, 2]
+    velocity.data.foreach_set("vector", np.stack([12.0 * heights, np.zeros_like(heights), np.zeros_like(heights)],
+                                                 axis=1).astype(np.float32).ravel())
+    scene.frame_set(1)
+    exported = export_blurred()
+    assert not exported.warnings, exported.warnings
+    (curves,) = exported.scene.curves
+    half = 0.5 / (scene.render.fps / scene.render.fps_base)
+    assert curves.motion.shape == (3,) + curves.keys.shape
+    assert np.allclose(curves.motion[0, :, 0], curves.keys[:, 0] - 12.0 * heights * half, atol=1e-5)
+    assert np.array_equal(curves.motion[:, :, 3], np.broadcast_to(curves.keys[:, 3], (3, len(heights))))
+    compare_to_cycles(scene, samples=64, max_bounces=2, blocks=12)

@@ -130,9 +130,11 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                     recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
                     if i in (0, len(times) - 1) and not inst.is_instance and inst.object.type == "MESH":
                         _track_deformation(inst.object, key, i, vertices_first, deforming)
-                    if (inst.object.type in ("CURVES", "POINTCLOUD") or not inst.is_instance) and deform_motion(inst):
-                        # Instances of one data-block (geometry nodes' points, a collection's hair) read it once.
-                        data = (inst.object.type, inst.object.data.as_pointer() if inst.is_instance else key)
+                    if inst.object.type in ("CURVES", "POINTCLOUD", "MESH") and deform_motion(inst):
+                        # Instances of one data-block (geometry nodes' points) or of one haired object (a collection's
+                        # fur) read it once a step.
+                        shared = inst.object.as_pointer() if inst.object.type == "MESH" else inst.object.data.as_pointer()
+                        data = (inst.object.type, shared if inst.is_instance else key)
                         if data not in read:
                             read[data] = shape_steps(inst.object, render)
                         if read[data] is not None:
