@@ -676,3 +676,14 @@ def test_curves_and_points_embree_cannot_take_are_dropped_and_counted():
     assert checked.scene.points.count == 1
     with pytest.raises(ValueError, match="offsets"):
         shape_scene(curves=(dataclasses.replace(curves, offsets=np.array([0, 1, 4], np.int32)),)).validate()
+
+
+def test_hair_exports_in_a_scene_with_light_groups():
+    """Curves in a scene with light groups join no group (they are no lights): the export names them so."""
+    scene = new_scene(16, 16)
+    sun_and_sky(scene)
+    ob = furry_sphere(scene, count=50)
+    bpy.context.view_layer.lightgroups.add(name="Fur")
+    ob.lightgroup = "Fur"
+    exported = export_current()
+    assert exported.scene.light_groups is not None and exported.scene.curves[0].count == 50

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels.geometry import normal_matrices
-from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
+from ...kernels.scene import NO_GROUP, OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
 from ...kernels.textures import Texture
 from .adaptive import Dicing
 from .displacement import BlenderMesh, displace_mesh
