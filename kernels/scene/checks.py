@@ -25,3 +25,20 @@ def check_array(a, name: str, shape: tuple, dtype, finite: bool = True) -> None:
 
 def _shape_str(shape: tuple) -> str:
     return "(" + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"
+
+
+# Embree's RTC_MAX_TIME_STEP_COUNT: the most motion steps a curve or point geometry may have.
+MAX_TIME_STEPS = 129
+
+
+def check_motion(motion, name: str, n: int) -> None:
+    """A curve or point record's motion: None, or (S, n, 4) float32 keys at S in [2, MAX_TIME_STEPS] times."""
+    if motion is None:
+        return
+    check_array(motion, name, (-1, n, 4), np.float32, finite=False)
+    require(2 <= len(motion) <= MAX_TIME_STEPS, name, f"needs 2 to {MAX_TIME_STEPS} steps, got {len(motion)}")
+
+
+def usable_keys(keys: np.ndarray) -> np.ndarray:
+    """(..., n) bool: which (..., n, 4) x, y, z, radius rows Embree can take (finite, within float32, radius >= 0)."""
+    return np.isfinite(keys).all(axis=-1) & (np.abs(keys) < 1e30).all(axis=-1) & (keys[..., 3] >= 0)
