@@ -17,7 +17,6 @@ import math
 import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
-from ...kernels.scene.links import ALL_SETS
 from ...kernels.scene.objects import BSDF_RAYS, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
 from ...kernels.textures import luminance
 from .light_groups import GroupTable, group_table, lamp_groups
@@ -70,11 +69,6 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
     camera = np.array([bool(v & RAY_CAMERA) for v in seen], bool)
     seen = [v & BSDF_RAYS for v in seen]
     visibility = None if all(v == BSDF_RAYS for v in seen) else np.array(seen, np.uint8)
-    if visibility is not None and shadow_sets is not None:
-        # Rays meet shadow-linked lamps in their own stage (kernels/shadow_linking.py), which does not read it.
-        for k in np.flatnonzero((visibility != BSDF_RAYS) & (shadow_sets != ALL_SETS)):
-            warnings.append(f"Light '{names[k]}': Ray Visibility of a shadow-linked light is not supported yet: "
-                            f"its surface is seen by every bounce")
     return Lights(
         kind=np.array(columns[0], np.int32),
         position=np.array(columns[1], np.float32).reshape(-1, 3),
