@@ -38,10 +38,11 @@ def _points(p, seed):
     return tuple(np.full(N, v, np.float32) for v in p), [rng.random(N, dtype=np.float32) for _ in range(3)]
 
 
-def _grid_irradiance(kind, size, spread, p, n=2000):
+def _grid_irradiance(kind, size, spread, p, n=2000, cells=None):
     """Irradiance at p (normal +z) from a unit-radiance lamp at z = 2 emitting down: the integral over the lamp of
     the grid's attenuation (Cycles' area_light_spread_attenuation, normalised as scene/light.cpp) x cos x cos / d^2,
-    by the midpoint rule."""
+    by the midpoint rule. cells: instead, the integral of the attenuation alone over the solid angle of each of
+    cells x cells parts of the lamp's (u, v) box."""
     lu, lv = size
     u = (np.arange(n) + 0.5) / n - 0.5
     uu, vv = np.meshgrid(u * lu, u * lv)
@@ -52,7 +53,18 @@ def _grid_irradiance(kind, size, spread, p, n=2000):
     tan_a = np.sqrt(1 - cos ** 2) / cos
     half = spread / 2
     attenuation = np.maximum((math.tan(half) - tan_a) / (math.tan(half) - half), 0)
+    if cells is not None:
+        solid = (attenuation * cos / d ** 2 * inside) * lu * lv / n ** 2
+        return solid.reshape(cells, n // cells, cells, n // cells).sum(axis=(1, 3))
     return float((attenuation * cos * cos / d ** 2 * inside).sum() * lu * lv / n ** 2)
+
+
+def _cell_of(ls, p, size, cells):
+    """(n,) the cell of the lamp's (u, v) box (as _grid_irradiance's) each light sample's point lies in."""
+    t = (2.0 - p[2]) / ls.wz
+    u = (p[0] + t * ls.wx) / size[0] + 0.5
+    v = (p[1] + t * ls.wy) / size[1] + 0.5
+    return np.clip((v * cells).astype(int), 0, cells - 1) * cells + np.clip((u * cells).astype(int), 0, cells - 1)
 
 
 SHAPES = {"rectangle": (RECT, (1.0, 0.6)), "disk": (DISK, (1.0, 1.0)), "ellipse": (DISK, (1.2, 0.5))}
@@ -73,6 +85,15 @@ def test_spread_light_samples_integrate_the_grid_and_bsdf_rays_get_their_pdf(sha
         expected = _grid_irradiance(kind, size, math.radians(degrees), p)
         # The midpoint rule's error at the grid's kink is below 1e-3 of it.
         assert abs(mean - expected) < 4.5 * se + 1e-3 * expected, (p, mean, se, expected)
+        # The samples' density is their pdf part by part: the grid's factor / pdf summed over each part of the lamp
+        # is its solid angle weighed by the factor.
+        cells = 4
+        per_sample = np.where(lit, ls.radiance[0] / np.where(lit, ls.pdf, 1), 0)
+        cell = _cell_of(ls, p, size, cells)
+        sums = np.bincount(cell[lit], per_sample[lit], cells * cells) / N
+        spreads = np.sqrt(np.maximum(np.bincount(cell[lit], per_sample[lit] ** 2, cells * cells) / N - sums ** 2, 0) / N)
+        parts = _grid_irradiance(kind, size, math.radians(degrees), p, cells=cells).ravel()
+        assert np.all(np.abs(sums - parts) < 4.5 * spreads + 2e-3 * parts.max()), (p, sums, parts, spreads)
         rows = np.flatnonzero(lit)[:3000]
         hits = sampler.intersect(px[rows], py[rows], pz[rows], ls.wx[rows], ls.wy[rows], ls.wz[rows],
                                  np.full(len(rows), np.inf, np.float32))
