@@ -91,7 +91,8 @@ def test_spread_light_samples_integrate_the_grid_and_bsdf_rays_get_their_pdf(sha
         per_sample = np.where(lit, ls.radiance[0] / np.where(lit, ls.pdf, 1), 0)
         cell = _cell_of(ls, p, size, cells)
         sums = np.bincount(cell[lit], per_sample[lit], cells * cells) / N
-        spreads = np.sqrt(np.maximum(np.bincount(cell[lit], per_sample[lit] ** 2, cells * cells) / N - sums ** 2, 0) / N)
+        squares = np.bincount(cell[lit], per_sample[lit] ** 2, cells * cells) / N
+        spreads = np.sqrt(np.maximum(squares - sums ** 2, 0) / N)
         parts = _grid_irradiance(kind, size, math.radians(degrees), p, cells=cells).ravel()
         assert np.all(np.abs(sums - parts) < 4.5 * spreads + 2e-3 * parts.max()), (p, sums, parts, spreads)
         rows = np.flatnonzero(lit)[:3000]
