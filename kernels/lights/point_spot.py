@@ -53,10 +53,10 @@ def sample(sampler, out, idx, light, px, py, pz, u1, u2):
 
 
 def sphere_rows(sampler, k) -> np.ndarray:
-    """Indices of the lights k that are spheres (Soft Falloff off)."""
+    """Indices of the lights k that are spheres (Soft Falloff off and a radius: Cycles' is_sphere && radius != 0)."""
     if sampler.sphere is None:
         return np.zeros(0, np.int64)
-    return np.flatnonzero(np.take(sampler.sphere, k))
+    return np.flatnonzero(np.take(sampler.sphere, k) & (np.take(sampler.radius, k) > 0))
 
 
 def _one_minus_cos(r2, d2):
