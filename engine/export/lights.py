@@ -86,6 +86,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         visibility=visibility,
         camera=camera if camera.any() else None,
         spread=np.array(columns[9], np.float32) if min(columns[9]) < math.pi else None,
+        sphere=np.array(columns[10], bool) if any(columns[10]) else None,
     )
 
 
@@ -141,14 +142,13 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
     spot = (1.0, 0.0)
     radius = 0.0
     sun_half = 0.0
+    sphere = False
     if light.type in ("POINT", "SPOT"):
         kind = LIGHT_KINDS[light.type]
         radius = max(float(light.shadow_soft_size), 0.0)
-        if radius > 0 and not getattr(light, "use_soft_falloff", True):
-            # Cycles then makes the lamp a sphere (blender/light.cpp: is_sphere = !use_soft_falloff), sampled and
-            # seen as one; Ember's sized lamps are Soft Falloff's disk facing each point.
-            warnings.append(f"Light '{name}': Soft Falloff off (a sphere lamp) is not supported, rendered with "
-                            f"Soft Falloff on")
+        # Soft Falloff off makes a sized lamp a sphere (Cycles' blender/light.cpp: is_sphere = !use_soft_falloff;
+        # scene/light.cpp: is_sphere && radius != 0), of the same radiance (PointLight::area is 4 pi r^2 either way).
+        sphere = radius > 0 and not getattr(light, "use_soft_falloff", True)
         intensity = strength / (4.0 * math.pi)
         if radius > 0:
             radiance = intensity / (math.pi * radius ** 2) if normalize else strength / math.pi
@@ -174,10 +174,7 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
             return None
         radiance = strength / (math.pi * area) if normalize else strength / math.pi
         spread = min(max(float(getattr(light, "spread", math.pi)), 0.0), math.pi)
-        if spread < math.pi - 1e-4:
-            warnings.append(f"Area light '{name}': spread below 180 degrees is not supported for the light it "
-                            f"casts, which is a plain (180 degree) area light's (camera rays see the spread)")
-        else:
+        if spread >= math.pi - 1e-4:
             spread = math.pi
     else:
         warnings.append(f"Light '{name}' of type {light.type} is not supported")
@@ -188,7 +185,7 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
                         f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
         radiance = radiance * (MAX_LIGHT_RADIANCE / radiance.max())
     return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)),
-            spread)
+            spread, sphere)
 
 
 # ---------------------------------------------------------------- blackbody colour
