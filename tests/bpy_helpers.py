@@ -57,6 +57,17 @@ def add_camera(scene, location, target, lens=35.0, name="Camera"):
     return cam
 
 
+def add_lamp(scene, name, kind, location, rotation=(0, 0, 0), **settings):
+    """A light object of `kind` (POINT, SPOT, AREA, SUN) at location, turned by rotation (Euler), its light's
+    settings given by keyword (energy=..., size=...), linked to the scene."""
+    lamp = bpy.data.objects.new(name, bpy.data.lights.new(name, kind))
+    for key, value in settings.items():
+        setattr(lamp.data, key, value)
+    lamp.location, lamp.rotation_euler = location, rotation
+    scene.collection.objects.link(lamp)
+    return lamp
+
+
 def diffuse_material(name, color=(0.8, 0.8, 0.8), principled=False, image=None):
     mat = bpy.data.materials.new(name)
     tree = mat.node_tree

@@ -13,21 +13,12 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import (REPLICATE_SEEDS, configure_engine, diffuse_material, emission_material, new_scene,
-                         node_material, quad_object, set_world)
+from bpy_helpers import (REPLICATE_SEEDS, add_lamp, configure_engine, diffuse_material, emission_material,
+                         new_scene, node_material, quad_object, set_world)
 from exr import render_multilayer
 
 SAMPLES = 64
 GROUPS = ("Key", "Fill", "Sky")
-
-
-def _lamp(scene, name, kind, location, rotation=(0, 0, 0), **settings):
-    lamp = bpy.data.objects.new(name, bpy.data.lights.new(name, kind))
-    for key, value in settings.items():
-        setattr(lamp.data, key, value)
-    lamp.location, lamp.rotation_euler = location, rotation
-    scene.collection.objects.link(lamp)
-    return lamp
 
 
 def _ball(name, location, radius, material):
@@ -54,9 +45,9 @@ def _three_groups():
     _ball("Gloss", (-0.9, 0, 0.7), 0.7, node_material("Gloss", "ShaderNodeBsdfGlossy", Color=(0.8, 0.8, 0.8),
                                                       Roughness=0.25))
     _ball("Matte", (0.9, 0.3, 0.6), 0.6, diffuse_material("Matte", (0.8, 0.5, 0.3)))
-    key = _lamp(scene, "Key", "AREA", (0, -2.5, 3.5), (0.6, 0, 0), energy=200.0, size=1.0)
-    fill = _lamp(scene, "Fill", "POINT", (2.5, -1.5, 2.0), energy=100.0, shadow_soft_size=0.2)
-    _lamp(scene, "Sun", "SUN", (0, 0, 5), (0.7, 0.3, 0.5), energy=2.0, angle=0.2)
+    key = add_lamp(scene, "Key", "AREA", (0, -2.5, 3.5), (0.6, 0, 0), energy=200.0, size=1.0)
+    fill = add_lamp(scene, "Fill", "POINT", (2.5, -1.5, 2.0), energy=100.0, shadow_soft_size=0.2)
+    add_lamp(scene, "Sun", "SUN", (0, 0, 5), (0.7, 0.3, 0.5), energy=2.0, angle=0.2)
     panel = quad_object("Panel", (-2.5, 1.5, 0.3), (1.2, 0, 0), (0, 0.3, 1.0),
                         emission_material("Glow", (1, 0.6, 0.3), 6.0))
     _groups(scene, GROUPS)
@@ -182,11 +173,11 @@ def _every_emitter():
     _ball("Glass", (1.6, 0, 0.6), 0.6, node_material("Glass", "ShaderNodeBsdfGlass", Roughness=0.0))
     matte = _ball("Matte", (0.0, 1.5, 0.5), 0.5, diffuse_material("Matte", (0.8, 0.5, 0.3)))
     emitters = {
-        "Area": _lamp(scene, "Area", "AREA", (0, -2.5, 3.5), (0.6, 0, 0), energy=150.0, size=1.0),
-        "Point": _lamp(scene, "Point", "POINT", (2.5, -1.5, 2.0), energy=80.0, shadow_soft_size=0.2),
-        "Spot": _lamp(scene, "Spot", "SPOT", (-2.5, -2.0, 3.0), (0.6, 0, -0.8), energy=300.0, spot_size=0.8),
-        "Sun": _lamp(scene, "Sun", "SUN", (0, 0, 5), (0.7, 0.3, 0.5), energy=2.0, angle=0.2),
-        "Linked": _lamp(scene, "Linked", "AREA", (0, 3.0, 2.5), (-0.8, 0, 0), energy=100.0, size=0.5),
+        "Area": add_lamp(scene, "Area", "AREA", (0, -2.5, 3.5), (0.6, 0, 0), energy=150.0, size=1.0),
+        "Point": add_lamp(scene, "Point", "POINT", (2.5, -1.5, 2.0), energy=80.0, shadow_soft_size=0.2),
+        "Spot": add_lamp(scene, "Spot", "SPOT", (-2.5, -2.0, 3.0), (0.6, 0, -0.8), energy=300.0, spot_size=0.8),
+        "Sun": add_lamp(scene, "Sun", "SUN", (0, 0, 5), (0.7, 0.3, 0.5), energy=2.0, angle=0.2),
+        "Linked": add_lamp(scene, "Linked", "AREA", (0, 3.0, 2.5), (-0.8, 0, 0), energy=100.0, size=0.5),
         "Panel": quad_object("Panel", (-2.5, 1.5, 0.3), (1.2, 0, 0), (0, 0.3, 1.0),
                              emission_material("Glow", (1, 0.6, 0.3), 6.0)),
         "Fog": _glow_cube(scene, "Fog"),
@@ -247,8 +238,8 @@ def test_export_reads_groups_as_cycles():
     holder = bpy.data.objects.new("Holder", None)
     holder.instance_type, holder.instance_collection = "COLLECTION", source
     scene.collection.objects.link(holder)
-    lamp = _lamp(scene, "Lamp", "POINT", (0, -2, 2), energy=10.0)
-    bare = _lamp(scene, "Bare", "POINT", (0, -2, 3), energy=10.0)
+    lamp = add_lamp(scene, "Lamp", "POINT", (0, -2, 2), energy=10.0)
+    bare = add_lamp(scene, "Bare", "POINT", (0, -2, 3), energy=10.0)
     before = export_current()
     assert before.scene.light_groups is None and before.scene.lights.light_groups is None
     _groups(scene, ("A", "B", "C"))

@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import math
 
-import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, export_current, new_scene, node_material,
-                         quad_object, render_to_array, set_world)
+from bpy_helpers import (add_camera, add_lamp, compare_to_cycles, diffuse_material, export_current, new_scene,
+                         node_material, quad_object, render_to_array, set_world)
 from ember.kernels import Lights
 from test_lights import sampler_for
 
@@ -193,20 +192,11 @@ def _stage(floor_material):
     return scene
 
 
-def _light(scene, name, kind, location, rotation=(0, 0, 0), **settings):
-    lamp = bpy.data.objects.new(name, bpy.data.lights.new(name, kind))
-    for key, value in settings.items():
-        setattr(lamp.data, key, value)
-    lamp.location, lamp.rotation_euler = location, rotation
-    scene.collection.objects.link(lamp)
-    return lamp
-
-
 def _spread_lamps(scene):
     """A square lamp of 30 degrees low over the floor (a footprint smaller than the lamp) and a disk of 90, tilted."""
-    return [_light(scene, "Square", "AREA", (-0.8, 0.2, 0.6), (0.2, 0, 0), energy=60.0, shape="SQUARE", size=1.0,
+    return [add_lamp(scene, "Square", "AREA", (-0.8, 0.2, 0.6), (0.2, 0, 0), energy=60.0, shape="SQUARE", size=1.0,
                    spread=math.radians(30)),
-            _light(scene, "Disk", "AREA", (0.9, -0.1, 1.0), (0, -0.4, 0), energy=80.0, shape="DISK", size=0.8,
+            add_lamp(scene, "Disk", "AREA", (0.9, -0.1, 1.0), (0, -0.4, 0), energy=80.0, shape="DISK", size=0.8,
                    spread=math.radians(90))]
 
 
@@ -238,7 +228,7 @@ SPHERES = {"point": ("POINT", (0.0, 0.3, 0.7), (0, 0, 0), dict(energy=60.0, shad
 def test_soft_falloff_off_lights_a_floor_as_cycles_sphere(kind):
     scene = _stage(FLOORS["diffuse"])
     blender_kind, location, rotation, settings = SPHERES[kind]
-    lamp = _light(scene, "Lamp", blender_kind, location, rotation, **settings)
+    lamp = add_lamp(scene, "Lamp", blender_kind, location, rotation, **settings)
     lamp.data.use_soft_falloff = False
     assert export_current().warnings == []
     report = compare_to_cycles(scene, samples=64, blocks=8, max_bounces=2)
