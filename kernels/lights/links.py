@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..media.stack import last_objects
 from ..scene import ALL_SETS
 from .selection import Choice
 
@@ -91,21 +92,11 @@ class ObjectLinks:
         return ~reaches(masks, np.take(self.blocker, prim_rows))
 
 
-def medium_rows(tables, stacks: np.ndarray) -> np.ndarray:
-    """(n,) object rows of the last medium on each stack (K, n) of medium ids, -1 for the world's fog and for
-    points in no medium: the object Cycles gives a volume point, that of the last stack entry it evaluates
-    (kernel/integrator/volume_shader.h volume_shader_eval_entry)."""
-    filled = stacks >= 0
-    last = np.where(filled.any(axis=0), stacks.shape[0] - 1 - np.argmax(filled[::-1], axis=0), 0)
-    medium = stacks[last, np.arange(stacks.shape[1])]
-    return np.where(medium >= 0, np.take(tables.media.object, np.maximum(medium, 0)), -1)
-
-
 def medium_receivers(tables, stacks: np.ndarray) -> np.ndarray:
     """(n,) uint8 light sets of points inside media, stacks (K, n) of medium ids: the set of their object
-    (medium_rows; Cycles' volume light samples take the shading point's object as receiver,
+    (media.stack.last_objects; Cycles' volume light samples take the shading point's object as receiver,
     kernel/integrator/shade_volume.h), 0 for the world's fog and for points in no medium."""
-    rows = medium_rows(tables, stacks)
+    rows = last_objects(tables.media, stacks)
     receiver = tables.links.receiver
     return np.where(rows >= 0, np.take(receiver, np.maximum(rows, 0)), 0).astype(np.uint8)
 
@@ -114,10 +105,11 @@ def media_emission_reaches(tables, stacks: np.ndarray, receiver: np.ndarray) -> 
     """(n,) bool: what the media of stacks (K, n) emit along a ray is counted by a path whose ray left an object
     in light set receiver (n,). Volume emission is no light in Cycles (only a Surface output's emission is
     sampled: scene/shader.cpp estimate_emission), so only the rays that cross it find it, and it is written
-    only where the emitting object, the last on the stack (medium_rows), reaches the receiver of the ray
-    (kernel/integrator/shade_volume.h: light_link_object_match(light_link_receiver_forward, sd->object));
-    camera rays are the world's object, set 0. The world's fog is no object: it reaches every set."""
-    rows = medium_rows(tables, stacks)
+    only where the emitting object, the last on the stack (media.stack.last_objects), reaches the receiver
+    of the ray (kernel/integrator/shade_volume.h: light_link_object_match(light_link_receiver_forward,
+    sd->object)); camera rays are the world's object, set 0. The world's fog is no object: it reaches every
+    set."""
+    rows = last_objects(tables.media, stacks)
     masks = np.take(tables.links.light_sets, np.maximum(rows, 0))
     return (rows < 0) | reaches(masks, receiver)
 
