@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import passes
+from .media.stack import last_objects
 from .scene import NO_GROUP
 
 
@@ -79,15 +80,12 @@ def of_triangles(tables, prim: np.ndarray):
 
 def of_media(tables, stacks: np.ndarray):
     """(n,) int32 groups of the emission of points inside media, stacks (K, n) of medium ids: the object of the
-    last medium on each stack (the one whose shading Cycles' volume emission is written with, as
-    lights.links.medium_receivers), NO_GROUP for the world's fog and points in no medium."""
+    last medium on each stack (media.stack.last_objects: the one whose shading Cycles' volume emission is
+    written with), NO_GROUP for the world's fog and points in no medium."""
     groups = tables.scene.light_groups
     if groups is None or not len(groups.objects):
         return NO_GROUP
-    filled = stacks >= 0
-    last = np.where(filled.any(axis=0), stacks.shape[0] - 1 - np.argmax(filled[::-1], axis=0), 0)
-    medium = stacks[last, np.arange(stacks.shape[1])]
-    rows = np.where(medium >= 0, np.take(tables.media.object, np.maximum(medium, 0)), -1)
+    rows = last_objects(tables.media, stacks)
     return np.where(rows >= 0, np.take(groups.objects, np.maximum(rows, 0)), NO_GROUP).astype(np.int32)
 
 

@@ -26,7 +26,7 @@ from .displacement import BlenderMesh, displace_mesh
 from .instances import (asset_name, check_visibility, instance_key, instance_random, instance_visibility,
                         instanced_groups, is_rendered, object_inputs, slot_materials)
 from .light_groups import GroupTable
-from .light_linking import ALL_MASK, LinkTable, check_volume_linking
+from .light_linking import ALL_MASK, LinkTable
 
 # The light_linking row of an object linked nowhere: no receiver or blocker set, in every light and shadow set.
 UNLINKED_ROW = (0, 0, ALL_MASK, ALL_MASK)
@@ -194,8 +194,6 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                     (materials.default_volume_id(),)
                 signatures[object_key] = slot_materials(ob)
                 check_visibility(ob, warnings)
-                if linking:
-                    check_volume_linking(ob, links, True, warnings)
             if mesh_key not in meshes:
                 source = read_volume(ob, depsgraph.scene.frame_current, materials.interpolation(slot_rows[object_key]))
                 warnings.extend(source.warnings)
@@ -221,8 +219,6 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                     slot_rows[object_key] = materials.slot_ids(ob)
                     signatures[object_key] = slot_materials(ob)
                     check_visibility(ob, warnings)
-                    if linking:
-                        check_volume_linking(ob, links, materials.has_volume(slot_rows[object_key]), warnings)
                 if mesh_key not in displaced:
                     displaced.add(mesh_key)
                     meshes[mesh_key] = _displaced(inst, ob, source, meshes[mesh_key], materials,

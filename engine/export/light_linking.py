@@ -185,21 +185,6 @@ def _linked_objects(collection):
         yield ob, entry.light_linking.link_state
 
 
-def check_volume_linking(ob, table: LinkTable, volume: bool, warnings: list[str]) -> None:
-    """Warn about the linking Ember does not render on an object that is a medium (a Volume object, a smoke
-    domain, a mesh with a Volume output): the light its volume emits reaches every object, and as a blocker
-    its volume still dims the light of every emitter (its surfaces are linked)."""
-    if not volume:
-        return
-    name = ob.original.name_full
-    if any(c is not None for c in table.emitters.get(name, (None, None))):
-        warnings.append(f"Object '{ob.name}': Light and Shadow Linking of a volume's emission are not supported yet, "
-                        f"ignored (it lights everything and everything shadows it)")
-    if table.shadow.sets.get(name, 0):
-        warnings.append(f"Object '{ob.name}': its volume dims every light's shadow rays (Shadow Linking is honoured "
-                        f"for surfaces only)")
-
-
 def light_links(rows: list | None) -> LightLinks | None:
     """kernels.scene.LightLinks of the object rows (per row: (receiver set, blocker set, light membership,
     shadow membership)); None when every row is linked nowhere and lights and shadows everything (then no

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..media.stack import last_objects
 from ..scene import ALL_SETS
 from .selection import Choice
 
@@ -92,16 +93,25 @@ class ObjectLinks:
 
 
 def medium_receivers(tables, stacks: np.ndarray) -> np.ndarray:
-    """(n,) uint8 light sets of points inside media, stacks (K, n) of medium ids: the object of the last medium
-    on each stack (Cycles' volume light samples take the shading point's object as receiver, and a volume
-    point keeps the object of the last stack entry it evaluates: kernel/integrator/shade_volume.h,
-    volume_shader.h volume_shader_eval_entry), 0 for the world's fog and for points in no medium."""
-    filled = stacks >= 0
-    last = np.where(filled.any(axis=0), stacks.shape[0] - 1 - np.argmax(filled[::-1], axis=0), 0)
-    medium = stacks[last, np.arange(stacks.shape[1])]
-    rows = np.where(medium >= 0, np.take(tables.media.object, np.maximum(medium, 0)), -1)
+    """(n,) uint8 light sets of points inside media, stacks (K, n) of medium ids: the set of their object
+    (media.stack.last_objects; Cycles' volume light samples take the shading point's object as receiver,
+    kernel/integrator/shade_volume.h), 0 for the world's fog and for points in no medium."""
+    rows = last_objects(tables.media, stacks)
     receiver = tables.links.receiver
     return np.where(rows >= 0, np.take(receiver, np.maximum(rows, 0)), 0).astype(np.uint8)
+
+
+def media_emission_reaches(tables, stacks: np.ndarray, receiver: np.ndarray) -> np.ndarray:
+    """(n,) bool: what the media of stacks (K, n) emit along a ray is counted by a path whose ray left an object
+    in light set receiver (n,). Volume emission is no light in Cycles (only a Surface output's emission is
+    sampled: scene/shader.cpp estimate_emission), so only the rays that cross it find it, and it is written
+    only where the emitting object, the last on the stack (media.stack.last_objects), reaches the receiver
+    of the ray (kernel/integrator/shade_volume.h: light_link_object_match(light_link_receiver_forward,
+    sd->object)); camera rays are the world's object, set 0. The world's fog is no object: it reaches every
+    set."""
+    rows = last_objects(tables.media, stacks)
+    masks = np.take(tables.links.light_sets, np.maximum(rows, 0))
+    return (rows < 0) | reaches(masks, receiver)
 
 
 class EmitterLinks:

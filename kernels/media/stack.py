@@ -26,3 +26,14 @@ def enter_exit(stack: np.ndarray, medium: np.ndarray, leaving: np.ndarray) -> np
         part[slot[room], enter[room]] = m[enter[room]]
     stack[:, rows] = part
     return stack
+
+
+def last_objects(media, stacks: np.ndarray) -> np.ndarray:
+    """(n,) object rows of the last medium on each stack (K, n) of medium ids (media: medium.Media), -1 for the
+    world's fog and for points in no medium: the object Cycles gives a volume point, that of the last stack
+    entry it evaluates (kernel/integrator/volume_shader.h volume_shader_eval_entry), whose light group, light
+    set and light linking its emission and light samples take."""
+    filled = stacks >= 0
+    last = np.where(filled.any(axis=0), stacks.shape[0] - 1 - np.argmax(filled[::-1], axis=0), 0)
+    medium = stacks[last, np.arange(stacks.shape[1])]
+    return np.where(medium >= 0, np.take(media.object, np.maximum(medium, 0)), -1)

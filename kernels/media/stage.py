@@ -14,7 +14,7 @@ from ..lights import nee
 from ..paths import DIFFUSE_ANCESTOR, VOLUME_SCATTER, may_scatter, ray_keys, roulette_verdict
 from ..geometry import NG
 from ..lights.common import SPOT
-from ..lights.links import medium_receivers
+from ..lights.links import media_emission_reaches, medium_receivers
 from ..rng import keyed_uniforms as uniforms
 from ..samples import BSDF, LIGHT, LIGHT_POINT, VOLUME_DISTANCE, VOLUME_LIGHT
 from ..vec import F32, ONE, ZERO
@@ -79,6 +79,8 @@ def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -
         lit = direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first)
     if np.any(seg.emission != 0):
         le = throughput * seg.emission
+        if state.link_set is not None:   # Light Linking: the paths whose receiver the emitting object reaches
+            le = le * media_emission_reaches(tables, state.media[:, inside], np.take(state.link_set, inside))
         bounce = np.take(state.bounce, inside)
         le = passes.clamp(wave, le, bounce > 1)
         passes.accumulate(wave.radiance, state.path[inside], le)
