@@ -93,24 +93,56 @@ class RayTimes:
 class _Moving:
     """One moving object for motion blur: its triangles in object space in their own Embree scene, and
     its motion. A ray at time t is moved into the object's space at t (interpolated as Cycles does)
-    without normalising its direction, so the hit distance is the world's."""
+    without normalising its direction, so the hit distance is the world's.
 
-    def __init__(self, ids: np.ndarray, positions: np.ndarray, keys: np.ndarray, reference: np.ndarray):
+    Deforming triangles (deformation motion blur) carry steps, (S, n, 3, 3) their corners at S times over the
+    shutter in the space of the stored positions: their scene is Embree's triangles with time steps
+    (kernels.embree, as Cycles' motion triangles), traced by packets that carry each ray's time. keys None: the
+    triangles deform in place (no transform motion), the rays stay as they are."""
+
+    def __init__(self, ids: np.ndarray, positions: np.ndarray, keys: np.ndarray | None,
+                 reference: np.ndarray | None, steps: np.ndarray | None = None, device=None):
         self.ids = ids.astype(np.int32)
-        self.motion = motion.decompose(np.asarray(keys, np.float64))
-        object_from_world = np.linalg.inv(np.asarray(reference, np.float64))
-        local = positions[ids].astype(np.float64) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
-        self.scene = rtcore_scene.EmbreeScene(robust=True)
-        mesh_construction.TriangleMesh(self.scene, np.ascontiguousarray(local, np.float32))
+        self.motion = None if keys is None else motion.decompose(np.asarray(keys, np.float64))
+        corners = positions[ids] if steps is None else steps
+        if keys is None:
+            local = np.asarray(corners, np.float64)
+        else:
+            object_from_world = np.linalg.inv(np.asarray(reference, np.float64))
+            local = np.asarray(corners, np.float64) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
+        if steps is None:
+            self.scene = rtcore_scene.EmbreeScene(robust=True)
+            mesh_construction.TriangleMesh(self.scene, np.ascontiguousarray(local, np.float32))
+            self.timed = False
+        else:
+            local32 = np.ascontiguousarray(local, np.float32).reshape(len(steps), -1, 3)
+            self.embree = embree.Scene(device, embree.Triangles(local32[0], steps=local32))
+            self.scene = _PacketQueries(self.embree)
+            self.timed = True
         # A world box the object never leaves during the shutter: its pivot moves within the keys' pivots
         # (translation is lerped) and no point of it strays further from the pivot than at a key (rotation
-        # keeps lengths; the lerped scale is a convex mix). Rays that miss the box skip the object.
+        # keeps lengths; the lerped scale is a convex mix); deforming corners stay within their steps' box.
+        # Rays that miss the box skip the object.
+        corners = np.asarray(local, np.float64).reshape(-1, 3)
+        if keys is None:
+            self.lo = (corners.min(axis=0) - (np.abs(corners).max() * 1e-5 + 1e-6)).astype(np.float32)
+            self.hi = (corners.max(axis=0) + (np.abs(corners).max() * 1e-5 + 1e-6)).astype(np.float32)
+            return
         keys = np.asarray(keys, np.float64)
-        corners = local.reshape(-1, 3)
         reach = max(float(np.linalg.norm(corners @ k[:3, :3].T, axis=1).max()) for k in keys)
         reach = reach * (1 + 1e-5) + 1e-6
         self.lo = (keys[:, :3, 3].min(axis=0) - reach).astype(np.float32)
         self.hi = (keys[:, :3, 3].max(axis=0) + reach).astype(np.float32)
+
+    def query(self, o, d, dists, times, occluded: bool = False):
+        """embreex's run() on the object's scene, the rays' times (n,) given to a scene with time steps."""
+        if occluded:
+            if self.timed:
+                return self.scene.run(o, d, dists=dists, query="OCCLUDED", times=times)
+            return self.scene.run(o, d, dists=dists, query="OCCLUDED", output=None)
+        if self.timed:
+            return self.scene.run(o, d, dists=dists, output=1, times=times)
+        return self.scene.run(o, d, dists=dists, output=1)
 
     def crossing(self, origins, directions, t_max) -> np.ndarray:
         """Indices of the rays whose segment [0, t_max] meets the object's box (slab test)."""
@@ -128,6 +160,9 @@ class _Moving:
 
         def make(t):
             return motion.affine_inverse(motion.interpolate(self.motion, t)).astype(np.float32)
+        if self.motion is None:
+            return (np.ascontiguousarray(np.take(origins, sel, axis=0), np.float32),
+                    np.ascontiguousarray(np.take(directions, sel, axis=0), np.float32))
         if isinstance(time, RayTimes):
             inverse = np.take(time.cached(("inverse", id(self)), make), sel, axis=0)
         else:
@@ -150,14 +185,16 @@ class Accel:
 
     def __init__(self, positions: np.ndarray, threads: int = 0, motion_ids: np.ndarray | None = None,
                  motion: tuple = (), motion_reference: tuple = (), instances=None, reuse: "Accel | None" = None,
-                 indexed: tuple | None = None, shapes=None):
+                 indexed: tuple | None = None, shapes=None, deform: tuple | None = None):
         """reuse : the Accel of an earlier frame (persistent data): its instanced meshes whose triangles are
         the same, array for array, keep their BVH instead of being built again.
         indexed : (vertices (V, 3) float32, indices (T, 3) uint32), the same triangles as positions shared
         by their vertices (SceneArrays.bvh_vertices): Embree builds from them, about 1.5x faster.
         shapes : kernels.geometry.primitives.ShapeLayout of the scene's curves and points, or None: they join
         the top level (world space) and its instances (prototypes), and hits on them report the numbers the
-        layout gives them, after the triangles'."""
+        layout gives them, after the triangles'.
+        deform : (deform_ids (T,) int32, deform_positions (S, D, 3, 3) float32) or None: triangles that deform
+        over the shutter (SceneArrays.deform_ids): Embree's time steps, found where they are at each ray's time."""
         self.threads = capped_threads(threads)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.triangle_count = len(positions)
@@ -166,18 +203,31 @@ class Accel:
         self.rays_traced = 0
         self._static_ids = None   # scene triangle of each static-scene triangle, when some move
         self._moving = []
-        if motion_ids is not None and len(motion) and (motion_ids >= 0).any():
-            self._static_ids = np.flatnonzero(motion_ids < 0).astype(np.int32)
-            self._moving = [_Moving(np.flatnonzero(motion_ids == i), positions, keys, ref)
-                            for i, (keys, ref) in enumerate(zip(motion, motion_reference))
-                            if (motion_ids == i).any()]
+        self._device = reuse._device if reuse is not None else embree.Device()
+        moves = motion_ids is not None and len(motion) and (motion_ids >= 0).any()
+        deforms = deform is not None and (deform[0] >= 0).any()
+        if moves or deforms:
+            still = np.ones(len(positions), bool)
+            if moves:
+                still &= motion_ids < 0
+            if deforms:
+                still &= deform[0] < 0
+            self._static_ids = np.flatnonzero(still).astype(np.int32)
+            for i, (keys, ref) in enumerate(zip(motion, motion_reference) if moves else ()):
+                ids = np.flatnonzero(motion_ids == i)
+                if len(ids):
+                    steps = _steps_of(deform, ids)
+                    self._moving.append(_Moving(ids, positions, keys, ref, steps, self._device))
+            if deforms:
+                ids = np.flatnonzero((deform[0] >= 0) & (motion_ids < 0 if moves else True))
+                if len(ids):
+                    self._moving.append(_Moving(ids, positions, None, None, _steps_of(deform, ids), self._device))
             positions = positions[self._static_ids]
             if indexed is not None:
                 indexed = (indexed[0], indexed[1][self._static_ids])
         self._bases = None        # scene number of each instance's first triangle
         self._packets = None      # the static scene traced by packets (reports instances), or None
         self._scene = None        # the static scene traced by embreex's loop, or None
-        self._device = reuse._device if reuse is not None else embree.Device()
         self.meshes = []          # (prototype positions, embree.Mesh) of the instanced meshes
         self.meshes_reused = 0
         self._refining = None     # the thread building the medium BVH (refine), once started
@@ -383,8 +433,10 @@ class Accel:
                 o, d = moving.rays(origins, directions, time, sel)
                 best = t[sel]
 
-                def job_moving(s: slice, o=o, d=d, moving=moving, sel=sel, best=best) -> None:
-                    r = moving.scene.run(o[s], d[s], dists=best[s].copy(), output=1)
+                ray_times = _selected_times(time, sel) if moving.timed else None
+
+                def job_moving(s: slice, o=o, d=d, moving=moving, sel=sel, best=best, ray_times=ray_times) -> None:
+                    r = moving.query(o[s], d[s], best[s].copy(), None if ray_times is None else ray_times[s])
                     closer = r["primID"] >= 0
                     idx = sel[np.flatnonzero(closer) + s.start]
                     prim[idx] = moving.ids[r["primID"][closer]]
@@ -519,8 +571,11 @@ class Accel:
             hit = np.zeros(len(sel), bool)
             limit = t_max[sel]
 
-            def job_moving(s: slice, o=o, d=d, scene=moving.scene, hit=hit, limit=limit) -> None:
-                hit[s] = scene.run(o[s], d[s], dists=limit[s].copy(), query="OCCLUDED", output=None) == 0
+            ray_times = _selected_times(time, sel) if moving.timed else None
+
+            def job_moving(s: slice, o=o, d=d, moving=moving, hit=hit, limit=limit, ray_times=ray_times) -> None:
+                hit[s] = moving.query(o[s], d[s], limit[s].copy(), None if ray_times is None else ray_times[s],
+                                      occluded=True) == 0
 
             self._run(job_moving, len(sel), split)
             out[sel[hit]] = True
@@ -544,6 +599,24 @@ class Accel:
         with self._lock:  # several waves may trace at once
             self.seconds_in_embree += elapsed
             self.rays_traced += n
+
+
+def _steps_of(deform, ids: np.ndarray) -> np.ndarray | None:
+    """(S, n, 3, 3) the deformation steps of triangles ids when every one of them deforms, else None."""
+    if deform is None:
+        return None
+    columns = np.take(deform[0], ids)
+    if (columns < 0).any():
+        return None
+    return np.take(deform[1], columns, axis=1)
+
+
+def _selected_times(time, sel: np.ndarray) -> np.ndarray:
+    """(len(sel),) float32 the shutter times of rays sel (RayTimes or an array; 0.5 when none are given)."""
+    if time is None:
+        return np.full(len(sel), 0.5, np.float32)
+    times = time.times if isinstance(time, RayTimes) else time
+    return np.ascontiguousarray(np.take(times, sel), np.float32)
 
 
 class _PacketQueries:
