@@ -13,7 +13,12 @@ deformation, read as Cycles' sync_hair_motion and sync_pointcloud_motion read it
 pointcloud.cpp): the keys (positions and radii) of each motion step's subframe (shape_steps; engine/export/shapes.py
 makes them Embree's time steps).
 
-Not done: deformation blur of meshes (armatures, shape keys; a warning names them), lights (Cycles does not blur lamps either). A perspective lens that zooms is recorded at the shutter's start
+Meshes deform too (an armature, shape keys, any modifier or geometry nodes animated over the frames), read as
+Cycles' sync_mesh_motion reads them (intern/cycles/blender/mesh.cpp): a mesh object with modifiers or shape keys
+(Cycles' BKE_object_is_deform_modified) whose Motion Blur and Deformation are on has its triangles' corners and
+normals read at each motion step and at the frame (mesh_steps); engine/export/deform.py makes them the triangles'
+time steps. Not done: lights (Cycles does not blur lamps either). A perspective lens that zooms is recorded at the
+shutter's start
 and end, as Cycles' perspective motion. The rolling shutter is
 Cycles' own setting (scene.cycles: Rolling Shutter type Top, its Duration), read as Cycles reads it.
 """
@@ -28,6 +33,7 @@ from ...kernels import motion as kernel_motion
 from .camera import perspective_fov
 from .curves import hair_systems, read_curves, read_particle_hair
 from .instances import instance_key
+from .mesh import read_mesh, readable_mesh
 from .points import read_points
 
 CURVE_SAMPLES = 257  # Blender 5.0 reads the shutter curve at 257 points (curvemapping_to_array, size 256)
@@ -45,6 +51,10 @@ class MotionSamples:
     # Per instance key of a Curves or Point Cloud object or a mesh with hair, its local keys at each of its
     # motion steps: [(offsets (C + 1,) or None for points, keys (n, 4) x, y, z, radius), ...] (shape_steps).
     shapes: dict = field(default_factory=dict)
+    # Per instance key of a mesh object that may deform, its mesh_steps at each of its motion steps, and at the
+    # frame (meshes_frame): (vertex count, (T*3, 3) local corners, (T*3, 3) local corner normals).
+    meshes: dict = field(default_factory=dict)
+    meshes_frame: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
 
 
@@ -115,8 +125,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     recorded: dict = {}
     camera_matrices = []
     fovs = []
-    vertices_first: dict = {}
-    deforming: set = set()
+    mesh_keys: dict = {}    # instance key -> its mesh_steps at every time
     shape_keys: dict = {}   # instance key -> its shape_steps at every time
     render = depsgraph.mode == "RENDER" 
     try:
@@ -128,8 +137,8 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                 key = instance_key(inst)
                 if key in per_key:
                     recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
-                    if i in (0, len(times) - 1) and not inst.is_instance and inst.object.type == "MESH":
-                        _track_deformation(inst.object, key, i, vertices_first, deforming)
+                    if may_deform(inst):
+                        mesh_keys.setdefault(key, []).append(mesh_steps(inst.object))
                     if inst.object.type in ("CURVES", "POINTCLOUD", "MESH") and deform_motion(inst):
                         # Instances of one data-block (geometry nodes' points) or of one haired object (a collection's
                         # fur) read it once a step.
@@ -145,6 +154,14 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                 fovs.append(_fov(camera_ob.evaluated_get(depsgraph)))
     finally:
         engine.frame_set(frame, subframe)
+    if mesh_keys:   # the frame's own mesh, which the export reads: the steps are compared with it
+        for inst in depsgraph.object_instances:
+            key = instance_key(inst)
+            if key in mesh_keys and may_deform(inst):
+                samples.meshes_frame[key] = mesh_steps(inst.object)
+    for key, steps in mesh_keys.items():
+        if len(steps) == len(times) and key in samples.meshes_frame:
+            samples.meshes[key] = steps[::(largest - 1) // (per_key[key] - 1)]
     for key, steps in shape_keys.items():
         if len(steps) == len(times):
             samples.shapes[key] = steps[::(largest - 1) // (per_key[key] - 1)]
@@ -163,9 +180,6 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
         keys = np.stack(camera_matrices[::stride])
         if not np.allclose(keys, keys[len(keys) // 2], rtol=0, atol=1e-7):
             samples.camera = keys
-    samples.warnings.extend(f"Object '{name}': deformation motion blur is not supported (its mesh changes "
-                            f"during the shutter); rendered with its transform motion only"
-                            for name in sorted(deforming))
     return samples
 
 
@@ -230,17 +244,21 @@ def _fov(camera_ob) -> float | None:
     return perspective_fov(cam.lens, sensor)
 
 
-def _track_deformation(ob, key, step: int, first: dict, deforming: set) -> None:
-    """Compare the evaluated vertices at the first and last key of objects that could deform."""
-    if not (ob.modifiers or getattr(ob.data, "shape_keys", None)):
-        return
-    verts = ob.data.vertices
-    co = np.empty(len(verts) * 3, np.float32)
-    verts.foreach_get("co", co)
-    if step == 0:
-        first[key] = co
-    elif key in first and (len(first[key]) != len(co) or not np.array_equal(first[key], co)):
-        deforming.add(ob.name)
+def may_deform(inst) -> bool:
+    """A mesh object (not an instance) that may deform: modifiers or shape keys (Cycles' BKE_object_is_deform_modified,
+    intern/cycles/blender/util.h), its Deformation switch on."""
+    ob = inst.object
+    if inst.is_instance or ob.type != "MESH" or not deform_motion(inst):
+        return False
+    return bool(ob.modifiers) or getattr(ob.original.data, "shape_keys", None) is not None
+
+
+def mesh_steps(ob) -> tuple:
+    """(vertex count, (T*3, 3) float32 corners, (T*3, 3) float32 corner normals) of an evaluated mesh object, in
+    object space, as the export reads its triangles (mesh.read_mesh)."""
+    with readable_mesh(ob) as mesh:
+        local = read_mesh(mesh)
+        return len(mesh.vertices), local.positions, local.normals
 
 
 def deform_motion(inst) -> bool:
