@@ -137,3 +137,51 @@ def test_a_mesh_changing_its_vertex_count_is_warned_by_name():
     exported = export_blurred()
     assert any(f"'{ob.name}'" in w and "vertex count" in w for w in exported.warnings), exported.warnings
     assert exported.scene.deform_ids is None
+
+
+def streaking_mesh(ob, speed=20.0):
+    """Geometry nodes storing a `velocity` attribute on the mesh's vertices (units per second): x speed times the
+    vertex's height above -0.7 (object space); the mesh itself stays still."""
+    tree = bpy.data.node_groups.new("Streak", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    into, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    position = tree.nodes.new("GeometryNodeInputPosition")
+    split = tree.nodes.new("ShaderNodeSeparateXYZ")
+    tree.links.new(position.outputs[0], split.inputs[0])
+    scale = tree.nodes.new("ShaderNodeMath")
+    scale.operation = "MULTIPLY_ADD"
+    scale.inputs[1].default_value = speed
+    scale.inputs[2].default_value = 0.7 * speed
+    tree.links.new(split.outputs["Z"], scale.inputs[0])
+    velocity = tree.nodes.new("ShaderNodeCombineXYZ")
+    tree.links.new(scale.outputs[0], velocity.inputs["X"])
+    store = tree.nodes.new("GeometryNodeStoreNamedAttribute")
+    store.data_type, store.domain = "FLOAT_VECTOR", "POINT"
+    store.inputs["Name"].default_value = "velocity"
+    tree.links.new(into.outputs[0], store.inputs["Geometry"])
+    tree.links.new(velocity.outputs[0], store.inputs["Value"])
+    tree.links.new(store.outputs[0], out.inputs[0])
+    ob.modifiers.new("streak", "NODES").node_group = tree
+    return ob
+
+
+def test_a_mesh_with_a_velocity_attribute_matches_cycles():
+    """A still mesh whose vertices carry a `velocity` attribute blurs along it, half the shutter's seconds each way
+    of the frame (Cycles' attr_create_motion_from_velocity for meshes: three steps, not read at the subframes)."""
+    scene = blurred_scene()
+    lit(scene)
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, radius=0.7, location=(0, 0, 1))
+    ball = streaking_mesh(bpy.context.active_object, speed=60.0)
+    ball.data.materials.append(diffuse_material("Orange", (0.9, 0.5, 0.1)))
+    scene.frame_set(1)
+    exported = export_blurred()
+    assert not exported.warnings, exported.warnings
+    arrays = exported.scene
+    steps = arrays.deform_positions
+    assert steps is not None and len(steps) == 3
+    half = 0.5 / (scene.render.fps / scene.render.fps_base)   # half the one-frame shutter, in seconds
+    z = steps[1, ..., 2] - 1.0   # the object sits at z = 1: its vertices' own heights
+    assert np.allclose(steps[2, ..., 0] - steps[1, ..., 0], 60.0 * (z + 0.7) * half, atol=1e-4)
+    assert np.allclose(steps[0, ..., 0] - steps[1, ..., 0], -60.0 * (z + 0.7) * half, atol=1e-4)
+    compare_to_cycles(scene, samples=64, blocks=6, max_bounces=2)

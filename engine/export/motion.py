@@ -137,7 +137,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                 key = instance_key(inst)
                 if key in per_key:
                     recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
-                    if may_deform(inst):
+                    if may_deform(inst) and mesh_velocity(inst.object) is None:
                         mesh_keys.setdefault(key, []).append(mesh_steps(inst.object))
                     if inst.object.type in ("CURVES", "POINTCLOUD", "MESH") and deform_motion(inst):
                         # Instances of one data-block (geometry nodes' points) or of one haired object (a collection's
@@ -154,11 +154,25 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                 fovs.append(_fov(camera_ob.evaluated_get(depsgraph)))
     finally:
         engine.frame_set(frame, subframe)
-    if mesh_keys:   # the frame's own mesh, which the export reads: the steps are compared with it
-        for inst in depsgraph.object_instances:
-            key = instance_key(inst)
-            if key in mesh_keys and may_deform(inst):
-                samples.meshes_frame[key] = mesh_steps(inst.object)
+    # The frame's own meshes, which the export reads: the steps are compared with them. A mesh with a `velocity`
+    # attribute moves along it instead: Cycles' attr_create_motion_from_velocity (intern/cycles/blender/mesh.cpp)
+    # gives it three steps, its vertices half the shutter's seconds before and after the frame along their
+    # velocity (the normals the frame's), and it is not read at the subframes.
+    r = scene.render
+    half_shutter = 0.5 * float(r.motion_blur_shutter) / (r.fps / r.fps_base)
+    for inst in depsgraph.object_instances:
+        key = instance_key(inst)
+        if key not in per_key or not may_deform(inst, velocity=True):
+            continue
+        velocity = mesh_velocity(inst.object)
+        if velocity is None and key not in mesh_keys:
+            continue
+        frame_mesh, vertices = _mesh_read(inst.object)
+        samples.meshes_frame[key] = frame_mesh
+        if velocity is not None:
+            count, corners, normals = frame_mesh
+            moved = velocity[vertices] * np.float32(half_shutter)
+            samples.meshes[key] = [(count, corners - moved, normals), frame_mesh, (count, corners + moved, normals)]
     for key, steps in mesh_keys.items():
         if len(steps) == len(times) and key in samples.meshes_frame:
             samples.meshes[key] = steps[::(largest - 1) // (per_key[key] - 1)]
@@ -244,21 +258,42 @@ def _fov(camera_ob) -> float | None:
     return perspective_fov(cam.lens, sensor)
 
 
-def may_deform(inst) -> bool:
+def may_deform(inst, velocity: bool = False) -> bool:
     """A mesh object (not an instance) that may deform: modifiers or shape keys (Cycles' BKE_object_is_deform_modified,
-    intern/cycles/blender/util.h), its Deformation switch on."""
+    intern/cycles/blender/util.h; velocity: or a `velocity` attribute), its Deformation switch on."""
     ob = inst.object
     if inst.is_instance or ob.type != "MESH" or not deform_motion(inst):
         return False
-    return bool(ob.modifiers) or getattr(ob.original.data, "shape_keys", None) is not None
+    return bool(ob.modifiers) or getattr(ob.original.data, "shape_keys", None) is not None or \
+        (velocity and mesh_velocity(ob) is not None)
+
+
+def mesh_velocity(ob) -> np.ndarray | None:
+    """(V, 3) float32 the `velocity` attribute of an evaluated mesh object (a vector per vertex, units per second),
+    else None."""
+    attr = ob.data.attributes.get("velocity")
+    n = len(ob.data.vertices)
+    if attr is None or attr.domain != "POINT" or attr.data_type != "FLOAT_VECTOR" or not n:
+        return None
+    values = np.empty(3 * n, np.float32)
+    attr.data.foreach_get("vector", values)
+    return values.reshape(n, 3)
 
 
 def mesh_steps(ob) -> tuple:
     """(vertex count, (T*3, 3) float32 corners, (T*3, 3) float32 corner normals) of an evaluated mesh object, in
-    object space, as the export reads its triangles (mesh.read_mesh)."""
+    object space, as the export reads its triangles (mesh.read_mesh). A mesh of flat faces only has zero normals:
+    the kernel then shades each triangle by its geometric normal where it is at the ray's time, as Cycles shades
+    a flat motion triangle (its Ng)."""
+    return _mesh_read(ob)[0]
+
+
+def _mesh_read(ob) -> tuple:
+    """(mesh_steps, (T*3,) the vertex of each corner)."""
     with readable_mesh(ob) as mesh:
         local = read_mesh(mesh)
-        return len(mesh.vertices), local.positions, local.normals
+        normals = np.zeros_like(local.positions) if mesh.normals_domain == "FACE" else local.normals
+        return (len(mesh.vertices), local.positions, normals), local.corners
 
 
 def deform_motion(inst) -> bool:
