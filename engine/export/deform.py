@@ -42,7 +42,7 @@ def deform_fields(samples, geometry, warnings: list) -> dict:
             warnings.append(f"Object '{name}': deformation motion blur is not supported with true displacement or "
                             f"adaptive subdivision; rendered with its transform motion only")
             continue
-        kept = [(c, n) if (k == count and len(c) == len(corners)) else None for k, c, n in steps]
+        kept = [(c, n) if (k == count and c is not None and len(c) == len(corners)) else None for k, c, n in steps]
         if all(k is None for k in kept):
             warnings.append(f"Object '{name}': its mesh changes its vertex count during the shutter; rendered "
                             f"without deformation motion blur (as Cycles)")

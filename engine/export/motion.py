@@ -16,7 +16,8 @@ makes them Embree's time steps).
 Meshes deform too (an armature, shape keys, any modifier or geometry nodes animated over the frames), read as
 Cycles' sync_mesh_motion reads them (intern/cycles/blender/mesh.cpp): a mesh object with modifiers or shape keys
 (Cycles' BKE_object_is_deform_modified) whose Motion Blur and Deformation are on has its triangles' corners and
-normals read at each motion step and at the frame (mesh_steps); engine/export/deform.py makes them the triangles'
+normals read at each motion step and at the frame (vertex_steps), the steps' vertices on the frame's triangles;
+engine/export/deform.py makes them the triangles'
 time steps. Not done: lights (Cycles does not blur lamps either). A perspective lens that zooms is recorded at the
 shutter's start
 and end, as Cycles' perspective motion. The rolling shutter is
@@ -33,7 +34,7 @@ from ...kernels import motion as kernel_motion
 from .camera import perspective_fov
 from .curves import hair_systems, read_curves, read_particle_hair
 from .instances import instance_key
-from .mesh import read_mesh, readable_mesh
+from .mesh import read_mesh, read_values, readable_mesh
 from .points import read_points
 
 CURVE_SAMPLES = 257  # Blender 5.0 reads the shutter curve at 257 points (curvemapping_to_array, size 256)
@@ -51,8 +52,9 @@ class MotionSamples:
     # Per instance key of a Curves or Point Cloud object or a mesh with hair, its local keys at each of its
     # motion steps: [(offsets (C + 1,) or None for points, keys (n, 4) x, y, z, radius), ...] (shape_steps).
     shapes: dict = field(default_factory=dict)
-    # Per instance key of a mesh object that may deform, its mesh_steps at each of its motion steps, and at the
-    # frame (meshes_frame): (vertex count, (T*3, 3) local corners, (T*3, 3) local corner normals).
+    # Per instance key of a mesh object that may deform, at each of its motion steps and at the frame (meshes_frame):
+    # (vertex count, (T*3, 3) local corners, (T*3, 3) local corner normals), the steps' corners those of the frame's
+    # triangles (None where the step's vertices differ in number).
     meshes: dict = field(default_factory=dict)
     meshes_frame: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
@@ -125,7 +127,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     recorded: dict = {}
     camera_matrices = []
     fovs = []
-    mesh_keys: dict = {}    # instance key -> its mesh_steps at every time
+    mesh_keys: dict = {}    # instance key -> its vertex_steps at every time
     shape_keys: dict = {}   # instance key -> its shape_steps at every time
     render = depsgraph.mode == "RENDER" 
     try:
@@ -138,7 +140,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                 if key in per_key:
                     recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
                     if may_deform(inst) and mesh_velocity(inst.object) is None:
-                        mesh_keys.setdefault(key, []).append(mesh_steps(inst.object))
+                        mesh_keys.setdefault(key, []).append(vertex_steps(inst.object))
                     if inst.object.type in ("CURVES", "POINTCLOUD", "MESH") and deform_motion(inst):
                         # Instances of one data-block (geometry nodes' points) or of one haired object (a collection's
                         # fur) read it once a step.
@@ -167,15 +169,21 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
         velocity = mesh_velocity(inst.object)
         if velocity is None and key not in mesh_keys:
             continue
-        frame_mesh, vertices = _mesh_read(inst.object)
+        with readable_mesh(inst.object) as mesh:
+            local = read_mesh(mesh)
+            domain = mesh.normals_domain
+            frame_mesh = (len(mesh.vertices), local.positions,
+                          np.zeros_like(local.positions) if domain == "FACE" else local.normals)
         samples.meshes_frame[key] = frame_mesh
         if velocity is not None:
             count, corners, normals = frame_mesh
-            moved = velocity[vertices] * np.float32(half_shutter)
+            moved = velocity[local.corners] * np.float32(half_shutter)
             samples.meshes[key] = [(count, corners - moved, normals), frame_mesh, (count, corners + moved, normals)]
-    for key, steps in mesh_keys.items():
-        if len(steps) == len(times) and key in samples.meshes_frame:
-            samples.meshes[key] = steps[::(largest - 1) // (per_key[key] - 1)]
+        elif len(mesh_keys[key]) == len(times):
+            # The frame's triangles at every step: Blender may split a quad along its other diagonal at another
+            # step, Cycles keeps the frame's triangles (tri_vindex) and moves their vertices.
+            steps = mesh_keys[key][::(largest - 1) // (per_key[key] - 1)]
+            samples.meshes[key] = [_frame_corners(step, local, domain, frame_mesh) for step in steps]
     for key, steps in shape_keys.items():
         if len(steps) == len(times):
             samples.shapes[key] = steps[::(largest - 1) // (per_key[key] - 1)]
@@ -280,20 +288,37 @@ def mesh_velocity(ob) -> np.ndarray | None:
     return values.reshape(n, 3)
 
 
-def mesh_steps(ob) -> tuple:
-    """(vertex count, (T*3, 3) float32 corners, (T*3, 3) float32 corner normals) of an evaluated mesh object, in
-    object space, as the export reads its triangles (mesh.read_mesh). A mesh of flat faces only has zero normals:
-    the kernel then shades each triangle by its geometric normal where it is at the ray's time, as Cycles shades
-    a flat motion triangle (its Ng)."""
-    return _mesh_read(ob)[0]
-
-
-def _mesh_read(ob) -> tuple:
-    """(mesh_steps, (T*3,) the vertex of each corner)."""
+def vertex_steps(ob) -> tuple:
+    """(vertex count, (V, 3) float32 vertices, its normals' domain, (N, 3) float32 normal rows or None) of an evaluated
+    mesh object, in object space: Blender's vertex normals for a mesh smooth all over (POINT), its corner normals
+    (CORNER), none for flat faces only (FACE)."""
     with readable_mesh(ob) as mesh:
-        local = read_mesh(mesh)
-        normals = np.zeros_like(local.positions) if mesh.normals_domain == "FACE" else local.normals
-        return (len(mesh.vertices), local.positions, normals), local.corners
+        n = len(mesh.vertices)
+        vertices = read_values(mesh.attributes["position"].data, "vector", 3 * n, np.float32).reshape(-1, 3) \
+            if n else np.zeros((0, 3), np.float32)
+        domain = mesh.normals_domain
+        rows = None
+        if domain == "POINT":
+            rows = read_values(mesh.vertex_normals, "vector", 3 * n, np.float32).reshape(-1, 3)
+        elif domain == "CORNER":
+            rows = read_values(mesh.corner_normals, "vector", 3 * len(mesh.loops), np.float32).reshape(-1, 3)
+        return n, vertices, domain, rows
+
+
+def _frame_corners(step: tuple, local, domain: str, frame: tuple) -> tuple:
+    """A step's vertex_steps on the frame's triangles (local: the frame's LocalMesh): (vertex count, (T*3, 3) corners,
+    (T*3, 3) normals); the corners None where the step's vertices (or normal rows) differ in number from the frame's.
+    Flat faces (FACE) get zero normals: the kernel then shades each triangle by its geometric normal where it is at
+    the ray's time, as Cycles shades a flat motion triangle (its Ng)."""
+    count, vertices, step_domain, rows = step
+    if count != frame[0]:
+        return count, None, None
+    corners = np.take(vertices, local.corners, axis=0)
+    if domain == "FACE" or step_domain != domain or rows is None:
+        return count, corners, np.zeros_like(corners)
+    if len(rows) != len(local.normal_rows):
+        return count, None, None
+    return count, corners, np.take(rows, local.normal_index, axis=0)
 
 
 def deform_motion(inst) -> bool:
