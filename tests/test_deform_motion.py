@@ -101,3 +101,18 @@ def test_deformation_steps_equal_to_the_frame_render_as_without_them():
     a = render(plain, settings).image
     b = render(scene, settings).image
     assert np.allclose(a, b, atol=1e-5)
+
+
+def test_worker_processes_render_deforming_triangles_as_threads_do():
+    """Worker processes (which build the scene again from its arrays) give the image the render's own thread gives,
+    bit for bit."""
+    scene = sliding_scene(half=0.4, width=24, height=24, fov=np.radians(30))
+    settings = RenderSettings(samples=8, seed=2, wave_size=128)
+    with Renderer(scene, threads=1) as renderer:
+        alone = renderer.render(settings).image
+    with Renderer(scene, threads=2, processes=True) as renderer:
+        assert renderer.crew.wait_for_workers() == 1, renderer.crew.worker_failures
+        image = renderer.render(settings).image
+        assert renderer.crew.remote_waves > 0
+    np.testing.assert_array_equal(image, alone)
+    assert (image[..., :3] < 0.99).any()
