@@ -9,7 +9,7 @@ whose steps all equal its frame has no motion; a step whose vertex count differs
 vertices (sync_mesh_motion: "Topology differs"), so a mesh that changes its vertex count at every step renders
 without deformation blur (a warning names it). The steps are in object space; they go to world space by the
 object's matrix at the frame, the one its stored triangles were made with (for a moving object its
-motion_reference, kernels.accel._Moving brings them back to object space). Meshes the export changes after reading
+motion_reference, kernels.moving.Moving brings them back to object space). Meshes the export changes after reading
 them (true displacement, adaptive subdivision) keep their transform motion only, with a warning naming them.
 """
 from __future__ import annotations
