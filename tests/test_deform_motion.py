@@ -116,3 +116,38 @@ def test_worker_processes_render_deforming_triangles_as_threads_do():
         assert renderer.crew.remote_waves > 0
     np.testing.assert_array_equal(image, alone)
     assert (image[..., :3] < 0.99).any()
+
+
+def test_deforming_triangles_beside_points_keep_the_numbering():
+    """With points in the scene (numbered after the triangles) the deforming square is still found at each ray's
+    time and the point by its own number."""
+    from ember.kernels.scene import Points
+    point = Points(np.array([[3, 0, 0, 0.3]], np.float32), np.zeros(1, np.int32))
+    scene = dataclasses.replace(sliding_scene(half=0.3), points=point)
+    times = np.linspace(0.0, 1.0, 101, dtype=np.float32)
+    n = len(times)
+    dirs = np.tile(np.float32([0, 1, 0]), (n, 1))
+    with Renderer(scene, threads=1) as r:
+        hits = r.accel.intersect(np.tile(np.float32([0, -5, 0]), (n, 1)), dirs, np.full(n, np.inf, np.float32),
+                                 time=times)
+        beside = r.accel.intersect(np.tile(np.float32([3, -5, 0]), (n, 1)), dirs, np.full(n, np.inf, np.float32),
+                                   time=times)
+    x = -1.0 + 2.0 * times.astype(np.float64)
+    edge = np.abs(np.abs(x) - 0.3) < 1e-4
+    assert ((hits.prim >= 0) == (np.abs(x) < 0.3))[~edge].all()
+    assert set(hits.prim[hits.prim >= 0].tolist()) <= {0, 1}
+    assert (beside.prim == 2).all() and np.allclose(beside.t, 4.7, atol=1e-5)
+
+
+def test_a_render_with_deforming_triangles_and_points_sees_both():
+    """The closed form of the sliding square holds in a scene with points too (out of view: hits and shading go
+    through the primitive table of triangles, curves and points)."""
+    from ember.kernels.scene import Points
+    h, samples = 0.1, 256
+    point = Points(np.array([[3, 0, 0, 0.3]], np.float32), np.zeros(1, np.int32))
+    scene = dataclasses.replace(sliding_scene(half=h), points=point)
+    image = render(scene, RenderSettings(samples=samples, seed=5)).image[..., :3]
+    share = h * 256 / 255
+    n = image.shape[0] * image.shape[1] * samples
+    sigma = np.sqrt(share * (1 - share) / n)
+    assert abs((1.0 - image.mean()) - share) < 4 * sigma, (1.0 - image.mean(), share, sigma)
