@@ -16,9 +16,9 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-from embreex import mesh_construction, rtcore_scene
 
 from . import embree, motion
+from .moving import Moving, PacketQueries, selected_times, steps_of
 from .scene import same_arrays
 
 # Plain triangles from this many on get Embree's quick (low-quality) BVH first, which builds several times
@@ -90,55 +90,6 @@ class RayTimes:
         return value
 
 
-class _Moving:
-    """One moving object for motion blur: its triangles in object space in their own Embree scene, and
-    its motion. A ray at time t is moved into the object's space at t (interpolated as Cycles does)
-    without normalising its direction, so the hit distance is the world's."""
-
-    def __init__(self, ids: np.ndarray, positions: np.ndarray, keys: np.ndarray, reference: np.ndarray):
-        self.ids = ids.astype(np.int32)
-        self.motion = motion.decompose(np.asarray(keys, np.float64))
-        object_from_world = np.linalg.inv(np.asarray(reference, np.float64))
-        local = positions[ids].astype(np.float64) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
-        self.scene = rtcore_scene.EmbreeScene(robust=True)
-        mesh_construction.TriangleMesh(self.scene, np.ascontiguousarray(local, np.float32))
-        # A world box the object never leaves during the shutter: its pivot moves within the keys' pivots
-        # (translation is lerped) and no point of it strays further from the pivot than at a key (rotation
-        # keeps lengths; the lerped scale is a convex mix). Rays that miss the box skip the object.
-        keys = np.asarray(keys, np.float64)
-        corners = local.reshape(-1, 3)
-        reach = max(float(np.linalg.norm(corners @ k[:3, :3].T, axis=1).max()) for k in keys)
-        reach = reach * (1 + 1e-5) + 1e-6
-        self.lo = (keys[:, :3, 3].min(axis=0) - reach).astype(np.float32)
-        self.hi = (keys[:, :3, 3].max(axis=0) + reach).astype(np.float32)
-
-    def crossing(self, origins, directions, t_max) -> np.ndarray:
-        """Indices of the rays whose segment [0, t_max] meets the object's box (slab test)."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = np.float32(1.0) / directions
-            t0 = (self.lo - origins) * inv
-            t1 = (self.hi - origins) * inv
-        near = np.nan_to_num(np.minimum(t0, t1), nan=-np.inf).max(axis=1)
-        far = np.nan_to_num(np.maximum(t0, t1), nan=np.inf).min(axis=1)
-        return np.flatnonzero((near <= far) & (far >= 0) & (near <= t_max))
-
-    def rays(self, origins, directions, time, sel):
-        """The rays sel in object space at their times (RayTimes or (n,) times): (origins, directions)
-        float32, (len(sel), 3)."""
-
-        def make(t):
-            return motion.affine_inverse(motion.interpolate(self.motion, t)).astype(np.float32)
-        if isinstance(time, RayTimes):
-            inverse = np.take(time.cached(("inverse", id(self)), make), sel, axis=0)
-        else:
-            inverse = make(np.take(time, sel))
-        origins, directions = np.take(origins, sel, axis=0), np.take(directions, sel, axis=0)
-        linear = inverse[:, :, :3]
-        o = np.einsum("nij,nj->ni", linear, origins) + inverse[:, :, 3]
-        d = np.einsum("nij,nj->ni", linear, directions)
-        return np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32)
-
-
 class Accel:
     """An Embree scene over world-space triangles (T, 3, 3) float32, and instances of meshes
     (kernels.scene.Instances), with a thread pool. Hits report scene triangle numbers: the plain
@@ -150,14 +101,16 @@ class Accel:
 
     def __init__(self, positions: np.ndarray, threads: int = 0, motion_ids: np.ndarray | None = None,
                  motion: tuple = (), motion_reference: tuple = (), instances=None, reuse: "Accel | None" = None,
-                 indexed: tuple | None = None, shapes=None):
+                 indexed: tuple | None = None, shapes=None, deform: tuple | None = None):
         """reuse : the Accel of an earlier frame (persistent data): its instanced meshes whose triangles are
         the same, array for array, keep their BVH instead of being built again.
         indexed : (vertices (V, 3) float32, indices (T, 3) uint32), the same triangles as positions shared
         by their vertices (SceneArrays.bvh_vertices): Embree builds from them, about 1.5x faster.
         shapes : kernels.geometry.primitives.ShapeLayout of the scene's curves and points, or None: they join
         the top level (world space) and its instances (prototypes), and hits on them report the numbers the
-        layout gives them, after the triangles'."""
+        layout gives them, after the triangles'.
+        deform : (deform_ids (T,) int32, deform_positions (S, D, 3, 3) float32) or None: triangles that deform
+        over the shutter (SceneArrays.deform_ids): Embree's time steps, found where they are at each ray's time."""
         self.threads = capped_threads(threads)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.triangle_count = len(positions)
@@ -166,18 +119,31 @@ class Accel:
         self.rays_traced = 0
         self._static_ids = None   # scene triangle of each static-scene triangle, when some move
         self._moving = []
-        if motion_ids is not None and len(motion) and (motion_ids >= 0).any():
-            self._static_ids = np.flatnonzero(motion_ids < 0).astype(np.int32)
-            self._moving = [_Moving(np.flatnonzero(motion_ids == i), positions, keys, ref)
-                            for i, (keys, ref) in enumerate(zip(motion, motion_reference))
-                            if (motion_ids == i).any()]
+        self._device = reuse._device if reuse is not None else embree.Device()
+        moves = motion_ids is not None and len(motion) and (motion_ids >= 0).any()
+        deforms = deform is not None and (deform[0] >= 0).any()
+        if moves or deforms:
+            still = np.ones(len(positions), bool)
+            if moves:
+                still &= motion_ids < 0
+            if deforms:
+                still &= deform[0] < 0
+            self._static_ids = np.flatnonzero(still).astype(np.int32)
+            for i, (keys, ref) in enumerate(zip(motion, motion_reference) if moves else ()):
+                ids = np.flatnonzero(motion_ids == i)
+                if len(ids):
+                    steps = steps_of(deform, ids)
+                    self._moving.append(Moving(ids, positions, keys, ref, steps, self._device))
+            if deforms:
+                ids = np.flatnonzero((deform[0] >= 0) & (motion_ids < 0 if moves else True))
+                if len(ids):
+                    self._moving.append(Moving(ids, positions, None, None, steps_of(deform, ids), self._device))
             positions = positions[self._static_ids]
             if indexed is not None:
                 indexed = (indexed[0], indexed[1][self._static_ids])
         self._bases = None        # scene number of each instance's first triangle
         self._packets = None      # the static scene traced by packets (reports instances), or None
         self._scene = None        # the static scene traced by embreex's loop, or None
-        self._device = reuse._device if reuse is not None else embree.Device()
         self.meshes = []          # (prototype positions, embree.Mesh) of the instanced meshes
         self.meshes_reused = 0
         self._refining = None     # the thread building the medium BVH (refine), once started
@@ -254,7 +220,7 @@ class Accel:
         scene = None if self._shape_times else static.embreex()
         packets = static if scene is None or static.instance_count else None
         if scene is None:   # embreex's loop unavailable: packets for everything
-            scene = _PacketQueries(static)
+            scene = PacketQueries(static)
         self._static, self._packets, self._scene = static, packets, scene
 
     def refine(self, time_left_s: float | None = None) -> bool:
@@ -383,8 +349,10 @@ class Accel:
                 o, d = moving.rays(origins, directions, time, sel)
                 best = t[sel]
 
-                def job_moving(s: slice, o=o, d=d, moving=moving, sel=sel, best=best) -> None:
-                    r = moving.scene.run(o[s], d[s], dists=best[s].copy(), output=1)
+                ray_times = selected_times(time, sel) if moving.timed else None
+
+                def job_moving(s: slice, o=o, d=d, moving=moving, sel=sel, best=best, ray_times=ray_times) -> None:
+                    r = moving.query(o[s], d[s], best[s].copy(), None if ray_times is None else ray_times[s])
                     closer = r["primID"] >= 0
                     idx = sel[np.flatnonzero(closer) + s.start]
                     prim[idx] = moving.ids[r["primID"][closer]]
@@ -519,8 +487,11 @@ class Accel:
             hit = np.zeros(len(sel), bool)
             limit = t_max[sel]
 
-            def job_moving(s: slice, o=o, d=d, scene=moving.scene, hit=hit, limit=limit) -> None:
-                hit[s] = scene.run(o[s], d[s], dists=limit[s].copy(), query="OCCLUDED", output=None) == 0
+            ray_times = selected_times(time, sel) if moving.timed else None
+
+            def job_moving(s: slice, o=o, d=d, moving=moving, hit=hit, limit=limit, ray_times=ray_times) -> None:
+                hit[s] = moving.query(o[s], d[s], limit[s].copy(), None if ray_times is None else ray_times[s],
+                                      occluded=True) == 0
 
             self._run(job_moving, len(sel), split)
             out[sel[hit]] = True
@@ -544,16 +515,3 @@ class Accel:
         with self._lock:  # several waves may trace at once
             self.seconds_in_embree += elapsed
             self.rays_traced += n
-
-
-class _PacketQueries:
-    """embreex's run() interface over kernels.embree packets, where embreex cannot trace our scenes."""
-
-    def __init__(self, scene: "embree.Scene"):
-        self._scene = scene
-
-    def run(self, origins, directions, dists=None, query="INTERSECT", output=None, times=None):
-        if query == "OCCLUDED":
-            return np.where(self._scene.occluded(origins, directions, dists, times), 0, -1).astype(np.int32)
-        prim, _, t, u, v = self._scene.intersect(origins, directions, dists, times=times)
-        return {"primID": prim, "tfar": t, "u": u, "v": v}

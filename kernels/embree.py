@@ -171,14 +171,24 @@ class Device:
             self.handle = None
 
 
-def _triangle_geometry(device: Device, vertices: np.ndarray, indices: np.ndarray, quality: str = "medium"):
+def _triangle_geometry(device: Device, vertices: np.ndarray, indices: np.ndarray, quality: str = "medium",
+                       steps: np.ndarray | None = None):
     """A committed triangle geometry reading vertices (V + 1, 3) float32 (the last row is padding: Embree
-    reads vertices 16 bytes at a time) and indices (T, 3) uint32 in place."""
+    reads vertices 16 bytes at a time) and indices (T, 3) uint32 in place. steps : None, or (S, V + 1, 3)
+    float32 vertices at S >= 2 times evenly spread over [0, 1]: Embree's time steps, one vertex buffer each,
+    interpolated linearly at each ray's time (Cycles' add_triangles with motion vertices,
+    intern/cycles/bvh/embree.cpp); vertices is then not read."""
     lib = device.lib
     geom = lib.rtcNewGeometry(device.handle, _GEOMETRY_TRIANGLE)
     lib.rtcSetGeometryBuildQuality(geom, BUILD_QUALITY[quality])
-    lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3, vertices.ctypes.data, 0, 12,
-                                   len(vertices) - 1)
+    if steps is None:
+        lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3, vertices.ctypes.data, 0, 12,
+                                       len(vertices) - 1)
+    else:
+        lib.rtcSetGeometryTimeStepCount(geom, len(steps))
+        for step, buffer in enumerate(steps):
+            lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, step, _FORMAT_FLOAT3, buffer.ctypes.data, 0, 12,
+                                           len(buffer) - 1)
     lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_INDEX, 0, _FORMAT_UINT3, indices.ctypes.data, 0, 12,
                                    len(indices))
     lib.rtcCommitGeometry(geom)
@@ -212,13 +222,20 @@ class Triangles:
     geometry (Scene's `plain`), whose BVH is the top level's.
 
     vertices : (V, 3) float32; indices : (T, 3) integer corners. Both are copied once into the layouts
-    Embree reads in place (or used as they are when already padded / uint32 contiguous)."""
+    Embree reads in place (or used as they are when already padded / uint32 contiguous). steps : None, or
+    (S, V, 3) float32 the vertices at S >= 2 times over the shutter (deformation motion blur; vertices is then
+    the first, and Embree interpolates the steps at each ray's time: _triangle_geometry)."""
 
-    def __init__(self, vertices: np.ndarray, indices: np.ndarray | None = None):
+    def __init__(self, vertices: np.ndarray, indices: np.ndarray | None = None, steps: np.ndarray | None = None):
         self.vertices = padded_vertices(np.asarray(vertices, np.float32).reshape(-1, 3))
         v = len(self.vertices) - 1
         self.indices = flat_indices(v // 3) if indices is None else \
             np.ascontiguousarray(np.asarray(indices).reshape(-1, 3), np.uint32)
+        self.steps = None
+        if steps is not None:
+            steps = np.asarray(steps, np.float32).reshape(len(steps), -1, 3)
+            self.steps = np.zeros((len(steps), v + 1, 3), np.float32)
+            self.steps[:, :-1] = steps
 
     @property
     def triangle_count(self) -> int:
@@ -342,7 +359,7 @@ class Scene:
         self._meshes = []      # keeps every instanced mesh (and its buffers) alive
         self.plain = plain
         if plain is not None and plain.triangle_count:
-            geom = _triangle_geometry(device, plain.vertices, plain.indices, quality)
+            geom = _triangle_geometry(device, plain.vertices, plain.indices, quality, getattr(plain, "steps", None))
             lib.rtcAttachGeometryByID(self.handle, geom, 0)
             lib.rtcReleaseGeometry(geom)
         placed = list(instances)

@@ -16,6 +16,7 @@ from . import emitters_seen, motion, passes, sampling, shadow_catcher, shadow_li
 from .accel import Hits, RayTimes
 from .camera import generate_rays
 from .environment import WorldFocus
+from .geometry.deform import deformed_corners
 from .glass_escapes import glass_escapes
 from .bsdf.lobes import TRANSPARENT
 from .bsdf.mixture_sample import BsdfSample
@@ -342,7 +343,9 @@ def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
                       np.take(hits.v, found), direction, tables.shading.needs_uv,
                       _hit_motion(tables, prim, times) if tables.accel.moves else None,
                       None if tables.shapes is None else (np.take(rays.origins, found, axis=0), np.take(hits.t, found),
-                                                          None if times is None else times.times))
+                                                          None if times is None else times.times),
+                      deformed_corners(tables.scene, prim, None if times is None else times.times)
+                      if tables.accel.moves else None)
 
 
 def _hit_motion(tables, prim, times):
@@ -350,6 +353,8 @@ def _hit_motion(tables, prim, times):
     they are at each hit's time, (m, 3, 3) the same for normals), or None when no hit moves. The
     matrices are cached per path (times: the hits' RayTimes), so later bounces reuse them."""
     ids = tables.scene.motion_ids
+    if ids is None or not len(tables.motion):   # only deformation moves (deformed_corners)
+        return None
     # Curves and points (numbered after the triangles) move by their own motion keys, not here.
     ids = np.where(prim < len(ids), np.take(ids, np.minimum(prim, len(ids) - 1)), -1)
     rows = np.flatnonzero(ids >= 0)

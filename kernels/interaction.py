@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import E1, E2, N0, N1, N2, NG, P0, TriangleTable, interpolate_uv
+from .geometry.deform import replace_rows
 from .geometry.primitives import ShapeHits
 from .vec import dot_rows_einsum
 
@@ -28,13 +29,18 @@ class SurfaceHit:
     __slots__ = ("p", "ng", "ns", "u", "v", "d", "mat", "prim", "backfacing", "ray", "programs", "normal_set", "_table",
                  "_b1", "_b2", "_moved", "shapes", "side_ng")
 
-    def __init__(self, table: TriangleTable, prim, b1, b2, d, need_uv: bool, motion=None, ray=None):
+    def __init__(self, table: TriangleTable, prim, b1, b2, d, need_uv: bool, motion=None, ray=None, deform=None):
         """motion : None, or (rows, (m, 3, 4) matrices, (m, 3, 3) normal matrices) for hits on moving
         objects (motion blur): each takes its triangle from where it is stored to where it was at the
         path's time. ray : (origins (N, 3), t (N,)[, times (N,) or None]) of the rays that found the hits: hits on
         curves and points (a table with them, kernels.geometry.primitives.PrimitiveTable) are placed along them,
-        moving ones where they are at the rays' shutter times."""
+        moving ones where they are at the rays' shutter times. deform : None, or kernels.geometry.deform's
+        deformed_corners of the hits on deforming triangles (deformation motion blur): they take the place of the
+        stored corners and normals, before motion moves them."""
         g = table.gather(prim)
+        if deform is not None:
+            g = np.array(g)
+            replace_rows(g, deform)
         w0 = np.float32(1.0) - b1 - b2
         self.p = tuple(g[P0 + k] + b1 * g[E1 + k] + b2 * g[E2 + k] for k in range(3))
         ns = [w0 * g[N0 + k] + b1 * g[N1 + k] + b2 * g[N2 + k] for k in range(3)]

@@ -99,7 +99,9 @@ class Renderer:
                                      if moving else (None, (), ())), instances=self.scene.instances,
                                    reuse=reuse.accel if reuse is not None and reuse.accel is not None else None,
                                    indexed=(self.scene.bvh_vertices, self.scene.bvh_indices)
-                                   if self.scene.bvh_vertices is not None else None, shapes=self.shapes)
+                                   if self.scene.bvh_vertices is not None else None, shapes=self.shapes,
+                                   deform=(self.scene.deform_ids, self.scene.deform_positions)
+                                   if self.scene.has_motion and self.scene.deform_ids is not None else None)
             try:
                 poll()
                 # Triangles near float32's limits overflow in their normals: paths that hit them are

@@ -39,6 +39,7 @@ from .light_groups import group_table, object_groups
 from .light_linking import light_links, link_table
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
+from .deform import deform_fields
 from .motion import scene_motion, vector_fields
 from .rgba_attributes import view_layer_attribute
 from .updates import ExportIndex, export_index
@@ -125,7 +126,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
             [m.node_tree for m in depsgraph.ids if isinstance(m, bpy.types.Material)]
             + [scene.world.node_tree if scene.world is not None else None]))
         geometry = export_geometry(depsgraph, materials, warnings, poll,
-                                   moving=frozenset(motion.objects) if motion is not None else frozenset(),
+                                   moving=frozenset(motion.objects) | frozenset(motion.meshes)
+                                   if motion is not None else frozenset(),
                                    motion=motion,
                                    instance_everything=instance_everything, cache=mesh_cache, links=links,
                                    light_groups=groups,
@@ -150,6 +152,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          if groups.used else None,
                          **(dict(bvh_vertices=geometry.bvh[0], bvh_indices=geometry.bvh[1]) if geometry.bvh else {}),
                          **scene_motion(motion, geometry),
+                         **deform_fields(motion, geometry, warnings),
                          **vector_fields(vector, geometry, camera.world_from_camera))
     if motion is not None:
         warnings.extend(motion.warnings)

@@ -131,7 +131,7 @@ def instanced_groups(groups: dict, meshes: dict, keys: dict, moving, instance_ev
     instance_everything, else those of two or more instances that together hold INSTANCE_MIN_TRIANGLES.
     groups : group -> world_from_object matrices; meshes : mesh pointer -> LocalMesh; keys : group ->
     instance keys; moving : instance keys of objects that move during the shutter."""
-    # Groups with a moving member stay plain: motion blur moves plain triangles (kernels.accel._Moving).
+    # Groups with a moving member stay plain: motion blur moves plain triangles (kernels.moving.Moving).
     return set(groups) if instance_everything else \
         {group for group, matrices in groups.items()
          if len(matrices) >= 2 and len(matrices) * meshes[group[0]].triangle_count >= INSTANCE_MIN_TRIANGLES

@@ -13,7 +13,13 @@ deformation, read as Cycles' sync_hair_motion and sync_pointcloud_motion read it
 pointcloud.cpp): the keys (positions and radii) of each motion step's subframe (shape_steps; engine/export/shapes.py
 makes them Embree's time steps).
 
-Not done: deformation blur of meshes (armatures, shape keys; a warning names them), lights (Cycles does not blur lamps either). A perspective lens that zooms is recorded at the shutter's start
+Meshes deform too (an armature, shape keys, any modifier or geometry nodes animated over the frames), read as
+Cycles' sync_mesh_motion reads them (intern/cycles/blender/mesh.cpp): a mesh object with modifiers or shape keys
+(Cycles' BKE_object_is_deform_modified) whose Motion Blur and Deformation are on has its triangles' corners and
+normals read at each motion step and at the frame (vertex_steps), the steps' vertices on the frame's triangles;
+engine/export/deform.py makes them the triangles'
+time steps. Not done: lights (Cycles does not blur lamps either). A perspective lens that zooms is recorded at the
+shutter's start
 and end, as Cycles' perspective motion. The rolling shutter is
 Cycles' own setting (scene.cycles: Rolling Shutter type Top, its Duration), read as Cycles reads it.
 """
@@ -28,6 +34,7 @@ from ...kernels import motion as kernel_motion
 from .camera import perspective_fov
 from .curves import hair_systems, read_curves, read_particle_hair
 from .instances import instance_key
+from .mesh import read_mesh, read_values, readable_mesh
 from .points import read_points
 
 CURVE_SAMPLES = 257  # Blender 5.0 reads the shutter curve at 257 points (curvemapping_to_array, size 256)
@@ -45,6 +52,11 @@ class MotionSamples:
     # Per instance key of a Curves or Point Cloud object or a mesh with hair, its local keys at each of its
     # motion steps: [(offsets (C + 1,) or None for points, keys (n, 4) x, y, z, radius), ...] (shape_steps).
     shapes: dict = field(default_factory=dict)
+    # Per instance key of a mesh object that may deform, at each of its motion steps and at the frame (meshes_frame):
+    # (vertex count, (T*3, 3) local corners, (T*3, 3) local corner normals), the steps' corners those of the frame's
+    # triangles (None where the step's vertices differ in number).
+    meshes: dict = field(default_factory=dict)
+    meshes_frame: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
 
 
@@ -115,8 +127,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     recorded: dict = {}
     camera_matrices = []
     fovs = []
-    vertices_first: dict = {}
-    deforming: set = set()
+    mesh_keys: dict = {}    # instance key -> its vertex_steps at every time
     shape_keys: dict = {}   # instance key -> its shape_steps at every time
     render = depsgraph.mode == "RENDER" 
     try:
@@ -128,8 +139,8 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                 key = instance_key(inst)
                 if key in per_key:
                     recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
-                    if i in (0, len(times) - 1) and not inst.is_instance and inst.object.type == "MESH":
-                        _track_deformation(inst.object, key, i, vertices_first, deforming)
+                    if may_deform(inst) and mesh_velocity(inst.object) is None:
+                        mesh_keys.setdefault(key, []).append(vertex_steps(inst.object))
                     if inst.object.type in ("CURVES", "POINTCLOUD", "MESH") and deform_motion(inst):
                         # Instances of one data-block (geometry nodes' points) or of one haired object (a collection's
                         # fur) read it once a step.
@@ -145,6 +156,34 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                 fovs.append(_fov(camera_ob.evaluated_get(depsgraph)))
     finally:
         engine.frame_set(frame, subframe)
+    # The frame's own meshes, which the export reads: the steps are compared with them. A mesh with a `velocity`
+    # attribute moves along it instead: Cycles' attr_create_motion_from_velocity (intern/cycles/blender/mesh.cpp)
+    # gives it three steps, its vertices half the shutter's seconds before and after the frame along their
+    # velocity (the normals the frame's), and it is not read at the subframes.
+    r = scene.render
+    half_shutter = 0.5 * float(r.motion_blur_shutter) / (r.fps / r.fps_base)
+    for inst in depsgraph.object_instances:
+        key = instance_key(inst)
+        if key not in per_key or not may_deform(inst, velocity=True):
+            continue
+        velocity = mesh_velocity(inst.object)
+        if velocity is None and key not in mesh_keys:
+            continue
+        with readable_mesh(inst.object) as mesh:
+            local = read_mesh(mesh)
+            domain = mesh.normals_domain
+            frame_mesh = (len(mesh.vertices), local.positions,
+                          np.zeros_like(local.positions) if domain == "FACE" else local.normals)
+        samples.meshes_frame[key] = frame_mesh
+        if velocity is not None:
+            count, corners, normals = frame_mesh
+            moved = velocity[local.corners] * np.float32(half_shutter)
+            samples.meshes[key] = [(count, corners - moved, normals), frame_mesh, (count, corners + moved, normals)]
+        elif len(mesh_keys[key]) == len(times):
+            # The frame's triangles at every step: Blender may split a quad along its other diagonal at another
+            # step, Cycles keeps the frame's triangles (tri_vindex) and moves their vertices.
+            steps = mesh_keys[key][::(largest - 1) // (per_key[key] - 1)]
+            samples.meshes[key] = [_frame_corners(step, local, domain, frame_mesh) for step in steps]
     for key, steps in shape_keys.items():
         if len(steps) == len(times):
             samples.shapes[key] = steps[::(largest - 1) // (per_key[key] - 1)]
@@ -163,9 +202,6 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
         keys = np.stack(camera_matrices[::stride])
         if not np.allclose(keys, keys[len(keys) // 2], rtol=0, atol=1e-7):
             samples.camera = keys
-    samples.warnings.extend(f"Object '{name}': deformation motion blur is not supported (its mesh changes "
-                            f"during the shutter); rendered with its transform motion only"
-                            for name in sorted(deforming))
     return samples
 
 
@@ -230,17 +266,59 @@ def _fov(camera_ob) -> float | None:
     return perspective_fov(cam.lens, sensor)
 
 
-def _track_deformation(ob, key, step: int, first: dict, deforming: set) -> None:
-    """Compare the evaluated vertices at the first and last key of objects that could deform."""
-    if not (ob.modifiers or getattr(ob.data, "shape_keys", None)):
-        return
-    verts = ob.data.vertices
-    co = np.empty(len(verts) * 3, np.float32)
-    verts.foreach_get("co", co)
-    if step == 0:
-        first[key] = co
-    elif key in first and (len(first[key]) != len(co) or not np.array_equal(first[key], co)):
-        deforming.add(ob.name)
+def may_deform(inst, velocity: bool = False) -> bool:
+    """A mesh object (not an instance) that may deform: modifiers or shape keys (Cycles' BKE_object_is_deform_modified,
+    intern/cycles/blender/util.h; velocity: or a `velocity` attribute), its Deformation switch on."""
+    ob = inst.object
+    if inst.is_instance or ob.type != "MESH" or not deform_motion(inst):
+        return False
+    return bool(ob.modifiers) or getattr(ob.original.data, "shape_keys", None) is not None or \
+        (velocity and mesh_velocity(ob) is not None)
+
+
+def mesh_velocity(ob) -> np.ndarray | None:
+    """(V, 3) float32 the `velocity` attribute of an evaluated mesh object (a vector per vertex, units per second),
+    else None."""
+    attr = ob.data.attributes.get("velocity")
+    n = len(ob.data.vertices)
+    if attr is None or attr.domain != "POINT" or attr.data_type != "FLOAT_VECTOR" or not n:
+        return None
+    values = np.empty(3 * n, np.float32)
+    attr.data.foreach_get("vector", values)
+    return values.reshape(n, 3)
+
+
+def vertex_steps(ob) -> tuple:
+    """(vertex count, (V, 3) float32 vertices, its normals' domain, (N, 3) float32 normal rows or None) of an evaluated
+    mesh object, in object space: Blender's vertex normals for a mesh smooth all over (POINT), its corner normals
+    (CORNER), none for flat faces only (FACE)."""
+    with readable_mesh(ob) as mesh:
+        n = len(mesh.vertices)
+        vertices = read_values(mesh.attributes["position"].data, "vector", 3 * n, np.float32).reshape(-1, 3) \
+            if n else np.zeros((0, 3), np.float32)
+        domain = mesh.normals_domain
+        rows = None
+        if domain == "POINT":
+            rows = read_values(mesh.vertex_normals, "vector", 3 * n, np.float32).reshape(-1, 3)
+        elif domain == "CORNER":
+            rows = read_values(mesh.corner_normals, "vector", 3 * len(mesh.loops), np.float32).reshape(-1, 3)
+        return n, vertices, domain, rows
+
+
+def _frame_corners(step: tuple, local, domain: str, frame: tuple) -> tuple:
+    """A step's vertex_steps on the frame's triangles (local: the frame's LocalMesh): (vertex count, (T*3, 3) corners,
+    (T*3, 3) normals); the corners None where the step's vertices (or normal rows) differ in number from the frame's.
+    Flat faces (FACE) get zero normals: the kernel then shades each triangle by its geometric normal where it is at
+    the ray's time, as Cycles shades a flat motion triangle (its Ng)."""
+    count, vertices, step_domain, rows = step
+    if count != frame[0]:
+        return count, None, None
+    corners = np.take(vertices, local.corners, axis=0)
+    if domain == "FACE" or step_domain != domain or rows is None:
+        return count, corners, np.zeros_like(corners)
+    if len(rows) != len(local.normal_rows):
+        return count, None, None
+    return count, corners, np.take(rows, local.normal_index, axis=0)
 
 
 def deform_motion(inst) -> bool:

@@ -12,6 +12,7 @@ from ..bsdf.focus import glossy_axes
 from ..bsdf.light_passes import eval_split
 from ..environment import WorldFocus
 from ..geometry import NG
+from ..geometry.deform import deformed_corners
 from ..interaction import RayInfo, SurfaceHit, spawn_offset
 from ..rays import unlifted
 from ..paths import may_scatter, ray_keys
@@ -341,7 +342,9 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
         hit = SurfaceHit(tables.triangles, hits.prim[found], hits.u[found], hits.v[found],
                          (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv,
                          ray=None if tables.shapes is None else
-                         (origins[found], hits.t[found], None if times is None else times.take(live[found]).times))
+                         (origins[found], hits.t[found], None if times is None else times.take(live[found]).times),
+                         deform=None if tables.scene.deform_ids is None else deformed_corners(
+                             tables.scene, hits.prim[found], None if times is None else times.take(live[found]).times))
         passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
         hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
                           lobes=None if lobes is None else lobes[:, live[found]],

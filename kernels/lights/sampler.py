@@ -124,6 +124,8 @@ class LightSampler:
         sampled = emits[scene.material_ids]
         if scene.has_motion and scene.motion_ids is not None:
             sampled &= scene.motion_ids < 0
+        if scene.has_motion and scene.deform_ids is not None:   # deforming ones too
+            sampled &= scene.deform_ids < 0
         lit = lights_of(scene)   # objects no BSDF ray sees are no lights (Ray Visibility)
         if lit is not None and scene.object_ids is not None:
             sampled &= lit[scene.object_ids]

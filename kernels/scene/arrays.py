@@ -64,6 +64,11 @@ class SceneArrays:
         shutter (time 0 to 1), one entry per moving object; motion_reference, one (4, 4) per entry: the
         matrix the triangles' world-space positions were made with. motion_ids : (T,) int32 or None:
         each triangle's entry of `motion`, -1 for static triangles.
+    deform_ids : (T,) int32 or None: each triangle's column of deform_positions, -1 for triangles that do not
+        deform (deformation motion blur); deform_positions, deform_normals : (S, D, 3, 3) float32, the deforming
+        triangles' corners and corner normals at S >= 2 steps evenly spread over the shutter, in the space of
+        `positions` (for a moving object the one its motion_reference made), interpolated linearly between
+        the two nearest steps at a path's time (Cycles' motion triangles: kernel/geom/motion_triangle.h).
     shutter_table : (256,) float32 or None: path time from a uniform number (kernels.motion.shutter_table);
         rolling_shutter : None, or the rolling shutter's duration (Cycles' TOP rolling shutter).
     vector_motion : the Vector pass's neighbours in time, or None: ((K, 3, 4) per object row taking stored
@@ -103,6 +108,9 @@ class SceneArrays:
     motion: tuple = ()
     motion_reference: tuple = ()
     motion_ids: np.ndarray | None = None
+    deform_ids: np.ndarray | None = None
+    deform_positions: np.ndarray | None = None
+    deform_normals: np.ndarray | None = None
     shutter_table: np.ndarray | None = None
     rolling_shutter: float | None = None
     crypto_ids: dict | None = None
@@ -128,6 +136,7 @@ class SceneArrays:
     def has_motion(self) -> bool:
         """Anything moves during the shutter: paths then carry a time."""
         return self.shutter_table is not None and (self.camera.motion is not None or len(self.motion) > 0
+                                                   or self.deform_ids is not None
                                                    or self.camera.fov_motion is not None or self.shapes_move)
 
     @property
@@ -178,6 +187,16 @@ class SceneArrays:
             if t:
                 require(self.motion_ids.min() >= -1 and self.motion_ids.max() < len(self.motion), "motion_ids",
                         f"must be in [-1, {len(self.motion)})")
+        if self.deform_ids is not None:
+            check_array(self.deform_ids, "deform_ids", (t,), np.int32)
+            steps = np.asarray(self.deform_positions)
+            require(steps.ndim == 4 and steps.shape[0] >= 2 and steps.shape[2:] == (3, 3), "deform_positions",
+                    f"must be (S >= 2, D, 3, 3), got {steps.shape}")
+            check_array(self.deform_positions, "deform_positions", steps.shape, np.float32)
+            check_array(self.deform_normals, "deform_normals", steps.shape, np.float32, finite=False)
+            if t:
+                require(self.deform_ids.min() >= -1 and self.deform_ids.max() < steps.shape[1], "deform_ids",
+                        f"must be in [-1, {steps.shape[1]})")
         if self.shutter_table is not None:
             check_array(self.shutter_table, "shutter_table", (len(self.shutter_table),), np.float32)
         self.validate_shading()
@@ -197,7 +216,7 @@ class SceneArrays:
         if clean is not None and same_triangles(self, clean) and same_arrays(self.bvh_indices, clean.bvh_indices):
             changes, dropped, repaired, nonfinite = {}, 0, 0, 0
         else:
-            changes, dropped, repaired, nonfinite = clean_triangles(self, ("object_ids", "motion_ids", "bvh_indices"))
+            changes, dropped, repaired, nonfinite = clean_triangles(self, ("object_ids", "motion_ids", "deform_ids", "bvh_indices"))
         if self.instances is not None:
             changes["instances"], more_dropped, more_repaired, more_nonfinite = clean_instances(
                 self.instances, clean.instances if clean is not None else None)
