@@ -126,9 +126,10 @@ class LightTree:
 
     # ------------------------------------------------------------------ importance
     def _bounds(self, node, px, py, pz, facing=None):
-        """(N,) float32 upper and lower bounds of the light node[i] can send point i (module docstring);
-        facing: (nx, ny, nz, two_sided) of the points, or None."""
-        g = np.take(self._table, node, axis=0).T
+        """float32 upper and lower bounds of the light node[i] can send point i (module docstring), node (N,)
+        or (K, N) (the points then stand for every row); facing: (nx, ny, nz, two_sided) of the points, or None."""
+        g = self._table.take(node, axis=0)                  # rows gathered whole (far faster than by column)
+        g = g.transpose(g.ndim - 1, *range(g.ndim - 1))     # (12, *node.shape) views
         vx, vy, vz = px - g[0], py - g[1], pz - g[2]
         d2 = vx * vx + vy * vy + vz * vz
         r = g[8]
@@ -156,17 +157,21 @@ class LightTree:
 
     def _left_probability(self, node, px, py, pz, facing=None):
         """(N,) float64 probability of going to the left child of internal node[i] at point i."""
-        a_max, a_min = (x.astype(np.float64) for x in self._bounds(np.take(self.left, node), px, py, pz, facing))
-        b_max, b_min = (x.astype(np.float64) for x in self._bounds(np.take(self.right, node), px, py, pz, facing))
+        # Both children's bounds in one pass, as (2, N) rows over which the points' own arrays broadcast
+        # (elementwise: the same values as two passes, at half NumPy's per-call cost on the few points deep
+        # levels hold, and what depends on the point alone is computed once).
+        both = np.stack((self.left.take(node), self.right.take(node)))         # (2, N): the points broadcast
+        upper, lower = (x.astype(np.float64) for x in self._bounds(both, px, py, pz, facing))
+        (a_max, b_max), (a_min, b_min) = upper, lower
         total_max, total_min = a_max + b_max, a_min + b_min
         with np.errstate(divide="ignore", invalid="ignore"):
             p = a_max / total_max
-            blend = np.take(self._blend, node) & (total_min > 0)
+            blend = self._blend.take(node) & (total_min > 0)
             p = np.where(blend, 0.5 * (p + a_min / np.where(blend, total_min, 1.0)), p)
         ok = (total_max > 0) & np.isfinite(p)
         if ok.all():
             return p
-        return np.where(ok, p, np.take(self._left_power, node))
+        return np.where(ok, p, self._left_power.take(node))
 
     # ------------------------------------------------------------------ sampling and pmf
     def sample(self, u, px, py, pz, facing=None):
@@ -175,41 +180,60 @@ class LightTree:
         u = np.asarray(u, np.float64).copy()
         node = np.zeros(len(u), np.int64)
         pmf = np.ones(len(u))
+        # The points still walking, compacted as points reach their leaves (each point's arithmetic is
+        # the same as over the whole set; gathers shrink with the set).
         walking = np.arange(len(u))
+        w_node, w_u, w_pmf = node, u, pmf
+        w_points = (px, py, pz) if facing is None else (px, py, pz, *facing)
         for _ in range(self.depth):
-            walking = walking[np.take(self.left, np.take(node, walking)) >= 0]
-            if not len(walking):
-                break
-            at = node[walking]
-            p_left = self._left_probability(at, px[walking], py[walking], pz[walking], rows_of(facing, walking))
-            uw = u[walking]
-            left = uw < p_left
+            inner = self.left.take(w_node) >= 0
+            if not inner.all():
+                node[walking], u[walking], pmf[walking] = w_node, w_u, w_pmf
+                keep = np.flatnonzero(inner)
+                walking = walking.take(keep)
+                if not len(walking):
+                    break
+                w_node, w_u, w_pmf = w_node.take(keep), w_u.take(keep), w_pmf.take(keep)
+                w_points = tuple(c.take(keep) for c in w_points)
+            p_left = self._left_probability(w_node, *w_points[:3], None if facing is None else w_points[3:])
+            left = w_u < p_left
             prob = np.where(left, p_left, 1.0 - p_left)
             # Reuse u within the chosen child (float64: 53 bits last a walk of a few dozen levels).
-            uw = np.where(left, uw, uw - p_left) / np.where(prob > 0, prob, 1.0)
-            u[walking] = np.clip(uw, 0.0, np.nextafter(1.0, 0.0))
-            pmf[walking] *= prob
-            node[walking] = np.where(left, np.take(self.left, at), np.take(self.right, at))
-        return np.take(self.emitter_at, node), pmf
+            uw = np.where(left, w_u, w_u - p_left) / np.where(prob > 0, prob, 1.0)
+            w_u = np.clip(uw, 0.0, np.nextafter(1.0, 0.0))
+            w_pmf = w_pmf * prob
+            w_node = np.where(left, self.left.take(w_node), self.right.take(w_node))
+        else:
+            node[walking], pmf[walking] = w_node, w_pmf
+        return self.emitter_at.take(node), pmf
 
     def pmf(self, emitter, px, py, pz, facing=None):
         """(N,) float64 probability that the walk from point i picks emitter[i] (0 for emitters not in it)."""
         emitter = np.asarray(emitter)
-        leaf = np.where(emitter >= 0, np.take(self.leaf_of, np.maximum(emitter, 0)), -1)
+        leaf = np.where(emitter >= 0, self.leaf_of.take(np.maximum(emitter, 0)), -1)
         known = leaf >= 0
-        node = np.where(known, leaf, 0)
-        pmf = np.ones(len(node))
+        pmf = np.ones(len(leaf))
+        # The points still climbing, compacted as points reach the root (as in sample).
         climbing = np.flatnonzero(known)
+        c_node = leaf.take(climbing)
+        c_pmf = pmf.take(climbing)
+        c_points = tuple(c.take(climbing) for c in ((px, py, pz) if facing is None else (px, py, pz, *facing)))
         for _ in range(self.depth):
-            climbing = climbing[np.take(self.parent, np.take(node, climbing)) >= 0]
-            if not len(climbing):
-                break
-            at = node[climbing]
-            parent = np.take(self.parent, at)
-            p_left = self._left_probability(parent, px[climbing], py[climbing], pz[climbing],
-                                            rows_of(facing, climbing))
-            pmf[climbing] *= np.where(np.take(self.left, parent) == at, p_left, 1.0 - p_left)
-            node[climbing] = parent
+            parent = self.parent.take(c_node)
+            has = parent >= 0
+            if not has.all():
+                pmf[climbing] = c_pmf
+                keep = np.flatnonzero(has)
+                climbing = climbing.take(keep)
+                if not len(climbing):
+                    break
+                c_node, c_pmf, parent = c_node.take(keep), c_pmf.take(keep), parent.take(keep)
+                c_points = tuple(c.take(keep) for c in c_points)
+            p_left = self._left_probability(parent, *c_points[:3], None if facing is None else c_points[3:])
+            c_pmf = c_pmf * np.where(self.left.take(parent) == c_node, p_left, 1.0 - p_left)
+            c_node = parent
+        else:
+            pmf[climbing] = c_pmf
         return np.where(known, pmf, 0.0)
 
     def pmf_all(self, px, py, pz):
@@ -236,8 +260,9 @@ def _incidence(upper, lower, facing, tx, ty, tz, sin_u):
     cos_u = np.where(sin_u < 1, np.sqrt(np.maximum(np.float32(1.0) - sin_u * sin_u, np.float32(0.0))),
                      np.float32(-1.0))
     sin_u = np.minimum(sin_u, np.float32(1.0))
-    c_min = np.where(cos_i >= cos_u, np.float32(1.0), cos_i * cos_u + sin_i * sin_u)
-    c_max = np.maximum(cos_i * cos_u - sin_i * sin_u, np.float32(0.0))
+    cc, ss = cos_i * cos_u, sin_i * sin_u
+    c_min = np.where(cos_i >= cos_u, np.float32(1.0), cc + ss)
+    c_max = np.maximum(cc - ss, np.float32(0.0))
     # A zero normal (a point in a medium) has no incidence factor.
     free = (nx == 0) & (ny == 0) & (nz == 0)
     c_min = np.where(free, np.float32(1.0), np.maximum(c_min, np.float32(0.0)))
