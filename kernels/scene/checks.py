@@ -25,3 +25,13 @@ def check_array(a, name: str, shape: tuple, dtype, finite: bool = True) -> None:
 
 def _shape_str(shape: tuple) -> str:
     return "(" + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"
+
+
+def unusable_rows(values: np.ndarray) -> np.ndarray | None:
+    """(n,) bool: the rows of (n, 4) x, y, z, radius Embree cannot take (a value not finite or beyond float32,
+    a negative radius), or None when there is none. |x| < 1e30 is False for NaN and infinities too; the whole
+    array is tested first, since a per-row test over four columns costs ten times as much."""
+    small = np.abs(values) < 1e30
+    if small.all() and (values[:, 3] >= 0).all():
+        return None
+    return ~(small.all(axis=1) & (values[:, 3] >= 0))

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import check_array, require
+from .checks import check_array, require, unusable_rows
 
 # The shapes Cycles traces curves as (intern/cycles/bvh/embree.cpp, add_curves): a round tube swept along a
 # Catmull-Rom spline (3D Curves), a flat ribbon facing the ray along one (Rounded Ribbons), and round cones
@@ -89,9 +89,8 @@ class Curves:
         radius), and how many were dropped."""
         if not self.count:
             return self, 0
-        bad_key = ~(np.isfinite(self.keys).all(axis=1) & (np.abs(self.keys) < 1e30).all(axis=1)
-                    & (self.keys[:, 3] >= 0))
-        if not bad_key.any():
+        bad_key = unusable_rows(self.keys)
+        if bad_key is None:
             return self, 0
         curve_of_key = np.repeat(np.arange(self.count), np.diff(self.offsets))
         bad = np.zeros(self.count, bool)
@@ -110,3 +109,4 @@ class Curves:
                                    material_ids=self.material_ids[curves],
                                    object_ids=None if self.object_ids is None else self.object_ids[curves],
                                    attributes=attributes)
+

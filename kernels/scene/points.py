@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import check_array, require
+from .checks import check_array, require, unusable_rows
 
 
 @dataclass(frozen=True)
@@ -50,11 +50,10 @@ class Points:
     def cleaned(self) -> tuple["Points", int]:
         """The points without those Embree cannot take (a centre or radius not finite or beyond float32, a
         negative radius), and how many were dropped."""
-        ok = np.isfinite(self.points).all(axis=1) & (np.abs(self.points) < 1e30).all(axis=1) & \
-            (self.points[:, 3] >= 0) if len(self.points) else np.zeros(0, bool)
-        if ok.all():
+        bad = unusable_rows(self.points)
+        if bad is None:
             return self, 0
-        return self.take(np.flatnonzero(ok)), int(np.count_nonzero(~ok))
+        return self.take(np.flatnonzero(~bad)), int(np.count_nonzero(bad))
 
     def take(self, idx: np.ndarray) -> "Points":
         return dataclasses.replace(
