@@ -20,7 +20,8 @@ light tree on, max_bounces 8), 2 threads; the engines take turns, the scene buil
                 call. Idle workers are stopped before every render, so each render pays its own.
 
 Figures go to stdout and to bench/results/curves_points.json (curves_points_quick.json with --quick). The full
-run takes about 8 minutes on the 2-core machine; --quick under 2. The machine is small and shared: ratios are
+run takes about 3.5 minutes on the 2-core machine (201-211 s at load 6-8), --quick about 20 s; either
+Blender's environment runs it (.venv/bin/python for bpy 5.0). The machine is small and shared: ratios are
 those of one run, with the load average at its start and end.
 """
 from __future__ import annotations
