@@ -329,6 +329,22 @@ class EMBER_LIGHT_PT_shadow(EmberPanel, bpy.types.Panel):
         layout.prop(context.light, "use_shadow", text="Cast Shadow")
 
 
+class EMBER_LIGHT_PT_beam_shape(EmberPanel, bpy.types.Panel):
+    """Light > Beam Shape > Spread of an area light, which Ember renders (Cycles shows it in its own Beam Shape
+    panel; EEVEE's panels do not show it)."""
+    bl_label = "Beam Shape"
+    bl_context = "data"
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES and context.light is not None and context.light.type == "AREA"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.prop(context.light, "spread", text="Spread")
+
+
 class EMBER_OBJECT_PT_visibility_mask(EmberPanel, bpy.types.Panel):
     """Object > Visibility > Mask: Shadow Catcher and Holdout, which Ember renders as Cycles (Blender's own
     Visibility panel shows them for Cycles only)."""
@@ -426,6 +442,7 @@ class EMBER_OBJECT_PT_adaptive_subdivision(EmberPanel, bpy.types.Panel):
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths,
            EMBER_RENDER_PT_volumes, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance,
            EMBER_VIEWLAYER_PT_passes, EMBER_VIEWLAYER_PT_passes_lightgroups, EMBER_LIGHT_PT_shadow,
+           EMBER_LIGHT_PT_beam_shape,
            EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume, EMBER_OBJECT_PT_visibility_mask,
            EMBER_OBJECT_PT_visibility_rays, EMBER_OBJECT_PT_adaptive_subdivision)
 

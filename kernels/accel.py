@@ -184,6 +184,9 @@ class Accel:
         self.refine_error = None  # why that build failed, if it did (the quick BVH then stays)
         self._cancel = threading.Event()   # stops refine's build (close)
         self._layout = shapes
+        # Curves or points with motion keys: every query goes through the packets, which carry each ray's time
+        # (Embree interpolates their time steps at it).
+        self._shape_times = shapes is not None and shapes.moves
         self._shape_geometries = ()   # the Embree Shapes of the world-space curves and points
         placed = []
         if instances is not None and instances.count:
@@ -219,13 +222,21 @@ class Accel:
         inst = layout.instances
         if inst is not None and inst.count:
             scenes = [embree.ShapeScene(self._device, s) for s in shapes[layout.plain_count:]]
-            placed = placed + [(scenes[p], m) for p, m in zip(inst.prototype, inst.world_from_object)]
+            moving = layout.instance_motion   # per shape instance its decomposed motion, or None
+            placed = placed + [(scenes[p], m, moving[k]) for k, (p, m) in
+                               enumerate(zip(inst.prototype, inst.world_from_object))]
         # Per top-level geometry and per instance: the number of its first primitive (-1: triangles).
         self._geometry_base = np.full(1 + len(placed) + len(self._shape_geometries), -1, np.int64)
         self._geometry_base[1 + len(placed):] = layout.plain_base
         bases = self._bases if self._bases is not None else np.zeros(0, np.int64)
         self._instance_base = np.concatenate([bases[:mesh_instances], layout.instance_base]).astype(np.int64)
-        linear = np.array([np.asarray(m, np.float64)[:3, :3] for _, m in placed]).reshape(-1, 3, 3)
+        self._ng_motion = [None] * mesh_instances + (list(layout.instance_motion) if inst is not None else [])
+        # Only the spheres' and linear curves' Ng is read (_inside_out): moving instances of others skip its transform.
+        culled = np.zeros(len(self._ng_motion), bool)
+        placed_part = layout.part_instance >= 0
+        culled[mesh_instances + layout.part_instance[placed_part]] = layout.part_culled[placed_part]
+        self._ng_motion = [m if c else None for m, c in zip(self._ng_motion, culled)]
+        linear = np.array([np.asarray(entry[1], np.float64)[:3, :3] for entry in placed]).reshape(-1, 3, 3)
         with np.errstate(all="ignore"):
             self._instance_inverse = np.linalg.inv(linear).astype(np.float32) if len(linear) else linear
         self.primitive_count = layout.total
@@ -240,7 +251,7 @@ class Accel:
     def _use(self, static: "embree.Scene") -> None:
         """Trace `static` from now on. Each query reads the scene once per chunk, so a chunk in flight
         finishes on the scene it started with (its embreex view holds a reference to Embree's scene)."""
-        scene = static.embreex()
+        scene = None if self._shape_times else static.embreex()
         packets = static if scene is None or static.instance_count else None
         if scene is None:   # embreex's loop unavailable: packets for everything
             scene = _PacketQueries(static)
@@ -335,9 +346,12 @@ class Accel:
         elif self._bases is not None:
             prim = np.full(n, -1, np.int64 if self.triangle_count > np.iinfo(np.int32).max else np.int32)
 
+        times = self._times(time, n)
+
         def job(s: slice) -> None:
             if self._layout is not None:
-                prim[s], t[s], u[s], v[s] = self._shape_hits(origins[s], directions[s], t_max[s])
+                prim[s], t[s], u[s], v[s] = self._shape_hits(origins[s], directions[s], t_max[s],
+                                                             None if times is None else times[s])
                 return
             if self._packets is not None:
                 p, inst, t[s], u[s], v[s] = self._packets.intersect(origins[s], directions[s], t_max[s])
@@ -382,14 +396,23 @@ class Accel:
             t[prim < 0] = np.inf
         return Hits(prim, t, u, v)
 
-    def _shape_hits(self, origins, directions, t_max):
+    def _times(self, time, n: int) -> np.ndarray | None:
+        """(n,) float32 the rays' shutter times for curves and points with motion keys (RayTimes or an array;
+        0.5, the frame's time of a centred shutter, when none are given), None when no curve or point moves."""
+        if not self._shape_times:
+            return None
+        if time is None:
+            return np.full(n, 0.5, np.float32)
+        return np.ascontiguousarray(time.times if isinstance(time, RayTimes) else time, np.float32)
+
+    def _shape_hits(self, origins, directions, t_max, times=None):
         """(prim, t, u, v) of a scene with curves or points: Embree's hits turned into the layout's numbers
         (triangles as without them), without hits on the inside of spheres and linear curves. Cycles builds its
         Embree with EMBREE_BACKFACE_CULLING_CURVES and _SPHERES (build_files/build_environment/cmake/embree.cmake),
         which its sphere and round linear intersectors honour, so a ray from inside one (a point's root in its
         emitter, two overlapping) does not meet its far wall; embreex's Embree reports it, so such a hit is
         stepped past (BACKFACE_SKIPS at most). (Catmull-Rom tubes report it in both.)"""
-        prim, t, u, v, ng = self._numbered_hits(origins, directions, t_max)
+        prim, t, u, v, ng = self._numbered_hits(origins, directions, t_max, times)
         live = np.flatnonzero(self._inside_out(prim, ng, directions))
         for _ in range(BACKFACE_SKIPS):
             if not len(live):
@@ -404,7 +427,8 @@ class Accel:
                 break
             d = np.ascontiguousarray(directions[live])
             p2, t2, u2, v2, ng2 = self._numbered_hits(np.ascontiguousarray(o + d * step[:, None], np.float32), d,
-                                                      left.astype(np.float32))
+                                                      left.astype(np.float32),
+                                                      None if times is None else times[live])
             prim[live] = p2
             t[live] = np.where(p2 >= 0, t2 + step, t_max[live])
             u[live], v[live] = u2, v2
@@ -425,10 +449,11 @@ class Accel:
         out[sel] = culled & facing
         return out
 
-    def _numbered_hits(self, origins, directions, t_max):
-        """One query: (prim, t, u, v, Ng) in the layout's numbers."""
+    def _numbered_hits(self, origins, directions, t_max, times=None):
+        """One query: (prim, t, u, v, Ng) in the layout's numbers (times: the rays' shutter times, or None)."""
         if self._packets is not None:
-            p, inst, t, u, v, geom, ng = self._packets.intersect(origins, directions, t_max, geometry=True)
+            p, inst, t, u, v, geom, ng = self._packets.intersect(origins, directions, t_max, geometry=True,
+                                                                 times=times)
         else:
             r = self._scene.run(origins, directions, dists=t_max.copy(), output=1)
             p, t, u, v, geom, ng = r["primID"], r["tfar"], r["u"], r["v"], r["geomID"], r["Ng"]
@@ -446,7 +471,15 @@ class Accel:
         placed = np.flatnonzero(hit & (inst >= 0))
         if len(placed):   # Embree's Ng of an instance's hit is in its object space: by the inverse transpose
             ng = ng.copy()
-            ng[placed] = np.einsum("nji,nj->ni", np.take(self._instance_inverse, inst[placed], axis=0), ng[placed])
+            inverse = np.take(self._instance_inverse, inst[placed], axis=0)
+            if times is not None:   # moving instances of spheres and linear curves: their inverse at each ray's time
+                for k in np.unique(inst[placed]):
+                    decomposed = self._ng_motion[k]
+                    if decomposed is not None:
+                        sel = np.flatnonzero(inst[placed] == k)
+                        m = motion.interpolate(decomposed, np.take(times, placed[sel]).astype(np.float64))
+                        inverse[sel] = motion.affine_inverse(m)[:, :, :3].astype(np.float32)
+            ng[placed] = np.einsum("nji,nj->ni", inverse, ng[placed])
         return prim, np.array(t, np.float32), np.array(u, np.float32), np.array(v, np.float32), ng
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,
@@ -458,7 +491,12 @@ class Accel:
         if n == 0:
             return out
 
+        times = self._times(time, n)
+
         def job(s: slice, scene=self._scene, o=origins, d=directions) -> None:
+            if times is not None:   # moving curves or points: packets with the rays' times
+                out[s] |= scene.run(o[s], d[s], dists=t_max[s].copy(), query="OCCLUDED", times=times[s]) == 0
+                return
             out[s] |= scene.run(o[s], d[s], dists=t_max[s].copy(), query="OCCLUDED", output=None) == 0
 
         if self._scene is not None:
@@ -514,8 +552,8 @@ class _PacketQueries:
     def __init__(self, scene: "embree.Scene"):
         self._scene = scene
 
-    def run(self, origins, directions, dists=None, query="INTERSECT", output=None):
+    def run(self, origins, directions, dists=None, query="INTERSECT", output=None, times=None):
         if query == "OCCLUDED":
-            return np.where(self._scene.occluded(origins, directions, dists), 0, -1).astype(np.int32)
-        prim, _, t, u, v = self._scene.intersect(origins, directions, dists)
+            return np.where(self._scene.occluded(origins, directions, dists, times), 0, -1).astype(np.int32)
+        prim, _, t, u, v = self._scene.intersect(origins, directions, dists, times=times)
         return {"primID": prim, "tfar": t, "u": u, "v": v}

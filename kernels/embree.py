@@ -118,6 +118,8 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         "rtcSetSceneProgressMonitorFunction": (None, [vp, _PROGRESS, vp]),
         "rtcSetGeometryBuildQuality": (None, [vp, cint]),
         "rtcSetGeometryTessellationRate": (None, [vp, ctypes.c_float]),
+        "rtcSetGeometryTimeStepCount": (None, [vp, uint]),
+        "rtcSetGeometryTransformQuaternion": (None, [vp, uint, vp]),
         "rtcCommitScene": (None, [vp]),
         "rtcReleaseScene": (None, [vp]),
         "rtcRetainScene": (None, [vp]),
@@ -251,12 +253,17 @@ class Shape:
 
     kind : an RTCGeometryType (CURVE_GEOMETRY's, SPHERE_POINT); vertices : (V, 4) float32 x, y, z, radius;
     indices : (S,) uint32, each curve segment's first control vertex (None for points); tessellation : Embree's
-    tessellation rate of curves (Cycles': Subdivisions + 1)."""
+    tessellation rate of curves (Cycles': Subdivisions + 1). steps : None, or (T, V, 4) float32 vertices at T >= 2
+    times evenly spread over [0, 1] (motion blur): Embree's time steps, one vertex buffer each, interpolated
+    linearly at each ray's time (as Cycles' add_curves and add_points give them, intern/cycles/bvh/embree.cpp);
+    vertices is then not read by Embree."""
 
     def __init__(self, kind: int, vertices: np.ndarray, indices: np.ndarray | None = None,
-                 tessellation: float | None = None):
+                 tessellation: float | None = None, steps: np.ndarray | None = None):
         self.kind = kind
         self.vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 4)
+        self.steps = None if steps is None else np.ascontiguousarray(steps, np.float32).reshape(
+            len(steps), -1, 4)
         self.indices = None if indices is None else np.ascontiguousarray(indices, np.uint32).reshape(-1)
         self.tessellation = tessellation
 
@@ -274,8 +281,14 @@ class Shape:
         if self.indices is not None:
             lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_INDEX, 0, _FORMAT_UINT, self.indices.ctypes.data, 0, 4,
                                            len(self.indices))
-        lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT4, self.vertices.ctypes.data, 0, 16,
-                                       len(self.vertices))
+        if self.steps is None:
+            lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT4, self.vertices.ctypes.data, 0,
+                                           16, len(self.vertices))
+        else:
+            lib.rtcSetGeometryTimeStepCount(geom, len(self.steps))
+            for step, vertices in enumerate(self.steps):
+                lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, step, _FORMAT_FLOAT4, vertices.ctypes.data, 0,
+                                               16, len(vertices))
         lib.rtcCommitGeometry(geom)
         lib.rtcAttachGeometryByID(scene_handle, geom, geom_id)
         lib.rtcReleaseGeometry(geom)
@@ -309,8 +322,10 @@ class Scene:
     def __init__(self, device: Device, plain: Triangles | None = None, instances=(), quality: str = "medium",
                  cancel: threading.Event | None = None, shapes=()):
         """plain: the triangles used as they are, in the top level's own BVH (a Mesh's BVH is not used);
-        instances: iterable of (Mesh or ShapeScene, (3, 4) or (4, 4) world_from_object); shapes: Shapes in
-        world space (curves, points), geometries K + 1, K + 2, ... of the top level.
+        instances: iterable of (Mesh or ShapeScene, (3, 4) or (4, 4) world_from_object[, motion]); motion, when
+        given and not None, is a kernels.motion.Decomposed of S >= 2 steps over the shutter: the instance then moves,
+        Embree interpolating its steps at each ray's time (quaternion_steps); shapes: Shapes in world space (curves,
+        points), geometries K + 1, K + 2, ... of the top level.
         quality: the top level's BUILD_QUALITY ("low" builds several times faster, traces somewhat slower;
         hits are the same either way: only the tree differs, not the triangle test).
         cancel: an event that stops the build when set (Embree's progress monitor), and BuildCancelled is
@@ -332,11 +347,17 @@ class Scene:
             lib.rtcReleaseGeometry(geom)
         placed = list(instances)
         # The transforms as Embree holds them, (K, 3, 4) float32: set_transforms compares against them.
-        self._transforms = _transforms([matrix for _, matrix in placed])
-        for k, (mesh, _) in enumerate(placed):
+        self._transforms = _transforms([entry[1] for entry in placed])
+        for k, (mesh, *rest) in enumerate(placed):
             geom = lib.rtcNewGeometry(device.handle, _GEOMETRY_INSTANCE)
             lib.rtcSetGeometryInstancedScene(geom, mesh.handle)
-            lib.rtcSetGeometryTransform(geom, 0, _FORMAT_FLOAT3X4_ROW_MAJOR, self._transforms[k].ctypes.data)
+            steps = quaternion_steps(rest[1]) if len(rest) > 1 and rest[1] is not None else None
+            if steps is None:
+                lib.rtcSetGeometryTransform(geom, 0, _FORMAT_FLOAT3X4_ROW_MAJOR, self._transforms[k].ctypes.data)
+            else:
+                lib.rtcSetGeometryTimeStepCount(geom, len(steps))
+                for step in range(len(steps)):
+                    lib.rtcSetGeometryTransformQuaternion(geom, step, steps[step].ctypes.data)
             lib.rtcCommitGeometry(geom)
             lib.rtcAttachGeometryByID(self.handle, geom, 1 + k)
             lib.rtcReleaseGeometry(geom)
@@ -388,8 +409,9 @@ class Scene:
             return None
         return _embreex_view(self.handle, self.device, slot)
 
-    def _packets(self, origins, directions, t_max, rows: int):
-        """Rays packed into (P, rows, 16) float32 packets, and the valid mask of the last packet."""
+    def _packets(self, origins, directions, t_max, rows: int, times=None):
+        """Rays packed into (P, rows, 16) float32 packets, and the valid mask of the last packet. times: (N,) each
+        ray's time in [0, 1] for geometries with time steps, or None (0)."""
         n = len(origins)
         p = -(-n // _LANES)
         buf = aligned_empty((p, rows, _LANES), np.float32)
@@ -405,6 +427,10 @@ class Scene:
                 buf[full, row, tail:] = 0.0
         buf[:, _TNEAR, :] = 0.0
         buf[:, _TIME, :] = 0.0
+        if times is not None:
+            buf[:full, _TIME, :] = times[:full * _LANES].reshape(full, _LANES)
+            if tail:
+                buf[full, _TIME, :tail] = times[full * _LANES:]
         bits = buf.view(np.uint32)
         bits[:, _MASK, :] = INVALID
         bits[:, _ID, :] = 0
@@ -426,13 +452,14 @@ class Scene:
         if p:
             fn(last.ctypes.data, scene, base + (p - 1) * stride, None)
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray, geometry: bool = False):
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray, geometry: bool = False,
+                  times: np.ndarray | None = None):
         """Closest hits of (N, 3) float32 rays within (N,) t_max: (prim, instance, t, u, v), with prim -1
         and t = t_max for a miss, instance -1 for hits on the plain mesh and the shapes; geometry: then also
         each hit's geometry (the top level's for hits outside instances, the instanced scene's within) and its
-        (N, 3) unnormalised geometric normal, Embree's Ng."""
+        (N, 3) unnormalised geometric normal, Embree's Ng. times: (N,) the rays' times (time steps), or None."""
         n = len(origins)
-        buf, last = self._packets(origins, directions, t_max, _HIT_ROWS)
+        buf, last = self._packets(origins, directions, t_max, _HIT_ROWS, times)
         bits = buf.view(np.uint32)
         bits[:, _PRIM:_INST + 1, :] = INVALID
         self._trace(self.device.lib.rtcIntersect16, buf, last)
@@ -446,13 +473,29 @@ class Scene:
             out += (bits[:, _GEOM, :].reshape(-1)[:n].view(np.int32), ng)
         return out
 
-    def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray) -> np.ndarray:
-        """(N,) bool: something lies on the ray before t_max."""
+    def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray,
+                 times: np.ndarray | None = None) -> np.ndarray:
+        """(N,) bool: something lies on the ray before t_max (at the rays' times, or None)."""
         n = len(origins)
-        buf, last = self._packets(origins, directions, t_max, _RAY_ROWS)
+        buf, last = self._packets(origins, directions, t_max, _RAY_ROWS, times)
         self._trace(self.device.lib.rtcOccluded16, buf, last)
         # Embree marks an occluded ray by setting its tfar to -inf.
         return buf[:, _TFAR, :].reshape(-1)[:n] < 0
+
+
+def quaternion_steps(decomposed) -> np.ndarray:
+    """(S, 16) float32, 64-byte aligned: Embree's RTCQuaternionDecomposition of each motion step of a
+    kernels.motion.Decomposed (world = T R S with S upper triangular), filled as Cycles' add_instance fills it
+    (intern/cycles/bvh/embree.cpp): scale, skew (xy, xz, yz), shift 0, the quaternion (r, i, j, k) = (w, x, y, z),
+    translation. Embree slerps the quaternion and lerps the rest between steps."""
+    rotation, translation, scale = (np.asarray(a, np.float64) for a in decomposed)
+    out = aligned_empty((len(rotation), 16), np.float32)
+    out[:, 0], out[:, 1], out[:, 2] = scale[:, 0, 0], scale[:, 1, 1], scale[:, 2, 2]
+    out[:, 3], out[:, 4], out[:, 5] = scale[:, 0, 1], scale[:, 0, 2], scale[:, 1, 2]
+    out[:, 6:9] = 0.0
+    out[:, 9], out[:, 10:13] = rotation[:, 3], rotation[:, :3]
+    out[:, 13:16] = translation
+    return out
 
 
 def _transforms(world_from_object) -> np.ndarray:

@@ -8,7 +8,6 @@ import numpy as np
 
 from . import light_groups, passes, sampling, shadow_linking, visibility
 from .interaction import RayInfo
-from .lights import area
 from .lights.sampler import LightHits
 from .media import stage as media_stage
 from .paths import facing_of
@@ -67,8 +66,8 @@ def _camera_hits(tables, wave, state, rays, hits, rows) -> LightHits:
     for a ray of PATH_RAY_VISIBILITY_CAMERA: the other lamps are skipped, not met (no transparent bounce), and
     the lamps that are seen are met whatever the light and shadow linking (a camera ray is no receiver, and
     shadow-linked lamps are met by the main path's camera rays); a shadow catcher's own paths still skip the
-    lamps that are no shadow catchers. Unlike BSDF rays, which see an area light as its light samples do, camera
-    rays see its Spread (no MIS pairs them)."""
+    lamps that are no shadow catchers. An area light's Spread dims what they see as it dims what BSDF rays see
+    (kernels/lights/area.py intersect)."""
     allowed = tables.lights.camera
     if wave.only_catchers is not None:
         allowed = allowed & wave.only_catchers.lights
@@ -76,10 +75,6 @@ def _camera_hits(tables, wave, state, rays, hits, rows) -> LightHits:
     budget = int(wave.settings.transparent_max_bounces) - state.transparent[rows]
     seen = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t[rows], budget,
                                    allowed=allowed)
-    if tables.lights.spread is not None:   # camera rays see an area light's spread (area.spread_attenuation)
-        hit = np.flatnonzero(seen.hit)
-        seen.radiance[:, hit] *= area.spread_attenuation(tables.lights, seen.light[hit], d[hit, 0], d[hit, 1],
-                                                         d[hit, 2])
     return seen
 
 

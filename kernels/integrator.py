@@ -341,14 +341,17 @@ def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
     return SurfaceHit(tables.triangles, prim, np.take(hits.u, found),
                       np.take(hits.v, found), direction, tables.shading.needs_uv,
                       _hit_motion(tables, prim, times) if tables.accel.moves else None,
-                      None if tables.shapes is None else (np.take(rays.origins, found, axis=0), np.take(hits.t, found)))
+                      None if tables.shapes is None else (np.take(rays.origins, found, axis=0), np.take(hits.t, found),
+                                                          None if times is None else times.times))
 
 
 def _hit_motion(tables, prim, times):
     """(hits on moving triangles, (m, 3, 4) matrices taking the triangles' stored positions to where
     they are at each hit's time, (m, 3, 3) the same for normals), or None when no hit moves. The
     matrices are cached per path (times: the hits' RayTimes), so later bounces reuse them."""
-    ids = np.take(tables.scene.motion_ids, prim)
+    ids = tables.scene.motion_ids
+    # Curves and points (numbered after the triangles) move by their own motion keys, not here.
+    ids = np.where(prim < len(ids), np.take(ids, np.minimum(prim, len(ids) - 1)), -1)
     rows = np.flatnonzero(ids >= 0)
     if not len(rows):
         return None

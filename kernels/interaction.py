@@ -31,8 +31,9 @@ class SurfaceHit:
     def __init__(self, table: TriangleTable, prim, b1, b2, d, need_uv: bool, motion=None, ray=None):
         """motion : None, or (rows, (m, 3, 4) matrices, (m, 3, 3) normal matrices) for hits on moving
         objects (motion blur): each takes its triangle from where it is stored to where it was at the
-        path's time. ray : (origins (N, 3), t (N,)) of the rays that found the hits: hits on curves and points
-        (a table with them, kernels.geometry.primitives.PrimitiveTable) are placed along them."""
+        path's time. ray : (origins (N, 3), t (N,)[, times (N,) or None]) of the rays that found the hits: hits on
+        curves and points (a table with them, kernels.geometry.primitives.PrimitiveTable) are placed along them,
+        moving ones where they are at the rays' shutter times."""
         g = table.gather(prim)
         w0 = np.float32(1.0) - b1 - b2
         self.p = tuple(g[P0 + k] + b1 * g[E1 + k] + b2 * g[E2 + k] for k in range(3))
@@ -91,10 +92,12 @@ class SurfaceHit:
             return ns, g, b1, b2
         if ray is None:
             raise ValueError("SurfaceHit: hits on curves and points need the rays that found them")
-        origins, t = ray
+        origins, t = ray[:2]
+        times = ray[2] if len(ray) > 2 and ray[2] is not None else None   # shutter times: moving curves, points
         dirs = np.stack([np.take(c, sel) for c in d], axis=1)
         got = table.shape_hits(np.take(prim, sel), np.take(b1, sel), np.take(b2, sel),
-                               np.take(origins, sel, axis=0), dirs, np.take(t, sel))
+                               np.take(origins, sel, axis=0), dirs, np.take(t, sel),
+                               None if times is None else np.take(times, sel))
         for name in ShapeHits.__slots__:
             getattr(self.shapes, name)[sel] = getattr(got, name)
         self.shapes.kind[sel] = np.where(got.curve, np.int8(1), np.int8(2))

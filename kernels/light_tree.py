@@ -8,7 +8,7 @@ the longest extent until each stands alone, and a group's unit then splits the s
 emitters. A lamp beside a large emissive mesh thus competes with the mesh as a whole near the top of the
 tree, not with thousands of its triangles one level after another. Leaves hold one emitter. Each node
 keeps its box, its power (the sum of its emitters') and a cone bounding the directions its emitters emit
-around (axis, spread theta_o; every emitter lights the half-space in front of its normal, theta_e = pi/2).
+around (axis, spread theta_o) and the angle beyond it where it lights nothing (theta_e: pi/2 for surfaces).
 
 At a shading point P a walk from the root picks a child with probability in proportion to an upper bound
 of the light it can send P,
@@ -55,7 +55,8 @@ class LightTree:
     group : (n,) int64 or None: emitters with the same non-negative group number (an emissive object's
     triangles) form a subtree of their own; -1, or None for all, stands alone.
     emission : (n,) float64 theta_e, the angle beyond the cone where the emitter no longer lights anything
-    (pi / 2 for surfaces, a spot light's half angle), or None for pi / 2 everywhere (Cycles' theta_e)."""
+    (pi / 2 for surfaces, a spot light's half angle, half an area light's Spread), or None for pi / 2 everywhere
+    (Cycles' theta_e)."""
 
     def __init__(self, lo, hi, power, axis, spread, group=None, emission=None):
         n = len(power)
@@ -147,7 +148,8 @@ class LightTree:
         theta_u = np.where(sin_u < 1, np.arcsin(np.minimum(sin_u, np.float32(1.0))), PI)
         theta = np.arccos(cos_t)
         theta_p = np.maximum(theta - g[9] - theta_u, np.float32(0.0))
-        nearest = np.where(theta_p < g[11], np.maximum(np.cos(theta_p), COS_FLOOR), np.float32(0.0))
+        # theta_p = 0 lights P whatever theta_e (an area light of Spread 0 has theta_e = 0: Cycles' first case).
+        nearest = np.where((theta_p <= 0) | (theta_p < g[11]), np.maximum(np.cos(theta_p), COS_FLOOR), np.float32(0.0))
         theta_f = theta + g[9] + theta_u
         farthest = np.where(theta_f < g[11], np.cos(np.minimum(theta_f, HALF_PI)), np.float32(0.0))
         return np.where(omni, upper, upper * nearest), np.where(omni, lower, lower * farthest)

@@ -23,6 +23,7 @@ import numpy as np
 
 from . import light_groups, passes, sampling, visibility
 from .interaction import RayInfo, SurfaceHit, spawn_offset
+from .lights import ray_visibility
 from .lights.links import reaches
 from .lights.nee import shadow_of
 from .media.stage import VOLUME_BOUNDS_MAX
@@ -107,6 +108,16 @@ def dedicated_light(tables, wave, state, rays, hits) -> None:
             free = sel[~met[ray[sel]]]
             le[:, free] *= np.take(state.escape_scale, idx[ray[free]])
     paths = idx[ray]
+    if tables.lights.visibility is not None:
+        # A lamp's Ray Visibility, once picked (shade_dedicated_light.h is_light_shader_visible_to_path): rays of a
+        # kind it is hidden from get nothing from it; the pick still counted it among the candidates.
+        lamp = np.flatnonzero(kind != 0)
+        source = np.empty(len(lamp), np.int64)
+        is_lamp = kind[lamp] == 1
+        source[is_lamp] = lamps[1][which[lamp[is_lamp]]]
+        source[~is_lamp] = suns[1][which[lamp[~is_lamp]]]
+        types = np.take(visibility.ray_types(state, False), paths[lamp])
+        le[:, lamp[ray_visibility.unseen(np.take(tables.lights.visibility, source), types)]] = 0.0
     if wave.nee:
         bsdf_pdf = np.take(state.bsdf_pdf, paths)
         mis = np.isfinite(bsdf_pdf) & (light_pdf > 0)

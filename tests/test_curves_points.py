@@ -8,8 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import (compare_to_cycles, diffuse_material, export_current, mesh_object, new_scene, render_to_array,
-                         set_world)
+from bpy_helpers import compare_to_cycles, diffuse_material, export_current, mesh_object, new_scene, set_world
 from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World, render
 from ember.kernels.interaction import SurfaceHit
 from ember.kernels.scene import Curves, Points, ShapeInstances, object_row
@@ -460,26 +459,15 @@ def curves_object(name, curves, radius=0.02, material=None):
     return ob
 
 
-def test_what_curves_cannot_render_is_warned_by_name(capfd):
-    """A curve of one point has no segment (Cycles cannot trace it either); moving curves render where they are at
-    the frame (no motion blur of curves yet): both say so, naming the object."""
+def test_what_curves_cannot_render_is_warned_by_name():
+    """A curve of one point has no segment (Cycles cannot trace it either): a warning names the object. (What
+    motion blur of curves cannot render is warned in tests/test_shape_motion_blur.py.)"""
     scene = new_scene(24, 24)
     set_world(scene, (0.5, 0.5, 0.5))
     curves_object("Stubble", [np.array([[0, 0, 1]]), np.array([[0, 0, 0], [0, 0, 1], [0.2, 0, 1.5]])])
     exported = export_current()
     assert any("'Stubble'" in w and "single point" in w for w in exported.warnings), exported.warnings
     assert exported.scene.curves[0].count == 1
-    swaying = curves_object("Swaying", [np.array([[1, 0, 0], [1, 0, 1], [1.2, 0, 1.5]])])
-    swaying.location = (0, 0, 0)
-    swaying.keyframe_insert("location", frame=1)
-    swaying.location = (0, 0, 0.5)
-    swaying.keyframe_insert("location", frame=2)
-    scene.render.use_motion_blur = True
-    scene.frame_set(1)
-    scene.ember.samples = 1
-    render_to_array(scene, "EMBER", 1)
-    out = capfd.readouterr().out
-    assert "'Swaying'" in out and "motion blur of curves and points" in out, out
 
 
 # ---------------------------------------------------------------- Curves Info, Point Info, attributes
@@ -700,3 +688,14 @@ def test_curves_and_points_embree_cannot_take_are_dropped_and_counted():
     assert checked.scene.points.count == 1
     with pytest.raises(ValueError, match="offsets"):
         shape_scene(curves=(dataclasses.replace(curves, offsets=np.array([0, 1, 4], np.int32)),)).validate()
+
+
+def test_hair_exports_in_a_scene_with_light_groups():
+    """Curves in a scene with light groups join no group (they are no lights): the export names them so."""
+    scene = new_scene(16, 16)
+    sun_and_sky(scene)
+    ob = furry_sphere(scene, count=50)
+    bpy.context.view_layer.lightgroups.add(name="Fur")
+    ob.lightgroup = "Fur"
+    exported = export_current()
+    assert exported.scene.light_groups is not None and exported.scene.curves[0].count == 50

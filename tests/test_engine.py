@@ -40,7 +40,7 @@ def test_panels_users_need_are_there():
                  "CYCLES_RENDER_PT_curves", "PARTICLE_PT_hair_shape"):
         assert "EMBER" in getattr(bpy.types, name).COMPAT_ENGINES, name
     for name in ("EMBER_RENDER_PT_sampling", "EMBER_RENDER_PT_light_paths", "EMBER_RENDER_PT_film", "EMBER_LIGHT_PT_shadow",
-                 "EMBER_OBJECT_PT_visibility_mask", "EMBER_OBJECT_PT_visibility_rays"):
+                 "EMBER_LIGHT_PT_beam_shape", "EMBER_OBJECT_PT_visibility_mask", "EMBER_OBJECT_PT_visibility_rays"):
         assert hasattr(bpy.types, name)
     # Object > Visibility shows Shadow Catcher, Holdout and Ray Visibility under Ember, as Cycles' panel does.
     assert bpy.types.EMBER_OBJECT_PT_visibility_mask.bl_parent_id == "OBJECT_PT_visibility"

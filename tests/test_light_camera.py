@@ -61,7 +61,7 @@ KINDS = {
     "ellipse": [("Ellipse", "AREA", (0, 0, 1.1), (-1.3, 0, 0.3), dict(energy=100.0, shape="ELLIPSE", size=1.0,
                                                                      size_y=0.5))],
     # Spread below 180 degrees: its disc is brightest where the camera looks along the lamp's normal, dark past
-    # half the spread. No floor: Ember lights it as a plain area lamp (a known limit, warned about).
+    # half the spread. No floor: the light it casts is tested in tests/test_lights_spread.py.
     "rectangle_spread": [("RectSpread", "AREA", (-0.7, 0, 1.1), (-1.45, 0, 0.2),
                           dict(energy=100.0, shape="RECTANGLE", size=1.0, size_y=0.5, spread=math.radians(50))),
                          ("DiskSpread", "AREA", (0.8, 0, 1.1), (-1.45, 0, -0.3),
@@ -113,7 +113,7 @@ def test_a_lamp_the_camera_sees_matches_cycles(kind):
     scene, lamps = _scene(kind)
     warnings = export_current().warnings
     assert not [w for w in warnings if "Camera" in w]
-    assert all("spread" in w for w in warnings) and len(warnings) == (2 if kind == "rectangle_spread" else 0)
+    assert warnings == []
     # The lamp is in the frame and Camera changes the image (so the comparison below tests it).
     seen = render_to_array(scene, "EMBER", 8, seed=3)[..., :3]
     for lamp in lamps:
@@ -277,9 +277,10 @@ def test_lamps_seen_through_a_transparent_pane_as_cycles():
     _assert_matches_cycles(scene)
 
 
-def test_soft_falloff_off_is_warned_about_by_name():
-    """Cycles makes a sized point or spot lamp of Soft Falloff off a sphere; Ember keeps the disk, and says so."""
+def test_a_lamp_of_soft_falloff_off_is_seen_as_cycles_sphere():
+    """Cycles makes a sized point or spot lamp of Soft Falloff off a sphere (kernel/light/point.h): the camera sees it
+    and the floor under it takes its light as in Cycles, without a warning."""
     scene, lamps = _scene("point")
     lamps[0].data.use_soft_falloff = False
-    warnings = export_current().warnings
-    assert len(warnings) == 1 and "'Bulb'" in warnings[0] and "Soft Falloff" in warnings[0]
+    assert export_current().warnings == []
+    _assert_matches_cycles(scene)

@@ -159,6 +159,19 @@ def test_linked_light_in_a_glossy_reflection_matches_cycles(shadow_linked):
     assert _changed(_matches_cycles(scene), plain)
 
 
+def test_a_shadow_linked_lamp_s_ray_visibility_matches_cycles():
+    """A shadow-linked key that glossy rays do not see: its light samples leave the glossy floor out, and the
+    dedicated rays that find it from the floor get nothing (shade_dedicated_light.h), as in Cycles; before, its
+    highlight came back through them (with a warning)."""
+    from bpy_helpers import export_current
+    scene, floor, ball, key, fill = _glossy_scene()
+    key.light_linking.blocker_collection = _linking("KeyBlockers", [ball], "EXCLUDE")
+    plain = _plain(scene)
+    key.visible_glossy = False
+    assert export_current().warnings == []
+    assert _changed(_matches_cycles(scene), plain)
+
+
 def test_fog_receives_light_as_its_object():
     """A volume receives as its object: a fog box lit by a key linked to the middle sphere and the fog."""
     import bpy

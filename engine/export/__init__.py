@@ -126,6 +126,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
             + [scene.world.node_tree if scene.world is not None else None]))
         geometry = export_geometry(depsgraph, materials, warnings, poll,
                                    moving=frozenset(motion.objects) if motion is not None else frozenset(),
+                                   motion=motion,
                                    instance_everything=instance_everything, cache=mesh_cache, links=links,
                                    light_groups=groups,
                                    dicing=None if camera_ob is None else

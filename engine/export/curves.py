@@ -4,7 +4,8 @@
   (0.005 where there is none), every curve on the object's first material slot, linear when the first curve
   is of poly type (else the scene's shape); Curves Info's Intercept (the length along the curve over its
   whole length, per key), Length and Random (the hash of the curve's number); the render UV, the first
-  two-float attribute on curves; other attributes by name, per key or per curve.
+  two-float attribute on curves; other attributes by name, per key or per curve; where Huang hair asks for
+  them, the curves' normals (Curves.normals: Blender's curves_normals_point_domain_calc, as Cycles reads them).
 - Hair particle systems of a mesh object (ObtainCacheParticleData, ExportCurveSegments): render steps
   (2^steps + 1 keys, more for spiral kink), the children where there are any (else the parents), each key
   where Blender's path cache has it (ParticleSystem.co_hair, world space, into the object's space), the radius
@@ -21,12 +22,18 @@ from itertools import chain
 
 import numpy as np
 
+from ...kernels.shading.hair_nodes import CURVE_NORMAL
 from ...kernels.shading.hash import hash_uint2_to_float
 from ...kernels.textures import srgb_to_linear
+from ..version import blender_version
 from .mesh import OBJECT_ATTRIBUTE_KINDS, attribute_values
 
 # Cycles' radius of curves without a radius attribute.
 DEFAULT_RADIUS = 0.005
+# The Blender whose Cycles stores vertex normals packed (2c62c712e, "Compress vertex normals with octahedral
+# mapping", February 2026, after Cycles' 5.2 version bump): curves' normals are read back quantised, and the zero
+# normals of particle hair as about +Z.
+PACKED_NORMALS = (5, 2, 0)
 # Blender's curve type of poly curves (CURVE_TYPE_POLY): Cycles renders them as linear curves.
 CURVE_TYPE_POLY = 1
 
@@ -89,12 +96,47 @@ def read_curves(data, names: tuple, object_name: str, warnings: list[str]) -> Lo
                             f"is not supported on curves, reads zero")
             continue
         attributes[name] = values
+    if CURVE_NORMAL in names and k:
+        normals = curve_normals(data, k)
+        attributes[CURVE_NORMAL] = as_cycles_stores(normals) if blender_version() >= PACKED_NORMALS else normals
     uv = next((a for a in data.attributes if a.data_type == "FLOAT2" and a.domain == "CURVE"
                and not a.name.startswith(".")), None)
     if uv is not None:   # Cycles' "weak" render UV of curves: the first two-float attribute on them
         attributes["uv"] = attribute_values(data, uv)
     local = LocalCurves(keys, offsets, linear, np.zeros(c, np.int32), attributes)
     return _kept(with_standard(local, names), object_name, warnings)
+
+
+def curve_normals(data, k: int) -> np.ndarray:
+    """(K, 3) float32 Blender's normals of a Curves data-block's points (Curves.normals, made by
+    curves_normals_point_domain_calc as Cycles' sync makes them). Blender makes that array when an iteration over
+    the collection begins and frees it when the iteration ends, so foreach_get (which copies after ending it) and
+    vectors kept past the loop read freed memory: each value is copied while the iteration is on it (about 4 us a
+    key)."""
+    return np.fromiter((x for v in data.normals for x in v.vector), np.float32, count=3 * k).reshape(k, 3)
+
+
+def as_cycles_stores(normals: np.ndarray) -> np.ndarray:
+    """(K, 3) float32 normals as Cycles from PACKED_NORMALS reads them back: each packed into two 16-bit
+    octahedral coordinates and decoded, normalised (packed_normal in intern/cycles/util/types_normal.h). A zero
+    normal comes back as about (0, 0, 1)."""
+    n = np.asarray(normals, np.float32).reshape(-1, 3)
+    mu, hmu = np.float32(65535.0), np.float32(32767.5)
+    inv_l1 = np.float32(1.0) / (np.abs(n).sum(axis=1) + np.float32(1e-6))
+    vx, vy = n[:, 0] * inv_l1, n[:, 1] * inv_l1
+    wrap_x = (np.float32(1.0) - np.abs(vy)) * np.copysign(np.float32(1.0), vx)
+    wrap_y = (np.float32(1.0) - np.abs(vx)) * np.copysign(np.float32(1.0), vy)
+    below = n[:, 2] < 0
+    vx, vy = np.where(below, wrap_x, vx), np.where(below, wrap_y, vy)
+    dx = np.floor(np.clip(vx * hmu + (hmu + np.float32(0.5)), 0, mu))
+    dy = np.floor(np.clip(vy * hmu + (hmu + np.float32(0.5)), 0, mu))
+    nx = dx * np.float32(2.0 / 65535.0) - np.float32(1.0)
+    ny = dy * np.float32(2.0 / 65535.0) - np.float32(1.0)
+    nz = np.float32(1.0) - np.abs(nx) - np.abs(ny)
+    t = np.maximum(-nz, np.float32(0.0))
+    nx, ny = nx + np.copysign(t, -nx), ny + np.copysign(t, -ny)
+    out = np.stack([nx, ny, nz], axis=1).astype(np.float32)
+    return (out / np.sqrt(np.einsum("ij,ij->i", out, out))[:, None]).astype(np.float32)
 
 
 def _render_color(data):
@@ -235,6 +277,10 @@ def read_particle_hair(ob, systems: list, render: bool, slot_count: int, names: 
     attributes = {name: np.concatenate(parts) for name, parts in values.items()
                   if sum(len(p) for p in parts) == len(offsets) - 1}
     keys = np.ascontiguousarray(np.concatenate(keys))
+    if CURVE_NORMAL in names and blender_version() >= PACKED_NORMALS:
+        # Cycles writes particle hair zero normals (ExportCurveSegments), which its packing reads back as ~+Z.
+        zero = as_cycles_stores(np.zeros((1, 3), np.float32))
+        attributes[CURVE_NORMAL] = np.repeat(zero, len(keys), axis=0)
     offsets = np.array(offsets, np.int32)
     # Generated coordinates: Cycles gives each strand its root's (kernels/shading/shape_ops.py).
     roots = np.ones((len(offsets) - 1, 4), np.float32)    # x, y, z and 1: the strand has a root

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...kernels.geometry import normal_matrices
-from ...kernels.scene import OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
+from ...kernels.scene import NO_GROUP, OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
 from ...kernels.textures import Texture
 from .adaptive import Dicing
 from .displacement import BlenderMesh, displace_mesh
@@ -127,10 +127,11 @@ class MeshCache:
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None,
                     moving: set | frozenset = frozenset(), instance_everything: bool = False,
                     cache: MeshCache | None = None, links: LinkTable | None = None,
-                    light_groups: GroupTable | None = None, dicing: Dicing | None = None) -> Geometry:
+                    light_groups: GroupTable | None = None, dicing: Dicing | None = None, motion=None) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
     poll() is called for every instance (it raises to cancel the export). moving : instance keys
-    (instance_key) of objects that move during the shutter: their meshes are never instanced.
+    (instance_key) of objects that move during the shutter: their meshes are never instanced. motion : the
+    motion.MotionSamples they come from, or None (curves and points read their keys over the shutter there).
     instance_everything : every mesh is a prototype placed by its instances, even when used once (the
     viewport: an object that moves then only changes its transform, engine/export/updates.py).
     cache : a MeshCache that keeps meshes between frames (Persistent Data), or None.
@@ -164,7 +165,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     grouped: dict[tuple, list] = {}          # (mesh pointer, slot rows) -> GroupTable.of() per instance
     grouping = light_groups is not None and light_groups.used
     view_layer = depsgraph.view_layer_eval
-    shapes = ShapeExport(depsgraph, warnings, moving)   # curves and points (shapes.py)
+    shapes = ShapeExport(depsgraph, warnings, moving, motion)   # curves and points (shapes.py)
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()

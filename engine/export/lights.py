@@ -17,7 +17,6 @@ import math
 import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
-from ...kernels.scene.links import ALL_SETS
 from ...kernels.scene.objects import BSDF_RAYS, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
 from ...kernels.textures import luminance
 from .light_groups import GroupTable, group_table, lamp_groups
@@ -70,11 +69,6 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
     camera = np.array([bool(v & RAY_CAMERA) for v in seen], bool)
     seen = [v & BSDF_RAYS for v in seen]
     visibility = None if all(v == BSDF_RAYS for v in seen) else np.array(seen, np.uint8)
-    if visibility is not None and shadow_sets is not None:
-        # Rays meet shadow-linked lamps in their own stage (kernels/shadow_linking.py), which does not read it.
-        for k in np.flatnonzero((visibility != BSDF_RAYS) & (shadow_sets != ALL_SETS)):
-            warnings.append(f"Light '{names[k]}': Ray Visibility of a shadow-linked light is not supported yet: "
-                            f"its surface is seen by every bounce")
     return Lights(
         kind=np.array(columns[0], np.int32),
         position=np.array(columns[1], np.float32).reshape(-1, 3),
@@ -92,6 +86,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         visibility=visibility,
         camera=camera if camera.any() else None,
         spread=np.array(columns[9], np.float32) if min(columns[9]) < math.pi else None,
+        sphere=np.array(columns[10], bool) if any(columns[10]) else None,
     )
 
 
@@ -147,14 +142,13 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
     spot = (1.0, 0.0)
     radius = 0.0
     sun_half = 0.0
+    sphere = False
     if light.type in ("POINT", "SPOT"):
         kind = LIGHT_KINDS[light.type]
         radius = max(float(light.shadow_soft_size), 0.0)
-        if radius > 0 and not getattr(light, "use_soft_falloff", True):
-            # Cycles then makes the lamp a sphere (blender/light.cpp: is_sphere = !use_soft_falloff), sampled and
-            # seen as one; Ember's sized lamps are Soft Falloff's disk facing each point.
-            warnings.append(f"Light '{name}': Soft Falloff off (a sphere lamp) is not supported, rendered with "
-                            f"Soft Falloff on")
+        # Soft Falloff off makes a sized lamp a sphere (Cycles' blender/light.cpp: is_sphere = !use_soft_falloff;
+        # scene/light.cpp: is_sphere && radius != 0), of the same radiance (PointLight::area is 4 pi r^2 either way).
+        sphere = radius > 0 and not getattr(light, "use_soft_falloff", True)
         intensity = strength / (4.0 * math.pi)
         if radius > 0:
             radiance = intensity / (math.pi * radius ** 2) if normalize else strength / math.pi
@@ -180,10 +174,7 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
             return None
         radiance = strength / (math.pi * area) if normalize else strength / math.pi
         spread = min(max(float(getattr(light, "spread", math.pi)), 0.0), math.pi)
-        if spread < math.pi - 1e-4:
-            warnings.append(f"Area light '{name}': spread below 180 degrees is not supported for the light it "
-                            f"casts, which is a plain (180 degree) area light's (camera rays see the spread)")
-        else:
+        if spread >= math.pi - 1e-4:
             spread = math.pi
     else:
         warnings.append(f"Light '{name}' of type {light.type} is not supported")
@@ -194,7 +185,7 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
                         f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
         radiance = radiance * (MAX_LIGHT_RADIANCE / radiance.max())
     return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)),
-            spread)
+            spread, sphere)
 
 
 # ---------------------------------------------------------------- blackbody colour

@@ -41,6 +41,7 @@ import numpy as np
 from ...kernels import Materials
 from ...kernels.programs import Ref
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
+from ...kernels.shading.hair_nodes import CURVE_NORMAL
 from ...kernels.shading.input_ops import UNDISPLACED_NORMAL, UNDISPLACED_POSITION
 from .graph import indexed_links, invalid_links, node_loop, run_nested
 from .displacement import METHODS, TrueDisplacement
@@ -446,6 +447,10 @@ class _MaterialReader:
             options += [("model", node.model), ("parametrization", node.parametrization)]
             if not node.inputs["Random"].is_linked:   # on curves it reads the curve's (Cycles' attributes())
                 self.attributes.add("std:curve_random")
+            aspect = node.inputs.get("Aspect Ratio")
+            if node.model == "HUANG" and aspect is not None and (aspect.is_linked or aspect.default_value != 1.0):
+                # An elliptical fibre's major axis: the curves' normals (has_surface_transparent, attributes()).
+                self.attributes.add(CURVE_NORMAL)
         if kind in ("PRINCIPLED", "SUBSURFACE"):
             method = _subsurface_method(node, kind)
             if method != "RANDOM_WALK":  # the default, read as such

@@ -8,8 +8,12 @@ over the shutter (Object Properties > Motion Blur > Steps, default 1: three keys
 scene at each key's subframe (RenderEngine.frame_set) and the frame is restored afterwards. Objects whose
 keys all equal their frame matrix are static. The kernel interpolates keys per path time (kernels.motion).
 
-Not done: deformation blur (meshes whose vertices move: armatures, shape keys; a warning names them),
-lights (Cycles does not blur lamps either). A perspective lens that zooms is recorded at the shutter's start
+Curves, points and hair particle systems move too: their instances' transforms as any object's, and their
+deformation, read as Cycles' sync_hair_motion and sync_pointcloud_motion read it (intern/cycles/blender/curves.cpp,
+pointcloud.cpp): the keys (positions and radii) of each motion step's subframe (shape_steps; engine/export/shapes.py
+makes them Embree's time steps).
+
+Not done: deformation blur of meshes (armatures, shape keys; a warning names them), lights (Cycles does not blur lamps either). A perspective lens that zooms is recorded at the shutter's start
 and end, as Cycles' perspective motion. The rolling shutter is
 Cycles' own setting (scene.cycles: Rolling Shutter type Top, its Duration), read as Cycles reads it.
 """
@@ -22,7 +26,9 @@ import numpy as np
 
 from ...kernels import motion as kernel_motion
 from .camera import perspective_fov
+from .curves import hair_systems, read_curves, read_particle_hair
 from .instances import instance_key
+from .points import read_points
 
 CURVE_SAMPLES = 257  # Blender 5.0 reads the shutter curve at 257 points (curvemapping_to_array, size 256)
 MAX_STEPS = 7
@@ -36,6 +42,9 @@ class MotionSamples:
     shutter_table: np.ndarray | None = None
     rolling_shutter: float | None = None
     camera_fov: tuple | None = None   # (at the shutter's start, at its end) when a perspective lens zooms
+    # Per instance key of a Curves or Point Cloud object or a mesh with hair, its local keys at each of its
+    # motion steps: [(offsets (C + 1,) or None for points, keys (n, 4) x, y, z, radius), ...] (shape_steps).
+    shapes: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
 
 
@@ -88,7 +97,6 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     samples = MotionSamples(shutter_table=shutter_table(scene.render), rolling_shutter=rolling_shutter(scene))
     per_key: dict = {}      # instance key -> key count
     for inst in depsgraph.object_instances:
-        # Curves and points are followed too, only to say that their motion is not rendered (export/shapes.py).
         if inst.object.type in ("MESH", "CURVES", "POINTCLOUD"):
             count = key_count(inst.object.original)
             if inst.is_instance and inst.parent is not None:
@@ -109,22 +117,37 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
     fovs = []
     vertices_first: dict = {}
     deforming: set = set()
+    shape_keys: dict = {}   # instance key -> its shape_steps at every time
+    render = depsgraph.mode == "RENDER" 
     try:
         for i, t in enumerate(times):
             whole = math.floor(t)
             engine.frame_set(int(whole), float(t - whole))
+            read: dict = {}   # this step's shape_steps per data-block
             for inst in depsgraph.object_instances:
                 key = instance_key(inst)
                 if key in per_key:
                     recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
                     if i in (0, len(times) - 1) and not inst.is_instance and inst.object.type == "MESH":
                         _track_deformation(inst.object, key, i, vertices_first, deforming)
+                    if inst.object.type in ("CURVES", "POINTCLOUD", "MESH") and deform_motion(inst):
+                        # Instances of one data-block (geometry nodes' points) or of one haired object (a collection's
+                        # fur) read it once a step.
+                        shared = inst.object.as_pointer() if inst.object.type == "MESH" else inst.object.data.as_pointer()
+                        data = (inst.object.type, shared if inst.is_instance else key)
+                        if data not in read:
+                            read[data] = shape_steps(inst.object, render)
+                        if read[data] is not None:
+                            shape_keys.setdefault(key, []).append(read[data])
             if camera_keys:
                 camera_matrices.append(_rigid(np.array(camera_ob.evaluated_get(depsgraph).matrix_world)))
             if camera_ob is not None and i in (0, len(times) - 1):
                 fovs.append(_fov(camera_ob.evaluated_get(depsgraph)))
     finally:
         engine.frame_set(frame, subframe)
+    for key, steps in shape_keys.items():
+        if len(steps) == len(times):
+            samples.shapes[key] = steps[::(largest - 1) // (per_key[key] - 1)]
     for key, matrices in recorded.items():
         if len(matrices) != len(times):
             continue  # the instance is not there at every key: left static
@@ -218,6 +241,31 @@ def _track_deformation(ob, key, step: int, first: dict, deforming: set) -> None:
         first[key] = co
     elif key in first and (len(first[key]) != len(co) or not np.array_equal(first[key], co)):
         deforming.add(ob.name)
+
+
+def deform_motion(inst) -> bool:
+    """Object Properties > Motion Blur > Deformation (Cycles' use_deform_motion), of the instancer too for an
+    instance (Cycles' object_use_deform_motion, intern/cycles/blender/util.h)."""
+    owners = [inst.object] + ([inst.parent] if inst.is_instance and inst.parent is not None else [])
+    return all(bool(getattr(getattr(ob.original, "cycles", None), "use_deform_motion", True)) for ob in owners)
+
+
+def shape_steps(ob, render: bool):
+    """The local keys of an evaluated Curves or Point Cloud object, or of a mesh object's hair systems, as the
+    export reads them (curves.py, points.py; no attributes): (offsets or None for points, (n, 4) keys), or None
+    for anything else."""
+    quiet: list = []
+    if ob.type == "POINTCLOUD":
+        return None, read_points(ob.data, (), ob.name, quiet).points
+    if ob.type == "CURVES":
+        local = read_curves(ob.data, (), ob.name, quiet)
+        return local.offsets, local.keys
+    if ob.type == "MESH":
+        systems = hair_systems(ob, render)
+        if systems:
+            local = read_particle_hair(ob, systems, render, 1, (), None, ob.name, quiet)
+            return local.offsets, local.keys
+    return None
 
 
 def _rigid(m: np.ndarray) -> np.ndarray:

@@ -15,9 +15,11 @@ on its own key (kernels.visibility.skip_hits).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from .. import embree
+from .. import embree, motion
 from ..scene import Curves, Points, SceneArrays
 from ..vec import F32
 from . import curves as curve_geometry
@@ -44,6 +46,12 @@ class ShapeLayout:
         plain = list(scene.curves) + ([scene.points] if scene.points is not None else [])
         self.instances = scene.shape_instances
         protos = list(self.instances.prototypes) if self.instances is not None else []
+        # Per shape instance its motion decomposed as Cycles decomposes object motion (kernels.motion), or None.
+        inst = self.instances
+        decomposed = [motion.decompose(keys) for keys in inst.motion] if inst is not None else []
+        self.instance_motion = [] if inst is None else [
+            None if inst.motion_ids is None or inst.motion_ids[k] < 0 else decomposed[inst.motion_ids[k]]
+            for k in range(inst.count)]
         self.records = plain + protos
         self.plain_count = len(plain)
         parts = [(j, -1) for j, r in enumerate(plain) if isinstance(r, Curves)]
@@ -82,11 +90,19 @@ class ShapeLayout:
         for record in self.records:
             if isinstance(record, Curves):
                 vertices, indices = curve_geometry.embree_buffers(record)
+                steps = None if record.motion is None else np.stack(
+                    [curve_geometry.embree_buffers(r)[0] for r in step_records(record)])
                 out.append(embree.Shape(embree.CURVE_GEOMETRY[record.shape], vertices, indices,
-                                        curve_geometry.tessellation_rate(record.subdivisions)))
+                                        curve_geometry.tessellation_rate(record.subdivisions), steps))
             else:
-                out.append(embree.Shape(embree.SPHERE_POINT, point_geometry.embree_vertices(record)))
+                out.append(embree.Shape(embree.SPHERE_POINT, point_geometry.embree_vertices(record),
+                                        steps=record.motion))
         return out
+
+    @property
+    def moves(self) -> bool:
+        """Some record has motion keys or some instance moves: rays need their times."""
+        return any(r.motion is not None for r in self.records) or any(m is not None for m in self.instance_motion)
 
     def locate(self, prim: np.ndarray):
         """(part, local number within its record) of curve and point numbers prim (all >= triangle_count)."""
@@ -315,25 +331,37 @@ class PrimitiveTable:
         return tuple(tangent), sign, tuple(normal)
 
     # ---- hits
-    def _instance_matrices(self, instance: np.ndarray) -> np.ndarray | None:
+    def _instance_matrices(self, instance: np.ndarray, times: np.ndarray | None = None) -> np.ndarray | None:
+        """(n, 3, 4) world_from_object of each hit's instance (identity for -1), None when none is placed; a
+        moving instance's at each hit's time (times (n,), or its frame matrix without them), interpolated as
+        Cycles interpolates object motion (kernels.motion.interpolate: Cycles' object_fetch_transform_motion)."""
         if self._matrices is None or (instance < 0).all():
             return None
         m = np.take(self._matrices, np.maximum(instance, 0), axis=0)
         m[instance < 0] = np.eye(3, 4, dtype=F32)
+        if times is not None:
+            moving = self.layout.instance_motion
+            for k in np.unique(instance[instance >= 0]):
+                if moving[k] is not None:
+                    sel = np.flatnonzero(instance == k)
+                    m[sel] = motion.interpolate(moving[k], np.take(times, sel).astype(np.float64)).astype(F32)
         return m
 
     def shape_hits(self, prim: np.ndarray, u: np.ndarray, v: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
-                   t: np.ndarray) -> "ShapeHits":
+                   t: np.ndarray, times: np.ndarray | None = None) -> "ShapeHits":
         """What hits on curves and points yield (prim all >= triangle_count; Embree's u, v; the rays' (n, 3)
-        origins and directions, (n,) distances): ShapeHits."""
+        origins and directions, (n,) distances; (n,) the rays' shutter times, for records with motion keys, or
+        None): ShapeHits."""
         n = len(prim)
         out = ShapeHits(n)
         for sel, record, local, instance in self._groups(prim):
-            matrices = self._instance_matrices(instance)
+            matrices = self._instance_matrices(instance, None if times is None else np.take(times, sel))
             o, d, tt = origins[sel], dirs[sel], t[sel]
+            hit_times = None if times is None or record.motion is None else np.take(times, sel)
             if isinstance(record, Curves):
                 curve = curve_geometry.segment_curves(record, local)
-                points = curve_geometry.placed(curve_geometry.control_points(record, local, curve), matrices)
+                points = curve_geometry.placed(
+                    at_times(record, hit_times, lambda r: curve_geometry.control_points(r, local, curve)), matrices)
                 shape = np.full(len(sel), curve_geometry.SHAPE_IDS[record.shape], np.int8)
                 uu = np.take(u, sel).astype(F32)
                 p, ng, ns, dpdu, vv = curve_geometry.hit_geometry(points, shape, uu, np.take(v, sel).astype(F32),
@@ -345,12 +373,15 @@ class PrimitiveTable:
                 out.v[sel] = vv
                 # Curves Info's Thickness reads the stored radius (the object's on instances, as Cycles).
                 out.radius[sel] = curve_geometry.radius_along(
-                    curve_geometry.control_points(record, local, curve), uu)
+                    at_times(record, hit_times, lambda r: curve_geometry.control_points(r, local, curve)), uu)
             else:
-                centre = point_geometry.centres(record, local, matrices)
+                centre = at_times(record, hit_times, lambda r: point_geometry.centres(r, local, matrices))
                 p, ng = point_geometry.hit_geometry(centre, o, d, tt)
                 ns = ng
                 out.centre[sel] = centre
+                # Point Info's Radius is the frame's, through the instance's transform at the hit's time (Cycles'
+                # point_radius reads no motion step, intern/cycles/kernel/geom/point.h); Thickness above is at the
+                # hit's time (curve_thickness reads the motion keys).
                 out.radius[sel] = point_geometry.radii(record, local, matrices)
             out.p[sel], out.ng[sel], out.ns[sel] = p, ng, ns
         return out
@@ -369,6 +400,35 @@ class ShapeHits:
         self.v, self.b1, self.radius = np.zeros(n, F32), np.zeros(n, F32), np.zeros(n, F32)
         self.curve, self.ribbon = np.zeros(n, bool), np.zeros(n, bool)
         self.kind = np.zeros(n, np.int8)
+
+
+def step_records(record) -> list:
+    """A record with motion keys as one record per time step (its keys or points those of the step)."""
+    if isinstance(record, Curves):
+        return [dataclasses.replace(record, keys=keys, motion=None) for keys in record.motion]
+    return [dataclasses.replace(record, points=points, motion=None) for points in record.motion]
+
+
+def at_times(record, times: np.ndarray | None, read):
+    """read(record) where the record is still (times None or no motion keys), else read at each hit's time: the
+    two neighbouring steps' values mixed linearly, as Embree interpolates time steps and as Cycles' motion_keys
+    and point motion read them (step = min(floor(t (S - 1)), S - 2), intern/cycles/scene/hair.cpp)."""
+    if times is None or record.motion is None:
+        return read(record)
+    count = len(record.motion)
+    position = np.asarray(times, np.float32) * F32(count - 1)
+    step = np.clip(position.astype(np.int64), 0, count - 2)
+    f = (position - step.astype(F32)).astype(F32)
+    steps = step_records(record)
+    out = None
+    for s in np.unique(step):
+        a, b = read(steps[s]), read(steps[s + 1])
+        if out is None:
+            out = np.empty(a.shape, F32)
+        sel = np.flatnonzero(step == s)
+        w = f[sel].reshape((-1,) + (1,) * (a.ndim - 1))
+        out[sel] = ((F32(1) - w) * a[sel] + w * b[sel]).astype(F32)
+    return out
 
 
 def _corners(record, local: np.ndarray, values: np.ndarray) -> np.ndarray:

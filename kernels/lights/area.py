@@ -6,13 +6,24 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
+from . import area_spread
 from .common import DISK, RECT, area_to_solid_angle, direction
 
 
 def sample(sampler, out, idx, light, px, py, pz, u1, u2):
     """Rectangles uniformly in the solid angle they subtend, disks uniformly in their area, as Cycles
     samples them (kernel/light/area.h): the MIS weights, and so what overlapping lamps add up to
-    (intersect), are Cycles'."""
+    (intersect), are Cycles'. Lamps with a Spread below pi sample the part of them that reaches each point
+    (area_spread)."""
+    spread = spread_rows(sampler, light)
+    if len(spread):
+        *sampled, delta = area_spread.sample(sampler, light[spread], px[spread], py[spread], pz[spread], u1[spread],
+                                             u2[spread], spread_attenuation)
+        out.set(idx[spread], *sampled, delta)
+        if len(spread) == len(light):
+            return
+        plain = np.setdiff1d(np.arange(len(light)), spread)
+        idx, light, px, py, pz, u1, u2 = (v[plain] for v in (idx, light, px, py, pz, u1, u2))
     sx, sy = sampler.size[light, 0], sampler.size[light, 1]
     disk = sampler.kind[light] == DISK
     dx_, dy_ = sampling.sample_uniform_disk(u1, u2)
@@ -62,11 +73,29 @@ def intersect(sampler, k, ox, oy, oz, dx, dy, dz):
     valid = inside & (denom > 0) & np.isfinite(t)
     t = np.where(valid, t, np.float32(-1.0))
     pdf = area_to_solid_angle(sampler.area[k], np.abs(t), np.abs(denom))
-    rect = np.flatnonzero(valid & (sampler.kind[k] == RECT))
+    spread = np.flatnonzero(valid & spread_mask(sampler, k))
+    rect = np.flatnonzero(valid & (sampler.kind[k] == RECT) & ~spread_mask(sampler, k))
     if len(rect):
         seen = rectangles(sampler, k[rect], ox[rect], oy[rect], oz[rect])
         pdf[rect] = seen.pdf(t[rect], denom[rect])
-    return t, pdf, np.ones(len(k), np.float32)
+    att = np.ones(len(k), np.float32)
+    if len(spread):
+        # A spread lamp's pdf is its sampled part's, as seen from the ray's origin (area_spread); its grid dims it.
+        pdf[spread], lit = area_spread.intersect_pdf(sampler, k[spread], ox[spread], oy[spread], oz[spread],
+                                                     t[spread], denom[spread])
+        att[spread] = np.where(lit, spread_attenuation(sampler, k[spread], dx[spread], dy[spread], dz[spread]), 0.0)
+    return t, pdf, att
+
+
+def spread_mask(sampler, k) -> np.ndarray:
+    """(n,) bool: which of the area lights k have a Spread below pi."""
+    if sampler.spread is None:
+        return np.zeros(len(k), bool)
+    return np.take(sampler.spread, k) < np.float32(np.pi)
+
+
+def spread_rows(sampler, k) -> np.ndarray:
+    return np.flatnonzero(spread_mask(sampler, k))
 
 
 def spread_attenuation(sampler, k, dx, dy, dz) -> np.ndarray:

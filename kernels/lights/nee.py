@@ -350,7 +350,8 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
         d = dirs[live[found]]
         hit = SurfaceHit(tables.triangles, hits.prim[found], hits.u[found], hits.v[found],
                          (d[:, 0], d[:, 1], d[:, 2]), tables.shading.needs_uv,
-                         ray=None if tables.shapes is None else (origins[found], hits.t[found]))
+                         ray=None if tables.shapes is None else
+                         (origins[found], hits.t[found], None if times is None else times.take(live[found]).times))
         passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
         hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
                           lobes=None if lobes is None else lobes[:, live[found]],

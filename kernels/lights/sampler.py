@@ -93,6 +93,8 @@ class LightSampler:
         self.camera = lights.camera
         # (L,) float32 each lamp's spread (area lights; pi for the others), or None when every one is pi.
         self.spread = lights.spread
+        # (L,) bool the sized point and spot lamps that are spheres (Soft Falloff off), or None when none is.
+        self.sphere = lights.sphere
         self.position = lights.position.astype(np.float32)
         self.axes = lights.frame.astype(np.float32)              # (L, 3, 3): columns x, y, z
         self.radiance_of = lights.radiance.astype(np.float32)

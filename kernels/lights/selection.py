@@ -97,6 +97,10 @@ def local_choice(sampler, choice: Choice, power, scene):
     spread[is_light] = np.where(area | spot, 0.0, np.pi)
     emission = np.full(len(local), HALF_PI)
     emission[np.flatnonzero(is_light)[spot]] = np.arccos(np.clip(sampler.spot[k[spot], 0].astype(np.float64), -1, 1))
+    if sampler.spread is not None:
+        # An area light of Spread s lights nothing beyond s / 2 off its normal (Cycles' theta_e, scene/light_tree.cpp).
+        emission[np.flatnonzero(is_light)[area]] = np.minimum(np.take(sampler.spread, k[area]).astype(np.float64) / 2,
+                                                              HALF_PI)
     t = np.take(sampler.tri_table, local[~is_light] - sampler.light_count, axis=0).astype(np.float64)
     p0 = t[:, TP0:TP0 + 3]
     corners = np.stack([p0, p0 + t[:, TE1:TE1 + 3], p0 + t[:, TE2:TE2 + 3]])

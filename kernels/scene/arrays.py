@@ -128,7 +128,16 @@ class SceneArrays:
     def has_motion(self) -> bool:
         """Anything moves during the shutter: paths then carry a time."""
         return self.shutter_table is not None and (self.camera.motion is not None or len(self.motion) > 0
-                                                   or self.camera.fov_motion is not None)
+                                                   or self.camera.fov_motion is not None or self.shapes_move)
+
+    @property
+    def shapes_move(self) -> bool:
+        """Some curves or points have motion keys (their records' motion) or are placed by moving instances."""
+        records = list(self.curves) + ([self.points] if self.points is not None else [])
+        placed = self.shape_instances
+        if placed is not None:
+            records += list(placed.prototypes)
+        return any(getattr(r, "motion", None) is not None for r in records) or (placed is not None and placed.moves)
 
     @property
     def triangle_count(self) -> int:

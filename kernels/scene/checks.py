@@ -27,11 +27,24 @@ def _shape_str(shape: tuple) -> str:
     return "(" + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"
 
 
-def unusable_rows(values: np.ndarray) -> np.ndarray | None:
-    """(n,) bool: the rows of (n, 4) x, y, z, radius Embree cannot take (a value not finite or beyond float32,
-    a negative radius), or None when there is none. |x| < 1e30 is False for NaN and infinities too; the whole
-    array is tested first, since a per-row test over four columns costs ten times as much."""
-    small = np.abs(values) < 1e30
-    if small.all() and (values[:, 3] >= 0).all():
-        return None
-    return ~(small.all(axis=1) & (values[:, 3] >= 0))
+# Embree's RTC_MAX_TIME_STEP_COUNT: the most motion steps a curve or point geometry may have.
+MAX_TIME_STEPS = 129
+
+
+def check_motion(motion, name: str, n: int) -> None:
+    """A curve or point record's motion: None, or (S, n, 4) float32 keys at S in [2, MAX_TIME_STEPS] times."""
+    if motion is None:
+        return
+    check_array(motion, name, (-1, n, 4), np.float32, finite=False)
+    require(2 <= len(motion) <= MAX_TIME_STEPS, name, f"needs 2 to {MAX_TIME_STEPS} steps, got {len(motion)}")
+
+
+def usable_keys(keys: np.ndarray) -> np.ndarray:
+    """(..., n) bool: which (..., n, 4) x, y, z, radius rows Embree can take (finite, within float32, radius >= 0).
+    |x| < 1e30 is False for NaN and infinities too; the whole array is tested first, since a test per row over
+    four columns costs ten times as much (0.14 s at 1M points) and rows are seldom unusable."""
+    small = np.abs(keys) < 1e30
+    radius = keys[..., 3] >= 0
+    if small.all() and radius.all():
+        return radius
+    return small.all(axis=-1) & radius

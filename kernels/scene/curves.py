@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import check_array, require, unusable_rows
+from .checks import check_array, check_motion, require, usable_keys
 
 # The shapes Cycles traces curves as (intern/cycles/bvh/embree.cpp, add_curves): a round tube swept along a
 # Catmull-Rom spline (3D Curves), a flat ribbon facing the ray along one (Rounded Ribbons), and round cones
@@ -30,6 +30,9 @@ class Curves:
         render UV; "std:intercept", "std:length", "std:curve_random" for Curves Info; "std:root", particle hair's
         roots, for its Generated coordinates).
     subdivisions : Cycles' Curves > Subdivisions (Embree's tessellation rate is 2^subdivisions + 1, at most 17).
+    motion : None, or (S, K, 4) float32 with S >= 2: the keys (radius included) at S times evenly spread over the
+        shutter (motion blur: Embree's time steps, interpolated linearly at each ray's time as Cycles'
+        motion_keys, intern/cycles/scene/hair.cpp). keys stays the frame's.
     """
     shape: str
     keys: np.ndarray
@@ -38,6 +41,7 @@ class Curves:
     object_ids: np.ndarray | None = None
     attributes: tuple = ()
     subdivisions: int = 2
+    motion: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -81,6 +85,7 @@ class Curves:
             require(isinstance(values, np.ndarray) and values.ndim == 2 and len(values) in (k, c),
                     f"{name}.attributes[{key!r}]", "must be (K, C) per key or (C, C) per curve")
             check_array(values, f"{name}.attributes[{key!r}]", values.shape, np.float32)
+        check_motion(self.motion, f"{name}.motion", k)
         require(isinstance(self.subdivisions, int) and 0 <= self.subdivisions <= 24, f"{name}.subdivisions",
                 "must be an int in [0, 24]")
 
@@ -89,8 +94,10 @@ class Curves:
         radius), and how many were dropped."""
         if not self.count:
             return self, 0
-        bad_key = unusable_rows(self.keys)
-        if bad_key is None:
+        bad_key = ~usable_keys(self.keys)
+        if self.motion is not None:
+            bad_key |= ~usable_keys(self.motion).all(axis=0)
+        if not bad_key.any():
             return self, 0
         curve_of_key = np.repeat(np.arange(self.count), np.diff(self.offsets))
         bad = np.zeros(self.count, bool)
@@ -105,8 +112,8 @@ class Curves:
         offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
         attributes = tuple((name, np.ascontiguousarray(values[keys] if self.per_key(values) else values[curves]))
                            for name, values in self.attributes)
-        return dataclasses.replace(self, keys=np.ascontiguousarray(self.keys[keys]), offsets=offsets,
+        motion = None if self.motion is None else np.ascontiguousarray(self.motion[:, keys])
+        return dataclasses.replace(self, keys=np.ascontiguousarray(self.keys[keys]), offsets=offsets, motion=motion,
                                    material_ids=self.material_ids[curves],
                                    object_ids=None if self.object_ids is None else self.object_ids[curves],
                                    attributes=attributes)
-

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import check_array, require
+from .checks import MAX_TIME_STEPS, check_array, require
 from .triangles import check_triangles, clean_triangles, same_triangles
 
 
@@ -139,11 +139,21 @@ class ShapeInstances:
     prototype : (K,) int32, each instance's prototype.
     world_from_object : (K, 4, 4) float64.
     object_ids : (K,) int32, each instance's row of SceneArrays.objects.
+    motion : ((S, 4, 4) float64, ...) world_from_object at S >= 2 motion steps evenly spread over the shutter, one
+        entry per moving instance (motion blur: Embree's instance time steps, interpolated as Cycles interpolates
+        object motion, kernels.motion); motion_ids : (K,) int32 or None, each instance's entry, -1 when still.
     """
     prototypes: tuple
     prototype: np.ndarray
     world_from_object: np.ndarray
     object_ids: np.ndarray
+    motion: tuple = ()
+    motion_ids: np.ndarray | None = None
+
+    @property
+    def moves(self) -> bool:
+        """Some instance has motion steps."""
+        return self.motion_ids is not None and bool((self.motion_ids >= 0).any())
 
     @property
     def count(self) -> int:
@@ -160,6 +170,15 @@ class ShapeInstances:
                     "shape_instances.prototype", f"must be in [0, {len(self.prototypes)})")
             require(self.object_ids.min() >= 0 and self.object_ids.max() < objects, "shape_instances.object_ids",
                     f"must be in [0, {objects})")
+        if self.motion_ids is not None:
+            check_array(self.motion_ids, "shape_instances.motion_ids", (k,), np.int32)
+            if k:
+                require(self.motion_ids.min() >= -1 and self.motion_ids.max() < len(self.motion),
+                        "shape_instances.motion_ids", f"must be in [-1, {len(self.motion)})")
+        for i, keys in enumerate(self.motion):
+            check_array(keys, f"shape_instances.motion[{i}]", (-1, 4, 4), np.float64)
+            require(2 <= len(keys) <= MAX_TIME_STEPS, f"shape_instances.motion[{i}]",
+                    f"needs 2 to {MAX_TIME_STEPS} steps, got {len(keys)}")
         for i, proto in enumerate(self.prototypes):
             require(proto.object_ids is None, f"shape_instances.prototypes[{i}].object_ids",
                     "must be None (an instance gives its row)")
@@ -175,9 +194,14 @@ class ShapeInstances:
             prototypes.append(kept)
             dropped += d * int(np.count_nonzero(self.prototype == i))
         usable = usable_placements(self.world_from_object)
+        for i, keys in enumerate(self.motion):   # a moving instance is usable at every step or not at all
+            if self.motion_ids is not None:
+                usable &= (self.motion_ids != i) | usable_placements(keys).all()
         counts = np.array([p.count for p in prototypes], np.int64)
         if len(counts):
             dropped += int(counts[self.prototype[~usable]].sum())
         return ShapeInstances(tuple(prototypes), np.ascontiguousarray(self.prototype[usable]),
                               np.ascontiguousarray(self.world_from_object[usable]),
-                              np.ascontiguousarray(self.object_ids[usable])), dropped
+                              np.ascontiguousarray(self.object_ids[usable]), self.motion,
+                              None if self.motion_ids is None else np.ascontiguousarray(self.motion_ids[usable])), \
+            dropped

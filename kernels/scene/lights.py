@@ -41,7 +41,10 @@ class Lights:
     camera : (L,) bool or None (no light is): the light object's Ray Visibility > Camera, on for the lights that
         camera rays see (kernels/emitters_seen.py; Cycles' SHADER_EXCLUDE_CAMERA, scene/light.cpp).
     spread : (L,) float32 or None (every area light spreads over pi): an area light's Spread, radians (pi for the
-        other kinds). Only what camera rays see of the light follows it (kernels/lights/area.py spread_attenuation).
+        other kinds): the grid dimming its radiance off its normal (kernels/lights/area.py spread_attenuation) and
+        the part of it each point samples (kernels/lights/area_spread.py).
+    sphere : (L,) bool or None (none is): a sized point or spot light with Blender's Soft Falloff off, which Cycles
+        makes a true sphere of its radius (kernels/lights/point_spot.py) instead of a disk facing each point.
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -59,6 +62,7 @@ class Lights:
     visibility: np.ndarray | None = None
     camera: np.ndarray | None = None
     spread: np.ndarray | None = None
+    sphere: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -97,3 +101,5 @@ class Lights:
             check_array(self.spread, "lights.spread", (n,), np.float32)
             require(np.all((self.spread >= 0) & (self.spread <= np.float32(np.pi))), "lights.spread",
                     "must be within [0, pi]")
+        if self.sphere is not None:
+            check_array(self.sphere, "lights.sphere", (n,), np.bool_, finite=False)

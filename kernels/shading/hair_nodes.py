@@ -28,6 +28,9 @@ from .node_context import Built
 from .program import HitInputs
 
 CURVE_RANDOM = "std:curve_random"   # the export's ATTR_STD_CURVE_RANDOM, made where a Principled Hair's Random is free
+# The export's ATTR_STD_VERTEX_NORMAL of curves, Blender's curve normals (zero on particle hair), made for Huang
+# hair whose Aspect Ratio is other than 1: an elliptical fibre's major axis.
+CURVE_NORMAL = "std:curve_normal"
 
 PARAMETRIZATIONS = ("COLOR", "MELANIN", "ABSORPTION")
 MODELS = ("CHIANG", "HUANG")
@@ -83,8 +86,12 @@ def hair_hits(ctx) -> HairHits:
     g.tangent = tuple(np.where(curve, dpdu[:, k], g.tangent[k]).astype(F32) for k in range(3))
     g.curve = curve
     g.ribbon_v = np.where(curve & np.take(shapes.ribbon, ctx.idx), np.take(shapes.v, ctx.idx), np.nan).astype(F32)
-    random = HitInputs(ctx.shading.data, ctx.hit, ctx.idx).attribute(CURVE_RANDOM)
+    inputs = HitInputs(ctx.shading.data, ctx.hit, ctx.idx)
+    random = inputs.attribute(CURVE_RANDOM)
     g.random = None if random is None else np.ascontiguousarray(random[:, 0], F32)
+    normal = inputs.attribute(CURVE_NORMAL)
+    if normal is not None:   # object space, read as Cycles reads it (curve_attribute: the keys' values mixed at u)
+        g.major_axis = tuple(np.where(curve, normal[:, k], ZERO).astype(F32) for k in range(3))
     return g
 
 
