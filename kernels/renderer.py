@@ -123,9 +123,12 @@ class Renderer:
 
     def start_workers(self) -> bool:
         """Start the worker processes now (they join the waves as they become ready); False when this
-        renderer does not use them (one thread, processes=False, no Python to start, a big scene)."""
-        return self.crew.start_workers(self.scene, len(self.triangles.material_ids),
-                                       f"{type(self).__module__}:{type(self).__qualname__}")
+        renderer does not use them (one thread, processes=False, no Python to start, a big scene: its triangles,
+        curve segments and points counted together, since a child builds its own BVH of them all)."""
+        primitives = len(self.triangles.material_ids)
+        if self.shapes is not None:
+            primitives += self.shapes.total - self.shapes.triangle_count
+        return self.crew.start_workers(self.scene, primitives, f"{type(self).__module__}:{type(self).__qualname__}")
 
     @property
     def stop_waves(self):

@@ -159,7 +159,8 @@ class WaveCrew:
         if self.workers is None:
             self.workers = WorkerSet(self.slots)
             if triangles > WORKER_MAX_TRIANGLES:
-                self.workers.skipped = f"{triangles} triangles are over {WORKER_MAX_TRIANGLES}"
+                self.workers.skipped = f"{triangles} primitives (triangles, curve segments, points) are over " \
+                    f"{WORKER_MAX_TRIANGLES}"
                 self.processes = False
                 return False
             if not self.workers.start(self.threads - 1, scene, WORKER_MAX_BYTES, runner):

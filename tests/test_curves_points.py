@@ -86,6 +86,18 @@ def test_rays_meet_points_as_the_spheres_they_are():
     assert not hit.backfacing.any()   # seen from outside only
 
 
+def test_curves_and_points_count_toward_the_worker_processes_bound(monkeypatch):
+    """A worker process builds its own BVH of every curve and point too: they count with the triangles toward
+    schedule.WORKER_MAX_TRIANGLES (on 1M points a worker brought nothing and held 130 MB more)."""
+    from ember.kernels import schedule
+    spheres = random_spheres(count=40)
+    scene = shape_scene(points=Points(spheres, np.zeros(len(spheres), np.int32)), curves=(straight_curve("ROUND"),))
+    monkeypatch.setattr(schedule, "WORKER_MAX_TRIANGLES", 40)   # 40 points and the curve's segments
+    with Renderer(scene, threads=2, processes=True) as renderer:
+        assert renderer.crew.workers.workers == []
+        assert renderer.crew.workers.skipped.startswith(f"{40 + scene.curves[0].segment_count} primitives")
+
+
 def test_instanced_points_hit_as_their_world_space_copies():
     spheres = random_spheres(12)
     angles = (0.0, 0.7, 2.1)

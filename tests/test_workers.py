@@ -206,7 +206,7 @@ def test_short_renders_and_big_scenes_start_no_workers(materials, monkeypatch):
         _, images = _render(renderer, RenderSettings(samples=2, seed=1, wave_size=1024))
     monkeypatch.setattr(schedule, "WORKER_MAX_TRIANGLES", 1000)
     with Renderer(materials, threads=2, processes=True) as renderer:
-        assert "triangles are over 1000" in renderer.crew.workers.skipped and renderer.crew.workers.workers == []
+        assert "primitives (triangles, curve segments, points) are over 1000" in renderer.crew.workers.skipped and renderer.crew.workers.workers == []
 
 
 def test_a_loading_worker_holds_a_local_slot_until_ready_failed_or_late():

@@ -18,6 +18,7 @@ Placing curves in the world is engine/export/shapes.py.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import chain
 
 import numpy as np
 
@@ -237,8 +238,8 @@ def read_particle_hair(ob, systems: list, render: bool, slot_count: int, names: 
             continue
         numbers = range(first, total)
         co = psys.co_hair
-        points = np.array([tuple(co(ob, particle_no=i, step=s)) for i in numbers for s in range(count)],
-                          np.float64).reshape(-1, count, 3)
+        points = _floats((co(ob, particle_no=i, step=s) for i in numbers for s in range(count)),
+                         3 * len(numbers) * count, np.float64).reshape(-1, count, 3)
         local = points @ object_from_world[:3, :3].T + object_from_world[:3, 3]
         step = np.zeros((len(local), count), np.float64)
         step[:, 1:] = np.linalg.norm(local[:, 1:] - local[:, :-1], axis=2)
@@ -256,20 +257,21 @@ def read_particle_hair(ob, systems: list, render: bool, slot_count: int, names: 
         offsets.extend(offsets[-1] + count * np.arange(1, len(local) + 1))
         slots.append(np.full(len(local), min(max(part.material - 1, 0), max(slot_count - 1, 0)), np.int32))
         particle = psys.particles[0] if parents else None
+        particles = psys.particles
         for name, index in wanted_uv.items():
-            values.setdefault(name, []).append(np.array(
-                [tuple(psys.uv_on_emitter(mod, particle=psys.particles[i] if i < parents else particle, particle_no=i,
-                                          uv_no=index)) for i in numbers], np.float32).reshape(-1, 2))
+            values.setdefault(name, []).append(_floats(
+                (psys.uv_on_emitter(mod, particle=particles[i] if i < parents else particle, particle_no=i,
+                                    uv_no=index) for i in numbers), 2 * len(numbers), np.float32).reshape(-1, 2))
         for name, index in wanted_colour.items():
-            rgb = np.array([tuple(psys.mcol_on_emitter(mod, particle=psys.particles[i] if i < parents else particle,
-                                                       particle_no=i, vcol_no=index)) for i in numbers],
-                           np.float32).reshape(-1, 3)
+            rgb = _floats((psys.mcol_on_emitter(mod, particle=particles[i] if i < parents else particle,
+                                                particle_no=i, vcol_no=index) for i in numbers),
+                          3 * len(numbers), np.float32).reshape(-1, 3)
             values.setdefault(name, []).append(np.concatenate([srgb_to_linear(rgb), np.ones((len(rgb), 1),
                                                                                           np.float32)], axis=1))
         if render_uv is not None and "uv" not in wanted_uv:
-            values.setdefault("uv", []).append(np.array(
-                [tuple(psys.uv_on_emitter(mod, particle=psys.particles[i] if i < parents else particle, particle_no=i,
-                                          uv_no=render_uv)) for i in numbers], np.float32).reshape(-1, 2))
+            values.setdefault("uv", []).append(_floats(
+                (psys.uv_on_emitter(mod, particle=particles[i] if i < parents else particle, particle_no=i,
+                                    uv_no=render_uv) for i in numbers), 2 * len(numbers), np.float32).reshape(-1, 2))
     if not keys:
         return LocalCurves(np.zeros((0, 4), np.float32), np.zeros(1, np.int32), False, np.zeros(0, np.int32), {})
     attributes = {name: np.concatenate(parts) for name, parts in values.items()
@@ -286,6 +288,13 @@ def read_particle_hair(ob, systems: list, render: bool, slot_count: int, names: 
     attributes["std:root"] = roots
     local = LocalCurves(keys, offsets, False, np.concatenate(slots), attributes)
     return with_standard(local, names)
+
+
+def _floats(vectors, count: int, dtype) -> np.ndarray:
+    """The components of a run of Blender vectors (co_hair's, uv_on_emitter's: `count` floats in all) end to
+    end, read by np.fromiter: Blender's path cache answers one key per call, and building a tuple and a list
+    of them besides cost as much again as the calls (1.0 s against 0.54 s for 100,000 keys)."""
+    return np.fromiter(chain.from_iterable(vectors), dtype, count)
 
 
 def _emitter_names(names: tuple, uv_names: list, colours: list) -> tuple[dict, dict]:

@@ -323,8 +323,12 @@ def _placed(values: np.ndarray, matrix) -> np.ndarray:
         return np.ascontiguousarray(values, np.float32)
     m = np.asarray(matrix, np.float64)
     out = np.empty(values.shape, np.float32)
+    # Row by row in float64, not a (n, 3) @ (3, 3) product: BLAS's threads make that 3-7x slower on two busy
+    # cores (0.3-1.1 s at 1M points against 0.1 s), for the same values.
+    x, y, z = (values[:, i].astype(np.float64) for i in range(3))
     with np.errstate(over="ignore", invalid="ignore"):
-        out[:, :3] = values[:, :3].astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+        for i in range(3):
+            out[:, i] = x * m[i, 0] + y * m[i, 1] + z * m[i, 2] + m[i, 3]
         out[:, 3] = values[:, 3] * np.float32(abs(np.linalg.det(m[:3, :3])) ** (1.0 / 3.0))
     return out
 

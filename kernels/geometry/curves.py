@@ -28,20 +28,21 @@ SHAPE_IDS = {"ROUND": 0, "RIBBON": 1, "LINEAR": 2}
 def embree_buffers(curves: Curves) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V, 4) float32, indices (S,) uint32): the keys as Embree reads them (Catmull-Rom: each curve's
     first and last key repeated, V = K + 2C) and each segment's first control vertex."""
-    seg = np.arange(curves.segment_count, dtype=np.int64)
-    curve = segment_curves(curves, seg)
-    first_key = seg + curve                  # a curve of n keys has n - 1 segments
-    if curves.shape == "LINEAR":
-        return np.ascontiguousarray(curves.keys, F32), first_key.astype(np.uint32)
     c = curves.count
     offsets = curves.offsets.astype(np.int64)
+    # Each segment's first key: every key of a curve but its last (a curve of n keys has n - 1 segments).
+    last_keys = np.zeros(len(curves.keys), bool)
+    last_keys[offsets[1:] - 1] = True
+    first_key = np.flatnonzero(~last_keys)
+    if curves.shape == "LINEAR":
+        return np.ascontiguousarray(curves.keys, F32), first_key.astype(np.uint32)
     padded = np.empty((len(curves.keys) + 2 * c, 4), F32)
-    key_row = np.arange(len(curves.keys), dtype=np.int64)
     key_curve = np.repeat(np.arange(c, dtype=np.int64), np.diff(offsets))
-    padded[key_row + 2 * key_curve + 1] = curves.keys
+    padded_row = np.arange(1, len(curves.keys) + 1, dtype=np.int64) + 2 * key_curve
+    padded[padded_row] = curves.keys
     padded[offsets[:-1] + 2 * np.arange(c)] = curves.keys[offsets[:-1]]
     padded[offsets[1:] + 2 * np.arange(c) + 1] = curves.keys[offsets[1:] - 1]
-    return padded, (first_key + 2 * curve).astype(np.uint32)
+    return padded, (padded_row[first_key] - 1).astype(np.uint32)
 
 
 def tessellation_rate(subdivisions: int) -> int:

@@ -298,10 +298,20 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     if keys is not None and not (keys >= 0).any():
         keys = None
     if not tables.shading.transparent.any():
-        blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
-        if skipped is not None or keys is not None:
+        if skipped is None and keys is not None:
+            # Rays leaving a curve or a point meet it or their neighbours mostly: their closest hits, traced below,
+            # answer at once, without an occlusion query first (on fur and in a dense cloud most are blocked).
+            rows = np.flatnonzero(keys >= 0)
+            others = np.flatnonzero(keys < 0)
+            blocked = np.zeros(n, bool)
+            if len(others):
+                blocked[others] = tables.accel.occluded(origins[others], dirs[others], t_max[others], split,
+                                                        None if times is None else times.take(others))
+        else:
+            blocked = tables.accel.occluded(origins, dirs, t_max, split, times)
+            rows = np.flatnonzero(blocked) if skipped is not None or keys is not None else None
+        if rows is not None:
             # What blocks them may be an object they pass, or the curve a ray leaves: the closest one that counts.
-            rows = np.flatnonzero(blocked if skipped is not None else blocked & (keys >= 0))
             hits = tables.accel.intersect(origins[rows], dirs[rows], t_max[rows], split,
                                           None if times is None else times.take(rows))
             visibility.skip_hidden(tables, origins[rows], dirs[rows], t_max[rows], hits, None, split,

