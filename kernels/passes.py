@@ -427,9 +427,21 @@ def motion_vectors(tables, hit) -> np.ndarray:
         m = m[rows]
         return np.einsum("nij,jn->in", m[:, :, :3], p) + m[:, :, 3].T
 
+    p_pre, p_post = moved(before), moved(after)
+    ids = tables.scene.vector_deform_ids
+    if ids is not None:   # deforming triangles: their corners at both frames at the hit's barycentrics
+        prim = np.asarray(hit.prim)
+        columns = np.where((prim >= 0) & (prim < len(ids)), np.take(ids, np.clip(prim, 0, len(ids) - 1)), -1)
+        at = np.flatnonzero(columns >= 0)
+        if len(at):
+            b1, b2 = (np.take(b, at).astype(np.float64) for b in hit.barycentrics)
+            weights = np.stack([1.0 - b1 - b2, b1, b2])                # (3 corners, m)
+            corners = tables.scene.vector_deform[:, columns[at]].astype(np.float64)   # (2, m, 3 corners, 3)
+            p_pre[:, at] = np.einsum("cm,mcj->jm", weights, corners[0])
+            p_post[:, at] = np.einsum("cm,mcj->jm", weights, corners[1])
     centre = _raster(camera, camera.world_from_camera, p)
-    pre = _raster(camera, cam_before, moved(before))
-    post = _raster(camera, cam_after, moved(after))
+    pre = _raster(camera, cam_before, p_pre)
+    post = _raster(camera, cam_after, p_post)
     return np.concatenate([pre - centre, centre - post]).astype(np.float32)
 
 

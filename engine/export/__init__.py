@@ -39,7 +39,7 @@ from .light_groups import group_table, object_groups
 from .light_linking import light_links, link_table
 from .lights import export_lights
 from .materials import DEFAULT_ALBEDO, MaterialTable
-from .deform import deform_fields
+from .deform import deform_fields, vector_deform_fields
 from .motion import scene_motion, vector_fields
 from .rgba_attributes import view_layer_attribute
 from .updates import ExportIndex, export_index
@@ -153,7 +153,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                          **(dict(bvh_vertices=geometry.bvh[0], bvh_indices=geometry.bvh[1]) if geometry.bvh else {}),
                          **scene_motion(motion, geometry),
                          **deform_fields(motion, geometry, warnings),
-                         **vector_fields(vector, geometry, camera.world_from_camera))
+                         **vector_fields(vector, geometry, camera.world_from_camera),
+                         **vector_deform_fields(vector, geometry, warnings))
     if motion is not None:
         warnings.extend(motion.warnings)
         if motion.camera is not None or motion.camera_fov is not None:

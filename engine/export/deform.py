@@ -74,6 +74,47 @@ def deform_fields(samples, geometry, warnings: list) -> dict:
                 deform_normals=np.ascontiguousarray(np.concatenate(normals, axis=1)))
 
 
+def vector_deform_fields(samples, geometry, warnings: list) -> dict:
+    """SceneArrays' vector_deform_ids and vector_deform for an exported geometry, from motion.VectorSamples: the
+    deforming triangles' world-space corners at the previous and next frame, each step's object-space corners moved
+    by the object's matrix at that frame (Cycles' motion pass: kernel/geom/primitive.h
+    primitive_motion_data_without_camera reads ATTR_STD_MOTION_VERTEX_POSITION at the hit's barycentrics and
+    applies the object's motion-pass transforms, scene/object.cpp: its matrices at frame -1 and +1 when the mesh
+    has vertex motion); {} when no mesh deforms."""
+    if samples is None or not samples.meshes or geometry.instance_keys is None or geometry.object_ids is None:
+        return {}
+    rows = {key: row for row, key in enumerate(geometry.instance_keys)}
+    deform_ids = np.full(len(geometry.object_ids), -1, np.int32)
+    parts, first = [], 0
+    for key, (before, after) in samples.meshes.items():
+        row = rows.get(key)
+        if row is None:
+            continue
+        ids = np.flatnonzero(geometry.object_ids == row)
+        corners = samples.meshes_frame[key]
+        matrix = np.asarray(geometry.instance_matrices[row], np.float64)
+        if not len(ids):
+            continue
+        if len(ids) * 3 != len(corners) or not _same(np.asarray(geometry.positions[ids], np.float64).reshape(-1, 3),
+                                                     _placed(corners, matrix)):
+            name = key[0] if isinstance(key, tuple) else str(key)
+            warnings.append(f"Object '{name}': the Vector pass does not follow its deformation with true "
+                            f"displacement or adaptive subdivision; its vectors follow its transform only")
+            continue
+        pre, post = samples.objects.get(key, (matrix, matrix))
+        steps = np.stack([_placed(before, np.asarray(pre, np.float64)),
+                          _placed(after, np.asarray(post, np.float64))]).reshape(2, -1, 3, 3)
+        if not np.isfinite(steps).all():
+            continue
+        deform_ids[ids] = np.arange(first, first + len(ids), dtype=np.int32)
+        first += len(ids)
+        parts.append(steps.astype(np.float32))
+    if not parts:
+        return {}
+    return dict(vector_deform_ids=deform_ids,
+                vector_deform=np.ascontiguousarray(np.concatenate(parts, axis=1)))
+
+
 def _placed(corners: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     """(n, 3) float64 object-space points in world space by a (4, 4) matrix."""
     return np.asarray(corners, np.float64) @ matrix[:3, :3].T + matrix[:3, 3]

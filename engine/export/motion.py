@@ -211,6 +211,10 @@ class VectorSamples:
     the world matrices one frame before and one frame after."""
     objects: dict = field(default_factory=dict)   # key -> ((4, 4) before, (4, 4) after)
     camera: tuple = ()                            # ((4, 4) before, (4, 4) after), rigid
+    # Per instance key of a mesh object that deforms: ((T*3, 3) local corners before, after) on the frame's
+    # triangles, and the frame's (T*3, 3) local corners (meshes_frame); export.deform.vector_deform_fields.
+    meshes: dict = field(default_factory=dict)
+    meshes_frame: dict = field(default_factory=dict)
 
 
 def sample_vector_motion(engine, depsgraph, camera_ob) -> VectorSamples | None:
@@ -223,18 +227,50 @@ def sample_vector_motion(engine, depsgraph, camera_ob) -> VectorSamples | None:
     frame, subframe = scene.frame_current, scene.frame_subframe
     out = VectorSamples()
     recorded: dict = {}
+    vertices: dict = {}   # instance key -> its vertex_steps at the previous and next frame
     cameras = []
     try:
         for offset in (-1, 1):
             engine.frame_set(frame + offset, subframe)
             for inst in depsgraph.object_instances:
                 if inst.object.type == "MESH":
-                    recorded.setdefault(instance_key(inst), []).append(np.array(inst.matrix_world, np.float64))
+                    key = instance_key(inst)
+                    recorded.setdefault(key, []).append(np.array(inst.matrix_world, np.float64))
+                    if _vector_deforms(inst) and mesh_velocity(inst.object) is None:
+                        vertices.setdefault(key, []).append(vertex_steps(inst.object))
             if camera_ob is not None:
                 cameras.append(_rigid(np.array(camera_ob.evaluated_get(depsgraph).matrix_world)))
     finally:
         engine.frame_set(frame, subframe)
     out.objects = {key: (m[0], m[1]) for key, m in recorded.items() if len(m) == 2}
+    # Deforming meshes, as Cycles' motion pass reads them: every mesh object Cycles calls deform-modified gets
+    # its vertices at frame -1 and +1 (intern/cycles/blender/object.cpp sync_object_motion_init gives every
+    # object 3 motion steps for the pass, whatever its Motion Blur and Deformation switches; mesh.cpp
+    # sync_mesh_motion), on the frame's triangles; a step whose vertex count differs takes the frame's vertices.
+    # A mesh with a `velocity` attribute moves along it instead, one frame's worth each way
+    # (attr_create_motion_from_velocity: half of scene.cpp motion_shutter_time, 2 frames for the pass).
+    fps = scene.render.fps / scene.render.fps_base
+    for inst in depsgraph.object_instances:
+        key = instance_key(inst)
+        if inst.object.type != "MESH" or not _vector_deforms(inst):
+            continue
+        velocity = mesh_velocity(inst.object)
+        if velocity is None and len(vertices.get(key, ())) != 2:
+            continue
+        with readable_mesh(inst.object) as mesh:
+            local = read_mesh(mesh)
+            count = len(mesh.vertices)
+        corners = local.positions
+        if velocity is not None:
+            moved = velocity[local.corners] * np.float32(1.0 / fps)
+            steps = [corners - moved, corners + moved]
+        else:
+            frame_mesh = (count, corners, np.zeros_like(corners))
+            steps = [_frame_corners(step, local, "FACE", frame_mesh)[1] for step in vertices[key]]
+            steps = [corners if c is None else c for c in steps]
+        if not all(np.array_equal(c, corners) for c in steps):
+            out.meshes[key] = (steps[0], steps[1])
+            out.meshes_frame[key] = corners
     if len(cameras) == 2:
         out.camera = (cameras[0], cameras[1])
     return out
@@ -264,6 +300,16 @@ def _fov(camera_ob) -> float | None:
         return None
     sensor = cam.sensor_height if cam.sensor_fit == "VERTICAL" else cam.sensor_width
     return perspective_fov(cam.lens, sensor)
+
+
+def _vector_deforms(inst) -> bool:
+    """A mesh object (not an instance) with modifiers, shape keys or a `velocity` attribute: the Vector pass reads
+    its deformation (Cycles' BKE_object_is_deform_modified; no Motion Blur or Deformation switch for the pass)."""
+    ob = inst.object
+    if inst.is_instance or ob.type != "MESH":
+        return False
+    return bool(ob.modifiers) or getattr(ob.original.data, "shape_keys", None) is not None or \
+        mesh_velocity(ob) is not None
 
 
 def may_deform(inst, velocity: bool = False) -> bool:

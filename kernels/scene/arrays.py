@@ -74,6 +74,9 @@ class SceneArrays:
     vector_motion : the Vector pass's neighbours in time, or None: ((K, 3, 4) per object row taking stored
         positions to the previous frame's, (K, 3, 4) to the next frame's, (4, 4) world_from_camera of the
         previous frame, (4, 4) of the next).
+    vector_deform_ids : (T,) int32 or None: each triangle's column of vector_deform, -1 for triangles that do not
+        deform between the frames; vector_deform : (2, D, 3, 3) float32, the deforming triangles' world-space
+        corners at the previous and the next frame (the Vector pass reads them at a hit's barycentrics).
     crypto_ids : Cryptomatte ids (kernels.cryptomatte.hash_name of the names), or None: {"object": (K,) and
         "asset": (K,) float32 per row of `objects`, "material": (M,) float32 per material}.
     instances : Instances or None: meshes stored once in object space and placed by transforms, besides
@@ -115,6 +118,8 @@ class SceneArrays:
     rolling_shutter: float | None = None
     crypto_ids: dict | None = None
     vector_motion: tuple | None = None
+    vector_deform_ids: np.ndarray | None = None
+    vector_deform: np.ndarray | None = None
     instances: Instances | None = None
     bvh_vertices: np.ndarray | None = None
     bvh_indices: np.ndarray | None = None
@@ -197,6 +202,17 @@ class SceneArrays:
             if t:
                 require(self.deform_ids.min() >= -1 and self.deform_ids.max() < steps.shape[1], "deform_ids",
                         f"must be in [-1, {steps.shape[1]})")
+        require((self.vector_deform_ids is None) == (self.vector_deform is None), "vector_deform",
+                "vector_deform_ids and vector_deform come together")
+        if self.vector_deform_ids is not None:
+            check_array(self.vector_deform_ids, "vector_deform_ids", (t,), np.int32)
+            corners = np.asarray(self.vector_deform)
+            require(corners.ndim == 4 and corners.shape[0] == 2 and corners.shape[2:] == (3, 3), "vector_deform",
+                    f"must be (2, D, 3, 3), got {corners.shape}")
+            check_array(self.vector_deform, "vector_deform", corners.shape, np.float32)
+            if t:
+                require(self.vector_deform_ids.min() >= -1 and self.vector_deform_ids.max() < corners.shape[1],
+                        "vector_deform_ids", f"must be in [-1, {corners.shape[1]})")
         if self.shutter_table is not None:
             check_array(self.shutter_table, "shutter_table", (len(self.shutter_table),), np.float32)
         self.validate_shading()
@@ -216,7 +232,8 @@ class SceneArrays:
         if clean is not None and same_triangles(self, clean) and same_arrays(self.bvh_indices, clean.bvh_indices):
             changes, dropped, repaired, nonfinite = {}, 0, 0, 0
         else:
-            changes, dropped, repaired, nonfinite = clean_triangles(self, ("object_ids", "motion_ids", "deform_ids", "bvh_indices"))
+            changes, dropped, repaired, nonfinite = clean_triangles(self, ("object_ids", "motion_ids", "deform_ids", "vector_deform_ids",
+                                                                        "bvh_indices"))
         if self.instances is not None:
             changes["instances"], more_dropped, more_repaired, more_nonfinite = clean_instances(
                 self.instances, clean.instances if clean is not None else None)
