@@ -18,7 +18,6 @@ from .camera import generate_rays
 from .environment import WorldFocus
 from .geometry.deform import deformed_corners
 from .glass_escapes import glass_escapes
-from .bsdf.lobes import TRANSPARENT
 from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit
 from .lights import nee
@@ -418,15 +417,11 @@ def _held_transparent(tables, wave, state, hit, shading, held) -> None:
     material's transparent closures stay (the path goes on through them, a transparent bounce), every other
     closure and the emission go, and the held share, one less the transparency, comes off the pixel's alpha.
     Where no transparent closure was made the share is whole, and with no closure left the path ends."""
-    cs = shading.closures
     rows = np.zeros(len(hit), bool)
     rows[held] = True
-    kept = cs.lobe == TRANSPARENT
-    passed = np.zeros((3, len(hit)), F32)
-    np.add.at(passed, (slice(None), cs.hit[kept]), cs.weight[:, kept])
+    shading.closures, passed = shading.closures.transparent_only(rows, hit.ns)
     share = (F32(1.0) - np.take(passed, held, axis=1)) * np.take(state.throughput, held, axis=1)
     wave.alpha[state.path[held]] -= share.mean(axis=0)
-    shading.closures = cs.without(np.take(rows, cs.hit) & ~kept, hit.ns)
     # Holdout closures of the material count no more: the object's holdout took their place.
     shading.emission = np.where(rows, F32(0.0), shading.emission)
     if shading.holdout is not None:

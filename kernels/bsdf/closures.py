@@ -26,7 +26,7 @@ from . import frames
 from .bump import BumpShadowing
 from .light_passes import weight_albedo
 from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, HAIR_CHIANG, HAIR_HUANG, LAMBERT, REFLECTION, REFRACTION,
-                    SELF_EVALUATED, SINGULAR_LOBES, TRANSMITTING_LOBES)
+                    SELF_EVALUATED, SINGULAR_LOBES, TRANSMITTING_LOBES, TRANSPARENT)
 from .mixture_eval import eval_at
 from .mixture_sample import BsdfSample, pick_closures, sample
 from .registry import LOBES
@@ -235,6 +235,15 @@ class ClosureSet:
                 chunk["albedo"] = (albedo[0][:, rows], albedo[1][:, rows])
             chunks.append(chunk)
         return ClosureSet(self.n_hits, chunks, ns, self.wo_world)
+
+    def transparent_only(self, rows: np.ndarray, ns) -> tuple["ClosureSet", np.ndarray]:
+        """(the set with only the Transparent closures left at the hits rows (N,) bool, every other hit as it is;
+        (3, N) float32 the weights of each hit's Transparent closures): what a holdout object keeps of its material
+        (Cycles' surface_shader_apply_holdout). ns: the hits' shading normals."""
+        kept = self.lobe == TRANSPARENT
+        passed = np.zeros((3, self.n_hits), F32)
+        np.add.at(passed, (slice(None), self.hit[kept]), self.weight[:, kept])
+        return self.without(np.take(rows, self.hit) & ~kept, ns), passed
 
     def evaluable(self) -> np.ndarray:
         """(N,) bool: hits with a closure that eval_at can find non-zero, one that is not singular (delta,

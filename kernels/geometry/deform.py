@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..vec import F32
 from .triangles import E1, E2, N0, NG, P0
-
-F32 = np.float32
 
 
 def deformed_corners(scene, prim: np.ndarray, times: np.ndarray | None):

@@ -17,8 +17,7 @@ import numpy as np
 
 from .. import sampling
 from .common import DISK, area_to_solid_angle, direction
-
-F32 = np.float32
+from ..vec import F32
 
 
 class Footprint:
