@@ -60,6 +60,15 @@ DEFAULTS = {
 }
 
 
+class BatchParam:
+    """One input of closures batched across materials (shader._BatchClosure): a Param (or a normal map) per
+    piece (lo, hi) of the batch's hits, with the piece's material (whose program its link names)."""
+    __slots__ = ("pieces",)
+
+    def __init__(self, pieces):
+        self.pieces = pieces                     # (spec, lo, hi, material)
+
+
 @dataclass
 class Built:
     """What a node gives besides closures: emission (3, n) and holdout (n,), or None."""
@@ -138,6 +147,30 @@ class Context:
     def normal_input(self, closure: Closure, name: str):
         """A Normal or Coat Normal input at the hits: a normal map's normal, or None when unlinked."""
         spec = closure.input(name)
+        if isinstance(spec, BatchParam):
+            return self._batch_normal(spec)
+        return self._normal(spec)
+
+    def _batch_normal(self, spec: "BatchParam"):
+        """A batch's normal input, material by material; the hits' own normal where a piece has none."""
+        made = [(lo, hi, self._piece(lo, hi, m)._normal(p)) for p, lo, hi, m in spec.pieces]
+        if all(n is None for _, _, n in made):
+            return None
+        out = tuple(np.array(c, F32) for c in self.hit_ns)
+        for lo, hi, n in made:
+            if n is not None:
+                for k in range(3):
+                    out[k][lo:hi] = n[k]
+        return out
+
+    def _piece(self, lo: int, hi: int, material: int) -> "Context":
+        """This context's hits lo:hi, of one material."""
+        view = copy.copy(self)
+        view.idx, view.material, view._specular, view._shared = self.idx[lo:hi], material, None, {}
+        view.wo, view.ns, view.hit_ns = (tuple(c[lo:hi] for c in x) for x in (self.wo, self.ns, self.hit_ns))
+        return view
+
+    def _normal(self, spec):
         if isinstance(spec, Param) and spec.link is not None:  # a program's normal (a Bump, a Normal Map)
             return normalize_xyz(tuple(self.shading.param(spec, self, 3)))
         if not isinstance(spec, NormalMap):

@@ -13,7 +13,7 @@ from ..textures import Texture, finite_uv, luminance
 from ..vec import F32, ZERO
 from . import nodes
 from .bsdf_nodes import portal_weight
-from .node_context import CUTOFF, DEFAULTS, Context
+from .node_context import CUTOFF, DEFAULTS, BatchParam, Context
 from .input_ops import reads_lobes
 from .ops import OPS
 from .program import HitInputs, ProgramRun
@@ -193,9 +193,9 @@ class Shading:
         """One closure kind over the hits of several materials at once: inputs stitched per material."""
         idx = np.concatenate([s[2] for s in segments])
         bounds = np.cumsum([0] + [len(s[2]) for s in segments])
-        batch = _BatchClosure([(c, lo, hi) for (_, c, _), lo, hi in zip(segments, bounds[:-1], bounds[1:])])
+        batch = _BatchClosure([(c, lo, hi, m) for (m, c, _), lo, hi in zip(segments, bounds[:-1], bounds[1:])])
         ctx = Context(self, hit, idx, wo, self.shaders[segments[0][0]].bump_map_correction)
-        weight = np.concatenate([self._mix_weight(c, _Sub(hit, ctx.idx[lo:hi])) for c, lo, hi in batch.pieces])
+        weight = np.concatenate([self._mix_weight(c, _Sub(hit, ctx.idx[lo:hi], m)) for c, lo, hi, m in batch.pieces])
         _collect(nodes.build(batch, ctx, weight, builder), idx, emission, holdout)
 
     def _plain_closures(self, hit, builder) -> None:
@@ -256,13 +256,14 @@ class Shading:
         input becomes its luminance; a float feeding a colour input is grey, as Blender converts them.
         A _BatchParam is evaluated piece by piece, over each material's hits."""
         n = len(ctx.idx)
-        if isinstance(p, _BatchParam):
-            # Constants in one repeat; textured pieces over their own hits.
-            values = np.stack([_as_channels(np.asarray(q.value, F32), channels) for q, _, _ in p.pieces], axis=1)
-            out = np.repeat(values, [hi - lo for _, lo, hi in p.pieces], axis=1)
-            for piece, lo, hi in p.pieces:
-                if piece.texture >= 0:
-                    out[:, lo:hi] = self.param(piece, _Sub(ctx.hit, ctx.idx[lo:hi]), channels).reshape(channels, -1)
+        if isinstance(p, BatchParam):
+            # Constants in one repeat; textured and linked pieces over their own hits (a link through its
+            # material's program).
+            values = np.stack([_as_channels(np.asarray(q.value, F32), channels) for q, _, _, _ in p.pieces], axis=1)
+            out = np.repeat(values, [hi - lo for _, lo, hi, _ in p.pieces], axis=1)
+            for piece, lo, hi, m in p.pieces:
+                if piece.varies:
+                    out[:, lo:hi] = self.param(piece, _Sub(ctx.hit, ctx.idx[lo:hi], m), channels).reshape(channels, -1)
             return out[0] if channels == 1 else out
         if p.link is not None:
             value = self.program_run(ctx.material, ctx.hit, ctx.idx).value(p.link)
@@ -323,22 +324,15 @@ def _lookup(tex, p: Param, u, v) -> np.ndarray:
 
 
 class _Sub:
-    """Some hits of a context, for evaluating inputs (of batches, which hold no program inputs)."""
+    """Some hits of a context, of one material (-1: none, for inputs that are no program's), for evaluating
+    inputs."""
     __slots__ = ("hit", "idx", "material")
 
-    def __init__(self, hit, idx):
-        self.hit, self.idx, self.material = hit, idx, -1
+    def __init__(self, hit, idx, material: int = -1):
+        self.hit, self.idx, self.material = hit, idx, material
 
     def take(self, a):
         return np.take(a, self.idx)
-
-
-class _BatchParam:
-    """One input of a batch: a Param per piece (lo, hi) of the batch's hits."""
-    __slots__ = ("pieces",)
-
-    def __init__(self, pieces):
-        self.pieces = pieces
 
 
 class _BatchClosure:
@@ -346,7 +340,7 @@ class _BatchClosure:
     whose inputs vary from piece to piece of the batch's hits."""
 
     def __init__(self, pieces):
-        self.pieces = pieces                     # (closure, lo, hi)
+        self.pieces = pieces                     # (closure, lo, hi, material)
         first = pieces[0][0]
         self.kind, self.options, self.factors = first.kind, first.options, ()
         self._inputs: dict = {}
@@ -357,25 +351,29 @@ class _BatchClosure:
         return self._inputs[name]
 
     def _stitch(self, name: str):
-        params = [c.input(name) for c, _, _ in self.pieces]
+        params = [c.input(name) for c, _, _, _ in self.pieces]
         if all(p is None for p in params):
             return None
-        if len(params) == 1:
-            return params[0]
-        default = Param.of(DEFAULTS[self.kind][name])
+        default = Param.of(DEFAULTS[self.kind][name]) if name in DEFAULTS[self.kind] else None
         params = [p if p is not None else default for p in params]
-        if all(p == params[0] for p in params[1:]):  # one value for all (often: the node's default)
+        # One value for all (often: the node's default), unless a piece is a program's: a link names an
+        # output of its own material's program.
+        own = [p for p in params if not isinstance(p, Param) or p.link is not None]
+        if not own and all(p == params[0] for p in params[1:]):
             return params[0]
-        return _BatchParam([(p, lo, hi) for p, (_, lo, hi) in zip(params, self.pieces)])
+        return BatchParam([(p, lo, hi, m) for p, (_, lo, hi, m) in zip(params, self.pieces)])
 
     def option(self, name: str, default=None):
         return self.pieces[0][0].option(name, default)
 
 
 def _batches(rest, bump_corrections):
-    """Group the closures left to build by (kind, options, bump map correction): those with plain inputs
-    batch across materials; normal maps and tangents stay with their material. A batch holds at most one
-    closure of each material (a material's second Diffuse goes into a second batch): the hits of a batch
+    """Group the closures left to build by (kind, options, bump map correction): closures of every kind but
+    hair batch across materials, their inputs (constants, textures, programs' outputs, normal maps) evaluated
+    per material and the closures built once over all their hits: a wave of many textured materials
+    pays one Principled stack, not one per material. A Tangent input keeps its closure with its material,
+    and so does a hair closure whose inputs vary (its builder reads the Param itself). A batch holds at most
+    one closure of each material (a material's second Diffuse goes into a second batch): the hits of a batch
     must be distinct, since the builder and the emission sum index by hit. Returns (batches: lists of
     (material, closure)), closures built alone per material)."""
     keyed: dict = {}
@@ -383,14 +381,18 @@ def _batches(rest, bump_corrections):
     for m, closures in enumerate(rest):
         seen: dict = {}
         for c in closures:
-            if all(isinstance(p, Param) and p.link is None for _, p in c.inputs) and \
-                    all(p.link is None for p, _ in c.factors):
+            varies = any(not isinstance(p, Param) or p.varies for _, p in c.inputs)
+            if c.input("Tangent") is None and not (varies and c.kind in _SOLO_KINDS):
                 key = (c.kind, c.options, bump_corrections[m])
                 seen[key] = seen.get(key, -1) + 1
                 keyed.setdefault(key + (seen[key],), []).append((m, c))
             else:
                 alone[m].append(c)
     return list(keyed.values()), [tuple(a) for a in alone]
+
+
+# Kinds whose builders read their inputs' Params themselves (hair_nodes: a linked Random against the curve's own).
+_SOLO_KINDS = ("HAIR", "PRINCIPLED_HAIR")
 
 
 def _material_hits(mat: np.ndarray, count: int):
