@@ -4,7 +4,6 @@ evaluated over its own material's hits. The image must be the one the materials 
 Cycles'."""
 import bpy
 import numpy as np
-import pytest
 
 from bpy_helpers import add_camera, add_lamp, compare_to_cycles, diffuse_material, mesh_object, new_scene, \
     render_to_array, set_world
