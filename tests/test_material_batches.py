@@ -82,19 +82,33 @@ def _materials():
         bsdf.inputs["Coat Roughness"].default_value = 0.1
         _bump(tree, bsdf.inputs["Coat Normal"])
 
+    def masked(scale):
+        def build(tree, bsdf):
+            """An alpha mask from a program (as glTF's MASK mode imports): shadow rays pass the holes."""
+            bsdf.inputs["Base Color"].default_value = (0.3, 0.8, 0.3, 1.0)
+            checker = tree.nodes.new("ShaderNodeTexChecker")
+            checker.inputs["Scale"].default_value = scale
+            cut = tree.nodes.new("ShaderNodeMath")
+            cut.operation = "GREATER_THAN"
+            cut.inputs[1].default_value = 0.5
+            tree.links.new(checker.outputs["Fac"], cut.inputs[0])
+            tree.links.new(cut.outputs[0], bsdf.inputs["Alpha"])
+        return build
+
     return [_material(name, build) for name, build in (("Chequered", chequered), ("Rough Noise", rough_noise),
-                                                       ("Normal Mapped", normal_mapped), ("Bumped Coat", bumped_coat))]
+                                                       ("Normal Mapped", normal_mapped), ("Bumped Coat", bumped_coat),
+                                                       ("Mask A", masked(4.0)), ("Mask B", masked(7.0)))]
 
 
 def _scene():
     scene = new_scene(48, 24)
     for i, mat in enumerate(_materials()):
-        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.45, location=(i - 1.5, 0, 0.5), segments=24, ring_count=12)
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.45, location=(i - 2.5, 0, 0.5), segments=24, ring_count=12)
         bpy.ops.object.shade_smooth()
         bpy.context.active_object.data.materials.append(mat)
     mesh_object("Floor", [(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)], [(0, 1, 2, 3)],
                 diffuse_material("Floor", (0.4, 0.4, 0.4)))
-    add_camera(scene, (0, -5.0, 1.2), (0, 0, 0.5), lens=45)
+    add_camera(scene, (0, -6.5, 1.4), (0, 0, 0.5), lens=45)
     set_world(scene, color=(0.5, 0.55, 0.6))
     add_lamp(scene, "Sun", "SUN", (0, 0, 5), rotation=(0.6, 0.2, 0.4), energy=3.0, angle=0.1)
     return scene
@@ -115,25 +129,37 @@ def _one_by_one(rest, bump_corrections):
     return kept, alone
 
 
+def _each_alone(closures):
+    return [[(m, c)] for m, cs in enumerate(closures) for c in cs]
+
+
 def test_batched_materials_render_as_built_one_by_one(monkeypatch):
     """The same estimator with the same numbers: only float rounding may differ (one closure per material,
     so every hit's closures come in the same order)."""
     scene = _scene()
-    built = []
-    original_build = shader.nodes.build
+    built, passed = [], []
+    original_build, original_transparency = shader.nodes.build, shader.nodes.transparency
 
     def counting_build(closure, ctx, weight, builder):
         built.append(len(getattr(closure, "pieces", ())))
         return original_build(closure, ctx, weight, builder)
 
+    def counting_transparency(closure, ctx, weight):
+        passed.append(len(getattr(closure, "pieces", ())))
+        return original_transparency(closure, ctx, weight)
+
     monkeypatch.setattr(shader.nodes, "build", counting_build)
+    monkeypatch.setattr(shader.nodes, "transparency", counting_transparency)
     batched = render_to_array(scene, "EMBER", 8, seed=3, max_bounces=3)
-    assert max(built) == 4, "the four materials' Principled closures were not built as one batch"
+    assert max(built) == 6, "the six materials' Principled closures were not built as one batch"
+    assert max(passed) == 2, "the two masks' transparency was not summed as one batch"
     monkeypatch.setattr(shader, "SHADOWED_BATCHES", shader._batches, raising=False)
     monkeypatch.setattr(shader, "_batches", _one_by_one)
+    monkeypatch.setattr(shader, "_transparent_batches", _each_alone)
     built.clear()
+    passed.clear()
     alone = render_to_array(scene, "EMBER", 8, seed=3, max_bounces=3)
-    assert max(built) <= 1
+    assert max(built) <= 1 and max(passed) <= 1
     assert np.isfinite(batched).all() and batched[..., :3].mean() > 0.05
     np.testing.assert_allclose(batched, alone, rtol=1e-4, atol=1e-5)
 

@@ -104,6 +104,14 @@ class Shading:
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)
         self.transparent = np.array([any(nodes.may_be_transparent(c) for c in s.closures) for s in self.shaders],
                                     bool)
+        # Transparency sums (transparency): the transparent closures of materials without a portal, batched
+        # as _batches does (kind, then the material's first, second, ... closure of that kind); materials
+        # with a portal one by one.
+        has_portal = [any(c.kind == "PORTAL" for c in s.closures) for s in self.shaders]
+        self._portal_materials = [m for m, s in enumerate(self.shaders) if has_portal[m] and self.transparent[m]]
+        self._transparent_batches = _transparent_batches(
+            [() if has_portal[m] else tuple(c for c in s.closures if nodes.may_be_transparent(c))
+             for m, s in enumerate(self.shaders)])
         self.transmissive = np.array([any(nodes.may_transmit(c) for c in s.closures) for s in self.shaders], bool)
         self.has_holdout = any(c.kind == "HOLDOUT" for s in self.shaders for c in s.closures)
         self.has_portal = any(c.kind == "PORTAL" for s in self.shaders for c in s.closures)
@@ -218,12 +226,31 @@ class Shading:
         """(3, N) float32: the share of light that passes straight through each hit (transparent
         shadows): the sum of its Transparent closures, Principled alpha included. A Ray Portal stops shadow
         rays, except at a hit that also has a transparent closure: there Cycles' shadow rays pass the sum
-        of both (the portal's weight joins the transparency it sums, shade_shadow.h)."""
+        of both (the portal's weight joins the transparency it sums, shade_shadow.h).
+
+        Materials without a portal are summed batch by batch across materials (_transparent_batches), as
+        their closures are built: a shadow ray crossing many masked materials pays one pass per kind."""
         n = len(hit)
         wo = tuple(-c for c in hit.d)
         out = np.zeros((3, n), F32)
-        for m, idx in _by_material(hit.mat):
-            if not self.transparent[m]:
+        hits_of = _material_hits(hit.mat, len(self.shaders))
+        for members in self._transparent_batches:
+            segments = [(m, c, hits_of(m)) for m, c in members]
+            segments = [s for s in segments if len(s[2])]
+            if not segments:
+                continue
+            idx = np.concatenate([s[2] for s in segments])
+            bounds = np.cumsum([0] + [len(s[2]) for s in segments])
+            pieces = [(c, lo, hi, m) for (m, c, _), lo, hi in zip(segments, bounds[:-1], bounds[1:])]
+            single = len(pieces) == 1
+            closure = pieces[0][0] if single else _BatchClosure(pieces)
+            ctx = Context(self, hit, idx, wo, self.shaders[segments[0][0]].bump_map_correction,
+                          material=segments[0][0] if single else -1)
+            weight = np.concatenate([self._mix_weight(c, _Sub(hit, ctx.idx[lo:hi], m)) for c, lo, hi, m in pieces])
+            out[:, idx] += nodes.transparency(closure, ctx, weight)
+        for m in self._portal_materials:
+            idx = hits_of(m)
+            if not len(idx):
                 continue
             ctx = Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
             passed = np.zeros((3, len(idx)), F32)
@@ -389,6 +416,18 @@ def _batches(rest, bump_corrections):
             else:
                 alone[m].append(c)
     return list(keyed.values()), [tuple(a) for a in alone]
+
+
+def _transparent_batches(closures) -> list:
+    """Lists of (material, closure): the transparent closures of all materials grouped by kind, a material's
+    k-th closure of a kind in the k-th list of that kind (a batch's hits must be distinct)."""
+    keyed: dict = {}
+    for m, cs in enumerate(closures):
+        seen: dict = {}
+        for c in cs:
+            seen[c.kind] = seen.get(c.kind, -1) + 1
+            keyed.setdefault((c.kind, seen[c.kind]), []).append((m, c))
+    return list(keyed.values())
 
 
 # Kinds whose builders read their inputs' Params themselves (hair_nodes: a linked Random against the curve's own).
