@@ -1,7 +1,7 @@
 """Closures batched across materials (kernels/shading/shader.py _batches): materials whose inputs come from
 node programs, textures and normal maps are built as one closure stack over all their hits, each input
-evaluated over its own material's hits. The image must be the one the materials built one by one give, and
-Cycles'."""
+evaluated over its own material's hits; so are the transparency of shadow rays' hits and the emission the
+light sampler reads. The image must be the one the materials built one by one give, and Cycles'."""
 import bpy
 import numpy as np
 
@@ -52,6 +52,16 @@ def _normal_map(tree, socket):
     tree.links.new(normal_map.outputs["Normal"], socket)
 
 
+def _glow(tree, bsdf, scale):
+    """Textured emission: the light sampler evaluates it at the points it samples on the sphere."""
+    checker = tree.nodes.new("ShaderNodeTexChecker")
+    checker.inputs["Scale"].default_value = scale
+    checker.inputs["Color1"].default_value = (1.0, 0.6, 0.2, 1.0)
+    checker.inputs["Color2"].default_value = (0.0, 0.0, 0.0, 1.0)
+    tree.links.new(checker.outputs["Color"], bsdf.inputs["Emission Color"])
+    bsdf.inputs["Emission Strength"].default_value = 2.0
+
+
 def _bump(tree, socket):
     noise = tree.nodes.new("ShaderNodeTexNoise")
     noise.inputs["Scale"].default_value = 10.0
@@ -65,11 +75,13 @@ def _materials():
     def chequered(tree, bsdf):
         _checker_colour(tree, bsdf, 5.0)
         bsdf.inputs["Roughness"].default_value = 0.4
+        _glow(tree, bsdf, 6.0)
 
     def rough_noise(tree, bsdf):
         _checker_colour(tree, bsdf, 9.0)
         _noise_roughness(tree, bsdf)
         bsdf.inputs["Metallic"].default_value = 0.6
+        _glow(tree, bsdf, 11.0)
 
     def normal_mapped(tree, bsdf):
         bsdf.inputs["Base Color"].default_value = (0.7, 0.7, 0.2, 1.0)
@@ -137,11 +149,11 @@ def test_batched_materials_render_as_built_one_by_one(monkeypatch):
     """The same estimator with the same numbers: only float rounding may differ (one closure per material,
     so every hit's closures come in the same order)."""
     scene = _scene()
-    built, passed = [], []
+    built, passed, emitted = [], [], []
     original_build, original_transparency = shader.nodes.build, shader.nodes.transparency
 
     def counting_build(closure, ctx, weight, builder):
-        built.append(len(getattr(closure, "pieces", ())))
+        (built if builder is not None else emitted).append(len(getattr(closure, "pieces", ())))
         return original_build(closure, ctx, weight, builder)
 
     def counting_transparency(closure, ctx, weight):
@@ -153,13 +165,15 @@ def test_batched_materials_render_as_built_one_by_one(monkeypatch):
     batched = render_to_array(scene, "EMBER", 8, seed=3, max_bounces=3)
     assert max(built) == 6, "the six materials' Principled closures were not built as one batch"
     assert max(passed) == 2, "the two masks' transparency was not summed as one batch"
+    assert max(emitted) == 2, "the two glowing materials' emission was not evaluated as one batch"
     monkeypatch.setattr(shader, "SHADOWED_BATCHES", shader._batches, raising=False)
     monkeypatch.setattr(shader, "_batches", _one_by_one)
     monkeypatch.setattr(shader, "_transparent_batches", _each_alone)
     built.clear()
     passed.clear()
+    emitted.clear()
     alone = render_to_array(scene, "EMBER", 8, seed=3, max_bounces=3)
-    assert max(built) <= 1 and max(passed) <= 1
+    assert max(built) <= 1 and max(passed) <= 1 and max(emitted) <= 1
     assert np.isfinite(batched).all() and batched[..., :3].mean() > 0.05
     np.testing.assert_allclose(batched, alone, rtol=1e-4, atol=1e-5)
 

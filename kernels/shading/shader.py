@@ -135,6 +135,10 @@ class Shading:
         # The rest is built by kind: closures of one kind, options and plain inputs from all materials
         # become one batch over all their hits (one Principled stack per wave, not one per material).
         self._batches, self._alone = _batches(self._rest, [s.bump_map_correction for s in self.shaders])
+        self._alone_lists = [(m, cs) for m, cs in enumerate(self._alone) if cs]
+        self._emitting = _batches([tuple(c for c in s.closures if nodes.may_emit(c)) if self.emissive[m] else ()
+                                   for m, s in enumerate(self.shaders)], [s.bump_map_correction for s in self.shaders])
+        self._emitting = (self._emitting[0], [(m, cs) for m, cs in enumerate(self._emitting[1]) if cs])
         # Per texture: mean R, G, B and alpha over the image (alpha 1 for images without one), made when an
         # emission estimate first asks for it.
         self._texture_means: dict[int, np.ndarray] = {}
@@ -152,15 +156,13 @@ class Shading:
         if closures and self._is_plain.any():
             self._plain_closures(hit, builder)
         hits_of = _material_hits(hit.mat, len(self.shaders))
-        if closures:
-            for members in self._batches:
-                segments = [(m, c, hits_of(m)) for m, c in members]
-                segments = [s for s in segments if len(s[2])]
-                if segments:
-                    self._build_batch(segments, hit, wo, builder, emission, holdout)
-            per_material = [(m, cs) for m, cs in enumerate(self._alone) if cs]
-        else:  # only the emission, for the light sampler
-            per_material = [(m, self.shaders[m].closures) for m in np.flatnonzero(self.emissive)]
+        # Only the emission (for the light sampler): the emitting closures alone, batched as the closures are.
+        batches, per_material = (self._batches, self._alone_lists) if closures else self._emitting
+        for members in batches:
+            segments = [(m, c, hits_of(m)) for m, c in members]
+            segments = [s for s in segments if len(s[2])]
+            if segments:
+                self._build_batch(segments, hit, wo, builder, emission, holdout)
         for m, closure_list in per_material:
             idx = hits_of(m)
             if not len(idx):
