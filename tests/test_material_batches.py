@@ -6,29 +6,28 @@ import bpy
 import numpy as np
 
 from bpy_helpers import add_camera, add_lamp, compare_to_cycles, diffuse_material, mesh_object, new_scene, \
-    render_to_array, set_world
+    node_material, render_to_array, set_world
 from ember.kernels.shading import shader
 
 P = "ShaderNodeBsdfPrincipled"
 
 
 def _material(name, build):
-    mat = bpy.data.materials.new(name)
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    bsdf = tree.nodes.new(P)
-    tree.links.new(bsdf.outputs[0], out.inputs["Surface"])
-    build(tree, bsdf)
+    mat = node_material(name, P)
+    build(mat.node_tree, next(n for n in mat.node_tree.nodes if n.bl_idname == P))
     return mat
 
 
-def _checker_colour(tree, bsdf, scale):
+def _checker(tree, socket, scale, first, second):
     checker = tree.nodes.new("ShaderNodeTexChecker")
     checker.inputs["Scale"].default_value = scale
-    checker.inputs["Color1"].default_value = (0.8, 0.3, 0.1, 1.0)
-    checker.inputs["Color2"].default_value = (0.1, 0.4, 0.7, 1.0)
-    tree.links.new(checker.outputs["Color"], bsdf.inputs["Base Color"])
+    checker.inputs["Color1"].default_value = (*first, 1.0)
+    checker.inputs["Color2"].default_value = (*second, 1.0)
+    tree.links.new(checker.outputs["Color"], socket)
+
+
+def _checker_colour(tree, bsdf, scale):
+    _checker(tree, bsdf.inputs["Base Color"], scale, (0.8, 0.3, 0.1), (0.1, 0.4, 0.7))
 
 
 def _noise_roughness(tree, bsdf):
@@ -54,11 +53,7 @@ def _normal_map(tree, socket):
 
 def _glow(tree, bsdf, scale):
     """Textured emission: the light sampler evaluates it at the points it samples on the sphere."""
-    checker = tree.nodes.new("ShaderNodeTexChecker")
-    checker.inputs["Scale"].default_value = scale
-    checker.inputs["Color1"].default_value = (1.0, 0.6, 0.2, 1.0)
-    checker.inputs["Color2"].default_value = (0.0, 0.0, 0.0, 1.0)
-    tree.links.new(checker.outputs["Color"], bsdf.inputs["Emission Color"])
+    _checker(tree, bsdf.inputs["Emission Color"], scale, (1.0, 0.6, 0.2), (0.0, 0.0, 0.0))
     bsdf.inputs["Emission Strength"].default_value = 2.0
 
 
