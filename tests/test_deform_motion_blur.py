@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from bpy_helpers import compare_to_cycles, diffuse_material, quad_object, render_to_array, set_world
+from motion_helpers import node_modifier, slide_along_x, store_velocity, time_driven, x_from_height
 from test_motion_blur import _linear
 from test_shape_motion_blur import blurred_scene, export_blurred
 
@@ -42,10 +43,7 @@ def stretching_cube(scene, moves=False, mirrored=False):
     key.keyframe_insert("value", frame=2)
     _linear(cube.data.shape_keys)
     if moves:
-        cube.keyframe_insert("location", frame=0)
-        cube.location.x += 1.6
-        cube.keyframe_insert("location", frame=2)
-        _linear(cube)
+        slide_along_x(cube, 1.6)
     scene.frame_set(1)
     return cube
 
@@ -166,14 +164,11 @@ def test_deformation_blurs_and_still_meshes_are_unchanged():
 def test_a_mesh_changing_its_vertex_count_is_warned_by_name():
     """A grid whose vertex count follows the frame (geometry nodes) at every motion step: no deformation blur, as
     Cycles drops the motion of a mesh whose topology differs; a warning names the object."""
-    from test_shape_motion_blur import time_driven
     scene = blurred_scene(16, 16)
     lit(scene)
     bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0, 0, 1))
     ob = bpy.context.object
-    tree = bpy.data.node_groups.new("Growing", "GeometryNodeTree")
-    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    output = tree.nodes.new("NodeGroupOutput")
+    tree, _, output = node_modifier(ob, "grow", "Growing", geometry_in=False)
     grid = tree.nodes.new("GeometryNodeMeshGrid")
     add = tree.nodes.new("ShaderNodeMath")
     add.operation = "ADD"
@@ -181,7 +176,6 @@ def test_a_mesh_changing_its_vertex_count_is_warned_by_name():
     tree.links.new(time_driven(tree, 4.0), add.inputs[0])
     tree.links.new(add.outputs[0], grid.inputs["Vertices X"])
     tree.links.new(grid.outputs[0], output.inputs[0])
-    ob.modifiers.new("grow", "NODES").node_group = tree
     scene.frame_set(1)
     exported = export_blurred()
     assert any(f"'{ob.name}'" in w and "vertex count" in w for w in exported.warnings), exported.warnings
@@ -191,27 +185,9 @@ def test_a_mesh_changing_its_vertex_count_is_warned_by_name():
 def streaking_mesh(ob, speed=20.0):
     """Geometry nodes storing a `velocity` attribute on the mesh's vertices (units per second): x speed times the
     vertex's height above -0.7 (object space); the mesh itself stays still."""
-    tree = bpy.data.node_groups.new("Streak", "GeometryNodeTree")
-    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    into, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
-    position = tree.nodes.new("GeometryNodeInputPosition")
-    split = tree.nodes.new("ShaderNodeSeparateXYZ")
-    tree.links.new(position.outputs[0], split.inputs[0])
-    scale = tree.nodes.new("ShaderNodeMath")
-    scale.operation = "MULTIPLY_ADD"
-    scale.inputs[1].default_value = speed
-    scale.inputs[2].default_value = 0.7 * speed
-    tree.links.new(split.outputs["Z"], scale.inputs[0])
-    velocity = tree.nodes.new("ShaderNodeCombineXYZ")
-    tree.links.new(scale.outputs[0], velocity.inputs["X"])
-    store = tree.nodes.new("GeometryNodeStoreNamedAttribute")
-    store.data_type, store.domain = "FLOAT_VECTOR", "POINT"
-    store.inputs["Name"].default_value = "velocity"
-    tree.links.new(into.outputs[0], store.inputs["Geometry"])
-    tree.links.new(velocity.outputs[0], store.inputs["Value"])
-    tree.links.new(store.outputs[0], out.inputs[0])
-    ob.modifiers.new("streak", "NODES").node_group = tree
+    tree, into, out = node_modifier(ob, "streak", "Streak")
+    velocity = x_from_height(tree, "MULTIPLY_ADD", speed, 0.7 * speed)
+    tree.links.new(store_velocity(tree, into.outputs[0], velocity), out.inputs[0])
     return ob
 
 

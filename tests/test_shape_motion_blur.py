@@ -6,6 +6,7 @@ import bpy
 import numpy as np
 
 from bpy_helpers import compare_to_cycles, diffuse_material, new_scene, render_to_array, set_world
+from motion_helpers import node_modifier, offset_positions, store_velocity, time_driven, with_material, x_from_height
 from test_curves_points import curves_object, furry_sphere, mesh_to_points, sun_and_sky
 from test_motion_blur import _linear
 
@@ -83,23 +84,10 @@ def test_moving_hair_ball_blurs_and_a_still_one_is_unchanged():
     assert np.abs(blurred - sharp).max() > 0.2
 
 
-def time_driven(tree, frame_scale: float):
-    """A Scene Time node's frame times frame_scale, as a float socket of tree."""
-    time = tree.nodes.new("GeometryNodeInputSceneTime")
-    scale = tree.nodes.new("ShaderNodeMath")
-    scale.operation = "MULTIPLY"
-    scale.inputs[1].default_value = frame_scale
-    tree.links.new(time.outputs["Frame"], scale.inputs[0])
-    return scale.outputs[0]
-
-
 def swelling_points(ob):
     """Geometry nodes turning the object's mesh into points that spread out from its centre and grow as the
     frames go by (positions and radii that change per frame: deformation, not transform, motion)."""
-    tree = bpy.data.node_groups.new("Swell", "GeometryNodeTree")
-    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    into, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    tree, into, out = node_modifier(ob, "swell", "Swell")
     points = tree.nodes.new("GeometryNodeMeshToPoints")
     radius = tree.nodes.new("ShaderNodeMath")
     radius.inputs[1].default_value = 0.04
@@ -111,14 +99,8 @@ def swelling_points(ob):
     spread.operation = "SCALE"
     tree.links.new(position.outputs[0], spread.inputs[0])
     tree.links.new(time_driven(tree, 0.5), spread.inputs["Scale"])
-    setter = tree.nodes.new("GeometryNodeSetPosition")
-    tree.links.new(points.outputs[0], setter.inputs["Geometry"])
-    tree.links.new(spread.outputs[0], setter.inputs["Offset"])
-    material = tree.nodes.new("GeometryNodeSetMaterial")
-    material.inputs["Material"].default_value = diffuse_material("Dots", (0.8, 0.35, 0.1))
-    tree.links.new(setter.outputs[0], material.inputs["Geometry"])
-    tree.links.new(material.outputs[0], out.inputs[0])
-    ob.modifiers.new("swell", "NODES").node_group = tree
+    moved = offset_positions(tree, points.outputs[0], spread.outputs[0])
+    tree.links.new(with_material(tree, moved, diffuse_material("Dots", (0.8, 0.35, 0.1))), out.inputs[0])
     return ob
 
 
@@ -148,24 +130,9 @@ def waving_curves(scene):
     strands = [np.array([[x, 0, 0.3], [x, 0, 0.9], [x + 0.1, 0, 1.5], [x + 0.2, 0, 2.0]]) for x in
                np.linspace(-1.0, 1.0, 7)]
     ob = curves_object("Waving", strands, radius=0.08, material=diffuse_material("Strands", (0.05, 0.02, 0.02)))
-    tree = bpy.data.node_groups.new("Wave", "GeometryNodeTree")
-    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    into, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
-    position = tree.nodes.new("GeometryNodeInputPosition")
-    split = tree.nodes.new("ShaderNodeSeparateXYZ")
-    tree.links.new(position.outputs[0], split.inputs[0])
-    push = tree.nodes.new("ShaderNodeMath")
-    push.operation = "MULTIPLY"
-    tree.links.new(split.outputs["Z"], push.inputs[0])
-    tree.links.new(time_driven(tree, 0.6), push.inputs[1])
-    offset = tree.nodes.new("ShaderNodeCombineXYZ")
-    tree.links.new(push.outputs[0], offset.inputs["X"])
-    setter = tree.nodes.new("GeometryNodeSetPosition")
-    tree.links.new(into.outputs[0], setter.inputs["Geometry"])
-    tree.links.new(offset.outputs[0], setter.inputs["Offset"])
-    tree.links.new(setter.outputs[0], out.inputs[0])
-    ob.modifiers.new("wave", "NODES").node_group = tree
+    tree, into, out = node_modifier(ob, "wave", "Wave")
+    push = x_from_height(tree, "MULTIPLY", time_driven(tree, 0.6))
+    tree.links.new(offset_positions(tree, into.outputs[0], push), out.inputs[0])
     return ob
 
 
@@ -256,10 +223,7 @@ def test_curves_changing_their_key_count_are_read_along_themselves():
     scene = blurred_scene(16, 16)
     set_world(scene, (0.5, 0.5, 0.5))
     ob = curves_object("Growing", [np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2]], float)], radius=0.05)
-    tree = bpy.data.node_groups.new("Grow", "GeometryNodeTree")
-    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    into, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    tree, into, out = node_modifier(ob, "grow", "Grow")
     resample = tree.nodes.new("GeometryNodeResampleCurve")
     count = tree.nodes.new("ShaderNodeMath")
     count.inputs[1].default_value = 3.0
@@ -267,7 +231,6 @@ def test_curves_changing_their_key_count_are_read_along_themselves():
     tree.links.new(count.outputs[0], resample.inputs["Count"])
     tree.links.new(into.outputs[0], resample.inputs["Curve"])
     tree.links.new(resample.outputs[0], out.inputs[0])
-    ob.modifiers.new("grow", "NODES").node_group = tree
     scene.frame_set(1)
     exported = export_blurred()
     assert not exported.warnings, exported.warnings
@@ -280,32 +243,12 @@ def test_curves_changing_their_key_count_are_read_along_themselves():
 def streaking_points(ob, speed=20.0):
     """Geometry nodes turning the mesh into still points that carry a `velocity` attribute (units per second):
     x speed times the point's height."""
-    tree = bpy.data.node_groups.new("Streak", "GeometryNodeTree")
-    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    into, out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    tree, into, out = node_modifier(ob, "streak", "Streak")
     points = tree.nodes.new("GeometryNodeMeshToPoints")
     points.inputs["Radius"].default_value = 0.12
     tree.links.new(into.outputs[0], points.inputs["Mesh"])
-    position = tree.nodes.new("GeometryNodeInputPosition")
-    split = tree.nodes.new("ShaderNodeSeparateXYZ")
-    tree.links.new(position.outputs[0], split.inputs[0])
-    scale = tree.nodes.new("ShaderNodeMath")
-    scale.operation = "MULTIPLY"
-    scale.inputs[1].default_value = speed
-    tree.links.new(split.outputs["Z"], scale.inputs[0])
-    velocity = tree.nodes.new("ShaderNodeCombineXYZ")
-    tree.links.new(scale.outputs[0], velocity.inputs["X"])
-    store = tree.nodes.new("GeometryNodeStoreNamedAttribute")
-    store.data_type, store.domain = "FLOAT_VECTOR", "POINT"
-    store.inputs["Name"].default_value = "velocity"
-    tree.links.new(points.outputs[0], store.inputs["Geometry"])
-    tree.links.new(velocity.outputs[0], store.inputs["Value"])
-    material = tree.nodes.new("GeometryNodeSetMaterial")
-    material.inputs["Material"].default_value = diffuse_material("Streaks", (0.02, 0.04, 0.1))
-    tree.links.new(store.outputs[0], material.inputs["Geometry"])
-    tree.links.new(material.outputs[0], out.inputs[0])
-    ob.modifiers.new("streak", "NODES").node_group = tree
+    streaks = store_velocity(tree, points.outputs[0], x_from_height(tree, "MULTIPLY", speed))
+    tree.links.new(with_material(tree, streaks, diffuse_material("Streaks", (0.02, 0.04, 0.1))), out.inputs[0])
     return ob
 
 

@@ -9,8 +9,8 @@ import pytest
 
 from bpy_helpers import configure_cycles, new_scene
 from exr import render_multilayer
+from motion_helpers import slide_along_x
 from test_deform_motion_blur import lit, streaking_mesh, stretching_cube, waving_grid
-from test_motion_blur import _linear
 from test_shape_motion_blur import _FrameSetter
 
 
@@ -115,10 +115,7 @@ def test_still_mesh_with_modifier_keeps_its_object_motion():
         bpy.ops.mesh.primitive_cube_add(size=0.8, location=(-0.3, 0, 0.8))
         cube = bpy.context.object
         cube.modifiers.new("Bevel", "BEVEL").width = 0.05
-        cube.keyframe_insert("location", frame=0)
-        cube.location.x += 1.2
-        cube.keyframe_insert("location", frame=2)
-        _linear(cube)
+        slide_along_x(cube, 1.2)
         scene.frame_set(1)
         return cube
     scene, _ = vector_scene(build)
