@@ -53,3 +53,16 @@ def trace_samples(scene: SceneArrays, settings: RenderSettings, samples: int, th
             radiance, _ = renderer.trace_paths(rng, row, col, settings)
             out[s] = radiance
     return out
+
+
+def assert_workers_render_as_threads(scene: SceneArrays, settings: RenderSettings) -> np.ndarray:
+    """The image of scene rendered on the render's own thread, and again with a worker process (which builds the
+    scene again from its arrays) rendering waves: the two must be equal bit for bit. Returns the image."""
+    with Renderer(scene, threads=1) as renderer:
+        alone = renderer.render(settings).image
+    with Renderer(scene, threads=2, processes=True) as renderer:
+        assert renderer.crew.wait_for_workers() == 1, renderer.crew.worker_failures
+        image = renderer.render(settings).image
+        assert renderer.crew.remote_waves > 0
+    np.testing.assert_array_equal(image, alone)
+    return image

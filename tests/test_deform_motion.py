@@ -10,6 +10,8 @@ import numpy as np
 from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World, motion, render
 from ember.kernels.shapes import look_at
 
+from kernel_helpers import assert_workers_render_as_threads
+
 FLAT = np.ones(257, np.float32)   # a flat shutter curve, as Blender samples it
 
 
@@ -108,13 +110,7 @@ def test_worker_processes_render_deforming_triangles_as_threads_do():
     bit for bit."""
     scene = sliding_scene(half=0.4, width=24, height=24, fov=np.radians(30))
     settings = RenderSettings(samples=8, seed=2, wave_size=128)
-    with Renderer(scene, threads=1) as renderer:
-        alone = renderer.render(settings).image
-    with Renderer(scene, threads=2, processes=True) as renderer:
-        assert renderer.crew.wait_for_workers() == 1, renderer.crew.worker_failures
-        image = renderer.render(settings).image
-        assert renderer.crew.remote_waves > 0
-    np.testing.assert_array_equal(image, alone)
+    image = assert_workers_render_as_threads(scene, settings)
     assert (image[..., :3] < 0.99).any()
 
 

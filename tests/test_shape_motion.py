@@ -8,6 +8,8 @@ from ember.kernels.interaction import SurfaceHit
 from ember.kernels.scene import Curves, Points, ShapeInstances, object_row
 from ember.kernels.shapes import look_at
 
+from kernel_helpers import assert_workers_render_as_threads
+
 FLAT = np.ones(257, np.float32)   # a flat shutter curve, as Blender samples it
 
 
@@ -159,13 +161,7 @@ def test_worker_processes_render_moving_curves_and_points_as_threads_do():
                          shape_instances=placed, objects=np.repeat(object_row(np.eye(4))[None], 1, axis=0),
                          object_ids=np.zeros(0, np.int32))
     settings = RenderSettings(samples=8, seed=2, wave_size=128)
-    with Renderer(scene, threads=1) as renderer:
-        alone = renderer.render(settings).image
-    with Renderer(scene, threads=2, processes=True) as renderer:
-        assert renderer.crew.wait_for_workers() == 1, renderer.crew.worker_failures
-        image = renderer.render(settings).image
-        assert renderer.crew.remote_waves > 0
-    np.testing.assert_array_equal(image, alone)
+    image = assert_workers_render_as_threads(scene, settings)
     assert (image[..., :3] < 0.99).any()
 
 
