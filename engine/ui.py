@@ -42,6 +42,15 @@ def _compat_panels():
                 yield cls
 
 
+def split_layout(layout, decorate: bool | None = False):
+    """A panel's layout with each property's label beside it (use_property_split), and no keyframe decorators
+    unless `decorate` (None: Blender's default left alone)."""
+    layout.use_property_split = True
+    if decorate is not None:
+        layout.use_property_decorate = decorate
+    return layout
+
+
 class EmberPanel:
     bl_space_type = "PROPERTIES"
     bl_region_type = "WINDOW"
@@ -50,7 +59,12 @@ class EmberPanel:
 
     @classmethod
     def poll(cls, context):
-        return context.engine in cls.COMPAT_ENGINES
+        return context.engine in cls.COMPAT_ENGINES and cls.shows(context)
+
+    @classmethod
+    def shows(cls, context) -> bool:
+        """What the panel needs besides Ember as the engine (the data it draws); a render panel needs nothing."""
+        return True
 
 
 class EMBER_RENDER_PT_sampling(EmberPanel, bpy.types.Panel):
@@ -61,9 +75,7 @@ class EMBER_RENDER_PT_sampling(EmberPanel, bpy.types.Panel):
         self.layout.label(text=f"Ember {EMBER_VERSION}")
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         ember = context.scene.ember
         col = layout.column(align=True)
         col.prop(ember, "samples", text="Render Samples")
@@ -89,9 +101,7 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
     bl_label = "Light Paths"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         col = layout.column(heading="Max Bounces", align=True)
         col.prop(context.scene.ember, "max_bounces")
         col.prop(context.scene.ember, "diffuse_bounces")
@@ -113,9 +123,7 @@ class EMBER_RENDER_PT_volumes(EmberPanel, bpy.types.Panel):
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         ember = context.scene.ember
         layout.prop(ember, "volume_biased")
         col = layout.column(align=True)
@@ -125,41 +133,34 @@ class EMBER_RENDER_PT_volumes(EmberPanel, bpy.types.Panel):
         col.prop(ember, "volume_max_steps")
 
 
-class EMBER_MATERIAL_PT_volume(EmberPanel, bpy.types.Panel):
-    """Material > Settings > Volume: Cycles' settings of the material's medium, which Ember reads."""
+class VolumeSettingsPanel(EmberPanel):
+    """Settings > Volume of the material or world that bl_context names: Cycles' settings of its medium."""
     bl_label = "Volume"
-    bl_context = "material"
     bl_options = {"DEFAULT_CLOSED"}
 
     @classmethod
-    def poll(cls, context):
-        material = getattr(context, "material", None)
-        return context.engine in cls.COMPAT_ENGINES and material is not None and hasattr(material, "cycles")
+    def shows(cls, context):
+        block = getattr(context, cls.bl_context, None)
+        return block is not None and hasattr(block, "cycles")
+
+
+class EMBER_MATERIAL_PT_volume(VolumeSettingsPanel, bpy.types.Panel):
+    """Material > Settings > Volume: Cycles' settings of the material's medium, which Ember reads."""
+    bl_context = "material"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         settings = context.material.cycles
         layout.prop(settings, "volume_interpolation", text="Interpolation")
         layout.prop(settings, "volume_step_rate", text="Step Rate")
 
 
-class EMBER_WORLD_PT_volume(EmberPanel, bpy.types.Panel):
+class EMBER_WORLD_PT_volume(VolumeSettingsPanel, bpy.types.Panel):
     """World > Settings > Volume: Cycles' step size of the world's medium, which Ember reads."""
-    bl_label = "Volume"
     bl_context = "world"
-    bl_options = {"DEFAULT_CLOSED"}
-
-    @classmethod
-    def poll(cls, context):
-        world = getattr(context, "world", None)
-        return context.engine in cls.COMPAT_ENGINES and world is not None and hasattr(world, "cycles")
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         layout.prop(context.world.cycles, "volume_step_size", text="Step Size")
 
 
@@ -168,9 +169,7 @@ class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         layout.prop(context.scene.render, "film_transparent", text="Transparent")
         col = layout.column()
         col.prop(context.scene.ember, "pixel_filter_type", text="Pixel Filter")
@@ -188,9 +187,7 @@ class EMBER_RENDER_PT_motion_blur(EmberPanel, bpy.types.Panel):
         self.layout.prop(context.scene.render, "use_motion_blur", text="")
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         rd = context.scene.render
         layout.active = rd.use_motion_blur
         col = layout.column()
@@ -211,9 +208,7 @@ class EMBER_RENDER_PT_denoise(EmberPanel, bpy.types.Panel):
     bl_parent_id = "EMBER_RENDER_PT_sampling"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         ember = context.scene.ember
         col = layout.column(heading="Render")
         col.prop(ember, "use_denoising", text="Denoise")
@@ -231,9 +226,7 @@ class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
     bl_context = "view_layer"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         view_layer = context.view_layer
         col = layout.column(heading="Include")
         col.prop(view_layer, "use_pass_combined")
@@ -300,9 +293,7 @@ class EMBER_RENDER_PT_performance(EmberPanel, bpy.types.Panel):
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         rd = context.scene.render
         col = layout.column(align=True)
         col.prop(rd, "threads_mode")
@@ -319,13 +310,11 @@ class EMBER_LIGHT_PT_shadow(EmberPanel, bpy.types.Panel):
     bl_context = "data"
 
     @classmethod
-    def poll(cls, context):
-        return context.engine in cls.COMPAT_ENGINES and context.light is not None
+    def shows(cls, context):
+        return context.light is not None
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         layout.prop(context.light, "use_shadow", text="Cast Shadow")
 
 
@@ -336,48 +325,42 @@ class EMBER_LIGHT_PT_beam_shape(EmberPanel, bpy.types.Panel):
     bl_context = "data"
 
     @classmethod
-    def poll(cls, context):
-        return context.engine in cls.COMPAT_ENGINES and context.light is not None and context.light.type == "AREA"
+    def shows(cls, context):
+        return context.light is not None and context.light.type == "AREA"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
+        layout = split_layout(self.layout, decorate=None)
         layout.prop(context.light, "spread", text="Spread")
 
 
-class EMBER_OBJECT_PT_visibility_mask(EmberPanel, bpy.types.Panel):
-    """Object > Visibility > Mask: Shadow Catcher and Holdout, which Ember renders as Cycles (Blender's own
-    Visibility panel shows them for Cycles only)."""
-    bl_label = "Mask"
+class VisibilityPanel(EmberPanel):
+    """A panel under Object > Visibility, for the objects Cycles' Visibility panel shows it for."""
     bl_context = "object"
     bl_parent_id = "OBJECT_PT_visibility"
 
     @classmethod
-    def poll(cls, context):
-        return context.engine in cls.COMPAT_ENGINES and _has_geometry_visibility(context.object)
+    def shows(cls, context):
+        return _has_geometry_visibility(context.object)
+
+
+class EMBER_OBJECT_PT_visibility_mask(VisibilityPanel, bpy.types.Panel):
+    """Object > Visibility > Mask: Shadow Catcher and Holdout, which Ember renders as Cycles (Blender's own
+    Visibility panel shows them for Cycles only)."""
+    bl_label = "Mask"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
+        layout = split_layout(self.layout, decorate=None)
         col = layout.column()
         col.prop(context.object, "is_shadow_catcher")
         col.prop(context.object, "is_holdout", toggle=False)
 
 
-class EMBER_OBJECT_PT_visibility_rays(EmberPanel, bpy.types.Panel):
+class EMBER_OBJECT_PT_visibility_rays(VisibilityPanel, bpy.types.Panel):
     """Object > Visibility > Ray Visibility, as Cycles' panel of that name (kernels/visibility.py)."""
     bl_label = "Ray Visibility"
-    bl_context = "object"
-    bl_parent_id = "OBJECT_PT_visibility"
-
-    @classmethod
-    def poll(cls, context):
-        return context.engine in cls.COMPAT_ENGINES and _has_geometry_visibility(context.object)
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         ob = context.object
         col = layout.column()
         col.prop(ob, "visible_camera", text="Camera", toggle=False)
@@ -413,17 +396,15 @@ class EMBER_OBJECT_PT_adaptive_subdivision(EmberPanel, bpy.types.Panel):
     bl_options = {"DEFAULT_CLOSED"}
 
     @classmethod
-    def poll(cls, context):
-        return context.engine in cls.COMPAT_ENGINES and subdivision_modifier(context.object) is not None
+    def shows(cls, context):
+        return subdivision_modifier(context.object) is not None
 
     def draw_header(self, context):
         self.layout.prop(subdivision_modifier(context.object), "use_adaptive_subdivision", text="")
 
     def draw(self, context):
         modifier = subdivision_modifier(context.object)
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split_layout(self.layout)
         layout.active = modifier.use_adaptive_subdivision
         layout.label(text=f"Modifier '{modifier.name}'")
         layout.prop(modifier, "adaptive_space", text="Space")
