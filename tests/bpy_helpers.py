@@ -106,7 +106,9 @@ def node_material(name, idname, output="Surface", **inputs):
     return mat
 
 
-def emission_material(name, color=(1, 1, 1), strength=1.0):
+def emission_material(name, color=(1, 1, 1), strength=1.0, build=None, into="Color"):
+    """A material that emits color at strength; build: a function of the node tree (called after the output and
+    emission nodes are made) whose returned socket drives the Emission's `into` input instead."""
     mat = bpy.data.materials.new(name)
     tree = mat.node_tree
     tree.nodes.clear()
@@ -114,6 +116,8 @@ def emission_material(name, color=(1, 1, 1), strength=1.0):
     em = tree.nodes.new("ShaderNodeEmission")
     em.inputs["Color"].default_value = (*color, 1.0)
     em.inputs["Strength"].default_value = strength
+    if build is not None:
+        tree.links.new(build(tree), em.inputs[into])
     tree.links.new(em.outputs[0], out.inputs["Surface"])
     return mat
 

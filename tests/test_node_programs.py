@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import add_camera, compare_to_cycles, export_current, mesh_object, new_scene, set_world
+from bpy_helpers import compare_to_cycles, emission_material, export_current, mesh_object, new_scene, set_world
 from node_probe import probe_scene, render_probe, sweep
 
 from bench import scenes
@@ -130,19 +130,27 @@ def test_unsupported_node_warns_and_keeps_the_inputs_value():
 # ---------------------------------------------------------------- images: parity with noise tolerances
 def _emission_plane(scene, build, size=4.0):
     """A plane facing the camera whose emission is the built node's output."""
-    mat = bpy.data.materials.new("Shown")
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    em = tree.nodes.new("ShaderNodeEmission")
-    tree.links.new(build(tree), em.inputs["Color"])
-    tree.links.new(em.outputs[0], out.inputs["Surface"])
+    mat = emission_material("Shown", build=build)
     h = size / 2
     obj = mesh_object("Plane", [(-h, 0, -h + 1), (h, 0, -h + 1), (h, 0, h + 1), (-h, 0, h + 1)], [(0, 1, 2, 3)], mat)
     layer = obj.data.uv_layers.new(name="UVMap")
     for loop, uv in zip(obj.data.loops, [(0, 0), (1, 0), (1, 1), (0, 1)]):
         layer.data[loop.index].uv = uv
     return obj
+
+
+def _uv_sphere(mat, radius, location, segments=48, ring_count=24, smooth=True, rotation=None, scale=None):
+    """A UV sphere (smooth-shaded unless smooth is False, turned and scaled if asked) of material mat."""
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=radius, location=location, segments=segments, ring_count=ring_count)
+    if smooth:
+        bpy.ops.object.shade_smooth()
+    ob = bpy.context.active_object
+    if rotation is not None:
+        ob.rotation_euler = rotation
+    if scale is not None:
+        ob.scale = scale
+    ob.data.materials.append(mat)
+    return ob
 
 
 def _shown_positive(tree, vector):
@@ -190,19 +198,14 @@ def test_geometry_outputs_against_cycles(output):
 def test_view_dependent_weights_on_a_sphere(node, output):
     scene = new_scene(32, 32)
     set_world(scene, color=(0, 0, 0))
-    mat = bpy.data.materials.new("Weight")
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    em = tree.nodes.new("ShaderNodeEmission")
-    weight = tree.nodes.new(node)
-    if node == "ShaderNodeLayerWeight":
-        weight.inputs["Blend"].default_value = 0.3
-    tree.links.new(weight.outputs[output], em.inputs["Strength"])
-    tree.links.new(em.outputs[0], out.inputs["Surface"])
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(0, 0, 1.2), segments=48, ring_count=24)
-    bpy.ops.object.shade_smooth()
-    bpy.context.active_object.data.materials.append(mat)
+
+    def build(tree):
+        weight = tree.nodes.new(node)
+        if node == "ShaderNodeLayerWeight":
+            weight.inputs["Blend"].default_value = 0.3
+        return weight.outputs[output]
+
+    _uv_sphere(emission_material("Weight", build=build, into="Strength"), 1.0, (0, 0, 1.2))
     # The image is the sphere's edge, where Fresnel is brightest: at 16 samples one engine's image mean
     # has a 1.5% standard deviation (10 sets of 4 seeds), too close to compare_to_cycles' 2% tolerance.
     compare_to_cycles(scene, samples=256, max_bounces=0)
@@ -213,45 +216,24 @@ def test_radial_tangents_on_a_sphere_against_cycles(axis):
     """Geometry's Tangent and the Tangent node's radial directions (on a plane the Z one would lie along
     the normal: degenerate, so a rotated sphere)."""
     scene = new_scene(32, 32)
-    set_world(scene, color=(0, 0, 0))
-    mat = bpy.data.materials.new("Tangents")
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    em = tree.nodes.new("ShaderNodeEmission")
-    if axis == "GEOMETRY":
-        source = tree.nodes.new("ShaderNodeNewGeometry").outputs["Tangent"]
-    else:
+
+    def build(tree):
+        if axis == "GEOMETRY":
+            return tree.nodes.new("ShaderNodeNewGeometry").outputs["Tangent"]
         node = tree.nodes.new("ShaderNodeTangent")
         node.direction_type, node.axis = "RADIAL", axis
-        source = node.outputs["Tangent"]
-    tree.links.new(_shown_positive(tree, source), em.inputs["Color"])
-    tree.links.new(em.outputs[0], out.inputs["Surface"])
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.3, location=(0.2, 0, 1.2), segments=48, ring_count=24)
-    bpy.ops.object.shade_smooth()
-    bpy.context.active_object.rotation_euler = (0.4, 0.2, 0.7)
-    bpy.context.active_object.scale = (1.0, 0.8, 1.2)
-    bpy.context.active_object.data.materials.append(mat)
-    compare_to_cycles(scene, samples=64, max_bounces=0)   # a silhouette: see _sphere_showing
+        return node.outputs["Tangent"]
+
+    _sphere_showing(scene, build, name="Tangents", location=(0.2, 0, 1.2))
 
 
-def _sphere_showing(scene, build, samples=64):
+def _sphere_showing(scene, build, samples=64, name="Shown", location=(0.2, 0.1, 1.2)):
     """A transformed sphere whose emission is |build(tree)| + 0.05, compared with Cycles. 64 samples: 16 per
     replicate, so that the replicates can measure the coverage noise of silhouette pixels (at 4, of which
     sample 0 looks through the pixel's centre in every replicate, a block on the silhouette read z = 7)."""
     set_world(scene, color=(0, 0, 0))
-    mat = bpy.data.materials.new("Shown")
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    em = tree.nodes.new("ShaderNodeEmission")
-    tree.links.new(_shown_positive(tree, build(tree)), em.inputs["Color"])
-    tree.links.new(em.outputs[0], out.inputs["Surface"])
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.3, location=(0.2, 0.1, 1.2), segments=48, ring_count=24)
-    bpy.ops.object.shade_smooth()
-    bpy.context.active_object.rotation_euler = (0.4, 0.2, 0.7)
-    bpy.context.active_object.scale = (1.0, 0.8, 1.2)
-    bpy.context.active_object.data.materials.append(mat)
+    mat = emission_material(name, build=lambda tree: _shown_positive(tree, build(tree)))
+    _uv_sphere(mat, 1.3, location, rotation=(0.4, 0.2, 0.7), scale=(1.0, 0.8, 1.2))
     compare_to_cycles(scene, samples=samples, max_bounces=0)
 
 
@@ -292,18 +274,15 @@ def test_camera_data_and_normal_nodes_against_cycles(output):
 def test_wireframe_against_cycles(pixel_size):
     scene = new_scene(48, 48)
     set_world(scene, color=(0, 0, 0))
-    mat = bpy.data.materials.new("Wire")
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    em = tree.nodes.new("ShaderNodeEmission")
-    wire = tree.nodes.new("ShaderNodeWireframe")
-    wire.use_pixel_size = pixel_size
-    wire.inputs["Size"].default_value = 1.5 if pixel_size else 0.04
-    tree.links.new(wire.outputs["Fac"], em.inputs["Strength"])
-    tree.links.new(em.outputs[0], out.inputs["Surface"])
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.3, location=(0, 0, 1.3), segments=12, ring_count=6)
-    bpy.context.active_object.data.materials.append(mat)
+
+    def build(tree):
+        wire = tree.nodes.new("ShaderNodeWireframe")
+        wire.use_pixel_size = pixel_size
+        wire.inputs["Size"].default_value = 1.5 if pixel_size else 0.04
+        return wire.outputs["Fac"]
+
+    _uv_sphere(emission_material("Wire", build=build, into="Strength"), 1.3, (0, 0, 1.3), segments=12, ring_count=6,
+               smooth=False)
     compare_to_cycles(scene, samples=64, max_bounces=0)
 
 
@@ -363,21 +342,16 @@ def test_box_projection_on_a_sphere_against_cycles():
     rng = np.random.default_rng(3)
     img.pixels.foreach_set(np.concatenate([rng.uniform(0.1, 1.0, (16, 3)), np.ones((16, 1))], 1).ravel()
                            .astype(np.float32))
-    mat = bpy.data.materials.new("Boxed")
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    em = tree.nodes.new("ShaderNodeEmission")
-    tex = tree.nodes.new("ShaderNodeTexImage")
-    tex.image, tex.projection, tex.projection_blend = img, "BOX", 0.3
-    coords = tree.nodes.new("ShaderNodeTexCoord")
-    tree.links.new(coords.outputs["Object"], tex.inputs["Vector"])
-    tree.links.new(tex.outputs["Color"], em.inputs["Color"])
-    tree.links.new(em.outputs[0], out.inputs["Surface"])
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.6, location=(0, 0, 1.2), segments=64, ring_count=32)
-    bpy.ops.object.shade_smooth()
-    bpy.context.active_object.rotation_euler = (0.3, 0.2, 0.5)
-    bpy.context.active_object.data.materials.append(mat)
+
+    def build(tree):
+        tex = tree.nodes.new("ShaderNodeTexImage")
+        tex.image, tex.projection, tex.projection_blend = img, "BOX", 0.3
+        coords = tree.nodes.new("ShaderNodeTexCoord")
+        tree.links.new(coords.outputs["Object"], tex.inputs["Vector"])
+        return tex.outputs["Color"]
+
+    _uv_sphere(emission_material("Boxed", build=build), 1.6, (0, 0, 1.2), segments=64, ring_count=32,
+               rotation=(0.3, 0.2, 0.5))
     compare_to_cycles(scene, samples=64, max_bounces=0)
 
 
