@@ -20,14 +20,20 @@ def node_modifier(ob, name: str, tree_name: str, geometry_in: bool = True):
     return tree, into, out
 
 
-def time_driven(tree, frame_scale: float):
-    """A Scene Time node's frame times frame_scale, as a float socket of tree."""
+def time_driven(tree, frame_scale: float, plus: float | None = None):
+    """A Scene Time node's frame times frame_scale (plus `plus`, through an Add node), as a float socket of tree."""
     time = tree.nodes.new("GeometryNodeInputSceneTime")
     scale = tree.nodes.new("ShaderNodeMath")
     scale.operation = "MULTIPLY"
     scale.inputs[1].default_value = frame_scale
     tree.links.new(time.outputs["Frame"], scale.inputs[0])
-    return scale.outputs[0]
+    if plus is None:
+        return scale.outputs[0]
+    add = tree.nodes.new("ShaderNodeMath")
+    add.operation = "ADD"
+    add.inputs[1].default_value = plus
+    tree.links.new(scale.outputs[0], add.inputs[0])
+    return add.outputs[0]
 
 
 def x_from_height(tree, operation: str, *operands):

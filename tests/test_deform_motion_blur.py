@@ -170,11 +170,7 @@ def test_a_mesh_changing_its_vertex_count_is_warned_by_name():
     ob = bpy.context.object
     tree, _, output = node_modifier(ob, "grow", "Growing", geometry_in=False)
     grid = tree.nodes.new("GeometryNodeMeshGrid")
-    add = tree.nodes.new("ShaderNodeMath")
-    add.operation = "ADD"
-    add.inputs[1].default_value = 3.0
-    tree.links.new(time_driven(tree, 4.0), add.inputs[0])
-    tree.links.new(add.outputs[0], grid.inputs["Vertices X"])
+    tree.links.new(time_driven(tree, 4.0, plus=3.0), grid.inputs["Vertices X"])
     tree.links.new(grid.outputs[0], output.inputs[0])
     scene.frame_set(1)
     exported = export_blurred()

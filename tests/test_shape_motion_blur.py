@@ -89,10 +89,7 @@ def swelling_points(ob):
     frames go by (positions and radii that change per frame: deformation, not transform, motion)."""
     tree, into, out = node_modifier(ob, "swell", "Swell")
     points = tree.nodes.new("GeometryNodeMeshToPoints")
-    radius = tree.nodes.new("ShaderNodeMath")
-    radius.inputs[1].default_value = 0.04
-    tree.links.new(time_driven(tree, 0.06), radius.inputs[0])
-    tree.links.new(radius.outputs[0], points.inputs["Radius"])
+    tree.links.new(time_driven(tree, 0.06, plus=0.04), points.inputs["Radius"])
     tree.links.new(into.outputs[0], points.inputs["Mesh"])
     position = tree.nodes.new("GeometryNodeInputPosition")
     spread = tree.nodes.new("ShaderNodeVectorMath")
@@ -225,10 +222,7 @@ def test_curves_changing_their_key_count_are_read_along_themselves():
     ob = curves_object("Growing", [np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2]], float)], radius=0.05)
     tree, into, out = node_modifier(ob, "grow", "Grow")
     resample = tree.nodes.new("GeometryNodeResampleCurve")
-    count = tree.nodes.new("ShaderNodeMath")
-    count.inputs[1].default_value = 3.0
-    tree.links.new(time_driven(tree, 4.0), count.inputs[0])
-    tree.links.new(count.outputs[0], resample.inputs["Count"])
+    tree.links.new(time_driven(tree, 4.0, plus=3.0), resample.inputs["Count"])
     tree.links.new(into.outputs[0], resample.inputs["Curve"])
     tree.links.new(resample.outputs[0], out.inputs[0])
     scene.frame_set(1)
