@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..scene import OBJECT_COLUMNS, object_row
+from ..scene import OBJ_FROM_WORLD, OBJECT_COLUMNS, object_row
 from ..vec import F32, ONE, ZERO
 from .color_nodes import REC709_TO_RGB, blackbody
 from .input_ops import object_point
@@ -124,6 +124,10 @@ class PointInputs:
         self.dp = np.zeros(self.n, F32)
         self.world = objects is None
         self._rows = objects
+        # A medium's points are all of one object (Media evaluates one medium at a time): its row, read once.
+        self._single = None
+        if objects is not None and self.n and (objects == objects[0]).all():
+            self._single = int(objects[0])
         self._grids = grids or {}
         self._interpolation = interpolation
         self._cache = {}
@@ -136,7 +140,16 @@ class PointInputs:
     def objects(self) -> np.ndarray:
         if self._rows is None:
             return np.broadcast_to(_IDENTITY_OBJECT, (self.n, OBJECT_COLUMNS))
+        if self._single is not None:
+            return np.broadcast_to(self.scene.objects[self._single], (self.n, OBJECT_COLUMNS))
         return self.memo("objects", lambda: np.take(self.scene.objects, self._rows, axis=0))
+
+    def object_point(self) -> np.ndarray:
+        """(n, 3) the points in their object's space."""
+        if self._single is None:
+            return object_point(self, self.P)
+        m = self.scene.objects[self._single, OBJ_FROM_WORLD:OBJ_FROM_WORLD + 12].reshape(3, 4)
+        return self.P @ m[:, :3].T + m[:, 3]
 
     def attribute(self, name: str, interpolate: bool = True) -> np.ndarray | None:
         """(n, C) a grid's values at the points (its name, or the Attribute node's "attr:" name), None when the
@@ -150,7 +163,7 @@ class PointInputs:
             return None
         key = ("grid", name)
         if key not in self._cache:
-            self._cache[key] = np.asarray(grid.lookup(object_point(self, self.P), self._interpolation), F32)
+            self._cache[key] = np.asarray(grid.lookup(self.object_point(), self._interpolation), F32)
         return self._cache[key]
 
     def barycentrics(self):
