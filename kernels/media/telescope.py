@@ -3,7 +3,7 @@ shade_volume.h, volume_transmittance and volume_shadow_null_scattering): Misso e
 ("Unbiased and consistent rendering using biased estimators", 2022) instead of ratio tracking.
 
 Along a segment of length L whose extinction varies within a range sigma_c (here the segment's majorant,
-medium.Media.segment_majorant, without its margin: no minorant is kept), k = clamp(round(sigma_c L), 1, 1024) points, a stratified
+medium.Media.segment_majorant: no minorant is kept), k = clamp(round(sigma_c L), 1, 1024) points, a stratified
 offset apart, give the biased estimate T_k = exp(-L / k x the sum of sigma_t). An order n is drawn from the
 geometric distribution p(n) = r (1 - r)^n, r = 0.9, cut off at 4 (the last order takes the rest of the mass);
 N = 2^n. Order 0 returns T_k alone. Otherwise N k points are taken: T_k is the mean over the N interleaved sets

@@ -33,7 +33,6 @@ from ..rng import keyed_uniforms as uniforms
 from ..vec import F32, ONE, ZERO
 from . import telescope
 from .march import Marching, stack_steps
-from .medium import MAJORANT_MARGIN
 from .march import march as march_segments
 
 MAX_COLLISIONS = 4096      # a segment's collisions at most (a guard: its path then ends)
@@ -104,13 +103,9 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
             quiet &= ~media.stack_emits(stack[:, varying]) if hasattr(media, "stack_emits") else False
         ended = varying[quiet & np.isfinite(np.asarray(t_end)[varying]) & (majorant[varying] > 0)]
         if len(ended):
-            # The estimator's range: the segment's majorant without the margin it takes for tracking. Cycles
-            # draws k from its octree's extrema, sampled values with no margin (bake.h,
-            # kernel_volume_density_evaluate; the 1.5 margin of shade_volume.h is for extrema estimated on the
-            # fly): k only sets the estimator's cost and its residual at the cut-off order.
             weight[:, ended] = telescope.transmittance(media, stack[:, ended], origins[ended], dirs[ended],
                                                        np.asarray(t_end)[ended], tuple(np.take(s_, ended) for s_ in seeds),
-                                                       majorant[ended] / MAJORANT_MARGIN, salt)
+                                                       majorant[ended], salt)
             majorant = majorant.copy()
             majorant[ended] = 0.0     # (the tracking below leaves them alone)
     if closed.any():
