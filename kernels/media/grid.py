@@ -79,17 +79,22 @@ class VoxelGrid:
         return self.values.shape[:3]
 
     # ---------------------------------------------------------------- lookups
-    def index_coordinates(self, points) -> np.ndarray:
-        """(n, 3) object-space points -> (n, 3) float64 index coordinates P."""
+    def index_coordinates(self, points, to_object=None) -> np.ndarray:
+        """(n, 3) object-space points -> (n, 3) float64 index coordinates P; to_object: a (3, 4) affine map that
+        takes the points to object space first (one product of both), or None."""
         points = np.asarray(points, dtype=F64).reshape(-1, 3)
-        return matmul(points, self.object_to_index[:3, :3].T) + self.object_to_index[:3, 3]
+        m = self.object_to_index
+        if to_object is not None:
+            m = m @ np.vstack([np.asarray(to_object, F64), [0.0, 0.0, 0.0, 1.0]])
+        return matmul(points, m[:3, :3].T) + m[:3, 3]
 
-    def lookup(self, points, interpolation: str = "LINEAR") -> np.ndarray:
+    def lookup(self, points, interpolation: str = "LINEAR", to_object=None) -> np.ndarray:
         """(n, 3) float32 object-space points -> (n, C) float32 values, interpolated as Cycles does
-        (module docstring); interpolation is 'CLOSEST', 'LINEAR' or 'CUBIC'."""
+        (module docstring); interpolation is 'CLOSEST', 'LINEAR' or 'CUBIC'; to_object: a (3, 4) affine map of
+        the points to object space (world points of one object), or None."""
         if interpolation not in INTERPOLATIONS:
             raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, not {interpolation!r}")
-        p = self.index_coordinates(points)
+        p = self.index_coordinates(points, to_object)
         cell = np.floor(p)
         t = (p - cell).astype(F32)
         cell = cell.astype(np.int64)

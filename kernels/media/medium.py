@@ -343,13 +343,18 @@ def _along(cells, lo, hi, origins, dirs, t_end, fallback) -> np.ndarray:
     k = int(count[rows].max())
     t = t0[rows, None] + np.minimum(np.arange(k, dtype=np.float32)[None], count[rows, None] - 1) * np.float32(step)
     t = np.minimum(t, t1[rows, None]).astype(np.float32)
-    # Cell coordinates along each ray: a + b t per axis, flattened into the grid's index.
+    # Cell coordinates along each ray: a + b t per axis, flattened into the grid's index (float32 and int32
+    # passes: the grid has a few thousand cells).
     a = ((origins[rows] - base) / size).astype(np.float32)
     b = (dirs[rows] / size).astype(np.float32)
-    flat = np.zeros(t.shape, np.int64)
+    flat = None
     for axis in range(3):
-        index = np.clip(np.floor(a[:, axis, None] + b[:, axis, None] * t).astype(np.int64), 0, g[axis] - 1)
-        flat = flat * g[axis] + index
+        coordinate = b[:, axis, None] * t
+        coordinate += a[:, axis, None]
+        np.floor(coordinate, out=coordinate)
+        np.clip(coordinate, 0, g[axis] - 1, out=coordinate)
+        index = coordinate.astype(np.int32)
+        flat = index if flat is None else flat * np.int32(g[axis]) + index
     values = np.take(grid.reshape(-1), flat)
     empty = t1[rows] <= t0[rows]
     out[rows] = np.where(empty, np.float32(0.0), values.max(axis=1))

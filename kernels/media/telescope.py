@@ -41,31 +41,38 @@ def transmittance(media, stack, origins, dirs, t_end, seeds, sigma_c, salt: int 
     count = sets * k                              # points per segment
     step = length / count
     offset = u_offset.astype(np.float64)
-    # Per segment, the optical depth of: each of its N interleaved sets, its even and odd points, all points.
-    depth_sets = np.zeros((3, int(sets.sum())))
-    depth_halves = np.zeros((3, 2 * n))
-    depth_all = np.zeros((3, n))
+    # Per segment, the optical depth of each of its N interleaved sets (point i is in set i mod N): the even and
+    # the odd points' depths are the sums of the even and the odd sets' (N is even where they are used), all
+    # points' the sum of all sets'. One bincount over the channels' sets gathers them.
+    n_sets = int(sets.sum())
+    depth_sets = np.zeros(3 * n_sets)
     first_set = np.concatenate([[0], np.cumsum(sets)[:-1]])
-    starts = np.concatenate([[0], np.cumsum(count)])
-    total = int(starts[-1])
+    total = int(count.sum())
+    # Points are laid out segment after segment: each point's segment and number along it, without a search.
+    rows = np.repeat(np.arange(n), count)
+    points = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
+    origins = np.asarray(origins)
+    dirs = np.asarray(dirs)
     for lo in range(0, total, CHUNK):
         hi = min(total, lo + CHUNK)
-        index = np.arange(lo, hi)
-        row = np.searchsorted(starts, index, side="right") - 1
-        point = index - starts[row]               # the point's number along its segment
+        row, point = rows[lo:hi], points[lo:hi]
         t = np.minimum(length[row], (offset[row] + point) * step[row])
-        p = (origins[row] + dirs[row] * t[:, None]).astype(F32)
-        sigma = media.stack_coefficients(stack[:, row], p, dirs[row], None, False).sigma_t.astype(np.float64)
+        d = dirs[row]
+        p = (origins[row] + d * t[:, None]).astype(F32)
+        sigma = media.stack_coefficients(stack[:, row], p, d, None, False).sigma_t.astype(np.float64)
         tau = np.nan_to_num(sigma, posinf=0.0) * step[row]
-        for c in range(3):
-            depth_all[c] += np.bincount(row, tau[c], n)
-            depth_halves[c] += np.bincount(2 * row + (point & 1), tau[c], 2 * n)
-            depth_sets[c] += np.bincount(first_set[row] + point % sets[row], tau[c], len(depth_sets[c]))
+        where = first_set[row] + point % sets[row]
+        depth_sets += np.bincount((where[None] + (np.arange(3) * n_sets)[:, None]).ravel(), tau.ravel(), 3 * n_sets)
+    depth_sets = depth_sets.reshape(3, n_sets)
+    parity = (np.arange(n_sets) - np.repeat(first_set, sets)) & 1
+    depth_all = np.add.reduceat(depth_sets, first_set, axis=1)
+    depth_odd = np.add.reduceat(depth_sets * parity, first_set, axis=1)
+    depth_even = np.add.reduceat(depth_sets * (1 - parity), first_set, axis=1)
     # T_k: each set's k points stand for the whole segment (their depth times N), averaged over the sets.
     scale = np.repeat(sets, sets).astype(np.float64)
     t_sets = np.exp(-depth_sets * scale)
     t_k = np.add.reduceat(t_sets, first_set, axis=1) / sets
-    t_half = 0.5 * (np.exp(-2.0 * depth_halves[:, 0::2]) + np.exp(-2.0 * depth_halves[:, 1::2]))
+    t_half = 0.5 * (np.exp(-2.0 * depth_even) + np.exp(-2.0 * depth_odd))
     t_full = np.exp(-depth_all)
     out = np.where(order > 0, t_k + (t_full - t_half) / pmf, t_k)
     return out.astype(F32)

@@ -67,6 +67,8 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
     a varying medium are marched (march.py; shadow: the segments are shadow rays'), not tracked. rare: (n,)
     bool, the paths whose scattering in a homogeneous medium is made rarer (_homogeneous), or None."""
     n = len(t_end)
+    if emission and hasattr(media, "stack_emits") and not media.stack_emits(stack).any():
+        emission = False    # no medium here emits: neither shader calls nor collisions gather emission
     weight = np.ones((3, n), F32)
     gathered = np.zeros((3, n), F32)
     scattered = np.zeros(n, bool)
@@ -163,7 +165,8 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
         # drawn ahead (the distances do not depend on the events) and evaluated at once; the events are then
         # taken in order, the same as one by one.
         batch = min(TAIL_BATCH if len(live) < TAIL else 1, MAX_COLLISIONS - k)
-        draws = [uniforms((x[live], y[live]), k + j, salt) for j in range(batch)]
+        keys = (x[live], y[live])
+        draws = [uniforms(keys, k + j, salt) for j in range(batch)]
         bar = majorant[live]
         times, reach = [], t[live]
         for u1, _ in draws:

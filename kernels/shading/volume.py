@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..scene import OBJECT_COLUMNS, object_row
+from ..scene import OBJ_FROM_WORLD, OBJECT_COLUMNS, object_row
 from ..vec import F32, ONE, ZERO
 from .color_nodes import REC709_TO_RGB, blackbody
 from .input_ops import object_point
@@ -124,6 +124,10 @@ class PointInputs:
         self.dp = np.zeros(self.n, F32)
         self.world = objects is None
         self._rows = objects
+        # A medium's points are all of one object (Media evaluates one medium at a time): its row, read once.
+        self._single = None
+        if objects is not None and self.n and (objects == objects[0]).all():
+            self._single = int(objects[0])
         self._grids = grids or {}
         self._interpolation = interpolation
         self._cache = {}
@@ -136,7 +140,17 @@ class PointInputs:
     def objects(self) -> np.ndarray:
         if self._rows is None:
             return np.broadcast_to(_IDENTITY_OBJECT, (self.n, OBJECT_COLUMNS))
+        if self._single is not None:
+            return np.broadcast_to(self.scene.objects[self._single], (self.n, OBJECT_COLUMNS))
         return self.memo("objects", lambda: np.take(self.scene.objects, self._rows, axis=0))
+
+    def _grid_lookup(self, grid) -> np.ndarray:
+        """grid's values at the points: the object's world-to-object map and the grid's own taken as one
+        product where the points are all of one object."""
+        if self._single is None:
+            return grid.lookup(object_point(self, self.P), self._interpolation)
+        m = self.scene.objects[self._single, OBJ_FROM_WORLD:OBJ_FROM_WORLD + 12].reshape(3, 4)
+        return grid.lookup(self.P, self._interpolation, to_object=m)
 
     def attribute(self, name: str, interpolate: bool = True) -> np.ndarray | None:
         """(n, C) a grid's values at the points (its name, or the Attribute node's "attr:" name), None when the
@@ -150,7 +164,7 @@ class PointInputs:
             return None
         key = ("grid", name)
         if key not in self._cache:
-            self._cache[key] = np.asarray(grid.lookup(object_point(self, self.P), self._interpolation), F32)
+            self._cache[key] = np.asarray(self._grid_lookup(grid), F32)
         return self._cache[key]
 
     def barycentrics(self):
@@ -188,7 +202,7 @@ class VolumeShader:
         run = ProgramRun(self.program, inputs, OPS)
 
         def value(closure, name):
-            """An input at the points: (3, n) for colours and vectors, (n,) for floats."""
+            """An input at the points: (3, n) for colours and vectors ((3, 1) where constant), (n,) for floats."""
             default = VOLUME_DEFAULTS[closure.kind][name]
             colour = isinstance(default, tuple)
             param = closure.input(name)
@@ -199,7 +213,9 @@ class VolumeShader:
                 return np.ascontiguousarray(np.broadcast_to(v, (3, n)) if colour else v, F32)
             const = np.asarray(default if param is None else param.value, F32).ravel()
             if colour:
-                return np.broadcast_to((np.repeat(const, 3) if const.size == 1 else const[:3])[:, None], (3, n))
+                # (3, 1): a constant colour's arithmetic costs 3 values, not 3 n; it broadcasts against the
+                # (n,) densities and factors every coefficient takes.
+                return (np.repeat(const, 3) if const.size == 1 else const[:3])[:, None]
             return np.full(n, const.mean(), F32)
 
         for closure in self.closures:
