@@ -73,11 +73,11 @@ def own_hits(rays: LocalRays, objects: np.ndarray, origins: np.ndarray, d: np.nd
         live = ray
 
 
-def pick_hits(rows: np.ndarray, count: np.ndarray, keys, sample: int, salt: int):
+def pick_hits(rows: np.ndarray, count: np.ndarray, keys, sample, salt: int):
     """Which of the hits (rays `rows`, in the order met; count per ray) a local query keeps: all of a ray with
     at most LOCAL_MAX_HITS, else a uniformly random LOCAL_MAX_HITS of them (what Cycles' reservoir of local
     hits keeps), and each ray's weight: count / LOCAL_MAX_HITS where it dropped some, else 1. The choice is
-    drawn from the rays' keys (x, y), `sample` and the rng.keyed_uniforms `salt`."""
+    drawn from the rays' keys (x, y), `sample` (an int, or (n,) one per ray) and the rng.keyed_uniforms `salt`."""
     scale = np.where(count > LOCAL_MAX_HITS, count.astype(F32) / F32(LOCAL_MAX_HITS), ONE).astype(F32)
     keep = np.ones(len(rows), bool)
     many = np.flatnonzero(count[rows] > LOCAL_MAX_HITS)
@@ -89,6 +89,8 @@ def pick_hits(rows: np.ndarray, count: np.ndarray, keys, sample: int, salt: int)
     place = np.empty(len(many), np.uint32)
     place[by_ray] = np.arange(len(many)) - np.searchsorted(ray[by_ray], ray[by_ray])
     x, y = (np.take(k, ray) for k in keys)
+    if np.ndim(sample):
+        sample = np.take(sample, ray).astype(np.int64)
     chance = keyed_uniforms((x ^ (place * np.uint32(0x2C1B3C6D)), y), sample, salt)[0]
     ranked = np.lexsort((chance, ray))
     rank = np.arange(len(many)) - np.searchsorted(ray[ranked], ray[ranked])

@@ -144,9 +144,25 @@ def _ahead(const, state, numbers, bounce, flights, exp, sqrt):
             sample_st = sample_st * (bwd_s if backward else fwd_s)
         t = flight / sample_st
         flights += (px, py, pz, ex, ey, ez, t)
-        terms = (s0, s1, s2, r0, r1, r2, fwd_s, bwd_s, fwd_f, bwd_f, back_frac, opposite, gf, c0, c1, c2, t0, t1, t2)
-        finishes.append(terms)
-        t0, t1, t2 = _finish(terms, t, False, exp)
+        finishes.append((s0, s1, s2, r0, r1, r2, fwd_s, bwd_s, fwd_f, bwd_f, back_frac, opposite, gf, c0, c1, c2,
+                         t0, t1, t2))
+        # _finish(..., hit=False) unrolled (the same operations in the same order): the flight scattered.
+        classic_w = 1 - gf
+        tr0, tr1, tr2 = exp(-s0 * t), exp(-s1 * t), exp(-s2 * t)
+        f0, f1, f2 = fwd_s * s0, fwd_s * s1, fwd_s * s2
+        q0, q1, q2 = f0 * exp(-f0 * t) * fwd_f, f1 * exp(-f1 * t) * fwd_f, f2 * exp(-f2 * t) * fwd_f
+        if opposite:
+            forward_w = 1 - back_frac
+            b0, b1, b2 = bwd_s * s0, bwd_s * s1, bwd_s * s2
+            q0 = q0 * forward_w + b0 * exp(-b0 * t) * bwd_f * back_frac
+            q1 = q1 * forward_w + b1 * exp(-b1 * t) * bwd_f * back_frac
+            q2 = q2 * forward_w + b2 * exp(-b2 * t) * bwd_f * back_frac
+        denom = c0 * (s0 * tr0 * classic_w + q0 * gf) + c1 * (s1 * tr1 * classic_w + q1 * gf) + \
+            c2 * (s2 * tr2 * classic_w + q2 * gf)
+        if denom > 0:
+            t0, t1, t2 = r0 * tr0 * t0 / denom, r1 * tr1 * t1 / denom, r2 * tr2 * t2 / denom
+        else:
+            t0 = t1 = t2 = 0.0
         px, py, pz = px + t * ex, py + t * ey, pz + t * ez
         dx, dy, dz = ex, ey, ez
         if not (math.isfinite(t0) and math.isfinite(t1) and math.isfinite(t2)) or max(t0, t1, t2) < THROUGHPUT_EPSILON:

@@ -202,3 +202,25 @@ def test_bevel_skips_blurry_bounces_and_zero_radius():
         assert np.all(bevel(hits, np.zeros(k, F32), 4) == hits.n)
         hits.min_ray_pdf = np.full(k, 1 / np.pi, F32)   # after a diffuse bounce: Cycles' pdf < 8
         assert np.all(bevel(hits, np.full(k, 0.2, F32), 4) == hits.n)
+
+
+def test_samples_in_one_query_are_the_samples_one_by_one(monkeypatch):
+    """AO and Bevel trace all of a call's samples in one query (raytrace.GROUP_RAYS rays at most): the same
+    numbers, bit for bit, as a query per sample, here with Bevel rays that cross more than LOCAL_MAX_HITS
+    surfaces of their object (a comb of walls on the floor), so that which hits each keeps is drawn per sample."""
+    from ember.kernels.shading import raytrace
+    walls = [quad((x, -BIG, 0), (0, 2 * BIG, 0), (0, 0, 0.5)) for x in np.linspace(-0.1, 0.1, 9)]
+    k = 3000
+    with renderer_of([np.concatenate([FLOOR] + walls)]) as r:
+        p = np.stack([np.random.default_rng(3).uniform(-0.15, 0.15, k), np.zeros(k), np.zeros(k)], axis=1)
+        results = []
+        for group_rays in (1, 1 << 18):
+            monkeypatch.setattr(raytrace, "GROUP_RAYS", group_rays)
+            hits = traced(r, p, (0, 0, 1), seed=5)
+            distance = np.full(k, 0.3, F32)
+            results.append((ambient_occlusion(hits, hits.n, distance, 8),
+                            ambient_occlusion(hits, hits.n, distance, 8, only_local=True),
+                            bevel(hits, np.full(k, 0.25, F32), 8)))
+    for one_by_one, together in zip(*results):
+        assert np.array_equal(one_by_one, together)
+    assert 0.2 < results[0][0].mean() < 0.95 and np.abs(results[0][2][:, 0]).mean() > 0.05

@@ -1,6 +1,7 @@
 """The shader nodes that trace rays, Ambient Occlusion and Bevel, as Cycles 5.x computes them
-(kernel/svm/ao.h, kernel/svm/bevel.h), batched over the hits of a material in a wave: one ray query per
-sample index for all hits at once (and per surface passed, for rays that look only for their own object).
+(kernel/svm/ao.h, kernel/svm/bevel.h), batched over the hits of a material in a wave: one ray query for all the
+samples of all hits (up to GROUP_RAYS rays a query; and per surface passed, for rays that look only for their
+own object).
 
 Cycles runs these nodes only where a path shades a surface (shaders holding one are flagged SD_HAS_RAYTRACE,
 scene/svm.cpp, and shaded by the shade_surface_raytrace kernel, kernel/integrator/intersect_closest.h). Its
@@ -33,6 +34,8 @@ from .program import TracedHits, make_orthonormals
 AO_DIMENSION, BEVEL_DIMENSION, BEVEL_PICK_SALT = 40, 41, 1442
 # Cycles skips Bevel on blurry indirect rays: where the path's smallest BSDF pdf so far is below this.
 BEVEL_MIN_RAY_PDF = F32(8.0)
+# Rays per query of the nodes' samples traced together (raytrace.sample_groups).
+GROUP_RAYS = 1 << 18
 
 
 class ShaderRays(LocalRays):
@@ -62,12 +65,13 @@ class ShaderRays(LocalRays):
         return hits.prim >= 0
 
 
-def branch_numbers(keys, branch: int, dimension: int):
-    """Two float32 numbers per ray for sample `branch` of a node's samples: point `branch` of an Owen-scrambled
-    Sobol sequence scrambled by the ray's keys (x, y) and the dimension, so that a node's samples 0..n-1 are
-    stratified together as Cycles' path_branched_rng_2D gives them."""
-    scramble = pcg2d(keys[0], keys[1])[0]
-    return stratified_2d(scramble, np.full(len(scramble), branch, np.uint32), 0, dimension)
+def sample_groups(samples: int, m: int):
+    """The node's samples 0..samples-1 of m hits in groups traced together, at most GROUP_RAYS rays a group
+    (one sample at least): (first sample, samples in the group, (group * m,) the hit of each ray, sample-major)."""
+    per = max(1, min(samples, GROUP_RAYS // max(m, 1)))
+    for first in range(0, samples, per):
+        group = min(per, samples - first)
+        yield first, group, np.tile(np.arange(m), group)
 
 
 # ---------------------------------------------------------------- Ambient Occlusion (svm/ao.h)
@@ -83,22 +87,30 @@ def ambient_occlusion(hits: TracedHits, normal: np.ndarray, distance: np.ndarray
     if samples < 1 or not len(live):
         return out
     h = hits.take(live)
+    m = len(live)
     axis = -normal[live] if inside else normal[live]
     t, b = make_orthonormals(np.ascontiguousarray(axis, F32))
     t_max = np.ascontiguousarray(distance[live], F32)
-    unoccluded = np.zeros(len(live), np.int32)
-    for sample in range(samples):
-        dx, dy = sample_uniform_disk_concentric(*branch_numbers(h.keys, sample, AO_DIMENSION))
+    scramble = pcg2d(h.keys[0], h.keys[1])[0]
+    unoccluded = np.zeros(m, np.int32)
+    # Several samples' rays in one query (each ray's outcome is its own, whatever its batch holds).
+    for first, group, tile in sample_groups(samples, m):
+        u, v = stratified_2d(np.tile(scramble, group), np.repeat(np.arange(first, first + group, dtype=np.uint32), m),
+                             0, AO_DIMENSION)
+        dx, dy = sample_uniform_disk_concentric(u, v)
         dz = np.sqrt(np.maximum(ONE - dx * dx - dy * dy, ZERO))
-        d = (t * columns(dx) + b * columns(dy) + axis * columns(dz)).astype(F32)
-        origins = h.rays.offset_origins(h.p, h.ng, d)
+        ax = axis[tile]
+        d = (t[tile] * columns(dx) + b[tile] * columns(dy) + ax * columns(dz)).astype(F32)
+        origins = h.rays.offset_origins(h.p[tile], h.ng[tile], d)
+        tm = t_max[tile]
+        time = None if h.time is None else h.time.take(tile)
         if only_local:
-            blocked = np.zeros(len(live), bool)
-            for rows, _, _, _, _ in own_hits(h.rays, h.objects, origins, d, t_max, h.split, h.time, first_only=True):
+            blocked = np.zeros(len(tile), bool)
+            for rows, _, _, _, _ in own_hits(h.rays, h.objects[tile], origins, d, tm, h.split, time, first_only=True):
                 blocked[rows] = True
         else:
-            blocked = h.rays.ao_blocked(origins, d, t_max, h.split, h.time)
-        unoccluded += ~blocked
+            blocked = h.rays.ao_blocked(origins, d, tm, h.split, time)
+        unoccluded += (~blocked).reshape(group, m).sum(axis=0, dtype=np.int32)
     out[live] = unoccluded.astype(F32) / F32(samples)
     return out
 
@@ -132,7 +144,6 @@ def bevel(hits: TracedHits, radius: np.ndarray, samples: int) -> np.ndarray:
     up, where there are more) adds its smooth normal weighted by MIS over the three axes (power heuristic)
     and the falloff at its distance over the disk's pdf. The shading normal where radius <= 0, samples < 1,
     after a blurry bounce (min ray pdf below 8), or where nothing was met; flipped on back faces."""
-    n = len(radius)
     out = np.array(hits.n, F32, copy=True)
     ok = radius > 0
     if hits.min_ray_pdf is not None:
@@ -145,30 +156,39 @@ def bevel(hits: TracedHits, radius: np.ndarray, samples: int) -> np.ndarray:
     r_max = np.ascontiguousarray(radius[live], F32)
     frame_t, frame_b = make_orthonormals(h.ng)
     total = np.zeros((m, 3), np.float64)
-    for sample in range(samples):
-        u_axis, u_r = branch_numbers(h.keys, sample, BEVEL_DIMENSION)
+    scramble = pcg2d(h.keys[0], h.keys[1])[0]
+    quarter, half = F32(0.25), F32(0.5)
+    # Several samples' rays in one query, as ray rows sample * m + hit; their hits are put back in the order
+    # sample by sample queries would meet them, so the sums add up in the same order.
+    for first, group, tile in sample_groups(samples, m):
+        sample_of = np.repeat(np.arange(first, first + group, dtype=np.uint32), m)
+        u_axis, u_r = stratified_2d(np.tile(scramble, group), sample_of, 0, BEVEL_DIMENSION)
+        ng, f_t, f_b, p, r = h.ng[tile], frame_t[tile], frame_b[tile], h.p[tile], r_max[tile]
         along_n, along_t = u_axis < F32(0.5), (u_axis >= F32(0.5)) & (u_axis < F32(0.75))
         along_b = ~(along_n | along_t)
         # The axis drawn becomes disk_n; the one it replaced takes its place in the disk's plane.
-        disk_n = np.where(columns(along_n), h.ng, np.where(columns(along_t), frame_t, frame_b))
-        disk_t = np.where(columns(along_t), h.ng, frame_t)
-        disk_b = np.where(columns(along_b), h.ng, frame_b)
-        quarter, half = F32(0.25), F32(0.5)
+        disk_n = np.where(columns(along_n), ng, np.where(columns(along_t), f_t, f_b))
+        disk_t = np.where(columns(along_t), ng, f_t)
+        disk_b = np.where(columns(along_b), ng, f_b)
         pick = [np.where(c, half, quarter) for c in (along_n, along_t, along_b)]
         u_phi = np.where(along_n, u_axis * F32(2.0), np.where(along_t, (u_axis - half) * F32(4.0),
                                                                (u_axis - F32(0.75)) * F32(4.0)))
         phi = TWO_PI * u_phi
-        disk_r = cubic_root(u_r) * r_max
-        height = np.sqrt(np.maximum(r_max * r_max - disk_r * disk_r, ZERO))
+        disk_r = cubic_root(u_r) * r
+        height = np.sqrt(np.maximum(r * r - disk_r * disk_r, ZERO))
         disk_p = disk_t * columns(disk_r * np.cos(phi)) + disk_b * columns(disk_r * np.sin(phi))
-        origins = (h.p + disk_n * columns(height) + disk_p).astype(F32)
+        origins = (p + disk_n * columns(height) + disk_p).astype(F32)
         d = np.ascontiguousarray(-disk_n, F32)
-        found = list(own_hits(h.rays, h.objects, origins, d, F32(2.0) * height, h.split, h.time))
+        found = list(own_hits(h.rays, h.objects[tile], origins, d, F32(2.0) * height, h.split,
+                              None if h.time is None else h.time.take(tile)))
         if not found:
             continue
         rows, prim, t, u, v = (np.concatenate(c) for c in zip(*found))
-        count = np.bincount(rows, minlength=m)
-        keep, scale = pick_hits(rows, count, h.keys, sample, BEVEL_PICK_SALT)
+        order = np.argsort(rows // m, kind="stable")
+        rows, prim, t, u, v = rows[order], prim[order], t[order], u[order], v[order]
+        count = np.bincount(rows, minlength=len(tile))
+        keep, scale = pick_hits(rows, count, (np.tile(h.keys[0], group), np.tile(h.keys[1], group)), sample_of,
+                                BEVEL_PICK_SALT)
         rows, prim, t, u, v = rows[keep], prim[keep], t[keep], u[keep], v[keep]
         g = h.rays.triangles.rows_of(prim)
         hit_ng = g[:, NG:NG + 3]
@@ -176,17 +196,17 @@ def bevel(hits: TracedHits, radius: np.ndarray, samples: int) -> np.ndarray:
         smooth = normalize_rows(g[:, N0:N0 + 3] * columns(w0) + g[:, N1:N1 + 3] * columns(u)
                                 + g[:, N2:N2 + 3] * columns(v))
         normal = np.where(columns(dot_rows(smooth, smooth) > 0), smooth, hit_ng)
-        pdf_n, pdf_t, pdf_b = (p[rows] * np.abs(dot_rows(a[rows], hit_ng))
-                               for p, a in zip(pick, (disk_n, disk_t, disk_b)))
+        pdf_n, pdf_t, pdf_b = (p_[rows] * np.abs(dot_rows(a[rows], hit_ng))
+                               for p_, a in zip(pick, (disk_n, disk_t, disk_b)))
         with np.errstate(divide="ignore", invalid="ignore"):
             w = pdf_n / (pdf_n * pdf_n + pdf_t * pdf_t + pdf_b * pdf_b) * scale[rows]
             hit_p = origins[rows] + d[rows] * columns(t)
-            distance = np.sqrt(dot_rows(hit_p - h.p[rows], hit_p - h.p[rows]))
+            distance = np.sqrt(dot_rows(hit_p - p[rows], hit_p - p[rows]))
             # The falloff at the hit over its pdf on the disk: (R - r)^3 / (R - disk_r)^3, zero beyond R.
-            near = np.maximum(r_max[rows] - distance, ZERO)
-            w = w * (near / (r_max[rows] - disk_r[rows])) ** 3
+            near = np.maximum(r[rows] - distance, ZERO)
+            w = w * (near / (r[rows] - disk_r[rows])) ** 3
         w = np.where(np.isfinite(w), w, ZERO)
-        np.add.at(total, rows, normal.astype(np.float64) * w[:, None])
+        np.add.at(total, tile[rows], normal.astype(np.float64) * w[:, None])
     summed = normalize_rows(total.astype(F32))
     met = dot_rows(summed, summed) > 0
     summed = np.where(columns(h.backfacing), -summed, summed)
