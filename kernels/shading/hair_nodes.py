@@ -92,7 +92,25 @@ def hair_hits(ctx) -> HairHits:
     normal = inputs.attribute(CURVE_NORMAL)
     if normal is not None:   # object space, read as Cycles reads it (curve_attribute: the keys' values mixed at u)
         g.major_axis = tuple(np.where(curve, normal[:, k], ZERO).astype(F32) for k in range(3))
+    g.coverage = pixel_coverage(ctx.hit.ray, ctx.idx, curve, np.take(shapes.key_radius, ctx.idx))
     return g
+
+
+def pixel_coverage(ray, idx, curve, radius) -> np.ndarray | None:
+    """(n,) Cycles' pixel_coverage of hits idx (svm/closure.h, the Huang setup): 0.5 sd->dP / radius where the ray
+    still has camera visibility (PATH_RAY_VISIBILITY_CAMERA: no bounce yet, only transparent surfaces and portals
+    passed, integrator/path_state.h path_state_next) and the hit is on a curve, radius that of the frame's keys
+    mixed at u; 1 elsewhere. sd->dP is the ray's compact differential carried to the hit (RayInfo.dp,
+    util/differential.h differential_transfer_compact). None where no hit has it (no path state: far field)."""
+    if ray is None or ray.dp is None or ray.shadow or not ray.camera:
+        return None
+    seen = curve & (np.take(ray.depth, idx) == 0)
+    if not seen.any():
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        coverage = F32(0.5) * np.take(ray.dp, idx) / radius
+    # A radius of 0 (a closed tip) gives inf, as in Cycles: far field, as does 1 (Huang's radius is at most 1).
+    return np.where(seen & ~np.isnan(coverage), coverage, ONE).astype(F32)
 
 
 def principled_hair_bsdf(c, ctx, w, b):
