@@ -109,8 +109,9 @@ def pixel_coverage(ray, idx, curve, radius) -> np.ndarray | None:
         return None
     with np.errstate(divide="ignore", invalid="ignore"):
         coverage = F32(0.5) * np.take(ray.dp, idx) / radius
-    # A radius of 0 (a closed tip) gives inf, as in Cycles: far field, as does 1 (Huang's radius is at most 1).
-    return np.where(seen & ~np.isnan(coverage), coverage, ONE).astype(F32)
+    # A radius of 0 (a closed tip) gives inf in Cycles: the far field, as 1 gives (Huang's radius is at most 1), and
+    # Cycles reads the coverage nowhere else.
+    return np.where(seen & np.isfinite(coverage), coverage, ONE).astype(F32)
 
 
 def principled_hair_bsdf(c, ctx, w, b):
