@@ -6,7 +6,9 @@ hair_huang.py) per hit, weighted by the Mix Shader weight, on the frame Cycles b
 What a closure reads of its hit is a HairHits record. On a triangle it is Cycles' ShaderData there (mesh_hair_hits):
 the tangent dPdu = p1 - p0 of the triangle's corners in Blender's order (reversed on back faces, as Cycles reverses
 it), the geometric and shading normals, no ribbon and no curve. A curve geometry hands its own record through the
-hit record's `hair_hits(idx)` when it has that method (the contract is HairHits' docstring).
+hit record's `hair_hits(idx)` when it has that method (the contract is HairHits' docstring). On curves met by rays
+that still have camera visibility, Huang's pixel coverage (pixel_coverage) selects its near field where a strand is
+wider than a pixel.
 
 Node inputs, Cycles' order: Random is the curve's random value where the hit is on a curve and the input is not
 linked (Cycles' ATTR_STD_CURVE_RANDOM), else the input. Roughness and Radial Roughness (Chiang; Huang takes
