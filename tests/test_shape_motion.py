@@ -98,6 +98,31 @@ def test_moving_curves_take_their_keys_at_each_ray_time():
     assert np.allclose(hits.t[found], 5.0 - np.sqrt(0.04 - x[found] ** 2), atol=2e-5)
 
 
+
+def test_a_curve_whose_radius_moves_reports_the_frames_for_huangs_near_field():
+    """A still linear curve whose keys' radii grow over the shutter: a hit's radius (Curves Info's Thickness, Cycles'
+    curve_thickness reads the motion keys) is the one at the ray's time, its key_radius the frame's keys' mixed at u
+    whatever the time (what Cycles' Huang setup reads for the near field: curve_keys, never the motion steps)."""
+    steps = 3
+    keys = np.zeros((steps, 2, 4), np.float32)
+    keys[:, 0, 2], keys[:, 1, 2] = -1.0, 1.0
+    keys[:, 0, 3] = [0.1, 0.2, 0.3]
+    keys[:, 1, 3] = [0.2, 0.3, 0.4]
+    curves = Curves("LINEAR", keys[1].copy(), np.array([0, 2], np.int32), np.zeros(1, np.int32), motion=keys)
+    times = np.linspace(0.0, 1.0, 9, dtype=np.float32)
+    n = len(times)
+    origins = np.tile(np.float32([0, -5, 0.3]), (n, 1))
+    dirs = np.tile(np.float32([0, 1, 0]), (n, 1))
+    with Renderer(moving_scene(curves=(curves,)), threads=1) as r:
+        hits = r.accel.intersect(origins, dirs, np.full(n, np.inf, np.float32), time=times)
+        assert (hits.prim >= 0).all()
+        hit = SurfaceHit(r.triangles, hits.prim, hits.u, hits.v, tuple(dirs[:, k] for k in range(3)), False,
+                         ray=(origins, hits.t, times))
+    u = hit.shapes.b1
+    assert np.all((u > 0.5) & (u < 0.8))
+    np.testing.assert_allclose(hit.shapes.key_radius, 0.2 + 0.1 * u, atol=1e-6)
+    np.testing.assert_allclose(hit.shapes.radius, 0.1 + 0.2 * times + 0.1 * u, atol=1e-6)
+
 def test_a_still_record_with_equal_motion_keys_renders_as_without_them():
     """Motion keys that do not move give the image the record gives alone, bit for bit (same rays, same hits)."""
     still = Points(np.array([[0, 0, 0, 0.8]], np.float32), np.zeros(1, np.int32))

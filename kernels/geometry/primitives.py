@@ -374,6 +374,10 @@ class PrimitiveTable:
                 # Curves Info's Thickness reads the stored radius (the object's on instances, as Cycles).
                 out.radius[sel] = curve_geometry.radius_along(
                     at_times(record, hit_times, lambda r: curve_geometry.control_points(r, local, curve)), uu)
+                # Huang's near field reads the frame's keys whatever the time (svm/closure.h fetches curve_keys,
+                # never the motion steps).
+                out.key_radius[sel] = out.radius[sel] if hit_times is None else curve_geometry.radius_along(
+                    curve_geometry.control_points(record, local, curve), uu)
             else:
                 centre = at_times(record, hit_times, lambda r: point_geometry.centres(r, local, matrices))
                 p, ng = point_geometry.hit_geometry(centre, o, d, tt)
@@ -391,13 +395,15 @@ class ShapeHits:
     """What n hits on curves and points yield, (n, 3) or (n,) float32: p, ng (not yet toward the viewer), ns,
     dpdu (zero on points), v (across a ribbon, else 0), b1 (u along a curve segment, 0 on points: the weight of
     corner 1 in PrimitiveTable.attribute's corners), curve, ribbon (bool), centre (a point's), radius (a point's
-    Point Info Radius, a curve's radius at u), kind (int8: 0 triangle, CURVE, POINT; SurfaceHit sets it)."""
-    __slots__ = ("p", "ng", "ns", "dpdu", "v", "b1", "curve", "ribbon", "centre", "radius", "kind")
+    Point Info Radius, a curve's radius at u at the hit's time), key_radius (a curve's radius at u from the frame's
+    keys, radius where the curve does not move), kind (int8: 0 triangle, CURVE, POINT; SurfaceHit sets it)."""
+    __slots__ = ("p", "ng", "ns", "dpdu", "v", "b1", "curve", "ribbon", "centre", "radius", "key_radius", "kind")
 
     def __init__(self, n: int):
         self.p, self.ng, self.ns = (np.zeros((n, 3), F32) for _ in range(3))
         self.dpdu, self.centre = np.zeros((n, 3), F32), np.zeros((n, 3), F32)
         self.v, self.b1, self.radius = np.zeros(n, F32), np.zeros(n, F32), np.zeros(n, F32)
+        self.key_radius = np.zeros(n, F32)
         self.curve, self.ribbon = np.zeros(n, bool), np.zeros(n, bool)
         self.kind = np.zeros(n, np.int8)
 

@@ -6,7 +6,9 @@ hair_huang.py) per hit, weighted by the Mix Shader weight, on the frame Cycles b
 What a closure reads of its hit is a HairHits record. On a triangle it is Cycles' ShaderData there (mesh_hair_hits):
 the tangent dPdu = p1 - p0 of the triangle's corners in Blender's order (reversed on back faces, as Cycles reverses
 it), the geometric and shading normals, no ribbon and no curve. A curve geometry hands its own record through the
-hit record's `hair_hits(idx)` when it has that method (the contract is HairHits' docstring).
+hit record's `hair_hits(idx)` when it has that method (the contract is HairHits' docstring). On curves met by rays
+that still have camera visibility, Huang's pixel coverage (pixel_coverage) selects its near field where a strand is
+wider than a pixel.
 
 Node inputs, Cycles' order: Random is the curve's random value where the hit is on a curve and the input is not
 linked (Cycles' ATTR_STD_CURVE_RANDOM), else the input. Roughness and Radial Roughness (Chiang; Huang takes
@@ -92,7 +94,26 @@ def hair_hits(ctx) -> HairHits:
     normal = inputs.attribute(CURVE_NORMAL)
     if normal is not None:   # object space, read as Cycles reads it (curve_attribute: the keys' values mixed at u)
         g.major_axis = tuple(np.where(curve, normal[:, k], ZERO).astype(F32) for k in range(3))
+    g.coverage = pixel_coverage(ctx.hit.ray, ctx.idx, curve, np.take(shapes.key_radius, ctx.idx))
     return g
+
+
+def pixel_coverage(ray, idx, curve, radius) -> np.ndarray | None:
+    """(n,) Cycles' pixel_coverage of hits idx (svm/closure.h, the Huang setup): 0.5 sd->dP / radius where the ray
+    still has camera visibility (PATH_RAY_VISIBILITY_CAMERA: no bounce yet, only transparent surfaces and portals
+    passed, integrator/path_state.h path_state_next) and the hit is on a curve, radius that of the frame's keys
+    mixed at u; 1 elsewhere. sd->dP is the ray's compact differential carried to the hit (RayInfo.dp,
+    util/differential.h differential_transfer_compact). None where no hit has it (no path state: far field)."""
+    if ray is None or ray.dp is None or ray.shadow or not ray.camera:
+        return None
+    seen = curve & (np.take(ray.depth, idx) == 0)
+    if not seen.any():
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        coverage = F32(0.5) * np.take(ray.dp, idx) / radius
+    # A radius of 0 (a closed tip) gives inf in Cycles: the far field, as 1 gives (Huang's radius is at most 1), and
+    # Cycles reads the coverage nowhere else.
+    return np.where(seen & np.isfinite(coverage), coverage, ONE).astype(F32)
 
 
 def principled_hair_bsdf(c, ctx, w, b):
