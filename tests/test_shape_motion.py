@@ -87,8 +87,7 @@ def test_moving_curves_take_their_keys_at_each_ray_time():
                     motion=keys)
     times = np.linspace(0.0, 1.0, 201, dtype=np.float32)
     n = len(times)
-    origins = np.tile(np.float32([0, -5, 0]), (n, 1))
-    dirs = np.tile(np.float32([0, 1, 0]), (n, 1))
+    origins, dirs = _rays_along_y(n, 0.0)
     with Renderer(moving_scene(curves=(curves,)), threads=1) as r:
         hits = r.accel.intersect(origins, dirs, np.full(n, np.inf, np.float32), time=times)
     x = -1.0 + 2.0 * times.astype(np.float64)
@@ -97,6 +96,10 @@ def test_moving_curves_take_their_keys_at_each_ray_time():
     found = (hits.prim >= 0) & ~edge
     assert np.allclose(hits.t[found], 5.0 - np.sqrt(0.04 - x[found] ** 2), atol=2e-5)
 
+
+def _rays_along_y(n: int, z: float):
+    """n rays from (0, -5, z) along +y: (origins, directions)."""
+    return np.tile(np.float32([0, -5, z]), (n, 1)), np.tile(np.float32([0, 1, 0]), (n, 1))
 
 
 def test_a_curve_whose_radius_moves_reports_the_frames_for_huangs_near_field():
@@ -111,8 +114,7 @@ def test_a_curve_whose_radius_moves_reports_the_frames_for_huangs_near_field():
     curves = Curves("LINEAR", keys[1].copy(), np.array([0, 2], np.int32), np.zeros(1, np.int32), motion=keys)
     times = np.linspace(0.0, 1.0, 9, dtype=np.float32)
     n = len(times)
-    origins = np.tile(np.float32([0, -5, 0.3]), (n, 1))
-    dirs = np.tile(np.float32([0, 1, 0]), (n, 1))
+    origins, dirs = _rays_along_y(n, 0.3)
     with Renderer(moving_scene(curves=(curves,)), threads=1) as r:
         hits = r.accel.intersect(origins, dirs, np.full(n, np.inf, np.float32), time=times)
         assert (hits.prim >= 0).all()
