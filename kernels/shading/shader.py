@@ -200,14 +200,7 @@ class Shading:
         return out
 
     def _build_batch(self, segments, hit, wo, builder, emission, holdout) -> None:
-        """One closure kind over the hits of several materials at once: inputs stitched per material. A
-        batch whose hits this wave are all of one material is that material's closure, built as it is (no
-        stitching: inputs read straight from its program)."""
-        if len(segments) == 1:
-            m, closure, idx = segments[0]
-            ctx = Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
-            _collect(nodes.build(closure, ctx, self._mix_weight(closure, ctx), builder), idx, emission, holdout)
-            return
+        """One closure kind over the hits of several materials at once: inputs stitched per material."""
         idx = np.concatenate([s[2] for s in segments])
         bounds = np.cumsum([0] + [len(s[2]) for s in segments])
         batch = _BatchClosure([(c, lo, hi, m) for (m, c, _), lo, hi in zip(segments, bounds[:-1], bounds[1:])])
