@@ -132,8 +132,8 @@ class Shading:
         self._rest = [tuple(c for c in s.closures if p is None or c.kind != "DIFFUSE")
                       for s, p in zip(self.shaders, self._plain)]
         self._has_rest = np.array([bool(r) for r in self._rest], bool)
-        # The rest is built by kind: closures of one kind, options and plain inputs from all materials
-        # become one batch over all their hits (one Principled stack per wave, not one per material).
+        # The rest is built by kind: closures of one kind and options from all materials become one batch over
+        # all their hits (one Principled stack per wave, not one per material; _batches).
         self._batches, self._alone = _batches(self._rest, [s.bump_map_correction for s in self.shaders])
         self._alone_lists = [(m, cs) for m, cs in enumerate(self._alone) if cs]
         self._emitting = _batches([tuple(c for c in s.closures if nodes.may_emit(c)) if self.emissive[m] else ()
@@ -201,9 +201,8 @@ class Shading:
 
     def _build_batch(self, segments, hit, wo, builder, emission, holdout) -> None:
         """One closure kind over the hits of several materials at once: inputs stitched per material."""
-        idx = np.concatenate([s[2] for s in segments])
-        bounds = np.cumsum([0] + [len(s[2]) for s in segments])
-        batch = _BatchClosure([(c, lo, hi, m) for (m, c, _), lo, hi in zip(segments, bounds[:-1], bounds[1:])])
+        idx, pieces = _side_by_side(segments)
+        batch = _BatchClosure(pieces)
         ctx = Context(self, hit, idx, wo, self.shaders[segments[0][0]].bump_map_correction)
         weight = np.concatenate([self._mix_weight(c, _Sub(hit, ctx.idx[lo:hi], m)) for c, lo, hi, m in batch.pieces])
         _collect(nodes.build(batch, ctx, weight, builder), idx, emission, holdout)
@@ -241,9 +240,7 @@ class Shading:
             segments = [s for s in segments if len(s[2])]
             if not segments:
                 continue
-            idx = np.concatenate([s[2] for s in segments])
-            bounds = np.cumsum([0] + [len(s[2]) for s in segments])
-            pieces = [(c, lo, hi, m) for (m, c, _), lo, hi in zip(segments, bounds[:-1], bounds[1:])]
+            idx, pieces = _side_by_side(segments)
             single = len(pieces) == 1
             closure = pieces[0][0] if single else _BatchClosure(pieces)
             ctx = Context(self, hit, idx, wo, self.shaders[segments[0][0]].bump_map_correction,
@@ -283,7 +280,7 @@ class Shading:
     def param(self, p, ctx, channels: int) -> np.ndarray:
         """A Param at the context's hits: (n,) for channels 1, (3, n) for 3. A colour feeding a float
         input becomes its luminance; a float feeding a colour input is grey, as Blender converts them.
-        A _BatchParam is evaluated piece by piece, over each material's hits."""
+        A BatchParam is evaluated piece by piece, over each material's hits."""
         n = len(ctx.idx)
         if isinstance(p, BatchParam):
             # Constants in one repeat; textured and linked pieces over their own hits (a link through its
@@ -418,6 +415,14 @@ def _batches(rest, bump_corrections):
             else:
                 alone[m].append(c)
     return list(keyed.values()), [tuple(a) for a in alone]
+
+
+def _side_by_side(segments):
+    """The hits of segments [(material, closure, hit indices)] side by side: (hit indices, pieces [(closure, lo,
+    hi, material)] of that array)."""
+    idx = np.concatenate([s[2] for s in segments])
+    bounds = np.cumsum([0] + [len(s[2]) for s in segments])
+    return idx, [(c, lo, hi, m) for (m, c, _), lo, hi in zip(segments, bounds[:-1], bounds[1:])]
 
 
 def _transparent_batches(closures) -> list:
