@@ -10,6 +10,8 @@ max_bounces + 1 times (the lecture's "max path length").
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from . import emitters_seen, motion, passes, sampling, shadow_catcher, shadow_linking, subsurface, visibility
@@ -32,7 +34,7 @@ from .vec import F32
 
 
 def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict | None = None,
-           live: int | None = None, bake=None):
+           live: int | None = None, bake=None, timing: dict | None = None):
     """trace_paths for the paths of `paths` (GivenPaths, WavePaths: what each starts from, made a
     batch at a time; a bake's texels with `bake`, kernels/bake.BakeRun, whose start makes their first vertex).
 
@@ -41,7 +43,10 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     and first bounce a batch of their own, then one batch with the others), so that a wave's long paths
     (glass, many bounces) go on beside new ones rather than alone, bounce after bounce, each bounce
     paying the stages' fixed cost for a few paths. Each path's numbers are its own: the radiance is
-    the same whichever batches the paths shared."""
+    the same whichever batches the paths shared.
+
+    timing: a dict that gets "tail_s", the seconds of the wave's tail: its steps once every path has
+    started and fewer than an eighth of a batch go on (what a wave costs whatever its size: schedule.WaveCost)."""
     n = len(paths)
     radiance = np.zeros((3, n), np.float32)
     alpha = np.ones(n, np.float32)
@@ -57,7 +62,10 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     live = n if live is None else max(1, int(live))
     started = 0
     going = None   # the paths past their first bounce: (PathState, Rays), or None
+    thin, tail_began = max(1, min(live, n) // 8), None
     while True:
+        if tail_began is None and started >= n and (going is None or len(going[0]) < thin):
+            tail_began = time.perf_counter()
         if started < n and (going is None or 2 * len(going[0]) < live):
             size = live - (0 if going is None else len(going[0]))
             if size > paths.spp:
@@ -83,6 +91,8 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
         _catch_up(tables, wave, last)
     if wave.catcher is not None:
         shadow_catcher.finish(wave, radiance, alpha)
+    if timing is not None:
+        timing["tail_s"] = 0.0 if tail_began is None else time.perf_counter() - tail_began
     return radiance, alpha
 
 

@@ -391,7 +391,8 @@ class Renderer:
     def render_wave(self, settings: RenderSettings, job: WaveJob):
         """One wave (kernels.schedule.WaveJob: its band of rows, samples, pixels and live paths).
         Returns ((rows, W, 4) float64 sums, (rows, W, 3) sums of the odd samples, (rows, W) sample counts,
-        count of dropped non-finite paths). Paths are pixel-major so each pixel's samples are adjacent; what
+        count of dropped non-finite paths, the passes' planes or None, the seconds of the wave's tail
+        (integrator.trace's timing)). Paths are pixel-major so each pixel's samples are adjacent; what
         each path starts from (pixel, sample, random numbers) is made as its batch starts, so that the wave
         holds only its radiance and alpha per path."""
         x0, y0, width, band = job.x0, job.y0, job.width, job.rows
@@ -407,8 +408,10 @@ class Renderer:
         # is per thread, so it is set here, in the thread that runs the wave.
         aux = passes.wave_buffers(settings, n)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+            timing = {}
             radiance, alpha = integrator.trace(self, paths, settings, split, aux=aux,
-                                               live=self.live_paths(settings) if live is None else live)
+                                               live=self.live_paths(settings) if live is None else live,
+                                               timing=timing)
         bad = ~np.isfinite(radiance).all(axis=0)
         n_bad = int(np.count_nonzero(bad))
         if n_bad:
@@ -423,7 +426,7 @@ class Renderer:
             half = half.reshape(rows, width, 3)
         aux_out = None if aux is None else passes.wave_planes(aux, settings, *paths.pixel_and_sample(), pixels, spp,
                                                               rows, width, radiance)
-        return sums.reshape(rows, width, 4), half, counts.reshape(rows, width), n_bad, aux_out
+        return sums.reshape(rows, width, 4), half, counts.reshape(rows, width), n_bad, aux_out, timing["tail_s"]
 
     # ---------------------------------------------------------------- one wave of paths
     def trace_paths(self, rng: PathRng, row: np.ndarray, col: np.ndarray, settings: RenderSettings,

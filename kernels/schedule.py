@@ -69,6 +69,47 @@ GENERATIONS = itertools.count(1)
 
 ADAPTIVE_STEP = 16  # samples between convergence checks, as Cycles' adaptive_step
 
+# Pacing to a time limit (paced): a pass takes this share of the time left while more than FINAL_PASS_TAILS
+# waves' fixed costs are left, and the last pass the rest. Each pass has one wave per thread
+# (more where wave_size says so): a wave pays a fixed cost (its tail: the last few long paths, bounce after
+# bounce, each bounce paying the stages' cost in Python whatever the paths) that small waves cannot repay.
+PASS_SHARE = 2.0 / 3.0
+FINAL_PASS_TAILS = 6.0
+# The last pass plans for this share of the time left: its waves' cost is an estimate, and the render's
+# end waits for its slowest wave.
+FINAL_PASS_SHARE = 0.95
+
+
+@dataclass(frozen=True)
+class WaveCost:
+    """The seconds a wave of n paths takes on one thread: fixed + n / rate. The fixed part is the wave's
+    tail and set-up, about the same whatever its size (tenths of a second in scenes of many materials)."""
+    fixed: float
+    rate: float
+
+    def seconds(self, paths: float) -> float:
+        return self.fixed + paths / self.rate
+
+    def paths(self, seconds: float) -> float:
+        """Paths of one wave that ends in `seconds` (0 when its fixed cost alone is more)."""
+        return max(0.0, seconds - self.fixed) * self.rate
+
+
+def wave_cost(waves: list, recent: int = 4) -> WaveCost | None:
+    """The WaveCost of waves measured as (paths, seconds, tail seconds), None without any: the fixed part is
+    the waves' median tail (integrator.trace's timing); the rate that of the slowest of the `recent` last
+    waves without its tail, as the render ends with its slowest thread (on a loaded machine the threads
+    and worker processes do not keep pace). The render's first wave is left out where others are: it also
+    pays the render's one-time costs (the first gathers of textures, tables built on first use)."""
+    waves = [w for w in waves if w[0] > 0 and w[1] > 0]
+    if not waves:
+        return None
+    if len(waves) > 1:
+        waves = waves[1:]
+    fixed = float(np.median([min(tail, seconds) for _, seconds, tail in waves]))
+    rate = min(paths / max(seconds - min(tail, seconds), 0.1 * seconds) for paths, seconds, tail in waves[-recent:])
+    return WaveCost(fixed, float(rate))
+
 
 
 @dataclass
@@ -149,6 +190,7 @@ class WaveCrew:
         # Paths and seconds of the render's waves, each on its own thread, for waves side by side (False)
         # and waves split over the threads (True).
         self.clock = {False: [0, 0.0], True: [0, 0.0]}
+        self.waves = []          # (paths, seconds, tail seconds) of the render's waves, in the order they ended
 
     # ---------------------------------------------------------------- worker processes
     def start_workers(self, scene, triangles: int, runner: str) -> bool:
@@ -203,6 +245,7 @@ class WaveCrew:
         self.stop_waves.clear()
         self._poll, self._thread = should_stop, threading.get_ident()
         self.clock = {False: [0, 0.0], True: [0, 0.0]}   # this render's waves only (rate)
+        self.waves = []
 
     def end(self) -> None:
         """Every wave of the render is back."""
@@ -228,9 +271,16 @@ class WaveCrew:
         seconds = time.perf_counter() - began
         split = bool(job.split)
         with self._lock:
-            self.clock[split][0] += int(result[2].sum())
+            paths = int(result[2].sum())
+            self.clock[split][0] += paths
             self.clock[split][1] += seconds
+            self.waves.append((paths, seconds, result[5]))
         return result
+
+    def cost(self) -> WaveCost | None:
+        """What a wave costs on one thread, from the render's waves so far (wave_cost); None before the first."""
+        with self._lock:
+            return wave_cost(list(self.waves))
 
     def _in_slot(self, tracer, settings: RenderSettings, job: WaveJob):
         slot = self.slots.take()
@@ -346,6 +396,8 @@ def render_passes(tracer, crew: "WaveCrew", settings: RenderSettings, on_tile=No
             check = adaptive and done >= min_samples and (done - min_samples) % ADAPTIVE_STEP == 0
             if check and in_flight:
                 pass  # add every wave in flight first
+            elif done and settings.time_limit_s > 0 and in_flight:
+                pass  # a paced pass is planned once every wave is back (below)
             elif done and out_of_time(settings, start):
                 stopped = True  # a pass never starts after the limit
             else:
@@ -353,17 +405,20 @@ def render_passes(tracer, crew: "WaveCrew", settings: RenderSettings, on_tile=No
                     film.update_convergence(settings.adaptive_threshold)
                     if film.converged.all():
                         break
-                wave, last = tracer.wave_size(settings), total
+                wave, last, waves = tracer.wave_size(settings), total, None
                 rate = crew.rate()
                 queued = sum(len(rows) * width * s for rows, s, _ in in_flight)   # paths planned, not in
-                if done and settings.time_limit_s > 0 and rate:
-                    # Near the time limit the next pass takes only the samples that fit in the time
-                    # left at the rate so far, after the waves still in flight, in shorter waves: the
-                    # render ends close to its limit, not up to a wave or a pass after it (as Cycles'
-                    # scheduler fits its samples to the time left).
+                cost = crew.cost() if done and settings.time_limit_s > 0 else None
+                if cost is not None:
+                    # A time-limited render's passes take the samples that fit in a share of the time
+                    # left by what its waves have cost so far, and the last pass the rest: the render ends
+                    # close to its limit, not up to a wave or a pass after it (as Cycles' scheduler fits
+                    # its samples to the time left), in few large waves. Such a pass is planned once every
+                    # wave is back: on a loaded machine one thread can lag another by a second, and a
+                    # wave's paths cannot be counted until it ends.
                     active = int(np.count_nonzero(~film.converged)) if adaptive else width * height
-                    fit, wave = paced(rate, settings.time_limit_s - (time.perf_counter() - start), queued,
-                                       active, tracer.accel.threads, wave)
+                    fit, wave, waves = paced(cost, settings.time_limit_s - (time.perf_counter() - start),
+                                             active, tracer.accel.threads, wave)
                     last = min(total, done + fit)
                 if last == done:
                     stopped = True  # not even one more sample fits before the limit
@@ -371,7 +426,7 @@ def render_passes(tracer, crew: "WaveCrew", settings: RenderSettings, on_tile=No
                 # A time-limited render starts with a 1-sample pass too: its waves give the rate that
                 # fits the next passes to the limit, whatever the limit.
                 quick = settings.quick_first_pass or settings.time_limit_s > 0
-                spp, bands = plan_pass(width, height, done, last, wave, quick, tracer.live_paths(settings))
+                spp, bands = plan_pass(width, height, done, last, wave, quick, tracer.live_paths(settings), waves)
                 if adaptive:  # passes end where the next convergence check falls
                     next_check = min_samples if done < min_samples else \
                         done + ADAPTIVE_STEP - (done - min_samples) % ADAPTIVE_STEP
@@ -402,7 +457,7 @@ def render_passes(tracer, crew: "WaveCrew", settings: RenderSettings, on_tile=No
         if future.cancelled():
             continue
         try:
-            sums, half, counts, bad, aux = crew.result(future, should_stop)
+            sums, half, counts, bad, aux, _ = crew.result(future, should_stop)
         except WaveStopped:   # left at a stop request: its paths are incomplete, none is added
             stopped, pending = True, []
             for *_, queued in in_flight:
@@ -453,19 +508,24 @@ def adaptive_min_samples(settings: RenderSettings) -> int:
     return max(4, int(np.ceil(16.0 / settings.adaptive_threshold ** 0.3)))
 
 
-def paced(rate: float, left_s: float, queued_paths: int, pixels: int, threads: int, wave_size: int):
-    """(samples, wave size) of a pass planned with left_s seconds of a time limit to go, at rate paths/s on
-    all threads, with queued_paths planned before it: the samples per pixel whose paths end nearest the
-    limit (0 when less than half a sample's time is left), in waves of at most half the time left to them
-    on one thread (never below MIN_WAVE_PATHS), so that the last waves end near the limit too."""
-    after_queued = left_s - queued_paths / rate      # the time left when this pass's waves start
-    fit = int(rate * after_queued / max(pixels, 1) + 0.5)
-    wave = min(wave_size, max(MIN_WAVE_PATHS, int(rate / max(threads, 1) * after_queued / 2)))
-    return max(fit, 0), wave
+def paced(cost: WaveCost, left_s: float, pixels: int, threads: int, wave_size: int):
+    """(samples, paths per wave, waves) of a pass planned with left_s seconds of a time limit to go, at `cost`
+    per wave on each of `threads` threads: the pass takes PASS_SHARE of the time left, or FINAL_PASS_SHARE
+    once that is at most FINAL_PASS_TAILS waves' fixed cost; one wave per thread, or as many as keep waves
+    within wave_size; the samples per pixel whose waves end nearest that (0 when not even half a sample's
+    paths fit)."""
+    span = FINAL_PASS_SHARE * left_s if left_s <= FINAL_PASS_TAILS * cost.fixed else PASS_SHARE * left_s
+    per_thread = cost.paths(span)
+    rounds = max(1, int(np.ceil(per_thread / max(wave_size, 1))))
+    if rounds > 1:   # each further wave on a thread pays its fixed cost too
+        per_thread = cost.rate * max(0.0, span - rounds * cost.fixed)
+    fit = int(per_thread * threads / max(pixels, 1) + 0.5)
+    waves = rounds * max(threads, 1)
+    return max(fit, 0), max(1, min(wave_size, int(np.ceil(per_thread / rounds)))), waves
 
 
 def plan_pass(width: int, height: int, done: int, total: int, wave_size: int, quick_first: bool = True,
-               band_pixels: int | None = None):
+               band_pixels: int | None = None, waves: int | None = None):
     """Samples per pixel of the next pass and its bands of rows (ranges of region rows), one wave each.
 
     The first pass takes one sample, for a quick first image (unless quick_first is False); later passes
@@ -475,8 +535,16 @@ def plan_pass(width: int, height: int, done: int, total: int, wave_size: int, qu
     so that the waves of a pass cost about the same wherever the image's costly rows are (rows of glass
     and rows of sky), and the last waves of a pass on two cores end together. The plan depends only on
     the image and the settings, never on the thread count, so every thread count sums the same numbers
-    in the same order.
+    in the same order; except that of a time-limited render's later passes (paced), which give their
+    count of `waves` and take all their samples (total - done) in as many bands as band_pixels allows.
     """
+    if waves is not None and not (done == 0 and quick_first):
+        spp = max(1, total - done)
+        count = max(1, int(waves))
+        if band_pixels is not None:
+            count = max(count, -(-height // max(1, band_pixels // width)))
+        count = min(count, height)
+        return spp, [range(j, height, count) for j in range(count)]
     if done == 0 and quick_first:
         spp = 1
     else:

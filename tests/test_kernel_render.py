@@ -1,5 +1,6 @@
 """The path tracer against closed-form answers, itself (modes, threads) and its contracts."""
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -177,16 +178,49 @@ def test_time_limit_stops_the_render():
     assert result.stopped_early and result.progress.samples_done < 10_000
 
 
-def test_passes_near_the_time_limit_take_the_samples_that_fit():
-    """schedule.paced: at 1M paths/s with 0.5 s left and 100k paths still queued (0.1 s), a 10k-pixel
-    image fits 40 more samples; waves shrink to half the 0.4 s left to them on one of 2 threads (100k
-    paths), never below MIN_WAVE_PATHS; less than half a sample's time left gives 0."""
+def test_a_wave_costs_a_fixed_part_and_its_paths_at_a_rate():
+    """schedule.wave_cost: waves of 0.5 s tails and 100k paths/s besides give back those two, the first wave
+    (which also pays the render's one-time costs) left out where there are others; the fixed part is the
+    median tail, so one odd wave does not move it; the rate is the slowest recent wave's (the render waits
+    for its slowest thread)."""
     from ember.kernels import schedule
-    assert schedule.paced(1e6, 0.5, 100_000, 10_000, 2, 1 << 18) == (40, 100_000)
-    assert schedule.paced(1e6, 0.5, 100_000, 10_000, 2, 50_000) == (40, 50_000)
-    assert schedule.paced(1e6, 0.101, 100_000, 10_000, 2, 1 << 18) == (0, schedule.MIN_WAVE_PATHS)
-    assert schedule.paced(1e6, 0.106, 100_000, 10_000, 2, 1 << 18)[0] == 1
-    assert schedule.paced(1e6, 0.05, 100_000, 10_000, 2, 1 << 18)[0] == 0    # the queue alone overruns
+    assert schedule.wave_cost([]) is None
+    timed = [(n, 0.5 + n / 1e5, 0.5) for n in (50_000, 200_000, 400_000)]
+    cost = schedule.wave_cost([(20_000, 3.0, 2.5)] + timed)
+    assert cost.fixed == pytest.approx(0.5) and cost.rate == pytest.approx(1e5)
+    assert cost.seconds(100_000) == pytest.approx(1.5) and cost.paths(1.5) == pytest.approx(100_000)
+    assert cost.paths(0.2) == 0.0
+    assert schedule.wave_cost([(20_000, 3.0, 2.5)]).fixed == pytest.approx(2.5)    # the first alone
+    assert schedule.wave_cost(timed + [(100_000, 3.0, 2.0)]).fixed == pytest.approx(0.5)
+    slow = [(100_000, 1.5, 0.5), (100_000, 2.5, 0.5), (100_000, 1.5, 0.5)]
+    assert schedule.wave_cost([(1, 1.0, 0.5)] + slow).rate == pytest.approx(5e4)
+    assert schedule.wave_cost([(1, 1.0, 0.5)] + slow + timed * 2).rate == pytest.approx(1e5)   # the last 4
+    # Embree's share of a wave split over threads can make its tail most of it: the rate stays finite.
+    assert np.isfinite(schedule.wave_cost([(1, 1.0, 0.5), (100, 1.0, 1.0)]).rate)
+
+
+def test_passes_near_the_time_limit_take_the_samples_that_fit():
+    """schedule.paced at 0.1 s + paths / 1M paths/s per wave, two threads, a 10k-pixel image: with 1.8 s left a
+    pass takes two thirds of it; 1.1M paths a thread are over a wave_size of 2^20, so two waves a thread, each
+    paying its 0.1 s: 1M paths a thread, 200 samples in four waves. Within six waves' fixed cost of the end the
+    last pass takes 95% of the time left, one wave a thread; less than half a sample's paths gives 0."""
+    from ember.kernels import schedule
+    cost = schedule.WaveCost(0.1, 1e6)
+    assert schedule.paced(cost, 1.8, 10_000, 2, 1 << 20) == (200, 500_000, 4)
+    assert schedule.paced(cost, 1.8, 10_000, 2, 1 << 21) == (220, 1_100_000, 2)
+    assert schedule.paced(cost, 0.5, 10_000, 2, 1 << 20) == (75, 375_000, 2)
+    assert schedule.paced(cost, 0.2, 10_000, 2, 1 << 20) == (18, 90_000, 2)
+    assert schedule.paced(cost, 0.102, 10_000, 2, 1 << 20)[0] == 0
+
+
+def test_a_pass_paced_to_a_time_limit_has_the_waves_it_is_given():
+    """plan_pass with `waves`: all the samples asked in that many interleaved bands, more where a band would
+    hold more pixels than band_pixels; the quick first pass is left as it is."""
+    from ember.kernels.schedule import plan_pass
+    assert plan_pass(160, 120, 1, 41, 1 << 20, True, 1 << 17, 2) == (40, [range(0, 120, 2), range(1, 120, 2)])
+    spp, bands = plan_pass(160, 120, 1, 2, 1 << 20, True, 4800, 2)
+    assert spp == 1 and len(bands) == 4 and sorted(r for b in bands for r in b) == list(range(120))
+    assert plan_pass(160, 120, 0, 41, 1 << 20, True, 1 << 17, 2)[0] == 1
 
 
 def test_a_time_limited_render_starts_with_one_sample_and_paces_by_its_waves(monkeypatch):
@@ -203,10 +237,13 @@ def test_a_time_limited_render_starts_with_one_sample_and_paces_by_its_waves(mon
         result = renderer.render(RenderSettings(samples=10_000, time_limit_s=0.5, quick_first_pass=False))
         assert planned[0][5] is True and result.progress.samples_done >= 1
         assert result.stopped_early and result.progress.samples_done < 10_000
-        assert paced and all(rate > 0 for rate, *_ in paced)
-        # The rate comes from the waves' own times: side-by-side waves count once per thread.
+        assert paced and all(cost.rate > 0 and cost.fixed >= 0 for cost, *_ in paced)
+        # The cost comes from the waves' own times; a paced pass has a wave a thread (or more, by wave_size).
         clock = renderer.crew.clock
         assert clock[False][0] + clock[True][0] == result.progress.paths
+        assert sum(paths for paths, _, _ in renderer.crew.waves) == result.progress.paths
+        assert all(0 <= tail <= seconds for _, seconds, tail in renderer.crew.waves)
+        assert all(a[7] is not None and a[7] % 2 == 0 for a in planned[1:])
         planned.clear()
         renderer.render(RenderSettings(samples=4, quick_first_pass=False))
         assert planned[0][5] is False            # no limit: the plan as asked
