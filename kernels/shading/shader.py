@@ -200,7 +200,14 @@ class Shading:
         return out
 
     def _build_batch(self, segments, hit, wo, builder, emission, holdout) -> None:
-        """One closure kind over the hits of several materials at once: inputs stitched per material."""
+        """One closure kind over the hits of several materials at once: inputs stitched per material. A
+        batch whose hits this wave are all of one material is that material's closure, built as it is (no
+        stitching: inputs read straight from its program)."""
+        if len(segments) == 1:
+            m, closure, idx = segments[0]
+            ctx = Context(self, hit, idx, wo, self.shaders[m].bump_map_correction, material=m)
+            _collect(nodes.build(closure, ctx, self._mix_weight(closure, ctx), builder), idx, emission, holdout)
+            return
         idx, pieces = _side_by_side(segments)
         batch = _BatchClosure(pieces)
         ctx = Context(self, hit, idx, wo, self.shaders[segments[0][0]].bump_map_correction)
