@@ -536,7 +536,8 @@ def plan_pass(width: int, height: int, done: int, total: int, wave_size: int, qu
     and rows of sky), and the last waves of a pass on two cores end together. The plan depends only on
     the image and the settings, never on the thread count, so every thread count sums the same numbers
     in the same order; except that of a time-limited render's later passes (paced), which give their
-    count of `waves` and take all their samples (total - done) in as many bands as band_pixels allows.
+    count of `waves` and take all their samples (total - done) in as many bands as band_pixels allows
+    (fewer samples where the image has fewer rows than waves, so that a wave stays within wave_size).
     """
     if waves is not None and not (done == 0 and quick_first):
         spp = max(1, total - done)
@@ -544,6 +545,7 @@ def plan_pass(width: int, height: int, done: int, total: int, wave_size: int, qu
         if band_pixels is not None:
             count = max(count, -(-height // max(1, band_pixels // width)))
         count = min(count, height)
+        spp = max(1, min(spp, wave_size // max(1, -(-height // count) * width)))   # more waves than rows
         return spp, [range(j, height, count) for j in range(count)]
     if done == 0 and quick_first:
         spp = 1

@@ -215,12 +215,15 @@ def test_passes_near_the_time_limit_take_the_samples_that_fit():
 
 def test_a_pass_paced_to_a_time_limit_has_the_waves_it_is_given():
     """plan_pass with `waves`: all the samples asked in that many interleaved bands, more where a band would
-    hold more pixels than band_pixels; the quick first pass is left as it is."""
+    hold more pixels than band_pixels; the quick first pass is left as it is; an image of fewer rows than
+    waves takes fewer samples, so that a wave stays within wave_size."""
     from ember.kernels.schedule import plan_pass
     assert plan_pass(160, 120, 1, 41, 1 << 20, True, 1 << 17, 2) == (40, [range(0, 120, 2), range(1, 120, 2)])
     spp, bands = plan_pass(160, 120, 1, 2, 1 << 20, True, 4800, 2)
     assert spp == 1 and len(bands) == 4 and sorted(r for b in bands for r in b) == list(range(120))
     assert plan_pass(160, 120, 0, 41, 1 << 20, True, 1 << 17, 2)[0] == 1
+    spp, bands = plan_pass(32, 8, 1, 10_001, 4096, True, None, 40)     # 8 rows for 40 waves of 4,096 paths
+    assert len(bands) == 8 and spp == 4096 // 32
 
 
 def test_a_time_limited_render_starts_with_one_sample_and_paces_by_its_waves(monkeypatch):
