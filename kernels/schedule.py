@@ -87,9 +87,6 @@ class WaveCost:
     fixed: float
     rate: float
 
-    def seconds(self, paths: float) -> float:
-        return self.fixed + paths / self.rate
-
     def paths(self, seconds: float) -> float:
         """Paths of one wave that ends in `seconds` (0 when its fixed cost alone is more)."""
         return max(0.0, seconds - self.fixed) * self.rate
@@ -171,7 +168,7 @@ class WaveCrew:
     """Where a renderer's waves run: `threads` slots, each a thread of this process or, once one is ready, a
     worker process (processes: None starts them when a render is long enough, True at once, False never).
     It also holds what the waves of the render in progress share: its generation, its stop flag and the
-    clock of its waves (rate)."""
+    record of its waves' times (rate, cost)."""
 
     def __init__(self, threads: int, processes: bool | None):
         self.threads = threads
@@ -187,10 +184,9 @@ class WaveCrew:
         self._poll = None        # the render's should_stop, polled by its own thread (check_stop)
         self._thread = None
         self._lock = threading.Lock()
-        # Paths and seconds of the render's waves, each on its own thread, for waves side by side (False)
-        # and waves split over the threads (True).
-        self.clock = {False: [0, 0.0], True: [0, 0.0]}
-        self.waves = []          # (paths, seconds, tail seconds) of the render's waves, in the order they ended
+        # (paths, seconds, tail seconds, split) of the render's waves in the order they ended, each timed on its
+        # own thread; split: a wave of a pass split over the threads (fewer waves than threads).
+        self.waves = []
 
     # ---------------------------------------------------------------- worker processes
     def start_workers(self, scene, triangles: int, runner: str) -> bool:
@@ -244,8 +240,7 @@ class WaveCrew:
         self.generation = next(GENERATIONS)
         self.stop_waves.clear()
         self._poll, self._thread = should_stop, threading.get_ident()
-        self.clock = {False: [0, 0.0], True: [0, 0.0]}   # this render's waves only (rate)
-        self.waves = []
+        self.waves = []   # this render's waves only (rate, cost)
 
     def end(self) -> None:
         """Every wave of the render is back."""
@@ -264,23 +259,19 @@ class WaveCrew:
         return self.pool.submit(self._wave, tracer, settings, job)
 
     def _wave(self, tracer, settings: RenderSettings, job: WaveJob):
-        """The wave in a free slot: this process or a ready worker process (timed on the clock). A worker
+        """The wave in a free slot: this process or a ready worker process (timed, for rate and cost). A worker
         that is lost (closed, exited, failed) gives its slot back to this process, and the wave runs here."""
         began = time.perf_counter()
         result = self._in_slot(tracer, settings, job)
         seconds = time.perf_counter() - began
-        split = bool(job.split)
         with self._lock:
-            paths = int(result[2].sum())
-            self.clock[split][0] += paths
-            self.clock[split][1] += seconds
-            self.waves.append((paths, seconds, result[5]))
+            self.waves.append((int(result[2].sum()), seconds, result[5], bool(job.split)))
         return result
 
     def cost(self) -> WaveCost | None:
         """What a wave costs on one thread, from the render's waves so far (wave_cost); None before the first."""
         with self._lock:
-            return wave_cost(list(self.waves))
+            return wave_cost([w[:3] for w in self.waves])
 
     def _in_slot(self, tracer, settings: RenderSettings, job: WaveJob):
         slot = self.slots.take()
@@ -333,9 +324,12 @@ class WaveCrew:
         running): the rate of the waves that run side by side, one per thread, times the threads; until
         there are such waves, that of the waves split over the threads. None before the first wave."""
         with self._lock:
-            for split, (paths, seconds) in sorted(self.clock.items()):
-                if paths and seconds > 0:
-                    return paths / seconds * (1 if split else self.threads)
+            waves = list(self.waves)
+        for split in (False, True):
+            paths = sum(w[0] for w in waves if w[3] == split)
+            seconds = sum(w[1] for w in waves if w[3] == split)
+            if paths and seconds > 0:
+                return paths / seconds * (1 if split else self.threads)
         return None
 
     def close(self) -> None:

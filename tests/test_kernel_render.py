@@ -188,7 +188,7 @@ def test_a_wave_costs_a_fixed_part_and_its_paths_at_a_rate():
     timed = [(n, 0.5 + n / 1e5, 0.5) for n in (50_000, 200_000, 400_000)]
     cost = schedule.wave_cost([(20_000, 3.0, 2.5)] + timed)
     assert cost.fixed == pytest.approx(0.5) and cost.rate == pytest.approx(1e5)
-    assert cost.seconds(100_000) == pytest.approx(1.5) and cost.paths(1.5) == pytest.approx(100_000)
+    assert cost.paths(1.5) == pytest.approx(100_000)
     assert cost.paths(0.2) == 0.0
     assert schedule.wave_cost([(20_000, 3.0, 2.5)]).fixed == pytest.approx(2.5)    # the first alone
     assert schedule.wave_cost(timed + [(100_000, 3.0, 2.0)]).fixed == pytest.approx(0.5)
@@ -242,10 +242,9 @@ def test_a_time_limited_render_starts_with_one_sample_and_paces_by_its_waves(mon
         assert result.stopped_early and result.progress.samples_done < 10_000
         assert paced and all(cost.rate > 0 and cost.fixed >= 0 for cost, *_ in paced)
         # The cost comes from the waves' own times; a paced pass has a wave a thread (or more, by wave_size).
-        clock = renderer.crew.clock
-        assert clock[False][0] + clock[True][0] == result.progress.paths
-        assert sum(paths for paths, _, _ in renderer.crew.waves) == result.progress.paths
-        assert all(0 <= tail <= seconds for _, seconds, tail in renderer.crew.waves)
+        assert sum(paths for paths, *_ in renderer.crew.waves) == result.progress.paths
+        assert all(0 <= tail <= seconds for _, seconds, tail, _ in renderer.crew.waves)
+        assert renderer.crew.rate() > 0
         assert all(a[7] is not None and a[7] % 2 == 0 for a in planned[1:])
         planned.clear()
         renderer.render(RenderSettings(samples=4, quick_first_pass=False))
