@@ -42,8 +42,9 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     time: when fewer than half of `live` are left, the next ones start beside them (their camera rays
     and first bounce a batch of their own, then one batch with the others), so that a wave's long paths
     (glass, many bounces) go on beside new ones rather than alone, bounce after bounce, each bounce
-    paying the stages' fixed cost for a few paths. Each path's numbers are its own: the radiance is
-    the same whichever batches the paths shared.
+    paying the stages' fixed cost for a few paths. Subsurface walks are parked between steps beside
+    them (subsurface.WalkPool; their paths count as in flight). Each path's numbers are its own: the
+    radiance is the same whichever batches the paths shared.
 
     timing: a dict that gets "tail_s", the seconds of the wave's tail: its steps once every path has
     started and fewer than an eighth of a batch go on (what a wave costs whatever its size: schedule.WaveCost)."""
@@ -55,6 +56,7 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     wave = _Wave(settings, nee, split, max_scatters, radiance, alpha,
                  0.0 if tables.scene.camera.kind == "ORTHO" else tables.pixel_size)
     wave.aux, wave.bake = aux, bake
+    wave.walks = subsurface.WalkPool.of(tables)
     wave.groups = passes.wave_groups(aux)
     wave.catcher = shadow_catcher.start(tables, wave, n, _Wave)
     # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
@@ -64,10 +66,12 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     going = None   # the paths past their first bounce: (PathState, Rays), or None
     thin, tail_began = max(1, min(live, n) // 8), None
     while True:
-        if tail_began is None and started >= n and (going is None or len(going[0]) < thin):
+        # The paths in flight: those going on and those whose walks are parked (subsurface.WalkPool).
+        flying = (0 if going is None else len(going[0])) + _parked(wave)
+        if tail_began is None and started >= n and flying < thin:
             tail_began = time.perf_counter()
-        if started < n and (going is None or 2 * len(going[0]) < live):
-            size = live - (0 if going is None else len(going[0]))
+        if started < n and 2 * flying < live:
+            size = live - flying
             if size > paths.spp:
                 size -= size % paths.spp   # whole pixels: their places in the sequence are found once
             end = min(n, started + size)
@@ -79,21 +83,46 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
                 fresh = bake.start(tables, wave, paths, started, end, last)
             started = end
             if fresh is not None:
-                going = fresh if going is None else \
-                    (PathState.concat(going[0], fresh[0]), concat_rays(going[1], fresh[1]))
+                going = _joined(going, fresh)
+            going = _walks_on(tables, wave, going, started >= n, last)
             _catch_up(tables, wave, last)
             continue
         if going is None:
-            if not _catch_up(tables, wave, last):
+            if _parked(wave):   # only walks are left in flight: they go to their ends
+                going = _walks_on(tables, wave, None, True, last)
+            elif not _catch_up(tables, wave, last):
                 break
             continue
         going = step(tables, wave, *going, first=False, last=last)
+        going = _walks_on(tables, wave, going, started >= n, last)
         _catch_up(tables, wave, last)
     if wave.catcher is not None:
         shadow_catcher.finish(wave, radiance, alpha)
     if timing is not None:
         timing["tail_s"] = 0.0 if tail_began is None else time.perf_counter() - tail_began
     return radiance, alpha
+
+
+def _joined(a, b):
+    """Two batches of going paths (PathState, Rays) as one; either may be None."""
+    if a is None or b is None:
+        return b if a is None else a
+    return PathState.concat(a[0], b[0]), concat_rays(a[1], b[1])
+
+
+def _walks_on(tables, wave, going, all_started: bool, last: int):
+    """The subsurface walks parked in the wave (subsurface.WalkPool) take their next steps, all of them once no
+    path goes on and none is left to start; the paths whose walks came out go on from their exits beside
+    `going`. Returns the going paths (PathState, Rays), or None."""
+    if not _parked(wave):
+        return going
+    found = wave.walks.advance(drain=going is None and all_started)
+    tables.crew.check_stop()
+    return going if found is None else _joined(going, _exits_go_on(tables, wave, *found, last))
+
+
+def _parked(wave) -> int:
+    return 0 if wave.walks is None else len(wave.walks)
 
 
 def _catch_up(tables, wave, last: int) -> bool:
@@ -330,13 +359,20 @@ def _subsurface_exits(tables, wave, state, hit, closures, bs, rows, last):
     """The paths `state` (of the hits rows, which picked a subsurface closure) walk beneath their surfaces; where a walk
     comes out, the exit point is a surface vertex of its own (Cycles' INTERSECT_SUBSURFACE, then SHADE_SURFACE
     with PATH_RAY_SUBSURFACE). Returns the paths that go on from there and their rays, or None."""
-    out, prim, u, v, t, direction, throughput = subsurface.enter(tables, state, hit, closures, bs, rows, wave.split)
+    out, prim, u, v, t, direction, throughput = subsurface.enter(tables, state, hit, closures, bs, rows, wave.split,
+                                                                wave.walks)
     tables.crew.check_stop()
     if not len(out):
         return None
     state.compact(out)
     state.throughput = throughput
-    n = len(out)
+    return _exits_go_on(tables, wave, state, prim, u, v, t, direction, last)
+
+
+def _exits_go_on(tables, wave, state, prim, u, v, t, direction, last):
+    """The paths `state` (their throughput the walks' at the exits) at the points where their walks came out: the
+    triangles prim at barycentrics u, v, after a last flight of length t along direction (3, n)."""
+    n = len(state)
     # As Cycles, the exit is seen from outside: the ray arrives against the last flight's direction.
     rays = Rays(np.zeros((n, 3), np.float32), np.ascontiguousarray(-direction.T), np.full(n, np.inf, np.float32))
     return _surface_vertex(tables, wave, state, rays, Hits(prim, t, u, v), np.arange(n), first=False, last=last,
@@ -527,7 +563,7 @@ def _crossings(tables, state, hit, alive, bs) -> None:
 class _Wave:
     """Per-wave constants and outputs shared by the stages."""
     __slots__ = ("settings", "nee", "split", "max_scatters", "radiance", "alpha", "spread_dd", "aux", "bake", "catcher",
-                 "only_catchers", "groups")
+                 "only_catchers", "groups", "walks")
 
     def __init__(self, settings, nee, split, max_scatters, radiance, alpha, spread_dd=0.0):
         self.settings, self.nee, self.split, self.max_scatters = settings, nee, split, max_scatters
@@ -538,6 +574,7 @@ class _Wave:
         self.catcher = None  # kernels.shadow_catcher.CatcherWave where paths split at shadow catchers, or None
         self.only_catchers = None  # the shadow_catcher.Catchers a wave of the catchers' copies sees, else None
         self.groups = None  # the light groups' passes among them ({group: (3, N)}), or None
+        self.walks = None  # kernels.subsurface.WalkPool of the walks parked between steps; None: walks end at once
 
 
 def _caustics(settings):

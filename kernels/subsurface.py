@@ -46,14 +46,15 @@ MAX_CHUNK_STEPS = 16
 
 # ---------------------------------------------------------------- the walk
 def walk(accel, object_rows, p0, d0, n0, ng0, obj, albedo, radius, g, van_de_hulst, throughput, keys,
-         ray_epsilon=0.0, times=None):
+         ray_epsilon=0.0, times=None, park=False):
     """Random walks from the entry points p0 (3, n) along d0 (3, n) into the surface of normal n0 (shading, facing
     the viewer) and geometric normal ng0. obj: (n,) object rows of the walks (None: the scene is one object);
     object_rows(prim) gives a hit's. albedo, radius (3, n) (the closure's, method-scaled), g (n,), van_de_hulst
     (n,) bool; throughput (3, n) the path's, closure weight included; keys the paths' ray keys.
 
     Returns (rows, prim, u, v, t, direction, throughput): the walks that left the surface, the triangle and
-    barycentrics of their exit, the last flight's length and direction (3, m), the throughput there (3, m)."""
+    barycentrics of their exit, the last flight's length and direction (3, m), the throughput there (3, m).
+    park: only the first step; returns those exits and (c, s, rows, keys) of the walks that go on (WalkPool.add)."""
     p0 = np.asarray(p0, np.float64)
     table = WalkTable(p0, d0, np.asarray(n0, np.float64), albedo, radius, g, van_de_hulst, throughput)
     live = table.walking
@@ -69,8 +70,101 @@ def walk(accel, object_rows, p0, d0, n0, ng0, obj, albedo, radius, g, van_de_hul
         eps = spawn_offset(ray_epsilon, *(x.astype(F32) for x in c[P0])).astype(np.float64)
         start = c[P0] - np.asarray(ng0, np.float64)[:, live] * eps
         keep = _first_step(c, s, live, keys, start, trace, exits)
-        _steps(c[:, keep], s[:, keep], live[keep], (keys[0][keep], keys[1][keep]), 1, trace, exits)
+        c, s, live, keys = c[:, keep], s[:, keep], live[keep], (keys[0][keep], keys[1][keep])
+        if park:
+            return exits.gather(), (c, s, live, keys)
+        _steps(c, s, live, keys, 1, trace, exits)
     return exits.gather()
+
+
+class WalkPool:
+    """Random walks parked between the integrator's steps, beside the states of their paths: each step of a wave
+    adds the walks its paths began (their first flight taken, whose exits wait here too), and advance() steps all
+    of them together, so that a NumPy step moves the walks of many bounces at once and the long tail of a batch
+    of walks (a few walks taking a hundred steps or more) is paid once per wave instead of once per bounce.
+    docs/architecture.md, Subsurface scattering."""
+
+    # A round (one per integrator step) steps the walks while more than this many go on, then parks them again.
+    PARK_WALKS = 256
+
+    def __init__(self, accel, object_rows):
+        """accel, object_rows: the walks' queries' (walk's arguments)."""
+        self.accel, self.object_rows = accel, object_rows
+        self.c = self.s = self.keys = self.bounce = self.obj = self.state = None
+        self.waiting = []   # exits not yet handed out: (PathState, prim, u, v, t, direction)
+
+    @classmethod
+    def of(cls, tables):
+        return cls(tables.accel, _object_rows(tables))
+
+    def __len__(self):
+        """The walks parked and the exits waiting."""
+        return self._walking() + sum(len(w[1]) for w in self.waiting)
+
+    def _walking(self):
+        return 0 if self.bounce is None else len(self.bounce)
+
+    def add(self, state, obj, found, going):
+        """The walks of the paths `state` (on the objects obj, None: one object) after their first flight: found,
+        the exits it made (walk's), and going, walk's (c, s, rows, keys) of those that go on."""
+        rows, prim, u, v, t, direction, throughput = found
+        if len(rows):
+            out = state.rows(rows)
+            out.throughput = throughput
+            self.waiting.append((out, prim, u, v, t, direction))
+        c, s, live, keys = going
+        if not len(live):
+            return
+        obj = None if obj is None else obj[live]
+        state = state.rows(live)
+        bounce = np.ones(len(live), np.int64)
+        if not self._walking():
+            self.c, self.s, self.keys, self.bounce, self.obj, self.state = c, s, keys, bounce, obj, state
+            return
+        self.c, self.s = np.concatenate([self.c, c], axis=1), np.concatenate([self.s, s], axis=1)
+        self.keys = (np.concatenate([self.keys[0], keys[0]]), np.concatenate([self.keys[1], keys[1]]))
+        self.bounce = np.concatenate([self.bounce, bounce])
+        self.obj = None if obj is None else np.concatenate([self.obj, obj])
+        self.state = type(state).concat(self.state, state)
+
+    def advance(self, drain: bool):
+        """Steps the parked walks while more than PARK_WALKS go on, or (drain) until every walk has left or faded.
+        Returns the exits waiting and those of this round: (the states of their paths, with the throughput there;
+        prim, u, v, t, direction), or None when there are none."""
+        if self._walking():
+            self._round(drain)
+        waiting, self.waiting = self.waiting, []
+        if not waiting:
+            return None
+        if len(waiting) == 1:
+            return waiting[0]
+        state = waiting[0][0]
+        for w in waiting[1:]:
+            state = type(state).concat(state, w[0])
+        return (state,) + tuple(np.concatenate([w[i] for w in waiting], axis=-1) for i in range(1, 6))
+
+    def _round(self, drain):
+        obj, state = self.obj, self.state
+        accel, object_rows = self.accel, self.object_rows
+
+        def trace(origin, d, t_max, rows):
+            return local_hits(accel, object_rows, origin, d, t_max, None if obj is None else obj[rows], state.time,
+                              rows)
+        exits = Exits()
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            left = _steps(self.c, self.s, np.arange(self._walking()), self.keys, self.bounce, trace, exits,
+                          None if drain else self.PARK_WALKS)
+        if left is None or not len(left[2]):
+            self.c = self.s = self.keys = self.bounce = self.obj = self.state = None
+        else:
+            self.c, self.s, live, self.keys, self.bounce = left
+            self.obj = None if obj is None else obj[live]
+            self.state = state.rows(live)
+        rows, prim, u, v, t, direction, throughput = exits.gather()
+        if len(rows):
+            out = state.rows(rows)
+            out.throughput = throughput
+            self.waiting.append((out, prim, u, v, t, direction))
 
 
 def _triangles_only(object_rows, triangle_count: int):
@@ -84,26 +178,37 @@ def _triangles_only(object_rows, triangle_count: int):
     return rows
 
 
-def _steps(c, s, live, keys, bounce, trace, exits):
-    """The walks live (their columns c, s of WalkTable's constants and state, their keys) from step `bounce` on:
-    in NumPy while more than TAIL_WALKS go on, then in Python (subsurface_tail). Their numbers are drawn a chunk of
-    steps ahead (step_numbers), NUMBERS_PER_CHUNK at most."""
-    while len(live) > TAIL_WALKS and bounce < MAX_BOUNCES:
-        count = min(max(1, NUMBERS_PER_CHUNK // len(live)), MAX_CHUNK_STEPS, MAX_BOUNCES - bounce)
+def _steps(c, s, live, keys, bounce, trace, exits, park=None):
+    """The walks live (their columns c, s of WalkTable's constants and state, their keys) from step `bounce` (an
+    int, or (m,) each walk's next step) on: in NumPy while more than TAIL_WALKS go on, then in Python
+    (subsurface_tail). Their numbers are drawn a chunk of steps ahead (step_numbers), NUMBERS_PER_CHUNK at most.
+    park: NumPy steps only while more than this many walks go on, and no Python tail: returns (c, s, live, keys,
+    bounce) of the walks still going, to be taken on later (WalkPool); None: all to the end (returns None)."""
+    bounce = np.broadcast_to(np.asarray(bounce, np.int64), live.shape)
+    keep = bounce < MAX_BOUNCES
+    if not keep.all():
+        live, c, s, bounce, keys = live[keep], c[:, keep], s[:, keep], bounce[keep], (keys[0][keep], keys[1][keep])
+    fewest = TAIL_WALKS if park is None else max(park, TAIL_WALKS)
+    while len(live) > fewest:
+        count = min(max(1, NUMBERS_PER_CHUNK // len(live)), MAX_CHUNK_STEPS)
         numbers = step_numbers(keys, bounce, count, c[G], c[DIFFUSION_LENGTH], c[PHASE_LOG])
         col = None
         for j in range(count):
             keep = _step(c, s, live, numbers[j] if col is None else numbers[j][:, col], bounce, trace, exits)
-            bounce += 1
+            bounce = bounce + 1
+            keep &= bounce < MAX_BOUNCES
             if not keep.all():
-                live, c, s = live[keep], c[:, keep], s[:, keep]
+                live, c, s, bounce = live[keep], c[:, keep], s[:, keep], bounce[keep]
                 col = np.flatnonzero(keep) if col is None else col[keep]
-            if len(live) <= TAIL_WALKS:
+            if len(live) <= fewest:
                 break
         if col is not None:
             keys = (keys[0][col], keys[1][col])
-    if len(live) and bounce < MAX_BOUNCES:
+    if park is not None:
+        return c, s, live, keys, bounce
+    if len(live):
         subsurface_tail.finish(c, s, live, keys, bounce, trace, exits)
+    return None
 
 
 def _channel(thr, alpha, sigma_t, u):
@@ -182,14 +287,21 @@ def _first_step(c, s, live, keys, start, trace, exits):
 
 
 def _step(c, s, live, numbers, bounce, trace, exits):
-    """One step (bounce > 0) of the walks live: a direction by Henyey-Greenstein or Dwivedi's guide (forward, or
+    """One step (bounce (m,) each walk's step, > 0) of the walks live: a direction by Henyey-Greenstein or Dwivedi's guide (forward, or
     backward toward the far side), a distance stretched by the guide, the flight, and the throughput with MIS
     over {classic, guided, backward guided} x {r, g, b}. numbers (NUMBER_ROWS, m) the step's. Updates c, s in
     place; returns the walks that go on."""
-    similar = bounce > SIMILARITY_LEVEL
-    st = c[SIGMA_T_STAR] if similar else c[SIGMA_T]
-    ss = c[SIGMA_S_STAR] if similar else c[SIGMA_S]
-    gf = SIMILAR_GUIDED_FRACTION if similar else c[GUIDED_FRACTION]
+    similar = bounce > SIMILARITY_LEVEL   # (m,): walks at different steps may step together (WalkPool)
+    mixed = similar.any() and not similar.all()
+    if mixed:   # what each walk's step takes, as the step alone would
+        st = np.where(similar, c[SIGMA_T_STAR], c[SIGMA_T])
+        ss = np.where(similar, c[SIGMA_S_STAR], c[SIGMA_S])
+        gf = np.where(similar, SIMILAR_GUIDED_FRACTION, c[GUIDED_FRACTION])
+    else:
+        similar = bool(similar.any())
+        st = c[SIGMA_T_STAR] if similar else c[SIGMA_T]
+        ss = c[SIGMA_S_STAR] if similar else c[SIGMA_S]
+        gf = SIMILAR_GUIDED_FRACTION if similar else c[GUIDED_FRACTION]
     pos, d, thr = s[POSITION], s[DIRECTION], s[THROUGHPUT]
     dl, phase_log = c[DIFFUSION_LENGTH], c[PHASE_LOG]
     ch_pdf, sample_st = _channel(thr, c[ALPHA], st, numbers[U_CHANNEL])
@@ -212,7 +324,10 @@ def _step(c, s, live, numbers, bounce, trace, exits):
     d_c = numbers[CLASSIC_X] * tangent + numbers[CLASSIC_Y] * bitangent + numbers[CLASSIC_COS] * d
     new_d = np.where(guided, d_g, d_c)
     new_d /= np.sqrt(dot_xyz(new_d, new_d))
-    hg = ISOTROPIC_PDF if similar else hg_pdf(dot_xyz(d, new_d), c[G])
+    if mixed:
+        hg = np.where(similar, ISOTROPIC_PDF, hg_pdf(dot_xyz(d, new_d), c[G]))
+    else:
+        hg = ISOTROPIC_PDF if similar else hg_pdf(dot_xyz(d, new_d), c[G])
     cos_theta = np.where(guided, cos_g, dot_xyz(new_d, c[NORMAL]))
     fwd_f = INV_2PI / ((dl - cos_theta) * phase_log) / hg
     bwd_f = INV_2PI / ((dl + cos_theta) * phase_log) / hg
@@ -240,25 +355,26 @@ def _step(c, s, live, numbers, bounce, trace, exits):
     thr = s[THROUGHPUT] = _throughput(thr, ch_pdf, pdf, tr, ss, hit)
     if hit.any():
         e = np.flatnonzero(hit)
-        exits.add(live[e], bounce, prim[e], hu[e], hv[e], th[e], new_d[:, e], thr[:, e])
+        exits.add(live[e], bounce[e], prim[e], hu[e], hv[e], th[e], new_d[:, e], thr[:, e])
     return _going(thr, hit)
 
 
 # ---------------------------------------------------------------- what the integrator calls
-def enter(tables, state, hit, closures, bs, rows, split=True):
+def enter(tables, state, hit, closures, bs, rows, split=True, pool=None):
     """The paths `state` (those of the hits rows that picked a BSSRDF, already weighted by its sample) go beneath
     their surfaces: a random walk, or Christensen-Burley's disk probes (kernels/subsurface_disk.py). Returns
     (rows of `state` that came out, prim, u, v, t, direction the exit is seen against (3, m), throughput (3, m));
-    the caller makes the exit hits."""
+    the caller makes the exit hits. pool: a WalkPool the walks go on in after their first step (their later exits
+    come from its advance()), None: the walks go to their end here."""
     burley = closures.dist[bs.row[rows]] == bssrdf.BURLEY
     if not burley.any():
-        return _walks(tables, state, hit, closures, bs, rows)
+        return _walks(tables, state, hit, closures, bs, rows, pool)
     disks = np.flatnonzero(burley)
     found = _disks(tables, state.rows(disks), hit, closures, bs, rows[disks], split)
     walks = np.flatnonzero(~burley)
     if not len(walks):
         return found
-    walked = _walks(tables, state.rows(walks), hit, closures, bs, rows[walks])
+    walked = _walks(tables, state.rows(walks), hit, closures, bs, rows[walks], pool)
     return tuple(np.concatenate([a, b], axis=-1) for a, b in zip((disks[found[0]],) + found[1:],
                                                                   (walks[walked[0]],) + walked[1:]))
 
@@ -274,8 +390,16 @@ def _disks(tables, state, hit, closures, bs, rows, split):
                                 state.time)
 
 
-def _walks(tables, state, hit, closures, bs, rows):
-    """The random walks of the paths `state` (of the hits rows)."""
+def _object_rows(tables):
+    """The object row of a hit's primitive for the walks' queries (None: the scene is one object)."""
+    object_rows = tables.triangles.object_rows
+    if tables.shapes is not None:
+        object_rows = _triangles_only(object_rows, tables.shapes.triangle_count)
+    return object_rows
+
+
+def _walks(tables, state, hit, closures, bs, rows, pool=None):
+    """The random walks of the paths `state` (of the hits rows); pool: see enter()."""
     picked = bs.row[rows]
     g = closures.offset[picked].astype(np.float64)
     method = closures.dist[picked]
@@ -285,16 +409,14 @@ def _walks(tables, state, hit, closures, bs, rows):
     d0 = np.stack([np.take(c, rows) for c in bs.wi])
     n0 = np.stack([np.take(c, rows) for c in hit.ns])
     ng0 = np.stack([np.take(c, rows) for c in hit.ng]).astype(np.float64)
-    obj = None
-    object_rows = tables.triangles.object_rows
-    prim_rows = object_rows(np.take(hit.prim, rows))
-    if tables.shapes is not None:
-        object_rows = _triangles_only(object_rows, tables.shapes.triangle_count)
-    if prim_rows is not None:
-        obj = prim_rows
-    return walk(tables.accel, object_rows, p0, d0, n0, ng0, obj, np.take(closures.c1, picked, axis=1),
-                np.take(closures.c0, picked, axis=1), g, van, state.throughput, ray_keys(state, np.arange(len(state))),
-                tables.ray_epsilon, state.time)
+    obj = tables.triangles.object_rows(np.take(hit.prim, rows))
+    found = walk(tables.accel, _object_rows(tables), p0, d0, n0, ng0, obj, np.take(closures.c1, picked, axis=1),
+                 np.take(closures.c0, picked, axis=1), g, van, state.throughput,
+                 ray_keys(state, np.arange(len(state))), tables.ray_epsilon, state.time, park=pool is not None)
+    if pool is None:
+        return found
+    pool.add(state, obj, *found)
+    return Exits().gather()
 
 
 def exit_closures(hit):

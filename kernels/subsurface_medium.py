@@ -147,10 +147,10 @@ def first_numbers(keys):
 
 
 def step_numbers(keys, first, count, g, dl, phase_log):
-    """The numbers of steps first .. first + count - 1 (first > 0) of m walks: (count, NUMBER_ROWS, m) float64.
-    keys the walks' ray keys; g, dl, phase_log (m,) their anisotropy, diffusion length and its log term.
-    Each number is the one the step would draw alone, bit for bit."""
-    steps = np.arange(first, first + count)[:, None]
+    """The numbers of steps first .. first + count - 1 (first > 0: an int, or (m,) each walk's own) of m walks:
+    (count, NUMBER_ROWS, m) float64. keys the walks' ray keys; g, dl, phase_log (m,) their anisotropy, diffusion
+    length and its log term. Each number is the one the step would draw alone, bit for bit."""
+    steps = np.arange(count)[:, None] + np.asarray(first, np.int64)
     u_ch, u_t = keyed_uniforms(keys, 3 * steps, SALT)
     u_gs, u_gd = keyed_uniforms(keys, 3 * steps + 1, SALT)
     r1, r2 = keyed_uniforms(keys, 3 * steps + 2, SALT)

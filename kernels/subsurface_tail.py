@@ -29,47 +29,49 @@ _FOUR_PI = 4 * np.pi
 
 
 def finish(constants, state, rows, keys, bounce, trace, exits):
-    """Steps the walks rows (int64 (m,)) from step `bounce` on until they leave, fade or reach MAX_BOUNCES.
-    constants (CONSTANT_ROWS, m) and state (9, m) their columns of subsurface_medium.WalkTable; keys their ray
-    keys; trace(origin (3, k), d (3, k), t_max (k,), rows (k,)) -> (prim, t, u, v) the walk's ray query; exits a
-    subsurface_medium.Exits the walks that leave are added to."""
+    """Steps the walks rows (int64 (m,)) from step `bounce` (an int, or (m,) each walk's next step) on until they
+    leave, fade or reach MAX_BOUNCES. constants (CONSTANT_ROWS, m) and state (9, m) their columns of
+    subsurface_medium.WalkTable; keys their ray keys; trace(origin (3, k), d (3, k), t_max (k,), rows (k,)) ->
+    (prim, t, u, v) the walk's ray query; exits a subsurface_medium.Exits the walks that leave are added to."""
     consts = constants.T.tolist()
     states = state.T.tolist()
-    active = list(range(len(rows)))
-    while active and bounce < MAX_BOUNCES:
-        count = min(TAIL_CHUNK, MAX_BOUNCES - bounce)
+    steps = np.broadcast_to(np.asarray(bounce, np.int64), (len(rows),)).tolist()
+    active = [w for w in range(len(rows)) if steps[w] < MAX_BOUNCES]
+    while active:
         idx = np.array(active)
-        numbers = step_numbers((keys[0][idx], keys[1][idx]), bounce, count, constants[G, idx],
-                               constants[DIFFUSION_LENGTH, idx], constants[PHASE_LOG, idx])
+        numbers = step_numbers((keys[0][idx], keys[1][idx]), np.array([steps[w] for w in active]), TAIL_CHUNK,
+                               constants[G, idx], constants[DIFFUSION_LENGTH, idx], constants[PHASE_LOG, idx])
         per_walk = numbers.transpose(2, 0, 1).tolist()
         flights, planned = [], []
         for i, w in enumerate(active):
             first = len(flights) // 7
             exp = math.exp
+            ahead = per_walk[i][:MAX_BOUNCES - steps[w]]
             try:
-                plan = _ahead(consts[w], states[w], per_walk[i], bounce, flights, exp, math.sqrt)
+                plan = _ahead(consts[w], states[w], ahead, steps[w], flights, exp, math.sqrt)
             except (ArithmeticError, ValueError):
                 # A division by zero or an overflow: the same steps with NumPy's scalars, which give inf and nan
                 # where Python raises, as the NumPy step does.
                 del flights[7 * first:]
                 exp = np.exp
-                plan = _ahead(np.array(consts[w]), np.array(states[w]), np.array(per_walk[i]), bounce, flights,
+                plan = _ahead(np.array(consts[w]), np.array(states[w]), np.array(ahead), steps[w], flights,
                               exp, np.sqrt)
-            planned.append((first, exp, *plan))
+            planned.append((first, exp, len(ahead), *plan))
         flights = np.array(flights, np.float64).reshape(-1, 7)
-        owners = np.repeat(rows[idx], [len(p[2]) for p in planned])
+        owners = np.repeat(rows[idx], [len(p[3]) for p in planned])
         prim, th, hu, hv = trace(flights[:, 0:3].T, flights[:, 3:6].T, flights[:, 6], owners)
         met, th_list = (prim >= 0).tolist(), th.tolist()
         going, out, out_steps, out_thr = [], [], [], []
-        for w, (first, exp, finishes, ended, after) in zip(active, planned):
+        for w, (first, exp, taken, finishes, ended, after) in zip(active, planned):
             for j, terms in enumerate(finishes):
                 if met[first + j]:
                     out.append(first + j)
-                    out_steps.append(bounce + j)
+                    out_steps.append(steps[w] + j)
                     out_thr.append(_finish(terms, th_list[first + j], True, exp))
                     break
             else:
-                if not ended:
+                steps[w] += taken
+                if not ended and steps[w] < MAX_BOUNCES:
                     states[w] = after if exp is math.exp else [float(x) for x in after]
                     going.append(w)
         if out:
@@ -77,7 +79,6 @@ def finish(constants, state, rows, keys, bounce, trace, exits):
             exits.add(owners[q], np.array(out_steps), prim[q], hu[q], hv[q], th[q], flights[q, 3:6].T,
                       np.array(out_thr, np.float64).reshape(-1, 3).T)
         active = going
-        bounce += len(numbers)
 
 
 def _ahead(const, state, numbers, bounce, flights, exp, sqrt):

@@ -164,6 +164,56 @@ def test_python_tail_takes_numpys_infinities_where_python_raises(monkeypatch):
     _assert_same_exits(found[0], found[1], _libm_like_numpy(), "inf")
 
 
+class _Paths:
+    """A PathState stand-in for WalkPool: the walks' numbers in the test's batch."""
+
+    def __init__(self, ids, throughput=None):
+        self.ids, self.time, self.throughput = ids, None, throughput
+
+    def rows(self, idx):
+        return _Paths(self.ids[idx], None if self.throughput is None else self.throughput[:, idx])
+
+    @staticmethod
+    def concat(a, b):
+        return _Paths(np.concatenate([a.ids, b.ids]), None if a.throughput is None else
+                      np.concatenate([a.throughput, b.throughput], axis=1))
+
+
+def test_parked_walks_leave_where_walks_taken_to_the_end_do(monkeypatch):
+    """WalkPool: walks added in three batches between rounds that step them while more than PARK_WALKS go on and
+    park the rest (so walks at different steps, some past the similarity level and some not, step together), then
+    drained: each walk leaves where, when and with the throughput it does when walked to its end at once."""
+    args = _mixed_walks(300, 5)
+    whole = subsurface.walk(*args)
+    monkeypatch.setattr(subsurface.WalkPool, "PARK_WALKS", 40)
+    mixed = []
+    step = subsurface._step
+
+    def spy(c, s, live, numbers, bounce, trace, exits):
+        mixed.append(bounce.min() <= medium.SIMILARITY_LEVEL < bounce.max())
+        return step(c, s, live, numbers, bounce, trace, exits)
+    monkeypatch.setattr(subsurface, "_step", spy)
+    accel, object_rows = args[0], args[1]
+    pool = subsurface.WalkPool(accel, object_rows)
+    found = []
+    for part in np.array_split(np.arange(300), 3):
+        sub = [None if a is None else a[..., part] for a in args[2:12]] + [(args[12][0][part], args[12][1][part])]
+        pool.add(_Paths(part), None, *subsurface.walk(accel, object_rows, *sub, park=True))
+        found.append(pool.advance(drain=False))
+        assert 0 < len(pool)
+    found.append(pool.advance(drain=True))
+    assert len(pool) == 0 and any(mixed) and not all(mixed)
+    found = [f for f in found if f is not None]
+    ids = np.concatenate([f[0].ids for f in found])
+    order = np.argsort(ids)
+    pooled = (ids[order], np.concatenate([f[1] for f in found])[order]) + tuple(
+        np.concatenate([f[i] for f in found], axis=-1)[..., order] for i in (2, 3, 4, 5)) + (
+        np.concatenate([f[0].throughput for f in found], axis=1)[:, order],)
+    assert len(whole[0]) > 200
+    back = np.argsort(whole[0])
+    _assert_same_exits(tuple(x[..., back] for x in whole), pooled, _libm_like_numpy(), "pooled")
+
+
 def test_step_numbers_are_each_steps_own_draws():
     """step_numbers draws a chunk of steps at once: each row is the keyed draw of that step alone (rng.keyed_uniforms
     with the walk's salt), and the directions' local frames follow from them as each step would compute them."""
@@ -319,6 +369,38 @@ def test_burley_sphere_on_a_floor_matches_cycles(monkeypatch):
     assert told and all(a is not None for a in told)
     after_diffuse = np.concatenate(told)
     assert 0 < after_diffuse.mean() < 0.5, after_diffuse.mean()
+
+
+def test_walks_parked_between_steps_change_no_pixel(monkeypatch):
+    """A wave parks its walks between the integrator's steps (subsurface.WalkPool) and their paths go on from their
+    exits steps later, also where a wave starts its paths a few hundred at a time (parked paths count as in
+    flight): each path's numbers are its own, so the image is the one of walks taken to their end at once, bit for
+    bit (where NumPy's exp is the C library's, see _libm_like_numpy)."""
+    from ember.kernels.renderer import Renderer
+    scene = _sss_scene("RANDOM_WALK")
+    scene.render.resolution_x = scene.render.resolution_y = 24
+    rounds = []
+    advance = subsurface.WalkPool.advance
+
+    def spy(pool, drain):
+        rounds.append((drain, pool._walking()))
+        return advance(pool, drain)
+    monkeypatch.setattr(subsurface.WalkPool, "advance", spy)
+    monkeypatch.setattr(subsurface.WalkPool, "PARK_WALKS", 40)
+    pooled = H.render_to_array(scene, "EMBER", 8, seed=2, threads=1)
+    assert any(not drain and walking > 40 for drain, walking in rounds)
+    assert any(drain and walking for drain, walking in rounds)
+    live_paths = Renderer.live_paths
+    monkeypatch.setattr(Renderer, "live_paths", lambda renderer, settings: 300)
+    batched = H.render_to_array(scene, "EMBER", 8, seed=2, threads=1)
+    monkeypatch.setattr(Renderer, "live_paths", live_paths)
+    monkeypatch.setattr(subsurface.WalkPool, "of", classmethod(lambda cls, tables: None))
+    whole = H.render_to_array(scene, "EMBER", 8, seed=2, threads=1)
+    for image in (pooled, batched):
+        if _libm_like_numpy():
+            assert np.array_equal(image, whole)
+        else:
+            np.testing.assert_allclose(image, whole, rtol=1e-4, atol=1e-6)
 
 
 @pytest.mark.parametrize("method", ["RANDOM_WALK", "RANDOM_WALK_SKIN", "BURLEY"])
