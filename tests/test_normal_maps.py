@@ -138,6 +138,29 @@ def test_object_space_normal_map_warns_and_bump_and_radial_tangent_link():
     assert "Normal Map 'Normal Map': Object space is not supported" in line
 
 
+def test_constant_normal_and_tangent_programs_are_kept_and_zero_ones_warned():
+    """A Normal or Tangent fed by a program that folds to a constant is that direction (Cycles loads constant-folded
+    inputs as linked ones); a zero vector is none: the shading normal or default tangent, with a warning."""
+    mat = bpy.data.materials.new("Constant")
+    tree = mat.node_tree
+    bsdf = tree.nodes["Principled BSDF"]
+    for socket, value in (("Normal", (0.0, 0.6, 0.8)), ("Coat Normal", (0.0, 0.0, 0.0)), ("Tangent", (1.0, 0.0, 0.0))):
+        combine = tree.nodes.new("ShaderNodeCombineXYZ")
+        combine.name = socket
+        for k, v in enumerate(value):
+            combine.inputs[k].default_value = v
+        tree.links.new(combine.outputs["Vector"], bsdf.inputs[socket])
+    quad(material=mat)
+    result = export()
+    (closure,) = result.scene.materials.shaders[1].closures
+    normal, tangent = closure.input("Normal"), closure.input("Tangent")
+    assert normal.link is None and np.allclose(normal.value, (0.0, 0.6, 0.8))
+    assert tangent.link is None and np.allclose(tangent.value, (1.0, 0.0, 0.0))
+    assert closure.input("Coat Normal") is None
+    assert any("Coat Normal is linked to a zero vector: the shading normal is used" in w for w in result.warnings), \
+        result.warnings
+
+
 def test_mesh_without_uvs_gets_spherical_tangents_with_a_warning():
     mat, _ = normal_mapped_material()
     ob = quad(material=mat)

@@ -306,6 +306,29 @@ def test_anisotropic_metals_with_the_default_and_a_radial_x_tangent():
     compare_to_cycles(scene, samples=128, max_bounces=4)
 
 
+def test_constant_normal_and_tangent_inputs():
+    """A Normal or Tangent input linked to a program that folds to a constant (here Combine XYZ of constants) is
+    that direction: Cycles loads a constant-folded input as a linked one (svm.cpp stack_assign_if_linked,
+    constant_folded_in). A plastic card whose normal leans 15 degrees toward a sun (it rendered 41% too dark,
+    lit as if unlinked: 20% here) and a brushed metal card whose constant tangent turns its highlight."""
+    scene = new_scene(48, 32)
+    plastic = node_material("Leaning", "ShaderNodeBsdfPrincipled", Base_Color=(0.8, 0.6, 0.4), Roughness=0.4)
+    metal = node_material("Brushed", "ShaderNodeBsdfPrincipled", Base_Color=(0.9, 0.8, 0.6), Metallic=1.0,
+                          Roughness=0.3, Anisotropic=0.9)
+    for mat, socket, value in ((plastic, "Normal", (0.0, -0.96, 0.27)), (metal, "Tangent", (0.0, 0.0, 1.0))):
+        tree = mat.node_tree
+        combine = tree.nodes.new("ShaderNodeCombineXYZ")
+        for k, v in enumerate(value):
+            combine.inputs[k].default_value = v
+        tree.links.new(combine.outputs["Vector"], tree.nodes["Principled BSDF"].inputs[socket])
+    quad_object("Plastic", (-1.1, 0, 0), (1, 0, 0), (0, 0, 1), plastic)
+    quad_object("Metal", (0.1, 0, 0), (1, 0, 0), (0, 0, 1), metal)
+    add_sun(scene, (1.0, 0.0, 0.8), energy=3.0)
+    add_camera(scene, (0, -3.0, 0.5), (0, 0, 0.5), lens=40)
+    set_world(scene, color=(0.1, 0.12, 0.15))
+    compare_to_cycles(scene, samples=64, max_bounces=2)
+
+
 def test_holdout_mixed_half_with_diffuse_cuts_half_the_alpha():
     scene = new_scene(48, 48)
     mat = bpy.data.materials.new("Half Holdout")

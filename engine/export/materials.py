@@ -478,10 +478,11 @@ class _MaterialReader:
 
     def normal_map(self, source: Source, socket, groups) -> NormalMap | Param | None:
         """A Normal or Coat Normal input: a Normal Map node as the kernel's NormalMap, any other node (an
-        object-space map warns there) as the program's vector, None when that folds to a constant."""
+        object-space map warns there) as the program's vector. A program that folds to a constant gives that
+        normal, as Cycles loads a constant-folded input (svm.cpp stack_assign_if_linked: constant_folded_in);
+        a zero one is no direction: the shading normal, with a warning."""
         if source.kind != "ShaderNodeNormalMap" or source.node.space not in NORMAL_MAP_SPACES:
-            param = self.program_param(socket, groups, 3)
-            return param if param.link is not None else None
+            return self._direction(self.program_param(socket, groups, 3), socket)
         node = source.node
         color = self.param(node.inputs["Color"], source.groups, 3, node)
         strength = self.param(node.inputs["Strength"], source.groups, 1, node)
@@ -491,12 +492,20 @@ class _MaterialReader:
 
     def tangent(self, source: Source, socket, groups) -> Tangent | Param | None:
         """A Tangent input: a UV Map Tangent node as the kernel's Tangent, any other node (a radial Tangent,
-        a Geometry tangent, a vector program) as the program's vector, None when that folds away."""
+        a Geometry tangent, a vector program) as the program's vector, a constant one too (as normal_map)."""
         if source.kind == "ShaderNodeTangent" and source.node.direction_type == "UV_MAP":
             self.tangent_uv_maps.append(source.node.uv_map)
             return Tangent()
-        param = self.program_param(socket, groups, 3)
-        return param if param.link is not None else None
+        return self._direction(self.program_param(socket, groups, 3), socket)
+
+    def _direction(self, param: Param, socket) -> Param | None:
+        """A linked Normal or Tangent input's program: itself, or None for a constant of length zero (warned)."""
+        if param.link is not None or param.texture >= 0 or any(v != 0 for v in param.value):
+            return param
+        node = socket.node
+        self.issues.append(f"{node.bl_label} '{node.name}' {socket.name} is linked to a zero vector: the "
+                           f"{'shading normal' if 'Normal' in socket.name else 'default tangent'} is used")
+        return None
 
     def check_unsupported(self, node, kind: str, groups) -> None:
         label = f"{node.bl_label} '{node.name}'"

@@ -171,7 +171,7 @@ class Context:
         return view
 
     def _normal(self, spec):
-        if isinstance(spec, Param) and spec.link is not None:  # a program's normal (a Bump, a Normal Map)
+        if isinstance(spec, Param):  # a program's normal (a Bump, a Normal Map), or a constant one
             return normalize_xyz(tuple(self.shading.param(spec, self, 3)))
         if not isinstance(spec, NormalMap):
             return None
