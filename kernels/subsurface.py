@@ -287,10 +287,10 @@ def _first_step(c, s, live, keys, start, trace, exits):
 
 
 def _step(c, s, live, numbers, bounce, trace, exits):
-    """One step (bounce (m,) each walk's step, > 0) of the walks live: a direction by Henyey-Greenstein or Dwivedi's guide (forward, or
-    backward toward the far side), a distance stretched by the guide, the flight, and the throughput with MIS
-    over {classic, guided, backward guided} x {r, g, b}. numbers (NUMBER_ROWS, m) the step's. Updates c, s in
-    place; returns the walks that go on."""
+    """One step of the walks live (bounce (m,) each walk's step, > 0): a direction by Henyey-Greenstein or
+    Dwivedi's guide (forward, or backward toward the far side), a distance stretched by the guide, the flight, and
+    the throughput with MIS over {classic, guided, backward guided} x {r, g, b}. numbers (NUMBER_ROWS, m) the
+    step's. Updates c, s in place; returns the walks that go on."""
     similar = bounce > SIMILARITY_LEVEL   # (m,): walks at different steps may step together (WalkPool)
     mixed = similar.any() and not similar.all()
     if mixed:   # what each walk's step takes, as the step alone would
