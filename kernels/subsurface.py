@@ -107,11 +107,7 @@ class WalkPool:
     def add(self, state, obj, found, going):
         """The walks of the paths `state` (on the objects obj, None: one object) after their first flight: found,
         the exits it made (walk's), and going, walk's (c, s, rows, keys) of those that go on."""
-        rows, prim, u, v, t, direction, throughput = found
-        if len(rows):
-            out = state.rows(rows)
-            out.throughput = throughput
-            self.waiting.append((out, prim, u, v, t, direction))
+        self._wait(state, found)
         c, s, live, keys = going
         if not len(live):
             return
@@ -160,7 +156,11 @@ class WalkPool:
             self.c, self.s, live, self.keys, self.bounce = left
             self.obj = None if obj is None else obj[live]
             self.state = state.rows(live)
-        rows, prim, u, v, t, direction, throughput = exits.gather()
+        self._wait(state, exits.gather())
+
+    def _wait(self, state, found):
+        """Exits (Exits.gather's, rows of the paths `state`) held until advance() hands them out."""
+        rows, prim, u, v, t, direction, throughput = found
         if len(rows):
             out = state.rows(rows)
             out.throughput = throughput
@@ -183,11 +183,9 @@ def _steps(c, s, live, keys, bounce, trace, exits, park=None):
     int, or (m,) each walk's next step) on: in NumPy while more than TAIL_WALKS go on, then in Python
     (subsurface_tail). Their numbers are drawn a chunk of steps ahead (step_numbers), NUMBERS_PER_CHUNK at most.
     park: NumPy steps only while more than this many walks go on, and no Python tail: returns (c, s, live, keys,
-    bounce) of the walks still going, to be taken on later (WalkPool); None: all to the end (returns None)."""
+    bounce) of the walks still going, to be taken on later (WalkPool); None: all to the end (returns None). Every
+    step is below MAX_BOUNCES: a walk is dropped as it reaches it."""
     bounce = np.broadcast_to(np.asarray(bounce, np.int64), live.shape)
-    keep = bounce < MAX_BOUNCES
-    if not keep.all():
-        live, c, s, bounce, keys = live[keep], c[:, keep], s[:, keep], bounce[keep], (keys[0][keep], keys[1][keep])
     fewest = TAIL_WALKS if park is None else max(park, TAIL_WALKS)
     while len(live) > fewest:
         count = min(max(1, NUMBERS_PER_CHUNK // len(live)), MAX_CHUNK_STEPS)

@@ -29,14 +29,15 @@ _FOUR_PI = 4 * np.pi
 
 
 def finish(constants, state, rows, keys, bounce, trace, exits):
-    """Steps the walks rows (int64 (m,)) from step `bounce` (an int, or (m,) each walk's next step) on until they
-    leave, fade or reach MAX_BOUNCES. constants (CONSTANT_ROWS, m) and state (9, m) their columns of
-    subsurface_medium.WalkTable; keys their ray keys; trace(origin (3, k), d (3, k), t_max (k,), rows (k,)) ->
-    (prim, t, u, v) the walk's ray query; exits a subsurface_medium.Exits the walks that leave are added to."""
+    """Steps the walks rows (int64 (m,)) from step `bounce` (an int, or (m,) each walk's next step, below
+    MAX_BOUNCES) on until they leave, fade or reach MAX_BOUNCES. constants (CONSTANT_ROWS, m) and state (9, m)
+    their columns of subsurface_medium.WalkTable; keys their ray keys; trace(origin (3, k), d (3, k), t_max (k,),
+    rows (k,)) -> (prim, t, u, v) the walk's ray query; exits a subsurface_medium.Exits the walks that leave are
+    added to."""
     consts = constants.T.tolist()
     states = state.T.tolist()
     steps = np.broadcast_to(np.asarray(bounce, np.int64), (len(rows),)).tolist()
-    active = [w for w in range(len(rows)) if steps[w] < MAX_BOUNCES]
+    active = list(range(len(rows)))
     while active:
         idx = np.array(active)
         numbers = step_numbers((keys[0][idx], keys[1][idx]), np.array([steps[w] for w in active]), TAIL_CHUNK,

@@ -500,7 +500,7 @@ class _MaterialReader:
 
     def _direction(self, param: Param, socket) -> Param | None:
         """A linked Normal or Tangent input's program: itself, or None for a constant of length zero (warned)."""
-        if param.link is not None or param.texture >= 0 or any(v != 0 for v in param.value):
+        if param.link is not None or any(v != 0 for v in param.value):
             return param
         node = socket.node
         self.issues.append(f"{node.bl_label} '{node.name}' {socket.name} is linked to a zero vector: the "
