@@ -42,9 +42,9 @@ rows, one per channel (gather).
     uint8 texels are 8-bit images as Blender holds them (k reads k / 255), 1 byte per channel, as Cycles
     keeps them (uchar4); float32 texels are read as they are. A grey texture reads its one channel as the
     three of its colour. srgb=True: colour texels are sRGB-encoded and decoded after filtering, like Cycles'
-    8-bit sRGB images. Alpha is never encoded. The colour of a 4-channel texture is associated (premultiplied
-    by alpha), as Cycles stores it: float32 textures hold it so (the engine hands them over so), uint8 ones
-    hold it straight and each gathered texel is associated, so that 8-bit texels stay bytes.
+    8-bit sRGB images. Alpha is never encoded. The colour of a 4-channel texture is as the engine hands it
+    over: associated (premultiplied by alpha) where Cycles stores it so, uint8 ones in bytes as Cycles rounds
+    them (engine/export/images.py associated_bytes), straight where Cycles keeps it so (channel-packed alpha).
     lookup(unassociate=True) divides the filtered colour by the filtered alpha, as Cycles does when an
     Image Texture's Alpha output is used.
     """
@@ -65,7 +65,7 @@ rows, one per channel (gather).
 
     def gather(self, index: np.ndarray) -> np.ndarray:
         """(3, n) float32 colours, or (4, n) with alpha last for RGBA textures, of the texels at flat
-        indices `index` (row * width + column); colour associated, still sRGB-encoded when srgb."""
+        indices `index` (row * width + column); colour as stored, still sRGB-encoded when srgb."""
         return self._decoded(np.take(self.texels, index, axis=0))
 
     def _decoded(self, t: np.ndarray) -> np.ndarray:
@@ -73,8 +73,6 @@ rows, one per channel (gather).
         planes = np.ascontiguousarray(t.T, dtype=np.float32)
         if self._bytes:
             planes *= BYTE_SCALE
-            if self.has_alpha:
-                planes[:3] *= planes[3]
         if len(planes) == 1:
             planes = np.repeat(planes, 3, axis=0)
         return planes

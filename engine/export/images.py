@@ -47,8 +47,9 @@ class ImagePixels:
     """An image's pixels as the kernel keeps them.
 
     array : (H, W, C), C in {1, 3, 4} (alpha only where asked for and not all 1; grey as one channel),
-        row 0 at the bottom: uint8 for 8-bit images (k stands for k / 255; with 4 channels, straight
-        colour), float32 otherwise (finite and non-negative for float images; colour associated).
+        row 0 at the bottom: uint8 for 8-bit images (k stands for k / 255; with 4 channels, colour associated
+        as Cycles stores it: associated_bytes), float32 otherwise (finite and non-negative for float images;
+        colour associated where Cycles associates it).
     srgb : the values are sRGB-encoded (an 8-bit image in an sRGB space); the kernel decodes them after
         filtering, as Cycles does. Otherwise they are linear.
     """
@@ -57,7 +58,7 @@ class ImagePixels:
 
     def linear(self) -> np.ndarray:
         """(H, W, C) float32 linear values (colour associated with alpha)."""
-        values = _as_float(self.array, associate=self.array.shape[2] == 4)
+        values = _as_float(self.array)
         return srgb_to_linear(values) if self.srgb else values
 
 
@@ -89,9 +90,23 @@ def read_image(image, warnings: list[str], alpha: bool = False, file_pixels=_UNR
         pixels[:, :, :3] = (pixels[:, :, :3] @ matrix.T).astype(np.float16)
         return ImagePixels(pixels, False)
     srgb = _is_srgb(image, warnings)
-    if keep_alpha and not _associates_alpha(image):
-        return ImagePixels(_as_float(pixels), srgb)   # uint8 RGBA would be associated by the kernel
+    if keep_alpha and _associates_alpha(image):
+        pixels = associated_bytes(pixels)
     return ImagePixels(pixels, srgb)
+
+
+def associated_bytes(pixels: np.ndarray) -> np.ndarray:
+    """(H, W, 4) uint8 straight RGBA as Cycles stores an 8-bit image whose alpha it associates: each colour byte
+    times the alpha byte over 255, rounded down, still a byte (scene/image_oiio.cpp and blender/image.cpp
+    load_pixels, util/image.h util_image_multiply_native; the colour is then filtered and, for sRGB images,
+    decoded in the kernel). Rounding down leaves a partly transparent texel's colour up to 1/255 darker than
+    c x a / 255."""
+    out = np.empty_like(pixels)
+    alpha = pixels[:, :, 3].astype(np.uint16)
+    for c in range(3):
+        out[:, :, c] = pixels[:, :, c].astype(np.uint16) * alpha // 255
+    out[:, :, 3] = pixels[:, :, 3]
+    return out
 
 
 # From Blender 5.2, Cycles honours the image's alpha mode for float pixels too: Straight colour is
