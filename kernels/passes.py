@@ -160,6 +160,14 @@ def closure_normal(closures, n_hits: int, fallback) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- a wave's buffers and planes
+def path_bytes(settings) -> int:
+    """Bytes a wave keeps per path from its start to its end: radiance and alpha (float32) and wave_buffers'."""
+    channels_kept = 4 + sum(channels(name) for name in settings.passes if recorded(name))
+    if settings.cryptomatte:
+        channels_kept += len(settings.cryptomatte) + 1
+    return 4 * channels_kept
+
+
 def wave_buffers(settings, n: int) -> dict | None:
     """Per-path buffers of a wave of n paths for the passes and Cryptomatte the settings ask for (None: none)."""
     if not (settings.passes or settings.cryptomatte):

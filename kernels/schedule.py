@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .film import Film
+from .passes import path_bytes
 from .settings import RenderSettings
 from .workers import WaveSlots, WaveStopped, WorkerLost, WorkerSet, prestart, python_executable
 
@@ -75,6 +76,12 @@ ADAPTIVE_STEP = 16  # samples between convergence checks, as Cycles' adaptive_st
 # bounce, each bounce paying the stages' cost in Python whatever the paths) that small waves cannot repay.
 PASS_SHARE = 2.0 / 3.0
 FINAL_PASS_TAILS = 6.0
+# ... and its waves may hold up to this many bytes of per-path buffers (passes.path_bytes: 16 a path for the image,
+# more with passes), more paths than the wave size, which also sets how far a fixed-sample render's progress
+# moves at a time: a time-limited pass that the wave size would cut into rounds of waves on each thread pays
+# every round's tail (on the Random Walk head a paced wave of 600,000-900,000 paths spent 0.7-1.1 s of its
+# 1.6-2.7 s in its tail), and its progress is shown pass by pass anyway.
+PACED_WAVE_BYTES = 128 << 20
 # The last pass plans for this share of the time left: its waves' cost is an estimate, and the render's
 # end waits for its slowest wave.
 FINAL_PASS_SHARE = 0.95
@@ -412,7 +419,7 @@ def render_passes(tracer, crew: "WaveCrew", settings: RenderSettings, on_tile=No
                     # wave's paths cannot be counted until it ends.
                     active = int(np.count_nonzero(~film.converged)) if adaptive else width * height
                     fit, wave, waves = paced(cost, settings.time_limit_s - (time.perf_counter() - start),
-                                             active, tracer.accel.threads, wave)
+                                             active, tracer.accel.threads, paced_wave_size(settings, wave))
                     last = min(total, done + fit)
                 if last == done:
                     stopped = True  # not even one more sample fits before the limit
@@ -516,6 +523,14 @@ def paced(cost: WaveCost, left_s: float, pixels: int, threads: int, wave_size: i
     fit = int(per_thread * threads / max(pixels, 1) + 0.5)
     waves = rounds * max(threads, 1)
     return max(fit, 0), max(1, min(wave_size, int(np.ceil(per_thread / rounds)))), waves
+
+
+def paced_wave_size(settings: RenderSettings, wave_size: int) -> int:
+    """The most paths a wave of a paced pass takes: PACED_WAVE_BYTES of per-path buffers, at least the render's
+    wave size; the wave size itself where the settings give one."""
+    if settings.wave_size is not None:
+        return wave_size
+    return max(wave_size, PACED_WAVE_BYTES // path_bytes(settings))
 
 
 def plan_pass(width: int, height: int, done: int, total: int, wave_size: int, quick_first: bool = True,

@@ -213,6 +213,21 @@ def test_passes_near_the_time_limit_take_the_samples_that_fit():
     assert schedule.paced(cost, 0.102, 10_000, 2, 1 << 20)[0] == 0
 
 
+def test_paced_waves_are_bounded_by_the_bytes_they_keep_per_path():
+    """A paced pass's waves hold PACED_WAVE_BYTES of per-path buffers at most: radiance and alpha are 16 bytes a
+    path, each pass's channels and Cryptomatte's ids and weight 4 more each; never fewer paths than the wave
+    size, and the wave size itself where the settings set one (tests and tools that pin their waves)."""
+    from ember.kernels import passes, schedule
+    plain = RenderSettings()
+    with_passes = RenderSettings(passes=("normal", "diffuse_direct", "mist"), cryptomatte=("object", "material"))
+    assert passes.path_bytes(plain) == 16
+    assert passes.path_bytes(with_passes) == 16 + 4 * (3 + 3 + 1) + 4 * 3
+    assert schedule.paced_wave_size(plain, 1 << 20) == schedule.PACED_WAVE_BYTES // 16 > 1 << 20
+    assert schedule.paced_wave_size(with_passes, 1 << 20) == schedule.PACED_WAVE_BYTES // 56
+    assert schedule.paced_wave_size(plain, 1 << 24) == 1 << 24
+    assert schedule.paced_wave_size(RenderSettings(wave_size=5000), 5000) == 5000
+
+
 def test_a_pass_paced_to_a_time_limit_has_the_waves_it_is_given():
     """plan_pass with `waves`: all the samples asked in that many interleaved bands, more where a band would
     hold more pixels than band_pixels; the quick first pass is left as it is; an image of fewer rows than
@@ -246,6 +261,9 @@ def test_a_time_limited_render_starts_with_one_sample_and_paces_by_its_waves(mon
         assert all(0 <= tail <= seconds for _, seconds, tail, _ in renderer.crew.waves)
         assert renderer.crew.rate() > 0
         assert all(a[7] is not None and a[7] % 2 == 0 for a in planned[1:])
+        # Its passes may take waves of more paths than the render's wave size (schedule.paced_wave_size).
+        assert all(a[4] == schedule.paced_wave_size(RenderSettings(), renderer.wave_size(RenderSettings()))
+                   > renderer.wave_size(RenderSettings()) for a in paced)
         planned.clear()
         renderer.render(RenderSettings(samples=4, quick_first_pass=False))
         assert planned[0][5] is False            # no limit: the plan as asked
