@@ -29,6 +29,8 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
 
 # An 8-bit texel k reads k x (1/255) in float32: what Blender's image.pixels gives for it.
 BYTE_SCALE = np.float32(1.0 / 255.0)
+# A 16-bit texel k reads k x (1/65535), as Cycles reads its ushort textures (kernel/device/cpu/image.h).
+WORD_SCALE = np.float32(1.0 / 65535.0)
 # Texels per block when a whole texture is walked (means): a few MB of float32 at a time.
 _BLOCK = 1 << 20
 
@@ -40,7 +42,8 @@ class Texture:
 rows, one per channel (gather).
 
     uint8 texels are 8-bit images as Blender holds them (k reads k / 255), 1 byte per channel, as Cycles
-    keeps them (uchar4); float32 texels are read as they are. A grey texture reads its one channel as the
+    keeps them (uchar4); uint16 texels 16-bit image files (k / 65535), as Cycles keeps them (ushort4); float32
+    texels are read as they are. A grey texture reads its one channel as the
     three of its colour. srgb=True: colour texels are sRGB-encoded and decoded after filtering, like Cycles'
     8-bit sRGB images. Alpha is never encoded. The colour of a 4-channel texture is as the engine hands it
     over: associated (premultiplied by alpha) where Cycles stores it so, uint8 ones in bytes as Cycles rounds
@@ -53,9 +56,10 @@ rows, one per channel (gather).
         self.srgb = srgb
         h, w, c = image.shape
         self.height, self.width = h, w
-        self._bytes = image.dtype == np.uint8
-        # No copy for a contiguous uint8 or float32 image (what the export hands over).
-        self.texels = np.ascontiguousarray(image, None if self._bytes else np.float32).reshape(h * w, c)
+        # The float32 step of an integer texel (None: float32 texels).
+        self._scale = BYTE_SCALE if image.dtype == np.uint8 else WORD_SCALE if image.dtype == np.uint16 else None
+        # No copy for a contiguous uint8, uint16 or float32 image (what the export hands over).
+        self.texels = np.ascontiguousarray(image, None if self._scale is not None else np.float32).reshape(h * w, c)
         self.has_alpha = c == 4
 
     @property
@@ -71,8 +75,8 @@ rows, one per channel (gather).
     def _decoded(self, t: np.ndarray) -> np.ndarray:
         """Stored texels (n, C) as gather returns them: one contiguous float32 row per channel."""
         planes = np.ascontiguousarray(t.T, dtype=np.float32)
-        if self._bytes:
-            planes *= BYTE_SCALE
+        if self._scale is not None:
+            planes *= self._scale
         if len(planes) == 1:
             planes = np.repeat(planes, 3, axis=0)
         return planes

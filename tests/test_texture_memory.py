@@ -13,7 +13,7 @@ from bpy_helpers import export_current, new_scene, quad_object
 from ember.engine.export.images import associated_bytes, file_bytes, read_image
 from ember.kernels import Renderer
 from ember.kernels.shading.image_ops import sample_texture
-from ember.kernels.textures import BYTE_SCALE, Texture
+from ember.kernels.textures import BYTE_SCALE, WORD_SCALE, Texture
 
 
 def _oiio():
@@ -23,11 +23,12 @@ def _oiio():
 
 
 def write_image(path: str, pixels: np.ndarray) -> str:
-    """Write (H, W, C) uint8 pixels, row 0 at the top, with Blender's OpenImageIO (the format by extension)."""
+    """Write (H, W, C) uint8 or uint16 pixels, row 0 at the top, with Blender's OpenImageIO (the format by
+    extension)."""
     oiio = _oiio()
     height, width, channels = pixels.shape
     out = oiio.ImageOutput.create(path)
-    assert out.open(path, oiio.ImageSpec(width, height, channels, "uint8")), oiio.geterror()
+    assert out.open(path, oiio.ImageSpec(width, height, channels, str(pixels.dtype))), oiio.geterror()
     assert out.write_image(np.ascontiguousarray(pixels)), out.geterror()
     out.close()
     return path
@@ -154,7 +155,8 @@ def test_image_files_are_decoded_on_threads_during_the_export(tmp_path, monkeypa
     decoded = []
     original = images._read_file
     monkeypatch.setattr(images, "_read_file",
-                        lambda oiio, path: decoded.append(threading.current_thread().name) or original(oiio, path))
+                        lambda oiio, path, words=False: decoded.append(threading.current_thread().name)
+                        or original(oiio, path, words))
     exported = export_current()
     assert len(decoded) == 4 and all(name.startswith("ember-images") for name in decoded)
     assert exported.scene.world.hdri is not None
@@ -195,16 +197,22 @@ def test_byte_texture_lookups_equal_float_lookups_bit_for_bit(channels):
 
 @pytest.mark.parametrize("interpolation", ["Closest", "Linear"])
 @pytest.mark.parametrize("alpha_output", [False, True])
-def test_straight_rgba_bytes_are_associated_as_cycles_rounds_them(tmp_path, interpolation, alpha_output):
-    """A straight-alpha 8-bit RGBA PNG (foliage cards, decals) through an Image Texture at a constant UV, emitted:
-    Cycles stores each colour byte as c x a / 255 rounded down (util_image_multiply_native), then filters and
-    decodes sRGB. Associating in float instead rendered such a texture 0.3-1.1% brighter than Cycles. Both
-    engines' pixels are the same number here (no noise: one texel lookup per pixel), so the tolerance is
-    float32 rounding."""
+@pytest.mark.parametrize("depth, space", [(8, "sRGB"), (16, "sRGB"), (16, "Linear Rec.709"), (16, "ACEScg")])
+def test_straight_rgba_files_are_filtered_as_cycles_stores_them(tmp_path, interpolation, alpha_output, depth, space):
+    """A straight-alpha RGBA PNG (foliage cards, decals) through an Image Texture at a constant UV, emitted. Cycles
+    reads image files with OpenImageIO and stores them 8- or 16-bit, each colour value associated as c x a /
+    255 (65,535) rounded down (util_image_multiply_native); it filters them and decodes sRGB after filtering,
+    8-bit and 16-bit alike (util/image_metadata.cpp: is_compressible_as_srgb), and converts other linear
+    spaces at load. Before, 8-bit colour associated in float rendered 0.3-1.1% brighter; 16-bit files came
+    through Blender's decoded floats, filtered after decoding (the red channel here 5x brighter with Linear
+    interpolation) and, in a linear space, associated twice (36% darker). Both engines' pixels are the same
+    number here (no noise: one texel lookup per pixel), so the tolerance is float rounding (float16 where a
+    linear space is converted at load, in both)."""
     from bpy_helpers import add_camera, emission_material, render_to_array, set_world
     rng = np.random.default_rng(7)
-    pixels = rng.integers(0, 256, (4, 4, 4)).astype(np.uint8)
-    pixels[:, :, 3] = rng.integers(40, 216, (4, 4))   # every texel partly transparent
+    one = (1 << depth) - 1
+    pixels = rng.integers(0, one + 1, (4, 4, 4)).astype(np.uint8 if depth == 8 else np.uint16)
+    pixels[:, :, 3] = rng.integers(one // 6, one - one // 6, (4, 4))   # every texel partly transparent
     path = write_image(str(tmp_path / "straight.png"), pixels)
     scene = new_scene(8, 8)
     set_world(scene, (0.0, 0.0, 0.0))
@@ -212,6 +220,7 @@ def test_straight_rgba_bytes_are_associated_as_cycles_rounds_them(tmp_path, inte
     def texture(tree):
         node = tree.nodes.new("ShaderNodeTexImage")
         node.image = bpy.data.images.load(path, check_existing=False)
+        node.image.colorspace_settings.name = space
         assert node.image.alpha_mode == "STRAIGHT"
         node.interpolation = interpolation
         uv = tree.nodes.new("ShaderNodeCombineXYZ")
@@ -230,5 +239,25 @@ def test_straight_rgba_bytes_are_associated_as_cycles_rounds_them(tmp_path, inte
     add_camera(scene, (0, 0, 3), (0, 0, 0))
     cycles = render_to_array(scene, "CYCLES", 1)[..., :3]
     ember = render_to_array(scene, "EMBER", 1)[..., :3]
-    assert np.ptp(cycles, axis=(0, 1)).max() < 1e-6 and cycles.min() > 0.01
-    np.testing.assert_allclose(ember, cycles, rtol=2e-5)
+    assert np.ptp(cycles, axis=(0, 1)).max() < 1e-6 and np.abs(cycles).min() > 0.01
+    np.testing.assert_allclose(ember, cycles, rtol=2e-5 if space != "ACEScg" else 4e-3, atol=1e-6)
+
+
+@pytest.mark.parametrize("packed", [False, True])
+def test_a_16bit_file_stays_16bit_where_cycles_keeps_it_so(tmp_path, packed):
+    """A 16-bit sRGB PNG is read from its file as uint16, 2 bytes a channel, sRGB-encoded (decoded after
+    filtering); packed in the .blend, Cycles takes it from Blender as linear floats, and so does Ember."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    pixels = (_pattern(9, 13, 3).astype(np.uint16) * 257)
+    image = bpy.data.images.load(write_image(str(tmp_path / "deep.png"), pixels))
+    if packed:
+        image.pack()
+    read = read_image(image, [])
+    if packed:
+        assert read.array.dtype == np.float32 and not read.srgb
+        return
+    assert read.array.dtype == np.uint16 and read.srgb
+    np.testing.assert_array_equal(read.array, pixels[::-1])
+    texture = Texture(read.array, srgb=True)
+    assert texture.nbytes == 9 * 13 * 3 * 2
+    np.testing.assert_array_equal(texture.gather(np.arange(3)), (pixels[-1, :3].T * WORD_SCALE).astype(np.float32))

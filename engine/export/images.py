@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...kernels.textures import BYTE_SCALE, srgb_to_linear
+from ...kernels.textures import BYTE_SCALE, WORD_SCALE, srgb_to_linear
 from ..version import blender_version
 
 # Byte images in these colour spaces (besides data ones such as Non-Color) hold linear values already.
@@ -47,10 +47,11 @@ class ImagePixels:
     """An image's pixels as the kernel keeps them.
 
     array : (H, W, C), C in {1, 3, 4} (alpha only where asked for and not all 1; grey as one channel),
-        row 0 at the bottom: uint8 for 8-bit images (k stands for k / 255; with 4 channels, colour associated
-        as Cycles stores it: associated_bytes), float32 otherwise (finite and non-negative for float images;
-        colour associated where Cycles associates it).
-    srgb : the values are sRGB-encoded (an 8-bit image in an sRGB space); the kernel decodes them after
+        row 0 at the bottom: uint8 for 8-bit images (k stands for k / 255), uint16 for 16-bit image files in
+        sRGB or a data space (k / 65535), with 4 channels colour associated as Cycles stores it
+        (associated_bytes); float32 otherwise (finite and non-negative for float images; colour associated
+        where Cycles associates it).
+    srgb : the values are sRGB-encoded (an 8- or 16-bit image in an sRGB space); the kernel decodes them after
         filtering, as Cycles does. Otherwise they are linear.
     """
     array: np.ndarray
@@ -74,10 +75,11 @@ def read_image(image, warnings: list[str], alpha: bool = False, file_pixels=_UNR
                         f"rendered magenta")
         return None
     channels = pixels.shape[2]
-    one = 255 if pixels.dtype == np.uint8 else 1.0
+    integer = pixels.dtype in (np.uint8, np.uint16)
+    one = np.iinfo(pixels.dtype).max if integer else 1.0
     keep_alpha = alpha and channels == 4 and image.alpha_mode != "NONE" and pixels[:, :, 3].min() < one
     pixels = _narrowed(pixels, 4 if keep_alpha else 3 if channels >= 3 else 1)
-    if pixels.dtype != np.uint8:  # float files (EXR, HDR) may hold negative or non-finite values; light cannot
+    if not integer:  # float files (EXR, HDR) may hold negative or non-finite values; light cannot
         pixels = _cleaned(pixels)
         if keep_alpha and _associates_float_alpha(image):
             pixels[:, :, :3] *= pixels[:, :, 3:4]
@@ -96,15 +98,17 @@ def read_image(image, warnings: list[str], alpha: bool = False, file_pixels=_UNR
 
 
 def associated_bytes(pixels: np.ndarray) -> np.ndarray:
-    """(H, W, 4) uint8 straight RGBA as Cycles stores an 8-bit image whose alpha it associates: each colour byte
-    times the alpha byte over 255, rounded down, still a byte (scene/image_oiio.cpp and blender/image.cpp
-    load_pixels, util/image.h util_image_multiply_native; the colour is then filtered and, for sRGB images,
-    decoded in the kernel). Rounding down leaves a partly transparent texel's colour up to 1/255 darker than
-    c x a / 255."""
+    """(H, W, 4) uint8 or uint16 straight RGBA as Cycles stores an 8- or 16-bit image whose alpha it associates:
+    each colour value times the alpha value over 255 (65,535), rounded down, still of its type
+    (scene/image_oiio.cpp and blender/image.cpp load_pixels, util/image.h util_image_multiply_native; the
+    colour is then filtered and, for sRGB images, decoded in the kernel). Rounding down leaves a partly
+    transparent texel's colour up to one step darker than c x a / 255."""
+    one = np.iinfo(pixels.dtype).max
+    wide = np.uint16 if pixels.dtype == np.uint8 else np.uint32
     out = np.empty_like(pixels)
-    alpha = pixels[:, :, 3].astype(np.uint16)
+    alpha = pixels[:, :, 3].astype(wide)
     for c in range(3):
-        out[:, :, c] = pixels[:, :, c].astype(np.uint16) * alpha // 255
+        out[:, :, c] = pixels[:, :, c].astype(wide) * alpha // one
     out[:, :, 3] = pixels[:, :, 3]
     return out
 
@@ -145,7 +149,8 @@ def _linear_space_matrix(name: str) -> np.ndarray | None:
 
 
 def _is_srgb(image, warnings: list[str]) -> bool:
-    """Whether an 8-bit image holds sRGB-encoded values (Blender returns them undecoded)."""
+    """Whether an 8-bit (or 16-bit, from its file) image holds sRGB-encoded values (Blender returns 8-bit ones
+    undecoded)."""
     settings = image.colorspace_settings
     if settings.is_data or settings.name in LINEAR_BYTE_SPACES:
         return False
@@ -159,14 +164,28 @@ def _is_srgb(image, warnings: list[str]) -> bool:
 def file_bytes(image) -> np.ndarray | None:
     """(H, W, C) uint8 of an 8-bit image read from its file, or from the file packed in the .blend, as Blender
     reads it (C = 1 for grey, where Blender repeats it in R, G and B; grey with alpha becomes RGBA, as there),
-    row 0 at the bottom; None when the image is not a plain 8-bit file of FILE_FORMATS that OpenImageIO opens
+    row 0 at the bottom; uint16 likewise for a 16-bit image file that Cycles reads as it is stored
+    (reads_words); None when the image is not a plain file of FILE_FORMATS of those that OpenImageIO opens
     (Blender reads it)."""
     oiio = _openimageio()
     if oiio is None:
         return None
     with tempfile.TemporaryDirectory(prefix="ember-") as folder:
         path = _file_of(image, folder)
-        return None if path is None else _read_file(oiio, path)
+        return None if path is None else _read_file(oiio, path, reads_words(image))
+
+
+def reads_words(image) -> bool:
+    """Whether a 16-bit file of this image is read as it is stored (uint16): an image file (not packed) in sRGB,
+    a data space or a linear one. Cycles reads image files through OpenImageIO, colour straight, and keeps
+    them 16-bit (USHORT4: sRGB ones filtered before they are decoded, as 8-bit ones, util/image_metadata.cpp
+    finalize, is_compressible_as_srgb; scene-linear and data ones as they are) or converts them to half floats
+    at load (other linear spaces, as 8-bit ones: read_image); a packed image it takes from Blender, which
+    decodes it to linear floats at load, colour associated (blender/image.cpp): those, and files in other
+    spaces, come through image.pixels."""
+    settings = image.colorspace_settings
+    return image.packed_file is None and (settings.is_data or settings.name == "sRGB"
+                                          or settings.name in LINEAR_BYTE_SPACES or settings.name in _LINEAR_SPACES)
 
 
 def _file_of(image, folder: str) -> str | None:
@@ -189,7 +208,8 @@ def _file_of(image, folder: str) -> str | None:
     return path
 
 
-def _read_file(oiio, path: str) -> np.ndarray | None:
+def _read_file(oiio, path: str, words: bool = False) -> np.ndarray | None:
+    """The file's pixels (_read_rows): uint8 for an 8-bit file, uint16 for a 16-bit one where `words`, else None."""
     reader = oiio.ImageInput.open(path)
     if reader is None:
         oiio.geterror()
@@ -197,7 +217,9 @@ def _read_file(oiio, path: str) -> np.ndarray | None:
     try:
         options = FILE_FORMATS.get(reader.format_name())
         spec = reader.spec()
-        if options is None or spec.format != oiio.UINT8 or not 1 <= spec.nchannels <= 4 or spec.depth > 1:
+        formats = (oiio.UINT8, oiio.UINT16) if words else (oiio.UINT8,)
+        if options is None or not any(spec.format == f for f in formats) or not 1 <= spec.nchannels <= 4 \
+                or spec.depth > 1:
             return None
         reader.close()
         config = oiio.ImageSpec()
@@ -211,13 +233,15 @@ def _read_file(oiio, path: str) -> np.ndarray | None:
 
 
 def _read_rows(reader, spec) -> np.ndarray | None:
-    """The image's rows, a block at a time, bottom row first; grey with alpha expanded to RGBA."""
+    """The image's rows (uint8, or uint16 for a 16-bit file), a block at a time, bottom row first; grey with
+    alpha expanded to RGBA."""
     height, width, channels = spec.height, spec.width, spec.nchannels
-    out = np.empty((height, width, 4 if channels == 2 else channels), np.uint8)
+    kind = "uint16" if str(spec.format) == "uint16" else "uint8"
+    out = np.empty((height, width, 4 if channels == 2 else channels), kind)
     rows = max(1, _BLOCK // (width * channels))
     for y0 in range(0, height, rows):
         y1 = min(height, y0 + rows)
-        block = reader.read_scanlines(0, 0, y0, y1, 0, 0, channels, "uint8")
+        block = reader.read_scanlines(0, 0, y0, y1, 0, 0, channels, kind)
         if block is None or block.shape[:2] != (y1 - y0, width):
             return None
         block = block.reshape(y1 - y0, width, channels)[::-1]
@@ -290,12 +314,12 @@ def _cleaned(pixels: np.ndarray) -> np.ndarray:
 
 
 def _as_float(pixels: np.ndarray, associate: bool = False) -> np.ndarray:
-    """float32 values of pixels (k / 255 for uint8, as Blender gives them; colour times alpha when
-    associate); float pixels as they are."""
-    if pixels.dtype != np.uint8:
+    """float32 values of pixels (k / 255 for uint8, as Blender gives them, k / 65535 for uint16; colour times alpha
+    when associate); float pixels as they are."""
+    if pixels.dtype not in (np.uint8, np.uint16):
         return pixels
     out = pixels.astype(np.float32)
-    out *= BYTE_SCALE
+    out *= BYTE_SCALE if pixels.dtype == np.uint8 else WORD_SCALE
     if associate:
         out[:, :, :3] *= out[:, :, 3:4]
     return out
@@ -329,7 +353,7 @@ class ImageTextures:
                 self._pool = ThreadPoolExecutor(PREFETCH_THREADS, "ember-images")
             path = _file_of(image, self._folder.name)
             if path is not None:
-                self._decoding[key] = self._pool.submit(_read_file, oiio, path)
+                self._decoding[key] = self._pool.submit(_read_file, oiio, path, reads_words(image))
 
     def read(self, image, alpha: bool = False) -> ImagePixels | None:
         """read_image(image), from the file's bytes prefetch decoded when it did."""

@@ -34,10 +34,10 @@ class SceneArrays:
     uvs : (T, 3, 2) float32, per-corner texture coordinates.
     material_ids : (T,) int32, rows of `materials`.
     textures : tuple of (H, W, C) arrays, C in {1, 3, 4}, row 0 at the bottom: float32, or uint8 for 8-bit
-        images (k stands for k / 255; a 4-channel one holds straight colour, which the kernel associates
-        with alpha texel by texel: kernels.textures.Texture).
+        images (k stands for k / 255), uint16 for 16-bit ones (k / 65535); a 4-channel one holds its colour
+        as it is to be filtered (associated with alpha where Cycles associates it: kernels.textures.Texture).
     texture_srgb : tuple of bool, one per texture (or empty: all linear). True marks a texture stored
-        sRGB-encoded and decoded after filtering, as Cycles does with 8-bit sRGB images.
+        sRGB-encoded and decoded after filtering, as Cycles does with 8- and 16-bit sRGB images.
     tangents : (T, 3, 4) float32 or None: per-corner world-space MikkTSpace tangent (xyz) of the render
         UV map and its bitangent sign (w, +-1: B = sign * N x T); None when no material reads tangents
         (tangent-space normal maps, Tangent nodes). Zero rows mean "no tangent" (Cycles then leaves the
@@ -309,8 +309,8 @@ class SceneArrays:
                     and tex.shape[0] >= 1 and tex.shape[1] >= 1,
                     f"textures[{i}]", f"must be an (H, W, C) array with C in 1, 3, 4, got "
                     f"{getattr(tex, 'shape', type(tex).__name__)}")
-            check_array(tex, f"textures[{i}]", tex.shape, np.uint8 if tex.dtype == np.uint8 else np.float32,
-                        finite=tex.dtype != np.uint8)
+            integer = tex.dtype in (np.uint8, np.uint16)
+            check_array(tex, f"textures[{i}]", tex.shape, tex.dtype if integer else np.float32, finite=not integer)
         require(len(self.texture_srgb) in (0, len(self.textures)), "texture_srgb",
                 f"needs one flag per texture ({len(self.textures)}), got {len(self.texture_srgb)}")
         self.materials.validate(len(self.textures))
