@@ -10,7 +10,7 @@ import numpy as np
 
 from . import sampling
 from .scene import World
-from .textures import Texture, luminance
+from .textures import BLOCK_TEXELS, Texture, luminance, srgb_to_linear
 from .vec import F32, INV_2PI, INV_PI, ONE, PI, TWO_PI
 
 
@@ -55,7 +55,10 @@ class Environment:
         self.shader = shader
         # Whether the radiance depends on the ray that finds it (a world program with a Light Path node).
         self.varies_with_ray = shader is not None and any(op.kind == "ShaderNodeLightPath" for op in world.program.ops)
-        self.texture = Texture(world.hdri) if world.hdri is not None and shader is None else None
+        self.texture = Texture(world.hdri, bool(world.hdri_srgb)) if world.hdri is not None and shader is None \
+            else None
+        from .shading.image_ops import sample_texture   # (kernels.shading imports this module's package first)
+        self._sample_texture = sample_texture
         if shader is not None:
             self.strength = np.float32(1.0)
             self.rotation = np.eye(3, dtype=np.float32)
@@ -65,7 +68,7 @@ class Environment:
         else:
             self.strength = np.float32(world.strength)
             self.rotation = np.asarray(world.env_from_world, np.float32)
-            self._distribution = _BilinearDistribution(world.hdri, world.mis_compensation) \
+            self._distribution = _BilinearDistribution(world.hdri, world.mis_compensation, bool(world.hdri_srgb)) \
                 if world.hdri is not None else None
         self.constant = (np.asarray(world.color, np.float32) * self.strength)[:, None]
         # The MIS heuristic between light samples of the world and BSDF rays: the balance heuristic with a
@@ -201,7 +204,12 @@ class Environment:
         if self.texture is None:
             return np.broadcast_to(self.constant, (3, n))
         u, v = direction_to_equirect(*self.to_env(dx, dy, dz))
-        return self.texture.lookup(u, v, wrap_v=False) * self.strength
+        # As Cycles' Environment Texture: the node's interpolation, repeating in both directions, decoded after
+        # filtering (svm_node_tex_environment, EnvironmentTextureNode::image_params).
+        color = self._sample_texture(self.texture, u, v, self.world.hdri_interpolation, "REPEAT")
+        if self.texture.srgb:
+            color = srgb_to_linear(color)
+        return color * self.strength
 
 
 class WorldFocus:
@@ -252,9 +260,12 @@ def sample_linear(u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class _BilinearDistribution:
-    """An HDRI (or a world program's bake at texel centres) sampled in proportion to its bilinear lookup
-    (texel centres at (i + 1/2) / W, u wrapping, v clamped at the poles) x sin(theta) at the patch row's
-    centre.
+    """An HDRI (or a world program's bake at texel centres) sampled in proportion to its bilinear lookup of
+    linear texels (texel centres at (i + 1/2) / W, u wrapping, v clamped at the poles) x sin(theta) at the
+    patch row's centre. Escaped rays read the Environment Texture as Cycles does (Environment.radiance: the
+    node's interpolation, v repeating at the poles, an 8-bit sRGB image decoded after filtering), which the
+    bilinear lookup of linear texels follows closely but not exactly: the pdf is still positive wherever that
+    radiance is, so both estimates stay unbiased.
 
     The lookup is bilinear between neighbouring texel centres: the map splits into W x (H + 1) patches,
     with half-height rows at the poles where the lookup is constant in v. A patch is chosen in proportion
@@ -273,17 +284,30 @@ class _BilinearDistribution:
     constant one) keeps its levels.
     """
 
-    def __init__(self, image: np.ndarray, compensate: bool = False):
+    def __init__(self, image: np.ndarray, compensate: bool = False, srgb: bool = False):
+        """image: (H, W, C) float32 linear values, or a stored 8- or 16-bit image (kernels.textures.Texture; srgb:
+        sRGB-encoded), decoded here a block of rows at a time."""
         h, w = image.shape[:2]
-        rgb = image[:, :, :3] if image.shape[2] >= 3 else np.repeat(image[:, :, :1], 3, axis=2)
         theta = (1.0 - (np.arange(h) + 0.5) / h) * np.pi
-        # The map's mean luminance x sin(theta), for the world's share in light selection.
-        self.mean_weight = float((np.maximum(luminance(rgb).astype(np.float64), 0.0) *
-                                  np.sin(theta)[:, None]).mean())
-        # One colour in every direction: nothing for light samples to find that BSDF rays miss.
-        self.uniform = bool((rgb == rgb[:1, :1]).all())
-        # Cycles weighs its map by the average of |R|, |G|, |B| (scene/light.cpp background_cdf).
-        level = np.abs(rgb.astype(np.float32)).mean(axis=2)
+        texture = Texture(image, srgb)
+        level = np.empty((h, w), np.float32)
+        lum_sum, first, self.uniform = 0.0, None, True
+        rows = max(1, BLOCK_TEXELS // w)
+        for y0 in range(0, h, rows):
+            y1 = min(h, y0 + rows)
+            rgb = texture.gather(np.arange(y0 * w, y1 * w))[:3]
+            if texture.srgb:
+                rgb = srgb_to_linear(rgb)
+            rgb = rgb.reshape(3, y1 - y0, w)
+            # The map's mean luminance x sin(theta), for the world's share in light selection.
+            lum_sum += float((np.maximum(luminance(np.moveaxis(rgb, 0, -1)).astype(np.float64), 0.0)
+                              * np.sin(theta[y0:y1])[:, None]).sum())
+            # One colour in every direction: nothing for light samples to find that BSDF rays miss.
+            first = rgb[:, :1, :1] if first is None else first
+            self.uniform = self.uniform and bool((rgb == first).all())
+            # Cycles weighs its map by the average of |R|, |G|, |B| (scene/light.cpp background_cdf).
+            level[y0:y1] = np.abs(rgb).mean(axis=0)
+        self.mean_weight = lum_sum / (h * w)
         if not np.any(level > 0):  # a black map: sample uniformly in (u, v), weighted by sin(theta)
             level = np.ones((h, w), np.float32)
         self.compensated = False  # whether the levels were lowered (compensate, and something above the mean)

@@ -32,7 +32,7 @@ BYTE_SCALE = np.float32(1.0 / 255.0)
 # A 16-bit texel k reads k x (1/65535), as Cycles reads its ushort textures (kernel/device/cpu/image.h).
 WORD_SCALE = np.float32(1.0 / 65535.0)
 # Texels per block when a whole texture is walked (means): a few MB of float32 at a time.
-_BLOCK = 1 << 20
+BLOCK_TEXELS = 1 << 20
 
 
 class Texture:
@@ -85,8 +85,8 @@ rows, one per channel (gather).
         """(4,) float32: the mean colour (R, G, B, associated, as stored) and alpha (1 without one), a
         block of texels at a time (float32 sums within a block, float64 across)."""
         total = np.zeros(4 if self.has_alpha else 3, np.float64)
-        for start in range(0, len(self.texels), _BLOCK):
-            total += self._decoded(self.texels[start:start + _BLOCK]).sum(axis=1)
+        for start in range(0, len(self.texels), BLOCK_TEXELS):
+            total += self._decoded(self.texels[start:start + BLOCK_TEXELS]).sum(axis=1)
         mean = total / max(len(self.texels), 1)
         return np.append(mean[:3], mean[3] if self.has_alpha else 1.0).astype(np.float32)
 

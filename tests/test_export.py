@@ -674,10 +674,15 @@ def test_no_world_is_black_and_constant_world(empty_scene):
     assert world.strength == 2.0 and world.hdri is None
 
 
-def test_8_bit_srgb_environment_is_decoded(empty_scene):
+def test_8_bit_srgb_environment_is_kept_as_bytes_and_decoded_after_filtering(empty_scene):
+    """An 8-bit sRGB environment stays bytes, 3 a texel, marked sRGB (decoded after filtering, as Cycles'), with its
+    node's interpolation; its strength is limited by its brightest decoded value."""
     rows = np.array([[[0, 51, 102, 255], [153, 204, 255, 255]]], np.float32) / 255
     hdri_world(empty_scene, new_image("Sky", rows))
-    np.testing.assert_allclose(export().scene.world.hdri, srgb_to_linear(rows[..., :3]), atol=1e-6)
+    empty_scene.world.node_tree.nodes["Environment Texture"].interpolation = "Closest"
+    world = export().scene.world
+    assert world.hdri.dtype == np.uint8 and world.hdri_srgb and world.hdri_interpolation == "Closest"
+    np.testing.assert_array_equal(world.hdri, np.rint(rows[..., :3] * 255).astype(np.uint8))
 
 
 def test_unsupported_world_nodes_warn_once(empty_scene):

@@ -24,6 +24,7 @@ import mathutils
 import numpy as np
 
 from ...kernels import World
+from ...kernels.textures import srgb_to_linear
 from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
 from .images import ImagePixels, ImageTextures
 from .lights import MAX_LIGHT_RADIANCE
@@ -206,15 +207,22 @@ def _environment(texture: Source, strength: float, background, issues: list[str]
     if pixels is None:
         return missing
     env_from_world = _env_from_world(source_of(node.inputs["Vector"], texture.groups))
-    hdri = _radiance(pixels)
-    return World(color=np.array(BLACK3, np.float32), hdri=hdri,
-                 strength=_limited(strength, float(hdri.max()), background, issues), env_from_world=env_from_world)
+    hdri, peak = _radiance(pixels)
+    return World(color=np.array(BLACK3, np.float32), hdri=hdri, hdri_srgb=pixels.srgb,
+                 hdri_interpolation=node.interpolation, strength=_limited(strength, peak, background, issues),
+                 env_from_world=env_from_world)
 
 
-def _radiance(pixels: ImagePixels) -> np.ndarray:
-    """(H, W, 3) float32 linear radiance from an image with 1 or 3 channels."""
+def _radiance(pixels: ImagePixels) -> tuple[np.ndarray, float]:
+    """(the map as the kernel keeps it, its brightest linear value) from an image with 1 or 3 channels: an 8- or
+    16-bit image as it is stored (grey as one channel; sRGB-encoded where pixels.srgb, decoded after filtering as
+    Cycles does), float images as (H, W, 3) float32 linear radiance."""
+    if pixels.array.dtype in (np.uint8, np.uint16):
+        peak = float(pixels.array.max()) / np.iinfo(pixels.array.dtype).max
+        return pixels.array, float(srgb_to_linear(np.float32(peak))) if pixels.srgb else peak
     linear = np.maximum(pixels.linear(), 0.0)  # light cannot be negative (out-of-gamut texels)
-    return linear if linear.shape[2] == 3 else np.repeat(linear, 3, axis=2)
+    linear = linear if linear.shape[2] == 3 else np.repeat(linear, 3, axis=2)
+    return linear, float(linear.max())
 
 
 def _env_from_world(vector: Source) -> np.ndarray:

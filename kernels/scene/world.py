@@ -16,8 +16,12 @@ class World:
     """What a ray that leaves the scene sees.
 
     color : (3,) float32 radiance, used when hdri is None.
-    hdri : (H, W, 3) float32 equirectangular map, row 0 at the bottom (Blender's order), or None.
+    hdri : (H, W, 3) equirectangular map, row 0 at the bottom (Blender's order), or None: float32 linear
+        radiance, or an 8- or 16-bit image as it is stored (uint8, uint16; (H, W, 1) for grey).
     strength : multiplies color or hdri.
+    hdri_srgb, hdri_interpolation : the hdri's values are sRGB-encoded (an 8- or 16-bit image: decoded after
+        filtering, as Cycles does) and the Environment Texture's Interpolation (Linear, Closest, Cubic; Smart
+        reads Cubic, as Cycles' CPU does).
     env_from_world : (3, 3) float32 rotation taking a world direction to the direction the map is
         looked up with: the Mapping node's rotation R for a POINT mapping, R^T for TEXTURE.
     program, output : a node program (kernels.programs) and the Ref of its radiance, for any other world
@@ -40,6 +44,8 @@ class World:
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None
     strength: float = 1.0
+    hdri_srgb: bool = False
+    hdri_interpolation: str = "Linear"
     env_from_world: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
     program: Program | None = None
     output: Ref | None = None
@@ -58,10 +64,14 @@ class World:
         require(self.ao_distance >= 0, "world.ao_distance", f"must be non-negative, got {self.ao_distance}")
         if self.hdri is not None:
             h = self.hdri
-            require(h.ndim == 3 and h.shape[2] == 3 and h.shape[0] >= 1 and h.shape[1] >= 1,
-                    "world.hdri", f"must be (H, W, 3), got {h.shape}")
-            check_array(h, "world.hdri", h.shape, np.float32)
-            require(np.all(h >= 0), "world.hdri", "must be non-negative")
+            require(h.ndim == 3 and h.shape[2] in (1, 3) and h.shape[0] >= 1 and h.shape[1] >= 1,
+                    "world.hdri", f"must be (H, W, 3) or (H, W, 1), got {h.shape}")
+            integer = h.dtype in (np.uint8, np.uint16)
+            check_array(h, "world.hdri", h.shape, h.dtype if integer else np.float32, finite=not integer)
+            require(integer or bool(np.all(h >= 0)), "world.hdri", "must be non-negative")
+            require(integer or not self.hdri_srgb, "world.hdri_srgb", "is for 8- and 16-bit images")
+            require(self.hdri_interpolation in ("Linear", "Closest", "Cubic", "Smart"), "world.hdri_interpolation",
+                    f"must be Linear, Closest, Cubic or Smart, got {self.hdri_interpolation!r}")
         require((self.program is None) == (self.output is None), "world.program", "comes with its output")
         if self.program is not None:
             require(isinstance(self.output, Ref) and 0 <= self.output.op < len(self.program), "world.output",
