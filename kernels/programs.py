@@ -70,3 +70,7 @@ class Program:
             texture = op.option("texture")
             if texture is not None and not -1 <= texture < n_textures:
                 raise ValueError(f"program op {i} ({op.kind}) reads texture {texture} of {n_textures}")
+            for tile, index in op.option("tiles", ()):
+                if not (1001 <= tile and 0 <= index < n_textures):
+                    raise ValueError(f"program op {i} ({op.kind}) reads UDIM tile {tile} from texture {index} of "
+                                     f"{n_textures}")

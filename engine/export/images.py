@@ -208,16 +208,58 @@ def _file_of(image, folder: str) -> str | None:
     return path
 
 
-def _read_file(oiio, path: str, words: bool = False) -> np.ndarray | None:
-    """The file's pixels (_read_rows): uint8 for an 8-bit file, uint16 for a 16-bit one where `words`, else None."""
+def _tile_file(image, number: int, folder: str) -> str | None:
+    """The file of UDIM tile `number` of a tiled image (its <UDIM> or <UVTILE> token filled in; a packed tile
+    written into `folder` first), None when it has none."""
+    for packed in image.packed_files:
+        if getattr(packed, "tile_number", None) == number:
+            extension = os.path.splitext(image.filepath or image.name)[1].lower()
+            path = os.path.join(folder, f"tile{number}_{len(os.listdir(folder))}{extension}")
+            with open(path, "wb") as f:
+                f.write(packed.packed_file.data)
+            return path
+    pattern = bpy_path_abspath(image.filepath, image)
+    u, v = (number - 1001) % 10 + 1, (number - 1001) // 10 + 1
+    path = pattern.replace("<UDIM>", str(number)).replace("<UVTILE>", f"u{u}_v{v}")
+    return path if path != pattern and os.path.isfile(path) else None
+
+
+def bpy_path_abspath(path: str, image) -> str:
+    """An image path made absolute as Blender makes it (relative to the .blend or its library)."""
+    import bpy
+    return bpy.path.abspath(path, library=image.library)
+
+
+def read_tile(image, number: int, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
+    """UDIM tile `number` of a tiled image, as read_image reads a whole image (8- and 16-bit files as stored, float
+    files such as OpenEXR as linear floats); None, with a warning naming the image and tile, when it cannot be read
+    (Cycles renders a missing tile magenta)."""
+    oiio = _openimageio()
+    pixels = None
+    if oiio is not None:
+        with tempfile.TemporaryDirectory(prefix="ember-") as folder:
+            path = _tile_file(image, number, folder)
+            if path is not None:
+                pixels = _read_file(oiio, path, reads_words(image), floats=True)
+    if pixels is None:
+        warnings.append(f"Image '{image.name}': UDIM tile {number} could not be read: rendered magenta")
+        return None
+    return read_image(image, warnings, alpha, file_pixels=pixels)
+
+
+def _read_file(oiio, path: str, words: bool = False, floats: bool = False) -> np.ndarray | None:
+    """The file's pixels (_read_rows): uint8 for an 8-bit file, uint16 for a 16-bit one where `words`, float32 for a
+    half or float one (OpenEXR too) where `floats`, else None."""
     reader = oiio.ImageInput.open(path)
     if reader is None:
         oiio.geterror()
         return None
     try:
-        options = FILE_FORMATS.get(reader.format_name())
+        options = FILE_FORMATS.get(reader.format_name(), {} if floats else None)
         spec = reader.spec()
         formats = (oiio.UINT8, oiio.UINT16) if words else (oiio.UINT8,)
+        if floats:
+            formats += (oiio.HALF, oiio.FLOAT)
         if options is None or not any(spec.format == f for f in formats) or not 1 <= spec.nchannels <= 4 \
                 or spec.depth > 1:
             return None
@@ -233,15 +275,16 @@ def _read_file(oiio, path: str, words: bool = False) -> np.ndarray | None:
 
 
 def _read_rows(reader, spec) -> np.ndarray | None:
-    """The image's rows (uint8, or uint16 for a 16-bit file), a block at a time, bottom row first; grey with
-    alpha expanded to RGBA."""
+    """The image's rows (uint8; uint16 for a 16-bit file, float32 for a half or float one), a block at a time,
+    bottom row first; grey with alpha expanded to RGBA."""
     height, width, channels = spec.height, spec.width, spec.nchannels
-    kind = "uint16" if str(spec.format) == "uint16" else "uint8"
+    kind = {"uint16": "uint16", "half": "float32", "float": "float32"}.get(str(spec.format), "uint8")
+    read_as = "float" if kind == "float32" else kind
     out = np.empty((height, width, 4 if channels == 2 else channels), kind)
     rows = max(1, _BLOCK // (width * channels))
     for y0 in range(0, height, rows):
         y1 = min(height, y0 + rows)
-        block = reader.read_scanlines(0, 0, y0, y1, 0, 0, channels, kind)
+        block = reader.read_scanlines(0, 0, y0, y1, 0, 0, channels, read_as)
         if block is None or block.shape[:2] != (y1 - y0, width):
             return None
         block = block.reshape(y1 - y0, width, channels)[::-1]
@@ -331,6 +374,7 @@ class ImageTextures:
     def __init__(self, warnings: list[str]):
         self.loaded: list[ImagePixels] = []
         self._index: dict[str, int | None] = {}
+        self._tiles: dict[str, tuple] = {}
         self._warnings = warnings
         self._decoding: dict[str, Future] = {}
         self._pool = None
@@ -360,6 +404,19 @@ class ImageTextures:
         decoding = self._decoding.pop(image.name_full, None)
         return read_image(image, self._warnings, alpha,
                           decoding.result() if decoding is not None else file_bytes(image))
+
+    def tiles(self, image) -> tuple:
+        """((tile number, texture index), ...) of a tiled (UDIM) image's tiles that could be read."""
+        key = image.name_full
+        if key not in self._tiles:
+            found = []
+            for tile in image.tiles:
+                pixels = read_tile(image, tile.number, self._warnings, alpha=True)
+                if pixels is not None:
+                    found.append((int(tile.number), len(self.loaded)))
+                    self.loaded.append(pixels)
+            self._tiles[key] = tuple(found)
+        return self._tiles[key]
 
     def index(self, image) -> int | None:
         """The image's texture index, None when it cannot be loaded."""

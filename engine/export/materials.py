@@ -623,7 +623,8 @@ def _plain_image(source: Source) -> bool:
     uv = (vector.node is None
           or (vector.kind == "ShaderNodeTexCoord" and vector.socket.identifier == "UV")
           or (vector.kind == "ShaderNodeUVMap" and not vector.node.uv_map))
-    return uv and node.interpolation == "Linear" and node.projection == "FLAT" and node.extension == "REPEAT"
+    return uv and node.interpolation == "Linear" and node.projection == "FLAT" and node.extension == "REPEAT" \
+        and (node.image is None or node.image.source != "TILED")   # UDIM tiles: the program's lookup
 
 
 def _channels(socket) -> int:

@@ -372,9 +372,13 @@ def _normal_map(builder, node, groups):
 def _image(builder, node, groups):
     _check_texture_mapping(builder, node)
     image = node.image
-    texture = -1
+    texture, tiles = -1, None
     if image is None:
         builder.issues.append(f"Image Texture '{node.name}' has no image, rendered magenta")
+    elif image.source == "TILED":
+        # UDIM: each tile a texture of its own, picked per lookup by its tile number (image_ops.image).
+        tiles = builder.images.tiles(image)
+        texture = tiles[0][1] if tiles else -1
     else:
         index = builder.images.index(image)
         texture = -1 if index is None else index
@@ -383,6 +387,8 @@ def _image(builder, node, groups):
     options = {"texture": texture, "interpolation": node.interpolation, "extension": node.extension,
                "projection": node.projection, "projection_blend": float(node.projection_blend),
                "unassociate": bool(unassociate)}
+    if tiles is not None:
+        options["tiles"] = tiles
     inputs = yield builder.node_inputs(node, groups, vector_default="UV")
     return builder.add(node.bl_idname, inputs, options)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..textures import srgb_to_linear
+from ..textures import finite_uv, srgb_to_linear
 from ..vec import F32, HALF, INV_2PI, INV_PI, ONE, ZERO, dot_rows_einsum
 from .input_ops import object_normal
 from .program import full
@@ -20,21 +20,30 @@ def image(hits, inputs, op):
     """The Image Texture node (Cycles' svm_node_tex_image and svm_node_tex_image_box, with the lookups of
     kernel/device/cpu/image.h): Closest, Linear or Cubic (B-spline) interpolation; Repeat, Extend, Clip
     (texels outside read zero) or Mirror extension; Flat, Box (blended by the object-space normal),
-    Sphere and Tube projection. 8-bit sRGB images are filtered encoded and decoded after."""
+    Sphere and Tube projection. 8-bit sRGB images are filtered encoded and decoded after. A tiled (UDIM) image
+    (option "tiles": (tile number, texture), ...) reads each lookup from its tile (_udim_lookup)."""
     n = hits.n
     texture = op.option("texture", -1)
     vector = inputs.get("Vector")
     p = hits.uv if vector is None else full(vector, n, 3)
     if texture < 0:  # missing image: Cycles' magenta
         return {"Color": np.broadcast_to(np.array([1.0, 0.0, 1.0], F32), (n, 3)), "Alpha": np.ones(n, F32)}
-    tex = hits.scene.textures[texture]
+    tiles = op.option("tiles")
+    if tiles is None:
+        tex = hits.scene.textures[texture]
+
+        def lookup(u, v):
+            return _image_lookup(tex, u, v, op)
+    else:
+        def lookup(u, v):
+            return _udim_lookup(hits.scene.textures, tiles, u, v, op)
     projection = op.option("projection", "FLAT")
     if projection == "BOX":
-        color, alpha = _box(hits, tex, p, op)
+        color, alpha = _box(hits, lookup, p, op)
     else:
         if projection in ("SPHERE", "TUBE"):  # from the [0, 1] box to [-1, 1] first
             p = (map_to_sphere if projection == "SPHERE" else map_to_tube)((p - HALF) * F32(2.0))
-        color, alpha = _image_lookup(tex, p[:, 0], p[:, 1], op)
+        color, alpha = lookup(p[:, 0], p[:, 1])
     return {"Color": np.ascontiguousarray(color.T, F32), "Alpha": alpha.astype(F32)}
 
 
@@ -77,8 +86,27 @@ def _image_lookup(tex, u, v, op):
     return color, alpha
 
 
-def _box(hits, tex, p, op):
-    """Box projection: three planar lookups weighted by the object-space normal's share of each axis."""
+def _udim_lookup(textures, tiles, u, v, op):
+    """(colour (3, n), alpha (n,)) of lookups in a tiled (UDIM) image, as Cycles' kernel_image_udim_map: the tile
+    numbered 1001 + 10 x int(v) + int(u) (truncated toward zero; u in [0, 10), v >= 0), looked up at the UV less
+    that offset with the node's filter and extension within the tile; magenta where the image has no such
+    tile."""
+    u, v = finite_uv(u, v)
+    tx, ty = np.trunc(u), np.trunc(v)
+    number = np.where((tx >= 0) & (ty >= 0) & (tx < 10), F32(1001) + F32(10) * ty + tx, F32(-1)).astype(np.int64)
+    color = np.empty((3, len(u)), F32)
+    color[:] = np.array([1.0, 0.0, 1.0], F32)[:, None]
+    alpha = np.ones(len(u), F32)
+    for tile, texture in tiles:
+        sel = np.flatnonzero(number == tile)
+        if len(sel):
+            color[:, sel], alpha[sel] = _image_lookup(textures[texture], u[sel] - tx[sel], v[sel] - ty[sel], op)
+    return color, alpha
+
+
+def _box(hits, lookup, p, op):
+    """Box projection: three planar lookups (lookup(u, v) -> colour, alpha) weighted by the object-space normal's
+    share of each axis."""
     signed = object_normal(hits, hits.N)
     a = np.abs(signed)
     a = a / np.maximum(a.sum(axis=1, keepdims=True), F32(1e-30))
@@ -91,7 +119,7 @@ def _box(hits, tex, p, op):
     for k, (u, v) in enumerate(planes):
         sel = np.flatnonzero(weight[k] > 0)
         if len(sel):
-            c, al = _image_lookup(tex, u[sel], v[sel], op)
+            c, al = lookup(u[sel], v[sel])
             color[:, sel] += weight[k][sel] * c
             alpha[sel] += weight[k][sel] * al
     return color, alpha
