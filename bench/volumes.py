@@ -187,6 +187,10 @@ def equal_time(scene, name, title, ref_samples, budgets, cfg, refresh):
             out(f"  {budget:4.0f} s  {engine.title():6s} RMSE {x['rmse']:.5f}, {x['samples']} spp, mean "
                 f"{x['mean'] / ref.mean() - 1:+.2%} vs reference")
         out(f"  {budget:4.0f} s  ratio Ember / Cycles RMSE {ratio:.2f}")
+        if max(row[e]["samples"] for e in row) * 4 > ref_samples:
+            # The reference's own noise, taken out above, is then not small against the render's: the
+            # difference of two noisy numbers of the same size, the ratio is not a measurement.
+            out(f"  {budget:4.0f} s  NOT RELIABLE: a render took more than a quarter of the reference's samples")
     return rows
 
 
