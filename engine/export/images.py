@@ -48,7 +48,8 @@ class ImagePixels:
 
     array : (H, W, C), C in {1, 3, 4} (alpha only where asked for and not all 1; grey as one channel),
         row 0 at the bottom: uint8 for 8-bit images (k stands for k / 255), uint16 for 16-bit image files in
-        sRGB or a data space (k / 65535), with 4 channels colour associated as Cycles stores it
+        sRGB, a data or the scene-linear space (k / 65535; reads_words), with 4 channels colour associated as
+        Cycles stores it
         (associated_bytes); float32 otherwise (finite and non-negative for float images; colour associated
         where Cycles associates it).
     srgb : the values are sRGB-encoded (an 8- or 16-bit image in an sRGB space); the kernel decodes them after
@@ -218,16 +219,16 @@ def _tile_file(image, number: int, folder: str) -> str | None:
             with open(path, "wb") as f:
                 f.write(packed.packed_file.data)
             return path
-    pattern = bpy_path_abspath(image.filepath, image)
+    pattern = _abspath(image)
     u, v = (number - 1001) % 10 + 1, (number - 1001) // 10 + 1
     path = pattern.replace("<UDIM>", str(number)).replace("<UVTILE>", f"u{u}_v{v}")
     return path if path != pattern and os.path.isfile(path) else None
 
 
-def bpy_path_abspath(path: str, image) -> str:
-    """An image path made absolute as Blender makes it (relative to the .blend or its library)."""
+def _abspath(image) -> str:
+    """The image's path made absolute as Blender makes it (relative to the .blend or its library)."""
     import bpy
-    return bpy.path.abspath(path, library=image.library)
+    return bpy.path.abspath(image.filepath, library=image.library)
 
 
 def read_tile(image, number: int, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
