@@ -1,24 +1,27 @@
 """Images: Blender images -> the texture arrays the kernel keeps (kernels.textures.Texture), in as little
-memory as their pixels need.
+memory as their pixels need, as Cycles keeps them.
 
-8-bit images stay bytes, uint8, as Cycles keeps them (uchar4; 1 byte per channel where Blender's
-image.pixels hands out 4-byte floats). A plain image file (PNG, JPEG, TIFF, not packed, not edited in
-Blender) is read straight from the file with Blender's own OpenImageIO, as Blender's loader reads it (the
-same decoder and options, grey expanded as Blender expands it, row 0 at the bottom), a block of rows at a
-time: the bytes are never held as floats, and Blender need not load its own copy. Any other 8-bit image
-(packed, generated, painted, another format) comes from image.pixels, k / 255 as float32, turned back into
-its bytes. Float images (EXR, HDR, 16-bit PNG) stay float32. Channels no texture reads (alpha that is 1
-everywhere, the copies of grey) are dropped in the array's own memory.
+8-bit images stay bytes, uint8 (Cycles' uchar4; 1 byte per channel where Blender's image.pixels hands out
+4-byte floats), and 16-bit image files uint16 (Cycles' ushort4). A plain image file (PNG, JPEG, TIFF, not
+packed, not edited in Blender) is read straight from the file with Blender's own OpenImageIO, as Blender's
+loader reads it (the same decoder and options, grey expanded as Blender expands it, row 0 at the bottom), a
+block of rows at a time: never held as floats, and Blender need not load its own copy. A packed 8-bit file is
+read the same way; any other image (a packed 16-bit one, generated, painted, another format) comes from
+image.pixels: 8-bit ones as k / 255 float32, turned back into their bytes, float ones (EXR, HDR, packed 16-bit)
+as float32, as Cycles takes those from Blender. Channels no texture reads (alpha that is 1 everywhere, the
+copies of grey) are dropped in the array's own memory. The tiles of a tiled (UDIM) image are read one by one
+from their files (read_tile).
 
-Colour: 8-bit images in an sRGB space are handed to the kernel sRGB-encoded and flagged, so that it decodes
-them after filtering as Cycles does (the world's HDRI is decoded here); Non-Color and linear ones are used
-as stored; float images are scene linear already. Alpha is kept for images that have it (the Image
-Texture's Alpha output): 8-bit colour with straight alpha stays straight bytes, which the kernel associates
-texel by texel (Cycles stores it associated); 8-bit colour that must stay as stored (data, channel-packed or
-premultiplied alpha) goes over as float32.
+Colour: 8- and 16-bit images in the sRGB space are handed to the kernel sRGB-encoded and flagged, so that it
+decodes them after filtering as Cycles does; Non-Color and scene-linear ones are used as stored; those in any
+other space of Blender's configuration are converted to scene linear at load, as Cycles converts them (half
+floats); float images are scene linear already. Alpha is kept for images that have it (the Image Texture's
+Alpha output): straight colour is associated in its bytes as Cycles rounds it (associated_bytes); data,
+channel-packed and premultiplied colour stays as stored.
 """
 from __future__ import annotations
 
+import functools
 import os
 import tempfile
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -92,6 +95,11 @@ def read_image(image, warnings: list[str], alpha: bool = False, file_pixels=_UNR
         pixels = _as_float(pixels, associate=keep_alpha and _associates_alpha(image))
         pixels[:, :, :3] = (pixels[:, :, :3] @ matrix.T).astype(np.float16)
         return ImagePixels(pixels, False)
+    name = image.colorspace_settings.name
+    if not image.colorspace_settings.is_data and name not in ("sRGB",) + LINEAR_BYTE_SPACES:
+        processor = _to_scene_linear(name)
+        if processor is not None:
+            return ImagePixels(_converted(pixels, processor, keep_alpha and _associates_alpha(image)), False)
     srgb = _is_srgb(image, warnings)
     if keep_alpha and _associates_alpha(image):
         pixels = associated_bytes(pixels)
@@ -139,6 +147,41 @@ _LINEAR_SPACES = {"ACEScg": "from_acescg_to_scene_linear", "ACES2065-1": "from_a
                   "Linear CIE-XYZ D65": "from_xyz_d65_to_scene_linear"}
 
 
+@functools.lru_cache(maxsize=None)
+def _to_scene_linear(name: str):
+    """An OpenColorIO CPU processor taking colour space `name` of Blender's configuration to scene linear, None
+    where there is none (the space is unknown, or OpenColorIO cannot be imported)."""
+    try:
+        import bpy
+        bpy.utils.expose_bundled_modules()
+        import PyOpenColorIO as OCIO
+        config = OCIO.Config.CreateFromFile(os.path.join(bpy.utils.resource_path("LOCAL"), "datafiles",
+                                                         "colormanagement", "config.ocio"))
+        return config.getProcessor(name, OCIO.ROLE_SCENE_LINEAR).getDefaultCPUProcessor()
+    except Exception:  # noqa: BLE001 - any failure: the image is read as sRGB, with _is_srgb's warning
+        return None
+
+
+def _converted(pixels: np.ndarray, processor, associate: bool) -> np.ndarray:
+    """(H, W, 3 or 4) float32 scene-linear values of 8- or 16-bit pixels in another colour space, converted at
+    load as Cycles converts them (util/colorspace.cpp processor_apply_pixels_rgba: the straight colour through
+    OpenColorIO, then times alpha where it associates; stored as half floats, so rounded to float16; out-of-gamut
+    values stay negative). Grey becomes RGB."""
+    height, width, channels = pixels.shape
+    out = np.empty((height, width, 4 if channels == 4 else 3), np.float32)
+    rows = max(1, _BLOCK // (width * 4))
+    for y0 in range(0, height, rows):
+        block = _as_float(pixels[y0:y0 + rows])
+        rgb = np.ascontiguousarray(np.repeat(block, 3, axis=2) if channels == 1 else block[:, :, :3])
+        processor.applyRGB(rgb)
+        if associate:
+            rgb *= block[:, :, 3:4]
+        out[y0:y0 + rows, :, :3] = rgb.astype(np.float16)
+        if channels == 4:
+            out[y0:y0 + rows, :, 3] = block[:, :, 3]
+    return out
+
+
 def _linear_space_matrix(name: str) -> np.ndarray | None:
     """(3, 3) float32 matrix taking RGB in the linear space `name` to scene linear, None for others."""
     method = _LINEAR_SPACES.get(name)
@@ -177,16 +220,13 @@ def file_bytes(image) -> np.ndarray | None:
 
 
 def reads_words(image) -> bool:
-    """Whether a 16-bit file of this image is read as it is stored (uint16): an image file (not packed) in sRGB,
-    a data space or a linear one. Cycles reads image files through OpenImageIO, colour straight, and keeps
-    them 16-bit (USHORT4: sRGB ones filtered before they are decoded, as 8-bit ones, util/image_metadata.cpp
-    finalize, is_compressible_as_srgb; scene-linear and data ones as they are) or converts them to half floats
-    at load (other linear spaces, as 8-bit ones: read_image); a packed image it takes from Blender, which
-    decodes it to linear floats at load, colour associated (blender/image.cpp): those, and files in other
-    spaces, come through image.pixels."""
-    settings = image.colorspace_settings
-    return image.packed_file is None and (settings.is_data or settings.name == "sRGB"
-                                          or settings.name in LINEAR_BYTE_SPACES or settings.name in _LINEAR_SPACES)
+    """Whether a 16-bit file of this image is read as it is stored (uint16): an image file, not a packed one.
+    Cycles reads image files through OpenImageIO, colour straight, and keeps them 16-bit (USHORT4: sRGB ones
+    filtered before they are decoded, as 8-bit ones, util/image_metadata.cpp finalize, is_compressible_as_srgb;
+    scene-linear and data ones as they are) or converts them to half floats at load (other spaces, as 8-bit
+    ones: read_image); a packed image it takes from Blender, which decodes it to linear floats at load, colour
+    associated (blender/image.cpp), so packed ones come through image.pixels."""
+    return image.packed_file is None
 
 
 def _file_of(image, folder: str) -> str | None:
