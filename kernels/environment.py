@@ -10,7 +10,7 @@ import numpy as np
 
 from . import sampling
 from .scene import World
-from .textures import BLOCK_TEXELS, Texture, luminance, srgb_to_linear
+from .textures import BLOCK_TEXELS, Texture, luminance, sample_texture, srgb_to_linear
 from .vec import F32, INV_2PI, INV_PI, ONE, PI, TWO_PI
 
 
@@ -57,8 +57,6 @@ class Environment:
         self.varies_with_ray = shader is not None and any(op.kind == "ShaderNodeLightPath" for op in world.program.ops)
         self.texture = Texture(world.hdri, bool(world.hdri_srgb)) if world.hdri is not None and shader is None \
             else None
-        from .shading.image_ops import sample_texture   # (kernels.shading imports this module's package first)
-        self._sample_texture = sample_texture
         if shader is not None:
             self.strength = np.float32(1.0)
             self.rotation = np.eye(3, dtype=np.float32)
@@ -208,7 +206,7 @@ class Environment:
         # filtering (svm_node_tex_environment, EnvironmentTextureNode::image_params).
         if self.world.hdri_interpolation == "Linear":   # Texture.lookup: the same taps, a fifth quicker
             return self.texture.lookup(u, v, wrap_v=True) * self.strength
-        color = self._sample_texture(self.texture, u, v, self.world.hdri_interpolation, "REPEAT")
+        color = sample_texture(self.texture, u, v, self.world.hdri_interpolation, "REPEAT")
         if self.texture.srgb:
             color = srgb_to_linear(color)
         return color * self.strength

@@ -1,11 +1,14 @@
-"""Textures: images stored as the kernel keeps them (8-bit ones as bytes), and bilinear lookups on them,
-row 0 at the bottom (Blender's order).
+"""Textures: images stored as the kernel keeps them (8-bit ones as bytes, 16-bit ones as uint16), and lookups on
+them, row 0 at the bottom (Blender's order): Texture.lookup (bilinear), sample_texture (Cycles' filters and
+extensions, kernel/device/cpu/image.h).
 
 Texel centres sit at (i + 0.5) / W, as in Cycles' linear interpolation.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from .vec import F32, HALF, ONE
 
 
 # Luminance weights of Blender's default scene-linear space (Rec. 709 primaries).
@@ -144,3 +147,53 @@ def finite_uv(u: np.ndarray, v: np.ndarray):
     """Guard against non-finite or huge UVs (they would overflow the integer texel index)."""
     big = np.float32(1e6)
     return (np.nan_to_num(np.clip(u, -big, big), nan=0.0), np.nan_to_num(np.clip(v, -big, big), nan=0.0))
+
+
+# ---------------------------------------------------------------- filters (Cycles' kernel/device/cpu/image.h)
+def _wrap(i: np.ndarray, size: int, extension: str):
+    """Texel indices under the extension mode, and which are inside (CLIP reads zero outside)."""
+    if extension == "REPEAT":
+        return np.mod(i, size), None
+    if extension == "MIRROR":
+        m = np.abs(i + (i < 0)) % (2 * size)
+        return np.where(m >= size, 2 * size - m - 1, m), None
+    inside = (i >= 0) & (i < size)
+    return np.clip(i, 0, size - 1), (inside if extension == "CLIP" else None)
+
+
+def _taps(x: np.ndarray, size: int, interpolation: str):
+    """Per axis: texel indices (k, n) int64 and weights (k, n) float32 of the filter."""
+    if interpolation == "Closest":
+        return np.floor(x * F32(size)).astype(np.int64)[None], np.ones((1, len(x)), F32)
+    s = x * F32(size) - HALF
+    i = np.floor(s)
+    t = (s - i).astype(F32)
+    i = i.astype(np.int64)
+    if interpolation in ("Cubic", "Smart"):
+        t2, t3 = t * t, t * t * t
+        w = np.stack([(ONE - t) ** 3 / F32(6.0), (F32(3.0) * t3 - F32(6.0) * t2 + F32(4.0)) / F32(6.0),
+                      (F32(-3.0) * t3 + F32(3.0) * t2 + F32(3.0) * t + ONE) / F32(6.0), t3 / F32(6.0)])
+        return np.stack([i - 1, i, i + 1, i + 2]), w.astype(F32)
+    return np.stack([i, i + 1]), np.stack([ONE - t, t])
+
+
+def sample_texture(tex, u, v, interpolation: str, extension: str):
+    """(C, n) filtered values of a kernels.textures.Texture at (u, v): colour (3 rows) and, for RGBA
+    textures, alpha. Each filter tap gathers just the n texels it reads (Texture.gather: as float32,
+    associated), weighs and sums them; the texture itself is never copied or converted whole."""
+    width, height = tex.width, tex.height
+    u = np.nan_to_num(np.clip(u, -1e6, 1e6), nan=0.0).astype(F32)
+    v = np.nan_to_num(np.clip(v, -1e6, 1e6), nan=0.0).astype(F32)
+    xi, xw = _taps(u, width, interpolation)
+    yi, yw = _taps(v, height, interpolation)
+    xi, x_in = _wrap(xi, width, extension)
+    yi, y_in = _wrap(yi, height, extension)
+    if extension == "CLIP":
+        xw = xw * x_in
+        yw = yw * y_in
+    out = np.zeros((4 if tex.has_alpha else 3, len(u)), F32)
+    for a in range(len(yi)):
+        row = yi[a] * width
+        for b in range(len(xi)):
+            out += tex.gather(row + xi[b]) * (yw[a] * xw[b])
+    return out

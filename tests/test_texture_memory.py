@@ -12,8 +12,7 @@ from bpy_helpers import export_current, new_scene, quad_object
 
 from ember.engine.export.images import associated_bytes, file_bytes, read_image
 from ember.kernels import Renderer
-from ember.kernels.shading.image_ops import sample_texture
-from ember.kernels.textures import BYTE_SCALE, WORD_SCALE, Texture
+from ember.kernels.textures import BYTE_SCALE, WORD_SCALE, Texture, sample_texture
 
 
 def _oiio():

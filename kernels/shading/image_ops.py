@@ -1,6 +1,6 @@
 """The Image Texture and Environment Texture ops (Cycles' svm_node_tex_image, svm_node_tex_image_box and
 svm_node_tex_environment), and the texture lookups under them (the filters and extensions of
-kernel/device/cpu/image.h, over kernels.textures.Texture): `sample_texture`, `map_to_sphere`,
+kernel/device/cpu/image.h, over kernels.textures.Texture and its sample_texture): `map_to_sphere`,
 `map_to_tube`.
 
 Each op is as kernels.shading.ops describes it, `op(hits, inputs, op) -> {output name: array}`.
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..textures import finite_uv, srgb_to_linear
+from ..textures import finite_uv, sample_texture, srgb_to_linear
 from ..vec import F32, HALF, INV_2PI, INV_PI, ONE, ZERO, dot_rows_einsum
 from .input_ops import object_normal
 from .program import full
@@ -180,52 +180,3 @@ def map_to_tube(p: np.ndarray) -> np.ndarray:
     u = (ONE - np.arctan2(x / safe, y / safe) * INV_PI) * HALF
     v = (z + ONE) * HALF
     return np.stack([np.where(some, u, ZERO), np.where(some, v, ZERO), np.zeros_like(u)], 1).astype(F32)
-
-
-def _wrap(i: np.ndarray, size: int, extension: str):
-    """Texel indices under the extension mode, and which are inside (CLIP reads zero outside)."""
-    if extension == "REPEAT":
-        return np.mod(i, size), None
-    if extension == "MIRROR":
-        m = np.abs(i + (i < 0)) % (2 * size)
-        return np.where(m >= size, 2 * size - m - 1, m), None
-    inside = (i >= 0) & (i < size)
-    return np.clip(i, 0, size - 1), (inside if extension == "CLIP" else None)
-
-
-def _taps(x: np.ndarray, size: int, interpolation: str):
-    """Per axis: texel indices (k, n) int64 and weights (k, n) float32 of the filter."""
-    if interpolation == "Closest":
-        return np.floor(x * F32(size)).astype(np.int64)[None], np.ones((1, len(x)), F32)
-    s = x * F32(size) - HALF
-    i = np.floor(s)
-    t = (s - i).astype(F32)
-    i = i.astype(np.int64)
-    if interpolation in ("Cubic", "Smart"):
-        t2, t3 = t * t, t * t * t
-        w = np.stack([(ONE - t) ** 3 / F32(6.0), (F32(3.0) * t3 - F32(6.0) * t2 + F32(4.0)) / F32(6.0),
-                      (F32(-3.0) * t3 + F32(3.0) * t2 + F32(3.0) * t + ONE) / F32(6.0), t3 / F32(6.0)])
-        return np.stack([i - 1, i, i + 1, i + 2]), w.astype(F32)
-    return np.stack([i, i + 1]), np.stack([ONE - t, t])
-
-
-def sample_texture(tex, u, v, interpolation: str, extension: str):
-    """(C, n) filtered values of a kernels.textures.Texture at (u, v): colour (3 rows) and, for RGBA
-    textures, alpha. Each filter tap gathers just the n texels it reads (Texture.gather: as float32,
-    associated), weighs and sums them; the texture itself is never copied or converted whole."""
-    width, height = tex.width, tex.height
-    u = np.nan_to_num(np.clip(u, -1e6, 1e6), nan=0.0).astype(F32)
-    v = np.nan_to_num(np.clip(v, -1e6, 1e6), nan=0.0).astype(F32)
-    xi, xw = _taps(u, width, interpolation)
-    yi, yw = _taps(v, height, interpolation)
-    xi, x_in = _wrap(xi, width, extension)
-    yi, y_in = _wrap(yi, height, extension)
-    if extension == "CLIP":
-        xw = xw * x_in
-        yw = yw * y_in
-    out = np.zeros((4 if tex.has_alpha else 3, len(u)), F32)
-    for a in range(len(yi)):
-        row = yi[a] * width
-        for b in range(len(xi)):
-            out += tex.gather(row + xi[b]) * (yw[a] * xw[b])
-    return out
