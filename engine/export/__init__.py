@@ -116,7 +116,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     camera = Camera() if camera_ob is None else \
         export_camera(camera_ob.evaluated_get(depsgraph), scene, width, height, warnings)
     layer_attribute = functools.partial(view_layer_attribute, scene, depsgraph.view_layer_eval)
-    materials = MaterialTable(warnings, layer_attribute)
+    materials = MaterialTable(warnings, layer_attribute, scene.frame_current)
     poll = Poller(should_stop)
     links = link_table(depsgraph)
     warnings.extend(links.warnings)

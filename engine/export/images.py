@@ -271,6 +271,51 @@ def _abspath(image) -> str:
     return bpy.path.abspath(image.filepath, library=image.library)
 
 
+def sequence_frame(user, scene_frame: int) -> int:
+    """The file frame number an Image Texture's image user reads from an image sequence at the scene's frame:
+    Blender's BKE_image_user_frame_get, which Cycles' sync calls (blender/shader.cpp image_user_frame_number):
+    the scene frame counted from Start Frame, held at 0 and Frames (wrapped with Cyclic), then Offset added."""
+    length = int(user.frame_duration)
+    if length == 0:
+        return 0
+    frame = int(scene_frame) - int(user.frame_start) + 1
+    if user.use_cyclic:
+        frame %= length
+        frame = frame or length
+    frame = min(max(frame, 0), length)
+    return frame + int(user.frame_offset)
+
+
+def sequence_file(image, frame: int) -> str:
+    """The file of frame `frame` of an image sequence: the last run of digits in its file name replaced by the
+    frame number, padded to as many digits (Blender's BLI_path_sequence_decode and _encode)."""
+    path = _abspath(image)
+    folder, name = os.path.split(path)
+    stem, extension = os.path.splitext(name)
+    end = len(stem)
+    while end and not stem[end - 1].isdigit():
+        end -= 1
+    start = end
+    while start and stem[start - 1].isdigit():
+        start -= 1
+    if start == end:
+        return path
+    return os.path.join(folder, f"{stem[:start]}{frame:0{end - start}d}{stem[end:]}{extension}")
+
+
+def read_frame(image, frame: int, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
+    """Frame `frame` of an image sequence, read from its file as read_image reads an image; None, with a warning
+    naming the image, the frame and the file, when it cannot be read (Cycles renders it magenta)."""
+    oiio = _openimageio()
+    path = sequence_file(image, frame)
+    pixels = None if oiio is None or not os.path.isfile(path) else _read_file(oiio, path, True, floats=True)
+    if pixels is None:
+        warnings.append(f"Image '{image.name}': frame {frame} of the sequence ({path}) could not be read: "
+                        f"rendered magenta")
+        return None
+    return read_image(image, warnings, alpha, file_pixels=pixels)
+
+
 def read_tile(image, number: int, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
     """UDIM tile `number` of a tiled image, as read_image reads a whole image (8- and 16-bit files as stored, float
     files such as OpenEXR as linear floats); None, with a warning naming the image and tile, when it cannot be read
@@ -412,9 +457,11 @@ def _as_float(pixels: np.ndarray, associate: bool = False) -> np.ndarray:
 class ImageTextures:
     """The texture list of one export: one array per image, shared by every material using it."""
 
-    def __init__(self, warnings: list[str]):
+    def __init__(self, warnings: list[str], frame: int = 1):
+        """frame: the scene frame, at which image sequences are read (sequence_frame)."""
+        self.frame = int(frame)
         self.loaded: list[ImagePixels] = []
-        self._index: dict[str, int | None] = {}
+        self._index: dict = {}
         self._tiles: dict[str, tuple] = {}
         self._warnings = warnings
         self._decoding: dict[str, Future] = {}
@@ -440,8 +487,11 @@ class ImageTextures:
             if path is not None:
                 self._decoding[key] = self._pool.submit(_read_file, oiio, path, reads_words(image))
 
-    def read(self, image, alpha: bool = False) -> ImagePixels | None:
-        """read_image(image), from the file's bytes prefetch decoded when it did."""
+    def read(self, image, alpha: bool = False, user=None) -> ImagePixels | None:
+        """read_image(image), from the file's bytes prefetch decoded when it did; an image sequence's frame that
+        the image user `user` (an Image Texture's) reads at the scene frame."""
+        if image.source == "SEQUENCE" and user is not None:
+            return read_frame(image, sequence_frame(user, self.frame), self._warnings, alpha)
         decoding = self._decoding.pop(image.name_full, None)
         return read_image(image, self._warnings, alpha,
                           decoding.result() if decoding is not None else file_bytes(image))
@@ -459,11 +509,14 @@ class ImageTextures:
             self._tiles[key] = tuple(found)
         return self._tiles[key]
 
-    def index(self, image) -> int | None:
-        """The image's texture index, None when it cannot be loaded."""
+    def index(self, image, user=None) -> int | None:
+        """The image's texture index, None when it cannot be loaded; for an image sequence, that of the frame the
+        image user `user` reads (read)."""
         key = image.name_full
+        if image.source == "SEQUENCE" and user is not None:
+            key = (key, sequence_frame(user, self.frame))
         if key not in self._index:
-            pixels = self.read(image, alpha=True)
+            pixels = self.read(image, alpha=True, user=user)
             self._index[key] = None if pixels is None else len(self.loaded)
             if pixels is not None:
                 self.loaded.append(pixels)

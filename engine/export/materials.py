@@ -147,9 +147,10 @@ def _subsurface_method(node, kind: str) -> str:
 class MaterialTable:
     """The materials of one export. Row 0 is the default surface of objects without a material."""
 
-    def __init__(self, warnings: list[str], layer_attribute=None):
-        """layer_attribute : the View Layer attribute lookup node programs fold (nodes.ProgramBuilder)."""
-        self.images = ImageTextures(warnings)
+    def __init__(self, warnings: list[str], layer_attribute=None, frame: int = 1):
+        """layer_attribute : the View Layer attribute lookup node programs fold (nodes.ProgramBuilder); frame: the
+        scene frame (image sequences)."""
+        self.images = ImageTextures(warnings, frame)
         self._warnings = warnings
         self._layer_attribute = layer_attribute
         self._rows: list[Shader] = [DEFAULT_SURFACE]
@@ -599,7 +600,7 @@ class _MaterialReader:
         if node.image is None:
             self.issues.append(f"Image Texture '{node.name}' has no image, rendered magenta")
             return MISSING_IMAGE_COLOR, -1
-        index = self.images.index(node.image)
+        index = self.images.index(node.image, node.image_user)
         return (WHITE3, index) if index is not None else (MISSING_IMAGE_COLOR, -1)
 
     def check_uv(self, node, groups) -> None:

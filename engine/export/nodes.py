@@ -380,7 +380,7 @@ def _image(builder, node, groups):
         tiles = builder.images.tiles(image)
         texture = tiles[0][1] if tiles else -1
     else:
-        index = builder.images.index(image)
+        index = builder.images.index(image, node.image_user)
         texture = -1 if index is None else index
     unassociate = (node.outputs["Alpha"].is_linked and image is not None and not image.colorspace_settings.is_data
                    and image.alpha_mode not in ("CHANNEL_PACKED", "NONE"))
@@ -434,7 +434,7 @@ def _environment(builder, node, groups):
     if node.image is None:
         builder.issues.append(f"Environment Texture '{node.name}' has no image, rendered magenta")
     else:
-        index = builder.images.index(node.image)
+        index = builder.images.index(node.image, node.image_user)
         texture = -1 if index is None else index
     options = {"texture": texture, "interpolation": node.interpolation, "projection": node.projection,
                "extension": "REPEAT", "unassociate": False}

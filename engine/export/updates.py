@@ -252,7 +252,7 @@ def export_shading(depsgraph, index: ExportIndex) -> Shading | None:
     warnings: list[str] = []
     evaluated = {data.name_full: data for data in depsgraph.ids if isinstance(data, bpy.types.Material)}
     layer_attribute = functools.partial(view_layer_attribute, depsgraph.scene_eval, depsgraph.view_layer_eval)
-    materials = MaterialTable(warnings, layer_attribute)
+    materials = MaterialTable(warnings, layer_attribute, depsgraph.scene_eval.frame_current)
     for key in index.material_keys[1:]:
         if key == DEFAULT_VOLUME_KEY:
             materials.default_volume_id()

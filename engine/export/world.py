@@ -203,7 +203,7 @@ def _environment(texture: Source, strength: float, background, issues: list[str]
     if node.image is None:
         issues.append("Environment Texture has no image, rendered magenta")
         return missing
-    pixels = images.read(node.image)
+    pixels = images.read(node.image, user=node.image_user)
     if pixels is None:
         return missing
     env_from_world = _env_from_world(source_of(node.inputs["Vector"], texture.groups))
