@@ -52,8 +52,7 @@ class ImagePixels:
     array : (H, W, C), C in {1, 3, 4} (alpha only where asked for and not all 1; grey as one channel),
         row 0 at the bottom: uint8 for 8-bit images (k stands for k / 255), uint16 for 16-bit image files in
         sRGB, a data or the scene-linear space (k / 65535; reads_words), with 4 channels colour associated as
-        Cycles stores it
-        (associated_bytes); float32 otherwise (finite and non-negative for float images; colour associated
+        Cycles stores it (associated_bytes); float32 otherwise (finite and non-negative for float images; colour associated
         where Cycles associates it).
     srgb : the values are sRGB-encoded (an 8- or 16-bit image in an sRGB space); the kernel decodes them after
         filtering, as Cycles does. Otherwise they are linear.
@@ -199,8 +198,8 @@ def _is_srgb(image, warnings: list[str]) -> bool:
     if settings.is_data or settings.name in LINEAR_BYTE_SPACES:
         return False
     if settings.name != "sRGB":
-        warnings.append(f"Image '{image.name}': colour space '{settings.name}' is not supported for 8-bit "
-                        f"images (sRGB, Non-Color and the linear spaces are), read as sRGB")
+        warnings.append(f"Image '{image.name}': colour space '{settings.name}' could not be converted with "
+                        f"Blender's OpenColorIO configuration, read as sRGB")
     return True
 
 
@@ -304,31 +303,31 @@ def sequence_file(image, frame: int) -> str:
 
 
 def read_frame(image, frame: int, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
-    """Frame `frame` of an image sequence, read from its file as read_image reads an image; None, with a warning
-    naming the image, the frame and the file, when it cannot be read (Cycles renders it magenta)."""
-    oiio = _openimageio()
+    """Frame `frame` of an image sequence (_read_part)."""
     path = sequence_file(image, frame)
-    pixels = None if oiio is None or not os.path.isfile(path) else _read_file(oiio, path, True, floats=True)
-    if pixels is None:
-        warnings.append(f"Image '{image.name}': frame {frame} of the sequence ({path}) could not be read: "
-                        f"rendered magenta")
-        return None
-    return read_image(image, warnings, alpha, file_pixels=pixels)
+    return _read_part(image, lambda folder: path, f"frame {frame} of the sequence ({path})", warnings, alpha)
 
 
 def read_tile(image, number: int, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
-    """UDIM tile `number` of a tiled image, as read_image reads a whole image (8- and 16-bit files as stored, float
-    files such as OpenEXR as linear floats); None, with a warning naming the image and tile, when it cannot be read
-    (Cycles renders a missing tile magenta)."""
+    """UDIM tile `number` of a tiled image (_read_part)."""
+    return _read_part(image, lambda folder: _tile_file(image, number, folder), f"UDIM tile {number}", warnings,
+                      alpha)
+
+
+def _read_part(image, file_of, what: str, warnings: list[str], alpha: bool) -> ImagePixels | None:
+    """A file of an image that has several (a sequence's frame, a UDIM tile: file_of(folder) -> its path, a packed
+    one written into `folder`, or None), read as read_image reads an image (8- and 16-bit files as stored, float
+    files such as OpenEXR as linear floats); None, with a warning naming the image and `what`, when it cannot be
+    read (Cycles renders it magenta)."""
     oiio = _openimageio()
     pixels = None
     if oiio is not None:
         with tempfile.TemporaryDirectory(prefix="ember-") as folder:
-            path = _tile_file(image, number, folder)
-            if path is not None:
+            path = file_of(folder)
+            if path is not None and os.path.isfile(path):
                 pixels = _read_file(oiio, path, reads_words(image), floats=True)
     if pixels is None:
-        warnings.append(f"Image '{image.name}': UDIM tile {number} could not be read: rendered magenta")
+        warnings.append(f"Image '{image.name}': {what} could not be read: rendered magenta")
         return None
     return read_image(image, warnings, alpha, file_pixels=pixels)
 
