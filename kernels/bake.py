@@ -404,7 +404,8 @@ def _surface_emission(tables, on: bool):
         yield
         return
     lights, emissive = tables.lights, tables.emissive
-    tables.lights = LightSampler(tables.scene, tables.environment, _NoEmitters(len(tables.shading.emissive)))
+    tables.lights = LightSampler(tables.scene, tables.environment, _NoEmitters(len(tables.shading.emissive)),
+                                 tables.shading.data)
     tables.emissive = False
     try:
         yield
@@ -418,7 +419,7 @@ class _NoEmitters:
     def __init__(self, materials: int):
         self.emissive = self.varies = np.zeros(materials, bool)
 
-    def __call__(self, tri, b1=None, b2=None, toward=None):
+    def __call__(self, tri, b1=None, b2=None, toward=None, dist=None):
         return np.zeros((3, len(tri)), F32)
 
 

@@ -196,7 +196,7 @@ class Renderer:
         self.glass_escapes_on = False
 
     def _light_sampler(self) -> LightSampler:
-        return LightSampler(self.scene, self.environment, _Emitters(self))
+        return LightSampler(self.scene, self.environment, _Emitters(self), self.shading.data)
 
     def wave_size(self, settings: RenderSettings) -> int:
         """The paths per wave a render with these settings uses (their wave_size, or the automatic one)."""
@@ -477,8 +477,8 @@ class _Emitters:
         self.varies = renderer.shading.emission_varies
         self._renderer = weakref.proxy(renderer)
 
-    def __call__(self, tri, b1=None, b2=None, toward=None):
-        return nee.triangle_emission(self._renderer, tri, b1, b2, toward)
+    def __call__(self, tri, b1=None, b2=None, toward=None, dist=None):
+        return nee.triangle_emission(self._renderer, tri, b1, b2, toward, dist)
 
 
 def _pixel_spread(camera: Camera) -> float:

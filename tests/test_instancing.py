@@ -98,7 +98,7 @@ class _Emission:
     emissive = np.array([False, False, True])
     varies = np.array([False, False, False])
 
-    def __call__(self, tri, b1=None, b2=None, toward=None):
+    def __call__(self, tri, b1=None, b2=None, toward=None, dist=None):
         return np.tile(np.float32([[30], [25], [20]]), (1, len(tri)))
 
 

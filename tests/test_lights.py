@@ -39,7 +39,7 @@ def sampler_for(lights=None, positions=None, emission=None, world=None):
         emissive = table_emission.max(axis=1) > 0
         varies = np.zeros(m, bool)
 
-        def __call__(self, tri, b1=None, b2=None, toward=None):
+        def __call__(self, tri, b1=None, b2=None, toward=None, dist=None):
             return table_emission[scene.material_ids[tri]].T.copy()
 
     return LightSampler(scene, env, Emitters())

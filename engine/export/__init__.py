@@ -124,7 +124,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     with materials.images:   # the scene's image files are decoded on threads while the meshes are read
         materials.images.prefetch(shader_images(
             [m.node_tree for m in depsgraph.ids if isinstance(m, bpy.types.Material)]
-            + [scene.world.node_tree if scene.world is not None else None]))
+            + [scene.world.node_tree if scene.world is not None else None]
+            + [getattr(light, "node_tree", None) for light in depsgraph.ids if isinstance(light, bpy.types.Light)]))
         geometry = export_geometry(depsgraph, materials, warnings, poll,
                                    moving=frozenset(motion.objects) | frozenset(motion.meshes)
                                    if motion is not None else frozenset(),
@@ -134,7 +135,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                                    dicing=None if camera_ob is None else
                                    Dicing(depsgraph, camera_ob.evaluated_get(depsgraph), width, height))
         world = export_world(scene.world, warnings, materials.images, layer_attribute)
-    lights = export_lights(depsgraph, warnings, poll, links, groups)
+        lights = export_lights(depsgraph, warnings, poll, links, groups, materials.images, layer_attribute)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
                     "asset": list(geometry.instance_assets or []), "material": list(materials.names)}
     arrays = SceneArrays(positions=geometry.positions, normals=geometry.normals, uvs=geometry.uvs,

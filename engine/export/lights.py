@@ -20,6 +20,7 @@ from ...kernels import LIGHT_KINDS, Lights
 from ...kernels.scene.objects import BSDF_RAYS, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
 from ...kernels.textures import luminance
 from .light_groups import GroupTable, group_table, lamp_groups
+from .light_shaders import LightShaders
 from .light_linking import LinkTable, lamp_masks, link_table
 
 # Blender's blackbody is defined for this range; colours are clamped outside it.
@@ -39,22 +40,25 @@ LIGHT_VISIBILITY = (("visible_camera", "Camera", False, RAY_CAMERA), ("visible_d
 
 
 def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | None = None,
-                  groups: GroupTable | None = None) -> Lights:
+                  groups: GroupTable | None = None, images=None, layer_attribute=None) -> Lights:
     """Every light instance; poll() is called for each instance (it raises to cancel the export). links: the
     scene's light_linking.LinkTable, groups: the view layer's light_groups.GroupTable (each read from the
-    depsgraph when None)."""
+    depsgraph when None). images: the export's images.ImageTextures, which the programs of lights whose node
+    tree's emission varies read their images from (light_shaders.py; None: such a light's images are not
+    kept, see Lights.shaders); layer_attribute: the View Layer attribute lookup (nodes.ProgramBuilder)."""
     if links is None:
         links = link_table(depsgraph)
     if groups is None:
         groups = group_table(depsgraph.view_layer)
     rows, masks, catchers, in_groups, seen, names = [], [], [], [], [], []
+    shaders = LightShaders(images, layer_attribute)
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
         ob = inst.object
         if ob.type != "LIGHT":
             continue
-        row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings)
+        row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings, shaders)
         if row is not None:
             seen.append(light_visibility(ob))
             names.append(ob.name)
@@ -87,6 +91,8 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         camera=camera if camera.any() else None,
         spread=np.array(columns[9], np.float32) if min(columns[9]) < math.pi else None,
         sphere=np.array(columns[10], bool) if any(columns[10]) else None,
+        shader=np.array(columns[11], np.int32) if max(columns[11]) >= 0 else None,
+        shaders=shaders.programs if max(columns[11]) >= 0 else (),
     )
 
 
@@ -117,15 +123,18 @@ def light_strength(light) -> np.ndarray:
     return color * float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
 
 
-def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[str]):
-    strength = light_strength(light)
+def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[str], shaders=None):
+    if shaders is None:
+        shaders = LightShaders()
+    factor, shader = shaders.of(light, name, warnings)
+    strength = light_strength(light) * factor
     if not np.all(np.isfinite(strength)):
         warnings.append(f"Light '{name}' has a non-finite power and is skipped")
         return None
     if np.any(strength < 0):
         # Cycles subtracts light for negative power; Ember's light sampling needs power >= 0.
-        warnings.append(f"Light '{name}' has negative power ({float(light.energy):g} W): negative lights are "
-                        f"not supported, skipped")
+        warnings.append(f"Light '{name}' has negative power ({float(light.energy):g} W, its node tree's emission "
+                        f"{_triple(factor)}): negative lights are not supported, skipped")
         return None
     if np.all(strength <= 0):
         return None
@@ -185,7 +194,11 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
                         f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
         radiance = radiance * (MAX_LIGHT_RADIANCE / radiance.max())
     return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)),
-            spread, sphere)
+            spread, sphere, shader)
+
+
+def _triple(c) -> str:
+    return "(" + ", ".join(f"{float(v):g}" for v in c) + ")"
 
 
 # ---------------------------------------------------------------- blackbody colour

@@ -518,6 +518,7 @@ COMPILERS = {
     "ShaderNodeNormal": _normal,
     "ShaderNodeCameraData": _plain,
     "ShaderNodeWireframe": _plain,
+    "ShaderNodeLightFalloff": _plain,
     "ShaderNodeTangent": _tangent,
     "ShaderNodeTexEnvironment": _environment,
     "ShaderNodeTexSky": _sky,

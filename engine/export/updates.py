@@ -298,6 +298,8 @@ def export_changes(depsgraph, index: ExportIndex, parts: frozenset, scene: Scene
             return None
     if LIGHTS in parts:
         lights = export_lights(depsgraph, [], links=links)
+        if lights.shader is not None:   # light programs read the export's images and scene data: export again
+            return None
     return Changes(placed, shading, lights)
 
 

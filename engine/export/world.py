@@ -30,6 +30,7 @@ from .images import ImagePixels, ImageTextures
 from .lights import MAX_LIGHT_RADIANCE
 from .materials import read_volume
 from .nodes import ProgramBuilder
+from .shader_emission import emission_of
 from .sockets import BLACK3, MISSING_IMAGE_COLOR, Source, output_node, rgb, socket_has_nan, source_of
 
 DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
@@ -147,7 +148,8 @@ def _program_world(world, images, issues: list[str], layer_attribute=None) -> Wo
     """The world's shader tree as a program whose output is the background radiance."""
     builder = ProgramBuilder(images, issues, set(), [], layer_attribute=layer_attribute, traces=False)
     out = output_node(world.node_tree)
-    radiance = run_nested(_radiance_of(builder, source_of(out.inputs["Surface"]), issues))
+    radiance = run_nested(emission_of(builder, source_of(out.inputs["Surface"]), issues, "a world",
+                                      DEFAULT_WORLD_COLOR))
     if isinstance(radiance, tuple):  # folded: a constant world after all
         color = np.maximum(np.array(radiance, np.float64), 0.0)
         if color.max() > MAX_LIGHT_RADIANCE:
@@ -170,29 +172,6 @@ def map_resolution(world) -> int:
     widths = [int(node.image.size[0]) for node in tree_nodes(world.node_tree)
               if node.bl_idname == "ShaderNodeTexEnvironment" and node.image is not None and node.image.size[0] > 0]
     return int(np.clip(max(widths), 256, 8192)) if widths else 1024
-
-
-def _radiance_of(builder, source: Source, issues: list[str]):
-    """Step (engine/export/graph.py): the radiance of a world shader socket's tree, a Ref (RGBA) or a
-    constant triple."""
-    node, groups = source.node, source.groups
-    if node is None:
-        return BLACK3
-    if source.kind in ("ShaderNodeBackground", "ShaderNodeEmission"):
-        color = builder.input(node.inputs["Color"], groups, "RGBA")
-        strength = builder.input(node.inputs["Strength"], groups, "VALUE")
-        return builder.vector_op("SCALE", color, strength)
-    if source.kind == "ShaderNodeAddShader":
-        a = yield _radiance_of(builder, source_of(node.inputs[0], groups), issues)
-        b = yield _radiance_of(builder, source_of(node.inputs[1], groups), issues)
-        return builder.vector_op("ADD", a, b)
-    if source.kind == "ShaderNodeMixShader":
-        fac = builder.input(node.inputs[0], groups, "VALUE")
-        a = yield _radiance_of(builder, source_of(node.inputs[1], groups), issues)
-        b = yield _radiance_of(builder, source_of(node.inputs[2], groups), issues)
-        return builder.mix(fac, a, b)
-    issues.append(f"{node.bl_label} is not supported in a world, rendered as constant grey")
-    return DEFAULT_WORLD_COLOR
 
 
 def _environment(texture: Source, strength: float, background, issues: list[str], images: ImageTextures) -> World:

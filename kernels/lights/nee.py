@@ -420,10 +420,12 @@ def shadow_masks(tables, ls, rows):
 
 
 # ---------------------------------------------------------------- emitters for the light sampler
-def triangle_emission(tables, tri, b1=None, b2=None, toward=None) -> np.ndarray:
+def triangle_emission(tables, tri, b1=None, b2=None, toward=None, dist=None) -> np.ndarray:
     """(3, n) emitted radiance of triangles tri at barycentrics (b1, b2) seen from direction
-    -toward (the direction from the receiver to the light); without barycentrics, the material's
-    mean (textures averaged), for power estimates."""
+    -toward (the direction from the receiver to the light) at distance dist ((n,); 1 where None, for power
+    estimates); without barycentrics, the material's mean (textures averaged), for power estimates.
+    The programs see a light sample's path state, as Cycles' light_sample_shader_eval: the emission is
+    evaluated (not a camera ray) at the sample's ray length (Light Falloff, Light Path's Ray Length)."""
     mat = tables.triangles.materials(tri)
     if b1 is None:
         return tables.shading.mean_emission(mat)
@@ -431,4 +433,7 @@ def triangle_emission(tables, tri, b1=None, b2=None, toward=None) -> np.ndarray:
         g = tables.triangles.gather(tri)
         toward = (-g[NG], -g[NG + 1], -g[NG + 2])
     hit = SurfaceHit(tables.triangles, tri, b1, b2, toward, tables.shading.needs_uv)
+    zeros = np.zeros(len(tri), np.int32)
+    hit.ray = RayInfo(zeros, zeros, np.ones(len(tri), np.float32) if dist is None else dist, emission=True,
+                      camera=False)
     return tables.shading.surface(hit, closures=False).emission

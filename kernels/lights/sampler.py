@@ -17,6 +17,7 @@ from . import area, point_spot, ray_visibility, selection, sun, triangles, world
 from .common import DISK, POINT, RECT, SPOT, SUN
 from .links import EmitterLinks, object_links, reaches, set_groups
 from .proxies import PROXY_MIN_LIGHTS, LightProxies
+from .shaders import LampShaders
 from .triangles import TAREA, TE1, TE2, TLE, TN, TP0, TRI_COLUMNS
 
 
@@ -77,10 +78,12 @@ class LightSampler:
     Entities are numbered: Blender lights [0, L), emissive triangles [L, L + E), then the world.
     """
 
-    def __init__(self, scene: SceneArrays, environment: Environment, triangle_emission):
-        """triangle_emission: the emissive materials. triangle_emission(tri_ids) -> (3, n) mean emitted radiance
-        of those triangles (textures averaged); triangle_emission(tri_ids, b1, b2, toward) -> (3, n) radiance
-        at barycentrics (b1, b2) toward -toward; .emissive (M,) bool, the materials that emit;
+    def __init__(self, scene: SceneArrays, environment: Environment, triangle_emission, shading_data=None):
+        """shading_data: the shading's scene data (kernels.shading.shader.ShadingData), which the programs of lights
+        whose emission varies read (shaders.LampShaders); needed when the scene has such lights.
+        triangle_emission: the emissive materials. triangle_emission(tri_ids) -> (3, n) mean emitted radiance
+        of those triangles (textures averaged); triangle_emission(tri_ids, b1, b2, toward, dist) -> (3, n) radiance
+        at barycentrics (b1, b2) toward -toward, at distance dist; .emissive (M,) bool, the materials that emit;
         .varies (M,) bool, those whose emission changes over the surface or with the direction."""
         lights = scene.lights
         self.environment = environment
@@ -98,6 +101,13 @@ class LightSampler:
         self.position = lights.position.astype(np.float32)
         self.axes = lights.frame.astype(np.float32)              # (L, 3, 3): columns x, y, z
         self.radiance_of = lights.radiance.astype(np.float32)
+        # Lights whose node tree's emission varies: evaluated where rays reach them; their power takes an estimate.
+        self.lamp_shaders = None
+        self.power_scale = np.ones(self.light_count)
+        if lights.shader is not None and (lights.shader >= 0).any():
+            self.lamp_shaders = LampShaders(lights, shading_data)
+            for k in np.flatnonzero(lights.shader >= 0):
+                self.power_scale[k] = self.lamp_shaders.estimate(int(k))
         self.radius = lights.radius.astype(np.float32)
         self.size = lights.size.astype(np.float32)
         self.spot = lights.spot_cos.astype(np.float32)
@@ -224,7 +234,7 @@ class LightSampler:
 
     # ------------------------------------------------------------------ power estimates
     def _light_power(self) -> np.ndarray:
-        lum = luminance(self.radiance_of).astype(np.float64) if self.light_count else np.zeros(0)
+        lum = luminance(self.radiance_of).astype(np.float64) * self.power_scale if self.light_count else np.zeros(0)
         r2 = self.radius.astype(np.float64) ** 2
         # Sized point lights act as a disk of radiance L facing every point: intensity L pi r^2.
         sphere = np.where(r2 > 0, lum * np.pi * r2, lum) * 4 * np.pi
@@ -345,6 +355,8 @@ class LightSampler:
                 idx = np.flatnonzero((chosen < self.light_count) & (np.take(self.kind, np.minimum(chosen, self.light_count - 1)) == kind))
                 if len(idx):
                     method(self, out, idx, chosen[idx], px[idx], py[idx], pz[idx], u1[idx], u2[idx])
+            if self.lamp_shaders is not None:
+                self._shade_samples(out, chosen, px, py, pz)
         tri = np.flatnonzero((chosen >= self.light_count) & (chosen < self.world_index))
         if len(tri):
             triangles.sample(self, out, tri, chosen[tri] - self.light_count, px[tri], py[tri], pz[tri], u1[tri], u2[tri])
@@ -356,6 +368,17 @@ class LightSampler:
         if allowed is not None:
             out.radiance[:, ~np.take(allowed, chosen)] = 0.0
         return out
+
+    def _shade_samples(self, out, chosen, px, py, pz) -> None:
+        """Multiply the light samples that chose a light whose emission varies by its program's emission there."""
+        lamp = np.flatnonzero(chosen < self.light_count)
+        idx = lamp[self.lamp_shaders.varying(chosen[lamp])]
+        if not len(idx):
+            return
+        light = chosen[idx]
+        sphere = None if self.sphere is None else np.take(self.sphere, light) & (np.take(self.radius, light) > 0)
+        out.radiance[:, idx] *= self.lamp_shaders.at_sample(light, px[idx], py[idx], pz[idx], out.wx[idx],
+                                                            out.wy[idx], out.wz[idx], out.dist[idx], sphere)
 
     def axis(self, light, k):
         """(3, n) world direction of the chosen lights' local axis k."""
@@ -498,6 +521,14 @@ class LightSampler:
                 t_k, pdf_k, att = method(self, lk, ox[sel], oy[sel], oz[sel], dx[sel], dy[sel], dz[sel])
                 t[sel], pdf[sel] = t_k, pdf_k
                 le[:, sel] = self.radiance_of[lk].T * att[None, :]
+        if self.lamp_shaders is not None:
+            sel = np.flatnonzero(t > 0)
+            sel = sel[self.lamp_shaders.varying(light[sel])]
+            if len(sel):
+                lk = light[sel]
+                sphere = None if self.sphere is None else np.take(self.sphere, lk) & (np.take(self.radius, lk) > 0)
+                le[:, sel] *= self.lamp_shaders.at_sample(lk, ox[sel], oy[sel], oz[sel], dx[sel], dy[sel], dz[sel],
+                                                          t[sel], sphere)
         return t, pdf, le
 
 

@@ -55,7 +55,7 @@ def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool 
             light_pdf = np.float32(sampler.select_pmf[k]) * sampling.uniform_cone_pdf(sampler.sun_cos[k])
             weight = sampling.power_heuristic(np.take(bsdf_pdf, inside),
                                               np.full(len(inside), light_pdf, np.float32))
-        share = sampler.sun_radiance[k][:, None] * weight
+        share = sampler.sun_radiance[k][:, None] * weight * _shaded(sampler, k, dx, dy, dz, inside)
         out[:, inside] += share
         if parts is not None:
             parts.append((int(k), inside, share))
@@ -80,8 +80,21 @@ def seen_by_camera(sampler, dx, dy, dz, parts=None):
         inside = np.flatnonzero(dx * zx + dy * zy + dz * zz >= sampler.sun_cos[k])
         if not len(inside):
             continue
-        share = np.repeat(sampler.sun_radiance[k][:, None], len(inside), axis=1)
+        share = np.repeat(sampler.sun_radiance[k][:, None], len(inside), axis=1) * _shaded(sampler, k, dx, dy, dz, inside)
         out[:, inside] += share
         if parts is not None:
             parts.append((int(k), inside, share))
     return out
+
+
+def _shaded(sampler, k, dx, dy, dz, inside):
+    """(3, m) the emission of sun k's node program toward the rays `inside` leaving along d, where it varies
+    (kernels/lights/shaders.py); else 1."""
+    shaders = sampler.lamp_shaders
+    if shaders is None or shaders.shader[k] < 0:
+        return np.float32(1.0)
+    m = len(inside)
+    light = np.full(m, k)
+    zeros = np.zeros(m, np.float32)
+    return shaders.at_sample(light, zeros, zeros, zeros, np.take(dx, inside), np.take(dy, inside),
+                             np.take(dz, inside), np.full(m, np.inf, np.float32))

@@ -60,7 +60,7 @@ def sample(sampler, out, idx, slot, px, py, pz, u1, u2):
             b1[sph], b2[sph] = _barycentrics((sx * t - rx, sy * t - ry, sz * t - rz),
                                              g[TE1:TE1 + 3, sph], g[TE2:TE2 + 3, sph])
     if sampler.tri_textured:
-        radiance = sampler.triangle_emission(np.take(sampler.tri_ids, slot), b1, b2, (wx, wy, wz))
+        radiance = sampler.triangle_emission(np.take(sampler.tri_ids, slot), b1, b2, (wx, wy, wz), dist)
     else:
         radiance = g[TLE:TLE + 3]
     out.set(idx, wx, wy, wz, dist, radiance, pdf)

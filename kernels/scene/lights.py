@@ -45,6 +45,11 @@ class Lights:
         the part of it each point samples (kernels/lights/area_spread.py).
     sphere : (L,) bool or None (none is): a sized point or spot light with Blender's Soft Falloff off, which Cycles
         makes a true sphere of its radius (kernels/lights/point_spot.py) instead of a disk facing each point.
+    shader : (L,) int32 or None (no light's emission varies): the light's node program in `shaders`, -1 for a light
+        whose node tree gives a constant emission (folded into radiance by the export). Where it varies (a texture,
+        a Light Falloff), radiance is the light's strength alone and the program's emission, evaluated where each
+        ray meets the light (kernels/lights/shaders.py: Cycles' light shader), multiplies it.
+    shaders : ((kernels.programs.Program, Ref), ...) the light programs and the Ref of their emission (RGBA).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -63,6 +68,8 @@ class Lights:
     camera: np.ndarray | None = None
     spread: np.ndarray | None = None
     sphere: np.ndarray | None = None
+    shader: np.ndarray | None = None
+    shaders: tuple = ()
 
     @property
     def count(self) -> int:
@@ -103,3 +110,7 @@ class Lights:
                     "must be within [0, pi]")
         if self.sphere is not None:
             check_array(self.sphere, "lights.sphere", (n,), np.bool_, finite=False)
+        if self.shader is not None:
+            check_array(self.shader, "lights.shader", (n,), np.int32, finite=False)
+            require(not n or (int(self.shader.min()) >= -1 and int(self.shader.max()) < len(self.shaders)),
+                    "lights.shader", "must be -1 or an index into lights.shaders")

@@ -435,6 +435,33 @@ def light_path(hits, inputs, op):
     return out
 
 
+def light_falloff(hits, inputs, op):
+    """Cycles' Light Falloff (svm_node_light_falloff): Strength times the ray length to the power 0 (Quadratic),
+    1 (Linear) or 2 (Constant), times t^2 / (Smooth + t^2) where Smooth > 0; Strength itself for an infinite
+    ray (a sun's, the world's), whose powers would overflow. The ray length is the path state's (the surface's
+    distance from the ray's origin, a light's from the point it lights); 0 where there is none."""
+    ray = hits.hit.ray
+    n = hits.n
+    strength = np.array(full(inputs["Strength"], n), F32)
+    smooth = np.array(full(inputs["Smooth"], n), F32)
+    if getattr(hits, "world", False):   # Cycles' background shading point has an infinite ray length
+        t = np.full(n, F32(np.inf))
+    elif ray is not None and ray.length is not None:
+        t = np.take(ray.length, hits.idx).astype(F32)
+    else:
+        t = np.zeros(n, F32)
+    far = ~np.isfinite(t)
+    t = np.where(far, F32(0.0), t)
+    t2 = t * t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        soft = np.where(smooth > 0, t2 / (smooth + t2), F32(1.0)).astype(F32)
+    soft = np.where(np.isfinite(soft), soft, F32(0.0))
+    out = {}
+    for name, power in (("Quadratic", F32(1.0)), ("Linear", t), ("Constant", t2)):
+        out[name] = np.where(far, strength, strength * power * soft).astype(F32)
+    return out
+
+
 # ---------------------------------------------------------------- vectors
 def separate_xyz(hits, inputs, op):
     v = full(inputs["Vector"], hits.n, 3)

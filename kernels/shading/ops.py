@@ -20,8 +20,8 @@ from . import voronoi as vr
 from .bump import bump_node
 from .displace import displacement_node, vector_displacement_node
 from .image_ops import environment, image
-from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geometry, layer_weight, light_path, \
-    normal_map, normal_node, object_info, separate_xyz, tangent_node, tex_coord, uv_map, vector_transform, \
+from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geometry, layer_weight, light_falloff, \
+    light_path, normal_map, normal_node, object_info, separate_xyz, tangent_node, tex_coord, uv_map, vector_transform, \
     volume_info, wireframe
 from .program import full
 from .raytrace import ambient_occlusion_node, bevel_node
@@ -47,6 +47,7 @@ OPS = {
     "ShaderNodeLayerWeight": layer_weight,
     "ShaderNodeFresnel": fresnel_node,
     "ShaderNodeLightPath": light_path,
+    "ShaderNodeLightFalloff": light_falloff,
     "ShaderNodeSeparateXYZ": separate_xyz,
     "ShaderNodeCombineXYZ": combine_xyz,
     "ShaderNodeNormalMap": normal_map,

@@ -1,0 +1,212 @@
+"""A light's node tree (Cycles' light shader) against Cycles: a constant emission (colour, strength, a Blackbody,
+Add and Mix Shaders) scales the light; an emission that varies (Light Falloff, a texture over the light's normal or
+object space, the normal of a sphere lamp) is evaluated where each ray meets the light. Each failed before: Ember
+read no light tree, so a lamp whose Emission Strength was 2.5 rendered as bright as one of 1."""
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from bpy_helpers import compare_to_cycles, export_current, quad_object, render_to_array
+from test_lights_parity import add_light, stage
+
+
+def light_tree(light):
+    """The light's own tree (created on Blender 5.0, where lights start without one) and its Emission node."""
+    if light.node_tree is None:   # Blender 5.3 gives every light a tree, and keeps Use Nodes on
+        light.use_nodes = True
+    tree = light.node_tree
+    return tree, next(n for n in tree.nodes if n.bl_idname == "ShaderNodeEmission")
+
+
+def constant(light):
+    tree, emission = light_tree(light)
+    emission.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1.0)
+    emission.inputs["Strength"].default_value = 2.5
+
+
+def blackbody_mix(light):
+    """Mix Shader (0.3) of the Emission, coloured by a Blackbody and made 1.5x by a Math node, and a green
+    Emission: all constants, folded."""
+    tree, emission = light_tree(light)
+    body = tree.nodes.new("ShaderNodeBlackbody")
+    body.inputs["Temperature"].default_value = 3000.0
+    times = tree.nodes.new("ShaderNodeMath")
+    times.operation = "MULTIPLY"
+    times.inputs[0].default_value, times.inputs[1].default_value = 0.5, 3.0
+    green = tree.nodes.new("ShaderNodeEmission")
+    green.inputs["Color"].default_value = (0.1, 1.0, 0.2, 1.0)
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.inputs[0].default_value = 0.3
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputLight")
+    tree.links.new(body.outputs[0], emission.inputs["Color"])
+    tree.links.new(times.outputs[0], emission.inputs["Strength"])
+    tree.links.new(emission.outputs[0], mix.inputs[1])
+    tree.links.new(green.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], output.inputs["Surface"])
+
+
+def falloff(output, strength=1.0, smooth=0.0):
+    def build(light):
+        tree, emission = light_tree(light)
+        node = tree.nodes.new("ShaderNodeLightFalloff")
+        node.inputs["Strength"].default_value = strength
+        node.inputs["Smooth"].default_value = smooth
+        tree.links.new(node.outputs[output], emission.inputs["Strength"])
+    return build
+
+
+def checker(coordinate):
+    """A Checker texture over the Texture Coordinate `coordinate` colours the emission (a gobo)."""
+    def build(light):
+        tree, emission = light_tree(light)
+        coords = tree.nodes.new("ShaderNodeTexCoord")
+        texture = tree.nodes.new("ShaderNodeTexChecker")
+        texture.inputs["Scale"].default_value = 6.0
+        texture.inputs["Color1"].default_value = (1.0, 0.9, 0.6, 1.0)
+        texture.inputs["Color2"].default_value = (0.05, 0.1, 0.3, 1.0)
+        tree.links.new(coords.outputs[coordinate], texture.inputs["Vector"])
+        tree.links.new(texture.outputs["Color"], emission.inputs["Color"])
+    return build
+
+
+def normal_colour(light):
+    """The emission's colour is the light's normal there (|x|, 0, |z|): a sphere lamp's outward normal."""
+    tree, emission = light_tree(light)
+    geometry = tree.nodes.new("ShaderNodeNewGeometry")
+    split = tree.nodes.new("ShaderNodeSeparateXYZ")
+    join = tree.nodes.new("ShaderNodeCombineColor")
+    tree.links.new(geometry.outputs["Normal"], split.inputs[0])
+    for axis in (0, 2):
+        absolute = tree.nodes.new("ShaderNodeMath")
+        absolute.operation = "ABSOLUTE"
+        tree.links.new(split.outputs[axis], absolute.inputs[0])
+        tree.links.new(absolute.outputs[0], join.inputs[axis])
+    tree.links.new(join.outputs[0], emission.inputs["Color"])
+
+
+CASES = {
+    "constant": ("POINT", dict(energy=200.0, shadow_soft_size=0.3), constant),
+    "blackbody_mix": ("AREA", dict(energy=150.0, shape="RECTANGLE", size=1.0, size_y=0.5), blackbody_mix),
+    "point_linear": ("POINT", dict(energy=80.0, shadow_soft_size=0.3), falloff("Linear")),
+    "delta_constant_smooth": ("POINT", dict(energy=40.0, shadow_soft_size=0.0), falloff("Constant", 1.0, 2.0)),
+    "area_quadratic_smooth": ("AREA", dict(energy=150.0, shape="RECTANGLE", size=1.0, size_y=0.5),
+                              falloff("Quadratic", 1.0, 4.0)),
+    "sun_linear": ("SUN", dict(energy=2.0, angle=math.radians(5)), falloff("Linear", 1.5)),
+    "spot_gobo": ("SPOT", dict(energy=400.0, shadow_soft_size=0.1, spot_size=math.radians(60)), checker("Normal")),
+    "disk_object": ("AREA", dict(energy=150.0, shape="DISK", size=1.2), checker("Object")),
+    "sphere_normal": ("POINT", dict(energy=200.0, shadow_soft_size=0.5, use_soft_falloff=False), normal_colour),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_light_node_tree_matches_cycles(name):
+    kind, props, build = CASES[name]
+    scene = stage()
+    build(add_light(scene, kind, **props).data)
+    compare_to_cycles(scene, samples=128, max_bounces=2)
+
+
+def test_light_seen_through_a_mirror_takes_its_tree():
+    """BSDF rays that meet a lamp (a sharp mirror facing a sized point light with a Linear falloff) read its
+    program where they meet it, as its light samples do."""
+    scene = stage()
+    add_light(scene, "POINT", location=(0.2, -1.5, 1.2), energy=60.0, shadow_soft_size=0.25).data
+    build = falloff("Linear", 1.0)
+    build(bpy.data.objects["Point"].data)
+    bpy.ops.mesh.primitive_plane_add(size=1.5, location=(0.0, 1.2, 0.8), rotation=(math.radians(80), 0, 0))
+    mirror = bpy.data.materials.new("Mirror")
+    mirror.use_nodes = True
+    bsdf = mirror.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Metallic"].default_value, bsdf.inputs["Roughness"].default_value = 1.0, 0.05
+    bpy.context.active_object.data.materials.append(mirror)
+    compare_to_cycles(scene, samples=128, max_bounces=2)
+
+
+def test_light_tree_without_emission_is_dark():
+    """A light whose Light Output has nothing connected emits nothing (Cycles' estimate is zero); one whose tree
+    holds a loop renders nothing, with a warning."""
+    scene = stage(16, 16)
+    ob = add_light(scene, "POINT", energy=200.0, shadow_soft_size=0.3)
+    tree, _ = light_tree(ob.data)
+    for link in list(tree.links):
+        tree.links.remove(link)
+    assert render_to_array(scene, "EMBER", 4, max_bounces=2)[..., :3].max() == 0.0
+    assert export_current().scene.lights.count == 0
+
+
+def test_light_tree_loop_and_principled_are_named():
+    scene = stage(16, 16)
+    looped = add_light(scene, "POINT", energy=200.0, shadow_soft_size=0.3)
+    tree, emission = light_tree(looped.data)
+    a, b = tree.nodes.new("ShaderNodeMath"), tree.nodes.new("ShaderNodeMath")
+    tree.links.new(a.outputs[0], b.inputs[0])
+    tree.links.new(b.outputs[0], a.inputs[0])
+    tree.links.new(b.outputs[0], emission.inputs["Strength"])
+    shaded = add_light(scene, "SPOT", energy=200.0)
+    tree, emission = light_tree(shaded.data)
+    principled = tree.nodes.new("ShaderNodeBsdfPrincipled")
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputLight")
+    tree.links.new(principled.outputs[0], output.inputs["Surface"])
+    warnings = export_current().warnings
+    assert any("Light 'Point'" in w and "loop" in w for w in warnings), warnings
+    assert any("Light 'Spot'" in w and "Principled BSDF" in w and "emission is not read" in w
+               for w in warnings), warnings
+
+
+def test_varying_light_keeps_a_program_and_a_constant_one_folds():
+    scene = stage(16, 16)
+    constant(add_light(scene, "POINT", energy=200.0, shadow_soft_size=0.3).data)
+    falloff("Linear")(add_light(scene, "SPOT", energy=100.0).data)
+    lights = export_current().scene.lights
+    by_kind = {int(k): i for i, k in enumerate(lights.kind)}
+    point, spot = by_kind[0], by_kind[1]
+    # The constant tree's (1, 0.5, 0.25) x 2.5 is in the radiance: 200 W / (4 pi) / (pi 0.3^2) x that.
+    base = 200.0 / (4 * math.pi) / (math.pi * 0.09)
+    assert np.allclose(lights.radiance[point], base * 2.5 * np.array([1.0, 0.5, 0.25]), rtol=1e-5)
+    assert lights.shader[point] == -1 and lights.shader[spot] == 0 and len(lights.shaders) == 1
+
+
+@pytest.mark.skipif(bpy.app.version >= (5, 3), reason="Blender 5.3 keeps Use Nodes on for every light")
+def test_light_with_use_nodes_off_ignores_its_tree():
+    """Cycles reads a light's tree only with Use Nodes on (blender/shader.cpp sync_lights)."""
+    scene = stage(16, 16)
+    ob = add_light(scene, "POINT", energy=200.0, shadow_soft_size=0.3)
+    constant(ob.data)
+    ob.data.use_nodes = False
+    radiance = export_current().scene.lights.radiance[0]
+    assert np.allclose(radiance, radiance[0]) and np.isclose(radiance[0], 200.0 / (4 * math.pi) / (math.pi * 0.09),
+                                                             rtol=1e-5)
+
+
+@pytest.mark.parametrize("output", ["Linear", "Constant"])
+def test_light_falloff_on_an_emissive_mesh_matches_cycles(output):
+    """Light Falloff in a material: the emission scales with the length of the ray that reaches the surface
+    (Cycles' sd->ray_length), for camera rays and the rays bounced off the floor alike."""
+    scene = stage()
+    panel = bpy.data.materials.new("Panel")
+    panel.use_nodes = True
+    tree = panel.node_tree
+    tree.nodes.clear()
+    out, emission = tree.nodes.new("ShaderNodeOutputMaterial"), tree.nodes.new("ShaderNodeEmission")
+    node = tree.nodes.new("ShaderNodeLightFalloff")
+    node.inputs["Strength"].default_value = 3.0
+    node.inputs["Smooth"].default_value = 0.5
+    tree.links.new(node.outputs[output], emission.inputs["Strength"])
+    tree.links.new(emission.outputs[0], out.inputs["Surface"])
+    quad_object("Panel", (-1.0, -1.2, 1.8), (1.2, 0, 0), (0, 0.5, 0.3), panel)
+    compare_to_cycles(scene, samples=128, max_bounces=2)
+
+
+def test_light_falloff_in_a_world_passes_its_strength():
+    """Cycles' background shading point has an infinite ray length (shader_setup_from_background): Light
+    Falloff gives its Strength on every output there."""
+    scene = stage()
+    world = scene.world
+    tree = world.node_tree
+    node = tree.nodes.new("ShaderNodeLightFalloff")
+    node.inputs["Strength"].default_value = 0.7
+    tree.links.new(node.outputs["Constant"], tree.nodes["Background"].inputs["Strength"])
+    tree.nodes["Background"].inputs["Color"].default_value = (0.3, 0.4, 0.5, 1.0)
+    compare_to_cycles(scene, samples=64, max_bounces=2)
