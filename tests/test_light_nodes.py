@@ -97,6 +97,12 @@ CASES = {
     "spot_gobo": ("SPOT", dict(energy=400.0, shadow_soft_size=0.1, spot_size=math.radians(60)), checker("Normal")),
     "disk_object": ("AREA", dict(energy=150.0, shape="DISK", size=1.2), checker("Object")),
     "sphere_normal": ("POINT", dict(energy=200.0, shadow_soft_size=0.5, use_soft_falloff=False), normal_colour),
+    # The lamps' UV (Cycles' spot_light_uv, point_light_uv, area_light_uv, sun_light_uv) and Generated.
+    "spot_uv": ("SPOT", dict(energy=400.0, shadow_soft_size=0.0, spot_size=1.2), checker("UV")),
+    "sphere_uv": ("POINT", dict(energy=200.0, shadow_soft_size=0.5, use_soft_falloff=False), checker("UV")),
+    "area_uv": ("AREA", dict(energy=150.0, shape="RECTANGLE", size=1.5, size_y=0.8), checker("UV")),
+    "sun_uv": ("SUN", dict(energy=2.0, angle=math.radians(20)), checker("UV")),
+    "point_generated": ("POINT", dict(energy=200.0, shadow_soft_size=0.3), checker("Generated")),
 }
 
 
@@ -210,3 +216,115 @@ def test_light_falloff_in_a_world_passes_its_strength():
     tree.links.new(node.outputs["Constant"], tree.nodes["Background"].inputs["Strength"])
     tree.nodes["Background"].inputs["Color"].default_value = (0.3, 0.4, 0.5, 1.0)
     compare_to_cycles(scene, samples=64, max_bounces=2)
+
+
+# IES profiles written for these tests (photometric types C, A and B): a round downlight and asymmetric ones.
+DOWNLIGHT = """IESNA:LM-63-2002
+[TEST] Ember test downlight
+TILT=NONE
+1 1000 1.0 7 1 1 2 0.1 0.1 0.0
+1.0 1.0 12
+0 15 30 45 60 75 90
+0
+900 850 700 420 150 30 0
+"""
+ASYMMETRIC = """IESNA:LM-63-2002
+[TEST] Ember test asymmetric, type {kind}
+TILT=NONE
+1 1000 2.0 9 5 {kind} 2 0.1 0.1 0.0
+1.0 0.8 12
+{vertical}
+{horizontal}
+500 480 400 300 150 80 40 20 10
+500 400 250 120 60 30 15 5 0
+500 450 380 260 200 120 60 30 10
+500 300 150 100 50 20 10 5 0
+500 480 400 300 150 80 40 20 10
+"""
+PROFILES = {
+    "type_c_round": DOWNLIGHT,
+    "type_c": ASYMMETRIC.format(kind=1, vertical="0 22.5 45 67.5 90 112.5 135 157.5 180", horizontal="0 90 180 270 360"),
+    "type_a": ASYMMETRIC.format(kind=3, vertical="-90 -67.5 -45 -22.5 0 22.5 45 67.5 90", horizontal="0 20 45 70 90"),
+    "type_b": ASYMMETRIC.format(kind=2, vertical="0 10 20 30 45 60 70 80 90", horizontal="-90 -45 0 45 90"),
+}
+
+
+def ies_light(light, text, external_dir=None):
+    """The lamp's Emission Strength from an IES Texture of `text`: a Text datablock, or a file in external_dir."""
+    tree, emission = light_tree(light)
+    node = tree.nodes.new("ShaderNodeTexIES")
+    if external_dir is None:
+        block = bpy.data.texts.new("profile.ies")
+        block.from_string(text)
+        node.mode, node.ies = "INTERNAL", block
+    else:
+        path = external_dir / "profile.ies"
+        path.write_text(text)
+        node.mode, node.filepath = "EXTERNAL", str(path)
+    node.inputs["Strength"].default_value = 0.05
+    tree.links.new(node.outputs["Fac"], emission.inputs["Strength"])
+    return node
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_ies_profile_matches_cycles(name, tmp_path):
+    """A tilted point lamp with an IES Texture (Cycles' util/ies.cpp reading, kernel_ies_interp lookup) lights the
+    floor and the objects as in Cycles; the round downlight from a file, the others from Text datablocks."""
+    scene = stage()
+    ob = add_light(scene, "POINT", location=(-0.5, -0.4, 1.6), rotation=(0.3, 0.2, 0.5), energy=200.0,
+                   shadow_soft_size=0.1)
+    ies_light(ob.data, PROFILES[name], tmp_path if name == "type_c_round" else None)
+    compare_to_cycles(scene, samples=128, max_bounces=2)
+
+
+def test_ies_on_a_wide_spot_matches_cycles():
+    scene = stage()
+    ob = add_light(scene, "SPOT", location=(-0.5, -0.4, 1.6), rotation=(0.4, -0.3, 0.0), energy=200.0,
+                   shadow_soft_size=0.1, spot_size=2.0)
+    ies_light(ob.data, PROFILES["type_c"])
+    compare_to_cycles(scene, samples=128, max_bounces=2)
+
+
+def test_ies_without_a_profile_gives_100_times_its_strength(tmp_path):
+    """Cycles' kernel gives a slot without a profile 100 (kernel_ies_interp): a missing file and a text that is no
+    IES file each light the lamp 100 x 0.05 = 5 times, named in a warning."""
+    scene = stage(16, 16)
+    missing = add_light(scene, "POINT", energy=200.0, shadow_soft_size=0.3)
+    node = ies_light(missing.data, "", tmp_path)
+    node.filepath = str(tmp_path / "nowhere.ies")
+    broken = add_light(scene, "SPOT", energy=200.0)
+    ies_light(broken.data, "not an IES file")
+    exported = export_current()
+    assert any("Light 'Point'" in w and "nowhere.ies could not be read" in w for w in exported.warnings), \
+        exported.warnings
+    assert any("Light 'Spot'" in w and "is not an IES file" in w for w in exported.warnings), exported.warnings
+    lights = exported.scene.lights
+    assert lights.shader is None   # both fold to constants
+    base = 200.0 / (4 * math.pi) / (math.pi * 0.09)
+    assert np.allclose(lights.radiance[list(lights.kind).index(0)], base * 5.0, rtol=1e-5)
+
+
+def _type_c(horizontal, rows):
+    head = f"1 1000 1.0 3 {len(horizontal.split())} 1 2 0 0 0\n1 1 0\n0 45 90\n{horizontal}\n"
+    return "IESNA:LM-63-2002\nTILT=NONE\n" + head + "\n".join(rows) + "\n"
+
+
+@pytest.mark.parametrize("horizontal,rows,angles,first_columns", [
+    # One quadrant: mirrored to a half, then to the whole circle.
+    ("0 45 90", ["3 2 1", "6 5 4", "9 8 7"], [0, 45, 90, 135, 180, 225, 270, 315, 360], [0, 1, 2, 1, 0, 1, 2, 1, 0]),
+    # A half: mirrored to the whole circle.
+    ("0 90 180", ["3 2 1", "6 5 4", "9 8 7"], [0, 90, 180, 270, 360], [0, 1, 2, 1, 0]),
+    # Stored from 90 to 270 degrees: rotated to 0-180, then mirrored.
+    ("90 180 270", ["3 2 1", "6 5 4", "9 8 7"], [0, 90, 180, 270, 360], [0, 1, 2, 1, 0]),
+    # The 360-degree column left out (the spacing says where it goes): the 0-degree one repeated there.
+    ("0 120 240", ["3 2 1", "6 5 4", "9 8 7"], [0, 120, 240, 360], [0, 1, 2, 0]),
+])
+def test_ies_type_c_symmetries_as_cycles_reads_them(horizontal, rows, angles, first_columns):
+    """Cycles' IESFile::process_type_c: the horizontal angles a file gives, mirrored to [0, 360]; intensities in W/sr
+    (candela x 4 pi / 177.83)."""
+    from ember.engine.export.ies import CANDELA_TO_WATT, parse_ies
+    table = parse_ies(_type_c(horizontal, rows))
+    np.testing.assert_allclose(np.degrees(table.h_angles), angles, atol=1e-4)
+    np.testing.assert_allclose(np.degrees(table.v_angles), [0, 45, 90], atol=1e-4)
+    given = np.array([[float(x) for x in r.split()] for r in rows])
+    np.testing.assert_allclose(table.intensity, given[first_columns] * CANDELA_TO_WATT, rtol=1e-6)

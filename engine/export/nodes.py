@@ -21,10 +21,11 @@ import numpy as np
 
 from ...kernels.programs import Op, Program, Ref
 from ...kernels.shading import sky
+from ...kernels.shading.ies import INVALID_PROFILE
 from ...kernels.shading.ops import OPS, PURE_OPS
 from ...kernels.shading.program import constant, convert
 from ..version import blender_version
-from . import node_tables
+from . import ies, node_tables
 from .graph import run_nested
 from .sockets import socket_has_nan, source_of
 
@@ -457,6 +458,46 @@ def _sky(builder, node, groups):
     return builder.add(node.bl_idname, inputs, {"precomputed": sky.precompute_sky(**settings)})
 
 
+def _ies(builder, node, groups):
+    """The IES Texture: its profile read here (engine/export/ies.py) from the node's text or file, as Cycles'
+    IESLightNode; an unlinked Vector reads the incoming direction in object space, as a normal (Cycles'
+    LINK_TEXTURE_INCOMING: on a lamp, the direction from the lamp toward the point it lights)."""
+    table, problem = _ies_profile(node)
+    if problem:
+        builder.issues.append(f"IES Texture '{node.name}': {problem}; it gives 100 x its Strength, as in Cycles")
+    inputs = yield builder.node_inputs(node, groups)
+    if table is None and not isinstance(inputs["Strength"], Ref):
+        return {"Fac": (float(INVALID_PROFILE) * float(inputs["Strength"][0]),)}
+    if source_of(node.inputs["Vector"], groups).node is None:
+        incoming = builder.add("ShaderNodeNewGeometry", {}, outputs=("Incoming",))
+        local = builder.add("ShaderNodeVectorTransform", {"Vector": Ref(incoming, "Incoming", "VECTOR", "VECTOR")},
+                            {"vector_type": "NORMAL", "convert_from": "WORLD", "convert_to": "OBJECT"})
+        inputs["Vector"] = Ref(local, "Vector", "VECTOR", "VECTOR")
+    return builder.add(node.bl_idname, inputs, {"table": table})
+
+
+def _ies_profile(node):
+    """(IesTable or None, what went wrong or None) of an IES Texture node: its Text (Internal) or its file
+    (External, relative to the .blend)."""
+    import bpy
+    if node.mode == "INTERNAL":
+        if node.ies is None:
+            return None, "it has no IES text"
+        text, source = node.ies.as_string(), f"the text '{node.ies.name}'"
+    else:
+        path = bpy.path.abspath(node.filepath)
+        if not node.filepath:
+            return None, "it has no IES file"
+        try:
+            with open(path, encoding="latin-1") as f:
+                text = f.read()
+        except OSError as error:
+            return None, f"its file {path} could not be read ({error.strerror})"
+        source = f"the file {path}"
+    table = ies.parse_ies(text)
+    return (table, None) if table is not None else (None, f"{source} is not an IES file Cycles can read")
+
+
 def _tangent(builder, node, groups):
     if node.direction_type == "UV_MAP":
         builder.tangent_uv_maps.append(node.uv_map)
@@ -464,7 +505,8 @@ def _tangent(builder, node, groups):
 
 
 def _vector_transform(builder, node, groups):
-    """Light space (Blender 5.3) exists in Cycles' light shaders, which Ember does not run: passed through."""
+    """Light space (Blender 5.3) is not one of the spaces Cycles' SVM transforms between (World, Object,
+    Camera): passed through."""
     if "LIGHT" in (node.convert_from, node.convert_to):
         builder.issues.append(f"Vector Transform '{node.name}': Light space is not supported, the vector is "
                               f"passed through")
@@ -519,6 +561,7 @@ COMPILERS = {
     "ShaderNodeCameraData": _plain,
     "ShaderNodeWireframe": _plain,
     "ShaderNodeLightFalloff": _plain,
+    "ShaderNodeTexIES": _ies,
     "ShaderNodeTangent": _tangent,
     "ShaderNodeTexEnvironment": _environment,
     "ShaderNodeTexSky": _sky,

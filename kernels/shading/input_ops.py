@@ -34,9 +34,12 @@ def object_point(hits, p: np.ndarray) -> np.ndarray:
 def generated(hits) -> np.ndarray:
     """Blender's Generated coordinates: the object-space point in the mesh's texture space, [0, 1]^3 over
     its bounding box (Cycles' ATTR_STD_GENERATED from the undeformed mesh; here the evaluated one, before true
-    displacement where the mesh keeps that: UNDISPLACED_POSITION). In a world: the ray direction."""
+    displacement where the mesh keeps that: UNDISPLACED_POSITION). In a world: the ray direction. On a lamp,
+    which has no such attribute: the object-space position (svm_node_attr's fallback)."""
     if getattr(hits, "world", False):
         return hits.P
+    if getattr(hits, "lamp", False):
+        return object_point(hits, hits.P)
     def make():
         local = _undisplaced_point(hits)
         return shape_ops.shape_generated(hits, _texture_space(hits, local), local, _texture_space)

@@ -19,6 +19,7 @@ from . import sky as sk
 from . import voronoi as vr
 from .bump import bump_node
 from .displace import displacement_node, vector_displacement_node
+from .ies import ies_node
 from .image_ops import environment, image
 from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geometry, layer_weight, light_falloff, \
     light_path, normal_map, normal_node, object_info, separate_xyz, tangent_node, tex_coord, uv_map, vector_transform, \
@@ -48,6 +49,7 @@ OPS = {
     "ShaderNodeFresnel": fresnel_node,
     "ShaderNodeLightPath": light_path,
     "ShaderNodeLightFalloff": light_falloff,
+    "ShaderNodeTexIES": ies_node,
     "ShaderNodeSeparateXYZ": separate_xyz,
     "ShaderNodeCombineXYZ": combine_xyz,
     "ShaderNodeNormalMap": normal_map,

@@ -18,11 +18,11 @@ from .program import ProgramRun
 
 
 class _Directions:
-    """The SurfaceHit fields input ops read, for escaped rays: only the path state."""
-    __slots__ = ("ray",)
+    """The SurfaceHit fields input ops read, for escaped rays: the path state, no curves or points."""
+    __slots__ = ("ray", "shapes")
 
     def __init__(self, ray):
-        self.ray = ray
+        self.ray, self.shapes = ray, None
 
 
 class DirectionInputs:
