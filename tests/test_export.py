@@ -486,8 +486,8 @@ def test_unsupported_nodes_render_grey_with_one_warning_per_material():
     metal, bsdf = new_material("Metal")
     bsdf.inputs["Metallic"].default_value = 1.0
     bsdf.inputs["Base Color"].default_value = (0.5, 0.5, 0.5, 1.0)
-    particle = metal.node_tree.nodes.new("ShaderNodeParticleInfo")
-    metal.node_tree.links.new(particle.outputs["Random"], bsdf.inputs["Roughness"])
+    stroke = metal.node_tree.nodes.new("ShaderNodeUVAlongStroke")
+    metal.node_tree.links.new(stroke.outputs["UV"], bsdf.inputs["Roughness"])
     ob = add_cube()
     ob.data.materials.append(mat)
     ob.data.materials.append(metal)
@@ -502,7 +502,7 @@ def test_unsupported_nodes_render_grey_with_one_warning_per_material():
     assert principled.kind == "PRINCIPLED" and principled.input("Metallic").value == (1.0,)
     assert principled.input("Roughness").value == (0.5,)  # the socket's own value
     metallic = [w for w in result.warnings if "'Metal'" in w]
-    assert len(metallic) == 1 and "Particle Info node" in metallic[0] and "feeding Roughness" in metallic[0]
+    assert len(metallic) == 1 and "UV Along Stroke node" in metallic[0] and "feeding Roughness" in metallic[0]
 
 
 def test_mix_and_add_shaders_keep_their_factors():
@@ -700,11 +700,11 @@ def test_unsupported_world_nodes_warn_once(empty_scene):
     tree = empty_scene.world.node_tree
     background = tree.nodes["Background"]
     background.inputs["Color"].default_value = (0.2, 0.3, 0.4, 1.0)
-    tree.links.new(tree.nodes.new("ShaderNodeParticleInfo").outputs["Random"], background.inputs["Color"])
+    tree.links.new(tree.nodes.new("ShaderNodeUVAlongStroke").outputs["UV"], background.inputs["Color"])
     result = export()
     np.testing.assert_allclose(result.scene.world.color, (0.2, 0.3, 0.4), rtol=1e-6)
     (line,) = [w for w in result.warnings if "'Fallen'" in w]
-    assert "Particle Info" in line and "Color" in line
+    assert "UV Along Stroke" in line and "Color" in line
 
 
 def test_ambient_occlusion_in_a_world_is_one(empty_scene):

@@ -328,3 +328,23 @@ def test_ies_type_c_symmetries_as_cycles_reads_them(horizontal, rows, angles, fi
     np.testing.assert_allclose(np.degrees(table.v_angles), [0, 45, 90], atol=1e-4)
     given = np.array([[float(x) for x in r.split()] for r in rows])
     np.testing.assert_allclose(table.intensity, given[first_columns] * CANDELA_TO_WATT, rtol=1e-6)
+
+
+def test_emitter_hidden_from_the_camera_matches_cycles():
+    """An emissive panel that shows Transparent to camera rays (Mix Shader by Light Path > Is Camera Ray): its light
+    samples are no camera rays (Cycles' light_sample_shader_eval evaluates them with PATH_RAY_EMISSION), so they
+    take its emission, as the rays bounced off the floor do; the camera sees through it."""
+    scene = stage()
+    panel = bpy.data.materials.new("Hidden")
+    tree = panel.node_tree
+    tree.nodes.clear()
+    out, emission = tree.nodes.new("ShaderNodeOutputMaterial"), tree.nodes.new("ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 6.0
+    path, clear, mix = (tree.nodes.new(kind) for kind in ("ShaderNodeLightPath", "ShaderNodeBsdfTransparent",
+                                                          "ShaderNodeMixShader"))
+    tree.links.new(path.outputs["Is Camera Ray"], mix.inputs[0])
+    tree.links.new(emission.outputs[0], mix.inputs[1])
+    tree.links.new(clear.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    quad_object("Panel", (-1.0, -1.2, 1.8), (1.2, 0, 0), (0, 0.5, 0.3), panel)
+    compare_to_cycles(scene, samples=128, max_bounces=2)

@@ -115,12 +115,12 @@ def test_unsupported_node_warns_and_keeps_the_inputs_value():
     mat = bpy.data.materials.new("Odd")
     tree = mat.node_tree
     bsdf = tree.nodes["Principled BSDF"]
-    particle = tree.nodes.new("ShaderNodeParticleInfo")
-    tree.links.new(particle.outputs["Random"], bsdf.inputs["Base Color"])
+    stroke = tree.nodes.new("ShaderNodeUVAlongStroke")
+    tree.links.new(stroke.outputs["UV"], bsdf.inputs["Base Color"])
     bsdf.inputs["Base Color"].default_value = (0.1, 0.2, 0.3, 1.0)
     mesh_object("Quad", [(-1, 0, 0), (1, 0, 0), (1, 0, 2), (-1, 0, 2)], [(0, 1, 2, 3)], mat)
     exported = export_current()
-    assert any("Particle Info" in w and "Odd" in w and "Base Color" in w for w in exported.warnings), \
+    assert any("UV Along Stroke" in w and "Odd" in w and "Base Color" in w for w in exported.warnings), \
         exported.warnings
     shader = next(s for s in exported.scene.materials.shaders if s.name == "Odd")
     base = shader.closures[0].input("Base Color")

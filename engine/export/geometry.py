@@ -33,7 +33,7 @@ UNLINKED_ROW = (0, 0, ALL_MASK, ALL_MASK)
 from .materials import MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_mesh, readable_mesh
 from .shapes import ShapeExport
-from .rgba_attributes import instancer_attribute, object_attribute
+from .rgba_attributes import instancer_attribute, object_attribute, particle_attribute
 from .volumes import is_volume, read_volume
 
 
@@ -156,7 +156,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     volume_sources: dict = {}                # Volume or smoke domain data pointer -> its volumes.VolumeSource
     grids: dict[tuple, list] = {}            # (mesh pointer, slot rows) -> (grids, density scale) or None
     properties: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> {object attribute name: RGBA} per instance
-    object_values: dict[tuple, dict] = {}    # (object pointer, name) -> an Object attribute's RGBA
+    object_values = ObjectValues(depsgraph.scene_eval)
     displaced: set = set()                   # evaluated mesh pointers whose true displacement is done
     diced: dict[int, object] = {}            # evaluated mesh pointer -> its adaptive.AdaptiveMesh
     visibility: dict[tuple, list] = {}       # (mesh pointer, slot rows) -> instance_visibility() per instance
@@ -332,13 +332,27 @@ def _displaced(inst, ob, source, local: LocalMesh, materials: MaterialTable, row
     return displace_mesh(source, local, per_slot, row, matrix, textures, ob.name, warnings)
 
 
-def _object_attributes(inst, ob, names: tuple, cache: dict) -> dict:
-    """{name: RGBA} of the Object ("object:") and Instancer ("instancer:") attributes among names, for one
-    depsgraph instance (read while it is valid); Object ones are the object's, read once per object."""
+class ObjectValues(dict):
+    """(object pointer, name) -> an Object attribute's RGBA, read once; and the scene's time (Blender's ctime:
+    the frame and subframe, remapped by Time Stretching), which Particle Info's Age counts from."""
+
+    def __init__(self, scene):
+        super().__init__()
+        render = scene.render
+        self.time = (scene.frame_current + scene.frame_subframe) * render.frame_map_new / max(render.frame_map_old, 1)
+
+
+def _object_attributes(inst, ob, names: tuple, cache: ObjectValues) -> dict:
+    """{name: RGBA} of the Object ("object:"), Instancer ("instancer:") and particle ("particle:", Particle Info)
+    attributes among names, for one depsgraph instance (read while it is valid); Object ones are the object's,
+    read once per object."""
     out = {}
     for name in names:
         kind, _, key = name.partition(":")
         if kind not in OBJECT_ATTRIBUTE_KINDS:
+            continue
+        if kind == "particle":
+            out[name] = particle_attribute(inst, key, cache.time)
             continue
         if kind == "instancer" and inst.is_instance:
             out[name] = instancer_attribute(inst, ob, key)

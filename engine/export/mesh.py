@@ -25,7 +25,7 @@ from ...kernels.shading.image_ops import map_to_sphere
 from . import mesh_topology
 
 # Attribute name kinds the object table holds (engine/export/rgba_attributes.py), not the mesh.
-OBJECT_ATTRIBUTE_KINDS = ("object", "instancer")
+OBJECT_ATTRIBUTE_KINDS = ("object", "instancer", "particle")
 
 
 @dataclass(frozen=True)

@@ -315,6 +315,19 @@ def _attribute(builder, node, groups):
     return builder.add("ATTRIBUTE", {}, {"name": name})
 
 
+def _particle_info(builder, node, groups):
+    """Particle Info: each output read at export per instance, as an object attribute ("particle:<key>",
+    engine/export/rgba_attributes.py particle_attribute)."""
+    outputs = _linked_outputs(node)
+    for identifier in outputs:
+        builder.attributes.add("particle:" + _snake(identifier))
+    return builder.add("PARTICLE_INFO", {}, outputs=outputs)
+
+
+def _snake(identifier: str) -> str:
+    return identifier.lower().replace(" ", "_")
+
+
 def _view_layer_attribute(builder, node) -> dict:
     """A View Layer attribute's outputs as constants. Cycles folds every output as its consumer reads it:
     a float consumer of Color or Vector gets the average of r, g, b (not the colour-to-float conversion);
@@ -562,6 +575,7 @@ COMPILERS = {
     "ShaderNodeWireframe": _plain,
     "ShaderNodeLightFalloff": _plain,
     "ShaderNodeTexIES": _ies,
+    "ShaderNodeParticleInfo": _particle_info,
     "ShaderNodeTangent": _tangent,
     "ShaderNodeTexEnvironment": _environment,
     "ShaderNodeTexSky": _sky,

@@ -332,6 +332,20 @@ def attribute(hits, inputs, op):
     return {"Color": vec, "Vector": vec, "Fac": fac, "Alpha": alpha}
 
 
+def particle_info(hits, inputs, op):
+    """Particle Info (svm_node_particle_info): the outputs the export read per instance ("particle:<key>" object
+    attributes: engine/export/rgba_attributes.py particle_attribute); zero where none was read (a world, a lamp)."""
+    out = {}
+    for name in op.option("outputs", ()):
+        values = hits.attribute("particle:" + name.lower().replace(" ", "_"))
+        vector = name in ("Location", "Velocity", "Angular Velocity")
+        if values is None:
+            out[name] = np.zeros((hits.n, 3) if vector else hits.n, F32)
+        else:
+            out[name] = np.ascontiguousarray(values[:, :3] if vector else values[:, 0], F32)
+    return out
+
+
 def volume_info(hits, inputs, op):
     """Volume Info: the grids Blender names color, density, flame and temperature (Cycles' standard volume
     attributes), zero where the point has none (a mesh's volume, a surface)."""

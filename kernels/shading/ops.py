@@ -22,8 +22,8 @@ from .displace import displacement_node, vector_displacement_node
 from .ies import ies_node
 from .image_ops import environment, image
 from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geometry, layer_weight, light_falloff, \
-    light_path, normal_map, normal_node, object_info, separate_xyz, tangent_node, tex_coord, uv_map, vector_transform, \
-    volume_info, wireframe
+    light_path, normal_map, normal_node, object_info, particle_info, separate_xyz, tangent_node, tex_coord, uv_map, \
+    vector_transform, volume_info, wireframe
 from .program import full
 from .raytrace import ambient_occlusion_node, bevel_node
 from .shape_ops import curves_info, point_info
@@ -45,6 +45,7 @@ OPS = {
     "ShaderNodePointInfo": point_info,
     "ATTRIBUTE": attribute,
     "VOLUME_INFO": volume_info,
+    "PARTICLE_INFO": particle_info,
     "ShaderNodeLayerWeight": layer_weight,
     "ShaderNodeFresnel": fresnel_node,
     "ShaderNodeLightPath": light_path,

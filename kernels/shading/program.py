@@ -17,7 +17,7 @@ from .color_nodes import RGB_TO_Y, vector_to_float
 
 
 # Attribute names whose values are per object row, not per corner.
-OBJECT_ATTRIBUTE_PREFIXES = ("object:", "instancer:")
+OBJECT_ATTRIBUTE_PREFIXES = ("object:", "instancer:", "particle:")
 
 
 @dataclass
