@@ -105,15 +105,15 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
 # ---------------------------------------------------------------- the tool on .blend files
 def build_scene(film_exposure: float):
     """A floor and a box under an area lamp, with Cycles settings Ember takes over, and a material Ember
-    warns about (a Noise texture's Texture Mapping panel, on a value multiplied by 0: nothing changes in Cycles)."""
+    warns about (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing
+    changes in Cycles)."""
     scene = new_scene(48, 32)
     floor = diffuse_material("Floor", (0.7, 0.7, 0.7))
     mesh_object("Floor", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [(0, 1, 2, 3)], floor)
     box = diffuse_material("Box", (0.8, 0.3, 0.2))
-    noise, times = box.node_tree.nodes.new("ShaderNodeTexNoise"), box.node_tree.nodes.new("ShaderNodeMath")
-    noise.texture_mapping.translation = (1.0, 0.0, 0.0)
+    stroke, times = box.node_tree.nodes.new("ShaderNodeUVAlongStroke"), box.node_tree.nodes.new("ShaderNodeMath")
     times.operation, times.inputs[1].default_value = "MULTIPLY", 0.0
-    box.node_tree.links.new(noise.outputs["Fac"], times.inputs[0])
+    box.node_tree.links.new(stroke.outputs["UV"], times.inputs[0])
     box.node_tree.links.new(times.outputs[0], next(n for n in box.node_tree.nodes if n.type.startswith("BSDF")).inputs["Roughness"])
     verts = [(x, y, z) for z in (0, 1.5) for y in (-0.7, 0.7) for x in (-0.7, 0.7)]
     faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
@@ -153,13 +153,13 @@ def test_the_tool_runs_every_file_and_tables_them(corpus_run):
     assert run.returncode == 0, run.stderr
     same, exposed, broken = (table_row(run.stdout, n) for n in ("same.blend", "exposed.blend", "broken.blend"))
     assert same[-1] == "within noise", run.stdout
-    assert same[7] == "1"                                    # the Texture Mapping warning, once for both renders
+    assert same[7] == "1"                                    # the UV Along Stroke warning, once for both renders
     assert exposed[-1] == "beyond noise" and "film_exposure=2.0" in exposed[8]
     mean = float(re.match(r"([+-][\d.]+)%", exposed[2]).group(1)) / 100
     assert abs(mean - (0.5 - 1.0)) < 0.05                    # Cycles' image is twice Ember's
     assert broken[-1].startswith("failed: Cycles:") and "Ember:" in broken[-1]
     assert "sample_clamp_indirect=5.0" in run.stdout and "pixel_filter_type=GAUSSIAN" in run.stdout
-    assert "Texture Mapping panel settings are not supported" in run.stdout
+    assert "UV Along Stroke node" in run.stdout and "is not supported" in run.stdout
     assert (out / "summary.md").read_text().count("| same.blend |") == 1
 
 

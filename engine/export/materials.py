@@ -47,7 +47,7 @@ from .graph import indexed_links, invalid_links, node_loop, run_nested
 from .displacement import METHODS, TrueDisplacement
 from .images import ImageTextures
 from .lights import MAX_LIGHT_RADIANCE
-from .nodes import ProgramBuilder
+from .nodes import ProgramBuilder, texture_mapping_matrix
 from .sockets import MISSING_IMAGE_COLOR, Source, output_node, rgb, socket_has_nan, source_of
 
 DEFAULT_ALBEDO = 0.8
@@ -618,14 +618,15 @@ class _MaterialReader:
 
 
 def _plain_image(source: Source) -> bool:
-    """An Image Texture the closure inputs read directly: render UVs, Linear, Flat, Repeat."""
+    """An Image Texture the closure inputs read directly: render UVs, Linear, Flat, Repeat, no Texture Mapping."""
     node = source.node
     vector = source_of(node.inputs["Vector"], source.groups)
     uv = (vector.node is None
           or (vector.kind == "ShaderNodeTexCoord" and vector.socket.identifier == "UV")
           or (vector.kind == "ShaderNodeUVMap" and not vector.node.uv_map))
     return uv and node.interpolation == "Linear" and node.projection == "FLAT" and node.extension == "REPEAT" \
-        and (node.image is None or node.image.source != "TILED")   # UDIM tiles: the program's lookup
+        and (node.image is None or node.image.source != "TILED") \
+        and texture_mapping_matrix(node.texture_mapping) is None   # UDIM tiles, a moved Vector: the program's
 
 
 def _channels(socket) -> int:

@@ -384,7 +384,6 @@ def _normal_map(builder, node, groups):
 
 
 def _image(builder, node, groups):
-    _check_texture_mapping(builder, node)
     image = node.image
     texture, tiles = -1, None
     if image is None:
@@ -403,29 +402,69 @@ def _image(builder, node, groups):
                "unassociate": bool(unassociate)}
     if tiles is not None:
         options["tiles"] = tiles
-    inputs = yield builder.node_inputs(node, groups, vector_default="UV")
+    inputs = _mapped(builder, node, (yield builder.node_inputs(node, groups, vector_default="UV")))
     return builder.add(node.bl_idname, inputs, options)
 
 
 def _texture(builder, node, groups):
     """A procedural texture: an unlinked Vector reads Generated coordinates."""
-    _check_texture_mapping(builder, node)
     inputs = yield builder.node_inputs(node, groups, vector_default="Generated")
     if any(s.identifier == "Vector" and not s.enabled for s in node.inputs):
         inputs.setdefault("Vector", (0.0, 0.0, 0.0))   # 1D modes have no Vector (not even by name): W alone is read
+    else:
+        inputs = _mapped(builder, node, inputs)
     options = dict(node_options(node), cycles_version=blender_version())
     return builder.add(node.bl_idname, inputs, options, outputs=_linked_outputs(node))
 
 
-def _check_texture_mapping(builder, node) -> None:
+# Blender's TexMapping axis enums, Cycles' TextureMapping::Mapping: NONE, X, Y, Z.
+_AXES = {"NONE": 0, "X": 1, "Y": 2, "Z": 3}
+
+
+def texture_mapping_matrix(mapping):
+    """(3, 4) float64 of a texture node's Texture Mapping panel as Cycles' TextureMapping::compute_transform applies
+    it to the Vector (Blender's sync reads location, rotation, scale, type and the axes, not Min and Max): the axes
+    picked first, then scale, rotation (XYZ Euler) and location for a Point, their inverse for a Texture, no
+    location for a Vector, the inverse transpose for a Normal (then normalized). None where it changes nothing."""
+    import mathutils
+    translation, rotation, scale = (np.array(tuple(v), np.float64) for v in
+                                    (mapping.translation, mapping.rotation, mapping.scale))
+    axes = [_AXES[a] for a in (mapping.mapping_x, mapping.mapping_y, mapping.mapping_z)]
+    if not translation.any() and not rotation.any() and (scale == 1).all() and axes == [1, 2, 3]:
+        return None
+    pick = np.zeros((4, 4))
+    pick[3, 3] = 1.0
+    for row, axis in enumerate(axes):
+        if axis:
+            pick[row, axis - 1] = 1.0
+    kind = mapping.vector_type
+    if kind in ("TEXTURE", "NORMAL"):   # kept invertible, as Cycles keeps it
+        scale = np.where(np.abs(scale) < 1e-5, np.where(scale < 0, -1e-5, 1e-5), scale)
+    s, r, t = np.diag([*scale, 1.0]), np.eye(4), np.eye(4)
+    r[:3, :3] = np.array(mathutils.Euler(tuple(rotation), "XYZ").to_matrix())
+    t[:3, 3] = translation
+    if kind == "TEXTURE":
+        matrix = np.linalg.inv(t @ r @ s)
+    elif kind == "POINT":
+        matrix = t @ r @ s
+    elif kind == "VECTOR":
+        matrix = r @ s
+    else:
+        matrix = np.linalg.inv(r @ s).T
+    return (matrix @ pick)[:3]
+
+
+def _mapped(builder, node, inputs: dict) -> dict:
+    """The node's inputs, its Vector moved by its Texture Mapping panel (texture_mapping_matrix) where that does
+    anything, as Cycles' TextureMapping::compile_begin moves it before the texture reads it."""
     mapping = getattr(node, "texture_mapping", None)
-    if mapping is None:
-        return
-    identity = (tuple(mapping.translation) == (0, 0, 0) and tuple(mapping.rotation) == (0, 0, 0)
-                and tuple(mapping.scale) == (1, 1, 1) and not mapping.use_min and not mapping.use_max)
-    if not identity:
-        builder.issues.append(f"{node.bl_label} '{node.name}': its Texture Mapping panel settings are not "
-                              f"supported, ignored")
+    matrix = None if mapping is None or "Vector" not in inputs else texture_mapping_matrix(mapping)
+    if matrix is None:
+        return inputs
+    moved = builder.add("TEXTURE_MAPPING", {"Vector": _reading(inputs["Vector"], "VECTOR")},
+                        {"matrix": tuple(float(v) for v in matrix.ravel()),
+                         "normalize": mapping.vector_type == "NORMAL"})
+    return {**inputs, "Vector": Ref(moved, "Vector", "VECTOR", "VECTOR")}
 
 
 def _color_ramp(builder, node, groups):
@@ -443,7 +482,6 @@ def _curves(baker):
 
 
 def _environment(builder, node, groups):
-    _check_texture_mapping(builder, node)
     texture = -1
     if node.image is None:
         builder.issues.append(f"Environment Texture '{node.name}' has no image, rendered magenta")
@@ -452,14 +490,13 @@ def _environment(builder, node, groups):
         texture = -1 if index is None else index
     options = {"texture": texture, "interpolation": node.interpolation, "projection": node.projection,
                "extension": "REPEAT", "unassociate": False}
-    inputs = yield builder.node_inputs(node, groups, vector_default="Generated")
+    inputs = _mapped(builder, node, (yield builder.node_inputs(node, groups, vector_default="Generated")))
     return builder.add(node.bl_idname, inputs, options)
 
 
 def _sky(builder, node, groups):
     """The Sky Texture: its tables precomputed here; with the sun disc on, Blender disables the Vector and
     Cycles reads the default (Generated: the direction, in a world)."""
-    _check_texture_mapping(builder, node)
     if node.sky_type not in sky.SKY_TYPES or node.sky_type == "HOSEK_WILKIE":
         builder.issues.append(f"Sky Texture '{node.name}': the {node.sky_type.replace('_', ' ').title()} model "
                               f"is not supported, rendered black")
@@ -467,7 +504,7 @@ def _sky(builder, node, groups):
     accepted = inspect.signature(sky.precompute_sky).parameters
     settings = {k: v for k, v in node_options(node).items() if k in accepted}
     inputs = yield builder.node_inputs(node, groups, vector_default="Generated")
-    inputs.setdefault("Vector", builder.coordinate("Generated"))
+    inputs = _mapped(builder, node, {**inputs, "Vector": inputs.get("Vector", builder.coordinate("Generated"))})
     return builder.add(node.bl_idname, inputs, {"precomputed": sky.precompute_sky(**settings)})
 
 

@@ -29,7 +29,7 @@ from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nod
 from .images import ImagePixels, ImageTextures
 from .lights import MAX_LIGHT_RADIANCE
 from .materials import read_volume
-from .nodes import ProgramBuilder
+from .nodes import ProgramBuilder, texture_mapping_matrix
 from .shader_emission import emission_of
 from .sockets import BLACK3, MISSING_IMAGE_COLOR, Source, output_node, rgb, socket_has_nan, source_of
 
@@ -129,6 +129,8 @@ def _needs_program(tree) -> bool:
     if color.node is None or color.kind == "ShaderNodeRGB":
         return False
     if color.kind != "ShaderNodeTexEnvironment" or color.socket.identifier != "Color":
+        return True
+    if texture_mapping_matrix(color.node.texture_mapping) is not None:   # its Texture Mapping panel moves it
         return True
     vector = source_of(color.node.inputs["Vector"], color.groups)
     if _is_view_direction(vector):

@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import inspect
 
+import numpy as np
+
+from ..vec import F32, matmul, normalize_rows_einsum
 from . import color_nodes, curve_nodes, math_nodes, mix_nodes, vector_nodes
 from . import gabor as gb
 from . import noise as ns
@@ -35,6 +38,16 @@ def sky(hits, inputs, op):
     return sk.sky_texture(full(inputs["Vector"], hits.n, 3), precomputed=op.option("precomputed"))
 
 
+# ---------------------------------------------------------------- a texture node's Texture Mapping panel
+def texture_mapping(hits, inputs, op):
+    """Cycles' svm_node_texture_mapping: the Vector through the panel's (3, 4) transform (option "matrix",
+    engine/export/nodes.py texture_mapping_matrix), normalized for the Normal type."""
+    v = np.asarray(full(inputs["Vector"], hits.n, 3), F32)
+    m = np.asarray(op.option("matrix"), F32).reshape(3, 4)
+    out = (matmul(v, m[:, :3].T) + m[:, 3]).astype(F32)
+    return {"Vector": normalize_rows_einsum(out) if op.option("normalize") else out}
+
+
 # ---------------------------------------------------------------- the table
 OPS = {
     "ShaderNodeTexCoord": tex_coord,
@@ -46,6 +59,7 @@ OPS = {
     "ATTRIBUTE": attribute,
     "VOLUME_INFO": volume_info,
     "PARTICLE_INFO": particle_info,
+    "TEXTURE_MAPPING": texture_mapping,
     "ShaderNodeLayerWeight": layer_weight,
     "ShaderNodeFresnel": fresnel_node,
     "ShaderNodeLightPath": light_path,
@@ -69,7 +83,7 @@ OPS = {
     "ShaderNodeBump": bump_node,   # takes the run, not the hits (program.ProgramRun._run)
 }
 # Ops that read nothing of the hits besides their inputs: folded at export when those are constants.
-PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ"}
+PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ", "TEXTURE_MAPPING"}
 
 
 # ---------------------------------------------------------------- texture, colour and math nodes
