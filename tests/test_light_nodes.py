@@ -348,3 +348,16 @@ def test_emitter_hidden_from_the_camera_matches_cycles():
     tree.links.new(mix.outputs[0], out.inputs["Surface"])
     quad_object("Panel", (-1.0, -1.2, 1.8), (1.2, 0, 0), (0, 0.5, 0.3), panel)
     compare_to_cycles(scene, samples=128, max_bounces=2)
+
+
+def test_several_varying_lamps_together_match_cycles():
+    """Lamps of every kind whose emissions vary, in one scene: each light sample and each lamp a ray meets reads its
+    own program, point and frame (a batch mixes them)."""
+    scene = stage()
+    ies_light(add_light(scene, "POINT", location=(-0.5, -0.4, 1.6), rotation=(0.3, 0.2, 0.5), energy=100.0,
+                        shadow_soft_size=0.1).data, PROFILES["type_c"])
+    checker("UV")(add_light(scene, "SPOT", location=(1.2, -1.0, 2.2), rotation=(0.5, 0.4, 0.0), energy=200.0,
+                            spot_size=1.2).data)
+    falloff("Linear", 0.5)(add_light(scene, "AREA", location=(0.5, 1.0, 2.0), energy=80.0, size=0.6).data)
+    checker("UV")(add_light(scene, "SUN", energy=1.0, angle=math.radians(20)).data)
+    compare_to_cycles(scene, samples=128, max_bounces=2)

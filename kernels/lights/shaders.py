@@ -84,20 +84,24 @@ class LampShaders:
         out = np.zeros((len(light), 3), F32)
         kind = np.take(self.kind, light)
         axes = self.axes[light]                                          # (n, 3, 3), columns x, y, z
-        local = lambda d: np.einsum("nji,nj->ni", axes, d)               # noqa: E731 - world -> light frame
+
+        def local(d, rows):
+            """World directions d of the lights `rows` (indices into light) in those lights' frames."""
+            return np.einsum("nji,nj->ni", axes[rows], d)
+
         spot = np.flatnonzero(kind == SPOT)
         if len(spot):
-            ray = local(-w[spot])
+            ray = local(-w[spot], spot)
             ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), F32(1e-30))
             with np.errstate(divide="ignore", invalid="ignore"):
                 f = self.half_cot[light[spot]] / -ray[:, 2]
             out[spot, 0], out[spot, 1] = F32(0.5) + ray[:, 0] * f, F32(0.5) + ray[:, 1] * f
         point = np.flatnonzero(kind == POINT)
         if len(point):
-            out[point] = map_to_sphere(local(ng[point]))
+            out[point] = map_to_sphere(local(ng[point], point))
         area = np.flatnonzero((kind == RECT) | (kind == DISK))
         if len(area):
-            inplane = local(p[area] - self.position[light[area]])
+            inplane = local(p[area] - self.position[light[area]], area)
             size = np.maximum(self.size[light[area]], F32(1e-30))
             out[area, :2] = np.clip(inplane[:, :2] / size, F32(-0.5), F32(0.5)) + F32(0.5)
         sun = np.flatnonzero(kind == SUN)
@@ -105,7 +109,7 @@ class LampShaders:
             k = light[sun]
             with np.errstate(divide="ignore", invalid="ignore"):
                 fac = self.half_inv_sin[k] / np.linalg.norm(w[sun] + axes[sun, :, 2], axis=1)
-            d = local(w[sun])
+            d = local(w[sun], sun)
             out[sun, 0], out[sun, 1] = F32(0.5) + d[:, 0] * fac, F32(0.5) + d[:, 1] * fac
         return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).astype(F32)
 
