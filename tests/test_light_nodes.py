@@ -71,6 +71,17 @@ def checker(coordinate):
     return build
 
 
+def image_gobo(light):
+    """An Image Texture (a generated colour grid, Clip) over the lamp's UV colours its emission: a gobo."""
+    tree, emission = light_tree(light)
+    coords, texture = tree.nodes.new("ShaderNodeTexCoord"), tree.nodes.new("ShaderNodeTexImage")
+    texture.image = bpy.data.images.new("Gobo", 32, 32)
+    texture.image.generated_type = "COLOR_GRID"
+    texture.extension = "CLIP"
+    tree.links.new(coords.outputs["UV"], texture.inputs["Vector"])
+    tree.links.new(texture.outputs["Color"], emission.inputs["Color"])
+
+
 def normal_colour(light):
     """The emission's colour is the light's normal there (|x|, 0, |z|): a sphere lamp's outward normal."""
     tree, emission = light_tree(light)
@@ -99,6 +110,7 @@ CASES = {
     "sphere_normal": ("POINT", dict(energy=200.0, shadow_soft_size=0.5, use_soft_falloff=False), normal_colour),
     # The lamps' UV (Cycles' spot_light_uv, point_light_uv, area_light_uv, sun_light_uv) and Generated.
     "spot_uv": ("SPOT", dict(energy=400.0, shadow_soft_size=0.0, spot_size=1.2), checker("UV")),
+    "spot_image_gobo": ("SPOT", dict(energy=400.0, spot_size=1.2), image_gobo),
     "sphere_uv": ("POINT", dict(energy=200.0, shadow_soft_size=0.5, use_soft_falloff=False), checker("UV")),
     "area_uv": ("AREA", dict(energy=150.0, shape="RECTANGLE", size=1.5, size_y=0.8), checker("UV")),
     "sun_uv": ("SUN", dict(energy=2.0, angle=math.radians(20)), checker("UV")),
