@@ -59,16 +59,7 @@ def lacking_settings(scene) -> list[str]:
         if active:
             value = getattr(c, name.split(" ")[0])
             lacking.append(f"{name}={round(value, 4) if isinstance(value, float) else value}")
-    shading = terminator_shading_offsets(scene)
-    if shading:
-        lacking.append(f"shadow_terminator_shading_offset (object setting, {shading} objects)")
     return lacking
-
-
-def terminator_shading_offsets(scene) -> int:
-    """Rendered mesh objects with a Shadow Terminator Shading Offset, which Ember does not render yet."""
-    return sum(1 for ob in scene.objects
-               if ob.type == "MESH" and not ob.hide_render and ob.shadow_terminator_shading_offset > 0)
 
 
 def map_cycles_settings(scene) -> dict:

@@ -23,8 +23,8 @@ from ...kernels.scene import NO_GROUP, OBJECT_COLUMNS, CornerRows, Instances, Pr
 from ...kernels.textures import Texture
 from .adaptive import Dicing
 from .displacement import BlenderMesh, displace_mesh
-from .instances import (asset_name, check_visibility, instance_key, instance_random, instance_visibility,
-                        instanced_groups, is_rendered, object_inputs, slot_materials)
+from .instances import (asset_name, instance_key, instance_random, instance_visibility, instanced_groups,
+                        is_rendered, object_inputs, slot_materials)
 from .light_groups import GroupTable
 from .light_linking import ALL_MASK, LinkTable
 
@@ -193,7 +193,6 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                 slot_rows[object_key] = materials.slot_ids(ob) if len(ob.material_slots) else \
                     (materials.default_volume_id(),)
                 signatures[object_key] = slot_materials(ob)
-                check_visibility(ob, warnings)
             if mesh_key not in meshes:
                 source = read_volume(ob, depsgraph.scene.frame_current, materials.interpolation(slot_rows[object_key]))
                 warnings.extend(source.warnings)
@@ -218,7 +217,6 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                 if object_key not in slot_rows:
                     slot_rows[object_key] = materials.slot_ids(ob)
                     signatures[object_key] = slot_materials(ob)
-                    check_visibility(ob, warnings)
                 if mesh_key not in displaced:
                     displaced.add(mesh_key)
                     meshes[mesh_key] = _displaced(inst, ob, source, meshes[mesh_key], materials,
@@ -237,9 +235,9 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
         if object_key[0] not in described:
             described[object_key[0]] = object_inputs(ob)
-        location, size, color, pass_index, own, terminator = described[object_key[0]]
+        location, size, color, pass_index, own, terminator, shading = described[object_key[0]]
         rows.setdefault((mesh_key, slot_rows[object_key]), []).append(
-            (location, size, color, pass_index, instance_random(inst, own), terminator))
+            (location, size, color, pass_index, instance_random(inst, own), terminator, shading))
         keys.setdefault((mesh_key, slot_rows[object_key]), []).append(instance_key(inst))
         properties.setdefault((mesh_key, slot_rows[object_key]), []).append(
             _object_attributes(inst, ob, materials.attribute_names(slot_rows[object_key]), object_values))
@@ -303,14 +301,13 @@ def _add_shape(shapes: ShapeExport, inst, ob, materials: MaterialTable, view_lay
     rows = materials.slot_ids(ob)
     if object_key not in signatures:
         signatures[object_key] = slot_materials(ob)
-        check_visibility(ob, warnings)
     names = materials.attribute_names(rows)
     if ob.as_pointer() not in described:
         described[ob.as_pointer()] = object_inputs(ob)
-    location, size, color, pass_index, own, terminator = described[ob.as_pointer()]
+    location, size, color, pass_index, own, terminator, shading = described[ob.as_pointer()]
     place = {"matrix": np.array(inst.matrix_world), "key": instance_key(inst), "asset": asset_name(ob),
              "visibility": seen_by, "slots": signatures[object_key],
-             "inputs": (location, size, color, pass_index, instance_random(inst, own), terminator),
+             "inputs": (location, size, color, pass_index, instance_random(inst, own), terminator, shading),
              "properties": _object_attributes(inst, ob, names, object_values)}
     if hair:
         shapes.add_hair(ob, rows, names, place)
@@ -325,9 +322,9 @@ def _displaced(inst, ob, source, local: LocalMesh, materials: MaterialTable, row
     if not any(per_slot):
         return local
     matrix = np.array(inst.matrix_world)
-    location, size, color, pass_index, own, terminator = object_inputs(ob)
+    location, size, color, pass_index, own, terminator, shading = object_inputs(ob)
     row = object_rows(matrix[None], np.array([location]), np.array([size]), np.array([color]), np.array([pass_index]),
-                      np.array([instance_random(inst, own)]), np.array([terminator]))[0]
+                      np.array([instance_random(inst, own)]), np.array([terminator]), np.array([shading]))[0]
     textures = [Texture(t, bool(flag)) for t, flag in zip(materials.textures, materials.texture_srgb)]
     return displace_mesh(source, local, per_slot, row, matrix, textures, ob.name, warnings)
 

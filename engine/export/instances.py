@@ -64,13 +64,6 @@ def instance_visibility(inst, ob, view_layer) -> int:
     return bits | HOLDOUT if holdout else bits
 
 
-def check_visibility(ob, warnings: list[str]) -> None:
-    """Warn in `warnings` about the object's settings Ember ignores."""
-    if float(getattr(ob, "shadow_terminator_shading_offset", 0.0)) > 0:
-        warnings.append(f"Object '{ob.name}': Shadow Terminator > Shading Offset is not supported yet, ignored "
-                        f"(Geometry Offset is)")
-
-
 def instance_key(inst) -> tuple:
     """What names one object instance across frames (motion blur): the object, and for instances the
     instancer and the persistent id."""
@@ -94,7 +87,7 @@ def slot_materials(ob) -> tuple:
 def object_inputs(ob) -> tuple:
     """What an object's rows of the object table take from the object and its mesh: (texture space
     location, size, colour, pass index, its own random number: Blender's sync hashes its name, its Shadow
-    Terminator Geometry Offset)."""
+    Terminator Geometry and Shading Offsets)."""
     from ...kernels.shading.hash import hash_uint2
     h = 0
     for c in ob.name.encode("utf-8"):
@@ -109,7 +102,8 @@ def object_inputs(ob) -> tuple:
         corners = np.array([tuple(c) for c in ob.bound_box], np.float64)
         lo, hi = corners.min(axis=0), corners.max(axis=0)
         location, size = tuple((lo + hi) / 2), tuple((hi - lo) / 2)
-    return (location, size, tuple(ob.color), ob.pass_index, float(own_random), terminator)
+    shading = float(getattr(ob, "shadow_terminator_shading_offset", 0.0))
+    return (location, size, tuple(ob.color), ob.pass_index, float(own_random), terminator, shading)
 
 
 def instance_random(inst, own_random: float) -> float:
@@ -121,9 +115,9 @@ def instance_random(inst, own_random: float) -> float:
 
 def instance_row(inst, ob, matrix) -> np.ndarray:
     """The object table row of an instance (kernels.scene.object_row)."""
-    location, size, color, pass_index, own, terminator = object_inputs(ob)
+    location, size, color, pass_index, own, terminator, shading = object_inputs(ob)
     return object_rows(np.asarray(matrix, np.float64)[None], [location], [size], [color], [pass_index],
-                       [instance_random(inst, own)], [terminator])[0]
+                       [instance_random(inst, own)], [terminator], [shading])[0]
 
 
 def instanced_groups(groups: dict, meshes: dict, keys: dict, moving, instance_everything: bool) -> set:

@@ -132,6 +132,9 @@ class ClosureSet:
                 setattr(self, name, cat(parts))
             else:
                 setattr(self, name, np.broadcast_to(F32(default), shape + (c,)))
+        # (N,) float32 per hit, Cycles' shadow terminator frequency multiplier 1 / (1 - shading offset / 2) of the
+        # hit's object (mixture_eval.terminator_shift), or None when no hit's object has a Shading Offset.
+        self.terminator = None
         self.bump = None  # BumpShadowing when some closure's normal is not its hit's shading normal
         if any(ch["n"] is not None for ch in chunks):
             normal = cat([ch["n"] if ch["n"] is not None else np.stack([np.take(a, ch["hit"]) for a in ns])
@@ -234,7 +237,9 @@ class ClosureSet:
             if albedo is not None:
                 chunk["albedo"] = (albedo[0][:, rows], albedo[1][:, rows])
             chunks.append(chunk)
-        return ClosureSet(self.n_hits, chunks, ns, self.wo_world)
+        out = ClosureSet(self.n_hits, chunks, ns, self.wo_world)
+        out.terminator = self.terminator
+        return out
 
     def transparent_only(self, rows: np.ndarray, ns) -> tuple["ClosureSet", np.ndarray]:
         """(the set with only the Transparent closures left at the hits rows (N,) bool, every other hit as it is;

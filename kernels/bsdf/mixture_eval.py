@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
-from ..vec import F32, INV_PI, ZERO
+from ..vec import F32, INV_PI, ONE, ZERO
 from . import frames
 from .lobes import MICROFACET_LOBES, SINGULAR_LOBES
 from .registry import LOBES
@@ -40,14 +40,37 @@ def eval_at(cs, hits: np.ndarray, wi) -> tuple[np.ndarray, np.ndarray]:
 
 def eval_closures(cs, wi_world, idx, bump: bool = True):
     """f |cos| (3, n) times the closure weight, and pdf (n,), of closures idx at wi_world (n,); with
-    the bump shadowing term of an evaluation unless bump is False."""
+    the bump shadowing term of an evaluation unless bump is False, and the shadow terminator's shading offset
+    (terminator_shift) always."""
     f, pdf = _eval_unshadowed(cs, wi_world, idx)
     bumped = cs.bump.select(idx, wi_world, cs.normal, cs.soften) if bump and cs.bump is not None else None
     if bumped is not None:  # the term is 1 elsewhere: only the bumped closures change
         sel, term = bumped
         sampling.scale_columns(f, sel, term)
         pdf[sel] = np.where(term > 0, pdf[sel], ZERO)
+    shift = terminator_shift(cs, idx, wi_world)
+    if shift is not None:
+        f = f * shift
     return f, pdf
+
+
+def terminator_shift(cs, rows, wi_world):
+    """(n,) float32 factor on the eval of closures rows toward wi_world, or None when it is 1 everywhere: Cycles'
+    shadow terminator Shading Offset (closure/bsdf.h shift_cos_in, from appleseed), which bends a closure's cosine
+    toward the light into cos(m theta) for directions on its normal's side, m = 1 / (1 - offset / 2) the hit's
+    object's (ClosureSet.terminator), softening the terminator of coarse smooth-shaded meshes. The pdf stays."""
+    if cs.terminator is None or not len(rows):
+        return None
+    m = np.take(cs.terminator, np.take(cs.hit, rows))
+    n = cs.normal
+    cos = wi_world[0] * n[0, rows] + wi_world[1] * n[1, rows] + wi_world[2] * n[2, rows]
+    on = (m > ONE) & (cos >= ZERO)
+    if not on.any():
+        return None
+    c = np.minimum(cos, ONE)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        value = np.maximum(np.cos(np.arccos(c) * m), ZERO) / c
+    return np.where(on, np.nan_to_num(value, nan=0.0, posinf=0.0), ONE).astype(F32)
 
 
 def hit_rows(cs, hits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

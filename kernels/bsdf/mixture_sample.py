@@ -16,7 +16,7 @@ from .. import sampling
 from ..vec import F32, ONE, ZERO
 from . import frames
 from .lobes import ANY_SIDE_LOBES, PORTAL, SAMPLED_ALONE, SELF_EVALUATED, SUBSURFACE_LOBES, TRANSPARENT
-from .mixture_eval import eval_at, eval_closures, take_each
+from .mixture_eval import eval_at, eval_closures, take_each, terminator_shift
 from .registry import LOBES
 
 
@@ -117,8 +117,23 @@ def sample(cs, u_lobe, u1, u2, uc, warp=None) -> BsdfSample:
         r = row[d]
         sampling.scale_columns(out.weight, d, np.take(cs.weight, r, axis=1) * (cs.total_sw[d] / cs.sw[r]))
         out.pdf[d] = np.inf
+        _shift_reflections(cs, out, d, r)
     sampling.put_columns(out.weight, np.flatnonzero(~(out.pdf > 0)), ZERO)
     return out
+
+
+def _shift_reflections(cs, out, hits, rows) -> None:
+    """The samples at hits of closures rows that reflect take the shadow terminator's shading offset
+    (mixture_eval.terminator_shift), as Cycles' bsdf_sample gives it to a sample not labelled transmission."""
+    if cs.terminator is None:
+        return
+    keep = np.flatnonzero(~out.transmit[hits])
+    if not len(keep):
+        return
+    h = hits[keep]
+    shift = terminator_shift(cs, rows[keep], tuple(c[h] for c in out.wi))
+    if shift is not None:
+        sampling.scale_columns(out.weight, h, shift)
 
 
 def _keep_alone(cs, out, s, rows):
@@ -131,6 +146,7 @@ def _keep_alone(cs, out, s, rows):
         return s
     a = np.flatnonzero(alone)
     sampling.scale_columns(out.weight, s[a], np.take(cs.weight, rows[a], axis=1))
+    _shift_reflections(cs, out, s[a], rows[a])
     return s[~alone]
 
 
@@ -165,6 +181,9 @@ def _sampled_self(cs, s, rows, out, f, pdf, own):
     term = cs.bump.term(r, wi, cs.normal, cs.soften) if cs.bump is not None else None
     term = np.ones(len(r), F32) if term is None else np.where(cs.bump.diffuse[r], term, ONE)
     f_own = own[0][:, fix] * np.take(cs.weight, r, axis=1)
+    shift = terminator_shift(cs, r, wi)   # in f_c already: the sampler's own value takes it too
+    if shift is not None:
+        f_own = f_own * shift
     f[:, fix] += (f_own - f_c) * term
     pdf[fix] += ((own[1][fix] - pdf_c) * (term > 0) * cs.sw[r] / cs.total_sw[h]).astype(F32)
 
@@ -190,6 +209,9 @@ def _sample_lambert(cs, out, hits, rows, u1, u2):
     else:  # a Mix or Add of Diffuse BSDFs
         weight = np.stack([np.bincount(cs.hit, cs.weight[k], minlength=cs.n_hits)[hits]
                            for k in range(3)]).astype(F32)
+    shift = terminator_shift(cs, np.arange(len(rows)) if whole else rows, world)
+    if shift is not None:
+        weight = weight * shift
     if whole:
         out.wi = tuple(world)
         out.weight = np.where(good, weight, ZERO)

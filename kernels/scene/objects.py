@@ -6,11 +6,12 @@ import numpy as np
 
 # Columns of SceneArrays.objects: object_from_world (3 x 4, row-major), world_from_object's linear part
 # (3 x 3, row-major), the location, the mesh's texture space (location, size), the object's colour
-# (RGBA), its pass index, Cycles' random number (random_id / 0xFFFFFFFF) and its Shadow Terminator
-# Geometry Offset (the light-facing share of shading points whose shadow rays leave from a smoothed surface).
+# (RGBA), its pass index, Cycles' random number (random_id / 0xFFFFFFFF), its Shadow Terminator
+# Geometry Offset (the light-facing share of shading points whose shadow rays leave from a smoothed surface)
+# and its Shadow Terminator Shading Offset (kernels/bsdf/mixture_eval.py terminator_shift).
 OBJ_FROM_WORLD, OBJ_WORLD_LINEAR, OBJ_LOCATION, OBJ_TEXSPACE_LOC, OBJ_TEXSPACE_SIZE = 0, 12, 21, 24, 27
-OBJ_COLOR, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TERMINATOR = 30, 34, 35, 36
-OBJECT_COLUMNS = 37
+OBJ_COLOR, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_TERMINATOR, OBJ_SHADING_OFFSET = 30, 34, 35, 36, 37
+OBJECT_COLUMNS = 38
 # Cycles' default Shadow Terminator > Geometry Offset (Object > Shading).
 TERMINATOR_OFFSET = 0.1
 # SceneArrays.object_visibility: the rays that see an object, Cycles' PathRayVisibilityFlag bits (kernel/types.h),
@@ -33,10 +34,10 @@ def object_row(world_from_object, texspace_location=(0.0, 0.0, 0.0), texspace_si
 
 
 def object_rows(world_from_object, texspace_location, texspace_size, color, pass_index, random,
-                terminator=TERMINATOR_OFFSET) -> np.ndarray:
+                terminator=TERMINATOR_OFFSET, shading_offset=0.0) -> np.ndarray:
     """(K, OBJECT_COLUMNS) float32 rows of SceneArrays.objects: world_from_object (K, 4, 4), texture spaces
-    (K, 3) and (K, 3), colours (K, 4), pass indices (K,), random numbers (K,) and Shadow Terminator
-    Geometry Offsets (K,) or one for all. A singular matrix gets its pseudo-inverse."""
+    (K, 3) and (K, 3), colours (K, 4), pass indices (K,), random numbers (K,), Shadow Terminator Geometry
+    Offsets and Shading Offsets (K,) or one for all. A singular matrix gets its pseudo-inverse."""
     m = np.asarray(world_from_object, np.float64).reshape(-1, 4, 4)
     k = len(m)
     rows = np.zeros((k, OBJECT_COLUMNS), np.float64)
@@ -58,6 +59,7 @@ def object_rows(world_from_object, texspace_location, texspace_size, color, pass
     rows[:, OBJ_PASS_INDEX] = pass_index
     rows[:, OBJ_RANDOM] = random
     rows[:, OBJ_TERMINATOR] = terminator
+    rows[:, OBJ_SHADING_OFFSET] = shading_offset
     return np.nan_to_num(rows).astype(np.float32)
 
 

@@ -8,7 +8,7 @@ import numpy as np
 from ..bsdf.closures import ClosureBuilder, ClosureSet
 from ..bsdf.lobes import LAMBERT
 from ..camera import camera_frame, view_plane
-from ..scene import Camera, Closure, Materials, Param, object_row
+from ..scene import OBJ_SHADING_OFFSET, Camera, Closure, Materials, Param, object_row
 from ..textures import Texture, finite_uv, luminance
 from ..vec import F32, ZERO
 from . import nodes
@@ -56,6 +56,11 @@ class ShadingData:
         """The object table (SceneArrays.objects); again when objects move (Renderer.update_instances)."""
         # Without an object table every triangle is in one object at the origin.
         self.objects = object_row(np.eye(4))[None] if objects is None else objects
+        # Cycles' shadow terminator frequency multiplier per object row, 1 / (1 - shading offset / 2)
+        # (scene/object.cpp), or None when no object has a Shading Offset (mixture_eval.terminator_shift).
+        offset = self.objects[:, OBJ_SHADING_OFFSET] if self.objects.shape[1] > OBJ_SHADING_OFFSET else None
+        self.terminator = None if offset is None or not (offset > 0).any() else \
+            (F32(1.0) / (F32(1.0) - F32(0.5) * np.clip(offset, 0.0, 1.0))).astype(F32)
 
     def attribute(self, name: str, prim: np.ndarray) -> np.ndarray | None:
         """(n, 3, C) per-corner values of an attribute on triangles prim, None when no mesh has it."""
@@ -171,7 +176,10 @@ class Shading:
             for closure in closure_list:
                 out = nodes.build(closure, ctx, self._mix_weight(closure, ctx), builder)
                 _collect(out, idx, emission, holdout)
-        return SurfaceShading(builder.finish() if closures else None, emission, holdout)
+        closure_set = builder.finish() if closures else None
+        if closure_set is not None and self.data.terminator is not None:
+            closure_set.terminator = np.take(self.data.terminator, self.data.object_rows(hit.prim))
+        return SurfaceShading(closure_set, emission, holdout)
 
     def _set_normal(self, hit) -> None:
         """Cycles' SetNormal: where a material has a set normal (Shader.set_normal), it becomes the hits' shading
