@@ -373,3 +373,20 @@ def test_several_varying_lamps_together_match_cycles():
     falloff("Linear", 0.5)(add_light(scene, "AREA", location=(0.5, 1.0, 2.0), energy=80.0, size=0.6).data)
     checker("UV")(add_light(scene, "SUN", energy=1.0, angle=math.radians(20)).data)
     compare_to_cycles(scene, samples=128, max_bounces=2)
+
+
+def test_ray_length_of_the_world_is_cycles_flt_max():
+    """Cycles gives the world's shading point an infinite ray, FLT_MAX (shader_setup_from_background): Light Path's
+    Ray Length there is 3.4e38, so a Math node's Less Than 1000 on it is 0 (before: 0, and the test gave 1)."""
+    scene = stage()
+    tree = scene.world.node_tree
+    path, less = tree.nodes.new("ShaderNodeLightPath"), tree.nodes.new("ShaderNodeMath")
+    less.operation, less.inputs[1].default_value = "LESS_THAN", 1000.0
+    tree.links.new(path.outputs["Ray Length"], less.inputs[0])
+    mix = tree.nodes.new("ShaderNodeMix")
+    mix.data_type = "RGBA"
+    socket = {s.identifier: s for s in (*mix.inputs, *mix.outputs)}
+    socket["A_Color"].default_value, socket["B_Color"].default_value = (0.4, 0.5, 0.6, 1.0), (2.0, 0.0, 0.0, 1.0)
+    tree.links.new(less.outputs[0], socket["Factor_Float"])
+    tree.links.new(socket["Result_Color"], tree.nodes["Background"].inputs["Color"])
+    compare_to_cycles(scene, samples=32, max_bounces=2)

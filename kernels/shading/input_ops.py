@@ -422,6 +422,17 @@ def reads_lobes(program) -> bool:
                for op in program.ops)
 
 
+def _ray_length(hits, ray, take):
+    """Light Path's Ray Length: the path state's, Cycles' FLT_MAX for the world and for suns (an infinite ray,
+    shader_setup_from_background and distant lights' t), 0 where there is none."""
+    if getattr(hits, "world", False):
+        return np.full(hits.n, np.finfo(F32).max, F32)
+    if ray is None or ray.length is None:
+        return np.zeros(hits.n, F32)
+    length = take(ray.length)
+    return np.where(np.isinf(length), np.finfo(F32).max, length).astype(F32)
+
+
 def light_path(hits, inputs, op):
     """Cycles' Light Path outputs (svm_node_light_path) from the path state the integrator attached."""
     ray = hits.hit.ray
@@ -436,7 +447,7 @@ def light_path(hits, inputs, op):
     further = ray is not None and (shadow or ray.emission)
     out = {"Is Camera Ray": ((depth == 0) & camera).astype(F32),
            "Is Shadow Ray": np.full(n, F32(1.0 if shadow else 0.0)),
-           "Ray Length": take(ray.length) if ray is not None else zero,
+           "Ray Length": _ray_length(hits, ray, take),
            # Shadow rays, the world and lights are one bounce further (Cycles adds 1 for them).
            "Ray Depth": depth + F32(1.0 if further else 0.0),
            "Transparent Depth": take(ray.transparent) if ray is not None else zero,
