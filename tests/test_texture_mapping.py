@@ -7,7 +7,7 @@ import math
 import bpy
 import pytest
 
-from bpy_helpers import add_camera, compare_to_cycles, export_current, new_scene, set_world
+from bpy_helpers import add_camera, compare_to_cycles, emission_material, export_current, new_scene, set_world
 
 PANELS = {
     "point": dict(vector_type="POINT", translation=(0.3, -0.2, 0.1), rotation=(0.4, 0.2, 0.9), scale=(1.5, 0.7, 1.0)),
@@ -25,26 +25,25 @@ def textured_scene(kind, panel):
     scene = new_scene(48, 48)
     add_camera(scene, (0, -4, 2.5), (0, 0, 0.3), lens=35)
     set_world(scene, color=(0, 0, 0))
-    material = bpy.data.materials.new("Mapped")
-    tree = material.node_tree
-    tree.nodes.clear()
-    out, emission = tree.nodes.new("ShaderNodeOutputMaterial"), tree.nodes.new("ShaderNodeEmission")
-    if kind == "checker":
-        texture = tree.nodes.new("ShaderNodeTexChecker")
-        texture.inputs["Scale"].default_value = 4.0
-    elif kind == "image":
-        texture = tree.nodes.new("ShaderNodeTexImage")
-        texture.image = bpy.data.images.new("Grid", 64, 64)
-        texture.image.generated_type = "COLOR_GRID"
-        texture.extension = "REPEAT"
-    else:
-        texture = tree.nodes.new("ShaderNodeTexNoise")
-        coords = tree.nodes.new("ShaderNodeTexCoord")
-        tree.links.new(coords.outputs["Normal"], texture.inputs["Vector"])
-    for name, value in panel.items():
-        setattr(texture.texture_mapping, name, value)
-    tree.links.new(texture.outputs["Color"], emission.inputs["Color"])
-    tree.links.new(emission.outputs[0], out.inputs["Surface"])
+
+    def build(tree):
+        if kind == "checker":
+            texture = tree.nodes.new("ShaderNodeTexChecker")
+            texture.inputs["Scale"].default_value = 4.0
+        elif kind == "image":
+            texture = tree.nodes.new("ShaderNodeTexImage")
+            texture.image = bpy.data.images.new("Grid", 64, 64)
+            texture.image.generated_type = "COLOR_GRID"
+            texture.extension = "REPEAT"
+        else:
+            texture = tree.nodes.new("ShaderNodeTexNoise")
+            coords = tree.nodes.new("ShaderNodeTexCoord")
+            tree.links.new(coords.outputs["Normal"], texture.inputs["Vector"])
+        for name, value in panel.items():
+            setattr(texture.texture_mapping, name, value)
+        return texture.outputs["Color"]
+
+    material = emission_material("Mapped", build=build)
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.8, location=(0, 0, 0.8))
     bpy.ops.object.shade_smooth()
     bpy.context.active_object.data.materials.append(material)

@@ -589,6 +589,26 @@ def _bevel(builder, node, groups):
     return builder.add(node.bl_idname, inputs, {"samples": int(node.samples)})
 
 
+def _raycast(builder, node, groups):
+    """Raycast (Blender 5.3), traced at hits (kernels/shading/raytrace.py): an unlinked Position is the hit's, an
+    unlinked Direction its shading normal (Cycles' LINK_POSITION, LINK_NORMAL). Its sampled attributes are not
+    read (zero, with a warning). Where Cycles traces nothing (a world, a lamp) it finds no hit."""
+    inputs = yield builder.node_inputs(node, groups)
+    for name in ("Position", "Direction"):
+        if source_of(node.inputs[name], groups).node is None:
+            inputs.pop(name, None)
+    items = [item.name for item in getattr(node, "sample_attribute_items", ())]
+    if items:
+        builder.issues.append(f"Raycast '{node.name}': its sampled attributes ({', '.join(items)}) are not "
+                              f"supported, they read zero")
+    outputs = tuple(o.identifier for o in node.outputs if o.is_linked and o.identifier in _RAYCAST_OUTPUTS) \
+        or _RAYCAST_OUTPUTS
+    return builder.add(node.bl_idname, inputs, {"only_local": bool(node.only_local)}, outputs=outputs)
+
+
+_RAYCAST_OUTPUTS = ("Is Hit", "Self Hit", "Hit Distance", "Hit Position", "Hit Normal")
+
+
 def _bump(builder, node, groups):
     inputs = yield builder.node_inputs(node, groups)
     return builder.add(node.bl_idname, inputs, {"invert": bool(node.invert)})
@@ -631,6 +651,7 @@ COMPILERS = {
     "ShaderNodeBump": _bump,
     "ShaderNodeAmbientOcclusion": _ambient_occlusion,
     "ShaderNodeBevel": _bevel,
+    "ShaderNodeRaycast": _raycast,
     "ShaderNodeValue": _value,
     "ShaderNodeRGB": _rgb,
     "ShaderNodeTexCoord": _tex_coord,

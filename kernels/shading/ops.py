@@ -28,7 +28,7 @@ from .input_ops import attribute, camera_data, combine_xyz, fresnel_node, geomet
     light_path, normal_map, normal_node, object_info, particle_info, separate_xyz, tangent_node, tex_coord, uv_map, \
     vector_transform, volume_info, wireframe
 from .program import full
-from .raytrace import ambient_occlusion_node, bevel_node
+from .raytrace import ambient_occlusion_node, bevel_node, raycast_node
 from .shape_ops import curves_info, point_info
 
 
@@ -78,6 +78,7 @@ OPS = {
     "ShaderNodeTexSky": sky,
     "ShaderNodeAmbientOcclusion": ambient_occlusion_node,
     "ShaderNodeBevel": bevel_node,
+    "ShaderNodeRaycast": raycast_node,
     "ShaderNodeDisplacement": displacement_node,
     "ShaderNodeVectorDisplacement": vector_displacement_node,
     "ShaderNodeBump": bump_node,   # takes the run, not the hits (program.ProgramRun._run)

@@ -1,5 +1,5 @@
-"""The shader nodes that trace rays, Ambient Occlusion and Bevel, as Cycles 5.x computes them
-(kernel/svm/ao.h, kernel/svm/bevel.h), batched over the hits of a material in a wave: one ray query for all the
+"""The shader nodes that trace rays, Ambient Occlusion, Bevel and Raycast, as Cycles 5.x computes them
+(kernel/svm/ao.h, kernel/svm/bevel.h, kernel/svm/raycast.h), batched over the hits of a material in a wave: one ray query for all the
 samples of all hits (up to GROUP_RAYS rays a query; and per surface passed, for rays that look only for their
 own object).
 
@@ -250,3 +250,62 @@ def bevel_node(hits, inputs, op):
         given = np.broadcast_to(np.asarray(inputs["Normal"], F32), (n, 3))
         out = normalize_rows((given + (out - hits.N)).astype(F32))
     return {"Normal": out.astype(F32)}
+
+
+# ---------------------------------------------------------------- Raycast (svm/raycast.h)
+def raycast_node(hits, inputs, op):
+    """The Raycast node (Blender 5.3, svm_node_raycast): one ray from Position (the hit's, unlinked) along
+    Direction (the shading normal, unlinked) for Length; Is Hit, Self Hit (the hit is on the shading point's
+    object), Hit Distance (in units of Direction; Length where nothing is hit), Hit Position and Hit Normal (the
+    smooth normal there, facing the ray, as Cycles' shader_setup_from_ray gives it). A ray that starts at the
+    shading point leaves its surface (Cycles skips the point's own triangle); only_local: the closest surface of
+    the point's own object. Where nothing is traced (HitInputs.tracing: a world, a lamp, shadow rays) or Length
+    is not positive: no hit."""
+    from ..interaction import SurfaceHit
+    n = hits.n
+    length = np.broadcast_to(np.asarray(inputs["Length"], F32), (n,)).astype(F32)
+    out = {"Is Hit": np.zeros(n, F32), "Self Hit": np.zeros(n, F32), "Hit Distance": length.copy(),
+           "Hit Position": np.zeros((n, 3), F32), "Hit Normal": np.zeros((n, 3), F32)}
+    traced = hits.tracing() if hasattr(hits, "tracing") else None
+    if traced is None:
+        return out
+    position = np.array(np.broadcast_to(np.asarray(inputs["Position"], F32), (n, 3)), F32) \
+        if "Position" in inputs else np.ascontiguousarray(hits.P, F32)
+    direction = np.array(np.broadcast_to(np.asarray(inputs["Direction"], F32), (n, 3)), F32) \
+        if "Direction" in inputs else np.ascontiguousarray(hits.N, F32)
+    scale = np.sqrt(dot_rows(direction, direction))
+    live = np.flatnonzero((length > 0) & (scale > 0))
+    if not len(live):
+        return out
+    h = traced.take(live)
+    d = (direction[live] / columns(scale[live])).astype(F32)
+    start = position[live]
+    own = np.all(start == h.p, axis=1)             # at the shading point: off its surface, as Cycles skips it
+    origins = np.where(columns(own), h.rays.offset_origins(h.p, h.ng, d), start).astype(F32)
+    t_max = (length[live] * scale[live]).astype(F32)
+    prim = np.full(len(live), -1, np.int64)
+    t = np.zeros(len(live), F32)
+    b1, b2 = np.zeros(len(live), F32), np.zeros(len(live), F32)
+    if op.option("only_local", False):
+        for rows, p_, t_, u_, v_ in own_hits(h.rays, h.objects, origins, d, t_max, h.split, h.time, first_only=True):
+            prim[rows], t[rows], b1[rows], b2[rows] = p_, t_, u_, v_
+    else:
+        met = h.rays.accel.intersect(origins, d, t_max, h.split, h.time)
+        found = np.flatnonzero(met.prim >= 0)
+        prim[found], t[found] = met.prim[found], met.t[found]
+        b1[found], b2[found] = met.u[found], met.v[found]
+    found = np.flatnonzero(prim >= 0)
+    if not len(found):
+        return out
+    rows = live[found]
+    # In units of Direction, as Cycles' ray.D is Direction as given (from the shading point, whose offset start
+    # is a float's width off it).
+    distance = (t[found] / scale[rows]).astype(F32)
+    hit = SurfaceHit(h.rays.triangles, prim[found], b1[found], b2[found], tuple(d[found].T), False,
+                     ray=(origins[found], t[found]))
+    out["Is Hit"][rows] = ONE
+    out["Self Hit"][rows] = (h.rays.object_rows(prim[found]) == h.objects[found]).astype(F32)
+    out["Hit Distance"][rows] = distance
+    out["Hit Position"][rows] = position[rows] + direction[rows] * columns(distance)
+    out["Hit Normal"][rows] = np.stack(hit.ns, axis=1)
+    return out

@@ -99,10 +99,10 @@ class Shading:
         # Whether a Light Path node reads the last bounce's lobe: the integrator tracks it only then.
         self.reads_lobes = any(reads_lobes(s.program) for s in self.shaders) or (
             world is not None and world.program is not None and reads_lobes(world.program))
-        # Whether a material's program traces rays (Ambient Occlusion, Bevel): the integrator then hands its
+        # Whether a material's program traces rays (Ambient Occlusion, Bevel, Raycast): the integrator then hands its
         # surface vertices' keys to the programs; a Bevel also reads the path's smallest BSDF pdf.
         kinds = {op.kind for s in self.shaders if s.program is not None for op in s.program.ops}
-        self.traces = bool(kinds & {"ShaderNodeAmbientOcclusion", "ShaderNodeBevel"})
+        self.traces = bool(kinds & {"ShaderNodeAmbientOcclusion", "ShaderNodeBevel", "ShaderNodeRaycast"})
         self.bevels = "ShaderNodeBevel" in kinds
         self.emissive = np.array([_may_emit(s.closures) for s in self.shaders], bool)
         # Emission that depends on more than the material: a texture, or layers above it (Principled).
