@@ -439,3 +439,36 @@ def test_instances_read_again_line_up_with_the_export():
     assert export_instances(bpy.context.evaluated_depsgraph_get(), exported.index) is None
     # A final render's export keeps small meshes in world space: it cannot move them.
     assert not export_scene(bpy.context.evaluated_depsgraph_get()).index.movable
+
+
+def _lamp_emission(lamp):
+    """The lamp's node tree (made on Blender 5.0, where lamps start without one) and its Emission node."""
+    if lamp.data.node_tree is None:
+        lamp.data.use_nodes = True
+    return next(n for n in lamp.data.node_tree.nodes if n.bl_idname == "ShaderNodeEmission")
+
+
+def test_editing_a_lamps_node_tree_updates_lights_only(counts):
+    """A constant lamp tree folds into the light table: an edit of its Emission Strength updates the lights."""
+    scene, ball, panel, lamp = studio()
+    strength = _lamp_emission(lamp).inputs["Strength"]
+    cost, got, want = edit_and_compare(counts, lambda: setattr(strength, "default_value", 3.0))
+    assert cost["builds"] == 0 and cost["meshes"] == 0 and cost["mesh_reads"] == 0, cost
+    assert cost["lights"] == 1, cost
+    np.testing.assert_array_equal(got, want)
+
+
+def test_a_lamp_tree_that_varies_exports_again(counts):
+    """A lamp whose emission varies keeps a program that reads the export's images and scene data: a tree edit
+    that makes it vary exports the scene again, and renders as a full export does."""
+    scene, ball, panel, lamp = studio()
+    emission = _lamp_emission(lamp)
+
+    def edit():
+        tree = lamp.data.node_tree
+        falloff = tree.nodes.new("ShaderNodeLightFalloff")
+        falloff.inputs["Strength"].default_value = 2.0
+        tree.links.new(falloff.outputs["Linear"], emission.inputs["Strength"])
+    cost, got, want = edit_and_compare(counts, edit)
+    assert cost["builds"] == 1, cost
+    np.testing.assert_array_equal(got, want)
