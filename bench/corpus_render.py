@@ -53,8 +53,7 @@ def lacking_settings(scene) -> list[str]:
               ("min_transparent_bounces", c.min_transparent_bounces > 0),
               ("light_sampling_threshold", c.light_sampling_threshold > 0), ("use_light_tree", not c.use_light_tree),
               ("film_exposure", c.film_exposure != 1.0), ("use_fast_gi", c.use_fast_gi),
-              ("texture_limit_render", c.texture_limit_render != "OFF"), ("shading_system (OSL)", c.shading_system),
-              ("film_transparent_glass", scene.render.film_transparent and c.film_transparent_glass))
+              ("texture_limit_render", c.texture_limit_render != "OFF"), ("shading_system (OSL)", c.shading_system))
     for name, active in checks:
         if active:
             value = getattr(c, name.split(" ")[0])

@@ -99,8 +99,18 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         time_limit_s=float(ember.time_limit if time_limit is None else time_limit),
         region=region,
         transparent_background=bool(scene.render.film_transparent),
+        transparent_glass=transparent_glass(scene),
         quick_first_pass=not _background(),
     )
+
+
+def transparent_glass(scene) -> float | None:
+    """Film > Transparent > Transparent Glass, Cycles' own setting (scene.cycles, so that a file set up for Cycles
+    renders alike): its Roughness Threshold where the film is transparent and the option on, else None."""
+    cycles = getattr(scene, "cycles", None)
+    if not scene.render.film_transparent or cycles is None or not getattr(cycles, "film_transparent_glass", False):
+        return None
+    return float(max(getattr(cycles, "film_transparent_roughness", 0.1), 0.0))
 
 
 def format_time(seconds: float) -> str:

@@ -171,6 +171,14 @@ class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):
     def draw(self, context):
         layout = split_layout(self.layout)
         layout.prop(context.scene.render, "film_transparent", text="Transparent")
+        cycles = getattr(context.scene, "cycles", None)
+        if cycles is not None:   # Cycles' own settings, read as Cycles reads them (session.transparent_glass)
+            sub = layout.column()
+            sub.active = context.scene.render.film_transparent
+            sub.prop(cycles, "film_transparent_glass", text="Transparent Glass")
+            row = sub.row()
+            row.active = context.scene.render.film_transparent and cycles.film_transparent_glass
+            row.prop(cycles, "film_transparent_roughness", text="Roughness Threshold")
         col = layout.column()
         col.prop(context.scene.ember, "pixel_filter_type", text="Pixel Filter")
         sub = col.column()

@@ -10,7 +10,7 @@ from . import light_groups, passes, sampling, shadow_linking, visibility
 from .interaction import RayInfo
 from .lights.sampler import LightHits
 from .media import stage as media_stage
-from .paths import facing_of
+from .paths import facing_of, seen_through
 
 # ---- stage: lights with a surface, found by BSDF rays and by camera rays (those of Ray Visibility > Camera)
 def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
@@ -107,8 +107,9 @@ def escaped(tables, wave, state, rays, hits, ended=None):
         _suns_seen_by_camera(tables, wave, state, rays, miss)
     keep = np.ones(len(miss), bool)
     if wave.settings.transparent_background:
-        # Seen straight from the camera (through transparent surfaces only): a hole in alpha.
-        direct = state.bounce[miss] == 0
+        # Seen straight from the camera (through transparent surfaces only, and smooth glass with Transparent
+        # Glass): a hole in alpha.
+        direct = seen_through(state, miss)
         seen = miss[direct]
         if len(seen):
             wave.alpha[state.path[seen]] -= np.take(state.throughput, seen, axis=1).mean(axis=0)

@@ -24,8 +24,8 @@ from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit
 from .lights import nee
 from .media import stage as media_stage
-from .paths import (PathState, may_scatter, ray_keys, roulette_stops, roulette_verdict,
-                    roulette_weights, type_limits)
+from .paths import (PathState, may_scatter, ray_keys, roulette_stops, roulette_verdict, roulette_weights,
+                    seen_through, type_limits)
 from .rays import Rays, below, concat_rays, leaves_its_side, spawn
 from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
@@ -193,6 +193,8 @@ def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None)
         state.link_set, state.scattered = np.zeros(n, np.uint8), np.zeros(n, bool)
     if tables.shapes is not None:
         state.self_key = np.full(n, -1, np.int64)
+    if settings.transparent_background and settings.transparent_glass is not None:
+        state.see_through = np.ones(n, bool)
     if tables.media is not None:
         state.media = tables.media.start_stack(n) if media is None else np.repeat(media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
@@ -311,7 +313,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     tables.crew.check_stop()
     if state.pass_weights is not None:
         passes.first_bounce_shares(tables, state, closures, bs)
-    if lit and tables.glass_escapes_on:
+    # (Not with Transparent Glass: the world a smooth glass branch escapes to may be alpha instead.)
+    if lit and tables.glass_escapes_on and state.see_through is None:
         glass_escapes(tables, wave, state, hit, closures, bs, receiver)
     alive = _continues(tables, wave, hit, state, bs, numbers, focus, closures)
     if receiver is not None:   # the next ray leaves this object (transparent pass-throughs keep the last one's)
@@ -431,7 +434,7 @@ def _moved_by(tables, i: int, t: np.ndarray):
 
 # ---- stage: Holdout closures cut a hole in alpha where the camera sees them
 def _holdout(wave, state, shading):
-    held = np.flatnonzero((shading.holdout > 0) & (state.bounce == 0))
+    held = np.flatnonzero((shading.holdout > 0) & seen_through(state))
     if len(held):
         share = np.take(shading.holdout, held) * np.take(state.throughput, held, axis=1).mean(axis=0)
         wave.alpha[state.path[held]] -= share
@@ -445,7 +448,7 @@ def _held_out(tables, wave, state, hits, found):
     of one. through (or None): those on a material that may be transparent, kept in found: they are shaded,
     and _held_transparent keeps only their transparency. Later rays see the object as a plain one (Cycles
     tests the holdout for camera paths only)."""
-    camera = found[np.take(state.bounce, found) == 0]
+    camera = found[seen_through(state, found)]
     if not len(camera):
         return found, None
     held = camera[visibility.holdouts(tables, np.take(hits.prim, camera))]
@@ -516,6 +519,8 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None)
                                              passing & ~np.take(tables.media.boundary, hit.mat))
     alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
     state.bounce = state.bounce + (~passing & ~entering)
+    if state.see_through is not None:
+        state.see_through &= passing | _through_clear_glass(wave, bs, closures)
     if state.portal is not None:
         state.portal = state.portal + portal
     # What a portal's ray finds counts in full (Cycles' PATH_RAY_MIS_SKIP): its pdf is inf.
@@ -542,6 +547,21 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None)
     state.continuation = roulette_verdict(wave, state, throughput, numbers, ~passing & ~entering)
     state.throughput = throughput
     return np.flatnonzero(alive)
+
+
+def _through_clear_glass(wave, bs, closures) -> np.ndarray:
+    """(N,) bool: samples that went through a closure smooth enough for Transparent Glass (Cycles' bsdf_sample
+    labels them LABEL_TRANSMIT_TRANSPARENT: a transmission, not diffuse, whose alpha_x alpha_y is at most the
+    threshold to the fourth, scene/background.cpp: the threshold is a roughness, its square an alpha), which keep
+    the path's see-through state."""
+    out = np.zeros(len(bs.pdf), bool)
+    rows = np.flatnonzero(bs.transmit & (bs.row >= 0))
+    if closures is None or not len(rows):
+        return out
+    r = bs.row[rows]
+    threshold = F32(wave.settings.transparent_glass) ** 4
+    out[rows] = ~closures.is_diffuse(r) & (closures.specular_roughness_squared(r) <= threshold)
+    return out
 
 
 # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)

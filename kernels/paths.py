@@ -87,6 +87,9 @@ class PathState:
     #                                      transparent pass-through (shadow linking's dedicated rays follow it)
     self_key: np.ndarray | None = None  # (N,) int64 the curve or point the ray leaves, which it skips
     #                                     (kernels.geometry.primitives), -1 none; None in scenes without them
+    see_through: np.ndarray | None = None  # (N,) bool: the path has only passed transparent surfaces and smooth
+    #                                        glass since the camera (Cycles' PATH_RAY_TRANSPARENT_BACKGROUND past
+    #                                        bounce 0); None without Transparent Glass (settings.transparent_glass)
 
     @classmethod
     def start(cls, n: int, samples: Samples) -> "PathState":
@@ -138,6 +141,8 @@ class PathState:
             self.scattered = np.take(self.scattered, idx)
         if self.self_key is not None:
             self.self_key = np.take(self.self_key, idx)
+        if self.see_through is not None:
+            self.see_through = np.take(self.see_through, idx)
 
     @classmethod
     def concat(cls, a: "PathState", b: "PathState") -> "PathState":
@@ -165,7 +170,7 @@ class PathState:
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
                      "portal", "segments", "media", "volume_bounces", "volume_bounds", "mis_facing", "link_set",
-                     "scattered", "self_key"):
+                     "scattered", "self_key", "see_through"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)
         state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)
@@ -202,6 +207,16 @@ class PathState:
 
     def __len__(self) -> int:
         return len(self.path)
+
+
+def seen_through(state, rows=None) -> np.ndarray:
+    """(n,) bool of the paths rows (all where None): still seen from the camera, for a transparent film and
+    holdouts (Cycles' PATH_RAY_TRANSPARENT_BACKGROUND): camera rays past transparent surfaces only, and with
+    Transparent Glass past smooth glass too (PathState.see_through)."""
+    bounce = state.bounce if rows is None else np.take(state.bounce, rows)
+    if state.see_through is None:
+        return bounce == 0
+    return (bounce == 0) | (state.see_through if rows is None else np.take(state.see_through, rows))
 
 
 def ray_keys(state, rows):

@@ -25,6 +25,10 @@ class RenderSettings:
     time_limit_s: float = 0.0
     region: tuple | None = None
     transparent_background: bool = False
+    # Cycles' Film > Transparent > Transparent Glass, with transparent_background: the Roughness Threshold, or None
+    # for off. The world seen through glass whose transmission is that smooth (and transparent surfaces) makes
+    # alpha, as the world seen straight from the camera does.
+    transparent_glass: float | None = None
     wave_size: int | None = None
     transparent_max_bounces: int = 8
     # Cycles' per-type limits (Light Paths > Max Bounces: Diffuse, Glossy, Transmission), None for none: a path

@@ -272,14 +272,19 @@ def assert_same_image(a, var_a, b, var_b, block: int = 8, z_block: float = 4.5, 
     assert abs(whole) < z_whole, whole
 
 
-def replicate_render(scene, engine: str, samples: int, **kwargs):
+def replicate_render(scene, engine: str, samples: int, alpha: bool = False, **kwargs):
     """Independent renders with different seeds splitting `samples` between them: their mean is the
     estimate, their spread its noise (len(REPLICATE_SEEDS) - 1 degrees of freedom per pixel).
-    Returns (mean (H, W, 3), per-pixel variance of the mean (H, W, 3))."""
+    Returns (mean (H, W, 3), per-pixel variance of the mean (H, W, 3)): of RGB, or with alpha of the alpha
+    channel (in all three)."""
     k = len(REPLICATE_SEEDS)
-    renders = np.stack([render_to_array(scene, engine, max(samples // k, 1), seed=seed, **kwargs)[..., :3]
+    renders = np.stack([_channels(render_to_array(scene, engine, max(samples // k, 1), seed=seed, **kwargs), alpha)
                         for seed in REPLICATE_SEEDS]).astype(np.float64)
     return renders.mean(axis=0), renders.var(axis=0, ddof=1) / k
+
+
+def _channels(image: np.ndarray, alpha: bool) -> np.ndarray:
+    return np.repeat(image[..., 3:4], 3, axis=-1) if alpha else image[..., :3]
 
 
 def compare_to_cycles(scene, samples: int = 64, blocks: int = 8, z: float = 4.5, mean_tol: float = 0.02,

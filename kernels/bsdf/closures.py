@@ -25,8 +25,8 @@ from ..vec import F32
 from . import frames
 from .bump import BumpShadowing
 from .light_passes import weight_albedo
-from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, HAIR_CHIANG, HAIR_HUANG, LAMBERT, REFLECTION, REFRACTION,
-                    SELF_EVALUATED, SINGULAR_LOBES, TRANSMITTING_LOBES, TRANSPARENT)
+from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, HAIR_CHIANG, HAIR_HUANG, LAMBERT, MICROFACET_LOBES,
+                    REFLECTION, REFRACTION, SELF_EVALUATED, SINGULAR_LOBES, TRANSMITTING_LOBES, TRANSPARENT)
 from .mixture_eval import eval_at
 from .mixture_sample import BsdfSample, pick_closures, sample
 from .registry import LOBES
@@ -302,6 +302,14 @@ class ClosureSet:
     def sample(self, u_lobe, u1, u2, uc, warp=None) -> BsdfSample:
         """A direction per hit from the mixture: mixture_sample.sample, which says what the arguments are."""
         return sample(self, u_lobe, u1, u2, uc, warp)
+
+    def specular_roughness_squared(self, rows: np.ndarray) -> np.ndarray:
+        """(n,) float32 Cycles' bsdf_get_specular_roughness_squared of closure rows: 0 for a singular closure (a
+        delta one included), alpha_x alpha_y for microfacets, 1 for the others."""
+        micro = np.isin(self.lobe[rows], MICROFACET_LOBES)
+        value = np.where(micro, np.take(np.broadcast_to(self.ax, self.lobe.shape), rows)
+                         * np.take(np.broadcast_to(self.ay, self.lobe.shape), rows), F32(1.0))
+        return np.where(self.delta[rows] | np.isin(self.lobe[rows], SINGULAR_LOBES), F32(0.0), value).astype(F32)
 
     def is_diffuse(self, rows: np.ndarray) -> np.ndarray:
         """Whether closure rows are diffuse lobes (Cycles' LABEL_DIFFUSE: Lambert, Oren-Nayar, Translucent,

@@ -298,6 +298,8 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     alive = (pdf > 0) & ((throughput[0] > 0) | (throughput[1] > 0) | (throughput[2] > 0))
     state.bounce = state.bounce + 1
     state.volume_bounces = state.volume_bounces + 1
+    if state.see_through is not None:   # a scattering in a medium is no smooth glass
+        state.see_through[:] = False
     # Where the segment took its light sample without MIS (direct_light), the phase sample's rays count no light
     # that sampling can find: a pdf that MIS weighs to 0 against any light's, to 1 where none samples it.
     state.bsdf_pdf = np.where(scattered.lit, NO_MIS_PDF, pdf).astype(F32)
