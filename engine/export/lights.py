@@ -133,8 +133,9 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         return None
     if np.any(strength < 0):
         # Cycles subtracts light for negative power; Ember's light sampling needs power >= 0.
-        warnings.append(f"Light '{name}' has negative power ({float(light.energy):g} W, its node tree's emission "
-                        f"{_triple(factor)}): negative lights are not supported, skipped")
+        tree = "" if np.all(factor == 1) else f", its node tree's emission {_triple(factor)}"
+        warnings.append(f"Light '{name}' has negative power ({float(light.energy):g} W{tree}): negative lights are "
+                        f"not supported, skipped")
         return None
     if np.all(strength <= 0):
         return None
