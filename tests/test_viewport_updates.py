@@ -472,3 +472,17 @@ def test_a_lamp_tree_that_varies_exports_again(counts):
     cost, got, want = edit_and_compare(counts, edit)
     assert cost["builds"] == 1, cost
     np.testing.assert_array_equal(got, want)
+
+
+def test_a_material_edit_beside_a_varying_lamp_exports_again(counts):
+    """A lamp whose emission varies keeps a program indexing the export's textures: a shading edit, which reads
+    the textures anew, exports the scene again and renders as a full export does."""
+    scene, ball, panel, lamp = studio()
+    emission = _lamp_emission(lamp)
+    tree = lamp.data.node_tree
+    falloff = tree.nodes.new("ShaderNodeLightFalloff")
+    tree.links.new(falloff.outputs["Linear"], emission.inputs["Strength"])
+    color = scene.world.node_tree.nodes["Background"].inputs["Color"]
+    cost, got, want = edit_and_compare(counts, lambda: setattr(color, "default_value", (0.6, 0.3, 0.1, 1)))
+    assert cost["builds"] == 1, cost
+    np.testing.assert_array_equal(got, want)

@@ -293,6 +293,8 @@ def export_changes(depsgraph, index: ExportIndex, parts: frozenset, scene: Scene
         if _same_placement(scene, *placed):
             placed = None   # object-level updates that change nothing Ember reads (a material edit's)
     if SHADING in parts:
+        if scene.lights.shader is not None:   # lamp programs index the export's textures, which this reads anew
+            return None
         shading = export_shading(depsgraph, index)
         if shading is None:
             return None
