@@ -89,13 +89,14 @@ def test_vector_math_round_exists_from_5_2(version, offered):
 
 @pytest.mark.skipif(bpy.app.version < (5, 3, 0), reason="these nodes and inputs are Blender 5.3's")
 def test_what_5_1_to_5_3_added_and_ember_does_not_render_warns_by_name():
-    """Raycast, Scene Time, Principled Thin Wall, Glass anisotropy: each named in the material's warning."""
+    """Shadow Raycast, Scene Time, Principled Thin Wall, Glass anisotropy: each named in the material's warning (the
+    Raycast node is rendered: tests/test_raycast.py)."""
     from bpy_helpers import camera_only_scene
     scene = camera_only_scene()
     mat = bpy.data.materials.new("New")
     tree = mat.node_tree
     bsdf = tree.nodes["Principled BSDF"]
-    tree.links.new(tree.nodes.new("ShaderNodeRaycast").outputs[0], bsdf.inputs["Roughness"])
+    tree.links.new(tree.nodes.new("ShaderNodeShadowRaycast").outputs[0], bsdf.inputs["Roughness"])
     tree.links.new(tree.nodes.new("GeometryNodeInputSceneTime").outputs["Seconds"], bsdf.inputs["Metallic"])
     bsdf.inputs["Thin Wall"].default_value = True
     glass = tree.nodes.new("ShaderNodeBsdfGlass")
@@ -109,6 +110,6 @@ def test_what_5_1_to_5_3_added_and_ember_does_not_render_warns_by_name():
     mesh.materials.append(mat)
     scene.collection.objects.link(bpy.data.objects.new("Quad", mesh))
     text = " ".join(export_current().warnings)
-    for named in ("Raycast node 'Raycast'", "Scene Time node", "Thin Wall is not supported",
+    for named in ("Shadow Raycast 'Shadow Raycast'", "Scene Time node", "Thin Wall is not supported",
                   "Glass BSDF 'Glass BSDF' Anisotropy is not supported"):
         assert named in text, (named, text)
