@@ -124,6 +124,17 @@ def light_strength(light) -> np.ndarray:
 
 
 def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[str], shaders=None):
+    settings = getattr(light, "cycles", None)
+    if light.type == "AREA" and getattr(settings, "is_portal", False):
+        # Cycles' portal emits nothing and is not seen: it only guides the world's light samples through a window.
+        warnings.append(f"Light '{name}' is a light portal: Ember samples the world without it (the same image, "
+                        f"noisier indoors)")
+        return None
+    if settings is not None and int(getattr(settings, "max_bounces", 1024)) < 1024:
+        warnings.append(f"Light '{name}': Max Bounces {int(settings.max_bounces)} is not supported, the light reaches "
+                        f"every bounce")
+    if settings is not None and getattr(settings, "is_caustics_light", False):
+        warnings.append(f"Light '{name}': Shadow Caustics are not supported, ignored")
     if shaders is None:
         shaders = LightShaders()
     factor, shader = shaders.of(light, name, warnings)
