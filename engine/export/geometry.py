@@ -20,6 +20,7 @@ import numpy as np
 
 from ...kernels.geometry import normal_matrices
 from ...kernels.scene import NO_GROUP, OBJECT_COLUMNS, CornerRows, Instances, Prototype, object_rows, padded_triangles
+from ...kernels.shading.input_ops import PARTICLE_OUTPUTS, particle_attribute_name
 from ...kernels.textures import Texture
 from .adaptive import Dicing
 from .displacement import BlenderMesh, displace_mesh
@@ -33,7 +34,7 @@ UNLINKED_ROW = (0, 0, ALL_MASK, ALL_MASK)
 from .materials import MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_mesh, readable_mesh
 from .shapes import ShapeExport
-from .rgba_attributes import instancer_attribute, object_attribute, particle_attribute
+from .rgba_attributes import instancer_attribute, object_attribute, particle_values
 from .volumes import is_volume, read_volume
 
 
@@ -339,17 +340,22 @@ class ObjectValues(dict):
         self.time = (scene.frame_current + scene.frame_subframe) * render.frame_map_new / max(render.frame_map_old, 1)
 
 
+# Particle Info's object attribute names -> its outputs.
+_PARTICLE_NAMES = {particle_attribute_name(output): output for output in PARTICLE_OUTPUTS}
+
+
 def _object_attributes(inst, ob, names: tuple, cache: ObjectValues) -> dict:
     """{name: RGBA} of the Object ("object:"), Instancer ("instancer:") and particle ("particle:", Particle Info)
     attributes among names, for one depsgraph instance (read while it is valid); Object ones are the object's,
     read once per object."""
     out = {}
+    wanted = [_PARTICLE_NAMES[name] for name in names if name in _PARTICLE_NAMES]
+    if wanted:
+        out.update((particle_attribute_name(output), value)
+                   for output, value in particle_values(inst, wanted, cache.time).items())
     for name in names:
         kind, _, key = name.partition(":")
-        if kind not in OBJECT_ATTRIBUTE_KINDS:
-            continue
-        if kind == "particle":
-            out[name] = particle_attribute(inst, key, cache.time)
+        if kind not in OBJECT_ATTRIBUTE_KINDS or kind == "particle":
             continue
         if kind == "instancer" and inst.is_instance:
             out[name] = instancer_attribute(inst, ob, key)

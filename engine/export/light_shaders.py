@@ -43,8 +43,8 @@ class LightShaders:
         key = light.name_full
         if key not in self._read:
             issues: list[str] = []
-            self._read[key] = self._compile(tree, issues)
-            self._read[key] += (issues,)
+            factor, shader = self._compile(tree, issues)
+            self._read[key] = (factor, shader, issues)
         factor, shader, issues = self._read[key]
         if issues:
             warnings.append(f"Light '{name}': " + "; ".join(dict.fromkeys(issues)))

@@ -22,6 +22,7 @@ import numpy as np
 from ...kernels.programs import Op, Program, Ref
 from ...kernels.shading import sky
 from ...kernels.shading.ies import INVALID_PROFILE
+from ...kernels.shading.input_ops import particle_attribute_name
 from ...kernels.shading.ops import OPS, PURE_OPS
 from ...kernels.shading.program import constant, convert
 from ..version import blender_version
@@ -316,16 +317,12 @@ def _attribute(builder, node, groups):
 
 
 def _particle_info(builder, node, groups):
-    """Particle Info: each output read at export per instance, as an object attribute ("particle:<key>",
-    engine/export/rgba_attributes.py particle_attribute)."""
+    """Particle Info: each output read at export per instance, as an object attribute (particle_attribute_name,
+    engine/export/rgba_attributes.py particle_values)."""
     outputs = _linked_outputs(node)
     for identifier in outputs:
-        builder.attributes.add("particle:" + _snake(identifier))
+        builder.attributes.add(particle_attribute_name(identifier))
     return builder.add("PARTICLE_INFO", {}, outputs=outputs)
-
-
-def _snake(identifier: str) -> str:
-    return identifier.lower().replace(" ", "_")
 
 
 def _view_layer_attribute(builder, node) -> dict:

@@ -93,35 +93,32 @@ def instancer_attribute(inst, ob, name: str) -> tuple:
     return first_found((*owners, ob, getattr(ob, "data", None)), name)
 
 
-# Particle Info's outputs as object attributes ("particle:<key>"), and whether each is a vector.
-PARTICLE_KEYS = {"index": False, "random": False, "age": False, "lifetime": False, "location": True, "size": False,
-                 "velocity": True, "angular_velocity": True}
-
-
-def particle_attribute(inst, key: str, time: float) -> tuple:
-    """Particle Info's output `key` (PARTICLE_KEYS) of a depsgraph instance, as Cycles' sync_dupli_particle
-    stores it: the particle persistent_id[0] of the instance's particle system (its index; Age is the scene's
-    time, `time`, less its birth time; Location, Velocity and Angular Velocity its state). An instance of no
-    particle system, or of a child particle (Cycles keeps none), reads Cycles' zero particle: all 0, and Random
-    the hash of index 0. A scalar fills r, g and b."""
+def particle_values(inst, outputs, time: float) -> dict:
+    """{Particle Info output: RGBA} for outputs (kernels.shading.input_ops.PARTICLE_OUTPUTS names) of a depsgraph
+    instance, as Cycles' sync_dupli_particle stores them: the particle persistent_id[0] of the instance's
+    particle system (its index; Age is the scene's time, `time`, less its birth time; Location, Velocity and
+    Angular Velocity its state), read once. An instance of no particle system, or of a child particle (Cycles
+    keeps none), reads Cycles' zero particle: all 0, and Random the hash of index 0. A scalar fills r, g, b."""
     from ...kernels.shading.hash import hash_uint2_to_float
     system = getattr(inst, "particle_system", None) if inst is not None and inst.is_instance else None
     index = int(inst.persistent_id[0]) if system is not None else 0
     particle = system.particles[index] if system is not None and index < len(system.particles) else None
-    if key == "random":
-        value = float(hash_uint2_to_float(np.uint32(index if particle is not None else 0), np.uint32(0))[0])
-    elif particle is None:
-        return (0.0, 0.0, 0.0, 1.0)
-    elif key == "index":
-        value = float(index)
-    elif key == "age":
-        value = time - float(particle.birth_time)
-    elif key in ("lifetime", "size"):
-        value = float(getattr(particle, key))
-    else:
-        x, y, z = (float(c) for c in getattr(particle, key))
-        return (x, y, z, 1.0)
-    return (value, value, value, 1.0)
+    if particle is None:
+        index = 0
+    scalars = {"Index": float(index),
+               "Random": float(hash_uint2_to_float(np.uint32(index), np.uint32(0))[0])}
+    if particle is not None:
+        scalars.update({"Age": time - float(particle.birth_time), "Lifetime": float(particle.lifetime),
+                        "Size": float(particle.size)})
+    out = {}
+    for name in outputs:
+        if name in scalars:
+            out[name] = (scalars[name],) * 3 + (1.0,)
+        elif particle is None:
+            out[name] = (0.0, 0.0, 0.0, 1.0)
+        else:
+            out[name] = tuple(float(c) for c in getattr(particle, name.lower().replace(" ", "_"))) + (1.0,)
+    return out
 
 
 def view_layer_attribute(scene, view_layer, name: str) -> tuple:

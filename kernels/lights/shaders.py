@@ -17,7 +17,10 @@ import numpy as np
 from ..interaction import RayInfo
 from ..scene.objects import object_rows
 from ..shading.image_ops import map_to_sphere
+from ..shading.ops import OPS
+from ..shading.program import ProgramRun
 from ..shading.world import DirectionInputs
+from ..textures import luminance
 from ..vec import F32
 from .common import DISK, POINT, RECT, SPOT, SUN
 
@@ -117,8 +120,6 @@ class LampShaders:
         """(3, n) float32 emission of the varying lights `light` (n,) at points p with normals ng, seen along wi
         (each (n, 3)), t (n,) ray lengths: their programs' value, negative and non-finite parts read 0 (Ember's
         lights emit no negative light)."""
-        from ..shading.ops import OPS
-        from ..shading.program import ProgramRun
         out = np.zeros((3, len(light)), F32)
         which = np.take(self.shader, light)
         for s in np.unique(which):
@@ -154,7 +155,6 @@ class LampShaders:
         """The light's mean emission (luminance) toward a sphere of directions at unit distance from its centre,
         for its power in the light selection: 1 where it reads 0 there (the selection needs power wherever the
         light may emit; only noise depends on it)."""
-        from ..textures import luminance
         k = np.arange(_ESTIMATE_POINTS) + 0.5
         z = 1.0 - 2.0 * k / _ESTIMATE_POINTS
         phi = np.pi * (1.0 + 5.0 ** 0.5) * k

@@ -332,13 +332,23 @@ def attribute(hits, inputs, op):
     return {"Color": vec, "Vector": vec, "Fac": fac, "Alpha": alpha}
 
 
+# Particle Info's outputs and whether each is a vector; the export reads each per instance as the object attribute
+# particle_attribute_name(output) (engine/export/rgba_attributes.py particle_values).
+PARTICLE_OUTPUTS = {"Index": False, "Random": False, "Age": False, "Lifetime": False, "Location": True,
+                    "Size": False, "Velocity": True, "Angular Velocity": True}
+
+
+def particle_attribute_name(output: str) -> str:
+    return "particle:" + output.lower().replace(" ", "_")
+
+
 def particle_info(hits, inputs, op):
-    """Particle Info (svm_node_particle_info): the outputs the export read per instance ("particle:<key>" object
-    attributes: engine/export/rgba_attributes.py particle_attribute); zero where none was read (a world, a lamp)."""
+    """Particle Info (svm_node_particle_info): the outputs the export read per instance (object attributes,
+    particle_attribute_name); zero where none was read (a world, a lamp)."""
     out = {}
     for name in op.option("outputs", ()):
-        values = hits.attribute("particle:" + name.lower().replace(" ", "_"))
-        vector = name in ("Location", "Velocity", "Angular Velocity")
+        values = hits.attribute(particle_attribute_name(name))
+        vector = PARTICLE_OUTPUTS[name]
         if values is None:
             out[name] = np.zeros((hits.n, 3) if vector else hits.n, F32)
         else:
