@@ -39,7 +39,8 @@ from tests.bpy_helpers import ensure_registered, load_exr  # noqa: E402
 # scene.cycles -> scene.ember, same meaning and units.
 SHARED_SETTINGS = ("max_bounces", "diffuse_bounces", "glossy_bounces", "transmission_bounces",
                    "transparent_max_bounces", "sample_clamp_direct", "sample_clamp_indirect",
-                   "blur_glossy", "caustics_reflective", "caustics_refractive", "pixel_filter_type", "filter_width")
+                   "blur_glossy", "caustics_reflective", "caustics_refractive", "pixel_filter_type", "filter_width",
+                   "volume_bounces", "volume_biased", "volume_step_rate", "volume_max_steps")
 
 
 def lacking_settings(scene) -> list[str]:
@@ -47,12 +48,12 @@ def lacking_settings(scene) -> list[str]:
     'name=value' (only those not at the value that makes them inert)."""
     c = scene.cycles
     lacking = []
-    if c.volume_bounces > 0:
-        lacking.append(f"volume_bounces={c.volume_bounces}")
     checks = (("min_light_bounces", c.min_light_bounces > 0),
               ("min_transparent_bounces", c.min_transparent_bounces > 0),
-              ("light_sampling_threshold", c.light_sampling_threshold > 0), ("use_light_tree", not c.use_light_tree),
-              ("film_exposure", c.film_exposure != 1.0), ("use_fast_gi", c.use_fast_gi),
+              # Cycles reads the threshold only without the light tree (scene/integrator.cpp)
+              ("light_sampling_threshold", c.light_sampling_threshold > 0 and not c.use_light_tree),
+              ("use_light_tree", not c.use_light_tree),
+              ("use_fast_gi", c.use_fast_gi),
               ("texture_limit_render", c.texture_limit_render != "OFF"), ("shading_system (OSL)", c.shading_system))
     for name, active in checks:
         if active:

@@ -100,8 +100,15 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         region=region,
         transparent_background=bool(scene.render.film_transparent),
         transparent_glass=transparent_glass(scene),
+        exposure=film_exposure(scene),
         quick_first_pass=not _background(),
     )
+
+
+def film_exposure(scene) -> float:
+    """Film > Exposure, Cycles' own setting (scene.cycles.film_exposure, read so that a file set up for Cycles
+    renders alike; 1 without Cycles)."""
+    return float(max(getattr(getattr(scene, "cycles", None), "film_exposure", 1.0), 0.0))
 
 
 def transparent_glass(scene) -> float | None:

@@ -170,8 +170,10 @@ class EMBER_RENDER_PT_film(EmberPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = split_layout(self.layout)
-        layout.prop(context.scene.render, "film_transparent", text="Transparent")
         cycles = getattr(context.scene, "cycles", None)
+        if cycles is not None:   # Cycles' own setting, read as Cycles reads it (session.film_exposure)
+            layout.prop(cycles, "film_exposure", text="Exposure")
+        layout.prop(context.scene.render, "film_transparent", text="Transparent")
         if cycles is not None:   # Cycles' own settings, read as Cycles reads them (session.transparent_glass)
             sub = layout.column()
             sub.active = context.scene.render.film_transparent

@@ -85,6 +85,14 @@ class BakeJob:
     def has(self, bit: int) -> bool:
         return bool(self.pass_filter & bit)
 
+    @property
+    def exposed(self) -> bool:
+        """Whether Film > Exposure scales the bake, as it scales the pass Cycles bakes from (scene/pass.cpp
+        use_exposure): Combined, Emit, Environment and light, not a colour alone nor data."""
+        if self.kind in LIGHT_KINDS:
+            return self.has(FILTER_DIRECT) or self.has(FILTER_INDIRECT)
+        return self.kind in ("COMBINED", "EMIT", "ENVIRONMENT")
+
 
 def _shade_first(tables, state, first: FirstHits, split):
     """The SurfaceHit and SurfaceShading of the first hits, as the integrator's first vertex shades them."""
@@ -393,6 +401,8 @@ def bake(tables, image: BakeTexels, job: BakeJob, settings, should_stop=None, on
             guides[name][chunk] = (total / spp).T
         if kind == "COMBINED":
             out[chunk, 3] = alpha / spp
+    if job.exposed and float(settings.exposure) != 1.0:
+        out[:, :3] *= F32(settings.exposure)
     return out
 
 

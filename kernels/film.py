@@ -27,8 +27,11 @@ class Film:
     """
 
     def __init__(self, width: int, height: int, adaptive: bool = False, passes: tuple = (), cryptomatte: tuple = (),
-                 cryptomatte_depth: int = 6, transparent: bool = False):
+                 cryptomatte_depth: int = 6, transparent: bool = False, exposure: float = 1.0):
         self.width, self.height = width, height
+        # Film > Exposure, applied where the film is read, as Cycles' pass accessor applies it: the sums stay
+        # the radiance's, so that the shadow catcher's ratios and the merged ranges are the same either way.
+        self.exposure = float(exposure)
         columns = width if adaptive else 1
         self.sums = np.zeros((height, width, 4), np.float64)
         self.half = np.zeros((height, width, 3), np.float32) if adaptive else None
@@ -76,7 +79,17 @@ class Film:
 
     def resolve_pass(self, name: str, row0: int = 0, row1: int | None = None) -> np.ndarray:
         """(rows, width, C) float32 of a data pass, as Cycles reads its passes: averaged ones divided by the
-        pixel's samples; Depth 1e10 where sample 0 saw no surface."""
+        pixel's samples; Depth 1e10 where sample 0 saw no surface; light passes times Film > Exposure."""
+        values = self._pass(name, row0, row1)
+        if self.exposure != 1.0:
+            if _passes.exposed(name):
+                values[..., :3] *= np.float32(self.exposure)
+            elif _passes.kind(name) == "NOISE":   # the variance of Combined, which the exposure scales
+                values *= np.float32(self.exposure ** 2)
+        return values
+
+    def _pass(self, name: str, row0: int, row1: int | None) -> np.ndarray:
+        """resolve_pass before the exposure."""
         row1 = self.height if row1 is None else row1
         if name == shadow_catcher.PASS:
             if not self.catchers:   # no shadow catcher: nothing to divide, 1 everywhere (as Cycles)
@@ -115,12 +128,13 @@ class Film:
         """(rows, width, 4) float32 Combined of rows [row0, row1): the mean of the samples, or where the scene has
         shadow catchers, what Cycles shows of them (kernels/shadow_catcher.py); pixels without samples are zero."""
         mean = self.mean(row0, row1)
-        if not self.catchers:
-            return mean
-        row1 = self.height if row1 is None else row1
-        out = shadow_catcher.combined(mean, *self.catcher_planes(row0, row1), self.approximate_catchers)
-        out[np.broadcast_to(self.pixel_samples[row0:row1] == 0, out.shape[:2])] = 0.0
-        return out
+        if self.catchers:
+            row1 = self.height if row1 is None else row1
+            mean = shadow_catcher.combined(mean, *self.catcher_planes(row0, row1), self.approximate_catchers)
+            mean[np.broadcast_to(self.pixel_samples[row0:row1] == 0, mean.shape[:2])] = 0.0
+        if self.exposure != 1.0:   # RGB, not alpha (Cycles' film_get_pass_pixel_combined)
+            mean[..., :3] *= np.float32(self.exposure)
+        return mean
 
     def mean(self, row0: int = 0, row1: int | None = None) -> np.ndarray:
         """(rows, width, 4) float32 mean of the samples of rows [row0, row1); pixels without samples are zero."""
@@ -131,9 +145,9 @@ class Film:
 
     def catcher_planes(self, row0: int, row1: int):
         """The means of the shadow catchers' planes: matte, catcher, splits, and background (None without)."""
-        planes = [self.resolve_pass(name, row0, row1) for name in
+        planes = [self._pass(name, row0, row1) for name in
                   (shadow_catcher.MATTE, shadow_catcher.CATCHER, shadow_catcher.SPLITS)]
-        background = self.resolve_pass(shadow_catcher.BACKGROUND, row0, row1) if self.catcher_background else None
+        background = self._pass(shadow_catcher.BACKGROUND, row0, row1) if self.catcher_background else None
         return (*planes, background)
 
     @property
@@ -151,11 +165,13 @@ class Film:
         """Cycles' adaptive sampling check (film_adaptive_sampling_convergence_check and its filters): a
         pixel converges when |mean - mean of its odd samples| summed over RGB, over sqrt of its summed mean
         (the mean itself above 1), is below 5 x threshold; a converged pixel beside an unconverged one
-        (in its row or column) goes on."""
+        (in its row or column) goes on. Film > Exposure scales the mean it judges, as Cycles'."""
         n = np.maximum(self.pixel_samples, 1).astype(np.float64)[:, :, None]
         mean = self.sums[:, :, :3] / n
         # The odd samples are every second one: their mean estimates the same value from half as many.
         odd = 2.0 * self.half / n
+        if self.exposure != 1.0:
+            mean, odd = mean * self.exposure, odd * self.exposure
         difference = np.abs(mean - odd).sum(axis=2)
         intensity = mean.sum(axis=2)
         normalize = np.where(intensity < 1.0, np.sqrt(np.maximum(intensity, 0.0)), intensity)

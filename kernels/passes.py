@@ -105,6 +105,12 @@ def kind(name: str) -> str:
     return "MEAN" if name.startswith("aov:") else PASSES[name][1]
 
 
+def exposed(name: str) -> bool:
+    """Whether Film > Exposure scales the pass, as Cycles' (scene/pass.cpp use_exposure): the light passes,
+    Emission, Environment and the light groups; not the data passes, the colours nor the Shadow Catcher."""
+    return kind(name) in ("LIGHT", "LIGHTGROUP") or name in ("emission", "environment")
+
+
 def recorded(name: str) -> bool:
     """Whether the paths write the pass (a CATCHER pass is made from others when read)."""
     return kind(name) != "CATCHER"

@@ -369,7 +369,7 @@ def render_passes(tracer, crew: "WaveCrew", settings: RenderSettings, on_tile=No
     width, height = x1 - x0, y1 - y0
     film = Film(width, height, adaptive=settings.adaptive_threshold > 0, passes=settings.passes,
                 cryptomatte=settings.cryptomatte, cryptomatte_depth=settings.cryptomatte_depth,
-                transparent=settings.transparent_background)
+                transparent=settings.transparent_background, exposure=settings.exposure)
     total = int(settings.samples)
     start = time.perf_counter()
     crew.begin(should_stop)

@@ -29,6 +29,8 @@ class RenderSettings:
     # for off. The world seen through glass whose transmission is that smooth (and transparent surfaces) makes
     # alpha, as the world seen straight from the camera does.
     transparent_glass: float | None = None
+    # Cycles' Film > Exposure: Combined and the light passes are read out multiplied by it (kernels.film.Film).
+    exposure: float = 1.0
     wave_size: int | None = None
     transparent_max_bounces: int = 8
     # Cycles' per-type limits (Light Paths > Max Bounces: Diffuse, Glossy, Transmission), None for none: a path
@@ -123,6 +125,8 @@ class RenderSettings:
         if int(self.adaptive_min_samples) < 0:
             raise ValueError(f"adaptive_min_samples: must be non-negative (0 is automatic), got "
                              f"{self.adaptive_min_samples}")
+        if not (np.isfinite(self.exposure) and self.exposure >= 0):
+            raise ValueError(f"exposure: must be finite and non-negative, got {self.exposure}")
         for name in ("clamp_direct", "clamp_indirect", "filter_glossy", "adaptive_threshold"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):

@@ -223,7 +223,6 @@ def configure_cycles(scene, samples: int, seed: int, max_bounces: int, type_boun
     c.caustics_reflective = True
     c.caustics_refractive = True
     c.use_auto_tile = False
-    scene.cycles.film_exposure = 1.0
 
 
 def load_exr(path: str) -> np.ndarray:
