@@ -154,13 +154,40 @@ def test_light_portal_emits_nothing_as_in_cycles():
     compare_to_cycles(scene, samples=64, max_bounces=3, mean_z=4.0)
 
 
-def test_per_light_settings_ember_ignores_are_named():
-    """A lamp's Max Bounces below Cycles' 1024 and its Shadow Caustics change Cycles' image; Ember renders without
-    them and says so."""
+def test_shadow_caustics_ember_ignores_are_named():
+    """A lamp's Shadow Caustics (Cycles' MNEE) change Cycles' image; Ember renders without them and says so. Its Max
+    Bounces is rendered (test_max_bounces_of_lamps_and_world_match_cycles), and not named."""
     from bpy_helpers import export_current
     scene = stage(16, 16)
     lamp = add_light(scene, "POINT", energy=200.0)
     lamp.data.cycles.max_bounces, lamp.data.cycles.is_caustics_light = 2, True
     warnings = export_current().warnings
-    assert any("Light 'Point': Max Bounces 2 is not supported" in w for w in warnings), warnings
+    assert not any("Max Bounces" in w for w in warnings), warnings
     assert any("Light 'Point': Shadow Caustics are not supported" in w for w in warnings), warnings
+
+
+@pytest.mark.parametrize("limits", [(0, 1024, 1024), (1, 0, 1024), (None, None, 0)],
+                         ids=["area_0", "point_0_area_1", "world_0_no_lamps"])
+def test_max_bounces_of_lamps_and_world_match_cycles(limits):
+    """A lamp's Max Bounces and the world's (Cycles' own settings): Cycles drops a light sample of a light at a
+    vertex more bounces deep than its limit (kernel/light/light.h light_select_reached_max_bounces), so a lamp
+    with 0 lights only what the camera sees directly (and what BSDF rays meet of it, MIS-weighted). A box of
+    three walls lit by an area lamp, a point lamp and a grey world (None: no lamp), whose indirect light is a third
+    of the image: before, Ember ignored the limits (the image 10-30% brighter than Cycles')."""
+    area_limit, point_limit, world_limit = limits
+    scene = new_scene(32, 32)
+    add_camera(scene, (0, -3.5, 1.2), (0, 0, 0.9), lens=28)
+    if area_limit is None:   # a world that varies: Cycles samples a constant one by BSDF rays alone
+        set_world(scene, hdri="sunset.exr")
+    else:
+        set_world(scene, color=(0.4, 0.4, 0.45))
+    scene.world.cycles.max_bounces = world_limit
+    quad_object("Floor", (-2, -2, 0), (4, 0, 0), (0, 4, 0), diffuse_material("Floor", (0.8, 0.8, 0.8)))
+    quad_object("Back", (-2, 2, 0), (4, 0, 0), (0, 0, 2.5), diffuse_material("Back", (0.8, 0.8, 0.8)))
+    quad_object("Left", (-2, -2, 0), (0, 4, 0), (0, 0, 2.5), diffuse_material("Red", (0.8, 0.2, 0.1)))
+    if area_limit is not None:
+        area = add_light(scene, "AREA", location=(0.5, -0.5, 2.4), rotation=(0.2, 0, 0), energy=300.0, size=0.8)
+        area.data.cycles.max_bounces = area_limit
+        point = add_light(scene, "POINT", location=(-1.0, 1.0, 1.0), energy=150.0, shadow_soft_size=0.1)
+        point.data.cycles.max_bounces = point_limit
+    compare_to_cycles(scene, samples=128, max_bounces=4, mean_z=4.0)

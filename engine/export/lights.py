@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
+from ...kernels.scene.lights import NO_BOUNCE_LIMIT
 from ...kernels.scene.objects import BSDF_RAYS, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
 from ...kernels.textures import luminance
 from .light_groups import GroupTable, group_table, lamp_groups
@@ -93,6 +94,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         sphere=np.array(columns[10], bool) if any(columns[10]) else None,
         shader=np.array(columns[11], np.int32) if max(columns[11]) >= 0 else None,
         shaders=shaders.programs if max(columns[11]) >= 0 else (),
+        max_bounces=np.array(columns[12], np.int32) if min(columns[12]) < NO_BOUNCE_LIMIT else None,
     )
 
 
@@ -130,9 +132,6 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         warnings.append(f"Light '{name}' is a light portal: Ember samples the world without it (the same image, "
                         f"noisier indoors)")
         return None
-    if settings is not None and int(getattr(settings, "max_bounces", 1024)) < 1024:
-        warnings.append(f"Light '{name}': Max Bounces {int(settings.max_bounces)} is not supported, the light reaches "
-                        f"every bounce")
     if settings is not None and getattr(settings, "is_caustics_light", False):
         warnings.append(f"Light '{name}': Shadow Caustics are not supported, ignored")
     if shaders is None:
@@ -205,8 +204,10 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         warnings.append(f"Light '{name}' is too bright for Ember's float32 arithmetic (power {float(light.energy):g} W): "
                         f"clamped to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
         radiance = radiance * (MAX_LIGHT_RADIANCE / radiance.max())
+    # Max Bounces, Cycles' own setting (light.cycles), as Cycles' sync_light reads it.
+    bounces = min(max(int(getattr(settings, "max_bounces", NO_BOUNCE_LIMIT)), 0), NO_BOUNCE_LIMIT)
     return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)),
-            spread, sphere, shader)
+            spread, sphere, shader, bounces)
 
 
 def _triple(c) -> str:

@@ -24,6 +24,7 @@ import mathutils
 import numpy as np
 
 from ...kernels import World
+from ...kernels.scene.lights import NO_BOUNCE_LIMIT
 from ...kernels.textures import srgb_to_linear
 from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
 from .images import ImagePixels, ImageTextures
@@ -45,7 +46,14 @@ def export_world(world, warnings: list[str], images=None, layer_attribute=None) 
     if world is None:
         return result
     # Blender's sync hands Cycles the world's Light Settings > Distance as the integrator's AO distance.
-    return dataclasses.replace(result, ao_distance=max(float(world.light_settings.distance), 0.0))
+    # World > Settings > Light > Max Bounces (Cycles' own, read as Cycles' sync_world reads it for its background light).
+    bounces = int(getattr(getattr(world, "cycles", None), "max_bounces", NO_BOUNCE_LIMIT))
+    result = dataclasses.replace(result, ao_distance=max(float(world.light_settings.distance), 0.0))
+    if bounces < NO_BOUNCE_LIMIT:
+        # Past the limit only BSDF rays see the world, weighted by MIS against light samples that no longer come:
+        # what they add depends on the light sampling's distribution, so it is Cycles' (World.mis_compensation).
+        result = dataclasses.replace(result, max_bounces=max(bounces, 0), mis_compensation=False, focus=False)
+    return result
 
 
 def _export_world(world, warnings: list[str], images, layer_attribute) -> World:

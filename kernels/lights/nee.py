@@ -70,7 +70,8 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
         receiver = None if receiver is None else receiver[active]
     else:
         px, py, pz = hit.p
-    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus, receiver, facing, catcher_emitters(wave))
+    ls = tables.lights.sample(px, py, pz, u_select, u1, u2, focus, receiver, facing, catcher_emitters(wave),
+                              _bounces(tables, state, active))
     tables.crew.check_stop()
     le = ls.radiance
     useful = np.flatnonzero((ls.pdf > 0) & ((le[0] > 0) | (le[1] > 0) | (le[2] > 0)))
@@ -168,10 +169,12 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     receiver: (m,) uint8 the points' light sets (Light Linking: their media's objects'), or None."""
     u_select, u1, u2 = numbers
     px, py, pz = (np.ascontiguousarray(p[:, k], np.float32) for k in range(3))
+    bounce = _bounces(tables, state, rows)
     if chosen is None:
-        ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None, receiver, None, catcher_emitters(wave))
+        ls = tables.lights.sample(px, py, pz, u_select, u1, u2, None, receiver, None, catcher_emitters(wave), bounce)
     else:
-        ls = tables.lights.sample_chosen(px, py, pz, chosen[0], chosen[1], u1, u2, None, catcher_emitters(wave))
+        ls = tables.lights.sample_chosen(px, py, pz, chosen[0], chosen[1], u1, u2, None, catcher_emitters(wave),
+                                         bounce)
     le = ls.radiance
     if ls.visibility is not None:   # lights that volume scattering does not see (Cycles' shade_volume.h)
         le = le * ~ray_visibility.scatter_excluded(ls.visibility)
@@ -223,6 +226,12 @@ def _visible_closures(closures, paths, ls, rows, f):
 def _groups(tables, wave, ls, rows):
     """passes.add_light's light group parts of the light samples rows of ls: each its emitter's group."""
     return None if wave.groups is None else [(None, light_groups.of_samples(tables, ls, rows), None)]
+
+
+def _bounces(tables, state, rows):
+    """The bounce counts of the paths rows (state rows), which lights with a Max Bounces read, or None when no
+    light has one."""
+    return None if tables.lights.bounce_limit is None else np.take(state.bounce, rows)
 
 
 def catcher_emitters(wave):

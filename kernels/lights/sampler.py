@@ -14,6 +14,7 @@ from ..light_tree import LightTree, rows_of
 from ..scene import SceneArrays
 from ..textures import luminance
 from . import area, point_spot, ray_visibility, selection, sun, triangles, world
+from ..scene.lights import NO_BOUNCE_LIMIT
 from .common import DISK, POINT, RECT, SPOT, SUN
 from .links import EmitterLinks, object_links, reaches, set_groups
 from .proxies import PROXY_MIN_LIGHTS, LightProxies
@@ -206,6 +207,16 @@ class LightSampler:
             EmitterLinks(self, objects, scene, power, self._triangle_rows(scene))
         # Light groups: each emitter's group (its light's pass), None when none is in one.
         self.groups = emitter_groups(scene, self.light_count, lambda: self._triangle_rows(scene))
+        # (L + E + 1,) int32 each emitter's Max Bounces (lamps' and the world's; triangles have none), or None when
+        # none limits: a light sample deeper than its emitter's limit carries no light (sample_chosen).
+        self.bounce_limit = None
+        world_limit = int(getattr(scene.world, "max_bounces", NO_BOUNCE_LIMIT))
+        if scene.lights.max_bounces is not None or world_limit < NO_BOUNCE_LIMIT:
+            limit = np.full(self.world_index + 1, NO_BOUNCE_LIMIT, np.int32)
+            if scene.lights.max_bounces is not None:
+                limit[:self.light_count] = scene.lights.max_bounces
+            limit[self.world_index] = world_limit
+            self.bounce_limit = limit
 
     def _triangle_rows(self, scene) -> np.ndarray:
         """(E,) int64 object row of each emissive triangle (0 without an object table)."""
@@ -322,20 +333,22 @@ class LightSampler:
         return selection.choose(self.choice, u_select)
 
     def sample(self, px, py, pz, u_select, u1, u2, focus=None, receiver=None, facing=None,
-               allowed=None) -> LightSample:
+               allowed=None, bounce=None) -> LightSample:
         """Choose an emitter for each shading point p and sample a direction toward it. focus: the world's
         (environment.WorldFocus per shading point) when its light samples focus on glossy lobes; receiver:
         (n,) uint8 the points' light sets (Light Linking), or None; facing: the points' (nx, ny, nz,
         two_sided) (selection.choose_at). allowed: (L + E + 1,) bool, the emitters these points may take light
         from (a shadow catcher's own paths: kernels/shadow_catcher.py), or None for all; a sample of another
-        carries no light, as Cycles' light_sample then gives none, and the choice keeps its probabilities."""
+        carries no light, as Cycles' light_sample then gives none, and the choice keeps its probabilities.
+        bounce: (n,) the points' bounce counts (PathState.bounce), for the emitters' Max Bounces (bounce_limit):
+        a sample of an emitter whose limit is below the point's count carries no light either."""
         n = len(px)
         if not self.has_lights or n == 0:
             return LightSample(n)
         chosen, select = self.choose_at(u_select, px, py, pz, receiver, facing)
-        return self.sample_chosen(px, py, pz, chosen, select, u1, u2, focus, allowed)
+        return self.sample_chosen(px, py, pz, chosen, select, u1, u2, focus, allowed, bounce)
 
-    def sample_chosen(self, px, py, pz, chosen, select, u1, u2, focus=None, allowed=None) -> LightSample:
+    def sample_chosen(self, px, py, pz, chosen, select, u1, u2, focus=None, allowed=None, bounce=None) -> LightSample:
         """sample() with the emitters already chosen (chosen (n,) emitter numbers, select (n,) the probability
         each was chosen with, which the pdf includes)."""
         n = len(px)
@@ -367,6 +380,8 @@ class LightSampler:
         out.pdf *= select
         if allowed is not None:
             out.radiance[:, ~np.take(allowed, chosen)] = 0.0
+        if bounce is not None and self.bounce_limit is not None:
+            out.radiance[:, np.asarray(bounce) > np.take(self.bounce_limit, chosen)] = 0.0
         return out
 
     def _shade_samples(self, out, chosen, px, py, pz) -> None:

@@ -147,7 +147,8 @@ def direct_light(tables, wave, state, inside, origins, dirs, t_end, may, first: 
     receiver = None if state.link_set is None else medium_receivers(tables, state.media[:, paths])
     chosen, select = lights.choose_at(ua, rx, ry, rz, receiver)
     chosen, select = np.array(chosen), np.asarray(select, np.float64).copy()
-    ls = lights.sample_chosen(rx, ry, rz, chosen, select.astype(F32), ub, uc)
+    ls = lights.sample_chosen(rx, ry, rz, chosen, select.astype(F32), ub, uc,
+                              bounce=None if lights.bounce_limit is None else np.take(state.bounce, paths))
     point = ref + np.stack([ls.wx, ls.wy, ls.wz], axis=1) * np.where(np.isfinite(ls.dist), ls.dist, 0.0)[:, None]
     aimed = np.isfinite(ls.dist) & (ls.pdf > 0)
     lo, hi = np.zeros(len(rows)), end.copy()

@@ -8,6 +8,8 @@ import numpy as np
 from .checks import check_array, require
 
 LIGHT_KINDS = {"POINT": 0, "SPOT": 1, "SUN": 2, "RECT": 3, "DISK": 4}
+# A light's Max Bounces that limits nothing (Blender's default and maximum, Cycles' Light::max_bounces default).
+NO_BOUNCE_LIMIT = 1024
 
 
 @dataclass(frozen=True)
@@ -50,6 +52,10 @@ class Lights:
         a Light Falloff), radiance is the light's strength alone and the program's emission, evaluated where each
         ray meets the light (kernels/lights/shaders.py: Cycles' light shader), multiplies it.
     shaders : ((kernels.programs.Program, Ref), ...) the light programs and the Ref of their emission (RGBA).
+    max_bounces : (L,) int32 or None (none limits): the light's Max Bounces (Cycles' own setting, light.cycles): a
+        light sample of it at a vertex more than that many bounces deep carries no light, as Cycles'
+        light_select_reached_max_bounces drops it (kernel/light/light.h; the choice keeps its probabilities, and
+        BSDF rays meeting the light still count, as in Cycles).
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -70,6 +76,7 @@ class Lights:
     sphere: np.ndarray | None = None
     shader: np.ndarray | None = None
     shaders: tuple = ()
+    max_bounces: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -110,6 +117,9 @@ class Lights:
                     "must be within [0, pi]")
         if self.sphere is not None:
             check_array(self.sphere, "lights.sphere", (n,), np.bool_, finite=False)
+        if self.max_bounces is not None:
+            check_array(self.max_bounces, "lights.max_bounces", (n,), np.int32, finite=False)
+            require(not n or int(self.max_bounces.min()) >= 0, "lights.max_bounces", "must be non-negative")
         if self.shader is not None:
             check_array(self.shader, "lights.shader", (n,), np.int32, finite=False)
             require(not n or (int(self.shader.min()) >= -1 and int(self.shader.max()) < len(self.shaders)),

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..programs import Program, Ref
 from .checks import check_array, require
+from .lights import NO_BOUNCE_LIMIT
 from .materials import Materials, Shader
 
 
@@ -40,6 +41,8 @@ class World:
     ao_distance : the world's Ambient Occlusion distance (World > Light Settings > Distance; 10 without a
         world, as Blender's sync sets Cycles' integrator), read by Ambient Occlusion nodes whose Distance is an
         unlinked 0 (Cycles' NODE_AO_GLOBAL_RADIUS, kernel/svm/ao.h).
+    max_bounces : the world's Max Bounces (World > Settings > Light): its light samples light only the vertices
+        at most that many bounces deep (NO_BOUNCE_LIMIT: all), as a lamp's (Lights.max_bounces).
     """
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.05, np.float32))
     hdri: np.ndarray | None = None
@@ -54,6 +57,7 @@ class World:
     focus: bool = True
     volume: object = None
     ao_distance: float = 10.0
+    max_bounces: int = NO_BOUNCE_LIMIT
 
     def validate(self) -> None:
         check_array(self.color, "world.color", (3,), np.float32)
@@ -62,6 +66,7 @@ class World:
                 f"must be finite and non-negative, got {self.strength}")
         check_array(self.env_from_world, "world.env_from_world", (3, 3), np.float32)
         require(self.ao_distance >= 0, "world.ao_distance", f"must be non-negative, got {self.ao_distance}")
+        require(int(self.max_bounces) >= 0, "world.max_bounces", f"must be non-negative, got {self.max_bounces}")
         if self.hdri is not None:
             h = self.hdri
             require(h.ndim == 3 and h.shape[2] in (1, 3) and h.shape[0] >= 1 and h.shape[1] >= 1,
