@@ -74,7 +74,7 @@ def _camera_hits(tables, wave, state, rays, hits, rows) -> LightHits:
     o, d = rays.origins[rows], rays.dirs[rows]
     budget = int(wave.settings.transparent_max_bounces) - state.transparent[rows]
     seen = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t[rows], budget,
-                                   allowed=allowed)
+                                   allowed=allowed, camera=True)
     return seen
 
 

@@ -191,3 +191,25 @@ def test_max_bounces_of_lamps_and_world_match_cycles(limits):
         point = add_light(scene, "POINT", location=(-1.0, 1.0, 1.0), energy=150.0, shadow_soft_size=0.1)
         point.data.cycles.max_bounces = point_limit
     compare_to_cycles(scene, samples=128, max_bounces=4, mean_z=4.0)
+
+
+def test_lamps_without_multiple_importance_match_cycles():
+    """A lamp's Multiple Importance off (Cycles' own setting): only its light samples light the scene, at full
+    weight; BSDF rays pass it and escaped rays see no such sun (Cycles' SHADER_USE_MIS), so a mirror ball shows
+    neither the area lamp nor the sun's disc, while the camera still sees the lamp it is set to see. Before, Ember
+    ignored the setting: the mirror reflected both."""
+    scene = new_scene(40, 32)
+    add_camera(scene, (0, -4.5, 1.6), (0, 0, 0.7), lens=35)
+    set_world(scene, color=(0.05, 0.05, 0.05))
+    quad_object("Floor", (-3, -3, 0), (6, 0, 0), (0, 6, 0),
+                node_material("Gloss", "ShaderNodeBsdfGlossy", Color=(0.8, 0.8, 0.8), Roughness=0.15))
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.7, location=(0, 0.3, 0.7), segments=32, ring_count=16)
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(
+        node_material("Mirror", "ShaderNodeBsdfGlossy", Color=(0.9, 0.9, 0.9), Roughness=0.0))
+    area = add_light(scene, "AREA", location=(-0.8, -1.2, 2.2), rotation=(0.5, -0.3, 0), energy=150.0, size=1.0)
+    area.visible_camera = True
+    sun = add_light(scene, "SUN", rotation=(0.9, 0.0, 2.6), energy=2.0, angle=math.radians(8))
+    for lamp in (area, sun):
+        lamp.data.cycles.use_multiple_importance_sampling = False
+    compare_to_cycles(scene, samples=128, max_bounces=3, mean_z=4.0)

@@ -95,6 +95,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         shader=np.array(columns[11], np.int32) if max(columns[11]) >= 0 else None,
         shaders=shaders.programs if max(columns[11]) >= 0 else (),
         max_bounces=np.array(columns[12], np.int32) if min(columns[12]) < NO_BOUNCE_LIMIT else None,
+        mis=None if all(columns[13]) else np.array(columns[13], bool),
     )
 
 
@@ -206,8 +207,9 @@ def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[st
         radiance = radiance * (MAX_LIGHT_RADIANCE / radiance.max())
     # Max Bounces, Cycles' own setting (light.cycles), as Cycles' sync_light reads it.
     bounces = min(max(int(getattr(settings, "max_bounces", NO_BOUNCE_LIMIT)), 0), NO_BOUNCE_LIMIT)
+    mis = bool(getattr(settings, "use_multiple_importance_sampling", True))
     return (kind, position, frame, radiance, radius, size, spot, sun_half, bool(getattr(light, "use_shadow", True)),
-            spread, sphere, shader, bounces)
+            spread, sphere, shader, bounces, mis)
 
 
 def _triple(c) -> str:

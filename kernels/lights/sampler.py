@@ -123,7 +123,11 @@ class LightSampler:
         self.sun_radiance = np.where(cone[:, None], lights.radiance / (np.pi * np.where(cone, sin2, 1.0))[:, None],
                                      lights.radiance).astype(np.float32)
         # Suns with a disc: rays that leave the scene toward one see it (Cycles' integrate_sun_lights).
-        self.sun_discs = np.flatnonzero((self.kind == SUN) & cone & (self.radiance_of.max(axis=1) > 0)) \
+        # (L,) bool the lamps with Multiple Importance off (Lights.mis), or None when none has it off: only their
+        # light samples see them (at full weight), no BSDF ray nor escaped ray.
+        self.mis_off = None if lights.mis is None else ~lights.mis
+        self.sun_discs = np.flatnonzero((self.kind == SUN) & cone & (self.radiance_of.max(axis=1) > 0) &
+                                        (True if self.mis_off is None else ~self.mis_off)) \
             if self.light_count else np.zeros(0, np.int64)
         self.area = np.where(self.kind == RECT, self.size[:, 0] * self.size[:, 1],
                              np.float32(np.pi / 4) * self.size[:, 0] * self.size[:, 1]).astype(np.float32)
@@ -370,6 +374,9 @@ class LightSampler:
                     method(self, out, idx, chosen[idx], px[idx], py[idx], pz[idx], u1[idx], u2[idx])
             if self.lamp_shaders is not None:
                 self._shade_samples(out, chosen, px, py, pz)
+            if self.mis_off is not None:   # MIS weight 1: no BSDF ray finds these lamps
+                lamp = chosen < self.light_count
+                out.delta |= lamp & np.take(self.mis_off, np.where(lamp, chosen, 0))
         tri = np.flatnonzero((chosen >= self.light_count) & (chosen < self.world_index))
         if len(tri):
             triangles.sample(self, out, tri, chosen[tri] - self.light_count, px[tri], py[tri], pz[tri], u1[tri], u2[tri])
@@ -430,7 +437,7 @@ class LightSampler:
         return self.has_lights and self.select_pmf[self.world_index] > 0
 
     def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None, receiver=None, facing=None,
-                  allowed=None, types=None) -> "LightHits":
+                  allowed=None, types=None, camera: bool = False) -> "LightHits":
         """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max, as Cycles'
         BSDF rays meet them (kernel/light/light.h lights_intersect, integrator/shade_light.h).
 
@@ -452,7 +459,8 @@ class LightSampler:
         bool, the lights the rays see (a shadow catcher's own paths pass the others: Cycles' lights_intersect
         skips lights excluded from them), or None for all. types: (N,) uint8 the rays' types (kernels/visibility.py
         ray_types), or None: a lamp that does not see a ray's type is met and crossed but gives it no light
-        (kernels/lights/ray_visibility.py)."""
+        (kernels/lights/ray_visibility.py). camera: the rays are camera rays, which see lamps whose Multiple
+        Importance is off (other rays pass them unseen)."""
         n = len(ox)
         out = LightHits(n)
         if not self.has_surface_lights or n == 0:
@@ -463,6 +471,9 @@ class LightSampler:
             ray, light = ray[keep], light[keep]
         if allowed is not None:
             seen = np.take(allowed, light)
+            ray, light = ray[seen], light[seen]
+        if self.mis_off is not None and not camera:   # not met, not crossed (Cycles' lights_intersect skips them)
+            seen = ~np.take(self.mis_off, light)
             ray, light = ray[seen], light[seen]
         if not len(ray):
             return out

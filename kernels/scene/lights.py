@@ -56,6 +56,10 @@ class Lights:
         light sample of it at a vertex more than that many bounces deep carries no light, as Cycles'
         light_select_reached_max_bounces drops it (kernel/light/light.h; the choice keeps its probabilities, and
         BSDF rays meeting the light still count, as in Cycles).
+    mis : (L,) bool or None (all True): the light's Multiple Importance (Cycles' own setting, light.cycles); off,
+        only its light samples light the scene, at full weight: BSDF rays pass it without seeing it, and escaped
+        rays see no sun that has it off (Cycles' SHADER_USE_MIS: kernel/light/light.h lights_intersect,
+        integrator/surface_shader.h, integrator/shade_background.h). Camera rays still see the lamps they see.
     """
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -77,6 +81,7 @@ class Lights:
     shader: np.ndarray | None = None
     shaders: tuple = ()
     max_bounces: np.ndarray | None = None
+    mis: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -117,6 +122,8 @@ class Lights:
                     "must be within [0, pi]")
         if self.sphere is not None:
             check_array(self.sphere, "lights.sphere", (n,), np.bool_, finite=False)
+        if self.mis is not None:
+            check_array(self.mis, "lights.mis", (n,), np.bool_, finite=False)
         if self.max_bounces is not None:
             check_array(self.max_bounces, "lights.max_bounces", (n,), np.int32, finite=False)
             require(not n or int(self.max_bounces.min()) >= 0, "lights.max_bounces", "must be non-negative")
