@@ -40,6 +40,7 @@ DATA_PASSES = (
     Pass("use_pass_mist", "Mist", 1, "Z", "VALUE", "mist"),
     Pass("use_pass_emit", "Emission", 3, "RGB", "COLOR", "emission"),
     Pass("use_pass_environment", "Environment", 3, "RGB", "COLOR", "environment"),
+    Pass("use_pass_ambient_occlusion", "Ambient Occlusion", 3, "RGB", "COLOR", "ao"),
     Pass("ember.use_pass_noise", "Noise", 3, "RGB", "COLOR", "noise"),
     Pass("use_pass_vector", "Vector", 4, "XYZW", "VECTOR", "vector"),
     Pass("use_pass_diffuse_direct", "Diffuse Direct", 3, "RGB", "COLOR", "diffuse_direct"),
@@ -142,6 +143,22 @@ def enabled_passes(scene, view_layer) -> list[Pass]:
             if any(p.kernel == "shadow_catcher" for p in out):
                 out.append(NOISY_SHADOW_CATCHER)
     return out
+
+
+# Cycles' own pass toggles (view_layer.cycles) that Ember writes no pass for: (toggle, the panel's name).
+UNWRITTEN_CYCLES_PASSES = (("pass_debug_sample_count", "Sample Count"), ("pass_render_time", "Render Time"),
+                           ("use_pass_volume_scatter", "Volume Scatter"), ("use_pass_volume_transmit", "Volume Transmit"),
+                           ("use_pass_volume_majorant", "Volume Majorant"))
+
+
+def unwritten_passes_warning(view_layer) -> str | None:
+    """One line naming the passes the view layer turns on (Cycles' own toggles) that Ember does not write, or None."""
+    settings = getattr(view_layer, "cycles", None)
+    names = [name for toggle, name in UNWRITTEN_CYCLES_PASSES if getattr(settings, toggle, False)]
+    if not names:
+        return None
+    return f"View Layer '{view_layer.name}': the {', '.join(names)} pass{'es are' if len(names) > 1 else ' is'} " \
+           f"not supported (Cycles' own), not written"
 
 
 def kernel_passes(scene, view_layer, denoise_inputs: str | None) -> tuple:

@@ -34,7 +34,7 @@ from .export.camera import render_region
 from .export.motion import sample_motion, sample_vector_motion
 from . import cryptomatte
 from .film_denoise import NonFiniteTile, denoise_film, denoised_film, final_options
-from .passes import enabled_passes, kernel_passes, mist_settings
+from .passes import enabled_passes, kernel_passes, mist_settings, unwritten_passes_warning
 from .persistent import kept, persistent_data
 from .result_writer import WRITE_CHUNK_PIXELS, ResultWriter
 from .version import EMBER_VERSION
@@ -334,7 +334,7 @@ class FinalRender:
         self._crypto_names = exported.crypto_names or {}
         engine.update_stats("", "Ember: building the scene")
         threads = render_threads(scene.render)
-        self._warn(filter(None, [threads_warning(scene.render)]))
+        self._warn(filter(None, [threads_warning(scene.render), unwritten_passes_warning(view_layer)]))
         session = ProgressiveSession(lambda arrays: self._build(arrays, threads, persistent))
         try:
             renderer = session.load(exported.scene)

@@ -43,14 +43,15 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from . import integrator, sampling
+from . import integrator
+from .ao_pass import DIFFUSE_CLOSURES as _DIFFUSE   # Cycles' CLOSURE_IS_BSDF_DIFFUSE, for the bake switches
+from .ao_pass import ambient_occlusion
 from .bake_texels import BakePaths, BakeTexels, FirstHits, first_hits, object_triangles
-from .bsdf.lobes import (BSSRDF, DIFFUSE_LOBES, GLASS, GLOSSY_LOBES, MICROFACET_LOBES, OREN_NAYAR, PORTAL,
+from .bsdf.lobes import (BSSRDF, GLASS, GLOSSY_LOBES, MICROFACET_LOBES, OREN_NAYAR, PORTAL,
                          TRANSMISSION_LOBES, TRANSPARENT)
 from .interaction import RayInfo, SurfaceHit
-from .lights import LightSampler, nee
+from .lights import LightSampler
 from .paths import ray_keys
-from .rays import rays_from
 from .samples import BSDF, Samples
 from .scene.objects import ALL_RAYS
 from .vec import F32
@@ -67,9 +68,6 @@ GUIDES = ("denoising_albedo", "denoising_normal")
 # Blender's pass filter bits (DNA_scene_types.h, eBakePassFilter), as RenderEngine.bake receives them.
 FILTER_EMIT, FILTER_DIFFUSE, FILTER_GLOSSY, FILTER_TRANSMISSION = 1 << 1, 1 << 2, 1 << 3, 1 << 4
 FILTER_DIRECT, FILTER_INDIRECT, FILTER_COLOR = 1 << 6, 1 << 7, 1 << 8
-# Cycles' closure classes for its bake switches (kernel/svm/types.h: CLOSURE_IS_BSDF_DIFFUSE, _GLOSSY,
-# _TRANSMISSION; a BSSRDF is none of them).
-_DIFFUSE = tuple(k for k in DIFFUSE_LOBES if k != BSSRDF)
 # How many paths a bake traces at once, at most (texels x samples).
 CHUNK_PATHS = 1 << 17
 
@@ -251,7 +249,7 @@ def _first_hit_chunk(tables, image, job, settings, texels, spp, split):
         elif kind == "ROUGHNESS":
             value = np.broadcast_to(average_roughness(cs, n), (3, n))
         else:
-            value = _ambient_occlusion(tables, wave, state, hit, cs, settings)
+            value = ambient_occlusion(tables, wave, hit, cs, state.samples.bounce(0)[BSDF], np.arange(n))
     return np.asarray(value, np.float64).reshape(3, len(texels), spp).sum(axis=2), None, {}
 
 
@@ -303,37 +301,6 @@ def average_roughness(cs, n: int) -> np.ndarray:
     total = np.bincount(cs.hit[rows], w, minlength=n)
     summed = np.bincount(cs.hit[rows], w * value, minlength=n)
     return np.where(total > 0, summed / np.where(total > 0, total, 1.0), 1.0).astype(F32)
-
-
-def _ambient_occlusion(tables, wave, state, hit, cs, settings) -> np.ndarray:
-    """(3, n) Cycles' AO pass at the first hits: alpha times the transmittance of one cosine-distributed ray
-    about the diffuse closures' normal, as far as the world's AO distance (integrate_surface_ao)."""
-    n = len(hit)
-    normal = np.stack([np.asarray(c, F32) for c in hit.ns]).copy()
-    alpha = np.ones((3, n), F32)
-    if len(cs):
-        diffuse = np.flatnonzero(np.isin(cs.lobe, _DIFFUSE))
-        if len(diffuse):
-            w = _weights(cs, diffuse)
-            summed = np.stack([np.bincount(cs.hit[diffuse], cs.normal[k, diffuse] * w, minlength=n) for k in range(3)])
-            length = np.sqrt((summed * summed).sum(axis=0))
-            ok = length > 0
-            normal[:, ok] = (summed[:, ok] / length[ok]).astype(F32)
-        clear = np.flatnonzero(cs.lobe == TRANSPARENT)
-        if len(clear):
-            transparency = np.stack([np.bincount(cs.hit[clear], cs.weight[k, clear], minlength=n) for k in range(3)])
-            alpha = np.clip(1.0 - transparency, 0.0, 1.0).astype(F32)
-    u1, u2 = state.samples.bounce(0)[BSDF]
-    lx, ly, lz = sampling.sample_cosine_hemisphere(u1, u2)
-    w = sampling.local_to_world(lx, ly, lz, *normal)
-    rows = np.arange(n)
-    # A bumped normal's ray may point below the surface: it leaves on that side (Cycles' ray skips the
-    # triangle it leaves and goes through).
-    below = w[0] * hit.ng[0] + w[1] * hit.ng[1] + w[2] * hit.ng[2] < 0
-    rays = rays_from(tables, hit, rows, w, below)
-    distance = np.full(n, F32(tables.scene.world.ao_distance), F32)
-    through = nee.shadow(tables, rays.origins, rays.dirs, distance, wave, np.zeros(n, np.int32))
-    return through * alpha
 
 
 # ---------------------------------------------------------------- the bake

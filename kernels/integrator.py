@@ -16,6 +16,7 @@ import numpy as np
 
 from . import emitters_seen, motion, passes, sampling, shadow_catcher, shadow_linking, subsurface, visibility
 from .accel import Hits, RayTimes
+from .ao_pass import ambient_occlusion
 from .camera import generate_rays
 from .environment import WorldFocus
 from .geometry.deform import deformed_corners
@@ -302,6 +303,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         if state.continuation is not None:
             roulette_weights(state)
     numbers = state.samples.bounce(0 if first else 1)
+    if aux is not None and "ao" in aux and not subsurface_exit:
+        _ao_pass(tables, wave, state, hit, closures, shading, numbers)
     receiver = None if tables.links is None else tables.links.receivers(tables.triangles, hit.prim)
     focus = None
     lit = wave.nee and not (first and wave.bake is not None and not wave.bake.direct)
@@ -358,6 +361,17 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
 
 
 # ---- stage: subsurface scattering (kernels.subsurface), between a subsurface closure's pick and its exit point
+def _ao_pass(tables, wave, state, hit, closures, shading, numbers) -> None:
+    """The Ambient Occlusion pass (kernels/ao_pass.py) at the surfaces the camera sees: the paths that have not
+    scattered yet (their first hit, or one behind transparent surfaces), but not those a holdout ends there."""
+    rows = np.flatnonzero(state.bounce == 0)
+    if tables.shading.has_holdout and len(rows):
+        rows = rows[np.take(shading.holdout, rows) < 1]
+    if len(rows):
+        ao = ambient_occlusion(tables, wave, hit, closures, numbers[BSDF], rows)
+        passes.accumulate(wave.aux["ao"], state.path[rows], ao * np.take(state.throughput, rows, axis=1))
+
+
 def _subsurface_exits(tables, wave, state, hit, closures, bs, rows, last):
     """The paths `state` (of the hits rows, which picked a subsurface closure) walk beneath their surfaces; where a walk
     comes out, the exit point is a surface vertex of its own (Cycles' INTERSECT_SUBSURFACE, then SHADE_SURFACE

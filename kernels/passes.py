@@ -67,6 +67,7 @@ PASSES = {
     "mist": (1, "MIST"),
     "emission": (3, "MEAN"),
     "environment": (3, "MEAN"),
+    "ao": (3, "MEAN"),
     "noise": (3, "NOISE"),
     "vector": (4, "WEIGHTED"), "vector_weight": (1, "MEAN"),
     "diffuse_direct": (3, "LIGHT"), "diffuse_indirect": (3, "LIGHT"), "diffuse_color": (3, "MEAN"),

@@ -594,3 +594,19 @@ def test_a_time_limit_denoises_fast_through_blender(monkeypatch, capsys):
     assert calls == [("FAST", "FAST")] and "| Denoising (Fast) 0% |" in capsys.readouterr().out
     combined = parts[f"{scene.view_layers[0].name}.Combined"]
     assert all(np.isfinite(combined[c]).all() for c in "RGBA")
+
+
+def test_ambient_occlusion_pass_is_written_and_cycles_passes_ember_lacks_are_named(capfd):
+    """View Layer > Passes > Ambient Occlusion gives an "Ambient Occlusion" pass (before, nothing and no word):
+    under an open sky a plane's AO is 1 everywhere, a closed form (every ray escapes). The Cycles passes Ember
+    writes nothing for (Sample Count, Render Time, Volume Scatter) are named in one warning."""
+    scene = plane_scene()
+    layer = scene.view_layers[0]
+    layer.use_pass_ambient_occlusion = True
+    layer.cycles.pass_debug_sample_count = layer.cycles.pass_render_time = True
+    layer.cycles.use_pass_volume_scatter = True
+    engine = render(scene)
+    np.testing.assert_allclose(engine.image("Ambient Occlusion"), 1.0, atol=1e-6)
+    said = capfd.readouterr().out.splitlines() + [m for _, m in engine.reports]   # printed in background mode
+    warned = [m for m in said if "not supported (Cycles' own)" in m]
+    assert len(warned) == 1 and all(n in warned[0] for n in ("Sample Count", "Render Time", "Volume Scatter")), said

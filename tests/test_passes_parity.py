@@ -1,6 +1,6 @@
 """Light and data passes against Cycles' own on the same scene (issue 13), read from both engines'
 multilayer EXRs: Diffuse/Glossy/Transmission Direct, Indirect and Color, Emission, Environment, Depth,
-Normal. Block means within noise: the z-score of each block's difference from replicate renders."""
+Normal, AO (Ambient Occlusion). Block means within noise: the z-score of each block's difference from replicate renders."""
 from __future__ import annotations
 
 
@@ -14,13 +14,14 @@ from test_passes import light_scene
 
 SAMPLES = 64
 PASSES = ("Diffuse Direct", "Diffuse Indirect", "Diffuse Color", "Glossy Direct", "Glossy Indirect", "Glossy Color",
-          "Transmission Indirect", "Transmission Color", "Environment", "Depth", "Normal")
+          "Transmission Indirect", "Transmission Color", "Environment", "Depth", "Normal", "Ambient Occlusion")
 
 
 def render(engine, seed):
     scene = light_scene()
     layer = scene.view_layers[0]
-    layer.use_pass_z = layer.use_pass_normal = True
+    layer.use_pass_z = layer.use_pass_normal = layer.use_pass_ambient_occlusion = True
+    scene.world.light_settings.distance = 1.5   # the AO pass's reach (Cycles' integrator AO distance)
     scene.render.engine = engine
     if engine == "CYCLES":
         configure_cycles(scene, SAMPLES, seed, 8)
@@ -86,6 +87,12 @@ def test_pass_matches_cycles(renders, name):
             image = image * render[name.rsplit(" ", 1)[0] + " Color"]
         return image
 
+    assert_blocks_match([value(r) for r in renders["CYCLES"]], [value(r) for r in renders["EMBER"]], name, blocks)
+
+
+def assert_blocks_match(cycles_images, ember_images, name, blocks=4):
+    """Two renders of a pass by each engine: every block's means within 5 standard errors (see
+    test_pass_matches_cycles)."""
     def blocked(a):
         """(2, H, W, C) -> (2, blocks, blocks, pixels per block, C)"""
         _, h, w, c = a.shape
@@ -103,8 +110,8 @@ def test_pass_matches_cycles(renders, name):
         one_render = ((a[0] - a[1]) ** 2).sum(axis=2) / 2 / n ** 2   # variance of one render's block mean
         return a.mean(axis=(0, 3)), one_render / 2
 
-    cyc, cyc_var = mean_and_variance([value(r) for r in renders["CYCLES"]])
-    emb, emb_var = mean_and_variance([value(r) for r in renders["EMBER"]])
+    cyc, cyc_var = mean_and_variance(cycles_images)
+    emb, emb_var = mean_and_variance(ember_images)
     diff = emb - cyc
     se = np.sqrt(cyc_var + emb_var)
     floor = 0.02 * np.abs(cyc) + 1e-4
@@ -162,3 +169,38 @@ def test_colour_albedos_of_metal_and_tinted_glass_match_cycles():
             cycles = out["CYCLES"][name][centre][:, half].reshape(-1, 3).mean(axis=0)
             ember = out["EMBER"][name][centre][:, half].reshape(-1, 3).mean(axis=0)
             np.testing.assert_allclose(ember, cycles, atol=0.005, err_msg=name)
+
+
+def test_ambient_occlusion_pass_through_transparency_and_holdouts_matches_cycles():
+    """The Ambient Occlusion pass (View Layer > Passes > Light), before ignored without a word: one ray per sample
+    from the surface the camera sees, about its diffuse closures' normal, as far as the world's AO distance (0.5 m
+    here: the box's foot darkens the floor, the open floor stays white), through transparent surfaces, times the
+    surface's alpha; a half-transparent leaf in front adds its own half and lets the camera see the half behind it;
+    a holdout ball gives nothing."""
+    from bpy_helpers import add_camera, configure_engine, diffuse_material, new_scene, quad_object, set_world
+    images = {"CYCLES": [], "EMBER": []}
+    for engine in images:
+        for seed in REPLICATE_SEEDS[:2]:
+            scene = new_scene(32, 24)
+            add_camera(scene, (0, -4, 2.2), (0, 0, 0.4), lens=35)
+            set_world(scene, (0.5, 0.5, 0.5))
+            scene.world.light_settings.distance = 0.5
+            quad_object("Floor", (-3, -3, 0), (6, 0, 0), (0, 6, 0), diffuse_material("Floor", (0.6, 0.6, 0.6)))
+            bpy.ops.mesh.primitive_cube_add(size=0.8, location=(0.5, 0.4, 0.4), rotation=(0, 0, 0.5))
+            bpy.context.active_object.data.materials.append(diffuse_material("Box", (0.7, 0.3, 0.2)))
+            leaf = bpy.data.materials.new("Leaf")
+            leaf.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value = 0.4
+            quad_object("Leaf", (-1.4, -1.0, 0.1), (1.0, 0, 0), (0, 0, 0.9), leaf)
+            bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(-0.6, 0.9, 0.35))
+            ball = bpy.context.active_object
+            ball.data.materials.append(diffuse_material("Ball", (0.8, 0.8, 0.8)))
+            ball.is_holdout = True
+            scene.view_layers[0].use_pass_ambient_occlusion = True
+            configure_engine(scene, engine, 64, seed=seed)
+            parts, _ = render_multilayer(scene)
+            planes = parts[f"{scene.view_layers[0].name}.Ambient Occlusion"]
+            images[engine].append(np.stack([planes[c] for c in "RGB"], axis=-1))
+    ember = np.mean(images["EMBER"], axis=0)
+    grey = ember.mean(axis=-1)
+    assert ((grey > 0.1) & (grey < 0.8)).sum() > 20 and (grey > 0.95).sum() > 100   # occluded in places, open elsewhere
+    assert_blocks_match(images["CYCLES"], images["EMBER"], "Ambient Occlusion")
