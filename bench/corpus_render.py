@@ -47,14 +47,17 @@ def lacking_settings(scene) -> list[str]:
     """Cycles settings of this file that change the image and that Ember has no counterpart for, each as
     'name=value' (only those not at the value that makes them inert)."""
     c = scene.cycles
+    simplify = scene.render.use_simplify
     lacking = []
     checks = (("min_light_bounces", c.min_light_bounces > 0),
               ("min_transparent_bounces", c.min_transparent_bounces > 0),
               # Cycles reads the threshold only without the light tree (scene/integrator.cpp)
               ("light_sampling_threshold", c.light_sampling_threshold > 0 and not c.use_light_tree),
               ("use_light_tree", not c.use_light_tree),
-              ("use_fast_gi", c.use_fast_gi),
-              ("texture_limit_render", c.texture_limit_render != "OFF"), ("shading_system (OSL)", c.shading_system))
+              # Simplify's (Cycles reads them only with Simplify on)
+              ("texture_limit_render", simplify and c.texture_limit_render != "OFF"),
+              ("use_camera_cull", simplify and c.use_camera_cull), ("use_distance_cull", simplify and c.use_distance_cull),
+              ("shading_system (OSL)", c.shading_system))
     for name, active in checks:
         if active:
             value = getattr(c, name.split(" ")[0])

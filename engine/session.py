@@ -32,6 +32,7 @@ from ..kernels.accel import capped_threads
 from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region
 from .export.motion import sample_motion, sample_vector_motion
+from .export.world import fast_gi
 from . import cryptomatte
 from .film_denoise import NonFiniteTile, denoise_film, denoised_film, final_options
 from .passes import enabled_passes, kernel_passes, mist_settings, unwritten_passes_warning
@@ -101,6 +102,7 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         transparent_background=bool(scene.render.film_transparent),
         transparent_glass=transparent_glass(scene),
         exposure=film_exposure(scene),
+        **fast_gi(scene, viewport),
         quick_first_pass=not _background(),
     )
 

@@ -28,6 +28,7 @@ EXTRA_PANELS = (
     "CYCLES_OBJECT_PT_lightgroup",    # Object > Shading > Light Group (Object.lightgroup, read by Ember)
     "CYCLES_WORLD_PT_settings",       # World > Settings, the Light Group's parent
     "CYCLES_WORLD_PT_settings_light_group",   # World.lightgroup, read by Ember
+    "CYCLES_WORLD_PT_settings_surface",   # World > Settings > Surface: sampling, Map Resolution, Max Bounces
     "CYCLES_RENDER_PT_subdivision",   # scene.cycles: dicing rates, Max Subdivisions, dicing camera (adaptive)
 )
 _added: list = []
@@ -116,6 +117,19 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
         col.prop(context.scene.ember, "blur_glossy")
         col.prop(context.scene.ember, "caustics_reflective", text="Reflective")
         col.prop(context.scene.ember, "caustics_refractive", text="Refractive")
+        cycles = getattr(context.scene, "cycles", None)
+        if cycles is not None:   # Cycles' own settings, read as Cycles reads them (export/world.py fast_gi)
+            col = layout.column(heading="Fast GI", align=True)
+            col.prop(cycles, "use_fast_gi", text="Approximation")
+            sub = col.column(align=True)
+            sub.active = cycles.use_fast_gi
+            sub.prop(cycles, "fast_gi_method", text="Method")
+            sub.prop(cycles, "ao_bounces", text="Viewport Bounces")
+            sub.prop(cycles, "ao_bounces_render", text="Render Bounces")
+            world = context.scene.world
+            if world is not None:   # the world's AO settings, as Cycles' Fast GI panel shows them
+                sub.prop(world.light_settings, "ao_factor", text="AO Factor")
+                sub.prop(world.light_settings, "distance", text="AO Distance")
 
 
 class EMBER_RENDER_PT_volumes(EmberPanel, bpy.types.Panel):
@@ -260,6 +274,7 @@ class EMBER_VIEWLAYER_PT_passes(EmberPanel, bpy.types.Panel):
         row.prop(view_layer.ember, "use_pass_volume_indirect", text="Indirect", toggle=True)
         col.prop(view_layer, "use_pass_emit", text="Emission")
         col.prop(view_layer, "use_pass_environment")
+        col.prop(view_layer, "use_pass_ambient_occlusion", text="Ambient Occlusion")
         col.prop(view_layer.ember, "use_pass_shadow_catcher")
         col = layout.column(heading="Cryptomatte")
         col.prop(view_layer, "use_pass_cryptomatte_object", text="Object")
@@ -326,6 +341,21 @@ class EMBER_LIGHT_PT_shadow(EmberPanel, bpy.types.Panel):
     def draw(self, context):
         layout = split_layout(self.layout)
         layout.prop(context.light, "use_shadow", text="Cast Shadow")
+
+
+class EMBER_LIGHT_PT_settings(EmberPanel, bpy.types.Panel):
+    """A light's Max Bounces and Multiple Importance, Cycles' own settings (light.cycles), which Ember renders."""
+    bl_label = "Settings"
+    bl_context = "data"
+
+    @classmethod
+    def shows(cls, context):
+        return context.light is not None and hasattr(context.light, "cycles")
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        layout.prop(context.light.cycles, "max_bounces")
+        layout.prop(context.light.cycles, "use_multiple_importance_sampling", text="Multiple Importance")
 
 
 class EMBER_LIGHT_PT_beam_shape(EmberPanel, bpy.types.Panel):
@@ -433,7 +463,7 @@ class EMBER_OBJECT_PT_adaptive_subdivision(EmberPanel, bpy.types.Panel):
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths,
            EMBER_RENDER_PT_volumes, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance,
            EMBER_VIEWLAYER_PT_passes, EMBER_VIEWLAYER_PT_passes_lightgroups, EMBER_LIGHT_PT_shadow,
-           EMBER_LIGHT_PT_beam_shape,
+           EMBER_LIGHT_PT_settings, EMBER_LIGHT_PT_beam_shape,
            EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume, EMBER_OBJECT_PT_visibility_mask,
            EMBER_OBJECT_PT_visibility_rays, EMBER_OBJECT_PT_adaptive_subdivision)
 

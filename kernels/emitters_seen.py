@@ -10,7 +10,7 @@ from . import light_groups, passes, sampling, shadow_linking, visibility
 from .interaction import RayInfo
 from .lights.sampler import LightHits
 from .media import stage as media_stage
-from .paths import facing_of, seen_through
+from .paths import facing_of, fast_gi_replaced, seen_through
 
 # ---- stage: lights with a surface, found by BSDF rays and by camera rays (those of Ray Visibility > Camera)
 def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
@@ -141,6 +141,9 @@ def escaped(tables, wave, state, rays, hits, ended=None):
     env = np.take(state.throughput, miss, axis=1) * light
     if state.escape_scale is not None:
         env *= np.take(state.escape_scale, miss)
+    replaced = fast_gi_replaced(wave.settings, state, miss)
+    if replaced is not None:   # Fast GI's Replace: the world past the AO bounces, times the AO factor (not the suns)
+        env *= np.where(replaced, np.float32(wave.settings.ao_factor), np.float32(1.0))
     if state.features is not None and wave.aux is not None and "denoising_albedo" in wave.aux:
         # A path still looking for its denoising features sees the world: the world's colour times the
         # feature throughput is its albedo, as in Cycles.

@@ -16,7 +16,7 @@ import numpy as np
 
 from . import emitters_seen, motion, passes, sampling, shadow_catcher, shadow_linking, subsurface, visibility
 from .accel import Hits, RayTimes
-from .ao_pass import ambient_occlusion
+from .ao_pass import DIFFUSE_CLOSURES, ambient_occlusion
 from .camera import generate_rays
 from .environment import WorldFocus
 from .geometry.deform import deformed_corners
@@ -25,8 +25,8 @@ from .bsdf.mixture_sample import BsdfSample
 from .interaction import RayInfo, SurfaceHit
 from .lights import nee
 from .media import stage as media_stage
-from .paths import (PathState, may_scatter, ray_keys, roulette_stops, roulette_verdict, roulette_weights,
-                    seen_through, type_limits)
+from .paths import (PathState, fast_gi_replaced, may_scatter, ray_keys, roulette_stops, roulette_verdict,
+                    roulette_weights, seen_through, type_limits)
 from .rays import Rays, below, concat_rays, leaves_its_side, spawn
 from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
@@ -184,7 +184,8 @@ def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None)
         state.pass_weights = np.zeros((6 if tables.media is None else 7, n), np.float32)
     if tables.shading.reads_lobes or _caustics(settings) is not None or type_limits(settings) is not None \
             or tables.visibility is not None or tables.shading.burley \
-            or tables.lights.visibility is not None:   # (visibility.py ray_types reads the last label)
+            or tables.lights.visibility is not None \
+            or (settings.ao_bounces and settings.ao_factor):   # (visibility.py ray_types reads the last label)
         state.lobes = np.zeros((4, n), np.int32)
     if settings.filter_glossy > 0 or tables.shading.bevels:  # Cycles' Bevel skips blurry bounces too
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
@@ -214,7 +215,13 @@ def step(tables, wave, state, rays, first: bool, last: int):
     direction. first: the paths' camera rays (they all are; otherwise none is). Returns the paths that
     go on and their next rays, or None."""
     tables.crew.check_stop()
+    replaced = None if first else fast_gi_replaced(wave.settings, state)
+    if replaced is not None and replaced.any():   # Fast GI: these rays reach as far as the world's AO distance
+        reach = np.float32(tables.scene.world.ao_distance)
+        rays = Rays(rays.origins, rays.dirs, np.where(replaced, np.minimum(rays.t_max, reach), rays.t_max))
     hits = tables.accel.intersect(rays.origins, rays.dirs, rays.t_max, wave.split, state.time)
+    if replaced is not None and replaced.any():   # nor do their lamps and media
+        hits.t = np.where((hits.prim < 0) & replaced, np.minimum(hits.t, rays.t_max), hits.t)
     if state.partner is not None:
         _hand_over(state, hits)
     if tables.visibility is not None or state.self_key is not None:
@@ -305,6 +312,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     numbers = state.samples.bounce(0 if first else 1)
     if aux is not None and "ao" in aux and not subsurface_exit:
         _ao_pass(tables, wave, state, hit, closures, shading, numbers)
+    if settings.ao_additive and wave.only_catchers is None:
+        _fast_gi_add(tables, wave, state, hit, closures, numbers)
     receiver = None if tables.links is None else tables.links.receivers(tables.triangles, hit.prim)
     focus = None
     lit = wave.nee and not (first and wave.bake is not None and not wave.bake.direct)
@@ -370,6 +379,26 @@ def _ao_pass(tables, wave, state, hit, closures, shading, numbers) -> None:
     if len(rows):
         ao = ambient_occlusion(tables, wave, hit, closures, numbers[BSDF], rows)
         passes.accumulate(wave.aux["ao"], state.path[rows], ao * np.take(state.throughput, rows, axis=1))
+
+
+def _fast_gi_add(tables, wave, state, hit, closures, numbers) -> None:
+    """Fast GI's Add (Cycles' KERNEL_FEATURE_AO_ADDITIVE, integrate_surface_ao): at every surface a path may
+    scatter from, its diffuse closures' weight times the AO factor times the AO of one ray (kernels/ao_pass.py),
+    added to the image alone (no light pass), as light from a white sky the surroundings shade."""
+    rows = np.flatnonzero(may_scatter(wave, state))
+    if not len(rows) or not len(closures):
+        return
+    diffuse = np.flatnonzero(np.isin(closures.lobe, DIFFUSE_CLOSURES))
+    if not len(diffuse):
+        return
+    n = len(hit)
+    weight = np.stack([np.bincount(closures.hit[diffuse], closures.weight[k, diffuse], minlength=n)
+                       for k in range(3)]).astype(F32) * F32(wave.settings.ao_additive)
+    rows = rows[np.any(np.take(weight, rows, axis=1) != 0, axis=0)]
+    if len(rows):
+        ao = ambient_occlusion(tables, wave, hit, closures, numbers[BSDF], rows)
+        passes.accumulate(wave.radiance, state.path[rows],
+                          ao * np.take(weight, rows, axis=1) * np.take(state.throughput, rows, axis=1))
 
 
 def _subsurface_exits(tables, wave, state, hit, closures, bs, rows, last):

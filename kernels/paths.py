@@ -279,6 +279,18 @@ def roulette_weights(state) -> None:
     state.continuation = None
 
 
+def fast_gi_replaced(settings, state, rows=None) -> np.ndarray | None:
+    """(n,) bool the paths rows (all where None) past Fast GI's AO bounces, whose rays Replace ends (Cycles'
+    path_state_ao_bounce: bounce - transmissions - (any glossy bounce) + 1 > ao_bounces), or None when Replace is
+    off (Cycles' kernel takes ao_bounces only with an AO factor, scene/integrator.cpp)."""
+    if not int(settings.ao_bounces) or not float(settings.ao_factor):
+        return None
+    bounce, lobes = state.bounce, state.lobes
+    if rows is not None:
+        bounce, lobes = np.take(bounce, rows), np.take(lobes, rows, axis=1)
+    return bounce - lobes[3] - (lobes[2] > 0) + 1 > int(settings.ao_bounces)
+
+
 def may_scatter(wave, state) -> np.ndarray:
     """(N,) bool: the paths that may still scatter at their hits (light samples, BSDF samples): not past
     max_bounces, nor past a per-type limit (Cycles ends a path after the bounce that reaches either, letting it
@@ -289,6 +301,9 @@ def may_scatter(wave, state) -> np.ndarray:
         ok &= np.all(state.lobes[1:4] <= limits, axis=0)
     if state.volume_bounces is not None:
         ok &= state.volume_bounces <= int(wave.settings.volume_bounces)
+    replaced = fast_gi_replaced(wave.settings, state)
+    if replaced is not None:   # Fast GI: such a path takes only the emission and transparency of what it meets
+        ok &= ~replaced
     return ok
 
 

@@ -49,6 +49,15 @@ class RenderSettings:
     volume_biased: bool = False
     volume_step_rate: float = 1.0
     volume_max_steps: int = 1024
+    # Cycles' Fast GI Approximation (Light Paths > Fast GI; ambient occlusion from the world's AO settings,
+    # World.ao_distance the reach). Replace: a path more than ao_bounces deep (Cycles' path_state_ao_bounce: its
+    # transmissions and a first glossy bounce not counted) traces rays of that reach only, ends at the surface it
+    # meets (its emission and transparency still count), and sees the world times ao_factor where it meets
+    # nothing (0: off). Add: every surface adds its diffuse closures' weight times ao_additive times the AO of one
+    # ray (0: off), the paths left as they are.
+    ao_bounces: int = 0
+    ao_factor: float = 0.0
+    ao_additive: float = 0.0
     # Cycles' Clamp Direct and Clamp Indirect: a contribution whose |R| + |G| + |B| exceeds 3 x the limit
     # is scaled down to it (0: off). Direct: light reaching the first hit or the camera; indirect: the rest.
     clamp_direct: float = 0.0
@@ -125,6 +134,11 @@ class RenderSettings:
         if int(self.adaptive_min_samples) < 0:
             raise ValueError(f"adaptive_min_samples: must be non-negative (0 is automatic), got "
                              f"{self.adaptive_min_samples}")
+        if int(self.ao_bounces) < 0:
+            raise ValueError(f"ao_bounces: must be non-negative, got {self.ao_bounces}")
+        for name in ("ao_factor", "ao_additive"):
+            if not np.isfinite(getattr(self, name)):
+                raise ValueError(f"{name}: must be finite, got {getattr(self, name)}")
         if not (np.isfinite(self.exposure) and self.exposure >= 0):
             raise ValueError(f"exposure: must be finite and non-negative, got {self.exposure}")
         for name in ("clamp_direct", "clamp_indirect", "filter_glossy", "adaptive_threshold"):

@@ -3,7 +3,6 @@ built here (one Ember matches, one whose Cycles film exposure Ember lacks, one t
 from __future__ import annotations
 
 import os
-import re
 import subprocess
 import sys
 
@@ -12,7 +11,7 @@ import numpy as np
 import pytest
 
 from bench import corpus
-from tests.bpy_helpers import diffuse_material, mesh_object, new_scene, set_world
+from tests.bpy_helpers import diffuse_material, mesh_object, new_scene
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -91,22 +90,23 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
     scene = new_scene(16, 16)
     mesh_object("Smooth", [(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 1, 2)], smooth=True)
     mesh_object("Flat", [(0, 0, 1), (1, 0, 1), (0, 1, 1)], [(0, 1, 2)])
-    scene.cycles.sample_clamp_indirect, scene.cycles.blur_glossy, scene.cycles.use_fast_gi = 3.0, 0.25, True
+    scene.cycles.sample_clamp_indirect, scene.cycles.blur_glossy = 3.0, 0.25
+    scene.render.use_simplify, scene.cycles.use_distance_cull = True, True
     mapped = corpus_render.map_cycles_settings(scene)
     assert (scene.ember.sample_clamp_indirect, scene.ember.blur_glossy) == (3.0, 0.25)
     assert mapped["sample_clamp_indirect"] == 3.0 and mapped["max_bounces"] == scene.cycles.max_bounces
     lacking = corpus_render.lacking_settings(scene)
     assert mapped["diffuse_bounces"] == scene.cycles.diffuse_bounces == scene.ember.diffuse_bounces
-    assert "use_fast_gi=True" in lacking and not any("bounces" in item or "exposure" in item for item in lacking)
+    assert "use_distance_cull=True" in lacking and not any(key in item for item in lacking
+                                                           for key in ("bounces", "exposure", "fast_gi"))
     bpy.data.objects["Smooth"].shadow_terminator_shading_offset = 0.2   # rendered now: not lacking
     assert not any("shadow_terminator" in item for item in corpus_render.lacking_settings(scene))
 
 
 # ---------------------------------------------------------------- the tool on .blend files
-def build_scene(fast_gi: bool):
-    """A floor and a box under an area lamp in a dim world, with Cycles settings Ember takes over, one it lacks where
-    fast_gi (Fast GI Approximation, Add: ambient occlusion added after the first bounce, the image 60% brighter in
-    Cycles), and a material Ember warns about (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing
+def build_scene(culled: bool):
+    """A floor and a box under an area lamp, with Cycles settings Ember takes over, one it lacks where culled
+    (Simplify > Culling > Distance, which takes the box out of Cycles' render), and a material Ember warns about (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing
     changes in Cycles)."""
     scene = new_scene(48, 32)
     floor = diffuse_material("Floor", (0.7, 0.7, 0.7))
@@ -118,7 +118,7 @@ def build_scene(fast_gi: bool):
     box.node_tree.links.new(times.outputs[0], next(n for n in box.node_tree.nodes if n.type.startswith("BSDF")).inputs["Roughness"])
     verts = [(x, y, z) for z in (0, 1.5) for y in (-0.7, 0.7) for x in (-0.7, 0.7)]
     faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    mesh_object("Box", verts, faces, box)
+    box_ob = mesh_object("Box", verts, faces, box)
     lamp = bpy.data.lights.new("Lamp", "AREA")
     lamp.energy, lamp.size = 400.0, 2.0
     lamp_ob = bpy.data.objects.new("Lamp", lamp)
@@ -126,17 +126,16 @@ def build_scene(fast_gi: bool):
     scene.collection.objects.link(lamp_ob)
     scene.cycles.sample_clamp_indirect = 5.0
     scene.cycles.pixel_filter_type = "GAUSSIAN"
-    set_world(scene, (0.05, 0.05, 0.05))
-    scene.cycles.use_fast_gi, scene.cycles.fast_gi_method = fast_gi, "ADD"
-    scene.cycles.ao_bounces_render = 1
+    scene.render.use_simplify = scene.cycles.use_distance_cull = box_ob.cycles.use_distance_cull = culled
+    scene.cycles.distance_cull_margin = 0.5
     return scene
 
 
 @pytest.fixture(scope="module")
 def corpus_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("corpus")
-    for name, fast_gi in (("same.blend", False), ("fast_gi.blend", True)):
-        build_scene(fast_gi)
+    for name, culled in (("same.blend", False), ("culled.blend", True)):
+        build_scene(culled)
         bpy.ops.wm.save_as_mainfile(filepath=str(folder / name), copy=True)
     (folder / "broken.blend").write_bytes(b"not a blend file")
     out = folder / "out"
@@ -154,12 +153,11 @@ def table_row(stdout: str, name: str) -> list[str]:
 def test_the_tool_runs_every_file_and_tables_them(corpus_run):
     run, out = corpus_run
     assert run.returncode == 0, run.stderr
-    same, fast, broken = (table_row(run.stdout, n) for n in ("same.blend", "fast_gi.blend", "broken.blend"))
+    same, culled, broken = (table_row(run.stdout, n) for n in ("same.blend", "culled.blend", "broken.blend"))
     assert same[-1] == "within noise", run.stdout
     assert same[7] == "1"                                    # the UV Along Stroke warning, once for both renders
-    assert fast[-1] == "beyond noise" and "use_fast_gi=True" in fast[8], run.stdout
-    mean = float(re.match(r"([+-][\d.]+)%", fast[2]).group(1)) / 100
-    assert mean < -0.2                                       # Cycles adds the Fast GI's light
+    assert culled[-1] == "beyond noise" and "use_distance_cull=True" in culled[8], run.stdout
+    assert float(culled[4]) > 10                              # the box is gone from Cycles' image: blocks far off
     assert broken[-1].startswith("failed: Cycles:") and "Ember:" in broken[-1]
     assert "sample_clamp_indirect=5.0" in run.stdout and "pixel_filter_type=GAUSSIAN" in run.stdout
     assert "UV Along Stroke node" in run.stdout and "is not supported" in run.stdout
@@ -168,7 +166,7 @@ def test_the_tool_runs_every_file_and_tables_them(corpus_run):
 
 def test_side_by_side_pngs(corpus_run):
     run, out = corpus_run
-    assert sorted(os.listdir(out)) == ["fast_gi.png", "same.png", "summary.md"]
+    assert sorted(os.listdir(out)) == ["culled.png", "same.png", "summary.md"]
     image = bpy.data.images.load(str(out / "same.png"))
     try:
         width, height = image.size

@@ -46,6 +46,39 @@ def test_panels_users_need_are_there():
     assert bpy.types.EMBER_OBJECT_PT_visibility_mask.bl_parent_id == "OBJECT_PT_visibility"
 
 
+class _RecordingLayout:
+    """A stand-in for a panel's layout (no interface runs headless): every prop() must name a real property."""
+
+    def __init__(self, drawn):
+        self.drawn = drawn
+
+    def prop(self, owner, name, **_):
+        assert name in owner.bl_rna.properties, (owner, name)
+        self.drawn.append(name)
+
+    def __getattr__(self, name):   # column(), row(), label(), ...: more layout
+        return lambda *args, **kwargs: self
+
+
+def test_panels_draw_the_cycles_settings_ember_reads():
+    """Light Paths (Fast GI), Film (Exposure), a light's Settings (Max Bounces, Multiple Importance) and the
+    passes (Ambient Occlusion) draw properties that exist, in bpy 5.0 and 5.3 alike."""
+    from types import SimpleNamespace
+    ensure_registered()
+    scene = new_scene()
+    set_world(scene, color=(0.1, 0.1, 0.1))
+    light = bpy.data.lights.new("L", "POINT")
+    context = SimpleNamespace(scene=scene, light=light, view_layer=scene.view_layers[0], engine="EMBER")
+    drawn = []
+    for name in ("EMBER_RENDER_PT_light_paths", "EMBER_RENDER_PT_film", "EMBER_LIGHT_PT_settings",
+                 "EMBER_VIEWLAYER_PT_passes"):
+        panel = getattr(bpy.types, name)
+        panel.draw(SimpleNamespace(layout=_RecordingLayout(drawn)), context)
+    for name in ("use_fast_gi", "fast_gi_method", "ao_bounces_render", "ao_factor", "film_exposure", "max_bounces",
+                 "use_multiple_importance_sampling", "use_pass_ambient_occlusion"):
+        assert name in drawn, name
+
+
 def test_settings_defaults():
     scene = new_scene()
     e = scene.ember

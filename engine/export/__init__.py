@@ -43,7 +43,7 @@ from .deform import deform_fields, vector_deform_fields
 from .motion import scene_motion, vector_fields
 from .rgba_attributes import view_layer_attribute
 from .updates import ExportIndex, export_index
-from .world import export_world
+from .world import export_world, fast_gi
 
 __all__ = ["DEFAULT_ALBEDO", "ExportCancelled", "ExportError", "ExportResult", "export_scene", "render_region",
            "render_resolution"]
@@ -134,7 +134,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                                    light_groups=groups,
                                    dicing=None if camera_ob is None else
                                    Dicing(depsgraph, camera_ob.evaluated_get(depsgraph), width, height))
-        world = export_world(scene.world, warnings, materials.images, layer_attribute)
+        world = export_world(scene.world, warnings, materials.images, layer_attribute,
+                             plain=any("ao_factor" in fast_gi(scene, viewport) for viewport in (False, True)))
         lights = export_lights(depsgraph, warnings, poll, links, groups, materials.images, layer_attribute)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
                     "asset": list(geometry.instance_assets or []), "material": list(materials.names)}

@@ -38,10 +38,24 @@ DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
 TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on the world
 
 
-def export_world(world, warnings: list[str], images=None, layer_attribute=None) -> World:
+def fast_gi(scene, viewport: bool = False) -> dict:
+    """Light Paths > Fast GI Approximation (Cycles' own settings, read as Cycles' sync reads them: the AO Bounces
+    of the viewport or of renders, the Method; the world's Ambient Occlusion Factor, Distance via World.ao_distance):
+    the RenderSettings fields ao_bounces, ao_factor (Replace) and ao_additive (Add). Off without a world."""
+    cycles = getattr(scene, "cycles", None)
+    if cycles is None or scene.world is None or not getattr(cycles, "use_fast_gi", False):
+        return {}
+    factor = float(scene.world.light_settings.ao_factor)
+    if getattr(cycles, "fast_gi_method", "REPLACE") == "ADD":
+        return {"ao_additive": factor}
+    bounces = int(getattr(cycles, "ao_bounces" if viewport else "ao_bounces_render", 0))
+    return {"ao_bounces": max(bounces, 0), "ao_factor": factor} if bounces > 0 and factor else {}
+
+
+def export_world(world, warnings: list[str], images=None, layer_attribute=None, plain: bool = False) -> World:
     """scene.world (may be None) as a kernels.World. Problems go to `warnings` in one line. images: the
     export's images.ImageTextures, which world programs read their images from. layer_attribute: the View
-    Layer attribute lookup (nodes.ProgramBuilder)."""
+    Layer attribute lookup (nodes.ProgramBuilder). plain: sample it as Cycles does (Fast GI's Replace is on)."""
     result = _export_world(world, warnings, images, layer_attribute)
     if world is None:
         return result
@@ -50,9 +64,12 @@ def export_world(world, warnings: list[str], images=None, layer_attribute=None) 
     bounces = int(getattr(getattr(world, "cycles", None), "max_bounces", NO_BOUNCE_LIMIT))
     result = dataclasses.replace(result, ao_distance=max(float(world.light_settings.distance), 0.0))
     if bounces < NO_BOUNCE_LIMIT:
-        # Past the limit only BSDF rays see the world, weighted by MIS against light samples that no longer come:
-        # what they add depends on the light sampling's distribution, so it is Cycles' (World.mis_compensation).
-        result = dataclasses.replace(result, max_bounces=max(bounces, 0), mis_compensation=False, focus=False)
+        result = dataclasses.replace(result, max_bounces=max(bounces, 0))
+    if bounces < NO_BOUNCE_LIMIT or plain:
+        # Past the limit (or Fast GI's AO bounces: plain) BSDF rays see the world, weighted by MIS, but its light
+        # samples no longer come (or at another strength): what they add then depends on the light sampling's
+        # distribution, so it is Cycles' (World.mis_compensation, focus).
+        result = dataclasses.replace(result, mis_compensation=False, focus=False)
     return result
 
 
