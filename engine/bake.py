@@ -146,7 +146,7 @@ def _scene_for(engine, depsgraph, obj, key, use_camera: bool, width: int, height
     engine.update_stats("", "Ember: exporting scene")
     try:
         exported = export_scene(depsgraph, width=width, height=height, should_stop=should_stop,
-                                need_camera=use_camera)
+                                need_camera=use_camera, bake=True)
     except ExportError as err:
         raise BakeError(str(err)) from None
     for line in exported.warnings:

@@ -72,11 +72,12 @@ def threads_warning(render) -> str | None:
 
 
 def render_settings(scene, region, *, samples: int | None = None, time_limit: float | None = None,
-                    viewport: bool = False) -> RenderSettings:
-    """Kernel settings from scene.ember and scene.render (viewport: for the viewport's rendered mode)."""
+                    viewport: bool = False, view_layer=None) -> RenderSettings:
+    """Kernel settings from scene.ember and scene.render (viewport: for the viewport's rendered mode); view_layer:
+    the layer a final render renders (its Samples override, its world's Fast GI settings), or None."""
     ember = scene.ember
     return RenderSettings(
-        samples=int(samples if samples is not None else ember.samples),
+        samples=int(samples if samples is not None else layer_samples(scene, view_layer, int(ember.samples))),
         max_bounces=int(ember.max_bounces),
         diffuse_bounces=int(ember.diffuse_bounces),
         glossy_bounces=int(ember.glossy_bounces),
@@ -102,9 +103,20 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         transparent_background=bool(scene.render.film_transparent),
         transparent_glass=transparent_glass(scene),
         exposure=film_exposure(scene),
-        **fast_gi(scene, viewport),
+        **fast_gi(scene, viewport, view_layer),
         quick_first_pass=not _background(),
     )
+
+
+def layer_samples(scene, view_layer, samples: int) -> int:
+    """A view layer's Samples (View Layer > Use for Rendering > Samples, 0: none) in place of the scene's, as Cycles'
+    Layer Samples (scene.cycles.use_layer_samples) decides: Use takes it, Bounded takes it where it is fewer,
+    Ignore never does (blender/session.cpp)."""
+    own = int(getattr(view_layer, "samples", 0) or 0) if view_layer is not None else 0
+    mode = getattr(getattr(scene, "cycles", None), "use_layer_samples", "USE")
+    if own <= 0 or mode == "IGNORE" or (mode == "BOUNDED" and own >= samples):
+        return samples
+    return own
 
 
 def film_exposure(scene) -> float:
@@ -323,8 +335,9 @@ class FinalRender:
             return
         self._warn(exported.warnings)
         self._region = self._find_region(width, height)
-        settings = render_settings(scene, (self._region.x0, self._region.y0, self._region.x1, self._region.y1))
         view_layer = self.depsgraph.view_layer
+        settings = render_settings(scene, (self._region.x0, self._region.y0, self._region.x1, self._region.y1),
+                                   view_layer=view_layer)
         self._result.passes = enabled_passes(scene, view_layer)
         self._denoise = bool(scene.ember.use_denoising)
         if self._denoise and not _background():

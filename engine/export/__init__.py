@@ -43,7 +43,7 @@ from .deform import deform_fields, vector_deform_fields
 from .motion import scene_motion, vector_fields
 from .rgba_attributes import view_layer_attribute
 from .updates import ExportIndex, export_index
-from .world import export_world, fast_gi
+from .world import export_layer_world
 
 __all__ = ["DEFAULT_ALBEDO", "ExportCancelled", "ExportError", "ExportResult", "export_scene", "render_region",
            "render_resolution"]
@@ -90,7 +90,7 @@ def object_visibility(per_row: list | None) -> np.ndarray | None:
 @small_pages()
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
                  motion=None, vector=None, instance_everything: bool = False, mesh_cache=None,
-                 need_camera: bool = True) -> ExportResult:
+                 need_camera: bool = True, bake: bool = False) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
 
     camera_override : a camera object to use instead of the scene's (RenderEngine.camera_override).
@@ -102,6 +102,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         viewport, whose moved objects then only change their transforms: updates.py).
     mesh_cache : geometry.MeshCache keeping meshes between the frames of an animation (Persistent Data), or None.
     need_camera : False for a bake, which sees no camera unless it bakes from it (a default one stands in).
+    bake : the export is a bake's (View Layer > Filter > Surfaces off leaves the meshes in, as Cycles' bake).
     Raises ExportError when there is no camera and one is needed.
     """
     start = time.perf_counter()
@@ -116,7 +117,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     camera = Camera() if camera_ob is None else \
         export_camera(camera_ob.evaluated_get(depsgraph), scene, width, height, warnings)
     layer_attribute = functools.partial(view_layer_attribute, scene, depsgraph.view_layer_eval)
-    materials = MaterialTable(warnings, layer_attribute, scene.frame_current)
+    materials = MaterialTable(warnings, layer_attribute, scene.frame_current,
+                              override=depsgraph.view_layer_eval.material_override)
     poll = Poller(should_stop)
     links = link_table(depsgraph)
     warnings.extend(links.warnings)
@@ -129,13 +131,12 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         geometry = export_geometry(depsgraph, materials, warnings, poll,
                                    moving=frozenset(motion.objects) | frozenset(motion.meshes)
                                    if motion is not None else frozenset(),
-                                   motion=motion,
+                                   motion=motion, surfaces=bake or bool(depsgraph.view_layer_eval.use_solid),
                                    instance_everything=instance_everything, cache=mesh_cache, links=links,
                                    light_groups=groups,
                                    dicing=None if camera_ob is None else
                                    Dicing(depsgraph, camera_ob.evaluated_get(depsgraph), width, height))
-        world = export_world(scene.world, warnings, materials.images, layer_attribute,
-                             plain=any("ao_factor" in fast_gi(scene, viewport) for viewport in (False, True)))
+        world = export_layer_world(depsgraph, warnings, materials.images, layer_attribute)
         lights = export_lights(depsgraph, warnings, poll, links, groups, materials.images, layer_attribute)
     crypto_names = {"object": [k[0] for k in geometry.instance_keys or []],
                     "asset": list(geometry.instance_assets or []), "material": list(materials.names)}

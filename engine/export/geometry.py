@@ -128,7 +128,8 @@ class MeshCache:
 def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], poll=None,
                     moving: set | frozenset = frozenset(), instance_everything: bool = False,
                     cache: MeshCache | None = None, links: LinkTable | None = None,
-                    light_groups: GroupTable | None = None, dicing: Dicing | None = None, motion=None) -> Geometry:
+                    light_groups: GroupTable | None = None, dicing: Dicing | None = None, motion=None,
+                    surfaces: bool = True) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
     poll() is called for every instance (it raises to cancel the export). moving : instance keys
     (instance_key) of objects that move during the shutter: their meshes are never instanced. motion : the
@@ -139,7 +140,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     links : the scene's light_linking.LinkTable (None: nothing links); light_groups : the view layer's
     light_groups.GroupTable (None: no light groups).
     dicing : adaptive.Dicing for objects with adaptive subdivision (None: they are read as Blender evaluates
-    them)."""
+    them). surfaces : False where View Layer > Filter > Surfaces is off: no mesh gives geometry, mesh volumes
+    included (Cycles' use_surfaces); Volume objects, hair, curves and points stay."""
     if cache is not None:
         cache.begin(depsgraph)
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
@@ -180,6 +182,9 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         if ob.type in ("POINTCLOUD", "CURVES"):
             _add_shape(shapes, inst, ob, materials, view_layer, described, signatures, object_values, warnings)
             continue
+        if not surfaces and ob.type != "VOLUME":
+            empty.add(instance_key(inst))
+            continue
         seen_by = instance_visibility(inst, ob, view_layer)
         if not seen_by:   # no ray sees it: not rendered (as Cycles' sync)
             continue
@@ -191,8 +196,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             # A Volume object or a smoke domain: its grids' boundary box, wearing the object's materials (the
             # default volume without one), its grids looked up where its medium is shaded.
             if object_key not in slot_rows:
-                slot_rows[object_key] = materials.slot_ids(ob) if len(ob.material_slots) else \
-                    (materials.default_volume_id(),)
+                slot_rows[object_key] = materials.slot_ids(ob) \
+                    if len(ob.material_slots) or materials.override is not None else (materials.default_volume_id(),)
                 signatures[object_key] = slot_materials(ob)
             if mesh_key not in meshes:
                 source = read_volume(ob, depsgraph.scene.frame_current, materials.interpolation(slot_rows[object_key]))

@@ -147,9 +147,11 @@ def _subsurface_method(node, kind: str) -> str:
 class MaterialTable:
     """The materials of one export. Row 0 is the default surface of objects without a material."""
 
-    def __init__(self, warnings: list[str], layer_attribute=None, frame: int = 1):
+    def __init__(self, warnings: list[str], layer_attribute=None, frame: int = 1, override=None):
         """layer_attribute : the View Layer attribute lookup node programs fold (nodes.ProgramBuilder); frame: the
-        scene frame (image sequences)."""
+        scene frame (image sequences); override: View Layer > Override > Material, which every object's slots
+        take instead of their own (Cycles' material_override), or None."""
+        self.override = override
         self.images = ImageTextures(warnings, frame)
         self._warnings = warnings
         self._layer_attribute = layer_attribute
@@ -229,7 +231,10 @@ class MaterialTable:
         return tuple(self._displacements.get(row) for row in rows)
 
     def slot_ids(self, ob) -> tuple[int, ...]:
-        """The rows of an object's material slots; (0,) for an object without slots."""
+        """The rows of an object's material slots; (0,) for an object without slots. With a material override,
+        its row in every slot (and for an object without slots)."""
+        if self.override is not None:
+            return (self.material_id(self.override),) * max(len(ob.material_slots), 1)
         return tuple(self.material_id(slot.material) for slot in ob.material_slots) or (0,)
 
     @property

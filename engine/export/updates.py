@@ -38,7 +38,7 @@ from .lights import export_lights
 from .materials import DEFAULT_VOLUME_KEY, MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS
 from .rgba_attributes import view_layer_attribute
-from .world import export_world
+from .world import export_layer_world
 
 __all__ = ["FULL", "INSTANCES", "LIGHTS", "SHADING", "Changes", "ExportIndex", "Shading", "export_changes",
            "export_index", "export_instances", "export_lights", "export_shading", "is_content_update",
@@ -252,7 +252,8 @@ def export_shading(depsgraph, index: ExportIndex) -> Shading | None:
     warnings: list[str] = []
     evaluated = {data.name_full: data for data in depsgraph.ids if isinstance(data, bpy.types.Material)}
     layer_attribute = functools.partial(view_layer_attribute, depsgraph.scene_eval, depsgraph.view_layer_eval)
-    materials = MaterialTable(warnings, layer_attribute, depsgraph.scene_eval.frame_current)
+    materials = MaterialTable(warnings, layer_attribute, depsgraph.scene_eval.frame_current,
+                              override=depsgraph.view_layer_eval.material_override)
     for key in index.material_keys[1:]:
         if key == DEFAULT_VOLUME_KEY:
             materials.default_volume_id()
@@ -263,7 +264,7 @@ def export_shading(depsgraph, index: ExportIndex) -> Shading | None:
         materials.material_id(material)
     if materials.mesh_needs() != index.mesh_needs:
         return None
-    world = export_world(depsgraph.scene_eval.world, warnings, materials.images, layer_attribute)
+    world = export_layer_world(depsgraph, warnings, materials.images, layer_attribute)
     return Shading(materials.to_kernel(), materials.textures, materials.texture_srgb, world)
 
 

@@ -38,18 +38,40 @@ DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
 TEXTURE_COORDINATES = ("Generated", "Object")  # both give the view direction on the world
 
 
-def fast_gi(scene, viewport: bool = False) -> dict:
+def layer_world(scene, view_layer=None):
+    """The world a view layer renders: its World Override (View Layer > Override), else the scene's (Cycles'
+    sync_world)."""
+    override = getattr(view_layer, "world_override", None) if view_layer is not None else None
+    return override if override is not None else scene.world
+
+
+def fast_gi(scene, viewport: bool = False, view_layer=None) -> dict:
     """Light Paths > Fast GI Approximation (Cycles' own settings, read as Cycles' sync reads them: the AO Bounces
-    of the viewport or of renders, the Method; the world's Ambient Occlusion Factor, Distance via World.ao_distance):
-    the RenderSettings fields ao_bounces, ao_factor (Replace) and ao_additive (Add). Off without a world."""
+    of the viewport or of renders, the Method; the layer's world's Ambient Occlusion Factor, its Distance via
+    World.ao_distance): the RenderSettings fields ao_bounces, ao_factor (Replace) and ao_additive (Add). Off
+    without a world."""
     cycles = getattr(scene, "cycles", None)
-    if cycles is None or scene.world is None or not getattr(cycles, "use_fast_gi", False):
+    world = layer_world(scene, view_layer)
+    if cycles is None or world is None or not getattr(cycles, "use_fast_gi", False):
         return {}
-    factor = float(scene.world.light_settings.ao_factor)
+    factor = float(world.light_settings.ao_factor)
     if getattr(cycles, "fast_gi_method", "REPLACE") == "ADD":
         return {"ao_additive": factor}
     bounces = int(getattr(cycles, "ao_bounces" if viewport else "ao_bounces_render", 0))
     return {"ao_bounces": max(bounces, 0), "ao_factor": factor} if bounces > 0 and factor else {}
+
+
+def export_layer_world(depsgraph, warnings: list[str], images=None, layer_attribute=None) -> World:
+    """The world of the depsgraph's view layer (layer_world) as export_world reads it, sampled as Cycles does where
+    Fast GI's Replace is on; with View Layer > Filter > Environment off, black, with no volume (Cycles then
+    renders the background with its empty shader), its Light settings kept."""
+    scene, layer = depsgraph.scene_eval, depsgraph.view_layer_eval
+    plain = any("ao_factor" in fast_gi(scene, viewport, layer) for viewport in (False, True))
+    result = export_world(layer_world(scene, layer), warnings, images, layer_attribute, plain)
+    if not bool(getattr(layer, "use_sky", True)):
+        result = dataclasses.replace(result, color=np.zeros(3, np.float32), hdri=None, strength=1.0, program=None,
+                                     output=None, volume=None)
+    return result
 
 
 def export_world(world, warnings: list[str], images=None, layer_attribute=None, plain: bool = False) -> World:
