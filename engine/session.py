@@ -343,8 +343,9 @@ class FinalRender:
         if self._denoise and not _background():
             self._previews = PreviewDenoiser((scene.ember.denoising_quality, scene.ember.denoising_prefilter),
                                              PREVIEW_DENOISE_INTERVAL_S, render_threads(scene.render))
-        settings = dataclasses.replace(settings, mist=mist_settings(scene), passes=kernel_passes(
-            scene, view_layer, scene.ember.denoising_input_passes if self._denoise else None),
+        settings = dataclasses.replace(
+            settings, mist=mist_settings(scene), pass_alpha_threshold=float(view_layer.pass_alpha_threshold),
+            passes=kernel_passes(scene, view_layer, scene.ember.denoising_input_passes if self._denoise else None),
             cryptomatte=cryptomatte.enabled_kinds(view_layer), cryptomatte_depth=cryptomatte.levels(view_layer))
         self._crypto_names = exported.crypto_names or {}
         engine.update_stats("", "Ember: building the scene")

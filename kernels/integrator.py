@@ -197,6 +197,8 @@ def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None)
         state.self_key = np.full(n, -1, np.int64)
     if settings.transparent_background and settings.transparent_glass is not None:
         state.see_through = np.ones(n, bool)
+    if passes.has_single_passes(aux):
+        state.data_pending = np.ones(n, bool)
     if tables.media is not None:
         state.media = tables.media.start_stack(n) if media is None else np.repeat(media[:, None], n, axis=1)
         state.volume_bounces = np.zeros(n, np.int32)
@@ -297,8 +299,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
             _held_transparent(tables, wave, state, hit, shading, held)
         closures = shading.closures
         tables.crew.check_stop()
-        if aux is not None and first:
-            passes.write_data(tables, aux, state, hit, closures, settings)
+        if aux is not None and (first or state.data_pending is not None or passes.behind_transparent(aux)):
+            passes.write_data(tables, aux, state, hit, closures, settings, first)
         if state.features is not None:
             passes.write_denoising_features(tables, aux, state, hit, shading, t_hit)
         if state.min_ray_pdf is not None and settings.filter_glossy > 0:

@@ -48,8 +48,9 @@ import numpy as np
 from . import panorama
 from .bsdf.light_passes import class_albedo, closure_albedos, eval_split, pass_classes
 from .cryptomatte import CryptoFilm
-from .bsdf.lobes import MICROFACET_LOBES, SINGULAR_LOBES
+from .bsdf.lobes import MICROFACET_LOBES, SINGULAR_LOBES, TRANSPARENT
 from .camera import view_plane
+from .paths import seen_through
 from .scene import OBJ_PASS_INDEX, Camera
 from .vec import matmul
 
@@ -370,55 +371,133 @@ def class_shares(f, f_diffuse, f_glossy) -> np.ndarray:
                              neginf=0.0).astype(np.float32)
 
 
-# ---- stage: data passes of the camera rays' first surface (kernels.passes)
-def write_data(tables, aux: dict, state, hit, closures, settings) -> None:
+# Data passes a camera path takes from one surface: the first it meets that is opaque enough (Cycles'
+# PATH_RAY_SINGLE_PASS_DONE); the first four from each surface before it too, the last one's value kept.
+SINGLE_PASSES = ("depth", "position", "object_index", "material_index", "normal", "uv", "vector")
+_OVERWRITTEN = ("depth", "position", "object_index", "material_index")
+
+
+def has_single_passes(aux) -> bool:
+    return aux is not None and any(name in aux for name in SINGLE_PASSES)
+
+
+def behind_transparent(aux) -> bool:
+    """Whether the wave records a pass the surfaces behind transparent ones add to (Colors, Mist)."""
+    return any(name in aux for name in ("diffuse_color", "glossy_color", "transmission_color", "mist"))
+
+
+# ---- stage: data passes of the surfaces the camera sees (kernels.passes)
+def write_data(tables, aux: dict, state, hit, closures, settings, first: bool) -> None:
+    """The data passes at the surfaces the camera sees, as Cycles' film_write_data_passes: at a camera path's first
+    surface (first: the camera rays' step) and at those behind transparent surfaces (rows still seen through).
+    Depth, Position and the indices are taken at each such surface until one is opaque enough (alpha at least
+    settings.pass_alpha_threshold, or no transparent closure), which alone gives Normal, UV and Vector; the
+    Color passes and Mist add every such surface's share (throughput, and alpha for Mist); Cryptomatte and AOVs
+    are the first surface's."""
+    if first:
+        rows = np.arange(len(hit))
+    else:
+        rows = np.flatnonzero(seen_through(state))
+        if not len(rows):
+            return
+    pending = state.data_pending
+    single = rows if pending is None or first else rows[np.take(pending, rows)]
+    alpha = None
+    if pending is not None and len(single):
+        alpha = closure_alpha(closures, len(hit))
+        done = np.ones(len(hit), bool) if settings.pass_alpha_threshold <= 0 else \
+            alpha.mean(axis=0) >= np.float32(settings.pass_alpha_threshold)
+        taken = single[done[single]]
+        state.data_pending[single] = ~done[single]
+    else:
+        taken = single
+    _write_data(tables, aux, state, hit, closures, settings, rows, single, taken, first, alpha)
+
+
+def closure_alpha(closures, n: int) -> np.ndarray:
+    """(3, n) Cycles' surface_shader_alpha of the hits: one minus their transparent closures' weight, in [0, 1]."""
+    alpha = np.ones((3, n), np.float32)
+    if len(closures):
+        clear = np.flatnonzero(closures.lobe == TRANSPARENT)
+        if len(clear):
+            transparency = np.stack([np.bincount(closures.hit[clear], closures.weight[k, clear], minlength=n)
+                                     for k in range(3)])
+            alpha = np.clip(1.0 - transparency, 0.0, 1.0).astype(np.float32)
+    return alpha
+
+
+def _write_data(tables, aux, state, hit, closures, settings, rows, single, taken, first, alpha) -> None:
+    """write_data's passes: rows see the camera, single those still looking for their one surface, taken those
+    that find it here."""
     paths = state.path
     n = len(hit)
     colours = None  # the closure classes' colours, made once for the three Color passes
     for name, out in aux.items():
+        if name in _OVERWRITTEN:
+            at = single
+        elif name in SINGLE_PASSES:
+            at = taken
+        elif name.startswith(("crypto_", "aov:")):
+            if not first:
+                continue
+            at = rows
+        else:
+            at = rows
+        if not len(at):
+            continue
+        whole = len(at) == n
+        p = paths if whole else paths[at]
+
+        def pick(values):   # (C, n) -> the columns at
+            return values if whole else np.take(values, at, axis=-1)
+
         if name == "depth":
             eye, rotation = tables.camera_frame
             d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
-            out[0, paths] = np.sqrt((d * d).sum(axis=0)) if tables.scene.camera.kind == "PANO" else \
-                -matmul(rotation[:, 2], d)
+            out[0, p] = pick(np.sqrt((d * d).sum(axis=0)) if tables.scene.camera.kind == "PANO" else
+                             -matmul(rotation[:, 2], d))
         elif name == "position":
-            out[:, paths] = np.stack(hit.p)
+            out[:, p] = pick(np.stack(hit.p))
         elif name == "object_index":
             if tables.scene.objects is not None:
-                rows = tables.triangles.object_rows(hit.prim)
-                out[0, paths] = np.take(tables.scene.objects[:, OBJ_PASS_INDEX], rows)
+                objects = tables.triangles.object_rows(hit.prim)
+                out[0, p] = pick(np.take(tables.scene.objects[:, OBJ_PASS_INDEX], objects))
         elif name == "material_index":
             indices = np.asarray(tables.scene.materials.pass_indices or (0,) * tables.scene.materials.count,
                                  np.float32)
-            out[0, paths] = np.take(indices, hit.mat)
+            out[0, p] = pick(np.take(indices, hit.mat))
         elif name == "normal":
-            out[:, paths] = closure_normal(closures, n, hit.ns)
+            out[:, p] = pick(closure_normal(closures, n, hit.ns))
         elif name == "uv":
             u, v = hit.uv_at(np.arange(n))
-            out[0, paths], out[1, paths] = u, v
+            out[0, p], out[1, p] = pick(u), pick(v)
         elif name.startswith("crypto_"):
             kind = name[len("crypto_"):]
             table = (tables.scene.crypto_ids or {}).get(kind)
             if kind == "weight":  # the sample's matte weight: what reaches the camera from here
-                out[0, paths] = state.throughput.mean(axis=0)
+                out[0, p] = pick(state.throughput.mean(axis=0))
             elif table is not None and len(table):
-                rows = hit.mat if kind == "material" else \
+                objects = hit.mat if kind == "material" else \
                     tables.triangles.object_rows(hit.prim)
-                if rows is not None:
-                    out[0, paths] = np.take(table, rows)
+                if objects is not None:
+                    out[0, p] = pick(np.take(table, objects))
         elif name == "vector":
             if tables.scene.vector_motion is not None:
-                out[:, paths] = motion_vectors(tables, hit)
+                out[:, p] = pick(motion_vectors(tables, hit))
             if "vector_weight" in aux:
-                aux["vector_weight"][0, paths] = 1.0
+                aux["vector_weight"][0, p] = 1.0
         elif name.startswith("aov:"):
             _, aov_name, which = name.split(":")
-            out[:, paths] = tables.shading.aov(hit, aov_name, 3 if which == "color" else 1)
+            out[:, p] = pick(tables.shading.aov(hit, aov_name, 3 if which == "color" else 1))
         elif name in ("diffuse_color", "glossy_color", "transmission_color"):
             if colours is None:
                 colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),
                                    class_albedo(closures, n)))
-            out[:, paths] = colours[name] * state.throughput
+            value = pick(colours[name] * state.throughput)
+            if first:
+                out[:, p] = value
+            else:   # the surfaces behind transparent ones add theirs
+                accumulate(out, p, value)
         elif name == "mist":
             eye, rotation = tables.camera_frame
             d = np.stack([c.astype(np.float64) for c in hit.p]) - eye[:, None]
@@ -426,7 +505,13 @@ def write_data(tables, aux: dict, state, hit, closures, settings) -> None:
                 np.sqrt((d * d).sum(axis=0))
             start, depth, falloff = settings.mist
             mist = np.clip((distance - start) / max(depth, 1e-30), 0.0, 1.0) ** falloff
-            out[0, paths] = (1.0 - mist) * state.throughput.mean(axis=0)
+            if alpha is None:
+                alpha = closure_alpha(closures, n)
+            value = pick((1.0 - mist) * (state.throughput * alpha).mean(axis=0))
+            if first:
+                out[0, p] = value
+            else:
+                out[0, p] += value
 
 
 def motion_vectors(tables, hit) -> np.ndarray:

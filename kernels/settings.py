@@ -78,6 +78,10 @@ class RenderSettings:
     adaptive_min_samples: int = 0
     # Data passes to record besides the image (kernels.passes.PASSES names), e.g. ("depth", "normal").
     passes: tuple = ()
+    # View Layer > Passes > Alpha Threshold (Cycles' pass_alpha_threshold): a camera path's data passes (Depth,
+    # Position, indices, Normal, UV, Vector) take the first surface it meets whose alpha is at least this, past
+    # more transparent ones (0: the first surface, whatever its alpha).
+    pass_alpha_threshold: float = 0.5
     # The Mist pass: (start, depth, falloff exponent) in scene units (the world's Mist Pass settings).
     mist: tuple = (5.0, 25.0, 2.0)
     # A sample range of the frame (Cycles' Sample Offset): samples sample_offset .. sample_offset + samples - 1
@@ -134,6 +138,8 @@ class RenderSettings:
         if int(self.adaptive_min_samples) < 0:
             raise ValueError(f"adaptive_min_samples: must be non-negative (0 is automatic), got "
                              f"{self.adaptive_min_samples}")
+        if not 0.0 <= float(self.pass_alpha_threshold) <= 1.0:
+            raise ValueError(f"pass_alpha_threshold: must be within [0, 1], got {self.pass_alpha_threshold}")
         if int(self.ao_bounces) < 0:
             raise ValueError(f"ao_bounces: must be non-negative, got {self.ao_bounces}")
         for name in ("ao_factor", "ao_additive"):

@@ -204,3 +204,48 @@ def test_ambient_occlusion_pass_through_transparency_and_holdouts_matches_cycles
     grey = ember.mean(axis=-1)
     assert ((grey > 0.1) & (grey < 0.8)).sum() > 20 and (grey > 0.95).sum() > 100   # occluded in places, open elsewhere
     assert_blocks_match(images["CYCLES"], images["EMBER"], "Ambient Occlusion")
+
+
+def test_data_passes_behind_a_transparent_leaf_match_cycles():
+    """A leaf of alpha 0.3 (under View Layer > Passes > Alpha Threshold, 0.5) over a floor: as Cycles'
+    film_write_data_passes, a camera path takes Normal from the first surface opaque enough, the floor where it
+    passes the leaf (about 70% of the samples) and nothing where it scatters off it; Depth and Object Index from
+    the last surface it saw (sample 0: floor or leaf, at random); Mist and Diffuse Color add each surface's share.
+    Before, every data pass was the leaf's, whatever its alpha: Normal and Depth the leaf's everywhere behind it."""
+    from bpy_helpers import add_camera, configure_engine, diffuse_material, new_scene, quad_object, set_world
+    names = ("Normal", "Mist", "Diffuse Color", "Depth", "Object Index")
+    renders = {"CYCLES": [], "EMBER": []}
+    for engine in renders:
+        for seed in REPLICATE_SEEDS[:2]:
+            scene = new_scene(32, 24)
+            add_camera(scene, (0, -3, 3.0), (0, 0, 0), lens=35)
+            set_world(scene, (0.4, 0.4, 0.4))
+            floor = quad_object("Floor", (-3, -3, 0), (6, 0, 0), (0, 6, 0), diffuse_material("Floor", (0.6, 0.6, 0.6)))
+            floor.pass_index = 1
+            leaf = bpy.data.materials.new("Leaf")
+            bsdf = leaf.node_tree.nodes["Principled BSDF"]
+            bsdf.inputs["Alpha"].default_value = 0.3
+            bsdf.inputs["Base Color"].default_value = (0.2, 0.7, 0.1, 1.0)
+            plane = quad_object("Leaf", (-1.0, -1.2, 1.0), (2.0, 0, 0), (0, 1.4, 0.6), leaf)
+            plane.pass_index = 2
+            layer = scene.view_layers[0]
+            layer.use_pass_normal = layer.use_pass_mist = layer.use_pass_diffuse_color = True
+            layer.use_pass_z = layer.use_pass_object_index = True
+            configure_engine(scene, engine, 64, seed=seed)
+            parts, _ = render_multilayer(scene)
+            out = {}
+            for name in names:
+                planes = parts[f"{layer.name}.{name}"]
+                out[name] = np.stack([planes[c] for c in sorted(planes, key="RGBAXYZ".find)], axis=-1)
+            renders[engine].append(out)
+    for name in ("Normal", "Mist", "Diffuse Color"):
+        assert_blocks_match([r[name] for r in renders["CYCLES"]], [r[name] for r in renders["EMBER"]], name)
+    # Sample 0 of a leaf pixel sees the floor behind it with probability 0.7 in both engines (binomial noise).
+    index = {engine: np.stack([r["Object Index"][..., 0] for r in rs]) for engine, rs in renders.items()}
+    region = np.concatenate(list(index.values())).__eq__(2).any(axis=0)   # the leaf's pixels, in any render
+    n = int(region.sum())
+    fractions = {engine: float(np.mean(values[:, region] == 1)) for engine, values in index.items()}
+    fc, fe = fractions["CYCLES"], fractions["EMBER"]
+    assert n > 50 and 0.4 < fc < 0.9, (n, fractions)
+    se = np.sqrt(2 * fc * (1 - fc) / (2 * n))   # both engines' fractions over 2 renders x n pixels
+    assert abs(fe - fc) < 5 * se, (n, fractions)
