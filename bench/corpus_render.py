@@ -54,9 +54,8 @@ def lacking_settings(scene) -> list[str]:
               # Cycles reads the threshold only without the light tree (scene/integrator.cpp)
               ("light_sampling_threshold", c.light_sampling_threshold > 0 and not c.use_light_tree),
               ("use_light_tree", not c.use_light_tree),
-              # Simplify's (Cycles reads them only with Simplify on)
+              # Simplify's (Cycles reads it only with Simplify on)
               ("texture_limit_render", simplify and c.texture_limit_render != "OFF"),
-              ("use_camera_cull", simplify and c.use_camera_cull), ("use_distance_cull", simplify and c.use_distance_cull),
               ("shading_system (OSL)", c.shading_system))
     for name, active in checks:
         if active:

@@ -132,6 +132,29 @@ class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):
                 sub.prop(world.light_settings, "distance", text="AO Distance")
 
 
+class EMBER_RENDER_PT_simplify_culling(EmberPanel, bpy.types.Panel):
+    """Render > Simplify > Culling: Cycles' own scene settings, which Ember reads (export/culling.py); each object's
+    switches are in Cycles' Object > Visibility > Culling panel."""
+    bl_label = "Culling"
+    bl_parent_id = "RENDER_PT_simplify"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def shows(cls, context):
+        return hasattr(context.scene, "cycles")
+
+    def draw(self, context):
+        layout = split_layout(self.layout)
+        layout.active = context.scene.render.use_simplify
+        cycles = context.scene.cycles
+        col = layout.column(heading="Camera Culling", align=True)
+        col.prop(cycles, "use_camera_cull", text="")
+        col.prop(cycles, "camera_cull_margin", text="Margin")
+        col = layout.column(heading="Distance Culling", align=True)
+        col.prop(cycles, "use_distance_cull", text="")
+        col.prop(cycles, "distance_cull_margin", text="Distance")
+
+
 class EMBER_RENDER_PT_volumes(EmberPanel, bpy.types.Panel):
     bl_label = "Volumes"
     bl_options = {"DEFAULT_CLOSED"}
@@ -461,7 +484,7 @@ class EMBER_OBJECT_PT_adaptive_subdivision(EmberPanel, bpy.types.Panel):
 
 
 CLASSES = (EMBER_RENDER_PT_sampling, EMBER_RENDER_PT_denoise, EMBER_RENDER_PT_light_paths,
-           EMBER_RENDER_PT_volumes, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance,
+           EMBER_RENDER_PT_volumes, EMBER_RENDER_PT_simplify_culling, EMBER_RENDER_PT_film, EMBER_RENDER_PT_motion_blur, EMBER_RENDER_PT_performance,
            EMBER_VIEWLAYER_PT_passes, EMBER_VIEWLAYER_PT_passes_lightgroups, EMBER_LIGHT_PT_shadow,
            EMBER_LIGHT_PT_settings, EMBER_LIGHT_PT_beam_shape,
            EMBER_MATERIAL_PT_volume, EMBER_WORLD_PT_volume, EMBER_OBJECT_PT_visibility_mask,

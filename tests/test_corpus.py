@@ -91,22 +91,23 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
     mesh_object("Smooth", [(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 1, 2)], smooth=True)
     mesh_object("Flat", [(0, 0, 1), (1, 0, 1), (0, 1, 1)], [(0, 1, 2)])
     scene.cycles.sample_clamp_indirect, scene.cycles.blur_glossy = 3.0, 0.25
-    scene.render.use_simplify, scene.cycles.use_distance_cull = True, True
+    scene.cycles.use_light_tree = False
     mapped = corpus_render.map_cycles_settings(scene)
     assert (scene.ember.sample_clamp_indirect, scene.ember.blur_glossy) == (3.0, 0.25)
     assert mapped["sample_clamp_indirect"] == 3.0 and mapped["max_bounces"] == scene.cycles.max_bounces
     lacking = corpus_render.lacking_settings(scene)
     assert mapped["diffuse_bounces"] == scene.cycles.diffuse_bounces == scene.ember.diffuse_bounces
-    assert "use_distance_cull=True" in lacking and not any(key in item for item in lacking
-                                                           for key in ("bounces", "exposure", "fast_gi"))
+    assert "use_light_tree=False" in lacking and not any(key in item for item in lacking
+                                                         for key in ("bounces", "exposure", "fast_gi", "cull"))
     bpy.data.objects["Smooth"].shadow_terminator_shading_offset = 0.2   # rendered now: not lacking
     assert not any("shadow_terminator" in item for item in corpus_render.lacking_settings(scene))
 
 
 # ---------------------------------------------------------------- the tool on .blend files
-def build_scene(culled: bool):
-    """A floor and a box under an area lamp, with Cycles settings Ember takes over, one it lacks where culled
-    (Simplify > Culling > Distance, which takes the box out of Cycles' render), and a material Ember warns about (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing
+def build_scene(different: bool):
+    """A floor and a box under an area lamp, with Cycles settings Ember takes over; where different, one it lacks
+    (the light tree off, which only changes the noise) and a Radial Tiling node (the one Cycles node Ember does not
+    render) colouring the box; and a material Ember warns about (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing
     changes in Cycles)."""
     scene = new_scene(48, 32)
     floor = diffuse_material("Floor", (0.7, 0.7, 0.7))
@@ -118,7 +119,7 @@ def build_scene(culled: bool):
     box.node_tree.links.new(times.outputs[0], next(n for n in box.node_tree.nodes if n.type.startswith("BSDF")).inputs["Roughness"])
     verts = [(x, y, z) for z in (0, 1.5) for y in (-0.7, 0.7) for x in (-0.7, 0.7)]
     faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    box_ob = mesh_object("Box", verts, faces, box)
+    mesh_object("Box", verts, faces, box)
     lamp = bpy.data.lights.new("Lamp", "AREA")
     lamp.energy, lamp.size = 400.0, 2.0
     lamp_ob = bpy.data.objects.new("Lamp", lamp)
@@ -126,16 +127,19 @@ def build_scene(culled: bool):
     scene.collection.objects.link(lamp_ob)
     scene.cycles.sample_clamp_indirect = 5.0
     scene.cycles.pixel_filter_type = "GAUSSIAN"
-    scene.render.use_simplify = scene.cycles.use_distance_cull = box_ob.cycles.use_distance_cull = culled
-    scene.cycles.distance_cull_margin = 0.5
+    if different:
+        tiling = box.node_tree.nodes.new("ShaderNodeRadialTiling")
+        bsdf = next(n for n in box.node_tree.nodes if n.type.startswith("BSDF"))
+        box.node_tree.links.new(tiling.outputs["Segment Coordinates"], bsdf.inputs["Color"])
+        scene.cycles.use_light_tree = False
     return scene
 
 
 @pytest.fixture(scope="module")
 def corpus_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("corpus")
-    for name, culled in (("same.blend", False), ("culled.blend", True)):
-        build_scene(culled)
+    for name, different in (("same.blend", False), ("tiled.blend", True)):
+        build_scene(different)
         bpy.ops.wm.save_as_mainfile(filepath=str(folder / name), copy=True)
     (folder / "broken.blend").write_bytes(b"not a blend file")
     out = folder / "out"
@@ -153,11 +157,11 @@ def table_row(stdout: str, name: str) -> list[str]:
 def test_the_tool_runs_every_file_and_tables_them(corpus_run):
     run, out = corpus_run
     assert run.returncode == 0, run.stderr
-    same, culled, broken = (table_row(run.stdout, n) for n in ("same.blend", "culled.blend", "broken.blend"))
+    same, tiled, broken = (table_row(run.stdout, n) for n in ("same.blend", "tiled.blend", "broken.blend"))
     assert same[-1] == "within noise", run.stdout
     assert same[7] == "1"                                    # the UV Along Stroke warning, once for both renders
-    assert culled[-1] == "beyond noise" and "use_distance_cull=True" in culled[8], run.stdout
-    assert float(culled[4]) > 10                              # the box is gone from Cycles' image: blocks far off
+    assert tiled[-1] == "beyond noise" and "use_light_tree=False" in tiled[8], run.stdout
+    assert float(tiled[4]) > 5 and "Radial Tiling" in run.stdout   # the box's colour differs: blocks far off
     assert broken[-1].startswith("failed: Cycles:") and "Ember:" in broken[-1]
     assert "sample_clamp_indirect=5.0" in run.stdout and "pixel_filter_type=GAUSSIAN" in run.stdout
     assert "UV Along Stroke node" in run.stdout and "is not supported" in run.stdout
@@ -166,7 +170,7 @@ def test_the_tool_runs_every_file_and_tables_them(corpus_run):
 
 def test_side_by_side_pngs(corpus_run):
     run, out = corpus_run
-    assert sorted(os.listdir(out)) == ["culled.png", "same.png", "summary.md"]
+    assert sorted(os.listdir(out)) == ["same.png", "summary.md", "tiled.png"]
     image = bpy.data.images.load(str(out / "same.png"))
     try:
         width, height = image.size

@@ -61,8 +61,8 @@ class _RecordingLayout:
 
 
 def test_panels_draw_the_cycles_settings_ember_reads():
-    """Light Paths (Fast GI), Film (Exposure), a light's Settings (Max Bounces, Multiple Importance) and the
-    passes (Ambient Occlusion) draw properties that exist, in bpy 5.0 and 5.3 alike."""
+    """Light Paths (Fast GI), Film (Exposure), a light's Settings (Max Bounces, Multiple Importance), the passes
+    (Ambient Occlusion) and Simplify's Culling draw properties that exist, in bpy 5.0 and 5.3 alike."""
     from types import SimpleNamespace
     ensure_registered()
     scene = new_scene()
@@ -71,11 +71,12 @@ def test_panels_draw_the_cycles_settings_ember_reads():
     context = SimpleNamespace(scene=scene, light=light, view_layer=scene.view_layers[0], engine="EMBER")
     drawn = []
     for name in ("EMBER_RENDER_PT_light_paths", "EMBER_RENDER_PT_film", "EMBER_LIGHT_PT_settings",
-                 "EMBER_VIEWLAYER_PT_passes"):
+                 "EMBER_VIEWLAYER_PT_passes", "EMBER_RENDER_PT_simplify_culling"):
         panel = getattr(bpy.types, name)
         panel.draw(SimpleNamespace(layout=_RecordingLayout(drawn)), context)
     for name in ("use_fast_gi", "fast_gi_method", "ao_bounces_render", "ao_factor", "film_exposure", "max_bounces",
-                 "use_multiple_importance_sampling", "use_pass_ambient_occlusion"):
+                 "use_multiple_importance_sampling", "use_pass_ambient_occlusion", "use_camera_cull",
+                 "distance_cull_margin"):
         assert name in drawn, name
 
 

@@ -220,6 +220,10 @@ def test_data_passes_behind_a_transparent_leaf_match_cycles():
             scene = new_scene(32, 24)
             add_camera(scene, (0, -3, 3.0), (0, 0, 0), lens=35)
             set_world(scene, (0.4, 0.4, 0.4))
+            # Mist from the camera to 8 m, linear: the leaf and the floor at 3-5 m read 0.4-0.6 (with Blender's
+            # default start of 5 m every surface here reads 0, a float32 sum's rounding in Cycles).
+            mist = scene.world.mist_settings
+            mist.start, mist.depth, mist.falloff = 0.0, 8.0, "LINEAR"
             floor = quad_object("Floor", (-3, -3, 0), (6, 0, 0), (0, 6, 0), diffuse_material("Floor", (0.6, 0.6, 0.6)))
             floor.pass_index = 1
             leaf = bpy.data.materials.new("Leaf")

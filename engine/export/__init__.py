@@ -33,6 +33,7 @@ from ...kernels.memory import small_pages, trim_heap
 from ...kernels.scene.objects import ALL_RAYS
 from .adaptive import Dicing
 from .camera import export_camera, render_region, render_resolution
+from .culling import Culling
 from .geometry import export_geometry
 from .images import shader_images
 from .light_groups import group_table, object_groups
@@ -90,7 +91,7 @@ def object_visibility(per_row: list | None) -> np.ndarray | None:
 @small_pages()
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
                  motion=None, vector=None, instance_everything: bool = False, mesh_cache=None,
-                 need_camera: bool = True, bake: bool = False) -> ExportResult:
+                 need_camera: bool = True, bake: bool = False, cull: bool = True) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
 
     camera_override : a camera object to use instead of the scene's (RenderEngine.camera_override).
@@ -103,6 +104,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     mesh_cache : geometry.MeshCache keeping meshes between the frames of an animation (Persistent Data), or None.
     need_camera : False for a bake, which sees no camera unless it bakes from it (a default one stands in).
     bake : the export is a bake's (View Layer > Filter > Surfaces off leaves the meshes in, as Cycles' bake).
+    cull : apply Simplify > Culling for the camera (culling.py); False for the viewport, whose view moves.
     Raises ExportError when there is no camera and one is needed.
     """
     start = time.perf_counter()
@@ -112,6 +114,9 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         raise ExportError("Scene has no camera")
     default_width, default_height = render_resolution(scene)
     warnings: list[str] = []
+    if scene.render.use_simplify and getattr(getattr(scene, "cycles", None), "texture_limit_render", "OFF") != "OFF":
+        warnings.append(f"Simplify > Texture Limit {scene.cycles.texture_limit_render} is not applied: textures "
+                        f"render at their own size")
     width = default_width if width is None else width
     height = default_height if height is None else height
     camera = Camera() if camera_ob is None else \
@@ -132,6 +137,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                                    moving=frozenset(motion.objects) | frozenset(motion.meshes)
                                    if motion is not None else frozenset(),
                                    motion=motion, surfaces=bake or bool(depsgraph.view_layer_eval.use_solid),
+                                   culling=Culling(scene, camera) if cull and not bake and camera_ob is not None
+                                   else None,
                                    instance_everything=instance_everything, cache=mesh_cache, links=links,
                                    light_groups=groups,
                                    dicing=None if camera_ob is None else

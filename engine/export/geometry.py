@@ -24,7 +24,7 @@ from ...kernels.shading.input_ops import PARTICLE_OUTPUTS, particle_attribute_na
 from ...kernels.textures import Texture
 from .adaptive import Dicing
 from .displacement import BlenderMesh, displace_mesh
-from .instances import (asset_name, instance_key, instance_random, instance_visibility, instanced_groups,
+from .instances import (RENDERED_TYPES, asset_name, instance_key, instance_random, instance_visibility, instanced_groups,
                         is_rendered, object_inputs, slot_materials)
 from .light_groups import GroupTable
 from .light_linking import ALL_MASK, LinkTable
@@ -129,7 +129,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                     moving: set | frozenset = frozenset(), instance_everything: bool = False,
                     cache: MeshCache | None = None, links: LinkTable | None = None,
                     light_groups: GroupTable | None = None, dicing: Dicing | None = None, motion=None,
-                    surfaces: bool = True) -> Geometry:
+                    surfaces: bool = True, culling=None) -> Geometry:
     """Read every rendered mesh instance; register the materials its slots use in `materials`.
     poll() is called for every instance (it raises to cancel the export). moving : instance keys
     (instance_key) of objects that move during the shutter: their meshes are never instanced. motion : the
@@ -141,7 +141,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     light_groups.GroupTable (None: no light groups).
     dicing : adaptive.Dicing for objects with adaptive subdivision (None: they are read as Blender evaluates
     them). surfaces : False where View Layer > Filter > Surfaces is off: no mesh gives geometry, mesh volumes
-    included (Cycles' use_surfaces); Volume objects, hair, curves and points stay."""
+    included (Cycles' use_surfaces); Volume objects, hair, curves and points stay. culling : the render's
+    culling.Culling (Simplify > Culling), or None: the instances it culls are left out."""
     if cache is not None:
         cache.begin(depsgraph)
     meshes: dict[int, LocalMesh] = {}        # evaluated mesh pointer -> its triangles
@@ -174,6 +175,9 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             poll()
         # An instance is only valid during its iteration step: copy what is needed now.
         ob = inst.object
+        if culling is not None and ob.type in RENDERED_TYPES and culling.culled(ob, np.array(inst.matrix_world)):
+            empty.add(instance_key(inst))
+            continue
         if ob.type == "MESH" and inst.show_particles and shapes.has_hair(ob):
             _add_shape(shapes, inst, ob, materials, view_layer, described, signatures, object_values, warnings,
                        hair=True)

@@ -83,7 +83,8 @@ class ViewportRender:
         override = None if depsgraph.scene_eval.camera is not None else stand_in_camera()
         self._index = None
         try:
-            exported = export_scene(depsgraph, override, width=width, height=height, instance_everything=True)
+            exported = export_scene(depsgraph, override, width=width, height=height, instance_everything=True,
+                                    cull=False)
         except ExportError as err:
             self.session.fail(str(err))
             return
