@@ -392,8 +392,9 @@ def write_data(tables, aux: dict, state, hit, closures, settings, first: bool) -
     surface (first: the camera rays' step) and at those behind transparent surfaces (rows still seen through).
     Depth, Position and the indices are taken at each such surface until one is opaque enough (alpha at least
     settings.pass_alpha_threshold, or no transparent closure), which alone gives Normal, UV and Vector; the
-    Color passes and Mist add every such surface's share (throughput, and alpha for Mist); Cryptomatte and AOVs
-    are the first surface's."""
+    Color passes and Mist add every such surface's share (throughput, and alpha for Mist); AOVs add the values of
+    the surfaces up to that one (Cycles' svm_node_aov_check); Cryptomatte is the first surface's, weighed by its
+    alpha (matte_weight)."""
     if first:
         rows = np.arange(len(hit))
     else:
@@ -437,10 +438,12 @@ def _write_data(tables, aux, state, hit, closures, settings, rows, single, taken
             at = single
         elif name in SINGLE_PASSES:
             at = taken
-        elif name.startswith(("crypto_", "aov:")):
+        elif name.startswith("crypto_"):
             if not first:
                 continue
             at = rows
+        elif name.startswith("aov:"):   # Cycles' svm_node_aov_check: until the one surface, added up
+            at = single
         else:
             at = rows
         if not len(at):
@@ -474,8 +477,10 @@ def _write_data(tables, aux, state, hit, closures, settings, rows, single, taken
         elif name.startswith("crypto_"):
             kind = name[len("crypto_"):]
             table = (tables.scene.crypto_ids or {}).get(kind)
-            if kind == "weight":  # the sample's matte weight: what reaches the camera from here
-                out[0, p] = pick(state.throughput.mean(axis=0))
+            if kind == "weight":  # the sample's matte weight: what reaches the camera from here, times alpha
+                if alpha is None:
+                    alpha = closure_alpha(closures, n)
+                out[0, p] = pick(state.throughput.mean(axis=0) * alpha.mean(axis=0))
             elif table is not None and len(table):
                 objects = hit.mat if kind == "material" else \
                     tables.triangles.object_rows(hit.prim)
@@ -488,7 +493,11 @@ def _write_data(tables, aux, state, hit, closures, settings, rows, single, taken
                 aux["vector_weight"][0, p] = 1.0
         elif name.startswith("aov:"):
             _, aov_name, which = name.split(":")
-            out[:, p] = pick(tables.shading.aov(hit, aov_name, 3 if which == "color" else 1))
+            value = pick(tables.shading.aov(hit, aov_name, 3 if which == "color" else 1))
+            if first:
+                out[:, p] = value
+            else:
+                out[:, p] += value
         elif name in ("diffuse_color", "glossy_color", "transmission_color"):
             if colours is None:
                 colours = dict(zip(("diffuse_color", "glossy_color", "transmission_color"),

@@ -210,10 +210,13 @@ def test_data_passes_behind_a_transparent_leaf_match_cycles():
     """A leaf of alpha 0.3 (under View Layer > Passes > Alpha Threshold, 0.5) over a floor: as Cycles'
     film_write_data_passes, a camera path takes Normal from the first surface opaque enough, the floor where it
     passes the leaf (about 70% of the samples) and nothing where it scatters off it; Depth and Object Index from
-    the last surface it saw (sample 0: floor or leaf, at random); Mist and Diffuse Color add each surface's share.
-    Before, every data pass was the leaf's, whatever its alpha: Normal and Depth the leaf's everywhere behind it."""
+    the last surface it saw (sample 0: floor or leaf, at random); Mist and Diffuse Color add each surface's share;
+    an AOV adds the values of the surfaces up to the opaque one (Cycles' svm_node_aov_check); the leaf's Cryptomatte
+    weight is its alpha. Before, every data pass was the leaf's, whatever its alpha: Normal and Depth the leaf's
+    everywhere behind it, its matte weight 1."""
     from bpy_helpers import add_camera, configure_engine, diffuse_material, new_scene, quad_object, set_world
-    names = ("Normal", "Mist", "Diffuse Color", "Depth", "Object Index")
+    from ember.kernels.cryptomatte import hash_names
+    names = ("Normal", "Mist", "Diffuse Color", "Depth", "Object Index", "Tag", "CryptoObject00", "CryptoObject01")
     renders = {"CYCLES": [], "EMBER": []}
     for engine in renders:
         for seed in REPLICATE_SEEDS[:2]:
@@ -232,7 +235,13 @@ def test_data_passes_behind_a_transparent_leaf_match_cycles():
             bsdf.inputs["Base Color"].default_value = (0.2, 0.7, 0.1, 1.0)
             plane = quad_object("Leaf", (-1.0, -1.2, 1.0), (2.0, 0, 0), (0, 1.4, 0.6), leaf)
             plane.pass_index = 2
+            for material, tag in ((leaf, 1.0), (floor.data.materials[0], 2.0)):   # an AOV: 1 on the leaf, 2 below
+                node = material.node_tree.nodes.new("ShaderNodeOutputAOV")
+                node.aov_name, node.inputs["Value"].default_value = "Tag", tag
             layer = scene.view_layers[0]
+            aov = layer.aovs.add()
+            aov.name, aov.type = "Tag", "VALUE"
+            layer.use_pass_cryptomatte_object = True
             layer.use_pass_normal = layer.use_pass_mist = layer.use_pass_diffuse_color = True
             layer.use_pass_z = layer.use_pass_object_index = True
             configure_engine(scene, engine, 64, seed=seed)
@@ -242,8 +251,18 @@ def test_data_passes_behind_a_transparent_leaf_match_cycles():
                 planes = parts[f"{layer.name}.{name}"]
                 out[name] = np.stack([planes[c] for c in sorted(planes, key="RGBAXYZ".find)], axis=-1)
             renders[engine].append(out)
-    for name in ("Normal", "Mist", "Diffuse Color"):
+    for name in ("Normal", "Mist", "Diffuse Color", "Tag"):
         assert_blocks_match([r[name] for r in renders["CYCLES"]], [r[name] for r in renders["EMBER"]], name)
+    leaf_id = hash_names(["Leaf"])[0]
+
+    def leaf_weight(r):   # (H, W) the leaf's Cryptomatte weight: the other value of the pair holding its id
+        pairs = np.concatenate([r["CryptoObject00"], r["CryptoObject01"]], axis=-1).reshape(*r["Tag"].shape[:2], 4, 2)
+        return (np.where(pairs[..., 0] == leaf_id, pairs[..., 1], 0.0) +
+                np.where(pairs[..., 1] == leaf_id, pairs[..., 0], 0.0)).sum(axis=-1)
+    weights = {engine: np.stack([leaf_weight(r) for r in rs]) for engine, rs in renders.items()}
+    covered = (weights["CYCLES"] > 0).all(axis=0) & (weights["EMBER"] > 0).all(axis=0)
+    assert covered.sum() > 50
+    np.testing.assert_allclose(weights["EMBER"][:, covered].mean(), weights["CYCLES"][:, covered].mean(), rtol=0.05)
     # Sample 0 of a leaf pixel sees the floor behind it with probability 0.7 in both engines (binomial noise).
     index = {engine: np.stack([r["Object Index"][..., 0] for r in rs]) for engine, rs in renders.items()}
     region = np.concatenate(list(index.values())).__eq__(2).any(axis=0)   # the leaf's pixels, in any render
