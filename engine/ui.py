@@ -29,6 +29,7 @@ EXTRA_PANELS = (
     "CYCLES_WORLD_PT_settings",       # World > Settings, the Light Group's parent
     "CYCLES_WORLD_PT_settings_light_group",   # World.lightgroup, read by Ember
     "CYCLES_WORLD_PT_settings_surface",   # World > Settings > Surface: sampling, Map Resolution, Max Bounces
+    "CYCLES_WORLD_PT_ray_visibility",     # World > Settings > Ray Visibility (world.cycles_visibility)
     "CYCLES_RENDER_PT_subdivision",   # scene.cycles: dicing rates, Max Subdivisions, dicing camera (adaptive)
 )
 _added: list = []

@@ -8,6 +8,7 @@ import numpy as np
 
 from . import light_groups, passes, sampling, shadow_linking, visibility
 from .interaction import RayInfo
+from .lights import ray_visibility
 from .lights.sampler import LightHits
 from .media import stage as media_stage
 from .paths import facing_of, fast_gi_replaced, seen_through
@@ -127,6 +128,10 @@ def escaped(tables, wave, state, rays, hits, ended=None):
                       lobes=None if state.lobes is None else state.lobes[:, looked],
                       portal=None if state.portal is None else state.portal[looked])
     light = tables.environment.radiance(d[looked, 0], d[looked, 1], d[looked, 2], ray)
+    unseen = ray_visibility.world_unseen(tables.lights, visibility.ray_types(state, False)[looked],
+                                         state.bounce[looked] == 0)
+    if unseen is not None:   # World > Ray Visibility
+        light = np.where(unseen, np.float32(0.0), light)
     if environment_pass:
         camera = np.flatnonzero(state.bounce[miss] == 0)
         wave.aux["environment"][:, state.path[miss[camera]]] += \
@@ -251,7 +256,7 @@ def _suns_seen_by_camera(tables, wave, state, rays, miss) -> None:
 def lamp_ray_types(tables, state):
     """(N,) uint8 the types of the paths' rays (visibility.ray_types) where a lamp has a bounce kind off
     (kernels/lights/ray_visibility.py), else None."""
-    if tables.lights.visibility is None:
+    if tables.lights.visibility is None and not tables.lights.world_restricted:
         return None
     return visibility.ray_types(state, False)
 

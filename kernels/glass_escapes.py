@@ -6,6 +6,7 @@ import numpy as np
 
 from . import light_groups, passes, visibility
 from .bsdf.light_passes import pass_classes
+from .lights import ray_visibility
 from .paths import may_scatter
 from .rays import leaves_its_side, rays_from
 
@@ -63,9 +64,12 @@ def glass_escapes(tables, wave, state, hit, closures, bs, receiver=None) -> None
     wx, wy, wz = wx[out], wy[out], wz[out]
     world = light = tables.environment.radiance(wx, wy, wz)
     suns = []   # each sun's share, for the light groups' passes
-    types = None   # the branch's ray type, where a lamp has a bounce kind off (kernels/lights/ray_visibility.py)
-    if tables.lights.visibility is not None:
+    types = None   # the branch's ray type, where a lamp or the world has a bounce kind off (lights/ray_visibility.py)
+    if tables.lights.visibility is not None or tables.lights.world_restricted:
         types = np.where(transmit[live], visibility.TRANSMIT_RAY, visibility.GLOSSY_RAY).astype(np.uint8)
+    if tables.lights.world_restricted:
+        unseen = ray_visibility.world_unseen(tables.lights, types, np.zeros(len(types), bool))
+        world = light = np.where(unseen, np.float32(0.0), light)
     sun = tables.lights.suns_seen(wx, wy, wz, None, None if receiver is None else receiver[idx],
                                   shadow_linked=True,   # after a singular bounce: no MIS
                                   parts=None if wave.groups is None else suns, types=types)

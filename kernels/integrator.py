@@ -184,7 +184,7 @@ def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None)
         state.pass_weights = np.zeros((6 if tables.media is None else 7, n), np.float32)
     if tables.shading.reads_lobes or _caustics(settings) is not None or type_limits(settings) is not None \
             or tables.visibility is not None or tables.shading.burley \
-            or tables.lights.visibility is not None \
+            or tables.lights.visibility is not None or tables.lights.world_restricted \
             or (settings.ao_bounces and settings.ao_factor):   # (visibility.py ray_types reads the last label)
         state.lobes = np.zeros((4, n), np.int32)
     if settings.filter_glossy > 0 or tables.shading.bevels:  # Cycles' Bevel skips blurry bounces too

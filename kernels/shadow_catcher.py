@@ -189,7 +189,8 @@ def _background(tables, wave, state, rays, at, paths, throughput) -> None:
         ray = RayInfo(np.take(state.bounce, at), np.take(state.transparent, at), emission=True,
                       lobes=None if state.lobes is None else np.take(state.lobes, at, axis=1),
                       portal=None if state.portal is None else np.take(state.portal, at))
-    wave.aux[BACKGROUND][:, paths] += throughput * tables.environment.radiance(dx, dy, dz, ray)
+    if tables.lights.world_camera:   # (a world the camera does not see is black here too)
+        wave.aux[BACKGROUND][:, paths] += throughput * tables.environment.radiance(dx, dy, dz, ray)
 
 
 def finish(wave, radiance, alpha) -> None:

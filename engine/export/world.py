@@ -25,6 +25,7 @@ import numpy as np
 
 from ...kernels import World
 from ...kernels.scene.lights import NO_BOUNCE_LIMIT
+from ...kernels.scene.objects import RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_SHADOW, RAY_TRANSMIT
 from ...kernels.textures import srgb_to_linear
 from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
 from .images import ImagePixels, ImageTextures
@@ -81,10 +82,12 @@ def export_world(world, warnings: list[str], images=None, layer_attribute=None, 
     result = _export_world(world, warnings, images, layer_attribute)
     if world is None:
         return result
-    # Blender's sync hands Cycles the world's Light Settings > Distance as the integrator's AO distance.
+    # Blender's sync hands Cycles the world's Light Settings > Distance as the integrator's AO distance; World >
+    # Ray Visibility (Cycles' own) becomes its background's visibility (scene/background.cpp), read as Cycles reads it.
+    result = dataclasses.replace(result, ao_distance=max(float(world.light_settings.distance), 0.0),
+                                 visibility=world_visibility(world))
     # World > Settings > Light > Max Bounces (Cycles' own, read as Cycles' sync_world reads it for its background light).
     bounces = int(getattr(getattr(world, "cycles", None), "max_bounces", NO_BOUNCE_LIMIT))
-    result = dataclasses.replace(result, ao_distance=max(float(world.light_settings.distance), 0.0))
     if bounces < NO_BOUNCE_LIMIT:
         result = dataclasses.replace(result, max_bounces=max(bounces, 0))
     if bounces < NO_BOUNCE_LIMIT or plain:
@@ -93,6 +96,18 @@ def export_world(world, warnings: list[str], images=None, layer_attribute=None, 
         # distribution, so it is Cycles' (World.mis_compensation, focus).
         result = dataclasses.replace(result, mis_compensation=False, focus=False)
     return result
+
+
+def world_visibility(world) -> int:
+    """World > Ray Visibility (world.cycles_visibility: Camera, Diffuse, Glossy, Transmission, Volume Scatter) as
+    kernels.scene.objects ray bits."""
+    settings = getattr(world, "cycles_visibility", None)
+    bits = 0
+    for name, bit in (("camera", RAY_CAMERA), ("diffuse", RAY_DIFFUSE), ("glossy", RAY_GLOSSY),
+                      ("transmission", RAY_TRANSMIT), ("scatter", RAY_SCATTER)):
+        if bool(getattr(settings, name, True)):
+            bits |= bit
+    return bits | RAY_SHADOW
 
 
 def _export_world(world, warnings: list[str], images, layer_attribute) -> World:

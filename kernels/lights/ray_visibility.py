@@ -15,7 +15,9 @@ SHADER_EXCLUDE_DIFFUSE, _GLOSSY, _TRANSMIT, _SCATTER (scene/light.cpp), and then
   of the closures left out, which no longer see the lamp either, and the light samples of the others keep
   their MIS pair;
 - a light sample in a volume is dropped where the light excludes volume scatter (integrator/shade_volume.h).
-When no light has a bounce kind off, LightSampler.visibility is None and nothing here runs.
+The world's Ray Visibility works the same way for its light samples and for escaped rays, and a world the camera
+does not see is black to camera rays (Cycles' background visibility, scene/background.cpp). When no light has a
+bounce kind off, LightSampler.visibility is None (and world_restricted False) and nothing here runs.
 """
 from __future__ import annotations
 
@@ -28,10 +30,27 @@ from ..vec import F32
 
 
 def of_emitters(sampler, emitter: np.ndarray) -> np.ndarray:
-    """(n,) uint8 the ray visibility of emitters (lamps' own; triangles and the world see every bounce)."""
-    lamp = emitter < sampler.light_count
-    own = np.take(sampler.visibility, np.where(lamp, emitter, 0))
-    return np.where(lamp, own, BSDF_RAYS).astype(np.uint8)
+    """(n,) uint8 the ray visibility of emitters (lamps' own, the world's; triangles see every bounce)."""
+    out = np.full(len(emitter), BSDF_RAYS, np.uint8)
+    if sampler.visibility is not None:
+        lamp = emitter < sampler.light_count
+        out = np.where(lamp, np.take(sampler.visibility, np.where(lamp, emitter, 0)), out).astype(np.uint8)
+    if sampler.world_restricted:
+        out[emitter == sampler.world_index] = sampler.world_visibility
+    return out
+
+
+def world_unseen(sampler, types: np.ndarray, camera: np.ndarray) -> np.ndarray | None:
+    """(n,) bool: the escaped rays of types ((n,) uint8, visibility.ray_types) that do not see the world, camera
+    ones ((n,) bool) by its Camera switch; None when every ray sees it."""
+    if sampler.world_camera and not sampler.world_restricted:
+        return None
+    unseen = np.zeros(len(types), bool)
+    if not sampler.world_camera:
+        unseen |= camera
+    if sampler.world_restricted:
+        unseen |= ~camera & ((types & sampler.world_visibility) == 0)
+    return unseen
 
 
 def unseen(visibility: np.ndarray, types) -> np.ndarray:

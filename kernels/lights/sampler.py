@@ -15,6 +15,7 @@ from ..scene import SceneArrays
 from ..textures import luminance
 from . import area, point_spot, ray_visibility, selection, sun, triangles, world
 from ..scene.lights import NO_BOUNCE_LIMIT
+from ..scene.objects import ALL_RAYS, BSDF_RAYS, RAY_CAMERA
 from .common import DISK, POINT, RECT, SPOT, SUN
 from .links import EmitterLinks, object_links, reaches, set_groups
 from .proxies import PROXY_MIN_LIGHTS, LightProxies
@@ -93,6 +94,12 @@ class LightSampler:
         self.shadowed = lights.shadowed()
         # (L,) uint8 each lamp's ray visibility, or None when every lamp sees every bounce.
         self.visibility = lights.visibility
+        # The world's Ray Visibility (World.visibility): its bounce kinds (BSDF_RAYS when it sees them all) and
+        # whether camera rays see it.
+        world_bits = int(getattr(scene.world, "visibility", ALL_RAYS))
+        self.world_visibility = np.uint8(world_bits & BSDF_RAYS)
+        self.world_camera = bool(world_bits & RAY_CAMERA)
+        self.world_restricted = int(self.world_visibility) != BSDF_RAYS
         # (L,) bool the lamps camera rays see (Ray Visibility > Camera), or None when none is.
         self.camera = lights.camera
         # (L,) float32 each lamp's spread (area lights; pi for the others), or None when every one is pi.
@@ -364,7 +371,7 @@ class LightSampler:
             out.shadowed = ~lamp | np.take(self.shadowed, np.where(lamp, chosen, 0))
         if self.links is not None or self.groups is not None:
             out.emitter = chosen
-        if self.visibility is not None:
+        if self.visibility is not None or self.world_restricted:
             out.visibility = ray_visibility.of_emitters(self, chosen)
         if self.light_count:
             for kind, method in ((POINT, point_spot.sample), (SPOT, point_spot.sample), (SUN, sun.sample),

@@ -9,6 +9,7 @@ import numpy as np
 from ..programs import Program, Ref
 from .checks import check_array, require
 from .lights import NO_BOUNCE_LIMIT
+from .objects import ALL_RAYS
 from .materials import Materials, Shader
 
 
@@ -41,6 +42,10 @@ class World:
     ao_distance : the world's Ambient Occlusion distance (World > Light Settings > Distance; 10 without a
         world, as Blender's sync sets Cycles' integrator), read by Ambient Occlusion nodes whose Distance is an
         unlinked 0 (Cycles' NODE_AO_GLOBAL_RADIUS, kernel/svm/ao.h).
+    visibility : the world's Ray Visibility as kernels.scene.objects ray bits (ALL_RAYS: every ray): camera rays
+        and escaped rays of an excluded kind see nothing, and its light samples light only the closures of the
+        kinds it keeps, as a lamp's (Cycles' background visibility: kernel/light/common.h
+        is_light_shader_visible_to_path; kernels/lights/ray_visibility.py).
     max_bounces : the world's Max Bounces (World > Settings > Light): its light samples light only the vertices
         at most that many bounces deep (NO_BOUNCE_LIMIT: all), as a lamp's (Lights.max_bounces).
     """
@@ -58,6 +63,7 @@ class World:
     volume: object = None
     ao_distance: float = 10.0
     max_bounces: int = NO_BOUNCE_LIMIT
+    visibility: int = ALL_RAYS
 
     def validate(self) -> None:
         check_array(self.color, "world.color", (3,), np.float32)
@@ -67,6 +73,7 @@ class World:
         check_array(self.env_from_world, "world.env_from_world", (3, 3), np.float32)
         require(self.ao_distance >= 0, "world.ao_distance", f"must be non-negative, got {self.ao_distance}")
         require(int(self.max_bounces) >= 0, "world.max_bounces", f"must be non-negative, got {self.max_bounces}")
+        require(0 <= int(self.visibility) <= ALL_RAYS, "world.visibility", f"must be ray bits, got {self.visibility}")
         if self.hdri is not None:
             h = self.hdri
             require(h.ndim == 3 and h.shape[2] in (1, 3) and h.shape[0] >= 1 and h.shape[1] >= 1,
