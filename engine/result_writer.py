@@ -20,6 +20,7 @@ class ResultWriter:
     def __init__(self, engine, layer: str):
         self.engine = engine
         self.layer = layer          # the view layer's name
+        self.view = ""              # the multi-view render's view being written ("": the only one)
         self.passes = []            # engine.passes.Pass, besides Combined
 
     def write_rows(self, film, row0: int, row1: int, cols: slice | None = None,
@@ -38,7 +39,7 @@ class ResultWriter:
             combined = np.concatenate([denoised, rows[..., 3:]], axis=-1)
         denoised_passes = denoised_passes or {}
         result = self.engine.begin_result(cols.start, film.height - row1, cols.stop - cols.start, row1 - row0,
-                                          layer=self.layer)
+                                          layer=self.layer, view=self.view)
         try:
             layer = result.layers[0]
             _set_rect(layer, "Combined", combined)
@@ -67,7 +68,8 @@ class ResultWriter:
         step = max(1, WRITE_CHUNK_PIXELS // max(film.width, 1))
         for row0 in range(0, film.height, step):
             row1 = min(film.height, row0 + step)
-            result = self.engine.begin_result(0, film.height - row1, film.width, row1 - row0, layer=self.layer)
+            result = self.engine.begin_result(0, film.height - row1, film.width, row1 - row0, layer=self.layer,
+                                              view=self.view)
             try:
                 _set_rect(result.layers[0], "Combined", image[row0:row1])
             finally:

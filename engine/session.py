@@ -30,7 +30,7 @@ import numpy as np
 from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays, prestart_workers
 from ..kernels.accel import capped_threads
 from .export import ExportCancelled, ExportError, export_scene
-from .export.camera import render_region
+from .export.camera import _rigid, render_region
 from .export.motion import sample_motion, sample_vector_motion
 from .export.world import fast_gi
 from . import cryptomatte
@@ -373,20 +373,51 @@ class FinalRender:
             if getattr(renderer, "dropped_shapes", 0):
                 self._warn([f"skipped {renderer.dropped_shapes} curves or points whose keys, centres or radii are not "
                             f"finite numbers or whose radius is negative"])
-            result = session.render(settings, self.should_stop, previews=self._previews,
-                                    display_s=None if _background() else DISPLAY_INTERVAL_S,
-                                    on_rows=self._on_rows, on_display=self._on_display, on_progress=self._on_progress)
-        self.cancelled = result.stopped_early and _cancel.is_set()
-        if self._previews is not None:
-            self._dirty = (0, result.film.height)  # denoised previews wrote Combined alone: every row again
-        self._flush(result.film)
+            for view, camera in self._views(exported.scene.camera):
+                self._result.view = view
+                result = session.render(settings, self.should_stop, camera=camera, previews=self._previews,
+                                        display_s=None if _background() else DISPLAY_INTERVAL_S,
+                                        on_rows=self._on_rows, on_display=self._on_display,
+                                        on_progress=self._on_progress)
+                self.cancelled = result.stopped_early and _cancel.is_set()
+                if self._previews is not None:
+                    self._dirty = (0, result.film.height)  # denoised previews wrote Combined alone: every row again
+                self._flush(result.film)
+                options = final_options(scene.ember, result.stopped_early, self.should_stop())
+                denoised = options is not None and result.film.samples_done > 0 and \
+                    self._denoise_final(result.film, options)
+                self._result.stamp_metadata(result.film, denoised, scene.ember, self._crypto_names)
+                if self.should_stop():
+                    break
         if len(renderer.crew.worker_failures) > failures:  # the image is whole (their waves ran here), only slower
             self._warn(["a worker process failed, its waves ran in this process: "
                         + renderer.crew.worker_failures[failures]])
-        options = final_options(scene.ember, result.stopped_early, self.should_stop())
-        denoised = options is not None and result.film.samples_done > 0 and self._denoise_final(result.film, options)
-        self._result.stamp_metadata(result.film, denoised, scene.ember, self._crypto_names)
         self._finish_message(result, exported)
+
+    def _views(self, camera):
+        """(view name, kernels.Camera or None) per view to render: ("", None) alone without Stereoscopy; with it,
+        each view of Blender's result, its camera moved and shifted as Blender places that view's camera
+        (RenderEngine.camera_model_matrix and camera_shift_x, as Cycles' sync_camera reads them; no spherical
+        stereo)."""
+        engine = self.engine
+        camera_ob = engine.camera_override or self.depsgraph.scene.camera
+        if not self.scene.render.use_multiview or camera_ob is None:
+            return [("", None)]
+        probe = engine.begin_result(0, 0, 1, 1, layer=self.depsgraph.view_layer.name)
+        names = [view.name for view in probe.views]
+        engine.end_result(probe, cancel=True)
+        out = []
+        for name in names:
+            engine.active_view_set(name)
+            matrix = _rigid(engine.camera_model_matrix(camera_ob, use_spherical_stereo=False))
+            mono = np.asarray(camera.world_from_camera, np.float64)
+            moved = dataclasses.replace(camera, world_from_camera=matrix,
+                                        shift_x=float(engine.camera_shift_x(camera_ob, use_spherical_stereo=False)))
+            if camera.motion is not None:   # the view's offset at every motion step too
+                offset = matrix @ np.linalg.inv(mono)
+                moved = dataclasses.replace(moved, motion=np.einsum("ij,kjl->kil", offset, np.asarray(camera.motion)))
+            out.append((name, moved))
+        return out
 
     def _build(self, scene: SceneArrays, threads: int, persistent: bool) -> Renderer:
         """With Persistent Data the kept renderer updated to `scene` when it can be, else a new one (reusing
