@@ -63,7 +63,7 @@ class RecordingEngine:
         self.registered = engine_passes.enabled_passes(scene, view_layer)
         self.store, self.reports = {}, []
 
-    def begin_result(self, x, y, w, h, layer=None):
+    def begin_result(self, x, y, w, h, layer=None, view=None):
         return _Result(self, x, y, w, h)
 
     def end_result(self, result, cancel=False):
