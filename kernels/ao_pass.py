@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from . import sampling
-from .bsdf.lobes import BSSRDF, DIFFUSE_LOBES, TRANSPARENT
+from .bsdf.lobes import BSSRDF, DIFFUSE_LOBES
 from .lights import nee
+from .passes import closure_alpha
 from .rays import rays_from
 from .vec import F32
 
@@ -25,7 +26,7 @@ def ambient_occlusion(tables, wave, hit, cs, numbers, rows) -> np.ndarray:
     cs: the hits' ClosureSet; numbers: the hits' (u1, u2) BSDF numbers (each (n,))."""
     n = len(hit)
     normal = np.stack([np.asarray(c, F32) for c in hit.ns]).copy()
-    alpha = np.ones((3, n), F32)
+    alpha = closure_alpha(cs, n)
     if len(cs):
         diffuse = np.flatnonzero(np.isin(cs.lobe, DIFFUSE_CLOSURES))
         if len(diffuse):
@@ -34,10 +35,6 @@ def ambient_occlusion(tables, wave, hit, cs, numbers, rows) -> np.ndarray:
             length = np.sqrt((summed * summed).sum(axis=0))
             ok = length > 0
             normal[:, ok] = (summed[:, ok] / length[ok]).astype(F32)
-        clear = np.flatnonzero(cs.lobe == TRANSPARENT)
-        if len(clear):
-            transparency = np.stack([np.bincount(cs.hit[clear], cs.weight[k, clear], minlength=n) for k in range(3)])
-            alpha = np.clip(1.0 - transparency, 0.0, 1.0).astype(F32)
     m = len(rows)
     u1, u2 = (np.take(u, rows) for u in numbers)
     lx, ly, lz = sampling.sample_cosine_hemisphere(u1, u2)
