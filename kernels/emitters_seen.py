@@ -128,9 +128,9 @@ def escaped(tables, wave, state, rays, hits, ended=None):
                       lobes=None if state.lobes is None else state.lobes[:, looked],
                       portal=None if state.portal is None else state.portal[looked])
     light = tables.environment.radiance(d[looked, 0], d[looked, 1], d[looked, 2], ray)
-    unseen = ray_visibility.world_unseen(tables.lights, visibility.ray_types(state, False)[looked],
-                                         state.bounce[looked] == 0)
-    if unseen is not None:   # World > Ray Visibility
+    if tables.lights.world_restricted or not tables.lights.world_camera:   # World > Ray Visibility
+        unseen = ray_visibility.world_unseen(tables.lights, visibility.ray_types(state, False)[looked],
+                                             state.bounce[looked] == 0)
         light = np.where(unseen, np.float32(0.0), light)
     if environment_pass:
         camera = np.flatnonzero(state.bounce[miss] == 0)
