@@ -281,6 +281,9 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displ
             reader.bump_from_displacement(displacement, undisplaced=method == "BOTH")
         if moves and true_displacement is not None:
             true_displacement.append(reader.true_displacement(displacement, method == "BOTH"))
+            # Generated coordinates are an attribute of the mesh before it is displaced (Cycles' ATTR_STD_GENERATED):
+            # the surface reads them from its undisplaced positions (input_ops.generated).
+            reader.attributes.add(UNDISPLACED_POSITION)
     closures = () if out is None else tuple(reader.closures(source_of(out.inputs["Surface"]), ()))
     volume, volume_only = (), False
     if out is not None:
