@@ -365,13 +365,27 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         _crossings(tables, state, hit, alive, bs)
     if state.media is not None:
         media_stage.enter_exit_surfaces(tables, state, hit, alive, np.take(below(bs), alive))
-    going = state, spawn(tables, hit, alive, bs)
+    going = state, _clipped(spawn(tables, hit, alive, bs), rays, found, t_hit, alive, bs)
     if exits is None:
         return going
     return PathState.concat(going[0], exits[0]), concat_rays(going[1], exits[1])
 
 
 # ---- stage: subsurface scattering (kernels.subsurface), between a subsurface closure's pick and its exit point
+def _clipped(next_rays, rays, found, t_hit, alive, bs):
+    """next_rays with the rays that pass straight through (transparent surfaces, volume boundaries) keeping what
+    was left of their ray's reach: Cycles continues such a ray with its tmax (only its tmin moves on), so a
+    camera ray still ends at the far clip plane behind them."""
+    reach = np.take(rays.t_max, found)[alive]
+    if not np.isfinite(reach).any():
+        return next_rays
+    through = np.take(bs.transparent, alive) & np.isfinite(reach)
+    if not through.any():
+        return next_rays
+    left = np.maximum(reach - t_hit[alive], np.float32(0.0)).astype(np.float32)
+    return Rays(next_rays.origins, next_rays.dirs, np.where(through, left, next_rays.t_max).astype(np.float32))
+
+
 def _ao_pass(tables, wave, state, hit, closures, shading, numbers) -> None:
     """The Ambient Occlusion pass (kernels/ao_pass.py) at the surfaces the camera sees: the paths that have not
     scattered yet (their first hit, or one behind transparent surfaces), but not those a holdout ends there."""

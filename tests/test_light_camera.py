@@ -286,3 +286,31 @@ def test_a_lamp_of_soft_falloff_off_is_seen_as_cycles_sphere():
     lamps[0].data.use_soft_falloff = False
     assert export_current().warnings == []
     _assert_matches_cycles(scene)
+
+
+def test_camera_clip_end_holds_behind_transparent_surfaces_and_in_media():
+    """Cycles continues a ray through a transparent surface with its tmax (only tmin moves on), so a camera ray
+    ends at the far clip plane whatever it passed: a wall beyond Clip End seen through a clear plane stays
+    unseen, and a fog box the clip plane cuts is lit only up to it. Before, the ray went on without end past the
+    first transparent surface: the wall showed, and the fog beyond the clip plane lit the image."""
+    import bpy
+    from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, new_scene, quad_object, set_world
+    scene = new_scene(24, 16)
+    add_camera(scene, (0, -6, 1), (0, 0, 1), lens=35)
+    scene.camera.data.clip_end = 8.0
+    set_world(scene, color=(0.2, 0.3, 0.5))
+    clear = bpy.data.materials.new("Clear")
+    clear.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value = 0.0
+    quad_object("Pane", (-4, -2, -2), (8, 0, 0), (0, 0, 6), clear)
+    quad_object("Wall", (-4, 4, -2), (8, 0, 0), (0, 0, 6), diffuse_material("Wall", (0.9, 0.9, 0.9)))   # 10 m away
+    bpy.ops.mesh.primitive_cube_add(size=2, location=(0, -0.5, 1))   # a fog box from 4.5 to 6.5 m, then the wall
+    fog_box = bpy.context.active_object
+    fog_box.scale = (4, 2.0, 3)
+    fog = bpy.data.materials.new("Fog")
+    tree = fog.node_tree
+    tree.nodes.remove(tree.nodes["Principled BSDF"])
+    volume = tree.nodes.new("ShaderNodeVolumePrincipled")
+    volume.inputs["Density"].default_value = 0.3
+    tree.links.new(volume.outputs[0], tree.nodes["Material Output"].inputs["Volume"])
+    fog_box.data.materials.append(fog)
+    compare_to_cycles(scene, samples=64, max_bounces=4, mean_z=4.0)

@@ -62,7 +62,9 @@ def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -
     if not len(inside):
         return None
     prim = np.take(hits.prim, inside)
-    t_end = np.where(prim >= 0, np.take(hits.t, inside), np.float32(np.inf)).astype(F32)
+    # A ray that meets nothing ends where it was clipped (a camera ray at the far clip plane, as Cycles' ray tmax;
+    # others at infinity): the media beyond are not seen.
+    t_end = np.where(prim >= 0, np.take(hits.t, inside), np.take(rays.t_max, inside)).astype(F32)
     may = may_scatter(wave, state)[inside]
     if state.continuation is not None:
         may &= np.take(state.continuation, inside) > 0
