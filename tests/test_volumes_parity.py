@@ -309,3 +309,17 @@ def test_biased_ray_marching_of_a_vdb_with_few_steps(tmp_path):
     lamp(scene, "POINT", (2, -2, 3), 400)
     set_biased(scene, step_rate=3.0, max_steps=4)
     compare(scene)
+
+
+def test_a_fog_box_cut_by_the_far_clip_plane_as_in_cycles():
+    """A camera outside a fog box whose far clip plane cuts through it: a ray that ends at the clip plane meets no
+    surface, and Cycles keeps only the world's medium for such a ray (volume_stack_clean in shade_volume.h): the
+    box's fog shows only along the rays that leave it through a face before the clip plane. Before, Ember
+    integrated the box's fog past the clip plane, without end: a public file's fog, cut by its camera's 100 m
+    clip, rendered 3x brighter than in Cycles."""
+    scene = stage(world=(0.0, 0.0, 0.0))
+    m, _ = volume_material("Fog", "ShaderNodeVolumeScatter", Density=0.3)
+    box("Fog box", (-1.5, -1.0, 0.2), (1.5, 3.0, 2.5), m)   # above the floor
+    lamp(scene, "POINT", (0.0, 1.0, 1.2), 400)
+    scene.camera.data.clip_end = 5.5   # the box's far face is 7 m away: the middle rays end inside it
+    compare(scene)

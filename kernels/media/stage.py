@@ -58,13 +58,19 @@ def segments(tables, wave, state, rays, hits, ended=None, first: bool = False) -
     inside = (state.media >= 0).any(axis=0)
     if ended is not None:
         inside &= ~ended
+    missed = np.flatnonzero(inside & (hits.prim < 0))
+    if len(missed):
+        # A ray that meets nothing (it leaves the scene, or a camera ray ends at the far clip plane) keeps the
+        # world's medium alone, without end: Cycles' volume_stack_clean for background rays (shade_volume.h).
+        state.media[:, missed] = -1
+        if tables.media.world >= 0:
+            state.media[0, missed] = tables.media.world
+        inside &= (state.media >= 0).any(axis=0)
     inside = np.flatnonzero(inside)
     if not len(inside):
         return None
     prim = np.take(hits.prim, inside)
-    # A ray that meets nothing ends where it was clipped (a camera ray at the far clip plane, as Cycles' ray tmax;
-    # others at infinity): the media beyond are not seen.
-    t_end = np.where(prim >= 0, np.take(hits.t, inside), np.take(rays.t_max, inside)).astype(F32)
+    t_end = np.where(prim >= 0, np.take(hits.t, inside), np.float32(np.inf)).astype(F32)
     may = may_scatter(wave, state)[inside]
     if state.continuation is not None:
         may &= np.take(state.continuation, inside) > 0
