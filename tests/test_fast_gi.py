@@ -60,3 +60,12 @@ def test_fast_gi_settings_are_read_as_cycles_reads_them():
     scene.world.light_settings.ao_factor = 0.7
     scene.world = None
     assert render_settings(scene, None).ao_bounces == 0
+
+
+def test_an_object_s_own_ao_distance_is_named():
+    """Cycles' Replace clips the rays leaving an object to that object's own AO Distance where it has one; Ember
+    takes the world's and says so."""
+    from bpy_helpers import export_current
+    scene = room("REPLACE", 1)
+    bpy.data.objects["Floor"].cycles.ao_distance = 0.5
+    assert any("AO Distance of object Floor is not applied" in w for w in export_current().warnings)
