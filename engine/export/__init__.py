@@ -115,7 +115,8 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     default_width, default_height = render_resolution(scene)
     warnings: list[str] = []
     if getattr(getattr(scene, "cycles", None), "use_fast_gi", False):
-        own = sorted({ob.name for ob in depsgraph.objects if getattr(getattr(ob, "cycles", None), "ao_distance", 0.0)})
+        own = sorted({ob.name for ob in depsgraph.objects
+                      if getattr(getattr(ob.original, "cycles", None), "ao_distance", 0.0)})
         if own:
             warnings.append(f"Fast GI: the AO Distance of object{'s' if len(own) > 1 else ''} {', '.join(own[:5])}"
                             f"{' ...' if len(own) > 5 else ''} is not applied (the world's is)")
