@@ -371,7 +371,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     return PathState.concat(going[0], exits[0]), concat_rays(going[1], exits[1])
 
 
-# ---- stage: subsurface scattering (kernels.subsurface), between a subsurface closure's pick and its exit point
+# ---- the surface vertex's helpers: the next rays' reach, the AO pass, Fast GI's Add
 def _clipped(next_rays, rays, found, t_hit, alive, bs):
     """next_rays with the rays that pass straight through (transparent surfaces, volume boundaries) keeping what
     was left of their ray's reach: Cycles continues such a ray with its tmax (only its tmin moves on), so a
@@ -417,6 +417,7 @@ def _fast_gi_add(tables, wave, state, hit, closures, numbers) -> None:
                           ao * np.take(weight, rows, axis=1) * np.take(state.throughput, rows, axis=1))
 
 
+# ---- stage: subsurface scattering (kernels.subsurface), between a subsurface closure's pick and its exit point
 def _subsurface_exits(tables, wave, state, hit, closures, bs, rows, last):
     """The paths `state` (of the hits rows, which picked a subsurface closure) walk beneath their surfaces; where a walk
     comes out, the exit point is a surface vertex of its own (Cycles' INTERSECT_SUBSURFACE, then SHADE_SURFACE

@@ -378,7 +378,8 @@ _OVERWRITTEN = ("depth", "position", "object_index", "material_index")
 
 
 def has_single_passes(aux) -> bool:
-    return aux is not None and any(name in aux for name in SINGLE_PASSES)
+    """Whether the wave records a pass that stops at a camera path's one surface (SINGLE_PASSES, the AOVs)."""
+    return aux is not None and any(name in SINGLE_PASSES or name.startswith("aov:") for name in aux)
 
 
 def behind_transparent(aux) -> bool:
