@@ -30,7 +30,7 @@ import numpy as np
 from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings, SceneArrays, prestart_workers
 from ..kernels.accel import capped_threads
 from .export import ExportCancelled, ExportError, export_scene
-from .export.camera import _rigid, render_region
+from .export.camera import render_region, rigid_transform
 from .export.motion import sample_motion, sample_vector_motion
 from .export.world import fast_gi
 from . import cryptomatte
@@ -409,7 +409,7 @@ class FinalRender:
         out = []
         for name in names:
             engine.active_view_set(name)
-            matrix = _rigid(engine.camera_model_matrix(camera_ob, use_spherical_stereo=False))
+            matrix = rigid_transform(engine.camera_model_matrix(camera_ob, use_spherical_stereo=False))
             mono = np.asarray(camera.world_from_camera, np.float64)
             moved = dataclasses.replace(camera, world_from_camera=matrix,
                                         shift_x=float(engine.camera_shift_x(camera_ob, use_spherical_stereo=False)))

@@ -58,7 +58,7 @@ def render_region(scene, width: int, height: int) -> tuple[int, int, int, int] |
 def export_camera(camera_ob, scene, width: int, height: int, warnings: list[str]) -> Camera:
     """kernels.Camera for an evaluated camera object; width, height : full frame in pixels."""
     render = scene.render
-    frame = dict(world_from_camera=_rigid(camera_ob.matrix_world), width=int(width), height=int(height),
+    frame = dict(world_from_camera=rigid_transform(camera_ob.matrix_world), width=int(width), height=int(height),
                  pixel_aspect=render.pixel_aspect_x / render.pixel_aspect_y, **pixel_filter(scene))
     if camera_ob.type != "CAMERA":  # Blender lets any object be the scene camera
         warnings.append(f"Active camera '{camera_ob.name}' is not a camera object: rendered with a "
@@ -147,12 +147,12 @@ def focus_distance(camera_ob) -> float:
     bone = target.pose.bones.get(dof.focus_subtarget) if target.pose and dof.focus_subtarget else None
     if bone is not None:
         m = m @ np.array(bone.matrix, np.float64)
-    cam = _rigid(camera_ob.matrix_world)
+    cam = rigid_transform(camera_ob.matrix_world)
     axis = cam[:3, 2] / np.linalg.norm(cam[:3, 2])
     return float(abs(axis @ (cam[:3, 3] - m[:3, 3])))
 
 
-def _rigid(matrix_world) -> np.ndarray:
+def rigid_transform(matrix_world) -> np.ndarray:
     """(4, 4) float64 world matrix with the scale taken out of its rotation columns."""
     m = np.array(matrix_world, np.float64)
     lengths = np.linalg.norm(m[:3, :3], axis=0)
