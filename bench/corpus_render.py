@@ -54,12 +54,12 @@ def lacking_settings(scene) -> list[str]:
               # Cycles reads the threshold only without the light tree (scene/integrator.cpp)
               ("light_sampling_threshold", c.light_sampling_threshold > 0 and not c.use_light_tree),
               ("use_light_tree", not c.use_light_tree),
-              # Simplify's (Cycles reads it only with Simplify on)
-              ("texture_limit_render", simplify and c.texture_limit_render != "OFF"),
+              # Simplify's (Cycles reads it only with Simplify on; Blender 5.3)
+              ("texture_resolution_render", simplify and getattr(c, "texture_resolution_render", 1.0) != 1.0),
               ("shading_system (OSL)", c.shading_system))
     for name, active in checks:
         if active:
-            value = getattr(c, name.split(" ")[0])
+            value = getattr(c, name.split(" ")[0], None)
             lacking.append(f"{name}={round(value, 4) if isinstance(value, float) else value}")
     return lacking
 

@@ -53,10 +53,40 @@ def test_culling_changes_the_image_and_needs_simplify():
     assert culled > 1.3 * render_to_array(scene, "EMBER", 8)[..., :3].mean()
 
 
-def test_texture_limit_is_named():
-    from bpy_helpers import export_current
-    scene = scene_with_culling()
-    scene.cycles.texture_limit_render = "256"
-    assert any("Texture Limit 256 is not applied" in w for w in export_current().warnings)
-    scene.render.use_simplify = False   # Cycles reads it only with Simplify on
-    assert not any("Texture Limit" in w for w in export_current().warnings)
+def test_texture_limit_scales_images_down_as_cycles():
+    """Simplify > Texture Limit (Cycles' own, read with Simplify on): an image larger than the limit is scaled down
+    by a power of two, each pixel the mean of its block (util_image_resize_pixels). 1-pixel stripes of a 256-pixel
+    image under a 128-pixel limit become a flat grey in both engines, seen close up with Closest interpolation.
+    Before, Ember rendered the stripes."""
+    from bpy_helpers import emission_material
+    scene = new_scene(32, 32)
+    add_camera(scene, (0, 0, 1.2), (0, 0, 0), lens=50)
+    set_world(scene, color=(0.0, 0.0, 0.0))
+    image = bpy.data.images.new("Stripes", 256, 256)
+    stripes = np.zeros((256, 256, 4), np.float32)
+    stripes[:, ::2, :3] = 1.0
+    stripes[..., 3] = 1.0
+    image.pixels.foreach_set(stripes.ravel())
+    material = emission_material("Screen", (1, 1, 1), 1.0)
+    tree = material.node_tree
+    texture = tree.nodes.new("ShaderNodeTexImage")
+    texture.image, texture.interpolation = image, "Closest"
+    tree.links.new(texture.outputs["Color"], next(n for n in tree.nodes if n.type == "EMISSION").inputs["Color"])
+    quad_object("Screen", (-0.5, -0.5, 0), (1, 0, 0), (0, 1, 0), material)
+    scene.render.use_simplify, scene.cycles.texture_limit_render = True, "128"
+    flat = render_to_array(scene, "EMBER", 4)[..., :3]
+    assert flat.std() < 0.01 and 0.1 < flat.mean() < 0.9   # grey, not stripes
+    compare_to_cycles(scene, samples=16, max_bounces=1)
+    scene.render.use_simplify = False   # Cycles reads the limit only with Simplify on
+    assert render_to_array(scene, "EMBER", 4)[..., :3].std() > 0.1
+
+
+def test_limited_box_filter():
+    """The scaling itself: a factor of 1/2^k, sides floored, plain block means rounded for 8-bit pixels."""
+    from ember.engine.export.images import ImagePixels, limited
+    pixels = ImagePixels(np.arange(8 * 6, dtype=np.uint8).reshape(6, 8, 1) * 5, srgb=True)
+    out = limited(pixels, 3)            # 8 -> 2^floor(log2(3/8)) = 1/4: 2 x 1 blocks of 4 x 4
+    assert out.array.shape == (1, 2, 1) and out.srgb
+    block = pixels.array[:4, :4, 0].astype(float).mean()
+    assert out.array[0, 0, 0] == int(np.floor(block + 0.5))
+    assert limited(pixels, 8) is pixels and limited(pixels, 0) is pixels

@@ -35,7 +35,7 @@ from .adaptive import Dicing
 from .camera import export_camera, render_region, render_resolution
 from .culling import Culling
 from .geometry import export_geometry
-from .images import shader_images
+from .images import shader_images, texture_limit
 from .light_groups import group_table, object_groups
 from .light_linking import light_links, link_table
 from .lights import export_lights
@@ -91,7 +91,7 @@ def object_visibility(per_row: list | None) -> np.ndarray | None:
 @small_pages()
 def export_scene(depsgraph, camera_override=None, *, width=None, height=None, should_stop=None,
                  motion=None, vector=None, instance_everything: bool = False, mesh_cache=None,
-                 need_camera: bool = True, bake: bool = False, cull: bool = True) -> ExportResult:
+                 need_camera: bool = True, bake: bool = False, viewport: bool = False) -> ExportResult:
     """Read an evaluated depsgraph into a SceneArrays.
 
     camera_override : a camera object to use instead of the scene's (RenderEngine.camera_override).
@@ -104,7 +104,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     mesh_cache : geometry.MeshCache keeping meshes between the frames of an animation (Persistent Data), or None.
     need_camera : False for a bake, which sees no camera unless it bakes from it (a default one stands in).
     bake : the export is a bake's (View Layer > Filter > Surfaces off leaves the meshes in, as Cycles' bake).
-    cull : apply Simplify > Culling for the camera (culling.py); False for the viewport, whose view moves.
+    viewport : the export is the viewport's: no Simplify > Culling (its view moves), Simplify's viewport Texture Limit.
     Raises ExportError when there is no camera and one is needed.
     """
     start = time.perf_counter()
@@ -120,9 +120,10 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
         if own:
             warnings.append(f"Fast GI: the AO Distance of object{'s' if len(own) > 1 else ''} {', '.join(own[:5])}"
                             f"{' ...' if len(own) > 5 else ''} is not applied (the world's is)")
-    if scene.render.use_simplify and getattr(getattr(scene, "cycles", None), "texture_limit_render", "OFF") != "OFF":
-        warnings.append(f"Simplify > Texture Limit {scene.cycles.texture_limit_render} is not applied: textures "
-                        f"render at their own size")
+    cycles = getattr(scene, "cycles", None)
+    if scene.render.use_simplify and getattr(cycles, "texture_resolution_render", 1.0) != 1.0:
+        warnings.append(f"Simplify > Texture Resolution {scene.cycles.texture_resolution_render:g} is not applied: "
+                        f"textures render at their own size (or the Texture Limit)")
     width = default_width if width is None else width
     height = default_height if height is None else height
     camera = Camera() if camera_ob is None else \
@@ -130,6 +131,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
     layer_attribute = functools.partial(view_layer_attribute, scene, depsgraph.view_layer_eval)
     materials = MaterialTable(warnings, layer_attribute, scene.frame_current,
                               override=depsgraph.view_layer_eval.material_override)
+    materials.images.limit = texture_limit(scene, viewport)
     poll = Poller(should_stop)
     links = link_table(depsgraph)
     warnings.extend(links.warnings)
@@ -143,7 +145,7 @@ def export_scene(depsgraph, camera_override=None, *, width=None, height=None, sh
                                    moving=frozenset(motion.objects) | frozenset(motion.meshes)
                                    if motion is not None else frozenset(),
                                    motion=motion, surfaces=bake or bool(depsgraph.view_layer_eval.use_solid),
-                                   culling=Culling(scene, camera) if cull and not bake and camera_ob is not None
+                                   culling=Culling(scene, camera) if not viewport and not bake and camera_ob is not None
                                    else None,
                                    instance_everything=instance_everything, cache=mesh_cache, links=links,
                                    light_groups=groups,

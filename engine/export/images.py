@@ -302,6 +302,44 @@ def sequence_file(image, frame: int) -> str:
     return os.path.join(folder, f"{stem[:start]}{frame:0{end - start}d}{stem[end:]}{extension}")
 
 
+def texture_limit(scene, viewport: bool = False) -> int:
+    """Simplify > Texture Limit in pixels (Cycles' own setting, read with Simplify on as Cycles' sync reads it:
+    the viewport's or the render's), 0 for none."""
+    value = getattr(getattr(scene, "cycles", None), "texture_limit" if viewport else "texture_limit_render", "OFF")
+    return int(value) if scene.render.use_simplify and value != "OFF" else 0
+
+
+def limited(pixels: ImagePixels | None, limit: int) -> ImagePixels | None:
+    """Pixels whose longer side exceeds `limit` (0: none) scaled down as Cycles' image manager scales them for
+    Simplify > Texture Limit (scene/image.cpp, util/image_impl.h util_image_resize_pixels): by the power of two
+    2^floor(log2(limit / longer side)), the sides floored (at least 1), each pixel the plain mean of the k x k
+    block at its corner (k = 1 / that factor), stored as before (8- and 16-bit values rounded to nearest)."""
+    if pixels is None or not limit:
+        return pixels
+    a = pixels.array
+    h, w = a.shape[:2]
+    if max(w, h) <= limit:
+        return pixels
+    scale = float(2.0 ** np.floor(np.log2(np.float32(limit) / np.float32(max(w, h)))))
+    k = int(1.0 / scale + 0.5)
+    ow, oh = max(int(w * scale), 1), max(int(h * scale), 1)
+    if ow * k > w or oh * k > h:   # a side shorter than a block: its one pixel takes what there is
+        padded = np.zeros((oh * k, ow * k, a.shape[2]), np.float64)
+        counts = np.zeros((oh * k, ow * k, 1), np.float64)
+        padded[:min(h, oh * k), :min(w, ow * k)] = a[:oh * k, :ow * k]
+        counts[:min(h, oh * k), :min(w, ow * k)] = 1.0
+        total = padded.reshape(oh, k, ow, k, -1).sum(axis=(1, 3))
+        mean = total / np.maximum(counts.reshape(oh, k, ow, k, 1).sum(axis=(1, 3)), 1.0)
+    else:
+        mean = a[:oh * k, :ow * k].astype(np.float64).reshape(oh, k, ow, k, -1).mean(axis=(1, 3))
+    if a.dtype in (np.uint8, np.uint16):
+        top = np.iinfo(a.dtype).max
+        out = np.clip(np.floor(mean + 0.5), 0, top).astype(a.dtype)
+    else:
+        out = mean.astype(a.dtype)
+    return ImagePixels(np.ascontiguousarray(out), pixels.srgb)
+
+
 def read_frame(image, frame: int, warnings: list[str], alpha: bool = False) -> ImagePixels | None:
     """Frame `frame` of an image sequence (_read_part)."""
     path = sequence_file(image, frame)
@@ -456,6 +494,10 @@ def _as_float(pixels: np.ndarray, associate: bool = False) -> np.ndarray:
 class ImageTextures:
     """The texture list of one export: one array per image, shared by every material using it."""
 
+    # Simplify > Texture Limit in pixels (0: none): larger images are scaled down as Cycles' image manager does
+    # (limited): set by the export.
+    limit: int = 0
+
     def __init__(self, warnings: list[str], frame: int = 1):
         """frame: the scene frame, at which image sequences are read (sequence_frame)."""
         self.frame = int(frame)
@@ -490,10 +532,10 @@ class ImageTextures:
         """read_image(image), from the file's bytes prefetch decoded when it did; an image sequence's frame that
         the image user `user` (an Image Texture's) reads at the scene frame."""
         if image.source == "SEQUENCE" and user is not None:
-            return read_frame(image, sequence_frame(user, self.frame), self._warnings, alpha)
+            return limited(read_frame(image, sequence_frame(user, self.frame), self._warnings, alpha), self.limit)
         decoding = self._decoding.pop(image.name_full, None)
-        return read_image(image, self._warnings, alpha,
-                          decoding.result() if decoding is not None else file_bytes(image))
+        return limited(read_image(image, self._warnings, alpha,
+                                  decoding.result() if decoding is not None else file_bytes(image)), self.limit)
 
     def tiles(self, image) -> tuple:
         """((tile number, texture index), ...) of a tiled (UDIM) image's tiles that could be read."""
@@ -501,7 +543,7 @@ class ImageTextures:
         if key not in self._tiles:
             found = []
             for tile in image.tiles:
-                pixels = read_tile(image, tile.number, self._warnings, alpha=True)
+                pixels = limited(read_tile(image, tile.number, self._warnings, alpha=True), self.limit)
                 if pixels is not None:
                     found.append((int(tile.number), len(self.loaded)))
                     self.loaded.append(pixels)

@@ -35,6 +35,7 @@ from .geometry import Geometry
 from .instances import instance_key, instance_row, instance_visibility, is_rendered, slot_materials
 from .light_linking import link_table
 from .lights import export_lights
+from .images import texture_limit
 from .materials import DEFAULT_VOLUME_KEY, MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS
 from .rgba_attributes import view_layer_attribute
@@ -254,6 +255,7 @@ def export_shading(depsgraph, index: ExportIndex) -> Shading | None:
     layer_attribute = functools.partial(view_layer_attribute, depsgraph.scene_eval, depsgraph.view_layer_eval)
     materials = MaterialTable(warnings, layer_attribute, depsgraph.scene_eval.frame_current,
                               override=depsgraph.view_layer_eval.material_override)
+    materials.images.limit = texture_limit(depsgraph.scene_eval, viewport=True)
     for key in index.material_keys[1:]:
         if key == DEFAULT_VOLUME_KEY:
             materials.default_volume_id()

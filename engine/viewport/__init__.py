@@ -84,7 +84,7 @@ class ViewportRender:
         self._index = None
         try:
             exported = export_scene(depsgraph, override, width=width, height=height, instance_everything=True,
-                                    cull=False)
+                                    viewport=True)
         except ExportError as err:
             self.session.fail(str(err))
             return
