@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...kernels import motion as kernel_motion
-from .camera import perspective_fov
+from .camera import perspective_fov, rigid_transform
 from .curves import hair_systems, read_curves, read_particle_hair
 from .instances import instance_key
 from .mesh import read_mesh, read_values, readable_mesh
@@ -151,7 +151,7 @@ def sample_motion(engine, depsgraph, camera_ob) -> MotionSamples | None:
                         if read[data] is not None:
                             shape_keys.setdefault(key, []).append(read[data])
             if camera_keys:
-                camera_matrices.append(_rigid(np.array(camera_ob.evaluated_get(depsgraph).matrix_world)))
+                camera_matrices.append(rigid_transform(camera_ob.evaluated_get(depsgraph).matrix_world))
             if camera_ob is not None and i in (0, len(times) - 1):
                 fovs.append(_fov(camera_ob.evaluated_get(depsgraph)))
     finally:
@@ -239,7 +239,7 @@ def sample_vector_motion(engine, depsgraph, camera_ob) -> VectorSamples | None:
                     if _vector_deforms(inst) and mesh_velocity(inst.object) is None:
                         vertices.setdefault(key, []).append(vertex_steps(inst.object))
             if camera_ob is not None:
-                cameras.append(_rigid(np.array(camera_ob.evaluated_get(depsgraph).matrix_world)))
+                cameras.append(rigid_transform(camera_ob.evaluated_get(depsgraph).matrix_world))
     finally:
         engine.frame_set(frame, subframe)
     out.objects = {key: (m[0], m[1]) for key, m in recorded.items() if len(m) == 2}
@@ -390,13 +390,6 @@ def shape_steps(ob, render: bool):
             local = read_particle_hair(ob, systems, render, 1, (), None, ob.name, quiet)
             return local.offsets, local.keys
     return None
-
-
-def _rigid(m: np.ndarray) -> np.ndarray:
-    lengths = np.linalg.norm(m[:3, :3], axis=0)
-    m = m.copy()
-    m[:3, :3] /= np.where(lengths > 0, lengths, 1.0)
-    return m
 
 
 def scene_motion(samples: MotionSamples | None, geometry) -> dict:
