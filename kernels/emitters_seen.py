@@ -160,8 +160,10 @@ def escaped(tables, wave, state, rays, hits, ended=None):
         if len(mis):
             heuristic = sampling.balance_heuristic if tables.environment.mis_balance else sampling.power_heuristic
             focus = None if state.focus is None else state.focus.take(miss[mis])
+            o = rays.origins[miss[mis]] if tables.lights.portals is not None else None
             sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]], tables.lights.pdf_world(
-                mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]])))
+                mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]],
+                *((None,) * 3 if o is None else o.T))))
     later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
     world, suns = env, []   # the light groups' parts: the world's, and each sun's
     if len(later) and len(tables.lights.sun_discs):

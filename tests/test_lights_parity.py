@@ -127,33 +127,6 @@ def test_blackbody_colour_is_close_to_cycles(kelvin):
     assert np.all(np.abs(ours - theirs) <= tolerance * np.maximum(theirs, 0.1)), (ours, theirs)
 
 
-def test_light_portal_emits_nothing_as_in_cycles():
-    """An area light marked as a portal (Cycles' is_portal, at a room's window) emits nothing in Cycles and is not
-    seen: it only guides the world's light samples. Before, Ember rendered it as a 500 W lamp (the room 49x too
-    bright). Ember samples the world without it, named in a warning: the same image."""
-    from bpy_helpers import export_current
-    scene = new_scene(32, 32)
-    add_camera(scene, (0, -1.8, 1.0), (0, 1, 0.9), lens=18)
-    set_world(scene, color=(2.0, 2.0, 2.0))
-    wall = diffuse_material("Wall", (0.7, 0.7, 0.7))
-    for name, corner, u, v in (("Floor", (-2, -2, 0), (4, 0, 0), (0, 4, 0)),
-                               ("Ceiling", (-2, -2, 2.5), (0, 4, 0), (4, 0, 0)),
-                               ("Back", (-2, -2, 0), (0, 0, 2.5), (4, 0, 0)),
-                               ("Left", (-2, -2, 0), (0, 4, 0), (0, 0, 2.5)),
-                               ("Right", (2, -2, 0), (0, 0, 2.5), (0, 4, 0)),
-                               # the front wall around a 1 m window
-                               ("Below", (-2, 2, 0), (4, 0, 0), (0, 0, 0.7)),
-                               ("Above", (-2, 2, 1.7), (4, 0, 0), (0, 0, 0.8)),
-                               ("WestSide", (-2, 2, 0.7), (1.5, 0, 0), (0, 0, 1.0)),
-                               ("EastSide", (0.5, 2, 0.7), (1.5, 0, 0), (0, 0, 1.0))):
-        quad_object(name, corner, u, v, wall)
-    portal = add_light(scene, "AREA", location=(0, 1.99, 1.2), rotation=(math.radians(-90), 0, 0), energy=500.0,
-                       size=1.0)
-    portal.data.cycles.is_portal = True
-    assert any("Light 'Area' is a light portal" in w for w in export_current().warnings)
-    compare_to_cycles(scene, samples=64, max_bounces=3, mean_z=4.0)
-
-
 def test_shadow_caustics_ember_ignores_are_named():
     """A lamp's Shadow Caustics (Cycles' MNEE) change Cycles' image; Ember renders without them and says so. Its Max
     Bounces is rendered (test_max_bounces_of_lamps_and_world_match_cycles), and not named."""

@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from ...kernels import LIGHT_KINDS, Lights
-from ...kernels.scene.lights import NO_BOUNCE_LIMIT
+from ...kernels.scene.lights import NO_BOUNCE_LIMIT, PORTAL_COLUMNS
 from ...kernels.scene.objects import BSDF_RAYS, RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_SCATTER, RAY_TRANSMIT
 from ...kernels.textures import luminance
 from .light_groups import GroupTable, group_table, lamp_groups
@@ -51,13 +51,16 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         links = link_table(depsgraph)
     if groups is None:
         groups = group_table(depsgraph.view_layer)
-    rows, masks, catchers, in_groups, seen, names = [], [], [], [], [], []
+    rows, masks, catchers, in_groups, seen, names, portals = [], [], [], [], [], [], []
     shaders = LightShaders(images, layer_attribute)
     for inst in depsgraph.object_instances:
         if poll is not None:
             poll()
         ob = inst.object
         if ob.type != "LIGHT":
+            continue
+        if is_portal(ob.data):
+            portals.append(portal_row(ob.data, np.array(inst.matrix_world, dtype=np.float64)))
             continue
         row = _light_row(ob.data, np.array(inst.matrix_world, dtype=np.float64), ob.name, warnings, shaders)
         if row is not None:
@@ -67,8 +70,9 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
             masks.append(links.memberships(ob))
             catchers.append(light_is_shadow_catcher(inst, ob))
             in_groups.append(groups.of(ob, inst.parent if inst.is_instance else None))
+    portal_table = np.array(portals, np.float32).reshape(-1, PORTAL_COLUMNS) if portals else None
     if not rows:
-        return Lights()
+        return Lights(portals=portal_table)
     columns = list(zip(*rows))
     light_sets, shadow_sets = lamp_masks(masks)
     camera = np.array([bool(v & RAY_CAMERA) for v in seen], bool)
@@ -96,7 +100,27 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         shaders=shaders.programs if max(columns[11]) >= 0 else (),
         max_bounces=np.array(columns[12], np.int32) if min(columns[12]) < NO_BOUNCE_LIMIT else None,
         mis=None if all(columns[13]) else np.array(columns[13], bool),
+        portals=portal_table,
     )
+
+
+def is_portal(light) -> bool:
+    """An area lamp marked Portal (Cycles' own setting): it emits nothing and is not seen; it guides the world's light
+    samples (kernels/lights/portals.py)."""
+    return light.type == "AREA" and bool(getattr(getattr(light, "cycles", None), "is_portal", False))
+
+
+def portal_row(light, world_from_light: np.ndarray) -> list[float]:
+    """A portal's row of Lights.portals: its centre, its edges (the lamp's x and y axes times Size X and Size Y, as
+    Cycles' AreaLight::copy_to_kernel scales them by the object's transform), the direction it faces (its -Z) and
+    whether it is round (Disk, Ellipse)."""
+    m = np.asarray(world_from_light, np.float64)
+    size_u = float(light.size)
+    size_v = float(light.size_y) if light.shape in ("RECTANGLE", "ELLIPSE") else size_u
+    facing = -m[:3, 2]
+    facing = facing / max(float(np.linalg.norm(facing)), 1e-30)
+    return [*m[:3, 3], *(m[:3, 0] * size_u), *(m[:3, 1] * size_v), *facing,
+            1.0 if light.shape in ("DISK", "ELLIPSE") else 0.0]
 
 
 def light_is_shadow_catcher(inst, ob) -> bool:
@@ -128,11 +152,6 @@ def light_strength(light) -> np.ndarray:
 
 def _light_row(light, world_from_light: np.ndarray, name: str, warnings: list[str], shaders=None):
     settings = getattr(light, "cycles", None)
-    if light.type == "AREA" and getattr(settings, "is_portal", False):
-        # Cycles' portal emits nothing and is not seen: it only guides the world's light samples through a window.
-        warnings.append(f"Light '{name}' is a light portal: Ember samples the world without it (the same image, "
-                        f"noisier indoors)")
-        return None
     if settings is not None and getattr(settings, "is_caustics_light", False):
         warnings.append(f"Light '{name}': Shadow Caustics are not supported, ignored")
     if shaders is None:

@@ -13,7 +13,7 @@ from ..geometry import emissive_instanced, lights_of
 from ..light_tree import LightTree, rows_of
 from ..scene import SceneArrays
 from ..textures import luminance
-from . import area, point_spot, ray_visibility, selection, sun, triangles, world
+from . import area, point_spot, portals, ray_visibility, selection, sun, triangles, world
 from ..scene.lights import NO_BOUNCE_LIMIT
 from ..scene.objects import ALL_RAYS, BSDF_RAYS, RAY_CAMERA
 from .common import DISK, POINT, RECT, SPOT, SUN
@@ -116,6 +116,9 @@ class LightSampler:
             self.lamp_shaders = LampShaders(lights, shading_data)
             for k in np.flatnonzero(lights.shader >= 0):
                 self.power_scale[k] = self.lamp_shaders.estimate(int(k))
+        # The world's light portals (portals.Portals), or None: where a shading point is inside one, half of the
+        # world's light samples go through them.
+        self.portals = None if lights.portals is None or not len(lights.portals) else portals.Portals(lights.portals)
         self.radius = lights.radius.astype(np.float32)
         self.size = lights.size.astype(np.float32)
         self.spot = lights.spot_cos.astype(np.float32)
@@ -276,8 +279,9 @@ class LightSampler:
         """In the sun's unit (W/m^2): the world's flux into a sphere over the sphere's cross-section. 0 for a
         world of one colour in every direction, which, as in Cycles (LightManager's background light needs a
         spatially varying world), is no light: BSDF rays find it, with MIS weight 1, and next-event
-        estimation spends its samples on the lamps (a constant grey world took half of them)."""
-        if not self.environment.varies:
+        estimation spends its samples on the lamps (a constant grey world took half of them). With light portals
+        every world is one (Cycles' test_enabled_lights: has_portal), sampled through them."""
+        if not self.environment.varies and self.portals is None:
             return 0.0
         return float(4 * np.pi * self.environment.mean_luminance())
 
@@ -390,7 +394,8 @@ class LightSampler:
         if self.select_pmf[self.world_index] > 0:
             picked = np.flatnonzero(chosen == self.world_index)
             if len(picked):
-                world.sample(self, out, picked, u1[picked], u2[picked], None if focus is None else focus.take(picked))
+                world.sample(self, out, picked, u1[picked], u2[picked], None if focus is None else focus.take(picked),
+                             px[picked], py[picked], pz[picked])
         out.pdf *= select
         if allowed is not None:
             out.radiance[:, ~np.take(allowed, chosen)] = 0.0
@@ -421,9 +426,10 @@ class LightSampler:
         (triangles.pdf_hit)."""
         return triangles.pdf_hit(self, tri, dist, cos_l, ox, oy, oz, receiver, facing)
 
-    def pdf_world(self, dx, dy, dz, focus=None, receiver=None) -> np.ndarray:
-        """pdf (solid angle, with selection) of NEE for world directions d (world.pdf)."""
-        return world.pdf(self, dx, dy, dz, focus, receiver)
+    def pdf_world(self, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=None) -> np.ndarray:
+        """pdf (solid angle, with selection) of NEE for world directions d from points o (world.pdf; o matters
+        only with light portals)."""
+        return world.pdf(self, dx, dy, dz, focus, receiver, ox, oy, oz)
 
     def suns_seen(self, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None,
                   types=None):

@@ -10,6 +10,8 @@ from .checks import check_array, require
 LIGHT_KINDS = {"POINT": 0, "SPOT": 1, "SUN": 2, "RECT": 3, "DISK": 4}
 # A light's Max Bounces that limits nothing (Blender's default and maximum, Cycles' Light::max_bounces default).
 NO_BOUNCE_LIMIT = 1024
+# Columns of a light portal's row (kernels/lights/portals.py).
+PORTAL_COLUMNS = 13
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,9 @@ class Lights:
         light sample of it at a vertex more than that many bounces deep carries no light, as Cycles'
         light_select_reached_max_bounces drops it (kernel/light/light.h; the choice keeps its probabilities, and
         BSDF rays meeting the light still count, as in Cycles).
+    portals : (P, PORTAL_COLUMNS) float32 or None (none): the area lamps marked Portal, which emit nothing and guide
+        the world's light samples through windows (kernels/lights/portals.py, whose docstring gives the columns);
+        not among the L rows.
     mis : (L,) bool or None (all True): the light's Multiple Importance (Cycles' own setting, light.cycles); off,
         only its light samples light the scene, at full weight: BSDF rays pass it without seeing it, and escaped
         rays see no sun that has it off (Cycles' SHADER_USE_MIS: kernel/light/light.h lights_intersect,
@@ -82,6 +87,7 @@ class Lights:
     shaders: tuple = ()
     max_bounces: np.ndarray | None = None
     mis: np.ndarray | None = None
+    portals: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -124,6 +130,8 @@ class Lights:
             check_array(self.sphere, "lights.sphere", (n,), np.bool_, finite=False)
         if self.mis is not None:
             check_array(self.mis, "lights.mis", (n,), np.bool_, finite=False)
+        if self.portals is not None:
+            check_array(self.portals, "lights.portals", (len(self.portals), PORTAL_COLUMNS), np.float32)
         if self.max_bounces is not None:
             check_array(self.max_bounces, "lights.max_bounces", (n,), np.int32, finite=False)
             require(not n or int(self.max_bounces.min()) >= 0, "lights.max_bounces", "must be non-negative")
