@@ -120,7 +120,7 @@ def test_tangent_node_and_normal_map_spaces():
     assert not [w for w in result.warnings if "Brushed" in w]
 
 
-def test_object_space_normal_map_warns_and_bump_and_radial_tangent_link():
+def test_object_space_normal_map_bump_and_radial_tangent_link():
     mat, bsdf = normal_mapped_material("Odd", space="OBJECT", shader="ShaderNodeBsdfPrincipled")
     tree = mat.node_tree
     bump = tree.nodes.new("ShaderNodeBump")
@@ -130,12 +130,11 @@ def test_object_space_normal_map_warns_and_bump_and_radial_tangent_link():
     quad(material=mat)
     result = export()
     (closure,) = result.scene.materials.shaders[1].closures
-    assert closure.input("Normal") is None
+    assert closure.input("Normal").link is not None          # the Object-space Normal Map's program
     assert closure.input("Coat Normal").link is not None     # the Bump node's program
     assert closure.input("Tangent").link is not None       # the radial Tangent node's program
     assert result.scene.tangents is None
-    (line,) = [w for w in result.warnings if "'Odd'" in w]
-    assert "Normal Map 'Normal Map': Object space is not supported" in line
+    assert not [w for w in result.warnings if "'Odd'" in w]
 
 
 def test_constant_normal_and_tangent_programs_are_kept_and_zero_ones_warned():
@@ -343,3 +342,35 @@ def test_directx_convention_matches_cycles(space):
     scene, count = probe_scene(build("OPENGL"), {"probe": colors})
     opengl = render_probe(scene, count, "EMBER")
     assert np.abs(opengl - cycles).max() > 0.1
+
+
+@pytest.mark.parametrize("space", ["OBJECT", "BLENDER_OBJECT"])
+def test_object_space_normal_maps_match_cycles(space):
+    """Object and Blender Object space: the map's normal taken to world space by the object's normal transform
+    (Cycles' object_normal_transform: the inverse transpose, normalized), then flipped on back faces. The probe's
+    quads turned half a turn about z and stretched 3x along it (they stay where they were, in the z = 0 plane):
+    Ember's program against this Blender's Cycles, one probe colour per pixel. Before, Ember used the shading
+    normal, with a warning; read as World space the values differ too (the transform matters)."""
+    from tests.node_probe import probe_scene, render_probe, sweep
+
+    colors = sweep(0.0, 1.0, 64, seed=5)
+
+    def build(chosen):
+        def graph(tree, sockets):
+            node = tree.nodes.new("ShaderNodeNormalMap")
+            node.space = chosen
+            tree.links.new(sockets["probe"], node.inputs["Color"])
+            return node.outputs["Normal"]
+        return graph
+
+    def rendered(chosen, engine):
+        scene, count = probe_scene(build(chosen), {"probe": colors})
+        probe = bpy.data.objects["Probe"]
+        width, height = scene.render.resolution_x, scene.render.resolution_y
+        probe.location, probe.rotation_euler, probe.scale = (width, height, 0.0), (0.0, 0.0, math.pi), (1.0, 1.0, 3.0)
+        return render_probe(scene, count, engine)
+
+    cycles = rendered(space, "CYCLES")
+    np.testing.assert_allclose(rendered(space, "EMBER"), cycles, atol=2e-6)
+    world = "BLENDER_WORLD" if space == "BLENDER_OBJECT" else "WORLD"
+    assert np.abs(rendered(world, "EMBER") - cycles).max() > 0.1

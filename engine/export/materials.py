@@ -25,8 +25,8 @@ kernel builds Cycles' closures from them (kernels.shading.nodes).
   constant, an RGB node or an Image Texture, its Strength a constant or a Value node) becomes a
   kernels.scene.NormalMap. Tangent inputs: a Tangent node in UV Map direction becomes a Tangent. The
   materials that read tangents, and the UV maps they name, are recorded (tangent_uv_maps) for the mesh
-  export. Anything else feeding those inputs (Bump, Object-space normal maps, radial tangents), thin film:
-  ignored with a warning.
+  export. Anything else feeding those inputs (a Bump, an Object-space Normal Map, a radial Tangent) is the
+  program's vector.
 
 An image that cannot be loaded renders sockets.MISSING_IMAGE_COLOR, as in Cycles, with a warning naming it.
 """
@@ -487,7 +487,7 @@ class _MaterialReader:
 
     def normal_map(self, source: Source, socket, groups) -> NormalMap | Param | None:
         """A Normal or Coat Normal input: a Normal Map node as the kernel's NormalMap, any other node (an
-        object-space map warns there) as the program's vector. A program that folds to a constant gives that
+        Object-space map too: its op takes the hit's object transform) as the program's vector. A program that folds to a constant gives that
         normal, as Cycles loads a constant-folded input (svm.cpp stack_assign_if_linked: constant_folded_in);
         a zero one is no direction: the shading normal, with a warning."""
         if source.kind != "ShaderNodeNormalMap" or source.node.space not in NORMAL_MAP_SPACES:

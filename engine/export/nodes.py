@@ -366,10 +366,6 @@ def _light_path(builder, node, groups):
 
 
 def _normal_map(builder, node, groups):
-    if node.space not in ("TANGENT", "WORLD", "BLENDER_WORLD"):
-        builder.issues.append(f"Normal Map '{node.name}': {node.space.replace('_', ' ').title()} space is not "
-                              f"supported, used the shading normal")
-        return None
     if node.space == "TANGENT":
         builder.tangent_uv_maps.append(node.uv_map)
     inputs = {"Color": (yield builder.read(node.inputs["Color"], groups, "RGBA")),

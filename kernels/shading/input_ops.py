@@ -512,13 +512,15 @@ def combine_xyz(hits, inputs, op):
 
 
 def normal_map(hits, inputs, op):
-    """The Normal Map node (tangent, world or Blender world space) over program inputs."""
+    """The Normal Map node (tangent, object, world, Blender object or Blender world space) over program inputs."""
     n = hits.n
     color = full(inputs["Color"], n, 3).T
     strength = full(inputs["Strength"], n)
     space = op.option("space", "TANGENT")
     ns = tuple(hits.N[:, k] for k in range(3))
     frame = hits.hit.tangent_frame(hits.idx) if space == "TANGENT" else None
+    has_object = not getattr(hits, "world", False)
     out = normals.normal_map(color, strength, space, ns, hits.backfacing, frame,
-                             op.option("convention", "OPENGL") == "DIRECTX")
+                             op.option("convention", "OPENGL") == "DIRECTX",
+                             (lambda v: to_world(hits, v, "NORMAL")) if has_object else None)
     return {"Normal": np.stack(out, axis=1)}

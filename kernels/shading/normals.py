@@ -17,11 +17,13 @@ from ..vec import F32, HALF, ONE, ZERO, cross_xyz, dot_xyz, normalize_xyz
 
 
 def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfacing: np.ndarray, frame,
-               invert_green: bool = False):
+               invert_green: bool = False, object_to_world=None):
     """The Normal Map node's Normal at n hits.
 
     color : (3, n) the node's Color, each axis stored as (x + 1) / 2. strength : (n,).
-    space : TANGENT, WORLD or BLENDER_WORLD (kernels.scene.NORMAL_MAP_SPACES).
+    space : TANGENT, WORLD or BLENDER_WORLD (kernels.scene.NORMAL_MAP_SPACES), or OBJECT or BLENDER_OBJECT (the
+        program's Normal Map op: object_to_world, (n, 3) object-space normals -> unit world ones, the hits'
+        object's normal transform; None where there is no object, a world's, whose object space is world space).
     ns : the hits' unit shading normal, flipped toward the viewer on back faces (Cycles' sd->N).
     frame : (tangent, sign, normal) of SurfaceHit.tangent_frame, unnormalized and not flipped, or None
         (no tangents: the normal is left as it is, as Cycles does without its tangent attribute).
@@ -41,8 +43,11 @@ def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfaci
         out = normalize_xyz(tuple(cx * t[k] + cy * b[k] + cz * n[k] for k in range(3)))
         out = _flip(out, backfacing)
     else:
-        if space == "BLENDER_WORLD":  # Blender's convention: y and z point the other way
+        if space in ("BLENDER_WORLD", "BLENDER_OBJECT"):  # Blender's convention: y and z point the other way
             c = np.stack([c[0], -c[1], -c[2]])
+        if space in ("OBJECT", "BLENDER_OBJECT") and object_to_world is not None:
+            # Cycles' object_normal_transform (normalized), before the back-face flip (svm_node_normal_map).
+            c = np.asarray(object_to_world(np.ascontiguousarray(c.T)), F32).T
         out = _flip(normalize_xyz(tuple(c)), backfacing)
         weak = strength != ONE
         if weak.any():
