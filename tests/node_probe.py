@@ -18,6 +18,9 @@ with Ember (`engine="EMBER"`), so one probe serves the kernel functions and the 
 """
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+
 import bpy
 import numpy as np
 
@@ -38,6 +41,20 @@ def _cpu_has_avx2_fma() -> bool:
 # Cycles' CPU kernel on AVX2 + FMA machines fuses multiply-adds; node functions that mirror it are exact
 # there (tests compare bit for bit), elsewhere to float precision.
 AVX2_KERNEL = _cpu_has_avx2_fma()
+
+
+def glibc_libm(*functions):
+    """The C library's libm through ctypes, the float functions named ((name, arity) pairs) declared, or None
+    where the C library is not glibc: Cycles calls its float functions (sinf, atan2f...)."""
+    name = ctypes.util.find_library("m")
+    libc = ctypes.util.find_library("c") or ""
+    if not name or "libc.so.6" not in libc:
+        return None
+    libm = ctypes.CDLL(name)
+    for function, arity in functions:
+        fn = getattr(libm, function)
+        fn.restype, fn.argtypes = ctypes.c_float, [ctypes.c_float] * arity
+    return libm
 
 
 def probe_scene(build, points: dict, *, name: str = "Probe") -> tuple[bpy.types.Scene, int]:

@@ -1,5 +1,5 @@
 """bench/corpus.py: its statistics on synthetic renders with known noise, and the whole tool on .blend files
-built here (one Ember matches, one whose Cycles film exposure Ember lacks, one that is not a .blend)."""
+built here (one Ember matches, one with a setting and a node Ember lacks, one that is not a .blend)."""
 from __future__ import annotations
 
 import os
@@ -106,9 +106,10 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
 # ---------------------------------------------------------------- the tool on .blend files
 def build_scene(different: bool):
     """A floor and a box under an area lamp, with Cycles settings Ember takes over; where different, one it lacks
-    (the light tree off, which only changes the noise) and a Radial Tiling node (the one Cycles node Ember does not
-    render) colouring the box; and a material Ember warns about (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing
-    changes in Cycles)."""
+    (the light tree off, which only changes the noise) and an Object-space Normal Map (which Ember renders with the
+    shading normal, warning) turning the box's normals down, away from the lamp; and a material Ember warns about
+    (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing changes in
+    Cycles)."""
     scene = new_scene(48, 32)
     floor = diffuse_material("Floor", (0.7, 0.7, 0.7))
     mesh_object("Floor", [(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)], [(0, 1, 2, 3)], floor)
@@ -128,9 +129,11 @@ def build_scene(different: bool):
     scene.cycles.sample_clamp_indirect = 5.0
     scene.cycles.pixel_filter_type = "GAUSSIAN"
     if different:
-        tiling = box.node_tree.nodes.new("ShaderNodeRadialTiling")
+        normal_map = box.node_tree.nodes.new("ShaderNodeNormalMap")
+        normal_map.space = "OBJECT"
+        normal_map.inputs["Color"].default_value = (0.5, 0.5, 0.0, 1.0)     # object-space -Z
         bsdf = next(n for n in box.node_tree.nodes if n.type.startswith("BSDF"))
-        box.node_tree.links.new(tiling.outputs["Segment Coordinates"], bsdf.inputs["Color"])
+        box.node_tree.links.new(normal_map.outputs["Normal"], bsdf.inputs["Normal"])
         scene.cycles.use_light_tree = False
     return scene
 
@@ -138,7 +141,7 @@ def build_scene(different: bool):
 @pytest.fixture(scope="module")
 def corpus_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("corpus")
-    for name, different in (("same.blend", False), ("tiled.blend", True)):
+    for name, different in (("same.blend", False), ("lacking.blend", True)):
         build_scene(different)
         bpy.ops.wm.save_as_mainfile(filepath=str(folder / name), copy=True)
     (folder / "broken.blend").write_bytes(b"not a blend file")
@@ -157,11 +160,11 @@ def table_row(stdout: str, name: str) -> list[str]:
 def test_the_tool_runs_every_file_and_tables_them(corpus_run):
     run, out = corpus_run
     assert run.returncode == 0, run.stderr
-    same, tiled, broken = (table_row(run.stdout, n) for n in ("same.blend", "tiled.blend", "broken.blend"))
+    same, lacking, broken = (table_row(run.stdout, n) for n in ("same.blend", "lacking.blend", "broken.blend"))
     assert same[-1] == "within noise", run.stdout
     assert same[7] == "1"                                    # the UV Along Stroke warning, once for both renders
-    assert tiled[-1] == "beyond noise" and "use_light_tree=False" in tiled[8], run.stdout
-    assert float(tiled[4]) > 5 and "Radial Tiling" in run.stdout   # the box's colour differs: blocks far off
+    assert lacking[-1] == "beyond noise" and "use_light_tree=False" in lacking[8], run.stdout
+    assert float(lacking[4]) > 5 and "Object space is not supported" in run.stdout   # the box's shading: far off
     assert broken[-1].startswith("failed: Cycles:") and "Ember:" in broken[-1]
     assert "sample_clamp_indirect=5.0" in run.stdout and "pixel_filter_type=GAUSSIAN" in run.stdout
     assert "UV Along Stroke node" in run.stdout and "is not supported" in run.stdout
@@ -170,7 +173,7 @@ def test_the_tool_runs_every_file_and_tables_them(corpus_run):
 
 def test_side_by_side_pngs(corpus_run):
     run, out = corpus_run
-    assert sorted(os.listdir(out)) == ["same.png", "summary.md", "tiled.png"]
+    assert sorted(os.listdir(out)) == ["lacking.png", "same.png", "summary.md"]
     image = bpy.data.images.load(str(out / "same.png"))
     try:
         width, height = image.size

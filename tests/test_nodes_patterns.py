@@ -19,9 +19,6 @@ is probed with one material per direction, each Sky node's texture mapping reduc
 Probe inputs: per-hit values come through a Separate XYZ of a probe vector (exact), not the Attribute
 node's Fac (the mean of the three components).
 """
-import ctypes
-import ctypes.util
-
 import bpy
 import numpy as np
 import pytest
@@ -29,7 +26,7 @@ import pytest
 from ember.kernels.shading import patterns as pt
 from ember.kernels.shading import sky as sk
 from ember.kernels.shading import sky_scattering
-from tests.node_probe import AVX2_KERNEL, cycles_probe, probe_scene, render_probe, sweep
+from tests.node_probe import AVX2_KERNEL, cycles_probe, glibc_libm, probe_scene, render_probe, sweep
 
 F32 = np.float32
 RTOL, ATOL = 2e-5, 2e-6
@@ -38,14 +35,7 @@ RTOL, ATOL = 2e-5, 2e-6
 
 
 def _glibc_libm():
-    name = ctypes.util.find_library("m")
-    libc = ctypes.util.find_library("c") or ""
-    if not name or "libc.so.6" not in libc:
-        return None
-    libm = ctypes.CDLL(name)
-    for fn in (libm.sinf, libm.cosf):
-        fn.restype, fn.argtypes = ctypes.c_float, [ctypes.c_float]
-    return libm
+    return glibc_libm(("sinf", 1), ("cosf", 1))
 
 
 def _sinf_is_the_system_one() -> bool:

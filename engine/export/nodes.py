@@ -201,6 +201,8 @@ def socket_constant(socket, want: str) -> tuple:
     """An unlinked socket's value as a constant of the wanted type."""
     value = getattr(socket, "default_value", 0.0)
     values = np.atleast_1d(np.nan_to_num(np.asarray(value[:] if hasattr(value, "__len__") else value, np.float64)))
+    if socket.type == "VECTOR" and len(values) < 3:     # a 2D vector (Radial Tiling's): z is 0
+        values = np.concatenate([values, np.zeros(3 - len(values))])
     have = "RGBA" if socket.type == "RGBA" else "VECTOR" if len(values) >= 3 else "VALUE"
     values = values[:3] if have != "VALUE" else values[:1]
     return fold_convert(tuple(float(v) for v in values), have, want)
@@ -358,6 +360,17 @@ def _plain(builder, node, groups):
     """A node read with all its inputs and options as they are."""
     inputs = yield builder.node_inputs(node, groups)
     return builder.add(node.bl_idname, inputs, node_options(node), outputs=_linked_outputs(node))
+
+
+def _radial_tiling(builder, node, groups):
+    """Radial Tiling (kernels/shading/radial_tiling.py), rounded as this Blender's Cycles. An unlinked Vector is
+    the socket's own (x, y), not a coordinate. When every input is a constant, Blender evaluates the node itself
+    (probed: constants from Value or Math nodes too) and Cycles renders that value: the op folds here, rounded
+    as Blender does (option "constant")."""
+    inputs = yield builder.node_inputs(node, groups)
+    constant = not any(isinstance(value, Ref) for value in inputs.values())
+    options = dict(node_options(node), cycles_version=blender_version(), constant=constant)
+    return builder.add(node.bl_idname, inputs, options, outputs=_linked_outputs(node))
 
 
 def _light_path(builder, node, groups):
@@ -637,6 +650,7 @@ COMPILERS = {
                                  "ShaderNodeCombineColor", "ShaderNodeHueSaturation", "ShaderNodeBrightContrast",
                                  "ShaderNodeGamma", "ShaderNodeInvert", "ShaderNodeRGBToBW", "ShaderNodeBlackbody",
                                  "ShaderNodeWavelength", "ShaderNodeMapping", "ShaderNodeVectorRotate")},
+    "ShaderNodeRadialTiling": _radial_tiling,
     "ShaderNodeValToRGB": _color_ramp,
     "ShaderNodeRGBCurve": _curves(node_tables.rgb_curves_table),
     "ShaderNodeVectorCurve": _curves(node_tables.vector_curves_table),

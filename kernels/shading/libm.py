@@ -120,3 +120,16 @@ def libm(fn, x) -> np.ndarray:
 
 def expf(x):
     return libm(np.exp, x)
+
+
+def tanf(x):
+    return libm(np.tan, x)
+
+
+def atanf(x):
+    return libm(np.arctan, x)
+
+
+def atan2f(y, x) -> np.ndarray:
+    """atan2f(y, x): signed zeros as C's (atan2f(-0, -1) = -pi)."""
+    return np.arctan2(np.asarray(y, F32).astype(F64), np.asarray(x, F32).astype(F64)).astype(F32)

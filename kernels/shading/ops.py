@@ -18,6 +18,7 @@ from . import color_nodes, curve_nodes, math_nodes, mix_nodes, vector_nodes
 from . import gabor as gb
 from . import noise as ns
 from . import patterns as pt
+from . import radial_tiling as rt
 from . import sky as sk
 from . import voronoi as vr
 from .bump import bump_node
@@ -89,7 +90,7 @@ PURE_OPS = {"ShaderNodeSeparateXYZ", "ShaderNodeCombineXYZ", "TEXTURE_MAPPING"}
 
 # ---------------------------------------------------------------- texture, colour and math nodes
 # The node functions of noise.py, voronoi.py, gabor.py, patterns.py, math_nodes.py, color_nodes.py,
-# mix_nodes.py, vector_nodes.py and curve_nodes.py take snake_case keywords named after the node's sockets
+# mix_nodes.py, vector_nodes.py, radial_tiling.py and curve_nodes.py take snake_case keywords named after the node's sockets
 # and options; these adapters pass what the program holds.
 
 
@@ -163,6 +164,7 @@ _CONVERTERS = {
     "ShaderNodeWavelength": node_op(color_nodes.wavelength),
     "ShaderNodeMapping": node_op(vector_nodes.mapping),
     "ShaderNodeVectorRotate": node_op(vector_nodes.vector_rotate),
+    "ShaderNodeRadialTiling": node_op(rt.radial_tiling),
     "ShaderNodeValToRGB": node_op(curve_nodes.color_ramp),
     "ShaderNodeRGBCurve": node_op(curve_nodes.rgb_curves),
     "ShaderNodeVectorCurve": node_op(curve_nodes.vector_curves),
