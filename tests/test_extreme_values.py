@@ -9,6 +9,7 @@ the reference and a warning naming what was changed:
   the scene in Cycles; Ember renders the world along its view axis, as Cycles shows a constant world.
 - A denoiser that turns a lit image black (pixels near the float32 limit from a node program) leaves the
   noisy image, with a warning.
+- A negative emission strength (a surface that subtracts light) renders as in Cycles.
 """
 import ctypes
 
@@ -16,8 +17,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import (add_camera, diffuse_material, emission_material, export_current, mesh_object, new_scene,
-                         render_to_array, set_world)
+from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, emission_material, export_current,
+                         mesh_object, new_scene, render_to_array, set_world)
 from test_passes import render as record_render
 
 from ember.engine.export.lights import MAX_LIGHT_RADIANCE
@@ -125,3 +126,21 @@ def test_a_denoiser_that_blacks_out_the_image_leaves_the_noisy_one_with_a_warnin
     denoised = record_render(scene, samples=2, use_denoising=True, max_bounces=1).image("Combined")
     assert "denoising failed" in capsys.readouterr().out
     assert np.isfinite(denoised).all() and _panel(denoised).max() > 1e37
+
+
+@pytest.mark.parametrize("linked", [False, True], ids=["constant", "folded"])
+def test_negative_emission_subtracts_light_as_in_cycles(linked):
+    """An Emission of Strength -0.5 (typed in, or from a Math node that folds to it) beside a glowing panel: Cycles
+    renders the panel below zero and takes its light from the floor, light-sampling it by the size of its emission
+    (scene/light_tree.cpp: fabs of the estimate). Before, Ember refused the whole frame ("must be non-negative")."""
+    scene = _panel_scene(strength=4.0)
+    dark = emission_material("Dark", strength=-0.5)
+    if linked:
+        tree = dark.node_tree
+        times = tree.nodes.new("ShaderNodeMath")
+        times.operation, times.inputs[0].default_value, times.inputs[1].default_value = "MULTIPLY", -1.0, 0.5
+        node = next(n for n in tree.nodes if n.type == "EMISSION")
+        tree.links.new(times.outputs[0], node.inputs["Strength"])
+    mesh_object("Dark", [(1.2, 0, 0.5), (2.2, 0, 0.5), (2.2, 0, 1.5), (1.2, 0, 1.5)], [(0, 1, 2, 3)], dark)
+    report = compare_to_cycles(scene, samples=64, max_bounces=3, mean_z=4.0)
+    assert report["mean_ember"] > 0

@@ -272,7 +272,9 @@ class LightSampler:
     def _triangle_power(self) -> np.ndarray:
         if not len(self.tri_ids):
             return np.zeros(0)
-        lum = luminance(self.tri_table[:, TLE:TLE + 3]).astype(np.float64)
+        # Negative emission (a negative Strength) subtracts light; its triangles are chosen by the size of their
+        # emission, as Cycles' light tree measures them (light_tree.cpp: fabs of the emission estimate).
+        lum = np.abs(luminance(self.tri_table[:, TLE:TLE + 3]).astype(np.float64))
         return 2.0 * np.pi * self.tri_area * lum
 
     def _world_power(self) -> float:

@@ -202,11 +202,6 @@ class Materials:
                 require(closure.kind in kinds, where, f"kind must be one of {kinds}")
                 for name, value in closure.inputs + tuple(("Fac", p) for p, _ in closure.factors):
                     _check_input(value, f"{where} {name}", name, n_textures)
-                if closure.kind == "EMISSION" or closure.kind == "PRINCIPLED":
-                    for name in ("Color", "Strength", "Emission Color", "Emission Strength"):
-                        p = closure.input(name)
-                        require(p is None or p.link is not None or min(p.value) >= 0, f"{where} {name}",
-                                "must be non-negative")
                 for p in closure.params():
                     require(p.link is None or 0 <= p.link.op < len(shader.program), where,
                             f"reads op {p.link.op if p.link else None} of a program of {len(shader.program)}")
