@@ -106,8 +106,8 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
 # ---------------------------------------------------------------- the tool on .blend files
 def build_scene(different: bool):
     """A floor and a box under an area lamp, with Cycles settings Ember takes over; where different, one it lacks
-    (the light tree off, which only changes the noise) and an Object-space Normal Map (which Ember renders with the
-    shading normal, warning) turning the box's normals down, away from the lamp; and a material Ember warns about
+    (the light tree off, which only changes the noise) and a second lamp of negative power over the box (Cycles
+    subtracts its light; Ember leaves it out, warning); and a material Ember warns about
     (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing changes in
     Cycles)."""
     scene = new_scene(48, 32)
@@ -129,11 +129,11 @@ def build_scene(different: bool):
     scene.cycles.sample_clamp_indirect = 5.0
     scene.cycles.pixel_filter_type = "GAUSSIAN"
     if different:
-        normal_map = box.node_tree.nodes.new("ShaderNodeNormalMap")
-        normal_map.space = "OBJECT"
-        normal_map.inputs["Color"].default_value = (0.5, 0.5, 0.0, 1.0)     # object-space -Z
-        bsdf = next(n for n in box.node_tree.nodes if n.type.startswith("BSDF"))
-        box.node_tree.links.new(normal_map.outputs["Normal"], bsdf.inputs["Normal"])
+        dark = bpy.data.lights.new("Dark", "AREA")
+        dark.energy, dark.size = -200.0, 1.0
+        dark_ob = bpy.data.objects.new("Dark", dark)
+        dark_ob.location = (0.0, 0.0, 2.5)
+        scene.collection.objects.link(dark_ob)
         scene.cycles.use_light_tree = False
     return scene
 
@@ -164,7 +164,7 @@ def test_the_tool_runs_every_file_and_tables_them(corpus_run):
     assert same[-1] == "within noise", run.stdout
     assert same[7] == "1"                                    # the UV Along Stroke warning, once for both renders
     assert lacking[-1] == "beyond noise" and "use_light_tree=False" in lacking[8], run.stdout
-    assert float(lacking[4]) > 5 and "Object space is not supported" in run.stdout   # the box's shading: far off
+    assert float(lacking[4]) > 5 and "has negative power" in run.stdout   # the box and floor under it: far off
     assert broken[-1].startswith("failed: Cycles:") and "Ember:" in broken[-1]
     assert "sample_clamp_indirect=5.0" in run.stdout and "pixel_filter_type=GAUSSIAN" in run.stdout
     assert "UV Along Stroke node" in run.stdout and "is not supported" in run.stdout
