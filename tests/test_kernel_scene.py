@@ -31,7 +31,7 @@ def good_scene():
     (lambda s: dict(materials=Materials.diffuse([[np.nan, 0, 0]])), r"materials\[0\] \(unnamed\) DIFFUSE Color"),
     (lambda s: dict(materials=Materials.diffuse([[0.5, 0.5, 0.5]], albedo_texture=[0])),
      r"materials\[0\] \(unnamed\) DIFFUSE Color"),
-    (lambda s: dict(materials=Materials.diffuse([[0.5, 0.5, 0.5]], emission=[[-1, 1, 1]])),
+    (lambda s: dict(materials=Materials.diffuse([[0.5, 0.5, 0.5]], emission=[[np.nan, 1, 1]])),
      r"materials\[0\] \(unnamed\) EMISSION Color"),
     (lambda s: dict(materials=Materials(shaders=())), "materials"),
     (lambda s: dict(textures=(np.zeros((4, 4), np.float32),)), r"textures\[0\]"),

@@ -80,7 +80,7 @@ def _fast() -> bool:
     return _mode() == "fast"
 
 
-def _fma(a, b, c):
+def _fused(a, b, c):
     """a * b + c as both of Cycles' kernels fuse it; unfused where Blender evaluates."""
     return a * b + c if _mode() == "blender" else fma(a, b, c)
 
@@ -211,7 +211,7 @@ def _curved_norm(l, sin_bevel, cos_bevel, spline, tail, tail_fast=False, base_sh
         if base_shared:
             return _mad(*tail, fma(spline, half, l * sin_bevel), fast=tail_fast)
         return _mad(*tail, fma(l, sin_bevel, spline * half), fast=tail_fast)
-    return _fma(*tail, _fma(l, sin_bevel, spline * half))
+    return _fused(*tail, _fused(l, sin_bevel, spline * half))
 
 
 def _mix(a, b, t):
@@ -443,7 +443,7 @@ def _last_corners(w, last, x, y, l_coord, r, ratio, spline, to_bevel, width, nor
     sin_bevel, cos_bevel = sinf(to_bevel), cosf(to_bevel)
     base, added = ratio * l_coord * sin_bevel, _spline(l_coord, cos_bevel, to_start, spline)
     # 5.1's kernel fuses this multiply-add past the quadratic part only, 5.0's on both
-    parameter = np.where(to_start < spline, _mad(ratio, added, base, on=False), _fma(ratio, added, base))
+    parameter = np.where(to_start < spline, _mad(ratio, added, base, on=False), _fused(ratio, added, base))
     parameter = _signed(parameter, w.local < last.bisector)
     if normalize:
         tail = (r, last.bevel)
