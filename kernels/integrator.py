@@ -26,7 +26,7 @@ from .interaction import RayInfo, SurfaceHit
 from .lights import nee
 from .media import stage as media_stage
 from .paths import (PathState, fast_gi_replaced, may_scatter, ray_keys, roulette_stops, roulette_verdict,
-                    roulette_weights, seen_through, type_limits)
+                    roulette_weights, seen_through, transparent_limit, type_limits)
 from .rays import Rays, below, concat_rays, leaves_its_side, spawn
 from .samples import BSDF, LENS, LOBE, TIME, Samples
 from .settings import RenderSettings
@@ -61,7 +61,7 @@ def trace(tables, paths, settings: RenderSettings, split: bool = True, aux: dict
     wave.groups = passes.wave_groups(aux)
     wave.catcher = shadow_catcher.start(tables, wave, n, _Wave)
     # The last step a path may take: a bounce or a transparent pass-through per ray, and the camera ray.
-    last = max_scatters + int(settings.transparent_max_bounces)
+    last = max_scatters + transparent_limit(settings)
     live = n if live is None else max(1, int(live))
     started = 0
     going = None   # the paths past their first bounce: (PathState, Rays), or None
@@ -389,7 +389,7 @@ def _clipped(next_rays, rays, found, t_hit, alive, bs):
 def _ao_pass(tables, wave, state, hit, closures, shading, numbers) -> None:
     """The Ambient Occlusion pass (kernels/ao_pass.py) at the surfaces the camera sees: the paths that have not
     scattered yet (their first hit, or one behind transparent surfaces), but not those a holdout ends there."""
-    rows = np.flatnonzero(state.bounce == 0)
+    rows = np.flatnonzero((state.bounce == 0) & (state.transparent < transparent_limit(wave.settings)))
     if tables.shading.has_holdout and len(rows):
         rows = rows[np.take(shading.holdout, rows) < 1]
     if len(rows):
@@ -577,7 +577,8 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None)
     # volume_bounds_bounce).
     state.transparent = state.transparent + (passing if tables.media is None else
                                              passing & ~np.take(tables.media.boundary, hit.mat))
-    alive &= state.transparent <= int(wave.settings.transparent_max_bounces)
+    # A path at the limit goes on to the world or to the emission of its next surface (may_scatter), no further.
+    alive &= state.transparent <= transparent_limit(wave.settings)
     state.bounce = state.bounce + (~passing & ~entering)
     if state.see_through is not None:
         state.see_through &= passing | _through_clear_glass(wave, bs, closures)

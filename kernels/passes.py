@@ -50,7 +50,7 @@ from .bsdf.light_passes import class_albedo, closure_albedos, eval_split, pass_c
 from .cryptomatte import CryptoFilm
 from .bsdf.lobes import MICROFACET_LOBES, SINGULAR_LOBES, TRANSPARENT
 from .camera import view_plane
-from .paths import seen_through
+from .paths import seen_through, transparent_limit
 from .scene import OBJ_PASS_INDEX, Camera
 from .vec import matmul
 
@@ -171,7 +171,7 @@ def closure_normal(closures, n_hits: int, fallback) -> np.ndarray:
 def path_bytes(settings) -> int:
     """Bytes a wave keeps per path from its start to its end: radiance and alpha (float32) and wave_buffers'."""
     channels_kept = 4 + sum(channels(name) for name in settings.passes if recorded(name))
-    if settings.cryptomatte:
+    if settings.cryptomatte:   # a row per surface seen, the first one here (more behind transparent ones grow it)
         channels_kept += len(settings.cryptomatte) + 1
     return 4 * channels_kept
 
@@ -199,9 +199,10 @@ def wave_planes(aux: dict, settings, pix, sample, pixels, spp: int, rows: int, w
         aux["noise"] = np.where((sample & np.uint32(1)).astype(bool), radiance, 0.0).astype(np.float64)
     weight = aux.pop("crypto_weight", None)
     for kind in settings.cryptomatte:
-        ids = aux.pop("crypto_" + kind)[0]
+        ids = aux.pop("crypto_" + kind)
         wave_film = CryptoFilm(rows, width, settings.cryptomatte_depth)
-        wave_film.add(pix, ids, weight[0])
+        # Row r: each path's r-th surface seen (behind r transparent ones), all in one call.
+        wave_film.add(np.tile(pix, len(ids)), ids.reshape(-1), weight.reshape(-1))
         out["crypto_" + kind] = wave_film
     for name, values in aux.items():
         c = len(values)
@@ -383,8 +384,9 @@ def has_single_passes(aux) -> bool:
 
 
 def behind_transparent(aux) -> bool:
-    """Whether the wave records a pass the surfaces behind transparent ones add to (Colors, Mist)."""
-    return any(name in aux for name in ("diffuse_color", "glossy_color", "transmission_color", "mist"))
+    """Whether the wave records a pass the surfaces behind transparent ones add to (Colors, Mist, Cryptomatte)."""
+    return any(name in aux for name in ("diffuse_color", "glossy_color", "transmission_color", "mist",
+                                        "crypto_weight"))
 
 
 # ---- stage: data passes of the surfaces the camera sees (kernels.passes)
@@ -394,12 +396,13 @@ def write_data(tables, aux: dict, state, hit, closures, settings, first: bool) -
     Depth, Position and the indices are taken at each such surface until one is opaque enough (alpha at least
     settings.pass_alpha_threshold, or no transparent closure), which alone gives Normal, UV and Vector; the
     Color passes and Mist add every such surface's share (throughput, and alpha for Mist); AOVs add the values of
-    the surfaces up to that one (Cycles' svm_node_aov_check); Cryptomatte is the first surface's, weighed by its
-    alpha (matte_weight)."""
+    the surfaces up to that one (Cycles' svm_node_aov_check); Cryptomatte records every such surface, each weighed
+    by its share (throughput times alpha: Cycles' matte_weight), in a row of its own per path."""
     if first:
         rows = np.arange(len(hit))
     else:
-        rows = np.flatnonzero(seen_through(state))
+        # Not at the surface a path meets at the transparent limit: Cycles ends it there before the passes.
+        rows = np.flatnonzero(seen_through(state) & (state.transparent < transparent_limit(settings)))
         if not len(rows):
             return
     pending = state.data_pending
@@ -413,7 +416,17 @@ def write_data(tables, aux: dict, state, hit, closures, settings, first: bool) -
         state.data_pending[single] = ~done[single]
     else:
         taken = single
-    _write_data(tables, aux, state, hit, closures, settings, rows, single, taken, first, alpha)
+    level = None
+    if "crypto_weight" in aux:
+        # Each path's next free row: one per surface of weight above 0 so far (a surface seen with none, wholly
+        # transparent, leaves its row to the next).
+        level = np.zeros(len(rows), np.int64) if first else \
+            np.count_nonzero(aux["crypto_weight"][:, state.path[rows]], axis=0)
+        grow = int(level.max(initial=0)) + 1 - len(aux["crypto_weight"])
+        if grow > 0:
+            for name in [k for k in aux if k.startswith("crypto_")]:
+                aux[name] = np.concatenate([aux[name], np.zeros((grow, aux[name].shape[1]), np.float32)])
+    _write_data(tables, aux, state, hit, closures, settings, rows, single, taken, first, alpha, level)
 
 
 def closure_alpha(closures, n: int) -> np.ndarray:
@@ -428,9 +441,9 @@ def closure_alpha(closures, n: int) -> np.ndarray:
     return alpha
 
 
-def _write_data(tables, aux, state, hit, closures, settings, rows, single, taken, first, alpha) -> None:
+def _write_data(tables, aux, state, hit, closures, settings, rows, single, taken, first, alpha, level=None) -> None:
     """write_data's passes: rows see the camera, single those still looking for their one surface, taken those
-    that find it here."""
+    that find it here; level: the Cryptomatte row each of rows writes."""
     paths = state.path
     n = len(hit)
     colours = None  # the closure classes' colours, made once for the three Color passes
@@ -440,8 +453,6 @@ def _write_data(tables, aux, state, hit, closures, settings, rows, single, taken
         elif name in SINGLE_PASSES:
             at = taken
         elif name.startswith("crypto_"):
-            if not first:
-                continue
             at = rows
         elif name.startswith("aov:"):   # Cycles' svm_node_aov_check: until the one surface, added up
             at = single
@@ -481,12 +492,12 @@ def _write_data(tables, aux, state, hit, closures, settings, rows, single, taken
             if kind == "weight":  # the sample's matte weight: what reaches the camera from here, times alpha
                 if alpha is None:
                     alpha = closure_alpha(closures, n)
-                out[0, p] = pick(state.throughput.mean(axis=0) * alpha.mean(axis=0))
+                out[level, p] = pick(state.throughput.mean(axis=0) * alpha.mean(axis=0))
             elif table is not None and len(table):
                 objects = hit.mat if kind == "material" else \
                     tables.triangles.object_rows(hit.prim)
                 if objects is not None:
-                    out[0, p] = pick(np.take(table, objects))
+                    out[level, p] = pick(np.take(table, objects))
         elif name == "vector":
             if tables.scene.vector_motion is not None:
                 out[:, p] = pick(motion_vectors(tables, hit))

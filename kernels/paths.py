@@ -297,11 +297,20 @@ def fast_gi_replaced(settings, state, rows=None) -> np.ndarray | None:
     return bounce - lobes[3] - (lobes[2] > 0) + 1 > int(settings.ao_bounces)
 
 
+def transparent_limit(settings) -> int:
+    """The transparent pass-throughs after which a path takes only the emission of the surface it meets next (and
+    the world, if it meets none): Transparent Max Bounces, at least 1 (Cycles' path_state_next sets
+    PATH_RAY_TERMINATE_ON_NEXT_SURFACE once transparent_bounce, counted after the pass, reaches the limit: a limit
+    of 0 ends paths as one of 1 does)."""
+    return max(int(settings.transparent_max_bounces), 1)
+
+
 def may_scatter(wave, state) -> np.ndarray:
     """(N,) bool: the paths that may still scatter at their hits (light samples, BSDF samples): not past
     max_bounces, nor past a per-type limit (Cycles ends a path after the bounce that reaches either, letting it
-    take only the emission and the world of what it meets next: PATH_RAY_TERMINATE_AFTER_TRANSPARENT)."""
-    ok = state.bounce < wave.max_scatters
+    take only the emission and the world of what it meets next: PATH_RAY_TERMINATE_AFTER_TRANSPARENT), nor at the
+    transparent limit (transparent_limit: only the emission of this surface, PATH_RAY_TERMINATE_ON_NEXT_SURFACE)."""
+    ok = (state.bounce < wave.max_scatters) & (state.transparent < transparent_limit(wave.settings))
     limits = type_limits(wave.settings)
     if limits is not None:
         ok &= np.all(state.lobes[1:4] <= limits, axis=0)

@@ -150,3 +150,34 @@ def test_per_type_bounce_limits_match_cycles(limits):
     add_camera(scene, (0, -3.5, 1), (0, 0, 0.8), lens=30)
     set_world(scene, color=(0, 0, 0))
     compare_to_cycles(scene, samples=128, max_bounces=12, type_bounces=limits)
+
+
+def _veil(name):
+    """40% diffuse, 60% Transparent BSDF (a Mix Shader)."""
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out, mix = tree.nodes.new("ShaderNodeOutputMaterial"), tree.nodes.new("ShaderNodeMixShader")
+    diffuse, clear = tree.nodes.new("ShaderNodeBsdfDiffuse"), tree.nodes.new("ShaderNodeBsdfTransparent")
+    mix.inputs["Fac"].default_value = 0.6
+    tree.links.new(diffuse.outputs[0], mix.inputs[1])
+    tree.links.new(clear.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+@pytest.mark.parametrize("limit", [0, 1, 2])
+def test_the_transparent_bounce_limit_ends_paths_as_cycles_does(limit):
+    """Two veils (60% transparent) before a wall, a glowing strip and, on the left, the sky. Cycles lets a path pass
+    Transparent Max Bounces transparent surfaces and then takes only the emission of the surface it meets next (and
+    the sky, if it meets none): the last layer it reaches is dark but for its glow (path_state_next:
+    PATH_RAY_TERMINATE_ON_NEXT_SURFACE); a limit of 0 ends paths as 1 does. Before, Ember shaded that last surface
+    too: with a limit of 1 or 2 the scene read 11% bright (a room behind one veil, 44%)."""
+    scene = new_scene(24, 24)
+    add_camera(scene, (0, -4, 1), (0, 0, 1))
+    set_world(scene, color=(0.8, 0.9, 1.0))
+    quad_object("Wall", (-0.5, 2, -2), (3.5, 0, 0), (0, 0, 6), diffuse_material("Wall", (0.8, 0.8, 0.8)))
+    quad_object("Glow", (0.2, 1.9, 0.6), (0.6, 0, 0), (0, 0, 0.8), emission_material("Glow", strength=3.0))
+    for k, y in enumerate((0.0, 0.8)):
+        quad_object(f"Veil{k}", (-3, y, -2), (6, 0, 0), (0, 0, 6), _veil(f"Veil{k}"))
+    compare_to_cycles(scene, samples=64, max_bounces=limit, mean_z=4.0)
