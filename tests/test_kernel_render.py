@@ -78,7 +78,7 @@ def test_all_modes_agree_and_variance_falls_from_lecture_to_cosine_to_nee():
     scene = cornell_box(16, 16, light_size=1.0, light_radiance=6.0, wall_subdivisions=2, sphere_segments=8)
     stats = {}
     for mode in MODES:
-        s = trace_samples(scene, RenderSettings(mode=mode, max_bounces=4), 512)
+        s = trace_samples(scene, RenderSettings(mode=mode, max_bounces=4), 256)
         lum = s.mean(axis=1)  # (samples, pixels)
         blocks = lum.reshape(len(lum), 4, 4, 4, 4).mean(axis=(2, 4)).reshape(len(lum), 16)
         stats[mode] = (*mean_and_stderr(blocks, axis=0), lum.var(axis=0).mean())

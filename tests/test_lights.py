@@ -248,7 +248,7 @@ def test_nee_mis_has_far_lower_error_than_cosine_on_a_small_light():
     # 1/r^2 from a centimetre away, a singularity that is noisy for any strategy.
     scene = cornell_box(24, 24, light_size=0.25, light_radiance=60.0, wall_subdivisions=2, sphere_segments=8,
                         light_height=1.8)
-    reference = trace_samples(scene, RenderSettings(mode="NEE_MIS", max_bounces=3, seed=99), 1024).mean(axis=0)
+    reference = trace_samples(scene, RenderSettings(mode="NEE_MIS", max_bounces=3, seed=99), 512).mean(axis=0)
     # Pixels that see the lamp itself are equally noisy in both modes (the pixel filter's edge): the
     # comparison is about the light the lamp casts on the room.
     room = np.all(reference < 5.0, axis=0)
