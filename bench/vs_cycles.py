@@ -185,10 +185,10 @@ def render(scene, engine: str, samples: int, cfg: Config, *, seed: int = TIMED_S
     r.engine = engine
     r.threads_mode = "FIXED"
     r.threads = cfg.threads
+    scene.cycles.use_light_tree = light_tree   # Cycles' setting, which Ember reads too
     if engine == "CYCLES":
         configure_cycles(scene, samples, seed, cfg.max_bounces)
         scene.cycles.time_limit = time_limit
-        scene.cycles.use_light_tree = light_tree
     else:
         e = scene.ember
         e.samples, e.seed, e.max_bounces, e.sampling_mode = samples, seed, cfg.max_bounces, mode

@@ -97,6 +97,9 @@ class EMBER_RENDER_PT_sampling(EmberPanel, bpy.types.Panel):
         col.prop(ember, "sample_offset")
         col.prop(ember, "use_animated_seed")
         layout.prop(ember, "sampling_pattern")
+        cycles = getattr(context.scene, "cycles", None)
+        if cycles is not None:   # Cycles' own setting, read as Cycles reads it (export/lights.uses_light_tree)
+            layout.prop(cycles, "use_light_tree")
 
 
 class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):

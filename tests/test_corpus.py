@@ -97,8 +97,8 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
     assert mapped["sample_clamp_indirect"] == 3.0 and mapped["max_bounces"] == scene.cycles.max_bounces
     lacking = corpus_render.lacking_settings(scene)
     assert mapped["diffuse_bounces"] == scene.cycles.diffuse_bounces == scene.ember.diffuse_bounces
-    assert "use_light_tree=False" in lacking and not any(key in item for item in lacking
-                                                         for key in ("bounces", "exposure", "fast_gi", "cull"))
+    assert "light_sampling_threshold=0.01" in lacking and not any(
+        key in item for item in lacking for key in ("bounces", "exposure", "fast_gi", "cull", "use_light_tree"))
     bpy.data.objects["Smooth"].shadow_terminator_shading_offset = 0.2   # rendered now: not lacking
     assert not any("shadow_terminator" in item for item in corpus_render.lacking_settings(scene))
 
@@ -106,7 +106,7 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
 # ---------------------------------------------------------------- the tool on .blend files
 def build_scene(different: bool):
     """A floor and a box under an area lamp, with Cycles settings Ember takes over; where different, one it lacks
-    (the light tree off, which only changes the noise) and a second lamp of negative power over the box (Cycles
+    (the light tree off, whose Light Threshold only changes the noise) and a second lamp of negative power over the box (Cycles
     subtracts its light; Ember leaves it out, warning); and a material Ember warns about
     (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing changes in
     Cycles)."""
@@ -163,7 +163,7 @@ def test_the_tool_runs_every_file_and_tables_them(corpus_run):
     same, lacking, broken = (table_row(run.stdout, n) for n in ("same.blend", "lacking.blend", "broken.blend"))
     assert same[-1] == "within noise", run.stdout
     assert same[7] == "1"                                    # the UV Along Stroke warning, once for both renders
-    assert lacking[-1] == "beyond noise" and "use_light_tree=False" in lacking[8], run.stdout
+    assert lacking[-1] == "beyond noise" and "light_sampling_threshold=0.01" in lacking[8], run.stdout
     assert float(lacking[4]) > 5 and "has negative power" in run.stdout   # the box and floor under it: far off
     assert broken[-1].startswith("failed: Cycles:") and "Ember:" in broken[-1]
     assert "sample_clamp_indirect=5.0" in run.stdout and "pixel_filter_type=GAUSSIAN" in run.stdout

@@ -71,8 +71,9 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
             catchers.append(light_is_shadow_catcher(inst, ob))
             in_groups.append(groups.of(ob, inst.parent if inst.is_instance else None))
     portal_table = np.array(portals, np.float32).reshape(-1, PORTAL_COLUMNS) if portals else None
+    tree = uses_light_tree(depsgraph.scene)
     if not rows:
-        return Lights(portals=portal_table)
+        return Lights(portals=portal_table, tree=tree)
     columns = list(zip(*rows))
     light_sets, shadow_sets = lamp_masks(masks)
     camera = np.array([bool(v & RAY_CAMERA) for v in seen], bool)
@@ -101,7 +102,15 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         max_bounces=np.array(columns[12], np.int32) if min(columns[12]) < NO_BOUNCE_LIMIT else None,
         mis=None if all(columns[13]) else np.array(columns[13], bool),
         portals=portal_table,
+        tree=tree,
     )
+
+
+def uses_light_tree(scene) -> bool:
+    """Sampling > Lights > Light Tree, Cycles' own setting (read as Cycles reads it, so that a file set up for Cycles
+    renders alike: files from before Blender 3.5 open with it off, and with clamping the way lights are chosen shows
+    in the image). Without it, emitters are chosen by Cycles' light distribution (Lights.tree)."""
+    return bool(getattr(getattr(scene, "cycles", None), "use_light_tree", True))
 
 
 def is_portal(light) -> bool:

@@ -126,7 +126,8 @@ class EmitterLinks:
         self.shadow = np.concatenate([objects.lamp_shadow, np.take(objects.shadow_sets, rows), world])
         self.shadow_linked = self.shadow != ALL_SETS
         used = np.union1d(np.unique(objects.receiver), [0]).astype(np.int64)
-        self.choices = {int(s): Choice(sampler, np.where(reaches(self.light, s), power, 0.0), scene) for s in used}
+        self.choices = {int(s): Choice(sampler, np.where(reaches(self.light, s), power, 0.0), scene, sampler.light_tree)
+                        for s in used}
 
     def choice(self, s: int) -> Choice:
         """The Choice of light set s (a set no receiver uses falls back to set 0's)."""

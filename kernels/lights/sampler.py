@@ -119,6 +119,8 @@ class LightSampler:
         # The world's light portals (portals.Portals), or None: where a shading point is inside one, half of the
         # world's light samples go through them.
         self.portals = None if lights.portals is None or not len(lights.portals) else portals.Portals(lights.portals)
+        # Cycles' Light Tree setting (Lights.tree): off, emitters are chosen by its light distribution.
+        self.light_tree = bool(lights.tree)
         self.radius = lights.radius.astype(np.float32)
         self.size = lights.size.astype(np.float32)
         self.spot = lights.spot_cos.astype(np.float32)
@@ -213,7 +215,7 @@ class LightSampler:
         power = np.concatenate([self._light_power(), self._triangle_power(), [self._world_power()]])
         power = np.where(np.isfinite(power) & (power > 0), power, 0.0)
         self.world_index = self.light_count + len(self.tri_ids)
-        self.choice = selection.Choice(self, power, scene)
+        self.choice = selection.Choice(self, power, scene, self.light_tree)
         self.has_lights = self.choice.has_lights
         # Light Linking: a choice per light set that receivers use (links.py); None without linking.
         objects = object_links(scene)

@@ -47,15 +47,17 @@ class Choice:
     among the local emitters (tree: a LightTree, a SolidAngleChoice or None, with the distant emitters' own
     distribution: local_choice)."""
 
-    def __init__(self, sampler, power: np.ndarray, scene):
+    def __init__(self, sampler, power: np.ndarray, scene, tree: bool = True):
+        """tree: False for Cycles' light distribution (distribution_pmf) everywhere, without a per-point choice."""
         self.has_lights = bool(power.sum() > 0)
-        self.select_pmf = power_pmf(power, sampler.distant_mask())
+        self.select_pmf = power_pmf(power, sampler.distant_mask()) if tree else \
+            distribution_pmf(power, sampler.light_count, sampler.tri_area)
         self.cdf = np.cumsum(self.select_pmf)
         if self.has_lights:
             self.cdf /= self.cdf[-1]
         self.pmf32 = self.select_pmf.astype(np.float32)
         self.tree_divergence = 0.0
-        self.tree = local_choice(sampler, self, power, scene) if self.has_lights else None
+        self.tree = local_choice(sampler, self, power, scene) if self.has_lights and tree else None
 
 
 def local_choice(sampler, choice: Choice, power, scene):
@@ -260,6 +262,23 @@ def emission_estimates(triangle_emission, tri: np.ndarray, materials: np.ndarray
                                        np.full(len(chunk), b2, np.float32))
         estimate[chunk] = total.T / np.float32(len(_ESTIMATE_POINTS))
     return estimate
+
+
+def distribution_pmf(power: np.ndarray, light_count: int, tri_area: np.ndarray) -> np.ndarray:
+    """(L + E + 1,) float64 Cycles' light distribution, its choice without the light tree (scene/light.cpp
+    device_update_distribution): the emissive triangles in proportion to their area, the lamps (suns among them)
+    and the world alike, each group half of the choices when there are both. Emitters without power get none."""
+    pmf = np.zeros(len(power), np.float64)
+    tri = slice(light_count, len(power) - 1)
+    area = np.where(power[tri] > 0, np.asarray(tri_area, np.float64), 0.0)
+    lamps = np.flatnonzero(np.r_[power[:light_count] > 0, np.zeros(len(area), bool), power[-1:] > 0])
+    total = area.sum()
+    triangle_share = 0.0 if total <= 0 else (0.5 if len(lamps) else 1.0)
+    if total > 0:
+        pmf[tri] = area / total * triangle_share
+    if len(lamps):
+        pmf[lamps] = (1.0 - triangle_share) / len(lamps)
+    return pmf
 
 
 def power_pmf(power: np.ndarray, distant: np.ndarray) -> np.ndarray:

@@ -58,6 +58,12 @@ class Lights:
         light sample of it at a vertex more than that many bounces deep carries no light, as Cycles'
         light_select_reached_max_bounces drops it (kernel/light/light.h; the choice keeps its probabilities, and
         BSDF rays meeting the light still count, as in Cycles).
+    tree : how shading points choose an emitter: True, by the light tree (Cycles' Light Tree, on by default: each
+        point's own choice, kernels/light_tree.py); False, by Cycles' light distribution (scene/light.cpp
+        device_update_distribution: the emissive triangles by their area and the lamps, suns and a sampled world
+        alike, half and half when there are both; kernels/lights/selection.py distribution_pmf), as Cycles renders
+        files whose Light Tree is off (older files open so). The image is the same but for clamping, which depends
+        on each sample's value and so on how lights are chosen.
     portals : (P, PORTAL_COLUMNS) float32 or None (none): the area lamps marked Portal, which emit nothing and guide
         the world's light samples through windows (kernels/lights/portals.py, whose docstring gives the columns);
         not among the L rows.
@@ -88,6 +94,7 @@ class Lights:
     max_bounces: np.ndarray | None = None
     mis: np.ndarray | None = None
     portals: np.ndarray | None = None
+    tree: bool = True
 
     @property
     def count(self) -> int:
