@@ -122,6 +122,21 @@ def emission_material(name, color=(1, 1, 1), strength=1.0, build=None, into="Col
     return mat
 
 
+def veil_material(name, transparency=0.6):
+    """A material that is (1 - transparency) diffuse and `transparency` Transparent BSDF (a Mix Shader): each camera
+    path sees it with matte weight 1 - transparency and what lies behind it with the rest."""
+    mat = bpy.data.materials.new(name)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out, mix = tree.nodes.new("ShaderNodeOutputMaterial"), tree.nodes.new("ShaderNodeMixShader")
+    diffuse, clear = tree.nodes.new("ShaderNodeBsdfDiffuse"), tree.nodes.new("ShaderNodeBsdfTransparent")
+    mix.inputs["Fac"].default_value = transparency
+    tree.links.new(diffuse.outputs[0], mix.inputs[1])
+    tree.links.new(clear.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
 def mesh_object(name, verts, faces, material=None, scene=None, smooth=False):
     mesh = bpy.data.meshes.new(name)
     mesh.from_pydata([tuple(map(float, v)) for v in verts], [], [tuple(f) for f in faces])

@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import configure_cycles, diffuse_material, new_scene, quad_object
+from bpy_helpers import configure_cycles, diffuse_material, new_scene, quad_object, veil_material
 from ember.engine import cryptomatte as ecrypto
 from exr import render_multilayer
 from test_cryptomatte import strips_scene
@@ -122,16 +122,7 @@ def _behind_glass_render(engine):
     """The strips behind a quad over their left half whose material is 40% diffuse, 60% Transparent BSDF (a Mix
     Shader): each pixel there sees the quad with matte weight 0.4 and the strip behind it with 0.6."""
     scene = strips_scene()
-    veil = bpy.data.materials.new("Veil")
-    tree = veil.node_tree
-    tree.nodes.clear()
-    out, mix = tree.nodes.new("ShaderNodeOutputMaterial"), tree.nodes.new("ShaderNodeMixShader")
-    diffuse, clear = tree.nodes.new("ShaderNodeBsdfDiffuse"), tree.nodes.new("ShaderNodeBsdfTransparent")
-    mix.inputs["Fac"].default_value = 0.6
-    tree.links.new(diffuse.outputs[0], mix.inputs[1])
-    tree.links.new(clear.outputs[0], mix.inputs[2])
-    tree.links.new(mix.outputs[0], out.inputs["Surface"])
-    quad_object("Veil", (-6.0, -5, 1.0), (6.0, 0, 0), (0, 10, 0), veil)
+    quad_object("Veil", (-6.0, -5, 1.0), (6.0, 0, 0), (0, 10, 0), veil_material("Veil"))
     scene.render.engine = engine
     if engine == "CYCLES":
         configure_cycles(scene, SAMPLES, 0, 1)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, emission_material, mesh_object, node_material,
-                         new_scene, quad_object, set_world)
+                         new_scene, quad_object, set_world, veil_material)
 
 BOX = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0), (-1, -1, 2), (1, -1, 2), (1, 1, 2), (-1, 1, 2)]
 
@@ -152,20 +152,6 @@ def test_per_type_bounce_limits_match_cycles(limits):
     compare_to_cycles(scene, samples=128, max_bounces=12, type_bounces=limits)
 
 
-def _veil(name):
-    """40% diffuse, 60% Transparent BSDF (a Mix Shader)."""
-    mat = bpy.data.materials.new(name)
-    tree = mat.node_tree
-    tree.nodes.clear()
-    out, mix = tree.nodes.new("ShaderNodeOutputMaterial"), tree.nodes.new("ShaderNodeMixShader")
-    diffuse, clear = tree.nodes.new("ShaderNodeBsdfDiffuse"), tree.nodes.new("ShaderNodeBsdfTransparent")
-    mix.inputs["Fac"].default_value = 0.6
-    tree.links.new(diffuse.outputs[0], mix.inputs[1])
-    tree.links.new(clear.outputs[0], mix.inputs[2])
-    tree.links.new(mix.outputs[0], out.inputs["Surface"])
-    return mat
-
-
 @pytest.mark.parametrize("limit", [0, 1, 2])
 def test_the_transparent_bounce_limit_ends_paths_as_cycles_does(limit):
     """Two veils (60% transparent) before a wall, a glowing strip and, on the left, the sky. Cycles lets a path pass
@@ -179,5 +165,5 @@ def test_the_transparent_bounce_limit_ends_paths_as_cycles_does(limit):
     quad_object("Wall", (-0.5, 2, -2), (3.5, 0, 0), (0, 0, 6), diffuse_material("Wall", (0.8, 0.8, 0.8)))
     quad_object("Glow", (0.2, 1.9, 0.6), (0.6, 0, 0), (0, 0, 0.8), emission_material("Glow", strength=3.0))
     for k, y in enumerate((0.0, 0.8)):
-        quad_object(f"Veil{k}", (-3, y, -2), (6, 0, 0), (0, 0, 6), _veil(f"Veil{k}"))
+        quad_object(f"Veil{k}", (-3, y, -2), (6, 0, 0), (0, 0, 6), veil_material(f"Veil{k}"))
     compare_to_cycles(scene, samples=64, max_bounces=limit, mean_z=4.0)
