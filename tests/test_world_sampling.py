@@ -125,3 +125,23 @@ def test_compensation_changes_the_noise_not_the_image(monkeypatch):
     uncompensated, var_p = replicate_render(scene, "EMBER", 32, max_bounces=4)
     bpy_helpers.assert_same_image(compensated, var_c, uncompensated, var_p)
     assert var_c.mean() < 0.7 * var_p.mean(), (var_c.mean(), var_p.mean())
+
+
+def test_sampling_method_none_leaves_the_world_to_bsdf_rays_as_in_cycles():
+    """World > Settings > Surface > Sampling Method None (Cycles' own): no light samples of the world, BSDF rays find
+    it with MIS weight 1. Unclamped only the noise shows it; clamped, each sample's value does: a ball and floor
+    under forest.exr's sun, clamps 0.5, match Cycles (before, Ember light-sampled the world: 0.49 against 0.21)."""
+    import bpy
+    from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, export_current, new_scene, quad_object,
+                             set_world)
+    scene = new_scene(32, 24)
+    add_camera(scene, (0, -5, 2), (0, 0, 0.5))
+    set_world(scene, hdri="forest.exr")
+    quad_object("Floor", (-4, -4, 0), (8, 0, 0), (0, 8, 0), diffuse_material("Floor", (0.7, 0.7, 0.7)))
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.7, location=(0, 0, 0.7))
+    bpy.ops.object.shade_smooth()
+    bpy.context.active_object.data.materials.append(diffuse_material("Ball", (0.8, 0.5, 0.3)))
+    scene.world.cycles.sampling_method = "NONE"
+    scene.world.update_tag()
+    assert export_current().scene.world.light_sampled is False
+    compare_to_cycles(scene, samples=64, max_bounces=3, clamp=(0.5, 0.5))

@@ -90,6 +90,9 @@ def export_world(world, warnings: list[str], images=None, layer_attribute=None, 
     bounces = int(getattr(getattr(world, "cycles", None), "max_bounces", NO_BOUNCE_LIMIT))
     if bounces < NO_BOUNCE_LIMIT:
         result = dataclasses.replace(result, max_bounces=max(bounces, 0))
+    if getattr(getattr(world, "cycles", None), "sampling_method", "AUTOMATIC") == "NONE":
+        # Sampling Method None (Cycles' own): no light samples of the world, as Cycles' background light without MIS.
+        result = dataclasses.replace(result, light_sampled=False)
     if bounces < NO_BOUNCE_LIMIT or plain:
         # Past the limit (or Fast GI's AO bounces: plain) BSDF rays see the world, weighted by MIS, but its light
         # samples no longer come (or at another strength): what they add then depends on the light sampling's

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..sampling import UNIFORM_SPHERE_PDF, sample_uniform_sphere
 from ..vec import F32
 
 
@@ -14,7 +15,15 @@ def sample(sampler, out, idx, u1, u2, focus=None, px=None, py=None, pz=None):
     portals = sampler.portals
     possible = None if portals is None or px is None else portals.possible(px, py, pz)
     through = np.zeros(len(u1), bool) if possible is None else possible.any(axis=0)
-    if not through.any():
+    if not _map_sampled(sampler):
+        # Sampling Method None with portals: through them alone, a uniform direction where none is possible
+        # (Cycles' fallback when no method is left, background_light_sample).
+        wx, wy, wz, pdf = _uniform(u1, u2)
+        rows = np.flatnonzero(through)
+        if len(rows):
+            wx[rows], wy[rows], wz[rows], pdf[rows] = portals.sample(px[rows], py[rows], pz[rows], u1[rows], u2[rows],
+                                                                     possible[:, rows])
+    elif not through.any():
         wx, wy, wz, pdf = sampler.environment.sample_direction(u1, u2, focus)
     else:
         # u1 < 1/2 picks the portals, where there are some, and both halves are stretched back to [0, 1).
@@ -44,10 +53,26 @@ def pdf(sampler, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=Non
     portals = sampler.portals
     if portals is None or ox is None:
         direction_pdf = sampler.environment.direction_pdf(dx, dy, dz, focus)
+    elif not _map_sampled(sampler):
+        possible = portals.possible(ox, oy, oz)
+        through = possible.any(axis=0)
+        direction_pdf = np.full(len(dx), UNIFORM_SPHERE_PDF, F32)
+        rows = np.flatnonzero(through)
+        direction_pdf[rows] = portals.pdf(ox[rows], oy[rows], oz[rows], dx[rows], dy[rows], dz[rows], possible[:, rows])
     else:
         possible = portals.possible(ox, oy, oz)
         direction_pdf = _mixed_pdf(sampler, dx, dy, dz, focus, ox, oy, oz, possible, possible.any(axis=0))
     return sampler.distant_pmf(sampler.world_index, len(dx), receiver) * direction_pdf
+
+
+def _map_sampled(sampler) -> bool:
+    """Whether the world's own distribution is one of its light sampling's methods (not Sampling Method None)."""
+    return bool(getattr(sampler.environment.world, "light_sampled", True))
+
+
+def _uniform(u1, u2):
+    wx, wy, wz = sample_uniform_sphere(u1, u2)
+    return wx, wy, wz, np.full(len(u1), UNIFORM_SPHERE_PDF, F32)
 
 
 def _mixed_pdf(sampler, dx, dy, dz, focus, px, py, pz, possible, through, sampled=None, own=None) -> np.ndarray:

@@ -46,6 +46,10 @@ class World:
         and escaped rays of an excluded kind see nothing, and its light samples light only the closures of the
         kinds it keeps, as a lamp's (Cycles' background visibility: kernel/light/common.h
         is_light_shader_visible_to_path; kernels/lights/ray_visibility.py).
+    light_sampled : whether next-event estimation samples the world (Cycles' World > Settings > Surface > Sampling
+        Method Auto or Manual: its background light's use_mis); False (None): BSDF rays alone find it, with MIS
+        weight 1, and with light portals their samples alone light the points inside them, a uniform direction
+        elsewhere (kernel/light/background.h: map_weight 0).
     max_bounces : the world's Max Bounces (World > Settings > Light): its light samples light only the vertices
         at most that many bounces deep (NO_BOUNCE_LIMIT: all), as a lamp's (Lights.max_bounces).
     """
@@ -64,6 +68,7 @@ class World:
     ao_distance: float = 10.0
     max_bounces: int = NO_BOUNCE_LIMIT
     visibility: int = ALL_RAYS
+    light_sampled: bool = True
 
     def validate(self) -> None:
         check_array(self.color, "world.color", (3,), np.float32)
