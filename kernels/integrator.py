@@ -302,7 +302,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         if aux is not None and (first or state.data_pending is not None or passes.behind_transparent(aux)):
             passes.write_data(tables, aux, state, hit, closures, settings, first)
         if state.features is not None:
-            passes.write_denoising_features(tables, aux, state, hit, shading, t_hit)
+            passes.write_denoising_features(tables, aux, state, hit, shading, t_hit, settings)
         if state.min_ray_pdf is not None and settings.filter_glossy > 0:
             _filter_glossy(closures, state.min_ray_pdf, settings.filter_glossy)
         if tables.emissive:

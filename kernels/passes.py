@@ -584,23 +584,29 @@ def _raster(camera: Camera, world_from_camera, p: np.ndarray) -> np.ndarray:
     return np.stack([(px - xmin) / (xmax - xmin) * camera.width, (py - ymin) / (ymax - ymin) * camera.height])
 
 
-def write_denoising_features(tables, aux: dict, state, hit, shading, t_hit) -> None:
+def write_denoising_features(tables, aux: dict, state, hit, shading, t_hit, settings=None) -> None:
     """Cycles' denoising features: written at the first hit that is not mostly specular (the depth
     summed over the segments until then, each weighted by the feature throughput). The albedo also
     takes the emission of emitters that paths still looking for it meet, times the feature throughput,
     as the world's colour (Cycles' film_write_emission_or_background_pass): an emitter the camera sees
-    has its emission as albedo. Albedo is kept within [0, 1], what OpenImageDenoise reads."""
+    has its emission as albedo. Albedo is kept within [0, 1], what OpenImageDenoise reads. At the surface a
+    path meets at the transparent limit (settings' transparent_limit) only the emission's albedo: Cycles ends
+    the path there before film_write_denoising_features_surface."""
     closures = shading.closures
     open_ = np.flatnonzero(~np.isnan(state.features[0]))
     if not len(open_):
         return
-    if "denoising_depth" in aux:
-        aux["denoising_depth"][0, state.path[open_]] += state.features[:, open_].mean(axis=0) * \
-            np.take(t_hit, open_)
     if "denoising_albedo" in aux and tables.emissive:
         lit = open_[np.take(tables.shading.emissive, np.take(hit.mat, open_))]
         if len(lit):
             add_albedo(aux, state.path[lit], state.features[:, lit] * np.take(shading.emission, lit, axis=1))
+    if settings is not None:
+        open_ = open_[np.take(state.transparent, open_) < transparent_limit(settings)]
+        if not len(open_):
+            return
+    if "denoising_depth" in aux:
+        aux["denoising_depth"][0, state.path[open_]] += state.features[:, open_].mean(axis=0) * \
+            np.take(t_hit, open_)
     normal, diffuse, specular, done = denoising_features(closures, len(hit), hit.ns)
     rows = open_[done[open_]]
     if len(rows):

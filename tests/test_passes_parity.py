@@ -272,3 +272,28 @@ def test_data_passes_behind_a_transparent_leaf_match_cycles():
     assert n > 50 and 0.4 < fc < 0.9, (n, fractions)
     se = np.sqrt(2 * fc * (1 - fc) / (2 * n))   # both engines' fractions over 2 renders x n pixels
     assert abs(fe - fc) < 5 * se, (n, fractions)
+
+
+def test_denoising_features_stop_at_the_transparent_limit_as_in_cycles():
+    """A wholly transparent card before a red wall, Transparent Bounces 1: Cycles ends the path at the wall before
+    writing its denoising features (film_write_denoising_features_surface comes after the path's termination), so
+    the Denoising Albedo behind the card is black there; with 2 the wall's red. Before, Ember wrote the wall's."""
+    from bpy_helpers import (add_camera, configure_engine, diffuse_material, new_scene, node_material, quad_object,
+                             set_world)
+    out = {}
+    for limit in (1, 2):
+        for engine in ("CYCLES", "EMBER"):
+            scene = new_scene(16, 16)
+            add_camera(scene, (0, -3, 0), (0, 0, 0), lens=20)
+            set_world(scene, (0.2, 0.2, 0.2))
+            quad_object("Wall", (-9, 1, -9), (18, 0, 0), (0, 0, 18), diffuse_material("Wall", (0.8, 0.1, 0.1)))
+            quad_object("Card", (-9, 0, -9), (18, 0, 0), (0, 0, 18), node_material("Card", "ShaderNodeBsdfTransparent"))
+            layer = scene.view_layers[0]
+            (layer.cycles if engine == "CYCLES" else layer.ember).denoising_store_passes = True
+            configure_engine(scene, engine, 4, max_bounces=limit)
+            parts, _ = render_multilayer(scene)
+            planes = parts[f"{layer.name}.Denoising Albedo"]
+            out[limit, engine] = np.stack([planes[c] for c in "RGB"], axis=-1).mean(axis=(0, 1))
+    np.testing.assert_allclose(out[1, "EMBER"], out[1, "CYCLES"], atol=1e-3)
+    np.testing.assert_allclose(out[2, "EMBER"], out[2, "CYCLES"], atol=1e-3)
+    assert out[2, "CYCLES"][0] > 0.5 and out[1, "CYCLES"][0] < 0.1, out
