@@ -473,7 +473,9 @@ class _Emitters:
     """The light sampler's view of the emissive materials (see LightSampler)."""
 
     def __init__(self, renderer: "Renderer"):
-        self.emissive = renderer.shading.emissive
+        # Materials that emit and are light-sampled (not Emission Sampling None).
+        self.emissive = renderer.shading.emissive & np.array(
+            [getattr(shader, "light_sampled", True) for shader in renderer.scene.materials.shaders], bool)
         self.varies = renderer.shading.emission_varies
         self._renderer = weakref.proxy(renderer)
 

@@ -211,3 +211,20 @@ def test_light_tree_off_chooses_lights_as_cycles_and_clamps_alike():
     # Two lamps (one without power), three triangles (one dark) and a world: lamps and world alike, triangles by area.
     pmf = distribution_pmf(np.array([2.0, 0.0, 1.0, 0.0, 3.0, 5.0]), 2, np.array([1.0, 9.0, 3.0]))
     np.testing.assert_allclose(pmf, [0.25, 0.0, 0.5 * 1 / 4, 0.0, 0.5 * 3 / 4, 0.25])
+
+
+def test_emission_sampling_none_leaves_an_emitter_to_bsdf_rays_as_cycles():
+    """A material's Emission Sampling None (Cycles' own): its triangles get no light samples, BSDF rays find them
+    with MIS weight 1. Unclamped that changes the noise; clamped, the image: a floor under a glowing panel, clamps
+    1, against Cycles (before, Ember light-sampled the panel: the image 0.101 against 0.033)."""
+    from ember.kernels.renderer import Renderer
+    scene = new_scene(32, 32)
+    add_camera(scene, (0, -4, 2.0), (0, 0, 0.3))
+    set_world(scene, color=(0, 0, 0))
+    quad_object("Floor", (-3, -3, 0), (6, 0, 0), (0, 6, 0), diffuse_material("Floor", (0.7, 0.7, 0.7)))
+    panel = emission_material("Panel", strength=6.0)
+    panel.cycles.emission_sampling = "NONE"
+    quad_object("Panel", (-0.5, -0.5, 1.2), (0, 1.0, 0), (1.0, 0, 0), panel)
+    exported = export_current()
+    assert len(Renderer(exported.scene).lights.tri_ids) == 0
+    compare_to_cycles(scene, samples=128, max_bounces=2, clamp=(1.0, 1.0), mean_tol=0.01)

@@ -306,7 +306,10 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displ
     interpolation = getattr(settings, "volume_interpolation", "LINEAR")
     return Shader(closures, material.name, bool(correction), reader.program.program(), aovs, volume, volume_only,
                   interpolation if interpolation in ("LINEAR", "CLOSEST", "CUBIC") else "LINEAR",
-                  float(getattr(settings, "volume_step_rate", 1.0)), reader.set_normal)
+                  float(getattr(settings, "volume_step_rate", 1.0)), reader.set_normal,
+                  # Emission Sampling (Cycles' own): None leaves the emitter to BSDF rays; Front and Back are sampled
+                  # from both sides, as Auto and Front and Back are (the noise differs, not the image).
+                  getattr(settings, "emission_sampling", "AUTO") != "NONE")
 
 
 def read_volume(tree, name: str, images: ImageTextures, issues: list[str], layer_attribute=None) -> Shader | None:

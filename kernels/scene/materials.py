@@ -131,6 +131,8 @@ class Closure:
 class Shader:
     """A material: the sum of its closures, each weighted by its Mix Shader factors.
 
+    light_sampled : whether next-event estimation samples the material's emitting triangles (False: Cycles' Emission
+        Sampling None; BSDF rays alone find them, with MIS weight 1).
     bump_map_correction : Cycles' material setting of that name (on by default): specular closures tilt
         their normal toward the geometric normal until the mirror direction clears the surface.
     program : the material's node program (kernels.programs), which linked Params read.
@@ -157,6 +159,7 @@ class Shader:
     interpolation: str = "LINEAR"
     volume_step_rate: float = 1.0
     set_normal: object = None
+    light_sampled: bool = True
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),
