@@ -504,3 +504,46 @@ def test_caustics_switches_match_cycles(caustics):
     drop, se = np.mean(drops), np.std(drops, ddof=1) / np.sqrt(len(drops))
     assert drop > 4 * se, (drops, se)
     compare_to_cycles(scene, samples=64, max_bounces=4, caustics=caustics)
+
+
+def test_colours_and_values_linked_into_shader_sockets_emit_as_in_cycles():
+    """A colour, vector or value output linked into a shader socket (a Color Ramp into the Material Output, a Value
+    into it, an RGB into a Mix Shader): Cycles' ShaderGraph puts an Emission node between (the value as Strength
+    under white, a colour as Color at Strength 1). Before, Ember rendered each as grey diffuse, with a warning (a
+    public file's Color Ramp into Surface)."""
+    from bpy_helpers import export_current
+    scene = new_scene(32, 32)
+    add_camera(scene, (0, -4, 1.5), (0, 0, 0.5))
+    set_world(scene, color=(0.1, 0.1, 0.1))
+    quad_object("Floor", (-3, -3, 0), (6, 0, 0), (0, 6, 0), diffuse_material("Floor", (0.7, 0.7, 0.7)))
+
+    def material(name, build):
+        mat = bpy.data.materials.new(name)
+        tree = mat.node_tree
+        tree.nodes.clear()
+        build(tree, tree.nodes.new("ShaderNodeOutputMaterial"))
+        return mat
+
+    def ramp(tree, out):
+        noise, colours = tree.nodes.new("ShaderNodeTexNoise"), tree.nodes.new("ShaderNodeValToRGB")
+        colours.color_ramp.interpolation = "CONSTANT"
+        colours.color_ramp.elements[0].color, colours.color_ramp.elements[1].color = (0.9, 0.2, 0.1, 1), (0.1, 0.3, 0.9, 1)
+        tree.links.new(noise.outputs["Fac"], colours.inputs[0])
+        tree.links.new(colours.outputs["Color"], out.inputs["Surface"])
+
+    def value(tree, out):
+        node = tree.nodes.new("ShaderNodeValue")
+        node.outputs[0].default_value = 2.5
+        tree.links.new(node.outputs[0], out.inputs["Surface"])
+
+    def mixed(tree, out):
+        mix, diffuse, rgb = (tree.nodes.new(k) for k in ("ShaderNodeMixShader", "ShaderNodeBsdfDiffuse", "ShaderNodeRGB"))
+        rgb.outputs[0].default_value, mix.inputs[0].default_value = (0.2, 0.9, 0.3, 1), 0.5
+        tree.links.new(diffuse.outputs[0], mix.inputs[1])
+        tree.links.new(rgb.outputs[0], mix.inputs[2])
+        tree.links.new(mix.outputs[0], out.inputs["Surface"])
+
+    for k, build in enumerate((ramp, value, mixed)):
+        quad_object(f"Card{k}", (-2.2 + 1.5 * k, 0, 0.2), (1.2, 0, 0), (0, 0, 1.2), material(build.__name__, build))
+    assert not export_current().warnings
+    compare_to_cycles(scene, samples=64, max_bounces=3)

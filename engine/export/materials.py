@@ -393,6 +393,9 @@ class _MaterialReader:
                 out += yield self._closures(source_of(node.inputs[i], groups), factors)
             return out
         if kind not in CLOSURE_NODES:
+            emission = self.auto_emission(source, "EMISSION")
+            if emission is not None:
+                return [replace(emission, factors=factors)]
             why = UNSUPPORTED_NODES.get(kind, "is not supported")
             self.issues.append(f"{node.bl_label} '{node.name}' {why}, rendered grey ({DEFAULT_ALBEDO})")
             return [Closure("DIFFUSE", (("Color", Param.of(GREY3)),), (), factors)]
@@ -405,6 +408,24 @@ class _MaterialReader:
         self.check_unsupported(node, closure_kind, groups)
         self.check_direction(node, dict(inputs).get("Direction"))
         return [Closure(closure_kind, inputs, self.options(node, closure_kind), factors)]
+
+    def auto_emission(self, source: Source, kind: str) -> Closure | None:
+        """A colour, vector or value output linked into a shader socket: an Emission of it, as Cycles' ShaderGraph
+        connects a non-closure output to a closure input through an Emission node (a value into its Strength under
+        a white Color, a colour or vector into its Color at Strength 1). None for a shader output or one that is not
+        linked where its links can be read."""
+        output = source.socket
+        if output is None or getattr(output, "type", "SHADER") == "SHADER":
+            return None
+        consumer = next((link.to_socket for link in output.links if not link.is_muted), None)
+        if consumer is None:
+            return None
+        value = output.type == "VALUE"
+        read = self.program.input(consumer, source.groups, "VALUE" if value else "RGBA")
+        param = Param.of(read) if isinstance(read, tuple) else Param.of((1.0,) * (1 if value else 3), link=read)
+        white, one = Param.of((1.0, 1.0, 1.0)), Param.of((1.0,))
+        return Closure(kind, (("Color", white), ("Strength", param)) if value else (("Color", param), ("Strength", one)),
+                       (), ())
 
     def volume_closures(self, source: Source, factors: tuple) -> list[Closure]:
         """The volume closures of the shader tree feeding a Volume output, with their Mix Shader factors."""
@@ -425,6 +446,10 @@ class _MaterialReader:
                 below = factors if fac is None else factors + ((fac, second),)
                 out += yield self._volume_closures(source_of(node.inputs[i], groups), below)
             return out
+        if kind not in VOLUME_NODES and source.socket.type != "SHADER":
+            emission = self.auto_emission(source, "EMISSION")
+            if emission is not None:
+                return [replace(emission, factors=factors)]
         if kind not in VOLUME_NODES:
             self.issues.append(f"{node.bl_label} '{node.name}' is not a volume shader: the Volume output ignores it, "
                                f"as Cycles does")
