@@ -189,7 +189,8 @@ def compare(cycles: np.ndarray, ember: np.ndarray) -> Comparison:
     counted = ~equal if (~equal).any() else np.ones_like(equal)
     whole_c, whole_e = mean_c.mean(), mean_e.mean()
     pixels = c.shape[1] * c.shape[2]
-    whole_se = np.sqrt(var_c.sum() / rc + var_e.sum() / re_) / pixels
+    # Floored as the blocks are: two noise-free images (a plain background) that differ by float rounding agree.
+    whole_se = max(np.sqrt(var_c.sum() / rc + var_e.sum() / re_) / pixels, NOISE_FLOOR_RELATIVE * abs(mean_c.mean()))
     if whole_c > 0:
         mean_relative, mean_relative_se = whole_e / whole_c - 1.0, whole_se / whole_c
     else:  # a black Cycles image (nothing the camera sees is lit): Ember's must be black too

@@ -63,6 +63,15 @@ def test_plain_background_blocks_are_left_out():
     assert abs(result.p90_z - 1.645) < 0.6       # 50 blocks
 
 
+def test_noise_free_images_that_differ_by_rounding_agree():
+    """A plain grey world in both engines (hinhesh/Blender seaproject.blend): no noise at all, and a float32 rounding
+    apart. The whole image's standard error is floored as the blocks' noise is (NOISE_FLOOR_RELATIVE); before, a
+    1e-7 difference over a zero standard error read beyond noise. A 1% difference still does."""
+    grey = np.full((2, 16, 16, 4), 0.25, np.float32)
+    assert not corpus.compare(grey, grey * np.float32(1 + 2e-7)).beyond_noise
+    assert corpus.compare(grey, grey * np.float32(1.01)).beyond_noise
+
+
 def test_black_images_compare_without_nan():
     black = np.zeros((2, 16, 16, 4), np.float32)
     result = corpus.compare(black, black)
