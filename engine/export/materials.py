@@ -424,8 +424,8 @@ class _MaterialReader:
         read = self.program.input(consumer, source.groups, "VALUE" if value else "RGBA")
         param = Param.of(read) if isinstance(read, tuple) else Param.of((1.0,) * (1 if value else 3), link=read)
         white, one = Param.of((1.0, 1.0, 1.0)), Param.of((1.0,))
-        return Closure(kind, (("Color", white), ("Strength", param)) if value else (("Color", param), ("Strength", one)),
-                       (), ())
+        inputs = (("Color", white), ("Strength", param)) if value else (("Color", param), ("Strength", one))
+        return Closure(kind, inputs, (), ())
 
     def volume_closures(self, source: Source, factors: tuple) -> list[Closure]:
         """The volume closures of the shader tree feeding a Volume output, with their Mix Shader factors."""
@@ -515,7 +515,8 @@ class _MaterialReader:
 
     def normal_map(self, source: Source, socket, groups) -> NormalMap | Param | None:
         """A Normal or Coat Normal input: a Normal Map node as the kernel's NormalMap, any other node (an
-        Object-space map too: its op takes the hit's object transform) as the program's vector. A program that folds to a constant gives that
+        Object-space map too: its op takes the hit's object transform) as the program's
+        vector. A program that folds to a constant gives that
         normal, as Cycles loads a constant-folded input (svm.cpp stack_assign_if_linked: constant_folded_in);
         a zero one is no direction: the shading normal, with a warning."""
         if source.kind != "ShaderNodeNormalMap" or source.node.space not in NORMAL_MAP_SPACES:

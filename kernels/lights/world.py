@@ -58,7 +58,8 @@ def pdf(sampler, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=Non
         through = possible.any(axis=0)
         direction_pdf = np.full(len(dx), UNIFORM_SPHERE_PDF, F32)
         rows = np.flatnonzero(through)
-        direction_pdf[rows] = portals.pdf(ox[rows], oy[rows], oz[rows], dx[rows], dy[rows], dz[rows], possible[:, rows])
+        direction_pdf[rows] = portals.pdf(ox[rows], oy[rows], oz[rows], dx[rows], dy[rows], dz[rows],
+                                          possible[:, rows])
     else:
         possible = portals.possible(ox, oy, oz)
         direction_pdf = _mixed_pdf(sampler, dx, dy, dz, focus, ox, oy, oz, possible, possible.any(axis=0))
