@@ -127,6 +127,8 @@ def test_a_portal_takes_the_noise_out_of_a_room_as_in_cycles():
     cycles = _pixel_variance(scene, "CYCLES")
     portal.hide_render = True
     without = _pixel_variance(scene, "EMBER")
+    print(f"per-pixel variance, room under a constant sky: Ember {without:.2e} without the portal, {with_portal:.2e} "
+          f"with it; Cycles {cycles:.2e} with it")
     assert with_portal < without / 3, (with_portal, without)
     assert with_portal < 1.5 * cycles, (with_portal, cycles)
 
