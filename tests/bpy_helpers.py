@@ -286,14 +286,16 @@ def assert_same_image(a, var_a, b, var_b, block: int = 8, z_block: float = 4.5, 
     assert abs(whole) < z_whole, whole
 
 
-def replicate_render(scene, engine: str, samples: int, alpha: bool = False, **kwargs):
+def replicate_render(scene, engine: str, samples: int, alpha: bool = False, seeds: tuple = REPLICATE_SEEDS,
+                     **kwargs):
     """Independent renders with different seeds splitting `samples` between them: their mean is the
-    estimate, their spread its noise (len(REPLICATE_SEEDS) - 1 degrees of freedom per pixel).
+    estimate, their spread its noise (len(seeds) - 1 degrees of freedom per pixel; the blocks compare_to_cycles
+    sums pool many pixels' estimates).
     Returns (mean (H, W, 3), per-pixel variance of the mean (H, W, 3)): of RGB, or with alpha of the alpha
     channel (in all three)."""
-    k = len(REPLICATE_SEEDS)
+    k = len(seeds)
     renders = np.stack([_channels(render_to_array(scene, engine, max(samples // k, 1), seed=seed, **kwargs), alpha)
-                        for seed in REPLICATE_SEEDS]).astype(np.float64)
+                        for seed in seeds]).astype(np.float64)
     return renders.mean(axis=0), renders.var(axis=0, ddof=1) / k
 
 
