@@ -475,7 +475,7 @@ class _Emitters:
     def __init__(self, renderer: "Renderer"):
         # Materials that emit and are light-sampled (not Emission Sampling None).
         self.emissive = renderer.shading.emissive & np.array(
-            [getattr(shader, "light_sampled", True) for shader in renderer.scene.materials.shaders], bool)
+            [shader.light_sampled for shader in renderer.scene.materials.shaders], bool)
         self.varies = renderer.shading.emission_varies
         self._renderer = weakref.proxy(renderer)
 

@@ -74,26 +74,24 @@ class Portals:
             if not len(rows):
                 continue
             p = (px[rows], py[rows], pz[rows])
-            c = tuple(np.full(len(rows), self.centre[k, j], F32) for j in range(3))
-            au = tuple(np.full(len(rows), self.axis_u[k, j], F32) for j in range(3))
-            av = tuple(np.full(len(rows), self.axis_v[k, j], F32) for j in range(3))
             if self.round[k]:
                 a, b = sampling.sample_uniform_disk(u1[rows], u2[rows])
                 a, b = a * (F32(0.5) * self.len_u[k]), b * (F32(0.5) * self.len_v[k])
+                c, au, av = self.centre[k], self.axis_u[k], self.axis_v[k]
                 q = tuple(c[j] + a * au[j] + b * av[j] for j in range(3))
                 dx, dy, dz, dist = direction(*p, *q)
                 pdf[rows] = self._disk_pdf(k, dx, dy, dz, dist)
             else:
-                spherical = sampling.SphericalRectangle(p, c, au, av, np.full(len(rows), self.len_u[k], F32),
-                                                        np.full(len(rows), self.len_v[k], F32))
+                spherical = self._rectangle(k, p)
                 q = spherical.sample(u1[rows], u2[rows])
                 dx, dy, dz, dist = direction(*p, *q)
                 pdf[rows] = spherical.pdf(dist, self._cos(k, dx, dy, dz))
             wx[rows], wy[rows], wz[rows] = dx, dy, dz
-            # The other possible portals the direction passes through add theirs (Cycles' ignore_portal).
-            for other in range(self.count):
-                if other != k:
-                    pdf[rows] += np.where(possible[other, rows], self._pdf_through(other, *p, dx, dy, dz), F32(0.0))
+        # The other possible portals the direction passes through add theirs (Cycles' ignore_portal).
+        for other in range(self.count):
+            rows = np.flatnonzero(possible[other] & (chosen != other))
+            if len(rows):
+                pdf[rows] += self._pdf_through(other, px[rows], py[rows], pz[rows], wx[rows], wy[rows], wz[rows])
         pdf /= np.maximum(count, 1).astype(F32)
         return wx, wy, wz, pdf
 
@@ -108,6 +106,15 @@ class Portals:
         return total / np.maximum(possible.sum(axis=0), 1).astype(F32)
 
     # ---- one portal
+    def _rectangle(self, k, p) -> sampling.SphericalRectangle:
+        """Rectangle portal k as seen from the points p (a tuple of three (n,) arrays)."""
+        n = len(p[0])
+        column = lambda value: np.full(n, value, F32)  # noqa: E731
+        return sampling.SphericalRectangle(p, tuple(column(v) for v in self.centre[k]),
+                                           tuple(column(v) for v in self.axis_u[k]),
+                                           tuple(column(v) for v in self.axis_v[k]),
+                                           column(self.len_u[k]), column(self.len_v[k]))
+
     def _cos(self, k, dx, dy, dz):
         """The cosine between -d and portal k's facing direction (> 0: d leaves through it from inside)."""
         f = self.facing[k]
@@ -134,11 +141,5 @@ class Portals:
         if self.round[k]:
             pdf = self._disk_pdf(k, dx, dy, dz, dist)
         else:
-            n = len(px)
-            spherical = sampling.SphericalRectangle(
-                (px, py, pz), tuple(np.full(n, c[j], F32) for j in range(3)),
-                tuple(np.full(n, self.axis_u[k, j], F32) for j in range(3)),
-                tuple(np.full(n, self.axis_v[k, j], F32) for j in range(3)),
-                np.full(n, self.len_u[k], F32), np.full(n, self.len_v[k], F32))
-            pdf = spherical.pdf(dist, np.abs(self._cos(k, dx, dy, dz)))
+            pdf = self._rectangle(k, (px, py, pz)).pdf(dist, np.abs(self._cos(k, dx, dy, dz)))
         return np.where(hit, pdf, F32(0.0)).astype(F32)

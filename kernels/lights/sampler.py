@@ -285,7 +285,7 @@ class LightSampler:
         spatially varying world), is no light: BSDF rays find it, with MIS weight 1, and next-event
         estimation spends its samples on the lamps (a constant grey world took half of them). With light portals
         every world is one (Cycles' test_enabled_lights: has_portal), sampled through them."""
-        if not getattr(self.environment.world, "light_sampled", True) and self.portals is None:
+        if not self.environment.world.light_sampled and self.portals is None:
             return 0.0   # Sampling Method None: BSDF rays alone find it
         if not self.environment.varies and self.portals is None:
             return 0.0

@@ -68,7 +68,7 @@ def pdf(sampler, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=Non
 
 def _map_sampled(sampler) -> bool:
     """Whether the world's own distribution is one of its light sampling's methods (not Sampling Method None)."""
-    return bool(getattr(sampler.environment.world, "light_sampled", True))
+    return bool(sampler.environment.world.light_sampled)
 
 
 def _uniform(u1, u2):
