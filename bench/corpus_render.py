@@ -60,11 +60,6 @@ def lacking_settings(scene) -> list[str]:
         if active:
             value = getattr(c, name.split(" ")[0], None)
             lacking.append(f"{name}={round(value, 4) if isinstance(value, float) else value}")
-    # Materials' one-sided Emission Sampling (Ember samples such emitters from both sides; None is read).
-    for material in bpy.data.materials:
-        sampling = getattr(getattr(material, "cycles", None), "emission_sampling", "AUTO")
-        if material.users and sampling in ("FRONT", "BACK"):
-            lacking.append(f"emission_sampling={sampling} ({material.name})")
     return lacking
 
 

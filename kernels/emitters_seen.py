@@ -215,7 +215,8 @@ def emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
             light_pdf = tables.lights.pdf_triangle_hit(
                 np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
                 np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray),
-                None if state.link_set is None else np.take(state.link_set, sel), facing_of(state.mis_facing, sel))
+                None if state.link_set is None else np.take(state.link_set, sel), facing_of(state.mis_facing, sel),
+                np.take(hit.backfacing, sel))
             le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)
     le = passes.clamp(wave, le, np.take(state.bounce, lit) > 1)
     passes.accumulate(wave.radiance, state.path[lit], le)

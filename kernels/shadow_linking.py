@@ -254,6 +254,7 @@ def _triangle_light(tables, state, idx, meshes, which, origins, dirs, receiver, 
     cos_l = gx * d[:, 0] + gy * d[:, 1] + gz * d[:, 2]
     o = origins[ray]
     pdf = tables.lights.pdf_triangle_hit(prim, t, cos_l, o[:, 0], o[:, 1], o[:, 2], receiver[ray],
-                                         None if facing is None else tuple(np.take(c, ray) for c in facing))
+                                         None if facing is None else tuple(np.take(c, ray) for c in facing),
+                                         hit.backfacing)
     rows = tables.links.rows(tables.triangles, prim)
     return le, pdf, t, np.take(tables.links.shadow_sets, rows)

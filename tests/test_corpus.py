@@ -108,12 +108,6 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
     assert mapped["diffuse_bounces"] == scene.cycles.diffuse_bounces == scene.ember.diffuse_bounces
     assert "light_sampling_threshold=0.01" in lacking and not any(
         key in item for item in lacking for key in ("bounces", "exposure", "fast_gi", "cull", "use_light_tree"))
-    glow = diffuse_material("Glow")
-    bpy.data.objects["Flat"].data.materials.append(glow)
-    glow.cycles.emission_sampling = "FRONT"
-    assert "emission_sampling=FRONT (Glow)" in corpus_render.lacking_settings(scene)
-    glow.cycles.emission_sampling = "NONE"   # read: not lacking
-    assert not any("emission_sampling" in item for item in corpus_render.lacking_settings(scene))
     bpy.data.objects["Smooth"].shadow_terminator_shading_offset = 0.2   # rendered now: not lacking
     assert not any("shadow_terminator" in item for item in corpus_render.lacking_settings(scene))
 

@@ -43,6 +43,7 @@ from ...kernels.programs import Ref
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
 from ...kernels.shading.hair_nodes import CURVE_NORMAL
 from ...kernels.shading.input_ops import UNDISPLACED_NORMAL, UNDISPLACED_POSITION
+from . import emission_estimate
 from .graph import indexed_links, invalid_links, node_loop, run_nested
 from .displacement import METHODS, TrueDisplacement
 from .images import ImageTextures
@@ -304,12 +305,12 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displ
     settings = getattr(material, "cycles", None)
     correction = getattr(settings, "use_bump_map_correction", True)
     interpolation = getattr(settings, "volume_interpolation", "LINEAR")
+    sampling = getattr(settings, "emission_sampling", "AUTO")
     return Shader(closures, material.name, bool(correction), reader.program.program(), aovs, volume, volume_only,
                   interpolation if interpolation in ("LINEAR", "CLOSEST", "CUBIC") else "LINEAR",
                   float(getattr(settings, "volume_step_rate", 1.0)), reader.set_normal,
-                  # Emission Sampling (Cycles' own): None leaves the emitter to BSDF rays; Front and Back are sampled
-                  # from both sides, as Auto and Front and Back are (the noise differs, not the image).
-                  getattr(settings, "emission_sampling", "AUTO") != "NONE")
+                  out is not None and emission_estimate.light_sampled(reader, out.inputs["Surface"], sampling),
+                  sampling if sampling in ("FRONT", "BACK") else "BOTH")
 
 
 def read_volume(tree, name: str, images: ImageTextures, issues: list[str], layer_attribute=None) -> Shader | None:

@@ -144,7 +144,7 @@ class LightSampler:
         self.area = np.where(self.kind == RECT, self.size[:, 0] * self.size[:, 1],
                              np.float32(np.pi / 4) * self.size[:, 0] * self.size[:, 1]).astype(np.float32)
 
-        # Emissive triangles: two-sided, uniform over their area.
+        # Emissive triangles: two-sided (but for Emission Sampling Front or Back), uniform over their area.
         emits = np.asarray(triangle_emission.emissive, bool)
         # Triangles of moving objects (motion blur) are left to BSDF rays, which find them where they are
         # at the path's time (with MIS weight 1: their light pdf is 0); the table would place them wrong.
@@ -205,6 +205,9 @@ class LightSampler:
                                   axis=0).astype(np.float32) if len(self.tri_ids) else np.zeros(0, np.float32)
         self.triangle_emission = triangle_emission
         table[:, TLE:TLE + 3] = estimate
+        # Emission Sampling Front or Back: the side each emissive triangle's light samples go to (None: both).
+        self.tri_sides, self.tri_half = triangles.one_sided(scene, scene.materials.shaders, materials, plain_ids,
+                                                            instanced_ids)
 
         surface = ((self.kind == RECT) | (self.kind == DISK) | (((self.kind == POINT) | (self.kind == SPOT))
                                                                  & (self.radius > 0)))
@@ -427,10 +430,11 @@ class LightSampler:
     # ------------------------------------------------------------------ pdfs of what BSDF rays find
     # receiver: (n,) uint8 the light sets of the objects the rays left (Light Linking), or None; facing: the
     # normals of the vertices they left (choose_at), or None.
-    def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz, receiver=None, facing=None) -> np.ndarray:
+    def pdf_triangle_hit(self, tri, dist, cos_l, ox, oy, oz, receiver=None, facing=None,
+                         backfacing=None) -> np.ndarray:
         """pdf (solid angle, with selection) of NEE from o for this point of emissive triangle tri
         (triangles.pdf_hit)."""
-        return triangles.pdf_hit(self, tri, dist, cos_l, ox, oy, oz, receiver, facing)
+        return triangles.pdf_hit(self, tri, dist, cos_l, ox, oy, oz, receiver, facing, backfacing)
 
     def pdf_world(self, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=None) -> np.ndarray:
         """pdf (solid angle, with selection) of NEE for world directions d from points o (world.pdf; o matters

@@ -13,7 +13,7 @@ from ..textures import luminance
 from ..vec import normalize_floored_xyz
 from ..vec import HALF_PI
 from .common import DISK, RECT, SPOT
-from .triangles import TE1, TE2, TLE, TN, TP0, solid_angle
+from .triangles import TE1, TE2, TLE, TN, TP0, on_sampled_side, solid_angle
 
 # When a scene has both local and distant emitters, the distant ones (suns, world) get this share of
 # the light choices. It cannot come from comparing powers: a sun's or the world's power is per unit
@@ -81,7 +81,9 @@ def local_choice(sampler, choice: Choice, power, scene):
     if len(choice.distant_cdf):
         choice.distant_cdf /= choice.distant_cdf[-1]
     if few:
-        return SolidAngleChoice(np.take(sampler.tri_table, local - sampler.light_count, axis=0), power[local])
+        slots = local - sampler.light_count
+        return SolidAngleChoice(np.take(sampler.tri_table, slots, axis=0), power[local],
+                                None if sampler.tri_half is None else np.take(sampler.tri_half, slots))
     lo, hi = np.zeros((len(local), 3)), np.zeros((len(local), 3))
     axis, spread = np.zeros((len(local), 3)), np.full(len(local), np.pi)
     is_light = local < sampler.light_count
@@ -108,6 +110,10 @@ def local_choice(sampler, choice: Choice, power, scene):
     corners = np.stack([p0, p0 + t[:, TE1:TE1 + 3], p0 + t[:, TE2:TE2 + 3]])
     lo[~is_light], hi[~is_light] = corners.min(axis=0), corners.max(axis=0)
     axis[~is_light] = t[:, TN:TN + 3]  # two-sided: spread pi, every way
+    if sampler.tri_half is not None:   # one-sided (Emission Sampling Front or Back): around the side sampled
+        half = np.take(sampler.tri_half, local[~is_light] - sampler.light_count).astype(np.float64)
+        axis[~is_light] *= np.where(half == 0, 1.0, half)[:, None]
+        spread[np.flatnonzero(~is_light)[half != 0]] = 0.0
     group = np.full(len(local), -1, np.int64)
     group[~is_light] = triangle_groups(sampler, scene, local[~is_light] - sampler.light_count)
     tree = LightTree(lo, hi, power[local], axis, spread, group, emission)
@@ -181,11 +187,14 @@ def selection_pmf(choice: Choice, emitter, px, py, pz, facing=None):
 class SolidAngleChoice:
     """A shading point's choice among a few emissive triangles (rows of the emissive-triangle table), in
     proportion to luminance x the solid angle each subtends at the point: the light each would send it,
-    but for the point's own cosine and for shadows. Where all subtend nothing (the point in their plane,
-    or float32 underflow), in proportion to power. LightTree's interface: slots are row numbers."""
+    but for the point's own cosine and for shadows; none from the side of a one-sided one that is not sampled
+    (half: triangles.one_sided's, or None). Where all subtend nothing (the point in their plane, or float32
+    underflow), in proportion to power. LightTree's interface: slots are row numbers."""
 
-    def __init__(self, rows: np.ndarray, power: np.ndarray):
+    def __init__(self, rows: np.ndarray, power: np.ndarray, half: np.ndarray | None = None):
         rows = np.asarray(rows, np.float32)
+        self._rows = rows if half is not None and half.any() else None
+        self._half = half
         p0 = rows[:, TP0:TP0 + 3]
         corners = np.stack([p0, p0 + rows[:, TE1:TE1 + 3], p0 + rows[:, TE2:TE2 + 3]], axis=1)
         # Corners shared by the triangles (a quad's two) are normalised once per point.
@@ -200,6 +209,10 @@ class SolidAngleChoice:
         w = np.empty((len(self._corners), len(px)), np.float32)
         for k, (i, j, m) in enumerate(self._corners):
             np.multiply(solid_angle(units[i], units[j], units[m]), self._lum[k], out=w[k])
+        if self._rows is not None:
+            g = self._rows.T
+            for k in np.flatnonzero(self._half):
+                w[k] *= on_sampled_side(self._half, np.full(len(px), k), g[:, k:k + 1], px, py, pz)
         total = w.sum(axis=0)
         ok = np.isfinite(total) & (total > 0)
         if ok.all():

@@ -59,11 +59,42 @@ def sample(sampler, out, idx, slot, px, py, pz, u1, u2):
         if sampler.tri_textured:  # barycentrics of the point hit, for the texture lookup
             b1[sph], b2[sph] = _barycentrics((sx * t - rx, sy * t - ry, sz * t - rz),
                                              g[TE1:TE1 + 3, sph], g[TE2:TE2 + 3, sph])
+    if sampler.tri_half is not None:   # one-sided emitters: no sample from the other side (Cycles' SD_MIS_FRONT/BACK)
+        pdf[~on_sampled_side(sampler.tri_half, slot, g, px, py, pz)] = np.float32(0.0)
     if sampler.tri_textured:
         radiance = sampler.triangle_emission(np.take(sampler.tri_ids, slot), b1, b2, (wx, wy, wz), dist)
     else:
         radiance = g[TLE:TLE + 3]
     out.set(idx, wx, wy, wz, dist, radiance, pdf)
+
+
+def one_sided(scene, shaders, materials, plain_ids, instanced_ids):
+    """Emission Sampling Front or Back per emissive triangle: (sides (E,) int8: 1 front, -1 back, 0 both; half
+    (E,) float32: the same in terms of the table's normal TN, the sign of dot(TN, p - corner) of the points
+    that sample it, turned where the triangle's object mirrors it, whose front is opposite its winding), or
+    (None, None) when every emitter is sampled from both sides."""
+    code = np.array([{"FRONT": 1, "BACK": -1}.get(shader.emission_sides, 0) for shader in shaders], np.int8)
+    if not code.any() or not len(materials):
+        return None, None
+    sides = code[materials]
+    if not sides.any():
+        return None, None
+    front = np.ones(len(materials), np.float32)
+    mirrored = scene.mirrored_triangles()
+    if mirrored is not None:
+        front[:len(plain_ids)][np.take(mirrored, plain_ids)] = -1.0
+    if len(instanced_ids):
+        inst = scene.instances
+        k = np.searchsorted(inst.bases(len(scene.positions)), instanced_ids, side="right") - 1
+        front[len(plain_ids):][np.linalg.det(inst.world_from_object[k][:, :3, :3]) < 0] = -1.0
+    return sides, (sides * front).astype(np.float32)
+
+
+def on_sampled_side(half, slot, g, px, py, pz) -> np.ndarray:
+    """(n,) bool: points p on the side of their triangle (slot, table rows g) that light samples go to."""
+    h = (px - g[TP0]) * g[TN] + (py - g[TP0 + 1]) * g[TN + 1] + (pz - g[TP0 + 2]) * g[TN + 2]
+    s = np.take(half, slot)
+    return (s == 0) | (s * h > 0)
 
 
 def spherical_choice(sampler, g, slot, px, py, pz):
@@ -91,10 +122,11 @@ def spherical_choice(sampler, g, slot, px, py, pz):
     return spherical, omega, (a, b, c)
 
 
-def pdf_hit(sampler, tri, dist, cos_l, ox, oy, oz, receiver=None, facing=None) -> np.ndarray:
+def pdf_hit(sampler, tri, dist, cos_l, ox, oy, oz, receiver=None, facing=None, backfacing=None) -> np.ndarray:
     """pdf (solid angle, with selection) with which NEE from the ray origin o would have sampled
-    this point of emissive triangle tri (zero for triangles that do not emit); receiver: the light sets of the
-    points the rays left (Light Linking), or None."""
+    this point of emissive triangle tri (zero for triangles that do not emit, and for the side of a one-sided
+    emitter that is not sampled: backfacing, whether the rays hit the triangles' back); receiver: the light sets
+    of the points the rays left (Light Linking), or None."""
     if not len(sampler.tri_ids):
         return np.zeros(len(tri), np.float32)
     slot = slots(sampler, tri)
@@ -105,6 +137,9 @@ def pdf_hit(sampler, tri, dist, cos_l, ox, oy, oz, receiver=None, facing=None) -
     spherical, omega, _ = spherical_choice(sampler, g, s, ox, oy, oz)
     pdf = area_to_solid_angle(g[TAREA], dist, np.abs(cos_l))
     pdf[spherical] = np.float32(1.0) / omega
+    if sampler.tri_sides is not None and backfacing is not None:
+        sides = np.take(sampler.tri_sides, s)
+        ok &= (sides == 0) | ((sides > 0) != np.asarray(backfacing, bool))
     return np.where(ok, pmf * pdf, np.float32(0.0))
 
 

@@ -133,6 +133,8 @@ class Shader:
 
     light_sampled : whether next-event estimation samples the material's emitting triangles (False: Cycles' Emission
         Sampling None; BSDF rays alone find them, with MIS weight 1).
+    emission_sides : which sides of its emitting triangles light samples go to: BOTH, or Cycles' Emission Sampling
+        FRONT or BACK (the other side is left to BSDF rays, with MIS weight 1).
     bump_map_correction : Cycles' material setting of that name (on by default): specular closures tilt
         their normal toward the geometric normal until the mirror direction clears the surface.
     program : the material's node program (kernels.programs), which linked Params read.
@@ -160,6 +162,7 @@ class Shader:
     volume_step_rate: float = 1.0
     set_normal: object = None
     light_sampled: bool = True
+    emission_sides: str = "BOTH"
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),
