@@ -83,6 +83,10 @@ class Dicing:
             self._camera = DicingCamera(camera, self.offscreen)
         return self._camera
 
+    def dices(self, ob) -> bool:
+        """Whether `ob` is one Cycles would dice (tessellate() may still decline it, with a warning)."""
+        return adaptive_modifier(ob, self.preview) is not None
+
     def tessellate(self, ob, warnings: list[str], poll=None) -> "AdaptiveMesh | None":
         """The diced mesh of an object Cycles would dice, or None (not such an object, or not dicable here:
         then a warning names it and the mesh Blender evaluates is rendered). poll() is called as faces are

@@ -13,6 +13,7 @@ engine/export/mesh.py, deciding and naming instances engine/export/instances.py.
 from __future__ import annotations
 
 import dataclasses
+from contextlib import nullcontext
 
 from dataclasses import dataclass
 
@@ -192,7 +193,11 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         seen_by = instance_visibility(inst, ob, view_layer)
         if not seen_by:   # no ray sees it: not rendered (as Cycles' sync)
             continue
-        mesh_key = ob.data.as_pointer()
+        # An object Ember dices itself (adaptive subdivision) is keyed by the object: reading its ob.data would have
+        # Blender subdivide it at the modifier's render levels first (rna_Object_data_get ensures the subdivision;
+        # at 11 levels, 4M faces a quad), as Cycles' sync never asks it to.
+        dices = dicing is not None and ob.type == "MESH" and dicing.dices(ob)
+        mesh_key = ob.as_pointer() if dices else ob.data.as_pointer()
         object_key = (ob.as_pointer(), mesh_key)
         if ob.type == "VOLUME" or (ob.type == "MESH" and is_volume(ob)):
             if not depsgraph.view_layer.use_volumes:   # View Layer > Filter > Volumes off: none, as in Cycles
@@ -212,13 +217,13 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                 empty.add(instance_key(inst))
                 continue
         else:
-            with readable_mesh(ob) as mesh:
-                if mesh_key not in meshes:
-                    adaptive = dicing.tessellate(ob, warnings, poll) if dicing is not None else None
-                    if adaptive is not None:   # diced per camera: never kept between frames
-                        diced[mesh_key], meshes[mesh_key] = adaptive, adaptive.local
-                    else:
-                        meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
+            if dicing is not None and mesh_key not in meshes:
+                adaptive = dicing.tessellate(ob, warnings, poll)
+                if adaptive is not None:   # diced per camera: never kept between frames
+                    diced[mesh_key], meshes[mesh_key] = adaptive, adaptive.local
+            with nullcontext() if mesh_key in diced else readable_mesh(ob) as mesh:
+                if mesh_key not in meshes:   # (not diced: Blender's evaluated mesh, at the render levels)
+                    meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
                 source = diced.get(mesh_key) or BlenderMesh(mesh)
                 if meshes[mesh_key].triangle_count == 0:
                     empty.add(instance_key(inst))
@@ -230,7 +235,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                 if mesh_key not in displaced:
                     displaced.add(mesh_key)
                     meshes[mesh_key] = _displaced(inst, ob, source, meshes[mesh_key], materials,
-                                                  slot_rows[object_key], warnings)
+                                                  slot_rows[object_key], warnings, _base_mesh(diced, mesh_key))
                 uv_maps = materials.tangent_uv_maps(slot_rows[object_key])
                 if uv_maps and mesh_key not in tangents:
                     tangents[mesh_key] = source.tangents(meshes[mesh_key], uv_maps, ob.name, warnings)
@@ -244,7 +249,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                                                              volume_step(source, matrix)))
         groups.setdefault((mesh_key, slot_rows[object_key]), []).append(matrix)
         if object_key[0] not in described:
-            described[object_key[0]] = object_inputs(ob)
+            described[object_key[0]] = object_inputs(ob, _base_mesh(diced, mesh_key))
         location, size, color, pass_index, own, terminator, shading = described[object_key[0]]
         rows.setdefault((mesh_key, slot_rows[object_key]), []).append(
             (location, size, color, pass_index, instance_random(inst, own), terminator, shading))
@@ -325,14 +330,21 @@ def _add_shape(shapes: ShapeExport, inst, ob, materials: MaterialTable, view_lay
         shapes.add_data(ob, rows, names, place)
 
 
-def _displaced(inst, ob, source, local: LocalMesh, materials: MaterialTable, rows: tuple, warnings) -> LocalMesh:
+def _base_mesh(diced: dict, mesh_key: int):
+    """The base mesh of a diced object (what its texture space is read from), None for others (their ob.data)."""
+    return diced[mesh_key].base if mesh_key in diced else None
+
+
+def _displaced(inst, ob, source, local: LocalMesh, materials: MaterialTable, rows: tuple, warnings,
+               base=None) -> LocalMesh:
     """The mesh with the true displacement of its materials applied (displacement.py), once per mesh, with
-    the object data and transform of the first instance showing it (as Cycles takes the first object)."""
+    the object data (base: a diced object's base mesh) and transform of the first instance showing it (as Cycles
+    takes the first object)."""
     per_slot = materials.true_displacements(rows)
     if not any(per_slot):
         return local
     matrix = np.array(inst.matrix_world)
-    location, size, color, pass_index, own, terminator, shading = object_inputs(ob)
+    location, size, color, pass_index, own, terminator, shading = object_inputs(ob, base)
     row = object_rows(matrix[None], np.array([location]), np.array([size]), np.array([color]), np.array([pass_index]),
                       np.array([instance_random(inst, own)]), np.array([terminator]), np.array([shading]))[0]
     textures = [Texture(t, bool(flag)) for t, flag in zip(materials.textures, materials.texture_srgb)]

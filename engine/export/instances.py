@@ -84,17 +84,17 @@ def slot_materials(ob) -> tuple:
     return tuple(slot.material.name_full if slot.material is not None else "" for slot in ob.material_slots)
 
 
-def object_inputs(ob) -> tuple:
-    """What an object's rows of the object table take from the object and its mesh: (texture space
-    location, size, colour, pass index, its own random number: Blender's sync hashes its name, its Shadow
-    Terminator Geometry and Shading Offsets)."""
+def object_inputs(ob, mesh=None) -> tuple:
+    """What an object's rows of the object table take from the object and its mesh (mesh: ob.data when None):
+    (texture space location, size, colour, pass index, its own random number: Blender's sync hashes its name,
+    its Shadow Terminator Geometry and Shading Offsets)."""
     from ...kernels.shading.hash import hash_uint2
     h = 0
     for c in ob.name.encode("utf-8"):
         h = (h * 37 + c) & 0xFFFFFFFF
     own_random = np.float32(int(hash_uint2(np.array([h], np.uint32), np.array([0], np.uint32))[0])) \
         * np.float32(1.0 / 0xFFFFFFFF)
-    mesh = ob.data
+    mesh = ob.data if mesh is None else mesh
     terminator = float(getattr(ob, "shadow_terminator_geometry_offset", TERMINATOR_OFFSET))
     if hasattr(mesh, "texspace_location"):
         location, size = tuple(mesh.texspace_location), tuple(mesh.texspace_size)

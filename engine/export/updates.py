@@ -200,7 +200,8 @@ def export_instances(depsgraph, index: ExportIndex) -> tuple[np.ndarray, np.ndar
         return None
     matrices: list = [None] * len(row_of)
     rows: list = [None] * len(row_of)
-    signatures: dict[tuple, tuple] = {}   # (object, mesh) pointers -> slot_materials()
+    # object pointer -> slot_materials() (not ob.data's: reading it has Blender subdivide an adaptive object)
+    signatures: dict[int, tuple] = {}
     ignored: list[str] = []               # the full export has given these warnings already
     for inst in depsgraph.object_instances:
         ob = inst.object
@@ -212,7 +213,7 @@ def export_instances(depsgraph, index: ExportIndex) -> tuple[np.ndarray, np.ndar
             if key in index.empty_keys:
                 continue
             return None                   # a new instance
-        object_key = (ob.as_pointer(), ob.data.as_pointer())
+        object_key = ob.as_pointer()
         if object_key not in signatures:
             signatures[object_key] = slot_materials(ob)
         if rows[r] is not None or signatures[object_key] != index.slot_materials[r]:
