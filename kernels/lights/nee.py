@@ -5,6 +5,8 @@ Functions over (scene tables, wave, path state), as the integrator's stages (ker
 """
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from .. import light_groups, passes, sampling, visibility
@@ -284,11 +286,12 @@ def shadow_of(tables, origins, dirs, t_max, wave, state, paths, stack=None, mask
     return shadow(tables, origins, dirs, t_max, wave, np.take(state.bounce, paths),
                   None if state.lobes is None else np.take(state.lobes, paths, axis=1),
                   None if state.time is None else state.time.take(paths),
-                  None if state.portal is None else np.take(state.portal, paths), stack, seeds, masks, keys)
+                  None if state.portal is None else np.take(state.portal, paths), stack, seeds, masks, keys,
+                  np.take(state.transparent, paths))
 
 
 def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, portal=None, stack=None,
-           seeds=None, masks=None, keys=None) -> np.ndarray:
+           seeds=None, masks=None, keys=None, transparent=None) -> np.ndarray:
     """(3, n) transmittance of shadow rays: 0 where an opaque surface blocks them; through
     transparent surfaces, the product of their transparency (Cycles' transparent shadows); through media
     (stack: the rays' volume stacks (K, n), seeds their paths' PCG2D states, or None), their transmittance,
@@ -297,7 +300,10 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     portal its Ray Portals passed (or None): what the Light Path node reads. masks: (n,) uint64 the shadow
     masks of the emitters the rays go to (Shadow Linking: they pass objects whose blocker set is not in it,
     kernels/lights/links.py), or None. keys : (n,) the curve or point each ray leaves, which it skips
-    (PrimitiveTable.self_keys, -1 none), or None."""
+    (PrimitiveTable.self_keys, -1 none), or None. transparent : (n,) the transparent surfaces the path of each ray
+    has passed (None: none), as Cycles' shadow path starts its transparent_bounce: a ray passes what its path has
+    left of Transparent Max Bounces (integrate_shadow_max_transparent_hits; a medium's invisible boundary does not
+    count), one more blocks it, and the Light Path node's Transparent Depth reads it plus the surfaces passed."""
     n = len(origins)
     split = wave.split
     if stack is not None and not (stack >= 0).any() and not tables.media.has_volume.any():
@@ -340,7 +346,13 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     out = np.ones((3, n), np.float32)
     live = np.arange(n)
     origins, t_left = origins.copy(), t_max.copy()
-    for crossing in range(int(wave.settings.transparent_max_bounces) + 1):
+    limit = int(wave.settings.transparent_max_bounces)
+    before = np.zeros(n, np.int32) if transparent is None else np.asarray(transparent, np.int32)
+    budget = np.maximum(limit - before, 0)
+    crossed = np.zeros(n, np.int32)   # transparent surfaces passed (media boundaries not counted, as in Cycles)
+    surfaces = np.zeros(n, np.int32)  # surfaces passed (Cycles' shadow transparent_bounce counts every one)
+    boundary = None if tables.media is None else tables.media.boundary
+    for crossing in itertools.count():
         hits = tables.accel.intersect(origins, dirs[live], t_left, split, None if times is None else times.take(live))
         if skipped is not None or keys is not None:
             visibility.skip_hidden(tables, origins, dirs[live], t_left, hits, None, split,
@@ -364,13 +376,20 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
                          (origins[found], hits.t[found], None if times is None else times.take(live[found]).times),
                          deform=None if tables.scene.deform_ids is None else deformed_corners(
                              tables.scene, hits.prim[found], None if times is None else times.take(live[found]).times))
-        passed = np.zeros(len(found), np.int32)  # transparent surfaces before: not tracked for shadows
+        passed = before[live[found]] + surfaces[live[found]]
         hit.ray = RayInfo(depth[live[found]], passed, hits.t[found], shadow=True,
                           lobes=None if lobes is None else lobes[:, live[found]],
                           portal=None if portal is None else portal[live[found]])
         passes = tables.shading.transparency(hit)
         out[:, live[found]] *= passes
         through = found[(passes[0] > 0) | (passes[1] > 0) | (passes[2] > 0)]
+        counted = through if boundary is None else through[~np.take(boundary, hit.mat[np.searchsorted(found, through)])]
+        crossed[live[counted]] += 1
+        surfaces[live[through]] += 1
+        over = crossed[live[through]] > budget[live[through]]
+        if over.any():   # more transparent surfaces than the ray's budget: opaque, as in Cycles
+            out[:, live[through[over]]] = 0.0
+            through = through[~over]
         if not len(through):
             break
         if stack is not None:
@@ -391,8 +410,6 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
         origins, t_left, live = origins[keep], t_left[keep], live[keep]
         if not len(live):
             break
-    else:
-        out[:, live] = 0.0  # more transparent surfaces than the limit: opaque, as in Cycles
     return out
 
 
