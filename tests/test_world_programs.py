@@ -234,3 +234,26 @@ def test_bake_resolution_follows_cycles_world_settings():
     world.cycles.sampling_method, world.cycles.sample_map_resolution = "MANUAL", 300
     assert map_resolution(world) == 300
     assert export_current().scene.world.map_resolution == 300
+
+
+@pytest.mark.parametrize("kind", ["RGBA", "VALUE"])
+def test_a_colour_or_value_linked_into_the_world_surface_is_emitted_as_cycles(kind):
+    """A colour or value linked straight into the World Output's Surface (a Sky or Environment Texture, a Color Ramp,
+    a Math node): Cycles' ShaderGraph::connect puts an Emission node between, the colour its Color at Strength 1, the
+    value its Strength under white. Found in a public file (dnewcome/flamewave: a Sky Texture into the Surface).
+    Before, Ember rendered such a world constant grey with a warning."""
+    def build(tree):
+        _gradient_sky(tree)
+        ramp = tree.nodes["Color Ramp"]
+        if kind == "RGBA":
+            socket = ramp.outputs["Color"]
+        else:
+            socket = tree.nodes.new("ShaderNodeMath").outputs[0]
+            math = socket.node
+            math.operation, math.inputs[1].default_value = "MULTIPLY", 2.0
+            tree.links.new(tree.nodes["Separate XYZ"].outputs["Z"], math.inputs[0])
+        tree.links.new(socket, tree.nodes["World Output"].inputs["Surface"])
+    scene = _scene_under(build, size=(32, 24))
+    result = export_current()
+    assert result.scene.world.program is not None and not any("World" in w for w in result.warnings), result.warnings
+    compare_to_cycles(scene, samples=64, max_bounces=4)

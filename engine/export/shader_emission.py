@@ -8,7 +8,8 @@ from .sockets import BLACK3, Source, source_of
 
 def emission_of(builder, source: Source, issues: list[str], where: str, other):
     """Step (engine/export/graph.py): the colour x strength of the Background and Emission nodes feeding a
-    shader socket, through Add and Mix Shaders: a Ref (RGBA) or a constant triple. A node of another kind
+    shader socket, through Add and Mix Shaders (a colour or value linked there: an emission of it, as Cycles
+    converts it): a Ref (RGBA) or a constant triple. A node of another kind
     gives `other` (a constant triple), with a warning naming it and `where` ("a world", "a light") when
     `other` is not black."""
     node, groups = source.node, source.groups
@@ -27,6 +28,14 @@ def emission_of(builder, source: Source, issues: list[str], where: str, other):
         a = yield emission_of(builder, source_of(node.inputs[1], groups), issues, where, other)
         b = yield emission_of(builder, source_of(node.inputs[2], groups), issues, where, other)
         return builder.mix(fac, a, b)
+    if source.socket.type != "SHADER":
+        # A colour or value linked into a shader socket: the Emission node Cycles' ShaderGraph::connect puts there,
+        # its Color the colour (at Strength 1) or its Strength the value (under white).
+        consumer = next((link.to_socket for link in source.socket.links if not link.is_muted), None)
+        if consumer is not None:
+            if source.socket.type == "VALUE":
+                return builder.vector_op("SCALE", (1.0, 1.0, 1.0), builder.input(consumer, groups, "VALUE"))
+            return builder.input(consumer, groups, "RGBA")
     if tuple(other) != tuple(BLACK3):
         issues.append(f"{node.bl_label} is not supported in {where}, rendered as constant grey")
     elif source.kind == "ShaderNodeBsdfPrincipled":

@@ -185,7 +185,8 @@ def _needs_program(tree) -> bool:
     out = output_node(tree)
     surface = Source(None, None) if out is None else source_of(out.inputs["Surface"])
     if surface.node is None or surface.kind not in ("ShaderNodeBackground", "ShaderNodeEmission"):
-        return surface.kind in ("ShaderNodeMixShader", "ShaderNodeAddShader")
+        # Mix and Add Shaders, and a colour or value linked into the Surface (emitted, as Cycles converts it)
+        return surface.kind in ("ShaderNodeMixShader", "ShaderNodeAddShader") or surface.socket.type != "SHADER"
     node, groups = surface.node, surface.groups
     strength = source_of(node.inputs["Strength"], groups)
     if strength.node is not None and strength.kind != "ShaderNodeValue":
