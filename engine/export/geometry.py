@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 from contextlib import nullcontext
-
 from dataclasses import dataclass
 
 import numpy as np
