@@ -140,4 +140,4 @@ def test_portals_alone_guide_a_world_of_sampling_method_none_as_in_cycles():
     scene, _ = room("SQUARE", "forest.exr")
     scene.world.cycles.sampling_method = "NONE"
     compare_to_cycles(scene, samples=64, max_bounces=3, mean_z=4.0)
-    assert _pixel_variance(scene, "EMBER", seeds=range(4)) < 1.5 * _pixel_variance(scene, "CYCLES", seeds=range(4))
+    assert _pixel_variance(scene, "EMBER", seeds=range(3)) < 1.5 * _pixel_variance(scene, "CYCLES", seeds=range(3))
