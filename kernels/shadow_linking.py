@@ -204,7 +204,7 @@ def _march(tables, wave, state, idx, origins, dirs, t_max, receiver, first):
         k = np.flatnonzero(emits)
         for part, values in zip(found, (live[k], prim[k], t[k], u[k], v[k])):
             part.append(values)
-        clear = np.take(tables.shading.transparent, mat)
+        clear = np.take(tables.shading.shadow_transparent, mat)
         boundary = np.zeros(len(mat), bool) if bounds is None else np.take(bounds, mat)
         volume[live] += boundary
         transparent[live] += clear & ~boundary

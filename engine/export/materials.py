@@ -310,7 +310,8 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displ
                   interpolation if interpolation in ("LINEAR", "CLOSEST", "CUBIC") else "LINEAR",
                   float(getattr(settings, "volume_step_rate", 1.0)), reader.set_normal,
                   out is not None and emission_estimate.light_sampled(reader, out.inputs["Surface"], sampling),
-                  sampling if sampling in ("FRONT", "BACK") else "BOTH")
+                  sampling if sampling in ("FRONT", "BACK") else "BOTH",
+                  bool(getattr(material, "use_transparent_shadow", True)))
 
 
 def read_volume(tree, name: str, images: ImageTextures, issues: list[str], layer_attribute=None) -> Shader | None:

@@ -312,7 +312,7 @@ def shadow(tables, origins, dirs, t_max, wave, depth, lobes=None, times=None, po
     skipped = _passed_objects(tables, masks, wave.only_catchers is not None)
     if keys is not None and not (keys >= 0).any():
         keys = None
-    if not tables.shading.transparent.any():
+    if not tables.shading.shadow_transparent.any():
         if skipped is None and keys is not None:
             # Rays leaving a curve or a point meet it or their neighbours mostly: their closest hits, traced below,
             # answer at once, without an occlusion query first (on fur and in a dense cloud most are blocked).

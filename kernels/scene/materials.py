@@ -137,6 +137,9 @@ class Shader:
         FRONT or BACK (the other side is left to BSDF rays, with MIS weight 1).
     bump_map_correction : Cycles' material setting of that name (on by default): specular closures tilt
         their normal toward the geometric normal until the mirror direction clears the surface.
+    transparent_shadow : the material's Settings > Surface > Transparent Shadows (Material.use_transparent_shadow,
+        on by default): off, shadow rays stop at its surface whatever its transparency, as Cycles' shader loses
+        SD_HAS_TRANSPARENT_SHADOW (scene/shader.cpp), unless it has a volume; camera and BSDF rays still pass it.
     program : the material's node program (kernels.programs), which linked Params read.
     aovs : the material's AOV Output nodes, ((name, colour Param (3), value Param (1)), ...): the Shader AOV
         passes read them at the camera rays' first hit.
@@ -163,6 +166,7 @@ class Shader:
     set_normal: object = None
     light_sampled: bool = True
     emission_sides: str = "BOTH"
+    transparent_shadow: bool = True
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),

@@ -109,14 +109,19 @@ class Shading:
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)
         self.transparent = np.array([any(nodes.may_be_transparent(c) for c in s.closures) for s in self.shaders],
                                     bool)
-        # Transparency sums (transparency): the transparent closures of materials without a portal, batched
-        # as _batches does (kind, then the material's first, second, ... closure of that kind); materials
-        # with a portal one by one.
+        # Which materials shadow rays pass: the transparent ones, unless Transparent Shadows is off and the
+        # material has no volume (Cycles' SD_HAS_TRANSPARENT_SHADOW, scene/shader.cpp); the others stop them.
+        self.shadow_transparent = self.transparent & np.array(
+            [s.transparent_shadow or bool(s.volume) or s.volume_only for s in self.shaders], bool)
+        # Transparency sums (transparency): the transparent closures of materials shadow rays pass without a
+        # portal, batched as _batches does (kind, then the material's first, second, ... closure of that
+        # kind); materials with a portal one by one.
         has_portal = [any(c.kind == "PORTAL" for c in s.closures) for s in self.shaders]
-        self._portal_materials = [m for m, s in enumerate(self.shaders) if has_portal[m] and self.transparent[m]]
+        self._portal_materials = [m for m, s in enumerate(self.shaders)
+                                  if has_portal[m] and self.shadow_transparent[m]]
         self._transparent_batches = _transparent_batches(
-            [() if has_portal[m] else tuple(c for c in s.closures if nodes.may_be_transparent(c))
-             for m, s in enumerate(self.shaders)])
+            [() if has_portal[m] or not self.shadow_transparent[m] else
+             tuple(c for c in s.closures if nodes.may_be_transparent(c)) for m, s in enumerate(self.shaders)])
         self.transmissive = np.array([any(nodes.may_transmit(c) for c in s.closures) for s in self.shaders], bool)
         self.has_holdout = any(c.kind == "HOLDOUT" for s in self.shaders for c in s.closures)
         self.has_portal = any(c.kind == "PORTAL" for s in self.shaders for c in s.closures)
@@ -242,7 +247,8 @@ class Shading:
         """(3, N) float32: the share of light that passes straight through each hit (transparent
         shadows): the sum of its Transparent closures, Principled alpha included. A Ray Portal stops shadow
         rays, except at a hit that also has a transparent closure: there Cycles' shadow rays pass the sum
-        of both (the portal's weight joins the transparency it sums, shade_shadow.h).
+        of both (the portal's weight joins the transparency it sums, shade_shadow.h). Materials whose
+        Transparent Shadows is off pass nothing (shadow_transparent).
 
         Materials without a portal are summed batch by batch across materials (_transparent_batches), as
         their closures are built: a shadow ray crossing many masked materials pays one pass per kind."""
