@@ -11,7 +11,7 @@ glows are left to BSDF rays, which find them well, and stay out of the light tre
 """
 from __future__ import annotations
 
-from .sockets import source_of
+from .sockets import converted, source_of
 
 # Cycles' threshold on the estimate's largest channel (Shader::estimate_emission).
 AUTO_THRESHOLD = 0.5
@@ -58,15 +58,12 @@ def estimate(reader, source) -> tuple:
             value = (1.0, 1.0, 1.0) if color.varies else color.value
             strength = weight * _strength(reader, node.inputs[strength_name], groups, node)
             total = [t + strength * v for t, v in zip(total, value)]
-        elif source.socket.type != "SHADER":
+        elif (fed := converted(source)) is not None:
             # A colour or value into a shader socket: the Emission node Cycles' graph puts there, its Color
             # the colour (at Strength 1) or its Strength the value (under white).
-            socket = source.socket
-            consumer = next((link.to_socket for link in socket.links if not link.is_muted), None)
-            if consumer is None:
-                continue
-            channels = 1 if socket.type == "VALUE" else 3
-            read = reader.program.input(consumer, groups, "VALUE" if channels == 1 else "RGBA")
+            consumer, socket_type = fed
+            channels = 1 if socket_type == "VALUE" else 3
+            read = reader.program.input(consumer, groups, socket_type)
             if channels == 1 and not isinstance(read, tuple):
                 value = (weight * _linked_strength(reader, source),) * 3
             else:

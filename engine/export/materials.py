@@ -49,7 +49,7 @@ from .displacement import METHODS, TrueDisplacement
 from .images import ImageTextures
 from .lights import MAX_LIGHT_RADIANCE
 from .nodes import ProgramBuilder, texture_mapping_matrix
-from .sockets import MISSING_IMAGE_COLOR, Source, output_node, rgb, socket_has_nan, source_of
+from .sockets import MISSING_IMAGE_COLOR, Source, converted, output_node, rgb, socket_has_nan, source_of
 
 DEFAULT_ALBEDO = 0.8
 WHITE3 = (1.0, 1.0, 1.0)
@@ -416,14 +416,12 @@ class _MaterialReader:
         connects a non-closure output to a closure input through an Emission node (a value into its Strength under
         a white Color, a colour or vector into its Color at Strength 1). None for a shader output or one that is not
         linked where its links can be read."""
-        output = source.socket
-        if output is None or getattr(output, "type", "SHADER") == "SHADER":
+        fed = converted(source)
+        if fed is None:
             return None
-        consumer = next((link.to_socket for link in output.links if not link.is_muted), None)
-        if consumer is None:
-            return None
-        value = output.type == "VALUE"
-        read = self.program.input(consumer, source.groups, "VALUE" if value else "RGBA")
+        consumer, socket_type = fed
+        value = socket_type == "VALUE"
+        read = self.program.input(consumer, source.groups, socket_type)
         param = Param.of(read) if isinstance(read, tuple) else Param.of((1.0,) * (1 if value else 3), link=read)
         white, one = Param.of((1.0, 1.0, 1.0)), Param.of((1.0,))
         inputs = (("Color", white), ("Strength", param)) if value else (("Color", param), ("Strength", one))

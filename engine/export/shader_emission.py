@@ -3,7 +3,7 @@ light's emission (Cycles' background and light shaders are emission closures, su
 weighed by Mix Shader)."""
 from __future__ import annotations
 
-from .sockets import BLACK3, Source, source_of
+from .sockets import BLACK3, Source, converted, source_of
 
 
 def emission_of(builder, source: Source, issues: list[str], where: str, other):
@@ -28,14 +28,11 @@ def emission_of(builder, source: Source, issues: list[str], where: str, other):
         a = yield emission_of(builder, source_of(node.inputs[1], groups), issues, where, other)
         b = yield emission_of(builder, source_of(node.inputs[2], groups), issues, where, other)
         return builder.mix(fac, a, b)
-    if source.socket.type != "SHADER":
-        # A colour or value linked into a shader socket: the Emission node Cycles' ShaderGraph::connect puts there,
-        # its Color the colour (at Strength 1) or its Strength the value (under white).
-        consumer = next((link.to_socket for link in source.socket.links if not link.is_muted), None)
-        if consumer is not None:
-            if source.socket.type == "VALUE":
-                return builder.vector_op("SCALE", (1.0, 1.0, 1.0), builder.input(consumer, groups, "VALUE"))
-            return builder.input(consumer, groups, "RGBA")
+    fed = converted(source)
+    if fed is not None:   # a colour or value linked into a shader socket: the Emission Cycles puts there
+        consumer, socket_type = fed
+        read = builder.input(consumer, groups, socket_type)
+        return builder.vector_op("SCALE", (1.0, 1.0, 1.0), read) if socket_type == "VALUE" else read
     if tuple(other) != tuple(BLACK3):
         issues.append(f"{node.bl_label} is not supported in {where}, rendered as constant grey")
     elif source.kind == "ShaderNodeBsdfPrincipled":

@@ -58,6 +58,17 @@ def source_of(socket, groups: tuple = ()) -> Source:
         socket, groups = step
 
 
+def converted(source: Source) -> tuple | None:
+    """(the shader socket it feeds, "VALUE" or "RGBA") for a colour, vector or value output linked into a shader
+    socket: Cycles' ShaderGraph::connect puts an Emission node between them (a value as its Strength under white,
+    a colour or vector as its Color at Strength 1), which every reader of shader sockets renders so. None for a
+    shader output, a constant, or an output whose link is not found."""
+    socket = source.socket
+    if source.node is None or getattr(socket, "type", "SHADER") == "SHADER":
+        return None
+    consumer = next((link.to_socket for link in socket.links if not link.is_muted), None)
+    return None if consumer is None else (consumer, "VALUE" if socket.type == "VALUE" else "RGBA")
+
 def output_node(tree):
     """The output node Cycles renders from (its own target first, then 'All'), or None."""
     return tree.get_output_node("CYCLES") or tree.get_output_node("ALL")
