@@ -5,8 +5,8 @@ the reference and a warning naming what was changed:
   limit) are clamped to it: past it Ember's float32 arithmetic and the denoiser overflow (Cycles drops
   such samples or sums them to inf; at 3.4e38 its emitter renders black).
 - A strength that is not a number reads 0: black, as Cycles renders it.
-- A camera with a focal length, sensor size or orthographic scale of 0 (or not a number) sees nothing of
-  the scene in Cycles; Ember renders the world along its view axis, as Cycles shows a constant world.
+- A camera with a focal length, sensor size or orthographic scale of 0 (or not a number), or an object scale
+  of 0, sees nothing of the scene in Cycles; Ember renders the world along its view axis, as Cycles shows a constant world.
 - A denoiser that turns a lit image black (pixels near the float32 limit from a node program) leaves the
   noisy image, with a warning.
 - A negative emission strength (a surface that subtracts light) renders as in Cycles.
@@ -90,13 +90,19 @@ def _store(idblock, prop: str, value: float) -> None:
     ("sensor_width", 0.0, "sensor width of 0 mm"),
     ("lens", float("nan"), "focal length is nan mm"),
     ("ortho_scale", 0.0, "orthographic scale is 0"),
+    ("scale", 0.0, "scaled to nothing along an axis"),
 ])
 def test_a_camera_of_zero_size_sees_the_world_as_in_cycles_with_a_warning(setting, value, told):
+    """The camera object scaled to 0 (found in a public file: Ember refused to render it, its camera matrix
+    singular) is as blind in Cycles."""
     scene = _panel_scene()
     camera = scene.camera.data
-    if setting == "ortho_scale":
+    if setting == "scale":
+        scene.camera.scale = (1.0, 1.0, value)
+    elif setting == "ortho_scale":
         camera.type = "ORTHO"
-    if value == 0.0 and setting != "ortho_scale":
+        camera.ortho_scale = value
+    elif value == 0.0:
         _store(camera, setting, value)   # Blender's interface stops at 1 mm
     else:
         setattr(camera, setting, value)

@@ -60,6 +60,15 @@ def export_camera(camera_ob, scene, width: int, height: int, warnings: list[str]
     render = scene.render
     frame = dict(world_from_camera=rigid_transform(camera_ob.matrix_world), width=int(width), height=int(height),
                  pixel_aspect=render.pixel_aspect_x / render.pixel_aspect_y, **pixel_filter(scene))
+    axes = frame["world_from_camera"][:3, :3]
+    if not abs(np.linalg.det(axes)) > 1e-9:
+        # A scale of zero on an axis (or axes scaled into one plane) leaves no direction to look in: Cycles'
+        # rays then have no direction and each pixel shows the world (transform_clear_scale keeps a zero axis).
+        axes[:] = np.eye(3)
+        scale = ", ".join(f"{v:g}" for v in np.linalg.norm(np.array(camera_ob.matrix_world, np.float64)[:3, :3], axis=0))
+        warnings.append(f"Camera '{camera_ob.name}' is scaled to nothing along an axis (its world scale {scale}), so it "
+                        f"sees nothing of the scene (as in Cycles): rendered the world along the world's -Z axis")
+        return blind_camera(**frame)
     if camera_ob.type != "CAMERA":  # Blender lets any object be the scene camera
         warnings.append(f"Active camera '{camera_ob.name}' is not a camera object: rendered with a "
                         f"50 mm lens")
