@@ -51,8 +51,6 @@ def lacking_settings(scene) -> list[str]:
     lacking = []
     checks = (("min_light_bounces", c.min_light_bounces > 0),
               ("min_transparent_bounces", c.min_transparent_bounces > 0),
-              # Cycles reads the threshold only without the light tree (scene/integrator.cpp)
-              ("light_sampling_threshold", c.light_sampling_threshold > 0 and not c.use_light_tree),
               # Simplify's (Cycles reads it only with Simplify on; Blender 5.3)
               ("texture_resolution_render", simplify and getattr(c, "texture_resolution_render", 1.0) != 1.0),
               ("shading_system (OSL)", c.shading_system))

@@ -31,6 +31,7 @@ from ..kernels import Camera, Cancelled, Renderer, RenderResult, RenderSettings,
 from ..kernels.accel import capped_threads
 from .export import ExportCancelled, ExportError, export_scene
 from .export.camera import render_region, rigid_transform
+from .export.lights import uses_light_tree
 from .export.motion import sample_motion, sample_vector_motion
 from .export.world import fast_gi
 from . import cryptomatte
@@ -103,6 +104,7 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         transparent_background=bool(scene.render.film_transparent),
         transparent_glass=transparent_glass(scene),
         exposure=film_exposure(scene),
+        light_threshold=light_threshold(scene),
         **fast_gi(scene, viewport, view_layer),
         quick_first_pass=not _background(),
     )
@@ -117,6 +119,17 @@ def layer_samples(scene, view_layer, samples: int) -> int:
     if own <= 0 or mode == "IGNORE" or (mode == "BOUNDED" and own >= samples):
         return samples
     return own
+
+
+def light_threshold(scene) -> float:
+    """Sampling > Lights > Light Threshold, Cycles' own setting (scene.cycles.light_sampling_threshold), which Cycles
+    applies only without the light tree (scene/integrator.cpp): files from before Blender 3.5 open with the tree off
+    and the threshold at 0.01."""
+    cycles = getattr(scene, "cycles", None)
+    if cycles is None or uses_light_tree(scene):
+        return 0.0
+    value = float(getattr(cycles, "light_sampling_threshold", 0.0))
+    return value if value > 0 and math.isfinite(value) else 0.0
 
 
 def film_exposure(scene) -> float:

@@ -98,8 +98,11 @@ class EMBER_RENDER_PT_sampling(EmberPanel, bpy.types.Panel):
         col.prop(ember, "use_animated_seed")
         layout.prop(ember, "sampling_pattern")
         cycles = getattr(context.scene, "cycles", None)
-        if cycles is not None:   # Cycles' own setting, read as Cycles reads it (export/lights.uses_light_tree)
-            layout.prop(cycles, "use_light_tree")
+        if cycles is not None:   # Cycles' own settings, read as Cycles reads them (export/lights.uses_light_tree,
+            layout.prop(cycles, "use_light_tree")   # session.light_threshold)
+            sub = layout.row()
+            sub.active = not cycles.use_light_tree   # Cycles applies the threshold only without the tree
+            sub.prop(cycles, "light_sampling_threshold", text="Light Threshold")
 
 
 class EMBER_RENDER_PT_light_paths(EmberPanel, bpy.types.Panel):

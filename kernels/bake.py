@@ -50,7 +50,7 @@ from .bake_texels import BakePaths, BakeTexels, FirstHits, first_hits, object_tr
 from .bsdf.lobes import (BSSRDF, GLASS, GLOSSY_LOBES, MICROFACET_LOBES, OREN_NAYAR, PORTAL,
                          TRANSMISSION_LOBES, TRANSPARENT)
 from .interaction import RayInfo, SurfaceHit
-from .lights import LightSampler
+from .lights import LightSampler, nee
 from .paths import ray_keys
 from .samples import BSDF, Samples
 from .scene.objects import ALL_RAYS
@@ -128,7 +128,7 @@ class BakeRun:
         texel, sample, rng, strata = paths.batch(start, end)
         settings = wave.settings
         samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, wave.nee,
-                          lobes=tables.shading.mixes_lobes)
+                          lobes=tables.shading.mixes_lobes or nee.termination_scale(tables, settings) > 0)
         jx, jy = samples.camera()
         first = first_hits(tables, self.image, texel, jx, jy, self.use_camera)
         state = integrator.new_paths(tables, wave, end - start, samples, start)

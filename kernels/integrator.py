@@ -139,8 +139,9 @@ def start_paths(tables, wave, paths, start: int, end: int):
     settings = wave.settings
     n = end - start
     rng, row, col, strata = paths.batch(start, end)
+    # A lobe to choose, or light samples to leave untraced (the Light Threshold): the LOBE numbers are drawn.
     samples = Samples(rng, strata if settings.mode == "NEE_MIS" else None, settings.seed, wave.nee,
-                      lobes=tables.shading.mixes_lobes)  # a lobe to choose: its numbers are drawn
+                      lobes=tables.shading.mixes_lobes or nee.termination_scale(tables, settings) > 0)
     jx, jy = samples.camera()
     camera = tables.scene.camera
     lens = samples.camera_extra(LENS) if camera.aperture_radius > 0 else None

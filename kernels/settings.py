@@ -31,6 +31,10 @@ class RenderSettings:
     transparent_glass: float | None = None
     # Cycles' Film > Exposure: Combined and the light passes are read out multiplied by it (kernels.film.Film).
     exposure: float = 1.0
+    # Cycles' Sampling > Lights > Light Threshold, which Cycles applies only without the light tree (0: off): a light
+    # sample whose contribution before the path's throughput, times the exposure, is below it has its shadow ray
+    # traced with probability contribution / threshold and is weighted up by its inverse (light_sample_terminate).
+    light_threshold: float = 0.0
     wave_size: int | None = None
     transparent_max_bounces: int = 8
     # Cycles' per-type limits (Light Paths > Max Bounces: Diffuse, Glossy, Transmission), None for none: a path
@@ -147,7 +151,7 @@ class RenderSettings:
                 raise ValueError(f"{name}: must be finite, got {getattr(self, name)}")
         if not (np.isfinite(self.exposure) and self.exposure >= 0):
             raise ValueError(f"exposure: must be finite and non-negative, got {self.exposure}")
-        for name in ("clamp_direct", "clamp_indirect", "filter_glossy", "adaptive_threshold"):
+        for name in ("clamp_direct", "clamp_indirect", "filter_glossy", "adaptive_threshold", "light_threshold"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: must be finite and non-negative (0 is off), got {value}")

@@ -21,7 +21,7 @@ from ..paths import may_scatter, ray_keys
 from ..media import stack as volume_stack
 from ..media import tracking
 from ..media.march import marching
-from ..samples import LIGHT, LIGHT_POINT
+from ..samples import LIGHT, LIGHT_POINT, LOBE
 from ..scene import ALL_SETS
 from ..scene.objects import BSDF_RAYS
 from . import ray_visibility
@@ -87,6 +87,11 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
     if not len(idx):
         return
     f, bsdf_pdf = np.take(f, keep, axis=1), bsdf_pdf[keep]
+    if LOBE in numbers and termination_scale(tables, wave.settings) > 0:
+        kept, f = _terminated(tables, wave.settings, ls, idx, f, bsdf_pdf, numbers[LOBE][0][active[idx]])
+        idx, bsdf_pdf = idx[kept], bsdf_pdf[kept]
+        if not len(idx):
+            return
     gx, gy, gz = (np.take(c, active[idx]) for c in hit.ng)
     wx, wy, wz = np.take(ls.wx, idx), np.take(ls.wy, idx), np.take(ls.wz, idx)
     # Leave from the side of the surface the light is on (a light behind a transmitting surface).
@@ -144,12 +149,7 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
     rows = idx[vis]
     paths = active[rows]
     pdf = np.take(ls.pdf, rows)
-    # MIS: the power heuristic, but against the world's light samples the world's own (Environment.
-    # mis_balance: the balance heuristic with a compensated distribution; escaped rays use it too).
-    heuristic = sampling.power_heuristic(pdf, bsdf_pdf[vis])
-    if tables.environment.mis_balance:
-        heuristic = np.where(np.take(ls.world, rows), sampling.balance_heuristic(pdf, bsdf_pdf[vis]), heuristic)
-    w = np.where(np.take(ls.delta, rows), np.float32(1.0), heuristic)
+    w = _mis_weight(tables, ls, rows, bsdf_pdf[vis])
     contribution = np.take(state.throughput, paths, axis=1) * np.take(f, vis, axis=1) * \
         np.take(transmittance, vis, axis=1) * \
         np.take(ls.radiance, rows, axis=1) * (w / pdf)
@@ -158,6 +158,40 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
         wi = (np.take(ls.wx, rows[first]), np.take(ls.wy, rows[first]), np.take(ls.wz, rows[first]))
         return passes.class_shares(*eval_split(closures, paths[first], wi))
     passes.add_light(tables, wave, state, paths, contribution, reflecting, _groups(tables, wave, ls, rows))
+
+
+def _mis_weight(tables, ls, rows, bsdf_pdf) -> np.ndarray:
+    """(n,) the MIS weights of the light samples rows against BSDF sampling: the power heuristic, but against the
+    world's light samples the world's own (Environment.mis_balance: the balance heuristic with a compensated
+    distribution; escaped rays use it too); 1 for lights no BSDF ray can hit."""
+    pdf = np.take(ls.pdf, rows)
+    heuristic = sampling.power_heuristic(pdf, bsdf_pdf)
+    if tables.environment.mis_balance:
+        heuristic = np.where(np.take(ls.world, rows), sampling.balance_heuristic(pdf, bsdf_pdf), heuristic)
+    return np.where(np.take(ls.delta, rows), np.float32(1.0), heuristic)
+
+
+def termination_scale(tables, settings) -> float:
+    """Cycles' light_inv_rr_threshold: the exposure over the Light Threshold where light samples may be left
+    untraced (a threshold above 0, and no light tree: scene/integrator.cpp), else 0. The integrator then draws the
+    LOBE numbers at every vertex: their first number, unused by NEE_MIS's BSDF sampling, decides."""
+    threshold = float(settings.light_threshold)
+    if threshold <= 0 or tables.lights.light_tree or settings.mode != "NEE_MIS":
+        return 0.0
+    return float(settings.exposure) / threshold
+
+
+def _terminated(tables, settings, ls, idx, f, bsdf_pdf, u):
+    """Cycles' light_sample_terminate for the light samples idx (f: (3, n) their closures' value, bsdf_pdf its
+    pdf, u: (n,) a uniform number each): the contribution before the path's throughput, Le f w / pdf, against the
+    threshold; a sample whose largest channel times termination_scale, p, is below 1 goes on with probability p,
+    its f divided by p, so that the estimate keeps its mean. Returns (kept (k,) indices into idx, f of those)."""
+    w = _mis_weight(tables, ls, idx, bsdf_pdf)
+    e = np.abs(f * np.take(ls.radiance, idx, axis=1) * (w / np.take(ls.pdf, idx)))
+    probability = np.maximum(np.maximum(e[0], e[1]), e[2]) * np.float32(termination_scale(tables, settings))
+    kept = np.flatnonzero((probability >= 1) | (u < probability))
+    p = np.minimum(probability[kept], np.float32(1.0))
+    return kept, np.take(f, kept, axis=1) / p
 
 
 def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=None, chosen=None,
