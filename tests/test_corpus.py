@@ -100,14 +100,15 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
     mesh_object("Smooth", [(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 1, 2)], smooth=True)
     mesh_object("Flat", [(0, 0, 1), (1, 0, 1), (0, 1, 1)], [(0, 1, 2)])
     scene.cycles.sample_clamp_indirect, scene.cycles.blur_glossy = 3.0, 0.25
-    scene.cycles.use_light_tree = False
+    scene.cycles.use_light_tree, scene.cycles.min_light_bounces = False, 2
     mapped = corpus_render.map_cycles_settings(scene)
     assert (scene.ember.sample_clamp_indirect, scene.ember.blur_glossy) == (3.0, 0.25)
     assert mapped["sample_clamp_indirect"] == 3.0 and mapped["max_bounces"] == scene.cycles.max_bounces
     lacking = corpus_render.lacking_settings(scene)
     assert mapped["diffuse_bounces"] == scene.cycles.diffuse_bounces == scene.ember.diffuse_bounces
-    assert "light_sampling_threshold=0.01" in lacking and not any(
-        key in item for item in lacking for key in ("bounces", "exposure", "fast_gi", "cull", "use_light_tree"))
+    assert "min_light_bounces=2" in lacking and not any(
+        item.split("=")[0] in corpus_render.SHARED_SETTINGS or key in item for item in lacking
+        for key in ("exposure", "fast_gi", "cull", "use_light_tree", "light_sampling_threshold"))
     bpy.data.objects["Smooth"].shadow_terminator_shading_offset = 0.2   # rendered now: not lacking
     assert not any("shadow_terminator" in item for item in corpus_render.lacking_settings(scene))
 
@@ -115,7 +116,7 @@ def test_cycles_settings_are_mapped_or_listed_as_lacking():
 # ---------------------------------------------------------------- the tool on .blend files
 def build_scene(different: bool):
     """A floor and a box under an area lamp, with Cycles settings Ember takes over; where different, one it lacks
-    (the light tree off, whose Light Threshold only changes the noise) and a second lamp of negative power over the box (Cycles
+    (Min Light Bounces, which only changes the noise) and a second lamp of negative power over the box (Cycles
     subtracts its light; Ember leaves it out, warning); and a material Ember warns about
     (a UV Along Stroke node, which only Freestyle line styles read, on a value multiplied by 0: nothing changes in
     Cycles)."""
@@ -143,7 +144,7 @@ def build_scene(different: bool):
         dark_ob = bpy.data.objects.new("Dark", dark)
         dark_ob.location = (0.0, 0.0, 2.5)
         scene.collection.objects.link(dark_ob)
-        scene.cycles.use_light_tree = False
+        scene.cycles.min_light_bounces = 2
     return scene
 
 
@@ -172,7 +173,7 @@ def test_the_tool_runs_every_file_and_tables_them(corpus_run):
     same, lacking, broken = (table_row(run.stdout, n) for n in ("same.blend", "lacking.blend", "broken.blend"))
     assert same[-1] == "within noise", run.stdout
     assert same[7] == "1"                                    # the UV Along Stroke warning, once for both renders
-    assert lacking[-1] == "beyond noise" and "light_sampling_threshold=0.01" in lacking[8], run.stdout
+    assert lacking[-1] == "beyond noise" and "min_light_bounces=2" in lacking[8], run.stdout
     assert float(lacking[4]) > 5 and "has negative power" in run.stdout   # the box and floor under it: far off
     assert broken[-1].startswith("failed: Cycles:") and "Ember:" in broken[-1]
     assert "sample_clamp_indirect=5.0" in run.stdout and "pixel_filter_type=GAUSSIAN" in run.stdout
