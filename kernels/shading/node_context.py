@@ -178,8 +178,9 @@ class Context:
         color = self.shading.param(spec.color, self, 3)
         strength = self.shading.param(spec.strength, self, 1)
         frame = self._frame() if spec.space == "TANGENT" else None
+        uneven = None if frame is None else self.shading.data.uneven_linear(self.take(self.hit.prim))
         return normals.normal_map(color, strength, spec.space, self.hit_ns, self.take(self.hit.backfacing), frame,
-                                  spec.invert_green)
+                                  spec.invert_green, uneven=uneven)
 
     def with_normal(self, normal) -> "Context":
         """This context on another (unit) normal; itself for None."""

@@ -17,7 +17,7 @@ from ..vec import F32, HALF, ONE, ZERO, cross_xyz, dot_xyz, normalize_xyz
 
 
 def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfacing: np.ndarray, frame,
-               invert_green: bool = False, object_to_world=None):
+               invert_green: bool = False, object_to_world=None, uneven=None):
     """The Normal Map node's Normal at n hits.
 
     color : (3, n) the node's Color, each axis stored as (x + 1) / 2. strength : (n,).
@@ -28,6 +28,10 @@ def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfaci
     frame : (tangent, sign, normal) of SurfaceHit.tangent_frame, unnormalized and not flipped, or None
         (no tangents: the normal is left as it is, as Cycles does without its tangent attribute).
     invert_green : the DirectX convention (Blender 5.1+): the green axis is negated, in every space.
+    uneven : for TANGENT, (rows, world_from_object, object_from_world) of the hits whose objects are scaled
+        unevenly ((k,) and (k, 3, 3) each; ShadingData.uneven_linear), or None: there the map is combined in
+        object space and turned to world space as a normal, as Cycles evaluates it (svm_node_normal_map); elsewhere
+        the world-space frame gives the same direction.
     """
     c = F32(2.0) * (np.asarray(color, F32) - HALF)
     if invert_green:
@@ -41,6 +45,8 @@ def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfaci
         cz = ONE + (c[2] - ONE) * np.clip(strength, 0.0, 1.0)
         b = _scale(cross_xyz(n, t), sign)
         out = normalize_xyz(tuple(cx * t[k] + cy * b[k] + cz * n[k] for k in range(3)))
+        if uneven is not None and len(uneven[0]):
+            out = _in_object_space(out, (cx, cy, cz), frame, uneven)
         out = _flip(out, backfacing)
     else:
         if space in ("BLENDER_WORLD", "BLENDER_OBJECT"):  # Blender's convention: y and z point the other way
@@ -59,6 +65,37 @@ def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfaci
     if bad.any():
         out = tuple(np.where(bad, ns[k], out[k]) for k in range(3))
     return tuple(np.asarray(c, F32) for c in out)
+
+
+def _in_object_space(out, c, frame, uneven):
+    """out with the rows of uneven (rows, M, A) replaced by the map combined in object space: the world frame
+    brought back to object space (tangent by A = M^-1, normal by M^T, both to unit length, the bitangent's sign
+    unmirrored by det M), N_o = cx T_o + cy B_o + cz N_o, then A^T N_o (a normal's transform), to unit length."""
+    rows, m, a = uneven
+    t, sign, n = frame
+    tw = np.stack([np.take(x, rows) for x in t], axis=1).astype(np.float64)
+    nw = np.stack([np.take(x, rows) for x in n], axis=1).astype(np.float64)
+    to = np.einsum("kij,kj->ki", a, tw)
+    no = np.einsum("kji,kj->ki", m, nw)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        to /= np.linalg.norm(to, axis=1, keepdims=True)
+        no /= np.linalg.norm(no, axis=1, keepdims=True)
+        bo = np.cross(no, to) * (np.take(sign, rows) * np.sign(np.linalg.det(m)))[:, None]
+        cx, cy, cz = (np.take(x, rows).astype(np.float64)[:, None] for x in c)
+        world = np.einsum("kji,kj->ki", a, cx * to + cy * bo + cz * no)
+        world /= np.linalg.norm(world, axis=1, keepdims=True)
+    out = tuple(np.array(x, F32) for x in out)
+    for k in range(3):
+        out[k][rows] = world[:, k]
+    return out
+
+
+def uneven_scale(linear: np.ndarray) -> np.ndarray:
+    """(K,) bool: which 3x3 matrices (K, 3, 3) are not a rotation (or a mirroring) times one scale, their Gram
+    matrix M^T M not a multiple of the identity: a normal map then depends on the space it is combined in."""
+    g = np.einsum("kai,kaj->kij", linear, linear)
+    s = np.trace(g, axis1=1, axis2=2) / 3.0
+    return np.abs(g - s[:, None, None] * np.eye(3)).max(axis=(1, 2)) > 1e-5 * np.abs(s)
 
 
 def uv_tangent(frame, ns):

@@ -8,10 +8,11 @@ import numpy as np
 from ..bsdf.closures import ClosureBuilder, ClosureSet
 from ..bsdf.lobes import LAMBERT
 from ..camera import camera_frame, view_plane
-from ..scene import OBJ_SHADING_OFFSET, Camera, Closure, Materials, Param, object_row
+from ..scene import (OBJ_FROM_WORLD, OBJ_SHADING_OFFSET, OBJ_WORLD_LINEAR, Camera, Closure, Materials, Param,
+                     object_row)
 from ..textures import Texture, finite_uv, luminance
 from ..vec import F32, ZERO
-from . import nodes
+from . import nodes, normals
 from .bsdf_nodes import portal_weight
 from .node_context import CUTOFF, DEFAULTS, BatchParam, Context
 from .input_ops import reads_lobes
@@ -61,6 +62,24 @@ class ShadingData:
         offset = self.objects[:, OBJ_SHADING_OFFSET] if self.objects.shape[1] > OBJ_SHADING_OFFSET else None
         self.terminator = None if offset is None or not (offset > 0).any() else \
             (F32(1.0) / (F32(1.0) - F32(0.5) * np.clip(offset, 0.0, 1.0))).astype(F32)
+        # The object rows scaled unevenly, where tangent-space normal maps are combined in object space, or None.
+        linear = self.objects[:, OBJ_WORLD_LINEAR:OBJ_WORLD_LINEAR + 9].reshape(-1, 3, 3).astype(np.float64)
+        uneven = normals.uneven_scale(linear)
+        self._uneven = uneven if uneven.any() else None
+
+    def uneven_linear(self, prim: np.ndarray):
+        """(hits, world_from_object, object_from_world) of the hits on triangles prim whose objects are scaled
+        unevenly ((k,), (k, 3, 3) float64 each), or None where there are none (normals.normal_map's uneven)."""
+        if self._uneven is None:
+            return None
+        rows = self.object_rows(prim)
+        hits = np.flatnonzero(self._uneven[rows])
+        if not len(hits):
+            return None
+        r = rows[hits]
+        m = self.objects[r, OBJ_WORLD_LINEAR:OBJ_WORLD_LINEAR + 9].reshape(-1, 3, 3).astype(np.float64)
+        a = self.objects[r, OBJ_FROM_WORLD:OBJ_FROM_WORLD + 12].reshape(-1, 3, 4)[:, :, :3].astype(np.float64)
+        return hits, m, a
 
     def attribute(self, name: str, prim: np.ndarray) -> np.ndarray | None:
         """(n, 3, C) per-corner values of an attribute on triangles prim, None when no mesh has it."""
