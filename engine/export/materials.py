@@ -43,6 +43,8 @@ from ...kernels.programs import Ref
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
 from ...kernels.shading.hair_nodes import CURVE_NORMAL
 from ...kernels.shading.input_ops import UNDISPLACED_NORMAL, UNDISPLACED_POSITION
+from ...kernels.shading.normals import NORMAL_MAP_OBJECT_FRAME_FROM
+from ..version import blender_version
 from . import emission_estimate
 from .graph import indexed_links, invalid_links, node_loop, run_nested
 from .displacement import METHODS, TrueDisplacement
@@ -526,7 +528,8 @@ class _MaterialReader:
         strength = self.param(node.inputs["Strength"], source.groups, 1, node)
         if node.space == "TANGENT":
             self.tangent_uv_maps.append(node.uv_map)
-        return NormalMap(color, strength, node.space, getattr(node, "convention", "OPENGL") == "DIRECTX")
+        return NormalMap(color, strength, node.space, getattr(node, "convention", "OPENGL") == "DIRECTX",
+                         blender_version() >= NORMAL_MAP_OBJECT_FRAME_FROM)
 
     def tangent(self, source: Source, socket, groups) -> Tangent | Param | None:
         """A Tangent input: a UV Map Tangent node as the kernel's Tangent, any other node (a radial Tangent,

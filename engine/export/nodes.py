@@ -23,6 +23,7 @@ from ...kernels.programs import Op, Program, Ref
 from ...kernels.shading import sky
 from ...kernels.shading.ies import INVALID_PROFILE
 from ...kernels.shading.input_ops import particle_attribute_name
+from ...kernels.shading.normals import NORMAL_MAP_OBJECT_FRAME_FROM
 from ...kernels.shading.ops import OPS, PURE_OPS
 from ...kernels.shading.program import constant, convert
 from ..version import blender_version
@@ -385,7 +386,8 @@ def _normal_map(builder, node, groups):
               "Strength": (yield builder.read(node.inputs["Strength"], groups, "VALUE"))}
     # Blender 5.1 added the DirectX convention; its Base option (the displaced or undisplaced surface's
     # normal under "Displacement and Bump") is not read.
-    options = {"space": node.space, "convention": getattr(node, "convention", "OPENGL")}
+    options = {"space": node.space, "convention": getattr(node, "convention", "OPENGL"),
+               "object_frame": blender_version() >= NORMAL_MAP_OBJECT_FRAME_FROM}
     return builder.add(node.bl_idname, inputs, options)
 
 

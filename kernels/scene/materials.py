@@ -64,11 +64,14 @@ class NormalMap:
         them the normal is left unperturbed, as Cycles does without its tangent attribute. WORLD reads
         the colour as a world direction; BLENDER_WORLD negates its y and z first.
     invert_green : the node's DirectX convention (Blender 5.1+): green negated.
+    object_frame : TANGENT's frame normal at unit length, as the Cycles of Blender 5.1 and later reads it
+        (kernels.shading.normals).
     """
     color: Param
     strength: Param = Param((1.0,))
     space: str = "TANGENT"
     invert_green: bool = False
+    object_frame: bool = False
 
     def params(self):
         yield self.color

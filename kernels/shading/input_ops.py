@@ -520,9 +520,10 @@ def normal_map(hits, inputs, op):
     ns = tuple(hits.N[:, k] for k in range(3))
     frame = hits.hit.tangent_frame(hits.idx) if space == "TANGENT" else None
     has_object = not getattr(hits, "world", False)
+    object_frame = bool(op.option("object_frame", False))
     uneven = getattr(hits.scene, "uneven_linear", None) if frame is not None and has_object else None
     out = normals.normal_map(color, strength, space, ns, hits.backfacing, frame,
                              op.option("convention", "OPENGL") == "DIRECTX",
                              (lambda v: to_world(hits, v, "NORMAL")) if has_object else None,
-                             None if uneven is None else uneven(hits.prim))
+                             None if uneven is None else uneven(hits.prim), object_frame)
     return {"Normal": np.stack(out, axis=1)}

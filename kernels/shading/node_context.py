@@ -180,7 +180,7 @@ class Context:
         frame = self._frame() if spec.space == "TANGENT" else None
         uneven = None if frame is None else self.shading.data.uneven_linear(self.take(self.hit.prim))
         return normals.normal_map(color, strength, spec.space, self.hit_ns, self.take(self.hit.backfacing), frame,
-                                  spec.invert_green, uneven=uneven)
+                                  spec.invert_green, uneven=uneven, object_frame=spec.object_frame)
 
     def with_normal(self, normal) -> "Context":
         """This context on another (unit) normal; itself for None."""

@@ -16,8 +16,12 @@ import numpy as np
 from ..vec import F32, HALF, ONE, ZERO, cross_xyz, dot_xyz, normalize_xyz
 
 
+# The first Blender whose Cycles brings a tangent-space normal map's frame normal to unit length (object_frame).
+NORMAL_MAP_OBJECT_FRAME_FROM = (5, 1)
+
+
 def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfacing: np.ndarray, frame,
-               invert_green: bool = False, object_to_world=None, uneven=None):
+               invert_green: bool = False, object_to_world=None, uneven=None, object_frame: bool = False):
     """The Normal Map node's Normal at n hits.
 
     color : (3, n) the node's Color, each axis stored as (x + 1) / 2. strength : (n,).
@@ -30,8 +34,12 @@ def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfaci
     invert_green : the DirectX convention (Blender 5.1+): the green axis is negated, in every space.
     uneven : for TANGENT, (rows, world_from_object, object_from_world) of the hits whose objects are scaled
         unevenly ((k,) and (k, 3, 3) each; ShadingData.uneven_linear), or None: there the map is combined in
-        object space and turned to world space as a normal, as Cycles evaluates it (svm_node_normal_map); elsewhere
-        the world-space frame gives the same direction.
+        object space and turned to world space as a normal, as Cycles evaluates it (svm_node_normal_map; probed
+        in 5.0 and 5.3); elsewhere the world-space frame gives the same direction.
+    object_frame : TANGENT as the Cycles of Blender 5.1 and later (9d939e158, "normal map wrong renders after
+        corner normal changes"): the frame's normal brought to unit length (triangle_smooth_normal_unnormalized_
+        object_space normalizes it; the tangent stays as interpolated). False: 5.0's, the interpolated normal as
+        it is.
     """
     c = F32(2.0) * (np.asarray(color, F32) - HALF)
     if invert_green:
@@ -41,6 +49,9 @@ def normal_map(color: np.ndarray, strength: np.ndarray, space: str, ns, backfaci
         if frame is None:
             return ns
         t, sign, n = frame
+        if object_frame:
+            n = normalize_xyz(n)
+            frame = (t, sign, n)
         cx, cy = c[0] * strength, c[1] * strength
         cz = ONE + (c[2] - ONE) * np.clip(strength, 0.0, 1.0)
         b = _scale(cross_xyz(n, t), sign)
