@@ -55,8 +55,9 @@ class BlenderMesh:
     LocalMesh's normal rows say where Blender keeps its normals)."""
     vertex_rows = None
 
-    def __init__(self, mesh):
-        self.mesh = mesh
+    def __init__(self, mesh, scratch=None):
+        """scratch : the evaluated object whose to_mesh() copy read_tangents may use (None: it may not)."""
+        self.mesh, self.scratch = mesh, scratch
 
     def vertex_normals(self) -> np.ndarray:
         return _read_vertex_normals(self.mesh)
@@ -65,7 +66,7 @@ class BlenderMesh:
         return read_attributes(self.mesh, names, object_name, warnings)
 
     def tangents(self, local: LocalMesh, uv_maps: tuple, object_name: str, warnings: list[str]) -> np.ndarray:
-        return read_tangents(self.mesh, local, uv_maps, object_name, warnings)
+        return read_tangents(self.mesh, local, uv_maps, object_name, warnings, self.scratch)
 
     def flat_triangles(self, t: int) -> np.ndarray:
         return _flat_triangles(self.mesh, t)

@@ -223,7 +223,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
             with nullcontext() if mesh_key in diced else readable_mesh(ob) as mesh:
                 if mesh_key not in meshes:   # (not diced: Blender's evaluated mesh, at the render levels)
                     meshes[mesh_key] = read_mesh(mesh) if cache is None else cache.mesh(inst, ob, mesh)
-                source = diced.get(mesh_key) or BlenderMesh(mesh)
+                # Tangents may use a to_mesh() copy of the object, unless the mesh read is that copy (Edit Mode).
+                source = diced.get(mesh_key) or BlenderMesh(mesh, ob if mesh == ob.data else None)
                 if meshes[mesh_key].triangle_count == 0:
                     empty.add(instance_key(inst))
                     continue

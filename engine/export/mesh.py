@@ -136,9 +136,11 @@ def _corner_uvs(mesh, tri_loops: np.ndarray) -> np.ndarray:
     return np.take(uvs.reshape(-1, 2), tri_loops, axis=0)
 
 
-def read_tangents(mesh, local: LocalMesh, uv_maps: tuple, object_name: str, warnings: list[str]) -> np.ndarray:
+def read_tangents(mesh, local: LocalMesh, uv_maps: tuple, object_name: str, warnings: list[str],
+                  scratch=None) -> np.ndarray:
     """(T*3, 4) float32 object-space tangent and bitangent sign of each triangle corner of an evaluated mesh
-    (read by read_mesh into `local`), from the UV map uv_maps names ('' for the render UV map)."""
+    (read by read_mesh into `local`), from the UV map uv_maps names ('' for the render UV map). scratch: the
+    evaluated object whose to_mesh() copy may take a mesh with n-gons (ngon_tangents), or None."""
     wanted = uv_maps[0]
     if len(uv_maps) > 1:
         warnings.append(f"Object '{object_name}': its materials read tangents of several UV maps, Ember uses "
@@ -157,6 +159,9 @@ def read_tangents(mesh, local: LocalMesh, uv_maps: tuple, object_name: str, warn
     try:
         mesh.calc_tangents(uvmap=name)
     except RuntimeError:  # Blender's MikkTSpace takes triangles and quads only
+        out = ngon_tangents(scratch, mesh, local, name) if scratch is not None else None
+        if out is not None:
+            return out
         warnings.append(f"Object '{object_name}': tangents of n-gons are approximated per triangle "
                         f"(not MikkTSpace)")
         # The failed call leaves the layer reference stale (it reads zeros): look it up again.
@@ -169,6 +174,52 @@ def read_tangents(mesh, local: LocalMesh, uv_maps: tuple, object_name: str, warn
     out[:, 3] = np.take(read_values(mesh.loops, "bitangent_sign", n_corners, np.float32), tri_loops)
     mesh.free_tangents()
     return out
+
+
+def ngon_tangents(scratch, mesh, local: LocalMesh, name: str) -> np.ndarray | None:
+    """MikkTSpace tangents of a mesh with n-gons, which Blender's calc_tangents refuses and Cycles computes on its
+    triangles (scene/mesh.cpp): the to_mesh() copy of the evaluated object `scratch` (not part of the file) has its
+    n-gons split into triangles (bmesh), MikkTSpace runs on it, and each triangle corner of `mesh` takes the tangent
+    of its vertex in the triangles its polygon became (a planar n-gon's triangles share one tangent space). None
+    where that fails (the caller approximates)."""
+    import bmesh
+    temp = scratch.to_mesh()
+    try:
+        faces = len(temp.polygons)
+        if faces != len(mesh.polygons) or len(temp.vertices) != len(mesh.vertices):
+            return None
+        origin = temp.attributes.new("ember_polygon", "INT", "FACE")
+        origin.data.foreach_set("value", np.arange(faces, dtype=np.int32))
+        bm = bmesh.new()
+        try:
+            bm.from_mesh(temp)
+            bmesh.ops.triangulate(bm, faces=[f for f in bm.faces if len(f.verts) > 4], ngon_method="EAR_CLIP")
+            bm.to_mesh(temp)
+        finally:
+            bm.free()
+        temp.calc_tangents(uvmap=name)
+        corners = len(temp.loops)
+        polygon = read_values(temp.attributes["ember_polygon"].data, "value", len(temp.polygons), np.int32)
+        totals = read_values(temp.polygons, "loop_total", len(temp.polygons), np.int32)
+        key = read_values(temp.loops, "vertex_index", corners, np.int64) * faces + np.repeat(polygon, totals)
+        tangents = read_values(temp.loops, "tangent", 3 * corners, np.float32).reshape(-1, 3)
+        signs = read_values(temp.loops, "bitangent_sign", corners, np.float32)
+        tri_loops = read_values(mesh.loop_triangles, "loops", 3 * local.triangle_count, np.int64)
+        tri_faces = read_values(mesh.loop_triangles, "polygon_index", local.triangle_count, np.int64)
+        wanted = read_values(mesh.loops, "vertex_index", len(mesh.loops), np.int64)[tri_loops] * faces + \
+            np.repeat(tri_faces, 3)
+        keys, first = np.unique(key, return_index=True)
+        at = np.minimum(np.searchsorted(keys, wanted), len(keys) - 1)
+        if not np.array_equal(keys[at], wanted):
+            return None
+        out = np.empty((len(wanted), 4), np.float32)
+        out[:, :3] = tangents[first[at]]
+        out[:, 3] = signs[first[at]]
+        return out
+    except (RuntimeError, KeyError, ValueError):
+        return None
+    finally:
+        scratch.to_mesh_clear()
 
 
 def _uv_label(name: str) -> str:
