@@ -189,14 +189,8 @@ def test_lamps_without_multiple_importance_match_cycles():
     compare_to_cycles(scene, samples=128, max_bounces=3, mean_z=4.0)
 
 
-def test_light_tree_off_chooses_lights_as_cycles_and_clamps_alike():
-    """Cycles' Light Tree off (files from before Blender 3.5 open so): its light distribution chooses the lamps alike
-    (and emissive triangles by area), whatever the shading point (scene/light.cpp device_update_distribution).
-    Unclamped that changes only the noise; with clamping each sample's value, and so the image, depends on it. A
-    floor and a wall lit by a small near lamp and four dim far ones, Clamp Direct and Indirect 1: Ember, reading
-    the setting, chooses as Cycles does and matches it (before, its tree's choice: 23% bright, 0.50 against 0.41;
-    unclamped 0.69)."""
-    from ember.kernels.lights.selection import distribution_pmf
+def floor_and_wall_under_five_lamps():
+    """A floor and a wall lit by a small near area lamp and four dim far ones, 32 x 32."""
     scene = new_scene(32, 32)
     add_camera(scene, (0, -5, 2.5), (0, 0, 0.5))
     set_world(scene, color=(0, 0, 0))
@@ -205,6 +199,17 @@ def test_light_tree_off_chooses_lights_as_cycles_and_clamps_alike():
     add_light(scene, "AREA", location=(-1.5, 0, 1.0), rotation=(0, 0, 0), energy=100.0, size=0.3)
     for k in range(4):
         add_light(scene, "AREA", location=(1.0 + 0.6 * k, 1.0, 3.0), rotation=(0, 0, 0), energy=30.0, size=1.0)
+    return scene
+
+def test_light_tree_off_chooses_lights_as_cycles_and_clamps_alike():
+    """Cycles' Light Tree off (files from before Blender 3.5 open so): its light distribution chooses the lamps alike
+    (and emissive triangles by area), whatever the shading point (scene/light.cpp device_update_distribution).
+    Unclamped that changes only the noise; with clamping each sample's value, and so the image, depends on it. A
+    floor and a wall lit by a small near lamp and four dim far ones, Clamp Direct and Indirect 1: Ember, reading
+    the setting, chooses as Cycles does and matches it (before, its tree's choice: 23% bright, 0.50 against 0.41;
+    unclamped 0.69)."""
+    from ember.kernels.lights.selection import distribution_pmf
+    scene = floor_and_wall_under_five_lamps()
     scene.cycles.use_light_tree = False
     assert export_current().scene.lights.tree is False
     compare_to_cycles(scene, samples=128, max_bounces=2, clamp=(1.0, 1.0), mean_tol=0.01)
@@ -221,14 +226,7 @@ def test_light_threshold_without_the_tree_leaves_dim_light_samples_untraced_as_c
     samples were left untraced: the same floor and wall as above, a threshold of 1 (Blender's largest) and Clamp
     Direct 0.3: 29% darker than without the threshold in both engines."""
     from ember.engine.session import render_settings
-    scene = new_scene(32, 32)
-    add_camera(scene, (0, -5, 2.5), (0, 0, 0.5))
-    set_world(scene, color=(0, 0, 0))
-    quad_object("Floor", (-4, -4, 0), (8, 0, 0), (0, 8, 0), diffuse_material("Floor", (0.7, 0.7, 0.7)))
-    quad_object("Wall", (-4, 2, 0), (8, 0, 0), (0, 0, 4), diffuse_material("Wall", (0.5, 0.6, 0.7)))
-    add_light(scene, "AREA", location=(-1.5, 0, 1.0), rotation=(0, 0, 0), energy=100.0, size=0.3)
-    for k in range(4):
-        add_light(scene, "AREA", location=(1.0 + 0.6 * k, 1.0, 3.0), rotation=(0, 0, 0), energy=30.0, size=1.0)
+    scene = floor_and_wall_under_five_lamps()
     scene.cycles.light_sampling_threshold = 1.0
     assert render_settings(scene, None).light_threshold == 0.0   # the tree on: Cycles ignores the threshold
     scene.cycles.use_light_tree = False
