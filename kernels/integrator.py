@@ -574,6 +574,12 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None)
     entering = np.zeros(len(passing), bool) if bs.subsurface is None else bs.subsurface
     # Past the last bounce a path still passes through transparent surfaces (as in Cycles), not portals.
     alive &= (passing & ~portal) | may_scatter(wave, state)
+    replaced = fast_gi_replaced(wave.settings, state)
+    if replaced is not None and not tables.shading.shadow_transparent.all():
+        # Fast GI ends a replaced path at a surface that neither emits nor passes shadow rays, transparent or not
+        # (Cycles' integrator_intersect_terminate: only SD_HAS_TRANSPARENT_SHADOW or SD_HAS_EMISSION go on).
+        kept = tables.shading.shadow_transparent | tables.shading.emissive
+        alive &= ~replaced | np.take(kept, hit.mat)
     # A volume's boundary (a material with only a Volume output) is passed without counting (Cycles'
     # volume_bounds_bounce).
     state.transparent = state.transparent + (passing if tables.media is None else

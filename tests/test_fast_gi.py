@@ -32,14 +32,21 @@ def room(method: str, bounces: int, factor: float = 0.8, distance: float = 1.5):
     return scene
 
 
-@pytest.mark.parametrize("method, bounces", [("REPLACE", 1), ("REPLACE", 2), ("ADD", 0)],
-                         ids=["replace_1", "replace_2", "add"])
-def test_fast_gi_matches_cycles(method, bounces):
+@pytest.mark.parametrize("method, bounces, card", [("REPLACE", 1, False), ("REPLACE", 2, False), ("ADD", 0, False),
+                                                   ("REPLACE", 1, True)],
+                         ids=["replace_1", "replace_2", "add", "replace_1_card"])
+def test_fast_gi_matches_cycles(method, bounces, card):
     """A constant world, which Cycles samples by BSDF rays alone: past the AO bounces a ray that meets nothing
     within the distance sees the world, whatever lies beyond, at full weight in both engines. (A world sampled as a
     light weighs those rays by MIS against its light samples, so what they add depends on the world's sampling
     distribution, Cycles' piecewise-constant map against Ember's bilinear one: docs/usage.md, Fast GI.)"""
-    compare_to_cycles(room(method, bounces), samples=128, max_bounces=6, mean_z=4.0)
+    scene = room(method, bounces)
+    if card:   # a half-transparent card whose Transparent Shadows is off: Cycles ends a replaced path there
+        mat = bpy.data.materials.new("Card")
+        mat.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value = 0.1
+        mat.use_transparent_shadow = False
+        quad_object("Card", (-1.2, -0.4, 0.0), (0, 1.6, 0), (0, 0, 2.0), mat)
+    compare_to_cycles(scene, samples=128, max_bounces=6, mean_z=4.0)
 
 
 def test_fast_gi_settings_are_read_as_cycles_reads_them():
