@@ -87,9 +87,11 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
     if not len(idx):
         return
     f, bsdf_pdf = np.take(f, keep, axis=1), bsdf_pdf[keep]
+    mis = None   # the samples' MIS weights, where the Light Threshold needed them before the shadow rays
     if LOBE in numbers and termination_scale(tables, wave.settings) > 0:
-        kept, f = _terminated(tables, wave.settings, ls, idx, f, bsdf_pdf, numbers[LOBE][0][active[idx]])
-        idx, bsdf_pdf = idx[kept], bsdf_pdf[kept]
+        mis = _mis_weight(tables, ls, idx, bsdf_pdf)
+        kept, f = _terminated(tables, wave.settings, ls, idx, f, mis, numbers[LOBE][0][active[idx]])
+        idx, bsdf_pdf, mis = idx[kept], bsdf_pdf[kept], mis[kept]
         if not len(idx):
             return
     gx, gy, gz = (np.take(c, active[idx]) for c in hit.ng)
@@ -149,7 +151,7 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
     rows = idx[vis]
     paths = active[rows]
     pdf = np.take(ls.pdf, rows)
-    w = _mis_weight(tables, ls, rows, bsdf_pdf[vis])
+    w = _mis_weight(tables, ls, rows, bsdf_pdf[vis]) if mis is None else mis[vis]
     contribution = np.take(state.throughput, paths, axis=1) * np.take(f, vis, axis=1) * \
         np.take(transmittance, vis, axis=1) * \
         np.take(ls.radiance, rows, axis=1) * (w / pdf)
@@ -181,12 +183,11 @@ def termination_scale(tables, settings) -> float:
     return float(settings.exposure) / threshold
 
 
-def _terminated(tables, settings, ls, idx, f, bsdf_pdf, u):
-    """Cycles' light_sample_terminate for the light samples idx (f: (3, n) their closures' value, bsdf_pdf its
-    pdf, u: (n,) a uniform number each): the contribution before the path's throughput, Le f w / pdf, against the
-    threshold; a sample whose largest channel times termination_scale, p, is below 1 goes on with probability p,
-    its f divided by p, so that the estimate keeps its mean. Returns (kept (k,) indices into idx, f of those)."""
-    w = _mis_weight(tables, ls, idx, bsdf_pdf)
+def _terminated(tables, settings, ls, idx, f, w, u):
+    """Cycles' light_sample_terminate for the light samples idx (f: (3, n) their closures' value, w their MIS
+    weights, u: (n,) a uniform number each): the contribution before the path's throughput, Le f w / pdf, against
+    the threshold; a sample whose largest channel times termination_scale, p, is below 1 goes on with probability
+    p, its f divided by p, so that the estimate keeps its mean. Returns (kept (k,) indices into idx, f of those)."""
     e = np.abs(f * np.take(ls.radiance, idx, axis=1) * (w / np.take(ls.pdf, idx)))
     probability = np.maximum(np.maximum(e[0], e[1]), e[2]) * np.float32(termination_scale(tables, settings))
     kept = np.flatnonzero((probability >= 1) | (u < probability))
