@@ -28,21 +28,27 @@ class Coincident:
     """Partners of triangles: for triangle a, partners[offsets[a]:offsets[a + 1]] are the triangles that lie on
     it (int64, ascending). Only the T plain triangles take part (world space; instanced meshes do not)."""
 
-    def __init__(self, offsets: np.ndarray, partners: np.ndarray, positions):
+    def __init__(self, offsets: np.ndarray, partners: np.ndarray, positions, objects: np.ndarray | None = None):
         self.offsets, self.partners = offsets, partners
         self._positions = positions
+        self._objects = objects   # (T,) object rows, for crossing(other_object=True); None: all one object
+        self.opaque = None        # (T,) bool, the triangles that stop what meets them (set by the renderer)
 
     @classmethod
-    def find(cls, positions, through: np.ndarray, offset, objects: np.ndarray | None = None) -> "Coincident | None":
+    def find(cls, positions, through: np.ndarray, offset, objects: np.ndarray | None = None,
+             copies: bool = False) -> "Coincident | None":
         """Partners of the triangles `through` (T,) bool marks (those a ray may pass through) among all the
         triangles (SceneArrays.positions, world space); offset(|p|max) -> the distance a new ray's origin is
         moved off a surface at that size of coordinate: planes closer than twice that lie on one another.
         objects: (T,) each triangle's object row, or None; partners are then of another object (a finely
         subdivided glass's neighbouring triangles are not looked at: a mesh lying on itself is left alone).
-        None when no triangle has a partner."""
+        copies: also pair every triangle with its copies, of any object (_copies: a duplicated face or object, a
+        doubled quad split the other way), found by sorting edges, not by the search above (whose cost on a large
+        flat mesh is too high for every triangle). None when no triangle has a partner."""
         candidates = np.flatnonzero(through)
+        found = [] if not copies or len(positions) < 2 else [_copies(positions, offset)]
         if not len(candidates) or len(positions) < 2:
-            return None
+            return cls._of_keys(found, len(positions), positions, objects)
         p = corner_values(positions)
         n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         length = np.sqrt(np.einsum("ij,ij->i", n, n))
@@ -56,7 +62,6 @@ class Coincident:
         hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
         size = np.maximum(np.abs(lo), np.abs(hi))
         distance = 2.0 * offset(np.maximum(np.maximum(size[:, 0], size[:, 1]), size[:, 2]))
-        found = []
         for shift in (0.0, 0.5):
             for a, b in _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift, objects):
                 if objects is not None:
@@ -68,18 +73,28 @@ class Coincident:
                 a, b = a[near], b[near]
                 keep = _overlap(p[a].astype(np.float64), p[b].astype(np.float64), dominant[a])
                 found.append(a[keep] * len(p) + b[keep])
+        return cls._of_keys(found, len(p), positions, objects)
+
+    @classmethod
+    def _of_keys(cls, found, count: int, positions, objects) -> "Coincident | None":
+        """From lists of pair keys a * count + b."""
         key = np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
         if not len(key):
             return None
-        a, b = key // len(p), key % len(p)
-        offsets = np.zeros(len(p) + 1, np.int64)
+        a, b = key // count, key % count
+        offsets = np.zeros(count + 1, np.int64)
         np.add.at(offsets, a + 1, 1)
-        return cls(np.cumsum(offsets), b, positions)
+        return cls(np.cumsum(offsets), b, positions, objects)
 
-    def crossing(self, prim: np.ndarray, px, py, pz):
+    def crossing(self, prim: np.ndarray, px, py, pz, among: np.ndarray | None = None, other_object: bool = False,
+                 side=None):
         """For rays passing through triangles prim (n,) at points p (x, y, z of (n,)): the partner each meets
         there (-1 for none: no partner, a point outside them all, an instanced triangle), and that hit's
-        barycentrics (b1, b2) of the partner's corners 1 and 2, float32."""
+        barycentrics (b1, b2) of the partner's corners 1 and 2, float32. among: (T,) bool, the triangles that
+        may be met (None: all); other_object: only partners of another object than the triangle left.
+        side: for rays that leave their surface on one side (a reflection, a shadow ray), that side's normal
+        (x, y, z of (n,)): a partner lying behind the surface on the other side (by more than the float error of
+        two copies of one plane, AHEAD_TOLERANCE of the coordinates) is not met."""
         m = len(prim)
         partner = np.full(m, -1, np.int64)
         b1, b2 = np.zeros(m, np.float32), np.zeros(m, np.float32)
@@ -93,8 +108,19 @@ class Coincident:
         per = count[rows]
         ray = np.repeat(rows, per)
         which = self.partners[np.repeat(start[rows], per) + _ranks(per)]
+        keep = np.ones(len(which), bool) if among is None else np.take(among, which)
+        if other_object and self._objects is not None:
+            keep &= np.take(self._objects, which) != np.take(self._objects, np.take(prim, ray))
+        ray, which = ray[keep], which[keep]
         q = np.stack([np.take(c, ray) for c in (px, py, pz)], axis=1).astype(np.float64)
-        w1, w2, holds = _barycentrics(corner_values(self._positions, which).astype(np.float64), q)
+        tri = corner_values(self._positions, which).astype(np.float64)
+        w1, w2, holds = _barycentrics(tri, q)
+        if side is not None:
+            g = np.stack([np.take(c, ray) for c in side], axis=1).astype(np.float64)
+            own = corner_values(self._positions, np.take(prim, ray)).astype(np.float64)
+            u = q.astype(np.float32).view(np.uint32).astype(np.uint64)
+            bits = ((u[:, 0] * 73856093) ^ (u[:, 1] * 19349663) ^ (u[:, 2] * 83492791)) >> np.uint64(7)
+            holds &= _ahead(own, tri, q, g, bits)
         hit = np.flatnonzero(holds)
         if len(hit):
             first = np.unique(ray[hit], return_index=True)[1]
@@ -102,6 +128,89 @@ class Coincident:
             partner[ray[chosen]] = which[chosen]
             b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
         return partner, b1, b2
+
+
+def _copies(positions, offset) -> np.ndarray:
+    """Pair keys a * T + b (a != b) of triangles lying on one another that share an edge (by its corners'
+    coordinates, in either direction) and lie on its same side: a copy of a triangle (a duplicated face or
+    object, its normal turned or not) and the halves of a doubled quad split along its other diagonal. Their
+    planes are within PLANE_ANGLE and twice the ray offset (offset(|p|max)) of each other. A mesh's neighbours
+    share an edge from its two sides and are not looked at: each edge is keyed by its two corners and the side
+    its triangle lies on, so that only copies (and folds) share a key."""
+    p = corner_values(positions)
+    t = len(p)
+    first = np.concatenate([p[:, 0], p[:, 1], p[:, 2]])
+    second = np.concatenate([p[:, 1], p[:, 2], p[:, 0]])
+    third = np.concatenate([p[:, 2], p[:, 0], p[:, 1]])
+    # The side: the third corner's offset from the edge, across it, against a fixed direction of no symmetry.
+    e, f = second - first, third - first
+    along = np.einsum("ij,ij->i", f, e) / np.maximum(np.einsum("ij,ij->i", e, e), np.float32(1e-30))
+    across = f - along[:, None] * e
+    side = across @ np.float32([0.5773, 0.5781, 0.5766]) > 0
+    # The edge's corners in either order hash alike (a sum of the corners' hashes).
+    def corner_hash(c):
+        bits = c.view(np.uint32).astype(np.uint64)
+        with np.errstate(over="ignore"):
+            return ((bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F))
+                    ^ (bits[:, 2] * np.uint64(0x165667B19E3779F9))) * np.uint64(0x100000001B3)
+    with np.errstate(over="ignore"):
+        h = (corner_hash(first) + corner_hash(second)) ^ side.astype(np.uint64)
+    by = np.argsort(h, kind="stable")
+    hs = h[by]
+    start = np.flatnonzero(np.r_[True, hs[1:] != hs[:-1]])
+    size = np.diff(np.r_[start, len(hs)])
+    start, size = start[size > 1], size[size > 1]
+    if not len(start):
+        return np.zeros(0, np.int64)
+    rank, per = _ranks(size * size), np.repeat(size, size * size)
+    base = np.repeat(start, size * size)
+    i, j = by[base + rank // per], by[base + rank % per]
+    a, b = i % t, j % t
+    same_edge = ((first[i] == first[j]).all(axis=1) & (second[i] == second[j]).all(axis=1)) | \
+        ((first[i] == second[j]).all(axis=1) & (second[i] == first[j]).all(axis=1))
+    keep = (a != b) & same_edge & (side[i] == side[j])
+    i, j, a, b = i[keep], j[keep], a[keep], b[keep]
+    if not len(i):
+        return np.zeros(0, np.int64)
+    # In one plane: the third corners' offsets across the edge parallel, and b's third corner near a's plane.
+    e0 = first[i].astype(np.float64)
+    ua, ub = across[i].astype(np.float64), across[j].astype(np.float64)
+    la, lb = np.linalg.norm(ua, axis=1), np.linalg.norm(ub, axis=1)
+    ok = (la > 0) & (lb > 0)
+    la, lb = np.where(ok, la, 1.0), np.where(ok, lb, 1.0)
+    cos = np.einsum("ij,ij->i", ua, ub) / (la * lb)
+    na = np.cross(e[i].astype(np.float64), f[i].astype(np.float64))
+    na /= np.maximum(np.linalg.norm(na, axis=1), 1e-300)[:, None]
+    size = np.maximum(np.abs(p[a]).max(axis=(1, 2)), np.abs(p[b]).max(axis=(1, 2)))
+    near = np.abs(np.einsum("ij,ij->i", na, third[j].astype(np.float64) - e0)) <= 2.0 * offset(size)
+    keep = ok & (cos >= np.cos(PLANE_ANGLE)) & near
+    return a[keep].astype(np.int64) * t + b[keep]
+
+
+# Two copies of one plane (a duplicated face, the faces of two duplicated objects) differ by float rounding of
+# their corners: about this much of the coordinates' size. Planes further apart lie on one side of each other.
+AHEAD_TOLERANCE = 2.0 ** -21
+
+
+def _ahead(own, tri, q, g, bits) -> np.ndarray:
+    """(m,) bool: at points q (m, 3) of triangles own (m, 3, 3), rays leaving on the side g (m, 3) meet triangles
+    tri, as Cycles' rays, which skip only the triangle they leave, do: a plane further ahead than the rounding
+    of copies (AHEAD_TOLERANCE) is met, one further behind is not. Of two copies of one plane the ray's start
+    decides: Cycles' lies on its triangle up to the rounding of its coordinates, and the copy is met when that
+    puts it behind the copy. On a plane of constant x, y or z (the copy's corners share it) that coordinate
+    is the copy's own and the copy is always met (a duplicated cube's faces render black); on a turned plane
+    the rounding goes either way, here a bit of a hash of the point's float32 coordinates (bits: (m,) uint64), so
+    about half the rays meet the copy (a turned copy in Cycles: 43%)."""
+    def height(t):
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+        n *= np.where(np.einsum("ij,ij->i", n, g) < 0, -1.0, 1.0)[:, None]
+        return np.einsum("ij,ij->i", n, t[:, 0] - q)
+    size = np.maximum(np.abs(tri).max(axis=(1, 2)), np.abs(q).max(axis=1))
+    gap = height(tri) - height(own)
+    copy = np.abs(gap) <= AHEAD_TOLERANCE * size
+    flat = ((tri[:, 0] == tri[:, 1]) & (tri[:, 1] == tri[:, 2])).any(axis=1)
+    return np.where(copy, flat | ((bits & 1) == 0), gap > 0)
 
 
 def _ranks(counts: np.ndarray) -> np.ndarray:

@@ -634,18 +634,28 @@ def _through_clear_glass(wave, bs, closures) -> np.ndarray:
 
 # ---- stage: spawn the next rays, origins offset off the surface (Embree's tnear is always 0)
 def _crossings(tables, state, hit, alive, bs) -> None:
-    """The coincident triangle each ray going through its surface meets at once (kernels.coincident),
-    for the next intersection; not for a ray whose hit was itself handed over."""
-    through = np.take(below(bs), alive) & ~state.handed
+    """The coincident triangle each ray meets at once where it leaves its surface (kernels.coincident), for the
+    next intersection: a ray going through its surface meets the other object's surface lying there (not a ray
+    whose hit was itself handed over); a ray leaving on its side meets an opaque one lying there or a hair
+    ahead (a duplicated face, as Cycles' rays do, which skip only the triangle they leave)."""
+    down = np.take(below(bs), alive)
+    leaving = np.ones(len(alive), bool)
     if bs.origin is not None:  # a portal's ray that starts elsewhere crosses nothing here
-        through &= ~np.isfinite(np.take(bs.origin[0], alive))
-    through = np.flatnonzero(through)
+        leaving &= ~np.isfinite(np.take(bs.origin[0], alive))
     state.partner[:] = -1
-    if len(through):
-        rows = alive[through]
-        partner, b1, b2 = tables.coincident.crossing(np.take(hit.prim, rows), *(np.take(c, rows) for c in hit.p))
-        state.partner[through] = partner
-        state.partner_uv[0, through], state.partner_uv[1, through] = b1, b2
+    for rows, rule in ((np.flatnonzero(leaving & down & ~state.handed), "through"),
+                       (np.flatnonzero(leaving & ~down), "side")):
+        if not len(rows):
+            continue
+        at = alive[rows]
+        prim, p = np.take(hit.prim, at), tuple(np.take(c, at) for c in hit.p)
+        if rule == "through":
+            partner, b1, b2 = tables.coincident.crossing(prim, *p, other_object=True)
+        else:
+            partner, b1, b2 = tables.coincident.crossing(prim, *p, among=tables.coincident.opaque,
+                                                         side=tuple(np.take(c, at) for c in hit.ng))
+        state.partner[rows] = partner
+        state.partner_uv[0, rows], state.partner_uv[1, rows] = b1, b2
 
 
 class _Wave:

@@ -459,13 +459,19 @@ def terminator_offsets(scene: SceneArrays):
 
 
 def coincident_partners(scene: SceneArrays, shading, ray_epsilon) -> Coincident | None:
-    """The coincident partners of the static plain triangles rays may pass through (kernels.coincident)."""
+    """The coincident partners (kernels.coincident) of the static plain triangles rays may pass through, and the
+    copies of every plain triangle; with `opaque`: (T,) bool the triangles whose material neither
+    transmits nor lets shadows through (those a ray leaving their partner meets and stops at, as in Cycles: a
+    duplicated face shades its copy)."""
     through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
     if scene.motion_ids is not None and scene.has_motion:
         through &= scene.motion_ids < 0
     eps = ray_epsilon
-    return Coincident.find(scene.positions, through, lambda size: eps + np.float32(2.0 ** -16) * size,
-                           scene.object_ids) if through.any() else None
+    found = Coincident.find(scene.positions, through, lambda size: eps + np.float32(2.0 ** -16) * size,
+                            scene.object_ids, copies=True)
+    if found is not None:
+        found.opaque = ~np.take(shading.transmissive | shading.shadow_transparent, scene.material_ids)
+    return found
 
 
 
