@@ -145,12 +145,15 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
                                                  state, paths[traced], None if stack is None else stack[:, traced],
                                                  None if masks is None else masks[traced],
                                                  None if keys is None else keys[traced])
-    if tables.coincident is not None:
+    if tables.coincident is not None and len(traced):
         # An opaque surface lying on this one (a duplicated face) on the light's side stops the shadow ray at
         # once, as in Cycles, whose shadow rays skip only the triangle they leave; Ember's offset steps over it.
-        met = tables.coincident.crossing(np.take(hit.prim, paths), np.take(px, idx), np.take(py, idx),
-                                         np.take(pz, idx), among=tables.coincident.opaque,
-                                         side=(gx * sign, gy * sign, gz * sign))[0] >= 0
+        # (Lights with Cast Shadow off have no shadow ray to stop.)
+        met = np.zeros(len(idx), bool)
+        met[traced] = tables.coincident.crossing(
+            np.take(hit.prim, paths[traced]), np.take(px, idx[traced]), np.take(py, idx[traced]),
+            np.take(pz, idx[traced]), among=tables.coincident.opaque,
+            side=(gx[traced] * sign[traced], gy[traced] * sign[traced], gz[traced] * sign[traced]))[0] >= 0
         if met.any():
             transmittance = np.where(met, np.float32(0.0), transmittance)
     vis = np.flatnonzero(((transmittance[0] > 0) | (transmittance[1] > 0) | (transmittance[2] > 0)) & (t_max > 0))
