@@ -36,17 +36,21 @@ class Coincident:
 
     @classmethod
     def find(cls, positions, through: np.ndarray, offset, objects: np.ndarray | None = None,
-             copies: bool = False) -> "Coincident | None":
+             copies=False) -> "Coincident | None":
         """Partners of the triangles `through` (T,) bool marks (those a ray may pass through) among all the
         triangles (SceneArrays.positions, world space); offset(|p|max) -> the distance a new ray's origin is
         moved off a surface at that size of coordinate: planes closer than twice that lie on one another.
         objects: (T,) each triangle's object row, or None; partners are then of another object (a finely
         subdivided glass's neighbouring triangles are not looked at: a mesh lying on itself is left alone).
-        copies: also pair every triangle with its copies, of any object (_copies: a duplicated face or object, a
-        doubled quad split the other way), found by sorting edges, not by the search above (whose cost on a large
-        flat mesh is too high for every triangle). None when no triangle has a partner."""
+        copies: also pair every triangle with its copies, of any object (copy_pairs: a duplicated face or
+        object, a doubled quad split the other way), found by sorting edges, not by the search above (whose cost
+        on a large flat mesh is too high for every triangle); or copy_pairs' result for these positions, kept
+        by the caller. None when no triangle has a partner."""
         candidates = np.flatnonzero(through)
-        found = [] if not copies or len(positions) < 2 else [_copies(positions, offset)]
+        if isinstance(copies, np.ndarray):
+            found = [copies]
+        else:
+            found = [] if not copies or len(positions) < 2 else [copy_pairs(positions, offset)]
         if not len(candidates) or len(positions) < 2:
             return cls._of_keys(found, len(positions), positions, objects)
         p = corner_values(positions)
@@ -130,7 +134,7 @@ class Coincident:
         return partner, b1, b2
 
 
-def _copies(positions, offset) -> np.ndarray:
+def copy_pairs(positions, offset) -> np.ndarray:
     """Pair keys a * T + b (a != b) of triangles lying on one another that share an edge (by its corners'
     coordinates, in either direction) and lie on its same side: a copy of a triangle (a duplicated face or
     object, its normal turned or not) and the halves of a doubled quad split along its other diagonal. Their

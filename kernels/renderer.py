@@ -17,7 +17,7 @@ from .accel import Accel
 from .camera import view_plane
 from .environment import Environment
 from .film import Film, pixel_sums
-from .coincident import Coincident
+from .coincident import Coincident, copy_pairs
 from .geometry import TriangleTable, prototype_boxes, scene_extent
 from .geometry.primitives import PrimitiveTable, ShapeLayout
 from .lights import LightSampler
@@ -150,7 +150,10 @@ class Renderer:
         self.prototype_boxes = prototype_boxes(self.scene)
         self.ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self.prototype_boxes))
         self.lights = self._light_sampler()
-        self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon)
+        # The copies depend on the triangles alone: kept for material edits (update_materials).
+        self._copies = copy_pairs(self.scene.positions, coincident_offset(self.ray_epsilon)) \
+            if len(self.scene.material_ids) > 1 else np.zeros(0, np.int64)
+        self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._copies)
         self.terminator = terminator_offsets(self.scene)
         self.visibility = object_visibility(self.scene)
         self.links = object_links(self.scene)   # Light and Shadow Linking (None: none)
@@ -298,7 +301,7 @@ class Renderer:
             self._build_shading()
             self._give_shader_rays()
             self.lights = self._light_sampler()
-            self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon)
+            self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._copies)
             self._build_media()
 
     @_forwarded
@@ -458,17 +461,22 @@ def terminator_offsets(scene: SceneArrays):
     return values if (values > 0).any() else None
 
 
-def coincident_partners(scene: SceneArrays, shading, ray_epsilon) -> Coincident | None:
+def coincident_offset(ray_epsilon):
+    """offset(|p|max) for Coincident.find: the distance spawned rays move off a surface (interaction.spawn_offset)."""
+    return lambda size: ray_epsilon + np.float32(2.0 ** -16) * size
+
+
+def coincident_partners(scene: SceneArrays, shading, ray_epsilon, copies=True) -> Coincident | None:
     """The coincident partners (kernels.coincident) of the static plain triangles rays may pass through, and the
     copies of every plain triangle; with `opaque`: (T,) bool the triangles whose material neither
     transmits nor lets shadows through (those a ray leaving their partner meets and stops at, as in Cycles: a
-    duplicated face shades its copy)."""
+    duplicated face shades its copy). copies: Coincident.find's (the pairs of copies when the caller keeps them
+    for these positions)."""
     through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
     if scene.motion_ids is not None and scene.has_motion:
         through &= scene.motion_ids < 0
-    eps = ray_epsilon
-    found = Coincident.find(scene.positions, through, lambda size: eps + np.float32(2.0 ** -16) * size,
-                            scene.object_ids, copies=True)
+    found = Coincident.find(scene.positions, through, coincident_offset(ray_epsilon), scene.object_ids,
+                            copies=copies)
     if found is not None:
         found.opaque = ~np.take(shading.transmissive | shading.shadow_transparent, scene.material_ids)
     return found
