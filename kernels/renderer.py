@@ -151,8 +151,7 @@ class Renderer:
         self.ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self.prototype_boxes))
         self.lights = self._light_sampler()
         # The copies depend on the triangles alone: kept for material edits (update_materials).
-        self._copies = copy_pairs(self.scene.positions, coincident_offset(self.ray_epsilon)) \
-            if len(self.scene.material_ids) > 1 else np.zeros(0, np.int64)
+        self._copies = static_copies(self.scene, self.ray_epsilon)
         self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._copies)
         self.terminator = terminator_offsets(self.scene)
         self.visibility = object_visibility(self.scene)
@@ -464,6 +463,22 @@ def terminator_offsets(scene: SceneArrays):
 def coincident_offset(ray_epsilon):
     """offset(|p|max) for Coincident.find: the distance spawned rays move off a surface (interaction.spawn_offset)."""
     return lambda size: ray_epsilon + np.float32(2.0 ** -16) * size
+
+
+def static_copies(scene: SceneArrays, ray_epsilon) -> np.ndarray:
+    """coincident.copy_pairs of the plain triangles, without those that move or deform during the shutter (where
+    a copy lies then is not where it lies at the frame)."""
+    t = len(scene.material_ids)
+    if t < 2:
+        return np.zeros(0, np.int64)
+    pairs = copy_pairs(scene.positions, coincident_offset(ray_epsilon))
+    if scene.has_motion and len(pairs):
+        moving = np.zeros(t, bool)
+        for ids in (scene.motion_ids, scene.deform_ids):
+            if ids is not None:
+                moving |= ids >= 0
+        pairs = pairs[~moving[pairs // t] & ~moving[pairs % t]]
+    return pairs
 
 
 def coincident_partners(scene: SceneArrays, shading, ray_epsilon, copies=True) -> Coincident | None:
