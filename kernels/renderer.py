@@ -27,8 +27,8 @@ from .memory import kept_heap, small_pages, trim_heap
 from .paths import GivenPaths, WavePaths
 from .rng import PathRng
 from .camera import camera_frame
-from .scene import (OBJ_TERMINATOR, TERMINATOR_OFFSET, Camera, Lights, Materials, SceneArrays, World, same_arrays,
-                    same_triangles, usable_placements)
+from .scene import (OBJ_TERMINATOR, TERMINATOR_OFFSET, Camera, Lights, Materials, SceneArrays, World, corner_values,
+                    same_arrays, same_triangles, usable_placements)
 from .shading import Shading
 from .shading.raytrace import ShaderRays
 from .shading.world import WorldShader
@@ -151,7 +151,8 @@ class Renderer:
         self.ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self.prototype_boxes))
         self.lights = self._light_sampler()
         # The copies depend on the triangles alone: kept for material edits (update_materials).
-        self._copies = static_copies(self.scene, self.ray_epsilon)
+        self._opaque = opaque_triangles(self.scene, self.shading)
+        self._copies = static_copies(self.scene, self.ray_epsilon, self._opaque)
         self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._copies)
         self.terminator = terminator_offsets(self.scene)
         self.visibility = object_visibility(self.scene)
@@ -300,6 +301,9 @@ class Renderer:
             self._build_shading()
             self._give_shader_rays()
             self.lights = self._light_sampler()
+            opaque = opaque_triangles(self.scene, self.shading)
+            if not np.array_equal(opaque, self._opaque):
+                self._opaque, self._copies = opaque, static_copies(self.scene, self.ray_epsilon, opaque)
             self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._copies)
             self._build_media()
 
@@ -465,20 +469,27 @@ def coincident_offset(ray_epsilon):
     return lambda size: ray_epsilon + np.float32(2.0 ** -16) * size
 
 
-def static_copies(scene: SceneArrays, ray_epsilon) -> np.ndarray:
-    """coincident.copy_pairs of the plain triangles, without those that move or deform during the shutter (where
-    a copy lies then is not where it lies at the frame)."""
-    t = len(scene.material_ids)
-    if t < 2:
-        return np.zeros(0, np.int64)
-    pairs = copy_pairs(scene.positions, coincident_offset(ray_epsilon))
-    if scene.has_motion and len(pairs):
-        moving = np.zeros(t, bool)
+def opaque_triangles(scene: SceneArrays, shading) -> np.ndarray:
+    """(T,) bool: the triangles whose material neither transmits nor lets shadows through (those a ray meets and
+    stops at)."""
+    return ~np.take(shading.transmissive | shading.shadow_transparent, scene.material_ids)
+
+
+def static_copies(scene: SceneArrays, ray_epsilon, opaque: np.ndarray) -> np.ndarray:
+    """coincident.copy_pairs among the opaque plain triangles (only an opaque copy is met: the pairs of a doubled
+    glass face would cost time and do nothing), without those that move or deform during the shutter (where a
+    copy lies then is not where it lies at the frame)."""
+    keep = opaque.copy()
+    if scene.has_motion:
         for ids in (scene.motion_ids, scene.deform_ids):
             if ids is not None:
-                moving |= ids >= 0
-        pairs = pairs[~moving[pairs // t] & ~moving[pairs % t]]
-    return pairs
+                keep &= ids < 0
+    rows = np.flatnonzero(keep)
+    if len(rows) < 2:
+        return np.zeros(0, np.int64)
+    t, m = len(scene.material_ids), len(rows)
+    pairs = copy_pairs(corner_values(scene.positions, rows), coincident_offset(ray_epsilon))
+    return rows[pairs // m] * t + rows[pairs % m]
 
 
 def coincident_partners(scene: SceneArrays, shading, ray_epsilon, copies=True) -> Coincident | None:
@@ -490,10 +501,11 @@ def coincident_partners(scene: SceneArrays, shading, ray_epsilon, copies=True) -
     through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
     if scene.motion_ids is not None and scene.has_motion:
         through &= scene.motion_ids < 0
+    opaque = opaque_triangles(scene, shading)
     found = Coincident.find(scene.positions, through, coincident_offset(ray_epsilon), scene.object_ids,
                             copies=copies)
     if found is not None:
-        found.opaque = ~np.take(shading.transmissive | shading.shadow_transparent, scene.material_ids)
+        found.opaque = opaque
     return found
 
 
