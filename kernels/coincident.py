@@ -36,21 +36,17 @@ class Coincident:
 
     @classmethod
     def find(cls, positions, through: np.ndarray, offset, objects: np.ndarray | None = None,
-             copies=False) -> "Coincident | None":
+             copies: np.ndarray | None = None) -> "Coincident | None":
         """Partners of the triangles `through` (T,) bool marks (those a ray may pass through) among all the
         triangles (SceneArrays.positions, world space); offset(|p|max) -> the distance a new ray's origin is
         moved off a surface at that size of coordinate: planes closer than twice that lie on one another.
         objects: (T,) each triangle's object row, or None; partners are then of another object (a finely
         subdivided glass's neighbouring triangles are not looked at: a mesh lying on itself is left alone).
-        copies: also pair every triangle with its copies, of any object (copy_pairs: a duplicated face or
-        object, a doubled quad split the other way), found by sorting edges, not by the search above (whose cost
-        on a large flat mesh is too high for every triangle); or copy_pairs' result for these positions, kept
-        by the caller. None when no triangle has a partner."""
+        copies: pair keys of copies to add (copy_pairs: a duplicated face or object, a doubled quad split the
+        other way, found by sorting edges, not by the search above, whose cost on a large flat mesh is too high
+        for every triangle), or None. None when no triangle has a partner."""
         candidates = np.flatnonzero(through)
-        if isinstance(copies, np.ndarray):
-            found = [copies]
-        else:
-            found = [] if not copies or len(positions) < 2 else [copy_pairs(positions, offset)]
+        found = [] if copies is None else [copies]
         if not len(candidates) or len(positions) < 2:
             return cls._of_keys(found, len(positions), positions, objects)
         p = corner_values(positions)

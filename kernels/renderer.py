@@ -153,7 +153,7 @@ class Renderer:
         # The copies depend on the triangles alone: kept for material edits (update_materials).
         self._opaque = opaque_triangles(self.scene, self.shading)
         self._copies = static_copies(self.scene, self.ray_epsilon, self._opaque)
-        self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._copies)
+        self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._opaque, self._copies)
         self.terminator = terminator_offsets(self.scene)
         self.visibility = object_visibility(self.scene)
         self.links = object_links(self.scene)   # Light and Shadow Linking (None: none)
@@ -304,7 +304,7 @@ class Renderer:
             opaque = opaque_triangles(self.scene, self.shading)
             if not np.array_equal(opaque, self._opaque):
                 self._opaque, self._copies = opaque, static_copies(self.scene, self.ray_epsilon, opaque)
-            self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._copies)
+            self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, opaque, self._copies)
             self._build_media()
 
     @_forwarded
@@ -492,22 +492,19 @@ def static_copies(scene: SceneArrays, ray_epsilon, opaque: np.ndarray) -> np.nda
     return rows[pairs // m] * t + rows[pairs % m]
 
 
-def coincident_partners(scene: SceneArrays, shading, ray_epsilon, copies=True) -> Coincident | None:
+def coincident_partners(scene: SceneArrays, shading, ray_epsilon, opaque: np.ndarray,
+                        copies: np.ndarray) -> Coincident | None:
     """The coincident partners (kernels.coincident) of the static plain triangles rays may pass through, and the
-    copies of every plain triangle; with `opaque`: (T,) bool the triangles whose material neither
-    transmits nor lets shadows through (those a ray leaving their partner meets and stops at, as in Cycles: a
-    duplicated face shades its copy). copies: Coincident.find's (the pairs of copies when the caller keeps them
-    for these positions)."""
+    copies (static_copies' pairs); with `opaque` (opaque_triangles: those a ray leaving their partner meets and
+    stops at, as in Cycles: a duplicated face shades its copy)."""
     through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
     if scene.motion_ids is not None and scene.has_motion:
         through &= scene.motion_ids < 0
-    opaque = opaque_triangles(scene, shading)
     found = Coincident.find(scene.positions, through, coincident_offset(ray_epsilon), scene.object_ids,
                             copies=copies)
     if found is not None:
         found.opaque = opaque
     return found
-
 
 
 class _Emitters:

@@ -13,7 +13,7 @@ import pytest
 
 from bpy_helpers import (add_camera, add_lamp, compare_to_cycles, diffuse_material, mesh_object,
                          new_scene, node_material, quad_object, render_to_array, replicate_render, set_world)
-from ember.kernels.coincident import Coincident
+from ember.kernels.coincident import Coincident, copy_pairs
 
 
 def _quad(x0, y0, x1, y1, z=0.0):
@@ -143,7 +143,7 @@ def test_liquid_a_hair_outside_its_glass_wall_matches_cycles():
 def test_exact_copies_are_partners_and_stop_rays_ahead_of_them():
     """Kernel level: a triangle's copies (the same corners in any order, its normal turned or not, of any object)
     and the halves of a doubled quad split along its other diagonal are its partners without the search
-    (copies=True), a mesh's neighbours are not; a ray leaving a triangle on either side meets a copy lying in a
+    (copy_pairs), a mesh's neighbours are not; a ray leaving a triangle on either side meets a copy lying in a
     plane of constant z (Cycles meets it always: the copy's own coordinate), a plane 1 mm ahead, not one 1 mm
     behind."""
     floor = _quad(-1, -1, 1, 1)                          # 0, 1
@@ -154,7 +154,7 @@ def test_exact_copies_are_partners_and_stop_rays_ahead_of_them():
     other = np.float32([[a, b, d], [b, c, d]])           # 8, 9: the quad doubled, split the other way
     flipped = floor[:1, ::-1]                            # 10: a copy of 0 facing down
     positions = np.concatenate([floor, copy, above, quad, other, flipped])
-    found = Coincident.find(positions, np.zeros(len(positions), bool), _offset, copies=True)
+    found = Coincident.find(positions, np.zeros(len(positions), bool), _offset, copies=copy_pairs(positions, _offset))
     partners = {a: found.partners[found.offsets[a]:found.offsets[a + 1]].tolist() for a in range(len(positions))}
     assert partners == {0: [2, 10], 1: [3], 2: [0, 10], 3: [1], 4: [], 5: [], 6: [8, 9], 7: [8, 9], 8: [6, 7],
                         9: [6, 7], 10: [0, 2]}
