@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from . import embree, motion
-from .moving import Moving, PacketQueries, selected_times, steps_of
+from .moving import Moving, MovingObjects, PacketQueries, selected_times, steps_of
 from .scene import same_arrays
 
 # Plain triangles from this many on get Embree's quick (low-quality) BVH first, which builds several times
@@ -118,7 +118,8 @@ class Accel:
         self._lock = threading.Lock()
         self.rays_traced = 0
         self._static_ids = None   # scene triangle of each static-scene triangle, when some move
-        self._moving = []
+        self._moving = []        # objects that deform (Moving), each its own query
+        self._rigid = None       # the objects that move rigidly (MovingObjects), one query for all
         self._device = reuse._device if reuse is not None else embree.Device()
         moves = motion_ids is not None and len(motion) and (motion_ids >= 0).any()
         deforms = deform is not None and (deform[0] >= 0).any()
@@ -129,15 +130,21 @@ class Accel:
             if deforms:
                 still &= deform[0] < 0
             self._static_ids = np.flatnonzero(still).astype(np.int32)
+            rigid = []
             for i, (keys, ref) in enumerate(zip(motion, motion_reference) if moves else ()):
                 ids = np.flatnonzero(motion_ids == i)
                 if len(ids):
                     steps = steps_of(deform, ids)
-                    self._moving.append(Moving(ids, positions, keys, ref, steps, self._device))
+                    if steps is None:
+                        rigid.append((ids, keys, ref))
+                    else:   # moving and deforming: its own scene with time steps, rays moved into it
+                        self._moving.append(Moving(ids, keys, ref, steps, self._device))
+            if rigid:
+                self._rigid = MovingObjects(self._device, positions, rigid)
             if deforms:
                 ids = np.flatnonzero((deform[0] >= 0) & (motion_ids < 0 if moves else True))
                 if len(ids):
-                    self._moving.append(Moving(ids, positions, None, None, steps_of(deform, ids), self._device))
+                    self._moving.append(Moving(ids, None, None, steps_of(deform, ids), self._device))
             positions = positions[self._static_ids]
             if indexed is not None:
                 indexed = (indexed[0], indexed[1][self._static_ids])
@@ -278,7 +285,7 @@ class Accel:
     @property
     def moves(self) -> bool:
         """Some triangles move: queries need each ray's time."""
-        return bool(self._moving)
+        return bool(self._moving) or self._rigid is not None
 
     def close(self) -> None:
         self._cancel.set()
@@ -304,7 +311,7 @@ class Accel:
         t = np.empty(n, np.float32)
         u = np.zeros(n, np.float32)
         v = np.zeros(n, np.float32)
-        if (self._scene is None and not self._moving) or n == 0:
+        if (self._scene is None and not self.moves) or n == 0:
             t[:] = np.inf
             return Hits(prim, t, u, v)
         if self._layout is not None:
@@ -336,12 +343,22 @@ class Accel:
             self._run(job, n, split)
         else:
             t[:] = t_max
-        if self._moving:
+        if self.moves:
             if self._static_ids is not None and self._scene is not None and self._packets is None \
                     and self._layout is None:
                 hit = prim >= 0
                 prim[hit] = self._static_ids[prim[hit]]
             t[prim < 0] = t_max[prim < 0]
+            if self._rigid is not None:
+                ray_times = selected_times(time, np.arange(n))
+
+                def job_rigid(s: slice) -> None:
+                    p, t2, u2, v2 = self._rigid.intersect(origins[s], directions[s], t[s].copy(), ray_times[s])
+                    closer = np.flatnonzero(p >= 0)
+                    idx = closer + s.start
+                    prim[idx], t[idx], u[idx], v[idx] = p[closer], t2[closer], u2[closer], v2[closer]
+
+                self._run(job_rigid, n, split)
             for moving in self._moving:
                 sel = moving.crossing(origins, directions, t)
                 if not len(sel):
@@ -349,10 +366,10 @@ class Accel:
                 o, d = moving.rays(origins, directions, time, sel)
                 best = t[sel]
 
-                ray_times = selected_times(time, sel) if moving.timed else None
+                ray_times = selected_times(time, sel)
 
                 def job_moving(s: slice, o=o, d=d, moving=moving, sel=sel, best=best, ray_times=ray_times) -> None:
-                    r = moving.query(o[s], d[s], best[s].copy(), None if ray_times is None else ray_times[s])
+                    r = moving.query(o[s], d[s], best[s].copy(), ray_times[s])
                     closer = r["primID"] >= 0
                     idx = sel[np.flatnonzero(closer) + s.start]
                     prim[idx] = moving.ids[r["primID"][closer]]
@@ -478,6 +495,18 @@ class Accel:
                         np.take(time, rows)
                     again = self.intersect(origins[rows], directions[rows], t_max[rows], split, times)
                     out[rows] = again.prim >= 0
+        if self._rigid is not None:
+            sel = np.flatnonzero(~out)
+            if len(sel):
+                o, d = np.ascontiguousarray(origins[sel]), np.ascontiguousarray(directions[sel])
+                limit, ray_times = t_max[sel], selected_times(time, sel)
+                blocked = np.zeros(len(sel), bool)
+
+                def job_rigid(s: slice) -> None:
+                    blocked[s] = self._rigid.occluded(o[s], d[s], limit[s].copy(), ray_times[s])
+
+                self._run(job_rigid, len(sel), split)
+                out[sel[blocked]] = True
         for moving in self._moving:
             sel = moving.crossing(origins, directions, t_max)
             sel = sel[~out[sel]]
@@ -487,10 +516,10 @@ class Accel:
             hit = np.zeros(len(sel), bool)
             limit = t_max[sel]
 
-            ray_times = selected_times(time, sel) if moving.timed else None
+            ray_times = selected_times(time, sel)
 
             def job_moving(s: slice, o=o, d=d, moving=moving, hit=hit, limit=limit, ray_times=ray_times) -> None:
-                hit[s] = moving.query(o[s], d[s], limit[s].copy(), None if ray_times is None else ray_times[s],
+                hit[s] = moving.query(o[s], d[s], limit[s].copy(), ray_times[s],
                                       occluded=True) == 0
 
             self._run(job_moving, len(sel), split)

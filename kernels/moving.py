@@ -1,43 +1,71 @@
-"""Moving and deforming triangles for motion blur (kernels.accel.Accel's second queries): a moving object's triangles
-in object space in their own Embree scene, rays moved into it at their time; deforming triangles (their corners at
-each motion step) as Embree's time steps, traced by packets that carry each ray's time."""
+"""Moving and deforming triangles for motion blur (kernels.accel.Accel's second queries): the objects that move
+rigidly as instances of their object-space triangles in one Embree scene, each instance's transform moving over the
+shutter (MovingObjects); an object that also deforms in its own Embree scene, rays moved into it at their time;
+deforming triangles (their corners at each motion step) as Embree's time steps, traced by packets that carry each
+ray's time."""
 from __future__ import annotations
 
 import numpy as np
-from embreex import mesh_construction, rtcore_scene
 
 from . import embree, motion
 
 
+class MovingObjects:
+    """The objects that move rigidly (transform motion blur), traced as Cycles traces them: each object's triangles
+    once in object space (a BVH of its own), placed in one Embree scene by an instance whose transform moves over
+    the shutter, Embree interpolating its quaternion decomposition at each ray's time (embree.quaternion_steps, as
+    Cycles' add_instance). A query is one traversal of that scene, whatever the number of objects: a particle
+    system's hundreds of moving instances cost what one object does.
+
+    objects: (ids, keys, reference) per object: the scene triangles ids (their world positions made with the
+    (4, 4) matrix reference), keys (K, 4, 4) its world_from_object over the shutter."""
+
+    def __init__(self, device, positions: np.ndarray, objects):
+        placed, ids = [], []
+        for obj_ids, keys, reference in objects:
+            object_from_world = np.linalg.inv(np.asarray(reference, np.float64))
+            local = np.asarray(positions[obj_ids], np.float64) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
+            mesh = embree.Mesh(device, np.ascontiguousarray(local.reshape(-1, 3), np.float32))
+            placed.append((mesh, np.eye(4), motion.decompose(np.asarray(keys, np.float64))))
+            ids.append(np.asarray(obj_ids, np.int64))
+        self.scene = embree.Scene(device, None, placed)
+        self.ids = np.concatenate(ids).astype(np.int32)
+        self.first = np.cumsum([0] + [len(i) for i in ids[:-1]]).astype(np.int64)
+
+    def intersect(self, origins, directions, t_max, times):
+        """(prim, t, u, v) of the closest hits within t_max at the rays' times (N,) in [0, 1]: prim the scene
+        triangle, -1 (t = t_max) for a miss."""
+        p, inst, t, u, v = self.scene.intersect(origins, directions, t_max, times=times)
+        hit = p >= 0
+        prim = np.full(len(p), -1, np.int32)
+        prim[hit] = self.ids[self.first[inst[hit]] + p[hit]]
+        return prim, t, u, v
+
+    def occluded(self, origins, directions, t_max, times) -> np.ndarray:
+        return self.scene.occluded(origins, directions, t_max, times=times)
+
+
 class Moving:
-    """One moving object for motion blur: its triangles in object space in their own Embree scene, and
-    its motion. A ray at time t is moved into the object's space at t (interpolated as Cycles does)
-    without normalising its direction, so the hit distance is the world's.
+    """One deforming object for motion blur (deformation motion blur, with or without transform motion): steps,
+    (S, n, 3, 3) its triangles' corners at S times over the shutter in the space of the stored positions, are
+    Embree's triangles with time steps (kernels.embree, as Cycles' motion triangles) in a scene of their own,
+    traced by packets that carry each ray's time. With keys (transform motion too) the steps are held in object
+    space and a ray at time t is moved into the object's space at t (interpolated as Cycles does) without
+    normalising its direction, so the hit distance is the world's; keys None: the triangles deform in place,
+    the rays stay as they are."""
 
-    Deforming triangles (deformation motion blur) carry steps, (S, n, 3, 3) their corners at S times over the
-    shutter in the space of the stored positions: their scene is Embree's triangles with time steps
-    (kernels.embree, as Cycles' motion triangles), traced by packets that carry each ray's time. keys None: the
-    triangles deform in place (no transform motion), the rays stay as they are."""
-
-    def __init__(self, ids: np.ndarray, positions: np.ndarray, keys: np.ndarray | None,
-                 reference: np.ndarray | None, steps: np.ndarray | None = None, device=None):
+    def __init__(self, ids: np.ndarray, keys: np.ndarray | None, reference: np.ndarray | None, steps: np.ndarray,
+                 device):
         self.ids = ids.astype(np.int32)
         self.motion = None if keys is None else motion.decompose(np.asarray(keys, np.float64))
-        corners = positions[ids] if steps is None else steps
         if keys is None:
-            local = np.asarray(corners, np.float64)
+            local = np.asarray(steps, np.float64)
         else:
             object_from_world = np.linalg.inv(np.asarray(reference, np.float64))
-            local = np.asarray(corners, np.float64) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
-        if steps is None:
-            self.scene = rtcore_scene.EmbreeScene(robust=True)
-            mesh_construction.TriangleMesh(self.scene, np.ascontiguousarray(local, np.float32))
-            self.timed = False
-        else:
-            local32 = np.ascontiguousarray(local, np.float32).reshape(len(steps), -1, 3)
-            self.embree = embree.Scene(device, embree.Triangles(local32[0], steps=local32))
-            self.scene = PacketQueries(self.embree)
-            self.timed = True
+            local = np.asarray(steps, np.float64) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
+        local32 = np.ascontiguousarray(local, np.float32).reshape(len(steps), -1, 3)
+        self.embree = embree.Scene(device, embree.Triangles(local32[0], steps=local32))
+        self.scene = PacketQueries(self.embree)
         # A world box the object never leaves during the shutter: its pivot moves within the keys' pivots
         # (translation is lerped) and no point of it strays further from the pivot than at a key (rotation
         # keeps lengths; the lerped scale is a convex mix); deforming corners stay within their steps' box.
@@ -54,14 +82,10 @@ class Moving:
         self.hi = (keys[:, :3, 3].max(axis=0) + reach).astype(np.float32)
 
     def query(self, o, d, dists, times, occluded: bool = False):
-        """embreex's run() on the object's scene, the rays' times (n,) given to a scene with time steps."""
+        """embreex's run() interface on the object's scene at the rays' times (n,)."""
         if occluded:
-            if self.timed:
-                return self.scene.run(o, d, dists=dists, query="OCCLUDED", times=times)
-            return self.scene.run(o, d, dists=dists, query="OCCLUDED", output=None)
-        if self.timed:
-            return self.scene.run(o, d, dists=dists, output=1, times=times)
-        return self.scene.run(o, d, dists=dists, output=1)
+            return self.scene.run(o, d, dists=dists, query="OCCLUDED", times=times)
+        return self.scene.run(o, d, dists=dists, output=1, times=times)
 
     def crossing(self, origins, directions, t_max) -> np.ndarray:
         """Indices of the rays whose segment [0, t_max] meets the object's box (slab test)."""
