@@ -128,8 +128,17 @@ def decompose(matrices: np.ndarray) -> Decomposed:
     m = np.asarray(matrices)
     if m.ndim != 3 or m.shape[1] not in (3, 4) or m.shape[2] != 4:
         raise ValueError(f"expected (K, 4, 4) or (K, 3, 4) matrices, got {m.shape}")
-    dtype = m.dtype if m.dtype in (np.float32, np.float64) else np.dtype(np.float64)
-    m = m.astype(np.float64)[:, :3, :]
+    return decompose_many([m])[0]
+
+
+def decompose_many(keys) -> list:
+    """decompose of each of a sequence of (K, 4, 4) or (K, 3, 4) step matrices (K may differ), the steps of all
+    of them decomposed at once: a particle system's hundreds of moving instances cost one pass."""
+    keys = [np.asarray(k) for k in keys]
+    if not keys:
+        return []
+    dtypes = [k.dtype if k.dtype in (np.float32, np.float64) else np.dtype(np.float64) for k in keys]
+    m = np.concatenate([k.astype(np.float64)[:, :3, :4] for k in keys])
     translation = m[:, :, 3].copy()
     c0, c1, c2 = m[:, :, 0].copy(), m[:, :, 1].copy(), m[:, :, 2].copy()
 
@@ -157,18 +166,24 @@ def decompose(matrices: np.ndarray) -> Decomposed:
     scale[:, 0, 0], scale[:, 1, 1], scale[:, 2, 2] = sx, sy, sz
     scale[:, 0, 1], scale[:, 0, 2], scale[:, 1, 2] = shear_xy, shear_xz, shear_yz
 
-    rotation = matrix_to_quaternion(q_mat)
-    for step in range(1, len(rotation)):  # sequential: each step is matched to the already-matched previous
-        if np.dot(rotation[step - 1], rotation[step]) < 0.0:
-            rotation[step] = -rotation[step]
-    degenerate = (sx == 0.0) & (sy == 0.0) & (sz == 0.0)
-    for step in np.flatnonzero(degenerate):
-        if step > 0:
-            rotation[step] = rotation[step - 1]
-        elif step < len(rotation) - 1:
-            rotation[step] = rotation[step + 1]
-
-    return Decomposed(rotation.astype(dtype), translation.astype(dtype), scale.astype(dtype))
+    rotations = matrix_to_quaternion(q_mat)
+    degenerate_all = (sx == 0.0) & (sy == 0.0) & (sz == 0.0)
+    out = []
+    start = 0
+    for k, dtype in zip(keys, dtypes):
+        rows = slice(start, start + len(k))
+        start += len(k)
+        rotation = rotations[rows]
+        for step in range(1, len(rotation)):  # sequential: each step is matched to the already-matched previous
+            if np.dot(rotation[step - 1], rotation[step]) < 0.0:
+                rotation[step] = -rotation[step]
+        for step in np.flatnonzero(degenerate_all[rows]):
+            if step > 0:
+                rotation[step] = rotation[step - 1]
+            elif step < len(rotation) - 1:
+                rotation[step] = rotation[step + 1]
+        out.append(Decomposed(rotation.astype(dtype), translation[rows].astype(dtype), scale[rows].astype(dtype)))
+    return out
 
 
 def compose(rotation: np.ndarray, translation: np.ndarray, scale: np.ndarray) -> np.ndarray:

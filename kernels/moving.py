@@ -22,11 +22,12 @@ class MovingObjects:
 
     def __init__(self, device, positions: np.ndarray, objects):
         placed, ids = [], []
-        for obj_ids, keys, reference in objects:
+        decomposed = motion.decompose_many([np.asarray(keys, np.float64) for _, keys, _ in objects])
+        for (obj_ids, _, reference), steps in zip(objects, decomposed):
             object_from_world = np.linalg.inv(np.asarray(reference, np.float64))
             local = np.asarray(positions[obj_ids], np.float64) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
             mesh = embree.Mesh(device, np.ascontiguousarray(local.reshape(-1, 3), np.float32))
-            placed.append((mesh, np.eye(4), motion.decompose(np.asarray(keys, np.float64))))
+            placed.append((mesh, np.eye(4), steps))
             ids.append(np.asarray(obj_ids, np.int64))
         self.scene = embree.Scene(device, None, placed)
         self.ids = np.concatenate(ids).astype(np.int32)

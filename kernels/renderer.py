@@ -141,7 +141,7 @@ class Renderer:
             self.triangles = PrimitiveTable(self.triangles, self.scene, self.shapes)
         # Motion blur: each moving object's decomposed motion and the inverse of the matrix its stored
         # positions were made with (hits are moved from there to where the object is at the path's time).
-        self.motion = [motion.decompose(np.asarray(keys, np.float64)) for keys in self.scene.motion]
+        self.motion = motion.decompose_many([np.asarray(keys, np.float64) for keys in self.scene.motion])
         self.motion_inverse = [np.linalg.inv(np.asarray(ref, np.float64)) for ref in self.scene.motion_reference]
         poll()
         self._build_shading()
