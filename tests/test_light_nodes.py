@@ -154,7 +154,7 @@ def test_light_tree_without_emission_is_dark():
     assert export_current().scene.lights.count == 0
 
 
-def test_light_tree_loop_and_principled_are_named():
+def test_light_tree_loop_is_named():
     scene = stage(16, 16)
     looped = add_light(scene, "POINT", energy=200.0, shadow_soft_size=0.3)
     tree, emission = light_tree(looped.data)
@@ -162,15 +162,35 @@ def test_light_tree_loop_and_principled_are_named():
     tree.links.new(a.outputs[0], b.inputs[0])
     tree.links.new(b.outputs[0], a.inputs[0])
     tree.links.new(b.outputs[0], emission.inputs["Strength"])
-    shaded = add_light(scene, "SPOT", energy=200.0)
-    tree, emission = light_tree(shaded.data)
-    principled = tree.nodes.new("ShaderNodeBsdfPrincipled")
-    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputLight")
-    tree.links.new(principled.outputs[0], output.inputs["Surface"])
     warnings = export_current().warnings
     assert any("Light 'Point'" in w and "loop" in w for w in warnings), warnings
-    assert any("Light 'Spot'" in w and "Principled BSDF" in w and "emission is not read" in w
-               for w in warnings), warnings
+
+
+def principled_and_bsdf(light):
+    """A Mix Shader of a Principled BSDF (its emission, under Alpha 0.8) and a Diffuse BSDF (nothing), by 0.3: Cycles
+    evaluates a light's shader for its emission closures only. Ember read no emission from a Principled BSDF in a
+    light (black, with a warning)."""
+    tree, emission = light_tree(light)
+    principled = tree.nodes.new("ShaderNodeBsdfPrincipled")
+    principled.inputs["Emission Color"].default_value = (1.0, 0.5, 0.2, 1.0)
+    principled.inputs["Emission Strength"].default_value = 3.0
+    principled.inputs["Alpha"].default_value = 0.8
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.inputs[0].default_value = 0.3
+    tree.links.new(principled.outputs[0], mix.inputs[1])
+    tree.links.new(tree.nodes.new("ShaderNodeBsdfDiffuse").outputs[0], mix.inputs[2])
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputLight")
+    tree.links.new(mix.outputs[0], output.inputs["Surface"])
+
+
+def test_principled_and_bsdfs_in_a_light_emit_as_in_cycles():
+    scene = stage(24, 24)
+    add_light(scene, "SPOT", energy=300.0, shadow_soft_size=0.2, spot_size=1.2)
+    principled_and_bsdf(bpy.data.objects["Spot"].data)
+    result = export_current()
+    assert not any("Light 'Spot'" in w for w in result.warnings), result.warnings
+    assert result.scene.lights.count == 1
+    compare_to_cycles(scene, samples=128, max_bounces=2)
 
 
 def test_varying_light_keeps_a_program_and_a_constant_one_folds():

@@ -265,3 +265,47 @@ def test_a_colour_or_value_linked_into_the_world_surface_is_emitted_as_cycles():
     with Renderer(result.scene, threads=1, processes=False) as renderer:
         radiance = renderer.environment.radiance(s, np.zeros_like(z), z)
     np.testing.assert_allclose(radiance, np.broadcast_to(2.0 * z, (3, len(z))), rtol=1e-5, atol=1e-6)
+
+
+def _bsdf_world(case):
+    """World trees whose Surface holds BSDFs (found in a public bedroom file: a Principled BSDF as the world)."""
+    def build(tree):
+        tree.nodes.clear()
+        out = tree.nodes.new("ShaderNodeOutputWorld")
+        bg = tree.nodes.new("ShaderNodeBackground")
+        bg.inputs["Color"].default_value = (0.5, 0.6, 0.7, 1.0)
+        principled = tree.nodes.new("ShaderNodeBsdfPrincipled")
+        principled.inputs["Emission Color"].default_value = (0.2, 0.4, 0.8, 1.0)
+        principled.inputs["Emission Strength"].default_value = 2.0
+        principled.inputs["Alpha"].default_value = 0.5
+        if case == "principled":
+            tree.links.new(principled.outputs[0], out.inputs["Surface"])
+        elif case == "diffuse":
+            tree.links.new(tree.nodes.new("ShaderNodeBsdfDiffuse").outputs[0], out.inputs["Surface"])
+        else:
+            join = tree.nodes.new("ShaderNodeMixShader" if case == "mix" else "ShaderNodeAddShader")
+            if case == "mix":
+                join.inputs[0].default_value = 0.3
+            other = principled if case == "add" else tree.nodes.new("ShaderNodeBsdfGlass")
+            tree.links.new(bg.outputs[0], join.inputs[-2])
+            tree.links.new(other.outputs[0], join.inputs[-1])
+            tree.links.new(join.outputs[0], out.inputs["Surface"])
+    return build
+
+
+@pytest.mark.parametrize("case,radiance", [("principled", (0.2, 0.4, 0.8)), ("diffuse", (0.0, 0.0, 0.0)),
+                                           ("mix", (0.35, 0.42, 0.49)), ("add", (0.7, 1.0, 1.5))])
+def test_bsdfs_in_a_world_emit_nothing_and_a_principled_its_emission(case, radiance):
+    """Cycles evaluates a world's shader for its emission closures only: a BSDF in it adds nothing (a world of a
+    Diffuse BSDF renders black), a Principled BSDF its Emission Color x Strength under its Alpha (0.5 here), a Mix
+    Shader weighs what its inputs emit. Ember rendered every such world constant grey, with a warning. The radiance
+    the camera sees against its closed form, and the lit scene against Cycles."""
+    scene = _scene_under(_bsdf_world(case), size=(24, 16))
+    result = export_current()
+    assert not any("World" in w for w in result.warnings), result.warnings
+    with Renderer(result.scene, threads=1, processes=False) as renderer:
+        seen = renderer.environment.radiance(np.array([0.0], np.float32), np.array([0.6], np.float32),
+                                             np.array([0.8], np.float32))
+    np.testing.assert_allclose(np.asarray(seen)[:, 0], radiance, rtol=1e-5, atol=1e-6)
+    if case in ("principled", "add"):
+        compare_to_cycles(scene, samples=64, max_bounces=4)

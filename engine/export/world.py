@@ -13,8 +13,9 @@ Supported, with Cycles as the reference:
 - Any other tree (Mix and Add Shaders of Backgrounds, gradients, Sky Texture, Light Path, a Mapping with
   location or scale, ...): a node program (engine/export/nodes.py) that the kernel evaluates per escaped
   ray, as Cycles evaluates its background shader, and bakes for importance sampling. Nodes it cannot
-  evaluate keep their inputs' own values, with a warning; a shader node other than Background, Emission,
-  Mix and Add Shader: DEFAULT_WORLD_COLOR, with a warning.
+  evaluate keep their inputs' own values, with a warning. A BSDF adds nothing and a Principled BSDF its
+  emission (Cycles' background shader keeps only emission closures); another shader node:
+  DEFAULT_WORLD_COLOR, with a warning.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ from .images import ImagePixels, ImageTextures
 from .lights import MAX_LIGHT_RADIANCE
 from .materials import read_volume
 from .nodes import ProgramBuilder, texture_mapping_matrix
-from .shader_emission import emission_of
+from .shader_emission import emission_of, emits_nothing
 from .sockets import BLACK3, MISSING_IMAGE_COLOR, Source, output_node, rgb, socket_has_nan, source_of
 
 DEFAULT_WORLD_COLOR = (0.05, 0.05, 0.05)  # Blender's default world colour
@@ -147,6 +148,8 @@ def _read_tree(tree, issues: list[str], images: ImageTextures) -> World:
     surface = Source(None, None) if out is None else source_of(out.inputs["Surface"])
     if surface.node is None:  # nothing connected: black, as in Cycles
         return World(color=np.zeros(3, np.float32))
+    if emits_nothing(surface.kind):   # a BSDF: no emission closure, black in Cycles
+        return World(color=np.zeros(3, np.float32))
     if surface.kind not in ("ShaderNodeBackground", "ShaderNodeEmission"):
         issues.append(f"{surface.node.bl_label} is not supported, rendered as constant grey")
         return World(color=np.array(DEFAULT_WORLD_COLOR, np.float32))
@@ -185,8 +188,10 @@ def _needs_program(tree) -> bool:
     out = output_node(tree)
     surface = Source(None, None) if out is None else source_of(out.inputs["Surface"])
     if surface.node is None or surface.kind not in ("ShaderNodeBackground", "ShaderNodeEmission"):
-        # Mix and Add Shaders, and a colour or value linked into the Surface (emitted, as Cycles converts it)
-        return surface.kind in ("ShaderNodeMixShader", "ShaderNodeAddShader") or surface.socket.type != "SHADER"
+        # Mix and Add Shaders, a Principled BSDF (its emission), and a colour or value linked into the Surface
+        # (emitted, as Cycles converts it)
+        return surface.kind in ("ShaderNodeMixShader", "ShaderNodeAddShader", "ShaderNodeBsdfPrincipled") or \
+            surface.socket.type != "SHADER"
     node, groups = surface.node, surface.groups
     strength = source_of(node.inputs["Strength"], groups)
     if strength.node is not None and strength.kind != "ShaderNodeValue":
