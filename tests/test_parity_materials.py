@@ -100,6 +100,32 @@ def test_beckmann_and_ashikhmin_shirley_distributions():
     compare_to_cycles(scene, samples=128, max_bounces=6)
 
 
+def test_ashikhmin_velvet_sheen():
+    """The Sheen BSDF's Ashikhmin distribution (Blender's Velvet BSDF before 4.0, in files of that time): Cycles'
+    Ashikhmin velvet lobe, at three roughnesses and mixed with a Diffuse BSDF. Ember rendered it as the
+    Microfiber sheen, with a warning: a public car model (mpett/donut_coffee, Blender 2.79) 9% brighter."""
+    scene = new_scene(80, 40)
+    velvet = "ShaderNodeBsdfSheen"
+    materials = [node_material(f"Velvet {r}", velvet, Color=(0.8, 0.3, 0.4), Roughness=r, opt_distribution="ASHIKHMIN")
+                 for r in (0.1, 0.5, 1.0)]
+    mixed = node_material("Velvet over diffuse", velvet, Color=(0.3, 0.6, 0.9), Roughness=0.4,
+                          opt_distribution="ASHIKHMIN")
+    tree = mixed.node_tree
+    out = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.inputs[0].default_value = 0.5
+    tree.links.new(tree.nodes.new("ShaderNodeBsdfDiffuse").outputs[0], mix.inputs[1])
+    tree.links.new(out.inputs["Surface"].links[0].from_socket, mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    grid_of_spheres(materials + [mixed], 4)
+    add_camera(scene, (0, -6.0, 1.0), (0, 0, 0.5), lens=40)
+    set_world(scene, hdri="courtyard.exr", strength=1.0)
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.data.energy, sun.rotation_euler = 3.0, (0.9, 0.0, 0.6)
+    scene.collection.objects.link(sun)
+    compare_to_cycles(scene, samples=128, max_bounces=6)
+
+
 def test_mix_and_add_shaders_and_a_textured_mix_factor():
     scene = new_scene(64, 48)
     size = 8

@@ -297,3 +297,38 @@ def test_denoising_features_stop_at_the_transparent_limit_as_in_cycles():
     np.testing.assert_allclose(out[1, "EMBER"], out[1, "CYCLES"], atol=1e-3)
     np.testing.assert_allclose(out[2, "EMBER"], out[2, "CYCLES"], atol=1e-3)
     assert out[2, "CYCLES"][0] > 0.5 and out[1, "CYCLES"][0] < 0.1, out
+
+
+def test_velvet_light_goes_to_the_glossy_passes_as_in_cycles():
+    """Cycles files its Ashikhmin velvet closure as glossy (CLOSURE_IS_BSDF_GLOSSY) though it labels its samples
+    diffuse: a velvet floor seen at a grazing angle by an orthographic camera under a sun (no world, no other
+    surface) has its light in Glossy Direct, nothing in Diffuse Direct, in both engines, and the same Glossy Direct:
+    one sun sample per pixel, the lobe's value at one pair of directions, so to float precision."""
+    from bpy_helpers import node_material
+    from test_passes import plane_scene
+    out = {}
+    for engine in ("CYCLES", "EMBER"):
+        scene = plane_scene(8, 8, ortho=True)
+        scene.world = None
+        scene.camera.location, scene.camera.rotation_euler = (0.0, -4.0, 2.0), (1.25, 0.0, 0.0)
+        velvet = node_material("Velvet", "ShaderNodeBsdfSheen", Color=(0.8, 0.5, 0.3), Roughness=0.35,
+                               opt_distribution="ASHIKHMIN")
+        bpy.data.objects["Floor"].data.materials[0] = velvet
+        sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+        sun.data.energy, sun.data.angle, sun.rotation_euler = 2.0, 0.0, (1.3, 0.0, 0.2)
+        scene.collection.objects.link(sun)
+        layer = scene.view_layers[0]
+        layer.use_pass_diffuse_direct = layer.use_pass_glossy_direct = True
+        scene.render.engine = engine
+        if engine == "CYCLES":
+            configure_cycles(scene, 4, 0, 8)
+        else:
+            scene.ember.samples, scene.ember.use_denoising, scene.ember.use_adaptive_sampling = 4, False, False
+            scene.ember.pixel_filter_type = "BOX"
+        parts, _ = render_multilayer(scene)
+        out[engine] = {name: np.stack([parts[f"{layer.name}.{name}"][c] for c in "RGB"], -1)
+                       for name in ("Diffuse Direct", "Glossy Direct")}
+    for engine in out:
+        assert out[engine]["Diffuse Direct"].max() == 0.0, engine
+        assert out[engine]["Glossy Direct"].min() > 0.01, engine
+    np.testing.assert_allclose(out["EMBER"]["Glossy Direct"], out["CYCLES"]["Glossy Direct"], rtol=2e-3)

@@ -553,7 +553,7 @@ class _MaterialReader:
         for name, neutral in UNSUPPORTED_INPUTS.get(kind, ()):
             if name in node.inputs and self.is_set(node.inputs[name], neutral, groups):
                 self.issues.append(f"{label} {name} is not supported, ignored")
-        if kind == "SHEEN" and node.distribution != "MICROFIBER":
+        if kind == "SHEEN" and node.distribution not in ("MICROFIBER", "ASHIKHMIN"):
             self.issues.append(f"{label} {node.distribution.title()} sheen rendered as Microfiber")
 
     def check_direction(self, node, direction: Param | None) -> None:

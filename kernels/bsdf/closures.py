@@ -25,7 +25,7 @@ from ..vec import F32
 from . import frames
 from .bump import BumpShadowing
 from .light_passes import weight_albedo
-from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LOBES, GLASS, HAIR_CHIANG, HAIR_HUANG, LAMBERT, MICROFACET_LOBES,
+from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LABEL_LOBES, GLASS, HAIR_CHIANG, HAIR_HUANG, LAMBERT, MICROFACET_LOBES,
                     REFLECTION, REFRACTION, SELF_EVALUATED, SINGULAR_LOBES, TRANSMITTING_LOBES, TRANSPARENT)
 from .mixture_eval import eval_at
 from .mixture_sample import BsdfSample, pick_closures, sample
@@ -312,9 +312,9 @@ class ClosureSet:
         return np.where(self.delta[rows] | np.isin(self.lobe[rows], SINGULAR_LOBES), F32(0.0), value).astype(F32)
 
     def is_diffuse(self, rows: np.ndarray) -> np.ndarray:
-        """Whether closure rows are diffuse lobes (Cycles' LABEL_DIFFUSE: Lambert, Oren-Nayar, Translucent,
-        Sheen); the others are glossy, or singular when delta."""
-        return np.isin(self.lobe[rows], DIFFUSE_LOBES)
+        """Whether closure rows sample diffuse directions (Cycles' LABEL_DIFFUSE: Lambert, Oren-Nayar, Translucent,
+        Sheen, velvet); the others are glossy, or singular when delta."""
+        return np.isin(self.lobe[rows], DIFFUSE_LABEL_LOBES)
 
     # ---------------------------------------------------------------- two-branched singular lobes
     @property

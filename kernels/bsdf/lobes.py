@@ -6,7 +6,7 @@ from __future__ import annotations
 
 # Lobe ids.
 (LAMBERT, OREN_NAYAR, TRANSLUCENT, SHEEN, TRANSPARENT, REFLECTION, REFRACTION, GLASS, ASHIKHMIN_SHIRLEY, TOON_DIFFUSE,
- TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION, BSSRDF, HAIR_CHIANG, HAIR_HUANG) = range(17)
+ TOON_GLOSSY, PORTAL, HAIR_REFLECTION, HAIR_TRANSMISSION, BSSRDF, HAIR_CHIANG, HAIR_HUANG, VELVET) = range(18)
 
 # What a lobe is, as flags:
 # DIFFUSE       Cycles' CLOSURE_IS_BSDF_DIFFUSE: the bump shadowing term's softening, the Diffuse light passes.
@@ -45,6 +45,9 @@ CLASSES = {
     # Cycles files both Principled Hair models as glossy (CLOSURE_IS_BSDF_GLOSSY), whatever side they scatter to.
     HAIR_CHIANG: GLOSSY | ANY_SIDE,
     HAIR_HUANG: GLOSSY | SELF_EVALUATING | ANY_SIDE,
+    # Cycles' Ashikhmin velvet is a glossy closure (the Glossy passes, no diffuse softening) whose samples are
+    # labelled diffuse (LABEL_DIFFUSE: they count as diffuse bounces): DIFFUSE_LABEL_LOBES.
+    VELVET: GLOSSY,
 }
 
 
@@ -68,6 +71,8 @@ TRANSMISSION_LOBES = lobes_with(TRANSMISSION)
 SELF_EVALUATED = lobes_with(SELF_EVALUATING)
 ANY_SIDE_LOBES = lobes_with(ANY_SIDE)
 SUBSURFACE_LOBES = lobes_with(SUBSURFACE)
+# The lobes whose samples Cycles labels diffuse (LABEL_DIFFUSE: bounce counts, what a path has been through).
+DIFFUSE_LABEL_LOBES = DIFFUSE_LOBES + (VELVET,)
 # The lobes that take light from behind the surface (Cycles' SD_BSDF_HAS_TRANSMISSION): the light tree's
 # choice at such a point counts lights on both sides.
 TRANSMITTING_LOBES = tuple(sorted(set(TRANSMISSION_LOBES) | {TRANSLUCENT, GLASS, HAIR_CHIANG, HAIR_HUANG}))

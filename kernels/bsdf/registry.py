@@ -18,11 +18,11 @@ from typing import Callable
 import numpy as np
 
 from ..vec import F32
-from . import bssrdf, diffuse, frames, hair, hair_chiang, hair_huang, sheen, toon
+from . import bssrdf, diffuse, frames, hair, hair_chiang, hair_huang, sheen, toon, velvet
 from . import microfacet_closures as mfc
 from .lobes import (ASHIKHMIN_SHIRLEY, BSSRDF, GLASS, HAIR_CHIANG, HAIR_HUANG, HAIR_REFLECTION, HAIR_TRANSMISSION,
                     LAMBERT, OREN_NAYAR, PORTAL, REFLECTION, REFRACTION, SHEEN, TOON_DIFFUSE, TOON_GLOSSY, TRANSLUCENT,
-                    TRANSPARENT)
+                    TRANSPARENT, VELVET)
 
 
 @dataclass(frozen=True)
@@ -70,6 +70,15 @@ def _sheen_eval(cs, rows, wo, wi):
 
 def _sheen_sample(cs, rows, wo, u1, u2, uc):
     wi, weight, pdf = sheen.sheen_sample(wo, cs.rough[rows], u1, u2)
+    return wi, weight, pdf, False
+
+
+def _velvet_eval(cs, rows, wo, wi):
+    return velvet.velvet_eval(wo, wi, cs.rough[rows])
+
+
+def _velvet_sample(cs, rows, wo, u1, u2, uc):
+    wi, weight, pdf = velvet.velvet_sample(wo, cs.rough[rows], u1, u2)
     return wi, weight, pdf, False
 
 
@@ -177,6 +186,7 @@ LOBES = {
     OREN_NAYAR: Lobe("Oren-Nayar", _oren_nayar_eval, _oren_nayar_sample, columns={"rough": "sigma", "c0": "albedo"}),
     TRANSLUCENT: Lobe("translucent", _translucent_eval, _translucent_sample),
     SHEEN: Lobe("sheen", _sheen_eval, _sheen_sample, columns={"rough": "roughness"}),
+    VELVET: Lobe("Ashikhmin velvet", _velvet_eval, _velvet_sample, columns={"rough": "sigma"}),
     TRANSPARENT: Lobe("transparent", None, _transparent_sample),
     REFLECTION: Lobe("microfacet reflection", mfc.reflection_eval, mfc.reflection_sample, columns=_MICROFACET_COLUMNS),
     REFRACTION: Lobe("microfacet refraction", mfc.refraction_eval, mfc.refraction_sample, columns=_MICROFACET_COLUMNS),

@@ -68,6 +68,11 @@ def transparent_bsdf(c, ctx, w, b):
 
 
 def sheen_bsdf(c, ctx, w, b):
+    if b is not None and c.option("distribution", "MICROFIBER") == "ASHIKHMIN":
+        # Cycles' Ashikhmin velvet: sigma the Roughness clamped to [0, 1], no bump softening (a glossy closure).
+        b.add(lobes.VELVET, ctx.idx, ctx.input(c, "Color") * w, normal=ctx.normal_arg,
+              rough=np.clip(ctx.input(c, "Roughness"), 0.0, 1.0))
+        return Built()
     if b is not None:
         rough = np.clip(ctx.input(c, "Roughness"), 0.0, 1.0)
         weight = ctx.input(c, "Color") * w
