@@ -28,10 +28,13 @@ class Coincident:
     """Partners of triangles: for triangle a, partners[offsets[a]:offsets[a + 1]] are the triangles that lie on
     it (int64, ascending). Only the T plain triangles take part (world space; instanced meshes do not)."""
 
-    def __init__(self, offsets: np.ndarray, partners: np.ndarray, positions, objects: np.ndarray | None = None):
+    def __init__(self, offsets: np.ndarray, partners: np.ndarray, positions, objects: np.ndarray | None = None,
+                 copy: np.ndarray | None = None):
         self.offsets, self.partners = offsets, partners
         self._positions = positions
         self._objects = objects   # (T,) object rows, for crossing(other_object=True); None: all one object
+        # Per partner, whether it is a copy of the triangle (copy_pairs): met whatever its material (among).
+        self.copy = np.zeros(len(partners), bool) if copy is None else copy
         self.opaque = None        # (T,) bool, the triangles that stop what meets them (set by the renderer)
 
     @classmethod
@@ -48,7 +51,7 @@ class Coincident:
         candidates = np.flatnonzero(through)
         found = [] if copies is None else [copies]
         if not len(candidates) or len(positions) < 2:
-            return cls._of_keys(found, len(positions), positions, objects)
+            return cls._of_keys(found, len(positions), positions, objects, copies)
         p = corner_values(positions)
         n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         length = np.sqrt(np.einsum("ij,ij->i", n, n))
@@ -73,25 +76,27 @@ class Coincident:
                 a, b = a[near], b[near]
                 keep = _overlap(p[a].astype(np.float64), p[b].astype(np.float64), dominant[a])
                 found.append(a[keep] * len(p) + b[keep])
-        return cls._of_keys(found, len(p), positions, objects)
+        return cls._of_keys(found, len(p), positions, objects, copies)
 
     @classmethod
-    def _of_keys(cls, found, count: int, positions, objects) -> "Coincident | None":
-        """From lists of pair keys a * count + b."""
+    def _of_keys(cls, found, count: int, positions, objects, copies=None) -> "Coincident | None":
+        """From lists of pair keys a * count + b; copies: the keys among them that are copies, or None."""
         key = np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
         if not len(key):
             return None
         a, b = key // count, key % count
         offsets = np.zeros(count + 1, np.int64)
         np.add.at(offsets, a + 1, 1)
-        return cls(np.cumsum(offsets), b, positions, objects)
+        copy = None if copies is None or not len(copies) else np.isin(key, copies)
+        return cls(np.cumsum(offsets), b, positions, objects, copy)
 
     def crossing(self, prim: np.ndarray, px, py, pz, among: np.ndarray | None = None, other_object: bool = False,
                  side=None):
         """For rays passing through triangles prim (n,) at points p (x, y, z of (n,)): the partner each meets
         there (-1 for none: no partner, a point outside them all, an instanced triangle), and that hit's
         barycentrics (b1, b2) of the partner's corners 1 and 2, float32. among: (T,) bool, the triangles that
-        may be met (None: all); other_object: only partners of another object than the triangle left.
+        may be met besides copies of the triangle left, which always may (None: all); other_object: only partners
+        of another object than the triangle left.
         side: for rays that leave their surface on one side (a reflection, a shadow ray), that side's normal
         (x, y, z of (n,)): a partner lying behind the surface on the other side (by more than the float error of
         two copies of one plane, AHEAD_TOLERANCE of the coordinates) is not met."""
@@ -107,8 +112,9 @@ class Coincident:
         # Every (ray, partner) pair; the first partner (in index order) that holds the point wins.
         per = count[rows]
         ray = np.repeat(rows, per)
-        which = self.partners[np.repeat(start[rows], per) + _ranks(per)]
-        keep = np.ones(len(which), bool) if among is None else np.take(among, which)
+        entry = np.repeat(start[rows], per) + _ranks(per)
+        which = self.partners[entry]
+        keep = np.ones(len(which), bool) if among is None else np.take(among, which) | self.copy[entry]
         if other_object and self._objects is not None:
             keep &= np.take(self._objects, which) != np.take(self._objects, np.take(prim, ray))
         ray, which = ray[keep], which[keep]

@@ -151,9 +151,10 @@ class Renderer:
         self.ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self.prototype_boxes))
         self.lights = self._light_sampler()
         # The copies depend on the triangles alone: kept for material edits (update_materials).
-        self._opaque = opaque_triangles(self.scene, self.shading)
-        self._copies = static_copies(self.scene, self.ray_epsilon, self._opaque)
-        self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._opaque, self._copies)
+        self._blocking = blocking_triangles(self.scene, self.shading)
+        self._copies = static_copies(self.scene, self.ray_epsilon, self._blocking)
+        self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon,
+                                              opaque_triangles(self.scene, self.shading), self._copies)
         self.terminator = terminator_offsets(self.scene)
         self.visibility = object_visibility(self.scene)
         self.links = object_links(self.scene)   # Light and Shadow Linking (None: none)
@@ -301,10 +302,11 @@ class Renderer:
             self._build_shading()
             self._give_shader_rays()
             self.lights = self._light_sampler()
-            opaque = opaque_triangles(self.scene, self.shading)
-            if not np.array_equal(opaque, self._opaque):
-                self._opaque, self._copies = opaque, static_copies(self.scene, self.ray_epsilon, opaque)
-            self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, opaque, self._copies)
+            blocking = blocking_triangles(self.scene, self.shading)
+            if not np.array_equal(blocking, self._blocking):
+                self._blocking, self._copies = blocking, static_copies(self.scene, self.ray_epsilon, blocking)
+            self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon,
+                                                  opaque_triangles(self.scene, self.shading), self._copies)
             self._build_media()
 
     @_forwarded
@@ -475,11 +477,18 @@ def opaque_triangles(scene: SceneArrays, shading) -> np.ndarray:
     return ~np.take(shading.transmissive | shading.shadow_transparent, scene.material_ids)
 
 
-def static_copies(scene: SceneArrays, ray_epsilon, opaque: np.ndarray) -> np.ndarray:
-    """coincident.copy_pairs among the opaque plain triangles (only an opaque copy is met: the pairs of a doubled
-    glass face would cost time and do nothing), without those that move or deform during the shutter (where a
-    copy lies then is not where it lies at the frame)."""
-    keep = opaque.copy()
+def blocking_triangles(scene: SceneArrays, shading) -> np.ndarray:
+    """(T,) bool: the triangles whose material stops shadow rays (all but those whose shadows pass: a Transparent
+    BSDF, alpha, Transparent Shadows): a copy of one of them is met by rays leaving the other, glass or not."""
+    return ~np.take(shading.shadow_transparent, scene.material_ids)
+
+
+def static_copies(scene: SceneArrays, ray_epsilon, blocking: np.ndarray) -> np.ndarray:
+    """coincident.copy_pairs among the plain triangles that stop shadow rays (blocking_triangles: Cycles' rays, which
+    skip only the triangle they leave, meet a copy of it at once, and its shadow rays stop there, an opaque copy or
+    a glass one; the pairs of a doubled face whose shadows pass would cost time and do nothing), without those that
+    move or deform during the shutter (where a copy lies then is not where it lies at the frame)."""
+    keep = blocking.copy()
     if scene.has_motion:
         for ids in (scene.motion_ids, scene.deform_ids):
             if ids is not None:
@@ -495,8 +504,8 @@ def static_copies(scene: SceneArrays, ray_epsilon, opaque: np.ndarray) -> np.nda
 def coincident_partners(scene: SceneArrays, shading, ray_epsilon, opaque: np.ndarray,
                         copies: np.ndarray) -> Coincident | None:
     """The coincident partners (kernels.coincident) of the static plain triangles rays may pass through, and the
-    copies (static_copies' pairs); with `opaque` (opaque_triangles: those a ray leaving their partner meets and
-    stops at, as in Cycles: a duplicated face shades its copy)."""
+    copies (static_copies' pairs, met whatever their material, as in Cycles: a duplicated face shades its copy);
+    with `opaque` (opaque_triangles: the other partners a ray leaving their partner meets and stops at)."""
     through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
     if scene.motion_ids is not None and scene.has_motion:
         through &= scene.motion_ids < 0
