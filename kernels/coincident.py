@@ -206,7 +206,7 @@ def _ahead(own, tri, q, g, bits) -> np.ndarray:
     puts it behind the copy. On a plane of constant x, y or z (the copy's corners share it) that coordinate
     is the copy's own and the copy is always met (a duplicated cube's faces render black); on a turned plane
     the rounding goes either way, here a bit of a hash of the point's float32 coordinates (bits: (m,) uint64), so
-    about half the rays meet the copy (a turned copy in Cycles: 43%)."""
+    about half the rays meet the copy (in Cycles 40-61% by the plane's orientation, 50% over ten random planes)."""
     def height(t):
         n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
         n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]

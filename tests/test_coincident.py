@@ -193,8 +193,8 @@ def test_duplicated_objects_and_faces_shade_their_copies_as_in_cycles(cast_shado
     rays leaving one copy skip only that triangle and meet the other at distance zero (a real user's isometric
     room rendered its doubled floor slab black, as its author's own render shows); Ember's rays stepped over the
     copy and rendered them as one surface. On faces of constant x, y or z Cycles meets the copy always. (On a
-    turned face the rounding of Cycles' hit point decides: about 43% of its rays meet the copy, Ember's about
-    half; the kernel test above covers that rule.) A sun with Cast Shadow off has no shadow ray for the copy to
+    turned face the rounding of Cycles' hit point decides: 40-61% of its rays meet the copy by the face's
+    orientation, Ember's about half; the kernel test above covers that rule.) A sun with Cast Shadow off has no shadow ray for the copy to
     stop: the copies take its light as a single surface does. A box of a metal that transmits a little shades its
     copy the same way: copies of every material that stops shadow rays are met by reflected and shadow rays, not
     only opaque ones (a public car doubled by two Mirror modifiers, of a metal with Transmission 1, read 7.7%
