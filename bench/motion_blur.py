@@ -3,12 +3,15 @@ with its shutter taken away (everything where it is at the frame), one thread, m
 
     .venv313/bin/python bench/motion_blur.py hair [--strands 3000] [--samples 16] [--runs 3]
     .venv313/bin/python bench/motion_blur.py deform [--cuts 220] [--samples 16] [--runs 3]
+    .venv313/bin/python bench/motion_blur.py objects [--objects 800] [--samples 16] [--runs 3]
 
 hair (issue 37): a UV sphere with a hair particle system (3D Curves, 9 keys a strand) that slides and turns a
 quarter circle; its hair is an Embree instance with motion steps. deform: a cuts x cuts grid (about 2 cuts^2
 triangles, smooth) rippled by a Wave modifier; its triangles are Embree triangles with time steps in a scene of
-their own (kernels/moving.py); the export's seconds with the motion steps read are printed too. Both at 96x96, up
-to 3 bounces, a sun; every query of a moving scene goes through the 16-ray packets, which carry the rays' times.
+their own (kernels/moving.py); the export's seconds with the motion steps read are printed too. objects: a cloud of
+small cubes (a donut's sprinkles, a particle system's instances), each sliding and turning in the shutter; they are
+Embree instances whose transforms move, all in one scene (kernels/moving.py MovingObjects). All at 96x96, up to 3
+bounces, a sun; every query of a moving scene goes through the 16-ray packets, which carry the rays' times.
 """
 from __future__ import annotations
 
@@ -24,6 +27,8 @@ from bench.common import import_ember, median  # noqa: E402
 
 ember = import_ember()
 import bpy  # noqa: E402
+import numpy as np  # noqa: E402
+from mathutils import Vector  # noqa: E402
 
 from ember.engine.export import export_scene  # noqa: E402
 from ember.engine.export.motion import sample_motion  # noqa: E402
@@ -94,15 +99,35 @@ def deform(cuts: int):
     return moving, still, seconds, f"{len(moving.positions)} triangles"
 
 
+def objects(count: int):
+    scene, cam = _stage()
+    rng = np.random.default_rng(3)
+    bpy.ops.mesh.primitive_plane_add(size=8, location=(0, 0, 0))
+    for k in range(count):
+        bpy.ops.mesh.primitive_cube_add(size=0.08, location=tuple(rng.uniform((-1.5, -1.5, 0.3), (1.5, 1.5, 2.5))))
+        cube = bpy.context.active_object
+        start, shift = cube.location.copy(), rng.normal(scale=0.05, size=3)
+        for frame, offset, turn in ((1, (0, 0, 0), 0.0), (2, tuple(shift), float(rng.uniform(0, math.pi)))):
+            cube.location = start + Vector(offset)
+            cube.rotation_euler = (turn, 0.5 * turn, 0)
+            cube.keyframe_insert("location", frame=frame)
+            cube.keyframe_insert("rotation_euler", frame=frame)
+    moving, seconds = _export(scene, cam)
+    return moving, dataclasses.replace(moving, shutter_table=None), seconds, f"{count} moving cubes"
+
+
 def main():
     parser = argparse.ArgumentParser()
-    parser.add_argument("scene", choices=("hair", "deform"))
+    parser.add_argument("scene", choices=("hair", "deform", "objects"))
+    parser.add_argument("--objects", type=int, default=800)
     parser.add_argument("--strands", type=int, default=3000)
     parser.add_argument("--cuts", type=int, default=220)
     parser.add_argument("--samples", type=int, default=16)
     parser.add_argument("--runs", type=int, default=3)
     args = parser.parse_args()
-    moving, still, export_seconds, size = hair(args.strands) if args.scene == "hair" else deform(args.cuts)
+    build = {"hair": lambda: hair(args.strands), "deform": lambda: deform(args.cuts),
+             "objects": lambda: objects(args.objects)}[args.scene]
+    moving, still, export_seconds, size = build()
     print(f"export with the motion steps: {export_seconds:.2f} s ({size})")
     settings = RenderSettings(samples=args.samples, max_bounces=3)
     for label, scene in (("moving", moving), ("still", still)):

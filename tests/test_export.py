@@ -686,16 +686,21 @@ def test_8_bit_srgb_environment_is_kept_as_bytes_and_decoded_after_filtering(emp
 
 
 def test_unsupported_world_nodes_warn_once(empty_scene):
-    """A BSDF as the world's surface renders grey; an unsupported node feeding the Background's Color
-    leaves the Color's own value; each world warns in one line naming the node."""
+    """A shader node Ember cannot read as the world's surface (EEVEE's Specular BSDF) renders grey, and a BSDF
+    black without a word (Cycles reads a world's emission only); an unsupported node feeding the Background's
+    Color leaves the Color's own value; each world warns in one line naming the node."""
     empty_scene.world = bpy.data.worlds.new("Odd")
     tree = empty_scene.world.node_tree
-    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
-    tree.links.new(diffuse.outputs[0], tree.nodes["World Output"].inputs["Surface"])
+    specular = tree.nodes.new("ShaderNodeEeveeSpecular")
+    tree.links.new(specular.outputs[0], tree.nodes["World Output"].inputs["Surface"])
     result = export()
     np.testing.assert_allclose(result.scene.world.color, 0.05)
     (line,) = [w for w in result.warnings if "'Odd'" in w]
-    assert "Diffuse BSDF" in line
+    assert "Specular" in line
+    tree.links.new(tree.nodes.new("ShaderNodeBsdfDiffuse").outputs[0], tree.nodes["World Output"].inputs["Surface"])
+    result = export()
+    np.testing.assert_allclose(result.scene.world.color, 0.0)
+    assert not [w for w in result.warnings if "'Odd'" in w]
     empty_scene.world = bpy.data.worlds.new("Fallen")
     tree = empty_scene.world.node_tree
     background = tree.nodes["Background"]
