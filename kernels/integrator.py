@@ -459,8 +459,8 @@ def _surface_hit(tables, hits, rays, found, times=None) -> SurfaceHit:
 
 def _hit_motion(tables, prim, times):
     """(hits on moving triangles, (m, 3, 4) matrices taking the triangles' stored positions to where
-    they are at each hit's time, (m, 3, 3) the same for normals), or None when no hit moves. The
-    matrices are cached per path (times: the hits' RayTimes), so later bounces reuse them."""
+    they are at each hit's time, (m, 3, 3) the same for normals), or None when no hit moves; every object's at
+    once (a particle system's hundreds of moving instances cost what one does)."""
     ids = tables.scene.motion_ids
     if ids is None or not len(tables.motion):   # only deformation moves (deformed_corners)
         return None
@@ -469,22 +469,25 @@ def _hit_motion(tables, prim, times):
     rows = np.flatnonzero(ids >= 0)
     if not len(rows):
         return None
-    delta = np.empty((len(rows), 3, 4), np.float32)
-    normal = np.empty((len(rows), 3, 3), np.float32)
-    for i in np.unique(ids[rows]):
-        sel = np.flatnonzero(ids[rows] == i)
-        d, n = times.cached(("moved", i), lambda t, i=i: _moved_by(tables, i, t))
-        delta[sel], normal[sel] = d[rows[sel]], n[rows[sel]]
+    obj = ids[rows]
+    t = np.take(times.times, rows) if times is not None else np.full(len(rows), 0.5, np.float32)
+    m = np.empty((len(rows), 3, 4), np.float64)
+    for members, stacked in tables.motion_stacks:
+        place = np.full(len(tables.motion), -1, np.int64)
+        place[members] = np.arange(len(members))
+        sel = np.flatnonzero(place[obj] >= 0)
+        if len(sel):
+            m[sel] = motion.interpolate_many(stacked, place[obj[sel]], t[sel])
+    delta, normal = _moved_by(m, tables.motion_inverse[obj])
     return rows, delta, normal
 
 
-def _moved_by(tables, i: int, t: np.ndarray):
-    """(n, 3, 4) M(t) M_ref^-1 and (n, 3, 3) its normal matrix (inverse transpose) for object i."""
-    m = motion.interpolate(tables.motion[i], t)
-    ref = tables.motion_inverse[i]
-    delta = np.empty((len(t), 3, 4), np.float64)
-    delta[:, :, :3] = m[:, :, :3] @ ref[:3, :3]
-    delta[:, :, 3] = m[:, :, :3] @ ref[:3, 3] + m[:, :, 3]
+def _moved_by(m: np.ndarray, ref: np.ndarray):
+    """(n, 3, 4) M(t) M_ref^-1 and (n, 3, 3) its normal matrix (inverse transpose), from (n, 3, 4) M(t) and (n, 4, 4)
+    M_ref^-1."""
+    delta = np.empty((len(m), 3, 4), np.float64)
+    delta[:, :, :3] = m[:, :, :3] @ ref[:, :3, :3]
+    delta[:, :, 3] = np.einsum("nij,nj->ni", m[:, :, :3], ref[:, :3, 3]) + m[:, :, 3]
     rows3 = delta[:, :, :3]  # inverse transpose = rows' cross products / determinant (cofactors)
     cof = np.stack([np.cross(rows3[:, 1], rows3[:, 2]), np.cross(rows3[:, 2], rows3[:, 0]),
                     np.cross(rows3[:, 0], rows3[:, 1])], axis=1)

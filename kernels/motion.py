@@ -217,6 +217,38 @@ def interpolate(decomposed: Decomposed, time: np.ndarray) -> np.ndarray:
     return compose(q, t, s)
 
 
+def stack_by_steps(decomposed: list) -> list:
+    """The motions of many objects grouped by their step count, for interpolate_many: [(members (O_K,) int64, their
+    Decomposed stacked (O_K, K, ...))] per step count K."""
+    counts = np.array([len(d.rotation) for d in decomposed], np.int64)
+    out = []
+    for count in np.unique(counts):
+        members = np.flatnonzero(counts == count)
+        out.append((members, Decomposed(*(np.stack([decomposed[i][k] for i in members]) for k in range(3)))))
+    return out
+
+
+def interpolate_many(stacked: Decomposed, which: np.ndarray, time: np.ndarray) -> np.ndarray:
+    """World_from_object (N, 3, 4) of the objects which (N,) of a stack (stack_by_steps: (O, K, ...) arrays) at
+    times (N,): interpolate's arithmetic row by row, so each row is what interpolate gives its object alone."""
+    rotation, translation, scale = stacked
+    dtype = rotation.dtype.type
+    time = np.asarray(time).astype(dtype, copy=False)
+    count = rotation.shape[1]
+    if count == 1:
+        return compose(rotation[which, 0], translation[which, 0], scale[which, 0])
+    max_step = count - 1
+    position = time * dtype(max_step)
+    step = np.clip(position.astype(np.int64), 0, max_step - 1)
+    f = position - step.astype(dtype)
+    a, b = step, step + 1
+    f1 = f[:, None]
+    q = quaternion_interpolate(rotation[which, a], rotation[which, b], f)
+    t = (dtype(1) - f1) * translation[which, a] + f1 * translation[which, b]
+    s = (dtype(1) - f1[:, :, None]) * scale[which, a] + f1[:, :, None] * scale[which, b]
+    return compose(q, t, s)
+
+
 def affine_inverse(m: np.ndarray) -> np.ndarray:
     """(..., 3, 4) affine matrices -> their inverses (..., 3, 4), same dtype: adjugate over determinant,
     as Cycles' transform_inverse. A singular 3x3 gets 1e-8 added to its diagonal first, and if still

@@ -142,7 +142,9 @@ class Renderer:
         # Motion blur: each moving object's decomposed motion and the inverse of the matrix its stored
         # positions were made with (hits are moved from there to where the object is at the path's time).
         self.motion = motion.decompose_many([np.asarray(keys, np.float64) for keys in self.scene.motion])
-        self.motion_inverse = [np.linalg.inv(np.asarray(ref, np.float64)) for ref in self.scene.motion_reference]
+        self.motion_inverse = np.array([np.linalg.inv(np.asarray(ref, np.float64)) for ref in self.scene.motion_reference],
+                                       np.float64).reshape(-1, 4, 4)
+        self.motion_stacks = motion.stack_by_steps(self.motion)   # hits move by them all at once (_hit_motion)
         poll()
         self._build_shading()
         self.pixel_size = _pixel_spread(self.scene.camera)

@@ -71,6 +71,24 @@ def test_many_decomposed_at_once_are_each_decomposed_alone():
             np.testing.assert_array_equal(a, b)
 
 
+def test_many_objects_interpolated_at_once_are_each_interpolated_alone():
+    """interpolate_many (the hits on hundreds of moving objects at once) gives each row what interpolate gives its
+    object alone at that time, bit for bit, objects of 2, 3 and 5 steps mixed (stack_by_steps groups them)."""
+    rng = np.random.default_rng(5)
+    decomposed = [motion.decompose(random_steps(rng, count)) for count in (2, 3, 5, 3, 2, 5, 5)]
+    objects = rng.integers(0, len(decomposed), 400)
+    times = rng.uniform(0.0, 1.0, 400)
+    times[:3] = (0.0, 1.0, 0.5)
+    out = np.full((400, 3, 4), np.nan)
+    for members, stacked in motion.stack_by_steps(decomposed):
+        place = np.full(len(decomposed), -1)
+        place[members] = np.arange(len(members))
+        rows = np.flatnonzero(place[objects] >= 0)
+        out[rows] = motion.interpolate_many(stacked, place[objects[rows]], times[rows])
+    for k in range(400):
+        np.testing.assert_array_equal(out[k], motion.interpolate(decomposed[objects[k]], times[k:k + 1])[0])
+
+
 def test_keys_return_the_keys_in_float32():
     steps = random_steps(np.random.default_rng(7), 3).astype(np.float32)
     decomposed = motion.decompose(steps)
