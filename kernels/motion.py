@@ -198,23 +198,9 @@ def interpolate(decomposed: Decomposed, time: np.ndarray) -> np.ndarray:
     Step index  s = min(floor(time (K-1)), K-2),  fraction  f = time (K-1) - s  (Cycles clamps only the
     top; times below 0 are clamped to step 0 here). Rotation: quaternion_interpolate; translation and
     scale/shear: (1 - f) a + f b. A single step (K = 1) is returned as is for every lane."""
-    rotation, translation, scale = decomposed
-    dtype = rotation.dtype.type
-    time = np.asarray(time).astype(dtype, copy=False)
-    count = len(rotation)
-    if count == 1:
-        key = compose(rotation[0], translation[0], scale[0])
-        return np.broadcast_to(key, (len(time), 3, 4)).copy()
-    max_step = count - 1
-    position = time * dtype(max_step)
-    step = np.clip(position.astype(np.int64), 0, max_step - 1)
-    f = position - step.astype(dtype)
-    a, b = step, step + 1
-    f1 = f[:, None]
-    q = quaternion_interpolate(rotation[a], rotation[b], f)
-    t = (dtype(1) - f1) * translation[a] + f1 * translation[b]
-    s = (dtype(1) - f1[:, :, None]) * scale[a] + f1[:, :, None] * scale[b]
-    return compose(q, t, s)
+    time = np.asarray(time)
+    stacked = Decomposed(*(np.asarray(part)[None] for part in decomposed))
+    return interpolate_many(stacked, np.zeros(len(time), np.int64), time)
 
 
 def stack_by_steps(decomposed: list) -> list:
@@ -230,7 +216,7 @@ def stack_by_steps(decomposed: list) -> list:
 
 def interpolate_many(stacked: Decomposed, which: np.ndarray, time: np.ndarray) -> np.ndarray:
     """World_from_object (N, 3, 4) of the objects which (N,) of a stack (stack_by_steps: (O, K, ...) arrays) at
-    times (N,): interpolate's arithmetic row by row, so each row is what interpolate gives its object alone."""
+    times (N,), each as interpolate describes, row by row."""
     rotation, translation, scale = stacked
     dtype = rotation.dtype.type
     time = np.asarray(time).astype(dtype, copy=False)
