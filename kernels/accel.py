@@ -64,8 +64,9 @@ class Hits:
 
 
 class RayTimes:
-    """The shutter times of a batch of paths (motion blur), with what depends only on them cached: each
-    moving object's transform at each path's time is computed once per path, not once per ray query."""
+    """The shutter times of a batch of paths (motion blur), with what depends only on them cached: the transform
+    of each object that moves and deforms (kernels.moving.Moving) at each path's time is computed once per path,
+    not once per ray query."""
     __slots__ = ("times", "_cache")
 
     def __init__(self, times: np.ndarray):
