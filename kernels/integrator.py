@@ -472,12 +472,11 @@ def _hit_motion(tables, prim, times):
     obj = ids[rows]
     t = np.take(times.times, rows) if times is not None else np.full(len(rows), 0.5, np.float32)
     m = np.empty((len(rows), 3, 4), np.float64)
-    for members, stacked in tables.motion_stacks:
-        place = np.full(len(tables.motion), -1, np.int64)
-        place[members] = np.arange(len(members))
-        sel = np.flatnonzero(place[obj] >= 0)
+    stack = tables.motion_stack_of[obj]
+    for k, (_, stacked) in enumerate(tables.motion_stacks):
+        sel = np.flatnonzero(stack == k)
         if len(sel):
-            m[sel] = motion.interpolate_many(stacked, place[obj[sel]], t[sel])
+            m[sel] = motion.interpolate_many(stacked, tables.motion_place[obj[sel]], t[sel])
     delta, normal = _moved_by(m, tables.motion_inverse[obj])
     return rows, delta, normal
 

@@ -144,7 +144,12 @@ class Renderer:
         self.motion = motion.decompose_many([np.asarray(keys, np.float64) for keys in self.scene.motion])
         self.motion_inverse = np.array([np.linalg.inv(np.asarray(ref, np.float64)) for ref in self.scene.motion_reference],
                                        np.float64).reshape(-1, 4, 4)
-        self.motion_stacks = motion.stack_by_steps(self.motion)   # hits move by them all at once (_hit_motion)
+        # Hits move by them all at once (integrator._hit_motion): each object's stack and its place in it.
+        self.motion_stacks = motion.stack_by_steps(self.motion)
+        self.motion_stack_of = np.zeros(len(self.motion), np.int64)
+        self.motion_place = np.zeros(len(self.motion), np.int64)
+        for k, (members, _) in enumerate(self.motion_stacks):
+            self.motion_stack_of[members], self.motion_place[members] = k, np.arange(len(members))
         poll()
         self._build_shading()
         self.pixel_size = _pixel_spread(self.scene.camera)
