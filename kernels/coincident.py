@@ -39,7 +39,8 @@ class Coincident:
 
     @classmethod
     def find(cls, positions, through: np.ndarray, offset, objects: np.ndarray | None = None,
-             copies: np.ndarray | None = None) -> "Coincident | None":
+             copies: np.ndarray | None = None, across: np.ndarray | None = None,
+             within: np.ndarray | None = None) -> "Coincident | None":
         """Partners of the triangles `through` (T,) bool marks (those a ray may pass through) among all the
         triangles (SceneArrays.positions, world space); offset(|p|max) -> the distance a new ray's origin is
         moved off a surface at that size of coordinate: planes closer than twice that lie on one another.
@@ -47,10 +48,17 @@ class Coincident:
         subdivided glass's neighbouring triangles are not looked at: a mesh lying on itself is left alone).
         copies: pair keys of copies to add (copy_pairs: a duplicated face or object, a doubled quad split the
         other way, found by sorting edges, not by the search above, whose cost on a large flat mesh is too high
-        for every triangle), or None. None when no triangle has a partner."""
-        candidates = np.flatnonzero(through)
+        for every triangle), or None. across, within: (T,) bool or None, overlapping_planes' candidates, whose
+        partners are looked for among their own kind only: across among other objects' triangles, within among
+        every object's, their own included; a triangle with more than MAX_OVERLAPS such partners keeps none of
+        them. None when no triangle has a partner."""
+        passes = [(np.flatnonzero(through), objects, None)]
+        if across is not None and objects is not None:
+            passes.append((np.flatnonzero(across & ~through), objects, across))
+        if within is not None:
+            passes.append((np.flatnonzero(within), None, within))
         found = [] if copies is None else [copies]
-        if not len(candidates) or len(positions) < 2:
+        if not any(len(ask) for ask, _, _ in passes) or len(positions) < 2:
             return cls._of_keys(found, len(positions), positions, objects, copies)
         p = corner_values(positions)
         n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
@@ -65,17 +73,47 @@ class Coincident:
         hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
         size = np.maximum(np.abs(lo), np.abs(hi))
         distance = 2.0 * offset(np.maximum(np.maximum(size[:, 0], size[:, 1]), size[:, 2]))
-        for shift in (0.0, 0.5):
-            for a, b in _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift, objects):
-                if objects is not None:
-                    apart = objects[a] != objects[b]
-                    a, b = a[apart], b[apart]
-                margin = distance[a, None]
-                near = (np.abs(d[a] - d[b]) <= distance[a]) & np.all(
-                    (lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
-                a, b = a[near], b[near]
-                keep = _overlap(p[a].astype(np.float64), p[b].astype(np.float64), dominant[a])
-                found.append(a[keep] * len(p) + b[keep])
+        corner_keys, overlaps = None, []
+        for ask, among_objects, pool in passes:
+            if not len(ask):
+                continue
+            for shift in (0.0, 0.5):
+                for a, b in _cell_pairs(n, d, p, lo, hi, dominant, ask, ok, distance, shift, among_objects, pool):
+                    if among_objects is not None:
+                        apart = among_objects[a] != among_objects[b]
+                        a, b = a[apart], b[apart]
+                    margin = distance[a, None]
+                    near = np.all((lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
+                    a, b = a[near], b[near]
+                    if among_objects is None and pool is not None:
+                        # Both triangles ask here: each pair once (the test is symmetric), kept both ways below.
+                        once = a < b
+                        a, b = a[once], b[once]
+                        # Within one mesh, triangles sharing an edge are neighbours (or, on its same side, copies
+                        # and folds, which copy_pairs finds): a flat face's fan and grid, most of the pairs here.
+                        if corner_keys is None:
+                            corner_keys = _corner_keys(p)
+                        keep = _shared_corners(corner_keys, a, b) < 2
+                        a, b = a[keep], b[keep]
+                    pa, pb = p[a].astype(np.float64), p[b].astype(np.float64)
+                    # b's corners within the distance of a's plane (not the planes' offsets from the origin:
+                    # two planes a hair apart and turned by a fraction of PLANE_ANGLE differ there by more
+                    # far from it)
+                    height = np.einsum("ij,ikj->ik", n[a].astype(np.float64), pb - pa[:, :1])
+                    near = np.abs(height).max(axis=1) <= distance[a]
+                    a, b, pa, pb = a[near], b[near], pa[near], pb[near]
+                    keep = _overlap(pa, pb, dominant[a])
+                    into = found if pool is None else overlaps
+                    into.append(a[keep] * len(p) + b[keep])
+                    if among_objects is None and pool is not None:
+                        into.append(b[keep] * len(p) + a[keep])
+        if overlaps:
+            # Every ray leaving a triangle tests its partners: a floor under many objects standing on it keeps
+            # none of theirs (rays leave it at their footprints, which they cover), they keep the floor.
+            key = np.unique(np.concatenate(overlaps))
+            first = key // len(p)
+            count = np.bincount(first, minlength=len(p))
+            found.append(key[count[first] <= MAX_OVERLAPS])
         return cls._of_keys(found, len(p), positions, objects, copies)
 
     @classmethod
@@ -134,6 +172,59 @@ class Coincident:
             partner[ray[chosen]] = which[chosen]
             b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
         return partner, b1, b2
+
+
+# A plane holding more triangles than this (a finely subdivided floor, a terrain) is searched for overlaps only
+# between objects: among one mesh's own triangles the search meets every neighbour, and its cost grows with them.
+PLANE_GROUP_LIMIT = 4096
+# ... and past this many such triangles in all, not at all (the search pairs each with its neighbours).
+WITHIN_LIMIT = 1 << 16
+# A triangle with more partners found by overlapping_planes than this keeps none of them (see Coincident.find).
+MAX_OVERLAPS = 16
+
+
+def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray | None):
+    """(across, within), (T,) bool each, of the triangles `mask` marks: the candidates whose partners
+    Coincident.find looks for. Triangles fall in one plane group when their normals share a bin of PLANE_ANGLE
+    and their planes a slab far wider than the distance partners lie apart (two passes, bins and slabs moved by
+    half of one). across: in a group holding another object's triangle (a wall's end face on the floor's rim, a
+    rug on the floor), searched among other objects' triangles; within: in a group of 3 to PLANE_GROUP_LIMIT
+    triangles (a solidified wall's end face lying on its own mesh's next face), searched among all, their own
+    object's included, none when they number more than WITHIN_LIMIT. Cycles' rays leaving one such face meet the other at once where they overlap. A sort per
+    pass over the marked triangles: a curved mesh, every triangle in its own group, has none."""
+    across, within = np.zeros(len(mask), bool), np.zeros(len(mask), bool)
+    rows = np.flatnonzero(mask)
+    if len(rows) < 2:
+        return across, within
+    p = corner_values(positions, rows)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.sqrt(np.einsum("ij,ij->i", n, n))
+    ok = length > 0
+    rows, n, p, length = rows[ok], n[ok], p[ok], length[ok]
+    n /= length[:, None]
+    dominant = np.argmax(np.abs(n), axis=1)
+    n *= np.where(np.take_along_axis(n, dominant[:, None], 1) < 0, np.float32(-1.0), np.float32(1.0))
+    d = np.einsum("ij,ij->i", n, p[:, 0])
+    # Slabs eight times the distance partners may lie apart, which grows with the coordinates as the offsets from
+    # the origin of two planes turned by a hair do (up to about a tenth of a milliradian: a solidified copy's).
+    size = float(np.abs(p).max(initial=0.0))
+    slab = 16.0 * float(offset(np.float32(size)))
+    owner = np.zeros(len(rows), np.int64) if objects is None else np.take(objects, rows).astype(np.int64)
+    for shift in (0.0, 0.5):
+        bins = np.floor(n / PLANE_ANGLE + shift).astype(np.int64)
+        key = _hash(_hash(bins[:, 0], bins[:, 1], bins[:, 2]), np.floor(d / slab + shift).astype(np.int64), 0)
+        order = np.lexsort((owner, key))
+        k, o = key[order], owner[order]
+        start = np.r_[True, k[1:] != k[:-1]]
+        group = np.cumsum(start) - 1
+        members = np.bincount(group)
+        owners = np.bincount(group[start | np.r_[True, o[1:] != o[:-1]]], minlength=len(members))
+        across[rows[order[(owners > 1)[group]]]] = True
+        # A quad's two halves share a plane and only touch: three or more triangles in one plane may overlap.
+        within[rows[order[((members > 2) & (members <= PLANE_GROUP_LIMIT))[group]]]] = True
+    if within.sum() > WITHIN_LIMIT:
+        within[:] = False
+    return across, within
 
 
 def copy_pairs(positions, offset) -> np.ndarray:
@@ -219,18 +310,33 @@ def _ahead(own, tri, q, g, bits) -> np.ndarray:
     return np.where(copy, flat | ((bits & 1) == 0), gap > 0)
 
 
+def _corner_keys(p) -> np.ndarray:
+    """(T, 3) uint64: a hash of each corner's coordinates, to the bit (two corners may share one, rarely)."""
+    bits = p.view(np.uint32).astype(np.uint64)
+    with np.errstate(over="ignore"):
+        return (bits[:, :, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[:, :, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) \
+            ^ (bits[:, :, 2] * np.uint64(0x165667B19E3779F9))
+
+
+def _shared_corners(keys, a, b) -> np.ndarray:
+    """(m,) how many of triangle a's corners are also b's (by _corner_keys)."""
+    ka, kb = keys[a], keys[b]
+    return sum((ka[:, i:i + 1] == kb).any(axis=1).astype(np.int8) for i in range(3))
+
+
 def _ranks(counts: np.ndarray) -> np.ndarray:
     """0, 1, ..., c - 1 for each count c, concatenated."""
     ends = np.cumsum(counts)
     return np.arange(ends[-1]) - np.repeat(ends - counts, counts)
 
 
-def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: float, objects=None):
+def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: float, objects=None, pool=None):
     """(a, b) index pairs in chunks, a a candidate and b != a a triangle whose normal falls in a's bin of
     PLANE_ANGLE, whose plane lies in a's slab of planes and whose box, seen along that normal, shares a cell of
     the bin's grid (bins, slabs and cells moved by `shift` of one: two passes catch the pairs an edge splits).
     A bin's cells are about as wide as its candidates (their geometric mean), so that a triangle on a plane of
-    many meets its neighbours only; a box of more than _MAX_CELLS cells meets its whole slab instead."""
+    many meets its neighbours only; a box of more than _MAX_CELLS cells meets its whole slab instead.
+    pool: (T,) bool, the triangles b may be (None: all)."""
     key = np.floor(n / PLANE_ANGLE + shift).astype(np.int64)
     # One int64 per bin (a hash: two bins may share one, which only adds pairs the exact tests drop).
     key = _hash(key[:, 0], key[:, 1], key[:, 2])
@@ -243,7 +349,8 @@ def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: floa
     cand = cand[members[nbin[cand]] > 1]
     if not len(cand):
         return
-    others = np.flatnonzero(np.isin(nbin, nbin[cand]))
+    others = np.isin(nbin, nbin[cand])
+    others = np.flatnonzero(others if pool is None else others & pool)
     # Each bin seen along its candidates' dominant axis, in cells of its candidates' geometric mean size.
     axes = np.array([[1, 2], [2, 0], [0, 1]])
     drop = np.zeros(nbin.max() + 1, np.int64)

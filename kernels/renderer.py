@@ -17,7 +17,7 @@ from .accel import Accel
 from .camera import view_plane
 from .environment import Environment
 from .film import Film, pixel_sums
-from .coincident import Coincident, copy_pairs
+from .coincident import Coincident, copy_pairs, overlapping_planes
 from .geometry import TriangleTable, prototype_boxes, scene_extent
 from .geometry.primitives import PrimitiveTable, ShapeLayout
 from .lights import LightSampler
@@ -510,14 +510,22 @@ def static_copies(scene: SceneArrays, ray_epsilon, blocking: np.ndarray) -> np.n
 
 def coincident_partners(scene: SceneArrays, shading, ray_epsilon, opaque: np.ndarray,
                         copies: np.ndarray) -> Coincident | None:
-    """The coincident partners (kernels.coincident) of the static plain triangles rays may pass through, and the
-    copies (static_copies' pairs, met whatever their material, as in Cycles: a duplicated face shades its copy);
-    with `opaque` (opaque_triangles: the other partners a ray leaving their partner meets and stops at)."""
+    """The coincident partners (kernels.coincident) of the static plain triangles rays may pass through and of
+    the opaque ones overlapping others in their plane (overlapping_planes: a wall's end face on the floor's rim
+    or on its own mesh's next face, met where they overlap), and the copies (static_copies' pairs, met whatever
+    their material, as in Cycles: a duplicated face shades its copy); with `opaque` (opaque_triangles: the
+    other partners a ray leaving their partner meets and stops at)."""
     through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
+    static = np.ones(len(through), bool)
     if scene.motion_ids is not None and scene.has_motion:
-        through &= scene.motion_ids < 0
-    found = Coincident.find(scene.positions, through, coincident_offset(ray_epsilon), scene.object_ids,
-                            copies=copies)
+        static = scene.motion_ids < 0
+    through &= static
+    if scene.deform_ids is not None and scene.has_motion:   # where a deforming face lies is not its frame's place
+        static &= scene.deform_ids < 0
+    offset = coincident_offset(ray_epsilon)
+    across, within = overlapping_planes(scene.positions, opaque & static, offset, scene.object_ids)
+    found = Coincident.find(scene.positions, through, offset, scene.object_ids, copies=copies, across=across,
+                            within=within)
     if found is not None:
         found.opaque = opaque
     return found
