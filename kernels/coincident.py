@@ -40,7 +40,7 @@ class Coincident:
     @classmethod
     def find(cls, positions, through: np.ndarray, offset, objects: np.ndarray | None = None,
              copies: np.ndarray | None = None, across: np.ndarray | None = None,
-             within: np.ndarray | None = None) -> "Coincident | None":
+             asking: np.ndarray | None = None, within: np.ndarray | None = None) -> "Coincident | None":
         """Partners of the triangles `through` (T,) bool marks (those a ray may pass through) among all the
         triangles (SceneArrays.positions, world space); offset(|p|max) -> the distance a new ray's origin is
         moved off a surface at that size of coordinate: planes closer than twice that lie on one another.
@@ -48,13 +48,14 @@ class Coincident:
         subdivided glass's neighbouring triangles are not looked at: a mesh lying on itself is left alone).
         copies: pair keys of copies to add (copy_pairs: a duplicated face or object, a doubled quad split the
         other way, found by sorting edges, not by the search above, whose cost on a large flat mesh is too high
-        for every triangle), or None. across, within: (T,) bool or None, overlapping_planes' candidates, whose
-        partners are looked for among their own kind only: across among other objects' triangles, within among
-        every object's, their own included; a triangle with more than MAX_OVERLAPS such partners keeps none of
-        them. None when no triangle has a partner."""
+        for every triangle), or None. across, asking, within: (T,) bool or None, overlapping_planes' candidates,
+        whose partners are looked for among their own kind only: across's among other objects' triangles of
+        across, by those of asking (all of across when None), within's among every object's, their own included;
+        these pairs count both ways, and a triangle with more than MAX_OVERLAPS of them keeps none. None when no
+        triangle has a partner."""
         passes = [(np.flatnonzero(through), objects, None)]
         if across is not None and objects is not None:
-            passes.append((np.flatnonzero(across & ~through), objects, across))
+            passes.append((np.flatnonzero((across if asking is None else asking) & ~through), objects, across))
         if within is not None:
             passes.append((np.flatnonzero(within), None, within))
         found = [] if copies is None else [copies]
@@ -77,36 +78,45 @@ class Coincident:
         for ask, among_objects, pool in passes:
             if not len(ask):
                 continue
-            for shift in (0.0, 0.5):
-                for a, b in _cell_pairs(n, d, p, lo, hi, dominant, ask, ok, distance, shift, among_objects, pool):
-                    if among_objects is not None:
-                        apart = among_objects[a] != among_objects[b]
-                        a, b = a[apart], b[apart]
-                    margin = distance[a, None]
-                    near = np.all((lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
-                    a, b = a[near], b[near]
-                    if among_objects is None and pool is not None:
-                        # Both triangles ask here: each pair once (the test is symmetric), kept both ways below.
-                        once = a < b
-                        a, b = a[once], b[once]
-                        # Within one mesh, triangles sharing an edge are neighbours (or, on its same side, copies
-                        # and folds, which copy_pairs finds): a flat face's fan and grid, most of the pairs here.
-                        if corner_keys is None:
-                            corner_keys = _corner_keys(p)
-                        keep = _shared_corners(corner_keys, a, b) < 2
-                        a, b = a[keep], b[keep]
-                    pa, pb = p[a].astype(np.float64), p[b].astype(np.float64)
-                    # b's corners within the distance of a's plane (not the planes' offsets from the origin:
-                    # two planes a hair apart and turned by a fraction of PLANE_ANGLE differ there by more
-                    # far from it)
-                    height = np.einsum("ij,ikj->ik", n[a].astype(np.float64), pb - pa[:, :1])
-                    near = np.abs(height).max(axis=1) <= distance[a]
-                    a, b, pa, pb = a[near], b[near], pa[near], pb[near]
-                    keep = _overlap(pa, pb, dominant[a])
-                    into = found if pool is None else overlaps
-                    into.append(a[keep] * len(p) + b[keep])
-                    if among_objects is None and pool is not None:
-                        into.append(b[keep] * len(p) + a[keep])
+            # The overlaps' searches give up past a budget of pairs (a fan of thousands of triangles in one cell
+            # meets itself whole); the glass's is not bounded.
+            budget, mine = (None, found) if pool is None else ([OVERLAP_PAIR_BUDGET], [])
+            try:
+                for shift in (0.0, 0.5):
+                    for a, b in _cell_pairs(n, d, p, lo, hi, dominant, ask, ok, distance, shift, among_objects, pool,
+                                            budget):
+                        if among_objects is not None:
+                            apart = among_objects[a] != among_objects[b]
+                            a, b = a[apart], b[apart]
+                        margin = distance[a, None]
+                        near = np.all((lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
+                        a, b = a[near], b[near]
+                        if among_objects is None and pool is not None:
+                            # Both triangles ask here: each pair once (the test is symmetric), kept both ways below.
+                            once = a < b
+                            a, b = a[once], b[once]
+                        if among_objects is None and pool is not None:
+                            # Within one mesh, triangles sharing an edge are neighbours (or, on its same side, copies
+                            # and folds, which copy_pairs finds): a flat face's fan and grid, most of the pairs here.
+                            if corner_keys is None:
+                                corner_keys = _corner_keys(p)
+                            keep = _shared_corners(corner_keys, a, b) < 2
+                            a, b = a[keep], b[keep]
+                        pa, pb = p[a].astype(np.float64), p[b].astype(np.float64)
+                        # b's corners within the distance of a's plane (not the planes' offsets from the origin:
+                        # two planes a hair apart and turned by a fraction of PLANE_ANGLE differ there by more
+                        # far from it)
+                        height = np.einsum("ij,ikj->ik", n[a].astype(np.float64), pb - pa[:, :1])
+                        near = np.abs(height).max(axis=1) <= distance[a]
+                        a, b, pa, pb = a[near], b[near], pa[near], pb[near]
+                        keep = _overlap(pa, pb, dominant[a])
+                        mine.append(a[keep] * len(p) + b[keep])
+                        if pool is not None:   # the overlap is mutual
+                            mine.append(b[keep] * len(p) + a[keep])
+            except _OverBudget:
+                continue
+            if pool is not None:
+                overlaps += mine
         if overlaps:
             # Every ray leaving a triangle tests its partners: a floor under many objects standing on it keeps
             # none of theirs (rays leave it at their footprints, which they cover), they keep the floor.
@@ -181,21 +191,24 @@ PLANE_GROUP_LIMIT = 4096
 WITHIN_LIMIT = 1 << 16
 # A triangle with more partners found by overlapping_planes than this keeps none of them (see Coincident.find).
 MAX_OVERLAPS = 16
+# The most (triangle, triangle) pairs one of those searches tests before it gives up (about 0.6 s).
+OVERLAP_PAIR_BUDGET = 1 << 20
 
 
 def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray | None):
-    """(across, within), (T,) bool each, of the triangles `mask` marks: the candidates whose partners
+    """(across, asking, within), (T,) bool each, of the triangles `mask` marks: the candidates whose partners
     Coincident.find looks for. Triangles fall in one plane group when their normals share a bin of PLANE_ANGLE
     and their planes a slab far wider than the distance partners lie apart (two passes, bins and slabs moved by
     half of one). across: in a group holding another object's triangle (a wall's end face on the floor's rim, a
-    rug on the floor), searched among other objects' triangles; within: in a group of 3 to PLANE_GROUP_LIMIT
+    rug on the floor), searched among other objects' triangles of that kind by those of `asking` (all but each
+    group's largest object's, which they find); within: in a group of 3 to PLANE_GROUP_LIMIT
     triangles (a solidified wall's end face lying on its own mesh's next face), searched among all, their own
     object's included, none when they number more than WITHIN_LIMIT. Cycles' rays leaving one such face meet the other at once where they overlap. A sort per
     pass over the marked triangles: a curved mesh, every triangle in its own group, has none."""
-    across, within = np.zeros(len(mask), bool), np.zeros(len(mask), bool)
+    across, asking, within = (np.zeros(len(mask), bool) for _ in range(3))
     rows = np.flatnonzero(mask)
     if len(rows) < 2:
-        return across, within
+        return across, asking, within
     p = corner_values(positions, rows)
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     length = np.sqrt(np.einsum("ij,ij->i", n, n))
@@ -218,13 +231,27 @@ def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray 
         start = np.r_[True, k[1:] != k[:-1]]
         group = np.cumsum(start) - 1
         members = np.bincount(group)
-        owners = np.bincount(group[start | np.r_[True, o[1:] != o[:-1]]], minlength=len(members))
-        across[rows[order[(owners > 1)[group]]]] = True
+        run_start = start | np.r_[True, o[1:] != o[:-1]]
+        owners = np.bincount(group[run_start], minlength=len(members))
+        shared = (owners > 1)[group]
+        across[rows[order[shared]]] = True
+        # Each group's largest owner (a floor under the objects standing on it) does not ask: the others find it
+        # and the pair counts both ways, so that its own triangles are not paired with one another.
+        run = np.cumsum(run_start) - 1
+        run_size = np.bincount(run)
+        run_group = group[run_start]
+        top = np.zeros(len(members), np.int64)
+        np.maximum.at(top, run_group, run_size)
+        first_top = np.full(len(members), np.iinfo(np.int64).min)
+        is_top = run_size == top[run_group]
+        np.maximum.at(first_top, run_group[is_top], -np.flatnonzero(is_top))   # the first run of that size
+        largest = -first_top[group] == run
+        asking[rows[order[shared & ~largest]]] = True
         # A quad's two halves share a plane and only touch: three or more triangles in one plane may overlap.
         within[rows[order[((members > 2) & (members <= PLANE_GROUP_LIMIT))[group]]]] = True
     if within.sum() > WITHIN_LIMIT:
         within[:] = False
-    return across, within
+    return across, asking, within
 
 
 def copy_pairs(positions, offset) -> np.ndarray:
@@ -330,13 +357,14 @@ def _ranks(counts: np.ndarray) -> np.ndarray:
     return np.arange(ends[-1]) - np.repeat(ends - counts, counts)
 
 
-def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: float, objects=None, pool=None):
+def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: float, objects=None, pool=None,
+                budget=None):
     """(a, b) index pairs in chunks, a a candidate and b != a a triangle whose normal falls in a's bin of
     PLANE_ANGLE, whose plane lies in a's slab of planes and whose box, seen along that normal, shares a cell of
     the bin's grid (bins, slabs and cells moved by `shift` of one: two passes catch the pairs an edge splits).
     A bin's cells are about as wide as its candidates (their geometric mean), so that a triangle on a plane of
     many meets its neighbours only; a box of more than _MAX_CELLS cells meets its whole slab instead.
-    pool: (T,) bool, the triangles b may be (None: all)."""
+    pool: (T,) bool, the triangles b may be (None: all). budget: as _join's."""
     key = np.floor(n / PLANE_ANGLE + shift).astype(np.int64)
     # One int64 per bin (a hash: two bins may share one, which only adds pairs the exact tests drop).
     key = _hash(key[:, 0], key[:, 1], key[:, 2])
@@ -382,7 +410,7 @@ def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: floa
             return
     c_keys, c_owner = _cells(c_lo / c_cell[:, None] + shift, c_hi / c_cell[:, None] + shift, c_group, _MAX_CELLS)
     t_keys, t_owner = _cells(t_lo / t_cell[:, None] + shift, t_hi / t_cell[:, None] + shift, t_group, _MAX_CELLS)
-    yield from _join(c_keys, cand[c_owner], t_keys, others[t_owner])
+    yield from _join(c_keys, cand[c_owner], t_keys, others[t_owner], budget)
     # Boxes over _MAX_CELLS cells (a large floor under small glass, a large pane over small tiles) meet every
     # triangle of their slab on the other side.
     for side_keys, side, side_owner, other_keys, other in ((c_group, cand, c_owner, t_group, others),
@@ -392,9 +420,9 @@ def _cell_pairs(n, d, p, lo, hi, dominant, candidates, ok, distance, shift: floa
         big = np.flatnonzero(big)
         if len(big):
             if side is cand:
-                yield from _join(side_keys[big], side[big], other_keys, other)
+                yield from _join(side_keys[big], side[big], other_keys, other, budget)
             else:
-                yield from _join(other_keys, other, side_keys[big], side[big])
+                yield from _join(other_keys, other, side_keys[big], side[big], budget)
 
 
 def _hash(i, j, k):
@@ -426,8 +454,13 @@ def _cells(lo, hi, group, limit=None):
     return _hash(group[who], i, j), who
 
 
-def _join(c_keys, c_tri, t_keys, t_tri):
-    """(candidate, triangle) pairs with equal keys, in chunks of about _CHUNK."""
+class _OverBudget(Exception):
+    """A search would test more pairs than its budget allows."""
+
+
+def _join(c_keys, c_tri, t_keys, t_tri, budget=None):
+    """(candidate, triangle) pairs with equal keys, in chunks of about _CHUNK. budget: None, or a one-item list
+    of the pairs still allowed, lowered by these; _OverBudget, before any pair, when they are more."""
     if not len(c_keys) or not len(t_keys):
         return
     order = np.argsort(t_keys, kind="stable")
@@ -435,6 +468,10 @@ def _join(c_keys, c_tri, t_keys, t_tri):
     first = np.searchsorted(t_sorted, c_keys, side="left")
     counts = np.searchsorted(t_sorted, c_keys, side="right") - first
     ends = np.cumsum(counts)
+    if budget is not None:
+        if ends[-1] > budget[0]:
+            raise _OverBudget
+        budget[0] -= int(ends[-1])
     start = 0
     while start < len(c_keys):
         stop = max(int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _CHUNK, side="right")), start + 1)

@@ -523,9 +523,9 @@ def coincident_partners(scene: SceneArrays, shading, ray_epsilon, opaque: np.nda
     if scene.deform_ids is not None and scene.has_motion:   # where a deforming face lies is not its frame's place
         static &= scene.deform_ids < 0
     offset = coincident_offset(ray_epsilon)
-    across, within = overlapping_planes(scene.positions, opaque & static, offset, scene.object_ids)
+    across, asking, within = overlapping_planes(scene.positions, opaque & static, offset, scene.object_ids)
     found = Coincident.find(scene.positions, through, offset, scene.object_ids, copies=copies, across=across,
-                            within=within)
+                            asking=asking, within=within)
     if found is not None:
         found.opaque = opaque
     return found

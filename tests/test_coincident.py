@@ -13,6 +13,7 @@ import pytest
 
 from bpy_helpers import (add_camera, add_lamp, compare_to_cycles, diffuse_material, mesh_object,
                          new_scene, node_material, quad_object, render_to_array, replicate_render, set_world)
+from ember.kernels import coincident
 from ember.kernels.coincident import (MAX_OVERLAPS, PLANE_GROUP_LIMIT, Coincident, copy_pairs,
                                       overlapping_planes)
 
@@ -214,7 +215,7 @@ def test_duplicated_objects_and_faces_shade_their_copies_as_in_cycles(cast_shado
     compare_to_cycles(scene, samples=64, max_bounces=4)
 
 
-def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_objects():
+def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_objects(monkeypatch):
     """Kernel level: opaque faces that overlap in part in one plane (a rim strip over a slab's top face in its own
     mesh, a rug on another object's floor) are found by overlapping_planes and paired by Coincident.find, among
     their own object's triangles for `within` and other objects' for `across`; a quad's two halves (one plane,
@@ -231,32 +232,42 @@ def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_o
                            np.stack([arc[:-1], arc[1:] + [0, 1, 0], arc[:-1] + [0, 1, 0]], 1)])   # 8-23: object 3
     positions = np.concatenate([slab, rim, rug, lone, bend]).astype(np.float32)
     objects = np.int32([0, 0, 0, 0, 1, 1, 2, 2] + [3] * 16)
-    across, within = overlapping_planes(positions, np.ones(len(positions), bool), _offset, objects)
+    across, asking, within = overlapping_planes(positions, np.ones(len(positions), bool), _offset, objects)
     assert np.flatnonzero(within).tolist() == [0, 1, 2, 3, 4, 5]
     assert np.flatnonzero(across).tolist() == [0, 1, 2, 3, 4, 5]
+    assert np.flatnonzero(asking).tolist() == [4, 5]    # the slab's object, the plane's largest, is found by the rug
     found = Coincident.find(positions, np.zeros(len(positions), bool), _offset, objects, across=across,
-                            within=within)
+                            asking=asking, within=within)
     partners = {a: set(found.partners[found.offsets[a]:found.offsets[a + 1]].tolist()) for a in range(len(positions))}
     assert partners[2] | partners[3] == {0, 1}            # the rim lies on the slab's triangles
     assert 2 in partners[0] and {4, 5} <= partners[0] | partners[1]
     assert all(not partners[a] for a in range(6, len(positions)))
-    only_across = Coincident.find(positions, np.zeros(len(positions), bool), _offset, objects, across=across)
+    only_across = Coincident.find(positions, np.zeros(len(positions), bool), _offset, objects, across=across,
+                                  asking=asking)
     assert not only_across.partners[only_across.offsets[2]:only_across.offsets[4]].size   # the rim's own object
     # One object alone: no plane holds another object's triangle, and a plane of more than PLANE_GROUP_LIMIT
     # triangles (a finely divided floor) is not searched within.
-    across, within = overlapping_planes(positions[:4], np.ones(4, bool), _offset, np.zeros(4, np.int32))
+    across, asking, within = overlapping_planes(positions[:4], np.ones(4, bool), _offset, np.zeros(4, np.int32))
     assert not across.any() and within.all()
     grid = np.concatenate([_quad(i, j, i + 1, j + 1) for i in range(46) for j in range(46)])
     assert len(grid) > PLANE_GROUP_LIMIT
-    across, within = overlapping_planes(grid, np.ones(len(grid), bool), _offset, np.zeros(len(grid), np.int32))
+    across, asking, within = overlapping_planes(grid, np.ones(len(grid), bool), _offset, np.zeros(len(grid), np.int32))
     assert not across.any() and not within.any()
+    # Past OVERLAP_PAIR_BUDGET pairs a search gives up (a fan of thousands of triangles meets itself whole).
+    one = np.zeros(4, np.int32)
+    across, asking, within = overlapping_planes(positions[:4], np.ones(4, bool), _offset, one)
+    assert len(Coincident.find(positions[:4], np.zeros(4, bool), _offset, one, within=within).partners) >= 4
+    monkeypatch.setattr(coincident, "OVERLAP_PAIR_BUDGET", 4)
+    assert Coincident.find(positions[:4], np.zeros(4, bool), _offset, one, within=within) is None
+    monkeypatch.undo()
     # A floor under more than MAX_OVERLAPS objects standing on it keeps none of their faces (every ray leaving it
     # would test them all); each keeps the floor.
     boxes = [_quad(-3.5 + 0.3 * i, 2, -3.4 + 0.3 * i, 2.1) for i in range(MAX_OVERLAPS)]   # on floor triangle 1
     positions = np.concatenate([_quad(-4, -4, 4, 4)] + boxes)
     objects = np.repeat(np.arange(MAX_OVERLAPS + 1, dtype=np.int32), 2)
-    across, within = overlapping_planes(positions, np.ones(len(positions), bool), _offset, objects)
-    found = Coincident.find(positions, np.zeros(len(positions), bool), _offset, objects, across=across)
+    across, asking, within = overlapping_planes(positions, np.ones(len(positions), bool), _offset, objects)
+    found = Coincident.find(positions, np.zeros(len(positions), bool), _offset, objects, across=across,
+                            asking=asking)
     assert found.offsets[2] - found.offsets[0] == 0
     assert all(found.offsets[a + 1] > found.offsets[a] for a in range(2, len(positions)))
     # Far from the origin, turned by 5e-5 rad and 1e-5 off: within the distance everywhere on the face.
@@ -268,8 +279,9 @@ def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_o
     objects = np.int32([0, 0, 1, 1, 2, 2])
     def offset(size):
         return 1e-5 + 2.0 ** -16 * size
-    across, within = overlapping_planes(positions, np.ones(len(positions), bool), offset, objects)
-    found = Coincident.find(positions, np.zeros(len(positions), bool), offset, objects, across=across, within=within)
+    across, asking, within = overlapping_planes(positions, np.ones(len(positions), bool), offset, objects)
+    found = Coincident.find(positions, np.zeros(len(positions), bool), offset, objects, across=across,
+                            asking=asking, within=within)
     assert {2, 3} <= set(found.partners[found.offsets[0]:found.offsets[2]].tolist())
 
 

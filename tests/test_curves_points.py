@@ -8,7 +8,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import compare_to_cycles, diffuse_material, export_current, mesh_object, new_scene, set_world
+from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, export_current, mesh_object, new_scene,
+                         set_world)
 from ember.kernels import Camera, Materials, Renderer, RenderSettings, SceneArrays, World, render
 from ember.kernels.interaction import SurfaceHit
 from ember.kernels.scene import Curves, Points, ShapeInstances, object_row
@@ -442,6 +443,41 @@ def test_instanced_fur_matches_cycles():
         scene.collection.objects.link(empty)
     exported = export_current().scene
     assert not exported.curves and exported.shape_instances.count == 2 and len(exported.shape_instances.prototypes) == 1
+    compare_to_cycles(scene, samples=64, max_bounces=3)
+
+
+@pytest.mark.parametrize("shape", ["RIBBONS", "THICK", "POINTS"])
+def test_curves_and_points_of_a_non_uniformly_scaled_object_are_stretched_as_in_cycles(shape):
+    """Cycles applies no transform but a uniform scale to curves and points (scene/object.cpp
+    apply_static_transforms): they stay in object space under an instance whose transform stretches their ribbons,
+    tubes and spheres, and a curve's normals are set up in object space and turned by the inverse transpose
+    (curve_shader_setup). Ember copied them into world space with the radius times the cube root of the scale: a
+    public house's lawn, hair on a plane scaled 80 x 100 x 1, read 6% brighter than Cycles; here hair on a plane
+    scaled 6 x 2 x 1 (its shading 3-7% off across the lawn when its normals were set up in world space), and the
+    points of a mesh scaled 3 x 1 x 1."""
+    scene = new_scene(48, 48)
+    add_camera(scene, (0.0, -5.0, 4.0), (0.0, 0.0, 0.4), lens=30)
+    sun_and_sky(scene)
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0, 0, 0.3))
+    lawn = bpy.context.active_object
+    lawn.data.materials.append(diffuse_material("Soil", (0.35, 0.25, 0.15)))
+    grass = diffuse_material("Grass", (0.2, 0.6, 0.15), principled=True)
+    if shape == "POINTS":
+        bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, radius=0.6, location=(0, 0, 1.0))
+        cloud = bpy.context.active_object
+        cloud.scale = (3.0, 1.0, 1.0)
+        mesh_to_points(cloud, 0.12, grass)
+        lawn.scale = (7.0, 3.0, 1.0)
+    else:
+        scene.cycles_curves.shape = shape
+        lawn.scale = (6.0, 2.0, 1.0)
+        lawn.data.materials.append(grass)
+        lawn.modifiers.new("Grass", "PARTICLE_SYSTEM")
+        part = lawn.particle_systems[0].settings
+        part.type, part.count, part.hair_length, part.render_step = "HAIR", 600, 0.5, 3
+        part.radius_scale, part.material = 0.01, 2
+    exported = export_current().scene
+    assert not exported.curves and exported.points is None and exported.shape_instances.count == 1
     compare_to_cycles(scene, samples=64, max_bounces=3)
 
 

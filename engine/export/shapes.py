@@ -214,6 +214,19 @@ class ShapeExport:
             shared = None   # the group's prototype for its moving, undeformed instances
             for matrix, obj, moves in zip(matrices, ids, group.motion):
                 transform, steps = moves if moves is not None else (None, None)
+                if transform is None and steps is None and not uniform_scale(matrix):
+                    # Cycles applies no transform that is not a uniform scale to curves and points: it keeps
+                    # them in object space under an instance (scene/object.cpp apply_static_transforms), whose
+                    # transform then stretches their tubes, ribbons and spheres (a lawn's grass blades on a plane
+                    # scaled 80 x 100 x 1 are 80-100 times as wide, not the cube root of that).
+                    if shared is None:
+                        prototypes.append(self._record(local, table, None, None))
+                        shared = len(prototypes) - 1
+                    which.append(shared)
+                    placements.append(matrix[None])
+                    instance_rows.append(obj)
+                    motion_ids.append(-1)
+                    continue
                 if transform is None:   # still, or deforming in place: copied into world space at each step
                     record = self._record(local, table, matrix, obj, None if steps is None else
                                           np.stack([_placed(keys, matrix) for keys in steps]))
@@ -314,6 +327,15 @@ def resample_curves(offsets: np.ndarray, step_offsets: np.ndarray, step_keys: np
     same = (n == m)[curve]
     out[same] = step_keys[start[same] + i[same]]
     return out
+
+
+def uniform_scale(matrix) -> bool:
+    """Whether a (4, 4) transform's 3 x 3 part is a rotation times a uniform scale, as Cycles'
+    transform_uniform_scale decides (util/transform.h: every row's and column's squared length within 1e-6 of the
+    first row's)."""
+    m = np.asarray(matrix, np.float64)[:3, :3]
+    lengths = np.concatenate([np.sum(m * m, axis=1), np.sum(m * m, axis=0)])
+    return bool(np.all(np.abs(lengths - lengths[0]) < 1e-6))
 
 
 def _placed(values: np.ndarray, matrix) -> np.ndarray:

@@ -122,6 +122,27 @@ def hit_geometry(points: np.ndarray, shape: np.ndarray, u: np.ndarray, v: np.nda
     return p, ng.astype(F32), ns.astype(F32), dpdu, v_out.astype(F32)
 
 
+def object_space_hits(points: np.ndarray, matrices: np.ndarray, shape: np.ndarray, u: np.ndarray, v: np.ndarray,
+                      origins: np.ndarray, dirs: np.ndarray, t: np.ndarray):
+    """hit_geometry for n hits on curves kept in object space under (n, 3, 4) world_from_object transforms, as
+    Cycles' curve_shader_setup works where the transform is not applied: the ray taken into object space, the
+    normals set up there and turned into world space by the inverse transpose (object_normal_transform), the
+    position and dPdu by the transform; a ribbon's Ng is the world ray's reverse, a tube's its normal. points:
+    (n, 4, 4) object-space control points; origins, dirs (n, 3) and t (n,) the world rays."""
+    m = matrices[:, :, :3].astype(np.float64)
+    inverse = np.linalg.inv(m)
+    o = np.einsum("nij,nj->ni", inverse, origins - matrices[:, :, 3])
+    step = np.einsum("nij,nj->ni", inverse, dirs * t[:, None])
+    t_object = np.sqrt(np.einsum("ni,ni->n", step, step))
+    d = step / np.where(t_object > 0, t_object, 1.0)[:, None]
+    p, ng, ns, dpdu, v_out = hit_geometry(points, shape, u, v, o.astype(F32), d.astype(F32), t_object.astype(F32))
+    p = (np.einsum("nij,nj->ni", m, p) + matrices[:, :, 3]).astype(F32)
+    ns = _unit(np.einsum("nji,nj->ni", inverse, ns).astype(F32))
+    dpdu = np.einsum("nij,nj->ni", m, dpdu).astype(F32)
+    ng = np.where((shape == SHAPE_IDS["RIBBON"])[:, None], -dirs, ns).astype(F32)
+    return p, ng, ns, dpdu, v_out
+
+
 def radius_along(points: np.ndarray, u: np.ndarray) -> np.ndarray:
     """(n,) the radius interpolated linearly between the segment's keys at u (Cycles' curve_thickness is twice it)."""
     return (points[:, 2, 3] - points[:, 1, 3]) * u + points[:, 1, 3]
