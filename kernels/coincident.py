@@ -201,10 +201,11 @@ def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray 
     and their planes a slab far wider than the distance partners lie apart (two passes, bins and slabs moved by
     half of one). across: in a group holding another object's triangle (a wall's end face on the floor's rim, a
     rug on the floor), searched among other objects' triangles of that kind by those of `asking` (all but each
-    group's largest object's, which they find); within: in a group of 3 to PLANE_GROUP_LIMIT
-    triangles (a solidified wall's end face lying on its own mesh's next face), searched among all, their own
-    object's included, none when they number more than WITHIN_LIMIT. Cycles' rays leaving one such face meet the other at once where they overlap. A sort per
-    pass over the marked triangles: a curved mesh, every triangle in its own group, has none."""
+    group's largest object's, which they find); within: in a group of 3 to PLANE_GROUP_LIMIT triangles (a
+    solidified wall's end face lying on its own mesh's next face), searched among all, their own object's
+    included, none when they number more than WITHIN_LIMIT. Cycles' rays leaving one such face meet the other at
+    once where they overlap. A sort per pass over the marked triangles: a curved mesh, every triangle in its own
+    group, has none."""
     across, asking, within = (np.zeros(len(mask), bool) for _ in range(3))
     rows = np.flatnonzero(mask)
     if len(rows) < 2:

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...kernels.geometry import uniform_scales
 from ...kernels.scene import Curves, Points, ShapeInstances, object_rows
 from .curves import LocalCurves, hair_systems, read_curves, read_particle_hair
 from .instances import INSTANCE_MIN_TRIANGLES
@@ -214,7 +215,7 @@ class ShapeExport:
             shared = None   # the group's prototype for its moving, undeformed instances
             for matrix, obj, moves in zip(matrices, ids, group.motion):
                 transform, steps = moves if moves is not None else (None, None)
-                if transform is None and steps is None and not uniform_scale(matrix):
+                if transform is None and steps is None and not uniform_scales(matrix[None])[0]:
                     # Cycles applies no transform that is not a uniform scale to curves and points: it keeps
                     # them in object space under an instance (scene/object.cpp apply_static_transforms), whose
                     # transform then stretches their tubes, ribbons and spheres (a lawn's grass blades on a plane
@@ -327,15 +328,6 @@ def resample_curves(offsets: np.ndarray, step_offsets: np.ndarray, step_keys: np
     same = (n == m)[curve]
     out[same] = step_keys[start[same] + i[same]]
     return out
-
-
-def uniform_scale(matrix) -> bool:
-    """Whether a (4, 4) transform's 3 x 3 part is a rotation times a uniform scale, as Cycles'
-    transform_uniform_scale decides (util/transform.h: every row's and column's squared length within 1e-6 of the
-    first row's)."""
-    m = np.asarray(matrix, np.float64)[:3, :3]
-    lengths = np.concatenate([np.sum(m * m, axis=1), np.sum(m * m, axis=0)])
-    return bool(np.all(np.abs(lengths - lengths[0]) < 1e-6))
 
 
 def _placed(values: np.ndarray, matrix) -> np.ndarray:

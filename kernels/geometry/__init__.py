@@ -13,9 +13,9 @@ A new primitive type is a module beside these: docs/architecture.md (Where new c
 provides.
 """
 from .instances import (apply_matrices, emissive_instanced, extent, flatten_instances, instance_boxes,
-                        lights_of, normal_matrices, prototype_boxes, scene_extent)
+                        lights_of, normal_matrices, prototype_boxes, scene_extent, uniform_scales)
 from .triangles import (DEFERRED_ROWS, E1, E2, N0, N1, N2, NG, P0, UV0, UV1, UV2, TriangleTable, interpolate_uv)
 
 __all__ = ["DEFERRED_ROWS", "E1", "E2", "N0", "N1", "N2", "NG", "P0", "UV0", "UV1", "UV2", "TriangleTable",
            "apply_matrices", "emissive_instanced", "extent", "flatten_instances", "instance_boxes",
-           "interpolate_uv", "lights_of", "normal_matrices", "prototype_boxes", "scene_extent"]
+           "interpolate_uv", "lights_of", "normal_matrices", "prototype_boxes", "scene_extent", "uniform_scales"]

@@ -221,3 +221,12 @@ def extent(positions: np.ndarray):
     lo = np.array([positions[:, :, k].min() for k in range(3)], np.float64)
     hi = np.array([positions[:, :, k].max() for k in range(3)], np.float64)
     return lo, hi
+
+
+def uniform_scales(matrices: np.ndarray) -> np.ndarray:
+    """(n,) bool: which (n, 3, 4) or (n, 4, 4) transforms are a rotation times a uniform scale (Cycles'
+    transform_uniform_scale: every row's and column's squared length within 1e-6 of the first row's), those
+    Cycles applies to curves and points (scene/object.cpp apply_static_transforms)."""
+    m = np.asarray(matrices, np.float64)[:, :3, :3]
+    lengths = np.concatenate([np.sum(m * m, axis=2), np.sum(m * m, axis=1)], axis=1)
+    return np.all(np.abs(lengths - lengths[:, :1]) < 1e-6, axis=1)

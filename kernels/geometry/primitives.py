@@ -24,6 +24,7 @@ from ..scene import Curves, Points, SceneArrays
 from ..vec import F32
 from . import curves as curve_geometry
 from . import points as point_geometry
+from .instances import uniform_scales
 from .triangles import N0, N1, N2, NG, P0, E1, UV0, UV1, UV2
 
 CURVE, POINT = 1, 2
@@ -363,17 +364,16 @@ class PrimitiveTable:
                 own = at_times(record, hit_times, lambda r: curve_geometry.control_points(r, local, curve))
                 points = curve_geometry.placed(own, matrices)
                 shape = np.full(len(sel), curve_geometry.SHAPE_IDS[record.shape], np.int8)
-                uu, vv = np.take(u, sel).astype(F32), np.take(v, sel).astype(F32)
-                p, ng, ns, dpdu, vv = curve_geometry.hit_geometry(points, shape, uu, vv, o, d, tt)
-                stretched = None if matrices is None else np.flatnonzero(~_uniform_scales(matrices))
+                uu, across = np.take(u, sel).astype(F32), np.take(v, sel).astype(F32)
+                p, ng, ns, dpdu, vv = curve_geometry.hit_geometry(points, shape, uu, across, o, d, tt)
+                stretched = None if matrices is None else np.flatnonzero(~uniform_scales(matrices))
                 if stretched is not None and len(stretched):
                     # Cycles sets a curve's normals up in object space where its object's transform is not a
                     # uniform scale (curve_shader_setup, SD_OBJECT_TRANSFORM_APPLIED unset), then turns them into
                     # world space by the inverse transpose; in world space they would differ.
                     k = stretched
-                    got = curve_geometry.object_space_hits(own[k], matrices[k], shape[k], uu[k],
-                                                           np.take(v, sel)[k].astype(F32), o[k], d[k], tt[k])
-                    p[k], ng[k], ns[k], dpdu[k], vv[k] = got
+                    p[k], ng[k], ns[k], dpdu[k], vv[k] = curve_geometry.object_space_hits(
+                        own[k], matrices[k], shape[k], uu[k], across[k], o[k], d[k], tt[k])
                 out.curve[sel] = True
                 out.ribbon[sel] = record.shape == "RIBBON"
                 out.b1[sel] = uu
@@ -397,14 +397,6 @@ class PrimitiveTable:
                 out.radius[sel] = point_geometry.radii(record, local, matrices)
             out.p[sel], out.ng[sel], out.ns[sel] = p, ng, ns
         return out
-
-
-def _uniform_scales(matrices: np.ndarray) -> np.ndarray:
-    """(n,) bool: which (n, 3, 4) transforms are a rotation times a uniform scale (Cycles' transform_uniform_scale:
-    every row's and column's squared length within 1e-6 of the first row's)."""
-    m = matrices[:, :, :3].astype(np.float64)
-    lengths = np.concatenate([np.sum(m * m, axis=2), np.sum(m * m, axis=1)], axis=1)
-    return np.all(np.abs(lengths - lengths[:, :1]) < 1e-6, axis=1)
 
 
 class ShapeHits:
