@@ -39,8 +39,7 @@ class Coincident:
 
     @classmethod
     def find(cls, positions, through: np.ndarray, offset, objects: np.ndarray | None = None,
-             copies: np.ndarray | None = None, across: np.ndarray | None = None,
-             asking: np.ndarray | None = None, within: np.ndarray | None = None) -> "Coincident | None":
+             copies: np.ndarray | None = None, overlaps: np.ndarray | None = None) -> "Coincident | None":
         """Partners of the triangles `through` (T,) bool marks (those a ray may pass through) among all the
         triangles (SceneArrays.positions, world space); offset(|p|max) -> the distance a new ray's origin is
         moved off a surface at that size of coordinate: planes closer than twice that lie on one another.
@@ -48,83 +47,15 @@ class Coincident:
         subdivided glass's neighbouring triangles are not looked at: a mesh lying on itself is left alone).
         copies: pair keys of copies to add (copy_pairs: a duplicated face or object, a doubled quad split the
         other way, found by sorting edges, not by the search above, whose cost on a large flat mesh is too high
-        for every triangle), or None. across, asking, within: (T,) bool or None, overlapping_planes' candidates,
-        whose partners are looked for among their own kind only: across's among other objects' triangles of
-        across, by those of asking (all of across when None), within's among every object's, their own included;
-        these pairs count both ways, and a triangle with more than MAX_OVERLAPS of them keeps none. None when no
-        triangle has a partner."""
-        passes = [(np.flatnonzero(through), objects, None)]
-        if across is not None and objects is not None:
-            passes.append((np.flatnonzero((across if asking is None else asking) & ~through), objects, across))
-        if within is not None:
-            passes.append((np.flatnonzero(within), None, within))
+        for every triangle), or None. overlaps: pair keys of opaque faces overlapping in part to add
+        (overlap_pairs), or None. None when no triangle has a partner."""
         found = [] if copies is None else [copies]
-        if not any(len(ask) for ask, _, _ in passes) or len(positions) < 2:
-            return cls._of_keys(found, len(positions), positions, objects, copies)
-        p = corner_values(positions)
-        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-        length = np.sqrt(np.einsum("ij,ij->i", n, n))
-        ok = length > 0
-        n /= np.where(ok, length, np.float32(1.0))[:, None]
-        # One orientation per plane: the largest component positive.
-        dominant = np.argmax(np.abs(n), axis=1)
-        n *= np.where(np.take_along_axis(n, dominant[:, None], 1) < 0, np.float32(-1.0), np.float32(1.0))
-        d = np.einsum("ij,ij->i", n, p[:, 0])
-        lo = np.minimum(np.minimum(p[:, 0], p[:, 1]), p[:, 2])
-        hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
-        size = np.maximum(np.abs(lo), np.abs(hi))
-        distance = 2.0 * offset(np.maximum(np.maximum(size[:, 0], size[:, 1]), size[:, 2]))
-        corner_keys, overlaps = None, []
-        for ask, among_objects, pool in passes:
-            if not len(ask):
-                continue
-            # The overlaps' searches give up past a budget of pairs (a fan of thousands of triangles in one cell
-            # meets itself whole); the glass's is not bounded.
-            budget, mine = (None, found) if pool is None else ([OVERLAP_PAIR_BUDGET], [])
-            try:
-                for shift in (0.0, 0.5):
-                    for a, b in _cell_pairs(n, d, p, lo, hi, dominant, ask, ok, distance, shift, among_objects, pool,
-                                            budget):
-                        if among_objects is not None:
-                            apart = among_objects[a] != among_objects[b]
-                            a, b = a[apart], b[apart]
-                        margin = distance[a, None]
-                        near = np.all((lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
-                        a, b = a[near], b[near]
-                        if among_objects is None and pool is not None:
-                            # Both triangles ask here: each pair once (the test is symmetric), kept both ways below.
-                            once = a < b
-                            a, b = a[once], b[once]
-                        if among_objects is None and pool is not None:
-                            # Within one mesh, triangles sharing an edge are neighbours (or, on its same side, copies
-                            # and folds, which copy_pairs finds): a flat face's fan and grid, most of the pairs here.
-                            if corner_keys is None:
-                                corner_keys = _corner_keys(p)
-                            keep = _shared_corners(corner_keys, a, b) < 2
-                            a, b = a[keep], b[keep]
-                        pa, pb = p[a].astype(np.float64), p[b].astype(np.float64)
-                        # b's corners within the distance of a's plane (not the planes' offsets from the origin:
-                        # two planes a hair apart and turned by a fraction of PLANE_ANGLE differ there by more
-                        # far from it)
-                        height = np.einsum("ij,ikj->ik", n[a].astype(np.float64), pb - pa[:, :1])
-                        near = np.abs(height).max(axis=1) <= distance[a]
-                        a, b, pa, pb = a[near], b[near], pa[near], pb[near]
-                        keep = _overlap(pa, pb, dominant[a])
-                        mine.append(a[keep] * len(p) + b[keep])
-                        if pool is not None:   # the overlap is mutual
-                            mine.append(b[keep] * len(p) + a[keep])
-            except _OverBudget:
-                continue
-            if pool is not None:
-                overlaps += mine
-        if overlaps:
-            # Every ray leaving a triangle tests its partners: a floor under many objects standing on it keeps
-            # none of theirs (rays leave it at their footprints, which they cover), they keep the floor.
-            key = np.unique(np.concatenate(overlaps))
-            first = key // len(p)
-            count = np.bincount(first, minlength=len(p))
-            found.append(key[count[first] <= MAX_OVERLAPS])
-        return cls._of_keys(found, len(p), positions, objects, copies)
+        if overlaps is not None and len(overlaps):
+            found.append(overlaps)
+        candidates = np.flatnonzero(through)
+        if len(candidates) and len(positions) >= 2:
+            found += _pair_keys(corner_values(positions), [(candidates, objects, None)], offset)
+        return cls._of_keys(found, len(positions), positions, objects, copies)
 
     @classmethod
     def _of_keys(cls, found, count: int, positions, objects, copies=None) -> "Coincident | None":
@@ -184,6 +115,89 @@ class Coincident:
         return partner, b1, b2
 
 
+def _pair_keys(p, passes, offset) -> list:
+    """The search behind Coincident.find and overlap_pairs: per pass (ask: the candidates, (m,) rows; objects: their
+    rows' objects, partners then of another object, or None; pool: (T,) bool, the triangles partners may be, None:
+    all) the pair keys a * T + b of triangles p (T, 3, 3) lying on one another with some area. A pass with a pool
+    is mutual (its keys both ways) and gives up, adding nothing, past OVERLAP_PAIR_BUDGET candidate pairs (a fan
+    of thousands of triangles in one cell meets itself whole); a pass without one is not bounded."""
+    found = []
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.sqrt(np.einsum("ij,ij->i", n, n))
+    ok = length > 0
+    n /= np.where(ok, length, np.float32(1.0))[:, None]
+    # One orientation per plane: the largest component positive.
+    dominant = np.argmax(np.abs(n), axis=1)
+    n *= np.where(np.take_along_axis(n, dominant[:, None], 1) < 0, np.float32(-1.0), np.float32(1.0))
+    d = np.einsum("ij,ij->i", n, p[:, 0])
+    lo = np.minimum(np.minimum(p[:, 0], p[:, 1]), p[:, 2])
+    hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
+    size = np.maximum(np.abs(lo), np.abs(hi))
+    distance = 2.0 * offset(np.maximum(np.maximum(size[:, 0], size[:, 1]), size[:, 2]))
+    corner_keys = None
+    for ask, among_objects, pool in passes:
+        if not len(ask):
+            continue
+        budget, mine = (None, found) if pool is None else ([OVERLAP_PAIR_BUDGET], [])
+        try:
+            for shift in (0.0, 0.5):
+                for a, b in _cell_pairs(n, d, p, lo, hi, dominant, ask, ok, distance, shift, among_objects, pool,
+                                        budget):
+                    if among_objects is not None:
+                        apart = among_objects[a] != among_objects[b]
+                        a, b = a[apart], b[apart]
+                    margin = distance[a, None]
+                    near = np.all((lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
+                    a, b = a[near], b[near]
+                    if among_objects is None and pool is not None:
+                        # Both triangles ask here: each pair once (the test is symmetric), kept both ways below.
+                        # Within one mesh, triangles sharing an edge are neighbours (or, on its same side, copies
+                        # and folds, which copy_pairs finds): a flat face's fan and grid, most of the pairs here.
+                        if corner_keys is None:
+                            corner_keys = _corner_keys(p)
+                        keep = (a < b) & (_shared_corners(corner_keys, a, b) < 2)
+                        a, b = a[keep], b[keep]
+                    pa, pb = p[a].astype(np.float64), p[b].astype(np.float64)
+                    # b's corners within the distance of a's plane (not the planes' offsets from the origin:
+                    # two planes a hair apart and turned by a fraction of PLANE_ANGLE differ there by more
+                    # far from it)
+                    height = np.einsum("ij,ikj->ik", n[a].astype(np.float64), pb - pa[:, :1])
+                    near = np.abs(height).max(axis=1) <= distance[a]
+                    a, b, pa, pb = a[near], b[near], pa[near], pb[near]
+                    keep = _overlap(pa, pb, dominant[a])
+                    mine.append(a[keep] * len(p) + b[keep])
+                    if pool is not None:   # the overlap is mutual
+                        mine.append(b[keep] * len(p) + a[keep])
+        except _OverBudget:
+            continue
+        if pool is not None:
+            found += mine
+    return found
+
+
+def overlap_pairs(positions, offset, objects: np.ndarray | None, across: np.ndarray, asking: np.ndarray,
+                  within: np.ndarray) -> np.ndarray:
+    """Pair keys a * T + b (both ways) of opaque faces overlapping in part in one plane, from overlapping_planes'
+    candidates: across's partners among other objects' triangles of across, looked for by asking's; within's among
+    all of within, their own object's included. The search runs over those triangles only. A triangle with more
+    than MAX_OVERLAPS such partners keeps none: every ray leaving it would test them all (a floor under many
+    objects standing on it; rays leave it at their footprints, which they cover, and they keep the floor)."""
+    rows = np.flatnonzero(across | within)
+    if len(rows) < 2:
+        return np.zeros(0, np.int64)
+    count = len(across)
+    passes = [(np.flatnonzero(within[rows]), None, within[rows])]
+    if objects is not None:
+        passes.insert(0, (np.flatnonzero(asking[rows]), np.take(objects, rows), across[rows]))
+    keys = _pair_keys(corner_values(positions, rows), passes, offset)
+    if not keys:
+        return np.zeros(0, np.int64)
+    key = np.unique(np.concatenate(keys))
+    a, b = key // len(rows), key % len(rows)
+    keep = np.bincount(a, minlength=len(rows))[a] <= MAX_OVERLAPS
+    return rows[a[keep]] * count + rows[b[keep]]
+
+
 # A plane holding more triangles than this (a finely subdivided floor, a terrain) is searched for overlaps only
 # between objects: among one mesh's own triangles the search meets every neighbour, and its cost grows with them.
 PLANE_GROUP_LIMIT = 4096
@@ -191,8 +205,8 @@ PLANE_GROUP_LIMIT = 4096
 WITHIN_LIMIT = 1 << 16
 # A triangle with more partners found by overlapping_planes than this keeps none of them (see Coincident.find).
 MAX_OVERLAPS = 16
-# The most (triangle, triangle) pairs one of those searches tests before it gives up (about 0.6 s).
-OVERLAP_PAIR_BUDGET = 1 << 20
+# The most (triangle, triangle) pairs one of those searches tests before it gives up (about 1.5 s).
+OVERLAP_PAIR_BUDGET = 1 << 21
 
 
 def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray | None):
@@ -223,10 +237,20 @@ def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray 
     # the origin of two planes turned by a hair do (up to about a tenth of a milliradian: a solidified copy's).
     size = float(np.abs(p).max(initial=0.0))
     slab = 16.0 * float(offset(np.float32(size)))
-    owner = np.zeros(len(rows), np.int64) if objects is None else np.take(objects, rows).astype(np.int64)
+    keys = []
+    shared = np.zeros(len(rows), bool)   # in a group of two or more in either pass: most triangles are not
     for shift in (0.0, 0.5):
         bins = np.floor(n / PLANE_ANGLE + shift).astype(np.int64)
         key = _hash(_hash(bins[:, 0], bins[:, 1], bins[:, 2]), np.floor(d / slab + shift).astype(np.int64), 0)
+        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+        shared |= counts[inverse.ravel()] > 1
+        keys.append(key)
+    rows = rows[shared]
+    if len(rows) < 2:
+        return across, asking, within
+    owner = np.zeros(len(rows), np.int64) if objects is None else np.take(objects, rows).astype(np.int64)
+    for key in keys:
+        key = key[shared]
         order = np.lexsort((owner, key))
         k, o = key[order], owner[order]
         start = np.r_[True, k[1:] != k[:-1]]
@@ -234,8 +258,8 @@ def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray 
         members = np.bincount(group)
         run_start = start | np.r_[True, o[1:] != o[:-1]]
         owners = np.bincount(group[run_start], minlength=len(members))
-        shared = (owners > 1)[group]
-        across[rows[order[shared]]] = True
+        mixed = (owners > 1)[group]
+        across[rows[order[mixed]]] = True
         # Each group's largest owner (a floor under the objects standing on it) does not ask: the others find it
         # and the pair counts both ways, so that its own triangles are not paired with one another.
         run = np.cumsum(run_start) - 1
@@ -247,7 +271,7 @@ def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray 
         is_top = run_size == top[run_group]
         np.maximum.at(first_top, run_group[is_top], -np.flatnonzero(is_top))   # the first run of that size
         largest = -first_top[group] == run
-        asking[rows[order[shared & ~largest]]] = True
+        asking[rows[order[mixed & ~largest]]] = True
         # A quad's two halves share a plane and only touch: three or more triangles in one plane may overlap.
         within[rows[order[((members > 2) & (members <= PLANE_GROUP_LIMIT))[group]]]] = True
     if within.sum() > WITHIN_LIMIT:

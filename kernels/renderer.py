@@ -17,7 +17,7 @@ from .accel import Accel
 from .camera import view_plane
 from .environment import Environment
 from .film import Film, pixel_sums
-from .coincident import Coincident, copy_pairs, overlapping_planes
+from .coincident import Coincident, copy_pairs, overlap_pairs, overlapping_planes
 from .geometry import TriangleTable, prototype_boxes, scene_extent
 from .geometry.primitives import PrimitiveTable, ShapeLayout
 from .lights import LightSampler
@@ -473,6 +473,10 @@ def terminator_offsets(scene: SceneArrays):
     return values if (values > 0).any() else None
 
 
+# Scenes with more static opaque triangles than this do not look for faces overlapping in part (coincident_partners).
+OVERLAP_SCENE_LIMIT = 250_000
+
+
 def coincident_offset(ray_epsilon):
     """offset(|p|max) for Coincident.find: the distance spawned rays move off a surface (interaction.spawn_offset)."""
     return lambda size: ray_epsilon + np.float32(2.0 ** -16) * size
@@ -523,9 +527,14 @@ def coincident_partners(scene: SceneArrays, shading, ray_epsilon, opaque: np.nda
     if scene.deform_ids is not None and scene.has_motion:   # where a deforming face lies is not its frame's place
         static &= scene.deform_ids < 0
     offset = coincident_offset(ray_epsilon)
-    across, asking, within = overlapping_planes(scene.positions, opaque & static, offset, scene.object_ids)
-    found = Coincident.find(scene.positions, through, offset, scene.object_ids, copies=copies, across=across,
-                            asking=asking, within=within)
+    candidates = opaque & static
+    overlaps = None
+    # The search costs about a second per million triangles whatever it finds (a big scene's first sample took
+    # 0.2 s before it): scenes past OVERLAP_SCENE_LIMIT opaque triangles go without it.
+    if np.count_nonzero(candidates) <= OVERLAP_SCENE_LIMIT:
+        across, asking, within = overlapping_planes(scene.positions, candidates, offset, scene.object_ids)
+        overlaps = overlap_pairs(scene.positions, offset, scene.object_ids, across, asking, within)
+    found = Coincident.find(scene.positions, through, offset, scene.object_ids, copies=copies, overlaps=overlaps)
     if found is not None:
         found.opaque = opaque
     return found

@@ -14,7 +14,7 @@ import pytest
 from bpy_helpers import (add_camera, add_lamp, compare_to_cycles, diffuse_material, mesh_object,
                          new_scene, node_material, quad_object, render_to_array, replicate_render, set_world)
 from ember.kernels import coincident
-from ember.kernels.coincident import (MAX_OVERLAPS, PLANE_GROUP_LIMIT, Coincident, copy_pairs,
+from ember.kernels.coincident import (MAX_OVERLAPS, PLANE_GROUP_LIMIT, Coincident, copy_pairs, overlap_pairs,
                                       overlapping_planes)
 
 
@@ -215,9 +215,15 @@ def test_duplicated_objects_and_faces_shade_their_copies_as_in_cycles(cast_shado
     compare_to_cycles(scene, samples=64, max_bounces=4)
 
 
+def _overlaps(positions, offset, objects, across, asking, within):
+    """The Coincident of overlap_pairs' pairs alone."""
+    keys = overlap_pairs(positions, offset, objects, across, asking, within)
+    return Coincident.find(positions, np.zeros(len(positions), bool), offset, objects, overlaps=keys)
+
+
 def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_objects(monkeypatch):
     """Kernel level: opaque faces that overlap in part in one plane (a rim strip over a slab's top face in its own
-    mesh, a rug on another object's floor) are found by overlapping_planes and paired by Coincident.find, among
+    mesh, a rug on another object's floor) are found by overlapping_planes and paired by overlap_pairs, among
     their own object's triangles for `within` and other objects' for `across`; a quad's two halves (one plane,
     two triangles that only touch) and a curved mesh are not candidates; a face a hair off another and turned by
     50 microradians, fifty metres from the origin, still is its partner (its plane's offset from the origin
@@ -236,14 +242,12 @@ def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_o
     assert np.flatnonzero(within).tolist() == [0, 1, 2, 3, 4, 5]
     assert np.flatnonzero(across).tolist() == [0, 1, 2, 3, 4, 5]
     assert np.flatnonzero(asking).tolist() == [4, 5]    # the slab's object, the plane's largest, is found by the rug
-    found = Coincident.find(positions, np.zeros(len(positions), bool), _offset, objects, across=across,
-                            asking=asking, within=within)
+    found = _overlaps(positions, _offset, objects, across, asking, within)
     partners = {a: set(found.partners[found.offsets[a]:found.offsets[a + 1]].tolist()) for a in range(len(positions))}
     assert partners[2] | partners[3] == {0, 1}            # the rim lies on the slab's triangles
     assert 2 in partners[0] and {4, 5} <= partners[0] | partners[1]
     assert all(not partners[a] for a in range(6, len(positions)))
-    only_across = Coincident.find(positions, np.zeros(len(positions), bool), _offset, objects, across=across,
-                                  asking=asking)
+    only_across = _overlaps(positions, _offset, objects, across, asking, np.zeros(len(positions), bool))
     assert not only_across.partners[only_across.offsets[2]:only_across.offsets[4]].size   # the rim's own object
     # One object alone: no plane holds another object's triangle, and a plane of more than PLANE_GROUP_LIMIT
     # triangles (a finely divided floor) is not searched within.
@@ -256,9 +260,9 @@ def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_o
     # Past OVERLAP_PAIR_BUDGET pairs a search gives up (a fan of thousands of triangles meets itself whole).
     one = np.zeros(4, np.int32)
     across, asking, within = overlapping_planes(positions[:4], np.ones(4, bool), _offset, one)
-    assert len(Coincident.find(positions[:4], np.zeros(4, bool), _offset, one, within=within).partners) >= 4
+    assert len(_overlaps(positions[:4], _offset, one, across, asking, within).partners) >= 4
     monkeypatch.setattr(coincident, "OVERLAP_PAIR_BUDGET", 4)
-    assert Coincident.find(positions[:4], np.zeros(4, bool), _offset, one, within=within) is None
+    assert _overlaps(positions[:4], _offset, one, across, asking, within) is None
     monkeypatch.undo()
     # A floor under more than MAX_OVERLAPS objects standing on it keeps none of their faces (every ray leaving it
     # would test them all); each keeps the floor.
@@ -266,8 +270,7 @@ def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_o
     positions = np.concatenate([_quad(-4, -4, 4, 4)] + boxes)
     objects = np.repeat(np.arange(MAX_OVERLAPS + 1, dtype=np.int32), 2)
     across, asking, within = overlapping_planes(positions, np.ones(len(positions), bool), _offset, objects)
-    found = Coincident.find(positions, np.zeros(len(positions), bool), _offset, objects, across=across,
-                            asking=asking)
+    found = _overlaps(positions, _offset, objects, across, asking, within)
     assert found.offsets[2] - found.offsets[0] == 0
     assert all(found.offsets[a + 1] > found.offsets[a] for a in range(2, len(positions)))
     # Far from the origin, turned by 5e-5 rad and 1e-5 off: within the distance everywhere on the face.
@@ -280,8 +283,7 @@ def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_o
     def offset(size):
         return 1e-5 + 2.0 ** -16 * size
     across, asking, within = overlapping_planes(positions, np.ones(len(positions), bool), offset, objects)
-    found = Coincident.find(positions, np.zeros(len(positions), bool), offset, objects, across=across,
-                            asking=asking, within=within)
+    found = _overlaps(positions, offset, objects, across, asking, within)
     assert {2, 3} <= set(found.partners[found.offsets[0]:found.offsets[2]].tolist())
 
 
