@@ -115,6 +115,19 @@ class Coincident:
         return partner, b1, b2
 
 
+def _planes(p):
+    """(n, ok, dominant, d) of triangles p (T, 3, 3): unit normals oriented one way per plane (the largest
+    component positive), whether they have one (non-zero area), the axis of that component and the plane's offset
+    from the origin along n."""
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.sqrt(np.einsum("ij,ij->i", n, n))
+    ok = length > 0
+    n /= np.where(ok, length, np.float32(1.0))[:, None]
+    dominant = np.argmax(np.abs(n), axis=1)
+    n *= np.where(np.take_along_axis(n, dominant[:, None], 1) < 0, np.float32(-1.0), np.float32(1.0))
+    return n, ok, dominant, np.einsum("ij,ij->i", n, p[:, 0])
+
+
 def _pair_keys(p, passes, offset) -> list:
     """The search behind Coincident.find and overlap_pairs: per pass (ask: the candidates, (m,) rows; objects: their
     rows' objects, partners then of another object, or None; pool: (T,) bool, the triangles partners may be, None:
@@ -122,14 +135,7 @@ def _pair_keys(p, passes, offset) -> list:
     is mutual (its keys both ways) and gives up, adding nothing, past OVERLAP_PAIR_BUDGET candidate pairs (a fan
     of thousands of triangles in one cell meets itself whole); a pass without one is not bounded."""
     found = []
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    length = np.sqrt(np.einsum("ij,ij->i", n, n))
-    ok = length > 0
-    n /= np.where(ok, length, np.float32(1.0))[:, None]
-    # One orientation per plane: the largest component positive.
-    dominant = np.argmax(np.abs(n), axis=1)
-    n *= np.where(np.take_along_axis(n, dominant[:, None], 1) < 0, np.float32(-1.0), np.float32(1.0))
-    d = np.einsum("ij,ij->i", n, p[:, 0])
+    n, ok, dominant, d = _planes(p)
     lo = np.minimum(np.minimum(p[:, 0], p[:, 1]), p[:, 2])
     hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
     size = np.maximum(np.abs(lo), np.abs(hi))
@@ -225,14 +231,8 @@ def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray 
     if len(rows) < 2:
         return across, asking, within
     p = corner_values(positions, rows)
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    length = np.sqrt(np.einsum("ij,ij->i", n, n))
-    ok = length > 0
-    rows, n, p, length = rows[ok], n[ok], p[ok], length[ok]
-    n /= length[:, None]
-    dominant = np.argmax(np.abs(n), axis=1)
-    n *= np.where(np.take_along_axis(n, dominant[:, None], 1) < 0, np.float32(-1.0), np.float32(1.0))
-    d = np.einsum("ij,ij->i", n, p[:, 0])
+    n, ok, _, d = _planes(p)
+    rows, n, p, d = rows[ok], n[ok], p[ok], d[ok]
     # Slabs eight times the distance partners may lie apart, which grows with the coordinates as the offsets from
     # the origin of two planes turned by a hair do (up to about a tenth of a milliradian: a solidified copy's).
     size = float(np.abs(p).max(initial=0.0))

@@ -157,11 +157,14 @@ class Renderer:
         self.prototype_boxes = prototype_boxes(self.scene)
         self.ray_epsilon = _ray_epsilon(*scene_extent(self.scene, self.prototype_boxes))
         self.lights = self._light_sampler()
-        # The copies depend on the triangles alone: kept for material edits (update_materials).
+        # The copies and overlaps depend on the triangles and on which stop rays: kept for material edits
+        # (update_materials).
         self._blocking = blocking_triangles(self.scene, self.shading)
         self._copies = static_copies(self.scene, self.ray_epsilon, self._blocking)
-        self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon,
-                                              opaque_triangles(self.scene, self.shading), self._copies)
+        self._opaque = opaque_triangles(self.scene, self.shading)
+        self._overlaps = static_overlaps(self.scene, self.ray_epsilon, self._opaque)
+        self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._opaque,
+                                              self._copies, self._overlaps)
         self.terminator = terminator_offsets(self.scene)
         self.visibility = object_visibility(self.scene)
         self.links = object_links(self.scene)   # Light and Shadow Linking (None: none)
@@ -312,8 +315,11 @@ class Renderer:
             blocking = blocking_triangles(self.scene, self.shading)
             if not np.array_equal(blocking, self._blocking):
                 self._blocking, self._copies = blocking, static_copies(self.scene, self.ray_epsilon, blocking)
-            self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon,
-                                                  opaque_triangles(self.scene, self.shading), self._copies)
+            opaque = opaque_triangles(self.scene, self.shading)
+            if not np.array_equal(opaque, self._opaque):
+                self._opaque, self._overlaps = opaque, static_overlaps(self.scene, self.ray_epsilon, opaque)
+            self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._opaque,
+                                                  self._copies, self._overlaps)
             self._build_media()
 
     @_forwarded
@@ -499,12 +505,7 @@ def static_copies(scene: SceneArrays, ray_epsilon, blocking: np.ndarray) -> np.n
     skip only the triangle they leave, meet a copy of it at once, and its shadow rays stop there, an opaque copy or
     a glass one; the pairs of a doubled face whose shadows pass would cost time and do nothing), without those that
     move or deform during the shutter (where a copy lies then is not where it lies at the frame)."""
-    keep = blocking.copy()
-    if scene.has_motion:
-        for ids in (scene.motion_ids, scene.deform_ids):
-            if ids is not None:
-                keep &= ids < 0
-    rows = np.flatnonzero(keep)
+    rows = np.flatnonzero(blocking & still_triangles(scene))
     if len(rows) < 2:
         return np.zeros(0, np.int64)
     t, m = len(scene.material_ids), len(rows)
@@ -512,29 +513,41 @@ def static_copies(scene: SceneArrays, ray_epsilon, blocking: np.ndarray) -> np.n
     return rows[pairs // m] * t + rows[pairs % m]
 
 
-def coincident_partners(scene: SceneArrays, shading, ray_epsilon, opaque: np.ndarray,
-                        copies: np.ndarray) -> Coincident | None:
-    """The coincident partners (kernels.coincident) of the static plain triangles rays may pass through and of
-    the opaque ones overlapping others in their plane (overlapping_planes: a wall's end face on the floor's rim
-    or on its own mesh's next face, met where they overlap), and the copies (static_copies' pairs, met whatever
-    their material, as in Cycles: a duplicated face shades its copy); with `opaque` (opaque_triangles: the
-    other partners a ray leaving their partner meets and stops at)."""
-    through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
-    static = np.ones(len(through), bool)
-    if scene.motion_ids is not None and scene.has_motion:
-        static = scene.motion_ids < 0
-    through &= static
-    if scene.deform_ids is not None and scene.has_motion:   # where a deforming face lies is not its frame's place
-        static &= scene.deform_ids < 0
+def still_triangles(scene: SceneArrays, deforming: bool = True) -> np.ndarray:
+    """(T,) bool: the triangles that do not move during the shutter (nor deform, with deforming): where they lie at
+    the frame is where rays meet them."""
+    still = np.ones(len(scene.material_ids), bool)
+    if scene.has_motion:
+        for ids in (scene.motion_ids, scene.deform_ids if deforming else None):
+            if ids is not None:
+                still &= ids < 0
+    return still
+
+
+def static_overlaps(scene: SceneArrays, ray_epsilon, opaque: np.ndarray) -> np.ndarray | None:
+    """coincident.overlap_pairs among the still opaque triangles (opaque_triangles): faces overlapping in part in
+    one plane, which Cycles' rays leaving one meet at once; None in scenes of more than OVERLAP_SCENE_LIMIT of them
+    (the search costs about a second per million triangles whatever it finds: a big scene's first sample took
+    0.2 s before it)."""
+    candidates = opaque & still_triangles(scene)
+    if np.count_nonzero(candidates) > OVERLAP_SCENE_LIMIT:
+        return None
     offset = coincident_offset(ray_epsilon)
-    candidates = opaque & static
-    overlaps = None
-    # The search costs about a second per million triangles whatever it finds (a big scene's first sample took
-    # 0.2 s before it): scenes past OVERLAP_SCENE_LIMIT opaque triangles go without it.
-    if np.count_nonzero(candidates) <= OVERLAP_SCENE_LIMIT:
-        across, asking, within = overlapping_planes(scene.positions, candidates, offset, scene.object_ids)
-        overlaps = overlap_pairs(scene.positions, offset, scene.object_ids, across, asking, within)
-    found = Coincident.find(scene.positions, through, offset, scene.object_ids, copies=copies, overlaps=overlaps)
+    across, asking, within = overlapping_planes(scene.positions, candidates, offset, scene.object_ids)
+    return overlap_pairs(scene.positions, offset, scene.object_ids, across, asking, within)
+
+
+def coincident_partners(scene: SceneArrays, shading, ray_epsilon, opaque: np.ndarray, copies: np.ndarray,
+                        overlaps: np.ndarray | None) -> Coincident | None:
+    """The coincident partners (kernels.coincident) of the still plain triangles rays may pass through, the
+    overlaps (static_overlaps' pairs: a wall's end face on the floor's rim or on its own mesh's next face, met where
+    they overlap) and the copies (static_copies' pairs, met whatever their material, as in Cycles: a duplicated face
+    shades its copy); with `opaque` (opaque_triangles: the other partners a ray leaving their partner meets and
+    stops at)."""
+    through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
+    through &= still_triangles(scene, deforming=False)
+    found = Coincident.find(scene.positions, through, coincident_offset(ray_epsilon), scene.object_ids,
+                            copies=copies, overlaps=overlaps)
     if found is not None:
         found.opaque = opaque
     return found
