@@ -116,6 +116,11 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
     # emitter's plane before the point (a lamp 1 cm under a ceiling shadowed itself that way).
     finite = np.isfinite(dist)
     safe = np.where(finite, dist, np.float32(0.0))
+    # The sampled point is where the light was sampled from, the surface point itself: a ray lifted off a
+    # smooth surface (terminator_lift) aims at it from the lifted origin, as Cycles' shadow_ray_setup does
+    # (aiming at a point moved by the lift, past a lamp's plane, let the lamp shadow itself).
+    if lift is not None:
+        sx, sy, sz = np.take(px, idx), np.take(py, idx), np.take(pz, idx)
     ax, ay, az = sx + wx * safe - ox, sy + wy * safe - oy, sz + wz * safe - oz
     to_point = np.sqrt(ax * ax + ay * ay + az * az)
     inv = np.float32(1.0) / np.maximum(to_point, np.float32(1e-30))
