@@ -151,7 +151,10 @@ class SurfaceHit:
         rows = self._table.rows_of(np.take(self.prim, idx)).astype(np.float64)
         v0 = rows[:, P0:P0 + 3]
         v1, v2 = v0 + rows[:, E1:E1 + 3], v0 + rows[:, E2:E2 + 3]
-        n0, n1, n2 = rows[:, N0:N0 + 3], rows[:, N1:N1 + 3], rows[:, N2:N2 + 3]
+        # Unit corner normals (an object interpolating its normals in object space keeps their lengths' ratios
+        # in its rows; Cycles lifts its rays in object space, which Ember approximates in world space).
+        n0, n1, n2 = (c / np.maximum(np.linalg.norm(c, axis=1, keepdims=True), 1e-300)
+                      for c in (rows[:, N0:N0 + 3], rows[:, N1:N1 + 3], rows[:, N2:N2 + 3]))
         b1, b2 = np.take(self._b1, idx).astype(np.float64)[:, None], np.take(self._b2, idx).astype(np.float64)[:, None]
         b0 = 1.0 - b1 - b2
         p = v0 * b0 + v1 * b1 + v2 * b2

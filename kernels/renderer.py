@@ -278,7 +278,7 @@ class Renderer:
         self.scene = scene
         self.accel.move_instances(moved.world_from_object)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            self.triangles.place(moved)
+            self.triangles.place(moved, scene.objects)
         self.shading.data.set_objects(scene.objects)
         self.terminator = terminator_offsets(self.scene)
         self.ray_epsilon = _ray_epsilon(*scene_extent(scene, self.prototype_boxes))

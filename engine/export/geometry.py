@@ -268,8 +268,10 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     if cache is not None:
         cache.end()
     instanced = instanced_groups(groups, meshes, keys, moving, instance_everything)
+    object_space = object_space_groups(groups, keys, moving, materials, diced)
     # Object table rows per group, all of a group's instances at once.
-    rows = {group: object_rows(np.stack(groups[group]), *(np.array(column) for column in zip(*inputs)))
+    rows = {group: object_rows(np.stack(groups[group]), *(np.array(column) for column in zip(*inputs)),
+                               object_space_normals=object_space[group])
             for group, inputs in rows.items()}
     row_grids = [g for group in grids.values() for g in group]
     geometry = _assemble(meshes, groups, tangents, attributes, rows, instanced)
@@ -333,6 +335,25 @@ def _add_shape(shapes: ShapeExport, inst, ob, materials: MaterialTable, view_lay
 def _base_mesh(diced: dict, mesh_key: int):
     """The base mesh of a diced object (what its texture space is read from), None for others (their ob.data)."""
     return diced[mesh_key].base if mesh_key in diced else None
+
+
+def object_space_groups(groups: dict, keys: dict, moving, materials: MaterialTable, diced: dict) -> dict:
+    """group -> (K,) bool: which instances of each group interpolate their normals in object space, as Cycles
+    shades the objects whose transform it does not apply to their mesh (scene/object.cpp
+    apply_static_transforms, for final renders): a mesh shown more than once (linked duplicates, collection and
+    geometry-nodes instances), with subsurface scattering, true displacement or adaptive subdivision, or an
+    object moving under motion blur. The others' normals are made unit in world space at each corner, as
+    Cycles' Mesh::apply_transform does; the two differ under a non-uniform scale."""
+    users: dict = {}
+    for (mesh_key, _), matrices in groups.items():
+        users[mesh_key] = users.get(mesh_key, 0) + len(matrices)
+    out = {}
+    for group, matrices in groups.items():
+        mesh_key, slot_rows = group
+        kept = users[mesh_key] > 1 or mesh_key in diced or materials.has_subsurface(slot_rows) or \
+            any(materials.true_displacements(slot_rows))
+        out[group] = np.array([kept or key in moving for key in keys[group]], bool)
+    return out
 
 
 def _displaced(inst, ob, source, local: LocalMesh, materials: MaterialTable, rows: tuple, warnings,

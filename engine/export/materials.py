@@ -206,6 +206,24 @@ class MaterialTable:
         """Whether any of these rows has a Volume output (the object is a medium)."""
         return any(self._rows[r].volume for r in rows)
 
+    def has_subsurface(self, rows) -> bool:
+        """Whether any of these rows scatters below its surface (Cycles' has_surface_bssrdf: a Subsurface
+        Scattering node, or a Principled BSDF whose Subsurface Weight is linked or above the closure cutoff and
+        that is not Thin Wall)."""
+        for row in rows:
+            for closure in self._rows[row].closures:
+                if closure.kind == "SUBSURFACE":
+                    return True
+                if closure.kind == "PRINCIPLED":
+                    inputs = dict(closure.inputs)
+                    thin = inputs.get("Thin Wall")
+                    if thin is not None and not thin.varies and thin.value[0] > 0.5:
+                        continue
+                    weight = inputs.get("Subsurface Weight")
+                    if weight is not None and (weight.varies or weight.value[0] > 1e-5):
+                        return True
+        return False
+
     def tangent_uv_maps(self, rows) -> tuple[str, ...]:
         """The UV maps whose tangents the materials of these rows read ('' for the render UV map);
         empty when they read none."""

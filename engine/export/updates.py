@@ -30,7 +30,7 @@ import bpy
 import numpy as np
 
 from ...kernels import Lights, Materials, SceneArrays, World
-from ...kernels.scene import OBJECT_COLUMNS
+from ...kernels.scene import OBJ_OBJECT_SPACE_NORMALS, OBJECT_COLUMNS
 from .geometry import Geometry
 from .instances import instance_key, instance_row, instance_visibility, is_rendered, slot_materials
 from .light_linking import link_table
@@ -159,6 +159,8 @@ class ExportIndex:
     mesh_needs : per material row, MaterialTable.mesh_needs().
     visibility : per object row, instances.instance_visibility (Ray Visibility, holdout): a change of it takes
         a full export.
+    object_space : per object row, whether it interpolates its normals in object space
+        (geometry.object_space_groups), which moving an instance does not change.
     linking : light_linking.LinkTable.signature() of the scene: a change of Light or Shadow Linking takes a full
         export (it reaches object rows and lights alike).
     """
@@ -171,6 +173,7 @@ class ExportIndex:
     mesh_needs: tuple
     visibility: tuple = ()
     linking: tuple = ()
+    object_space: tuple = ()
 
 
 def export_index(geometry: Geometry, materials: MaterialTable, linking: tuple = ()) -> ExportIndex:
@@ -186,7 +189,9 @@ def export_index(geometry: Geometry, materials: MaterialTable, linking: tuple = 
                        slot_materials=tuple(geometry.slot_materials or ()), empty_keys=geometry.empty_keys,
                        instance_rows=instance_rows, movable=bool(movable), material_keys=materials.keys,
                        mesh_needs=materials.mesh_needs(),
-                       visibility=tuple(geometry.instance_visibility or ()), linking=linking)
+                       visibility=tuple(geometry.instance_visibility or ()), linking=linking,
+                       object_space=tuple(bool(v) for v in geometry.objects[:rows, OBJ_OBJECT_SPACE_NORMALS] > 0)
+                       if geometry.objects is not None else ())
 
 
 def export_instances(depsgraph, index: ExportIndex) -> tuple[np.ndarray, np.ndarray] | None:
@@ -228,7 +233,10 @@ def export_instances(depsgraph, index: ExportIndex) -> tuple[np.ndarray, np.ndar
     if not rows:
         return np.zeros((0, 4, 4)), np.zeros((0, OBJECT_COLUMNS), np.float32)
     world_from_object = np.array(matrices, np.float64).reshape(-1, 4, 4)
-    return world_from_object[index.instance_rows], np.stack(rows)
+    objects = np.stack(rows)
+    if index.object_space:
+        objects[:, OBJ_OBJECT_SPACE_NORMALS] = index.object_space
+    return world_from_object[index.instance_rows], objects
 
 
 def _reads_object_attributes(index: ExportIndex) -> bool:

@@ -191,8 +191,8 @@ class PrimitiveTable:
     def wait_rows(self) -> None:
         self.triangles.wait_rows()
 
-    def place(self, instances) -> None:
-        self.triangles.place(instances)
+    def place(self, instances, objects=None) -> None:
+        self.triangles.place(instances, objects)
 
     def shape_materials(self) -> np.ndarray:
         """(M',) int32 every material row the curves and points use (the renderer's wave size asks)."""

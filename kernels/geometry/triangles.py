@@ -8,7 +8,7 @@ import threading
 
 import numpy as np
 
-from ..scene import SceneArrays, corner_values
+from ..scene import SceneArrays, corner_values, object_space_objects
 from .instances import apply_matrices, normal_matrices
 from ..vec import cross_xyz, dot_rows, normalize_floored_xyz
 
@@ -18,7 +18,9 @@ _COLUMNS = 27
 
 
 class TriangleTable:
-    """(R, 27) float32 rows: p0, e1, e2, unit geometric normal, three unit corner normals, three corner UVs.
+    """(R, 27) float32 rows: p0, e1, e2, unit geometric normal, three corner normals (unit, but those of an
+    object that interpolates its normals in object space: world-space directions of one scale per triangle,
+    _fill_rows), three corner UVs.
     Gathering whole rows of a (R, 27) table is ~9x faster than columns of a (27, R) one.
 
     Rows are the scene's plain triangles (world space) and then each instanced prototype's triangles once
@@ -36,14 +38,15 @@ class TriangleTable:
         parts = [scene] + list(inst.prototypes if inst is not None else ())
         self.plain_count = len(scene.positions)
         self._rows = None
-        self._source = None      # (positions, normals, uvs, mirrored) the rows come from while they are deferred
+        self._source = None      # (positions, normals, uvs, mirrored, object_space): the deferred rows' source
         self._building = None    # the thread building deferred rows
         self._build_lock = threading.Lock()
-        mirrored = scene.mirrored_triangles()
+        mirrored, object_space = scene.mirrored_triangles(), scene.object_space_triangles()
         if deferred and inst is None and self.plain_count >= DEFERRED_ROWS:
-            self._source = (scene.positions, scene.normals, scene.uvs, mirrored)
+            self._source = (scene.positions, scene.normals, scene.uvs, mirrored, object_space)
         else:
-            self._rows = _concatenate([_triangle_table_of(scene.positions, scene.normals, scene.uvs, mirrored)]
+            self._rows = _concatenate([_triangle_table_of(scene.positions, scene.normals, scene.uvs, mirrored,
+                                                          object_space)]
                                       + [_triangle_table_of(p.positions, p.normals, p.uvs) for p in parts[1:]])
         self.material_ids = _concatenate([part.material_ids for part in parts])
         # (R, 12) float32: per corner the tangent xyz and its sign; apart from the rows every hit gathers,
@@ -77,7 +80,7 @@ class TriangleTable:
             self._bases = inst.bases(self.plain_count)
             starts = np.cumsum([self.plain_count] + [p.triangle_count for p in inst.prototypes])[:-1]
             self._first_row = np.asarray(starts, np.int64)[inst.prototype]
-            self.place(inst)
+            self.place(inst, scene.objects)
 
     @property
     def rows(self) -> np.ndarray:
@@ -120,17 +123,19 @@ class TriangleTable:
     @staticmethod
     def _computed_rows_from(source, prim: np.ndarray) -> np.ndarray:
         """(N, 27) rows of plain triangles prim computed from source, the scene's (positions, normals,
-        uvs, mirrored), while the table is deferred."""
-        positions, normals, uvs, mirrored = source
+        uvs, mirrored, object_space), while the table is deferred."""
+        positions, normals, uvs, mirrored, object_space = source
         out = np.empty((len(prim), _COLUMNS), np.float32)
         # (np.take would first copy a one-row view of a mesh without UVs whole; indexing reads its row.)
         corner_uvs = uvs[prim] if uvs.strides[0] == 0 else np.take(uvs, prim, axis=0)
         _fill_rows(out, corner_values(positions, prim), corner_values(normals, prim), corner_uvs,
-                   None if mirrored is None else np.take(mirrored, prim))
+                   None if mirrored is None else np.take(mirrored, prim),
+                   None if object_space is None else np.take(object_space, prim))
         return out
 
-    def place(self, instances) -> None:
-        """Take the instances' transforms and object rows (kernels.scene.Instances): at build, and again
+    def place(self, instances, objects: np.ndarray | None = None) -> None:
+        """Take the instances' transforms and object rows (kernels.scene.Instances) and the object table
+        (SceneArrays.objects: which instances interpolate their normals in object space): at build, and again
         when they move (the same instances of the same prototypes; the rows themselves never change)."""
         if self._bases is None or len(instances.prototype) != len(self._bases):
             raise ValueError("place: the instances are not the ones the table was built for")
@@ -140,6 +145,9 @@ class TriangleTable:
         self._normal = normal_matrices(m[:, :3, :3])
         self._det_sign = np.sign(np.linalg.det(m[:, :3, :3])).astype(np.float32)
         self._instance_objects = instances.object_ids
+        flags = object_space_objects(objects)
+        self._object_space = None if flags is None or instances.object_ids is None else \
+            np.take(flags, instances.object_ids)
 
     @property
     def instanced(self) -> bool:
@@ -189,6 +197,12 @@ class TriangleTable:
         for col in (N0, N1, N2):
             n = apply_matrices(normal, g[:, col:col + 3])
             out[:, col:col + 3] = np.stack(normalize_floored_xyz(n.T), axis=1)
+        common = None if self._object_space is None else np.flatnonzero(np.take(self._object_space, k))
+        if common is not None and len(common):
+            # Normals interpolated in object space: the corners turned by the normal matrix keep their lengths'
+            # ratios (one scale per triangle), so the interpolated normal is the object-space one turned.
+            n = np.stack([apply_matrices(normal[common], g[common, col:col + 3]) for col in (N0, N1, N2)], axis=1)
+            out[common, N0:N2 + 3] = _one_scale(n).reshape(len(common), 9)
         out[:, UV0:] = g[:, UV0:]
         return out
 
@@ -232,6 +246,7 @@ class TriangleTable:
             ks = np.take(k, sel)
             linear, normal = np.take(self._linear, ks, axis=0), np.take(self._normal, ks, axis=0)
             sign = np.take(self._det_sign, ks)
+            object_n = n[sel]
             for c in range(3):
                 v = apply_matrices(linear, t[sel, 4 * c:4 * c + 3])
                 length = np.sqrt(np.einsum("ij,ij->i", v, v))
@@ -239,6 +254,11 @@ class TriangleTable:
                 t[sel, 4 * c + 3] *= sign
                 m = apply_matrices(normal, n[sel, 3 * c:3 * c + 3])
                 n[sel, 3 * c:3 * c + 3] = np.stack(normalize_floored_xyz(m.T), axis=1)
+            common = None if self._object_space is None else np.flatnonzero(np.take(self._object_space, ks))
+            if common is not None and len(common):   # as _place
+                turned = np.stack([apply_matrices(normal[common], object_n[common, 3 * c:3 * c + 3])
+                                   for c in range(3)], axis=1)
+                n[sel[common]] = _one_scale(turned).reshape(len(common), 9)
         t, n = t.T, n.T
         tangent = tuple(w0 * t[k] + b1 * t[4 + k] + b2 * t[8 + k] for k in range(3))
         sign = w0 * t[3] + b1 * t[7] + b2 * t[11]
@@ -266,13 +286,13 @@ DEFERRED_ROWS = 2 * _PARALLEL_ROWS
 
 
 def _triangle_table_of(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray,
-                       mirrored: np.ndarray | None = None) -> np.ndarray:
-    """(T, 27) rows of triangles (SceneArrays fields; mirrored: SceneArrays.mirrored_triangles()); big ones
-    built in slices, in parallel."""
+                       mirrored: np.ndarray | None = None, object_space: np.ndarray | None = None) -> np.ndarray:
+    """(T, 27) rows of triangles (SceneArrays fields; mirrored: SceneArrays.mirrored_triangles(), object_space
+    SceneArrays.object_space_triangles()); big ones built in slices, in parallel."""
     t = len(positions)
     table = np.empty((t, _COLUMNS), np.float32)
     if t < 2 * _PARALLEL_ROWS:
-        _fill_rows(table, corner_values(positions), corner_values(normals), uvs, mirrored)
+        _fill_rows(table, corner_values(positions), corner_values(normals), uvs, mirrored, object_space)
         return table
     from concurrent.futures import ThreadPoolExecutor
     import os
@@ -280,15 +300,18 @@ def _triangle_table_of(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarr
     with ThreadPoolExecutor(max(1, os.cpu_count() or 1)) as pool:
         # positions[s], normals[s]: slices of the arrays, or the slice's corners gathered from CornerRows.
         list(pool.map(lambda s: _fill_rows(table[s], positions[s], normals[s], uvs[s],
-                                           None if mirrored is None else mirrored[s]), slices))
+                                           None if mirrored is None else mirrored[s],
+                                           None if object_space is None else object_space[s]), slices))
     return table
 
 
 def _fill_rows(table: np.ndarray, p: np.ndarray, n: np.ndarray, uvs: np.ndarray,
-               mirrored: np.ndarray | None = None) -> None:
+               mirrored: np.ndarray | None = None, object_space: np.ndarray | None = None) -> None:
     """Rows in float32, straight in the layout the renderer gathers from; whole (T, 3) and (T, 3, 3)
     blocks at a time (the same float32 operations, in the same order, as component by component).
-    mirrored : (T,) bool or None, triangles whose geometric normal is turned to their object's front."""
+    mirrored : (T,) bool or None, triangles whose geometric normal is turned to their object's front.
+    object_space : (T,) bool or None, triangles whose normals n are object-space unit normals turned by their
+    object's normal matrix (not made unit again): their corners are divided by one length, the longest."""
     t = len(p)
     p0 = table[:, P0:P0 + 3]
     p0[:] = p[:, 0]
@@ -303,12 +326,22 @@ def _fill_rows(table: np.ndarray, p: np.ndarray, n: np.ndarray, uvs: np.ndarray,
         np.negative(ng, out=ng, where=mirrored[:, None])
     normals = table[:, N0:N2 + 3].reshape(t, 3, 3)
     length2 = dot_rows(n, n)
-    np.multiply(n, (np.float32(1.0) / np.sqrt(np.maximum(length2, np.float32(1e-37))))[:, :, None], out=normals)
+    scale = np.float32(1.0) / np.sqrt(np.maximum(length2, np.float32(1e-37)))
+    if object_space is not None and object_space.any():
+        common = np.float32(1.0) / np.sqrt(np.maximum(length2.max(axis=1), np.float32(1e-37)))
+        scale = np.where(object_space[:, None], common[:, None], scale)
+    np.multiply(n, scale[:, :, None], out=normals)
     # A zero-length corner normal falls back to the face normal.
     zero_t, zero_c = np.nonzero(length2 < np.float32(1e-30))
     if len(zero_t):
         normals[zero_t, zero_c] = ng[zero_t]
     table[:, UV0:UV2 + 2] = uvs.reshape(t, 6)
+
+
+def _one_scale(n: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) float32: each triangle's three corner normals n divided by the longest one's length."""
+    length = np.sqrt(np.maximum(np.einsum("ijk,ijk->ij", n, n).max(axis=1), np.float32(1e-37)))
+    return (n / length[:, None, None]).astype(np.float32)
 
 
 def _inverse_length(v: np.ndarray) -> np.ndarray:

@@ -34,9 +34,10 @@ from .links import ALL_SETS, MAX_LINK_SETS, LightLinks
 from .materials import (CLOSURE_KINDS, INPUT_NODES, NORMAL_MAP_SPACES, VOLUME_KINDS, Closure, Materials, NormalMap,
                         Param, Shader, Tangent, diffuse_shader)
 from .points import Points
-from .objects import (OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_PASS_INDEX, OBJ_RANDOM, OBJ_SHADING_OFFSET,
-                      OBJ_TERMINATOR, OBJ_TEXSPACE_LOC, OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR, OBJECT_COLUMNS,
-                      TERMINATOR_OFFSET, mirrored_objects, object_row, object_rows)
+from .objects import (OBJ_COLOR, OBJ_FROM_WORLD, OBJ_LOCATION, OBJ_OBJECT_SPACE_NORMALS, OBJ_PASS_INDEX, OBJ_RANDOM,
+                      OBJ_SHADING_OFFSET, OBJ_TERMINATOR, OBJ_TEXSPACE_LOC, OBJ_TEXSPACE_SIZE, OBJ_WORLD_LINEAR,
+                      OBJECT_COLUMNS, TERMINATOR_OFFSET, mirrored_objects, object_row, object_rows,
+                      object_space_objects)
 from .triangles import CornerRows, corner_values, padded_triangles, same_arrays, same_triangles
 from .world import World
 
@@ -50,9 +51,9 @@ __all__ = [
     "NO_GROUP", "LightGroups",
     "CLOSURE_KINDS", "INPUT_NODES", "NORMAL_MAP_SPACES", "VOLUME_KINDS", "Closure", "Materials", "NormalMap", "Param", "Shader",
     "Tangent", "diffuse_shader",
-    "OBJ_COLOR", "OBJ_FROM_WORLD", "OBJ_LOCATION", "OBJ_PASS_INDEX", "OBJ_RANDOM", "OBJ_SHADING_OFFSET",
-    "OBJ_TERMINATOR", "OBJ_TEXSPACE_LOC", "OBJ_TEXSPACE_SIZE", "OBJ_WORLD_LINEAR", "OBJECT_COLUMNS", "TERMINATOR_OFFSET",
-    "mirrored_objects", "object_row", "object_rows",
+    "OBJ_COLOR", "OBJ_FROM_WORLD", "OBJ_LOCATION", "OBJ_OBJECT_SPACE_NORMALS", "OBJ_PASS_INDEX", "OBJ_RANDOM",
+    "OBJ_SHADING_OFFSET", "OBJ_TERMINATOR", "OBJ_TEXSPACE_LOC", "OBJ_TEXSPACE_SIZE", "OBJ_WORLD_LINEAR", "OBJECT_COLUMNS",
+    "TERMINATOR_OFFSET", "mirrored_objects", "object_row", "object_rows", "object_space_objects",
     "CornerRows", "corner_values", "padded_triangles", "same_arrays", "same_triangles",
     "World",
 ]

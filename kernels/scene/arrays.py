@@ -15,7 +15,7 @@ from .light_groups import LightGroups
 from .lights import Lights
 from .links import LightLinks
 from .materials import Materials
-from .objects import OBJECT_COLUMNS, mirrored_objects
+from .objects import OBJECT_COLUMNS, mirrored_objects, object_space_objects
 from .points import Points
 from .triangles import check_material_ids, check_triangles, clean_triangles, same_arrays, same_triangles
 from .world import World
@@ -169,6 +169,14 @@ class SceneArrays:
             return None
         mirrored = mirrored_objects(self.objects)
         return np.take(mirrored, self.object_ids) if mirrored.any() else None
+
+    def object_space_triangles(self) -> np.ndarray | None:
+        """(T,) bool: the plain triangles whose object interpolates its normals in object space
+        (object_space_objects); None when none does."""
+        if self.object_ids is None:
+            return None
+        flags = object_space_objects(self.objects)
+        return None if flags is None else np.take(flags, self.object_ids)
 
     def validate(self, clean: "SceneArrays | None" = None) -> "ValidatedScene":
         """Check every field; drop degenerate or non-finite triangles.
