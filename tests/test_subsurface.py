@@ -331,6 +331,21 @@ def test_backlit_subsurface_sphere_matches_cycles(method, node):
     H.compare_to_cycles(_sss_scene(method, node), samples=64)
 
 
+def test_subsurface_with_a_black_checker_base_colour_matches_cycles():
+    """A backlit subsurface sphere whose Base Color is a checker of black and skin: the black squares' subsurface
+    weight falls under the closure cutoff, the others' does not, in one batch of hits. Ember's BSSRDF setup took
+    the IOR of all the batch's hits for the kept ones and stopped the render with an internal error (a public
+    character model, Blender 2.80)."""
+    scene = _sss_scene("RANDOM_WALK")
+    tree = bpy.data.materials["sss"].node_tree
+    checker = tree.nodes.new("ShaderNodeTexChecker")
+    checker.inputs["Color1"].default_value = (0.0, 0.0, 0.0, 1.0)
+    checker.inputs["Color2"].default_value = (0.8, 0.5, 0.4, 1.0)
+    checker.inputs["Scale"].default_value = 4.0
+    tree.links.new(checker.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Base Color"])
+    H.compare_to_cycles(scene, samples=64)
+
+
 def _burley_on_a_floor():
     """A Christensen-Burley sphere sunk into a white floor, lit from above: the floor is within the reach of the
     probes (16 d = 0.64 for red) near the sphere's foot, and the floor's bounce lights the sphere's underside."""

@@ -80,7 +80,8 @@ def add_bssrdf(b, idx, weight, albedo, radius, ior, alpha, anisotropy, method, n
     n = len(keep)
     if n == 0:
         return
-    sub = (lambda a, k=3: np.take(np.broadcast_to(np.asarray(a, F32), (k, len(idx)) if k else (len(idx),)),  # noqa: E731
+    m = len(idx)   # the hits given (idx itself is narrowed to the kept ones below)
+    sub = (lambda a, k=3: np.take(np.broadcast_to(np.asarray(a, F32), (k, m) if k else (m,)),  # noqa: E731
                                   keep, axis=-1))
     idx, weight, albedo, radius = np.asarray(idx)[keep], weight[:, keep], sub(albedo), sub(radius)
     ior, alpha, anisotropy = sub(ior, 0), sub(alpha, 0), sub(anisotropy, 0)
