@@ -34,7 +34,7 @@ UNLINKED_ROW = (0, 0, ALL_MASK, ALL_MASK)
 from .materials import MaterialTable
 from .mesh import OBJECT_ATTRIBUTE_KINDS, LocalMesh, read_mesh, readable_mesh
 from .shapes import ShapeExport
-from .rgba_attributes import instancer_attribute, object_attribute, particle_values
+from .rgba_attributes import InstanceAttributes, instancer_attribute, object_attribute, particle_values
 from .volumes import is_volume, read_volume
 
 
@@ -267,6 +267,10 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         slots.setdefault((mesh_key, slot_rows[object_key]), []).append(signatures[object_key])
     if cache is not None:
         cache.end()
+    if object_values.instances.unmatched:
+        warnings.append(f"Instancer attributes: {object_values.instances.unmatched} geometry-nodes instances placed "
+                        "inside other instances read no instance attribute (Ember reads those of an instancer's own "
+                        "instances): they read the instancer's and the object's properties")
     instanced = instanced_groups(groups, meshes, keys, moving, instance_everything)
     object_space = object_space_groups(groups, keys, moving, materials, diced)
     # Object table rows per group, all of a group's instances at once.
@@ -373,13 +377,15 @@ def _displaced(inst, ob, source, local: LocalMesh, materials: MaterialTable, row
 
 
 class ObjectValues(dict):
-    """(object pointer, name) -> an Object attribute's RGBA, read once; and the scene's time (Blender's ctime:
-    the frame and subframe, remapped by Time Stretching), which Particle Info's Age counts from."""
+    """(object pointer, name) -> an Object attribute's RGBA, read once; the scene's time (Blender's ctime:
+    the frame and subframe, remapped by Time Stretching), which Particle Info's Age counts from; and the
+    instancers' geometry-nodes instance attributes (rgba_attributes.InstanceAttributes)."""
 
     def __init__(self, scene):
         super().__init__()
         render = scene.render
         self.time = (scene.frame_current + scene.frame_subframe) * render.frame_map_new / max(render.frame_map_old, 1)
+        self.instances = InstanceAttributes()   # geometry-nodes instance attributes (Instancer type)
 
 
 # Particle Info's object attribute names -> its outputs.
@@ -400,7 +406,7 @@ def _object_attributes(inst, ob, names: tuple, cache: ObjectValues) -> dict:
         if kind not in OBJECT_ATTRIBUTE_KINDS or kind == "particle":
             continue
         if kind == "instancer" and inst.is_instance:
-            out[name] = instancer_attribute(inst, ob, key)
+            out[name] = instancer_attribute(inst, ob, key, cache.instances)
             continue
         cached = (ob.as_pointer(), key)
         if cached not in cache:

@@ -5,11 +5,13 @@ Blender's rules (blenkernel/intern/object_dupli.cc: find_property_rgba, BKE_obje
 BKE_view_layer_find_rgba_attribute), which Cycles' sync calls (intern/cycles/blender/object.cpp
 lookup_instance_property for Object and Instancer, shader.cpp resolve_view_layer_attributes for View Layer):
 
+- Geometry Nodes instances: the attribute of that name on the instance domain of the instances that placed
+  them (object_dupli.cc find_geonode_attribute_rgba), read through Object.evaluated_geometry() (InstanceAttributes).
 - On one owner, a custom property of that name first; only when there is none, the name as an RNA path. A float,
   int or boolean reads (v, v, v, 1); a float or int array of at most 4 items fills (0, 0, 0, 1) from the front;
   anything else (strings, groups, pointers, longer arrays) is not found there.
 - Object: the object, then its data (the mesh). Instancer: for an instance, its particle system's settings,
-  then the instancer object, then the object and its data. View Layer: the view layer, the scene, the world.
+  its geometry-nodes instance attribute, then the instancer object, then the object and its data. View Layer: the view layer, the scene, the world.
 - Found nowhere: (0, 0, 0, 0).
 """
 from __future__ import annotations
@@ -80,17 +82,142 @@ def object_attribute(ob, name: str) -> tuple:
     return first_found((ob, getattr(ob, "data", None)), name)
 
 
-def instancer_attribute(inst, ob, name: str) -> tuple:
+def instancer_attribute(inst, ob, name: str, instances: "InstanceAttributes | None" = None) -> tuple:
     """An Instancer attribute of a depsgraph instance (read while the instance is valid): its particle
-    system's settings, the instancer, then the object and its data. Geometry Nodes instance attributes,
-    which Blender checks after the particle settings, are not reachable from Python: not read."""
-    owners = []
-    if inst is not None and inst.is_instance:
-        system = getattr(inst, "particle_system", None)
-        if system is not None:
-            owners.append(system.settings)
-        owners.append(inst.parent)
-    return first_found((*owners, ob, getattr(ob, "data", None)), name)
+    system's settings, its geometry-nodes instance attribute (instances: the export's InstanceAttributes), the
+    instancer, then the object and its data."""
+    if inst is None or not inst.is_instance:
+        return first_found((ob, getattr(ob, "data", None)), name)
+    system = getattr(inst, "particle_system", None)
+    if system is not None:
+        value = property_rgba(system.settings, name)
+        if value is not None:
+            return value
+    if instances is not None:
+        value = instances.value(inst, name)
+        if value is not None:
+            return value
+    return first_found((inst.parent, ob, getattr(ob, "data", None)), name)
+
+
+class InstanceAttributes:
+    """The attributes geometry nodes put on the instance domain of an instancer's instances (Store Named
+    Attribute on instances, Molecular Nodes' colours), as Blender's find_geonode_attribute_rgba reads them for an
+    Attribute node of type Instancer. Python reaches a depsgraph instance's instancer (inst.parent) and, through
+    Object.evaluated_geometry(), its instances with their transforms and attributes, but not which of them an
+    instance is: that is found by its world matrix, the instancer's times the instance's transform (instances of
+    instances, placed by two transforms, are not matched: `unmatched` counts them, and they read what the
+    instancer and the object hold). One table per instancer, read once per export."""
+
+    def __init__(self):
+        self._tables: dict = {}
+        self._last = (None, None)   # (instancer pointer, matrix bytes) of the instance last asked, its index
+        self.unmatched = 0
+
+    def value(self, inst, name: str) -> tuple | None:
+        table = self._table(inst.parent)
+        if table is None:
+            return None
+        matrix = np.array(inst.matrix_world, np.float64)
+        key = (inst.parent.as_pointer(), matrix.tobytes())
+        if key != self._last[0]:   # each of an instance's names asks in turn: match it once
+            index = table.index_of(matrix)
+            self._last = (key, index)
+            if index is None:
+                self.unmatched += 1
+        index = self._last[1]
+        return None if index is None or name not in table.names else table.rgba(name, index)
+
+    def _table(self, parent):
+        if parent is None:
+            return None
+        key = parent.as_pointer()
+        if key not in self._tables:
+            self._tables[key] = _InstanceTable.of(parent)
+        return self._tables[key]
+
+
+class _InstanceTable:
+    """One instancer's instances: their world matrices (sorted by x of the translation for lookups) and their
+    instance-domain attributes, read as RGBA when first asked."""
+
+    def __init__(self, geometry, cloud, world: np.ndarray):
+        self.geometry = geometry   # keeps the instances' point cloud (owned by the geometry set) alive
+        self.cloud = cloud
+        self.world = world
+        self.names = {a.name for a in cloud.attributes if not a.name.startswith(".")} - _BUILTIN
+        self._x_order = np.argsort(world[:, 0, 3], kind="stable")
+        self._xs = world[self._x_order, 0, 3]
+        self._values: dict = {}
+        self._last = -1
+
+    @classmethod
+    def of(cls, parent):
+        geometry = getattr(parent, "evaluated_geometry", None)
+        if geometry is None:   # Blender before 4.4
+            return None
+        try:
+            geometry = geometry()
+            cloud = geometry.instances_pointcloud()
+        except (RuntimeError, ReferenceError, TypeError):   # an Empty instancing a collection has no geometry
+            return None
+        if cloud is None or not len(cloud.points) or "instance_transform" not in cloud.attributes:
+            return None
+        n = len(cloud.points)
+        flat = np.empty(16 * n, np.float32)
+        cloud.attributes["instance_transform"].data.foreach_get("value", flat)
+        local = flat.reshape(n, 4, 4).transpose(0, 2, 1).astype(np.float64)   # stored by columns
+        return cls(geometry, cloud, np.matmul(np.array(parent.matrix_world, np.float64)[None], local))
+
+    def index_of(self, matrix: np.ndarray) -> int | None:
+        """The instance whose world matrix is `matrix` (to float32 precision): the one after the last found
+        first (Blender lists an instancer's instances in order), else a search by the translation's x."""
+        tolerance = 1e-5 * (1.0 + np.abs(matrix).max())
+        for guess in (self._last, self._last + 1):
+            if 0 <= guess < len(self.world) and np.abs(self.world[guess] - matrix).max() <= tolerance:
+                self._last = guess
+                return guess
+        x = matrix[0, 3]
+        lo, hi = np.searchsorted(self._xs, x - tolerance), np.searchsorted(self._xs, x + tolerance, side="right")
+        for candidate in self._x_order[lo:hi]:
+            if np.abs(self.world[candidate] - matrix).max() <= tolerance:
+                self._last = int(candidate)
+                return self._last
+        return None
+
+    def rgba(self, name: str, index: int) -> tuple:
+        if name not in self._values:
+            self._values[name] = _attribute_rgba(self.cloud.attributes[name], len(self.world))
+        return tuple(float(v) for v in self._values[name][index])
+
+
+# Instance-domain attributes Blender keeps for itself.
+_BUILTIN = {"instance_transform", "position"}
+
+
+def _attribute_rgba(attribute, n: int) -> np.ndarray:
+    """(n, 4) an attribute's values converted to a colour as Blender's attribute conversions do
+    (lookup_or_default<ColorGeometry4f>): a scalar v is (v, v, v, 1), a vector (x, y, z, 1), a 2D vector
+    (x, y, 0, 1), a colour itself; other types read (0, 0, 0, 0)."""
+    out = np.zeros((n, 4), np.float32)
+    kind = attribute.data_type
+    if kind in ("FLOAT_COLOR", "BYTE_COLOR"):
+        values = np.empty(4 * n, np.float32)
+        attribute.data.foreach_get("color", values)
+        return values.reshape(n, 4)
+    width, field = {"FLOAT": (1, "value"), "INT": (1, "value"), "INT8": (1, "value"), "BOOLEAN": (1, "value"),
+                     "FLOAT_VECTOR": (3, "vector"), "FLOAT2": (2, "vector"), "INT32_2D": (2, "value")}.get(kind, (0, ""))
+    if not width:
+        return out
+    raw = np.empty(width * n, np.float64 if kind != "BOOLEAN" else bool)
+    attribute.data.foreach_get(field, raw)
+    raw = raw.reshape(n, width).astype(np.float32)
+    if width == 1:
+        out[:, :3] = raw
+    else:
+        out[:, :width] = raw
+    out[:, 3] = 1.0
+    return out
 
 
 def particle_values(inst, outputs, time: float) -> dict:
