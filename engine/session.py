@@ -41,6 +41,9 @@ from .persistent import kept, persistent_data
 from .result_writer import WRITE_CHUNK_PIXELS, ResultWriter
 from .version import EMBER_VERSION
 
+# Cycles widens its rays' differentials after rough bounces from Blender 5.2 on (RenderSettings.widen_differentials).
+WIDENED_DIFFERENTIALS = (5, 2, 0)
+
 # The Image Editor is refreshed at most this often (Cycles updates a few times a second); the first and
 # the last image always go through.
 DISPLAY_INTERVAL_S = 0.25
@@ -105,6 +108,7 @@ def render_settings(scene, region, *, samples: int | None = None, time_limit: fl
         transparent_glass=transparent_glass(scene),
         exposure=film_exposure(scene),
         light_threshold=light_threshold(scene),
+        widen_differentials=bpy.app.version >= WIDENED_DIFFERENTIALS,
         **fast_gi(scene, viewport, view_layer),
         quick_first_pass=not _background(),
     )

@@ -133,7 +133,9 @@ class BakeRun:
         first = first_hits(tables, self.image, texel, jx, jy, self.use_camera)
         state = integrator.new_paths(tables, wave, end - start, samples, start)
         state.dp = first.dp
-        wave.spread_dd = F32(0.0)   # a bake's rays spread no further (Cycles: dD = 0)
+        wave.spread_dd = F32(0.0)   # a bake's rays spread no further (Cycles: dD = 0), but by rough bounces
+        if state.dd is not None:
+            state.dd[:] = 0.0
         return integrator.first_vertex(tables, wave, state, first.rays, first.hits, last)
 
     def first_hit(self, wave, state, hit, shading) -> None:
@@ -232,12 +234,12 @@ def _first_hit_chunk(tables, image, job, settings, texels, spp, split):
         bumped = np.flatnonzero(np.take(_bumped_materials(tables), tables.triangles.materials(first.hits.prim)))
         if len(bumped):
             some = first.take(bumped)
-            wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None, only_catchers=None)
+            wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None, only_catchers=None, spread_dd=F32(0.0))
             state = integrator.new_paths(tables, wave, len(bumped), samples.take(bumped), 0)
             hit, shading = _shade_first(tables, state, some, split)
             value[:, bumped] = average_normal(shading.closures, len(bumped), hit.ns)
     else:
-        wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None, only_catchers=None)
+        wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None, only_catchers=None, spread_dd=F32(0.0))
         state = integrator.new_paths(tables, wave, n, samples, 0)
         hit, shading = _shade_first(tables, state, first, split)
         cs = shading.closures

@@ -196,6 +196,8 @@ def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None)
         state.link_set, state.scattered = np.zeros(n, np.uint8), np.zeros(n, bool)
     if tables.shapes is not None:
         state.self_key = np.full(n, -1, np.int64)
+    if settings.widen_differentials:
+        state.dd = np.full(n, wave.spread_dd, np.float32)
     if settings.transparent_background and settings.transparent_glass is not None:
         state.see_through = np.ones(n, bool)
     if passes.has_single_passes(aux):
@@ -284,7 +286,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     if not subsurface_exit:
         # Cycles' compact ray differentials: the spread grows by the camera's pixel angle per unit
         # of distance, bounce after bounce (kernel/util/differential.h).
-        state.dp = state.dp + t_hit * wave.spread_dd
+        state.dp = state.dp + t_hit * (wave.spread_dd if state.dd is None else state.dd)
     hit.ray = RayInfo(state.bounce, state.transparent, t_hit, dp=state.dp, lobes=state.lobes,
                       caustics=_caustics(settings), portal=state.portal)
     if subsurface_exit:
@@ -560,6 +562,15 @@ def _sample_bsdf(tables, wave, hit, closures, numbers) -> BsdfSample:
     return closures.sample(u_lobe, u1, u2, uc, warp=warp)
 
 
+def _widen(state, closures, rows, wi) -> None:
+    """Cycles 5.2's bsdf_widen_dD after the bounces of paths rows (not singular) toward wi: the direction spread
+    becomes at least the square root of the closures' average roughness squared there (a diffuse bounce: 1)."""
+    if not len(rows):
+        return
+    rough = closures.average_roughness_squared(rows, tuple(np.take(c, rows) for c in wi))
+    state.dd[rows] = np.where(rough > 0, np.maximum(state.dd[rows], np.sqrt(rough)), state.dd[rows])
+
+
 # ---- stage: absorb what cannot continue, count bounces, then Russian roulette
 def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None) -> np.ndarray:
     """Update the path state with the sampled BSDF (focus: the world's at these hits, _world_focus; closures:
@@ -589,6 +600,8 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None)
     # A path at the limit goes on to the world or to the emission of its next surface (may_scatter), no further.
     alive &= state.transparent <= transparent_limit(wave.settings)
     state.bounce = state.bounce + (~passing & ~entering)
+    if state.dd is not None and closures is not None:
+        _widen(state, closures, np.flatnonzero(alive & ~passing & ~entering & ~bs.delta & (bs.pdf > 0)), bs.wi)
     if state.see_through is not None:
         state.see_through &= passing | _through_clear_glass(wave, bs, closures)
     if state.portal is not None:

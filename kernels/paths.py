@@ -90,6 +90,8 @@ class PathState:
     see_through: np.ndarray | None = None  # (N,) bool: the path has only passed transparent surfaces and smooth
     #                                        glass since the camera (Cycles' PATH_RAY_TRANSPARENT_BACKGROUND past
     #                                        bounce 0); None without Transparent Glass (settings.transparent_glass)
+    dd: np.ndarray | None = None  # (N,) float32: the ray's direction spread (Cycles' compact differential dD) where
+    #                               bounces widen it (RenderSettings.widen_differentials); None: the wave's spread_dd
     data_pending: np.ndarray | None = None  # (N,) bool: the camera path has not yet met the surface its data passes
     #                                         (Depth, Normal, ...) take: one less transparent than the settings'
     #                                         pass_alpha_threshold (Cycles' PATH_RAY_SINGLE_PASS_DONE unset); None
@@ -149,6 +151,8 @@ class PathState:
             self.see_through = np.take(self.see_through, idx)
         if self.data_pending is not None:
             self.data_pending = np.take(self.data_pending, idx)
+        if self.dd is not None:
+            self.dd = np.take(self.dd, idx)
 
     @classmethod
     def concat(cls, a: "PathState", b: "PathState") -> "PathState":
@@ -176,7 +180,7 @@ class PathState:
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
                      "portal", "segments", "media", "volume_bounces", "volume_bounds", "mis_facing", "link_set",
-                     "scattered", "self_key", "see_through", "data_pending"):
+                     "scattered", "self_key", "see_through", "data_pending", "dd"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)
         state.escape_scale = cat(a.escape_scale, b.escape_scale, ones)

@@ -35,6 +35,11 @@ class RenderSettings:
     # sample whose contribution before the path's throughput, times the exposure, is below it has its shadow ray
     # traced with probability contribution / threshold and is weighted up by its inverse (light_sample_terminate).
     light_threshold: float = 0.0
+    # Cycles 5.2's widened ray differentials (bsdf_widen_dD): after a bounce that is not singular, the ray's direction
+    # spread is at least the square root of its closures' roughness squared averaged by their pdfs toward the
+    # sampled direction (a diffuse bounce: 1 radian), so that what reads the footprint (Bump, hair coverage) sees a
+    # wide one at indirect hits. Off: the camera's pixel spread throughout, as Cycles up to 5.1.
+    widen_differentials: bool = False
     wave_size: int | None = None
     transparent_max_bounces: int = 8
     # Cycles' per-type limits (Light Paths > Max Bounces: Diffuse, Glossy, Transmission), None for none: a path

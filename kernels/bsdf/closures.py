@@ -27,7 +27,7 @@ from .bump import BumpShadowing
 from .light_passes import weight_albedo
 from .lobes import (ASHIKHMIN_SHIRLEY, DIFFUSE_LABEL_LOBES, GLASS, HAIR_CHIANG, HAIR_HUANG, LAMBERT, MICROFACET_LOBES,
                     REFLECTION, REFRACTION, SELF_EVALUATED, SINGULAR_LOBES, TRANSMITTING_LOBES, TRANSPARENT)
-from .mixture_eval import eval_at
+from .mixture_eval import average_roughness_squared, eval_at
 from .mixture_sample import BsdfSample, pick_closures, sample
 from .registry import LOBES
 
@@ -302,6 +302,12 @@ class ClosureSet:
     def sample(self, u_lobe, u1, u2, uc, warp=None) -> BsdfSample:
         """A direction per hit from the mixture: mixture_sample.sample, which says what the arguments are."""
         return sample(self, u_lobe, u1, u2, uc, warp)
+
+    def average_roughness_squared(self, hits: np.ndarray, wi) -> np.ndarray:
+        """(n,) float32 the roughness squared of the hits `hits` (ascending, unique) toward world directions wi, their
+        closures' specular_roughness_squared averaged with weights pdf x sample weight (Cycles 5.2's
+        _surface_shader_bsdf_eval_mis r_avg_roughness_squared, which bsdf_widen_dD reads); 0 where no pdf is."""
+        return average_roughness_squared(self, hits, wi)
 
     def specular_roughness_squared(self, rows: np.ndarray) -> np.ndarray:
         """(n,) float32 Cycles' bsdf_get_specular_roughness_squared of closure rows: 0 for a singular closure (a

@@ -38,6 +38,26 @@ def eval_at(cs, hits: np.ndarray, wi) -> tuple[np.ndarray, np.ndarray]:
     return f, np.where(total > 0, pdf, 0.0).astype(F32)
 
 
+def average_roughness_squared(cs, hits: np.ndarray, wi) -> np.ndarray:
+    """ClosureSet.average_roughness_squared: the closures' roughness squared at hits, weighted by pdf x sample weight
+    toward wi."""
+    if cs.single:
+        rows = cs.row_of_hit[hits]
+        have = np.flatnonzero(rows >= 0)
+        out = np.zeros(len(hits), F32)
+        if len(have):
+            _, pdf = eval_closures(cs, tuple(c[have] for c in wi), rows[have])
+            out[have] = np.where(pdf > 0, cs.specular_roughness_squared(rows[have]), ZERO)
+        return out
+    idx, local = hit_rows(cs, hits)
+    _, pdf_c = eval_closures(cs, tuple(np.take(c, local) for c in wi), idx)
+    weight = pdf_c.astype(np.float64) * cs.sw[idx]
+    total = np.bincount(local, weight, minlength=len(hits))
+    rough = np.bincount(local, weight * cs.specular_roughness_squared(idx), minlength=len(hits))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(total > 0, rough / total, 0.0).astype(F32)
+
+
 def eval_closures(cs, wi_world, idx, bump: bool = True):
     """f |cos| (3, n) times the closure weight, and pdf (n,), of closures idx at wi_world (n,); with
     the bump shadowing term of an evaluation unless bump is False, and the shadow terminator's shading offset
