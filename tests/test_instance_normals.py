@@ -12,7 +12,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import add_camera, compare_to_cycles, configure_cycles, diffuse_material, new_scene, set_world
+from bpy_helpers import add_camera, add_lamp, compare_to_cycles, configure_cycles, diffuse_material, new_scene, set_world
 from exr import render_multilayer
 
 
@@ -121,9 +121,6 @@ def test_shadow_terminator_of_squashed_duplicates_matches_cycles():
     for ob in scene.objects:
         if ob.type == "MESH":
             ob.shadow_terminator_geometry_offset = 1.0
-    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
-    sun.data.energy, sun.data.angle = 3.0, 0.0
-    sun.rotation_euler = (0.0, 1.45, 0.6)
-    scene.collection.objects.link(sun)
+    add_lamp(scene, "Sun", "SUN", (0, 0, 0), (0.0, 1.45, 0.6), energy=3.0, angle=0.0)
     set_world(scene, (0.0, 0.0, 0.0))
     compare_to_cycles(scene, samples=64, max_bounces=1)
