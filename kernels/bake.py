@@ -234,12 +234,14 @@ def _first_hit_chunk(tables, image, job, settings, texels, spp, split):
         bumped = np.flatnonzero(np.take(_bumped_materials(tables), tables.triangles.materials(first.hits.prim)))
         if len(bumped):
             some = first.take(bumped)
-            wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None, only_catchers=None, spread_dd=F32(0.0))
+            wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None, only_catchers=None,
+                                   spread_dd=F32(0.0))
             state = integrator.new_paths(tables, wave, len(bumped), samples.take(bumped), 0)
             hit, shading = _shade_first(tables, state, some, split)
             value[:, bumped] = average_normal(shading.closures, len(bumped), hit.ns)
     else:
-        wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None, only_catchers=None, spread_dd=F32(0.0))
+        wave = SimpleNamespace(settings=settings, split=split, nee=nee_on, aux=None, only_catchers=None,
+                               spread_dd=F32(0.0))
         state = integrator.new_paths(tables, wave, n, samples, 0)
         hit, shading = _shade_first(tables, state, first, split)
         cs = shading.closures

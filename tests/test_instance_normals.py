@@ -6,13 +6,13 @@ the result (triangle_smooth_normal, object_normal_transform). Under a non-unifor
 faces, by degrees: a public lotus of five geometry-nodes instances of a squashed metal icosphere read 1.6% bright
 at its highlights, its normals 1.3 degrees off on average and up to 100 at the rims. Before, Ember made every
 corner unit in world space."""
-import math
 
 import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import add_camera, add_lamp, compare_to_cycles, configure_cycles, diffuse_material, new_scene, set_world
+from bpy_helpers import (add_camera, add_lamp, compare_to_cycles, configure_cycles, diffuse_material, new_scene,
+                         set_world)
 from exr import render_multilayer
 
 

@@ -11,7 +11,8 @@ lookup_instance_property for Object and Instancer, shader.cpp resolve_view_layer
   int or boolean reads (v, v, v, 1); a float or int array of at most 4 items fills (0, 0, 0, 1) from the front;
   anything else (strings, groups, pointers, longer arrays) is not found there.
 - Object: the object, then its data (the mesh). Instancer: for an instance, its particle system's settings,
-  its geometry-nodes instance attribute, then the instancer object, then the object and its data. View Layer: the view layer, the scene, the world.
+  its geometry-nodes instance attribute, then the instancer object, then the object and its data. View Layer: the
+  view layer, the scene, the world.
 - Found nowhere: (0, 0, 0, 0).
 """
 from __future__ import annotations
@@ -191,6 +192,9 @@ class _InstanceTable:
         return tuple(float(v) for v in self._values[name][index])
 
 
+# Attribute data types read as numbers: (values per element, the RNA field holding them).
+_FIELDS = {"FLOAT": (1, "value"), "INT": (1, "value"), "INT8": (1, "value"), "BOOLEAN": (1, "value"),
+           "FLOAT_VECTOR": (3, "vector"), "FLOAT2": (2, "vector"), "INT32_2D": (2, "value")}
 # Instance-domain attributes Blender keeps for itself.
 _BUILTIN = {"instance_transform", "position"}
 
@@ -205,8 +209,7 @@ def _attribute_rgba(attribute, n: int) -> np.ndarray:
         values = np.empty(4 * n, np.float32)
         attribute.data.foreach_get("color", values)
         return values.reshape(n, 4)
-    width, field = {"FLOAT": (1, "value"), "INT": (1, "value"), "INT8": (1, "value"), "BOOLEAN": (1, "value"),
-                     "FLOAT_VECTOR": (3, "vector"), "FLOAT2": (2, "vector"), "INT32_2D": (2, "value")}.get(kind, (0, ""))
+    width, field = _FIELDS.get(kind, (0, ""))
     if not width:
         return out
     raw = np.empty(width * n, np.float64 if kind != "BOOLEAN" else bool)
