@@ -194,14 +194,14 @@ class TriangleTable:
         out[:, NG:NG + 3] = np.stack(normalize_floored_xyz(cross_xyz(e1.T, e2.T)), axis=1)
         # A mirroring transform turns the winding over, not the face: its front stays Blender's.
         out[:, NG:NG + 3] *= np.take(self._det_sign, k)[:, None]
-        for col in (N0, N1, N2):
-            n = apply_matrices(normal, g[:, col:col + 3])
+        turned = [apply_matrices(normal, g[:, col:col + 3]) for col in (N0, N1, N2)]
+        for col, n in zip((N0, N1, N2), turned):
             out[:, col:col + 3] = np.stack(normalize_floored_xyz(n.T), axis=1)
         common = None if self._object_space is None else np.flatnonzero(np.take(self._object_space, k))
         if common is not None and len(common):
             # Normals interpolated in object space: the corners turned by the normal matrix keep their lengths'
             # ratios (one scale per triangle), so the interpolated normal is the object-space one turned.
-            n = np.stack([apply_matrices(normal[common], g[common, col:col + 3]) for col in (N0, N1, N2)], axis=1)
+            n = np.stack([np.take(t, common, axis=0) for t in turned], axis=1)
             out[common, N0:N2 + 3] = _one_scale(n).reshape(len(common), 9)
         out[:, UV0:] = g[:, UV0:]
         return out
