@@ -132,8 +132,8 @@ def _pair_keys(p, passes, offset) -> list:
     """The search behind Coincident.find and overlap_pairs: per pass (ask: the candidates, (m,) rows; objects: their
     rows' objects, partners then of another object, or None; pool: (T,) bool, the triangles partners may be, None:
     all) the pair keys a * T + b of triangles p (T, 3, 3) lying on one another with some area. A pass with a pool
-    is mutual (its keys both ways) and gives up, adding nothing, past OVERLAP_PAIR_BUDGET candidate pairs (a fan
-    of thousands of triangles in one cell meets itself whole); a pass without one is not bounded."""
+    is mutual (its keys both ways) and tests at most OVERLAP_PAIR_BUDGET candidate pairs, those of its sparsest cells
+    (_join); a pass without one is not bounded."""
     found = []
     n, ok, dominant, d = _planes(p)
     lo = np.minimum(np.minimum(p[:, 0], p[:, 1]), p[:, 2])
@@ -144,40 +144,35 @@ def _pair_keys(p, passes, offset) -> list:
     for ask, among_objects, pool in passes:
         if not len(ask):
             continue
-        budget, mine = (None, found) if pool is None else ([OVERLAP_PAIR_BUDGET], [])
-        try:
-            for shift in (0.0, 0.5):
-                for a, b in _cell_pairs(n, d, p, lo, hi, dominant, ask, ok, distance, shift, among_objects, pool,
-                                        budget):
-                    if among_objects is not None:
-                        apart = among_objects[a] != among_objects[b]
-                        a, b = a[apart], b[apart]
-                    margin = distance[a, None]
-                    near = np.all((lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
-                    a, b = a[near], b[near]
-                    if among_objects is None and pool is not None:
-                        # Both triangles ask here: each pair once (the test is symmetric), kept both ways below.
-                        # Within one mesh, triangles sharing an edge are neighbours (or, on its same side, copies
-                        # and folds, which copy_pairs finds): a flat face's fan and grid, most of the pairs here.
-                        if corner_keys is None:
-                            corner_keys = _corner_keys(p)
-                        keep = (a < b) & (_shared_corners(corner_keys, a, b) < 2)
-                        a, b = a[keep], b[keep]
-                    pa, pb = p[a].astype(np.float64), p[b].astype(np.float64)
-                    # b's corners within the distance of a's plane (not the planes' offsets from the origin:
-                    # two planes a hair apart and turned by a fraction of PLANE_ANGLE differ there by more
-                    # far from it)
-                    height = np.einsum("ij,ikj->ik", n[a].astype(np.float64), pb - pa[:, :1])
-                    near = np.abs(height).max(axis=1) <= distance[a]
-                    a, b, pa, pb = a[near], b[near], pa[near], pb[near]
-                    keep = _overlap(pa, pb, dominant[a])
-                    mine.append(a[keep] * len(p) + b[keep])
-                    if pool is not None:   # the overlap is mutual
-                        mine.append(b[keep] * len(p) + a[keep])
-        except _OverBudget:
-            continue
-        if pool is not None:
-            found += mine
+        budget = None if pool is None else [OVERLAP_PAIR_BUDGET]
+        for shift in (0.0, 0.5):
+            for a, b in _cell_pairs(n, d, p, lo, hi, dominant, ask, ok, distance, shift, among_objects, pool,
+                                    budget):
+                if among_objects is not None:
+                    apart = among_objects[a] != among_objects[b]
+                    a, b = a[apart], b[apart]
+                margin = distance[a, None]
+                near = np.all((lo[a] <= hi[b] + margin) & (lo[b] <= hi[a] + margin), axis=1)
+                a, b = a[near], b[near]
+                if among_objects is None and pool is not None:
+                    # Both triangles ask here: each pair once (the test is symmetric), kept both ways below.
+                    # Within one mesh, triangles sharing an edge are neighbours (or, on its same side, copies
+                    # and folds, which copy_pairs finds): a flat face's fan and grid, most of the pairs here.
+                    if corner_keys is None:
+                        corner_keys = _corner_keys(p)
+                    keep = (a < b) & (_shared_corners(corner_keys, a, b) < 2)
+                    a, b = a[keep], b[keep]
+                pa, pb = p[a].astype(np.float64), p[b].astype(np.float64)
+                # b's corners within the distance of a's plane (not the planes' offsets from the origin:
+                # two planes a hair apart and turned by a fraction of PLANE_ANGLE differ there by more
+                # far from it)
+                height = np.einsum("ij,ikj->ik", n[a].astype(np.float64), pb - pa[:, :1])
+                near = np.abs(height).max(axis=1) <= distance[a]
+                a, b, pa, pb = a[near], b[near], pa[near], pb[near]
+                keep = _overlap(pa, pb, dominant[a])
+                found.append(a[keep] * len(p) + b[keep])
+                if pool is not None:   # the overlap is mutual
+                    found.append(b[keep] * len(p) + a[keep])
     return found
 
 
@@ -211,8 +206,8 @@ PLANE_GROUP_LIMIT = 4096
 WITHIN_LIMIT = 1 << 16
 # A triangle with more partners found by overlapping_planes than this keeps none of them (see Coincident.find).
 MAX_OVERLAPS = 16
-# The most (triangle, triangle) pairs one of those searches tests before it gives up (about 1.5 s).
-OVERLAP_PAIR_BUDGET = 1 << 21
+# The most (triangle, triangle) pairs one of those searches tests, its sparsest cells first (about 1 s).
+OVERLAP_PAIR_BUDGET = 1 << 20
 
 
 def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray | None):
@@ -479,13 +474,11 @@ def _cells(lo, hi, group, limit=None):
     return _hash(group[who], i, j), who
 
 
-class _OverBudget(Exception):
-    """A search would test more pairs than its budget allows."""
-
-
 def _join(c_keys, c_tri, t_keys, t_tri, budget=None):
     """(candidate, triangle) pairs with equal keys, in chunks of about _CHUNK. budget: None, or a one-item list
-    of the pairs still allowed, lowered by these; _OverBudget, before any pair, when they are more."""
+    of the pairs still allowed, lowered by these. Past it, the candidates' cells that meet the fewest triangles are
+    joined, as many as it allows, and the densest are left out (a fan of thousands of triangles in one cell meets
+    itself whole; two faces lying on each other elsewhere in the mesh are still found)."""
     if not len(c_keys) or not len(t_keys):
         return
     order = np.argsort(t_keys, kind="stable")
@@ -495,7 +488,12 @@ def _join(c_keys, c_tri, t_keys, t_tri, budget=None):
     ends = np.cumsum(counts)
     if budget is not None:
         if ends[-1] > budget[0]:
-            raise _OverBudget
+            sparse = np.argsort(counts, kind="stable")
+            kept = np.sort(sparse[np.cumsum(counts[sparse]) <= budget[0]])
+            c_keys, c_tri, first, counts = c_keys[kept], c_tri[kept], first[kept], counts[kept]
+            ends = np.cumsum(counts)
+            if not len(kept):
+                return
         budget[0] -= int(ends[-1])
     start = 0
     while start < len(c_keys):
