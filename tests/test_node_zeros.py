@@ -392,3 +392,13 @@ def test_nested_geometry_nodes_instances_are_warned_about():
     _instance_attribute_scene(False, nested=True)
     result = export_current()
     assert [w for w in result.warnings if "Instancer attributes: 32 geometry-nodes instances" in w], result.warnings
+
+
+def test_instance_attributes_a_blender_cannot_reach_are_warned_about(monkeypatch):
+    """Where Blender's Python has no Object.evaluated_geometry, geometry-nodes instance attributes cannot be read:
+    a warning says so instead of reading nothing silently."""
+    from ember.engine.export import rgba_attributes
+    monkeypatch.setattr(rgba_attributes, "evaluated_geometry", lambda parent: None)
+    _instance_attribute_scene(False)
+    result = export_current()
+    assert [w for w in result.warnings if "does not reach geometry-nodes instance attributes" in w], result.warnings

@@ -271,6 +271,10 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         warnings.append(f"Instancer attributes: {object_values.instances.unmatched} geometry-nodes instances placed "
                         "inside other instances read no instance attribute (Ember reads those of an instancer's own "
                         "instances): they read the instancer's and the object's properties")
+    if object_values.instances.unreachable:
+        warnings.append("Instancer attributes: this Blender's Python does not reach geometry-nodes instance attributes "
+                        "(Object.evaluated_geometry): instances of geometry nodes read the instancer's and the "
+                        "object's properties instead")
     instanced = instanced_groups(groups, meshes, keys, moving, instance_everything)
     object_space = object_space_groups(groups, keys, moving, materials, diced)
     # Object table rows per group, all of a group's instances at once.

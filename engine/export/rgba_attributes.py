@@ -114,10 +114,14 @@ class InstanceAttributes:
         self._tables: dict = {}
         self._last = (None, None)   # (instancer pointer, matrix bytes) of the instance last asked, its index
         self.unmatched = 0
+        self.unreachable = 0        # lookups on instancers with geometry nodes but no Object.evaluated_geometry()
 
     def value(self, inst, name: str) -> tuple | None:
         table = self._table(inst.parent)
         if table is None:
+            if inst.parent is not None and evaluated_geometry(inst.parent) is None and \
+                    any(m.type == "NODES" for m in getattr(inst.parent, "modifiers", ())):
+                self.unreachable += 1   # geometry nodes' instances, which this Blender's Python does not reach
             return None
         matrix = np.array(inst.matrix_world, np.float64)
         key = (inst.parent.as_pointer(), matrix.tobytes())
@@ -154,8 +158,8 @@ class _InstanceTable:
 
     @classmethod
     def of(cls, parent):
-        geometry = getattr(parent, "evaluated_geometry", None)
-        if geometry is None:   # Blender before 4.4
+        geometry = evaluated_geometry(parent)
+        if geometry is None:
             return None
         try:
             geometry = geometry()
@@ -190,6 +194,11 @@ class _InstanceTable:
         if name not in self._values:
             self._values[name] = _attribute_rgba(self.cloud.attributes[name], len(self.world))
         return tuple(float(v) for v in self._values[name][index])
+
+
+def evaluated_geometry(parent):
+    """The instancer's Object.evaluated_geometry, or None where this Blender's Python has none."""
+    return getattr(parent, "evaluated_geometry", None)
 
 
 # Attribute data types read as numbers: (values per element, the RNA field holding them).
