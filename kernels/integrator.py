@@ -196,7 +196,7 @@ def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None)
         state.link_set, state.scattered = np.zeros(n, np.uint8), np.zeros(n, bool)
     if tables.shapes is not None:
         state.self_key = np.full(n, -1, np.int64)
-    if settings.widen_differentials:
+    if settings.widen_differentials and tables.shading.reads_footprint:
         state.dd = np.full(n, wave.spread_dd, np.float32)
     if settings.transparent_background and settings.transparent_glass is not None:
         state.see_through = np.ones(n, bool)

@@ -17,9 +17,11 @@ lookup_instance_property for Object and Instancer, shader.cpp resolve_view_layer
 """
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
-import re
+from .mesh import attribute_values
 
 NOT_FOUND = (0.0, 0.0, 0.0, 0.0)
 # RNA_path_resolve drops a trailing array index: the path names the whole array property.
@@ -201,33 +203,24 @@ def evaluated_geometry(parent):
     return getattr(parent, "evaluated_geometry", None)
 
 
-# Attribute data types read as numbers: (values per element, the RNA field holding them).
-_FIELDS = {"FLOAT": (1, "value"), "INT": (1, "value"), "INT8": (1, "value"), "BOOLEAN": (1, "value"),
-           "FLOAT_VECTOR": (3, "vector"), "FLOAT2": (2, "vector"), "INT32_2D": (2, "value")}
 # Instance-domain attributes Blender keeps for itself.
 _BUILTIN = {"instance_transform", "position"}
 
 
 def _attribute_rgba(attribute, n: int) -> np.ndarray:
-    """(n, 4) an attribute's values converted to a colour as Blender's attribute conversions do
-    (lookup_or_default<ColorGeometry4f>): a scalar v is (v, v, v, 1), a vector (x, y, z, 1), a 2D vector
+    """(n, 4) an attribute's values (mesh.attribute_values) converted to a colour as Blender's attribute conversions
+    do (lookup_or_default<ColorGeometry4f>): a scalar v is (v, v, v, 1), a vector (x, y, z, 1), a 2D vector
     (x, y, 0, 1), a colour itself; other types read (0, 0, 0, 0)."""
     out = np.zeros((n, 4), np.float32)
-    kind = attribute.data_type
-    if kind in ("FLOAT_COLOR", "BYTE_COLOR"):
-        values = np.empty(4 * n, np.float32)
-        attribute.data.foreach_get("color", values)
-        return values.reshape(n, 4)
-    width, field = _FIELDS.get(kind, (0, ""))
-    if not width:
+    values = attribute_values(None, attribute)
+    if values is None:
         return out
-    raw = np.empty(width * n, np.float64 if kind != "BOOLEAN" else bool)
-    attribute.data.foreach_get(field, raw)
-    raw = raw.reshape(n, width).astype(np.float32)
-    if width == 1:
-        out[:, :3] = raw
-    else:
-        out[:, :width] = raw
+    width = values.shape[1]
+    if width == 4:
+        return values
+    out[:, :3] = values if width == 1 else 0.0
+    if width > 1:
+        out[:, :width] = values
     out[:, 3] = 1.0
     return out
 

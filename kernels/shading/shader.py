@@ -123,6 +123,10 @@ class Shading:
         kinds = {op.kind for s in self.shaders if s.program is not None for op in s.program.ops}
         self.traces = bool(kinds & {"ShaderNodeAmbientOcclusion", "ShaderNodeBevel", "ShaderNodeRaycast"})
         self.bevels = "ShaderNodeBevel" in kinds
+        # Whether a material reads the rays' footprint at indirect hits (Bump, Wireframe's Pixel Size): only then does
+        # the integrator widen it after rough bounces (RenderSettings.widen_differentials), which costs an evaluation
+        # of every closure per bounce.
+        self.reads_footprint = bool(kinds & {"ShaderNodeBump", "ShaderNodeWireframe"})
         self.emissive = np.array([_may_emit(s.closures) for s in self.shaders], bool)
         # Emission that depends on more than the material: a texture, or layers above it (Principled).
         self.emission_varies = np.array([_emission_varies(s.closures) for s in self.shaders], bool)
