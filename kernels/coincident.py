@@ -36,6 +36,7 @@ class Coincident:
         # Per partner, whether it is a copy of the triangle (copy_pairs): met whatever its material (among).
         self.copy = np.zeros(len(partners), bool) if copy is None else copy
         self.opaque = None        # (T,) bool, the triangles that stop what meets them (set by the renderer)
+        self._boxes = _pair_boxes(offsets, partners, positions)
 
     @classmethod
     def find(cls, positions, through: np.ndarray, offset, objects: np.ndarray | None = None,
@@ -96,16 +97,23 @@ class Coincident:
         keep = np.ones(len(which), bool) if among is None else np.take(among, which) | self.copy[entry]
         if other_object and self._objects is not None:
             keep &= np.take(self._objects, which) != np.take(self._objects, np.take(prim, ray))
+        # A point outside its pair's box (_pair_boxes) is outside the partner: most rays leaving a large floor
+        # that a small face lies on are dropped here, before the exact test.
+        box = self._boxes[entry]
+        for k, c in enumerate((px, py, pz)):
+            x = np.take(c, ray)
+            keep &= (x >= box[:, k]) & (x <= box[:, 3 + k])
         ray, which = ray[keep], which[keep]
         q = np.stack([np.take(c, ray) for c in (px, py, pz)], axis=1).astype(np.float64)
         tri = corner_values(self._positions, which).astype(np.float64)
         w1, w2, holds = _barycentrics(tri, q)
         if side is not None:
-            g = np.stack([np.take(c, ray) for c in side], axis=1).astype(np.float64)
-            own = corner_values(self._positions, np.take(prim, ray)).astype(np.float64)
-            u = q.astype(np.float32).view(np.uint32).astype(np.uint64)
+            at = np.flatnonzero(holds)
+            g = np.stack([np.take(c, ray[at]) for c in side], axis=1).astype(np.float64)
+            own = corner_values(self._positions, np.take(prim, ray[at])).astype(np.float64)
+            u = q[at].astype(np.float32).view(np.uint32).astype(np.uint64)
             bits = ((u[:, 0] * 73856093) ^ (u[:, 1] * 19349663) ^ (u[:, 2] * 83492791)) >> np.uint64(7)
-            holds &= _ahead(own, tri, q, g, bits)
+            holds[at] = _ahead(own, tri[at], q[at], g, bits)
         hit = np.flatnonzero(holds)
         if len(hit):
             first = np.unique(ray[hit], return_index=True)[1]
@@ -113,6 +121,37 @@ class Coincident:
             partner[ray[chosen]] = which[chosen]
             b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
         return partner, b1, b2
+
+
+# Slack of a pair's box (_pair_boxes), of the coordinates' size: a hit point is its triangle's corners
+# interpolated in float32 (a few float32 steps off the triangle), and _barycentrics' margin is a millionth of
+# the partner's size. Generous: the box only spares the exact test.
+BOX_SLACK = 2.0 ** -16
+
+
+def _pair_boxes(offsets: np.ndarray, partners: np.ndarray, positions, chunk: int = 1 << 18) -> np.ndarray:
+    """(P, 6) float32 bounds (low x, y, z, high x, y, z) per pair (a, partners[k]): where a point of triangle
+    a must lie for its projection onto the partner's plane to fall inside the partner (crossing). That
+    projection moves the point by its height over the plane, which on triangle a is at most its corners'
+    largest height; the partner's box grown by that and BOX_SLACK holds every such point (rounded outward to
+    float32). A degenerate partner (no plane) gets an unbounded box (the exact test decides)."""
+    own = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    boxes = np.empty((len(partners), 6), np.float32)
+    for s in range(0, len(partners), chunk):
+        a = corner_values(positions, own[s:s + chunk]).astype(np.float64)
+        b = corner_values(positions, partners[s:s + chunk]).astype(np.float64)
+        n = np.cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
+        length = np.linalg.norm(n, axis=1)
+        n /= np.where(length > 0, length, 1.0)[:, None]
+        height = np.abs(np.einsum("pcj,pj->pc", a - b[:, :1], n)).max(axis=1)
+        size = np.maximum(np.abs(a).max(axis=(1, 2)), np.abs(b).max(axis=(1, 2)))
+        grow = (height + BOX_SLACK * size)[:, None]
+        low, high = b.min(axis=1) - grow, b.max(axis=1) + grow
+        low[length == 0], high[length == 0] = -np.inf, np.inf
+        with np.errstate(over="ignore"):
+            boxes[s:s + chunk, :3] = np.nextafter(low.astype(np.float32), np.float32(-np.inf))
+            boxes[s:s + chunk, 3:] = np.nextafter(high.astype(np.float32), np.float32(np.inf))
+    return boxes
 
 
 def _planes(p):

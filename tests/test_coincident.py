@@ -172,6 +172,61 @@ def test_exact_copies_are_partners_and_stop_rays_ahead_of_them():
     assert partner.tolist() == [4, -1]                   # 1 mm ahead met, 1 mm behind not
 
 
+def test_pair_boxes_drop_only_points_outside_their_partner():
+    """crossing drops a (ray, partner) pair whose point lies outside the pair's box (_pair_boxes) before the exact
+    test: points of triangles tilted, moved and scaled against their partners (a floor under a small face,
+    faces through each other at up to 10 degrees, far from the origin), placed as hits are (corners
+    interpolated in float32, barycentrics a little outside the triangle as Embree's may be; copies, whose
+    points on an edge are met within the exact test's margin), are met exactly where they are met without the
+    boxes; and the boxes drop most of a floor's points around a small face."""
+    rng = np.random.default_rng(7)
+    tris = []
+    for k in range(300):
+        centre = rng.normal(size=3) * (10.0 ** rng.integers(0, 4))
+        scale = 10.0 ** rng.uniform(-2, 1)
+        base = rng.normal(size=(3, 3)) * scale
+        base[:, 2] = 0.0
+        tilt = rng.uniform(0, np.radians(10)) * rng.normal(size=2)
+        partner = base.copy()
+        partner[:, :2] *= rng.uniform(0.2, 1.5)
+        partner[:, :2] += rng.normal(size=2) * scale * 0.5
+        partner[:, 2] = tilt[0] * partner[:, 0] + tilt[1] * partner[:, 1] + rng.normal() * scale * 1e-4
+        if k % 3 == 0:   # an axis-aligned copy: points just off its edges are outside its box, within the margin
+            base = np.float64([[0, 0, 0], [1, 0, 0], [0, 1, 0]]) * scale
+            partner = base[[1, 2, 0]]
+        tris += [base + centre, partner + centre]
+    positions = np.float32(tris)
+    own = np.arange(0, len(positions), 2)
+    offsets = np.zeros(len(positions) + 1, np.int64)
+    offsets[own + 1] = 1
+    found = Coincident(np.cumsum(offsets), own + 1, positions)
+    unbounded = Coincident(found.offsets, found.partners, positions)
+    unbounded._boxes = np.full_like(found._boxes, np.inf)
+    unbounded._boxes[:, :3] = -np.inf
+    prim = np.repeat(own, 400)
+    b1, b2 = (np.float32(rng.uniform(-1e-6, 1 + 1e-6, len(prim))) for _ in range(2))
+    out = b1 + b2 > 1
+    b1[out], b2[out] = 1 - b1[out], 1 - b2[out]
+    edge = rng.random(len(prim)) < 0.2
+    b1[edge] = np.float32(-5e-7)                         # just outside the edge, within _barycentrics' margin
+    corners = positions[prim]
+    p = tuple(corners[:, 0, k] + b1 * (corners[:, 1, k] - corners[:, 0, k]) + b2 * (corners[:, 2, k] - corners[:, 0, k])
+              for k in range(3))
+    side = (np.zeros(len(prim), np.float32), np.zeros(len(prim), np.float32), np.ones(len(prim), np.float32))
+    met = []
+    for kwargs in ({}, {"side": side}):
+        got, want = found.crossing(prim, *p, **kwargs), unbounded.crossing(prim, *p, **kwargs)
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b)
+        met.append((got[0] >= 0).mean())
+    assert 0.05 < met[1] < met[0] < 0.9                  # points inside and outside partners, ahead and behind
+    floor = _quad(-10, -10, 10, 10)
+    face = _quad(-0.5, -0.5, 0.5, 0.5)
+    small = Coincident(np.int64([0, 1, 2, 2, 2]), np.int64([2, 3]), np.concatenate([floor, face]))
+    inside = (small._boxes[:, :2] <= 0.5).all(axis=1) & (small._boxes[:, 3:5] >= -0.5).all(axis=1)
+    assert inside.all() and (small._boxes[:, 3:5] - small._boxes[:, :2] < 1.01).all()
+
+
 def _duplicated_room(scene):
     """A floor with a wall whose face is doubled inside its own mesh (on vertices of its own), and a
     box standing on the floor duplicated in place (a copy of the object and its mesh at the same transform, as
