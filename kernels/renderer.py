@@ -481,6 +481,10 @@ def terminator_offsets(scene: SceneArrays):
 
 # Scenes with more static opaque triangles than this do not look for faces overlapping in part (coincident_partners).
 OVERLAP_SCENE_LIMIT = 250_000
+# Scenes with more static triangles that stop shadow rays than this do not look for copies (static_copies): the
+# search sorts three keys a triangle, about 0.3 s per million triangles and more where memory is cold (6-8 s for
+# 10M on the project's machine), against a first sample Cycles gives 10M triangles in under 3 s.
+COPY_SCENE_LIMIT = 2_000_000
 
 
 def coincident_offset(ray_epsilon):
@@ -504,9 +508,10 @@ def static_copies(scene: SceneArrays, ray_epsilon, blocking: np.ndarray) -> np.n
     """coincident.copy_pairs among the plain triangles that stop shadow rays (blocking_triangles: Cycles' rays, which
     skip only the triangle they leave, meet a copy of it at once, and its shadow rays stop there, an opaque copy or
     a glass one; the pairs of a doubled face whose shadows pass would cost time and do nothing), without those that
-    move or deform during the shutter (where a copy lies then is not where it lies at the frame)."""
+    move or deform during the shutter (where a copy lies then is not where it lies at the frame). None found in
+    scenes of more than COPY_SCENE_LIMIT of them."""
     rows = np.flatnonzero(blocking & still_triangles(scene))
-    if len(rows) < 2:
+    if len(rows) < 2 or len(rows) > COPY_SCENE_LIMIT:
         return np.zeros(0, np.int64)
     t, m = len(scene.material_ids), len(rows)
     pairs = copy_pairs(corner_values(scene.positions, rows), coincident_offset(ray_epsilon))

@@ -227,6 +227,22 @@ def test_pair_boxes_drop_only_points_outside_their_partner():
     assert inside.all() and (small._boxes[:, 3:5] - small._boxes[:, :2] < 1.01).all()
 
 
+def test_copies_are_looked_for_up_to_the_scene_limit(monkeypatch):
+    """static_copies finds a doubled floor's copies in a scene of up to COPY_SCENE_LIMIT triangles that stop
+    shadow rays, and none above it (the search's sort would delay a big scene's first sample by seconds)."""
+    from kernel_helpers import make_scene
+    from ember.kernels import renderer
+    floor = _quad(-1, -1, 1, 1)
+    positions = np.concatenate([floor, floor[:, [1, 2, 0]], _quad(2, 2, 3, 3, z=1.0)])
+    scene = make_scene(positions, np.tile(np.float32([0, 0, 1]), (len(positions), 3, 1)))
+    blocking = np.ones(len(positions), bool)
+    monkeypatch.setattr(renderer, "COPY_SCENE_LIMIT", len(positions))
+    found = renderer.static_copies(scene, 1e-6, blocking)
+    assert np.unique(found // len(positions)).tolist() == [0, 1, 2, 3]
+    monkeypatch.setattr(renderer, "COPY_SCENE_LIMIT", len(positions) - 1)
+    assert len(renderer.static_copies(scene, 1e-6, blocking)) == 0
+
+
 def _duplicated_room(scene):
     """A floor with a wall whose face is doubled inside its own mesh (on vertices of its own), and a
     box standing on the floor duplicated in place (a copy of the object and its mesh at the same transform, as
