@@ -323,7 +323,7 @@ def copy_pairs(positions, offset) -> np.ndarray:
 
     Edge e of triangle i is numbered e * T + i (corners e and e + 1, the third e + 2). The keys are sorted
     alone first: most scenes have no equal keys and stop there; otherwise only the edges of equal keys are
-    ordered and compared. A 1M-triangle mesh takes about a third of a second and 100 MB beside its
+    ordered and compared. A 1M-triangle mesh takes about a third of a second and under 50 MB beside its
     positions."""
     p = corner_values(positions)
     t = len(p)

@@ -514,6 +514,8 @@ def static_copies(scene: SceneArrays, ray_epsilon, blocking: np.ndarray) -> np.n
     if len(rows) < 2 or len(rows) > COPY_SCENE_LIMIT:
         return np.zeros(0, np.int64)
     t, m = len(scene.material_ids), len(rows)
+    if m == t:   # all of them (most scenes): no gathered copy of the positions
+        return copy_pairs(scene.positions, coincident_offset(ray_epsilon))
     pairs = copy_pairs(corner_values(scene.positions, rows), coincident_offset(ray_epsilon))
     return rows[pairs // m] * t + rows[pairs % m]
 
