@@ -325,12 +325,11 @@ def copy_pairs(positions, offset) -> np.ndarray:
     alone first: most scenes have no equal keys and stop there; otherwise only the edges of equal keys are
     ordered and compared. A 1M-triangle mesh takes about a third of a second and under 50 MB beside its
     positions."""
-    p = corner_values(positions)
-    t = len(p)
+    t = len(positions)
     # 32-bit keys: half the sort; edges of equal keys are compared whole below, so a collision costs a compare.
     keys = np.empty(3 * t, np.uint32)
     for s in range(0, t, KEY_CHUNK):   # small temporaries, used again: fresh pages cost more than the arithmetic
-        q = p[s:s + KEY_CHUNK]
+        q = positions[s:s + KEY_CHUNK]   # a slice of an array or of CornerRows: the whole is never gathered
         corner = _corner_keys(q)
         with np.errstate(over="ignore"):
             for k in range(3):
@@ -359,7 +358,7 @@ def copy_pairs(positions, offset) -> np.ndarray:
     base = np.repeat(start, size * size)
     i, j = by[base + rank // per], by[base + rank % per]
     a, b = i % t, j % t
-    (first_i, second_i, third_i), (first_j, second_j, third_j) = _edge_corners(p, i), _edge_corners(p, j)
+    (first_i, second_i, third_i), (first_j, second_j, third_j) = _edge_corners(positions, i), _edge_corners(positions, j)
     same_edge = ((first_i == first_j).all(axis=1) & (second_i == second_j).all(axis=1)) | \
         ((first_i == second_j).all(axis=1) & (second_i == first_j).all(axis=1))
     side_i, across_i, e_i, f_i = _edge_sides(first_i, second_i, third_i)
@@ -377,7 +376,8 @@ def copy_pairs(positions, offset) -> np.ndarray:
     cos = np.einsum("ij,ij->i", ua, ub) / (la * lb)
     na = np.cross(e_i[keep].astype(np.float64), f_i[keep].astype(np.float64))
     na /= np.maximum(np.linalg.norm(na, axis=1), 1e-300)[:, None]
-    size = np.maximum(np.abs(p[a]).max(axis=(1, 2)), np.abs(p[b]).max(axis=(1, 2)))
+    size = np.maximum(np.abs(corner_values(positions, a)).max(axis=(1, 2)),
+                      np.abs(corner_values(positions, b)).max(axis=(1, 2)))
     near = np.abs(np.einsum("ij,ij->i", na, third_j.astype(np.float64) - e0)) <= 2.0 * offset(size)
     keep = ok & (cos >= np.cos(PLANE_ANGLE)) & near
     return a[keep].astype(np.int64) * t + b[keep]
@@ -389,12 +389,13 @@ KEY_CHUNK = 1 << 16
 
 def _edge_corners(p, edge):
     """The corners (first, second, third), each (m, 3) float32, of edges numbered as copy_pairs numbers them:
-    an int k for edge k of every triangle, or an array of numbers e * T + i."""
-    t = len(p)
+    an int k for edge k of every triangle of p (T, 3, 3), or an array of numbers e * T + i of the triangles p
+    (an array or CornerRows) holds."""
     if isinstance(edge, int):
         return p[:, edge], p[:, (edge + 1) % 3], p[:, (edge + 2) % 3]
-    tri, k = edge % t, edge // t
-    return p[tri, k], p[tri, (k + 1) % 3], p[tri, (k + 2) % 3]
+    tri, k = edge % len(p), edge // len(p)
+    corners, rows = corner_values(p, tri), np.arange(len(tri))
+    return corners[rows, k], corners[rows, (k + 1) % 3], corners[rows, (k + 2) % 3]
 
 
 # A direction of no symmetry: an edge's side is where its third corner's offset across it points along it.
