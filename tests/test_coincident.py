@@ -172,13 +172,13 @@ def test_exact_copies_are_partners_and_stop_rays_ahead_of_them():
     assert partner.tolist() == [4, -1]                   # 1 mm ahead met, 1 mm behind not
 
 
-def test_pair_boxes_drop_only_points_outside_their_partner():
+def test_pair_boxes_drop_only_points_outside_their_partner(monkeypatch):
     """crossing drops a (ray, partner) pair whose point lies outside the pair's box (_pair_boxes) before the exact
     test: points of triangles tilted, moved and scaled against their partners (a floor under a small face,
     faces through each other at up to 10 degrees, far from the origin), placed as hits are (corners
     interpolated in float32, barycentrics a little outside the triangle as Embree's may be; copies, whose
     points on an edge are met within the exact test's margin), are met exactly where they are met without the
-    boxes; and the boxes drop most of a floor's points around a small face."""
+    boxes; and a floor's points away from a small face lying on it never reach the exact test."""
     rng = np.random.default_rng(7)
     tris = []
     for k in range(300):
@@ -225,6 +225,12 @@ def test_pair_boxes_drop_only_points_outside_their_partner():
     small = Coincident(np.int64([0, 1, 2, 2, 2]), np.int64([2, 3]), np.concatenate([floor, face]))
     inside = (small._boxes[:, :2] <= 0.5).all(axis=1) & (small._boxes[:, 3:5] >= -0.5).all(axis=1)
     assert inside.all() and (small._boxes[:, 3:5] - small._boxes[:, :2] < 1.01).all()
+    tested = []
+    exact = coincident._barycentrics
+    monkeypatch.setattr(coincident, "_barycentrics", lambda tri, q: tested.append(len(q)) or exact(tri, q))
+    x = np.float32(np.linspace(-9.9, 9.9, 1000))
+    partner, _, _ = small.crossing(np.zeros(1000, np.int64), x, np.full(1000, np.float32(3.0)), np.zeros(1000, np.float32))
+    assert (partner == -1).all() and tested == [0]      # 2 m from the face: no ray reaches the exact test
 
 
 def test_copies_are_looked_for_up_to_the_scene_limit(monkeypatch):
