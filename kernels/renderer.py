@@ -482,8 +482,7 @@ def terminator_offsets(scene: SceneArrays):
 # Scenes with more static opaque triangles than this do not look for faces overlapping in part (coincident_partners).
 OVERLAP_SCENE_LIMIT = 250_000
 # Scenes with more static triangles that stop shadow rays than this do not look for copies (static_copies): the
-# search sorts three keys a triangle, about 0.3 s per million triangles and more where memory is cold (6-8 s for
-# 10M on the project's machine), against a first sample Cycles gives 10M triangles in under 3 s.
+# search sorts three keys a triangle, which for 10M triangles takes longer than Cycles takes to its first sample.
 COPY_SCENE_LIMIT = 2_000_000
 
 
