@@ -100,11 +100,11 @@ class Coincident:
         # A point outside its pair's box (_pair_boxes) is outside the partner: most rays leaving a large floor
         # that a small face lies on are dropped here, before the exact test.
         box = self._boxes[entry]
-        for k, c in enumerate((px, py, pz)):
-            x = np.take(c, ray)
+        coords = [np.take(c, ray) for c in (px, py, pz)]
+        for k, x in enumerate(coords):
             keep &= (x >= box[:, k]) & (x <= box[:, 3 + k])
         ray, which = ray[keep], which[keep]
-        q = np.stack([np.take(c, ray) for c in (px, py, pz)], axis=1).astype(np.float64)
+        q = np.stack([x[keep] for x in coords], axis=1).astype(np.float64)
         tri = corner_values(self._positions, which).astype(np.float64)
         w1, w2, holds = _barycentrics(tri, q)
         if side is not None:

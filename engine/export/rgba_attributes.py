@@ -116,14 +116,11 @@ class InstanceAttributes:
         self._tables: dict = {}
         self._last = (None, None)   # (instancer pointer, matrix bytes) of the instance last asked, its index
         self.unmatched = 0
-        self.unreachable = 0        # lookups on instancers with geometry nodes but no Object.evaluated_geometry()
+        self.unreachable = 0        # instancers with geometry nodes but no Object.evaluated_geometry()
 
     def value(self, inst, name: str) -> tuple | None:
         table = self._table(inst.parent)
         if table is None:
-            if inst.parent is not None and evaluated_geometry(inst.parent) is None and \
-                    any(m.type == "NODES" for m in getattr(inst.parent, "modifiers", ())):
-                self.unreachable += 1   # geometry nodes' instances, which this Blender's Python does not reach
             return None
         matrix = np.array(inst.matrix_world, np.float64)
         key = (inst.parent.as_pointer(), matrix.tobytes())
@@ -141,6 +138,8 @@ class InstanceAttributes:
         key = parent.as_pointer()
         if key not in self._tables:
             self._tables[key] = _InstanceTable.of(parent)
+            if evaluated_geometry(parent) is None and any(m.type == "NODES" for m in getattr(parent, "modifiers", ())):
+                self.unreachable += 1   # geometry nodes' instances, which this Blender's Python does not reach
         return self._tables[key]
 
 
@@ -218,9 +217,7 @@ def _attribute_rgba(attribute, n: int) -> np.ndarray:
     width = values.shape[1]
     if width == 4:
         return values
-    out[:, :3] = values if width == 1 else 0.0
-    if width > 1:
-        out[:, :width] = values
+    out[:, :3 if width == 1 else width] = values
     out[:, 3] = 1.0
     return out
 
