@@ -216,12 +216,17 @@ def _pair_keys(p, passes, offset) -> list:
 
 
 def overlap_pairs(positions, offset, objects: np.ndarray | None, across: np.ndarray, asking: np.ndarray,
-                  within: np.ndarray) -> np.ndarray:
+                  within: np.ndarray, mirrored: np.ndarray | None = None) -> np.ndarray:
     """Pair keys a * T + b (both ways) of opaque faces overlapping in part in one plane, from overlapping_planes'
     candidates: across's partners among other objects' triangles of across, looked for by asking's; within's among
-    all of within, their own object's included. The search runs over those triangles only. A triangle with more
-    than MAX_OVERLAPS such partners keeps none: every ray leaving it would test them all (a floor under many
-    objects standing on it; rays leave it at their footprints, which they cover, and they keep the floor)."""
+    all of within, their own object's included. The search runs over those triangles only. Every ray leaving a
+    triangle tests its partners, so their number is capped, facing and opposite partners apart: a triangle with
+    more than MAX_OVERLAPS partners facing the other way keeps none of those (a floor under many objects standing
+    on it: rays leave it at their footprints, which they cover, and they keep the floor), and one with more than
+    MAX_SAME_FACING facing its way keeps none of those. Faces of one side lying on each other are seen, one or
+    the other by the pixel, and Cycles' rays leaving either meet the other at once: a wall's long base face under
+    the merlons of a battlement, coplanar with their fronts, is dark where they overlap. A triangle's front is its
+    winding's side, the other where mirrored (T,) bool says its object mirrors it (None: none does)."""
     rows = np.flatnonzero(across | within)
     if len(rows) < 2:
         return np.zeros(0, np.int64)
@@ -234,8 +239,19 @@ def overlap_pairs(positions, offset, objects: np.ndarray | None, across: np.ndar
         return np.zeros(0, np.int64)
     key = np.unique(np.concatenate(keys))
     a, b = key // len(rows), key % len(rows)
-    keep = np.bincount(a, minlength=len(rows))[a] <= MAX_OVERLAPS
+    normal = _normals(corner_values(positions, rows).astype(np.float64))
+    if mirrored is not None:
+        normal *= np.where(np.take(mirrored, rows), -1.0, 1.0)[:, None]
+    same = np.einsum("ij,ij->i", normal[a], normal[b]) > 0
+    facing = np.bincount(a[same], minlength=len(rows))
+    opposite = np.bincount(a[~same], minlength=len(rows))
+    keep = np.where(same, facing[a] <= MAX_SAME_FACING, opposite[a] <= MAX_OVERLAPS)
     return rows[a[keep]] * count + rows[b[keep]]
+
+
+def _normals(tri) -> np.ndarray:
+    """(m, 3) the (unnormalised) normals of triangles tri (m, 3, 3), by their corners' order."""
+    return np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
 
 
 # A plane holding more triangles than this (a finely subdivided floor, a terrain) is searched for overlaps only
@@ -243,8 +259,11 @@ def overlap_pairs(positions, offset, objects: np.ndarray | None, across: np.ndar
 PLANE_GROUP_LIMIT = 4096
 # ... and past this many such triangles in all, not at all (the search pairs each with its neighbours).
 WITHIN_LIMIT = 1 << 16
-# A triangle with more partners found by overlapping_planes than this keeps none of them (see Coincident.find).
+# A triangle with more partners facing the other way, found by overlapping_planes, than this keeps none of them;
+# with more facing its own way than MAX_SAME_FACING, none of those (overlap_pairs). A ray leaving it tests each in
+# turn; faces of one side lying on each other are seen, so they are allowed more.
 MAX_OVERLAPS = 16
+MAX_SAME_FACING = 128
 # The most (triangle, triangle) pairs one of those searches tests, its sparsest cells first (about 1 s).
 OVERLAP_PAIR_BUDGET = 1 << 20
 

@@ -540,7 +540,8 @@ def static_overlaps(scene: SceneArrays, ray_epsilon, opaque: np.ndarray) -> np.n
         return None
     offset = coincident_offset(ray_epsilon)
     across, asking, within = overlapping_planes(scene.positions, candidates, offset, scene.object_ids)
-    return overlap_pairs(scene.positions, offset, scene.object_ids, across, asking, within)
+    return overlap_pairs(scene.positions, offset, scene.object_ids, across, asking, within,
+                         scene.mirrored_triangles())
 
 
 def coincident_partners(scene: SceneArrays, shading, ray_epsilon, opaque: np.ndarray, copies: np.ndarray,

@@ -14,8 +14,8 @@ import pytest
 from bpy_helpers import (add_camera, add_lamp, compare_to_cycles, diffuse_material, mesh_object,
                          new_scene, node_material, quad_object, render_to_array, replicate_render, set_world)
 from ember.kernels import coincident
-from ember.kernels.coincident import (MAX_OVERLAPS, PLANE_GROUP_LIMIT, Coincident, copy_pairs, overlap_pairs,
-                                      overlapping_planes)
+from ember.kernels.coincident import (MAX_OVERLAPS, MAX_SAME_FACING, PLANE_GROUP_LIMIT, Coincident, copy_pairs,
+                                      overlap_pairs, overlapping_planes)
 
 
 def _quad(x0, y0, x1, y1, z=0.0):
@@ -352,14 +352,36 @@ def test_faces_overlapping_in_part_in_one_plane_are_partners_within_and_across_o
     assert found is not None and np.array_equal(found.offsets[:5], alone.offsets)
     monkeypatch.undo()
     # A floor under more than MAX_OVERLAPS objects standing on it keeps none of their faces (every ray leaving it
-    # would test them all); each keeps the floor.
-    boxes = [_quad(-3.5 + 0.3 * i, 2, -3.4 + 0.3 * i, 2.1) for i in range(MAX_OVERLAPS)]   # on floor triangle 1
+    # would test them all); each keeps the floor. Their bottoms face down (winding turned), the floor up.
+    boxes = [_quad(-3.5 + 0.3 * i, 2, -3.4 + 0.3 * i, 2.1)[:, ::-1] for i in range(MAX_OVERLAPS)]   # on triangle 1
     positions = np.concatenate([_quad(-4, -4, 4, 4)] + boxes)
     objects = np.repeat(np.arange(MAX_OVERLAPS + 1, dtype=np.int32), 2)
     across, asking, within = overlapping_planes(positions, np.ones(len(positions), bool), _offset, objects)
     found = _overlaps(positions, _offset, objects, across, asking, within)
     assert found.offsets[2] - found.offsets[0] == 0
     assert all(found.offsets[a + 1] > found.offsets[a] for a in range(2, len(positions)))
+    # Faces of one side lying on the floor are seen (a wall's base face under a battlement's merlons, coplanar with
+    # their fronts, in a public file): the floor keeps up to MAX_SAME_FACING of them, and none past that.
+    # n strips of two triangles, all on floor triangle 1.
+    for n, kept in ((MAX_OVERLAPS, True), (MAX_SAME_FACING // 2 + 1, False)):
+        step = 5.0 / n
+        fronts = [_quad(-3.5 + step * i, 2, -3.5 + step * (i + 0.5), 2.1) for i in range(n)]
+        positions = np.concatenate([_quad(-4, -4, 4, 4)] + fronts)
+        objects = np.zeros(len(positions), np.int32)                    # one mesh, as the battlement's
+        across, asking, within = overlapping_planes(positions, np.ones(len(positions), bool), _offset, objects)
+        found = _overlaps(positions, _offset, objects, across, asking, within)
+        floor = set(found.partners[found.offsets[1]:found.offsets[2]].tolist())
+        assert (floor == set(range(2, len(positions)))) == kept and (not floor) == (not kept), (n, len(floor))
+        assert all(found.offsets[a + 1] > found.offsets[a] for a in range(2, len(positions)))
+        # ... and the same where the strips are an object that mirrors them, wound the other way: a mirrored
+        # object's front is the other side of its winding.
+        two = np.int32([0, 0] + [1] * (len(positions) - 2))
+        turned = positions.copy()
+        turned[2:] = turned[2:, ::-1]
+        planes = overlapping_planes(positions, np.ones(len(positions), bool), _offset, two)
+        keys = overlap_pairs(turned, _offset, two, *planes, mirrored=two == 1)
+        assert np.array_equal(np.sort(keys), np.sort(overlap_pairs(positions, _offset, two, *planes)))
+        assert len(keys) == (4 * n if kept else 2 * n)
     # Far from the origin, turned by 5e-5 rad and 1e-5 off: within the distance everywhere on the face.
     far = _quad(50, 50, 50.4, 50.4) + np.float32([0, 0, 10])
     turned = far.copy()
@@ -388,13 +410,20 @@ def _slab_with_rim_and_rug(scene):
     mesh_object("Rug", [(0.2, -1.0, 0), (2.6, -1.0, 0), (2.6, 0.2, 0), (0.2, 0.2, 0)], [(0, 1, 2, 3)], grey, scene)
     # A ground below, so that the slab's edges stand against a surface with noise, not against the plain sky.
     quad_object("Ground", (-8, -8, -0.5), (16, 0, 0), (0, 16, 0), diffuse_material("Ground", (0.3, 0.35, 0.3)))
+    # Behind it a wall's face with the fronts of twelve merlons lying on it, facing the camera as it does, in one
+    # mesh (a public file's battlement): more partners than MAX_OVERLAPS for each of the wall's triangles.
+    wall = [(-2, 2.2, 0), (2, 2.2, 0), (2, 2.2, 1.2), (-2, 2.2, 1.2)]
+    merlons = [(x, 2.2, z) for k in range(12) for x, z in ((-1.9 + 0.32 * k, 0.3), (-1.75 + 0.32 * k, 0.3),
+                                                           (-1.75 + 0.32 * k, 1.0), (-1.9 + 0.32 * k, 1.0))]
+    mesh_object("Battlement", wall + merlons, [tuple(range(4 * k, 4 * k + 4)) for k in range(13)], grey, scene)
 
 
 def test_faces_overlapping_in_part_shade_each_other_as_in_cycles():
     """Faces overlapping in part in one plane, in one mesh (rim strips on a slab's top face) and across objects (a
     rug on the slab, past its edge), render dark where they overlap in Cycles, whose rays leaving one meet the
     other at once (on faces of constant x, y or z always); Ember's stepped over it and rendered them lit. Two
-    public isometric rooms read 2-3% brighter than Cycles for it, their walls' rims bright outlines."""
+    public isometric rooms read 2-3% brighter than Cycles for it, their walls' rims bright outlines; a public
+    battlement, whose wall's face lies under many merlons' fronts, 10%."""
     scene = new_scene(48, 48)
     add_camera(scene, (3.0, -4.0, 3.5), (0.0, 0.0, 0.0), lens=35)
     _slab_with_rim_and_rug(scene)
