@@ -80,6 +80,10 @@ def room(shape: str = "SQUARE", hdri: str | None = None):
         set_world(scene, color=(2.0, 2.0, 2.0))
     else:
         set_world(scene, hdri=hdri)
+    # Cycles' Automatic samples a world with a portal from a 4096 x 2048 map of it, about a second of each render
+    # here; at 1024 (the HDRIs' width) the noise is Automatic's. Ember samples a constant world or a plain HDRI
+    # whatever the setting.
+    scene.world.cycles.sampling_method, scene.world.cycles.sample_map_resolution = "MANUAL", 1024
     wall = diffuse_material("Wall", (0.7, 0.7, 0.7))
     for name, corner, u, v in (("Floor", (-2, -2, 0), (4, 0, 0), (0, 4, 0)),
                                ("Ceiling", (-2, -2, 2.5), (0, 4, 0), (4, 0, 0)),
@@ -133,11 +137,21 @@ def test_a_portal_takes_the_noise_out_of_a_room_as_in_cycles():
     assert with_portal < 1.5 * cycles, (with_portal, cycles)
 
 
-def test_portals_alone_guide_a_world_of_sampling_method_none_as_in_cycles():
+def test_portals_alone_guide_a_world_of_sampling_method_none_as_in_cycles(monkeypatch):
     """World > Sampling Method None with a portal: Cycles samples the world through the portal alone where a point
     has one, a uniform direction elsewhere (background_light_sample without the map's method). The room under an
-    HDRI matches Cycles, as noisy as Cycles' (within 1.5x)."""
+    HDRI matches Cycles, as noisy as Cycles' (within 1.5x, per pixel over the comparison's own replicates: four
+    of 16 spp per engine)."""
+    import bpy_helpers
     scene, _ = room("SQUARE", "forest.exr")
     scene.world.cycles.sampling_method = "NONE"
+    replicates, replicate = {}, bpy_helpers.replicate_render
+
+    def kept(scene, engine, *args, **kwargs):
+        replicates[engine] = replicate(scene, engine, *args, **kwargs)
+        return replicates[engine]
+    monkeypatch.setattr(bpy_helpers, "replicate_render", kept)
     compare_to_cycles(scene, samples=64, max_bounces=3, mean_z=4.0)
-    assert _pixel_variance(scene, "EMBER", seeds=range(3)) < 1.5 * _pixel_variance(scene, "CYCLES", seeds=range(3))
+    # Each engine's variance of its mean over the same four seeds: their ratio is the renders' own.
+    variance = {engine: var.mean() for engine, (_, var) in replicates.items()}
+    assert variance["EMBER"] < 1.5 * variance["CYCLES"], variance

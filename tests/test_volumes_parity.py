@@ -183,15 +183,17 @@ def vdb_ball(tmp_path, scale):
 
 
 def test_volume_object_from_an_openvdb_file(tmp_path):
-    """A Volume object reading a .vdb file (a noisy ball of density, written here with Blender's own openvdb
-    module) with its default volume (no material), and again with a Principled Volume of density 8. Two replicates
-    of 64 spp each: each Cycles render of it takes 3 s to start, most of the test's time."""
+    """Volume objects reading a .vdb file (a noisy ball of density, written here with Blender's own openvdb
+    module): side by side in one scene, one with its default volume (no material), one with a Principled Volume
+    of density 8. Two replicates of 64 spp each: each Cycles render of it takes seconds to start, most of the test's
+    time, and with both balls little more than with the dense one alone."""
     scene = stage(32, 32)
-    volume, _ = vdb_ball(tmp_path, 1.0)
-    lamp(scene, "POINT", (2, -2, 3), 400)
-    compare(scene, seeds=REPLICATE_SEEDS[:2])
+    _, plain = vdb_ball(tmp_path, 1.0)
+    volume, dense = vdb_ball(tmp_path, 1.0)
+    plain.location.x, dense.location.x = -0.7, 0.7
     m, _ = volume_material("Ball", "ShaderNodeVolumePrincipled", Color=(0.9, 0.8, 0.7, 1.0), Density=8.0)
     volume.materials.append(m)
+    lamp(scene, "POINT", (2, -2, 3), 400)
     compare(scene, seeds=REPLICATE_SEEDS[:2])
 
 
@@ -278,7 +280,8 @@ def test_biased_ray_marching_of_a_noise_medium():
     """Render > Volumes > Biased with Step Rate 4 (steps of 0.48 across a 1.2 cube): a medium of density 15 where a
     Noise texture exceeds 0.5, else 0, marched with its coefficients constant over each step. Cycles' marched
     image is 3-4% brighter than the unbiased one (each step sees the medium at one point); Ember's matches
-    Cycles' marched image, and its unbiased image stays more than 2% below it."""
+    Cycles' marched image, and its unbiased image stays more than 2% below it, by more than 4 standard errors of
+    its mean."""
     from bpy_helpers import replicate_render
     scene = stage()
     m, node = volume_material("Chunks", "ShaderNodeVolumePrincipled", Color=(0.8, 0.8, 0.8, 1.0))
@@ -297,8 +300,11 @@ def test_biased_ray_marching_of_a_noise_medium():
     set_biased(scene, step_rate=4.0)
     report = compare(scene)
     set_biased(scene, False)
-    unbiased, _ = replicate_render(scene, "EMBER", 128, max_bounces=6)
-    assert unbiased.mean() < report["mean_cycles"] * 0.98, (unbiased.mean(), report)
+    # Two replicates of 16 spp: the mean's standard error is a few hundredths of a percent, where the gap to
+    # Cycles' marched image is 3-4%.
+    unbiased, var = replicate_render(scene, "EMBER", 32, max_bounces=6, seeds=REPLICATE_SEEDS[:2])
+    se = np.sqrt(var.sum()) / var.size
+    assert unbiased.mean() + 4.0 * se < report["mean_cycles"] * 0.98, (unbiased.mean(), se, report)
 
 
 def test_biased_ray_marching_of_a_vdb_with_few_steps(tmp_path):

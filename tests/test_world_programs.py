@@ -28,6 +28,17 @@ def _scene_under(build_world, size=(48, 32)):
     return scene
 
 
+def _cycles_map_at(scene, resolution=1024):
+    """World > Settings > Sampling Method Manual at `resolution`, for Cycles: its Automatic evaluates the world's
+    shader on 4096 x 2048 texels to sample it, 0.7-2.5 s of each small render here, where the map's resolution
+    changes the noise and not the image. Asserts that Ember's map stays the one its Automatic made (1024 for a
+    program without an image: export.world.map_resolution; a plain HDRI is sampled from its own texels)."""
+    automatic = export_current().scene.world.map_resolution
+    scene.world.cycles.sampling_method, scene.world.cycles.sample_map_resolution = "MANUAL", resolution
+    scene.world.update_tag()
+    assert export_current().scene.world.map_resolution == automatic
+
+
 def _gradient_sky(tree):
     bg = tree.nodes["Background"]
     coords = tree.nodes.new("ShaderNodeTexCoord")
@@ -45,6 +56,7 @@ def test_gradient_world_against_cycles():
     scene = _scene_under(_gradient_sky)
     world = export_current().scene.world
     assert world.program is not None and world.hdri is None
+    _cycles_map_at(scene)
     compare_to_cycles(scene, samples=64, max_bounces=4)
 
 
@@ -78,6 +90,7 @@ def test_sky_texture_world_against_cycles(sky_type):
         tree.nodes["Background"].inputs["Strength"].default_value = 0.3
     scene = _scene_under(build)
     assert export_current().scene.world.program is not None
+    _cycles_map_at(scene)
     # Two replicates of 128 spp, not four of 64: each render's fixed cost (the sky's tables, about 0.5 s in each
     # engine) is most of the test's time; the blocks pool 24 pixels' variance estimates each.
     compare_to_cycles(scene, samples=128, max_bounces=4, seeds=REPLICATE_SEEDS[:2])
@@ -143,6 +156,7 @@ def test_plain_environment_image_filtered_as_cycles(tmp_path, depth, interpolati
     scene = _scene_under(build)
     world = export_current().scene.world
     assert world.program is None and world.hdri.dtype == texels.dtype and world.hdri_srgb
+    _cycles_map_at(scene, 16)   # Cycles' map texels then fall on the image's
     compare_to_cycles(scene, samples=64, max_bounces=4)
 
 
@@ -170,15 +184,19 @@ def test_world_program_sampling_pdf_matches_its_frequencies(compensated):
     ti = np.minimum((np.arccos(np.clip(wz, -1, 1)) / np.pi * theta_bins).astype(int), theta_bins - 1)
     pj = np.minimum(((np.arctan2(wy, wx) + np.pi) / (2 * np.pi) * phi_bins).astype(int), phi_bins - 1)
     observed = np.bincount(ti * phi_bins + pj, minlength=theta_bins * phi_bins)
-    # Expected: the pdf integrated over each bin, on a fine grid of directions.
+    # Expected: the pdf integrated over each bin, on a fine grid of directions, a row of bins at a time (the whole
+    # grid at once takes 1.4 GB of fresh memory, whose first touch costs several times the arithmetic).
     m = 256
     t = (np.arange(theta_bins * m) + 0.5) / (theta_bins * m) * np.pi
     p = (np.arange(phi_bins * m) + 0.5) / (phi_bins * m) * 2 * np.pi - np.pi
-    tt, pp = np.meshgrid(t, p, indexing="ij")
-    d = [np.sin(tt) * np.cos(pp), np.sin(tt) * np.sin(pp), np.cos(tt)]
-    dens = env.direction_pdf(*(c.ravel().astype(np.float32) for c in d)).reshape(tt.shape) * np.sin(tt)
     cell = (np.pi / (theta_bins * m)) * (2 * np.pi / (phi_bins * m))
-    expected = (dens * cell).reshape(theta_bins, m, phi_bins, m).sum(axis=(1, 3)).ravel() * n
+    expected = np.zeros((theta_bins, phi_bins))
+    for row in range(theta_bins):
+        tt, pp = np.meshgrid(t[row * m:(row + 1) * m], p, indexing="ij")
+        d = [np.sin(tt) * np.cos(pp), np.sin(tt) * np.sin(pp), np.cos(tt)]
+        dens = env.direction_pdf(*(c.ravel().astype(np.float32) for c in d)).reshape(tt.shape) * np.sin(tt)
+        expected[row] = (dens * cell).reshape(m, phi_bins, m).sum(axis=(0, 2))
+    expected = expected.ravel() * n
     assert abs(expected.sum() / n - 1) < 1e-3
     live = expected > 0
     assert observed[~live].sum() == 0
@@ -251,6 +269,7 @@ def test_a_colour_or_value_linked_into_the_world_surface_is_emitted_as_cycles():
     scene = _scene_under(build, size=(32, 24))
     result = export_current()
     assert result.scene.world.program is not None and not any("World" in w for w in result.warnings), result.warnings
+    _cycles_map_at(scene)
     compare_to_cycles(scene, samples=64, max_bounces=4)
     tree = scene.world.node_tree
     math = tree.nodes.new("ShaderNodeMath")
@@ -308,4 +327,5 @@ def test_bsdfs_in_a_world_emit_nothing_and_a_principled_its_emission(case, radia
                                              np.array([0.8], np.float32))
     np.testing.assert_allclose(np.asarray(seen)[:, 0], radiance, rtol=1e-5, atol=1e-6)
     if case in ("principled", "add"):
+        _cycles_map_at(scene)
         compare_to_cycles(scene, samples=64, max_bounces=4)
