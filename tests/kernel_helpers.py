@@ -48,11 +48,18 @@ def trace_samples(scene: SceneArrays, settings: RenderSettings, samples: int, th
         row = (pix // cam.width).astype(np.int32)
         col = (pix % cam.width).astype(np.int32)
         out = np.empty((samples, 3, len(pix)))
-        for s in range(samples):
-            rng = PathRng(*seed_paths(pix, s, settings.seed))
-            radiance, _ = renderer.trace_paths(rng, row, col, settings)
-            out[s] = radiance
+        # Several samples' paths in one call (each path's numbers come from its own seed, so the radiance is the
+        # same as one call per sample), up to BATCH_PATHS at a time.
+        step = max(1, BATCH_PATHS // len(pix))
+        for first in range(0, samples, step):
+            group = np.arange(first, min(first + step, samples), dtype=np.uint32)
+            rng = PathRng(*seed_paths(np.tile(pix, len(group)), np.repeat(group, len(pix)), settings.seed))
+            radiance, _ = renderer.trace_paths(rng, np.tile(row, len(group)), np.tile(col, len(group)), settings)
+            out[first:first + len(group)] = radiance.reshape(3, len(group), len(pix)).transpose(1, 0, 2)
     return out
+
+
+BATCH_PATHS = 1 << 17
 
 
 def assert_workers_render_as_threads(scene: SceneArrays, settings: RenderSettings) -> np.ndarray:
