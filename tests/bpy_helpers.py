@@ -163,6 +163,20 @@ def set_world(scene, color=(0.0, 0.0, 0.0), strength=1.0, hdri=None, rotation=(0
     return build_world(scene, color=color, strength=strength, hdri=hdri, rotation=rotation)
 
 
+def manual_world_map(world, width: int):
+    """World > Settings > Sampling Method Manual with a map `width` texels wide. Cycles' Automatic bakes the world
+    on 4096 x 2048 texels at every render to sample it, seconds of each small test render; the map moves its noise,
+    not its image. Ember samples a plain HDRI from the image's own texels whatever the setting; a world program
+    is baked at this width by both engines."""
+    world.cycles.sampling_method, world.cycles.sample_map_resolution = "MANUAL", width
+    return world
+
+
+def hdri_world(scene, hdri: str, strength=1.0, rotation=(0.0, 0.0, 0.0), width: int = 1024):
+    """set_world with one of Blender's HDRIs (1024 x 512) and a manual_world_map as wide as the image."""
+    return manual_world_map(set_world(scene, hdri=hdri, strength=strength, rotation=rotation), width)
+
+
 # ---------------------------------------------------------------- rendering to numpy
 def render_to_array(scene, engine: str, samples: int, seed: int = 0, max_bounces: int = 8,
                     threads: int = 2, clamp: tuple = (0.0, 0.0), blur_glossy: float = 0.0,

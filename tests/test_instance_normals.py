@@ -14,6 +14,7 @@ import pytest
 from bpy_helpers import (add_camera, add_lamp, compare_to_cycles, configure_cycles, diffuse_material, new_scene,
                          set_world)
 from exr import render_multilayer
+from bpy_helpers import hdri_world
 
 
 def squashed_spheres(persistent: bool, linked: bool = True):
@@ -108,7 +109,7 @@ def test_squashed_metal_duplicates_shade_as_in_cycles():
     bsdf = metal.node_tree.nodes["Principled BSDF"]
     bsdf.inputs["Metallic"].default_value, bsdf.inputs["Roughness"].default_value = 1.0, 0.25
     bpy.data.objects["Icosphere"].data.materials[0] = metal
-    set_world(scene, hdri="courtyard.exr", strength=1.0)
+    hdri_world(scene, "courtyard.exr", strength=1.0)
     compare_to_cycles(scene, samples=64, max_bounces=2)
 
 

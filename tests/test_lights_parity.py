@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, emission_material, export_current,
-                         mesh_object, new_scene, node_material, quad_object, set_world)
+                         manual_world_map, mesh_object, new_scene, node_material, quad_object, set_world)
 
 
 def stage(width=48, height=48):
@@ -26,11 +26,9 @@ def stage(width=48, height=48):
 
 
 def cycles_map_at(scene, width):
-    """World > Settings > Sampling Method Manual, a map `width` texels wide, for Cycles: its Automatic evaluates the
-    world on 4096 x 2048 texels to sample it, 1-3 s of each render here, where the map changes the noise and not
-    the image. Ember samples a plain HDRI from its own texels whatever the setting."""
+    """manual_world_map for a plain HDRI world (which Ember samples from its own texels whatever the setting)."""
     assert export_current().scene.world.program is None
-    scene.world.cycles.sampling_method, scene.world.cycles.sample_map_resolution = "MANUAL", width
+    manual_world_map(scene.world, width)
 
 
 def add_light(scene, kind, location=(-0.8, -0.6, 2.0), rotation=(0.4, -0.3, 0.0), **props):

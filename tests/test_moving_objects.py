@@ -46,17 +46,22 @@ def _scene(count, rng):
     return (np.concatenate(positions).astype(np.float32), np.array(ids, np.int32), keys, references, local)
 
 
-def _brute_force(origins, dirs, times, positions, ids, keys, references, local):
+def _motions(keys):
+    """The objects' motion steps decomposed (kernels.motion) and stacked for interpolate_many, object k in row k."""
+    (members, stacked), = motion.stack_by_steps(motion.decompose_many(keys))   # all of three steps
+    assert np.array_equal(members, np.arange(len(keys)))
+    return stacked
+
+
+def _brute_force(origins, dirs, times, positions, ids, stacked, local):
     """Closest hit distance of each ray over every triangle where the objects are at its time (Moller-Trumbore
-    in float64): the moving triangles placed by kernels.motion.interpolate, the static ones as stored."""
-    n = len(origins)
-    best = np.full(n, np.inf)
-    prim = np.full(n, -1)
-    corners_at = []
-    for k, (steps, _) in enumerate(zip(keys, references)):
-        m = motion.interpolate(motion.decompose(steps), times.astype(np.float64))   # (n, 3, 4)
-        corners_at.append(np.einsum("nij,tcj->ntci", m[:, :, :3], local) + m[:, None, None, :, 3])
-    moving = np.concatenate(corners_at, axis=1)                                    # (n, 2K, 3, 3)
+    in float64): the moving triangles placed by kernels.motion.interpolate_many, every object at every ray's
+    time, the static ones as stored."""
+    n, count = len(origins), len(stacked.rotation)
+    m = motion.interpolate_many(stacked, np.tile(np.arange(count), n),
+                                np.repeat(times.astype(np.float64), count)).reshape(n, count, 3, 4)
+    corners = np.einsum("nkij,tcj->nktci", m[..., :3], local) + m[:, :, None, None, :, 3]
+    moving = corners.reshape(n, 2 * count, 3, 3)                                   # (n, 2K, 3, 3)
     still = np.broadcast_to(positions[ids < 0].astype(np.float64), (n,) + positions[ids < 0].shape)
     tris = np.concatenate([moving, still], axis=1)
     numbers = np.concatenate([np.flatnonzero(ids >= 0), np.flatnonzero(ids < 0)])
@@ -98,8 +103,8 @@ def test_hundreds_of_moving_objects_are_hit_where_their_motion_puts_them():
     # it or one in front).
     target = rng.integers(0, count, n)
     middle = np.append(local[0].mean(axis=0), 1.0)
-    centres = np.array([motion.interpolate(motion.decompose(keys[k]), np.array([float(t)]))[0] @ middle
-                        for k, t in zip(target, times)])
+    stacked = _motions(keys)
+    centres = motion.interpolate_many(stacked, target, times.astype(np.float64)) @ middle
     origins = rng.normal(size=(n, 3))
     origins = 8.0 * origins / np.linalg.norm(origins, axis=1, keepdims=True)
     dirs = centres - origins
@@ -109,7 +114,7 @@ def test_hundreds_of_moving_objects_are_hit_where_their_motion_puts_them():
     for lo in range(0, n, 250):
         rows = slice(lo, lo + 250)
         expect_prim[rows], expect_t[rows] = _brute_force(origins[rows].astype(np.float64), dirs[rows], times[rows],
-                                                         positions, ids, keys, references, local)
+                                                         positions, ids, stacked, local)
     with Accel(positions, 2, ids, tuple(keys), tuple(references)) as accel:
         assert accel.moves
         hits = accel.intersect(origins, dirs, np.full(n, 100.0, np.float32), time=times)

@@ -8,6 +8,7 @@ import numpy as np
 
 from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, mesh_object, new_scene, render_to_array, \
     set_world
+from bpy_helpers import hdri_world
 from test_parity_materials import grid_of_spheres, node_material
 
 TOON = "ShaderNodeBsdfToon"
@@ -246,7 +247,7 @@ def portal_panels_scene(width=80, height=40):
     add_light(scene, "SUN", (0, 0, 1), 1.0, size=0.0, rotation=(0.5, 0.0, 0.3))
     add_light(scene, "POINT", (-2.0, -2.0, 2.5), 150, size=0.3)
     add_camera(scene, (0, -5, 1.6), (0, 0, 0.8), lens=30)
-    set_world(scene, hdri="courtyard.exr", strength=0.3)
+    hdri_world(scene, "courtyard.exr", strength=0.3)
     return scene
 
 

@@ -7,8 +7,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import REPLICATE_SEEDS, add_camera, compare_to_cycles, diffuse_material, mesh_object, new_scene, \
-    node_material, quad_object, render_to_array, replicate_render, set_world
+from bpy_helpers import REPLICATE_SEEDS, add_camera, compare_to_cycles, diffuse_material, hdri_world, mesh_object, \
+    new_scene, node_material, quad_object, render_to_array, replicate_render, set_world
 
 
 def sphere(location, material, radius=0.45):
@@ -51,7 +51,7 @@ def test_principled_sphere_row_under_an_hdri():
     ]
     grid_of_spheres(materials, 4)
     add_camera(scene, (0, -5.2, 1.0), (0, 0, 1.0), lens=45)
-    set_world(scene, hdri="forest.exr", strength=1.0, rotation=(0, 0, 0.6))
+    hdri_world(scene, "forest.exr", strength=1.0, rotation=(0, 0, 0.6))
     compare_to_cycles(scene, samples=128, max_bounces=6)
 
 
@@ -75,7 +75,7 @@ def test_every_closure_node_alone_on_a_sphere():
     ]
     grid_of_spheres(materials, 6)
     add_camera(scene, (0, -6.5, 1.0), (0, 0, 1.0), lens=40)
-    set_world(scene, hdri="courtyard.exr", strength=1.0)
+    hdri_world(scene, "courtyard.exr", strength=1.0)
     compare_to_cycles(scene, samples=128, max_bounces=6)
 
 
@@ -96,7 +96,7 @@ def test_beckmann_and_ashikhmin_shirley_distributions():
     ]
     grid_of_spheres(materials, 5)
     add_camera(scene, (0, -6.5, 0.5), (0, 0, 0.5), lens=40)
-    set_world(scene, hdri="courtyard.exr", strength=1.0)
+    hdri_world(scene, "courtyard.exr", strength=1.0)
     compare_to_cycles(scene, samples=128, max_bounces=6)
 
 
@@ -119,7 +119,7 @@ def test_ashikhmin_velvet_sheen():
     tree.links.new(mix.outputs[0], out.inputs["Surface"])
     grid_of_spheres(materials + [mixed], 4)
     add_camera(scene, (0, -6.0, 1.0), (0, 0, 0.5), lens=40)
-    set_world(scene, hdri="courtyard.exr", strength=1.0)
+    hdri_world(scene, "courtyard.exr", strength=1.0)
     sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
     sun.data.energy, sun.rotation_euler = 3.0, (0.9, 0.0, 0.6)
     scene.collection.objects.link(sun)
@@ -159,7 +159,7 @@ def test_mix_and_add_shaders_and_a_textured_mix_factor():
     bpy.ops.object.shade_smooth()
     bpy.context.active_object.data.materials.append(mat)
     add_camera(scene, (0, -4.5, 1.0), (0, 0, 1.0), lens=35)
-    set_world(scene, hdri="forest.exr", strength=1.0)
+    hdri_world(scene, "forest.exr", strength=1.0)
     compare_to_cycles(scene, samples=128, max_bounces=4)
 
 
@@ -316,7 +316,7 @@ def test_normal_mapped_planes_under_a_sun_and_an_hdri():
     card.scale = (1.6, 1.6, 1.6)
     add_sun(scene, (0.9, 0.0, 0.4))
     add_camera(scene, (0, -1.6, 2.2), (0, 1.0, 0), lens=24)
-    set_world(scene, hdri="forest.exr", strength=0.6)
+    hdri_world(scene, "forest.exr", strength=0.6)
     compare_to_cycles(scene, samples=128, max_bounces=4)
 
 
@@ -370,7 +370,7 @@ def test_anisotropic_metal_with_a_uv_tangent_and_a_normal_mapped_sphere():
                 diffuse_material("Floor", (0.4, 0.4, 0.4)))
     add_sun(scene, (0.7, 0.0, -0.6), energy=2.0)
     add_camera(scene, (0, -3.2, 1.1), (0, 0, 0.5), lens=40)
-    set_world(scene, hdri="courtyard.exr", strength=0.8)
+    hdri_world(scene, "courtyard.exr", strength=0.8)
     compare_to_cycles(scene, samples=128, max_bounces=4)
 
 
@@ -394,7 +394,7 @@ def test_anisotropic_metals_with_the_default_and_a_radial_x_tangent():
                 diffuse_material("Floor", (0.4, 0.4, 0.4)))
     add_sun(scene, (0.7, 0.0, -0.6), energy=2.0)
     add_camera(scene, (0, -3.2, 1.1), (0, 0, 0.5), lens=40)
-    set_world(scene, hdri="courtyard.exr", strength=0.8)
+    hdri_world(scene, "courtyard.exr", strength=0.8)
     compare_to_cycles(scene, samples=128, max_bounces=4)
 
 
@@ -470,7 +470,7 @@ def test_gltf_metallic_roughness_texture_through_separate_color():
     plane = quad_object("Tile", (-1.2, 0, 0), (2.4, 0, 0), (0, 0, 2.0), mat)
     plane.rotation_euler = (0.3, 0.0, 0.0)
     add_camera(scene, (0, -4.0, 1.0), (0, 0, 1.0), lens=40)
-    set_world(scene, hdri="forest.exr", strength=1.0)
+    hdri_world(scene, "forest.exr", strength=1.0)
     compare_to_cycles(scene, samples=128, max_bounces=4)
 
 

@@ -7,7 +7,8 @@ every block of an 8x8 grid within 4.5 standard errors of the difference.
 """
 import bpy
 
-from bpy_helpers import add_camera, compare_to_cycles, export_current, new_scene, node_material, set_world
+from bpy_helpers import add_camera, compare_to_cycles, export_current, new_scene, node_material
+from bpy_helpers import hdri_world
 from test_parity_materials import grid_of_spheres
 
 P = "ShaderNodeBsdfPrincipled"
@@ -16,7 +17,7 @@ P = "ShaderNodeBsdfPrincipled"
 def _scene():
     scene = new_scene(48, 48)
     add_camera(scene, (0, -4.4, 1.0), (0, 0, 1.0), lens=45)
-    set_world(scene, hdri="courtyard.exr", strength=1.0)
+    hdri_world(scene, "courtyard.exr", strength=1.0)
     return scene
 
 

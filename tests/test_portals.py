@@ -9,8 +9,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, export_current, new_scene, quad_object,
-                         render_to_array, set_world)
+from bpy_helpers import (add_camera, compare_to_cycles, diffuse_material, export_current, manual_world_map, new_scene,
+                         quad_object, render_to_array, set_world)
 
 F32 = np.float32
 
@@ -80,10 +80,8 @@ def room(shape: str = "SQUARE", hdri: str | None = None):
         set_world(scene, color=(2.0, 2.0, 2.0))
     else:
         set_world(scene, hdri=hdri)
-    # Cycles' Automatic samples a world with a portal from a 4096 x 2048 map of it, about a second of each render
-    # here; at 1024 (the HDRIs' width) the noise is Automatic's. Ember samples a constant world or a plain HDRI
-    # whatever the setting.
-    scene.world.cycles.sampling_method, scene.world.cycles.sample_map_resolution = "MANUAL", 1024
+    # At 1024 (the HDRIs' width) Cycles' noise is its Automatic map's; a constant world needs none.
+    manual_world_map(scene.world, 1024)
     wall = diffuse_material("Wall", (0.7, 0.7, 0.7))
     for name, corner, u, v in (("Floor", (-2, -2, 0), (4, 0, 0), (0, 4, 0)),
                                ("Ceiling", (-2, -2, 2.5), (0, 4, 0), (4, 0, 0)),

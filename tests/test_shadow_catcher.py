@@ -13,7 +13,7 @@ import tempfile
 import numpy as np
 import pytest
 
-from bpy_helpers import REPLICATE_SEEDS, configure_engine
+from bpy_helpers import REPLICATE_SEEDS, configure_engine, manual_world_map
 
 SAMPLES = 64
 SIZE = 48
@@ -29,7 +29,7 @@ def _gradient_world(scene):
     scene.world = world
     # A small map for the world's light sampling (both engines read it): Cycles' default, 1024 wide, took most of
     # each of its renders here; the images' expectation does not depend on it.
-    world.cycles.sampling_method, world.cycles.sample_map_resolution = "MANUAL", 256
+    manual_world_map(world, 256)
     tree = world.node_tree
     tree.nodes.clear()
     coords = tree.nodes.new("ShaderNodeTexCoord")

@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import REPLICATE_SEEDS, compare_to_cycles, diffuse_material, export_current, new_scene
+from bpy_helpers import REPLICATE_SEEDS, compare_to_cycles, diffuse_material, export_current, manual_world_map, new_scene
 
 from ember.kernels import Renderer, RenderSettings
 from ember.kernels.environment import Environment
@@ -34,7 +34,7 @@ def _cycles_map_at(scene, resolution=1024):
     changes the noise and not the image. Asserts that Ember's map stays the one its Automatic made (1024 for a
     program without an image: export.world.map_resolution; a plain HDRI is sampled from its own texels)."""
     automatic = export_current().scene.world.map_resolution
-    scene.world.cycles.sampling_method, scene.world.cycles.sample_map_resolution = "MANUAL", resolution
+    manual_world_map(scene.world, resolution)
     scene.world.update_tag()
     assert export_current().scene.world.map_resolution == automatic
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, new_scene, node_material, quad_object, \
-    render_to_array, set_world
+    render_to_array
+from bpy_helpers import hdri_world
 
 
 def product(off: tuple):
@@ -15,7 +16,7 @@ def product(off: tuple):
     turned off."""
     scene = new_scene(32, 24)
     add_camera(scene, (0, -4, 1.4), (0, 0, 0.5), lens=35)
-    set_world(scene, hdri="sunset.exr")
+    hdri_world(scene, "sunset.exr")
     for name in off:
         setattr(scene.world.cycles_visibility, name, False)
     quad_object("Floor", (-2, -2, 0), (4, 0, 0), (0, 4, 0), diffuse_material("Floor", (0.7, 0.7, 0.7)))
