@@ -35,6 +35,9 @@ FRAMES = "1-5"
 # second worker to start before the first has done them all (384 samples took that long before waves of at least
 # 65,536 paths; then 0.07 s, and one CI run saw worker 1 render all five frames before worker 2 was ready).
 SAMPLES = "3072"
+# The renders a signal stops once their first frame is saved: short frames do (far fewer than 40 of them are done
+# before the signal arrives), and the first one is saved sooner.
+STOPPED_SAMPLES = "256"
 
 
 def _command(*args):
@@ -177,7 +180,7 @@ def test_local_ray_renders_the_demo_scene(tmp_path):
 
 @needs_ray
 def test_ctrl_c_keeps_the_finished_frames(cluster, animation, tmp_path):
-    driver = subprocess.Popen(_command("render", animation, "--frames", "1-40", "--samples", SAMPLES,
+    driver = subprocess.Popen(_command("render", animation, "--frames", "1-40", "--samples", STOPPED_SAMPLES,
                                        "-o", str(tmp_path / "f_##.exr"), "--ray", cluster, "--workers", "2",
                                        "--threads", "1"),
                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -247,7 +250,7 @@ def test_a_full_disk_keeps_the_earlier_frames(cluster, animation, small_disk):
 def _ray_driver_signalled(cluster_address, animation, out, sig):
     """A driver in its own process group (session); `sig` goes to the whole group once a frame is saved, as
     a farm manager (or Ctrl-C in a terminal) sends it."""
-    driver = subprocess.Popen(_command("render", animation, "--frames", "1-40", "--samples", SAMPLES,
+    driver = subprocess.Popen(_command("render", animation, "--frames", "1-40", "--samples", STOPPED_SAMPLES,
                                        "-o", str(out / "f_##.exr"), "--ray", cluster_address, "--threads", "1"),
                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                               start_new_session=True)
