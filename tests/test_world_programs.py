@@ -126,8 +126,10 @@ def test_environment_texture_through_a_moved_mapping_and_a_mirror_ball():
     scene = _scene_under(build)
     exported = export_current()
     assert exported.scene.world.program is not None and not exported.warnings, exported.warnings
-    # Two replicates of 128 spp, not four of 64 (each render's fixed cost, the image and its bake, dominates).
-    compare_to_cycles(scene, samples=128, max_bounces=4, seeds=REPLICATE_SEEDS[:2])
+    _cycles_map_at(scene, 256)   # what Ember's Automatic takes for this small image
+    # Four replicates: with two, each block's spread rests on one degree of freedom a pixel, and its z-scores have
+    # heavy tails.
+    compare_to_cycles(scene, samples=128, max_bounces=4)
 
 
 # Each interpolation and each depth (the decode after filtering depends on the depth, the taps do not).
