@@ -140,7 +140,7 @@ def _pair_boxes(offsets: np.ndarray, partners: np.ndarray, positions, chunk: int
     for s in range(0, len(partners), chunk):
         a = corner_values(positions, own[s:s + chunk]).astype(np.float64)
         b = corner_values(positions, partners[s:s + chunk]).astype(np.float64)
-        n = np.cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
+        n = _normals(b)
         length = np.linalg.norm(n, axis=1)
         n /= np.where(length > 0, length, 1.0)[:, None]
         height = np.abs(np.einsum("pcj,pj->pc", a - b[:, :1], n)).max(axis=1)
@@ -158,7 +158,7 @@ def _planes(p):
     """(n, ok, dominant, d) of triangles p (T, 3, 3): unit normals oriented one way per plane (the largest
     component positive), whether they have one (non-zero area), the axis of that component and the plane's offset
     from the origin along n."""
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n = _normals(p)
     length = np.sqrt(np.einsum("ij,ij->i", n, n))
     ok = length > 0
     n /= np.where(ok, length, np.float32(1.0))[:, None]
@@ -234,12 +234,13 @@ def overlap_pairs(positions, offset, objects: np.ndarray | None, across: np.ndar
     passes = [(np.flatnonzero(within[rows]), None, within[rows])]
     if objects is not None:
         passes.insert(0, (np.flatnonzero(asking[rows]), np.take(objects, rows), across[rows]))
-    keys = _pair_keys(corner_values(positions, rows), passes, offset)
+    tri = corner_values(positions, rows)
+    keys = _pair_keys(tri, passes, offset)
     if not keys:
         return np.zeros(0, np.int64)
     key = np.unique(np.concatenate(keys))
     a, b = key // len(rows), key % len(rows)
-    normal = _normals(corner_values(positions, rows).astype(np.float64))
+    normal = _normals(tri.astype(np.float64))
     if mirrored is not None:
         normal *= np.where(np.take(mirrored, rows), -1.0, 1.0)[:, None]
     same = np.einsum("ij,ij->i", normal[a], normal[b]) > 0
@@ -450,7 +451,7 @@ def _ahead(own, tri, q, g, bits) -> np.ndarray:
     the rounding goes either way, here a bit of a hash of the point's float32 coordinates (bits: (m,) uint64), so
     about half the rays meet the copy (in Cycles 40-61% by the plane's orientation, 50% over ten random planes)."""
     def height(t):
-        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        n = _normals(t)
         n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
         n *= np.where(np.einsum("ij,ij->i", n, g) < 0, -1.0, 1.0)[:, None]
         return np.einsum("ij,ij->i", n, t[:, 0] - q)

@@ -11,10 +11,9 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import (add_camera, add_lamp, compare_to_cycles, configure_cycles, diffuse_material, new_scene,
-                         set_world)
+from bpy_helpers import (add_camera, add_lamp, compare_to_cycles, configure_cycles, diffuse_material, hdri_world,
+                         new_scene, set_world)
 from exr import render_multilayer
-from bpy_helpers import hdri_world
 
 
 def squashed_spheres(persistent: bool, linked: bool = True):

@@ -6,9 +6,8 @@ every block of an 8x8 grid within 4.5 standard errors of the difference.
 import bpy
 import numpy as np
 
-from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, mesh_object, new_scene, render_to_array, \
-    set_world
-from bpy_helpers import hdri_world
+from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, hdri_world, mesh_object, new_scene, \
+    render_to_array, set_world
 from test_parity_materials import grid_of_spheres, node_material
 
 TOON = "ShaderNodeBsdfToon"

@@ -7,8 +7,7 @@ every block of an 8x8 grid within 4.5 standard errors of the difference.
 """
 import bpy
 
-from bpy_helpers import add_camera, compare_to_cycles, export_current, new_scene, node_material
-from bpy_helpers import hdri_world
+from bpy_helpers import add_camera, compare_to_cycles, export_current, hdri_world, new_scene, node_material
 from test_parity_materials import grid_of_spheres
 
 P = "ShaderNodeBsdfPrincipled"

@@ -6,9 +6,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, new_scene, node_material, quad_object, \
-    render_to_array
-from bpy_helpers import hdri_world
+from bpy_helpers import add_camera, compare_to_cycles, diffuse_material, hdri_world, new_scene, node_material, \
+    quad_object, render_to_array
 
 
 def product(off: tuple):
