@@ -1,5 +1,8 @@
 """A light tree: per-shading-point selection among the local emitters (lights with a position and
-emissive triangles), after Cycles' light tree (Estevez and Kulla's many-lights importance).
+emissive triangles), after Cycles' light tree (Estevez and Kulla's many-lights importance). Ember's own, for
+unclamped renders (less noisy than Cycles'); a clamped render chooses as Cycles' own tree
+(kernels.light_tree_cycles, which walks each emissive object's triangles in this tree from the object's subtree,
+unit_root).
 
 The tree is a binary BVH over the emitters' boxes, built once per scene in two levels, as Cycles builds
 its: the emitters of a group (the emissive triangles of one object, or of one instance) stand together
@@ -65,6 +68,7 @@ class LightTree:
         # float rounding only (an instance and its flattened copy) build the same tree, ties by index.
         cell = max(float(np.abs(centroid).max(initial=0.0)), 1e-3) * 2.0 ** -14
         unit = _units(group, n)
+        self.unit = unit                                       # (n,) each emitter's unit
         self.units = int(unit.max(initial=-1)) + 1
         unit_lo = np.full((self.units, 3), np.inf)
         unit_hi = np.full_like(unit_lo, -np.inf)
@@ -120,9 +124,26 @@ class LightTree:
         # Where units of which one or more is a group are chosen between, the lower bounds count too.
         self._blend = splits_units & grouped
         inner = np.flatnonzero(self.left >= 0)
+        # Each unit's own subtree: the highest node holding its emitters alone (kernels.light_tree_cycles walks
+        # an emissive object's triangles from there).
+        owner = np.full(count, -1, np.int64)
+        owner[leaf] = unit[e]
+        for depth in range(int(level.max(initial=0)) - 1, -1, -1):
+            k = np.flatnonzero((level == depth) & (self.left >= 0))
+            a, b = owner[self.left[k]], owner[self.right[k]]
+            owner[k] = np.where((a == b) & (a >= 0), a, -1)
+        parent_owner = np.where(self.parent >= 0, owner[np.maximum(self.parent, 0)], -1)
+        tops = np.flatnonzero((owner >= 0) & (parent_owner != owner))
+        self.unit_root = np.zeros(self.units, np.int64)
+        self.unit_root[owner[tops]] = tops
         self._left_power = np.full(count, 0.5)
         with np.errstate(divide="ignore", invalid="ignore"):
             self._left_power[inner] = np.nan_to_num(n_power[self.left[inner]] / n_power[inner], nan=0.5)
+
+    def cone_of(self, node):
+        """(axis (K, 3), theta_o (K,), theta_e (K,)) float64 of nodes node (K,): the cone bounding their emitters."""
+        t = self._table.take(node, axis=0).astype(np.float64)
+        return t[:, 3:6], np.minimum(t[:, 9], np.pi), t[:, 11]
 
     # ------------------------------------------------------------------ importance
     def _bounds(self, node, px, py, pz, facing=None):
@@ -174,11 +195,12 @@ class LightTree:
         return np.where(ok, p, self._left_power.take(node))
 
     # ------------------------------------------------------------------ sampling and pmf
-    def sample(self, u, px, py, pz, facing=None):
+    def sample(self, u, px, py, pz, facing=None, start=None):
         """Walk down for each point with u (N,) in [0, 1). Returns (emitter (N,) int64, pmf (N,) float64).
-        facing: (nx, ny, nz, two_sided) (N,) each, the points' normals and whether they transmit, or None."""
+        facing: (nx, ny, nz, two_sided) (N,) each, the points' normals and whether they transmit, or None;
+        start: (N,) the nodes the walks start from (None: the root), the pmf then the walk's below them."""
         u = np.asarray(u, np.float64).copy()
-        node = np.zeros(len(u), np.int64)
+        node = np.zeros(len(u), np.int64) if start is None else np.asarray(start, np.int64).copy()
         pmf = np.ones(len(u))
         # The points still walking, compacted as points reach their leaves (each point's arithmetic is
         # the same as over the whole set; gathers shrink with the set).
@@ -207,8 +229,9 @@ class LightTree:
             node[walking], pmf[walking] = w_node, w_pmf
         return self.emitter_at.take(node), pmf
 
-    def pmf(self, emitter, px, py, pz, facing=None):
-        """(N,) float64 probability that the walk from point i picks emitter[i] (0 for emitters not in it)."""
+    def pmf(self, emitter, px, py, pz, facing=None, stop=None):
+        """(N,) float64 probability that the walk from point i picks emitter[i] (0 for emitters not in it); stop:
+        (N,) nodes (above the emitters) the walks started from (None: the root)."""
         emitter = np.asarray(emitter)
         leaf = np.where(emitter >= 0, self.leaf_of.take(np.maximum(emitter, 0)), -1)
         known = leaf >= 0
@@ -218,9 +241,10 @@ class LightTree:
         c_node = leaf.take(climbing)
         c_pmf = pmf.take(climbing)
         c_points = tuple(c.take(climbing) for c in ((px, py, pz) if facing is None else (px, py, pz, *facing)))
+        c_stop = None if stop is None else np.asarray(stop, np.int64).take(climbing)
         for _ in range(self.depth):
             parent = self.parent.take(c_node)
-            has = parent >= 0
+            has = parent >= 0 if c_stop is None else (parent >= 0) & (c_node != c_stop)
             if not has.all():
                 pmf[climbing] = c_pmf
                 keep = np.flatnonzero(has)
@@ -229,6 +253,8 @@ class LightTree:
                     break
                 c_node, c_pmf, parent = c_node.take(keep), c_pmf.take(keep), parent.take(keep)
                 c_points = tuple(c.take(keep) for c in c_points)
+                if c_stop is not None:
+                    c_stop = c_stop.take(keep)
             p_left = self._left_probability(parent, *c_points[:3], None if facing is None else c_points[3:])
             c_pmf = c_pmf * np.where(self.left.take(parent) == c_node, p_left, 1.0 - p_left)
             c_node = parent
