@@ -399,6 +399,10 @@ class Renderer:
         thread; once it is True the waves in flight (worker processes' too) leave at their next bounce, and
         what they had done is dropped.
         """
+        # A clamped render chooses lights as Cycles' tree does (Lights.clamped): its lights follow the settings.
+        clamped = settings.clamp_direct > 0 or settings.clamp_indirect > 0
+        if clamped != bool(self.scene.lights.clamped):
+            self.update_lights(dataclasses.replace(self.scene.lights, clamped=clamped))
         # A scene with shadow catchers records their planes, whatever passes were asked for (Cycles' film.cpp).
         settings = shadow_catcher.with_planes(settings, self.visibility)
         with kept_heap():   # the waves' arrays are freed and made again at every bounce

@@ -337,10 +337,12 @@ def test_sample_clamping_limits_contributions_as_cycles_does():
     # The world seen by the camera is a direct contribution of 3 (1 per channel): clamped to 3 x 0.3.
     np.testing.assert_allclose(clamped[..., :3][~sphere].sum(axis=-1), 0.9, rtol=1e-5)
     # Indirect light is what reaches the first hit through two or more scatterings. Inside an emitting
-    # sphere of albedo 0.5 (every path bounces on the wall): none with max_bounces 0, some with 2.
+    # sphere of albedo 0.5 (every path bounces on the wall): none with max_bounces 0, some with 2. (A clamp
+    # above every contribution still makes the render a clamped one, which chooses lights as Cycles' tree does:
+    # the same choices as the clamped render's.)
     inside = inside_emitting_sphere(albedo=0.5, radiance=1.0)
     with Renderer(inside, 1) as renderer:
-        direct = renderer.render(RenderSettings(samples=4, max_bounces=0)).image
+        direct = renderer.render(RenderSettings(samples=4, max_bounces=0, clamp_indirect=1e30)).image
         still = renderer.render(RenderSettings(samples=4, max_bounces=0, clamp_indirect=1e-3)).image
         bounced = renderer.render(RenderSettings(samples=4, max_bounces=2, clamp_indirect=1e-3)).image
         free = renderer.render(RenderSettings(samples=4, max_bounces=2)).image

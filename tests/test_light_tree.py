@@ -9,6 +9,7 @@ import pytest
 from ember.kernels import Camera, Lights, Renderer, RenderSettings, World
 from ember.kernels.lights import selection as light_selection
 from ember.kernels.light_tree import LightTree
+from ember.kernels.light_tree_cycles import CyclesLightTree
 from ember.kernels.shapes import cornell_box, look_at, quad, subdivided_quad, uv_sphere
 from kernel_helpers import make_scene, trace_samples
 from stats import assert_chi2, mean_and_stderr
@@ -17,13 +18,14 @@ from test_lights import sampler_for
 RECT = 3
 
 
-def many_lights(k=100, seed=1, kinds=(0, 1, 3, 4), radius=(0.0, 0.2)):
+def many_lights(k=100, seed=1, kinds=(0, 1, 3, 4), radius=(0.0, 0.2), clamped=False):
+    """k lamps of the given kinds; clamped: the render clamps, so the choice is Cycles' (Lights.clamped)."""
     rng = np.random.default_rng(seed)
     frames = np.stack([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(k)]).astype(np.float32)
     return Lights(kind=np.int32(rng.choice(kinds, k)), position=rng.uniform(-5, 5, (k, 3)).astype(np.float32),
                   frame=frames, radiance=np.float32(rng.exponential(5.0, (k, 1)) * rng.uniform(0.3, 1, (k, 3))),
                   radius=np.float32(rng.uniform(*radius, k)), size=np.float32(rng.uniform(0.1, 0.5, (k, 2))),
-                  spot_cos=np.float32([(0.5, 0.1)] * k), sun_half_angle=np.zeros(k, np.float32))
+                  spot_cos=np.float32([(0.5, 0.1)] * k), sun_half_angle=np.zeros(k, np.float32), clamped=clamped)
 
 
 def sky():
@@ -31,47 +33,70 @@ def sky():
     return World(hdri=np.float32(np.random.default_rng(6).uniform(0.1, 0.5, (8, 16, 3))))
 
 
-def mixed_sampler(monkeypatch, world=True):
-    """Lights of every local kind, emissive triangles and a world, with the tree forced on."""
+def mixed_sampler(monkeypatch, world=True, clamped=False):
+    """Lights of every local kind, emissive triangles and a world, with the tree forced on (clamped: Cycles')."""
     monkeypatch.setattr(light_selection, "TREE_MIN_DIVERGENCE", 0.0)
     tri = np.float32(np.random.default_rng(2).uniform(-3, 3, (40, 3, 3)))
-    return sampler_for(lights=many_lights(), positions=tri, emission=(2.0, 1.5, 1.0),
-                       world=sky() if world else None)
+    sampler = sampler_for(lights=many_lights(clamped=clamped), positions=tri, emission=(2.0, 1.5, 1.0),
+                          world=sky() if world else None)
+    assert sampler.tree is None or isinstance(sampler.tree, CyclesLightTree if clamped else LightTree)
+    return sampler
 
 
 def at(p, n):
     return tuple(np.full(n, c, np.float32) for c in p)
 
 
+@pytest.mark.parametrize("clamped", [False, True])
 @pytest.mark.parametrize("world", [True, False])
-def test_tree_pmf_sums_to_one_and_matches_frequencies(world, monkeypatch):
+def test_tree_pmf_sums_to_one_and_matches_frequencies(world, clamped, monkeypatch):
     """At fixed points: the selection pmf over every emitter sums to 1 and the emitters chosen with
-    choose_at follow it (chi-square), for the tree with and without distant emitters."""
-    sampler = mixed_sampler(monkeypatch, world)
+    choose_at follow it (chi-square), for the tree with and without distant emitters, Ember's and Cycles' (a clamped
+    render's, kernels.light_tree_cycles: its walk, its leaves of several lamps, the emissive object's subtree)."""
+    sampler = mixed_sampler(monkeypatch, world, clamped)
     assert sampler.uses_tree
     k = sampler.world_index + 1
     rng = np.random.default_rng(3)
     for p in rng.uniform(-5, 5, (4, 3)).astype(np.float32):
         pmf = sampler.selection_pmf(np.arange(k), *at(p, k)).astype(np.float64)
         pmf[-1] = sampler.select_pmf[-1]
-        assert abs(pmf.sum() - 1) < 1e-5, pmf.sum()
         n = 300_000
         chosen, select = sampler.choose_at(rng.random(n, dtype=np.float32), *at(p, n))
-        np.testing.assert_allclose(select, pmf[chosen].astype(np.float32), rtol=1e-6)
-        assert_chi2(np.bincount(chosen, minlength=k), pmf * n)
+        assert_choices_follow(pmf, chosen, select, clamped)
         # The tree concentrates on what is near: it differs from the global pmf.
         assert np.abs(pmf - sampler.select_pmf).max() > 1e-3
+
+
+def assert_choices_follow(pmf, chosen, select, clamped):
+    """The choices (chosen, select) follow pmf (chi-square) and report it. Cycles' tree (clamped) chooses no light
+    where its walk meets a leaf none of whose lamps can light the point (light_tree_sample returns false: a lamp
+    facing away, a spot's cone): there pmf sums to less than 1, select is 0, and those draws are a bin of their own."""
+    total = pmf.sum()
+    if clamped:
+        assert total <= 1 + 1e-5, total
+    else:
+        assert abs(total - 1) < 1e-5, total
+    none = select == 0
+    np.testing.assert_allclose(select[~none], pmf[chosen[~none]].astype(np.float32), rtol=1e-6)
+    counts, expected = np.bincount(chosen[~none], minlength=len(pmf)), pmf * len(chosen)
+    if clamped:
+        counts, expected = np.append(counts, none.sum()), np.append(expected, max(1 - total, 0) * len(chosen))
+    else:
+        assert not none.any()
+    assert_chi2(counts, expected)
 
 
 def facing(n, normal, two_sided=False):
     return tuple(np.full(n, c, np.float32) for c in normal) + (np.full(n, two_sided),)
 
 
+@pytest.mark.parametrize("clamped", [False, True])
 @pytest.mark.parametrize("two_sided", [False, True])
-def test_tree_pmf_with_a_normal_sums_to_one_and_matches_frequencies(two_sided, monkeypatch):
+def test_tree_pmf_with_a_normal_sums_to_one_and_matches_frequencies(two_sided, clamped, monkeypatch):
     """With the shading point's normal (Cycles' incidence factor): the pmf still sums to 1, choose_at follows it
-    (chi-square) and reports it, the MIS pmf equals it, and it differs from the pmf without a normal."""
-    sampler = mixed_sampler(monkeypatch)
+    (chi-square) and reports it, the MIS pmf equals it, and it differs from the pmf without a normal; for Ember's
+    tree and Cycles'."""
+    sampler = mixed_sampler(monkeypatch, clamped=clamped)
     k = sampler.world_index + 1
     rng = np.random.default_rng(13)
     for p in rng.uniform(-5, 5, (3, 3)).astype(np.float32):
@@ -79,20 +104,19 @@ def test_tree_pmf_with_a_normal_sums_to_one_and_matches_frequencies(two_sided, m
         normal /= np.linalg.norm(normal)
         pmf = sampler.selection_pmf(np.arange(k), *at(p, k), facing=facing(k, normal, two_sided)).astype(np.float64)
         pmf[-1] = sampler.select_pmf[-1]
-        assert abs(pmf.sum() - 1) < 1e-5, pmf.sum()
         n = 300_000
         chosen, select = sampler.choose_at(rng.random(n, dtype=np.float32), *at(p, n), facing=facing(n, normal, two_sided))
-        np.testing.assert_allclose(select, pmf[chosen].astype(np.float32), rtol=1e-6)
-        assert_chi2(np.bincount(chosen, minlength=k), pmf * n)
+        assert_choices_follow(pmf, chosen, select, clamped)
         plain = sampler.selection_pmf(np.arange(k), *at(p, k)).astype(np.float64)
         assert np.abs(pmf - plain)[:-1].max() > 1e-3
 
 
-def test_a_lamp_behind_an_opaque_point_is_not_chosen():
+@pytest.mark.parametrize("clamped", [False, True])
+def test_a_lamp_behind_an_opaque_point_is_not_chosen(clamped):
     """Two lamps on either side of a wall: a point on one face chooses only the lamp in front of it (Cycles
     gives a node behind an opaque surface no importance), both where the surface transmits, and both without
-    a normal; a zero normal (a point in a medium) is as no normal."""
-    lights = Lights(kind=np.zeros(2, np.int32), position=np.float32([(-1, 0, 0), (1, 0, 0)]),
+    a normal; a zero normal (a point in a medium) is as no normal. In Ember's tree and in Cycles'."""
+    lights = Lights(clamped=clamped, kind=np.zeros(2, np.int32), position=np.float32([(-1, 0, 0), (1, 0, 0)]),
                     frame=np.repeat(np.eye(3, dtype=np.float32)[None], 2, axis=0),
                     radiance=np.float32([(5,) * 3, (5,) * 3]), radius=np.float32([0.1, 0.1]),
                     size=np.zeros((2, 2), np.float32), spot_cos=np.float32([(1.0, 0.0)] * 2),
@@ -105,6 +129,7 @@ def test_a_lamp_behind_an_opaque_point_is_not_chosen():
     np.testing.assert_allclose(sampler.selection_pmf(np.arange(2), *p, facing=facing(2, (1, 0, 0))), [0.0, 1.0])
     both = sampler.selection_pmf(np.arange(2), *p, facing=facing(2, (-1, 0, 0), True))
     assert (both > 0.2).all()
+    assert isinstance(sampler.tree, CyclesLightTree if clamped else LightTree)
     np.testing.assert_allclose(both.sum(), 1.0, rtol=1e-6)
     np.testing.assert_allclose(sampler.selection_pmf(np.arange(2), *p, facing=facing(2, (0, 0, 0))),
                                sampler.selection_pmf(np.arange(2), *p))
@@ -425,3 +450,92 @@ def _leaves_under(tree, node):
     if tree.left[node] < 0:
         return [int(tree.emitter_at[node])]
     return _leaves_under(tree, tree.left[node]) + _leaves_under(tree, tree.right[node])
+
+
+def test_clamped_renders_share_light_samples_as_cycles_tree():
+    """Under clamping the light tree is Cycles' (kernels.light_tree_cycles), in closed form for two point lamps of radii
+    r (Soft Falloff: not spheres): Cycles weighs a lamp by the mean of R, G and B of its strength over 4 pi (here the
+    radiance Ember keeps times pi r^2), bounds it above by E / d^2 and below by E d / (d^2 + r^2)^1.5 (at its rim's
+    distance, times the cosine of the half angle its radius subtends), and chooses by the mean of the two shares
+    (whether the two stand in one leaf or each in its own: light_tree_child_importance bounds a lone lamp as itself).
+    Ember's own tree (unclamped) chooses otherwise."""
+    centres, radii = np.float32([(-1, 0, 1), (2, 0, 1)]), np.float32([0.6, 0.2])
+    radiance = np.float32([(4, 4, 4), (1, 2, 6)])
+
+    def lamps(clamped):
+        return Lights(kind=np.zeros(2, np.int32), position=centres,
+                      frame=np.repeat(np.eye(3, dtype=np.float32)[None], 2, axis=0), radiance=radiance,
+                      radius=radii, size=np.zeros((2, 2), np.float32), spot_cos=np.float32([(1.0, 0.0)] * 2),
+                      sun_half_angle=np.zeros(2, np.float32), clamped=clamped)
+    p = np.array([0.5, 0.0, 0.0])
+    energy = radiance.mean(axis=1) * np.pi * radii.astype(np.float64) ** 2
+    d2 = ((centres - p) ** 2).sum(axis=1)
+    upper = energy / d2
+    lower = energy * np.sqrt(d2) / (d2 + radii ** 2) ** 1.5
+    expected = 0.5 * (upper / upper.sum() + lower / lower.sum())
+    cycles = sampler_for(lights=lamps(True))
+    assert isinstance(cycles.tree, CyclesLightTree)
+    np.testing.assert_allclose(cycles.selection_pmf(np.arange(2), *at(p, 2)), expected, rtol=1e-5)
+    ember = sampler_for(lights=lamps(False))
+    assert np.abs(ember.selection_pmf(np.arange(2), *at(p, 2)) - expected).max() > 0.01
+
+
+def test_cycles_tree_splits_as_cycles_builds():
+    """Cycles' build (scene/light_tree.cpp should_split): up to 8 co-located lamps stay one leaf (no split can cost
+    less), 9 are halved; lamps far apart along x split there, each side a leaf of its own."""
+    from ember.kernels.light_tree_cycles import POINT, Units, build
+
+    def units(centres):
+        n = len(centres)
+        c = np.float64(centres)
+        return Units(np.full(n, POINT), np.ones(n), c - 0.1, c + 0.1, c, np.tile([0, 0, 1.0], (n, 1)),
+                     np.full(n, np.pi), np.full(n, np.pi / 2), radius=np.full(n, 0.1))
+    nodes, _ = build(units([(0, 0, 0)] * 8))
+    assert len(nodes["left"]) == 1 and nodes["count"][0] == 8
+    nodes, _ = build(units([(0, 0, 0)] * 9))
+    assert nodes["left"][0] >= 0 and sorted(nodes["count"][1:3]) == [4, 5]
+    nodes, order = build(units([(0, 0, 0), (0.1, 0, 0), (10, 0, 0), (10.1, 0, 0)]))
+    leaves = np.flatnonzero(nodes["left"] < 0)
+    groups = sorted(sorted(order[nodes["first"][i]:nodes["first"][i] + nodes["count"][i]].tolist()) for i in leaves)
+    assert all(g in ([0, 1], [2, 3], [0], [1], [2], [3]) for g in groups), groups
+    assert nodes["left"][0] >= 0
+    left, right = nodes["left"][0], nodes["right"][0]
+    sides = [sorted(order[nodes["first"][i]:nodes["first"][i] + nodes["count"][i]].tolist()) for i in (left, right)]
+    assert sorted(sides) == [[0, 1], [2, 3]]
+
+
+def test_cycles_importance_fast_paths_match_the_general_formula():
+    """light_tree_cycles._importance's passes for cones that emit every way and for point lamps' cones (facing the
+    point) give Cycles' general formula's bounds, with and without a normal (the point's: to rounding, where the
+    general formula's cos theta of an axis built from the direction falls a hair short of 1; Cycles sets it to 1
+    there, as the fast pass does)."""
+    from ember.kernels.light_tree_cycles import _importance
+    rng = np.random.default_rng(0)
+    n = 20_000
+    p2c = rng.normal(size=(3, n))
+    p2c /= np.linalg.norm(p2c, axis=0)
+    normal = rng.normal(size=(3, n))
+    normal /= np.linalg.norm(normal, axis=0)
+    cos_u, near = rng.uniform(-1, 1, n), rng.uniform(0.1, 3, n)
+    far, energy = near * rng.uniform(1, 2, n), rng.uniform(0.1, 5, n)
+    for fac in (None, (*normal, rng.random(n) < 0.3)):
+        general = _importance(p2c, cos_u, rng.normal(size=(3, n)), np.full(n, np.pi), np.full(n, np.pi / 2), far, near,
+                              energy, fac)
+        for a, b in zip(general, _importance(p2c, cos_u, None, np.full(n, np.pi), None, far, near, energy, fac, "omni")):
+            np.testing.assert_array_equal(a, b)
+        general = _importance(p2c, cos_u, -p2c, np.zeros(n), np.full(n, np.pi / 2), far, near, energy, fac)
+        for a, b in zip(general, _importance(p2c, cos_u, None, None, None, far, near, energy, fac, "point")):
+            np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6 * a.max())
+        assert (general[1] > 0).any() and (general[0] > general[1]).any()
+
+
+def test_a_render_chooses_lights_by_its_own_clamping():
+    """Renderer.render takes the tree its settings' clamping asks for (Lights.clamped), whatever the scene was built
+    with: Cycles' for a clamped render, Ember's for an unclamped one, switching between renders."""
+    scene = _floor_scene(lights=many_lights(k=12, radius=(0.05, 0.2)), size=8)
+    with Renderer(scene, 1) as renderer:
+        assert isinstance(renderer.lights.tree, LightTree)
+        renderer.render(RenderSettings(samples=1, max_bounces=1, clamp_indirect=10.0))
+        assert isinstance(renderer.lights.tree, CyclesLightTree) and renderer.scene.lights.clamped
+        renderer.render(RenderSettings(samples=1, max_bounces=1))
+        assert isinstance(renderer.lights.tree, LightTree) and not renderer.scene.lights.clamped

@@ -72,8 +72,9 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
             in_groups.append(groups.of(ob, inst.parent if inst.is_instance else None))
     portal_table = np.array(portals, np.float32).reshape(-1, PORTAL_COLUMNS) if portals else None
     tree = uses_light_tree(depsgraph.scene)
+    clamped = clamps_light(depsgraph.scene)
     if not rows:
-        return Lights(portals=portal_table, tree=tree)
+        return Lights(portals=portal_table, tree=tree, clamped=clamped)
     columns = list(zip(*rows))
     light_sets, shadow_sets = lamp_masks(masks)
     camera = np.array([bool(v & RAY_CAMERA) for v in seen], bool)
@@ -103,6 +104,7 @@ def export_lights(depsgraph, warnings: list[str], poll=None, links: LinkTable | 
         mis=None if all(columns[13]) else np.array(columns[13], bool),
         portals=portal_table,
         tree=tree,
+        clamped=clamped,
     )
 
 
@@ -111,6 +113,13 @@ def uses_light_tree(scene) -> bool:
     renders alike: files from before Blender 3.5 open with it off, and with clamping the way lights are chosen shows
     in the image). Without it, emitters are chosen by Cycles' light distribution (Lights.tree)."""
     return bool(getattr(getattr(scene, "cycles", None), "use_light_tree", True))
+
+
+def clamps_light(scene) -> bool:
+    """Light Paths > Clamping Direct or Indirect above 0 (Lights.clamped): the light tree then shares light samples as
+    Cycles' does, since the image depends on it."""
+    ember = getattr(scene, "ember", None)
+    return any(float(getattr(ember, name, 0.0)) > 0 for name in ("sample_clamp_direct", "sample_clamp_indirect"))
 
 
 def is_portal(light) -> bool:

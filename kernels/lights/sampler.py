@@ -11,6 +11,7 @@ from ..light_groups import emitter_groups
 from ..rng import pcg2d, to_unit_float
 from ..geometry import emissive_instanced, lights_of
 from ..light_tree import LightTree, rows_of
+from ..light_tree_cycles import CyclesLightTree
 from ..scene import SceneArrays
 from ..textures import luminance
 from . import area, point_spot, portals, ray_visibility, selection, sun, triangles, world
@@ -121,6 +122,8 @@ class LightSampler:
         self.portals = None if lights.portals is None or not len(lights.portals) else portals.Portals(lights.portals)
         # Cycles' Light Tree setting (Lights.tree): off, emitters are chosen by its light distribution.
         self.light_tree = bool(lights.tree)
+        # A clamped render shares light samples as Cycles' tree does (kernels/light_tree_cycles.py).
+        self.cycles_shares = self.light_tree and bool(lights.clamped)
         self.radius = lights.radius.astype(np.float32)
         self.size = lights.size.astype(np.float32)
         self.spot = lights.spot_cos.astype(np.float32)
@@ -264,7 +267,11 @@ class LightSampler:
 
     # ------------------------------------------------------------------ power estimates
     def _light_power(self) -> np.ndarray:
-        lum = luminance(self.radiance_of).astype(np.float64) * self.power_scale if self.light_count else np.zeros(0)
+        if not self.light_count:
+            return np.zeros(0)
+        if self.cycles_shares:
+            return self._cycles_light_power()
+        lum = luminance(self.radiance_of).astype(np.float64) * self.power_scale
         r2 = self.radius.astype(np.float64) ** 2
         # Sized point lights act as a disk of radiance L facing every point: intensity L pi r^2.
         sphere = np.where(r2 > 0, lum * np.pi * r2, lum) * 4 * np.pi
@@ -274,9 +281,24 @@ class LightSampler:
         area = lum * self.area * np.pi
         return np.select([self.kind == POINT, self.kind == SPOT, self.kind == SUN], [sphere, spot, sun], area)
 
+    def _cycles_light_power(self) -> np.ndarray:
+        """The lamps' weights as Cycles' light tree measures its emitters (scene/light_tree.cpp, LightTreeEmitter:
+        the mean of |R|, |G|, |B| of the strength, 1 / (4 pi) of it for point and spot lights, 1 / pi for area
+        lights, times the lamp shader's estimate): the mean of L times pi r^2 (1 for a point of no size) or the
+        area. Suns keep their irradiance, compared with the world's only (DISTANT_SHARE)."""
+        mean = np.abs(self.radiance_of).astype(np.float64).mean(axis=1) * self.power_scale
+        r2 = self.radius.astype(np.float64) ** 2
+        punctual = np.where(r2 > 0, mean * np.pi * r2, mean)
+        sun = luminance(self.radiance_of).astype(np.float64) * self.power_scale
+        punctual_kind = (self.kind == POINT) | (self.kind == SPOT)
+        return np.select([punctual_kind, self.kind == SUN], [punctual, sun], mean * self.area)
+
     def _triangle_power(self) -> np.ndarray:
         if not len(self.tri_ids):
             return np.zeros(0)
+        if self.cycles_shares:
+            # Area times the mean of |R|, |G|, |B|, as Cycles' light tree weighs an emissive triangle.
+            return self.tri_area * np.abs(self.tri_table[:, TLE:TLE + 3]).astype(np.float64).mean(axis=1)
         # Negative emission (a negative Strength) subtracts light; its triangles are chosen by the size of their
         # emission, as Cycles' light tree measures them (light_tree.cpp: fabs of the emission estimate).
         lum = np.abs(luminance(self.tri_table[:, TLE:TLE + 3]).astype(np.float64))
@@ -302,7 +324,7 @@ class LightSampler:
 
     @property
     def uses_tree(self) -> bool:
-        return isinstance(self.tree, LightTree)
+        return isinstance(self.tree, (LightTree, CyclesLightTree))
 
     @property
     def selection(self) -> str:
@@ -310,7 +332,7 @@ class LightSampler:
         light tree per point) or "solid angle" (SolidAngleChoice per point)."""
         if self.tree is None:
             return "power"
-        return "tree" if isinstance(self.tree, LightTree) else "solid angle"
+        return "tree" if isinstance(self.tree, (LightTree, CyclesLightTree)) else "solid angle"
 
     def choose_at(self, u_select, px, py, pz, receiver=None, facing=None):
         """(emitter (n,) int64, selection probability (n,) float32) per shading point p (selection.choose_at);
@@ -342,7 +364,7 @@ class LightSampler:
         """Whether the choice may depend on the shading point's normal (a light tree, or linking's choices per
         light set): the integrator then keeps the normal of the vertex each ray left (PathState.mis_facing) for
         the MIS pdfs."""
-        return isinstance(self.tree, LightTree) or self.links is not None
+        return isinstance(self.tree, (LightTree, CyclesLightTree)) or self.links is not None
 
     def distant_pmf(self, emitter: int, n: int, receiver=None):
         """The global pmf of a distant emitter (a sun, the world): one float32, or (n,) per receiver set."""

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..geometry import scene_extent
 from ..light_tree import LightTree
+from ..light_tree_cycles import AREA, MESH, POINT, SPOT as UNIT_SPOT, CyclesLightTree, Units, merge_cones
 from ..textures import luminance
 from ..vec import normalize_floored_xyz
 from ..vec import HALF_PI
@@ -65,10 +66,12 @@ def local_choice(sampler, choice: Choice, power, scene):
     SolidAngleChoice among two to SOLID_ANGLE_MAX_EMITTERS emissive triangles; a LightTree over
     TREE_MIN_EMITTERS or more emitters whose choices differ enough from the global pmf's
     (TREE_MIN_DIVERGENCE, measured at points in the box of the scene's triangles); else None. Also the
-    distant emitters' own distribution for the points that choose one (set on `choice`)."""
+    distant emitters' own distribution for the points that choose one (set on `choice`). A clamped render
+    (sampler.cycles_shares) takes Cycles' tree wherever Cycles takes one (kernels.light_tree_cycles)."""
     distant = sampler.distant_mask()
     local = np.flatnonzero(~distant & (power > 0))
-    few = 2 <= len(local) <= SOLID_ANGLE_MAX_EMITTERS and bool((local >= sampler.light_count).all())
+    cycles = sampler.cycles_shares
+    few = 2 <= len(local) <= SOLID_ANGLE_MAX_EMITTERS and bool((local >= sampler.light_count).all()) and not cycles
     if len(local) < TREE_MIN_EMITTERS and not few:
         return None
     choice.distant_ids = np.flatnonzero(distant & (choice.select_pmf > 0))
@@ -116,11 +119,100 @@ def local_choice(sampler, choice: Choice, power, scene):
         spread[np.flatnonzero(~is_light)[half != 0]] = 0.0
     group = np.full(len(local), -1, np.int64)
     group[~is_light] = triangle_groups(sampler, scene, local[~is_light] - sampler.light_count)
+    if cycles:
+        return _cycles_tree(sampler, local, is_light, lo, hi, axis, spread, emission, group, power[local])
     tree = LightTree(lo, hi, power[local], axis, spread, group, emission)
     has_geometry = len(scene.positions) or (scene.instances is not None and scene.instances.count)
     box = scene_extent(scene) if has_geometry else None
     choice.tree_divergence = _divergence(tree, choice.select_pmf[local] / choice.local_share, box)
     return tree if tree.units > 1 or choice.tree_divergence >= TREE_MIN_DIVERGENCE else None
+
+
+def _cycles_tree(sampler, local, is_light, lo, hi, axis, spread, emission, group, power) -> CyclesLightTree:
+    """Cycles' tree (kernels.light_tree_cycles) over the lamps and the emissive objects among the local emitters
+    (slots: their order in local), the arrays as local_choice makes them."""
+    slots = np.arange(len(local))
+    lamp_slots, tri_slots = slots[is_light], slots[~is_light]
+    k = local[is_light]
+    kind = sampler.kind[k]
+    unit_kind = np.where(kind == SPOT, UNIT_SPOT, np.where((kind == RECT) | (kind == DISK), AREA, POINT))
+    theta_o = np.where(unit_kind == POINT, np.pi, 0.0)
+    theta_e = np.where(unit_kind == POINT, HALF_PI, emission[lamp_slots])
+    sphere = np.zeros(len(k), bool) if sampler.sphere is None else np.take(sampler.sphere, k).astype(bool)
+    blend = sampler.spot[k, 1].astype(np.float64)
+    with np.errstate(divide="ignore"):
+        smooth = np.where(blend > 0, 1.0 / np.where(blend > 0, blend, 1.0), np.inf)
+    parts = dict(kind=[unit_kind], energy=[power[lamp_slots]], lo=[lo[lamp_slots]], hi=[hi[lamp_slots]],
+                 centroid=[sampler.position[k].astype(np.float64)], axis=[axis[lamp_slots]], theta_o=[theta_o],
+                 theta_e=[theta_e], radius=[sampler.radius[k].astype(np.float64)], sphere=[sphere],
+                 spot_smooth=[smooth],
+                 eu=[sampler.axes[k, :, 0].astype(np.float64) * sampler.size[k, 0:1]],
+                 ev=[sampler.axes[k, :, 1].astype(np.float64) * sampler.size[k, 1:2]])
+    unit_of_slot = np.zeros(len(local), np.int64)
+    unit_of_slot[lamp_slots] = np.arange(len(k))
+    tri_tree, unit_group = None, np.full(len(k), -1, np.int64)
+    if len(tri_slots):
+        # The emissive objects: Ember's tree over their triangles, each object a subtree (LightTree.unit_root);
+        # as units, their boxes, energies and the cones of those subtrees.
+        tri_tree = LightTree(lo[tri_slots], hi[tri_slots], power[tri_slots], axis[tri_slots], spread[tri_slots],
+                             group[tri_slots], emission[tri_slots])
+        tri_unit = tri_tree.unit
+        m = tri_tree.units
+        u_lo, u_hi = np.full((m, 3), np.inf), np.full((m, 3), -np.inf)
+        np.minimum.at(u_lo, tri_unit, lo[tri_slots])
+        np.maximum.at(u_hi, tri_unit, hi[tri_slots])
+        cone = _object_cones(sampler, local[tri_slots], tri_tree, axis[tri_slots], spread[tri_slots])
+        parts["kind"].append(np.full(m, MESH))
+        parts["energy"].append(np.bincount(tri_unit, power[tri_slots], minlength=m))
+        parts["lo"].append(u_lo)
+        parts["hi"].append(u_hi)
+        parts["centroid"].append(0.5 * (u_lo + u_hi))
+        parts["axis"].append(cone[0])
+        parts["theta_o"].append(cone[1])
+        parts["theta_e"].append(cone[2])
+        parts["radius"].append(np.zeros(m))
+        parts["sphere"].append(np.zeros(m, bool))
+        parts["spot_smooth"].append(np.full(m, np.inf))
+        parts["eu"].append(np.zeros((m, 3)))
+        parts["ev"].append(np.zeros((m, 3)))
+        unit_of_slot[tri_slots] = len(k) + tri_unit
+        unit_group = np.concatenate([unit_group, np.arange(m)])
+    units = Units(**{name: np.concatenate(v) for name, v in parts.items()})
+    return CyclesLightTree(units, unit_of_slot, tri_tree, tri_slots, unit_group)
+
+
+# Objects with more emissive triangles than this take the cone of Ember's tree (kernels.light_tree) instead of the
+# sequence of Cycles' merges, which is a Python loop.
+MAX_MERGED_TRIANGLES = 50_000
+
+
+def _object_cones(sampler, emitters, tri_tree: LightTree, axis, spread):
+    """(axis (m, 3), theta_o (m,), theta_e (m,)) of the emissive objects (tri_tree's units), as Cycles' mesh emitters
+    measure them: the merge of their triangles' cones in order (scene/light_tree.cpp: a one-sided triangle's around
+    its normal with theta_o 0, a two-sided one's around the direction from its second corner to its first with
+    theta_o pi / 2)."""
+    unit, m = tri_tree.unit, tri_tree.units
+    rows = np.take(sampler.tri_table, emitters - sampler.light_count, axis=0).astype(np.float64)
+    edge = -rows[:, TE1:TE1 + 3]
+    edge /= np.maximum(np.linalg.norm(edge, axis=1), 1e-30)[:, None]
+    two_sided = spread >= np.pi
+    cone_axis = np.where(two_sided[:, None], edge, axis)
+    theta_o = np.where(two_sided, HALF_PI, 0.0)
+    out_axis, out_o, out_e = np.zeros((m, 3)), np.zeros(m), np.full(m, HALF_PI)
+    counts = np.bincount(unit, minlength=m)
+    fallback = counts > MAX_MERGED_TRIANGLES
+    order = np.argsort(unit, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    listed_axis, listed_o = cone_axis.tolist(), theta_o.tolist()
+    for g in np.flatnonzero(~fallback & (counts > 0)):
+        cone = None
+        for i in order[starts[g]:starts[g + 1]].tolist():
+            cone = merge_cones(cone, (tuple(listed_axis[i]), listed_o[i], HALF_PI))
+        out_axis[g], out_o[g] = cone[0], cone[1]
+    if fallback.any():
+        big = np.flatnonzero(fallback)
+        out_axis[big], out_o[big], out_e[big] = tri_tree.cone_of(tri_tree.unit_root[big])
+    return out_axis, out_o, out_e
 
 
 def triangle_groups(sampler, scene, rows) -> np.ndarray:

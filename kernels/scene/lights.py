@@ -64,6 +64,10 @@ class Lights:
         alike, half and half when there are both; kernels/lights/selection.py distribution_pmf), as Cycles renders
         files whose Light Tree is off (older files open so). The image is the same but for clamping, which depends
         on each sample's value and so on how lights are chosen.
+    clamped : the render clamps light (Clamping Direct or Indirect above 0; Renderer.render sets it from its settings):
+        with the tree on, light samples are then shared among the lights as Cycles' tree shares them
+        (kernels/light_tree_cycles.py), since what clamping cuts depends on each sample's value; unclamped, by Ember's
+        own tree, which is less noisy.
     portals : (P, PORTAL_COLUMNS) float32 or None (none): the area lamps marked Portal, which emit nothing and guide
         the world's light samples through windows (kernels/lights/portals.py, whose docstring gives the columns);
         not among the L rows.
@@ -95,6 +99,7 @@ class Lights:
     mis: np.ndarray | None = None
     portals: np.ndarray | None = None
     tree: bool = True
+    clamped: bool = False
 
     @property
     def count(self) -> int:
