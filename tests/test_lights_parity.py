@@ -244,6 +244,33 @@ def test_light_tree_on_under_clamping_chooses_lights_as_cycles_tree():
     assert export_current().scene.lights.clamped is False
 
 
+def test_lamps_beside_a_textured_emissive_panel_under_clamping_match_cycles():
+    """Cycles' tree under clamping over lamps and an emissive object: a point lamp, an area lamp and a panel emitting
+    a checker at Strength 30, Clamp Direct and Indirect 1. Cycles weighs the panel by its material's estimate (a
+    linked colour counts as white: 30 x its area), not by what the checker emits. Ember matches Cycles (with Ember's
+    own tree, 2.7% dark; with the panel weighed by its own emission, a block by the point lamp 4.8% off)."""
+    scene = new_scene(32, 32)
+    add_camera(scene, (0, -5, 2.5), (0, 0, 0.5))
+    set_world(scene, color=(0, 0, 0))
+    quad_object("Floor", (-4, -4, 0), (8, 0, 0), (0, 8, 0), diffuse_material("Floor", (0.7, 0.7, 0.7)))
+    quad_object("Wall", (-4, 2, 0), (8, 0, 0), (0, 0, 4), diffuse_material("Wall", (0.5, 0.6, 0.7)))
+
+    def checker(tree):
+        node = tree.nodes.new("ShaderNodeTexChecker")
+        node.inputs["Scale"].default_value = 4.0
+        node.inputs["Color1"].default_value = (1.0, 0.9, 0.7, 1.0)
+        node.inputs["Color2"].default_value = (0.05, 0.05, 0.05, 1.0)
+        return node.outputs["Color"]
+    quad_object("Panel", (-2.5, 1.9, 0.3), (1.2, 0, 0), (0, 0, 1.2), emission_material("Panel", strength=30.0,
+                                                                                      build=checker))
+    lamp = add_light(scene, "POINT", location=(0.8, -0.5, 0.5), energy=30.0, shadow_soft_size=0.05)
+    lamp.data.color = (0.2, 0.5, 1.0)
+    add_light(scene, "AREA", location=(1.5, 0.5, 2.0), rotation=(0, 0, 0), energy=60.0, size=0.5)
+    shaders = export_current().scene.materials.shaders
+    assert [s.emission_estimate for s in shaders if s.name == "Panel"] == [(30.0, 30.0, 30.0)]
+    compare_to_cycles(scene, samples=128, max_bounces=2, clamp=(1.0, 1.0), mean_tol=0.01)
+
+
 def test_light_threshold_without_the_tree_leaves_dim_light_samples_untraced_as_cycles():
     """Sampling > Lights > Light Threshold, which Cycles applies only with the Light Tree off (files from before
     Blender 3.5 open so, the threshold at 0.01): a light sample whose contribution is below it goes on with

@@ -32,9 +32,16 @@ def light_sampled(reader, surface_socket, setting: str) -> bool:
         return False
     if setting != "AUTO":
         return True
+    return max(abs(v) for v in surface_estimate(reader, surface_socket)) > AUTO_THRESHOLD
+
+
+def surface_estimate(reader, surface_socket) -> tuple:
+    """Cycles' emission estimate of a Surface output (3 floats): estimate() of what feeds it, a tenth of it where a
+    colour or value is turned into an emission. Cycles' light tree weighs the material's emitting triangles by it
+    (Shader.emission_estimate)."""
     source = source_of(surface_socket)
     scale = AUTO_CONVERSION_SCALE if source.node is not None and source.socket.type != "SHADER" else 1.0
-    return max(abs(v) * scale for v in estimate(reader, source)) > AUTO_THRESHOLD
+    return tuple(v * scale for v in estimate(reader, source))
 
 
 def estimate(reader, source) -> tuple:

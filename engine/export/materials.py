@@ -331,7 +331,8 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displ
                   float(getattr(settings, "volume_step_rate", 1.0)), reader.set_normal,
                   out is not None and emission_estimate.light_sampled(reader, out.inputs["Surface"], sampling),
                   sampling if sampling in ("FRONT", "BACK") else "BOTH",
-                  bool(getattr(material, "use_transparent_shadow", True)))
+                  bool(getattr(material, "use_transparent_shadow", True)),
+                  None if out is None else emission_estimate.surface_estimate(reader, out.inputs["Surface"]))
 
 
 def read_volume(tree, name: str, images: ImageTextures, issues: list[str], layer_attribute=None) -> Shader | None:

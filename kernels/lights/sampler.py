@@ -173,10 +173,20 @@ class LightSampler:
         estimate = selection.emission_estimates(triangle_emission, candidates,
                                        np.concatenate([scene.material_ids[plain_ids], instanced_materials]), varies)
         keep = np.abs(estimate).max(axis=1, initial=0.0) > 0
+        if self.cycles_shares:
+            # Cycles' tree holds every triangle of an emitting object, dark texels and all, each weighed by its
+            # material's estimate (_triangle_power): clamped, the shares are Cycles'.
+            keep[:] = True
         n_plain = len(plain_ids)
         plain_ids, estimate = plain_ids[keep[:n_plain]], estimate[keep]
         instanced_ids, instanced_corners = instanced_ids[keep[n_plain:]], instanced_corners[keep[n_plain:]]
         instanced_materials = instanced_materials[keep[n_plain:]]
+        materials = np.concatenate([scene.material_ids[plain_ids], instanced_materials]).astype(np.int64)
+        # Cycles' estimate of each emitting triangle's material (Shader.emission_estimate; NaN where not known),
+        # by which Cycles' tree weighs it (_triangle_power).
+        known = np.array([s.emission_estimate if getattr(s, "emission_estimate", None) is not None else (np.nan,) * 3
+                          for s in scene.materials.shaders], np.float64).reshape(-1, 3)
+        self.tri_estimate = known[materials] if len(known) else np.full((len(materials), 3), np.nan)
         self.tri_ids = np.concatenate([plain_ids, instanced_ids]) if len(instanced_ids) else plain_ids
         p = scene.positions[plain_ids].astype(np.float64)
         if len(instanced_ids):
@@ -193,7 +203,6 @@ class LightSampler:
         self.has_instances = scene.instances is not None and scene.instances.count > 0
         self._instanced = len(instanced_ids) > 0
         # Triangles whose emission varies (a texture, layers above it) are evaluated at the sampled point.
-        materials = np.concatenate([scene.material_ids[plain_ids], instanced_materials])
         self.tri_textured = bool(varies[materials].any())
         # One row per emissive triangle, gathered whole (rows of a (E, K) table gather fastest).
         table = np.zeros((len(self.tri_ids), TRI_COLUMNS), np.float32)
@@ -297,8 +306,11 @@ class LightSampler:
         if not len(self.tri_ids):
             return np.zeros(0)
         if self.cycles_shares:
-            # Area times the mean of |R|, |G|, |B|, as Cycles' light tree weighs an emissive triangle.
-            return self.tri_area * np.abs(self.tri_table[:, TLE:TLE + 3]).astype(np.float64).mean(axis=1)
+            # Area times the mean of |R|, |G|, |B| of its material's estimate, as Cycles' light tree weighs an emissive
+            # triangle (the triangle's own emission where the estimate is not known).
+            known = ~np.isnan(self.tri_estimate[:, 0])
+            emission = np.where(known[:, None], self.tri_estimate, self.tri_table[:, TLE:TLE + 3].astype(np.float64))
+            return self.tri_area * np.abs(emission).mean(axis=1)
         # Negative emission (a negative Strength) subtracts light; its triangles are chosen by the size of their
         # emission, as Cycles' light tree measures them (light_tree.cpp: fabs of the emission estimate).
         lum = np.abs(luminance(self.tri_table[:, TLE:TLE + 3]).astype(np.float64))

@@ -143,6 +143,9 @@ class Shader:
     transparent_shadow : the material's Settings > Surface > Transparent Shadows (Material.use_transparent_shadow,
         on by default): off, shadow rays stop at its surface whatever its transparency, as Cycles' shader loses
         SD_HAS_TRANSPARENT_SHADOW (scene/shader.cpp), unless it has a volume; camera and BSDF rays still pass it.
+    emission_estimate : Cycles' estimate of the material's emission (3 floats: a linked colour counting as white, a
+        linked strength as 1; engine/export/emission_estimate.py), by which Cycles' light tree weighs its emitting
+        triangles (kernels/light_tree_cycles.py); None where not known (each triangle's own emission is taken).
     program : the material's node program (kernels.programs), which linked Params read.
     aovs : the material's AOV Output nodes, ((name, colour Param (3), value Param (1)), ...): the Shader AOV
         passes read them at the camera rays' first hit.
@@ -170,6 +173,7 @@ class Shader:
     light_sampled: bool = True
     emission_sides: str = "BOTH"
     transparent_shadow: bool = True
+    emission_estimate: tuple | None = None
 
 
 def diffuse_shader(albedo=(0.8, 0.8, 0.8), albedo_texture: int = -1, emission=(0.0, 0.0, 0.0),
