@@ -8,9 +8,10 @@ scene/light_tree.cpp and kernel/light/tree.h, point.h, spot.h, area.h):
 
 - The units are the lamps and the emissive objects (an object's, or an instance's, emissive triangles, Cycles' mesh
   emitters), each with Cycles' energy (the mean of |R|, |G|, |B|; a point or spot lamp's strength over 4 pi, an area
-  lamp's over pi, a triangle's area times its material's emission estimate, Shader.emission_estimate, where a linked
-  colour counts as white: every triangle of the object, dark texels too, as Cycles keeps them), box and cone of
-  emission (axis, theta_o, theta_e).
+  lamp's over pi, an object's the sum of its triangles' areas times its material's emission estimate,
+  Shader.emission_estimate, where a linked colour counts as white: every triangle, those a texture leaves dark
+  too, as Cycles keeps them, though light samples go to the emitting ones only), box and cone of emission (axis,
+  theta_o, theta_e).
 - The tree over them is built as Cycles builds it: at each node the units' centroids go into 12 buckets along
   each axis, each split between buckets costs the two sides' energy x box surface area x cone measure (its
   orientation measure; the box's diagonal where the area is 0), times the node's largest centroid extent over this

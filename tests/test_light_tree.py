@@ -539,3 +539,40 @@ def test_a_render_chooses_lights_by_its_own_clamping():
         assert isinstance(renderer.lights.tree, CyclesLightTree) and renderer.scene.lights.clamped
         renderer.render(RenderSettings(samples=1, max_bounces=1))
         assert isinstance(renderer.lights.tree, LightTree) and not renderer.scene.lights.clamped
+
+
+def test_clamped_renders_weigh_an_emissive_object_by_its_materials_estimate_dark_triangles_included():
+    """Cycles measures an emissive object by its triangles' area times its material's estimate (a texture counts as
+    white), all of them: an object of 8 triangles whose texture leaves 6 dark weighs 8 triangles' worth beside a lamp,
+    while light samples still go to its 2 bright triangles only (the dark ones are left to BSDF rays)."""
+    import dataclasses
+    from ember.kernels.environment import Environment
+    from ember.kernels.lights import LightSampler
+    from ember.kernels.shapes import subdivided_quad
+    tri, normals = subdivided_quad((-1, -1, 2), (2, 0, 0), (0, 2, 0), 2)
+    lamp = Lights(kind=np.zeros(1, np.int32), position=np.float32([(3, 0, 1)]),
+                  frame=np.eye(3, dtype=np.float32)[None], radiance=np.float32([(5, 5, 5)]),
+                  radius=np.float32([0.1]), size=np.zeros((1, 2), np.float32), spot_cos=np.float32([(1.0, 0.0)]),
+                  sun_half_angle=np.zeros(1, np.float32), clamped=True)
+    scene = make_scene(tri, normals, material_ids=np.ones(len(tri), np.int32), albedo=[(0.5,) * 3] * 2,
+                       emission=[(0,) * 3, (2.0,) * 3], lights=lamp)
+    shaders = list(scene.materials.shaders)
+    shaders[1] = dataclasses.replace(shaders[1], emission_estimate=(2.0, 2.0, 2.0))
+    scene = dataclasses.replace(scene, materials=dataclasses.replace(scene.materials, shaders=tuple(shaders)))
+    bright = np.arange(len(tri)) < 2
+
+    class Emitters:
+        emissive = np.array([False, True])
+        varies = np.array([False, True])
+
+        def __call__(self, t, b1=None, b2=None, toward=None, dist=None):
+            return np.where(bright[t], np.float32(2.0), np.float32(0.0))[None, :].repeat(3, axis=0)
+    sampler = LightSampler(scene, Environment(scene.world), Emitters())
+    assert len(tri) == 8 and sorted(sampler.tri_ids.tolist()) == [0, 1]
+    keys, energy, lo, hi = sampler.object_totals
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    np.testing.assert_allclose(energy, [2.0 * area], rtol=1e-6)
+    np.testing.assert_allclose(lo[0], tri.reshape(-1, 3).min(axis=0), atol=1e-6)
+    tree = sampler.tree
+    assert isinstance(tree, CyclesLightTree)
+    np.testing.assert_allclose(tree.u.energy[tree.u.kind == 3], [2.0 * area], rtol=1e-5)

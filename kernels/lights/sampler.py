@@ -173,20 +173,22 @@ class LightSampler:
         estimate = selection.emission_estimates(triangle_emission, candidates,
                                        np.concatenate([scene.material_ids[plain_ids], instanced_materials]), varies)
         keep = np.abs(estimate).max(axis=1, initial=0.0) > 0
-        if self.cycles_shares:
-            # Cycles' tree holds every triangle of an emitting object, dark texels and all, each weighed by its
-            # material's estimate (_triangle_power): clamped, the shares are Cycles'.
-            keep[:] = True
-        n_plain = len(plain_ids)
-        plain_ids, estimate = plain_ids[keep[:n_plain]], estimate[keep]
-        instanced_ids, instanced_corners = instanced_ids[keep[n_plain:]], instanced_corners[keep[n_plain:]]
-        instanced_materials = instanced_materials[keep[n_plain:]]
         materials = np.concatenate([scene.material_ids[plain_ids], instanced_materials]).astype(np.int64)
         # Cycles' estimate of each emitting triangle's material (Shader.emission_estimate; NaN where not known),
         # by which Cycles' tree weighs it (_triangle_power).
         known = np.array([s.emission_estimate if getattr(s, "emission_estimate", None) is not None else (np.nan,) * 3
                           for s in scene.materials.shaders], np.float64).reshape(-1, 3)
-        self.tri_estimate = known[materials] if len(known) else np.full((len(materials), 3), np.nan)
+        material_estimate = known[materials] if len(known) else np.full((len(materials), 3), np.nan)
+        self.object_totals = None
+        if self.cycles_shares and len(candidates):
+            self.object_totals = _object_totals(scene, candidates, plain_ids, instanced_corners, material_estimate,
+                                                estimate)
+        n_plain = len(plain_ids)
+        plain_ids, estimate = plain_ids[keep[:n_plain]], estimate[keep]
+        instanced_ids, instanced_corners = instanced_ids[keep[n_plain:]], instanced_corners[keep[n_plain:]]
+        instanced_materials = instanced_materials[keep[n_plain:]]
+        self.tri_estimate = material_estimate[keep]
+        materials = materials[keep]
         self.tri_ids = np.concatenate([plain_ids, instanced_ids]) if len(instanced_ids) else plain_ids
         p = scene.positions[plain_ids].astype(np.float64)
         if len(instanced_ids):
@@ -665,3 +667,22 @@ def _choose_per_ray(ray, weight, u):
     below = (cum - weight - before) <= u * total                    # True, ..., True, False, ... per ray
     chosen = starts + np.maximum(np.add.reduceat(below.astype(np.int64), starts) - 1, 0)
     return chosen, weight[chosen] / total[chosen]
+
+
+def _object_totals(scene, candidates, plain_ids, instanced_corners, material_estimate, own):
+    """(group (G,), energy (G,), lo (G, 3), hi (G, 3)) float64 of each emitting object (selection.groups_of_triangles)
+    over all its light-sampled triangles, dark texels included, as Cycles' tree measures a mesh emitter: the sum of
+    area x the mean of |R|, |G|, |B| of the material's estimate (each triangle's own emission where not known), and
+    the box of its triangles. Light samples still go to the triangles that emit only (LightSampler)."""
+    corners = scene.positions[plain_ids].astype(np.float64)
+    if len(instanced_corners):
+        corners = np.concatenate([corners, instanced_corners])
+    area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    emission = np.where(np.isnan(material_estimate[:, :1]), own, material_estimate)
+    group = selection.groups_of_triangles(scene, candidates)
+    keys, inverse = np.unique(group, return_inverse=True)
+    energy = np.bincount(inverse, area * np.abs(emission).mean(axis=1), minlength=len(keys))
+    lo, hi = np.full((len(keys), 3), np.inf), np.full((len(keys), 3), -np.inf)
+    np.minimum.at(lo, inverse, corners.min(axis=1))
+    np.maximum.at(hi, inverse, corners.max(axis=1))
+    return keys, energy, lo, hi

@@ -161,9 +161,20 @@ def _cycles_tree(sampler, local, is_light, lo, hi, axis, spread, emission, group
         u_lo, u_hi = np.full((m, 3), np.inf), np.full((m, 3), -np.inf)
         np.minimum.at(u_lo, tri_unit, lo[tri_slots])
         np.maximum.at(u_hi, tri_unit, hi[tri_slots])
+        energy = np.bincount(tri_unit, power[tri_slots], minlength=m)
+        totals = getattr(sampler, "object_totals", None)
+        if totals is not None:
+            # The objects as Cycles measures them, their dark triangles included (LightSampler._object_totals).
+            keys, t_energy, t_lo, t_hi = totals
+            object_of_unit = np.zeros(m, np.int64)
+            object_of_unit[tri_unit] = group[tri_slots]
+            at = np.minimum(np.searchsorted(keys, object_of_unit), len(keys) - 1)
+            found = keys[at] == object_of_unit
+            energy = np.where(found, t_energy[at], energy)
+            u_lo, u_hi = np.where(found[:, None], t_lo[at], u_lo), np.where(found[:, None], t_hi[at], u_hi)
         cone = _object_cones(sampler, local[tri_slots], tri_tree, axis[tri_slots], spread[tri_slots])
         parts["kind"].append(np.full(m, MESH))
-        parts["energy"].append(np.bincount(tri_unit, power[tri_slots], minlength=m))
+        parts["energy"].append(energy)
         parts["lo"].append(u_lo)
         parts["hi"].append(u_hi)
         parts["centroid"].append(0.5 * (u_lo + u_hi))
@@ -218,13 +229,19 @@ def _object_cones(sampler, emitters, tri_tree: LightTree, axis, spread):
 def triangle_groups(sampler, scene, rows) -> np.ndarray:
     """(m,) int64 group of the emissive triangles at rows of the table: their object (their material when
     the scene has no object table), or their instance; the light tree keeps each group together."""
-    tri = sampler.tri_ids[rows]
-    plain = tri < sampler.plain_count
+    return groups_of_triangles(scene, sampler.tri_ids[rows])
+
+
+def groups_of_triangles(scene, tri) -> np.ndarray:
+    """(m,) int64 group (triangle_groups) of triangles tri (numbered as ray hits report them, instances' copies
+    after the scene's own triangles)."""
+    plain_count = scene.triangle_count
+    plain = tri < plain_count
     by = scene.object_ids if scene.object_ids is not None else scene.material_ids
     group = np.zeros(len(tri), np.int64)
     group[plain] = np.take(by, tri[plain])
     if not plain.all():
-        bases = scene.instances.bases(sampler.plain_count)
+        bases = scene.instances.bases(plain_count)
         offset = int(np.max(by, initial=-1)) + 1
         group[~plain] = offset + np.searchsorted(bases, tri[~plain], side="right") - 1
     return group
