@@ -325,7 +325,6 @@ class CyclesLightTree:
         self.nodes, order = build(units)
         self.u = units.as_float32()
         self.count = len(units.energy)
-        self.units = self.count
         self.unit_of_slot = np.asarray(unit_of_slot, np.int64)
         self.lamp_slot = np.full(self.count, -1, np.int64)
         lamps = np.flatnonzero(units.kind != MESH)

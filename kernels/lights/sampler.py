@@ -174,20 +174,21 @@ class LightSampler:
                                        np.concatenate([scene.material_ids[plain_ids], instanced_materials]), varies)
         keep = np.abs(estimate).max(axis=1, initial=0.0) > 0
         materials = np.concatenate([scene.material_ids[plain_ids], instanced_materials]).astype(np.int64)
-        # Cycles' estimate of each emitting triangle's material (Shader.emission_estimate; NaN where not known),
-        # by which Cycles' tree weighs it (_triangle_power).
-        known = np.array([s.emission_estimate if getattr(s, "emission_estimate", None) is not None else (np.nan,) * 3
-                          for s in scene.materials.shaders], np.float64).reshape(-1, 3)
-        material_estimate = known[materials] if len(known) else np.full((len(materials), 3), np.nan)
-        self.object_totals = None
-        if self.cycles_shares and len(candidates):
-            self.object_totals = _object_totals(scene, candidates, plain_ids, instanced_corners, material_estimate,
-                                                estimate)
+        self.object_totals, self.tri_estimate = None, None
+        if self.cycles_shares:
+            # Cycles' estimate of each emitting triangle's material (Shader.emission_estimate; NaN where not known),
+            # by which Cycles' tree weighs it (_triangle_power, _object_totals).
+            known = np.array([s.emission_estimate if getattr(s, "emission_estimate", None) is not None
+                              else (np.nan,) * 3 for s in scene.materials.shaders], np.float64).reshape(-1, 3)
+            material_estimate = known[materials] if len(known) else np.full((len(materials), 3), np.nan)
+            if len(candidates):
+                self.object_totals = _object_totals(scene, candidates, plain_ids, instanced_corners,
+                                                    material_estimate, estimate)
+            self.tri_estimate = material_estimate[keep]
         n_plain = len(plain_ids)
         plain_ids, estimate = plain_ids[keep[:n_plain]], estimate[keep]
         instanced_ids, instanced_corners = instanced_ids[keep[n_plain:]], instanced_corners[keep[n_plain:]]
         instanced_materials = instanced_materials[keep[n_plain:]]
-        self.tri_estimate = material_estimate[keep]
         materials = materials[keep]
         self.tri_ids = np.concatenate([plain_ids, instanced_ids]) if len(instanced_ids) else plain_ids
         p = scene.positions[plain_ids].astype(np.float64)
