@@ -7,13 +7,15 @@ majorant * exp(-majorant t) (the majorant: the sum of the stack's media's, mediu
 
 - the emission there is gathered, weight x emission / majorant (a collision estimate of the integral of
   transmittance times emission along the segment);
-- a path that may scatter takes a real scattering event, a null event or is absorbed, with probabilities
-  in proportion to sigma_s, |sigma_n| = |majorant - sigma_t| and sigma_a, each summed over the colour channels
-  weighted by the path's weight so far (spectral tracking: grey media then have weights of exactly 1, and a
-  majorant that a point exceeds gives a negative null weight, not a bias). The scattering event's weight
-  is 1 / (majorant P_scatter): the phase closures' weights (which sum to sigma_s) multiply it at the vertex;
-- a path that may not scatter (past its bounces) multiplies its weight by sigma_n / majorant (ratio tracking),
-  and is stopped by Russian roulette once its weight is small. Shadow rays (transmittance()), and such paths
+- a path that may scatter takes a real scattering event or a null event, as Cycles chooses
+  (volume_scatter_probability): P_scatter is sigma_s / (sigma_s + |sigma_n|), |sigma_n| = |majorant - sigma_t|,
+  averaged over the colour channels weighted by the path's weight times the albedo. Absorption is never an
+  event: the null event's weight sigma_n / (majorant P_null) carries it, and a point that only absorbs takes
+  the null event (ratio tracking). A majorant that a point exceeds gives a negative null weight, not a bias.
+  The scattering event's weight is 1 / (majorant P_scatter): the phase closures' weights (which sum to
+  sigma_s) multiply it at the vertex;
+- a path that may not scatter (past its bounces) multiplies its weight by sigma_n / majorant (ratio tracking).
+  Either is stopped by Russian roulette once its weight is small. Shadow rays (transmittance()), and such paths
   through media that emit nothing, take Cycles' telescoping estimator of the transmittance instead
   (telescope.py); ratio tracking stays where a segment has no end or gathers emission.
 
@@ -128,27 +130,35 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
         new_w = w * sigma_n * inv            # ratio tracking (and the null event's weight when P_n = sigma_n/bar)
         ended = np.zeros(len(live), bool)
         if scatter.any():
+            # Cycles' choice (volume_scatter_probability, shade_volume.h): a real scattering event or a null
+            # one, never an absorption (it would only end the path: high variance); the null event carries the
+            # absorption in its weight, sigma_n / (majorant P_n). The channels are weighted by the path's weight
+            # times the albedo (volume_sample_channel_pdf); a point that only absorbs always takes the null event.
             s = np.flatnonzero(scatter)
-            ws = np.abs(w[:, s])
-            ss, sn = c.sigma_s[:, s], sigma_n[:, s]
-            sa = np.maximum(c.sigma_t[:, s] - ss, ZERO)
-            p_s, p_n, p_a = (ws * ss).sum(0), (ws * np.abs(sn)).sum(0), (ws * sa).sum(0)
-            total = p_s + p_n + p_a
-            ok = total > 0
-            total = np.where(ok, total, ONE)
-            p_s, p_n = p_s / total, p_n / total
-            u = u2[s]
-            real = ok & (u < p_s)
-            null = ok & ~real & (u < p_s + p_n)
+            ss, sn, st = c.sigma_s[:, s], sigma_n[:, s], c.sigma_t[:, s]
+            albedo = np.where(st > 0, ss / np.where(st > 0, st, ONE), ONE)
+            lean = np.abs(w[:, s] * albedo)
+            total = lean.sum(0)
+            channel_pdf = np.where(total > 0, lean / np.where(total > 0, total, ONE), F32(1.0 / 3.0))
+            reach = ss + np.abs(sn)
+            p_s = (channel_pdf * np.where(reach > 0, ss / np.where(reach > 0, reach, ONE), ZERO)).sum(0)
+            real = u2[s] < p_s
             # Scattering: 1 / (majorant P_s), the phase closures' weights come at the vertex.
+            p_n = ONE - p_s
             scale = np.where(real, ONE / (bar[s] * np.where(real, p_s, ONE)), ZERO)
-            new_w[:, s] = np.where(null, w[:, s] * sn / (bar[s] * np.where(null, p_n, ONE)), w[:, s] * scale)
+            null_scale = np.where(p_n > 0, ONE / (bar[s] * np.where(p_n > 0, p_n, ONE)), ZERO)
+            new_w[:, s] = np.where(real, w[:, s] * scale, w[:, s] * sn * null_scale)
             rows = live[s[real]]
             scattered[rows] = True
             t_event[rows] = tl[s[real]]
-            ended[s] = ~null
-        plain = np.flatnonzero(~scatter)
+            ended[s] = real
+            # The number that chose the null event, rescaled, is the roulette's (as Cycles reuses it).
+            u2 = u2.copy()
+            u2[s] = np.where(real, u2[s], np.clip((u2[s] - p_s) / np.where(p_n > 0, p_n, ONE), ZERO, ONE))
+        plain = np.flatnonzero(~ended)
         if len(plain):
+            # Russian roulette on the paths whose weight the null events have made small (Cycles'
+            # volume_russian_roulette_termination).
             small = np.abs(new_w[:, plain]).max(axis=0)
             risky = small < ROULETTE_WEIGHT
             if risky.any():
