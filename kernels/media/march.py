@@ -32,6 +32,7 @@ import numpy as np
 
 from ..rng import keyed_uniforms as uniforms
 from ..vec import F32
+from .channels import channel_pdf
 
 THROUGHPUT_EPSILON = 1e-6   # Cycles' VOLUME_THROUGHPUT_EPSILON: a shadow ray's marching stops below it
 PDF_CUTOFF = 1e-8           # Cycles' VOLUME_SAMPLE_PDF_CUTOFF: a scattering distance of smaller pdf is not taken
@@ -108,16 +109,13 @@ def march(media, stack, origins, dirs, t_end, seeds, may_scatter, steps, max_ste
             s = np.flatnonzero(scatter)
             rows = live[s]
             st, tr = sigma_t[:, s], through[:, s]
-            albedo = np.where(st > 0, sigma_s[:, s] / np.where(st > 0, st, 1.0), 1.0)
-            lean = np.abs(w[:, s] * albedo)
-            total = lean.sum(axis=0)
-            channel_pdf = np.where(total > 0, lean / np.where(total > 0, total, 1.0), 1.0 / 3.0)
+            shares = channel_pdf(w[:, s], sigma_s[:, s], st)
             rc = r_channel[rows]
-            upper = np.cumsum(channel_pdf, axis=0)
+            upper = np.cumsum(shares, axis=0)
             channel = np.minimum((rc[None] >= upper).sum(axis=0), 2)
             cols = np.arange(len(s))
             below = np.where(channel > 0, upper[np.maximum(channel - 1, 0), cols], 0.0)
-            own = channel_pdf[channel, cols]
+            own = shares[channel, cols]
             r_channel[rows] = np.where(own > 0, (rc - below) / np.where(own > 0, own, 1.0), rc)
             t_channel = tr[channel, cols]
             rs = r_scatter[rows]
@@ -126,10 +124,10 @@ def march(media, stack, origins, dirs, t_end, seeds, may_scatter, steps, max_ste
             with np.errstate(divide="ignore", invalid="ignore"):
                 new_dt = -np.log1p(-rs) / np.where(sigma_channel > 0, sigma_channel, 1.0)
             decay = np.exp(-st * new_dt[None])
-            pdf_at = (channel_pdf * st * decay).sum(axis=0)
+            pdf_at = (shares * st * decay).sum(axis=0)
             taken = inside & (pdf_at > PDF_CUTOFF)
             passing = ~inside
-            pdf_through = (channel_pdf * tr).sum(axis=0)
+            pdf_through = (shares * tr).sum(axis=0)
             ws = w[:, s]
             ws = np.where(taken, ws * decay / np.where(taken, pdf_at, 1.0),
                           np.where(passing, ws * tr / np.where(pdf_through > 0, pdf_through, 1.0), ws))

@@ -34,6 +34,7 @@ import numpy as np
 from ..rng import keyed_uniforms as uniforms
 from ..vec import F32, ONE, ZERO
 from . import telescope
+from .channels import channel_pdf
 from .march import Marching, stack_steps
 from .march import march as march_segments
 
@@ -135,13 +136,9 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
             # absorption in its weight, sigma_n / (majorant P_n). The channels are weighted by the path's weight
             # times the albedo (volume_sample_channel_pdf); a point that only absorbs always takes the null event.
             s = np.flatnonzero(scatter)
-            ss, sn, st = c.sigma_s[:, s], sigma_n[:, s], c.sigma_t[:, s]
-            albedo = np.where(st > 0, ss / np.where(st > 0, st, ONE), ONE)
-            lean = np.abs(w[:, s] * albedo)
-            total = lean.sum(0)
-            channel_pdf = np.where(total > 0, lean / np.where(total > 0, total, ONE), F32(1.0 / 3.0))
+            ss, sn = c.sigma_s[:, s], sigma_n[:, s]
             reach = ss + np.abs(sn)
-            p_s = (channel_pdf * np.where(reach > 0, ss / np.where(reach > 0, reach, ONE), ZERO)).sum(0)
+            p_s = (channel_pdf(w[:, s], ss, c.sigma_t[:, s]) * np.where(reach > 0, ss / np.where(reach > 0, reach, ONE), ZERO)).sum(0)
             real = u2[s] < p_s
             # Scattering: 1 / (majorant P_s), the phase closures' weights come at the vertex.
             p_n = ONE - p_s
