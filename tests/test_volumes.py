@@ -193,19 +193,14 @@ class _Slab:
         return VolumeCoefficients(sigma_t * self.albedo, sigma_t, sigma_t * np.float32(0.5), [])
 
 
-@pytest.mark.parametrize("majorant", [4.0, 1.5])
-def test_ratio_tracking_is_unbiased_even_below_the_true_extinction(majorant):
+def test_ratio_tracking_is_unbiased_under_a_true_majorant():
     """Transmittance along z through sigma_t = 0.5 + 1.5 z over [0, 1] (optical depth 1.25) and the emission
-    gathered (emission 0.5 sigma_t: its integral is 0.5 (1 - T)), estimated by ratio tracking: with a true
-    majorant (4) and with one the medium exceeds (1.5, where null weights turn negative), both within five
-    standard errors of the closed forms."""
+    gathered (emission 0.5 sigma_t: its integral is 0.5 (1 - T)), estimated by ratio tracking under a majorant
+    the medium never exceeds (4): both within five standard errors of the closed forms."""
     from ember.kernels.media.tracking import track
     n = 100_000
-    rng = np.random.default_rng(11)
-    seeds = (rng.integers(0, 2**32, n, dtype=np.uint32), rng.integers(0, 2**32, n, dtype=np.uint32))
-    origins = np.zeros((n, 3), np.float32)
-    dirs = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (n, 1))
-    seg = track(_Slab(0.5, 1.5, majorant), np.zeros((1, n), np.int32), origins, dirs, np.ones(n, np.float32),
+    seeds, origins, dirs = _slab_rays(n)
+    seg = track(_Slab(0.5, 1.5, 4.0), np.zeros((1, n), np.int32), origins, dirs, np.ones(n, np.float32),
                 seeds, np.zeros(n, bool))
     expected = math.exp(-1.25)
     for estimate, truth in ((seg.weight[0].astype(np.float64), expected),
@@ -213,6 +208,27 @@ def test_ratio_tracking_is_unbiased_even_below_the_true_extinction(majorant):
         se = estimate.std(ddof=1) / math.sqrt(n)
         assert abs(estimate.mean() - truth) < 5 * se, (estimate.mean(), truth, se)
 
+
+@pytest.mark.parametrize("may_scatter", [False, True])
+def test_a_point_above_the_majorant_takes_its_own_extinction_as_cycles_does(may_scatter):
+    """Where the medium exceeds the majorant (sigma_t = 0.5 + 1.5 z against 1.5: z > 2/3), Cycles takes the point's
+    own extinction as the majorant since the previous collision (volume_integrate_step_scattering): the null
+    coefficient is 0 there in a grey medium, so a path ends at its first collision in that part, and the weights
+    stay in [0, 1] where negative null weights would swing (a user's glowing disk rendered at 3x Cycles' noise
+    and 11% dark at 16 spp). The paths that pass then average Campbell's formula for the Poisson collisions,
+    exp(-(integral of sigma_t where z < 2/3) - 1.5 x 1/3) = exp(-7/6): brighter than exp(-1.25), the bias Cycles
+    has where its majorant misses a feature. Paths that may scatter choose null events only (no scattering)."""
+    from ember.kernels.media.tracking import track
+    n = 100_000
+    seeds, origins, dirs = _slab_rays(n, 13)
+    seg = track(_Slab(0.5, 1.5, 1.5), np.zeros((1, n), np.int32), origins, dirs, np.ones(n, np.float32),
+                seeds, np.full(n, may_scatter))
+    weight = seg.weight[0].astype(np.float64)
+    assert weight.min() >= 0.0 and weight.max() <= 1.0
+    assert (seg.emission >= 0).all()
+    se = weight.std(ddof=1) / math.sqrt(n)
+    assert abs(weight.mean() - math.exp(-7.0 / 6.0)) < 5 * se, (weight.mean(), se)
+    assert abs(weight.mean() - math.exp(-1.25)) > 10 * se
 
 
 def _slab_rays(n, seed=11):
@@ -237,12 +253,12 @@ def test_paths_that_may_scatter_take_null_events_where_the_medium_only_absorbs()
     np.testing.assert_array_equal(free.emission, plain.emission)
 
 
-@pytest.mark.parametrize("majorant", [4.0, 1.5])
+@pytest.mark.parametrize("majorant", [4.0, 2.0])
 def test_scattering_or_null_events_are_unbiased_in_a_coloured_absorbing_medium(majorant):
     """A medium that scatters 40% of its coloured extinction sigma_t = (1, 0.5, 0.25) (0.5 + 1.5 z) and emits
     0.5 sigma_t: the emission gathered before a path scatters, and the weight of the paths that pass, average
-    to the closed forms 0.5 (1 - T) and T per channel, with a true majorant and with one the medium exceeds;
-    under a true majorant every scattering event's weight, 1 / (majorant P_scatter), is positive."""
+    to the closed forms 0.5 (1 - T) and T per channel, under a loose majorant and one the medium reaches at
+    z = 1; every scattering event's weight, 1 / (majorant P_scatter), is positive."""
     from ember.kernels.media.tracking import track
     n = 100_000
     seeds, origins, dirs = _slab_rays(n, 12)
@@ -250,8 +266,7 @@ def test_scattering_or_null_events_are_unbiased_in_a_coloured_absorbing_medium(m
     seg = track(_Slab(0.5, 1.5, majorant, tint=tint, albedo=0.4), np.zeros((1, n), np.int32), origins, dirs,
                 np.ones(n, np.float32), seeds, np.ones(n, bool))
     assert 0.05 < seg.scattered.mean() < 0.6
-    if majorant > 2.0:
-        assert (seg.weight[:, seg.scattered] > 0).all()
+    assert (seg.weight[:, seg.scattered] > 0).all()
     passing = np.where(seg.scattered[None], 0.0, seg.weight.astype(np.float64))
     for channel in range(3):
         expected = math.exp(-1.25 * tint[channel])

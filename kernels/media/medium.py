@@ -7,8 +7,8 @@ A medium whose inputs are all constants is homogeneous: evaluated once, its majo
 extinction. Otherwise the majorant is estimated as Cycles estimates its octree's (bvh/octree.cpp,
 kernel/bake/bake.h kernel_volume_density_evaluate): the shader evaluated at random points of cells over the
 medium's bounds, the largest extinction or emission found, here with Cycles' run-time margin (x 1.5,
-shade_volume.h volume_estimate_extrema). Where a point still exceeds it, the null collision's weight turns
-negative and the estimate stays unbiased (tracking.py), only noisier.
+shade_volume.h volume_estimate_extrema). Where a point still exceeds it, tracking takes that point's own
+extinction as the majorant since the previous collision, as Cycles does (tracking.py).
 """
 from __future__ import annotations
 
