@@ -364,10 +364,20 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
         crossed = bounds[alive]
         state.segments = state.segments + ~crossed
         state.volume_bounds = state.volume_bounds + crossed
+    through = np.take(below(bs), alive)
     if state.partner is not None:
         _crossings(tables, state, hit, alive, bs)
+        if bounds is not None and state.media is not None:
+            # A ray leaving a volume's boundary where an opaque surface lies on it (a fog box standing on a floor)
+            # is handed that surface at once and reflects back to the side it came from: it does not cross the
+            # boundary. Otherwise the floor under a fog box would shade (and light) as if outside the fog.
+            met = state.partner >= 0
+            if met.any():
+                stays = met & bounds[alive]
+                stays[met] &= np.take(tables.coincident.opaque, state.partner[met])
+                through = through & ~stays
     if state.media is not None:
-        media_stage.enter_exit_surfaces(tables, state, hit, alive, np.take(below(bs), alive))
+        media_stage.enter_exit_surfaces(tables, state, hit, alive, through)
     going = state, _clipped(spawn(tables, hit, alive, bs), rays, found, t_hit, alive, bs)
     if exits is None:
         return going

@@ -177,7 +177,7 @@ def test_fog_receives_light_as_its_object():
     import bpy
     from bpy_helpers import node_material
     scene, balls, key = _spheres()
-    # Lifted off the floor: a volume's face lying on another surface renders differently (docs/volumes.md, Limits).
+    # Lifted off the floor: Cycles renders a volume face lying on the floor unlike a lifted one (docs/volumes.md).
     bpy.ops.mesh.primitive_cube_add(size=2.6, location=(0, 0, 1.35))
     fog = bpy.context.object
     fog.data.materials.append(node_material("Fog", "ShaderNodeVolumePrincipled", output="Volume", Density=0.3))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import tempfile
 
 import bpy
@@ -510,7 +511,8 @@ def test_a_time_limit_denoises_fast_and_shows_progress(monkeypatch, capsys):
     engine = render_with(RecordingEngine, scene, samples=4096, use_denoising=True, time_limit=1e-6)
     out = capsys.readouterr().out
     assert calls == [("FAST", "FAST")] and "stopped: 1/4096 samples" in out
-    assert "| Denoising (Fast) 0% | Elapsed 00:00.00 | Remaining --:--" in out
+    # (Elapsed: whatever the machine's load makes it; the test asserts no time.)
+    assert re.search(r"\| Denoising \(Fast\) 0% \| Elapsed \d\d:\d\d\.\d\d \| Remaining --:--", out), out
     assert not np.array_equal(engine.image("Combined"), engine.image("Noisy Image"))
     assert np.isfinite(engine.image("Combined")).all()
     render_with(RecordingEngine, scene, samples=4, use_denoising=True, time_limit=0.0)
