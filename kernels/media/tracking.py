@@ -12,8 +12,9 @@ majorant * exp(-majorant t) (the majorant: the sum of the stack's media's, mediu
   averaged over the colour channels weighted by the path's weight times the albedo. Absorption is never an
   event: the null event's weight sigma_n / (majorant P_null) carries it, and a point that only absorbs takes
   the null event (ratio tracking). A point that exceeds the majorant takes its own extinction as the majorant
-  since the previous collision, as Cycles does: a small bias where the estimate missed a thin, intense feature,
-  where negative null weights would keep it unbiased at a variance that does not converge in practice.
+  since the previous collision, as Cycles does: biased where the estimate missed a thin, intense feature (light
+  from behind it leaks through), where negative null weights would keep it unbiased at a variance that does not
+  converge in practice.
   The scattering event's weight is 1 / (majorant P_scatter): the phase closures' weights (which sum to
   sigma_s) multiply it at the vertex;
 - a path that may not scatter (past its bounces) multiplies its weight by sigma_n / majorant (ratio tracking).
