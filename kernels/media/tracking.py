@@ -8,7 +8,7 @@ majorant * exp(-majorant t) (the majorant: the sum of the stack's media's, mediu
 - the emission there is gathered, weight x emission / majorant (a collision estimate of the integral of
   transmittance times emission along the segment);
 - a path that may scatter takes a real scattering event or a null event, as Cycles chooses
-  (volume_scatter_probability): P_scatter is sigma_s / (sigma_s + |sigma_n|), |sigma_n| = |majorant - sigma_t|,
+  (volume_scatter_probability): P_scatter is sigma_s / (sigma_s + sigma_n), sigma_n = majorant - sigma_t,
   averaged over the colour channels weighted by the path's weight times the albedo. Absorption is never an
   event: the null event's weight sigma_n / (majorant P_null) carries it, and a point that only absorbs takes
   the null event (ratio tracking). A point that exceeds the majorant takes its own extinction as the majorant
@@ -151,8 +151,9 @@ def track(media, stack, origins, dirs, t_end, seeds, may_scatter, ray=None, emis
             # times the albedo (volume_sample_channel_pdf); a point that only absorbs always takes the null event.
             s = np.flatnonzero(scatter)
             ss, sn = c.sigma_s[:, s], sigma_n[:, s]
-            reach = ss + np.abs(sn)
-            p_s = (channel_pdf(w[:, s], ss, c.sigma_t[:, s]) * np.where(reach > 0, ss / np.where(reach > 0, reach, ONE), ZERO)).sum(0)
+            reach = ss + sn      # (sigma_n >= 0: a point above the majorant raised it)
+            share = np.where(reach > 0, ss / np.where(reach > 0, reach, ONE), ZERO)
+            p_s = (channel_pdf(w[:, s], ss, c.sigma_t[:, s]) * share).sum(0)
             real = u2[s] < p_s
             # Scattering: 1 / (majorant P_s), the phase closures' weights come at the vertex.
             p_n = ONE - p_s
