@@ -41,22 +41,55 @@ def camera_frame(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
 
 
 def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarray, jy: np.ndarray,
-                  lens: tuple | None = None, times: np.ndarray | None = None):
+                  lens: tuple | None = None, times: np.ndarray | None = None, spread: bool = False):
     """Rays through the given pixels. Returns origins (N, 3), directions (N, 3) unit, t_max (N,),
     all float32. Origins sit on the near clip plane; t_max reaches the far clip plane.
 
     (jx, jy) in [0, 1)^2 are warped by the camera's pixel filter into offsets from the pixel's corner;
     lens = (u, v) uniform numbers for the point on the lens when the camera has depth of field;
-    times = (N,) path times in the shutter, which move a camera with motion blur (camera.motion)."""
+    times = (N,) path times in the shutter, which move a camera with motion blur (camera.motion).
+    spread: then also each ray's differentials (differentials: position and direction spread at its origin),
+    None but for perspective cameras."""
     if camera.motion is not None and times is not None:
         # Built in the camera's own space, then moved by its transform at each ray's time (Cycles).
         still = dataclasses.replace(camera, world_from_camera=np.eye(4), motion=None)
-        origins, dirs, t_max = generate_rays(still, row, col, jx, jy, lens, times)
+        out = generate_rays(still, row, col, jx, jy, lens, times, spread)
+        origins, dirs, t_max = out[:3]
         m = motion.interpolate(motion.decompose(np.asarray(camera.motion, np.float64)), times)
         origins = np.einsum("nij,nj->ni", m[:, :, :3], origins) + m[:, :, 3]
         dirs = np.einsum("nij,nj->ni", m[:, :, :3], dirs)
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-        return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max
+        return (np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max) + out[3:]
+    rays = _generate_rays(camera, row, col, jx, jy, lens, times)
+    if not spread:
+        return rays[:3]
+    return rays[:3] + ((differentials(camera, *rays[3]) if rays[3] is not None else None),)
+
+
+def differentials(camera: Camera, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(dp, dd) (n,) float32 each: Cycles' compact differentials of perspective camera rays through the view-plane
+    points (px, py) (the plane z = -1, before the lens) at their origins on the near clip plane. dd: the mean length
+    of the change of the unit pinhole direction one pixel right and one pixel up (camera_sample_perspective,
+    kernel/camera/camera.h: normalize(D + dx) - normalize(D), and dy; differential_make_compact); a pixel's angle
+    shrinks away from the frame's centre (by 12% at the corners of a 50 mm 3:2 frame), and a footprint of the centre's
+    everywhere widens a Bump's steps there. dp: dd times the distance from the eye to the origin (Cycles' rays
+    start at the eye, dP 0, and their spread grows from there: differential_transfer_compact)."""
+    xmin, xmax, ymin, ymax = view_plane(camera)
+    hx = np.float32((xmax - xmin) / max(camera.width, 1))
+    hy = np.float32((ymax - ymin) / max(camera.height, 1))
+    one = np.float32(1.0)
+    inv = one / np.sqrt(px * px + py * py + one)
+    inv_x = one / np.sqrt((px + hx) * (px + hx) + py * py + one)
+    inv_y = one / np.sqrt(px * px + (py + hy) * (py + hy) + one)
+    step_x = np.sqrt(((px + hx) * inv_x - px * inv) ** 2 + (py * (inv_x - inv)) ** 2 + (inv_x - inv) ** 2)
+    step_y = np.sqrt((px * (inv_y - inv)) ** 2 + ((py + hy) * inv_y - py * inv) ** 2 + (inv_y - inv) ** 2)
+    dd = (np.float32(0.5) * (step_x + step_y)).astype(np.float32)
+    return (dd * (np.float32(camera.clip_start) / inv)).astype(np.float32), dd
+
+
+def _generate_rays(camera, row, col, jx, jy, lens, times):
+    """generate_rays for a camera that does not move, with the view-plane points (px, py) of perspective rays
+    (None for other cameras) as a fourth item."""
     jx = pixel_filter.offsets(camera.filter_type, camera.filter_width, jx)
     jy = pixel_filter.offsets(camera.filter_type, camera.filter_width, jy)
     if camera.kind == "PANO":
@@ -72,7 +105,7 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
         origins = eye.astype(np.float32) + matmul(start, rot32.T) + dirs * np.float32(camera.clip_start)
         t_max = np.where(valid, np.float32(camera.clip_end - camera.clip_start), np.float32(0.0))
         return (np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32),
-                t_max.astype(np.float32))
+                t_max.astype(np.float32), None)
     xmin, xmax, ymin, ymax = view_plane(camera)
     sx = (col.astype(np.float32) + jx) / np.float32(camera.width)
     sy = np.float32(1.0) - (row.astype(np.float32) + jy) / np.float32(camera.height)
@@ -108,7 +141,7 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
             origins = (eye.astype(np.float32) + matmul(np.stack([px, py, np.zeros(n, np.float32)], 1), rot32.T)
                        + dirs * np.float32(camera.clip_start))
         t_max = np.full(n, camera.clip_end - camera.clip_start, np.float32)
-        return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max
+        return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max, None
     inv_len = np.float32(1.0) / np.sqrt(px * px + py * py + np.float32(1.0))
     cos_axis = inv_len  # distance along the view axis per unit of the pinhole ray's length
     if dof:
@@ -125,4 +158,4 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
         dirs = matmul(local, rot32.T)
         origins = eye.astype(np.float32) + dirs * (np.float32(camera.clip_start) / cos_axis)[:, None]
     t_max = (np.float32(camera.clip_end - camera.clip_start) / cos_axis).astype(np.float32)
-    return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max
+    return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max, (px, py)

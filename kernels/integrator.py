@@ -149,8 +149,14 @@ def start_paths(tables, wave, paths, start: int, end: int):
     if tables.scene.has_motion:
         times = motion.sample_time(samples.camera_extra(TIME)[0], tables.scene.shutter_table, row,
                                   camera.height, tables.scene.rolling_shutter).astype(np.float32)
-    rays = Rays(*generate_rays(camera, row, col, jx, jy, lens, times))
+    perspective = camera.kind == "PERSP"
+    origins, dirs, t_max, *spread = generate_rays(camera, row, col, jx, jy, lens, times, spread=perspective)
+    rays = Rays(origins, dirs, t_max)
     state = new_paths(tables, wave, n, samples, start, times, tables.camera_media)
+    if perspective:
+        # Each camera ray's own differentials, as Cycles', not the frame centre's: a Bump's steps, the Wireframe's
+        # Pixel Size and Huang hair's pixel coverage read them.
+        state.dp, state.dd = spread[0]
     if tables.media is not None and camera.kind != "ORTHO":
         media_stage.clip_crossings(tables, state, rays.origins)
     if camera.kind == "ORTHO":
@@ -610,7 +616,8 @@ def _continues(tables, wave, hit, state, bs, numbers, focus=None, closures=None)
     # A path at the limit goes on to the world or to the emission of its next surface (may_scatter), no further.
     alive &= state.transparent <= transparent_limit(wave.settings)
     state.bounce = state.bounce + (~passing & ~entering)
-    if state.dd is not None and closures is not None:
+    if state.dd is not None and closures is not None and wave.settings.widen_differentials \
+            and tables.shading.reads_footprint:
         _widen(state, closures, np.flatnonzero(alive & ~passing & ~entering & ~bs.delta & (bs.pdf > 0)), bs.wi)
     if state.see_through is not None:
         state.see_through &= passing | _through_clear_glass(wave, bs, closures)
