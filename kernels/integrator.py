@@ -149,13 +149,13 @@ def start_paths(tables, wave, paths, start: int, end: int):
     if tables.scene.has_motion:
         times = motion.sample_time(samples.camera_extra(TIME)[0], tables.scene.shutter_table, row,
                                   camera.height, tables.scene.rolling_shutter).astype(np.float32)
-    perspective = camera.kind == "PERSP"
-    origins, dirs, t_max, *spread = generate_rays(camera, row, col, jx, jy, lens, times, spread=perspective)
+    # Each camera ray's own differentials, as Cycles', not the frame centre's, where something reads them: a Bump's
+    # steps, the Wireframe's Pixel Size, Huang hair's pixel coverage on curves.
+    footprint = camera.kind == "PERSP" and (tables.shading.reads_footprint or tables.shapes is not None)
+    origins, dirs, t_max, *spread = generate_rays(camera, row, col, jx, jy, lens, times, spread=footprint)
     rays = Rays(origins, dirs, t_max)
     state = new_paths(tables, wave, n, samples, start, times, tables.camera_media)
-    if perspective:
-        # Each camera ray's own differentials, as Cycles', not the frame centre's: a Bump's steps, the Wireframe's
-        # Pixel Size and Huang hair's pixel coverage read them.
+    if footprint:
         state.dp, state.dd = spread[0]
     if tables.media is not None and camera.kind != "ORTHO":
         media_stage.clip_crossings(tables, state, rays.origins)
