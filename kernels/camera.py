@@ -63,7 +63,7 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
     rays = _generate_rays(camera, row, col, jx, jy, lens, times)
     if not spread:
         return rays[:3]
-    return rays[:3] + ((differentials(camera, *rays[3]) if rays[3] is not None else None),)
+    return rays[:3] + ((rays[3]() if rays[3] is not None else None),)
 
 
 def differentials(camera: Camera, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -88,12 +88,12 @@ def differentials(camera: Camera, px: np.ndarray, py: np.ndarray) -> tuple[np.nd
 
 
 def _generate_rays(camera, row, col, jx, jy, lens, times):
-    """generate_rays for a camera that does not move, with the view-plane points (px, py) of perspective rays
-    (None for other cameras) as a fourth item."""
+    """generate_rays for a camera that does not move, with a function that gives the rays' differentials
+    (None for orthographic cameras) as a fourth item."""
     jx = pixel_filter.offsets(camera.filter_type, camera.filter_width, jx)
     jy = pixel_filter.offsets(camera.filter_type, camera.filter_width, jy)
     if camera.kind == "PANO":
-        from .panorama import panorama_rays
+        from .panorama import panorama_differentials, panorama_rays
         # Cycles clips panoramic rays along the ray, from clip_start to clip_end. A pixel without a
         # direction (outside a fisheye's circle) gets t_max 0, Cycles' "no ray": it must stay black, alpha 1.
         points = sample_aperture(camera, *lens) if lens is not None and camera.aperture_radius > 0 else None
@@ -104,8 +104,9 @@ def _generate_rays(camera, row, col, jx, jy, lens, times):
         dirs = matmul(local, rot32.T)
         origins = eye.astype(np.float32) + matmul(start, rot32.T) + dirs * np.float32(camera.clip_start)
         t_max = np.where(valid, np.float32(camera.clip_end - camera.clip_start), np.float32(0.0))
+        sx, sy = col.astype(np.float32) + jx, row.astype(np.float32) + jy
         return (np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32),
-                t_max.astype(np.float32), None)
+                t_max.astype(np.float32), lambda: panorama_differentials(camera, sx, sy))
     xmin, xmax, ymin, ymax = view_plane(camera)
     sx = (col.astype(np.float32) + jx) / np.float32(camera.width)
     sy = np.float32(1.0) - (row.astype(np.float32) + jy) / np.float32(camera.height)
@@ -158,4 +159,5 @@ def _generate_rays(camera, row, col, jx, jy, lens, times):
         dirs = matmul(local, rot32.T)
         origins = eye.astype(np.float32) + dirs * (np.float32(camera.clip_start) / cos_axis)[:, None]
     t_max = (np.float32(camera.clip_end - camera.clip_start) / cos_axis).astype(np.float32)
-    return np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max, (px, py)
+    return (np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), t_max,
+            lambda: differentials(camera, px, py))

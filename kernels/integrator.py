@@ -151,7 +151,7 @@ def start_paths(tables, wave, paths, start: int, end: int):
                                   camera.height, tables.scene.rolling_shutter).astype(np.float32)
     # Each camera ray's own differentials, as Cycles', not the frame centre's, where something reads them: a Bump's
     # steps, the Wireframe's Pixel Size, Huang hair's pixel coverage on curves.
-    footprint = camera.kind == "PERSP" and (tables.shading.reads_footprint or tables.shapes is not None)
+    footprint = camera.kind != "ORTHO" and (tables.shading.reads_footprint or tables.shapes is not None)
     origins, dirs, t_max, *spread = generate_rays(camera, row, col, jx, jy, lens, times, spread=footprint)
     rays = Rays(origins, dirs, t_max)
     state = new_paths(tables, wave, n, samples, start, times, tables.camera_media)

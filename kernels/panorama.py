@@ -117,6 +117,20 @@ def panorama_raster(camera: Camera, dirs) -> tuple[np.ndarray, np.ndarray]:
     return fx * camera.width, (1.0 - fy) * camera.height
 
 
+def panorama_differentials(camera: Camera, sx, sy) -> tuple[np.ndarray, np.ndarray]:
+    """(dp, dd) (n,) float32 Cycles' compact differentials of the rays through raster points (sx, sy) (y from the top)
+    at their origins on the near clip plane (camera_sample_panorama, camera_sample_to_ray): dd the mean length of
+    the direction's change one pixel right and one up, from the raster points without the lens; dp = Clip Start x
+    dd. Where one neighbour has no direction (outside a fisheye's circle) the other's change is taken, 0 where
+    neither has one."""
+    d, _ = panorama_directions(camera, sx, sy)
+    dx, ok_x = panorama_directions(camera, sx + 1.0, sy)
+    dy, ok_y = panorama_directions(camera, sx, sy - 1.0)  # Cycles' raster y + 1 is one row up
+    ex, ey = np.linalg.norm(dx - d, axis=1), np.linalg.norm(dy - d, axis=1)
+    dd = np.where(ok_x & ok_y, 0.5 * (ex + ey), np.where(ok_x, ex, np.where(ok_y, ey, 0.0))).astype(np.float32)
+    return (dd * np.float32(camera.clip_start)).astype(np.float32), dd
+
+
 def pixel_spread(camera: Camera) -> float:
     """Radians per pixel of the camera's rays, for ray differentials: Cycles' compact differential (the
     mean length of the direction change to the next pixel in x and in y) at the frame's centre, or, where

@@ -42,6 +42,26 @@ def test_camera_rays_spread_by_their_own_pixel_angle():
     assert dd2[1] < 0.65 * dd2[0]
 
 
+def test_panorama_rays_spread_by_their_own_pixel_angle():
+    """An equirectangular frame of 360 x 180 pixels over the whole sphere: one pixel right turns a ray at latitude
+    phi by 2 pi / 360 x cos(phi), one pixel up by pi / 180, so Cycles' compact differential (camera_sample_panorama)
+    is their mean, smaller toward the poles; the near clip plane's origins start at Clip Start x dd."""
+    from ember.kernels.camera import generate_rays
+    from ember.kernels.scene import Camera
+    params = dict(latitude_min=-math.pi / 2, latitude_max=math.pi / 2, longitude_min=-math.pi, longitude_max=math.pi)
+    camera = Camera(kind="PANO", panorama_type="EQUIRECTANGULAR", panorama=params, width=360, height=180,
+                    clip_start=0.5)
+    camera.validate()
+    rows = np.array([90, 30, 10])            # latitudes 0, 60 and 80 degrees (pixel centres: +0.5)
+    half = np.full(3, 0.5, np.float32)
+    *_, (dp, dd) = generate_rays(camera, rows, np.array([100, 100, 100]), half, half, spread=True)
+    latitude = np.radians(90.0 - (rows + 0.5))
+    step = math.radians(1.0)
+    expected = 0.5 * (step * np.cos(latitude) + step)
+    np.testing.assert_allclose(dd, expected, rtol=1e-2)
+    np.testing.assert_allclose(dp, 0.5 * dd, rtol=1e-5)
+
+
 def test_a_noisy_bump_under_a_wide_lens_matches_cycles():
     """A floor whose Bump (Filter Width 1) reads a Noise finer than a pixel's footprint, under a 14 mm lens: the bump's
     steps are each ray's footprint, so where a pixel's angle is smaller (toward the frame's edges) the steps are
