@@ -331,3 +331,41 @@ def test_bsdfs_in_a_world_emit_nothing_and_a_principled_its_emission(case, radia
     if case in ("principled", "add"):
         _cycles_map_at(scene)
         compare_to_cycles(scene, samples=64, max_bounces=4)
+
+
+def test_a_world_whose_node_tree_is_empty_renders_black_as_in_cycles():
+    """A world with a node tree and no nodes in it (a public interior; also the placeholder Blender makes for a
+    world linked from a missing library file): no output, so Cycles' background is black. Ember's export read
+    the missing Surface link's socket and stopped the render with an internal error."""
+    from bpy_helpers import render_to_array
+    scene = _scene_under(lambda tree: tree.nodes.clear(), size=(16, 12))
+    result = export_current()
+    assert not np.asarray(result.scene.world.color).any() and result.scene.world.program is None
+    for engine in ("CYCLES", "EMBER"):
+        assert not render_to_array(scene, engine, 4)[..., :3].any(), engine
+
+
+def test_a_world_from_a_missing_library_is_named_in_a_warning(tmp_path):
+    """A scene whose world is linked from a .blend that is no longer there (a public bedroom file): Blender leaves
+    a placeholder (an empty node tree in 5.3, black; no nodes in 5.0, its grey colour), rendered alike by both
+    engines; Ember says which world and which library."""
+    new_scene(8, 8)
+    bpy.data.worlds.new("Sky")
+    library = str(tmp_path / "sky.blend")
+    bpy.data.libraries.write(library, {bpy.data.worlds["Sky"]})
+    scene = new_scene(8, 8)
+    with bpy.data.libraries.load(library, link=True) as (source, target):
+        target.worlds = ["Sky"]
+    scene.world = target.worlds[0]
+    main = str(tmp_path / "main.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=main)
+    (tmp_path / "sky.blend").unlink()
+    bpy.ops.wm.open_mainfile(filepath=main)
+    from bpy_helpers import ensure_registered
+    ensure_registered()
+    assert bpy.context.scene.world.is_missing
+    result = export_current()
+    assert any("World 'Sky'" in w and "missing" in w and "sky.blend" in w for w in result.warnings), result.warnings
+    from bpy_helpers import render_to_array
+    cycles, ember = (render_to_array(bpy.context.scene, engine, 2)[..., :3] for engine in ("CYCLES", "EMBER"))
+    np.testing.assert_allclose(ember, cycles, atol=1e-6)

@@ -117,6 +117,11 @@ def world_visibility(world) -> int:
 def _export_world(world, warnings: list[str], images, layer_attribute) -> World:
     if world is None:  # Cycles renders black without a world
         return World(color=np.zeros(3, np.float32))
+    source = getattr(world, "original", None) or world    # (an evaluated copy does not say where it came from)
+    if getattr(source, "is_missing", False):
+        library = getattr(source.library, "filepath", "")
+        warnings.append(f"World '{world.name}' is linked from a library that is missing ({library}): rendered as "
+                        f"Blender's empty placeholder for it, as in Cycles")
     if world.node_tree is None:
         return World(color=np.array(rgb(world.color), np.float32))
     loop = node_loop(world.node_tree)
@@ -187,7 +192,9 @@ def _needs_program(tree) -> bool:
     """Whether the world is more than a constant or a plain HDRI (those keep their own fast paths)."""
     out = output_node(tree)
     surface = Source(None, None) if out is None else source_of(out.inputs["Surface"])
-    if surface.node is None or surface.kind not in ("ShaderNodeBackground", "ShaderNodeEmission"):
+    if surface.node is None:    # no output, or nothing linked into it (an empty tree): black, _read_tree
+        return False
+    if surface.kind not in ("ShaderNodeBackground", "ShaderNodeEmission"):
         # Mix and Add Shaders, a Principled BSDF (its emission), and a colour or value linked into the Surface
         # (emitted, as Cycles converts it)
         return surface.kind in ("ShaderNodeMixShader", "ShaderNodeAddShader", "ShaderNodeBsdfPrincipled") or \
