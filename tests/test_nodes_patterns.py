@@ -273,12 +273,15 @@ SKY_SETTINGS = [
      "air_density": 0.5, "aerosol_density": 5.0, "ozone_density": 0.2},
     {"sky_type": "PREETHAM"},
     {"sky_type": "PREETHAM", "sun_direction": (0.3, -0.5, 0.2), "turbidity": 6.5},
+    {"sky_type": "HOSEK_WILKIE"},
+    {"sky_type": "HOSEK_WILKIE", "sun_direction": (0.3, -0.5, 0.2), "turbidity": 6.5, "ground_albedo": 0.8},
+    {"sky_type": "HOSEK_WILKIE", "sun_direction": (-0.7, 0.1, 0.05), "turbidity": 10.0, "ground_albedo": 0.0},
 ]
 
 
 @pytest.mark.parametrize("settings", SKY_SETTINGS,
                          ids=["multiple", "multiple_custom", "multiple_night", "single", "single_custom",
-                              "preetham", "preetham_custom"])
+                              "preetham", "preetham_custom", "hosek", "hosek_custom", "hosek_low_sun"])
 def test_sky_without_sun_disc(settings):
     """The sky itself at directions fed to the node's Vector (the sun disc off, so the socket is on)."""
     settings = {"sun_disc": False, **settings}
@@ -371,11 +374,6 @@ def test_sky_table_symmetry_and_xyz_matrix():
     # Cycles' XYZ -> Rec.709 for Blender's OCIO config: D65 white maps to grey 1.
     white = np.array([[0.95047, 1.0, 1.08883]], F32)
     np.testing.assert_allclose(sk.xyz_to_rgb_clamped(white), [[1, 1, 1]], atol=5e-4)
-
-
-def test_hosek_wilkie_is_not_available():
-    with pytest.raises(NotImplementedError):
-        sk.precompute_sky("HOSEK_WILKIE")
 
 
 def test_checker_takes_nan_and_inf_coordinates_as_even_cells():

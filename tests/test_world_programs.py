@@ -78,7 +78,7 @@ def test_camera_sees_one_background_and_lighting_another():
     compare_to_cycles(scene, samples=64, max_bounces=4)
 
 
-@pytest.mark.parametrize("sky_type", ["MULTIPLE_SCATTERING", "PREETHAM"])
+@pytest.mark.parametrize("sky_type", ["MULTIPLE_SCATTERING", "PREETHAM", "HOSEK_WILKIE"])
 def test_sky_texture_world_against_cycles(sky_type):
     def build(tree):
         sky = tree.nodes.new("ShaderNodeTexSky")

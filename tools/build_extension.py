@@ -160,7 +160,7 @@ def check_package(path: str, expected_wheels: list[str]) -> list[str]:
         sys.exit(f"build_extension: {os.path.basename(path)} bundles {wheels}, expected {expected_wheels}")
     for required in ("__init__.py", "blender_manifest.toml", "engine/render_engine.py", "kernels/integrator.py",
                      "kernels/bsdf/data/microfacet_tables.npz", "kernels/bsdf/data/sheen_ltc.npz",
-                     "kernels/bsdf/data/thin_film_cmf.npz"):
+                     "kernels/bsdf/data/thin_film_cmf.npz", "kernels/shading/data/hosek_xyz.npz"):
         if required not in names:
             sys.exit(f"build_extension: {required} missing from {os.path.basename(path)}")
     return names

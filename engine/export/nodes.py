@@ -505,7 +505,7 @@ def _environment(builder, node, groups):
 def _sky(builder, node, groups):
     """The Sky Texture: its tables precomputed here; with the sun disc on, Blender disables the Vector and
     Cycles reads the default (Generated: the direction, in a world)."""
-    if node.sky_type not in sky.SKY_TYPES or node.sky_type == "HOSEK_WILKIE":
+    if node.sky_type not in sky.SKY_TYPES:
         builder.issues.append(f"Sky Texture '{node.name}': the {node.sky_type.replace('_', ' ').title()} model "
                               f"is not supported, rendered black")
         return {"Color": (0.0, 0.0, 0.0)}

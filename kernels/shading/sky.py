@@ -9,8 +9,11 @@ Blender 5.0 offers four sky types; MULTIPLE_SCATTERING is the default:
   sun disc's lowest and highest points are computed (kernels.shading.sky_scattering); per hit the table
   is read bilinearly and the sun disc (limb darkened) is added.
 - PREETHAM and HOSEK_WILKIE: closed-form Perez-style functions of the angle to the zenith and to the sun,
-  from nine coefficients per XYZ channel computed at export. Hosek-Wilkie needs the model's fitted data
-  set, which Ember does not carry yet: `precompute_sky` raises NotImplementedError for it.
+  from nine coefficients per XYZ channel computed at export. Hosek and Wilkie's are interpolated from their
+  fitted data set ("An Analytic Model for Full Spectral Sky-Dome Radiance", SIGGRAPH 2012; data/hosek_xyz.npz,
+  the authors' BSD-3-Clause data, its notice inside; tools/extract_hosek_data.py) as Cycles does it
+  (`third_party/sky/source/sky_hosek.cpp`, in double precision), and evaluated per hit in float32
+  (`svm/sky.h` sky_radiance_hosek).
 
 `precompute_sky(**settings)` does the export-time part (pure NumPy, no bpy: the settings are the node's
 properties as plain values, with Blender's identifiers); `sky_texture(vector, ...)` evaluates per hit.
@@ -23,6 +26,7 @@ calls them (kernels.shading.libm).
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -131,6 +135,69 @@ def _preetham(sun_direction, turbidity):
     return theta, phi, radiance, config
 
 
+# ---- Hosek / Wilkie (shader_nodes.cpp sky_texture_precompute_hosek, sky_hosek.cpp) --------------------
+
+HOSEK_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "hosek_xyz.npz")
+
+
+@functools.lru_cache(maxsize=1)
+def _hosek_data() -> tuple[np.ndarray, np.ndarray]:
+    """(distribution (3, 2, 10, 6, 9), radiance (3, 2, 10, 6)) float64: per XYZ channel, ground albedo 0 and 1,
+    turbidity 1..10, the solar elevation's six Bezier control points (and the nine coefficients)."""
+    with np.load(HOSEK_PATH) as data:
+        return data["xyz"], data["radiance"]
+
+
+def _hosek_cook(table: np.ndarray, turbidity: float, albedo: float, elevation: float) -> np.ndarray:
+    """ArHosekSkyModel_CookConfiguration / _CookRadianceConfiguration of one channel's table (2, 10, 6, ...):
+    a quintic Bezier in the cube root of the elevation over pi/2, blended linearly between the two albedos and
+    the two turbidities around `turbidity` (the upper one dropped at 10), in double precision."""
+    whole = int(turbidity)
+    rest = turbidity - whole
+    t = (elevation / (np.pi / 2.0)) ** (1.0 / 3.0)
+    bezier = np.array([(1.0 - t) ** 5, 5.0 * (1.0 - t) ** 4 * t, 10.0 * (1.0 - t) ** 3 * t ** 2,
+                       10.0 * (1.0 - t) ** 2 * t ** 3, 5.0 * (1.0 - t) * t ** 4, t ** 5])
+
+    def at(albedo_row: int, turbidity_row: int) -> np.ndarray:
+        return np.tensordot(bezier, table[albedo_row, turbidity_row - 1], axes=(0, 0))
+
+    out = (1.0 - albedo) * (1.0 - rest) * at(0, whole) + albedo * (1.0 - rest) * at(1, whole)
+    if whole == 10:
+        return out
+    return out + (1.0 - albedo) * rest * at(0, whole + 1) + albedo * rest * at(1, whole + 1)
+
+
+def _hosek(sun_direction, turbidity, ground_albedo):
+    d = np.asarray(sun_direction, F32)
+    d = d / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    theta = min(max(libm(np.arccos, d[2]), ZERO), HALF_PI)      # the sun clamped to the horizon
+    phi = F32(np.arctan2(F64(d[0]), F64(d[1])))                 # sky_spherical_coordinates: atan2(x, y)
+    turbidity = float(min(max(F32(turbidity), ZERO), F32(10.0)))
+    elevation = float(HALF_PI - theta)
+    distribution, radiance = _hosek_data()
+    config = np.array([_hosek_cook(distribution[c], turbidity, float(ground_albedo), elevation) for c in range(3)])
+    radiance = np.array([_hosek_cook(radiance[c], turbidity, float(ground_albedo), elevation) for c in range(3)])
+    return F32(theta), phi, radiance.astype(F32), config.astype(F32)
+
+
+def _hosek_radiance(c: np.ndarray, theta, gamma) -> np.ndarray:
+    """sky_radiance_internal: the model's distribution with coefficients c (9,) at zenith angle theta and sun
+    angle gamma."""
+    cos_theta, cos_gamma = cosf(theta), cosf(gamma)
+    exp_m = expf(c[4] * gamma)
+    ray_m = cos_gamma * cos_gamma
+    mie_m = (ONE + ray_m) / libm(lambda v: np.power(v, 1.5), ONE + c[8] * c[8] - F32(2.0) * c[8] * cos_gamma)
+    zenith = np.sqrt(cos_theta)
+    return (ONE + c[0] * expf(c[1] / (cos_theta + F32(0.01)))) * \
+        (c[2] + c[3] * exp_m + c[5] * ray_m + c[6] * mie_m + c[7] * zenith)
+
+
+def _hosek_eval(direction: np.ndarray, sky: Sky) -> np.ndarray:
+    theta, gamma = _sun_angles(direction, sky)
+    xyz = np.stack([_hosek_radiance(sky.config[i], theta, gamma) * sky.radiance[i] for i in range(3)], axis=1)
+    return xyz_to_rgb_clamped(xyz.astype(F32, copy=False)) * F32(2.0 * np.pi / 683.0)
+
+
 # ---- the node -------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -162,7 +229,8 @@ def precompute_sky(sky_type: str = "MULTIPLE_SCATTERING", sun_disc: bool = True,
         theta, phi, radiance, config = _preetham(sun_direction, turbidity)
         return Sky(sky_type, sun_theta=theta, sun_phi=phi, radiance=radiance, config=config)
     if sky_type == "HOSEK_WILKIE":
-        raise NotImplementedError("the Hosek-Wilkie sky needs the model's data set, which Ember lacks")
+        theta, phi, radiance, config = _hosek(sun_direction, turbidity, ground_albedo)
+        return Sky(sky_type, sun_theta=theta, sun_phi=phi, radiance=radiance, config=config)
     if sky_type not in SKY_TYPES:
         raise ValueError(f"unknown sky_type {sky_type!r}")
     elevation, rotation = _wrap_sun(sun_elevation, sun_rotation)
@@ -239,13 +307,19 @@ def _nishita(direction: np.ndarray, sky: Sky) -> np.ndarray:
     return xyz_to_rgb_clamped(xyz)
 
 
-def _preetham_eval(direction: np.ndarray, sky: Sky) -> np.ndarray:
+def _sun_angles(direction: np.ndarray, sky: Sky):
+    """(theta, gamma): each direction's angle to the zenith, clamped just above the horizon, and to the sun
+    (sky_angle_between), as Preetham's and Hosek's evaluations take them."""
     theta, phi = _spherical(direction)
     phi = -phi + HALF_PI
     cos_psi = (sinf(theta) * sinf(sky.sun_theta) * cosf(sky.sun_phi - phi)
                + cosf(theta) * cosf(sky.sun_theta))
     gamma = libm(np.arccos, np.clip(cos_psi, -ONE, ONE))
-    theta = np.minimum(theta, HALF_PI - F32(0.001))
+    return np.minimum(theta, HALF_PI - F32(0.001)), gamma
+
+
+def _preetham_eval(direction: np.ndarray, sky: Sky) -> np.ndarray:
+    theta, gamma = _sun_angles(direction, sky)
     cos_theta, cos_gamma = cosf(theta), cosf(gamma)
     x = sky.radiance[1] * _perez(sky.config[1], cos_theta, gamma, cos_gamma)
     y = sky.radiance[2] * _perez(sky.config[2], cos_theta, gamma, cos_gamma)
@@ -278,4 +352,6 @@ def sky_texture(vector, *, sky_type: str = "MULTIPLE_SCATTERING", sun_disc: bool
     direction = np.asarray(vector, F32).reshape(-1, 3)
     if sky.sky_type == "PREETHAM":
         return {"Color": _preetham_eval(direction, sky)}
+    if sky.sky_type == "HOSEK_WILKIE":
+        return {"Color": _hosek_eval(direction, sky)}
     return {"Color": _nishita(direction, sky)}
