@@ -125,8 +125,13 @@ def next_event(tables, wave, state, hit, closures, numbers, focus=None, receiver
     to_point = np.sqrt(ax * ax + ay * ay + az * az)
     inv = np.float32(1.0) / np.maximum(to_point, np.float32(1e-30))
     wx, wy, wz = np.where(finite, ax * inv, wx), np.where(finite, ay * inv, wy), np.where(finite, az * inv, wz)
-    # Stop short of the sampled point so that the emitter itself does not count as an occluder.
-    t_max = np.where(finite, to_point * np.float32(1.0 - 1e-4) - np.abs(eps), np.inf).astype(np.float32)
+    # Stop short of a sampled point on an emissive triangle, so that the emitter itself does not count as an
+    # occluder. A lamp has no geometry: its shadow ray reaches the point, as Cycles' does (shadow_ray_setup,
+    # tmax the distance), so a surface lying in the lamp's plane (a lamp flush with a ceiling) stops some rays,
+    # as many as the rounding of the two distances decides, as in Cycles, instead of none.
+    lamp = np.take(ls.lamp, idx)
+    short = np.where(lamp, to_point, to_point * np.float32(1.0 - 1e-4) - np.abs(eps))
+    t_max = np.where(finite, short, np.inf).astype(np.float32)
     origins = np.stack([ox, oy, oz], axis=1)
     paths = active[idx]
     dirs = np.stack([wx, wy, wz], axis=1)

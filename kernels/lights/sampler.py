@@ -31,9 +31,10 @@ class LightSample:
     bool: surfaces can block the sample (False for a light with Cast Shadow off); emitter (N,) int64 the
     emitters chosen, where the scene links lights (their shadow masks pick the shadow rays' blockers) or puts
     emitters in light groups (their groups' passes), else None; visibility (N,) uint8 the ray visibility of the
-    emitters chosen where a lamp has a bounce kind off (kernels/lights/ray_visibility.py), else None."""
+    emitters chosen where a lamp has a bounce kind off (kernels/lights/ray_visibility.py), else None; lamp (N,) bool
+    the samples of Blender lights (no geometry of theirs in the scene to stop short of)."""
     __slots__ = ("wx", "wy", "wz", "dist", "radiance", "pdf", "delta", "world", "shadowed", "emitter",
-                 "visibility")
+                 "visibility", "lamp")
 
     def __init__(self, n: int):
         self.wx = np.zeros(n, np.float32)
@@ -47,6 +48,7 @@ class LightSample:
         self.shadowed = np.ones(n, bool)
         self.emitter = None
         self.visibility = None
+        self.lamp = np.zeros(n, bool)
 
     def set(self, idx, wx, wy, wz, dist, radiance, pdf, delta=False):
         if len(idx) == len(self.wx):  # every point chose this kind: no scatter needed
@@ -424,6 +426,7 @@ class LightSampler:
         if self.visibility is not None or self.world_restricted:
             out.visibility = ray_visibility.of_emitters(self, chosen)
         if self.light_count:
+            out.lamp = chosen < self.light_count
             for kind, method in ((POINT, point_spot.sample), (SPOT, point_spot.sample), (SUN, sun.sample),
                                  (RECT, area.sample), (DISK, area.sample)):
                 idx = np.flatnonzero((chosen < self.light_count) & (np.take(self.kind, np.minimum(chosen, self.light_count - 1)) == kind))
