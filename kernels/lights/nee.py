@@ -245,7 +245,9 @@ def medium_next_event(tables, wave, state, rows, p, d, mixture, numbers, scale=N
     dist = np.take(ls.dist, useful)
     finite = np.isfinite(dist)
     dirs = np.stack([np.take(c, useful) for c in (ls.wx, ls.wy, ls.wz)], axis=1)
-    t_max = np.where(finite, dist * np.float32(1.0 - 1e-4), np.inf).astype(np.float32)
+    # (Short of an emissive triangle's point, up to a lamp's: next_event.)
+    t_max = np.where(finite, np.where(np.take(ls.lamp, useful), dist, dist * np.float32(1.0 - 1e-4)),
+                     np.inf).astype(np.float32)
     origins = np.ascontiguousarray(p[useful], np.float32)
     traced = np.flatnonzero(np.take(ls.shadowed, useful))
     transmittance = np.ones((3, len(useful)), np.float32)
