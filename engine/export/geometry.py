@@ -167,6 +167,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
     linked: dict[tuple, list] = {}           # (mesh pointer, slot rows) -> LinkTable.row() per instance
     linking = links is not None and links.used
     grouped: dict[tuple, list] = {}          # (mesh pointer, slot rows) -> GroupTable.of() per instance
+    shown: dict[int, str] = {}               # mesh pointer -> the name of the first object showing it
     grouping = light_groups is not None and light_groups.used
     view_layer = depsgraph.view_layer_eval
     shapes = ShapeExport(depsgraph, warnings, moving, motion)   # curves and points (shapes.py)
@@ -243,6 +244,7 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
                 if names and mesh_key not in attributes:
                     attributes[mesh_key] = source.attributes(names, ob.name, warnings)
         matrix = np.array(inst.matrix_world)
+        shown.setdefault(mesh_key, ob.name)
         source = volume_sources.get(mesh_key)
         grids.setdefault((mesh_key, slot_rows[object_key]), []).append(
             None if source is None or not source.grids else (source.grids, volume_density(source, matrix),
@@ -275,6 +277,8 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         warnings.append("Instancer attributes: this Blender's Python does not reach geometry-nodes instance attributes "
                         "(Object.evaluated_geometry): instances of geometry nodes read the instancer's and the "
                         "object's properties instead")
+    _drop_singular_instances(groups, (rows, keys, properties, assets, visibility, linked, grouped, grids, slots),
+                             keys, empty, shown, warnings)
     instanced = instanced_groups(groups, meshes, keys, moving, instance_everything)
     object_space = object_space_groups(groups, keys, moving, materials, diced)
     # Object table rows per group, all of a group's instances at once.
@@ -310,6 +314,38 @@ def export_geometry(depsgraph, materials: MaterialTable, warnings: list[str], po
         if grouping:   # an emitting curve or point is in no light group
             per_row["instance_groups"] = per_row["instance_groups"] + [NO_GROUP] * len(placed.keys)
     return dataclasses.replace(geometry, **per_row)
+
+
+def _drop_singular_instances(groups: dict, columns: tuple, keys: dict, empty: set, shown: dict,
+                             warnings: list[str]) -> None:
+    """Leave out the instances of a mesh shown more than once whose transform is singular (a zero scale: geometry
+    nodes flattening buildings to nothing, say), as Cycles renders them: it places a mesh with several users by its
+    transform in the BVH (ObjectManager::apply_static_transforms applies only single users'), and rays taken into
+    object space by the inverse of a singular transform meet nothing. A mesh shown once has its transform applied,
+    flat, in both engines. groups: (mesh pointer, slot rows) -> matrices; columns: the other per-instance lists of
+    the same keys, filtered alike; the instances left out join `empty`."""
+    users: dict[int, int] = {}
+    for (mesh_key, _), matrices in groups.items():
+        users[mesh_key] = users.get(mesh_key, 0) + len(matrices)
+    dropped: dict[str, int] = {}
+    for group in list(groups):
+        if users[group[0]] < 2:
+            continue
+        keep = [bool(np.linalg.det(np.asarray(m, np.float64)[:3, :3]) != 0.0) for m in groups[group]]
+        if all(keep):
+            continue
+        empty.update(k for k, kept in zip(keys[group], keep) if not kept)
+        for column in (groups,) + tuple(columns):
+            if group in column:
+                column[group] = [v for v, kept in zip(column[group], keep) if kept]
+        name = shown.get(group[0], "?")
+        dropped[name] = dropped.get(name, 0) + keep.count(False)
+        if not any(keep):
+            for column in (groups,) + tuple(columns):
+                column.pop(group, None)
+    for name, count in dropped.items():
+        warnings.append(f"Object '{name}': {count} of its mesh's instances have a zero scale: not rendered, as in "
+                        f"Cycles (a mesh shown more than once is placed by its transform, which cannot be inverted)")
 
 
 def _add_shape(shapes: ShapeExport, inst, ob, materials: MaterialTable, view_layer, described: dict,
