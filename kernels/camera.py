@@ -48,8 +48,8 @@ def generate_rays(camera: Camera, row: np.ndarray, col: np.ndarray, jx: np.ndarr
     (jx, jy) in [0, 1)^2 are warped by the camera's pixel filter into offsets from the pixel's corner;
     lens = (u, v) uniform numbers for the point on the lens when the camera has depth of field;
     times = (N,) path times in the shutter, which move a camera with motion blur (camera.motion).
-    spread: then also each ray's differentials (differentials: position and direction spread at its origin),
-    None but for perspective cameras."""
+    spread: then also each ray's differentials, (dp, dd) at its origin (differentials, or for panoramas
+    panorama.panorama_differentials), None for orthographic cameras."""
     if camera.motion is not None and times is not None:
         # Built in the camera's own space, then moved by its transform at each ray's time (Cycles).
         still = dataclasses.replace(camera, world_from_camera=np.eye(4), motion=None)
