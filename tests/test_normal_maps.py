@@ -376,3 +376,25 @@ def test_object_space_normal_maps_match_cycles(space):
     np.testing.assert_allclose(rendered(space, "EMBER"), cycles, atol=2e-6)
     world = "BLENDER_WORLD" if space == "BLENDER_OBJECT" else "WORLD"
     assert np.abs(rendered(world, "EMBER") - cycles).max() > 0.1
+
+
+def test_an_image_colour_in_the_normal_maps_strength_renders_as_in_cycles():
+    """A public gravestone material links its normal texture's Color into the Normal Map's Strength (the Color input
+    left at its default): Blender reads the colour there as its luminance. Ember refused the scene ("a normal map
+    needs ... a strength of 1") and rendered nothing; now, a floor under such a map and a low sun against Cycles."""
+    from bpy_helpers import add_camera, add_lamp, compare_to_cycles, new_scene, set_world
+    scene = new_scene(32, 24)
+    add_camera(scene, (1.0, -2.5, 2.0), (1.0, 0.5, 0.0))
+    set_world(scene, color=(0.05, 0.05, 0.05))
+    mat, _ = normal_mapped_material("Swapped", "TANGENT")
+    tree = mat.node_tree
+    normal_map = tree.nodes["Normal Map"]
+    tree.links.remove(normal_map.inputs["Color"].links[0])
+    normal_map.inputs["Color"].default_value = (0.7, 0.5, 0.8, 1.0)
+    image = tree.nodes["Image Texture"].image
+    image.pixels.foreach_set(np.tile([0.9, 0.3, 0.5, 1.0], 16).astype(np.float32))
+    tree.links.new(tree.nodes["Image Texture"].outputs["Color"], normal_map.inputs["Strength"])
+    quad("Floor", material=mat, size=(2.0, 2.0))
+    add_lamp(scene, "Sun", "SUN", (0, 0, 3), rotation=(1.1, 0.0, 0.6), energy=3.0)
+    assert export().scene.materials is not None   # (the export's validation passes)
+    compare_to_cycles(scene, samples=16, max_bounces=1)

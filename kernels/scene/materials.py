@@ -57,9 +57,9 @@ NORMAL_MAP_SPACES = ("TANGENT", "WORLD", "BLENDER_WORLD")
 class NormalMap:
     """A Normal Map node feeding a closure's Normal or Coat Normal input (Cycles' `svm_node_normal_map`).
 
-    color : Param of 3 floats, the node's Color (a constant, or a Non-Color image texture), each axis
-        stored as (x + 1) / 2.
-    strength : Param of 1 float, the node's Strength.
+    color : Param, the node's Color (a constant, or a Non-Color image texture), each axis stored as (x + 1) / 2
+        (1 float: a grey, as an image's Alpha output feeding it).
+    strength : Param, the node's Strength (3 floats: a colour feeding it, read as its luminance).
     space : one of NORMAL_MAP_SPACES. TANGENT reads the mesh's tangents (SceneArrays.tangents); without
         them the normal is left unperturbed, as Cycles does without its tangent attribute. WORLD reads
         the colour as a world direction; BLENDER_WORLD negates its y and z first.
@@ -234,8 +234,7 @@ def _check_input(value, where: str, name: str, n_textures: int) -> None:
         if isinstance(value, NormalMap):
             require(value.space in NORMAL_MAP_SPACES, where,
                     f"space must be one of {NORMAL_MAP_SPACES}, got {value.space!r}")
-            require(len(value.color.value) == 3 and len(value.strength.value) == 1, where,
-                    "a normal map needs a colour of 3 floats and a strength of 1")
+            # (A colour feeding the Strength, an Alpha feeding the Color: the kernel converts them as Blender does.)
         params = tuple(value.params())
     for p in params:
         require(len(p.value) in (1, 3) and all(np.isfinite(p.value)), where,
