@@ -331,18 +331,18 @@ def _drop_singular_instances(groups: dict, columns: tuple, keys: dict, empty: se
     for group in list(groups):
         if users[group[0]] < 2:
             continue
-        keep = [bool(np.linalg.det(np.asarray(m, np.float64)[:3, :3]) != 0.0) for m in groups[group]]
-        if all(keep):
+        keep = np.linalg.det(np.asarray(groups[group], np.float64)[:, :3, :3]) != 0.0   # (one call per group)
+        if keep.all():
             continue
         empty.update(k for k, kept in zip(keys[group], keep) if not kept)
+        name = shown.get(group[0], "?")
+        dropped[name] = dropped.get(name, 0) + int((~keep).sum())
         for column in (groups,) + tuple(columns):
             if group in column:
-                column[group] = [v for v, kept in zip(column[group], keep) if kept]
-        name = shown.get(group[0], "?")
-        dropped[name] = dropped.get(name, 0) + keep.count(False)
-        if not any(keep):
-            for column in (groups,) + tuple(columns):
-                column.pop(group, None)
+                if keep.any():
+                    column[group] = [v for v, kept in zip(column[group], keep) if kept]
+                else:
+                    del column[group]
     for name, count in dropped.items():
         warnings.append(f"Object '{name}': {count} of its mesh's instances have a zero scale: not rendered, as in "
                         f"Cycles (a mesh shown more than once is placed by its transform, which cannot be inverted)")
