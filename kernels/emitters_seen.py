@@ -11,13 +11,16 @@ from .interaction import RayInfo
 from .lights import ray_visibility
 from .lights.sampler import LightHits
 from .media import stage as media_stage
-from .paths import facing_of, fast_gi_replaced, seen_through
+from .paths import facing_of, fast_gi_replaced, kept_origins, seen_through
 
 # ---- stage: lights with a surface, found by BSDF rays and by camera rays (those of Ray Visibility > Camera)
 def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
     """Count the lights the rays meet before their hits (each a transparent bounce, as in Cycles);
     return the (N,) mask of the paths that end at one, their transparent bounces spent."""
-    o, d = rays.origins, rays.dirs
+    # Met from where Cycles' ray starts: past the transparent surfaces it passed, not from the last of them (a
+    # sphere lamp around a transparent card is not met again from inside, behind the card).
+    o, back = kept_origins(state, rays)
+    d = rays.dirs
     seeing = state.bounce > 0   # camera rays see only the lamps of _camera_hits
     if wave.bake is not None:
         seeing &= wave.bake.sees_lights(state.bounce)
@@ -27,10 +30,11 @@ def lights_hit(tables, wave, state, rays, hits) -> np.ndarray:
         met = _camera_hits(tables, wave, state, rays, hits, slice(None))
         seeing[:] = True
     else:
-        met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t, budget,
+        met = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t + back, budget,
                                       state.link_set, facing=facing_of(state.mis_facing),
                                       allowed=None if wave.only_catchers is None else wave.only_catchers.lights,
-                                      types=lamp_ray_types(tables, state))
+                                      types=lamp_ray_types(tables, state), t_min=back if back.any() else None)
+        met.t -= back
         met.crossed[~seeing] = 0
         if camera is not None and len(camera):   # camera rays beside others (past transparent surfaces)
             seen = _camera_hits(tables, wave, state, rays, hits, camera)
@@ -72,10 +76,12 @@ def _camera_hits(tables, wave, state, rays, hits, rows) -> LightHits:
     allowed = tables.lights.camera
     if wave.only_catchers is not None:
         allowed = allowed & wave.only_catchers.lights
-    o, d = rays.origins[rows], rays.dirs[rows]
+    o, back = kept_origins(state, rays, rows)
+    d = rays.dirs[rows]
     budget = int(wave.settings.transparent_max_bounces) - state.transparent[rows]
-    seen = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t[rows], budget,
-                                   allowed=allowed, camera=True)
+    seen = tables.lights.intersect(o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], hits.t[rows] + back, budget,
+                                   allowed=allowed, camera=True, t_min=back if back.any() else None)
+    seen.t -= back
     return seen
 
 
@@ -160,7 +166,7 @@ def escaped(tables, wave, state, rays, hits, ended=None):
         if len(mis):
             heuristic = sampling.balance_heuristic if tables.environment.mis_balance else sampling.power_heuristic
             focus = None if state.focus is None else state.focus.take(miss[mis])
-            o = rays.origins[miss[mis]] if tables.lights.portals is not None else None
+            o = kept_origins(state, rays, miss[mis])[0] if tables.lights.portals is not None else None
             sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]], tables.lights.pdf_world(
                 mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]],
                 *((None,) * 3 if o is None else o.T))))
@@ -211,10 +217,11 @@ def emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
             dx, dy, dz = (np.take(c, sel) for c in hit.d)
             cos_l = gx * dx + gy * dy + gz * dz
             ray = found[sel]  # index of these rays before compaction
-            o = rays.origins
+            # Weighed from where Cycles' ray starts, past the transparent surfaces it passed (kept_origins).
+            o, back = kept_origins(state, rays, sel, ray)
             light_pdf = tables.lights.pdf_triangle_hit(
-                np.take(hit.prim, sel), np.take(hits.t, ray), cos_l,
-                np.take(o[:, 0], ray), np.take(o[:, 1], ray), np.take(o[:, 2], ray),
+                np.take(hit.prim, sel), np.take(hits.t, ray) + back, cos_l,
+                np.ascontiguousarray(o[:, 0]), np.ascontiguousarray(o[:, 1]), np.ascontiguousarray(o[:, 2]),
                 None if state.link_set is None else np.take(state.link_set, sel), facing_of(state.mis_facing, sel),
                 np.take(hit.backfacing, sel))
             le[:, mis] *= sampling.power_heuristic(np.take(state.bsdf_pdf, sel), light_pdf)

@@ -198,6 +198,9 @@ def new_paths(tables, wave, n: int, samples, start: int, times=None, media=None)
         state.min_ray_pdf = np.full(n, np.inf, np.float32)
     if wave.nee and tables.lights.reads_facing:
         state.mis_facing = np.zeros((4, n), np.float32)
+    if (tables.lights.has_surface_lights or tables.emissive or tables.lights.portals is not None) \
+            and (tables.shading.transparent.any() or tables.media is not None):
+        state.mis_origin = np.full((3, n), np.nan, np.float32)
     if tables.links is not None:   # camera rays leave the world's object (light set 0), no scattering
         state.link_set, state.scattered = np.zeros(n, np.uint8), np.zeros(n, bool)
     if tables.shapes is not None:
@@ -340,6 +343,8 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
     if lit and tables.glass_escapes_on and state.see_through is None:
         glass_escapes(tables, wave, state, hit, closures, bs, receiver)
     alive = _continues(tables, wave, hit, state, bs, numbers, focus, closures)
+    if state.mis_origin is not None:
+        _keep_origins(state, rays, found, bs)
     if receiver is not None:   # the next ray leaves this object (transparent pass-throughs keep the last one's)
         state.link_set, state.scattered = np.where(bs.transparent, state.link_set, receiver), ~bs.transparent
     if state.lobes is not None:
@@ -391,6 +396,16 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
 
 
 # ---- the surface vertex's helpers: the next rays' reach, the AO pass, Fast GI's Add
+def _keep_origins(state, rays, found, bs) -> None:
+    """PathState.mis_origin after a surface vertex (state rows: the rays' hits found): a ray that passes the surface
+    straight through keeps the start of the ray that met it (Cycles moves only its tmin); any other starts here."""
+    kept = bs.transparent & ~bs.portal
+    state.mis_origin[:, ~kept] = np.nan
+    first = np.flatnonzero(kept & np.isnan(state.mis_origin[0]))
+    if len(first):
+        state.mis_origin[:, first] = rays.origins[found[first]].T
+
+
 def _clipped(next_rays, rays, found, t_hit, alive, bs):
     """next_rays with the rays that pass straight through (transparent surfaces, volume boundaries) keeping what
     was left of their ray's reach: Cycles continues such a ray with its tmax (only its tmin moves on), so a

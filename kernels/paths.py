@@ -33,6 +33,25 @@ def facing_of(mis_facing, rows=None):
     return m[0], m[1], m[2], m[3] > 0
 
 
+def kept_origins(state, rays, rows=None, ray_rows=None):
+    """The rays' origins as Cycles keeps them through transparent surfaces (PathState.mis_origin), (n, 3), and how
+    far back along each ray that lies, (n,) float32 (0 where the ray passed nothing): Cycles meets lamps from
+    there with tmin that distance, and weighs emitters and portals from there. rows: state rows (an index array
+    or a slice; None: all); ray_rows: the rows of `rays` they are (None: rows)."""
+    rows = slice(None) if rows is None else rows
+    ray_rows = rows if ray_rows is None else ray_rows
+    o = rays.origins[ray_rows]
+    if state.mis_origin is None:
+        return o, np.zeros(len(o), np.float32)
+    kept = state.mis_origin[:, rows].T
+    fresh = np.isnan(kept[:, 0])
+    if fresh.all():
+        return o, np.zeros(len(o), np.float32)
+    kept = np.where(fresh[:, None], o, kept)
+    back = np.maximum(np.einsum("ij,ij->i", o - kept, rays.dirs[ray_rows]), np.float32(0)).astype(np.float32)
+    return kept, back
+
+
 @dataclass
 class PathState:
     path: np.ndarray        # (N,) int64: wave index of the path, where its radiance is accumulated
@@ -80,6 +99,11 @@ class PathState:
     #                                       1 where its closures transmit (Cycles' mis_origin_n and
     #                                       PATH_RAY_MIS_HAD_TRANSMISSION; zeros: none), for the light tree's
     #                                       choice in MIS pdfs; None where the light choice reads no normal
+    mis_origin: np.ndarray | None = None  # (3, N) float32: where the ray started before the transparent surfaces it
+    #                                       passed since its last vertex (Cycles keeps a ray's P through them and
+    #                                       moves only its tmin), NaN where it passed none; lamps, emitters and
+    #                                       portals are met and weighed from there. None in scenes where rays can
+    #                                       pass nothing or find no such light
     link_set: np.ndarray | None = None  # (N,) uint8 or None: the light set of the object the ray left (Light
     #                                     Linking; Cycles' mis_ray_object), 0 for camera rays; None in scenes
     #                                     without linking
@@ -142,6 +166,8 @@ class PathState:
             self.volume_bounds = np.take(self.volume_bounds, idx)
         if self.mis_facing is not None:
             self.mis_facing = np.take(self.mis_facing, idx, axis=1)
+        if self.mis_origin is not None:
+            self.mis_origin = np.take(self.mis_origin, idx, axis=1)
         if self.link_set is not None:
             self.link_set = np.take(self.link_set, idx)
             self.scattered = np.take(self.scattered, idx)
@@ -179,7 +205,7 @@ class PathState:
                     cat(a.bounce, b.bounce, required), cat(a.transparent, b.transparent, required),
                     cat(a.dp, b.dp, required))
         for name in ("min_ray_pdf", "lobes", "features", "pass_weights", "partner", "partner_uv", "handed",
-                     "portal", "segments", "media", "volume_bounces", "volume_bounds", "mis_facing", "link_set",
+                     "portal", "segments", "media", "volume_bounces", "volume_bounds", "mis_facing", "mis_origin", "link_set",
                      "scattered", "self_key", "see_through", "data_pending", "dd"):
             setattr(state, name, cat(getattr(a, name), getattr(b, name), required))
         state.continuation = cat(a.continuation, b.continuation, ones)

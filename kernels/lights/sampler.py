@@ -500,7 +500,7 @@ class LightSampler:
         return self.has_lights and self.select_pmf[self.world_index] > 0
 
     def intersect(self, ox, oy, oz, dx, dy, dz, t_max, budget=None, receiver=None, facing=None,
-                  allowed=None, types=None, camera: bool = False) -> "LightHits":
+                  allowed=None, types=None, camera: bool = False, t_min=None) -> "LightHits":
         """BSDF rays against the lights that have a surface (sphere, rect, disk) before t_max, as Cycles'
         BSDF rays meet them (kernel/light/light.h lights_intersect, integrator/shade_light.h).
 
@@ -523,7 +523,8 @@ class LightSampler:
         skips lights excluded from them), or None for all. types: (N,) uint8 the rays' types (kernels/visibility.py
         ray_types), or None: a lamp that does not see a ray's type is met and crossed but gives it no light
         (kernels/lights/ray_visibility.py). camera: the rays are camera rays, which see lamps whose Multiple
-        Importance is off (other rays pass them unseen)."""
+        Importance is off (other rays pass them unseen). t_min: (N,) float32 or None (0): the lights met lie past
+        it (a ray that kept its origin through transparent surfaces, as Cycles' rays do, starts there)."""
         n = len(ox)
         out = LightHits(n)
         if not self.has_surface_lights or n == 0:
@@ -543,7 +544,7 @@ class LightSampler:
         t, light_pdf, le = self.hit_pairs(ray, light, ox[ray], oy[ray], oz[ray], dx[ray], dy[ray], dz[ray])
         if types is not None and self.visibility is not None:
             le[:, ray_visibility.unseen(np.take(self.visibility, light), np.take(types, ray))] = 0.0
-        ok = np.flatnonzero((t > 0) & (t < t_max[ray]))
+        ok = np.flatnonzero((t > (0 if t_min is None else t_min[ray])) & (t < t_max[ray]))
         # Nearest first; of lights at one distance, the first in the scene's order (Cycles' loop keeps
         # a light only when it is strictly nearer than the one it has).
         order = ok[np.lexsort((light[ok], t[ok], ray[ok]))]

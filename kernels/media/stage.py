@@ -314,6 +314,8 @@ def vertex(tables, wave, state, scattered: Scattered, first: bool, last: int):
     state.bsdf_pdf = np.where(scattered.lit, NO_MIS_PDF, pdf).astype(F32)
     if state.mis_facing is not None:
         state.mis_facing[:] = 0.0   # a point in a medium: the light choice reads no normal there
+    if state.mis_origin is not None:
+        state.mis_origin[:] = np.nan   # the ray starts at the point in the medium
     state.focus = None
     state.escape_scale = None
     if state.min_ray_pdf is not None:
