@@ -287,6 +287,21 @@ def test_light_threshold_without_the_tree_leaves_dim_light_samples_untraced_as_c
     compare_to_cycles(scene, samples=256, max_bounces=1, clamp=(0.3, 0.0))
 
 
+def test_a_background_node_in_an_object_material_emits_as_in_cycles():
+    """A Background node wired to an object's Material Output (a public neon room's sign): Cycles renders it as
+    an Emission node (background_setup is emission_setup) and light-samples it as one (output_estimate_emission
+    counts both). Ember rendered it as grey diffuse with a warning; now it is an emitter, light-sampled, with no
+    warning, and the stage it lights matches Cycles'."""
+    from ember.kernels.renderer import Renderer
+    scene = stage()
+    glow = node_material("Glow", "ShaderNodeBackground", Color=(1.0, 0.7, 0.4, 1.0), Strength=6.0)
+    quad_object("Panel", (-1.2, 1.2, 0.1), (0.8, 0.0, 0.0), (0.0, 0.3, 1.2), glow)
+    exported = export_current()
+    assert not [w for w in exported.warnings if "Glow" in w], exported.warnings
+    assert len(Renderer(exported.scene).lights.tri_ids) == 2
+    compare_to_cycles(scene, samples=128, max_bounces=2)
+
+
 def test_emission_sampling_none_leaves_an_emitter_to_bsdf_rays_as_cycles():
     """A material's Emission Sampling None (Cycles' own): its triangles get no light samples, BSDF rays find them
     with MIS weight 1. Unclamped that changes the noise; clamped, the image: a floor under a glowing panel, clamps

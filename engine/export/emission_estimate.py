@@ -1,9 +1,9 @@
 """Whether a material's emission is light-sampled under Emission Sampling Auto, as Cycles decides it
 (scene/shader.cpp: output_estimate_emission, Shader::estimate_emission).
 
-Cycles estimates a shader's emission from its graph after constant folding: an Emission node (or a Principled
-BSDF's emission) gives its Color times its Strength, a linked Color counting as white and a linked Strength as
-1 (or as the Strength of the Light Falloff or IES Texture node feeding it); Add Shader sums, Mix Shader weighs
+Cycles estimates a shader's emission from its graph after constant folding: an Emission or Background node (or
+a Principled BSDF's emission) gives its Color times its Strength, a linked Color counting as white and a linked
+Strength as 1 (or as the Strength of the Light Falloff or IES Texture node feeding it); Add Shader sums, Mix Shader weighs
 by a constant Fac and sums where Fac is linked; other closures give nothing. Under Auto the material's emitters
 are light-sampled only where the estimate's largest channel is above 0.5, and only a tenth of it counts when the
 Surface output is a colour or value turned into an emission (Cycles' auto-conversion, likely a preview): weak
@@ -18,7 +18,7 @@ AUTO_THRESHOLD = 0.5
 # Weight of an emission made from a colour or value linked into the Surface output.
 AUTO_CONVERSION_SCALE = 0.1
 
-_EMITTERS = {"ShaderNodeEmission": ("Color", "Strength"),
+_EMITTERS = {"ShaderNodeEmission": ("Color", "Strength"), "ShaderNodeBackground": ("Color", "Strength"),
              "ShaderNodeBsdfPrincipled": ("Emission Color", "Emission Strength")}
 _STRENGTH_NODES = ("ShaderNodeLightFalloff", "ShaderNodeTexIES")
 

@@ -81,6 +81,9 @@ CLOSURE_NODES = {
     "ShaderNodeBsdfRayPortal": ("PORTAL", ("Color", "Position", "Direction")),
     "ShaderNodeBsdfHair": ("HAIR", ("Color", "Offset", "RoughnessU", "RoughnessV")),
     "ShaderNodeEmission": ("EMISSION", ("Color", "Strength")),
+    # A Background node in an object's material emits as an Emission node (Cycles' background_setup and
+    # emission_setup are one; output_estimate_emission counts it as one).
+    "ShaderNodeBackground": ("EMISSION", ("Color", "Strength")),
     "ShaderNodeHoldout": ("HOLDOUT", ()),
     "ShaderNodeSubsurfaceScattering": ("SUBSURFACE", ("Color", "Scale", "Radius", "IOR", "Roughness", "Anisotropy")),
     # By socket identifier: Blender names the lobe scales Reflection, Transmission and Secondary Reflection.
