@@ -237,20 +237,52 @@ def _program_world(world, images, issues: list[str], layer_attribute=None) -> Wo
                           f"to {MAX_LIGHT_RADIANCE:g} W/(sr m^2)")
             color *= MAX_LIGHT_RADIANCE / color.max()
         return World(color=color.astype(np.float32))
-    return World(color=np.zeros(3, np.float32), program=builder.program(), output=radiance,
-                 map_resolution=map_resolution(world))
+    program = builder.program()
+    suns = sun_discs(program)
+    return World(color=np.zeros(3, np.float32), program=program, output=radiance,
+                 map_resolution=map_resolution(world, len(suns)), sun=suns[0] if len(suns) == 1 else None)
 
 
-def map_resolution(world) -> int:
+def sun_discs(program) -> list[np.ndarray]:
+    """The sun discs of the Sky Textures a world program evaluates, each (4,) float32: the world direction toward the
+    sun and half its angular diameter, as Cycles' device_update_background finds them for its background light to
+    aim at (scene/light.cpp: latitude the elevation, longitude the rotation + pi/2, both as Cycles' simplify_settings
+    stores them, through the inverse of the node's Texture Mapping). Only the scattering models draw a disc."""
+    suns = []
+    for op in program.ops:
+        sky = op.option("precomputed") if op.kind == "ShaderNodeTexSky" else None
+        if sky is None or sky.angular_diameter is None or float(sky.angular_diameter) < 0:
+            continue
+        latitude, longitude = float(sky.sun_elevation), float(sky.sun_rotation) + 0.5 * np.pi
+        direction = np.array([np.cos(latitude) * np.cos(longitude), np.cos(latitude) * np.sin(longitude),
+                              np.sin(latitude)])
+        vector = dict(op.inputs).get("Vector")
+        mapping = program.ops[vector.op] if hasattr(vector, "op") else None
+        if mapping is not None and mapping.kind == "TEXTURE_MAPPING":
+            matrix = np.asarray(mapping.option("matrix"), np.float64).reshape(3, 4)[:, :3]
+            direction = np.linalg.solve(matrix, direction)
+        norm = np.linalg.norm(direction)
+        if not np.isfinite(norm) or norm == 0:
+            continue
+        half = 0.5 * float(sky.angular_diameter)
+        suns.append(np.array([*(direction / norm), half], np.float32))
+    return suns
+
+
+def map_resolution(world, suns: int = 0) -> int:
     """Width of the map a world program is baked into for importance sampling. Cycles' world settings:
     Manual takes Map Resolution; Automatic (the default) takes the widest Environment Texture image in
     the tree, so that the bake's texel centres fall on the image's and the sampler, bilinear between
-    them, follows the lookup exactly (Cycles then raises its point-sampled map to 4096 x 2048), else 1024."""
+    them, follows the lookup exactly (Cycles then raises its point-sampled map to 4096 x 2048), else 1024; a
+    Sky Texture's sun disc (suns: how many) asks for at least 512 (one, which the light samples aim at besides) or
+    4096 (several), as Cycles' device_update_background."""
     settings = getattr(world, "cycles", None)
     if settings is not None and getattr(settings, "sampling_method", "AUTOMATIC") == "MANUAL":
         return max(int(settings.sample_map_resolution), 4)
     widths = [int(node.image.size[0]) for node in tree_nodes(world.node_tree)
               if node.bl_idname == "ShaderNodeTexEnvironment" and node.image is not None and node.image.size[0] > 0]
+    if suns:
+        widths.append(512 if suns == 1 else 4096)
     return int(np.clip(max(widths), 256, 8192)) if widths else 1024
 
 

@@ -50,6 +50,10 @@ class World:
         Method Auto or Manual: its background light's use_mis); False (None): BSDF rays alone find it, with MIS
         weight 1, and with light portals their samples alone light the points inside them, a uniform direction
         elsewhere (kernel/light/background.h: map_weight 0).
+    sun : (4,) float32 or None: the sun disc of the world's one Sky Texture (its world direction and half its
+        angular diameter in radians), which the world's light samples aim at directly as Cycles' background light
+        does (kernel/light/background.h background_sun_sample: 4 parts in 5 against the map's 1, scene/light.cpp);
+        None without such a sky, or with several.
     max_bounces : the world's Max Bounces (World > Settings > Light): its light samples light only the vertices
         at most that many bounces deep (NO_BOUNCE_LIMIT: all), as a lamp's (Lights.max_bounces).
     """
@@ -69,6 +73,7 @@ class World:
     max_bounces: int = NO_BOUNCE_LIMIT
     visibility: int = ALL_RAYS
     light_sampled: bool = True
+    sun: np.ndarray | None = None
 
     def validate(self) -> None:
         check_array(self.color, "world.color", (3,), np.float32)
@@ -94,6 +99,10 @@ class World:
             require(isinstance(self.output, Ref) and 0 <= self.output.op < len(self.program), "world.output",
                     f"must be a Ref into the world's program of {len(self.program)} ops")
             require(int(self.map_resolution) >= 4, "world.map_resolution", "must be at least 4")
+        if self.sun is not None:
+            check_array(self.sun, "world.sun", (4,), np.float32)
+            require(abs(float(np.linalg.norm(self.sun[:3])) - 1.0) < 1e-3 and 0 < self.sun[3] < np.pi / 2, "world.sun",
+                    "must be a unit direction and a half-angle in (0, pi/2)")
         if self.volume is not None:
             require(isinstance(self.volume, Shader) and self.volume.volume, "world.volume",
                     "must be a Shader with volume closures")
