@@ -482,7 +482,7 @@ def test_unsupported_nodes_render_grey_with_one_warning_per_material():
     mix = tree.nodes.new("ShaderNodeMixShader")
     tree.links.new(mix.outputs[0], tree.nodes["Material Output"].inputs["Surface"])
     tree.links.new(tree.nodes.new("ShaderNodeEeveeSpecular").outputs[0], mix.inputs[1])
-    tree.links.new(tree.nodes.new("ShaderNodeBackground").outputs[0], mix.inputs[2])
+    tree.links.new(tree.nodes.new("ShaderNodeEeveeSpecular").outputs[0], mix.inputs[2])
     metal, bsdf = new_material("Metal")
     bsdf.inputs["Metallic"].default_value = 1.0
     bsdf.inputs["Base Color"].default_value = (0.5, 0.5, 0.5, 1.0)
@@ -497,7 +497,7 @@ def test_unsupported_nodes_render_grey_with_one_warning_per_material():
     np.testing.assert_allclose(odd[0].input("Color").value, DEFAULT_ALBEDO)
     assert [(p.value, second) for p, second in odd[0].factors] == [((0.5,), False)]
     warned = [w for w in result.warnings if "'Odd'" in w]
-    assert len(warned) == 1 and "Specular BSDF" in warned[0] and "Background" in warned[0]
+    assert len(warned) == 1 and "'Specular BSDF'" in warned[0] and "'Specular BSDF.001'" in warned[0]
     (principled,) = result.scene.materials.shaders[2].closures
     assert principled.kind == "PRINCIPLED" and principled.input("Metallic").value == (1.0,)
     assert principled.input("Roughness").value == (0.5,)  # the socket's own value
