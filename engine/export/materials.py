@@ -42,7 +42,7 @@ from ...kernels import Materials
 from ...kernels.programs import Ref
 from ...kernels.scene import NORMAL_MAP_SPACES, Closure, NormalMap, Param, Shader, Tangent, diffuse_shader
 from ...kernels.shading.hair_nodes import CURVE_NORMAL
-from ...kernels.shading.input_ops import UNDISPLACED_NORMAL, UNDISPLACED_POSITION
+from ...kernels.shading.input_ops import UNDEFORMED_POSITION, UNDISPLACED_NORMAL, UNDISPLACED_POSITION
 from ...kernels.shading.normals import NORMAL_MAP_OBJECT_FRAME_FROM
 from ..version import blender_version
 from . import emission_estimate
@@ -295,6 +295,17 @@ def read_material(material, images: ImageTextures, warnings: list[str], uv_maps:
                           attributes, true_displacement)
 
 
+def _reads_generated(ops) -> bool:
+    """Whether a program reads Generated coordinates (a Texture Coordinate's Generated, an unlinked texture Vector, a
+    radial Tangent), which on a mesh deformed by its modifiers come from its undeformed positions."""
+    for op in ops:
+        if op.kind == "ShaderNodeTexCoord" and "Generated" in op.option("outputs", ("Generated",)):
+            return True
+        if op.kind == "ShaderNodeTangent" and op.option("direction_type", "RADIAL") == "RADIAL":
+            return True
+    return False
+
+
 def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displacement=None) -> Shader:
     out = output_node(tree)
     displacement = None if out is None else out.inputs.get("Displacement")
@@ -320,6 +331,8 @@ def _read_tree(material, tree, reader, warnings, uv_maps, attributes, true_displ
         warnings.append(f"Material '{material.name}': " + "; ".join(dict.fromkeys(reader.issues)))
     if uv_maps is not None:
         uv_maps.extend(reader.tangent_uv_maps)
+    if _reads_generated(reader.program.ops):
+        reader.attributes.add(UNDEFORMED_POSITION)
     if attributes is not None:
         attributes.update(reader.attributes)
     aovs = tuple((node.aov_name, reader.param(node.inputs["Color"], (), 3, node),

@@ -271,8 +271,9 @@ def _triangle_slots(mesh, t: int) -> np.ndarray:
 def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -> dict:
     """{name: (T*3, C) float32} per triangle corner of an evaluated mesh, for the names node programs
     read: "uv:<map>", "color:<name>" ('' for the render colour attribute), "attr:<name>", the Geometry
-    node's "geom:pointiness" and "geom:random_per_island" (mesh_topology.py), and "geom:undisplaced_position"
-    and "geom:undisplaced_normal" (this mesh, before true displacement moves it: _undisplaced_attribute).
+    node's "geom:pointiness" and "geom:random_per_island" (mesh_topology.py), "geom:undisplaced_position"
+    and "geom:undisplaced_normal" (this mesh, before true displacement moves it: _undisplaced_attribute) and
+    "geom:undeformed_position" (before its deforming modifiers, where that differs: _undeformed_attribute).
     Missing ones are left out (they read zero, as in Cycles); object attributes ("object:", "instancer:") are
     the object table's."""
     out = {}
@@ -283,6 +284,11 @@ def read_attributes(mesh, names: tuple, object_name: str, warnings: list[str]) -
         if kind in OBJECT_ATTRIBUTE_KINDS:
             continue
         if kind == "geom":
+            if key == "undeformed_position":
+                undeformed = _undeformed_attribute(mesh, tri_loops)
+                if undeformed is not None:
+                    out[name] = undeformed
+                continue
             out[name] = (_undisplaced_attribute if key.startswith("undisplaced_") else _topology_attribute)(
                 mesh, key, tri_loops)
             continue
@@ -329,6 +335,23 @@ def _undisplaced_attribute(mesh, key: str, tri_loops: np.ndarray) -> np.ndarray:
         return np.take(read_values(mesh.vertex_normals, "vector", 3 * v, np.float32).reshape(-1, 3), corners, axis=0)
     positions = read_values(mesh.attributes["position"].data, "vector", 3 * v, np.float32).reshape(-1, 3)
     return np.concatenate([np.take(positions, corners, axis=0), np.ones((len(corners), 1), np.float32)], axis=1)
+
+
+def _undeformed_attribute(mesh, tri_loops: np.ndarray) -> np.ndarray | None:
+    """(T*3, 4) float32 per corner, object space: the positions before the object's deforming modifiers and a 1, as
+    Cycles' Generated reads them (blender/mesh.cpp: the ORCO layer, which a render's depsgraph always computes,
+    through the texture space; MeshVertex.undeformed_co gives the same); None where they are the positions (no
+    deformation, or a viewport's mesh without the layer)."""
+    v = len(mesh.vertices)
+    undeformed = np.empty(3 * v, np.float32)
+    mesh.vertices.foreach_get("undeformed_co", undeformed)
+    positions = read_values(mesh.attributes["position"].data, "vector", 3 * v, np.float32)
+    if np.array_equal(undeformed, positions):
+        return None
+    corner_verts = read_values(mesh.attributes[".corner_vert"].data, "value", len(mesh.loops), np.int32)
+    corners = np.take(corner_verts, tri_loops)
+    return np.concatenate([np.take(undeformed.reshape(-1, 3), corners, axis=0), np.ones((len(corners), 1), np.float32)],
+                          axis=1)
 
 
 def _topology_attribute(mesh, key: str, tri_loops: np.ndarray) -> np.ndarray:

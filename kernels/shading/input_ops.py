@@ -22,6 +22,9 @@ from .program import full, make_orthonormals
 # moved it, stored for meshes whose material displaces with "Displacement and Bump" (kernels/shading/bump.py):
 # the position as (x, y, z, 1) (the 1 marks the meshes that have it) and the normal Cycles bumps from.
 UNDISPLACED_POSITION, UNDISPLACED_NORMAL = "geom:undisplaced_position", "geom:undisplaced_normal"
+# The mesh's positions before its deforming modifiers (Blender's ORCO layer, which a render's depsgraph always
+# computes; Cycles' ATTR_STD_GENERATED is made from it), per corner with a 1; only where they differ.
+UNDEFORMED_POSITION = "geom:undeformed_position"
 
 
 def object_point(hits, p: np.ndarray) -> np.ndarray:
@@ -33,9 +36,10 @@ def object_point(hits, p: np.ndarray) -> np.ndarray:
 
 def generated(hits) -> np.ndarray:
     """Blender's Generated coordinates: the object-space point in the mesh's texture space, [0, 1]^3 over
-    its bounding box (Cycles' ATTR_STD_GENERATED from the undeformed mesh; here the evaluated one, before true
-    displacement where the mesh keeps that: UNDISPLACED_POSITION). In a world: the ray direction. On a lamp,
-    which has no such attribute: the object-space position (svm_node_attr's fallback)."""
+    its bounding box (Cycles' ATTR_STD_GENERATED: from the mesh before its deforming modifiers where the mesh
+    keeps that, UNDEFORMED_POSITION; else the evaluated one, before true displacement where the mesh keeps that:
+    UNDISPLACED_POSITION). In a world: the ray direction. On a lamp, which has no such attribute: the
+    object-space position (svm_node_attr's fallback)."""
     if getattr(hits, "world", False):
         return hits.P
     if getattr(hits, "lamp", False):
@@ -49,10 +53,11 @@ def generated(hits) -> np.ndarray:
 def _undisplaced_point(hits) -> np.ndarray:
     # Cycles' Generated is an attribute: at a bump's offsets it follows the barycentrics (P_bary), not P.
     p = object_point(hits, getattr(hits, "P_bary", hits.P))
-    kept = hits.attribute(UNDISPLACED_POSITION) if hasattr(hits, "attribute") else None
-    if kept is None:
-        return p
-    return np.where(columns(kept[:, 3] > HALF), kept[:, :3], p).astype(F32)
+    for name in (UNDISPLACED_POSITION, UNDEFORMED_POSITION):
+        kept = hits.attribute(name) if hasattr(hits, "attribute") else None
+        if kept is not None:
+            p = np.where(columns(kept[:, 3] > HALF), kept[:, :3], p).astype(F32)
+    return p
 
 
 def _texture_space(hits, local: np.ndarray) -> np.ndarray:
