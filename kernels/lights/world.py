@@ -1,6 +1,7 @@
-"""The world as a light: directions from its importance map (environment.Environment), and through its light
-portals where a shading point has one (portals.Portals: half of the samples each, as Cycles' background light
-samples, kernel/light/background.h background_light_sample and background_light_pdf), and their pdf.
+"""The world as a light: directions from its importance map (environment.Environment), through its light portals
+where a shading point has one (portals.Portals), and into a Sky Texture's sun disc (World.sun), mixed with Cycles'
+weights (1 each for the map and the portals, 4 for the sun: kernel/light/background.h background_light_sample and
+background_light_pdf), and their pdf.
 """
 from __future__ import annotations
 
