@@ -166,10 +166,11 @@ def escaped(tables, wave, state, rays, hits, ended=None):
         if len(mis):
             heuristic = sampling.balance_heuristic if tables.environment.mis_balance else sampling.power_heuristic
             focus = None if state.focus is None else state.focus.take(miss[mis])
-            o = kept_origins(state, rays, miss[mis])[0] if tables.lights.portals is not None else None
+            weighs = tables.lights.weighs_distant
+            o = kept_origins(state, rays, miss[mis])[0] if tables.lights.portals is not None or weighs else None
             sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]], tables.lights.pdf_world(
                 mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]],
-                *((None,) * 3 if o is None else o.T))))
+                *((None,) * 3 if o is None else o.T), facing_of(state.mis_facing, miss[mis]) if weighs else None)))
     later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
     world, suns = env, []   # the light groups' parts: the world's, and each sun's
     if len(later) and len(tables.lights.sun_discs):
@@ -180,7 +181,8 @@ def escaped(tables, wave, state, rays, hits, ended=None):
                                       state.bsdf_pdf[miss[later]] if wave.nee else None,
                                       None if state.link_set is None else state.link_set[miss[later]],
                                       parts=None if wave.groups is None else suns,
-                                      types=None if types is None else types[miss[later]])
+                                      types=None if types is None else types[miss[later]],
+                                      points=_left_points(tables, state, rays, miss[later]))
         sun *= np.take(state.throughput, miss[later], axis=1)
         if state.escape_scale is not None:
             sun *= np.take(state.escape_scale, miss[later])
@@ -232,6 +234,16 @@ def emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
     if state.pass_weights is not None:
         later = np.flatnonzero(np.take(state.bounce, lit) > 0)
         passes.write_light(tables, wave, state, lit[later], le[:, later])
+
+
+def _left_points(tables, state, rays, rows):
+    """(px, py, pz, facing) of the vertices the rays of state rows left (as Cycles keeps a ray's origin), where the
+    light choice weighs the distant emitters per point (LightSampler.weighs_distant); else None."""
+    if not tables.lights.weighs_distant:
+        return None
+    o = kept_origins(state, rays, rows)[0]
+    return np.ascontiguousarray(o[:, 0]), np.ascontiguousarray(o[:, 1]), np.ascontiguousarray(o[:, 2]), \
+        facing_of(state.mis_facing, rows)
 
 
 def _suns_seen_by_camera(tables, wave, state, rays, miss) -> None:

@@ -80,6 +80,13 @@ class Environment:
         # (1 / 4 pi) * sum(L sin(theta)) * (pi / H) * (2 pi / W) = (pi / 2) * mean(L sin(theta))
         return float(self._distribution.mean_weight * 0.5 * np.pi * self.strength)
 
+    def cycles_average_radiance(self) -> float:
+        """Cycles' average radiance of its background light's map (scene/light.cpp: cdf_total x pi / 2, the mean of
+        the texels' average |R|, |G|, |B| x sin(theta)), for its light tree's measure of the world."""
+        if self._distribution is None:
+            return float(np.abs(self.constant[:, 0]).mean())
+        return float(self._distribution.mean_average * 0.5 * np.pi * self.strength)
+
     @property
     def focuses(self) -> bool:
         """Whether light samples of the world can be focused on the shading points' glossy lobes (focus()). Not
@@ -308,6 +315,8 @@ class _BilinearDistribution:
             # Cycles weighs its map by the average of |R|, |G|, |B| (scene/light.cpp background_cdf).
             level[y0:y1] = np.abs(rgb).mean(axis=0)
         self.mean_weight = lum_sum / (h * w)
+        # The map's mean of that average x sin(theta): Cycles' cdf_total (scene/light.cpp), for its light tree.
+        self.mean_average = float((level.astype(np.float64) * np.sin(theta)[:, None]).sum() / (h * w))
         if not np.any(level > 0):  # a black map: sample uniformly in (u, v), weighted by sin(theta)
             level = np.ones((h, w), np.float32)
         self.compensated = False  # whether the levels were lowered (compensate, and something above the mean)

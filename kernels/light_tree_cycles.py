@@ -379,12 +379,19 @@ class CyclesLightTree:
                 u_up, u_lo = self._unit_bounds(unit, px, py, pz, facing)
                 upper, lower = np.where(alone, u_up, upper), np.where(alone, u_lo, lower)
         (a_max, b_max), (a_min, b_min) = upper, lower
-        total_max, total_min = a_max + b_max, a_min + b_min
-        with np.errstate(divide="ignore", invalid="ignore"):
-            by_lower = np.where(total_min > 0, a_min / np.where(total_min > 0, total_min, 1.0),
-                                0.5 * ((a_max > 0).astype(np.float64) + (b_max == 0)))
-            p = 0.5 * (a_max / total_max + by_lower)
-        return np.where(total_max > 0, p, np.nan).astype(np.float64)
+        return left_probability(a_max, a_min, b_max, b_min)
+
+    def root_bounds(self, px, py, pz, facing):
+        """(upper, lower) (N,) of the whole tree at the points: its root bounded as a child of Cycles' root, whose
+        other child holds the distant lights (light_tree_child_importance: a single unit as that unit)."""
+        px, py, pz = (np.asarray(c, np.float32) for c in (px, py, pz))
+        fac = None if facing is None else tuple(np.asarray(c) for c in facing)
+        unit = int(self._single[0])
+        if unit >= 0:
+            upper, lower = self._unit_bounds(np.full((1, len(px)), unit, np.int64), px, py, pz, fac)
+            return upper[0], lower[0]
+        row = self._rows[0][:, None].astype(np.float64)
+        return _box_importance(row[0:3], row[3:6], row[6:9], row[9], row[10], row[11], px, py, pz, fac)
 
     def _unit_bounds(self, unit, px, py, pz, facing):
         """(upper, lower) of units unit (K, N) (-1: none, 0) at the points (N,) (light_tree_emitter_importance)."""
@@ -565,6 +572,31 @@ class CyclesLightTree:
             stop = self.tri_tree.unit_root[self.unit_group[unit[m]]]
             pmf[m] *= self.tri_tree.pmf(self.tri_index[slot[m]], px[m], py[m], pz[m], _rows(fac, m), stop=stop)
         return np.where(known, pmf, 0.0)
+
+
+def distant_bounds(energy: float, cone, facing, n: int):
+    """(upper, lower) (N,) of Cycles' distant node at n points (light_tree_node_importance for LIGHT_TREE_DISTANT, and
+    for a single distant light background_ / distant_light_tree_parameters, which come to the same): the direction
+    to it the reverse of its cone's axis, cos theta_u the cosine of theta_o + theta_e, distance 1. cone: (axis,
+    theta_o, theta_e) as merge_cones gives them; facing the points' (nx, ny, nz, two_sided) or None."""
+    axis, theta_o, theta_e = cone
+    a = np.asarray(axis, np.float64)[:, None] * np.ones(n)
+    cos_u = np.full(n, math.cos(min(theta_o + theta_e, math.pi)))
+    ones = np.ones(n)
+    return _importance(-a, cos_u, a, np.full(n, theta_o), np.full(n, theta_e), ones, ones, np.full(n, energy),
+                       facing)
+
+
+def left_probability(upper_a, lower_a, upper_b, lower_b):
+    """Cycles' get_left_probability from the two children's bounds (N,) each: the mean of the left child's share of
+    the upper bounds and of the lower ones (where neither has a lower bound, half between those with an upper
+    one); nan where neither can light the point."""
+    total_max, total_min = upper_a + upper_b, lower_a + lower_b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        by_lower = np.where(total_min > 0, lower_a / np.where(total_min > 0, total_min, 1.0),
+                            0.5 * ((upper_a > 0).astype(np.float64) + (upper_b == 0)))
+        p = 0.5 * (upper_a / total_max + by_lower)
+    return np.where(total_max > 0, p, np.nan).astype(np.float64)
 
 
 def _rows(facing, idx):

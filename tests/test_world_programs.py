@@ -397,6 +397,10 @@ def test_a_sky_sun_disc_is_aimed_at_as_cycles_aims_at_it():
     sun = exported.world.sun
     assert sun is not None and exported.world.map_resolution == 512
     assert abs(sun[3] - 0.5 * sky.sun_size) < 1e-6
+    # What Cycles' light tree weighs the world by (scene/light.cpp, scene/shader.cpp): the disc's average radiance,
+    # and the Background's estimate, its linked Color white times its Strength.
+    assert exported.world.sun_radiance > 0
+    np.testing.assert_allclose(exported.world.emission_estimate, (1.0, 1.0, 1.0))
     with Renderer(exported, threads=1) as renderer:
         env, lights = renderer.environment, renderer.lights
         # The disc where the sky is: its centre far brighter than a point two of its radii away.

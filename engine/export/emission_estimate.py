@@ -80,6 +80,33 @@ def estimate(reader, source) -> tuple:
     return tuple(total)
 
 
+class SocketReader:
+    """A reader for estimate() that takes inputs from their sockets alone (a linked one varies, an unlinked one is its
+    value): for the world's estimate, whose images need not be decoded for it. What a linked input would fold to
+    is not looked for (the world's Surface takes a Background or an Emission, whose linked inputs Cycles counts as
+    white and 1 in any case)."""
+
+    class _Param:
+        __slots__ = ("varies", "value")
+
+        def __init__(self, varies: bool, value: tuple):
+            self.varies, self.value = varies, value
+
+    @property
+    def program(self):
+        return self
+
+    def input(self, socket, groups, want):
+        return None   # not a constant: what feeds a shader socket is linked
+
+    def param(self, socket, groups, channels: int, node):
+        if source_of(socket, groups).node is not None:
+            return self._Param(True, (1.0,) * channels)
+        value = socket.default_value
+        value = tuple(float(v) for v in value)[:channels] if hasattr(value, "__len__") else (float(value),)
+        return self._Param(False, value)
+
+
 def _strength(reader, socket, groups, node) -> float:
     """An emitter's Strength as Cycles' estimate reads it: its folded value, or what feeds it."""
     strength = reader.param(socket, groups, 1, node)

@@ -31,6 +31,7 @@ from ...kernels.textures import srgb_to_linear
 from .graph import indexed_links, invalid_links, node_loop, run_nested, tree_nodes
 from .images import ImagePixels, ImageTextures
 from .lights import MAX_LIGHT_RADIANCE
+from .emission_estimate import SocketReader, surface_estimate
 from .materials import read_volume
 from .nodes import ProgramBuilder, texture_mapping_matrix
 from .shader_emission import emission_of, emits_nothing
@@ -86,7 +87,7 @@ def export_world(world, warnings: list[str], images=None, layer_attribute=None, 
     # Blender's sync hands Cycles the world's Light Settings > Distance as the integrator's AO distance; World >
     # Ray Visibility (Cycles' own) becomes its background's visibility (scene/background.cpp), read as Cycles reads it.
     result = dataclasses.replace(result, ao_distance=max(float(world.light_settings.distance), 0.0),
-                                 visibility=world_visibility(world))
+                                 visibility=world_visibility(world), emission_estimate=world_estimate(world))
     # World > Settings > Light > Max Bounces (Cycles' own, read as Cycles' sync_world reads it for its background light).
     bounces = int(getattr(getattr(world, "cycles", None), "max_bounces", NO_BOUNCE_LIMIT))
     if bounces < NO_BOUNCE_LIMIT:
@@ -239,15 +240,32 @@ def _program_world(world, images, issues: list[str], layer_attribute=None) -> Wo
         return World(color=color.astype(np.float32))
     program = builder.program()
     suns = sun_discs(program)
+    one = len(suns) == 1
     return World(color=np.zeros(3, np.float32), program=program, output=radiance,
-                 map_resolution=map_resolution(world, len(suns)), sun=suns[0] if len(suns) == 1 else None)
+                 map_resolution=map_resolution(world, len(suns)), sun=suns[0][0] if one else None,
+                 sun_radiance=suns[0][1] if one else 0.0)
 
 
-def sun_discs(program) -> list[np.ndarray]:
-    """The sun discs of the Sky Textures a world program evaluates, each (4,) float32: the world direction toward the
-    sun and half its angular diameter, as Cycles' device_update_background finds them for its background light to
-    aim at (scene/light.cpp: latitude the elevation, longitude the rotation + pi/2, both as Cycles' simplify_settings
-    stores them, through the inverse of the node's Texture Mapping). Only the scattering models draw a disc."""
+def world_estimate(world) -> np.ndarray | None:
+    """(3,) float32 Cycles' emission estimate of the world's Surface (Shader::estimate_emission, as a material's:
+    engine/export/emission_estimate.py, read from the sockets alone, no image decoded for it), which its light tree
+    multiplies the world's measure by; the world's colour without a node tree (Blender's sync makes a Background of
+    it); None without an output."""
+    tree = getattr(world, "node_tree", None)
+    if tree is None:
+        return np.array(rgb(world.color), np.float32)
+    out = output_node(tree)
+    if out is None or "Surface" not in out.inputs:
+        return None
+    return np.array(surface_estimate(SocketReader(), out.inputs["Surface"]), np.float32)
+
+
+def sun_discs(program) -> list[tuple]:
+    """The sun discs of the Sky Textures a world program evaluates, each ((4,) float32, float): the world direction
+    toward the sun and half its angular diameter, as Cycles' device_update_background finds them for its background
+    light to aim at (scene/light.cpp: latitude the elevation, longitude the rotation + pi/2, both as Cycles'
+    simplify_settings stores them, through the inverse of the node's Texture Mapping), and the disc's average
+    radiance as Cycles estimates it (sun_average_radiance). Only the scattering models draw a disc."""
     suns = []
     for op in program.ops:
         sky = op.option("precomputed") if op.kind == "ShaderNodeTexSky" else None
@@ -265,8 +283,23 @@ def sun_discs(program) -> list[np.ndarray]:
         if not np.isfinite(norm) or norm == 0:
             continue
         half = 0.5 * float(sky.angular_diameter)
-        suns.append(np.array([*(direction / norm), half], np.float32))
+        suns.append((np.array([*(direction / norm), half], np.float32), sun_average_radiance(sky)))
     return suns
+
+
+def sun_average_radiance(sky) -> float:
+    """Cycles' SkyTextureNode::get_sun_average_radiance (scene/shader_nodes.cpp): the mean of X, Y, Z at the disc's
+    middle (halfway between its lowest and highest point) x its intensity x its angular diameter squared, scaled
+    down for discs wider than 0.8 degrees (1 up to 0.8, 0.8 at 1 degree, toward 0.45 at 90 degrees, linearly)."""
+    diameter = float(sky.angular_diameter)
+    xyz = 0.5 * (np.asarray(sky.sun_bottom, np.float64) + np.asarray(sky.sun_top, np.float64)) * float(sky.sun_intensity)
+    value = float(xyz.mean()) * diameter ** 2
+    first, second, third = np.radians(0.8), np.radians(1.0), 0.5 * np.pi
+    if diameter < first:
+        return value
+    if diameter < second:
+        return value * (1.0 + (0.8 - 1.0) / (second - first) * (diameter - first))
+    return value * (0.8 + (0.45 - 0.8) / (third - second) * (diameter - second))
 
 
 def map_resolution(world, suns: int = 0) -> int:

@@ -235,10 +235,12 @@ class LightSampler:
         power = np.concatenate([self._light_power(), self._triangle_power(), [self._world_power()]])
         power = np.where(np.isfinite(power) & (power > 0), power, 0.0)
         self.world_index = self.light_count + len(self.tri_ids)
+        objects = object_links(scene)
+        # With Light Linking each light set takes its own choice (links.py), with the fixed distant share.
+        self.linked = objects is not None
         self.choice = selection.Choice(self, power, scene, self.light_tree)
         self.has_lights = self.choice.has_lights
         # Light Linking: a choice per light set that receivers use (links.py); None without linking.
-        objects = object_links(scene)
         self.links = None if objects is None or not self.has_lights else \
             EmitterLinks(self, objects, scene, power, self._triangle_rows(scene))
         # Light groups: each emitter's group (its light's pass), None when none is in one.
@@ -299,13 +301,13 @@ class LightSampler:
         """The lamps' weights as Cycles' light tree measures its emitters (scene/light_tree.cpp, LightTreeEmitter:
         the mean of |R|, |G|, |B| of the strength, 1 / (4 pi) of it for point and spot lights, 1 / pi for area
         lights, times the lamp shader's estimate): the mean of L times pi r^2 (1 for a point of no size) or the
-        area. Suns keep their irradiance, compared with the world's only (DISTANT_SHARE)."""
+        area; a sun's irradiance, which Cycles' root weighs against the world and the local tree (selection.cycles_root)."""
         mean = np.abs(self.radiance_of).astype(np.float64).mean(axis=1) * self.power_scale
         r2 = self.radius.astype(np.float64) ** 2
         punctual = np.where(r2 > 0, mean * np.pi * r2, mean)
-        sun = luminance(self.radiance_of).astype(np.float64) * self.power_scale
         punctual_kind = (self.kind == POINT) | (self.kind == SPOT)
-        return np.select([punctual_kind, self.kind == SUN], [punctual, sun], mean * self.area)
+        # A sun's: the mean of |R|, |G|, |B| of its irradiance, as Cycles' (compared with the world's in its root).
+        return np.select([punctual_kind, self.kind == SUN], [punctual, mean], mean * self.area)
 
     def _triangle_power(self) -> np.ndarray:
         if not len(self.tri_ids):
@@ -331,6 +333,16 @@ class LightSampler:
             return 0.0   # Sampling Method None: BSDF rays alone find it
         if not self.environment.varies and self.portals is None:
             return 0.0
+        if self.cycles_shares:
+            # As Cycles' light tree measures its background light (scene/light_tree.cpp: the world shader's emission
+            # estimate x the average radiance x pi; with a sun disc the average is 0.8 x the map's + 0.2 x the sun's,
+            # scene/light.cpp): its share against the lamps in a clamped render (selection.cycles_root).
+            world = self.environment.world
+            average = self.environment.cycles_average_radiance()
+            if world.sun is not None:
+                average = 0.8 * average + 0.2 * float(world.sun_radiance)
+            estimate = 1.0 if world.emission_estimate is None else float(np.abs(world.emission_estimate).mean())
+            return float(average * np.pi * estimate)
         return float(4 * np.pi * self.environment.mean_luminance())
 
     def distant_mask(self) -> np.ndarray:
@@ -383,9 +395,15 @@ class LightSampler:
         the MIS pdfs."""
         return isinstance(self.tree, (LightTree, CyclesLightTree)) or self.links is not None
 
-    def distant_pmf(self, emitter: int, n: int, receiver=None):
-        """The global pmf of a distant emitter (a sun, the world): one float32, or (n,) per receiver set."""
+    def distant_pmf(self, emitter: int, n: int, receiver=None, px=None, py=None, pz=None, facing=None):
+        """The pmf of a distant emitter (a sun, the world): one float32, or (n,) per receiver set, or per point p
+        (facing: as choose_at's) where the choice weighs the distant emitters per point as Cycles' root does
+        (selection.root_share: a clamped render)."""
         if receiver is None or self.links is None:
+            if self.choice.root is not None:
+                if px is None:
+                    raise ValueError("distant_pmf: this choice needs the points the rays left")
+                return selection.distant_pmf_at(self.choice, emitter, px, py, pz, facing).astype(np.float32)
             return self.pmf32[emitter]
         return self.links.pmf(emitter, receiver)
 
@@ -476,19 +494,25 @@ class LightSampler:
         (triangles.pdf_hit)."""
         return triangles.pdf_hit(self, tri, dist, cos_l, ox, oy, oz, receiver, facing, backfacing)
 
-    def pdf_world(self, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=None) -> np.ndarray:
-        """pdf (solid angle, with selection) of NEE for world directions d from points o (world.pdf; o matters
-        only with light portals)."""
-        return world.pdf(self, dx, dy, dz, focus, receiver, ox, oy, oz)
+    def pdf_world(self, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=None, facing=None) -> np.ndarray:
+        """pdf (solid angle, with selection) of NEE for world directions d from points o (world.pdf; o and facing
+        matter with light portals and where the choice weighs distant emitters per point: weighs_distant)."""
+        return world.pdf(self, dx, dy, dz, focus, receiver, ox, oy, oz, facing)
+
+    @property
+    def weighs_distant(self) -> bool:
+        """Whether the choice of a distant emitter depends on the point and its normal (Cycles' root in a clamped
+        render: selection.root_share): MIS pdfs of the world and suns then need the points the rays left."""
+        return self.choice.root is not None
 
     def suns_seen(self, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None,
-                  types=None):
+                  types=None, points=None):
         """(3, n) radiance of the sun discs that rays leaving the scene along d look into, MIS-weighed
         (sun.seen); None when the scene has no sun with a disc. shadow_linked: count the suns whose light
         dedicated rays count (kernels/shadow_linking.py) too; parts: a list that takes each sun's share;
         types: (n,) uint8 the rays' types (kernels/visibility.py ray_types), or None: a sun that does not see
         a ray's type gives it nothing (kernels/lights/ray_visibility.py)."""
-        return sun.seen(self, dx, dy, dz, bsdf_pdf, receiver, shadow_linked, parts, types)
+        return sun.seen(self, dx, dy, dz, bsdf_pdf, receiver, shadow_linked, parts, types, points)
 
     def camera_suns(self, dx, dy, dz, parts=None):
         """(3, n) radiance of the sun discs of Ray Visibility > Camera that camera rays leaving the scene along d

@@ -9,7 +9,8 @@ import numpy as np
 
 from ..geometry import scene_extent
 from ..light_tree import LightTree
-from ..light_tree_cycles import AREA, MESH, POINT, SPOT as UNIT_SPOT, CyclesLightTree, Units, merge_cones
+from ..light_tree_cycles import (AREA, MESH, POINT, SPOT as UNIT_SPOT, CyclesLightTree, Units, distant_bounds,
+                                 left_probability, merge_cones)
 from ..textures import luminance
 from ..vec import normalize_floored_xyz
 from ..vec import HALF_PI
@@ -58,6 +59,9 @@ class Choice:
             self.cdf /= self.cdf[-1]
         self.pmf32 = self.select_pmf.astype(np.float32)
         self.tree_divergence = 0.0
+        # Cycles' root between the local emitters and the distant ones, in a clamped render (cycles_root): the
+        # distant node's energy and cone; None: the fixed local_share.
+        self.root = None
         self.tree = local_choice(sampler, self, power, scene) if self.has_lights and tree else None
 
 
@@ -72,7 +76,8 @@ def local_choice(sampler, choice: Choice, power, scene):
     local = np.flatnonzero(~distant & (power > 0))
     cycles = sampler.cycles_shares
     few = 2 <= len(local) <= SOLID_ANGLE_MAX_EMITTERS and bool((local >= sampler.light_count).all()) and not cycles
-    if len(local) < TREE_MIN_EMITTERS and not few:
+    rooted = cycles and len(local) >= 1 and bool((distant & (power > 0)).any()) and not sampler.linked
+    if len(local) < TREE_MIN_EMITTERS and not few and not rooted:
         return None
     choice.distant_ids = np.flatnonzero(distant & (choice.select_pmf > 0))
     # Exactly 1 without distant emitters: a rounded sum would send a few points to none.
@@ -120,12 +125,49 @@ def local_choice(sampler, choice: Choice, power, scene):
     group = np.full(len(local), -1, np.int64)
     group[~is_light] = triangle_groups(sampler, scene, local[~is_light] - sampler.light_count)
     if cycles:
+        if rooted:
+            choice.root = cycles_root(sampler, power)
         return _cycles_tree(sampler, local, is_light, lo, hi, axis, spread, emission, group, power[local])
     tree = LightTree(lo, hi, power[local], axis, spread, group, emission)
     has_geometry = len(scene.positions) or (scene.instances is not None and scene.instances.count)
     box = scene_extent(scene) if has_geometry else None
     choice.tree_divergence = _divergence(tree, choice.select_pmf[local] / choice.local_share, box)
     return tree if tree.units > 1 or choice.tree_divergence >= TREE_MIN_DIVERGENCE else None
+
+
+def cycles_root(sampler, power) -> tuple:
+    """(energy, cone) of Cycles' distant node, the root's other child beside the local emitters' tree
+    (scene/light_tree.cpp: all distant lights in one leaf): their energies summed (power: the sampler's Cycles
+    measures, LightSampler._cycles_light_power and _world_power) and their cones merged, a sun's along the light it
+    sends (theta_o 0, theta_e half its angle), the world's every way (theta_o pi)."""
+    cone, energy = None, 0.0
+    for k in np.flatnonzero(sampler.distant_mask() & (power > 0)):
+        if k == sampler.world_index:
+            own = ((0.0, 0.0, 1.0), np.pi, 0.0)
+        else:
+            toward = sampler.axes[k, :, 2].astype(np.float64)
+            own = (tuple(float(c) for c in -toward), 0.0, float(np.arccos(np.clip(sampler.sun_cos[k], -1.0, 1.0))))
+        cone = merge_cones(cone, own)
+        energy += float(power[k])
+    return energy, cone
+
+
+def root_share(choice: Choice, px, py, pz, facing=None):
+    """The local emitters' share of the light choices at points p: Cycles' get_left_probability at its root, the
+    local tree against the distant node (choice.root), in a clamped render; else the fixed choice.local_share."""
+    if choice.root is None:
+        return choice.local_share
+    upper, lower = choice.tree.root_bounds(px, py, pz, facing)
+    d_upper, d_lower = distant_bounds(choice.root[0], choice.root[1], facing, len(px))
+    share = left_probability(upper, lower, d_upper, d_lower)
+    return np.where(np.isnan(share), choice.local_share, share)
+
+
+def distant_pmf_at(choice: Choice, emitter: int, px, py, pz, facing=None):
+    """(n,) float64 probability that NEE at points p chooses distant emitter (a sun, the world): its share of the
+    distant emitters times their share at p (root_share)."""
+    within = choice.select_pmf[emitter] / max(1.0 - choice.local_share, 1e-300)
+    return within * (1.0 - root_share(choice, px, py, pz, facing))
 
 
 def _cycles_tree(sampler, local, is_light, lo, hi, axis, spread, emission, group, power) -> CyclesLightTree:
@@ -264,22 +306,26 @@ def choose_at(choice: Choice, u_select, px, py, pz, facing=None):
         chosen = choose(choice, u_select)
         return chosen, np.take(choice.pmf32, chosen)
     u = u_select.astype(np.float64)
-    share = choice.local_share
+    share = root_share(choice, px, py, pz, facing)
+    shares = np.broadcast_to(np.asarray(share, np.float64), u.shape)
     chosen = np.zeros(len(u), np.int64)
     select = np.zeros(len(u), np.float64)
-    local = np.flatnonzero(u < share) if share < 1 else np.arange(len(u))
+    local = np.flatnonzero(u < shares) if choice.root is not None or share < 1 else np.arange(len(u))
     if len(local):
-        e, pmf = choice.tree.sample(u[local] / share, px[local], py[local], pz[local],
+        s = shares[local]
+        e, pmf = choice.tree.sample(u[local] / s, px[local], py[local], pz[local],
                                     None if facing is None else tuple(c[local] for c in facing))
         chosen[local] = choice.tree_ids[e]
-        select[local] = share * pmf
-    if share < 1:
-        far = np.flatnonzero(u >= share)
+        select[local] = s * pmf
+    if choice.root is not None or share < 1:
+        far = np.flatnonzero(u >= shares)
         if len(far):
-            ud = (u[far] - share) / (1.0 - share)
+            s = shares[far]
+            ud = (u[far] - s) / (1.0 - s)
             j = np.minimum(np.searchsorted(choice.distant_cdf, ud, side="right"), len(choice.distant_ids) - 1)
             chosen[far] = choice.distant_ids[j]
-            select[far] = choice.select_pmf[chosen[far]]
+            select[far] = choice.select_pmf[chosen[far]] if choice.root is None else \
+                choice.select_pmf[chosen[far]] / (1.0 - choice.local_share) * (1.0 - s)
     return chosen, select.astype(np.float32)
 
 
@@ -289,8 +335,12 @@ def selection_pmf(choice: Choice, emitter, px, py, pz, facing=None):
     if choice.tree is None:
         return np.take(choice.pmf32, emitter)
     slot = np.take(choice.tree_slot, emitter)
-    local = choice.tree.pmf(slot, px, py, pz, facing) * choice.local_share
-    return np.where(slot >= 0, local, np.take(choice.select_pmf, emitter)).astype(np.float32)
+    share = root_share(choice, px, py, pz, facing)
+    local = choice.tree.pmf(slot, px, py, pz, facing) * share
+    distant = np.take(choice.select_pmf, emitter)
+    if choice.root is not None:
+        distant = distant / (1.0 - choice.local_share) * (1.0 - share)
+    return np.where(slot >= 0, local, distant).astype(np.float32)
 
 
 class SolidAngleChoice:

@@ -20,7 +20,8 @@ def sample(sampler, out, idx, light, px, py, pz, u1, u2):
     out.set(idx, wx, wy, wz, np.float32(np.inf), sampler.sun_radiance[light].T, pdf, delta)
 
 
-def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None, types=None):
+def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None, types=None,
+         points=None):
     """(3, n) radiance of the sun discs that rays leaving the scene along d (x, y, z of (n,)) look into, each
     weighed by MIS (power heuristic) against its own light samples given the pdf of the BSDF sample that
     chose d (None: not weighed, as after a singular bounce), as Cycles' escaped rays see suns; None when
@@ -29,7 +30,9 @@ def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool 
     (dedicated rays count those, kernels/shadow_linking.py) unless shadow_linked, as Cycles'
     integrate_sun_lights (kernel/integrator/shade_background.h). parts: a list, or None: each sun's share is
     appended to it, (sun, columns (m,), (3, m) radiance), for its light group's pass. types: (n,) uint8 the
-    rays' types, or None: a sun that does not see a ray's type gives it nothing (kernels/lights/ray_visibility.py)."""
+    rays' types, or None: a sun that does not see a ray's type gives it nothing (kernels/lights/ray_visibility.py).
+    points: (px, py, pz, facing) of the vertices the rays left, where the choice weighs distant emitters per point
+    (sampler.weighs_distant)."""
     if not len(sampler.sun_discs):
         return None
     out = np.zeros((3, len(dx)), np.float32)
@@ -52,9 +55,14 @@ def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool 
                 light_pdf = links.pmf(k, receiver[inside]) * sampling.uniform_cone_pdf(sampler.sun_cos[k])
                 weight = sampling.power_heuristic(np.take(bsdf_pdf, inside), light_pdf)
         elif bsdf_pdf is not None and sampler.select_pmf[k] > 0:
-            light_pdf = np.float32(sampler.select_pmf[k]) * sampling.uniform_cone_pdf(sampler.sun_cos[k])
-            weight = sampling.power_heuristic(np.take(bsdf_pdf, inside),
-                                              np.full(len(inside), light_pdf, np.float32))
+            if sampler.weighs_distant:
+                px, py, pz, fac = points
+                pmf = sampler.distant_pmf(int(k), len(inside), None, px[inside], py[inside], pz[inside],
+                                          None if fac is None else tuple(c[inside] for c in fac))
+            else:
+                pmf = np.full(len(inside), sampler.select_pmf[k], np.float32)
+            light_pdf = (pmf * sampling.uniform_cone_pdf(sampler.sun_cos[k])).astype(np.float32)
+            weight = sampling.power_heuristic(np.take(bsdf_pdf, inside), light_pdf)
         share = sampler.sun_radiance[k][:, None] * weight * _shaded(sampler, k, dx, dy, dz, inside)
         out[:, inside] += share
         if parts is not None:

@@ -119,9 +119,10 @@ def _sample(sampler, out, idx, u1, u2, focus=None, px=None, py=None, pz=None):
     out.world[idx] = True
 
 
-def pdf(sampler, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=None) -> np.ndarray:
+def pdf(sampler, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=None, facing=None) -> np.ndarray:
     """pdf (solid angle, with selection) with which NEE would have sampled world directions d from the points o
-    the rays left (focus: as given to sample(); receiver: the light sets of those points, or None)."""
+    the rays left (focus: as given to sample(); receiver: the light sets of those points, or None; facing: their
+    normals as the light choice reads them, choose_at's)."""
     if not sampler.samples_world():
         return np.zeros(len(dx), np.float32)
     direction_pdf = _direction_pdf(sampler, dx, dy, dz, focus, ox, oy, oz)
@@ -129,7 +130,7 @@ def pdf(sampler, dx, dy, dz, focus=None, receiver=None, ox=None, oy=None, oz=Non
     if sun is not None:
         share = sun_share(sampler, ox, oy, oz)
         direction_pdf = ((F32(1.0) - share) * direction_pdf + share * _sun_pdf(sun, dx, dy, dz)).astype(F32)
-    return sampler.distant_pmf(sampler.world_index, len(dx), receiver) * direction_pdf
+    return sampler.distant_pmf(sampler.world_index, len(dx), receiver, ox, oy, oz, facing) * direction_pdf
 
 
 def _direction_pdf(sampler, dx, dy, dz, focus=None, ox=None, oy=None, oz=None) -> np.ndarray:

@@ -54,6 +54,11 @@ class World:
         angular diameter in radians), which the world's light samples aim at directly as Cycles' background light
         does (kernel/light/background.h background_sun_sample: 4 parts in 5 against the map's 1, scene/light.cpp);
         None without such a sky, or with several.
+    sun_radiance : with sun, Cycles' average radiance of that disc (SkyTextureNode::get_sun_average_radiance), which
+        its light tree counts a fifth of in the world's measure (scene/light.cpp).
+    emission_estimate : (3,) float32 Cycles' emission estimate of the world's Surface (Shader::estimate_emission: a
+        Background's Color, white where linked, times its Strength), which its light tree multiplies the world's
+        measure by; None: 1.
     max_bounces : the world's Max Bounces (World > Settings > Light): its light samples light only the vertices
         at most that many bounces deep (NO_BOUNCE_LIMIT: all), as a lamp's (Lights.max_bounces).
     """
@@ -74,6 +79,8 @@ class World:
     visibility: int = ALL_RAYS
     light_sampled: bool = True
     sun: np.ndarray | None = None
+    sun_radiance: float = 0.0
+    emission_estimate: np.ndarray | None = None
 
     def validate(self) -> None:
         check_array(self.color, "world.color", (3,), np.float32)
