@@ -1,10 +1,10 @@
 """Ember against Cycles on .blend files other people made, each rendered as saved.
 
-    .venv/bin/python bench/corpus.py FOLDER [-o OUT] [--samples 32] [--long-side 160] [--seed 0]
+    .venv/bin/python bench/corpus.py FOLDER [-r] [-o OUT] [--samples 32] [--long-side 160] [--seed 0]
                                             [--threads 2] [--timeout 600] [--only SUBSTRING]
                                             [--set PATH=VALUE ...]
 
-Every .blend in FOLDER is rendered by each engine in a fresh process (bench/corpus_render.py): its own
+Every .blend in FOLDER (with -r, in its subfolders too, each named by its path under FOLDER) is rendered by each engine in a fresh process (bench/corpus_render.py): its own
 camera, scene and frame, the long side scaled to --long-side pixels, equal samples, seeds and bounces,
 the file's clamping and Filter Glossy for both (Ember takes the file's Cycles settings where it has them,
 and the ones it lacks are printed), no denoising or adaptive sampling, --threads threads. A crash, an
@@ -24,7 +24,7 @@ noise. Per file the tool prints
   - a verdict: 'beyond noise' when the 90th percentile of the blocks' differences over the noise of the
     difference (both engines' noise) exceeds 2.5, or the whole image's difference exceeds 4 standard
     errors;
-and writes OUT/<file>.png: Cycles | Ember | a heat map of the blocks' differences over their noise (red:
+and writes OUT/<file>.png (a path's folders joined by _): Cycles | Ember | a heat map of the blocks' differences over their noise (red:
 Ember brighter, blue: darker; full colour at 5 standard errors) over a dim copy of the Cycles image.
 The images are shown with the sRGB curve, not the file's view transform. At the end: a markdown table
 (also OUT/summary.md) to paste into an issue.
@@ -76,9 +76,20 @@ class EngineRun:
     errors: list = field(default_factory=list)
 
 
-def blend_files(folder: str, only: str | None = None) -> list[str]:
-    names = sorted(n for n in os.listdir(folder) if n.lower().endswith(".blend"))
-    return [os.path.join(folder, n) for n in names if only is None or only.lower() in n.lower()]
+def blend_files(folder: str, only: str | None = None, recursive: bool = False) -> list[str]:
+    """The .blend files in folder (and its subfolders with recursive), sorted by their path under it; only: those
+    whose name contains it."""
+    if recursive:
+        names = sorted(os.path.relpath(os.path.join(root, n), folder) for root, _, files in os.walk(folder)
+                       for n in files if n.lower().endswith(".blend"))
+    else:
+        names = sorted(n for n in os.listdir(folder) if n.lower().endswith(".blend"))
+    return [os.path.join(folder, n) for n in names if only is None or only.lower() in os.path.basename(n).lower()]
+
+
+def file_label(path: str, folder: str) -> str:
+    """A file's name in the reports: its path under the folder (its name alone when it lies in the folder)."""
+    return os.path.relpath(path, folder).replace(os.sep, "/")
 
 
 def parse_reports(stdout: str) -> tuple[list[str], list[str]]:
@@ -284,7 +295,7 @@ def failures_of(cycles: EngineRun, ember: EngineRun) -> list[str]:
 
 
 def compare_file(path: str, args) -> FileResult:
-    result = FileResult(os.path.basename(path))
+    result = FileResult(file_label(path, args.folder))
     with tempfile.TemporaryDirectory() as workdir:
         cycles = render_file(path, "CYCLES", args, workdir)
         ember = render_file(path, "EMBER", args, workdir)
@@ -300,7 +311,7 @@ def compare_file(path: str, args) -> FileResult:
     result.comparison = compare(cycles.images, ember.images)
     result.time_ratio = float(np.mean(ember.seconds) / np.mean(cycles.seconds))
     mean_c, mean_e = (run.images[..., :3].astype(np.float64).mean(axis=0) for run in (cycles, ember))
-    result.png = os.path.join(args.output, os.path.splitext(result.name)[0] + ".png")
+    result.png = os.path.join(args.output, os.path.splitext(result.name)[0].replace("/", "_") + ".png")
     write_png(result.png, side_by_side(mean_c, mean_e, result.comparison.block_z))
     return result
 
@@ -356,7 +367,10 @@ def summary_table(results: list[FileResult], args) -> str:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description="Render every .blend in a folder with Cycles and Ember, as "
                                                  "saved, and compare them.")
-    parser.add_argument("folder", help="folder holding .blend files (not searched recursively)")
+    parser.add_argument("folder", help="folder holding .blend files")
+    parser.add_argument("-r", "--recursive", action="store_true",
+                        help="also the .blend files in its subfolders (a collection of repositories, each file "
+                             "beside the images it links: they are opened where they lie), named by their path")
     parser.add_argument("-o", "--output", default=os.path.join("out", "corpus"),
                         help="where the side-by-side PNGs and summary.md go (default: out/corpus)")
     parser.add_argument("--samples", type=int, default=32, help="samples per pixel of each render (default 32)")
@@ -381,7 +395,7 @@ def main(argv=None) -> int:
         print("corpus: error: --samples and --threads must be at least 1, --long-side at least 8, --timeout "
               "positive", file=sys.stderr)
         return 2
-    files = blend_files(args.folder, args.only)
+    files = blend_files(args.folder, args.only, args.recursive)
     if not files:
         print(f"corpus: error: no .blend files in {args.folder}", file=sys.stderr)
         return 2

@@ -81,6 +81,23 @@ def test_black_images_compare_without_nan():
     assert corpus.compare(black, lit).beyond_noise
 
 
+def test_a_collection_of_repositories_is_searched_with_recursive(tmp_path):
+    """-r: the .blend files in the subfolders too (each repository's files beside its images), named by their path so
+    that two main.blend stay apart, and --only matching the file's own name; without it, the folder's own files."""
+    from bench.corpus import blend_files, build_parser, file_label
+    for rel in ("top.blend", "owner+repo/main.blend", "owner+repo/blend/main.blend", "other+repo/scene.BLEND",
+                "other+repo/notes.txt"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_bytes(b"")
+    folder = str(tmp_path)
+    assert [file_label(f, folder) for f in blend_files(folder)] == ["top.blend"]
+    found = [file_label(f, folder) for f in blend_files(folder, recursive=True)]
+    assert found == ["other+repo/scene.BLEND", "owner+repo/blend/main.blend", "owner+repo/main.blend", "top.blend"]
+    assert [file_label(f, folder) for f in blend_files(folder, "main", True)] == ["owner+repo/blend/main.blend",
+                                                                                 "owner+repo/main.blend"]
+    assert build_parser().parse_args([folder, "-r"]).recursive
+
+
 def test_reports_are_read_from_a_renders_output():
     stdout = ("Fra:1 Mem:10M | Sample 1/4\n"
               "Ember | Frame 1 | Warning: Material 'A': Wireframe node 'W' is not supported\n"
