@@ -149,6 +149,8 @@ def escaped(tables, wave, state, rays, hits, ended=None):
     if not len(miss):
         return
     mx, my, mz = d[miss, 0], d[miss, 1], d[miss, 2]
+    # The vertices the rays left, where the choice of a distant emitter depends on them (sun discs, the world's MIS).
+    points = _left_points(state, rays, miss) if tables.lights.weighs_distant else None
     env = np.take(state.throughput, miss, axis=1) * light
     if state.escape_scale is not None:
         env *= np.take(state.escape_scale, miss)
@@ -166,11 +168,12 @@ def escaped(tables, wave, state, rays, hits, ended=None):
         if len(mis):
             heuristic = sampling.balance_heuristic if tables.environment.mis_balance else sampling.power_heuristic
             focus = None if state.focus is None else state.focus.take(miss[mis])
-            weighs = tables.lights.weighs_distant
-            o = kept_origins(state, rays, miss[mis])[0] if tables.lights.portals is not None or weighs else None
+            left = points if points is not None else \
+                _left_points(state, rays, miss) if tables.lights.portals is not None else None
+            o = (None,) * 4 if left is None else tuple(None if c is None else _rows_of(c, mis) for c in left)
             sampling.scale_columns(env, mis, heuristic(state.bsdf_pdf[miss[mis]], tables.lights.pdf_world(
                 mx[mis], my[mis], mz[mis], focus, None if state.link_set is None else state.link_set[miss[mis]],
-                *((None,) * 3 if o is None else o.T), facing_of(state.mis_facing, miss[mis]) if weighs else None)))
+                *o)))
     later = np.flatnonzero(state.bounce[miss] > 0)   # camera rays do not see lamps
     world, suns = env, []   # the light groups' parts: the world's, and each sun's
     if len(later) and len(tables.lights.sun_discs):
@@ -182,7 +185,8 @@ def escaped(tables, wave, state, rays, hits, ended=None):
                                       None if state.link_set is None else state.link_set[miss[later]],
                                       parts=None if wave.groups is None else suns,
                                       types=None if types is None else types[miss[later]],
-                                      points=_left_points(tables, state, rays, miss[later]))
+                                      points=None if points is None else
+                                      tuple(None if c is None else _rows_of(c, later) for c in points))
         sun *= np.take(state.throughput, miss[later], axis=1)
         if state.escape_scale is not None:
             sun *= np.take(state.escape_scale, miss[later])
@@ -236,14 +240,16 @@ def emission_on_hit(tables, wave, state, hit, shading, hits, rays, found):
         passes.write_light(tables, wave, state, lit[later], le[:, later])
 
 
-def _left_points(tables, state, rays, rows):
-    """(px, py, pz, facing) of the vertices the rays of state rows left (as Cycles keeps a ray's origin), where the
-    light choice weighs the distant emitters per point (LightSampler.weighs_distant); else None."""
-    if not tables.lights.weighs_distant:
-        return None
+def _left_points(state, rays, rows):
+    """(px, py, pz, facing) of the vertices the rays of state rows left (as Cycles keeps a ray's origin)."""
     o = kept_origins(state, rays, rows)[0]
     return np.ascontiguousarray(o[:, 0]), np.ascontiguousarray(o[:, 1]), np.ascontiguousarray(o[:, 2]), \
         facing_of(state.mis_facing, rows)
+
+
+def _rows_of(column, idx):
+    """Rows idx of one of _left_points' parts (an array, or the facing tuple)."""
+    return tuple(np.take(c, idx) for c in column) if isinstance(column, tuple) else np.take(column, idx)
 
 
 def _suns_seen_by_camera(tables, wave, state, rays, miss) -> None:

@@ -166,8 +166,15 @@ def root_share(choice: Choice, px, py, pz, facing=None):
 def distant_pmf_at(choice: Choice, emitter: int, px, py, pz, facing=None):
     """(n,) float64 probability that NEE at points p chooses distant emitter (a sun, the world): its share of the
     distant emitters times their share at p (root_share)."""
-    within = choice.select_pmf[emitter] / max(1.0 - choice.local_share, 1e-300)
-    return within * (1.0 - root_share(choice, px, py, pz, facing))
+    return _distant(choice, choice.select_pmf[emitter], root_share(choice, px, py, pz, facing))
+
+
+def _distant(choice: Choice, global_pmf, share):
+    """The pmf of distant emitters whose global pmf is global_pmf where the local ones take `share`: global_pmf itself
+    with the fixed share; with Cycles' root, their part of the distant emitters times 1 - share."""
+    if choice.root is None:
+        return global_pmf
+    return global_pmf / max(1.0 - choice.local_share, 1e-300) * (1.0 - share)
 
 
 def _cycles_tree(sampler, local, is_light, lo, hi, axis, spread, emission, group, power) -> CyclesLightTree:
@@ -324,8 +331,7 @@ def choose_at(choice: Choice, u_select, px, py, pz, facing=None):
             ud = (u[far] - s) / (1.0 - s)
             j = np.minimum(np.searchsorted(choice.distant_cdf, ud, side="right"), len(choice.distant_ids) - 1)
             chosen[far] = choice.distant_ids[j]
-            select[far] = choice.select_pmf[chosen[far]] if choice.root is None else \
-                choice.select_pmf[chosen[far]] / (1.0 - choice.local_share) * (1.0 - s)
+            select[far] = _distant(choice, choice.select_pmf[chosen[far]], s)
     return chosen, select.astype(np.float32)
 
 
@@ -337,9 +343,7 @@ def selection_pmf(choice: Choice, emitter, px, py, pz, facing=None):
     slot = np.take(choice.tree_slot, emitter)
     share = root_share(choice, px, py, pz, facing)
     local = choice.tree.pmf(slot, px, py, pz, facing) * share
-    distant = np.take(choice.select_pmf, emitter)
-    if choice.root is not None:
-        distant = distant / (1.0 - choice.local_share) * (1.0 - share)
+    distant = _distant(choice, np.take(choice.select_pmf, emitter), share)
     return np.where(slot >= 0, local, distant).astype(np.float32)
 
 
