@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .scene import corner_values
+from .vec import cross_rows_fused, dot_rows_fused
 
 # Largest angle between two triangles' normals for them to lie on one another (radians).
 PLANE_ANGLE = 1e-3
@@ -36,6 +37,7 @@ class Coincident:
         # Per partner, whether it is a copy of the triangle (copy_pairs): met whatever its material (among).
         self.copy = np.zeros(len(partners), bool) if copy is None else copy
         self.opaque = None        # (T,) bool, the triangles that stop what meets them (set by the renderer)
+        self.offset = None        # offset(|p|max) -> how far a new ray's origin moves off a surface (find's), or None
         self._boxes = _pair_boxes(offsets, partners, positions)
 
     @classmethod
@@ -56,7 +58,10 @@ class Coincident:
         candidates = np.flatnonzero(through)
         if len(candidates) and len(positions) >= 2:
             found += _pair_keys(corner_values(positions), [(candidates, objects, None)], offset)
-        return cls._of_keys(found, len(positions), positions, objects, copies)
+        coincident = cls._of_keys(found, len(positions), positions, objects, copies)
+        if coincident is not None:
+            coincident.offset = offset
+        return coincident
 
     @classmethod
     def _of_keys(cls, found, count: int, positions, objects, copies=None) -> "Coincident | None":
@@ -78,8 +83,7 @@ class Coincident:
         may be met besides copies of the triangle left, which always may (None: all); other_object: only partners
         of another object than the triangle left.
         side: for rays that leave their surface on one side (a reflection, a shadow ray), that side's normal
-        (x, y, z of (n,)): a partner lying behind the surface on the other side (by more than the float error of
-        two copies of one plane, AHEAD_TOLERANCE of the coordinates) is not met."""
+        (x, y, z of (n,)): a partner is met where Embree's own test meets it from the point (embree_meets)."""
         m = len(prim)
         partner = np.full(m, -1, np.int64)
         b1, b2 = np.zeros(m, np.float32), np.zeros(m, np.float32)
@@ -108,12 +112,15 @@ class Coincident:
         tri = corner_values(self._positions, which).astype(np.float64)
         w1, w2, holds = _barycentrics(tri, q)
         if side is not None:
-            at = np.flatnonzero(holds)
-            g = np.stack([np.take(c, ray[at]) for c in side], axis=1).astype(np.float64)
-            own = corner_values(self._positions, np.take(prim, ray[at])).astype(np.float64)
-            u = q[at].astype(np.float32).view(np.uint32).astype(np.uint64)
-            bits = ((u[:, 0] * 73856093) ^ (u[:, 1] * 19349663) ^ (u[:, 2] * 83492791)) >> np.uint64(7)
-            holds[at] = _ahead(own, tri[at], q[at], g, bits)
+            g = np.stack([np.take(c, ray) for c in side], axis=1).astype(np.float32)
+            holds = embree_meets(corner_values(self._positions, which), q.astype(np.float32), g)
+        if self.offset is not None:
+            # A partner further from the point than a new ray's origin moves (twice, for rounding) is met by that ray
+            # itself: pairs are found by the offset at their corners' size, and a Solidify spike hundreds of km long
+            # pairs with a parallel wall metres away.
+            n = _normals(tri)
+            height = np.abs(np.einsum("ij,ij->i", n, tri[:, 0] - q)) / np.maximum(np.linalg.norm(n, axis=1), 1e-300)
+            holds &= height <= 2.0 * self.offset(np.abs(q).max(axis=1))
         hit = np.flatnonzero(holds)
         if len(hit):
             first = np.unique(ray[hit], return_index=True)[1]
@@ -436,30 +443,33 @@ def _edge_sides(first, second, third):
     return side, across, e, f
 
 
-# Two copies of one plane (a duplicated face, the faces of two duplicated objects) differ by float rounding of
-# their corners: about this much of the coordinates' size. Planes further apart lie on one side of each other.
-AHEAD_TOLERANCE = 2.0 ** -21
-
-
-def _ahead(own, tri, q, g, bits) -> np.ndarray:
-    """(m,) bool: at points q (m, 3) of triangles own (m, 3, 3), rays leaving on the side g (m, 3) meet triangles
-    tri, as Cycles' rays, which skip only the triangle they leave, do: a plane further ahead than the rounding
-    of copies (AHEAD_TOLERANCE) is met, one further behind is not. Of two copies of one plane the ray's start
-    decides: Cycles' lies on its triangle up to the rounding of its coordinates, and the copy is met when that
-    puts it behind the copy. On a plane of constant x, y or z (the copy's corners share it) that coordinate
-    is the copy's own and the copy is always met (a duplicated cube's faces render black); on a turned plane
-    the rounding goes either way, here a bit of a hash of the point's float32 coordinates (bits: (m,) uint64), so
-    about half the rays meet the copy (in Cycles 40-61% by the plane's orientation, 50% over ten random planes)."""
-    def height(t):
-        n = _normals(t)
-        n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
-        n *= np.where(np.einsum("ij,ij->i", n, g) < 0, -1.0, 1.0)[:, None]
-        return np.einsum("ij,ij->i", n, t[:, 0] - q)
-    size = np.maximum(np.abs(tri).max(axis=(1, 2)), np.abs(q).max(axis=1))
-    gap = height(tri) - height(own)
-    copy = np.abs(gap) <= AHEAD_TOLERANCE * size
-    flat = ((tri[:, 0] == tri[:, 1]) & (tri[:, 1] == tri[:, 2])).any(axis=1)
-    return np.where(copy, flat | ((bits & 1) == 0), gap > 0)
+def embree_meets(tri, q, d) -> np.ndarray:
+    """(m,) bool: whether a ray from q (m, 3) float32, a point on a triangle lying on tri (m, 3, 3), leaving in
+    direction d (m, 3) float32 (its side's normal will do: the ray starts in the plane, so where it meets it does
+    not depend on the direction), meets tri by Embree's robust triangle test, the one Cycles' scenes use
+    (RTC_SCENE_FLAG_ROBUST: embree kernels/geometry/triangle_intersector_pluecker.h), in float32 as Embree runs it.
+    Cycles' rays skip only the triangle they leave and start where its hit lies (tmin 0, a hit at t >= 0 counts),
+    so whether they meet a face lying on theirs is this test's rounding: the corners taken from the ray's origin,
+    the edge tests U, V, W within a float32 epsilon of their sum, and the sign of T = (corner 0 - origin) . Ng
+    against the side. A face of constant x, y or z that the point lies in exactly gives T = 0: met (a duplicated
+    cube renders black); a turned one is met by about half the rays; a face a hair ahead or behind, beyond the
+    rounding, is met or not; and the rounding grows with the distance to the corners (a Solidify spike hundreds of
+    km long lying on a wall meets a ray or not by chance)."""
+    v0, v1, v2 = (tri[:, k] - q for k in range(3))
+    e0, e1, e2 = v2 - v0, v0 - v1, v1 - v2
+    u = dot_rows_fused(cross_rows_fused(e0, v2 + v0), d)
+    v = dot_rows_fused(cross_rows_fused(e1, v0 + v1), d)
+    w = dot_rows_fused(cross_rows_fused(e2, v1 + v2), d)
+    eps = np.float32(np.finfo(np.float32).eps) * np.abs(u + v + w)
+    inside = (np.minimum(np.minimum(u, v), w) >= -eps) | (np.maximum(np.maximum(u, v), w) <= eps)
+    # Embree's stable_triangle_normal (common/math/vec3.h): per component, the cross product of the two edges whose
+    # products are the smaller.
+    ab = e0[:, [2, 0, 1]] * e1[:, [1, 2, 0]]
+    bc = e1[:, [2, 0, 1]] * e2[:, [1, 2, 0]]
+    ng = np.where(np.abs(ab) < np.abs(bc), cross_rows_fused(e0, e1), cross_rows_fused(e1, e2))
+    den = dot_rows_fused(ng, d)
+    t = dot_rows_fused(v0, ng)
+    return inside & (den != 0) & ((t == 0) | ((t > 0) == (den > 0)))
 
 
 def _corner_keys(p) -> np.ndarray:

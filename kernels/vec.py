@@ -131,6 +131,12 @@ def cross_rows_fused(a, b):
     return np.stack([fma(ay, bz, -(az * by)), fma(az, bx, -(ax * bz)), fma(ax, by, -(ay * bx))], -1)
 
 
+def dot_rows_fused(a, b):
+    """a . b over the last axis of (..., 3) rows as Embree's dot (common/math/vec3.h) compiles with FMA:
+    fma(a.x, b.x, fma(a.y, b.y, a.z * b.z)). (...,) float32."""
+    return fma(a[..., 0], b[..., 0], fma(a[..., 1], b[..., 1], a[..., 2] * b[..., 2]))
+
+
 def dot_rows_einsum(a, b):
     """a . b of (N, 3) rows summed by np.einsum("ij,ij->i") (NumPy's order of summation): (N,), in the
     operands' dtype. The shading ops and the hit record use it; new code takes dot_rows."""
