@@ -66,13 +66,13 @@ class Coincident:
     @classmethod
     def _of_keys(cls, found, count: int, positions, objects, copies=None) -> "Coincident | None":
         """From lists of pair keys a * count + b; copies: the keys among them that are copies, or None."""
-        key = np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
+        key = _unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
         if not len(key):
             return None
         a, b = key // count, key % count
         offsets = np.zeros(count + 1, np.int64)
-        np.add.at(offsets, a + 1, 1)
-        copy = None if copies is None or not len(copies) else np.isin(key, copies)
+        offsets[1:] = np.bincount(a, minlength=count)
+        copy = None if copies is None or not len(copies) else _in_sorted(key, _unique(copies))
         return cls(np.cumsum(offsets), b, positions, objects, copy)
 
     def crossing(self, prim: np.ndarray, px, py, pz, among: np.ndarray | None = None, other_object: bool = False,
@@ -245,7 +245,7 @@ def overlap_pairs(positions, offset, objects: np.ndarray | None, across: np.ndar
     keys = _pair_keys(tri, passes, offset)
     if not keys:
         return np.zeros(0, np.int64)
-    key = np.unique(np.concatenate(keys))
+    key = _unique(np.concatenate(keys))
     a, b = key // len(rows), key % len(rows)
     normal = _normals(tri.astype(np.float64))
     if mirrored is not None:
@@ -340,7 +340,69 @@ def overlapping_planes(positions, mask: np.ndarray, offset, objects: np.ndarray 
     return across, asking, within
 
 
-def copy_pairs(positions, offset) -> np.ndarray:
+def exact_copies(positions) -> tuple[np.ndarray, np.ndarray]:
+    """Groups of triangles whose three corners are the same points, in any order (a duplicated object or face, a
+    Geometry Nodes instance placed twice on one point): (members, starts), int64, each group's members ascending in
+    members[starts[g]:starts[g + 1]], groups of two or more only. A hash per triangle (its corners' hashes summed and
+    xored, whatever their order) shares a 64-bit word with the triangle's index, and one sort of those words lines
+    copies up (an index sort took ten times as long: 2 s for 19M triangles). Triangles whose hashes agree by chance
+    (about 2^-30 of all pairs at 19M triangles, the hash keeping 39 bits there) are paired too: a ray leaving one never
+    meets the other, whose points it is tested against (Coincident.crossing). Positions: (T, 3, 3) float32 or
+    CornerRows, read a slice at a time."""
+    t = len(positions)
+    none = np.zeros(0, np.int64), np.zeros(1, np.int64)
+    if t < 2:
+        return none
+    bits = np.uint64(max(1, (t - 1).bit_length()))
+    words = np.empty(t, np.uint64)
+    with np.errstate(over="ignore"):
+        for s in range(0, t, KEY_CHUNK):
+            corner = _corner_keys(positions[s:s + KEY_CHUNK])
+            total = corner[:, 0] + corner[:, 1] + corner[:, 2]
+            total *= np.uint64(0xD6E8FEB86659FD93)
+            total ^= corner[:, 0] ^ corner[:, 1] ^ corner[:, 2]
+            total >>= bits
+            total <<= bits
+            total |= np.arange(s, s + len(corner), dtype=np.uint64)
+            words[s:s + len(corner)] = total
+    words.sort()
+    key = words >> bits
+    same = key[1:] == key[:-1]
+    if not same.any():
+        return none
+    in_group = np.r_[same, False] | np.r_[False, same]
+    rows = (words[in_group] & ((np.uint64(1) << bits) - np.uint64(1))).astype(np.int64)
+    key = key[in_group]
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1], True])
+    return rows, starts
+
+
+def _group_pairs(members, starts) -> tuple[np.ndarray, np.ndarray]:
+    """Every ordered pair (a, b), a != b, within each group of exact_copies: groups of each size up to 8 (most: a
+    duplicated object's are two) as a (groups, size) table, column by column; larger ones by their ranks."""
+    size = np.diff(starts)
+    a, b = [], []
+    for k in np.unique(size):
+        first = starts[:-1][size == k]
+        if k <= 8:
+            table = members[first[:, None] + np.arange(k)]
+            for i in range(k):
+                for j in range(k):
+                    if i != j:
+                        a.append(table[:, i])
+                        b.append(table[:, j])
+        else:
+            n = len(first) * k * k
+            rank, base = np.arange(n) % (k * k), np.repeat(first, k * k)
+            x, y = members[base + rank // k], members[base + rank % k]
+            a.append(x[x != y])
+            b.append(y[x != y])
+    if not a:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(a), np.concatenate(b)
+
+
+def copy_pairs(positions, offset, edges: bool = True) -> np.ndarray:
     """Pair keys a * T + b (a != b) of triangles lying on one another that share an edge (by its corners'
     coordinates, in either direction) and lie on its same side: a copy of a triangle (a duplicated face or
     object, its normal turned or not) and the halves of a doubled quad split along its other diagonal. Their
@@ -351,8 +413,16 @@ def copy_pairs(positions, offset) -> np.ndarray:
     Edge e of triangle i is numbered e * T + i (corners e and e + 1, the third e + 2). The keys are sorted
     alone first: most scenes have no equal keys and stop there; otherwise only the edges of equal keys are
     ordered and compared. A 1M-triangle mesh takes about a third of a second and under 50 MB beside its
-    positions."""
+    positions. Exact copies (exact_copies) are paired as groups first, and only each group's first triangle takes
+    part in the edges' search, its pairs then given to the whole group: paired by their three shared edges, a
+    mesh duplicated whole cost 14 us a triangle. edges=False: exact copies alone (for scenes too large for the
+    edges' search)."""
     t = len(positions)
+    members, starts = exact_copies(positions)
+    group_a, group_b = _group_pairs(members, starts)
+    exact = group_a * t + group_b
+    if not edges:
+        return exact
     # 32-bit keys: half the sort; edges of equal keys are compared whole below, so a collision costs a compare.
     keys = np.empty(3 * t, np.uint32)
     for s in range(0, t, KEY_CHUNK):   # small temporaries, used again: fresh pages cost more than the arithmetic
@@ -364,16 +434,25 @@ def copy_pairs(positions, offset) -> np.ndarray:
                 edge ^= edge >> np.uint64(32)
                 edge ^= _edge_sides(*_edge_corners(q, k))[0].astype(np.uint64)
                 keys[k * t + s:k * t + s + len(q)] = edge
-    ordered = np.sort(keys)
+    live = None
+    if len(members):
+        # Only each exact group's first triangle takes part: the others' edges would pair with it three times over.
+        later = np.ones(len(members), bool)
+        later[starts[:-1]] = False
+        live = np.ones(t, bool)
+        live[members[later]] = False
+        live = np.tile(live, 3)
+    ordered = np.sort(keys if live is None else keys[live])
     repeated = ordered[1:][ordered[1:] == ordered[:-1]]
     del ordered
     if not len(repeated):
-        return np.zeros(0, np.int64)
-    values = np.unique(repeated)
+        return exact
+    values = _unique(repeated, ordered=True)
     # The edges of repeated keys: a table of 2^24 flags by the keys' low bits, then the few flagged looked up.
     flags = np.zeros(1 << 24, bool)
     flags[values & np.uint32(0xFFFFFF)] = True
-    edges = np.flatnonzero(flags[keys & np.uint32(0xFFFFFF)])
+    flagged = flags[keys & np.uint32(0xFFFFFF)]
+    edges = np.flatnonzero(flagged if live is None else flagged & live)
     at = np.minimum(np.searchsorted(values, keys[edges]), len(values) - 1)
     edges = edges[values[at] == keys[edges]]
     by = edges[np.argsort(keys[edges], kind="stable")]
@@ -392,7 +471,7 @@ def copy_pairs(positions, offset) -> np.ndarray:
     side_j, across_j = _edge_sides(first_j, second_j, third_j)[:2]
     keep = (a != b) & same_edge & (side_i == side_j)
     if not keep.any():
-        return np.zeros(0, np.int64)
+        return exact
     a, b, first_i, third_j = a[keep], b[keep], first_i[keep], third_j[keep]
     # In one plane: the third corners' offsets across the edge parallel, and b's third corner near a's plane.
     e0 = first_i.astype(np.float64)
@@ -407,7 +486,44 @@ def copy_pairs(positions, offset) -> np.ndarray:
                       np.abs(corner_values(positions, b)).max(axis=(1, 2)))
     near = np.abs(np.einsum("ij,ij->i", na, third_j.astype(np.float64) - e0)) <= 2.0 * offset(size)
     keep = ok & (cos >= np.cos(PLANE_ANGLE)) & near
-    return a[keep].astype(np.int64) * t + b[keep]
+    a, b = a[keep].astype(np.int64), b[keep].astype(np.int64)
+    if len(members):
+        a, b = _with_groups(a, b, members, starts)
+    return np.concatenate([exact, a * t + b])
+
+
+def _unique(x, ordered: bool = False) -> np.ndarray:
+    """The distinct values of x, ascending (np.unique by a sort: NumPy 2's hashing np.unique took 1.3 s for the 2M
+    keys of a duplicated mesh, a sort 0.1 s). ordered: x is sorted already."""
+    x = x if ordered else np.sort(x)
+    return x[np.r_[True, x[1:] != x[:-1]]] if len(x) else x
+
+
+def _in_sorted(x, values) -> np.ndarray:
+    """np.isin(x, values) for values sorted ascending and distinct."""
+    if not len(values):
+        return np.zeros(len(x), bool)
+    at = np.minimum(np.searchsorted(values, x), len(values) - 1)
+    return values[at] == x
+
+
+def _with_groups(a, b, members, starts):
+    """Pairs (a, b) of group firsts (exact_copies) given to every member of their groups, on either side."""
+    group = np.repeat(np.arange(len(starts) - 1), np.diff(starts))
+    order = np.argsort(members, kind="stable")
+    sorted_members, sorted_group = members[order], group[order]
+
+    def spread(x, y):
+        at = np.minimum(np.searchsorted(sorted_members, x), len(sorted_members) - 1)
+        grouped = sorted_members[at] == x
+        g = sorted_group[at[grouped]]
+        size = starts[g + 1] - starts[g]
+        extra_x = members[np.repeat(starts[g], size) + _ranks(size)]
+        extra_y = np.repeat(y[grouped], size)
+        return np.concatenate([x[~grouped], extra_x]), np.concatenate([y[~grouped], extra_y])
+    a, b = spread(a, b)
+    b, a = spread(b, a)
+    return a, b
 
 
 # Triangles whose edge keys copy_pairs makes at once.
@@ -494,6 +610,8 @@ def _shared_corners(keys, a, b) -> np.ndarray:
 
 def _ranks(counts: np.ndarray) -> np.ndarray:
     """0, 1, ..., c - 1 for each count c, concatenated."""
+    if not len(counts):
+        return np.zeros(0, np.int64)
     ends = np.cumsum(counts)
     return np.arange(ends[-1]) - np.repeat(ends - counts, counts)
 
