@@ -231,6 +231,25 @@ def test_exact_copies_are_grouped_and_paired_with_what_their_first_is_paired_wit
     assert len(coincident.exact_copies(positions[:1])[0]) == 0
 
 
+def test_the_through_search_finds_the_same_partners_with_copies_searched_by_their_first(monkeypatch):
+    """Coincident.find's search for glass: a glass duplicated in place (two objects, the same triangles) with a
+    liquid's wall (a third object) lying on part of it. Searching each group of exact copies by its first alone
+    (a public glass of wine, 311k doubled triangles: 11 s of its start-up, now 1.5 s) finds the same partners as
+    searching every triangle."""
+    glass = np.concatenate([_quad(-1, -1, 1, 1), _quad(-1, -1, 1, 1, z=0.5)])
+    liquid = _quad(-0.5, -0.5, 0.5, 0.5)
+    positions = np.concatenate([glass, glass, liquid])
+    objects = np.int32([0] * 4 + [1] * 4 + [2] * 2)
+    through = np.ones(len(positions), bool)
+
+    def partners(found):
+        return {a: found.partners[found.offsets[a]:found.offsets[a + 1]].tolist() for a in range(len(positions))}
+    grouped = partners(Coincident.find(positions, through, _offset, objects))
+    monkeypatch.setattr(coincident, "exact_copies", lambda p: (np.zeros(0, np.int64), np.zeros(1, np.int64)))
+    assert grouped == partners(Coincident.find(positions, through, _offset, objects))
+    assert grouped[0] == [4, 8] and grouped[8] == [0, 4]   # the halves split alike meet along their diagonal only
+
+
 def test_pair_boxes_drop_only_points_outside_their_partner(monkeypatch):
     """crossing drops a (ray, partner) pair whose point lies outside the pair's box (_pair_boxes) before the exact
     test: points of triangles tilted, moved and scaled against their partners (a floor under a small face,
