@@ -38,6 +38,8 @@ class Coincident:
         self.copy = np.zeros(len(partners), bool) if copy is None else copy
         self.opaque = None        # (T,) bool, the triangles that stop what meets them (set by the renderer)
         self.offset = None        # offset(|p|max) -> how far a new ray's origin moves off a surface (find's), or None
+        self.instances = None     # InstanceCopies: instances placed twice at one transform, or None
+        self.groups = None        # CopyGroups: exact copies kept as groups (scenes too large for pairs), or None
         self._boxes = _pair_boxes(offsets, partners, positions)
 
     @classmethod
@@ -78,15 +80,34 @@ class Coincident:
     def crossing(self, prim: np.ndarray, px, py, pz, among: np.ndarray | None = None, other_object: bool = False,
                  side=None):
         """For rays passing through triangles prim (n,) at points p (x, y, z of (n,)): the partner each meets
-        there (-1 for none: no partner, a point outside them all, an instanced triangle), and that hit's
+        there (-1 for none: no partner, a point outside them all, an instanced triangle but on a copy of its instance
+        met on its side: InstanceCopies; and in scenes too large for pairs, a copy met on its side: CopyGroups), and
+        that hit's
         barycentrics (b1, b2) of the partner's corners 1 and 2, float32. among: (T,) bool, the triangles that
         may be met besides copies of the triangle left, which always may (None: all); other_object: only partners
         of another object than the triangle left.
         side: for rays that leave their surface on one side (a reflection, a shadow ray), that side's normal
         (x, y, z of (n,)): a partner is met where Embree's own test meets it from the point (embree_meets)."""
+        partner, b1, b2 = self._pairs_crossing(prim, px, py, pz, among, other_object, side)
+        if self.groups is not None and side is not None:
+            rows = np.flatnonzero(partner < 0)
+            if len(rows):
+                q = np.stack([np.take(c, rows) for c in (px, py, pz)], axis=1).astype(np.float32)
+                g = np.stack([np.take(c, rows) for c in side], axis=1).astype(np.float32)
+                partner[rows], b1[rows], b2[rows] = self.groups.crossing(np.take(prim, rows), q, g)
+        return partner, b1, b2
+
+    def _pairs_crossing(self, prim, px, py, pz, among, other_object, side):
+        """crossing by the pairs (and InstanceCopies)."""
         m = len(prim)
         partner = np.full(m, -1, np.int64)
         b1, b2 = np.zeros(m, np.float32), np.zeros(m, np.float32)
+        if self.instances is not None and side is not None:
+            rows = np.flatnonzero(prim >= len(self.offsets) - 1)
+            if len(rows):
+                q = np.stack([np.take(c, rows) for c in (px, py, pz)], axis=1).astype(np.float32)
+                g = np.stack([np.take(c, rows) for c in side], axis=1).astype(np.float32)
+                partner[rows], b1[rows], b2[rows] = self.instances.crossing(np.take(prim, rows), q, g)
         inside = prim < len(self.offsets) - 1
         start = np.where(inside, np.take(self.offsets, np.where(inside, prim, 0)), 0)
         count = np.where(inside, np.take(self.offsets, np.where(inside, prim + 1, 0)) - start, 0)
@@ -128,6 +149,150 @@ class Coincident:
             partner[ray[chosen]] = which[chosen]
             b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
         return partner, b1, b2
+
+
+    def opaque_of(self, prims: np.ndarray) -> np.ndarray:
+        """Whether triangles prims (plain or instanced: a hit handed over by crossing) stop what meets them."""
+        plain = prims < len(self.opaque)
+        out = np.take(self.opaque, np.where(plain, prims, 0))
+        if self.instances is not None and not plain.all():
+            out[~plain] = self.instances.opaque_of(prims[~plain])
+        return out
+
+    @classmethod
+    def empty(cls, positions, objects=None) -> "Coincident":
+        """No plain triangle with a partner (InstanceCopies alone)."""
+        return cls(np.zeros(len(positions) + 1, np.int64), np.zeros(0, np.int64), positions, objects)
+
+
+class CopyGroups:
+    """Exact copies (exact_copies' groups) of scenes too large for pairs (renderer.COPY_SCENE_LIMIT): a ray leaving
+    a member on its side meets another where Embree's test meets it (embree_meets), as pairs would have it. Kept as
+    groups: a realized Geometry Nodes scatter of 19M triangles, 10M of them in 4M groups of 2-9, makes 19M pairs,
+    whose boxes alone would take 450 MB."""
+
+    def __init__(self, members: np.ndarray, starts: np.ndarray, positions):
+        order = np.argsort(members, kind="stable")
+        self._sorted = members[order]
+        self._group = np.repeat(np.arange(len(starts) - 1), np.diff(starts))[order]
+        self.members, self.starts = members, starts
+        self._positions = positions
+
+    def crossing(self, prims, q, side):
+        """For rays leaving plain triangles prims (m,) at points q (m, 3) float32 on the side side (m, 3): the copy
+        each meets at once (-1: none) and the hit's barycentrics (b1, b2)."""
+        m = len(prims)
+        partner = np.full(m, -1, np.int64)
+        b1, b2 = np.zeros(m, np.float32), np.zeros(m, np.float32)
+        at = np.minimum(np.searchsorted(self._sorted, prims), len(self._sorted) - 1)
+        rows = np.flatnonzero(self._sorted[at] == prims)
+        if not len(rows):
+            return partner, b1, b2
+        group = self._group[at[rows]]
+        per = self.starts[group + 1] - self.starts[group]
+        ray = np.repeat(rows, per)
+        other = self.members[np.repeat(self.starts[group], per) + _ranks(per)]
+        keep = other != prims[ray]
+        ray, other = ray[keep], other[keep]
+        tri = corner_values(self._positions, other)
+        holds = embree_meets(tri, q[ray], side[ray])
+        w1, w2, _ = _barycentrics(tri.astype(np.float64), q[ray].astype(np.float64))
+        hit = np.flatnonzero(holds)
+        if len(hit):
+            first = np.unique(ray[hit], return_index=True)[1]
+            chosen = hit[first]
+            partner[ray[chosen]] = other[chosen]
+            b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
+        return partner, b1, b2
+
+
+class InstanceCopies:
+    """Instances of one prototype placed at one transform, to the bit (an object duplicated in place by Alt+D, a
+    Geometry Nodes instance put twice on one point): Cycles traces each instance in its object space, so a ray
+    leaving one meets the other at once where Embree's test (embree_meets), run on the prototype's corners from
+    the point taken into that space by the inverse transform (float32), meets it: always on a face of constant x,
+    y or z under an identity transform, about half the time on a turned one. Ember's instances had no partners:
+    a floor placed twice rendered lit where Cycles renders it black. Triangle j of instance k is scene number
+    bases[k] + j (Instances.bases)."""
+
+    def __init__(self, instances, bases: np.ndarray, opaque_materials: np.ndarray):
+        k = instances.count
+        matrices = np.ascontiguousarray(instances.world_from_object[:, :3, :], np.float32)
+        rows = np.concatenate([instances.prototype.astype(np.float32)[:, None], matrices.reshape(k, 12)], axis=1)
+        _, group, size = np.unique(rows.view(np.uint32), axis=0, return_inverse=True, return_counts=True)
+        group = group.ravel()
+        self.bases = np.asarray(bases, np.int64)
+        self.prototype = instances.prototype
+        self.prototypes = instances.prototypes
+        self.opaque_materials = opaque_materials
+        order = np.argsort(group, kind="stable")
+        counts = size[group]
+        # Per instance, the other instances of its group (CSR: others[start[i]:start[i] + count[i] - 1]).
+        self._order, self._first = order, np.r_[0, np.cumsum(size)][group]
+        self._count = counts
+        inverse = np.linalg.inv(instances.world_from_object.astype(np.float64))
+        self.inverse = np.ascontiguousarray(inverse[:, :3, :], np.float32)
+
+    @classmethod
+    def find(cls, instances, plain_count: int, opaque_materials: np.ndarray) -> "InstanceCopies | None":
+        """None when no two instances share a prototype and a transform."""
+        if instances is None or instances.count < 2:
+            return None
+        found = cls(instances, instances.bases(plain_count), opaque_materials)
+        return found if (found._count > 1).any() else None
+
+    def _locate(self, prims):
+        inst = np.searchsorted(self.bases, prims, side="right") - 1
+        return inst, prims - self.bases[inst]
+
+    def opaque_of(self, prims) -> np.ndarray:
+        inst, local = self._locate(prims)
+        out = np.zeros(len(prims), bool)
+        for p in np.unique(self.prototype[inst]):
+            rows = np.flatnonzero(self.prototype[inst] == p)
+            out[rows] = self.opaque_materials[self.prototypes[p].material_ids[local[rows]]]
+        return out
+
+    def crossing(self, prims, q, side):
+        """For rays leaving instanced triangles prims (m,) at points q (m, 3) float32 on the side side (m, 3):
+        the copy of the triangle each meets at once (-1: none) and the hit's barycentrics there (b1, b2)."""
+        m = len(prims)
+        partner = np.full(m, -1, np.int64)
+        b1, b2 = np.zeros(m, np.float32), np.zeros(m, np.float32)
+        inst, local = self._locate(prims)
+        count = self._count[inst] - 1
+        rows = np.flatnonzero(count > 0)
+        if not len(rows):
+            return partner, b1, b2
+        # Every (ray, other instance) pair, the others in their group's order.
+        per = count[rows] + 1
+        ray = np.repeat(rows, per)
+        other = self._order[np.repeat(self._first[inst[rows]], per) + _ranks(per)]
+        keep = other != inst[ray]
+        ray, other = ray[keep], other[keep]
+        proto = self.prototype[other]
+        tri = np.empty((len(ray), 3, 3), np.float32)
+        for p in np.unique(proto):
+            at = np.flatnonzero(proto == p)
+            tri[at] = self.prototypes[p].positions[local[ray[at]]]
+        a = self.inverse[other]
+        point = _transform_f32(a, q[ray], 1.0)
+        direction = _transform_f32(a, side[ray], 0.0)
+        holds = embree_meets(tri, point, direction)
+        w1, w2, _ = _barycentrics(tri.astype(np.float64), point.astype(np.float64))
+        hit = np.flatnonzero(holds)
+        if len(hit):
+            first = np.unique(ray[hit], return_index=True)[1]
+            chosen = hit[first]
+            partner[ray[chosen]] = self.bases[other[chosen]] + local[ray[chosen]]
+            b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
+        return partner, b1, b2
+
+
+def _transform_f32(m, x, w: float) -> np.ndarray:
+    """(n, 3) float32: (n, 3, 4) float32 matrices times points (w 1) or directions (w 0), in float32."""
+    out = m[:, :, 0] * x[:, :1] + m[:, :, 1] * x[:, 1:2] + m[:, :, 2] * x[:, 2:3]
+    return out + m[:, :, 3] if w else out
 
 
 # Slack of a pair's box (_pair_boxes), of the coordinates' size: a hit point is its triangle's corners

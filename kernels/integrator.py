@@ -385,7 +385,7 @@ def _surface_vertex(tables, wave, state, rays, hits, found, first: bool, last: i
             met = state.partner >= 0
             if met.any():
                 stays = met & bounds[alive]
-                stays[met] &= np.take(tables.coincident.opaque, state.partner[met])
+                stays[met] &= tables.coincident.opaque_of(state.partner[met])
                 through = through & ~stays
     if state.media is not None:
         media_stage.enter_exit_surfaces(tables, state, hit, alive, through)

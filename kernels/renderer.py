@@ -17,7 +17,8 @@ from .accel import Accel
 from .camera import view_plane
 from .environment import Environment
 from .film import Film, pixel_sums
-from .coincident import Coincident, copy_pairs, overlap_pairs, overlapping_planes
+from .coincident import (Coincident, CopyGroups, InstanceCopies, copy_pairs, exact_copies, overlap_pairs,
+                         overlapping_planes)
 from .geometry import TriangleTable, prototype_boxes, scene_extent
 from .geometry.primitives import PrimitiveTable, ShapeLayout
 from .lights import LightSampler
@@ -161,10 +162,11 @@ class Renderer:
         # (update_materials).
         self._blocking = blocking_triangles(self.scene, self.shading)
         self._copies = static_copies(self.scene, self.ray_epsilon, self._blocking)
+        self._copy_groups = static_copy_groups(self.scene, self._blocking)
         self._opaque = opaque_triangles(self.scene, self.shading)
         self._overlaps = static_overlaps(self.scene, self.ray_epsilon, self._opaque)
         self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._opaque,
-                                              self._copies, self._overlaps)
+                                              self._copies, self._overlaps, self._copy_groups)
         self.terminator = terminator_offsets(self.scene)
         self.visibility = object_visibility(self.scene)
         self.links = object_links(self.scene)   # Light and Shadow Linking (None: none)
@@ -252,7 +254,8 @@ class Renderer:
         (SceneArrays.objects, the same rows), None to keep it. The plain triangles stay where they are.
 
         Rebuilt: the top level of the BVH (the meshes' BVHs are kept), the triangle table's instance
-        matrices, the object table, the ray offset's scene scale, and the light sampler when an emissive
+        matrices, the object table, which instances lie on each other (InstanceCopies), the ray offset's scene
+        scale, and the light sampler when an emissive
         instance moved (lights=False leaves that to the caller, which rebuilds it anyway). Nothing else
         depends on where instances are."""
         inst = self.scene.instances
@@ -279,6 +282,7 @@ class Renderer:
         self.accel.move_instances(moved.world_from_object)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             self.triangles.place(moved, scene.objects)
+        self.coincident = instance_copies(self.coincident, scene, self.shading, self._opaque)
         self.shading.data.set_objects(scene.objects)
         self.terminator = terminator_offsets(self.scene)
         self.ray_epsilon = _ray_epsilon(*scene_extent(scene, self.prototype_boxes))
@@ -315,11 +319,12 @@ class Renderer:
             blocking = blocking_triangles(self.scene, self.shading)
             if not np.array_equal(blocking, self._blocking):
                 self._blocking, self._copies = blocking, static_copies(self.scene, self.ray_epsilon, blocking)
+                self._copy_groups = static_copy_groups(self.scene, blocking)
             opaque = opaque_triangles(self.scene, self.shading)
             if not np.array_equal(opaque, self._opaque):
                 self._opaque, self._overlaps = opaque, static_overlaps(self.scene, self.ray_epsilon, opaque)
             self.coincident = coincident_partners(self.scene, self.shading, self.ray_epsilon, self._opaque,
-                                                  self._copies, self._overlaps)
+                                                  self._copies, self._overlaps, self._copy_groups)
             self._build_media()
 
     @_forwarded
@@ -485,9 +490,12 @@ def terminator_offsets(scene: SceneArrays):
 
 # Scenes with more static opaque triangles than this do not look for faces overlapping in part (coincident_partners).
 OVERLAP_SCENE_LIMIT = 250_000
-# Scenes with more static triangles that stop shadow rays than this do not look for copies (static_copies): the
-# search sorts three keys a triangle, which for 10M triangles takes longer than Cycles takes to its first sample.
+# Scenes with more static triangles that stop shadow rays than this do not look for copies by their edges
+# (static_copies): the search sorts three keys a triangle, which for 10M triangles takes longer than Cycles takes to
+# its first sample. Up to EXACT_COPY_SCENE_LIMIT they look for exact copies alone (one key a triangle: about 1 s for
+# 19M triangles without copies, 2.3 s with 10M in groups), kept as groups (coincident.CopyGroups).
 COPY_SCENE_LIMIT = 2_000_000
+EXACT_COPY_SCENE_LIMIT = 64_000_000
 
 
 def coincident_offset(ray_epsilon):
@@ -523,6 +531,19 @@ def static_copies(scene: SceneArrays, ray_epsilon, blocking: np.ndarray) -> np.n
     return rows[pairs // m] * t + rows[pairs % m]
 
 
+def static_copy_groups(scene: SceneArrays, blocking: np.ndarray) -> CopyGroups | None:
+    """coincident.exact_copies among the still plain triangles that stop shadow rays, in scenes of more than
+    COPY_SCENE_LIMIT and at most EXACT_COPY_SCENE_LIMIT of them (where static_copies finds none), or None."""
+    rows = np.flatnonzero(blocking & still_triangles(scene))
+    if len(rows) <= COPY_SCENE_LIMIT or len(rows) > EXACT_COPY_SCENE_LIMIT:
+        return None
+    every = len(rows) == len(scene.material_ids)
+    members, starts = exact_copies(scene.positions if every else corner_values(scene.positions, rows))
+    if not len(members):
+        return None
+    return CopyGroups(members if every else rows[members], starts, scene.positions)
+
+
 def still_triangles(scene: SceneArrays, deforming: bool = True) -> np.ndarray:
     """(T,) bool: the triangles that do not move during the shutter (nor deform, with deforming): where they lie at
     the frame is where rays meet them."""
@@ -549,18 +570,40 @@ def static_overlaps(scene: SceneArrays, ray_epsilon, opaque: np.ndarray) -> np.n
 
 
 def coincident_partners(scene: SceneArrays, shading, ray_epsilon, opaque: np.ndarray, copies: np.ndarray,
-                        overlaps: np.ndarray | None) -> Coincident | None:
+                        overlaps: np.ndarray | None, groups: CopyGroups | None = None) -> Coincident | None:
     """The coincident partners (kernels.coincident) of the still plain triangles rays may pass through, the
     overlaps (static_overlaps' pairs: a wall's end face on the floor's rim or on its own mesh's next face, met where
     they overlap) and the copies (static_copies' pairs, met whatever their material, as in Cycles: a duplicated face
-    shades its copy); with `opaque` (opaque_triangles: the other partners a ray leaving their partner meets and
+    shades its copy; groups: static_copy_groups' in scenes too large for pairs), and the instances placed twice at
+    one transform (InstanceCopies); with `opaque` (opaque_triangles: the other partners a ray leaving their partner meets and
     stops at)."""
     through = np.take(shading.transmissive, scene.material_ids) if len(scene.material_ids) else np.zeros(0, bool)
     through &= still_triangles(scene, deforming=False)
     found = Coincident.find(scene.positions, through, coincident_offset(ray_epsilon), scene.object_ids,
                             copies=copies, overlaps=overlaps)
+    if groups is not None:
+        found = Coincident.empty(scene.positions, scene.object_ids) if found is None else found
+        found.groups = groups
     if found is not None:
         found.opaque = opaque
+    return instance_copies(found, scene, shading, opaque)
+
+
+def instance_copies(found: Coincident | None, scene: SceneArrays, shading, opaque: np.ndarray) -> Coincident | None:
+    """found (coincident_partners' plain partners, or None) with the scene's instances placed twice at one
+    transform (InstanceCopies), or without any where none are: a Coincident of no plain partners when need be."""
+    placed_twice = InstanceCopies.find(scene.instances, len(scene.material_ids),
+                                       ~(shading.transmissive | shading.shadow_transparent))
+    if placed_twice is None:
+        if found is not None and not len(found.partners) and found.groups is None:
+            return None
+        if found is not None:
+            found.instances = None
+        return found
+    if found is None:
+        found = Coincident.empty(scene.positions, scene.object_ids)
+        found.opaque = opaque
+    found.instances = placed_twice
     return found
 
 

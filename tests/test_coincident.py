@@ -313,7 +313,9 @@ def test_pair_boxes_drop_only_points_outside_their_partner(monkeypatch):
 
 def test_copies_are_looked_for_up_to_the_scene_limit(monkeypatch):
     """static_copies finds a doubled floor's copies in a scene of up to COPY_SCENE_LIMIT triangles that stop
-    shadow rays, and none above it (the search's sort would delay a big scene's first sample by seconds)."""
+    shadow rays, and none above it (the search's sort would delay a big scene's first sample by seconds);
+    static_copy_groups then finds its exact copies, up to EXACT_COPY_SCENE_LIMIT (a public scatter of 19M
+    triangles, 10M of them copies, rendered +0.54% over Cycles, its doubled cluster 13% brighter: now +0.05%)."""
     from kernel_helpers import make_scene
     from ember.kernels import renderer
     floor = _quad(-1, -1, 1, 1)
@@ -325,6 +327,18 @@ def test_copies_are_looked_for_up_to_the_scene_limit(monkeypatch):
     assert np.unique(found // len(positions)).tolist() == [0, 1, 2, 3]
     monkeypatch.setattr(renderer, "COPY_SCENE_LIMIT", len(positions) - 1)
     assert len(renderer.static_copies(scene, 1e-6, blocking)) == 0
+    # Above it, up to EXACT_COPY_SCENE_LIMIT, exact copies are kept as groups, met as pairs would be.
+    groups = renderer.static_copy_groups(scene, blocking)
+    assert [groups.members[groups.starts[g]:groups.starts[g + 1]].tolist() for g in range(2)] == [[0, 2], [1, 3]]
+    x, y, z = np.float32([0.3, 0.5]), np.float32([-0.2, 0.9]), np.float32([0.0, 0.0])
+    up = np.float32([[0, 0, 1], [0, 0, -1]])
+    partner, b1, b2 = groups.crossing(np.array([0, 3]), np.stack([x, y, z], axis=1), up)
+    assert partner.tolist() == [2, 1]          # a copy of a plane of constant z: met from either side
+    monkeypatch.setattr(renderer, "EXACT_COPY_SCENE_LIMIT", len(positions) - 1)
+    assert renderer.static_copy_groups(scene, blocking) is None
+    monkeypatch.setattr(renderer, "EXACT_COPY_SCENE_LIMIT", len(positions))
+    monkeypatch.setattr(renderer, "COPY_SCENE_LIMIT", len(positions))
+    assert renderer.static_copy_groups(scene, blocking) is None   # pairs found instead
 
 
 def _duplicated_room(scene):
@@ -532,6 +546,35 @@ def test_a_solidify_spike_hundreds_of_km_long_shades_as_in_cycles():
                           (0.5 + 1e-6 * length, -length, 0.0)], [(0, 1, 2, 3)], dark)
     mesh_object("FlatSpike", [(-0.8, 1.0, 0.0), (2.5, 1.0, 0.0), (0.8, length, 0.0)], [(0, 1, 2)], dark)
     compare_to_cycles(scene, samples=32, max_bounces=3)
+
+
+def _grid(k: int, size: float = 4.0):
+    """A k x k grid of quads over [-size/2, size/2]^2 at z 0: vertices and faces."""
+    verts = [(-size / 2 + size * i / k, -size / 2 + size * j / k, 0.0) for j in range(k + 1) for i in range(k + 1)]
+    faces = [(j * (k + 1) + i, j * (k + 1) + i + 1, (j + 1) * (k + 1) + i + 1, (j + 1) * (k + 1) + i)
+             for j in range(k) for i in range(k)]
+    return verts, faces
+
+
+def test_an_instanced_mesh_placed_twice_at_one_transform_shades_its_copy_as_in_cycles():
+    """A floor of 12,800 triangles instanced twice on one point (an object's Vertices instancing of two coincident
+    vertices: Ember keeps one mesh and two placements, as Cycles does): Cycles' rays leaving one placement meet the
+    other at once, in its object space, and on a face of constant z always, so the floor renders nearly black
+    (0.02 where one floor reads 0.80). Ember's instances had no partners: 0.80. Turned, Cycles meets the copy about
+    40% of the time and Ember's emulation of its float steps about 54% (0.55 against 0.42 of 0.92): not matched,
+    the rounding there being Embree's own inverse of the transform."""
+    scene = new_scene(32, 32)
+    set_world(scene, (0.2, 0.2, 0.2), 1.0)
+    add_camera(scene, (0, -4, 4), (0, 0, 0), lens=35)
+    add_lamp(scene, "Sun", "SUN", (0, 0, 5), rotation=(0.3, 0.2, 0.0), energy=3.0)
+    verts, faces = _grid(80)
+    floor = mesh_object("Floor", verts, faces, diffuse_material("White", (0.8, 0.8, 0.8)))
+    points = mesh_object("Points", [(0.0, 0.0, 0.0)] * 2, [], diffuse_material("Points", (0.5, 0.5, 0.5)))
+    points.instance_type = "VERTS"
+    floor.parent = points
+    image = render_to_array(scene, "EMBER", 16, seed=1, max_bounces=2)
+    assert image[8:24, 8:24, :3].mean() < 0.1
+    compare_to_cycles(scene, samples=16, max_bounces=2)
 
 
 def _flush_room(drop: float, kind: str):
