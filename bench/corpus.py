@@ -269,6 +269,7 @@ class FileResult:
     lacking: list = field(default_factory=list)
     mapped: dict = field(default_factory=dict)
     missing_images: int = 0
+    camera_added: bool = False
     failure: str | None = None
     png: str | None = None
 
@@ -304,6 +305,7 @@ def compare_file(path: str, args) -> FileResult:
     result.saved_by, result.size = meta.get("saved_by", "?"), tuple(meta.get("size", ()))
     result.lacking, result.mapped = ember.meta.get("lacking", []), ember.meta.get("mapped", {})
     result.missing_images = len(meta.get("missing_images", []))
+    result.camera_added = bool(meta.get("camera_added"))
     failures = failures_of(cycles, ember)
     if failures:
         result.failure = "; ".join(failures)
@@ -319,6 +321,8 @@ def compare_file(path: str, args) -> FileResult:
 def report_lines(r: FileResult, samples: int) -> list[str]:
     size = "x".join(map(str, r.size)) if r.size else "?"
     lines = [f"{r.name} (saved by Blender {r.saved_by}, {size} px, {samples} spp x 2 seeds per engine)"]
+    if r.camera_added:
+        lines.append("  saved without a camera: seen by one added to frame it (bench/corpus_render.py frame_camera)")
     if r.failure:
         lines.append(f"  FAILED: {r.failure}")
     else:

@@ -5,7 +5,8 @@ per file and engine, so that a crash or a hang stops only this file).
                                             [--samples 16] [--long-side 160] [--threads 2]
                                             [--set PATH=VALUE ...]
 
-Opens the file (never saves it), keeps its camera, scene, lights, materials and film, and changes only
+Opens the file (never saves it), keeps its camera (or, saved without one, adds one framing what renders:
+frame_camera), scene, lights, materials and film, and changes only
 what an equal comparison needs: the resolution (long side scaled to --long-side, aspect kept), samples,
 seed, threads, denoising and adaptive sampling off, compositing and the sequencer off (the render
 layer itself is compared), and a sampling pattern that gives every pixel its own sequence (the noise
@@ -122,6 +123,32 @@ def configure(scene, engine: str, samples: int, long_side: int, threads: int) ->
     return meta
 
 
+def frame_camera(scene) -> bool:
+    """A file saved without a camera (an asset, a model) is seen by one added to the scene (never saved): a 50 mm
+    lens looking down at the bounding sphere of what renders, from the front right, as Blender's View All frames it
+    (in both engines' processes alike). False when nothing renders."""
+    from mathutils import Vector
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    corners = [inst.matrix_world @ Vector(c) for inst in depsgraph.object_instances
+               if inst.object.type in {"MESH", "CURVE", "CURVES", "POINTCLOUD", "VOLUME", "SURFACE", "META", "FONT"}
+               and not inst.object.original.hide_render for c in inst.object.bound_box]
+    if not corners:
+        return False
+    low = Vector([min(c[k] for c in corners) for k in range(3)])
+    high = Vector([max(c[k] for c in corners) for k in range(3)])
+    centre, radius = (low + high) / 2, max((high - low).length / 2, 1e-3)
+    data = bpy.data.cameras.new("Corpus camera")
+    data.lens, data.clip_start, data.clip_end = 50.0, radius * 1e-3, radius * 100.0
+    camera = bpy.data.objects.new("Corpus camera", data)
+    scene.collection.objects.link(camera)
+    direction = Vector((1.0, -1.4, 0.9)).normalized()
+    half_angle = min(data.angle_x, data.angle_y) / 2
+    camera.location = centre + direction * (radius / np.sin(half_angle) * 1.05)
+    camera.rotation_euler = (-direction).to_track_quat("-Z", "Y").to_euler()
+    scene.camera = camera
+    return True
+
+
 def set_seed(scene, engine: str, seed: int) -> None:
     (scene.ember if engine == "EMBER" else scene.cycles).seed = seed
 
@@ -161,11 +188,13 @@ def run(args) -> dict:
     bpy.ops.wm.open_mainfile(filepath=os.path.abspath(args.file), load_ui=False)
     ensure_registered()
     scene = bpy.context.scene
-    if scene.camera is None:
-        raise RuntimeError(f"scene {scene.name!r} has no camera")
     scene.frame_set(scene.frame_current)
+    added = scene.camera is None and frame_camera(scene)
+    if scene.camera is None:
+        raise RuntimeError(f"scene {scene.name!r} has no camera and nothing to frame")
     apply_overrides(scene, args.set)
     meta = configure(scene, args.engine, args.samples, args.long_side, args.threads)
+    meta["camera_added"] = bool(added)
     images, seconds = render_seeds(scene, args.engine, args.seeds)
     return dict(images=images, seconds=np.asarray(seconds), meta=json.dumps(meta))
 

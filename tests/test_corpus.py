@@ -168,8 +168,10 @@ def build_scene(different: bool):
 @pytest.fixture(scope="module")
 def corpus_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("corpus")
-    for name, different in (("same.blend", False), ("lacking.blend", True)):
-        build_scene(different)
+    for name, different in (("same.blend", False), ("lacking.blend", True), ("nocamera.blend", False)):
+        scene = build_scene(different)
+        if name == "nocamera.blend":   # an asset saved without a camera: the tool adds one framing it
+            bpy.data.objects.remove(scene.camera)
         bpy.ops.wm.save_as_mainfile(filepath=str(folder / name), copy=True)
     (folder / "broken.blend").write_bytes(b"not a blend file")
     out = folder / "out"
@@ -196,11 +198,13 @@ def test_the_tool_runs_every_file_and_tables_them(corpus_run):
     assert "sample_clamp_indirect=5.0" in run.stdout and "pixel_filter_type=GAUSSIAN" in run.stdout
     assert "UV Along Stroke node" in run.stdout and "is not supported" in run.stdout
     assert (out / "summary.md").read_text().count("| same.blend |") == 1
+    assert table_row(run.stdout, "nocamera.blend")[-1] == "within noise", run.stdout
+    assert run.stdout.count("saved without a camera") == 1
 
 
 def test_side_by_side_pngs(corpus_run):
     run, out = corpus_run
-    assert sorted(os.listdir(out)) == ["lacking.png", "same.png", "summary.md"]
+    assert sorted(os.listdir(out)) == ["lacking.png", "nocamera.png", "same.png", "summary.md"]
     image = bpy.data.images.load(str(out / "same.png"))
     try:
         width, height = image.size
