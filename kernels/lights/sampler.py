@@ -393,14 +393,15 @@ class LightSampler:
         """Whether the choice may depend on the shading point's normal (a light tree, or linking's choices per
         light set): the integrator then keeps the normal of the vertex each ray left (PathState.mis_facing) for
         the MIS pdfs."""
-        return isinstance(self.tree, (LightTree, CyclesLightTree)) or self.links is not None
+        return isinstance(self.tree, (LightTree, CyclesLightTree)) or self.links is not None or \
+            self.choice.leaf is not None
 
     def distant_pmf(self, emitter: int, n: int, receiver=None, px=None, py=None, pz=None, facing=None):
         """The pmf of a distant emitter (a sun, the world): one float32, or (n,) per receiver set, or per point p
         (facing: as choose_at's) where the choice weighs the distant emitters per point as Cycles' root does
         (selection.root_share: a clamped render)."""
         if receiver is None or self.links is None:
-            if self.choice.root is not None:
+            if self.weighs_distant:
                 if px is None:
                     raise ValueError("distant_pmf: this choice needs the points the rays left")
                 return selection.distant_pmf_at(self.choice, emitter, px, py, pz, facing).astype(np.float32)
@@ -501,9 +502,10 @@ class LightSampler:
 
     @property
     def weighs_distant(self) -> bool:
-        """Whether the choice of a distant emitter depends on the point and its normal (Cycles' root in a clamped
-        render: selection.root_share): MIS pdfs of the world and suns then need the points the rays left."""
-        return self.choice.root is not None
+        """Whether the choice of a distant emitter depends on the point and its normal (Cycles' root and distant leaf
+        in a clamped render: selection.root_share, selection.distant_leaf): MIS pdfs of the world and suns then need
+        the points the rays left."""
+        return self.choice.root is not None or self.choice.leaf is not None
 
     def suns_seen(self, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool = False, parts=None,
                   types=None, points=None):
