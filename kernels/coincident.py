@@ -142,12 +142,7 @@ class Coincident:
             n = _normals(tri)
             height = np.abs(np.einsum("ij,ij->i", n, tri[:, 0] - q)) / np.maximum(np.linalg.norm(n, axis=1), 1e-300)
             holds &= height <= 2.0 * self.offset(np.abs(q).max(axis=1))
-        hit = np.flatnonzero(holds)
-        if len(hit):
-            first = np.unique(ray[hit], return_index=True)[1]
-            chosen = hit[first]
-            partner[ray[chosen]] = which[chosen]
-            b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
+        _first_held(holds, ray, which, w1, w2, partner, b1, b2)
         return partner, b1, b2
 
 
@@ -197,12 +192,7 @@ class CopyGroups:
         tri = corner_values(self._positions, other)
         holds = embree_meets(tri, q[ray], side[ray])
         w1, w2, _ = _barycentrics(tri.astype(np.float64), q[ray].astype(np.float64))
-        hit = np.flatnonzero(holds)
-        if len(hit):
-            first = np.unique(ray[hit], return_index=True)[1]
-            chosen = hit[first]
-            partner[ray[chosen]] = other[chosen]
-            b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
+        _first_held(holds, ray, other, w1, w2, partner, b1, b2)
         return partner, b1, b2
 
 
@@ -280,13 +270,18 @@ class InstanceCopies:
         direction = _transform_f32(a, side[ray], 0.0)
         holds = embree_meets(tri, point, direction)
         w1, w2, _ = _barycentrics(tri.astype(np.float64), point.astype(np.float64))
-        hit = np.flatnonzero(holds)
-        if len(hit):
-            first = np.unique(ray[hit], return_index=True)[1]
-            chosen = hit[first]
-            partner[ray[chosen]] = self.bases[other[chosen]] + local[ray[chosen]]
-            b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
+        _first_held(holds, ray, self.bases[other] + local[ray], w1, w2, partner, b1, b2)
         return partner, b1, b2
+
+
+def _first_held(holds, ray, met, w1, w2, partner, b1, b2) -> None:
+    """Of (ray, candidate) pairs whose candidate holds the ray's point (holds), each ray's first: its triangle met
+    (met, per pair) into partner and the hit's barycentrics into b1, b2 (per ray, in place)."""
+    hit = np.flatnonzero(holds)
+    if len(hit):
+        chosen = hit[np.unique(ray[hit], return_index=True)[1]]
+        partner[ray[chosen]] = met[chosen]
+        b1[ray[chosen]], b2[ray[chosen]] = w1[chosen], w2[chosen]
 
 
 def _transform_f32(m, x, w: float) -> np.ndarray:
