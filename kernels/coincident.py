@@ -134,7 +134,7 @@ class Coincident:
         w1, w2, holds = _barycentrics(tri, q)
         if side is not None:
             g = np.stack([np.take(c, ray) for c in side], axis=1).astype(np.float32)
-            holds = embree_meets(corner_values(self._positions, which), q.astype(np.float32), g)
+            holds = embree_meets(tri.astype(np.float32), q.astype(np.float32), g)   # the float32 corners, exactly
         if self.offset is not None:
             # A partner further from the point than a new ray's origin moves (twice, for rounding) is met by that ray
             # itself: pairs are found by the offset at their corners' size, and a Solidify spike hundreds of km long

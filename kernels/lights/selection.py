@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import scene_extent
-from ..light_tree import LightTree
+from ..light_tree import LightTree, rows_of
 from ..light_tree_cycles import (AREA, MESH, POINT, SPOT as UNIT_SPOT, CyclesLightTree, Units, distant_bounds,
                                  left_probability, merge_cones)
 from ..textures import luminance
@@ -145,14 +145,18 @@ def cycles_root(sampler, power) -> tuple:
     sends (theta_o 0, theta_e half its angle), the world's every way (theta_o pi)."""
     cone, energy = None, 0.0
     for k in np.flatnonzero(sampler.distant_mask() & (power > 0)):
-        if k == sampler.world_index:
-            own = ((0.0, 0.0, 1.0), np.pi, 0.0)
-        else:
-            toward = sampler.axes[k, :, 2].astype(np.float64)
-            own = (tuple(float(c) for c in -toward), 0.0, float(np.arccos(np.clip(sampler.sun_cos[k], -1.0, 1.0))))
-        cone = merge_cones(cone, own)
+        cone = merge_cones(cone, _distant_cone(sampler, k))
         energy += float(power[k])
     return energy, cone
+
+
+def _distant_cone(sampler, k: int) -> tuple:
+    """(axis, theta_o, theta_e) of distant emitter k in Cycles' tree: a sun's along the light it sends (theta_o 0,
+    theta_e half its angle), the world's every way (theta_o pi)."""
+    if k == sampler.world_index:
+        return (0.0, 0.0, 1.0), np.pi, 0.0
+    toward = sampler.axes[k, :, 2].astype(np.float64)
+    return tuple(float(c) for c in -toward), 0.0, float(np.arccos(np.clip(sampler.sun_cos[k], -1.0, 1.0)))
 
 
 def distant_leaf(sampler, power):
@@ -167,15 +171,7 @@ def distant_leaf(sampler, power):
     ids = np.flatnonzero(sampler.distant_mask() & (power > 0))
     if len(ids) < 2:
         return None
-    cones = []
-    for k in ids:
-        if k == sampler.world_index:
-            cones.append(((0.0, 0.0, 1.0), np.pi, 0.0))
-        else:
-            toward = sampler.axes[k, :, 2].astype(np.float64)
-            cones.append((tuple(float(c) for c in -toward), 0.0,
-                          float(np.arccos(np.clip(sampler.sun_cos[k], -1.0, 1.0)))))
-    return ids, power[ids].astype(np.float64), cones
+    return ids, power[ids].astype(np.float64), [_distant_cone(sampler, k) for k in ids]
 
 
 def leaf_pmfs(choice: Choice, facing, n: int) -> np.ndarray:
@@ -242,10 +238,6 @@ def _distant(choice: Choice, emitter, share, facing=None, n: int = 1):
     if choice.root is None:
         return global_pmf
     return global_pmf / max(1.0 - choice.local_share, 1e-300) * (1.0 - share)
-
-
-def _rows_of(facing, idx):
-    return None if facing is None else tuple(np.take(c, idx) for c in facing)
 
 
 def _cycles_tree(sampler, local, is_light, lo, hi, axis, spread, emission, group, power) -> CyclesLightTree:
@@ -404,7 +396,7 @@ def choose_at(choice: Choice, u_select, px, py, pz, facing=None):
             s = shares[far]
             ud = (u[far] - s) / (1.0 - s)
             if choice.leaf is not None:
-                chosen[far], pmf = _leaf_pick(choice, ud, _rows_of(facing, far), len(far))
+                chosen[far], pmf = _leaf_pick(choice, ud, rows_of(facing, far), len(far))
                 select[far] = pmf * (1.0 - s)
             else:
                 j = np.minimum(np.searchsorted(choice.distant_cdf, ud, side="right"), len(choice.distant_ids) - 1)
@@ -422,9 +414,13 @@ def selection_pmf(choice: Choice, emitter, px, py, pz, facing=None):
         return np.take(choice.pmf32, emitter)
     slot = np.take(choice.tree_slot, emitter)
     share = root_share(choice, px, py, pz, facing)
-    local = choice.tree.pmf(slot, px, py, pz, facing) * share
-    distant = _distant(choice, emitter, share, facing, len(px))
-    return np.where(slot >= 0, local, distant).astype(np.float32)
+    n = len(px)
+    out = np.array(np.broadcast_to(choice.tree.pmf(slot, px, py, pz, facing) * share, (n,)), np.float64)
+    far = np.flatnonzero(np.broadcast_to(slot, (n,)) < 0)
+    if len(far):   # the distant ones' pmf (a leaf per point) only where they are asked for
+        emitter = np.broadcast_to(np.asarray(emitter, np.int64), (n,))
+        out[far] = _distant(choice, emitter[far], np.broadcast_to(share, (n,))[far], rows_of(facing, far), len(far))
+    return out.astype(np.float32)
 
 
 class SolidAngleChoice:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import sampling
+from ..light_tree import rows_of
 from .links import reaches
 
 
@@ -58,7 +59,7 @@ def seen(sampler, dx, dy, dz, bsdf_pdf=None, receiver=None, shadow_linked: bool 
             if sampler.weighs_distant:
                 px, py, pz, fac = points
                 pmf = sampler.distant_pmf(int(k), len(inside), None, px[inside], py[inside], pz[inside],
-                                          None if fac is None else tuple(c[inside] for c in fac))
+                                          rows_of(fac, inside))
             else:
                 pmf = np.full(len(inside), sampler.select_pmf[k], np.float32)
             light_pdf = (pmf * sampling.uniform_cone_pdf(sampler.sun_cos[k])).astype(np.float32)
